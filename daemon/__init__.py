@@ -1,0 +1,1 @@
+"""The grassd daemon: config, ingest, scheduling, orchestration, history, control socket, CLI."""
