@@ -1,0 +1,655 @@
+"""The daemon's configuration: TOML file -> validated, frozen dataclasses.
+
+The file (default ``/etc/grassd/grassd.toml``; the embedded default is
+``grassd/daemon/data/default.toml``) has these tables::
+
+    state_dir = "/var/lib/grassd"     # optional: $STATE_DIRECTORY, then /var/lib/grassd
+    cache_dir = "/var/cache/grassd"   # optional: $GRASSD_CACHE_DIR, $CACHE_DIRECTORY,
+                                      #           else state_dir/cache
+    control_socket = "/run/grassd/control.sock"  # optional: $RUNTIME_DIRECTORY/control.sock
+    [site]         latitude, longitude (degrees), timezone (IANA name)
+    [display]      rows, cols, pitch_mm; [display.pixel] pixel-spec fields (mm, counts)
+    [[controllers]] port, baud, address, pixels ("0-63,70" inclusive ranges of pixel indices)
+    [[viewpoints]] h_cm, d_m, theta_deg, weight
+    [light]        inbox, lux = "manifest" | "modbus"; [light.modbus] sensor register map
+    [schedule]     interval_s, on_new_bundle
+    [simulation]   samples, seed, lengths (count of evenly spaced lengths, or a list in mm)
+
+Relative paths are resolved against the directory of the config file, except ``light.inbox``
+which, when relative, lies inside ``state_dir``.
+
+Validation is strict: an unknown key, a missing required key, a wrong type (``true`` where a
+number belongs; ``1`` is accepted for a float, never for a bool) or an out-of-range value raises
+:class:`~grassd.daemon.errors.ConfigError` naming the dotted key and the file line.
+
+How the line is found: :mod:`tomllib` reports positions only for syntax errors, so after parsing
+we scan the raw text line by line, tracking the current table header (``[a.b]`` and ``[[a]]``,
+counting repeated array-of-tables headers so ``controllers[2]`` means the third
+``[[controllers]]``). A key's line is the first ``key =`` line (bare or quoted key, or a dotted
+key whose first part is the key) inside its table's header block; a table's line is its header.
+Keys written inside inline tables or multi-line arrays fall back to the line of the enclosing key
+or header. The scan ignores comments and multi-line strings only approximately (a line starting
+with ``key =`` inside a multi-line string could be mistaken for the key); that only affects the
+reported line, never the validation itself.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import re
+import tomllib
+import types
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
+
+from grassd.daemon.errors import ConfigError
+
+#: Where the packaged daemon looks when no ``--config`` is given.
+DEFAULT_CONFIG_PATH = Path("/etc/grassd/grassd.toml")
+
+#: Default pixel-spec fields (paper, section 3: 33.5 mm pixel, 15 mm base, 10 mm yellow blades,
+#: three 5.7 mm slits, green 0-20 mm). Used when ``grassd.sim.scene.PixelSpec`` is not importable.
+_FALLBACK_PIXEL_FIELDS: dict[str, float | int] = {
+    "size_mm": 33.5,
+    "base_height_mm": 15.0,
+    "yellow_height_mm": 10.0,
+    "slit_count": 3,
+    "slit_width_mm": 5.7,
+    "green_min_mm": 0.0,
+    "green_max_mm": 20.0,
+}
+
+MODBUS_MODES = ("rtu", "tcp")
+WORD_ORDERS = ("big", "little")
+VALUE_TYPES = ("uint", "int", "float")
+
+
+# --------------------------------------------------------------------------- dataclasses
+
+
+@dataclass(frozen=True)
+class SiteConfig:
+    """Where the display stands: latitude/longitude in degrees (north/east positive)."""
+
+    latitude: float
+    longitude: float
+    timezone: str
+
+
+@dataclass(frozen=True)
+class DisplayConfig:
+    """Display geometry: ``rows`` x ``cols`` grass pixels at ``pitch_mm`` centre spacing.
+
+    ``pixel`` holds the pixel-spec fields (mm / counts) as a read-only mapping; pass it to
+    ``grassd.sim.scene.PixelSpec(**pixel)``.
+    """
+
+    rows: int
+    cols: int
+    pitch_mm: float
+    pixel: Mapping[str, Any]
+
+    @property
+    def pixel_count(self) -> int:
+        """Number of grass pixels (rows x cols)."""
+        return self.rows * self.cols
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """One controller: serial ``port`` (use /dev/serial/by-id/...), ``baud``, bus ``address``.
+
+    ``pixels`` is a tuple of inclusive (first, last) pixel-index ranges that it drives.
+    """
+
+    port: str
+    baud: int
+    address: int
+    pixels: tuple[tuple[int, int], ...]
+
+    @property
+    def name(self) -> str:
+        """Stable identifier ``port#address`` used in history and status."""
+        return f"{self.port}#{self.address}"
+
+
+@dataclass(frozen=True)
+class ViewpointConfig:
+    """A viewer: eye height ``h_cm`` (cm), distance ``d_m`` (m), angle ``theta_deg`` (deg)."""
+
+    h_cm: float
+    d_m: float
+    theta_deg: float
+    weight: float
+
+
+@dataclass(frozen=True)
+class ModbusConfig:
+    """Register map of a Modbus lux sensor; lux = scale x decoded register value + offset."""
+
+    mode: str
+    host: str
+    port: int
+    serial_port: str
+    baud: int
+    unit: int
+    function_code: int
+    register: int
+    words: int
+    word_order: str
+    value_type: str
+    scale: float
+    offset: float
+    timeout_s: float
+    retries: int
+
+
+@dataclass(frozen=True)
+class LightConfig:
+    """Light inputs: bundle ``inbox`` directory and where lux comes from.
+
+    ``lux == "manifest"``: the manifest must carry ambient lux. ``lux == "modbus"``: manifest lux
+    wins when present, otherwise the sensor described by ``modbus`` is read.
+    """
+
+    inbox: Path
+    lux: str
+    modbus: ModbusConfig | None
+
+
+@dataclass(frozen=True)
+class ScheduleConfig:
+    """``interval_s``: recalibrate at least this often (0 = only on new bundles / requests)."""
+
+    interval_s: float
+    on_new_bundle: bool
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    """Monte Carlo ``samples`` per pixel measurement, RNG ``seed``, green lengths in mm."""
+
+    samples: int
+    seed: int
+    lengths_mm: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class Config:
+    """The whole validated configuration. ``source`` is the file it came from."""
+
+    site: SiteConfig
+    display: DisplayConfig
+    controllers: tuple[ControllerConfig, ...]
+    viewpoints: tuple[ViewpointConfig, ...]
+    light: LightConfig
+    schedule: ScheduleConfig
+    simulation: SimulationConfig
+    state_dir: Path
+    cache_dir: Path
+    control_socket: Path
+    source: str
+
+    def replace(self, **changes: Any) -> Config:
+        """A copy with some fields replaced (dataclasses.replace)."""
+        return dataclasses.replace(self, **changes)
+
+    def with_state_dir(self, state_dir: Path) -> Config:
+        """A copy whose state directory is ``state_dir``; paths that lay inside the old state
+        directory (inbox, cache, control socket) move along with it."""
+        new = Path(state_dir)
+
+        def move(p: Path) -> Path:
+            try:
+                return new / p.relative_to(self.state_dir)
+            except ValueError:
+                return p
+
+        light = dataclasses.replace(self.light, inbox=move(self.light.inbox))
+        return dataclasses.replace(self, state_dir=new, light=light,
+                                   cache_dir=move(self.cache_dir),
+                                   control_socket=move(self.control_socket))
+
+
+# --------------------------------------------------------------------------- line locator
+
+
+_HEADER_RE = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?\s*(#.*)?$")
+_KEY_RE = re.compile(r"""^\s*("(?:[^"\\]|\\.)*"|'[^']*'|[A-Za-z0-9_-]+)\s*[.=]""")
+
+
+def _split_dotted(name: str) -> list[str]:
+    parts = []
+    for m in re.finditer(r"""\s*("(?:[^"\\]|\\.)*"|'[^']*'|[^.\s]+)\s*(?:\.|$)""", name):
+        p = m.group(1)
+        if p[:1] in "\"'":
+            p = p[1:-1]
+        parts.append(p)
+    return parts
+
+
+class LineLocator:
+    """Maps table paths and keys of a TOML text to 1-based line numbers (see module docstring)."""
+
+    def __init__(self, text: str) -> None:
+        # table path (tuple, with array indices) -> (header line, {key: line})
+        self._tables: dict[tuple, tuple[int, dict[str, int]]] = {(): (1, {})}
+        counts: dict[tuple, int] = {}
+        current: tuple = ()
+        for lineno, raw in enumerate(text.splitlines(), start=1):
+            line = raw.strip()
+            if not line or line.startswith("#"):
+                continue
+            hm = _HEADER_RE.match(line) if line.startswith("[") else None
+            if hm:
+                parts = _split_dotted(hm.group(2))
+                # Resolve parent parts to the latest index of arrays of tables.
+                resolved: list = []
+                for part in parts[:-1]:
+                    resolved.append(part)
+                    if tuple(resolved) in counts:
+                        resolved.append(counts[tuple(resolved)] - 1)
+                resolved.append(parts[-1])
+                key = tuple(resolved)
+                if hm.group(1) == "[[":
+                    idx = counts.get(key, 0)
+                    counts[key] = idx + 1
+                    key = key + (idx,)
+                current = key
+                self._tables.setdefault(current, (lineno, {}))
+                continue
+            km = _KEY_RE.match(line)
+            if km:
+                k = km.group(1)
+                if k[:1] in "\"'":
+                    k = k[1:-1]
+                self._tables.setdefault(current, (lineno, {}))[1].setdefault(k, lineno)
+
+    def line_of(self, path: tuple) -> int | None:
+        """Line of the key or table at ``path`` (e.g. ``("controllers", 1, "baud")``)."""
+        path = tuple(path)
+        for cut in range(len(path), 0, -1):
+            table, key = path[: cut - 1], path[cut - 1]
+            if path[:cut] in self._tables:
+                return self._tables[path[:cut]][0]
+            if table in self._tables and isinstance(key, str):
+                line = self._tables[table][1].get(key)
+                if line is not None:
+                    return line
+        return None
+
+
+# --------------------------------------------------------------------------- validation core
+
+
+def _fmt(path: tuple) -> str:
+    out = ""
+    for p in path:
+        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else p)
+    return out
+
+
+class _Ctx:
+    def __init__(self, text: str, source: str, base_dir: Path) -> None:
+        self.locator = LineLocator(text)
+        self.source = source
+        self.base_dir = base_dir
+
+    def error(self, path: tuple, message: str) -> ConfigError:
+        return ConfigError(
+            message, key=_fmt(path) or None, line=self.locator.line_of(path), path=self.source
+        )
+
+
+_TYPE_NAMES = {int: "an integer", float: "a number", str: "a string", bool: "true or false",
+               list: "an array", dict: "a table"}
+
+
+def _check_type(ctx: _Ctx, path: tuple, value: Any, kind: type) -> Any:
+    ok = isinstance(value, kind) and not (kind in (int, float) and isinstance(value, bool))
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        ok, value = True, float(value)
+    if not ok:
+        got = type(value).__name__
+        raise ctx.error(path, f"must be {_TYPE_NAMES[kind]}, got {got} {value!r}")
+    if kind is float and not math.isfinite(value):
+        raise ctx.error(path, f"must be a finite number, got {value!r}")
+    return value
+
+
+_MISSING = object()
+
+
+@dataclass
+class _F:
+    """Schema of one key: type, default (``_MISSING`` = required), extra check."""
+
+    kind: type
+    default: Any = _MISSING
+    check: Callable[[Any], str | None] | None = None
+
+
+def _table(ctx: _Ctx, path: tuple, data: Any, schema: dict[str, _F]) -> dict[str, Any]:
+    """Validate one table against its schema; return plain values with defaults filled in."""
+    if not isinstance(data, dict):
+        raise ctx.error(path, f"must be a table, got {type(data).__name__}")
+    unknown = sorted(set(data) - set(schema))
+    if unknown:
+        allowed = ", ".join(sorted(schema))
+        raise ctx.error(path + (unknown[0],), f"unknown key (allowed here: {allowed})")
+    out: dict[str, Any] = {}
+    for name, f in schema.items():
+        if name not in data:
+            if f.default is _MISSING:
+                raise ctx.error(path + (name,), f"required key is missing ({_TYPE_NAMES[f.kind]})")
+            out[name] = f.default
+            continue
+        value = _check_type(ctx, path + (name,), data[name], f.kind)
+        if f.check is not None:
+            msg = f.check(value)
+            if msg:
+                raise ctx.error(path + (name,), msg)
+        out[name] = value
+    return out
+
+
+def _between(lo: float, hi: float, unit: str = "") -> Callable[[Any], str | None]:
+    def check(v: float) -> str | None:
+        if not lo <= v <= hi:
+            return f"must be between {lo} and {hi}{unit}, got {v}"
+        return None
+
+    return check
+
+
+def _positive(v: float) -> str | None:
+    return None if v > 0 else f"must be > 0, got {v}"
+
+
+def _non_negative(v: float) -> str | None:
+    return None if v >= 0 else f"must be >= 0, got {v}"
+
+
+def _one_of(*choices: Any) -> Callable[[Any], str | None]:
+    def check(v: Any) -> str | None:
+        if v in choices:
+            return None
+        return f"must be one of {', '.join(map(repr, choices))}; got {v!r}"
+
+    return check
+
+
+def _timezone(v: str) -> str | None:
+    try:
+        ZoneInfo(v)
+    except (ZoneInfoNotFoundError, ValueError):
+        return f"unknown time zone {v!r} (use an IANA name such as 'Europe/Berlin' or 'UTC')"
+    return None
+
+
+def _non_empty(v: str) -> str | None:
+    return None if v.strip() else "must not be empty"
+
+
+# --------------------------------------------------------------------------- sections
+
+
+def _pixel_fields() -> dict[str, Any]:
+    """Pixel-spec field defaults: from grassd.sim.scene.PixelSpec when importable."""
+    try:
+        from grassd.sim.scene import PixelSpec  # noqa: PLC0415 - optional, sim may be absent
+    except Exception:  # noqa: BLE001 - sim not there (yet): use the paper's numbers
+        return dict(_FALLBACK_PIXEL_FIELDS)
+    if not dataclasses.is_dataclass(PixelSpec):
+        return dict(_FALLBACK_PIXEL_FIELDS)
+    spec = PixelSpec()
+    out = {}
+    for f in dataclasses.fields(spec):
+        v = getattr(spec, f.name)
+        if isinstance(v, int | float | str | bool):
+            out[f.name] = v
+    return out
+
+
+_RANGE_RE = re.compile(r"^\s*(\d+)\s*(?:-\s*(\d+)\s*)?$")
+
+
+def parse_pixel_ranges(spec: str, pixel_count: int) -> tuple[tuple[int, int], ...]:
+    """Parse ``"0-63,70"`` into inclusive ranges ``((0, 63), (70, 70))``; ``"all"`` = every pixel.
+
+    >>> parse_pixel_ranges("0-3, 8", 10)
+    ((0, 3), (8, 8))
+    """
+    if spec.strip().lower() == "all":
+        return ((0, pixel_count - 1),)
+    out = []
+    for part in spec.split(","):
+        m = _RANGE_RE.match(part)
+        if not m:
+            raise ValueError(f"bad pixel range {part.strip()!r} "
+                             "(write e.g. \"0-63,70\" or \"all\")")
+        a = int(m.group(1))
+        b = int(m.group(2)) if m.group(2) is not None else a
+        if b < a:
+            raise ValueError(f"pixel range {part.strip()!r} runs backwards")
+        if b >= pixel_count:
+            raise ValueError(f"pixel {b} does not exist: the display has {pixel_count} pixels")
+        out.append((a, b))
+    return tuple(out)
+
+
+def _resolve(ctx: _Ctx, value: str) -> Path:
+    p = Path(os.path.expandvars(os.path.expanduser(value)))
+    return p if p.is_absolute() else (ctx.base_dir / p)
+
+
+def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
+    top = _table(ctx, (), data, {
+        "state_dir": _F(str, None), "cache_dir": _F(str, None), "control_socket": _F(str, None),
+        "site": _F(dict), "display": _F(dict), "controllers": _F(list),
+        "viewpoints": _F(list), "light": _F(dict), "schedule": _F(dict, {}),
+        "simulation": _F(dict, {}),
+    })
+
+    s = _table(ctx, ("site",), top["site"], {
+        "latitude": _F(float, check=_between(-90, 90, " degrees")),
+        "longitude": _F(float, check=_between(-180, 180, " degrees")),
+        "timezone": _F(str, "UTC", _timezone),
+    })
+    site = SiteConfig(**s)
+
+    d_raw = top["display"]
+    pixel_raw = d_raw.get("pixel", {}) if isinstance(d_raw, dict) else {}
+    d = _table(ctx, ("display",), d_raw, {
+        "rows": _F(int, check=_positive), "cols": _F(int, check=_positive),
+        "pitch_mm": _F(float, 33.5, _positive), "pixel": _F(dict, {}),
+    })
+    pdefaults = _pixel_fields()
+    pschema = {}
+    for name, default in pdefaults.items():
+        kind = bool if isinstance(default, bool) else type(default)
+        pschema[name] = _F(kind, default, _positive if kind in (int, float) and
+                           not name.startswith(("green_min", "min_")) else None)
+    pixel = _table(ctx, ("display", "pixel"), pixel_raw, pschema)
+    display = DisplayConfig(rows=d["rows"], cols=d["cols"], pitch_mm=d["pitch_mm"],
+                            pixel=types.MappingProxyType(pixel))
+
+    controllers = []
+    if not top["controllers"]:
+        raise ctx.error(("controllers",), "at least one [[controllers]] entry is required")
+    seen_addr: dict[tuple[str, int], int] = {}
+    taken: list[tuple[int, int, int]] = []  # (first, last, controller index)
+    for i, c_raw in enumerate(top["controllers"]):
+        c = _table(ctx, ("controllers", i), c_raw, {
+            "port": _F(str, check=_non_empty), "baud": _F(int, 115200, _positive),
+            "address": _F(int, 1, _between(0, 255)), "pixels": _F(str, "all"),
+        })
+        try:
+            ranges = parse_pixel_ranges(c["pixels"], display.pixel_count)
+        except ValueError as exc:
+            raise ctx.error(("controllers", i, "pixels"), str(exc)) from None
+        key = (c["port"], c["address"])
+        if key in seen_addr:
+            raise ctx.error(("controllers", i, "address"),
+                            f"port {c['port']} address {c['address']} is already used by "
+                            f"controllers[{seen_addr[key]}]")
+        seen_addr[key] = i
+        for a, b in ranges:
+            for a2, b2, j in taken:
+                if a <= b2 and a2 <= b:
+                    raise ctx.error(("controllers", i, "pixels"),
+                                    f"pixels {a}-{b} overlap pixels {a2}-{b2} of controllers[{j}]")
+        taken.extend((a, b, i) for a, b in ranges)
+        controllers.append(ControllerConfig(port=c["port"], baud=c["baud"],
+                                            address=c["address"], pixels=ranges))
+
+    viewpoints = []
+    if not top["viewpoints"]:
+        raise ctx.error(("viewpoints",), "at least one [[viewpoints]] entry is required")
+    for i, v_raw in enumerate(top["viewpoints"]):
+        v = _table(ctx, ("viewpoints", i), v_raw, {
+            "h_cm": _F(float, check=_between(10, 1000, " cm")),
+            "d_m": _F(float, check=_between(0.1, 100, " m")),
+            "theta_deg": _F(float, 0.0, _between(-90, 90, " degrees")),
+            "weight": _F(float, 1.0, _positive),
+        })
+        viewpoints.append(ViewpointConfig(**v))
+
+    lt = _table(ctx, ("light",), top["light"], {
+        "inbox": _F(str, check=_non_empty),
+        "lux": _F(str, "manifest", _one_of("manifest", "modbus")),
+        "modbus": _F(dict, None),
+    })
+    modbus = None
+    if lt["modbus"] is not None:
+        m = _table(ctx, ("light", "modbus"), lt["modbus"], {
+            "mode": _F(str, "tcp", _one_of(*MODBUS_MODES)), "host": _F(str, "127.0.0.1"),
+            "port": _F(int, 502, _between(1, 65535)), "serial_port": _F(str, ""),
+            "baud": _F(int, 9600, _positive), "unit": _F(int, 1, _between(0, 247)),
+            "function_code": _F(int, 4, _one_of(3, 4)),
+            "register": _F(int, 0, _between(0, 65535)), "words": _F(int, 1, _one_of(1, 2)),
+            "word_order": _F(str, "big", _one_of(*WORD_ORDERS)),
+            "value_type": _F(str, "uint", _one_of(*VALUE_TYPES)),
+            "scale": _F(float, 1.0, lambda v: None if v != 0 else "must not be 0"),
+            "offset": _F(float, 0.0), "timeout_s": _F(float, 1.0, _positive),
+            "retries": _F(int, 3, _between(0, 20)),
+        })
+        if m["mode"] == "rtu" and not m["serial_port"]:
+            raise ctx.error(("light", "modbus", "serial_port"),
+                            "required when mode = \"rtu\" (e.g. /dev/serial/by-id/usb-...)")
+        if m["value_type"] == "float" and m["words"] != 2:
+            raise ctx.error(("light", "modbus", "words"), "value_type = \"float\" needs words = 2")
+        modbus = ModbusConfig(**m)
+    if lt["lux"] == "modbus" and modbus is None:
+        raise ctx.error(("light", "lux"), "lux = \"modbus\" needs a [light.modbus] table")
+
+    sc = _table(ctx, ("schedule",), top["schedule"], {
+        "interval_s": _F(float, 3600.0, _non_negative), "on_new_bundle": _F(bool, True),
+    })
+    schedule = ScheduleConfig(**sc)
+
+    sim_raw = top["simulation"]
+    lengths_raw = sim_raw.get("lengths", 11) if isinstance(sim_raw, dict) else 11
+    sim_check = dict(sim_raw) if isinstance(sim_raw, dict) else sim_raw
+    if isinstance(sim_check, dict):
+        sim_check.pop("lengths", None)
+    si = _table(ctx, ("simulation",), sim_check, {
+        "samples": _F(int, 64, _between(1, 1 << 20)), "seed": _F(int, 0, _non_negative),
+    })
+    lo = float(pixel.get("green_min_mm", 0.0))
+    hi = float(pixel.get("green_max_mm", 20.0))
+    lpath = ("simulation", "lengths")
+    if isinstance(lengths_raw, int) and not isinstance(lengths_raw, bool):
+        if not 3 <= lengths_raw <= 1000:
+            raise ctx.error(lpath, f"count must be between 3 and 1000, got {lengths_raw}")
+        lengths = tuple(lo + (hi - lo) * k / (lengths_raw - 1) for k in range(lengths_raw))
+    elif isinstance(lengths_raw, list):
+        vals = [_check_type(ctx, lpath, x, float) for x in lengths_raw]
+        if len(vals) < 3:
+            raise ctx.error(lpath, f"needs at least 3 lengths, got {len(vals)}")
+        if any(b <= a for a, b in zip(vals, vals[1:], strict=False)):
+            raise ctx.error(lpath, "lengths must be strictly increasing (mm)")
+        if vals[0] < lo or vals[-1] > hi:
+            raise ctx.error(lpath, f"lengths must lie within {lo}-{hi} mm")
+        lengths = tuple(vals)
+    else:
+        raise ctx.error(lpath, f"must be an integer count or an array of mm, got {lengths_raw!r}")
+    simulation = SimulationConfig(samples=si["samples"], seed=si["seed"], lengths_mm=lengths)
+
+    env = os.environ
+    if top["state_dir"] is not None:
+        state_dir = _resolve(ctx, top["state_dir"])
+    else:
+        state_dir = Path(env.get("STATE_DIRECTORY", "/var/lib/grassd").split(":")[0])
+    if top["cache_dir"] is not None:
+        cache_dir = _resolve(ctx, top["cache_dir"])
+    elif env.get("GRASSD_CACHE_DIR"):
+        cache_dir = Path(env["GRASSD_CACHE_DIR"])
+    elif env.get("CACHE_DIRECTORY"):
+        cache_dir = Path(env["CACHE_DIRECTORY"].split(":")[0])
+    else:
+        cache_dir = state_dir / "cache"
+    if top["control_socket"] is not None:
+        sock = _resolve(ctx, top["control_socket"])
+    elif env.get("RUNTIME_DIRECTORY"):
+        sock = Path(env["RUNTIME_DIRECTORY"].split(":")[0]) / "control.sock"
+    else:
+        sock = state_dir / "control.sock"
+
+    inbox = Path(os.path.expandvars(os.path.expanduser(lt["inbox"])))
+    light = LightConfig(inbox=inbox if inbox.is_absolute() else state_dir / inbox,
+                        lux=lt["lux"], modbus=modbus)
+
+    return Config(site=site, display=display, controllers=tuple(controllers),
+                  viewpoints=tuple(viewpoints), light=light, schedule=schedule,
+                  simulation=simulation, state_dir=state_dir, cache_dir=cache_dir,
+                  control_socket=sock, source=ctx.source)
+
+
+# --------------------------------------------------------------------------- public API
+
+
+def parse_config(text: str, *, source: str = "<string>", base_dir: Path | None = None) -> Config:
+    """Parse and validate TOML ``text``; relative paths resolve against ``base_dir`` (or cwd)."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        m = re.search(r"line (\d+)", str(exc))
+        raise ConfigError(f"TOML syntax error: {exc}", line=int(m.group(1)) if m else None,
+                          path=source) from None
+    ctx = _Ctx(text, source, base_dir or Path.cwd())
+    return _parse(data, ctx)
+
+
+def load_config(path: str | os.PathLike[str]) -> Config:
+    """Read and validate the configuration file at ``path``."""
+    p = Path(path)
+    try:
+        raw = p.read_bytes()
+    except FileNotFoundError:
+        raise ConfigError("configuration file not found (pass --config FILE)",
+                          path=str(p)) from None
+    except OSError as exc:
+        raise ConfigError(f"cannot read configuration: {exc.strerror}", path=str(p)) from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"not UTF-8 text (byte {exc.start})", path=str(p)) from None
+    return parse_config(text, source=str(p), base_dir=p.resolve().parent)
+
+
+def default_config_text() -> str:
+    """The embedded default configuration (``daemon/data/default.toml``) as text."""
+    return resources.files("grassd.daemon").joinpath("data/default.toml").read_text("utf-8")
+
+
+def load_default_config(**overrides: Any) -> Config:
+    """The embedded default configuration, paths resolved against the current directory."""
+    cfg = parse_config(default_config_text(), source="<embedded default.toml>")
+    return cfg.replace(**overrides) if overrides else cfg
