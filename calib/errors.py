@@ -1,5 +1,60 @@
-"""Exception hierarchy of :mod:`grassd.calib`: every error says what to fix."""
+"""Exception hierarchy of :mod:`grassd.calib`: every error says what to fix.
+
+All errors derive from :class:`CalibError`; the CLI prints them as one line with exit code 2.
+Several also derive from :class:`ValueError` so that generic callers can catch them as such.
+"""
 
 
 class CalibError(Exception):
     """Base class of every error raised by grassd.calib."""
+
+
+class InvalidArrayError(CalibError, ValueError):
+    """An input array is malformed: wrong shape, NaN/Inf, or negative where it must not be."""
+
+
+class NonFiniteError(InvalidArrayError):
+    """An input array holds NaN or Inf values."""
+
+
+class NegativeValueError(InvalidArrayError):
+    """An input array that must be non-negative (linear light, lengths) holds negative values."""
+
+
+class ShapeError(InvalidArrayError):
+    """An input array has the wrong shape or size."""
+
+
+class TooFewLengthsError(CalibError, ValueError):
+    """A characteristic has fewer than three distinct grass lengths."""
+
+
+class FlatCharacteristicError(CalibError, ValueError):
+    """The OGCD range of a characteristic is too small to build a useful 8-bit table."""
+
+
+class UnknownMethodError(CalibError, KeyError):
+    """A method name (colour difference, colour correction, chart) is not known."""
+
+    def __str__(self) -> str:  # KeyError quotes its message; we want it plain.
+        return str(self.args[0]) if self.args else ""
+
+
+class ChartError(CalibError, ValueError):
+    """A colour-checker reference chart or a chart file is missing, malformed or inconsistent."""
+
+
+class GeometryError(CalibError, ValueError):
+    """A measurement quadrilateral is degenerate, not convex, or lies outside the image."""
+
+
+class RawReadError(CalibError, OSError):
+    """A RAW file is missing, truncated, corrupt or not a RAW format LibRaw can develop."""
+
+
+class DngWriteError(CalibError, ValueError):
+    """The arguments given to the DNG writer cannot produce a valid DNG file."""
+
+
+class ExposureError(CalibError, ValueError):
+    """The grey reference used for exposure normalisation is unusable (black or non-finite)."""
