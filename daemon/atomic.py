@@ -1,0 +1,79 @@
+"""Atomic file writes: write a temporary file in the target directory, fsync it, rename it over
+the target, fsync the directory. A crash leaves either the old file or the new one, never a
+truncated mix (POSIX rename(2) atomicity within one file system)."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO, Any
+
+
+def fsync_dir(path: str | os.PathLike[str]) -> None:
+    """fsync a directory so that a rename or create inside it survives a power cut."""
+    fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_open(path: str | os.PathLike[str], mode: int = 0o644) -> Iterator[IO[bytes]]:
+    """Context manager yielding a binary file; on clean exit it atomically replaces ``path``.
+
+    On an exception the temporary file is removed and ``path`` is left untouched.
+    """
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.chmod(tmp, mode)
+        os.replace(tmp, target)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+    fsync_dir(target.parent)
+
+
+def atomic_write_bytes(path: str | os.PathLike[str], data: bytes, mode: int = 0o644) -> Path:
+    """Atomically write ``data`` to ``path``; returns the path."""
+    with atomic_open(path, mode) as fh:
+        fh.write(data)
+    return Path(path)
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str, mode: int = 0o644) -> Path:
+    """Atomically write UTF-8 ``text`` to ``path``."""
+    return atomic_write_bytes(path, text.encode("utf-8"), mode)
+
+
+def atomic_write_json(path: str | os.PathLike[str], obj: Any, mode: int = 0o644) -> Path:
+    """Atomically write ``obj`` as indented JSON (NaN/Inf refused: reports must be valid JSON)."""
+    text = json.dumps(obj, indent=2, sort_keys=True, allow_nan=False, default=_json_default)
+    return atomic_write_text(path, text + "\n", mode)
+
+
+def atomic_save_figure(path: str | os.PathLike[str], figure: Any, **savefig_kw: Any) -> Path:
+    """Atomically save a matplotlib ``figure`` as PNG to ``path``."""
+    with atomic_open(path) as fh:
+        figure.savefig(fh, format="png", **savefig_kw)
+    return Path(path)
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    tolist = getattr(obj, "tolist", None)
+    if callable(tolist):  # numpy arrays and scalars
+        return tolist()
+    raise TypeError(f"cannot write {type(obj).__name__} as JSON")
