@@ -1,0 +1,510 @@
+"""Read, validate, write and downsample equirectangular HDR environment maps.
+
+Files are OpenEXR (any compression the OpenEXR 3.x library reads; R, G, B channels in half or
+float, or a single Y channel) or Radiance ``.hdr`` (RGBE or XYZE, flat or new-style run-length
+encoded). Every loader returns linear Rec.709 RGB radiance (relative units, as stored in the
+file) as a C-contiguous ``(H, W, 3)`` float32 array with ``W == 2 H``, row 0 at the top (zenith).
+How such an array maps onto directions is defined in :mod:`grassd.sim.lighting`.
+
+Colour: an EXR ``chromaticities`` attribute or a Radiance ``PRIMARIES=`` line that differs from
+Rec.709/D65 is converted to linear Rec.709 with a Bradford adaptation to D65 (for the shared
+Poly Haven maps, whose attribute holds the sRGB primaries adapted to D50, that conversion is the
+identity within 1e-4 and is skipped). Radiance ``EXPOSURE=`` lines are divided out.
+
+Validation (:func:`validate_env`, run by :func:`load_hdri`) raises :class:`HdriError` with one
+line naming the problem for: a missing, unreadable, truncated or corrupt file; a map that is not
+2:1 or has fewer than :data:`MIN_HEIGHT` rows; more than ``max_texels`` texels (default
+:data:`MAX_TEXELS`, checked from the header before any pixel is allocated); NaN or infinite
+texels; negative texels beyond compression noise; no light above the horizon.
+
+Negative texels: lossy EXR compression (DWAA/DWAB, used by the shared panoramas) rings around
+bright features and leaves a few values slightly below zero. The noise scale is set by the map's
+brightness, so the tolerance is relative to a robust scale of the map: a value ``x < 0`` with
+``x >= -NEGATIVE_TOLERANCE * s`` is clamped to 0 (a warning gives the count), where ``s`` is the
+90th percentile of the luminance (the bright part of the scene, unaffected by a sun of a few
+texels; if that percentile is 0, the maximum luminance). On the shared maps the worst negative is
+0.09 % of ``s`` (forest.exr: -2.2e-3 against s = 2.35), so ``NEGATIVE_TOLERANCE = 0.01`` leaves a
+ten-fold margin, while a real sign or offset error (negatives of the order of the map's values)
+is refused.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import re
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+
+from grassd.sim.errors import HdriError
+
+__all__ = [
+    "MAX_TEXELS",
+    "MIN_HEIGHT",
+    "NEGATIVE_TOLERANCE",
+    "REC709_LUMINANCE",
+    "load_hdri",
+    "validate_env",
+    "write_exr",
+    "write_hdr",
+    "downsample",
+]
+
+log = logging.getLogger(__name__)
+
+#: Largest map accepted, in texels (16384 x 8192 = 134 M texels = 1.6 GB as float32 RGB).
+MAX_TEXELS: int = 16384 * 8192
+#: Smallest accepted height in rows (the width is twice this).
+MIN_HEIGHT: int = 4
+#: Negative texels down to -NEGATIVE_TOLERANCE x (90th percentile luminance) are clamped to 0.
+NEGATIVE_TOLERANCE: float = 0.01
+#: Rec.709 / sRGB luminance weights (Y row of the RGB -> XYZ matrix, D65).
+REC709_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+
+_REC709_PRIMARIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06)
+_D65 = (0.3127, 0.3290)
+_EXR_MAGIC = b"\x76\x2f\x31\x01"
+_BRADFORD = np.array(
+    [[0.8951, 0.2664, -0.1614], [-0.7502, 1.7135, 0.0367], [0.0389, -0.0685, 1.0296]]
+)
+
+
+# ----------------------------------------------------------------------------------- colour
+
+
+def _xyz_of(xy: tuple[float, float]) -> np.ndarray:
+    x, y = xy
+    return np.array([x / y, 1.0, (1.0 - x - y) / y])
+
+
+def _rgb_to_xyz(primaries: tuple[float, ...], white: tuple[float, float]) -> np.ndarray:
+    """Normalised primary matrix (SMPTE RP 177) of an RGB space."""
+    cols = np.stack([_xyz_of(primaries[0:2]), _xyz_of(primaries[2:4]), _xyz_of(primaries[4:6])])
+    scale = np.linalg.solve(cols.T, _xyz_of(white))
+    return cols.T * scale
+
+
+def _to_rec709_matrix(primaries: tuple[float, ...], white: tuple[float, float]) -> np.ndarray:
+    """3x3 matrix taking linear RGB in (primaries, white) to linear Rec.709 (Bradford to D65)."""
+    lms_src = _BRADFORD @ _xyz_of(white)
+    lms_dst = _BRADFORD @ _xyz_of(_D65)
+    cat = np.linalg.inv(_BRADFORD) @ np.diag(lms_dst / lms_src) @ _BRADFORD
+    return np.linalg.inv(_rgb_to_xyz(_REC709_PRIMARIES, _D65)) @ cat @ _rgb_to_xyz(
+        primaries, white
+    )
+
+
+def _apply_matrix(img: np.ndarray, matrix: np.ndarray, source: str) -> np.ndarray:
+    if np.allclose(matrix, np.eye(3), atol=1e-3):
+        return img
+    log.info("%s: converting from the file's primaries to linear Rec.709", source)
+    return np.einsum("hwc,rc->hwr", img, matrix.astype(np.float32), optimize=True)
+
+
+# ------------------------------------------------------------------------------- validation
+
+
+def _check_size(width: int, height: int, max_texels: int, source: str) -> None:
+    if width <= 0 or height <= 0:
+        raise HdriError(f"{source}: the header gives an empty image ({width} x {height})")
+    if width * height > max_texels:
+        raise HdriError(
+            f"{source}: {width} x {height} = {width * height} texels exceeds the limit of "
+            f"{max_texels} texels; downsample the panorama (e.g. to 2048 x 1024)"
+        )
+    if width != 2 * height:
+        raise HdriError(
+            f"{source}: {width} x {height} is not an equirectangular panorama; "
+            "the width must be exactly twice the height (2:1)"
+        )
+    if height < MIN_HEIGHT:
+        raise HdriError(f"{source}: {width} x {height} is too small; need at least "
+                        f"{2 * MIN_HEIGHT} x {MIN_HEIGHT}")
+
+
+def validate_env(img: np.ndarray, source: str = "environment map",
+                 max_texels: int = MAX_TEXELS) -> np.ndarray:
+    """Check an equirectangular radiance map and return it as clean float32 (H, W, 3).
+
+    Units are kept (relative or absolute linear Rec.709 radiance). Small negative texels from
+    lossy compression are clamped to 0 with a warning (rule in the module docstring); the input
+    array is not modified. Raises :class:`HdriError` naming the problem otherwise.
+    """
+    arr = np.asarray(img)
+    if arr.ndim != 3 or arr.shape[2] != 3:
+        raise HdriError(f"{source}: expected an (H, W, 3) RGB array, got shape {arr.shape}")
+    _check_size(arr.shape[1], arr.shape[0], max_texels, source)
+    if not np.issubdtype(arr.dtype, np.floating):
+        raise HdriError(f"{source}: texels must be floating point radiance, got {arr.dtype}")
+    arr = np.ascontiguousarray(arr, dtype=np.float32)
+    finite = np.isfinite(arr).all(axis=2)
+    if not finite.all():
+        bad = np.argwhere(~finite)
+        row, col = bad[0]
+        raise HdriError(
+            f"{source}: {len(bad)} texel(s) hold NaN or infinity (first at row {row}, column "
+            f"{col}); re-export the panorama"
+        )
+    lum = arr @ REC709_LUMINANCE.astype(np.float32)
+    lowest = float(arr.min())
+    if lowest < 0.0:
+        scale = float(np.percentile(lum, 90.0))
+        if scale <= 0.0:
+            scale = float(lum.max())
+        tolerance = NEGATIVE_TOLERANCE * scale
+        if lowest < -tolerance:
+            count = int((arr < -tolerance).sum())
+            raise HdriError(
+                f"{source}: {count} texel value(s) are negative beyond compression noise "
+                f"(lowest {lowest:.4g}, tolerance {-tolerance:.4g} = -{NEGATIVE_TOLERANCE} x "
+                "90th-percentile luminance); the file is not plain radiance"
+            )
+        count = int((arr < 0.0).sum())
+        log.warning("%s: clamped %d slightly negative texel value(s) (lowest %.3g, compression "
+                    "noise) to 0", source, count, lowest)
+        arr = np.maximum(arr, 0.0)
+        lum = np.maximum(lum, 0.0)
+    upper_rows = (arr.shape[0] + 1) // 2  # every row whose band reaches above the horizon
+    if not (lum[:upper_rows] > 0.0).any():
+        raise HdriError(
+            f"{source}: the upper hemisphere is black (no light above the horizon); check that "
+            "the panorama is not upside down or empty"
+        )
+    return arr
+
+
+# ------------------------------------------------------------------------------------ load
+
+
+def load_hdri(path: str | os.PathLike, max_texels: int = MAX_TEXELS) -> np.ndarray:
+    """Load an equirectangular HDRI (.exr or Radiance .hdr) as validated linear Rec.709 RGB.
+
+    Returns a C-contiguous (H, W, 3) float32 array of relative radiance, row 0 = zenith, with
+    W = 2 H. The format is recognised from the file's first bytes, not its name. The size is
+    checked against ``max_texels`` from the header before pixels are read.
+    """
+    p = Path(path)
+    source = str(p)
+    if not p.exists():
+        raise HdriError(f"HDRI file {source} does not exist")
+    if not p.is_file():
+        raise HdriError(f"HDRI path {source} is not a regular file")
+    try:
+        with p.open("rb") as fh:
+            magic = fh.read(16)
+    except OSError as exc:
+        raise HdriError(f"cannot read HDRI file {source}: {exc.strerror or exc}") from exc
+    if magic[:4] == _EXR_MAGIC:
+        img = _read_exr(p, max_texels)
+    elif magic.startswith(b"#?"):
+        img = _read_hdr(p, max_texels)
+    elif not magic:
+        raise HdriError(f"{source}: the file is empty")
+    else:
+        raise HdriError(
+            f"{source}: neither OpenEXR nor Radiance .hdr (unrecognised first bytes); "
+            "convert the panorama to .exr"
+        )
+    return validate_env(img, source, max_texels)
+
+
+def _read_exr(p: Path, max_texels: int) -> np.ndarray:
+    source = str(p)
+    try:
+        header = OpenEXR.File(source, header_only=True).header()
+    except Exception as exc:  # the binding raises RuntimeError/ValueError for bad files
+        raise HdriError(f"{source}: corrupt or truncated OpenEXR header ({exc})") from exc
+    if "dataWindow" not in header:
+        raise HdriError(f"{source}: OpenEXR header lacks a dataWindow")
+    (x0, y0), (x1, y1) = header["dataWindow"]
+    width, height = int(x1) - int(x0) + 1, int(y1) - int(y0) + 1
+    _check_size(width, height, max_texels, source)
+    kind = str(header.get("type", ""))
+    if "deep" in kind:
+        raise HdriError(f"{source}: deep OpenEXR images are not environment maps")
+    for ch in header.get("channels", []):
+        if getattr(ch, "xSampling", 1) != 1 or getattr(ch, "ySampling", 1) != 1:
+            raise HdriError(f"{source}: channel {ch.name} is subsampled; save full-resolution RGB")
+    try:
+        channels = OpenEXR.File(source, separate_channels=True).channels()
+    except Exception as exc:
+        raise HdriError(f"{source}: corrupt or truncated OpenEXR pixel data ({exc})") from exc
+    names = set(channels)
+    if {"R", "G", "B"} <= names:
+        planes = [channels[n].pixels for n in ("R", "G", "B")]
+    elif "Y" in names:
+        planes = [channels["Y"].pixels] * 3
+    else:
+        raise HdriError(f"{source}: no R, G, B (or Y) channels; the file has {sorted(names)}")
+    for plane in planes:
+        if plane.shape != (height, width):
+            raise HdriError(f"{source}: channel data {plane.shape} disagrees with the header's "
+                            f"dataWindow {height} x {width}")
+        if not np.issubdtype(plane.dtype, np.floating):
+            raise HdriError(f"{source}: channels are {plane.dtype}, not half or float radiance")
+    img = np.stack(planes, axis=-1).astype(np.float32)
+    chroma = header.get("chromaticities")
+    if chroma is not None:
+        chroma = tuple(float(c) for c in chroma)
+        img = _apply_matrix(img, _to_rec709_matrix(chroma[:6], chroma[6:8]), source)
+    return img
+
+
+# Radiance RGBE ---------------------------------------------------------------------------
+
+_RES_RE = re.compile(rb"^([-+])([XY]) (\d+) ([-+])([XY]) (\d+)$")
+_RUN_BYTES = [bytes([v]) * 128 for v in range(256)]
+
+
+def _read_hdr(p: Path, max_texels: int) -> np.ndarray:
+    source = str(p)
+    with p.open("rb") as fh:
+        head = fh.read(65536)
+        end = head.find(b"\n\n")
+        if end < 0:
+            raise HdriError(f"{source}: Radiance header has no blank line before the resolution "
+                            "(truncated or not an .hdr file)")
+        nl = head.find(b"\n", end + 2)
+        if nl < 0:
+            raise HdriError(f"{source}: Radiance resolution line is missing (truncated file)")
+        lines = head[:end].split(b"\n")
+        res = head[end + 2: nl].strip()
+        fmt, exposure, primaries = b"32-bit_rle_rgbe", 1.0, None
+        for line in lines[1:]:
+            if line.startswith(b"FORMAT="):
+                fmt = line[7:].strip()
+            elif line.startswith(b"EXPOSURE="):
+                try:
+                    exposure *= float(line[9:])
+                except ValueError as exc:
+                    raise HdriError(f"{source}: bad EXPOSURE line {line!r}") from exc
+            elif line.startswith(b"PRIMARIES="):
+                try:
+                    primaries = tuple(float(v) for v in line[10:].split())
+                except ValueError as exc:
+                    raise HdriError(f"{source}: bad PRIMARIES line {line!r}") from exc
+                if len(primaries) != 8:
+                    raise HdriError(f"{source}: PRIMARIES needs 8 numbers, got {line!r}")
+        if fmt not in (b"32-bit_rle_rgbe", b"32-bit_rle_xyze"):
+            raise HdriError(f"{source}: unsupported Radiance FORMAT {fmt.decode(errors='replace')}")
+        m = _RES_RE.match(res)
+        if m is None or m.group(2) != b"Y" or m.group(5) != b"X":
+            raise HdriError(f"{source}: unsupported or corrupt resolution line {res!r} "
+                            "(expected e.g. '-Y 512 +X 1024')")
+        height, width = int(m.group(3)), int(m.group(6))
+        _check_size(width, height, max_texels, source)
+        if not exposure > 0.0 or not np.isfinite(exposure):
+            raise HdriError(f"{source}: EXPOSURE product {exposure} is not positive")
+        fh.seek(nl + 1)
+        # RLE can at worst double the flat size (1-byte literals); never read more than that
+        data = fh.read(height * (4 + 8 * width))
+    rgbe = _decode_rgbe(data, height, width, source)
+    img = _rgbe_to_float(rgbe) / np.float32(exposure)
+    if m.group(1) == b"+":  # stored bottom-up
+        img = img[::-1]
+    if m.group(4) == b"-":  # stored right-to-left
+        img = img[:, ::-1]
+    if fmt == b"32-bit_rle_xyze":
+        to709 = np.linalg.inv(_rgb_to_xyz(_REC709_PRIMARIES, _D65))
+        img = np.einsum("hwc,rc->hwr", img, to709.astype(np.float32), optimize=True)
+    elif primaries is not None:
+        img = _apply_matrix(img, _to_rec709_matrix(primaries[:6], primaries[6:]), source)
+    return np.ascontiguousarray(img, dtype=np.float32)
+
+
+def _decode_rgbe(data: bytes, height: int, width: int, source: str) -> np.ndarray:
+    """Decode the RGBE pixel stream (flat or new-style RLE) into (H, W, 4) uint8."""
+    new_rle = (
+        8 <= width <= 0x7FFF and len(data) >= 4 and data[0] == 2 and data[1] == 2
+        and (data[2] << 8 | data[3]) == width
+    )
+    if not new_rle:
+        need = 4 * width * height
+        if len(data) < need:
+            raise HdriError(f"{source}: truncated Radiance pixel data ({len(data)} of {need} "
+                            "bytes)")
+        px = np.frombuffer(data, np.uint8, need).reshape(height, width, 4)
+        if ((px[..., 0] == 1) & (px[..., 1] == 1) & (px[..., 2] == 1)).any():
+            raise HdriError(f"{source}: old-style Radiance run-length encoding is not supported; "
+                            "re-save the file (e.g. with oiiotool) as .exr or new-style .hdr")
+        return px
+    out = bytearray(4 * width * height)
+    pos, n_data = 0, len(data)
+    marker = bytes((2, 2, width >> 8, width & 0xFF))
+    runs = _RUN_BYTES
+    for y in range(height):
+        if data[pos: pos + 4] != marker:
+            what = "truncated" if pos + 4 > n_data else "corrupt"
+            raise HdriError(f"{source}: {what} Radiance pixel data at scanline {y} of {height}")
+        pos += 4
+        for c in range(4):
+            off = (y * 4 + c) * width
+            end = off + width
+            while off < end:
+                if pos >= n_data:
+                    raise HdriError(f"{source}: truncated Radiance pixel data at scanline {y} "
+                                    f"of {height}")
+                n = data[pos]
+                if n > 128:
+                    n -= 128
+                    if off + n > end or pos + 1 >= n_data:
+                        raise HdriError(f"{source}: corrupt run-length data at scanline {y}")
+                    out[off: off + n] = runs[data[pos + 1]][:n]
+                    pos += 2
+                else:
+                    if n == 0 or off + n > end or pos + 1 + n > n_data:
+                        raise HdriError(f"{source}: corrupt or truncated run-length data at "
+                                        f"scanline {y}")
+                    out[off: off + n] = data[pos + 1: pos + 1 + n]
+                    pos += 1 + n
+                off += n
+    return np.frombuffer(out, np.uint8).reshape(height, 4, width).transpose(0, 2, 1)
+
+
+def _rgbe_to_float(rgbe: np.ndarray) -> np.ndarray:
+    """RGBE bytes -> float32 RGB, as Radiance's colr_color: (m + 0.5) * 2**(e - 136)."""
+    e = rgbe[..., 3].astype(np.int32)
+    f = np.where(e > 0, np.ldexp(np.float32(1.0), e - 136), np.float32(0.0)).astype(np.float32)
+    return (rgbe[..., :3].astype(np.float32) + np.float32(0.5)) * f[..., None]
+
+
+def _float_to_rgbe(img: np.ndarray) -> np.ndarray:
+    """float RGB (>= 0) -> RGBE bytes, as Radiance's setcolr (mantissa truncated)."""
+    rgb = np.maximum(np.asarray(img, np.float64), 0.0)
+    top = rgb.max(axis=-1)
+    mant, expo = np.frexp(top)
+    small = top < 1e-38
+    scale = np.where(small, 0.0, mant * 256.0 / np.where(small, 1.0, top))
+    out = np.empty(rgb.shape[:-1] + (4,), np.uint8)
+    out[..., :3] = np.clip(np.floor(rgb * scale[..., None]), 0, 255).astype(np.uint8)
+    out[..., 3] = np.where(small, 0, expo + 128).astype(np.uint8)
+    return out
+
+
+def _rle_encode_row(row: np.ndarray) -> bytes:
+    """New-style RLE of one component of one scanline: runs >= 3 as runs, the rest literal."""
+    n = row.size
+    starts = np.flatnonzero(np.concatenate(([True], row[1:] != row[:-1])))
+    lengths = np.diff(np.append(starts, n))
+    parts: list[bytes] = []
+    raw = row.tobytes()
+    lit_start = 0
+    for s, length in zip(starts.tolist(), lengths.tolist(), strict=True):
+        if length < 3:
+            continue
+        for a in range(lit_start, s, 128):
+            chunk = raw[a: min(a + 128, s)]
+            parts.append(bytes((len(chunk),)) + chunk)
+        v = raw[s]
+        left = length
+        while left > 0:
+            k = min(left, 127)
+            parts.append(bytes((128 + k, v)))
+            left -= k
+        lit_start = s + length
+    for a in range(lit_start, n, 128):
+        chunk = raw[a: min(a + 128, n)]
+        parts.append(bytes((len(chunk),)) + chunk)
+    return b"".join(parts)
+
+
+# ----------------------------------------------------------------------------------- write
+
+
+def _atomic_write(path: Path, writer) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        writer(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _as_rgb(img: np.ndarray) -> np.ndarray:
+    arr = np.asarray(img)
+    if arr.ndim != 3 or arr.shape[2] != 3:
+        raise HdriError(f"cannot write an image of shape {arr.shape}; expected (H, W, 3) RGB")
+    return arr
+
+
+def write_exr(path: str | os.PathLike, img: np.ndarray, half: bool = False) -> None:
+    """Write linear Rec.709 RGB (H, W, 3) as a ZIP-compressed scanline OpenEXR (atomically).
+
+    Channels R, G, B in float32 (or half with ``half=True``); the Rec.709/D65 chromaticities
+    attribute is set so other tools read the primaries right.
+    """
+    arr = _as_rgb(img)
+    dtype = np.float16 if half else np.float32
+    planes = {c: np.ascontiguousarray(arr[..., i], dtype=dtype) for i, c in enumerate("RGB")}
+    header = {
+        "compression": OpenEXR.ZIP_COMPRESSION,
+        "type": OpenEXR.scanlineimage,
+        "chromaticities": tuple(float(v) for v in _REC709_PRIMARIES + _D65),
+    }
+    _atomic_write(Path(path), lambda tmp: OpenEXR.File(header, planes).write(tmp))
+
+
+def write_hdr(path: str | os.PathLike, img: np.ndarray, rle: bool = True) -> None:
+    """Write linear RGB (H, W, 3) as a Radiance RGBE .hdr file (atomically).
+
+    Negative values are written as 0. ``rle=True`` writes new-style run-length encoded scanlines
+    (widths 8..32767; others are written flat), ``rle=False`` flat RGBE quadruples. Precision of
+    RGBE: each component is stored to within 1/256 of the texel's largest component.
+    """
+    arr = _as_rgb(img)
+    if not np.isfinite(arr).all():
+        raise HdriError("cannot write NaN or infinite texels to a Radiance file")
+    if float(np.max(arr, initial=0.0)) >= 2.0 ** 127:
+        raise HdriError("texel values above 2**127 do not fit in RGBE")
+    height, width = arr.shape[:2]
+    rgbe = _float_to_rgbe(arr)
+    header = (b"#?RADIANCE\n# written by grassd.sim.hdri\nFORMAT=32-bit_rle_rgbe\n\n"
+              + f"-Y {height} +X {width}\n".encode())
+    if rle and 8 <= width <= 0x7FFF:
+        marker = bytes((2, 2, width >> 8, width & 0xFF))
+        body = b"".join(
+            marker + b"".join(_rle_encode_row(rgbe[y, :, c]) for c in range(4))
+            for y in range(height)
+        )
+    else:
+        body = rgbe.tobytes()
+
+    def _write(tmp: str) -> None:
+        with open(tmp, "wb") as fh:
+            fh.write(header)
+            fh.write(body)
+
+    _atomic_write(Path(path), _write)
+
+
+# ------------------------------------------------------------------------------ downsample
+
+
+def downsample(img: np.ndarray, factor: int) -> np.ndarray:
+    """Box-filter an equirectangular map by an integer ``factor`` in both directions.
+
+    Each output texel is the solid-angle-weighted mean of the ``factor x factor`` input texels
+    it covers (texel solid angle proportional to cos(theta_top) - cos(theta_bottom)), so the
+    integral of radiance over every block's solid angle, hence the map's radiant power, is kept
+    exactly. Units unchanged. ``factor`` must divide the height and the width.
+    """
+    arr = np.asarray(img, dtype=np.float64)
+    if arr.ndim != 3:
+        raise HdriError(f"cannot downsample an array of shape {arr.shape}")
+    h, w, c = arr.shape
+    if int(factor) != factor or factor < 1 or h % factor or w % factor:
+        raise HdriError(f"downsample factor {factor} must be a positive integer dividing "
+                        f"{h} x {w}")
+    factor = int(factor)
+    edges = np.cos(np.pi * np.arange(h + 1) / h)
+    omega = (edges[:-1] - edges[1:]).reshape(h // factor, factor, 1, 1, 1)
+    blocks = arr.reshape(h // factor, factor, w // factor, factor, c)
+    weight = omega.sum(axis=1).reshape(h // factor, 1, 1) * factor
+    out = (blocks * omega).sum(axis=(1, 3)) / weight
+    return np.ascontiguousarray(out, dtype=np.float32)
