@@ -1,0 +1,67 @@
+"""The one module that imports Taichi. Everything else in grassd reaches Taichi through here.
+
+Taichi 1.7.4 is the last upstream release; keeping the import behind this module makes a move
+to a maintained fork a one-file change. :func:`init` is called once by the program's entry point
+(the CLI, the daemon, a benchmark, a test fixture), never at import time.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+from pathlib import Path
+
+os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")  # keep stdout clean for JSON
+
+import taichi as ti  # noqa: E402
+
+from grassd.sim.errors import SimError  # noqa: E402
+
+__all__ = ["ti", "init", "is_initialised", "default_cache_dir"]
+
+_state: dict[str, str] = {}
+
+
+def default_cache_dir() -> Path:
+    """Where compiled kernels are cached: $GRASSD_CACHE_DIR, systemd's $CACHE_DIRECTORY, or
+    ~/.cache/grassd (in that order). The service unit sets CacheDirectory=grassd."""
+    for var in ("GRASSD_CACHE_DIR", "CACHE_DIRECTORY"):
+        if os.environ.get(var):
+            return Path(os.environ[var].split(":")[0]) / "taichi"
+    return Path.home() / ".cache" / "grassd" / "taichi"
+
+
+def init(arch: str = "cpu", cache_dir: Path | None = None, threads: int | None = None) -> str:
+    """Initialise Taichi once per process; later calls with the same arch are no-ops.
+
+    ``arch`` is ``"cpu"`` (default) or ``"gpu"`` (CUDA/Vulkan/Metal, whichever Taichi finds).
+    Returns the arch actually in use. The offline cache makes the first call in a fresh process
+    skip LLVM compilation of kernels compiled before.
+    """
+    if arch not in ("cpu", "gpu"):
+        raise SimError(f"arch must be 'cpu' or 'gpu', got {arch!r}")
+    if _state:
+        if _state["arch"] != arch:
+            raise SimError(f"Taichi already initialised for {_state['arch']}; one arch per process")
+        return _state["actual"]
+    cache = Path(cache_dir) if cache_dir else default_cache_dir()
+    try:
+        cache.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SimError(f"cannot create the kernel cache directory {cache}: {exc.strerror}; set "
+                       f"GRASSD_CACHE_DIR to a writable directory") from exc
+    kwargs = dict(offline_cache=True, offline_cache_file_path=str(cache), log_level=ti.WARN,
+                  default_fp=ti.f32, random_seed=0)
+    if threads:
+        kwargs["cpu_max_num_threads"] = threads
+    with contextlib.redirect_stdout(sys.stderr):  # Taichi prints "Starting on arch=..."
+        ti.init(arch=ti.cpu if arch == "cpu" else ti.gpu, **kwargs)
+    actual = str(ti.lang.impl.current_cfg().arch).split(".")[-1]
+    _state.update(arch=arch, actual=actual)
+    return actual
+
+
+def is_initialised() -> bool:
+    """True once :func:`init` has run in this process."""
+    return bool(_state)

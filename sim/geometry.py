@@ -1,0 +1,284 @@
+"""Procedural grass-pixel geometry as numpy arrays, and the 2D grid that accelerates tracing.
+
+Everything here is in world metres (z up, display plane z = 0; see :mod:`grassd.sim.scene`).
+Two kinds of primitive:
+
+* **Blades**: flat, two-sided, tapered quads. A blade is planted at a pivot point ``p0`` on the
+  plane z = 0, spans ``+-hw`` along a horizontal width axis ``a`` and rises along the unit axis
+  ``u = (sin(alpha) l_x, sin(alpha) l_y, cos(alpha))``: it leans by ``alpha`` towards the
+  horizontal direction ``l``. Its half width shrinks linearly over the last ``taper`` metres to
+  ``tip_ratio * hw``. Yellow blades have a fixed length. Green blades have the length given to
+  the renderer per measurement, and lean by ``alpha0 + splay * length / green_max`` (splay, the
+  paper's stated cause of its theta = 90 deg error, is 0 by default); below the plane a green
+  blade continues straight down to the cavity floor (a vertical quad).
+* **Rectangles**: axis-aligned, two-sided: the base top around the slits, the base's outer walls
+  and bottom, and each slit's cavity walls and floor.
+
+:func:`build_scene` lays the blades out on jittered grids (seeded, so a layout is reproducible)
+and bins every primitive's xy footprint into a uniform 2D grid; the kernel walks that grid along
+the ray (2D DDA), testing each cell's primitives.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from grassd.sim.errors import SceneError
+from grassd.sim.scene import DisplaySpec, PixelSpec, srgb_to_linear
+
+#: Material ids (row index into :attr:`SceneArrays.albedo`).
+MAT_YELLOW, MAT_GREEN, MAT_BASE, MAT_CAVITY = 0, 1, 2, 3
+MATERIAL_NAMES = ("yellow_grass", "green_grass", "base", "cavity")
+#: Refuse geometry larger than this many primitives before allocating (about 2 GB of grid).
+MAX_PRIMITIVES = 2_000_000
+
+
+@dataclass(frozen=True)
+class SceneArrays:
+    """The traced scene as flat float32/int32 arrays (shapes named per field).
+
+    Blades (``nb`` rows): ``blade_p0`` (nb, 3) pivot [m]; ``blade_axis`` (nb, 2) width axis;
+    ``blade_lean`` (nb, 2) lean direction; ``blade_params`` (nb, 6) = (half width [m], fixed
+    length [m] (0 for green), base lean alpha0 [rad], is_green (0/1), depth below the plane for
+    green [m], material id).
+    Rectangles (``nr`` rows): ``rect_axis`` (nr,) normal axis 0/1/2; ``rect_bounds`` (nr, 5) =
+    (coordinate on the normal axis, lo0, hi0, lo1, hi1) on the other two axes in increasing
+    order; ``rect_material`` (nr,).
+    Grid: ``grid_origin`` (2,), ``grid_cell`` [m], ``grid_shape`` (nx, ny), ``cell_start``
+    (nx*ny + 1,), ``cell_items`` (m,) primitive ids (blade i -> i, rectangle j -> nb + j),
+    cell index = ix * ny + iy. ``z_range`` (2,) the slab every primitive lies in.
+    ``albedo`` (4, 3) linear Rec.709 per material.
+    """
+
+    blade_p0: np.ndarray
+    blade_axis: np.ndarray
+    blade_lean: np.ndarray
+    blade_params: np.ndarray
+    rect_axis: np.ndarray
+    rect_bounds: np.ndarray
+    rect_material: np.ndarray
+    grid_origin: np.ndarray
+    grid_cell: float
+    grid_shape: tuple[int, int]
+    cell_start: np.ndarray
+    cell_items: np.ndarray
+    z_range: np.ndarray
+    albedo: np.ndarray
+    taper_m: float
+    tip_ratio: float
+    splay_rad: float
+    green_max_m: float
+    quad_corners: np.ndarray
+
+    @property
+    def n_blades(self) -> int:
+        return len(self.blade_p0)
+
+    @property
+    def n_rects(self) -> int:
+        return len(self.rect_axis)
+
+
+def _jittered_points(rng: np.random.Generator, x0: float, x1: float, y0: float, y1: float,
+                     density: float, jitter: float) -> np.ndarray:
+    """Points on a jittered square grid of ``density`` per mm^2 inside a rectangle (mm)."""
+    if density <= 0 or x1 <= x0 or y1 <= y0:
+        return np.zeros((0, 2))
+    step = 1.0 / math.sqrt(density)
+    nx = max(1, int(round((x1 - x0) / step)))
+    ny = max(1, int(round((y1 - y0) / step)))
+    sx, sy = (x1 - x0) / nx, (y1 - y0) / ny
+    gx, gy = np.meshgrid((np.arange(nx) + 0.5) * sx + x0, (np.arange(ny) + 0.5) * sy + y0,
+                         indexing="ij")
+    pts = np.stack([gx.ravel(), gy.ravel()], axis=1)
+    pts += rng.uniform(-jitter, jitter, pts.shape) * np.array([sx, sy])
+    return pts
+
+
+def _pixel_blades(spec: PixelSpec, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Blade arrays (mm) of one pixel centred on the origin."""
+    s = spec.top_mm / 2
+    half_slit = spec.slit_width_mm / 2
+    centres = spec.slit_centres_mm()
+    hw0 = spec.blade_width_mm / 2
+    # Yellow: on the top surface, away from the slits by half a blade width.
+    yellow = _jittered_points(rng, -s + hw0, s - hw0, -s + hw0, s - hw0, spec.yellow_density,
+                              spec.jitter)
+    if len(centres):
+        in_slit = (np.abs(yellow[:, 1, None] - centres[None, :]) < half_slit + hw0) & (
+            np.abs(yellow[:, 0, None]) < spec.slit_length_mm / 2 + hw0)
+        yellow = yellow[~in_slit.any(axis=1)]
+    # Green: inside each slit.
+    green = [
+        _jittered_points(rng, -spec.slit_length_mm / 2 + hw0, spec.slit_length_mm / 2 - hw0,
+                         c - half_slit + hw0, c + half_slit - hw0, spec.green_density, spec.jitter)
+        for c in centres
+    ]
+    slit_of = np.concatenate([np.full(len(g), c) for g, c in zip(green, centres, strict=True)]) \
+        if green else np.zeros(0)
+    green = np.concatenate(green) if green else np.zeros((0, 2))
+
+    ny, ng = len(yellow), len(green)
+    n = ny + ng
+    xy = np.concatenate([yellow, green])
+    phi = rng.uniform(0, np.pi, n)
+    axis = np.stack([np.cos(phi), np.sin(phi)], axis=1)
+    # Lean: yellow in a random direction; green outwards from its slit's centre line (+-y),
+    # perturbed, so that splay opens the tuft like real grass pushed through a slit.
+    beta = rng.uniform(0, 2 * np.pi, n)
+    if ng:
+        side = np.where(xy[ny:, 1] >= slit_of, 0.5 * np.pi, -0.5 * np.pi)
+        beta[ny:] = side + rng.normal(0, 0.35, ng)
+    lean = np.stack([np.cos(beta), np.sin(beta)], axis=1)
+    alpha0 = np.concatenate([
+        np.radians(spec.yellow_lean_deg) * np.sqrt(rng.uniform(0, 1, ny)),
+        np.radians(spec.green_lean_deg) * np.sqrt(rng.uniform(0, 1, ng)),
+    ])
+    hw = hw0 * (1 + rng.uniform(-spec.jitter, spec.jitter, n))
+    length = np.concatenate([spec.yellow_height_mm * (1 + rng.uniform(-0.05, 0.05, ny)),
+                             np.zeros(ng)])
+    is_green = np.concatenate([np.zeros(ny), np.ones(ng)])
+    depth = is_green * spec.cavity_depth_mm
+    material = np.where(is_green > 0, MAT_GREEN, MAT_YELLOW)
+    return {"xy": xy, "axis": axis, "lean": lean, "hw": hw, "length": length,
+            "alpha0": alpha0, "is_green": is_green, "depth": depth, "material": material}
+
+
+def _pixel_rects(spec: PixelSpec) -> list[tuple[int, float, float, float, float, float, int]]:
+    """Axis-aligned rectangles (mm) of one pixel: (axis, coord, lo0, hi0, lo1, hi1, material)."""
+    s, hb, dc = spec.top_mm / 2, spec.base_height_mm, spec.cavity_depth_mm
+    hl, hs = spec.slit_length_mm / 2, spec.slit_width_mm / 2
+    rects = []
+    # Top surface: strips between slits across the whole width, and the slit end pieces.
+    edges = [-s]
+    for c in spec.slit_centres_mm():
+        edges += [c - hs, c + hs]
+    edges.append(s)
+    for y0, y1 in zip(edges[0::2], edges[1::2], strict=True):
+        if y1 > y0:
+            rects.append((2, 0.0, -s, s, y0, y1, MAT_BASE))
+    for c in spec.slit_centres_mm():
+        if hl < s:
+            rects.append((2, 0.0, -s, -hl, c - hs, c + hs, MAT_BASE))
+            rects.append((2, 0.0, hl, s, c - hs, c + hs, MAT_BASE))
+        # Cavity below the slit: walls and floor.
+        rects.append((1, c - hs, -hl, hl, -dc, 0.0, MAT_CAVITY))
+        rects.append((1, c + hs, -hl, hl, -dc, 0.0, MAT_CAVITY))
+        rects.append((0, -hl, c - hs, c + hs, -dc, 0.0, MAT_CAVITY))
+        rects.append((0, hl, c - hs, c + hs, -dc, 0.0, MAT_CAVITY))
+        rects.append((2, -dc, -hl, hl, c - hs, c + hs, MAT_CAVITY))
+    # Outer walls and bottom of the base.
+    rects.append((0, -s, -s, s, -hb, 0.0, MAT_BASE))
+    rects.append((0, s, -s, s, -hb, 0.0, MAT_BASE))
+    rects.append((1, -s, -s, s, -hb, 0.0, MAT_BASE))
+    rects.append((1, s, -s, s, -hb, 0.0, MAT_BASE))
+    rects.append((2, -hb, -s, s, -s, s, MAT_BASE))
+    return rects
+
+
+def _bin(boxes: np.ndarray, origin: np.ndarray, cell: float, shape: tuple[int, int]
+         ) -> tuple[np.ndarray, np.ndarray]:
+    """Bin xy boxes (n, 4: xmin, ymin, xmax, ymax) into grid cells -> (cell_start, items)."""
+    nx, ny = shape
+    lo = np.floor((boxes[:, :2] - origin) / cell).astype(np.int64)
+    hi = np.floor((boxes[:, 2:] - origin) / cell).astype(np.int64)
+    lo = np.clip(lo, 0, [nx - 1, ny - 1])
+    hi = np.clip(hi, 0, [nx - 1, ny - 1])
+    cx, cy = hi[:, 0] - lo[:, 0] + 1, hi[:, 1] - lo[:, 1] + 1
+    counts = cx * cy
+    prim = np.repeat(np.arange(len(boxes)), counts)
+    k = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    ix = lo[prim, 0] + k // cy[prim]
+    iy = lo[prim, 1] + k % cy[prim]
+    cell_id = ix * ny + iy
+    order = np.argsort(cell_id, kind="stable")
+    cell_start = np.searchsorted(cell_id[order], np.arange(nx * ny + 1)).astype(np.int32)
+    return cell_start, prim[order].astype(np.int32)
+
+
+def build_scene(display: DisplaySpec, lengths_mm: np.ndarray) -> SceneArrays:
+    """Build the traced scene for a display, conservative for every length in ``lengths_mm``.
+
+    Lengths are green grass lengths in mm above the base top (0 .. ``green_max_mm``).
+    """
+    spec = display.pixel
+    lengths_mm = np.asarray(lengths_mm, dtype=np.float64)
+    if lengths_mm.size == 0 or not np.all(np.isfinite(lengths_mm)):
+        raise SceneError("lengths must be a non-empty list of finite numbers (mm)")
+    if lengths_mm.min() < 0 or lengths_mm.max() > spec.green_max_mm:
+        raise SceneError(f"green lengths must be within 0..{spec.green_max_mm:g} mm, got "
+                         f"{lengths_mm.min():g}..{lengths_mm.max():g}")
+    rng = np.random.default_rng(spec.layout_seed)
+    one = _pixel_blades(spec, rng)
+    centres_mm = display.pixel_centres_m() * 1000.0
+    n_pix, nb1 = len(centres_mm), len(one["xy"])
+    if n_pix * (nb1 + 40) > MAX_PRIMITIVES:
+        raise SceneError(f"display of {n_pix} pixels x {nb1} blades exceeds the limit of "
+                         f"{MAX_PRIMITIVES} primitives; lower the blade density or split it")
+    # Every pixel gets its own layout (re-drawn), as real tufts differ.
+    pixels = [one] + [_pixel_blades(spec, rng) for _ in range(n_pix - 1)]
+    for p, c in zip(pixels, centres_mm, strict=True):
+        p["xy"] = p["xy"] + c
+    cat = {k: np.concatenate([p[k] for p in pixels]) for k in one}
+    nb = len(cat["xy"])
+
+    mm = 1e-3
+    blade_p0 = np.column_stack([cat["xy"] * mm, np.zeros(nb)]).astype(np.float32)
+    blade_params = np.column_stack([cat["hw"] * mm, cat["length"] * mm, cat["alpha0"],
+                                    cat["is_green"], cat["depth"] * mm,
+                                    cat["material"]]).astype(np.float32)
+
+    rect_rows = []
+    for c in centres_mm:
+        for axis, coord, lo0, hi0, lo1, hi1, mat in _pixel_rects(spec):
+            off = {0: (c[0], c[1], 0.0), 1: (c[1], c[0], 0.0), 2: (0.0, c[0], c[1])}[axis]
+            # off = (offset of the normal coordinate, of axis-0 bounds, of axis-1 bounds)
+            rect_rows.append((axis, coord + off[0], lo0 + off[1], hi0 + off[1], lo1 + off[2],
+                              hi1 + off[2], mat))
+    rects = np.array(rect_rows, dtype=np.float64)
+    rect_axis = rects[:, 0].astype(np.int32)
+    rect_bounds = (rects[:, 1:6] * mm).astype(np.float32)
+    rect_material = rects[:, 6].astype(np.int32)
+
+    # Footprints (xy boxes, m) of blades at their widest lean over all lengths.
+    splay = math.radians(spec.splay_deg)
+    lmax = lengths_mm.max() * mm
+    length = np.where(cat["is_green"] > 0, lmax, cat["length"] * mm)
+    alpha = cat["alpha0"] + cat["is_green"] * splay * (lengths_mm.max() / spec.green_max_mm)
+    tip = cat["xy"] * mm + cat["lean"] * (np.sin(alpha) * length)[:, None]
+    reach = np.abs(cat["axis"]) * (cat["hw"] * mm)[:, None]
+    p = cat["xy"] * mm
+    blade_boxes = np.column_stack([np.minimum(p, tip) - reach, np.maximum(p, tip) + reach])
+    rect_boxes = np.empty((len(rects), 4))
+    xy_bounds = {0: lambda b: (b[0], b[1], b[0], b[2]),   # x = coord, y in [lo0, hi0]
+                 1: lambda b: (b[1], b[0], b[2], b[0]),   # y = coord, x in [lo0, hi0]
+                 2: lambda b: (b[1], b[3], b[2], b[4])}   # z = coord, x in lo0..hi0, y lo1..hi1
+    for i, (axis, b) in enumerate(zip(rect_axis, rect_bounds.astype(np.float64), strict=True)):
+        rect_boxes[i] = xy_bounds[int(axis)](b)
+    boxes = np.concatenate([blade_boxes, rect_boxes])
+    margin = 1e-4
+    origin = boxes[:, :2].min(axis=0) - margin
+    extent = boxes[:, 2:].max(axis=0) + margin - origin
+    cell = max(spec.blade_width_mm * 1.5 * mm, float(extent.max()) / 2048)
+    shape = (int(math.ceil(extent[0] / cell)), int(math.ceil(extent[1] / cell)))
+    cell_start, cell_items = _bin(boxes, origin, cell, shape)
+
+    z_top = max(lmax, float(np.max(cat["length"], initial=0.0)) * mm) + 1e-4
+    z_range = np.array([-spec.base_height_mm * mm - 1e-4, z_top], dtype=np.float32)
+    albedo = np.stack([srgb_to_linear(spec.yellow_srgb), srgb_to_linear(spec.green_srgb),
+                       srgb_to_linear(spec.base_srgb), srgb_to_linear(spec.cavity_srgb)])
+    s = spec.top_mm / 2 * mm
+    quad = np.array([[-s, -s, 0.0], [s, -s, 0.0], [s, s, 0.0], [-s, s, 0.0]])
+    return SceneArrays(
+        blade_p0=blade_p0, blade_axis=cat["axis"].astype(np.float32),
+        blade_lean=cat["lean"].astype(np.float32), blade_params=blade_params,
+        rect_axis=rect_axis, rect_bounds=rect_bounds, rect_material=rect_material,
+        grid_origin=origin.astype(np.float32), grid_cell=float(cell), grid_shape=shape,
+        cell_start=cell_start, cell_items=cell_items, z_range=z_range,
+        albedo=albedo.astype(np.float32), taper_m=spec.taper_mm * mm,
+        tip_ratio=spec.blade_tip_ratio, splay_rad=splay, green_max_m=spec.green_max_mm * mm,
+        quad_corners=quad,
+    )

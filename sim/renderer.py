@@ -1,0 +1,505 @@
+"""The Taichi path tracer: one ``@ti.data_oriented`` class that owns its fields.
+
+Physically based Monte Carlo path tracing of the grass-pixel scene (:mod:`grassd.sim.geometry`)
+under an importance-sampled equirectangular environment plus an optional directional sun.
+
+* Transport: Lambertian surfaces, next-event estimation of the environment (sampled in
+  proportion to luminance x solid angle) and of the sun (ray-traced shadow), cosine-weighted
+  BSDF sampling, the two environment strategies combined by Veach's power heuristic. Up to
+  ``max_bounces`` surface interactions; no Russian roulette, so the estimate is unbiased for that
+  depth.
+* Measurement: the mean linear RGB radiance over the image-plane quad that joins the projections
+  of the pixel's four top corners (the paper's measurement area), estimated by stratified
+  sampling of the bilinear parametrisation of that quad, weighted by its Jacobian so the
+  estimate is the mean over image area. No image is formed.
+* Uncertainty: ``replicates`` independently randomised stratified estimates; their spread gives
+  the Monte Carlo standard error. Replicate means are returned, so downstream non-linear
+  quantities (Lab, OGCD) can be given jackknife errors that include the correlation between
+  lengths.
+* Common random numbers: a camera path's random numbers depend on (seed, replicate, sample) but
+  not on the grass length, so all lengths are traced with the same sample sequence and OGCD
+  differences are smooth. With the same seed the result is bit-reproducible (each path writes
+  its own slot; the reduction is done in numpy in a fixed order).
+
+Numpy in, numpy out: :meth:`Renderer.characteristic` takes a :class:`~grassd.sim.scene.DisplaySpec`,
+a ``Lighting`` (from :mod:`grassd.sim.lighting`), a viewpoint and lengths (mm), and returns a
+:class:`Measurement`. Call :func:`grassd.sim.backend.init` before constructing a Renderer.
+"""
+
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from grassd.sim import tifuncs as tf
+from grassd.sim.backend import is_initialised, ti
+from grassd.sim.errors import SceneError, SimError
+from grassd.sim.geometry import SceneArrays, build_scene
+from grassd.sim.lighting import Lighting, build_env_sampler
+from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
+
+vec3 = tf.vec3
+EPS = 2e-6  # m: offset of secondary ray origins along the facing normal
+
+
+@dataclass(frozen=True)
+class Capacity:
+    """Field sizes allocated once per :class:`Renderer` (kernels compile once for them)."""
+
+    blades: int = 1 << 16
+    rects: int = 1 << 13
+    cells: int = 1 << 20
+    items: int = 1 << 21
+    env_texels: int = 2048 * 1024
+    env_rows: int = 1024
+    paths: int = 1 << 22
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """Simulated measurement of one viewpoint at several green lengths.
+
+    ``rgb_linear`` (n, 3): mean linear Rec.709 radiance over the measurement quad, in the units of
+    the scaled environment (nits when the map was scaled to lux). ``rgb_stderr`` (n, 3): its Monte
+    Carlo standard error. ``rgb_replicates`` (R, n, 3): the independent replicate means (same
+    random numbers across lengths within a replicate). ``seconds``: compile, trace, total.
+    """
+
+    viewpoint: Viewpoint
+    lengths_mm: np.ndarray
+    rgb_linear: np.ndarray
+    rgb_stderr: np.ndarray
+    rgb_replicates: np.ndarray
+    samples_per_length: int
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
+def image_quad(eye: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """Project world corners (4, 3) [m] onto the image plane one metre in front of ``eye``,
+    looking at their centroid. Returns (4, 3) world points on that plane."""
+    forward = corners.mean(axis=0) - eye
+    forward /= np.linalg.norm(forward)
+    rel = corners - eye
+    depth = rel @ forward
+    if np.any(depth <= 1e-6):
+        raise SceneError("the measurement quad is not in front of the eye")
+    return eye + rel / depth[:, None]
+
+
+@ti.data_oriented
+class Renderer:
+    """Owns the scene, environment and output fields; traces with one kernel."""
+
+    def __init__(self, capacity: Capacity | None = None) -> None:
+        if not is_initialised():
+            raise SimError("call grassd.sim.backend.init() before creating a Renderer")
+        self.cap = cap = capacity or Capacity()
+        self.blade_p0 = ti.Vector.field(3, ti.f32, cap.blades)
+        self.blade_a = ti.Vector.field(3, ti.f32, cap.blades)
+        self.blade_lean = ti.Vector.field(3, ti.f32, cap.blades)  # (lx, ly, alpha0)
+        self.blade_par = ti.Vector.field(4, ti.f32, cap.blades)  # hw, length, is_green, depth
+        self.blade_mat = ti.field(ti.i32, cap.blades)
+        self.rect_axis = ti.field(ti.i32, cap.rects)
+        self.rect_b = ti.Vector.field(5, ti.f32, cap.rects)
+        self.rect_mat = ti.field(ti.i32, cap.rects)
+        self.cell_start = ti.field(ti.i32, cap.cells + 1)
+        self.cell_items = ti.field(ti.i32, cap.items)
+        self.albedo = ti.Vector.field(3, ti.f32, 4)
+        self.lengths = ti.field(ti.f32, 256)
+        self.env = ti.Vector.field(3, ti.f32, cap.env_texels)
+        self.env_marg = ti.field(ti.f32, cap.env_rows + 1)
+        self.env_cond = ti.field(ti.f32, cap.env_texels + cap.env_rows)
+        self.out = ti.Vector.field(3, ti.f32, cap.paths)
+        self.quad = ti.Vector.field(3, ti.f32, 4)
+        # Scalars: see _upload_* for the meaning of each slot.
+        self.fpar = ti.field(ti.f32, 32)
+        self.ipar = ti.field(ti.i32, 16)
+        self.compiled = False
+
+    def _ensure_compiled(self) -> float:
+        """JIT-compile (or load from the offline cache) the kernel; returns seconds spent."""
+        if self.compiled:
+            return 0.0
+        t0 = time.perf_counter()
+        self._trace_kernel(0, 1, 1, 0, 1, ti.Vector([0.0, 0.0, 1.0]), 1.0)
+        ti.sync()
+        self.compiled = True
+        return time.perf_counter() - t0
+
+    # ----------------------------------------------------------------------------- uploads
+    def _upload_scene(self, sc: SceneArrays) -> None:
+        cap = self.cap
+        nb, nr = sc.n_blades, sc.n_rects
+        nx, ny = sc.grid_shape
+        for name, need, have in (("blades", nb, cap.blades), ("rectangles", nr, cap.rects),
+                                 ("grid cells", nx * ny, cap.cells),
+                                 ("grid items", len(sc.cell_items), cap.items)):
+            if need > have:
+                raise SceneError(f"scene needs {need} {name}, the renderer holds {have}; "
+                                 f"construct Renderer(Capacity(...)) larger or lower the density")
+
+        def put(fld, arr, width):
+            full = np.zeros((fld.shape[0], width) if width else fld.shape[0],
+                            dtype=arr.dtype)
+            full[: len(arr)] = arr
+            fld.from_numpy(full)
+
+        a3 = np.column_stack([sc.blade_axis, np.zeros(nb, np.float32)])
+        lean = np.column_stack([sc.blade_lean, sc.blade_params[:, 2]])
+        par = sc.blade_params[:, [0, 1, 3, 4]]
+        put(self.blade_p0, sc.blade_p0, 3)
+        put(self.blade_a, a3.astype(np.float32), 3)
+        put(self.blade_lean, lean.astype(np.float32), 3)
+        put(self.blade_par, par.astype(np.float32), 4)
+        put(self.blade_mat, sc.blade_params[:, 5].astype(np.int32), 0)
+        put(self.rect_axis, sc.rect_axis, 0)
+        put(self.rect_b, sc.rect_bounds, 5)
+        put(self.rect_mat, sc.rect_material, 0)
+        put(self.cell_start, sc.cell_start, 0)
+        put(self.cell_items, sc.cell_items, 0)
+        self.albedo.from_numpy(sc.albedo)
+        f = self.fpar
+        f[0], f[1] = float(sc.grid_origin[0]), float(sc.grid_origin[1])
+        f[2] = sc.grid_cell
+        f[3], f[4] = float(sc.z_range[0]), float(sc.z_range[1])
+        f[5], f[6], f[7], f[8] = sc.taper_m, sc.tip_ratio, sc.splay_rad, sc.green_max_m
+        i = self.ipar
+        i[0], i[1], i[2], i[3] = nb, nr, nx, ny
+
+    def _upload_light(self, lighting: Lighting) -> None:
+        env = np.ascontiguousarray(lighting.env, dtype=np.float32)
+        h, w = env.shape[:2]
+        if h * w > self.cap.env_texels or h > self.cap.env_rows:
+            raise SceneError(f"environment map {w}x{h} exceeds the renderer's capacity "
+                             f"({self.cap.env_texels} texels, {self.cap.env_rows} rows); "
+                             f"downsample it")
+        sampler = build_env_sampler(env)
+        flat = np.zeros((self.cap.env_texels, 3), np.float32)
+        flat[: h * w] = env.reshape(-1, 3)
+        self.env.from_numpy(flat)
+        marg = np.zeros(self.cap.env_rows + 1, np.float32)
+        marg[: h + 1] = sampler.marginal_cdf
+        self.env_marg.from_numpy(marg)
+        cond = np.zeros(self.cap.env_texels + self.cap.env_rows, np.float32)
+        cond[: h * (w + 1)] = np.asarray(sampler.conditional_cdf, np.float32).ravel()
+        self.env_cond.from_numpy(cond)
+        self.ipar[4], self.ipar[5] = h, w
+        sun_on = lighting.sun_direction is not None and lighting.sun_irradiance_rgb is not None
+        self.ipar[6] = int(sun_on)
+        if sun_on:
+            sd = np.asarray(lighting.sun_direction, np.float64)
+            sd = sd / np.linalg.norm(sd)
+            for k in range(3):
+                self.fpar[10 + k] = float(sd[k])
+                self.fpar[13 + k] = float(lighting.sun_irradiance_rgb[k])
+
+    # ----------------------------------------------------------------------------- kernel side
+    @ti.func
+    def env_radiance(self, d):
+        u, v = tf.dir_to_uv(d)
+        h, w = self.ipar[4], self.ipar[5]
+        row = ti.min(ti.cast(v * h, ti.i32), h - 1)
+        col = ti.min(ti.cast(u * w, ti.i32), w - 1)
+        return self.env[row * w + col]
+
+    @ti.func
+    def env_pdf(self, d) -> ti.f32:
+        """Solid-angle density of the environment sampler in direction d."""
+        u, v = tf.dir_to_uv(d)
+        h, w = self.ipar[4], self.ipar[5]
+        row = ti.min(ti.cast(v * h, ti.i32), h - 1)
+        col = ti.min(ti.cast(u * w, ti.i32), w - 1)
+        p_row = self.env_marg[row + 1] - self.env_marg[row]
+        base = row * (w + 1)
+        p_col = self.env_cond[base + col + 1] - self.env_cond[base + col]
+        s = ti.sin(tf.PI * v)
+        pdf = 0.0
+        if s > 1e-7:
+            pdf = p_row * p_col * h * w / (2.0 * tf.PI * tf.PI * s)
+        return pdf
+
+    @ti.func
+    def sample_env(self, u1: ti.f32, u2: ti.f32):
+        """Direction, solid-angle pdf and radiance of an importance-sampled environment texel."""
+        h, w = self.ipar[4], self.ipar[5]
+        lo, hi = 0, h
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            if self.env_marg[mid] <= u1:
+                lo = mid
+            else:
+                hi = mid
+        row = lo
+        p_row = self.env_marg[row + 1] - self.env_marg[row]
+        fv = (u1 - self.env_marg[row]) / ti.max(p_row, 1e-30)
+        base = row * (w + 1)
+        lo2, hi2 = 0, w
+        while hi2 - lo2 > 1:
+            mid = (lo2 + hi2) // 2
+            if self.env_cond[base + mid] <= u2:
+                lo2 = mid
+            else:
+                hi2 = mid
+        col = lo2
+        p_col = self.env_cond[base + col + 1] - self.env_cond[base + col]
+        fu = (u2 - self.env_cond[base + col]) / ti.max(p_col, 1e-30)
+        u = (col + ti.min(ti.max(fu, 0.0), 0.999999)) / w
+        v = (row + ti.min(ti.max(fv, 0.0), 0.999999)) / h
+        d = tf.uv_to_dir(u, v)
+        s = ti.sin(tf.PI * v)
+        pdf = 0.0
+        if s > 1e-7:
+            pdf = p_row * p_col * h * w / (2.0 * tf.PI * tf.PI * s)
+        return d, pdf, self.env[row * w + col]
+
+    @ti.func
+    def blade_axes(self, b: ti.i32, x: ti.f32):
+        """Rise axis u and length of blade b when the green grass is x metres long."""
+        lean = self.blade_lean[b]
+        par = self.blade_par[b]
+        length = par[1]
+        alpha = lean.z
+        if par[2] > 0.5:
+            length = x
+            alpha = lean.z + self.fpar[7] * x / self.fpar[8]
+        sa = ti.sin(alpha)
+        return vec3(sa * lean.x, sa * lean.y, ti.cos(alpha)), length
+
+    @ti.func
+    def hit_primitive(self, prim: ti.i32, o, d, x: ti.f32, tmax: ti.f32):
+        """Distance, geometric normal and material of primitive ``prim`` (INF if missed)."""
+        nb = self.ipar[0]
+        t = tf.INF
+        n = vec3(0.0, 0.0, 1.0)
+        mat = 0
+        if prim < nb:
+            p0 = self.blade_p0[prim]
+            a = self.blade_a[prim]
+            par = self.blade_par[prim]
+            u, length = self.blade_axes(prim, x)
+            t1 = tf.hit_blade(o, d, p0, a, u, par[0], length, self.fpar[5], self.fpar[6], tmax)
+            if t1 < tf.INF:
+                t = t1
+                n = a.cross(u)
+            if par[2] > 0.5:  # green: the straight part inside the cavity
+                up = vec3(0.0, 0.0, 1.0)
+                low = p0 - vec3(0.0, 0.0, par[3])
+                t2 = tf.hit_blade(o, d, low, a, up, par[0], par[3], 1e-9, 1.0, ti.min(tmax, t))
+                if t2 < t:
+                    t = t2
+                    n = a.cross(up)
+            mat = self.blade_mat[prim]
+        else:
+            r = prim - nb
+            ax = self.rect_axis[r]
+            bd = self.rect_b[r]
+            t = tf.hit_rect(o, d, ax, bd[0], bd[1], bd[2], bd[3], bd[4], tmax)
+            n = tf.axis_vector(ax)
+            mat = self.rect_mat[r]
+        return t, n, mat
+
+    @ti.func
+    def trace(self, o, d, x: ti.f32, tmax_in: ti.f32, any_hit: ti.template()):
+        """Nearest hit (or any hit, for shadows) along o + t d, t in (0, tmax_in)."""
+        best_t = tmax_in
+        best_n = vec3(0.0, 0.0, 1.0)
+        best_m = -1
+        t0 = 0.0
+        t1 = tmax_in
+        gx0, gy0, cell = self.fpar[0], self.fpar[1], self.fpar[2]
+        nx, ny = self.ipar[2], self.ipar[3]
+        lo = vec3(gx0, gy0, self.fpar[3])
+        hi = vec3(gx0 + nx * cell, gy0 + ny * cell, self.fpar[4])
+        for k in ti.static(range(3)):  # clip to the scene's bounding box (slab method)
+            if ti.abs(d[k]) < 1e-12:
+                if o[k] < lo[k] or o[k] > hi[k]:
+                    t1 = -1.0
+            else:
+                ta = (lo[k] - o[k]) / d[k]
+                tb = (hi[k] - o[k]) / d[k]
+                t0 = ti.max(t0, ti.min(ta, tb))
+                t1 = ti.min(t1, ti.max(ta, tb))
+        if t0 < t1:
+            p = o + t0 * d
+            ix = ti.min(ti.max(ti.cast(ti.floor((p.x - gx0) / cell), ti.i32), 0), nx - 1)
+            iy = ti.min(ti.max(ti.cast(ti.floor((p.y - gy0) / cell), ti.i32), 0), ny - 1)
+            sx = 1 if d.x > 0 else -1
+            sy = 1 if d.y > 0 else -1
+            tdx = tf.INF
+            tdy = tf.INF
+            tnx = tf.INF
+            tny = tf.INF
+            if ti.abs(d.x) > 1e-12:
+                tdx = cell / ti.abs(d.x)
+                tnx = (gx0 + (ix + (1 if sx > 0 else 0)) * cell - o.x) / d.x
+            if ti.abs(d.y) > 1e-12:
+                tdy = cell / ti.abs(d.y)
+                tny = (gy0 + (iy + (1 if sy > 0 else 0)) * cell - o.y) / d.y
+            done = False
+            while not done:
+                c = ix * ny + iy
+                for j in range(self.cell_start[c], self.cell_start[c + 1]):
+                    prim = self.cell_items[j]
+                    t, n, m = self.hit_primitive(prim, o, d, x, best_t)
+                    if t < best_t:
+                        best_t = t
+                        best_n = n
+                        best_m = m
+                        if ti.static(any_hit):
+                            done = True
+                            break
+                t_exit = ti.min(tnx, tny, t1)
+                if best_t <= t_exit or t_exit >= t1:
+                    done = True
+                elif tnx < tny:
+                    ix += sx
+                    tnx += tdx
+                    if ix < 0 or ix >= nx:
+                        done = True
+                else:
+                    iy += sy
+                    tny += tdy
+                    if iy < 0 or iy >= ny:
+                        done = True
+        return best_t, best_n, best_m
+
+    @ti.func
+    def radiance(self, o, d, x: ti.f32, key: ti.u32, max_bounces: ti.i32):
+        """Path-traced radiance along o + t d (linear Rec.709)."""
+        total = vec3(0.0)
+        beta = vec3(1.0)
+        pdf_bsdf = 0.0
+        sun_on = self.ipar[6]
+        sun_dir = vec3(self.fpar[10], self.fpar[11], self.fpar[12])
+        sun_e = vec3(self.fpar[13], self.fpar[14], self.fpar[15])
+        for depth in range(max_bounces + 1):
+            t, n, mat = self.trace(o, d, x, tf.INF, False)
+            if mat < 0:  # escaped to the environment
+                le = self.env_radiance(d)
+                w = 1.0
+                if depth > 0:
+                    w = tf.power_heuristic(pdf_bsdf, self.env_pdf(d))
+                total += beta * le * w
+                break
+            if depth == max_bounces:
+                break
+            nn = n.normalized()
+            if nn.dot(d) > 0.0:
+                nn = -nn
+            p = o + t * d + EPS * nn
+            alb = self.albedo[mat]
+            dim = 2 + depth * 6
+            # Next-event estimation: environment, MIS against the BSDF strategy.
+            wl, pdf_l, le = self.sample_env(tf.rand01(key, dim), tf.rand01(key, dim + 1))
+            cos_l = nn.dot(wl)
+            if cos_l > 0.0 and pdf_l > 0.0:
+                ts, _, ms = self.trace(p, wl, x, tf.INF, True)
+                if ms < 0:
+                    w = tf.power_heuristic(pdf_l, cos_l / tf.PI)
+                    total += beta * alb * le * (cos_l / tf.PI / pdf_l * w)
+            # Next-event estimation: the sun (a delta light: no MIS).
+            if sun_on == 1:
+                cos_s = nn.dot(sun_dir)
+                if cos_s > 0.0:
+                    ts, _, ms = self.trace(p, sun_dir, x, tf.INF, True)
+                    if ms < 0:
+                        total += beta * alb * sun_e * (cos_s / tf.PI)
+            # Continue the path by cosine-weighted sampling (throughput *= albedo).
+            d = tf.cosine_hemisphere(nn, tf.rand01(key, dim + 2), tf.rand01(key, dim + 3))
+            pdf_bsdf = ti.max(nn.dot(d), 0.0) / tf.PI
+            beta *= alb
+            o = p
+        return total
+
+    @ti.kernel
+    def _trace_kernel(self, n_len: ti.i32, n_rep: ti.i32, strata: ti.i32, seed: ti.u32,
+                      max_bounces: ti.i32, eye: vec3, area: ti.f32):
+        n_samp = strata * strata
+        for k, r, i in ti.ndrange(n_len, n_rep, n_samp):
+            key = tf.sample_key(seed, r, i)
+            su = (i % strata + tf.rand01(key, 0)) / strata
+            sv = (i // strata + tf.rand01(key, 1)) / strata
+            q0, q1, q2, q3 = self.quad[0], self.quad[1], self.quad[2], self.quad[3]
+            q = (1 - su) * (1 - sv) * q0 + su * (1 - sv) * q1 + su * sv * q2 + (1 - su) * sv * q3
+            dpu = (1 - sv) * (q1 - q0) + sv * (q2 - q3)
+            dpv = (1 - su) * (q3 - q0) + su * (q2 - q1)
+            jac = dpu.cross(dpv).norm() / area
+            d = (q - eye).normalized()
+            x = self.lengths[k]
+            self.out[(k * n_rep + r) * n_samp + i] = jac * self.radiance(eye, d, x, key,
+                                                                          max_bounces)
+
+    # ----------------------------------------------------------------------------- public API
+    def characteristic(
+        self,
+        display: DisplaySpec,
+        lighting: Lighting,
+        viewpoint: Viewpoint,
+        lengths_mm: np.ndarray,
+        settings: RenderSettings | None = None,
+        pixel_index: int = 0,
+        progress: Callable[[int, int], None] | None = None,
+    ) -> Measurement:
+        """Trace the measurement quad of pixel ``pixel_index`` at every green length (mm).
+
+        Lengths must be finite, within 0..green_max_mm, at most 256 of them. ``progress`` is
+        called with (done, total) lengths as chunks finish.
+        """
+        settings = settings or RenderSettings()
+        t_start = time.perf_counter()
+        lengths_mm = np.asarray(lengths_mm, dtype=np.float64)
+        if lengths_mm.ndim != 1 or not 1 <= len(lengths_mm) <= 256:
+            raise SceneError("give 1..256 green lengths (mm)")
+        scene = build_scene(display, lengths_mm)
+        self._upload_scene(scene)
+        self._upload_light(lighting)
+        centres = display.pixel_centres_m()
+        if not 0 <= pixel_index < len(centres):
+            raise SceneError(f"pixel_index {pixel_index} outside the display's "
+                             f"{len(centres)} pixels")
+        cxy = centres[pixel_index]
+        corners = scene.quad_corners + np.array([cxy[0], cxy[1], 0.0])
+        eye = viewpoint.eye_m(tuple(cxy))
+        quad = image_quad(eye, corners)
+        self.quad.from_numpy(quad.astype(np.float32))
+        area = 0.5 * np.linalg.norm(np.cross(quad[2] - quad[0], quad[3] - quad[1]))
+
+        m = settings.strata
+        n_samp = m * m
+        per_len = settings.replicates * n_samp
+        if per_len > self.cap.paths:
+            raise SceneError(f"{per_len} paths per length exceed the renderer's buffer of "
+                             f"{self.cap.paths}; lower samples or replicates")
+        chunk = max(1, self.cap.paths // per_len)
+        n = len(lengths_mm)
+        out = np.empty((n, settings.replicates, 3), np.float64)
+        t_compile = self._ensure_compiled()
+        t_trace0 = time.perf_counter()
+        for s in range(0, n, chunk):
+            part = lengths_mm[s: s + chunk]
+            buf = np.zeros(256, np.float32)
+            buf[: len(part)] = part * 1e-3
+            self.lengths.from_numpy(buf)
+            self._trace_kernel(len(part), settings.replicates, m, settings.seed,
+                               settings.max_bounces, ti.Vector(eye.astype(np.float32).tolist()),
+                               float(area))
+            samples = self.out.to_numpy()[: len(part) * per_len]
+            samples = samples.reshape(len(part), settings.replicates, n_samp, 3)
+            out[s: s + len(part)] = samples.astype(np.float64).mean(axis=2)
+            if progress:
+                progress(min(s + chunk, n), n)
+        if not np.all(np.isfinite(out)):
+            raise SimError("the renderer produced non-finite radiance; check the lighting "
+                           "values (NaN/Inf texels or sun irradiance)")
+        rgb = out.mean(axis=1)
+        stderr = out.std(axis=1, ddof=1) / math.sqrt(settings.replicates)
+        t_end = time.perf_counter()
+        return Measurement(
+            viewpoint=viewpoint, lengths_mm=lengths_mm, rgb_linear=rgb, rgb_stderr=stderr,
+            rgb_replicates=np.transpose(out, (1, 0, 2)), samples_per_length=per_len,
+            seconds={"compile": t_compile, "trace": t_end - t_trace0,
+                     "total": t_end - t_start},
+        )

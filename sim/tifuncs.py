@@ -1,0 +1,132 @@
+"""Stateless Taichi helpers: hashing RNG, sampling warps, ray-primitive intersections.
+
+Pure functions of their arguments (no fields), so they can be read and tested in isolation.
+Units: whatever the caller uses consistently (the renderer uses metres).
+"""
+
+
+import math
+
+from grassd.sim.backend import ti
+
+INF = 1e30
+PI = math.pi
+vec3 = ti.types.vector(3, ti.f32)
+
+
+@ti.func
+def pcg_hash(v: ti.u32) -> ti.u32:
+    """PCG-RXS-M-XS 32-bit hash (Jarzynski & Olano, JCGT 2020, "Hash Functions for GPU
+    Rendering")."""
+    state = v * ti.u32(747796405) + ti.u32(2891336453)
+    word = ((state >> ((state >> ti.u32(28)) + ti.u32(4))) ^ state) * ti.u32(277803737)
+    return (word >> ti.u32(22)) ^ word
+
+
+@ti.func
+def sample_key(seed: ti.u32, replicate: ti.i32, index: ti.i32) -> ti.u32:
+    """Key of one camera path; independent of the grass length (common random numbers)."""
+    return pcg_hash(pcg_hash(pcg_hash(seed) ^ ti.u32(replicate)) + ti.u32(index))
+
+
+@ti.func
+def rand01(key: ti.u32, dim: ti.i32) -> ti.f32:
+    """Uniform float in [0, 1) for dimension ``dim`` of the path with ``key`` (24-bit mantissa)."""
+    h = pcg_hash(key ^ pcg_hash(ti.u32(dim) * ti.u32(0x9E3779B9) + ti.u32(0x85EBCA6B)))
+    return ti.cast(h >> ti.u32(8), ti.f32) * (1.0 / 16777216.0)
+
+
+@ti.func
+def onb_from(n: vec3):
+    """Orthonormal basis (t, b) around unit n (Duff et al., JCGT 2017)."""
+    sign = 1.0 if n.z >= 0.0 else -1.0
+    a = -1.0 / (sign + n.z)
+    b = n.x * n.y * a
+    t = vec3(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x)
+    bb = vec3(b, sign + n.y * n.y * a, -n.y)
+    return t, bb
+
+
+@ti.func
+def cosine_hemisphere(n: vec3, u1: ti.f32, u2: ti.f32) -> vec3:
+    """Cosine-weighted direction about unit n (pdf = cos / pi), Malley's method."""
+    r = ti.sqrt(u1)
+    phi = 2.0 * PI * u2
+    t, b = onb_from(n)
+    z = ti.sqrt(ti.max(0.0, 1.0 - u1))
+    return (t * (r * ti.cos(phi)) + b * (r * ti.sin(phi)) + n * z).normalized()
+
+
+@ti.func
+def dir_to_uv(d: vec3):
+    """Environment convention: u = atan2(y, x) / 2pi (mod 1), v = acos(z) / pi."""
+    u = ti.atan2(d.y, d.x) / (2.0 * PI)
+    if u < 0.0:
+        u += 1.0
+    v = ti.acos(ti.min(1.0, ti.max(-1.0, d.z))) / PI
+    return u, v
+
+
+@ti.func
+def uv_to_dir(u: ti.f32, v: ti.f32) -> vec3:
+    """Inverse of :func:`dir_to_uv`."""
+    phi = 2.0 * PI * u
+    theta = PI * v
+    s = ti.sin(theta)
+    return vec3(s * ti.cos(phi), s * ti.sin(phi), ti.cos(theta))
+
+
+@ti.func
+def power_heuristic(pdf_a: ti.f32, pdf_b: ti.f32) -> ti.f32:
+    """Veach's power heuristic (beta = 2) weight for the strategy with ``pdf_a``."""
+    a2 = pdf_a * pdf_a
+    return a2 / ti.max(a2 + pdf_b * pdf_b, 1e-30)
+
+
+@ti.func
+def hit_blade(o: vec3, d: vec3, p0: vec3, a: vec3, u: vec3, hw: ti.f32, length: ti.f32,
+              taper: ti.f32, tip_ratio: ti.f32, tmax: ti.f32) -> ti.f32:
+    """Distance along the ray to a tapered blade quad, or INF.
+
+    The quad is ``p0 + s a + h u`` with ``a`` a horizontal unit vector, ``u`` a unit vector with
+    ``u.z > 0``, ``0 <= h <= length`` and ``|s| <= hw * clamp((length - h) / taper, tip_ratio, 1)``.
+    """
+    t = INF
+    n = a.cross(u)
+    denom = d.dot(n)
+    if ti.abs(denom) > 1e-12 and length > 0.0:
+        tt = (p0 - o).dot(n) / denom
+        if tt > 0.0 and tt < tmax:
+            q = o + tt * d - p0
+            h = q.z / u.z
+            if h >= 0.0 and h <= length:
+                s = (q - h * u).dot(a)
+                w = hw * ti.min(1.0, ti.max(tip_ratio, (length - h) / taper))
+                if ti.abs(s) <= w:
+                    t = tt
+    return t
+
+
+@ti.func
+def hit_rect(o: vec3, d: vec3, axis: ti.i32, c: ti.f32, lo0: ti.f32, hi0: ti.f32, lo1: ti.f32,
+             hi1: ti.f32, tmax: ti.f32) -> ti.f32:
+    """Distance to an axis-aligned rectangle (normal along ``axis``, at coordinate ``c``; bounds
+    on the other two axes in increasing axis order), or INF."""
+    t = INF
+    da = d.x if axis == 0 else (d.y if axis == 1 else d.z)
+    oa = o.x if axis == 0 else (o.y if axis == 1 else o.z)
+    if ti.abs(da) > 1e-12:
+        tt = (c - oa) / da
+        if tt > 0.0 and tt < tmax:
+            p = o + tt * d
+            p0 = p.y if axis == 0 else p.x
+            p1 = p.y if axis == 2 else p.z
+            if p0 >= lo0 and p0 <= hi0 and p1 >= lo1 and p1 <= hi1:
+                t = tt
+    return t
+
+
+@ti.func
+def axis_vector(axis: ti.i32) -> vec3:
+    """Unit vector along world axis 0, 1 or 2."""
+    return vec3(1.0 if axis == 0 else 0.0, 1.0 if axis == 1 else 0.0, 1.0 if axis == 2 else 0.0)
