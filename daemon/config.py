@@ -11,7 +11,8 @@ The file (default ``/etc/grassd/grassd.toml``; the embedded default is
     [display]      rows, cols, pitch_mm; [display.pixel] pixel-spec fields (mm, counts)
     [[controllers]] port, baud, address, pixels ("0-63,70" inclusive ranges of pixel indices)
     [[viewpoints]] h_cm, d_m, theta_deg, weight
-    [light]        inbox, lux = "manifest" | "modbus"; [light.modbus] sensor register map
+    [light]        inbox, lux = "manifest" | "modbus", settle_s, incomplete_timeout_s;
+                   [light.modbus] sensor register map
     [schedule]     interval_s, on_new_bundle
     [simulation]   samples, seed, lengths (count of evenly spaced lengths, or a list in mm)
 
@@ -155,12 +156,16 @@ class LightConfig:
     """Light inputs: bundle ``inbox`` directory and where lux comes from.
 
     ``lux == "manifest"``: the manifest must carry ambient lux. ``lux == "modbus"``: manifest lux
-    wins when present, otherwise the sensor described by ``modbus`` is read.
+    wins when present, otherwise the sensor described by ``modbus`` is read. A bundle is picked
+    up once its files have kept their sizes for ``settle_s`` seconds; a manifest whose files are
+    still missing after ``incomplete_timeout_s`` seconds is rejected.
     """
 
     inbox: Path
     lux: str
     modbus: ModbusConfig | None
+    settle_s: float = 2.0
+    incomplete_timeout_s: float = 600.0
 
 
 @dataclass(frozen=True)
@@ -524,7 +529,8 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
     lt = _table(ctx, ("light",), top["light"], {
         "inbox": _F(str, check=_non_empty),
         "lux": _F(str, "manifest", _one_of("manifest", "modbus")),
-        "modbus": _F(dict, None),
+        "modbus": _F(dict, None), "settle_s": _F(float, 2.0, _non_negative),
+        "incomplete_timeout_s": _F(float, 600.0, _positive),
     })
     modbus = None
     if lt["modbus"] is not None:
@@ -604,7 +610,8 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
 
     inbox = Path(os.path.expandvars(os.path.expanduser(lt["inbox"])))
     light = LightConfig(inbox=inbox if inbox.is_absolute() else state_dir / inbox,
-                        lux=lt["lux"], modbus=modbus)
+                        lux=lt["lux"], modbus=modbus, settle_s=lt["settle_s"],
+                        incomplete_timeout_s=lt["incomplete_timeout_s"])
 
     return Config(site=site, display=display, controllers=tuple(controllers),
                   viewpoints=tuple(viewpoints), light=light, schedule=schedule,

@@ -1,0 +1,597 @@
+"""The inbox: light bundles arrive, are claimed, processed, and end archived or rejected.
+
+A *bundle* is either
+
+- a directory ``inbox/<name>/`` holding ``manifest.toml`` or ``manifest.json`` and the files it
+  names, or
+- a flat group of files in the inbox: ``<name>.manifest.toml`` (or ``.json``) and the files it
+  names, side by side.
+
+The manifest is written last. Hidden names (starting with ``.``) are ignored, so writers may
+write ``.partial`` names and rename. Manifest keys::
+
+    timestamp = 2026-06-21T12:00:00+02:00   # TOML datetime or ISO 8601 string; naive = site time
+    hdri = "sky.exr"                         # equirectangular HDRI, .exr or .hdr
+    ambient_lux = 12000.0                    # optional when a Modbus lux sensor is configured
+    sun_lux = 40000.0                        # optional: (lux with sun) - (lux without)
+    sun_azimuth_deg = 180.0                  # optional, with sun_elevation_deg
+    sun_elevation_deg = 35.0
+    checker_raw = "checker.dng"              # optional colour-checker RAW
+    checker_corners = [[x, y], x4]           # optional chart corners in the RAW (pixels)
+
+Life of a bundle (all moves are ``rename(2)`` inside the state directory, so each is atomic)::
+
+    inbox/<name> --claim--> processing/<id> --> archive/<id>
+                                            \\-> rejected/<id> (+ reason.txt)
+
+``<id>`` = first 12 hex digits of the bundle hash + name. The bundle hash is the SHA-256 over the
+names and SHA-256 digests of every file of the bundle, so identical content has one hash.
+
+Crash safety rests on a journal row (SQLite, :class:`~grassd.daemon.history.History`) keyed by
+the bundle hash, written *before* each move: ``processing`` when claimed, ``archived`` /
+``rejected`` after the final move. :meth:`Inbox.recover` (run at start) reconciles journal and
+directories: a bundle still in ``processing/`` is retried unless a successful run already
+consumed it (then it is archived without running again) or it has been attempted
+``max_attempts`` times (then it is rejected: it probably crashes the daemon); a half-moved flat
+bundle goes back to the inbox; a bundle whose hash was already archived or rejected is rejected
+as a duplicate. So no bundle is lost and none is processed twice.
+"""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import logging
+import math
+import os
+import re
+import shutil
+import time
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import UTC, datetime, tzinfo
+from pathlib import Path
+from typing import Any
+from zoneinfo import ZoneInfo
+
+from grassd.daemon.atomic import atomic_write_text, fsync_dir
+from grassd.daemon.errors import IngestError, ManifestError
+from grassd.daemon.history import History
+
+log = logging.getLogger(__name__)
+
+MANIFEST_NAMES = ("manifest.toml", "manifest.json")
+FLAT_SUFFIXES = (".manifest.toml", ".manifest.json")
+HDRI_SUFFIXES = (".exr", ".hdr")
+REASON_FILE = "reason.txt"
+#: Largest plausible illuminance (lux): direct summer sun is about 1.2e5 lux.
+MAX_LUX = 200_000.0
+_EXR_MAGIC = b"\x76\x2f\x31\x01"
+_SAFE_RE = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+@dataclass(frozen=True)
+class Manifest:
+    """A validated bundle manifest; paths are absolute (inside the bundle's directory).
+
+    Illuminances in lux, angles in degrees (azimuth clockwise from north, elevation above the
+    horizon); ``timestamp`` is timezone-aware.
+    """
+
+    timestamp: datetime
+    hdri: Path
+    ambient_lux: float | None
+    sun_lux: float | None
+    sun_azimuth_deg: float | None
+    sun_elevation_deg: float | None
+    checker_raw: Path | None
+    checker_corners: tuple[tuple[float, float], ...] | None
+
+    def files(self) -> list[Path]:
+        """The data files the manifest names."""
+        return [p for p in (self.hdri, self.checker_raw) if p is not None]
+
+
+@dataclass(frozen=True)
+class Bundle:
+    """A claimed bundle: its ``dir`` under processing/, content hash and parsed manifest."""
+
+    id: str
+    name: str
+    hash: str
+    dir: Path
+    manifest: Manifest
+    input_hashes: dict[str, str]
+
+
+# --------------------------------------------------------------------------- manifest
+
+
+_MANIFEST_KEYS = {"timestamp", "hdri", "ambient_lux", "sun_lux", "sun_azimuth_deg",
+                  "sun_elevation_deg", "checker_raw", "checker_corners"}
+
+
+def read_manifest_data(path: Path) -> dict[str, Any]:
+    """Parse a TOML or JSON manifest file into a dict (ManifestError when malformed)."""
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ManifestError(f"cannot read manifest {path.name}: {exc.strerror}") from None
+    try:
+        text = raw.decode("utf-8")
+        if path.name.endswith(".json"):
+            data = json.loads(text)
+        else:
+            data = tomllib.loads(text)
+    except (UnicodeDecodeError, json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
+        kind = "JSON" if path.name.endswith(".json") else "TOML"
+        raise ManifestError(f"manifest {path.name} is not valid {kind}: {exc}") from None
+    if not isinstance(data, dict):
+        raise ManifestError(f"manifest {path.name} must hold a table/object at top level")
+    return data
+
+
+def _num(data: dict, key: str, lo: float, hi: float, unit: str) -> float | None:
+    v = data.get(key)
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        raise ManifestError(f"{key} must be a finite number ({unit}), got {v!r}")
+    if not lo <= v <= hi:
+        raise ManifestError(f"{key} = {v} {unit} is out of range ({lo} .. {hi} {unit})")
+    return float(v)
+
+
+def _member(base: Path, key: str, v: Any) -> Path:
+    if not isinstance(v, str) or not v or "/" in v or "\\" in v or v in (".", ".."):
+        raise ManifestError(f"{key} must be a plain file name inside the bundle, got {v!r}")
+    return base / v
+
+
+def parse_manifest(data: dict[str, Any], base: Path, tz: tzinfo = UTC) -> Manifest:
+    """Validate manifest ``data``; file names resolve inside ``base``; naive times are in ``tz``.
+
+    Checks names and ranges only, not that the files exist (see :func:`missing_files`).
+    """
+    unknown = sorted(set(data) - _MANIFEST_KEYS)
+    if unknown:
+        raise ManifestError(f"unknown manifest key {unknown[0]!r} "
+                            f"(allowed: {', '.join(sorted(_MANIFEST_KEYS))})")
+    ts = data.get("timestamp")
+    if ts is None:
+        raise ManifestError("timestamp is missing (ISO 8601, e.g. 2026-06-21T12:00:00+02:00)")
+    if isinstance(ts, str):
+        try:
+            ts = datetime.fromisoformat(ts.replace("Z", "+00:00"))
+        except ValueError:
+            raise ManifestError(f"timestamp {ts!r} is not ISO 8601") from None
+    if not isinstance(ts, datetime):
+        raise ManifestError(f"timestamp must be a date-time, got {ts!r}")
+    if ts.tzinfo is None:
+        ts = ts.replace(tzinfo=tz)
+    if "hdri" not in data:
+        raise ManifestError("hdri is missing (name of the .exr or .hdr panorama)")
+    hdri = _member(base, "hdri", data["hdri"])
+    if hdri.suffix.lower() not in HDRI_SUFFIXES:
+        raise ManifestError(f"hdri {hdri.name!r} must be an OpenEXR (.exr) or Radiance (.hdr) file")
+    ambient = _num(data, "ambient_lux", -math.inf, math.inf, "lux")
+    if ambient is not None and not 0 < ambient <= MAX_LUX:
+        raise ManifestError(f"ambient_lux = {ambient:g} lux is impossible: it must be > 0 and "
+                            f"<= {MAX_LUX:g} lux")
+    sun = _num(data, "sun_lux", 0.0, MAX_LUX, "lux")
+    az = _num(data, "sun_azimuth_deg", 0.0, 360.0, "degrees")
+    el = _num(data, "sun_elevation_deg", -90.0, 90.0, "degrees")
+    if (az is None) != (el is None):
+        raise ManifestError("give both sun_azimuth_deg and sun_elevation_deg, or neither")
+    raw = _member(base, "checker_raw", data["checker_raw"]) if "checker_raw" in data else None
+    corners = data.get("checker_corners")
+    if corners is not None:
+        ok = (isinstance(corners, list) and len(corners) == 4
+              and all(isinstance(c, list) and len(c) == 2 and
+                      all(isinstance(x, int | float) and not isinstance(x, bool) for x in c)
+                      for c in corners))
+        if not ok:
+            raise ManifestError("checker_corners must be four [x, y] pixel positions")
+        if raw is None:
+            raise ManifestError("checker_corners given without checker_raw")
+        corners = tuple((float(x), float(y)) for x, y in corners)
+    return Manifest(timestamp=ts, hdri=hdri, ambient_lux=ambient, sun_lux=sun, sun_azimuth_deg=az,
+                    sun_elevation_deg=el, checker_raw=raw, checker_corners=corners)
+
+
+def check_hdri_magic(path: Path) -> None:
+    """Reject an HDRI whose first bytes are not OpenEXR or Radiance RGBE (cheap early check)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(16)
+    except OSError as exc:
+        raise IngestError(f"cannot read HDRI {path.name}: {exc.strerror}") from None
+    if path.suffix.lower() == ".exr" and head[:4] != _EXR_MAGIC:
+        raise IngestError(f"HDRI {path.name} is not an OpenEXR file (bad magic number)")
+    if path.suffix.lower() == ".hdr" and not head.startswith((b"#?RADIANCE", b"#?RGBE")):
+        raise IngestError(f"HDRI {path.name} is not a Radiance .hdr file (no #?RADIANCE header)")
+
+
+def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
+    """Hex SHA-256 of a file's content."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while block := fh.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+def bundle_hash(input_hashes: dict[str, str]) -> str:
+    """Content hash of a bundle from its ``{file name: sha256}`` map (manifest included)."""
+    return hashlib.sha256(json.dumps(sorted(input_hashes.items())).encode()).hexdigest()
+
+
+# --------------------------------------------------------------------------- the inbox
+
+
+@dataclass
+class _Candidate:
+    name: str
+    manifest: Path | None          # None: directory bundle without manifest (yet)
+    members: list[Path]            # everything that moves with the bundle (manifest last)
+    parsed: Manifest | None
+    parse_error: str | None
+    missing: list[str]
+
+
+class Inbox:
+    """Watches ``inbox`` and moves bundles through ``state_dir``/{processing,archive,rejected}.
+
+    ``settle_s``: files must keep size and mtime this long before a bundle is claimed;
+    ``incomplete_timeout_s``: a bundle still missing files after this long is rejected.
+    ``clock`` (seconds, monotonic) is injectable for tests.
+    """
+
+    def __init__(self, inbox: Path, state_dir: Path, history: History, *,
+                 settle_s: float = 2.0, incomplete_timeout_s: float = 600.0,
+                 tz: tzinfo | str = UTC, max_attempts: int = 3,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.inbox = Path(inbox)
+        self.state_dir = Path(state_dir)
+        self.processing = self.state_dir / "processing"
+        self.archive = self.state_dir / "archive"
+        self.rejected = self.state_dir / "rejected"
+        for d in (self.inbox, self.processing, self.archive, self.rejected):
+            d.mkdir(parents=True, exist_ok=True)
+        self.history = history
+        self.settle_s = settle_s
+        self.incomplete_timeout_s = incomplete_timeout_s
+        self.tz = ZoneInfo(tz) if isinstance(tz, str) else tz
+        self.max_attempts = max_attempts
+        self.clock = clock
+        self._watch: dict[str, tuple[tuple, float, float]] = {}  # name -> (sig, since, first)
+
+    # ------------------------------------------------------------------ scanning
+    def _candidates(self) -> list[_Candidate]:
+        out: list[_Candidate] = []
+        try:
+            entries = sorted(os.scandir(self.inbox), key=lambda e: e.name)
+        except FileNotFoundError:
+            self.inbox.mkdir(parents=True, exist_ok=True)
+            return out
+        for e in entries:
+            if e.name.startswith("."):
+                continue
+            if e.is_dir(follow_symlinks=False):
+                base = Path(e.path)
+                found = [base / m for m in MANIFEST_NAMES if (base / m).exists()]
+                if len(found) > 1:
+                    out.append(_Candidate(e.name, found[0], [base], None,
+                                          "bundle has both manifest.toml and manifest.json", []))
+                    continue
+                out.append(self._examine(e.name, found[0] if found else None, base, [base]))
+            elif e.name.endswith(FLAT_SUFFIXES):
+                name = e.name[: -len(next(s for s in FLAT_SUFFIXES if e.name.endswith(s)))]
+                out.append(self._examine(name, Path(e.path), self.inbox, None))
+        return out
+
+    def _examine(self, name: str, manifest: Path | None, base: Path,
+                 members: list[Path] | None) -> _Candidate:
+        if manifest is None:
+            return _Candidate(name, None, members or [], None, None, ["manifest.toml"])
+        parsed, err, missing = None, None, []
+        try:
+            parsed = parse_manifest(read_manifest_data(manifest), base, self.tz)
+        except ManifestError as exc:
+            err = str(exc)
+        if parsed is not None:
+            missing = [p.name for p in parsed.files() if not p.is_file()]
+        if members is None:  # flat bundle: data files first, manifest last
+            files = [p for p in (parsed.files() if parsed else []) if p.is_file()]
+            members = [*files, manifest]
+        return _Candidate(name, manifest, members, parsed, err, missing)
+
+    @staticmethod
+    def _signature(c: _Candidate) -> tuple:
+        sig = []
+        for m in c.members:
+            paths = [m] if m.is_file() else sorted(p for p in m.rglob("*") if p.is_file())
+            for p in paths:
+                try:
+                    st = p.stat()
+                except FileNotFoundError:
+                    continue
+                sig.append((str(p), st.st_size, st.st_mtime_ns))
+        return tuple(sig)
+
+    # ------------------------------------------------------------------ public API
+    def poll(self) -> list[Bundle]:
+        """Scan the inbox once: claim complete, settled bundles into processing/ and return them.
+
+        Bundles with an invalid manifest, or still incomplete after the timeout, are claimed and
+        rejected at once (with their reason); duplicates of already-handled bundles likewise.
+        """
+        now = self.clock()
+        ready: list[Bundle] = []
+        names = set()
+        for c in self._candidates():
+            names.add(c.name)
+            sig = self._signature(c)
+            prev = self._watch.get(c.name)
+            if prev is None or prev[0] != sig:
+                first = prev[2] if prev else now
+                self._watch[c.name] = (sig, now, first)
+                if self.settle_s > 0:
+                    continue
+                prev = self._watch[c.name]
+            _, since, first = prev
+            settled = now - since >= self.settle_s
+            if c.missing or c.manifest is None:
+                if now - first >= self.incomplete_timeout_s and settled:
+                    what = ("no manifest.toml or manifest.json" if c.manifest is None
+                            else f"missing file(s) {', '.join(c.missing)}")
+                    self._claim_and_reject(c, f"incomplete bundle after "
+                                              f"{self.incomplete_timeout_s:g} s: {what}")
+                    self._watch.pop(c.name, None)
+                continue
+            if not settled:
+                continue
+            self._watch.pop(c.name, None)
+            if c.parse_error is not None:
+                self._claim_and_reject(c, c.parse_error)
+                continue
+            bundle = self._claim(c)
+            if bundle is not None:
+                ready.append(bundle)
+        for gone in set(self._watch) - names:
+            del self._watch[gone]
+        return ready
+
+    def recover(self) -> list[Bundle]:
+        """Reconcile journal and directories after a crash; return bundles to process again."""
+        retry: list[Bundle] = []
+        rows = {j.bundle_id: j for j in self.history.journal("processing")}
+        # 1. flat bundles interrupted half-way into processing/: put them back.
+        for d in sorted(self.processing.glob("*.partial")):
+            bid = d.name[: -len(".partial")]
+            row = rows.pop(bid, None)
+            name = row.name if row else bid.split("-", 1)[-1]
+            self._unclaim_partial(d, name)
+            if row:
+                self.history.journal_forget(row.bundle_hash)
+        # 2. journal rows still "processing".
+        for bid, row in rows.items():
+            here = self.processing / bid
+            if here.is_dir():
+                b = self._retry_or_settle(row.bundle_hash, bid, row.name, row.attempts)
+                if b is not None:
+                    retry.append(b)
+            elif (self.archive / bid).is_dir():
+                self.history.journal_finish(row.bundle_hash, "archived")
+            elif (self.rejected / bid).is_dir():
+                self.history.journal_finish(row.bundle_hash, "rejected",
+                                            reason=self._read_reason(self.rejected / bid))
+            elif (self.inbox / row.name).exists() or any(
+                    (self.inbox / (row.name + s)).exists() for s in FLAT_SUFFIXES):
+                self.history.journal_forget(row.bundle_hash)  # crashed before the move
+            else:
+                log.error("bundle %s vanished from processing/ while the daemon was down", bid)
+                self.history.journal_finish(row.bundle_hash, "rejected",
+                                            reason="bundle files vanished after a crash")
+        # 3. directories in processing/ that the journal does not know (database replaced).
+        known = {j.bundle_id for j in self.history.journal()}
+        for d in sorted(self.processing.iterdir()):
+            if d.is_dir() and not d.name.endswith(".partial") and d.name not in known:
+                name = d.name.split("-", 1)[-1]
+                try:
+                    hashes = self._hash_dir(d)
+                except OSError as exc:
+                    self._finish_dir(d, d.name, None, f"unreadable after a crash: {exc}")
+                    continue
+                h = bundle_hash(hashes)
+                self.history.journal_claim(h, d.name, name)
+                b = self._retry_or_settle(h, d.name, name, 0)
+                if b is not None:
+                    retry.append(b)
+        return retry
+
+    def begin(self, bundle: Bundle) -> int:
+        """Count one processing attempt of ``bundle`` (call right before processing it)."""
+        return self.history.journal_attempt(bundle.hash)
+
+    def archive_bundle(self, bundle: Bundle, run_id: int | None) -> Path:
+        """Move a processed bundle to archive/ and mark it archived."""
+        dest = self.archive / bundle.id
+        self._rename(bundle.dir, dest)
+        self.history.journal_finish(bundle.hash, "archived", run_id=run_id)
+        return dest
+
+    def reject_bundle(self, bundle: Bundle, reason: str, run_id: int | None = None) -> Path:
+        """Move a bundle to rejected/ with ``reason`` written to reason.txt; mark it rejected."""
+        return self._finish_dir(bundle.dir, bundle.id, bundle.hash, reason, run_id)
+
+    def counts(self) -> dict[str, int]:
+        """Number of entries in inbox, processing, archive and rejected."""
+        def n(d: Path) -> int:
+            return sum(1 for e in d.iterdir() if not e.name.startswith(".")) if d.is_dir() else 0
+        return {"inbox": n(self.inbox), "processing": n(self.processing),
+                "archive": n(self.archive), "rejected": n(self.rejected)}
+
+    # ------------------------------------------------------------------ internals
+    def _retry_or_settle(self, h: str, bid: str, name: str, attempts: int) -> Bundle | None:
+        d = self.processing / bid
+        done = self.history.ok_run_for_bundle(h)
+        if done is not None:  # processed, crashed before the archive move: do not run again
+            self._rename(d, self.archive / bid)
+            self.history.journal_finish(h, "archived", run_id=done.id)
+            return None
+        if attempts >= self.max_attempts:
+            self._finish_dir(d, bid, h, f"abandoned after {attempts} attempts that did not "
+                                        "finish (the daemon stopped or crashed each time)")
+            return None
+        try:
+            return self._load_claimed(d, bid, name, h)
+        except (IngestError, OSError) as exc:
+            self._finish_dir(d, bid, h, str(exc))
+            return None
+
+    def _load_claimed(self, d: Path, bid: str, name: str, h: str | None) -> Bundle:
+        mpath = next((d / m for m in MANIFEST_NAMES if (d / m).is_file()), None)
+        if mpath is None:
+            raise IngestError("bundle has no manifest.toml or manifest.json")
+        manifest = parse_manifest(read_manifest_data(mpath), d, self.tz)
+        missing = [p.name for p in manifest.files() if not p.is_file()]
+        if missing:
+            raise IngestError(f"missing file(s) {', '.join(missing)}")
+        check_hdri_magic(manifest.hdri)
+        hashes = self._hash_dir(d)
+        return Bundle(id=bid, name=name, hash=h or bundle_hash(hashes), dir=d, manifest=manifest,
+                      input_hashes=hashes)
+
+    @staticmethod
+    def _hash_dir(d: Path) -> dict[str, str]:
+        return {str(p.relative_to(d)): sha256_file(p) for p in sorted(d.rglob("*"))
+                if p.is_file() and p.name != REASON_FILE}
+
+    def _hash_members(self, c: _Candidate) -> dict[str, str]:
+        hashes: dict[str, str] = {}
+        for m in c.members:
+            if m.is_dir():
+                hashes.update(self._hash_dir(m))
+            elif m.is_file():
+                key = ("manifest" + m.name[m.name.rfind(".") :]) if m == c.manifest else m.name
+                hashes[key] = sha256_file(m)
+        return hashes
+
+    def _bundle_id(self, h: str, name: str) -> str:
+        return f"{h[:12]}-{_SAFE_RE.sub('_', name)[:80]}"
+
+    def _claim(self, c: _Candidate) -> Bundle | None:
+        try:
+            hashes = self._hash_members(c)
+        except OSError as exc:  # a file vanished between scan and claim: look again next time
+            log.warning("bundle %s changed while being claimed: %s", c.name, exc)
+            return None
+        h = bundle_hash(hashes)
+        bid = self._bundle_id(h, c.name)
+        existing = self.history.journal_get(h)
+        if existing is not None:
+            dup = f"{bid}.dup-{time.time_ns()}"
+            d = self._move_in(c, dup)
+            self._write_reason(d, f"duplicate: identical content was already {existing.state} "
+                                  f"as {existing.bundle_id}")
+            self._rename(d, self.rejected / dup)
+            return None
+        self.history.journal_claim(h, bid, c.name)
+        d = self._move_in(c, bid)
+        try:
+            return self._load_claimed(d, bid, c.name, h)
+        except (IngestError, OSError) as exc:
+            self._finish_dir(d, bid, h, str(exc))
+            return None
+
+    def _claim_and_reject(self, c: _Candidate, reason: str) -> None:
+        try:
+            hashes = self._hash_members(c)
+        except OSError:
+            hashes = {"name": hashlib.sha256(c.name.encode()).hexdigest()}
+        h = bundle_hash(hashes)
+        bid = self._bundle_id(h, c.name)
+        if self.history.journal_get(h) is not None:
+            bid = f"{bid}.dup-{time.time_ns()}"
+            d = self._move_in(c, bid)
+            self._finish_dir(d, bid, None, reason)
+            return
+        self.history.journal_claim(h, bid, c.name)
+        d = self._move_in(c, bid)
+        self._finish_dir(d, bid, h, reason)
+
+    def _move_in(self, c: _Candidate, bid: str) -> Path:
+        dest = self.processing / bid
+        if len(c.members) == 1 and c.members[0].is_dir():
+            self._rename(c.members[0], dest)
+            return dest
+        partial = self.processing / f"{bid}.partial"
+        partial.mkdir(exist_ok=True)
+        for m in c.members:  # manifest is last
+            target = m.name
+            if m == c.manifest:
+                target = "manifest" + m.name[m.name.rfind(".") :]
+            if m.exists():
+                self._rename(m, partial / target)
+        self._rename(partial, dest)
+        return dest
+
+    def _unclaim_partial(self, d: Path, name: str) -> None:
+        files = sorted(d.iterdir())
+        manifests = [f for f in files if f.name in MANIFEST_NAMES]
+        for f in [f for f in files if f not in manifests] + manifests:
+            target = name + "." + f.name if f in manifests else f.name
+            self._rename(f, self.inbox / target)
+        d.rmdir()
+        log.warning("bundle %s was half-way into processing/: moved back to the inbox", name)
+
+    def _finish_dir(self, d: Path, bid: str, h: str | None, reason: str,
+                    run_id: int | None = None) -> Path:
+        self._write_reason(d, reason)
+        dest = self.rejected / bid
+        self._rename(d, dest)
+        if h is not None:
+            self.history.journal_finish(h, "rejected", reason=reason, run_id=run_id)
+        log.warning("rejected bundle %s: %s", bid, reason)
+        return dest
+
+    @staticmethod
+    def _write_reason(d: Path, reason: str) -> None:
+        atomic_write_text(d / REASON_FILE, reason.rstrip() + "\n")
+
+    @staticmethod
+    def _read_reason(d: Path) -> str | None:
+        try:
+            return (d / REASON_FILE).read_text().strip()
+        except OSError:
+            return None
+
+    @staticmethod
+    def _rename(src: Path, dst: Path) -> None:
+        """rename(2) ``src`` to ``dst`` (fsyncing both parents); across file systems, copy the
+        tree to a hidden temporary beside ``dst``, fsync, rename it, then remove ``src``."""
+        try:
+            os.rename(src, dst)
+        except OSError as exc:
+            if exc.errno != errno.EXDEV:
+                raise
+            tmp = dst.parent / f".{dst.name}.copy"
+            if src.is_dir():
+                shutil.copytree(src, tmp, dirs_exist_ok=True)
+            else:
+                shutil.copy2(src, tmp)
+            for p in [tmp, *tmp.rglob("*")] if tmp.is_dir() else [tmp]:
+                if p.is_file():
+                    with open(p, "rb") as fh:
+                        os.fsync(fh.fileno())
+            os.rename(tmp, dst)
+            if src.is_dir():
+                shutil.rmtree(src)
+            else:
+                src.unlink()
+        fsync_dir(dst.parent)
+        if src.parent != dst.parent:
+            fsync_dir(src.parent)
