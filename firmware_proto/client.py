@@ -1,0 +1,335 @@
+"""Host side of the protocol: talk to controllers over a serial port (PROTOCOL.md §5).
+
+:class:`ControllerClient` sends requests, waits for the matching answer (address, seq, type),
+retransmits on timeout with exponential backoff and jitter, reopens a port that vanished, and
+turns every failure into a specific :mod:`~.errors` exception. :func:`push_table`,
+:func:`read_status`, :func:`hello` and :func:`scan` are one-call helpers for the daemon.
+
+Typical use (the daemon reconciling one controller)::
+
+    with ControllerClient("/dev/ttyUSB0") as client:
+        status = client.read_status(address=1)
+        if status.table_id != desired_id:
+            status = client.push_table(1, lengths_um, table_id=desired_id)
+"""
+
+from __future__ import annotations
+
+import random
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from grassd.firmware_proto.codec import Frame, encode_frame
+from grassd.firmware_proto.errors import (
+    ControllerTimeout,
+    NakError,
+    PortUnavailable,
+    PushFailed,
+    TableError,
+    TransferInterrupted,
+    TransientError,
+)
+from grassd.firmware_proto.link import SerialLink
+from grassd.firmware_proto.messages import (
+    MAX_ADDRESS,
+    MAX_CHUNK_DATA,
+    MAX_POSITIONS,
+    MIN_ADDRESS,
+    RESPONSE_TYPES,
+    Ack,
+    GetPositions,
+    GetStatus,
+    Hello,
+    Info,
+    Message,
+    MsgType,
+    Nak,
+    NakCode,
+    Positions,
+    SetLevel,
+    TableBegin,
+    TableChunk,
+    TableCommit,
+    TableKind,
+    TableStatus,
+    nak_name,
+)
+from grassd.firmware_proto.tables import (
+    as_table_array,
+    chunk_spans,
+    table_bytes,
+    table_crc,
+    table_kind,
+)
+
+#: NAKs after which restarting the transfer from TABLE_BEGIN can succeed.
+RESTARTABLE_NAKS = frozenset({NakCode.NO_TRANSFER, NakCode.INCOMPLETE, NakCode.CRC_MISMATCH,
+                              NakCode.STORAGE_FAILED})
+
+#: Largest payload of each answer type (bytes), to size timeouts at low baud rates.
+_MAX_ANSWER_PAYLOAD = {MsgType.INFO: 16, MsgType.TABLE_STATUS: 21, MsgType.ACK: 1,
+                       MsgType.POSITIONS: 2 + 4 * MAX_POSITIONS}
+
+
+@dataclass(frozen=True)
+class RetryPolicy:
+    """Timeouts and retry counts of a :class:`ControllerClient` (seconds).
+
+    ``timeout_s`` is the turn-around margin per request; the time the request and the longest
+    answer take on the wire at the client's baud rate is added to it.
+    """
+
+    timeout_s: float = 0.25
+    retries: int = 4  #: retransmissions of one request after the first try
+    backoff_s: float = 0.02  #: first backoff; doubles each retry, with jitter x0.5..1.5
+    backoff_max_s: float = 0.5
+    restarts: int = 3  #: restarts of a table transfer from TABLE_BEGIN
+    readback_retries: int = 10  #: retries when reading TABLE_STATUS back after a push
+    chunk_bytes: int = MAX_CHUNK_DATA  #: largest chunk this host sends (device limit applies)
+
+
+def _table_matches(status: TableStatus, table_id: int, crc: int) -> bool:
+    return status.has_table and (status.table_id, status.table_crc) == (table_id, crc)
+
+
+class ControllerClient:
+    """Requests to controllers on one serial port (one controller, or an RS-485 bus of them).
+
+    ``port`` is a device path; ``baudrate`` the line speed (also used to size timeouts);
+    ``seed`` fixes the starting sequence number and backoff jitter (for reproducible tests).
+    Not thread-safe: use one client per port from one thread.
+    """
+
+    def __init__(self, port: str, *, baudrate: int = 115_200,
+                 policy: RetryPolicy | None = None, seed: int | None = None) -> None:
+        self.link = SerialLink(port, baudrate)
+        self.policy = policy or RetryPolicy()
+        self._rng = random.Random(seed)
+        self._seq = self._rng.randrange(0x10000)
+        self.retransmissions = 0
+        self.stale_frames = 0
+        self._info: dict[int, Info] = {}
+
+    # --- plumbing -------------------------------------------------------------------------
+    def __enter__(self) -> ControllerClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Close the serial port."""
+        self.link.close()
+
+    @property
+    def port(self) -> str:
+        """The serial port's path."""
+        return self.link.port
+
+    def _wire_time(self, n_bytes: int) -> float:
+        return n_bytes * 10 / self.link.baudrate  # 8N1: 10 bit times per byte
+
+    def _backoff(self, attempt: int) -> float:
+        p = self.policy
+        return min(p.backoff_max_s, p.backoff_s * 2 ** (attempt - 1)) * (0.5 + self._rng.random())
+
+    def request(self, address: int, message: Message, *, retries: int | None = None,
+                timeout_s: float | None = None) -> Message:
+        """Send ``message`` to ``address`` and return its answer (a NAK is returned, not raised).
+
+        Retransmits the same bytes on timeout up to ``retries`` times (policy default).
+        Raises :class:`ControllerTimeout` or :class:`PortUnavailable` (both transient) when
+        every try failed.
+        """
+        if not MIN_ADDRESS <= address <= MAX_ADDRESS:
+            raise TableError(f"controller address must be {MIN_ADDRESS}..{MAX_ADDRESS}, "
+                             f"got {address}")
+        p = self.policy
+        retries = p.retries if retries is None else retries
+        self._seq = (self._seq + 1) & 0xFFFF
+        seq = self._seq
+        wire = encode_frame(Frame(address, seq, message))
+        expected = RESPONSE_TYPES[message.TYPE]
+        answer = 12 + max(_MAX_ANSWER_PAYLOAD[expected], 6)  # header, CRC, COBS, delimiter
+        timeout = (p.timeout_s if timeout_s is None else timeout_s) + self._wire_time(
+            len(wire) + answer)
+        last: TransientError | None = None
+        for attempt in range(retries + 1):
+            if attempt:
+                self.retransmissions += 1
+                time.sleep(self._backoff(attempt))
+            try:
+                self.link.send(wire)
+                deadline = time.monotonic() + timeout
+                while (frame := self.link.receive(deadline)) is not None:
+                    m = frame.message
+                    if (frame.address == address and frame.seq == seq
+                            and m.TYPE in (expected, MsgType.NAK)):
+                        return m
+                    self.stale_frames += 1
+                last = ControllerTimeout(f"no answer within {timeout:.3f} s")
+            except PortUnavailable as exc:
+                last = exc
+        what = f"controller {address} on {self.port}: {message.TYPE.name} failed after " \
+               f"{retries + 1} tries"
+        if isinstance(last, PortUnavailable):
+            raise PortUnavailable(f"{what}: {last}")
+        raise ControllerTimeout(f"{what}: {last}; check the address, wiring and baud rate")
+
+    def _expect(self, address: int, message: Message, cls: type[Message], **kw) -> Message:
+        reply = self.request(address, message, **kw)
+        if isinstance(reply, Nak):
+            text = (f"controller {address} on {self.port} refused {message.TYPE.name}: "
+                    f"{nak_name(reply.error)} (detail {reply.detail})")
+            if reply.error in RESTARTABLE_NAKS:
+                raise TransferInterrupted(text)
+            raise NakError(text, code=reply.error, detail=reply.detail)
+        if not isinstance(reply, cls):  # pragma: no cover - request() matches types
+            raise ControllerTimeout(f"unexpected answer {reply!r}")
+        return reply
+
+    # --- queries --------------------------------------------------------------------------
+    def hello(self, address: int, **kw) -> Info:
+        """HELLO: the controller's versions, pixel count and capacities."""
+        info = self._expect(address, Hello(), Info, **kw)
+        self._info[address] = info
+        return info
+
+    def read_status(self, address: int, **kw) -> TableStatus:
+        """GET_STATUS: which table (id, CRC-32, generation) is active, and any open transfer."""
+        return self._expect(address, GetStatus(), TableStatus, **kw)
+
+    def scan(self, addresses: Iterable[int] = range(MIN_ADDRESS, MAX_ADDRESS + 1), *,
+             timeout_s: float = 0.05, retries: int = 1) -> dict[int, Info]:
+        """HELLO each address with a short timeout; return the controllers that answered."""
+        found: dict[int, Info] = {}
+        for address in addresses:
+            try:
+                found[address] = self.hello(address, timeout_s=timeout_s, retries=retries)
+            except ControllerTimeout:
+                continue
+        return found
+
+    def set_levels(self, address: int, levels: ArrayLike, first_pixel: int = 0) -> None:
+        """SET_LEVEL: show 8-bit ``levels[i]`` on pixel ``first_pixel + i``."""
+        lv = np.asarray(levels)
+        if lv.ndim != 1 or lv.size == 0 or lv.min() < 0 or lv.max() > 255:
+            raise TableError("levels must be a non-empty 1-D sequence of integers 0..255")
+        self._expect(address, SetLevel(first_pixel, lv.astype(np.uint8).tobytes()), Ack)
+
+    def read_positions(self, address: int, first_pixel: int = 0,
+                       count: int | None = None) -> np.ndarray:
+        """GET_POSITIONS: array (count, 2) of (encoder position, target) in micrometres."""
+        if count is None:
+            info = self._info.get(address) or self.hello(address)
+            count = info.n_pixels - first_pixel
+        out = []
+        for start in range(first_pixel, first_pixel + count, MAX_POSITIONS):
+            n = min(MAX_POSITIONS, first_pixel + count - start)
+            reply = self._expect(address, GetPositions(start, n), Positions)
+            out.append(np.frombuffer(reply.positions, dtype="<u2").reshape(-1, 2))
+        return np.concatenate(out).astype(np.uint16)
+
+    # --- table push -----------------------------------------------------------------------
+    def push_table(self, address: int, table: ArrayLike,
+                   table_id: int | None = None) -> TableStatus:
+        """Make ``table`` (uint16 micrometres, (256,) global or (n_pixels, 256)) active.
+
+        Stages it chunk by chunk, commits, and reads TABLE_STATUS back. ``table_id`` defaults
+        to the table's CRC-32/ISO-HDLC. Returns the status actually active afterwards, which
+        carries this table's id and CRC. Raises :class:`TableError` / :class:`NakError` for a
+        table the controller cannot take (nothing was changed), and :class:`PushFailed` when
+        transient failures outlasted every retry; its ``active`` is the status read back
+        (the old table), or None if the controller could not be reached at all.
+        """
+        arr = as_table_array(table)
+        kind, n_tables = table_kind(arr)
+        data = table_bytes(arr)
+        crc = table_crc(arr)
+        tid = crc if table_id is None else int(table_id)
+        if not 0 <= tid <= 0xFFFFFFFF:
+            raise TableError(f"table_id must be 0..4294967295, got {tid}")
+        last: BaseException | None = None
+        for _ in range(self.policy.restarts + 1):
+            try:
+                info = self._info.get(address) or self.hello(address)
+                self._check_fits(address, info, arr, kind, n_tables)
+                status = self.read_status(address)
+                if _table_matches(status, tid, crc):
+                    return status  # already active: nothing to do
+                self._transfer(address, info, tid, kind, n_tables, data, crc)
+                break
+            except TransientError as exc:
+                last = exc
+        try:
+            final = self.read_status(address, retries=self.policy.readback_retries)
+        except TransientError as exc:
+            raise PushFailed(f"push of table {tid:#010x} to controller {address} on "
+                             f"{self.port}: state unknown, cannot read it back ({exc}); "
+                             f"earlier error: {last}", active=None, cause=exc) from None
+        if _table_matches(final, tid, crc):
+            return final
+        raise PushFailed(f"push of table {tid:#010x} to controller {address} on {self.port} "
+                         f"failed ({last}); table {final.table_id:#010x} is still active",
+                         active=final, cause=last)
+
+    def _check_fits(self, address: int, info: Info, arr: np.ndarray, kind: TableKind,
+                    n_tables: int) -> None:
+        where = f"controller {address} on {self.port}"
+        if kind == TableKind.PER_PIXEL and n_tables != info.n_pixels:
+            raise TableError(f"{where} has {info.n_pixels} pixels; per-pixel tables must have "
+                             f"shape ({info.n_pixels}, 256), got {arr.shape}")
+        if n_tables > info.table_capacity:
+            raise TableError(f"{where} holds {info.table_capacity} tables per bank, "
+                             f"got {n_tables}")
+        if int(arr.max()) > info.max_length_um:
+            raise TableError(f"{where} reaches at most {info.max_length_um} um of grass; the "
+                             f"table asks for {int(arr.max())} um")
+
+    def _transfer(self, address: int, info: Info, tid: int, kind: TableKind, n_tables: int,
+                  data: bytes, crc: int) -> None:
+        self._expect(address, TableBegin(tid, kind, n_tables, len(data), crc), Ack)
+        chunk = max(1, min(info.max_chunk, self.policy.chunk_bytes))
+        for offset, length in chunk_spans(len(data), chunk):
+            self._expect(address, TableChunk(tid, offset, data[offset:offset + length]), Ack)
+        self._expect(address, TableCommit(tid, crc), Ack)
+
+
+def _client(port: str, baudrate: int, policy: RetryPolicy | None, **overrides) -> ControllerClient:
+    policy = replace(policy or RetryPolicy(), **overrides)
+    return ControllerClient(port, baudrate=baudrate, policy=policy)
+
+
+def push_table(port: str, address: int, table: ArrayLike, *, table_id: int | None = None,
+               baudrate: int = 115_200, policy: RetryPolicy | None = None) -> TableStatus:
+    """Open ``port``, push ``table`` (um) to controller ``address``, return the active status.
+
+    See :meth:`ControllerClient.push_table`.
+    """
+    with _client(port, baudrate, policy) as client:
+        return client.push_table(address, table, table_id)
+
+
+def read_status(port: str, address: int, *, baudrate: int = 115_200,
+                policy: RetryPolicy | None = None) -> TableStatus:
+    """Open ``port`` and read controller ``address``'s TABLE_STATUS (active table id and CRC)."""
+    with _client(port, baudrate, policy) as client:
+        return client.read_status(address)
+
+
+def hello(port: str, address: int, *, baudrate: int = 115_200,
+          policy: RetryPolicy | None = None) -> Info:
+    """Open ``port`` and HELLO controller ``address``: its versions and capacities."""
+    with _client(port, baudrate, policy) as client:
+        return client.hello(address)
+
+
+def scan(port: str, addresses: Iterable[int] = range(MIN_ADDRESS, MAX_ADDRESS + 1), *,
+         baudrate: int = 115_200, timeout_s: float = 0.05) -> dict[int, Info]:
+    """Open ``port`` and HELLO every address in ``addresses``; return those that answered."""
+    with ControllerClient(port, baudrate=baudrate) as client:
+        return client.scan(addresses, timeout_s=timeout_s)
