@@ -282,3 +282,92 @@ def build_scene(display: DisplaySpec, lengths_mm: np.ndarray) -> SceneArrays:
         tip_ratio=spec.blade_tip_ratio, splay_rad=splay, green_max_m=spec.green_max_mm * mm,
         quad_corners=quad,
     )
+
+
+def blade_rise(sc: SceneArrays, green_length_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rise axis ``u`` (nb, 3) and length (nb,) [m] of every blade for a green length [m].
+
+    The numpy twin of the renderer's ``blade_axes`` (same formula: green blades take the given
+    length and lean by ``alpha0 + splay * length / green_max``).
+    """
+    green = sc.blade_params[:, 3] > 0.5
+    alpha = sc.blade_params[:, 2].astype(np.float64) + green * (
+        sc.splay_rad * green_length_m / sc.green_max_m)
+    length = np.where(green, green_length_m, sc.blade_params[:, 1])
+    sa = np.sin(alpha)
+    u = np.column_stack([sa * sc.blade_lean[:, 0], sa * sc.blade_lean[:, 1], np.cos(alpha)])
+    return u, length
+
+
+def triangle_mesh(sc: SceneArrays, green_length_m: float) -> dict[str, tuple[np.ndarray,
+                                                                             np.ndarray]]:
+    """The exact traced surfaces as triangle meshes per material name: {name: (V (n, 3) [m],
+    F (m, 3) int32)}. Blade outlines are the six-vertex tapered polygons the kernel intersects;
+    zero-area triangles are dropped."""
+    u, length = blade_rise(sc, green_length_m)
+    p0 = sc.blade_p0.astype(np.float64)
+    a = np.column_stack([sc.blade_axis, np.zeros(sc.n_blades)]).astype(np.float64)
+    hw = sc.blade_params[:, 0].astype(np.float64)
+    r = sc.tip_ratio
+    h_mid = np.maximum(0.0, length - sc.taper_m)
+    heights = np.stack([np.zeros_like(length), h_mid, length], axis=1)        # (nb, 3)
+    frac = np.clip((length[:, None] - heights) / sc.taper_m, 0.0, 1.0)
+    half = hw[:, None] * (r + (1 - r) * frac)                                 # (nb, 3)
+    centre = p0[:, None, :] + heights[..., None] * u[:, None, :]              # (nb, 3, 3)
+    left = centre - half[..., None] * a[:, None, :]
+    right = centre + half[..., None] * a[:, None, :]
+    # vertex order per blade: L0 R0 L1 R1 L2 R2
+    verts = np.stack([left, right], axis=2).reshape(-1, 6, 3)
+    quads = np.array([[0, 1, 3], [0, 3, 2], [2, 3, 5], [2, 5, 4]])
+    green = sc.blade_params[:, 3] > 0.5
+    # Green blades continue straight down into the cavity: a vertical rectangle.
+    depth = sc.blade_params[:, 4].astype(np.float64)
+    low_c = np.stack([p0 - np.column_stack([np.zeros((sc.n_blades, 2)), depth]), p0], axis=1)
+    low = np.stack([low_c - hw[:, None, None] * a[:, None, :],
+                    low_c + hw[:, None, None] * a[:, None, :]], axis=2).reshape(-1, 4, 3)
+
+    out_v: dict[int, list[np.ndarray]] = {}
+    out_f: dict[int, list[np.ndarray]] = {}
+
+    def add(mat: int, v: np.ndarray, tris: np.ndarray) -> None:
+        """v: (k, nv, 3) polygons sharing the same triangle pattern ``tris``."""
+        if len(v) == 0:
+            return
+        tri = v[:, tris]                                                      # (k, nt, 3, 3)
+        area = np.linalg.norm(np.cross(tri[..., 1, :] - tri[..., 0, :],
+                                       tri[..., 2, :] - tri[..., 0, :]), axis=-1)
+        keep = area > 1e-14
+        tri = tri[keep]
+        out_v.setdefault(mat, []).append(tri.reshape(-1, 3))
+        out_f.setdefault(mat, [])
+        out_f[mat].append(np.arange(len(tri) * 3).reshape(-1, 3))
+
+    mats = sc.blade_params[:, 5].astype(int)
+    for mat in (MAT_YELLOW, MAT_GREEN):
+        sel = (mats == mat) & (length > 0)
+        add(mat, verts[sel], quads)
+    add(MAT_GREEN, low[green], np.array([[0, 1, 3], [0, 3, 2]]))
+    # Rectangles: four corners from (coord, lo0, hi0, lo1, hi1) on their axes.
+    b = sc.rect_bounds.astype(np.float64)
+    corners_uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1]])
+    c0 = b[:, 1][:, None] + (b[:, 2] - b[:, 1])[:, None] * corners_uv[:, 0]  # (nr, 4)
+    c1 = b[:, 3][:, None] + (b[:, 4] - b[:, 3])[:, None] * corners_uv[:, 1]
+    coord = np.repeat(b[:, 0:1], 4, axis=1)
+    rect_v = np.empty((sc.n_rects, 4, 3))
+    for axis, (i0, i1) in {0: (1, 2), 1: (0, 2), 2: (0, 1)}.items():
+        sel = sc.rect_axis == axis
+        rect_v[sel, :, axis] = coord[sel]
+        rect_v[sel, :, i0] = c0[sel]
+        rect_v[sel, :, i1] = c1[sel]
+    for mat in np.unique(sc.rect_material):
+        add(int(mat), rect_v[sc.rect_material == mat], np.array([[0, 1, 2], [0, 2, 3]]))
+    return {MATERIAL_NAMES[m]: (np.concatenate(out_v[m]), _renumber(out_f[m])) for m in out_v}
+
+
+def _renumber(faces: list[np.ndarray]) -> np.ndarray:
+    """Concatenate face lists whose vertex arrays are concatenated too."""
+    offset, parts = 0, []
+    for f in faces:
+        parts.append(f + offset)
+        offset += int(f.max()) + 1 if f.size else 0
+    return np.concatenate(parts).astype(np.int32)

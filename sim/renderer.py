@@ -111,6 +111,7 @@ class Renderer:
         self.lengths = ti.field(ti.f32, 256)
         self.env = ti.Vector.field(3, ti.f32, cap.env_texels)
         self.env_marg = ti.field(ti.f32, cap.env_rows + 1)
+        self.env_cos = ti.field(ti.f32, cap.env_rows + 1)
         self.env_cond = ti.field(ti.f32, cap.env_texels + cap.env_rows)
         self.out = ti.Vector.field(3, ti.f32, cap.paths)
         self.quad = ti.Vector.field(3, ti.f32, 4)
@@ -183,6 +184,9 @@ class Renderer:
         marg = np.zeros(self.cap.env_rows + 1, np.float32)
         marg[: h + 1] = sampler.marginal_cdf
         self.env_marg.from_numpy(marg)
+        cos_edges = np.zeros(self.cap.env_rows + 1, np.float32)
+        cos_edges[: h + 1] = sampler.cos_theta_edges
+        self.env_cos.from_numpy(cos_edges)
         cond = np.zeros(self.cap.env_texels + self.cap.env_rows, np.float32)
         cond[: h * (w + 1)] = np.asarray(sampler.conditional_cdf, np.float32).ravel()
         self.env_cond.from_numpy(cond)
@@ -206,8 +210,13 @@ class Renderer:
         return self.env[row * w + col]
 
     @ti.func
+    def row_solid_angle(self, row: ti.i32) -> ti.f32:
+        return 2.0 * tf.PI / self.ipar[5] * (self.env_cos[row] - self.env_cos[row + 1])
+
+    @ti.func
     def env_pdf(self, d) -> ti.f32:
-        """Solid-angle density of the environment sampler in direction d."""
+        """Solid-angle density of :meth:`sample_env` in direction d (piecewise constant per
+        texel, as :class:`grassd.sim.lighting.EnvSampler` defines it)."""
         u, v = tf.dir_to_uv(d)
         h, w = self.ipar[4], self.ipar[5]
         row = ti.min(ti.cast(v * h, ti.i32), h - 1)
@@ -215,15 +224,13 @@ class Renderer:
         p_row = self.env_marg[row + 1] - self.env_marg[row]
         base = row * (w + 1)
         p_col = self.env_cond[base + col + 1] - self.env_cond[base + col]
-        s = ti.sin(tf.PI * v)
-        pdf = 0.0
-        if s > 1e-7:
-            pdf = p_row * p_col * h * w / (2.0 * tf.PI * tf.PI * s)
-        return pdf
+        return p_row * p_col / self.row_solid_angle(row)
 
     @ti.func
     def sample_env(self, u1: ti.f32, u2: ti.f32):
-        """Direction, solid-angle pdf and radiance of an importance-sampled environment texel."""
+        """Direction, solid-angle pdf and radiance of an importance-sampled environment texel:
+        row and column by inverting the CDFs, then uniform in solid angle inside the texel
+        (uniform in cos(theta) and in phi)."""
         h, w = self.ipar[4], self.ipar[5]
         lo, hi = 0, h
         while hi - lo > 1:
@@ -234,7 +241,7 @@ class Renderer:
                 hi = mid
         row = lo
         p_row = self.env_marg[row + 1] - self.env_marg[row]
-        fv = (u1 - self.env_marg[row]) / ti.max(p_row, 1e-30)
+        fv = ti.min(ti.max((u1 - self.env_marg[row]) / ti.max(p_row, 1e-30), 0.0), 1.0)
         base = row * (w + 1)
         lo2, hi2 = 0, w
         while hi2 - lo2 > 1:
@@ -245,14 +252,12 @@ class Renderer:
                 hi2 = mid
         col = lo2
         p_col = self.env_cond[base + col + 1] - self.env_cond[base + col]
-        fu = (u2 - self.env_cond[base + col]) / ti.max(p_col, 1e-30)
-        u = (col + ti.min(ti.max(fu, 0.0), 0.999999)) / w
-        v = (row + ti.min(ti.max(fv, 0.0), 0.999999)) / h
-        d = tf.uv_to_dir(u, v)
-        s = ti.sin(tf.PI * v)
-        pdf = 0.0
-        if s > 1e-7:
-            pdf = p_row * p_col * h * w / (2.0 * tf.PI * tf.PI * s)
+        fu = ti.min(ti.max((u2 - self.env_cond[base + col]) / ti.max(p_col, 1e-30), 0.0), 1.0)
+        cos_t = self.env_cos[row] + fv * (self.env_cos[row + 1] - self.env_cos[row])
+        sin_t = ti.sqrt(ti.max(0.0, 1.0 - cos_t * cos_t))
+        phi = 2.0 * tf.PI * (col + fu) / w
+        d = vec3(sin_t * ti.cos(phi), sin_t * ti.sin(phi), cos_t)
+        pdf = p_row * p_col / self.row_solid_angle(row)
         return d, pdf, self.env[row * w + col]
 
     @ti.func

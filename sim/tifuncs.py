@@ -89,7 +89,9 @@ def hit_blade(o: vec3, d: vec3, p0: vec3, a: vec3, u: vec3, hw: ti.f32, length: 
     """Distance along the ray to a tapered blade quad, or INF.
 
     The quad is ``p0 + s a + h u`` with ``a`` a horizontal unit vector, ``u`` a unit vector with
-    ``u.z > 0``, ``0 <= h <= length`` and ``|s| <= hw * clamp((length - h) / taper, tip_ratio, 1)``.
+    ``u.z > 0``, ``0 <= h <= length`` and ``|s| <= hw * (r + (1 - r) * clamp((length - h) /
+    taper, 0, 1))`` with ``r = tip_ratio``: full width up to ``taper`` below the tip, then a
+    linear taper to ``r * hw`` at the tip (so the outline is a polygon of six vertices).
     """
     t = INF
     n = a.cross(u)
@@ -101,7 +103,8 @@ def hit_blade(o: vec3, d: vec3, p0: vec3, a: vec3, u: vec3, hw: ti.f32, length: 
             h = q.z / u.z
             if h >= 0.0 and h <= length:
                 s = (q - h * u).dot(a)
-                w = hw * ti.min(1.0, ti.max(tip_ratio, (length - h) / taper))
+                f = ti.min(1.0, ti.max(0.0, (length - h) / taper))
+                w = hw * (tip_ratio + (1.0 - tip_ratio) * f)
                 if ti.abs(s) <= w:
                     t = tt
     return t
