@@ -1,0 +1,199 @@
+"""Golden test vectors: wire bytes in hex with their decoded meaning (``vectors/*.json``).
+
+The firmware's own tests replay the same bytes. Regenerate after an intended protocol change
+with ``python -m grassd.firmware_proto.golden`` (the test suite checks that the checked-in
+files equal what this module builds, and that every vector decodes and re-encodes exactly).
+
+Files:
+
+* ``messages.json``: one frame of every message type, with its fields.
+* ``framing.json``: CRC check values, frames that must be rejected, and a byte stream with
+  garbage between frames together with the frames a receiver must extract from it.
+* ``transfer.json``: a complete table push (HELLO, GET_STATUS, BEGIN, CHUNKs, COMMIT,
+  GET_STATUS) as exchanged with the reference firmware, request and answer per step.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+import tempfile
+from dataclasses import fields
+from pathlib import Path
+
+import numpy as np
+
+from grassd.firmware_proto.codec import Frame, encode_frame, parse_body
+from grassd.firmware_proto.crc import crc32_iso_hdlc
+from grassd.firmware_proto.messages import (
+    MESSAGE_CLASSES,
+    Ack,
+    GetPositions,
+    GetStatus,
+    Hello,
+    Info,
+    MsgType,
+    Nak,
+    NakCode,
+    Positions,
+    SetLevel,
+    TableBegin,
+    TableChunk,
+    TableCommit,
+    TableKind,
+    TableStatus,
+)
+from grassd.firmware_proto.tables import chunk_spans, table_bytes, table_crc
+
+#: Folder holding the vector files.
+VECTOR_DIR = Path(__file__).with_name("vectors")
+
+
+def frame_to_meaning(frame: Frame) -> dict:
+    """JSON-able meaning of a frame: header fields, type name and message fields (bytes as hex)."""
+    msg = frame.message
+    values = {f.name: getattr(msg, f.name) for f in fields(msg)}
+    return {
+        "version": frame.version, "address": frame.address, "seq": frame.seq,
+        "type": msg.TYPE.name,
+        "fields": {k: (v.hex() if isinstance(v, bytes) else v) for k, v in values.items()},
+    }
+
+
+def frame_from_meaning(meaning: dict) -> Frame:
+    """Inverse of :func:`frame_to_meaning`."""
+    cls = MESSAGE_CLASSES[MsgType[meaning["type"]]]
+    kinds = {f.name: f.type for f in fields(cls)}
+    args = {k: (bytes.fromhex(v) if kinds[k] == "bytes" else v)
+            for k, v in meaning["fields"].items()}
+    return Frame(meaning["address"], meaning["seq"], cls(**args), meaning["version"])
+
+
+def _vector(name: str, frame: Frame, note: str = "") -> dict:
+    out = {"name": name, "hex": encode_frame(frame).hex(), "meaning": frame_to_meaning(frame)}
+    if note:
+        out["note"] = note
+    return out
+
+
+def example_table() -> np.ndarray:
+    """The table used in the vectors: level v -> round(v * 20000 / 255) um (linear, 0..20 mm)."""
+    return np.round(np.arange(256) * 20000 / 255).astype(np.uint16)
+
+
+def _messages() -> dict:
+    t = example_table()
+    crc = table_crc(t)
+    frames = [
+        ("hello", Frame(1, 0x0001, Hello())),
+        ("info", Frame(1, 0x0001, Info(1, 1, 0, 0, 0x6A5D0001, 16, 16, 256, 20000))),
+        ("get_status", Frame(1, 0x0002, GetStatus())),
+        ("table_status_none", Frame(1, 0x0002, TableStatus(0xFF, 0, 0, 0, 0, 0, 0, 0)),
+         "no valid table committed yet"),
+        ("table_status_active", Frame(1, 0x0002, TableStatus(1, 0, 1, 42, crc, 7, 1, 256))),
+        ("table_begin", Frame(1, 0x0003, TableBegin(42, TableKind.GLOBAL, 1, 512, crc))),
+        ("table_chunk", Frame(1, 0x0004, TableChunk(42, 0, table_bytes(t)[:16])),
+         "first 8 entries of the example table"),
+        ("table_commit", Frame(1, 0x0005, TableCommit(42, crc))),
+        ("set_level", Frame(5, 0x0006, SetLevel(2, bytes([0, 128, 255])))),
+        ("get_positions", Frame(5, 0x0007, GetPositions(0, 2))),
+        ("positions", Frame(5, 0x0007, Positions(0, bytes.fromhex("e02ee02e00000000"))),
+         "pixel 0 at 12000 um target 12000, pixel 1 at 0 target 0"),
+        ("ack", Frame(1, 0x0004, Ack(MsgType.TABLE_CHUNK))),
+        ("nak_incomplete", Frame(1, 0x0005, Nak(MsgType.TABLE_COMMIT, NakCode.INCOMPLETE, 256)),
+         "commit refused: bytes from offset 256 missing"),
+        ("zero_heavy", Frame(247, 0xFF00, TableChunk(0, 0, bytes(300))),
+         "300 zero bytes: COBS overhead stays one byte per 254"),
+    ]
+    return {
+        "description": "One frame of every message type. hex = wire bytes including the final "
+                       "0x00 delimiter; meaning = decoded header and fields (byte fields in hex).",
+        "vectors": [_vector(*f) for f in frames],
+    }
+
+
+def _framing() -> dict:
+    good = encode_frame(Frame(1, 0x0102, GetStatus()))
+    bad_crc = bytearray(good)
+    bad_crc[3] ^= 0x01
+    stream = (b"\x13\x37garbage" + b"\x00" + good + b"\x00\x00" + bytes(bad_crc)
+              + b"\x05\x01" + b"\x00" + encode_frame(Frame(2, 0x0103, Hello())))
+    return {
+        "description": "Framing: CRC check values, frames a receiver must drop, and a stream "
+                       "with garbage from which exactly the listed frames must be extracted.",
+        "crc": [{"name": "CRC-32/ISO-HDLC", "input_ascii": "123456789",
+                 "check": f"{crc32_iso_hdlc(b'123456789'):#010x}",
+                 "used_for": "frame trailer, table_crc, bank headers"}],
+        "rejected": [
+            {"name": "bad_crc", "hex": bytes(bad_crc).hex(), "why": "one bit flipped"},
+            {"name": "too_short", "hex": "030102" "00", "why": "body shorter than 9 bytes"},
+            {"name": "bad_cobs", "hex": "05010200", "why": "COBS code byte points past the end"},
+            {"name": "oversized", "hex": ("ff" + "01" * 1100 + "00"),
+             "why": "longer than 1039 bytes without a delimiter"},
+        ],
+        "stream": {"hex": stream.hex(),
+                   "frames": [frame_to_meaning(Frame(1, 0x0102, GetStatus())),
+                              frame_to_meaning(Frame(2, 0x0103, Hello()))]},
+    }
+
+
+def _transfer() -> dict:
+    from grassd.firmware_proto.firmware import Controller, ControllerConfig
+    from grassd.firmware_proto.framing import FrameReader
+
+    t = example_table()
+    data, crc = table_bytes(t), table_crc(t)
+    requests = [Hello(), GetStatus(), TableBegin(0x2A, TableKind.GLOBAL, 1, len(data), crc)]
+    requests += [TableChunk(0x2A, o, data[o:o + n]) for o, n in chunk_spans(len(data), 256)]
+    requests += [TableCommit(0x2A, crc), GetStatus()]
+    steps = []
+    with tempfile.TemporaryDirectory() as tmp:
+        ctl = Controller(ControllerConfig(address=3, n_pixels=16), Path(tmp) / "e.eeprom",
+                         clock=lambda: 0.0)
+        reader = FrameReader()
+        for i, req in enumerate(requests):
+            frame = Frame(3, 0x0100 + i, req)
+            wire = encode_frame(frame)
+            (body,) = reader.feed(wire)
+            answer = ctl.handle(body)
+            (answer_body,) = FrameReader().feed(answer)
+            steps.append({"request": {"hex": wire.hex(), "meaning": frame_to_meaning(frame)},
+                          "answer": {"hex": answer.hex(),
+                                     "meaning": frame_to_meaning(parse_body(answer_body))}})
+        ctl.close()
+    return {
+        "description": "A fresh controller (address 3, 16 pixels, max_chunk 256) receives the "
+                       "example table (level v -> round(v*20000/255) um) as table_id 0x2A in two "
+                       "256-byte chunks; each step is a request and the firmware's answer.",
+        "table_um": t.tolist(),
+        "table_crc": f"{crc:#010x}",
+        "steps": steps,
+    }
+
+
+def build_vectors() -> dict[str, dict]:
+    """Every vector file's content, keyed by file name."""
+    return {"messages.json": _messages(), "framing.json": _framing(),
+            "transfer.json": _transfer()}
+
+
+def load_vectors() -> dict[str, dict]:
+    """The checked-in vector files, keyed by file name."""
+    return {p.name: json.loads(p.read_text()) for p in sorted(VECTOR_DIR.glob("*.json"))}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Write the vector files into :data:`VECTOR_DIR`."""
+    VECTOR_DIR.mkdir(exist_ok=True)
+    for name, doc in build_vectors().items():
+        text = json.dumps(doc, indent=1)
+        text = re.sub(r"\[\s+([-\d,\s]+?)\s+\]", lambda m: "[" + " ".join(m.group(1).split()) + "]",
+                      text)  # keep integer lists on one line
+        (VECTOR_DIR / name).write_text(text + "\n")
+        print(f"wrote {VECTOR_DIR / name}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
