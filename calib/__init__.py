@@ -1,4 +1,41 @@
 """Colour science for grassd: captures, colour correction, CIELAB/CIEDE2000, OGCD, length tables.
 
-Never imports ``grassd.sim``, ``grassd.firmware_proto`` or ``grassd.daemon``.
+Never imports ``grassd.sim``, ``grassd.firmware_proto`` or ``grassd.daemon``. Conventions
+(white points, Y of white = 1, Bradford adaptation, D50 CIELAB) live in
+:mod:`grassd.calib.colour_spaces`. Errors derive from :class:`grassd.calib.errors.CalibError`.
+
+API (main entry points; units in brackets)
+-------------------------------------------
+Colour spaces (``colour_spaces``)
+    ``rec709_to_prophoto(rgb)``, ``prophoto_to_rec709(rgb)``, ``rec709_to_xyz``,
+    ``prophoto_to_xyz``, ``xyz_to_lab(xyz)`` (D50 white), ``prophoto_to_lab(rgb)``,
+    ``luminance(rgb, space)``; constants ``WHITE_D50_XYZ``, ``M_REC709_TO_PROPHOTO`` ...
+Colour difference (``delta_e``)
+    ``delta_e(lab1, lab2, method="CIE 2000")``, ``delta_e_cie2000(lab1, lab2, kL=, kC=, kH=)``.
+Exposure (``exposure``)
+    ``normalise_exposure(rgb, grey_rgb, space="prophoto"|"rec709", white_balance=False)``
+    -> linear RGB with the grey at Y = 0.18; ``exposure_matrix(grey_rgb, ...)`` -> (3, 3).
+Charts and colour correction (``charts``, ``ccm``)
+    ``get_chart("colorchecker-classic" | "spydercheckr-24" | path.csv)`` -> ``ReferenceChart``
+    (``.lab`` D50, ``.prophoto()``); ``fit_ccm(virtual, real, method="3x3"|"root-polynomial")``
+    -> ``ColourCorrection`` (``.matrix``, ``.apply(rgb)``, ``.residual_de00``, ``.mean_de00``,
+    ``.max_de00``); ``compare_ccm_methods(virtual, real)``.
+Captures (``raw``, ``regions``, ``dng``)
+    ``develop_raw(path, white_balance="camera"|(r, g, b[, g2]))`` -> ``DevelopedRaw`` (``.rgb``
+    (H, W, 3) float32 ProPhoto linear 0..1, ``.quad_mean(corners)``,
+    ``.checker_patches(chart_corners)``); ``quad_mean(image, corners)`` [pixels (x, y)];
+    ``extract_checker_patches(image, chart_corners)`` -> (24, 3);
+    ``write_linear_dng(path, xyz, DngCamera(...), exposure=)`` / ``write_dng(path, raw, camera)``.
+OGCD (``ogcd``)
+    ``ogcd_from_lab(lab)``; ``ogcd_from_rgb(rgb, rgb_stderr=None, space="rec709", ccm=None)``
+    -> ``OGCDResult(ogcd, ogcd_stderr, lab)`` (independent-error, conservative);
+    ``ogcd_from_samples(rgb_samples (S, n, 3), ...)`` (correlation-aware).
+Characteristics and tables (``characteristic``, ``length_table``)
+    ``Characteristic(lengths_mm, ogcd, ogcd_stderr=None)`` [mm, dE00], ``.from_rgb(...)``,
+    ``.from_lab(...)``; ``fit_characteristic(c)`` -> ``FittedCharacteristic`` (callable [mm ->
+    dE00], ``.inverse(ogcd)`` [-> mm], ``.ogcd_range``);
+    ``build_length_table(c)`` -> ``LengthTable`` (``.lengths_um`` (256,) uint16 [um],
+    ``.r2_before``, ``.r2_after``, ``.ogcd_range``, ``.target_ogcd``, ``.achieved_ogcd``).
+Comparison (``compare``)
+    ``discrete_frechet(p, q)``, ``frechet_characteristics(a, b)``, ``max_ogcd_error(a, b)``.
 """
