@@ -1,0 +1,533 @@
+"""Light for the renderer: environment-map geometry, lux scaling, the sun, importance sampling.
+
+Pure numpy (no Taichi): the kernels in :mod:`grassd.sim.kernels` are ports of the reference
+functions here (:func:`sample_env`, :func:`env_pdf`, :func:`env_radiance`).
+
+Conventions (fixed for all of ``grassd.sim`` and for exported scenes)
+-------------------------------------------------------------------
+World frame
+    Metres, right-handed, z up, +x east, +y north (ENU). A compass azimuth A (degrees from
+    north, clockwise seen from above) and elevation e (degrees above the horizon) give the unit
+    direction ``(sin A cos e, cos A cos e, sin e)``.
+Environment map
+    An ``(H, W, 3)`` array with ``W = 2 H``. Direction ``(x, y, z)`` maps to
+    ``u = atan2(y, x) / 2 pi (mod 1)`` and ``v = acos(z) / pi``; ``u = 0`` is the image's left
+    edge, ``v = 0`` its top row; texel (row i, column j) = ``(floor(v H), floor(u W))`` and covers
+    polar angles ``theta in [pi i / H, pi (i + 1) / H]`` and ``phi = atan2(y, x) in
+    [2 pi j / W, 2 pi (j + 1) / W]``. So the top row is the zenith, the left edge looks east
+    (compass 90 deg), column W/4 north, W/2 west, 3W/4 south; compass azimuth A sits at
+    ``u = (90 - A) / 360 (mod 1)``.
+    Lookups are piecewise constant: a direction sees the radiance of the texel it falls in
+    (nearest texel, no filtering); every integral below is the exact integral of that function.
+    Note: u grows counter-clockwise seen from above, whereas ordinary panoramas (cameras, Poly
+    Haven, Blender, Mitsuba) grow clockwise (turning right moves right in the image). Read in
+    this convention such a file is mirrored east-west; pass ``flip=True`` to
+    :func:`orient_env` / :func:`build_lighting` to read it unmirrored (a file in Blender's
+    world convention, ``u = 0.5 - atan2(y, x) / 2 pi``, is then reproduced exactly with
+    ``flip=True, rotation_deg=180``).
+Rotation
+    ``rotation_deg`` turns the map content about +z, positive counter-clockwise seen from above
+    (content moves towards +y): a feature at azimuth angle phi goes to ``phi + rotation``, i.e.
+    ``u + rotation / 360``. Applied by rolling columns; a shift that is not a whole number of
+    columns is linearly interpolated between the two neighbouring whole-column rolls (which keeps
+    every row's sum, hence the illuminance and the sampling marginals, exactly).
+Radiance and illuminance
+    Linear Rec.709 RGB; luminance ``Y = 0.2126 R + 0.7152 G + 0.0722 B``. The illuminance on an
+    upward-facing horizontal plane is ``E = sum_texels Y * w_i`` with
+    ``w_i = integral over the texel of max(0, cos theta) d omega
+    = (2 pi / W) (sin^2 min(theta_i+1, pi/2) - sin^2 theta_i) / 2`` (upper hemisphere only).
+    This is the exact integral of the piecewise-constant map, so a uniform map of radiance L
+    gives E = pi L exactly at any resolution; it differs from the midpoint formula
+    ``Y cos(theta_c) (2 pi / W)(pi / H) sin(theta_c)`` by ``O(1/H^2)``
+    (relative 3e-6 at H = 512, 5e-5 at H = 128). The scale k makes E of ``k * map`` equal the
+    measured lux, so scaled radiance is in cd/m^2 (nits) and irradiance in lux, per channel
+    "lux-like" (the luminance-weighted sum of the three channels is lux).
+Sun
+    A directional light: unit ``sun_direction`` towards the sun and ``sun_irradiance_rgb`` on a
+    plane perpendicular to it (same units). A sun lux reading is taken on the same horizontal
+    meter, so the perpendicular irradiance is ``sun_lux / sin(elevation)``.
+Importance sampling (:class:`EnvSampler`)
+    Texel probability proportional to ``(Y + floor * Y_mean) * Omega_i`` (``Omega_i`` the texel
+    solid angle, ``Y_mean`` the solid-angle mean luminance, ``floor`` =
+    :data:`ENV_SAMPLING_FLOOR`), so black texels keep a small probability. Inside the chosen
+    texel the direction is uniform in solid angle (uniform in phi and in cos theta), so
+    ``pdf_omega = p_texel / Omega_i`` exactly. The CDFs are stored as float32 and the
+    probabilities are recomputed from the stored float32 CDFs, so ``pdf_omega`` is the exact
+    probability of the float32 sampling procedure (a texel whose share underflows float32
+    resolution has pdf 0 there and is never sampled: BSDF sampling with MIS covers it).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from grassd.sim.errors import LightingError
+from grassd.sim.hdri import REC709_LUMINANCE, load_hdri, validate_env
+
+__all__ = [
+    "DEFAULT_SUN_COLOUR",
+    "ENV_SAMPLING_FLOOR",
+    "MAX_LUX",
+    "MAX_SUN_PERPENDICULAR_LUX",
+    "EnvSampler",
+    "Lighting",
+    "azimuth_elevation_from_direction",
+    "build_env_sampler",
+    "build_lighting",
+    "direction_from_azimuth_elevation",
+    "direction_to_uv",
+    "env_pdf",
+    "env_radiance",
+    "horizontal_cosine_weights",
+    "horizontal_illuminance",
+    "horizontal_irradiance_rgb",
+    "orient_env",
+    "rotate_env",
+    "sample_env",
+    "texel_solid_angles",
+    "uv_to_direction",
+]
+
+log = logging.getLogger(__name__)
+
+#: Largest accepted lux reading (the brightest natural daylight is about 130 klux).
+MAX_LUX: float = 200_000.0
+#: Largest accepted sun illuminance perpendicular to the sun: 1.2 x the extraterrestrial solar
+#: illuminance (about 128-133 klux). ``sun_lux / sin(elevation)`` above it means the reading or
+#: the elevation is wrong.
+MAX_SUN_PERPENDICULAR_LUX: float = 160_000.0
+#: Default sun colour: CIE D55 (x, y) = (0.33242, 0.34743), the usual stand-in for direct
+#: sunlight at mid elevations (about 5500 K), as linear Rec.709 RGB (D65 white, no adaptation)
+#: normalised to luminance Y = 1.
+DEFAULT_SUN_COLOUR = np.array([1.10410717, 0.98689023, 0.82322847])
+#: Probability floor of the environment sampler, as a fraction of the mean luminance.
+ENV_SAMPLING_FLOOR: float = 1e-3
+
+_LUMA32 = REC709_LUMINANCE.astype(np.float32)
+
+
+# ------------------------------------------------------------------------------ directions
+
+
+def direction_from_azimuth_elevation(azimuth_deg, elevation_deg) -> np.ndarray:
+    """Unit vector(s) (..., 3) for compass azimuth (deg from north, clockwise) and elevation (deg).
+
+    >>> direction_from_azimuth_elevation(90.0, 0.0).round(12) + 0.0  # east
+    array([1., 0., 0.])
+    """
+    a = np.radians(np.asarray(azimuth_deg, dtype=np.float64))
+    e = np.radians(np.asarray(elevation_deg, dtype=np.float64))
+    return np.stack([np.sin(a) * np.cos(e), np.cos(a) * np.cos(e), np.sin(e)], axis=-1)
+
+
+def azimuth_elevation_from_direction(directions) -> tuple[np.ndarray, np.ndarray]:
+    """Compass azimuth in [0, 360) and elevation in [-90, 90], degrees, of direction(s) (..., 3)."""
+    d = np.asarray(directions, dtype=np.float64)
+    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    az = np.degrees(np.arctan2(d[..., 0], d[..., 1])) % 360.0
+    el = np.degrees(np.arcsin(np.clip(d[..., 2], -1.0, 1.0)))
+    return az, el
+
+
+def direction_to_uv(directions) -> tuple[np.ndarray, np.ndarray]:
+    """Map coordinates (u, v) in [0, 1) x [0, 1] of direction(s) (..., 3) (need not be unit)."""
+    d = np.asarray(directions, dtype=np.float64)
+    norm = np.linalg.norm(d, axis=-1)
+    u = (np.arctan2(d[..., 1], d[..., 0]) / (2.0 * np.pi)) % 1.0
+    v = np.arccos(np.clip(d[..., 2] / norm, -1.0, 1.0)) / np.pi
+    return u, v
+
+
+def uv_to_direction(u, v) -> np.ndarray:
+    """Unit direction(s) (..., 3) of map coordinates u, v (inverse of :func:`direction_to_uv`)."""
+    phi = 2.0 * np.pi * np.asarray(u, dtype=np.float64)
+    theta = np.pi * np.asarray(v, dtype=np.float64)
+    s = np.sin(theta)
+    return np.stack([s * np.cos(phi), s * np.sin(phi), np.cos(theta)], axis=-1)
+
+
+def _texel_index(directions, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    u, v = direction_to_uv(directions)
+    col = np.floor(u * width).astype(np.int64) % width
+    row = np.minimum(np.floor(v * height).astype(np.int64), height - 1)
+    return row, col
+
+
+def env_radiance(env: np.ndarray, directions) -> np.ndarray:
+    """Radiance (..., 3) seen in direction(s) (..., 3): nearest texel (piecewise constant)."""
+    row, col = _texel_index(directions, env.shape[0], env.shape[1])
+    return np.asarray(env)[row, col]
+
+
+# ------------------------------------------------------------------------------- integrals
+
+
+def texel_solid_angles(height: int, width: int) -> np.ndarray:
+    """Exact solid angle (sr) of one texel in each row, shape (H,):
+    ``(2 pi / W) (cos theta_i - cos theta_i+1)``. Sums to 4 pi over the map."""
+    edges = np.cos(np.pi * np.arange(height + 1) / height)
+    return (2.0 * np.pi / width) * (edges[:-1] - edges[1:])
+
+
+def horizontal_cosine_weights(height: int, width: int) -> np.ndarray:
+    """Per-row weight (H,) of one texel for horizontal illuminance, in sr:
+    ``integral over the texel of max(0, cos theta) d omega``. Sums to pi over the map."""
+    theta = np.minimum(np.pi * np.arange(height + 1) / height, np.pi / 2.0)
+    s2 = np.sin(theta) ** 2
+    return (np.pi / width) * (s2[1:] - s2[:-1])
+
+
+def horizontal_irradiance_rgb(radiance: np.ndarray) -> np.ndarray:
+    """Per-channel irradiance (3,) on an upward-facing horizontal plane from an equirectangular
+    radiance map (H, W, 3): ``sum L * integral max(0, cos theta) d omega`` (exact for the
+    piecewise-constant map). Units: radiance units x sr (nits -> lux-like per channel)."""
+    env = np.asarray(radiance)
+    w = horizontal_cosine_weights(env.shape[0], env.shape[1])
+    upper = int(np.count_nonzero(w))
+    return np.einsum("hwc,h->c", env[:upper].astype(np.float64), w[:upper])
+
+
+def horizontal_illuminance(radiance: np.ndarray) -> float:
+    """Illuminance on an upward-facing horizontal plane, E = sum Y w (lux if radiance is nits).
+
+    >>> float(round(horizontal_illuminance(np.ones((8, 16, 3))) / np.pi, 12))
+    1.0
+    """
+    return float(REC709_LUMINANCE @ horizontal_irradiance_rgb(radiance))
+
+
+# ----------------------------------------------------------------------------- orientation
+
+
+def rotate_env(img: np.ndarray, rotation_deg: float) -> np.ndarray:
+    """Turn a map's content about +z by ``rotation_deg`` (counter-clockwise seen from above).
+
+    Content at column u moves to ``u + rotation_deg / 360``. Whole-column shifts are exact
+    rolls; fractional shifts interpolate linearly between the two neighbouring rolls (row sums
+    and hence the horizontal illuminance are kept exactly). Returns float32 (H, W, 3).
+    """
+    if not np.isfinite(rotation_deg):
+        raise LightingError(f"HDRI rotation {rotation_deg} deg is not a finite number")
+    arr = np.asarray(img, dtype=np.float32)
+    width = arr.shape[1]
+    shift = (float(rotation_deg) / 360.0 * width) % width
+    whole = int(np.floor(shift))
+    frac = shift - whole
+    if frac < 1e-6 or frac > 1.0 - 1e-6:
+        return np.ascontiguousarray(np.roll(arr, int(round(shift)) % width, axis=1))
+    a = np.roll(arr, whole, axis=1)
+    b = np.roll(arr, whole + 1, axis=1)
+    return np.ascontiguousarray((1.0 - frac) * a + frac * b, dtype=np.float32)
+
+
+def orient_env(img: np.ndarray, rotation_deg: float = 0.0, flip: bool = False) -> np.ndarray:
+    """Bring a stored panorama into the convention: optional east-west mirror (``flip``, for
+    ordinary clockwise panoramas: reverses the column order, phi -> -phi), then
+    :func:`rotate_env`. Returns float32 (H, W, 3)."""
+    arr = np.asarray(img, dtype=np.float32)
+    if flip:
+        arr = arr[:, ::-1]  # texel j <-> W - 1 - j: phi -> -phi exactly
+    return rotate_env(arr, rotation_deg)
+
+
+# -------------------------------------------------------------------------------- lighting
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a = np.ascontiguousarray(a)
+    a.flags.writeable = False
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class Lighting:
+    """The light at the display, in the conventions of this module.
+
+    ``env``: (H, W, 3) float32 scaled radiance (nits), read-only. ``env_scale``: k such that
+    ``env = k * map`` (map = the file after :func:`orient_env`). ``sun_direction``: (3,) unit
+    vector towards the sun, or None. ``sun_irradiance_rgb``: (3,) sun irradiance on a plane
+    perpendicular to it (lux-like linear Rec.709; zeros without a sun). ``ambient_lux``: what
+    ``env`` gives on the upward horizontal plane; ``sun_lux``: what the sun gives there (0
+    without a sun). ``rotation_deg`` / ``flipped``: how the file was oriented.
+    """
+
+    env: np.ndarray
+    env_scale: float
+    sun_direction: np.ndarray | None
+    sun_irradiance_rgb: np.ndarray
+    ambient_lux: float
+    sun_lux: float
+    rotation_deg: float = 0.0
+    flipped: bool = False
+    notes: tuple[str, ...] = field(default=())
+
+    @cached_property
+    def horizontal_irradiance_rgb(self) -> np.ndarray:
+        """(3,) irradiance on the upward horizontal plane: env + sun * max(0, sun_z) (lux-like)."""
+        total = horizontal_irradiance_rgb(self.env)
+        if self.sun_direction is not None:
+            total = total + self.sun_irradiance_rgb * max(0.0, float(self.sun_direction[2]))
+        return _readonly(total)
+
+    @property
+    def total_lux(self) -> float:
+        """Illuminance on the upward horizontal plane, env plus sun (lux)."""
+        return float(self.ambient_lux + self.sun_lux)
+
+    @property
+    def env_unscaled(self) -> np.ndarray:
+        """The oriented map before scaling (what ``export-scene`` writes as env.exr)."""
+        return (self.env / np.float32(self.env_scale)).astype(np.float32)
+
+
+def _check_lux(value, what: str, allow_zero: bool = False) -> float:
+    try:
+        lux = float(value)
+    except (TypeError, ValueError) as exc:
+        raise LightingError(f"{what} {value!r} is not a number") from exc
+    if not np.isfinite(lux):
+        raise LightingError(f"{what} {lux} is not finite")
+    if lux < 0.0 or (lux == 0.0 and not allow_zero):
+        raise LightingError(f"{what} {lux:g} lx must be {'>= 0' if allow_zero else '> 0'}")
+    if lux > MAX_LUX:
+        raise LightingError(f"{what} {lux:g} lx exceeds {MAX_LUX:g} lx (brighter than any "
+                            "daylight); check the meter's units")
+    return lux
+
+
+def normalised_colour(colour, what: str = "sun colour") -> np.ndarray:
+    """A linear Rec.709 colour (3,) scaled to luminance Y = 1."""
+    c = np.asarray(colour, dtype=np.float64).reshape(-1)
+    if c.shape != (3,) or not np.isfinite(c).all() or (c < 0).any():
+        raise LightingError(f"{what} {colour!r} must be three finite non-negative linear "
+                            "RGB values")
+    y = float(REC709_LUMINANCE @ c)
+    if y <= 0.0:
+        raise LightingError(f"{what} {colour!r} has zero luminance")
+    return c / y
+
+
+def sun_irradiance_from_lux(sun_lux: float, elevation_deg: float, colour) -> np.ndarray:
+    """Perpendicular sun irradiance (3,) from its horizontal lux: ``colour * sun_lux / sin(e)``.
+
+    ``colour`` is normalised to Y = 1, so the luminance of the result is the perpendicular
+    illuminance in lux. Raises :class:`LightingError` if that exceeds
+    :data:`MAX_SUN_PERPENDICULAR_LUX`.
+    """
+    s = np.sin(np.radians(elevation_deg))
+    perpendicular = sun_lux / s
+    if perpendicular > MAX_SUN_PERPENDICULAR_LUX:
+        raise LightingError(
+            f"sun lux {sun_lux:g} at elevation {elevation_deg:.2f} deg means "
+            f"{perpendicular:.0f} lx perpendicular to the sun, more than sunlight can give "
+            f"({MAX_SUN_PERPENDICULAR_LUX:g} lx); check the sun reading and elevation"
+        )
+    return normalised_colour(colour) * perpendicular
+
+
+def build_lighting(
+    hdri,
+    ambient_lux: float,
+    sun_lux: float | None = None,
+    sun_azimuth_deg: float | None = None,
+    sun_elevation_deg: float | None = None,
+    sun_from_hdri: bool = False,
+    rotation_deg: float = 0.0,
+    sun_colour=None,
+    *,
+    flip: bool = False,
+    day_of_year: int | None = None,
+) -> Lighting:
+    """Scale an HDRI to a lux reading and add a directional sun.
+
+    ``hdri``: a path (.exr/.hdr, read by :func:`grassd.sim.hdri.load_hdri`) or an (H, W, 3)
+    array of relative linear Rec.709 radiance; it is oriented by ``flip`` and ``rotation_deg``
+    (see :func:`orient_env`).
+
+    Without ``sun_from_hdri``: ``ambient_lux`` is the horizontal reading without the sun (meter
+    shaded) and the whole map is scaled to it; ``sun_lux`` (horizontal lux of the sun: reading
+    with minus reading without) needs ``sun_azimuth_deg`` and ``sun_elevation_deg`` and becomes
+    a directional light of perpendicular irradiance ``sun_lux / sin(elevation)`` and colour
+    ``sun_colour`` (default :data:`DEFAULT_SUN_COLOUR`).
+
+    With ``sun_from_hdri``: the sun is found in the map (:func:`grassd.sim.sun.find_sun`) and
+    the split between map and directional sun follows :func:`grassd.sim.sun.split_sun`
+    (``ambient_lux`` is then the TOTAL reading with the sun, unless ``sun_lux`` is also given, in
+    which case the two keep their meaning above). The sun colour is the sun region's colour
+    unless ``sun_colour`` is given. ``day_of_year`` refines the clear-sky model used there.
+
+    Raises :class:`LightingError` for lux <= 0 or > :data:`MAX_LUX`, a sun at or below the
+    horizon, a sun lux without a direction (or the reverse), conflicting sun options.
+    """
+    ambient = _check_lux(ambient_lux, "ambient lux")
+    sun_l = None if sun_lux is None else _check_lux(sun_lux, "sun lux", allow_zero=True)
+    if sun_l is not None and ambient + sun_l > MAX_LUX:
+        raise LightingError(f"ambient + sun lux = {ambient + sun_l:g} lx exceeds {MAX_LUX:g} lx")
+    if (sun_azimuth_deg is None) != (sun_elevation_deg is None):
+        raise LightingError("give both the sun azimuth and the sun elevation, or neither")
+    if not np.isfinite(rotation_deg):
+        raise LightingError(f"HDRI rotation {rotation_deg} deg is not a finite number")
+
+    if isinstance(hdri, str | os.PathLike):
+        raw = load_hdri(hdri)
+    else:
+        raw = validate_env(hdri, "HDRI array")
+    env0 = orient_env(raw, rotation_deg, flip)
+    e_map = horizontal_illuminance(env0)
+    if e_map <= 0.0:
+        raise LightingError("the HDRI gives no light on a horizontal plane (upper hemisphere "
+                            "black after orientation)")
+
+    common = dict(rotation_deg=float(rotation_deg), flipped=bool(flip))
+    if sun_from_hdri:
+        if sun_azimuth_deg is not None:
+            raise LightingError("sun_from_hdri takes the sun direction from the map; do not also "
+                                "give a sun azimuth/elevation")
+        from grassd.sim.sun import split_sun  # sun.py builds on this module's geometry
+
+        split = split_sun(env0, ambient, sun_l, day_of_year=day_of_year)
+        k = split.env_scale
+        env = env0 * np.float32(k)
+        if split.direction is None or split.sun_lux <= 0.0:
+            return Lighting(_readonly(env), k, None, _readonly(np.zeros(3)),
+                            horizontal_illuminance(env), 0.0, notes=split.notes, **common)
+        colour = split.colour if sun_colour is None else sun_colour
+        _, elev = azimuth_elevation_from_direction(split.direction)
+        irr = sun_irradiance_from_lux(split.sun_lux, float(elev), colour)
+        return Lighting(_readonly(env), k, _readonly(split.direction), _readonly(irr),
+                        horizontal_illuminance(env), split.sun_lux, notes=split.notes, **common)
+
+    if sun_l is not None and sun_azimuth_deg is None:
+        raise LightingError("a sun lux was given without a sun direction: give the sun azimuth "
+                            "and elevation (or sun_from_hdri)")
+    if sun_l is None and sun_azimuth_deg is not None:
+        raise LightingError("a sun direction was given without the sun lux (the horizontal "
+                            "reading with the sun minus the reading without)")
+    k = ambient / e_map
+    env = env0 * np.float32(k)
+    if sun_l is None or sun_l == 0.0:
+        return Lighting(_readonly(env), k, None, _readonly(np.zeros(3)),
+                        horizontal_illuminance(env), 0.0, **common)
+    az, el = float(sun_azimuth_deg), float(sun_elevation_deg)
+    if not (np.isfinite(az) and np.isfinite(el)):
+        raise LightingError(f"sun azimuth {az} / elevation {el} must be finite")
+    if el <= 0.0:
+        raise LightingError(f"sun elevation {el:g} deg is at or below the horizon; a sun that "
+                            "is not up gives no direct light (drop the sun options)")
+    if el > 90.0:
+        raise LightingError(f"sun elevation {el:g} deg exceeds 90 deg")
+    direction = direction_from_azimuth_elevation(az % 360.0, el)
+    colour = DEFAULT_SUN_COLOUR if sun_colour is None else sun_colour
+    irr = sun_irradiance_from_lux(sun_l, el, colour)
+    return Lighting(_readonly(env), k, _readonly(direction), _readonly(irr),
+                    horizontal_illuminance(env), sun_l, **common)
+
+
+# ----------------------------------------------------------------------- importance sampling
+
+
+@dataclass(frozen=True, eq=False)
+class EnvSampler:
+    """Tables for sampling an (H, W) environment map in proportion to luminance x solid angle.
+
+    All arrays are float32 and C-contiguous:
+
+    - ``marginal_cdf`` (H + 1,): row CDF, 0 at index 0, exactly 1 at index H.
+    - ``conditional_cdf`` (H, W + 1): per row, the column CDF (0 ... exactly 1).
+    - ``pdf_omega`` (H, W): density per steradian of the whole procedure for a direction in
+      texel (i, j): ``(mcdf[i+1] - mcdf[i]) (ccdf[i, j+1] - ccdf[i, j]) / Omega_i``.
+    - ``cos_theta_edges`` (H + 1,): ``cos(pi i / H)``, the row edges (decreasing, 1 ... -1).
+    - ``radiance`` (H, W, 3): the map itself (nearest-texel lookups).
+    """
+
+    marginal_cdf: np.ndarray
+    conditional_cdf: np.ndarray
+    pdf_omega: np.ndarray
+    cos_theta_edges: np.ndarray
+    radiance: np.ndarray
+
+    @property
+    def height(self) -> int:
+        return int(self.pdf_omega.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.pdf_omega.shape[1])
+
+
+def build_env_sampler(env: np.ndarray, floor: float = ENV_SAMPLING_FLOOR) -> EnvSampler:
+    """Build the :class:`EnvSampler` of an (H, W, 3) radiance map (any linear units).
+
+    Texel weight ``(max(Y, 0) + floor * Y_mean) * Omega_i`` (``Y_mean`` = solid-angle mean
+    luminance; an all-black map is sampled uniformly over the sphere). CDFs are accumulated in
+    float64, stored in float32, and ``pdf_omega`` is derived from the stored CDFs.
+    """
+    rad = np.ascontiguousarray(env, dtype=np.float32)
+    h, w = rad.shape[:2]
+    omega = texel_solid_angles(h, w)
+    lum = np.maximum(rad.astype(np.float64) @ REC709_LUMINANCE, 0.0)
+    mean_y = float((lum * omega[:, None]).sum() / (4.0 * np.pi))
+    pad = floor * mean_y if mean_y > 0.0 else 1.0
+    weight = (lum + pad) * omega[:, None]
+    row_w = weight.sum(axis=1)
+    mcdf = np.concatenate(([0.0], np.cumsum(row_w))) / row_w.sum()
+    ccdf = np.concatenate((np.zeros((h, 1)), np.cumsum(weight, axis=1)), axis=1) / row_w[:, None]
+    mcdf32 = mcdf.astype(np.float32)
+    ccdf32 = ccdf.astype(np.float32)
+    mcdf32[0], mcdf32[-1] = 0.0, 1.0
+    ccdf32[:, 0], ccdf32[:, -1] = 0.0, 1.0
+    p_row = np.diff(mcdf32.astype(np.float64))
+    p_col = np.diff(ccdf32.astype(np.float64), axis=1)
+    pdf = (p_row[:, None] * p_col) / omega[:, None]
+    edges = np.cos(np.pi * np.arange(h + 1) / h)
+    return EnvSampler(
+        marginal_cdf=_readonly(mcdf32),
+        conditional_cdf=_readonly(ccdf32),
+        pdf_omega=_readonly(pdf.astype(np.float32)),
+        cos_theta_edges=_readonly(edges.astype(np.float32)),
+        radiance=_readonly(rad),
+    )
+
+
+def sample_env(sampler: EnvSampler, u1, u2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Reference sampler: uniforms u1, u2 in [0, 1) (N,) -> directions (N, 3), pdf_omega (N,)
+    per sr, radiance (N, 3).
+
+    Row i: the last index with ``marginal_cdf[i] <= u1`` (binary search; zero-width rows are
+    never chosen); column j likewise in ``conditional_cdf[i]`` with u2. The remainders
+    ``(u1 - mcdf[i]) / (mcdf[i+1] - mcdf[i])`` and ``(u2 - ccdf[i,j]) / (...)`` place the
+    direction inside the texel: ``cos theta = c_i + r1 (c_i+1 - c_i)`` (c = cos_theta_edges),
+    ``phi = 2 pi (j + r2) / W`` -- uniform in solid angle, so pdf = ``pdf_omega[i, j]``.
+    """
+    u1 = np.asarray(u1, dtype=np.float64)
+    u2 = np.asarray(u2, dtype=np.float64)
+    h, w = sampler.height, sampler.width
+    mcdf = sampler.marginal_cdf.astype(np.float64)
+    row = np.clip(np.searchsorted(mcdf, u1, side="right") - 1, 0, h - 1)
+    r1 = (u1 - mcdf[row]) / (mcdf[row + 1] - mcdf[row])
+    # one binary search over all rows at once: row i's CDF shifted to [2 i, 2 i + 1]
+    ccdf = sampler.conditional_cdf.astype(np.float64)
+    flat = (ccdf + 2.0 * np.arange(h)[:, None]).ravel()
+    pos = np.searchsorted(flat, u2 + 2.0 * row, side="right") - 1 - row * (w + 1)
+    col = np.clip(pos, 0, w - 1)
+    lo = ccdf[row, col]
+    hi = ccdf[row, col + 1]
+    r2 = (u2 - lo) / (hi - lo)
+    c = sampler.cos_theta_edges.astype(np.float64)
+    cos_t = np.clip(c[row] + np.clip(r1, 0.0, 1.0) * (c[row + 1] - c[row]), -1.0, 1.0)
+    sin_t = np.sqrt(np.maximum(0.0, 1.0 - cos_t * cos_t))
+    phi = 2.0 * np.pi * (col + np.clip(r2, 0.0, 1.0)) / w
+    dirs = np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t], axis=-1)
+    return dirs, sampler.pdf_omega[row, col].astype(np.float64), sampler.radiance[row, col]
+
+
+def env_pdf(sampler: EnvSampler, directions) -> np.ndarray:
+    """Density per steradian (...,) with which :func:`sample_env` produces direction(s) (..., 3)
+    (nearest texel lookup of ``pdf_omega``), for MIS weights of BSDF-sampled rays."""
+    row, col = _texel_index(directions, sampler.height, sampler.width)
+    return sampler.pdf_omega[row, col].astype(np.float64)
