@@ -16,6 +16,7 @@ from grassd.daemon.errors import USER_ERRORS
 
 #: "module:attribute" of every sub-command (a click command or group).
 SUBCOMMANDS: list[str] = [
+    "grassd.daemon.cli_demo:demo",
     "grassd.daemon.cli_run:check_config",
 ]
 
