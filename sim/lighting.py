@@ -86,9 +86,11 @@ __all__ = [
     "horizontal_cosine_weights",
     "horizontal_illuminance",
     "horizontal_irradiance_rgb",
+    "normalised_colour",
     "orient_env",
     "rotate_env",
     "sample_env",
+    "sun_irradiance_from_lux",
     "texel_solid_angles",
     "uv_to_direction",
 ]
@@ -105,6 +107,8 @@ MAX_SUN_PERPENDICULAR_LUX: float = 160_000.0
 #: sunlight at mid elevations (about 5500 K), as linear Rec.709 RGB (D65 white, no adaptation)
 #: normalised to luminance Y = 1.
 DEFAULT_SUN_COLOUR = np.array([1.10410717, 0.98689023, 0.82322847])
+DEFAULT_SUN_COLOUR /= REC709_LUMINANCE @ DEFAULT_SUN_COLOUR  # Y = 1 with the 4-digit weights
+DEFAULT_SUN_COLOUR.flags.writeable = False
 #: Probability floor of the environment sampler, as a fraction of the mean luminance.
 ENV_SAMPLING_FLOOR: float = 1e-3
 
