@@ -17,14 +17,16 @@ import os
 import select
 import threading
 import tty
+from pathlib import Path
 from typing import Any
 
 from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from grassd.daemon.config import ModbusConfig
+from grassd.daemon.config import Config, ModbusConfig
 from grassd.daemon.luxsensor import encode_lux
+from grassd.firmware_proto.simulator import SimulatedBus, make_controllers
 
 log = logging.getLogger(__name__)
 
@@ -203,3 +205,65 @@ class SimLuxSensor:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+def _pixel_count(ranges: tuple[tuple[int, int], ...]) -> int:
+    return sum(b - a + 1 for a, b in ranges)
+
+
+class SimulatedHardware:
+    """Everything ``--simulate-hardware`` needs: one simulated bus per configured serial port
+    (controllers at their configured addresses and pixel counts, EEPROMs persisted under
+    ``root``, so tables survive a daemon restart) and, when the config names a Modbus sensor,
+    a :class:`SimLuxSensor` on 127.0.0.1 reading ``lux``.
+
+    :meth:`start` returns the config rewritten to point at the simulated devices; the port
+    symlinks ``root/ports/<n>`` stay the same across restarts with the same ``root``.
+    """
+
+    def __init__(self, cfg: Config, root: str | os.PathLike[str], lux: float = 5000.0,
+                 baud: int | None = None) -> None:
+        self.cfg = cfg
+        self.root = Path(root)
+        self.lux = lux
+        self.baud = baud
+        self.buses: list[SimulatedBus] = []
+        self.sensor: SimLuxSensor | None = None
+        self.ports: dict[str, str] = {}
+
+    def start(self) -> Config:
+        """Start the simulated devices; return the config that points at them."""
+        by_port: dict[str, list] = {}
+        for c in self.cfg.controllers:
+            by_port.setdefault(c.port, []).append(c)
+        (self.root / "ports").mkdir(parents=True, exist_ok=True)
+        try:
+            for i, (port, ctrls) in enumerate(by_port.items()):
+                devices = [
+                    make_controllers(self.root / "eeprom" / f"bus{i}", [c.address],
+                                     n_pixels=_pixel_count(c.pixels))[0]
+                    for c in ctrls
+                ]
+                bus = SimulatedBus(devices, link_path=self.root / "ports" / f"bus{i}",
+                                   baud=self.baud).start()
+                self.buses.append(bus)
+                self.ports[port] = bus.path
+            light = self.cfg.light
+            if light.modbus is not None:
+                self.sensor = SimLuxSensor(light.modbus, self.lux).start()
+                light = dataclasses.replace(light, modbus=self.sensor.config)
+        except BaseException:
+            self.stop()
+            raise
+        controllers = tuple(dataclasses.replace(c, port=self.ports[c.port])
+                            for c in self.cfg.controllers)
+        return dataclasses.replace(self.cfg, controllers=controllers, light=light)
+
+    def stop(self) -> None:
+        """Stop every simulated device."""
+        for bus in self.buses:
+            bus.stop()
+        self.buses.clear()
+        if self.sensor is not None:
+            self.sensor.stop()
+            self.sensor = None
