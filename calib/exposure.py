@@ -49,7 +49,7 @@ def exposure_matrix(
     >>> np.round(np.diag(G), 6).tolist()
     [2.0, 2.0, 2.0]
     """
-    grey = as_float_array(grey_rgb, "grey_rgb", last_dim=3, ndim=1)
+    grey = as_float_array(grey_rgb, "grey_rgb", last_dim=3, ndim=1, non_negative=True)
     key = _space(space)
     if not np.isfinite(target_y) or target_y <= 0:
         raise ExposureError(f"target_y must be a positive luminance; got {target_y}")
@@ -91,7 +91,7 @@ def normalise_exposure(
     >>> np.round(out, 6).tolist()
     [[0.36, 0.36, 0.36]]
     """
-    arr = as_float_array(rgb, "rgb", last_dim=3)
+    arr = as_float_array(rgb, "rgb", last_dim=3, non_negative=True)
     return (
         arr
         @ exposure_matrix(grey_rgb, space=space, white_balance=white_balance, target_y=target_y).T

@@ -24,15 +24,16 @@ def _check_quad(corners: ArrayLike, name: str = "corners") -> NDArray[np.float64
     nxt = np.roll(edges, -1, axis=0)
     cross = edges[:, 0] * nxt[:, 1] - edges[:, 1] * nxt[:, 0]
     area = 0.5 * np.sum(q[:, 0] * np.roll(q[:, 1], -1) - np.roll(q[:, 0], -1) * q[:, 1])
+    tol = 1e-12 * max(1.0, float(np.abs(q).max()) ** 2)
+    if (cross > tol).any() and (cross < -tol).any():
+        raise GeometryError(
+            f"{name} {q.tolist()} do not form a convex quadrilateral; list the corners in order "
+            "around the area (e.g. top-left, top-right, bottom-right, bottom-left)"
+        )
     if abs(area) < 1.0:
         raise GeometryError(
             f"{name} enclose {abs(area):.3g} square pixels; give the four corners of a visible "
             "area (in order around it, not all on a line)"
-        )
-    if not ((cross > 0).all() or (cross < 0).all()):
-        raise GeometryError(
-            f"{name} {q.tolist()} do not form a convex quadrilateral; list the corners in order "
-            "around the area (e.g. top-left, top-right, bottom-right, bottom-left)"
         )
     return q
 
