@@ -15,16 +15,15 @@ World frame: metres, z up. Files written to the output directory:
 from __future__ import annotations
 
 import json
-import math
 import os
 from pathlib import Path
 
 import numpy as np
 
+from grassd.sim.camera import frame_quad
 from grassd.sim.geometry import MATERIAL_NAMES, build_scene, triangle_mesh
 from grassd.sim.hdri import write_exr
 from grassd.sim.lighting import Lighting
-from grassd.sim.renderer import image_quad
 from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
 
 
@@ -69,24 +68,15 @@ def export_scene(out_dir: str | os.PathLike, display: DisplaySpec, lighting: Lig
     cxy = display.pixel_centres_m()[0]
     corners = scene.quad_corners + np.array([cxy[0], cxy[1], 0.0])
     eye = viewpoint.eye_m(tuple(cxy))
-    target = corners.mean(axis=0)
-    quad_img = image_quad(eye, corners)
-    forward = (target - eye) / np.linalg.norm(target - eye)
-    plane_centre = eye + forward
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    up = np.cross(right, forward)
-    half = max(np.abs((quad_img - plane_centre) @ right).max(),
-               np.abs((quad_img - plane_centre) @ up).max()) * 1.1
-    fov_x = math.degrees(2 * math.atan(half))
+    view = frame_quad(eye, corners)
     sun = None
     if lighting.sun_direction is not None:
         sun = {"direction_to_sun": np.asarray(lighting.sun_direction, float).tolist(),
                "irradiance_linear": np.asarray(lighting.sun_irradiance_rgb, float).tolist()}
     doc = {
         "units": "metres, z up, linear Rec.709",
-        "camera": {"origin": eye.tolist(), "target": target.tolist(), "up": [0.0, 0.0, 1.0],
-                   "fov_x_deg": fov_x, "width": image_size, "height": image_size},
+        "camera": {"origin": eye.tolist(), "target": view.target.tolist(), "up": [0.0, 0.0, 1.0],
+                   "fov_x_deg": view.fov_deg, "width": image_size, "height": image_size},
         "quad": corners.tolist(),
         "materials": albedo,
         "meshes": meshes,

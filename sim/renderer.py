@@ -36,6 +36,7 @@ import numpy as np
 
 from grassd.sim import tifuncs as tf
 from grassd.sim.backend import is_initialised, ti
+from grassd.sim.camera import frame_quad, image_quad
 from grassd.sim.errors import SceneError, SimError
 from grassd.sim.geometry import SceneArrays, build_scene
 from grassd.sim.lighting import Lighting, build_env_sampler
@@ -43,6 +44,7 @@ from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
 
 vec3 = tf.vec3
 EPS = 2e-6  # m: offset of secondary ray origins along the facing normal
+PREVIEW_MAX = 1024  # largest preview image side (pixels)
 
 
 @dataclass(frozen=True)
@@ -77,18 +79,6 @@ class Measurement:
     seconds: dict[str, float] = field(default_factory=dict)
 
 
-def image_quad(eye: np.ndarray, corners: np.ndarray) -> np.ndarray:
-    """Project world corners (4, 3) [m] onto the image plane one metre in front of ``eye``,
-    looking at their centroid. Returns (4, 3) world points on that plane."""
-    forward = corners.mean(axis=0) - eye
-    forward /= np.linalg.norm(forward)
-    rel = corners - eye
-    depth = rel @ forward
-    if np.any(depth <= 1e-6):
-        raise SceneError("the measurement quad is not in front of the eye")
-    return eye + rel / depth[:, None]
-
-
 @ti.data_oriented
 class Renderer:
     """Owns the scene, environment and output fields; traces with one kernel."""
@@ -115,6 +105,7 @@ class Renderer:
         self.env_cond = ti.field(ti.f32, cap.env_texels + cap.env_rows)
         self.out = ti.Vector.field(3, ti.f32, cap.paths)
         self.quad = ti.Vector.field(3, ti.f32, 4)
+        self.image = ti.Vector.field(3, ti.f32, (PREVIEW_MAX, PREVIEW_MAX))
         # Scalars: see _upload_* for the meaning of each slot.
         self.fpar = ti.field(ti.f32, 32)
         self.ipar = ti.field(ti.i32, 16)
@@ -437,6 +428,20 @@ class Renderer:
             self.out[(k * n_rep + r) * n_samp + i] = jac * self.radiance(eye, d, x, key,
                                                                           max_bounces)
 
+    @ti.kernel
+    def _preview_kernel(self, width: ti.i32, spp: ti.i32, seed: ti.u32, max_bounces: ti.i32,
+                        eye: vec3, forward: vec3, right: vec3, up: vec3, half: ti.f32,
+                        x: ti.f32):
+        for py, px in ti.ndrange(width, width):
+            acc = vec3(0.0)
+            for s in range(spp):
+                key = tf.sample_key(seed, py * width + px, s)
+                sx = ((px + tf.rand01(key, 0)) / width * 2.0 - 1.0) * half
+                sy = ((py + tf.rand01(key, 1)) / width * 2.0 - 1.0) * half
+                d = (forward + sx * right - sy * up).normalized()
+                acc += self.radiance(eye, d, x, key, max_bounces)
+            self.image[py, px] = acc / spp
+
     # ----------------------------------------------------------------------------- public API
     def characteristic(
         self,
@@ -508,3 +513,27 @@ class Renderer:
             seconds={"compile": t_compile, "trace": t_end - t_trace0,
                      "total": t_end - t_start},
         )
+
+    def preview(self, display: DisplaySpec, lighting: Lighting, viewpoint: Viewpoint,
+                length_mm: float, width: int = 256, spp: int = 16,
+                settings: RenderSettings | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Path-traced image (width, width, 3) of linear Rec.709 radiance of the view that
+        frames pixel 0, and the (4, 2) pixel coordinates (x, y) of its measurement quad."""
+        settings = settings or RenderSettings()
+        if not 8 <= width <= PREVIEW_MAX or not 1 <= spp <= 4096:
+            raise SceneError(f"preview width must be 8..{PREVIEW_MAX} and spp 1..4096")
+        scene = build_scene(display, np.array([length_mm], dtype=np.float64))
+        self._upload_scene(scene)
+        self._upload_light(lighting)
+        cxy = display.pixel_centres_m()[0]
+        corners = scene.quad_corners + np.array([cxy[0], cxy[1], 0.0])
+        view = frame_quad(viewpoint.eye_m(tuple(cxy)), corners)
+        f32 = lambda v: ti.Vector(np.asarray(v, np.float32).tolist())  # noqa: E731
+        self._preview_kernel(width, spp, settings.seed, settings.max_bounces, f32(view.eye),
+                             f32(view.forward), f32(view.right), f32(view.up), view.half,
+                             length_mm * 1e-3)
+        img = self.image.to_numpy()[:width, :width].astype(np.float64)
+        rel = image_quad(view.eye, corners) - (view.eye + view.forward)
+        px = ((rel @ view.right) / view.half * 0.5 + 0.5) * width
+        py = (-(rel @ view.up) / view.half * 0.5 + 0.5) * width
+        return img, np.stack([px, py], axis=1)
