@@ -78,6 +78,9 @@ MIN_SUN_CONTRAST: float = 100.0
 #: Luminous efficacy of global daylight, lm/W, to turn a lux reading into W/m^2 for the Erbs
 #: model (clear-sky global efficacy is about 105-120 lm/W; Littlefair 1985, Perez et al. 1990).
 GLOBAL_EFFICACY_LM_W: float = 110.0
+#: Extraterrestrial solar illuminance perpendicular to the sun, lux (solar illuminance
+#: constant, about 128-133 klux; the upper value).
+EXTRATERRESTRIAL_LUX: float = 133_000.0
 #: Lowest sun elevation (deg) at which a restored directional sun is added.
 MIN_SUN_ELEVATION_DEG: float = 1.0
 
@@ -250,6 +253,11 @@ def split_sun(env: np.ndarray, ambient_lux: float, sun_lux: float | None = None,
                          f"measured {100 * f_target:.1f}%; the map is scaled as it is")
     else:
         f_target = clear_sky_direct_fraction(total, elev, day_of_year)
+        ceiling = EXTRATERRESTRIAL_LUX * np.sin(np.radians(max(elev, 0.0)))
+        if total > ceiling:
+            notes.append(f"the reading {total:g} lx exceeds the {ceiling:.0f} lx sunlight "
+                         f"gives above the atmosphere at the found sun's {elev:.1f} deg "
+                         "elevation: check the lux reading and the HDRI orientation")
     f = max(f_map, f_target)
     k = (1.0 - f) * total / e_sky
     deficit = max(0.0, f * total - k * e_sun)

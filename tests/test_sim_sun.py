@@ -203,3 +203,11 @@ def test_clear_sky_direct_fraction_behaviour():
     assert sun.clear_sky_direct_fraction(10000.0, 45.0) < 0.2
     assert sun.clear_sky_direct_fraction(85000.0, 50.0) > 0.7
     assert sun.clear_sky_direct_fraction(50000.0, 2.0) == 0.0
+
+
+def test_reading_brighter_than_sunlight_above_the_atmosphere_is_flagged():
+    env = _sky_with_sun(200.0, 10.0, h=128, radius_deg=1.0, sun_radiance=300.0)
+    split = sun.split_sun(env, 60000.0)  # > 133 klux x sin(10 deg) = 23 klux
+    assert any("exceeds the" in n and "above the atmosphere" in n for n in split.notes)
+    assert not any("above the atmosphere" in n
+                   for n in sun.split_sun(env, 15000.0).notes)
