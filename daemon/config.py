@@ -15,6 +15,8 @@ The file (default ``/etc/grassd/grassd.toml``; the embedded default is
                    [light.modbus] sensor register map
     [schedule]     interval_s, on_new_bundle
     [simulation]   samples, seed, lengths (count of evenly spaced lengths, or a list in mm)
+    [calibration]  max_jump_mm, target_de00, max_rounds, check_levels, r2_goal,
+                   max_flat_fraction, replicates (see CalibrationConfig)
 
 Relative paths are resolved against the directory of the config file, except ``light.inbox``
 which, when relative, lies inside ``state_dir``.
@@ -57,12 +59,11 @@ DEFAULT_CONFIG_PATH = Path("/etc/grassd/grassd.toml")
 #: Default pixel-spec fields (paper, section 3: 33.5 mm pixel, 15 mm base, 10 mm yellow blades,
 #: three 5.7 mm slits, green 0-20 mm). Used when ``grassd.sim.scene.PixelSpec`` is not importable.
 _FALLBACK_PIXEL_FIELDS: dict[str, float | int] = {
-    "size_mm": 33.5,
+    "top_mm": 33.5,
     "base_height_mm": 15.0,
     "yellow_height_mm": 10.0,
     "slit_count": 3,
     "slit_width_mm": 5.7,
-    "green_min_mm": 0.0,
     "green_max_mm": 20.0,
 }
 
@@ -186,6 +187,27 @@ class SimulationConfig:
 
 
 @dataclass(frozen=True)
+class CalibrationConfig:
+    """Checks and closed loop of a calibration run (dE00 = CIEDE2000 units).
+
+    ``max_jump_mm``: largest change of any table entry from the last table (mm) accepted
+    without ``--force``; ``target_de00``/``max_rounds``/``check_levels``: the closed loop stops
+    when the largest |OGCD - target| over ``check_levels`` levels is <= ``target_de00`` or after
+    ``max_rounds`` rounds; ``r2_goal``: reported goal for R^2 of OGCD vs level;
+    ``max_flat_fraction``: refuse a characteristic whose share of flat steps exceeds this;
+    ``replicates``: independent Monte Carlo replicates per render (their spread = error).
+    """
+
+    max_jump_mm: float = 3.0
+    target_de00: float = 0.5
+    max_rounds: int = 3
+    check_levels: int = 17
+    r2_goal: float = 0.999
+    max_flat_fraction: float = 0.6
+    replicates: int = 8
+
+
+@dataclass(frozen=True)
 class Config:
     """The whole validated configuration. ``source`` is the file it came from."""
 
@@ -196,6 +218,7 @@ class Config:
     light: LightConfig
     schedule: ScheduleConfig
     simulation: SimulationConfig
+    calibration: CalibrationConfig
     state_dir: Path
     cache_dir: Path
     control_socket: Path
@@ -417,9 +440,36 @@ def _pixel_fields() -> dict[str, Any]:
     out = {}
     for f in dataclasses.fields(spec):
         v = getattr(spec, f.name)
-        if isinstance(v, int | float | str | bool):
+        if isinstance(v, int | float | str | bool) or (
+                isinstance(v, tuple) and all(isinstance(x, int | float) for x in v)):
             out[f.name] = v
     return out
+
+
+def _numbers(n: int) -> Callable[[Any], str | None]:
+    def check(v: list) -> str | None:
+        ok = len(v) == n and all(isinstance(x, int | float) and not isinstance(x, bool)
+                                 and math.isfinite(x) for x in v)
+        return None if ok else f"must be an array of {n} numbers, got {v!r}"
+
+    return check
+
+
+def _check_pixel_spec(ctx: _Ctx, pixel: dict[str, Any]) -> None:
+    """Let grassd.sim.scene.PixelSpec validate the fields together (when sim is importable)."""
+    try:
+        from grassd.sim.errors import SimError  # noqa: PLC0415
+        from grassd.sim.scene import PixelSpec  # noqa: PLC0415
+    except Exception:  # noqa: BLE001 - sim not importable: per-field checks only
+        return
+    try:
+        PixelSpec(**pixel)
+    except SimError as exc:
+        m = re.search(r"PixelSpec\.(\w+)", str(exc))
+        key = m.group(1) if m and m.group(1) in pixel else None
+        raise ctx.error(("display", "pixel") + ((key,) if key else ()), str(exc)) from None
+    except TypeError as exc:
+        raise ctx.error(("display", "pixel"), str(exc)) from None
 
 
 _RANGE_RE = re.compile(r"^\s*(\d+)\s*(?:-\s*(\d+)\s*)?$")
@@ -459,7 +509,7 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         "state_dir": _F(str, None), "cache_dir": _F(str, None), "control_socket": _F(str, None),
         "site": _F(dict), "display": _F(dict), "controllers": _F(list),
         "viewpoints": _F(list), "light": _F(dict), "schedule": _F(dict, {}),
-        "simulation": _F(dict, {}),
+        "simulation": _F(dict, {}), "calibration": _F(dict, {}),
     })
 
     s = _table(ctx, ("site",), top["site"], {
@@ -478,10 +528,15 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
     pdefaults = _pixel_fields()
     pschema = {}
     for name, default in pdefaults.items():
+        if isinstance(default, tuple):
+            pschema[name] = _F(list, default, _numbers(len(default)))
+            continue
         kind = bool if isinstance(default, bool) else type(default)
-        pschema[name] = _F(kind, default, _positive if kind in (int, float) and
-                           not name.startswith(("green_min", "min_")) else None)
+        pschema[name] = _F(kind, default, _non_negative if kind in (int, float) else None)
     pixel = _table(ctx, ("display", "pixel"), pixel_raw, pschema)
+    pixel = {k: tuple(float(x) for x in v) if isinstance(v, list) else v
+             for k, v in pixel.items()}
+    _check_pixel_spec(ctx, pixel)
     display = DisplayConfig(rows=d["rows"], cols=d["cols"], pitch_mm=d["pitch_mm"],
                             pixel=types.MappingProxyType(pixel))
 
@@ -566,7 +621,7 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
     if isinstance(sim_check, dict):
         sim_check.pop("lengths", None)
     si = _table(ctx, ("simulation",), sim_check, {
-        "samples": _F(int, 64, _between(1, 1 << 20)), "seed": _F(int, 0, _non_negative),
+        "samples": _F(int, 1024, _between(1, 1 << 20)), "seed": _F(int, 0, _non_negative),
     })
     lo = float(pixel.get("green_min_mm", 0.0))
     hi = float(pixel.get("green_max_mm", 20.0))
@@ -587,6 +642,15 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
     else:
         raise ctx.error(lpath, f"must be an integer count or an array of mm, got {lengths_raw!r}")
     simulation = SimulationConfig(samples=si["samples"], seed=si["seed"], lengths_mm=lengths)
+
+    ca = _table(ctx, ("calibration",), top["calibration"], {
+        "max_jump_mm": _F(float, 3.0, _positive), "target_de00": _F(float, 0.5, _positive),
+        "max_rounds": _F(int, 3, _between(1, 10)), "check_levels": _F(int, 17, _between(3, 256)),
+        "r2_goal": _F(float, 0.999, _between(0.0, 1.0)),
+        "max_flat_fraction": _F(float, 0.6, _between(0.0, 1.0)),
+        "replicates": _F(int, 8, _between(2, 64)),
+    })
+    calibration = CalibrationConfig(**ca)
 
     env = os.environ
     if top["state_dir"] is not None:
@@ -615,7 +679,8 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
 
     return Config(site=site, display=display, controllers=tuple(controllers),
                   viewpoints=tuple(viewpoints), light=light, schedule=schedule,
-                  simulation=simulation, state_dir=state_dir, cache_dir=cache_dir,
+                  simulation=simulation, calibration=calibration, state_dir=state_dir,
+                  cache_dir=cache_dir,
                   control_socket=sock, source=ctx.source)
 
 

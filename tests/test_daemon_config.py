@@ -71,6 +71,8 @@ def test_good_config_parses_to_frozen_dataclasses(tmp_path):
     assert cfg.state_dir == tmp_path / "state"          # relative to the config file
     assert cfg.light.inbox == tmp_path / "state" / "in"  # relative inbox lies in state_dir
     assert cfg.simulation.lengths_mm == (0.0, 5.0, 10.0, 20.0)
+    assert cfg.calibration.target_de00 == 0.5 and cfg.calibration.max_rounds == 3
+    assert cfg.display.pixel["green_max_mm"] == 20.0
     with pytest.raises(AttributeError):
         cfg.site.latitude = 0.0  # type: ignore[misc]
     with pytest.raises(TypeError):
@@ -107,7 +109,14 @@ def _line_of(text: str, needle: str) -> int:
         ('lengths = [0.0, 5.0, 10.0, 20.0]', 'lengths = [0.0, 5.0, 4.0]', "simulation.lengths",
          "lengths = [0.0, 5.0, 4.0]", "increasing"),
         ('cols = 4', 'cols = 4\n[display.pixel]\nslit_width_mm = -1.0',
-         "display.pixel.slit_width_mm", "slit_width_mm = -1.0", "> 0"),
+         "display.pixel.slit_width_mm", "slit_width_mm = -1.0", ">= 0"),
+        ('cols = 4', 'cols = 4\n[display.pixel]\nslit_count = 9', "display.pixel",
+         "[display.pixel]", "do not fit"),
+        ('cols = 4', 'cols = 4\n[display.pixel]\ngreen_srgb = [1, 2]', "display.pixel.green_srgb",
+         "green_srgb = [1, 2]", "array of 3 numbers"),
+        ('[0.0, 5.0, 10.0, 20.0]', '[0.0, 5.0, 10.0, 20.0]\n[calibration]\nmax_rounds = 0',
+         "calibration.max_rounds",
+         "max_rounds = 0", "between 1 and 10"),
     ],
 )
 def test_bad_values_name_key_and_line(tmp_path, old, new, key, needle, words):
