@@ -55,8 +55,10 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-#: Largest map accepted, in texels (16384 x 8192 = 134 M texels = 1.6 GB as float32 RGB).
-MAX_TEXELS: int = 16384 * 8192
+#: Largest map accepted, in texels: 8192 x 4096 = 33.5 M texels, 400 MB as float32 RGB (the
+#: loader briefly holds about three such arrays). Larger panoramas add nothing to a lux-scaled
+#: light probe; downsample them (e.g. ``oiiotool in.exr --resize 4096x2048 -o out.exr``).
+MAX_TEXELS: int = 8192 * 4096
 #: Smallest accepted height in rows (the width is twice this).
 MIN_HEIGHT: int = 4
 #: Negative texels down to -NEGATIVE_TOLERANCE x (90th percentile luminance) are clamped to 0.

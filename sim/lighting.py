@@ -24,7 +24,11 @@ Environment map
     this convention such a file is mirrored east-west; pass ``flip=True`` to
     :func:`orient_env` / :func:`build_lighting` to read it unmirrored (a file in Blender's
     world convention, ``u = 0.5 - atan2(y, x) / 2 pi``, is then reproduced exactly with
-    ``flip=True, rotation_deg=180``).
+    ``flip=True, rotation_deg=180``). Mitsuba 3's ``envmap`` looks up
+    ``u = atan2(x_l, -z_l) / 2 pi, v = acos(y_l) / pi`` in its local frame; its
+    ``to_world = [[0, 0, -1], [1, 0, 0], [0, 1, 0]]`` (a reflection, det -1; checked with
+    mitsuba 3 scalar_rgb) reproduces this convention with the file as it is, and
+    ``filter_type='nearest'`` matches the piecewise-constant lookup.
 Rotation
     ``rotation_deg`` turns the map content about +z, positive counter-clockwise seen from above
     (content moves towards +y): a feature at azimuth angle phi goes to ``phi + rotation``, i.e.
