@@ -27,8 +27,9 @@ Environment map
     ``flip=True, rotation_deg=180``). Mitsuba 3's ``envmap`` looks up
     ``u = atan2(x_l, -z_l) / 2 pi, v = acos(y_l) / pi`` in its local frame; its
     ``to_world = [[0, 0, -1], [1, 0, 0], [0, 1, 0]]`` (a reflection, det -1; checked with
-    mitsuba 3 scalar_rgb) reproduces this convention with the file as it is, and
-    ``filter_type='nearest'`` matches the piecewise-constant lookup.
+    mitsuba 3 scalar_rgb) reproduces this convention with the file as it is. Mitsuba filters
+    the map bilinearly; upsampling it k-fold with ``np.repeat`` makes its lookups equal ours
+    except within half a fine texel of the coarse texel borders.
 Rotation
     ``rotation_deg`` turns the map content about +z, positive counter-clockwise seen from above
     (content moves towards +y): a feature at azimuth angle phi goes to ``phi + rotation``, i.e.
