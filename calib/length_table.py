@@ -117,7 +117,8 @@ def build_length_table(
     lengths = fit.inverse(target)
     lengths[0] = fit.min_length_mm
     um = np.rint(lengths * _UM_PER_MM)
-    um = np.maximum.accumulate(np.clip(um, np.ceil(fit.min_length_mm * _UM_PER_MM - 1e-9), None))
+    lo_um, hi_um = np.rint([fit.min_length_mm * _UM_PER_MM, fit.max_length_mm * _UM_PER_MM])
+    um = np.maximum.accumulate(np.clip(um, lo_um, hi_um))
     table = um.astype(np.uint16)
     achieved = fit(table / _UM_PER_MM)
     linear_lengths = fit.min_length_mm + levels / (LEVELS - 1) * (
