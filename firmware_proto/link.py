@@ -1,13 +1,15 @@
 """A serial port carrying frames: the boundary where pyserial and OS errors become ours.
 
 :class:`SerialLink` opens the port lazily, feeds what it reads to a
-:class:`~.framing.FrameReader`, and on any ``serial.SerialException`` / ``OSError`` closes the
-port and raises :class:`~.errors.PortUnavailable` (transient), so the next call reopens it by
-name, which is how a USB controller that was unplugged and plugged back in is found again.
+:class:`~.framing.FrameReader`, and on any ``serial.SerialException``, ``OSError`` or
+``termios.error`` closes the port and raises :class:`~.errors.PortUnavailable` (transient),
+so the next call reopens it by name, which is how a USB controller that was unplugged and
+plugged back in is found again.
 """
 
 from __future__ import annotations
 
+import termios
 import time
 from collections import deque
 
@@ -19,6 +21,9 @@ from grassd.firmware_proto.framing import FrameReader
 
 #: pyserial read timeout used to poll until a deadline (seconds).
 POLL_S = 0.005
+#: What pyserial lets escape when a device vanishes: its own exception, OSError from os.read /
+#: os.write / ioctl, and termios.error from tcdrain / tcsetattr (not an OSError subclass).
+PORT_ERRORS = (serial.SerialException, OSError, termios.error)
 
 
 class SerialLink:
@@ -51,7 +56,7 @@ class SerialLink:
             ser = serial.Serial(self.port, self.baudrate, timeout=POLL_S,
                                 write_timeout=self.write_timeout_s)
             ser.reset_input_buffer()
-        except (serial.SerialException, OSError, ValueError) as exc:
+        except (*PORT_ERRORS, ValueError) as exc:
             raise PortUnavailable(f"cannot open serial port {self.port}: {exc}") from None
         self._ser = ser
         self.reader.reset()
@@ -64,7 +69,7 @@ class SerialLink:
         if ser is not None:
             try:
                 ser.close()
-            except (serial.SerialException, OSError):
+            except PORT_ERRORS:
                 pass
 
     def _fail(self, what: str, exc: BaseException) -> PortUnavailable:
@@ -79,7 +84,7 @@ class SerialLink:
         try:
             self._ser.write(wire)
             self._ser.flush()
-        except (serial.SerialException, OSError) as exc:
+        except PORT_ERRORS as exc:
             raise self._fail("write", exc) from None
         self.bytes_sent += len(wire)
 
@@ -95,7 +100,7 @@ class SerialLink:
                 return None
             try:
                 data = self._ser.read(max(1, self._ser.in_waiting))
-            except (serial.SerialException, OSError) as exc:
+            except PORT_ERRORS as exc:
                 raise self._fail("read", exc) from None
             if data:
                 self.bytes_received += len(data)
