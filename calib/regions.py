@@ -38,37 +38,46 @@ def _check_quad(corners: ArrayLike, name: str = "corners") -> NDArray[np.float64
     return q
 
 
+def _quad_window(
+    shape: tuple[int, int], corners: ArrayLike
+) -> tuple[int, int, int, int, NDArray[np.bool_]]:
+    """(y0, y1, x0, x1, mask of that window) of a convex quadrilateral clipped to the image."""
+    q = _check_quad(corners)
+    h, w = int(shape[0]), int(shape[1])
+    x0 = max(int(np.floor(q[:, 0].min() - 0.5)), 0)
+    x1 = min(int(np.ceil(q[:, 0].max() + 0.5)), w)
+    y0 = max(int(np.floor(q[:, 1].min() - 0.5)), 0)
+    y1 = min(int(np.ceil(q[:, 1].max() + 0.5)), h)
+    if x0 >= x1 or y0 >= y1:
+        return 0, 0, 0, 0, np.zeros((0, 0), dtype=bool)
+    px = (np.arange(x0, x1) + 0.5)[None, :]
+    py = (np.arange(y0, y1) + 0.5)[:, None]
+    e = np.roll(q, -1, axis=0) - q
+    sign = np.sign(0.5 * np.sum(q[:, 0] * np.roll(q[:, 1], -1) - np.roll(q[:, 0], -1) * q[:, 1]))
+    tol = 1e-9 * max(1.0, float(np.abs(q).max()) ** 2)
+    mask = np.ones((y1 - y0, x1 - x0), dtype=bool)
+    for k in range(4):  # half-plane test per edge: cross(edge, p - a) has the polygon's sign
+        cr = e[k, 0] * (py - q[k, 1]) - e[k, 1] * (px - q[k, 0])
+        mask &= sign * cr >= -tol
+    return y0, y1, x0, x1, mask
+
+
 def quad_mask(shape: tuple[int, int], corners: ArrayLike) -> NDArray[np.bool_]:
     """Boolean (H, W) mask of the pixels whose centres lie inside a convex quadrilateral.
 
     ``corners`` is (4, 2) (x, y) in order around the quadrilateral (either orientation).
     Vectorised half-plane tests over the quadrilateral's bounding box.
     """
-    q = _check_quad(corners)
-    h, w = int(shape[0]), int(shape[1])
-    mask = np.zeros((h, w), dtype=bool)
-    x0 = max(int(np.floor(q[:, 0].min() - 0.5)), 0)
-    x1 = min(int(np.ceil(q[:, 0].max() + 0.5)), w)
-    y0 = max(int(np.floor(q[:, 1].min() - 0.5)), 0)
-    y1 = min(int(np.ceil(q[:, 1].max() + 0.5)), h)
-    if x0 >= x1 or y0 >= y1:
-        return mask
-    xs = np.arange(x0, x1) + 0.5
-    ys = np.arange(y0, y1) + 0.5
-    px = xs[None, :, None]
-    py = ys[:, None, None]
-    a = q[None, None, :, :]
-    e = np.roll(q, -1, axis=0) - q
-    # cross(edge, p - a) for every edge: all >= 0 (or all <= 0) means inside.
-    cr = e[:, 0] * (py - a[..., 1]) - e[:, 1] * (px - a[..., 0])
-    sign = np.sign(0.5 * np.sum(q[:, 0] * np.roll(q[:, 1], -1) - np.roll(q[:, 0], -1) * q[:, 1]))
-    tol = 1e-9 * max(1.0, float(np.abs(q).max()) ** 2)
-    mask[y0:y1, x0:x1] = np.all(sign * cr >= -tol, axis=-1)
+    mask = np.zeros((int(shape[0]), int(shape[1])), dtype=bool)
+    y0, y1, x0, x1, window = _quad_window(shape, corners)
+    mask[y0:y1, x0:x1] = window
     return mask
 
 
 def quad_mean(image: ArrayLike, corners: ArrayLike) -> NDArray[np.float64]:
     """Mean linear RGB (3,) of the pixels of ``image`` (H, W, 3) inside a convex quadrilateral.
+
+    Sums in float64 over the bounding-box window without copying the pixels.
 
     >>> img = np.zeros((10, 10, 3)); img[2:5, 3:8] = 1.0
     >>> quad_mean(img, [(3, 2), (8, 2), (8, 5), (3, 5)]).tolist()
@@ -77,15 +86,18 @@ def quad_mean(image: ArrayLike, corners: ArrayLike) -> NDArray[np.float64]:
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[2] != 3:
         raise GeometryError(f"image must be (H, W, 3) linear RGB; got shape {img.shape}")
-    mask = quad_mask(img.shape[:2], corners)
+    y0, y1, x0, x1, mask = _quad_window(img.shape[:2], corners)
     n = int(mask.sum())
     if n == 0:
         raise GeometryError(
             f"the quadrilateral {np.asarray(corners).tolist()} covers no pixel centre of the "
             f"{img.shape[1]}x{img.shape[0]} image; check the corner coordinates (x = column)"
         )
-    values = as_float_array(img[mask], "image (inside the quadrilateral)")
-    return values.mean(axis=0)
+    window = img[y0:y1, x0:x1]
+    total = np.sum(window, axis=(0, 1), where=mask[..., None], dtype=np.float64)
+    if not np.isfinite(total).all():
+        as_float_array(window[mask], "image (inside the quadrilateral)")  # raises with details
+    return total / n
 
 
 def homography(src: ArrayLike, dst: ArrayLike) -> NDArray[np.float64]:

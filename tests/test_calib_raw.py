@@ -21,7 +21,7 @@ from grassd.calib.colour_spaces import (
     xyz_d50_to_d65,
 )
 from grassd.calib.dng import DngCamera, mosaic, write_dng, write_linear_dng
-from grassd.calib.errors import DngWriteError, GeometryError, RawReadError
+from grassd.calib.errors import DngWriteError, GeometryError, NonFiniteError, RawReadError
 from grassd.calib.exposure import normalise_exposure
 from grassd.calib.raw import develop_raw
 from grassd.calib.regions import (
@@ -194,6 +194,14 @@ def test_quad_mean_and_geometry_errors():
     img[5:10, 10:20] = [0.2, 0.4, 0.6]
     np.testing.assert_allclose(
         quad_mean(img, [(10, 5), (20, 5), (20, 10), (10, 10)]), [0.2, 0.4, 0.6]
+    )
+    img_nan = img.copy()
+    img_nan[7, 12, 1] = np.nan
+    with pytest.raises(NonFiniteError, match="inside the quadrilateral"):
+        quad_mean(img_nan, [(10, 5), (20, 5), (20, 10), (10, 10)])
+    # a NaN outside the area does not matter
+    np.testing.assert_allclose(
+        quad_mean(img_nan, [(13, 5), (20, 5), (20, 10), (13, 10)]), [0.2, 0.4, 0.6]
     )
     with pytest.raises(GeometryError, match="convex"):
         quad_mean(img, [(10, 5), (20, 10), (20, 5), (10, 10)])  # bow-tie
