@@ -225,3 +225,31 @@ def test_checker_patches_exact_on_perspective_float_image():
         quads[0].mean(0) - CHART_CORNERS[2]
     )
     assert np.linalg.norm(quads[23].mean(0) - CHART_CORNERS[2]) < 40
+
+
+def test_ccm_fixes_a_camera_whose_dng_matrix_is_wrong(tmp_path):
+    """Full capture path: sensor response differs from the DNG's ColorMatrix1; a 3x3 CCM fitted
+    on the 24 developed patches against the reference chart removes the error."""
+    from grassd.calib.ccm import fit_ccm
+
+    ref = spyder_checkr_24()
+    sensor = CANONISH
+    claimed = CANONISH @ np.array([[1.06, -0.04, 0.0], [0.03, 0.95, 0.02], [0.0, 0.05, 1.04]])
+    cam = DngCamera(color_matrix=claimed, cfa_pattern="RGGB")
+    xyz = xyz_d50_to_d65(prophoto_to_xyz(_chart_image(ref.prophoto())))
+    neutral = sensor @ xyz_d50_to_d65(prophoto_to_xyz(np.ones(3)))
+    raw = mosaic(xyz @ sensor.T, cam, exposure=0.8)
+    path = write_dng(
+        tmp_path / "calib_wrong_matrix.dng", raw, cam, as_shot_neutral=neutral / neutral.max()
+    )
+    patches = develop_raw(path).checker_patches(CHART_CORNERS)
+    y_grey = prophoto_to_xyz(ref.prophoto()[ref.grey_index()])[1]
+    captured = normalise_exposure(patches, patches[ref.grey_index()], target_y=y_grey)
+    before = residual_de00(captured, ref.prophoto())
+    fit = fit_ccm(captured, ref.prophoto())
+    print(
+        f"RAW wrong-matrix camera: dE00 mean before CCM {before.mean():.2f}, "
+        f"after {fit.mean_de00:.3f} (max {fit.max_de00:.3f})"
+    )
+    assert before.mean() > 1.0
+    assert fit.mean_de00 < 0.2 and fit.max_de00 < TOLERANCE_DE00
