@@ -101,7 +101,11 @@ class Characteristic:
         if arr.shape[0] != x.size:
             raise ShapeError(f"need one RGB row per length; got {arr.shape[0]} and {x.size}")
         order = np.argsort(x, kind="stable")
-        se = None if rgb_stderr is None else np.asarray(rgb_stderr, dtype=float)[order]
+        se = None
+        if rgb_stderr is not None:
+            se = as_float_array(rgb_stderr, "rgb_stderr", last_dim=3, ndim=2, non_negative=True)
+            same_shape(arr, se, "rgb", "rgb_stderr")
+            se = se[order]
         res = ogcd_from_rgb(arr[order], se, space=space, ccm=ccm)  # type: ignore[arg-type]
         return cls(x[order], res.ogcd, res.ogcd_stderr)
 

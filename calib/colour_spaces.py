@@ -25,6 +25,7 @@ import colour
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from grassd.calib.errors import UnknownMethodError
 from grassd.calib.validation import as_float_array
 
 #: Chromatic adaptation transform used everywhere (never colour-science's CAT02 default).
@@ -131,7 +132,7 @@ def to_prophoto(rgb: ArrayLike, space: str) -> NDArray[np.float64]:
     """Linear RGB (..., 3) in ``space`` ("prophoto" or "rec709") -> ProPhoto linear RGB."""
     return (
         rec709_to_prophoto(rgb)
-        if _space(space) == "rec709"
+        if space_key(space) == "rec709"
         else as_float_array(rgb, "rgb", last_dim=3)
     )
 
@@ -140,14 +141,13 @@ def from_prophoto(rgb: ArrayLike, space: str) -> NDArray[np.float64]:
     """ProPhoto linear RGB (..., 3) -> linear RGB in ``space`` ("prophoto" or "rec709")."""
     return (
         prophoto_to_rec709(rgb)
-        if _space(space) == "rec709"
+        if space_key(space) == "rec709"
         else as_float_array(rgb, "rgb", last_dim=3)
     )
 
 
-def _space(space: str) -> str:
-    from grassd.calib.errors import UnknownMethodError
-
+def space_key(space: str) -> str:
+    """Canonical name ("rec709" or "prophoto") of an RGB space name (scRGB, BT.709, ROMM ...)."""
     key = str(space).lower().replace(".", "").replace("-", "").replace("_", "")
     if key in ("rec709", "bt709", "scrgb", "linearsrgb"):
         return "rec709"
@@ -187,5 +187,5 @@ def lab_to_prophoto(lab: ArrayLike) -> NDArray[np.float64]:
 def luminance(rgb: ArrayLike, space: str = "prophoto") -> NDArray[np.float64]:
     """Relative luminance Y (Y of white = 1) of linear RGB (..., 3) in ``space``."""
     arr = as_float_array(rgb, "rgb", last_dim=3)
-    row = M_REC709_TO_XYZ[1] if _space(space) == "rec709" else M_PROPHOTO_TO_XYZ[1]
+    row = M_REC709_TO_XYZ[1] if space_key(space) == "rec709" else M_PROPHOTO_TO_XYZ[1]
     return arr @ row

@@ -131,7 +131,9 @@ def delta_e(
     Methods: see :data:`DELTA_E_METHODS` ("CIE 2000", "CIE 1976"; aliases "dE00", "dE76").
     Extra keyword arguments go to the method (e.g. ``kL`` for CIEDE2000).
     """
-    key = method if method in DELTA_E_METHODS else _ALIASES.get(method.lower().replace(" ", ""))
+    key = (
+        method if method in DELTA_E_METHODS else _ALIASES.get(str(method).lower().replace(" ", ""))
+    )
     if key is None:
         raise UnknownMethodError(
             f"unknown colour-difference method {method!r}; use one of {', '.join(DELTA_E_METHODS)}"

@@ -16,8 +16,8 @@ from numpy.typing import ArrayLike, NDArray
 from grassd.calib.colour_spaces import (
     M_PROPHOTO_TO_REC709,
     M_REC709_TO_PROPHOTO,
-    _space,
     luminance,
+    space_key,
 )
 from grassd.calib.errors import ExposureError
 from grassd.calib.validation import as_float_array
@@ -50,7 +50,7 @@ def exposure_matrix(
     [2.0, 2.0, 2.0]
     """
     grey = as_float_array(grey_rgb, "grey_rgb", last_dim=3, ndim=1, non_negative=True)
-    key = _space(space)
+    key = space_key(space)
     if not np.isfinite(target_y) or target_y <= 0:
         raise ExposureError(f"target_y must be a positive luminance; got {target_y}")
     y = float(luminance(grey, key))
