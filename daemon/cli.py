@@ -18,6 +18,7 @@ from grassd.daemon.errors import USER_ERRORS
 SUBCOMMANDS: list[str] = [
     "grassd.daemon.cli_demo:demo",
     "grassd.daemon.cli_run:check_config",
+    "grassd.daemon.cli_controllers:controllers",
 ]
 
 
