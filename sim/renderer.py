@@ -38,7 +38,7 @@ from grassd.sim import tifuncs as tf
 from grassd.sim.backend import is_initialised, ti
 from grassd.sim.camera import frame_quad, image_quad
 from grassd.sim.errors import SceneError, SimError
-from grassd.sim.geometry import SceneArrays, build_scene
+from grassd.sim.geometry import SceneArrays, blade_rise, build_scene
 from grassd.sim.lighting import Lighting, build_env_sampler
 from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
 
@@ -90,6 +90,8 @@ class Renderer:
         self.blade_p0 = ti.Vector.field(3, ti.f32, cap.blades)
         self.blade_a = ti.Vector.field(3, ti.f32, cap.blades)
         self.blade_lean = ti.Vector.field(3, ti.f32, cap.blades)  # (lx, ly, alpha0)
+        self.blade_u = ti.Vector.field(3, ti.f32, cap.blades)  # rise axis without splay
+        self.blade_n = ti.Vector.field(3, ti.f32, cap.blades)  # unit normal a x u
         self.blade_par = ti.Vector.field(4, ti.f32, cap.blades)  # hw, length, is_green, depth
         self.blade_mat = ti.field(ti.i32, cap.blades)
         self.rect_axis = ti.field(ti.i32, cap.rects)
@@ -146,6 +148,11 @@ class Renderer:
         put(self.blade_a, a3.astype(np.float32), 3)
         put(self.blade_lean, lean.astype(np.float32), 3)
         put(self.blade_par, par.astype(np.float32), 4)
+        u, _ = blade_rise(sc, 0.0)  # splay-free axes (exact unless green blades splay)
+        n = np.cross(a3.astype(np.float64), u)
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        put(self.blade_u, u.astype(np.float32), 3)
+        put(self.blade_n, n.astype(np.float32), 3)
         put(self.blade_mat, sc.blade_params[:, 5].astype(np.int32), 0)
         put(self.rect_axis, sc.rect_axis, 0)
         put(self.rect_b, sc.rect_bounds, 5)
@@ -252,21 +259,11 @@ class Renderer:
         return d, pdf, self.env[row * w + col]
 
     @ti.func
-    def blade_axes(self, b: ti.i32, x: ti.f32):
-        """Rise axis u and length of blade b when the green grass is x metres long."""
-        lean = self.blade_lean[b]
-        par = self.blade_par[b]
-        length = par[1]
-        alpha = lean.z
-        if par[2] > 0.5:
-            length = x
-            alpha = lean.z + self.fpar[7] * x / self.fpar[8]
-        sa = ti.sin(alpha)
-        return vec3(sa * lean.x, sa * lean.y, ti.cos(alpha)), length
-
-    @ti.func
     def hit_primitive(self, prim: ti.i32, o, d, x: ti.f32, tmax: ti.f32):
-        """Distance, geometric normal and material of primitive ``prim`` (INF if missed)."""
+        """Distance, unit geometric normal and material of primitive ``prim`` (INF if missed).
+
+        Rise axes and normals are precomputed per blade; only green blades with splay (their
+        lean grows with the length x) are recomputed here."""
         nb = self.ipar[0]
         t = tf.INF
         n = vec3(0.0, 0.0, 1.0)
@@ -275,18 +272,32 @@ class Renderer:
             p0 = self.blade_p0[prim]
             a = self.blade_a[prim]
             par = self.blade_par[prim]
-            u, length = self.blade_axes(prim, x)
-            t1 = tf.hit_blade(o, d, p0, a, u, par[0], length, self.fpar[5], self.fpar[6], tmax)
+            u = self.blade_u[prim]
+            nu = self.blade_n[prim]
+            length = par[1]
+            green = par[2] > 0.5
+            if green:
+                length = x
+                if self.fpar[7] > 0.0:
+                    lean = self.blade_lean[prim]
+                    alpha = lean.z + self.fpar[7] * x / self.fpar[8]
+                    sa = ti.sin(alpha)
+                    u = vec3(sa * lean.x, sa * lean.y, ti.cos(alpha))
+                    nu = a.cross(u).normalized()
+            t1 = tf.hit_blade(o, d, p0, a, u, nu, par[0], length, self.fpar[5], self.fpar[6],
+                              tmax)
             if t1 < tf.INF:
                 t = t1
-                n = a.cross(u)
-            if par[2] > 0.5:  # green: the straight part inside the cavity
+                n = nu
+            if green:  # the straight part inside the cavity
                 up = vec3(0.0, 0.0, 1.0)
                 low = p0 - vec3(0.0, 0.0, par[3])
-                t2 = tf.hit_blade(o, d, low, a, up, par[0], par[3], 1e-9, 1.0, ti.min(tmax, t))
+                n_low = vec3(a.y, -a.x, 0.0)
+                t2 = tf.hit_blade(o, d, low, a, up, n_low, par[0], par[3], 1.0, 1.0,
+                                  ti.min(tmax, t))
                 if t2 < t:
                     t = t2
-                    n = a.cross(up)
+                    n = n_low
             mat = self.blade_mat[prim]
         else:
             r = prim - nb
@@ -363,7 +374,8 @@ class Renderer:
         return best_t, best_n, best_m
 
     @ti.func
-    def radiance(self, o, d, x: ti.f32, key: ti.u32, max_bounces: ti.i32):
+    def radiance(self, o, d, x: ti.f32, index: ti.i32, strata: ti.i32, rep_key: ti.u32,
+                 key: ti.u32, max_bounces: ti.i32):
         """Path-traced radiance along o + t d (linear Rec.709)."""
         total = vec3(0.0)
         beta = vec3(1.0)
@@ -382,14 +394,15 @@ class Renderer:
                 break
             if depth == max_bounces:
                 break
-            nn = n.normalized()
+            nn = n
             if nn.dot(d) > 0.0:
                 nn = -nn
             p = o + t * d + EPS * nn
             alb = self.albedo[mat]
-            dim = 2 + depth * 6
+            pair = 1 + depth * 2
             # Next-event estimation: environment, MIS against the BSDF strategy.
-            wl, pdf_l, le = self.sample_env(tf.rand01(key, dim), tf.rand01(key, dim + 1))
+            e1, e2 = tf.padded_pair(index, strata, rep_key, key, pair)
+            wl, pdf_l, le = self.sample_env(e1, e2)
             cos_l = nn.dot(wl)
             if cos_l > 0.0 and pdf_l > 0.0:
                 ts, _, ms = self.trace(p, wl, x, tf.INF, True)
@@ -404,7 +417,8 @@ class Renderer:
                     if ms < 0:
                         total += beta * alb * sun_e * (cos_s / tf.PI)
             # Continue the path by cosine-weighted sampling (throughput *= albedo).
-            d = tf.cosine_hemisphere(nn, tf.rand01(key, dim + 2), tf.rand01(key, dim + 3))
+            b1, b2 = tf.padded_pair(index, strata, rep_key, key, pair + 1)
+            d = tf.cosine_hemisphere(nn, b1, b2)
             pdf_bsdf = ti.max(nn.dot(d), 0.0) / tf.PI
             beta *= alb
             o = p
@@ -415,6 +429,7 @@ class Renderer:
                       max_bounces: ti.i32, eye: vec3, area: ti.f32):
         n_samp = strata * strata
         for k, r, i in ti.ndrange(n_len, n_rep, n_samp):
+            rep_key = tf.replicate_key(seed, r)
             key = tf.sample_key(seed, r, i)
             su = (i % strata + tf.rand01(key, 0)) / strata
             sv = (i // strata + tf.rand01(key, 1)) / strata
@@ -425,8 +440,8 @@ class Renderer:
             jac = dpu.cross(dpv).norm() / area
             d = (q - eye).normalized()
             x = self.lengths[k]
-            self.out[(k * n_rep + r) * n_samp + i] = jac * self.radiance(eye, d, x, key,
-                                                                          max_bounces)
+            self.out[(k * n_rep + r) * n_samp + i] = jac * self.radiance(
+                eye, d, x, i, strata, rep_key, key, max_bounces)
 
     @ti.kernel
     def _preview_kernel(self, width: ti.i32, spp: ti.i32, seed: ti.u32, max_bounces: ti.i32,
@@ -434,13 +449,15 @@ class Renderer:
                         x: ti.f32):
         for py, px in ti.ndrange(width, width):
             acc = vec3(0.0)
-            for s in range(spp):
+            rep_key = tf.replicate_key(seed, py * width + px)
+            m = ti.cast(ti.ceil(ti.sqrt(ti.cast(spp, ti.f32))), ti.i32)
+            for s in range(m * m):
                 key = tf.sample_key(seed, py * width + px, s)
                 sx = ((px + tf.rand01(key, 0)) / width * 2.0 - 1.0) * half
                 sy = ((py + tf.rand01(key, 1)) / width * 2.0 - 1.0) * half
                 d = (forward + sx * right - sy * up).normalized()
-                acc += self.radiance(eye, d, x, key, max_bounces)
-            self.image[py, px] = acc / spp
+                acc += self.radiance(eye, d, x, s, m, rep_key, key, max_bounces)
+            self.image[py, px] = acc / (m * m)
 
     # ----------------------------------------------------------------------------- public API
     def characteristic(

@@ -24,9 +24,15 @@ def pcg_hash(v: ti.u32) -> ti.u32:
 
 
 @ti.func
+def replicate_key(seed: ti.u32, replicate: ti.i32) -> ti.u32:
+    """Key of one independent replicate."""
+    return pcg_hash(pcg_hash(seed) ^ ti.u32(replicate))
+
+
+@ti.func
 def sample_key(seed: ti.u32, replicate: ti.i32, index: ti.i32) -> ti.u32:
     """Key of one camera path; independent of the grass length (common random numbers)."""
-    return pcg_hash(pcg_hash(pcg_hash(seed) ^ ti.u32(replicate)) + ti.u32(index))
+    return pcg_hash(replicate_key(seed, replicate) + ti.u32(index))
 
 
 @ti.func
@@ -34,6 +40,56 @@ def rand01(key: ti.u32, dim: ti.i32) -> ti.f32:
     """Uniform float in [0, 1) for dimension ``dim`` of the path with ``key`` (24-bit mantissa)."""
     h = pcg_hash(key ^ pcg_hash(ti.u32(dim) * ti.u32(0x9E3779B9) + ti.u32(0x85EBCA6B)))
     return ti.cast(h >> ti.u32(8), ti.f32) * (1.0 / 16777216.0)
+
+
+@ti.func
+def permute(i: ti.u32, n: ti.u32, p: ti.u32) -> ti.u32:
+    """A pseudo-random permutation of 0..n-1 chosen by ``p``, evaluated at ``i``: an invertible
+    hash on the next power of two with cycle-walking back into range (after Kensler,
+    "Correlated Multi-Jittered Sampling", Pixar Technical Memo 13-01, 2013)."""
+    w = n - ti.u32(1)
+    w |= w >> ti.u32(1)
+    w |= w >> ti.u32(2)
+    w |= w >> ti.u32(4)
+    w |= w >> ti.u32(8)
+    w |= w >> ti.u32(16)
+    x = i
+    searching = True
+    while searching:
+        x ^= p
+        x *= ti.u32(0xE170893D)
+        x ^= p >> ti.u32(16)
+        x ^= (x & w) >> ti.u32(4)
+        x ^= p >> ti.u32(8)
+        x *= ti.u32(0x0929EB3F)
+        x ^= p >> ti.u32(23)
+        x ^= (x & w) >> ti.u32(1)
+        x *= ti.u32(1) | (p >> ti.u32(27))
+        x *= ti.u32(0x6935FA69)
+        x ^= (x & w) >> ti.u32(11)
+        x *= ti.u32(0x74DCB303)
+        x ^= (x & w) >> ti.u32(2)
+        x *= ti.u32(0x9E501CC3)
+        x ^= (x & w) >> ti.u32(2)
+        x *= ti.u32(0xC860A3DF)
+        x &= w
+        x ^= x >> ti.u32(5)
+        searching = x >= n
+    return (x + p) % n
+
+
+@ti.func
+def padded_pair(index: ti.i32, strata: ti.i32, rep_key: ti.u32, key: ti.u32, pair: ti.i32):
+    """Two uniform numbers for dimension pair ``pair`` of path ``index``: jittered in the
+    stratum that a per-pair permutation assigns to the path, so that every 2D projection of the
+    ``strata**2`` paths of a replicate is stratified (padded 2D jittered sampling). Depends on
+    the replicate and path only, not on the grass length (common random numbers)."""
+    n = ti.u32(strata * strata)
+    cell = ti.cast(permute(ti.u32(index), n, pcg_hash(rep_key + ti.u32(pair) * ti.u32(0x68E31DA4))),
+                   ti.i32)
+    u1 = (cell % strata + rand01(key, 2 * pair)) / strata
+    u2 = (cell // strata + rand01(key, 2 * pair + 1)) / strata
+    return ti.min(u1, 0.99999994), ti.min(u2, 0.99999994)
 
 
 @ti.func
@@ -84,17 +140,17 @@ def power_heuristic(pdf_a: ti.f32, pdf_b: ti.f32) -> ti.f32:
 
 
 @ti.func
-def hit_blade(o: vec3, d: vec3, p0: vec3, a: vec3, u: vec3, hw: ti.f32, length: ti.f32,
-              taper: ti.f32, tip_ratio: ti.f32, tmax: ti.f32) -> ti.f32:
+def hit_blade(o: vec3, d: vec3, p0: vec3, a: vec3, u: vec3, n: vec3, hw: ti.f32,
+              length: ti.f32, taper: ti.f32, tip_ratio: ti.f32, tmax: ti.f32) -> ti.f32:
     """Distance along the ray to a tapered blade quad, or INF.
 
     The quad is ``p0 + s a + h u`` with ``a`` a horizontal unit vector, ``u`` a unit vector with
-    ``u.z > 0``, ``0 <= h <= length`` and ``|s| <= hw * (r + (1 - r) * clamp((length - h) /
-    taper, 0, 1))`` with ``r = tip_ratio``: full width up to ``taper`` below the tip, then a
+    ``u.z > 0``, ``n`` a normal of its plane (``a x u``), ``0 <= h <= length`` and
+    ``|s| <= hw * (r + (1 - r) * clamp((length - h) / taper, 0, 1))`` with ``r = tip_ratio``:
+    full width up to ``taper`` below the tip, then a
     linear taper to ``r * hw`` at the tip (so the outline is a polygon of six vertices).
     """
     t = INF
-    n = a.cross(u)
     denom = d.dot(n)
     if ti.abs(denom) > 1e-12 and length > 0.0:
         tt = (p0 - o).dot(n) / denom
