@@ -18,6 +18,7 @@ import tempfile
 import threading
 import time
 import tty
+from collections import deque
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
@@ -74,6 +75,7 @@ class SimulatedBus:
         self._master = self._slave = -1
         self._line_free = 0.0
         self._replug_at: float | None = None
+        self._requests: deque[tuple[float, threading.Event]] = deque()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         if faults is not None:
@@ -136,11 +138,21 @@ class SimulatedBus:
                     pass
         self._master = self._slave = -1
 
-    def unplug(self, down_s: float) -> None:
-        """Pull the plug now; a fresh pty appears behind :attr:`path` after ``down_s`` seconds.
+    def unplug(self, down_s: float, wait_s: float = 5.0) -> None:
+        """Pull the plug; a fresh pty appears behind :attr:`path` after ``down_s`` seconds.
 
-        Only call from the bus thread or while no client is mid-request (tests use faults).
+        Safe from any thread: the bus thread carries it out (between frames) and this call
+        returns once the port is gone.
         """
+        if threading.current_thread() is self._thread or self._thread is None:
+            self._unplug_now(down_s)
+            return
+        done = threading.Event()
+        self._requests.append((down_s, done))
+        if not done.wait(wait_s):
+            raise SimulatorError("the simulated bus thread did not carry out the unplug")
+
+    def _unplug_now(self, down_s: float) -> None:
         self._close_pty()
         if self.link_path is not None:
             self.link_path.unlink(missing_ok=True)
@@ -162,6 +174,10 @@ class SimulatedBus:
 
     def _run(self) -> None:
         while not self._stop.is_set():
+            while self._requests:
+                down_s, done = self._requests.popleft()
+                self._unplug_now(down_s)
+                done.set()
             if self._replug_at is not None:
                 if time.monotonic() < self._replug_at:
                     time.sleep(0.001)
@@ -169,7 +185,7 @@ class SimulatedBus:
                 self._replug_at = None
                 self._plug()
             try:
-                ready, _, _ = select.select([self._master], [], [], 0.02)
+                ready, _, _ = select.select([self._master], [], [], 0.01)
                 if not ready:
                     continue
                 data = os.read(self._master, 4096)
@@ -199,7 +215,7 @@ class SimulatedBus:
         if self.faults is not None:
             down = self.faults.unplug_for()
             if down is not None:
-                self.unplug(down)
+                self._unplug_now(down)
                 return
             if target is not None:
                 reboot = self.faults.reboot_now()

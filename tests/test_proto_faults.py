@@ -18,6 +18,7 @@ from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.eeprom import BankStore, Eeprom
 from grassd.firmware_proto.errors import PushFailed
 from grassd.firmware_proto.faults import FaultInjector, FaultPlan
+from grassd.firmware_proto.messages import TABLE_BYTES
 from grassd.firmware_proto.simulator import SimulatedBus, make_controllers
 from grassd.firmware_proto.tables import table_crc, table_from_bytes
 
@@ -41,11 +42,12 @@ def booted_table(ctl) -> np.ndarray | None:
     """The table a controller would load if it booted now: read from its EEPROM file afresh."""
     eeprom = Eeprom(ctl.eeprom.path, ctl.eeprom.size)
     try:
-        bank, header = BankStore(eeprom, ctl.config.capacity).select_active()
+        store = BankStore(eeprom, ctl.config.capacity)
+        bank, header = store.select_active()
         if header is None:
             return None
-        return table_from_bytes(eeprom.read(bank * (24 + 512 * ctl.config.capacity) + 24,
-                                            512 * header.n_tables), header.n_tables)
+        return table_from_bytes(store.read_data(bank, TABLE_BYTES * header.n_tables),
+                                header.n_tables)
     finally:
         eeprom.close()
 
