@@ -18,6 +18,10 @@ from grassd.daemon.errors import USER_ERRORS
 SUBCOMMANDS: list[str] = [
     "grassd.daemon.cli_demo:demo",
     "grassd.daemon.cli_run:check_config",
+    "grassd.daemon.cli_run:run_cmd",
+    "grassd.daemon.cli_run:status_cmd",
+    "grassd.daemon.cli_run:history_cmd",
+    "grassd.daemon.cli_run:calibrate_cmd",
     "grassd.daemon.cli_controllers:controllers",
 ]
 

@@ -67,6 +67,10 @@ class DaemonNotRunning(ControlError):
     """No running daemon answered on the control socket."""
 
 
+class RunInterrupted(DaemonError):
+    """A calibration run was stopped part-way (daemon shutting down); nothing was committed."""
+
+
 class CalibrationRejected(DaemonError):
     """A calibration run produced a table that failed a sanity check; nothing was pushed."""
 

@@ -335,6 +335,18 @@ class History:
                                 updated_at=r[6])
                 for r in self._query("SELECT * FROM controllers ORDER BY name")]
 
+    # ------------------------------------------------------------------ meta
+    def set_meta(self, key: str, value: Any) -> None:
+        """Store a small JSON value under ``key`` (e.g. the last colour-correction matrix)."""
+        with self._tx() as db:
+            db.execute("INSERT INTO meta VALUES (?, ?) ON CONFLICT(key) DO UPDATE SET "
+                       "value=excluded.value", (key, json.dumps(value, default=_plain)))
+
+    def get_meta(self, key: str, default: Any = None) -> Any:
+        """The JSON value stored under ``key``, or ``default``."""
+        rows = self._query("SELECT value FROM meta WHERE key = ?", (key,))
+        return json.loads(rows[0][0]) if rows else default
+
     # ------------------------------------------------------------------ ingest journal
     def journal_claim(self, bundle_hash: str, bundle_id: str, name: str) -> JournalEntry:
         """Insert (or re-open for a retry) the journal row of a bundle entering processing/."""
@@ -357,6 +369,12 @@ class History:
             return db.execute("SELECT attempts FROM journal WHERE bundle_hash = ?",
                               (bundle_hash,)).fetchone()[0]
 
+    def journal_release(self, bundle_hash: str) -> None:
+        """Undo one attempt count (the attempt was stopped cleanly, not crashed)."""
+        with self._tx() as db:
+            db.execute("UPDATE journal SET attempts = MAX(attempts - 1, 0) WHERE bundle_hash = ?",
+                       (bundle_hash,))
+
     def journal_finish(self, bundle_hash: str, state: str, *, reason: str | None = None,
                        run_id: int | None = None) -> None:
         """Mark a bundle ``archived`` or ``rejected``."""
@@ -376,6 +394,12 @@ class History:
     def journal_get(self, bundle_hash: str) -> JournalEntry | None:
         """The journal row of ``bundle_hash``, if any."""
         rows = self._query("SELECT * FROM journal WHERE bundle_hash = ?", (bundle_hash,))
+        return JournalEntry(*rows[0]) if rows else None
+
+    def latest_archived(self) -> JournalEntry | None:
+        """The most recently archived bundle (the light used by scheduled runs)."""
+        rows = self._query("SELECT * FROM journal WHERE state = 'archived' "
+                           "ORDER BY updated_at DESC LIMIT 1")
         return JournalEntry(*rows[0]) if rows else None
 
     def journal(self, state: str | None = None) -> list[JournalEntry]:

@@ -17,7 +17,8 @@ write ``.partial`` names and rename. Manifest keys::
     sun_azimuth_deg = 180.0                  # optional, with sun_elevation_deg
     sun_elevation_deg = 35.0
     checker_raw = "checker.dng"              # optional colour-checker RAW
-    checker_corners = [[x, y], x4]           # optional chart corners in the RAW (pixels)
+    checker_corners = [[x, y], x4]           # chart corners in the RAW (pixels), with checker_raw
+    checker_chart = "spydercheckr-24"        # optional: reference chart (or colorchecker-classic)
 
 Life of a bundle (all moves are ``rename(2)`` inside the state directory, so each is atomic)::
 
@@ -88,6 +89,7 @@ class Manifest:
     sun_elevation_deg: float | None
     checker_raw: Path | None
     checker_corners: tuple[tuple[float, float], ...] | None
+    checker_chart: str = "spydercheckr-24"
 
     def files(self) -> list[Path]:
         """The data files the manifest names."""
@@ -110,7 +112,7 @@ class Bundle:
 
 
 _MANIFEST_KEYS = {"timestamp", "hdri", "ambient_lux", "sun_lux", "sun_azimuth_deg",
-                  "sun_elevation_deg", "checker_raw", "checker_corners"}
+                  "sun_elevation_deg", "checker_raw", "checker_corners", "checker_chart"}
 
 
 def read_manifest_data(path: Path) -> dict[str, Any]:
@@ -197,8 +199,15 @@ def parse_manifest(data: dict[str, Any], base: Path, tz: tzinfo = UTC) -> Manife
         if raw is None:
             raise ManifestError("checker_corners given without checker_raw")
         corners = tuple((float(x), float(y)) for x, y in corners)
+    if raw is not None and corners is None:
+        raise ManifestError("checker_raw needs checker_corners: the four chart corners in the RAW "
+                            "image (pixels, top-left first, clockwise)")
+    chart = data.get("checker_chart", "spydercheckr-24")
+    if not isinstance(chart, str) or not chart:
+        raise ManifestError(f"checker_chart must be a chart name, got {chart!r}")
     return Manifest(timestamp=ts, hdri=hdri, ambient_lux=ambient, sun_lux=sun, sun_azimuth_deg=az,
-                    sun_elevation_deg=el, checker_raw=raw, checker_corners=corners)
+                    sun_elevation_deg=el, checker_raw=raw, checker_corners=corners,
+                    checker_chart=chart)
 
 
 def check_hdri_magic(path: Path) -> None:

@@ -158,7 +158,8 @@ def test_incomplete_bundle_waits_then_rejected(env):
     inbox, _, clock = env
     d = inbox.inbox / "half"
     d.mkdir()
-    (d / "manifest.toml").write_text(MANIFEST + 'checker_raw = "chart.dng"\n')
+    (d / "manifest.toml").write_text(MANIFEST + 'checker_raw = "chart.dng"\ncheck'
+                                     'er_corners = [[0, 0], [9, 0], [9, 6], [0, 6]]\n')
     write_exr(d / "sky.exr")
     for _ in range(5):
         assert inbox.poll() == []

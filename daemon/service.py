@@ -1,0 +1,498 @@
+"""The daemon: main loop, calibration runs, control socket, signals, systemd notification.
+
+One main thread does all the work (Taichi kernels run in the thread that initialised Taichi);
+each *tick* (``tick_s``) it
+
+1. applies a pending reload (SIGHUP or ``reload`` request): a new config that fails validation
+   is refused and the old one kept;
+2. polls the inbox and processes every complete bundle (calibrate -> commit -> push -> archive,
+   or reject with the reason);
+3. serves queued ``calibrate`` requests from the control socket;
+4. starts a scheduled run when ``schedule.interval_s`` has passed since the last run (light of
+   the last archived bundle, lux from the sensor when configured);
+5. reconciles the controllers: each one that does not report the current table gets it.
+
+Side threads only answer the control socket (status is read from SQLite) and send the systemd
+watchdog ping while the main thread shows progress (at least every ``stall_s`` seconds; a
+calibration reports progress per viewpoint), so a hung main loop is restarted by systemd.
+
+A run commits in this order: history row ``ok`` with the table, JSON report and PNG plot
+(atomic writes), then the push to every controller, then the bundle moves to ``archive/``. A
+crash after the commit resumes cleanly: the bundle is archived without running again and the
+controllers are reconciled. SIGTERM sets a stop flag checked between viewpoints and between
+controllers, so the daemon exits within one render or one table push (each push is atomic on
+the controller) and an interrupted bundle is retried at the next start.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import queue
+import resource
+import signal
+import threading
+import time
+import traceback
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from grassd import __version__
+from grassd.daemon.atomic import atomic_save_figure, atomic_write_json
+from grassd.daemon.calibrate import CalibrationResult, Calibrator, LightInput, init_backend
+from grassd.daemon.config import Config, load_config
+from grassd.daemon.control import ControlServer
+from grassd.daemon.errors import (
+    USER_ERRORS,
+    ConfigError,
+    DaemonError,
+    LuxSensorError,
+    RunInterrupted,
+)
+from grassd.daemon.fleet import Fleet, table_checksum
+from grassd.daemon.history import History
+from grassd.daemon.ingest import Bundle, Inbox, parse_manifest, read_manifest_data
+from grassd.daemon.luxsensor import LuxSensor
+from grassd.daemon.notify import Notifier
+from grassd.firmware_proto.client import RetryPolicy
+
+log = logging.getLogger(__name__)
+
+STATE_DB = "state.db"
+
+
+@dataclass
+class _Request:
+    force: bool
+    done: threading.Event = field(default_factory=threading.Event)
+    result: dict[str, Any] | None = None
+
+
+def rss_mb() -> float:
+    """Resident set size of this process in MiB (from /proc/self/statm)."""
+    try:
+        with open("/proc/self/statm") as fh:
+            pages = int(fh.read().split()[1])
+        return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except OSError:
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+class Service:
+    """The grassd daemon for ``cfg`` (``config_path`` is re-read on reload)."""
+
+    def __init__(self, cfg: Config, *, config_path: str | os.PathLike[str] | None = None,
+                 notifier: Notifier | None = None, tick_s: float = 1.0,
+                 reconcile_s: float = 2.0, stall_s: float = 120.0,
+                 policy: RetryPolicy | None = None, transform=None) -> None:
+        self.cfg = cfg
+        self.config_path = Path(config_path) if config_path else None
+        self.notifier = notifier or Notifier()
+        self.tick_s = tick_s
+        self.reconcile_s = reconcile_s
+        self.stall_s = stall_s
+        self.policy = policy or RetryPolicy(timeout_s=0.25, retries=2, restarts=2,
+                                            readback_retries=4)
+        #: applied to every (re)loaded config, e.g. to point it at simulated hardware
+        self.transform = transform or (lambda c: c)
+        self.stop_event = threading.Event()
+        self.reload_event = threading.Event()
+        self.requests: queue.Queue[_Request] = queue.Queue()
+        self.activity = "starting"
+        self.started_at = time.time()
+        self.last_progress = time.monotonic()
+        self.last_run_at: float | None = None
+        self._last_reconcile = 0.0
+        self._last_ctrl: dict[str, tuple] = {}
+        self.reload_error: str | None = None
+        self.runs_done = 0
+        self.rss_log: list[tuple[int, float]] = []
+        cfg.state_dir.mkdir(parents=True, exist_ok=True)
+        self.history = History(cfg.state_dir / STATE_DB)
+        self._build(cfg)
+        self.control: ControlServer | None = None
+        self._watchdog_thread: threading.Thread | None = None
+
+    # ------------------------------------------------------------------ setup
+    def _build(self, cfg: Config) -> None:
+        self.cfg = cfg
+        self.inbox = Inbox(cfg.light.inbox, cfg.state_dir, self.history,
+                           settle_s=cfg.light.settle_s,
+                           incomplete_timeout_s=cfg.light.incomplete_timeout_s,
+                           tz=cfg.site.timezone)
+        self.fleet = Fleet(cfg.controllers, policy=self.policy)
+        self.sensor = LuxSensor(cfg.light.modbus) if cfg.light.modbus is not None else None
+        self.calibrator = Calibrator(cfg)
+        self.reports_dir = cfg.state_dir / "reports"
+        self.reports_dir.mkdir(parents=True, exist_ok=True)
+
+    def _progress(self, text: str) -> None:
+        self.activity = text
+        self.last_progress = time.monotonic()
+        self.notifier.status(text)
+
+    def _install_signals(self) -> None:
+        signal.signal(signal.SIGTERM, lambda *_: self.stop_event.set())
+        signal.signal(signal.SIGINT, lambda *_: self.stop_event.set())
+        signal.signal(signal.SIGHUP, lambda *_: self.reload_event.set())
+
+    def _watchdog_loop(self) -> None:
+        interval = self.notifier.watchdog_interval_s
+        while not self.stop_event.wait(min(interval or 1.0, 1.0)):
+            if time.monotonic() - self.last_progress <= self.stall_s:
+                self.notifier.watchdog()
+
+    # ------------------------------------------------------------------ main loop
+    def run(self) -> int:
+        """Run until SIGTERM/SIGINT; returns the exit status (0 = clean stop)."""
+        self._install_signals()
+        self._progress("initialising the renderer")
+        init_backend(self.cfg)
+        abandoned = self.history.abandon_running("daemon stopped or crashed during the run")
+        if abandoned:
+            log.warning("%d run(s) left unfinished by the previous daemon marked failed",
+                        abandoned)
+        self.control = ControlServer(self.cfg.control_socket, self.handle_request).start()
+        self._watchdog_thread = threading.Thread(target=self._watchdog_loop, name="watchdog",
+                                                 daemon=True)
+        self._watchdog_thread.start()
+        pending = self.inbox.recover()
+        self.notifier.ready(f"watching {self.cfg.light.inbox}")
+        self.activity = "idle"
+        log.info("grassd %s ready: inbox %s, %d controller(s), socket %s", __version__,
+                 self.cfg.light.inbox, len(self.cfg.controllers), self.cfg.control_socket)
+        try:
+            while not self.stop_event.is_set():
+                self.tick(pending)
+                pending = []
+                self.stop_event.wait(self.tick_s)
+        finally:
+            self.shutdown()
+        return 0
+
+    def tick(self, pending: list[Bundle] | None = None) -> None:
+        """One pass of the main loop (see module docstring)."""
+        self.last_progress = time.monotonic()
+        if self.reload_event.is_set():
+            self.reload_event.clear()
+            self.reload()
+        interval = self.cfg.schedule.interval_s
+        last = self.last_run_at or self.started_at
+        due = interval > 0 and time.time() - last >= interval
+        bundles = list(pending or [])
+        if self.cfg.schedule.on_new_bundle or due:
+            bundles += self.inbox.poll()
+        for b in bundles:
+            if self.stop_event.is_set():
+                return
+            self.process_bundle(b)
+        while not self.stop_event.is_set():
+            try:
+                req = self.requests.get_nowait()
+            except queue.Empty:
+                break
+            req.result = self.scheduled_run("request", force=req.force)
+            req.done.set()
+        if due and not bundles and not self.stop_event.is_set():
+            self.scheduled_run("interval")
+        if time.monotonic() - self._last_reconcile >= self.reconcile_s:
+            self.reconcile()
+        if self.activity != "idle":
+            self._progress("idle")
+
+    def shutdown(self) -> None:
+        """Stop serving, close ports and the database (called once at exit)."""
+        self.notifier.stopping("stopping")
+        if self.control is not None:
+            self.control.stop()
+        while True:  # answer anybody still waiting for a run
+            try:
+                req = self.requests.get_nowait()
+            except queue.Empty:
+                break
+            req.result = {"status": "failed", "error": "daemon stopped before the run"}
+            req.done.set()
+        self.fleet.close()
+        if self.sensor is not None:
+            self.sensor.close()
+        self.history.close()
+        self.notifier.close()
+        log.info("grassd stopped")
+
+    def one_shot(self, force: bool = False) -> dict[str, Any]:
+        """`grassd calibrate --now` without a daemon: process complete bundles waiting in the
+        inbox (no settle time) or, when there are none, run on the last bundle's light."""
+        init_backend(self.cfg)
+        self.history.abandon_running("daemon stopped or crashed during the run")
+        self.inbox.settle_s = 0.0
+        bundles = self.inbox.recover() + self.inbox.poll()
+        out: dict[str, Any] | None = None
+        for b in bundles:
+            out = self.process_bundle(b)
+        if out is None:
+            out = self.scheduled_run("request", force=force)
+        self.reconcile()
+        return out
+
+    # ------------------------------------------------------------------ reload
+    def reload(self) -> bool:
+        """Re-read the config file; keep the old config if the new one is invalid."""
+        self.notifier.reloading()
+        if self.config_path is None:
+            self.notifier.ready("reload: no config file (embedded default); nothing to do")
+            return False
+        try:
+            new = self.transform(load_config(self.config_path))
+        except ConfigError as exc:
+            self.reload_error = str(exc)
+            log.error("reload refused, keeping the old configuration: %s", exc)
+            self.notifier.ready(f"reload refused: {exc}")
+            return False
+        kept = []
+        for name in ("state_dir", "control_socket", "cache_dir"):
+            if getattr(new, name) != getattr(self.cfg, name):
+                kept.append(name)
+                new = new.replace(**{name: getattr(self.cfg, name)})
+        if kept:
+            log.warning("reload: %s change only on restart; keeping the old value(s)",
+                        ", ".join(kept))
+        self.fleet.close()
+        if self.sensor is not None:
+            self.sensor.close()
+        self._build(new)
+        self.reload_error = None
+        self._last_reconcile = 0.0
+        log.info("configuration reloaded from %s", self.config_path)
+        self.notifier.ready("configuration reloaded")
+        return True
+
+    # ------------------------------------------------------------------ runs
+    def _resolve_lux(self, manifest_lux: float | None) -> tuple[float, str]:
+        if manifest_lux is not None:
+            return manifest_lux, "manifest"
+        if self.cfg.light.lux != "modbus" or self.sensor is None:
+            raise LuxSensorError("the manifest has no ambient_lux and no Modbus lux sensor is "
+                                 "configured (set [light] lux = \"modbus\" and [light.modbus])")
+        self._progress("reading the lux sensor")
+        return self.sensor.read_lux(), "modbus"
+
+    def _previous(self) -> tuple[Any, Any]:
+        cur = self.history.current_table()
+        return (None if cur is None else list(cur.lengths_um)), self.history.get_meta("ccm")
+
+    def process_bundle(self, b: Bundle) -> dict[str, Any]:
+        """Calibrate from bundle ``b``, commit, push, archive; or reject it with the reason."""
+        self.inbox.begin(b)
+        self.last_run_at = time.time()
+        self._progress(f"processing bundle {b.name}")
+        m = b.manifest
+        try:
+            lux, source = self._resolve_lux(m.ambient_lux)
+        except DaemonError as exc:
+            self.inbox.reject_bundle(b, f"no ambient lux: {exc}")
+            return {"status": "rejected", "error": str(exc)}
+        light = LightInput(hdri=m.hdri, ambient_lux=lux, timestamp=m.timestamp,
+                           sun_lux=m.sun_lux, sun_azimuth_deg=m.sun_azimuth_deg,
+                           sun_elevation_deg=m.sun_elevation_deg, checker_raw=m.checker_raw,
+                           checker_corners=m.checker_corners, checker_chart=m.checker_chart)
+        run_id = self.history.start_run("bundle", bundle_hash=b.hash,
+                                        input_hashes=b.input_hashes, lux=lux, lux_source=source)
+        out = self._calibrate_and_commit(run_id, light, force=False)
+        if out["status"] == "ok":
+            self.inbox.archive_bundle(b, run_id)
+        elif out["status"] == "interrupted":
+            self.history.journal_release(b.hash)  # retried at the next start
+        else:
+            self.inbox.reject_bundle(b, out["error"], run_id)
+        return out
+
+    def scheduled_run(self, trigger: str, force: bool = False) -> dict[str, Any]:
+        """A run without a new bundle: light of the last archived bundle (or the embedded
+        default site), lux from the sensor when configured, else from that bundle."""
+        self._progress(f"{trigger} calibration")
+        self.last_run_at = time.time()
+        last = self.history.latest_archived()
+        manifest = None
+        if last is not None:
+            d = self.inbox.archive / last.bundle_id
+            mpath = next((d / n for n in ("manifest.toml", "manifest.json") if (d / n).exists()),
+                         None)
+            if mpath is not None:
+                try:
+                    manifest = parse_manifest(read_manifest_data(mpath), d, self.inbox.tz)
+                except DaemonError as exc:
+                    log.warning("last archived bundle %s unusable: %s", last.bundle_id, exc)
+        try:
+            if manifest is not None:
+                sensor_first = self.cfg.light.lux == "modbus" and self.sensor is not None
+                lux, source = self._resolve_lux(None if sensor_first else manifest.ambient_lux)
+                light = LightInput(hdri=manifest.hdri, ambient_lux=lux,
+                                   timestamp=datetime.now(UTC), sun_lux=None,
+                                   checker_raw=None, checker_chart=manifest.checker_chart)
+                hashes = {"bundle": last.bundle_hash}
+            else:
+                lux, source = self._resolve_lux(None)
+                hdri = Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
+                light = LightInput(hdri=hdri, ambient_lux=lux, timestamp=datetime.now(UTC))
+                hashes = {"hdri": "embedded default_site.exr"}
+        except DaemonError as exc:
+            log.warning("%s run skipped: %s", trigger, exc)
+            return {"status": "skipped", "error": str(exc)}
+        run_id = self.history.start_run(trigger, input_hashes=hashes, lux=lux, lux_source=source)
+        return self._calibrate_and_commit(run_id, light, force=force)
+
+    def _calibrate_and_commit(self, run_id: int, light: LightInput,
+                              force: bool) -> dict[str, Any]:
+        prev_table, prev_ccm = self._previous()
+        try:
+            result = self.calibrator.run(light, previous_um=prev_table, previous_ccm=prev_ccm,
+                                         force=force, stop=self.stop_event,
+                                         progress=self._progress)
+        except RunInterrupted as exc:
+            self.history.finish_run(run_id, "failed", error=str(exc))
+            return {"status": "interrupted", "run_id": run_id, "error": str(exc)}
+        except USER_ERRORS as exc:
+            self.history.finish_run(run_id, "rejected", error=str(exc))
+            log.warning("run %d rejected: %s", run_id, exc)
+            return {"status": "rejected", "run_id": run_id, "error": str(exc)}
+        except Exception as exc:  # noqa: BLE001 - a bug must not kill the service
+            log.error("run %d failed:\n%s", run_id, traceback.format_exc())
+            self.history.finish_run(run_id, "failed", error=f"internal error: {exc!r}")
+            return {"status": "failed", "run_id": run_id, "error": f"internal error: {exc!r}"}
+        return self._commit(run_id, result)
+
+    def _commit(self, run_id: int, result: CalibrationResult) -> dict[str, Any]:
+        cal = self.cfg.calibration
+        metrics = result.metrics(cal.r2_goal, cal.target_de00)
+        crc = table_checksum(result.lengths_um)
+        base = self.reports_dir / f"run-{run_id:06d}"
+        report = {"run_id": run_id, "table_id": run_id, "table_crc": crc, "metrics": metrics,
+                  **result.report()}
+        report_path = atomic_write_json(base.with_suffix(".json"), report)
+        plot_path = atomic_save_figure(base.with_suffix(".png"), result.figure())
+        if result.ccm is not None and result.ccm_source == "bundle":
+            self.history.set_meta("ccm", result.ccm.matrix.tolist())
+        self.history.finish_run(run_id, "ok", metrics=metrics, lengths_um=result.lengths_um,
+                                table_id=run_id, table_crc=crc, report_path=report_path,
+                                plot_path=plot_path)
+        self.runs_done += 1
+        self.rss_log.append((run_id, rss_mb()))
+        self._progress(f"pushing table {run_id} to {len(self.cfg.controllers)} controller(s)")
+        reports = self.fleet.push(result.lengths_um, run_id, stop=self.stop_event)
+        for r in reports:
+            self._record(r, run_id, "push")
+        self._last_reconcile = time.monotonic()
+        log.info("run %d committed: R^2 %.5f, max deviation %.3f dE00, %d/%d controllers",
+                 run_id, metrics["r2_closed_loop"] or 0, metrics["max_dev_de00"] or 0,
+                 sum(r.ok for r in reports), len(self.cfg.controllers))
+        return {"status": "ok", "run_id": run_id, "table_id": run_id, "table_crc": crc,
+                "metrics": metrics, "report": str(report_path), "plot": str(plot_path),
+                "controllers": [r.__dict__ for r in reports]}
+
+    def _record(self, r, run_id: int | None, kind: str) -> None:
+        self.history.record_push(run_id, r.controller, r.ok, table_id=r.table_id,
+                                 table_crc=r.table_crc, error=r.error, kind=kind)
+        self.history.set_controller(r.controller, reachable=r.reachable,
+                                    reported_id=r.table_id, reported_crc=r.table_crc,
+                                    error=r.error)
+        self._last_ctrl[r.controller] = (r.ok, r.reachable, r.table_id)
+
+    def reconcile(self) -> list:
+        """Push the current table to every controller that does not report it."""
+        self._last_reconcile = time.monotonic()
+        cur = self.history.current_table()
+        if cur is None:
+            return []
+        reports = self.fleet.reconcile(cur.lengths_um, cur.table_id, stop=self.stop_event)
+        for r in reports:
+            state = (r.ok, r.reachable, r.table_id)
+            if r.pushed:
+                self._record(r, cur.id, "reconcile")
+                if r.ok:
+                    log.info("controller %s reconciled to table %d", r.controller, cur.table_id)
+            elif self._last_ctrl.get(r.controller) != state:
+                self.history.set_controller(r.controller, reachable=r.reachable,
+                                            reported_id=r.table_id, reported_crc=r.table_crc,
+                                            error=r.error)
+                self._last_ctrl[r.controller] = state
+        return reports
+
+    # ------------------------------------------------------------------ control socket
+    def status(self) -> dict[str, Any]:
+        """Live status: activity, inbox counts, runs, controllers and health."""
+        st = collect_status(self.history, self.cfg)
+        st.update({
+            "pid": os.getpid(), "version": __version__, "activity": self.activity,
+            "started_at": self.started_at, "uptime_s": time.time() - self.started_at,
+            "config": self.cfg.source, "reload_error": self.reload_error,
+            "inbox": self.inbox.counts(), "rss_mb": rss_mb(), "running": True,
+        })
+        return st
+
+    def handle_request(self, req: dict[str, Any]) -> dict[str, Any]:
+        """Answer one control-socket request (runs in a socket thread)."""
+        cmd = req["cmd"]
+        if cmd == "ping":
+            return {"ok": True, "pid": os.getpid(), "version": __version__}
+        if cmd == "status":
+            return {"ok": True, "status": self.status()}
+        if cmd == "reload":
+            self.reload_event.set()
+            return {"ok": True}
+        if cmd == "calibrate":
+            if self.stop_event.is_set():
+                return {"ok": False, "error": "daemon is stopping"}
+            r = _Request(force=bool(req.get("force", False)))
+            self.requests.put(r)
+            if not req.get("wait", False):
+                return {"ok": True, "queued": self.requests.qsize()}
+            timeout = float(req.get("timeout_s", 3600))
+            if not r.done.wait(timeout):
+                return {"ok": False, "error": f"run did not finish within {timeout:g} s"}
+            return {"ok": True, "run": r.result}
+        return {"ok": False, "error": f"unknown command {cmd!r} "
+                                      "(use ping, status, calibrate, reload)"}
+
+
+def collect_status(history: History, cfg: Config, runs: int = 5) -> dict[str, Any]:
+    """Status from the state database alone (what `grassd status` shows without a daemon)."""
+    cur = history.current_table()
+    desired = None if cur is None else {"table_id": cur.table_id, "table_crc": cur.table_crc,
+                                        "run_id": cur.id}
+    ctrls = {c.name: c for c in history.controllers()}
+    controllers = []
+    for c in cfg.controllers:
+        s = ctrls.get(c.name)
+        in_sync = bool(s and cur and s.reachable and s.reported_id == cur.table_id
+                       and s.reported_crc == cur.table_crc)
+        controllers.append({
+            "name": c.name, "port": c.port, "address": c.address,
+            "reachable": bool(s and s.reachable),
+            "table_id": s.reported_id if s else None, "table_crc": s.reported_crc if s else None,
+            "in_sync": in_sync, "last_seen": s.last_seen if s else None,
+            "error": s.last_error if s else None,
+        })
+    if cur is None:
+        health = "no table yet"
+    elif all(c["in_sync"] for c in controllers):
+        health = "ok"
+    else:
+        bad = [c["name"] for c in controllers if not c["in_sync"]]
+        health = f"degraded: {len(bad)} controller(s) not on table {cur.table_id}"
+    return {
+        "health": health, "desired_table": desired, "controllers": controllers,
+        "runs": [_run_summary(r) for r in history.runs(runs)],
+        "run_counts": {s: history.run_count(s) for s in ("ok", "rejected", "failed")},
+        "state_dir": str(cfg.state_dir), "running": False,
+    }
+
+
+def _run_summary(r) -> dict[str, Any]:
+    m = r.metrics or {}
+    return {"id": r.id, "trigger": r.trigger, "status": r.status, "started_at": r.started_at,
+            "finished_at": r.finished_at, "lux": r.lux, "lux_source": r.lux_source,
+            "error": r.error, "r2": m.get("r2_closed_loop"), "max_dev_de00": m.get("max_dev_de00"),
+            "report": r.report_path, "plot": r.plot_path}
