@@ -334,7 +334,7 @@ class Calibrator:
         real = develop_raw(light.checker_raw).checker_patches(light.checker_corners)
         albedo709 = np.clip(xyz_to_rec709(prophoto_to_xyz(chart.prophoto())), 0.0, None)
         virtual = rec709_to_prophoto(albedo709 * self.white_radiance(lighting))
-        grey = chart.grey_index
+        grey = chart.grey_index()
         v = normalise_exposure(virtual, virtual[grey], space="prophoto")
         r = normalise_exposure(real, real[grey], space="prophoto")
         return fit_ccm(v, r, "3x3")
