@@ -12,6 +12,7 @@ simulated: a pty has no RS-485 ioctls, and the protocol does not depend on them.
 
 from __future__ import annotations
 
+import logging
 import os
 import select
 import tempfile
@@ -26,6 +27,8 @@ from grassd.firmware_proto.errors import SimulatorError
 from grassd.firmware_proto.faults import FaultInjector
 from grassd.firmware_proto.firmware import Controller, ControllerConfig
 from grassd.firmware_proto.framing import FrameReader
+
+log = logging.getLogger(__name__)
 
 
 def make_controllers(state_dir: str | Path, addresses: Iterable[int],
@@ -71,6 +74,7 @@ class SimulatedBus:
         self.bytes_to_host = 0
         self.frames = 0
         self.unplugs = 0
+        self.errors = 0  #: unexpected exceptions while serving (a simulator bug if > 0)
         self.device = ""
         self._master = self._slave = -1
         self._line_free = 0.0
@@ -201,7 +205,12 @@ class SimulatedBus:
                     time.sleep(stall)
                 self._pace(len(piece))
                 for body in self.reader.feed(piece):
-                    self._on_frame(body)
+                    try:
+                        self._on_frame(body)
+                    except Exception:  # keep serving: a deaf simulator would hide the bug
+                        self.errors += 1
+                        log.exception("simulated bus %s: error while handling a frame",
+                                      self.path)
                     if self._replug_at is not None:
                         break
                 if self._replug_at is not None:

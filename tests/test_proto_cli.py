@@ -25,6 +25,7 @@ def bus(tmp_path):
     ctrls = make_controllers(tmp_path / "state", [1, 2], n_pixels=3)
     with SimulatedBus(ctrls, link_path=tmp_path / "tty0") as b:
         yield b
+        assert b.errors == 0
 
 
 def run(*args: str):

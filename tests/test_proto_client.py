@@ -26,6 +26,7 @@ def bus(tmp_path):
     ctrls = make_controllers(tmp_path / "state", [1, 2, 3], n_pixels=4)
     with SimulatedBus(ctrls, link_path=tmp_path / "ttyGRASS0") as b:
         yield b
+        assert b.errors == 0
 
 
 def rand_table(seed, shape=(256,)):

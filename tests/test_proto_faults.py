@@ -91,6 +91,7 @@ def test_pushes_under_faults_end_old_or_new(fault, tmp_path, capsys):
             ok += 1
         elapsed = time.perf_counter() - t0
         counts = injector.counts
+        assert bus.errors == 0
         # the bus heals by itself: same client, same port name, no manual reset
         injector.enabled = False
         final = rng.integers(0, 20001, 256).astype(np.uint16)
