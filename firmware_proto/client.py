@@ -174,6 +174,7 @@ class ControllerClient:
                 last = ControllerTimeout(f"no answer within {timeout:.3f} s")
             except PortUnavailable as exc:
                 last = exc
+                self._info.clear()  # whatever comes back on this port may be another board
         what = f"controller {address} on {self.port}: {message.TYPE.name} failed after " \
                f"{retries + 1} tries"
         if isinstance(last, PortUnavailable):
@@ -187,6 +188,7 @@ class ControllerClient:
                     f"{nak_name(reply.error)} (detail {reply.detail})")
             if reply.error in RESTARTABLE_NAKS:
                 raise TransferInterrupted(text)
+            self._info.pop(address, None)  # re-read capacities before the next attempt
             raise NakError(text, code=reply.error, detail=reply.detail)
         if not isinstance(reply, cls):  # pragma: no cover - request() matches types
             raise ControllerTimeout(f"unexpected answer {reply!r}")

@@ -135,3 +135,16 @@ def test_separate_ports(tmp_path):
     finally:
         for b in buses:
             b.stop()
+
+
+def test_timeouts_scale_with_a_slow_paced_line(tmp_path):
+    """At 9600 baud a 256-byte chunk takes ~0.29 s on the wire: the client must wait for it
+    rather than retransmit, although its turn-around margin is only 0.05 s."""
+    ctrls = make_controllers(tmp_path, [4], n_pixels=1)
+    with SimulatedBus(ctrls, link_path=tmp_path / "slow", baud=9600) as slow, \
+            ControllerClient(slow.path, baudrate=9600, policy=FAST) as c:
+        t = rand_table(11)
+        assert c.push_table(4, t).table_crc == table_crc(t)
+        assert c.retransmissions == 0
+        wire = slow.bytes_from_host + slow.bytes_to_host
+        assert 512 < wire < 800
