@@ -51,13 +51,18 @@ def _addresses_option(default: str | None):
 _port = click.option("--port", "-p", required=True,
                      help="serial port, e.g. /dev/ttyUSB0 or a pty printed by 'controllers sim'")
 _baud = click.option("--baud", default=115_200, show_default=True, help="line speed (baud)")
+_rs485 = click.option("--rs485", is_flag=True,
+                      help="drive the RS-485 transceiver from RTS via the kernel's RS-485 mode "
+                           "(native UARTs only; USB adapters switch direction themselves)")
 _timeout = click.option("--timeout", "timeout_s", default=0.25, show_default=True,
                         help="answer timeout per request (seconds), before retries")
 
 
 @contextmanager
-def _client(port: str, baud: int, timeout_s: float) -> Iterator[ControllerClient]:
-    with ControllerClient(port, baudrate=baud, policy=RetryPolicy(timeout_s=timeout_s)) as c:
+def _client(port: str, baud: int, timeout_s: float,
+            rs485: bool = False) -> Iterator[ControllerClient]:
+    with ControllerClient(port, baudrate=baud, policy=RetryPolicy(timeout_s=timeout_s),
+                          rs485=rs485) as c:
         yield c
 
 
@@ -82,9 +87,10 @@ def controllers() -> None:
 @_baud
 @click.option("--timeout", "timeout_s", default=0.05, show_default=True,
               help="answer timeout per address (seconds)")
-def scan_cmd(port: str, addresses: str, baud: int, timeout_s: float) -> None:
+@_rs485
+def scan_cmd(port: str, addresses: str, baud: int, timeout_s: float, rs485: bool) -> None:
     """Send HELLO to each address and list the controllers that answer."""
-    with _client(port, baud, timeout_s) as client:
+    with _client(port, baud, timeout_s, rs485) as client:
         found = client.scan(parse_addresses(addresses), timeout_s=timeout_s)
     if not found:
         raise ControllerTimeout(f"no controller answered on {port} (addresses {addresses}); "
@@ -101,9 +107,11 @@ def scan_cmd(port: str, addresses: str, baud: int, timeout_s: float) -> None:
 @_addresses_option(None)
 @_baud
 @_timeout
-def status_cmd(port: str, addresses: str | None, baud: int, timeout_s: float) -> None:
+@_rs485
+def status_cmd(port: str, addresses: str | None, baud: int, timeout_s: float,
+               rs485: bool) -> None:
     """Print the active table (id, CRC-32, generation, bank) of each controller."""
-    with _client(port, baud, timeout_s) as client:
+    with _client(port, baud, timeout_s, rs485) as client:
         for a in _targets(client, addresses):
             st = client.read_status(a)
             if not st.has_table:
@@ -127,13 +135,14 @@ def status_cmd(port: str, addresses: str | None, baud: int, timeout_s: float) ->
 @_addresses_option(None)
 @_baud
 @_timeout
+@_rs485
 def push_cmd(port: str, table_file: str, table_id: int | None, addresses: str | None,
-             baud: int, timeout_s: float) -> None:
+             baud: int, timeout_s: float, rs485: bool) -> None:
     """Load a length table into controllers: staged, CRC-checked, switched atomically."""
     table, file_id = load_table_file(table_file)
     tid = table_id if table_id is not None else file_id
     failures: list[str] = []
-    with _client(port, baud, timeout_s) as client:
+    with _client(port, baud, timeout_s, rs485) as client:
         targets = _targets(client, addresses)
         for a in targets:
             try:

@@ -100,13 +100,15 @@ class ControllerClient:
     """Requests to controllers on one serial port (one controller, or an RS-485 bus of them).
 
     ``port`` is a device path; ``baudrate`` the line speed (also used to size timeouts);
-    ``seed`` fixes the starting sequence number and backoff jitter (for reproducible tests).
+    ``seed`` fixes the starting sequence number and backoff jitter (for reproducible tests);
+    ``rs485`` turns on the kernel's RS-485 direction control (see :class:`~.link.SerialLink`).
     Not thread-safe: use one client per port from one thread.
     """
 
     def __init__(self, port: str, *, baudrate: int = 115_200,
-                 policy: RetryPolicy | None = None, seed: int | None = None) -> None:
-        self.link = SerialLink(port, baudrate)
+                 policy: RetryPolicy | None = None, seed: int | None = None,
+                 rs485: bool = False) -> None:
+        self.link = SerialLink(port, baudrate, rs485=rs485)
         self.policy = policy or RetryPolicy()
         self._rng = random.Random(seed)
         self._seq = self._rng.randrange(0x10000)

@@ -14,9 +14,10 @@ import time
 from collections import deque
 
 import serial
+import serial.rs485
 
 from grassd.firmware_proto.codec import Frame, parse_body
-from grassd.firmware_proto.errors import FrameError, PortUnavailable
+from grassd.firmware_proto.errors import FrameError, PortConfigError, PortUnavailable
 from grassd.firmware_proto.framing import FrameReader
 
 #: pyserial read timeout used to poll until a deadline (seconds).
@@ -29,12 +30,18 @@ PORT_ERRORS = (serial.SerialException, OSError, termios.error)
 class SerialLink:
     """Frames over the serial port ``port`` (a device path such as /dev/ttyACM0) at ``baudrate``.
 
-    ``bytes_sent`` / ``bytes_received`` count wire bytes; ``opens`` counts (re)opens.
+    ``rs485``: switch the UART into the kernel's RS-485 mode (the driver drives the transceiver's
+    DE/RE from RTS) for native UARTs wired to a transceiver; leave it off for USB-RS485 adapters
+    with automatic direction control, for USB CDC controllers, and for ptys (which have no
+    RS-485 ioctls). ``bytes_sent`` / ``bytes_received`` count wire bytes; ``opens`` counts
+    (re)opens.
     """
 
-    def __init__(self, port: str, baudrate: int = 115_200, write_timeout_s: float = 1.0) -> None:
+    def __init__(self, port: str, baudrate: int = 115_200, write_timeout_s: float = 1.0,
+                 rs485: bool = False) -> None:
         self.port = port
         self.baudrate = baudrate
+        self.rs485 = rs485
         self.write_timeout_s = write_timeout_s
         self._ser: serial.Serial | None = None
         self.reader = FrameReader()
@@ -58,6 +65,16 @@ class SerialLink:
             ser.reset_input_buffer()
         except (*PORT_ERRORS, ValueError) as exc:
             raise PortUnavailable(f"cannot open serial port {self.port}: {exc}") from None
+        if self.rs485:
+            try:
+                ser.rs485_mode = serial.rs485.RS485Settings(rts_level_for_tx=True,
+                                                            rts_level_for_rx=False)
+            except (*PORT_ERRORS, ValueError) as exc:
+                ser.close()
+                raise PortConfigError(
+                    f"serial port {self.port} does not support the kernel's RS-485 mode "
+                    f"({exc}); use an adapter with automatic direction control and turn "
+                    f"rs485 off") from None
         self._ser = ser
         self.reader.reset()
         self._pending.clear()

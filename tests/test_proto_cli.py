@@ -79,6 +79,8 @@ def test_errors_are_one_line_with_exit_code_2(bus, tmp_path):
     assert r.exit_code == 2
     assert "at most 20000 um" in r.stderr and "push failed on 2 of 2" in r.stderr
     assert all(c.active_table() is None for c in bus.controllers)
+    r = run("scan", "--port", bus.path, "--rs485")
+    assert r.exit_code == 2 and "RS-485 mode" in r.stderr
     r = run("status", "--port", bus.path, "-a", "0-3")
     assert r.exit_code == 2 and "addresses are 1..247" in r.output
 

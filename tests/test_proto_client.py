@@ -10,6 +10,7 @@ from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.errors import (
     ControllerTimeout,
     NakError,
+    PortConfigError,
     PortUnavailable,
     TableError,
     TransientError,
@@ -148,3 +149,12 @@ def test_timeouts_scale_with_a_slow_paced_line(tmp_path):
         assert c.retransmissions == 0
         wire = slow.bytes_from_host + slow.bytes_to_host
         assert 512 < wire < 800
+
+
+def test_rs485_mode_on_a_pty_is_a_clear_permanent_error(bus):
+    with ControllerClient(bus.path, policy=FAST, rs485=True) as c:
+        with pytest.raises(PortConfigError, match="does not support the kernel's RS-485 mode"):
+            c.hello(1)
+        assert not c.link.is_open
+    with ControllerClient(bus.path, policy=FAST) as c:  # without it the same pty works
+        assert c.hello(1).n_pixels == 4
