@@ -50,11 +50,13 @@ class SimulatedBus:
     re-plugged pty gets a new /dev/pts number). ``baud``: pace the line at this rate (None: as
     fast as the pty goes). ``turnaround_s``: controller processing time before answering.
     ``unplug_power_cycles``: an unplug also power-cycles the controllers (USB-powered boards).
+    ``echo``: the host hears its own bytes back, as through an RS-485 adapter with local echo.
     """
 
     def __init__(self, controllers: Sequence[Controller], *, link_path: str | Path | None = None,
                  baud: int | None = None, faults: FaultInjector | None = None,
-                 turnaround_s: float = 0.0, unplug_power_cycles: bool = True) -> None:
+                 turnaround_s: float = 0.0, unplug_power_cycles: bool = True,
+                 echo: bool = False) -> None:
         if not controllers:
             raise SimulatorError("a simulated bus needs at least one controller")
         addresses = [c.config.address for c in controllers]
@@ -69,6 +71,7 @@ class SimulatedBus:
         self.faults = faults
         self.turnaround_s = turnaround_s
         self.unplug_power_cycles = unplug_power_cycles
+        self.echo = echo
         self.reader = FrameReader()
         self.bytes_from_host = 0
         self.bytes_to_host = 0
@@ -199,6 +202,8 @@ class SimulatedBus:
                 time.sleep(0.001)
                 continue
             self.bytes_from_host += len(data)
+            if self.echo:
+                self._write(data)
             pieces = self.faults.corrupt(data) if self.faults else [(0.0, data)]
             for stall, piece in pieces:
                 if stall:
@@ -246,11 +251,16 @@ class SimulatedBus:
             if stall:
                 time.sleep(stall)
             self._pace(len(piece))
-            try:
-                os.write(self._master, piece)
-            except OSError:  # nobody reading / buffer full: bytes are lost, as on a wire
+            if not self._write(piece):
                 return
             self.bytes_to_host += len(piece)
+
+    def _write(self, data: bytes) -> bool:
+        try:
+            os.write(self._master, data)
+            return True
+        except OSError:  # nobody reading / buffer full: bytes are lost, as on a wire
+            return False
 
 
 def start_buses(state_dir: str | Path, count: int, *, shared: bool = True,

@@ -158,3 +158,14 @@ def test_rs485_mode_on_a_pty_is_a_clear_permanent_error(bus):
         assert not c.link.is_open
     with ControllerClient(bus.path, policy=FAST) as c:  # without it the same pty works
         assert c.hello(1).n_pixels == 4
+
+
+def test_local_echo_of_the_host_is_ignored(tmp_path):
+    """An RS-485 adapter with local echo returns every request to the host; it must not be
+    mistaken for an answer."""
+    ctrls = make_controllers(tmp_path, [1], n_pixels=1)
+    with SimulatedBus(ctrls, link_path=tmp_path / "echo", echo=True) as b, \
+            ControllerClient(b.path, policy=FAST) as c:
+        t = rand_table(12)
+        assert c.push_table(1, t).table_crc == table_crc(t)
+        assert c.retransmissions == 0 and c.stale_frames >= 5  # the echoed requests
