@@ -25,6 +25,7 @@ from numpy.typing import ArrayLike
 
 from grassd.firmware_proto.codec import Frame, encode_frame
 from grassd.firmware_proto.errors import (
+    AddressError,
     ControllerTimeout,
     NakError,
     PortUnavailable,
@@ -148,7 +149,7 @@ class ControllerClient:
         every try failed.
         """
         if not MIN_ADDRESS <= address <= MAX_ADDRESS:
-            raise TableError(f"controller address must be {MIN_ADDRESS}..{MAX_ADDRESS}, "
+            raise AddressError(f"controller address must be {MIN_ADDRESS}..{MAX_ADDRESS}, "
                              f"got {address}")
         p = self.policy
         retries = p.retries if retries is None else retries

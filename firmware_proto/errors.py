@@ -35,6 +35,10 @@ class TransferInterrupted(TransientError):
     """A table transfer was lost by the controller (it rebooted, or the staged data was corrupt)."""
 
 
+class AddressError(ProtocolError):
+    """A controller address outside 1..247 was given."""
+
+
 class PortConfigError(ProtocolError):
     """The serial port cannot be set up as asked (e.g. kernel RS-485 mode on a USB adapter)."""
 

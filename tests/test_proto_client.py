@@ -8,6 +8,7 @@ import pytest
 from grassd.firmware_proto import client as client_mod
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.errors import (
+    AddressError,
     ControllerTimeout,
     NakError,
     PortConfigError,
@@ -101,7 +102,7 @@ def test_absent_controller_times_out_with_a_clear_error(bus):
         with pytest.raises(ControllerTimeout, match="controller 9 on .*HELLO failed after 3 tries"):
             c.hello(9)
         assert c.retransmissions == 2
-        with pytest.raises(TableError, match="address"):
+        with pytest.raises(AddressError, match="address must be 1..247"):
             c.hello(0)
 
 
