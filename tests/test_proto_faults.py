@@ -3,7 +3,8 @@
 For each fault kind, 200 pushes (fixed seed) to two controllers sharing one simulated bus on a
 real pty: a push that reports success must have made the new table active; a push that reports
 failure must have left the old table active; the table a fresh boot would load from the EEPROM
-file must be one of the two, bit for bit. Afterwards the faults stop and the same client must
+file must be one of the two, bit for bit. A last case combines every fault with per-pixel
+tables. Afterwards the faults stop and the same client must
 push successfully without any manual recovery.
 """
 
@@ -18,7 +19,7 @@ from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.eeprom import BankStore, Eeprom
 from grassd.firmware_proto.errors import PushFailed
 from grassd.firmware_proto.faults import FaultInjector, FaultPlan
-from grassd.firmware_proto.messages import TABLE_BYTES
+from grassd.firmware_proto.messages import TABLE_BYTES, TableKind
 from grassd.firmware_proto.simulator import SimulatedBus, make_controllers
 from grassd.firmware_proto.tables import table_crc, table_from_bytes
 
@@ -31,7 +32,12 @@ PLANS = {
     "delayed": FaultPlan(delay=0.001, delay_s=(0.005, 0.05)),
     "reboot": FaultPlan(reboot=0.03, torn_write=0.03),
     "unplug": FaultPlan(unplug=0.04, unplug_s=(0.005, 0.04)),
+    # everything at once, with per-pixel tables (1 KiB, four chunks per push)
+    "combined": FaultPlan(drop=0.0002, flip=0.0002, duplicate=0.0002, delay=0.0002,
+                          delay_s=(0.005, 0.03), reboot=0.01, torn_write=0.01, unplug=0.01,
+                          unplug_s=(0.005, 0.03)),
 }
+PER_PIXEL = {"combined": 2}
 
 # Few retries so that some pushes do fail and the failure path is exercised too.
 POLICY = RetryPolicy(timeout_s=0.02, retries=1, backoff_s=0.002, backoff_max_s=0.02,
@@ -47,7 +53,7 @@ def booted_table(ctl) -> np.ndarray | None:
         if header is None:
             return None
         return table_from_bytes(store.read_data(bank, TABLE_BYTES * header.n_tables),
-                                header.n_tables)
+                                header.n_tables, TableKind(header.kind))
     finally:
         eeprom.close()
 
@@ -55,7 +61,9 @@ def booted_table(ctl) -> np.ndarray | None:
 @pytest.mark.parametrize("fault", list(PLANS))
 def test_pushes_under_faults_end_old_or_new(fault, tmp_path, capsys):
     injector = FaultInjector(PLANS[fault], seed=20261122)
-    ctrls = make_controllers(tmp_path, [1, 2], n_pixels=1)
+    n_pixels = PER_PIXEL.get(fault, 1)
+    shape = (n_pixels, 256) if fault in PER_PIXEL else (256,)
+    ctrls = make_controllers(tmp_path, [1, 2], n_pixels=n_pixels)
     rng = np.random.default_rng(7)
     ok = failed = unknown = 0
     t0 = time.perf_counter()
@@ -64,13 +72,13 @@ def test_pushes_under_faults_end_old_or_new(fault, tmp_path, capsys):
         injector.enabled = False
         current = {}
         for a in (1, 2):  # a known starting table on each controller
-            current[a] = rng.integers(0, 20001, 256).astype(np.uint16)
+            current[a] = rng.integers(0, 20001, shape).astype(np.uint16)
             client.push_table(a, current[a], table_id=0)
         injector.enabled = True
         for i in range(PUSHES):
             address = 1 + i % 2
             ctl = ctrls[address - 1]
-            old, new = current[address], rng.integers(0, 20001, 256).astype(np.uint16)
+            old, new = current[address], rng.integers(0, 20001, shape).astype(np.uint16)
             tid = i + 1
             try:
                 st = client.push_table(address, new, table_id=tid)
@@ -94,7 +102,7 @@ def test_pushes_under_faults_end_old_or_new(fault, tmp_path, capsys):
         assert bus.errors == 0
         # the bus heals by itself: same client, same port name, no manual reset
         injector.enabled = False
-        final = rng.integers(0, 20001, 256).astype(np.uint16)
+        final = rng.integers(0, 20001, shape).astype(np.uint16)
         for a in (1, 2):
             assert client.push_table(a, final, table_id=999).table_crc == table_crc(final)
             assert np.array_equal(ctrls[a - 1].active_table(), final)
