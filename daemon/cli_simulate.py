@@ -96,6 +96,10 @@ def _plot(path: Path, curves) -> None:
               help="Camera paths per length per replicate.")
 @click.option("--replicates", type=int, default=8, show_default=True,
               help="Independent replicates (their spread gives the standard error).")
+@click.option("--target-stderr", type=float, default=None,
+              help="Add replicates until every OGCD standard error is at most this (dE00).")
+@click.option("--light-samples", type=int, default=4, show_default=True,
+              help="Environment shadow rays at the first surface of each path.")
 @click.option("--arch", type=click.Choice(["cpu", "gpu"]), default="cpu", show_default=True)
 @click.option("--json", "json_out", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--plot", "plot_out", type=click.Path(dir_okay=False, path_type=Path),
@@ -104,8 +108,8 @@ def _plot(path: Path, curves) -> None:
               help="PNG of the first viewpoint's view at the longest length.")
 @click.pass_context
 def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri, rotation,
-             splay, bounces, seed, views, lengths, samples, replicates, arch, json_out,
-             plot_out, preview_out):
+             splay, bounces, seed, views, lengths, samples, replicates, target_stderr,
+             light_samples, arch, json_out, plot_out, preview_out):
     """Simulate the grass colour characteristic (OGCD vs green length) per viewpoint."""
     if ctx.invoked_subcommand is not None:
         return
@@ -117,7 +121,7 @@ def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri,
 
     length_mm = parse_lengths(lengths)
     settings = RenderSettings(samples=samples, replicates=replicates, max_bounces=bounces,
-                              seed=seed)
+                              seed=seed, light_samples=light_samples)
     display = DisplaySpec(PixelSpec(splay_deg=splay))
     lighting = _lighting(hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri,
                          rotation)
@@ -130,7 +134,8 @@ def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri,
     total = len(views) * len(length_mm)
     with click.progressbar(length=total, label="tracing", file=sys.stderr) as bar:
         curves, seconds = simulate_curves(renderer, display, lighting, views, length_mm,
-                                          settings, progress=bar.update)
+                                          settings, target_stderr=target_stderr,
+                                          progress=bar.update)
     seconds["total"] = time.perf_counter() - t0
     for c in curves:
         click.echo(f"\nviewpoint (h, d, theta) = ({c.h_cm:g} cm, {c.d_m:g} m, "
@@ -138,14 +143,17 @@ def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri,
         click.echo(f"{'length mm':>10} {'L*':>7} {'a*':>7} {'b*':>7} {'OGCD':>7} {'+-':>6}")
         for x, lab, o, s in zip(c.lengths_mm, c.lab, c.ogcd, c.ogcd_stderr, strict=True):
             click.echo(f"{x:10.2f} {lab[0]:7.2f} {lab[1]:7.2f} {lab[2]:7.2f} {o:7.2f} {s:6.3f}")
-    click.echo(f"\n{total} measurements, {settings.replicates * settings.strata ** 2} paths "
-               f"each; seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in seconds.items()))
+    click.echo(f"\n{total} measurements, {settings.strata ** 2} paths per replicate, "
+               f"largest OGCD standard error {max(c.ogcd_stderr.max() for c in curves):.3f}; "
+               f"seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in seconds.items()))
     if json_out:
         doc = {"viewpoints": [c.to_json() for c in curves], "seconds": seconds,
                "lighting": {"ambient_lux": lighting.ambient_lux, "sun_lux": lighting.sun_lux,
                             "env_scale": lighting.env_scale, "notes": list(lighting.notes)},
-               "settings": {"samples_per_length": settings.replicates * settings.strata ** 2,
+               "settings": {"paths_per_replicate": settings.strata ** 2,
                             "replicates": settings.replicates,
+                            "target_stderr": target_stderr,
+                            "light_samples": settings.light_samples,
                             "max_bounces": settings.max_bounces, "seed": settings.seed}}
         atomic_write_text(json_out, json.dumps(doc, indent=1))
         click.echo(f"wrote {json_out}")

@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -64,25 +64,52 @@ def white_radiance(lighting) -> np.ndarray:
 
 
 def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarray, settings,
-                   *, ccm=None, pixel_index: int = 0,
+                   *, ccm=None, pixel_index: int = 0, target_stderr: float | None = None,
+                   max_replicates: int = 256,
                    progress: Callable[[int, int], None] | None = None) -> SimulatedCurve:
-    """Render one viewpoint at ``lengths_mm`` (mm, first = reference) and derive its OGCD."""
-    m = renderer.characteristic(display, lighting, viewpoint, lengths_mm, settings,
-                                pixel_index=pixel_index, progress=progress)
-    t0 = time.perf_counter()
-    reps = np.clip(m.rgb_replicates / white_radiance(lighting), 0.0, None)
-    res = ogcd_from_samples(reps, space="rec709", ccm=ccm)
-    seconds = dict(m.seconds, colour=time.perf_counter() - t0)
+    """Render one viewpoint at ``lengths_mm`` (mm, first = reference) and derive its OGCD.
+
+    With ``target_stderr`` (CIEDE2000), further batches of ``settings.replicates`` independent
+    replicates (new seeds, same random numbers across lengths within a replicate) are traced
+    until the largest OGCD standard error is at most the target or ``max_replicates`` is
+    reached; each batch is sized from the 1/sqrt(R) law, at most doubling the count.
+    """
+    lengths_mm = np.asarray(lengths_mm, float)
+    white = white_radiance(lighting)
+    reps: list[np.ndarray] = []
+    seconds = {"compile": 0.0, "trace": 0.0, "colour": 0.0}
+    batch = settings.replicates
+    k = 0
+    while True:
+        s = replace(settings, replicates=batch, seed=(settings.seed + 7919 * k) % 2**31)
+        m = renderer.characteristic(display, lighting, viewpoint, lengths_mm, s,
+                                    pixel_index=pixel_index, progress=progress)
+        seconds["compile"] += m.seconds.get("compile", 0.0)
+        seconds["trace"] += m.seconds.get("trace", 0.0)
+        reps.append(m.rgb_replicates)
+        t0 = time.perf_counter()
+        all_reps = np.concatenate(reps)
+        res = ogcd_from_samples(np.clip(all_reps / white, 0.0, None), space="rec709", ccm=ccm)
+        seconds["colour"] += time.perf_counter() - t0
+        n = len(all_reps)
+        worst = float(np.max(res.ogcd_stderr))
+        if target_stderr is None or worst <= target_stderr or n >= max_replicates:
+            break
+        # The worst of n noisy error estimates overstates the error: grow at most 2x a round.
+        needed = int(math.ceil(n * min((worst / target_stderr) ** 2, 2.0))) - n
+        batch = int(min(max(needed, 2), max_replicates - n))
+        k += 1
     return SimulatedCurve(
         h_cm=viewpoint.h_cm, d_m=viewpoint.d_m, theta_deg=viewpoint.theta_deg,
-        lengths_mm=np.asarray(lengths_mm, float), rgb_linear=m.rgb_linear,
-        rgb_stderr=m.rgb_stderr, lab=res.lab, ogcd=res.ogcd, ogcd_stderr=res.ogcd_stderr,
-        seconds=seconds,
+        lengths_mm=lengths_mm, rgb_linear=all_reps.mean(axis=0),
+        rgb_stderr=all_reps.std(axis=0, ddof=1) / math.sqrt(n), lab=res.lab, ogcd=res.ogcd,
+        ogcd_stderr=res.ogcd_stderr, seconds=seconds,
     )
 
 
 def simulate_curves(renderer, display, lighting, viewpoints: Sequence, lengths_mm: np.ndarray,
                     settings, *, ccm=None, pixel_index: int = 0,
+                    target_stderr: float | None = None,
                     progress: Callable[[int], None] | None = None
                     ) -> tuple[list[SimulatedCurve], dict[str, float]]:
     """:func:`simulate_curve` for every viewpoint; returns the curves and summed seconds
@@ -94,12 +121,13 @@ def simulate_curves(renderer, display, lighting, viewpoints: Sequence, lengths_m
         done = [0]
 
         def step(k: int, _n: int, done=done) -> None:
-            if progress:
+            if progress and k > done[0]:  # later adaptive batches restart at 0: not counted
                 progress(k - done[0])
-            done[0] = k
+                done[0] = k
 
         curves.append(simulate_curve(renderer, display, lighting, vp, lengths_mm, settings,
-                                     ccm=ccm, pixel_index=pixel_index, progress=step))
+                                     ccm=ccm, pixel_index=pixel_index,
+                                     target_stderr=target_stderr, progress=step))
     seconds = {k: float(sum(c.seconds.get(k, 0.0) for c in curves))
                for k in ("compile", "trace", "colour")}
     seconds["total"] = time.perf_counter() - t0

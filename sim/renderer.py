@@ -380,6 +380,7 @@ class Renderer:
         total = vec3(0.0)
         beta = vec3(1.0)
         pdf_bsdf = 0.0
+        n_prev = 1
         sun_on = self.ipar[6]
         sun_dir = vec3(self.fpar[10], self.fpar[11], self.fpar[12])
         sun_e = vec3(self.fpar[13], self.fpar[14], self.fpar[15])
@@ -389,7 +390,7 @@ class Renderer:
                 le = self.env_radiance(d)
                 w = 1.0
                 if depth > 0:
-                    w = tf.power_heuristic(pdf_bsdf, self.env_pdf(d))
+                    w = tf.power_heuristic(pdf_bsdf, n_prev * self.env_pdf(d))
                 total += beta * le * w
                 break
             if depth == max_bounces:
@@ -400,15 +401,20 @@ class Renderer:
             p = o + t * d + EPS * nn
             alb = self.albedo[mat]
             pair = 1 + depth * 2
-            # Next-event estimation: environment, MIS against the BSDF strategy.
-            e1, e2 = tf.padded_pair(index, strata, rep_key, key, pair)
-            wl, pdf_l, le = self.sample_env(e1, e2)
-            cos_l = nn.dot(wl)
-            if cos_l > 0.0 and pdf_l > 0.0:
-                ts, _, ms = self.trace(p, wl, x, tf.INF, True)
-                if ms < 0:
-                    w = tf.power_heuristic(pdf_l, cos_l / tf.PI)
-                    total += beta * alb * le * (cos_l / tf.PI / pdf_l * w)
+            # Next-event estimation: environment, MIS against the BSDF strategy. The first
+            # vertex takes ``n_nee`` light samples (its direct light dominates the variance).
+            n_nee = 1
+            if depth == 0:
+                n_nee = self.ipar[7]
+            for j in range(n_nee):
+                e1, e2 = tf.padded_pair(index, strata, rep_key, key, pair if j == 0 else 64 + j)
+                wl, pdf_l, le = self.sample_env(e1, e2)
+                cos_l = nn.dot(wl)
+                if cos_l > 0.0 and pdf_l > 0.0:
+                    ts, _, ms = self.trace(p, wl, x, tf.INF, True)
+                    if ms < 0:
+                        w = tf.power_heuristic(n_nee * pdf_l, cos_l / tf.PI)
+                        total += beta * alb * le * (cos_l / tf.PI / pdf_l * w / n_nee)
             # Next-event estimation: the sun (a delta light: no MIS).
             if sun_on == 1:
                 cos_s = nn.dot(sun_dir)
@@ -420,6 +426,7 @@ class Renderer:
             b1, b2 = tf.padded_pair(index, strata, rep_key, key, pair + 1)
             d = tf.cosine_hemisphere(nn, b1, b2)
             pdf_bsdf = ti.max(nn.dot(d), 0.0) / tf.PI
+            n_prev = n_nee
             beta *= alb
             o = p
         return total
@@ -503,6 +510,7 @@ class Renderer:
         chunk = max(1, self.cap.paths // per_len)
         n = len(lengths_mm)
         out = np.empty((n, settings.replicates, 3), np.float64)
+        self.ipar[7] = settings.light_samples
         t_compile = self._ensure_compiled()
         t_trace0 = time.perf_counter()
         for s in range(0, n, chunk):
@@ -545,6 +553,7 @@ class Renderer:
         cxy = display.pixel_centres_m()[0]
         corners = scene.quad_corners + np.array([cxy[0], cxy[1], 0.0])
         view = frame_quad(viewpoint.eye_m(tuple(cxy)), corners)
+        self.ipar[7] = settings.light_samples
         f32 = lambda v: ti.Vector(np.asarray(v, np.float32).tolist())  # noqa: E731
         self._preview_kernel(width, spp, settings.seed, settings.max_bounces, f32(view.eye),
                              f32(view.forward), f32(view.right), f32(view.up), view.half,

@@ -182,13 +182,15 @@ class RenderSettings:
     ``samples`` camera paths per length per replicate (rounded up to a square for
     stratification), ``replicates`` independent randomisations whose spread gives the standard
     error, ``max_bounces`` surface interactions per path (1 = direct light only; Mitsuba's
-    ``max_depth`` is ``max_bounces + 1``), ``seed`` makes results bit-reproducible.
+    ``max_depth`` is ``max_bounces + 1``), ``seed`` makes results bit-reproducible,
+    ``light_samples`` environment samples (shadow rays) at the first surface a path meets.
     """
 
     samples: int = 4096
     replicates: int = 8
     max_bounces: int = 3
     seed: int = 0
+    light_samples: int = 4
 
     def __post_init__(self) -> None:
         if not 1 <= self.samples <= 4_000_000:
@@ -198,6 +200,8 @@ class RenderSettings:
                              f"{self.replicates}")
         if not 1 <= self.max_bounces <= 16:
             raise SceneError(f"max_bounces must be in 1..16, got {self.max_bounces}")
+        if not 1 <= self.light_samples <= 16:
+            raise SceneError(f"light_samples must be in 1..16, got {self.light_samples}")
         if not 0 <= self.seed < 2**31:
             raise SceneError(f"seed must be in 0..2^31-1, got {self.seed}")
 
