@@ -53,6 +53,7 @@ def run_case(chunk: int, n_pixels: int, per_pixel: bool, rounds: int) -> dict[st
     return {"s_per_push": elapsed / pushes, "s_per_update": elapsed / rounds,
             "wire_per_push": wire / pushes, "payload_per_push": payload / pushes,
             "overhead": wire / payload, "line_floor_s": payload / pushes * 10 / BAUD,
+            "wire_time_s": wire / pushes * 10 / BAUD,
             "retransmissions": retrans}
 
 
@@ -67,15 +68,17 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{CONTROLLERS} controllers on one simulated {BAUD}-baud half-duplex bus (8N1), "
           f"{rounds} round(s) each")
     print(f"{'table':>16} {'chunk':>5} {'s/push':>8} {'s/all 8':>8} {'payload B':>9} "
-          f"{'wire B':>7} {'wire/payload':>12} {'line floor s':>12} {'retx':>4}")
+          f"{'wire B':>7} {'wire/payload':>12} {'wire time s':>11} {'line floor s':>12} "
+          f"{'retx':>4}")
     for chunk, n_pixels, per_pixel in cases:
         r = run_case(chunk, n_pixels, per_pixel, rounds)
         name = f"{n_pixels}x256 per-pixel" if per_pixel else "256 global"
         print(f"{name:>16} {chunk:>5} {r['s_per_push']:8.4f} {r['s_per_update']:8.3f} "
               f"{r['payload_per_push']:9.0f} {r['wire_per_push']:7.0f} {r['overhead']:12.3f} "
-              f"{r['line_floor_s']:12.4f} {r['retransmissions']:4d}")
-    print("line floor = payload alone at 115200 baud; wire counts both directions, all frames "
-          "(HELLO cached, GET_STATUS before and after, BEGIN, CHUNKs, COMMIT, ACKs)")
+              f"{r['wire_time_s']:11.4f} {r['line_floor_s']:12.4f} {r['retransmissions']:4d}")
+    print("wire time = wire bytes at 115200 baud; line floor = payload alone; wire counts "
+          "both directions, all frames (HELLO cached, GET_STATUS before and after, BEGIN, "
+          "CHUNKs, COMMIT, ACKs)")
     return 0
 
 
