@@ -11,6 +11,7 @@ Run: ``python -m bench.bench_proto`` or ``python bench/bench_proto.py [--quick]`
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -58,10 +59,10 @@ def run_case(chunk: int, n_pixels: int, per_pixel: bool, rounds: int) -> dict[st
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Print the benchmark table."""
+    """Print the benchmark table (``argv``: command-line options; None = defaults)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one round per case")
-    args = ap.parse_args(argv)
+    args = ap.parse_args([] if argv is None else argv)
     rounds = 1 if args.quick else 3
     cases = [(64, 16, False), (128, 16, False), (256, 16, False), (512, 16, False),
              (1016, 16, False), (256, 16, True), (1016, 16, True)]
@@ -83,4 +84,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(main(sys.argv[1:]))
