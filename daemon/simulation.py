@@ -46,6 +46,7 @@ class SimulatedCurve:
     lab: np.ndarray
     ogcd: np.ndarray
     ogcd_stderr: np.ndarray
+    replicates: int = 0
     seconds: dict[str, float] = field(default_factory=dict)
 
     def to_json(self) -> dict:
@@ -55,6 +56,7 @@ class SimulatedCurve:
             "lengths_mm": self.lengths_mm.tolist(), "rgb_linear": self.rgb_linear.tolist(),
             "rgb_stderr": self.rgb_stderr.tolist(), "lab": self.lab.tolist(),
             "ogcd": self.ogcd.tolist(), "ogcd_stderr": self.ogcd_stderr.tolist(),
+            "replicates": self.replicates,
         }
 
 
@@ -103,7 +105,7 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
         h_cm=viewpoint.h_cm, d_m=viewpoint.d_m, theta_deg=viewpoint.theta_deg,
         lengths_mm=lengths_mm, rgb_linear=all_reps.mean(axis=0),
         rgb_stderr=all_reps.std(axis=0, ddof=1) / math.sqrt(n), lab=res.lab, ogcd=res.ogcd,
-        ogcd_stderr=res.ogcd_stderr, seconds=seconds,
+        ogcd_stderr=res.ogcd_stderr, replicates=n, seconds=seconds,
     )
 
 

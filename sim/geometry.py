@@ -34,6 +34,8 @@ MAT_YELLOW, MAT_GREEN, MAT_BASE, MAT_CAVITY = 0, 1, 2, 3
 MATERIAL_NAMES = ("yellow_grass", "green_grass", "base", "cavity")
 #: Refuse geometry larger than this many primitives before allocating (about 2 GB of grid).
 MAX_PRIMITIVES = 2_000_000
+#: Grid cell side in blade widths (trade-off: primitives per cell vs cells per ray).
+GRID_CELL_BLADE_WIDTHS = 1.5
 
 
 @dataclass(frozen=True)
@@ -262,7 +264,7 @@ def build_scene(display: DisplaySpec, lengths_mm: np.ndarray) -> SceneArrays:
     margin = 1e-4
     origin = boxes[:, :2].min(axis=0) - margin
     extent = boxes[:, 2:].max(axis=0) + margin - origin
-    cell = max(spec.blade_width_mm * 1.5 * mm, float(extent.max()) / 2048)
+    cell = max(spec.blade_width_mm * GRID_CELL_BLADE_WIDTHS * mm, float(extent.max()) / 2048)
     shape = (int(math.ceil(extent[0] / cell)), int(math.ceil(extent[1] / cell)))
     cell_start, cell_items = _bin(boxes, origin, cell, shape)
 

@@ -155,3 +155,18 @@ def test_preview_image_shows_the_quad(renderer):
     centre = img[int(quad[:, 1].mean()), int(quad[:, 0].mean())]
     np.testing.assert_allclose(centre, srgb_to_linear((200, 200, 200)), rtol=0.25)
     assert np.all((quad > 0) & (quad < 64))
+
+
+def test_traversal_is_exact_for_any_grid_size(renderer, monkeypatch):
+    """The grid only accelerates: results are bit-identical for coarse and fine cells."""
+    import grassd.sim.geometry as geometry
+
+    lighting = sky_gradient_lighting(sun_lux=10000.0, sun_azimuth_deg=200.0,
+                                     sun_elevation_deg=30.0)
+    s = RenderSettings(samples=256, replicates=2)
+    out = []
+    for factor in (0.7, 1.5, 4.0):
+        monkeypatch.setattr(geometry, "GRID_CELL_BLADE_WIDTHS", factor)
+        out.append(renderer.characteristic(DisplaySpec(), lighting, Viewpoint(160, 2, 30),
+                                           [5.0, 15.0], s).rgb_replicates)
+    assert np.array_equal(out[0], out[1]) and np.array_equal(out[1], out[2])

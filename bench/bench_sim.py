@@ -1,0 +1,89 @@
+"""Renderer benchmarks (issue #3 targets); prints numbers, asserts nothing.
+
+1. First call in a fresh process (``grassd simulate``, JIT or offline-cache load included), with a
+   cold and with a warm kernel cache. Target: <= 10 s warm.
+2. One viewpoint, 21 lengths, adaptive replicates until every OGCD standard error <= 0.1, after
+   warm-up. Target: <= 1 s on 2 CPU cores. Reports paths/s and the compile/trace/colour split.
+3. The paper's 16 viewpoints (h 150..180 cm x theta 0..90 deg, d = 2 m). Target: <= 16 s.
+
+Run: ``python -m bench sim`` (``make bench`` runs all benchmarks). ``--arch gpu`` style runs:
+set GRASSD_BENCH_ARCH=gpu on a machine with a GPU.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HDRI_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "hdri"
+BUNDLED = Path(__file__).resolve().parents[1] / "sim" / "data" / "default_site.exr"
+TARGET = 0.1
+
+
+def _hdri(name: str) -> Path:
+    path = HDRI_DIR / f"{name}.exr"
+    return path if path.exists() else BUNDLED
+
+
+def first_call() -> None:
+    cmd = [str(Path(sys.executable).parent / "grassd"), "simulate", "--hdri", str(_hdri("city")),
+           "--lux", "20000", "--view", "170,2,0", "--lengths", "0:20:1"]
+    with tempfile.TemporaryDirectory() as cold:
+        for label in ("cold cache", "warm cache"):
+            env = dict(os.environ, GRASSD_CACHE_DIR=cold)
+            t0 = time.perf_counter()
+            out = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+            wall = time.perf_counter() - t0
+            tail = out.stdout.strip().splitlines()[-1] if out.stdout.strip() else out.stderr
+            print(f"first call in a fresh process, {label}: {wall:.2f} s wall "
+                  f"(rc {out.returncode}); {tail}")
+
+
+def main() -> None:
+    from grassd.daemon.simulation import simulate_curve
+    from grassd.sim import backend
+    from grassd.sim.lighting import build_lighting
+    from grassd.sim.renderer import Renderer
+    from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
+
+    first_call()
+    arch = backend.init(os.environ.get("GRASSD_BENCH_ARCH", "cpu"))
+    print(f"arch {arch}, {os.cpu_count()} CPU cores")
+    renderer = Renderer()
+    lengths = np.arange(0.0, 20.01, 1.0)
+    display = DisplaySpec()
+    for name, lux in (("courtyard", 8000.0), ("city", 20000.0)):
+        lighting = build_lighting(_hdri(name), lux)
+        settings = RenderSettings(samples=4096, replicates=8)
+        simulate_curve(renderer, display, lighting, Viewpoint(), lengths[:3],
+                       RenderSettings(samples=64, replicates=2))  # warm-up (JIT)
+        t0 = time.perf_counter()
+        c = simulate_curve(renderer, display, lighting, Viewpoint(), lengths, settings,
+                           target_stderr=TARGET)
+        wall = time.perf_counter() - t0
+        n_paths = len(lengths) * settings.strata ** 2 * c.replicates
+        print(f"{name}: 1 viewpoint x 21 lengths, OGCD stderr max {c.ogcd_stderr.max():.3f} "
+              f"(target {TARGET}, {c.replicates} replicates of {settings.strata ** 2} paths): "
+              f"{wall:.2f} s wall; trace {c.seconds['trace']:.2f} s, colour "
+              f"{c.seconds['colour']:.3f} s; {n_paths / c.seconds['trace'] / 1e3:.0f} k "
+              f"paths/s; OGCD range {c.ogcd[-1]:.2f}")
+    lighting = build_lighting(_hdri("courtyard"), 8000.0)
+    views = [Viewpoint(h, 2.0, th) for h in (150, 160, 170, 180) for th in (0, 30, 60, 90)]
+    t0 = time.perf_counter()
+    worst = 0.0
+    for vp in views:
+        c = simulate_curve(renderer, display, lighting, vp, lengths,
+                           RenderSettings(samples=4096, replicates=8), target_stderr=TARGET)
+        worst = max(worst, float(c.ogcd_stderr.max()))
+    print(f"16 viewpoints x 21 lengths to stderr <= {TARGET}: {time.perf_counter() - t0:.1f} s "
+          f"(worst stderr {worst:.3f}; the paper: about 80 s on a desktop GPU)")
+
+
+if __name__ == "__main__":
+    main()
