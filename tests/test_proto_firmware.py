@@ -6,6 +6,10 @@ import itertools
 
 import numpy as np
 import pytest
+from hypothesis import event
+from hypothesis import settings as _settings
+from hypothesis import strategies as _st
+from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, rule
 
 from grassd.firmware_proto.codec import Frame, decode_frame, encode_body_of, encode_frame
 from grassd.firmware_proto.eeprom import BankStore
@@ -231,3 +235,123 @@ def test_motion_is_speed_limited_and_encoder_quantised(tmp_path):
 def test_wire_answer_is_a_valid_frame(ctl):
     wire = ctl.handle(encode_body_of(Frame(1, 5, Hello())))
     assert wire == encode_frame(decode_frame(wire[:-1]))
+
+
+# --- stateful property test ----------------------------------------------------------------
+
+
+_CANDIDATES = [table(100 + i) for i in range(3)]
+_CUT = _st.one_of(_st.none(), _st.integers(0, 23))  # byte of the 24-byte header write
+
+
+class FirmwareMachine(RuleBasedStateMachine):
+    """Random interleavings of BEGIN / CHUNK / COMMIT, repeated frames, corrupt chunks, power
+    cuts (clean and inside an EEPROM write): the active table is always exactly one that was
+    committed, and an acknowledged COMMIT makes exactly that table active."""
+
+    @initialize()
+    def setup(self):
+        import tempfile
+
+        self.tmp = tempfile.TemporaryDirectory()
+        self.ctl = Controller(ControllerConfig(address=1, n_pixels=1, max_chunk=96),
+                              f"{self.tmp.name}/e.eeprom", clock=Clock())
+        self.possible = [None]  # tables that may legitimately be active now
+        self.cut_next_write_at: int | None = None
+        self.ctl.eeprom.tear_hook = self._tear
+
+    def teardown(self):
+        if hasattr(self, "ctl"):
+            self.ctl.close()
+            self.tmp.cleanup()
+
+    def _tear(self, offset, data):
+        cut, self.cut_next_write_at = self.cut_next_write_at, None
+        return None if cut is None else min(cut, len(data) - 1)
+
+    def _send(self, msg, twice=False):
+        """Send (maybe twice, as a retransmission); return the last answer."""
+        body = encode_body_of(Frame(1, next(_seq), msg))
+        reply = None
+        for _ in range(2 if twice else 1):
+            wire = self.ctl.handle(body)
+            reply = None if wire is None else decode_frame(wire[:-1]).message
+        return reply
+
+    def _commit(self, k, tid, twice, cut=None):
+        t = _CANDIDATES[k]
+        boots = self.ctl.boots
+        if cut is not None:
+            self.cut_next_write_at = cut  # power fails inside the header write, if it happens
+        reply = self._send(TableCommit(tid, table_crc(t)), twice)
+        if isinstance(reply, Ack):
+            assert np.array_equal(self.ctl.active_table(), t)
+            assert ask(self.ctl, GetStatus()).table_id == tid
+            self.possible = [t]
+            event("commit acknowledged")
+        elif self.ctl.boots != boots:  # power failed inside this commit: old or new
+            self.possible = self.possible + [t]
+            event("power cut inside a commit")
+
+    @rule(k=_st.integers(0, 2), tid=_st.integers(0, 3), twice=_st.booleans())
+    def begin(self, k, tid, twice):
+        self._send(TableBegin(tid, TableKind.GLOBAL, 1, 512, table_crc(_CANDIDATES[k])), twice)
+
+    @rule(k=_st.integers(0, 2), tid=_st.integers(0, 3), start=_st.integers(0, 511),
+          length=_st.integers(1, 96), corrupt=_st.booleans(), twice=_st.booleans())
+    def chunk(self, k, tid, start, length, corrupt, twice):
+        data = table_bytes(_CANDIDATES[k])[start:start + length]
+        if corrupt:
+            data = bytes([data[0] ^ 0xFF]) + data[1:]
+        self._send(TableChunk(tid, start, data), twice)
+
+    @rule(k=_st.integers(0, 2), tid=_st.integers(0, 3),
+          skip=_st.one_of(_st.just(-1), _st.integers(0, 5)),
+          corrupt=_st.one_of(_st.just(-1), _st.integers(0, 5)),
+          commit=_st.booleans(), twice=_st.booleans(), cut=_CUT)
+    def transfer(self, k, tid, skip, corrupt, commit, twice, cut):
+        """A whole transfer, maybe with one chunk left out or corrupted, maybe committed."""
+        data = table_bytes(_CANDIDATES[k])
+        self._send(TableBegin(tid, TableKind.GLOBAL, 1, 512, table_crc(_CANDIDATES[k])))
+        for i, (o, n) in enumerate(chunk_spans(512, 96)):
+            piece = data[o:o + n]
+            if i == corrupt:
+                piece = bytes([piece[0] ^ 0x55]) + piece[1:]
+            if i != skip:
+                self._send(TableChunk(tid, o, piece), twice)
+        if commit:
+            self._commit(k, tid, twice, cut)
+
+    @rule(k=_st.integers(0, 2), tid=_st.integers(0, 3), twice=_st.booleans(), cut=_CUT)
+    def commit(self, k, tid, twice, cut):
+        self._commit(k, tid, twice, cut)
+
+    @rule(at=_st.integers(0, 600))
+    def arm_power_cut(self, at):
+        self.cut_next_write_at = at
+
+    @rule()
+    def power_cycle(self):
+        self.ctl.power_cycle()
+
+    @invariant()
+    def active_is_a_committed_table(self):
+        if not hasattr(self, "ctl"):
+            return
+        active = self.ctl.active_table()
+        assert any((p is None and active is None)
+                   or (p is not None and active is not None and np.array_equal(p, active))
+                   for p in self.possible)
+        fresh = Controller(self.ctl.config, self.ctl.eeprom.path)  # what a reboot would load
+        booted = fresh.active_table()
+        fresh.close()
+        assert (booted is None and active is None) or np.array_equal(booted, active)
+        if active is not None:
+            h = self.ctl.active_header
+            assert h is not None and h.data_crc == table_crc(active)
+            self.possible = [active]  # what survived is now the only truth
+
+
+FirmwareMachine.TestCase.settings = _settings(max_examples=150, stateful_step_count=50,
+                                             deadline=None)
+test_firmware_state_machine = FirmwareMachine.TestCase
