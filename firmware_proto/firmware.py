@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import threading
 import time
-import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -259,7 +258,7 @@ class Controller:
         if missing < b.total_bytes:
             return Nak(m.TYPE, NakCode.INCOMPLETE, missing)
         data = self.store.read_data(t.bank, b.total_bytes)  # verify what the memory holds
-        crc = zlib.crc32(data) & 0xFFFFFFFF
+        crc = crc32_iso_hdlc(data)
         if crc != b.table_crc:
             self.transfer = None
             return Nak(m.TYPE, NakCode.CRC_MISMATCH, crc)
