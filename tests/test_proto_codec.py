@@ -285,3 +285,14 @@ def test_doctests(module):
     mod = importlib.import_module(f"grassd.firmware_proto.{module}")
     result = doctest.testmod(mod)
     assert result.failed == 0 and result.attempted > 0
+
+
+def test_protocol_md_worked_example_matches_the_codec():
+    from pathlib import Path
+
+    import grassd.firmware_proto as pkg
+    from grassd.firmware_proto.messages import Hello
+
+    text = (Path(pkg.__file__).with_name("PROTOCOL.md")).read_text()
+    line = next(x for x in text.splitlines() if x.strip().startswith("wire "))
+    assert bytes.fromhex(line.split(None, 1)[1]) == encode_frame(Frame(1, 1, Hello()))
