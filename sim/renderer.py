@@ -385,7 +385,13 @@ class Renderer:
         sun_dir = vec3(self.fpar[10], self.fpar[11], self.fpar[12])
         sun_e = vec3(self.fpar[13], self.fpar[14], self.fpar[15])
         for depth in range(max_bounces + 1):
-            t, n, mat = self.trace(o, d, x, tf.INF, False)
+            t = tf.INF
+            n = vec3(0.0, 0.0, 1.0)
+            mat = -1
+            if depth < max_bounces:
+                t, n, mat = self.trace(o, d, x, tf.INF, False)
+            else:  # the last segment only asks whether the environment is visible
+                t, n, mat = self.trace(o, d, x, tf.INF, True)
             if mat < 0:  # escaped to the environment
                 le = self.env_radiance(d)
                 w = 1.0
