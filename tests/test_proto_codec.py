@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import struct
 from dataclasses import fields
 
@@ -294,5 +295,5 @@ def test_protocol_md_worked_example_matches_the_codec():
     from grassd.firmware_proto.messages import Hello
 
     text = (Path(pkg.__file__).with_name("PROTOCOL.md")).read_text()
-    line = next(x for x in text.splitlines() if x.strip().startswith("wire "))
-    assert bytes.fromhex(line.split(None, 1)[1]) == encode_frame(Frame(1, 1, Hello()))
+    (hex_bytes,) = re.findall(r"^ +wire +([0-9a-f ]+)$", text, flags=re.M)
+    assert bytes.fromhex(hex_bytes) == encode_frame(Frame(1, 1, Hello()))
