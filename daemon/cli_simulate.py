@@ -40,6 +40,9 @@ def _light_options(f):
                      "and restore the missing illuminance there; --lux is then the total."),
         click.option("--rotation", type=float, default=0.0, show_default=True,
                      help="Rotate the panorama about the vertical (deg, counter-clockwise)."),
+        click.option("--flip", is_flag=True, help="Mirror the panorama east-west first: most "
+                     "cameras write panoramas whose columns run clockwise, the opposite of "
+                     "the u = atan2(y, x) convention."),
         click.option("--splay", type=float, default=0.0, show_default=True,
                      help="Outward lean of the green blades at full length (deg)."),
         click.option("--bounces", type=int, default=3, show_default=True,
@@ -58,12 +61,12 @@ def _require(**values) -> None:
             "--" + k.replace("_", "-") for k in missing))
 
 
-def _lighting(hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri, rotation):
+def _lighting(hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri, rotation, flip):
     from grassd.sim.lighting import build_lighting
 
     return build_lighting(hdri, lux, sun_lux=sun_lux, sun_azimuth_deg=sun_azimuth,
                           sun_elevation_deg=sun_elevation, sun_from_hdri=sun_from_hdri,
-                          rotation_deg=rotation)
+                          rotation_deg=rotation, flip=flip)
 
 
 def _plot(path: Path, curves) -> None:
@@ -108,7 +111,7 @@ def _plot(path: Path, curves) -> None:
               help="PNG of the first viewpoint's view at the longest length.")
 @click.pass_context
 def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri, rotation,
-             splay, bounces, seed, views, lengths, samples, replicates, target_stderr,
+             flip, splay, bounces, seed, views, lengths, samples, replicates, target_stderr,
              light_samples, arch, json_out, plot_out, preview_out):
     """Simulate the grass colour characteristic (OGCD vs green length) per viewpoint."""
     if ctx.invoked_subcommand is not None:
@@ -124,7 +127,7 @@ def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri,
                               seed=seed, light_samples=light_samples)
     display = DisplaySpec(PixelSpec(splay_deg=splay))
     lighting = _lighting(hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri,
-                         rotation)
+                         rotation, flip)
     for note in lighting.notes:
         click.echo(f"note: {note}", err=True)
     backend.init(arch)
@@ -185,14 +188,14 @@ def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri,
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
               required=True)
 def export_scene_cmd(hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri, rotation,
-                     splay, bounces, seed, length_mm, views, out_dir):
+                     flip, splay, bounces, seed, length_mm, views, out_dir):
     """Write the exact traced scene (PLY meshes, env.exr, scene.json) for other renderers."""
     _require(hdri=hdri, lux=lux)
     from grassd.sim.export import export_scene
     from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings
 
     lighting = _lighting(hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri,
-                         rotation)
+                         rotation, flip)
     doc = export_scene(out_dir, DisplaySpec(PixelSpec(splay_deg=splay)), lighting, views[0],
                        length_mm, settings=RenderSettings(max_bounces=bounces, seed=seed))
     click.echo(f"wrote {out_dir}/scene.json with {len(doc['meshes'])} meshes and env.exr")

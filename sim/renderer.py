@@ -106,6 +106,7 @@ class Renderer:
         self.env_cos = ti.field(ti.f32, cap.env_rows + 1)
         self.env_cond = ti.field(ti.f32, cap.env_texels + cap.env_rows)
         self.out = ti.Vector.field(3, ti.f32, cap.paths)
+        self.sums = ti.Vector.field(3, ti.f64, 256 * 64)  # per (length, replicate) of a launch
         self.quad = ti.Vector.field(3, ti.f32, 4)
         self.image = ti.Vector.field(3, ti.f32, (PREVIEW_MAX, PREVIEW_MAX))
         # Scalars: see _upload_* for the meaning of each slot.
@@ -457,6 +458,17 @@ class Renderer:
                 eye, d, x, i, strata, rep_key, key, max_bounces)
 
     @ti.kernel
+    def _reduce_kernel(self, n_groups: ti.i32, n_samp: ti.i32):
+        """Sum each (length, replicate) group of paths in float64, serially within the group so
+        the result does not depend on thread scheduling."""
+        for g in range(n_groups):
+            acc = ti.Vector([0.0, 0.0, 0.0], dt=ti.f64)
+            base = g * n_samp
+            for i in range(n_samp):  # inner loops run serially in Taichi
+                acc += ti.cast(self.out[base + i], ti.f64)
+            self.sums[g] = acc
+
+    @ti.kernel
     def _preview_kernel(self, width: ti.i32, spp: ti.i32, seed: ti.u32, max_bounces: ti.i32,
                         eye: vec3, forward: vec3, right: vec3, up: vec3, half: ti.f32,
                         x: ti.f32):
@@ -513,7 +525,10 @@ class Renderer:
         if per_len > self.cap.paths:
             raise SceneError(f"{per_len} paths per length exceed the renderer's buffer of "
                              f"{self.cap.paths}; lower samples or replicates")
-        chunk = max(1, self.cap.paths // per_len)
+        # Lengths per launch: what the path buffer holds, and at most a quarter of them so
+        # progress is reported as the work goes.
+        n_all = len(lengths_mm)
+        chunk = max(1, min(self.cap.paths // per_len, -(-n_all // 4)))
         n = len(lengths_mm)
         out = np.empty((n, settings.replicates, 3), np.float64)
         self.ipar[7] = settings.light_samples
@@ -527,9 +542,10 @@ class Renderer:
             self._trace_kernel(len(part), settings.replicates, m, settings.seed,
                                settings.max_bounces, ti.Vector(eye.astype(np.float32).tolist()),
                                float(area))
-            samples = self.out.to_numpy()[: len(part) * per_len]
-            samples = samples.reshape(len(part), settings.replicates, n_samp, 3)
-            out[s: s + len(part)] = samples.astype(np.float64).mean(axis=2)
+            n_groups = len(part) * settings.replicates
+            self._reduce_kernel(n_groups, n_samp)
+            sums = self.sums.to_numpy()[:n_groups].reshape(len(part), settings.replicates, 3)
+            out[s: s + len(part)] = sums / n_samp
             if progress:
                 progress(min(s + chunk, n), n)
         if not np.all(np.isfinite(out)):
