@@ -61,10 +61,11 @@ class Notifier:
             lines.append(f"{key.upper()}={text}")
         if self._sock is None:
             self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
+            self._sock.setblocking(False)  # a full receiver must never stall the service
         try:
             self._sock.sendto("\n".join(lines).encode(), self._address())
         except OSError:
-            return False  # systemd gone or socket missing: never fatal for the service
+            return False  # systemd gone, socket missing or its queue full: never fatal
         return True
 
     def ready(self, status: str | None = None) -> bool:

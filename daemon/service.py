@@ -26,6 +26,7 @@ the controller) and an interrupted bundle is retried at the next start.
 
 from __future__ import annotations
 
+import faulthandler
 import logging
 import os
 import queue
@@ -135,6 +136,7 @@ class Service:
         self.notifier.status(text)
 
     def _install_signals(self) -> None:
+        faulthandler.register(signal.SIGUSR1, all_threads=True)  # stack dump for debugging
         signal.signal(signal.SIGTERM, lambda *_: self.stop_event.set())
         signal.signal(signal.SIGINT, lambda *_: self.stop_event.set())
         signal.signal(signal.SIGHUP, lambda *_: self.reload_event.set())

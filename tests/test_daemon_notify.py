@@ -76,3 +76,15 @@ def test_child_process_notifies_parent(tmp_path):
     subprocess.run([sys.executable, "-c", code], env={**os.environ, "NOTIFY_SOCKET": path},
                    check=True)
     assert srv.recv(4096).startswith(b"READY=1\nSTATUS=up\nMAINPID=")
+
+
+def test_full_receiver_never_blocks(tmp_path):
+    """Nobody reads the socket: sends fail fast (False) instead of stalling the daemon."""
+    path = str(tmp_path / "n")
+    srv = _listener(path)
+    n = Notifier(env={"NOTIFY_SOCKET": path})
+    t0 = time.monotonic()
+    results = [n.status("x" * 200) for _ in range(5000)]
+    assert time.monotonic() - t0 < 5.0
+    assert results[0] is True and results[-1] is False
+    srv.close()
