@@ -36,6 +36,12 @@ def _light_options(f):
         click.option("--sun-azimuth", type=float, default=None,
                      help="Sun compass azimuth (deg, from north, clockwise)."),
         click.option("--sun-elevation", type=float, default=None, help="Sun elevation (deg)."),
+        click.option("--site", default=None, metavar="LAT,LON",
+                     help="Site latitude,longitude (deg, east +): with --time, the sun "
+                     "direction comes from the NREL SPA (pvlib) instead of --sun-azimuth/"
+                     "--sun-elevation."),
+        click.option("--time", "when", default=None, metavar="ISO8601",
+                     help="Time with its UTC offset, e.g. 2026-06-21T14:30+02:00."),
         click.option("--sun-from-hdri", is_flag=True, help="Find the (clipped) sun in the map "
                      "and restore the missing illuminance there; --lux is then the total."),
         click.option("--rotation", type=float, default=0.0, show_default=True,
@@ -61,9 +67,39 @@ def _require(**values) -> None:
             "--" + k.replace("_", "-") for k in missing))
 
 
-def _lighting(hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri, rotation, flip):
+def _sun_from_site(site: str | None, when: str | None, azimuth, elevation):
+    """(azimuth, elevation) from --site/--time when given, else the explicit values."""
+    if site is None and when is None:
+        return azimuth, elevation
+    if site is None or when is None:
+        raise click.UsageError("--site and --time go together")
+    if azimuth is not None or elevation is not None:
+        raise click.UsageError("give either --site/--time or --sun-azimuth/--sun-elevation")
+    import datetime as dt
+
+    from grassd.sim.sun import sun_position
+
+    try:
+        lat, lon = (float(v) for v in site.split(","))
+    except ValueError:
+        raise click.BadParameter(f"{site!r} must be LAT,LON in degrees",
+                                 param_hint="--site") from None
+    try:
+        moment = dt.datetime.fromisoformat(when)
+    except ValueError:
+        raise click.BadParameter(f"{when!r} is not an ISO 8601 time",
+                                 param_hint="--time") from None
+    return sun_position(lat, lon, moment)
+
+
+def _lighting(hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri, rotation, flip,
+              site=None, when=None):
     from grassd.sim.lighting import build_lighting
 
+    sun_azimuth, sun_elevation = _sun_from_site(site, when, sun_azimuth, sun_elevation)
+    if site is not None and sun_elevation <= 0:
+        raise click.BadParameter(f"the sun is below the horizon at {when} "
+                                 f"(elevation {sun_elevation:.1f} deg)", param_hint="--time")
     return build_lighting(hdri, lux, sun_lux=sun_lux, sun_azimuth_deg=sun_azimuth,
                           sun_elevation_deg=sun_elevation, sun_from_hdri=sun_from_hdri,
                           rotation_deg=rotation, flip=flip)
@@ -110,9 +146,9 @@ def _plot(path: Path, curves) -> None:
 @click.option("--preview", "preview_out", type=click.Path(dir_okay=False, path_type=Path),
               help="PNG of the first viewpoint's view at the longest length.")
 @click.pass_context
-def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri, rotation,
-             flip, splay, bounces, seed, views, lengths, samples, replicates, target_stderr,
-             light_samples, arch, json_out, plot_out, preview_out):
+def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, site, when, sun_from_hdri,
+             rotation, flip, splay, bounces, seed, views, lengths, samples, replicates,
+             target_stderr, light_samples, arch, json_out, plot_out, preview_out):
     """Simulate the grass colour characteristic (OGCD vs green length) per viewpoint."""
     if ctx.invoked_subcommand is not None:
         return
@@ -127,7 +163,7 @@ def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri,
                               seed=seed, light_samples=light_samples)
     display = DisplaySpec(PixelSpec(splay_deg=splay))
     lighting = _lighting(hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri,
-                         rotation, flip)
+                         rotation, flip, site, when)
     for note in lighting.notes:
         click.echo(f"note: {note}", err=True)
     backend.init(arch)
@@ -187,15 +223,15 @@ def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri,
               required=True)
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
               required=True)
-def export_scene_cmd(hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri, rotation,
-                     flip, splay, bounces, seed, length_mm, views, out_dir):
+def export_scene_cmd(hdri, lux, sun_lux, sun_azimuth, sun_elevation, site, when, sun_from_hdri,
+                     rotation, flip, splay, bounces, seed, length_mm, views, out_dir):
     """Write the exact traced scene (PLY meshes, env.exr, scene.json) for other renderers."""
     _require(hdri=hdri, lux=lux)
     from grassd.sim.export import export_scene
     from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings
 
     lighting = _lighting(hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri,
-                         rotation, flip)
+                         rotation, flip, site, when)
     doc = export_scene(out_dir, DisplaySpec(PixelSpec(splay_deg=splay)), lighting, views[0],
                        length_mm, settings=RenderSettings(max_bounces=bounces, seed=seed))
     click.echo(f"wrote {out_dir}/scene.json with {len(doc['meshes'])} meshes and env.exr")

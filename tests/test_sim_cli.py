@@ -116,3 +116,23 @@ def test_export_then_copy_is_self_contained(tmp_path, shared_hdri):
     doc = json.loads((tmp_path / "b" / "scene.json").read_text())
     assert all((tmp_path / "b" / m["ply"]).exists() for m in doc["meshes"])
     assert (tmp_path / "b" / doc["environment"]["exr"]).exists()
+
+
+def test_sun_direction_from_site_and_time(tmp_path, shared_hdri):
+    """Tokyo, 21 June 2026, local noon: the sun stands about 77 deg high, a little west of
+    south (NREL SPA through pvlib)."""
+    res = CliRunner().invoke(main, ["simulate", "export-scene", "--hdri",
+                                    str(shared_hdri("city")), "--lux", "10000", "--sun-lux",
+                                    "30000", "--site", "35.68,139.69", "--time",
+                                    "2026-06-21T12:00+09:00", "--length", "5", "--view",
+                                    "170,2,0", "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    x, y, z = json.loads((tmp_path / "scene.json").read_text())["sun"]["direction_to_sun"]
+    assert math.degrees(math.asin(z)) == pytest.approx(77.3, abs=0.7)
+    assert math.degrees(math.atan2(x, y)) % 360 == pytest.approx(198, abs=5)
+    night = CliRunner().invoke(main, ["simulate", "export-scene", "--hdri",
+                                      str(shared_hdri("city")), "--lux", "10000", "--sun-lux",
+                                      "30000", "--site", "35.68,139.69", "--time",
+                                      "2026-06-21T23:00+09:00", "--length", "5", "--view",
+                                      "170,2,0", "--out", str(tmp_path / "n")])
+    assert night.exit_code == 2 and "below the horizon" in night.output
