@@ -24,6 +24,8 @@ SUBCOMMANDS: list[str] = [
     "grassd.daemon.cli_run:calibrate_cmd",
     "grassd.daemon.cli_controllers:controllers",
     "grassd.daemon.cli_simulate:simulate",
+    "grassd.daemon.cli_validate:validate",
+    "grassd.daemon.cli_validate:experiment",
     "grassd.daemon.cli_sweep:sweep",
 ]
 
