@@ -1,0 +1,120 @@
+"""Daemon benchmark: 100 bundles in a row through `grassd run` (subprocess) against simulated
+controllers on ptys and a simulated Modbus lux sensor; prints seconds per bundle and the
+daemon's resident memory (RSS) along the way, so a leak shows as a rising column."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from importlib import resources
+from pathlib import Path
+
+from grassd.daemon.config import load_default_config
+from grassd.daemon.control import request
+from grassd.daemon.errors import DaemonNotRunning
+from grassd.daemon.sim_hardware import SimulatedHardware
+
+BUNDLES = int(os.environ.get("GRASSD_BENCH_BUNDLES", "100"))
+ROOT = Path(__file__).resolve().parents[1]
+CACHE = os.environ.get("GRASSD_CACHE_DIR", str(ROOT / ".venv" / "grassd-cache"))
+
+
+def _config(state: Path, cfg) -> str:
+    ctrls = "".join(f'[[controllers]]\nport = "{c.port}"\naddress = {c.address}\n'
+                    f'pixels = "{c.pixels[0][0]}-{c.pixels[0][1]}"\n' for c in cfg.controllers)
+    return f"""state_dir = "{state}"
+cache_dir = "{CACHE}"
+[site]
+latitude = 35.0
+longitude = 139.0
+[display]
+rows = 4
+cols = 8
+{ctrls}
+[[viewpoints]]
+h_cm = 170
+d_m = 2
+[light]
+inbox = "inbox"
+lux = "modbus"
+settle_s = 0.1
+[light.modbus]
+port = {cfg.light.modbus.port}
+words = 2
+scale = 0.1
+[schedule]
+interval_s = 0
+[simulation]
+samples = 256
+lengths = 9
+[calibration]
+check_levels = 9
+max_rounds = 2
+replicates = 4
+max_jump_mm = 20.0
+"""
+
+
+def main() -> None:
+    """Run the benchmark and print the numbers."""
+    site = Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
+    grassd = str(Path(sys.executable).parent / "grassd")
+    tmp = Path(tempfile.mkdtemp(prefix="grassd-bench-"))
+    hw = SimulatedHardware(load_default_config(), tmp / "hw", lux=3000.0)
+    cfg = hw.start()
+    state = tmp / "state"
+    conf = tmp / "grassd.toml"
+    conf.write_text(_config(state, cfg))
+    proc = subprocess.Popen([grassd, "run", "--config", str(conf), "--tick", "0.1"],
+                            stdout=subprocess.DEVNULL, stderr=open(tmp / "log", "w"))
+    sock = state / "control.sock"
+
+    def status() -> dict:
+        return request(sock, {"cmd": "status"}, timeout_s=60)["status"]
+
+    try:
+        t_start = time.monotonic()
+        while True:
+            try:
+                status()
+                break
+            except DaemonNotRunning:
+                if time.monotonic() - t_start > 120 or proc.poll() is not None:
+                    raise RuntimeError("daemon did not start; see " + str(tmp / "log")) from None
+                time.sleep(0.2)
+        print(f"daemon ready in {time.monotonic() - t_start:.1f} s")
+        print(f"{'bundle':>6} {'s/bundle':>9} {'RSS MiB':>8}")
+        t0 = time.monotonic()
+        last, last_i = t0, 0
+        for i in range(BUNDLES):
+            d = state / "inbox" / f".b{i}"
+            d.mkdir(parents=True)
+            shutil.copy(site, d / "sky.exr")
+            (d / "manifest.toml").write_text(
+                f'timestamp = 2026-06-21T10:{i % 60:02d}:{i // 60:02d}+09:00\n'
+                f'hdri = "sky.exr"\nambient_lux = {1000 + i}\n')
+            os.rename(d, state / "inbox" / f"b{i:03d}")
+            while status()["run_counts"]["ok"] + status()["run_counts"]["rejected"] < i + 1:
+                time.sleep(0.05)
+            if i in (0, 9, 24, 49, 74, BUNDLES - 1):
+                now = time.monotonic()
+                per = (now - last) / (i + 1 - last_i)
+                print(f"{i + 1:>6} {per:>9.2f} {status()['rss_mb']:>8.1f}", flush=True)
+                last, last_i = now, i + 1
+        total = time.monotonic() - t0
+        st = status()
+        print(f"{BUNDLES} bundles in {total:.1f} s ({total / BUNDLES:.2f} s each); "
+              f"runs ok {st['run_counts']['ok']}, health {st['health']}")
+    finally:
+        proc.terminate()
+        proc.wait(60)
+        hw.stop()
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
