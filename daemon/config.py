@@ -6,7 +6,9 @@ The file (default ``/etc/grassd/grassd.toml``; the embedded default is
     state_dir = "/var/lib/grassd"     # optional: $STATE_DIRECTORY, then /var/lib/grassd
     cache_dir = "/var/cache/grassd"   # optional: $GRASSD_CACHE_DIR, $CACHE_DIRECTORY,
                                       #           else state_dir/cache
-    control_socket = "/run/grassd/control.sock"  # optional: $RUNTIME_DIRECTORY/control.sock
+    control_socket = "/run/grassd/control.sock"  # optional: $RUNTIME_DIRECTORY/control.sock,
+                                      # else /run/grassd/control.sock if that directory exists
+                                      # and state_dir is not set, else state_dir/control.sock
     [site]         latitude, longitude (degrees), timezone (IANA name)
     [display]      rows, cols, pitch_mm; [display.pixel] pixel-spec fields (mm, counts)
     [[controllers]] port, baud, address, pixels ("0-63,70" inclusive ranges of pixel indices)
@@ -55,6 +57,8 @@ from grassd.daemon.errors import ConfigError
 
 #: Where the packaged daemon looks when no ``--config`` is given.
 DEFAULT_CONFIG_PATH = Path("/etc/grassd/grassd.toml")
+#: The service's RuntimeDirectory (exists while it runs); holds the control socket.
+SYSTEM_RUNTIME_DIR = Path("/run/grassd")
 
 #: Default pixel-spec fields (paper, section 3: 33.5 mm pixel, 15 mm base, 10 mm yellow blades,
 #: three 5.7 mm slits, green 0-20 mm). Used when ``grassd.sim.scene.PixelSpec`` is not importable.
@@ -669,6 +673,8 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         sock = _resolve(ctx, top["control_socket"])
     elif env.get("RUNTIME_DIRECTORY"):
         sock = Path(env["RUNTIME_DIRECTORY"].split(":")[0]) / "control.sock"
+    elif top["state_dir"] is None and SYSTEM_RUNTIME_DIR.is_dir():
+        sock = SYSTEM_RUNTIME_DIR / "control.sock"  # the service's socket, seen from a shell
     else:
         sock = state_dir / "control.sock"
 
