@@ -6,7 +6,10 @@ World frame: metres, z up. Files written to the output directory:
 * ``env.exr``: the HDRI already rotated into the environment convention, *unscaled*
   (direction (x, y, z) -> column u = atan2(y, x) / 2pi (mod 1), row v = acos(z) / pi; u = 0 is
   the left edge, v = 0 the top row),
-* ``scene.json``: camera, measurement quad, materials (linear Rec.709 albedo), meshes,
+* ``scene.json``: camera, measurement quad, materials (linear Rec.709 albedo; ``specular`` and
+  ``phong_exponent`` of the optional glossy lobe, a normalised modified Phong lobe
+  ``ks (n + 2) / 2pi cos^n`` about the mirror direction over a diffuse ``(1 - ks) albedo``;
+  ``specular`` 0 means purely Lambertian), meshes,
   environment scale, sun (direction towards the sun and irradiance on a plane perpendicular to
   it, linear Rec.709) and ``max_bounces`` (surface interactions per path; Mitsuba's
   ``max_depth`` = max_bounces + 1).
@@ -61,7 +64,9 @@ def export_scene(out_dir: str | os.PathLike, display: DisplaySpec, lighting: Lig
     for name, (v, f) in triangle_mesh(scene, length_mm * 1e-3).items():
         write_ply(out / f"{name}.ply", v, f)
         meshes.append({"ply": f"{name}.ply", "material": name})
-    albedo = {MATERIAL_NAMES[i]: {"albedo_linear": scene.albedo[i].astype(float).tolist()}
+    albedo = {MATERIAL_NAMES[i]: {"albedo_linear": scene.albedo[i].astype(float).tolist(),
+                                  "specular": scene.specular,
+                                  "phong_exponent": scene.phong_exponent}
               for i in range(len(MATERIAL_NAMES))}
     write_exr(out / "env.exr", lighting.env_unscaled)
 

@@ -74,6 +74,8 @@ class SceneArrays:
     splay_rad: float
     green_max_m: float
     quad_corners: np.ndarray
+    specular: float = 0.0
+    phong_exponent: float = 1.0
 
     @property
     def n_blades(self) -> int:
@@ -282,7 +284,7 @@ def build_scene(display: DisplaySpec, lengths_mm: np.ndarray) -> SceneArrays:
         cell_start=cell_start, cell_items=cell_items, z_range=z_range,
         albedo=albedo.astype(np.float32), taper_m=spec.taper_mm * mm,
         tip_ratio=spec.blade_tip_ratio, splay_rad=splay, green_max_m=spec.green_max_mm * mm,
-        quad_corners=quad,
+        quad_corners=quad, specular=spec.specular, phong_exponent=spec.phong_exponent,
     )
 
 

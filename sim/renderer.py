@@ -3,7 +3,8 @@
 Physically based Monte Carlo path tracing of the grass-pixel scene (:mod:`grassd.sim.geometry`)
 under an importance-sampled equirectangular environment plus an optional directional sun.
 
-* Transport: Lambertian surfaces, next-event estimation of the environment (sampled in
+* Transport: Lambertian surfaces (optionally plus a normalised modified-Phong glossy lobe,
+  off by default), next-event estimation of the environment (sampled in
   proportion to luminance x solid angle) and of the sun (ray-traced shadow), cosine-weighted
   BSDF sampling, the two environment strategies combined by Veach's power heuristic. Up to
   ``max_bounces`` surface interactions; no Russian roulette, so the estimate is unbiased for that
@@ -166,6 +167,7 @@ class Renderer:
         f[2] = sc.grid_cell
         f[3], f[4] = float(sc.z_range[0]), float(sc.z_range[1])
         f[5], f[6], f[7], f[8] = sc.taper_m, sc.tip_ratio, sc.splay_rad, sc.green_max_m
+        f[16], f[17] = sc.specular, sc.phong_exponent
         i = self.ipar
         i[0], i[1], i[2], i[3] = nb, nr, nx, ny
 
@@ -385,6 +387,7 @@ class Renderer:
         sun_on = self.ipar[6]
         sun_dir = vec3(self.fpar[10], self.fpar[11], self.fpar[12])
         sun_e = vec3(self.fpar[13], self.fpar[14], self.fpar[15])
+        ks, nexp = self.fpar[16], self.fpar[17]
         for depth in range(max_bounces + 1):
             t = tf.INF
             n = vec3(0.0, 0.0, 1.0)
@@ -407,6 +410,7 @@ class Renderer:
                 nn = -nn
             p = o + t * d + EPS * nn
             alb = self.albedo[mat]
+            wo = -d
             pair = 1 + depth * 2
             # Next-event estimation: environment, MIS against the BSDF strategy. The first
             # vertex takes ``n_nee`` light samples (its direct light dominates the variance).
@@ -416,26 +420,28 @@ class Renderer:
             for j in range(n_nee):
                 e1, e2 = tf.padded_pair(index, strata, rep_key, key, pair if j == 0 else 64 + j)
                 wl, pdf_l, le = self.sample_env(e1, e2)
-                cos_l = nn.dot(wl)
-                if cos_l > 0.0 and pdf_l > 0.0:
+                if nn.dot(wl) > 0.0 and pdf_l > 0.0:
                     ts, _, ms = self.trace(p, wl, x, tf.INF, True)
                     if ms < 0:
-                        w = tf.power_heuristic(n_nee * pdf_l, cos_l / tf.PI)
-                        total += beta * alb * le * (cos_l / tf.PI / pdf_l * w / n_nee)
+                        fcos, pdf_b = tf.bsdf_eval(alb, nn, wo, wl, ks, nexp)
+                        w = tf.power_heuristic(n_nee * pdf_l, pdf_b)
+                        total += beta * le * fcos * (w / (pdf_l * n_nee))
             # Next-event estimation: the sun (a delta light: no MIS).
             if sun_on == 1:
-                cos_s = nn.dot(sun_dir)
-                if cos_s > 0.0:
+                if nn.dot(sun_dir) > 0.0:
                     ts, _, ms = self.trace(p, sun_dir, x, tf.INF, True)
                     if ms < 0:
-                        total += beta * alb * sun_e * (cos_s / tf.PI)
-            # Continue the path by cosine-weighted sampling (throughput *= albedo).
+                        fcos, _ = tf.bsdf_eval(alb, nn, wo, sun_dir, ks, nexp)
+                        total += beta * sun_e * fcos
+            # Continue the path by sampling the BSDF (Lambertian: throughput *= albedo).
             b1, b2 = tf.padded_pair(index, strata, rep_key, key, pair + 1)
-            d = tf.cosine_hemisphere(nn, b1, b2)
-            pdf_bsdf = ti.max(nn.dot(d), 0.0) / tf.PI
+            d, weight, pdf_bsdf = tf.bsdf_sample(alb, nn, wo, ks, nexp, b1, b2,
+                                                 tf.rand01(key, 128 + depth))
             n_prev = n_nee
-            beta *= alb
+            beta *= weight
             o = p
+            if beta.max() <= 0.0:
+                break
         return total
 
     @ti.kernel

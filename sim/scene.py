@@ -37,7 +37,9 @@ class PixelSpec:
     """Geometry and materials of one grass pixel (defaults: the paper, section 3.2.2).
 
     Lengths in mm, densities in blades per mm^2, albedos as 8-bit encoded sRGB as a colour
-    reader reports them (linearised when the scene is built).
+    reader reports them (linearised when the scene is built). ``specular`` adds a glossy lobe
+    to every surface (achromatic reflectance, 0 = off, the default: the paper's materials are
+    diffuse with metallic 0); ``smoothness`` (0..1, Unity-style) sets its sharpness.
 
     The default albedos are plausible values for yellow and green artificial grass and a yellow
     3D-printed base; replace them with your own measurements (the paper used a Datacolor
@@ -65,6 +67,8 @@ class PixelSpec:
     green_srgb: tuple[float, float, float] = (62.0, 118.0, 46.0)
     base_srgb: tuple[float, float, float] = (180.0, 160.0, 66.0)
     cavity_srgb: tuple[float, float, float] = (30.0, 30.0, 30.0)
+    specular: float = 0.0
+    smoothness: float = 0.5
     layout_seed: int = 1
 
     def __post_init__(self) -> None:
@@ -92,6 +96,10 @@ class PixelSpec:
             raise SceneError("PixelSpec.slit_length_mm must not exceed top_mm")
         if not 0 < self.blade_tip_ratio <= 1:
             raise SceneError("PixelSpec.blade_tip_ratio must be in (0, 1]")
+        if not 0 <= self.specular < 1:
+            raise SceneError("PixelSpec.specular (glossy reflectance) must be in [0, 1)")
+        if not 0 <= self.smoothness <= 0.97:
+            raise SceneError("PixelSpec.smoothness must be in [0, 0.97]")
         if not 0 <= self.jitter < 0.5:
             raise SceneError("PixelSpec.jitter must be in [0, 0.5)")
         for name in ("yellow_lean_deg", "green_lean_deg", "splay_deg"):
@@ -101,6 +109,13 @@ class PixelSpec:
             rgb = getattr(self, name)
             if len(rgb) != 3 or not all(0 <= c <= 255 for c in rgb):
                 raise SceneError(f"PixelSpec.{name} must be three 8-bit sRGB values in 0..255")
+
+    @property
+    def phong_exponent(self) -> float:
+        """Exponent of the glossy lobe: ``2 / a^2 - 2`` with roughness ``a = (1 - smoothness)^2``
+        (the usual Phong-Beckmann correspondence; smoothness 0.5 gives 30)."""
+        a = max((1.0 - self.smoothness) ** 2, 1e-3)
+        return max(2.0 / (a * a) - 2.0, 1.0)
 
     def slit_centres_mm(self) -> np.ndarray:
         """Centres (y, mm) of the slits, evenly spread across the pixel."""

@@ -114,6 +114,60 @@ def cosine_hemisphere(n: vec3, u1: ti.f32, u2: ti.f32) -> vec3:
 
 
 @ti.func
+def reflect(wo: vec3, n: vec3) -> vec3:
+    """Mirror direction of ``wo`` (pointing away from the surface) about the unit normal n."""
+    return 2.0 * n.dot(wo) * n - wo
+
+
+@ti.func
+def bsdf_eval(alb: vec3, n: vec3, wo: vec3, wi: vec3, ks: ti.f32, nexp: ti.f32):
+    """(f * cos(theta_i), pdf of :func:`bsdf_sample`) for a Lambertian lobe of albedo
+    ``(1 - ks) * alb`` plus a normalised modified-Phong lobe ``ks (n + 2) / 2pi cos^n`` about
+    the mirror direction (Lafortune & Willems 1994); ``ks = 0`` is pure Lambertian."""
+    cos_i = ti.max(n.dot(wi), 0.0)
+    fcos = alb * (cos_i / PI)
+    pdf = cos_i / PI
+    if ks > 0.0:
+        c = ti.max(reflect(wo, n).dot(wi), 0.0)
+        lobe = c ** nexp / (2.0 * PI)
+        ps = glossy_probability(alb, ks)
+        fcos = ((1.0 - ks) * alb * (cos_i / PI) + ks * (nexp + 2.0) * lobe * cos_i)
+        pdf = (1.0 - ps) * cos_i / PI + ps * (nexp + 1.0) * lobe
+    return fcos, pdf
+
+
+@ti.func
+def glossy_probability(alb: vec3, ks: ti.f32) -> ti.f32:
+    """Probability of sampling the glossy lobe: its share of the reflected energy."""
+    kd = (1.0 - ks) * ti.max(alb.x, alb.y, alb.z)
+    return ks / ti.max(ks + kd, 1e-8)
+
+
+@ti.func
+def bsdf_sample(alb: vec3, n: vec3, wo: vec3, ks: ti.f32, nexp: ti.f32, u1: ti.f32,
+                u2: ti.f32, u3: ti.f32):
+    """Direction, throughput weight f cos / pdf, and pdf of one BSDF sample (see
+    :func:`bsdf_eval`). A glossy sample below the surface returns a zero weight."""
+    wi = cosine_hemisphere(n, u1, u2)
+    weight = alb
+    pdf = ti.max(n.dot(wi), 0.0) / PI
+    if ks > 0.0:
+        if u3 < glossy_probability(alb, ks):
+            r = reflect(wo, n)
+            cos_a = u1 ** (1.0 / (nexp + 1.0))
+            sin_a = ti.sqrt(ti.max(0.0, 1.0 - cos_a * cos_a))
+            t, b = onb_from(r)
+            phi = 2.0 * PI * u2
+            wi = (t * (sin_a * ti.cos(phi)) + b * (sin_a * ti.sin(phi)) + r * cos_a).normalized()
+        fcos, pdf_all = bsdf_eval(alb, n, wo, wi, ks, nexp)
+        pdf = pdf_all
+        weight = vec3(0.0)
+        if n.dot(wi) > 0.0 and pdf_all > 0.0:
+            weight = fcos / pdf_all
+    return wi, weight, pdf
+
+
+@ti.func
 def dir_to_uv(d: vec3):
     """Environment convention: u = atan2(y, x) / 2pi (mod 1), v = acos(z) / pi."""
     u = ti.atan2(d.y, d.x) / (2.0 * PI)

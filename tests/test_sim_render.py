@@ -170,3 +170,20 @@ def test_traversal_is_exact_for_any_grid_size(renderer, monkeypatch):
         out.append(renderer.characteristic(DisplaySpec(), lighting, Viewpoint(160, 2, 30),
                                            [5.0, 15.0], s).rgb_replicates)
     assert np.array_equal(out[0], out[1]) and np.array_equal(out[1], out[2])
+
+
+def test_glossy_lobe_conserves_energy_on_a_plate(renderer):
+    """Uniform sky L, plate with a sharp glossy lobe (ks) over a diffuse base (1 - ks) a:
+    L ((1 - ks) a + ks cos(theta_o)), theta_o the view angle from the normal (narrow lobe)."""
+    spec = PixelSpec(base_srgb=(150, 150, 150), specular=0.3, smoothness=0.9, **FLAT)
+    assert spec.phong_exponent > 10000
+    vp = Viewpoint(170, 2, 0)
+    m = renderer.characteristic(DisplaySpec(spec), uniform_lighting(1.0), vp, [0.0],
+                                RenderSettings(samples=1024, replicates=8))
+    cos_o = vp.h_cm / 100 / math.hypot(vp.h_cm / 100, vp.d_m)
+    expected = 0.7 * srgb_to_linear((150, 150, 150)) + 0.3 * cos_o
+    np.testing.assert_allclose(m.rgb_linear[0], expected, rtol=0.01)
+    diffuse_only = renderer.characteristic(
+        DisplaySpec(PixelSpec(base_srgb=(150, 150, 150), **FLAT)), uniform_lighting(1.0), vp,
+        [0.0], RenderSettings(samples=256, replicates=4))
+    assert np.all(m.rgb_linear[0] > diffuse_only.rgb_linear[0])
