@@ -51,6 +51,10 @@ def _light_options(f):
                      "the u = atan2(y, x) convention."),
         click.option("--splay", type=float, default=0.0, show_default=True,
                      help="Outward lean of the green blades at full length (deg)."),
+        click.option("--specular", type=float, default=0.0, show_default=True,
+                     help="Glossy reflectance added to every surface (0 = diffuse only)."),
+        click.option("--smoothness", type=float, default=0.5, show_default=True,
+                     help="Sharpness of the glossy lobe (0..0.97, Unity-style)."),
         click.option("--bounces", type=int, default=3, show_default=True,
                      help="Surface interactions per path."),
         click.option("--seed", type=int, default=0, show_default=True),
@@ -147,7 +151,8 @@ def _plot(path: Path, curves) -> None:
               help="PNG of the first viewpoint's view at the longest length.")
 @click.pass_context
 def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, site, when, sun_from_hdri,
-             rotation, flip, splay, bounces, seed, views, lengths, samples, replicates,
+             rotation, flip, splay, specular, smoothness, bounces, seed, views, lengths,
+             samples, replicates,
              target_stderr, light_samples, arch, json_out, plot_out, preview_out):
     """Simulate the grass colour characteristic (OGCD vs green length) per viewpoint."""
     if ctx.invoked_subcommand is not None:
@@ -161,7 +166,7 @@ def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, site, when, su
     length_mm = parse_lengths(lengths)
     settings = RenderSettings(samples=samples, replicates=replicates, max_bounces=bounces,
                               seed=seed, light_samples=light_samples)
-    display = DisplaySpec(PixelSpec(splay_deg=splay))
+    display = DisplaySpec(PixelSpec(splay_deg=splay, specular=specular, smoothness=smoothness))
     lighting = _lighting(hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri,
                          rotation, flip, site, when)
     for note in lighting.notes:
@@ -224,7 +229,8 @@ def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, site, when, su
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
               required=True)
 def export_scene_cmd(hdri, lux, sun_lux, sun_azimuth, sun_elevation, site, when, sun_from_hdri,
-                     rotation, flip, splay, bounces, seed, length_mm, views, out_dir):
+                     rotation, flip, splay, specular, smoothness, bounces, seed, length_mm,
+                     views, out_dir):
     """Write the exact traced scene (PLY meshes, env.exr, scene.json) for other renderers."""
     _require(hdri=hdri, lux=lux)
     from grassd.sim.export import export_scene
@@ -232,6 +238,7 @@ def export_scene_cmd(hdri, lux, sun_lux, sun_azimuth, sun_elevation, site, when,
 
     lighting = _lighting(hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri,
                          rotation, flip, site, when)
-    doc = export_scene(out_dir, DisplaySpec(PixelSpec(splay_deg=splay)), lighting, views[0],
-                       length_mm, settings=RenderSettings(max_bounces=bounces, seed=seed))
+    display = DisplaySpec(PixelSpec(splay_deg=splay, specular=specular, smoothness=smoothness))
+    doc = export_scene(out_dir, display, lighting, views[0], length_mm,
+                       settings=RenderSettings(max_bounces=bounces, seed=seed))
     click.echo(f"wrote {out_dir}/scene.json with {len(doc['meshes'])} meshes and env.exr")
