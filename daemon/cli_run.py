@@ -127,32 +127,32 @@ def _fmt_time(t: float | None) -> str:
     return _dt.datetime.fromtimestamp(t).strftime("%Y-%m-%d %H:%M:%S")
 
 
-def _print_status(st: dict) -> None:
-    click.echo(f"daemon: {'running, pid ' + str(st['pid']) if st.get('running') else 'not running'}"
+def _print_status(st: dict, echo=click.echo) -> None:
+    echo(f"daemon: {'running, pid ' + str(st['pid']) if st.get('running') else 'not running'}"
                + (f" ({st['activity']})" if st.get("activity") else ""))
-    click.echo(f"health: {st['health']}")
+    echo(f"health: {st['health']}")
     d = st.get("desired_table")
-    click.echo("current table: " + (f"{d['table_id']} (crc {d['table_crc']:#010x})" if d
+    echo("current table: " + (f"{d['table_id']} (crc {d['table_crc']:#010x})" if d
                                     else "none"))
     if st.get("inbox"):
-        click.echo("bundles: " + ", ".join(f"{k} {v}" for k, v in st["inbox"].items()))
+        echo("bundles: " + ", ".join(f"{k} {v}" for k, v in st["inbox"].items()))
     if st.get("reload_error"):
-        click.echo(f"last reload refused: {st['reload_error']}")
-    click.echo("controllers:")
+        echo(f"last reload refused: {st['reload_error']}")
+    echo("controllers:")
     for c in st["controllers"]:
         state = "in sync" if c["in_sync"] else ("unreachable" if not c["reachable"]
                                                  else "out of sync")
         tid = "-" if c["table_id"] is None else str(c["table_id"])
         err = f"  ({c['error']})" if c["error"] and not c["in_sync"] else ""
-        click.echo(f"  {c['name']}: table {tid}, {state}{err}")
-    click.echo("last runs:")
+        echo(f"  {c['name']}: table {tid}, {state}{err}")
+    echo("last runs:")
     for r in st["runs"]:
         extra = (f"R^2 {r['r2']:.4f}, max dev {r['max_dev_de00']:.2f} dE00"
                  if r["status"] == "ok" and r["r2"] is not None else (r["error"] or ""))
-        click.echo(f"  #{r['id']} {_fmt_time(r['started_at'])} {r['trigger']:8s} "
+        echo(f"  #{r['id']} {_fmt_time(r['started_at'])} {r['trigger']:8s} "
                    f"{r['status']:8s} {extra}")
         if r.get("report") and r["status"] == "ok":
-            click.echo(f"      report {r['report']}  plot {r['plot']}")
+            echo(f"      report {r['report']}  plot {r['plot']}")
 
 
 @click.command("status")

@@ -383,3 +383,19 @@ def test_one_shot_calibrate_without_daemon(tmp_path):
         assert "daemon: not running" in r.stdout and "health: ok" in r.stdout
     finally:
         hw.stop()
+
+
+def test_demo_runs_the_whole_daemon(tmp_path, monkeypatch):
+    """`make demo`'s daemon part: embedded default config on simulated hardware."""
+    from grassd.daemon.demo_daemon import run_demo
+
+    monkeypatch.setenv("GRASSD_CACHE_DIR", CACHE)
+    lines: list[str] = []
+    st = run_demo(tmp_path, echo=lines.append, timeout_s=300)
+    assert st["health"] == "ok" and st["run_counts"]["ok"] == 1
+    assert all(c["in_sync"] for c in st["controllers"]) and len(st["controllers"]) == 2
+    run = st["runs"][0]
+    assert run["lux_source"] == "modbus" and run["lux"] == pytest.approx(5000.0)
+    assert Path(run["report"]).is_file() and Path(run["plot"]).is_file()
+    assert any(line.startswith("report: ") for line in lines)
+    assert not (tmp_path / "state" / "control.sock").exists()  # daemon stopped cleanly
