@@ -1,0 +1,191 @@
+"""The service in-process (real renderer, SQLite, simulated controllers on ptys, Modbus sensor):
+interrupted runs, scheduled runs, reload rules, request handling."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from importlib import resources
+from pathlib import Path
+
+import pytest
+
+from grassd.daemon.config import load_config, load_default_config
+from grassd.daemon.service import Service
+from grassd.daemon.sim_hardware import SimulatedHardware
+from grassd.firmware_proto.client import RetryPolicy
+
+ROOT = Path(__file__).resolve().parents[1]
+CACHE = os.environ.get("GRASSD_CACHE_DIR", str(ROOT / ".venv" / "grassd-cache"))
+SITE = Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
+
+
+def write_config(path: Path, state: Path, cfg, extra: str = "", interval: float = 0) -> Path:
+    ctrls = "".join(f'[[controllers]]\nport = "{c.port}"\naddress = {c.address}\n'
+                    f'pixels = "{c.pixels[0][0]}-{c.pixels[0][1]}"\n' for c in cfg.controllers)
+    path.write_text(f"""state_dir = "{state}"
+cache_dir = "{CACHE}"
+[site]
+latitude = 52.0
+longitude = 13.0
+[display]
+rows = 4
+cols = 8
+{ctrls}
+[[viewpoints]]
+h_cm = 170
+d_m = 2
+[[viewpoints]]
+h_cm = 165
+d_m = 3
+theta_deg = 20
+[light]
+inbox = "inbox"
+lux = "modbus"
+settle_s = 0
+[light.modbus]
+port = {cfg.light.modbus.port}
+words = 2
+scale = 0.1
+timeout_s = 0.5
+retries = 0
+[schedule]
+interval_s = {interval}
+[simulation]
+samples = 64
+lengths = 6
+[calibration]
+check_levels = 5
+max_rounds = 1
+replicates = 2
+max_jump_mm = 20.0
+{extra}""")
+    return path
+
+
+def drop(inbox: Path, name: str, lux: float | None = 1000.0) -> None:
+    d = inbox / f".{name}"
+    d.mkdir(parents=True)
+    shutil.copy(SITE, d / "sky.exr")
+    m = f'timestamp = 2026-03-01T12:00:00+01:00\nhdri = "sky.exr"\n# {name}\n'
+    if lux is not None:
+        m += f"ambient_lux = {lux}\n"
+    (d / "manifest.toml").write_text(m)
+    os.rename(d, inbox / name)
+
+
+@pytest.fixture
+def hw(tmp_path):
+    sim = SimulatedHardware(load_default_config(), tmp_path / "hw", lux=2500.0)
+    cfg = sim.start()
+    yield sim, cfg
+    sim.stop()
+
+
+def service(path: Path) -> Service:
+    policy = RetryPolicy(timeout_s=0.1, retries=1, restarts=1, readback_retries=2)
+    svc = Service(load_config(path), config_path=path, policy=policy)
+    from grassd.daemon.calibrate import init_backend
+
+    init_backend(svc.cfg)
+    return svc
+
+
+def test_interrupted_run_is_retried_after_restart(tmp_path, hw):
+    _, cfg = hw
+    conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg)
+    svc = service(conf)
+    drop(svc.cfg.light.inbox, "b1")
+    [b] = svc.inbox.poll()
+
+    def stop_on_second_viewpoint(text: str) -> None:
+        if "viewpoint 2/2" in text:
+            svc.stop_event.set()
+
+    orig = svc._progress
+    svc._progress = lambda text: (orig(text), stop_on_second_viewpoint(text))
+    out = svc.process_bundle(b)
+    assert out["status"] == "interrupted"
+    assert svc.history.run(out["run_id"]).status == "failed"
+    assert svc.history.journal_get(b.hash).attempts == 0  # a clean stop does not count
+    assert (svc.inbox.processing / b.id).is_dir()
+    svc.shutdown()
+    svc2 = service(conf)
+    [again] = svc2.inbox.recover()
+    assert again.hash == b.hash
+    out2 = svc2.process_bundle(again)
+    assert out2["status"] == "ok" and [c["ok"] for c in out2["controllers"]] == [True, True]
+    assert svc2.history.journal_get(b.hash).state == "archived"
+    assert svc2.history.run_count("ok") == 1
+    svc2.shutdown()
+
+
+def test_all_controllers_down_commits_then_reconciles(tmp_path, hw):
+    sim, cfg = hw
+    conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg)
+    svc = service(conf)
+    for bus in sim.buses:
+        bus.unplug(down_s=1.5)
+    drop(svc.cfg.light.inbox, "b")
+    [b] = svc.inbox.poll()
+    out = svc.process_bundle(b)
+    assert out["status"] == "ok" and not any(c["ok"] for c in out["controllers"])
+    assert svc.history.current_table().id == out["run_id"]  # desired even though not pushed
+    import time
+
+    deadline = time.monotonic() + 15
+    while time.monotonic() < deadline:
+        reports = svc.reconcile()
+        if reports and all(r.ok for r in reports):
+            break
+        time.sleep(0.3)
+    assert all(r.ok and r.pushed for r in reports)
+    from grassd.daemon.service import collect_status
+
+    assert collect_status(svc.history, svc.cfg)["health"] == "ok"
+    svc.shutdown()
+
+
+def test_scheduled_run_uses_last_bundle_and_sensor(tmp_path, hw):
+    sim, cfg = hw
+    conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg, interval=0.5)
+    svc = service(conf)
+    out = svc.scheduled_run("interval")  # no bundle yet: embedded default site + sensor lux
+    assert out["status"] == "ok"
+    r = svc.history.run(out["run_id"])
+    assert (r.lux, r.lux_source, r.input_hashes) == (2500.0, "modbus",
+                                                     {"hdri": "embedded default_site.exr"})
+    drop(svc.cfg.light.inbox, "b", lux=700.0)
+    svc.tick()  # processes the bundle (manifest lux wins)
+    assert svc.history.runs(1)[0].lux == 700.0
+    sim.sensor.lux = 1234.5
+    svc.last_run_at -= 1.0  # interval elapsed
+    svc.tick()
+    last = svc.history.runs(1)[0]
+    assert last.trigger == "interval" and last.lux == 1234.5 and last.lux_source == "modbus"
+    assert set(last.input_hashes) == {"bundle"}
+    sim.sensor.silent = True
+    svc.last_run_at -= 1.0
+    svc.tick()  # sensor silent: the scheduled run is skipped, nothing breaks
+    sim.sensor.silent = False
+    assert svc.history.runs(1)[0].id == last.id
+    svc.shutdown()
+
+
+def test_reload_rules(tmp_path, hw):
+    _, cfg = hw
+    conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg)
+    svc = service(conf)
+    good = conf.read_text()
+    conf.write_text(good.replace("samples = 64", "samples = -1"))
+    assert svc.reload() is False and "simulation.samples" in svc.reload_error
+    assert svc.cfg.simulation.samples == 64
+    conf.write_text(good.replace("samples = 64", "samples = 36").replace(
+        f'state_dir = "{tmp_path / "state"}"', f'state_dir = "{tmp_path / "elsewhere"}"'))
+    assert svc.reload() is True and svc.reload_error is None
+    assert svc.cfg.simulation.samples == 36
+    assert svc.cfg.state_dir == tmp_path / "state"  # needs a restart: kept
+    assert svc.handle_request({"cmd": "nope"})["ok"] is False
+    assert svc.handle_request({"cmd": "ping"})["pid"] == os.getpid()
+    svc.shutdown()
+
