@@ -87,7 +87,7 @@ class Service:
 
     def __init__(self, cfg: Config, *, config_path: str | os.PathLike[str] | None = None,
                  notifier: Notifier | None = None, tick_s: float = 1.0,
-                 reconcile_s: float = 2.0, stall_s: float = 120.0,
+                 reconcile_s: float = 2.0, stall_s: float = 300.0,
                  policy: RetryPolicy | None = None, transform=None) -> None:
         self.cfg = cfg
         self.config_path = Path(config_path) if config_path else None

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -263,3 +264,30 @@ def test_sigkill_mid_run_loses_nothing(tmp_path):
     assert len(ok) == 3 and len({r.bundle_hash for r in ok}) == 3  # each bundle ran OK once
     assert sorted(p.name.split("-", 1)[1] for p in (state / "archive").iterdir()) == ["p", "q", "r"]
     assert list((state / "processing").iterdir()) == []
+
+
+def test_inbox_on_another_file_system(tmp_path):
+    """rename(2) fails with EXDEV across file systems: the bundle is copied, synced, renamed."""
+    import tempfile
+
+    shm = Path("/dev/shm")
+    if not shm.is_dir() or os.stat(shm).st_dev == os.stat(tmp_path).st_dev:
+        pytest.skip("no second file system (/dev/shm) to put the inbox on")
+    other = Path(tempfile.mkdtemp(dir=shm))
+    try:
+        h = History(tmp_path / "state" / "s.db")
+        clock = Clock()
+        inbox = Inbox(other / "inbox", tmp_path / "state", h, settle_s=1.0, clock=clock)
+        make_dir_bundle(inbox.inbox, "far")
+        write_exr(inbox.inbox / "flat.exr", 2.0)
+        (inbox.inbox / "flat.manifest.toml").write_text(MANIFEST.replace("sky.exr", "flat.exr"))
+        got = sorted(settle(inbox, clock), key=lambda b: b.name)
+        assert [b.name for b in got] == ["far", "flat"]
+        assert list(inbox.inbox.iterdir()) == []
+        for b in got:
+            assert os.stat(b.dir).st_dev == os.stat(tmp_path).st_dev
+            assert b.manifest.hdri.is_file()
+        assert not list(inbox.processing.glob(".*"))  # no temporary copies left
+        h.close()
+    finally:
+        shutil.rmtree(other, ignore_errors=True)

@@ -29,7 +29,7 @@ def _unit_copy(tmp_path: Path, text: str | None = None) -> Path:
 
 
 def _verify(path: Path) -> subprocess.CompletedProcess:
-    return subprocess.run(["systemd-analyze", "verify", "--man=no", str(path)],
+    return subprocess.run(["systemd-analyze", "verify", str(path)],
                           capture_output=True, text=True, cwd=path.parent)
 
 
