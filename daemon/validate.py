@@ -425,10 +425,14 @@ def _check_inside(corners: Sequence[Sequence[float]], shape: tuple[int, ...], pa
 
 def checker_white_balance(path: Path, corners: Sequence[Sequence[float]],
                           chart: ReferenceChart) -> tuple[float, float, float, float]:
-    """LibRaw channel multipliers (R, G, B, G2) that make the checker's grey patch neutral.
+    """LibRaw channel multipliers (R, G, B, G2) that develop the checker's grey patch to the
+    chromaticity of its reference colour (a grey card is nearly, not exactly, neutral).
 
-    Measured on the undeveloped Bayer data: the black-subtracted mean of each colour filter
-    inside the grey patch; multiplier = mean green / mean of the channel.
+    Measured on the undeveloped Bayer data: ``c`` = the black-subtracted mean of each colour
+    filter inside the grey patch. LibRaw develops ``out = rgb_cam . diag(wb) . c`` (then a fixed
+    sRGB -> ProPhoto matrix), so ``wb = (rgb_cam^-1 . t) / c`` with ``t`` the reference grey in
+    linear sRGB; normalised to green = 1. Where LibRaw reports no colour matrix the grey is
+    made neutral (``wb = mean green / c``).
     """
     import rawpy  # noqa: PLC0415
 
@@ -438,13 +442,14 @@ def checker_white_balance(path: Path, corners: Sequence[Sequence[float]],
         black = np.asarray(raw.black_level_per_channel, dtype=np.float64)
         white = float(raw.white_level)
         desc = raw.color_desc.decode(errors="replace")
+        rgb_cam = np.asarray(raw.color_matrix, dtype=np.float64)[:, :3]
     _check_inside(corners, img.shape, path, "checker")
-    if set(desc) - set("RGB"):
-        raise ValidateError(f"{path.name}: colour filters {desc!r} are not R/G/B; white balance "
-                            "from the checker needs an RGB Bayer sensor")
+    if len(desc) not in (3, 4) or set(desc[:3]) != set("RGB") or set(desc) - set("RGB"):
+        raise ValidateError(f"{path.name}: colour filters {desc!r} are not an R/G/B Bayer "
+                            "sensor; white balance from the checker needs one")
     quad = checker_patch_quads(corners)[chart.grey_index()]
     mask = quad_mask(img.shape, quad)
-    means = np.zeros(4)
+    means = np.zeros(len(desc))
     for c in range(len(desc)):
         sel = mask & (colours == c)
         if not sel.any():
@@ -454,15 +459,21 @@ def checker_white_balance(path: Path, corners: Sequence[Sequence[float]],
             raise ValidateError(f"{path.name}: the checker's grey patch is clipped (raw values at "
                                 f"the white level {white:g}); lower the exposure")
         means[c] = img[sel].mean() - black[c]
-    greens = [means[c] for c in range(len(desc)) if desc[c] == "G"]
-    if min(means[: len(desc)]) <= 0 or not greens:
+    if means.min() <= 0:
         raise ValidateError(f"{path.name}: the checker's grey patch reads no light above black "
-                            f"({means[:len(desc)].round(1).tolist()}); check the corners")
-    g = float(np.mean(greens))
-    mult = [g / means[c] for c in range(len(desc))] + [0.0] * (4 - len(desc))
-    if len(desc) == 3:
-        mult[3] = mult[1]
-    return tuple(mult)  # type: ignore[return-value]
+                            f"({means.round(1).tolist()}); check the checker corners")
+    index = {ch: [c for c in range(len(desc)) if desc[c] == ch] for ch in "RGB"}
+    target = np.ones(3)
+    if np.isfinite(rgb_cam).all() and abs(np.linalg.det(rgb_cam)) > 1e-9:
+        grey_srgb = prophoto_to_rec709(chart.prophoto()[chart.grey_index()])
+        target = np.linalg.solve(rgb_cam, grey_srgb)
+        if (target <= 0).any():
+            target = np.ones(3)
+    per = {ch: target["RGB".index(ch)] for ch in "RGB"}
+    mult = np.array([per[desc[c]] / means[c] for c in range(len(desc))])
+    mult = mult / np.mean([mult[c] for c in index["G"]])
+    wb = [float(v) for v in mult] + ([float(mult[index["G"][0]])] if len(desc) == 3 else [])
+    return tuple(wb)  # type: ignore[return-value]
 
 
 @dataclass(frozen=True)

@@ -43,8 +43,8 @@ CHART_LAYOUT: NDArray[np.float64] = np.array(
 CHART_BODY_ALBEDO: float = 0.03
 
 
-def checker_scene(chart: ReferenceChart, white_rgb709: Sequence[float], width: int = 192,
-                  height: int = 128) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def checker_scene(chart: ReferenceChart, white_rgb709: Sequence[float], width: int = 384,
+                  height: int = 256) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Radiance image (height, width, 3) of a colour checker lying flat at the display, and the
     (4, 2) image corners of its patch area (TL, TR, BR, BL; pixels (x, y)).
 
@@ -74,7 +74,8 @@ def capture_world(out_dir: str | Path, light: LightSpec,
                   camera: VirtualCamera | None = None, renderer: Any = None,
                   lighting: Any = None, width: int = 160, spp: int = 32, max_bounces: int = 3,
                   seed: int = 0, chart: str = "spydercheckr-24",
-                  progress: Callable[[str], None] | None = None) -> CaptureManifest:
+                  progress: Callable[[str], None] | None = None,
+                  cache: dict | None = None) -> CaptureManifest:
     """Photograph ``real_pixel`` (a :class:`grassd.sim.scene.PixelSpec`; default the model's)
     under ``light`` from every viewpoint (h cm, d m, theta deg) at every length (mm) into DNGs
     in ``out_dir`` and write ``capture.toml``; returns the manifest.
@@ -82,7 +83,9 @@ def capture_world(out_dir: str | Path, light: LightSpec,
     ``model_pixel``: the PixelSpec fields the manifest gives the simulation (default: none,
     i.e. the default PixelSpec). ``width``/``spp``: preview resolution and samples per pixel.
     The first viewpoint is marked the reference. Exposure is fixed for the session from the
-    white-card radiance, as a photographer would set it.
+    white-card radiance, as a photographer would set it. ``cache``: a dict that keeps the
+    rendered views (keyed by everything they depend on but the lighting, so use one cache per
+    lighting), to photograph one world with several cameras without rendering it again.
     """
     from grassd.daemon.simulation import white_radiance  # noqa: PLC0415
     from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint  # noqa: PLC0415
@@ -104,7 +107,7 @@ def capture_world(out_dir: str | Path, light: LightSpec,
     white = white_radiance(lighting)
     k = camera.exposure_for(white)
     ref_chart = get_chart(chart)
-    img, chart_corners = checker_scene(ref_chart, white)
+    img, chart_corners = checker_scene(ref_chart, white, 384, 256)
     checker = camera.photograph(out / "checker.dng", img, white, electrons_per_unit=k,
                                 seed=seed)
     display = DisplaySpec(real_pixel)
@@ -116,8 +119,14 @@ def capture_world(out_dir: str | Path, light: LightSpec,
         for x in lengths_mm:
             if progress:
                 progress(f"photographing ({vp[0]:g}, {vp[1]:g}, {vp[2]:g}) at {x:g} mm")
-            view, quad = renderer.preview(display, lighting, Viewpoint(*vp), float(x),
-                                          width=width, spp=spp, settings=settings)
+            key = (real_pixel, tuple(vp), float(x), width, spp, max_bounces, seed)
+            if cache is not None and key in cache:
+                view, quad = cache[key]
+            else:
+                view, quad = renderer.preview(display, lighting, Viewpoint(*vp), float(x),
+                                              width=width, spp=spp, settings=settings)
+                if cache is not None:
+                    cache[key] = (view, quad)
             path = camera.photograph(out / f"v{i:02d}_{x:05.2f}mm.dng", view, white,
                                      electrons_per_unit=k, seed=seed + shot)
             shot += 1
