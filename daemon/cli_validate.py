@@ -52,7 +52,7 @@ def validate(capture, samples, replicates, target_stderr, seed, arch, json_out, 
 
     manifest = load_manifest(capture)
     settings = RenderSettings(samples=samples, replicates=replicates, seed=seed)
-    result = validate_capture(manifest, renderer=_renderer(arch), settings=settings,
+    result = validate_capture(manifest, settings=settings, arch=arch,
                               target_stderr=target_stderr,
                               progress=None if quiet else _progress)
     from grassd.daemon.experiment import format_table  # noqa: PLC0415

@@ -304,7 +304,7 @@ def load_manifest(path: str | Path) -> CaptureManifest:
     _keys(ck, {"photo", "corners"}, "[checker]", p)
     checker = _file(root, ck.get("photo"), "checker.photo", p)
     checker_corners = _corners(ck.get("corners"), "checker.corners", p)
-    pixel = dict(data.get("pixel", {}))
+    pixel = {k: tuple(v) if isinstance(v, list) else v for k, v in data.get("pixel", {}).items()}
     from grassd.sim.scene import PixelSpec  # noqa: PLC0415
 
     _keys(pixel, set(PixelSpec.__dataclass_fields__), "[pixel]", p)
@@ -695,10 +695,12 @@ class ValidationResult:
 
 def validate_capture(m: CaptureManifest, *, renderer: Any = None, settings: Any = None,
                      target_stderr: float | None = None, lighting: Any = None,
+                     arch: str = "cpu",
                      progress: Callable[[str], None] | None = None) -> ValidationResult:
     """Measure the real characteristic of a capture, simulate the same scene, compare.
 
-    ``renderer``: a :class:`grassd.sim.renderer.Renderer` (created on the CPU backend if None);
+    ``renderer``: a :class:`grassd.sim.renderer.Renderer` (if None, one is created on backend
+    ``arch`` after the photos were measured, so bad captures fail fast);
     ``settings``: :class:`grassd.sim.scene.RenderSettings`; ``lighting``: a prebuilt Lighting of
     ``m.light`` (built here if None).
     """
@@ -719,7 +721,7 @@ def validate_capture(m: CaptureManifest, *, renderer: Any = None, settings: Any 
         from grassd.sim import backend  # noqa: PLC0415
 
         if not backend.is_initialised():
-            backend.init("cpu")
+            backend.init(arch)
         from grassd.sim.renderer import Renderer  # noqa: PLC0415
 
         renderer = Renderer()

@@ -94,7 +94,8 @@ def capture_world(out_dir: str | Path, light: LightSpec,
     out.mkdir(parents=True, exist_ok=True)
     camera = camera or VirtualCamera()
     lighting = lighting if lighting is not None else light.build()
-    model_pixel = dict(model_pixel or {})
+    model_pixel = {k: tuple(v) if isinstance(v, list) else v
+                   for k, v in (model_pixel or {}).items()}
     real_pixel = real_pixel if real_pixel is not None else PixelSpec(**model_pixel)
     if renderer is None:
         from grassd.sim import backend  # noqa: PLC0415
