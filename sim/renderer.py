@@ -168,6 +168,7 @@ class Renderer:
         f[3], f[4] = float(sc.z_range[0]), float(sc.z_range[1])
         f[5], f[6], f[7], f[8] = sc.taper_m, sc.tip_ratio, sc.splay_rad, sc.green_max_m
         f[16], f[17] = sc.specular, sc.phong_exponent
+        f[9] = float(np.max(sc.blade_params[:, 1], initial=0.0))  # tallest fixed blade [m]
         i = self.ipar
         i[0], i[1], i[2], i[3] = nb, nr, nx, ny
 
@@ -322,7 +323,8 @@ class Renderer:
         gx0, gy0, cell = self.fpar[0], self.fpar[1], self.fpar[2]
         nx, ny = self.ipar[2], self.ipar[3]
         lo = vec3(gx0, gy0, self.fpar[3])
-        hi = vec3(gx0 + nx * cell, gy0 + ny * cell, self.fpar[4])
+        # Nothing rises above the taller of the yellow blades and the green length x.
+        hi = vec3(gx0 + nx * cell, gy0 + ny * cell, ti.max(self.fpar[9], x) + 1e-4)
         for k in ti.static(range(3)):  # clip to the scene's bounding box (slab method)
             if ti.abs(d[k]) < 1e-12:
                 if o[k] < lo[k] or o[k] > hi[k]:
