@@ -159,7 +159,7 @@ def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, site, when, su
         return
     _require(hdri=hdri, lux=lux, view=views)
     t0 = time.perf_counter()
-    from grassd.daemon.simulation import simulate_curves
+    from grassd.daemon.simulation import simulate_curves, white_radiance
     from grassd.sim import backend
     from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, parse_lengths
 
@@ -213,8 +213,7 @@ def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, site, when, su
         import matplotlib.pyplot as plt
 
         img, _quad = renderer.preview(display, lighting, views[0], float(length_mm[-1]))
-        white = np.asarray(lighting.horizontal_irradiance_rgb) / np.pi
-        srgb = np.clip(img / white, 0, 1) ** (1 / 2.2)
+        srgb = np.clip(img / white_radiance(lighting), 0, 1) ** (1 / 2.2)
         buf = io.BytesIO()
         plt.imsave(buf, srgb, format="png")
         atomic_write_bytes(preview_out, buf.getvalue())
