@@ -54,7 +54,7 @@ theta_deg = 30
 [light]
 inbox = "inbox"
 [simulation]
-samples = 256
+samples = 144
 seed = 3
 lengths = 9
 [calibration]
