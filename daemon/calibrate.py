@@ -11,8 +11,8 @@ service's job, :mod:`grassd.daemon.service`):
    with ``replicates`` independent Monte Carlo estimates (common random numbers across lengths).
 3. **Exposure**: renders are in nits; they are divided by the radiance of a perfect diffuse white
    lying flat at the display (horizontal irradiance / pi), so Y = 1 is reference white as CIELAB
-   expects and an 18 % grey card reads 0.18 (same convention as
-   :func:`grassd.calib.exposure.normalise_exposure`).
+   expects and an 18 % grey card reads 0.18 (the convention of ``grassd simulate``:
+   :func:`grassd.daemon.simulation.simulate_curve` does the rendering and OGCD here too).
 4. **Colour correction** (paper, section 5.2): with a colour-checker RAW in the bundle, the
    virtual patches are the chart's reference reflectances lit by the same horizontal
    irradiance (a flat chart at the display), the real ones the developed RAW's patches; both are
@@ -36,7 +36,6 @@ service's job, :mod:`grassd.daemon.service`):
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from collections.abc import Callable
@@ -54,10 +53,10 @@ from grassd.calib.charts import get_chart
 from grassd.calib.colour_spaces import prophoto_to_xyz, rec709_to_prophoto, xyz_to_rec709
 from grassd.calib.exposure import normalise_exposure
 from grassd.calib.length_table import LEVELS, LengthTable, build_length_table, r_squared
-from grassd.calib.ogcd import ogcd_from_samples
 from grassd.calib.raw import develop_raw
 from grassd.daemon.config import Config, ViewpointConfig
 from grassd.daemon.errors import CalibrationRejected, RunInterrupted
+from grassd.daemon.simulation import simulate_curve, white_radiance
 
 log = logging.getLogger(__name__)
 
@@ -325,8 +324,9 @@ class Calibrator:
         return spec, (rows // 2) * cols + cols // 2
 
     def white_radiance(self, lighting: Any) -> NDArray[np.float64]:
-        """Rec.709 radiance (nits) of a perfect diffuse white lying flat at the display."""
-        return np.asarray(lighting.horizontal_irradiance_rgb, float) / math.pi
+        """Rec.709 radiance (nits) of a perfect diffuse white lying flat at the display (the
+        white reference shared with ``grassd simulate``, :mod:`grassd.daemon.simulation`)."""
+        return white_radiance(lighting)
 
     def fit_checker_ccm(self, light: LightInput, lighting: Any) -> ColourCorrection:
         """3x3 CCM from the bundle's checker RAW (see module docstring, step 4)."""
@@ -346,7 +346,6 @@ class Calibrator:
         from grassd.sim.scene import RenderSettings, Viewpoint  # noqa: PLC0415
 
         display, centre = self.display()
-        white = self.white_radiance(lighting)
         settings = RenderSettings(samples=self.cfg.simulation.samples,
                                   replicates=self.cfg.calibration.replicates, seed=seed)
         curves = []
@@ -357,14 +356,12 @@ class Calibrator:
                 progress(f"simulating viewpoint {i + 1}/{len(self.cfg.viewpoints)} "
                          f"({vp.h_cm:g}, {vp.d_m:g}, {vp.theta_deg:g})")
             t0 = time.perf_counter()
-            m = _renderer().characteristic(display, lighting,
-                                           Viewpoint(vp.h_cm, vp.d_m, vp.theta_deg),
-                                           np.asarray(lengths_mm, float), settings,
-                                           pixel_index=centre)
-            reps = np.clip(m.rgb_replicates / white, 0.0, None)  # (R, n, 3), Y(white) = 1
-            res = ogcd_from_samples(reps, space="rec709", ccm=ccm)
-            curves.append(ViewpointCurve(vp, np.asarray(lengths_mm, float), res.ogcd,
-                                         res.ogcd_stderr, time.perf_counter() - t0))
+            c = simulate_curve(_renderer(), display, lighting,
+                               Viewpoint(vp.h_cm, vp.d_m, vp.theta_deg),
+                               np.asarray(lengths_mm, float), settings, ccm=ccm,
+                               pixel_index=centre)
+            curves.append(ViewpointCurve(vp, np.asarray(lengths_mm, float), c.ogcd,
+                                         c.ogcd_stderr, time.perf_counter() - t0))
         return curves
 
     @staticmethod
