@@ -465,13 +465,17 @@ def collect_status(history: History, cfg: Config, runs: int = 5) -> dict[str, An
     desired = None if cur is None else {"table_id": cur.table_id, "table_crc": cur.table_crc,
                                         "run_id": cur.id}
     ctrls = {c.name: c for c in history.controllers()}
+    wanted = [(c.name, c.port, c.address) for c in cfg.controllers]
+    if ctrls and not any(name in ctrls for name, _, _ in wanted):
+        # names differ (e.g. the daemon ran with --simulate-hardware): show what it recorded
+        wanted = [(n, n.rsplit("#", 1)[0], int(n.rsplit("#", 1)[1])) for n in ctrls]
     controllers = []
-    for c in cfg.controllers:
-        s = ctrls.get(c.name)
+    for name, port, address in wanted:
+        s = ctrls.get(name)
         in_sync = bool(s and cur and s.reachable and s.reported_id == cur.table_id
                        and s.reported_crc == cur.table_crc)
         controllers.append({
-            "name": c.name, "port": c.port, "address": c.address,
+            "name": name, "port": port, "address": address,
             "reachable": bool(s and s.reachable),
             "table_id": s.reported_id if s else None, "table_crc": s.reported_crc if s else None,
             "in_sync": in_sync, "last_seen": s.last_seen if s else None,
