@@ -286,6 +286,20 @@ def calibration_rows(result: ExperimentResult) -> list[list[str]]:
                    f"{PAPER['r2_after_sim']:.3f}"]]
 
 
+COMPARE_HEADERS = ["method", "Frechet at (170, 2, 0)", "time per viewpoint"]
+
+
+def comparison_rows(result: ExperimentResult) -> list[list[str]]:
+    """The paper's comparative experiment: our Frechet distance and time beside the paper's
+    real-time method and the offline-rendering method it compares with."""
+    return [["grassd (stand-in real)", f"{result.reference.frechet:.2f}",
+             f"{result.sim_seconds_per_viewpoint():.2f} s"],
+            ["paper (Unity HDRP, real-time)", f"{PAPER['viewpoints'][REFERENCE]['frechet']:.2f}",
+             f"about {PAPER['seconds_per_viewpoint']:g} s"],
+            ["offline rendering + GA (Mizuno et al.)", f"{PAPER['offline_method_frechet']:.2f}",
+             f"about {PAPER['offline_method_hours']:g} h"]]
+
+
 def format_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     """Plain-text table with right-aligned columns."""
     widths = [max(len(str(h)), *(len(str(r[i])) for r in rows)) for i, h in enumerate(headers)]
@@ -304,6 +318,9 @@ def text_report(result: ExperimentResult) -> str:
                   format_table(TIMING_HEADERS, timing_rows(result)), "",
                   f"8-bit calibration at {result.reference.label} (paper Figure 11)",
                   format_table(CAL_HEADERS, calibration_rows(result)), ""]
+    if result.viewpoints:
+        parts += ["Comparative experiment at (170, 2, 0) (paper section 4.3)",
+                  format_table(COMPARE_HEADERS, comparison_rows(result)), ""]
     if result.environments:
         parts += ["Multiple environments at (170, 2, 0) (paper section 4.2, Figure 9)",
                   format_table(ENV_HEADERS, environment_rows(result)), ""]
@@ -332,6 +349,8 @@ def experiment_html(result: ExperimentResult) -> str:
                               "grid of 16 viewpoints, real vs simulated")),
             ("Measurement times - paper Table 1", report.table(TIMING_HEADERS,
                                                                timing_rows(result))),
+            ("Comparative experiment at (170, 2, 0) - paper section 4.3",
+             report.table(COMPARE_HEADERS, comparison_rows(result))),
             (f"8-bit calibration at {result.reference.label} - paper Figure 11",
              report.table(CAL_HEADERS, calibration_rows(result))
              + (report.img_tag(report.figure_png(

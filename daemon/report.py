@@ -148,7 +148,9 @@ def grid_figure(viewpoints: Sequence[Any]) -> Any:
         ax.set_xlabel("length [mm]", fontsize=8)
     for row in axes:
         row[0].set_ylabel("OGCD", fontsize=8)
-    fig.tight_layout()
+    handles, labels = next(ax for ax in axes.ravel() if ax.axison).get_legend_handles_labels()
+    fig.tight_layout(rect=(0, 0, 1, 0.96))
+    fig.legend(handles, labels, loc="upper center", ncol=2, fontsize=8, frameon=False)
     return fig
 
 
