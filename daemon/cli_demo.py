@@ -23,6 +23,8 @@ Example model (numbers are plausible illustrations, not measurements):
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 import numpy as np
 from numpy.typing import NDArray
@@ -60,6 +62,18 @@ def example_pixel_rgb(lengths_mm: NDArray[np.float64]) -> NDArray[np.float64]:
 
 @click.command("demo")
 @click.option(
+    "--example-curve",
+    is_flag=True,
+    help="Only run the colour pipeline on the built-in synthetic characteristic (no daemon, "
+    "no renderer).",
+)
+@click.option(
+    "--workdir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Where the daemon demo keeps its state (default: a new temporary directory).",
+)
+@click.option(
     "--lengths",
     "n_lengths",
     default=21,
@@ -76,8 +90,22 @@ def example_pixel_rgb(lengths_mm: NDArray[np.float64]) -> NDArray[np.float64]:
 )
 @click.option("--seed", default=1, show_default=True, type=int, help="Noise seed.")
 @click.option("--full", is_flag=True, help="Print all 256 table entries.")
-def demo(n_lengths: int, noise: float, seed: int, full: bool) -> None:
-    """Run the colour pipeline on a built-in example characteristic and print the 8-bit table."""
+def demo(
+    example_curve: bool, workdir: Path | None, n_lengths: int, noise: float, seed: int, full: bool
+) -> None:
+    """The main job on the embedded default site, against simulated hardware.
+
+    Starts ``grassd run --simulate-hardware`` (two simulated controllers on pseudo-terminals, a
+    Modbus lux sensor on 127.0.0.1), drops a light bundle built from the bundled CC0 HDRI, waits
+    until the new table is active on every controller, then prints the status and where the
+    report and plot are. With ``--example-curve``: only the colour pipeline on a built-in
+    synthetic characteristic, printing the 8-bit table.
+    """
+    if not example_curve:
+        from grassd.daemon.demo_daemon import run_demo
+
+        run_demo(workdir, echo=click.echo)
+        return
     lengths = np.linspace(0.0, 20.0, n_lengths)
     rgb = example_pixel_rgb(lengths)
     stderr = None

@@ -35,7 +35,7 @@ def test_example_model_is_an_s_curve_between_two_albedos():
 
 
 def test_grassd_demo_prints_table_summary():
-    result = CliRunner().invoke(main, ["demo"])
+    result = CliRunner().invoke(main, ["demo", "--example-curve"])
     assert result.exit_code == 0, result.output
     out = result.output
     m = re.search(r"R\^2 before ([0-9.]+) -> after ([0-9.]+)", out)
@@ -47,7 +47,9 @@ def test_grassd_demo_prints_table_summary():
 
 
 def test_grassd_demo_with_noise_and_full_table():
-    result = CliRunner().invoke(main, ["demo", "--noise", "0.02", "--full", "--lengths", "41"])
+    result = CliRunner().invoke(
+        main, ["demo", "--example-curve", "--noise", "0.02", "--full", "--lengths", "41"]
+    )
     assert result.exit_code == 0, result.output
     entries = re.findall(r"(\d+): (\d+)", result.output.split("level -> length (um):")[1])
     assert len(entries) == 256
