@@ -2,30 +2,38 @@
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
-STAMP  := $(VENV)/.grassd-installed
 export GRASSD_CACHE_DIR ?= $(CURDIR)/.venv/grassd-cache
 
-.PHONY: setup demo test bench lint clean
+.PHONY: setup setup-test demo test bench lint clean
 
-$(STAMP): pyproject.toml
-	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+$(PY):
+	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
-	touch $(STAMP)
 
-setup: $(STAMP)
+# The project and its run-time dependencies.
+$(VENV)/.grassd-installed: pyproject.toml | $(PY)
+	$(PY) -m pip install --quiet -e .
+	touch $@
+
+# ... plus the test extra (pytest, hypothesis, mitsuba as the reference renderer, ...).
+$(VENV)/.grassd-test-installed: pyproject.toml | $(PY)
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $(VENV)/.grassd-installed $@
+
+setup: $(VENV)/.grassd-installed
+setup-test: $(VENV)/.grassd-test-installed
 
 demo: setup
 	$(VENV)/bin/grassd demo
 
-test: setup
+test: setup-test
 	$(PY) -m ruff check .
 	$(PY) -m pytest -q tests
 
-bench: setup
+bench: setup-test
 	$(PY) -m bench
 
-lint: setup
+lint: setup-test
 	$(PY) -m ruff check .
 
 clean:
