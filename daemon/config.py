@@ -19,6 +19,10 @@ The file (default ``/etc/grassd/grassd.toml``; the embedded default is
     [simulation]   samples, seed, lengths (count of evenly spaced lengths, or a list in mm)
     [calibration]  max_jump_mm, target_de00, max_rounds, check_levels, r2_goal,
                    max_flat_fraction, replicates (see CalibrationConfig)
+    [tables]       granularity = "global" | "controller" | "pixel", eye = "world" | "pixel",
+                   group_tolerance_deg, distance_tolerance, check_groups (see TablesConfig)
+    [audience]     optional region: polygon = [[x, y], ...] (m), h_cm = [low, high],
+                   ground_samples, height_samples, objective = "mean" | "worst"
 
 Relative paths are resolved against the directory of the config file, except ``light.inbox``
 which, when relative, lies inside ``state_dir``.
@@ -212,6 +216,39 @@ class CalibrationConfig:
 
 
 @dataclass(frozen=True)
+class TablesConfig:
+    """Whole-display tables (:mod:`grassd.daemon.display`).
+
+    ``granularity``: "global" (one table), "controller" (one per controller, its pixels' mean
+    characteristic) or "pixel"; ``eye``: "world" (a viewpoint is one spot relative to the
+    display centre, every pixel seen from its own direction) or "pixel" (each pixel seen from
+    the same relative viewpoint); pixels whose view directions differ by less than
+    ``group_tolerance_deg`` (deg) and distances by less than ``distance_tolerance`` (relative)
+    share one simulation; ``check_groups`` groups are re-simulated to report the grouping error.
+    """
+
+    granularity: str = "global"
+    eye: str = "world"
+    group_tolerance_deg: float = 1.0
+    distance_tolerance: float = 0.1
+    check_groups: int = 4
+
+
+@dataclass(frozen=True)
+class AudienceConfig:
+    """An audience region (:mod:`grassd.daemon.audience`): ground ``polygon`` of (x, y) metres
+    (display centre at the origin, +x east, +y north), eye heights ``h_cm`` = (low, high) cm,
+    sampled with about ``ground_samples`` points x ``height_samples`` heights; the table
+    minimises the ``objective`` ("mean" or "worst") deviation from linear OGCD."""
+
+    polygon: tuple[tuple[float, float], ...]
+    h_cm: tuple[float, float]
+    ground_samples: int = 16
+    height_samples: int = 2
+    objective: str = "mean"
+
+
+@dataclass(frozen=True)
 class Config:
     """The whole validated configuration. ``source`` is the file it came from."""
 
@@ -227,6 +264,8 @@ class Config:
     cache_dir: Path
     control_socket: Path
     source: str
+    tables: TablesConfig = TablesConfig()
+    audience: AudienceConfig | None = None
 
     def replace(self, **changes: Any) -> Config:
         """A copy with some fields replaced (dataclasses.replace)."""
@@ -514,6 +553,7 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         "site": _F(dict), "display": _F(dict), "controllers": _F(list),
         "viewpoints": _F(list), "light": _F(dict), "schedule": _F(dict, {}),
         "simulation": _F(dict, {}), "calibration": _F(dict, {}),
+        "tables": _F(dict, {}), "audience": _F(dict, None),
     })
 
     s = _table(ctx, ("site",), top["site"], {
@@ -655,6 +695,7 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         "replicates": _F(int, 8, _between(2, 64)),
     })
     calibration = CalibrationConfig(**ca)
+    tables, audience = _parse_tables_audience(ctx, top["tables"], top["audience"])
 
     env = os.environ
     if top["state_dir"] is not None:
@@ -687,7 +728,45 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
                   viewpoints=tuple(viewpoints), light=light, schedule=schedule,
                   simulation=simulation, calibration=calibration, state_dir=state_dir,
                   cache_dir=cache_dir,
-                  control_socket=sock, source=ctx.source)
+                  control_socket=sock, source=ctx.source, tables=tables, audience=audience)
+
+
+def _parse_tables_audience(ctx: _Ctx, tables_raw: Any, audience_raw: Any
+                           ) -> tuple[TablesConfig, AudienceConfig | None]:
+    """``[tables]`` and the optional ``[audience]`` region (see their dataclasses)."""
+    t = _table(ctx, ("tables",), tables_raw, {
+        "granularity": _F(str, "global", _one_of("global", "controller", "pixel")),
+        "eye": _F(str, "world", _one_of("world", "pixel")),
+        "group_tolerance_deg": _F(float, 1.0, _between(0.0, 90.0, " degrees")),
+        "distance_tolerance": _F(float, 0.1, _between(1e-3, 10.0)),
+        "check_groups": _F(int, 4, _between(-1, 4096)),
+    })
+    if audience_raw is None:
+        return TablesConfig(**t), None
+
+    def polygon_check(v: list) -> str | None:
+        ok = len(v) >= 3 and all(isinstance(p, list) and _numbers(2)(p) is None for p in v)
+        return None if ok else "must be an array of at least 3 [x, y] points in metres"
+
+    a = _table(ctx, ("audience",), audience_raw, {
+        "polygon": _F(list, check=polygon_check), "h_cm": _F(list, check=_numbers(2)),
+        "ground_samples": _F(int, 16, _between(1, 10000)),
+        "height_samples": _F(int, 2, _between(1, 100)),
+        "objective": _F(str, "mean", _one_of("mean", "worst")),
+    })
+    lo, hi = (float(x) for x in a["h_cm"])
+    if not 10 <= lo <= hi <= 1000:
+        raise ctx.error(("audience", "h_cm"), f"must be [low, high] with 10 <= low <= high <= "
+                        f"1000 cm, got {a['h_cm']}")
+    poly = tuple((float(x), float(y)) for x, y in a["polygon"])
+    xs, ys = [p[0] for p in poly], [p[1] for p in poly]
+    area = 0.5 * abs(sum(xs[i] * ys[i - 1] - xs[i - 1] * ys[i] for i in range(len(poly))))
+    if area <= 1e-6:
+        raise ctx.error(("audience", "polygon"), "has no area; list its corners in order")
+    return TablesConfig(**t), AudienceConfig(polygon=poly, h_cm=(lo, hi),
+                                             ground_samples=a["ground_samples"],
+                                             height_samples=a["height_samples"],
+                                             objective=a["objective"])
 
 
 # --------------------------------------------------------------------------- public API
