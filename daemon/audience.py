@@ -338,3 +338,10 @@ def write_heatmap(path: str | Path, region: AudienceRegion, samples: AudienceSam
     out = atomic_save_figure(path, fig)
     plt.close(fig)
     return out
+
+
+def region_from_config(audience) -> tuple[AudienceRegion, AudienceSamples]:
+    """The region and its samples from a config ``[audience]`` table
+    (:class:`grassd.daemon.config.AudienceConfig`)."""
+    region = AudienceRegion(np.asarray(audience.polygon, np.float64), tuple(audience.h_cm))
+    return region, region.sample(audience.ground_samples, audience.height_samples)

@@ -31,6 +31,7 @@ when driven by its table (CIEDE2000 units).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -503,3 +504,69 @@ def build_display_tables(sim: DisplaySimulation, granularity: str = "pixel", *,
     return DisplayTables(granularity=granularity, names=names, tables=tables,
                          unit_of_pixel=unit, pixel_lengths_um=lengths_um,
                          pixel_error=pair_err[inv.reshape(-1)], pixel_ogcd_range=ranges[labels])
+
+
+# --------------------------------------------------------------------------- configuration
+
+
+def combine_viewpoints(sims: Sequence[DisplaySimulation], weights: Sequence[float]
+                       ) -> DisplaySimulation:
+    """One display characteristic from several viewers: every pixel's OGCD is the weighted mean
+    of its OGCD for each viewer [dE00] (standard error: the weighted mean of the errors, a bound
+    since the traces share random numbers). Pixels that share a group for every viewer share
+    the combined curve, so tables still cost one fit per combined group."""
+    if not sims or len(sims) != len(weights):
+        raise DisplaySimulationError("give one weight per display simulation")
+    w = np.asarray(weights, np.float64)
+    if np.any(w < 0) or w.sum() <= 0:
+        raise DisplaySimulationError("viewpoint weights must be >= 0 and not all 0")
+    w = w / w.sum()
+    if len(sims) == 1:
+        return sims[0]
+    stacked = np.stack([s.groups.labels for s in sims], axis=1)
+    _, first, labels = np.unique(stacked, axis=0, return_index=True, return_inverse=True)
+    labels = labels.reshape(-1)
+    curves = []
+    for p in first:  # one combined curve per combined group
+        parts = [s.curves[s.groups.labels[p]] for s in sims]
+        ogcd = sum(wk * c.ogcd for wk, c in zip(w, parts, strict=True))
+        se = sum(wk * c.ogcd_stderr for wk, c in zip(w, parts, strict=True))
+        curves.append(dataclasses.replace(parts[0], ogcd=ogcd, ogcd_stderr=se))
+    spread = np.max([s.groups.spread_deg[s.groups.labels[first]] for s in sims], axis=0)
+    groups = PixelGroups(labels=labels, representatives=first, spread_deg=spread,
+                         farthest=first, tolerance_deg=sims[0].groups.tolerance_deg)
+    seconds = {k: float(sum(s.seconds.get(k, 0.0) for s in sims))
+               for k in ("compile", "trace", "colour", "total")}
+    return DisplaySimulation(geometry=sims[0].geometry, groups=groups, curves=curves,
+                             grouping_error=None, seconds=seconds)
+
+
+def display_tables_for_config(renderer, cfg, lighting, lengths_mm: np.ndarray, settings, *,
+                              target_stderr: float | None = None, ccm=None,
+                              progress: Callable[[int, int], None] | None = None
+                              ) -> tuple[DisplayTables, list[DisplaySimulation]]:
+    """Tables for a daemon ``Config``: its display (``[display]``), every ``[[viewpoints]]``
+    entry as a viewer (weights), grouping and granularity from ``[tables]``, controllers'
+    pixel sets from ``[[controllers]]``. Returns the tables and each viewer's simulation (with
+    its grouping error)."""
+    from grassd.sim.scene import DisplaySpec, PixelSpec, Viewpoint
+
+    display = DisplaySpec(PixelSpec(**dict(cfg.display.pixel)), cfg.display.rows,
+                          cfg.display.cols, cfg.display.pitch_mm)
+    t = cfg.tables
+    sims = []
+    for k, v in enumerate(cfg.viewpoints):
+        def step(done: int, total: int, k: int = k) -> None:
+            if progress:
+                progress(k * total + done, len(cfg.viewpoints) * total)
+
+        sims.append(simulate_display(
+            renderer, display, lighting, Viewpoint(v.h_cm, v.d_m, v.theta_deg), lengths_mm,
+            settings, eye=t.eye, tolerance_deg=t.group_tolerance_deg,
+            distance_tolerance=t.distance_tolerance, target_stderr=target_stderr,
+            check_groups=t.check_groups, ccm=ccm, progress=step))
+    combined = combine_viewpoints(sims, [v.weight for v in cfg.viewpoints])
+    controllers = controller_pixels(cfg.controllers, display.rows * display.cols)
+    tables = build_display_tables(combined, t.granularity, controllers=controllers,
+                                  controller_names=[c.name for c in cfg.controllers])
+    return tables, sims

@@ -67,3 +67,41 @@ def test_bad_values_name_key_and_line(extra, key, message):
         _cfg(extra)
     assert info.value.key == key
     assert info.value.line is not None and info.value.line > 60  # in the appended text
+
+
+def test_config_drives_whole_display_tables(renderer):
+    """[display] 2x2, two weighted viewpoints, [tables] per controller -> two tables."""
+    import numpy as np
+
+    from grassd.daemon.display import display_tables_for_config, simulate_display
+    from grassd.sim.lighting import build_lighting
+    from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
+
+    text = default_config_text().replace("rows = 4\ncols = 8", "rows = 2\ncols = 2")
+    text = text.replace('pixels = "0-15"', 'pixels = "0-1"').replace(
+        'pixels = "16-31"', 'pixels = "2-3"')
+    cfg = parse_config(text + '\n[tables]\ngranularity = "controller"\ncheck_groups = 0\n')
+    env = np.ones((32, 64, 3), np.float32)
+    env[:16] *= 2.0
+    lighting = build_lighting(env, 10000.0)
+    settings = RenderSettings(samples=256, replicates=4, seed=2)
+    lengths = np.array([0.0, 10.0, 20.0])
+    calls = []
+    tables, sims = display_tables_for_config(renderer, cfg, lighting, lengths, settings,
+                                             progress=lambda d, n: calls.append((d, n)))
+    assert len(sims) == 2 and calls[-1][0] == calls[-1][1]
+    assert tables.granularity == "controller" and len(tables.tables) == 2
+    assert tables.names == [c.name for c in cfg.controllers]
+    assert tables.unit_of_pixel.tolist() == [0, 0, 1, 1]
+    # the combined characteristic is the weighted mean of the two viewers' (weights 1, 0.5)
+    display = DisplaySpec(rows=2, cols=2)
+    a = simulate_display(renderer, display, lighting, Viewpoint(170, 2, 0), lengths, settings,
+                         check_groups=0)
+    b = simulate_display(renderer, display, lighting, Viewpoint(160, 2, 30), lengths, settings,
+                         check_groups=0)
+    np.testing.assert_array_equal(a.pixel_ogcd(), sims[0].pixel_ogcd())
+    want = (1.0 * a.pixel_ogcd() + 0.5 * b.pixel_ogcd()) / 1.5
+    from grassd.daemon.display import combine_viewpoints
+
+    np.testing.assert_allclose(combine_viewpoints(sims, [1.0, 0.5]).pixel_ogcd(), want,
+                               rtol=1e-12)
