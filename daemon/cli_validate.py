@@ -13,13 +13,9 @@ from grassd.daemon.atomic import atomic_write_text
 
 
 def _renderer(arch: str):
-    from grassd.sim import backend  # noqa: PLC0415
+    from grassd.daemon.validate import default_renderer  # noqa: PLC0415
 
-    if not backend.is_initialised():
-        backend.init(arch)
-    from grassd.sim.renderer import Renderer  # noqa: PLC0415
-
-    return Renderer()
+    return default_renderer(arch)
 
 
 def _progress(msg: str) -> None:

@@ -31,6 +31,7 @@ from grassd.daemon.validate import (
     MissingPhotoError,
     ValidateError,
     ViewpointComparison,
+    default_renderer,
     load_manifest,
     validate_capture,
 )
@@ -180,13 +181,7 @@ def run_paper(out_dir: str | Path, *, settings: ExperimentSettings | None = None
             raise MissingPhotoError(f"HDRI {hdri / envs[key].hdri} for {key} does not exist; "
                                     "give --hdri-dir with the bundled panoramas")
     if renderer is None:
-        from grassd.sim import backend  # noqa: PLC0415
-
-        if not backend.is_initialised():
-            backend.init("cpu")
-        from grassd.sim.renderer import Renderer  # noqa: PLC0415
-
-        renderer = Renderer()
+        renderer = default_renderer()
     out = Path(out_dir)
     rs = RenderSettings(samples=st.samples, replicates=st.replicates, seed=st.seed)
     real = PixelSpec(splay_deg=st.real_splay_deg)

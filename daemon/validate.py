@@ -95,6 +95,23 @@ class MixedCamerasError(ValidateError):
     """The photos were not all taken with the same camera (make, model, sensor layout)."""
 
 
+_RENDERERS: dict[str, Any] = {}
+
+
+def default_renderer(arch: str = "cpu") -> Any:
+    """One :class:`grassd.sim.renderer.Renderer` per process (Taichi initialised on ``arch``
+    first if needed). Each further Renderer instance would compile its kernels again."""
+    if "r" not in _RENDERERS:
+        from grassd.sim import backend  # noqa: PLC0415
+
+        if not backend.is_initialised():
+            backend.init(arch)
+        from grassd.sim.renderer import Renderer  # noqa: PLC0415
+
+        _RENDERERS["r"] = Renderer()
+    return _RENDERERS["r"]
+
+
 # ----------------------------------------------------------------------------- manifest
 @dataclass(frozen=True)
 class LightSpec:
@@ -718,13 +735,7 @@ def validate_capture(m: CaptureManifest, *, renderer: Any = None, settings: Any 
         progress("building the lighting")
     lighting = lighting if lighting is not None else m.light.build()
     if renderer is None:
-        from grassd.sim import backend  # noqa: PLC0415
-
-        if not backend.is_initialised():
-            backend.init(arch)
-        from grassd.sim.renderer import Renderer  # noqa: PLC0415
-
-        renderer = Renderer()
+        renderer = default_renderer(arch)
     display = DisplaySpec(PixelSpec(**m.pixel))
     ref = m.reference
     out = []

@@ -32,6 +32,7 @@ from grassd.daemon.validate import (
     LightSpec,
     Photo,
     Series,
+    default_renderer,
     manifest_to_toml,
 )
 
@@ -98,13 +99,7 @@ def capture_world(out_dir: str | Path, light: LightSpec,
                    for k, v in (model_pixel or {}).items()}
     real_pixel = real_pixel if real_pixel is not None else PixelSpec(**model_pixel)
     if renderer is None:
-        from grassd.sim import backend  # noqa: PLC0415
-
-        if not backend.is_initialised():
-            backend.init("cpu")
-        from grassd.sim.renderer import Renderer  # noqa: PLC0415
-
-        renderer = Renderer()
+        renderer = default_renderer()
     white = white_radiance(lighting)
     k = camera.exposure_for(white)
     ref_chart = get_chart(chart)

@@ -19,7 +19,7 @@ def hdri_dir(shared_hdri):
     return shared_hdri("interior").parent
 
 
-def test_paper_quick_prints_the_papers_tables(tmp_path, renderer, hdri_dir):
+def test_paper_quick_prints_the_papers_tables(tmp_path, hdri_dir):
     out = tmp_path / "exp"
     res = CliRunner().invoke(main, ["experiment", "paper", "--quick", "-q", "--out", str(out),
                                     "--hdri-dir", str(hdri_dir)])
@@ -60,7 +60,7 @@ def test_paper_with_missing_hdri_dir_is_one_clear_error(tmp_path):
     assert "grassd: error: HDRI" in res.output and "--hdri-dir" in res.output
 
 
-def test_virtual_capture_then_validate_cli(tmp_path, renderer, hdri_dir):
+def test_virtual_capture_then_validate_cli(tmp_path, hdri_dir):
     cap = tmp_path / "cap"
     res = CliRunner().invoke(main, ["experiment", "virtual-capture", str(cap), "--hdri",
                                     str(hdri_dir / "forest.exr"), "--lux", "5000", "--view",
