@@ -194,7 +194,7 @@ def validation_sections(viewpoints: Sequence[Any], *, grid: bool = True) -> list
                                        "real vs simulated OGCD curves per viewpoint"))]
     hs = {v.viewpoint[0] for v in viewpoints}
     ts = {v.viewpoint[2] for v in viewpoints}
-    if grid and len(hs) > 1 and len(ts) > 1:
+    if grid and len(hs) > 1 and len(ts) > 1 and len(viewpoints) >= 4:
         out.append(("Viewpoint grid (paper Figure 8)",
                     img_tag(figure_png(grid_figure(viewpoints)), "grid of viewpoints")))
     ref = next((v for v in viewpoints if v.reference), viewpoints[0])
@@ -221,7 +221,7 @@ def validation_html(result: Any) -> str:
         ["light", f"{r.manifest.light.hdri.name}, {r.manifest.light.lux:g} lx"],
         ["render settings", ", ".join(f"{k} {v}" for k, v in r.settings.items())],
         ["seconds", ", ".join(f"{k} {v:.1f}" for k, v in r.seconds.items())],
-    ])
+    ], left=2)
     return page("grassd validate: real vs simulated grass colour characteristic",
                 [("Capture", info)] + validation_sections(r.viewpoints),
                 intro="Discrete Frechet distance and maximum OGCD error between the measured "

@@ -23,6 +23,11 @@ process, section 3.4.1) and a manifest ``capture.toml`` describing it::
     reference = true                      # the viewpoint M is reported for (default 170, 2, 0)
     photos = [{ file = "v0_00.dng", length_mm = 0.0 }, ...]   # lengths strictly increasing
 
+Corners are pixel coordinates (x = column, y = row) of the developed image as LibRaw outputs
+it (i.e. after the camera's orientation flag is applied), pixel (0, 0) covering [0, 1) x [0, 1).
+All photos must come from one camera with one exposure setting (manual mode): the checker's grey
+sets the exposure of every photo.
+
 Steps (:func:`validate_capture`): every RAW is developed linearly to 16-bit ProPhoto RGB with one
 fixed white balance, measured from the checker's grey patch on the undeveloped Bayer data; the
 checker's grey sets the exposure (Y = 0.18) for all photos; the mean colour inside each photo's
@@ -440,6 +445,32 @@ def _check_inside(corners: Sequence[Sequence[float]], shape: tuple[int, ...], pa
             "x = column 0..width, y = row 0..height); check the corner coordinates")
 
 
+def developed_to_raw(corners: Sequence[Sequence[float]], raw_shape: tuple[int, ...],
+                     flip: int) -> NDArray[np.float64]:
+    """Map (x, y) points of the developed image onto the undeveloped sensor data.
+
+    LibRaw's ``flip`` (from the camera's orientation tag): 0 none, 3 rotated 180 deg, 5 rotated
+    90 deg counter-clockwise, 6 rotated 90 deg clockwise; ``raw_shape`` = (rows, columns) of
+    the visible sensor area.
+
+    >>> developed_to_raw([[1.0, 2.0]], (10, 20), 3).tolist()
+    [[19.0, 8.0]]
+    """
+    c = np.asarray(corners, dtype=np.float64).reshape(-1, 2)
+    h, w = raw_shape[:2]
+    x, y = c[:, 0], c[:, 1]
+    if flip == 0:
+        return c
+    if flip == 3:
+        return np.column_stack([w - x, h - y])
+    if flip == 6:  # developed = raw turned clockwise: (xd, yd) = (h - yr, xr)
+        return np.column_stack([y, h - x])
+    if flip == 5:  # counter-clockwise: (xd, yd) = (yr, w - xr)
+        return np.column_stack([w - y, x])
+    raise ValidateError(f"unsupported image orientation (LibRaw flip {flip}); rotate or "
+                        "mirror the RAW back to its sensor orientation")
+
+
 def checker_white_balance(path: Path, corners: Sequence[Sequence[float]],
                           chart: ReferenceChart) -> tuple[float, float, float, float]:
     """LibRaw channel multipliers (R, G, B, G2) that develop the checker's grey patch to the
@@ -460,6 +491,8 @@ def checker_white_balance(path: Path, corners: Sequence[Sequence[float]],
         white = float(raw.white_level)
         desc = raw.color_desc.decode(errors="replace")
         rgb_cam = np.asarray(raw.color_matrix, dtype=np.float64)[:, :3]
+        flip = int(raw.sizes.flip)
+    corners = developed_to_raw(corners, img.shape, flip)
     _check_inside(corners, img.shape, path, "checker")
     if len(desc) not in (3, 4) or set(desc[:3]) != set("RGB") or set(desc) - set("RGB"):
         raise ValidateError(f"{path.name}: colour filters {desc!r} are not an R/G/B Bayer "
@@ -622,7 +655,7 @@ class ViewpointComparison:
     max_error: float
     max_error_length_mm: float
     calibration: CalibrationCheck | None
-    sim_seconds: float
+    sim_seconds: float  # simulation wall time of this viewpoint, kernel compilation excluded
 
     @property
     def label(self) -> str:
@@ -750,7 +783,8 @@ def validate_capture(m: CaptureManifest, *, renderer: Any = None, settings: Any 
                                      curve.ogcd, sim_stderr=curve.ogcd_stderr,
                                      real_lab=real.lab[i], sim_lab=curve.lab,
                                      reference=series is ref,
-                                     sim_seconds=time.perf_counter() - ts))
+                                     sim_seconds=time.perf_counter() - ts
+                                     - curve.seconds.get("compile", 0.0)))
     t2 = time.perf_counter()
     return ValidationResult(
         manifest=m, ccm=ccm, real=real, viewpoints=tuple(out),

@@ -110,3 +110,40 @@ def test_bad_camera_parameters_raise(tmp_path):
         VirtualCamera().photograph(tmp_path / "x.dng", np.ones((5, 6, 3)), np.ones(3))
     with pytest.raises(DngWriteError, match="no signal"):
         VirtualCamera().exposure_for(np.zeros(3))
+
+
+def _rotated_dng(path, raw, camera, orientation):
+    """A DNG like calib.dng.write_dng's, plus an EXIF Orientation tag (as portrait photos
+    carry): LibRaw rotates the developed image accordingly."""
+    import tifffile
+
+    from grassd.calib.dng import CFA_PATTERNS, _srational
+
+    cam = camera.dng_camera()
+    tags = [(33421, "H", 2, (2, 2), True), (33422, "B", 4, bytes(CFA_PATTERNS["RGGB"]), True),
+            (271, "s", 0, cam.make, True), (272, "s", 0, cam.model, True),
+            (274, "H", 1, orientation, True), (50706, "B", 4, bytes((1, 4, 0, 0)), True),
+            (50710, "B", 3, bytes((0, 1, 2)), True), (50714, "I", 1, cam.black_level, True),
+            (50717, "I", 1, cam.white_level, True),
+            (50721, 10, 9, _srational(cam.color_matrix), True),
+            (50728, 5, 3, _srational(cam.neutral()), True), (50778, "H", 1, 21, True)]
+    tifffile.imwrite(path, raw, photometric=32803, subfiletype=0, metadata=None,
+                     extratags=tags, rowsperstrip=raw.shape[0])
+    return path
+
+
+@pytest.mark.parametrize("orientation, turns", [(6, 1), (8, -1), (3, 2)])
+def test_checker_white_balance_on_rotated_photos(tmp_path, orientation, turns):
+    cam = VirtualCamera(read_noise_e=0.0, full_well_e=1e9)
+    white = np.full(3, 80.0)
+    img, corners = checker_scene(CHART, white)
+    k = cam.exposure_for(white)
+    upright = cam.photograph(tmp_path / "up.dng", img, white, electrons_per_unit=k)
+    # the sensor saw the scene turned the other way; LibRaw turns it back on development
+    raw = cam.expose(np.rot90(img, turns).copy(), k, np.random.default_rng(0))
+    turned = _rotated_dng(tmp_path / "turned.dng", raw, cam, orientation)
+    dev = develop_raw(turned, white_balance=(2.0, 1.0, 1.5))
+    assert dev.rgb.shape[:2] == img.shape[:2]  # corners refer to this upright image
+    wb_up = checker_white_balance(upright, corners, CHART)
+    wb_turned = checker_white_balance(turned, corners, CHART)
+    assert wb_turned == pytest.approx(wb_up, rel=1e-3)
