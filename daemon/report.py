@@ -177,6 +177,31 @@ def calibration_figure(cal: Any) -> Any:
     return fig
 
 
+def lab_to_srgb(lab: Any) -> np.ndarray:
+    """Encoded sRGB (..., 3) in 0..1 of D50 CIELAB colours (for display; clipped to the gamut)."""
+    from grassd.calib.colour_spaces import lab_to_prophoto, prophoto_to_rec709  # noqa: PLC0415
+
+    lin = np.clip(prophoto_to_rec709(lab_to_prophoto(np.asarray(lab, dtype=np.float64))), 0, 1)
+    return np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
+
+
+def appearance_figure(vc: Any) -> Any:
+    """The paper's Figure 9 as colour swatches: the measured (top) and simulated (bottom) grass
+    colour at each length, shown in sRGB."""
+    plt = _plt()
+    real = lab_to_srgb(vc.real_lab)
+    sim = lab_to_srgb(vc.sim_lab)
+    n = len(real)
+    fig, ax = plt.subplots(figsize=(max(4.0, 0.55 * n + 1.2), 2.0))
+    ax.imshow(np.stack([real, sim]), aspect="auto", interpolation="nearest")
+    ax.set_yticks([0, 1], ["real", "simulated"])
+    ax.set_xticks(range(n), [f"{x:g}" for x in vc.real.lengths_mm], fontsize=7)
+    ax.set_xlabel("green length [mm]")
+    ax.set_title(f"grass colour at {vc.label}", fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
 # ----------------------------------------------------------------------------- validate
 def validation_sections(viewpoints: Sequence[Any], *, grid: bool = True) -> list[tuple[str, str]]:
     """Table, curves, grid (if the viewpoints span h x theta) and the reference calibration."""
@@ -198,6 +223,10 @@ def validation_sections(viewpoints: Sequence[Any], *, grid: bool = True) -> list
         out.append(("Viewpoint grid (paper Figure 8)",
                     img_tag(figure_png(grid_figure(viewpoints)), "grid of viewpoints")))
     ref = next((v for v in viewpoints if v.reference), viewpoints[0])
+    if np.isfinite(ref.real_lab).all() and np.isfinite(ref.sim_lab).all():
+        out.append((f"Appearance at {ref.label} (paper Figure 9)",
+                    img_tag(figure_png(appearance_figure(ref)),
+                            "real and simulated grass colour per length")))
     if ref.calibration is not None:
         out.append((f"8-bit calibration at {ref.label} (paper Figure 11)",
                     img_tag(figure_png(calibration_figure(ref.calibration)),

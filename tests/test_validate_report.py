@@ -79,14 +79,22 @@ def test_html_is_self_contained_and_pngs_decode_at_stated_sizes(report):
     page = _Page()
     page.feed(text)
     assert not re.search(r'(src|href)="(?!data:)', text)  # nothing loaded from elsewhere
-    assert len(page.imgs) == 3  # curves, viewpoint grid, calibration scatter
+    assert len(page.imgs) == 4  # curves, viewpoint grid, appearance swatches, calibration
     for img in page.imgs:
         pixels = _decode(img["src"])
         assert pixels.shape[:2] == (int(img["height"]), int(img["width"]))
-        assert pixels.shape[0] > 200 and pixels.shape[1] > 300
-        assert _has_colour(pixels, REAL_COLOUR), img["alt"]  # real curve / scatter drawn
-    curves, grid, _cal = (_decode(i["src"]) for i in page.imgs)
+        assert pixels.shape[0] >= 200 and pixels.shape[1] >= 400
+    curves, grid, swatches, cal = (_decode(i["src"]) for i in page.imgs)
+    for plot in (curves, grid, cal):
+        assert _has_colour(plot, REAL_COLOUR)  # real curve / scatter drawn
     assert _has_colour(curves, SIM_COLOUR) and _has_colour(grid, SIM_COLOUR)
+    # the swatches show the measured grass colours: yellow-green at 0 mm, green at 20 mm
+    ref = res.reference
+    from grassd.daemon.report import lab_to_srgb
+
+    for lab in (ref.real_lab[0], ref.real_lab[-1], ref.sim_lab[-1]):
+        assert _has_colour(swatches, "#" + "".join(f"{round(255 * c):02x}"
+                                                    for c in lab_to_srgb(lab)), 200)
     words = " ".join(page.text)
     for v in res.viewpoints:
         assert v.label in words
