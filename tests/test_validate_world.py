@@ -10,6 +10,7 @@ import pytest
 
 from grassd.calib.characteristic import Characteristic
 from grassd.calib.compare import frechet_characteristics, max_ogcd_error
+from grassd.calib.delta_e import delta_e_cie2000
 from grassd.calib.ogcd import ogcd_from_samples
 from grassd.calib.virtual_camera import VirtualCamera
 from grassd.daemon.simulation import white_radiance
@@ -63,7 +64,11 @@ def test_zero_difference_world_agrees(tmp_path, renderer, world):
     assert [v.reference for v in res.viewpoints] == [True, False]
     assert res.ccm.mean_de00 < 0.5  # camera noise only: the 3x3 is exact for a linear camera
     for v in res.viewpoints:
+        print(f"zero-difference {v.label}: Frechet {v.frechet:.3f}, max error "
+              f"{v.max_error:.3f}, Lab dE00 max {delta_e_cie2000(v.real_lab, v.sim_lab).max():.2f}")
         assert v.frechet < 0.3, (v.label, v.real.ogcd, v.sim.ogcd)
+        # not only the differences: the absolute colours agree too
+        assert delta_e_cie2000(v.real_lab, v.sim_lab).max() < 1.5
         assert v.max_error < 0.3
         assert abs(v.real_range - v.sim_range) < 0.3
         assert v.max_error == pytest.approx(max_ogcd_error(v.real, v.sim))
@@ -89,6 +94,8 @@ def test_splayed_blades_measured_as_the_renderer_predicts(tmp_path, renderer, wo
     # ... so the error it reports is the model error: splayed blades cover more yellow
     expected = frechet_characteristics(truth, v.sim)
     assert v.frechet == pytest.approx(expected, abs=0.3)
+    print(f"splay 20 deg {v.label}: Frechet {v.frechet:.2f} (renderer's own: {expected:.2f}), "
+          f"ranges real {v.real_range:.2f} sim {v.sim_range:.2f}")
     assert v.frechet > 2.0
     assert v.real_range > v.sim_range + 2.0  # sign: the real pixel gets greener
     err, at = max_error_at(v.real, v.sim)
@@ -107,6 +114,9 @@ def test_albedo_error_and_noisy_camera(tmp_path, renderer, world):
     assert v.frechet == pytest.approx(frechet_characteristics(truth, v.sim), abs=0.3)
     assert v.real_range - v.sim_range == pytest.approx(
         float(truth.ogcd.max() - v.sim.ogcd.max()), abs=0.3)
+    print(f"albedo error {v.label}: Frechet {v.frechet:.2f} (renderer's own: "
+          f"{frechet_characteristics(truth, v.sim):.2f}), ranges real {v.real_range:.2f} "
+          f"sim {v.sim_range:.2f}")
     assert v.real_range > v.sim_range + 0.3  # sign: the real pixel shows more contrast
 
     # a noisy 12-bit camera on the zero-difference world: noise averages out over the quad
