@@ -492,8 +492,9 @@ def checker_white_balance(path: Path, corners: Sequence[Sequence[float]],
         desc = raw.color_desc.decode(errors="replace")
         rgb_cam = np.asarray(raw.color_matrix, dtype=np.float64)[:, :3]
         flip = int(raw.sizes.flip)
+    developed_shape = img.shape[::-1] if flip in (5, 6) else img.shape
+    _check_inside(corners, developed_shape, path, "checker")
     corners = developed_to_raw(corners, img.shape, flip)
-    _check_inside(corners, img.shape, path, "checker")
     if len(desc) not in (3, 4) or set(desc[:3]) != set("RGB") or set(desc) - set("RGB"):
         raise ValidateError(f"{path.name}: colour filters {desc!r} are not an R/G/B Bayer "
                             "sensor; white balance from the checker needs one")

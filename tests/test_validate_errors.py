@@ -87,6 +87,11 @@ def test_corners_outside_the_image(tmp_path):
     with pytest.raises(CornersOutsideImageError, match=r"outside p0.dng \(64 x 64"):
         measure_real(load_manifest(tmp_path))
     assert "[[156.0, 50.0]]" in _cli_error(tmp_path)
+    # the checker's corners are checked against the checker photo
+    (tmp_path / "capture.toml").write_text(text.replace("[156.0, 50.0]", "[56.0, 50.0]", 1)
+                                           .replace("[[46.08, 35.84]", "[[46.08, -35.84]", 1))
+    with pytest.raises(CornersOutsideImageError, match=r"checker corner.*outside checker.dng"):
+        measure_real(load_manifest(tmp_path))
 
 
 def test_lengths_not_increasing(tmp_path):
