@@ -263,6 +263,12 @@ class GroupingError:
     ``ogcd_diff_stderr`` its Monte Carlo standard error there (independent-error bound);
     ``table_error`` the largest deviation from linear OGCD [dE00] of the member driven by the
     representative's table, ``own_table_error`` with a table of its own.
+
+    The difference splits in two (each the largest over lengths, dE00), by also tracing the
+    member from the representative's view direction: ``geometry_diff`` = member from its own
+    direction vs from the representative's (what the tolerance controls), ``pixel_diff`` =
+    member vs representative from the same direction (its own tuft layout, neighbours and
+    position; no grouping tolerance removes it). NaN when not decomposed.
     """
 
     groups: np.ndarray
@@ -272,6 +278,8 @@ class GroupingError:
     ogcd_diff_stderr: np.ndarray
     table_error: np.ndarray
     own_table_error: np.ndarray
+    geometry_diff: np.ndarray
+    pixel_diff: np.ndarray
 
     def summary(self) -> dict[str, float | int]:
         """Worst and mean values (dE00, deg) for reports."""
@@ -283,7 +291,9 @@ class GroupingError:
                 "mean_ogcd_diff": float(self.max_ogcd_diff.mean()),
                 "max_table_error": float(self.table_error.max()),
                 "max_own_table_error": float(self.own_table_error.max()),
-                "max_added_table_error": float((self.table_error - self.own_table_error).max())}
+                "max_added_table_error": float((self.table_error - self.own_table_error).max()),
+                "max_geometry_diff": float(np.max(self.geometry_diff)),
+                "max_pixel_diff": float(np.max(self.pixel_diff))}
 
 
 @dataclass(frozen=True, eq=False)
@@ -330,7 +340,7 @@ def simulate_display(renderer, display, lighting, viewer, lengths_mm: np.ndarray
                      eye: str = "world", tolerance_deg: float = 1.0,
                      distance_tolerance: float = 0.1, by_neighbours: bool = True,
                      target_stderr: float | None = None, check_groups: int = 4, ccm=None,
-                     geometry: PixelGeometry | None = None,
+                     decompose: bool = True, geometry: PixelGeometry | None = None,
                      progress: Callable[[int, int], None] | None = None) -> DisplaySimulation:
     """Trace one representative pixel per viewing-geometry group of ``display``.
 
@@ -340,7 +350,9 @@ def simulate_display(renderer, display, lighting, viewer, lengths_mm: np.ndarray
     with the same seed (common random numbers across pixels). ``target_stderr`` [dE00]: add
     replicates per group until its largest OGCD standard error is at most this.
     ``check_groups``: also trace the farthest member of this many multi-pixel groups (widest
-    first; -1 = all) to measure the grouping error. ``progress(done, total)`` counts traces.
+    first; -1 = all) to measure the grouping error, and with ``decompose`` once more from the
+    representative's direction (see :class:`GroupingError`). ``progress(done, total)`` counts
+    traces.
     """
     t0 = time.perf_counter()
     geo = geometry if geometry is not None else pixel_geometry(display, viewer, eye)
@@ -349,12 +361,13 @@ def simulate_display(renderer, display, lighting, viewer, lengths_mm: np.ndarray
                                      f"{display.rows * display.cols}")
     groups = group_pixels(geo, tolerance_deg, distance_tolerance, by_neighbours)
     checks = _pick_checks(groups, check_groups)
-    total = groups.n_groups + len(checks)
+    total = groups.n_groups + len(checks) * (2 if decompose else 1)
     done = 0
 
-    def trace(i: int) -> SimulatedCurve:
+    def trace(i: int, view_of: int | None = None) -> SimulatedCurve:
         nonlocal done
-        curve = simulate_curve(renderer, display, lighting, geo.viewpoint(int(i)), lengths_mm,
+        vp = geo.viewpoint(int(i if view_of is None else view_of))
+        curve = simulate_curve(renderer, display, lighting, vp, lengths_mm,
                                settings, ccm=ccm, pixel_index=int(i),
                                target_stderr=target_stderr)
         done += 1
@@ -364,8 +377,10 @@ def simulate_display(renderer, display, lighting, viewer, lengths_mm: np.ndarray
 
     curves = [trace(i) for i in groups.representatives]
     check_curves = [trace(groups.farthest[g]) for g in checks]
-    err = _grouping_error(groups, curves, checks, check_curves) if len(checks) else None
-    seconds = {k: float(sum(c.seconds.get(k, 0.0) for c in curves + check_curves))
+    swapped = [trace(groups.farthest[g], view_of=groups.representatives[g])
+               for g in checks] if decompose else []
+    err = _grouping_error(groups, curves, checks, check_curves, swapped) if len(checks) else None
+    seconds = {k: float(sum(c.seconds.get(k, 0.0) for c in curves + check_curves + swapped))
                for k in ("compile", "trace", "colour")}
     seconds["total"] = time.perf_counter() - t0
     return DisplaySimulation(geometry=geo, groups=groups, curves=curves, grouping_error=err,
@@ -378,7 +393,8 @@ def _fit(c: SimulatedCurve) -> FittedCharacteristic:
 
 
 def _grouping_error(groups: PixelGroups, curves: list[SimulatedCurve], checks: np.ndarray,
-                    check_curves: list[SimulatedCurve]) -> GroupingError:
+                    check_curves: list[SimulatedCurve], swapped: list[SimulatedCurve]
+                    ) -> GroupingError:
     rep_ogcd = np.stack([curves[g].ogcd for g in checks])
     rep_se = np.stack([curves[g].ogcd_stderr for g in checks])
     mem_ogcd = np.stack([c.ogcd for c in check_curves])
@@ -396,7 +412,12 @@ def _grouping_error(groups: PixelGroups, curves: list[SimulatedCurve], checks: n
     return GroupingError(
         groups=checks, pixels=groups.farthest[checks], angle_deg=groups.spread_deg[checks],
         max_ogcd_diff=diff[rows, at], ogcd_diff_stderr=np.hypot(rep_se, mem_se)[rows, at],
-        table_error=np.asarray(table_err), own_table_error=np.asarray(own_err))
+        table_error=np.asarray(table_err), own_table_error=np.asarray(own_err),
+        geometry_diff=np.array([np.abs(m.ogcd - w.ogcd).max() for m, w in
+                                zip(check_curves, swapped, strict=True)]) if swapped
+        else np.full(len(checks), np.nan),
+        pixel_diff=np.abs(np.stack([w.ogcd for w in swapped]) - rep_ogcd).max(axis=1)
+        if swapped else np.full(len(checks), np.nan))
 
 
 # --------------------------------------------------------------------------- tables

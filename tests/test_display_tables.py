@@ -134,6 +134,18 @@ def test_grouping_cuts_traces_and_reports_its_error(renderer, lighting, settings
         want = np.abs(exact.curves[p].ogcd - exact.curves[rep].ogcd).max()
         assert d == pytest.approx(want, abs=1e-9)
     assert np.all(err.table_error >= err.own_table_error - 1e-9)
+    # decomposition: the member from the representative's direction was traced too, so
+    # member-vs-representative splits into a geometry part and a pixel (tufts, position) part
+    assert np.all(np.isfinite(err.geometry_diff)) and np.all(np.isfinite(err.pixel_diff))
+    assert np.all(err.max_ogcd_diff <= err.geometry_diff + err.pixel_diff + 1e-9)
+    assert np.all(err.geometry_diff > 0) and np.all(err.pixel_diff > 0)
+    assert sim.seconds["trace"] > 0
     summary = err.summary()
     assert summary["groups_checked"] == len(err.groups)
     assert summary["max_ogcd_diff"] == pytest.approx(err.max_ogcd_diff.max())
+    assert summary["max_pixel_diff"] == pytest.approx(err.pixel_diff.max())
+    plain = simulate_display(renderer, DisplaySpec(rows=3, cols=3), lighting,
+                             Viewpoint(120, 0.6, 30.0), LENGTHS, settings, tolerance_deg=15.0,
+                             by_neighbours=False, check_groups=1, decompose=False)
+    assert len(plain.grouping_error.groups) == 1
+    assert np.isnan(plain.grouping_error.geometry_diff).all()
