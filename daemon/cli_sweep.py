@@ -30,7 +30,8 @@ def _display(_ctx, _param, value: str) -> tuple[int, int]:
 @click.command("sweep")
 @click.option("--hdri", "hdris", multiple=True, required=True,
               type=click.Path(exists=True, dir_okay=False),
-              help="Equirectangular panorama (.exr/.hdr). Repeatable.")
+              help="Equirectangular panorama (.exr/.hdr). Repeatable. With --scheduler every "
+                   "worker must read it at the same path.")
 @click.option("--time", "times", multiple=True, metavar="HH:MM",
               help="Local time of day (clear-sky sun and lux at the site). Repeatable; without "
                    "it the light is the HDRI scaled to --lux.")

@@ -25,7 +25,8 @@ Executors: ``workers`` local processes (spawned; each initialises Taichi once, w
 ``cpu_count // workers`` threads, and keeps its compiled kernels), or ``scheduler="tcp://HOST:
 8786"``: the same task function on a dask.distributed cluster; each Dask worker process
 initialises Taichi on its first task and keeps it (module-level renderer). A task lost with a
-killed worker is recomputed by Dask (``retries`` extra attempts for tasks that raise).
+killed worker is recomputed by Dask (``retries`` extra attempts for tasks that raise). HDRI paths
+travel as paths: every worker must read them at the same path (a shared filesystem).
 """
 
 from __future__ import annotations
@@ -503,7 +504,9 @@ def _run_local(spec: SweepSpec, todo: Sequence[Condition], workers: int,
     if workers < 1:
         raise SweepError(f"--workers must be >= 1, got {workers}")
     workers = min(workers, len(todo))
-    threads = max(1, (os.cpu_count() or 1) // workers)
+    # Taichi's offline kernel cache is keyed by its thread setting: one worker keeps the default
+    # (all cores, the same key as the CLI and the daemon), several split the cores.
+    threads = max(1, (os.cpu_count() or 1) // workers) if workers > 1 else None
     ctx = mp.get_context("spawn")
     try:
         with ProcessPoolExecutor(workers, mp_context=ctx, initializer=init_worker,
@@ -514,7 +517,7 @@ def _run_local(spec: SweepSpec, todo: Sequence[Condition], workers: int,
     except BrokenProcessPool as exc:
         raise SweepError(f"a local worker process died ({exc}); the finished tasks are stored: "
                          "run the same sweep again to resume") from None
-    return f"{workers} local processes x {threads} threads"
+    return f"{workers} local processes x {threads or os.cpu_count()} threads"
 
 
 def _run_dask(spec: SweepSpec, todo: Sequence[Condition], scheduler: str, retries: int,
