@@ -7,13 +7,17 @@
   mapped onto the bundled HDRIs (:data:`ENVIRONMENTS`).
 * 8-bit calibration (paper 6.2, Figure 11): R^2 before and after, with the real and with the
   simulated characteristic, at the reference viewpoint.
+* Repeatability (paper 4.1.1): the reference viewpoint measured in several trials; mean over
+  lengths of the standard deviation of the real OGCD (paper: 0.42 over 10 trials).
 
 No real capture ships with the project, so the "real" side is a stand-in: a world that differs
 from the simulation model where the paper says reality differed (green blades that splay as
-they grow, :data:`REAL_SPLAY_DEG`; paper section 4.1.3), photographed by the virtual camera
-(:mod:`grassd.daemon.virtual_camera`) and measured by ``grassd validate``'s real-capture path.
-Our numbers therefore measure the whole pipeline against a known, physically rendered truth;
-the paper's numbers (:data:`PAPER`) are printed beside them where the paper states them.
+they grow, :data:`REAL_SPLAY_DEG`; paper section 4.1.3) and whose blades lie elsewhere
+(:data:`REAL_LAYOUT_SEED`; in each repeated trial elsewhere again), photographed by the virtual
+camera (:mod:`grassd.daemon.virtual_camera`) and measured by ``grassd validate``'s
+real-capture path. Our numbers therefore measure the whole pipeline against a known, physically
+rendered truth; the paper's numbers (:data:`PAPER`) are printed beside them where the paper
+states them.
 """
 
 from __future__ import annotations
@@ -44,6 +48,8 @@ VIEWPOINTS: tuple[tuple[float, float, float], ...] = tuple(
     sorted(((h, 2.0, t) for h in (150.0, 160.0, 170.0, 180.0) for t in (0.0, 30.0, 60.0, 90.0)),
            key=lambda v: (v != (170.0, 2.0, 0.0), v)))
 REFERENCE: tuple[float, float, float] = (170.0, 2.0, 0.0)
+#: Blade layout of the stand-in real pixel: its blades do not sit where the model's do.
+REAL_LAYOUT_SEED: int = 101
 
 
 @dataclass(frozen=True)
@@ -119,13 +125,14 @@ class ExperimentSettings:
     viewpoints: tuple[tuple[float, float, float], ...] = VIEWPOINTS
     environments: tuple[str, ...] = tuple(e.key for e in ENVIRONMENTS)
     real_splay_deg: float = REAL_SPLAY_DEG
+    trials: int = 3
     seed: int = 0
 
     @classmethod
     def quick(cls) -> ExperimentSettings:
-        """5 lengths, 1024 paths x 4 replicates, 64-pixel photos at 4 spp."""
+        """5 lengths, 1024 paths x 4 replicates, 64-pixel photos at 4 spp, 2 trials."""
         return cls(lengths_mm=(0.0, 5.0, 10.0, 15.0, 20.0), samples=1024, replicates=4,
-                   photo_width=64, photo_spp=4)
+                   photo_width=64, photo_spp=4, trials=2)
 
 
 @dataclass
@@ -137,6 +144,7 @@ class ExperimentResult:
     environments: dict[str, ViewpointComparison] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    repeatability: dict[str, Any] = field(default_factory=dict)
 
     @property
     def reference(self) -> ViewpointComparison:
@@ -154,10 +162,10 @@ class ExperimentResult:
             "settings": {"lengths_mm": list(s.lengths_mm), "samples": s.samples,
                          "replicates": s.replicates, "photo_width": s.photo_width,
                          "photo_spp": s.photo_spp, "real_splay_deg": s.real_splay_deg,
-                         "seed": s.seed},
+                         "trials": s.trials, "seed": s.seed},
             "viewpoints": [v.to_json() for v in self.viewpoints],
             "environments": {k: v.to_json() for k, v in self.environments.items()},
-            "seconds": self.seconds, "notes": self.notes,
+            "seconds": self.seconds, "notes": self.notes, "repeatability": self.repeatability,
             "paper": {**{k: v for k, v in PAPER.items() if k != "viewpoints"},
                       "viewpoints": {str(list(k)): v for k, v in PAPER["viewpoints"].items()}},
         }
@@ -184,7 +192,7 @@ def run_paper(out_dir: str | Path, *, settings: ExperimentSettings | None = None
         renderer = default_renderer()
     out = Path(out_dir)
     rs = RenderSettings(samples=st.samples, replicates=st.replicates, seed=st.seed)
-    real = PixelSpec(splay_deg=st.real_splay_deg)
+    real = PixelSpec(splay_deg=st.real_splay_deg, layout_seed=REAL_LAYOUT_SEED)
     result = ExperimentResult(settings=st)
     t_all = time.perf_counter()
     capture_s = validate_s = 0.0
@@ -201,6 +209,7 @@ def run_paper(out_dir: str | Path, *, settings: ExperimentSettings | None = None
         capture_world(out / key.replace(" ", "").lower(), light, views, st.lengths_mm,
                       real_pixel=real, renderer=renderer, lighting=lighting,
                       width=st.photo_width, spp=st.photo_spp, seed=st.seed,
+                      extra_trials=max(st.trials - 1, 0) if key == MULTIVIEW_ENV else 0,
                       progress=(lambda m, k=key: progress(f"{k}: {m}")) if progress else None)
         t1 = time.perf_counter()
         manifest = load_manifest(out / key.replace(" ", "").lower())
@@ -211,7 +220,11 @@ def run_paper(out_dir: str | Path, *, settings: ExperimentSettings | None = None
         capture_s += t1 - t0
         validate_s += t2 - t1
         if key == MULTIVIEW_ENV:
-            result.viewpoints = list(res.viewpoints)
+            first: dict[tuple, ViewpointComparison] = {}
+            for v in res.viewpoints:  # repeated trials: the first one enters the tables
+                first.setdefault(tuple(v.viewpoint), v)
+            result.viewpoints = list(first.values())
+            result.repeatability = res.repeatability.get(res.reference.label, {})
         result.environments[key] = res.reference
     result.seconds = {"capture_stand_in_real": capture_s, "validate": validate_s,
                       "simulate_16_viewpoints": float(sum(v.sim_seconds
@@ -272,6 +285,16 @@ TIMING_HEADERS = ["", "manual (paper)", "paper's method", "grassd (this run)"]
 CAL_HEADERS = ["", "R2 before", "R2 after (real)", "R2 after (sim)"]
 
 
+def repeatability_line(result: ExperimentResult) -> str:
+    """The repeatability test's result beside the paper's 0.42."""
+    r = result.repeatability
+    if not r:
+        return "repeatability: not measured (one trial)"
+    return (f"repeatability at {result.reference.label}: mean std of OGCD "
+            f"{r['mean_std_ogcd']:.3f} over {r['trials']} trials of the stand-in real pixel "
+            f"(paper, real pixel, 10 trials: {PAPER['real_repeatability_ogcd_std']:g})")
+
+
 def calibration_rows(result: ExperimentResult) -> list[list[str]]:
     """The paper's Figure 11 numbers beside ours at the reference viewpoint."""
     cal = result.reference.calibration
@@ -312,7 +335,8 @@ def text_report(result: ExperimentResult) -> str:
                   "Measurement times (paper Table 1)",
                   format_table(TIMING_HEADERS, timing_rows(result)), "",
                   f"8-bit calibration at {result.reference.label} (paper Figure 11)",
-                  format_table(CAL_HEADERS, calibration_rows(result)), ""]
+                  format_table(CAL_HEADERS, calibration_rows(result)), "",
+                  repeatability_line(result), ""]
     if result.viewpoints:
         parts += ["Comparative experiment at (170, 2, 0) (paper section 4.3)",
                   format_table(COMPARE_HEADERS, comparison_rows(result)), ""]
@@ -344,6 +368,7 @@ def experiment_html(result: ExperimentResult) -> str:
                               "grid of 16 viewpoints, real vs simulated")),
             ("Measurement times - paper Table 1", report.table(TIMING_HEADERS,
                                                                timing_rows(result))),
+            ("Repeatability - paper section 4.1.1", f"<p>{repeatability_line(result)}</p>"),
             ("Comparative experiment at (170, 2, 0) - paper section 4.3",
              report.table(COMPARE_HEADERS, comparison_rows(result))),
             (f"8-bit calibration at {result.reference.label} - paper Figure 11",

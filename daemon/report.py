@@ -251,8 +251,12 @@ def validation_html(result: Any) -> str:
         ["render settings", ", ".join(f"{k} {v}" for k, v in r.settings.items())],
         ["seconds", ", ".join(f"{k} {v:.1f}" for k, v in r.seconds.items())],
     ], left=2)
-    return page("grassd validate: real vs simulated grass colour characteristic",
-                [("Capture", info)] + validation_sections(r.viewpoints),
+    sections = [("Capture", info)] + validation_sections(r.viewpoints)
+    if r.repeatability:
+        sections.append(("Repeatability of the real pixel (paper: mean OGCD std 0.42)", table(
+            ["viewpoint", "trials", "mean std of OGCD"],
+            [[k, v["trials"], f2(v["mean_std_ogcd"], 3)] for k, v in r.repeatability.items()])))
+    return page("grassd validate: real vs simulated grass colour characteristic", sections,
                 intro="Discrete Frechet distance and maximum OGCD error between the measured "
                       "and the simulated characteristic (paper section 4; paper reference "
                       "viewpoint: Frechet 1.16, maximum error 1.51).")

@@ -723,6 +723,7 @@ class ValidationResult:
     viewpoints: tuple[ViewpointComparison, ...]
     settings: dict[str, Any]
     seconds: dict[str, float]
+    repeatability: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     @property
     def reference(self) -> ViewpointComparison:
@@ -740,8 +741,27 @@ class ValidationResult:
                     "max_de00": self.ccm.max_de00},
             "reference_viewpoint": list(self.reference.viewpoint),
             "viewpoints": [v.to_json() for v in self.viewpoints],
+            "repeatability": self.repeatability,
             "settings": self.settings, "seconds": self.seconds,
         }
+
+
+def repeatability(m: CaptureManifest, real: RealCapture) -> dict[str, dict[str, Any]]:
+    """The paper's repeatability test (section 4.1.1) wherever a viewpoint was measured in
+    several trials at the same lengths: ``{label: {"trials": n, "mean_std_ogcd": x,
+    "std_ogcd": [...]}}`` with x the mean over lengths of the sample standard deviation
+    (ddof = 1) of the real OGCD across trials (paper: about 0.42 for its real pixel)."""
+    groups: dict[tuple, list[int]] = {}
+    for i, sr in enumerate(m.series):
+        groups.setdefault((sr.viewpoint, tuple(sr.lengths_mm)), []).append(i)
+    out = {}
+    for idx in groups.values():
+        if len(idx) < 2:
+            continue
+        std = np.stack([real.ogcd[i] for i in idx]).std(axis=0, ddof=1)
+        out[m.series[idx[0]].label] = {"trials": len(idx), "mean_std_ogcd": float(std.mean()),
+                                       "std_ogcd": std.tolist()}
+    return out
 
 
 def validate_capture(m: CaptureManifest, *, renderer: Any = None, settings: Any = None,
@@ -773,13 +793,18 @@ def validate_capture(m: CaptureManifest, *, renderer: Any = None, settings: Any 
     display = DisplaySpec(PixelSpec(**m.pixel))
     ref = m.reference
     out = []
+    curves: dict[tuple, Any] = {}  # repeated trials of a viewpoint share one simulation
     for i, series in enumerate(m.series):
-        if progress:
-            progress(f"simulating viewpoint {series.label}")
         ts = time.perf_counter()
-        curve = simulate_curve(renderer, display, lighting, Viewpoint(*series.viewpoint),
-                               series.lengths_mm, settings, ccm=ccm.matrix * s,
-                               target_stderr=target_stderr)
+        key = (series.viewpoint, tuple(series.lengths_mm))
+        if key not in curves:
+            if progress:
+                progress(f"simulating viewpoint {series.label}")
+            curves[key] = simulate_curve(renderer, display, lighting,
+                                         Viewpoint(*series.viewpoint), series.lengths_mm,
+                                         settings, ccm=ccm.matrix * s,
+                                         target_stderr=target_stderr)
+        curve = curves[key]
         out.append(compare_viewpoint(series.viewpoint, series.lengths_mm, real.ogcd[i],
                                      curve.ogcd, sim_stderr=curve.ogcd_stderr,
                                      real_lab=real.lab[i], sim_lab=curve.lab,
@@ -789,6 +814,7 @@ def validate_capture(m: CaptureManifest, *, renderer: Any = None, settings: Any 
     t2 = time.perf_counter()
     return ValidationResult(
         manifest=m, ccm=ccm, real=real, viewpoints=tuple(out),
+        repeatability=repeatability(m, real),
         settings={"samples": settings.samples, "replicates": settings.replicates,
                   "max_bounces": settings.max_bounces, "seed": settings.seed,
                   "light_samples": settings.light_samples, "target_stderr": target_stderr},

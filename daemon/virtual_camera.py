@@ -14,7 +14,7 @@ white balance, noise and quantisation; validation must see exactly those differe
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, fields
+from dataclasses import asdict, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -76,7 +76,7 @@ def capture_world(out_dir: str | Path, light: LightSpec,
                   lighting: Any = None, width: int = 160, spp: int = 32, max_bounces: int = 3,
                   seed: int = 0, chart: str = "spydercheckr-24",
                   progress: Callable[[str], None] | None = None,
-                  cache: dict | None = None) -> CaptureManifest:
+                  cache: dict | None = None, extra_trials: int = 0) -> CaptureManifest:
     """Photograph ``real_pixel`` (a :class:`grassd.sim.scene.PixelSpec`; default the model's)
     under ``light`` from every viewpoint (h cm, d m, theta deg) at every length (mm) into DNGs
     in ``out_dir`` and write ``capture.toml``; returns the manifest.
@@ -87,6 +87,9 @@ def capture_world(out_dir: str | Path, light: LightSpec,
     white-card radiance, as a photographer would set it. ``cache``: a dict that keeps the
     rendered views (keyed by everything they depend on but the lighting, so use one cache per
     lighting), to photograph one world with several cameras without rendering it again.
+    ``extra_trials``: further series at the first viewpoint, as a repeatability test (paper
+    section 4.1.1): in trial ``t`` the blades rest differently (``layout_seed + t``) and the
+    render and camera noise are new, as when a real pixel's grass is moved out and back in.
     """
     from grassd.daemon.simulation import white_radiance  # noqa: PLC0415
     from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint  # noqa: PLC0415
@@ -106,16 +109,22 @@ def capture_world(out_dir: str | Path, light: LightSpec,
     img, chart_corners = checker_scene(ref_chart, white, 384, 256)
     checker = camera.photograph(out / "checker.dng", img, white, electrons_per_unit=k,
                                 seed=seed)
-    display = DisplaySpec(real_pixel)
-    settings = RenderSettings(samples=16, replicates=2, max_bounces=max_bounces, seed=seed)
+    if extra_trials < 0 or (extra_trials and not viewpoints):
+        raise ValueError("extra_trials must be >= 0 and needs a first viewpoint")
+    plan = [(vp, real_pixel, seed) for vp in viewpoints] + [
+        (viewpoints[0], replace(real_pixel, layout_seed=real_pixel.layout_seed + t),
+         seed + 7919 * t) for t in range(1, extra_trials + 1)]
     series = []
     shot = 1
-    for i, vp in enumerate(viewpoints):
+    for i, (vp, pixel, render_seed) in enumerate(plan):
         photos = []
+        display = DisplaySpec(pixel)
+        settings = RenderSettings(samples=16, replicates=2, max_bounces=max_bounces,
+                                  seed=render_seed)
         for x in lengths_mm:
             if progress:
                 progress(f"photographing ({vp[0]:g}, {vp[1]:g}, {vp[2]:g}) at {x:g} mm")
-            key = (real_pixel, tuple(vp), float(x), width, spp, max_bounces, seed)
+            key = (pixel, tuple(vp), float(x), width, spp, max_bounces, render_seed)
             if cache is not None and key in cache:
                 view, quad = cache[key]
             else:

@@ -48,6 +48,10 @@ def test_paper_quick_prints_the_papers_tables(tmp_path, hdri_dir):
     env1 = next(ln for ln in text.splitlines() if ln.startswith("Env 1"))
     assert "2.79" in env1 and "19.48" in env1
     assert doc["paper"]["r2_after_sim"] == PAPER["r2_after_sim"]
+    # repeatability: 2 trials of the reference viewpoint, blades resting differently
+    rep = doc["repeatability"]
+    assert rep["trials"] == 2 and 0.0 < rep["mean_std_ogcd"] < 2.0
+    assert "repeatability at (170, 2, 0)" in text and "0.42" in text
     html = (out / "report.html").read_text()
     assert html.count("data:image/png;base64,") == 3
     assert "paper Figure 8" in html and "paper Table 1" in html
