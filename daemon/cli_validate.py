@@ -63,6 +63,9 @@ def validate(capture, samples, replicates, target_stderr, seed, arch, json_out, 
                      f"{c.r2_after_sim:.3f}" if c else "-"])
     click.echo(format_table(["viewpoint", "Frechet", "max err", "at mm", "range real",
                              "range sim", "R2 before", "R2 real", "R2 sim"], rows))
+    for label, rep in result.repeatability.items():
+        click.echo(f"repeatability at {label}: mean std of OGCD {rep['mean_std_ogcd']:.3f} over "
+                   f"{rep['trials']} trials (paper's real pixel: 0.42)")
     click.echo(f"checker colour correction: mean {result.ccm.mean_de00:.2f}, max "
                f"{result.ccm.max_de00:.2f} dE00; seconds: "
                + ", ".join(f"{k} {v:.1f}" for k, v in result.seconds.items()))
