@@ -447,6 +447,7 @@ class SweepSummary:
 
 def run_sweep(spec: SweepSpec, conds: Sequence[Condition], out_dir: str | Path, *,
               workers: int = 2, scheduler: str | None = None, restart: bool = False,
+              threads_per_worker: int | None = None,
               retries: int = 2, connect_timeout_s: float = 30.0,
               progress: Callable[[int, int], None] | None = None,
               on_result: Callable[[dict], None] | None = None,
@@ -454,7 +455,9 @@ def run_sweep(spec: SweepSpec, conds: Sequence[Condition], out_dir: str | Path, 
               contrast_threshold: float = DEFAULT_CONTRAST_THRESHOLD) -> SweepSummary:
     """Run every condition not yet in ``out_dir/sweep.sqlite``; write summary plots.
 
-    ``workers`` local processes, or a dask.distributed ``scheduler`` address. ``progress(done,
+    ``workers`` local processes (``threads_per_worker`` Taichi CPU threads each; None: the
+    cores split between them, 0: Taichi's default of all cores), or a dask.distributed
+    ``scheduler`` address (workers keep their own settings). ``progress(done,
     total)`` after each stored task; ``on_result(row)`` too (tests use it to act mid-sweep).
     """
     validate(spec, conds)
@@ -482,7 +485,7 @@ def run_sweep(spec: SweepSpec, conds: Sequence[Condition], out_dir: str | Path, 
         elif scheduler:
             executor = _run_dask(spec, todo, scheduler, retries, connect_timeout_s, stored)
         else:
-            executor = _run_local(spec, todo, workers, stored)
+            executor = _run_local(spec, todo, workers, stored, threads_per_worker)
     finally:
         store.close()
     summary = SweepSummary(total=len(conds), skipped=skipped, computed=len(todo),
@@ -496,7 +499,7 @@ def run_sweep(spec: SweepSpec, conds: Sequence[Condition], out_dir: str | Path, 
 
 
 def _run_local(spec: SweepSpec, todo: Sequence[Condition], workers: int,
-               stored: Callable[[dict], None]) -> str:
+               stored: Callable[[dict], None], threads: int | None = None) -> str:
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from concurrent.futures.process import BrokenProcessPool
@@ -506,7 +509,8 @@ def _run_local(spec: SweepSpec, todo: Sequence[Condition], workers: int,
     workers = min(workers, len(todo))
     # Taichi's offline kernel cache is keyed by its thread setting: one worker keeps the default
     # (all cores, the same key as the CLI and the daemon), several split the cores.
-    threads = max(1, (os.cpu_count() or 1) // workers) if workers > 1 else None
+    if threads is None:
+        threads = max(1, (os.cpu_count() or 1) // workers) if workers > 1 else 0
     ctx = mp.get_context("spawn")
     try:
         with ProcessPoolExecutor(workers, mp_context=ctx, initializer=init_worker,

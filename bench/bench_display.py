@@ -1,0 +1,126 @@
+"""Whole-display benchmark: 8 x 8 per-pixel tables at OGCD stderr <= 0.1, and scaling to 32 x 32.
+
+Run: ``.venv/bin/python -m bench.bench_display`` (``--quick`` for a short run). Prints numbers,
+asserts nothing. Light: ``../shared/hdri/courtyard.exr`` at 20 000 lx when present, else a
+synthetic sky; a sun at 35 deg elevation adds 40 000 lx.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from grassd.daemon.display import (
+    build_display_tables,
+    group_pixels,
+    pixel_geometry,
+    simulate_display,
+)
+from grassd.daemon.simulation import simulate_curve
+
+HDRI = Path(__file__).resolve().parents[1].parent / "shared" / "hdri" / "courtyard.exr"
+
+
+def _lighting():
+    from grassd.sim.lighting import build_lighting
+
+    if HDRI.exists():
+        src = str(HDRI)
+    else:
+        src = np.ones((64, 128, 3), np.float32)
+        src[:32] *= 2.0
+    return build_lighting(src, 20000.0, sun_lux=40000.0, sun_azimuth_deg=200.0,
+                          sun_elevation_deg=35.0)
+
+
+def _renderer_for(n_pixels: int):
+    from grassd.daemon.sweep import _capacity
+    from grassd.sim.renderer import Renderer
+
+    return Renderer(capacity=_capacity(n_pixels))
+
+
+def bench_8x8(lighting, renderer, lengths, quick: bool) -> None:
+    from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
+
+    display = DisplaySpec(rows=8, cols=8)
+    viewer = Viewpoint(170, 2.0, 0.0)
+    settings = RenderSettings(samples=1024, replicates=8, seed=0)
+    for tol, label in ((0.0, "per pixel (64 traces)"), (1.0, "grouped, 1 deg")):
+        t0 = time.perf_counter()
+        sim = simulate_display(renderer, display, lighting, viewer, lengths, settings,
+                               tolerance_deg=tol, target_stderr=0.1,
+                               check_groups=0 if tol == 0 else 4)
+        tables = build_display_tables(sim, "pixel")
+        wall = time.perf_counter() - t0
+        worst_se = max(float(c.ogcd_stderr.max()) for c in sim.curves)
+        print(f"8x8 {label:<24s} groups {sim.groups.n_groups:3d}  wall {wall:7.2f} s  "
+              f"(trace {sim.seconds['trace']:.2f} s, compile {sim.seconds['compile']:.2f} s)  "
+              f"max OGCD stderr {worst_se:.3f}  OGCD range "
+              f"{tables.pixel_ogcd_range.min():.2f}..{tables.pixel_ogcd_range.max():.2f}  "
+              f"max pixel table error {tables.pixel_error.max():.3f} dE00")
+        if sim.grouping_error is not None:
+            print("    grouping error:", {k: round(v, 3) for k, v in
+                                          sim.grouping_error.summary().items()})
+        glob = build_display_tables(sim, "global")
+        print(f"    one global table instead: max pixel error {glob.pixel_error.max():.2f}, "
+              f"mean {glob.pixel_error.mean():.2f} dE00")
+        if quick:
+            break
+
+
+def bench_scaling(lighting, lengths, quick: bool) -> None:
+    """Per-trace cost (scene build + upload + trace) by display size, traced pixels counted
+    by grouping tolerance; totals for sizes not run in full are projections (traces x cost)."""
+    from grassd.sim.geometry import build_scene
+    from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
+
+    settings = RenderSettings(samples=1024, replicates=8, seed=0)
+    viewer = Viewpoint(170, 2.0, 0.0)
+    sizes = (1, 2, 4, 8) if quick else (1, 2, 4, 8, 16, 32)
+    print(f"\nscaling: {len(lengths)} lengths, 1024 paths x 8 replicates per length per trace")
+    print(f"{'display':>8} {'blades':>8} {'build s':>8} {'s/trace':>8} {'groups 0/0.5/1/2 deg':>22}"
+          f" {'per-pixel s':>12} {'1 deg s':>9}")
+    for n in sizes:
+        display = DisplaySpec(rows=n, cols=n)
+        t0 = time.perf_counter()
+        scene = build_scene(display, lengths)
+        build = time.perf_counter() - t0
+        renderer = _renderer_for(n * n)
+        geo = pixel_geometry(display, viewer)
+        counts = [group_pixels(geo, t).n_groups for t in (0.0, 0.5, 1.0, 2.0)]
+        probe = min(3, n * n)
+        idx = np.linspace(0, n * n - 1, probe).astype(int)
+        simulate_curve(renderer, display, lighting, geo.viewpoint(int(idx[0])), lengths,
+                       settings, pixel_index=int(idx[0]))  # compile for this capacity
+        t0 = time.perf_counter()
+        for i in idx:
+            simulate_curve(renderer, display, lighting, geo.viewpoint(int(i)), lengths,
+                           settings, pixel_index=int(i))
+        per = (time.perf_counter() - t0) / probe
+        print(f"{n:>3}x{n:<4} {scene.n_blades:8d} {build:8.2f} {per:8.2f} "
+              f"{'/'.join(map(str, counts)):>22} {counts[0] * per:12.1f} {counts[2] * per:9.1f}")
+
+
+def main() -> None:
+    quick = "--quick" in sys.argv
+    from grassd.sim import backend
+    from grassd.sim.scene import parse_lengths
+
+    backend.init("cpu")
+    lighting = _lighting()
+    lengths = parse_lengths("0:20:2")
+    renderer = _renderer_for(64)
+    t0 = time.perf_counter()
+    renderer._ensure_compiled()
+    print(f"kernel compile/load: {time.perf_counter() - t0:.2f} s; light: "
+          f"{'courtyard.exr' if HDRI.exists() else 'synthetic sky'} 20000 lx + sun 40000 lx")
+    bench_8x8(lighting, renderer, lengths, quick)
+    bench_scaling(lighting, lengths, quick)
+
+
+if __name__ == "__main__":
+    main()
