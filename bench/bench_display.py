@@ -37,10 +37,10 @@ def _lighting():
 
 
 def _renderer_for(n_pixels: int):
-    from grassd.daemon.sweep import _capacity
+    from grassd.daemon.display import capacity_for
     from grassd.sim.renderer import Renderer
 
-    return Renderer(capacity=_capacity(n_pixels))
+    return Renderer(capacity=capacity_for(n_pixels))
 
 
 def bench_8x8(lighting, renderer, lengths, quick: bool) -> None:

@@ -149,6 +149,19 @@ def pixel_geometry(display, viewer, eye: str = "world") -> PixelGeometry:
                          neighbours=neighbour_mask(display.rows, display.cols))
 
 
+def capacity_for(n_pixels: int):
+    """A ``grassd.sim.renderer.Capacity`` large enough for a display of ``n_pixels`` default
+    pixels (the default Capacity holds 8 x 8; about 300 blades, 30 rectangles and 2300 grid
+    items per pixel, with headroom), rounded up to powers of two."""
+    from grassd.sim.renderer import Capacity
+
+    if n_pixels <= 64:
+        return Capacity()
+    p2 = lambda x: 1 << int(math.ceil(math.log2(max(x, 1))))  # noqa: E731
+    return Capacity(blades=p2(340 * n_pixels), rects=p2(32 * n_pixels),
+                    items=p2(2600 * n_pixels), cells=p2(400 * n_pixels + 4096))
+
+
 # --------------------------------------------------------------------------- grouping
 
 

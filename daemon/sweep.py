@@ -248,23 +248,14 @@ def _worker_state(threads: int | None = None) -> dict:
 
 
 def _renderer_for(n_pixels: int):
+    from grassd.daemon.display import capacity_for
     from grassd.sim.renderer import Renderer
 
     state = _worker_state()
-    cap = _capacity(n_pixels)
+    cap = capacity_for(n_pixels)
     if cap not in state["renderers"]:
         state["renderers"][cap] = Renderer(capacity=cap)
     return state["renderers"][cap]
-
-
-def _capacity(n_pixels: int):
-    from grassd.sim.renderer import Capacity
-
-    if n_pixels <= 64:
-        return Capacity()
-    p2 = lambda x: 1 << int(math.ceil(math.log2(max(x, 1))))  # noqa: E731
-    return Capacity(blades=p2(340 * n_pixels), rects=p2(32 * n_pixels),
-                    items=p2(2600 * n_pixels), cells=p2(400 * n_pixels + 4096))
 
 
 def init_worker(threads: int | None = None) -> None:

@@ -93,3 +93,15 @@ def test_bad_tolerances():
         group_pixels(geo, -1.0)
     with pytest.raises(DisplaySimulationError, match="distance tolerance"):
         group_pixels(geo, 1.0, distance_tolerance=0.0)
+
+
+@pytest.mark.parametrize("rows, cols", [(8, 8), (9, 9), (20, 24)])
+def test_capacity_holds_the_whole_display(rows, cols):
+    from grassd.daemon.display import capacity_for
+    from grassd.sim.geometry import build_scene
+
+    sc = build_scene(DisplaySpec(rows=rows, cols=cols), np.array([0.0, 20.0]))
+    cap = capacity_for(rows * cols)
+    assert sc.n_blades <= cap.blades and sc.n_rects <= cap.rects
+    assert len(sc.cell_items) <= cap.items
+    assert sc.grid_shape[0] * sc.grid_shape[1] <= cap.cells
