@@ -1,6 +1,7 @@
 """Whole-display benchmark: 8 x 8 per-pixel tables at OGCD stderr <= 0.1, and scaling to 32 x 32.
 
-Run: ``.venv/bin/python -m bench.bench_display`` (``--quick`` for a short run). Prints numbers,
+Run: ``.venv/bin/python -m bench.bench_display`` (``--quick``: per-pixel 8 x 8 and sizes up to
+8 x 8 only; ``--lengths 0:20:4``: other green lengths, default 0:20:2). Prints numbers,
 asserts nothing. Light: ``../shared/hdri/courtyard.exr`` at 20 000 lx when present, else a
 synthetic sky; a sun at 35 deg elevation adds 40 000 lx.
 """
@@ -112,11 +113,13 @@ def main() -> None:
 
     backend.init("cpu")
     lighting = _lighting()
-    lengths = parse_lengths("0:20:2")
+    lengths = parse_lengths(sys.argv[sys.argv.index("--lengths") + 1]
+                            if "--lengths" in sys.argv else "0:20:2")
     renderer = _renderer_for(64)
     t0 = time.perf_counter()
     renderer._ensure_compiled()
-    print(f"kernel compile/load: {time.perf_counter() - t0:.2f} s; light: "
+    print(f"{len(lengths)} lengths {lengths.min():g}..{lengths.max():g} mm; "
+          f"kernel compile/load: {time.perf_counter() - t0:.2f} s; light: "
           f"{'courtyard.exr' if HDRI.exists() else 'synthetic sky'} 20000 lx + sun 40000 lx")
     bench_8x8(lighting, renderer, lengths, quick)
     bench_scaling(lighting, lengths, quick)
