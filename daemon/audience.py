@@ -345,3 +345,28 @@ def region_from_config(audience) -> tuple[AudienceRegion, AudienceSamples]:
     (:class:`grassd.daemon.config.AudienceConfig`)."""
     region = AudienceRegion(np.asarray(audience.polygon, np.float64), tuple(audience.h_cm))
     return region, region.sample(audience.ground_samples, audience.height_samples)
+
+
+def audience_table_for_config(renderer, cfg, lighting, lengths_mm: np.ndarray, settings, *,
+                              heatmap: str | Path | None = None,
+                              target_stderr: float | None = None, ccm=None,
+                              progress: Callable[[int, int], None] | None = None
+                              ) -> tuple[RegionTable, dict]:
+    """The region table for a daemon ``Config`` with an ``[audience]`` table: sample the
+    region, simulate the display's centre pixel (``[display]``) from every sampled eye, build
+    the ``objective`` table; optionally write the heat map PNG. Returns the table and
+    :func:`region_report` (JSON-ready; also holds the heat map path when written)."""
+    from grassd.sim.scene import DisplaySpec, PixelSpec
+
+    if cfg.audience is None:
+        raise AudienceError("the configuration has no [audience] region")
+    display = DisplaySpec(PixelSpec(**dict(cfg.display.pixel)), cfg.display.rows,
+                          cfg.display.cols, cfg.display.pitch_mm)
+    region, samples = region_from_config(cfg.audience)
+    curves = simulate_region(renderer, display, lighting, samples, lengths_mm, settings,
+                             target_stderr=target_stderr, ccm=ccm, progress=progress)
+    table = region_table(fit_curves(curves), cfg.audience.objective)
+    report = region_report(samples, display, table)
+    if heatmap is not None:
+        report["heatmap"] = str(write_heatmap(heatmap, region, samples, table, display))
+    return table, report

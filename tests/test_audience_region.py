@@ -138,3 +138,27 @@ def test_report_and_heat_map(region_fits, tmp_path):
     img = mpimg.imread(png)
     assert img.ndim == 3 and img.shape[0] > 300 and img.shape[1] > 600
     assert np.ptp(img[..., :3]) > 0.5  # not a blank image
+
+
+def test_region_table_from_config(renderer, tmp_path):
+    from grassd.daemon.audience import audience_table_for_config
+    from grassd.daemon.config import default_config_text, parse_config
+    from grassd.sim.lighting import build_lighting
+    from grassd.sim.scene import RenderSettings
+
+    text = default_config_text().replace("rows = 4\ncols = 8", "rows = 2\ncols = 2")
+    text = text.replace('pixels = "0-15"', 'pixels = "0-1"').replace(
+        'pixels = "16-31"', 'pixels = "2-3"')
+    cfg = parse_config(text + '\n[audience]\npolygon = [[-1, -3], [1, -3], [1, -2], [-1, -2]]'
+                       '\nh_cm = [160, 160]\nground_samples = 2\nheight_samples = 1\n'
+                       'objective = "worst"\n')
+    env = np.ones((32, 64, 3), np.float32)
+    env[:16] *= 2.0
+    table, rep = audience_table_for_config(
+        renderer, cfg, build_lighting(env, 10000.0), np.array([0.0, 10.0, 20.0]),
+        RenderSettings(samples=256, replicates=4), heatmap=tmp_path / "h.png")
+    assert table.objective == "worst" and len(rep["viewpoints"]) == 2
+    assert rep["pixel_index"] == 3 and (tmp_path / "h.png").stat().st_size > 10000
+    assert all(v["eye_m"][2] == pytest.approx(1.6) for v in rep["viewpoints"])
+    with pytest.raises(AudienceError, match="no \\[audience\\]"):
+        audience_table_for_config(renderer, parse_config(text), None, None, None)
