@@ -96,9 +96,11 @@ def experiment() -> None:
               help="Run only these environments ('Env 1' .. 'Env 5'); repeatable.")
 @click.option("--samples", type=int, default=None, help="Paths per length per replicate.")
 @click.option("--replicates", type=int, default=None)
+@click.option("--trials", type=click.IntRange(1, 20), default=None,
+              help="Repeatability trials at the reference viewpoint (default 3; quick 2).")
 @click.option("--arch", type=click.Choice(["cpu", "gpu"]), default="cpu", show_default=True)
 @click.option("-q", "--quiet", is_flag=True, help="No progress messages.")
-def paper_cmd(out_dir, hdri_dir, quick, envs, samples, replicates, arch, quiet):
+def paper_cmd(out_dir, hdri_dir, quick, envs, samples, replicates, trials, arch, quiet):
     """16 viewpoints x 5 environments as in the paper; prints its tables with timings."""
     from dataclasses import replace  # noqa: PLC0415
 
@@ -118,6 +120,8 @@ def paper_cmd(out_dir, hdri_dir, quick, envs, samples, replicates, arch, quiet):
         st = replace(st, samples=samples)
     if replicates:
         st = replace(st, replicates=replicates)
+    if trials:
+        st = replace(st, trials=trials)
     result = run_paper(out_dir, settings=st, hdri_dir=hdri_dir, renderer=_renderer(arch),
                        progress=None if quiet else _progress)
     click.echo(text_report(result))
