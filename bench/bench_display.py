@@ -41,7 +41,7 @@ def _renderer_for(n_pixels: int):
     from grassd.daemon.display import capacity_for
     from grassd.sim.renderer import Renderer
 
-    return Renderer(capacity=capacity_for(n_pixels))
+    return Renderer.shared(capacity_for(n_pixels))
 
 
 def bench_8x8(lighting, renderer, lengths, quick: bool) -> None:

@@ -46,7 +46,7 @@ def main(argv: list[str] | None = None) -> None:
     backend.init(args.arch)
     from grassd.sim.renderer import Renderer
 
-    renderer = Renderer()
+    renderer = Renderer.shared()
     light = LightSpec(default_hdri_dir() / "interior.exr", 500.0)
     lighting = light.build()
     lengths = np.arange(0.0, 20.01, 1.0)

@@ -55,7 +55,7 @@ def main() -> None:
     first_call()
     arch = backend.init(os.environ.get("GRASSD_BENCH_ARCH", "cpu"))
     print(f"arch {arch}, {os.cpu_count()} CPU cores")
-    renderer = Renderer()
+    renderer = Renderer.shared()
     lengths = np.arange(0.0, 20.01, 1.0)
     display = DisplaySpec()
     for name, lux in (("courtyard", 8000.0), ("city", 20000.0)):

@@ -272,7 +272,7 @@ def _renderer() -> Any:
     from grassd.sim.renderer import Renderer  # noqa: PLC0415 - imports Taichi
 
     if "r" not in _RENDERER:
-        _RENDERER["r"] = Renderer()
+        _RENDERER["r"] = Renderer.shared()
     return _RENDERER["r"]
 
 

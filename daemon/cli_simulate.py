@@ -174,7 +174,7 @@ def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, site, when, su
     backend.init(arch)
     from grassd.sim.renderer import Renderer
 
-    renderer = Renderer()
+    renderer = Renderer.shared()
     total = len(views) * len(length_mm)
     with click.progressbar(length=total, label="tracing", file=sys.stderr) as bar:
         curves, seconds = simulate_curves(renderer, display, lighting, views, length_mm,

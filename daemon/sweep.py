@@ -254,7 +254,7 @@ def _renderer_for(n_pixels: int):
     state = _worker_state()
     cap = capacity_for(n_pixels)
     if cap not in state["renderers"]:
-        state["renderers"][cap] = Renderer(capacity=cap)
+        state["renderers"][cap] = Renderer.shared(cap)
     return state["renderers"][cap]
 
 

@@ -113,7 +113,7 @@ def default_renderer(arch: str = "cpu") -> Any:
             backend.init(arch)
         from grassd.sim.renderer import Renderer  # noqa: PLC0415
 
-        _RENDERERS["r"] = Renderer()
+        _RENDERERS["r"] = Renderer.shared()
     return _RENDERERS["r"]
 
 

@@ -203,18 +203,24 @@ def _bin(boxes: np.ndarray, origin: np.ndarray, cell: float, shape: tuple[int, i
     return cell_start, prim[order].astype(np.int32)
 
 
-def build_scene(display: DisplaySpec, lengths_mm: np.ndarray) -> SceneArrays:
-    """Build the traced scene for a display, conservative for every length in ``lengths_mm``.
-
-    Lengths are green grass lengths in mm above the base top (0 .. ``green_max_mm``).
-    """
-    spec = display.pixel
+def check_lengths(spec: PixelSpec, lengths_mm) -> np.ndarray:
+    """Green lengths (mm) as float64, or a SceneError: finite, non-empty, 0..green_max_mm."""
     lengths_mm = np.asarray(lengths_mm, dtype=np.float64)
     if lengths_mm.size == 0 or not np.all(np.isfinite(lengths_mm)):
         raise SceneError("lengths must be a non-empty list of finite numbers (mm)")
     if lengths_mm.min() < 0 or lengths_mm.max() > spec.green_max_mm:
         raise SceneError(f"green lengths must be within 0..{spec.green_max_mm:g} mm, got "
                          f"{lengths_mm.min():g}..{lengths_mm.max():g}")
+    return lengths_mm
+
+
+def build_scene(display: DisplaySpec, lengths_mm: np.ndarray) -> SceneArrays:
+    """Build the traced scene for a display, conservative for every length in ``lengths_mm``.
+
+    Lengths are green grass lengths in mm above the base top (0 .. ``green_max_mm``).
+    """
+    spec = display.pixel
+    lengths_mm = check_lengths(spec, lengths_mm)
     rng = np.random.default_rng(spec.layout_seed)
     one = _pixel_blades(spec, rng)
     centres_mm = display.pixel_centres_m() * 1000.0
@@ -222,8 +228,12 @@ def build_scene(display: DisplaySpec, lengths_mm: np.ndarray) -> SceneArrays:
     if n_pix * (nb1 + 40) > MAX_PRIMITIVES:
         raise SceneError(f"display of {n_pix} pixels x {nb1} blades exceeds the limit of "
                          f"{MAX_PRIMITIVES} primitives; lower the blade density or split it")
-    # Every pixel gets its own layout (re-drawn), as real tufts differ.
-    pixels = [one] + [_pixel_blades(spec, rng) for _ in range(n_pix - 1)]
+    # Every pixel gets its own layout (re-drawn), as real tufts differ, unless the display asks
+    # for one layout everywhere (so per-pixel differences come from geometry alone).
+    if display.same_layout:
+        pixels = [one] + [{k: v.copy() for k, v in one.items()} for _ in range(n_pix - 1)]
+    else:
+        pixels = [one] + [_pixel_blades(spec, rng) for _ in range(n_pix - 1)]
     for p, c in zip(pixels, centres_mm, strict=True):
         p["xy"] = p["xy"] + c
     cat = {k: np.concatenate([p[k] for p in pixels]) for k in one}

@@ -35,11 +35,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from grassd.sim import geometry
 from grassd.sim import tifuncs as tf
 from grassd.sim.backend import is_initialised, ti
 from grassd.sim.camera import frame_quad, image_quad
 from grassd.sim.errors import SceneError, SimError
-from grassd.sim.geometry import SceneArrays, blade_rise, build_scene
+from grassd.sim.geometry import SceneArrays, blade_rise, build_scene, check_lengths
 from grassd.sim.lighting import Lighting, build_env_sampler
 from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
 
@@ -80,9 +81,21 @@ class Measurement:
     seconds: dict[str, float] = field(default_factory=dict)
 
 
+_SHARED: dict[Capacity, "Renderer"] = {}
+
+
 @ti.data_oriented
 class Renderer:
     """Owns the scene, environment and output fields; traces with one kernel."""
+
+    @classmethod
+    def shared(cls, capacity: Capacity | None = None) -> "Renderer":
+        """The process-wide renderer for ``capacity`` (created on first use). Each Renderer
+        owns its fields and compiles its own kernels, so programs should share one."""
+        cap = capacity or Capacity()
+        if cap not in _SHARED:
+            _SHARED[cap] = cls(cap)
+        return _SHARED[cap]
 
     def __init__(self, capacity: Capacity | None = None) -> None:
         if not is_initialised():
@@ -114,6 +127,9 @@ class Renderer:
         self.fpar = ti.field(ti.f32, 32)
         self.ipar = ti.field(ti.i32, 16)
         self.compiled = False
+        self._scene_key: tuple | None = None
+        self._scene: SceneArrays | None = None
+        self._lighting: Lighting | None = None
 
     def _ensure_compiled(self) -> float:
         """JIT-compile (or load from the offline cache) the kernel; returns seconds spent."""
@@ -126,6 +142,23 @@ class Renderer:
         return time.perf_counter() - t0
 
     # ----------------------------------------------------------------------------- uploads
+    def _prepare(self, display: DisplaySpec, lengths_mm: np.ndarray,
+                 lighting: Lighting) -> SceneArrays:
+        """Build and upload the scene and the light unless the same ones are already on the
+        fields (successive calls for other viewpoints, pixels or replicates reuse them)."""
+        lengths_mm = check_lengths(display.pixel, lengths_mm)
+        key = (display, float(lengths_mm.max()), geometry.GRID_CELL_BLADE_WIDTHS)
+        if self._scene_key != key:
+            self._scene_key = None
+            scene = build_scene(display, lengths_mm)
+            self._upload_scene(scene)
+            self._scene, self._scene_key = scene, key
+        if self._lighting is not lighting:
+            self._lighting = None
+            self._upload_light(lighting)
+            self._lighting = lighting
+        return self._scene
+
     def _upload_scene(self, sc: SceneArrays) -> None:
         cap = self.cap
         nb, nr = sc.n_blades, sc.n_rects
@@ -513,9 +546,7 @@ class Renderer:
         lengths_mm = np.asarray(lengths_mm, dtype=np.float64)
         if lengths_mm.ndim != 1 or not 1 <= len(lengths_mm) <= 256:
             raise SceneError("give 1..256 green lengths (mm)")
-        scene = build_scene(display, lengths_mm)
-        self._upload_scene(scene)
-        self._upload_light(lighting)
+        scene = self._prepare(display, lengths_mm, lighting)
         centres = display.pixel_centres_m()
         if not 0 <= pixel_index < len(centres):
             raise SceneError(f"pixel_index {pixel_index} outside the display's "
@@ -577,9 +608,7 @@ class Renderer:
         settings = settings or RenderSettings()
         if not 8 <= width <= PREVIEW_MAX or not 1 <= spp <= 4096:
             raise SceneError(f"preview width must be 8..{PREVIEW_MAX} and spp 1..4096")
-        scene = build_scene(display, np.array([length_mm], dtype=np.float64))
-        self._upload_scene(scene)
-        self._upload_light(lighting)
+        scene = self._prepare(display, np.array([length_mm], dtype=np.float64), lighting)
         cxy = display.pixel_centres_m()[0]
         corners = scene.quad_corners + np.array([cxy[0], cxy[1], 0.0])
         view = frame_quad(viewpoint.eye_m(tuple(cxy)), corners)

@@ -125,12 +125,17 @@ class PixelSpec:
 
 @dataclass(frozen=True)
 class DisplaySpec:
-    """``rows`` x ``cols`` pixels at ``pitch_mm`` (centre to centre); one pixel is the default."""
+    """``rows`` x ``cols`` pixels at ``pitch_mm`` (centre to centre); one pixel is the default.
+
+    Every pixel draws its own random blade layout (as real tufts differ) unless
+    ``same_layout``, which copies pixel 0's layout to all (differences then come from viewing
+    geometry and neighbours only)."""
 
     pixel: PixelSpec = field(default_factory=PixelSpec)
     rows: int = 1
     cols: int = 1
     pitch_mm: float = 33.5
+    same_layout: bool = False
 
     def __post_init__(self) -> None:
         if self.rows < 1 or self.cols < 1 or self.rows * self.cols > 4096:

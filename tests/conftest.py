@@ -17,7 +17,7 @@ def renderer():
     from grassd.sim.renderer import Renderer
 
     init("cpu")
-    return Renderer()
+    return Renderer.shared()
 
 
 @pytest.fixture(scope="session")

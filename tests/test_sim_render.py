@@ -187,3 +187,33 @@ def test_glossy_lobe_conserves_energy_on_a_plate(renderer):
         DisplaySpec(PixelSpec(base_srgb=(150, 150, 150), **FLAT)), uniform_lighting(1.0), vp,
         [0.0], RenderSettings(samples=256, replicates=4))
     assert np.all(m.rgb_linear[0] > diffuse_only.rgb_linear[0])
+
+
+def test_uploads_are_reused_only_for_the_same_scene_and_light(renderer):
+    """The renderer keeps the last scene and light on its fields; a new light, a new display or
+    a longer length must be uploaded again (a stale scene would give the old answer)."""
+    s = RenderSettings(samples=64, replicates=2)
+    plate = DisplaySpec(PixelSpec(base_srgb=(200, 200, 200), **FLAT))
+    dark = DisplaySpec(PixelSpec(base_srgb=(50, 50, 50), **FLAT))
+    a = renderer.characteristic(plate, uniform_lighting(1.0), Viewpoint(), [0.0], s)
+    b = renderer.characteristic(plate, uniform_lighting(2.0), Viewpoint(), [0.0], s)
+    c = renderer.characteristic(dark, uniform_lighting(2.0), Viewpoint(), [0.0], s)
+    np.testing.assert_allclose(b.rgb_linear, 2 * a.rgb_linear, rtol=1e-5)
+    assert np.all(c.rgb_linear < 0.2 * b.rgb_linear)
+    grass = DisplaySpec()
+    short = renderer.characteristic(grass, uniform_lighting(1.0), Viewpoint(), [0.0, 5.0], s)
+    long_ = renderer.characteristic(grass, uniform_lighting(1.0), Viewpoint(), [0.0, 20.0], s)
+    assert not np.allclose(short.rgb_linear[1], long_.rgb_linear[1])
+
+
+def test_same_layout_copies_pixel_0_everywhere():
+    d = DisplaySpec(rows=2, cols=2, same_layout=True)
+    sc = build_scene(d, np.array([10.0]))
+    per = sc.n_blades // 4
+    centres = d.pixel_centres_m()
+    rel = [sc.blade_p0[i * per:(i + 1) * per, :2] - centres[i] for i in range(4)]
+    for r in rel[1:]:
+        np.testing.assert_allclose(r, rel[0], atol=1e-7)
+    different = build_scene(DisplaySpec(rows=2, cols=2), np.array([10.0]))
+    assert different.n_blades != sc.n_blades or not np.allclose(
+        different.blade_p0[per:2 * per, :2] - centres[1], rel[0], atol=1e-7)
