@@ -135,10 +135,13 @@ class VirtualCamera:
                rng: np.random.Generator) -> NDArray[np.uint16]:
         """Bayer raw DN (H, W) uint16 of a linear Rec.709 radiance image (H, W, 3).
 
+        As in scRGB, components may be negative for colours outside the Rec.709 gamut (e.g.
+        saturated checker patches); the sensor sees their true XYZ.
+
         Shot noise ~ Poisson(signal electrons), read noise ~ N(0, read_noise_e); DN rounded and
         clipped to ``0..white_level``.
         """
-        img = as_float_array(rgb709, "rgb709", last_dim=3, ndim=3, non_negative=True)
+        img = as_float_array(rgb709, "rgb709", last_dim=3, ndim=3)
         h, w, _ = img.shape
         if h < 2 or w < 2 or h % 2 or w % 2:
             raise DngWriteError(f"a Bayer image needs an even height and width >= 2; got {h}x{w}")

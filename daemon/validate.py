@@ -583,10 +583,7 @@ def measure_real(m: CaptureManifest, chart: ReferenceChart | None = None,
 def virtual_checker(chart: ReferenceChart) -> tuple[NDArray[np.float64], float]:
     """Normalised ProPhoto linear patches (24, 3) of the analytic virtual checker and the factor
     ``s`` (0.18 / Y of its grey) that the white-card-normalised simulation is scaled by."""
-    albedo709 = np.clip(prophoto_to_rec709(chart.prophoto()), 0.0, None)
-    from grassd.calib.colour_spaces import rec709_to_prophoto  # noqa: PLC0415
-
-    pp = rec709_to_prophoto(albedo709)
+    pp = chart.prophoto()  # the analytic patches need no Rec.709 detour (nor its gamut)
     s = GREY_CARD_Y / float(luminance(pp[chart.grey_index()], "prophoto"))
     return pp * s, s
 

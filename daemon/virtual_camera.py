@@ -50,10 +50,11 @@ def checker_scene(chart: ReferenceChart, white_rgb709: Sequence[float], width: i
     (4, 2) image corners of its patch area (TL, TR, BR, BL; pixels (x, y)).
 
     A Lambertian patch of albedo ``a`` under horizontal irradiance ``E`` has radiance
-    ``a * E / pi`` = ``a * white_rgb709`` (linear Rec.709); patches fill 80 % of their cells.
+    ``a * E / pi`` = ``a * white_rgb709`` (linear Rec.709, negative components kept for the
+    patches outside its gamut, as scRGB does); patches fill 80 % of their cells.
     """
     corners = CHART_LAYOUT * np.array([width, height])
-    albedo = np.clip(prophoto_to_rec709(chart.prophoto()), 0.0, None)
+    albedo = prophoto_to_rec709(chart.prophoto())  # scRGB: out-of-gamut patches go negative
     hinv = homography(corners, [(0, 0), (1, 0), (1, 1), (0, 1)])
     yy, xx = np.mgrid[0:height, 0:width]
     uv = apply_homography(hinv, np.stack([xx + 0.5, yy + 0.5], axis=-1))

@@ -18,8 +18,6 @@ from grassd.calib.charts import get_chart
 from grassd.calib.colour_spaces import (
     luminance,
     prophoto_to_lab,
-    prophoto_to_rec709,
-    rec709_to_prophoto,
 )
 from grassd.calib.delta_e import delta_e_cie2000
 from grassd.calib.errors import DngWriteError
@@ -29,8 +27,9 @@ from grassd.daemon.validate import checker_white_balance
 from grassd.daemon.virtual_camera import checker_scene
 
 CHART = get_chart("spydercheckr-24")
-#: The checker as the renderer can show it: albedos clipped to the Rec.709 gamut.
-REFERENCE = rec709_to_prophoto(np.clip(prophoto_to_rec709(CHART.prophoto()), 0.0, None))
+#: The checker's reference colours (two SpyderCheckr patches lie outside Rec.709: the scene
+#: keeps them as negative scRGB components and the camera sees their true colour).
+REFERENCE = CHART.prophoto()
 
 
 def _round_trip(tmp_path, camera, light=(1.0, 1.0, 1.0), seed=0, name="c.dng"):
