@@ -356,10 +356,10 @@ def experiment_html(result: ExperimentResult) -> str:
     intro = (
         "The paper's simulation experiments run by grassd on the bundled HDRIs. The 'real' "
         f"characteristic is a stand-in: a pixel whose green blades splay by {st.real_splay_deg:g}"
-        " deg at full length (the paper's stated cause of its theta = 90 deg error), "
-        "photographed by the virtual camera into DNGs and measured through grassd validate's "
-        "real-capture path; the simulation model has straight blades. Paper numbers are shown "
-        "where the paper states them.")
+        " deg at full length (the paper's stated cause of its theta = 90 deg error) and whose "
+        "blades rest elsewhere than the model's, photographed by the virtual camera into DNGs "
+        "and measured through grassd validate's real-capture path; the simulation model has "
+        "straight blades. Paper numbers are shown where the paper states them.")
     sections = []
     if result.viewpoints:
         sections += [
