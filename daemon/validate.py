@@ -100,21 +100,16 @@ class MixedCamerasError(ValidateError):
     """The photos were not all taken with the same camera (make, model, sensor layout)."""
 
 
-_RENDERERS: dict[str, Any] = {}
-
-
 def default_renderer(arch: str = "cpu") -> Any:
-    """One :class:`grassd.sim.renderer.Renderer` per process (Taichi initialised on ``arch``
-    first if needed). Each further Renderer instance would compile its kernels again."""
-    if "r" not in _RENDERERS:
-        from grassd.sim import backend  # noqa: PLC0415
+    """The process's shared :class:`grassd.sim.renderer.Renderer` (Taichi initialised on
+    ``arch`` first if needed): every further instance would compile its kernels again."""
+    from grassd.sim import backend  # noqa: PLC0415
 
-        if not backend.is_initialised():
-            backend.init(arch)
-        from grassd.sim.renderer import Renderer  # noqa: PLC0415
+    if not backend.is_initialised():
+        backend.init(arch)
+    from grassd.sim.renderer import Renderer  # noqa: PLC0415
 
-        _RENDERERS["r"] = Renderer.shared()
-    return _RENDERERS["r"]
+    return Renderer.shared()
 
 
 # ----------------------------------------------------------------------------- manifest
