@@ -50,7 +50,7 @@ from numpy.typing import NDArray
 from grassd.calib.ccm import ColourCorrection, fit_ccm
 from grassd.calib.characteristic import Characteristic, fit_characteristic
 from grassd.calib.charts import get_chart
-from grassd.calib.colour_spaces import prophoto_to_xyz, rec709_to_prophoto, xyz_to_rec709
+from grassd.calib.colour_spaces import luminance
 from grassd.calib.exposure import normalise_exposure
 from grassd.calib.length_table import LEVELS, LengthTable, build_length_table, r_squared
 from grassd.calib.raw import develop_raw
@@ -328,16 +328,19 @@ class Calibrator:
         white reference shared with ``grassd simulate``, :mod:`grassd.daemon.simulation`)."""
         return white_radiance(lighting)
 
-    def fit_checker_ccm(self, light: LightInput, lighting: Any) -> ColourCorrection:
+    def fit_checker_ccm(self, light: LightInput) -> ColourCorrection:
         """3x3 CCM from the bundle's checker RAW (see module docstring, step 4)."""
         chart = get_chart(light.checker_chart)
         real = develop_raw(light.checker_raw).checker_patches(light.checker_corners)
-        albedo709 = np.clip(xyz_to_rec709(prophoto_to_xyz(chart.prophoto())), 0.0, None)
-        virtual = rec709_to_prophoto(albedo709 * self.white_radiance(lighting))
+        # The analytic virtual checker in the renders' normalisation (radiance divided by the
+        # white card's, channel by channel): each patch reads its albedo, in ProPhoto linear.
+        virtual = chart.prophoto()
         grey = chart.grey_index()
-        v = normalise_exposure(virtual, virtual[grey], space="prophoto")
-        r = normalise_exposure(real, real[grey], space="prophoto")
-        return fit_ccm(v, r, "3x3")
+        # The photo is scaled so its grey patch reads that patch's reference luminance, so M
+        # maps white-card-normalised renders straight onto the photo's scale.
+        r = normalise_exposure(real, real[grey], space="prophoto",
+                               target_y=float(luminance(virtual[grey], "prophoto")))
+        return fit_ccm(virtual, r, "3x3")
 
     def simulate(self, lighting: Any, lengths_mm: NDArray, seed: int,
                  ccm: ColourCorrection | None, stop: threading.Event | None,
@@ -391,7 +394,7 @@ class Calibrator:
         if light.checker_raw is not None:
             if progress:
                 progress("fitting the colour-correction matrix from the checker RAW")
-            ccm = self.fit_checker_ccm(light, lighting)
+            ccm = self.fit_checker_ccm(light)
             ccm_source = "bundle"
         elif previous_ccm is not None:
             m = np.asarray(previous_ccm, float)
