@@ -15,12 +15,16 @@ under an importance-sampled equirectangular environment plus an optional directi
   estimate is the mean over image area. No image is formed.
 * Uncertainty: ``replicates`` independently randomised stratified estimates; their spread gives
   the Monte Carlo standard error. Replicate means are returned, so downstream non-linear
-  quantities (Lab, OGCD) can be given jackknife errors that include the correlation between
-  lengths.
+  quantities (Lab, OGCD) can be given errors that include the correlation between lengths
+  (the daemon uses the replicates' covariance, :func:`grassd.calib.ogcd.ogcd_from_samples`).
 * Common random numbers: a camera path's random numbers depend on (seed, replicate, sample) but
   not on the grass length, so all lengths are traced with the same sample sequence and OGCD
   differences are smooth. With the same seed the result is bit-reproducible (each path writes
-  its own slot; the reduction is done in numpy in a fixed order).
+  its own slot; a float64 kernel then sums each (length, replicate) group serially).
+* Sampling: the quad position is jittered in a strata x strata grid per replicate; every other
+  pair of dimensions (light samples, bounce directions) is padded-jittered, i.e. stratified the
+  same way under its own random permutation of the paths (:func:`grassd.sim.tifuncs.padded_pair`).
+  The first surface a path meets takes ``light_samples`` environment samples.
 
 Numpy in, numpy out: :meth:`Renderer.characteristic` takes a :class:`~grassd.sim.scene.DisplaySpec`,
 a ``Lighting`` (from :mod:`grassd.sim.lighting`), a viewpoint and lengths (mm), and returns a
