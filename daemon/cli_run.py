@@ -7,7 +7,13 @@ from pathlib import Path
 
 import click
 
-from grassd.daemon.config import DEFAULT_CONFIG_PATH, Config, load_config, load_default_config
+from grassd.daemon.config import (
+    DEFAULT_CONFIG_PATH,
+    Config,
+    load_config,
+    load_default_config,
+    not_used_by_the_daemon,
+)
 
 _CONFIG_HELP = (f"configuration file (default {DEFAULT_CONFIG_PATH}; "
                 "the embedded default when that is absent)")
@@ -45,6 +51,8 @@ def check_config(config_path: str | None) -> None:
         lux += f" (modbus {m.mode} {where} unit {m.unit} fc {m.function_code} reg {m.register})"
     click.echo(f"  inbox: {cfg.light.inbox}; lux from {lux}")
     click.echo(f"  state: {cfg.state_dir}; cache: {cfg.cache_dir}; socket: {cfg.control_socket}")
+    for note in not_used_by_the_daemon(cfg):
+        click.echo(f"  warning: {note}")
 
 
 # --------------------------------------------------------------------------- grassd run

@@ -810,3 +810,20 @@ def load_default_config(**overrides: Any) -> Config:
     """The embedded default configuration, paths resolved against the current directory."""
     cfg = parse_config(default_config_text(), source="<embedded default.toml>")
     return cfg.replace(**overrides) if overrides else cfg
+
+
+def not_used_by_the_daemon(cfg: Config) -> list[str]:
+    """Settings that the API honours but ``grassd run`` does not act on yet, as warnings.
+
+    The daemon pushes one global table built from ``[[viewpoints]]`` (the centre pixel of a 3 x 3
+    patch of the display); per-controller/per-pixel tables and audience regions are computed by
+    :mod:`grassd.daemon.display` and :mod:`grassd.daemon.audience` but not pushed yet.
+    """
+    notes = []
+    if cfg.tables.granularity != "global":
+        notes.append(f"tables.granularity = {cfg.tables.granularity!r}: the daemon still pushes "
+                     "one global table to every controller")
+    if cfg.audience is not None:
+        notes.append("[audience]: the daemon still builds its table from [[viewpoints]], not "
+                     "from the audience region")
+    return notes

@@ -44,7 +44,7 @@ from typing import Any
 from grassd import __version__
 from grassd.daemon.atomic import atomic_save_figure, atomic_write_json
 from grassd.daemon.calibrate import CalibrationResult, Calibrator, LightInput, init_backend
-from grassd.daemon.config import Config, load_config
+from grassd.daemon.config import Config, load_config, not_used_by_the_daemon
 from grassd.daemon.control import ControlServer
 from grassd.daemon.errors import (
     USER_ERRORS,
@@ -151,6 +151,8 @@ class Service:
     def run(self) -> int:
         """Run until SIGTERM/SIGINT; returns the exit status (0 = clean stop)."""
         self._install_signals()
+        for note in not_used_by_the_daemon(self.cfg):
+            log.warning("config: %s", note)
         self._progress("initialising the renderer")
         init_backend(self.cfg)
         abandoned = self.history.abandon_running("daemon stopped or crashed during the run")

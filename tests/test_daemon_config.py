@@ -223,3 +223,18 @@ def test_check_config_cli(tmp_path):
     line = _line_of(bad.read_text(), "colour = 1")
     assert r.stderr.strip() == (f"grassd: error: {bad}:{line}: viewpoints[0].colour: unknown key "
                                 "(allowed here: d_m, h_cm, theta_deg, weight)")
+
+
+def test_settings_the_daemon_does_not_act_on_are_reported(tmp_path):
+    """[tables] granularity other than global and [audience] are honoured by the display and
+    audience APIs but not by grassd run: check-config says so instead of staying silent."""
+    from click.testing import CliRunner
+
+    from grassd.daemon.cli import main
+    from grassd.daemon.config import default_config_text
+
+    path = tmp_path / "grassd.toml"
+    path.write_text(default_config_text() + '\n[tables]\ngranularity = "controller"\n')
+    res = CliRunner().invoke(main, ["check-config", "--config", str(path)])
+    assert res.exit_code == 0, res.output
+    assert "warning: tables.granularity = 'controller'" in res.output
