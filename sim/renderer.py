@@ -350,7 +350,7 @@ class Renderer:
         return t, n, mat
 
     @ti.func
-    def trace(self, o, d, x: ti.f32, tmax_in: ti.f32, any_hit: ti.template()):
+    def trace(self, o, d, x: ti.f32, tmax_in: ti.f32, any_hit: ti.i32):
         """Nearest hit (or any hit, for shadows) along o + t d, t in (0, tmax_in)."""
         best_t = tmax_in
         best_n = vec3(0.0, 0.0, 1.0)
@@ -397,7 +397,7 @@ class Renderer:
                         best_t = t
                         best_n = n
                         best_m = m
-                        if ti.static(any_hit):
+                        if any_hit:
                             done = True
                             break
                 t_exit = ti.min(tnx, tny, t1)
@@ -428,13 +428,8 @@ class Renderer:
         sun_e = vec3(self.fpar[13], self.fpar[14], self.fpar[15])
         ks, nexp = self.fpar[16], self.fpar[17]
         for depth in range(max_bounces + 1):
-            t = tf.INF
-            n = vec3(0.0, 0.0, 1.0)
-            mat = -1
-            if depth < max_bounces:
-                t, n, mat = self.trace(o, d, x, tf.INF, False)
-            else:  # the last segment only asks whether the environment is visible
-                t, n, mat = self.trace(o, d, x, tf.INF, True)
+            # The last segment only asks whether the environment is visible (any hit).
+            t, n, mat = self.trace(o, d, x, tf.INF, 1 if depth == max_bounces else 0)
             if mat < 0:  # escaped to the environment
                 le = self.env_radiance(d)
                 w = 1.0
@@ -453,25 +448,29 @@ class Renderer:
             pair = 1 + depth * 2
             # Next-event estimation: environment, MIS against the BSDF strategy. The first
             # vertex takes ``n_nee`` light samples (its direct light dominates the variance).
+            # The sun is one more shadow query (a delta light: no MIS). All shadow rays share
+            # one trace call, so the kernel inlines the traversal twice, not four times.
             n_nee = 1
             if depth == 0:
                 n_nee = self.ipar[7]
-            for j in range(n_nee):
-                e1, e2 = tf.padded_pair(index, strata, rep_key, key, pair if j == 0 else 64 + j)
-                wl, pdf_l, le = self.sample_env(e1, e2)
-                if nn.dot(wl) > 0.0 and pdf_l > 0.0:
-                    ts, _, ms = self.trace(p, wl, x, tf.INF, True)
-                    if ms < 0:
+            for j in range(n_nee + sun_on):
+                wl = sun_dir
+                contrib = vec3(0.0)
+                if j < n_nee:
+                    e1, e2 = tf.padded_pair(index, strata, rep_key, key,
+                                            pair if j == 0 else 64 + j)
+                    wl, pdf_l, le = self.sample_env(e1, e2)
+                    if pdf_l > 0.0:
                         fcos, pdf_b = tf.bsdf_eval(alb, nn, wo, wl, ks, nexp)
                         w = tf.power_heuristic(n_nee * pdf_l, pdf_b)
-                        total += beta * le * fcos * (w / (pdf_l * n_nee))
-            # Next-event estimation: the sun (a delta light: no MIS).
-            if sun_on == 1:
-                if nn.dot(sun_dir) > 0.0:
-                    ts, _, ms = self.trace(p, sun_dir, x, tf.INF, True)
+                        contrib = le * fcos * (w / (pdf_l * n_nee))
+                else:
+                    fcos, _ = tf.bsdf_eval(alb, nn, wo, sun_dir, ks, nexp)
+                    contrib = sun_e * fcos
+                if nn.dot(wl) > 0.0 and contrib.max() > 0.0:
+                    ts, _, ms = self.trace(p, wl, x, tf.INF, 1)
                     if ms < 0:
-                        fcos, _ = tf.bsdf_eval(alb, nn, wo, sun_dir, ks, nexp)
-                        total += beta * sun_e * fcos
+                        total += beta * contrib
             # Continue the path by sampling the BSDF (Lambertian: throughput *= albedo).
             b1, b2 = tf.padded_pair(index, strata, rep_key, key, pair + 1)
             d, weight, pdf_bsdf = tf.bsdf_sample(alb, nn, wo, ks, nexp, b1, b2,
