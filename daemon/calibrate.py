@@ -138,8 +138,8 @@ class CalibrationResult:
             "mean_ogcd_stderr_de00": float(np.mean(self.weighted.ogcd_stderr))
             if self.weighted.ogcd_stderr is not None else None,
             "ccm_source": self.ccm_source,
-            "ccm_mean_de00": self.ccm.mean_de00 if self.ccm else None,
-            "ccm_max_de00": self.ccm.max_de00 if self.ccm else None,
+            "ccm_mean_de00": _finite_or_none(self.ccm.mean_de00) if self.ccm else None,
+            "ccm_max_de00": _finite_or_none(self.ccm.max_de00) if self.ccm else None,
             "max_step_from_last_um": self.max_step_um,
             "seconds": dict(self.seconds),
         }
@@ -169,8 +169,9 @@ class CalibrationResult:
             ],
             "ccm": None if self.ccm is None else {
                 "source": self.ccm_source, "method": self.ccm.method,
-                "matrix": self.ccm.matrix.tolist(), "mean_de00": self.ccm.mean_de00,
-                "max_de00": self.ccm.max_de00,
+                "matrix": self.ccm.matrix.tolist(),
+                "mean_de00": _finite_or_none(self.ccm.mean_de00),
+                "max_de00": _finite_or_none(self.ccm.max_de00),
             },
             "lighting_notes": list(self.lighting_notes),
         }
@@ -202,6 +203,14 @@ class CalibrationResult:
         ax3.legend(fontsize=7)
         fig.tight_layout()
         return fig
+
+
+def _finite_or_none(x: float | None) -> float | None:
+    """``x`` as a float, or None when it is missing or not finite (reports are strict JSON: a
+    reused matrix has no residuals, so its mean/max dE00 are NaN)."""
+    if x is None or not np.isfinite(x):
+        return None
+    return float(x)
 
 
 # --------------------------------------------------------------------------- checks
@@ -419,7 +428,9 @@ class Calibrator:
             if progress:
                 progress(f"closed loop round {k}: re-simulating {levels.size} levels")
             lx = table.lengths_um[levels].astype(float) / 1000.0
-            loop_curves = self.simulate(lighting, lx, seed + 1000 * k, ccm, stop, None)
+            loop_progress = (None if progress is None else
+                             lambda text, k=k: progress(f"closed loop round {k}: {text}"))
+            loop_curves = self.simulate(lighting, lx, seed + 1000 * k, ccm, stop, loop_progress)
             ly, lse = self.weighted(loop_curves)
             target = levels / (LEVELS - 1) * ly[-1]
             dev = float(np.abs(ly - target).max())

@@ -185,3 +185,24 @@ def test_checker_raw_gives_ccm(cfg, tmp_path):
     want = m_true / m_true.sum(axis=1, keepdims=True)
     assert np.abs(got - want).max() < 0.05
     assert np.abs(got - np.eye(3)).max() > 0.03  # it is not the identity
+
+
+def test_run_with_previous_ccm_gives_json_metrics_and_report(cfg, tmp_path):
+    """A run without a checker RAW reuses the last matrix, which has no residuals: its metrics
+    and report must still be valid JSON (the service writes both with allow_nan=False)."""
+    res = Calibrator(cfg).run(light(), previous_ccm=np.eye(3).tolist())
+    assert res.ccm_source == "previous"
+    m = res.metrics()
+    assert m["ccm_mean_de00"] is None and m["ccm_max_de00"] is None
+    rep = atomic_write_json(tmp_path / "r.json", {"metrics": m, **res.report()})
+    assert json.loads(rep.read_text())["ccm"]["source"] == "previous"
+
+
+def test_closed_loop_reports_progress_per_viewpoint(cfg):
+    """The service's watchdog pings only while the main thread shows progress; the closed-loop
+    re-simulation renders every viewpoint again, so it must report each one too."""
+    seen: list[str] = []
+    Calibrator(cfg).run(light(), progress=seen.append)
+    i = next(k for k, s in enumerate(seen) if s.startswith("closed loop round 1"))
+    after = seen[i + 1:]
+    assert sum("viewpoint" in s for s in after) >= len(cfg.viewpoints), seen
