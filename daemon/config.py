@@ -58,6 +58,7 @@ from typing import Any
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 from grassd.daemon.errors import ConfigError
+from grassd.firmware_proto.messages import MAX_ADDRESS, MIN_ADDRESS
 
 #: Where the packaged daemon looks when no ``--config`` is given.
 DEFAULT_CONFIG_PATH = Path("/etc/grassd/grassd.toml")
@@ -592,7 +593,7 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
     for i, c_raw in enumerate(top["controllers"]):
         c = _table(ctx, ("controllers", i), c_raw, {
             "port": _F(str, check=_non_empty), "baud": _F(int, 115200, _positive),
-            "address": _F(int, 1, _between(0, 255)), "pixels": _F(str, "all"),
+            "address": _F(int, 1, _between(MIN_ADDRESS, MAX_ADDRESS)), "pixels": _F(str, "all"),
         })
         try:
             ranges = parse_pixel_ranges(c["pixels"], display.pixel_count)

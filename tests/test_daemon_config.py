@@ -103,6 +103,10 @@ def _line_of(text: str, needle: str) -> int:
         ('pixels = "4-7"', 'pixels = "4-9"', "controllers[1].pixels", 'pixels = "4-9"',
          "does not exist"),
         ('address = 2', 'address = 1', "controllers[1].address", "address = 1", "already used"),
+        # the wire protocol answers addresses 1..247 only (0 and 248..255 are reserved)
+        ('address = 2', 'address = 0', "controllers[1].address", "address = 0", "between 1 and"),
+        ('address = 2', 'address = 248', "controllers[1].address", "address = 248",
+         "between 1 and"),
         ('inbox = "in"', 'inbox = "in"\nlux = "sky"', "light.lux", 'lux = "sky"', "one of"),
         ('inbox = "in"', 'inbox = "in"\nlux = "modbus"', "light.lux", 'lux = "modbus"',
          "[light.modbus]"),
