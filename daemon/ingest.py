@@ -152,6 +152,12 @@ def _member(base: Path, key: str, v: Any) -> Path:
     return base / v
 
 
+def _plain_name(v: Any) -> bool:
+    """True when ``v`` would pass :func:`_member` (a plain file name inside the bundle)."""
+    return isinstance(v, str) and bool(v) and "/" not in v and "\\" not in v \
+        and v not in (".", "..")
+
+
 def parse_manifest(data: dict[str, Any], base: Path, tz: tzinfo = UTC) -> Manifest:
     """Validate manifest ``data``; file names resolve inside ``base``; naive times are in ``tz``.
 
@@ -306,14 +312,22 @@ class Inbox:
         if manifest is None:
             return _Candidate(name, None, members or [], None, None, ["manifest.toml"])
         parsed, err, missing = None, None, []
+        data: dict[str, Any] | None = None
         try:
-            parsed = parse_manifest(read_manifest_data(manifest), base, self.tz)
+            data = read_manifest_data(manifest)
+            parsed = parse_manifest(data, base, self.tz)
         except ManifestError as exc:
             err = str(exc)
         if parsed is not None:
             missing = [p.name for p in parsed.files() if not p.is_file()]
         if members is None:  # flat bundle: data files first, manifest last
-            files = [p for p in (parsed.files() if parsed else []) if p.is_file()]
+            if parsed is not None:
+                named = parsed.files()
+            else:  # rejected manifest: still take along the data files it names
+                named = [_member(base, k, data[k]) for k in ("hdri", "checker_raw")
+                         if data is not None and _plain_name(data.get(k))
+                         and not data[k].startswith(".") and not data[k].endswith(FLAT_SUFFIXES)]
+            files = [p for p in named if p.is_file()]
             members = [*files, manifest]
         return _Candidate(name, manifest, members, parsed, err, missing)
 

@@ -131,6 +131,21 @@ def test_flat_json_bundle(env):
     assert sorted(p.name for p in inbox.inbox.iterdir()) == ["unrelated.txt"]
 
 
+def test_flat_bundle_with_bad_manifest_is_rejected_whole(env):
+    """The data files a rejected flat manifest names go to rejected/ with it, not left behind
+    in the inbox for ever."""
+    inbox, h, clock = env
+    write_exr(inbox.inbox / "noon.exr")
+    (inbox.inbox / "noon.manifest.json").write_text(json.dumps(
+        {"timestamp": "2026-06-21T12:00:00Z", "hdri": "noon.exr", "ambient_lux": -5}))
+    (inbox.inbox / "unrelated.txt").write_text("left alone")
+    assert settle(inbox, clock) == []
+    [rej] = list(inbox.rejected.iterdir())
+    assert "ambient_lux = -5 lux is impossible" in (rej / "reason.txt").read_text()
+    assert sorted(p.name for p in rej.iterdir()) == ["manifest.json", "noon.exr", "reason.txt"]
+    assert sorted(p.name for p in inbox.inbox.iterdir()) == ["unrelated.txt"]
+
+
 @pytest.mark.parametrize(
     ("setup", "reason"),
     [
