@@ -266,7 +266,15 @@ class Service:
         self.fleet.close()
         if self.sensor is not None:
             self.sensor.close()
-        self._build(new)
+        old = self.cfg
+        try:
+            self._build(new)
+        except (OSError, DaemonError) as exc:  # valid, but cannot be set up (e.g. the inbox)
+            self._build(old)
+            self.reload_error = f"{self.config_path}: {exc}"
+            log.error("reload refused, keeping the old configuration: %s", exc)
+            self.notifier.ready(f"reload refused: {exc}")
+            return False
         self.reload_error = None
         self._last_reconcile = 0.0
         log.info("configuration reloaded from %s", self.config_path)

@@ -189,3 +189,21 @@ def test_reload_rules(tmp_path, hw):
     assert svc.handle_request({"cmd": "ping"})["pid"] == os.getpid()
     svc.shutdown()
 
+
+
+def test_reload_with_unusable_inbox_keeps_old_config(tmp_path, hw):
+    """A new config that validates but cannot be set up (its inbox cannot be created) is
+    refused like an invalid one: the daemon keeps running on the old config."""
+    _, cfg = hw
+    conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg)
+    svc = service(conf)
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a directory")
+    good = conf.read_text()
+    conf.write_text(good.replace('inbox = "inbox"', f'inbox = "{blocker}/inbox"')
+                    .replace("samples = 64", "samples = 36"))
+    assert svc.reload() is False and svc.reload_error
+    assert svc.cfg.simulation.samples == 64 and svc.cfg.light.inbox == tmp_path / "state/inbox"
+    assert svc.inbox.inbox == tmp_path / "state/inbox"
+    svc.tick()  # still works
+    svc.shutdown()
