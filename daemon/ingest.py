@@ -40,6 +40,7 @@ as a duplicate. So no bundle is lost and none is processed twice.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import hashlib
 import json
@@ -67,6 +68,8 @@ MANIFEST_NAMES = ("manifest.toml", "manifest.json")
 FLAT_SUFFIXES = (".manifest.toml", ".manifest.json")
 HDRI_SUFFIXES = (".exr", ".hdr")
 REASON_FILE = "reason.txt"
+#: Seconds before a bundle that could not be moved out of the inbox is tried again.
+STUCK_RETRY_S = 60.0
 #: Largest plausible illuminance (lux): direct summer sun is about 1.2e5 lux.
 MAX_LUX = 200_000.0
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
@@ -282,6 +285,7 @@ class Inbox:
         self.max_attempts = max_attempts
         self.clock = clock
         self._watch: dict[str, tuple[tuple, float, float]] = {}  # name -> (sig, since, first)
+        self._stuck: dict[str, float] = {}  # name -> clock time to retry a failed move at
 
     # ------------------------------------------------------------------ scanning
     def _candidates(self) -> list[_Candidate]:
@@ -345,17 +349,21 @@ class Inbox:
         return tuple(sig)
 
     # ------------------------------------------------------------------ public API
-    def poll(self) -> list[Bundle]:
+    def poll(self, claim: bool = True) -> list[Bundle]:
         """Scan the inbox once: claim complete, settled bundles into processing/ and return them.
 
         Bundles with an invalid manifest, or still incomplete after the timeout, are claimed and
         rejected at once (with their reason); duplicates of already-handled bundles likewise.
+        ``claim=False`` only watches (tracks sizes and mtimes for the settle time), so bundles
+        are settled by the time a later poll may claim them.
         """
         now = self.clock()
         ready: list[Bundle] = []
         names = set()
         for c in self._candidates():
             names.add(c.name)
+            if now < self._stuck.get(c.name, -math.inf):
+                continue
             sig = self._signature(c)
             prev = self._watch.get(c.name)
             if prev is None or prev[0] != sig:
@@ -364,6 +372,8 @@ class Inbox:
                 if self.settle_s > 0:
                     continue
                 prev = self._watch[c.name]
+            if not claim:
+                continue
             _, since, first = prev
             settled = now - since >= self.settle_s
             if c.missing or c.manifest is None:
@@ -385,6 +395,8 @@ class Inbox:
                 ready.append(bundle)
         for gone in set(self._watch) - names:
             del self._watch[gone]
+        for gone in set(self._stuck) - names:
+            del self._stuck[gone]
         return ready
 
     def recover(self) -> list[Bundle]:
@@ -517,13 +529,17 @@ class Inbox:
         existing = self.history.journal_get(h)
         if existing is not None:
             dup = f"{bid}.dup-{time.time_ns()}"
-            d = self._move_in(c, dup)
+            d = self._try_move_in(c, dup, None)
+            if d is None:
+                return None
             self._write_reason(d, f"duplicate: identical content was already {existing.state} "
                                   f"as {existing.bundle_id}")
             self._rename(d, self.rejected / dup)
             return None
         self.history.journal_claim(h, bid, c.name)
-        d = self._move_in(c, bid)
+        d = self._try_move_in(c, bid, h)
+        if d is None:
+            return None
         try:
             return self._load_claimed(d, bid, c.name, h)
         except (IngestError, OSError) as exc:
@@ -539,12 +555,28 @@ class Inbox:
         bid = self._bundle_id(h, c.name)
         if self.history.journal_get(h) is not None:
             bid = f"{bid}.dup-{time.time_ns()}"
-            d = self._move_in(c, bid)
-            self._finish_dir(d, bid, None, reason)
+            d = self._try_move_in(c, bid, None)
+            if d is not None:
+                self._finish_dir(d, bid, None, reason)
             return
         self.history.journal_claim(h, bid, c.name)
-        d = self._move_in(c, bid)
-        self._finish_dir(d, bid, h, reason)
+        d = self._try_move_in(c, bid, h)
+        if d is not None:
+            self._finish_dir(d, bid, h, reason)
+
+    def _try_move_in(self, c: _Candidate, bid: str, h: str | None) -> Path | None:
+        """:meth:`_move_in`, or None when the bundle cannot be moved out of the inbox (left
+        there as it was, its fresh journal row ``h`` dropped; retried after a minute)."""
+        try:
+            return self._move_in(c, bid)
+        except OSError as exc:
+            if h is not None:
+                self.history.journal_forget(h)
+            self._stuck[c.name] = self.clock() + STUCK_RETRY_S
+            log.error("cannot move bundle %s out of the inbox (%s); it stays there and is "
+                      "tried again in %g s: give the daemon write access to it", c.name, exc,
+                      STUCK_RETRY_S)
+            return None
 
     def _move_in(self, c: _Candidate, bid: str) -> Path:
         dest = self.processing / bid
@@ -553,13 +585,18 @@ class Inbox:
             return dest
         partial = self.processing / f"{bid}.partial"
         partial.mkdir(exist_ok=True)
-        for m in c.members:  # manifest is last
-            target = m.name
-            if m == c.manifest:
-                target = "manifest" + m.name[m.name.rfind(".") :]
-            if m.exists():
-                self._rename(m, partial / target)
-        self._rename(partial, dest)
+        try:
+            for m in c.members:  # manifest is last
+                target = m.name
+                if m == c.manifest:
+                    target = "manifest" + m.name[m.name.rfind(".") :]
+                if m.exists():
+                    self._rename(m, partial / target)
+            self._rename(partial, dest)
+        except OSError:
+            with contextlib.suppress(OSError):  # else recover() puts them back at the next start
+                self._unclaim_partial(partial, c.name)
+            raise
         return dest
 
     def _unclaim_partial(self, d: Path, name: str) -> None:

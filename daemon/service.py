@@ -189,6 +189,8 @@ class Service:
         bundles = list(pending or [])
         if self.cfg.schedule.on_new_bundle or due:
             bundles += self.inbox.poll()
+        else:  # keep watching, so that a bundle has settled when the scheduled run is due
+            self.inbox.poll(claim=False)
         for b in bundles:
             if self.stop_event.is_set():
                 return

@@ -245,6 +245,38 @@ def test_half_moved_flat_bundle_goes_back(env):
     assert b.name == "x"
 
 
+@pytest.mark.parametrize("kind", ["dir", "flat"])
+def test_bundle_that_cannot_be_moved_stays_in_inbox(env, monkeypatch, kind):
+    """rename(2) out of the inbox can fail (e.g. EACCES: a directory written by another user
+    without group write, whose '..' cannot be updated). The poll must not raise (that killed
+    the daemon at every start), the bundle stays in the inbox untouched with no journal row,
+    and it is claimed once the move works."""
+    inbox, h, clock = env
+    if kind == "dir":
+        make_dir_bundle(inbox.inbox, "a")
+    else:
+        write_exr(inbox.inbox / "x.exr")
+        (inbox.inbox / "x.manifest.toml").write_text(MANIFEST.replace("sky.exr", "x.exr"))
+    before = sorted(p.name for p in inbox.inbox.rglob("*"))
+    real = Inbox._rename
+    calls = {"n": 0}
+
+    def failing(src, dst):
+        # dir: the bundle's own move fails; flat: the second file (the manifest) fails
+        calls["n"] += 1
+        if src.parent == inbox.inbox and (kind == "dir" or calls["n"] >= 2):
+            raise PermissionError(13, "Permission denied", str(src))
+        real(src, dst)
+
+    monkeypatch.setattr(Inbox, "_rename", staticmethod(failing))
+    assert settle(inbox, clock) == []
+    assert sorted(p.name for p in inbox.inbox.rglob("*")) == before
+    assert h.journal() == [] and list(inbox.processing.iterdir()) == []
+    monkeypatch.setattr(Inbox, "_rename", staticmethod(real))
+    clock.t += 600
+    assert len(settle(inbox, clock)) == 1
+
+
 CRASHER = """
 import os, sys
 from pathlib import Path

@@ -207,3 +207,28 @@ def test_reload_with_unusable_inbox_keeps_old_config(tmp_path, hw):
     assert svc.inbox.inbox == tmp_path / "state/inbox"
     svc.tick()  # still works
     svc.shutdown()
+
+
+def test_bundles_wait_for_the_schedule_but_are_settled_by_then(tmp_path, hw):
+    """on_new_bundle = false: a bundle waits for the next scheduled run, and that run uses it
+    (it was watched and settled meanwhile), instead of running on the old light and leaving
+    the new bundle for one more interval."""
+    import time
+
+    _, cfg = hw
+    conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg, interval=3600)
+    conf.write_text(conf.read_text().replace("[schedule]\n", "[schedule]\non_new_bundle = false\n")
+                    .replace("settle_s = 0\n", "settle_s = 0.3\n"))
+    svc = service(conf)
+    assert svc.cfg.schedule.on_new_bundle is False and svc.cfg.light.settle_s == 0.3
+    svc.last_run_at = time.time()  # not due
+    drop(svc.cfg.light.inbox, "b", lux=800.0)
+    svc.tick()
+    time.sleep(0.5)
+    svc.tick()
+    assert svc.history.run_count() == 0 and svc.inbox.counts()["inbox"] == 1  # waits
+    svc.last_run_at -= 3600  # due
+    svc.tick()
+    [run] = svc.history.runs(5)
+    assert run.trigger == "bundle" and run.lux == 800.0 and run.status == "ok"
+    svc.shutdown()
