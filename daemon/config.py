@@ -658,6 +658,10 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
     sc = _table(ctx, ("schedule",), top["schedule"], {
         "interval_s": _F(float, 3600.0, _non_negative), "on_new_bundle": _F(bool, True),
     })
+    if sc["interval_s"] == 0 and not sc["on_new_bundle"]:
+        raise ctx.error(("schedule", "on_new_bundle"),
+                        "with interval_s = 0 too, bundles in the inbox would never be picked up: "
+                        "set on_new_bundle = true or interval_s > 0")
     schedule = ScheduleConfig(**sc)
 
     sim_raw = top["simulation"]

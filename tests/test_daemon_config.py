@@ -118,6 +118,10 @@ def _line_of(text: str, needle: str) -> int:
          "[display.pixel]", "do not fit"),
         ('cols = 4', 'cols = 4\n[display.pixel]\ngreen_srgb = [1, 2]', "display.pixel.green_srgb",
          "green_srgb = [1, 2]", "array of 3 numbers"),
+        # neither trigger: bundles in the inbox would never be picked up
+        ('[0.0, 5.0, 10.0, 20.0]', '[0.0, 5.0, 10.0, 20.0]\n[schedule]\ninterval_s = 0\n'
+         'on_new_bundle = false', "schedule.on_new_bundle", "on_new_bundle = false",
+         "never be picked up"),
         ('[0.0, 5.0, 10.0, 20.0]', '[0.0, 5.0, 10.0, 20.0]\n[calibration]\nmax_rounds = 0',
          "calibration.max_rounds",
          "max_rounds = 0", "between 1 and 10"),
