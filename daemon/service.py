@@ -258,7 +258,12 @@ class Service:
             self.notifier.ready(f"reload refused: {exc}")
             return False
         kept = []
-        for name in ("state_dir", "control_socket", "cache_dir"):
+        if new.state_dir != self.cfg.state_dir:
+            # e.g. `grassd run --state-dir`: paths inside the state dir (a relative inbox,
+            # cache, socket) move along with it, as they did at start
+            kept.append("state_dir")
+            new = new.with_state_dir(self.cfg.state_dir)
+        for name in ("control_socket", "cache_dir"):
             if getattr(new, name) != getattr(self.cfg, name):
                 kept.append(name)
                 new = new.replace(**{name: getattr(self.cfg, name)})

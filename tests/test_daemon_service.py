@@ -134,12 +134,14 @@ def test_all_controllers_down_commits_then_reconciles(tmp_path, hw):
     import time
 
     deadline = time.monotonic() + 15
+    pushed = set()  # the two buses come back at slightly different times
     while time.monotonic() < deadline:
         reports = svc.reconcile()
+        pushed |= {r.controller for r in reports if r.ok and r.pushed}
         if reports and all(r.ok for r in reports):
             break
         time.sleep(0.3)
-    assert all(r.ok and r.pushed for r in reports)
+    assert all(r.ok for r in reports) and pushed == {r.controller for r in reports}
     from grassd.daemon.service import collect_status
 
     assert collect_status(svc.history, svc.cfg)["health"] == "ok"
@@ -231,4 +233,19 @@ def test_bundles_wait_for_the_schedule_but_are_settled_by_then(tmp_path, hw):
     svc.tick()
     [run] = svc.history.runs(5)
     assert run.trigger == "bundle" and run.lux == 800.0 and run.status == "ok"
+    svc.shutdown()
+
+
+def test_reload_keeps_the_state_dir_override_and_what_lies_in_it(tmp_path, hw):
+    """`grassd run --state-dir X`: a reload keeps X (state_dir changes need a restart) and
+    also the inbox that moved along into X, instead of switching to the file's inbox."""
+    _, cfg = hw
+    conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg)
+    over = tmp_path / "override"
+    policy = RetryPolicy(timeout_s=0.1, retries=1, restarts=1, readback_retries=2)
+    svc = Service(load_config(conf).with_state_dir(over), config_path=conf, policy=policy)
+    assert svc.cfg.light.inbox == over / "inbox"
+    assert svc.reload() is True
+    assert svc.cfg.state_dir == over
+    assert svc.cfg.light.inbox == over / "inbox" and svc.inbox.inbox == over / "inbox"
     svc.shutdown()
