@@ -605,6 +605,12 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
                             f"port {c['port']} address {c['address']} is already used by "
                             f"controllers[{seen_addr[key]}]")
         seen_addr[key] = i
+        same_bus = next((j for j, o in enumerate(controllers) if o.port == c["port"]), None)
+        if same_bus is not None and controllers[same_bus].baud != c["baud"]:
+            raise ctx.error(("controllers", i, "baud"),
+                            f"{c['baud']} differs from the {controllers[same_bus].baud} of "
+                            f"controllers[{same_bus}] on the same bus {c['port']} (one port is "
+                            "opened once, at one baud)")
         for a, b in ranges:
             for a2, b2, j in taken:
                 if a <= b2 and a2 <= b:

@@ -34,6 +34,7 @@ cols = 4
 
 [[controllers]]
 port = "/dev/ttyUSB0"
+baud = 57_600
 pixels = "0-3"
 
 [[controllers]]
@@ -103,6 +104,8 @@ def _line_of(text: str, needle: str) -> int:
         ('pixels = "4-7"', 'pixels = "4-9"', "controllers[1].pixels", 'pixels = "4-9"',
          "does not exist"),
         ('address = 2', 'address = 1', "controllers[1].address", "address = 1", "already used"),
+        # one RS-485 bus, one line speed: the fleet opens a shared port once, at one baud
+        ('baud = 57600', 'baud = 9600', "controllers[1].baud", "baud = 9600", "same bus"),
         # the wire protocol answers addresses 1..247 only (0 and 248..255 are reserved)
         ('address = 2', 'address = 0', "controllers[1].address", "address = 0", "between 1 and"),
         ('address = 2', 'address = 248', "controllers[1].address", "address = 248",
