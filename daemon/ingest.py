@@ -441,6 +441,12 @@ class Inbox:
                     self._finish_dir(d, d.name, None, f"unreadable after a crash: {exc}")
                     continue
                 h = bundle_hash(hashes)
+                done = self.history.journal_get(h)
+                if done is not None:  # its content is known under another id: a duplicate
+                    # caught mid-rejection by a crash; the original keeps its journal row
+                    self._finish_dir(d, d.name, None, f"duplicate: identical content was "
+                                                      f"already {done.state} as {done.bundle_id}")
+                    continue
                 self.history.journal_claim(h, d.name, name)
                 b = self._retry_or_settle(h, d.name, name, 0)
                 if b is not None:

@@ -229,6 +229,23 @@ def test_recovery_retries_once_and_never_twice(env, tmp_path):
     assert inbox2.counts() == {"inbox": 0, "processing": 0, "archive": 2, "rejected": 1}
 
 
+def test_crash_while_rejecting_a_duplicate_does_not_process_it(env):
+    """A crash between moving a duplicate into processing/ and on to rejected/ leaves a
+    directory the journal does not know; its content hash is that of a finished bundle, so
+    recover() rejects it as a duplicate instead of re-opening (and re-running) the original."""
+    inbox, h, clock = env
+    make_dir_bundle(inbox.inbox, "a")
+    [b] = settle(inbox, clock)
+    inbox.archive_bundle(b, None)
+    shutil.copytree(inbox.archive / b.id, inbox.processing / f"{b.id}.dup-123")
+    assert inbox.recover() == []
+    assert h.journal_get(b.hash).state == "archived"
+    assert h.journal_get(b.hash).bundle_id == b.id
+    assert list(inbox.processing.iterdir()) == []
+    [rej] = list(inbox.rejected.iterdir())
+    assert "duplicate" in (rej / "reason.txt").read_text()
+
+
 def test_half_moved_flat_bundle_goes_back(env):
     inbox, h, clock = env
     write_exr(inbox.inbox / "x.exr")
