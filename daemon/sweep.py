@@ -398,15 +398,7 @@ def _sql_type(col: str) -> str:
 def read_results(path: str | Path, keys: Iterable[str] | None = None,
                  run_columns: bool = True) -> list[dict]:
     """Rows of ``results`` (optionally only ``keys``), ordered by key and length."""
-    db = sqlite3.connect(path)
-    try:
-        db.row_factory = sqlite3.Row
-        rows = [dict(r) for r in db.execute("SELECT * FROM results ORDER BY key, length_mm")]
-    finally:
-        db.close()
-    if keys is not None:
-        wanted = set(keys)
-        rows = [r for r in rows if r["key"] in wanted]
+    rows = _select(path, "SELECT * FROM results ORDER BY key, length_mm", keys)
     if not run_columns:
         for r in rows:
             for c in RUN_COLUMNS:
@@ -542,12 +534,19 @@ def _run_dask(spec: SweepSpec, todo: Sequence[Condition], scheduler: str, retrie
 
 def _condition_rows(db_path: Path, keys: Sequence[str]) -> list[dict]:
     """One dict per stored condition among ``keys`` (from the ``conditions`` view)."""
+    return _select(db_path, "SELECT * FROM conditions", keys)
+
+
+def _select(db_path: str | Path, sql: str, keys: Iterable[str] | None) -> list[dict]:
+    """Rows of ``sql`` as dicts, only those whose ``key`` is in ``keys`` (all when None)."""
     db = sqlite3.connect(db_path)
     try:
         db.row_factory = sqlite3.Row
-        rows = [dict(r) for r in db.execute("SELECT * FROM conditions")]
+        rows = [dict(r) for r in db.execute(sql)]
     finally:
         db.close()
+    if keys is None:
+        return rows
     wanted = set(keys)
     return [r for r in rows if r["key"] in wanted]
 
