@@ -16,6 +16,7 @@ The file (default ``/etc/grassd/grassd.toml``; the embedded default is
     [light]        inbox, lux = "manifest" | "modbus", settle_s, incomplete_timeout_s;
                    [light.modbus] sensor register map
     [schedule]     interval_s, on_new_bundle
+    [retention]    keep_days, keep_reports, keep_runs (see RetentionConfig)
     [simulation]   samples, seed, lengths (count of evenly spaced lengths, or a list in mm)
     [calibration]  max_jump_mm, target_de00, max_rounds, check_levels, r2_goal,
                    max_flat_fraction, replicates (see CalibrationConfig)
@@ -187,6 +188,21 @@ class ScheduleConfig:
 
 
 @dataclass(frozen=True)
+class RetentionConfig:
+    """How much the state directory keeps (pruned after every run, :mod:`grassd.daemon.retention`).
+
+    ``keep_days``: archived and rejected bundles older than this (days) are deleted, except the
+    latest archived bundle (the light of scheduled runs); ``keep_reports``: JSON + PNG reports
+    of at most this many runs are kept (the active table's report always); ``keep_runs``:
+    history rows of at most this many runs are kept (the active table's run always).
+    """
+
+    keep_days: float = 30.0
+    keep_reports: int = 500
+    keep_runs: int = 5000
+
+
+@dataclass(frozen=True)
 class SimulationConfig:
     """Monte Carlo ``samples`` per pixel measurement, RNG ``seed``, green lengths in mm."""
 
@@ -267,6 +283,7 @@ class Config:
     source: str
     tables: TablesConfig = TablesConfig()
     audience: AudienceConfig | None = None
+    retention: RetentionConfig = RetentionConfig()
 
     def replace(self, **changes: Any) -> Config:
         """A copy with some fields replaced (dataclasses.replace)."""
@@ -554,7 +571,7 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         "site": _F(dict), "display": _F(dict), "controllers": _F(list),
         "viewpoints": _F(list), "light": _F(dict), "schedule": _F(dict, {}),
         "simulation": _F(dict, {}), "calibration": _F(dict, {}),
-        "tables": _F(dict, {}), "audience": _F(dict, None),
+        "tables": _F(dict, {}), "audience": _F(dict, None), "retention": _F(dict, {}),
     })
 
     s = _table(ctx, ("site",), top["site"], {
@@ -669,6 +686,11 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
                         "with interval_s = 0 too, bundles in the inbox would never be picked up: "
                         "set on_new_bundle = true or interval_s > 0")
     schedule = ScheduleConfig(**sc)
+    retention = RetentionConfig(**_table(ctx, ("retention",), top["retention"], {
+        "keep_days": _F(float, RetentionConfig.keep_days, _positive),
+        "keep_reports": _F(int, RetentionConfig.keep_reports, _between(1, 10**7)),
+        "keep_runs": _F(int, RetentionConfig.keep_runs, _between(1, 10**9)),
+    }))
 
     sim_raw = top["simulation"]
     lengths_raw = sim_raw.get("lengths", 11) if isinstance(sim_raw, dict) else 11
@@ -739,7 +761,8 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
                   viewpoints=tuple(viewpoints), light=light, schedule=schedule,
                   simulation=simulation, calibration=calibration, state_dir=state_dir,
                   cache_dir=cache_dir,
-                  control_socket=sock, source=ctx.source, tables=tables, audience=audience)
+                  control_socket=sock, source=ctx.source, tables=tables, audience=audience,
+                  retention=retention)
 
 
 def _parse_tables_audience(ctx: _Ctx, tables_raw: Any, audience_raw: Any

@@ -287,6 +287,28 @@ class History:
                            "ORDER BY id DESC LIMIT 1")
         return _run(rows[0]) if rows else None
 
+    def prune_runs(self, keep_last: int, protect: set[int] | frozenset[int] = frozenset(),
+                   reconcile_before: float | None = None) -> int:
+        """Delete finished runs (and their pushes) older than the newest ``keep_last`` runs,
+        except the ids in ``protect`` (e.g. the active table's run); also delete ``reconcile``
+        push rows recorded before ``reconcile_before`` (epoch s) of a run that stays.
+        Returns the number of runs deleted."""
+        keep_last = max(int(keep_last), 1)
+        with self._tx() as db:
+            ids = [r[0] for r in db.execute(
+                "SELECT id FROM runs WHERE status != 'running' AND id NOT IN "
+                "(SELECT id FROM runs ORDER BY id DESC LIMIT ?) ORDER BY id", (keep_last,))
+                   if r[0] not in protect]
+            for k in range(0, len(ids), 500):
+                chunk = ids[k:k + 500]
+                marks = ",".join("?" * len(chunk))
+                db.execute(f"DELETE FROM pushes WHERE run_id IN ({marks})", chunk)
+                db.execute(f"DELETE FROM runs WHERE id IN ({marks})", chunk)
+            if reconcile_before is not None:
+                db.execute("DELETE FROM pushes WHERE kind = 'reconcile' AND at < ?",
+                           (reconcile_before,))
+            return len(ids)
+
     # ------------------------------------------------------------------ pushes / controllers
     def record_push(self, run_id: int | None, controller: str, ok: bool, *,
                     table_id: int | None = None, table_crc: int | None = None,

@@ -32,6 +32,7 @@ import os
 import queue
 import resource
 import signal
+import sqlite3
 import threading
 import time
 import traceback
@@ -58,6 +59,7 @@ from grassd.daemon.history import History
 from grassd.daemon.ingest import Bundle, Inbox, parse_manifest, read_manifest_data
 from grassd.daemon.luxsensor import LuxSensor
 from grassd.daemon.notify import Notifier
+from grassd.daemon.retention import prune
 from grassd.firmware_proto.client import RetryPolicy
 
 log = logging.getLogger(__name__)
@@ -164,6 +166,7 @@ class Service:
                                                  daemon=True)
         self._watchdog_thread.start()
         pending = self.inbox.recover()
+        self.prune()
         self.notifier.ready(f"watching {self.cfg.light.inbox}")
         self.activity = "idle"
         log.info("grassd %s ready: inbox %s, %d controller(s), socket %s", __version__,
@@ -302,8 +305,22 @@ class Service:
         cur = self.history.current_table()
         return (None if cur is None else list(cur.lengths_um)), self.history.get_meta("ccm")
 
+    def prune(self) -> None:
+        """Apply ``[retention]`` (old bundles, reports, history rows); never fails a run."""
+        try:
+            prune(self.cfg.state_dir, self.history, self.cfg.retention,
+                  reports_dir=self.reports_dir)
+        except (OSError, sqlite3.Error, DaemonError) as exc:
+            log.warning("retention: pruning failed: %s", exc)
+
     def process_bundle(self, b: Bundle) -> dict[str, Any]:
-        """Calibrate from bundle ``b``, commit, push, archive; or reject it with the reason."""
+        """Calibrate from bundle ``b``, commit, push, archive; or reject it with the reason.
+        Then prune per ``[retention]``."""
+        out = self._process_bundle(b)
+        self.prune()
+        return out
+
+    def _process_bundle(self, b: Bundle) -> dict[str, Any]:
         self.inbox.begin(b)
         self.last_run_at = time.time()
         self._progress(f"processing bundle {b.name}")
@@ -330,7 +347,14 @@ class Service:
 
     def scheduled_run(self, trigger: str, force: bool = False) -> dict[str, Any]:
         """A run without a new bundle: light of the last archived bundle (or the embedded
-        default site), lux from the sensor when configured, else from that bundle."""
+        default site), lux from the sensor when configured, else from that bundle. Then prune
+        per ``[retention]``."""
+        out = self._scheduled_run(trigger, force)
+        if out["status"] != "skipped":
+            self.prune()
+        return out
+
+    def _scheduled_run(self, trigger: str, force: bool) -> dict[str, Any]:
         self._progress(f"{trigger} calibration")
         self.last_run_at = time.time()
         last = self.history.latest_archived()
