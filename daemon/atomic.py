@@ -5,6 +5,7 @@ truncated mix (POSIX rename(2) atomicity within one file system)."""
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import tempfile
@@ -68,6 +69,32 @@ def atomic_save_figure(path: str | os.PathLike[str], figure: Any, **savefig_kw: 
     with atomic_open(path) as fh:
         figure.savefig(fh, format="png", **savefig_kw)
     return Path(path)
+
+
+#: What the user must do about a failed write, by errno.
+_WRITE_FIXES = {
+    errno.ENOSPC: "the file system is full: free space on it",
+    errno.EDQUOT: "the disk quota is exhausted: free space or raise the quota",
+    errno.EROFS: "the file system is mounted read-only: remount it read-write",
+    errno.EACCES: "permission denied: give the daemon's user write access to it",
+    errno.EPERM: "operation not permitted: give the daemon's user write access to it",
+    errno.EFBIG: "the file would exceed the size limit (RLIMIT_FSIZE / LimitFSIZE=)",
+    errno.EIO: "I/O error: check the disk (dmesg)",
+}
+
+
+def describe_write_error(exc: OSError, where: str | os.PathLike[str]) -> str:
+    """One line naming what could not be written (``where``), why, and the fix.
+
+    >>> import errno
+    >>> print(describe_write_error(OSError(errno.ENOSPC, "No space left on device"), "/s"))
+    cannot write to /s: No space left on device (ENOSPC): the file system is full: free space on it
+    """
+    name = errno.errorcode.get(exc.errno or 0, "")
+    why = exc.strerror or str(exc)
+    fix = _WRITE_FIXES.get(exc.errno or 0)
+    return (f"cannot write to {os.fspath(where)}: {why}" + (f" ({name})" if name else "")
+            + (f": {fix}" if fix else ""))
 
 
 def _json_default(obj: Any) -> Any:

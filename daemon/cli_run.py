@@ -146,6 +146,10 @@ def _print_status(st: dict, echo=click.echo) -> None:
         echo("bundles: " + ", ".join(f"{k} {v}" for k, v in st["inbox"].items()))
     if st.get("reload_error"):
         echo(f"last reload refused: {st['reload_error']}")
+    if st.get("last_error"):
+        echo(f"last error: {st['last_error']}")
+    for w in st.get("waiting_bundles") or []:
+        echo(f"bundle {w['bundle']} waits (retry in {w['retry_in_s']:.0f} s): {w['reason']}")
     echo("controllers:")
     for c in st["controllers"]:
         state = "in sync" if c["in_sync"] else ("unreachable" if not c["reachable"]

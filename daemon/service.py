@@ -26,6 +26,7 @@ the controller) and an interrupted bundle is retried at the next start.
 
 from __future__ import annotations
 
+import contextlib
 import faulthandler
 import logging
 import os
@@ -43,7 +44,7 @@ from pathlib import Path
 from typing import Any
 
 from grassd import __version__
-from grassd.daemon.atomic import atomic_save_figure, atomic_write_json
+from grassd.daemon.atomic import atomic_save_figure, atomic_write_json, describe_write_error
 from grassd.daemon.calibrate import CalibrationResult, Calibrator, LightInput, init_backend
 from grassd.daemon.config import Config, load_config, not_used_by_the_daemon
 from grassd.daemon.control import ControlServer
@@ -65,6 +66,22 @@ from grassd.firmware_proto.client import RetryPolicy
 log = logging.getLogger(__name__)
 
 STATE_DB = "state.db"
+
+
+@dataclass
+class _Deferred:
+    """A claimed bundle that waits in processing/ for a transient condition to clear.
+
+    ``retry_at`` and ``give_up_at`` are monotonic seconds (``give_up_at`` None: never);
+    ``since`` is epoch seconds (shown in status).
+    """
+
+    bundle: Bundle
+    reason: str
+    since: float
+    retry_at: float
+    delay_s: float
+    give_up_at: float | None
 
 
 @dataclass
@@ -90,7 +107,8 @@ class Service:
     def __init__(self, cfg: Config, *, config_path: str | os.PathLike[str] | None = None,
                  notifier: Notifier | None = None, tick_s: float = 1.0,
                  reconcile_s: float = 2.0, stall_s: float = 300.0,
-                 policy: RetryPolicy | None = None, transform=None) -> None:
+                 policy: RetryPolicy | None = None, transform=None, retry_s: float = 30.0,
+                 retry_max_s: float = 900.0) -> None:
         self.cfg = cfg
         self.config_path = Path(config_path) if config_path else None
         self.notifier = notifier or Notifier()
@@ -111,6 +129,13 @@ class Service:
         self._last_reconcile = 0.0
         self._last_ctrl: dict[str, tuple] = {}
         self.reload_error: str | None = None
+        #: bundles waiting for a transient failure (full disk, lux sensor down) to clear; the
+        #: first retry after ``retry_s``, then doubling up to ``retry_max_s``
+        self.deferred: dict[str, _Deferred] = {}
+        self.retry_s = retry_s
+        self.retry_max_s = retry_max_s
+        #: the last error that a main-loop pass survived (OSError / SQLite), for status
+        self.last_error: str | None = None
         self.runs_done = 0
         self.rss_log: list[tuple[int, float]] = []
         cfg.state_dir.mkdir(parents=True, exist_ok=True)
@@ -173,7 +198,14 @@ class Service:
                  self.cfg.light.inbox, len(self.cfg.controllers), self.cfg.control_socket)
         try:
             while not self.stop_event.is_set():
-                self.tick(pending)
+                try:
+                    self.tick(pending)
+                except (OSError, sqlite3.Error) as exc:  # e.g. a full or read-only disk
+                    self.last_error = f"{datetime.now(UTC).isoformat(timespec='seconds')} " + (
+                        describe_write_error(exc, getattr(exc, "filename", None) or
+                                             self.cfg.state_dir)
+                        if isinstance(exc, OSError) else f"state database: {exc}")
+                    log.error("main loop: %s (the daemon keeps running)", self.last_error)
                 pending = []
                 self.stop_event.wait(self.tick_s)
         finally:
@@ -190,6 +222,8 @@ class Service:
         last = self.last_run_at or self.started_at
         due = interval > 0 and time.time() - last >= interval
         bundles = list(pending or [])
+        now = time.monotonic()
+        bundles += [d.bundle for d in list(self.deferred.values()) if d.retry_at <= now]
         if self.cfg.schedule.on_new_bundle or due:
             bundles += self.inbox.poll()
         else:  # keep watching, so that a bundle has settled when the scheduled run is due
@@ -320,7 +354,35 @@ class Service:
         self.prune()
         return out
 
+    def _defer(self, b: Bundle, reason: str, limit_s: float | None = None) -> dict[str, Any]:
+        """Leave ``b`` in processing/ (attempt not counted) and retry it with backoff."""
+        now = time.monotonic()
+        d = self.deferred.get(b.hash)
+        if d is None:
+            d = _Deferred(b, reason, time.time(), now + self.retry_s, self.retry_s,
+                          None if limit_s is None else now + limit_s)
+            self.deferred[b.hash] = d
+        else:
+            d.delay_s = min(d.delay_s * 2, self.retry_max_s)
+            d.retry_at, d.reason = now + d.delay_s, reason
+        self.history.journal_release(b.hash)
+        log.warning("bundle %s waits in processing/: %s; retried in %g s", b.name, reason,
+                    d.delay_s)
+        return {"status": "deferred", "error": reason, "retry_in_s": d.delay_s}
+
     def _process_bundle(self, b: Bundle) -> dict[str, Any]:
+        out = self._attempt_bundle(b)
+        if out["status"] != "deferred":
+            self.deferred.pop(b.hash, None)
+        return out
+
+    def _attempt_bundle(self, b: Bundle) -> dict[str, Any]:
+        done = self.history.ok_run_for_bundle(b.hash)
+        if done is not None:  # committed, but the archive move failed last time
+            self.inbox.archive_bundle(b, done.id)
+            return {"status": "ok", "run_id": done.id, "table_id": done.table_id,
+                    "table_crc": done.table_crc, "metrics": done.metrics,
+                    "report": done.report_path, "plot": done.plot_path, "controllers": []}
         self.inbox.begin(b)
         self.last_run_at = time.time()
         self._progress(f"processing bundle {b.name}")
@@ -337,12 +399,18 @@ class Service:
         run_id = self.history.start_run("bundle", bundle_hash=b.hash,
                                         input_hashes=b.input_hashes, lux=lux, lux_source=source)
         out = self._calibrate_and_commit(run_id, light, force=False)
-        if out["status"] == "ok":
-            self.inbox.archive_bundle(b, run_id)
-        elif out["status"] == "interrupted":
-            self.history.journal_release(b.hash)  # retried at the next start
-        else:
-            self.inbox.reject_bundle(b, out["error"], run_id)
+        try:
+            if out["status"] == "ok":
+                self.inbox.archive_bundle(b, run_id)
+            elif out["status"] == "interrupted":
+                self.history.journal_release(b.hash)  # retried at the next start
+            elif out.get("transient"):  # could not write: the bundle is fine, try again later
+                return {**out, **self._defer(b, out["error"])}
+            else:
+                self.inbox.reject_bundle(b, out["error"], run_id)
+        except OSError as exc:  # e.g. no space for reason.txt: keep the bundle, try again
+            return {**out, **self._defer(b, describe_write_error(exc, exc.filename or
+                                                                 self.inbox.state_dir))}
         return out
 
     def scheduled_run(self, trigger: str, force: bool = False) -> dict[str, Any]:
@@ -414,8 +482,17 @@ class Service:
         base = self.reports_dir / f"run-{run_id:06d}"
         report = {"run_id": run_id, "table_id": run_id, "table_crc": crc, "metrics": metrics,
                   **result.report()}
-        report_path = atomic_write_json(base.with_suffix(".json"), report)
-        plot_path = atomic_save_figure(base.with_suffix(".png"), result.figure())
+        try:
+            report_path = atomic_write_json(base.with_suffix(".json"), report)
+            plot_path = atomic_save_figure(base.with_suffix(".png"), result.figure())
+        except OSError as exc:  # full / read-only disk: the previous table stays active
+            with contextlib.suppress(OSError):
+                base.with_suffix(".json").unlink(missing_ok=True)
+            msg = (describe_write_error(exc, self.reports_dir)
+                   + "; the previous table stays active")
+            log.error("run %d not committed: %s", run_id, msg)
+            self.history.finish_run(run_id, "failed", error=msg)
+            return {"status": "failed", "run_id": run_id, "error": msg, "transient": True}
         if result.ccm is not None and result.ccm_source == "bundle":
             self.history.set_meta("ccm", result.ccm.matrix.tolist())
         self.history.finish_run(run_id, "ok", metrics=metrics, lengths_um=result.lengths_um,
@@ -472,6 +549,11 @@ class Service:
             "started_at": self.started_at, "uptime_s": time.time() - self.started_at,
             "config": self.cfg.source, "reload_error": self.reload_error,
             "inbox": self.inbox.counts(), "rss_mb": rss_mb(), "running": True,
+            "last_error": self.last_error,
+            "waiting_bundles": [
+                {"bundle": d.bundle.name, "id": d.bundle.id, "reason": d.reason,
+                 "since": d.since, "retry_in_s": max(d.retry_at - time.monotonic(), 0.0)}
+                for d in self.deferred.values()],
         })
         return st
 
