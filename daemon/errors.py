@@ -67,6 +67,10 @@ class DaemonNotRunning(ControlError):
     """No running daemon answered on the control socket."""
 
 
+class StateDirLocked(DaemonError):
+    """Another grassd process (daemon or one-shot) holds the state directory's lock."""
+
+
 class RunInterrupted(DaemonError):
     """A calibration run was stopped part-way (daemon shutting down); nothing was committed."""
 

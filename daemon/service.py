@@ -61,6 +61,7 @@ from grassd.daemon.ingest import Bundle, Inbox, parse_manifest, read_manifest_da
 from grassd.daemon.luxsensor import LuxSensor
 from grassd.daemon.notify import Notifier
 from grassd.daemon.retention import prune
+from grassd.daemon.statelock import StateLock
 from grassd.firmware_proto.client import RetryPolicy
 
 log = logging.getLogger(__name__)
@@ -139,8 +140,14 @@ class Service:
         self.runs_done = 0
         self.rss_log: list[tuple[int, float]] = []
         cfg.state_dir.mkdir(parents=True, exist_ok=True)
-        self.history = History(cfg.state_dir / STATE_DB)
-        self._build(cfg)
+        #: one grassd process per state directory (daemon or one-shot), see statelock
+        self.lock = StateLock(cfg.state_dir).acquire()
+        try:
+            self.history = History(cfg.state_dir / STATE_DB)
+            self._build(cfg)
+        except BaseException:
+            self.lock.release()
+            raise
         self.control: ControlServer | None = None
         self._watchdog_thread: threading.Thread | None = None
 
@@ -263,6 +270,7 @@ class Service:
             self.sensor.close()
         self.history.close()
         self.notifier.close()
+        self.lock.release()
         log.info("grassd stopped")
 
     def one_shot(self, force: bool = False) -> dict[str, Any]:

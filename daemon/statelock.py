@@ -1,0 +1,96 @@
+"""The state directory's lock: one grassd process at a time writes a state directory.
+
+``grassd run`` and ``grassd calibrate --now`` (when it runs the calibration itself) take an
+exclusive ``flock(2)`` on ``<state_dir>/grassd.lock`` for as long as they run and write their
+PID and command into it. A second one fails at once with
+:class:`~grassd.daemon.errors.StateDirLocked` naming the holder's PID, instead of both writing
+the database, the inbox directories and the controllers at the same time (e.g. a one-shot
+started while the daemon is still initialising, before its control socket answers).
+
+The kernel drops the lock when the holder exits, however it exits, so a stale lock file never
+blocks anybody (the file itself is left in place: unlinking it would let two processes lock two
+different files).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+import sys
+import time
+from pathlib import Path
+
+from grassd.daemon.errors import StateDirLocked
+
+LOCK_NAME = "grassd.lock"
+
+
+def command_line() -> str:
+    """A short name for this process's command (e.g. ``grassd run``)."""
+    args = [os.path.basename(sys.argv[0] or "python")] + [a for a in sys.argv[1:3]
+                                                           if not a.startswith("-")]
+    return " ".join(args)
+
+
+class StateLock:
+    """Exclusive lock on ``state_dir``/grassd.lock; ``what`` describes the holder."""
+
+    def __init__(self, state_dir: str | os.PathLike[str], what: str | None = None) -> None:
+        self.path = Path(state_dir) / LOCK_NAME
+        self.what = what or command_line()
+        self._fd: int | None = None
+
+    @property
+    def held(self) -> bool:
+        """True while this object holds the lock."""
+        return self._fd is not None
+
+    def holder(self) -> tuple[int | None, str]:
+        """(PID, command) written by the current holder; (None, "") if unreadable."""
+        for _ in range(20):  # the holder writes right after locking: give it a moment
+            with contextlib.suppress(OSError, ValueError):
+                text = self.path.read_text().strip()
+                if text:
+                    pid, _, what = text.partition(" ")
+                    return int(pid), what
+            time.sleep(0.01)
+        return None, ""
+
+    def acquire(self) -> StateLock:
+        """Take the lock or raise :class:`StateDirLocked` naming the holder's PID."""
+        if self._fd is not None:
+            return self
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            pid, what = self.holder()
+            who = f"{what or 'grassd'} (PID {pid})" if pid else "another grassd process"
+            raise StateDirLocked(
+                f"state directory {self.path.parent} is in use by {who}: stop it first, or "
+                "let it finish (`grassd calibrate --now` asks a running daemon over its control "
+                "socket)") from None
+        except BaseException:
+            os.close(fd)
+            raise
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()} {self.what}\n".encode(), 0)
+        self._fd = fd
+        return self
+
+    def release(self) -> None:
+        """Drop the lock (closing the file releases the flock)."""
+        if self._fd is not None:
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._fd, 0)
+            os.close(self._fd)
+            self._fd = None
+
+    def __enter__(self) -> StateLock:
+        return self.acquire()
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
