@@ -150,6 +150,8 @@ def _print_status(st: dict, echo=click.echo) -> None:
         echo(f"last error: {st['last_error']}")
     for w in st.get("waiting_bundles") or []:
         echo(f"bundle {w['bundle']} waits (retry in {w['retry_in_s']:.0f} s): {w['reason']}")
+    for p in st.get("inbox_problems") or []:
+        echo(f"inbox: {p}")
     echo("controllers:")
     for c in st["controllers"]:
         state = "in sync" if c["in_sync"] else ("unreachable" if not c["reachable"]

@@ -49,6 +49,7 @@ import math
 import os
 import re
 import shutil
+import stat
 import time
 import tomllib
 from collections.abc import Callable
@@ -68,8 +69,10 @@ MANIFEST_NAMES = ("manifest.toml", "manifest.json")
 FLAT_SUFFIXES = (".manifest.toml", ".manifest.json")
 HDRI_SUFFIXES = (".exr", ".hdr")
 REASON_FILE = "reason.txt"
-#: Seconds before a bundle that could not be moved out of the inbox is tried again.
+#: Seconds before a bundle that could not be moved out of the inbox is tried again (doubling
+#: after each failure up to STUCK_RETRY_MAX_S; at once when its owner or mode changes).
 STUCK_RETRY_S = 60.0
+STUCK_RETRY_MAX_S = 3600.0
 #: Largest plausible illuminance (lux): direct summer sun is about 1.2e5 lux.
 MAX_LUX = 200_000.0
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
@@ -250,6 +253,17 @@ def bundle_hash(input_hashes: dict[str, str]) -> str:
 
 
 @dataclass
+class _Stuck:
+    """A bundle whose move out of the inbox failed: why, when to retry (clock s), and the
+    owners/modes seen then (:meth:`Inbox._access_key`)."""
+
+    message: str
+    retry_at: float
+    delay_s: float
+    access: tuple
+
+
+@dataclass
 class _Candidate:
     name: str
     manifest: Path | None          # None: directory bundle without manifest (yet)
@@ -285,7 +299,7 @@ class Inbox:
         self.max_attempts = max_attempts
         self.clock = clock
         self._watch: dict[str, tuple[tuple, float, float]] = {}  # name -> (sig, since, first)
-        self._stuck: dict[str, float] = {}  # name -> clock time to retry a failed move at
+        self._stuck: dict[str, _Stuck] = {}  # bundles whose move out of the inbox failed
 
     # ------------------------------------------------------------------ scanning
     def _candidates(self) -> list[_Candidate]:
@@ -362,7 +376,9 @@ class Inbox:
         names = set()
         for c in self._candidates():
             names.add(c.name)
-            if now < self._stuck.get(c.name, -math.inf):
+            stuck = self._stuck.get(c.name)
+            if stuck is not None and now < stuck.retry_at \
+                    and stuck.access == self._access_key(c):
                 continue
             sig = self._signature(c)
             prev = self._watch.get(c.name)
@@ -398,6 +414,10 @@ class Inbox:
         for gone in set(self._stuck) - names:
             del self._stuck[gone]
         return ready
+
+    def problems(self) -> list[str]:
+        """Why bundles wait in the inbox (e.g. permissions), one line each, for status."""
+        return [st.message for _, st in sorted(self._stuck.items())]
 
     def recover(self) -> list[Bundle]:
         """Reconcile journal and directories after a crash; return bundles to process again."""
@@ -570,19 +590,76 @@ class Inbox:
         if d is not None:
             self._finish_dir(d, bid, h, reason)
 
+    def _access_key(self, c: _Candidate) -> tuple:
+        """Owner, group and mode of the inbox and of the bundle's top-level entries: when one
+        changes (someone fixed the permissions) a stuck bundle is tried again at once."""
+        key = []
+        for p in [self.inbox, *c.members]:
+            try:
+                st = p.lstat()
+            except OSError:
+                continue
+            key.append((str(p), st.st_uid, st.st_gid, st.st_mode))
+        return tuple(key)
+
     def _try_move_in(self, c: _Candidate, bid: str, h: str | None) -> Path | None:
-        """:meth:`_move_in`, or None when the bundle cannot be moved out of the inbox (left
-        there as it was, its fresh journal row ``h`` dropped; retried after a minute)."""
+        """:meth:`_move_in`, or None when the bundle cannot be moved out of the inbox: it is
+        left there as it was, its fresh journal row ``h`` dropped, and tried again after
+        STUCK_RETRY_S (doubling) or as soon as an owner or mode changes; the reason and the
+        fix are logged once and listed by :meth:`problems`."""
         try:
-            return self._move_in(c, bid)
+            dest = self._move_in(c, bid)
         except OSError as exc:
             if h is not None:
                 self.history.journal_forget(h)
-            self._stuck[c.name] = self.clock() + STUCK_RETRY_S
-            log.error("cannot move bundle %s out of the inbox (%s); it stays there and is "
-                      "tried again in %g s: give the daemon write access to it", c.name, exc,
-                      STUCK_RETRY_S)
+            prev = self._stuck.get(c.name)
+            delay = STUCK_RETRY_S if prev is None else min(prev.delay_s * 2, STUCK_RETRY_MAX_S)
+            msg = self._move_error(c, exc)
+            self._stuck[c.name] = _Stuck(msg, self.clock() + delay, delay, self._access_key(c))
+            if prev is None or prev.message != msg:
+                log.error("%s (it stays in the inbox; tried again when its owner or mode "
+                          "changes, else in %g s)", msg, delay)
+            else:
+                log.debug("bundle %s still cannot be moved; next try in %g s", c.name, delay)
             return None
+        if self._stuck.pop(c.name, None) is not None:
+            log.info("bundle %s could be moved out of the inbox now", c.name)
+        return dest
+
+    def _move_error(self, c: _Candidate, exc: OSError) -> str:
+        """One line: which bundle could not be moved, why, and what fixes it."""
+        head = f"cannot move bundle {c.name} out of the inbox {self.inbox}: {exc.strerror or exc}"
+        fix = f"chgrp grassd {self.inbox}; chmod 2775 {self.inbox}"
+        if exc.errno not in (errno.EACCES, errno.EPERM):
+            return head + " (give the daemon write access to the inbox and the bundle)"
+        me = os.geteuid()
+        try:
+            inbox_st = self.inbox.stat()
+        except OSError:
+            return head
+        if inbox_st.st_mode & stat.S_ISVTX and inbox_st.st_uid != me:
+            return (head + f": the inbox has the sticky bit (mode {inbox_st.st_mode & 0o7777:o})"
+                    ", so only an entry's owner may move it: chmod -t it, make it group-writable"
+                    f" and setgid ({fix})")
+        for m in c.members:
+            try:
+                st = m.lstat()
+            except OSError:
+                continue
+            if m.is_dir() and st.st_uid != me and not st.st_mode & stat.S_IWGRP:
+                return (head + f": bundle directory {m.name} belongs to uid {st.st_uid} with mode "
+                        f"{st.st_mode & 0o7777:o} (written with umask 022), and moving a "
+                        "directory needs write access to it: make the inbox group-writable and "
+                        f"setgid ({fix}) and have the uploader use "
+                        "umask 002, or upload flat bundles (NAME.manifest.toml beside its files)")
+            if m.is_dir() and not os.access(m, os.W_OK):
+                return (head + f": bundle directory {m.name} (uid {st.st_uid}, mode "
+                        f"{st.st_mode & 0o7777:o}) is not writable by the daemon (uid {me}), "
+                        "and moving a directory needs write access to it: make it group-"
+                        f"writable (uploader umask 002) in a setgid, group-writable inbox ({fix})")
+        return (head + f": the daemon (uid {me}) needs write access to the inbox (mode "
+                f"{inbox_st.st_mode & 0o7777:o}, uid {inbox_st.st_uid}, gid {inbox_st.st_gid}): "
+                f"make it group-writable and setgid ({fix})")
 
     def _move_in(self, c: _Candidate, bid: str) -> Path:
         dest = self.processing / bid

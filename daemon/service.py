@@ -557,7 +557,7 @@ class Service:
             "started_at": self.started_at, "uptime_s": time.time() - self.started_at,
             "config": self.cfg.source, "reload_error": self.reload_error,
             "inbox": self.inbox.counts(), "rss_mb": rss_mb(), "running": True,
-            "last_error": self.last_error,
+            "last_error": self.last_error, "inbox_problems": self.inbox.problems(),
             "waiting_bundles": [
                 {"bundle": d.bundle.name, "id": d.bundle.id, "reason": d.reason,
                  "since": d.since, "retry_in_s": max(d.retry_at - time.monotonic(), 0.0)}
