@@ -13,7 +13,8 @@ The file (default ``/etc/grassd/grassd.toml``; the embedded default is
     [display]      rows, cols, pitch_mm; [display.pixel] pixel-spec fields (mm, counts)
     [[controllers]] port, baud, address, pixels ("0-63,70" inclusive ranges of pixel indices)
     [[viewpoints]] h_cm, d_m, theta_deg, weight
-    [light]        inbox, lux = "manifest" | "modbus", settle_s, incomplete_timeout_s;
+    [light]        inbox, lux = "manifest" | "modbus", settle_s, incomplete_timeout_s,
+                   lux_wait_s;
                    [light.modbus] sensor register map
     [schedule]     interval_s, on_new_bundle
     [retention]    keep_days, keep_reports, keep_runs (see RetentionConfig)
@@ -169,7 +170,9 @@ class LightConfig:
     ``lux == "manifest"``: the manifest must carry ambient lux. ``lux == "modbus"``: manifest lux
     wins when present, otherwise the sensor described by ``modbus`` is read. A bundle is picked
     up once its files have kept their sizes for ``settle_s`` seconds; a manifest whose files are
-    still missing after ``incomplete_timeout_s`` seconds is rejected.
+    still missing after ``incomplete_timeout_s`` seconds is rejected. A bundle that needs the
+    sensor while it is unreachable or silent waits (retried with backoff) up to ``lux_wait_s``
+    seconds before it is rejected; a reading that is not a usable illuminance rejects it at once.
     """
 
     inbox: Path
@@ -177,6 +180,7 @@ class LightConfig:
     modbus: ModbusConfig | None
     settle_s: float = 2.0
     incomplete_timeout_s: float = 600.0
+    lux_wait_s: float = 900.0
 
 
 @dataclass(frozen=True)
@@ -654,6 +658,7 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         "lux": _F(str, "manifest", _one_of("manifest", "modbus")),
         "modbus": _F(dict, None), "settle_s": _F(float, 2.0, _non_negative),
         "incomplete_timeout_s": _F(float, 600.0, _positive),
+        "lux_wait_s": _F(float, 900.0, _non_negative),
     })
     modbus = None
     if lt["modbus"] is not None:
@@ -755,7 +760,8 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
     inbox = Path(os.path.expandvars(os.path.expanduser(lt["inbox"])))
     light = LightConfig(inbox=inbox if inbox.is_absolute() else state_dir / inbox,
                         lux=lt["lux"], modbus=modbus, settle_s=lt["settle_s"],
-                        incomplete_timeout_s=lt["incomplete_timeout_s"])
+                        incomplete_timeout_s=lt["incomplete_timeout_s"],
+                        lux_wait_s=lt["lux_wait_s"])
 
     return Config(site=site, display=display, controllers=tuple(controllers),
                   viewpoints=tuple(viewpoints), light=light, schedule=schedule,

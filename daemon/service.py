@@ -53,6 +53,8 @@ from grassd.daemon.errors import (
     ConfigError,
     DaemonError,
     LuxSensorError,
+    LuxSensorSilent,
+    LuxSensorUnreachable,
     RunInterrupted,
 )
 from grassd.daemon.fleet import Fleet, table_checksum
@@ -373,6 +375,10 @@ class Service:
         else:
             d.delay_s = min(d.delay_s * 2, self.retry_max_s)
             d.retry_at, d.reason = now + d.delay_s, reason
+            if limit_s is not None and d.give_up_at is None:
+                d.give_up_at = now + limit_s
+        if d.give_up_at is not None:  # the last try falls on the deadline, not far beyond
+            d.retry_at = min(d.retry_at, d.give_up_at)
         self.history.journal_release(b.hash)
         log.warning("bundle %s waits in processing/: %s; retried in %g s", b.name, reason,
                     d.delay_s)
@@ -397,7 +403,18 @@ class Service:
         m = b.manifest
         try:
             lux, source = self._resolve_lux(m.ambient_lux)
-        except DaemonError as exc:
+        except (LuxSensorUnreachable, LuxSensorSilent) as exc:  # an outage: wait for it
+            d = self.deferred.get(b.hash)
+            wait_s = self.cfg.light.lux_wait_s
+            if wait_s > 0 and (d is None or d.give_up_at is None
+                               or time.monotonic() < d.give_up_at):
+                return self._defer(b, f"waiting for the lux sensor: {exc}", limit_s=wait_s)
+            waited = 0.0 if d is None else time.time() - d.since
+            why = (f"no ambient lux: the lux sensor stayed unavailable for {waited:.0f} s "
+                   f"(light.lux_wait_s = {wait_s:g}): {exc}")
+            self.inbox.reject_bundle(b, why)
+            return {"status": "rejected", "error": why}
+        except DaemonError as exc:  # a bad reading or no lux source at all: permanent
             self.inbox.reject_bundle(b, f"no ambient lux: {exc}")
             return {"status": "rejected", "error": str(exc)}
         light = LightInput(hdri=m.hdri, ambient_lux=lux, timestamp=m.timestamp,
