@@ -38,11 +38,11 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -57,6 +57,9 @@ from grassd.calib.raw import develop_raw
 from grassd.daemon.config import Config, ViewpointConfig
 from grassd.daemon.errors import CalibrationRejected, RunInterrupted
 from grassd.daemon.simulation import simulate_curve, white_radiance
+
+if TYPE_CHECKING:
+    from grassd.daemon.calibrate_display import DisplayCalibrationResult
 
 log = logging.getLogger(__name__)
 
@@ -246,27 +249,31 @@ def check_shape(lengths_mm: NDArray, ogcd: NDArray, stderr: NDArray | None,
 
 
 def check_table(lengths_um: NDArray, green_max_mm: float, previous_um: NDArray | None,
-                max_jump_mm: float, force: bool) -> int | None:
+                max_jump_mm: float, force: bool, what: str = "table") -> int | None:
     """Sanity checks of a table (micrometres); returns the largest step from ``previous_um``.
 
-    Raises :class:`CalibrationRejected` naming the first problem found.
+    ``lengths_um``: one table (256,) or per-pixel tables (n, 256), every row checked;
+    ``previous_um`` must broadcast against it (a (256,) table against (n, 256) compares every
+    row). ``what`` names the table in messages (e.g. a controller). Raises
+    :class:`CalibrationRejected` naming the first problem found.
     """
     t = np.asarray(lengths_um)
-    if t.shape != (LEVELS,):
-        raise CalibrationRejected(f"table has shape {t.shape}, expected ({LEVELS},)")
+    if t.ndim not in (1, 2) or t.shape[-1] != LEVELS or t.size == 0:
+        raise CalibrationRejected(f"{what} has shape {t.shape}, expected ({LEVELS},) or "
+                                  f"(n_pixels, {LEVELS})")
     if not np.all(np.isfinite(t.astype(float))):
-        raise CalibrationRejected("table holds non-finite entries")
-    if np.any(np.diff(t.astype(np.int64)) < 0):
-        raise CalibrationRejected("table is not monotone (non-decreasing)")
+        raise CalibrationRejected(f"{what} holds non-finite entries")
+    if np.any(np.diff(t.astype(np.int64), axis=-1) < 0):
+        raise CalibrationRejected(f"{what} is not monotone (non-decreasing)")
     top = round(green_max_mm * 1000)
     if int(t.min()) < 0 or int(t.max()) > top:
-        raise CalibrationRejected(f"table leaves the range 0..{top} um")
+        raise CalibrationRejected(f"{what} leaves the range 0..{top} um")
     if previous_um is None:
         return None
     jump = int(np.abs(t.astype(np.int64) - np.asarray(previous_um, np.int64)).max())
     if jump > max_jump_mm * 1000 and not force:
         raise CalibrationRejected(
-            f"table differs from the active one by up to {jump / 1000:.2f} mm (limit "
+            f"{what} differs from the active one by up to {jump / 1000:.2f} mm (limit "
             f"{max_jump_mm:g} mm): a wild jump; run `grassd calibrate --now --force` to accept it")
     return jump
 
@@ -386,18 +393,19 @@ class Calibrator:
         return w @ y, np.sqrt((w**2) @ (se**2))
 
     # ------------------------------------------------------------------ run
-    def run(self, light: LightInput, *, previous_um: NDArray | None = None,
-            previous_ccm: NDArray | None = None, force: bool = False,
-            stop: threading.Event | None = None,
-            progress: Progress | None = None) -> CalibrationResult:
-        """Calibrate for ``light``; raises CalibError/SimError/CalibrationRejected on bad input
-        and :class:`RunInterrupted` when ``stop`` is set."""
-        cal = self.cfg.calibration
-        t_start = time.perf_counter()
+    @property
+    def per_display(self) -> bool:
+        """True when the config asks for more than the one global table from [[viewpoints]]:
+        ``[tables] granularity`` "controller"/"pixel", or an ``[audience]`` region. Such runs
+        go through :func:`grassd.daemon.calibrate_display.calibrate_display`."""
+        return self.cfg.tables.granularity != "global" or self.cfg.audience is not None
+
+    def light_and_ccm(self, light: LightInput, previous_ccm: NDArray | None,
+                      progress: Progress | None) -> tuple[Any, ColourCorrection | None, str]:
+        """(Lighting, colour correction or None, its source "bundle"/"previous"/"none")."""
         if progress:
             progress("building the lighting")
         lighting = self.lighting(light)
-
         ccm: ColourCorrection | None = None
         ccm_source = "none"
         if light.checker_raw is not None:
@@ -409,6 +417,31 @@ class Calibrator:
             m = np.asarray(previous_ccm, float)
             ccm = ColourCorrection("3x3", m, 1, np.zeros(0), float("nan"), float("nan"))
             ccm_source = "previous"
+        return lighting, ccm, ccm_source
+
+    def run(self, light: LightInput, *, previous_um: NDArray | None = None,
+            previous_ccm: NDArray | None = None, force: bool = False,
+            stop: threading.Event | None = None,
+            progress: Progress | None = None,
+            previous_tables: Mapping[str, NDArray] | None = None
+            ) -> CalibrationResult | DisplayCalibrationResult:
+        """Calibrate for ``light``; raises CalibError/SimError/CalibrationRejected on bad input
+        and :class:`RunInterrupted` when ``stop`` is set.
+
+        Returns a :class:`CalibrationResult` (one global table from [[viewpoints]]) or, when
+        :attr:`per_display`, a :class:`grassd.daemon.calibrate_display.DisplayCalibrationResult`
+        (a table per controller / per pixel, or from the audience region; ``previous_tables``
+        are the last run's tables by controller name, for the jump check)."""
+        if self.per_display:
+            from grassd.daemon.calibrate_display import calibrate_display  # noqa: PLC0415
+
+            return calibrate_display(self, light, previous_um=previous_um,
+                                     previous_tables=previous_tables,
+                                     previous_ccm=previous_ccm, force=force, stop=stop,
+                                     progress=progress)
+        cal = self.cfg.calibration
+        t_start = time.perf_counter()
+        lighting, ccm, ccm_source = self.light_and_ccm(light, previous_ccm, progress)
 
         lengths = np.asarray(self.cfg.simulation.lengths_mm, float)
         seed = self.cfg.simulation.seed

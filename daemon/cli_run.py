@@ -141,7 +141,8 @@ def _print_status(st: dict, echo=click.echo) -> None:
     echo(f"health: {st['health']}")
     d = st.get("desired_table")
     echo("current table: " + (f"{d['table_id']} (crc {d['table_crc']:#010x})" if d
-                                    else "none"))
+                                    else "none")
+         + (", one per controller" if d and d.get("per_controller") else ""))
     if st.get("inbox"):
         echo("bundles: " + ", ".join(f"{k} {v}" for k, v in st["inbox"].items()))
     if st.get("reload_error"):
@@ -157,6 +158,8 @@ def _print_status(st: dict, echo=click.echo) -> None:
         state = "in sync" if c["in_sync"] else ("unreachable" if not c["reachable"]
                                                  else "out of sync")
         tid = "-" if c["table_id"] is None else str(c["table_id"])
+        if d and d.get("per_controller") and c.get("desired_crc") is not None:
+            tid += f" (own table crc {c['desired_crc']:#010x})"
         err = f"  ({c['error']})" if c["error"] and not c["in_sync"] else ""
         echo(f"  {c['name']}: table {tid}, {state}{err}")
     echo("last runs:")
@@ -300,9 +303,15 @@ def calibrate_cmd(now: bool, wait: bool, force: bool, json_out: str | None,
         raise CalibrationRejected(f"{where} run {status}: {result.get('error')}")
     m = result["metrics"]
     ok = sum(c["ok"] for c in result["controllers"])
+    if m.get("r2_closed_loop") is not None:
+        quality = (f"R^2 {m['r2_closed_loop']:.4f}, max deviation {m['max_dev_de00']:.2f} dE00 "
+                   f"after {m['rounds']} round(s)")
+    else:  # a display run: a table per controller/pixel, checked on the fits
+        quality = (f"{m.get('tables')} {m.get('granularity')} table(s) from "
+                   f"{m.get('table_source')}; worst fitted R^2 {m['r2_after_fit']:.4f}, max "
+                   f"deviation {m['max_dev_de00']:.2f} dE00")
     msg = (f"{where} run {result['run_id']}: table {result['table_id']} "
            f"(crc {result['table_crc']:#010x}) on {ok}/{len(result['controllers'])} "
-           f"controllers; R^2 {m['r2_closed_loop']:.4f}, max deviation "
-           f"{m['max_dev_de00']:.2f} dE00 after {m['rounds']} round(s)\n"
+           f"controllers; {quality}\n"
            f"report {result['report']}\nplot   {result['plot']}")
     click.echo(msg, err=json_out == "-")

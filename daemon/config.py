@@ -22,9 +22,11 @@ The file (default ``/etc/grassd/grassd.toml``; the embedded default is
     [calibration]  max_jump_mm, target_de00, max_rounds, check_levels, r2_goal,
                    max_flat_fraction, replicates (see CalibrationConfig)
     [tables]       granularity = "global" | "controller" | "pixel", eye = "world" | "pixel",
-                   group_tolerance_deg, distance_tolerance, check_groups (see TablesConfig)
+                   group_tolerance_deg, distance_tolerance, check_groups (see TablesConfig):
+                   the table(s) the daemon pushes, one per controller / per pixel or global
     [audience]     optional region: polygon = [[x, y], ...] (m), h_cm = [low, high],
-                   ground_samples, height_samples, objective = "mean" | "worst"
+                   ground_samples, height_samples, objective = "mean" | "worst"; when set,
+                   the daemon's table(s) come from the region instead of [[viewpoints]]
 
 Relative paths are resolved against the directory of the config file, except ``light.inbox``
 which, when relative, lies inside ``state_dir``.
@@ -246,6 +248,9 @@ class TablesConfig:
     the same relative viewpoint); pixels whose view directions differ by less than
     ``group_tolerance_deg`` (deg) and distances by less than ``distance_tolerance`` (relative)
     share one simulation; ``check_groups`` groups are re-simulated to report the grouping error.
+    The daemon pushes them (:mod:`grassd.daemon.calibrate_display`): "controller" gives each
+    controller one (256,) table, "pixel" an (n_pixels, 256) table for the pixels it drives;
+    "global" without ``[audience]`` is the one-table run of :mod:`grassd.daemon.calibrate`.
     """
 
     granularity: str = "global"
@@ -853,17 +858,15 @@ def load_default_config(**overrides: Any) -> Config:
 
 
 def not_used_by_the_daemon(cfg: Config) -> list[str]:
-    """Settings that the API honours but ``grassd run`` does not act on yet, as warnings.
+    """Settings that ``grassd run`` does not act on, as warnings (empty when all are used).
 
-    The daemon pushes one global table built from ``[[viewpoints]]`` (the centre pixel of a 3 x 3
-    patch of the display); per-controller/per-pixel tables and audience regions are computed by
-    :mod:`grassd.daemon.display` and :mod:`grassd.daemon.audience` but not pushed yet.
+    The daemon honours ``[tables] granularity`` (a table per controller or per pixel) and
+    ``[audience]`` (tables from the region instead of ``[[viewpoints]]``):
+    :mod:`grassd.daemon.calibrate_display`. With ``[audience]`` every eye is a world position,
+    so ``[tables] eye = "pixel"`` has no meaning there.
     """
     notes = []
-    if cfg.tables.granularity != "global":
-        notes.append(f"tables.granularity = {cfg.tables.granularity!r}: the daemon still pushes "
-                     "one global table to every controller")
-    if cfg.audience is not None:
-        notes.append("[audience]: the daemon still builds its table from [[viewpoints]], not "
-                     "from the audience region")
+    if cfg.audience is not None and cfg.tables.eye != "world":
+        notes.append(f"tables.eye = {cfg.tables.eye!r} is ignored with [audience]: the region's "
+                     "eyes are world positions, every pixel seen from its own direction")
     return notes

@@ -465,7 +465,7 @@ class DisplayTables:
                 "max_ogcd_range": float(self.pixel_ogcd_range.max())}
 
 
-def _mean_characteristic(sim: DisplaySimulation, pixels: np.ndarray) -> Characteristic:
+def mean_characteristic(sim: DisplaySimulation, pixels: np.ndarray) -> Characteristic:
     """Pixel-weighted mean characteristic of ``pixels`` (mean of the groups' curves weighted
     by how many of the pixels each group holds; standard error: the weighted mean error, a
     bound since the groups share random numbers)."""
@@ -508,7 +508,7 @@ def build_display_tables(sim: DisplaySimulation, granularity: str = "pixel", *,
         names = [f"group {g} (pixel {int(p)})" for g, p in enumerate(sim.groups.representatives)]
         unit = labels.copy()
     elif granularity == "global":
-        tables = [build_length_table(_mean_characteristic(sim, np.arange(n)))]
+        tables = [build_length_table(mean_characteristic(sim, np.arange(n)))]
         names, unit = ["global"], np.zeros(n, np.int64)
     else:
         if not controllers:
@@ -523,11 +523,11 @@ def build_display_tables(sim: DisplaySimulation, granularity: str = "pixel", *,
             if np.any(unit[pix] >= 0):
                 raise DisplaySimulationError(f"controller {k} shares pixels with another one")
             unit[pix] = len(tables)
-            tables.append(build_length_table(_mean_characteristic(sim, pix)))
+            tables.append(build_length_table(mean_characteristic(sim, pix)))
             names.append(controller_names[k] if controller_names else f"controller {k}")
         if np.any(unit < 0):
             unit[unit < 0] = len(tables)
-            tables.append(build_length_table(_mean_characteristic(sim, np.arange(n))))
+            tables.append(build_length_table(mean_characteristic(sim, np.arange(n))))
             names.append("global (pixels without a controller)")
     lengths_um = np.stack([t.lengths_um for t in tables])[unit]
     # error of every (group, table) pair actually used, then spread onto the pixels

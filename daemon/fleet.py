@@ -1,21 +1,25 @@
-"""The configured controllers as one fleet: push a length table to all, and reconcile.
+"""The configured controllers as one fleet: push length tables to all, and reconcile.
+
+Every controller may have a table of its own (``[tables] granularity`` "controller" or
+"pixel"): :meth:`Fleet.push` takes one table for all or a mapping controller name -> table.
 
 Controllers that share a serial port (an RS-485 bus) share one
 :class:`~grassd.firmware_proto.client.ControllerClient`. Every operation takes the fleet's lock,
 so the daemon's main loop and a calibration run never talk over each other.
 
 *Reconcile* (desired vs reported state, every daemon tick): read each controller's
-TABLE_STATUS; one that does not report the desired table id and CRC gets the table pushed. A
-controller that was unplugged, rebooted with an old table, or missed a push therefore receives
-the current table as soon as it answers again. Pushes are atomic on the controller (staging bank,
-CRC-checked commit), so an interrupted push leaves the old table active, never a mix.
+TABLE_STATUS; one that does not report the desired table id and the CRC of its own table gets
+that table pushed. A controller that was unplugged, rebooted with an old table, or missed a push
+therefore receives its current table as soon as it answers again. Pushes are atomic on the
+controller (staging bank, CRC-checked commit), so an interrupted push leaves the old table
+active, never a mix.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -121,30 +125,56 @@ class Fleet:
         return ControllerReport(c.name, ok, True, True, after.table_id, after.table_crc,
                                 None if ok else "controller reports another table after commit")
 
-    def push(self, lengths_um: ArrayLike, table_id: int,
-             stop: threading.Event | None = None) -> list[ControllerReport]:
-        """Make table ``lengths_um`` (256 uint16 micrometres) with id ``table_id`` active on every
-        controller (those that already hold it are left alone). Stops between controllers once
-        ``stop`` is set; the controllers not reached are simply absent from the result (the
-        next reconcile serves them)."""
-        table = as_table_array(lengths_um)
-        crc = table_crc(table)
+    def push(self, lengths_um: ArrayLike | Mapping[str, ArrayLike], table_id: int,
+             stop: threading.Event | None = None,
+             fallback: ArrayLike | None = None) -> list[ControllerReport]:
+        """Make the desired table with id ``table_id`` active on every controller (those that
+        already hold it are left alone).
+
+        ``lengths_um``: one table for every controller (uint16 micrometres, (256,), or
+        (n_pixels, 256) per-pixel tables), or a mapping controller name (``port#address``) ->
+        that controller's own table ((256,) or (n_pixels, 256) for the pixels it drives);
+        controllers missing from the mapping get ``fallback`` (a ValueError names them when
+        there is none). Each controller's reported id and CRC are checked against its own
+        table. Stops between controllers once ``stop`` is set; the controllers not reached
+        are simply absent from the result (the next reconcile serves them)."""
+        desired = self._desired(lengths_um, fallback)
         out = []
         with self._lock:
             for c in self.controllers:
                 if stop is not None and stop.is_set():
                     break
+                table, crc = desired[c.name]
                 r = self._push_one(c, table, int(table_id), crc, True)
                 (log.info if r.ok else log.warning)(
                     "controller %s: %s", c.name,
-                    f"table {table_id} active" if r.ok else f"push failed: {r.error}")
+                    f"table {table_id} (crc {crc:#010x}) active" if r.ok
+                    else f"push failed: {r.error}")
                 out.append(r)
         return out
 
-    def reconcile(self, lengths_um: ArrayLike, table_id: int,
-                  stop: threading.Event | None = None) -> list[ControllerReport]:
-        """Same as :meth:`push`: controllers that hold the desired table cost one status read."""
-        return self.push(lengths_um, table_id, stop)
+    def reconcile(self, lengths_um: ArrayLike | Mapping[str, ArrayLike], table_id: int,
+                  stop: threading.Event | None = None,
+                  fallback: ArrayLike | None = None) -> list[ControllerReport]:
+        """Same as :meth:`push`: controllers that hold their desired table cost one status
+        read; one that came back (unplugged, rebooted with an old table) gets its own table."""
+        return self.push(lengths_um, table_id, stop, fallback)
+
+    def _desired(self, lengths_um: ArrayLike | Mapping[str, ArrayLike],
+                 fallback: ArrayLike | None) -> dict[str, tuple[np.ndarray, int]]:
+        """(validated table, CRC) for every controller's name."""
+        if not isinstance(lengths_um, Mapping):
+            table = as_table_array(lengths_um)
+            crc = table_crc(table)
+            return {c.name: (table, crc) for c in self.controllers}
+        missing = [c.name for c in self.controllers if c.name not in lengths_um]
+        if missing and fallback is None:
+            raise ValueError(f"no table for controller(s) {', '.join(missing)} and no fallback")
+        out = {}
+        for c in self.controllers:
+            table = as_table_array(lengths_um[c.name] if c.name in lengths_um else fallback)
+            out[c.name] = (table, table_crc(table))
+        return out
 
 
 def with_ports(controllers: Sequence[ControllerConfig],

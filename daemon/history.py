@@ -6,6 +6,11 @@ Tables:
   status (``running``/``ok``/``failed``/``rejected``), error, metrics (JSON), the 256-entry
   length table (JSON list of integer micrometres), its table id and CRC, report/plot paths.
 - ``pushes``: per-controller push results of each run (and of later reconciles).
+- ``run_tables``: the table of every controller of a run whose controllers each have their own
+  (``[tables] granularity`` "controller" or "pixel"): controller name, CRC, the table as JSON
+  (a list of 256 integer micrometres, or n_pixels such lists). Runs without rows here give
+  every controller the run's own table (``runs.lengths_um``). Added to older databases by
+  ``CREATE TABLE IF NOT EXISTS`` (no schema version change).
 - ``journal``: the ingest journal, one row per bundle keyed by its content hash; state
   ``processing``/``archived``/``rejected`` (see :mod:`grassd.daemon.ingest`).
 - ``controllers``: last reported state of each controller (table id, CRC, reachable, error).
@@ -20,11 +25,13 @@ import json
 import sqlite3
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from grassd.daemon.errors import HistoryError
 
@@ -81,6 +88,13 @@ CREATE TABLE IF NOT EXISTS controllers (
     last_error       TEXT,
     updated_at       REAL NOT NULL
 );
+CREATE TABLE IF NOT EXISTS run_tables (
+    run_id      INTEGER NOT NULL,
+    controller  TEXT NOT NULL,
+    table_crc   INTEGER NOT NULL,
+    lengths_um  TEXT NOT NULL,
+    PRIMARY KEY (run_id, controller)
+);
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 """
 
@@ -119,6 +133,17 @@ class PushRecord:
     table_crc: int | None
     error: str | None
     kind: str
+
+
+@dataclass(frozen=True, eq=False)
+class ControllerTable:
+    """A controller's own table of a run: ``lengths_um`` (256,) or (n_pixels, 256) uint16
+    micrometres and its CRC-32/ISO-HDLC ``table_crc`` (what the controller reports)."""
+
+    run_id: int
+    controller: str
+    table_crc: int
+    lengths_um: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -303,11 +328,31 @@ class History:
                 chunk = ids[k:k + 500]
                 marks = ",".join("?" * len(chunk))
                 db.execute(f"DELETE FROM pushes WHERE run_id IN ({marks})", chunk)
+                db.execute(f"DELETE FROM run_tables WHERE run_id IN ({marks})", chunk)
                 db.execute(f"DELETE FROM runs WHERE id IN ({marks})", chunk)
             if reconcile_before is not None:
                 db.execute("DELETE FROM pushes WHERE kind = 'reconcile' AND at < ?",
                            (reconcile_before,))
             return len(ids)
+
+    # ------------------------------------------------------------------ per-controller tables
+    def record_run_tables(self, run_id: int, tables: Mapping[str, Any],
+                          crcs: Mapping[str, int]) -> None:
+        """Store every controller's own table of run ``run_id`` (name -> (256,) or
+        (n_pixels, 256) integer micrometres) with its CRC, in one transaction. Call it before
+        :meth:`finish_run` marks the run ok, so a current table never lacks them."""
+        rows = [(run_id, name, int(crcs[name]), json.dumps(np.asarray(t, np.int64).tolist()))
+                for name, t in tables.items()]
+        with self._tx() as db:
+            db.executemany("INSERT OR REPLACE INTO run_tables (run_id, controller, table_crc, "
+                           "lengths_um) VALUES (?, ?, ?, ?)", rows)
+
+    def run_tables(self, run_id: int) -> dict[str, ControllerTable]:
+        """Controller name -> its own table of run ``run_id`` (empty: one table for all)."""
+        rows = self._query("SELECT run_id, controller, table_crc, lengths_um FROM run_tables "
+                           "WHERE run_id = ? ORDER BY controller", (run_id,))
+        return {r[1]: ControllerTable(r[0], r[1], r[2], np.asarray(json.loads(r[3]), np.uint16))
+                for r in rows}
 
     # ------------------------------------------------------------------ pushes / controllers
     def record_push(self, run_id: int | None, controller: str, ok: bool, *,

@@ -17,7 +17,10 @@ watchdog ping while the main thread shows progress (at least every ``stall_s`` s
 calibration reports progress per viewpoint), so a hung main loop is restarted by systemd.
 
 A run commits in this order: history row ``ok`` with the table, JSON report and PNG plot
-(atomic writes), then the push to every controller, then the bundle moves to ``archive/``. A
+(atomic writes), then the push to every controller, then the bundle moves to ``archive/``. With
+``[tables] granularity`` "controller"/"pixel" every controller's own table and CRC are stored
+(``run_tables``) before the row turns ``ok``; push, reconcile and status then check each
+controller against its own table (the run's display-wide table for one it has none for). A
 crash after the commit resumes cleanly: the bundle is archived without running again and the
 controllers are reconciled. SIGTERM sets a stop flag checked between viewpoints and between
 controllers, so the daemon exits within one render or one table push (each push is atomic on
@@ -46,6 +49,7 @@ from typing import Any
 from grassd import __version__
 from grassd.daemon.atomic import atomic_save_figure, atomic_write_json, describe_write_error
 from grassd.daemon.calibrate import CalibrationResult, Calibrator, LightInput, init_backend
+from grassd.daemon.calibrate_display import DisplayCalibrationResult
 from grassd.daemon.config import Config, load_config, not_used_by_the_daemon
 from grassd.daemon.control import ControlServer
 from grassd.daemon.errors import (
@@ -131,6 +135,7 @@ class Service:
         self.last_run_at: float | None = None
         self._last_reconcile = 0.0
         self._last_ctrl: dict[str, tuple] = {}
+        self._own_cache: tuple[int | None, dict[str, Any]] = (None, {})
         self.reload_error: str | None = None
         #: bundles waiting for a transient failure (full disk, lux sensor down) to clear; the
         #: first retry after ``retry_s``, then doubling up to ``retry_max_s``
@@ -349,6 +354,14 @@ class Service:
         cur = self.history.current_table()
         return (None if cur is None else list(cur.lengths_um)), self.history.get_meta("ccm")
 
+    def _own_tables(self, run_id: int) -> dict[str, Any]:
+        """Controller name -> its own table of run ``run_id`` (empty when the run has one table
+        for all); cached for the latest run asked, as reconcile asks every few seconds."""
+        if self._own_cache[0] != run_id:
+            self._own_cache = (run_id, {k: t.lengths_um for k, t in
+                                        self.history.run_tables(run_id).items()})
+        return self._own_cache[1]
+
     def prune(self) -> None:
         """Apply ``[retention]`` (old bundles, reports, history rows); never fails a run."""
         try:
@@ -483,10 +496,12 @@ class Service:
     def _calibrate_and_commit(self, run_id: int, light: LightInput,
                               force: bool) -> dict[str, Any]:
         prev_table, prev_ccm = self._previous()
+        cur = self.history.current_table()
+        prev_own = None if cur is None else self._own_tables(cur.id)
         try:
             result = self.calibrator.run(light, previous_um=prev_table, previous_ccm=prev_ccm,
                                          force=force, stop=self.stop_event,
-                                         progress=self._progress)
+                                         progress=self._progress, previous_tables=prev_own)
         except RunInterrupted as exc:
             self.history.finish_run(run_id, "failed", error=str(exc))
             return {"status": "interrupted", "run_id": run_id, "error": str(exc)}
@@ -500,10 +515,14 @@ class Service:
             return {"status": "failed", "run_id": run_id, "error": f"internal error: {exc!r}"}
         return self._commit(run_id, result)
 
-    def _commit(self, run_id: int, result: CalibrationResult) -> dict[str, Any]:
+    def _commit(self, run_id: int, result: CalibrationResult | DisplayCalibrationResult
+                ) -> dict[str, Any]:
         cal = self.cfg.calibration
         metrics = result.metrics(cal.r2_goal, cal.target_de00)
         crc = table_checksum(result.lengths_um)
+        # a table per controller ([tables] granularity "controller"/"pixel"), else one for all
+        own = getattr(result, "controller_tables", None) or {}
+        own_crcs = result.controller_crcs() if own else {}
         base = self.reports_dir / f"run-{run_id:06d}"
         report = {"run_id": run_id, "table_id": run_id, "table_crc": crc, "metrics": metrics,
                   **result.report()}
@@ -520,20 +539,25 @@ class Service:
             return {"status": "failed", "run_id": run_id, "error": msg, "transient": True}
         if result.ccm is not None and result.ccm_source == "bundle":
             self.history.set_meta("ccm", result.ccm.matrix.tolist())
+        if own:  # before the run becomes the current table
+            self.history.record_run_tables(run_id, own, own_crcs)
         self.history.finish_run(run_id, "ok", metrics=metrics, lengths_um=result.lengths_um,
                                 table_id=run_id, table_crc=crc, report_path=report_path,
                                 plot_path=plot_path)
         self.runs_done += 1
         self.rss_log.append((run_id, rss_mb()))
         self._progress(f"pushing table {run_id} to {len(self.cfg.controllers)} controller(s)")
-        reports = self.fleet.push(result.lengths_um, run_id, stop=self.stop_event)
+        reports = self.fleet.push(own or result.lengths_um, run_id, stop=self.stop_event,
+                                  fallback=result.lengths_um)
         for r in reports:
             self._record(r, run_id, "push")
         self._last_reconcile = time.monotonic()
         log.info("run %d committed: R^2 %.5f, max deviation %.3f dE00, %d/%d controllers",
-                 run_id, metrics["r2_closed_loop"] or 0, metrics["max_dev_de00"] or 0,
+                 run_id, metrics["r2_closed_loop"] or metrics["r2_after_fit"] or 0,
+                 metrics["max_dev_de00"] or 0,
                  sum(r.ok for r in reports), len(self.cfg.controllers))
         return {"status": "ok", "run_id": run_id, "table_id": run_id, "table_crc": crc,
+                "controller_crcs": own_crcs,
                 "metrics": metrics, "report": str(report_path), "plot": str(plot_path),
                 "controllers": [r.__dict__ for r in reports]}
 
@@ -546,12 +570,15 @@ class Service:
         self._last_ctrl[r.controller] = (r.ok, r.reachable, r.table_id)
 
     def reconcile(self) -> list:
-        """Push the current table to every controller that does not report it."""
+        """Push the current table to every controller that does not report it (its own table
+        when the run has one per controller; the run's table to any it has none for)."""
         self._last_reconcile = time.monotonic()
         cur = self.history.current_table()
         if cur is None:
             return []
-        reports = self.fleet.reconcile(cur.lengths_um, cur.table_id, stop=self.stop_event)
+        own = self._own_tables(cur.id)
+        reports = self.fleet.reconcile(own or cur.lengths_um, cur.table_id,
+                                       stop=self.stop_event, fallback=cur.lengths_um)
         for r in reports:
             state = (r.ok, r.reachable, r.table_id)
             if r.pushed:
@@ -610,8 +637,9 @@ class Service:
 def collect_status(history: History, cfg: Config, runs: int = 5) -> dict[str, Any]:
     """Status from the state database alone (what `grassd status` shows without a daemon)."""
     cur = history.current_table()
+    own = {} if cur is None else {k: t.table_crc for k, t in history.run_tables(cur.id).items()}
     desired = None if cur is None else {"table_id": cur.table_id, "table_crc": cur.table_crc,
-                                        "run_id": cur.id}
+                                        "run_id": cur.id, "per_controller": own or None}
     ctrls = {c.name: c for c in history.controllers()}
     wanted = [(c.name, c.port, c.address) for c in cfg.controllers]
     if ctrls and not any(name in ctrls for name, _, _ in wanted):
@@ -620,13 +648,14 @@ def collect_status(history: History, cfg: Config, runs: int = 5) -> dict[str, An
     controllers = []
     for name, port, address in wanted:
         s = ctrls.get(name)
+        want_crc = None if cur is None else own.get(name, cur.table_crc)  # its own table's
         in_sync = bool(s and cur and s.reachable and s.reported_id == cur.table_id
-                       and s.reported_crc == cur.table_crc)
+                       and s.reported_crc == want_crc)
         controllers.append({
             "name": name, "port": port, "address": address,
             "reachable": bool(s and s.reachable),
             "table_id": s.reported_id if s else None, "table_crc": s.reported_crc if s else None,
-            "in_sync": in_sync, "last_seen": s.last_seen if s else None,
+            "desired_crc": want_crc, "in_sync": in_sync, "last_seen": s.last_seen if s else None,
             "error": s.last_error if s else None,
         })
     if cur is None:
@@ -646,7 +675,8 @@ def collect_status(history: History, cfg: Config, runs: int = 5) -> dict[str, An
 
 def _run_summary(r) -> dict[str, Any]:
     m = r.metrics or {}
+    r2 = m.get("r2_after_fit") if m.get("check") == "fit" else m.get("r2_closed_loop")
     return {"id": r.id, "trigger": r.trigger, "status": r.status, "started_at": r.started_at,
             "finished_at": r.finished_at, "lux": r.lux, "lux_source": r.lux_source,
-            "error": r.error, "r2": m.get("r2_closed_loop"), "max_dev_de00": m.get("max_dev_de00"),
+            "error": r.error, "r2": r2, "max_dev_de00": m.get("max_dev_de00"),
             "report": r.report_path, "plot": r.plot_path}

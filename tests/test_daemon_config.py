@@ -237,8 +237,9 @@ def test_check_config_cli(tmp_path):
 
 
 def test_settings_the_daemon_does_not_act_on_are_reported(tmp_path):
-    """[tables] granularity other than global and [audience] are honoured by the display and
-    audience APIs but not by grassd run: check-config says so instead of staying silent."""
+    """grassd run honours [tables] granularity and [audience] (no warning any more); a setting
+    that means nothing in its context ([tables] eye = "pixel" with [audience]) is reported by
+    check-config instead of being silently ignored."""
     from click.testing import CliRunner
 
     from grassd.daemon.cli import main
@@ -248,4 +249,9 @@ def test_settings_the_daemon_does_not_act_on_are_reported(tmp_path):
     path.write_text(default_config_text() + '\n[tables]\ngranularity = "controller"\n')
     res = CliRunner().invoke(main, ["check-config", "--config", str(path)])
     assert res.exit_code == 0, res.output
-    assert "warning: tables.granularity = 'controller'" in res.output
+    assert "warning" not in res.output
+    path.write_text(default_config_text() + '\n[tables]\ngranularity = "pixel"\neye = "pixel"\n'
+                    '[audience]\npolygon = [[-1, -3], [1, -3], [1, -1]]\nh_cm = [150, 180]\n')
+    res = CliRunner().invoke(main, ["check-config", "--config", str(path)])
+    assert res.exit_code == 0, res.output
+    assert "warning: tables.eye = 'pixel' is ignored with [audience]" in res.output

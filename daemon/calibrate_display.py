@@ -1,0 +1,457 @@
+"""Whole-display calibration runs: a table per controller or per pixel, or from an audience.
+
+:meth:`grassd.daemon.calibrate.Calibrator.run` comes here when ``[tables] granularity`` is
+"controller" or "pixel", or an ``[audience]`` region is configured (granularity "global" without
+``[audience]`` stays the one-table run of :mod:`grassd.daemon.calibrate`). The pieces are those
+of the API; nothing here re-implements them:
+
+* **From [[viewpoints]]** (no ``[audience]``): every viewpoint is a viewer of the whole display
+  (``[display]`` rows x cols, neighbours present, each pixel seen from its own direction, pixels
+  grouped by viewing geometry; :func:`grassd.daemon.display.display_tables_for_config`), the
+  viewers' characteristics averaged with their weights, then one table per controller (its
+  pixels' mean characteristic) or per pixel (per geometry group, shared by its members)
+  (:func:`grassd.daemon.display.build_display_tables`).
+* **From [audience]**: the region is sampled (:func:`grassd.daemon.audience.region_from_config`).
+  Granularity "global": the display's centre pixel from every sampled eye and the table that
+  minimises the mean (or worst) deviation from linear OGCD over the eyes
+  (:func:`grassd.daemon.audience.region_table`). "controller"/"pixel": the whole display is traced
+  from every eye (:func:`grassd.daemon.display.simulate_display` with
+  :func:`grassd.daemon.display.geometry_from_eye`); each controller (its pixels' mean
+  characteristic for that eye) or each pixel group (groups combined over the eyes,
+  :func:`grassd.daemon.display.combine_viewpoints`) gets the region table over the eyes.
+
+Each run also gives a *display-wide* table (all pixels' mean characteristic, or the region table
+of it): it is the run's table in history and the one a controller gets when the run holds no
+table of its own for it (e.g. one added to the config afterwards). Per-controller tables are
+keyed by controller name (``port#address``); a "pixel" table of a controller has shape
+(n_pixels, 256), its rows in the order of the controller's ``pixels`` ranges (row i drives the
+controller's i-th pixel, PROTOCOL.md section 3).
+
+Checks, as for the global run: every unit's characteristic passes
+:func:`grassd.daemon.calibrate.check_shape`; every table passes
+:func:`grassd.daemon.calibrate.check_table` (monotone, within 0..green_max, and no entry jumps
+more than ``max_jump_mm`` from the same controller's previous table, or from the previous
+display-wide table when the shapes differ, unless forced). There is no closed loop here: the
+reported deviation from linear OGCD is that of the monotone fits driven by the tables
+(``metrics()["check"] == "fit"``), largest over the unit's pixels or sampled eyes [dE00].
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from grassd.calib.ccm import ColourCorrection
+from grassd.calib.characteristic import Characteristic, FittedCharacteristic, fit_characteristic
+from grassd.calib.length_table import LEVELS, r_squared
+from grassd.daemon.errors import CalibrationRejected, RunInterrupted
+from grassd.firmware_proto.tables import as_table_array, table_crc
+
+if TYPE_CHECKING:
+    from grassd.daemon.calibrate import Calibrator, LightInput
+
+Progress = Callable[[str], None]
+
+
+@dataclass(frozen=True, eq=False)
+class UnitTable:
+    """One table of a display run and what it does.
+
+    ``name``: the controller name, "group g (pixel p)" or "display"; ``pixels`` the display
+    pixel indices it drives (row-major); ``lengths_um`` (256,) uint16 [um];
+    ``characteristic`` the unit's mean characteristic over its viewers (lengths mm, OGCD dE00);
+    ``max_error``/``mean_error`` the largest / mean |deviation from linear OGCD| under the table
+    over the unit's pixels (each with its own characteristic), and from [audience] over the
+    sampled eyes too [dE00] (the display-wide table of a controller/pixel run: over the eyes
+    of the all-pixel mean; from [[viewpoints]]: not measured, NaN);
+    ``r2_before``/``r2_after`` R^2 of the fitted OGCD vs level with linear lengths / the table.
+    """
+
+    name: str
+    pixels: NDArray[np.int64]
+    lengths_um: NDArray[np.uint16]
+    characteristic: Characteristic
+    max_error: float
+    mean_error: float
+    r2_before: float
+    r2_after: float
+    ogcd_range: float
+
+
+@dataclass
+class DisplayCalibrationResult:
+    """A display run: tables per controller (``controller_tables``, name -> (256,) or
+    (n_pixels, 256) uint16 um), the display-wide table (:attr:`lengths_um`) and the units
+    behind them. ``source`` is "viewpoints" or "audience"; ``shape`` (rows, cols)."""
+
+    granularity: str
+    source: str
+    shape: tuple[int, int]
+    table_um: NDArray[np.uint16]
+    controller_tables: dict[str, NDArray[np.uint16]]
+    units: list[UnitTable]
+    unit_of_pixel: NDArray[np.int64]
+    ccm: ColourCorrection | None
+    ccm_source: str
+    lighting_notes: tuple[str, ...]
+    grouping: dict[str, Any] | None = None
+    region: dict[str, Any] | None = None
+    seconds: dict[str, float] = field(default_factory=dict)
+    max_step_um: int | None = None
+
+    @property
+    def lengths_um(self) -> NDArray[np.uint16]:
+        """The display-wide table (256,) uint16 [um] (the run's table in history)."""
+        return self.table_um
+
+    def controller_crcs(self) -> dict[str, int]:
+        """CRC-32/ISO-HDLC of every controller's table, as the controller reports it."""
+        return {k: table_crc(as_table_array(v)) for k, v in self.controller_tables.items()}
+
+    def metrics(self, r2_goal: float = 0.999, target_de00: float = 0.5) -> dict[str, Any]:
+        """Summary numbers (dE00; R^2 and deviations are the worst unit's, from the fits)."""
+        from grassd.daemon.calibrate import _finite_or_none  # noqa: PLC0415
+
+        r2_after = min(u.r2_after for u in self.units)
+        worst = max(u.max_error for u in self.units)
+        se = [float(np.mean(u.characteristic.ogcd_stderr)) for u in self.units
+              if u.characteristic.ogcd_stderr is not None]
+        return {
+            "granularity": self.granularity, "table_source": self.source, "check": "fit",
+            "tables": len(self.units), "controllers": len(self.controller_tables),
+            "r2_before": min(u.r2_before for u in self.units),
+            "r2_after_fit": r2_after, "r2_closed_loop": None,
+            "r2_goal": r2_goal, "r2_goal_met": bool(r2_after >= r2_goal),
+            "max_dev_de00": worst, "max_dev_goal_de00": target_de00,
+            "max_dev_goal_met": bool(worst <= target_de00),
+            "mean_dev_de00": float(np.mean([u.mean_error for u in self.units])),
+            "rounds": 0,
+            "ogcd_range_de00": min(u.ogcd_range for u in self.units),
+            "mean_ogcd_stderr_de00": float(np.mean(se)) if se else None,
+            "ccm_source": self.ccm_source,
+            "ccm_mean_de00": _finite_or_none(self.ccm.mean_de00) if self.ccm else None,
+            "ccm_max_de00": _finite_or_none(self.ccm.max_de00) if self.ccm else None,
+            "max_step_from_last_um": self.max_step_um,
+            "grouping": self.grouping, "region": self.region,
+            "seconds": dict(self.seconds),
+        }
+
+    def report(self) -> dict[str, Any]:
+        """A JSON-serialisable report (arrays as lists), with every controller's table CRC."""
+        crcs = self.controller_crcs()
+        return {
+            "granularity": self.granularity, "table_source": self.source,
+            "display_shape": list(self.shape),
+            "table_um": self.lengths_um.tolist(),
+            "controller_tables": {
+                k: {"table_crc": crcs[k], "shape": list(v.shape), "lengths_um": v.tolist()}
+                for k, v in self.controller_tables.items()},
+            "unit_of_pixel": self.unit_of_pixel.tolist(),
+            "units": [
+                {"name": u.name, "pixels": u.pixels.tolist(), "lengths_um": u.lengths_um.tolist(),
+                 "lengths_mm": u.characteristic.lengths_mm.tolist(),
+                 "ogcd_de00": u.characteristic.ogcd.tolist(),
+                 "ogcd_stderr_de00": None if u.characteristic.ogcd_stderr is None
+                 else u.characteristic.ogcd_stderr.tolist(),
+                 "max_error_de00": u.max_error, "mean_error_de00": u.mean_error,
+                 "r2_before": u.r2_before, "r2_after_fit": u.r2_after,
+                 "ogcd_range_de00": u.ogcd_range}
+                for u in self.units],
+            "grouping": self.grouping, "region": self.region,
+            "ccm": None if self.ccm is None else {
+                "source": self.ccm_source, "method": self.ccm.method,
+                "matrix": self.ccm.matrix.tolist()},
+            "lighting_notes": list(self.lighting_notes),
+        }
+
+    def figure(self) -> Any:
+        """A matplotlib Figure: unit characteristics, unit tables, worst error per pixel."""
+        from matplotlib.figure import Figure  # noqa: PLC0415 - only when plotting
+
+        fig = Figure(figsize=(12, 4), dpi=100)
+        ax1, ax2, ax3 = fig.subplots(1, 3)
+        many = len(self.units) > 12
+        for u in self.units:
+            c = u.characteristic
+            ax1.plot(c.lengths_mm, c.ogcd, "-", lw=0.5 if many else 1.0,
+                     label=None if many else u.name)
+            ax2.plot(np.arange(LEVELS), u.lengths_um / 1000.0, "-",
+                     lw=0.5 if many else 1.0, label=None if many else u.name)
+        ax2.plot(np.arange(LEVELS), self.lengths_um / 1000.0, "k--", lw=1.0, label="display")
+        ax1.set(xlabel="green length (mm)", ylabel="OGCD (dE00)",
+                title=f"Characteristics ({self.source})")
+        ax2.set(xlabel="8-bit level", ylabel="length (mm)",
+                title=f"Tables ({self.granularity})")
+        if not many:
+            ax1.legend(fontsize=6)
+        ax2.legend(fontsize=6)
+        err = np.array([u.max_error for u in self.units])[self.unit_of_pixel]
+        im = ax3.imshow(err.reshape(self.shape), cmap="magma_r", origin="upper")
+        fig.colorbar(im, ax=ax3, shrink=0.8)
+        ax3.set(xlabel="column", ylabel="row", title="worst |OGCD - linear| (dE00, fit)")
+        fig.tight_layout()
+        return fig
+
+
+# --------------------------------------------------------------------------- units
+
+
+def _fit(c: Characteristic) -> FittedCharacteristic:
+    return fit_characteristic(c)
+
+
+def _r2_pair(fit: FittedCharacteristic, lengths_um: NDArray) -> tuple[float, float]:
+    """R^2 of fitted OGCD vs level with linear lengths and with ``lengths_um`` (256,) [um]."""
+    levels = np.arange(LEVELS, dtype=np.float64)
+    linear = np.linspace(fit.min_length_mm, fit.max_length_mm, LEVELS)
+    return (r_squared(levels, fit(linear)),
+            r_squared(levels, fit(np.asarray(lengths_um, np.float64) / 1000.0)))
+
+
+def _mean_of(chars: Sequence[Characteristic], weights: NDArray | None = None) -> Characteristic:
+    """Weighted mean characteristic (equal weights by default); error: weighted mean error."""
+    w = np.ones(len(chars)) if weights is None else np.asarray(weights, np.float64)
+    w = w / w.sum()
+    ogcd = w @ np.stack([c.ogcd for c in chars])
+    se = w @ np.stack([c.ogcd_stderr for c in chars])
+    return Characteristic(chars[0].lengths_mm, ogcd, np.maximum(se, 1e-6))
+
+
+def _unit(name: str, pixels: NDArray, lengths_um: NDArray, char: Characteristic,
+          max_error: float, mean_error: float) -> UnitTable:
+    fit = _fit(char)
+    r2b, r2a = _r2_pair(fit, lengths_um)
+    return UnitTable(name, np.asarray(pixels, np.int64), np.asarray(lengths_um, np.uint16), char,
+                     float(max_error), float(mean_error), r2b, r2a, float(fit.ogcd_range))
+
+
+def _region_unit(name: str, pixels: NDArray, chars: Sequence[Characteristic],
+                 objective: str) -> UnitTable:
+    """A unit whose table is the region table over one characteristic per sampled eye."""
+    from grassd.daemon.audience import region_table  # noqa: PLC0415
+
+    t = region_table([_fit(c) for c in chars], objective)
+    return _unit(name, pixels, t.lengths_um, _mean_of(chars), float(t.max_error.max()),
+                 float(t.mean_error.mean()))
+
+
+def _pixel_errors(u: UnitTable, sims: Sequence[Any], pixels: NDArray) -> UnitTable:
+    """``u`` with its errors measured on its pixels, not on their mean: every (eye, geometry
+    group) pair among ``pixels`` driven by ``u``'s table; worst, and mean weighted by pixels."""
+    from grassd.daemon.audience import evaluate_table  # noqa: PLC0415
+
+    fits, weights = [], []
+    for s in sims:  # one entry per eye
+        groups, counts = np.unique(s.groups.labels[pixels], return_counts=True)
+        fits += [_fit(s.group_characteristic(int(g))) for g in groups]
+        weights.append(counts)
+    w = np.concatenate(weights).astype(np.float64)
+    ev = evaluate_table(fits, u.lengths_um, weights=w)
+    return replace(u, max_error=float(ev.max_error.max()),
+                   mean_error=float(w @ ev.mean_error / w.sum()))
+
+
+def _merge_grouping(summaries: Sequence[dict]) -> dict | None:
+    """Worst of several grouping-error summaries (one per viewer)."""
+    done = [s for s in summaries if s.get("groups_checked")]
+    if not done:
+        return None
+    out: dict[str, Any] = {"groups_checked": int(sum(s["groups_checked"] for s in done))}
+    for k in done[0]:
+        if k.startswith("max_"):
+            out[k] = float(max(s[k] for s in done))
+    return out
+
+
+def _viewpoint_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
+                     lengths: NDArray, settings: Any, ccm: Any, step: Callable[[int, int], None]
+                     ) -> tuple[list[UnitTable], NDArray, UnitTable, dict | None]:
+    """Units from [[viewpoints]]: (units, unit of every pixel, display-wide unit, grouping)."""
+    from grassd.calib.length_table import build_length_table  # noqa: PLC0415
+    from grassd.daemon.display import (  # noqa: PLC0415
+        combine_viewpoints,
+        display_tables_for_config,
+        mean_characteristic,
+    )
+
+    cfg = cal.cfg
+    tables, sims = display_tables_for_config(renderer, cfg, lighting, lengths, settings,
+                                             ccm=ccm, progress=step)
+    combined = combine_viewpoints(sims, [v.weight for v in cfg.viewpoints])
+    n = display.rows * display.cols
+    err = tables.pixel_error
+    units = []
+    for k, (name, table) in enumerate(zip(tables.names, tables.tables, strict=True)):
+        pix = np.flatnonzero(tables.unit_of_pixel == k)
+        char = (combined.group_characteristic(k) if tables.granularity == "pixel"
+                else mean_characteristic(combined, pix))
+        units.append(_unit(name, pix, table.lengths_um, char, err[pix].max(), err[pix].mean()))
+    everyone = np.arange(n)
+    char = mean_characteristic(combined, everyone)
+    whole = _unit("display", everyone, build_length_table(char).lengths_um, char,
+                  np.nan, np.nan)
+    grouping = _merge_grouping([s.grouping_error.summary() for s in sims
+                                if s.grouping_error is not None])
+    return units, tables.unit_of_pixel.copy(), whole, grouping
+
+
+def _audience_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
+                    lengths: NDArray, settings: Any, ccm: Any, step: Callable[[int, int], None]
+                    ) -> tuple[list[UnitTable], NDArray, UnitTable, dict | None, dict]:
+    """Units from [audience]: (units, unit of every pixel, display-wide unit, grouping,
+    region summary)."""
+    from grassd.daemon.audience import region_from_config, simulate_region  # noqa: PLC0415
+    from grassd.daemon.display import (  # noqa: PLC0415
+        combine_viewpoints,
+        controller_pixels,
+        geometry_from_eye,
+        mean_characteristic,
+        simulate_display,
+    )
+
+    cfg = cal.cfg
+    aud, t = cfg.audience, cfg.tables
+    region, samples = region_from_config(aud)
+    n = display.rows * display.cols
+    everyone = np.arange(n)
+    info = {"eyes": int(samples.n), "area_m2": region.area_m2, "h_cm": list(region.h_cm),
+            "objective": aud.objective}
+    if cfg.tables.granularity == "global":
+        curves = simulate_region(renderer, display, lighting, samples, lengths, settings,
+                                 ccm=ccm, progress=step)
+        chars = [Characteristic(c.lengths_mm, c.ogcd, np.maximum(c.ogcd_stderr, 1e-6))
+                 for c in curves]
+        whole = _region_unit("display", everyone, chars, aud.objective)
+        return [whole], np.zeros(n, np.int64), whole, None, info
+    m = samples.n
+    sims = []
+    for k, eye in enumerate(samples.eyes_m):
+        def eye_step(done: int, total: int, k: int = k) -> None:
+            step(k * total + done, m * total)
+
+        sims.append(simulate_display(
+            renderer, display, lighting, None, lengths, settings,
+            geometry=geometry_from_eye(display, eye), tolerance_deg=t.group_tolerance_deg,
+            distance_tolerance=t.distance_tolerance, check_groups=t.check_groups, ccm=ccm,
+            progress=eye_step))
+    whole = _region_unit("display", everyone,
+                         [mean_characteristic(s, everyone) for s in sims], aud.objective)
+    unit = np.full(n, -1, np.int64)
+    units: list[UnitTable] = []
+    if t.granularity == "controller":
+        for c, pix in zip(cfg.controllers, controller_pixels(cfg.controllers, n), strict=True):
+            unit[pix] = len(units)
+            u = _region_unit(c.name, pix, [mean_characteristic(s, pix) for s in sims],
+                             aud.objective)
+            units.append(_pixel_errors(u, sims, pix))
+        if np.any(unit < 0):  # pixels without a controller: the display-wide table
+            unit[unit < 0] = len(units)
+            units.append(whole)
+    else:
+        combined = combine_viewpoints(sims, np.ones(m))
+        for g, p in enumerate(combined.groups.representatives):  # one region table per group
+            members = combined.groups.members(g)
+            chars = [Characteristic(c.lengths_mm, c.ogcd, np.maximum(c.ogcd_stderr, 1e-6))
+                     for c in (s.curves[s.groups.labels[p]] for s in sims)]
+            units.append(_region_unit(f"group {g} (pixel {int(p)})", members, chars,
+                                      aud.objective))
+        unit = combined.groups.labels.copy()
+    grouping = _merge_grouping([s.grouping_error.summary() for s in sims
+                                if s.grouping_error is not None])
+    return units, unit, whole, grouping, info
+
+
+# --------------------------------------------------------------------------- the run
+
+
+def controller_tables_of(cfg: Any, units: Sequence[UnitTable], unit_of_pixel: NDArray
+                         ) -> dict[str, NDArray[np.uint16]]:
+    """Every configured controller's table: (256,) for granularity "controller" or "global",
+    (n_pixels, 256) for "pixel" (rows in the order of the controller's pixel ranges)."""
+    from grassd.daemon.display import controller_pixels  # noqa: PLC0415
+
+    n = len(unit_of_pixel)
+    stacked = np.stack([u.lengths_um for u in units])
+    out = {}
+    for c, pix in zip(cfg.controllers, controller_pixels(cfg.controllers, n), strict=True):
+        rows = stacked[unit_of_pixel[pix]]
+        if cfg.tables.granularity == "pixel":
+            out[c.name] = rows
+        else:  # one unit drives all the controller's pixels
+            out[c.name] = rows[0]
+    return out
+
+
+def calibrate_display(cal: Calibrator, light: LightInput, *,
+                      previous_um: NDArray | None = None,
+                      previous_tables: Mapping[str, NDArray] | None = None,
+                      previous_ccm: NDArray | None = None, force: bool = False,
+                      stop: threading.Event | None = None,
+                      progress: Progress | None = None) -> DisplayCalibrationResult:
+    """A display run for ``cal.cfg`` (see the module docstring); raises
+    :class:`~grassd.daemon.errors.CalibrationRejected` for a bad characteristic or table and
+    :class:`~grassd.daemon.errors.RunInterrupted` when ``stop`` is set (checked per trace)."""
+    from grassd.daemon.calibrate import check_shape, check_table  # noqa: PLC0415
+    from grassd.daemon.display import capacity_for  # noqa: PLC0415
+    from grassd.sim.renderer import Renderer  # noqa: PLC0415
+    from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings  # noqa: PLC0415
+
+    cfg = cal.cfg
+    t_start = time.perf_counter()
+    lighting, ccm, ccm_source = cal.light_and_ccm(light, previous_ccm, progress)
+    d = cfg.display
+    display = DisplaySpec(PixelSpec(**dict(d.pixel)), d.rows, d.cols, d.pitch_mm)
+    renderer = Renderer.shared(capacity_for(d.rows * d.cols))
+    settings = RenderSettings(samples=cfg.simulation.samples,
+                              replicates=cfg.calibration.replicates, seed=cfg.simulation.seed)
+    lengths = np.asarray(cfg.simulation.lengths_mm, float)
+    source = "viewpoints" if cfg.audience is None else "audience"
+
+    def step(done: int, total: int) -> None:
+        if stop is not None and stop.is_set():
+            raise RunInterrupted("calibration stopped (daemon shutting down)")
+        if progress:
+            progress(f"simulating the display ({source}, {cfg.tables.granularity} tables): "
+                     f"trace {done}/{total}")
+
+    step(0, 1)
+    region = None
+    if source == "viewpoints":
+        units, unit_of_pixel, whole, grouping = _viewpoint_units(
+            cal, renderer, display, lighting, lengths, settings, ccm, step)
+    else:
+        units, unit_of_pixel, whole, grouping, region = _audience_units(
+            cal, renderer, display, lighting, lengths, settings, ccm, step)
+    t_sim = time.perf_counter() - t_start
+    cc = cfg.calibration
+    for u in units:  # one check per table (controllers or pixel groups), never per pixel
+        try:
+            check_shape(u.characteristic.lengths_mm, u.characteristic.ogcd,
+                        u.characteristic.ogcd_stderr, cc.max_flat_fraction)
+        except CalibrationRejected as exc:
+            raise CalibrationRejected(f"{u.name}: {exc}") from None
+    green_max = float(d.pixel.get("green_max_mm", 20.0))
+    controller_tables = controller_tables_of(cfg, units, unit_of_pixel)
+    steps = [check_table(whole.lengths_um, green_max, None, cc.max_jump_mm, force,
+                         "display-wide table")]
+    for name, table in controller_tables.items():
+        prev = None if previous_tables is None else previous_tables.get(name)
+        if prev is not None and np.broadcast_shapes(np.shape(prev), table.shape) != table.shape:
+            prev = None  # its pixel count changed: compare with the display-wide table
+        steps.append(check_table(table, green_max, prev if prev is not None else previous_um,
+                                 cc.max_jump_mm, force, f"table of controller {name}"))
+    known = [s for s in steps if s is not None]
+    total = time.perf_counter() - t_start
+    return DisplayCalibrationResult(
+        granularity=cfg.tables.granularity, source=source, shape=(d.rows, d.cols),
+        table_um=whole.lengths_um, controller_tables=controller_tables, units=units,
+        unit_of_pixel=unit_of_pixel, ccm=ccm, ccm_source=ccm_source,
+        lighting_notes=tuple(getattr(lighting, "notes", ())), grouping=grouping, region=region,
+        seconds={"simulate": t_sim, "total": total},
+        max_step_um=max(known) if known else None)

@@ -1,0 +1,263 @@
+"""The daemon honours [tables] granularity and [audience]: a 2 x 2 display driven by two
+simulated controllers on real ptys (one bus each), low sample counts.
+
+Checked: each controller is pushed its own table (per controller: (256,), per pixel: (2, 256))
+and ends up reporting that table's CRC; history, status and the JSON report carry every
+controller's CRC; an unplugged controller gets its own table on reconcile; an audience region
+of one eye gives the tables of the equivalent viewpoint; Fleet.push takes a name -> table map.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+from datetime import UTC, datetime
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from grassd.daemon.calibrate import Calibrator, LightInput, init_backend
+from grassd.daemon.config import not_used_by_the_daemon, parse_config
+from grassd.daemon.fleet import Fleet, table_checksum
+from grassd.daemon.service import Service, collect_status
+from grassd.daemon.sim_hardware import SimulatedHardware
+from grassd.firmware_proto.client import RetryPolicy
+
+ROOT = Path(__file__).resolve().parents[1]
+CACHE = os.environ.get("GRASSD_CACHE_DIR", str(ROOT / ".venv" / "grassd-cache"))
+SITE = Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
+POLICY = RetryPolicy(timeout_s=0.1, retries=1, restarts=1, readback_retries=2)
+
+BASE = f"""
+state_dir = "state"
+cache_dir = "{CACHE}"
+[site]
+latitude = 48.1
+longitude = 11.6
+timezone = "Europe/Berlin"
+[display]
+rows = 2
+cols = 2
+[[controllers]]
+port = "/dev/grassd-test-bus0"
+address = 1
+pixels = "0-1"
+[[controllers]]
+port = "/dev/grassd-test-bus1"
+address = 2
+pixels = "2-3"
+[[viewpoints]]
+h_cm = 170
+d_m = 2
+[light]
+inbox = "inbox"
+lux = "manifest"
+settle_s = 0
+[schedule]
+interval_s = 0
+[simulation]
+samples = 64
+seed = 3
+lengths = 5
+[calibration]
+replicates = 2
+max_jump_mm = 20.0
+"""
+AUDIENCE = """
+[audience]
+polygon = [[{x0}, {y0}], [{x1}, {y0}], [{x1}, {y1}], [{x0}, {y1}]]
+h_cm = [{h0}, {h1}]
+ground_samples = {g}
+height_samples = 1
+"""
+
+
+def config(tmp_path: Path, extra: str):
+    return parse_config(BASE + extra, base_dir=tmp_path)
+
+
+def drop(inbox: Path, name: str, lux: float = 8000.0) -> None:
+    d = inbox / f".{name}"
+    d.mkdir(parents=True)
+    shutil.copy(SITE, d / "sky.exr")
+    (d / "manifest.toml").write_text(
+        f'timestamp = 2026-06-21T12:00:00+02:00\nhdri = "sky.exr"\nambient_lux = {lux}\n')
+    os.rename(d, inbox / name)
+
+
+@pytest.fixture
+def rig(tmp_path):
+    """(service, simulated hardware) for a config with ``extra`` appended."""
+    made: list = []
+
+    def make(extra: str) -> tuple[Service, SimulatedHardware]:
+        sim = SimulatedHardware(config(tmp_path, extra), tmp_path / "hw")
+        cfg = sim.start()
+        made.append(sim)
+        svc = Service(cfg, policy=POLICY)
+        made.append(svc)
+        init_backend(cfg)
+        return svc, sim
+
+    yield make
+    for m in reversed(made):
+        if isinstance(m, Service):
+            m.shutdown()
+        else:
+            m.stop()
+
+
+def devices(sim: SimulatedHardware, cfg) -> dict[str, object]:
+    """Controller name -> its simulated device (one per bus, in config order)."""
+    return {c.name: bus.controllers[0] for c, bus in zip(cfg.controllers, sim.buses, strict=True)}
+
+
+def run_bundle(svc: Service, name: str = "b1") -> dict:
+    drop(svc.cfg.light.inbox, name)
+    [b] = svc.inbox.poll()
+    out = svc.process_bundle(b)
+    assert out["status"] == "ok", out
+    return out
+
+
+def test_controller_tables_pushed_and_reconciled_after_unplug(rig):
+    svc, sim = rig('[tables]\ngranularity = "controller"\ncheck_groups = 0\n')
+    names = [c.name for c in svc.cfg.controllers]
+    out = run_bundle(svc)
+    crcs = out["controller_crcs"]
+    assert sorted(crcs) == sorted(names)
+    assert crcs[names[0]] != crcs[names[1]]  # two controllers, two tables
+    assert out["table_crc"] not in crcs.values()  # the display-wide table is a third one
+    for r in out["controllers"]:
+        assert r["ok"] and r["pushed"] and r["table_crc"] == crcs[r["controller"]]
+    stored = svc.history.run_tables(out["run_id"])
+    for name, dev in devices(sim, svc.cfg).items():
+        assert stored[name].lengths_um.shape == (256,)
+        assert stored[name].table_crc == crcs[name] == table_checksum(stored[name].lengths_um)
+        np.testing.assert_array_equal(dev.active_table().ravel(), stored[name].lengths_um)
+    reported = {c.name: (st.table_id, st.table_crc) for c, st, _ in svc.fleet.read_all()}
+    assert reported == {n: (out["run_id"], crc) for n, crc in crcs.items()}  # over the wire
+    st = collect_status(svc.history, svc.cfg)
+    assert st["health"] == "ok" and st["desired_table"]["per_controller"] == crcs
+    assert {c["name"]: (c["desired_crc"], c["table_crc"], c["in_sync"])
+            for c in st["controllers"]} == {n: (crcs[n], crcs[n], True) for n in names}
+    report = json.loads(Path(out["report"]).read_text())
+    assert report["granularity"] == "controller" and report["table_source"] == "viewpoints"
+    assert {k: v["table_crc"] for k, v in report["controller_tables"].items()} == crcs
+    assert out["metrics"]["tables"] == 2 and out["metrics"]["check"] == "fit"
+
+    # the second controller is unplugged during the next run: it keeps the old table, then
+    # gets ITS table of the new run when it answers again
+    sim.buses[1].unplug(down_s=1.0)
+    out2 = svc.scheduled_run("request")
+    assert out2["status"] == "ok"
+    crcs2 = out2["controller_crcs"]
+    assert [r["ok"] for r in out2["controllers"]] == [True, False]
+    st = collect_status(svc.history, svc.cfg)
+    assert st["health"].startswith("degraded: 1 controller")
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        reports = svc.reconcile()
+        if all(r.ok for r in reports):
+            break
+        time.sleep(0.2)
+    back = {r.controller: r for r in reports}
+    assert back[names[1]].ok and back[names[1]].pushed
+    assert back[names[1]].table_id == out2["run_id"]
+    assert back[names[1]].table_crc == crcs2[names[1]] != crcs2[names[0]]
+    assert not back[names[0]].pushed  # it already held its own table: one status read
+    own = svc.history.run_tables(out2["run_id"])[names[1]].lengths_um
+    np.testing.assert_array_equal(devices(sim, svc.cfg)[names[1]].active_table().ravel(), own)
+    [rec] = [p for p in svc.history.pushes(out2["run_id"]) if p.kind == "reconcile"]
+    assert (rec.controller, rec.ok, rec.table_crc) == (names[1], True, crcs2[names[1]])
+    assert collect_status(svc.history, svc.cfg)["health"] == "ok"
+
+
+def test_pixel_tables_one_row_per_pixel_on_each_controller(rig):
+    svc, sim = rig('[tables]\ngranularity = "pixel"\ncheck_groups = 0\n')
+    out = run_bundle(svc)
+    crcs = out["controller_crcs"]
+    stored = svc.history.run_tables(out["run_id"])
+    assert len(set(crcs.values())) == 2
+    for name, dev in devices(sim, svc.cfg).items():
+        t = stored[name].lengths_um
+        assert t.shape == (2, 256)  # the two pixels this controller drives
+        assert not np.array_equal(t[0], t[1])  # different neighbours: different tables
+        assert table_checksum(t) == crcs[name]
+        np.testing.assert_array_equal(dev.active_table(), t)
+    reported = {c.name: (st.table_id, st.table_crc) for c, st, _ in svc.fleet.read_all()}
+    assert reported == {n: (out["run_id"], crc) for n, crc in crcs.items()}  # over the wire
+    assert [r["ok"] for r in out["controllers"]] == [True, True]
+    assert collect_status(svc.history, svc.cfg)["health"] == "ok"
+    assert out["metrics"]["granularity"] == "pixel" and out["metrics"]["tables"] == 4
+
+
+def light() -> LightInput:
+    return LightInput(hdri=SITE, ambient_lux=8000.0,
+                      timestamp=datetime(2026, 6, 21, 10, tzinfo=UTC))
+
+
+def test_audience_region_drives_the_tables(tmp_path):
+    """A one-eye region at the viewpoint's world position gives (nearly) the viewpoint's
+    controller tables; a wider region gives other ones; [audience] with granularity global
+    gives one region table for every controller."""
+    ctrl = '[tables]\ngranularity = "controller"\ncheck_groups = 0\n'
+    one_eye = AUDIENCE.format(x0=-0.5, x1=0.5, y0=-2.5, y1=-1.5, h0=170, h1=170, g=1)
+    wide = AUDIENCE.format(x0=-1.5, x1=1.5, y0=-4.0, y1=-1.5, h0=150, h1=180, g=4)
+    cfg_v = config(tmp_path, ctrl)
+    init_backend(cfg_v)
+    by_view = Calibrator(cfg_v).run(light())
+    by_eye = Calibrator(config(tmp_path, ctrl + one_eye)).run(light())
+    by_region = Calibrator(config(tmp_path, ctrl + wide)).run(light())
+    assert (by_view.source, by_eye.source) == ("viewpoints", "audience")
+    assert by_eye.region["eyes"] == 1 and by_region.region["eyes"] == 6
+    for name, t in by_view.controller_tables.items():
+        # the same traces: the region optimum over one eye is the inverted characteristic
+        diff = np.abs(by_eye.controller_tables[name].astype(int) - t.astype(int))
+        assert diff.max() <= 2, (name, diff.max())
+        far = np.abs(by_region.controller_tables[name].astype(int) - t.astype(int))
+        assert far.max() > 500  # six eyes from 1.5 to 4 m away: another table (about 1.7 mm)
+    # errors are measured on every pixel of a controller, for each eye, in both cases
+    assert by_eye.metrics()["max_dev_de00"] == pytest.approx(by_view.metrics()["max_dev_de00"],
+                                                             abs=0.01)
+    glob = Calibrator(config(tmp_path, wide)).run(light())
+    assert (glob.granularity, glob.source, len(glob.units)) == ("global", "audience", 1)
+    [crc] = set(glob.controller_crcs().values())
+    assert crc == table_checksum(glob.lengths_um)
+    assert not_used_by_the_daemon(cfg_v) == []
+    notes = not_used_by_the_daemon(config(tmp_path, ctrl.replace(
+        "check_groups", 'eye = "pixel"\ncheck_groups') + wide))
+    assert len(notes) == 1 and "tables.eye" in notes[0]
+
+
+def test_fleet_push_takes_a_table_per_controller(tmp_path):
+    sim = SimulatedHardware(config(tmp_path, ""), tmp_path / "hw")
+    cfg = sim.start()
+    a = np.linspace(0, 20000, 256).astype(np.uint16)
+    b = (np.linspace(0, 1, 256) ** 0.7 * 20000).astype(np.uint16)
+    per_pixel = np.stack([a, b])
+    n0, n1 = (c.name for c in cfg.controllers)
+    try:
+        with Fleet(cfg.controllers, policy=POLICY) as fleet:
+            res = fleet.push({n0: a, n1: per_pixel}, table_id=5)
+            assert [(r.ok, r.pushed) for r in res] == [(True, True), (True, True)]
+            assert [r.table_crc for r in res] == [table_checksum(a), table_checksum(per_pixel)]
+            np.testing.assert_array_equal(sim.buses[1].controllers[0].active_table(), per_pixel)
+            again = fleet.reconcile({n0: a, n1: per_pixel}, table_id=5)
+            assert [(r.ok, r.pushed) for r in again] == [(True, False), (True, False)]
+            # same id, another table for n1 only: only n1 is pushed
+            res = fleet.push({n0: a}, table_id=5, fallback=b)
+            assert [(r.ok, r.pushed) for r in res] == [(True, False), (True, True)]
+            assert res[1].table_crc == table_checksum(b)
+            with pytest.raises(ValueError, match=n1):
+                fleet.push({n0: a}, table_id=6)
+            bad = fleet.push({n0: np.stack([a, a, a]), n1: b}, table_id=7)  # 3 rows, 2 pixels
+            assert not bad[0].ok and "per-pixel tables must have shape (2, 256)" in bad[0].error
+            assert bad[0].table_crc == table_checksum(a)  # its old table stays active
+            assert bad[1].ok
+    finally:
+        sim.stop()
