@@ -92,6 +92,17 @@ class _Deferred:
 
 
 @dataclass
+class _FailStreak:
+    """Consecutive failed pushes to one controller: first failure (epoch s), the last row
+    recorded (monotonic s), failures so far and how many went unrecorded since that row."""
+
+    since: float
+    last_row: float
+    failures: int = 1
+    unrecorded: int = 0
+
+
+@dataclass
 class _Request:
     force: bool
     done: threading.Event = field(default_factory=threading.Event)
@@ -114,6 +125,7 @@ class Service:
     def __init__(self, cfg: Config, *, config_path: str | os.PathLike[str] | None = None,
                  notifier: Notifier | None = None, tick_s: float = 1.0,
                  reconcile_s: float = 2.0, stall_s: float = 300.0,
+                 failure_row_s: float = 600.0,
                  policy: RetryPolicy | None = None, transform=None, retry_s: float = 30.0,
                  retry_max_s: float = 900.0) -> None:
         self.cfg = cfg
@@ -135,6 +147,10 @@ class Service:
         self.last_run_at: float | None = None
         self._last_reconcile = 0.0
         self._last_ctrl: dict[str, tuple] = {}
+        #: a controller whose pushes keep failing gets one history row per ``failure_row_s``
+        #: (its first failure, then a summary), not one per reconcile
+        self.failure_row_s = failure_row_s
+        self._streaks: dict[str, _FailStreak] = {}
         self._own_cache: tuple[int | None, dict[str, Any]] = (None, {})
         self.reload_error: str | None = None
         #: bundles waiting for a transient failure (full disk, lux sensor down) to clear; the
@@ -562,8 +578,34 @@ class Service:
                 "controllers": [r.__dict__ for r in reports]}
 
     def _record(self, r, run_id: int | None, kind: str) -> None:
+        """Record a push outcome: always for a run's own push and for a change of state; of a
+        streak of failed reconcile pushes only the first and then one per ``failure_row_s``
+        (saying how many failed since when)."""
+        now = time.monotonic()
+        error = r.error
+        if r.ok:
+            self._streaks.pop(r.controller, None)
+        else:
+            s = self._streaks.get(r.controller)
+            if s is None:
+                self._streaks[r.controller] = _FailStreak(time.time(), now)
+            else:
+                s.failures += 1
+                if kind == "reconcile" and now - s.last_row < self.failure_row_s:
+                    s.unrecorded += 1
+                    state = (r.ok, r.reachable, r.table_id)
+                    if self._last_ctrl.get(r.controller) != state:
+                        self.history.set_controller(r.controller, reachable=r.reachable,
+                                                    reported_id=r.table_id,
+                                                    reported_crc=r.table_crc, error=r.error)
+                        self._last_ctrl[r.controller] = state
+                    return
+                since = datetime.fromtimestamp(s.since, UTC).isoformat(timespec="seconds")
+                error = (f"{r.error} ({s.failures} failed pushes since {since}, "
+                         f"{s.unrecorded} not recorded)")
+                s.last_row, s.unrecorded = now, 0
         self.history.record_push(run_id, r.controller, r.ok, table_id=r.table_id,
-                                 table_crc=r.table_crc, error=r.error, kind=kind)
+                                 table_crc=r.table_crc, error=error, kind=kind)
         self.history.set_controller(r.controller, reachable=r.reachable,
                                     reported_id=r.table_id, reported_crc=r.table_crc,
                                     error=r.error)
@@ -581,6 +623,8 @@ class Service:
                                        stop=self.stop_event, fallback=cur.lengths_um)
         for r in reports:
             state = (r.ok, r.reachable, r.table_id)
+            if r.ok and not r.pushed:  # holds its table (again): any failure streak is over
+                self._streaks.pop(r.controller, None)
             if r.pushed:
                 self._record(r, cur.id, "reconcile")
                 if r.ok:
