@@ -31,9 +31,13 @@ Checks, as for the global run: every unit's characteristic passes
 :func:`grassd.daemon.calibrate.check_shape`; every table passes
 :func:`grassd.daemon.calibrate.check_table` (monotone, within 0..green_max, and no entry jumps
 more than ``max_jump_mm`` from the same controller's previous table, or from the previous
-display-wide table when the shapes differ, unless forced). There is no closed loop here: the
-reported deviation from linear OGCD is that of the monotone fits driven by the tables
-(``metrics()["check"] == "fit"``), largest over the unit's pixels or sampled eyes [dE00].
+display-wide table when the shapes differ, unless forced). Then one closed-loop round
+(:func:`closed_loop_check`): every pixel group's representative is re-simulated by every viewer
+at its own table's lengths for ``check_levels`` levels (a fresh seed) and its weighted OGCD is
+compared with the linear target, as round 1 of the global run; ``max_dev_de00`` and
+``r2_closed_loop`` are the worst group's. Unlike the global run it does not refine the tables
+with the new points. The fits' own deviation from linear (``max_fit_dev_de00``, largest over the
+unit's pixels and sampled eyes) is reported beside it.
 """
 
 from __future__ import annotations
@@ -82,6 +86,38 @@ class UnitTable:
     r2_before: float
     r2_after: float
     ogcd_range: float
+    loop_max_dev: float = float("nan")
+    loop_r2: float = float("nan")
+
+
+@dataclass(frozen=True, eq=False)
+class LoopCheck:
+    """The closed-loop check of a display run (one round, no refinement): the representative
+    of every pixel group (``representatives`` (G,), ``labels`` (N,) group of each pixel)
+    re-simulated by every viewer at its own table's lengths for ``levels`` (L,)
+    (``lengths_mm`` (G, L)); ``ogcd`` (G, L) the viewers' weighted mean OGCD [dE00];
+    ``target`` (G, L) = level / 255 x OGCD(255); ``max_dev`` (G,) the largest |ogcd - target|
+    [dE00]; ``r2`` (G,) R^2 of OGCD vs level."""
+
+    levels: NDArray[np.int64]
+    representatives: NDArray[np.int64]
+    labels: NDArray[np.int64]
+    lengths_mm: NDArray[np.float64]
+    ogcd: NDArray[np.float64]
+    target: NDArray[np.float64]
+    max_dev: NDArray[np.float64]
+    r2: NDArray[np.float64]
+
+    def pixel_dev(self) -> NDArray[np.float64]:
+        """(N,) every pixel's closed-loop deviation (its group's) [dE00]."""
+        return self.max_dev[self.labels]
+
+    def report(self) -> dict[str, Any]:
+        """JSON-ready arrays."""
+        return {"levels": self.levels.tolist(), "pixels": self.representatives.tolist(),
+                "lengths_mm": self.lengths_mm.tolist(), "ogcd_de00": self.ogcd.tolist(),
+                "target_de00": self.target.tolist(), "max_dev_de00": self.max_dev.tolist(),
+                "r2": self.r2.tolist()}
 
 
 @dataclass
@@ -102,6 +138,7 @@ class DisplayCalibrationResult:
     lighting_notes: tuple[str, ...]
     grouping: dict[str, Any] | None = None
     region: dict[str, Any] | None = None
+    loop: LoopCheck | None = None
     seconds: dict[str, float] = field(default_factory=dict)
     max_step_um: int | None = None
 
@@ -115,23 +152,30 @@ class DisplayCalibrationResult:
         return {k: table_crc(as_table_array(v)) for k, v in self.controller_tables.items()}
 
     def metrics(self, r2_goal: float = 0.999, target_de00: float = 0.5) -> dict[str, Any]:
-        """Summary numbers (dE00; R^2 and deviations are the worst unit's, from the fits)."""
+        """Summary numbers (dE00): R^2 and deviation of the worst pixel group in the closed
+        loop, and of the worst unit in the fits (``*_fit*``)."""
         from grassd.daemon.calibrate import _finite_or_none  # noqa: PLC0415
 
         r2_after = min(u.r2_after for u in self.units)
-        worst = max(u.max_error for u in self.units)
+        fit_worst = max(u.max_error for u in self.units)
+        loop = self.loop
+        r2 = float(loop.r2.min()) if loop is not None else r2_after
+        worst = float(loop.max_dev.max()) if loop is not None else fit_worst
         se = [float(np.mean(u.characteristic.ogcd_stderr)) for u in self.units
               if u.characteristic.ogcd_stderr is not None]
         return {
-            "granularity": self.granularity, "table_source": self.source, "check": "fit",
+            "granularity": self.granularity, "table_source": self.source,
+            "check": "closed loop" if loop is not None else "fit",
             "tables": len(self.units), "controllers": len(self.controller_tables),
             "r2_before": min(u.r2_before for u in self.units),
-            "r2_after_fit": r2_after, "r2_closed_loop": None,
-            "r2_goal": r2_goal, "r2_goal_met": bool(r2_after >= r2_goal),
+            "r2_after_fit": r2_after,
+            "r2_closed_loop": float(loop.r2.min()) if loop is not None else None,
+            "r2_goal": r2_goal, "r2_goal_met": bool(r2 >= r2_goal),
             "max_dev_de00": worst, "max_dev_goal_de00": target_de00,
             "max_dev_goal_met": bool(worst <= target_de00),
-            "mean_dev_de00": float(np.mean([u.mean_error for u in self.units])),
-            "rounds": 0,
+            "max_fit_dev_de00": fit_worst,
+            "mean_fit_dev_de00": float(np.mean([u.mean_error for u in self.units])),
+            "rounds": 0 if loop is None else 1,
             "ogcd_range_de00": min(u.ogcd_range for u in self.units),
             "mean_ogcd_stderr_de00": float(np.mean(se)) if se else None,
             "ccm_source": self.ccm_source,
@@ -144,6 +188,8 @@ class DisplayCalibrationResult:
 
     def report(self) -> dict[str, Any]:
         """A JSON-serialisable report (arrays as lists), with every controller's table CRC."""
+        from grassd.daemon.calibrate import _finite_or_none  # noqa: PLC0415
+
         crcs = self.controller_crcs()
         return {
             "granularity": self.granularity, "table_source": self.source,
@@ -161,8 +207,11 @@ class DisplayCalibrationResult:
                  else u.characteristic.ogcd_stderr.tolist(),
                  "max_error_de00": u.max_error, "mean_error_de00": u.mean_error,
                  "r2_before": u.r2_before, "r2_after_fit": u.r2_after,
-                 "ogcd_range_de00": u.ogcd_range}
+                 "ogcd_range_de00": u.ogcd_range,
+                 "closed_loop_max_dev_de00": _finite_or_none(u.loop_max_dev),
+                 "closed_loop_r2": _finite_or_none(u.loop_r2)}
                 for u in self.units],
+            "closed_loop": None if self.loop is None else self.loop.report(),
             "grouping": self.grouping, "region": self.region,
             "ccm": None if self.ccm is None else {
                 "source": self.ccm_source, "method": self.ccm.method,
@@ -191,10 +240,13 @@ class DisplayCalibrationResult:
         if not many:
             ax1.legend(fontsize=6)
         ax2.legend(fontsize=6)
-        err = np.array([u.max_error for u in self.units])[self.unit_of_pixel]
+        if self.loop is not None:
+            err, how = self.loop.pixel_dev(), "closed loop"
+        else:
+            err, how = np.array([u.max_error for u in self.units])[self.unit_of_pixel], "fit"
         im = ax3.imshow(err.reshape(self.shape), cmap="magma_r", origin="upper")
         fig.colorbar(im, ax=ax3, shrink=0.8)
-        ax3.set(xlabel="column", ylabel="row", title="worst |OGCD - linear| (dE00, fit)")
+        ax3.set(xlabel="column", ylabel="row", title=f"max |OGCD - linear| (dE00, {how})")
         fig.tight_layout()
         return fig
 
@@ -269,10 +321,24 @@ def _merge_grouping(summaries: Sequence[dict]) -> dict | None:
     return out
 
 
+@dataclass(frozen=True, eq=False)
+class Viewers:
+    """Who looks at the display in a run: one :class:`grassd.daemon.display.PixelGeometry` per
+    viewer (a [[viewpoints]] entry or a sampled eye) with its ``weights``, and the pixel groups
+    over all viewers (``labels`` (N,), ``representatives`` (G,): members of a group are seen
+    alike by every viewer), for the closed-loop check."""
+
+    geometries: list[Any]
+    weights: NDArray[np.float64]
+    labels: NDArray[np.int64]
+    representatives: NDArray[np.int64]
+
+
 def _viewpoint_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
                      lengths: NDArray, settings: Any, ccm: Any, step: Callable[[int, int], None]
-                     ) -> tuple[list[UnitTable], NDArray, UnitTable, dict | None]:
-    """Units from [[viewpoints]]: (units, unit of every pixel, display-wide unit, grouping)."""
+                     ) -> tuple[list[UnitTable], NDArray, UnitTable, dict | None, Viewers]:
+    """Units from [[viewpoints]]: (units, unit of every pixel, display-wide unit, grouping,
+    viewers)."""
     from grassd.calib.length_table import build_length_table  # noqa: PLC0415
     from grassd.daemon.display import (  # noqa: PLC0415
         combine_viewpoints,
@@ -298,15 +364,22 @@ def _viewpoint_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any
                   np.nan, np.nan)
     grouping = _merge_grouping([s.grouping_error.summary() for s in sims
                                 if s.grouping_error is not None])
-    return units, tables.unit_of_pixel.copy(), whole, grouping
+    viewers = Viewers([s.geometry for s in sims],
+                      np.array([v.weight for v in cfg.viewpoints], np.float64),
+                      combined.groups.labels, combined.groups.representatives)
+    return units, tables.unit_of_pixel.copy(), whole, grouping, viewers
 
 
 def _audience_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
                     lengths: NDArray, settings: Any, ccm: Any, step: Callable[[int, int], None]
-                    ) -> tuple[list[UnitTable], NDArray, UnitTable, dict | None, dict]:
+                    ) -> tuple[list[UnitTable], NDArray, UnitTable, dict | None, dict, Viewers]:
     """Units from [audience]: (units, unit of every pixel, display-wide unit, grouping,
-    region summary)."""
-    from grassd.daemon.audience import region_from_config, simulate_region  # noqa: PLC0415
+    region summary, viewers)."""
+    from grassd.daemon.audience import (  # noqa: PLC0415
+        centre_pixel,
+        region_from_config,
+        simulate_region,
+    )
     from grassd.daemon.display import (  # noqa: PLC0415
         combine_viewpoints,
         controller_pixels,
@@ -328,9 +401,13 @@ def _audience_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
         chars = [Characteristic(c.lengths_mm, c.ogcd, np.maximum(c.ogcd_stderr, 1e-6))
                  for c in curves]
         whole = _region_unit("display", everyone, chars, aud.objective)
-        return [whole], np.zeros(n, np.int64), whole, None, info
+        # the centre pixel stands for every pixel, as in the table's own simulation
+        viewers = Viewers([geometry_from_eye(display, e) for e in samples.eyes_m],
+                          np.ones(samples.n), np.zeros(n, np.int64),
+                          np.array([centre_pixel(display)], np.int64))
+        return [whole], np.zeros(n, np.int64), whole, None, info, viewers
     m = samples.n
-    sims = []
+    sims: list[Any] = []
     for k, eye in enumerate(samples.eyes_m):
         def eye_step(done: int, total: int, k: int = k) -> None:
             step(k * total + done, m * total)
@@ -342,6 +419,7 @@ def _audience_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
             progress=eye_step))
     whole = _region_unit("display", everyone,
                          [mean_characteristic(s, everyone) for s in sims], aud.objective)
+    combined = combine_viewpoints(sims, np.ones(m))
     unit = np.full(n, -1, np.int64)
     units: list[UnitTable] = []
     if t.granularity == "controller":
@@ -354,7 +432,6 @@ def _audience_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
             unit[unit < 0] = len(units)
             units.append(whole)
     else:
-        combined = combine_viewpoints(sims, np.ones(m))
         for g, p in enumerate(combined.groups.representatives):  # one region table per group
             members = combined.groups.members(g)
             chars = [Characteristic(c.lengths_mm, c.ogcd, np.maximum(c.ogcd_stderr, 1e-6))
@@ -364,7 +441,41 @@ def _audience_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
         unit = combined.groups.labels.copy()
     grouping = _merge_grouping([s.grouping_error.summary() for s in sims
                                 if s.grouping_error is not None])
-    return units, unit, whole, grouping, info
+    viewers = Viewers([s.geometry for s in sims], np.ones(m), combined.groups.labels,
+                      combined.groups.representatives)
+    return units, unit, whole, grouping, info, viewers
+
+
+def closed_loop_check(renderer: Any, display: Any, lighting: Any, viewers: Viewers,
+                      pixel_tables_um: NDArray, levels: NDArray, settings: Any, ccm: Any,
+                      step: Callable[[int, int], None]) -> LoopCheck:
+    """Re-simulate every group's representative pixel from every viewer at the lengths its
+    table gives ``levels`` (``pixel_tables_um`` (N, 256) [um], first level 0 = the reference
+    length), average the viewers' OGCD with their weights and compare it with the linear
+    target ``level / 255 x OGCD(255)`` (the check of the global run's closed loop, round 1).
+    ``settings`` carries the loop's own seed. One trace per (group, viewer)."""
+    from grassd.daemon.simulation import simulate_curve  # noqa: PLC0415
+
+    w = viewers.weights / viewers.weights.sum()
+    reps = viewers.representatives
+    lx = pixel_tables_um[reps][:, levels].astype(np.float64) / 1000.0  # (G, L) mm
+    total = len(reps) * len(viewers.geometries)
+    ogcd = np.empty_like(lx)
+    done = 0
+    for g, p in enumerate(reps):  # one trace per group and viewer, never per pixel
+        ys = []
+        for geo in viewers.geometries:
+            c = simulate_curve(renderer, display, lighting, geo.viewpoint(int(p)), lx[g],
+                               settings, ccm=ccm, pixel_index=int(p))
+            ys.append(c.ogcd)
+            done += 1
+            step(done, total)
+        ogcd[g] = w @ np.stack(ys)
+    target = levels[None, :] / (LEVELS - 1) * ogcd[:, -1:]
+    r2 = np.array([r_squared(levels, y) for y in ogcd])
+    return LoopCheck(levels=levels, representatives=reps, labels=viewers.labels,
+                     lengths_mm=lx, ogcd=ogcd, target=target,
+                     max_dev=np.abs(ogcd - target).max(axis=1), r2=r2)
 
 
 # --------------------------------------------------------------------------- the run
@@ -413,20 +524,24 @@ def calibrate_display(cal: Calibrator, light: LightInput, *,
     lengths = np.asarray(cfg.simulation.lengths_mm, float)
     source = "viewpoints" if cfg.audience is None else "audience"
 
-    def step(done: int, total: int) -> None:
-        if stop is not None and stop.is_set():
-            raise RunInterrupted("calibration stopped (daemon shutting down)")
-        if progress:
-            progress(f"simulating the display ({source}, {cfg.tables.granularity} tables): "
-                     f"trace {done}/{total}")
+    def stepper(what: str) -> Callable[[int, int], None]:
+        def step(done: int, total: int) -> None:
+            if stop is not None and stop.is_set():
+                raise RunInterrupted("calibration stopped (daemon shutting down)")
+            if progress:
+                progress(f"{what} ({source}, {cfg.tables.granularity} tables): "
+                         f"trace {done}/{total}")
+        return step
+
+    step = stepper("simulating the display")
 
     step(0, 1)
     region = None
     if source == "viewpoints":
-        units, unit_of_pixel, whole, grouping = _viewpoint_units(
+        units, unit_of_pixel, whole, grouping, viewers = _viewpoint_units(
             cal, renderer, display, lighting, lengths, settings, ccm, step)
     else:
-        units, unit_of_pixel, whole, grouping, region = _audience_units(
+        units, unit_of_pixel, whole, grouping, region, viewers = _audience_units(
             cal, renderer, display, lighting, lengths, settings, ccm, step)
     t_sim = time.perf_counter() - t_start
     cc = cfg.calibration
@@ -447,11 +562,24 @@ def calibrate_display(cal: Calibrator, light: LightInput, *,
         steps.append(check_table(table, green_max, prev if prev is not None else previous_um,
                                  cc.max_jump_mm, force, f"table of controller {name}"))
     known = [s for s in steps if s is not None]
+    # closed loop, round 1: the tables as the display will show them, re-simulated
+    t_loop = time.perf_counter()
+    levels = np.unique(np.rint(np.linspace(0, LEVELS - 1, cc.check_levels)).astype(np.int64))
+    pixel_tables = np.stack([u.lengths_um for u in units])[unit_of_pixel]
+    loop = closed_loop_check(renderer, display, lighting, viewers, pixel_tables, levels,
+                             replace(settings, seed=settings.seed + 1000), ccm,
+                             stepper("closed loop"))
+    pixel_dev = loop.pixel_dev()
+    pixel_r2 = loop.r2[loop.labels]
+    units = [replace(u, loop_max_dev=float(pixel_dev[u.pixels].max()),
+                     loop_r2=float(pixel_r2[u.pixels].min())) if u.pixels.size else u
+             for u in units]
     total = time.perf_counter() - t_start
     return DisplayCalibrationResult(
         granularity=cfg.tables.granularity, source=source, shape=(d.rows, d.cols),
         table_um=whole.lengths_um, controller_tables=controller_tables, units=units,
         unit_of_pixel=unit_of_pixel, ccm=ccm, ccm_source=ccm_source,
         lighting_notes=tuple(getattr(lighting, "notes", ())), grouping=grouping, region=region,
-        seconds={"simulate": t_sim, "total": total},
+        loop=loop, seconds={"simulate": t_sim, "closed_loop": total - (t_loop - t_start),
+                            "total": total},
         max_step_um=max(known) if known else None)

@@ -306,10 +306,12 @@ def calibrate_cmd(now: bool, wait: bool, force: bool, json_out: str | None,
     if m.get("r2_closed_loop") is not None:
         quality = (f"R^2 {m['r2_closed_loop']:.4f}, max deviation {m['max_dev_de00']:.2f} dE00 "
                    f"after {m['rounds']} round(s)")
-    else:  # a display run: a table per controller/pixel, checked on the fits
-        quality = (f"{m.get('tables')} {m.get('granularity')} table(s) from "
-                   f"{m.get('table_source')}; worst fitted R^2 {m['r2_after_fit']:.4f}, max "
-                   f"deviation {m['max_dev_de00']:.2f} dE00")
+    else:
+        quality = (f"fitted R^2 {m['r2_after_fit']:.4f}, max deviation "
+                   f"{m['max_dev_de00']:.2f} dE00")
+    if m.get("granularity"):  # a display run: a table per controller / pixel / region
+        quality += (f" (worst pixel group); {m['tables']} {m['granularity']} table(s) from "
+                    f"{m['table_source']}")
     msg = (f"{where} run {result['run_id']}: table {result['table_id']} "
            f"(crc {result['table_crc']:#010x}) on {ok}/{len(result['controllers'])} "
            f"controllers; {quality}\n"
