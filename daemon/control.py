@@ -11,6 +11,12 @@ Requests (``{"cmd": ...}``) and answers::
 
 Failures answer ``{"ok": false, "error": "..."}``. The socket lives in the RuntimeDirectory
 (``/run/grassd/control.sock``), mode 0660, so members of group grassd may talk to the daemon.
+
+At most ``max_clients`` (8) connections are served at once, each by its own thread; one more
+is answered ``{"ok": false, "busy": true, "error": "busy: ..."}`` at once and closed, without a
+thread, so a flood of clients cannot exhaust threads or memory (:func:`request` raises
+:class:`~grassd.daemon.errors.DaemonBusy` for it). The daemon bounds its queue of calibration
+requests the same way.
 """
 
 from __future__ import annotations
@@ -26,21 +32,29 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from grassd.daemon.errors import ControlError, DaemonNotRunning
+from grassd.daemon.errors import ControlError, DaemonBusy, DaemonNotRunning
 
 log = logging.getLogger(__name__)
 
 MAX_REQUEST_BYTES = 64 * 1024
+#: Connections served at once; more are answered "busy" straight away.
+MAX_CLIENTS = 8
 Handler = Callable[[dict[str, Any]], dict[str, Any]]
 
 
 class ControlServer:
-    """Serves ``handler(request) -> answer`` on the UNIX stream socket ``path`` (own threads)."""
+    """Serves ``handler(request) -> answer`` on the UNIX stream socket ``path``: one thread per
+    connection, at most ``max_clients`` at once (more are answered "busy")."""
 
-    def __init__(self, path: str | os.PathLike[str], handler: Handler, mode: int = 0o660) -> None:
+    def __init__(self, path: str | os.PathLike[str], handler: Handler, mode: int = 0o660,
+                 max_clients: int = MAX_CLIENTS) -> None:
         self.path = Path(path)
         self.handler = handler
         self.mode = mode
+        self.max_clients = max_clients
+        self._slots = threading.BoundedSemaphore(max_clients)
+        #: connections turned away as busy (for tests and status)
+        self.refused = 0
         self._sock: socket.socket | None = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
@@ -82,10 +96,36 @@ class ControlServer:
                 if self._stop.is_set():
                     return
                 continue
-            threading.Thread(target=self._handle, args=(conn,), name="control-conn",
-                             daemon=True).start()
+            if not self._slots.acquire(blocking=False):
+                self._busy(conn)
+                continue
+            try:
+                threading.Thread(target=self._handle, args=(conn,), name="control-conn",
+                                 daemon=True).start()
+            except RuntimeError:  # cannot start a thread: treat as busy
+                self._slots.release()
+                self._busy(conn)
+
+    def _busy(self, conn: socket.socket) -> None:
+        """Answer "busy" without reading the request, in the accepting thread (never blocks
+        long: the answer fits the socket buffer, and a 0.5 s timeout guards it)."""
+        self.refused += 1
+        with conn:
+            conn.settimeout(0.5)
+            _send(conn, {"ok": False, "busy": True,
+                         "error": f"busy: {self.max_clients} clients are being served; try again "
+                                  "in a moment"})
+            with contextlib.suppress(OSError):  # drop what it sent already (else: ECONNRESET)
+                conn.setblocking(False)
+                conn.recv(MAX_REQUEST_BYTES)
 
     def _handle(self, conn: socket.socket) -> None:
+        try:
+            self._serve_one(conn)
+        finally:
+            self._slots.release()
+
+    def _serve_one(self, conn: socket.socket) -> None:
         with conn:
             conn.settimeout(10)
             try:
@@ -165,7 +205,8 @@ def request(path: str | os.PathLike[str], req: dict[str, Any],
             if exc.errno in (errno.ENOENT, errno.ECONNREFUSED, errno.ENOTSOCK):
                 raise DaemonNotRunning(f"no grassd daemon is listening on {path}") from None
             raise ControlError(f"cannot reach the daemon on {path}: {exc.strerror}") from None
-        s.sendall(json.dumps(req).encode() + b"\n")
+        with contextlib.suppress(OSError):  # a busy daemon answers and closes before reading
+            s.sendall(json.dumps(req).encode() + b"\n")
         try:
             answer = _read_line(s)
         except TimeoutError:
@@ -177,5 +218,7 @@ def request(path: str | os.PathLike[str], req: dict[str, Any],
     if not isinstance(answer, dict):
         raise ControlError(f"bad answer from the daemon: {answer!r}")
     if not answer.get("ok", False):
+        if answer.get("busy"):
+            raise DaemonBusy(f"daemon: {answer.get('error', 'busy')}")
         raise ControlError(f"daemon: {answer.get('error', 'request failed')}")
     return answer

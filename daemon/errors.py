@@ -67,6 +67,10 @@ class DaemonNotRunning(ControlError):
     """No running daemon answered on the control socket."""
 
 
+class DaemonBusy(ControlError):
+    """The daemon refused a control request for now (too many clients or queued runs)."""
+
+
 class StateDirLocked(DaemonError):
     """Another grassd process (daemon or one-shot) holds the state directory's lock."""
 

@@ -125,7 +125,7 @@ class Service:
     def __init__(self, cfg: Config, *, config_path: str | os.PathLike[str] | None = None,
                  notifier: Notifier | None = None, tick_s: float = 1.0,
                  reconcile_s: float = 2.0, stall_s: float = 300.0,
-                 failure_row_s: float = 600.0,
+                 failure_row_s: float = 600.0, max_queued: int = 4,
                  policy: RetryPolicy | None = None, transform=None, retry_s: float = 30.0,
                  retry_max_s: float = 900.0) -> None:
         self.cfg = cfg
@@ -140,7 +140,9 @@ class Service:
         self.transform = transform or (lambda c: c)
         self.stop_event = threading.Event()
         self.reload_event = threading.Event()
-        self.requests: queue.Queue[_Request] = queue.Queue()
+        #: calibration requests from the control socket; bounded, so that clients waiting for
+        #: runs cannot hold every control-socket slot (status stays answerable)
+        self.requests: queue.Queue[_Request] = queue.Queue(maxsize=max_queued)
         self.activity = "starting"
         self.started_at = time.time()
         self.last_progress = time.monotonic()
@@ -667,7 +669,12 @@ class Service:
             if self.stop_event.is_set():
                 return {"ok": False, "error": "daemon is stopping"}
             r = _Request(force=bool(req.get("force", False)))
-            self.requests.put(r)
+            try:
+                self.requests.put_nowait(r)
+            except queue.Full:
+                return {"ok": False, "busy": True,
+                        "error": f"busy: {self.requests.maxsize} calibration requests are "
+                                 "already queued; try again after they ran"}
             if not req.get("wait", False):
                 return {"ok": True, "queued": self.requests.qsize()}
             timeout = float(req.get("timeout_s", 3600))
