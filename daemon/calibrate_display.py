@@ -18,7 +18,8 @@ of the API; nothing here re-implements them:
   from every eye (:func:`grassd.daemon.display.simulate_display` with
   :func:`grassd.daemon.display.geometry_from_eye`); each controller (its pixels' mean
   characteristic for that eye) or each pixel group (groups combined over the eyes,
-  :func:`grassd.daemon.display.combine_viewpoints`) gets the region table over the eyes.
+  :func:`grassd.daemon.display.combine_viewpoints`) gets the region table over the eyes. The
+  grouping error (``[tables] check_groups``) is measured from the first sampled eye only.
 
 Each run also gives a *display-wide* table (all pixels' mean characteristic, or the region table
 of it): it is the run's table in history and the one a controller gets when the run holds no
@@ -254,10 +255,6 @@ class DisplayCalibrationResult:
 # --------------------------------------------------------------------------- units
 
 
-def _fit(c: Characteristic) -> FittedCharacteristic:
-    return fit_characteristic(c)
-
-
 def _r2_pair(fit: FittedCharacteristic, lengths_um: NDArray) -> tuple[float, float]:
     """R^2 of fitted OGCD vs level with linear lengths and with ``lengths_um`` (256,) [um]."""
     levels = np.arange(LEVELS, dtype=np.float64)
@@ -277,7 +274,7 @@ def _mean_of(chars: Sequence[Characteristic], weights: NDArray | None = None) ->
 
 def _unit(name: str, pixels: NDArray, lengths_um: NDArray, char: Characteristic,
           max_error: float, mean_error: float) -> UnitTable:
-    fit = _fit(char)
+    fit = fit_characteristic(char)
     r2b, r2a = _r2_pair(fit, lengths_um)
     return UnitTable(name, np.asarray(pixels, np.int64), np.asarray(lengths_um, np.uint16), char,
                      float(max_error), float(mean_error), r2b, r2a, float(fit.ogcd_range))
@@ -288,7 +285,7 @@ def _region_unit(name: str, pixels: NDArray, chars: Sequence[Characteristic],
     """A unit whose table is the region table over one characteristic per sampled eye."""
     from grassd.daemon.audience import region_table  # noqa: PLC0415
 
-    t = region_table([_fit(c) for c in chars], objective)
+    t = region_table([fit_characteristic(c) for c in chars], objective)
     return _unit(name, pixels, t.lengths_um, _mean_of(chars), float(t.max_error.max()),
                  float(t.mean_error.mean()))
 
@@ -301,7 +298,7 @@ def _pixel_errors(u: UnitTable, sims: Sequence[Any], pixels: NDArray) -> UnitTab
     fits, weights = [], []
     for s in sims:  # one entry per eye
         groups, counts = np.unique(s.groups.labels[pixels], return_counts=True)
-        fits += [_fit(s.group_characteristic(int(g))) for g in groups]
+        fits += [fit_characteristic(s.group_characteristic(int(g))) for g in groups]
         weights.append(counts)
     w = np.concatenate(weights).astype(np.float64)
     ev = evaluate_table(fits, u.lengths_um, weights=w)
@@ -415,8 +412,9 @@ def _audience_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
         sims.append(simulate_display(
             renderer, display, lighting, None, lengths, settings,
             geometry=geometry_from_eye(display, eye), tolerance_deg=t.group_tolerance_deg,
-            distance_tolerance=t.distance_tolerance, check_groups=t.check_groups, ccm=ccm,
-            progress=eye_step))
+            distance_tolerance=t.distance_tolerance,
+            check_groups=t.check_groups if k == 0 else 0,  # grouping error: first eye only
+            ccm=ccm, progress=eye_step))
     whole = _region_unit("display", everyone,
                          [mean_characteristic(s, everyone) for s in sims], aud.objective)
     combined = combine_viewpoints(sims, np.ones(m))

@@ -26,7 +26,8 @@ what that costs by also tracing the member farthest from its representative.
 Tables (:func:`build_display_tables`): one per pixel (per group, shared by its members), one per
 controller (its pixels' mean characteristic) or one global table (all pixels' mean). Every
 pixel's error is the largest deviation of its OGCD from the linear ramp of its own OGCD range
-when driven by its table (CIEDE2000 units).
+when driven by its table (CIEDE2000 units). ``grassd run`` pushes these tables to the
+controllers (:mod:`grassd.daemon.calibrate_display`).
 """
 
 from __future__ import annotations
