@@ -306,3 +306,24 @@ def test_one_shot_cli_pushes_pixel_tables_and_status_shows_them(tmp_path):
             assert f"own table crc {crc:#010x}), in sync" in r.stdout
     finally:
         sim.stop()
+
+
+def test_history_keeps_tables_per_run_and_prunes_them_with_the_run(tmp_path):
+    from grassd.daemon.history import History
+
+    a = np.arange(256, dtype=np.uint16) * 70
+    with History(tmp_path / "state.db") as h:
+        ids = []
+        for k in range(3):
+            rid = h.start_run("request")
+            tables = {"p#1": a + k, "p#2": np.stack([a, a + 2 * k])}
+            h.record_run_tables(rid, tables, {n: table_checksum(t) for n, t in tables.items()})
+            h.finish_run(rid, "ok", lengths_um=a, table_id=rid, table_crc=table_checksum(a))
+            ids.append(rid)
+        got = h.run_tables(ids[1])
+        t2 = got["p#2"].lengths_um
+        assert t2.shape == (2, 256) and t2.dtype == np.uint16
+        np.testing.assert_array_equal(t2[1], a + 2)
+        assert got["p#1"].table_crc == table_checksum(a + 1)
+        assert h.prune_runs(1) == 2  # keeps the newest run only
+        assert h.run_tables(ids[0]) == {} and set(h.run_tables(ids[2])) == {"p#1", "p#2"}
