@@ -141,7 +141,7 @@ def _plot(path: Path, curves) -> None:
               help="Independent replicates (their spread gives the standard error).")
 @click.option("--target-stderr", type=float, default=None,
               help="Add replicates until every OGCD standard error is at most this (dE00).")
-@click.option("--light-samples", type=int, default=4, show_default=True,
+@click.option("--light-samples", type=int, default=2, show_default=True,
               help="Environment shadow rays at the first surface of each path.")
 @click.option("--arch", type=click.Choice(["cpu", "gpu"]), default="cpu", show_default=True)
 @click.option("--json", "json_out", type=click.Path(dir_okay=False, path_type=Path))

@@ -57,7 +57,7 @@ def _display(_ctx, _param, value: str) -> tuple[int, int]:
 @click.option("--target-stderr", type=float, default=None,
               help="Add replicates until every OGCD standard error is at most this (dE00).")
 @click.option("--bounces", type=int, default=3, show_default=True)
-@click.option("--light-samples", type=int, default=4, show_default=True)
+@click.option("--light-samples", type=int, default=2, show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True,
               help="Mixed into every task's deterministic seed.")
 @click.option("--out", "out_dir", required=True,

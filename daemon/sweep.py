@@ -76,7 +76,7 @@ class SweepSpec:
     samples: int = 1024
     replicates: int = 8
     bounces: int = 3
-    light_samples: int = 4
+    light_samples: int = 2
     target_stderr: float | None = None
     seed: int = 0
     lux: float = 20000.0

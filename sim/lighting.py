@@ -52,15 +52,11 @@ Sun
     A directional light: unit ``sun_direction`` towards the sun and ``sun_irradiance_rgb`` on a
     plane perpendicular to it (same units). A sun lux reading is taken on the same horizontal
     meter, so the perpendicular irradiance is ``sun_lux / sin(elevation)``.
-Importance sampling (:class:`EnvSampler`)
-    Texel probability proportional to ``(Y + floor * Y_mean) * Omega_i`` (``Omega_i`` the texel
-    solid angle, ``Y_mean`` the solid-angle mean luminance, ``floor`` =
-    :data:`ENV_SAMPLING_FLOOR`), so black texels keep a small probability. Inside the chosen
-    texel the direction is uniform in solid angle (uniform in phi and in cos theta), so
-    ``pdf_omega = p_texel / Omega_i`` exactly. The CDFs are stored as float32 and the
-    probabilities are recomputed from the stored float32 CDFs, so ``pdf_omega`` is the exact
-    probability of the float32 sampling procedure (a texel whose share underflows float32
-    resolution has pdf 0 there and is never sampled: BSDF sampling with MIS covers it).
+Importance sampling
+    :mod:`grassd.sim.env_sampler` (per normal bin, two levels). Texel weight
+    ``(Y + floor * Y_mean) * Omega_i`` (``Omega_i`` the texel solid angle, ``Y_mean`` the
+    solid-angle mean luminance, ``floor`` = :data:`ENV_SAMPLING_FLOOR`), so black texels keep
+    a small probability.
 """
 
 from __future__ import annotations
@@ -80,14 +76,11 @@ __all__ = [
     "ENV_SAMPLING_FLOOR",
     "MAX_LUX",
     "MAX_SUN_PERPENDICULAR_LUX",
-    "EnvSampler",
     "Lighting",
     "azimuth_elevation_from_direction",
-    "build_env_sampler",
     "build_lighting",
     "direction_from_azimuth_elevation",
     "direction_to_uv",
-    "env_pdf",
     "env_radiance",
     "horizontal_cosine_weights",
     "horizontal_illuminance",
@@ -95,7 +88,6 @@ __all__ = [
     "normalised_colour",
     "orient_env",
     "rotate_env",
-    "sample_env",
     "sun_irradiance_from_lux",
     "texel_solid_angles",
     "uv_to_direction",
@@ -436,108 +428,3 @@ def build_lighting(
     irr = sun_irradiance_from_lux(sun_l, el, colour)
     return Lighting(_readonly(env), k, _readonly(direction), _readonly(irr),
                     horizontal_illuminance(env), sun_l, **common)
-
-
-# ----------------------------------------------------------------------- importance sampling
-
-
-@dataclass(frozen=True, eq=False)
-class EnvSampler:
-    """Tables for sampling an (H, W) environment map in proportion to luminance x solid angle.
-
-    All arrays are float32 and C-contiguous:
-
-    - ``marginal_cdf`` (H + 1,): row CDF, 0 at index 0, exactly 1 at index H.
-    - ``conditional_cdf`` (H, W + 1): per row, the column CDF (0 ... exactly 1).
-    - ``pdf_omega`` (H, W): density per steradian of the whole procedure for a direction in
-      texel (i, j): ``(mcdf[i+1] - mcdf[i]) (ccdf[i, j+1] - ccdf[i, j]) / Omega_i``.
-    - ``cos_theta_edges`` (H + 1,): ``cos(pi i / H)``, the row edges (decreasing, 1 ... -1).
-    - ``radiance`` (H, W, 3): the map itself (nearest-texel lookups).
-    """
-
-    marginal_cdf: np.ndarray
-    conditional_cdf: np.ndarray
-    pdf_omega: np.ndarray
-    cos_theta_edges: np.ndarray
-    radiance: np.ndarray
-
-    @property
-    def height(self) -> int:
-        return int(self.pdf_omega.shape[0])
-
-    @property
-    def width(self) -> int:
-        return int(self.pdf_omega.shape[1])
-
-
-def build_env_sampler(env: np.ndarray, floor: float = ENV_SAMPLING_FLOOR) -> EnvSampler:
-    """Build the :class:`EnvSampler` of an (H, W, 3) radiance map (any linear units).
-
-    Texel weight ``(max(Y, 0) + floor * Y_mean) * Omega_i`` (``Y_mean`` = solid-angle mean
-    luminance; an all-black map is sampled uniformly over the sphere). CDFs are accumulated in
-    float64, stored in float32, and ``pdf_omega`` is derived from the stored CDFs.
-    """
-    rad = np.ascontiguousarray(env, dtype=np.float32)
-    h, w = rad.shape[:2]
-    omega = texel_solid_angles(h, w)
-    lum = np.maximum(rad.astype(np.float64) @ REC709_LUMINANCE, 0.0)
-    mean_y = float((lum * omega[:, None]).sum() / (4.0 * np.pi))
-    pad = floor * mean_y if mean_y > 0.0 else 1.0
-    weight = (lum + pad) * omega[:, None]
-    row_w = weight.sum(axis=1)
-    mcdf = np.concatenate(([0.0], np.cumsum(row_w))) / row_w.sum()
-    ccdf = np.concatenate((np.zeros((h, 1)), np.cumsum(weight, axis=1)), axis=1) / row_w[:, None]
-    mcdf32 = mcdf.astype(np.float32)
-    ccdf32 = ccdf.astype(np.float32)
-    mcdf32[0], mcdf32[-1] = 0.0, 1.0
-    ccdf32[:, 0], ccdf32[:, -1] = 0.0, 1.0
-    p_row = np.diff(mcdf32.astype(np.float64))
-    p_col = np.diff(ccdf32.astype(np.float64), axis=1)
-    pdf = (p_row[:, None] * p_col) / omega[:, None]
-    edges = np.cos(np.pi * np.arange(h + 1) / h)
-    return EnvSampler(
-        marginal_cdf=_readonly(mcdf32),
-        conditional_cdf=_readonly(ccdf32),
-        pdf_omega=_readonly(pdf.astype(np.float32)),
-        cos_theta_edges=_readonly(edges.astype(np.float32)),
-        radiance=_readonly(rad),
-    )
-
-
-def sample_env(sampler: EnvSampler, u1, u2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Reference sampler: uniforms u1, u2 in [0, 1) (N,) -> directions (N, 3), pdf_omega (N,)
-    per sr, radiance (N, 3).
-
-    Row i: the last index with ``marginal_cdf[i] <= u1`` (binary search; zero-width rows are
-    never chosen); column j likewise in ``conditional_cdf[i]`` with u2. The remainders
-    ``(u1 - mcdf[i]) / (mcdf[i+1] - mcdf[i])`` and ``(u2 - ccdf[i,j]) / (...)`` place the
-    direction inside the texel: ``cos theta = c_i + r1 (c_i+1 - c_i)`` (c = cos_theta_edges),
-    ``phi = 2 pi (j + r2) / W`` -- uniform in solid angle, so pdf = ``pdf_omega[i, j]``.
-    """
-    u1 = np.asarray(u1, dtype=np.float64)
-    u2 = np.asarray(u2, dtype=np.float64)
-    h, w = sampler.height, sampler.width
-    mcdf = sampler.marginal_cdf.astype(np.float64)
-    row = np.clip(np.searchsorted(mcdf, u1, side="right") - 1, 0, h - 1)
-    r1 = (u1 - mcdf[row]) / (mcdf[row + 1] - mcdf[row])
-    # one binary search over all rows at once: row i's CDF shifted to [2 i, 2 i + 1]
-    ccdf = sampler.conditional_cdf.astype(np.float64)
-    flat = (ccdf + 2.0 * np.arange(h)[:, None]).ravel()
-    pos = np.searchsorted(flat, u2 + 2.0 * row, side="right") - 1 - row * (w + 1)
-    col = np.clip(pos, 0, w - 1)
-    lo = ccdf[row, col]
-    hi = ccdf[row, col + 1]
-    r2 = (u2 - lo) / (hi - lo)
-    c = sampler.cos_theta_edges.astype(np.float64)
-    cos_t = np.clip(c[row] + np.clip(r1, 0.0, 1.0) * (c[row + 1] - c[row]), -1.0, 1.0)
-    sin_t = np.sqrt(np.maximum(0.0, 1.0 - cos_t * cos_t))
-    phi = 2.0 * np.pi * (col + np.clip(r2, 0.0, 1.0)) / w
-    dirs = np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t], axis=-1)
-    return dirs, sampler.pdf_omega[row, col].astype(np.float64), sampler.radiance[row, col]
-
-
-def env_pdf(sampler: EnvSampler, directions) -> np.ndarray:
-    """Density per steradian (...,) with which :func:`sample_env` produces direction(s) (..., 3)
-    (nearest texel lookup of ``pdf_omega``), for MIS weights of BSDF-sampled rays."""
-    row, col = _texel_index(directions, sampler.height, sampler.width)
-    return sampler.pdf_omega[row, col].astype(np.float64)

@@ -43,13 +43,20 @@ from grassd.sim import geometry
 from grassd.sim import tifuncs as tf
 from grassd.sim.backend import is_initialised, ti
 from grassd.sim.camera import frame_quad, image_quad
+from grassd.sim.env_sampler import (
+    COARSE_COLS_MAX,
+    COARSE_ROWS_MAX,
+    NORMAL_BINS_SIDE,
+    build_binned_sampler,
+)
 from grassd.sim.errors import SceneError, SimError
 from grassd.sim.geometry import SceneArrays, blade_rise, build_scene, check_lengths
-from grassd.sim.lighting import Lighting, build_env_sampler
+from grassd.sim.lighting import Lighting
 from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
 
 vec3 = tf.vec3
 EPS = 2e-6  # m: offset of secondary ray origins along the facing normal
+ZCULL = 1e-5  # m: margin of the per-cell height culling of primitives
 PREVIEW_MAX = 1024  # largest preview image side (pixels)
 
 
@@ -120,9 +127,11 @@ class Renderer:
         self.albedo = ti.Vector.field(3, ti.f32, 4)
         self.lengths = ti.field(ti.f32, 256)
         self.env = ti.Vector.field(3, ti.f32, cap.env_texels)
-        self.env_marg = ti.field(ti.f32, cap.env_rows + 1)
         self.env_cos = ti.field(ti.f32, cap.env_rows + 1)
-        self.env_cond = ti.field(ti.f32, cap.env_texels + cap.env_rows)
+        nbins = NORMAL_BINS_SIDE ** 2
+        self.bin_marg = ti.field(ti.f32, nbins * (COARSE_ROWS_MAX + 1))
+        self.bin_cond = ti.field(ti.f32, nbins * COARSE_ROWS_MAX * (COARSE_COLS_MAX + 1))
+        self.block_cdf = ti.field(ti.f32, cap.env_texels + COARSE_ROWS_MAX * COARSE_COLS_MAX)
         self.out = ti.Vector.field(3, ti.f32, cap.paths)
         self.sums = ti.Vector.field(3, ti.f64, 256 * 64)  # per (length, replicate) of a launch
         self.quad = ti.Vector.field(3, ti.f32, 4)
@@ -216,20 +225,26 @@ class Renderer:
             raise SceneError(f"environment map {w}x{h} exceeds the renderer's capacity "
                              f"({self.cap.env_texels} texels, {self.cap.env_rows} rows); "
                              f"downsample it")
-        sampler = build_env_sampler(env)
+        sampler = build_binned_sampler(env)
         flat = np.zeros((self.cap.env_texels, 3), np.float32)
         flat[: h * w] = env.reshape(-1, 3)
         self.env.from_numpy(flat)
-        marg = np.zeros(self.cap.env_rows + 1, np.float32)
-        marg[: h + 1] = sampler.marginal_cdf
-        self.env_marg.from_numpy(marg)
-        cos_edges = np.zeros(self.cap.env_rows + 1, np.float32)
-        cos_edges[: h + 1] = sampler.cos_theta_edges
-        self.env_cos.from_numpy(cos_edges)
-        cond = np.zeros(self.cap.env_texels + self.cap.env_rows, np.float32)
-        cond[: h * (w + 1)] = np.asarray(sampler.conditional_cdf, np.float32).ravel()
-        self.env_cond.from_numpy(cond)
-        self.ipar[4], self.ipar[5] = h, w
+
+        def put(fld, arr):
+            full = np.zeros(fld.shape[0], np.float32)
+            full[: arr.size] = arr.ravel()
+            fld.from_numpy(full)
+
+        put(self.env_cos, sampler.cos_theta_edges)
+        put(self.bin_marg, sampler.bin_marginal)
+        put(self.bin_cond, sampler.bin_conditional)
+        put(self.block_cdf, sampler.block_cdf)
+        _, _, cr, cc = sampler.shape
+        bh, bw = sampler.block_shape
+        for k, v in enumerate((h, w), start=4):
+            self.ipar[k] = v
+        for k, v in enumerate((cr, cc, bh, bw), start=8):
+            self.ipar[k] = v
         sun_on = lighting.sun_direction is not None and lighting.sun_irradiance_rgb is not None
         self.ipar[6] = int(sun_on)
         if sun_on:
@@ -253,58 +268,53 @@ class Renderer:
         return 2.0 * tf.PI / self.ipar[5] * (self.env_cos[row] - self.env_cos[row + 1])
 
     @ti.func
-    def env_pdf(self, d) -> ti.f32:
-        """Solid-angle density of :meth:`sample_env` in direction d (piecewise constant per
-        texel, as :class:`grassd.sim.lighting.EnvSampler` defines it)."""
+    def env_pdf(self, d, b: ti.i32) -> ti.f32:
+        """Solid-angle density of :meth:`sample_env` under normal bin ``b`` in direction d
+        (piecewise constant per texel, :func:`grassd.sim.env_sampler.binned_pdf`)."""
         u, v = tf.dir_to_uv(d)
         h, w = self.ipar[4], self.ipar[5]
+        cr, cc, bh, bw = self.ipar[8], self.ipar[9], self.ipar[10], self.ipar[11]
         row = ti.min(ti.cast(v * h, ti.i32), h - 1)
         col = ti.min(ti.cast(u * w, ti.i32), w - 1)
-        p_row = self.env_marg[row + 1] - self.env_marg[row]
-        base = row * (w + 1)
-        p_col = self.env_cond[base + col + 1] - self.env_cond[base + col]
-        return p_row * p_col / self.row_solid_angle(row)
+        i, j = row // bh, col // bw
+        k = (row % bh) * bw + col % bw
+        mb = b * (cr + 1) + i
+        cb = (b * cr + i) * (cc + 1) + j
+        fb = (i * cc + j) * (bh * bw + 1) + k
+        p_row = self.bin_marg[mb + 1] - self.bin_marg[mb]
+        p_col = self.bin_cond[cb + 1] - self.bin_cond[cb]
+        p_tex = self.block_cdf[fb + 1] - self.block_cdf[fb]
+        return p_row * p_col * p_tex / self.row_solid_angle(row)
 
     @ti.func
-    def sample_env(self, u1: ti.f32, u2: ti.f32):
-        """Direction, solid-angle pdf and radiance of an importance-sampled environment texel:
-        row and column by inverting the CDFs, then uniform in solid angle inside the texel
-        (uniform in cos(theta) and in phi)."""
-        h, w = self.ipar[4], self.ipar[5]
-        lo, hi = 0, h
-        while hi - lo > 1:
-            mid = (lo + hi) // 2
-            if self.env_marg[mid] <= u1:
-                lo = mid
-            else:
-                hi = mid
-        row = lo
-        p_row = self.env_marg[row + 1] - self.env_marg[row]
-        fv = ti.min(ti.max((u1 - self.env_marg[row]) / ti.max(p_row, 1e-30), 0.0), 1.0)
-        base = row * (w + 1)
-        lo2, hi2 = 0, w
-        while hi2 - lo2 > 1:
-            mid = (lo2 + hi2) // 2
-            if self.env_cond[base + mid] <= u2:
-                lo2 = mid
-            else:
-                hi2 = mid
-        col = lo2
-        p_col = self.env_cond[base + col + 1] - self.env_cond[base + col]
-        fu = ti.min(ti.max((u2 - self.env_cond[base + col]) / ti.max(p_col, 1e-30), 0.0), 1.0)
+    def sample_env(self, u1: ti.f32, u2: ti.f32, b: ti.i32):
+        """Direction, solid-angle pdf and radiance of a texel sampled for normal bin ``b``
+        (:mod:`grassd.sim.env_sampler`): block row from u1, block column from u2, texel in the
+        block from the rest of u1, then uniform in solid angle inside the texel."""
+        w = self.ipar[5]
+        cr, cc, bh, bw = self.ipar[8], self.ipar[9], self.ipar[10], self.ipar[11]
+        i, p_row, fv0 = tf.invert_cdf(self.bin_marg, b * (cr + 1), cr, u1)
+        j, p_col, fu = tf.invert_cdf(self.bin_cond, (b * cr + i) * (cc + 1), cc, u2)
+        k, p_tex, fv = tf.invert_cdf(self.block_cdf, (i * cc + j) * (bh * bw + 1), bh * bw, fv0)
+        row = i * bh + k // bw
+        col = j * bw + k % bw
         cos_t = self.env_cos[row] + fv * (self.env_cos[row + 1] - self.env_cos[row])
         sin_t = ti.sqrt(ti.max(0.0, 1.0 - cos_t * cos_t))
         phi = 2.0 * tf.PI * (col + fu) / w
         d = vec3(sin_t * ti.cos(phi), sin_t * ti.sin(phi), cos_t)
-        pdf = p_row * p_col / self.row_solid_angle(row)
+        pdf = p_row * p_col * p_tex / self.row_solid_angle(row)
         return d, pdf, self.env[row * w + col]
 
     @ti.func
-    def hit_primitive(self, prim: ti.i32, o, d, x: ti.f32, tmax: ti.f32):
+    def hit_primitive(self, prim: ti.i32, o, d, x: ti.f32, tmax: ti.f32, zlo: ti.f32,
+                      zhi: ti.f32):
         """Distance, unit geometric normal and material of primitive ``prim`` (INF if missed).
 
         Rise axes and normals are precomputed per blade; only green blades with splay (their
-        lean grows with the length x) are recomputed here."""
+        lean grows with the length x) are recomputed here. ``zlo``..``zhi`` bounds the heights
+        of the ray inside the current grid cell: a part lying wholly above or below it is not
+        tested (a blade rises at most its length above its root, a green blade's cavity part
+        spans the cavity depth below it)."""
         nb = self.ipar[0]
         t = tf.INF
         n = vec3(0.0, 0.0, 1.0)
@@ -325,12 +335,14 @@ class Renderer:
                     sa = ti.sin(alpha)
                     u = vec3(sa * lean.x, sa * lean.y, ti.cos(alpha))
                     nu = a.cross(u).normalized()
-            t1 = tf.hit_blade(o, d, p0, a, u, nu, par[0], length, self.fpar[5], self.fpar[6],
-                              tmax)
-            if t1 < tf.INF:
-                t = t1
-                n = nu
-            if green:  # the straight part inside the cavity
+            if zlo <= p0.z + length + ZCULL and zhi >= p0.z - ZCULL:
+                t1 = tf.hit_blade(o, d, p0, a, u, nu, par[0], length, self.fpar[5],
+                                  self.fpar[6], tmax)
+                if t1 < tf.INF:
+                    t = t1
+                    n = nu
+            if green and zlo <= p0.z + ZCULL and zhi >= p0.z - par[3] - ZCULL:
+                # the straight part inside the cavity
                 up = vec3(0.0, 0.0, 1.0)
                 low = p0 - vec3(0.0, 0.0, par[3])
                 n_low = vec3(a.y, -a.x, 0.0)
@@ -344,7 +356,11 @@ class Renderer:
             r = prim - nb
             ax = self.rect_axis[r]
             bd = self.rect_b[r]
-            t = tf.hit_rect(o, d, ax, bd[0], bd[1], bd[2], bd[3], bd[4], tmax)
+            z0, z1 = bd[3], bd[4]  # x-y rectangles (axis 2) lie at height bd[0]
+            if ax == 2:
+                z0, z1 = bd[0], bd[0]
+            if zlo <= z1 + ZCULL and zhi >= z0 - ZCULL:
+                t = tf.hit_rect(o, d, ax, bd[0], bd[1], bd[2], bd[3], bd[4], tmax)
             n = tf.axis_vector(ax)
             mat = self.rect_mat[r]
         return t, n, mat
@@ -388,11 +404,16 @@ class Renderer:
                 tdy = cell / ti.abs(d.y)
                 tny = (gy0 + (iy + (1 if sy > 0 else 0)) * cell - o.y) / d.y
             done = False
+            t_in = t0
             while not done:
                 c = ix * ny + iy
+                t_out = ti.min(tnx, tny, t1)
+                za = o.z + d.z * t_in
+                zb = o.z + d.z * ti.min(t_out, best_t)
+                zlo, zhi = ti.min(za, zb), ti.max(za, zb)
                 for j in range(self.cell_start[c], self.cell_start[c + 1]):
                     prim = self.cell_items[j]
-                    t, n, m = self.hit_primitive(prim, o, d, x, best_t)
+                    t, n, m = self.hit_primitive(prim, o, d, x, best_t, zlo, zhi)
                     if t < best_t:
                         best_t = t
                         best_n = n
@@ -404,11 +425,13 @@ class Renderer:
                 if best_t <= t_exit or t_exit >= t1:
                     done = True
                 elif tnx < tny:
+                    t_in = tnx
                     ix += sx
                     tnx += tdx
                     if ix < 0 or ix >= nx:
                         done = True
                 else:
+                    t_in = tny
                     iy += sy
                     tny += tdy
                     if iy < 0 or iy >= ny:
@@ -423,6 +446,7 @@ class Renderer:
         beta = vec3(1.0)
         pdf_bsdf = 0.0
         n_prev = 1
+        bin_prev = 0
         sun_on = self.ipar[6]
         sun_dir = vec3(self.fpar[10], self.fpar[11], self.fpar[12])
         sun_e = vec3(self.fpar[13], self.fpar[14], self.fpar[15])
@@ -434,7 +458,7 @@ class Renderer:
                 le = self.env_radiance(d)
                 w = 1.0
                 if depth > 0:
-                    w = tf.power_heuristic(pdf_bsdf, n_prev * self.env_pdf(d))
+                    w = tf.power_heuristic(pdf_bsdf, n_prev * self.env_pdf(d, bin_prev))
                 total += beta * le * w
                 break
             if depth == max_bounces:
@@ -445,6 +469,7 @@ class Renderer:
             p = o + t * d + EPS * nn
             alb = self.albedo[mat]
             wo = -d
+            nbin = tf.normal_bin(nn, NORMAL_BINS_SIDE)
             pair = 1 + depth * 2
             # Next-event estimation: environment, MIS against the BSDF strategy. The first
             # vertex takes ``n_nee`` light samples (its direct light dominates the variance).
@@ -459,7 +484,7 @@ class Renderer:
                 if j < n_nee:
                     e1, e2 = tf.padded_pair(index, strata, rep_key, key,
                                             pair if j == 0 else 64 + j)
-                    wl, pdf_l, le = self.sample_env(e1, e2)
+                    wl, pdf_l, le = self.sample_env(e1, e2, nbin)
                     if pdf_l > 0.0:
                         fcos, pdf_b = tf.bsdf_eval(alb, nn, wo, wl, ks, nexp)
                         w = tf.power_heuristic(n_nee * pdf_l, pdf_b)
@@ -476,6 +501,7 @@ class Renderer:
             d, weight, pdf_bsdf = tf.bsdf_sample(alb, nn, wo, ks, nexp, b1, b2,
                                                  tf.rand01(key, 128 + depth))
             n_prev = n_nee
+            bin_prev = nbin
             beta *= weight
             o = p
             if beta.max() <= 0.0:

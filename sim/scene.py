@@ -210,7 +210,7 @@ class RenderSettings:
     replicates: int = 8
     max_bounces: int = 3
     seed: int = 0
-    light_samples: int = 4
+    light_samples: int = 2
 
     def __post_init__(self) -> None:
         if not 1 <= self.samples <= 4_000_000:

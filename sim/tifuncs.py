@@ -187,6 +187,37 @@ def uv_to_dir(u: ti.f32, v: ti.f32) -> vec3:
 
 
 @ti.func
+def normal_bin(n: vec3, side: ti.i32) -> ti.i32:
+    """Bin of unit vector n on a side x side grid over its octahedral map (Engelhardt &
+    Dachsbacher 2008), row-major; as :func:`grassd.sim.env_sampler.normal_bin`."""
+    p = n / (ti.abs(n.x) + ti.abs(n.y) + ti.abs(n.z))
+    fx, fy = p.x, p.y
+    if p.z < 0.0:
+        fx = (1.0 - ti.abs(p.y)) * (1.0 if p.x >= 0.0 else -1.0)
+        fy = (1.0 - ti.abs(p.x)) * (1.0 if p.y >= 0.0 else -1.0)
+    i = ti.min(ti.cast((fx * 0.5 + 0.5) * side, ti.i32), side - 1)
+    j = ti.min(ti.cast((fy * 0.5 + 0.5) * side, ti.i32), side - 1)
+    return ti.max(i, 0) * side + ti.max(j, 0)
+
+
+@ti.func
+def invert_cdf(cdf: ti.template(), base: ti.i32, n: ti.i32, u: ti.f32):
+    """Index k in 0..n-1 with cdf[base + k] <= u < cdf[base + k + 1] (binary search; the CDF
+    runs from exactly 0 to exactly 1 and u < 1), its probability and the residual of u
+    rescaled to [0, 1]."""
+    lo, hi = 0, n
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if cdf[base + mid] <= u:
+            lo = mid
+        else:
+            hi = mid
+    p = cdf[base + lo + 1] - cdf[base + lo]
+    rest = ti.min(ti.max((u - cdf[base + lo]) / ti.max(p, 1e-30), 0.0), 1.0)
+    return lo, p, rest
+
+
+@ti.func
 def power_heuristic(pdf_a: ti.f32, pdf_b: ti.f32) -> ti.f32:
     """Veach's power heuristic (beta = 2) weight for the strategy with ``pdf_a``."""
     a2 = pdf_a * pdf_a
