@@ -555,7 +555,7 @@ def calibrate_display(cal: Calibrator, light: LightInput, *,
                          "display-wide table")]
     for name, table in controller_tables.items():
         prev = None if previous_tables is None else previous_tables.get(name)
-        if prev is not None and np.broadcast_shapes(np.shape(prev), table.shape) != table.shape:
+        if prev is not None and np.ndim(prev) != 1 and np.shape(prev) != table.shape:
             prev = None  # its pixel count changed: compare with the display-wide table
         steps.append(check_table(table, green_max, prev if prev is not None else previous_um,
                                  cc.max_jump_mm, force, f"table of controller {name}"))
