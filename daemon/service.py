@@ -233,11 +233,7 @@ class Service:
                 try:
                     self.tick(pending)
                 except (OSError, sqlite3.Error) as exc:  # e.g. a full or read-only disk
-                    self.last_error = f"{datetime.now(UTC).isoformat(timespec='seconds')} " + (
-                        describe_write_error(exc, getattr(exc, "filename", None) or
-                                             self.cfg.state_dir)
-                        if isinstance(exc, OSError) else f"state database: {exc}")
-                    log.error("main loop: %s (the daemon keeps running)", self.last_error)
+                    self._survived(exc, "main loop")
                 pending = []
                 self.stop_event.wait(self.tick_s)
         finally:
@@ -277,6 +273,21 @@ class Service:
             self.reconcile()
         if self.activity != "idle":
             self._progress("idle")
+
+    def _describe(self, exc: BaseException) -> str:
+        """One line for an error a main-loop pass survives (what, why, the fix)."""
+        if isinstance(exc, OSError):
+            return describe_write_error(exc, exc.filename or self.cfg.state_dir)
+        if isinstance(exc, sqlite3.Error):
+            return f"state database {self.history.path}: {exc}"
+        return f"internal error: {exc!r}"
+
+    def _survived(self, exc: BaseException, where: str) -> str:
+        """Log ``exc`` (OSError / SQLite error) and keep it for status as ``last_error``."""
+        msg = self._describe(exc)
+        self.last_error = f"{datetime.now(UTC).isoformat(timespec='seconds')} {msg}"
+        log.error("%s: %s (the daemon keeps running)", where, msg)
+        return msg
 
     def shutdown(self) -> None:
         """Stop serving, close ports and the database (called once at exit)."""
@@ -391,7 +402,11 @@ class Service:
     def process_bundle(self, b: Bundle) -> dict[str, Any]:
         """Calibrate from bundle ``b``, commit, push, archive; or reject it with the reason.
         Then prune per ``[retention]``."""
-        out = self._process_bundle(b)
+        try:
+            out = self._process_bundle(b)
+        except (OSError, sqlite3.Error) as exc:  # e.g. a full disk under the database: the
+            # bundle is fine; it waits in processing/ instead of being stranded there
+            out = self._defer(b, self._survived(exc, f"bundle {b.name}"))
         self.prune()
         return out
 
@@ -410,7 +425,10 @@ class Service:
                 d.give_up_at = now + limit_s
         if d.give_up_at is not None:  # the last try falls on the deadline, not far beyond
             d.retry_at = min(d.retry_at, d.give_up_at)
-        self.history.journal_release(b.hash)
+        try:
+            self.history.journal_release(b.hash)
+        except sqlite3.Error as exc:  # e.g. the disk is full: the attempt stays counted
+            log.warning("bundle %s: cannot release its attempt: %s", b.name, exc)
         log.warning("bundle %s waits in processing/: %s; retried in %g s", b.name, reason,
                     d.delay_s)
         return {"status": "deferred", "error": reason, "retry_in_s": d.delay_s}

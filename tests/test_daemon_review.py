@@ -6,13 +6,22 @@ sample counts, a real tmpfs that fills up (when the tests run as root and may mo
 
 from __future__ import annotations
 
+import contextlib
+import os
 import shutil
+import sqlite3
+import subprocess
+import time
+from pathlib import Path
 
 import numpy as np
+import pytest
+from robust_util import drop as rdrop
+from robust_util import service, write_config
 from test_daemon_granularity import BASE, POLICY, drop
 
 from grassd.daemon.calibrate import init_backend
-from grassd.daemon.config import parse_config
+from grassd.daemon.config import load_default_config, parse_config
 from grassd.daemon.fleet import table_checksum
 from grassd.daemon.service import Service
 from grassd.daemon.sim_hardware import SimulatedHardware
@@ -65,3 +74,85 @@ def test_pixel_tables_after_a_controllers_pixel_count_changed(tmp_path):
     finally:
         svc.shutdown()
         sim.stop()
+
+
+# --------------------------------------------------------------------------- a full state disk
+
+
+@contextlib.contextmanager
+def tmpfs(d: Path, size: str = "16m"):
+    """A real tmpfs mounted at ``d`` (skips unless we may mount)."""
+    d.mkdir(parents=True, exist_ok=True)
+    if os.geteuid() != 0 or subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", f"size={size},mode=0755", "tmpfs", str(d)],
+            capture_output=True).returncode != 0:
+        pytest.skip("needs root and mount(8) to fill a real file system")
+    try:
+        yield d
+    finally:
+        subprocess.run(["umount", "-l", str(d)], check=True)
+
+
+@contextlib.contextmanager
+def full(d: Path):
+    """Fill the file system of ``d`` to its last block; free it again on exit."""
+    filler = d / "filler"
+    with contextlib.suppress(OSError), open(filler, "wb") as fh:
+        while True:
+            fh.write(b"\0" * 65536)
+            fh.flush()
+    with contextlib.suppress(OSError), open(filler, "ab") as fh:  # the last partial block
+        while True:
+            fh.write(b"\0" * 512)
+            fh.flush()
+    try:
+        yield
+    finally:
+        filler.unlink()
+
+
+def main_loop_pass(svc: Service) -> None:
+    """One pass of Service.run's loop: errors it survives are swallowed as it does."""
+    with contextlib.suppress(OSError, sqlite3.Error):
+        svc.tick()
+
+
+@pytest.fixture
+def hw(tmp_path):
+    sim = SimulatedHardware(load_default_config(), tmp_path / "hw", lux=2500.0)
+    cfg = sim.start()
+    yield sim, cfg
+    sim.stop()
+
+
+def test_claimed_bundles_survive_a_full_state_disk(tmp_path, hw):
+    """Two bundles claimed by one poll when the state disk fills up: the database write of the
+    first fails. Neither may be stranded in processing/ until the next restart: both wait
+    (status) and run once space is back."""
+    _, cfg = hw
+    with tmpfs(tmp_path / "state") as state:
+        conf = write_config(tmp_path / "g.toml", state, cfg)
+        svc = service(conf, retry_s=0.3, reconcile_s=1e9)
+        try:
+            inbox = svc.cfg.light.inbox
+            rdrop(inbox, "b1", lux=1000.0)
+            rdrop(inbox, "b2", lux=1200.0)
+            claimed = svc.inbox.poll()
+            assert len(claimed) == 2
+            with full(state):
+                svc.tick(claimed)  # must not raise: the daemon survives, the bundles wait
+                assert svc.inbox.counts()["processing"] == 2
+                st = svc.status()
+                assert sorted(w["bundle"] for w in st["waiting_bundles"]) == ["b1", "b2"]
+                assert "full" in st["last_error"]
+            deadline = time.monotonic() + 20
+            while svc.inbox.counts()["archive"] < 2 and time.monotonic() < deadline:
+                time.sleep(0.3)
+                main_loop_pass(svc)
+            assert svc.inbox.counts() == {"inbox": 0, "processing": 0, "archive": 2,
+                                          "rejected": 0}
+            assert svc.status()["waiting_bundles"] == []
+            assert [r.status for r in svc.history.runs(5)].count("ok") == 2
+        finally:
+            svc.shutdown()
+
