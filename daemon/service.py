@@ -265,8 +265,13 @@ class Service:
                 req = self.requests.get_nowait()
             except queue.Empty:
                 break
-            req.result = self.scheduled_run("request", force=req.force)
-            req.done.set()
+            try:
+                req.result = self.scheduled_run("request", force=req.force)
+            except BaseException as exc:  # the waiting client learns it now, not at its timeout
+                req.result = {"status": "failed", "error": self._describe(exc)}
+                raise
+            finally:
+                req.done.set()
         if due and not bundles and not self.stop_event.is_set():
             self.scheduled_run("interval")
         if time.monotonic() - self._last_reconcile >= self.reconcile_s:

@@ -11,6 +11,7 @@ import os
 import shutil
 import sqlite3
 import subprocess
+import threading
 import time
 from pathlib import Path
 
@@ -156,3 +157,29 @@ def test_claimed_bundles_survive_a_full_state_disk(tmp_path, hw):
         finally:
             svc.shutdown()
 
+
+def test_calibrate_request_is_answered_when_its_run_hits_a_full_disk(tmp_path, hw):
+    """`grassd calibrate --now --wait` while the state disk is full: the client gets the
+    failure at once, not a hang until its timeout (it held a control-socket slot)."""
+    _, cfg = hw
+    with tmpfs(tmp_path / "state") as state:
+        conf = write_config(tmp_path / "g.toml", state, cfg)
+        svc = service(conf, reconcile_s=1e9)
+        try:
+            answers: list[dict] = []
+            with full(state):
+                t = threading.Thread(target=lambda: answers.append(svc.handle_request(
+                    {"cmd": "calibrate", "wait": True, "timeout_s": 5})))
+                t.start()
+                while svc.requests.empty() and t.is_alive():
+                    time.sleep(0.01)
+                t0 = time.monotonic()
+                main_loop_pass(svc)
+                t.join(10)
+                waited = time.monotonic() - t0
+            [ans] = answers
+            assert waited < 4, ans
+            assert ans["ok"] and ans["run"]["status"] == "failed", ans
+            assert "full" in ans["run"]["error"]
+        finally:
+            svc.shutdown()
