@@ -95,6 +95,25 @@ class Measurement:
 _SHARED: dict[Capacity, "Renderer"] = {}
 
 
+def _cell_tops(sc: SceneArrays) -> np.ndarray:
+    """(cells, 2) per grid cell: the highest point of its fixed primitives (yellow blades,
+    rectangles, green cavity parts) and the highest root of its green blades (-1e30 if none),
+    in metres, for skipping cells that a ray passes over."""
+    green = sc.blade_params[:, 3] > 0.5
+    root = sc.blade_p0[:, 2].astype(np.float64)
+    b = sc.rect_bounds.astype(np.float64)
+    fixed = np.concatenate([root + np.where(green, 0.0, sc.blade_params[:, 1]),
+                            np.where(sc.rect_axis == 2, b[:, 0], b[:, 4])])
+    groot = np.concatenate([np.where(green, root, -1e30), np.full(sc.n_rects, -1e30)])
+    n_cells = len(sc.cell_start) - 1
+    counts = np.diff(sc.cell_start)
+    cell_of = np.repeat(np.arange(n_cells), counts)
+    out = np.full((n_cells, 2), -1e30)
+    np.maximum.at(out[:, 0], cell_of, fixed[sc.cell_items])
+    np.maximum.at(out[:, 1], cell_of, groot[sc.cell_items])
+    return out.astype(np.float32)
+
+
 @ti.data_oriented
 class Renderer:
     """Owns the scene, environment and output fields; traces with one kernel."""
@@ -124,6 +143,9 @@ class Renderer:
         self.rect_mat = ti.field(ti.i32, cap.rects)
         self.cell_start = ti.field(ti.i32, cap.cells + 1)
         self.cell_items = ti.field(ti.i32, cap.items)
+        # Per cell: (top of its fixed primitives, highest green root or -INF) [m]; a green
+        # blade of length x reaches root + x.
+        self.cell_top = ti.Vector.field(2, ti.f32, cap.cells)
         self.albedo = ti.Vector.field(3, ti.f32, 4)
         self.lengths = ti.field(ti.f32, 256)
         self.env = ti.Vector.field(3, ti.f32, cap.env_texels)
@@ -207,6 +229,7 @@ class Renderer:
         put(self.rect_mat, sc.rect_material, 0)
         put(self.cell_start, sc.cell_start, 0)
         put(self.cell_items, sc.cell_items, 0)
+        put(self.cell_top, _cell_tops(sc), 2)
         self.albedo.from_numpy(sc.albedo)
         f = self.fpar
         f[0], f[1] = float(sc.grid_origin[0]), float(sc.grid_origin[1])
@@ -411,16 +434,18 @@ class Renderer:
                 za = o.z + d.z * t_in
                 zb = o.z + d.z * ti.min(t_out, best_t)
                 zlo, zhi = ti.min(za, zb), ti.max(za, zb)
-                for j in range(self.cell_start[c], self.cell_start[c + 1]):
-                    prim = self.cell_items[j]
-                    t, n, m = self.hit_primitive(prim, o, d, x, best_t, zlo, zhi)
-                    if t < best_t:
-                        best_t = t
-                        best_n = n
-                        best_m = m
-                        if any_hit:
-                            done = True
-                            break
+                ct = self.cell_top[c]
+                if zlo <= ti.max(ct.x, ct.y + x) + ZCULL:  # else the ray passes over the cell
+                    for j in range(self.cell_start[c], self.cell_start[c + 1]):
+                        prim = self.cell_items[j]
+                        t, n, m = self.hit_primitive(prim, o, d, x, best_t, zlo, zhi)
+                        if t < best_t:
+                            best_t = t
+                            best_n = n
+                            best_m = m
+                            if any_hit:
+                                done = True
+                                break
                 t_exit = ti.min(tnx, tny, t1)
                 if best_t <= t_exit or t_exit >= t1:
                     done = True
