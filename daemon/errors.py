@@ -75,6 +75,10 @@ class StateDirLocked(DaemonError):
     """Another grassd process (daemon or one-shot) holds the state directory's lock."""
 
 
+class StateDirUnwritable(DaemonError):
+    """The state directory's lock file cannot be created or opened (read-only, permissions)."""
+
+
 class RunInterrupted(DaemonError):
     """A calibration run was stopped part-way (daemon shutting down); nothing was committed."""
 

@@ -21,7 +21,8 @@ import sys
 import time
 from pathlib import Path
 
-from grassd.daemon.errors import StateDirLocked
+from grassd.daemon.atomic import describe_write_error
+from grassd.daemon.errors import StateDirLocked, StateDirUnwritable
 
 LOCK_NAME = "grassd.lock"
 
@@ -58,11 +59,18 @@ class StateLock:
         return None, ""
 
     def acquire(self) -> StateLock:
-        """Take the lock or raise :class:`StateDirLocked` naming the holder's PID."""
+        """Take the lock or raise :class:`StateDirLocked` naming the holder's PID
+        (:class:`StateDirUnwritable` when the lock file cannot be created or opened)."""
         if self._fd is not None:
             return self
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        except OSError as exc:  # read-only file system, another user's directory, ...
+            raise StateDirUnwritable(
+                describe_write_error(exc, self.path) + " (grassd keeps its state there: "
+                "run it as the user owning the state directory, or choose another with "
+                "--state-dir / state_dir)") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

@@ -23,9 +23,11 @@ from test_daemon_granularity import BASE, POLICY, drop
 
 from grassd.daemon.calibrate import init_backend
 from grassd.daemon.config import load_default_config, parse_config
+from grassd.daemon.errors import DaemonError
 from grassd.daemon.fleet import table_checksum
 from grassd.daemon.service import Service
 from grassd.daemon.sim_hardware import SimulatedHardware
+from grassd.daemon.statelock import StateLock
 
 PIXEL = '[tables]\ngranularity = "pixel"\ncheck_groups = 0\n'
 
@@ -183,3 +185,30 @@ def test_calibrate_request_is_answered_when_its_run_hits_a_full_disk(tmp_path, h
             assert "full" in ans["run"]["error"]
         finally:
             svc.shutdown()
+
+
+def test_unwritable_state_dir_is_one_line_user_error(tmp_path):
+    """The state lock is the first thing `grassd run` / `calibrate --now` writes: a read-only
+    (or foreign) state directory must give a DaemonError naming the path and the fix (the CLI
+    prints one line, exit 2), not a raw OSError traceback."""
+    state = tmp_path / "state"
+    state.mkdir()
+    if os.geteuid() == 0:
+        if subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(state)],
+                          capture_output=True).returncode != 0:
+            pytest.skip("root without mount(8): cannot make a directory unwritable")
+        why = "read-only"
+    else:
+        os.chmod(state, 0o555)
+        why = "permission denied"
+    try:
+        with pytest.raises(DaemonError) as err:
+            StateLock(state).acquire()
+        msg = str(err.value)
+        assert str(state / "grassd.lock") in msg and why in msg.lower(), msg
+        assert "\n" not in msg
+    finally:
+        if os.geteuid() == 0:
+            subprocess.run(["umount", "-l", str(state)], check=True)
+        else:
+            os.chmod(state, 0o755)
