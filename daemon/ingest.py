@@ -49,6 +49,7 @@ import math
 import os
 import re
 import shutil
+import sqlite3
 import stat
 import time
 import tomllib
@@ -370,9 +371,25 @@ class Inbox:
         rejected at once (with their reason); duplicates of already-handled bundles likewise.
         ``claim=False`` only watches (tracks sizes and mtimes for the settle time), so bundles
         are settled by the time a later poll may claim them.
+
+        When claiming one bundle fails (OSError, SQLite error: e.g. rejected/ unwritable, a
+        full disk) after others were claimed, those are returned (they are in processing/
+        already and would otherwise wait there until the next restart) and the error is
+        logged; with none claimed, it is raised.
         """
-        now = self.clock()
         ready: list[Bundle] = []
+        try:
+            self._scan(claim, ready)
+        except (OSError, sqlite3.Error) as exc:
+            if not ready:
+                raise
+            log.error("inbox: claiming a bundle failed (%s); the %d bundle(s) claimed before it "
+                      "go ahead", exc, len(ready))
+        return ready
+
+    def _scan(self, claim: bool, ready: list[Bundle]) -> None:
+        """:meth:`poll`'s scan: claimed bundles are appended to ``ready`` as they are moved."""
+        now = self.clock()
         names = set()
         for c in self._candidates():
             names.add(c.name)
@@ -413,7 +430,6 @@ class Inbox:
             del self._watch[gone]
         for gone in set(self._stuck) - names:
             del self._stuck[gone]
-        return ready
 
     def problems(self) -> list[str]:
         """Why bundles wait in the inbox (e.g. permissions), one line each, for status."""

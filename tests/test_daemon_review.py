@@ -212,3 +212,34 @@ def test_unwritable_state_dir_is_one_line_user_error(tmp_path):
             subprocess.run(["umount", "-l", str(state)], check=True)
         else:
             os.chmod(state, 0o755)
+
+
+def test_bundle_claimed_before_a_failing_rejection_is_processed(tmp_path, hw):
+    """One poll claims a good bundle, then fails to reject a bad one (rejected/ read-only:
+    the move raises): the good bundle must still be processed, not stranded in processing/
+    until the next restart."""
+    if os.geteuid() != 0:
+        pytest.skip("needs root to bind-mount rejected/ read-only")
+    _, cfg = hw
+    conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg)
+    svc = service(conf, reconcile_s=1e9)
+    rejected = svc.inbox.rejected
+    rejected.mkdir(parents=True, exist_ok=True)
+    if subprocess.run(["mount", "--bind", str(rejected), str(rejected)],
+                      capture_output=True).returncode != 0:
+        svc.shutdown()
+        pytest.skip("mount --bind not permitted")
+    try:
+        subprocess.run(["mount", "-o", "remount,bind,ro", str(rejected)], check=True)
+        inbox = svc.cfg.light.inbox
+        rdrop(inbox, "a1", lux=1000.0)
+        (inbox / ".b2").mkdir()
+        (inbox / ".b2" / "manifest.toml").write_text("this is = = not toml\n")
+        os.rename(inbox / ".b2", inbox / "b2")
+        for _ in range(3):
+            main_loop_pass(svc)
+        assert svc.inbox.counts()["archive"] == 1, svc.inbox.counts()
+        assert svc.history.current_table() is not None
+    finally:
+        subprocess.run(["umount", "-l", str(rejected)], check=True)
+        svc.shutdown()
