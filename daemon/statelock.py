@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import logging
 import os
 import sys
 import time
@@ -23,6 +24,8 @@ from pathlib import Path
 
 from grassd.daemon.atomic import describe_write_error
 from grassd.daemon.errors import StateDirLocked, StateDirUnwritable
+
+log = logging.getLogger(__name__)
 
 LOCK_NAME = "grassd.lock"
 
@@ -84,9 +87,13 @@ class StateLock:
         except BaseException:
             os.close(fd)
             raise
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()} {self.what}\n".encode(), 0)
         self._fd = fd
+        try:  # who holds it, for the message of a second one; the flock is the lock
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()} {self.what}\n".encode(), 0)
+        except OSError as exc:  # e.g. a full disk: the daemon must still (re)start
+            log.warning("cannot note PID %d in %s (%s); the lock holds all the same",
+                        os.getpid(), self.path, exc)
         return self
 
     def release(self) -> None:

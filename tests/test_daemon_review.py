@@ -23,7 +23,7 @@ from test_daemon_granularity import BASE, POLICY, drop
 
 from grassd.daemon.calibrate import init_backend
 from grassd.daemon.config import load_default_config, parse_config
-from grassd.daemon.errors import DaemonError
+from grassd.daemon.errors import DaemonError, StateDirLocked
 from grassd.daemon.fleet import table_checksum
 from grassd.daemon.service import Service
 from grassd.daemon.sim_hardware import SimulatedHardware
@@ -243,3 +243,25 @@ def test_bundle_claimed_before_a_failing_rejection_is_processed(tmp_path, hw):
     finally:
         subprocess.run(["umount", "-l", str(rejected)], check=True)
         svc.shutdown()
+
+
+
+def test_full_state_disk_at_start_is_a_user_error_and_leaks_no_lock(tmp_path, hw):
+    """Starting on a full state disk: the PID note in grassd.lock cannot be written. That
+    note is informational: the flock is taken all the same (and released by release()), and
+    the start fails, if at all, with a one-line DaemonError (the database cannot open its
+    WAL), not a raw ENOSPC traceback with the lock left held by the failed attempt."""
+    _, cfg = hw
+    with tmpfs(tmp_path / "state") as state:
+        conf = write_config(tmp_path / "g.toml", state, cfg)
+        service(conf).shutdown()  # database and (empty) lock file exist
+        with full(state):
+            lock = StateLock(state).acquire()
+            assert lock.held
+            with pytest.raises(StateDirLocked):
+                StateLock(state).acquire()  # a second process is still kept out
+            lock.release()
+            StateLock(state).acquire().release()  # and it was released for real
+            with pytest.raises(DaemonError, match="state.db"):
+                service(conf)
+            StateLock(state).acquire().release()  # the failed start left no lock behind
