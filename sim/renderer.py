@@ -4,8 +4,9 @@ Physically based Monte Carlo path tracing of the grass-pixel scene (:mod:`grassd
 under an importance-sampled equirectangular environment plus an optional directional sun.
 
 * Transport: Lambertian surfaces (optionally plus a normalised modified-Phong glossy lobe,
-  off by default), next-event estimation of the environment (sampled in
-  proportion to luminance x solid angle) and of the sun (ray-traced shadow), cosine-weighted
+  off by default), next-event estimation of the environment (sampled per normal bin in
+  proportion to luminance x solid angle x a cosine bound, :mod:`grassd.sim.env_sampler`) and
+  of the sun (ray-traced shadow), cosine-weighted
   BSDF sampling, the two environment strategies combined by Veach's power heuristic. Up to
   ``max_bounces`` surface interactions; no Russian roulette, so the estimate is unbiased for that
   depth.
@@ -24,7 +25,7 @@ under an importance-sampled equirectangular environment plus an optional directi
 * Sampling: the quad position is jittered in a strata x strata grid per replicate; every other
   pair of dimensions (light samples, bounce directions) is padded-jittered, i.e. stratified the
   same way under its own random permutation of the paths (:func:`grassd.sim.tifuncs.padded_pair`).
-  The first surface a path meets takes ``light_samples`` environment samples.
+  The first two surfaces a path meets take ``light_samples`` environment samples each.
 
 Numpy in, numpy out: :meth:`Renderer.characteristic` takes a :class:`~grassd.sim.scene.DisplaySpec`,
 a ``Lighting`` (from :mod:`grassd.sim.lighting`), a viewpoint and lengths (mm), and returns a
@@ -496,19 +497,22 @@ class Renderer:
             wo = -d
             nbin = tf.normal_bin(nn, NORMAL_BINS_SIDE)
             pair = 1 + depth * 2
-            # Next-event estimation: environment, MIS against the BSDF strategy. The first
-            # vertex takes ``n_nee`` light samples (its direct light dominates the variance).
+            # Next-event estimation: environment, MIS against the BSDF strategy. The first two
+            # vertices take ``n_nee`` light samples each (their light dominates the variance;
+            # two at the second vertex: 11-21 % better OGCD error per CPU second than one).
             # The sun is one more shadow query (a delta light: no MIS). All shadow rays share
             # one trace call, so the kernel inlines the traversal twice, not four times.
+            # Extra light samples use dimension pairs 80 + 16 depth + j (dims 162..223),
+            # clear of the bounce pairs (< 68) and of the lobe choices (128 + depth).
             n_nee = 1
-            if depth == 0:
+            if depth <= 1:
                 n_nee = self.ipar[7]
             for j in range(n_nee + sun_on):
                 wl = sun_dir
                 contrib = vec3(0.0)
                 if j < n_nee:
                     e1, e2 = tf.padded_pair(index, strata, rep_key, key,
-                                            pair if j == 0 else 64 + j)
+                                            pair if j == 0 else 80 + 16 * depth + j)
                     wl, pdf_l, le = self.sample_env(e1, e2, nbin)
                     if pdf_l > 0.0:
                         fcos, pdf_b = tf.bsdf_eval(alb, nn, wo, wl, ks, nexp)

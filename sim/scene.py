@@ -203,7 +203,8 @@ class RenderSettings:
     stratification), ``replicates`` independent randomisations whose spread gives the standard
     error, ``max_bounces`` surface interactions per path (1 = direct light only; Mitsuba's
     ``max_depth`` is ``max_bounces + 1``), ``seed`` makes results bit-reproducible,
-    ``light_samples`` environment samples (shadow rays) at the first surface a path meets.
+    ``light_samples`` environment samples (shadow rays) at each of the first two surfaces a
+    path meets (one at later ones).
     """
 
     samples: int = 4096
