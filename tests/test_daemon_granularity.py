@@ -62,11 +62,11 @@ settle_s = 0
 [schedule]
 interval_s = 0
 [simulation]
-samples = 64
+samples = 256
 seed = 3
 lengths = 5
 [calibration]
-replicates = 2
+replicates = 4
 max_jump_mm = 20.0
 check_levels = 5
 """
