@@ -40,6 +40,7 @@ import sqlite3
 import threading
 import time
 import traceback
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from importlib import resources
@@ -50,7 +51,7 @@ from grassd import __version__
 from grassd.daemon.atomic import atomic_save_figure, atomic_write_json, describe_write_error
 from grassd.daemon.calibrate import CalibrationResult, Calibrator, LightInput, init_backend
 from grassd.daemon.calibrate_display import DisplayCalibrationResult
-from grassd.daemon.config import Config, load_config, not_used_by_the_daemon
+from grassd.daemon.config import Config, ControllerConfig, load_config, not_used_by_the_daemon
 from grassd.daemon.control import ControlServer
 from grassd.daemon.errors import (
     USER_ERRORS,
@@ -62,7 +63,7 @@ from grassd.daemon.errors import (
     RunInterrupted,
 )
 from grassd.daemon.fleet import Fleet, table_checksum
-from grassd.daemon.history import History
+from grassd.daemon.history import ControllerTable, History
 from grassd.daemon.ingest import Bundle, Inbox, parse_manifest, read_manifest_data
 from grassd.daemon.luxsensor import LuxSensor
 from grassd.daemon.notify import Notifier
@@ -153,7 +154,7 @@ class Service:
         #: (its first failure, then a summary), not one per reconcile
         self.failure_row_s = failure_row_s
         self._streaks: dict[str, _FailStreak] = {}
-        self._own_cache: tuple[int | None, dict[str, Any]] = (None, {})
+        self._own_cache: tuple[tuple | None, dict[str, Any]] = (None, {})
         self.reload_error: str | None = None
         #: bundles waiting for a transient failure (full disk, lux sensor down) to clear; the
         #: first retry after ``retry_s``, then doubling up to ``retry_max_s``
@@ -390,10 +391,12 @@ class Service:
 
     def _own_tables(self, run_id: int) -> dict[str, Any]:
         """Controller name -> its own table of run ``run_id`` (empty when the run has one table
-        for all); cached for the latest run asked, as reconcile asks every few seconds."""
-        if self._own_cache[0] != run_id:
-            self._own_cache = (run_id, {k: t.lengths_um for k, t in
-                                        self.history.run_tables(run_id).items()})
+        for all; see :func:`usable_run_tables`); cached for the latest run and controller
+        configuration asked, as reconcile asks every few seconds."""
+        key = (run_id, self.cfg.controllers)
+        if self._own_cache[0] != key:
+            self._own_cache = (key, {k: t.lengths_um for k, t in usable_run_tables(
+                self.history, run_id, self.cfg.controllers).items()})
         return self._own_cache[1]
 
     def prune(self) -> None:
@@ -708,10 +711,23 @@ class Service:
                                       "(use ping, status, calibrate, reload)"}
 
 
+def usable_run_tables(history: History, run_id: int,
+                      controllers: Sequence[ControllerConfig]) -> dict[str, ControllerTable]:
+    """The own tables of run ``run_id`` (:meth:`History.run_tables`) that the configured
+    ``controllers`` can take: a per-pixel (n, 256) table only while its controller still drives
+    n pixels (after a config change it would refuse it at every reconcile); such a controller,
+    like one the run has no table for, gets the run's display-wide table until the next run."""
+    n_pixels = {c.name: sum(b - a + 1 for a, b in c.pixels) for c in controllers}
+    return {k: t for k, t in history.run_tables(run_id).items()
+            if t.lengths_um.ndim == 1 or n_pixels.get(k, t.lengths_um.shape[0])
+            == t.lengths_um.shape[0]}
+
+
 def collect_status(history: History, cfg: Config, runs: int = 5) -> dict[str, Any]:
     """Status from the state database alone (what `grassd status` shows without a daemon)."""
     cur = history.current_table()
-    own = {} if cur is None else {k: t.table_crc for k, t in history.run_tables(cur.id).items()}
+    own = {} if cur is None else {k: t.table_crc for k, t in
+                                  usable_run_tables(history, cur.id, cfg.controllers).items()}
     desired = None if cur is None else {"table_id": cur.table_id, "table_crc": cur.table_crc,
                                         "run_id": cur.id, "per_controller": own or None}
     ctrls = {c.name: c for c in history.controllers()}

@@ -25,7 +25,7 @@ from grassd.daemon.calibrate import init_backend
 from grassd.daemon.config import load_default_config, parse_config
 from grassd.daemon.errors import DaemonError, StateDirLocked
 from grassd.daemon.fleet import table_checksum
-from grassd.daemon.service import Service
+from grassd.daemon.service import Service, collect_status
 from grassd.daemon.sim_hardware import SimulatedHardware
 from grassd.daemon.statelock import StateLock
 
@@ -74,6 +74,37 @@ def test_pixel_tables_after_a_controllers_pixel_count_changed(tmp_path):
             active = bus.controllers[0].active_table()
             np.testing.assert_array_equal(active, own[c.name].lengths_um)
             assert table_checksum(active) == out["controller_crcs"][c.name]
+    finally:
+        svc.shutdown()
+        sim.stop()
+
+
+
+def test_reconcile_after_a_pixel_count_change_pushes_the_display_wide_table(tmp_path):
+    """Until the next run, a controller whose pixel count changed cannot take its old
+    (2, 256) tables (it refuses them at every reconcile and stays out of sync): it gets the
+    run's display-wide table, as one added to the config afterwards does, and status agrees."""
+    hw = tmp_path / "hw"
+    sim = SimulatedHardware(_pixel_config(tmp_path, "0-1", "2-3"), hw)
+    svc = Service(sim.start(), policy=POLICY)
+    try:
+        init_backend(svc.cfg)
+        first = _run_bundle(svc, "b1")
+        assert first["status"] == "ok", first
+    finally:
+        svc.shutdown()
+        sim.stop()
+    shutil.rmtree(hw / "eeprom")
+
+    sim = SimulatedHardware(_pixel_config(tmp_path, "0-0", "1-3"), hw)
+    cfg = sim.start()
+    svc = Service(cfg, policy=POLICY)
+    try:
+        reports = svc.reconcile()
+        assert [(r.ok, r.table_id) for r in reports] == [(True, first["run_id"])] * 2, reports
+        assert {r.table_crc for r in reports} == {first["table_crc"]}  # display-wide table
+        st = collect_status(svc.history, svc.cfg)
+        assert st["health"] == "ok", st["controllers"]
     finally:
         svc.shutdown()
         sim.stop()
