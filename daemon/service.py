@@ -253,10 +253,14 @@ class Service:
         bundles = list(pending or [])
         now = time.monotonic()
         bundles += [d.bundle for d in list(self.deferred.values()) if d.retry_at <= now]
-        if self.cfg.schedule.on_new_bundle or due:
-            bundles += self.inbox.poll()
-        else:  # keep watching, so that a bundle has settled when the scheduled run is due
-            self.inbox.poll(claim=False)
+        try:
+            if self.cfg.schedule.on_new_bundle or due:
+                bundles += self.inbox.poll()
+            else:  # keep watching, so that a bundle has settled when the scheduled run is due
+                self.inbox.poll(claim=False)
+        except (OSError, sqlite3.Error) as exc:  # e.g. the inbox's share went away: what does
+            # not need it (waiting bundles, requests, scheduled runs, reconcile) goes on
+            self._survived(exc, f"inbox {self.cfg.light.inbox}")
         for b in bundles:
             if self.stop_event.is_set():
                 return

@@ -24,7 +24,7 @@ from test_daemon_granularity import BASE, POLICY, drop
 from grassd.daemon.calibrate import init_backend
 from grassd.daemon.config import load_default_config, parse_config
 from grassd.daemon.errors import DaemonError, StateDirLocked
-from grassd.daemon.fleet import table_checksum
+from grassd.daemon.fleet import Fleet, table_checksum
 from grassd.daemon.service import Service, collect_status
 from grassd.daemon.sim_hardware import SimulatedHardware
 from grassd.daemon.statelock import StateLock
@@ -296,3 +296,39 @@ def test_full_state_disk_at_start_is_a_user_error_and_leaks_no_lock(tmp_path, hw
             with pytest.raises(DaemonError, match="state.db"):
                 service(conf)
             StateLock(state).acquire().release()  # the failed start left no lock behind
+
+
+def test_unreadable_inbox_does_not_stop_reconcile_and_requests(tmp_path, hw):
+    """The inbox is a symlink to an upload share that goes away (dangling link: every poll
+    fails). The daemon must still serve what does not need the inbox: a controller that
+    lost its table is reconciled and a queued calibration request runs."""
+    sim, cfg = hw
+    share = tmp_path / "share"
+    share.mkdir()
+    conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg)
+    (tmp_path / "state").mkdir()
+    (tmp_path / "state" / "inbox").symlink_to(share)
+    svc = service(conf, reconcile_s=0.0)
+    try:
+        rdrop(share, "b1", lux=1000.0)
+        main_loop_pass(svc)
+        cur = svc.history.current_table()
+        assert cur is not None and svc.inbox.counts()["archive"] == 1
+        shutil.rmtree(share)  # the share is gone
+        with pytest.raises(OSError):
+            svc.inbox.poll()
+        dev = sim.buses[0].controllers[0]
+        other = np.linspace(0, 15000, 256).astype(np.uint16)
+        with Fleet(svc.cfg.controllers[:1], policy=POLICY) as fleet:  # someone else's table
+            [r] = fleet.push(other, table_id=999)
+            assert r.ok
+        assert table_checksum(dev.active_table()) != cur.table_crc
+        assert svc.handle_request({"cmd": "calibrate"})["ok"]
+        for _ in range(3):
+            main_loop_pass(svc)
+        assert table_checksum(dev.active_table()) == svc.history.current_table().table_crc
+        assert svc.requests.empty()
+        assert svc.history.runs(1)[0].trigger == "request"
+        assert "inbox" in (svc.status()["last_error"] or "")
+    finally:
+        svc.shutdown()
