@@ -325,7 +325,9 @@ class Calibrator:
         if sun is not None and sun == 0:
             sun, az, el = None, None, None
         lighting = build_lighting(light.hdri, light.ambient_lux, sun_lux=sun,
-                                  sun_azimuth_deg=az, sun_elevation_deg=el)
+                                  sun_azimuth_deg=az, sun_elevation_deg=el,
+                                  flip=self.cfg.light.hdri_flip,
+                                  rotation_deg=self.cfg.light.hdri_rotation_deg)
         object.__setattr__(lighting, "notes", tuple(lighting.notes) + tuple(notes))
         return lighting
 

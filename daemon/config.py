@@ -175,6 +175,11 @@ class LightConfig:
     still missing after ``incomplete_timeout_s`` seconds is rejected. A bundle that needs the
     sensor while it is unreachable or silent waits (retried with backoff) up to ``lux_wait_s``
     seconds before it is rejected; a reading that is not a usable illuminance rejects it at once.
+    ``hdri_flip``/``hdri_rotation_deg`` bring the site camera's panoramas into the renderer's
+    convention (:mod:`grassd.sim.lighting`: u = atan2(y, x) / 2 pi, +y north): most 360-degree
+    cameras store the mirror image, so a real site wants ``hdri_flip = true``, and the rotation
+    (degrees, counter-clockwise seen from above) puts north where the camera did not; without
+    them a sun placed from the site's latitude, longitude and time misses the sun in the map.
     """
 
     inbox: Path
@@ -183,6 +188,8 @@ class LightConfig:
     settle_s: float = 2.0
     incomplete_timeout_s: float = 600.0
     lux_wait_s: float = 900.0
+    hdri_flip: bool = False
+    hdri_rotation_deg: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -664,6 +671,8 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         "modbus": _F(dict, None), "settle_s": _F(float, 2.0, _non_negative),
         "incomplete_timeout_s": _F(float, 600.0, _positive),
         "lux_wait_s": _F(float, 900.0, _non_negative),
+        "hdri_flip": _F(bool, False),
+        "hdri_rotation_deg": _F(float, 0.0, _between(-360, 360, " degrees")),
     })
     modbus = None
     if lt["modbus"] is not None:
@@ -766,7 +775,8 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
     light = LightConfig(inbox=inbox if inbox.is_absolute() else state_dir / inbox,
                         lux=lt["lux"], modbus=modbus, settle_s=lt["settle_s"],
                         incomplete_timeout_s=lt["incomplete_timeout_s"],
-                        lux_wait_s=lt["lux_wait_s"])
+                        lux_wait_s=lt["lux_wait_s"], hdri_flip=lt["hdri_flip"],
+                        hdri_rotation_deg=lt["hdri_rotation_deg"])
 
     return Config(site=site, display=display, controllers=tuple(controllers),
                   viewpoints=tuple(viewpoints), light=light, schedule=schedule,

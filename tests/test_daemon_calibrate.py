@@ -25,7 +25,7 @@ from grassd.daemon.calibrate import (
     init_backend,
 )
 from grassd.daemon.config import parse_config
-from grassd.daemon.errors import CalibrationRejected
+from grassd.daemon.errors import CalibrationRejected, ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
 CACHE = os.environ.get("GRASSD_CACHE_DIR", str(ROOT / ".venv" / "grassd-cache"))
@@ -147,6 +147,26 @@ def test_sun_from_site_and_time(cfg):
     night = Calibrator(cfg).lighting(light(sun_lux=20000.0,
                                            timestamp=datetime(2026, 6, 21, 23, tzinfo=UTC)))
     assert night.sun_direction is None and any("below the horizon" in n for n in night.notes)
+
+
+def test_site_camera_orientation_from_config(tmp_path):
+    """[light] hdri_flip / hdri_rotation_deg orient the bundle's panorama before lighting."""
+    from grassd.sim.hdri import load_hdri
+    from grassd.sim.lighting import orient_env
+
+    oriented = parse_config(TINY.replace('inbox = "inbox"', 'inbox = "inbox"\nhdri_flip = true'
+                                         '\nhdri_rotation_deg = 90'), base_dir=tmp_path)
+    assert oriented.light.hdri_flip and oriented.light.hdri_rotation_deg == 90.0
+    plain = parse_config(TINY, base_dir=tmp_path)
+    a = Calibrator(plain).lighting(light())
+    b = Calibrator(oriented).lighting(light())
+    assert b.flipped and b.rotation_deg == 90.0 and not a.flipped
+    want = orient_env(load_hdri(SITE), rotation_deg=90.0, flip=True)
+    np.testing.assert_allclose(b.env, want * b.env_scale, rtol=1e-5)
+    assert not np.allclose(a.env, b.env)
+    with pytest.raises(ConfigError, match="hdri_rotation_deg"):
+        parse_config(TINY.replace('inbox = "inbox"', 'inbox = "inbox"\nhdri_rotation_deg = 400'),
+                     base_dir=tmp_path)
 
 
 def _chart_image(prophoto, corners, h=200, w=300):
