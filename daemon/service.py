@@ -435,7 +435,8 @@ class Service:
             d.retry_at, d.reason = now + d.delay_s, reason
             if limit_s is not None and d.give_up_at is None:
                 d.give_up_at = now + limit_s
-        if d.give_up_at is not None:  # the last try falls on the deadline, not far beyond
+        if d.give_up_at is not None and d.give_up_at > now:  # the last try falls on the
+            # deadline, not far beyond; once it has passed, the backoff holds
             d.retry_at = min(d.retry_at, d.give_up_at)
         try:
             self.history.journal_release(b.hash)

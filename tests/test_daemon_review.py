@@ -26,7 +26,7 @@ from grassd.daemon.config import load_default_config, parse_config
 from grassd.daemon.errors import DaemonError, StateDirLocked
 from grassd.daemon.fleet import Fleet, table_checksum
 from grassd.daemon.service import Service, collect_status
-from grassd.daemon.sim_hardware import SimulatedHardware
+from grassd.daemon.sim_hardware import SimLuxSensor, SimulatedHardware
 from grassd.daemon.statelock import StateLock
 
 PIXEL = '[tables]\ngranularity = "pixel"\ncheck_groups = 0\n'
@@ -249,30 +249,22 @@ def test_bundle_claimed_before_a_failing_rejection_is_processed(tmp_path, hw):
     """One poll claims a good bundle, then fails to reject a bad one (rejected/ read-only:
     the move raises): the good bundle must still be processed, not stranded in processing/
     until the next restart."""
-    if os.geteuid() != 0:
-        pytest.skip("needs root to bind-mount rejected/ read-only")
     _, cfg = hw
     conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg)
     svc = service(conf, reconcile_s=1e9)
-    rejected = svc.inbox.rejected
-    rejected.mkdir(parents=True, exist_ok=True)
-    if subprocess.run(["mount", "--bind", str(rejected), str(rejected)],
-                      capture_output=True).returncode != 0:
-        svc.shutdown()
-        pytest.skip("mount --bind not permitted")
+    svc.inbox.rejected.mkdir(parents=True, exist_ok=True)
     try:
-        subprocess.run(["mount", "-o", "remount,bind,ro", str(rejected)], check=True)
-        inbox = svc.cfg.light.inbox
-        rdrop(inbox, "a1", lux=1000.0)
-        (inbox / ".b2").mkdir()
-        (inbox / ".b2" / "manifest.toml").write_text("this is = = not toml\n")
-        os.rename(inbox / ".b2", inbox / "b2")
-        for _ in range(3):
-            main_loop_pass(svc)
-        assert svc.inbox.counts()["archive"] == 1, svc.inbox.counts()
-        assert svc.history.current_table() is not None
+        with readonly(svc.inbox.rejected):
+            inbox = svc.cfg.light.inbox
+            rdrop(inbox, "a1", lux=1000.0)
+            (inbox / ".b2").mkdir()
+            (inbox / ".b2" / "manifest.toml").write_text("this is = = not toml\n")
+            os.rename(inbox / ".b2", inbox / "b2")
+            for _ in range(3):
+                main_loop_pass(svc)
+            assert svc.inbox.counts()["archive"] == 1, svc.inbox.counts()
+            assert svc.history.current_table() is not None
     finally:
-        subprocess.run(["umount", "-l", str(rejected)], check=True)
         svc.shutdown()
 
 
@@ -331,4 +323,59 @@ def test_unreadable_inbox_does_not_stop_reconcile_and_requests(tmp_path, hw):
         assert svc.history.runs(1)[0].trigger == "request"
         assert "inbox" in (svc.status()["last_error"] or "")
     finally:
+        svc.shutdown()
+
+
+@contextlib.contextmanager
+def readonly(d: Path):
+    """Make directory ``d`` refuse writes: a read-only bind mount (root), else mode 0555."""
+    if os.geteuid() == 0:
+        if subprocess.run(["mount", "--bind", str(d), str(d)],
+                          capture_output=True).returncode != 0:
+            pytest.skip("mount --bind not permitted")
+        try:
+            subprocess.run(["mount", "-o", "remount,bind,ro", str(d)], check=True)
+            yield
+        finally:
+            subprocess.run(["umount", "-l", str(d)], check=True)
+    else:
+        os.chmod(d, 0o555)
+        try:
+            yield
+        finally:
+            os.chmod(d, 0o755)
+
+
+def test_write_failure_after_a_lux_wait_backs_off(tmp_path, hw):
+    """A bundle waited for the lux sensor (deadline lux_wait_s), then its run cannot write its
+    report. Once that deadline has passed, it must still be retried with backoff, not at every
+    main-loop pass (a whole calibration run and a failed history row per second)."""
+    sim, cfg = hw
+    conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg,
+                        light_extra="lux_wait_s = 1.0")
+    svc = service(conf, retry_s=0.3, retry_max_s=10.0, reconcile_s=1e9)
+    port, regmap = sim.sensor.port, sim.sensor.config
+    sim.sensor.stop()
+    back = None
+    try:
+        rdrop(svc.cfg.light.inbox, "b", lux=None)
+        svc.tick()
+        assert svc.status()["waiting_bundles"][0]["reason"].startswith("waiting for the lux")
+        back = SimLuxSensor(regmap, lux=3000.0, port=port).start()
+        with readonly(svc.reports_dir):
+            deadline = time.monotonic() + 20
+            while svc.history.run_count() < 2:  # one failed run before the deadline, one after
+                assert time.monotonic() < deadline
+                time.sleep(0.05)
+                svc.tick()
+            runs = svc.history.run_count()
+            for _ in range(5):  # well within the next backoff (>= 1.2 s)
+                time.sleep(0.05)
+                svc.tick()
+            assert svc.history.run_count() == runs
+            [w] = svc.status()["waiting_bundles"]
+            assert w["retry_in_s"] > 0.5
+    finally:
+        if back is not None:
+            back.stop()
         svc.shutdown()
