@@ -44,10 +44,11 @@ def _run_bundle(svc: Service, name: str, lux: float = 8000.0) -> dict:
     return svc.process_bundle(b)
 
 
-def test_pixel_tables_after_a_controllers_pixel_count_changed(tmp_path):
-    """A controller that drives 3 pixels instead of 2 after a config change (restart with
-    the same ports and state): the next run must not fail for ever comparing its new (3, 256)
-    table with its old (2, 256) one, and gets its new table."""
+@pytest.fixture
+def resized(tmp_path):
+    """A run with per-pixel tables on two controllers driving 2 + 2 pixels; then the same
+    ports and state with the controllers re-flashed for 1 + 3 pixels (a config change).
+    Yields (first run's result, service, simulated hardware) of the second start."""
     hw = tmp_path / "hw"
     sim = SimulatedHardware(_pixel_config(tmp_path, "0-1", "2-3"), hw)
     svc = Service(sim.start(), policy=POLICY)
@@ -59,56 +60,40 @@ def test_pixel_tables_after_a_controllers_pixel_count_changed(tmp_path):
         svc.shutdown()
         sim.stop()
     shutil.rmtree(hw / "eeprom")  # re-flashed controllers with the new pixel counts
-
     sim = SimulatedHardware(_pixel_config(tmp_path, "0-0", "1-3"), hw)
-    cfg = sim.start()
-    svc = Service(cfg, policy=POLICY)
-    try:
-        n0, n1 = (c.name for c in cfg.controllers)
-        assert set(svc.history.run_tables(first["run_id"])) == {n0, n1}  # same names
-        out = _run_bundle(svc, "b2", 8100.0)
-        assert out["status"] == "ok", out
-        own = svc.history.run_tables(out["run_id"])
-        assert own[n0].lengths_um.shape == (1, 256) and own[n1].lengths_um.shape == (3, 256)
-        for c, bus in zip(cfg.controllers, sim.buses, strict=True):
-            active = bus.controllers[0].active_table()
-            np.testing.assert_array_equal(active, own[c.name].lengths_um)
-            assert table_checksum(active) == out["controller_crcs"][c.name]
-    finally:
-        svc.shutdown()
-        sim.stop()
+    svc = Service(sim.start(), policy=POLICY)
+    yield first, svc, sim
+    svc.shutdown()
+    sim.stop()
 
 
+def test_pixel_tables_after_a_controllers_pixel_count_changed(resized):
+    """A controller that drives 3 pixels instead of 2 after a config change (restart with
+    the same ports and state): the next run must not fail for ever comparing its new (3, 256)
+    table with its old (2, 256) one, and gets its new table."""
+    first, svc, sim = resized
+    n0, n1 = (c.name for c in svc.cfg.controllers)
+    assert set(svc.history.run_tables(first["run_id"])) == {n0, n1}  # same names
+    out = _run_bundle(svc, "b2", 8100.0)
+    assert out["status"] == "ok", out
+    own = svc.history.run_tables(out["run_id"])
+    assert own[n0].lengths_um.shape == (1, 256) and own[n1].lengths_um.shape == (3, 256)
+    for c, bus in zip(svc.cfg.controllers, sim.buses, strict=True):
+        active = bus.controllers[0].active_table()
+        np.testing.assert_array_equal(active, own[c.name].lengths_um)
+        assert table_checksum(active) == out["controller_crcs"][c.name]
 
-def test_reconcile_after_a_pixel_count_change_pushes_the_display_wide_table(tmp_path):
+
+def test_reconcile_after_a_pixel_count_change_pushes_the_display_wide_table(resized):
     """Until the next run, a controller whose pixel count changed cannot take its old
     (2, 256) tables (it refuses them at every reconcile and stays out of sync): it gets the
     run's display-wide table, as one added to the config afterwards does, and status agrees."""
-    hw = tmp_path / "hw"
-    sim = SimulatedHardware(_pixel_config(tmp_path, "0-1", "2-3"), hw)
-    svc = Service(sim.start(), policy=POLICY)
-    try:
-        init_backend(svc.cfg)
-        first = _run_bundle(svc, "b1")
-        assert first["status"] == "ok", first
-    finally:
-        svc.shutdown()
-        sim.stop()
-    shutil.rmtree(hw / "eeprom")
-
-    sim = SimulatedHardware(_pixel_config(tmp_path, "0-0", "1-3"), hw)
-    cfg = sim.start()
-    svc = Service(cfg, policy=POLICY)
-    try:
-        reports = svc.reconcile()
-        assert [(r.ok, r.table_id) for r in reports] == [(True, first["run_id"])] * 2, reports
-        assert {r.table_crc for r in reports} == {first["table_crc"]}  # display-wide table
-        st = collect_status(svc.history, svc.cfg)
-        assert st["health"] == "ok", st["controllers"]
-    finally:
-        svc.shutdown()
-        sim.stop()
-
+    first, svc, _ = resized
+    reports = svc.reconcile()
+    assert [(r.ok, r.table_id) for r in reports] == [(True, first["run_id"])] * 2, reports
+    assert {r.table_crc for r in reports} == {first["table_crc"]}  # display-wide table
+    st = collect_status(svc.history, svc.cfg)
+    assert st["health"] == "ok", st["controllers"]
 
 # --------------------------------------------------------------------------- a full state disk
 
