@@ -555,6 +555,9 @@ _RANGE_RE = re.compile(r"^\s*(\d+)\s*(?:-\s*(\d+)\s*)?$")
 def parse_pixel_ranges(spec: str, pixel_count: int) -> tuple[tuple[int, int], ...]:
     """Parse ``"0-63,70"`` into inclusive ranges ``((0, 63), (70, 70))``; ``"all"`` = every pixel.
 
+    Raises ValueError for a malformed or backwards range, a pixel beyond ``pixel_count`` and a
+    pixel listed twice (``"0-3,2-5"``).
+
     >>> parse_pixel_ranges("0-3, 8", 10)
     ((0, 3), (8, 8))
     """
@@ -573,6 +576,11 @@ def parse_pixel_ranges(spec: str, pixel_count: int) -> tuple[tuple[int, int], ..
         if b >= pixel_count:
             raise ValueError(f"pixel {b} does not exist: the display has {pixel_count} pixels")
         out.append((a, b))
+    spans = sorted(zip(out, (p.strip() for p in spec.split(",")), strict=True))
+    for ((_, b1), p1), ((a2, _), p2) in zip(spans, spans[1:], strict=False):
+        if a2 <= b1:  # sorted by first pixel: an overlap shows between neighbours
+            raise ValueError(f"pixel {a2} is listed twice (in {p1!r} and {p2!r}); list each "
+                             "pixel once")
     return tuple(out)
 
 

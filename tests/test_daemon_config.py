@@ -103,6 +103,11 @@ def _line_of(text: str, needle: str) -> int:
         ('pixels = "4-7"', 'pixels = "3-7"', "controllers[1].pixels", 'pixels = "3-7"', "overlap"),
         ('pixels = "4-7"', 'pixels = "4-9"', "controllers[1].pixels", 'pixels = "4-9"',
          "does not exist"),
+        # one controller listing a pixel twice (overlaps within its own list)
+        ('pixels = "4-7"', 'pixels = "4-6,5-7"', "controllers[1].pixels", 'pixels = "4-6,5-7"',
+         "pixel 5 is listed twice"),
+        ('pixels = "4-7"', 'pixels = "4-7,6"', "controllers[1].pixels", 'pixels = "4-7,6"',
+         "pixel 6 is listed twice"),
         ('address = 2', 'address = 1', "controllers[1].address", "address = 1", "already used"),
         # one RS-485 bus, one line speed: the fleet opens a shared port once, at one baud
         ('baud = 57600', 'baud = 9600', "controllers[1].baud", "baud = 9600", "same bus"),
@@ -198,6 +203,10 @@ def test_pixel_ranges():
     for bad in ("4-2", "x", "0-5"):
         with pytest.raises(ValueError):
             parse_pixel_ranges(bad, 5)
+    assert parse_pixel_ranges("3-4,0-2", 5) == ((3, 4), (0, 2))  # any order, touching is fine
+    for twice, pixel in (("0-3,2-4", 2), ("1,1", 1), ("3-4,0-3", 3), ("0-4,2", 2)):
+        with pytest.raises(ValueError, match=f"pixel {pixel} is listed twice"):
+            parse_pixel_ranges(twice, 5)
 
 
 def test_embedded_default_is_valid_and_env_dirs(monkeypatch, tmp_path):
