@@ -447,8 +447,7 @@ class Renderer:
                             if any_hit:
                                 done = True
                                 break
-                t_exit = ti.min(tnx, tny, t1)
-                if best_t <= t_exit or t_exit >= t1:
+                if best_t <= t_out or t_out >= t1:
                     done = True
                 elif tnx < tny:
                     t_in = tnx
