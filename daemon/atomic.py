@@ -83,6 +83,52 @@ _WRITE_FIXES = {
 }
 
 
+#: What the user must do about a failed read (or directory scan), by errno.
+_READ_FIXES = {
+    errno.ENOENT: "it does not exist (a share or mount that went away?): create or mount it",
+    errno.ENOTDIR: "a part of the path is not a directory: fix the path",
+    errno.ELOOP: "too many symbolic links: fix the link",
+    errno.ESTALE: "stale file handle (NFS): remount the share",
+    errno.EACCES: "permission denied: give the daemon's user read access to it",
+    errno.EPERM: "operation not permitted: give the daemon's user read access to it",
+    errno.EIO: "I/O error: check the disk or the share (dmesg)",
+}
+
+
+#: errno values that only a write can meet
+WRITE_ONLY_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG})
+
+#: Fixes when it is not known whether a read or a write failed.
+_ACCESS_FIXES = {
+    **_READ_FIXES, **_WRITE_FIXES,
+    errno.EACCES: "permission denied: give the daemon's user read and write access to it",
+    errno.EPERM: "operation not permitted: give the daemon's user read and write access to it",
+}
+
+
+def describe_os_error(exc: OSError, where: str | os.PathLike[str], action: str = "write") -> str:
+    """One line naming what could not be read or written (``where``), why, and the fix.
+
+    ``action`` is "read" (reading or scanning ``where``), "write", or "access" when it is not
+    known which; errors that only a write can meet (full disk, quota, read-only file system,
+    file size limit) are worded as a write whatever ``action`` says.
+
+    >>> import errno
+    >>> print(describe_os_error(OSError(errno.ELOOP, "Too many links"), "/in", "read"))
+    cannot read /in: Too many links (ELOOP): too many symbolic links: fix the link
+    """
+    if action not in ("read", "write", "access"):
+        raise ValueError(f"action must be 'read', 'write' or 'access', not {action!r}")
+    if exc.errno in WRITE_ONLY_ERRNOS:
+        action = "write"
+    name = errno.errorcode.get(exc.errno or 0, "")
+    why = exc.strerror or str(exc)
+    fixes = {"write": _WRITE_FIXES, "read": _READ_FIXES, "access": _ACCESS_FIXES}[action]
+    fix = fixes.get(exc.errno or 0)
+    return (f"cannot {action} {'to ' if action == 'write' else ''}{os.fspath(where)}: {why}"
+            + (f" ({name})" if name else "") + (f": {fix}" if fix else ""))
+
+
 def describe_write_error(exc: OSError, where: str | os.PathLike[str]) -> str:
     """One line naming what could not be written (``where``), why, and the fix.
 
@@ -90,11 +136,7 @@ def describe_write_error(exc: OSError, where: str | os.PathLike[str]) -> str:
     >>> print(describe_write_error(OSError(errno.ENOSPC, "No space left on device"), "/s"))
     cannot write to /s: No space left on device (ENOSPC): the file system is full: free space on it
     """
-    name = errno.errorcode.get(exc.errno or 0, "")
-    why = exc.strerror or str(exc)
-    fix = _WRITE_FIXES.get(exc.errno or 0)
-    return (f"cannot write to {os.fspath(where)}: {why}" + (f" ({name})" if name else "")
-            + (f": {fix}" if fix else ""))
+    return describe_os_error(exc, where, "write")
 
 
 def _json_default(obj: Any) -> Any:

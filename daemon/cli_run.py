@@ -149,6 +149,8 @@ def _print_status(st: dict, echo=click.echo) -> None:
         echo(f"last reload refused: {st['reload_error']}")
     if st.get("last_error"):
         echo(f"last error: {st['last_error']}")
+    elif (seen := st.get("last_error_seen")) and seen.get("cleared_at"):
+        echo(f"last error (cleared {seen['cleared_at']}): {seen['at']} {seen['error']}")
     for w in st.get("waiting_bundles") or []:
         echo(f"bundle {w['bundle']} waits (retry in {w['retry_in_s']:.0f} s): {w['reason']}")
     for p in st.get("inbox_problems") or []:

@@ -308,6 +308,8 @@ class Inbox:
         try:
             entries = sorted(os.scandir(self.inbox), key=lambda e: e.name)
         except FileNotFoundError:
+            if self.inbox.is_symlink():  # a link to a share that went away: nothing to create
+                raise
             self.inbox.mkdir(parents=True, exist_ok=True)
             return out
         for e in entries:

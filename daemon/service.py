@@ -48,7 +48,13 @@ from pathlib import Path
 from typing import Any
 
 from grassd import __version__
-from grassd.daemon.atomic import atomic_save_figure, atomic_write_json, describe_write_error
+from grassd.daemon.atomic import (
+    WRITE_ONLY_ERRNOS,
+    atomic_save_figure,
+    atomic_write_json,
+    describe_os_error,
+    describe_write_error,
+)
 from grassd.daemon.calibrate import CalibrationResult, Calibrator, LightInput, init_backend
 from grassd.daemon.calibrate_display import DisplayCalibrationResult
 from grassd.daemon.config import Config, ControllerConfig, load_config, not_used_by_the_daemon
@@ -110,6 +116,27 @@ class _Request:
     result: dict[str, Any] | None = None
 
 
+def _now_iso() -> str:
+    return datetime.now(UTC).isoformat(timespec="seconds")
+
+
+def os_action(exc: BaseException, written: Sequence[Path] = (), otherwise: str = "access"
+              ) -> str:
+    """What an OSError ``exc`` failed to do, for :func:`describe_os_error`: "write" for a
+    rename/link (two paths), an error only writes meet (full disk, quota, read-only file
+    system, size limit) or a file below one of the directories ``written``; else
+    ``otherwise`` ("read" where only reads remain, "access" where it is not known)."""
+    if not isinstance(exc, OSError):
+        return otherwise
+    if exc.filename2 is not None or exc.errno in WRITE_ONLY_ERRNOS:
+        return "write"
+    if exc.filename is not None:
+        p = Path(os.fsdecode(exc.filename))
+        if any(p == d or d in p.parents for d in written):
+            return "write"
+    return otherwise
+
+
 def rss_mb() -> float:
     """Resident set size of this process in MiB (from /proc/self/statm)."""
     try:
@@ -161,8 +188,12 @@ class Service:
         self.deferred: dict[str, _Deferred] = {}
         self.retry_s = retry_s
         self.retry_max_s = retry_max_s
-        #: the last error that a main-loop pass survived (OSError / SQLite), for status
+        #: the error of the latest main-loop pass that survived one (OSError / SQLite), for
+        #: status; cleared by the next pass that completes without one. ``_error_seen`` keeps
+        #: the last one with its times ("at", "error", "cleared_at") after it was cleared.
         self.last_error: str | None = None
+        self._error_seen: dict[str, Any] | None = None
+        self._pass_errors = 0
         self.runs_done = 0
         self.rss_log: list[tuple[int, float]] = []
         cfg.state_dir.mkdir(parents=True, exist_ok=True)
@@ -234,7 +265,7 @@ class Service:
                 try:
                     self.tick(pending)
                 except (OSError, sqlite3.Error) as exc:  # e.g. a full or read-only disk
-                    self._survived(exc, "main loop")
+                    self._survived(exc, "main loop", os_action(exc))
                 pending = []
                 self.stop_event.wait(self.tick_s)
         finally:
@@ -242,8 +273,18 @@ class Service:
         return 0
 
     def tick(self, pending: list[Bundle] | None = None) -> None:
-        """One pass of the main loop (see module docstring)."""
+        """One pass of the main loop (see module docstring). A pass that completes without
+        surviving an error clears ``last_error`` (status keeps it as ``last_error_seen``)."""
         self.last_progress = time.monotonic()
+        self._pass_errors = 0
+        self._tick(pending)
+        if self._pass_errors == 0 and self.last_error is not None:
+            self.last_error = None
+            if self._error_seen is not None:
+                self._error_seen["cleared_at"] = _now_iso()
+            log.info("the error of an earlier pass has cleared")
+
+    def _tick(self, pending: list[Bundle] | None) -> None:
         if self.reload_event.is_set():
             self.reload_event.clear()
             self.reload()
@@ -260,7 +301,10 @@ class Service:
                 self.inbox.poll(claim=False)
         except (OSError, sqlite3.Error) as exc:  # e.g. the inbox's share went away: what does
             # not need it (waiting bundles, requests, scheduled runs, reconcile) goes on
-            self._survived(exc, f"inbox {self.cfg.light.inbox}")
+            # (scanning and reading the inbox; claiming writes below processing/, rejected/)
+            ib = self.inbox
+            self._survived(exc, f"inbox {self.cfg.light.inbox}", os_action(
+                exc, (ib.processing, ib.archive, ib.rejected), otherwise="read"))
         for b in bundles:
             if self.stop_event.is_set():
                 return
@@ -284,18 +328,22 @@ class Service:
         if self.activity != "idle":
             self._progress("idle")
 
-    def _describe(self, exc: BaseException) -> str:
-        """One line for an error a main-loop pass survives (what, why, the fix)."""
+    def _describe(self, exc: BaseException, action: str = "access") -> str:
+        """One line for an error a main-loop pass survives (what, why, the fix); ``action``:
+        what failed on an OSError's file (see :func:`os_action`)."""
         if isinstance(exc, OSError):
-            return describe_write_error(exc, exc.filename or self.cfg.state_dir)
+            return describe_os_error(exc, exc.filename or self.cfg.state_dir, action)
         if isinstance(exc, sqlite3.Error):
             return f"state database {self.history.path}: {exc}"
         return f"internal error: {exc!r}"
 
-    def _survived(self, exc: BaseException, where: str) -> str:
+    def _survived(self, exc: BaseException, where: str, action: str = "access") -> str:
         """Log ``exc`` (OSError / SQLite error) and keep it for status as ``last_error``."""
-        msg = self._describe(exc)
-        self.last_error = f"{datetime.now(UTC).isoformat(timespec='seconds')} {msg}"
+        msg = self._describe(exc, action)
+        at = _now_iso()
+        self._pass_errors += 1
+        self._error_seen = {"at": at, "error": msg, "cleared_at": None}
+        self.last_error = f"{at} {msg}"
         log.error("%s: %s (the daemon keeps running)", where, msg)
         return msg
 
@@ -418,7 +466,7 @@ class Service:
             out = self._process_bundle(b)
         except (OSError, sqlite3.Error) as exc:  # e.g. a full disk under the database: the
             # bundle is fine; it waits in processing/ instead of being stranded there
-            out = self._defer(b, self._survived(exc, f"bundle {b.name}"))
+            out = self._defer(b, self._survived(exc, f"bundle {b.name}", os_action(exc)))
         self.prune()
         return out
 
@@ -678,7 +726,9 @@ class Service:
             "started_at": self.started_at, "uptime_s": time.time() - self.started_at,
             "config": self.cfg.source, "reload_error": self.reload_error,
             "inbox": self.inbox.counts(), "rss_mb": rss_mb(), "running": True,
-            "last_error": self.last_error, "inbox_problems": self.inbox.problems(),
+            "last_error": self.last_error,
+            "last_error_seen": None if self._error_seen is None else dict(self._error_seen),
+            "inbox_problems": self.inbox.problems(),
             "waiting_bundles": [
                 {"bundle": d.bundle.name, "id": d.bundle.id, "reason": d.reason,
                  "since": d.since, "retry_in_s": max(d.retry_at - time.monotonic(), 0.0)}

@@ -364,3 +364,35 @@ def test_write_failure_after_a_lux_wait_backs_off(tmp_path, hw):
         if back is not None:
             back.stop()
         svc.shutdown()
+
+
+def test_last_error_names_a_read_failure_and_clears_after_a_clean_pass(tmp_path, hw):
+    """The inbox share goes away: status says the inbox cannot be *read* (not "cannot write
+    to"); once it is back, the next clean pass clears ``last_error`` and the error stays
+    visible, with its times, under ``last_error_seen``."""
+    _, cfg = hw
+    share = tmp_path / "share"
+    share.mkdir()
+    conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg)
+    (tmp_path / "state").mkdir()
+    inbox = tmp_path / "state" / "inbox"
+    inbox.symlink_to(share)
+    svc = service(conf, reconcile_s=1e9)
+    try:
+        main_loop_pass(svc)
+        assert svc.status()["last_error"] is None
+        share.rmdir()  # the share is gone
+        main_loop_pass(svc)
+        err = svc.status()["last_error"]
+        assert err is not None and f"cannot read {inbox}:" in err, err
+        assert "write" not in err and "ENOENT" in err
+        assert not share.exists()  # nothing was created in its place
+        share.mkdir()  # the share is back
+        main_loop_pass(svc)
+        st = svc.status()
+        assert st["last_error"] is None
+        seen = st["last_error_seen"]
+        assert err == f"{seen['at']} {seen['error']}"
+        assert seen["cleared_at"] is not None and seen["cleared_at"] >= seen["at"]
+    finally:
+        svc.shutdown()
