@@ -434,8 +434,10 @@ class Inbox:
             del self._stuck[gone]
 
     def problems(self) -> list[str]:
-        """Why bundles wait in the inbox (e.g. permissions), one line each, for status."""
-        return [st.message for _, st in sorted(self._stuck.items())]
+        """Why bundles wait in the inbox (e.g. permissions), one line each, for status (called
+        from a control-socket thread: reads a snapshot of what the main loop changes)."""
+        stuck = dict(self._stuck)
+        return [stuck[name].message for name in sorted(stuck)]
 
     def recover(self) -> list[Bundle]:
         """Reconcile journal and directories after a crash; return bundles to process again."""

@@ -280,8 +280,8 @@ class Service:
         self._tick(pending)
         if self._pass_errors == 0 and self.last_error is not None:
             self.last_error = None
-            if self._error_seen is not None:
-                self._error_seen["cleared_at"] = _now_iso()
+            if self._error_seen is not None:  # replaced, not changed: status reads it
+                self._error_seen = {**self._error_seen, "cleared_at": _now_iso()}
             log.info("the error of an earlier pass has cleared")
 
     def _tick(self, pending: list[Bundle] | None) -> None:
@@ -719,20 +719,29 @@ class Service:
 
     # ------------------------------------------------------------------ control socket
     def status(self) -> dict[str, Any]:
-        """Live status: activity, inbox counts, runs, controllers and health."""
-        st = collect_status(self.history, self.cfg)
+        """Live status: activity, inbox counts, runs, controllers and health.
+
+        Runs in a control-socket thread while the main thread works: it reads the main
+        loop's objects once each (config and inbox are replaced on reload) and iterates only
+        over snapshots of its collections (``list()`` / ``dict()`` of a dict is one C call,
+        atomic under the GIL); the history database has its own lock.
+        """
+        cfg, inbox, seen = self.cfg, self.inbox, self._error_seen
+        waiting = list(self.deferred.values())
+        st = collect_status(self.history, cfg)
+        now = time.monotonic()
         st.update({
             "pid": os.getpid(), "version": __version__, "activity": self.activity,
             "started_at": self.started_at, "uptime_s": time.time() - self.started_at,
-            "config": self.cfg.source, "reload_error": self.reload_error,
-            "inbox": self.inbox.counts(), "rss_mb": rss_mb(), "running": True,
+            "config": cfg.source, "reload_error": self.reload_error,
+            "inbox": inbox.counts(), "rss_mb": rss_mb(), "running": True,
             "last_error": self.last_error,
-            "last_error_seen": None if self._error_seen is None else dict(self._error_seen),
-            "inbox_problems": self.inbox.problems(),
+            "last_error_seen": None if seen is None else dict(seen),
+            "inbox_problems": inbox.problems(),
             "waiting_bundles": [
                 {"bundle": d.bundle.name, "id": d.bundle.id, "reason": d.reason,
-                 "since": d.since, "retry_in_s": max(d.retry_at - time.monotonic(), 0.0)}
-                for d in self.deferred.values()],
+                 "since": d.since, "retry_in_s": max(d.retry_at - now, 0.0)}
+                for d in waiting],
         })
         return st
 

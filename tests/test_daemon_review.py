@@ -11,6 +11,7 @@ import os
 import shutil
 import sqlite3
 import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -25,7 +26,7 @@ from grassd.daemon.calibrate import init_backend
 from grassd.daemon.config import load_default_config, parse_config
 from grassd.daemon.errors import DaemonError, StateDirLocked
 from grassd.daemon.fleet import Fleet, table_checksum
-from grassd.daemon.service import Service, collect_status
+from grassd.daemon.service import Service, _Deferred, collect_status
 from grassd.daemon.sim_hardware import SimLuxSensor, SimulatedHardware
 from grassd.daemon.statelock import StateLock
 
@@ -395,4 +396,42 @@ def test_last_error_names_a_read_failure_and_clears_after_a_clean_pass(tmp_path,
         assert err == f"{seen['at']} {seen['error']}"
         assert seen["cleared_at"] is not None and seen["cleared_at"] >= seen["at"]
     finally:
+        svc.shutdown()
+
+
+def test_status_from_a_socket_thread_while_the_main_loop_defers_bundles(tmp_path, hw):
+    """status() runs in a control-socket thread while the main loop adds and drops waiting
+    bundles (``_defer`` / ``_process_bundle``) and replaces the config on reload: it must
+    read snapshots, never fail with "dictionary changed size during iteration"."""
+    _, cfg = hw
+    conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg)
+    svc = service(conf)
+    old_switch = sys.getswitchinterval()
+    try:
+        rdrop(svc.cfg.light.inbox, "b1")
+        [b] = svc.inbox.poll()
+        now = time.monotonic()
+        for i in range(300):
+            svc.deferred[f"h{i}"] = _Deferred(b, "disk full", time.time(), now, 1.0, None)
+        stop = threading.Event()
+
+        def main_loop() -> None:  # what the main thread does to the waiting bundles
+            i = 300
+            while not stop.is_set():
+                svc.deferred[f"h{i}"] = _Deferred(b, "disk full", time.time(), now, 1.0, None)
+                svc.deferred.pop(f"h{i - 300}", None)
+                i += 1
+
+        sys.setswitchinterval(1e-6)
+        t = threading.Thread(target=main_loop, daemon=True)
+        t.start()
+        try:
+            for _ in range(100):
+                st = svc.status()
+                assert 299 <= len(st["waiting_bundles"]) <= 301
+        finally:
+            stop.set()
+            t.join()
+    finally:
+        sys.setswitchinterval(old_switch)
         svc.shutdown()
