@@ -3,6 +3,14 @@
 The table file format for ``push`` is described in firmware_proto/PROTOCOL.md §6: JSON (a list
 of 256 integers, a list of per-pixel lists, or ``{"lengths_um": ..., "table_id": ...}``) or CSV
 (one row of 256 integers per table). Values are green-grass lengths in micrometres.
+
+``scan``, ``status`` and ``push`` refuse to run while a grassd daemon holds the state directory
+of the configuration (``--config``, else /etc/grassd/grassd.toml, else the embedded default):
+the daemon owns the serial buses, and a second master on an RS-485 bus garbles both sides'
+frames (a push could also be undone by the daemon's next reconcile). Use ``grassd calibrate
+--now`` to have the daemon push, ``grassd status`` to see each controller's table as the daemon
+sees it, or stop the daemon. The read-only commands are refused too rather than sent through
+the daemon: its control socket reports the controllers from its database, not a fresh scan.
 """
 
 from __future__ import annotations
@@ -16,6 +24,7 @@ from pathlib import Path
 
 import click
 
+from grassd.daemon.statelock import StateLock
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.errors import ControllerTimeout, ProtocolError, PushFailed
 from grassd.firmware_proto.messages import MAX_ADDRESS, MIN_ADDRESS, TableKind
@@ -58,6 +67,31 @@ _timeout = click.option("--timeout", "timeout_s", default=0.25, show_default=Tru
                         help="answer timeout per request (seconds), before retries")
 
 
+_config = click.option("--config", "config_path", type=click.Path(dir_okay=False),
+                       help="configuration whose daemon must not be running (default "
+                            "/etc/grassd/grassd.toml, else the embedded default)")
+_state_dir = click.option("--state-dir", type=click.Path(file_okay=False),
+                          help="override the configuration's state directory")
+
+@contextmanager
+def _bus_free(config_path: str | None, state_dir: str | None, command: str,
+              instead: str) -> Iterator[None]:
+    """Run the block only while no grassd daemon holds the configuration's state directory
+    (:meth:`StateLock.shared`, kept until the block ends so that a daemon starting meanwhile
+    waits); else StateDirLocked, one line saying to use ``instead`` or stop the daemon."""
+    from grassd.daemon.cli_run import resolve_config
+
+    cfg = resolve_config(config_path, state_dir)
+
+    def refuse(holder: str) -> str:
+        return (f"state directory {cfg.state_dir} is in use by {holder}, which owns the "
+                f"controllers' serial buses: `grassd controllers {command}` would talk over "
+                f"it; use {instead}, or stop the daemon first")
+
+    with StateLock(cfg.state_dir).shared(refuse):
+        yield
+
+
 @contextmanager
 def _client(port: str, baud: int, timeout_s: float,
             rs485: bool = False) -> Iterator[ControllerClient]:
@@ -88,9 +122,19 @@ def controllers() -> None:
 @click.option("--timeout", "timeout_s", default=0.05, show_default=True,
               help="answer timeout per address (seconds)")
 @_rs485
-def scan_cmd(port: str, addresses: str, baud: int, timeout_s: float, rs485: bool) -> None:
-    """Send HELLO to each address and list the controllers that answer."""
-    with _client(port, baud, timeout_s, rs485) as client:
+@_config
+@_state_dir
+def scan_cmd(port: str, addresses: str, baud: int, timeout_s: float, rs485: bool,
+             config_path: str | None, state_dir: str | None) -> None:
+    """Send HELLO to each address and list the controllers that answer.
+
+    \b
+    Refused while a running daemon holds the configuration's state directory (it owns the
+    serial buses): see `grassd status`, or stop the daemon.
+    """
+    with _bus_free(config_path, state_dir, "scan", "`grassd status` (each controller's "
+                   "table as the daemon sees it)"), \
+            _client(port, baud, timeout_s, rs485) as client:
         found = client.scan(parse_addresses(addresses), timeout_s=timeout_s)
     if not found:
         raise ControllerTimeout(f"no controller answered on {port} (addresses {addresses}); "
@@ -108,10 +152,19 @@ def scan_cmd(port: str, addresses: str, baud: int, timeout_s: float, rs485: bool
 @_baud
 @_timeout
 @_rs485
+@_config
+@_state_dir
 def status_cmd(port: str, addresses: str | None, baud: int, timeout_s: float,
-               rs485: bool) -> None:
-    """Print the active table (id, CRC-32, generation, bank) of each controller."""
-    with _client(port, baud, timeout_s, rs485) as client:
+               rs485: bool, config_path: str | None, state_dir: str | None) -> None:
+    """Print the active table (id, CRC-32, generation, bank) of each controller.
+
+    \b
+    Refused while a running daemon holds the configuration's state directory (it owns the
+    serial buses): see `grassd status`, or stop the daemon.
+    """
+    with _bus_free(config_path, state_dir, "status", "`grassd status` (each controller's "
+                   "table as the daemon sees it)"), \
+            _client(port, baud, timeout_s, rs485) as client:
         for a in _targets(client, addresses):
             st = client.read_status(a)
             if not st.has_table:
@@ -136,13 +189,23 @@ def status_cmd(port: str, addresses: str | None, baud: int, timeout_s: float,
 @_baud
 @_timeout
 @_rs485
+@_config
+@_state_dir
 def push_cmd(port: str, table_file: str, table_id: int | None, addresses: str | None,
-             baud: int, timeout_s: float, rs485: bool) -> None:
-    """Load a length table into controllers: staged, CRC-checked, switched atomically."""
+             baud: int, timeout_s: float, rs485: bool, config_path: str | None,
+             state_dir: str | None) -> None:
+    """Load a length table into controllers: staged, CRC-checked, switched atomically.
+
+    \b
+    Refused while a running daemon holds the configuration's state directory (it owns the
+    serial buses): use `grassd calibrate --now`, or stop the daemon.
+    """
     table, file_id = load_table_file(table_file)
     tid = table_id if table_id is not None else file_id
     failures: list[str] = []
-    with _client(port, baud, timeout_s, rs485) as client:
+    with _bus_free(config_path, state_dir, "push", "`grassd calibrate --now` (the daemon "
+                   "calibrates and pushes its table)"), \
+            _client(port, baud, timeout_s, rs485) as client:
         targets = _targets(client, addresses)
         for a in targets:
             try:

@@ -7,6 +7,11 @@ PID and command into it. A second one fails at once with
 the database, the inbox directories and the controllers at the same time (e.g. a one-shot
 started while the daemon is still initialising, before its control socket answers).
 
+Commands that only need the state directory to be free of a daemon (``grassd controllers``
+talking on a serial bus the daemon owns) use :meth:`StateLock.shared`: a shared lock on the
+lock file if it exists, creating nothing, so that they run as any user and a daemon starting
+meanwhile is refused until they are done.
+
 The kernel drops the lock when the holder exits, however it exits, so a stale lock file never
 blocks anybody (the file itself is left in place: unlinking it would let two processes lock two
 different files).
@@ -20,6 +25,7 @@ import logging
 import os
 import sys
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from grassd.daemon.atomic import describe_write_error
@@ -95,6 +101,36 @@ class StateLock:
             log.warning("cannot note PID %d in %s (%s); the lock holds all the same",
                         os.getpid(), self.path, exc)
         return self
+
+    @contextlib.contextmanager
+    def shared(self, refuse: Callable[[str], str]) -> Iterator[None]:
+        """Hold a shared lock on the lock file while the block runs, or raise
+        :class:`StateDirLocked` with ``refuse(holder)`` (``holder`` e.g. "grassd run (PID 12)")
+        when a grassd process holds it exclusively.
+
+        Creates nothing: without a lock file (no grassd ever ran on this state directory) the
+        block runs unlocked. :class:`StateDirUnwritable` when the lock file exists but cannot be
+        opened (then whether a daemon runs cannot be told).
+        """
+        try:
+            fd = os.open(self.path, os.O_RDONLY | os.O_CLOEXEC)
+        except (FileNotFoundError, NotADirectoryError):
+            yield
+            return
+        except OSError as exc:
+            raise StateDirUnwritable(
+                f"cannot open {self.path} to check that no grassd daemon uses the state "
+                f"directory: {exc.strerror or exc}: run as the daemon's user or root") from None
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            except BlockingIOError:
+                pid, what = self.holder()
+                who = f"{what or 'grassd'} (PID {pid})" if pid else "another grassd process"
+                raise StateDirLocked(refuse(who)) from None
+            yield
+        finally:
+            os.close(fd)
 
     def release(self) -> None:
         """Drop the lock (closing the file releases the flock)."""

@@ -1,10 +1,13 @@
 """One grassd process per state directory: a running daemon (a real `grassd run` subprocess)
 makes a one-shot `grassd calibrate --now` that cannot reach its socket, and a second daemon,
-fail at once with one line naming its PID (exit 2); once it stops, the one-shot works."""
+fail at once with one line naming its PID (exit 2); once it stops, the one-shot works. The same
+for `grassd controllers push/scan/status` talking on the bus the daemon owns."""
 
 from __future__ import annotations
 
+import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -19,6 +22,7 @@ from grassd.daemon.control import request
 from grassd.daemon.errors import ControlError, StateDirLocked
 from grassd.daemon.service import Service
 from grassd.daemon.sim_hardware import SimulatedHardware
+from grassd.daemon.statelock import StateLock
 
 GRASSD = str(Path(sys.executable).parent / "grassd")
 
@@ -89,3 +93,64 @@ def test_in_process_second_service_is_refused_and_lock_released(tmp_path, hw):
         Service(load_config(conf))
     svc.shutdown()
     Service(load_config(conf)).shutdown()  # released at shutdown
+
+
+def test_controllers_commands_refuse_a_bus_a_running_daemon_owns(tmp_path, hw):
+    """`grassd controllers push/scan/status` against a real `grassd run --simulate-hardware`
+    on the same configuration: one line naming the daemon's PID and what to do instead
+    (exit 2), nothing sent on its bus; once the daemon stopped, the push goes through."""
+    sim, cfg = hw
+    state = tmp_path / "state"
+    conf = write_config(tmp_path / "g.toml", state, cfg, lux="manifest")
+    table = tmp_path / "t.json"
+    table.write_text(json.dumps({"lengths_um": [i * 70 for i in range(256)], "table_id": 4242}))
+    log = open(tmp_path / "daemon.log", "wb")
+    daemon = subprocess.Popen([GRASSD, "run", "--simulate-hardware", "--config", str(conf),
+                               "--tick", "0.2"], stdout=log, stderr=subprocess.STDOUT)
+    try:
+        wait_ping(state / "control.sock", daemon)
+        ports = re.findall(r"simulated controller port \S+ -> (\S+)",
+                           (tmp_path / "daemon.log").read_text())
+        assert ports, (tmp_path / "daemon.log").read_text()
+        cmds = {"push": ["push", "--table", str(table), "-a", "1"],
+                "scan": ["scan", "-a", "1"], "status": ["status", "-a", "1"]}
+        for name, args in cmds.items():
+            r = subprocess.run([GRASSD, "controllers", *args, "--port", ports[0],
+                                "--config", str(conf)], capture_output=True, text=True,
+                               timeout=60)
+            assert r.returncode == 2, (name, r.stdout, r.stderr)
+            lines = r.stderr.strip().splitlines()
+            assert len(lines) == 1 and f"PID {daemon.pid}" in lines[0], r.stderr
+            assert str(state) in lines[0] and f"grassd controllers {name}" in lines[0]
+            want = "grassd calibrate --now" if name == "push" else "grassd status"
+            assert want in lines[0] and "stop the daemon" in lines[0]
+            assert r.stdout == ""
+        assert request(state / "control.sock", {"cmd": "ping"})["pid"] == daemon.pid
+    finally:
+        daemon.send_signal(signal.SIGTERM)
+        assert daemon.wait(60) == 0
+    dev = sim.buses[0].controllers[0]
+    r = subprocess.run([GRASSD, "controllers", "push", "--table", str(table), "-a",
+                        str(cfg.controllers[0].address), "--port", cfg.controllers[0].port,
+                        "--config", str(conf)], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr  # the daemon is gone: the bus is free
+    assert list(dev.active_table()) == [i * 70 for i in range(256)]
+
+
+def test_controllers_help_says_a_running_daemon_owns_the_bus():
+    for cmd in ("push", "scan", "status"):
+        r = subprocess.run([GRASSD, "controllers", cmd, "--help"], capture_output=True,
+                           text=True, timeout=60)
+        assert r.returncode == 0 and "running daemon" in " ".join(r.stdout.split()), r.stdout
+
+
+def test_shared_check_creates_nothing_and_keeps_a_daemon_out_while_held(tmp_path):
+    state = tmp_path / "state"
+    with StateLock(state).shared(lambda who: who):  # no grassd ever ran here
+        pass
+    assert not state.exists()
+    StateLock(state).acquire().release()  # a daemon ran and stopped: the file stays
+    with StateLock(state).shared(lambda who: who):
+        with pytest.raises(StateDirLocked):
+            StateLock(state).acquire()  # a daemon starting meanwhile is refused
+    StateLock(state).acquire().release()
