@@ -16,7 +16,7 @@ from pathlib import Path
 from grassd.daemon.config import load_default_config
 from grassd.daemon.control import request
 from grassd.daemon.errors import DaemonNotRunning
-from grassd.daemon.sim_hardware import SimulatedHardware
+from grassd.daemon.sim_hardware import SimulatedHardware, hardware_toml
 
 BUNDLES = int(os.environ.get("GRASSD_BENCH_BUNDLES", "100"))
 ROOT = Path(__file__).resolve().parents[1]
@@ -24,18 +24,12 @@ CACHE = os.environ.get("GRASSD_CACHE_DIR", str(ROOT / ".venv" / "grassd-cache"))
 
 
 def _config(state: Path, cfg) -> str:
-    ctrls = "".join(f'[[controllers]]\nport = "{c.port}"\naddress = {c.address}\n'
-                    f'pixels = "{c.pixels[0][0]}-{c.pixels[0][1]}"\n' for c in cfg.controllers)
     return f"""state_dir = "{state}"
 cache_dir = "{CACHE}"
 [site]
 latitude = 35.0
 longitude = 139.0
-[display]
-rows = 4
-cols = 8
-{ctrls}
-[[viewpoints]]
+{hardware_toml(cfg)}[[viewpoints]]
 h_cm = 170
 d_m = 2
 [light]

@@ -267,3 +267,23 @@ class SimulatedHardware:
         if self.sensor is not None:
             self.sensor.stop()
             self.sensor = None
+
+
+def hardware_toml(cfg: Config, baud: int | None = None) -> str:
+    """The ``[display]`` size and ``[[controllers]]`` tables of ``cfg`` as TOML text, e.g. of
+    the config :meth:`SimulatedHardware.start` returns, to write a configuration file that
+    names the simulated ports (tests, benchmarks). Pixel ranges are inclusive indices;
+    ``baud`` (line speed) is written for every controller when given.
+
+    >>> from grassd.daemon.config import load_default_config
+    >>> print(hardware_toml(load_default_config(), baud=9600).splitlines()[:8])
+    ... # doctest: +NORMALIZE_WHITESPACE
+    ['[display]', 'rows = 4', 'cols = 8', '[[controllers]]',
+     'port = "/dev/serial/by-id/usb-grassd_controller_0-if00"', 'address = 1', 'baud = 9600',
+     'pixels = "0-15"']
+    """
+    speed = "" if baud is None else f"baud = {baud}\n"
+    ctrls = "".join(
+        f'[[controllers]]\nport = "{c.port}"\naddress = {c.address}\n{speed}'
+        f'pixels = "{",".join(f"{a}-{b}" for a, b in c.pixels)}"\n' for c in cfg.controllers)
+    return f"[display]\nrows = {cfg.display.rows}\ncols = {cfg.display.cols}\n{ctrls}"

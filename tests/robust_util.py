@@ -1,5 +1,6 @@
-"""Shared set-up of the tests/test_daemon_robust_*.py files: a small real configuration against
-simulated controllers on ptys and a pymodbus lux sensor, bundles written like an uploader does."""
+"""Shared set-up of the daemon tests (tests/test_daemon_*.py): a small real configuration
+against simulated controllers on ptys and a pymodbus lux sensor (the ``hw`` fixture in
+conftest.py), bundles written like an uploader does, an in-process service."""
 
 from __future__ import annotations
 
@@ -7,34 +8,43 @@ import os
 import shutil
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 from grassd.daemon.config import load_config
 from grassd.daemon.service import Service
+from grassd.daemon.sim_hardware import hardware_toml
 from grassd.firmware_proto.client import RetryPolicy
 
 ROOT = Path(__file__).resolve().parents[1]
 CACHE = os.environ.get("GRASSD_CACHE_DIR", str(ROOT / ".venv" / "grassd-cache"))
 SITE = Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
+#: top of a configuration: state directory "state" beside the file, the shared kernel cache,
+#: a site in Munich
+HEAD = f"""
+state_dir = "state"
+cache_dir = "{CACHE}"
+[site]
+latitude = 48.1
+longitude = 11.6
+timezone = "Europe/Berlin"
+"""
+
+
+#: the one viewpoint of :func:`write_config`; TWO_VIEWS adds a second one off-axis
+ONE_VIEW = "[[viewpoints]]\nh_cm = 170\nd_m = 2\n"
+TWO_VIEWS = ONE_VIEW + "[[viewpoints]]\nh_cm = 165\nd_m = 3\ntheta_deg = 20\n"
 
 
 def write_config(path: Path, state: Path, cfg, extra: str = "", interval: float = 0,
-                 lux: str = "modbus", light_extra: str = "") -> Path:
-    """A tiny but real configuration (one viewpoint, 64 samples) for simulated hardware ``cfg``."""
-    ctrls = "".join(f'[[controllers]]\nport = "{c.port}"\naddress = {c.address}\n'
-                    f'pixels = "{c.pixels[0][0]}-{c.pixels[0][1]}"\n' for c in cfg.controllers)
+                 lux: str = "modbus", light_extra: str = "", views: str = ONE_VIEW,
+                 sensor_timeout_s: float = 0.3) -> Path:
+    """A tiny but real configuration (``views``, 64 samples) for simulated hardware ``cfg``."""
     path.write_text(f"""state_dir = "{state}"
 cache_dir = "{CACHE}"
 [site]
 latitude = 52.0
 longitude = 13.0
-[display]
-rows = 4
-cols = 8
-{ctrls}
-[[viewpoints]]
-h_cm = 170
-d_m = 2
-[light]
+{hardware_toml(cfg)}{views}[light]
 inbox = "inbox"
 lux = "{lux}"
 settle_s = 0
@@ -43,7 +53,7 @@ settle_s = 0
 port = {cfg.light.modbus.port}
 words = 2
 scale = 0.1
-timeout_s = 0.3
+timeout_s = {sensor_timeout_s}
 retries = 0
 [schedule]
 interval_s = {interval}
@@ -72,6 +82,18 @@ def drop(inbox: Path, name: str, lux: float | None = 1000.0, mode: int | None = 
         os.chmod(d, mode)
     os.rename(d, inbox / name)
     return inbox / name
+
+
+def after_first_bundle(tmp_path: Path, cfg, **kw) -> tuple[Service, Any]:
+    """A service (``kw`` as for :func:`service`) on :func:`write_config`'s configuration for
+    ``cfg`` in ``tmp_path``, after one main-loop pass processed a first bundle "b1" (1000 lux):
+    returns it and the current table that run made (asserted to exist)."""
+    svc = service(write_config(tmp_path / "g.toml", tmp_path / "state", cfg), **kw)
+    drop(svc.cfg.light.inbox, "b1", lux=1000.0)
+    svc.tick()
+    table = svc.history.current_table()
+    assert table is not None
+    return svc, table
 
 
 def service(path: Path, **kw) -> Service:

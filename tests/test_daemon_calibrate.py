@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import json
-import os
 from datetime import UTC, datetime
-from importlib import resources
-from pathlib import Path
 
 import numpy as np
 import pytest
+from robust_util import HEAD, SITE
 
 from grassd.calib.charts import get_chart
 from grassd.calib.colour_spaces import prophoto_to_xyz, xyz_d50_to_d65
@@ -27,18 +25,7 @@ from grassd.daemon.calibrate import (
 from grassd.daemon.config import parse_config
 from grassd.daemon.errors import CalibrationRejected, ConfigError
 
-ROOT = Path(__file__).resolve().parents[1]
-CACHE = os.environ.get("GRASSD_CACHE_DIR", str(ROOT / ".venv" / "grassd-cache"))
-SITE = Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
-
-TINY = f"""
-state_dir = "state"
-cache_dir = "{CACHE}"
-[site]
-latitude = 48.1
-longitude = 11.6
-timezone = "Europe/Berlin"
-[display]
+TINY = HEAD + """[display]
 rows = 3
 cols = 3
 [[controllers]]

@@ -12,28 +12,23 @@ import socket
 import subprocess
 import sys
 import time
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 import pytest
+from robust_util import CACHE, SITE
 
 from grassd.daemon.config import load_default_config
 from grassd.daemon.control import request
 from grassd.daemon.errors import DaemonNotRunning
 from grassd.daemon.history import History
-from grassd.daemon.sim_hardware import SimulatedHardware
+from grassd.daemon.sim_hardware import SimulatedHardware, hardware_toml
 from grassd.firmware_proto.tables import table_crc
 
-ROOT = Path(__file__).resolve().parents[1]
 GRASSD = str(Path(sys.executable).parent / "grassd")
-CACHE = os.environ.get("GRASSD_CACHE_DIR", str(ROOT / ".venv" / "grassd-cache"))
-SITE = Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
 
 
 def config_text(state: Path, cfg, extra: str = "", baud: int = 115200) -> str:
-    ctrls = "".join(f'[[controllers]]\nport = "{c.port}"\naddress = {c.address}\nbaud = {baud}\n'
-                    f'pixels = "{c.pixels[0][0]}-{c.pixels[0][1]}"\n' for c in cfg.controllers)
     m = cfg.light.modbus
     return f"""state_dir = "{state}"
 cache_dir = "{CACHE}"
@@ -41,11 +36,7 @@ cache_dir = "{CACHE}"
 latitude = 35.0
 longitude = 139.0
 timezone = "Asia/Tokyo"
-[display]
-rows = 4
-cols = 8
-{ctrls}
-[[viewpoints]]
+{hardware_toml(cfg, baud)}[[viewpoints]]
 h_cm = 170
 d_m = 2
 [light]

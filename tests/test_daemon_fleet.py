@@ -5,7 +5,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import pytest
 
 from grassd.daemon.config import load_default_config
 from grassd.daemon.fleet import Fleet, table_checksum
@@ -14,14 +13,6 @@ from grassd.firmware_proto.client import RetryPolicy
 
 TABLE_A = np.linspace(0, 20000, 256).astype(np.uint16)
 TABLE_B = (np.linspace(0, 1, 256) ** 0.7 * 20000).astype(np.uint16)
-
-
-@pytest.fixture
-def hw(tmp_path):
-    sim = SimulatedHardware(load_default_config(), tmp_path / "hw")
-    cfg = sim.start()
-    yield sim, cfg
-    sim.stop()
 
 
 def test_push_all_then_idempotent(hw):

@@ -16,11 +16,11 @@ import os
 import shutil
 import time
 from datetime import UTC, datetime
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 import pytest
+from robust_util import HEAD, SITE
 
 from grassd.daemon.calibrate import Calibrator, LightInput, init_backend
 from grassd.daemon.config import not_used_by_the_daemon, parse_config
@@ -29,19 +29,9 @@ from grassd.daemon.service import Service, collect_status
 from grassd.daemon.sim_hardware import SimulatedHardware
 from grassd.firmware_proto.client import RetryPolicy
 
-ROOT = Path(__file__).resolve().parents[1]
-CACHE = os.environ.get("GRASSD_CACHE_DIR", str(ROOT / ".venv" / "grassd-cache"))
-SITE = Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
 POLICY = RetryPolicy(timeout_s=0.1, retries=1, restarts=1, readback_retries=2)
 
-BASE = f"""
-state_dir = "state"
-cache_dir = "{CACHE}"
-[site]
-latitude = 48.1
-longitude = 11.6
-timezone = "Europe/Berlin"
-[display]
+BASE = HEAD + """[display]
 rows = 2
 cols = 2
 [[controllers]]

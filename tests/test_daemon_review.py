@@ -23,7 +23,7 @@ from robust_util import service, write_config
 from test_daemon_granularity import BASE, POLICY, drop
 
 from grassd.daemon.calibrate import init_backend
-from grassd.daemon.config import load_default_config, parse_config
+from grassd.daemon.config import parse_config
 from grassd.daemon.errors import DaemonError, StateDirLocked
 from grassd.daemon.fleet import Fleet, table_checksum
 from grassd.daemon.service import Service, _Deferred, collect_status
@@ -135,14 +135,6 @@ def main_loop_pass(svc: Service) -> None:
     """One pass of Service.run's loop: errors it survives are swallowed as it does."""
     with contextlib.suppress(OSError, sqlite3.Error):
         svc.tick()
-
-
-@pytest.fixture
-def hw(tmp_path):
-    sim = SimulatedHardware(load_default_config(), tmp_path / "hw", lux=2500.0)
-    cfg = sim.start()
-    yield sim, cfg
-    sim.stop()
 
 
 def test_claimed_bundles_survive_a_full_state_disk(tmp_path, hw):

@@ -12,11 +12,10 @@ import time
 import pytest
 from robust_util import write_config
 
-from grassd.daemon.config import load_config, load_default_config
+from grassd.daemon.config import load_config
 from grassd.daemon.control import MAX_CLIENTS, ControlServer, request
 from grassd.daemon.errors import DaemonBusy
 from grassd.daemon.service import Service
-from grassd.daemon.sim_hardware import SimulatedHardware
 
 
 def test_excess_clients_are_told_busy_without_threads(tmp_path):
@@ -66,22 +65,18 @@ def test_excess_clients_are_told_busy_without_threads(tmp_path):
         srv.stop()
 
 
-def test_calibration_queue_is_bounded(tmp_path):
-    sim = SimulatedHardware(load_default_config(), tmp_path / "hw", lux=2500.0)
-    cfg = sim.start()
+def test_calibration_queue_is_bounded(tmp_path, hw):
+    _, cfg = hw
+    conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg)
+    svc = Service(load_config(conf), max_queued=3)  # its main loop does not run here
+    srv = ControlServer(tmp_path / "d.sock", svc.handle_request).start()
     try:
-        conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg)
-        svc = Service(load_config(conf), max_queued=3)  # its main loop does not run here
-        srv = ControlServer(tmp_path / "d.sock", svc.handle_request).start()
-        try:
-            queued = [request(srv.path, {"cmd": "calibrate"})["queued"] for _ in range(3)]
-            assert queued == [1, 2, 3]
-            with pytest.raises(DaemonBusy, match="3 calibration requests are already queued"):
-                request(srv.path, {"cmd": "calibrate", "wait": True})
-            assert svc.requests.qsize() == 3
-            assert request(srv.path, {"cmd": "status"})["ok"]  # status still answers
-        finally:
-            srv.stop()
-            svc.shutdown()
+        queued = [request(srv.path, {"cmd": "calibrate"})["queued"] for _ in range(3)]
+        assert queued == [1, 2, 3]
+        with pytest.raises(DaemonBusy, match="3 calibration requests are already queued"):
+            request(srv.path, {"cmd": "calibrate", "wait": True})
+        assert svc.requests.qsize() == 3
+        assert request(srv.path, {"cmd": "status"})["ok"]  # status still answers
     finally:
-        sim.stop()
+        srv.stop()
+        svc.shutdown()

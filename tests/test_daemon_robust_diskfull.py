@@ -13,19 +13,9 @@ import time
 from pathlib import Path
 
 import pytest
-from robust_util import drop, service, write_config
+from robust_util import after_first_bundle, drop
 
-from grassd.daemon.config import load_default_config
-from grassd.daemon.sim_hardware import SimulatedHardware
 from grassd.firmware_proto.tables import table_crc
-
-
-@pytest.fixture
-def hw(tmp_path):
-    sim = SimulatedHardware(load_default_config(), tmp_path / "hw", lux=2500.0)
-    cfg = sim.start()
-    yield sim, cfg
-    sim.stop()
 
 
 @contextlib.contextmanager
@@ -59,13 +49,9 @@ def unwritable(d: Path):
 
 def test_full_disk_fails_the_run_not_the_daemon(tmp_path, hw):
     sim, cfg = hw
-    conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg)
-    svc = service(conf, retry_s=0.5)
+    svc, good = after_first_bundle(tmp_path, cfg, retry_s=0.5)
     inbox = svc.cfg.light.inbox
-    drop(inbox, "b1", lux=1000.0)
-    svc.tick()
-    good = svc.history.current_table()
-    assert good is not None and good.status == "ok"
+    assert good.status == "ok"
     crcs = {table_crc(dev.active_table()) for bus in sim.buses for dev in bus.controllers}
     assert crcs == {good.table_crc}
     runs_before = svc.history.run_count()

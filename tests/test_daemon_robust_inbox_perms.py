@@ -18,22 +18,12 @@ from pathlib import Path
 import pytest
 from robust_util import SITE, write_config
 
-from grassd.daemon.config import load_default_config
 from grassd.daemon.control import request
 from grassd.daemon.errors import ControlError
 from grassd.daemon.history import History
-from grassd.daemon.sim_hardware import SimulatedHardware
 
 GRASSD = str(Path(sys.executable).parent / "grassd")
 OTHER_UID = 1000
-
-
-@pytest.fixture
-def hw(tmp_path):
-    sim = SimulatedHardware(load_default_config(), tmp_path / "hw", lux=2500.0)
-    cfg = sim.start()
-    yield sim, cfg
-    sim.stop()
 
 
 def daemon_argv(conf: Path) -> list[str]:

@@ -10,16 +10,7 @@ import time
 import pytest
 from robust_util import drop, service, write_config
 
-from grassd.daemon.config import load_default_config
-from grassd.daemon.sim_hardware import SimLuxSensor, SimulatedHardware
-
-
-@pytest.fixture
-def hw(tmp_path):
-    sim = SimulatedHardware(load_default_config(), tmp_path / "hw", lux=2500.0)
-    cfg = sim.start()
-    yield sim, cfg
-    sim.stop()
+from grassd.daemon.sim_hardware import SimLuxSensor
 
 
 def tick_until(svc, cond, timeout: float = 15.0) -> None:

@@ -6,31 +6,15 @@ from __future__ import annotations
 
 import time
 
-import pytest
-from robust_util import drop, service, write_config
+from robust_util import after_first_bundle, drop
 
-from grassd.daemon.config import load_default_config
-from grassd.daemon.sim_hardware import SimulatedHardware
 from grassd.firmware_proto.faults import FaultInjector, FaultPlan
-
-
-@pytest.fixture
-def hw(tmp_path):
-    sim = SimulatedHardware(load_default_config(), tmp_path / "hw", lux=2500.0)
-    cfg = sim.start()
-    yield sim, cfg
-    sim.stop()
 
 
 def test_failing_controller_rows_are_deduplicated(tmp_path, hw):
     sim, cfg = hw
-    conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg)
-    svc = service(conf, failure_row_s=5.0)
+    svc, first = after_first_bundle(tmp_path, cfg, failure_row_s=5.0)
     inbox = svc.cfg.light.inbox
-    drop(inbox, "b1", lux=1000.0)
-    svc.tick()
-    first = svc.history.current_table()
-    assert first is not None
     bad = svc.fleet.controllers[0].name
     injector = FaultInjector(FaultPlan(torn_write=1.0))  # every EEPROM write of bus 0 fails
     sim.buses[0].faults = injector

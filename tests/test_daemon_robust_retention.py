@@ -13,19 +13,9 @@ from robust_util import drop, service, write_config
 from grassd.daemon.config import (
     RetentionConfig,
     default_config_text,
-    load_default_config,
     parse_config,
 )
 from grassd.daemon.errors import ConfigError
-from grassd.daemon.sim_hardware import SimulatedHardware
-
-
-@pytest.fixture
-def hw(tmp_path):
-    sim = SimulatedHardware(load_default_config(), tmp_path / "hw", lux=2500.0)
-    cfg = sim.start()
-    yield sim, cfg
-    sim.stop()
 
 
 def reports(svc) -> list[str]:

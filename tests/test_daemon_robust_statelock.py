@@ -17,22 +17,13 @@ from pathlib import Path
 import pytest
 from robust_util import SITE, write_config
 
-from grassd.daemon.config import load_config, load_default_config
+from grassd.daemon.config import load_config
 from grassd.daemon.control import request
 from grassd.daemon.errors import ControlError, StateDirLocked
 from grassd.daemon.service import Service
-from grassd.daemon.sim_hardware import SimulatedHardware
 from grassd.daemon.statelock import StateLock
 
 GRASSD = str(Path(sys.executable).parent / "grassd")
-
-
-@pytest.fixture
-def hw(tmp_path):
-    sim = SimulatedHardware(load_default_config(), tmp_path / "hw", lux=2500.0)
-    cfg = sim.start()
-    yield sim, cfg
-    sim.stop()
 
 
 def wait_ping(sock: Path, proc: subprocess.Popen, timeout: float = 60) -> dict:

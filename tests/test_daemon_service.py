@@ -4,91 +4,20 @@ interrupted runs, scheduled runs, reload rules, request handling."""
 from __future__ import annotations
 
 import os
-import shutil
-from importlib import resources
 from pathlib import Path
 
-import pytest
+import robust_util
+from robust_util import TWO_VIEWS, drop, service
 
-from grassd.daemon.config import load_config, load_default_config
+from grassd.daemon.config import load_config
 from grassd.daemon.service import Service
-from grassd.daemon.sim_hardware import SimulatedHardware
 from grassd.firmware_proto.client import RetryPolicy
-
-ROOT = Path(__file__).resolve().parents[1]
-CACHE = os.environ.get("GRASSD_CACHE_DIR", str(ROOT / ".venv" / "grassd-cache"))
-SITE = Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
 
 
 def write_config(path: Path, state: Path, cfg, extra: str = "", interval: float = 0) -> Path:
-    ctrls = "".join(f'[[controllers]]\nport = "{c.port}"\naddress = {c.address}\n'
-                    f'pixels = "{c.pixels[0][0]}-{c.pixels[0][1]}"\n' for c in cfg.controllers)
-    path.write_text(f"""state_dir = "{state}"
-cache_dir = "{CACHE}"
-[site]
-latitude = 52.0
-longitude = 13.0
-[display]
-rows = 4
-cols = 8
-{ctrls}
-[[viewpoints]]
-h_cm = 170
-d_m = 2
-[[viewpoints]]
-h_cm = 165
-d_m = 3
-theta_deg = 20
-[light]
-inbox = "inbox"
-lux = "modbus"
-settle_s = 0
-[light.modbus]
-port = {cfg.light.modbus.port}
-words = 2
-scale = 0.1
-timeout_s = 0.5
-retries = 0
-[schedule]
-interval_s = {interval}
-[simulation]
-samples = 64
-lengths = 6
-[calibration]
-check_levels = 5
-max_rounds = 1
-replicates = 2
-max_jump_mm = 20.0
-{extra}""")
-    return path
-
-
-def drop(inbox: Path, name: str, lux: float | None = 1000.0) -> None:
-    d = inbox / f".{name}"
-    d.mkdir(parents=True)
-    shutil.copy(SITE, d / "sky.exr")
-    m = f'timestamp = 2026-03-01T12:00:00+01:00\nhdri = "sky.exr"\n# {name}\n'
-    if lux is not None:
-        m += f"ambient_lux = {lux}\n"
-    (d / "manifest.toml").write_text(m)
-    os.rename(d, inbox / name)
-
-
-@pytest.fixture
-def hw(tmp_path):
-    sim = SimulatedHardware(load_default_config(), tmp_path / "hw", lux=2500.0)
-    cfg = sim.start()
-    yield sim, cfg
-    sim.stop()
-
-
-def service(path: Path) -> Service:
-    policy = RetryPolicy(timeout_s=0.1, retries=1, restarts=1, readback_retries=2)
-    svc = Service(load_config(path), config_path=path, policy=policy)
-    from grassd.daemon.calibrate import init_backend
-
-    init_backend(svc.cfg)
-    return svc
+    """robust_util's configuration with two viewpoints and a slower lux sensor timeout."""
+    return robust_util.write_config(path, state, cfg, extra, interval, views=TWO_VIEWS,
+                                    sensor_timeout_s=0.5)
 
 
 def test_interrupted_run_is_retried_after_restart(tmp_path, hw):
