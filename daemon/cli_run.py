@@ -163,6 +163,9 @@ def _print_status(st: dict, echo=click.echo) -> None:
         if d and d.get("per_controller") and c.get("desired_crc") is not None:
             tid += f" (own table crc {c['desired_crc']:#010x})"
         err = f"  ({c['error']})" if c["error"] and not c["in_sync"] else ""
+        if b := c.get("push_retry"):
+            err += (f"; {b['failures']} failed push(es), next attempt in "
+                    f"{b['retry_in_s']:.0f} s")
         echo(f"  {c['name']}: table {tid}, {state}{err}")
     echo("last runs:")
     for r in st["runs"]:

@@ -13,14 +13,24 @@ that table pushed. A controller that was unplugged, rebooted with an old table, 
 therefore receives its current table as soon as it answers again. Pushes are atomic on the
 controller (staging bank, CRC-checked commit), so an interrupted push leaves the old table
 active, never a mix.
+
+*Backoff*: a controller whose push failed is not pushed again at every reconcile. It is held
+for ``retry_s`` (2 s), doubling at every further failure up to ``retry_max_s`` (5 min); its
+status is still read at every pass, so it is pushed at once when what it reports changes (it
+answers again after being unreachable, reports another table) or the desired table changes.
+Success ends the backoff; a new :class:`Fleet` (the daemon builds one on every reload) starts
+without any. :meth:`Fleet.push` (a run's own push, ``grassd calibrate --now``) ignores the
+backoff and tries at once. The first failure is logged, then one line per backoff step.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
+from datetime import UTC, datetime
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -38,7 +48,9 @@ class ControllerReport:
     """One controller's outcome: ``ok`` means it now reports table ``table_id``/``table_crc``.
 
     ``pushed`` is True when a transfer was made (False: it already had the table, or failed
-    before transferring); ``reachable`` False when it did not answer at all.
+    before transferring); ``reachable`` False when it did not answer at all. ``retry_in_s``:
+    the push was held back by the controller's backoff, the next attempt is due in that many
+    seconds (None: not held).
     """
 
     controller: str
@@ -48,6 +60,23 @@ class ControllerReport:
     table_id: int | None
     table_crc: int | None
     error: str | None = None
+    retry_in_s: float | None = None
+
+
+@dataclass
+class PushBackoff:
+    """A controller's failed pushes of one desired table: ``key`` (table id, CRC) it should
+    hold, ``state`` what it reported before the last failed attempt, the current delay and the
+    monotonic time of the next attempt (seconds), failures so far, the first one's epoch time
+    ``since`` and the last error."""
+
+    key: tuple[int, int]
+    state: tuple
+    delay_s: float
+    retry_at: float
+    failures: int
+    since: float
+    error: str | None
 
 
 def table_checksum(lengths_um: ArrayLike) -> int:
@@ -56,14 +85,20 @@ def table_checksum(lengths_um: ArrayLike) -> int:
 
 
 class Fleet:
-    """All configured controllers. ``policy`` sets the protocol client's timeouts and retries."""
+    """All configured controllers. ``policy`` sets the protocol client's timeouts and retries;
+    ``retry_s``/``retry_max_s`` the reconcile backoff of a controller whose pushes fail
+    (seconds; 0 disables it)."""
 
     def __init__(self, controllers: Sequence[ControllerConfig],
-                 policy: RetryPolicy | None = None, probe_retries: int = 1) -> None:
+                 policy: RetryPolicy | None = None, probe_retries: int = 1,
+                 retry_s: float = 2.0, retry_max_s: float = 300.0) -> None:
         self.controllers = tuple(controllers)
         self.policy = policy or RetryPolicy()
         self.probe_retries = probe_retries
+        self.retry_s = retry_s
+        self.retry_max_s = retry_max_s
         self._clients: dict[str, ControllerClient] = {}
+        self._backoff: dict[str, PushBackoff] = {}
         self._lock = threading.RLock()
 
     def _client(self, c: ControllerConfig) -> ControllerClient:
@@ -99,35 +134,95 @@ class Fleet:
         return out
 
     def _push_one(self, c: ControllerConfig, table: np.ndarray, table_id: int, crc: int,
-                  force_probe: bool) -> ControllerReport:
+                  hold: bool) -> tuple[ControllerReport, tuple]:
+        """Push to one controller unless it holds the table (or, with ``hold``, its backoff
+        holds the push back); returns the report and what it reported before the attempt."""
         client = self._client(c)
         try:
             status = client.read_status(c.address, retries=self.probe_retries)
         except TransientError as exc:
-            return ControllerReport(c.name, False, False, False, None, None, str(exc))
+            r = ControllerReport(c.name, False, False, False, None, None, str(exc))
+            return self._held(r, ("unreachable",), (table_id, crc), hold), ("unreachable",)
         except ProtocolError as exc:
-            return ControllerReport(c.name, False, True, False, None, None, str(exc))
+            r = ControllerReport(c.name, False, True, False, None, None, str(exc))
+            return self._held(r, ("refused",), (table_id, crc), hold), ("refused",)
+        state = ("reports", status.has_table, status.table_id, status.table_crc)
         if status.has_table and (status.table_id, status.table_crc) == (table_id, crc):
-            return ControllerReport(c.name, True, True, False, status.table_id, status.table_crc)
+            return ControllerReport(c.name, True, True, False, status.table_id,
+                                    status.table_crc), state
+        held = self._held(ControllerReport(c.name, False, True, False, status.table_id,
+                                           status.table_crc), state, (table_id, crc), hold)
+        if held.retry_in_s is not None:
+            return held, state
         try:
             after = client.push_table(c.address, table, table_id)
         except PushFailed as exc:
             act = exc.active
             return ControllerReport(c.name, False, act is not None, True,
                                     getattr(act, "table_id", None),
-                                    getattr(act, "table_crc", None), str(exc))
+                                    getattr(act, "table_crc", None), str(exc)), state
         except TransientError as exc:
-            return ControllerReport(c.name, False, False, True, None, None, str(exc))
+            return ControllerReport(c.name, False, False, True, None, None, str(exc)), state
         except ProtocolError as exc:  # the controller refused the table: permanent
             return ControllerReport(c.name, False, True, False, status.table_id,
-                                    status.table_crc, str(exc))
+                                    status.table_crc, str(exc)), state
         ok = (after.table_id, after.table_crc) == (table_id, crc)
         return ControllerReport(c.name, ok, True, True, after.table_id, after.table_crc,
-                                None if ok else "controller reports another table after commit")
+                                None if ok else "controller reports another table after "
+                                                "commit"), state
+
+    def _held(self, r: ControllerReport, state: tuple, key: tuple[int, int],
+              hold: bool) -> ControllerReport:
+        """``r`` marked as held back (``retry_in_s``) when ``hold`` and the controller's
+        backoff for the same desired table and reported state has not run out; else ``r``."""
+        b = self._backoff.get(r.controller)
+        now = time.monotonic()
+        if not hold or b is None or b.key != key or b.state != state or now >= b.retry_at:
+            return r
+        return replace(r, error=r.error or b.error, retry_in_s=b.retry_at - now)
+
+    def _note(self, r: ControllerReport, state: tuple, key: tuple[int, int]) -> None:
+        """Update the backoff of ``r``'s controller and log: success ends it (logged when it
+        had failed before); a failure starts it (the same desired table and reported state)
+        or doubles it, one warning each; a held push is not logged."""
+        name = r.controller
+        b = self._backoff.get(name)
+        if r.ok:
+            if self._backoff.pop(name, None) is not None:
+                log.info("controller %s: table %d (crc %#010x) active after %d failed "
+                         "push(es)", name, key[0], key[1], b.failures)
+            elif r.pushed:
+                log.info("controller %s: table %d (crc %#010x) active", name, *key)
+            return
+        if r.retry_in_s is not None:
+            return
+        now = time.monotonic()
+        if b is None or b.key != key or b.state != state:
+            b = PushBackoff(key, state, self.retry_s, now + self.retry_s, 1, time.time(),
+                            r.error)
+            self._backoff[name] = b
+            log.warning("controller %s: push failed: %s; next attempt in %g s", name, r.error,
+                        b.delay_s)
+            return
+        b.failures += 1
+        b.delay_s = min(b.delay_s * 2, self.retry_max_s)
+        b.retry_at, b.error = now + b.delay_s, r.error
+        since = datetime.fromtimestamp(b.since, UTC).isoformat(timespec="seconds")
+        log.warning("controller %s: push failed again (%d failures since %s): %s; next "
+                    "attempt in %g s", name, b.failures, since, r.error, b.delay_s)
+
+    def backoff(self) -> dict[str, dict[str, object]]:
+        """Controller name -> its push backoff (``failures``, ``since`` epoch s, ``delay_s``,
+        ``retry_in_s`` until the next attempt, ``error``) for controllers whose pushes fail.
+        Safe to call from another thread (reads a snapshot)."""
+        now = time.monotonic()
+        return {name: {"failures": b.failures, "since": b.since, "delay_s": b.delay_s,
+                       "retry_in_s": max(b.retry_at - now, 0.0), "error": b.error}
+                for name, b in dict(self._backoff).items()}
 
     def push(self, lengths_um: ArrayLike | Mapping[str, ArrayLike], table_id: int,
              stop: threading.Event | None = None,
-             fallback: ArrayLike | None = None) -> list[ControllerReport]:
+             fallback: ArrayLike | None = None, hold: bool = False) -> list[ControllerReport]:
         """Make the desired table with id ``table_id`` active on every controller (those that
         already hold it are left alone).
 
@@ -137,7 +232,9 @@ class Fleet:
         controllers missing from the mapping get ``fallback`` (a ValueError names them when
         there is none). Each controller's reported id and CRC are checked against its own
         table. Stops between controllers once ``stop`` is set; the controllers not reached
-        are simply absent from the result (the next reconcile serves them)."""
+        are simply absent from the result (the next reconcile serves them). Every controller
+        is tried at once (``hold`` True: not one whose backoff holds its push back, see the
+        module docstring); failures start or extend its backoff."""
         desired = self._desired(lengths_um, fallback)
         out = []
         with self._lock:
@@ -145,20 +242,19 @@ class Fleet:
                 if stop is not None and stop.is_set():
                     break
                 table, crc = desired[c.name]
-                r = self._push_one(c, table, int(table_id), crc, True)
-                (log.info if r.ok else log.warning)(
-                    "controller %s: %s", c.name,
-                    f"table {table_id} (crc {crc:#010x}) active" if r.ok
-                    else f"push failed: {r.error}")
+                r, state = self._push_one(c, table, int(table_id), crc, hold)
+                self._note(r, state, (int(table_id), crc))
                 out.append(r)
         return out
 
     def reconcile(self, lengths_um: ArrayLike | Mapping[str, ArrayLike], table_id: int,
                   stop: threading.Event | None = None,
                   fallback: ArrayLike | None = None) -> list[ControllerReport]:
-        """Same as :meth:`push`: controllers that hold their desired table cost one status
-        read; one that came back (unplugged, rebooted with an old table) gets its own table."""
-        return self.push(lengths_um, table_id, stop, fallback)
+        """:meth:`push` with the backoff: controllers that hold their desired table cost one
+        status read; one that came back (unplugged, rebooted with an old table) gets its own
+        table; one whose pushes keep failing is tried again only when its backoff runs out
+        or what it reports changes (its report then has ``retry_in_s``)."""
+        return self.push(lengths_um, table_id, stop, fallback, hold=True)
 
     def _desired(self, lengths_um: ArrayLike | Mapping[str, ArrayLike],
                  fallback: ArrayLike | None) -> dict[str, tuple[np.ndarray, int]]:

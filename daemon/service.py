@@ -155,13 +155,18 @@ class Service:
                  reconcile_s: float = 2.0, stall_s: float = 300.0,
                  failure_row_s: float = 600.0, max_queued: int = 4,
                  policy: RetryPolicy | None = None, transform=None, retry_s: float = 30.0,
-                 retry_max_s: float = 900.0) -> None:
+                 retry_max_s: float = 900.0, push_retry_s: float = 2.0,
+                 push_retry_max_s: float = 300.0) -> None:
         self.cfg = cfg
         self.config_path = Path(config_path) if config_path else None
         self.notifier = notifier or Notifier()
         self.tick_s = tick_s
         self.reconcile_s = reconcile_s
         self.stall_s = stall_s
+        #: reconcile backoff of a controller whose pushes fail (see grassd.daemon.fleet): the
+        #: first retry after ``push_retry_s``, doubling up to ``push_retry_max_s``
+        self.push_retry_s = push_retry_s
+        self.push_retry_max_s = push_retry_max_s
         self.policy = policy or RetryPolicy(timeout_s=0.25, retries=2, restarts=2,
                                             readback_retries=4)
         #: applied to every (re)loaded config, e.g. to point it at simulated hardware
@@ -215,7 +220,8 @@ class Service:
                            settle_s=cfg.light.settle_s,
                            incomplete_timeout_s=cfg.light.incomplete_timeout_s,
                            tz=cfg.site.timezone)
-        self.fleet = Fleet(cfg.controllers, policy=self.policy)
+        self.fleet = Fleet(cfg.controllers, policy=self.policy, retry_s=self.push_retry_s,
+                           retry_max_s=self.push_retry_max_s)  # a reload resets the backoff
         self.sensor = LuxSensor(cfg.light.modbus) if cfg.light.modbus is not None else None
         self.calibrator = Calibrator(cfg)
         self.reports_dir = cfg.state_dir / "reports"
@@ -728,7 +734,11 @@ class Service:
         """
         cfg, inbox, seen = self.cfg, self.inbox, self._error_seen
         waiting = list(self.deferred.values())
+        backoff = self.fleet.backoff()
         st = collect_status(self.history, cfg)
+        for c in st["controllers"]:  # when a controller whose pushes fail is tried again
+            b = backoff.get(c["name"])
+            c["push_retry"] = None if b is None or c["in_sync"] else b
         now = time.monotonic()
         st.update({
             "pid": os.getpid(), "version": __version__, "activity": self.activity,

@@ -1,0 +1,102 @@
+"""A controller whose table pushes keep failing (simulated controller on a pty whose EEPROM
+writes are all torn) is not pushed again at every reconcile pass: its pushes back off (2 s,
+doubling) while its status is still read every pass; one warning per attempt; status says when
+the next attempt is due. It is pushed at once when it answers again after being unreachable,
+after a reload, and by an explicit push."""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+
+from robust_util import after_first_bundle
+
+from grassd.firmware_proto.faults import FaultInjector, FaultPlan
+
+
+def _fleet_warnings(caplog, name: str) -> list[str]:
+    return [r.getMessage() for r in caplog.records
+            if r.name == "grassd.daemon.fleet" and r.levelno == logging.WARNING
+            and name in r.getMessage()]
+
+
+def test_failing_controller_backs_off_and_is_pushed_on_reset(tmp_path, hw, caplog):
+    caplog.set_level(logging.INFO, logger="grassd.daemon.fleet")
+    sim, cfg = hw
+    svc, _ = after_first_bundle(tmp_path, cfg)
+    bad = svc.fleet.controllers[0].name
+    injector = FaultInjector(FaultPlan(torn_write=1.0))  # every EEPROM write of bus 0 fails
+    sim.buses[0].faults = injector
+    for dev in sim.buses[0].controllers:
+        dev.eeprom.tear_hook = injector.tear
+
+    out = svc.scheduled_run("request")  # the run's own push is tried, and fails
+    assert out["status"] == "ok"
+    assert [c["ok"] for c in out["controllers"] if c["controller"] == bad] == [False]
+    t0 = time.monotonic()
+    torn0 = injector.counts.torn_writes
+    assert torn0 > 0 and len(_fleet_warnings(caplog, bad)) == 1
+
+    attempts, passes = [], 0
+    while time.monotonic() - t0 < 10.0:  # reconcile passes, more often than the daemon's
+        r = {x.controller: x for x in svc.reconcile()}[bad]
+        passes += 1
+        assert not r.ok
+        if r.pushed:
+            attempts.append(round(time.monotonic() - t0, 2))
+        else:
+            assert r.retry_in_s is not None and r.retry_in_s > 0  # held back, and says so
+        time.sleep(0.1)
+    # delays 2, 4, 8 s: attempts near 2 and 6 s; a push every pass would be `passes` of them
+    print(f"{passes} reconcile passes in 10 s, push attempts at {attempts} s")
+    assert 1 <= len(attempts) <= math.ceil(math.log2(10.0 / 2.0 + 1)) + 1, attempts
+    assert passes >= 30
+    assert attempts[0] >= 1.9, attempts
+    warnings = _fleet_warnings(caplog, bad)
+    assert len(warnings) == 1 + len(attempts)  # the first failure, then one per step
+    assert "failures since" in warnings[-1] and "next attempt in" in warnings[-1]
+    torn = injector.counts.torn_writes - torn0
+    assert torn > 0 and torn <= len(attempts) * torn0  # transfers only at the attempts
+
+    st = {c["name"]: c for c in svc.status()["controllers"]}
+    retry = st[bad]["push_retry"]
+    assert retry["failures"] == 1 + len(attempts)
+    assert 0 < retry["retry_in_s"] <= retry["delay_s"] == 2.0 * 2 ** len(attempts)
+    assert all(c["push_retry"] is None for n, c in st.items() if n != bad)
+
+    # an explicit push (grassd calibrate --now) does not wait for the backoff
+    cur = svc.history.current_table()
+    [r] = [x for x in svc.fleet.push(cur.lengths_um, cur.table_id) if x.controller == bad]
+    assert r.pushed and not r.ok
+
+    # it heals: nothing it reports has changed, so the backoff still holds ...
+    injector.enabled = False
+    r = {x.controller: x for x in svc.reconcile()}[bad]
+    assert not r.pushed and r.retry_in_s > 2.0
+    # ... until it answers again after being unreachable: then it is pushed at once
+    sim.buses[0].unplug(down_s=1.0)
+    deadline = time.monotonic() + 10.0
+    seen_down = False
+    while time.monotonic() < deadline:
+        r = {x.controller: x for x in svc.reconcile()}[bad]
+        seen_down |= not r.reachable
+        if r.reachable and seen_down:
+            break
+        time.sleep(0.1)
+    assert seen_down and r.ok and r.pushed and r.table_id == cur.table_id
+    assert svc.status()["health"] == "ok"
+    assert svc.fleet.backoff() == {}
+    assert any("active after" in m.getMessage() for m in caplog.records
+               if m.name == "grassd.daemon.fleet" and bad in m.getMessage())
+
+    # a new failure streak; a reload ends its backoff: pushed at the next reconcile
+    injector.enabled = True
+    out = svc.scheduled_run("request")
+    r = {x.controller: x for x in svc.reconcile()}[bad]
+    assert not r.pushed and r.retry_in_s is not None  # held after the run's failed push
+    injector.enabled = False
+    assert svc.reload()
+    r = {x.controller: x for x in svc.reconcile()}[bad]
+    assert r.ok and r.pushed and r.table_id == out["table_id"]
+    svc.shutdown()
