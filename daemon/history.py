@@ -3,8 +3,11 @@
 Tables:
 
 - ``runs``: one row per calibration run: trigger, bundle hash, input hashes (JSON), lux (lux),
-  status (``running``/``ok``/``failed``/``rejected``), error, metrics (JSON), the 256-entry
-  length table (JSON list of integer micrometres), its table id and CRC, report/plot paths.
+  status (``running``/``ok``/``failed``/``rejected``/``superseded``), error, metrics (JSON),
+  the 256-entry length table (JSON list of integer micrometres), its table id and CRC,
+  report/plot paths, and ``light_at``: when the light it ran on was captured (epoch s, the
+  bundle manifest's timestamp; NULL for the embedded default site). Added to older databases
+  by ``ALTER TABLE`` (their old runs have NULL; no schema version change).
 - ``pushes``: per-controller push results of each run (and of later reconciles).
 - ``run_tables``: the table of every controller of a run whose controllers each have their own
   (``[tables] granularity`` "controller" or "pixel"): controller name, CRC, the table as JSON
@@ -54,7 +57,8 @@ CREATE TABLE IF NOT EXISTS runs (
     table_crc     INTEGER,
     lengths_um    TEXT,
     report_path   TEXT,
-    plot_path     TEXT
+    plot_path     TEXT,
+    light_at      REAL
 );
 CREATE INDEX IF NOT EXISTS runs_bundle ON runs(bundle_hash);
 CREATE TABLE IF NOT EXISTS pushes (
@@ -119,6 +123,7 @@ class RunRecord:
     lengths_um: tuple[int, ...] | None
     report_path: str | None
     plot_path: str | None
+    light_at: float | None = None
 
 
 @dataclass(frozen=True)
@@ -188,6 +193,9 @@ class History:
             self._db.execute("PRAGMA synchronous=FULL")
             self._db.execute("PRAGMA foreign_keys=ON")
             self._db.executescript(_SCHEMA)
+            cols = {r[1] for r in self._db.execute("PRAGMA table_info(runs)")}
+            if "light_at" not in cols:  # a database from before light_at
+                self._db.execute("ALTER TABLE runs ADD COLUMN light_at REAL")
             row = self._db.execute("SELECT value FROM meta WHERE key='schema'").fetchone()
             if row is None:
                 self._db.execute("INSERT INTO meta VALUES ('schema', ?)", (str(SCHEMA_VERSION),))
@@ -232,14 +240,15 @@ class History:
     # ------------------------------------------------------------------ runs
     def start_run(self, trigger: str, *, bundle_hash: str | None = None,
                   input_hashes: dict[str, str] | None = None, lux: float | None = None,
-                  lux_source: str | None = None) -> int:
-        """Insert a ``running`` row and return its id. ``lux`` in lux."""
+                  lux_source: str | None = None, light_at: float | None = None) -> int:
+        """Insert a ``running`` row and return its id. ``lux`` in lux; ``light_at``: when its
+        light was captured (epoch s, None: not known)."""
         with self._tx() as db:
             cur = db.execute(
                 "INSERT INTO runs (started_at, trigger, bundle_hash, input_hashes, lux, lux_source,"
-                " status) VALUES (?, ?, ?, ?, ?, ?, 'running')",
+                " status, light_at) VALUES (?, ?, ?, ?, ?, ?, 'running', ?)",
                 (time.time(), trigger, bundle_hash, json.dumps(input_hashes or {}, sort_keys=True),
-                 lux, lux_source))
+                 lux, lux_source, light_at))
             return int(cur.lastrowid)
 
     def update_run(self, run_id: int, **fields: Any) -> None:
@@ -266,8 +275,9 @@ class History:
 
     def finish_run(self, run_id: int, status: str, *, error: str | None = None,
                    **fields: Any) -> None:
-        """Close run ``run_id`` with ``status`` (ok, failed, rejected) and optional columns."""
-        if status not in ("ok", "failed", "rejected"):
+        """Close run ``run_id`` with ``status`` (ok, failed, rejected, superseded: a bundle
+        whose light is older than the active table's, archived unused) and optional columns."""
+        if status not in ("ok", "failed", "rejected", "superseded"):
             raise ValueError(f"bad run status {status!r}")
         if fields or error is not None:
             self.update_run(run_id, error=error, **fields)
@@ -464,9 +474,10 @@ class History:
         return JournalEntry(*rows[0]) if rows else None
 
     def latest_archived(self) -> JournalEntry | None:
-        """The most recently archived bundle (the light used by scheduled runs)."""
-        rows = self._query("SELECT * FROM journal WHERE state = 'archived' "
-                           "ORDER BY updated_at DESC LIMIT 1")
+        """The most recently archived bundle that a run used (the light of scheduled runs): not
+        one archived as superseded (journal reason "superseded: ...")."""
+        rows = self._query("SELECT * FROM journal WHERE state = 'archived' AND (reason IS NULL "
+                           "OR reason NOT LIKE 'superseded%') ORDER BY updated_at DESC LIMIT 1")
         return JournalEntry(*rows[0]) if rows else None
 
     def journal(self, state: str | None = None) -> list[JournalEntry]:
@@ -492,4 +503,4 @@ def _run(r: tuple) -> RunRecord:
         input_hashes=json.loads(r[5]), lux=r[6], lux_source=r[7], status=r[8], error=r[9],
         metrics=json.loads(r[10]), table_id=r[11], table_crc=r[12],
         lengths_um=tuple(json.loads(r[13])) if r[13] else None, report_path=r[14],
-        plot_path=r[15])
+        plot_path=r[15], light_at=r[16])

@@ -497,11 +497,13 @@ class Inbox:
         """Count one processing attempt of ``bundle`` (call right before processing it)."""
         return self.history.journal_attempt(bundle.hash)
 
-    def archive_bundle(self, bundle: Bundle, run_id: int | None) -> Path:
-        """Move a processed bundle to archive/ and mark it archived."""
+    def archive_bundle(self, bundle: Bundle, run_id: int | None,
+                       reason: str | None = None) -> Path:
+        """Move a processed bundle to archive/ and mark it archived (``reason``: why it was
+        archived without being applied, e.g. superseded)."""
         dest = self.archive / bundle.id
         self._rename(bundle.dir, dest)
-        self.history.journal_finish(bundle.hash, "archived", run_id=run_id)
+        self.history.journal_finish(bundle.hash, "archived", run_id=run_id, reason=reason)
         return dest
 
     def reject_bundle(self, bundle: Bundle, reason: str, run_id: int | None = None) -> Path:

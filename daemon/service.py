@@ -513,6 +513,15 @@ class Service:
             return {"status": "ok", "run_id": done.id, "table_id": done.table_id,
                     "table_crc": done.table_crc, "metrics": done.metrics,
                     "report": done.report_path, "plot": done.plot_path, "controllers": []}
+        why = self._superseded(b)
+        if why is not None:  # held back while a newer light became active: do not apply it
+            run_id = self.history.start_run("bundle", bundle_hash=b.hash,
+                                            input_hashes=b.input_hashes,
+                                            light_at=b.manifest.timestamp.timestamp())
+            self.history.finish_run(run_id, "superseded", error=why)
+            self.inbox.archive_bundle(b, run_id, reason=why)
+            log.warning("bundle %s archived unused: %s", b.name, why)
+            return {"status": "superseded", "run_id": run_id, "error": why}
         self.inbox.begin(b)
         self.last_run_at = time.time()
         self._progress(f"processing bundle {b.name}")
@@ -538,7 +547,8 @@ class Service:
                            sun_elevation_deg=m.sun_elevation_deg, checker_raw=m.checker_raw,
                            checker_corners=m.checker_corners, checker_chart=m.checker_chart)
         run_id = self.history.start_run("bundle", bundle_hash=b.hash,
-                                        input_hashes=b.input_hashes, lux=lux, lux_source=source)
+                                        input_hashes=b.input_hashes, lux=lux, lux_source=source,
+                                        light_at=m.timestamp.timestamp())
         out = self._calibrate_and_commit(run_id, light, force=False)
         try:
             if out["status"] == "ok":
@@ -553,6 +563,32 @@ class Service:
             return {**out, **self._defer(b, describe_write_error(exc, exc.filename or
                                                                  self.inbox.state_dir))}
         return out
+
+    def _superseded(self, b: Bundle) -> str | None:
+        """Why bundle ``b`` must not be applied, or None: it was held back (claimed before the
+        active table's run started: it waited for the lux sensor, after a write failure or
+        across a restart) and its light is older than that run's. Compared by light capture
+        time (manifest timestamps); where the active run's is not known (a database from
+        before ``light_at``), by arrival (journal claim time) of the two bundles. A run on the
+        embedded default site, or none yet, never supersedes a bundle."""
+        cur = self.history.current_table()
+        mine = self.history.journal_get(b.hash)
+        if cur is None or mine is None or mine.created_at >= cur.started_at:
+            return None
+        if cur.light_at is not None:
+            ts = b.manifest.timestamp.timestamp()
+            if ts >= cur.light_at:
+                return None
+            iso = [datetime.fromtimestamp(t, UTC).isoformat(timespec="seconds")
+                   for t in (ts, cur.light_at)]
+            return (f"superseded: its light ({iso[0]}) is older than the light ({iso[1]}) "
+                    f"of run {cur.id}, which made the active table {cur.table_id}")
+        src = cur.bundle_hash or cur.input_hashes.get("bundle")
+        other = None if src is None else self.history.journal_get(src)
+        if other is None or mine.created_at >= other.created_at:
+            return None
+        return (f"superseded: it arrived before bundle {other.bundle_id}, whose light made "
+                f"the active table {cur.table_id} (run {cur.id})")
 
     def scheduled_run(self, trigger: str, force: bool = False) -> dict[str, Any]:
         """A run without a new bundle: light of the last archived bundle (or the embedded
@@ -577,6 +613,7 @@ class Service:
                     manifest = parse_manifest(read_manifest_data(mpath), d, self.inbox.tz)
                 except DaemonError as exc:
                     log.warning("last archived bundle %s unusable: %s", last.bundle_id, exc)
+        light_at = None if manifest is None else manifest.timestamp.timestamp()
         try:
             if manifest is not None:
                 sensor_first = self.cfg.light.lux == "modbus" and self.sensor is not None
@@ -593,7 +630,8 @@ class Service:
         except DaemonError as exc:
             log.warning("%s run skipped: %s", trigger, exc)
             return {"status": "skipped", "error": str(exc)}
-        run_id = self.history.start_run(trigger, input_hashes=hashes, lux=lux, lux_source=source)
+        run_id = self.history.start_run(trigger, input_hashes=hashes, lux=lux, lux_source=source,
+                                        light_at=light_at)
         return self._calibrate_and_commit(run_id, light, force=force)
 
     def _calibrate_and_commit(self, run_id: int, light: LightInput,

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import time
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -69,12 +70,14 @@ max_jump_mm = 20.0
     return path
 
 
-def drop(inbox: Path, name: str, lux: float | None = 1000.0, mode: int | None = None) -> Path:
-    """Write a directory bundle as an uploader does: hidden name, manifest last, rename."""
+def drop(inbox: Path, name: str, lux: float | None = 1000.0, mode: int | None = None,
+         timestamp: str = "2026-03-01T12:00:00+01:00") -> Path:
+    """Write a directory bundle as an uploader does: hidden name, manifest last, rename.
+    ``timestamp``: the manifest's (when the light was captured)."""
     d = inbox / f".{name}"
     d.mkdir(parents=True)
     shutil.copy(SITE, d / "sky.exr")
-    m = f'timestamp = 2026-03-01T12:00:00+01:00\nhdri = "sky.exr"\n# {name}\n'
+    m = f'timestamp = {timestamp}\nhdri = "sky.exr"\n# {name}\n'
     if lux is not None:
         m += f"ambient_lux = {lux}\n"
     (d / "manifest.toml").write_text(m)
@@ -104,3 +107,12 @@ def service(path: Path, **kw) -> Service:
     svc = Service(load_config(path), config_path=path, policy=policy, **kw)
     init_backend(svc.cfg)
     return svc
+
+
+def tick_until(svc: Service, cond, timeout: float = 15.0) -> None:
+    """Run main-loop passes of ``svc`` until ``cond()`` holds (fails after ``timeout`` s)."""
+    deadline = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < deadline, "condition not reached"
+        svc.tick()
+        time.sleep(0.05)

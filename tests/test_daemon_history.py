@@ -137,3 +137,24 @@ while True:
     h = History(tmp_path / "s.db")
     assert len(h.current_table().lengths_um) == 256
     print(f"committed runs before SIGKILL: {n}")
+
+
+def test_database_from_before_light_at_gains_the_column(tmp_path):
+    """A state database whose runs table lacks light_at (as written before it existed) opens:
+    the column is added, old runs read None, new runs store it."""
+    from grassd.daemon import history as hist
+
+    path = tmp_path / "state.db"
+    db = sqlite3.connect(path)
+    db.executescript(hist._SCHEMA.replace(",\n    light_at      REAL\n", "\n"))
+    db.execute("INSERT INTO runs (started_at, trigger, status) VALUES (1.0, 'bundle', 'ok')")
+    db.execute("INSERT INTO meta VALUES ('schema', ?)", (str(hist.SCHEMA_VERSION),))
+    db.commit()
+    assert "light_at" not in {r[1] for r in db.execute("PRAGMA table_info(runs)")}
+    db.close()
+    with History(path) as h:
+        assert h.run(1).light_at is None
+        r2 = h.start_run("bundle", light_at=1772352000.0)
+        assert h.run(r2).light_at == 1772352000.0
+    with History(path) as h:  # opened again: nothing to add
+        assert [r.light_at for r in h.runs()] == [1772352000.0, None]

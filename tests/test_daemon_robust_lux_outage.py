@@ -8,17 +8,9 @@ from __future__ import annotations
 import time
 
 import pytest
-from robust_util import drop, service, write_config
+from robust_util import drop, service, tick_until, write_config
 
 from grassd.daemon.sim_hardware import SimLuxSensor
-
-
-def tick_until(svc, cond, timeout: float = 15.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not cond():
-        assert time.monotonic() < deadline, "condition not reached"
-        svc.tick()
-        time.sleep(0.05)
 
 
 def test_sensor_outage_defers_then_runs_when_back(tmp_path, hw):
