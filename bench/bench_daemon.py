@@ -100,9 +100,14 @@ def main() -> None:
                 print(f"{i + 1:>6} {per:>9.2f} {status()['rss_mb']:>8.1f}", flush=True)
                 last, last_i = now, i + 1
         total = time.monotonic() - t0
-        st = status()
+        # A run is counted once its table is recorded; its push to the controllers may still
+        # be under way, so wait (at most 30 s) for every controller to report it.
+        t_sync = time.monotonic()
+        while (st := status())["health"] != "ok" and time.monotonic() - t_sync < 30:
+            time.sleep(0.1)
         print(f"{BUNDLES} bundles in {total:.1f} s ({total / BUNDLES:.2f} s each); "
-              f"runs ok {st['run_counts']['ok']}, health {st['health']}")
+              f"runs ok {st['run_counts']['ok']}, health {st['health']} "
+              f"{time.monotonic() - t_sync:.1f} s after the last run was recorded")
     finally:
         proc.terminate()
         proc.wait(60)
