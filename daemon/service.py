@@ -87,7 +87,8 @@ class _Deferred:
     """A claimed bundle that waits in processing/ for a transient condition to clear.
 
     ``retry_at`` and ``give_up_at`` are monotonic seconds (``give_up_at`` None: never);
-    ``since`` is epoch seconds (shown in status).
+    ``since`` is epoch seconds (shown in status); ``error``: it waits after an error a pass
+    survived (``last_error`` stays until it went through or waits for something else).
     """
 
     bundle: Bundle
@@ -96,6 +97,7 @@ class _Deferred:
     retry_at: float
     delay_s: float
     give_up_at: float | None
+    error: bool = False
 
 
 @dataclass
@@ -280,11 +282,14 @@ class Service:
 
     def tick(self, pending: list[Bundle] | None = None) -> None:
         """One pass of the main loop (see module docstring). A pass that completes without
-        surviving an error clears ``last_error`` (status keeps it as ``last_error_seen``)."""
+        surviving an error clears ``last_error`` (status keeps it as ``last_error_seen``),
+        unless a bundle deferred by such an error still waits for its retry."""
         self.last_progress = time.monotonic()
         self._pass_errors = 0
         self._tick(pending)
-        if self._pass_errors == 0 and self.last_error is not None:
+        if (self._pass_errors == 0 and self.last_error is not None
+                and not any(d.error for d in list(self.deferred.values()))):  # a bundle
+            # still waiting after its error (not retried in this pass) keeps it
             self.last_error = None
             if self._error_seen is not None:  # replaced, not changed: status reads it
                 self._error_seen = {**self._error_seen, "cleared_at": _now_iso()}
@@ -472,12 +477,15 @@ class Service:
             out = self._process_bundle(b)
         except (OSError, sqlite3.Error) as exc:  # e.g. a full disk under the database: the
             # bundle is fine; it waits in processing/ instead of being stranded there
-            out = self._defer(b, self._survived(exc, f"bundle {b.name}", os_action(exc)))
+            out = self._defer(b, self._survived(exc, f"bundle {b.name}", os_action(exc)),
+                              error=True)
         self.prune()
         return out
 
-    def _defer(self, b: Bundle, reason: str, limit_s: float | None = None) -> dict[str, Any]:
-        """Leave ``b`` in processing/ (attempt not counted) and retry it with backoff."""
+    def _defer(self, b: Bundle, reason: str, limit_s: float | None = None,
+               error: bool = False) -> dict[str, Any]:
+        """Leave ``b`` in processing/ (attempt not counted) and retry it with backoff
+        (``error``: after an error the pass survived, see ``last_error``)."""
         now = time.monotonic()
         d = self.deferred.get(b.hash)
         if d is None:
@@ -489,6 +497,7 @@ class Service:
             d.retry_at, d.reason = now + d.delay_s, reason
             if limit_s is not None and d.give_up_at is None:
                 d.give_up_at = now + limit_s
+        d.error = error
         if d.give_up_at is not None and d.give_up_at > now:  # the last try falls on the
             # deadline, not far beyond; once it has passed, the backoff holds
             d.retry_at = min(d.retry_at, d.give_up_at)

@@ -1,0 +1,42 @@
+"""Review of the daemon's last_error clearing, push backoff and state lock (bugs found in
+review: each test failed before its fix)."""
+
+from __future__ import annotations
+
+import time
+
+from robust_util import drop, service, write_config
+from test_daemon_review import full, main_loop_pass, tmpfs
+
+
+def test_last_error_stays_while_a_bundle_still_waits_on_it(tmp_path, hw):
+    """A bundle deferred by a full state disk retries with backoff (seconds to minutes): the
+    passes in between do not retry it, so they must not report the error as cleared (status
+    would show no error, and the log "has cleared", while the disk is still full). It clears
+    once the bundle went through."""
+    _, cfg = hw
+    with tmpfs(tmp_path / "state") as state:
+        conf = write_config(tmp_path / "g.toml", state, cfg)
+        svc = service(conf, retry_s=60.0, reconcile_s=1e9)
+        try:
+            drop(svc.cfg.light.inbox, "b1", lux=1000.0)
+            claimed = svc.inbox.poll()
+            assert len(claimed) == 1
+            with full(state):
+                svc.tick(claimed)
+                assert "full" in (svc.status()["last_error"] or "")
+                main_loop_pass(svc)  # the bundle's retry is not due: nothing was retried
+                st = svc.status()
+                assert [w["bundle"] for w in st["waiting_bundles"]] == ["b1"]
+                assert "full" in (st["last_error"] or ""), st["last_error"]
+            for d in svc.deferred.values():  # space is back: retry now
+                d.retry_at = time.monotonic()
+            main_loop_pass(svc)
+            st = svc.status()
+            assert st["waiting_bundles"] == [] and svc.inbox.counts()["archive"] == 1
+            main_loop_pass(svc)
+            st = svc.status()
+            assert st["last_error"] is None
+            assert st["last_error_seen"]["cleared_at"] is not None
+        finally:
+            svc.shutdown()
