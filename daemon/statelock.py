@@ -43,6 +43,19 @@ def command_line() -> str:
     return " ".join(args)
 
 
+def _alive(pid: int) -> bool:
+    """True when process ``pid`` exists (signal 0 probes without sending anything)."""
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # it exists, owned by another user
+        pass
+    return True
+
+
 class StateLock:
     """Exclusive lock on ``state_dir``/grassd.lock; ``what`` describes the holder."""
 
@@ -57,13 +70,15 @@ class StateLock:
         return self._fd is not None
 
     def holder(self) -> tuple[int | None, str]:
-        """(PID, command) written by the current holder; (None, "") if unreadable."""
+        """(PID, command) written by the current holder; (None, "") if unreadable, or when
+        that PID no longer runs (a holder killed with SIGKILL leaves its PID behind, and a
+        shared holder, :meth:`shared`, writes none)."""
         for _ in range(20):  # the holder writes right after locking: give it a moment
             with contextlib.suppress(OSError, ValueError):
                 text = self.path.read_text().strip()
                 if text:
                     pid, _, what = text.partition(" ")
-                    return int(pid), what
+                    return (int(pid), what) if _alive(int(pid)) else (None, "")
             time.sleep(0.01)
         return None, ""
 
@@ -85,7 +100,8 @@ class StateLock:
         except BlockingIOError:
             os.close(fd)
             pid, what = self.holder()
-            who = f"{what or 'grassd'} (PID {pid})" if pid else "another grassd process"
+            who = (f"{what or 'grassd'} (PID {pid})" if pid else
+                   "another grassd process (e.g. a `grassd controllers` command)")
             raise StateDirLocked(
                 f"state directory {self.path.parent} is in use by {who}: stop it first, or "
                 "let it finish (`grassd calibrate --now` asks a running daemon over its control "

@@ -40,3 +40,28 @@ def test_last_error_stays_while_a_bundle_still_waits_on_it(tmp_path, hw):
             assert st["last_error_seen"]["cleared_at"] is not None
         finally:
             svc.shutdown()
+
+
+def test_daemon_refused_by_a_controllers_command_does_not_name_a_dead_daemon(tmp_path):
+    """A daemon killed with SIGKILL leaves its PID in grassd.lock (only a clean release
+    empties it). A `grassd controllers` command holding the shared lock must not make the
+    next daemon's refusal name that dead process as the holder."""
+    import subprocess
+    import sys
+
+    import pytest
+
+    from grassd.daemon.errors import StateDirLocked
+    from grassd.daemon.statelock import StateLock
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()  # a PID that no longer runs
+    state = tmp_path / "state"
+    state.mkdir()
+    (state / "grassd.lock").write_text(f"{dead.pid} grassd run\n")  # what it left
+    with StateLock(state).shared(lambda who: f"held by {who}"):
+        with pytest.raises(StateDirLocked) as exc:
+            StateLock(state, "grassd run").acquire()
+    msg = str(exc.value)
+    assert f"PID {dead.pid}" not in msg, msg
+    assert "grassd controllers" in msg, msg
