@@ -201,6 +201,8 @@ class Service:
         self.last_error: str | None = None
         self._error_seen: dict[str, Any] | None = None
         self._pass_errors = 0
+        #: the last error ended a pass (raised out of tick), see main_loop_pass
+        self._error_escaped = False
         self.runs_done = 0
         self.rss_log: list[tuple[int, float]] = []
         cfg.state_dir.mkdir(parents=True, exist_ok=True)
@@ -270,27 +272,39 @@ class Service:
                  self.cfg.light.inbox, len(self.cfg.controllers), self.cfg.control_socket)
         try:
             while not self.stop_event.is_set():
-                try:
-                    self.tick(pending)
-                except (OSError, sqlite3.Error) as exc:  # e.g. a full or read-only disk
-                    self._survived(exc, "main loop", os_action(exc))
+                self.main_loop_pass(pending)
                 pending = []
                 self.stop_event.wait(self.tick_s)
         finally:
             self.shutdown()
         return 0
 
+    def main_loop_pass(self, pending: list[Bundle] | None = None) -> None:
+        """One pass as :meth:`run` makes it: :meth:`tick`, surviving an OSError or SQLite
+        error (e.g. a full or read-only disk): logged and kept as ``last_error``."""
+        try:
+            self.tick(pending)
+        except (OSError, sqlite3.Error) as exc:  # e.g. a full or read-only disk
+            self._survived(exc, "main loop", os_action(exc))
+            self._error_escaped = True
+
     def tick(self, pending: list[Bundle] | None = None) -> None:
         """One pass of the main loop (see module docstring). A pass that completes without
         surviving an error clears ``last_error`` (status keeps it as ``last_error_seen``),
-        unless a bundle deferred by such an error still waits for its retry."""
+        unless a bundle deferred by such an error still waits for its retry, or the error
+        ended a pass (:meth:`main_loop_pass`) and this pass did not reconcile."""
         self.last_progress = time.monotonic()
         self._pass_errors = 0
+        reconciled = self._last_reconcile
         self._tick(pending)
         if (self._pass_errors == 0 and self.last_error is not None
-                and not any(d.error for d in list(self.deferred.values()))):  # a bundle
-            # still waiting after its error (not retried in this pass) keeps it
+                and not any(d.error for d in list(self.deferred.values()))  # a bundle
+                # still waiting after its error (not retried in this pass) keeps it, and an
+                # error that ended a pass (e.g. in reconcile, every reconcile_s) clears only
+                # in a pass that reconciled
+                and (not self._error_escaped or self._last_reconcile != reconciled)):
             self.last_error = None
+            self._error_escaped = False
             if self._error_seen is not None:  # replaced, not changed: status reads it
                 self._error_seen = {**self._error_seen, "cleared_at": _now_iso()}
             log.info("the error of an earlier pass has cleared")
@@ -353,6 +367,7 @@ class Service:
         msg = self._describe(exc, action)
         at = _now_iso()
         self._pass_errors += 1
+        self._error_escaped = False
         self._error_seen = {"at": at, "error": msg, "cleared_at": None}
         self.last_error = f"{at} {msg}"
         log.error("%s: %s (the daemon keeps running)", where, msg)

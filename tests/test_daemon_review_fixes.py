@@ -65,3 +65,37 @@ def test_daemon_refused_by_a_controllers_command_does_not_name_a_dead_daemon(tmp
     msg = str(exc.value)
     assert f"PID {dead.pid}" not in msg, msg
     assert "grassd controllers" in msg, msg
+
+
+def test_last_error_of_a_failing_reconcile_does_not_flip_between_passes(tmp_path, hw):
+    """A reconcile that fails at every attempt (full state disk: recording an unplugged
+    controller's state fails) ends every pass that reconciles, i.e. every ``reconcile_s``;
+    the passes in between do not reconcile and must not report it as cleared (before, status
+    showed the error in one pass out of three and the log said "cleared" as often)."""
+    sim, cfg = hw
+    with tmpfs(tmp_path / "state") as state:
+        conf = write_config(tmp_path / "g.toml", state, cfg)
+        svc = service(conf, reconcile_s=1.0)
+        try:
+            drop(svc.cfg.light.inbox, "b1", lux=1000.0)
+            svc.main_loop_pass()
+            assert svc.history.current_table() is not None and svc.last_error is None
+            seen = []
+            with full(state):
+                sim.buses[0].unplug(down_s=60.0)
+                t0 = time.monotonic()
+                while time.monotonic() - t0 < 5.0:
+                    svc.main_loop_pass()
+                    seen.append(svc.status()["last_error"])
+                    time.sleep(0.3)
+            first = next(i for i, e in enumerate(seen) if e is not None)
+            assert first <= 6 and "full" in seen[first], seen
+            assert all(e is not None for e in seen[first:]), seen
+            deadline = time.monotonic() + 10.0  # space is back: the next reconcile clears it
+            while svc.status()["last_error"] is not None:
+                assert time.monotonic() < deadline
+                svc.main_loop_pass()
+                time.sleep(0.3)
+            assert svc.status()["last_error_seen"]["cleared_at"] is not None
+        finally:
+            svc.shutdown()
