@@ -51,7 +51,7 @@ def test_failing_controller_backs_off_and_is_pushed_on_reset(tmp_path, hw, caplo
     # delays 2, 4, 8 s: attempts near 2 and 6 s; a push every pass would be `passes` of them
     print(f"{passes} reconcile passes in 10 s, push attempts at {attempts} s")
     assert 1 <= len(attempts) <= math.ceil(math.log2(10.0 / 2.0 + 1)) + 1, attempts
-    assert passes >= 30
+    assert passes >= 15  # so that <= 4 attempts means most passes were held back
     assert attempts[0] >= 1.9, attempts
     warnings = _fleet_warnings(caplog, bad)
     assert len(warnings) == 1 + len(attempts)  # the first failure, then one per step
