@@ -7,7 +7,8 @@ Tables:
   the 256-entry length table (JSON list of integer micrometres), its table id and CRC,
   report/plot paths, and ``light_at``: when the light it ran on was captured (epoch s, the
   bundle manifest's timestamp; NULL for the embedded default site). Added to older databases
-  by ``ALTER TABLE`` (their old runs have NULL; no schema version change).
+  by ``ALTER TABLE`` (their old runs have NULL; no schema version change), after the schema
+  version check (a database of another version is refused untouched).
 - ``pushes``: per-controller push results of each run (and of later reconciles).
 - ``run_tables``: the table of every controller of a run whose controllers each have their own
   (``[tables] granularity`` "controller" or "pixel"): controller name, CRC, the table as JSON
@@ -192,19 +193,45 @@ class History:
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=FULL")
             self._db.execute("PRAGMA foreign_keys=ON")
+            self._check_schema_version()  # before anything is created or altered
             self._db.executescript(_SCHEMA)
-            cols = {r[1] for r in self._db.execute("PRAGMA table_info(runs)")}
-            if "light_at" not in cols:  # a database from before light_at
-                self._db.execute("ALTER TABLE runs ADD COLUMN light_at REAL")
-            row = self._db.execute("SELECT value FROM meta WHERE key='schema'").fetchone()
-            if row is None:
-                self._db.execute("INSERT INTO meta VALUES ('schema', ?)", (str(SCHEMA_VERSION),))
-            elif int(row[0]) != SCHEMA_VERSION:
-                raise HistoryError(f"{self.path}: schema version {row[0]} is not the supported "
-                                   f"{SCHEMA_VERSION}; move the old database aside")
+            self._add_light_at()
+            self._db.execute("INSERT OR IGNORE INTO meta VALUES ('schema', ?)",
+                             (str(SCHEMA_VERSION),))
+            self._check_schema_version()  # another process may have written it meanwhile
+        except HistoryError:
+            self._db.close()
+            raise
         except sqlite3.DatabaseError as exc:
             raise HistoryError(f"{self.path}: cannot open state database: {exc} "
                                "(is it an SQLite file? is the state directory writable?)") from None
+
+    def _check_schema_version(self) -> None:
+        """Raise :class:`HistoryError` when the database records a schema version other than
+        :data:`SCHEMA_VERSION` (a database without one, e.g. a new file, passes)."""
+        has_meta = self._db.execute("SELECT 1 FROM sqlite_master WHERE type='table' AND "
+                                    "name='meta'").fetchone()
+        if has_meta is None:
+            return
+        row = self._db.execute("SELECT value FROM meta WHERE key='schema'").fetchone()
+        if row is not None and row[0] != str(SCHEMA_VERSION):
+            raise HistoryError(f"{self.path}: schema version {row[0]} is not the supported "
+                               f"{SCHEMA_VERSION}; move the old database aside")
+
+    def _add_light_at(self) -> None:
+        """Add ``runs.light_at`` to a database from before it. Another process opening the
+        same old database may add it between our look and our ``ALTER TABLE``: its
+        "duplicate column" error is accepted once the column is seen to exist."""
+        def has_it() -> bool:
+            return "light_at" in {r[1] for r in self._db.execute("PRAGMA table_info(runs)")}
+
+        if has_it():
+            return
+        try:
+            self._db.execute("ALTER TABLE runs ADD COLUMN light_at REAL")
+        except sqlite3.OperationalError as exc:
+            if "duplicate column" not in str(exc) or not has_it():
+                raise
 
     # ------------------------------------------------------------------ plumbing
     def close(self) -> None:

@@ -158,3 +158,63 @@ def test_database_from_before_light_at_gains_the_column(tmp_path):
         assert h.run(r2).light_at == 1772352000.0
     with History(path) as h:  # opened again: nothing to add
         assert [r.light_at for r in h.runs()] == [1772352000.0, None]
+
+
+def _old_database(path, schema_version: str) -> None:
+    """A state database written before runs.light_at, recording ``schema_version``."""
+    from grassd.daemon import history as hist
+
+    db = sqlite3.connect(path)
+    db.execute("PRAGMA journal_mode=WAL")
+    db.executescript(hist._SCHEMA.replace(",\n    light_at      REAL\n", "\n"))
+    db.execute("INSERT INTO meta VALUES ('schema', ?)", (schema_version,))
+    db.commit()
+    db.close()
+
+
+def test_unsupported_schema_is_refused_before_being_altered(tmp_path):
+    """A database of another schema version is refused untouched: no light_at column added,
+    no table created."""
+    path = tmp_path / "state.db"
+    _old_database(path, "2")
+    db = sqlite3.connect(path)
+    db.execute("DROP TABLE run_tables")
+    db.commit()
+    db.close()
+    with pytest.raises(HistoryError, match="schema version 2 is not the supported 1"):
+        History(path)
+    db = sqlite3.connect(path)
+    assert "light_at" not in {r[1] for r in db.execute("PRAGMA table_info(runs)")}
+    tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+    assert "run_tables" not in tables and "runs" in tables
+    db.close()
+
+
+def test_light_at_added_by_another_process_meanwhile(tmp_path, monkeypatch):
+    """Two processes open the same old database at once: the other one adds light_at between
+    our look at the columns and our ALTER TABLE (done here from a second connection, run when
+    SQLite starts our ALTER). Ours fails with 'duplicate column', which opening tolerates."""
+    from grassd.daemon import history as hist
+
+    path = tmp_path / "state.db"
+    _old_database(path, str(hist.SCHEMA_VERSION))
+    connect, raced = sqlite3.connect, []
+
+    def racing_connect(*args, **kwargs):
+        conn = connect(*args, **kwargs)
+
+        def trace(sql: str) -> None:
+            if sql.startswith("ALTER TABLE runs ADD COLUMN light_at") and not raced:
+                other = connect(path, isolation_level=None)
+                other.execute("ALTER TABLE runs ADD COLUMN light_at REAL")
+                other.close()
+                raced.append(sql)
+
+        conn.set_trace_callback(trace)
+        return conn
+
+    monkeypatch.setattr(hist.sqlite3, "connect", racing_connect)
+    with History(path) as h:
+        r = h.start_run("bundle", light_at=1772352000.0)
+        assert h.run(r).light_at == 1772352000.0
+    assert raced  # the other connection did add the column first
