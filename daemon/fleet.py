@@ -16,8 +16,12 @@ active, never a mix.
 
 *Backoff*: a controller whose push failed is not pushed again at every reconcile. It is held
 for ``retry_s`` (2 s), doubling at every further failure up to ``retry_max_s`` (5 min); its
-status is still read at every pass, so it is pushed at once when what it reports changes (it
-answers again after being unreachable, reports another table) or the desired table changes.
+status is still read at every pass, so it is pushed at once when it shows that it changed or
+the desired table changes. Evidence of a change: it reports another table (id, CRC) than when
+the failures began, or it answers again after being unreachable for longer than the current
+delay (unplugged, power-cycled). A status read that fails now and then on a noisy bus is no such
+evidence: the backoff keeps growing (a failed status read is no failed push: it neither
+extends nor ends the backoff).
 Success ends the backoff; a new :class:`Fleet` (the daemon builds one on every reload) starts
 without any. :meth:`Fleet.push` (a run's own push, ``grassd calibrate --now``) ignores the
 backoff and tries at once. The first failure is logged, then one line per backoff step.
@@ -66,9 +70,11 @@ class ControllerReport:
 @dataclass
 class PushBackoff:
     """A controller's failed pushes of one desired table: ``key`` (table id, CRC) it should
-    hold, ``state`` what it reported before the last failed attempt, the current delay and the
+    hold, ``state`` what it reported when the failures began, the current delay and the
     monotonic time of the next attempt (seconds), failures so far, the first one's epoch time
-    ``since`` and the last error."""
+    ``since`` and the last error. ``down_since``: monotonic time since which its status reads
+    fail (None: it answers); ``changed``: it showed that it changed (module docstring), the
+    next failure starts a new backoff."""
 
     key: tuple[int, int]
     state: tuple
@@ -77,6 +83,8 @@ class PushBackoff:
     failures: int
     since: float
     error: str | None
+    down_since: float | None = None
+    changed: bool = False
 
 
 def table_checksum(lengths_um: ArrayLike) -> int:
@@ -174,10 +182,23 @@ class Fleet:
     def _held(self, r: ControllerReport, state: tuple, key: tuple[int, int],
               hold: bool) -> ControllerReport:
         """``r`` marked as held back (``retry_in_s``) when ``hold`` and the controller's
-        backoff for the same desired table and reported state has not run out; else ``r``."""
+        backoff for the same desired table has not run out and the controller did not show
+        that it changed (see the module docstring); else ``r``. Notes in the backoff when the
+        controller stops answering (``state`` not a report) and whether, answering again, it
+        changed."""
         b = self._backoff.get(r.controller)
         now = time.monotonic()
-        if not hold or b is None or b.key != key or b.state != state or now >= b.retry_at:
+        if b is None or b.key != key:
+            return r
+        if state[0] != "reports":  # its status read failed: it says nothing about its table
+            if b.down_since is None:
+                b.down_since = now
+        else:
+            down_s = None if b.down_since is None else now - b.down_since
+            if state != b.state or (down_s is not None and down_s > b.delay_s):
+                b.changed = True
+            b.down_since = None
+        if not hold or b.changed or now >= b.retry_at:
             return r
         return replace(r, error=r.error or b.error, retry_in_s=b.retry_at - now)
 
@@ -197,12 +218,14 @@ class Fleet:
         if r.retry_in_s is not None:
             return
         now = time.monotonic()
-        if b is None or b.key != key or b.state != state:
+        if b is None or b.key != key or b.changed:
             b = PushBackoff(key, state, self.retry_s, now + self.retry_s, 1, time.time(),
-                            r.error)
+                            r.error, now if state[0] != "reports" else None)
             self._backoff[name] = b
             log.warning("controller %s: push failed: %s; next attempt in %g s", name, r.error,
                         b.delay_s)
+            return
+        if state[0] != "reports":  # not answering within a backoff: no push was tried
             return
         b.failures += 1
         b.delay_s = min(b.delay_s * 2, self.retry_max_s)

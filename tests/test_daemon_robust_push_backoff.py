@@ -1,8 +1,10 @@
 """A controller whose table pushes keep failing (simulated controller on a pty whose EEPROM
 writes are all torn) is not pushed again at every reconcile pass: its pushes back off (2 s,
 doubling) while its status is still read every pass; one warning per attempt; status says when
-the next attempt is due. It is pushed at once when it answers again after being unreachable,
-after a reload, and by an explicit push."""
+the next attempt is due. It is pushed at once when it shows that it changed (reports another
+table, or answers again after being unreachable for longer than the current delay), after a
+reload, and by an explicit push; a status read that fails now and then (noisy bus) does not
+end the backoff."""
 
 from __future__ import annotations
 
@@ -74,7 +76,10 @@ def test_failing_controller_backs_off_and_is_pushed_on_reset(tmp_path, hw, caplo
     injector.enabled = False
     r = {x.controller: x for x in svc.reconcile()}[bad]
     assert not r.pushed and r.retry_in_s > 2.0
-    # ... until it answers again after being unreachable: then it is pushed at once
+    # ... until it shows that it changed: its active bank lost, it answers after a short
+    # unplug (power cycle) with another table: then it is pushed at once
+    for dev in sim.buses[0].controllers:
+        dev.store.invalidate(dev.active_bank)
     sim.buses[0].unplug(down_s=1.0)
     deadline = time.monotonic() + 10.0
     seen_down = False
@@ -99,4 +104,60 @@ def test_failing_controller_backs_off_and_is_pushed_on_reset(tmp_path, hw, caplo
     assert svc.reload()
     r = {x.controller: x for x in svc.reconcile()}[bad]
     assert r.ok and r.pushed and r.table_id == out["table_id"]
+    svc.shutdown()
+
+
+def _torn_bus0(sim) -> FaultInjector:
+    injector = FaultInjector(FaultPlan(torn_write=1.0))  # every EEPROM write of bus 0 fails
+    sim.buses[0].faults = injector
+    for dev in sim.buses[0].controllers:
+        dev.eeprom.tear_hook = injector.tear
+    return injector
+
+
+def _until_back(svc, bus, bad: str, down_s: float):
+    """Unplug ``bus`` for ``down_s`` and reconcile until ``bad`` answers again: its report."""
+    bus.unplug(down_s=down_s)
+    deadline = time.monotonic() + down_s + 10.0
+    seen_down = False
+    while time.monotonic() < deadline:
+        r = {x.controller: x for x in svc.reconcile()}[bad]
+        seen_down |= not r.reachable
+        if r.reachable and seen_down:
+            return r
+        time.sleep(0.05)
+    raise AssertionError(f"{bad} did not come back after {down_s} s unplugged")
+
+
+def test_backoff_grows_across_status_blips_and_ends_after_a_long_outage(tmp_path, hw):
+    """Pushes always fail (torn EEPROM writes). A long outage (3 s unplugged > the 2 s delay)
+    counts as a change: the controller is pushed when it answers and its failures start over
+    at 1. Short blips (0.2 s, status reads failing now and then) do not: the failures keep
+    counting and the delay keeps doubling."""
+    sim, cfg = hw
+    svc, _ = after_first_bundle(tmp_path, cfg)
+    bad = svc.fleet.controllers[0].name
+    _torn_bus0(sim)
+    svc.scheduled_run("request")  # the run's push fails: failures 1, delay 2 s
+    assert svc.fleet.backoff()[bad]["failures"] == 1
+
+    r = _until_back(svc, sim.buses[0], bad, down_s=3.0)
+    assert r.pushed and not r.ok  # pushed at once, failed again ...
+    b = svc.fleet.backoff()[bad]
+    assert (b["failures"], b["delay_s"]) == (1, 2.0)  # ... a new backoff, not its second step
+
+    t0, blips, attempts = time.monotonic(), 0, 0
+    while time.monotonic() - t0 < 9.0:
+        if time.monotonic() - t0 > blips * 1.5 + 0.5:  # a blip every 1.5 s
+            r = _until_back(svc, sim.buses[0], bad, down_s=0.2)
+            blips += 1
+        else:
+            r = {x.controller: x for x in svc.reconcile()}[bad]
+        attempts += r.pushed
+        time.sleep(0.1)
+    b = svc.fleet.backoff()[bad]
+    print(f"{blips} blips, {attempts} push attempts in 9 s, backoff {b}")
+    assert blips >= 4
+    assert attempts <= 3  # due at about 2 and 6 s after the first; every blip would be `blips`
+    assert b["failures"] == 1 + attempts >= 2 and b["delay_s"] == 2.0 * 2 ** attempts
     svc.shutdown()
