@@ -21,7 +21,8 @@ the desired table changes. Evidence of a change: it reports another table (id, C
 the failures began, or it answers again after being unreachable for longer than the current
 delay (unplugged, power-cycled). A status read that fails now and then on a noisy bus is no such
 evidence: the backoff keeps growing (a failed status read is no failed push: it neither
-extends nor ends the backoff).
+extends nor ends the backoff). A controller whose status read fails (no push tried) is
+logged as not answering, one whose push failed as a failed push.
 Success ends the backoff; a new :class:`Fleet` (the daemon builds one on every reload) starts
 without any. :meth:`Fleet.push` (a run's own push, ``grassd calibrate --now``) ignores the
 backoff and tries at once. The first failure is logged, then one line per backoff step.
@@ -205,7 +206,8 @@ class Fleet:
     def _note(self, r: ControllerReport, state: tuple, key: tuple[int, int]) -> None:
         """Update the backoff of ``r``'s controller and log: success ends it (logged when it
         had failed before); a failure starts it (the same desired table and reported state)
-        or doubles it, one warning each; a held push is not logged."""
+        or doubles it, one warning each; a held push is not logged. A controller whose status
+        read failed (no push tried) is logged as not answering, not as a failed push."""
         name = r.controller
         b = self._backoff.get(name)
         if r.ok:
@@ -222,8 +224,11 @@ class Fleet:
             b = PushBackoff(key, state, self.retry_s, now + self.retry_s, 1, time.time(),
                             r.error, now if state[0] != "reports" else None)
             self._backoff[name] = b
-            log.warning("controller %s: push failed: %s; next attempt in %g s", name, r.error,
-                        b.delay_s)
+            if state[0] == "reports":
+                log.warning("controller %s: push failed: %s; next attempt in %g s", name,
+                            r.error, b.delay_s)
+            else:
+                log.warning("controller %s: not answering: %s", name, r.error)
             return
         if state[0] != "reports":  # not answering within a backoff: no push was tried
             return

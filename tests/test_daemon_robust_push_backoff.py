@@ -161,3 +161,27 @@ def test_backoff_grows_across_status_blips_and_ends_after_a_long_outage(tmp_path
     assert attempts <= 3  # due at about 2 and 6 s after the first; every blip would be `blips`
     assert b["failures"] == 1 + attempts >= 2 and b["delay_s"] == 2.0 * 2 ** attempts
     svc.shutdown()
+
+
+def test_unreachable_controller_is_logged_as_not_answering(tmp_path, hw, caplog):
+    """A controller whose status read fails (unplugged: no push tried) is logged as not
+    answering, not as a failed push; a push that fails is logged as one."""
+    caplog.set_level(logging.INFO, logger="grassd.daemon.fleet")
+    sim, cfg = hw
+    svc, cur = after_first_bundle(tmp_path, cfg)
+    bad = svc.fleet.controllers[0].name
+    caplog.clear()
+    sim.buses[0].unplug(down_s=1.0)
+    r = {x.controller: x for x in svc.reconcile()}[bad]
+    assert not r.reachable and not r.pushed
+    [w] = _fleet_warnings(caplog, bad)
+    assert f"controller {bad}: not answering: " in w and "push failed" not in w, w
+
+    caplog.clear()
+    time.sleep(1.2)  # plugged again; now its pushes fail
+    _torn_bus0(sim)
+    [r] = [x for x in svc.fleet.push(cur.lengths_um, cur.table_id + 1) if x.controller == bad]
+    assert r.reachable and r.pushed and not r.ok
+    [w] = _fleet_warnings(caplog, bad)
+    assert f"controller {bad}: push failed: " in w and "not answering" not in w, w
+    svc.shutdown()
