@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from grassd.sim.hdri import REC709_LUMINANCE
 from grassd.sim.lighting import (
     ENV_SAMPLING_FLOOR,
     direction_to_uv,
@@ -42,7 +43,6 @@ from grassd.sim.lighting import (
 NORMAL_BINS_SIDE = 12  # NB: normal bins on the octahedral map (144 bins)
 COARSE_ROWS_MAX = 32
 COARSE_COLS_MAX = 64
-_LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
 def octahedral_encode(n: np.ndarray) -> np.ndarray:
@@ -141,7 +141,7 @@ def build_binned_sampler(env: np.ndarray, side: int = NORMAL_BINS_SIDE,
     cr, cc = _largest_divisor(h, COARSE_ROWS_MAX), _largest_divisor(w, COARSE_COLS_MAX)
     bh, bw = h // cr, w // cc
     omega = texel_solid_angles(h, w)[:, None]
-    lum = np.maximum(rad @ _LUMA, 0.0)
+    lum = np.maximum(rad @ REC709_LUMINANCE, 0.0)
     mean_y = float((lum * omega).sum() / (4.0 * np.pi))
     weight = (lum + (floor * mean_y if mean_y > 0.0 else 1.0)) * omega  # (h, w)
     blocks = weight.reshape(cr, bh, cc, bw).transpose(0, 2, 1, 3).reshape(cr * cc, bh * bw)

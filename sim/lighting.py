@@ -110,8 +110,6 @@ DEFAULT_SUN_COLOUR.flags.writeable = False
 #: Probability floor of the environment sampler, as a fraction of the mean luminance.
 ENV_SAMPLING_FLOOR: float = 1e-3
 
-_LUMA32 = REC709_LUMINANCE.astype(np.float32)
-
 
 # ------------------------------------------------------------------------------ directions
 

@@ -96,6 +96,14 @@ class Measurement:
 _SHARED: dict[Capacity, "Renderer"] = {}
 
 
+def _fill(fld, arr: np.ndarray) -> None:
+    """Copy ``arr`` (n, ...) into the first n entries of a field allocated at capacity, zeros
+    after it."""
+    full = np.zeros((fld.shape[0],) + arr.shape[1:], dtype=arr.dtype)
+    full[: len(arr)] = arr
+    fld.from_numpy(full)
+
+
 def _cell_tops(sc: SceneArrays) -> np.ndarray:
     """(cells, 2) per grid cell: the highest point of its fixed primitives (yellow blades,
     rectangles, green cavity parts) and the highest root of its green blades (-1e30 if none),
@@ -206,31 +214,25 @@ class Renderer:
                 raise SceneError(f"scene needs {need} {name}, the renderer holds {have}; "
                                  f"construct Renderer(Capacity(...)) larger or lower the density")
 
-        def put(fld, arr, width):
-            full = np.zeros((fld.shape[0], width) if width else fld.shape[0],
-                            dtype=arr.dtype)
-            full[: len(arr)] = arr
-            fld.from_numpy(full)
-
         a3 = np.column_stack([sc.blade_axis, np.zeros(nb, np.float32)])
         lean = np.column_stack([sc.blade_lean, sc.blade_params[:, 2]])
         par = sc.blade_params[:, [0, 1, 3, 4]]
-        put(self.blade_p0, sc.blade_p0, 3)
-        put(self.blade_a, a3.astype(np.float32), 3)
-        put(self.blade_lean, lean.astype(np.float32), 3)
-        put(self.blade_par, par.astype(np.float32), 4)
+        _fill(self.blade_p0, sc.blade_p0)
+        _fill(self.blade_a, a3.astype(np.float32))
+        _fill(self.blade_lean, lean.astype(np.float32))
+        _fill(self.blade_par, par.astype(np.float32))
         u, _ = blade_rise(sc, 0.0)  # splay-free axes (exact unless green blades splay)
         n = np.cross(a3.astype(np.float64), u)
         n /= np.linalg.norm(n, axis=1, keepdims=True)
-        put(self.blade_u, u.astype(np.float32), 3)
-        put(self.blade_n, n.astype(np.float32), 3)
-        put(self.blade_mat, sc.blade_params[:, 5].astype(np.int32), 0)
-        put(self.rect_axis, sc.rect_axis, 0)
-        put(self.rect_b, sc.rect_bounds, 5)
-        put(self.rect_mat, sc.rect_material, 0)
-        put(self.cell_start, sc.cell_start, 0)
-        put(self.cell_items, sc.cell_items, 0)
-        put(self.cell_top, _cell_tops(sc), 2)
+        _fill(self.blade_u, u.astype(np.float32))
+        _fill(self.blade_n, n.astype(np.float32))
+        _fill(self.blade_mat, sc.blade_params[:, 5].astype(np.int32))
+        _fill(self.rect_axis, sc.rect_axis)
+        _fill(self.rect_b, sc.rect_bounds)
+        _fill(self.rect_mat, sc.rect_material)
+        _fill(self.cell_start, sc.cell_start)
+        _fill(self.cell_items, sc.cell_items)
+        _fill(self.cell_top, _cell_tops(sc))
         self.albedo.from_numpy(sc.albedo)
         f = self.fpar
         f[0], f[1] = float(sc.grid_origin[0]), float(sc.grid_origin[1])
@@ -250,19 +252,11 @@ class Renderer:
                              f"({self.cap.env_texels} texels, {self.cap.env_rows} rows); "
                              f"downsample it")
         sampler = build_binned_sampler(env)
-        flat = np.zeros((self.cap.env_texels, 3), np.float32)
-        flat[: h * w] = env.reshape(-1, 3)
-        self.env.from_numpy(flat)
-
-        def put(fld, arr):
-            full = np.zeros(fld.shape[0], np.float32)
-            full[: arr.size] = arr.ravel()
-            fld.from_numpy(full)
-
-        put(self.env_cos, sampler.cos_theta_edges)
-        put(self.bin_marg, sampler.bin_marginal)
-        put(self.bin_cond, sampler.bin_conditional)
-        put(self.block_cdf, sampler.block_cdf)
+        _fill(self.env, env.reshape(-1, 3))
+        _fill(self.env_cos, sampler.cos_theta_edges)
+        _fill(self.bin_marg, sampler.bin_marginal.ravel())
+        _fill(self.bin_cond, sampler.bin_conditional.ravel())
+        _fill(self.block_cdf, sampler.block_cdf.ravel())
         _, _, cr, cc = sampler.shape
         bh, bw = sampler.block_shape
         for k, v in enumerate((h, w), start=4):
