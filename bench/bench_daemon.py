@@ -92,7 +92,10 @@ def main() -> None:
                 f'timestamp = 2026-06-21T10:{i % 60:02d}:{i // 60:02d}+09:00\n'
                 f'hdri = "sky.exr"\nambient_lux = {1000 + i}\n')
             os.rename(d, state / "inbox" / f"b{i:03d}")
-            while status()["run_counts"]["ok"] + status()["run_counts"]["rejected"] < i + 1:
+            while True:  # one status request per poll (it was asked twice)
+                counts = status()["run_counts"]
+                if counts["ok"] + counts["rejected"] >= i + 1:
+                    break
                 time.sleep(0.05)
             if i in (0, 9, 24, 49, 74, BUNDLES - 1):
                 now = time.monotonic()
