@@ -72,7 +72,8 @@ def main() -> None:
               f"(target {TARGET}, {c.replicates} replicates of {settings.strata ** 2} paths): "
               f"{wall:.2f} s wall; trace {c.seconds['trace']:.2f} s, colour "
               f"{c.seconds['colour']:.3f} s; {n_paths / c.seconds['trace'] / 1e3:.0f} k "
-              f"paths/s; OGCD range {c.ogcd[-1]:.2f}")
+              f"paths/s; OGCD range {c.ogcd[-1]:.2f}; rounds (replicates, max stderr) "
+              f"{[(n, round(w, 3)) for n, w in c.rounds]}")
     lighting = build_lighting(_hdri("courtyard"), 8000.0)
     views = [Viewpoint(h, 2.0, th) for h in (150, 160, 170, 180) for th in (0, 30, 60, 90)]
     t0 = time.perf_counter()

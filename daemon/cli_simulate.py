@@ -137,7 +137,7 @@ def _plot(path: Path, curves) -> None:
               help="Green lengths in mm: START:STOP:STEP or a comma list (0,5,12.5).")
 @click.option("--samples", type=int, default=4096, show_default=True,
               help="Camera paths per length per replicate.")
-@click.option("--replicates", type=int, default=8, show_default=True,
+@click.option("--replicates", type=click.IntRange(2, 64), default=8, show_default=True,
               help="Independent replicates (their spread gives the standard error).")
 @click.option("--target-stderr", type=float, default=None,
               help="Add replicates until every OGCD standard error is at most this (dE00).")

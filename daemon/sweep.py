@@ -164,6 +164,9 @@ def validate(spec: SweepSpec, conds: Sequence[Condition]) -> None:
         raise SweepError("a sweep needs at least one HDRI and one viewpoint")
     RenderSettings(samples=spec.samples, replicates=spec.replicates,
                    max_bounces=spec.bounces, light_samples=spec.light_samples)
+    if spec.replicates < 2:
+        raise SweepError(f"replicates must be at least 2 (their spread gives the standard "
+                         f"error), got {spec.replicates}")
     if len(spec.lengths_mm) < 3:
         raise SweepError("give at least 3 green lengths (e.g. 0:20:10)")
     if any(c.time for c in conds):

@@ -590,7 +590,8 @@ class Renderer:
         """Trace the measurement quad of pixel ``pixel_index`` at every green length (mm).
 
         Lengths must be finite, within 0..green_max_mm, at most 256 of them. ``progress`` is
-        called with (done, total) lengths as chunks finish.
+        called with (done, total) lengths as chunks finish. With one replicate the standard
+        errors are NaN (no spread to estimate them from).
         """
         settings = settings or RenderSettings()
         t_start = time.perf_counter()
@@ -642,7 +643,8 @@ class Renderer:
             raise SimError("the renderer produced non-finite radiance; check the lighting "
                            "values (NaN/Inf texels or sun irradiance)")
         rgb = out.mean(axis=1)
-        stderr = out.std(axis=1, ddof=1) / math.sqrt(settings.replicates)
+        stderr = (out.std(axis=1, ddof=1) / math.sqrt(settings.replicates)
+                  if settings.replicates > 1 else np.full_like(rgb, np.nan))  # no spread
         t_end = time.perf_counter()
         return Measurement(
             viewpoint=viewpoint, lengths_mm=lengths_mm, rgb_linear=rgb, rgb_stderr=stderr,

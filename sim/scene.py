@@ -201,8 +201,9 @@ class RenderSettings:
 
     ``samples`` camera paths per length per replicate (rounded up to a square for
     stratification), ``replicates`` independent randomisations whose spread gives the standard
-    error, ``max_bounces`` surface interactions per path (1 = direct light only; Mitsuba's
-    ``max_depth`` is ``max_bounces + 1``), ``seed`` makes results bit-reproducible,
+    error (one alone gives none: a top-up batch of an adaptive run), ``max_bounces`` surface
+    interactions per path (1 = direct light only; Mitsuba's ``max_depth`` is
+    ``max_bounces + 1``), ``seed`` makes results bit-reproducible,
     ``light_samples`` environment samples (shadow rays) at each of the first two surfaces a
     path meets (one at later ones).
     """
@@ -216,9 +217,8 @@ class RenderSettings:
     def __post_init__(self) -> None:
         if not 1 <= self.samples <= 4_000_000:
             raise SceneError(f"samples must be in 1..4000000, got {self.samples}")
-        if not 2 <= self.replicates <= 64:
-            raise SceneError(f"replicates must be in 2..64 (the spread gives the error), got "
-                             f"{self.replicates}")
+        if not 1 <= self.replicates <= 64:
+            raise SceneError(f"replicates must be in 1..64, got {self.replicates}")
         if not 1 <= self.max_bounces <= 16:
             raise SceneError(f"max_bounces must be in 1..16, got {self.max_bounces}")
         if not 1 <= self.light_samples <= 16:

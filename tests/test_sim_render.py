@@ -131,6 +131,28 @@ def test_characteristic_straightens_from_theta_0_to_90_indoors(renderer, shared_
     assert r2[0.0] < 0.97 and r2[90.0] > r2[0.0] + 0.015, r2
 
 
+def test_adaptive_replicates_stop_at_the_first_round_meeting_the_target(renderer, shared_hdri):
+    """simulate_curve with target_stderr: round 1 is the plain run (same seed, same numbers);
+    every round but the last misses the target and the last meets it; each batch follows the
+    1/sqrt(R) law (at least one replicate, at most doubling the count)."""
+    from grassd.daemon.simulation import simulate_curve
+
+    lighting = build_lighting(shared_hdri("courtyard"), ambient_lux=8000)
+    lengths = np.arange(0.0, 20.01, 5.0)
+    settings = RenderSettings(samples=256, replicates=4, seed=3)
+    plain = simulate_curve(renderer, DisplaySpec(), lighting, Viewpoint(), lengths, settings)
+    target = 0.6 * float(plain.ogcd_stderr.max())
+    c = simulate_curve(renderer, DisplaySpec(), lighting, Viewpoint(), lengths, settings,
+                       target_stderr=target)
+    assert plain.rounds == ((4, float(plain.ogcd_stderr.max())),)
+    assert c.rounds[0] == plain.rounds[0]
+    assert len(c.rounds) >= 2 and c.replicates == c.rounds[-1][0]
+    assert all(worst > target for _, worst in c.rounds[:-1])
+    assert c.rounds[-1][1] <= target and float(c.ogcd_stderr.max()) == c.rounds[-1][1]
+    for (n, worst), (n_next, _) in zip(c.rounds[:-1], c.rounds[1:], strict=True):
+        assert n_next - n == max(math.ceil(n * min((worst / target) ** 2, 2.0)) - n, 1)
+
+
 def test_geometry_counts_and_mesh_match(renderer):
     spec = PixelSpec()
     scene = build_scene(DisplaySpec(spec), np.array([0.0, 20.0]))
