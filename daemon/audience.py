@@ -30,7 +30,11 @@ import numpy as np
 
 from grassd.calib.characteristic import Characteristic, FittedCharacteristic, fit_characteristic
 from grassd.calib.length_table import LEVELS, build_length_table
-from grassd.daemon.display import DisplaySimulationError, geometry_from_eye
+from grassd.daemon.display import (
+    DisplaySimulationError,
+    display_spec_for_config,
+    geometry_from_eye,
+)
 from grassd.daemon.simulation import SimulatedCurve, simulate_curve
 
 OBJECTIVES = ("mean", "worst")
@@ -356,12 +360,9 @@ def audience_table_for_config(renderer, cfg, lighting, lengths_mm: np.ndarray, s
     region, simulate the display's centre pixel (``[display]``) from every sampled eye, build
     the ``objective`` table; optionally write the heat map PNG. Returns the table and
     :func:`region_report` (JSON-ready; also holds the heat map path when written)."""
-    from grassd.sim.scene import DisplaySpec, PixelSpec
-
     if cfg.audience is None:
         raise AudienceError("the configuration has no [audience] region")
-    display = DisplaySpec(PixelSpec(**dict(cfg.display.pixel)), cfg.display.rows,
-                          cfg.display.cols, cfg.display.pitch_mm)
+    display = display_spec_for_config(cfg)
     region, samples = region_from_config(cfg.audience)
     curves = simulate_region(renderer, display, lighting, samples, lengths_mm, settings,
                              target_stderr=target_stderr, ccm=ccm, progress=progress)

@@ -507,15 +507,15 @@ def calibrate_display(cal: Calibrator, light: LightInput, *,
     :class:`~grassd.daemon.errors.CalibrationRejected` for a bad characteristic or table and
     :class:`~grassd.daemon.errors.RunInterrupted` when ``stop`` is set (checked per trace)."""
     from grassd.daemon.calibrate import check_shape, check_table  # noqa: PLC0415
-    from grassd.daemon.display import capacity_for  # noqa: PLC0415
+    from grassd.daemon.display import capacity_for, display_spec_for_config  # noqa: PLC0415
     from grassd.sim.renderer import Renderer  # noqa: PLC0415
-    from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings  # noqa: PLC0415
+    from grassd.sim.scene import RenderSettings  # noqa: PLC0415
 
     cfg = cal.cfg
     t_start = time.perf_counter()
     lighting, ccm, ccm_source = cal.light_and_ccm(light, previous_ccm, progress)
     d = cfg.display
-    display = DisplaySpec(PixelSpec(**dict(d.pixel)), d.rows, d.cols, d.pitch_mm)
+    display = display_spec_for_config(cfg)
     renderer = Renderer.shared(capacity_for(d.rows * d.cols))
     settings = RenderSettings(samples=cfg.simulation.samples,
                               replicates=cfg.calibration.replicates, seed=cfg.simulation.seed)

@@ -255,6 +255,9 @@ class TablesConfig:
     the same relative viewpoint); pixels whose view directions differ by less than
     ``group_tolerance_deg`` (deg) and distances by less than ``distance_tolerance`` (relative)
     share one simulation; ``check_groups`` groups are re-simulated to report the grouping error.
+    ``layout``: the simulated tuft layout, "shared" (one random layout copied to every pixel),
+    "per_pixel" (each pixel draws its own) or "auto" (shared for "pixel" tables, per pixel
+    otherwise; see :func:`grassd.daemon.display.display_spec_for_config`).
     The daemon pushes them (:mod:`grassd.daemon.calibrate_display`): "controller" gives each
     controller one (256,) table, "pixel" an (n_pixels, 256) table for the pixels it drives;
     "global" without ``[audience]`` is the one-table run of :mod:`grassd.daemon.calibrate`.
@@ -262,9 +265,10 @@ class TablesConfig:
 
     granularity: str = "global"
     eye: str = "world"
-    group_tolerance_deg: float = 1.0
+    group_tolerance_deg: float = 2.0
     distance_tolerance: float = 0.1
     check_groups: int = 4
+    layout: str = "auto"
 
 
 @dataclass(frozen=True)
@@ -800,9 +804,10 @@ def _parse_tables_audience(ctx: _Ctx, tables_raw: Any, audience_raw: Any
     t = _table(ctx, ("tables",), tables_raw, {
         "granularity": _F(str, "global", _one_of("global", "controller", "pixel")),
         "eye": _F(str, "world", _one_of("world", "pixel")),
-        "group_tolerance_deg": _F(float, 1.0, _between(0.0, 90.0, " degrees")),
+        "group_tolerance_deg": _F(float, 2.0, _between(0.0, 90.0, " degrees")),
         "distance_tolerance": _F(float, 0.1, _between(1e-3, 10.0)),
         "check_groups": _F(int, 4, _between(-1, 4096)),
+        "layout": _F(str, "auto", _one_of("auto", "shared", "per_pixel")),
     })
     if audience_raw is None:
         return TablesConfig(**t), None

@@ -21,7 +21,13 @@ Cost grows with the number of distinct viewing geometries, not of pixels: :func:
 bins the view directions (elevation and azimuth, tolerance in degrees), the viewing distance
 (relative tolerance) and, by default, which of the four neighbours exist; one representative per
 group is traced and its characteristic stands for every member. :class:`GroupingError` measures
-what that costs by also tracing the member farthest from its representative.
+what that costs by also tracing the member farthest from its representative, and
+:func:`errors_on` over every pixel against a per-pixel run. Grouping is only sound when pixels
+differ by geometry alone, so per-pixel tables trace one tuft layout shared by every pixel
+(:func:`shares_layout`). Measured (8 x 8 at 2 m, courtyard + 40 klx sun, 11 lengths, stderr
+0.1): 2 deg gives 23 groups (64 pixels, 9 neighbour classes), members up to 0.9 deg from their
+representative, and adds at most 0.3 dE00 to a pixel's table error, half of it Monte Carlo
+noise; 4 deg gives 19 groups and adds up to 0.4 dE00. 2 deg is the default.
 
 Tables (:func:`build_display_tables`): one per pixel (per group, shared by its members), one per
 controller (its pixels' mean characteristic) or one global table (all pixels' mean). Every
@@ -49,6 +55,7 @@ from grassd.daemon.simulation import SimulatedCurve, simulate_curve
 MIN_DISTANCE_M: float = 1e-3
 EYE_MODES = ("world", "pixel")
 GRANULARITIES = ("pixel", "controller", "global")
+LAYOUTS = ("auto", "shared", "per_pixel")
 
 
 class DisplaySimulationError(DaemonError):
@@ -150,6 +157,39 @@ def pixel_geometry(display, viewer, eye: str = "world") -> PixelGeometry:
                          neighbours=neighbour_mask(display.rows, display.cols))
 
 
+def shares_layout(granularity: str, layout: str = "auto") -> bool:
+    """Whether a display simulated for ``granularity`` tables traces one tuft layout copied to
+    every pixel (``layout`` "shared"), each pixel's own random layout ("per_pixel"), or, for
+    "auto", shared exactly when the tables are per pixel.
+
+    Why: the simulated layout is a random draw, not the installed pixel's real tufts (those
+    are not measured). Pixels of the same display with their own random layouts differ by up
+    to 1.9 dE00 (OGCD, courtyard + sun, 8 x 8 at 2 m) even when seen from within 1 deg of each
+    other, so per-pixel tables would be fitted to layout noise, and grouping by viewing
+    geometry (which per-pixel tables need to stay affordable) would be wrong by as much. With
+    one shared layout two pixels seen from the same direction differ by 0.03 dE00: what
+    remains between pixels is what the tables should correct (view direction, distance,
+    neighbours). Controller and global tables average many pixels, so there independent
+    layouts average the draw out.
+
+    >>> shares_layout("pixel"), shares_layout("controller"), shares_layout("global", "shared")
+    (True, False, True)
+    """
+    if layout not in LAYOUTS:
+        raise DisplaySimulationError(f"layout {layout!r} must be one of {LAYOUTS}")
+    return layout == "shared" or (layout == "auto" and granularity == "pixel")
+
+
+def display_spec_for_config(cfg):
+    """The ``DisplaySpec`` of a daemon ``Config``: ``[display]`` (pixel, rows, cols, pitch in
+    mm) with the tuft layout of ``[tables]`` (:func:`shares_layout`)."""
+    from grassd.sim.scene import DisplaySpec, PixelSpec
+
+    d = cfg.display
+    return DisplaySpec(PixelSpec(**dict(d.pixel)), d.rows, d.cols, d.pitch_mm,
+                       same_layout=shares_layout(cfg.tables.granularity, cfg.tables.layout))
+
+
 def capacity_for(n_pixels: int):
     """A ``grassd.sim.renderer.Capacity`` large enough for a display of ``n_pixels`` default
     pixels (the default Capacity holds 8 x 8; about 300 blades, 30 rectangles and 2300 grid
@@ -206,7 +246,7 @@ def _first_per_label(labels: np.ndarray, key: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-def group_pixels(geometry: PixelGeometry, tolerance_deg: float = 1.0,
+def group_pixels(geometry: PixelGeometry, tolerance_deg: float = 2.0,
                  distance_tolerance: float = 0.1, by_neighbours: bool = True) -> PixelGroups:
     """Group pixels whose viewing geometry differs by less than a tolerance.
 
@@ -351,7 +391,7 @@ def _pick_checks(groups: PixelGroups, check_groups: int) -> np.ndarray:
 
 
 def simulate_display(renderer, display, lighting, viewer, lengths_mm: np.ndarray, settings, *,
-                     eye: str = "world", tolerance_deg: float = 1.0,
+                     eye: str = "world", tolerance_deg: float = 2.0,
                      distance_tolerance: float = 0.1, by_neighbours: bool = True,
                      target_stderr: float | None = None, check_groups: int = 4, ccm=None,
                      decompose: bool = True, geometry: PixelGeometry | None = None,
@@ -531,14 +571,35 @@ def build_display_tables(sim: DisplaySimulation, granularity: str = "pixel", *,
             tables.append(build_length_table(mean_characteristic(sim, np.arange(n))))
             names.append("global (pixels without a controller)")
     lengths_um = np.stack([t.lengths_um for t in tables])[unit]
-    # error of every (group, table) pair actually used, then spread onto the pixels
-    pairs, inv = np.unique(np.stack([labels, unit], axis=1), axis=0, return_inverse=True)
-    pair_err = np.array([np.abs(table_deviation(fits[g], tables[u].lengths_mm)).max()
-                         for g, u in pairs])
     ranges = np.array([f.ogcd_range for f in fits])
     return DisplayTables(granularity=granularity, names=names, tables=tables,
                          unit_of_pixel=unit, pixel_lengths_um=lengths_um,
-                         pixel_error=pair_err[inv.reshape(-1)], pixel_ogcd_range=ranges[labels])
+                         pixel_error=_pixel_errors(fits, labels, tables, unit),
+                         pixel_ogcd_range=ranges[labels])
+
+
+def _pixel_errors(fits: Sequence[FittedCharacteristic], labels: np.ndarray,
+                  tables: Sequence[LengthTable], unit: np.ndarray) -> np.ndarray:
+    """(N,) error of pixel i = fits[labels[i]] driven by tables[unit[i]]; one evaluation per
+    (characteristic, table) pair actually used, then spread onto the pixels."""
+    pairs, inv = np.unique(np.stack([labels, unit], axis=1), axis=0, return_inverse=True)
+    pair_err = np.array([np.abs(table_deviation(fits[g], tables[u].lengths_mm)).max()
+                         for g, u in pairs])
+    return pair_err[inv.reshape(-1)]
+
+
+def errors_on(reference: DisplaySimulation, tables: DisplayTables) -> np.ndarray:
+    """(N,) largest deviation [dE00] of every pixel's OGCD from the linear ramp of its own
+    range when driven by its table in ``tables``, the pixel's characteristic taken from
+    ``reference`` (the same display and viewer simulated otherwise, e.g. per pixel with
+    tolerance 0). Against a per-pixel reference this is what grouping adds, over every pixel
+    rather than the checked groups of :class:`GroupingError` (Monte Carlo noise of both runs
+    included)."""
+    if reference.geometry.n_pixels != len(tables.unit_of_pixel):
+        raise DisplaySimulationError(f"reference has {reference.geometry.n_pixels} pixels, the "
+                                     f"tables {len(tables.unit_of_pixel)}")
+    fits = [_fit(c) for c in reference.curves]
+    return _pixel_errors(fits, reference.groups.labels, tables.tables, tables.unit_of_pixel)
 
 
 # --------------------------------------------------------------------------- configuration
@@ -584,10 +645,9 @@ def display_tables_for_config(renderer, cfg, lighting, lengths_mm: np.ndarray, s
     entry as a viewer (weights), grouping and granularity from ``[tables]``, controllers'
     pixel sets from ``[[controllers]]``. Returns the tables and each viewer's simulation (with
     its grouping error)."""
-    from grassd.sim.scene import DisplaySpec, PixelSpec, Viewpoint
+    from grassd.sim.scene import Viewpoint
 
-    display = DisplaySpec(PixelSpec(**dict(cfg.display.pixel)), cfg.display.rows,
-                          cfg.display.cols, cfg.display.pitch_mm)
+    display = display_spec_for_config(cfg)
     t = cfg.tables
     sims = []
     for k, v in enumerate(cfg.viewpoints):

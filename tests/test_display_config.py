@@ -48,10 +48,31 @@ ground_samples = 24
     assert region.area_m2 == pytest.approx(8.0)
 
 
+@pytest.mark.parametrize("granularity, layout, shared", [
+    ("pixel", None, True), ("controller", None, False), ("global", None, False),
+    ("pixel", "per_pixel", False), ("controller", "shared", True), ("global", "auto", False),
+])
+def test_layout_is_shared_for_pixel_tables_unless_configured(granularity, layout, shared):
+    """[tables] layout: "auto" (default) traces one tuft layout for every pixel when the tables
+    are per pixel (they must not be fitted to a random draw), each pixel's own otherwise."""
+    from grassd.daemon.display import display_spec_for_config
+
+    extra = f'[tables]\ngranularity = "{granularity}"\n'
+    if layout is not None:
+        extra += f'layout = "{layout}"\n'
+    cfg = _cfg(extra)
+    assert cfg.tables.layout == (layout or "auto")
+    spec = display_spec_for_config(cfg)
+    assert spec.same_layout is shared
+    assert (spec.rows, spec.cols, spec.pitch_mm) == (cfg.display.rows, cfg.display.cols,
+                                                     cfg.display.pitch_mm)
+
+
 @pytest.mark.parametrize("extra, key, message", [
     ('[tables]\ngranularity = "row"', "tables.granularity", "must be one of"),
     ("[tables]\ngroup_tolerance_deg = -1.0", "tables.group_tolerance_deg", "between"),
     ("[tables]\nsize = 3", "tables.size", "unknown key"),
+    ('[tables]\nlayout = "mixed"', "tables.layout", "must be one of"),
     ("[audience]\npolygon = [[0, 0], [1, 0]]\nh_cm = [150, 180]", "audience.polygon",
      "at least 3"),
     ("[audience]\npolygon = [[0, 0], [1, 0], [2, 0]]\nh_cm = [150, 180]", "audience.polygon",

@@ -7,8 +7,10 @@ import pytest
 
 from grassd.daemon.display import (
     DisplaySimulationError,
+    DisplayTables,
     build_display_tables,
     controller_pixels,
+    errors_on,
     simulate_display,
     table_deviation,
 )
@@ -46,6 +48,24 @@ def test_neighbours_change_an_oblique_view(renderer, lighting):
     diff = np.abs(inner.ogcd - lone.ogcd)[-1]
     se = np.hypot(inner.ogcd_stderr, lone.ogcd_stderr)[-1]
     assert diff > 10 * se and diff > 3.0, (lone.ogcd, inner.ogcd, se)
+
+
+def test_shared_layout_leaves_pixels_differing_by_position_only(renderer, lighting):
+    """Both ends of a 1 x 3 row seen from the same relative viewpoint: with their own random
+    tufts they differ by several dE00 (layout noise a per-pixel table must not be fitted to);
+    with one shared layout only their mirrored neighbours differ (measured 1.2 vs 3.7)."""
+    from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
+
+    s = RenderSettings(samples=1024, replicates=4, seed=0)
+    lengths = np.array([0.0, 5.0, 10.0, 15.0, 20.0])
+    diff = {}
+    for same in (True, False):
+        d = DisplaySpec(rows=1, cols=3, same_layout=same)
+        a, b = (simulate_curve(renderer, d, lighting, Viewpoint(170, 2.0, 0.0), lengths, s,
+                               pixel_index=i) for i in (0, 2))
+        diff[same] = np.abs(a.ogcd - b.ogcd).max()
+        se = np.hypot(a.ogcd_stderr, b.ogcd_stderr).max()
+    assert diff[False] > 5 * se and diff[True] < 0.5 * diff[False], diff
 
 
 @pytest.fixture(scope="module")
@@ -149,3 +169,28 @@ def test_grouping_cuts_traces_and_reports_its_error(renderer, lighting, settings
                              by_neighbours=False, check_groups=1, decompose=False)
     assert len(plain.grouping_error.groups) == 1
     assert np.isnan(plain.grouping_error.geometry_diff).all()
+
+
+def test_errors_on_a_per_pixel_run_measure_what_grouping_adds(renderer, lighting, settings,
+                                                               per_pixel):
+    """errors_on(per-pixel run, tables): every pixel's error on its own characteristic. Its
+    own tables give the tables' own pixel_error; grouped tables give the same for the traced
+    representatives (same seed, same trace) and at least as much for the other members."""
+    from grassd.sim.scene import DisplaySpec, Viewpoint
+
+    exact, _ = per_pixel
+    own = build_display_tables(exact, "pixel")
+    np.testing.assert_allclose(errors_on(exact, own), own.pixel_error, atol=1e-12)
+    grouped = simulate_display(renderer, DisplaySpec(rows=3, cols=3), lighting,
+                               Viewpoint(120, 0.6, 30.0), LENGTHS, settings, tolerance_deg=15.0,
+                               by_neighbours=False, check_groups=0)
+    assert grouped.groups.n_groups < 9
+    err = errors_on(exact, build_display_tables(grouped, "pixel"))
+    reps = grouped.groups.representatives
+    np.testing.assert_allclose(err[reps], own.pixel_error[reps], atol=1e-9)
+    members = np.setdiff1d(np.arange(9), reps)
+    assert np.all(err[members] >= own.pixel_error[members] - 1e-9)
+    assert err[members].max() > own.pixel_error[members].max() + 0.05
+    with pytest.raises(DisplaySimulationError, match="reference has 9 pixels"):
+        errors_on(exact, DisplayTables("pixel", [], [], np.zeros(4, np.int64),
+                                       np.zeros((4, 256)), np.zeros(4), np.zeros(4)))
