@@ -98,7 +98,7 @@ def bench_8x8(lighting, renderer, lengths, quick: bool) -> None:
         print(f"    one global table instead: max pixel error {glob.max():.2f}, mean "
               f"{glob.mean():.2f} dE00")
     sim, _, wall = _run(renderer, display, lighting, viewer, lengths, settings, 2.0, 4)
-    print(f"    the daemon's run (2 deg, check_groups = 4, each check traced twice): {wall:.2f} s;"
+    print(f"    the daemon's run (2 deg, check_groups = 4): {wall:.2f} s;"
           f" grouping error {({k: round(v, 3) for k, v in sim.grouping_error.summary().items()})}")
 
 

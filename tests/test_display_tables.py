@@ -194,3 +194,19 @@ def test_errors_on_a_per_pixel_run_measure_what_grouping_adds(renderer, lighting
     with pytest.raises(DisplaySimulationError, match="reference has 9 pixels"):
         errors_on(exact, DisplayTables("pixel", [], [], np.zeros(4, np.int64),
                                        np.zeros((4, 256)), np.zeros(4), np.zeros(4)))
+
+
+def test_grouping_checks_skip_the_decomposition_with_a_shared_layout(renderer, lighting,
+                                                                     settings):
+    """The pixel part of a grouping error is a layout difference: with one shared layout the
+    check traces the member once (no second trace from the representative's direction)."""
+    from grassd.sim.scene import DisplaySpec, Viewpoint
+
+    calls = []
+    sim = simulate_display(renderer, DisplaySpec(rows=3, cols=3, same_layout=True), lighting,
+                           Viewpoint(120, 0.6, 30.0), LENGTHS, settings, tolerance_deg=15.0,
+                           by_neighbours=False, check_groups=1,
+                           progress=lambda d, n: calls.append(n))
+    err = sim.grouping_error
+    assert len(err.groups) == 1 and np.isnan(err.geometry_diff).all()
+    assert calls[-1] == sim.groups.n_groups + 1
