@@ -32,17 +32,22 @@ Checks, as for the global run: every unit's characteristic passes
 :func:`grassd.daemon.calibrate.check_shape`; every table passes
 :func:`grassd.daemon.calibrate.check_table` (monotone, within 0..green_max, and no entry jumps
 more than ``max_jump_mm`` from the same controller's previous table, or from the previous
-display-wide table when the shapes differ, unless forced). Then one closed-loop round
-(:func:`closed_loop_check`): every pixel group's representative is re-simulated by every viewer
-at its own table's lengths for ``check_levels`` levels (a fresh seed) and its weighted OGCD is
-compared with the linear target, as round 1 of the global run; ``max_dev_de00`` and
-``r2_closed_loop`` are the worst group's. Unlike the global run it does not refine the tables
-with the new points. The fits' own deviation from linear (``max_fit_dev_de00``, largest over the
-unit's pixels and sampled eyes) is reported beside it.
+display-wide table when the shapes differ, unless forced). Then the closed loop, up to
+``max_rounds`` rounds as in the global run (:func:`closed_loop_check`): every pixel group's
+representative is re-simulated by every viewer at its own table's lengths for ``check_levels``
+levels (a fresh seed per round) and its weighted OGCD is compared with the linear target; a
+unit (controller or pixel group) whose pixels deviate by more than ``target_de00`` gets the
+round's points added to its fit and a new table (:func:`refine_unit`), which passes the table
+checks again, and the next round re-checks. ``max_dev_de00`` and ``r2_closed_loop`` are the
+worst group's in the last round. Tables from ``[audience]`` are checked in one round and not
+refined: a region table is not the inverse of one characteristic. The fits' own deviation from
+linear (``max_fit_dev_de00``, largest over the unit's pixels and sampled eyes) is reported
+beside it.
 """
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -62,6 +67,7 @@ if TYPE_CHECKING:
     from grassd.daemon.calibrate import Calibrator, LightInput
 
 Progress = Callable[[str], None]
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, eq=False)
@@ -75,7 +81,9 @@ class UnitTable:
     over the unit's pixels (each with its own characteristic), and from [audience] over the
     sampled eyes too [dE00] (the display-wide table of a controller/pixel run: over the eyes
     of the all-pixel mean; from [[viewpoints]]: not measured, NaN);
-    ``r2_before``/``r2_after`` R^2 of the fitted OGCD vs level with linear lengths / the table.
+    ``r2_before``/``r2_after`` R^2 of the fitted OGCD vs level with linear lengths / the table;
+    ``refined_rounds``: closed-loop rounds whose points were added to the fit behind the table
+    (:func:`refine_unit`; ``characteristic`` stays the first simulation's).
     """
 
     name: str
@@ -89,16 +97,18 @@ class UnitTable:
     ogcd_range: float
     loop_max_dev: float = float("nan")
     loop_r2: float = float("nan")
+    refined_rounds: int = 0
 
 
 @dataclass(frozen=True, eq=False)
 class LoopCheck:
-    """The closed-loop check of a display run (one round, no refinement): the representative
-    of every pixel group (``representatives`` (G,), ``labels`` (N,) group of each pixel)
-    re-simulated by every viewer at its own table's lengths for ``levels`` (L,)
-    (``lengths_mm`` (G, L)); ``ogcd`` (G, L) the viewers' weighted mean OGCD [dE00];
-    ``target`` (G, L) = level / 255 x OGCD(255); ``max_dev`` (G,) the largest |ogcd - target|
-    [dE00]; ``r2`` (G,) R^2 of OGCD vs level."""
+    """One closed-loop round of a display run: the representative of every pixel group
+    (``representatives`` (G,), ``labels`` (N,) group of each pixel) re-simulated by every
+    viewer at its own table's lengths for ``levels`` (L,) (``lengths_mm`` (G, L)); ``ogcd``
+    (G, L) the viewers' weighted mean OGCD [dE00] and ``ogcd_stderr`` (G, L) the same mean of
+    their standard errors (a bound: the viewers share random numbers); ``target`` (G, L) =
+    level / 255 x OGCD(255); ``max_dev`` (G,) the largest |ogcd - target| [dE00]; ``r2`` (G,)
+    R^2 of OGCD vs level; ``round`` its number (1 = the first tables)."""
 
     levels: NDArray[np.int64]
     representatives: NDArray[np.int64]
@@ -108,6 +118,8 @@ class LoopCheck:
     target: NDArray[np.float64]
     max_dev: NDArray[np.float64]
     r2: NDArray[np.float64]
+    ogcd_stderr: NDArray[np.float64]
+    round: int = 1
 
     def pixel_dev(self) -> NDArray[np.float64]:
         """(N,) every pixel's closed-loop deviation (its group's) [dE00]."""
@@ -115,8 +127,10 @@ class LoopCheck:
 
     def report(self) -> dict[str, Any]:
         """JSON-ready arrays."""
-        return {"levels": self.levels.tolist(), "pixels": self.representatives.tolist(),
+        return {"round": self.round, "levels": self.levels.tolist(),
+                "pixels": self.representatives.tolist(),
                 "lengths_mm": self.lengths_mm.tolist(), "ogcd_de00": self.ogcd.tolist(),
+                "ogcd_stderr_de00": self.ogcd_stderr.tolist(),
                 "target_de00": self.target.tolist(), "max_dev_de00": self.max_dev.tolist(),
                 "r2": self.r2.tolist()}
 
@@ -140,6 +154,7 @@ class DisplayCalibrationResult:
     grouping: dict[str, Any] | None = None
     region: dict[str, Any] | None = None
     loop: LoopCheck | None = None
+    loop_rounds: list[LoopCheck] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
     max_step_um: int | None = None
 
@@ -176,7 +191,8 @@ class DisplayCalibrationResult:
             "max_dev_goal_met": bool(worst <= target_de00),
             "max_fit_dev_de00": fit_worst,
             "mean_fit_dev_de00": float(np.mean([u.mean_error for u in self.units])),
-            "rounds": 0 if loop is None else 1,
+            "rounds": len(self.loop_rounds) if self.loop_rounds else int(loop is not None),
+            "refined_tables": sum(u.refined_rounds > 0 for u in self.units),
             "ogcd_range_de00": min(u.ogcd_range for u in self.units),
             "mean_ogcd_stderr_de00": float(np.mean(se)) if se else None,
             "ccm_source": self.ccm_source,
@@ -210,9 +226,13 @@ class DisplayCalibrationResult:
                  "r2_before": u.r2_before, "r2_after_fit": u.r2_after,
                  "ogcd_range_de00": u.ogcd_range,
                  "closed_loop_max_dev_de00": _finite_or_none(u.loop_max_dev),
+                 "refined_rounds": u.refined_rounds,
                  "closed_loop_r2": _finite_or_none(u.loop_r2)}
                 for u in self.units],
             "closed_loop": None if self.loop is None else self.loop.report(),
+            "closed_loop_rounds": [
+                {"round": lp.round, "max_dev_de00": float(lp.max_dev.max()),
+                 "r2_min": float(lp.r2.min())} for lp in self.loop_rounds],
             "grouping": self.grouping, "region": self.region,
             "ccm": None if self.ccm is None else {
                 "source": self.ccm_source, "method": self.ccm.method,
@@ -323,12 +343,14 @@ class Viewers:
     """Who looks at the display in a run: one :class:`grassd.daemon.display.PixelGeometry` per
     viewer (a [[viewpoints]] entry or a sampled eye) with its ``weights``, and the pixel groups
     over all viewers (``labels`` (N,), ``representatives`` (G,): members of a group are seen
-    alike by every viewer), for the closed-loop check."""
+    alike by every viewer), for the closed-loop check; from [[viewpoints]] also every group's
+    viewer-weighted characteristic (``group_characteristics``, G), for :func:`refine_unit`."""
 
     geometries: list[Any]
     weights: NDArray[np.float64]
     labels: NDArray[np.int64]
     representatives: NDArray[np.int64]
+    group_characteristics: list[Characteristic] | None = None
 
 
 def _viewpoint_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
@@ -363,7 +385,9 @@ def _viewpoint_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any
                                 if s.grouping_error is not None])
     viewers = Viewers([s.geometry for s in sims],
                       np.array([v.weight for v in cfg.viewpoints], np.float64),
-                      combined.groups.labels, combined.groups.representatives)
+                      combined.groups.labels, combined.groups.representatives,
+                      [combined.group_characteristic(g)
+                       for g in range(combined.groups.n_groups)])
     return units, tables.unit_of_pixel.copy(), whole, grouping, viewers
 
 
@@ -446,12 +470,12 @@ def _audience_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
 
 def closed_loop_check(renderer: Any, display: Any, lighting: Any, viewers: Viewers,
                       pixel_tables_um: NDArray, levels: NDArray, settings: Any, ccm: Any,
-                      step: Callable[[int, int], None]) -> LoopCheck:
+                      step: Callable[[int, int], None], round_no: int = 1) -> LoopCheck:
     """Re-simulate every group's representative pixel from every viewer at the lengths its
     table gives ``levels`` (``pixel_tables_um`` (N, 256) [um], first level 0 = the reference
     length), average the viewers' OGCD with their weights and compare it with the linear
-    target ``level / 255 x OGCD(255)`` (the check of the global run's closed loop, round 1).
-    ``settings`` carries the loop's own seed. One trace per (group, viewer)."""
+    target ``level / 255 x OGCD(255)`` (the check of the global run's closed loop).
+    ``settings`` carries the round's own seed. One trace per (group, viewer)."""
     from grassd.daemon.simulation import simulate_curve  # noqa: PLC0415
 
     w = viewers.weights / viewers.weights.sum()
@@ -459,21 +483,56 @@ def closed_loop_check(renderer: Any, display: Any, lighting: Any, viewers: Viewe
     lx = pixel_tables_um[reps][:, levels].astype(np.float64) / 1000.0  # (G, L) mm
     total = len(reps) * len(viewers.geometries)
     ogcd = np.empty_like(lx)
+    se = np.empty_like(lx)
     done = 0
     for g, p in enumerate(reps):  # one trace per group and viewer, never per pixel
-        ys = []
+        ys, es = [], []
         for geo in viewers.geometries:
             c = simulate_curve(renderer, display, lighting, geo.viewpoint(int(p)), lx[g],
                                settings, ccm=ccm, pixel_index=int(p))
             ys.append(c.ogcd)
+            es.append(c.ogcd_stderr)
             done += 1
             step(done, total)
         ogcd[g] = w @ np.stack(ys)
+        se[g] = w @ np.stack(es)
     target = levels[None, :] / (LEVELS - 1) * ogcd[:, -1:]
     r2 = np.array([r_squared(levels, y) for y in ogcd])
     return LoopCheck(levels=levels, representatives=reps, labels=viewers.labels,
                      lengths_mm=lx, ogcd=ogcd, target=target,
-                     max_dev=np.abs(ogcd - target).max(axis=1), r2=r2)
+                     max_dev=np.abs(ogcd - target).max(axis=1), r2=r2, ogcd_stderr=se,
+                     round=round_no)
+
+
+def refine_unit(u: UnitTable, loops: Sequence[LoopCheck],
+                group_characteristics: Sequence[Characteristic]) -> UnitTable:
+    """``u`` with its table rebuilt from its characteristic plus the points of every
+    closed-loop round in ``loops`` (its table's lengths at the check levels [mm] and its pixels'
+    mean loop OGCD [dE00], weighted by pixel count), as the global run refines its table
+    (:meth:`grassd.daemon.calibrate.Calibrator.run`). The errors are re-measured on the unit's
+    pixels' own characteristics (``group_characteristics``, one per loop group); R^2 and the
+    OGCD range on the refined fit."""
+    from grassd.calib.length_table import build_length_table  # noqa: PLC0415
+    from grassd.daemon.display import table_deviation  # noqa: PLC0415
+
+    groups, counts = np.unique(loops[0].labels[u.pixels], return_counts=True)
+    w = counts / counts.sum()
+    c = u.characteristic
+    se0 = c.ogcd_stderr if c.ogcd_stderr is not None else np.zeros_like(c.ogcd)
+    xs, ys, ses = [c.lengths_mm], [c.ogcd], [se0]
+    for lp in loops:  # the unit's table drives all its groups: one set of lengths per round
+        xs.append(lp.lengths_mm[groups[0]])
+        ys.append(w @ lp.ogcd[groups])
+        ses.append(w @ lp.ogcd_stderr[groups])
+    fit = fit_characteristic(Characteristic(np.concatenate(xs), np.concatenate(ys),
+                                            np.maximum(np.concatenate(ses), 1e-6)))
+    table = build_length_table(fit)
+    errs = np.array([np.abs(table_deviation(fit_characteristic(group_characteristics[g]),
+                                            table.lengths_mm)).max() for g in groups])
+    r2b, r2a = _r2_pair(fit, table.lengths_um)
+    return replace(u, lengths_um=np.asarray(table.lengths_um, np.uint16),
+                   max_error=float(errs.max()), mean_error=float(w @ errs), r2_before=r2b,
+                   r2_after=r2a, ogcd_range=float(fit.ogcd_range), refined_rounds=len(loops))
 
 
 # --------------------------------------------------------------------------- the run
@@ -550,23 +609,48 @@ def calibrate_display(cal: Calibrator, light: LightInput, *,
         except CalibrationRejected as exc:
             raise CalibrationRejected(f"{u.name}: {exc}") from None
     green_max = float(d.pixel.get("green_max_mm", 20.0))
-    controller_tables = controller_tables_of(cfg, units, unit_of_pixel)
-    steps = [check_table(whole.lengths_um, green_max, None, cc.max_jump_mm, force,
-                         "display-wide table")]
-    for name, table in controller_tables.items():
-        prev = None if previous_tables is None else previous_tables.get(name)
-        if prev is not None and np.ndim(prev) != 1 and np.shape(prev) != table.shape:
-            prev = None  # its pixel count changed: compare with the display-wide table
-        steps.append(check_table(table, green_max, prev if prev is not None else previous_um,
-                                 cc.max_jump_mm, force, f"table of controller {name}"))
-    known = [s for s in steps if s is not None]
-    # closed loop, round 1: the tables as the display will show them, re-simulated
+
+    def checked_tables(units: list[UnitTable]) -> tuple[dict[str, NDArray], int | None]:
+        tables = controller_tables_of(cfg, units, unit_of_pixel)
+        steps = [check_table(whole.lengths_um, green_max, None, cc.max_jump_mm, force,
+                             "display-wide table")]
+        for name, table in tables.items():
+            prev = None if previous_tables is None else previous_tables.get(name)
+            if prev is not None and np.ndim(prev) != 1 and np.shape(prev) != table.shape:
+                prev = None  # its pixel count changed: compare with the display-wide table
+            steps.append(check_table(table, green_max,
+                                     prev if prev is not None else previous_um,
+                                     cc.max_jump_mm, force, f"table of controller {name}"))
+        known = [s for s in steps if s is not None]
+        return tables, max(known) if known else None
+
+    controller_tables, max_step = checked_tables(units)
+    # closed loop: the tables as the display will show them, re-simulated with a fresh seed
+    # per round; units off the linear target by more than target_de00 get the round's points
+    # added to their fit and a new table (from [[viewpoints]]; a region table is not the
+    # inverse of one characteristic, so [audience] runs check one round)
     t_loop = time.perf_counter()
     levels = np.unique(np.rint(np.linspace(0, LEVELS - 1, cc.check_levels)).astype(np.int64))
-    pixel_tables = np.stack([u.lengths_um for u in units])[unit_of_pixel]
-    loop = closed_loop_check(renderer, display, lighting, viewers, pixel_tables, levels,
-                             replace(settings, seed=settings.seed + 1000), ccm,
-                             stepper("closed loop"))
+    rounds: list[LoopCheck] = []
+    points: dict[int, list[LoopCheck]] = {}
+    for k in range(1, cc.max_rounds + 1):
+        pixel_tables = np.stack([u.lengths_um for u in units])[unit_of_pixel]
+        loop = closed_loop_check(renderer, display, lighting, viewers, pixel_tables, levels,
+                                 replace(settings, seed=settings.seed + 1000 * k), ccm,
+                                 stepper(f"closed loop round {k}"), round_no=k)
+        rounds.append(loop)
+        pixel_dev = loop.pixel_dev()
+        off = [i for i, u in enumerate(units)
+               if u.pixels.size and pixel_dev[u.pixels].max() > cc.target_de00]
+        log.info("display closed loop round %d: max deviation %.3f dE00, %d of %d tables "
+                 "above %.2f", k, float(loop.max_dev.max()), len(off), len(units),
+                 cc.target_de00)
+        if not off or k == cc.max_rounds or viewers.group_characteristics is None:
+            break
+        for i in off:
+            points.setdefault(i, []).append(loop)
+            units[i] = refine_unit(units[i], points[i], viewers.group_characteristics)
+        controller_tables, max_step = checked_tables(units)
     pixel_dev = loop.pixel_dev()
     pixel_r2 = loop.r2[loop.labels]
     units = [replace(u, loop_max_dev=float(pixel_dev[u.pixels].max()),
@@ -578,6 +662,6 @@ def calibrate_display(cal: Calibrator, light: LightInput, *,
         table_um=whole.lengths_um, controller_tables=controller_tables, units=units,
         unit_of_pixel=unit_of_pixel, ccm=ccm, ccm_source=ccm_source,
         lighting_notes=tuple(getattr(lighting, "notes", ())), grouping=grouping, region=region,
-        loop=loop, seconds={"simulate": t_sim, "closed_loop": total - (t_loop - t_start),
-                            "total": total},
-        max_step_um=max(known) if known else None)
+        loop=loop, loop_rounds=rounds,
+        seconds={"simulate": t_sim, "closed_loop": total - (t_loop - t_start), "total": total},
+        max_step_um=max_step)

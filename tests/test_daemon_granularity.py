@@ -4,9 +4,9 @@ simulated controllers on real ptys (one bus each), low sample counts.
 Checked: each controller is pushed its own table (per controller: (256,), per pixel: (2, 256))
 and ends up reporting that table's CRC; history, status and the JSON report carry every
 controller's CRC; an unplugged controller gets its own table on reconcile; the closed loop
-re-simulates every pixel group; an audience region of one eye gives the tables of the equivalent
-viewpoint; Fleet.push takes a name -> table map; `grassd calibrate --now` and `grassd status`
-(separate processes) show per-controller CRCs.
+re-simulates every pixel group and refines the tables that miss its target; an audience region
+of one eye gives the tables of the equivalent viewpoint; Fleet.push takes a name -> table map;
+`grassd calibrate --now` and `grassd status` (separate processes) show per-controller CRCs.
 """
 
 from __future__ import annotations
@@ -59,6 +59,7 @@ lengths = 5
 replicates = 4
 max_jump_mm = 20.0
 check_levels = 5
+max_rounds = 1
 """
 AUDIENCE = """
 [audience]
@@ -317,3 +318,44 @@ def test_history_keeps_tables_per_run_and_prunes_them_with_the_run(tmp_path):
         assert got["p#1"].table_crc == table_checksum(a + 1)
         assert h.prune_runs(1) == 2  # keeps the newest run only
         assert h.run_tables(ids[0]) == {} and set(h.run_tables(ids[2])) == {"p#1", "p#2"}
+
+
+def test_closed_loop_refines_the_tables_that_miss_the_target(tmp_path):
+    """Per-controller and per-pixel runs refine like the global run: a unit whose pixels miss
+    target_de00 in a closed-loop round gets the round's points added to its fit and a new
+    table, re-checked in the next round; a unit within the target keeps its table. Round 1 is
+    the max_rounds = 1 run (same seeds)."""
+    init_backend(config(tmp_path, ""))
+    for gran in ("controller", "pixel"):
+        extra = f'[tables]\ngranularity = "{gran}"\ncheck_groups = 0\n'
+        one = Calibrator(config(tmp_path, extra)).run(light())
+        assert one.metrics()["rounds"] == 1 and one.metrics()["refined_tables"] == 0
+        devs = [u.loop_max_dev for u in one.units]
+        target = float(np.median(devs))  # some units miss it, some meet it
+        two = Calibrator(parse_config(BASE.replace("max_rounds = 1", f"max_rounds = 2\n"
+                                                   f"target_de00 = {target}") + extra,
+                                      base_dir=tmp_path)).run(light())
+        m = two.metrics()
+        assert m["rounds"] == 2 and [lp.round for lp in two.loop_rounds] == [1, 2]
+        np.testing.assert_array_equal(two.loop_rounds[0].ogcd, one.loop.ogcd)
+        assert m["refined_tables"] == sum(d > target for d in devs) > 0
+        for u1, u2, dev in zip(one.units, two.units, devs, strict=True):
+            same = np.array_equal(u1.lengths_um, u2.lengths_um)
+            assert (u2.refined_rounds, same) == ((1, False) if dev > target else (0, True))
+            np.testing.assert_array_equal(u2.characteristic.ogcd, u1.characteristic.ogcd)
+        # the pushed tables are the refined ones, and the last round checked them
+        stacked = np.stack([u.lengths_um for u in two.units])[two.unit_of_pixel]
+        np.testing.assert_array_equal(two.loop.lengths_mm,
+                                      stacked[two.loop.representatives][:, two.loop.levels]
+                                      / 1000.0)
+        for c, pix in zip(two_cfg_controllers(tmp_path, extra), ((0, 1), (2, 3)), strict=True):
+            t = two.controller_tables[c]
+            rows = stacked[list(pix)]
+            np.testing.assert_array_equal(t, rows if gran == "pixel" else rows[0])
+        report = two.report()
+        assert [r["round"] for r in report["closed_loop_rounds"]] == [1, 2]
+        assert report["closed_loop"]["round"] == 2
+
+
+def two_cfg_controllers(tmp_path: Path, extra: str) -> list[str]:
+    return [c.name for c in config(tmp_path, extra).controllers]
