@@ -88,8 +88,9 @@ def main() -> None:
             d = state / "inbox" / f".b{i}"
             d.mkdir(parents=True)
             shutil.copy(site, d / "sky.exr")
+            # light times grow with i: older light than the active table's is superseded
             (d / "manifest.toml").write_text(
-                f'timestamp = 2026-06-21T10:{i % 60:02d}:{i // 60:02d}+09:00\n'
+                f'timestamp = 2026-06-21T10:{i // 60:02d}:{i % 60:02d}+09:00\n'
                 f'hdri = "sky.exr"\nambient_lux = {1000 + i}\n')
             os.rename(d, state / "inbox" / f"b{i:03d}")
             while True:  # one status request per poll (it was asked twice)

@@ -6,7 +6,8 @@ each *tick* (``tick_s``) it
 1. applies a pending reload (SIGHUP or ``reload`` request): a new config that fails validation
    is refused and the old one kept;
 2. polls the inbox and processes every complete bundle (calibrate -> commit -> push -> archive,
-   or reject with the reason);
+   or reject with the reason); a bundle whose light is older than the active table's (a late
+   upload, or one held back) is archived as superseded without a run or a push;
 3. serves queued ``calibrate`` requests from the control socket;
 4. starts a scheduled run when ``schedule.interval_s`` has passed since the last run (light of
    the last archived bundle, lux from the sensor when configured);
@@ -395,7 +396,14 @@ class Service:
 
     def one_shot(self, force: bool = False) -> dict[str, Any]:
         """`grassd calibrate --now` without a daemon: process complete bundles waiting in the
-        inbox (no settle time) or, when there are none, run on the last bundle's light."""
+        inbox (no settle time) or, when there are none, run on the last bundle's light.
+
+        The bundles are processed exactly as the daemon would: one whose light is older than
+        the active table's is archived as superseded, not applied (the command has no way to
+        name its input, so an inbox bundle is indistinguishable from a late upload, and
+        "now" asks for the current light, not a return to stale light); the result is then
+        ``{"status": "superseded", ...}`` and the CLI exits 2 with the reason. Without a
+        bundle the run uses the latest applied bundle's light, which is never older."""
         init_backend(self.cfg)
         self.history.abandon_running("daemon stopped or crashed during the run")
         self.inbox.settle_s = 0.0
@@ -538,7 +546,7 @@ class Service:
                     "table_crc": done.table_crc, "metrics": done.metrics,
                     "report": done.report_path, "plot": done.plot_path, "controllers": []}
         why = self._superseded(b)
-        if why is not None:  # held back while a newer light became active: do not apply it
+        if why is not None:  # newer light made the active table: do not apply older light
             run_id = self.history.start_run("bundle", bundle_hash=b.hash,
                                             input_hashes=b.input_hashes,
                                             light_at=b.manifest.timestamp.timestamp())
@@ -589,30 +597,63 @@ class Service:
         return out
 
     def _superseded(self, b: Bundle) -> str | None:
-        """Why bundle ``b`` must not be applied, or None: it was held back (claimed before the
-        active table's run started: it waited for the lux sensor, after a write failure or
-        across a restart) and its light is older than that run's. Compared by light capture
-        time (manifest timestamps); where the active run's is not known (a database from
-        before ``light_at``), by arrival (journal claim time) of the two bundles. A run on the
-        embedded default site, or none yet, never supersedes a bundle."""
+        """Why bundle ``b`` must not be applied, or None: its light is older than the light of
+        the run whose table is active (:meth:`History.current_table`), whether it was held
+        back (waiting for the lux sensor, after a write failure, across a restart) or simply
+        uploaded late. Applying it would replace a table made for newer light with one for
+        stale conditions.
+
+        Compared by light capture time (manifest timestamps, which the manifest parser
+        requires, so every bundle has one). Light exactly as old as the active table's is
+        applied: it is a corrected re-upload of the same measurement (identical content is a
+        duplicate and never gets here), and the later upload wins. Only a run that made the
+        active table counts: a newer run that failed or was rejected made none. The very
+        first bundle (no active table) and a bundle arriving while the active table came from
+        the embedded default site (no light time) are applied. Where the active run's light
+        time was not recorded (a database from before ``light_at``) it is read from that
+        run's archived bundle; failing that, only a held-back bundle that arrived before the
+        active run's bundle is superseded (by journal claim time). `grassd calibrate --now`
+        processes the inbox through here too: the rule holds for it (see
+        :meth:`one_shot`)."""
         cur = self.history.current_table()
-        mine = self.history.journal_get(b.hash)
-        if cur is None or mine is None or mine.created_at >= cur.started_at:
+        if cur is None:
             return None
-        if cur.light_at is not None:
+        active_at = cur.light_at if cur.light_at is not None else self._archived_light_at(cur)
+        if active_at is not None:
             ts = b.manifest.timestamp.timestamp()
-            if ts >= cur.light_at:
+            if ts >= active_at:
                 return None
             iso = [datetime.fromtimestamp(t, UTC).isoformat(timespec="seconds")
-                   for t in (ts, cur.light_at)]
+                   for t in (ts, active_at)]
             return (f"superseded: its light ({iso[0]}) is older than the light ({iso[1]}) "
                     f"of run {cur.id}, which made the active table {cur.table_id}")
+        mine = self.history.journal_get(b.hash)
+        if mine is None or mine.created_at >= cur.started_at:
+            return None
         src = cur.bundle_hash or cur.input_hashes.get("bundle")
         other = None if src is None else self.history.journal_get(src)
         if other is None or mine.created_at >= other.created_at:
             return None
         return (f"superseded: it arrived before bundle {other.bundle_id}, whose light made "
                 f"the active table {cur.table_id} (run {cur.id})")
+
+    def _archived_light_at(self, run) -> float | None:
+        """Light capture time (epoch s) of run ``run``'s bundle from its archived manifest,
+        for a run recorded without ``light_at``; None when it has no bundle or the bundle is
+        gone or unreadable."""
+        src = run.bundle_hash or run.input_hashes.get("bundle")
+        j = None if src is None else self.history.journal_get(src)
+        if j is None or j.state != "archived":
+            return None
+        d = self.inbox.archive / j.bundle_id
+        for name in ("manifest.toml", "manifest.json"):
+            if (d / name).is_file():
+                try:
+                    m = parse_manifest(read_manifest_data(d / name), d, self.inbox.tz)
+                except DaemonError:
+                    return None
+                return m.timestamp.timestamp()
+        return None
 
     def scheduled_run(self, trigger: str, force: bool = False) -> dict[str, Any]:
         """A run without a new bundle: light of the last archived bundle (or the embedded

@@ -145,7 +145,8 @@ class Daemon:
 
 
 def manifest(i: int, lux: float | None = None, extra: str = "") -> str:
-    text = f'timestamp = 2026-06-21T{8 + i % 10:02d}:{i % 60:02d}:00+09:00\nhdri = "sky.exr"\n'
+    # light times grow with i: light older than the active table's is superseded, not applied
+    text = f'timestamp = 2026-06-21T{8 + i // 60:02d}:{i % 60:02d}:00+09:00\nhdri = "sky.exr"\n'
     if lux is not None:
         text += f"ambient_lux = {lux}\n"
     return text + extra
