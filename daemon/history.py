@@ -16,7 +16,8 @@ Tables:
   every controller the run's own table (``runs.lengths_um``). Added to older databases by
   ``CREATE TABLE IF NOT EXISTS`` (no schema version change).
 - ``journal``: the ingest journal, one row per bundle keyed by its content hash; state
-  ``processing``/``archived``/``rejected`` (see :mod:`grassd.daemon.ingest`).
+  ``processing``/``archived``/``rejected`` (see :mod:`grassd.daemon.ingest`). Rows in a final
+  state are pruned with their bundles by retention (:meth:`History.prune_journal`).
 - ``controllers``: last reported state of each controller (table id, CRC, reachable, error).
 
 Every write is one transaction; WAL mode lets ``grassd status`` read while the daemon writes.
@@ -29,7 +30,7 @@ import json
 import sqlite3
 import threading
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Collection, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -337,10 +338,15 @@ class History:
             return self._query("SELECT COUNT(*) FROM runs")[0][0]
         return self._query("SELECT COUNT(*) FROM runs WHERE status = ?", (status,))[0][0]
 
-    def ok_run_for_bundle(self, bundle_hash: str) -> RunRecord | None:
-        """The successful run that consumed bundle ``bundle_hash``, if any."""
+    def ok_run_for_bundle(self, bundle_hash: str, claimed_at: float | None = None
+                          ) -> RunRecord | None:
+        """The successful run that consumed bundle ``bundle_hash``, if any. With ``claimed_at``
+        (epoch s: when the bundle's journal row was created) only a run started since then: an
+        earlier run consumed an earlier upload of the same content whose journal row
+        retention has since pruned (:meth:`prune_journal`), so this upload is new."""
         rows = self._query("SELECT * FROM runs WHERE bundle_hash = ? AND status = 'ok' "
-                           "ORDER BY id DESC LIMIT 1", (bundle_hash,))
+                           "AND started_at >= ? ORDER BY id DESC LIMIT 1",
+                           (bundle_hash, -1.0 if claimed_at is None else claimed_at))
         return _run(rows[0]) if rows else None
 
     def current_table(self) -> RunRecord | None:
@@ -499,6 +505,35 @@ class History:
         """The journal row of ``bundle_hash``, if any."""
         rows = self._query("SELECT * FROM journal WHERE bundle_hash = ?", (bundle_hash,))
         return JournalEntry(*rows[0]) if rows else None
+
+    def prune_journal(self, before: float, keep_ids: Collection[str] = (),
+                      protect: Collection[str] = ()) -> int:
+        """Delete the journal rows of bundles in a final state (``archived``/``rejected``) last
+        updated before ``before`` (epoch s), except those whose bundle id is in ``keep_ids``
+        (e.g. their directory is still in archive/ or rejected/) or whose hash is in
+        ``protect`` (e.g. the latest archived bundle, the active table's bundle). Rows still
+        ``processing`` are never deleted. Returns the number of rows deleted.
+
+        A deleted row no longer marks its content as seen: a re-upload of that bundle is not
+        rejected as a duplicate but claimed and processed as new (see
+        :func:`grassd.daemon.retention.prune`)."""
+        keep_ids, protect = set(keep_ids), set(protect)
+        with self._tx() as db:
+            gone = [h for h, bid in db.execute(
+                "SELECT bundle_hash, bundle_id FROM journal WHERE state IN ('archived', "
+                "'rejected') AND updated_at < ?", (before,))
+                if bid not in keep_ids and h not in protect]
+            for k in range(0, len(gone), 500):
+                chunk = gone[k:k + 500]
+                db.execute(f"DELETE FROM journal WHERE state IN ('archived', 'rejected') AND "
+                           f"bundle_hash IN ({','.join('?' * len(chunk))})", chunk)
+            return len(gone)
+
+    def journal_count(self, state: str | None = None) -> int:
+        """Number of journal rows (in ``state`` when given)."""
+        if state is None:
+            return self._query("SELECT COUNT(*) FROM journal")[0][0]
+        return self._query("SELECT COUNT(*) FROM journal WHERE state = ?", (state,))[0][0]
 
     def latest_archived(self) -> JournalEntry | None:
         """The most recently archived bundle that a run used (the light of scheduled runs): not

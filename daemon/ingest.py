@@ -36,6 +36,15 @@ consumed it (then it is archived without running again) or it has been attempted
 ``max_attempts`` times (then it is rejected: it probably crashes the daemon); a half-moved flat
 bundle goes back to the inbox; a bundle whose hash was already archived or rejected is rejected
 as a duplicate. So no bundle is lost and none is processed twice.
+
+Duplicates are recognised by the journal row of their hash, and retention
+(:func:`grassd.daemon.retention.prune`) deletes the rows of bundles in a final state once
+their directories have expired (older than ``[retention] keep_days``), keeping every
+``processing`` row and the rows of the latest archived and the active table's bundle. A
+re-upload of a bundle whose row was pruned is therefore processed again as new. That is
+acceptable: its light is older than ``keep_days``, so unless no newer light made the active
+table it is archived as superseded (not applied) by the daemon, and a successful run of the
+earlier upload is not mistaken for this upload's (only runs started after its claim count).
 """
 
 from __future__ import annotations
@@ -520,7 +529,8 @@ class Inbox:
     # ------------------------------------------------------------------ internals
     def _retry_or_settle(self, h: str, bid: str, name: str, attempts: int) -> Bundle | None:
         d = self.processing / bid
-        done = self.history.ok_run_for_bundle(h)
+        row = self.history.journal_get(h)
+        done = self.history.ok_run_for_bundle(h, None if row is None else row.created_at)
         if done is not None:  # processed, crashed before the archive move: do not run again
             self._rename(d, self.archive / bid)
             self.history.journal_finish(h, "archived", run_id=done.id)

@@ -11,6 +11,14 @@ After every run (and at start) :func:`prune` deletes
   missing file;
 - history rows beyond the newest ``keep_runs`` runs (with their push rows), except the active
   table's run and unfinished runs, and reconcile push rows older than ``keep_days``;
+- ingest journal rows of bundles in a final state (archived or rejected) older than
+  ``keep_days`` whose directory is gone from ``archive/`` and ``rejected/`` (removed above, or
+  earlier), except the rows of the latest archived bundle and of the active table's bundle;
+  rows still ``processing`` (crash recovery needs them) are never touched. A pruned row no
+  longer marks its content as seen: a re-upload of that bundle is processed again as new
+  rather than rejected as a duplicate, which is acceptable because its light is older than
+  ``keep_days`` (the daemon archives it as superseded when newer light made the active
+  table); a bundle whose directory could not be removed keeps its row, and so its age;
 - leftovers of interrupted atomic writes and cross-device copies (hidden ``*.tmp`` /
   ``*.copy`` entries older than an hour).
 
@@ -42,15 +50,18 @@ _REPORT_RE = re.compile(r"^run-(\d+)\.(json|png)$")
 
 @dataclass
 class PruneResult:
-    """What one :func:`prune` removed: bundle ids, report files, history runs, temporaries."""
+    """What one :func:`prune` removed: bundle ids, report files, history runs, ingest journal
+    rows, temporaries."""
 
     bundles: list[str] = field(default_factory=list)
     reports: list[str] = field(default_factory=list)
     runs: int = 0
     temporaries: list[str] = field(default_factory=list)
+    journal: int = 0
 
     def __bool__(self) -> bool:
-        return bool(self.bundles or self.reports or self.runs or self.temporaries)
+        return bool(self.bundles or self.reports or self.runs or self.temporaries
+                    or self.journal)
 
 
 def _newest_mtime(d: Path) -> float:
@@ -96,6 +107,7 @@ def prune(state_dir: str | os.PathLike[str], history: History, keep: RetentionCo
                 if j.state in ("archived", "rejected")}
     latest = history.latest_archived()
     protected = {latest.bundle_id} if latest is not None else set()
+    present: set[str] = set()  # bundle directories left in archive/ and rejected/
     for sub in ("archive", "rejected"):
         d = state / sub
         if not d.is_dir():
@@ -105,14 +117,22 @@ def prune(state_dir: str | os.PathLike[str], history: History, keep: RetentionCo
                 if e.name.endswith(".copy") and _newest_mtime(e) < now - STALE_TEMP_S:
                     drop(e, out.temporaries)
                 continue
+            present.add(e.name)
             if e.name in protected:
                 continue
             age_at = finished.get(e.name) or _newest_mtime(e)
             if age_at < cutoff:
                 drop(e, out.bundles)
+    present -= set(out.bundles)
+
+    # ---- ingest journal
+    cur = history.current_table()
+    keep_rows = {latest.bundle_hash} if latest is not None else set()
+    if cur is not None:
+        keep_rows |= {h for h in (cur.bundle_hash, cur.input_hashes.get("bundle")) if h}
+    out.journal = history.prune_journal(cutoff, keep_ids=present, protect=keep_rows)
 
     # ---- reports
-    cur = history.current_table()
     active = {cur.id} if cur is not None else set()
     if reports.is_dir():
         by_run: dict[int, list[Path]] = {}
@@ -139,6 +159,6 @@ def prune(state_dir: str | os.PathLike[str], history: History, keep: RetentionCo
     out.runs = history.prune_runs(keep.keep_runs, protect=active, reconcile_before=cutoff)
     if out:
         log.info("retention: removed %d bundle(s), %d report file(s), %d history run(s), "
-                 "%d temporary file(s)", len(out.bundles), len(out.reports), out.runs,
-                 len(out.temporaries))
+                 "%d ingest journal row(s), %d temporary file(s)", len(out.bundles),
+                 len(out.reports), out.runs, out.journal, len(out.temporaries))
     return out

@@ -539,8 +539,10 @@ class Service:
         return out
 
     def _attempt_bundle(self, b: Bundle) -> dict[str, Any]:
-        done = self.history.ok_run_for_bundle(b.hash)
-        if done is not None:  # committed, but the archive move failed last time
+        mine = self.history.journal_get(b.hash)
+        done = self.history.ok_run_for_bundle(b.hash, None if mine is None else mine.created_at)
+        if done is not None:  # committed, but the archive move failed last time (a run of
+            # an earlier upload whose journal row retention pruned does not count)
             self.inbox.archive_bundle(b, done.id)
             return {"status": "ok", "run_id": done.id, "table_id": done.table_id,
                     "table_crc": done.table_crc, "metrics": done.metrics,
