@@ -7,7 +7,8 @@ each *tick* (``tick_s``) it
    is refused and the old one kept;
 2. polls the inbox and processes every complete bundle (calibrate -> commit -> push -> archive,
    or reject with the reason); a bundle whose light is older than the active table's (a late
-   upload, or one held back) is archived as superseded without a run or a push;
+   upload, or one held back) is archived as superseded without a run or a push; bundles
+   of one pass go newest light first, so a backlog costs one calibration;
 3. serves queued ``calibrate`` requests from the control socket;
 4. starts a scheduled run when ``schedule.interval_s`` has passed since the last run (light of
    the last archived bundle, lux from the sensor when configured);
@@ -138,6 +139,11 @@ def os_action(exc: BaseException, written: Sequence[Path] = (), otherwise: str =
         if any(p == d or d in p.parents for d in written):
             return "write"
     return otherwise
+
+
+def _light_time(b: Bundle) -> datetime:
+    """When bundle ``b``'s light was captured (its manifest timestamp, timezone-aware)."""
+    return b.manifest.timestamp
 
 
 def rss_mb() -> float:
@@ -331,6 +337,8 @@ class Service:
             ib = self.inbox
             self._survived(exc, f"inbox {self.cfg.light.inbox}", os_action(
                 exc, (ib.processing, ib.archive, ib.rejected), otherwise="read"))
+        bundles.sort(key=_light_time, reverse=True)  # newest light first (ties: in order),
+        # so that a backlog costs one calibration: the older ones are then superseded
         for b in bundles:
             if self.stop_event.is_set():
                 return
@@ -398,21 +406,21 @@ class Service:
         """`grassd calibrate --now` without a daemon: process complete bundles waiting in the
         inbox (no settle time) or, when there are none, run on the last bundle's light.
 
-        The bundles are processed exactly as the daemon would: one whose light is older than
-        the active table's is archived as superseded, not applied (the command has no way to
-        name its input, so an inbox bundle is indistinguishable from a late upload, and
-        "now" asks for the current light, not a return to stale light); the result is then
-        ``{"status": "superseded", ...}`` and the CLI exits 2 with the reason. Without a
-        bundle the run uses the latest applied bundle's light, which is never older."""
+        The bundles are processed as the daemon does, newest light first; the result is that
+        of the newest bundle (the one meant to make the table). A bundle whose light is older
+        than the active table's is archived as superseded, not applied (the command has no
+        way to name its input, so an inbox bundle is indistinguishable from a late upload,
+        and "now" asks for the current light, not a return to stale light); when that is
+        the newest, the result is ``{"status": "superseded", ...}`` and the CLI exits 2 with
+        the reason. Without a bundle the run uses the latest applied bundle's light, which
+        is never older."""
         init_backend(self.cfg)
         self.history.abandon_running("daemon stopped or crashed during the run")
         self.inbox.settle_s = 0.0
-        bundles = self.inbox.recover() + self.inbox.poll()
-        out: dict[str, Any] | None = None
-        for b in bundles:
-            out = self.process_bundle(b)
-        if out is None:
-            out = self.scheduled_run("request", force=force)
+        bundles = sorted(self.inbox.recover() + self.inbox.poll(), key=_light_time,
+                         reverse=True)
+        results = [self.process_bundle(b) for b in bundles]
+        out = results[0] if results else self.scheduled_run("request", force=force)
         self.reconcile()
         return out
 

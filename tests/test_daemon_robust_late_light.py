@@ -3,7 +3,8 @@ table's (a late upload), is not applied: it is archived as superseded (history r
 reason, one log line naming both light times) and nothing is pushed, so the controllers keep
 the table made for the newer light. Light as old as the active table's (a corrected re-upload
 of the same measurement) is applied; a newer run that was rejected does not count; the very
-first bundle is applied whatever its age; `grassd calibrate --now` follows the same rule.
+first bundle is applied whatever its age; bundles arriving together go newest light first;
+`grassd calibrate --now` follows the same rules.
 In-process daemon, real renders, simulated controllers on ptys, pymodbus lux sensor."""
 
 from __future__ import annotations
@@ -113,6 +114,20 @@ def test_late_upload_of_older_light_is_archived_as_superseded(tmp_path, hw, capl
     svc.tick()
     _assert_superseded(svc, "older", svc.history.run(fixed.id), "2026-03-01T11:29:59+00:00",
                        "2026-03-01T11:30:00+00:00")
+
+    # a backlog arriving in one pass goes newest light first: one calibration, one push
+    runs = svc.history.run_count()
+    drop(inbox, "b1300", lux=1300.0, timestamp="2026-03-01T13:00:00+01:00")
+    drop(inbox, "b1400", lux=1400.0, timestamp="2026-03-01T14:00:00+01:00")
+    drop(inbox, "b1330", lux=1330.0, timestamp="2026-03-01T13:30:00+01:00")
+    svc.tick()
+    last = svc.history.current_table()
+    assert last.bundle_hash == _entry(svc, "b1400").bundle_hash
+    assert svc.history.run_count() == runs + 3 and svc.history.run_count("ok") == 4
+    _assert_superseded(svc, "b1300", last, "2026-03-01T12:00:00+00:00",
+                       "2026-03-01T13:00:00+00:00")
+    _assert_superseded(svc, "b1330", last, "2026-03-01T12:30:00+00:00",
+                       "2026-03-01T13:00:00+00:00")
     svc.shutdown()
 
 
@@ -147,4 +162,16 @@ def test_calibrate_now_supersedes_older_light_in_the_inbox(tmp_path, hw):
     svc = service(conf)
     assert svc.history.current_table().id == noon.id
     assert _reported(svc) == {(noon.table_id, noon.table_crc)}
+    svc.shutdown()
+
+    # two bundles waiting: the newest makes the table, the older is superseded, exit 0
+    drop(svc.cfg.light.inbox, "b1300", lux=1300.0, timestamp="2026-03-01T13:00:00+01:00")
+    drop(svc.cfg.light.inbox, "b1400", lux=1400.0, timestamp="2026-03-01T14:00:00+01:00")
+    r = CliRunner().invoke(cli, ["calibrate", "--now", "--config", str(conf)])
+    assert r.exit_code == 0 and "one-shot run" in r.output, r.output
+    svc = service(conf)
+    cur = svc.history.current_table()
+    assert cur.id > noon.id and abs(cur.lux - 1400.0) < 1e-9
+    assert [r.status for r in svc.history.runs(2)] == ["superseded", "ok"]
+    assert _reported(svc) == {(cur.table_id, cur.table_crc)}
     svc.shutdown()
