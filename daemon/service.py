@@ -945,7 +945,7 @@ def collect_status(history: History, cfg: Config, runs: int = 5) -> dict[str, An
     return {
         "health": health, "desired_table": desired, "controllers": controllers,
         "runs": [_run_summary(r) for r in history.runs(runs)],
-        "run_counts": {s: history.run_count(s) for s in ("ok", "rejected", "failed")},
+        "run_counts": {s: history.run_count(s) for s in ("ok", "rejected", "failed", "superseded")},
         "state_dir": str(cfg.state_dir), "running": False,
     }
 

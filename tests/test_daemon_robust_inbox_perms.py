@@ -89,7 +89,7 @@ def test_unmovable_bundle_is_reported_once_and_taken_when_fixed(tmp_path, hw):
         time.sleep(2.0)  # ten more ticks: no crash, no retry, no second log line
         st = status(sock, proc)
         assert st["inbox_problems"] == [msg] and st["inbox"]["inbox"] == 1
-        assert st["run_counts"] == {"ok": 0, "rejected": 0, "failed": 0}
+        assert st["run_counts"] == {"ok": 0, "rejected": 0, "failed": 0, "superseded": 0}
         assert log.read_text().count("cannot move bundle b1") == 1
         with History(state / "state.db") as h:
             assert h.journal() == []

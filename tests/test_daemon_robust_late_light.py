@@ -86,6 +86,7 @@ def test_late_upload_of_older_light_is_archived_as_superseded(tmp_path, hw, capl
         top = st["runs"][0]
         assert (top["status"], top["error"]) == ("superseded", _entry(svc, "late").reason)
         assert st["desired_table"]["run_id"] == noon.id and st["health"] == "ok"
+        assert st["run_counts"] == {"ok": 1, "rejected": 0, "failed": 0, "superseded": 1}
 
     # a newer run that was rejected made no table: its light does not count
     _corrupt(inbox, "broken", "2026-03-01T14:00:00+01:00")
