@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -209,4 +211,6 @@ def test_grouping_checks_skip_the_decomposition_with_a_shared_layout(renderer, l
                            progress=lambda d, n: calls.append(n))
     err = sim.grouping_error
     assert len(err.groups) == 1 and np.isnan(err.geometry_diff).all()
+    assert "max_pixel_diff" not in err.summary() and "max_geometry_diff" not in err.summary()
+    json.dumps(err.summary(), allow_nan=False)  # reports stay strict JSON
     assert calls[-1] == sim.groups.n_groups + 1
