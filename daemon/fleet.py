@@ -22,7 +22,8 @@ the failures began, or it answers again after being unreachable for longer than 
 delay (unplugged, power-cycled). A status read that fails now and then on a noisy bus is no such
 evidence: the backoff keeps growing (a failed status read is no failed push: it neither
 extends nor ends the backoff). A controller whose status read fails (no push tried) is
-logged as not answering, one whose push failed as a failed push.
+logged as not answering, one that answers it with a NAK (e.g. firmware of another protocol
+version) as refusing it, one whose push failed as a failed push.
 Success ends the backoff; a new :class:`Fleet` (the daemon builds one on every reload) starts
 without any. :meth:`Fleet.push` (a run's own push, ``grassd calibrate --now``) ignores the
 backoff and tries at once. The first failure is logged, then one line per backoff step.
@@ -207,7 +208,8 @@ class Fleet:
         """Update the backoff of ``r``'s controller and log: success ends it (logged when it
         had failed before); a failure starts it (the same desired table and reported state)
         or doubles it, one warning each; a held push is not logged. A controller whose status
-        read failed (no push tried) is logged as not answering, not as a failed push."""
+        read failed (no push tried) is logged as not answering (or, answered with a NAK, as
+        refusing it), not as a failed push."""
         name = r.controller
         b = self._backoff.get(name)
         if r.ok:
@@ -227,6 +229,8 @@ class Fleet:
             if state[0] == "reports":
                 log.warning("controller %s: push failed: %s; next attempt in %g s", name,
                             r.error, b.delay_s)
+            elif state[0] == "refused":  # it answers, with a NAK: another cause, another fix
+                log.warning("controller %s: refuses the status request: %s", name, r.error)
             else:
                 log.warning("controller %s: not answering: %s", name, r.error)
             return

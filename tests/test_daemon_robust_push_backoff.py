@@ -185,3 +185,30 @@ def test_unreachable_controller_is_logged_as_not_answering(tmp_path, hw, caplog)
     [w] = _fleet_warnings(caplog, bad)
     assert f"controller {bad}: push failed: " in w and "not answering" not in w, w
     svc.shutdown()
+
+
+def test_refusing_controller_is_logged_as_refusing(tmp_path, hw, caplog):
+    """A controller that answers its status request with a NAK (e.g. firmware of another
+    protocol version) is reachable: logged once as refusing, with the NAK, never as not
+    answering; it is not pushed while it refuses, and is pushed when it answers again."""
+    from grassd.firmware_proto.messages import MsgType, Nak, NakCode
+
+    caplog.set_level(logging.INFO, logger="grassd.daemon.fleet")
+    sim, cfg = hw
+    svc, cur = after_first_bundle(tmp_path, cfg)
+    bad = svc.fleet.controllers[0].name
+    dev = sim.buses[0].controllers[0]
+    dev._status = lambda msg: Nak(MsgType.GET_STATUS, NakCode.UNSUPPORTED_VERSION, 2)
+    caplog.clear()
+    reports = [{x.controller: x for x in svc.fleet.push(cur.lengths_um, cur.table_id + 1,
+                                                        hold=True)}[bad] for _ in range(3)]
+    for r in reports:
+        assert r.reachable and not r.pushed and not r.ok and "UNSUPPORTED_VERSION" in r.error
+    [w] = _fleet_warnings(caplog, bad)
+    assert f"controller {bad}: refuses the status request: " in w, w
+    assert "not answering" not in w and "push failed" not in w
+    del dev._status  # answers again: pushed at once
+    [r] = [x for x in svc.fleet.push(cur.lengths_um, cur.table_id + 1, hold=True)
+           if x.controller == bad]
+    assert r.ok and r.pushed
+    svc.shutdown()
