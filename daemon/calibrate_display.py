@@ -34,15 +34,16 @@ Checks, as for the global run: every unit's characteristic passes
 more than ``max_jump_mm`` from the same controller's previous table, or from the previous
 display-wide table when the shapes differ, unless forced). Then the closed loop, up to
 ``max_rounds`` rounds as in the global run (:func:`closed_loop_check`): every pixel group's
-representative is re-simulated by every viewer at its own table's lengths for ``check_levels``
-levels (a fresh seed per round) and its weighted OGCD is compared with the linear target; a
-unit (controller or pixel group) whose pixels deviate by more than ``target_de00`` gets the
-round's points added to its fit and a new table (:func:`refine_unit`), which passes the table
-checks again, and the next round re-checks. ``max_dev_de00`` and ``r2_closed_loop`` are the
-worst group's in the last round. Tables from ``[audience]`` are checked in one round and not
-refined: a region table is not the inverse of one characteristic. The fits' own deviation from
-linear (``max_fit_dev_de00``, largest over the unit's pixels and sampled eyes) is reported
-beside it.
+representative (a group whose members two tables drive is checked once per table,
+:meth:`Viewers.split_by_table`) is re-simulated by every viewer at its own table's lengths for
+``check_levels`` levels (a fresh seed per round) and its weighted OGCD is compared with the
+linear target; a unit (controller or pixel group) whose pixels deviate by more than
+``target_de00`` gets the round's points added to its fit and a new table (:func:`refine_unit`),
+which passes the table checks again, and the next round re-checks. ``max_dev_de00`` and
+``r2_closed_loop`` are the worst group's in the last round. Tables from ``[audience]`` are
+checked in one round and not refined: a region table is not the inverse of one characteristic.
+The fits' own deviation from linear (``max_fit_dev_de00``, largest over the unit's pixels and
+sampled eyes) is reported beside it.
 """
 
 from __future__ import annotations
@@ -352,6 +353,23 @@ class Viewers:
     representatives: NDArray[np.int64]
     group_characteristics: list[Characteristic] | None = None
 
+    def split_by_table(self, unit_of_pixel: NDArray[np.int64]) -> Viewers:
+        """These viewers with every pixel group split where its members are driven by
+        different tables (``unit_of_pixel`` (N,)): groups follow viewing geometry, not
+        controllers, so a group can span two controllers, and the closed loop must check each
+        table on its own pixels. A part keeps the group's representative when it holds it,
+        else its first pixel (seen alike, within the grouping tolerance), and the group's
+        characteristic."""
+        pairs, first, inv = np.unique(np.stack([self.labels, unit_of_pixel], axis=1), axis=0,
+                                      return_index=True, return_inverse=True)
+        group = pairs[:, 0]
+        rep = self.representatives[group]
+        reps = np.where(unit_of_pixel[rep] == pairs[:, 1], rep, first).astype(np.int64)
+        chars = (None if self.group_characteristics is None
+                 else [self.group_characteristics[g] for g in group])
+        return replace(self, labels=inv.reshape(-1).astype(np.int64), representatives=reps,
+                       group_characteristics=chars)
+
 
 def _viewpoint_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
                      lengths: NDArray, settings: Any, ccm: Any, step: Callable[[int, int], None]
@@ -601,6 +619,7 @@ def calibrate_display(cal: Calibrator, light: LightInput, *,
         units, unit_of_pixel, whole, grouping, region, viewers = _audience_units(
             cal, renderer, display, lighting, lengths, settings, ccm, step)
     t_sim = time.perf_counter() - t_start
+    viewers = viewers.split_by_table(unit_of_pixel)  # every table checked on its own pixels
     cc = cfg.calibration
     for u in units:  # one check per table (controllers or pixel groups), never per pixel
         try:

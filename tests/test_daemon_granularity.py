@@ -359,3 +359,28 @@ def test_closed_loop_refines_the_tables_that_miss_the_target(tmp_path):
 
 def two_cfg_controllers(tmp_path: Path, extra: str) -> list[str]:
     return [c.name for c in config(tmp_path, extra).controllers]
+
+
+def test_closed_loop_measures_every_pixel_at_its_own_controller_table(tmp_path):
+    """A pixel group can span two controllers (4 x 2 at 2 m: rows 1 and 2 are seen alike, the
+    controllers own rows 0-1 and 2-3). The closed loop must check each controller's table on
+    its own pixels, not one member's table for the whole group: otherwise a controller's loop
+    deviation, and the points that refine its table, come from the other controller's table."""
+    from grassd.daemon.display import display_spec_for_config, group_pixels, pixel_geometry
+    from grassd.sim.scene import Viewpoint
+
+    text = (BASE.replace("rows = 2\ncols = 2", "rows = 4\ncols = 2")
+            .replace('pixels = "0-1"', 'pixels = "0-3"').replace('pixels = "2-3"', 'pixels = "4-7"')
+            + '[tables]\ngranularity = "controller"\ncheck_groups = 0\n')
+    cfg = parse_config(text, base_dir=tmp_path)
+    init_backend(cfg)
+    res = Calibrator(cfg).run(light())
+    labels = group_pixels(pixel_geometry(display_spec_for_config(cfg), Viewpoint(170, 2.0, 0.0)),
+                          cfg.tables.group_tolerance_deg).labels
+    spans = [g for g in np.unique(labels) if len(set(res.unit_of_pixel[labels == g])) > 1]
+    assert spans, "precondition: a pixel group spans both controllers"
+    lp = res.loop
+    stacked = np.stack([u.lengths_um for u in res.units])[res.unit_of_pixel]
+    np.testing.assert_array_equal(lp.lengths_mm[lp.labels], stacked[:, lp.levels] / 1000.0)
+    np.testing.assert_array_equal(res.unit_of_pixel[lp.representatives[lp.labels]],
+                                  res.unit_of_pixel)
