@@ -26,7 +26,8 @@ def _progress(msg: str) -> None:
 @click.argument("capture", type=click.Path(path_type=Path))
 @click.option("--samples", type=int, default=4096, show_default=True,
               help="Camera paths per length per replicate of the simulation.")
-@click.option("--replicates", type=int, default=8, show_default=True)
+@click.option("--replicates", type=click.IntRange(2, 64), default=8, show_default=True,
+              help="Independent replicates (their spread gives the standard error).")
 @click.option("--target-stderr", type=float, default=None,
               help="Add replicates until every simulated OGCD standard error is at most this.")
 @click.option("--seed", type=int, default=0, show_default=True)
@@ -95,7 +96,8 @@ def experiment() -> None:
 @click.option("--env", "envs", multiple=True,
               help="Run only these environments ('Env 1' .. 'Env 5'); repeatable.")
 @click.option("--samples", type=int, default=None, help="Paths per length per replicate.")
-@click.option("--replicates", type=int, default=None)
+@click.option("--replicates", type=click.IntRange(2, 64), default=None,
+              help="Independent replicates per length (their spread gives the standard error).")
 @click.option("--trials", type=click.IntRange(1, 20), default=None,
               help="Repeatability trials at the reference viewpoint (default 3; quick 2).")
 @click.option("--arch", type=click.Choice(["cpu", "gpu"]), default="cpu", show_default=True)

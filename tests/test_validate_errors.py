@@ -126,3 +126,18 @@ def test_malformed_manifests(tmp_path):
     with pytest.raises(CaptureManifestError, match="needs a capture.toml"):
         load_manifest(tmp_path)
     assert "capture.toml" in _cli_error(tmp_path)
+
+
+@pytest.mark.parametrize("args", [["validate", "CAP", "-q", "--samples", "64"],
+                                  ["experiment", "paper", "--quick", "-q", "--out", "OUT"]])
+def test_one_replicate_is_refused_before_any_work(tmp_path, args):
+    """RenderSettings accepts replicates=1 (an adaptive run's top-up batch), but a run needs
+    two for its standard errors: `--replicates 1` must be refused naming the option, not fail
+    after tracing with an internal "2 independent batches" message (or write NaN errors)."""
+    _capture(tmp_path)
+    args = [str(tmp_path) if a == "CAP" else str(tmp_path / "out") if a == "OUT" else a
+            for a in args]
+    res = CliRunner().invoke(main, [*args, "--replicates", "1"])
+    assert res.exit_code == 2, res.output
+    assert "--replicates" in res.output and "1" in res.output, res.output
+    assert not (tmp_path / "out").exists()
