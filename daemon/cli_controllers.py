@@ -4,10 +4,12 @@ The table file format for ``push`` is described in firmware_proto/PROTOCOL.md §
 of 256 integers, a list of per-pixel lists, or ``{"lengths_um": ..., "table_id": ...}``) or CSV
 (one row of 256 integers per table). Values are green-grass lengths in micrometres.
 
-``scan``, ``status`` and ``push`` refuse to run while a grassd daemon holds the state directory
-of the configuration (``--config``, else /etc/grassd/grassd.toml, else the embedded default):
-the daemon owns the serial buses, and a second master on an RS-485 bus garbles both sides'
-frames (a push could also be undone by the daemon's next reconcile). Use ``grassd calibrate
+``scan``, ``status`` and ``push`` refuse to run on a serial port that a grassd daemon holding
+the state directory of the configuration (``--config``, else /etc/grassd/grassd.toml, else the
+embedded default) owns: a second master on an RS-485 bus garbles both sides' frames (a push
+could also be undone by the daemon's next reconcile). Other ports (a spare controller on a
+bench adapter) stay usable while the daemon runs (while an older grassd that does not list its
+ports runs, every port is refused). Use ``grassd calibrate
 --now`` to have the daemon push, ``grassd status`` to see each controller's table as the daemon
 sees it, or stop the daemon. The read-only commands are refused too rather than sent through
 the daemon: its control socket reports the controllers from its database, not a fresh scan.
@@ -75,10 +77,11 @@ _state_dir = click.option("--state-dir", type=click.Path(file_okay=False),
 
 @contextmanager
 def _bus_free(config_path: str | None, state_dir: str | None, command: str,
-              instead: str) -> Iterator[None]:
+              instead: str, port: str) -> Iterator[None]:
     """Run the block only while no grassd daemon holds the configuration's state directory
     (:meth:`StateLock.shared`, kept until the block ends so that a daemon starting meanwhile
-    waits); else StateDirLocked, one line saying to use ``instead`` or stop the daemon."""
+    waits) or the daemon holding it does not own ``port``; else StateDirLocked, one line
+    saying to use ``instead`` or stop the daemon."""
     from grassd.daemon.cli_run import resolve_config
 
     cfg = resolve_config(config_path, state_dir)
@@ -88,7 +91,7 @@ def _bus_free(config_path: str | None, state_dir: str | None, command: str,
                 f"controllers' serial buses: `grassd controllers {command}` would talk over "
                 f"it; use {instead}, or stop the daemon first")
 
-    with StateLock(cfg.state_dir).shared(refuse):
+    with StateLock(cfg.state_dir).shared(refuse, port=port):
         yield
 
 
@@ -133,7 +136,7 @@ def scan_cmd(port: str, addresses: str, baud: int, timeout_s: float, rs485: bool
     serial buses): see `grassd status`, or stop the daemon.
     """
     with _bus_free(config_path, state_dir, "scan", "`grassd status` (each controller's "
-                   "table as the daemon sees it)"), \
+                   "table as the daemon sees it)", port), \
             _client(port, baud, timeout_s, rs485) as client:
         found = client.scan(parse_addresses(addresses), timeout_s=timeout_s)
     if not found:
@@ -163,7 +166,7 @@ def status_cmd(port: str, addresses: str | None, baud: int, timeout_s: float,
     serial buses): see `grassd status`, or stop the daemon.
     """
     with _bus_free(config_path, state_dir, "status", "`grassd status` (each controller's "
-                   "table as the daemon sees it)"), \
+                   "table as the daemon sees it)", port), \
             _client(port, baud, timeout_s, rs485) as client:
         for a in _targets(client, addresses):
             st = client.read_status(a)
@@ -204,7 +207,7 @@ def push_cmd(port: str, table_file: str, table_id: int | None, addresses: str | 
     tid = table_id if table_id is not None else file_id
     failures: list[str] = []
     with _bus_free(config_path, state_dir, "push", "`grassd calibrate --now` (the daemon "
-                   "calibrates and pushes its table)"), \
+                   "calibrates and pushes its table)", port), \
             _client(port, baud, timeout_s, rs485) as client:
         targets = _targets(client, addresses)
         for a in targets:

@@ -10,7 +10,9 @@ started while the daemon is still initialising, before its control socket answer
 Commands that only need the state directory to be free of a daemon (``grassd controllers``
 talking on a serial bus the daemon owns) use :meth:`StateLock.shared`: a shared lock on the
 lock file if it exists, creating nothing, so that they run as any user and a daemon starting
-meanwhile is refused until they are done.
+meanwhile is refused until they are done. The daemon also lists the serial ports it owns in
+the lock file (:meth:`StateLock.note_ports`), so such a command on another port (a spare
+controller on a bench adapter) is let through while the daemon runs.
 
 The kernel drops the lock when the holder exits, however it exits, so a stale lock file never
 blocks anybody (the file itself is left in place: unlinking it would let two processes lock two
@@ -77,10 +79,32 @@ class StateLock:
             with contextlib.suppress(OSError, ValueError):
                 text = self.path.read_text().strip()
                 if text:
-                    pid, _, what = text.partition(" ")
+                    pid, _, what = text.splitlines()[0].partition(" ")
                     return (int(pid), what) if _alive(int(pid)) else (None, "")
             time.sleep(0.01)
         return None, ""
+
+    def note_ports(self, ports: list[str]) -> None:
+        """Write the serial ports this holder owns (resolved paths) after its PID line, for
+        :meth:`holder_ports`; a failed write is logged, the lock holds all the same."""
+        if self._fd is None:
+            return
+        lines = [f"{os.getpid()} {self.what}"] + [f"port {os.path.realpath(p)}" for p in ports]
+        try:
+            data = ("\n".join(lines) + "\n").encode()
+            os.ftruncate(self._fd, 0)
+            os.pwrite(self._fd, data, 0)
+        except OSError as exc:
+            log.warning("cannot note the serial ports in %s (%s)", self.path, exc)
+
+    def holder_ports(self) -> set[str] | None:
+        """Resolved serial ports the current holder owns, or None when it listed none (an
+        older grassd): then any port may be its."""
+        with contextlib.suppress(OSError):
+            ports = {line[5:] for line in self.path.read_text().splitlines()
+                     if line.startswith("port ")}
+            return ports or None
+        return None
 
     def acquire(self) -> StateLock:
         """Take the lock or raise :class:`StateDirLocked` naming the holder's PID
@@ -119,10 +143,13 @@ class StateLock:
         return self
 
     @contextlib.contextmanager
-    def shared(self, refuse: Callable[[str], str]) -> Iterator[None]:
+    def shared(self, refuse: Callable[[str], str],
+               port: str | None = None) -> Iterator[None]:
         """Hold a shared lock on the lock file while the block runs, or raise
         :class:`StateDirLocked` with ``refuse(holder)`` (``holder`` e.g. "grassd run (PID 12)")
-        when a grassd process holds it exclusively.
+        when a grassd process holds it exclusively, unless ``port`` is given and is not one
+        of the serial ports the holder listed (:meth:`holder_ports`): then the block runs
+        without the lock.
 
         Creates nothing: without a lock file (no grassd ever ran on this state directory) the
         block runs unlocked. :class:`StateDirUnwritable` when the lock file exists but cannot be
@@ -141,9 +168,12 @@ class StateLock:
             try:
                 fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
             except BlockingIOError:
-                pid, what = self.holder()
-                who = f"{what or 'grassd'} (PID {pid})" if pid else "another grassd process"
-                raise StateDirLocked(refuse(who)) from None
+                owned = self.holder_ports()
+                if port is None or owned is None or os.path.realpath(port) in owned:
+                    pid, what = self.holder()
+                    who = (f"{what or 'grassd'} (PID {pid})" if pid
+                           else "another grassd process")
+                    raise StateDirLocked(refuse(who)) from None
             yield
         finally:
             os.close(fd)

@@ -89,7 +89,8 @@ def test_in_process_second_service_is_refused_and_lock_released(tmp_path, hw):
 def test_controllers_commands_refuse_a_bus_a_running_daemon_owns(tmp_path, hw):
     """`grassd controllers push/scan/status` against a real `grassd run --simulate-hardware`
     on the same configuration: one line naming the daemon's PID and what to do instead
-    (exit 2), nothing sent on its bus; once the daemon stopped, the push goes through."""
+    (exit 2), nothing sent on its bus; a port the daemon does not own is usable meanwhile;
+    once the daemon stopped, the push goes through."""
     sim, cfg = hw
     state = tmp_path / "state"
     conf = write_config(tmp_path / "g.toml", state, cfg, lux="manifest")
@@ -116,6 +117,13 @@ def test_controllers_commands_refuse_a_bus_a_running_daemon_owns(tmp_path, hw):
             want = "grassd calibrate --now" if name == "push" else "grassd status"
             assert want in lines[0] and "stop the daemon" in lines[0]
             assert r.stdout == ""
+        assert request(state / "control.sock", {"cmd": "ping"})["pid"] == daemon.pid
+        # another port (the fixture's bus: a spare controller on a bench adapter) stays usable
+        spare = cfg.controllers[0]
+        r = subprocess.run([GRASSD, "controllers", "status", "-a", str(spare.address),
+                            "--port", spare.port, "--config", str(conf)],
+                           capture_output=True, text=True, timeout=60)
+        assert r.returncode == 0 and str(spare.address) in r.stdout, r.stderr
         assert request(state / "control.sock", {"cmd": "ping"})["pid"] == daemon.pid
     finally:
         daemon.send_signal(signal.SIGTERM)
@@ -145,3 +153,32 @@ def test_shared_check_creates_nothing_and_keeps_a_daemon_out_while_held(tmp_path
         with pytest.raises(StateDirLocked):
             StateLock(state).acquire()  # a daemon starting meanwhile is refused
     StateLock(state).acquire().release()
+
+
+def test_shared_check_lets_other_ports_through_only_when_the_holder_lists_its_own(tmp_path):
+    """A holder that listed its serial ports (symlinks resolved) refuses only those; one that
+    listed none (an older grassd) refuses every port."""
+    state = tmp_path / "state"
+    bus = tmp_path / "ttyBUS0"
+    bus.touch()
+    (tmp_path / "link0").symlink_to(bus)
+    held = StateLock(state, "grassd run").acquire()
+    try:
+        for port in (str(bus), str(tmp_path / "other")):
+            with pytest.raises(StateDirLocked, match="grassd run"):
+                with StateLock(state).shared(lambda who: who, port=port):
+                    pass
+        held.note_ports([str(tmp_path / "link0")])
+        assert StateLock(state).holder_ports() == {str(bus)}
+        assert StateLock(state).holder() == (os.getpid(), "grassd run")
+        with StateLock(state).shared(lambda who: who, port=str(tmp_path / "other")):
+            pass
+        for port in (str(bus), str(tmp_path / "link0")):
+            with pytest.raises(StateDirLocked):
+                with StateLock(state).shared(lambda who: who, port=port):
+                    pass
+        with pytest.raises(StateDirLocked):
+            with StateLock(state).shared(lambda who: who):  # no port named
+                pass
+    finally:
+        held.release()
