@@ -39,7 +39,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -332,13 +332,13 @@ class Calibrator:
         return lighting
 
     def display(self) -> tuple[Any, int]:
-        """(DisplaySpec of an up-to-3x3 patch of the display, index of its centre pixel)."""
-        from grassd.sim.scene import DisplaySpec, PixelSpec  # noqa: PLC0415
+        """(DisplaySpec of an up-to-3x3 patch of the display, with the ``[tables] layout`` of
+        :func:`grassd.daemon.display.display_spec_for_config`; index of its centre pixel)."""
+        from grassd.daemon.display import display_spec_for_config  # noqa: PLC0415
 
         d = self.cfg.display
         rows, cols = min(d.rows, 3), min(d.cols, 3)
-        spec = DisplaySpec(pixel=PixelSpec(**dict(d.pixel)), rows=rows, cols=cols,
-                           pitch_mm=d.pitch_mm)
+        spec = replace(display_spec_for_config(self.cfg), rows=rows, cols=cols)
         return spec, (rows // 2) * cols + cols // 2
 
     def white_radiance(self, lighting: Any) -> NDArray[np.float64]:

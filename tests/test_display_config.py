@@ -126,3 +126,20 @@ def test_config_drives_whole_display_tables(renderer):
 
     np.testing.assert_allclose(combine_viewpoints(sims, [1.0, 0.5]).pixel_ogcd(), want,
                                rtol=1e-12)
+
+
+@pytest.mark.parametrize("layout, shared", [(None, False), ("shared", True),
+                                            ("per_pixel", False)])
+def test_global_run_patch_follows_the_layout_setting(layout, shared):
+    """The one-table run (granularity "global", no [audience]) simulates a patch of up to 3 x 3
+    pixels: [tables] layout applies to it as to every other run, not silently ignored."""
+    from grassd.daemon.calibrate import Calibrator
+
+    extra = "[tables]\n" + (f'layout = "{layout}"\n' if layout else "")
+    cfg = _cfg(extra)
+    spec, centre = Calibrator(cfg).display()
+    assert spec.same_layout is shared
+    assert (spec.rows, spec.cols, spec.pitch_mm) == (min(cfg.display.rows, 3),
+                                                     min(cfg.display.cols, 3),
+                                                     cfg.display.pitch_mm)
+    assert centre == (spec.rows // 2) * spec.cols + spec.cols // 2
