@@ -349,6 +349,15 @@ class History:
                            (bundle_hash, -1.0 if claimed_at is None else claimed_at))
         return _run(rows[0]) if rows else None
 
+    def last_run_for_bundle(self, bundle_hash: str, claimed_at: float | None = None
+                            ) -> RunRecord | None:
+        """The latest run (any status) of bundle ``bundle_hash`` started since ``claimed_at``
+        (epoch s; see :meth:`ok_run_for_bundle`), if any."""
+        rows = self._query("SELECT * FROM runs WHERE bundle_hash = ? AND started_at >= ? "
+                           "ORDER BY id DESC LIMIT 1",
+                           (bundle_hash, -1.0 if claimed_at is None else claimed_at))
+        return _run(rows[0]) if rows else None
+
     def current_table(self) -> RunRecord | None:
         """The latest successful run that produced a table: the table controllers should hold."""
         rows = self._query("SELECT * FROM runs WHERE status = 'ok' AND lengths_um IS NOT NULL "

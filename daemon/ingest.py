@@ -467,8 +467,12 @@ class Inbox:
                 b = self._retry_or_settle(row.bundle_hash, bid, row.name, row.attempts)
                 if b is not None:
                     retry.append(b)
-            elif (self.archive / bid).is_dir():
-                self.history.journal_finish(row.bundle_hash, "archived")
+            elif (self.archive / bid).is_dir():  # crashed between move and journal: a
+                # superseded bundle stays superseded (scheduled runs must not take its light)
+                run = self.history.last_run_for_bundle(row.bundle_hash, row.created_at)
+                self.history.journal_finish(
+                    row.bundle_hash, "archived", run_id=None if run is None else run.id,
+                    reason=run.error if run is not None and run.status == "superseded" else None)
             elif (self.rejected / bid).is_dir():
                 self.history.journal_finish(row.bundle_hash, "rejected",
                                             reason=self._read_reason(self.rejected / bid))
