@@ -84,7 +84,8 @@ class UnitTable:
     of the all-pixel mean; from [[viewpoints]]: not measured, NaN);
     ``r2_before``/``r2_after`` R^2 of the fitted OGCD vs level with linear lengths / the table;
     ``refined_rounds``: closed-loop rounds whose points were added to the fit behind the table
-    (:func:`refine_unit`; ``characteristic`` stays the first simulation's).
+    (:func:`refine_unit`: every round up to its last refinement; ``characteristic`` stays the
+    first simulation's).
     """
 
     name: str
@@ -651,7 +652,6 @@ def calibrate_display(cal: Calibrator, light: LightInput, *,
     t_loop = time.perf_counter()
     levels = np.unique(np.rint(np.linspace(0, LEVELS - 1, cc.check_levels)).astype(np.int64))
     rounds: list[LoopCheck] = []
-    points: dict[int, list[LoopCheck]] = {}
     for k in range(1, cc.max_rounds + 1):
         pixel_tables = np.stack([u.lengths_um for u in units])[unit_of_pixel]
         loop = closed_loop_check(renderer, display, lighting, viewers, pixel_tables, levels,
@@ -666,9 +666,8 @@ def calibrate_display(cal: Calibrator, light: LightInput, *,
                  cc.target_de00)
         if not off or k == cc.max_rounds or viewers.group_characteristics is None:
             break
-        for i in off:
-            points.setdefault(i, []).append(loop)
-            units[i] = refine_unit(units[i], points[i], viewers.group_characteristics)
+        for i in off:  # every round so far measured the unit's table of its time
+            units[i] = refine_unit(units[i], rounds, viewers.group_characteristics)
         controller_tables, max_step = checked_tables(units)
     pixel_dev = loop.pixel_dev()
     pixel_r2 = loop.r2[loop.labels]

@@ -598,9 +598,10 @@ def errors_on(reference: DisplaySimulation, tables: DisplayTables) -> np.ndarray
     """(N,) largest deviation [dE00] of every pixel's OGCD from the linear ramp of its own
     range when driven by its table in ``tables``, the pixel's characteristic taken from
     ``reference`` (the same display and viewer simulated otherwise, e.g. per pixel with
-    tolerance 0). Against a per-pixel reference this is what grouping adds, over every pixel
-    rather than the checked groups of :class:`GroupingError` (Monte Carlo noise of both runs
-    included)."""
+    tolerance 0). Against a per-pixel reference, minus that reference's own
+    ``build_display_tables(reference, "pixel").pixel_error``, this is what grouping adds, over
+    every pixel rather than the checked groups of :class:`GroupingError` (Monte Carlo noise of
+    both runs included)."""
     if reference.geometry.n_pixels != len(tables.unit_of_pixel):
         raise DisplaySimulationError(f"reference has {reference.geometry.n_pixels} pixels, the "
                                      f"tables {len(tables.unit_of_pixel)}")

@@ -355,6 +355,17 @@ def test_closed_loop_refines_the_tables_that_miss_the_target(tmp_path):
         report = two.report()
         assert [r["round"] for r in report["closed_loop_rounds"]] == [1, 2]
         assert report["closed_loop"]["round"] == 2
+    # three rounds: a refit uses every round so far (each measured the unit's table of its
+    # time), not only the rounds in which the unit missed: refined_rounds = its last miss
+    extra = '[tables]\ngranularity = "pixel"\ncheck_groups = 0\n'
+    three = Calibrator(parse_config(BASE.replace("max_rounds = 1", f"max_rounds = 3\n"
+                                                 f"target_de00 = {target}") + extra,
+                                    base_dir=tmp_path)).run(light())
+    assert [lp.round for lp in three.loop_rounds][:2] == [1, 2]
+    for i, u in enumerate(three.units):
+        missed = [lp.round for lp in three.loop_rounds[:-1]
+                  if lp.pixel_dev()[u.pixels].max() > target]
+        assert u.refined_rounds == (max(missed) if missed else 0), (i, missed)
 
 
 def two_cfg_controllers(tmp_path: Path, extra: str) -> list[str]:
