@@ -523,6 +523,14 @@ class Inbox:
         """Move a bundle to rejected/ with ``reason`` written to reason.txt; mark it rejected."""
         return self._finish_dir(bundle.dir, bundle.id, bundle.hash, reason, run_id)
 
+    def archived_manifest(self, bundle_id: str) -> Manifest | None:
+        """The parsed manifest of archived bundle ``bundle_id`` (naive times in the site's
+        zone), or None when its directory or manifest is gone; ManifestError (a DaemonError)
+        when it cannot be read."""
+        d = self.archive / bundle_id
+        mpath = next((d / m for m in MANIFEST_NAMES if (d / m).is_file()), None)
+        return None if mpath is None else parse_manifest(read_manifest_data(mpath), d, self.tz)
+
     def counts(self) -> dict[str, int]:
         """Number of entries in inbox, processing, archive and rejected."""
         def n(d: Path) -> int:

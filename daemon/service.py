@@ -72,7 +72,7 @@ from grassd.daemon.errors import (
 )
 from grassd.daemon.fleet import Fleet, table_checksum
 from grassd.daemon.history import ControllerTable, History
-from grassd.daemon.ingest import Bundle, Inbox, parse_manifest, read_manifest_data
+from grassd.daemon.ingest import Bundle, Inbox
 from grassd.daemon.luxsensor import LuxSensor
 from grassd.daemon.notify import Notifier
 from grassd.daemon.retention import prune
@@ -657,15 +657,11 @@ class Service:
         j = None if src is None else self.history.journal_get(src)
         if j is None or j.state != "archived":
             return None
-        d = self.inbox.archive / j.bundle_id
-        for name in ("manifest.toml", "manifest.json"):
-            if (d / name).is_file():
-                try:
-                    m = parse_manifest(read_manifest_data(d / name), d, self.inbox.tz)
-                except DaemonError:
-                    return None
-                return m.timestamp.timestamp()
-        return None
+        try:
+            m = self.inbox.archived_manifest(j.bundle_id)
+        except DaemonError:
+            return None
+        return None if m is None else m.timestamp.timestamp()
 
     def scheduled_run(self, trigger: str, force: bool = False) -> dict[str, Any]:
         """A run without a new bundle: light of the last archived bundle (or the embedded
@@ -682,14 +678,10 @@ class Service:
         last = self.history.latest_archived()
         manifest = None
         if last is not None:
-            d = self.inbox.archive / last.bundle_id
-            mpath = next((d / n for n in ("manifest.toml", "manifest.json") if (d / n).exists()),
-                         None)
-            if mpath is not None:
-                try:
-                    manifest = parse_manifest(read_manifest_data(mpath), d, self.inbox.tz)
-                except DaemonError as exc:
-                    log.warning("last archived bundle %s unusable: %s", last.bundle_id, exc)
+            try:
+                manifest = self.inbox.archived_manifest(last.bundle_id)
+            except DaemonError as exc:
+                log.warning("last archived bundle %s unusable: %s", last.bundle_id, exc)
         light_at = None if manifest is None else manifest.timestamp.timestamp()
         try:
             if manifest is not None:
