@@ -74,10 +74,11 @@ def main() -> None:
                                target_stderr=TARGET)
             wall = time.perf_counter() - t0
             walls.append(wall)
-            n_paths = len(lengths) * settings.strata ** 2 * c.replicates
+            n_paths = int(c.length_replicates.sum()) * settings.strata ** 2
             print(f"{name} seed {seed}: 1 viewpoint x 21 lengths, OGCD stderr max "
                   f"{c.ogcd_stderr.max():.3f} (target {TARGET}, {c.replicates} replicates of "
-                  f"{settings.strata ** 2} paths): {wall:.2f} s wall; trace "
+                  f"{settings.strata ** 2} paths, {c.length_replicates.sum()} length-replicates)"
+                  f": {wall:.2f} s wall; trace "
                   f"{c.seconds['trace']:.2f} s, colour {c.seconds['colour']:.3f} s; "
                   f"{n_paths / c.seconds['trace'] / 1e3:.0f} k paths/s; OGCD range "
                   f"{c.ogcd[-1]:.2f}; rounds (replicates, max stderr) "

@@ -34,8 +34,10 @@ class SimulatedCurve:
 
     ``rgb_linear``/``rgb_stderr`` (n, 3): radiance in the scaled HDRI's units (nits), no
     normalisation; ``lab`` (n, 3) D50 CIELAB after normalisation (and CCM if given); ``ogcd``
-    and ``ogcd_stderr`` (n,) in CIEDE2000 units. ``rounds``: (replicates so far, largest OGCD
-    stderr then) after each batch of an adaptive run, one entry otherwise.
+    and ``ogcd_stderr`` (n,) in CIEDE2000 units. ``replicates``: of the reference length (the
+    most); ``length_replicates`` (n,): of each length (an adaptive run stops tracing a length
+    once its error meets the target). ``rounds``: (replicates so far, largest OGCD stderr then)
+    after each batch of an adaptive run, one entry otherwise.
     """
 
     h_cm: float
@@ -50,6 +52,7 @@ class SimulatedCurve:
     replicates: int = 0
     seconds: dict[str, float] = field(default_factory=dict)
     rounds: tuple[tuple[int, float], ...] = ()
+    length_replicates: np.ndarray | None = None
 
     def to_json(self) -> dict:
         """The per-viewpoint JSON object of ``grassd simulate --json``."""
@@ -59,6 +62,8 @@ class SimulatedCurve:
             "rgb_stderr": self.rgb_stderr.tolist(), "lab": self.lab.tolist(),
             "ogcd": self.ogcd.tolist(), "ogcd_stderr": self.ogcd_stderr.tolist(),
             "replicates": self.replicates,
+            "length_replicates": None if self.length_replicates is None
+            else self.length_replicates.tolist(),
         }
 
 
@@ -73,46 +78,78 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
                    progress: Callable[[int, int], None] | None = None) -> SimulatedCurve:
     """Render one viewpoint at ``lengths_mm`` (mm, first = reference) and derive its OGCD.
 
-    With ``target_stderr`` (CIEDE2000), further batches of ``settings.replicates`` independent
-    replicates (new seeds, same random numbers across lengths within a replicate) are traced
-    until the largest OGCD standard error is at most the target or ``max_replicates`` is
-    reached; each batch is sized from the 1/sqrt(R) law, at most doubling the count, and may be
-    a single replicate (the first round's estimate often lands just above the target: a
-    replicate of 4096 paths x 21 lengths costs about 0.1 s on 2 cores).
+    With ``target_stderr`` (CIEDE2000), further batches of independent replicates (new seeds,
+    same random numbers across lengths within a replicate) are traced until every OGCD
+    standard error is at most the target or ``max_replicates`` is reached. A batch traces
+    only the lengths still above the target, with the reference length: a length's OGCD and
+    its error come from the replicates that traced it (the reference's from the same ones, so
+    the common random numbers keep cancelling), and a length at or below the target keeps
+    them. Each batch is sized from the 1/sqrt(R) law for the worst length, at most doubling
+    the count, and may be a single replicate (the first round's estimate often lands just
+    above the target: a replicate of 4096 paths x 21 lengths costs about 0.1 s on 2 cores).
     """
     lengths_mm = np.asarray(lengths_mm, float)
+    n_len = len(lengths_mm)
     white = white_radiance(lighting)
-    reps: list[np.ndarray] = []
     seconds = {"compile": 0.0, "trace": 0.0, "colour": 0.0}
     batch = settings.replicates
-    k = 0
+    active = np.arange(n_len)  # traced in every round so far: a length once done stays done
+    last = np.zeros(n_len, np.int64)  # the last round that traced each length
+    blocks: list[np.ndarray] = []  # per round (batch, n_len, 3), NaN where not traced
     rounds: list[tuple[int, float]] = []
+    k = 0
     while True:
         s = replace(settings, replicates=batch, seed=(settings.seed + 7919 * k) % 2**31)
-        m = renderer.characteristic(display, lighting, viewpoint, lengths_mm, s,
+        m = renderer.characteristic(display, lighting, viewpoint, lengths_mm[active], s,
                                     pixel_index=pixel_index, progress=progress)
         seconds["compile"] += m.seconds.get("compile", 0.0)
         seconds["trace"] += m.seconds.get("trace", 0.0)
-        reps.append(m.rgb_replicates)
+        block = np.full((batch, n_len, 3), np.nan)
+        block[:, active] = m.rgb_replicates
+        blocks.append(block)
+        last[active] = k
         t0 = time.perf_counter()
-        all_reps = np.concatenate(reps)
-        res = ogcd_from_samples(np.clip(all_reps / white, 0.0, None), space="rec709", ccm=ccm)
+        x = np.concatenate(blocks)
+        counts = np.cumsum([len(b) for b in blocks])[last]  # replicates of each length
+        lab, ogcd, se = _ogcd_by_rounds(x, counts, white, ccm)
         seconds["colour"] += time.perf_counter() - t0
-        n = len(all_reps)
-        worst = float(np.max(res.ogcd_stderr))
+        n = int(counts[0])
+        worst = float(np.max(se))
         rounds.append((n, worst))
         if target_stderr is None or worst <= target_stderr or n >= max_replicates:
             break
+        active = np.flatnonzero((se > target_stderr) | (np.arange(n_len) == 0))
         # The worst of n noisy error estimates overstates the error: grow at most 2x a round.
         needed = int(math.ceil(n * min((worst / target_stderr) ** 2, 2.0))) - n
         batch = int(min(max(needed, 1), max_replicates - n))
         k += 1
+    mean = np.nanmean(x, axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):  # one replicate: no spread
+        rgb_se = np.nanstd(x, axis=0, ddof=1) / np.sqrt(counts)[:, None]
     return SimulatedCurve(
         h_cm=viewpoint.h_cm, d_m=viewpoint.d_m, theta_deg=viewpoint.theta_deg,
-        lengths_mm=lengths_mm, rgb_linear=all_reps.mean(axis=0),
-        rgb_stderr=all_reps.std(axis=0, ddof=1) / math.sqrt(n), lab=res.lab, ogcd=res.ogcd,
-        ogcd_stderr=res.ogcd_stderr, replicates=n, seconds=seconds, rounds=tuple(rounds),
+        lengths_mm=lengths_mm, rgb_linear=mean, rgb_stderr=rgb_se, lab=lab, ogcd=ogcd,
+        ogcd_stderr=se, replicates=n, seconds=seconds, rounds=tuple(rounds),
+        length_replicates=counts.astype(np.int64),
     )
+
+
+def _ogcd_by_rounds(x: np.ndarray, counts: np.ndarray, white: np.ndarray, ccm
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Lab (n, 3), OGCD and its standard error (n,) of replicates ``x`` (R, n, 3) linear RGB
+    [nits], where length i was traced in the first ``counts[i]`` replicates (NaN after): the
+    lengths sharing a count are taken together with the reference over those replicates."""
+    n = x.shape[1]
+    lab = np.empty((n, 3))
+    ogcd = np.zeros(n)
+    se = np.zeros(n)
+    for c in np.unique(counts):  # one call per round in which lengths dropped out
+        cols = np.flatnonzero(counts == c)
+        cols = np.concatenate([[0], cols[cols != 0]])
+        res = ogcd_from_samples(np.clip(x[:c, cols] / white, 0.0, None), space="rec709",
+                                ccm=ccm)
+        lab[cols], ogcd[cols], se[cols] = res.lab, res.ogcd, res.ogcd_stderr
+    return lab, ogcd, se
 
 
 def simulate_curves(renderer, display, lighting, viewpoints: Sequence, lengths_mm: np.ndarray,

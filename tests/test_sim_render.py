@@ -134,11 +134,12 @@ def test_characteristic_straightens_from_theta_0_to_90_indoors(renderer, shared_
 def test_adaptive_replicates_stop_at_the_first_round_meeting_the_target(renderer, shared_hdri):
     """simulate_curve with target_stderr: round 1 is the plain run (same seed, same numbers);
     every round but the last misses the target and the last meets it; each batch follows the
-    1/sqrt(R) law (at least one replicate, at most doubling the count)."""
+    1/sqrt(R) law (at least one replicate, at most doubling the count) and traces only the
+    lengths still above the target."""
     from grassd.daemon.simulation import simulate_curve
 
     lighting = build_lighting(shared_hdri("courtyard"), ambient_lux=8000)
-    lengths = np.arange(0.0, 20.01, 5.0)
+    lengths = np.arange(0.0, 20.01, 2.5)
     settings = RenderSettings(samples=256, replicates=4, seed=3)
     plain = simulate_curve(renderer, DisplaySpec(), lighting, Viewpoint(), lengths, settings)
     target = 0.6 * float(plain.ogcd_stderr.max())
@@ -151,6 +152,16 @@ def test_adaptive_replicates_stop_at_the_first_round_meeting_the_target(renderer
     assert c.rounds[-1][1] <= target and float(c.ogcd_stderr.max()) == c.rounds[-1][1]
     for (n, worst), (n_next, _) in zip(c.rounds[:-1], c.rounds[1:], strict=True):
         assert n_next - n == max(math.ceil(n * min((worst / target) ** 2, 2.0)) - n, 1)
+    # a length within the target is not traced again: one done after round 1 keeps round 1's
+    # numbers; the others stopped at a later round's count; the reference ran every round
+    done = plain.ogcd_stderr <= target
+    assert done[1:].any() and not done[1:].all()
+    assert c.length_replicates[0] == c.replicates
+    np.testing.assert_array_equal(c.length_replicates[1:][done[1:]], 4)
+    assert set(c.length_replicates[~done]) <= {n for n, _ in c.rounds[1:]}
+    np.testing.assert_allclose(c.ogcd[done], plain.ogcd[done], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(c.ogcd_stderr[done], plain.ogcd_stderr[done], rtol=1e-9)
+    assert np.all(c.ogcd_stderr <= target) and np.all(np.isfinite(c.rgb_stderr))
 
 
 def test_geometry_counts_and_mesh_match(renderer):
