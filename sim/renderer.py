@@ -191,12 +191,15 @@ class Renderer:
         """Build and upload the scene and the light unless the same ones are already on the
         fields (successive calls for other viewpoints, pixels or replicates reuse them)."""
         lengths_mm = check_lengths(display.pixel, lengths_mm)
-        key = (display, float(lengths_mm.max()), geometry.GRID_CELL_BLADE_WIDTHS)
-        if self._scene_key != key:
+        # A scene is built conservatively for lengths up to its largest one, so it serves any
+        # shorter ones too (an adaptive top-up tracing fewer lengths does not rebuild it).
+        key = (display, geometry.GRID_CELL_BLADE_WIDTHS)
+        longest = float(lengths_mm.max())
+        if self._scene_key is None or self._scene_key[:2] != key or self._scene_key[2] < longest:
             self._scene_key = None
             scene = build_scene(display, lengths_mm)
             self._upload_scene(scene)
-            self._scene, self._scene_key = scene, key
+            self._scene, self._scene_key = scene, (*key, longest)
         if self._lighting is not lighting:
             self._lighting = None
             self._upload_light(lighting)

@@ -164,6 +164,25 @@ def test_adaptive_replicates_stop_at_the_first_round_meeting_the_target(renderer
     assert np.all(c.ogcd_stderr <= target) and np.all(np.isfinite(c.rgb_stderr))
 
 
+def test_a_scene_built_for_longer_grass_serves_shorter_lengths_unchanged(renderer,
+                                                                         shared_hdri):
+    """The scene (grid bounds) is conservative for lengths up to its longest, so shorter ones
+    reuse it without a rebuild (adaptive top-ups trace subsets) and give the same numbers as
+    a scene built for them alone."""
+    lighting = build_lighting(shared_hdri("courtyard"), ambient_lux=5000)
+    s = RenderSettings(samples=256, replicates=2, seed=9)
+    d = DisplaySpec(rows=1, cols=2, pixel=PixelSpec(splay_deg=8.0))  # splay: bounds grow
+    short = np.array([0.0, 6.0])
+    renderer.characteristic(d, lighting, Viewpoint(), np.array([0.0, 20.0]), s)
+    built = renderer._scene
+    reused = renderer.characteristic(d, lighting, Viewpoint(), short, s).rgb_replicates
+    assert renderer._scene is built  # no rebuild for shorter lengths
+    renderer._scene_key = None
+    alone = renderer.characteristic(d, lighting, Viewpoint(), short, s).rgb_replicates
+    assert renderer._scene is not built
+    np.testing.assert_array_equal(reused, alone)
+
+
 def test_geometry_counts_and_mesh_match(renderer):
     spec = PixelSpec()
     scene = build_scene(DisplaySpec(spec), np.array([0.0, 20.0]))
