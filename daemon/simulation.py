@@ -80,48 +80,61 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
 
     With ``target_stderr`` (CIEDE2000), further batches of independent replicates (new seeds,
     same random numbers across lengths within a replicate) are traced until every OGCD
-    standard error is at most the target or ``max_replicates`` is reached. A batch traces
-    only the lengths still above the target, with the reference length: a length's OGCD and
-    its error come from the replicates that traced it (the reference's from the same ones, so
-    the common random numbers keep cancelling), and a length at or below the target keeps
-    them. Each batch is sized from the 1/sqrt(R) law for the worst length, at most doubling
-    the count, and may be a single replicate (the first round's estimate often lands just
-    above the target: a replicate of 4096 paths x 21 lengths costs about 0.1 s on 2 cores).
+    standard error is at most the target or ``max_replicates`` is reached. A round traces
+    only the lengths still above the target, each with the replicates the 1/sqrt(R) law says
+    it needs (at least one, at most doubling its count: the first round's estimate often
+    lands just above the target), and the reference length with the most. A length's OGCD
+    and its error come from the replicates that traced it (the reference's from the same
+    ones, so the common random numbers keep cancelling); a length at or below the target keeps
+    them. A replicate of 4096 paths x 21 lengths costs about 0.1 s on 2 cores.
     """
     lengths_mm = np.asarray(lengths_mm, float)
     n_len = len(lengths_mm)
     white = white_radiance(lighting)
     seconds = {"compile": 0.0, "trace": 0.0, "colour": 0.0}
-    batch = settings.replicates
-    active = np.arange(n_len)  # traced in every round so far: a length once done stays done
-    last = np.zeros(n_len, np.int64)  # the last round that traced each length
-    blocks: list[np.ndarray] = []  # per round (batch, n_len, 3), NaN where not traced
+    need = np.full(n_len, settings.replicates)  # replicates each length gets this round
+    blocks: list[np.ndarray] = []  # per round (b, n_len, 3), NaN where not traced
+    masks: list[np.ndarray] = []  # per round (b, n_len): traced
     rounds: list[tuple[int, float]] = []
+    cache: dict = {}
     k = 0
     while True:
-        s = replace(settings, replicates=batch, seed=(settings.seed + 7919 * k) % 2**31)
-        m = renderer.characteristic(display, lighting, viewpoint, lengths_mm[active], s,
-                                    pixel_index=pixel_index, progress=progress)
-        seconds["compile"] += m.seconds.get("compile", 0.0)
-        seconds["trace"] += m.seconds.get("trace", 0.0)
-        block = np.full((batch, n_len, 3), np.nan)
-        block[:, active] = m.rgb_replicates
+        seed = (settings.seed + 7919 * k) % 2**31
+        b = int(need.max())
+        block = np.full((b, n_len, 3), np.nan)
+        mask = np.zeros((b, n_len), bool)
+        # Replicate r of a round is the same random numbers whatever lengths it traces, so a
+        # length needing fewer replicates takes the round's first ones: the reference (traced
+        # with the most) has them too, and the common random numbers still pair up.
+        for nb in sorted({int(v) for v in need[need > 0]}, reverse=True):
+            cols = np.flatnonzero(need == nb)
+            m = renderer.characteristic(display, lighting, viewpoint, lengths_mm[cols],
+                                        replace(settings, replicates=nb, seed=seed),
+                                        pixel_index=pixel_index, progress=progress)
+            seconds["compile"] += m.seconds.get("compile", 0.0)
+            seconds["trace"] += m.seconds.get("trace", 0.0)
+            block[:nb, cols] = m.rgb_replicates
+            mask[:nb, cols] = True
         blocks.append(block)
-        last[active] = k
+        masks.append(mask)
         t0 = time.perf_counter()
-        x = np.concatenate(blocks)
-        counts = np.cumsum([len(b) for b in blocks])[last]  # replicates of each length
-        lab, ogcd, se = _ogcd_by_rounds(x, counts, white, ccm)
+        x, traced = np.concatenate(blocks), np.concatenate(masks)
+        lab, ogcd, se = _ogcd_by_replicates(x, traced, white, ccm, cache)
         seconds["colour"] += time.perf_counter() - t0
+        counts = traced.sum(axis=0)
         n = int(counts[0])
         worst = float(np.max(se))
         rounds.append((n, worst))
         if target_stderr is None or worst <= target_stderr or n >= max_replicates:
             break
-        active = np.flatnonzero((se > target_stderr) | (np.arange(n_len) == 0))
-        # The worst of n noisy error estimates overstates the error: grow at most 2x a round.
-        needed = int(math.ceil(n * min((worst / target_stderr) ** 2, 2.0))) - n
-        batch = int(min(max(needed, 1), max_replicates - n))
+        # Each length above the target gets what the 1/sqrt(R) law says it needs, at least
+        # one and (as the worst of n noisy estimates overstates the error) at most doubling
+        # its count; the reference gets the most.
+        ratio = np.minimum((se / target_stderr) ** 2, 2.0)
+        need = np.where(se > target_stderr,
+                        np.maximum(np.ceil(counts * ratio).astype(np.int64) - counts, 1), 0)
+        need[0] = need.max()
+        need = np.minimum(need, max_replicates - n)
         k += 1
     mean = np.nanmean(x, axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):  # one replicate: no spread
@@ -134,21 +147,34 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     )
 
 
-def _ogcd_by_rounds(x: np.ndarray, counts: np.ndarray, white: np.ndarray, ccm
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _ogcd_by_replicates(x: np.ndarray, traced: np.ndarray, white: np.ndarray, ccm,
+                        cache: dict | None = None
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Lab (n, 3), OGCD and its standard error (n,) of replicates ``x`` (R, n, 3) linear RGB
-    [nits], where length i was traced in the first ``counts[i]`` replicates (NaN after): the
-    lengths sharing a count are taken together with the reference over those replicates."""
+    [nits], length i traced in the replicates ``traced[:, i]`` (the reference, column 0, in
+    all): the lengths traced in the same replicates are taken together with the reference
+    over those replicates. ``cache`` (kept across the rounds of one run) skips groups whose
+    replicates and lengths did not change."""
     n = x.shape[1]
     lab = np.empty((n, 3))
     ogcd = np.zeros(n)
     se = np.zeros(n)
-    for c in np.unique(counts):  # one call per round in which lengths dropped out
-        cols = np.flatnonzero(counts == c)
+    patterns, which = np.unique(traced.T, axis=0, return_inverse=True)
+    order = np.argsort(patterns.sum(axis=1), kind="stable")  # the reference's (all) last
+    for p in order:  # one call per distinct set of replicates
+        cols = np.flatnonzero(which.reshape(-1) == p)
         cols = np.concatenate([[0], cols[cols != 0]])
-        res = ogcd_from_samples(np.clip(x[:c, cols] / white, 0.0, None), space="rec709",
-                                ccm=ccm)
-        lab[cols], ogcd[cols], se[cols] = res.lab, res.ogcd, res.ogcd_stderr
+        rows = np.flatnonzero(patterns[p])
+        key = (patterns[p].tobytes(), cols.tobytes())
+        if cache is None or key not in cache:  # a finished length's numbers do not change
+            res = ogcd_from_samples(np.clip(x[rows][:, cols] / white, 0.0, None),
+                                    space="rec709", ccm=ccm)
+            got = (res.lab, res.ogcd, res.ogcd_stderr)
+            if cache is not None:
+                cache[key] = got
+        else:
+            got = cache[key]
+        lab[cols], ogcd[cols], se[cols] = got
     return lab, ogcd, se
 
 

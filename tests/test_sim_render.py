@@ -135,7 +135,7 @@ def test_adaptive_replicates_stop_at_the_first_round_meeting_the_target(renderer
     """simulate_curve with target_stderr: round 1 is the plain run (same seed, same numbers);
     every round but the last misses the target and the last meets it; each batch follows the
     1/sqrt(R) law (at least one replicate, at most doubling the count) and traces only the
-    lengths still above the target."""
+    lengths still above the target, each with the replicates it needs."""
     from grassd.daemon.simulation import simulate_curve
 
     lighting = build_lighting(shared_hdri("courtyard"), ambient_lux=8000)
@@ -150,15 +150,22 @@ def test_adaptive_replicates_stop_at_the_first_round_meeting_the_target(renderer
     assert len(c.rounds) >= 2 and c.replicates == c.rounds[-1][0]
     assert all(worst > target for _, worst in c.rounds[:-1])
     assert c.rounds[-1][1] <= target and float(c.ogcd_stderr.max()) == c.rounds[-1][1]
-    for (n, worst), (n_next, _) in zip(c.rounds[:-1], c.rounds[1:], strict=True):
-        assert n_next - n == max(math.ceil(n * min((worst / target) ** 2, 2.0)) - n, 1)
+    # round 2: the worst length (its count is the reference's after round 1) gets what the
+    # 1/sqrt(R) law asks, and so does the reference; later rounds at most double a count
+    (n1, worst1), (n2, _) = c.rounds[0], c.rounds[1]
+    assert n2 - n1 == max(math.ceil(n1 * min((worst1 / target) ** 2, 2.0)) - n1, 1)
+    for (n, _), (n_next, _) in zip(c.rounds[:-1], c.rounds[1:], strict=True):
+        assert n < n_next <= 2 * n
     # a length within the target is not traced again: one done after round 1 keeps round 1's
     # numbers; the others stopped at a later round's count; the reference ran every round
     done = plain.ogcd_stderr <= target
     assert done[1:].any() and not done[1:].all()
     assert c.length_replicates[0] == c.replicates
     np.testing.assert_array_equal(c.length_replicates[1:][done[1:]], 4)
-    assert set(c.length_replicates[~done]) <= {n for n, _ in c.rounds[1:]}
+    assert np.all(c.length_replicates[~done] > 4)
+    assert np.all(c.length_replicates <= c.replicates)
+    # lengths need different numbers of replicates: they do not all stop at a round's count
+    assert len(set(c.length_replicates[~done])) > 1
     np.testing.assert_allclose(c.ogcd[done], plain.ogcd[done], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(c.ogcd_stderr[done], plain.ogcd_stderr[done], rtol=1e-9)
     assert np.all(c.ogcd_stderr <= target) and np.all(np.isfinite(c.rgb_stderr))
