@@ -531,8 +531,9 @@ class Service:
             if limit_s is not None and d.give_up_at is None:
                 d.give_up_at = now + limit_s
         d.error = error
-        if d.give_up_at is not None and d.give_up_at > now:  # the last try falls on the
-            # deadline, not far beyond; once it has passed, the backoff holds
+        if limit_s is not None and d.give_up_at is not None and d.give_up_at > now:
+            # a wait with a deadline: its last try falls on the deadline, not far beyond; once
+            # it has passed, or when it waits for something else (an error), the backoff holds
             d.retry_at = min(d.retry_at, d.give_up_at)
         try:
             self.history.journal_release(b.hash)

@@ -324,6 +324,32 @@ def readonly(d: Path):
             os.chmod(d, 0o755)
 
 
+def test_an_error_wait_is_not_pulled_onto_the_lux_deadline(tmp_path, hw):
+    """The lux wait's deadline caps only lux waits (their last try falls on it). A bundle that
+    then waits after an error (an unwritable report) backs off from its own delay: the old
+    code pulled every retry onto the still-future lux deadline, so a run that failed just
+    before it was retried at once (a third run within a few ms: a flaky test under load)."""
+    sim, cfg = hw
+    conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg)
+    svc = service(conf, retry_s=0.3, retry_max_s=10.0, reconcile_s=1e9)
+    try:
+        rdrop(svc.cfg.light.inbox, "b", lux=None)
+        [b] = svc.inbox.poll()
+        t0 = time.monotonic()
+        svc._defer(b, "waiting for the lux sensor: down", limit_s=0.5)
+        d = svc.deferred[b.hash]
+        assert d.retry_at <= t0 + 0.31 and d.give_up_at <= t0 + 0.51
+        svc._defer(b, "cannot write the report", error=True)  # delay 0.6 > the deadline
+        assert d.retry_at - time.monotonic() > 0.55
+        svc._defer(b, "cannot write the report", error=True)  # delay 1.2
+        assert d.retry_at - time.monotonic() > 1.15
+        ahead = time.monotonic() < d.give_up_at
+        svc._defer(b, "waiting for the lux sensor: down", limit_s=0.5)  # a lux wait again:
+        assert (d.retry_at <= d.give_up_at) == ahead  # capped while its deadline is ahead
+    finally:
+        svc.shutdown()
+
+
 def test_write_failure_after_a_lux_wait_backs_off(tmp_path, hw):
     """A bundle waited for the lux sensor (deadline lux_wait_s), then its run cannot write its
     report. Once that deadline has passed, it must still be retried with backoff, not at every

@@ -95,9 +95,12 @@ def test_unmovable_bundle_is_reported_once_and_taken_when_fixed(tmp_path, hw):
             assert h.journal() == []
 
         os.chmod(inbox / "b1", 0o777)  # the fix: the daemon retries at once, not in a minute
-        wait_for(lambda: status(sock, proc)["run_counts"]["ok"] == 1, 60, "the run")
-        st = status(sock, proc)
-        assert st["inbox_problems"] == [] and st["inbox"]["archive"] == 1
+        def archived() -> dict | None:  # the run row is finished before the bundle moves
+            s = status(sock, proc)
+            return s if s["run_counts"]["ok"] == 1 and s["inbox"]["archive"] == 1 else None
+
+        st = wait_for(archived, 60, "the run and the archived bundle")
+        assert st["inbox_problems"] == []
     finally:
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(60) == 0
