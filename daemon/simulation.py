@@ -148,8 +148,7 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
 
 
 def _ogcd_by_replicates(x: np.ndarray, traced: np.ndarray, white: np.ndarray, ccm,
-                        cache: dict | None = None
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                        cache: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Lab (n, 3), OGCD and its standard error (n,) of replicates ``x`` (R, n, 3) linear RGB
     [nits], length i traced in the replicates ``traced[:, i]`` (the reference, column 0, in
     all): the lengths traced in the same replicates are taken together with the reference
@@ -165,16 +164,12 @@ def _ogcd_by_replicates(x: np.ndarray, traced: np.ndarray, white: np.ndarray, cc
         cols = np.flatnonzero(which.reshape(-1) == p)
         cols = np.concatenate([[0], cols[cols != 0]])
         rows = np.flatnonzero(patterns[p])
-        key = (patterns[p].tobytes(), cols.tobytes())
-        if cache is None or key not in cache:  # a finished length's numbers do not change
+        key = (rows.tobytes(), cols.tobytes())  # rows, not the mask: it grows every round
+        if key not in cache:  # a finished length's numbers do not change
             res = ogcd_from_samples(np.clip(x[rows][:, cols] / white, 0.0, None),
                                     space="rec709", ccm=ccm)
-            got = (res.lab, res.ogcd, res.ogcd_stderr)
-            if cache is not None:
-                cache[key] = got
-        else:
-            got = cache[key]
-        lab[cols], ogcd[cols], se[cols] = got
+            cache[key] = (res.lab, res.ogcd, res.ogcd_stderr)
+        lab[cols], ogcd[cols], se[cols] = cache[key]
     return lab, ogcd, se
 
 
