@@ -134,7 +134,7 @@ def build_binned_sampler(env: np.ndarray, side: int = NORMAL_BINS_SIDE,
 
     Blocks: ``cr`` = the largest divisor of H up to 32, ``cc`` the largest divisor of W up to 64
     (a 2:1 map of 512 x 1024 gets 32 x 64 blocks of 16 x 16 texels). Texel weight
-    ``(max(Y, 0) + floor * Y_mean) * Omega`` as in :func:`grassd.sim.lighting.build_env_sampler`.
+    ``(max(Y, 0) + floor * Y_mean) * Omega`` (:mod:`grassd.sim.lighting`, Importance sampling).
     """
     rad = np.asarray(env, np.float64)
     h, w = rad.shape[:2]
