@@ -475,8 +475,7 @@ def _audience_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
     else:
         for g, p in enumerate(combined.groups.representatives):  # one region table per group
             members = combined.groups.members(g)
-            chars = [Characteristic(c.lengths_mm, c.ogcd, np.maximum(c.ogcd_stderr, 1e-6))
-                     for c in (s.curves[s.groups.labels[p]] for s in sims)]
+            chars = [s.group_characteristic(int(s.groups.labels[p])) for s in sims]
             units.append(_region_unit(f"group {g} (pixel {int(p)})", members, chars,
                                       aud.objective))
         unit = combined.groups.labels.copy()
