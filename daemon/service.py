@@ -481,10 +481,6 @@ class Service:
         self._progress("reading the lux sensor")
         return self.sensor.read_lux(), "modbus"
 
-    def _previous(self) -> tuple[Any, Any]:
-        cur = self.history.current_table()
-        return (None if cur is None else list(cur.lengths_um)), self.history.get_meta("ccm")
-
     def _own_tables(self, run_id: int) -> dict[str, Any]:
         """Controller name -> its own table of run ``run_id`` (empty when the run has one table
         for all; see :func:`usable_run_tables`); cached for the latest run and controller
@@ -706,11 +702,12 @@ class Service:
 
     def _calibrate_and_commit(self, run_id: int, light: LightInput,
                               force: bool) -> dict[str, Any]:
-        prev_table, prev_ccm = self._previous()
-        cur = self.history.current_table()
+        cur = self.history.current_table()  # the active table, the run's starting point
+        prev_table = None if cur is None else list(cur.lengths_um)
         prev_own = None if cur is None else self._own_tables(cur.id)
         try:
-            result = self.calibrator.run(light, previous_um=prev_table, previous_ccm=prev_ccm,
+            result = self.calibrator.run(light, previous_um=prev_table,
+                                         previous_ccm=self.history.get_meta("ccm"),
                                          force=force, stop=self.stop_event,
                                          progress=self._progress, previous_tables=prev_own)
         except RunInterrupted as exc:
