@@ -28,10 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
-from grassd.calib.characteristic import Characteristic, FittedCharacteristic, fit_characteristic
+from grassd.calib.characteristic import FittedCharacteristic, fit_characteristic
 from grassd.calib.length_table import LEVELS, build_length_table
 from grassd.daemon.display import (
     DisplaySimulationError,
+    curve_characteristic,
     display_spec_for_config,
     geometry_from_eye,
 )
@@ -169,8 +170,7 @@ def simulate_region(renderer, display, lighting, samples: AudienceSamples,
 
 def fit_curves(curves: Sequence[SimulatedCurve]) -> list[FittedCharacteristic]:
     """Monotone fits of simulated curves (lengths mm -> OGCD dE00), errors as weights."""
-    return [fit_characteristic(Characteristic(c.lengths_mm, c.ogcd,
-                                              np.maximum(c.ogcd_stderr, 1e-6))) for c in curves]
+    return [fit_characteristic(curve_characteristic(c)) for c in curves]
 
 
 def table_deviations(fits: Sequence[FittedCharacteristic], table_mm: np.ndarray) -> np.ndarray:

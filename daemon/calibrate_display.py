@@ -423,6 +423,7 @@ def _audience_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
     from grassd.daemon.display import (  # noqa: PLC0415
         combine_viewpoints,
         controller_pixels,
+        curve_characteristic,
         geometry_from_eye,
         mean_characteristic,
         simulate_display,
@@ -438,8 +439,7 @@ def _audience_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
     if cfg.tables.granularity == "global":
         curves = simulate_region(renderer, display, lighting, samples, lengths, settings,
                                  ccm=ccm, progress=step)
-        chars = [Characteristic(c.lengths_mm, c.ogcd, np.maximum(c.ogcd_stderr, 1e-6))
-                 for c in curves]
+        chars = [curve_characteristic(c) for c in curves]
         whole = _region_unit("display", everyone, chars, aud.objective)
         # the centre pixel stands for every pixel, as in the table's own simulation
         viewers = Viewers([geometry_from_eye(display, e) for e in samples.eyes_m],

@@ -383,8 +383,7 @@ class DisplaySimulation:
 
     def group_characteristic(self, g: int) -> Characteristic:
         """Group ``g``'s characteristic (lengths mm, OGCD dE00 with standard errors)."""
-        c = self.curves[g]
-        return Characteristic(c.lengths_mm, c.ogcd, np.maximum(c.ogcd_stderr, 1e-6))
+        return curve_characteristic(self.curves[g])
 
 
 def _pick_checks(groups: PixelGroups, check_groups: int) -> np.ndarray:
@@ -447,9 +446,14 @@ def simulate_display(renderer, display, lighting, viewer, lengths_mm: np.ndarray
                              seconds=seconds)
 
 
+def curve_characteristic(c: SimulatedCurve) -> Characteristic:
+    """The characteristic of a simulated curve (lengths mm, OGCD dE00), its Monte Carlo
+    standard errors floored at 1e-6 dE00 so that every point keeps a finite fit weight."""
+    return Characteristic(c.lengths_mm, c.ogcd, np.maximum(c.ogcd_stderr, 1e-6))
+
+
 def _fit(c: SimulatedCurve) -> FittedCharacteristic:
-    return fit_characteristic(Characteristic(c.lengths_mm, c.ogcd,
-                                             np.maximum(c.ogcd_stderr, 1e-6)))
+    return fit_characteristic(curve_characteristic(c))
 
 
 def _grouping_error(groups: PixelGroups, curves: list[SimulatedCurve], checks: np.ndarray,
