@@ -785,12 +785,7 @@ class Service:
                 s.failures += 1
                 if kind == "reconcile" and now - s.last_row < self.failure_row_s:
                     s.unrecorded += 1
-                    state = (r.ok, r.reachable, r.table_id)
-                    if self._last_ctrl.get(r.controller) != state:
-                        self.history.set_controller(r.controller, reachable=r.reachable,
-                                                    reported_id=r.table_id,
-                                                    reported_crc=r.table_crc, error=r.error)
-                        self._last_ctrl[r.controller] = state
+                    self._note_controller(r)
                     return
                 since = datetime.fromtimestamp(s.since, UTC).isoformat(timespec="seconds")
                 error = (f"{r.error} ({s.failures} failed pushes since {since}, "
@@ -798,10 +793,17 @@ class Service:
                 s.last_row, s.unrecorded = now, 0
         self.history.record_push(run_id, r.controller, r.ok, table_id=r.table_id,
                                  table_crc=r.table_crc, error=error, kind=kind)
-        self.history.set_controller(r.controller, reachable=r.reachable,
-                                    reported_id=r.table_id, reported_crc=r.table_crc,
-                                    error=r.error)
-        self._last_ctrl[r.controller] = (r.ok, r.reachable, r.table_id)
+        self._note_controller(r, always=True)
+
+    def _note_controller(self, r, always: bool = False) -> None:
+        """Store controller report ``r``'s state (reachable, reported table, error) in the
+        history when it changed since the last one stored (``always``: in any case)."""
+        state = (r.ok, r.reachable, r.table_id)
+        if always or self._last_ctrl.get(r.controller) != state:
+            self.history.set_controller(r.controller, reachable=r.reachable,
+                                        reported_id=r.table_id, reported_crc=r.table_crc,
+                                        error=r.error)
+            self._last_ctrl[r.controller] = state
 
     def reconcile(self) -> list:
         """Push the current table to every controller that does not report it (its own table
@@ -814,18 +816,14 @@ class Service:
         reports = self.fleet.reconcile(own or cur.lengths_um, cur.table_id,
                                        stop=self.stop_event, fallback=cur.lengths_um)
         for r in reports:
-            state = (r.ok, r.reachable, r.table_id)
             if r.ok and not r.pushed:  # holds its table (again): any failure streak is over
                 self._streaks.pop(r.controller, None)
             if r.pushed:
                 self._record(r, cur.id, "reconcile")
                 if r.ok:
                     log.info("controller %s reconciled to table %d", r.controller, cur.table_id)
-            elif self._last_ctrl.get(r.controller) != state:
-                self.history.set_controller(r.controller, reachable=r.reachable,
-                                            reported_id=r.table_id, reported_crc=r.table_crc,
-                                            error=r.error)
-                self._last_ctrl[r.controller] = state
+            else:
+                self._note_controller(r)
         return reports
 
     # ------------------------------------------------------------------ control socket
