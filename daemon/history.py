@@ -344,17 +344,21 @@ class History:
         (epoch s: when the bundle's journal row was created) only a run started since then: an
         earlier run consumed an earlier upload of the same content whose journal row
         retention has since pruned (:meth:`prune_journal`), so this upload is new."""
-        rows = self._query("SELECT * FROM runs WHERE bundle_hash = ? AND status = 'ok' "
-                           "AND started_at >= ? ORDER BY id DESC LIMIT 1",
-                           (bundle_hash, -1.0 if claimed_at is None else claimed_at))
-        return _run(rows[0]) if rows else None
+        return self._bundle_run(bundle_hash, claimed_at, ok_only=True)
 
     def last_run_for_bundle(self, bundle_hash: str, claimed_at: float | None = None
                             ) -> RunRecord | None:
         """The latest run (any status) of bundle ``bundle_hash`` started since ``claimed_at``
         (epoch s; see :meth:`ok_run_for_bundle`), if any."""
+        return self._bundle_run(bundle_hash, claimed_at, ok_only=False)
+
+    def _bundle_run(self, bundle_hash: str, claimed_at: float | None,
+                    ok_only: bool) -> RunRecord | None:
+        """The latest run (``ok_only``: the latest ok run) of ``bundle_hash`` started since
+        ``claimed_at`` (epoch s; None: any time)."""
         rows = self._query("SELECT * FROM runs WHERE bundle_hash = ? AND started_at >= ? "
-                           "ORDER BY id DESC LIMIT 1",
+                           + ("AND status = 'ok' " if ok_only else "")
+                           + "ORDER BY id DESC LIMIT 1",
                            (bundle_hash, -1.0 if claimed_at is None else claimed_at))
         return _run(rows[0]) if rows else None
 
