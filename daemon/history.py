@@ -127,6 +127,13 @@ class RunRecord:
     plot_path: str | None
     light_at: float | None = None
 
+    @property
+    def light_bundle(self) -> str | None:
+        """Hash of the bundle whose light the run used: its own bundle, or for a scheduled
+        run the archived bundle it took the light of (``input_hashes["bundle"]``); None for
+        the embedded default site."""
+        return self.bundle_hash or self.input_hashes.get("bundle")
+
 
 @dataclass(frozen=True)
 class PushRecord:

@@ -639,7 +639,7 @@ class Service:
         mine = self.history.journal_get(b.hash)
         if mine is None or mine.created_at >= cur.started_at:
             return None
-        src = cur.bundle_hash or cur.input_hashes.get("bundle")
+        src = cur.light_bundle
         other = None if src is None else self.history.journal_get(src)
         if other is None or mine.created_at >= other.created_at:
             return None
@@ -650,7 +650,7 @@ class Service:
         """Light capture time (epoch s) of run ``run``'s bundle from its archived manifest,
         for a run recorded without ``light_at``; None when it has no bundle or the bundle is
         gone or unreadable."""
-        src = run.bundle_hash or run.input_hashes.get("bundle")
+        src = run.light_bundle
         j = None if src is None else self.history.journal_get(src)
         if j is None or j.state != "archived":
             return None
