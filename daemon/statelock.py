@@ -27,7 +27,7 @@ import logging
 import os
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 from grassd.daemon.atomic import describe_write_error
@@ -89,13 +89,17 @@ class StateLock:
         :meth:`holder_ports`; a failed write is logged, the lock holds all the same."""
         if self._fd is None:
             return
-        lines = [f"{os.getpid()} {self.what}"] + [f"port {os.path.realpath(p)}" for p in ports]
         try:
-            data = ("\n".join(lines) + "\n").encode()
-            os.ftruncate(self._fd, 0)
-            os.pwrite(self._fd, data, 0)
+            self._write_holder(ports)
         except OSError as exc:
             log.warning("cannot note the serial ports in %s (%s)", self.path, exc)
+
+    def _write_holder(self, ports: Sequence[str] = ()) -> None:
+        """Replace the held lock file's text by "PID command" and a "port PATH" line per
+        serial port (resolved) this holder owns; raises OSError."""
+        lines = [f"{os.getpid()} {self.what}"] + [f"port {os.path.realpath(p)}" for p in ports]
+        os.ftruncate(self._fd, 0)
+        os.pwrite(self._fd, ("\n".join(lines) + "\n").encode(), 0)
 
     def holder_ports(self) -> set[str] | None:
         """Resolved serial ports the current holder owns, or None when it listed none (an
@@ -135,8 +139,7 @@ class StateLock:
             raise
         self._fd = fd
         try:  # who holds it, for the message of a second one; the flock is the lock
-            os.ftruncate(fd, 0)
-            os.pwrite(fd, f"{os.getpid()} {self.what}\n".encode(), 0)
+            self._write_holder()
         except OSError as exc:  # e.g. a full disk: the daemon must still (re)start
             log.warning("cannot note PID %d in %s (%s); the lock holds all the same",
                         os.getpid(), self.path, exc)
