@@ -328,8 +328,10 @@ def _pixel_errors(u: UnitTable, sims: Sequence[Any], pixels: NDArray) -> UnitTab
                    mean_error=float(w @ ev.mean_error / w.sum()))
 
 
-def _merge_grouping(summaries: Sequence[dict]) -> dict | None:
-    """Worst of several grouping-error summaries (one per viewer)."""
+def _merge_grouping(sims: Sequence[Any]) -> dict | None:
+    """Worst of the grouping-error summaries of several display simulations (one per viewer;
+    None when none checked a group)."""
+    summaries = [s.grouping_error.summary() for s in sims if s.grouping_error is not None]
     done = [s for s in summaries if s.get("groups_checked")]
     if not done:
         return None
@@ -400,8 +402,7 @@ def _viewpoint_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any
     char = mean_characteristic(combined, everyone)
     whole = _unit("display", everyone, build_length_table(char).lengths_um, char,
                   np.nan, np.nan)
-    grouping = _merge_grouping([s.grouping_error.summary() for s in sims
-                                if s.grouping_error is not None])
+    grouping = _merge_grouping(sims)
     viewers = Viewers([s.geometry for s in sims],
                       np.array([v.weight for v in cfg.viewpoints], np.float64),
                       combined.groups.labels, combined.groups.representatives,
@@ -479,8 +480,7 @@ def _audience_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
             units.append(_region_unit(f"group {g} (pixel {int(p)})", members, chars,
                                       aud.objective))
         unit = combined.groups.labels.copy()
-    grouping = _merge_grouping([s.grouping_error.summary() for s in sims
-                                if s.grouping_error is not None])
+    grouping = _merge_grouping(sims)
     viewers = Viewers([s.geometry for s in sims], np.ones(m), combined.groups.labels,
                       combined.groups.representatives)
     return units, unit, whole, grouping, info, viewers
