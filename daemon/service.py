@@ -51,7 +51,6 @@ from typing import Any
 
 from grassd import __version__
 from grassd.daemon.atomic import (
-    WRITE_ONLY_ERRNOS,
     atomic_save_figure,
     atomic_write_json,
     describe_os_error,
@@ -127,12 +126,13 @@ def _now_iso() -> str:
 def os_action(exc: BaseException, written: Sequence[Path] = (), otherwise: str = "access"
               ) -> str:
     """What an OSError ``exc`` failed to do, for :func:`describe_os_error`: "write" for a
-    rename/link (two paths), an error only writes meet (full disk, quota, read-only file
-    system, size limit) or a file below one of the directories ``written``; else
-    ``otherwise`` ("read" where only reads remain, "access" where it is not known)."""
+    rename/link (two paths) or a file below one of the directories ``written``; else
+    ``otherwise`` ("read" where only reads remain, "access" where it is not known). An error
+    only writes meet (full disk, quota, read-only file system, size limit) is worded as a
+    write by :func:`describe_os_error` itself, whatever this says."""
     if not isinstance(exc, OSError):
         return otherwise
-    if exc.filename2 is not None or exc.errno in WRITE_ONLY_ERRNOS:
+    if exc.filename2 is not None:
         return "write"
     if exc.filename is not None:
         p = Path(os.fsdecode(exc.filename))
