@@ -285,10 +285,10 @@ def _r2_pair(fit: FittedCharacteristic, lengths_um: NDArray) -> tuple[float, flo
             r_squared(levels, fit(np.asarray(lengths_um, np.float64) / 1000.0)))
 
 
-def _mean_of(chars: Sequence[Characteristic], weights: NDArray | None = None) -> Characteristic:
-    """Weighted mean characteristic (equal weights by default); error: weighted mean error."""
-    w = np.ones(len(chars)) if weights is None else np.asarray(weights, np.float64)
-    w = w / w.sum()
+def _mean_of(chars: Sequence[Characteristic]) -> Characteristic:
+    """Mean characteristic of ``chars`` (one per sampled eye, same lengths [mm]); error: the
+    mean standard error [dE00], floored at 1e-6."""
+    w = np.full(len(chars), 1.0 / len(chars))
     ogcd = w @ np.stack([c.ogcd for c in chars])
     se = w @ np.stack([c.ogcd_stderr for c in chars])
     return Characteristic(chars[0].lengths_mm, ogcd, np.maximum(se, 1e-6))
