@@ -9,7 +9,6 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
-import sqlite3
 import subprocess
 import sys
 import threading
@@ -131,12 +130,6 @@ def full(d: Path):
         filler.unlink()
 
 
-def main_loop_pass(svc: Service) -> None:
-    """One pass of Service.run's loop: errors it survives are swallowed as it does."""
-    with contextlib.suppress(OSError, sqlite3.Error):
-        svc.tick()
-
-
 def test_claimed_bundles_survive_a_full_state_disk(tmp_path, hw):
     """Two bundles claimed by one poll when the state disk fills up: the database write of the
     first fails. Neither may be stranded in processing/ until the next restart: both wait
@@ -160,7 +153,7 @@ def test_claimed_bundles_survive_a_full_state_disk(tmp_path, hw):
             deadline = time.monotonic() + 20
             while svc.inbox.counts()["archive"] < 2 and time.monotonic() < deadline:
                 time.sleep(0.3)
-                main_loop_pass(svc)
+                svc.main_loop_pass()
             assert svc.inbox.counts() == {"inbox": 0, "processing": 0, "archive": 2,
                                           "rejected": 0}
             assert svc.status()["waiting_bundles"] == []
@@ -185,7 +178,7 @@ def test_calibrate_request_is_answered_when_its_run_hits_a_full_disk(tmp_path, h
                 while svc.requests.empty() and t.is_alive():
                     time.sleep(0.01)
                 t0 = time.monotonic()
-                main_loop_pass(svc)
+                svc.main_loop_pass()
                 t.join(10)
                 waited = time.monotonic() - t0
             [ans] = answers
@@ -239,7 +232,7 @@ def test_bundle_claimed_before_a_failing_rejection_is_processed(tmp_path, hw):
             (inbox / ".b2" / "manifest.toml").write_text("this is = = not toml\n")
             os.rename(inbox / ".b2", inbox / "b2")
             for _ in range(3):
-                main_loop_pass(svc)
+                svc.main_loop_pass()
             assert svc.inbox.counts()["archive"] == 1, svc.inbox.counts()
             assert svc.history.current_table() is not None
     finally:
@@ -281,7 +274,7 @@ def test_unreadable_inbox_does_not_stop_reconcile_and_requests(tmp_path, hw):
     svc = service(conf, reconcile_s=0.0)
     try:
         rdrop(share, "b1", lux=1000.0)
-        main_loop_pass(svc)
+        svc.main_loop_pass()
         cur = svc.history.current_table()
         assert cur is not None and svc.inbox.counts()["archive"] == 1
         shutil.rmtree(share)  # the share is gone
@@ -295,7 +288,7 @@ def test_unreadable_inbox_does_not_stop_reconcile_and_requests(tmp_path, hw):
         assert table_checksum(dev.active_table()) != cur.table_crc
         assert svc.handle_request({"cmd": "calibrate"})["ok"]
         for _ in range(3):
-            main_loop_pass(svc)
+            svc.main_loop_pass()
         assert table_checksum(dev.active_table()) == svc.history.current_table().table_crc
         assert svc.requests.empty()
         assert svc.history.runs(1)[0].trigger == "request"
@@ -398,16 +391,16 @@ def test_last_error_names_a_read_failure_and_clears_after_a_clean_pass(tmp_path,
     inbox.symlink_to(share)
     svc = service(conf, reconcile_s=1e9)
     try:
-        main_loop_pass(svc)
+        svc.main_loop_pass()
         assert svc.status()["last_error"] is None
         share.rmdir()  # the share is gone
-        main_loop_pass(svc)
+        svc.main_loop_pass()
         err = svc.status()["last_error"]
         assert err is not None and f"cannot read {inbox}:" in err, err
         assert "write" not in err and "ENOENT" in err
         assert not share.exists()  # nothing was created in its place
         share.mkdir()  # the share is back
-        main_loop_pass(svc)
+        svc.main_loop_pass()
         st = svc.status()
         assert st["last_error"] is None
         seen = st["last_error_seen"]
