@@ -87,6 +87,17 @@ def drop(inbox: Path, name: str, lux: float | None = 1000.0, mode: int | None = 
     return inbox / name
 
 
+def journal_entry(svc: Service, name: str):
+    """The one ingest journal row of the bundle uploaded as ``name``."""
+    [j] = [j for j in svc.history.journal() if j.name == name]
+    return j
+
+
+def reported(svc: Service) -> set:
+    """(table id, CRC) that the simulated controllers report over their ptys."""
+    return {(st.table_id, st.table_crc) for _, st, _ in svc.fleet.read_all()}
+
+
 def after_first_bundle(tmp_path: Path, cfg, **kw) -> tuple[Service, Any]:
     """A service (``kw`` as for :func:`service`) on :func:`write_config`'s configuration for
     ``cfg`` in ``tmp_path``, after one main-loop pass processed a first bundle "b1" (1000 lux):

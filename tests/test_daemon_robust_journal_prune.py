@@ -12,7 +12,7 @@ from __future__ import annotations
 import shutil
 import time
 
-from robust_util import drop, service, write_config
+from robust_util import drop, reported, service, write_config
 
 from grassd.daemon.history import History
 from grassd.daemon.ingest import Inbox
@@ -33,10 +33,6 @@ def _bad(inbox, name: str) -> None:
     (d / "manifest.toml").write_text(f'timestamp = 2026-03-01T12:00:00+01:00\n# {name}\n'
                                      'hdri = "sky.exr"\nambient_lux = -5.0\n')
     d.rename(inbox / name)
-
-
-def _reported(svc) -> set:
-    return {(st.table_id, st.table_crc) for _, st, _ in svc.fleet.read_all()}
 
 
 def test_journal_rows_expire_with_their_bundles(tmp_path, hw):
@@ -112,7 +108,7 @@ def test_journal_rows_expire_with_their_bundles(tmp_path, hw):
         assert svc.history.run(j.run_id).status == "superseded"
     assert svc.history.latest_archived().name == "noon"
     assert svc.history.current_table().id == noon.id
-    assert _reported(svc) == {(noon.table_id, noon.table_crc)}
+    assert reported(svc) == {(noon.table_id, noon.table_crc)}
     assert len(svc.history.pushes(limit=10_000)) == pushes
     svc.shutdown()
 

@@ -13,22 +13,12 @@ import logging
 import sqlite3
 
 from click.testing import CliRunner
-from robust_util import drop, service, write_config
+from robust_util import drop, journal_entry, reported, service, write_config
 
 from grassd.daemon.cli import main as cli
 from grassd.daemon.service import STATE_DB, collect_status
 
 NOON = "2026-03-01T12:00:00+01:00"  # 11:00 UTC
-
-
-def _entry(svc, name: str):
-    [j] = [j for j in svc.history.journal() if j.name == name]
-    return j
-
-
-def _reported(svc) -> set:
-    """(table id, CRC) that the simulated controllers report over their ptys."""
-    return {(st.table_id, st.table_crc) for _, st, _ in svc.fleet.read_all()}
 
 
 def _corrupt(inbox, name: str, timestamp: str) -> None:
@@ -44,7 +34,7 @@ def _corrupt(inbox, name: str, timestamp: str) -> None:
 
 def _assert_superseded(svc, name: str, active, older_utc: str, active_utc: str) -> None:
     """Bundle ``name`` was archived unused against the active run ``active``."""
-    j = _entry(svc, name)
+    j = journal_entry(svc, name)
     assert j.state == "archived" and j.reason.startswith("superseded: "), j
     assert f"its light ({older_utc})" in j.reason and f"the light ({active_utc})" in j.reason
     assert f"run {active.id}" in j.reason and f"table {active.table_id}" in j.reason
@@ -54,7 +44,7 @@ def _assert_superseded(svc, name: str, active, older_utc: str, active_utc: str) 
     assert svc.history.pushes(run.id) == []
     assert (svc.inbox.archive / j.bundle_id / "manifest.toml").is_file()
     assert svc.history.current_table().id == active.id
-    assert _reported(svc) == {(active.table_id, active.table_crc)}
+    assert reported(svc) == {(active.table_id, active.table_crc)}
 
 
 def test_late_upload_of_older_light_is_archived_as_superseded(tmp_path, hw, caplog):
@@ -65,8 +55,8 @@ def test_late_upload_of_older_light_is_archived_as_superseded(tmp_path, hw, capl
     drop(inbox, "noon", lux=1000.0, timestamp=NOON)
     svc.tick()
     noon = svc.history.current_table()
-    assert noon is not None and noon.bundle_hash == _entry(svc, "noon").bundle_hash
-    assert _reported(svc) == {(noon.table_id, noon.table_crc)}
+    assert noon is not None and noon.bundle_hash == journal_entry(svc, "noon").bundle_hash
+    assert reported(svc) == {(noon.table_id, noon.table_crc)}
     pushes = len(svc.history.pushes(limit=10_000))
 
     # a late upload of the 11:00 light, after the noon table went out
@@ -84,29 +74,29 @@ def test_late_upload_of_older_light_is_archived_as_superseded(tmp_path, hw, capl
     # status (live, and from the database alone as `grassd status` without a daemon shows it)
     for st in (svc.status(), collect_status(svc.history, svc.cfg)):
         top = st["runs"][0]
-        assert (top["status"], top["error"]) == ("superseded", _entry(svc, "late").reason)
+        assert (top["status"], top["error"]) == ("superseded", journal_entry(svc, "late").reason)
         assert st["desired_table"]["run_id"] == noon.id and st["health"] == "ok"
         assert st["run_counts"] == {"ok": 1, "rejected": 0, "failed": 0, "superseded": 1}
 
     # a newer run that was rejected made no table: its light does not count
     _corrupt(inbox, "broken", "2026-03-01T14:00:00+01:00")
     svc.tick()
-    assert _entry(svc, "broken").state == "rejected"
-    assert svc.history.run(_entry(svc, "broken").run_id).status == "rejected"
+    assert journal_entry(svc, "broken").state == "rejected"
+    assert svc.history.run(journal_entry(svc, "broken").run_id).status == "rejected"
     assert svc.history.current_table().id == noon.id
     drop(inbox, "half-past", lux=1200.0, timestamp="2026-03-01T12:30:00+01:00")
     svc.tick()
     half = svc.history.current_table()
-    assert half.id > noon.id and half.bundle_hash == _entry(svc, "half-past").bundle_hash
-    assert _entry(svc, "half-past").reason is None
-    assert _reported(svc) == {(half.table_id, half.table_crc)}
+    assert half.id > noon.id and half.bundle_hash == journal_entry(svc, "half-past").bundle_hash
+    assert journal_entry(svc, "half-past").reason is None
+    assert reported(svc) == {(half.table_id, half.table_crc)}
 
     # light as old as the active table's: a corrected re-upload of that measurement, applied
     drop(inbox, "half-past-fixed", lux=1250.0, timestamp="2026-03-01T12:30:00+01:00")
     svc.tick()
     fixed = svc.history.current_table()
     assert fixed.id > half.id and abs(fixed.lux - 1250.0) < 1e-9
-    assert _reported(svc) == {(fixed.table_id, fixed.table_crc)}
+    assert reported(svc) == {(fixed.table_id, fixed.table_crc)}
 
     # a database from before runs.light_at: the active run's light time comes from its
     # archived bundle's manifest
@@ -123,7 +113,7 @@ def test_late_upload_of_older_light_is_archived_as_superseded(tmp_path, hw, capl
     drop(inbox, "b1330", lux=1330.0, timestamp="2026-03-01T13:30:00+01:00")
     svc.tick()
     last = svc.history.current_table()
-    assert last.bundle_hash == _entry(svc, "b1400").bundle_hash
+    assert last.bundle_hash == journal_entry(svc, "b1400").bundle_hash
     assert svc.history.run_count() == runs + 3 and svc.history.run_count("ok") == 4
     _assert_superseded(svc, "b1300", last, "2026-03-01T12:00:00+00:00",
                        "2026-03-01T13:00:00+00:00")
@@ -162,7 +152,7 @@ def test_calibrate_now_supersedes_older_light_in_the_inbox(tmp_path, hw):
         db.close()
     svc = service(conf)
     assert svc.history.current_table().id == noon.id
-    assert _reported(svc) == {(noon.table_id, noon.table_crc)}
+    assert reported(svc) == {(noon.table_id, noon.table_crc)}
     svc.shutdown()
 
     # two bundles waiting: the newest makes the table, the older is superseded, exit 0
@@ -174,5 +164,5 @@ def test_calibrate_now_supersedes_older_light_in_the_inbox(tmp_path, hw):
     cur = svc.history.current_table()
     assert cur.id > noon.id and abs(cur.lux - 1400.0) < 1e-9
     assert [r.status for r in svc.history.runs(2)] == ["superseded", "ok"]
-    assert _reported(svc) == {(cur.table_id, cur.table_crc)}
+    assert reported(svc) == {(cur.table_id, cur.table_crc)}
     svc.shutdown()

@@ -7,18 +7,9 @@ from __future__ import annotations
 
 from datetime import datetime
 
-from robust_util import drop, service, tick_until, write_config
+from robust_util import drop, journal_entry, reported, service, tick_until, write_config
 
 from grassd.daemon.sim_hardware import SimLuxSensor
-
-
-def _entry(svc, name: str):
-    [j] = [j for j in svc.history.journal() if j.name == name]
-    return j
-
-
-def _reported(svc) -> set:
-    return {(st.table_id, st.table_crc) for _, st, _ in svc.fleet.read_all()}
 
 
 def test_held_back_older_bundle_is_superseded_newer_one_applies(tmp_path, hw):
@@ -36,15 +27,15 @@ def test_held_back_older_bundle_is_superseded_newer_one_applies(tmp_path, hw):
     drop(inbox, "noon", lux=4000.0, timestamp="2026-03-01T12:00:00+01:00")
     svc.tick()  # noon has its lux: it runs and becomes the active table
     noon = svc.history.current_table()
-    assert noon is not None and noon.bundle_hash == _entry(svc, "noon").bundle_hash
+    assert noon is not None and noon.bundle_hash == journal_entry(svc, "noon").bundle_hash
     assert noon.light_at == datetime.fromisoformat("2026-03-01T12:00:00+01:00").timestamp()
-    assert _reported(svc) == {(noon.table_id, noon.table_crc)}
+    assert reported(svc) == {(noon.table_id, noon.table_crc)}
     assert [w["bundle"] for w in svc.status()["waiting_bundles"]] == ["morning"]
 
     back = SimLuxSensor(regmap, lux=3210.0, port=port).start()
     try:
-        tick_until(svc, lambda: _entry(svc, "morning").state != "processing")
-        morning = _entry(svc, "morning")
+        tick_until(svc, lambda: journal_entry(svc, "morning").state != "processing")
+        morning = journal_entry(svc, "morning")
         assert morning.state == "archived" and morning.reason.startswith("superseded: ")
         run = svc.history.run(morning.run_id)
         assert (run.status, run.bundle_hash, run.table_id) == ("superseded",
@@ -54,7 +45,7 @@ def test_held_back_older_bundle_is_superseded_newer_one_applies(tmp_path, hw):
         assert svc.history.pushes(run.id) == []  # nothing pushed for it
         assert (svc.inbox.archive / morning.bundle_id / "manifest.toml").exists()
         assert svc.history.current_table().id == noon.id  # noon's table stays active ...
-        assert _reported(svc) == {(noon.table_id, noon.table_crc)}  # ... on every controller
+        assert reported(svc) == {(noon.table_id, noon.table_crc)}  # ... on every controller
         # scheduled runs keep using noon's light, not the superseded bundle's
         assert svc.history.latest_archived().name == "noon"
         assert svc.status()["waiting_bundles"] == []
@@ -67,14 +58,14 @@ def test_held_back_older_bundle_is_superseded_newer_one_applies(tmp_path, hw):
         drop(inbox, "afternoon", lux=3000.0, timestamp="2026-03-01T15:00:00+01:00")
         svc.tick()
         afternoon = svc.history.current_table()
-        assert afternoon.bundle_hash == _entry(svc, "afternoon").bundle_hash
+        assert afternoon.bundle_hash == journal_entry(svc, "afternoon").bundle_hash
         back = SimLuxSensor(regmap, lux=2000.0, port=port).start()
-        tick_until(svc, lambda: _entry(svc, "evening").state != "processing")
+        tick_until(svc, lambda: journal_entry(svc, "evening").state != "processing")
         evening = svc.history.current_table()
         assert evening.id > afternoon.id and abs(evening.lux - 2000.0) < 0.5
-        assert evening.bundle_hash == _entry(svc, "evening").bundle_hash
-        assert _entry(svc, "evening").reason is None
-        assert _reported(svc) == {(evening.table_id, evening.table_crc)}
+        assert evening.bundle_hash == journal_entry(svc, "evening").bundle_hash
+        assert journal_entry(svc, "evening").reason is None
+        assert reported(svc) == {(evening.table_id, evening.table_crc)}
     finally:
         back.stop()
     svc.shutdown()
