@@ -387,9 +387,7 @@ class History:
                 "SELECT id FROM runs WHERE status != 'running' AND id NOT IN "
                 "(SELECT id FROM runs ORDER BY id DESC LIMIT ?) ORDER BY id", (keep_last,))
                    if r[0] not in protect]
-            for k in range(0, len(ids), 500):
-                chunk = ids[k:k + 500]
-                marks = ",".join("?" * len(chunk))
+            for chunk, marks in _in_chunks(ids):
                 db.execute(f"DELETE FROM pushes WHERE run_id IN ({marks})", chunk)
                 db.execute(f"DELETE FROM run_tables WHERE run_id IN ({marks})", chunk)
                 db.execute(f"DELETE FROM runs WHERE id IN ({marks})", chunk)
@@ -543,10 +541,9 @@ class History:
                 "SELECT bundle_hash, bundle_id FROM journal WHERE state IN ('archived', "
                 "'rejected') AND updated_at < ?", (before,))
                 if bid not in keep_ids and h not in protect]
-            for k in range(0, len(gone), 500):
-                chunk = gone[k:k + 500]
+            for chunk, marks in _in_chunks(gone):
                 db.execute(f"DELETE FROM journal WHERE state IN ('archived', 'rejected') AND "
-                           f"bundle_hash IN ({','.join('?' * len(chunk))})", chunk)
+                           f"bundle_hash IN ({marks})", chunk)
             return len(gone)
 
     def journal_count(self, state: str | None = None) -> int:
@@ -577,6 +574,14 @@ def _plain(obj: Any) -> Any:
     if callable(tolist):
         return tolist()
     return str(obj)
+
+
+def _in_chunks(items: list) -> Iterator[tuple[list, str]]:
+    """``items`` in slices of at most 500, each with its "?,?,..." placeholders (an IN list
+    within SQLite's bound-parameter limit)."""
+    for k in range(0, len(items), 500):
+        chunk = items[k:k + 500]
+        yield chunk, ",".join("?" * len(chunk))
 
 
 def _run(r: tuple) -> RunRecord:
