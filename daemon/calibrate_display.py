@@ -60,8 +60,29 @@ from numpy.typing import NDArray
 
 from grassd.calib.ccm import ColourCorrection
 from grassd.calib.characteristic import Characteristic, FittedCharacteristic, fit_characteristic
-from grassd.calib.length_table import LEVELS, r_squared
+from grassd.calib.length_table import LEVELS, build_length_table, r_squared
+from grassd.daemon.audience import (
+    centre_pixel,
+    evaluate_table,
+    region_from_config,
+    region_table,
+    simulate_region,
+)
+from grassd.daemon.calibrate import _finite_or_none, check_shape, check_table
+from grassd.daemon.display import (
+    capacity_for,
+    combine_viewpoints,
+    controller_pixels,
+    curve_characteristic,
+    display_spec_for_config,
+    display_tables_for_config,
+    geometry_from_eye,
+    mean_characteristic,
+    simulate_display,
+    table_deviation,
+)
 from grassd.daemon.errors import CalibrationRejected, RunInterrupted
+from grassd.daemon.simulation import simulate_curve
 from grassd.firmware_proto.tables import as_table_array, table_crc
 
 if TYPE_CHECKING:
@@ -172,8 +193,6 @@ class DisplayCalibrationResult:
     def metrics(self, r2_goal: float = 0.999, target_de00: float = 0.5) -> dict[str, Any]:
         """Summary numbers (dE00): R^2 and deviation of the worst pixel group in the closed
         loop, and of the worst unit in the fits (``*_fit*``)."""
-        from grassd.daemon.calibrate import _finite_or_none  # noqa: PLC0415
-
         r2_after = min(u.r2_after for u in self.units)
         fit_worst = max(u.max_error for u in self.units)
         loop = self.loop
@@ -207,8 +226,6 @@ class DisplayCalibrationResult:
 
     def report(self) -> dict[str, Any]:
         """A JSON-serialisable report (arrays as lists), with every controller's table CRC."""
-        from grassd.daemon.calibrate import _finite_or_none  # noqa: PLC0415
-
         crcs = self.controller_crcs()
         return {
             "granularity": self.granularity, "table_source": self.source,
@@ -305,8 +322,6 @@ def _unit(name: str, pixels: NDArray, lengths_um: NDArray, char: Characteristic,
 def _region_unit(name: str, pixels: NDArray, chars: Sequence[Characteristic],
                  objective: str) -> UnitTable:
     """A unit whose table is the region table over one characteristic per sampled eye."""
-    from grassd.daemon.audience import region_table  # noqa: PLC0415
-
     t = region_table([fit_characteristic(c) for c in chars], objective)
     return _unit(name, pixels, t.lengths_um, _mean_of(chars), float(t.max_error.max()),
                  float(t.mean_error.mean()))
@@ -315,8 +330,6 @@ def _region_unit(name: str, pixels: NDArray, chars: Sequence[Characteristic],
 def _pixel_errors(u: UnitTable, sims: Sequence[Any], pixels: NDArray) -> UnitTable:
     """``u`` with its errors measured on its pixels, not on their mean: every (eye, geometry
     group) pair among ``pixels`` driven by ``u``'s table; worst, and mean weighted by pixels."""
-    from grassd.daemon.audience import evaluate_table  # noqa: PLC0415
-
     fits, weights = [], []
     for s in sims:  # one entry per eye
         groups, counts = np.unique(s.groups.labels[pixels], return_counts=True)
@@ -379,13 +392,6 @@ def _viewpoint_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any
                      ) -> tuple[list[UnitTable], NDArray, UnitTable, dict | None, Viewers]:
     """Units from [[viewpoints]]: (units, unit of every pixel, display-wide unit, grouping,
     viewers)."""
-    from grassd.calib.length_table import build_length_table  # noqa: PLC0415
-    from grassd.daemon.display import (  # noqa: PLC0415
-        combine_viewpoints,
-        display_tables_for_config,
-        mean_characteristic,
-    )
-
     cfg = cal.cfg
     tables, sims = display_tables_for_config(renderer, cfg, lighting, lengths, settings,
                                              ccm=ccm, progress=step)
@@ -416,20 +422,6 @@ def _audience_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
                     ) -> tuple[list[UnitTable], NDArray, UnitTable, dict | None, dict, Viewers]:
     """Units from [audience]: (units, unit of every pixel, display-wide unit, grouping,
     region summary, viewers)."""
-    from grassd.daemon.audience import (  # noqa: PLC0415
-        centre_pixel,
-        region_from_config,
-        simulate_region,
-    )
-    from grassd.daemon.display import (  # noqa: PLC0415
-        combine_viewpoints,
-        controller_pixels,
-        curve_characteristic,
-        geometry_from_eye,
-        mean_characteristic,
-        simulate_display,
-    )
-
     cfg = cal.cfg
     aud, t = cfg.audience, cfg.tables
     region, samples = region_from_config(aud)
@@ -494,8 +486,6 @@ def closed_loop_check(renderer: Any, display: Any, lighting: Any, viewers: Viewe
     length), average the viewers' OGCD with their weights and compare it with the linear
     target ``level / 255 x OGCD(255)`` (the check of the global run's closed loop).
     ``settings`` carries the round's own seed. One trace per (group, viewer)."""
-    from grassd.daemon.simulation import simulate_curve  # noqa: PLC0415
-
     w = viewers.weights / viewers.weights.sum()
     reps = viewers.representatives
     lx = pixel_tables_um[reps][:, levels].astype(np.float64) / 1000.0  # (G, L) mm
@@ -530,9 +520,6 @@ def refine_unit(u: UnitTable, loops: Sequence[LoopCheck],
     (:meth:`grassd.daemon.calibrate.Calibrator.run`). The errors are re-measured on the unit's
     pixels' own characteristics (``group_characteristics``, one per loop group); R^2 and the
     OGCD range on the refined fit."""
-    from grassd.calib.length_table import build_length_table  # noqa: PLC0415
-    from grassd.daemon.display import table_deviation  # noqa: PLC0415
-
     groups, counts = np.unique(loops[0].labels[u.pixels], return_counts=True)
     w = counts / counts.sum()
     c = u.characteristic
@@ -560,8 +547,6 @@ def controller_tables_of(cfg: Any, units: Sequence[UnitTable], unit_of_pixel: ND
                          ) -> dict[str, NDArray[np.uint16]]:
     """Every configured controller's table: (256,) for granularity "controller" or "global",
     (n_pixels, 256) for "pixel" (rows in the order of the controller's pixel ranges)."""
-    from grassd.daemon.display import controller_pixels  # noqa: PLC0415
-
     n = len(unit_of_pixel)
     stacked = np.stack([u.lengths_um for u in units])
     out = {}
@@ -583,8 +568,6 @@ def calibrate_display(cal: Calibrator, light: LightInput, *,
     """A display run for ``cal.cfg`` (see the module docstring); raises
     :class:`~grassd.daemon.errors.CalibrationRejected` for a bad characteristic or table and
     :class:`~grassd.daemon.errors.RunInterrupted` when ``stop`` is set (checked per trace)."""
-    from grassd.daemon.calibrate import check_shape, check_table  # noqa: PLC0415
-    from grassd.daemon.display import capacity_for, display_spec_for_config  # noqa: PLC0415
     from grassd.sim.renderer import Renderer  # noqa: PLC0415
     from grassd.sim.scene import RenderSettings  # noqa: PLC0415
 
