@@ -6,7 +6,7 @@ from __future__ import annotations
 import time
 
 from robust_util import drop, service, write_config
-from test_daemon_review import full, main_loop_pass, tmpfs
+from test_daemon_review import full, tmpfs
 
 
 def test_last_error_stays_while_a_bundle_still_waits_on_it(tmp_path, hw):
@@ -25,16 +25,16 @@ def test_last_error_stays_while_a_bundle_still_waits_on_it(tmp_path, hw):
             with full(state):
                 svc.tick(claimed)
                 assert "full" in (svc.status()["last_error"] or "")
-                main_loop_pass(svc)  # the bundle's retry is not due: nothing was retried
+                svc.main_loop_pass()  # the bundle's retry is not due: nothing was retried
                 st = svc.status()
                 assert [w["bundle"] for w in st["waiting_bundles"]] == ["b1"]
                 assert "full" in (st["last_error"] or ""), st["last_error"]
             for d in svc.deferred.values():  # space is back: retry now
                 d.retry_at = time.monotonic()
-            main_loop_pass(svc)
+            svc.main_loop_pass()
             st = svc.status()
             assert st["waiting_bundles"] == [] and svc.inbox.counts()["archive"] == 1
-            main_loop_pass(svc)
+            svc.main_loop_pass()
             st = svc.status()
             assert st["last_error"] is None
             assert st["last_error_seen"]["cleared_at"] is not None
