@@ -84,6 +84,12 @@ class StateLock:
             time.sleep(0.01)
         return None, ""
 
+    def _holder_name(self, unknown: str) -> str:
+        """The holder for a message, e.g. "grassd run (PID 12)"; ``unknown`` when its PID is
+        not known (:meth:`holder`)."""
+        pid, what = self.holder()
+        return f"{what or 'grassd'} (PID {pid})" if pid else unknown
+
     def note_ports(self, ports: list[str]) -> None:
         """Write the serial ports this holder owns (resolved paths) after its PID line, for
         :meth:`holder_ports`; a failed write is logged, the lock holds all the same."""
@@ -127,9 +133,8 @@ class StateLock:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             os.close(fd)
-            pid, what = self.holder()
-            who = (f"{what or 'grassd'} (PID {pid})" if pid else
-                   "another grassd process (e.g. a `grassd controllers` command)")
+            who = self._holder_name("another grassd process (e.g. a `grassd controllers` "
+                                    "command)")
             raise StateDirLocked(
                 f"state directory {self.path.parent} is in use by {who}: stop it first, or "
                 "let it finish (`grassd calibrate --now` asks a running daemon over its control "
@@ -173,10 +178,8 @@ class StateLock:
             except BlockingIOError:
                 owned = self.holder_ports()
                 if port is None or owned is None or os.path.realpath(port) in owned:
-                    pid, what = self.holder()
-                    who = (f"{what or 'grassd'} (PID {pid})" if pid
-                           else "another grassd process")
-                    raise StateDirLocked(refuse(who)) from None
+                    raise StateDirLocked(refuse(self._holder_name("another grassd process"))
+                                         ) from None
             yield
         finally:
             os.close(fd)
