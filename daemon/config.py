@@ -568,6 +568,7 @@ def parse_pixel_ranges(spec: str, pixel_count: int) -> tuple[tuple[int, int], ..
     if spec.strip().lower() == "all":
         return ((0, pixel_count - 1),)
     out = []
+    spans = []  # (range, as written), for the overlap check
     for part in spec.split(","):
         m = _RANGE_RE.match(part)
         if not m:
@@ -580,7 +581,8 @@ def parse_pixel_ranges(spec: str, pixel_count: int) -> tuple[tuple[int, int], ..
         if b >= pixel_count:
             raise ValueError(f"pixel {b} does not exist: the display has {pixel_count} pixels")
         out.append((a, b))
-    spans = sorted(zip(out, (p.strip() for p in spec.split(",")), strict=True))
+        spans.append(((a, b), part.strip()))
+    spans.sort()
     for ((_, b1), p1), ((a2, _), p2) in zip(spans, spans[1:], strict=False):
         if a2 <= b1:  # sorted by first pixel: an overlap shows between neighbours
             raise ValueError(f"pixel {a2} is listed twice (in {p1!r} and {p2!r}); list each "
