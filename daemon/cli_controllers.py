@@ -75,6 +75,10 @@ _config = click.option("--config", "config_path", type=click.Path(dir_okay=False
 _state_dir = click.option("--state-dir", type=click.Path(file_okay=False),
                           help="override the configuration's state directory")
 
+#: what to use instead of a read-only command on a bus the daemon owns
+_SEE_STATUS = "`grassd status` (each controller's table as the daemon sees it)"
+
+
 @contextmanager
 def _bus_free(config_path: str | None, state_dir: str | None, command: str,
               instead: str, port: str) -> Iterator[None]:
@@ -135,8 +139,7 @@ def scan_cmd(port: str, addresses: str, baud: int, timeout_s: float, rs485: bool
     Refused while a running daemon holds the configuration's state directory (it owns the
     serial buses): see `grassd status`, or stop the daemon.
     """
-    with _bus_free(config_path, state_dir, "scan", "`grassd status` (each controller's "
-                   "table as the daemon sees it)", port), \
+    with _bus_free(config_path, state_dir, "scan", _SEE_STATUS, port), \
             _client(port, baud, timeout_s, rs485) as client:
         found = client.scan(parse_addresses(addresses), timeout_s=timeout_s)
     if not found:
@@ -165,8 +168,7 @@ def status_cmd(port: str, addresses: str | None, baud: int, timeout_s: float,
     Refused while a running daemon holds the configuration's state directory (it owns the
     serial buses): see `grassd status`, or stop the daemon.
     """
-    with _bus_free(config_path, state_dir, "status", "`grassd status` (each controller's "
-                   "table as the daemon sees it)", port), \
+    with _bus_free(config_path, state_dir, "status", _SEE_STATUS, port), \
             _client(port, baud, timeout_s, rs485) as client:
         for a in _targets(client, addresses):
             st = client.read_status(a)
