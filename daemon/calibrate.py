@@ -248,6 +248,16 @@ def check_shape(lengths_mm: NDArray, ogcd: NDArray, stderr: NDArray | None,
     return stats
 
 
+def check_levels(n: int) -> NDArray[np.int64]:
+    """The 8-bit levels the closed loop re-simulates: ``n`` evenly spaced over 0..255, rounded,
+    duplicates dropped (level 0 is the reference length, 255 the top of the range).
+
+    >>> check_levels(5).tolist()
+    [0, 64, 128, 191, 255]
+    """
+    return np.unique(np.rint(np.linspace(0, LEVELS - 1, n)).astype(np.int64))
+
+
 def check_table(lengths_um: NDArray, green_max_mm: float, previous_um: NDArray | None,
                 max_jump_mm: float, force: bool, what: str = "table") -> int | None:
     """Sanity checks of a table (micrometres); returns the largest step from ``previous_um``.
@@ -457,7 +467,7 @@ class Calibrator:
         green_max = float(self.cfg.display.pixel.get("green_max_mm", 20.0))
 
         rounds: list[LoopRound] = []
-        levels = np.unique(np.rint(np.linspace(0, LEVELS - 1, cal.check_levels)).astype(int))
+        levels = check_levels(cal.check_levels)
         for k in range(1, cal.max_rounds + 1):
             check_table(table.lengths_um, green_max, None, cal.max_jump_mm, force)
             if progress:

@@ -68,7 +68,7 @@ from grassd.daemon.audience import (
     region_table,
     simulate_region,
 )
-from grassd.daemon.calibrate import _finite_or_none, check_shape, check_table
+from grassd.daemon.calibrate import _finite_or_none, check_levels, check_shape, check_table
 from grassd.daemon.display import (
     capacity_for,
     combine_viewpoints,
@@ -632,7 +632,7 @@ def calibrate_display(cal: Calibrator, light: LightInput, *,
     # added to their fit and a new table (from [[viewpoints]]; a region table is not the
     # inverse of one characteristic, so [audience] runs check one round)
     t_loop = time.perf_counter()
-    levels = np.unique(np.rint(np.linspace(0, LEVELS - 1, cc.check_levels)).astype(np.int64))
+    levels = check_levels(cc.check_levels)
     rounds: list[LoopCheck] = []
     for k in range(1, cc.max_rounds + 1):
         pixel_tables = np.stack([u.lengths_um for u in units])[unit_of_pixel]
