@@ -464,7 +464,7 @@ class Calibrator:
         all_x, all_y, all_se = [lengths], [y], [se]
         weighted = Characteristic(lengths, y, np.maximum(se, 1e-6))
         table = build_length_table(fit_characteristic(weighted))
-        green_max = float(self.cfg.display.pixel.get("green_max_mm", 20.0))
+        green_max = self.cfg.display.green_max_mm
 
         rounds: list[LoopRound] = []
         levels = check_levels(cal.check_levels)

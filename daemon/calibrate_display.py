@@ -610,7 +610,7 @@ def calibrate_display(cal: Calibrator, light: LightInput, *,
                         u.characteristic.ogcd_stderr, cc.max_flat_fraction)
         except CalibrationRejected as exc:
             raise CalibrationRejected(f"{u.name}: {exc}") from None
-    green_max = float(d.pixel.get("green_max_mm", 20.0))
+    green_max = d.green_max_mm
 
     def checked_tables(units: list[UnitTable]) -> tuple[dict[str, NDArray], int | None]:
         tables = controller_tables_of(cfg, units, unit_of_pixel)

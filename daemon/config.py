@@ -115,6 +115,12 @@ class DisplayConfig:
         """Number of grass pixels (rows x cols)."""
         return self.rows * self.cols
 
+    @property
+    def green_max_mm(self) -> float:
+        """The longest green length a pixel shows [mm]: ``pixel["green_max_mm"]``, else 20 mm
+        (PixelSpec's default); no table entry may exceed it."""
+        return float(self.pixel.get("green_max_mm", 20.0))
+
 
 @dataclass(frozen=True)
 class ControllerConfig:
