@@ -22,6 +22,14 @@ under an importance-sampled equirectangular environment plus an optional directi
   not on the grass length, so all lengths are traced with the same sample sequence and OGCD
   differences are smooth. With the same seed the result is bit-reproducible (each path writes
   its own slot; a float64 kernel then sums each (length, replicate) group serially).
+* One path, every length: a camera path is traced at the shortest length, and every trace
+  reports the least green length at which some green blade it missed would come in front of
+  its hit (or block its shadow ray). Lengths below the least such length over the path give
+  the same surfaces, points and random numbers, hence the same radiance bit for bit, and take
+  it without tracing; the path is traced again at the first length past it. A green blade's
+  outline grows with its length (longer blades hold shorter ones; splay turns them, so with
+  splay every length is traced). On the paper's pixel a path is traced about 3 times for 21
+  lengths.
 * Sampling: the quad position is jittered in a strata x strata grid per replicate; every other
   pair of dimensions (light samples, bounce directions) is padded-jittered, i.e. stratified the
   same way under its own random permutation of the paths (:func:`grassd.sim.tifuncs.padded_pair`).
@@ -83,6 +91,8 @@ class Measurement:
     the scaled environment (nits when the map was scaled to lux). ``rgb_stderr`` (n, 3): its Monte
     Carlo standard error. ``rgb_replicates`` (R, n, 3): the independent replicate means (same
     random numbers across lengths within a replicate). ``seconds``: compile, trace, total.
+    ``paths_traced``: camera paths actually traced, at most n x ``samples_per_length``; a path
+    is traced again only at a length from which on its rays may meet other surfaces.
     """
 
     viewpoint: Viewpoint
@@ -92,6 +102,7 @@ class Measurement:
     rgb_replicates: np.ndarray
     samples_per_length: int
     seconds: dict[str, float] = field(default_factory=dict)
+    paths_traced: int = 0
 
 
 _SHARED: dict[Capacity, "Renderer"] = {}
@@ -166,6 +177,7 @@ class Renderer:
         self.block_cdf = ti.field(ti.f32, cap.env_texels + COARSE_ROWS_MAX * COARSE_COLS_MAX)
         self.out = ti.Vector.field(3, ti.f32, cap.paths)
         self.sums = ti.Vector.field(3, ti.f64, 256 * 64)  # per (length, replicate) of a launch
+        self.traced = ti.field(ti.i32, ())  # path traces of the last launch
         self.quad = ti.Vector.field(3, ti.f32, 4)
         self.image = ti.Vector.field(3, ti.f32, (PREVIEW_MAX, PREVIEW_MAX))
         # Scalars: see _upload_* for the meaning of each slot.
@@ -181,7 +193,7 @@ class Renderer:
         if self.compiled:
             return 0.0
         t0 = time.perf_counter()
-        self._trace_kernel(0, 1, 1, 0, 1, ti.Vector([0.0, 0.0, 1.0]), 1.0)
+        self._trace_kernel(0, 0, 1, 1, 0, 1, ti.Vector([0.0, 0.0, 1.0]), 1.0)
         ti.sync()
         self.compiled = True
         return time.perf_counter() - t0
@@ -328,17 +340,21 @@ class Renderer:
         return d, pdf, self.env[row * w + col]
 
     @ti.func
-    def hit_primitive(self, prim: ti.i32, o, d, x: ti.f32, tmax: ti.f32, zlo: ti.f32,
-                      zhi: ti.f32):
-        """Distance, unit geometric normal and material of primitive ``prim`` (INF if missed).
+    def hit_primitive(self, prim: ti.i32, o, d, x: ti.f32, x_cull: ti.f32, tmax: ti.f32,
+                      zlo: ti.f32, zhi: ti.f32):
+        """Distance, unit geometric normal and material of primitive ``prim`` (INF if missed),
+        and the green length (m) from which on a green blade missed at length ``x`` would be
+        hit closer than ``tmax`` (INF for other primitives, for hits, and with splay).
 
         Rise axes and normals are precomputed per blade; only green blades with splay (their
         lean grows with the length x) are recomputed here. ``zlo``..``zhi`` bounds the heights
         of the ray inside the current grid cell: a part lying wholly above or below it is not
         tested (a blade rises at most its length above its root, a green blade's cavity part
-        spans the cavity depth below it)."""
+        spans the cavity depth below it). Green blades are culled as if ``x_cull`` (>= x)
+        long, so that their growth up to that length is seen."""
         nb = self.ipar[0]
         t = tf.INF
+        grow = tf.INF
         n = vec3(0.0, 0.0, 1.0)
         mat = 0
         if prim < nb:
@@ -349,15 +365,21 @@ class Renderer:
             nu = self.blade_n[prim]
             length = par[1]
             green = par[2] > 0.5
+            splay = self.fpar[7] > 0.0
             if green:
                 length = x
-                if self.fpar[7] > 0.0:
+                if splay:
                     lean = self.blade_lean[prim]
                     alpha = lean.z + self.fpar[7] * x / self.fpar[8]
                     sa = ti.sin(alpha)
                     u = vec3(sa * lean.x, sa * lean.y, ti.cos(alpha))
                     nu = a.cross(u).normalized()
-            if zlo <= p0.z + length + ZCULL and zhi >= p0.z - ZCULL:
+            if green and not splay:
+                if zlo <= p0.z + x_cull + ZCULL and zhi >= p0.z - ZCULL:
+                    t, grow = tf.hit_growing_blade(o, d, p0, a, u, nu, par[0], length,
+                                                   self.fpar[5], self.fpar[6], tmax)
+                    n = nu
+            elif zlo <= p0.z + length + ZCULL and zhi >= p0.z - ZCULL:
                 t1 = tf.hit_blade(o, d, p0, a, u, nu, par[0], length, self.fpar[5],
                                   self.fpar[6], tmax)
                 if t1 < tf.INF:
@@ -385,21 +407,28 @@ class Renderer:
                 t = tf.hit_rect(o, d, ax, bd[0], bd[1], bd[2], bd[3], bd[4], tmax)
             n = tf.axis_vector(ax)
             mat = self.rect_mat[r]
-        return t, n, mat
+        return t, n, mat, grow
 
     @ti.func
-    def trace(self, o, d, x: ti.f32, tmax_in: ti.f32, any_hit: ti.i32):
-        """Nearest hit (or any hit, for shadows) along o + t d, t in (0, tmax_in)."""
+    def trace(self, o, d, x: ti.f32, x_cull: ti.f32, tmax_in: ti.f32, any_hit: ti.i32):
+        """Nearest hit (or any hit, for shadows) along o + t d, t in (0, tmax_in), with green
+        blades ``x`` long, and the green length from which on the answer may differ: the
+        least length at which a green blade missed here would come in front of the hit (for
+        any-hit queries, block the ray), INF if none up to ``x_cull``. Below that length the
+        ray meets the same surface at the same point (the outline of a longer blade holds
+        that of a shorter one), so a path whose rays all keep their answers has the same
+        radiance. Cells and blades are culled for lengths up to ``x_cull`` (>= x)."""
         best_t = tmax_in
         best_n = vec3(0.0, 0.0, 1.0)
         best_m = -1
+        grow = tf.INF
         t0 = 0.0
         t1 = tmax_in
         gx0, gy0, cell = self.fpar[0], self.fpar[1], self.fpar[2]
         nx, ny = self.ipar[2], self.ipar[3]
         lo = vec3(gx0, gy0, self.fpar[3])
         # Nothing rises above the taller of the yellow blades and the green length x.
-        hi = vec3(gx0 + nx * cell, gy0 + ny * cell, ti.max(self.fpar[9], x) + 1e-4)
+        hi = vec3(gx0 + nx * cell, gy0 + ny * cell, ti.max(self.fpar[9], x_cull) + 1e-4)
         for k in ti.static(range(3)):  # clip to the scene's bounding box (slab method)
             if ti.abs(d[k]) < 1e-12:
                 if o[k] < lo[k] or o[k] > hi[k]:
@@ -434,10 +463,11 @@ class Renderer:
                 zb = o.z + d.z * ti.min(t_out, best_t)
                 zlo, zhi = ti.min(za, zb), ti.max(za, zb)
                 ct = self.cell_top[c]
-                if zlo <= ti.max(ct.x, ct.y + x) + ZCULL:  # else the ray passes over the cell
+                if zlo <= ti.max(ct.x, ct.y + x_cull) + ZCULL:  # else it passes over the cell
                     for j in range(self.cell_start[c], self.cell_start[c + 1]):
                         prim = self.cell_items[j]
-                        t, n, m = self.hit_primitive(prim, o, d, x, best_t, zlo, zhi)
+                        t, n, m, g = self.hit_primitive(prim, o, d, x, x_cull, best_t, zlo, zhi)
+                        grow = ti.min(grow, g)
                         if t < best_t:
                             best_t = t
                             best_n = n
@@ -459,12 +489,19 @@ class Renderer:
                     tny += tdy
                     if iy < 0 or iy >= ny:
                         done = True
-        return best_t, best_n, best_m
+        if any_hit and best_m >= 0:
+            grow = tf.INF  # blocked now, blocked by anything longer too
+        return best_t, best_n, best_m, grow
 
     @ti.func
-    def radiance(self, o, d, x: ti.f32, index: ti.i32, strata: ti.i32, rep_key: ti.u32,
-                 key: ti.u32, max_bounces: ti.i32):
-        """Path-traced radiance along o + t d (linear Rec.709)."""
+    def radiance(self, o, d, x: ti.f32, x_cull: ti.f32, index: ti.i32, strata: ti.i32,
+                 rep_key: ti.u32, key: ti.u32, max_bounces: ti.i32):
+        """Path-traced radiance along o + t d (linear Rec.709) with green blades ``x`` long,
+        and the least green length (<= x_cull) from which on the path may change (INF if it
+        stays the same up to ``x_cull``; ``x`` itself when blades splay, as their planes
+        turn with the length): the same random numbers give the same radiance for every
+        length in [x, that length)."""
+        grow = tf.INF
         total = vec3(0.0)
         beta = vec3(1.0)
         pdf_bsdf = 0.0
@@ -476,7 +513,8 @@ class Renderer:
         ks, nexp = self.fpar[16], self.fpar[17]
         for depth in range(max_bounces + 1):
             # The last segment only asks whether the environment is visible (any hit).
-            t, n, mat = self.trace(o, d, x, tf.INF, 1 if depth == max_bounces else 0)
+            t, n, mat, g = self.trace(o, d, x, x_cull, tf.INF, 1 if depth == max_bounces else 0)
+            grow = ti.min(grow, g)
             if mat < 0:  # escaped to the environment
                 le = self.env_radiance(d)
                 w = 1.0
@@ -519,7 +557,8 @@ class Renderer:
                     fcos, _ = tf.bsdf_eval(alb, nn, wo, sun_dir, ks, nexp)
                     contrib = sun_e * fcos
                 if nn.dot(wl) > 0.0 and contrib.max() > 0.0:
-                    ts, _, ms = self.trace(p, wl, x, tf.INF, 1)
+                    ts, _, ms, gs = self.trace(p, wl, x, x_cull, tf.INF, 1)
+                    grow = ti.min(grow, gs)
                     if ms < 0:
                         total += beta * contrib
             # Continue the path by sampling the BSDF (Lambertian: throughput *= albedo).
@@ -532,13 +571,24 @@ class Renderer:
             o = p
             if beta.max() <= 0.0:
                 break
-        return total
+        if self.fpar[7] > 0.0:
+            grow = x
+        return total, grow
 
     @ti.kernel
-    def _trace_kernel(self, n_len: ti.i32, n_rep: ti.i32, strata: ti.i32, seed: ti.u32,
-                      max_bounces: ti.i32, eye: vec3, area: ti.f32):
+    def _trace_kernel(self, n_len: ti.i32, rep0: ti.i32, n_rep: ti.i32, strata: ti.i32,
+                      seed: ti.u32, max_bounces: ti.i32, eye: vec3, area: ti.f32):
+        """Trace replicates rep0 .. rep0 + n_rep - 1 at the first n_len entries of
+        ``self.lengths`` (ascending, m). Each camera path is traced at the shortest length
+        and again only at a length from which on it may change (:meth:`radiance`); lengths in
+        between take its radiance, which tracing them would give bit for bit (same random
+        numbers, same surfaces). Path (k, r, i) lands in out[(k * n_rep + r - rep0) * n_samp
+        + i]."""
         n_samp = strata * strata
-        for k, r, i in ti.ndrange(n_len, n_rep, n_samp):
+        x_cull = self.lengths[n_len - 1]
+        self.traced[None] = 0
+        for rr, i in ti.ndrange(n_rep, n_samp):
+            r = rep0 + rr
             rep_key = tf.replicate_key(seed, r)
             key = tf.sample_key(seed, r, i)
             su = (i % strata + tf.rand01(key, 0)) / strata
@@ -549,9 +599,20 @@ class Renderer:
             dpv = (1 - su) * (q3 - q0) + su * (q2 - q1)
             jac = dpu.cross(dpv).norm() / area
             d = (q - eye).normalized()
-            x = self.lengths[k]
-            self.out[(k * n_rep + r) * n_samp + i] = jac * self.radiance(
-                eye, d, x, i, strata, rep_key, key, max_bounces)
+            k = 0
+            traces = 0
+            while k < n_len:
+                traces += 1
+                rad, grow = self.radiance(eye, d, self.lengths[k], x_cull, i, strata, rep_key,
+                                          key, max_bounces)
+                value = jac * rad
+                self.out[(k * n_rep + rr) * n_samp + i] = value
+                k += 1
+                # a margin of 0.1 um keeps float rounding of the growth length on the safe side
+                while k < n_len and self.lengths[k] < grow - 1e-7:
+                    self.out[(k * n_rep + rr) * n_samp + i] = value
+                    k += 1
+            self.traced[None] += traces
 
     @ti.kernel
     def _reduce_kernel(self, n_groups: ti.i32, n_samp: ti.i32):
@@ -577,7 +638,8 @@ class Renderer:
                 sx = ((px + tf.rand01(key, 0)) / width * 2.0 - 1.0) * half
                 sy = ((py + tf.rand01(key, 1)) / width * 2.0 - 1.0) * half
                 d = (forward + sx * right - sy * up).normalized()
-                acc += self.radiance(eye, d, x, s, m, rep_key, key, max_bounces)
+                rad, _ = self.radiance(eye, d, x, x, s, m, rep_key, key, max_bounces)
+                acc += rad
             self.image[py, px] = acc / (m * m)
 
     # ----------------------------------------------------------------------------- public API
@@ -616,35 +678,43 @@ class Renderer:
 
         m = settings.strata
         n_samp = m * m
-        per_len = settings.replicates * n_samp
-        if per_len > self.cap.paths:
-            raise SceneError(f"{per_len} paths per length exceed the renderer's buffer of "
-                             f"{self.cap.paths}; lower samples or replicates")
-        # Lengths per launch: what the path buffer holds, and at most a quarter of them so
-        # progress is reported as the work goes, unless that makes launches smaller than
-        # MIN_LAUNCH_PATHS (small launches run up to 7 % slower per path).
-        n_all = len(lengths_mm)
-        chunk = max(1, min(self.cap.paths // per_len,
-                           max(-(-n_all // 4), -(-MIN_LAUNCH_PATHS // per_len))))
+        n_rep = settings.replicates
+        if n_samp > self.cap.paths:
+            raise SceneError(f"{n_samp} paths per replicate exceed the renderer's buffer of "
+                             f"{self.cap.paths}; lower samples")
+        # Launches: every length (ascending, so a path moves on to longer blades) of a run of
+        # replicates. The buffer holds len_chunk lengths x rep_chunk replicates; a launch takes
+        # at most a quarter of the replicates so progress is reported as the work goes, unless
+        # that makes it smaller than MIN_LAUNCH_PATHS camera paths (small launches run up to
+        # 7 % slower per path).
         n = len(lengths_mm)
-        out = np.empty((n, settings.replicates, 3), np.float64)
+        order = np.argsort(lengths_mm, kind="stable")
+        len_chunk = min(n, self.cap.paths // n_samp, self.sums.shape[0])
+        rep_chunk = max(1, min(self.cap.paths // (len_chunk * n_samp),
+                               self.sums.shape[0] // len_chunk,
+                               max(-(-n_rep // 4), -(-MIN_LAUNCH_PATHS // n_samp))))
+        launches = [(s, r) for s in range(0, n, len_chunk) for r in range(0, n_rep, rep_chunk)]
+        out = np.empty((n, n_rep, 3), np.float64)
         self.ipar[7] = settings.light_samples
+        eye_ti = ti.Vector(eye.astype(np.float32).tolist())
         t_compile = self._ensure_compiled()
         t_trace0 = time.perf_counter()
-        for s in range(0, n, chunk):
-            part = lengths_mm[s: s + chunk]
-            buf = np.zeros(256, np.float32)
-            buf[: len(part)] = part * 1e-3
+        traced = 0
+        for done, (s, r0) in enumerate(launches, start=1):
+            rows = order[s: s + len_chunk]
+            reps = min(rep_chunk, n_rep - r0)
+            buf = np.zeros(self.lengths.shape[0], np.float32)
+            buf[: len(rows)] = lengths_mm[rows] * 1e-3
             self.lengths.from_numpy(buf)
-            self._trace_kernel(len(part), settings.replicates, m, settings.seed,
-                               settings.max_bounces, ti.Vector(eye.astype(np.float32).tolist()),
-                               float(area))
-            n_groups = len(part) * settings.replicates
+            self._trace_kernel(len(rows), r0, reps, m, settings.seed, settings.max_bounces,
+                               eye_ti, float(area))
+            n_groups = len(rows) * reps
             self._reduce_kernel(n_groups, n_samp)
-            sums = self.sums.to_numpy()[:n_groups].reshape(len(part), settings.replicates, 3)
-            out[s: s + len(part)] = sums / n_samp
+            traced += int(self.traced[None])
+            sums = self.sums.to_numpy()[:n_groups].reshape(len(rows), reps, 3)
+            out[rows, r0: r0 + reps] = sums / n_samp
             if progress:
-                progress(min(s + chunk, n), n)
+                progress(n * done // len(launches), n)
         if not np.all(np.isfinite(out)):
             raise SimError("the renderer produced non-finite radiance; check the lighting "
                            "values (NaN/Inf texels or sun irradiance)")
@@ -654,7 +724,8 @@ class Renderer:
         t_end = time.perf_counter()
         return Measurement(
             viewpoint=viewpoint, lengths_mm=lengths_mm, rgb_linear=rgb, rgb_stderr=stderr,
-            rgb_replicates=np.transpose(out, (1, 0, 2)), samples_per_length=per_len,
+            rgb_replicates=np.transpose(out, (1, 0, 2)), samples_per_length=n_rep * n_samp,
+            paths_traced=traced,
             seconds={"compile": t_compile, "trace": t_end - t_trace0,
                      "total": t_end - t_start},
         )

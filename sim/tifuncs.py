@@ -252,6 +252,44 @@ def hit_blade(o: vec3, d: vec3, p0: vec3, a: vec3, u: vec3, n: vec3, hw: ti.f32,
 
 
 @ti.func
+def hit_growing_blade(o: vec3, d: vec3, p0: vec3, a: vec3, u: vec3, n: vec3, hw: ti.f32,
+                      length: ti.f32, taper: ti.f32, tip_ratio: ti.f32, tmax: ti.f32):
+    """:func:`hit_blade` for a blade that grows along a fixed axis ``u``, plus the shortest
+    length at which the ray would hit it if it misses at ``length``.
+
+    Returns ``(t, grow)``: the hit distance (INF on a miss; the same test, in the same float
+    operations, as :func:`hit_blade`) and, on a miss, the length (same units) from which on the
+    ray meets the blade's plane inside its outline at a distance in (0, tmax), or INF if no
+    length does. A point at height h and offset s lies inside the outline of every length
+    >= h when ``|s| <= tip_ratio hw``, of every length >= ``h + taper (|s|/hw - tip_ratio) /
+    (1 - tip_ratio)`` when ``|s| <= hw``, and of none otherwise: the outline of a longer blade
+    holds that of a shorter one. On a hit, ``grow`` is INF (the hit stays as the blade grows).
+    """
+    t = INF
+    grow = INF
+    denom = d.dot(n)
+    if ti.abs(denom) > 1e-12:
+        tt = (p0 - o).dot(n) / denom
+        if tt > 0.0 and tt < tmax:
+            q = o + tt * d - p0
+            h = q.z / u.z
+            if h >= 0.0:
+                s = ti.abs((q - h * u).dot(a))
+                hit = False
+                if length > 0.0 and h <= length:
+                    f = ti.min(1.0, ti.max(0.0, (length - h) / taper))
+                    w = hw * (tip_ratio + (1.0 - tip_ratio) * f)
+                    hit = s <= w
+                if hit:
+                    t = tt
+                elif s <= hw * tip_ratio:
+                    grow = h
+                elif s <= hw:
+                    grow = h + taper * (s / hw - tip_ratio) / ti.max(1.0 - tip_ratio, 1e-6)
+    return t, grow
+
+
+@ti.func
 def hit_rect(o: vec3, d: vec3, axis: ti.i32, c: ti.f32, lo0: ti.f32, hi0: ti.f32, lo1: ti.f32,
              hi1: ti.f32, tmax: ti.f32) -> ti.f32:
     """Distance to an axis-aligned rectangle (normal along ``axis``, at coordinate ``c``; bounds

@@ -190,6 +190,30 @@ def test_a_scene_built_for_longer_grass_serves_shorter_lengths_unchanged(rendere
     np.testing.assert_array_equal(reused, alone)
 
 
+@pytest.mark.parametrize("case", ["courtyard", "sun", "splay"])
+def test_one_path_for_all_lengths_equals_tracing_each_length_alone(renderer, shared_hdri,
+                                                                   case):
+    """A path traced once and reused up to the length where it may change gives, bit for
+    bit, what tracing every length on its own gives (lengths unsorted, repeated, off the
+    1 mm grid), while tracing far fewer paths; with splay every length is traced."""
+    sun = dict(sun_lux=30000.0, sun_azimuth_deg=40.0, sun_elevation_deg=25.0)
+    lighting = build_lighting(shared_hdri("courtyard"), ambient_lux=5000,
+                              **(sun if case == "sun" else {}))
+    display = DisplaySpec(pixel=PixelSpec(splay_deg=10.0 if case == "splay" else 0.0))
+    lengths = np.array([0.0, 12.0, 3.0, 20.0, 7.25, 12.0, 1.0, 16.5, 19.0])
+    s = RenderSettings(samples=400, replicates=3, seed=5)
+    vp = Viewpoint(165, 2, 20)
+    many = renderer.characteristic(display, lighting, vp, lengths, s)
+    alone = np.stack([renderer.characteristic(display, lighting, vp, [x], s).rgb_replicates[:, 0]
+                      for x in lengths], axis=1)
+    np.testing.assert_array_equal(many.rgb_replicates, alone)
+    slots = len(lengths) * many.samples_per_length
+    if case == "splay":
+        assert many.paths_traced == slots
+    else:
+        assert many.samples_per_length <= many.paths_traced < 0.6 * slots
+
+
 def test_geometry_counts_and_mesh_match(renderer):
     spec = PixelSpec()
     scene = build_scene(DisplaySpec(spec), np.array([0.0, 20.0]))
