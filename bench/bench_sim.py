@@ -4,8 +4,9 @@
    cold and with a warm kernel cache. Target: <= 10 s warm.
 2. One viewpoint, 21 lengths, adaptive replicates until every OGCD standard error <= 0.1, after
    warm-up, for seeds 0-4 (the second round, when the first estimate lands above 0.1, depends
-   on the seed) and their median. Target: <= 1 s on 2 CPU cores. Reports paths/s and the
-   compile/trace/colour split.
+   on the seed) and their median. Target: <= 1 s on 2 CPU cores. Reports samples/s (a
+   sample = one path at one length), path traces/s (the renderer traces a path again only at
+   lengths where it may change) and the compile/trace/colour split.
 3. The paper's 16 viewpoints (h 150..180 cm x theta 0..90 deg, d = 2 m). Target: <= 16 s.
 
 Run: ``python -m bench sim`` (``make bench`` runs all benchmarks). ``--arch gpu`` style runs:
@@ -80,7 +81,9 @@ def main() -> None:
                   f"{settings.strata ** 2} paths, {c.length_replicates.sum()} length-replicates)"
                   f": {wall:.2f} s wall; trace "
                   f"{c.seconds['trace']:.2f} s, colour {c.seconds['colour']:.3f} s; "
-                  f"{n_paths / c.seconds['trace'] / 1e3:.0f} k paths/s; OGCD range "
+                  f"{n_paths / c.seconds['trace'] / 1e3:.0f} k samples/s (path x length), "
+                  f"{c.paths_traced / c.seconds['trace'] / 1e3:.0f} k path traces/s, "
+                  f"{c.paths_traced / n_paths:.2f} traces per (path, length); OGCD range "
                   f"{c.ogcd[-1]:.2f}; rounds (replicates, max stderr) "
                   f"{[(n, round(w, 3)) for n, w in c.rounds]}")
         print(f"{name}: median {np.median(walls):.2f} s wall over seeds 0-{SEEDS - 1} "

@@ -135,7 +135,7 @@ def test_adaptive_replicates_stop_at_the_first_round_meeting_the_target(renderer
     """simulate_curve with target_stderr: round 1 is the plain run (same seed, same numbers);
     every round but the last misses the target and the last meets it; each batch follows the
     1/sqrt(R) law (at least one replicate, at most doubling the count) and traces only the
-    lengths still above the target, each with the replicates it needs."""
+    reference and the lengths still above the target, with what the neediest one needs."""
     from grassd.daemon.simulation import simulate_curve
 
     lighting = build_lighting(shared_hdri("courtyard"), ambient_lux=8000)
@@ -164,7 +164,7 @@ def test_adaptive_replicates_stop_at_the_first_round_meeting_the_target(renderer
     np.testing.assert_array_equal(c.length_replicates[1:][done[1:]], 4)
     assert np.all(c.length_replicates[~done] > 4)
     assert np.all(c.length_replicates <= c.replicates)
-    # lengths need different numbers of replicates: they do not all stop at a round's count
+    # lengths stop at different rounds: they do not all end at the last round's count
     assert len(set(c.length_replicates[~done])) > 1
     np.testing.assert_allclose(c.ogcd[done], plain.ogcd[done], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(c.ogcd_stderr[done], plain.ogcd_stderr[done], rtol=1e-9)
