@@ -737,7 +737,7 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
     if isinstance(sim_check, dict):
         sim_check.pop("lengths", None)
     si = _table(ctx, ("simulation",), sim_check, {
-        "samples": _F(int, 1024, _between(1, 1 << 20)), "seed": _F(int, 0, _non_negative),
+        "samples": _F(int, 4096, _between(1, 1 << 20)), "seed": _F(int, 0, _non_negative),
     })
     lo = float(pixel.get("green_min_mm", 0.0))
     hi = float(pixel.get("green_max_mm", 20.0))
