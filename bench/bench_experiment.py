@@ -62,12 +62,12 @@ def main(argv: list[str] | None = None) -> None:
         per.append(time.perf_counter() - t)
     total = time.perf_counter() - t0
     paths = 21 * settings.strata ** 2 * settings.replicates
-    print(f"simulate one viewpoint (21 lengths, {paths:,} paths)   "
+    print(f"simulate one viewpoint (21 lengths, {paths:,} samples) "
           f"{np.mean(per):8.2f} s  (paper: about {PAPER['seconds_per_viewpoint']:g} s)")
     print(f"simulate 16 viewpoints                                  {total:8.2f} s  "
           f"(paper: about {PAPER['seconds_16_viewpoints']:g} s; manual: about 80 min)")
     print(f"  throughput                                            "
-          f"{paths * len(VIEWPOINTS) / total / 1e6:8.2f} M paths/s")
+          f"{paths * len(VIEWPOINTS) / total / 1e6:8.2f} M samples/s (path x length)")
 
     with tempfile.TemporaryDirectory() as tmp:
         n = 6
