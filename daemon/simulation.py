@@ -26,6 +26,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from grassd.calib.ogcd import ogcd_from_samples
+from grassd.sim.errors import SceneError
+from grassd.sim.scene import MAX_REPLICATES
 
 
 @dataclass(frozen=True)
@@ -86,11 +88,15 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     only the reference and the lengths still above the target, in one launch (the renderer
     traces a path once for all its lengths), with the most replicates the 1/sqrt(R) law says
     one of them needs (at least one, at most doubling its count: the first round's estimate
-    often lands just above the target). A length's OGCD and its error come from the
-    replicates that traced it (the reference's from the same ones, so the common random
-    numbers keep cancelling); a length at or below the target keeps them. A replicate of
-    4096 paths x 21 lengths costs about 0.03 s on 2 cores.
+    often lands just above the target; at most ``MAX_REPLICATES`` a round). The first round
+    needs at least 2 replicates (their spread is the error). A length's OGCD and its error
+    come from the replicates that traced it (the reference's from the same ones, so the
+    common random numbers keep cancelling); a length at or below the target keeps them. A
+    replicate of 4096 paths x 21 lengths costs about 0.03 s on 2 cores.
     """
+    if settings.replicates < 2:
+        raise SceneError(f"simulate_curve needs at least 2 replicates (their spread is the "
+                         f"error); got {settings.replicates}")
     lengths_mm = np.asarray(lengths_mm, float)
     n_len = len(lengths_mm)
     white = white_radiance(lighting)
@@ -133,7 +139,7 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
         above = se > target_stderr
         ratio = np.minimum((se[above] / target_stderr) ** 2, 2.0)
         b = int(np.max(np.maximum(np.ceil(counts[above] * ratio) - counts[above], 1)))
-        b = min(b, max_replicates - n)
+        b = min(b, max_replicates - n, MAX_REPLICATES)
         cols = np.union1d([0], np.flatnonzero(above))
         k += 1
     mean = np.nanmean(x, axis=0)

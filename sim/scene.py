@@ -195,6 +195,9 @@ class Viewpoint:
         return cls(h, d, theta)
 
 
+MAX_REPLICATES = 64  #: replicates of one render (an adaptive run adds rounds of at most this)
+
+
 @dataclass(frozen=True)
 class RenderSettings:
     """Monte Carlo settings.
@@ -217,8 +220,8 @@ class RenderSettings:
     def __post_init__(self) -> None:
         if not 1 <= self.samples <= 4_000_000:
             raise SceneError(f"samples must be in 1..4000000, got {self.samples}")
-        if not 1 <= self.replicates <= 64:
-            raise SceneError(f"replicates must be in 1..64, got {self.replicates}")
+        if not 1 <= self.replicates <= MAX_REPLICATES:
+            raise SceneError(f"replicates must be in 1..{MAX_REPLICATES}, got {self.replicates}")
         if not 1 <= self.max_bounces <= 16:
             raise SceneError(f"max_bounces must be in 1..16, got {self.max_bounces}")
         if not 1 <= self.light_samples <= 16:

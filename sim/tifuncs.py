@@ -11,6 +11,8 @@ from grassd.sim.backend import ti
 
 INF = 1e30
 PI = math.pi
+F32_EPS = 2.0 ** -24  # unit roundoff of float32
+GROW_MARGIN = 1e-7  # m: taken off growth lengths (see hit_growing_blade)
 vec3 = ti.types.vector(3, ti.f32)
 
 
@@ -264,6 +266,9 @@ def hit_growing_blade(o: vec3, d: vec3, p0: vec3, a: vec3, u: vec3, n: vec3, hw:
     >= h when ``|s| <= tip_ratio hw``, of every length >= ``h + taper (|s|/hw - tip_ratio) /
     (1 - tip_ratio)`` when ``|s| <= hw``, and of none otherwise: the outline of a longer blade
     holds that of a shorter one. On a hit, ``grow`` is INF (the hit stays as the blade grows).
+    ``grow`` is lowered by ``GROW_MARGIN`` plus a bound on the float32 rounding of the width
+    test, which grows with ``taper / (1 - tip_ratio)``, so that no length below it hits in
+    :func:`hit_blade` either (near-rectangular blades, tip_ratio -> 1, need the second term).
     """
     t = INF
     grow = INF
@@ -283,9 +288,10 @@ def hit_growing_blade(o: vec3, d: vec3, p0: vec3, a: vec3, u: vec3, n: vec3, hw:
                 if hit:
                     t = tt
                 elif s <= hw * tip_ratio:
-                    grow = h
+                    grow = h - GROW_MARGIN
                 elif s <= hw:
-                    grow = h + taper * (s / hw - tip_ratio) / ti.max(1.0 - tip_ratio, 1e-6)
+                    slope = taper / ti.max(1.0 - tip_ratio, 1e-6)  # length per unit of s / hw
+                    grow = h + slope * (s / hw - tip_ratio) - (GROW_MARGIN + 4.0 * F32_EPS * slope)
     return t, grow
 
 

@@ -171,6 +171,44 @@ def test_adaptive_replicates_stop_at_the_first_round_meeting_the_target(renderer
     assert np.all(c.ogcd_stderr <= target) and np.all(np.isfinite(c.rgb_stderr))
 
 
+class _NoisyRenderer:
+    """Stands in for the renderer in simulate_curve's bookkeeping tests: replicates are
+    reproducible noise around a fixed colour ramp (seeded by the round's seed)."""
+
+    def __init__(self, noise: float) -> None:
+        self.noise, self.calls = noise, []
+
+    def characteristic(self, display, lighting, viewpoint, lengths_mm, settings,
+                       pixel_index=0, progress=None):
+        from types import SimpleNamespace
+
+        self.calls.append((len(lengths_mm), settings.replicates))
+        rng = np.random.default_rng(settings.seed)
+        x = np.asarray(lengths_mm, float)[None, :, None]
+        base = np.array([0.3, 0.25, 0.1]) * (1.0 - 0.02 * x)
+        reps = base * (1.0 + self.noise * rng.normal(size=(settings.replicates, x.shape[1], 3)))
+        return SimpleNamespace(rgb_replicates=reps, seconds={}, paths_traced=0)
+
+
+def test_adaptive_rounds_stay_within_the_renders_replicate_limit():
+    """A target out of reach runs up to max_replicates in rounds of at most MAX_REPLICATES
+    (a render holds no more); a first round of one replicate (no spread) is refused."""
+    from grassd.daemon.simulation import simulate_curve
+    from grassd.sim.scene import MAX_REPLICATES
+
+    light = uniform_lighting(1.0)
+    lengths = np.arange(0.0, 20.01, 5.0)
+    fake = _NoisyRenderer(noise=0.05)
+    c = simulate_curve(fake, DisplaySpec(), light, Viewpoint(), lengths,
+                       RenderSettings(samples=16, replicates=8), target_stderr=1e-6,
+                       max_replicates=256)
+    assert c.replicates == 256 and c.rounds[-1][0] == 256
+    assert max(reps for _, reps in fake.calls) == MAX_REPLICATES
+    with pytest.raises(SceneError, match="at least 2 replicates"):
+        simulate_curve(fake, DisplaySpec(), light, Viewpoint(), lengths,
+                       RenderSettings(samples=16, replicates=1), target_stderr=0.1)
+
+
 def test_a_scene_built_for_longer_grass_serves_shorter_lengths_unchanged(renderer,
                                                                          shared_hdri):
     """The scene (grid bounds) is conservative for lengths up to its longest, so shorter ones
