@@ -142,9 +142,8 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
         b = min(b, max_replicates - n, MAX_REPLICATES)
         cols = np.union1d([0], np.flatnonzero(above))
         k += 1
-    mean = np.nanmean(x, axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):  # one replicate: no spread
-        rgb_se = np.nanstd(x, axis=0, ddof=1) / np.sqrt(counts)[:, None]
+    mean = np.nanmean(x, axis=0)  # NaN: replicates that did not trace the length
+    rgb_se = np.nanstd(x, axis=0, ddof=1) / np.sqrt(counts)[:, None]
     return SimulatedCurve(
         h_cm=viewpoint.h_cm, d_m=viewpoint.d_m, theta_deg=viewpoint.theta_deg,
         lengths_mm=lengths_mm, rgb_linear=mean, rgb_stderr=rgb_se, lab=lab, ogcd=ogcd,

@@ -415,10 +415,10 @@ class Renderer:
         blades ``x`` long, and the green length from which on the answer may differ: the
         least length at which a green blade missed here would come in front of the hit (for
         any-hit queries, block the ray), INF if none (values above ``x_cull`` mean nothing:
-        blades are culled as if ``x_cull`` long). Below that length the
-        ray meets the same surface at the same point (the outline of a longer blade holds
-        that of a shorter one), so a path whose rays all keep their answers has the same
-        radiance. Cells and blades are culled for lengths up to ``x_cull`` (>= x)."""
+        blades are culled as if ``x_cull`` long). Below that length the ray meets the same
+        surface at the same point (the outline of a longer blade holds that of a shorter
+        one), so a path whose rays all keep their answers has the same radiance. Cells and
+        blades are culled for lengths up to ``x_cull`` (>= x)."""
         best_t = tmax_in
         best_n = vec3(0.0, 0.0, 1.0)
         best_m = -1

@@ -237,19 +237,7 @@ def hit_blade(o: vec3, d: vec3, p0: vec3, a: vec3, u: vec3, n: vec3, hw: ti.f32,
     full width up to ``taper`` below the tip, then a
     linear taper to ``r * hw`` at the tip (so the outline is a polygon of six vertices).
     """
-    t = INF
-    denom = d.dot(n)
-    if ti.abs(denom) > 1e-12 and length > 0.0:
-        tt = (p0 - o).dot(n) / denom
-        if tt > 0.0 and tt < tmax:
-            q = o + tt * d - p0
-            h = q.z / u.z
-            if h >= 0.0 and h <= length:
-                s = (q - h * u).dot(a)
-                f = ti.min(1.0, ti.max(0.0, (length - h) / taper))
-                w = hw * (tip_ratio + (1.0 - tip_ratio) * f)
-                if ti.abs(s) <= w:
-                    t = tt
+    t, _ = hit_growing_blade(o, d, p0, a, u, n, hw, length, taper, tip_ratio, tmax)
     return t
 
 
@@ -259,13 +247,13 @@ def hit_growing_blade(o: vec3, d: vec3, p0: vec3, a: vec3, u: vec3, n: vec3, hw:
     """:func:`hit_blade` for a blade that grows along a fixed axis ``u``, plus the shortest
     length at which the ray would hit it if it misses at ``length``.
 
-    Returns ``(t, grow)``: the hit distance (INF on a miss; the same test, in the same float
-    operations, as :func:`hit_blade`) and, on a miss, the length (same units) from which on the
-    ray meets the blade's plane inside its outline at a distance in (0, tmax), or INF if no
-    length does. A point at height h and offset s lies inside the outline of every length
-    >= h when ``|s| <= tip_ratio hw``, of every length >= ``h + taper (|s|/hw - tip_ratio) /
-    (1 - tip_ratio)`` when ``|s| <= hw``, and of none otherwise: the outline of a longer blade
-    holds that of a shorter one. On a hit, ``grow`` is INF (the hit stays as the blade grows).
+    Returns ``(t, grow)``: the hit distance (INF on a miss; :func:`hit_blade` is this test)
+    and, on a miss, the length (same units) from which on the ray meets the blade's plane
+    inside its outline at a distance in (0, tmax), or INF if no length does. A point at
+    height h and offset s lies inside the outline of every length >= h when ``|s| <=
+    tip_ratio hw``, of every length >= ``h + taper (|s|/hw - tip_ratio) / (1 - tip_ratio)``
+    when ``|s| <= hw``, and of none otherwise: the outline of a longer blade holds that of a
+    shorter one. On a hit, ``grow`` is INF (the hit stays as the blade grows).
     ``grow`` is lowered by ``GROW_MARGIN`` plus a bound on the float32 rounding of the width
     test, which grows with ``taper / (1 - tip_ratio)``, so that no length below it hits in
     :func:`hit_blade` either (near-rectangular blades, tip_ratio -> 1, need the second term).
