@@ -105,14 +105,13 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     b = settings.replicates  # replicates this round
     traced_paths = 0
     blocks: list[np.ndarray] = []  # per round (b, n_len, 3), NaN where not traced
-    masks: list[np.ndarray] = []  # per round (b, n_len): traced
+    counts = np.zeros(n_len, np.int64)  # replicates of each length: always the first ones
     rounds: list[tuple[int, float]] = []
     cache: dict = {}
     k = 0
     while True:
         seed = (settings.seed + 7919 * k) % 2**31
         block = np.full((b, n_len, 3), np.nan)
-        mask = np.zeros((b, n_len), bool)
         m = renderer.characteristic(display, lighting, viewpoint, lengths_mm[cols],
                                     replace(settings, replicates=b, seed=seed),
                                     pixel_index=pixel_index, progress=progress)
@@ -120,14 +119,12 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
         seconds["trace"] += m.seconds.get("trace", 0.0)
         traced_paths += m.paths_traced
         block[:, cols] = m.rgb_replicates
-        mask[:, cols] = True
         blocks.append(block)
-        masks.append(mask)
+        counts[cols] += b
         t0 = time.perf_counter()
-        x, traced = np.concatenate(blocks), np.concatenate(masks)
-        lab, ogcd, se = _ogcd_by_replicates(x, traced, white, ccm, cache)
+        x = np.concatenate(blocks)
+        lab, ogcd, se = _ogcd_by_replicates(x, counts, white, ccm, cache)
         seconds["colour"] += time.perf_counter() - t0
-        counts = traced.sum(axis=0)
         n = int(counts[0])
         worst = float(np.max(se))
         rounds.append((n, worst))
@@ -148,30 +145,28 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
         h_cm=viewpoint.h_cm, d_m=viewpoint.d_m, theta_deg=viewpoint.theta_deg,
         lengths_mm=lengths_mm, rgb_linear=mean, rgb_stderr=rgb_se, lab=lab, ogcd=ogcd,
         ogcd_stderr=se, replicates=n, seconds=seconds, rounds=tuple(rounds),
-        length_replicates=counts.astype(np.int64), paths_traced=traced_paths,
+        length_replicates=counts, paths_traced=traced_paths,
     )
 
 
-def _ogcd_by_replicates(x: np.ndarray, traced: np.ndarray, white: np.ndarray, ccm,
+def _ogcd_by_replicates(x: np.ndarray, counts: np.ndarray, white: np.ndarray, ccm,
                         cache: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Lab (n, 3), OGCD and its standard error (n,) of replicates ``x`` (R, n, 3) linear RGB
-    [nits], length i traced in the replicates ``traced[:, i]`` (the reference, column 0, in
-    all): the lengths traced in the same replicates are taken together with the reference
-    over those replicates. ``cache`` (kept across the rounds of one run) skips groups whose
-    replicates and lengths did not change."""
+    [nits], length i traced in the first ``counts[i]`` replicates (a round traces the
+    reference, column 0, and the lengths still above the target, so a length's replicates
+    are those of the rounds before it met it): the lengths with the same count are taken
+    together with the reference over those replicates. ``cache`` (kept across the rounds of
+    one run) skips groups whose replicates and lengths did not change."""
     n = x.shape[1]
     lab = np.empty((n, 3))
     ogcd = np.zeros(n)
     se = np.zeros(n)
-    patterns, which = np.unique(traced.T, axis=0, return_inverse=True)
-    order = np.argsort(patterns.sum(axis=1), kind="stable")  # the reference's (all) last
-    for p in order:  # one call per distinct set of replicates
-        cols = np.flatnonzero(which.reshape(-1) == p)
+    for c in np.unique(counts):  # ascending: the reference's (the most) last
+        cols = np.flatnonzero(counts == c)
         cols = np.concatenate([[0], cols[cols != 0]])
-        rows = np.flatnonzero(patterns[p])
-        key = (rows.tobytes(), cols.tobytes())  # rows, not the mask: it grows every round
+        key = (int(c), cols.tobytes())
         if key not in cache:  # a finished length's numbers do not change
-            res = ogcd_from_samples(np.clip(x[rows][:, cols] / white, 0.0, None),
+            res = ogcd_from_samples(np.clip(x[:c][:, cols] / white, 0.0, None),
                                     space="rec709", ccm=ccm)
             cache[key] = (res.lab, res.ogcd, res.ogcd_stderr)
         lab[cols], ogcd[cols], se[cols] = cache[key]
