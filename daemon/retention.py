@@ -128,8 +128,8 @@ def prune(state_dir: str | os.PathLike[str], history: History, keep: RetentionCo
     # ---- ingest journal
     cur = history.current_table()
     keep_rows = {latest.bundle_hash} if latest is not None else set()
-    if cur is not None:
-        keep_rows |= {h for h in (cur.bundle_hash, cur.input_hashes.get("bundle")) if h}
+    if cur is not None and cur.light_bundle is not None:
+        keep_rows.add(cur.light_bundle)
     out.journal = history.prune_journal(cutoff, keep_ids=present, protect=keep_rows)
 
     # ---- reports
