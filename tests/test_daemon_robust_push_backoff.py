@@ -23,15 +23,34 @@ def _fleet_warnings(caplog, name: str) -> list[str]:
             and name in r.getMessage()]
 
 
+def _torn_bus0(sim) -> FaultInjector:
+    injector = FaultInjector(FaultPlan(torn_write=1.0))  # every EEPROM write of bus 0 fails
+    sim.buses[0].faults = injector
+    for dev in sim.buses[0].controllers:
+        dev.eeprom.tear_hook = injector.tear
+    return injector
+
+
+def _until_back(svc, bus, bad: str, down_s: float):
+    """Unplug ``bus`` for ``down_s`` and reconcile until ``bad`` answers again: its report."""
+    bus.unplug(down_s=down_s)
+    deadline = time.monotonic() + down_s + 10.0
+    seen_down = False
+    while time.monotonic() < deadline:
+        r = {x.controller: x for x in svc.reconcile()}[bad]
+        seen_down |= not r.reachable
+        if r.reachable and seen_down:
+            return r
+        time.sleep(0.05)
+    raise AssertionError(f"{bad} did not come back after {down_s} s unplugged")
+
+
 def test_failing_controller_backs_off_and_is_pushed_on_reset(tmp_path, hw, caplog):
     caplog.set_level(logging.INFO, logger="grassd.daemon.fleet")
     sim, cfg = hw
     svc, _ = after_first_bundle(tmp_path, cfg)
     bad = svc.fleet.controllers[0].name
-    injector = FaultInjector(FaultPlan(torn_write=1.0))  # every EEPROM write of bus 0 fails
-    sim.buses[0].faults = injector
-    for dev in sim.buses[0].controllers:
-        dev.eeprom.tear_hook = injector.tear
+    injector = _torn_bus0(sim)
 
     out = svc.scheduled_run("request")  # the run's own push is tried, and fails
     assert out["status"] == "ok"
@@ -80,16 +99,8 @@ def test_failing_controller_backs_off_and_is_pushed_on_reset(tmp_path, hw, caplo
     # unplug (power cycle) with another table: then it is pushed at once
     for dev in sim.buses[0].controllers:
         dev.store.invalidate(dev.active_bank)
-    sim.buses[0].unplug(down_s=1.0)
-    deadline = time.monotonic() + 10.0
-    seen_down = False
-    while time.monotonic() < deadline:
-        r = {x.controller: x for x in svc.reconcile()}[bad]
-        seen_down |= not r.reachable
-        if r.reachable and seen_down:
-            break
-        time.sleep(0.1)
-    assert seen_down and r.ok and r.pushed and r.table_id == cur.table_id
+    r = _until_back(svc, sim.buses[0], bad, down_s=1.0)  # raises unless seen down, then back
+    assert r.ok and r.pushed and r.table_id == cur.table_id
     assert svc.status()["health"] == "ok"
     assert svc.fleet.backoff() == {}
     assert any("active after" in m.getMessage() for m in caplog.records
@@ -105,28 +116,6 @@ def test_failing_controller_backs_off_and_is_pushed_on_reset(tmp_path, hw, caplo
     r = {x.controller: x for x in svc.reconcile()}[bad]
     assert r.ok and r.pushed and r.table_id == out["table_id"]
     svc.shutdown()
-
-
-def _torn_bus0(sim) -> FaultInjector:
-    injector = FaultInjector(FaultPlan(torn_write=1.0))  # every EEPROM write of bus 0 fails
-    sim.buses[0].faults = injector
-    for dev in sim.buses[0].controllers:
-        dev.eeprom.tear_hook = injector.tear
-    return injector
-
-
-def _until_back(svc, bus, bad: str, down_s: float):
-    """Unplug ``bus`` for ``down_s`` and reconcile until ``bad`` answers again: its report."""
-    bus.unplug(down_s=down_s)
-    deadline = time.monotonic() + down_s + 10.0
-    seen_down = False
-    while time.monotonic() < deadline:
-        r = {x.controller: x for x in svc.reconcile()}[bad]
-        seen_down |= not r.reachable
-        if r.reachable and seen_down:
-            return r
-        time.sleep(0.05)
-    raise AssertionError(f"{bad} did not come back after {down_s} s unplugged")
 
 
 def test_backoff_grows_across_status_blips_and_ends_after_a_long_outage(tmp_path, hw):
