@@ -12,7 +12,7 @@ from __future__ import annotations
 import shutil
 import time
 
-from robust_util import drop, reported, service, write_config
+from robust_util import drop, journal_entry, reported, service, write_config
 
 from grassd.daemon.history import History
 from grassd.daemon.ingest import Inbox
@@ -103,7 +103,7 @@ def test_journal_rows_expire_with_their_bundles(tmp_path, hw):
     drop(inbox, "early", lux=800.0, timestamp="2026-03-01T07:00:00+01:00")  # pruned, it ran ok
     svc.tick()
     for name in ("old3", "early"):
-        [j] = [j for j in svc.history.journal() if j.name == name]
+        j = journal_entry(svc, name)
         assert j.state == "archived" and j.reason.startswith("superseded: "), j
         assert svc.history.run(j.run_id).status == "superseded"
     assert svc.history.latest_archived().name == "noon"
