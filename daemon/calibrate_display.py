@@ -176,10 +176,14 @@ class DisplayCalibrationResult:
     lighting_notes: tuple[str, ...]
     grouping: dict[str, Any] | None = None
     region: dict[str, Any] | None = None
-    loop: LoopCheck | None = None
     loop_rounds: list[LoopCheck] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
     max_step_um: int | None = None
+
+    @property
+    def loop(self) -> LoopCheck | None:
+        """The last closed-loop round (it checked the tables pushed); None without one."""
+        return self.loop_rounds[-1] if self.loop_rounds else None
 
     @property
     def lengths_um(self) -> NDArray[np.uint16]:
@@ -212,7 +216,7 @@ class DisplayCalibrationResult:
             "max_dev_goal_met": bool(worst <= target_de00),
             "max_fit_dev_de00": fit_worst,
             "mean_fit_dev_de00": float(np.mean([u.mean_error for u in self.units])),
-            "rounds": len(self.loop_rounds) if self.loop_rounds else int(loop is not None),
+            "rounds": len(self.loop_rounds),
             "refined_tables": sum(u.refined_rounds > 0 for u in self.units),
             "ogcd_range_de00": min(u.ogcd_range for u in self.units),
             "mean_ogcd_stderr_de00": float(np.mean(se)) if se else None,
@@ -662,6 +666,6 @@ def calibrate_display(cal: Calibrator, light: LightInput, *,
         table_um=whole.lengths_um, controller_tables=controller_tables, units=units,
         unit_of_pixel=unit_of_pixel, ccm=ccm, ccm_source=ccm_source,
         lighting_notes=tuple(getattr(lighting, "notes", ())), grouping=grouping, region=region,
-        loop=loop, loop_rounds=rounds,
+        loop_rounds=rounds,
         seconds={"simulate": t_sim, "closed_loop": total - (t_loop - t_start), "total": total},
         max_step_um=max_step)
