@@ -38,7 +38,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime
 from pathlib import Path
@@ -258,6 +258,16 @@ def check_levels(n: int) -> NDArray[np.int64]:
     return np.unique(np.rint(np.linspace(0, LEVELS - 1, n)).astype(np.int64))
 
 
+def pooled_characteristic(xs: Sequence[NDArray], ys: Sequence[NDArray],
+                          ses: Sequence[NDArray]) -> Characteristic:
+    """One characteristic of every point simulated for a table so far (the first simulation's
+    lengths [mm], OGCD and standard errors [dE00], then each closed-loop round's), the errors
+    floored at 1e-6 dE00 so that every point keeps a finite fit weight: what a closed loop
+    refits its table to."""
+    return Characteristic(np.concatenate(xs), np.concatenate(ys),
+                          np.maximum(np.concatenate(ses), 1e-6))
+
+
 def check_table(lengths_um: NDArray, green_max_mm: float, previous_um: NDArray | None,
                 max_jump_mm: float, force: bool, what: str = "table") -> int | None:
     """Sanity checks of a table (micrometres); returns the largest step from ``previous_um``.
@@ -462,7 +472,7 @@ class Calibrator:
         y, se = self.weighted(curves)
         check_shape(lengths, y, se, cal.max_flat_fraction)
         all_x, all_y, all_se = [lengths], [y], [se]
-        weighted = Characteristic(lengths, y, np.maximum(se, 1e-6))
+        weighted = pooled_characteristic(all_x, all_y, all_se)
         table = build_length_table(fit_characteristic(weighted))
         green_max = self.cfg.display.green_max_mm
 
@@ -487,8 +497,7 @@ class Calibrator:
             all_x.append(lx)
             all_y.append(ly)
             all_se.append(lse)
-            weighted = Characteristic(np.concatenate(all_x), np.concatenate(all_y),
-                                      np.maximum(np.concatenate(all_se), 1e-6))
+            weighted = pooled_characteristic(all_x, all_y, all_se)
             table = build_length_table(fit_characteristic(weighted))
 
         max_step = check_table(table.lengths_um, green_max, previous_um, cal.max_jump_mm, force)

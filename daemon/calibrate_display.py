@@ -68,7 +68,13 @@ from grassd.daemon.audience import (
     region_table,
     simulate_region,
 )
-from grassd.daemon.calibrate import _finite_or_none, check_levels, check_shape, check_table
+from grassd.daemon.calibrate import (
+    _finite_or_none,
+    check_levels,
+    check_shape,
+    check_table,
+    pooled_characteristic,
+)
 from grassd.daemon.display import (
     capacity_for,
     combine_viewpoints,
@@ -533,8 +539,7 @@ def refine_unit(u: UnitTable, loops: Sequence[LoopCheck],
         xs.append(lp.lengths_mm[groups[0]])
         ys.append(w @ lp.ogcd[groups])
         ses.append(w @ lp.ogcd_stderr[groups])
-    fit = fit_characteristic(Characteristic(np.concatenate(xs), np.concatenate(ys),
-                                            np.maximum(np.concatenate(ses), 1e-6)))
+    fit = fit_characteristic(pooled_characteristic(xs, ys, ses))
     table = build_length_table(fit)
     errs = np.array([np.abs(table_deviation(fit_characteristic(group_characteristics[g]),
                                             table.lengths_mm)).max() for g in groups])
