@@ -620,11 +620,13 @@ def calibrate_display(cal: Calibrator, light: LightInput, *,
         except CalibrationRejected as exc:
             raise CalibrationRejected(f"{u.name}: {exc}") from None
     green_max = d.green_max_mm
+    # the display-wide table is never refined: checked once, the controllers' every round
+    whole_step = check_table(whole.lengths_um, green_max, None, cc.max_jump_mm, force,
+                             "display-wide table")
 
     def checked_tables(units: list[UnitTable]) -> tuple[dict[str, NDArray], int | None]:
         tables = controller_tables_of(cfg, units, unit_of_pixel)
-        steps = [check_table(whole.lengths_um, green_max, None, cc.max_jump_mm, force,
-                             "display-wide table")]
+        steps = [whole_step]
         for name, table in tables.items():
             prev = None if previous_tables is None else previous_tables.get(name)
             if prev is not None and np.ndim(prev) != 1 and np.shape(prev) != table.shape:
