@@ -16,6 +16,7 @@ import click
 import numpy as np
 
 from grassd.daemon.atomic import atomic_save_figure, atomic_write_bytes, atomic_write_text
+from grassd.daemon.cli_options import REPLICATES
 
 
 def _view(_ctx, _param, values):
@@ -137,7 +138,7 @@ def _plot(path: Path, curves) -> None:
               help="Green lengths in mm: START:STOP:STEP or a comma list (0,5,12.5).")
 @click.option("--samples", type=int, default=4096, show_default=True,
               help="Camera paths per length per replicate.")
-@click.option("--replicates", type=click.IntRange(2, 64), default=8, show_default=True,
+@click.option("--replicates", type=REPLICATES, default=8, show_default=True,
               help="Independent replicates (their spread gives the standard error).")
 @click.option("--target-stderr", type=float, default=None,
               help="Add replicates until every OGCD standard error is at most this (dE00).")

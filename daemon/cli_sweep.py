@@ -13,6 +13,8 @@ import sys
 
 import click
 
+from grassd.daemon.cli_options import REPLICATES
+
 
 def _views(_ctx, _param, values):
     from grassd.sim.scene import Viewpoint
@@ -53,7 +55,7 @@ def _display(_ctx, _param, value: str) -> tuple[int, int]:
 @click.option("--lengths", default="0:20:2", show_default=True,
               help="Green lengths in mm: START:STOP:STEP or a comma list.")
 @click.option("--samples", type=int, default=1024, show_default=True)
-@click.option("--replicates", type=click.IntRange(2, 64), default=8, show_default=True)
+@click.option("--replicates", type=REPLICATES, default=8, show_default=True)
 @click.option("--target-stderr", type=float, default=None,
               help="Add replicates until every OGCD standard error is at most this (dE00).")
 @click.option("--bounces", type=int, default=3, show_default=True)

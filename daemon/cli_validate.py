@@ -10,6 +10,7 @@ from pathlib import Path
 import click
 
 from grassd.daemon.atomic import atomic_write_text
+from grassd.daemon.cli_options import REPLICATES
 
 
 def _renderer(arch: str):
@@ -26,7 +27,7 @@ def _progress(msg: str) -> None:
 @click.argument("capture", type=click.Path(path_type=Path))
 @click.option("--samples", type=int, default=4096, show_default=True,
               help="Camera paths per length per replicate of the simulation.")
-@click.option("--replicates", type=click.IntRange(2, 64), default=8, show_default=True,
+@click.option("--replicates", type=REPLICATES, default=8, show_default=True,
               help="Independent replicates (their spread gives the standard error).")
 @click.option("--target-stderr", type=float, default=None,
               help="Add replicates until every simulated OGCD standard error is at most this.")
@@ -96,7 +97,7 @@ def experiment() -> None:
 @click.option("--env", "envs", multiple=True,
               help="Run only these environments ('Env 1' .. 'Env 5'); repeatable.")
 @click.option("--samples", type=int, default=None, help="Paths per length per replicate.")
-@click.option("--replicates", type=click.IntRange(2, 64), default=None,
+@click.option("--replicates", type=REPLICATES, default=None,
               help="Independent replicates per length (their spread gives the standard error).")
 @click.option("--trials", type=click.IntRange(1, 20), default=None,
               help="Repeatability trials at the reference viewpoint (default 3; quick 2).")
