@@ -311,6 +311,16 @@ class Config:
     audience: AudienceConfig | None = None
     retention: RetentionConfig = RetentionConfig()
 
+    @property
+    def serial_ports(self) -> list[str]:
+        """The serial ports the daemon owns: the controllers' buses and, in RTU mode, the lux
+        sensor's RS-485 port (sorted, each once)."""
+        ports = {c.port for c in self.controllers}
+        modbus = self.light.modbus
+        if modbus is not None and modbus.mode == "rtu":
+            ports.add(modbus.serial_port)
+        return sorted(ports)
+
     def replace(self, **changes: Any) -> Config:
         """A copy with some fields replaced (dataclasses.replace)."""
         return dataclasses.replace(self, **changes)

@@ -234,7 +234,7 @@ class Service:
         self.fleet = Fleet(cfg.controllers, policy=self.policy, retry_s=self.push_retry_s,
                            retry_max_s=self.push_retry_max_s)  # a reload resets the backoff
         # `grassd controllers` may talk on other ports while we run (see statelock)
-        self.lock.note_ports(sorted({c.port for c in cfg.controllers}))
+        self.lock.note_ports(cfg.serial_ports)
         self.sensor = LuxSensor(cfg.light.modbus) if cfg.light.modbus is not None else None
         self.calibrator = Calibrator(cfg)
         self.reports_dir = cfg.state_dir / "reports"

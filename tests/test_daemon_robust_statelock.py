@@ -182,3 +182,21 @@ def test_shared_check_lets_other_ports_through_only_when_the_holder_lists_its_ow
                 pass
     finally:
         held.release()
+
+
+def test_a_running_daemon_lists_its_rtu_lux_sensor_port_too(tmp_path, hw):
+    """An RS-485 (Modbus RTU) lux sensor's port is the daemon's as much as the controllers'
+    buses: `grassd controllers` must be refused there too (a second master on that bus)."""
+    import dataclasses
+
+    _, cfg = hw
+    conf = load_config(write_config(tmp_path / "g.toml", tmp_path / "state", cfg))
+    sensor_port = tmp_path / "rs485-lux"
+    modbus = dataclasses.replace(conf.light.modbus, mode="rtu", serial_port=str(sensor_port))
+    conf = conf.replace(light=dataclasses.replace(conf.light, modbus=modbus))
+    svc = Service(conf)
+    try:
+        owned = StateLock(conf.state_dir).holder_ports()
+        assert owned == {os.path.realpath(c.port) for c in conf.controllers} | {str(sensor_port)}
+    finally:
+        svc.shutdown()
