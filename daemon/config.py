@@ -62,6 +62,7 @@ from typing import Any
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 from grassd.daemon.errors import ConfigError
+from grassd.daemon.ingest import FUTURE_TOLERANCE_S
 from grassd.firmware_proto.messages import MAX_ADDRESS, MIN_ADDRESS
 
 #: Where the packaged daemon looks when no ``--config`` is given.
@@ -181,6 +182,8 @@ class LightConfig:
     still missing after ``incomplete_timeout_s`` seconds is rejected. A bundle that needs the
     sensor while it is unreachable or silent waits (retried with backoff) up to ``lux_wait_s``
     seconds before it is rejected; a reading that is not a usable illuminance rejects it at once.
+    A bundle whose light is stamped more than ``future_tolerance_s`` seconds after the daemon's
+    clock is rejected (:func:`grassd.daemon.ingest.check_light`).
     ``hdri_flip``/``hdri_rotation_deg`` bring the site camera's panoramas into the renderer's
     convention (:mod:`grassd.sim.lighting`: u = atan2(y, x) / 2 pi, +y north): most 360-degree
     cameras store the mirror image, so a real site wants ``hdri_flip = true``, and the rotation
@@ -194,6 +197,7 @@ class LightConfig:
     settle_s: float = 2.0
     incomplete_timeout_s: float = 600.0
     lux_wait_s: float = 900.0
+    future_tolerance_s: float = FUTURE_TOLERANCE_S
     hdri_flip: bool = False
     hdri_rotation_deg: float = 0.0
 
@@ -701,6 +705,7 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         "modbus": _F(dict, None), "settle_s": _F(float, 2.0, _non_negative),
         "incomplete_timeout_s": _F(float, 600.0, _positive),
         "lux_wait_s": _F(float, 900.0, _non_negative),
+        "future_tolerance_s": _F(float, FUTURE_TOLERANCE_S, _non_negative),
         "hdri_flip": _F(bool, False),
         "hdri_rotation_deg": _F(float, 0.0, _between(-360, 360, " degrees")),
     })
@@ -805,7 +810,8 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
     light = LightConfig(inbox=inbox if inbox.is_absolute() else state_dir / inbox,
                         lux=lt["lux"], modbus=modbus, settle_s=lt["settle_s"],
                         incomplete_timeout_s=lt["incomplete_timeout_s"],
-                        lux_wait_s=lt["lux_wait_s"], hdri_flip=lt["hdri_flip"],
+                        lux_wait_s=lt["lux_wait_s"],
+                        future_tolerance_s=lt["future_tolerance_s"], hdri_flip=lt["hdri_flip"],
                         hdri_rotation_deg=lt["hdri_rotation_deg"])
 
     return Config(site=site, display=display, controllers=tuple(controllers),

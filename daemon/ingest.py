@@ -25,6 +25,13 @@ Life of a bundle (all moves are ``rename(2)`` inside the state directory, so eac
     inbox/<name> --claim--> processing/<id> --> archive/<id>
                                             \\-> rejected/<id> (+ reason.txt)
 
+A manifest must also describe light that can have been: :func:`check_light` refuses light stamped
+in the future (beyond ``[light] future_tolerance_s`` of the daemon's own clock: a camera whose
+clock was never set would otherwise make every later bundle look older, so it could pin the
+active table) and a sun reading that contradicts itself or the site and time (a sun below the
+horizon that gives lux, more lux than sunlight has, a direction far from the sun's position).
+Such a bundle is rejected at once, with the reason.
+
 ``<id>`` = first 12 hex digits of the bundle hash + name. The bundle hash is the SHA-256 over the
 names and SHA-256 digests of every file of the bundle, so identical content has one hash.
 
@@ -72,6 +79,8 @@ from zoneinfo import ZoneInfo
 from grassd.daemon.atomic import atomic_write_text, fsync_dir
 from grassd.daemon.errors import IngestError, ManifestError
 from grassd.daemon.history import History
+from grassd.sim.errors import LightingError
+from grassd.sim.sun import check_sun_reading
 
 log = logging.getLogger(__name__)
 
@@ -232,6 +241,47 @@ def parse_manifest(data: dict[str, Any], base: Path, tz: tzinfo = UTC) -> Manife
                     checker_chart=chart)
 
 
+#: How far (s) a bundle's light may be stamped ahead of the daemon's clock (clocks drift; a
+#: camera synchronised by NTP is within a second). Config: ``[light] future_tolerance_s``.
+FUTURE_TOLERANCE_S = 300.0
+
+
+def check_light(m: Manifest, *, now: float, future_tolerance_s: float = FUTURE_TOLERANCE_S,
+                site: tuple[float, float] | None = None) -> None:
+    """Refuse a manifest whose light cannot have been captured (ManifestError, with the fix).
+
+    ``now``: the daemon's clock (epoch s). Light stamped more than ``future_tolerance_s``
+    seconds after ``now`` is refused: a newer timestamp outranks every later bundle (older light
+    is superseded), so one camera clock set years ahead would pin the active table. Light from
+    long ago is fine: such a bundle is simply superseded. ``site``: (latitude, longitude) in
+    degrees, east +; with it the sun reading is checked against the sun's position at the
+    manifest's time (:func:`grassd.sim.sun.check_sun_reading`), without it only against itself.
+    """
+    ahead = m.timestamp.timestamp() - now
+    if ahead > future_tolerance_s:
+        clock = datetime.fromtimestamp(now, UTC).isoformat(timespec="seconds")
+        raise ManifestError(
+            f"light from the future: timestamp {m.timestamp.isoformat()} is "
+            f"{_duration(ahead)} ahead of the daemon's clock ({clock}); tolerance "
+            f"{future_tolerance_s:g} s ([light] future_tolerance_s). Set the capture device's "
+            f"clock (and time zone) right, then send the bundle again")
+    lat, lon = site if site is not None else (None, None)
+    try:
+        check_sun_reading(m.sun_lux, m.sun_azimuth_deg, m.sun_elevation_deg, latitude_deg=lat,
+                          longitude_deg=lon, when=m.timestamp)
+    except LightingError as exc:
+        raise ManifestError(f"impossible sun: {exc}") from None
+
+
+def _duration(seconds: float) -> str:
+    """``seconds`` in the largest fitting unit, e.g. '26.5 h', '73.0 days'."""
+    for unit, size in (("years", 365.25 * 86400), ("days", 86400.0), ("h", 3600.0),
+                       ("min", 60.0)):
+        if seconds >= 2 * size:
+            return f"{seconds / size:.1f} {unit}"
+    return f"{seconds:.0f} s"
+
+
 def check_hdri_magic(path: Path) -> None:
     """Reject an HDRI whose first bytes are not OpenEXR or Radiance RGBE (cheap early check)."""
     try:
@@ -288,13 +338,19 @@ class Inbox:
 
     ``settle_s``: files must keep size and mtime this long before a bundle is claimed;
     ``incomplete_timeout_s``: a bundle still missing files after this long is rejected.
-    ``clock`` (seconds, monotonic) is injectable for tests.
+    ``future_tolerance_s`` and ``site`` (latitude, longitude in degrees): see
+    :func:`check_light`, which every manifest passes before its bundle is claimed.
+    ``clock`` (seconds, monotonic) and ``wall_clock`` (epoch seconds, the daemon's own clock
+    that light timestamps are checked against) are injectable for tests.
     """
 
     def __init__(self, inbox: Path, state_dir: Path, history: History, *,
                  settle_s: float = 2.0, incomplete_timeout_s: float = 600.0,
                  tz: tzinfo | str = UTC, max_attempts: int = 3,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 future_tolerance_s: float = FUTURE_TOLERANCE_S,
+                 site: tuple[float, float] | None = None,
+                 clock: Callable[[], float] = time.monotonic,
+                 wall_clock: Callable[[], float] = time.time) -> None:
         self.inbox = Path(inbox)
         self.state_dir = Path(state_dir)
         self.processing = self.state_dir / "processing"
@@ -307,7 +363,10 @@ class Inbox:
         self.incomplete_timeout_s = incomplete_timeout_s
         self.tz = ZoneInfo(tz) if isinstance(tz, str) else tz
         self.max_attempts = max_attempts
+        self.future_tolerance_s = future_tolerance_s
+        self.site = site
         self.clock = clock
+        self.wall_clock = wall_clock
         self._watch: dict[str, tuple[tuple, float, float]] = {}  # name -> (sig, since, first)
         self._stuck: dict[str, _Stuck] = {}  # bundles whose move out of the inbox failed
 
@@ -346,6 +405,8 @@ class Inbox:
         try:
             data = read_manifest_data(manifest)
             parsed = parse_manifest(data, base, self.tz)
+            check_light(parsed, now=self.wall_clock(),
+                        future_tolerance_s=self.future_tolerance_s, site=self.site)
         except ManifestError as exc:
             err = str(exc)
         if parsed is not None:

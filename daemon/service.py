@@ -230,7 +230,9 @@ class Service:
         self.inbox = Inbox(cfg.light.inbox, cfg.state_dir, self.history,
                            settle_s=cfg.light.settle_s,
                            incomplete_timeout_s=cfg.light.incomplete_timeout_s,
-                           tz=cfg.site.timezone)
+                           tz=cfg.site.timezone,
+                           future_tolerance_s=cfg.light.future_tolerance_s,
+                           site=(cfg.site.latitude, cfg.site.longitude))
         self.fleet = Fleet(cfg.controllers, policy=self.policy, retry_s=self.push_retry_s,
                            retry_max_s=self.push_retry_max_s)  # a reload resets the backoff
         # `grassd controllers` may talk on other ports while we run (see statelock)
@@ -628,6 +630,14 @@ class Service:
         if cur is None:
             return None
         active_at = cur.light_at if cur.light_at is not None else self._archived_light_at(cur)
+        if active_at is not None and active_at > time.time() + self.cfg.light.future_tolerance_s:
+            # stamped in the future, by a daemon from before that was refused at ingest: it
+            # outranks nothing, or it would pin the active table until that date
+            log.warning("the active table's light (run %d) is stamped in the future (%s); "
+                        "bundle %s is not superseded by it", cur.id,
+                        datetime.fromtimestamp(active_at, UTC).isoformat(timespec="seconds"),
+                        b.name)
+            return None
         if active_at is not None:
             ts = b.manifest.timestamp.timestamp()
             if ts >= active_at:

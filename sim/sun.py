@@ -45,7 +45,9 @@ from grassd.sim.errors import LightingError
 from grassd.sim.hdri import REC709_LUMINANCE
 from grassd.sim.lighting import (
     DEFAULT_SUN_COLOUR,
+    MAX_SUN_PERPENDICULAR_LUX,
     azimuth_elevation_from_direction,
+    direction_from_azimuth_elevation,
     horizontal_cosine_weights,
     normalised_colour,
     texel_solid_angles,
@@ -56,9 +58,11 @@ __all__ = [
     "GLOBAL_EFFICACY_LM_W",
     "MAX_SUN_SOLID_ANGLE_SR",
     "MIN_SUN_CONTRAST",
+    "SUN_DIRECTION_TOLERANCE_DEG",
     "SUN_THRESHOLD_FRACTION",
     "SunRegion",
     "SunSplit",
+    "check_sun_reading",
     "clear_sky_direct_fraction",
     "find_sun",
     "split_sun",
@@ -83,6 +87,11 @@ GLOBAL_EFFICACY_LM_W: float = 110.0
 EXTRATERRESTRIAL_LUX: float = 133_000.0
 #: Lowest sun elevation (deg) at which a restored directional sun is added.
 MIN_SUN_ELEVATION_DEG: float = 1.0
+#: Largest angle (deg) between a reported sun direction and the sun's computed position at the
+#: site and time that is still taken as the same sun. The sun moves about 15 deg an hour, so a
+#: camera clock an hour off (a time-zone error) or a wrong site lands far outside it, while
+#: levelling a camera and reading a sun off a panorama stay within a few degrees.
+SUN_DIRECTION_TOLERANCE_DEG: float = 5.0
 
 
 # --------------------------------------------------------------------------- sun position
@@ -109,6 +118,72 @@ def sun_position(latitude_deg: float, longitude_deg: float,
     pos = solarposition.get_solarposition(times, latitude_deg, longitude_deg,
                                           method="nrel_numpy")
     return float(pos["azimuth"].iloc[0]), float(pos["apparent_elevation"].iloc[0])
+
+
+def check_sun_reading(sun_lux: float | None, azimuth_deg: float | None = None,
+                      elevation_deg: float | None = None, *,
+                      latitude_deg: float | None = None, longitude_deg: float | None = None,
+                      when: _dt.datetime | None = None) -> tuple[float, float] | None:
+    """Check that a sun reading can be real; return the sun's (azimuth, elevation) in degrees.
+
+    ``sun_lux`` is the sun's share of a horizontal lux meter (lux with the sun minus lux with it
+    shaded); ``azimuth_deg`` (compass, clockwise from north) and ``elevation_deg`` are its
+    reported direction, if any. Where the site (``latitude_deg``, ``longitude_deg``, east +) and
+    a timezone-aware ``when`` are known, the sun's position there and then
+    (:func:`sun_position`) is the expected direction. Raises :class:`LightingError` when:
+
+    - the sun gives light (``sun_lux > 0``) from at or below the horizon, reported or computed;
+    - ``sun_lux / sin(elevation)`` exceeds :data:`MAX_SUN_PERPENDICULAR_LUX` (more than
+      sunlight gives perpendicular to the sun);
+    - a reported direction lies more than :data:`SUN_DIRECTION_TOLERANCE_DEG` from the computed
+      one (a camera clock or time zone off, or a wrong site).
+
+    Returns None when there is no sun light (``sun_lux`` None or 0) or no direction is known.
+
+    >>> check_sun_reading(30000.0, 180.0, 40.0)
+    (180.0, 40.0)
+    >>> check_sun_reading(40000.0, 180.0, -5.0)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    grassd.sim.errors.LightingError: sun lux 40000 lx from elevation -5.0 deg: a sun at or ...
+    """
+    if sun_lux is None or sun_lux == 0:
+        return None
+    site_known = latitude_deg is not None and longitude_deg is not None and when is not None
+    expected = sun_position(latitude_deg, longitude_deg, when) if site_known else None
+    if azimuth_deg is None or elevation_deg is None:
+        if expected is None:
+            return None
+        azimuth_deg, elevation_deg = expected
+        if elevation_deg <= 0.0:
+            raise LightingError(
+                f"sun lux {sun_lux:g} lx at {when.isoformat()}, but the sun is "
+                f"{-elevation_deg:.1f} deg below the horizon at the site (latitude "
+                f"{latitude_deg:g}, longitude {longitude_deg:g}) then; check the time and time "
+                f"zone of the capture, the sun reading, and [site] in the config")
+    elif elevation_deg <= 0.0:
+        raise LightingError(
+            f"sun lux {sun_lux:g} lx from elevation {elevation_deg:.1f} deg: a sun at or below "
+            f"the horizon gives no light; check the sun reading and its direction")
+    perpendicular = sun_lux / np.sin(np.radians(elevation_deg))
+    if perpendicular > MAX_SUN_PERPENDICULAR_LUX:
+        raise LightingError(
+            f"sun lux {sun_lux:g} lx at elevation {elevation_deg:.1f} deg means "
+            f"{perpendicular:.0f} lx perpendicular to the sun, more than sunlight can give "
+            f"({MAX_SUN_PERPENDICULAR_LUX:g} lx); check the sun reading and its elevation")
+    if expected is not None and (azimuth_deg, elevation_deg) != expected:
+        cos = float(direction_from_azimuth_elevation(azimuth_deg, elevation_deg)
+                    @ direction_from_azimuth_elevation(*expected))
+        off = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+        if off > SUN_DIRECTION_TOLERANCE_DEG:
+            raise LightingError(
+                f"sun direction (azimuth {azimuth_deg:.1f}, elevation {elevation_deg:.1f} deg) "
+                f"is {off:.1f} deg from where the sun stands at the site (latitude "
+                f"{latitude_deg:g}, longitude {longitude_deg:g}) at {when.isoformat()}: azimuth "
+                f"{expected[0]:.1f}, elevation {expected[1]:.1f} deg (tolerance "
+                f"{SUN_DIRECTION_TOLERANCE_DEG:g} deg); check the capture's clock and time "
+                f"zone, and [site] in the config")
+    return float(azimuth_deg), float(elevation_deg)
 
 
 def clear_sky_direct_fraction(global_lux: float, elevation_deg: float,

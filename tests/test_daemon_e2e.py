@@ -328,8 +328,10 @@ def test_sigterm_during_push_then_restart_resumes(tmp_path):
         d.drop("base", manifest(20, 5000.0))
         wait_for(lambda: d.status()["health"] == "ok", 90, "first table", d)
         old = d.status()["desired_table"]["table_crc"]
-        d.drop("next", manifest(21, 800.0, "sun_lux = 30000.0\nsun_azimuth_deg = 180.0\n"
-                                           "sun_elevation_deg = 35.0\n"))
+        # a sun from the south, where it stands in Tokyo (the site) then; newer than "base"
+        d.drop("next", 'timestamp = 2026-11-10T11:30:00+09:00\nhdri = "sky.exr"\n'
+                       "ambient_lux = 800.0\nsun_lux = 30000.0\nsun_azimuth_deg = 180.6\n"
+                       "sun_elevation_deg = 37.9\n")
         wait_for(lambda: d.status()["activity"].startswith("pushing"), 60, "push started", d)
         t0 = time.monotonic()
         assert d.stop() == 0
