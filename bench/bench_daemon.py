@@ -13,7 +13,7 @@ import time
 from importlib import resources
 from pathlib import Path
 
-from grassd.daemon.config import load_default_config
+from grassd.daemon.config.settings import load_default_config
 from grassd.daemon.control import request
 from grassd.daemon.errors import DaemonNotRunning
 from grassd.daemon.sim_hardware import SimulatedHardware, hardware_toml

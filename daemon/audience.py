@@ -346,7 +346,7 @@ def write_heatmap(path: str | Path, region: AudienceRegion, samples: AudienceSam
 
 def region_from_config(audience) -> tuple[AudienceRegion, AudienceSamples]:
     """The region and its samples from a config ``[audience]`` table
-    (:class:`grassd.daemon.config.AudienceConfig`)."""
+    (:class:`grassd.daemon.config.settings.AudienceConfig`)."""
     region = AudienceRegion(np.asarray(audience.polygon, np.float64), tuple(audience.h_cm))
     return region, region.sample(audience.ground_samples, audience.height_samples)
 

@@ -54,7 +54,7 @@ from grassd.calib.colour_spaces import luminance
 from grassd.calib.exposure import normalise_exposure
 from grassd.calib.length_table import LEVELS, LengthTable, build_length_table, r_squared
 from grassd.calib.raw import develop_raw
-from grassd.daemon.config import Config, ViewpointConfig
+from grassd.daemon.config.settings import Config, ViewpointConfig
 from grassd.daemon.errors import CalibrationRejected, RunInterrupted
 from grassd.daemon.simulation import simulate_curve, white_radiance
 

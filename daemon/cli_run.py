@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from grassd.daemon.config import (
+from grassd.daemon.config.settings import (
     DEFAULT_CONFIG_PATH,
     Config,
     load_config,

@@ -41,7 +41,7 @@ from datetime import UTC, datetime
 import numpy as np
 from numpy.typing import ArrayLike
 
-from grassd.daemon.config import ControllerConfig
+from grassd.daemon.config.settings import ControllerConfig
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.errors import ProtocolError, PushFailed, TransientError
 from grassd.firmware_proto.tables import as_table_array, table_crc

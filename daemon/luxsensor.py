@@ -1,7 +1,7 @@
 """Read ambient illuminance (lux) from a Modbus RTU or TCP lux sensor (pymodbus client).
 
 Real sensors differ in where and how they store the reading, so the register map is
-configuration (:class:`~grassd.daemon.config.ModbusConfig`): function code 3 (holding) or 4
+configuration (:class:`~grassd.daemon.config.settings.ModbusConfig`): function code 3 (holding) or 4
 (input registers), start register, 1 or 2 words, word order for 32-bit values ("big" = high word
 first), value type (unsigned / signed integer, IEEE-754 float32 in two words), and
 ``lux = scale * value + offset``.
@@ -25,7 +25,7 @@ from collections.abc import Sequence
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
-from grassd.daemon.config import ModbusConfig
+from grassd.daemon.config.settings import ModbusConfig
 from grassd.daemon.errors import LuxSensorError, LuxSensorSilent, LuxSensorUnreachable
 
 log = logging.getLogger(__name__)
@@ -38,7 +38,7 @@ MAX_LUX = 200_000.0
 def decode_registers(registers: Sequence[int], cfg: ModbusConfig) -> float:
     """Turn raw 16-bit ``registers`` into lux per the register map ``cfg``.
 
-    >>> from grassd.daemon.config import load_default_config
+    >>> from grassd.daemon.config.settings import load_default_config
     >>> cfg = load_default_config().light.modbus       # 2 words, big word order, uint, x0.1
     >>> decode_registers([0x0001, 0x0000], cfg)          # 65536 counts * 0.1 lux
     6553.6

@@ -37,7 +37,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from grassd.daemon.config import RetentionConfig
+from grassd.daemon.config.settings import RetentionConfig
 from grassd.daemon.history import History
 
 log = logging.getLogger(__name__)

@@ -58,7 +58,12 @@ from grassd.daemon.atomic import (
 )
 from grassd.daemon.calibrate import CalibrationResult, Calibrator, LightInput, init_backend
 from grassd.daemon.calibrate_display import DisplayCalibrationResult
-from grassd.daemon.config import Config, ControllerConfig, load_config, not_used_by_the_daemon
+from grassd.daemon.config.settings import (
+    Config,
+    ControllerConfig,
+    load_config,
+    not_used_by_the_daemon,
+)
 from grassd.daemon.control import ControlServer
 from grassd.daemon.errors import (
     USER_ERRORS,

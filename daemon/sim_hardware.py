@@ -1,7 +1,7 @@
 """Simulated hardware for tests, demos and ``grassd run --simulate-hardware``.
 
 :class:`SimLuxSensor` is a real pymodbus TCP server on 127.0.0.1 (its own thread and asyncio
-loop) holding the lux value in the registers a :class:`~grassd.daemon.config.ModbusConfig`
+loop) holding the lux value in the registers a :class:`~grassd.daemon.config.settings.ModbusConfig`
 describes, in both the holding (FC 3) and input (FC 4) register tables. It can be told to go
 silent (hold every request unanswered) to exercise timeouts. With ``rtu=True`` it is a Modbus
 RTU server instead, on one end of a null-modem made of two pseudo-terminals; the client opens the
@@ -24,7 +24,7 @@ from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from grassd.daemon.config import Config, ModbusConfig
+from grassd.daemon.config.settings import Config, ModbusConfig
 from grassd.daemon.luxsensor import encode_lux
 from grassd.firmware_proto.simulator import SimulatedBus, make_controllers
 
@@ -275,7 +275,7 @@ def hardware_toml(cfg: Config, baud: int | None = None) -> str:
     names the simulated ports (tests, benchmarks). Pixel ranges are inclusive indices;
     ``baud`` (line speed) is written for every controller when given.
 
-    >>> from grassd.daemon.config import load_default_config
+    >>> from grassd.daemon.config.settings import load_default_config
     >>> print(hardware_toml(load_default_config(), baud=9600).splitlines()[:8])
     ... # doctest: +NORMALIZE_WHITESPACE
     ['[display]', 'rows = 4', 'cols = 8', '[[controllers]]',

@@ -11,7 +11,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from grassd.daemon.config import load_config
+from grassd.daemon.config.settings import load_config
 from grassd.daemon.service import Service
 from grassd.daemon.sim_hardware import hardware_toml
 from grassd.firmware_proto.client import RetryPolicy

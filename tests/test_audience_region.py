@@ -142,7 +142,7 @@ def test_report_and_heat_map(region_fits, tmp_path):
 
 def test_region_table_from_config(renderer, tmp_path):
     from grassd.daemon.audience import audience_table_for_config
-    from grassd.daemon.config import default_config_text, parse_config
+    from grassd.daemon.config.settings import default_config_text, parse_config
     from grassd.sim.lighting import build_lighting
     from grassd.sim.scene import RenderSettings
 

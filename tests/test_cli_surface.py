@@ -139,7 +139,7 @@ def _same(a: Any, b: Any, where: str = "$") -> None:
 def test_calibration_report_is_unchanged(tmp_path, granularity):
     """The report and metrics of one run per granularity (seed 3, 2 closed-loop rounds)."""
     from grassd.daemon.calibrate import Calibrator, LightInput, init_backend
-    from grassd.daemon.config import parse_config
+    from grassd.daemon.config.settings import parse_config
 
     text = RUN + f'[tables]\ngranularity = "{granularity}"\ncheck_groups = 0\n'
     cfg = parse_config(text, base_dir=tmp_path)

@@ -22,7 +22,7 @@ from grassd.daemon.calibrate import (
     check_table,
     init_backend,
 )
-from grassd.daemon.config import parse_config
+from grassd.daemon.config.settings import parse_config
 from grassd.daemon.errors import CalibrationRejected, ConfigError
 
 TINY = HEAD + """[display]

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from grassd.daemon.config import (
+from grassd.daemon.config.settings import (
     LineLocator,
     default_config_text,
     load_config,
@@ -252,7 +252,7 @@ def test_settings_the_daemon_does_not_act_on_are_reported(tmp_path):
     from click.testing import CliRunner
 
     from grassd.daemon.cli import main
-    from grassd.daemon.config import default_config_text
+    from grassd.daemon.config.settings import default_config_text
 
     path = tmp_path / "grassd.toml"
     path.write_text(default_config_text() + '\n[tables]\ngranularity = "controller"\n')

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from robust_util import CACHE, SITE
 
-from grassd.daemon.config import load_default_config
+from grassd.daemon.config.settings import load_default_config
 from grassd.daemon.control import request
 from grassd.daemon.errors import DaemonNotRunning
 from grassd.daemon.history import History

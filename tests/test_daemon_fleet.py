@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from grassd.daemon.config import load_default_config
+from grassd.daemon.config.settings import load_default_config
 from grassd.daemon.fleet import Fleet, table_checksum
 from grassd.daemon.sim_hardware import SimulatedHardware
 from grassd.firmware_proto.client import RetryPolicy

@@ -23,7 +23,7 @@ import pytest
 from robust_util import HEAD, SITE
 
 from grassd.daemon.calibrate import Calibrator, LightInput, init_backend
-from grassd.daemon.config import not_used_by_the_daemon, parse_config
+from grassd.daemon.config.settings import not_used_by_the_daemon, parse_config
 from grassd.daemon.fleet import Fleet, table_checksum
 from grassd.daemon.service import Service, collect_status
 from grassd.daemon.sim_hardware import SimulatedHardware

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from grassd.daemon.config import load_default_config
+from grassd.daemon.config.settings import load_default_config
 from grassd.daemon.errors import LuxSensorError, LuxSensorSilent, LuxSensorUnreachable
 from grassd.daemon.luxsensor import LuxSensor, decode_registers, encode_lux, read_lux
 from grassd.daemon.sim_hardware import SimLuxSensor

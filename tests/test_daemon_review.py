@@ -22,7 +22,7 @@ from robust_util import service, write_config
 from test_daemon_granularity import BASE, POLICY, drop
 
 from grassd.daemon.calibrate import init_backend
-from grassd.daemon.config import parse_config
+from grassd.daemon.config.settings import parse_config
 from grassd.daemon.errors import DaemonError, StateDirLocked
 from grassd.daemon.fleet import Fleet, table_checksum
 from grassd.daemon.service import Service, _Deferred, collect_status

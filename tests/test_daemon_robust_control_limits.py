@@ -12,7 +12,7 @@ import time
 import pytest
 from robust_util import write_config
 
-from grassd.daemon.config import load_config
+from grassd.daemon.config.settings import load_config
 from grassd.daemon.control import MAX_CLIENTS, ControlServer, request
 from grassd.daemon.errors import DaemonBusy
 from grassd.daemon.service import Service

@@ -10,7 +10,7 @@ import time
 import pytest
 from robust_util import drop, service, write_config
 
-from grassd.daemon.config import (
+from grassd.daemon.config.settings import (
     RetentionConfig,
     default_config_text,
     parse_config,

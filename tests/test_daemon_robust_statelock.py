@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from robust_util import SITE, write_config
 
-from grassd.daemon.config import load_config
+from grassd.daemon.config.settings import load_config
 from grassd.daemon.control import request
 from grassd.daemon.errors import ControlError, StateDirLocked
 from grassd.daemon.service import Service

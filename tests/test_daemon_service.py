@@ -9,7 +9,7 @@ from pathlib import Path
 import robust_util
 from robust_util import TWO_VIEWS, drop, service
 
-from grassd.daemon.config import load_config
+from grassd.daemon.config.settings import load_config
 from grassd.daemon.service import Service
 from grassd.firmware_proto.client import RetryPolicy
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from grassd.daemon.config import (
+from grassd.daemon.config.settings import (
     AudienceConfig,
     TablesConfig,
     default_config_text,

@@ -130,7 +130,7 @@ def test_tables_per_pixel_controller_global(per_pixel):
 
 
 def test_controller_pixels_from_config_ranges():
-    from grassd.daemon.config import ControllerConfig
+    from grassd.daemon.config.settings import ControllerConfig
 
     cs = [ControllerConfig("/dev/a", 115200, 1, ((0, 3), (8, 8))),
           ControllerConfig("/dev/a", 115200, 2, ((4, 7),))]

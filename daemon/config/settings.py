@@ -1,7 +1,7 @@
 """The daemon's configuration: TOML file -> validated, frozen dataclasses.
 
 The file (default ``/etc/grassd/grassd.toml``; the embedded default is
-``grassd/daemon/data/default.toml``) has these tables::
+``grassd/daemon/config/default.toml``) has these tables::
 
     state_dir = "/var/lib/grassd"     # optional: $STATE_DIRECTORY, then /var/lib/grassd
     cache_dir = "/var/cache/grassd"   # optional: $GRASSD_CACHE_DIR, $CACHE_DIRECTORY,
@@ -888,8 +888,8 @@ def load_config(path: str | os.PathLike[str]) -> Config:
 
 
 def default_config_text() -> str:
-    """The embedded default configuration (``daemon/data/default.toml``) as text."""
-    return resources.files("grassd.daemon").joinpath("data/default.toml").read_text("utf-8")
+    """The embedded default configuration (``daemon/config/default.toml``) as text."""
+    return resources.files("grassd.daemon.config").joinpath("default.toml").read_text("utf-8")
 
 
 def load_default_config(**overrides: Any) -> Config:
