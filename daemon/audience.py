@@ -301,7 +301,7 @@ def write_heatmap(path: str | Path, region: AudienceRegion, samples: AudienceSam
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from grassd.daemon.atomic import atomic_save_figure
+    from grassd.daemon.store.atomic import atomic_save_figure
 
     n_ground = len(samples.ground_xy)
     worst = np.full(n_ground, -np.inf)

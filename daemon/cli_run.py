@@ -187,8 +187,8 @@ def status_cmd(config_path: str | None, state_dir: str | None, as_json: bool) ->
 
     from grassd.daemon.control import request
     from grassd.daemon.errors import DaemonNotRunning, HistoryError
-    from grassd.daemon.history import History
     from grassd.daemon.service import STATE_DB, collect_status
+    from grassd.daemon.store.history import History
 
     cfg = resolve_config(config_path, state_dir)
     try:
@@ -217,8 +217,8 @@ def history_cmd(config_path: str | None, state_dir: str | None, limit: int,
     import json
 
     from grassd.daemon.errors import HistoryError
-    from grassd.daemon.history import History
     from grassd.daemon.service import STATE_DB
+    from grassd.daemon.store.history import History
 
     cfg = resolve_config(config_path, state_dir)
     db = cfg.state_dir / STATE_DB
@@ -267,9 +267,9 @@ def calibrate_cmd(now: bool, wait: bool, force: bool, json_out: str | None,
     """Ask the running daemon for a calibration, or run one here when no daemon runs."""
     import json
 
-    from grassd.daemon.atomic import atomic_write_json
     from grassd.daemon.control import request
     from grassd.daemon.errors import CalibrationRejected, DaemonNotRunning
+    from grassd.daemon.store.atomic import atomic_write_json
 
     cfg = resolve_config(config_path, state_dir)
     try:

@@ -15,8 +15,8 @@ from pathlib import Path
 import click
 import numpy as np
 
-from grassd.daemon.atomic import atomic_save_figure, atomic_write_bytes, atomic_write_text
 from grassd.daemon.cli_options import REPLICATES
+from grassd.daemon.store.atomic import atomic_save_figure, atomic_write_bytes, atomic_write_text
 
 
 def _view(_ctx, _param, values):

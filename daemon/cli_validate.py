@@ -9,8 +9,8 @@ from pathlib import Path
 
 import click
 
-from grassd.daemon.atomic import atomic_write_text
 from grassd.daemon.cli_options import REPLICATES
+from grassd.daemon.store.atomic import atomic_write_text
 
 
 def _renderer(arch: str):

@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from grassd.daemon.config.settings import RetentionConfig
-from grassd.daemon.history import History
+from grassd.daemon.store.history import History
 
 log = logging.getLogger(__name__)
 

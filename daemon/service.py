@@ -50,12 +50,6 @@ from pathlib import Path
 from typing import Any
 
 from grassd import __version__
-from grassd.daemon.atomic import (
-    atomic_save_figure,
-    atomic_write_json,
-    describe_os_error,
-    describe_write_error,
-)
 from grassd.daemon.calibrate import CalibrationResult, Calibrator, LightInput, init_backend
 from grassd.daemon.calibrate_display import DisplayCalibrationResult
 from grassd.daemon.config.settings import (
@@ -75,12 +69,18 @@ from grassd.daemon.errors import (
     RunInterrupted,
 )
 from grassd.daemon.fleet import Fleet, table_checksum
-from grassd.daemon.history import ControllerTable, History
-from grassd.daemon.ingest import Bundle, Inbox
 from grassd.daemon.luxsensor import LuxSensor
 from grassd.daemon.notify import Notifier
 from grassd.daemon.retention import prune
 from grassd.daemon.statelock import StateLock
+from grassd.daemon.store.atomic import (
+    atomic_save_figure,
+    atomic_write_json,
+    describe_os_error,
+    describe_write_error,
+)
+from grassd.daemon.store.history import ControllerTable, History
+from grassd.daemon.store.ingest import Bundle, Inbox
 from grassd.firmware_proto.client import RetryPolicy
 
 log = logging.getLogger(__name__)

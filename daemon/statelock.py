@@ -30,8 +30,8 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
-from grassd.daemon.atomic import describe_write_error
 from grassd.daemon.errors import StateDirLocked, StateDirUnwritable
+from grassd.daemon.store.atomic import describe_write_error
 
 log = logging.getLogger(__name__)
 

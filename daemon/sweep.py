@@ -590,7 +590,7 @@ def write_summary(out_dir: str | Path, keys: Sequence[str],
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from grassd.daemon.atomic import atomic_save_figure, atomic_write_json
+    from grassd.daemon.store.atomic import atomic_save_figure, atomic_write_json
 
     out = Path(out_dir)
     rows = _condition_rows(out / "sweep.sqlite", keys)

@@ -25,7 +25,7 @@ from grassd.calib.charts import CHART_GRID, ReferenceChart, get_chart
 from grassd.calib.colour_spaces import prophoto_to_rec709
 from grassd.calib.regions import apply_homography, homography
 from grassd.calib.virtual_camera import VirtualCamera
-from grassd.daemon.atomic import atomic_write_text
+from grassd.daemon.store.atomic import atomic_write_text
 from grassd.daemon.validate import (
     MANIFEST_NAME,
     CaptureManifest,

@@ -14,7 +14,6 @@ from grassd.calib.colour_spaces import prophoto_to_xyz, xyz_d50_to_d65
 from grassd.calib.dng import DngCamera, write_linear_dng
 from grassd.calib.exposure import normalise_exposure
 from grassd.calib.regions import apply_homography, homography
-from grassd.daemon.atomic import atomic_save_figure, atomic_write_json
 from grassd.daemon.calibrate import (
     Calibrator,
     LightInput,
@@ -24,6 +23,7 @@ from grassd.daemon.calibrate import (
 )
 from grassd.daemon.config.settings import parse_config
 from grassd.daemon.errors import CalibrationRejected, ConfigError
+from grassd.daemon.store.atomic import atomic_save_figure, atomic_write_json
 
 TINY = HEAD + """[display]
 rows = 3

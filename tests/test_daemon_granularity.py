@@ -300,7 +300,7 @@ def test_one_shot_cli_pushes_pixel_tables_and_status_shows_them(tmp_path):
 
 
 def test_history_keeps_tables_per_run_and_prunes_them_with_the_run(tmp_path):
-    from grassd.daemon.history import History
+    from grassd.daemon.store.history import History
 
     a = np.arange(256, dtype=np.uint16) * 70
     with History(tmp_path / "state.db") as h:

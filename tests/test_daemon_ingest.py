@@ -14,8 +14,8 @@ import OpenEXR
 import pytest
 
 from grassd.daemon.errors import ManifestError
-from grassd.daemon.history import History
-from grassd.daemon.ingest import Inbox, parse_manifest
+from grassd.daemon.store.history import History
+from grassd.daemon.store.ingest import Inbox, parse_manifest
 
 MANIFEST = """timestamp = 2026-06-21T12:00:00+02:00
 hdri = "sky.exr"
@@ -297,8 +297,8 @@ def test_bundle_that_cannot_be_moved_stays_in_inbox(env, monkeypatch, kind):
 CRASHER = """
 import os, sys
 from pathlib import Path
-from grassd.daemon.history import History
-from grassd.daemon.ingest import Inbox
+from grassd.daemon.store.history import History
+from grassd.daemon.store.ingest import Inbox
 state = Path(sys.argv[1]); h = History(state / "state.db")
 inbox = Inbox(Path(sys.argv[2]), state, h, settle_s=0)
 for b in inbox.recover() + inbox.poll():

@@ -20,7 +20,7 @@ from robust_util import SITE, write_config
 
 from grassd.daemon.control import request
 from grassd.daemon.errors import ControlError
-from grassd.daemon.history import History
+from grassd.daemon.store.history import History
 
 GRASSD = str(Path(sys.executable).parent / "grassd")
 OTHER_UID = 1000

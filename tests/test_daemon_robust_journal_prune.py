@@ -14,9 +14,9 @@ import time
 
 from robust_util import drop, journal_entry, reported, service, write_config
 
-from grassd.daemon.history import History
-from grassd.daemon.ingest import Inbox
 from grassd.daemon.retention import DAY_S, prune
+from grassd.daemon.store.history import History
+from grassd.daemon.store.ingest import Inbox
 
 OLD_LIGHT = [f"2026-03-01T08:{m:02d}:00+01:00" for m in range(10)]
 

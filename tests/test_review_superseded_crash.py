@@ -10,8 +10,8 @@ import time
 
 from robust_util import drop
 
-from grassd.daemon.history import History
-from grassd.daemon.ingest import Inbox
+from grassd.daemon.store.history import History
+from grassd.daemon.store.ingest import Inbox
 
 
 def test_recovery_keeps_a_superseded_bundle_superseded(tmp_path):

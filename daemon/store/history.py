@@ -16,7 +16,7 @@ Tables:
   every controller the run's own table (``runs.lengths_um``). Added to older databases by
   ``CREATE TABLE IF NOT EXISTS`` (no schema version change).
 - ``journal``: the ingest journal, one row per bundle keyed by its content hash; state
-  ``processing``/``archived``/``rejected`` (see :mod:`grassd.daemon.ingest`). Rows in a final
+  ``processing``/``archived``/``rejected`` (see :mod:`grassd.daemon.store.ingest`). Rows in a final
   state are pruned with their bundles by retention (:meth:`History.prune_journal`).
 - ``controllers``: last reported state of each controller (table id, CRC, reachable, error).
 

@@ -28,7 +28,7 @@ Life of a bundle (all moves are ``rename(2)`` inside the state directory, so eac
 ``<id>`` = first 12 hex digits of the bundle hash + name. The bundle hash is the SHA-256 over the
 names and SHA-256 digests of every file of the bundle, so identical content has one hash.
 
-Crash safety rests on a journal row (SQLite, :class:`~grassd.daemon.history.History`) keyed by
+Crash safety rests on a journal row (SQLite, :class:`~grassd.daemon.store.history.History`) keyed by
 the bundle hash, written *before* each move: ``processing`` when claimed, ``archived`` /
 ``rejected`` after the final move. :meth:`Inbox.recover` (run at start) reconciles journal and
 directories: a bundle still in ``processing/`` is retried unless a successful run already
@@ -69,9 +69,9 @@ from pathlib import Path
 from typing import Any
 from zoneinfo import ZoneInfo
 
-from grassd.daemon.atomic import atomic_write_text, fsync_dir
 from grassd.daemon.errors import IngestError, ManifestError
-from grassd.daemon.history import History
+from grassd.daemon.store.atomic import atomic_write_text, fsync_dir
+from grassd.daemon.store.history import History
 
 log = logging.getLogger(__name__)
 
