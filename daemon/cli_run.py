@@ -71,7 +71,7 @@ def _simulated(cfg: Config, lux: float):
     """Start simulated controllers + lux sensor; returns (hardware, new cfg, transform)."""
     import dataclasses
 
-    from grassd.daemon.sim_hardware import SimulatedHardware
+    from grassd.daemon.hardware.simulated import SimulatedHardware
 
     hw = SimulatedHardware(cfg, cfg.state_dir / "simhw", lux=lux)
     new = hw.start()

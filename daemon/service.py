@@ -68,8 +68,8 @@ from grassd.daemon.errors import (
     LuxSensorUnreachable,
     RunInterrupted,
 )
-from grassd.daemon.fleet import Fleet, table_checksum
-from grassd.daemon.luxsensor import LuxSensor
+from grassd.daemon.hardware.fleet import Fleet, table_checksum
+from grassd.daemon.hardware.luxsensor import LuxSensor
 from grassd.daemon.notify import Notifier
 from grassd.daemon.retention import prune
 from grassd.daemon.statelock import StateLock
@@ -177,8 +177,8 @@ class Service:
         self.tick_s = tick_s
         self.reconcile_s = reconcile_s
         self.stall_s = stall_s
-        #: reconcile backoff of a controller whose pushes fail (see grassd.daemon.fleet): the
-        #: first retry after ``push_retry_s``, doubling up to ``push_retry_max_s``
+        #: reconcile backoff of a controller whose pushes fail (see grassd.daemon.hardware.fleet):
+        #: the first retry after ``push_retry_s``, doubling up to ``push_retry_max_s``
         self.push_retry_s = push_retry_s
         self.push_retry_max_s = push_retry_max_s
         self.policy = policy or RetryPolicy(timeout_s=0.25, retries=2, restarts=2,

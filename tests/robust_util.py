@@ -12,8 +12,8 @@ from pathlib import Path
 from typing import Any
 
 from grassd.daemon.config.settings import load_config
+from grassd.daemon.hardware.simulated import hardware_toml
 from grassd.daemon.service import Service
-from grassd.daemon.sim_hardware import hardware_toml
 from grassd.firmware_proto.client import RetryPolicy
 
 ROOT = Path(__file__).resolve().parents[1]

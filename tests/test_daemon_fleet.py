@@ -7,8 +7,8 @@ import time
 import numpy as np
 
 from grassd.daemon.config.settings import load_default_config
-from grassd.daemon.fleet import Fleet, table_checksum
-from grassd.daemon.sim_hardware import SimulatedHardware
+from grassd.daemon.hardware.fleet import Fleet, table_checksum
+from grassd.daemon.hardware.simulated import SimulatedHardware
 from grassd.firmware_proto.client import RetryPolicy
 
 TABLE_A = np.linspace(0, 20000, 256).astype(np.uint16)

@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 
 from grassd.daemon.config.settings import load_default_config
 from grassd.daemon.errors import LuxSensorError, LuxSensorSilent, LuxSensorUnreachable
-from grassd.daemon.luxsensor import LuxSensor, decode_registers, encode_lux, read_lux
-from grassd.daemon.sim_hardware import SimLuxSensor
+from grassd.daemon.hardware.luxsensor import LuxSensor, decode_registers, encode_lux, read_lux
+from grassd.daemon.hardware.simulated import SimLuxSensor
 
 BASE = load_default_config().light.modbus
 

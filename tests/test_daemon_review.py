@@ -24,9 +24,9 @@ from test_daemon_granularity import BASE, POLICY, drop
 from grassd.daemon.calibrate import init_backend
 from grassd.daemon.config.settings import parse_config
 from grassd.daemon.errors import DaemonError, StateDirLocked
-from grassd.daemon.fleet import Fleet, table_checksum
+from grassd.daemon.hardware.fleet import Fleet, table_checksum
+from grassd.daemon.hardware.simulated import SimLuxSensor, SimulatedHardware
 from grassd.daemon.service import Service, _Deferred, collect_status
-from grassd.daemon.sim_hardware import SimLuxSensor, SimulatedHardware
 from grassd.daemon.statelock import StateLock
 
 PIXEL = '[tables]\ngranularity = "pixel"\ncheck_groups = 0\n'

@@ -10,7 +10,7 @@ import time
 import pytest
 from robust_util import drop, service, tick_until, write_config
 
-from grassd.daemon.sim_hardware import SimLuxSensor
+from grassd.daemon.hardware.simulated import SimLuxSensor
 
 
 def test_sensor_outage_defers_then_runs_when_back(tmp_path, hw):

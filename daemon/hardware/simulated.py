@@ -25,7 +25,7 @@ from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from grassd.daemon.config.settings import Config, ModbusConfig
-from grassd.daemon.luxsensor import encode_lux
+from grassd.daemon.hardware.luxsensor import encode_lux
 from grassd.firmware_proto.simulator import SimulatedBus, make_controllers
 
 log = logging.getLogger(__name__)
