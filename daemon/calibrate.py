@@ -1,7 +1,7 @@
 """One calibration run: light -> simulated characteristics -> table -> checks -> closed loop.
 
 Composition of :mod:`grassd.sim` and :mod:`grassd.calib` (pushing and recording are the
-service's job, :mod:`grassd.daemon.service`):
+service's job, :mod:`grassd.daemon.runtime.service`):
 
 1. **Lighting** from the bundle: the HDRI scaled to the ambient lux, plus a directional sun of
    ``sun_lux`` (direction from the manifest, else from the site's latitude/longitude and the

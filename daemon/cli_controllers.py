@@ -26,7 +26,7 @@ from pathlib import Path
 
 import click
 
-from grassd.daemon.statelock import StateLock
+from grassd.daemon.runtime.statelock import StateLock
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.errors import ControllerTimeout, ProtocolError, PushFailed
 from grassd.firmware_proto.messages import MAX_ADDRESS, MIN_ADDRESS, TableKind

@@ -103,7 +103,7 @@ def _simulated(cfg: Config, lux: float):
 def run_cmd(config_path: str | None, state_dir: str | None, simulate_hardware: bool,
             sim_lux: float, tick_s: float, log_level: str) -> None:
     """Run the daemon: watch the inbox, calibrate, push tables, serve the control socket."""
-    from grassd.daemon.service import Service
+    from grassd.daemon.runtime.service import Service
 
     _setup_logging(log_level)
     cfg = resolve_config(config_path, state_dir)
@@ -185,9 +185,9 @@ def status_cmd(config_path: str | None, state_dir: str | None, as_json: bool) ->
     """Last runs, each controller's active table, and health (asks the daemon if it runs)."""
     import json
 
-    from grassd.daemon.control import request
     from grassd.daemon.errors import DaemonNotRunning, HistoryError
-    from grassd.daemon.service import STATE_DB, collect_status
+    from grassd.daemon.runtime.control import request
+    from grassd.daemon.runtime.service import STATE_DB, collect_status
     from grassd.daemon.store.history import History
 
     cfg = resolve_config(config_path, state_dir)
@@ -217,7 +217,7 @@ def history_cmd(config_path: str | None, state_dir: str | None, limit: int,
     import json
 
     from grassd.daemon.errors import HistoryError
-    from grassd.daemon.service import STATE_DB
+    from grassd.daemon.runtime.service import STATE_DB
     from grassd.daemon.store.history import History
 
     cfg = resolve_config(config_path, state_dir)
@@ -267,8 +267,8 @@ def calibrate_cmd(now: bool, wait: bool, force: bool, json_out: str | None,
     """Ask the running daemon for a calibration, or run one here when no daemon runs."""
     import json
 
-    from grassd.daemon.control import request
     from grassd.daemon.errors import CalibrationRejected, DaemonNotRunning
+    from grassd.daemon.runtime.control import request
     from grassd.daemon.store.atomic import atomic_write_json
 
     cfg = resolve_config(config_path, state_dir)
@@ -279,7 +279,7 @@ def calibrate_cmd(now: bool, wait: bool, force: bool, json_out: str | None,
         result = ans.get("run") or {"status": "queued", "queued": ans.get("queued")}
         where = "daemon"
     except DaemonNotRunning:
-        from grassd.daemon.service import Service
+        from grassd.daemon.runtime.service import Service
 
         _setup_logging("warning")
         hw = None

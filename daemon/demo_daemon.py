@@ -22,8 +22,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from grassd.daemon.control import request
 from grassd.daemon.errors import ControlError, DaemonError, DaemonNotRunning
+from grassd.daemon.runtime.control import request
 
 
 def _grassd() -> list[str]:

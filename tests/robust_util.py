@@ -13,7 +13,7 @@ from typing import Any
 
 from grassd.daemon.config.settings import load_config
 from grassd.daemon.hardware.simulated import hardware_toml
-from grassd.daemon.service import Service
+from grassd.daemon.runtime.service import Service
 from grassd.firmware_proto.client import RetryPolicy
 
 ROOT = Path(__file__).resolve().parents[1]

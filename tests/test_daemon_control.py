@@ -10,8 +10,8 @@ import time
 
 import pytest
 
-from grassd.daemon.control import ControlServer, request
 from grassd.daemon.errors import ControlError, DaemonNotRunning
+from grassd.daemon.runtime.control import ControlServer, request
 
 
 def handler(req):

@@ -19,9 +19,9 @@ import pytest
 from robust_util import CACHE, SITE
 
 from grassd.daemon.config.settings import load_default_config
-from grassd.daemon.control import request
 from grassd.daemon.errors import DaemonNotRunning
 from grassd.daemon.hardware.simulated import SimulatedHardware, hardware_toml
+from grassd.daemon.runtime.control import request
 from grassd.daemon.store.history import History
 from grassd.firmware_proto.tables import table_crc
 

@@ -26,7 +26,7 @@ from grassd.daemon.calibrate import Calibrator, LightInput, init_backend
 from grassd.daemon.config.settings import not_used_by_the_daemon, parse_config
 from grassd.daemon.hardware.fleet import Fleet, table_checksum
 from grassd.daemon.hardware.simulated import SimulatedHardware
-from grassd.daemon.service import Service, collect_status
+from grassd.daemon.runtime.service import Service, collect_status
 from grassd.firmware_proto.client import RetryPolicy
 
 POLICY = RetryPolicy(timeout_s=0.1, retries=1, restarts=1, readback_retries=2)

@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from grassd.daemon.notify import Notifier
+from grassd.daemon.runtime.notify import Notifier
 
 
 def _listener(path_or_abstract):
@@ -72,7 +72,7 @@ def test_child_process_notifies_parent(tmp_path):
     """A separate process (as systemd would run it) reaches our socket through the env var."""
     path = str(tmp_path / "notify")
     srv = _listener(path)
-    code = "from grassd.daemon.notify import Notifier; Notifier().ready('up')"
+    code = "from grassd.daemon.runtime.notify import Notifier; Notifier().ready('up')"
     subprocess.run([sys.executable, "-c", code], env={**os.environ, "NOTIFY_SOCKET": path},
                    check=True)
     assert srv.recv(4096).startswith(b"READY=1\nSTATUS=up\nMAINPID=")

@@ -26,8 +26,8 @@ from grassd.daemon.config.settings import parse_config
 from grassd.daemon.errors import DaemonError, StateDirLocked
 from grassd.daemon.hardware.fleet import Fleet, table_checksum
 from grassd.daemon.hardware.simulated import SimLuxSensor, SimulatedHardware
-from grassd.daemon.service import Service, _Deferred, collect_status
-from grassd.daemon.statelock import StateLock
+from grassd.daemon.runtime.service import Service, _Deferred, collect_status
+from grassd.daemon.runtime.statelock import StateLock
 
 PIXEL = '[tables]\ngranularity = "pixel"\ncheck_groups = 0\n'
 

@@ -13,9 +13,9 @@ import pytest
 from robust_util import write_config
 
 from grassd.daemon.config.settings import load_config
-from grassd.daemon.control import MAX_CLIENTS, ControlServer, request
 from grassd.daemon.errors import DaemonBusy
-from grassd.daemon.service import Service
+from grassd.daemon.runtime.control import MAX_CLIENTS, ControlServer, request
+from grassd.daemon.runtime.service import Service
 
 
 def test_excess_clients_are_told_busy_without_threads(tmp_path):

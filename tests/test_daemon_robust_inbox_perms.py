@@ -18,8 +18,8 @@ from pathlib import Path
 import pytest
 from robust_util import SITE, write_config
 
-from grassd.daemon.control import request
 from grassd.daemon.errors import ControlError
+from grassd.daemon.runtime.control import request
 from grassd.daemon.store.history import History
 
 GRASSD = str(Path(sys.executable).parent / "grassd")

@@ -14,7 +14,7 @@ import time
 
 from robust_util import drop, journal_entry, reported, service, write_config
 
-from grassd.daemon.retention import DAY_S, prune
+from grassd.daemon.runtime.retention import DAY_S, prune
 from grassd.daemon.store.history import History
 from grassd.daemon.store.ingest import Inbox
 

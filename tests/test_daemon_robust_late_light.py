@@ -16,7 +16,7 @@ from click.testing import CliRunner
 from robust_util import drop, journal_entry, reported, service, write_config
 
 from grassd.daemon.cli import main as cli
-from grassd.daemon.service import STATE_DB, collect_status
+from grassd.daemon.runtime.service import STATE_DB, collect_status
 
 NOON = "2026-03-01T12:00:00+01:00"  # 11:00 UTC
 
@@ -61,7 +61,7 @@ def test_late_upload_of_older_light_is_archived_as_superseded(tmp_path, hw, capl
 
     # a late upload of the 11:00 light, after the noon table went out
     caplog.clear()
-    with caplog.at_level(logging.WARNING, logger="grassd.daemon.service"):
+    with caplog.at_level(logging.WARNING, logger="grassd.daemon.runtime.service"):
         drop(inbox, "late", lux=1500.0, timestamp="2026-03-01T11:00:00+01:00")
         svc.tick()
     _assert_superseded(svc, "late", noon, "2026-03-01T10:00:00+00:00",

@@ -18,10 +18,10 @@ import pytest
 from robust_util import SITE, write_config
 
 from grassd.daemon.config.settings import load_config
-from grassd.daemon.control import request
 from grassd.daemon.errors import ControlError, StateDirLocked
-from grassd.daemon.service import Service
-from grassd.daemon.statelock import StateLock
+from grassd.daemon.runtime.control import request
+from grassd.daemon.runtime.service import Service
+from grassd.daemon.runtime.statelock import StateLock
 
 GRASSD = str(Path(sys.executable).parent / "grassd")
 

@@ -10,7 +10,7 @@ import robust_util
 from robust_util import TWO_VIEWS, drop, service
 
 from grassd.daemon.config.settings import load_config
-from grassd.daemon.service import Service
+from grassd.daemon.runtime.service import Service
 from grassd.firmware_proto.client import RetryPolicy
 
 
@@ -71,7 +71,7 @@ def test_all_controllers_down_commits_then_reconciles(tmp_path, hw):
             break
         time.sleep(0.3)
     assert all(r.ok for r in reports) and pushed == {r.controller for r in reports}
-    from grassd.daemon.service import collect_status
+    from grassd.daemon.runtime.service import collect_status
 
     assert collect_status(svc.history, svc.cfg)["health"] == "ok"
     svc.shutdown()

@@ -208,7 +208,8 @@ class ScheduleConfig:
 
 @dataclass(frozen=True)
 class RetentionConfig:
-    """How much the state directory keeps (pruned after every run, :mod:`grassd.daemon.retention`).
+    """How much the state directory keeps (pruned after every run,
+    :mod:`grassd.daemon.runtime.retention`).
 
     ``keep_days``: archived and rejected bundles older than this (days) are deleted, except the
     latest archived bundle (the light of scheduled runs); ``keep_reports``: JSON + PNG reports

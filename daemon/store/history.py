@@ -534,7 +534,7 @@ class History:
 
         A deleted row no longer marks its content as seen: a re-upload of that bundle is not
         rejected as a duplicate but claimed and processed as new (see
-        :func:`grassd.daemon.retention.prune`)."""
+        :func:`grassd.daemon.runtime.retention.prune`)."""
         keep_ids, protect = set(keep_ids), set(protect)
         with self._tx() as db:
             gone = [h for h, bid in db.execute(

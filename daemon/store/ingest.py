@@ -38,7 +38,7 @@ bundle goes back to the inbox; a bundle whose hash was already archived or rejec
 as a duplicate. So no bundle is lost and none is processed twice.
 
 Duplicates are recognised by the journal row of their hash, and retention
-(:func:`grassd.daemon.retention.prune`) deletes the rows of bundles in a final state once
+(:func:`grassd.daemon.runtime.retention.prune`) deletes the rows of bundles in a final state once
 their directories have expired (older than ``[retention] keep_days``), keeping every
 ``processing`` row and the rows of the latest archived and the active table's bundle. A
 re-upload of a bundle whose row was pruned is therefore processed again as new. That is

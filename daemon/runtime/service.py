@@ -58,7 +58,6 @@ from grassd.daemon.config.settings import (
     load_config,
     not_used_by_the_daemon,
 )
-from grassd.daemon.control import ControlServer
 from grassd.daemon.errors import (
     USER_ERRORS,
     ConfigError,
@@ -70,9 +69,10 @@ from grassd.daemon.errors import (
 )
 from grassd.daemon.hardware.fleet import Fleet, table_checksum
 from grassd.daemon.hardware.luxsensor import LuxSensor
-from grassd.daemon.notify import Notifier
-from grassd.daemon.retention import prune
-from grassd.daemon.statelock import StateLock
+from grassd.daemon.runtime.control import ControlServer
+from grassd.daemon.runtime.notify import Notifier
+from grassd.daemon.runtime.retention import prune
+from grassd.daemon.runtime.statelock import StateLock
 from grassd.daemon.store.atomic import (
     atomic_save_figure,
     atomic_write_json,
