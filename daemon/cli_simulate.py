@@ -1,8 +1,8 @@
 """``grassd simulate``: the grass colour characteristic for given light and viewpoints.
 
 Composes the renderer (``grassd.sim``) with the colour pipeline (``grassd.calib``) through
-:mod:`grassd.daemon.simulation`. ``grassd simulate export-scene`` writes the traced scene for
-other renderers.
+:mod:`grassd.daemon.calibration.simulation`. ``grassd simulate export-scene`` writes the traced
+scene for other renderers.
 """
 
 from __future__ import annotations
@@ -160,7 +160,7 @@ def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, site, when, su
         return
     _require(hdri=hdri, lux=lux, view=views)
     t0 = time.perf_counter()
-    from grassd.daemon.simulation import simulate_curves, white_radiance
+    from grassd.daemon.calibration.simulation import simulate_curves, white_radiance
     from grassd.sim import backend
     from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, parse_lengths
 

@@ -3,9 +3,9 @@
 A sweep crosses HDRIs x times of day x viewpoints x pixel specs (:class:`Condition`) under one set
 of shared settings (:class:`SweepSpec`). Each condition is one task: build the light, trace the
 display's centre pixel (neighbours present) from the viewpoint with
-:func:`grassd.daemon.simulation.simulate_curve`, derive the OGCD range, the linearity of OGCD vs
-length (R^2) and the R^2 after an 8-bit table. Results go to one tidy SQLite table as they arrive
-(one transaction per task), so a sweep stopped at any point resumes from its partial output:
+:func:`grassd.daemon.calibration.simulation.simulate_curve`, derive the OGCD range, the linearity of
+OGCD vs length (R^2) and the R^2 after an 8-bit table. Results go to one tidy SQLite table as they
+arrive (one transaction per task), so a sweep stopped at any point resumes from its partial output:
 finished tasks are skipped (:func:`run_sweep`).
 
 Light for a time of day (site latitude/longitude, date, IANA time zone): the sun's position by
@@ -251,7 +251,7 @@ def _worker_state(threads: int | None = None) -> dict:
 
 
 def _renderer_for(n_pixels: int):
-    from grassd.daemon.display import capacity_for
+    from grassd.daemon.calibration.display import capacity_for
     from grassd.sim.renderer import Renderer
 
     state = _worker_state()
@@ -274,7 +274,7 @@ def run_task(spec: SweepSpec, cond: Condition) -> dict:
     Python types, picklable). Deterministic for (spec, cond)."""
     from grassd.calib.errors import CalibError
     from grassd.calib.length_table import build_length_table, r_squared
-    from grassd.daemon.simulation import simulate_curve
+    from grassd.daemon.calibration.simulation import simulate_curve
     from grassd.sim.lighting import build_lighting
     from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint
 

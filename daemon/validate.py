@@ -767,7 +767,7 @@ def validate_capture(m: CaptureManifest, *, renderer: Any = None, settings: Any 
     ``settings``: :class:`grassd.sim.scene.RenderSettings`; ``lighting``: a prebuilt Lighting of
     ``m.light`` (built here if None).
     """
-    from grassd.daemon.simulation import simulate_curve  # noqa: PLC0415
+    from grassd.daemon.calibration.simulation import simulate_curve  # noqa: PLC0415
     from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint  # noqa: PLC0415
 
     t0 = time.perf_counter()

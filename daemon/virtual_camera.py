@@ -92,7 +92,7 @@ def capture_world(out_dir: str | Path, light: LightSpec,
     section 4.1.1): in trial ``t`` the blades rest differently (``layout_seed + t``) and the
     render and camera noise are new, as when a real pixel's grass is moved out and back in.
     """
-    from grassd.daemon.simulation import white_radiance  # noqa: PLC0415
+    from grassd.daemon.calibration.simulation import white_radiance  # noqa: PLC0415
     from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint  # noqa: PLC0415
 
     out = Path(out_dir)

@@ -112,7 +112,7 @@ def after_first_bundle(tmp_path: Path, cfg, **kw) -> tuple[Service, Any]:
 
 def service(path: Path, **kw) -> Service:
     """An in-process daemon for config file ``path`` (Taichi initialised, short timeouts)."""
-    from grassd.daemon.calibrate import init_backend
+    from grassd.daemon.calibration.calibrate import init_backend
 
     policy = RetryPolicy(timeout_s=0.1, retries=1, restarts=1, readback_retries=2)
     svc = Service(load_config(path), config_path=path, policy=policy, **kw)

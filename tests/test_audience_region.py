@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from grassd.daemon.audience import (
+from grassd.daemon.calibration.audience import (
     AudienceError,
     AudienceRegion,
     centre_pixel,
@@ -141,7 +141,7 @@ def test_report_and_heat_map(region_fits, tmp_path):
 
 
 def test_region_table_from_config(renderer, tmp_path):
-    from grassd.daemon.audience import audience_table_for_config
+    from grassd.daemon.calibration.audience import audience_table_for_config
     from grassd.daemon.config.settings import default_config_text, parse_config
     from grassd.sim.lighting import build_lighting
     from grassd.sim.scene import RenderSettings

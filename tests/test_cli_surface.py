@@ -138,7 +138,7 @@ def _same(a: Any, b: Any, where: str = "$") -> None:
 @pytest.mark.parametrize("granularity", ["global", "controller", "pixel"])
 def test_calibration_report_is_unchanged(tmp_path, granularity):
     """The report and metrics of one run per granularity (seed 3, 2 closed-loop rounds)."""
-    from grassd.daemon.calibrate import Calibrator, LightInput, init_backend
+    from grassd.daemon.calibration.calibrate import Calibrator, LightInput, init_backend
     from grassd.daemon.config.settings import parse_config
 
     text = RUN + f'[tables]\ngranularity = "{granularity}"\ncheck_groups = 0\n'

@@ -14,7 +14,7 @@ from grassd.calib.colour_spaces import prophoto_to_xyz, xyz_d50_to_d65
 from grassd.calib.dng import DngCamera, write_linear_dng
 from grassd.calib.exposure import normalise_exposure
 from grassd.calib.regions import apply_homography, homography
-from grassd.daemon.calibrate import (
+from grassd.daemon.calibration.calibrate import (
     Calibrator,
     LightInput,
     check_shape,

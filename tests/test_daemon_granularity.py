@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 from robust_util import HEAD, SITE
 
-from grassd.daemon.calibrate import Calibrator, LightInput, init_backend
+from grassd.daemon.calibration.calibrate import Calibrator, LightInput, init_backend
 from grassd.daemon.config.settings import not_used_by_the_daemon, parse_config
 from grassd.daemon.hardware.fleet import Fleet, table_checksum
 from grassd.daemon.hardware.simulated import SimulatedHardware
@@ -377,7 +377,11 @@ def test_closed_loop_measures_every_pixel_at_its_own_controller_table(tmp_path):
     controllers own rows 0-1 and 2-3). The closed loop must check each controller's table on
     its own pixels, not one member's table for the whole group: otherwise a controller's loop
     deviation, and the points that refine its table, come from the other controller's table."""
-    from grassd.daemon.display import display_spec_for_config, group_pixels, pixel_geometry
+    from grassd.daemon.calibration.display import (
+        display_spec_for_config,
+        group_pixels,
+        pixel_geometry,
+    )
     from grassd.sim.scene import Viewpoint
 
     text = (BASE.replace("rows = 2\ncols = 2", "rows = 4\ncols = 2")

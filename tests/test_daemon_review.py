@@ -21,7 +21,7 @@ from robust_util import drop as rdrop
 from robust_util import service, write_config
 from test_daemon_granularity import BASE, POLICY, drop
 
-from grassd.daemon.calibrate import init_backend
+from grassd.daemon.calibration.calibrate import init_backend
 from grassd.daemon.config.settings import parse_config
 from grassd.daemon.errors import DaemonError, StateDirLocked
 from grassd.daemon.hardware.fleet import Fleet, table_checksum

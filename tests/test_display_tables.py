@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from grassd.daemon.display import (
+from grassd.daemon.calibration.display import (
     DisplaySimulationError,
     DisplayTables,
     build_display_tables,
@@ -16,7 +16,7 @@ from grassd.daemon.display import (
     simulate_display,
     table_deviation,
 )
-from grassd.daemon.simulation import simulate_curve
+from grassd.daemon.calibration.simulation import simulate_curve
 
 LENGTHS = np.array([0.0, 10.0, 20.0])
 

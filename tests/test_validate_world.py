@@ -13,7 +13,7 @@ from grassd.calib.compare import frechet_characteristics, max_ogcd_error
 from grassd.calib.delta_e import delta_e_cie2000
 from grassd.calib.ogcd import ogcd_from_samples
 from grassd.calib.virtual_camera import VirtualCamera
-from grassd.daemon.simulation import white_radiance
+from grassd.daemon.calibration.simulation import white_radiance
 from grassd.daemon.validate import (
     LightSpec,
     load_manifest,

@@ -254,7 +254,7 @@ class CalibrationConfig:
 
 @dataclass(frozen=True)
 class TablesConfig:
-    """Whole-display tables (:mod:`grassd.daemon.display`).
+    """Whole-display tables (:mod:`grassd.daemon.calibration.display`).
 
     ``granularity``: "global" (one table), "controller" (one per controller, its pixels' mean
     characteristic) or "pixel"; ``eye``: "world" (a viewpoint is one spot relative to the
@@ -264,10 +264,11 @@ class TablesConfig:
     share one simulation; ``check_groups`` groups are re-simulated to report the grouping error.
     ``layout``: the simulated tuft layout, "shared" (one random layout copied to every pixel),
     "per_pixel" (each pixel draws its own) or "auto" (shared for "pixel" tables, per pixel
-    otherwise; see :func:`grassd.daemon.display.display_spec_for_config`).
-    The daemon pushes them (:mod:`grassd.daemon.calibrate_display`): "controller" gives each
-    controller one (256,) table, "pixel" an (n_pixels, 256) table for the pixels it drives;
-    "global" without ``[audience]`` is the one-table run of :mod:`grassd.daemon.calibrate`.
+    otherwise; see :func:`grassd.daemon.calibration.display.display_spec_for_config`).
+    The daemon pushes them (:mod:`grassd.daemon.calibration.calibrate_display`): "controller" gives
+    each controller one (256,) table, "pixel" an (n_pixels, 256) table for the pixels it drives;
+    "global" without ``[audience]`` is the one-table run of
+    :mod:`grassd.daemon.calibration.calibrate`.
     """
 
     granularity: str = "global"
@@ -280,8 +281,8 @@ class TablesConfig:
 
 @dataclass(frozen=True)
 class AudienceConfig:
-    """An audience region (:mod:`grassd.daemon.audience`): ground ``polygon`` of (x, y) metres
-    (display centre at the origin, +x east, +y north), eye heights ``h_cm`` = (low, high) cm,
+    """An audience region (:mod:`grassd.daemon.calibration.audience`): ground ``polygon`` of (x, y)
+    metres (display centre at the origin, +x east, +y north), eye heights ``h_cm`` = (low, high) cm,
     sampled with about ``ground_samples`` points x ``height_samples`` heights; the table
     minimises the ``objective`` ("mean" or "worst") deviation from linear OGCD."""
 
@@ -904,8 +905,8 @@ def not_used_by_the_daemon(cfg: Config) -> list[str]:
 
     The daemon honours ``[tables] granularity`` (a table per controller or per pixel) and
     ``[audience]`` (tables from the region instead of ``[[viewpoints]]``):
-    :mod:`grassd.daemon.calibrate_display`. With ``[audience]`` every eye is a world position,
-    so ``[tables] eye = "pixel"`` has no meaning there.
+    :mod:`grassd.daemon.calibration.calibrate_display`. With ``[audience]`` every eye is a world
+    position, so ``[tables] eye = "pixel"`` has no meaning there.
     """
     notes = []
     if cfg.audience is not None and cfg.tables.eye != "world":

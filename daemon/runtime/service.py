@@ -50,8 +50,13 @@ from pathlib import Path
 from typing import Any
 
 from grassd import __version__
-from grassd.daemon.calibrate import CalibrationResult, Calibrator, LightInput, init_backend
-from grassd.daemon.calibrate_display import DisplayCalibrationResult
+from grassd.daemon.calibration.calibrate import (
+    CalibrationResult,
+    Calibrator,
+    LightInput,
+    init_backend,
+)
+from grassd.daemon.calibration.calibrate_display import DisplayCalibrationResult
 from grassd.daemon.config.settings import (
     Config,
     ControllerConfig,

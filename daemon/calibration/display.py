@@ -33,7 +33,7 @@ Tables (:func:`build_display_tables`): one per pixel (per group, shared by its m
 controller (its pixels' mean characteristic) or one global table (all pixels' mean). Every
 pixel's error is the largest deviation of its OGCD from the linear ramp of its own OGCD range
 when driven by its table (CIEDE2000 units). ``grassd run`` pushes these tables to the
-controllers (:mod:`grassd.daemon.calibrate_display`).
+controllers (:mod:`grassd.daemon.calibration.calibrate_display`).
 """
 
 from __future__ import annotations
@@ -48,8 +48,8 @@ import numpy as np
 
 from grassd.calib.characteristic import Characteristic, FittedCharacteristic, fit_characteristic
 from grassd.calib.length_table import LEVELS, LengthTable, build_length_table
+from grassd.daemon.calibration.simulation import SimulatedCurve, simulate_curve
 from grassd.daemon.errors import DaemonError
-from grassd.daemon.simulation import SimulatedCurve, simulate_curve
 
 #: Closest a viewer may stand to a pixel centre horizontally (m): straight above is undefined.
 MIN_DISTANCE_M: float = 1e-3

@@ -1,25 +1,26 @@
 """Whole-display calibration runs: a table per controller or per pixel, or from an audience.
 
-:meth:`grassd.daemon.calibrate.Calibrator.run` comes here when ``[tables] granularity`` is
-"controller" or "pixel", or an ``[audience]`` region is configured (granularity "global" without
-``[audience]`` stays the one-table run of :mod:`grassd.daemon.calibrate`). The pieces are those
-of the API; nothing here re-implements them:
+:meth:`grassd.daemon.calibration.calibrate.Calibrator.run` comes here when ``[tables] granularity``
+is "controller" or "pixel", or an ``[audience]`` region is configured (granularity "global" without
+``[audience]`` stays the one-table run of :mod:`grassd.daemon.calibration.calibrate`). The pieces
+are those of the API; nothing here re-implements them:
 
 * **From [[viewpoints]]** (no ``[audience]``): every viewpoint is a viewer of the whole display
   (``[display]`` rows x cols, neighbours present, each pixel seen from its own direction, pixels
-  grouped by viewing geometry; :func:`grassd.daemon.display.display_tables_for_config`), the
-  viewers' characteristics averaged with their weights, then one table per controller (its
+  grouped by viewing geometry; :func:`grassd.daemon.calibration.display.display_tables_for_config`),
+  the viewers' characteristics averaged with their weights, then one table per controller (its
   pixels' mean characteristic) or per pixel (per geometry group, shared by its members)
-  (:func:`grassd.daemon.display.build_display_tables`).
-* **From [audience]**: the region is sampled (:func:`grassd.daemon.audience.region_from_config`).
-  Granularity "global": the display's centre pixel from every sampled eye and the table that
-  minimises the mean (or worst) deviation from linear OGCD over the eyes
-  (:func:`grassd.daemon.audience.region_table`). "controller"/"pixel": the whole display is traced
-  from every eye (:func:`grassd.daemon.display.simulate_display` with
-  :func:`grassd.daemon.display.geometry_from_eye`); each controller (its pixels' mean
+  (:func:`grassd.daemon.calibration.display.build_display_tables`).
+* **From [audience]**: the region is sampled
+  (:func:`grassd.daemon.calibration.audience.region_from_config`). Granularity "global": the
+  display's centre pixel from every sampled eye and the table that minimises the mean (or worst)
+  deviation from linear OGCD over the eyes
+  (:func:`grassd.daemon.calibration.audience.region_table`). "controller"/"pixel": the whole display
+  is traced from every eye (:func:`grassd.daemon.calibration.display.simulate_display` with
+  :func:`grassd.daemon.calibration.display.geometry_from_eye`); each controller (its pixels' mean
   characteristic for that eye) or each pixel group (groups combined over the eyes,
-  :func:`grassd.daemon.display.combine_viewpoints`) gets the region table over the eyes. The
-  grouping error (``[tables] check_groups``) is measured from the first sampled eye only.
+  :func:`grassd.daemon.calibration.display.combine_viewpoints`) gets the region table over the eyes.
+  The grouping error (``[tables] check_groups``) is measured from the first sampled eye only.
 
 Each run also gives a *display-wide* table (all pixels' mean characteristic, or the region table
 of it): it is the run's table in history and the one a controller gets when the run holds no
@@ -29,9 +30,9 @@ keyed by controller name (``port#address``); a "pixel" table of a controller has
 controller's i-th pixel, PROTOCOL.md section 3).
 
 Checks, as for the global run: every unit's characteristic passes
-:func:`grassd.daemon.calibrate.check_shape`; every table passes
-:func:`grassd.daemon.calibrate.check_table` (monotone, within 0..green_max, and no entry jumps
-more than ``max_jump_mm`` from the same controller's previous table, or from the previous
+:func:`grassd.daemon.calibration.calibrate.check_shape`; every table passes
+:func:`grassd.daemon.calibration.calibrate.check_table` (monotone, within 0..green_max, and no entry
+jumps more than ``max_jump_mm`` from the same controller's previous table, or from the previous
 display-wide table when the shapes differ, unless forced). Then the closed loop, up to
 ``max_rounds`` rounds as in the global run (:func:`closed_loop_check`): every pixel group's
 representative (a group whose members two tables drive is checked once per table,
@@ -61,21 +62,21 @@ from numpy.typing import NDArray
 from grassd.calib.ccm import ColourCorrection
 from grassd.calib.characteristic import Characteristic, FittedCharacteristic, fit_characteristic
 from grassd.calib.length_table import LEVELS, build_length_table, r_squared
-from grassd.daemon.audience import (
+from grassd.daemon.calibration.audience import (
     centre_pixel,
     evaluate_table,
     region_from_config,
     region_table,
     simulate_region,
 )
-from grassd.daemon.calibrate import (
+from grassd.daemon.calibration.calibrate import (
     _finite_or_none,
     check_levels,
     check_shape,
     check_table,
     pooled_characteristic,
 )
-from grassd.daemon.display import (
+from grassd.daemon.calibration.display import (
     capacity_for,
     combine_viewpoints,
     controller_pixels,
@@ -87,12 +88,12 @@ from grassd.daemon.display import (
     simulate_display,
     table_deviation,
 )
+from grassd.daemon.calibration.simulation import simulate_curve
 from grassd.daemon.errors import CalibrationRejected, RunInterrupted
-from grassd.daemon.simulation import simulate_curve
 from grassd.firmware_proto.tables import as_table_array, table_crc
 
 if TYPE_CHECKING:
-    from grassd.daemon.calibrate import Calibrator, LightInput
+    from grassd.daemon.calibration.calibrate import Calibrator, LightInput
 
 Progress = Callable[[str], None]
 log = logging.getLogger(__name__)
@@ -367,11 +368,12 @@ def _merge_grouping(sims: Sequence[Any]) -> dict | None:
 
 @dataclass(frozen=True, eq=False)
 class Viewers:
-    """Who looks at the display in a run: one :class:`grassd.daemon.display.PixelGeometry` per
-    viewer (a [[viewpoints]] entry or a sampled eye) with its ``weights``, and the pixel groups
-    over all viewers (``labels`` (N,), ``representatives`` (G,): members of a group are seen
-    alike by every viewer), for the closed-loop check; from [[viewpoints]] also every group's
-    viewer-weighted characteristic (``group_characteristics``, G), for :func:`refine_unit`."""
+    """Who looks at the display in a run: one
+    :class:`grassd.daemon.calibration.display.PixelGeometry` per viewer (a [[viewpoints]] entry or a
+    sampled eye) with its ``weights``, and the pixel groups over all viewers (``labels`` (N,),
+    ``representatives`` (G,): members of a group are seen alike by every viewer), for the
+    closed-loop check; from [[viewpoints]] also every group's viewer-weighted characteristic
+    (``group_characteristics``, G), for :func:`refine_unit`."""
 
     geometries: list[Any]
     weights: NDArray[np.float64]
@@ -527,8 +529,8 @@ def refine_unit(u: UnitTable, loops: Sequence[LoopCheck],
     """``u`` with its table rebuilt from its characteristic plus the points of every
     closed-loop round in ``loops`` (its table's lengths at the check levels [mm] and its pixels'
     mean loop OGCD [dE00], weighted by pixel count), as the global run refines its table
-    (:meth:`grassd.daemon.calibrate.Calibrator.run`). The errors are re-measured on the unit's
-    pixels' own characteristics (``group_characteristics``, one per loop group); R^2 and the
+    (:meth:`grassd.daemon.calibration.calibrate.Calibrator.run`). The errors are re-measured on the
+    unit's pixels' own characteristics (``group_characteristics``, one per loop group); R^2 and the
     OGCD range on the refined fit."""
     groups, counts = np.unique(loops[0].labels[u.pixels], return_counts=True)
     w = counts / counts.sum()

@@ -12,7 +12,8 @@ service's job, :mod:`grassd.daemon.runtime.service`):
 3. **Exposure**: renders are in nits; they are divided by the radiance of a perfect diffuse white
    lying flat at the display (horizontal irradiance / pi), so Y = 1 is reference white as CIELAB
    expects and an 18 % grey card reads 0.18 (the convention of ``grassd simulate``:
-   :func:`grassd.daemon.simulation.simulate_curve` does the rendering and OGCD here too).
+   :func:`grassd.daemon.calibration.simulation.simulate_curve` does the rendering and OGCD here
+   too).
 4. **Colour correction** (paper, section 5.2): with a colour-checker RAW in the bundle, the
    virtual patches are the chart's reference reflectances lit by the same horizontal
    irradiance (a flat chart at the display), the real ones the developed RAW's patches; both are
@@ -54,12 +55,12 @@ from grassd.calib.colour_spaces import luminance
 from grassd.calib.exposure import normalise_exposure
 from grassd.calib.length_table import LEVELS, LengthTable, build_length_table, r_squared
 from grassd.calib.raw import develop_raw
+from grassd.daemon.calibration.simulation import simulate_curve, white_radiance
 from grassd.daemon.config.settings import Config, ViewpointConfig
 from grassd.daemon.errors import CalibrationRejected, RunInterrupted
-from grassd.daemon.simulation import simulate_curve, white_radiance
 
 if TYPE_CHECKING:
-    from grassd.daemon.calibrate_display import DisplayCalibrationResult
+    from grassd.daemon.calibration.calibrate_display import DisplayCalibrationResult
 
 log = logging.getLogger(__name__)
 
@@ -353,8 +354,9 @@ class Calibrator:
 
     def display(self) -> tuple[Any, int]:
         """(DisplaySpec of an up-to-3x3 patch of the display, with the ``[tables] layout`` of
-        :func:`grassd.daemon.display.display_spec_for_config`; index of its centre pixel)."""
-        from grassd.daemon.display import display_spec_for_config  # noqa: PLC0415
+        :func:`grassd.daemon.calibration.display.display_spec_for_config`; index of its centre
+        pixel)."""
+        from grassd.daemon.calibration.display import display_spec_for_config  # noqa: PLC0415
 
         d = self.cfg.display
         rows, cols = min(d.rows, 3), min(d.cols, 3)
@@ -363,7 +365,8 @@ class Calibrator:
 
     def white_radiance(self, lighting: Any) -> NDArray[np.float64]:
         """Rec.709 radiance (nits) of a perfect diffuse white lying flat at the display (the
-        white reference shared with ``grassd simulate``, :mod:`grassd.daemon.simulation`)."""
+        white reference shared with ``grassd simulate``,
+        :mod:`grassd.daemon.calibration.simulation`)."""
         return white_radiance(lighting)
 
     def fit_checker_ccm(self, light: LightInput) -> ColourCorrection:
@@ -419,7 +422,7 @@ class Calibrator:
     def per_display(self) -> bool:
         """True when the config asks for more than the one global table from [[viewpoints]]:
         ``[tables] granularity`` "controller"/"pixel", or an ``[audience]`` region. Such runs
-        go through :func:`grassd.daemon.calibrate_display.calibrate_display`."""
+        go through :func:`grassd.daemon.calibration.calibrate_display.calibrate_display`."""
         return self.cfg.tables.granularity != "global" or self.cfg.audience is not None
 
     def light_and_ccm(self, light: LightInput, previous_ccm: NDArray | None,
@@ -451,11 +454,12 @@ class Calibrator:
         and :class:`RunInterrupted` when ``stop`` is set.
 
         Returns a :class:`CalibrationResult` (one global table from [[viewpoints]]) or, when
-        :attr:`per_display`, a :class:`grassd.daemon.calibrate_display.DisplayCalibrationResult`
-        (a table per controller / per pixel, or from the audience region; ``previous_tables``
-        are the last run's tables by controller name, for the jump check)."""
+        :attr:`per_display`, a
+        :class:`grassd.daemon.calibration.calibrate_display.DisplayCalibrationResult` (a table per
+        controller / per pixel, or from the audience region; ``previous_tables`` are the last run's
+        tables by controller name, for the jump check)."""
         if self.per_display:
-            from grassd.daemon.calibrate_display import calibrate_display  # noqa: PLC0415
+            from grassd.daemon.calibration.calibrate_display import calibrate_display  # noqa: PLC0415
 
             return calibrate_display(self, light, previous_um=previous_um,
                                      previous_tables=previous_tables,
