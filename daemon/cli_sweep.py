@@ -1,6 +1,6 @@
 """``grassd sweep``: characteristics over HDRIs x times of day x viewpoints x pixel specs.
 
-Runs :func:`grassd.daemon.sweep.run_sweep` on local worker processes (default) or on a Dask
+Runs :func:`grassd.daemon.offline.sweep.run_sweep` on local worker processes (default) or on a Dask
 cluster (``--scheduler tcp://HOST:8786``); writes ``OUT/sweep.sqlite`` (tidy table ``results``),
 ``OUT/summary.json`` and ``OUT/summary.png``. Running the same command again resumes: tasks
 already in the database are skipped.
@@ -77,7 +77,7 @@ def sweep(hdris, times, date, latitude, longitude, timezone, lux, night_lux, vie
           display, lengths, samples, replicates, target_stderr, bounces, light_samples, seed,
           out_dir, workers, scheduler, retries, restart, contrast_threshold):
     """Run characteristics over many conditions; one tidy SQLite table plus summary plots."""
-    from grassd.daemon.sweep import (
+    from grassd.daemon.offline.sweep import (
         SweepSpec,
         conditions,
         parse_pixel_option,

@@ -14,7 +14,7 @@ from grassd.daemon.store.atomic import atomic_write_text
 
 
 def _renderer(arch: str):
-    from grassd.daemon.validate import default_renderer  # noqa: PLC0415
+    from grassd.daemon.offline.validate import default_renderer  # noqa: PLC0415
 
     return default_renderer(arch)
 
@@ -45,7 +45,7 @@ def validate(capture, samples, replicates, target_stderr, seed, arch, json_out, 
     occurs, both OGCD ranges, and the 8-bit calibration R^2 before and after calibrating with
     the real and with the simulated characteristic (paper Figure 11).
     """
-    from grassd.daemon.validate import load_manifest, validate_capture  # noqa: PLC0415
+    from grassd.daemon.offline.validate import load_manifest, validate_capture  # noqa: PLC0415
     from grassd.sim.scene import RenderSettings  # noqa: PLC0415
 
     manifest = load_manifest(capture)
@@ -53,7 +53,7 @@ def validate(capture, samples, replicates, target_stderr, seed, arch, json_out, 
     result = validate_capture(manifest, settings=settings, arch=arch,
                               target_stderr=target_stderr,
                               progress=None if quiet else _progress)
-    from grassd.daemon.experiment import format_table  # noqa: PLC0415
+    from grassd.daemon.offline.experiment import format_table  # noqa: PLC0415
 
     rows = []
     for v in result.viewpoints:
@@ -75,7 +75,7 @@ def validate(capture, samples, replicates, target_stderr, seed, arch, json_out, 
         atomic_write_text(json_out, json.dumps(result.to_json(), indent=1))
         click.echo(f"wrote {json_out}")
     if html_out:
-        from grassd.daemon.report import validation_html  # noqa: PLC0415
+        from grassd.daemon.offline.report import validation_html  # noqa: PLC0415
 
         atomic_write_text(html_out, validation_html(result))
         click.echo(f"wrote {html_out}")
@@ -107,7 +107,7 @@ def paper_cmd(out_dir, hdri_dir, quick, envs, samples, replicates, trials, arch,
     """16 viewpoints x 5 environments as in the paper; prints its tables with timings."""
     from dataclasses import replace  # noqa: PLC0415
 
-    from grassd.daemon.experiment import (  # noqa: PLC0415
+    from grassd.daemon.offline.experiment import (  # noqa: PLC0415
         ExperimentSettings,
         experiment_html,
         run_paper,
@@ -153,8 +153,8 @@ def virtual_capture_cmd(out_dir, hdri, lux, views, lengths, splay, width, spp, r
     """Photograph a simulated pixel with the virtual camera into OUT_DIR (DNGs + capture.toml)
     for ``grassd validate``."""
     from grassd.calib.virtual_camera import VirtualCamera  # noqa: PLC0415
-    from grassd.daemon.validate import LightSpec  # noqa: PLC0415
-    from grassd.daemon.virtual_camera import capture_world  # noqa: PLC0415
+    from grassd.daemon.offline.validate import LightSpec  # noqa: PLC0415
+    from grassd.daemon.offline.virtual_capture import capture_world  # noqa: PLC0415
     from grassd.sim.scene import PixelSpec, Viewpoint, parse_lengths  # noqa: PLC0415
 
     vps = [Viewpoint.parse(v) for v in views]

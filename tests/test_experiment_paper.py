@@ -11,7 +11,7 @@ import pytest
 from click.testing import CliRunner
 
 from grassd.daemon.cli import main
-from grassd.daemon.experiment import ENVIRONMENTS, PAPER, VIEWPOINTS
+from grassd.daemon.offline.experiment import ENVIRONMENTS, PAPER, VIEWPOINTS
 
 
 @pytest.fixture(scope="module")

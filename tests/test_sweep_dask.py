@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from grassd.daemon.sweep import SweepError, SweepSpec, conditions, read_results, run_sweep
+from grassd.daemon.offline.sweep import SweepError, SweepSpec, conditions, read_results, run_sweep
 
 pytest.importorskip("distributed")
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from grassd.daemon.sweep import (
+from grassd.daemon.offline.sweep import (
     Condition,
     SweepError,
     SweepSpec,

@@ -23,8 +23,8 @@ from grassd.calib.delta_e import delta_e_cie2000
 from grassd.calib.errors import DngWriteError
 from grassd.calib.raw import develop_raw
 from grassd.calib.virtual_camera import CANON_5D2_XYZ_TO_CAMERA, VirtualCamera
-from grassd.daemon.validate import checker_white_balance
-from grassd.daemon.virtual_camera import checker_scene
+from grassd.daemon.offline.validate import checker_white_balance
+from grassd.daemon.offline.virtual_capture import checker_scene
 
 CHART = get_chart("spydercheckr-24")
 #: The checker's reference colours (two SpyderCheckr patches lie outside Rec.709: the scene

@@ -10,7 +10,7 @@ from click.testing import CliRunner
 from grassd.calib.charts import get_chart
 from grassd.calib.virtual_camera import VirtualCamera
 from grassd.daemon.cli import main
-from grassd.daemon.validate import (
+from grassd.daemon.offline.validate import (
     CaptureManifest,
     CaptureManifestError,
     CornersOutsideImageError,
@@ -24,7 +24,7 @@ from grassd.daemon.validate import (
     manifest_to_toml,
     measure_real,
 )
-from grassd.daemon.virtual_camera import checker_scene
+from grassd.daemon.offline.virtual_capture import checker_scene
 from grassd.sim.hdri import write_exr
 
 QUAD = ((10.0, 12.0), (54.0, 12.0), (56.0, 50.0), (8.0, 50.0))

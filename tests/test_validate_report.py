@@ -16,9 +16,9 @@ from html.parser import HTMLParser
 import numpy as np
 import pytest
 
-from grassd.daemon.report import REAL_COLOUR, SIM_COLOUR, validation_html
-from grassd.daemon.validate import LightSpec, load_manifest, validate_capture
-from grassd.daemon.virtual_camera import capture_world
+from grassd.daemon.offline.report import REAL_COLOUR, SIM_COLOUR, validation_html
+from grassd.daemon.offline.validate import LightSpec, load_manifest, validate_capture
+from grassd.daemon.offline.virtual_capture import capture_world
 
 CHROMIUM = next((p for p in ("/usr/bin/chromium", shutil.which("chromium"),
                              shutil.which("chromium-browser"))
@@ -90,7 +90,7 @@ def test_html_is_self_contained_and_pngs_decode_at_stated_sizes(report):
     assert _has_colour(curves, SIM_COLOUR) and _has_colour(grid, SIM_COLOUR)
     # the swatches show the measured grass colours: yellow-green at 0 mm, green at 20 mm
     ref = res.reference
-    from grassd.daemon.report import lab_to_srgb
+    from grassd.daemon.offline.report import lab_to_srgb
 
     for lab in (ref.real_lab[0], ref.real_lab[-1], ref.sim_lab[-1]):
         assert _has_colour(swatches, "#" + "".join(f"{round(255 * c):02x}"

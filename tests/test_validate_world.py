@@ -14,14 +14,14 @@ from grassd.calib.delta_e import delta_e_cie2000
 from grassd.calib.ogcd import ogcd_from_samples
 from grassd.calib.virtual_camera import VirtualCamera
 from grassd.daemon.calibration.simulation import white_radiance
-from grassd.daemon.validate import (
+from grassd.daemon.offline.validate import (
     LightSpec,
     load_manifest,
     max_error_at,
     validate_capture,
     virtual_checker,
 )
-from grassd.daemon.virtual_camera import capture_world
+from grassd.daemon.offline.virtual_capture import capture_world
 
 LENGTHS = np.arange(0.0, 20.1, 4.0)
 PHOTO = {"width": 128, "spp": 16}

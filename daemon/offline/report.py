@@ -235,7 +235,8 @@ def validation_sections(viewpoints: Sequence[Any], *, grid: bool = True) -> list
 
 
 def validation_html(result: Any) -> str:
-    """The ``grassd validate`` HTML report of a :class:`grassd.daemon.validate.ValidationResult`."""
+    """The ``grassd validate`` HTML report of a
+    :class:`grassd.daemon.offline.validate.ValidationResult`."""
     r = result
     cam = r.real.camera
     info = table(["item", "value"], [

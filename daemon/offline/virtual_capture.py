@@ -25,8 +25,7 @@ from grassd.calib.charts import CHART_GRID, ReferenceChart, get_chart
 from grassd.calib.colour_spaces import prophoto_to_rec709
 from grassd.calib.regions import apply_homography, homography
 from grassd.calib.virtual_camera import VirtualCamera
-from grassd.daemon.store.atomic import atomic_write_text
-from grassd.daemon.validate import (
+from grassd.daemon.offline.validate import (
     MANIFEST_NAME,
     CaptureManifest,
     LightSpec,
@@ -35,6 +34,7 @@ from grassd.daemon.validate import (
     default_renderer,
     manifest_to_toml,
 )
+from grassd.daemon.store.atomic import atomic_write_text
 
 #: Where the chart's patch area lies in the checker photo, as fractions of (width, height):
 #: top-left, top-right, bottom-right, bottom-left (slightly in perspective).

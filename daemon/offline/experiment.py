@@ -14,7 +14,7 @@ No real capture ships with the project, so the "real" side is a stand-in: a worl
 from the simulation model where the paper says reality differed (green blades that splay as
 they grow, :data:`REAL_SPLAY_DEG`; paper section 4.1.3) and whose blades lie elsewhere
 (:data:`REAL_LAYOUT_SEED`; in each repeated trial elsewhere again), photographed by the virtual
-camera (:mod:`grassd.daemon.virtual_camera`) and measured by ``grassd validate``'s
+camera (:mod:`grassd.daemon.offline.virtual_capture`) and measured by ``grassd validate``'s
 real-capture path. Our numbers therefore measure the whole pipeline against a known, physically
 rendered truth; the paper's numbers (:data:`PAPER`) are printed beside them where the paper
 states them.
@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from grassd.daemon.validate import (
+from grassd.daemon.offline.validate import (
     LightSpec,
     MissingPhotoError,
     ValidateError,
@@ -110,7 +110,7 @@ PAPER: dict[str, Any] = {
 
 def default_hdri_dir() -> Path:
     """``shared/hdri`` beside the repository (``<repo>/../shared/hdri``)."""
-    return Path(__file__).resolve().parents[1].parent / "shared" / "hdri"
+    return Path(__file__).resolve().parents[2].parent / "shared" / "hdri"
 
 
 @dataclass(frozen=True)
@@ -175,7 +175,7 @@ def run_paper(out_dir: str | Path, *, settings: ExperimentSettings | None = None
               hdri_dir: str | Path | None = None, renderer: Any = None,
               progress: Callable[[str], None] | None = None) -> ExperimentResult:
     """Run the paper's experiments; capture directories go under ``out_dir``."""
-    from grassd.daemon.virtual_camera import capture_world  # noqa: PLC0415
+    from grassd.daemon.offline.virtual_capture import capture_world  # noqa: PLC0415
     from grassd.sim.scene import PixelSpec, RenderSettings  # noqa: PLC0415
 
     st = settings or ExperimentSettings()
@@ -350,7 +350,7 @@ def text_report(result: ExperimentResult) -> str:
 
 def experiment_html(result: ExperimentResult) -> str:
     """Self-contained HTML report: our numbers beside the paper's, with the paper's plots."""
-    from grassd.daemon import report  # noqa: PLC0415
+    from grassd.daemon.offline import report  # noqa: PLC0415
 
     st = result.settings
     intro = (
