@@ -9,8 +9,8 @@ import re
 import pytest
 from click.testing import CliRunner
 
-from grassd.daemon.cli import main
-from grassd.daemon.cli_demo import example_pixel_rgb, green_coverage
+from grassd.daemon.cli.demo import example_pixel_rgb, green_coverage
+from grassd.daemon.cli.main import main
 
 CALIB_MODULES = [
     "colour_spaces", "delta_e", "exposure", "ccm", "regions", "ogcd", "length_table", "compare",

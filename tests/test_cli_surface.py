@@ -80,7 +80,7 @@ def _check_text(name: str, text: str) -> None:
 def test_every_help_text_is_unchanged():
     """``grassd [SUB ...] --help`` of every command and sub-command (as a terminal of 80 or
     more columns shows it: 78 wide), and ``--version``."""
-    from grassd.daemon.cli import main
+    from grassd.daemon.cli.main import main
 
     paths = _commands(main)
     assert len(paths) > 15, paths  # the walk found the sub-commands

@@ -251,7 +251,7 @@ def test_settings_the_daemon_does_not_act_on_are_reported(tmp_path):
     check-config instead of being silently ignored."""
     from click.testing import CliRunner
 
-    from grassd.daemon.cli import main
+    from grassd.daemon.cli.main import main
     from grassd.daemon.config.settings import default_config_text
 
     path = tmp_path / "grassd.toml"

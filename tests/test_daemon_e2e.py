@@ -379,7 +379,7 @@ def test_one_shot_calibrate_without_daemon(tmp_path):
 
 def test_demo_runs_the_whole_daemon(tmp_path, monkeypatch):
     """`make demo`'s daemon part: embedded default config on simulated hardware."""
-    from grassd.daemon.demo_daemon import run_demo
+    from grassd.daemon.cli.demo_daemon import run_demo
 
     monkeypatch.setenv("GRASSD_CACHE_DIR", CACHE)
     lines: list[str] = []

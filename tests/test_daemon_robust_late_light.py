@@ -15,7 +15,7 @@ import sqlite3
 from click.testing import CliRunner
 from robust_util import drop, journal_entry, reported, service, write_config
 
-from grassd.daemon.cli import main as cli
+from grassd.daemon.cli.main import main as cli
 from grassd.daemon.runtime.service import STATE_DB, collect_status
 
 NOON = "2026-03-01T12:00:00+01:00"  # 11:00 UTC

@@ -10,7 +10,7 @@ import math
 import pytest
 from click.testing import CliRunner
 
-from grassd.daemon.cli import main
+from grassd.daemon.cli.main import main
 from grassd.daemon.offline.experiment import ENVIRONMENTS, PAPER, VIEWPOINTS
 
 

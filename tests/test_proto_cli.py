@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from grassd.daemon.cli import main
-from grassd.daemon.cli_controllers import parse_addresses
+from grassd.daemon.cli.controllers import parse_addresses
+from grassd.daemon.cli.main import main
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.firmware import Controller, ControllerConfig
 from grassd.firmware_proto.simulator import SimulatedBus, make_controllers
@@ -92,7 +92,7 @@ def test_parse_addresses():
 def test_sim_command_serves_ptys_until_interrupted(tmp_path):
     """``grassd controllers sim`` in its own process: print ports, serve them, stop on Ctrl-C."""
     proc = subprocess.Popen(
-        [sys.executable, "-c", "from grassd.daemon.cli import main; main()", "controllers",
+        [sys.executable, "-c", "from grassd.daemon.cli.main import main; main()", "controllers",
          "sim", "--pty", "--count", "2", "--separate", "--pixels", "2",
          "--state-dir", str(tmp_path / "sim")],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from grassd.daemon.cli import main
+from grassd.daemon.cli.main import main
 
 GRASSD = str(Path(sys.executable).parent / "grassd")
 

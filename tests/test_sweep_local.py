@@ -171,7 +171,7 @@ def test_summary_flags_low_contrast():
 
 
 def test_cli_runs_resumes_and_reports(sky, tmp_path):
-    from grassd.daemon.cli import main
+    from grassd.daemon.cli.main import main
 
     args = ["sweep", "--hdri", sky, "--view", "170,2,0", "--view", "170,2,75", "--lengths",
             "0:20:10", "--samples", "256", "--replicates", "4", "--lux", "15000",

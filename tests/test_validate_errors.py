@@ -9,7 +9,7 @@ from click.testing import CliRunner
 
 from grassd.calib.charts import get_chart
 from grassd.calib.virtual_camera import VirtualCamera
-from grassd.daemon.cli import main
+from grassd.daemon.cli.main import main
 from grassd.daemon.offline.validate import (
     CaptureManifest,
     CaptureManifestError,

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from grassd.daemon.cli_options import REPLICATES
+from grassd.daemon.cli.options import REPLICATES
 from grassd.daemon.store.atomic import atomic_write_text
 
 

@@ -102,7 +102,7 @@ def demo(
     synthetic characteristic, printing the 8-bit table.
     """
     if not example_curve:
-        from grassd.daemon.demo_daemon import run_demo
+        from grassd.daemon.cli.demo_daemon import run_demo
 
         run_demo(workdir, echo=click.echo)
         return
@@ -122,7 +122,7 @@ def demo(
 
     y_grey = float((rgb_n @ M_REC709_TO_XYZ[1])[0])
     click.echo(
-        "grassd demo: built-in example characteristic (synthetic, see grassd.daemon.cli_demo)"
+        "grassd demo: built-in example characteristic (synthetic, see grassd.daemon.cli.demo)"
     )
     click.echo(
         f"  yellow sRGB {YELLOW_SRGB8}, green sRGB {GREEN_SRGB8}, "

@@ -135,7 +135,9 @@ def _fmt_time(t: float | None) -> str:
     return _dt.datetime.fromtimestamp(t).strftime("%Y-%m-%d %H:%M:%S")
 
 
-def _print_status(st: dict, echo=click.echo) -> None:
+def print_status(st: dict, echo=click.echo) -> None:
+    """Print a status dict (:func:`grassd.daemon.runtime.service.collect_status` or the control
+    socket's answer) as ``grassd status`` shows it, one line at a time through ``echo``."""
     echo(f"daemon: {'running, pid ' + str(st['pid']) if st.get('running') else 'not running'}"
                + (f" ({st['activity']})" if st.get("activity") else ""))
     echo(f"health: {st['health']}")
@@ -202,7 +204,7 @@ def status_cmd(config_path: str | None, state_dir: str | None, as_json: bool) ->
     if as_json:
         click.echo(json.dumps(st, indent=2, default=str))
     else:
-        _print_status(st)
+        print_status(st)
 
 
 @click.command("history")

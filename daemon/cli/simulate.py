@@ -15,7 +15,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from grassd.daemon.cli_options import REPLICATES
+from grassd.daemon.cli.options import REPLICATES
 from grassd.daemon.store.atomic import atomic_save_figure, atomic_write_bytes, atomic_write_text
 
 

@@ -22,6 +22,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from grassd.daemon.cli.run import print_status
 from grassd.daemon.errors import ControlError, DaemonError, DaemonNotRunning
 from grassd.daemon.runtime.control import request
 
@@ -87,9 +88,7 @@ def run_demo(workdir: str | os.PathLike[str] | None = None, *, lux: float = 5000
 
         st = wait(pushed, "calibrating and pushing")
         echo(f"table active on all controllers after {time.monotonic() - t0:.1f} s")
-        from grassd.daemon.cli_run import _print_status  # noqa: PLC0415 - CLI formatting
-
-        _print_status(st, echo)
+        print_status(st, echo)
         run = st["runs"][0]
         for line in (f"report: {run['report']}", f"plot:   {run['plot']}", f"log:    {log}"):
             echo(line)
@@ -107,7 +106,7 @@ def run_demo(workdir: str | os.PathLike[str] | None = None, *, lux: float = 5000
 
 
 def main() -> None:
-    """Command-line entry: ``python -m grassd.daemon.demo_daemon [WORKDIR]``."""
+    """Command-line entry: ``python -m grassd.daemon.cli.demo_daemon [WORKDIR]``."""
     try:
         run_demo(sys.argv[1] if len(sys.argv) > 1 else None)
     except (DaemonError, ControlError) as exc:

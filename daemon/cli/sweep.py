@@ -13,7 +13,7 @@ import sys
 
 import click
 
-from grassd.daemon.cli_options import REPLICATES
+from grassd.daemon.cli.options import REPLICATES
 
 
 def _views(_ctx, _param, values):
