@@ -23,7 +23,7 @@ from typing import Any
 import click
 import pytest
 from click.testing import CliRunner
-from robust_util import HEAD, SITE
+from daemon_harness import HEAD, SITE
 
 GOLDEN = Path(__file__).resolve().parent / "data" / "cli_surface"
 UPDATE = os.environ.get("GRASSD_UPDATE_GOLDEN") == "1"

@@ -1,7 +1,8 @@
 """The ``grassd`` command line (click).
 
 Sub-commands live in the other modules of this package (``daemon/cli/*.py``) and are added to
-:func:`main` below. User errors (bad input, bad config, unreachable hardware) print one line and exit with code 2.
+:func:`main` below. User errors (bad input, bad config, unreachable hardware) print one line and
+exit with code 2.
 """
 
 from __future__ import annotations

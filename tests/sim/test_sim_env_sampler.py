@@ -13,7 +13,7 @@ from grassd.sim import env_sampler as E
 from grassd.sim import hdri
 from grassd.sim import lighting as L
 
-HDRI_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "hdri"
+HDRI_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "hdri"
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 

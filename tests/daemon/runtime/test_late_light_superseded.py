@@ -13,7 +13,7 @@ import logging
 import sqlite3
 
 from click.testing import CliRunner
-from robust_util import drop, journal_entry, reported, service, write_config
+from daemon_harness import drop, journal_entry, reported, service, write_config
 
 from grassd.daemon.cli.main import main as cli
 from grassd.daemon.runtime.service import STATE_DB, collect_status

@@ -1,4 +1,5 @@
-"""Regression tests of the daemon's release review: each test failed before its fix.
+"""The service under faults: a full or unwritable state disk, an unreadable inbox, failing
+rejections and reads, a controller whose pixel count changed, status asked while bundles wait.
 
 Real parts only: simulated controllers on ptys (SimulatedHardware), the real renderer at tiny
 sample counts, a real tmpfs that fills up (when the tests run as root and may mount).
@@ -17,9 +18,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from robust_util import drop as rdrop
-from robust_util import service, write_config
-from test_daemon_granularity import BASE, POLICY, drop
+from daemon_harness import DISPLAY_2X2 as BASE
+from daemon_harness import POLICY, full, service, tmpfs, write_config
+from daemon_harness import drop as rdrop
+from daemon_harness import drop_midsummer as drop
 
 from grassd.daemon.calibration.calibrate import init_backend
 from grassd.daemon.config.settings import parse_config
@@ -96,38 +98,6 @@ def test_reconcile_after_a_pixel_count_change_pushes_the_display_wide_table(resi
     assert st["health"] == "ok", st["controllers"]
 
 # --------------------------------------------------------------------------- a full state disk
-
-
-@contextlib.contextmanager
-def tmpfs(d: Path, size: str = "16m"):
-    """A real tmpfs mounted at ``d`` (skips unless we may mount)."""
-    d.mkdir(parents=True, exist_ok=True)
-    if os.geteuid() != 0 or subprocess.run(
-            ["mount", "-t", "tmpfs", "-o", f"size={size},mode=0755", "tmpfs", str(d)],
-            capture_output=True).returncode != 0:
-        pytest.skip("needs root and mount(8) to fill a real file system")
-    try:
-        yield d
-    finally:
-        subprocess.run(["umount", "-l", str(d)], check=True)
-
-
-@contextlib.contextmanager
-def full(d: Path):
-    """Fill the file system of ``d`` to its last block; free it again on exit."""
-    filler = d / "filler"
-    with contextlib.suppress(OSError), open(filler, "wb") as fh:
-        while True:
-            fh.write(b"\0" * 65536)
-            fh.flush()
-    with contextlib.suppress(OSError), open(filler, "ab") as fh:  # the last partial block
-        while True:
-            fh.write(b"\0" * 512)
-            fh.flush()
-    try:
-        yield
-    finally:
-        filler.unlink()
 
 
 def test_claimed_bundles_survive_a_full_state_disk(tmp_path, hw):

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from datetime import datetime
 
-from robust_util import drop, journal_entry, reported, service, tick_until, write_config
+from daemon_harness import drop, journal_entry, reported, service, tick_until, write_config
 
 from grassd.daemon.hardware.simulated import SimLuxSensor
 

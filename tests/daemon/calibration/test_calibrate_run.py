@@ -7,7 +7,7 @@ from datetime import UTC, datetime
 
 import numpy as np
 import pytest
-from robust_util import HEAD, SITE
+from daemon_harness import HEAD, SITE
 
 from grassd.calib.charts import get_chart
 from grassd.calib.colour_spaces import prophoto_to_xyz, xyz_d50_to_d65

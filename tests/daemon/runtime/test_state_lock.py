@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 import pytest
-from robust_util import SITE, write_config
+from daemon_harness import SITE, write_config
 
 from grassd.daemon.config.settings import load_config
 from grassd.daemon.errors import ControlError, StateDirLocked

@@ -12,55 +12,22 @@ of one eye gives the tables of the equivalent viewpoint; Fleet.push takes a name
 from __future__ import annotations
 
 import json
-import os
-import shutil
 import time
 from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 import pytest
-from robust_util import HEAD, SITE
+from daemon_harness import DISPLAY_2X2 as BASE
+from daemon_harness import POLICY, SITE
+from daemon_harness import drop_midsummer as drop
 
 from grassd.daemon.calibration.calibrate import Calibrator, LightInput, init_backend
 from grassd.daemon.config.settings import not_used_by_the_daemon, parse_config
 from grassd.daemon.hardware.fleet import Fleet, table_checksum
 from grassd.daemon.hardware.simulated import SimulatedHardware
 from grassd.daemon.runtime.service import Service, collect_status
-from grassd.firmware_proto.client import RetryPolicy
 
-POLICY = RetryPolicy(timeout_s=0.1, retries=1, restarts=1, readback_retries=2)
-
-BASE = HEAD + """[display]
-rows = 2
-cols = 2
-[[controllers]]
-port = "/dev/grassd-test-bus0"
-address = 1
-pixels = "0-1"
-[[controllers]]
-port = "/dev/grassd-test-bus1"
-address = 2
-pixels = "2-3"
-[[viewpoints]]
-h_cm = 170
-d_m = 2
-[light]
-inbox = "inbox"
-lux = "manifest"
-settle_s = 0
-[schedule]
-interval_s = 0
-[simulation]
-samples = 256
-seed = 3
-lengths = 5
-[calibration]
-replicates = 4
-max_jump_mm = 20.0
-check_levels = 5
-max_rounds = 1
-"""
 AUDIENCE = """
 [audience]
 polygon = [[{x0}, {y0}], [{x1}, {y0}], [{x1}, {y1}], [{x0}, {y1}]]
@@ -72,15 +39,6 @@ height_samples = 1
 
 def config(tmp_path: Path, extra: str):
     return parse_config(BASE + extra, base_dir=tmp_path)
-
-
-def drop(inbox: Path, name: str, lux: float = 8000.0) -> None:
-    d = inbox / f".{name}"
-    d.mkdir(parents=True)
-    shutil.copy(SITE, d / "sky.exr")
-    (d / "manifest.toml").write_text(
-        f'timestamp = 2026-06-21T12:00:00+02:00\nhdri = "sky.exr"\nambient_lux = {lux}\n')
-    os.rename(d, inbox / name)
 
 
 @pytest.fixture

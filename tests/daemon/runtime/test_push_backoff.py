@@ -12,7 +12,7 @@ import logging
 import math
 import time
 
-from robust_util import after_first_bundle
+from daemon_harness import after_first_bundle
 
 from grassd.firmware_proto.faults import FaultInjector, FaultPlan
 

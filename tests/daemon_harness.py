@@ -1,15 +1,20 @@
-"""Shared set-up of the daemon tests (tests/test_daemon_*.py): a small real configuration
-against simulated controllers on ptys and a pymodbus lux sensor (the ``hw`` fixture in
-conftest.py), bundles written like an uploader does, an in-process service."""
+"""The daemon tests' harness (tests/daemon/): a small real configuration against simulated
+controllers on ptys and a pymodbus lux sensor (the ``hw`` fixture in conftest.py), a 2 x 2
+display on two controllers, bundles written like an uploader does, an in-process service, and a
+real tmpfs to fill up."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
+import subprocess
 import time
 from importlib import resources
 from pathlib import Path
 from typing import Any
+
+import pytest
 
 from grassd.daemon.config.settings import load_config
 from grassd.daemon.hardware.simulated import hardware_toml
@@ -28,6 +33,43 @@ cache_dir = "{CACHE}"
 latitude = 48.1
 longitude = 11.6
 timezone = "Europe/Berlin"
+"""
+
+
+#: short controller timeouts for tests (the simulated controllers answer at once)
+POLICY = RetryPolicy(timeout_s=0.1, retries=1, restarts=1, readback_retries=2)
+
+#: a 2 x 2 display driven by two controllers (one bus each, pixels 0-1 and 2-3), one viewpoint,
+#: lux from the manifest, low sample counts (seed 3), one closed-loop round
+DISPLAY_2X2 = HEAD + """[display]
+rows = 2
+cols = 2
+[[controllers]]
+port = "/dev/grassd-test-bus0"
+address = 1
+pixels = "0-1"
+[[controllers]]
+port = "/dev/grassd-test-bus1"
+address = 2
+pixels = "2-3"
+[[viewpoints]]
+h_cm = 170
+d_m = 2
+[light]
+inbox = "inbox"
+lux = "manifest"
+settle_s = 0
+[schedule]
+interval_s = 0
+[simulation]
+samples = 256
+seed = 3
+lengths = 5
+[calibration]
+replicates = 4
+max_jump_mm = 20.0
+check_levels = 5
+max_rounds = 1
 """
 
 
@@ -87,6 +129,17 @@ def drop(inbox: Path, name: str, lux: float | None = 1000.0, mode: int | None = 
     return inbox / name
 
 
+def drop_midsummer(inbox: Path, name: str, lux: float = 8000.0) -> None:
+    """Write a directory bundle of the site HDRI at noon on 21 June 2026 with ``lux`` (lux) in
+    its manifest, as an uploader does (hidden name, then rename)."""
+    d = inbox / f".{name}"
+    d.mkdir(parents=True)
+    shutil.copy(SITE, d / "sky.exr")
+    (d / "manifest.toml").write_text(
+        f'timestamp = 2026-06-21T12:00:00+02:00\nhdri = "sky.exr"\nambient_lux = {lux}\n')
+    os.rename(d, inbox / name)
+
+
 def journal_entry(svc: Service, name: str):
     """The one ingest journal row of the bundle uploaded as ``name``."""
     [j] = [j for j in svc.history.journal() if j.name == name]
@@ -114,8 +167,7 @@ def service(path: Path, **kw) -> Service:
     """An in-process daemon for config file ``path`` (Taichi initialised, short timeouts)."""
     from grassd.daemon.calibration.calibrate import init_backend
 
-    policy = RetryPolicy(timeout_s=0.1, retries=1, restarts=1, readback_retries=2)
-    svc = Service(load_config(path), config_path=path, policy=policy, **kw)
+    svc = Service(load_config(path), config_path=path, policy=POLICY, **kw)
     init_backend(svc.cfg)
     return svc
 
@@ -127,3 +179,35 @@ def tick_until(svc: Service, cond, timeout: float = 15.0) -> None:
         assert time.monotonic() < deadline, "condition not reached"
         svc.tick()
         time.sleep(0.05)
+
+
+@contextlib.contextmanager
+def tmpfs(d: Path, size: str = "16m"):
+    """A real tmpfs mounted at ``d`` (skips unless we may mount)."""
+    d.mkdir(parents=True, exist_ok=True)
+    if os.geteuid() != 0 or subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", f"size={size},mode=0755", "tmpfs", str(d)],
+            capture_output=True).returncode != 0:
+        pytest.skip("needs root and mount(8) to fill a real file system")
+    try:
+        yield d
+    finally:
+        subprocess.run(["umount", "-l", str(d)], check=True)
+
+
+@contextlib.contextmanager
+def full(d: Path):
+    """Fill the file system of ``d`` to its last block; free it again on exit."""
+    filler = d / "filler"
+    with contextlib.suppress(OSError), open(filler, "wb") as fh:
+        while True:
+            fh.write(b"\0" * 65536)
+            fh.flush()
+    with contextlib.suppress(OSError), open(filler, "ab") as fh:  # the last partial block
+        while True:
+            fh.write(b"\0" * 512)
+            fh.flush()
+    try:
+        yield
+    finally:
+        filler.unlink()

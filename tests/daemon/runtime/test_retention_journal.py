@@ -12,7 +12,7 @@ from __future__ import annotations
 import shutil
 import time
 
-from robust_util import drop, journal_entry, reported, service, write_config
+from daemon_harness import drop, journal_entry, reported, service, write_config
 
 from grassd.daemon.runtime.retention import DAY_S, prune
 from grassd.daemon.store.history import History

@@ -8,7 +8,7 @@ from __future__ import annotations
 import time
 
 import pytest
-from robust_util import drop, service, tick_until, write_config
+from daemon_harness import drop, service, tick_until, write_config
 
 from grassd.daemon.hardware.simulated import SimLuxSensor
 

@@ -10,7 +10,7 @@ import threading
 import time
 
 import pytest
-from robust_util import write_config
+from daemon_harness import write_config
 
 from grassd.daemon.config.settings import load_config
 from grassd.daemon.errors import DaemonBusy

@@ -8,7 +8,7 @@ import re
 import time
 
 import pytest
-from robust_util import drop, service, write_config
+from daemon_harness import drop, service, write_config
 
 from grassd.daemon.config.settings import (
     RetentionConfig,

@@ -6,14 +6,14 @@ from __future__ import annotations
 
 import time
 
-from robust_util import after_first_bundle, drop
+from daemon_harness import after_first_bundle, drop
 
 from grassd.firmware_proto.faults import FaultInjector, FaultPlan
 
 
 def test_failing_controller_rows_are_deduplicated(tmp_path, hw):
     sim, cfg = hw
-    # push_retry_s=0: no reconcile backoff (test_daemon_robust_push_backoff), a push every pass
+    # push_retry_s=0: no reconcile backoff (test_push_backoff), a push every pass
     svc, first = after_first_bundle(tmp_path, cfg, failure_row_s=5.0, push_retry_s=0.0)
     inbox = svc.cfg.light.inbox
     bad = svc.fleet.controllers[0].name

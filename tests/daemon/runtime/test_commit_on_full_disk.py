@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
-from robust_util import after_first_bundle, drop
+from daemon_harness import after_first_bundle, drop
 
 from grassd.firmware_proto.tables import table_crc
 

@@ -1,12 +1,12 @@
-"""Review of the daemon's last_error clearing, push backoff and state lock (bugs found in
-review: each test failed before its fix)."""
+"""How the daemon reports errors: status's last_error stays while a bundle still waits on it and
+does not flip between passes of a failing reconcile; a controllers command refused by a running
+daemon's state lock names that daemon, not a dead one."""
 
 from __future__ import annotations
 
 import time
 
-from robust_util import drop, service, write_config
-from test_daemon_review import full, tmpfs
+from daemon_harness import drop, full, service, tmpfs, write_config
 
 
 def test_last_error_stays_while_a_bundle_still_waits_on_it(tmp_path, hw):

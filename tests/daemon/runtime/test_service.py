@@ -6,8 +6,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import robust_util
-from robust_util import TWO_VIEWS, drop, service
+import daemon_harness
+from daemon_harness import TWO_VIEWS, drop, service
 
 from grassd.daemon.config.settings import load_config
 from grassd.daemon.runtime.service import Service
@@ -15,8 +15,8 @@ from grassd.firmware_proto.client import RetryPolicy
 
 
 def write_config(path: Path, state: Path, cfg, extra: str = "", interval: float = 0) -> Path:
-    """robust_util's configuration with two viewpoints and a slower lux sensor timeout."""
-    return robust_util.write_config(path, state, cfg, extra, interval, views=TWO_VIEWS,
+    """daemon_harness's configuration with two viewpoints and a slower lux sensor timeout."""
+    return daemon_harness.write_config(path, state, cfg, extra, interval, views=TWO_VIEWS,
                                     sensor_timeout_s=0.5)
 
 

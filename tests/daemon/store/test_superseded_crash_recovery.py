@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import time
 
-from robust_util import drop
+from daemon_harness import drop
 
 from grassd.daemon.store.history import History
 from grassd.daemon.store.ingest import Inbox

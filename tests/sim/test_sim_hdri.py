@@ -14,7 +14,7 @@ import pytest
 from grassd.sim import hdri
 from grassd.sim.errors import HdriError
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "hdri"
+SHARED = Path(__file__).resolve().parents[3] / "shared" / "hdri"
 if not SHARED.is_dir():  # worktrees other than /work/main
     SHARED = Path("/work/shared/hdri")
 MAPS = ["city", "courtyard", "forest", "interior", "studio"]

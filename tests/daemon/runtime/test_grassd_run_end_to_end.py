@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from robust_util import CACHE, SITE
+from daemon_harness import CACHE, SITE
 
 from grassd.daemon.config.settings import load_default_config
 from grassd.daemon.errors import DaemonNotRunning

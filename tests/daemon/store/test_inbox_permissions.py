@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
-from robust_util import SITE, write_config
+from daemon_harness import SITE, write_config
 
 from grassd.daemon.errors import ControlError
 from grassd.daemon.runtime.control import request
