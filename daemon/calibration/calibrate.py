@@ -182,7 +182,7 @@ class CalibrationResult:
 
     def figure(self) -> Any:
         """A matplotlib Figure: characteristics, the table, and the closed-loop check."""
-        from matplotlib.figure import Figure  # noqa: PLC0415 - only when plotting
+        from matplotlib.figure import Figure  # only when plotting
 
         fig = Figure(figsize=(12, 4), dpi=100)
         ax1, ax2, ax3 = fig.subplots(1, 3)
@@ -306,7 +306,7 @@ _RENDERER: dict[str, Any] = {}
 
 
 def _renderer() -> Any:
-    from grassd.sim.renderer import Renderer  # noqa: PLC0415 - imports Taichi
+    from grassd.sim.renderer import Renderer  # imports Taichi
 
     if "r" not in _RENDERER:
         _RENDERER["r"] = Renderer.shared()
@@ -315,7 +315,7 @@ def _renderer() -> Any:
 
 def init_backend(cfg: Config) -> str:
     """Initialise Taichi once for this process (CPU, offline cache in ``cfg.cache_dir``)."""
-    from grassd.sim import backend  # noqa: PLC0415
+    from grassd.sim import backend
 
     return backend.init("cpu", cache_dir=cfg.cache_dir / "taichi")
 
@@ -329,8 +329,8 @@ class Calibrator:
     # ------------------------------------------------------------------ pieces
     def lighting(self, light: LightInput) -> Any:
         """Build the :class:`grassd.sim.lighting.Lighting` of ``light`` (lux-scaled HDRI + sun)."""
-        from grassd.sim.lighting import build_lighting  # noqa: PLC0415
-        from grassd.sim.sun import sun_position  # noqa: PLC0415
+        from grassd.sim.lighting import build_lighting
+        from grassd.sim.sun import sun_position
 
         az, el = light.sun_azimuth_deg, light.sun_elevation_deg
         sun = light.sun_lux
@@ -356,7 +356,7 @@ class Calibrator:
         """(DisplaySpec of an up-to-3x3 patch of the display, with the ``[tables] layout`` of
         :func:`grassd.daemon.calibration.display.display_spec_for_config`; index of its centre
         pixel)."""
-        from grassd.daemon.calibration.display import display_spec_for_config  # noqa: PLC0415
+        from grassd.daemon.calibration.display import display_spec_for_config
 
         d = self.cfg.display
         rows, cols = min(d.rows, 3), min(d.cols, 3)
@@ -387,7 +387,7 @@ class Calibrator:
                  ccm: ColourCorrection | None, stop: threading.Event | None,
                  progress: Progress | None) -> list[ViewpointCurve]:
         """OGCD vs ``lengths_mm`` (first entry = reference) from every viewpoint."""
-        from grassd.sim.scene import RenderSettings, Viewpoint  # noqa: PLC0415
+        from grassd.sim.scene import RenderSettings, Viewpoint
 
         display, centre = self.display()
         settings = RenderSettings(samples=self.cfg.simulation.samples,
@@ -459,7 +459,7 @@ class Calibrator:
         controller / per pixel, or from the audience region; ``previous_tables`` are the last run's
         tables by controller name, for the jump check)."""
         if self.per_display:
-            from grassd.daemon.calibration.calibrate_display import calibrate_display  # noqa: PLC0415
+            from grassd.daemon.calibration.calibrate_display import calibrate_display
 
             return calibrate_display(self, light, previous_um=previous_um,
                                      previous_tables=previous_tables,

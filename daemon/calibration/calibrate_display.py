@@ -272,7 +272,7 @@ class DisplayCalibrationResult:
 
     def figure(self) -> Any:
         """A matplotlib Figure: unit characteristics, unit tables, worst error per pixel."""
-        from matplotlib.figure import Figure  # noqa: PLC0415 - only when plotting
+        from matplotlib.figure import Figure  # only when plotting
 
         fig = Figure(figsize=(12, 4), dpi=100)
         ax1, ax2, ax3 = fig.subplots(1, 3)
@@ -579,8 +579,8 @@ def calibrate_display(cal: Calibrator, light: LightInput, *,
     """A display run for ``cal.cfg`` (see the module docstring); raises
     :class:`~grassd.daemon.errors.CalibrationRejected` for a bad characteristic or table and
     :class:`~grassd.daemon.errors.RunInterrupted` when ``stop`` is set (checked per trace)."""
-    from grassd.sim.renderer import Renderer  # noqa: PLC0415
-    from grassd.sim.scene import RenderSettings  # noqa: PLC0415
+    from grassd.sim.renderer import Renderer
+    from grassd.sim.scene import RenderSettings
 
     cfg = cal.cfg
     t_start = time.perf_counter()

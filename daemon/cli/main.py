@@ -24,7 +24,7 @@ from grassd.daemon.errors import USER_ERRORS
 class _Group(click.Group):
     """Top-level group that turns user errors into one line and exit code 2."""
 
-    def invoke(self, ctx: click.Context):  # noqa: D401 - click API
+    def invoke(self, ctx: click.Context):  # click API
         try:
             return super().invoke(ctx)
         except USER_ERRORS as exc:

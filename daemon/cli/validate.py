@@ -14,7 +14,7 @@ from grassd.daemon.store.atomic import atomic_write_text
 
 
 def _renderer(arch: str):
-    from grassd.daemon.offline.validate import default_renderer  # noqa: PLC0415
+    from grassd.daemon.offline.validate import default_renderer
 
     return default_renderer(arch)
 
@@ -45,15 +45,15 @@ def validate(capture, samples, replicates, target_stderr, seed, arch, json_out, 
     occurs, both OGCD ranges, and the 8-bit calibration R^2 before and after calibrating with
     the real and with the simulated characteristic (paper Figure 11).
     """
-    from grassd.daemon.offline.validate import load_manifest, validate_capture  # noqa: PLC0415
-    from grassd.sim.scene import RenderSettings  # noqa: PLC0415
+    from grassd.daemon.offline.validate import load_manifest, validate_capture
+    from grassd.sim.scene import RenderSettings
 
     manifest = load_manifest(capture)
     settings = RenderSettings(samples=samples, replicates=replicates, seed=seed)
     result = validate_capture(manifest, settings=settings, arch=arch,
                               target_stderr=target_stderr,
                               progress=None if quiet else _progress)
-    from grassd.daemon.offline.experiment import format_table  # noqa: PLC0415
+    from grassd.daemon.offline.experiment import format_table
 
     rows = []
     for v in result.viewpoints:
@@ -75,7 +75,7 @@ def validate(capture, samples, replicates, target_stderr, seed, arch, json_out, 
         atomic_write_text(json_out, json.dumps(result.to_json(), indent=1))
         click.echo(f"wrote {json_out}")
     if html_out:
-        from grassd.daemon.offline.report import validation_html  # noqa: PLC0415
+        from grassd.daemon.offline.report import validation_html
 
         atomic_write_text(html_out, validation_html(result))
         click.echo(f"wrote {html_out}")
@@ -105,9 +105,9 @@ def experiment() -> None:
 @click.option("-q", "--quiet", is_flag=True, help="No progress messages.")
 def paper_cmd(out_dir, hdri_dir, quick, envs, samples, replicates, trials, arch, quiet):
     """16 viewpoints x 5 environments as in the paper; prints its tables with timings."""
-    from dataclasses import replace  # noqa: PLC0415
+    from dataclasses import replace
 
-    from grassd.daemon.offline.experiment import (  # noqa: PLC0415
+    from grassd.daemon.offline.experiment import (
         ExperimentSettings,
         experiment_html,
         run_paper,
@@ -152,10 +152,10 @@ def virtual_capture_cmd(out_dir, hdri, lux, views, lengths, splay, width, spp, r
                         seed, arch):
     """Photograph a simulated pixel with the virtual camera into OUT_DIR (DNGs + capture.toml)
     for ``grassd validate``."""
-    from grassd.calib.virtual_camera import VirtualCamera  # noqa: PLC0415
-    from grassd.daemon.offline.validate import LightSpec  # noqa: PLC0415
-    from grassd.daemon.offline.virtual_capture import capture_world  # noqa: PLC0415
-    from grassd.sim.scene import PixelSpec, Viewpoint, parse_lengths  # noqa: PLC0415
+    from grassd.calib.virtual_camera import VirtualCamera
+    from grassd.daemon.offline.validate import LightSpec
+    from grassd.daemon.offline.virtual_capture import capture_world
+    from grassd.sim.scene import PixelSpec, Viewpoint, parse_lengths
 
     vps = [Viewpoint.parse(v) for v in views]
     light = LightSpec(hdri=hdri.resolve(), lux=lux)

@@ -530,8 +530,8 @@ def _non_empty(v: str) -> str | None:
 def _pixel_fields() -> dict[str, Any]:
     """Pixel-spec field defaults: from grassd.sim.scene.PixelSpec when importable."""
     try:
-        from grassd.sim.scene import PixelSpec  # noqa: PLC0415 - optional, sim may be absent
-    except Exception:  # noqa: BLE001 - sim not there (yet): use the paper's numbers
+        from grassd.sim.scene import PixelSpec  # optional, sim may be absent
+    except Exception:  # sim not there (yet): use the paper's numbers
         return dict(_FALLBACK_PIXEL_FIELDS)
     if not dataclasses.is_dataclass(PixelSpec):
         return dict(_FALLBACK_PIXEL_FIELDS)
@@ -557,9 +557,9 @@ def _numbers(n: int) -> Callable[[Any], str | None]:
 def _check_pixel_spec(ctx: _Ctx, pixel: dict[str, Any]) -> None:
     """Let grassd.sim.scene.PixelSpec validate the fields together (when sim is importable)."""
     try:
-        from grassd.sim.errors import SimError  # noqa: PLC0415
-        from grassd.sim.scene import PixelSpec  # noqa: PLC0415
-    except Exception:  # noqa: BLE001 - sim not importable: per-field checks only
+        from grassd.sim.errors import SimError
+        from grassd.sim.scene import PixelSpec
+    except Exception:  # sim not importable: per-field checks only
         return
     try:
         PixelSpec(**pixel)

@@ -160,7 +160,7 @@ class SimLuxSensor:
 
         try:
             loop.run_until_complete(main())
-        except BaseException as exc:  # noqa: BLE001 - reported to start()
+        except BaseException as exc:  # reported to start()
             self._error = exc
             self._ready.set()
         finally:
@@ -192,7 +192,7 @@ class SimLuxSensor:
             fut = asyncio.run_coroutine_threadsafe(self._server.shutdown(), self._loop)
             try:
                 fut.result(5)
-            except Exception:  # noqa: BLE001 - best effort at shutdown
+            except Exception:  # best effort at shutdown
                 pass
             self._thread.join(5)
         self._thread = None

@@ -175,8 +175,8 @@ def run_paper(out_dir: str | Path, *, settings: ExperimentSettings | None = None
               hdri_dir: str | Path | None = None, renderer: Any = None,
               progress: Callable[[str], None] | None = None) -> ExperimentResult:
     """Run the paper's experiments; capture directories go under ``out_dir``."""
-    from grassd.daemon.offline.virtual_capture import capture_world  # noqa: PLC0415
-    from grassd.sim.scene import PixelSpec, RenderSettings  # noqa: PLC0415
+    from grassd.daemon.offline.virtual_capture import capture_world
+    from grassd.sim.scene import PixelSpec, RenderSettings
 
     st = settings or ExperimentSettings()
     hdri = Path(hdri_dir) if hdri_dir is not None else default_hdri_dir()
@@ -350,7 +350,7 @@ def text_report(result: ExperimentResult) -> str:
 
 def experiment_html(result: ExperimentResult) -> str:
     """Self-contained HTML report: our numbers beside the paper's, with the paper's plots."""
-    from grassd.daemon.offline import report  # noqa: PLC0415
+    from grassd.daemon.offline import report
 
     st = result.settings
     intro = (

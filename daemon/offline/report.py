@@ -31,10 +31,10 @@ p.note { color: #555; font-size: 0.9em; }
 
 
 def _plt():
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     return plt
 
@@ -179,7 +179,7 @@ def calibration_figure(cal: Any) -> Any:
 
 def lab_to_srgb(lab: Any) -> np.ndarray:
     """Encoded sRGB (..., 3) in 0..1 of D50 CIELAB colours (for display; clipped to the gamut)."""
-    from grassd.calib.colour_spaces import lab_to_prophoto, prophoto_to_rec709  # noqa: PLC0415
+    from grassd.calib.colour_spaces import lab_to_prophoto, prophoto_to_rec709
 
     lin = np.clip(prophoto_to_rec709(lab_to_prophoto(np.asarray(lab, dtype=np.float64))), 0, 1)
     return np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)

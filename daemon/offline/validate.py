@@ -103,11 +103,11 @@ class MixedCamerasError(ValidateError):
 def default_renderer(arch: str = "cpu") -> Any:
     """The process's shared :class:`grassd.sim.renderer.Renderer` (Taichi initialised on
     ``arch`` first if needed): every further instance would compile its kernels again."""
-    from grassd.sim import backend  # noqa: PLC0415
+    from grassd.sim import backend
 
     if not backend.is_initialised():
         backend.init(arch)
-    from grassd.sim.renderer import Renderer  # noqa: PLC0415
+    from grassd.sim.renderer import Renderer
 
     return Renderer.shared()
 
@@ -127,7 +127,7 @@ class LightSpec:
 
     def build(self, hdri: Any = None):
         """The :class:`grassd.sim.lighting.Lighting` (``hdri``: an already loaded array)."""
-        from grassd.sim.lighting import build_lighting  # noqa: PLC0415
+        from grassd.sim.lighting import build_lighting
 
         return build_lighting(self.hdri if hdri is None else hdri, self.lux, sun_lux=self.sun_lux,
                               sun_azimuth_deg=self.sun_azimuth_deg,
@@ -322,7 +322,7 @@ def load_manifest(path: str | Path) -> CaptureManifest:
     checker = _file(root, ck.get("photo"), "checker.photo", p)
     checker_corners = _corners(ck.get("corners"), "checker.corners", p)
     pixel = {k: tuple(v) if isinstance(v, list) else v for k, v in data.get("pixel", {}).items()}
-    from grassd.sim.scene import PixelSpec  # noqa: PLC0415
+    from grassd.sim.scene import PixelSpec
 
     _keys(pixel, set(PixelSpec.__dataclass_fields__), "[pixel]", p)
     series_list = data["series"]
@@ -385,18 +385,18 @@ def load_manifest(path: str | Path) -> CaptureManifest:
 def camera_signature(path: Path) -> dict[str, Any]:
     """What identifies the camera of a RAW: make/model (TIFF-based RAWs), colour filter layout,
     white level and LibRaw's colour matrix."""
-    import rawpy  # noqa: PLC0415
+    import rawpy
 
     sig: dict[str, Any] = {"make": "", "model": ""}
     try:
-        import tifffile  # noqa: PLC0415
+        import tifffile
 
         with tifffile.TiffFile(path) as tf:
             tags = tf.pages[0].tags
             for code, key in ((271, "make"), (272, "model")):
                 if code in tags:
                     sig[key] = str(tags[code].value).strip()
-    except Exception:  # noqa: BLE001 - non-TIFF RAW formats (CR3, RAF...) carry no such tags
+    except Exception:  # non-TIFF RAW formats (CR3, RAF...) carry no such tags
         pass
     try:
         with rawpy.imread(str(path)) as raw:
@@ -404,7 +404,7 @@ def camera_signature(path: Path) -> dict[str, Any]:
                 map(str, np.asarray(raw.raw_pattern).ravel()))
             sig["white_level"] = int(raw.white_level)
             sig["matrix"] = tuple(np.round(np.asarray(raw.color_matrix, float), 3).ravel())
-    except Exception as exc:  # noqa: BLE001 - rawpy raises several unrelated types
+    except Exception as exc:  # rawpy raises several unrelated types
         raise ValidateError(f"{path} is not a RAW file LibRaw can open ({exc}); give the camera's "
                             "unmodified RAW or DNG") from None
     return sig
@@ -477,7 +477,7 @@ def checker_white_balance(path: Path, corners: Sequence[Sequence[float]],
     linear sRGB; normalised to green = 1. Where LibRaw reports no colour matrix the grey is
     made neutral (``wb = mean green / c``).
     """
-    import rawpy  # noqa: PLC0415
+    import rawpy
 
     with rawpy.imread(str(path)) as raw:
         img = raw.raw_image_visible.astype(np.float64)
@@ -767,8 +767,8 @@ def validate_capture(m: CaptureManifest, *, renderer: Any = None, settings: Any 
     ``settings``: :class:`grassd.sim.scene.RenderSettings`; ``lighting``: a prebuilt Lighting of
     ``m.light`` (built here if None).
     """
-    from grassd.daemon.calibration.simulation import simulate_curve  # noqa: PLC0415
-    from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint  # noqa: PLC0415
+    from grassd.daemon.calibration.simulation import simulate_curve
+    from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint
 
     t0 = time.perf_counter()
     chart = get_chart(m.chart)

@@ -92,8 +92,8 @@ def capture_world(out_dir: str | Path, light: LightSpec,
     section 4.1.1): in trial ``t`` the blades rest differently (``layout_seed + t``) and the
     render and camera noise are new, as when a real pixel's grass is moved out and back in.
     """
-    from grassd.daemon.calibration.simulation import white_radiance  # noqa: PLC0415
-    from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint  # noqa: PLC0415
+    from grassd.daemon.calibration.simulation import white_radiance
+    from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -147,7 +147,7 @@ def capture_world(out_dir: str | Path, light: LightSpec,
 
 def pixel_fields(pixel: Any) -> dict[str, Any]:
     """PixelSpec fields that differ from the defaults (for a manifest's ``[pixel]`` table)."""
-    from grassd.sim.scene import PixelSpec  # noqa: PLC0415
+    from grassd.sim.scene import PixelSpec
 
     default = PixelSpec()
     d = asdict(pixel)

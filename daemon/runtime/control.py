@@ -137,7 +137,7 @@ class ControlServer:
                 if not isinstance(req, dict) or not isinstance(req.get("cmd"), str):
                     raise ValueError('request must be a JSON object with a "cmd" string')
                 answer = self.handler(req)
-            except Exception as exc:  # noqa: BLE001 - reported to the client, daemon lives on
+            except Exception as exc:  # reported to the client, daemon lives on
                 log.warning("control request %r failed: %s", req, exc)
                 answer = {"ok": False, "error": str(exc)}
             conn.settimeout(None)

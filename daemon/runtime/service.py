@@ -727,7 +727,7 @@ class Service:
             self.history.finish_run(run_id, "rejected", error=str(exc))
             log.warning("run %d rejected: %s", run_id, exc)
             return {"status": "rejected", "run_id": run_id, "error": str(exc)}
-        except Exception as exc:  # noqa: BLE001 - a bug must not kill the service
+        except Exception as exc:  # a bug must not kill the service
             log.error("run %d failed:\n%s", run_id, traceback.format_exc())
             self.history.finish_run(run_id, "failed", error=f"internal error: {exc!r}")
             return {"status": "failed", "run_id": run_id, "error": f"internal error: {exc!r}"}

@@ -71,7 +71,7 @@ def cluster(tmp_path_factory):
     procs: list[subprocess.Popen] = []
 
     def start(args: list[str], name: str) -> subprocess.Popen:
-        log = open(logs / f"{name}.log", "wb")  # noqa: SIM115 - closed with the process
+        log = open(logs / f"{name}.log", "wb")  # closed with the process
         p = subprocess.Popen([str(DASK), *args], stdout=log, stderr=subprocess.STDOUT,
                              cwd=logs, start_new_session=True)
         procs.append(p)
