@@ -6,7 +6,9 @@
 * ``grassd.calib``, ``grassd.sim`` and ``grassd.firmware_proto`` never import ``grassd.daemon``
   (no import statement anywhere in them names it, lazy or not);
 * no import cycles between modules at module level (imports inside functions and under
-  ``if TYPE_CHECKING:`` do not run at import time and are left out).
+  ``if TYPE_CHECKING:`` do not run at import time and are left out);
+* every import of a grassd module, lazy or not, in the packages, tests and benchmarks names a
+  module that exists.
 
 The static checks read every module of the four packages with :mod:`ast`, so a new module is
 covered as soon as it exists.
@@ -74,6 +76,16 @@ def test_the_graph_sees_every_package():
     assert ("grassd.daemon.runtime.service", False) in _imports(MODULES["grassd.daemon.cli.run"])
     assert ("grassd.daemon.calibration.calibrate_display", False) in _imports(
         MODULES["grassd.daemon.calibration.calibrate"])  # lazy: not at import time
+
+
+def test_every_grassd_import_names_an_existing_module():
+    """Lazy imports too (a moved module leaves no stale path behind), in the packages, the
+    tests and the benchmarks."""
+    files = [*MODULES.values(), *sorted((ROOT / "tests").rglob("*.py")),
+             *sorted((ROOT / "bench").glob("*.py"))]
+    missing = sorted({f"{path.relative_to(ROOT)}: {name}" for path in files
+                      for name, _ in _imports(path) if name not in MODULES})
+    assert not missing, missing
 
 
 def test_calib_sim_and_firmware_proto_never_import_the_daemon():
