@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from grassd.calib.ccm import ColourCorrection, fit_ccm
-from grassd.calib.characteristic import Characteristic, fit_characteristic
+from grassd.calib.characteristic import Characteristic, fit_characteristic, floor_stderr
 from grassd.calib.charts import get_chart
 from grassd.calib.colour_spaces import luminance
 from grassd.calib.exposure import normalise_exposure
@@ -263,10 +263,10 @@ def pooled_characteristic(xs: Sequence[NDArray], ys: Sequence[NDArray],
                           ses: Sequence[NDArray]) -> Characteristic:
     """One characteristic of every point simulated for a table so far (the first simulation's
     lengths [mm], OGCD and standard errors [dE00], then each closed-loop round's), the errors
-    floored at 1e-6 dE00 so that every point keeps a finite fit weight: what a closed loop
-    refits its table to."""
+    floored (:func:`grassd.calib.characteristic.floor_stderr`) so that every point keeps a
+    finite fit weight: what a closed loop refits its table to."""
     return Characteristic(np.concatenate(xs), np.concatenate(ys),
-                          np.maximum(np.concatenate(ses), 1e-6))
+                          floor_stderr(np.concatenate(ses)))
 
 
 def check_table(lengths_um: NDArray, green_max_mm: float, previous_um: NDArray | None,

@@ -60,7 +60,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from grassd.calib.ccm import ColourCorrection
-from grassd.calib.characteristic import Characteristic, FittedCharacteristic, fit_characteristic
+from grassd.calib.characteristic import (
+    Characteristic,
+    FittedCharacteristic,
+    fit_characteristic,
+    floor_stderr,
+)
 from grassd.calib.length_table import LEVELS, build_length_table, r_squared
 from grassd.daemon.calibration.audience import (
     centre_pixel,
@@ -315,11 +320,11 @@ def _r2_pair(fit: FittedCharacteristic, lengths_um: NDArray) -> tuple[float, flo
 
 def _mean_of(chars: Sequence[Characteristic]) -> Characteristic:
     """Mean characteristic of ``chars`` (one per sampled eye, same lengths [mm]); error: the
-    mean standard error [dE00], floored at 1e-6."""
+    mean standard error [dE00], floored (:func:`grassd.calib.characteristic.floor_stderr`)."""
     w = np.full(len(chars), 1.0 / len(chars))
     ogcd = w @ np.stack([c.ogcd for c in chars])
     se = w @ np.stack([c.ogcd_stderr for c in chars])
-    return Characteristic(chars[0].lengths_mm, ogcd, np.maximum(se, 1e-6))
+    return Characteristic(chars[0].lengths_mm, ogcd, floor_stderr(se))
 
 
 def _unit(name: str, pixels: NDArray, lengths_um: NDArray, char: Characteristic,

@@ -46,7 +46,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from grassd.calib.characteristic import Characteristic, FittedCharacteristic, fit_characteristic
+from grassd.calib.characteristic import (
+    Characteristic,
+    FittedCharacteristic,
+    fit_characteristic,
+    floor_stderr,
+)
 from grassd.calib.length_table import LEVELS, LengthTable, build_length_table
 from grassd.daemon.calibration.simulation import SimulatedCurve, simulate_curve
 from grassd.daemon.errors import DaemonError
@@ -448,8 +453,9 @@ def simulate_display(renderer, display, lighting, viewer, lengths_mm: np.ndarray
 
 def curve_characteristic(c: SimulatedCurve) -> Characteristic:
     """The characteristic of a simulated curve (lengths mm, OGCD dE00), its Monte Carlo
-    standard errors floored at 1e-6 dE00 so that every point keeps a finite fit weight."""
-    return Characteristic(c.lengths_mm, c.ogcd, np.maximum(c.ogcd_stderr, 1e-6))
+    standard errors floored (:func:`grassd.calib.characteristic.floor_stderr`) so that every
+    point keeps a finite fit weight."""
+    return Characteristic(c.lengths_mm, c.ogcd, floor_stderr(c.ogcd_stderr))
 
 
 def _fit(c: SimulatedCurve) -> FittedCharacteristic:
@@ -524,7 +530,7 @@ def mean_characteristic(sim: DisplaySimulation, pixels: np.ndarray) -> Character
     w /= w.sum()
     ogcd = w @ np.stack([c.ogcd for c in sim.curves])
     se = w @ np.stack([c.ogcd_stderr for c in sim.curves])
-    return Characteristic(sim.lengths_mm, ogcd, np.maximum(se, 1e-6))
+    return Characteristic(sim.lengths_mm, ogcd, floor_stderr(se))
 
 
 def controller_pixels(controllers: Sequence, pixel_count: int) -> list[np.ndarray]:

@@ -308,10 +308,10 @@ def run_task(spec: SweepSpec, cond: Condition) -> dict:
     except CalibError:
         linearity = None
     try:
-        from grassd.calib.characteristic import Characteristic
+        from grassd.calib.characteristic import Characteristic, floor_stderr
 
         table_r2 = build_length_table(Characteristic(
-            curve.lengths_mm, curve.ogcd, np.maximum(curve.ogcd_stderr, 1e-6))).r2_after
+            curve.lengths_mm, curve.ogcd, floor_stderr(curve.ogcd_stderr))).r2_after
     except CalibError:
         table_r2 = None
     return {

@@ -58,7 +58,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from grassd.calib.ccm import ColourCorrection, fit_ccm
-from grassd.calib.characteristic import Characteristic, fit_characteristic
+from grassd.calib.characteristic import Characteristic, fit_characteristic, floor_stderr
 from grassd.calib.charts import ReferenceChart, get_chart
 from grassd.calib.colour_spaces import luminance, prophoto_to_lab, prophoto_to_rec709
 from grassd.calib.compare import frechet_characteristics
@@ -690,7 +690,7 @@ def compare_viewpoint(viewpoint: tuple[float, float, float], lengths_mm: NDArray
     """The paper's metrics between a real and a simulated characteristic at common lengths."""
     real = Characteristic(lengths_mm, np.clip(real_ogcd, 0.0, None))
     sim = Characteristic(lengths_mm, np.clip(sim_ogcd, 0.0, None),
-                         None if sim_stderr is None else np.maximum(sim_stderr, 1e-6))
+                         None if sim_stderr is None else floor_stderr(sim_stderr))
     err, at = max_error_at(real, sim)
     try:
         cal = calibration_check(real, sim)
