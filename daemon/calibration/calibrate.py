@@ -302,17 +302,6 @@ def check_table(lengths_um: NDArray, green_max_mm: float, previous_um: NDArray |
 # --------------------------------------------------------------------------- the run
 
 
-_RENDERER: dict[str, Any] = {}
-
-
-def _renderer() -> Any:
-    from grassd.sim.renderer import Renderer  # imports Taichi
-
-    if "r" not in _RENDERER:
-        _RENDERER["r"] = Renderer.shared()
-    return _RENDERER["r"]
-
-
 def init_backend(cfg: Config) -> str:
     """Initialise Taichi once for this process (CPU, offline cache in ``cfg.cache_dir``)."""
     from grassd.sim import backend
@@ -387,6 +376,7 @@ class Calibrator:
                  ccm: ColourCorrection | None, stop: threading.Event | None,
                  progress: Progress | None) -> list[ViewpointCurve]:
         """OGCD vs ``lengths_mm`` (first entry = reference) from every viewpoint."""
+        from grassd.sim.renderer import Renderer  # imports Taichi
         from grassd.sim.scene import RenderSettings, Viewpoint
 
         display, centre = self.display()
@@ -400,7 +390,7 @@ class Calibrator:
                 progress(f"simulating viewpoint {i + 1}/{len(self.cfg.viewpoints)} "
                          f"({vp.h_cm:g}, {vp.d_m:g}, {vp.theta_deg:g})")
             t0 = time.perf_counter()
-            c = simulate_curve(_renderer(), display, lighting,
+            c = simulate_curve(Renderer.shared(), display, lighting,
                                Viewpoint(vp.h_cm, vp.d_m, vp.theta_deg),
                                np.asarray(lengths_mm, float), settings, ccm=ccm,
                                pixel_index=centre)

@@ -13,12 +13,6 @@ from grassd.daemon.cli.options import REPLICATES
 from grassd.daemon.store.atomic import atomic_write_text
 
 
-def _renderer(arch: str):
-    from grassd.daemon.offline.validate import default_renderer
-
-    return default_renderer(arch)
-
-
 def _progress(msg: str) -> None:
     click.echo(msg, err=True)
 
@@ -113,6 +107,7 @@ def paper_cmd(out_dir, hdri_dir, quick, envs, samples, replicates, trials, arch,
         run_paper,
         text_report,
     )
+    from grassd.daemon.offline.validate import default_renderer
 
     st = ExperimentSettings.quick() if quick else ExperimentSettings()
     if envs:
@@ -125,7 +120,7 @@ def paper_cmd(out_dir, hdri_dir, quick, envs, samples, replicates, trials, arch,
         st = replace(st, replicates=replicates)
     if trials:
         st = replace(st, trials=trials)
-    result = run_paper(out_dir, settings=st, hdri_dir=hdri_dir, renderer=_renderer(arch),
+    result = run_paper(out_dir, settings=st, hdri_dir=hdri_dir, renderer=default_renderer(arch),
                        progress=None if quiet else _progress)
     click.echo(text_report(result))
     atomic_write_text(out_dir / "report.json", json.dumps(result.to_json(), indent=1))
@@ -153,13 +148,13 @@ def virtual_capture_cmd(out_dir, hdri, lux, views, lengths, splay, width, spp, r
     """Photograph a simulated pixel with the virtual camera into OUT_DIR (DNGs + capture.toml)
     for ``grassd validate``."""
     from grassd.calib.virtual_camera import VirtualCamera
-    from grassd.daemon.offline.validate import LightSpec
+    from grassd.daemon.offline.validate import LightSpec, default_renderer
     from grassd.daemon.offline.virtual_capture import capture_world
     from grassd.sim.scene import PixelSpec, Viewpoint, parse_lengths
 
     vps = [Viewpoint.parse(v) for v in views]
     light = LightSpec(hdri=hdri.resolve(), lux=lux)
-    renderer = _renderer(arch)
+    renderer = default_renderer(arch)
     with click.progressbar(length=len(vps) * len(parse_lengths(lengths)), label="photographing",
                            file=sys.stderr) as bar:
         m = capture_world(out_dir, light, [(v.h_cm, v.d_m, v.theta_deg) for v in vps],

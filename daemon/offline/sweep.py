@@ -239,14 +239,15 @@ _worker: dict = {}
 
 
 def _worker_state(threads: int | None = None) -> dict:
-    """This process's Taichi backend, renderers (one per capacity) and light cache, created
-    on first use and kept for the life of the process (kernels stay compiled)."""
+    """This process's Taichi backend and light cache, created on first use and kept for the
+    life of the process (the renderers are :meth:`grassd.sim.renderer.Renderer.shared`'s, one
+    per capacity, so kernels stay compiled)."""
     if not _worker:
         from grassd.sim import backend
 
         backend.init("cpu", threads=threads or int(os.environ.get("GRASSD_SWEEP_THREADS", 0))
                      or None)
-        _worker.update(renderers={}, lights={})
+        _worker.update(lights={})
     return _worker
 
 
@@ -254,11 +255,8 @@ def _renderer_for(n_pixels: int):
     from grassd.daemon.calibration.display import capacity_for
     from grassd.sim.renderer import Renderer
 
-    state = _worker_state()
-    cap = capacity_for(n_pixels)
-    if cap not in state["renderers"]:
-        state["renderers"][cap] = Renderer.shared(cap)
-    return state["renderers"][cap]
+    _worker_state()  # Taichi first
+    return Renderer.shared(capacity_for(n_pixels))
 
 
 def init_worker(threads: int | None = None) -> None:
