@@ -13,10 +13,10 @@ import time
 from importlib import resources
 from pathlib import Path
 
-from grassd.daemon.config import load_default_config
-from grassd.daemon.control import request
+from grassd.daemon.config.settings import load_default_config
 from grassd.daemon.errors import DaemonNotRunning
-from grassd.daemon.sim_hardware import SimulatedHardware, hardware_toml
+from grassd.daemon.hardware.simulated import SimulatedHardware, hardware_toml
+from grassd.daemon.runtime.control import request
 
 BUNDLES = int(os.environ.get("GRASSD_BENCH_BUNDLES", "100"))
 ROOT = Path(__file__).resolve().parents[1]

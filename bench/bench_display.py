@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from grassd.daemon.display import (
+from grassd.daemon.calibration.display import (
     build_display_tables,
     errors_on,
     group_pixels,
@@ -24,7 +24,7 @@ from grassd.daemon.display import (
     shares_layout,
     simulate_display,
 )
-from grassd.daemon.simulation import simulate_curve
+from grassd.daemon.calibration.simulation import simulate_curve
 
 HDRI = Path(__file__).resolve().parents[1].parent / "shared" / "hdri" / "courtyard.exr"
 
@@ -42,7 +42,7 @@ def _lighting():
 
 
 def _renderer_for(n_pixels: int):
-    from grassd.daemon.display import capacity_for
+    from grassd.daemon.calibration.display import capacity_for
     from grassd.sim.renderer import Renderer
 
     return Renderer.shared(capacity_for(n_pixels))

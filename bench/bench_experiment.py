@@ -29,7 +29,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--arch", default="cpu", choices=["cpu", "gpu"])
     args = ap.parse_args([] if argv is None else argv)
 
-    from grassd.daemon.experiment import (
+    from grassd.daemon.calibration.simulation import simulate_curve
+    from grassd.daemon.offline.experiment import (
         PAPER,
         VIEWPOINTS,
         ExperimentSettings,
@@ -37,9 +38,8 @@ def main(argv: list[str] | None = None) -> None:
         run_paper,
         text_report,
     )
-    from grassd.daemon.simulation import simulate_curve
-    from grassd.daemon.validate import LightSpec, load_manifest, measure_real
-    from grassd.daemon.virtual_camera import capture_world
+    from grassd.daemon.offline.validate import LightSpec, load_manifest, measure_real
+    from grassd.daemon.offline.virtual_capture import capture_world
     from grassd.sim import backend
     from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
 

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from grassd.daemon.sweep import SweepSpec, conditions, read_results, run_sweep
+from grassd.daemon.offline.sweep import SweepSpec, conditions, read_results, run_sweep
 
 
 def _sky(folder: Path) -> str:

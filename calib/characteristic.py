@@ -41,6 +41,15 @@ from grassd.calib.validation import as_float_array, same_shape
 MIN_DISTINCT_LENGTHS: int = 3
 #: Below this OGCD range (CIEDE2000) a characteristic is flat: no useful 8-bit table.
 MIN_OGCD_RANGE: float = 0.5
+#: Smallest standard error (CIEDE2000) a point keeps when it is fitted: the fit weights points by
+#: 1/stderr**2, and a Monte Carlo estimate whose replicates agree exactly has a stderr of 0.
+MIN_OGCD_STDERR: float = 1e-6
+
+
+def floor_stderr(stderr: ArrayLike) -> NDArray[np.floating]:
+    """Standard errors of OGCD (dE00) floored at :data:`MIN_OGCD_STDERR`, so that every point
+    keeps a finite fit weight 1/stderr**2 in :func:`fit_characteristic`."""
+    return np.maximum(stderr, MIN_OGCD_STDERR)
 
 
 @dataclass(frozen=True, eq=False)

@@ -146,7 +146,7 @@ class VirtualCamera:
         if h < 2 or w < 2 or h % 2 or w % 2:
             raise DngWriteError(f"a Bayer image needs an even height and width >= 2; got {h}x{w}")
         if self.blur_px > 0:  # lens + optical low-pass filter: Gaussian, before the CFA
-            from scipy.ndimage import gaussian_filter  # noqa: PLC0415
+            from scipy.ndimage import gaussian_filter
 
             img = gaussian_filter(img, sigma=(self.blur_px, self.blur_px, 0), mode="nearest")
         cam = self.camera_rgb(img)

@@ -14,9 +14,9 @@ from pathlib import Path
 
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")  # keep stdout clean for JSON
 
-import taichi as ti  # noqa: E402
+import taichi as ti
 
-from grassd.sim.errors import SimError  # noqa: E402
+from grassd.sim.errors import SimError
 
 __all__ = ["ti", "init", "is_initialised", "default_cache_dir"]
 

@@ -1,0 +1,118 @@
+"""The daemon demo (for ``make demo``): the whole service on simulated hardware, end to end.
+
+:func:`run_demo` starts ``grassd run --simulate-hardware`` with the embedded default
+configuration (two simulated controllers on pseudo-terminals, a Modbus/TCP lux sensor on
+127.0.0.1), drops one light bundle built from the bundled CC0 site HDRI into the inbox (no lux
+in the manifest, so the daemon reads the sensor), waits until the new table is active on every
+controller, prints the status and where the report and plot are, and stops the daemon with
+SIGTERM.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from datetime import UTC, datetime
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from grassd.daemon.cli.run import print_status
+from grassd.daemon.errors import ControlError, DaemonError, DaemonNotRunning
+from grassd.daemon.runtime.control import request
+
+
+def _grassd() -> list[str]:
+    exe = Path(sys.executable).parent / "grassd"
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", "grassd.daemon.cli"]
+
+
+def run_demo(workdir: str | os.PathLike[str] | None = None, *, lux: float = 5000.0,
+             timeout_s: float = 600.0, echo: Callable[[str], Any] = print) -> dict[str, Any]:
+    """Run the demo in ``workdir`` (default: a new temporary directory, kept); returns the
+    daemon's final status. Raises :class:`DaemonError` if the daemon fails or times out."""
+    work = Path(workdir) if workdir else Path(tempfile.mkdtemp(prefix="grassd-demo-"))
+    state = work / "state"
+    state.mkdir(parents=True, exist_ok=True)
+    log = work / "daemon.log"
+    sock = state / "control.sock"
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("RUNTIME_DIRECTORY", "STATE_DIRECTORY", "NOTIFY_SOCKET")}
+    cmd = [*_grassd(), "run", "--simulate-hardware", "--state-dir", str(state), "--sim-lux",
+           str(lux), "--tick", "0.2"]
+    echo(f"starting: {' '.join(cmd)}")
+    with open(log, "ab") as out:
+        proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, env=env)
+    t0 = time.monotonic()
+
+    def status() -> dict[str, Any]:
+        return request(sock, {"cmd": "status"}, timeout_s=30)["status"]
+
+    def wait(cond: Callable[[], Any], what: str) -> Any:
+        while time.monotonic() - t0 < timeout_s:
+            if proc.poll() is not None:
+                raise DaemonError(f"the daemon exited ({proc.returncode}) while {what}; "
+                                  f"see {log}")
+            try:
+                v = cond()
+            except DaemonNotRunning:
+                v = None
+            if v:
+                return v
+            time.sleep(0.2)
+        raise DaemonError(f"timed out after {timeout_s:g} s while {what}; see {log}")
+
+    try:
+        wait(lambda: request(sock, {"cmd": "ping"}, timeout_s=5), "starting")
+        echo(f"daemon running (pid {proc.pid}), state in {state}")
+        site = Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
+        tmp = state / "inbox" / ".demo-bundle"
+        tmp.mkdir(parents=True, exist_ok=True)
+        shutil.copy(site, tmp / "sky.exr")
+        stamp = datetime.now(UTC).replace(microsecond=0).isoformat()
+        (tmp / "manifest.toml").write_text(f'timestamp = {stamp}\nhdri = "sky.exr"\n')
+        bundle = state / "inbox" / f"demo-{int(time.time())}"
+        os.rename(tmp, bundle)
+        echo(f"dropped bundle {bundle.name} (CC0 site HDRI; lux from the simulated sensor)")
+
+        def pushed() -> dict[str, Any] | None:
+            st = status()
+            if st["run_counts"]["rejected"] or st["run_counts"]["failed"]:
+                raise DaemonError(f"the demo run did not succeed: {st['runs'][0]['error']}")
+            return st if st["health"] == "ok" else None
+
+        st = wait(pushed, "calibrating and pushing")
+        echo(f"table active on all controllers after {time.monotonic() - t0:.1f} s")
+        print_status(st, echo)
+        run = st["runs"][0]
+        for line in (f"report: {run['report']}", f"plot:   {run['plot']}", f"log:    {log}"):
+            echo(line)
+        return st
+    finally:
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(60)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        if proc.returncode not in (0, None, -15):
+            echo(f"daemon exit status {proc.returncode}")
+
+
+def main() -> None:
+    """Command-line entry: ``python -m grassd.daemon.cli.demo_daemon [WORKDIR]``."""
+    try:
+        run_demo(sys.argv[1] if len(sys.argv) > 1 else None)
+    except (DaemonError, ControlError) as exc:
+        print(f"grassd demo: error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,326 @@
+"""``grassd check-config``, ``grassd run``, ``grassd status``, ``grassd history`` and
+``grassd calibrate --now``: the daemon's command-line face."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from grassd.daemon.config.settings import (
+    DEFAULT_CONFIG_PATH,
+    Config,
+    load_config,
+    load_default_config,
+    not_used_by_the_daemon,
+)
+
+_CONFIG_HELP = (f"configuration file (default {DEFAULT_CONFIG_PATH}; "
+                "the embedded default when that is absent)")
+
+
+def resolve_config(path: str | None, state_dir: str | None = None) -> Config:
+    """Load ``path`` (or /etc/grassd/grassd.toml, or the embedded default when that is absent)."""
+    if path is not None:
+        cfg = load_config(path)
+    elif DEFAULT_CONFIG_PATH.exists():
+        cfg = load_config(DEFAULT_CONFIG_PATH)
+    else:
+        cfg = load_default_config()
+    return cfg.with_state_dir(Path(state_dir).absolute()) if state_dir else cfg
+
+
+@click.command("check-config")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), help=_CONFIG_HELP)
+def check_config(config_path: str | None) -> None:
+    """Validate the configuration file and print a summary (exit 2 naming key and line if bad)."""
+    cfg = resolve_config(config_path)
+    click.echo(f"{cfg.source}: OK")
+    click.echo(f"  display: {cfg.display.rows} x {cfg.display.cols} pixels, "
+               f"pitch {cfg.display.pitch_mm} mm")
+    for c in cfg.controllers:
+        ranges = ",".join(f"{a}-{b}" if a != b else str(a) for a, b in c.pixels)
+        click.echo(f"  controller {c.port} addr {c.address} @ {c.baud} baud: pixels {ranges}")
+    for v in cfg.viewpoints:
+        click.echo(f"  viewpoint h={v.h_cm} cm d={v.d_m} m theta={v.theta_deg} deg "
+                   f"weight={v.weight}")
+    lux = cfg.light.lux
+    if cfg.light.modbus is not None:
+        m = cfg.light.modbus
+        where = f"{m.host}:{m.port}" if m.mode == "tcp" else m.serial_port
+        lux += f" (modbus {m.mode} {where} unit {m.unit} fc {m.function_code} reg {m.register})"
+    click.echo(f"  inbox: {cfg.light.inbox}; lux from {lux}")
+    click.echo(f"  state: {cfg.state_dir}; cache: {cfg.cache_dir}; socket: {cfg.control_socket}")
+    for note in not_used_by_the_daemon(cfg):
+        click.echo(f"  warning: {note}")
+
+
+# --------------------------------------------------------------------------- grassd run
+
+
+def _setup_logging(level: str) -> None:
+    import logging
+    import os
+
+    fmt = ("%(levelname)s %(name)s: %(message)s" if os.environ.get("JOURNAL_STREAM")
+           else "%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(level=getattr(logging, level.upper()), format=fmt)
+
+
+def _simulated(cfg: Config, lux: float):
+    """Start simulated controllers + lux sensor; returns (hardware, new cfg, transform)."""
+    import dataclasses
+
+    from grassd.daemon.hardware.simulated import SimulatedHardware
+
+    hw = SimulatedHardware(cfg, cfg.state_dir / "simhw", lux=lux)
+    new = hw.start()
+
+    def transform(c: Config) -> Config:
+        ctrls = tuple(dataclasses.replace(x, port=hw.ports.get(x.port, x.port))
+                      for x in c.controllers)
+        light = c.light
+        if light.modbus is not None and hw.sensor is not None:
+            light = dataclasses.replace(light, modbus=hw.sensor.config)
+        return dataclasses.replace(c, controllers=ctrls, light=light)
+
+    return hw, new, transform
+
+
+@click.command("run")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), help=_CONFIG_HELP)
+@click.option("--state-dir", type=click.Path(file_okay=False),
+              help="override the state directory (inbox, database, reports live inside)")
+@click.option("--simulate-hardware", is_flag=True,
+              help="run against simulated controllers on ptys and a Modbus lux sensor on "
+                   "127.0.0.1 (no hardware needed)")
+@click.option("--sim-lux", type=float, default=5000.0, show_default=True,
+              help="illuminance (lux) the simulated lux sensor reports")
+@click.option("--tick", "tick_s", type=float, default=1.0, show_default=True,
+              help="main-loop period (s)")
+@click.option("--log-level", default="info", show_default=True,
+              type=click.Choice(["debug", "info", "warning", "error"]))
+def run_cmd(config_path: str | None, state_dir: str | None, simulate_hardware: bool,
+            sim_lux: float, tick_s: float, log_level: str) -> None:
+    """Run the daemon: watch the inbox, calibrate, push tables, serve the control socket."""
+    from grassd.daemon.runtime.service import Service
+
+    _setup_logging(log_level)
+    cfg = resolve_config(config_path, state_dir)
+    hw, transform = None, None
+    if simulate_hardware:
+        hw, cfg, transform = _simulated(cfg, sim_lux)
+        for port, dev in hw.ports.items():
+            click.echo(f"simulated controller port {port} -> {dev}", err=True)
+        if hw.sensor is not None:
+            click.echo(f"simulated lux sensor on 127.0.0.1:{hw.sensor.port}", err=True)
+    src = config_path or (str(DEFAULT_CONFIG_PATH) if DEFAULT_CONFIG_PATH.exists() else None)
+    try:
+        svc = Service(cfg, config_path=src, tick_s=tick_s, transform=transform)
+        code = svc.run()
+    finally:
+        if hw is not None:
+            hw.stop()
+    raise SystemExit(code)
+
+
+# --------------------------------------------------------------------------- status / history
+
+
+def _fmt_time(t: float | None) -> str:
+    import datetime as _dt
+
+    if t is None:
+        return "-"
+    return _dt.datetime.fromtimestamp(t).strftime("%Y-%m-%d %H:%M:%S")
+
+
+def print_status(st: dict, echo=click.echo) -> None:
+    """Print a status dict (:func:`grassd.daemon.runtime.service.collect_status` or the control
+    socket's answer) as ``grassd status`` shows it, one line at a time through ``echo``."""
+    echo(f"daemon: {'running, pid ' + str(st['pid']) if st.get('running') else 'not running'}"
+               + (f" ({st['activity']})" if st.get("activity") else ""))
+    echo(f"health: {st['health']}")
+    d = st.get("desired_table")
+    echo("current table: " + (f"{d['table_id']} (crc {d['table_crc']:#010x})" if d
+                                    else "none")
+         + (", one per controller" if d and d.get("per_controller") else ""))
+    if st.get("inbox"):
+        echo("bundles: " + ", ".join(f"{k} {v}" for k, v in st["inbox"].items()))
+    if st.get("reload_error"):
+        echo(f"last reload refused: {st['reload_error']}")
+    if st.get("last_error"):
+        echo(f"last error: {st['last_error']}")
+    elif (seen := st.get("last_error_seen")) and seen.get("cleared_at"):
+        echo(f"last error (cleared {seen['cleared_at']}): {seen['at']} {seen['error']}")
+    for w in st.get("waiting_bundles") or []:
+        echo(f"bundle {w['bundle']} waits (retry in {w['retry_in_s']:.0f} s): {w['reason']}")
+    for p in st.get("inbox_problems") or []:
+        echo(f"inbox: {p}")
+    echo("controllers:")
+    for c in st["controllers"]:
+        state = "in sync" if c["in_sync"] else ("unreachable" if not c["reachable"]
+                                                 else "out of sync")
+        tid = "-" if c["table_id"] is None else str(c["table_id"])
+        if d and d.get("per_controller") and c.get("desired_crc") is not None:
+            tid += f" (own table crc {c['desired_crc']:#010x})"
+        err = f"  ({c['error']})" if c["error"] and not c["in_sync"] else ""
+        if b := c.get("push_retry"):
+            err += (f"; {b['failures']} failed push(es), next attempt in "
+                    f"{b['retry_in_s']:.0f} s")
+        echo(f"  {c['name']}: table {tid}, {state}{err}")
+    echo("last runs:")
+    for r in st["runs"]:
+        extra = (f"R^2 {r['r2']:.4f}, max dev {r['max_dev_de00']:.2f} dE00"
+                 if r["status"] == "ok" and r["r2"] is not None else (r["error"] or ""))
+        echo(f"  #{r['id']} {_fmt_time(r['started_at'])} {r['trigger']:8s} "
+                   f"{r['status']:8s} {extra}")
+        if r.get("report") and r["status"] == "ok":
+            echo(f"      report {r['report']}  plot {r['plot']}")
+
+
+@click.command("status")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), help=_CONFIG_HELP)
+@click.option("--state-dir", type=click.Path(file_okay=False), help="override the state directory")
+@click.option("--json", "as_json", is_flag=True, help="print JSON")
+def status_cmd(config_path: str | None, state_dir: str | None, as_json: bool) -> None:
+    """Last runs, each controller's active table, and health (asks the daemon if it runs)."""
+    import json
+
+    from grassd.daemon.errors import DaemonNotRunning, HistoryError
+    from grassd.daemon.runtime.control import request
+    from grassd.daemon.runtime.service import STATE_DB, collect_status
+    from grassd.daemon.store.history import History
+
+    cfg = resolve_config(config_path, state_dir)
+    try:
+        st = request(cfg.control_socket, {"cmd": "status"}, timeout_s=10)["status"]
+    except DaemonNotRunning:
+        db = cfg.state_dir / STATE_DB
+        if not db.exists():
+            raise HistoryError(f"no daemon running and no state database at {db}") from None
+        with History(db) as h:
+            st = collect_status(h, cfg)
+    if as_json:
+        click.echo(json.dumps(st, indent=2, default=str))
+    else:
+        print_status(st)
+
+
+@click.command("history")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), help=_CONFIG_HELP)
+@click.option("--state-dir", type=click.Path(file_okay=False), help="override the state directory")
+@click.option("-n", "limit", type=int, default=20, show_default=True, help="runs to show")
+@click.option("--json", "as_json", is_flag=True, help="print JSON (with tables and pushes)")
+def history_cmd(config_path: str | None, state_dir: str | None, limit: int,
+                as_json: bool) -> None:
+    """The run history: inputs, lux, metrics, table and per-controller push results."""
+    import dataclasses
+    import json
+
+    from grassd.daemon.errors import HistoryError
+    from grassd.daemon.runtime.service import STATE_DB
+    from grassd.daemon.store.history import History
+
+    cfg = resolve_config(config_path, state_dir)
+    db = cfg.state_dir / STATE_DB
+    if not db.exists():
+        raise HistoryError(f"no state database at {db}: the daemon has not run yet")
+    with History(db) as h:
+        runs = h.runs(limit)
+        pushes = {r.id: h.pushes(r.id) for r in runs}
+    if as_json:
+        out = [dict(dataclasses.asdict(r), pushes=[dataclasses.asdict(p) for p in pushes[r.id]])
+               for r in runs]
+        click.echo(json.dumps(out, indent=2))
+        return
+    for r in runs:
+        m = r.metrics
+        lux = "-" if r.lux is None else f"{r.lux:.0f} lx ({r.lux_source})"
+        line = f"#{r.id} {_fmt_time(r.started_at)} {r.trigger:8s} {r.status:8s} {lux}"
+        if r.status == "ok" and m.get("r2_closed_loop") is not None:
+            line += f"  R^2 {m['r2_closed_loop']:.4f} max dev {m['max_dev_de00']:.2f} dE00"
+        elif r.error:
+            line += f"  {r.error}"
+        click.echo(line)
+        for p in pushes[r.id]:
+            click.echo(f"    {p.kind:9s} {p.controller}: "
+                       + ("ok" if p.ok else f"failed ({p.error})"))
+
+
+# --------------------------------------------------------------------------- calibrate
+
+
+@click.command("calibrate")
+@click.option("--now", is_flag=True, required=True, help="calibrate now (required)")
+@click.option("--wait", is_flag=True, help="wait for the daemon's run to finish")
+@click.option("--force", is_flag=True, help="accept a table that jumps far from the last one")
+@click.option("--json", "json_out", type=click.Path(dir_okay=False, allow_dash=True),
+              help="write the run's result as JSON to this file ('-' = stdout)")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), help=_CONFIG_HELP)
+@click.option("--state-dir", type=click.Path(file_okay=False), help="override the state directory")
+@click.option("--simulate-hardware", is_flag=True,
+              help="one-shot only: use simulated controllers and lux sensor")
+@click.option("--timeout", "timeout_s", type=float, default=3600.0, show_default=True,
+              help="seconds to wait for the daemon's run")
+def calibrate_cmd(now: bool, wait: bool, force: bool, json_out: str | None,
+                  config_path: str | None, state_dir: str | None, simulate_hardware: bool,
+                  timeout_s: float) -> None:
+    """Ask the running daemon for a calibration, or run one here when no daemon runs."""
+    import json
+
+    from grassd.daemon.errors import CalibrationRejected, DaemonNotRunning
+    from grassd.daemon.runtime.control import request
+    from grassd.daemon.store.atomic import atomic_write_json
+
+    cfg = resolve_config(config_path, state_dir)
+    try:
+        ans = request(cfg.control_socket, {"cmd": "calibrate", "force": force, "wait": wait,
+                                           "timeout_s": timeout_s},
+                      timeout_s=timeout_s + 10 if wait else 30)
+        result = ans.get("run") or {"status": "queued", "queued": ans.get("queued")}
+        where = "daemon"
+    except DaemonNotRunning:
+        from grassd.daemon.runtime.service import Service
+
+        _setup_logging("warning")
+        hw = None
+        if simulate_hardware:
+            hw, cfg, _ = _simulated(cfg, 5000.0)
+        try:
+            svc = Service(cfg)
+            try:
+                result = svc.one_shot(force=force)
+            finally:
+                svc.shutdown()
+        finally:
+            if hw is not None:
+                hw.stop()
+        where = "one-shot"
+    if json_out == "-":
+        click.echo(json.dumps(result, indent=2, default=str))
+    elif json_out:
+        atomic_write_json(json_out, json.loads(json.dumps(result, default=str)))
+    status = result.get("status")
+    if status == "queued":
+        click.echo(f"calibration queued in the running daemon (position {result['queued']})",
+                   err=json_out == "-")
+        return
+    if status != "ok":
+        raise CalibrationRejected(f"{where} run {status}: {result.get('error')}")
+    m = result["metrics"]
+    ok = sum(c["ok"] for c in result["controllers"])
+    if m.get("r2_closed_loop") is not None:
+        quality = (f"R^2 {m['r2_closed_loop']:.4f}, max deviation {m['max_dev_de00']:.2f} dE00 "
+                   f"after {m['rounds']} round(s)")
+    else:
+        quality = (f"fitted R^2 {m['r2_after_fit']:.4f}, max deviation "
+                   f"{m['max_dev_de00']:.2f} dE00")
+    if m.get("granularity"):  # a display run: a table per controller / pixel / region
+        quality += (f" (worst pixel group); {m['tables']} {m['granularity']} table(s) from "
+                    f"{m['table_source']}")
+    msg = (f"{where} run {result['run_id']}: table {result['table_id']} "
+           f"(crc {result['table_crc']:#010x}) on {ok}/{len(result['controllers'])} "
+           f"controllers; {quality}\n"
+           f"report {result['report']}\nplot   {result['plot']}")
+    click.echo(msg, err=json_out == "-")

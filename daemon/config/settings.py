@@ -1,0 +1,921 @@
+"""The daemon's configuration: TOML file -> validated, frozen dataclasses.
+
+The file (default ``/etc/grassd/grassd.toml``; the embedded default is
+``grassd/daemon/config/default.toml``) has these tables::
+
+    state_dir = "/var/lib/grassd"     # optional: $STATE_DIRECTORY, then /var/lib/grassd
+    cache_dir = "/var/cache/grassd"   # optional: $GRASSD_CACHE_DIR, $CACHE_DIRECTORY,
+                                      #           else state_dir/cache
+    control_socket = "/run/grassd/control.sock"  # optional: $RUNTIME_DIRECTORY/control.sock,
+                                      # else /run/grassd/control.sock if that directory exists
+                                      # and state_dir is not set, else state_dir/control.sock
+    [site]         latitude, longitude (degrees), timezone (IANA name)
+    [display]      rows, cols, pitch_mm; [display.pixel] pixel-spec fields (mm, counts)
+    [[controllers]] port, baud, address, pixels ("0-63,70" inclusive ranges of pixel indices)
+    [[viewpoints]] h_cm, d_m, theta_deg, weight
+    [light]        inbox, lux = "manifest" | "modbus", settle_s, incomplete_timeout_s,
+                   lux_wait_s;
+                   [light.modbus] sensor register map
+    [schedule]     interval_s, on_new_bundle
+    [retention]    keep_days, keep_reports, keep_runs (see RetentionConfig)
+    [simulation]   samples, seed, lengths (count of evenly spaced lengths, or a list in mm)
+    [calibration]  max_jump_mm, target_de00, max_rounds, check_levels, r2_goal,
+                   max_flat_fraction, replicates (see CalibrationConfig)
+    [tables]       granularity = "global" | "controller" | "pixel", eye = "world" | "pixel",
+                   group_tolerance_deg, distance_tolerance, check_groups (see TablesConfig):
+                   the table(s) the daemon pushes, one per controller / per pixel or global
+    [audience]     optional region: polygon = [[x, y], ...] (m), h_cm = [low, high],
+                   ground_samples, height_samples, objective = "mean" | "worst"; when set,
+                   the daemon's table(s) come from the region instead of [[viewpoints]]
+
+Relative paths are resolved against the directory of the config file, except ``light.inbox``
+which, when relative, lies inside ``state_dir``.
+
+Validation is strict: an unknown key, a missing required key, a wrong type (``true`` where a
+number belongs; ``1`` is accepted for a float, never for a bool) or an out-of-range value raises
+:class:`~grassd.daemon.errors.ConfigError` naming the dotted key and the file line.
+
+How the line is found: :mod:`tomllib` reports positions only for syntax errors, so after parsing
+we scan the raw text line by line, tracking the current table header (``[a.b]`` and ``[[a]]``,
+counting repeated array-of-tables headers so ``controllers[2]`` means the third
+``[[controllers]]``). A key's line is the first ``key =`` line (bare or quoted key, or a dotted
+key whose first part is the key) inside its table's header block; a table's line is its header.
+Keys written inside inline tables or multi-line arrays fall back to the line of the enclosing key
+or header. The scan ignores comments and multi-line strings only approximately (a line starting
+with ``key =`` inside a multi-line string could be mistaken for the key); that only affects the
+reported line, never the validation itself.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import re
+import tomllib
+import types
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
+
+from grassd.daemon.errors import ConfigError
+from grassd.daemon.store.ingest import FUTURE_TOLERANCE_S
+from grassd.firmware_proto.messages import MAX_ADDRESS, MIN_ADDRESS
+
+#: Where the packaged daemon looks when no ``--config`` is given.
+DEFAULT_CONFIG_PATH = Path("/etc/grassd/grassd.toml")
+#: The service's RuntimeDirectory (exists while it runs); holds the control socket.
+SYSTEM_RUNTIME_DIR = Path("/run/grassd")
+
+#: Default pixel-spec fields (paper, section 3: 33.5 mm pixel, 15 mm base, 10 mm yellow blades,
+#: three 5.7 mm slits, green 0-20 mm). Used when ``grassd.sim.scene.PixelSpec`` is not importable.
+_FALLBACK_PIXEL_FIELDS: dict[str, float | int] = {
+    "top_mm": 33.5,
+    "base_height_mm": 15.0,
+    "yellow_height_mm": 10.0,
+    "slit_count": 3,
+    "slit_width_mm": 5.7,
+    "green_max_mm": 20.0,
+}
+
+MODBUS_MODES = ("rtu", "tcp")
+WORD_ORDERS = ("big", "little")
+VALUE_TYPES = ("uint", "int", "float")
+
+
+# --------------------------------------------------------------------------- dataclasses
+
+
+@dataclass(frozen=True)
+class SiteConfig:
+    """Where the display stands: latitude/longitude in degrees (north/east positive)."""
+
+    latitude: float
+    longitude: float
+    timezone: str
+
+
+@dataclass(frozen=True)
+class DisplayConfig:
+    """Display geometry: ``rows`` x ``cols`` grass pixels at ``pitch_mm`` centre spacing.
+
+    ``pixel`` holds the pixel-spec fields (mm / counts) as a read-only mapping; pass it to
+    ``grassd.sim.scene.PixelSpec(**pixel)``.
+    """
+
+    rows: int
+    cols: int
+    pitch_mm: float
+    pixel: Mapping[str, Any]
+
+    @property
+    def pixel_count(self) -> int:
+        """Number of grass pixels (rows x cols)."""
+        return self.rows * self.cols
+
+    @property
+    def green_max_mm(self) -> float:
+        """The longest green length a pixel shows [mm]: ``pixel["green_max_mm"]``, else 20 mm
+        (PixelSpec's default); no table entry may exceed it."""
+        return float(self.pixel.get("green_max_mm", 20.0))
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """One controller: serial ``port`` (use /dev/serial/by-id/...), ``baud``, bus ``address``.
+
+    ``pixels`` is a tuple of inclusive (first, last) pixel-index ranges that it drives.
+    """
+
+    port: str
+    baud: int
+    address: int
+    pixels: tuple[tuple[int, int], ...]
+
+    @property
+    def name(self) -> str:
+        """Stable identifier ``port#address`` used in history and status."""
+        return f"{self.port}#{self.address}"
+
+
+@dataclass(frozen=True)
+class ViewpointConfig:
+    """A viewer: eye height ``h_cm`` (cm), distance ``d_m`` (m), angle ``theta_deg`` (deg)."""
+
+    h_cm: float
+    d_m: float
+    theta_deg: float
+    weight: float
+
+
+@dataclass(frozen=True)
+class ModbusConfig:
+    """Register map of a Modbus lux sensor; lux = scale x decoded register value + offset."""
+
+    mode: str
+    host: str
+    port: int
+    serial_port: str
+    baud: int
+    unit: int
+    function_code: int
+    register: int
+    words: int
+    word_order: str
+    value_type: str
+    scale: float
+    offset: float
+    timeout_s: float
+    retries: int
+
+
+@dataclass(frozen=True)
+class LightConfig:
+    """Light inputs: bundle ``inbox`` directory and where lux comes from.
+
+    ``lux == "manifest"``: the manifest must carry ambient lux. ``lux == "modbus"``: manifest lux
+    wins when present, otherwise the sensor described by ``modbus`` is read. A bundle is picked
+    up once its files have kept their sizes for ``settle_s`` seconds; a manifest whose files are
+    still missing after ``incomplete_timeout_s`` seconds is rejected. A bundle that needs the
+    sensor while it is unreachable or silent waits (retried with backoff) up to ``lux_wait_s``
+    seconds before it is rejected; a reading that is not a usable illuminance rejects it at once.
+    A bundle whose light is stamped more than ``future_tolerance_s`` seconds after the daemon's
+    clock is rejected (:func:`grassd.daemon.store.ingest.check_light`).
+    ``hdri_flip``/``hdri_rotation_deg`` bring the site camera's panoramas into the renderer's
+    convention (:mod:`grassd.sim.lighting`: u = atan2(y, x) / 2 pi, +y north): most 360-degree
+    cameras store the mirror image, so a real site wants ``hdri_flip = true``, and the rotation
+    (degrees, counter-clockwise seen from above) puts north where the camera did not; without
+    them a sun placed from the site's latitude, longitude and time misses the sun in the map.
+    """
+
+    inbox: Path
+    lux: str
+    modbus: ModbusConfig | None
+    settle_s: float = 2.0
+    incomplete_timeout_s: float = 600.0
+    lux_wait_s: float = 900.0
+    future_tolerance_s: float = FUTURE_TOLERANCE_S
+    hdri_flip: bool = False
+    hdri_rotation_deg: float = 0.0
+
+
+@dataclass(frozen=True)
+class ScheduleConfig:
+    """``interval_s``: recalibrate at least this often (0 = only on new bundles / requests)."""
+
+    interval_s: float
+    on_new_bundle: bool
+
+
+@dataclass(frozen=True)
+class RetentionConfig:
+    """How much the state directory keeps (pruned after every run,
+    :mod:`grassd.daemon.runtime.retention`).
+
+    ``keep_days``: archived and rejected bundles older than this (days) are deleted, except the
+    latest archived bundle (the light of scheduled runs); ``keep_reports``: JSON + PNG reports
+    of at most this many runs are kept (the active table's report always); ``keep_runs``:
+    history rows of at most this many runs are kept (the active table's run always).
+    """
+
+    keep_days: float = 30.0
+    keep_reports: int = 500
+    keep_runs: int = 5000
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    """Monte Carlo ``samples`` per pixel measurement, RNG ``seed``, green lengths in mm."""
+
+    samples: int
+    seed: int
+    lengths_mm: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class CalibrationConfig:
+    """Checks and closed loop of a calibration run (dE00 = CIEDE2000 units).
+
+    ``max_jump_mm``: largest change of any table entry from the last table (mm) accepted
+    without ``--force``; ``target_de00``/``max_rounds``/``check_levels``: the closed loop stops
+    when the largest |OGCD - target| over ``check_levels`` levels is <= ``target_de00`` or after
+    ``max_rounds`` rounds; ``r2_goal``: reported goal for R^2 of OGCD vs level;
+    ``max_flat_fraction``: refuse a characteristic whose share of flat steps exceeds this;
+    ``replicates``: independent Monte Carlo replicates per render (their spread = error).
+    """
+
+    max_jump_mm: float = 3.0
+    target_de00: float = 0.5
+    max_rounds: int = 3
+    check_levels: int = 17
+    r2_goal: float = 0.999
+    max_flat_fraction: float = 0.6
+    replicates: int = 8
+
+
+@dataclass(frozen=True)
+class TablesConfig:
+    """Whole-display tables (:mod:`grassd.daemon.calibration.display`).
+
+    ``granularity``: "global" (one table), "controller" (one per controller, its pixels' mean
+    characteristic) or "pixel"; ``eye``: "world" (a viewpoint is one spot relative to the
+    display centre, every pixel seen from its own direction) or "pixel" (each pixel seen from
+    the same relative viewpoint); pixels whose view directions differ by less than
+    ``group_tolerance_deg`` (deg) and distances by less than ``distance_tolerance`` (relative)
+    share one simulation; ``check_groups`` groups are re-simulated to report the grouping error.
+    ``layout``: the simulated tuft layout, "shared" (one random layout copied to every pixel),
+    "per_pixel" (each pixel draws its own) or "auto" (shared for "pixel" tables, per pixel
+    otherwise; see :func:`grassd.daemon.calibration.display.display_spec_for_config`).
+    The daemon pushes them (:mod:`grassd.daemon.calibration.calibrate_display`): "controller" gives
+    each controller one (256,) table, "pixel" an (n_pixels, 256) table for the pixels it drives;
+    "global" without ``[audience]`` is the one-table run of
+    :mod:`grassd.daemon.calibration.calibrate`.
+    """
+
+    granularity: str = "global"
+    eye: str = "world"
+    group_tolerance_deg: float = 2.0
+    distance_tolerance: float = 0.1
+    check_groups: int = 4
+    layout: str = "auto"
+
+
+@dataclass(frozen=True)
+class AudienceConfig:
+    """An audience region (:mod:`grassd.daemon.calibration.audience`): ground ``polygon`` of (x, y)
+    metres (display centre at the origin, +x east, +y north), eye heights ``h_cm`` = (low, high) cm,
+    sampled with about ``ground_samples`` points x ``height_samples`` heights; the table
+    minimises the ``objective`` ("mean" or "worst") deviation from linear OGCD."""
+
+    polygon: tuple[tuple[float, float], ...]
+    h_cm: tuple[float, float]
+    ground_samples: int = 16
+    height_samples: int = 2
+    objective: str = "mean"
+
+
+@dataclass(frozen=True)
+class Config:
+    """The whole validated configuration. ``source`` is the file it came from."""
+
+    site: SiteConfig
+    display: DisplayConfig
+    controllers: tuple[ControllerConfig, ...]
+    viewpoints: tuple[ViewpointConfig, ...]
+    light: LightConfig
+    schedule: ScheduleConfig
+    simulation: SimulationConfig
+    calibration: CalibrationConfig
+    state_dir: Path
+    cache_dir: Path
+    control_socket: Path
+    source: str
+    tables: TablesConfig = TablesConfig()
+    audience: AudienceConfig | None = None
+    retention: RetentionConfig = RetentionConfig()
+
+    @property
+    def serial_ports(self) -> list[str]:
+        """The serial ports the daemon owns: the controllers' buses and, in RTU mode, the lux
+        sensor's RS-485 port (sorted, each once)."""
+        ports = {c.port for c in self.controllers}
+        modbus = self.light.modbus
+        if modbus is not None and modbus.mode == "rtu":
+            ports.add(modbus.serial_port)
+        return sorted(ports)
+
+    def replace(self, **changes: Any) -> Config:
+        """A copy with some fields replaced (dataclasses.replace)."""
+        return dataclasses.replace(self, **changes)
+
+    def with_state_dir(self, state_dir: Path) -> Config:
+        """A copy whose state directory is ``state_dir``; paths that lay inside the old state
+        directory (inbox, cache, control socket) move along with it."""
+        new = Path(state_dir)
+
+        def move(p: Path) -> Path:
+            try:
+                return new / p.relative_to(self.state_dir)
+            except ValueError:
+                return p
+
+        light = dataclasses.replace(self.light, inbox=move(self.light.inbox))
+        return dataclasses.replace(self, state_dir=new, light=light,
+                                   cache_dir=move(self.cache_dir),
+                                   control_socket=move(self.control_socket))
+
+
+# --------------------------------------------------------------------------- line locator
+
+
+_HEADER_RE = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?\s*(#.*)?$")
+_KEY_RE = re.compile(r"""^\s*("(?:[^"\\]|\\.)*"|'[^']*'|[A-Za-z0-9_-]+)\s*[.=]""")
+
+
+def _split_dotted(name: str) -> list[str]:
+    parts = []
+    for m in re.finditer(r"""\s*("(?:[^"\\]|\\.)*"|'[^']*'|[^.\s]+)\s*(?:\.|$)""", name):
+        p = m.group(1)
+        if p[:1] in "\"'":
+            p = p[1:-1]
+        parts.append(p)
+    return parts
+
+
+class LineLocator:
+    """Maps table paths and keys of a TOML text to 1-based line numbers (see module docstring)."""
+
+    def __init__(self, text: str) -> None:
+        # table path (tuple, with array indices) -> (header line, {key: line})
+        self._tables: dict[tuple, tuple[int, dict[str, int]]] = {(): (1, {})}
+        counts: dict[tuple, int] = {}
+        current: tuple = ()
+        for lineno, raw in enumerate(text.splitlines(), start=1):
+            line = raw.strip()
+            if not line or line.startswith("#"):
+                continue
+            hm = _HEADER_RE.match(line) if line.startswith("[") else None
+            if hm:
+                parts = _split_dotted(hm.group(2))
+                # Resolve parent parts to the latest index of arrays of tables.
+                resolved: list = []
+                for part in parts[:-1]:
+                    resolved.append(part)
+                    if tuple(resolved) in counts:
+                        resolved.append(counts[tuple(resolved)] - 1)
+                resolved.append(parts[-1])
+                key = tuple(resolved)
+                if hm.group(1) == "[[":
+                    idx = counts.get(key, 0)
+                    counts[key] = idx + 1
+                    key = key + (idx,)
+                current = key
+                self._tables.setdefault(current, (lineno, {}))
+                continue
+            km = _KEY_RE.match(line)
+            if km:
+                k = km.group(1)
+                if k[:1] in "\"'":
+                    k = k[1:-1]
+                self._tables.setdefault(current, (lineno, {}))[1].setdefault(k, lineno)
+
+    def line_of(self, path: tuple) -> int | None:
+        """Line of the key or table at ``path`` (e.g. ``("controllers", 1, "baud")``)."""
+        path = tuple(path)
+        for cut in range(len(path), 0, -1):
+            table, key = path[: cut - 1], path[cut - 1]
+            if path[:cut] in self._tables:
+                return self._tables[path[:cut]][0]
+            if table in self._tables and isinstance(key, str):
+                line = self._tables[table][1].get(key)
+                if line is not None:
+                    return line
+        return None
+
+
+# --------------------------------------------------------------------------- validation core
+
+
+def _fmt(path: tuple) -> str:
+    out = ""
+    for p in path:
+        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else p)
+    return out
+
+
+class _Ctx:
+    def __init__(self, text: str, source: str, base_dir: Path) -> None:
+        self.locator = LineLocator(text)
+        self.source = source
+        self.base_dir = base_dir
+
+    def error(self, path: tuple, message: str) -> ConfigError:
+        return ConfigError(
+            message, key=_fmt(path) or None, line=self.locator.line_of(path), path=self.source
+        )
+
+
+_TYPE_NAMES = {int: "an integer", float: "a number", str: "a string", bool: "true or false",
+               list: "an array", dict: "a table"}
+
+
+def _check_type(ctx: _Ctx, path: tuple, value: Any, kind: type) -> Any:
+    ok = isinstance(value, kind) and not (kind in (int, float) and isinstance(value, bool))
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        ok, value = True, float(value)
+    if not ok:
+        got = type(value).__name__
+        raise ctx.error(path, f"must be {_TYPE_NAMES[kind]}, got {got} {value!r}")
+    if kind is float and not math.isfinite(value):
+        raise ctx.error(path, f"must be a finite number, got {value!r}")
+    return value
+
+
+_MISSING = object()
+
+
+@dataclass
+class _F:
+    """Schema of one key: type, default (``_MISSING`` = required), extra check."""
+
+    kind: type
+    default: Any = _MISSING
+    check: Callable[[Any], str | None] | None = None
+
+
+def _table(ctx: _Ctx, path: tuple, data: Any, schema: dict[str, _F]) -> dict[str, Any]:
+    """Validate one table against its schema; return plain values with defaults filled in."""
+    if not isinstance(data, dict):
+        raise ctx.error(path, f"must be a table, got {type(data).__name__}")
+    unknown = sorted(set(data) - set(schema))
+    if unknown:
+        allowed = ", ".join(sorted(schema))
+        raise ctx.error(path + (unknown[0],), f"unknown key (allowed here: {allowed})")
+    out: dict[str, Any] = {}
+    for name, f in schema.items():
+        if name not in data:
+            if f.default is _MISSING:
+                raise ctx.error(path + (name,), f"required key is missing ({_TYPE_NAMES[f.kind]})")
+            out[name] = f.default
+            continue
+        value = _check_type(ctx, path + (name,), data[name], f.kind)
+        if f.check is not None:
+            msg = f.check(value)
+            if msg:
+                raise ctx.error(path + (name,), msg)
+        out[name] = value
+    return out
+
+
+def _between(lo: float, hi: float, unit: str = "") -> Callable[[Any], str | None]:
+    def check(v: float) -> str | None:
+        if not lo <= v <= hi:
+            return f"must be between {lo} and {hi}{unit}, got {v}"
+        return None
+
+    return check
+
+
+def _positive(v: float) -> str | None:
+    return None if v > 0 else f"must be > 0, got {v}"
+
+
+def _non_negative(v: float) -> str | None:
+    return None if v >= 0 else f"must be >= 0, got {v}"
+
+
+def _one_of(*choices: Any) -> Callable[[Any], str | None]:
+    def check(v: Any) -> str | None:
+        if v in choices:
+            return None
+        return f"must be one of {', '.join(map(repr, choices))}; got {v!r}"
+
+    return check
+
+
+def _timezone(v: str) -> str | None:
+    try:
+        ZoneInfo(v)
+    except (ZoneInfoNotFoundError, ValueError):
+        return f"unknown time zone {v!r} (use an IANA name such as 'Europe/Berlin' or 'UTC')"
+    return None
+
+
+def _non_empty(v: str) -> str | None:
+    return None if v.strip() else "must not be empty"
+
+
+# --------------------------------------------------------------------------- sections
+
+
+def _pixel_fields() -> dict[str, Any]:
+    """Pixel-spec field defaults: from grassd.sim.scene.PixelSpec when importable."""
+    try:
+        from grassd.sim.scene import PixelSpec  # optional, sim may be absent
+    except Exception:  # sim not there (yet): use the paper's numbers
+        return dict(_FALLBACK_PIXEL_FIELDS)
+    if not dataclasses.is_dataclass(PixelSpec):
+        return dict(_FALLBACK_PIXEL_FIELDS)
+    spec = PixelSpec()
+    out = {}
+    for f in dataclasses.fields(spec):
+        v = getattr(spec, f.name)
+        if isinstance(v, int | float | str | bool) or (
+                isinstance(v, tuple) and all(isinstance(x, int | float) for x in v)):
+            out[f.name] = v
+    return out
+
+
+def _numbers(n: int) -> Callable[[Any], str | None]:
+    def check(v: list) -> str | None:
+        ok = len(v) == n and all(isinstance(x, int | float) and not isinstance(x, bool)
+                                 and math.isfinite(x) for x in v)
+        return None if ok else f"must be an array of {n} numbers, got {v!r}"
+
+    return check
+
+
+def _check_pixel_spec(ctx: _Ctx, pixel: dict[str, Any]) -> None:
+    """Let grassd.sim.scene.PixelSpec validate the fields together (when sim is importable)."""
+    try:
+        from grassd.sim.errors import SimError
+        from grassd.sim.scene import PixelSpec
+    except Exception:  # sim not importable: per-field checks only
+        return
+    try:
+        PixelSpec(**pixel)
+    except SimError as exc:
+        m = re.search(r"PixelSpec\.(\w+)", str(exc))
+        key = m.group(1) if m and m.group(1) in pixel else None
+        raise ctx.error(("display", "pixel") + ((key,) if key else ()), str(exc)) from None
+    except TypeError as exc:
+        raise ctx.error(("display", "pixel"), str(exc)) from None
+
+
+_RANGE_RE = re.compile(r"^\s*(\d+)\s*(?:-\s*(\d+)\s*)?$")
+
+
+def parse_pixel_ranges(spec: str, pixel_count: int) -> tuple[tuple[int, int], ...]:
+    """Parse ``"0-63,70"`` into inclusive ranges ``((0, 63), (70, 70))``; ``"all"`` = every pixel.
+
+    Raises ValueError for a malformed or backwards range, a pixel beyond ``pixel_count`` and a
+    pixel listed twice (``"0-3,2-5"``).
+
+    >>> parse_pixel_ranges("0-3, 8", 10)
+    ((0, 3), (8, 8))
+    """
+    if spec.strip().lower() == "all":
+        return ((0, pixel_count - 1),)
+    out = []
+    spans = []  # (range, as written), for the overlap check
+    for part in spec.split(","):
+        m = _RANGE_RE.match(part)
+        if not m:
+            raise ValueError(f"bad pixel range {part.strip()!r} "
+                             "(write e.g. \"0-63,70\" or \"all\")")
+        a = int(m.group(1))
+        b = int(m.group(2)) if m.group(2) is not None else a
+        if b < a:
+            raise ValueError(f"pixel range {part.strip()!r} runs backwards")
+        if b >= pixel_count:
+            raise ValueError(f"pixel {b} does not exist: the display has {pixel_count} pixels")
+        out.append((a, b))
+        spans.append(((a, b), part.strip()))
+    spans.sort()
+    for ((_, b1), p1), ((a2, _), p2) in zip(spans, spans[1:], strict=False):
+        if a2 <= b1:  # sorted by first pixel: an overlap shows between neighbours
+            raise ValueError(f"pixel {a2} is listed twice (in {p1!r} and {p2!r}); list each "
+                             "pixel once")
+    return tuple(out)
+
+
+def _resolve(ctx: _Ctx, value: str) -> Path:
+    p = Path(os.path.expandvars(os.path.expanduser(value)))
+    return p if p.is_absolute() else (ctx.base_dir / p)
+
+
+def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
+    top = _table(ctx, (), data, {
+        "state_dir": _F(str, None), "cache_dir": _F(str, None), "control_socket": _F(str, None),
+        "site": _F(dict), "display": _F(dict), "controllers": _F(list),
+        "viewpoints": _F(list), "light": _F(dict), "schedule": _F(dict, {}),
+        "simulation": _F(dict, {}), "calibration": _F(dict, {}),
+        "tables": _F(dict, {}), "audience": _F(dict, None), "retention": _F(dict, {}),
+    })
+
+    s = _table(ctx, ("site",), top["site"], {
+        "latitude": _F(float, check=_between(-90, 90, " degrees")),
+        "longitude": _F(float, check=_between(-180, 180, " degrees")),
+        "timezone": _F(str, "UTC", _timezone),
+    })
+    site = SiteConfig(**s)
+
+    d_raw = top["display"]
+    pixel_raw = d_raw.get("pixel", {}) if isinstance(d_raw, dict) else {}
+    d = _table(ctx, ("display",), d_raw, {
+        "rows": _F(int, check=_positive), "cols": _F(int, check=_positive),
+        "pitch_mm": _F(float, 33.5, _positive), "pixel": _F(dict, {}),
+    })
+    pdefaults = _pixel_fields()
+    pschema = {}
+    for name, default in pdefaults.items():
+        if isinstance(default, tuple):
+            pschema[name] = _F(list, default, _numbers(len(default)))
+            continue
+        kind = bool if isinstance(default, bool) else type(default)
+        pschema[name] = _F(kind, default, _non_negative if kind in (int, float) else None)
+    pixel = _table(ctx, ("display", "pixel"), pixel_raw, pschema)
+    pixel = {k: tuple(float(x) for x in v) if isinstance(v, list) else v
+             for k, v in pixel.items()}
+    _check_pixel_spec(ctx, pixel)
+    display = DisplayConfig(rows=d["rows"], cols=d["cols"], pitch_mm=d["pitch_mm"],
+                            pixel=types.MappingProxyType(pixel))
+
+    controllers = []
+    if not top["controllers"]:
+        raise ctx.error(("controllers",), "at least one [[controllers]] entry is required")
+    seen_addr: dict[tuple[str, int], int] = {}
+    taken: list[tuple[int, int, int]] = []  # (first, last, controller index)
+    for i, c_raw in enumerate(top["controllers"]):
+        c = _table(ctx, ("controllers", i), c_raw, {
+            "port": _F(str, check=_non_empty), "baud": _F(int, 115200, _positive),
+            "address": _F(int, 1, _between(MIN_ADDRESS, MAX_ADDRESS)), "pixels": _F(str, "all"),
+        })
+        try:
+            ranges = parse_pixel_ranges(c["pixels"], display.pixel_count)
+        except ValueError as exc:
+            raise ctx.error(("controllers", i, "pixels"), str(exc)) from None
+        key = (c["port"], c["address"])
+        if key in seen_addr:
+            raise ctx.error(("controllers", i, "address"),
+                            f"port {c['port']} address {c['address']} is already used by "
+                            f"controllers[{seen_addr[key]}]")
+        seen_addr[key] = i
+        same_bus = next((j for j, o in enumerate(controllers) if o.port == c["port"]), None)
+        if same_bus is not None and controllers[same_bus].baud != c["baud"]:
+            raise ctx.error(("controllers", i, "baud"),
+                            f"{c['baud']} differs from the {controllers[same_bus].baud} of "
+                            f"controllers[{same_bus}] on the same bus {c['port']} (one port is "
+                            "opened once, at one baud)")
+        for a, b in ranges:
+            for a2, b2, j in taken:
+                if a <= b2 and a2 <= b:
+                    raise ctx.error(("controllers", i, "pixels"),
+                                    f"pixels {a}-{b} overlap pixels {a2}-{b2} of controllers[{j}]")
+        taken.extend((a, b, i) for a, b in ranges)
+        controllers.append(ControllerConfig(port=c["port"], baud=c["baud"],
+                                            address=c["address"], pixels=ranges))
+
+    viewpoints = []
+    if not top["viewpoints"]:
+        raise ctx.error(("viewpoints",), "at least one [[viewpoints]] entry is required")
+    for i, v_raw in enumerate(top["viewpoints"]):
+        v = _table(ctx, ("viewpoints", i), v_raw, {
+            "h_cm": _F(float, check=_between(10, 1000, " cm")),
+            "d_m": _F(float, check=_between(0.1, 100, " m")),
+            "theta_deg": _F(float, 0.0, _between(-90, 90, " degrees")),
+            "weight": _F(float, 1.0, _positive),
+        })
+        viewpoints.append(ViewpointConfig(**v))
+
+    lt = _table(ctx, ("light",), top["light"], {
+        "inbox": _F(str, check=_non_empty),
+        "lux": _F(str, "manifest", _one_of("manifest", "modbus")),
+        "modbus": _F(dict, None), "settle_s": _F(float, 2.0, _non_negative),
+        "incomplete_timeout_s": _F(float, 600.0, _positive),
+        "lux_wait_s": _F(float, 900.0, _non_negative),
+        "future_tolerance_s": _F(float, FUTURE_TOLERANCE_S, _non_negative),
+        "hdri_flip": _F(bool, False),
+        "hdri_rotation_deg": _F(float, 0.0, _between(-360, 360, " degrees")),
+    })
+    modbus = None
+    if lt["modbus"] is not None:
+        m = _table(ctx, ("light", "modbus"), lt["modbus"], {
+            "mode": _F(str, "tcp", _one_of(*MODBUS_MODES)), "host": _F(str, "127.0.0.1"),
+            "port": _F(int, 502, _between(1, 65535)), "serial_port": _F(str, ""),
+            "baud": _F(int, 9600, _positive), "unit": _F(int, 1, _between(0, 247)),
+            "function_code": _F(int, 4, _one_of(3, 4)),
+            "register": _F(int, 0, _between(0, 65535)), "words": _F(int, 1, _one_of(1, 2)),
+            "word_order": _F(str, "big", _one_of(*WORD_ORDERS)),
+            "value_type": _F(str, "uint", _one_of(*VALUE_TYPES)),
+            "scale": _F(float, 1.0, lambda v: None if v != 0 else "must not be 0"),
+            "offset": _F(float, 0.0), "timeout_s": _F(float, 1.0, _positive),
+            "retries": _F(int, 3, _between(0, 20)),
+        })
+        if m["mode"] == "rtu" and not m["serial_port"]:
+            raise ctx.error(("light", "modbus", "serial_port"),
+                            "required when mode = \"rtu\" (e.g. /dev/serial/by-id/usb-...)")
+        if m["value_type"] == "float" and m["words"] != 2:
+            raise ctx.error(("light", "modbus", "words"), "value_type = \"float\" needs words = 2")
+        modbus = ModbusConfig(**m)
+    if lt["lux"] == "modbus" and modbus is None:
+        raise ctx.error(("light", "lux"), "lux = \"modbus\" needs a [light.modbus] table")
+
+    sc = _table(ctx, ("schedule",), top["schedule"], {
+        "interval_s": _F(float, 3600.0, _non_negative), "on_new_bundle": _F(bool, True),
+    })
+    if sc["interval_s"] == 0 and not sc["on_new_bundle"]:
+        raise ctx.error(("schedule", "on_new_bundle"),
+                        "with interval_s = 0 too, bundles in the inbox would never be picked up: "
+                        "set on_new_bundle = true or interval_s > 0")
+    schedule = ScheduleConfig(**sc)
+    retention = RetentionConfig(**_table(ctx, ("retention",), top["retention"], {
+        "keep_days": _F(float, RetentionConfig.keep_days, _positive),
+        "keep_reports": _F(int, RetentionConfig.keep_reports, _between(1, 10**7)),
+        "keep_runs": _F(int, RetentionConfig.keep_runs, _between(1, 10**9)),
+    }))
+
+    sim_raw = top["simulation"]
+    lengths_raw = sim_raw.get("lengths", 11) if isinstance(sim_raw, dict) else 11
+    sim_check = dict(sim_raw) if isinstance(sim_raw, dict) else sim_raw
+    if isinstance(sim_check, dict):
+        sim_check.pop("lengths", None)
+    si = _table(ctx, ("simulation",), sim_check, {
+        "samples": _F(int, 4096, _between(1, 1 << 20)), "seed": _F(int, 0, _non_negative),
+    })
+    lo = float(pixel.get("green_min_mm", 0.0))
+    hi = float(pixel.get("green_max_mm", 20.0))
+    lpath = ("simulation", "lengths")
+    if isinstance(lengths_raw, int) and not isinstance(lengths_raw, bool):
+        if not 3 <= lengths_raw <= 1000:
+            raise ctx.error(lpath, f"count must be between 3 and 1000, got {lengths_raw}")
+        lengths = tuple(lo + (hi - lo) * k / (lengths_raw - 1) for k in range(lengths_raw))
+    elif isinstance(lengths_raw, list):
+        vals = [_check_type(ctx, lpath, x, float) for x in lengths_raw]
+        if len(vals) < 3:
+            raise ctx.error(lpath, f"needs at least 3 lengths, got {len(vals)}")
+        if any(b <= a for a, b in zip(vals, vals[1:], strict=False)):
+            raise ctx.error(lpath, "lengths must be strictly increasing (mm)")
+        if vals[0] < lo or vals[-1] > hi:
+            raise ctx.error(lpath, f"lengths must lie within {lo}-{hi} mm")
+        lengths = tuple(vals)
+    else:
+        raise ctx.error(lpath, f"must be an integer count or an array of mm, got {lengths_raw!r}")
+    simulation = SimulationConfig(samples=si["samples"], seed=si["seed"], lengths_mm=lengths)
+
+    ca = _table(ctx, ("calibration",), top["calibration"], {
+        "max_jump_mm": _F(float, 3.0, _positive), "target_de00": _F(float, 0.5, _positive),
+        "max_rounds": _F(int, 3, _between(1, 10)), "check_levels": _F(int, 17, _between(3, 256)),
+        "r2_goal": _F(float, 0.999, _between(0.0, 1.0)),
+        "max_flat_fraction": _F(float, 0.6, _between(0.0, 1.0)),
+        "replicates": _F(int, 8, _between(2, 64)),
+    })
+    calibration = CalibrationConfig(**ca)
+    tables, audience = _parse_tables_audience(ctx, top["tables"], top["audience"])
+
+    env = os.environ
+    if top["state_dir"] is not None:
+        state_dir = _resolve(ctx, top["state_dir"])
+    else:
+        state_dir = Path(env.get("STATE_DIRECTORY", "/var/lib/grassd").split(":")[0])
+    if top["cache_dir"] is not None:
+        cache_dir = _resolve(ctx, top["cache_dir"])
+    elif env.get("GRASSD_CACHE_DIR"):
+        cache_dir = Path(env["GRASSD_CACHE_DIR"])
+    elif env.get("CACHE_DIRECTORY"):
+        cache_dir = Path(env["CACHE_DIRECTORY"].split(":")[0])
+    else:
+        cache_dir = state_dir / "cache"
+    if top["control_socket"] is not None:
+        sock = _resolve(ctx, top["control_socket"])
+    elif env.get("RUNTIME_DIRECTORY"):
+        sock = Path(env["RUNTIME_DIRECTORY"].split(":")[0]) / "control.sock"
+    elif top["state_dir"] is None and SYSTEM_RUNTIME_DIR.is_dir():
+        sock = SYSTEM_RUNTIME_DIR / "control.sock"  # the service's socket, seen from a shell
+    else:
+        sock = state_dir / "control.sock"
+
+    inbox = Path(os.path.expandvars(os.path.expanduser(lt["inbox"])))
+    light = LightConfig(inbox=inbox if inbox.is_absolute() else state_dir / inbox,
+                        lux=lt["lux"], modbus=modbus, settle_s=lt["settle_s"],
+                        incomplete_timeout_s=lt["incomplete_timeout_s"],
+                        lux_wait_s=lt["lux_wait_s"],
+                        future_tolerance_s=lt["future_tolerance_s"], hdri_flip=lt["hdri_flip"],
+                        hdri_rotation_deg=lt["hdri_rotation_deg"])
+
+    return Config(site=site, display=display, controllers=tuple(controllers),
+                  viewpoints=tuple(viewpoints), light=light, schedule=schedule,
+                  simulation=simulation, calibration=calibration, state_dir=state_dir,
+                  cache_dir=cache_dir,
+                  control_socket=sock, source=ctx.source, tables=tables, audience=audience,
+                  retention=retention)
+
+
+def _parse_tables_audience(ctx: _Ctx, tables_raw: Any, audience_raw: Any
+                           ) -> tuple[TablesConfig, AudienceConfig | None]:
+    """``[tables]`` and the optional ``[audience]`` region (see their dataclasses)."""
+    t = _table(ctx, ("tables",), tables_raw, {
+        "granularity": _F(str, "global", _one_of("global", "controller", "pixel")),
+        "eye": _F(str, "world", _one_of("world", "pixel")),
+        "group_tolerance_deg": _F(float, 2.0, _between(0.0, 90.0, " degrees")),
+        "distance_tolerance": _F(float, 0.1, _between(1e-3, 10.0)),
+        "check_groups": _F(int, 4, _between(-1, 4096)),
+        "layout": _F(str, "auto", _one_of("auto", "shared", "per_pixel")),
+    })
+    if audience_raw is None:
+        return TablesConfig(**t), None
+
+    def polygon_check(v: list) -> str | None:
+        ok = len(v) >= 3 and all(isinstance(p, list) and _numbers(2)(p) is None for p in v)
+        return None if ok else "must be an array of at least 3 [x, y] points in metres"
+
+    a = _table(ctx, ("audience",), audience_raw, {
+        "polygon": _F(list, check=polygon_check), "h_cm": _F(list, check=_numbers(2)),
+        "ground_samples": _F(int, 16, _between(1, 10000)),
+        "height_samples": _F(int, 2, _between(1, 100)),
+        "objective": _F(str, "mean", _one_of("mean", "worst")),
+    })
+    lo, hi = (float(x) for x in a["h_cm"])
+    if not 10 <= lo <= hi <= 1000:
+        raise ctx.error(("audience", "h_cm"), f"must be [low, high] with 10 <= low <= high <= "
+                        f"1000 cm, got {a['h_cm']}")
+    poly = tuple((float(x), float(y)) for x, y in a["polygon"])
+    xs, ys = [p[0] for p in poly], [p[1] for p in poly]
+    area = 0.5 * abs(sum(xs[i] * ys[i - 1] - xs[i - 1] * ys[i] for i in range(len(poly))))
+    if area <= 1e-6:
+        raise ctx.error(("audience", "polygon"), "has no area; list its corners in order")
+    return TablesConfig(**t), AudienceConfig(polygon=poly, h_cm=(lo, hi),
+                                             ground_samples=a["ground_samples"],
+                                             height_samples=a["height_samples"],
+                                             objective=a["objective"])
+
+
+# --------------------------------------------------------------------------- public API
+
+
+def parse_config(text: str, *, source: str = "<string>", base_dir: Path | None = None) -> Config:
+    """Parse and validate TOML ``text``; relative paths resolve against ``base_dir`` (or cwd)."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        m = re.search(r"line (\d+)", str(exc))
+        raise ConfigError(f"TOML syntax error: {exc}", line=int(m.group(1)) if m else None,
+                          path=source) from None
+    ctx = _Ctx(text, source, base_dir or Path.cwd())
+    return _parse(data, ctx)
+
+
+def load_config(path: str | os.PathLike[str]) -> Config:
+    """Read and validate the configuration file at ``path``."""
+    p = Path(path)
+    try:
+        raw = p.read_bytes()
+    except FileNotFoundError:
+        raise ConfigError("configuration file not found (pass --config FILE)",
+                          path=str(p)) from None
+    except OSError as exc:
+        raise ConfigError(f"cannot read configuration: {exc.strerror}", path=str(p)) from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"not UTF-8 text (byte {exc.start})", path=str(p)) from None
+    return parse_config(text, source=str(p), base_dir=p.resolve().parent)
+
+
+def default_config_text() -> str:
+    """The embedded default configuration (``daemon/config/default.toml``) as text."""
+    return resources.files("grassd.daemon.config").joinpath("default.toml").read_text("utf-8")
+
+
+def load_default_config(**overrides: Any) -> Config:
+    """The embedded default configuration, paths resolved against the current directory."""
+    cfg = parse_config(default_config_text(), source="<embedded default.toml>")
+    return cfg.replace(**overrides) if overrides else cfg
+
+
+def not_used_by_the_daemon(cfg: Config) -> list[str]:
+    """Settings that ``grassd run`` does not act on, as warnings (empty when all are used).
+
+    The daemon honours ``[tables] granularity`` (a table per controller or per pixel) and
+    ``[audience]`` (tables from the region instead of ``[[viewpoints]]``):
+    :mod:`grassd.daemon.calibration.calibrate_display`. With ``[audience]`` every eye is a world
+    position, so ``[tables] eye = "pixel"`` has no meaning there.
+    """
+    notes = []
+    if cfg.audience is not None and cfg.tables.eye != "world":
+        notes.append(f"tables.eye = {cfg.tables.eye!r} is ignored with [audience]: the region's "
+                     "eyes are world positions, every pixel seen from its own direction")
+    return notes

@@ -1,0 +1,813 @@
+"""``grassd validate``: compare the simulated grass colour characteristic with real captures.
+
+A *capture directory* holds what a user photographs on site (the paper's real-environment
+process, section 3.4.1) and a manifest ``capture.toml`` describing it::
+
+    chart = "spydercheckr-24"            # reference chart name or CSV path (optional)
+
+    [light]                               # the light at the moment of capture
+    hdri = "env.exr"                      # relative to the capture directory, or absolute
+    lux = 500.0                           # horizontal illuminance, sun shaded (lux)
+    # sun_lux, sun_azimuth_deg, sun_elevation_deg, sun_from_hdri, rotation_deg: optional
+
+    [checker]                             # one RAW of the colour checker at the measuring point
+    photo = "checker.dng"
+    corners = [[x, y], [x, y], [x, y], [x, y]]   # patch area: TL, TR, BR, BL (image pixels)
+
+    [pixel]                               # optional PixelSpec fields of the simulation model
+    splay_deg = 0.0
+
+    [[series]]                            # one per viewpoint
+    viewpoint = [170.0, 2.0, 0.0]         # h cm, d m, theta deg
+    corners = [[x, y], ...]               # the pixel's top quad (default for its photos)
+    reference = true                      # the viewpoint M is reported for (default 170, 2, 0)
+    photos = [{ file = "v0_00.dng", length_mm = 0.0 }, ...]   # lengths strictly increasing
+
+Corners are pixel coordinates (x = column, y = row) of the developed image as LibRaw outputs
+it (i.e. after the camera's orientation flag is applied), pixel (0, 0) covering [0, 1) x [0, 1).
+All photos must come from one camera with one exposure setting (manual mode): the checker's grey
+sets the exposure of every photo.
+
+Steps (:func:`validate_capture`): every RAW is developed linearly to 16-bit ProPhoto RGB with one
+fixed white balance, measured from the checker's grey patch on the undeveloped Bayer data; the
+checker's grey sets the exposure (Y = 0.18) for all photos; the mean colour inside each photo's
+quad gives the real characteristic (CIELAB, OGCD). The same scene is simulated, the 3x3 matrix M
+is fitted from the virtual to the real checker patches (one M for every viewpoint, as in the
+paper), and per viewpoint we report the discrete Frechet distance, the maximum OGCD error and
+where it occurs, both OGCD ranges, and the paper's Figure 11 experiment: the R^2 of OGCD vs
+8-bit level before calibration, after calibrating with the real characteristic, and after
+calibrating with the simulated one (evaluated on the real pixel).
+
+Colour chain of the simulation, kept identical to the real one: radiance / white-card radiance
+(von Kries in linear Rec.709, the white card reads 1) -> ProPhoto -> scaled so the virtual
+checker's grey reads Y = 0.18 -> M -> CIELAB. The virtual checker is analytic: a flat Lambertian
+patch of albedo ``a`` (the chart's reference colour) reads ``a`` after the same normalisation.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import tomllib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from grassd.calib.ccm import ColourCorrection, fit_ccm
+from grassd.calib.characteristic import Characteristic, fit_characteristic, floor_stderr
+from grassd.calib.charts import ReferenceChart, get_chart
+from grassd.calib.colour_spaces import luminance, prophoto_to_lab, prophoto_to_rec709
+from grassd.calib.compare import frechet_characteristics
+from grassd.calib.errors import CalibError
+from grassd.calib.exposure import GREY_CARD_Y
+from grassd.calib.length_table import LEVELS, build_length_table, r_squared
+from grassd.calib.ogcd import ogcd_from_lab
+from grassd.calib.raw import develop_raw
+from grassd.calib.regions import checker_patch_quads, quad_mask
+from grassd.daemon.errors import DaemonError
+
+#: File name of the manifest inside a capture directory.
+MANIFEST_NAME: str = "capture.toml"
+#: The paper's reference viewpoint (h cm, d m, theta deg).
+REFERENCE_VIEWPOINT: tuple[float, float, float] = (170.0, 2.0, 0.0)
+
+
+class ValidateError(DaemonError):
+    """A capture directory cannot be validated; the message says what to fix."""
+
+
+class CaptureManifestError(ValidateError):
+    """``capture.toml`` is missing, malformed, or holds an unknown key or a bad value."""
+
+
+class MissingPhotoError(ValidateError):
+    """A photo named in the manifest does not exist."""
+
+
+class CornersOutsideImageError(ValidateError):
+    """A quad or checker corner lies outside the photo it belongs to."""
+
+
+class LengthOrderError(ValidateError):
+    """The green lengths of a series are not strictly increasing."""
+
+
+class MixedCamerasError(ValidateError):
+    """The photos were not all taken with the same camera (make, model, sensor layout)."""
+
+
+def default_renderer(arch: str = "cpu") -> Any:
+    """The process's shared :class:`grassd.sim.renderer.Renderer` (Taichi initialised on
+    ``arch`` first if needed): every further instance would compile its kernels again."""
+    from grassd.sim import backend
+
+    if not backend.is_initialised():
+        backend.init(arch)
+    from grassd.sim.renderer import Renderer
+
+    return Renderer.shared()
+
+
+# ----------------------------------------------------------------------------- manifest
+@dataclass(frozen=True)
+class LightSpec:
+    """The light of the capture: HDRI file, lux readings, sun (see ``grassd simulate``)."""
+
+    hdri: Path
+    lux: float
+    sun_lux: float | None = None
+    sun_azimuth_deg: float | None = None
+    sun_elevation_deg: float | None = None
+    sun_from_hdri: bool = False
+    rotation_deg: float = 0.0
+
+    def build(self, hdri: Any = None):
+        """The :class:`grassd.sim.lighting.Lighting` (``hdri``: an already loaded array)."""
+        from grassd.sim.lighting import build_lighting
+
+        return build_lighting(self.hdri if hdri is None else hdri, self.lux, sun_lux=self.sun_lux,
+                              sun_azimuth_deg=self.sun_azimuth_deg,
+                              sun_elevation_deg=self.sun_elevation_deg,
+                              sun_from_hdri=self.sun_from_hdri, rotation_deg=self.rotation_deg)
+
+    def to_toml_dict(self) -> dict[str, Any]:
+        """The ``[light]`` table."""
+        d: dict[str, Any] = {"hdri": str(self.hdri), "lux": self.lux}
+        for k in ("sun_lux", "sun_azimuth_deg", "sun_elevation_deg"):
+            if getattr(self, k) is not None:
+                d[k] = getattr(self, k)
+        if self.sun_from_hdri:
+            d["sun_from_hdri"] = True
+        if self.rotation_deg:
+            d["rotation_deg"] = self.rotation_deg
+        return d
+
+
+@dataclass(frozen=True)
+class Photo:
+    """One RAW of the grass pixel: file, green length (mm), top-quad corners (4, 2) (x, y)."""
+
+    path: Path
+    length_mm: float
+    corners: tuple[tuple[float, float], ...]
+
+
+@dataclass(frozen=True)
+class Series:
+    """The photos of one viewpoint (h cm, d m, theta deg), lengths strictly increasing."""
+
+    viewpoint: tuple[float, float, float]
+    photos: tuple[Photo, ...]
+    reference: bool = False
+
+    @property
+    def lengths_mm(self) -> NDArray[np.float64]:
+        """(n,) green lengths, mm."""
+        return np.array([p.length_mm for p in self.photos], dtype=np.float64)
+
+    @property
+    def label(self) -> str:
+        """``(h, d, theta)`` as the paper writes it."""
+        h, d, t = self.viewpoint
+        return f"({h:g}, {d:g}, {t:g})"
+
+
+@dataclass(frozen=True)
+class CaptureManifest:
+    """A parsed ``capture.toml`` (paths resolved against the capture directory)."""
+
+    root: Path
+    light: LightSpec
+    checker_photo: Path
+    checker_corners: tuple[tuple[float, float], ...]
+    series: tuple[Series, ...]
+    chart: str = "spydercheckr-24"
+    pixel: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def reference(self) -> Series:
+        """The series marked ``reference``, else the one at (170, 2, 0), else the first."""
+        for s in self.series:
+            if s.reference:
+                return s
+        for s in self.series:
+            if s.viewpoint == REFERENCE_VIEWPOINT:
+                return s
+        return self.series[0]
+
+    def photos(self) -> list[Path]:
+        """Every RAW of the capture, checker first."""
+        return [self.checker_photo] + [p.path for s in self.series for p in s.photos]
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        return repr(float(v)) if isinstance(v, float) else str(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {_fmt(x)}" for k, x in v.items()) + " }"
+    return "[" + ", ".join(_fmt(x) for x in v) + "]"
+
+
+def manifest_to_toml(m: CaptureManifest) -> str:
+    """TOML text of a manifest (paths relative to ``m.root`` where they lie inside it)."""
+
+    def rel(p: Path) -> str:
+        try:
+            return str(Path(p).resolve().relative_to(m.root.resolve()))
+        except ValueError:
+            return str(Path(p).resolve())
+
+    light = m.light.to_toml_dict()
+    light["hdri"] = rel(m.light.hdri)
+    lines = [f"chart = {_fmt(m.chart)}", "", "[light]"]
+    lines += [f"{k} = {_fmt(v)}" for k, v in light.items()]
+    lines += ["", "[checker]", f"photo = {_fmt(rel(m.checker_photo))}",
+              f"corners = {_fmt([list(c) for c in m.checker_corners])}"]
+    if m.pixel:
+        lines += ["", "[pixel]"] + [f"{k} = {_fmt(v)}" for k, v in m.pixel.items()]
+    for s in m.series:
+        lines += ["", "[[series]]", f"viewpoint = {_fmt(list(s.viewpoint))}"]
+        if s.reference:
+            lines.append("reference = true")
+        lines.append("photos = [")
+        for p in s.photos:
+            lines.append("  " + _fmt({"file": rel(p.path), "length_mm": p.length_mm,
+                                      "corners": [list(c) for c in p.corners]}) + ",")
+        lines.append("]")
+    return "\n".join(lines) + "\n"
+
+
+def _keys(table: dict, allowed: set[str], where: str, path: Path) -> None:
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise CaptureManifestError(f"{path}: unknown key(s) {', '.join(unknown)} in {where}; "
+                                   f"allowed: {', '.join(sorted(allowed))}")
+
+
+def _number(table: dict, key: str, where: str, path: Path, default: Any = ...) -> Any:
+    if key not in table:
+        if default is ...:
+            raise CaptureManifestError(f"{path}: {where}.{key} is missing")
+        return default
+    v = table[key]
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        raise CaptureManifestError(f"{path}: {where}.{key} = {v!r} must be a finite number")
+    return float(v)
+
+
+def _corners(v: Any, where: str, path: Path) -> tuple[tuple[float, float], ...]:
+    try:
+        arr = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = np.zeros(0)
+    if arr.shape != (4, 2) or not np.isfinite(arr).all():
+        raise CaptureManifestError(f"{path}: {where} must be four [x, y] image points (pixels), "
+                                   f"in order around the area; got {v!r}")
+    return tuple((float(x), float(y)) for x, y in arr)
+
+
+def _file(root: Path, v: Any, where: str, path: Path) -> Path:
+    if not isinstance(v, str) or not v:
+        raise CaptureManifestError(f"{path}: {where} must be a file name; got {v!r}")
+    p = Path(v)
+    return p if p.is_absolute() else root / p
+
+
+def load_manifest(path: str | Path) -> CaptureManifest:
+    """Parse and check ``capture.toml`` (a file, or a directory holding one).
+
+    Raises :class:`CaptureManifestError` (syntax, missing/unknown keys, bad values),
+    :class:`MissingPhotoError` (a listed RAW or the HDRI does not exist) and
+    :class:`LengthOrderError` (lengths of a series not strictly increasing).
+    """
+    p = Path(path)
+    if p.is_dir():
+        p = p / MANIFEST_NAME
+    root = p.parent
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise CaptureManifestError(f"{p} does not exist: a capture directory needs a "
+                                   f"{MANIFEST_NAME} manifest") from None
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise CaptureManifestError(f"{p} is not valid TOML: {exc}") from None
+    _keys(data, {"chart", "light", "checker", "pixel", "series"}, "the top level", p)
+    for key in ("light", "checker", "series"):
+        if key not in data:
+            raise CaptureManifestError(f"{p}: the [{key}] section is missing")
+    lt = data["light"]
+    _keys(lt, {"hdri", "lux", "sun_lux", "sun_azimuth_deg", "sun_elevation_deg",
+               "sun_from_hdri", "rotation_deg"}, "[light]", p)
+    hdri = _file(root, lt.get("hdri"), "light.hdri", p)
+    if not hdri.is_file():
+        raise MissingPhotoError(f"{p}: light.hdri {hdri} does not exist; copy the panorama "
+                                "taken with the photos into the capture directory")
+    light = LightSpec(
+        hdri=hdri, lux=_number(lt, "lux", "light", p),
+        sun_lux=_number(lt, "sun_lux", "light", p, None),
+        sun_azimuth_deg=_number(lt, "sun_azimuth_deg", "light", p, None),
+        sun_elevation_deg=_number(lt, "sun_elevation_deg", "light", p, None),
+        sun_from_hdri=bool(lt.get("sun_from_hdri", False)),
+        rotation_deg=_number(lt, "rotation_deg", "light", p, 0.0))
+    ck = data["checker"]
+    _keys(ck, {"photo", "corners"}, "[checker]", p)
+    checker = _file(root, ck.get("photo"), "checker.photo", p)
+    checker_corners = _corners(ck.get("corners"), "checker.corners", p)
+    pixel = {k: tuple(v) if isinstance(v, list) else v for k, v in data.get("pixel", {}).items()}
+    from grassd.sim.scene import PixelSpec
+
+    _keys(pixel, set(PixelSpec.__dataclass_fields__), "[pixel]", p)
+    series_list = data["series"]
+    if not isinstance(series_list, list) or not series_list:
+        raise CaptureManifestError(f"{p}: give at least one [[series]] of photos")
+    series = []
+    for i, st in enumerate(series_list):
+        where = f"series[{i}]"
+        _keys(st, {"viewpoint", "corners", "reference", "photos"}, where, p)
+        vp = st.get("viewpoint")
+        if (not isinstance(vp, list) or len(vp) != 3
+                or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in vp)):
+            raise CaptureManifestError(f"{p}: {where}.viewpoint must be [h_cm, d_m, theta_deg]; "
+                                       f"got {vp!r}")
+        default = _corners(st["corners"], f"{where}.corners", p) if "corners" in st else None
+        photos = []
+        if not isinstance(st.get("photos"), list) or len(st["photos"]) < 3:
+            raise CaptureManifestError(f"{p}: {where}.photos must list at least 3 photos "
+                                       "({ file = ..., length_mm = ... })")
+        for j, ph in enumerate(st["photos"]):
+            pw = f"{where}.photos[{j}]"
+            if not isinstance(ph, dict):
+                raise CaptureManifestError(f"{p}: {pw} must be {{ file = ..., length_mm = ... }}")
+            _keys(ph, {"file", "length_mm", "corners"}, pw, p)
+            if "corners" in ph:
+                corners = _corners(ph["corners"], f"{pw}.corners", p)
+            elif default is not None:
+                corners = default
+            else:
+                raise CaptureManifestError(f"{p}: {pw} has no corners and {where} gives no "
+                                           "default corners")
+            length = _number(ph, "length_mm", pw, p)
+            if length < 0:
+                raise CaptureManifestError(f"{p}: {pw}.length_mm = {length:g} must be >= 0 mm")
+            photos.append(Photo(_file(root, ph.get("file"), f"{pw}.file", p), length, corners))
+        lengths = [ph.length_mm for ph in photos]
+        bad = [k for k in range(1, len(lengths)) if lengths[k] <= lengths[k - 1]]
+        if bad:
+            k = bad[0]
+            raise LengthOrderError(
+                f"{p}: {where} lengths must be strictly increasing (the first photo is the "
+                f"OGCD reference); photo {k} ({photos[k].path.name}) has {lengths[k]:g} mm after "
+                f"{lengths[k - 1]:g} mm")
+        series.append(Series(tuple(float(v) for v in vp), tuple(photos),  # type: ignore[arg-type]
+                             bool(st.get("reference", False))))
+    if sum(s.reference for s in series) > 1:
+        raise CaptureManifestError(f"{p}: more than one series is marked reference = true")
+    chart = data.get("chart", "spydercheckr-24")
+    m = CaptureManifest(root=root, light=light, checker_photo=checker,
+                        checker_corners=checker_corners, series=tuple(series),
+                        chart=str(chart), pixel=pixel)
+    for photo in m.photos():
+        if not photo.is_file():
+            raise MissingPhotoError(f"{p}: photo {photo} does not exist; copy it into the "
+                                    "capture directory or fix its name in the manifest")
+    return m
+
+
+# ----------------------------------------------------------------------------- real side
+def camera_signature(path: Path) -> dict[str, Any]:
+    """What identifies the camera of a RAW: make/model (TIFF-based RAWs), colour filter layout,
+    white level and LibRaw's colour matrix."""
+    import rawpy
+
+    sig: dict[str, Any] = {"make": "", "model": ""}
+    try:
+        import tifffile
+
+        with tifffile.TiffFile(path) as tf:
+            tags = tf.pages[0].tags
+            for code, key in ((271, "make"), (272, "model")):
+                if code in tags:
+                    sig[key] = str(tags[code].value).strip()
+    except Exception:  # non-TIFF RAW formats (CR3, RAF...) carry no such tags
+        pass
+    try:
+        with rawpy.imread(str(path)) as raw:
+            sig["cfa"] = raw.color_desc.decode(errors="replace") + ":" + "".join(
+                map(str, np.asarray(raw.raw_pattern).ravel()))
+            sig["white_level"] = int(raw.white_level)
+            sig["matrix"] = tuple(np.round(np.asarray(raw.color_matrix, float), 3).ravel())
+    except Exception as exc:  # rawpy raises several unrelated types
+        raise ValidateError(f"{path} is not a RAW file LibRaw can open ({exc}); give the camera's "
+                            "unmodified RAW or DNG") from None
+    return sig
+
+
+def _describe(sig: dict[str, Any]) -> str:
+    name = f"{sig['make']} {sig['model']}".strip() or "an unnamed camera"
+    return f"{name} (CFA {sig['cfa']}, white level {sig['white_level']})"
+
+
+def check_same_camera(paths: Sequence[Path]) -> dict[str, Any]:
+    """The common camera signature of ``paths``; :class:`MixedCamerasError` if they differ."""
+    first = camera_signature(paths[0])
+    for p in paths[1:]:
+        sig = camera_signature(p)
+        if sig != first:
+            what = [k for k in first if first[k] != sig.get(k)]
+            raise MixedCamerasError(
+                f"{Path(p).name} was taken with {_describe(sig)} but {Path(paths[0]).name} with "
+                f"{_describe(first)} (differs in {', '.join(what)}); take every photo of a "
+                "capture, the checker included, with the same camera and settings")
+    return first
+
+
+def _check_inside(corners: Sequence[Sequence[float]], shape: tuple[int, ...], path: Path,
+                  what: str) -> None:
+    c = np.asarray(corners, dtype=np.float64)
+    h, w = shape[:2]
+    bad = (c[:, 0] < 0) | (c[:, 0] > w) | (c[:, 1] < 0) | (c[:, 1] > h)
+    if bad.any():
+        raise CornersOutsideImageError(
+            f"{what} corner(s) {c[bad].tolist()} lie outside {path.name} ({w} x {h} pixels; "
+            "x = column 0..width, y = row 0..height); check the corner coordinates")
+
+
+def developed_to_raw(corners: Sequence[Sequence[float]], raw_shape: tuple[int, ...],
+                     flip: int) -> NDArray[np.float64]:
+    """Map (x, y) points of the developed image onto the undeveloped sensor data.
+
+    LibRaw's ``flip`` (from the camera's orientation tag): 0 none, 3 rotated 180 deg, 5 rotated
+    90 deg counter-clockwise, 6 rotated 90 deg clockwise; ``raw_shape`` = (rows, columns) of
+    the visible sensor area.
+
+    >>> developed_to_raw([[1.0, 2.0]], (10, 20), 3).tolist()
+    [[19.0, 8.0]]
+    """
+    c = np.asarray(corners, dtype=np.float64).reshape(-1, 2)
+    h, w = raw_shape[:2]
+    x, y = c[:, 0], c[:, 1]
+    if flip == 0:
+        return c
+    if flip == 3:
+        return np.column_stack([w - x, h - y])
+    if flip == 6:  # developed = raw turned clockwise: (xd, yd) = (h - yr, xr)
+        return np.column_stack([y, h - x])
+    if flip == 5:  # counter-clockwise: (xd, yd) = (yr, w - xr)
+        return np.column_stack([w - y, x])
+    raise ValidateError(f"unsupported image orientation (LibRaw flip {flip}); rotate or "
+                        "mirror the RAW back to its sensor orientation")
+
+
+def checker_white_balance(path: Path, corners: Sequence[Sequence[float]],
+                          chart: ReferenceChart) -> tuple[float, float, float, float]:
+    """LibRaw channel multipliers (R, G, B, G2) that develop the checker's grey patch to the
+    chromaticity of its reference colour (a grey card is nearly, not exactly, neutral).
+
+    Measured on the undeveloped Bayer data: ``c`` = the black-subtracted mean of each colour
+    filter inside the grey patch. LibRaw develops ``out = rgb_cam . diag(wb) . c`` (then a fixed
+    sRGB -> ProPhoto matrix), so ``wb = (rgb_cam^-1 . t) / c`` with ``t`` the reference grey in
+    linear sRGB; normalised to green = 1. Where LibRaw reports no colour matrix the grey is
+    made neutral (``wb = mean green / c``).
+    """
+    import rawpy
+
+    with rawpy.imread(str(path)) as raw:
+        img = raw.raw_image_visible.astype(np.float64)
+        colours = np.asarray(raw.raw_colors_visible)
+        black = np.asarray(raw.black_level_per_channel, dtype=np.float64)
+        white = float(raw.white_level)
+        desc = raw.color_desc.decode(errors="replace")
+        rgb_cam = np.asarray(raw.color_matrix, dtype=np.float64)[:, :3]
+        flip = int(raw.sizes.flip)
+    developed_shape = img.shape[::-1] if flip in (5, 6) else img.shape
+    _check_inside(corners, developed_shape, path, "checker")
+    corners = developed_to_raw(corners, img.shape, flip)
+    if len(desc) not in (3, 4) or set(desc[:3]) != set("RGB") or set(desc) - set("RGB"):
+        raise ValidateError(f"{path.name}: colour filters {desc!r} are not an R/G/B Bayer "
+                            "sensor; white balance from the checker needs one")
+    quad = checker_patch_quads(corners)[chart.grey_index()]
+    mask = quad_mask(img.shape, quad)
+    means = np.zeros(len(desc))
+    for c in range(len(desc)):
+        sel = mask & (colours == c)
+        if not sel.any():
+            raise ValidateError(f"{path.name}: the grey patch covers no {desc[c]} photosite; the "
+                                "checker is too small in the photo")
+        if img[sel].max() >= white:
+            raise ValidateError(f"{path.name}: the checker's grey patch is clipped (raw values at "
+                                f"the white level {white:g}); lower the exposure")
+        means[c] = img[sel].mean() - black[c]
+    if means.min() <= 0:
+        raise ValidateError(f"{path.name}: the checker's grey patch reads no light above black "
+                            f"({means.round(1).tolist()}); check the checker corners")
+    index = {ch: [c for c in range(len(desc)) if desc[c] == ch] for ch in "RGB"}
+    target = np.ones(3)
+    if np.isfinite(rgb_cam).all() and abs(np.linalg.det(rgb_cam)) > 1e-9:
+        grey_srgb = prophoto_to_rec709(chart.prophoto()[chart.grey_index()])
+        target = np.linalg.solve(rgb_cam, grey_srgb)
+        if (target <= 0).any():
+            target = np.ones(3)
+    per = {ch: target["RGB".index(ch)] for ch in "RGB"}
+    mult = np.array([per[desc[c]] / means[c] for c in range(len(desc))])
+    mult = mult / np.mean([mult[c] for c in index["G"]])
+    wb = [float(v) for v in mult] + ([float(mult[index["G"][0]])] if len(desc) == 3 else [])
+    return tuple(wb)  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class RealCapture:
+    """The measured (real) side of a capture.
+
+    ``white_balance``: LibRaw multipliers from the checker; ``exposure``: factor that puts the
+    checker's grey at Y = 0.18; ``checker_rgb`` (24, 3) normalised ProPhoto linear patches;
+    ``rgb`` / ``lab`` / ``ogcd`` per series (n, 3) / (n, 3) / (n,); ``camera``: its signature.
+    """
+
+    white_balance: tuple[float, float, float, float]
+    exposure: float
+    checker_rgb: NDArray[np.float64]
+    rgb: tuple[NDArray[np.float64], ...]
+    lab: tuple[NDArray[np.float64], ...]
+    ogcd: tuple[NDArray[np.float64], ...]
+    camera: dict[str, Any]
+    seconds: float
+
+
+def measure_real(m: CaptureManifest, chart: ReferenceChart | None = None,
+                 progress: Callable[[str], None] | None = None) -> RealCapture:
+    """Develop and measure every RAW of a capture (see the module docstring)."""
+    t0 = time.perf_counter()
+    chart = chart or get_chart(m.chart)
+    camera = check_same_camera(m.photos())
+    wb = checker_white_balance(m.checker_photo, m.checker_corners, chart)
+    dev = develop_raw(m.checker_photo, white_balance=wb)
+    _check_inside(m.checker_corners, dev.rgb.shape, m.checker_photo, "checker")
+    patches = dev.checker_patches(m.checker_corners)
+    grey_y = float(luminance(patches[chart.grey_index()], "prophoto"))
+    if grey_y <= 0:
+        raise ValidateError(f"{m.checker_photo.name}: the grey patch is black; check the corners")
+    k = GREY_CARD_Y / grey_y
+    rgbs, labs, ogcds = [], [], []
+    for s in m.series:
+        rows = []
+        for ph in s.photos:
+            if progress:
+                progress(f"developing {ph.path.name}")
+            img = develop_raw(ph.path, white_balance=wb)
+            _check_inside(ph.corners, img.rgb.shape, ph.path, "pixel quad")
+            rows.append(img.quad_mean(ph.corners) * k)
+        rgb = np.array(rows)
+        lab = prophoto_to_lab(rgb)
+        rgbs.append(rgb)
+        labs.append(lab)
+        ogcds.append(ogcd_from_lab(lab))
+    return RealCapture(white_balance=wb, exposure=k, checker_rgb=patches * k, rgb=tuple(rgbs),
+                       lab=tuple(labs), ogcd=tuple(ogcds), camera=camera,
+                       seconds=time.perf_counter() - t0)
+
+
+# ----------------------------------------------------------------------------- comparison
+def virtual_checker(chart: ReferenceChart) -> tuple[NDArray[np.float64], float]:
+    """Normalised ProPhoto linear patches (24, 3) of the analytic virtual checker and the factor
+    ``s`` (0.18 / Y of its grey) that the white-card-normalised simulation is scaled by."""
+    pp = chart.prophoto()  # the analytic patches need no Rec.709 detour (nor its gamut)
+    s = GREY_CARD_Y / float(luminance(pp[chart.grey_index()], "prophoto"))
+    return pp * s, s
+
+
+def max_error_at(real: Characteristic, sim: Characteristic) -> tuple[float, float]:
+    """Largest |OGCD_real - OGCD_sim| (dE00) and the length (mm) where it occurs, on the union
+    of both samplings within their common range (as :func:`grassd.calib.compare.max_ogcd_error`)."""
+    lo = max(real.lengths_mm[0], sim.lengths_mm[0])
+    hi = min(real.lengths_mm[-1], sim.lengths_mm[-1])
+    grid = np.union1d(real.lengths_mm, sim.lengths_mm)
+    grid = grid[(grid >= lo) & (grid <= hi)]
+    diff = np.abs(np.interp(grid, real.lengths_mm, real.ogcd)
+                  - np.interp(grid, sim.lengths_mm, sim.ogcd))
+    i = int(np.argmax(diff))
+    return float(diff[i]), float(grid[i])
+
+
+@dataclass(frozen=True)
+class CalibrationCheck:
+    """The paper's Figure 11 for one viewpoint: OGCD of the REAL pixel vs 8-bit level.
+
+    ``before``: length linear in level; ``after_real`` / ``after_sim``: lengths from the table
+    built on the real / simulated characteristic. Each (256,) array with its R^2 and line.
+    """
+
+    levels: NDArray[np.float64]
+    before: NDArray[np.float64]
+    after_real: NDArray[np.float64]
+    after_sim: NDArray[np.float64]
+    r2_before: float
+    r2_after_real: float
+    r2_after_sim: float
+
+    def to_json(self) -> dict[str, Any]:
+        """R^2 values only (the arrays are plotted)."""
+        return {"r2_before": self.r2_before, "r2_after_real": self.r2_after_real,
+                "r2_after_sim": self.r2_after_sim}
+
+
+def calibration_check(real: Characteristic, sim: Characteristic) -> CalibrationCheck:
+    """8-bit calibration R^2 before and after, with the real and with the simulated table,
+    always evaluated on the real pixel's fitted characteristic (paper: 0.956 -> 0.999 real,
+    0.956 -> 0.965 simulated)."""
+    fit_real = fit_characteristic(real)
+    levels = np.arange(LEVELS, dtype=np.float64)
+    table_real = build_length_table(fit_real)
+    table_sim = build_length_table(sim)
+    after_sim = fit_real(np.clip(table_sim.lengths_mm, fit_real.min_length_mm,
+                                 fit_real.max_length_mm))
+    return CalibrationCheck(levels=levels, before=table_real.uncalibrated_ogcd,
+                            after_real=table_real.achieved_ogcd, after_sim=after_sim,
+                            r2_before=table_real.r2_before, r2_after_real=table_real.r2_after,
+                            r2_after_sim=r_squared(levels, after_sim))
+
+
+@dataclass(frozen=True)
+class ViewpointComparison:
+    """Real vs simulated characteristic of one viewpoint, with the paper's metrics."""
+
+    viewpoint: tuple[float, float, float]
+    reference: bool
+    real: Characteristic
+    sim: Characteristic
+    real_lab: NDArray[np.float64]
+    sim_lab: NDArray[np.float64]
+    frechet: float
+    max_error: float
+    max_error_length_mm: float
+    calibration: CalibrationCheck | None
+    sim_seconds: float  # simulation wall time of this viewpoint, kernel compilation excluded
+
+    @property
+    def label(self) -> str:
+        """``(h, d, theta)``."""
+        h, d, t = self.viewpoint
+        return f"({h:g}, {d:g}, {t:g})"
+
+    @property
+    def real_range(self) -> float:
+        """OGCD range of the real characteristic (max - min, dE00)."""
+        return float(self.real.ogcd.max() - self.real.ogcd.min())
+
+    @property
+    def sim_range(self) -> float:
+        """OGCD range of the simulated characteristic (dE00)."""
+        return float(self.sim.ogcd.max() - self.sim.ogcd.min())
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON object of this viewpoint."""
+        return {
+            "viewpoint": list(self.viewpoint), "reference": self.reference,
+            "lengths_mm": self.real.lengths_mm.tolist(),
+            "real_ogcd": self.real.ogcd.tolist(), "sim_ogcd": self.sim.ogcd.tolist(),
+            "sim_ogcd_stderr": (None if self.sim.ogcd_stderr is None
+                                else self.sim.ogcd_stderr.tolist()),
+            "real_lab": self.real_lab.tolist(), "sim_lab": self.sim_lab.tolist(),
+            "frechet": self.frechet, "max_ogcd_error": self.max_error,
+            "max_ogcd_error_length_mm": self.max_error_length_mm,
+            "real_ogcd_range": self.real_range, "sim_ogcd_range": self.sim_range,
+            "calibration": None if self.calibration is None else self.calibration.to_json(),
+            "sim_seconds": self.sim_seconds,
+        }
+
+
+def compare_viewpoint(viewpoint: tuple[float, float, float], lengths_mm: NDArray,
+                      real_ogcd: NDArray, sim_ogcd: NDArray, *, sim_stderr: NDArray | None = None,
+                      real_lab: NDArray | None = None, sim_lab: NDArray | None = None,
+                      reference: bool = False, sim_seconds: float = 0.0) -> ViewpointComparison:
+    """The paper's metrics between a real and a simulated characteristic at common lengths."""
+    real = Characteristic(lengths_mm, np.clip(real_ogcd, 0.0, None))
+    sim = Characteristic(lengths_mm, np.clip(sim_ogcd, 0.0, None),
+                         None if sim_stderr is None else floor_stderr(sim_stderr))
+    err, at = max_error_at(real, sim)
+    try:
+        cal = calibration_check(real, sim)
+    except CalibError:
+        cal = None  # a flat characteristic has no table; the comparison still stands
+    nan3 = np.full((len(lengths_mm), 3), np.nan)
+    return ViewpointComparison(
+        viewpoint=viewpoint, reference=reference, real=real, sim=sim,
+        real_lab=nan3 if real_lab is None else np.asarray(real_lab),
+        sim_lab=nan3 if sim_lab is None else np.asarray(sim_lab),
+        frechet=frechet_characteristics(real, sim), max_error=err, max_error_length_mm=at,
+        calibration=cal, sim_seconds=sim_seconds)
+
+
+@dataclass(frozen=True)
+class ValidationResult:
+    """Everything ``grassd validate`` reports."""
+
+    manifest: CaptureManifest
+    ccm: ColourCorrection
+    real: RealCapture
+    viewpoints: tuple[ViewpointComparison, ...]
+    settings: dict[str, Any]
+    seconds: dict[str, float]
+    repeatability: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    @property
+    def reference(self) -> ViewpointComparison:
+        """The reference viewpoint's comparison."""
+        return next(v for v in self.viewpoints if v.reference)
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON report."""
+        return {
+            "capture": str(self.manifest.root), "chart": self.manifest.chart,
+            "camera": {k: (list(v) if isinstance(v, tuple) else v)
+                       for k, v in self.real.camera.items()},
+            "white_balance": list(self.real.white_balance), "exposure": self.real.exposure,
+            "ccm": {"matrix": self.ccm.matrix.tolist(), "mean_de00": self.ccm.mean_de00,
+                    "max_de00": self.ccm.max_de00},
+            "reference_viewpoint": list(self.reference.viewpoint),
+            "viewpoints": [v.to_json() for v in self.viewpoints],
+            "repeatability": self.repeatability,
+            "settings": self.settings, "seconds": self.seconds,
+        }
+
+
+def repeatability(m: CaptureManifest, real: RealCapture) -> dict[str, dict[str, Any]]:
+    """The paper's repeatability test (section 4.1.1) wherever a viewpoint was measured in
+    several trials at the same lengths: ``{label: {"trials": n, "mean_std_ogcd": x,
+    "std_ogcd": [...]}}`` with x the mean over lengths of the sample standard deviation
+    (ddof = 1) of the real OGCD across trials (paper: about 0.42 for its real pixel)."""
+    groups: dict[tuple, list[int]] = {}
+    for i, sr in enumerate(m.series):
+        groups.setdefault((sr.viewpoint, tuple(sr.lengths_mm)), []).append(i)
+    out = {}
+    for idx in groups.values():
+        if len(idx) < 2:
+            continue
+        std = np.stack([real.ogcd[i] for i in idx]).std(axis=0, ddof=1)
+        out[m.series[idx[0]].label] = {"trials": len(idx), "mean_std_ogcd": float(std.mean()),
+                                       "std_ogcd": std.tolist()}
+    return out
+
+
+def validate_capture(m: CaptureManifest, *, renderer: Any = None, settings: Any = None,
+                     target_stderr: float | None = None, lighting: Any = None,
+                     arch: str = "cpu",
+                     progress: Callable[[str], None] | None = None) -> ValidationResult:
+    """Measure the real characteristic of a capture, simulate the same scene, compare.
+
+    ``renderer``: a :class:`grassd.sim.renderer.Renderer` (if None, one is created on backend
+    ``arch`` after the photos were measured, so bad captures fail fast);
+    ``settings``: :class:`grassd.sim.scene.RenderSettings`; ``lighting``: a prebuilt Lighting of
+    ``m.light`` (built here if None).
+    """
+    from grassd.daemon.calibration.simulation import simulate_curve
+    from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint
+
+    t0 = time.perf_counter()
+    chart = get_chart(m.chart)
+    real = measure_real(m, chart, progress)
+    virtual, s = virtual_checker(chart)
+    ccm = fit_ccm(virtual, real.checker_rgb, "3x3")
+    t1 = time.perf_counter()
+    settings = settings or RenderSettings(samples=4096, replicates=8)
+    if progress:
+        progress("building the lighting")
+    lighting = lighting if lighting is not None else m.light.build()
+    if renderer is None:
+        renderer = default_renderer(arch)
+    display = DisplaySpec(PixelSpec(**m.pixel))
+    ref = m.reference
+    out = []
+    curves: dict[tuple, Any] = {}  # repeated trials of a viewpoint share one simulation
+    for i, series in enumerate(m.series):
+        ts = time.perf_counter()
+        key = (series.viewpoint, tuple(series.lengths_mm))
+        if key not in curves:
+            if progress:
+                progress(f"simulating viewpoint {series.label}")
+            curves[key] = simulate_curve(renderer, display, lighting,
+                                         Viewpoint(*series.viewpoint), series.lengths_mm,
+                                         settings, ccm=ccm.matrix * s,
+                                         target_stderr=target_stderr)
+        curve = curves[key]
+        out.append(compare_viewpoint(series.viewpoint, series.lengths_mm, real.ogcd[i],
+                                     curve.ogcd, sim_stderr=curve.ogcd_stderr,
+                                     real_lab=real.lab[i], sim_lab=curve.lab,
+                                     reference=series is ref,
+                                     sim_seconds=time.perf_counter() - ts
+                                     - curve.seconds.get("compile", 0.0)))
+    t2 = time.perf_counter()
+    return ValidationResult(
+        manifest=m, ccm=ccm, real=real, viewpoints=tuple(out),
+        repeatability=repeatability(m, real),
+        settings={"samples": settings.samples, "replicates": settings.replicates,
+                  "max_bounces": settings.max_bounces, "seed": settings.seed,
+                  "light_samples": settings.light_samples, "target_stderr": target_stderr},
+        seconds={"measure": t1 - t0, "simulate": t2 - t1, "total": t2 - t0})

@@ -1,0 +1,155 @@
+"""Photograph a simulated "real" world with the virtual camera into a capture directory.
+
+No real capture ships with the project, so tests and demos make one: the renderer's path-traced
+view of a grass pixel (:meth:`grassd.sim.renderer.Renderer.preview`, linear Rec.709 radiance)
+at each green length and viewpoint, and an analytic colour checker lying at the display under
+the same light, are exposed by a :class:`grassd.calib.virtual_camera.VirtualCamera` into DNG
+files, with a ``capture.toml`` manifest that ``grassd validate`` reads.
+
+The photographed world may differ from the model the manifest describes (``real_pixel`` vs
+``model_pixel``: blade splay, albedo errors), and the camera adds its own colour response,
+white balance, noise and quantisation; validation must see exactly those differences.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, fields, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from grassd.calib.charts import CHART_GRID, ReferenceChart, get_chart
+from grassd.calib.colour_spaces import prophoto_to_rec709
+from grassd.calib.regions import apply_homography, homography
+from grassd.calib.virtual_camera import VirtualCamera
+from grassd.daemon.offline.validate import (
+    MANIFEST_NAME,
+    CaptureManifest,
+    LightSpec,
+    Photo,
+    Series,
+    default_renderer,
+    manifest_to_toml,
+)
+from grassd.daemon.store.atomic import atomic_write_text
+
+#: Where the chart's patch area lies in the checker photo, as fractions of (width, height):
+#: top-left, top-right, bottom-right, bottom-left (slightly in perspective).
+CHART_LAYOUT: NDArray[np.float64] = np.array(
+    [(0.12, 0.14), (0.90, 0.18), (0.86, 0.88), (0.09, 0.82)])
+#: Albedo of the chart body between the patches (linear).
+CHART_BODY_ALBEDO: float = 0.03
+
+
+def checker_scene(chart: ReferenceChart, white_rgb709: Sequence[float], width: int = 384,
+                  height: int = 256) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Radiance image (height, width, 3) of a colour checker lying flat at the display, and the
+    (4, 2) image corners of its patch area (TL, TR, BR, BL; pixels (x, y)).
+
+    A Lambertian patch of albedo ``a`` under horizontal irradiance ``E`` has radiance
+    ``a * E / pi`` = ``a * white_rgb709`` (linear Rec.709, negative components kept for the
+    patches outside its gamut, as scRGB does); patches fill 80 % of their cells.
+    """
+    corners = CHART_LAYOUT * np.array([width, height])
+    albedo = prophoto_to_rec709(chart.prophoto())  # scRGB: out-of-gamut patches go negative
+    hinv = homography(corners, [(0, 0), (1, 0), (1, 1), (0, 1)])
+    yy, xx = np.mgrid[0:height, 0:width]
+    uv = apply_homography(hinv, np.stack([xx + 0.5, yy + 0.5], axis=-1))
+    rows, cols = CHART_GRID
+    u, v = uv[..., 0], uv[..., 1]
+    col = np.floor(u * cols).astype(int)
+    row = np.floor(v * rows).astype(int)
+    inside = ((u >= 0) & (u < 1) & (v >= 0) & (v < 1)
+              & (np.abs(u * cols - col - 0.5) < 0.4) & (np.abs(v * rows - row - 0.5) < 0.4))
+    img = np.full((height, width, 3), CHART_BODY_ALBEDO)
+    idx = np.clip(row, 0, rows - 1) * cols + np.clip(col, 0, cols - 1)
+    img[inside] = albedo[idx[inside]]
+    return img * np.asarray(white_rgb709, dtype=np.float64), corners
+
+
+def capture_world(out_dir: str | Path, light: LightSpec,
+                  viewpoints: Sequence[tuple[float, float, float]], lengths_mm: Sequence[float],
+                  *, real_pixel: Any = None, model_pixel: dict[str, Any] | None = None,
+                  camera: VirtualCamera | None = None, renderer: Any = None,
+                  lighting: Any = None, width: int = 160, spp: int = 32, max_bounces: int = 3,
+                  seed: int = 0, chart: str = "spydercheckr-24",
+                  progress: Callable[[str], None] | None = None,
+                  cache: dict | None = None, extra_trials: int = 0) -> CaptureManifest:
+    """Photograph ``real_pixel`` (a :class:`grassd.sim.scene.PixelSpec`; default the model's)
+    under ``light`` from every viewpoint (h cm, d m, theta deg) at every length (mm) into DNGs
+    in ``out_dir`` and write ``capture.toml``; returns the manifest.
+
+    ``model_pixel``: the PixelSpec fields the manifest gives the simulation (default: none,
+    i.e. the default PixelSpec). ``width``/``spp``: preview resolution and samples per pixel.
+    The first viewpoint is marked the reference. Exposure is fixed for the session from the
+    white-card radiance, as a photographer would set it. ``cache``: a dict that keeps the
+    rendered views (keyed by everything they depend on but the lighting, so use one cache per
+    lighting), to photograph one world with several cameras without rendering it again.
+    ``extra_trials``: further series at the first viewpoint, as a repeatability test (paper
+    section 4.1.1): in trial ``t`` the blades rest differently (``layout_seed + t``) and the
+    render and camera noise are new, as when a real pixel's grass is moved out and back in.
+    """
+    from grassd.daemon.calibration.simulation import white_radiance
+    from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    camera = camera or VirtualCamera()
+    lighting = lighting if lighting is not None else light.build()
+    model_pixel = {k: tuple(v) if isinstance(v, list) else v
+                   for k, v in (model_pixel or {}).items()}
+    real_pixel = real_pixel if real_pixel is not None else PixelSpec(**model_pixel)
+    if renderer is None:
+        renderer = default_renderer()
+    white = white_radiance(lighting)
+    k = camera.exposure_for(white)
+    ref_chart = get_chart(chart)
+    img, chart_corners = checker_scene(ref_chart, white, 384, 256)
+    checker = camera.photograph(out / "checker.dng", img, white, electrons_per_unit=k,
+                                seed=seed)
+    if extra_trials < 0 or (extra_trials and not viewpoints):
+        raise ValueError("extra_trials must be >= 0 and needs a first viewpoint")
+    plan = [(vp, real_pixel, seed) for vp in viewpoints] + [
+        (viewpoints[0], replace(real_pixel, layout_seed=real_pixel.layout_seed + t),
+         seed + 7919 * t) for t in range(1, extra_trials + 1)]
+    series = []
+    shot = 1
+    for i, (vp, pixel, render_seed) in enumerate(plan):
+        photos = []
+        display = DisplaySpec(pixel)
+        settings = RenderSettings(samples=16, replicates=2, max_bounces=max_bounces,
+                                  seed=render_seed)
+        for x in lengths_mm:
+            if progress:
+                progress(f"photographing ({vp[0]:g}, {vp[1]:g}, {vp[2]:g}) at {x:g} mm")
+            key = (pixel, tuple(vp), float(x), width, spp, max_bounces, render_seed)
+            if cache is not None and key in cache:
+                view, quad = cache[key]
+            else:
+                view, quad = renderer.preview(display, lighting, Viewpoint(*vp), float(x),
+                                              width=width, spp=spp, settings=settings)
+                if cache is not None:
+                    cache[key] = (view, quad)
+            path = camera.photograph(out / f"v{i:02d}_{x:05.2f}mm.dng", view, white,
+                                     electrons_per_unit=k, seed=seed + shot)
+            shot += 1
+            photos.append(Photo(path, float(x), tuple(map(tuple, np.asarray(quad).tolist()))))
+        series.append(Series(tuple(float(v) for v in vp), tuple(photos), reference=i == 0))
+    manifest = CaptureManifest(root=out, light=light, checker_photo=checker,
+                               checker_corners=tuple(map(tuple, chart_corners.tolist())),
+                               series=tuple(series), chart=chart, pixel=model_pixel)
+    atomic_write_text(out / MANIFEST_NAME, manifest_to_toml(manifest))
+    return manifest
+
+
+def pixel_fields(pixel: Any) -> dict[str, Any]:
+    """PixelSpec fields that differ from the defaults (for a manifest's ``[pixel]`` table)."""
+    from grassd.sim.scene import PixelSpec
+
+    default = PixelSpec()
+    d = asdict(pixel)
+    return {f.name: (list(d[f.name]) if isinstance(d[f.name], tuple) else d[f.name])
+            for f in fields(PixelSpec) if d[f.name] != getattr(default, f.name)}

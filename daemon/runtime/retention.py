@@ -1,0 +1,164 @@
+"""Retention: keep the state directory from growing for ever (``[retention]`` in the config).
+
+After every run (and at start) :func:`prune` deletes
+
+- bundles in ``archive/`` and ``rejected/`` older than ``keep_days`` (age: when the journal
+  archived or rejected them, else the newest mtime of the directory and its ``reason.txt``),
+  except the latest archived bundle: scheduled runs take their light from it;
+- run reports (``reports/run-NNNNNN.json`` and ``.png``) beyond the newest ``keep_reports``
+  runs or older than ``keep_days``, except the active table's report; the history row of a run
+  whose report was deleted gets ``report_path``/``plot_path`` NULL, so status never points at a
+  missing file;
+- history rows beyond the newest ``keep_runs`` runs (with their push rows), except the active
+  table's run and unfinished runs, and reconcile push rows older than ``keep_days``;
+- ingest journal rows of bundles in a final state (archived or rejected) older than
+  ``keep_days`` whose directory is gone from ``archive/`` and ``rejected/`` (removed above, or
+  earlier), except the rows of the latest archived bundle and of the active table's bundle;
+  rows still ``processing`` (crash recovery needs them) are never touched. A pruned row no
+  longer marks its content as seen: a re-upload of that bundle is processed again as new
+  rather than rejected as a duplicate, which is acceptable because its light is older than
+  ``keep_days`` (the daemon archives it as superseded when newer light made the active
+  table); a bundle whose directory could not be removed keeps its row, and so its age;
+- leftovers of interrupted atomic writes and cross-device copies (hidden ``*.tmp`` /
+  ``*.copy`` entries older than an hour).
+
+Nothing that the daemon needs is ever removed: the active table lives in its history row, and
+the light of the next scheduled run in the latest archived bundle.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import re
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from grassd.daemon.config.settings import RetentionConfig
+from grassd.daemon.store.history import History
+
+log = logging.getLogger(__name__)
+
+DAY_S = 86400.0
+#: Hidden temporaries of interrupted writes older than this (s) are removed.
+STALE_TEMP_S = 3600.0
+_REPORT_RE = re.compile(r"^run-(\d+)\.(json|png)$")
+
+
+@dataclass
+class PruneResult:
+    """What one :func:`prune` removed: bundle ids, report files, history runs, ingest journal
+    rows, temporaries."""
+
+    bundles: list[str] = field(default_factory=list)
+    reports: list[str] = field(default_factory=list)
+    runs: int = 0
+    temporaries: list[str] = field(default_factory=list)
+    journal: int = 0
+
+    def __bool__(self) -> bool:
+        return bool(self.bundles or self.reports or self.runs or self.temporaries
+                    or self.journal)
+
+
+def _newest_mtime(d: Path) -> float:
+    times = []
+    for p in (d, d / "reason.txt"):
+        with contextlib.suppress(OSError):
+            times.append(p.stat().st_mtime)
+    return max(times, default=0.0)
+
+
+def _remove(p: Path) -> None:
+    if p.is_dir() and not p.is_symlink():
+        shutil.rmtree(p)
+    else:
+        p.unlink()
+
+
+def prune(state_dir: str | os.PathLike[str], history: History, keep: RetentionConfig, *,
+          reports_dir: str | os.PathLike[str] | None = None,
+          now: float | None = None) -> PruneResult:
+    """Apply the retention ``keep`` to ``state_dir`` (archive/, rejected/, reports/) and the
+    history database; ``now`` in epoch seconds (default: the clock). Returns what was removed.
+
+    A file that cannot be removed (permissions) is logged and skipped: pruning never fails a
+    run.
+    """
+    state = Path(state_dir)
+    reports = Path(reports_dir) if reports_dir is not None else state / "reports"
+    now = time.time() if now is None else now
+    cutoff = now - keep.keep_days * DAY_S
+    out = PruneResult()
+
+    def drop(p: Path, what: list[str]) -> None:
+        try:
+            _remove(p)
+        except OSError as exc:
+            log.warning("retention: cannot remove %s: %s", p, exc)
+            return
+        what.append(p.name)
+
+    # ---- bundles
+    finished = {j.bundle_id: j.updated_at for j in history.journal()
+                if j.state in ("archived", "rejected")}
+    latest = history.latest_archived()
+    protected = {latest.bundle_id} if latest is not None else set()
+    present: set[str] = set()  # bundle directories left in archive/ and rejected/
+    for sub in ("archive", "rejected"):
+        d = state / sub
+        if not d.is_dir():
+            continue
+        for e in sorted(d.iterdir()):
+            if e.name.startswith("."):
+                if e.name.endswith(".copy") and _newest_mtime(e) < now - STALE_TEMP_S:
+                    drop(e, out.temporaries)
+                continue
+            present.add(e.name)
+            if e.name in protected:
+                continue
+            age_at = finished.get(e.name) or _newest_mtime(e)
+            if age_at < cutoff:
+                drop(e, out.bundles)
+    present -= set(out.bundles)
+
+    # ---- ingest journal
+    cur = history.current_table()
+    keep_rows = {latest.bundle_hash} if latest is not None else set()
+    if cur is not None and cur.light_bundle is not None:
+        keep_rows.add(cur.light_bundle)
+    out.journal = history.prune_journal(cutoff, keep_ids=present, protect=keep_rows)
+
+    # ---- reports
+    active = {cur.id} if cur is not None else set()
+    if reports.is_dir():
+        by_run: dict[int, list[Path]] = {}
+        for e in reports.iterdir():
+            m = _REPORT_RE.match(e.name)
+            if m:
+                by_run.setdefault(int(m.group(1)), []).append(e)
+            elif (e.name.startswith(".") and e.name.endswith(".tmp")
+                  and _newest_mtime(e) < now - STALE_TEMP_S):
+                drop(e, out.temporaries)
+        newest = set(sorted(by_run, reverse=True)[: keep.keep_reports])
+        for run_id, files in sorted(by_run.items()):
+            if run_id in active:
+                continue
+            if run_id in newest and max(_newest_mtime(f) for f in files) >= cutoff:
+                continue
+            before = len(out.reports)
+            for f in files:
+                drop(f, out.reports)
+            if len(out.reports) - before == len(files):
+                history.update_run(run_id, report_path=None, plot_path=None)
+
+    # ---- history rows
+    out.runs = history.prune_runs(keep.keep_runs, protect=active, reconcile_before=cutoff)
+    if out:
+        log.info("retention: removed %d bundle(s), %d report file(s), %d history run(s), "
+                 "%d ingest journal row(s), %d temporary file(s)", len(out.bundles),
+                 len(out.reports), out.runs, out.journal, len(out.temporaries))
+    return out

@@ -1,0 +1,969 @@
+"""The daemon: main loop, calibration runs, control socket, signals, systemd notification.
+
+One main thread does all the work (Taichi kernels run in the thread that initialised Taichi);
+each *tick* (``tick_s``) it
+
+1. applies a pending reload (SIGHUP or ``reload`` request): a new config that fails validation
+   is refused and the old one kept;
+2. polls the inbox and processes every complete bundle (calibrate -> commit -> push -> archive,
+   or reject with the reason); a bundle whose light is older than the active table's (a late
+   upload, or one held back) is archived as superseded without a run or a push; bundles
+   of one pass go newest light first, so a backlog costs one calibration;
+3. serves queued ``calibrate`` requests from the control socket;
+4. starts a scheduled run when ``schedule.interval_s`` has passed since the last run (light of
+   the last archived bundle, lux from the sensor when configured);
+5. reconciles the controllers: each one that does not report the current table gets it.
+
+Side threads only answer the control socket (status is read from SQLite) and send the systemd
+watchdog ping while the main thread shows progress (at least every ``stall_s`` seconds; a
+calibration reports progress per viewpoint), so a hung main loop is restarted by systemd.
+
+A run commits in this order: history row ``ok`` with the table, JSON report and PNG plot
+(atomic writes), then the push to every controller, then the bundle moves to ``archive/``. With
+``[tables] granularity`` "controller"/"pixel" every controller's own table and CRC are stored
+(``run_tables``) before the row turns ``ok``; push, reconcile and status then check each
+controller against its own table (the run's display-wide table for one it has none for). A
+crash after the commit resumes cleanly: the bundle is archived without running again and the
+controllers are reconciled. SIGTERM sets a stop flag checked between viewpoints and between
+controllers, so the daemon exits within one render or one table push (each push is atomic on
+the controller) and an interrupted bundle is retried at the next start.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import faulthandler
+import logging
+import os
+import queue
+import resource
+import signal
+import sqlite3
+import threading
+import time
+import traceback
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from grassd import __version__
+from grassd.daemon.calibration.calibrate import (
+    CalibrationResult,
+    Calibrator,
+    LightInput,
+    init_backend,
+)
+from grassd.daemon.calibration.calibrate_display import DisplayCalibrationResult
+from grassd.daemon.config.settings import (
+    Config,
+    ControllerConfig,
+    load_config,
+    not_used_by_the_daemon,
+)
+from grassd.daemon.errors import (
+    USER_ERRORS,
+    ConfigError,
+    DaemonError,
+    LuxSensorError,
+    LuxSensorSilent,
+    LuxSensorUnreachable,
+    RunInterrupted,
+)
+from grassd.daemon.hardware.fleet import Fleet, table_checksum
+from grassd.daemon.hardware.luxsensor import LuxSensor
+from grassd.daemon.runtime.control import ControlServer
+from grassd.daemon.runtime.notify import Notifier
+from grassd.daemon.runtime.retention import prune
+from grassd.daemon.runtime.statelock import StateLock
+from grassd.daemon.store.atomic import (
+    atomic_save_figure,
+    atomic_write_json,
+    describe_os_error,
+    describe_write_error,
+)
+from grassd.daemon.store.history import ControllerTable, History
+from grassd.daemon.store.ingest import Bundle, Inbox
+from grassd.firmware_proto.client import RetryPolicy
+
+log = logging.getLogger(__name__)
+
+STATE_DB = "state.db"
+
+
+@dataclass
+class _Deferred:
+    """A claimed bundle that waits in processing/ for a transient condition to clear.
+
+    ``retry_at`` and ``give_up_at`` are monotonic seconds (``give_up_at`` None: never);
+    ``since`` is epoch seconds (shown in status); ``error``: it waits after an error a pass
+    survived (``last_error`` stays until it went through or waits for something else).
+    """
+
+    bundle: Bundle
+    reason: str
+    since: float
+    retry_at: float
+    delay_s: float
+    give_up_at: float | None
+    error: bool = False
+
+
+@dataclass
+class _FailStreak:
+    """Consecutive failed pushes to one controller: first failure (epoch s), the last row
+    recorded (monotonic s), failures so far and how many went unrecorded since that row."""
+
+    since: float
+    last_row: float
+    failures: int = 1
+    unrecorded: int = 0
+
+
+@dataclass
+class _Request:
+    force: bool
+    done: threading.Event = field(default_factory=threading.Event)
+    result: dict[str, Any] | None = None
+
+
+def _now_iso() -> str:
+    return datetime.now(UTC).isoformat(timespec="seconds")
+
+
+def os_action(exc: BaseException, written: Sequence[Path] = (), otherwise: str = "access"
+              ) -> str:
+    """What an OSError ``exc`` failed to do, for :func:`describe_os_error`: "write" for a
+    rename/link (two paths) or a file below one of the directories ``written``; else
+    ``otherwise`` ("read" where only reads remain, "access" where it is not known). An error
+    only writes meet (full disk, quota, read-only file system, size limit) is worded as a
+    write by :func:`describe_os_error` itself, whatever this says."""
+    if not isinstance(exc, OSError):
+        return otherwise
+    if exc.filename2 is not None:
+        return "write"
+    if exc.filename is not None:
+        p = Path(os.fsdecode(exc.filename))
+        if any(p == d or d in p.parents for d in written):
+            return "write"
+    return otherwise
+
+
+def _light_time(b: Bundle) -> datetime:
+    """When bundle ``b``'s light was captured (its manifest timestamp, timezone-aware)."""
+    return b.manifest.timestamp
+
+
+def rss_mb() -> float:
+    """Resident set size of this process in MiB (from /proc/self/statm)."""
+    try:
+        with open("/proc/self/statm") as fh:
+            pages = int(fh.read().split()[1])
+        return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except OSError:
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+class Service:
+    """The grassd daemon for ``cfg`` (``config_path`` is re-read on reload)."""
+
+    def __init__(self, cfg: Config, *, config_path: str | os.PathLike[str] | None = None,
+                 notifier: Notifier | None = None, tick_s: float = 1.0,
+                 reconcile_s: float = 2.0, stall_s: float = 300.0,
+                 failure_row_s: float = 600.0, max_queued: int = 4,
+                 policy: RetryPolicy | None = None, transform=None, retry_s: float = 30.0,
+                 retry_max_s: float = 900.0, push_retry_s: float = 2.0,
+                 push_retry_max_s: float = 300.0) -> None:
+        self.cfg = cfg
+        self.config_path = Path(config_path) if config_path else None
+        self.notifier = notifier or Notifier()
+        self.tick_s = tick_s
+        self.reconcile_s = reconcile_s
+        self.stall_s = stall_s
+        #: reconcile backoff of a controller whose pushes fail (see grassd.daemon.hardware.fleet):
+        #: the first retry after ``push_retry_s``, doubling up to ``push_retry_max_s``
+        self.push_retry_s = push_retry_s
+        self.push_retry_max_s = push_retry_max_s
+        self.policy = policy or RetryPolicy(timeout_s=0.25, retries=2, restarts=2,
+                                            readback_retries=4)
+        #: applied to every (re)loaded config, e.g. to point it at simulated hardware
+        self.transform = transform or (lambda c: c)
+        self.stop_event = threading.Event()
+        self.reload_event = threading.Event()
+        #: calibration requests from the control socket; bounded, so that clients waiting for
+        #: runs cannot hold every control-socket slot (status stays answerable)
+        self.requests: queue.Queue[_Request] = queue.Queue(maxsize=max_queued)
+        self.activity = "starting"
+        self.started_at = time.time()
+        self.last_progress = time.monotonic()
+        self.last_run_at: float | None = None
+        self._last_reconcile = 0.0
+        self._last_ctrl: dict[str, tuple] = {}
+        #: a controller whose pushes keep failing gets one history row per ``failure_row_s``
+        #: (its first failure, then a summary), not one per reconcile
+        self.failure_row_s = failure_row_s
+        self._streaks: dict[str, _FailStreak] = {}
+        self._own_cache: tuple[tuple | None, dict[str, Any]] = (None, {})
+        self.reload_error: str | None = None
+        #: bundles waiting for a transient failure (full disk, lux sensor down) to clear; the
+        #: first retry after ``retry_s``, then doubling up to ``retry_max_s``
+        self.deferred: dict[str, _Deferred] = {}
+        self.retry_s = retry_s
+        self.retry_max_s = retry_max_s
+        #: the error of the latest main-loop pass that survived one (OSError / SQLite), for
+        #: status; cleared by the next pass that completes without one. ``_error_seen`` keeps
+        #: the last one with its times ("at", "error", "cleared_at") after it was cleared.
+        self.last_error: str | None = None
+        self._error_seen: dict[str, Any] | None = None
+        self._pass_errors = 0
+        #: the last error ended a pass (raised out of tick), see main_loop_pass
+        self._error_escaped = False
+        self.runs_done = 0
+        self.rss_log: list[tuple[int, float]] = []
+        cfg.state_dir.mkdir(parents=True, exist_ok=True)
+        #: one grassd process per state directory (daemon or one-shot), see statelock
+        self.lock = StateLock(cfg.state_dir).acquire()
+        try:
+            self.history = History(cfg.state_dir / STATE_DB)
+            self._build(cfg)
+        except BaseException:
+            self.lock.release()
+            raise
+        self.control: ControlServer | None = None
+        self._watchdog_thread: threading.Thread | None = None
+
+    # ------------------------------------------------------------------ setup
+    def _build(self, cfg: Config) -> None:
+        self.cfg = cfg
+        self.inbox = Inbox(cfg.light.inbox, cfg.state_dir, self.history,
+                           settle_s=cfg.light.settle_s,
+                           incomplete_timeout_s=cfg.light.incomplete_timeout_s,
+                           tz=cfg.site.timezone,
+                           future_tolerance_s=cfg.light.future_tolerance_s,
+                           site=(cfg.site.latitude, cfg.site.longitude))
+        self.fleet = Fleet(cfg.controllers, policy=self.policy, retry_s=self.push_retry_s,
+                           retry_max_s=self.push_retry_max_s)  # a reload resets the backoff
+        # `grassd controllers` may talk on other ports while we run (see statelock)
+        self.lock.note_ports(cfg.serial_ports)
+        self.sensor = LuxSensor(cfg.light.modbus) if cfg.light.modbus is not None else None
+        self.calibrator = Calibrator(cfg)
+        self.reports_dir = cfg.state_dir / "reports"
+        self.reports_dir.mkdir(parents=True, exist_ok=True)
+
+    def _progress(self, text: str) -> None:
+        self.activity = text
+        self.last_progress = time.monotonic()
+        self.notifier.status(text)
+
+    def _install_signals(self) -> None:
+        faulthandler.register(signal.SIGUSR1, all_threads=True)  # stack dump for debugging
+        signal.signal(signal.SIGTERM, lambda *_: self.stop_event.set())
+        signal.signal(signal.SIGINT, lambda *_: self.stop_event.set())
+        signal.signal(signal.SIGHUP, lambda *_: self.reload_event.set())
+
+    def _watchdog_loop(self) -> None:
+        interval = self.notifier.watchdog_interval_s
+        while not self.stop_event.wait(min(interval or 1.0, 1.0)):
+            if time.monotonic() - self.last_progress <= self.stall_s:
+                self.notifier.watchdog()
+
+    # ------------------------------------------------------------------ main loop
+    def run(self) -> int:
+        """Run until SIGTERM/SIGINT; returns the exit status (0 = clean stop)."""
+        self._install_signals()
+        for note in not_used_by_the_daemon(self.cfg):
+            log.warning("config: %s", note)
+        self._progress("initialising the renderer")
+        init_backend(self.cfg)
+        abandoned = self.history.abandon_running("daemon stopped or crashed during the run")
+        if abandoned:
+            log.warning("%d run(s) left unfinished by the previous daemon marked failed",
+                        abandoned)
+        self.control = ControlServer(self.cfg.control_socket, self.handle_request).start()
+        self._watchdog_thread = threading.Thread(target=self._watchdog_loop, name="watchdog",
+                                                 daemon=True)
+        self._watchdog_thread.start()
+        pending = self.inbox.recover()
+        self.prune()
+        self.notifier.ready(f"watching {self.cfg.light.inbox}")
+        self.activity = "idle"
+        log.info("grassd %s ready: inbox %s, %d controller(s), socket %s", __version__,
+                 self.cfg.light.inbox, len(self.cfg.controllers), self.cfg.control_socket)
+        try:
+            while not self.stop_event.is_set():
+                self.main_loop_pass(pending)
+                pending = []
+                self.stop_event.wait(self.tick_s)
+        finally:
+            self.shutdown()
+        return 0
+
+    def main_loop_pass(self, pending: list[Bundle] | None = None) -> None:
+        """One pass as :meth:`run` makes it: :meth:`tick`, surviving an OSError or SQLite
+        error (e.g. a full or read-only disk): logged and kept as ``last_error``."""
+        try:
+            self.tick(pending)
+        except (OSError, sqlite3.Error) as exc:  # e.g. a full or read-only disk
+            self._survived(exc, "main loop", os_action(exc))
+            self._error_escaped = True
+
+    def tick(self, pending: list[Bundle] | None = None) -> None:
+        """One pass of the main loop (see module docstring). A pass that completes without
+        surviving an error clears ``last_error`` (status keeps it as ``last_error_seen``),
+        unless a bundle deferred by such an error still waits for its retry, or the error
+        ended a pass (:meth:`main_loop_pass`) and this pass did not reconcile."""
+        self.last_progress = time.monotonic()
+        self._pass_errors = 0
+        reconciled = self._last_reconcile
+        self._tick(pending)
+        if (self._pass_errors == 0 and self.last_error is not None
+                and not any(d.error for d in list(self.deferred.values()))  # a bundle
+                # still waiting after its error (not retried in this pass) keeps it, and an
+                # error that ended a pass (e.g. in reconcile, every reconcile_s) clears only
+                # in a pass that reconciled
+                and (not self._error_escaped or self._last_reconcile != reconciled)):
+            self.last_error = None
+            self._error_escaped = False
+            if self._error_seen is not None:  # replaced, not changed: status reads it
+                self._error_seen = {**self._error_seen, "cleared_at": _now_iso()}
+            log.info("the error of an earlier pass has cleared")
+
+    def _tick(self, pending: list[Bundle] | None) -> None:
+        if self.reload_event.is_set():
+            self.reload_event.clear()
+            self.reload()
+        interval = self.cfg.schedule.interval_s
+        last = self.last_run_at or self.started_at
+        due = interval > 0 and time.time() - last >= interval
+        bundles = list(pending or [])
+        now = time.monotonic()
+        bundles += [d.bundle for d in list(self.deferred.values()) if d.retry_at <= now]
+        try:
+            if self.cfg.schedule.on_new_bundle or due:
+                bundles += self.inbox.poll()
+            else:  # keep watching, so that a bundle has settled when the scheduled run is due
+                self.inbox.poll(claim=False)
+        except (OSError, sqlite3.Error) as exc:  # e.g. the inbox's share went away: what does
+            # not need it (waiting bundles, requests, scheduled runs, reconcile) goes on
+            # (scanning and reading the inbox; claiming writes below processing/, rejected/)
+            ib = self.inbox
+            self._survived(exc, f"inbox {self.cfg.light.inbox}", os_action(
+                exc, (ib.processing, ib.archive, ib.rejected), otherwise="read"))
+        bundles.sort(key=_light_time, reverse=True)  # newest light first (ties: in order),
+        # so that a backlog costs one calibration: the older ones are then superseded
+        for b in bundles:
+            if self.stop_event.is_set():
+                return
+            self.process_bundle(b)
+        while not self.stop_event.is_set():
+            try:
+                req = self.requests.get_nowait()
+            except queue.Empty:
+                break
+            try:
+                req.result = self.scheduled_run("request", force=req.force)
+            except BaseException as exc:  # the waiting client learns it now, not at its timeout
+                req.result = {"status": "failed", "error": self._describe(exc)}
+                raise
+            finally:
+                req.done.set()
+        if due and not bundles and not self.stop_event.is_set():
+            self.scheduled_run("interval")
+        if time.monotonic() - self._last_reconcile >= self.reconcile_s:
+            self.reconcile()
+        if self.activity != "idle":
+            self._progress("idle")
+
+    def _describe(self, exc: BaseException, action: str = "access") -> str:
+        """One line for an error a main-loop pass survives (what, why, the fix); ``action``:
+        what failed on an OSError's file (see :func:`os_action`)."""
+        if isinstance(exc, OSError):
+            return describe_os_error(exc, exc.filename or self.cfg.state_dir, action)
+        if isinstance(exc, sqlite3.Error):
+            return f"state database {self.history.path}: {exc}"
+        return f"internal error: {exc!r}"
+
+    def _survived(self, exc: BaseException, where: str, action: str = "access") -> str:
+        """Log ``exc`` (OSError / SQLite error) and keep it for status as ``last_error``."""
+        msg = self._describe(exc, action)
+        at = _now_iso()
+        self._pass_errors += 1
+        self._error_escaped = False
+        self._error_seen = {"at": at, "error": msg, "cleared_at": None}
+        self.last_error = f"{at} {msg}"
+        log.error("%s: %s (the daemon keeps running)", where, msg)
+        return msg
+
+    def shutdown(self) -> None:
+        """Stop serving, close ports and the database (called once at exit)."""
+        self.notifier.stopping("stopping")
+        if self.control is not None:
+            self.control.stop()
+        while True:  # answer anybody still waiting for a run
+            try:
+                req = self.requests.get_nowait()
+            except queue.Empty:
+                break
+            req.result = {"status": "failed", "error": "daemon stopped before the run"}
+            req.done.set()
+        self.fleet.close()
+        if self.sensor is not None:
+            self.sensor.close()
+        self.history.close()
+        self.notifier.close()
+        self.lock.release()
+        log.info("grassd stopped")
+
+    def one_shot(self, force: bool = False) -> dict[str, Any]:
+        """`grassd calibrate --now` without a daemon: process complete bundles waiting in the
+        inbox (no settle time) or, when there are none, run on the last bundle's light.
+
+        The bundles are processed as the daemon does, newest light first; the result is that
+        of the newest bundle (the one meant to make the table). A bundle whose light is older
+        than the active table's is archived as superseded, not applied (the command has no
+        way to name its input, so an inbox bundle is indistinguishable from a late upload,
+        and "now" asks for the current light, not a return to stale light); when that is
+        the newest, the result is ``{"status": "superseded", ...}`` and the CLI exits 2 with
+        the reason. Without a bundle the run uses the latest applied bundle's light, which
+        is never older."""
+        init_backend(self.cfg)
+        self.history.abandon_running("daemon stopped or crashed during the run")
+        self.inbox.settle_s = 0.0
+        bundles = sorted(self.inbox.recover() + self.inbox.poll(), key=_light_time,
+                         reverse=True)
+        results = [self.process_bundle(b) for b in bundles]
+        out = results[0] if results else self.scheduled_run("request", force=force)
+        self.reconcile()
+        return out
+
+    # ------------------------------------------------------------------ reload
+    def reload(self) -> bool:
+        """Re-read the config file; keep the old config if the new one is invalid."""
+        self.notifier.reloading()
+        if self.config_path is None:
+            self.notifier.ready("reload: no config file (embedded default); nothing to do")
+            return False
+        try:
+            new = self.transform(load_config(self.config_path))
+        except ConfigError as exc:
+            self.reload_error = str(exc)
+            log.error("reload refused, keeping the old configuration: %s", exc)
+            self.notifier.ready(f"reload refused: {exc}")
+            return False
+        kept = []
+        if new.state_dir != self.cfg.state_dir:
+            # e.g. `grassd run --state-dir`: paths inside the state dir (a relative inbox,
+            # cache, socket) move along with it, as they did at start
+            kept.append("state_dir")
+            new = new.with_state_dir(self.cfg.state_dir)
+        for name in ("control_socket", "cache_dir"):
+            if getattr(new, name) != getattr(self.cfg, name):
+                kept.append(name)
+                new = new.replace(**{name: getattr(self.cfg, name)})
+        if kept:
+            log.warning("reload: %s change only on restart; keeping the old value(s)",
+                        ", ".join(kept))
+        self.fleet.close()
+        if self.sensor is not None:
+            self.sensor.close()
+        old = self.cfg
+        try:
+            self._build(new)
+        except (OSError, DaemonError) as exc:  # valid, but cannot be set up (e.g. the inbox)
+            self._build(old)
+            self.reload_error = f"{self.config_path}: {exc}"
+            log.error("reload refused, keeping the old configuration: %s", exc)
+            self.notifier.ready(f"reload refused: {exc}")
+            return False
+        self.reload_error = None
+        self._last_reconcile = 0.0
+        log.info("configuration reloaded from %s", self.config_path)
+        self.notifier.ready("configuration reloaded")
+        return True
+
+    # ------------------------------------------------------------------ runs
+    def _resolve_lux(self, manifest_lux: float | None) -> tuple[float, str]:
+        if manifest_lux is not None:
+            return manifest_lux, "manifest"
+        if self.cfg.light.lux != "modbus" or self.sensor is None:
+            raise LuxSensorError("the manifest has no ambient_lux and no Modbus lux sensor is "
+                                 "configured (set [light] lux = \"modbus\" and [light.modbus])")
+        self._progress("reading the lux sensor")
+        return self.sensor.read_lux(), "modbus"
+
+    def _own_tables(self, run_id: int) -> dict[str, Any]:
+        """Controller name -> its own table of run ``run_id`` (empty when the run has one table
+        for all; see :func:`usable_run_tables`); cached for the latest run and controller
+        configuration asked, as reconcile asks every few seconds."""
+        key = (run_id, self.cfg.controllers)
+        if self._own_cache[0] != key:
+            self._own_cache = (key, {k: t.lengths_um for k, t in usable_run_tables(
+                self.history, run_id, self.cfg.controllers).items()})
+        return self._own_cache[1]
+
+    def prune(self) -> None:
+        """Apply ``[retention]`` (old bundles, reports, history rows); never fails a run."""
+        try:
+            prune(self.cfg.state_dir, self.history, self.cfg.retention,
+                  reports_dir=self.reports_dir)
+        except (OSError, sqlite3.Error, DaemonError) as exc:
+            log.warning("retention: pruning failed: %s", exc)
+
+    def process_bundle(self, b: Bundle) -> dict[str, Any]:
+        """Calibrate from bundle ``b``, commit, push, archive; or reject it with the reason.
+        Then prune per ``[retention]``."""
+        try:
+            out = self._process_bundle(b)
+        except (OSError, sqlite3.Error) as exc:  # e.g. a full disk under the database: the
+            # bundle is fine; it waits in processing/ instead of being stranded there
+            out = self._defer(b, self._survived(exc, f"bundle {b.name}", os_action(exc)),
+                              error=True)
+        self.prune()
+        return out
+
+    def _defer(self, b: Bundle, reason: str, limit_s: float | None = None,
+               error: bool = False) -> dict[str, Any]:
+        """Leave ``b`` in processing/ (attempt not counted) and retry it with backoff
+        (``error``: after an error the pass survived, see ``last_error``)."""
+        now = time.monotonic()
+        d = self.deferred.get(b.hash)
+        if d is None:
+            d = _Deferred(b, reason, time.time(), now + self.retry_s, self.retry_s,
+                          None if limit_s is None else now + limit_s)
+            self.deferred[b.hash] = d
+        else:
+            d.delay_s = min(d.delay_s * 2, self.retry_max_s)
+            d.retry_at, d.reason = now + d.delay_s, reason
+            if limit_s is not None and d.give_up_at is None:
+                d.give_up_at = now + limit_s
+        d.error = error
+        if limit_s is not None and d.give_up_at is not None and d.give_up_at > now:
+            # a wait with a deadline: its last try falls on the deadline, not far beyond; once
+            # it has passed, or when it waits for something else (an error), the backoff holds
+            d.retry_at = min(d.retry_at, d.give_up_at)
+        try:
+            self.history.journal_release(b.hash)
+        except sqlite3.Error as exc:  # e.g. the disk is full: the attempt stays counted
+            log.warning("bundle %s: cannot release its attempt: %s", b.name, exc)
+        log.warning("bundle %s waits in processing/: %s; retried in %g s", b.name, reason,
+                    d.delay_s)
+        return {"status": "deferred", "error": reason, "retry_in_s": d.delay_s}
+
+    def _process_bundle(self, b: Bundle) -> dict[str, Any]:
+        out = self._attempt_bundle(b)
+        if out["status"] != "deferred":
+            self.deferred.pop(b.hash, None)
+        return out
+
+    def _attempt_bundle(self, b: Bundle) -> dict[str, Any]:
+        mine = self.history.journal_get(b.hash)
+        done = self.history.ok_run_for_bundle(b.hash, None if mine is None else mine.created_at)
+        if done is not None:  # committed, but the archive move failed last time (a run of
+            # an earlier upload whose journal row retention pruned does not count)
+            self.inbox.archive_bundle(b, done.id)
+            return {"status": "ok", "run_id": done.id, "table_id": done.table_id,
+                    "table_crc": done.table_crc, "metrics": done.metrics,
+                    "report": done.report_path, "plot": done.plot_path, "controllers": []}
+        why = self._superseded(b)
+        if why is not None:  # newer light made the active table: do not apply older light
+            run_id = self.history.start_run("bundle", bundle_hash=b.hash,
+                                            input_hashes=b.input_hashes,
+                                            light_at=b.manifest.timestamp.timestamp())
+            self.history.finish_run(run_id, "superseded", error=why)
+            self.inbox.archive_bundle(b, run_id, reason=why)
+            log.warning("bundle %s archived unused: %s", b.name, why)
+            return {"status": "superseded", "run_id": run_id, "error": why}
+        self.inbox.begin(b)
+        self.last_run_at = time.time()
+        self._progress(f"processing bundle {b.name}")
+        m = b.manifest
+        try:
+            lux, source = self._resolve_lux(m.ambient_lux)
+        except (LuxSensorUnreachable, LuxSensorSilent) as exc:  # an outage: wait for it
+            d = self.deferred.get(b.hash)
+            wait_s = self.cfg.light.lux_wait_s
+            if wait_s > 0 and (d is None or d.give_up_at is None
+                               or time.monotonic() < d.give_up_at):
+                return self._defer(b, f"waiting for the lux sensor: {exc}", limit_s=wait_s)
+            waited = 0.0 if d is None else time.time() - d.since
+            why = (f"no ambient lux: the lux sensor stayed unavailable for {waited:.0f} s "
+                   f"(light.lux_wait_s = {wait_s:g}): {exc}")
+            self.inbox.reject_bundle(b, why)
+            return {"status": "rejected", "error": why}
+        except DaemonError as exc:  # a bad reading or no lux source at all: permanent
+            self.inbox.reject_bundle(b, f"no ambient lux: {exc}")
+            return {"status": "rejected", "error": str(exc)}
+        light = LightInput(hdri=m.hdri, ambient_lux=lux, timestamp=m.timestamp,
+                           sun_lux=m.sun_lux, sun_azimuth_deg=m.sun_azimuth_deg,
+                           sun_elevation_deg=m.sun_elevation_deg, checker_raw=m.checker_raw,
+                           checker_corners=m.checker_corners, checker_chart=m.checker_chart)
+        run_id = self.history.start_run("bundle", bundle_hash=b.hash,
+                                        input_hashes=b.input_hashes, lux=lux, lux_source=source,
+                                        light_at=m.timestamp.timestamp())
+        out = self._calibrate_and_commit(run_id, light, force=False)
+        try:
+            if out["status"] == "ok":
+                self.inbox.archive_bundle(b, run_id)
+            elif out["status"] == "interrupted":
+                self.history.journal_release(b.hash)  # retried at the next start
+            elif out.get("transient"):  # could not write: the bundle is fine, try again later
+                return {**out, **self._defer(b, out["error"])}
+            else:
+                self.inbox.reject_bundle(b, out["error"], run_id)
+        except OSError as exc:  # e.g. no space for reason.txt: keep the bundle, try again
+            return {**out, **self._defer(b, describe_write_error(exc, exc.filename or
+                                                                 self.inbox.state_dir))}
+        return out
+
+    def _superseded(self, b: Bundle) -> str | None:
+        """Why bundle ``b`` must not be applied, or None: its light is older than the light of
+        the run whose table is active (:meth:`History.current_table`), whether it was held
+        back (waiting for the lux sensor, after a write failure, across a restart) or simply
+        uploaded late. Applying it would replace a table made for newer light with one for
+        stale conditions.
+
+        Compared by light capture time (manifest timestamps, which the manifest parser
+        requires, so every bundle has one). Light exactly as old as the active table's is
+        applied: it is a corrected re-upload of the same measurement (identical content is a
+        duplicate and never gets here), and the later upload wins. Only a run that made the
+        active table counts: a newer run that failed or was rejected made none. The very
+        first bundle (no active table) and a bundle arriving while the active table came from
+        the embedded default site (no light time) are applied. Where the active run's light
+        time was not recorded (a database from before ``light_at``) it is read from that
+        run's archived bundle; failing that, only a held-back bundle that arrived before the
+        active run's bundle is superseded (by journal claim time). `grassd calibrate --now`
+        processes the inbox through here too: the rule holds for it (see
+        :meth:`one_shot`)."""
+        cur = self.history.current_table()
+        if cur is None:
+            return None
+        active_at = cur.light_at if cur.light_at is not None else self._archived_light_at(cur)
+        if active_at is not None and active_at > time.time() + self.cfg.light.future_tolerance_s:
+            # stamped in the future, by a daemon from before that was refused at ingest: it
+            # outranks nothing, or it would pin the active table until that date
+            log.warning("the active table's light (run %d) is stamped in the future (%s); "
+                        "bundle %s is not superseded by it", cur.id,
+                        datetime.fromtimestamp(active_at, UTC).isoformat(timespec="seconds"),
+                        b.name)
+            return None
+        if active_at is not None:
+            ts = b.manifest.timestamp.timestamp()
+            if ts >= active_at:
+                return None
+            iso = [datetime.fromtimestamp(t, UTC).isoformat(timespec="seconds")
+                   for t in (ts, active_at)]
+            return (f"superseded: its light ({iso[0]}) is older than the light ({iso[1]}) "
+                    f"of run {cur.id}, which made the active table {cur.table_id}")
+        mine = self.history.journal_get(b.hash)
+        if mine is None or mine.created_at >= cur.started_at:
+            return None
+        src = cur.light_bundle
+        other = None if src is None else self.history.journal_get(src)
+        if other is None or mine.created_at >= other.created_at:
+            return None
+        return (f"superseded: it arrived before bundle {other.bundle_id}, whose light made "
+                f"the active table {cur.table_id} (run {cur.id})")
+
+    def _archived_light_at(self, run) -> float | None:
+        """Light capture time (epoch s) of run ``run``'s bundle from its archived manifest,
+        for a run recorded without ``light_at``; None when it has no bundle or the bundle is
+        gone or unreadable."""
+        src = run.light_bundle
+        j = None if src is None else self.history.journal_get(src)
+        if j is None or j.state != "archived":
+            return None
+        try:
+            m = self.inbox.archived_manifest(j.bundle_id)
+        except DaemonError:
+            return None
+        return None if m is None else m.timestamp.timestamp()
+
+    def scheduled_run(self, trigger: str, force: bool = False) -> dict[str, Any]:
+        """A run without a new bundle: light of the last archived bundle (or the embedded
+        default site), lux from the sensor when configured, else from that bundle. Then prune
+        per ``[retention]``."""
+        out = self._scheduled_run(trigger, force)
+        if out["status"] != "skipped":
+            self.prune()
+        return out
+
+    def _scheduled_run(self, trigger: str, force: bool) -> dict[str, Any]:
+        self._progress(f"{trigger} calibration")
+        self.last_run_at = time.time()
+        last = self.history.latest_archived()
+        manifest = None
+        if last is not None:
+            try:
+                manifest = self.inbox.archived_manifest(last.bundle_id)
+            except DaemonError as exc:
+                log.warning("last archived bundle %s unusable: %s", last.bundle_id, exc)
+        light_at = None if manifest is None else manifest.timestamp.timestamp()
+        try:
+            if manifest is not None:
+                sensor_first = self.cfg.light.lux == "modbus" and self.sensor is not None
+                lux, source = self._resolve_lux(None if sensor_first else manifest.ambient_lux)
+                light = LightInput(hdri=manifest.hdri, ambient_lux=lux,
+                                   timestamp=datetime.now(UTC), sun_lux=None,
+                                   checker_raw=None, checker_chart=manifest.checker_chart)
+                hashes = {"bundle": last.bundle_hash}
+            else:
+                lux, source = self._resolve_lux(None)
+                hdri = Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
+                light = LightInput(hdri=hdri, ambient_lux=lux, timestamp=datetime.now(UTC))
+                hashes = {"hdri": "embedded default_site.exr"}
+        except DaemonError as exc:
+            log.warning("%s run skipped: %s", trigger, exc)
+            return {"status": "skipped", "error": str(exc)}
+        run_id = self.history.start_run(trigger, input_hashes=hashes, lux=lux, lux_source=source,
+                                        light_at=light_at)
+        return self._calibrate_and_commit(run_id, light, force=force)
+
+    def _calibrate_and_commit(self, run_id: int, light: LightInput,
+                              force: bool) -> dict[str, Any]:
+        cur = self.history.current_table()  # the active table, the run's starting point
+        prev_table = None if cur is None else list(cur.lengths_um)
+        prev_own = None if cur is None else self._own_tables(cur.id)
+        try:
+            result = self.calibrator.run(light, previous_um=prev_table,
+                                         previous_ccm=self.history.get_meta("ccm"),
+                                         force=force, stop=self.stop_event,
+                                         progress=self._progress, previous_tables=prev_own)
+        except RunInterrupted as exc:
+            self.history.finish_run(run_id, "failed", error=str(exc))
+            return {"status": "interrupted", "run_id": run_id, "error": str(exc)}
+        except USER_ERRORS as exc:
+            self.history.finish_run(run_id, "rejected", error=str(exc))
+            log.warning("run %d rejected: %s", run_id, exc)
+            return {"status": "rejected", "run_id": run_id, "error": str(exc)}
+        except Exception as exc:  # a bug must not kill the service
+            log.error("run %d failed:\n%s", run_id, traceback.format_exc())
+            self.history.finish_run(run_id, "failed", error=f"internal error: {exc!r}")
+            return {"status": "failed", "run_id": run_id, "error": f"internal error: {exc!r}"}
+        return self._commit(run_id, result)
+
+    def _commit(self, run_id: int, result: CalibrationResult | DisplayCalibrationResult
+                ) -> dict[str, Any]:
+        cal = self.cfg.calibration
+        metrics = result.metrics(cal.r2_goal, cal.target_de00)
+        crc = table_checksum(result.lengths_um)
+        # a table per controller ([tables] granularity "controller"/"pixel"), else one for all
+        own = getattr(result, "controller_tables", None) or {}
+        own_crcs = result.controller_crcs() if own else {}
+        base = self.reports_dir / f"run-{run_id:06d}"
+        report = {"run_id": run_id, "table_id": run_id, "table_crc": crc, "metrics": metrics,
+                  **result.report()}
+        try:
+            report_path = atomic_write_json(base.with_suffix(".json"), report)
+            plot_path = atomic_save_figure(base.with_suffix(".png"), result.figure())
+        except OSError as exc:  # full / read-only disk: the previous table stays active
+            with contextlib.suppress(OSError):
+                base.with_suffix(".json").unlink(missing_ok=True)
+            msg = (describe_write_error(exc, self.reports_dir)
+                   + "; the previous table stays active")
+            log.error("run %d not committed: %s", run_id, msg)
+            self.history.finish_run(run_id, "failed", error=msg)
+            return {"status": "failed", "run_id": run_id, "error": msg, "transient": True}
+        if result.ccm is not None and result.ccm_source == "bundle":
+            self.history.set_meta("ccm", result.ccm.matrix.tolist())
+        if own:  # before the run becomes the current table
+            self.history.record_run_tables(run_id, own, own_crcs)
+        self.history.finish_run(run_id, "ok", metrics=metrics, lengths_um=result.lengths_um,
+                                table_id=run_id, table_crc=crc, report_path=report_path,
+                                plot_path=plot_path)
+        self.runs_done += 1
+        self.rss_log.append((run_id, rss_mb()))
+        self._progress(f"pushing table {run_id} to {len(self.cfg.controllers)} controller(s)")
+        reports = self.fleet.push(own or result.lengths_um, run_id, stop=self.stop_event,
+                                  fallback=result.lengths_um)
+        for r in reports:
+            self._record(r, run_id, "push")
+        self._last_reconcile = time.monotonic()
+        log.info("run %d committed: R^2 %.5f, max deviation %.3f dE00, %d/%d controllers",
+                 run_id, metrics["r2_closed_loop"] or metrics["r2_after_fit"] or 0,
+                 metrics["max_dev_de00"] or 0,
+                 sum(r.ok for r in reports), len(self.cfg.controllers))
+        return {"status": "ok", "run_id": run_id, "table_id": run_id, "table_crc": crc,
+                "controller_crcs": own_crcs,
+                "metrics": metrics, "report": str(report_path), "plot": str(plot_path),
+                "controllers": [r.__dict__ for r in reports]}
+
+    def _record(self, r, run_id: int | None, kind: str) -> None:
+        """Record a push outcome: always for a run's own push and for a change of state; of a
+        streak of failed reconcile pushes only the first and then one per ``failure_row_s``
+        (saying how many failed since when)."""
+        now = time.monotonic()
+        error = r.error
+        if r.ok:
+            self._streaks.pop(r.controller, None)
+        else:
+            s = self._streaks.get(r.controller)
+            if s is None:
+                self._streaks[r.controller] = _FailStreak(time.time(), now)
+            else:
+                s.failures += 1
+                if kind == "reconcile" and now - s.last_row < self.failure_row_s:
+                    s.unrecorded += 1
+                    self._note_controller(r)
+                    return
+                since = datetime.fromtimestamp(s.since, UTC).isoformat(timespec="seconds")
+                error = (f"{r.error} ({s.failures} failed pushes since {since}, "
+                         f"{s.unrecorded} not recorded)")
+                s.last_row, s.unrecorded = now, 0
+        self.history.record_push(run_id, r.controller, r.ok, table_id=r.table_id,
+                                 table_crc=r.table_crc, error=error, kind=kind)
+        self._note_controller(r, always=True)
+
+    def _note_controller(self, r, always: bool = False) -> None:
+        """Store controller report ``r``'s state (reachable, reported table, error) in the
+        history when it changed since the last one stored (``always``: in any case)."""
+        state = (r.ok, r.reachable, r.table_id)
+        if always or self._last_ctrl.get(r.controller) != state:
+            self.history.set_controller(r.controller, reachable=r.reachable,
+                                        reported_id=r.table_id, reported_crc=r.table_crc,
+                                        error=r.error)
+            self._last_ctrl[r.controller] = state
+
+    def reconcile(self) -> list:
+        """Push the current table to every controller that does not report it (its own table
+        when the run has one per controller; the run's table to any it has none for)."""
+        self._last_reconcile = time.monotonic()
+        cur = self.history.current_table()
+        if cur is None:
+            return []
+        own = self._own_tables(cur.id)
+        reports = self.fleet.reconcile(own or cur.lengths_um, cur.table_id,
+                                       stop=self.stop_event, fallback=cur.lengths_um)
+        for r in reports:
+            if r.ok and not r.pushed:  # holds its table (again): any failure streak is over
+                self._streaks.pop(r.controller, None)
+            if r.pushed:
+                self._record(r, cur.id, "reconcile")
+                if r.ok:
+                    log.info("controller %s reconciled to table %d", r.controller, cur.table_id)
+            else:
+                self._note_controller(r)
+        return reports
+
+    # ------------------------------------------------------------------ control socket
+    def status(self) -> dict[str, Any]:
+        """Live status: activity, inbox counts, runs, controllers and health.
+
+        Runs in a control-socket thread while the main thread works: it reads the main
+        loop's objects once each (config and inbox are replaced on reload) and iterates only
+        over snapshots of its collections (``list()`` / ``dict()`` of a dict is one C call,
+        atomic under the GIL); the history database has its own lock.
+        """
+        cfg, inbox, seen = self.cfg, self.inbox, self._error_seen
+        waiting = list(self.deferred.values())
+        backoff = self.fleet.backoff()
+        st = collect_status(self.history, cfg)
+        for c in st["controllers"]:  # when a controller whose pushes fail is tried again
+            b = backoff.get(c["name"])
+            c["push_retry"] = None if b is None or c["in_sync"] else b
+        now = time.monotonic()
+        st.update({
+            "pid": os.getpid(), "version": __version__, "activity": self.activity,
+            "started_at": self.started_at, "uptime_s": time.time() - self.started_at,
+            "config": cfg.source, "reload_error": self.reload_error,
+            "inbox": inbox.counts(), "rss_mb": rss_mb(), "running": True,
+            "last_error": self.last_error,
+            "last_error_seen": None if seen is None else dict(seen),
+            "inbox_problems": inbox.problems(),
+            "waiting_bundles": [
+                {"bundle": d.bundle.name, "id": d.bundle.id, "reason": d.reason,
+                 "since": d.since, "retry_in_s": max(d.retry_at - now, 0.0)}
+                for d in waiting],
+        })
+        return st
+
+    def handle_request(self, req: dict[str, Any]) -> dict[str, Any]:
+        """Answer one control-socket request (runs in a socket thread)."""
+        cmd = req["cmd"]
+        if cmd == "ping":
+            return {"ok": True, "pid": os.getpid(), "version": __version__}
+        if cmd == "status":
+            return {"ok": True, "status": self.status()}
+        if cmd == "reload":
+            self.reload_event.set()
+            return {"ok": True}
+        if cmd == "calibrate":
+            if self.stop_event.is_set():
+                return {"ok": False, "error": "daemon is stopping"}
+            r = _Request(force=bool(req.get("force", False)))
+            try:
+                self.requests.put_nowait(r)
+            except queue.Full:
+                return {"ok": False, "busy": True,
+                        "error": f"busy: {self.requests.maxsize} calibration requests are "
+                                 "already queued; try again after they ran"}
+            if not req.get("wait", False):
+                return {"ok": True, "queued": self.requests.qsize()}
+            timeout = float(req.get("timeout_s", 3600))
+            if not r.done.wait(timeout):
+                return {"ok": False, "error": f"run did not finish within {timeout:g} s"}
+            return {"ok": True, "run": r.result}
+        return {"ok": False, "error": f"unknown command {cmd!r} "
+                                      "(use ping, status, calibrate, reload)"}
+
+
+def usable_run_tables(history: History, run_id: int,
+                      controllers: Sequence[ControllerConfig]) -> dict[str, ControllerTable]:
+    """The own tables of run ``run_id`` (:meth:`History.run_tables`) that the configured
+    ``controllers`` can take: a per-pixel (n, 256) table only while its controller still drives
+    n pixels (after a config change it would refuse it at every reconcile); such a controller,
+    like one the run has no table for, gets the run's display-wide table until the next run."""
+    n_pixels = {c.name: sum(b - a + 1 for a, b in c.pixels) for c in controllers}
+    return {k: t for k, t in history.run_tables(run_id).items()
+            if t.lengths_um.ndim == 1 or n_pixels.get(k, t.lengths_um.shape[0])
+            == t.lengths_um.shape[0]}
+
+
+def collect_status(history: History, cfg: Config, runs: int = 5) -> dict[str, Any]:
+    """Status from the state database alone (what `grassd status` shows without a daemon)."""
+    cur = history.current_table()
+    own = {} if cur is None else {k: t.table_crc for k, t in
+                                  usable_run_tables(history, cur.id, cfg.controllers).items()}
+    desired = None if cur is None else {"table_id": cur.table_id, "table_crc": cur.table_crc,
+                                        "run_id": cur.id, "per_controller": own or None}
+    ctrls = {c.name: c for c in history.controllers()}
+    wanted = [(c.name, c.port, c.address) for c in cfg.controllers]
+    if ctrls and not any(name in ctrls for name, _, _ in wanted):
+        # names differ (e.g. the daemon ran with --simulate-hardware): show what it recorded
+        wanted = [(n, n.rsplit("#", 1)[0], int(n.rsplit("#", 1)[1])) for n in ctrls]
+    controllers = []
+    for name, port, address in wanted:
+        s = ctrls.get(name)
+        want_crc = None if cur is None else own.get(name, cur.table_crc)  # its own table's
+        in_sync = bool(s and cur and s.reachable and s.reported_id == cur.table_id
+                       and s.reported_crc == want_crc)
+        controllers.append({
+            "name": name, "port": port, "address": address,
+            "reachable": bool(s and s.reachable),
+            "table_id": s.reported_id if s else None, "table_crc": s.reported_crc if s else None,
+            "desired_crc": want_crc, "in_sync": in_sync, "last_seen": s.last_seen if s else None,
+            "error": s.last_error if s else None,
+        })
+    if cur is None:
+        health = "no table yet"
+    elif all(c["in_sync"] for c in controllers):
+        health = "ok"
+    else:
+        bad = [c["name"] for c in controllers if not c["in_sync"]]
+        health = f"degraded: {len(bad)} controller(s) not on table {cur.table_id}"
+    return {
+        "health": health, "desired_table": desired, "controllers": controllers,
+        "runs": [_run_summary(r) for r in history.runs(runs)],
+        "run_counts": {s: history.run_count(s) for s in ("ok", "rejected", "failed", "superseded")},
+        "state_dir": str(cfg.state_dir), "running": False,
+    }
+
+
+def _run_summary(r) -> dict[str, Any]:
+    m = r.metrics or {}
+    r2 = m.get("r2_after_fit") if m.get("check") == "fit" else m.get("r2_closed_loop")
+    return {"id": r.id, "trigger": r.trigger, "status": r.status, "started_at": r.started_at,
+            "finished_at": r.finished_at, "lux": r.lux, "lux_source": r.lux_source,
+            "error": r.error, "r2": r2, "max_dev_de00": m.get("max_dev_de00"),
+            "report": r.report_path, "plot": r.plot_path}

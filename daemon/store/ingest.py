@@ -1,0 +1,845 @@
+"""The inbox: light bundles arrive, are claimed, processed, and end archived or rejected.
+
+A *bundle* is either
+
+- a directory ``inbox/<name>/`` holding ``manifest.toml`` or ``manifest.json`` and the files it
+  names, or
+- a flat group of files in the inbox: ``<name>.manifest.toml`` (or ``.json``) and the files it
+  names, side by side.
+
+The manifest is written last. Hidden names (starting with ``.``) are ignored, so writers may
+write ``.partial`` names and rename. Manifest keys::
+
+    timestamp = 2026-06-21T12:00:00+02:00   # TOML datetime or ISO 8601 string; naive = site time
+    hdri = "sky.exr"                         # equirectangular HDRI, .exr or .hdr
+    ambient_lux = 12000.0                    # optional when a Modbus lux sensor is configured
+    sun_lux = 40000.0                        # optional: (lux with sun) - (lux without)
+    sun_azimuth_deg = 180.0                  # optional, with sun_elevation_deg
+    sun_elevation_deg = 35.0
+    checker_raw = "checker.dng"              # optional colour-checker RAW
+    checker_corners = [[x, y], x4]           # chart corners in the RAW (pixels), with checker_raw
+    checker_chart = "spydercheckr-24"        # optional: reference chart (or colorchecker-classic)
+
+Life of a bundle (all moves are ``rename(2)`` inside the state directory, so each is atomic)::
+
+    inbox/<name> --claim--> processing/<id> --> archive/<id>
+                                            \\-> rejected/<id> (+ reason.txt)
+
+A manifest must also describe light that can have been: :func:`check_light` refuses light stamped
+in the future (beyond ``[light] future_tolerance_s`` of the daemon's own clock: a camera whose
+clock was never set would otherwise make every later bundle look older, so it could pin the
+active table) and a sun reading that contradicts itself or the site and time (a sun below the
+horizon that gives lux, more lux than sunlight has, a direction far from the sun's position).
+Such a bundle is rejected at once, with the reason.
+
+``<id>`` = first 12 hex digits of the bundle hash + name. The bundle hash is the SHA-256 over the
+names and SHA-256 digests of every file of the bundle, so identical content has one hash.
+
+Crash safety rests on a journal row (SQLite, :class:`~grassd.daemon.store.history.History`) keyed by
+the bundle hash, written *before* each move: ``processing`` when claimed, ``archived`` /
+``rejected`` after the final move. :meth:`Inbox.recover` (run at start) reconciles journal and
+directories: a bundle still in ``processing/`` is retried unless a successful run already
+consumed it (then it is archived without running again) or it has been attempted
+``max_attempts`` times (then it is rejected: it probably crashes the daemon); a half-moved flat
+bundle goes back to the inbox; a bundle whose hash was already archived or rejected is rejected
+as a duplicate. So no bundle is lost and none is processed twice.
+
+Duplicates are recognised by the journal row of their hash, and retention
+(:func:`grassd.daemon.runtime.retention.prune`) deletes the rows of bundles in a final state once
+their directories have expired (older than ``[retention] keep_days``), keeping every
+``processing`` row and the rows of the latest archived and the active table's bundle. A
+re-upload of a bundle whose row was pruned is therefore processed again as new. That is
+acceptable: its light is older than ``keep_days``, so unless no newer light made the active
+table it is archived as superseded (not applied) by the daemon, and a successful run of the
+earlier upload is not mistaken for this upload's (only runs started after its claim count).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import hashlib
+import json
+import logging
+import math
+import os
+import re
+import shutil
+import sqlite3
+import stat
+import time
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import UTC, datetime, tzinfo
+from pathlib import Path
+from typing import Any
+from zoneinfo import ZoneInfo
+
+from grassd.daemon.errors import IngestError, ManifestError
+from grassd.daemon.store.atomic import atomic_write_text, fsync_dir
+from grassd.daemon.store.history import History
+from grassd.sim.errors import LightingError
+from grassd.sim.sun import check_sun_reading
+
+log = logging.getLogger(__name__)
+
+MANIFEST_NAMES = ("manifest.toml", "manifest.json")
+FLAT_SUFFIXES = (".manifest.toml", ".manifest.json")
+HDRI_SUFFIXES = (".exr", ".hdr")
+REASON_FILE = "reason.txt"
+#: Seconds before a bundle that could not be moved out of the inbox is tried again (doubling
+#: after each failure up to STUCK_RETRY_MAX_S; at once when its owner or mode changes).
+STUCK_RETRY_S = 60.0
+STUCK_RETRY_MAX_S = 3600.0
+#: Largest plausible illuminance (lux): direct summer sun is about 1.2e5 lux.
+MAX_LUX = 200_000.0
+_EXR_MAGIC = b"\x76\x2f\x31\x01"
+_SAFE_RE = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+@dataclass(frozen=True)
+class Manifest:
+    """A validated bundle manifest; paths are absolute (inside the bundle's directory).
+
+    Illuminances in lux, angles in degrees (azimuth clockwise from north, elevation above the
+    horizon); ``timestamp`` is timezone-aware.
+    """
+
+    timestamp: datetime
+    hdri: Path
+    ambient_lux: float | None
+    sun_lux: float | None
+    sun_azimuth_deg: float | None
+    sun_elevation_deg: float | None
+    checker_raw: Path | None
+    checker_corners: tuple[tuple[float, float], ...] | None
+    checker_chart: str = "spydercheckr-24"
+
+    def files(self) -> list[Path]:
+        """The data files the manifest names."""
+        return [p for p in (self.hdri, self.checker_raw) if p is not None]
+
+
+@dataclass(frozen=True)
+class Bundle:
+    """A claimed bundle: its ``dir`` under processing/, content hash and parsed manifest."""
+
+    id: str
+    name: str
+    hash: str
+    dir: Path
+    manifest: Manifest
+    input_hashes: dict[str, str]
+
+
+# --------------------------------------------------------------------------- manifest
+
+
+_MANIFEST_KEYS = {"timestamp", "hdri", "ambient_lux", "sun_lux", "sun_azimuth_deg",
+                  "sun_elevation_deg", "checker_raw", "checker_corners", "checker_chart"}
+
+
+def read_manifest_data(path: Path) -> dict[str, Any]:
+    """Parse a TOML or JSON manifest file into a dict (ManifestError when malformed)."""
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ManifestError(f"cannot read manifest {path.name}: {exc.strerror}") from None
+    try:
+        text = raw.decode("utf-8")
+        if path.name.endswith(".json"):
+            data = json.loads(text)
+        else:
+            data = tomllib.loads(text)
+    except (UnicodeDecodeError, json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
+        kind = "JSON" if path.name.endswith(".json") else "TOML"
+        raise ManifestError(f"manifest {path.name} is not valid {kind}: {exc}") from None
+    if not isinstance(data, dict):
+        raise ManifestError(f"manifest {path.name} must hold a table/object at top level")
+    return data
+
+
+def _num(data: dict, key: str, lo: float, hi: float, unit: str) -> float | None:
+    v = data.get(key)
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        raise ManifestError(f"{key} must be a finite number ({unit}), got {v!r}")
+    if not lo <= v <= hi:
+        raise ManifestError(f"{key} = {v} {unit} is out of range ({lo} .. {hi} {unit})")
+    return float(v)
+
+
+def _member(base: Path, key: str, v: Any) -> Path:
+    if not isinstance(v, str) or not v or "/" in v or "\\" in v or v in (".", ".."):
+        raise ManifestError(f"{key} must be a plain file name inside the bundle, got {v!r}")
+    return base / v
+
+
+def _plain_name(v: Any) -> bool:
+    """True when ``v`` would pass :func:`_member` (a plain file name inside the bundle)."""
+    return isinstance(v, str) and bool(v) and "/" not in v and "\\" not in v \
+        and v not in (".", "..")
+
+
+def parse_manifest(data: dict[str, Any], base: Path, tz: tzinfo = UTC) -> Manifest:
+    """Validate manifest ``data``; file names resolve inside ``base``; naive times are in ``tz``.
+
+    Checks names and ranges only, not that the files exist (see :func:`missing_files`).
+    """
+    unknown = sorted(set(data) - _MANIFEST_KEYS)
+    if unknown:
+        raise ManifestError(f"unknown manifest key {unknown[0]!r} "
+                            f"(allowed: {', '.join(sorted(_MANIFEST_KEYS))})")
+    ts = data.get("timestamp")
+    if ts is None:
+        raise ManifestError("timestamp is missing (ISO 8601, e.g. 2026-06-21T12:00:00+02:00)")
+    if isinstance(ts, str):
+        try:
+            ts = datetime.fromisoformat(ts.replace("Z", "+00:00"))
+        except ValueError:
+            raise ManifestError(f"timestamp {ts!r} is not ISO 8601") from None
+    if not isinstance(ts, datetime):
+        raise ManifestError(f"timestamp must be a date-time, got {ts!r}")
+    if ts.tzinfo is None:
+        ts = ts.replace(tzinfo=tz)
+    if "hdri" not in data:
+        raise ManifestError("hdri is missing (name of the .exr or .hdr panorama)")
+    hdri = _member(base, "hdri", data["hdri"])
+    if hdri.suffix.lower() not in HDRI_SUFFIXES:
+        raise ManifestError(f"hdri {hdri.name!r} must be an OpenEXR (.exr) or Radiance (.hdr) file")
+    ambient = _num(data, "ambient_lux", -math.inf, math.inf, "lux")
+    if ambient is not None and not 0 < ambient <= MAX_LUX:
+        raise ManifestError(f"ambient_lux = {ambient:g} lux is impossible: it must be > 0 and "
+                            f"<= {MAX_LUX:g} lux")
+    sun = _num(data, "sun_lux", 0.0, MAX_LUX, "lux")
+    az = _num(data, "sun_azimuth_deg", 0.0, 360.0, "degrees")
+    el = _num(data, "sun_elevation_deg", -90.0, 90.0, "degrees")
+    if (az is None) != (el is None):
+        raise ManifestError("give both sun_azimuth_deg and sun_elevation_deg, or neither")
+    raw = _member(base, "checker_raw", data["checker_raw"]) if "checker_raw" in data else None
+    corners = data.get("checker_corners")
+    if corners is not None:
+        ok = (isinstance(corners, list) and len(corners) == 4
+              and all(isinstance(c, list) and len(c) == 2 and
+                      all(isinstance(x, int | float) and not isinstance(x, bool) for x in c)
+                      for c in corners))
+        if not ok:
+            raise ManifestError("checker_corners must be four [x, y] pixel positions")
+        if raw is None:
+            raise ManifestError("checker_corners given without checker_raw")
+        corners = tuple((float(x), float(y)) for x, y in corners)
+    if raw is not None and corners is None:
+        raise ManifestError("checker_raw needs checker_corners: the four chart corners in the RAW "
+                            "image (pixels, top-left first, clockwise)")
+    chart = data.get("checker_chart", "spydercheckr-24")
+    if not isinstance(chart, str) or not chart:
+        raise ManifestError(f"checker_chart must be a chart name, got {chart!r}")
+    return Manifest(timestamp=ts, hdri=hdri, ambient_lux=ambient, sun_lux=sun, sun_azimuth_deg=az,
+                    sun_elevation_deg=el, checker_raw=raw, checker_corners=corners,
+                    checker_chart=chart)
+
+
+#: How far (s) a bundle's light may be stamped ahead of the daemon's clock (clocks drift; a
+#: camera synchronised by NTP is within a second). Config: ``[light] future_tolerance_s``.
+FUTURE_TOLERANCE_S = 300.0
+
+
+def check_light(m: Manifest, *, now: float, future_tolerance_s: float = FUTURE_TOLERANCE_S,
+                site: tuple[float, float] | None = None) -> None:
+    """Refuse a manifest whose light cannot have been captured (ManifestError, with the fix).
+
+    ``now``: the daemon's clock (epoch s). Light stamped more than ``future_tolerance_s``
+    seconds after ``now`` is refused: a newer timestamp outranks every later bundle (older light
+    is superseded), so one camera clock set years ahead would pin the active table. Light from
+    long ago is fine: such a bundle is simply superseded. ``site``: (latitude, longitude) in
+    degrees, east +; with it the sun reading is checked against the sun's position at the
+    manifest's time (:func:`grassd.sim.sun.check_sun_reading`), without it only against itself.
+    """
+    ahead = m.timestamp.timestamp() - now
+    if ahead > future_tolerance_s:
+        clock = datetime.fromtimestamp(now, UTC).isoformat(timespec="seconds")
+        raise ManifestError(
+            f"light from the future: timestamp {m.timestamp.isoformat()} is "
+            f"{_duration(ahead)} ahead of the daemon's clock ({clock}); tolerance "
+            f"{future_tolerance_s:g} s ([light] future_tolerance_s). Set the capture device's "
+            f"clock (and time zone) right, then send the bundle again")
+    lat, lon = site if site is not None else (None, None)
+    try:
+        check_sun_reading(m.sun_lux, m.sun_azimuth_deg, m.sun_elevation_deg, latitude_deg=lat,
+                          longitude_deg=lon, when=m.timestamp)
+    except LightingError as exc:
+        raise ManifestError(f"impossible sun: {exc}") from None
+
+
+def _duration(seconds: float) -> str:
+    """``seconds`` in the largest fitting unit, e.g. '26.5 h', '73.0 days'."""
+    for unit, size in (("years", 365.25 * 86400), ("days", 86400.0), ("h", 3600.0),
+                       ("min", 60.0)):
+        if seconds >= 2 * size:
+            return f"{seconds / size:.1f} {unit}"
+    return f"{seconds:.0f} s"
+
+
+def check_hdri_magic(path: Path) -> None:
+    """Reject an HDRI whose first bytes are not OpenEXR or Radiance RGBE (cheap early check)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(16)
+    except OSError as exc:
+        raise IngestError(f"cannot read HDRI {path.name}: {exc.strerror}") from None
+    if path.suffix.lower() == ".exr" and head[:4] != _EXR_MAGIC:
+        raise IngestError(f"HDRI {path.name} is not an OpenEXR file (bad magic number)")
+    if path.suffix.lower() == ".hdr" and not head.startswith((b"#?RADIANCE", b"#?RGBE")):
+        raise IngestError(f"HDRI {path.name} is not a Radiance .hdr file (no #?RADIANCE header)")
+
+
+def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
+    """Hex SHA-256 of a file's content."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while block := fh.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+def bundle_hash(input_hashes: dict[str, str]) -> str:
+    """Content hash of a bundle from its ``{file name: sha256}`` map (manifest included)."""
+    return hashlib.sha256(json.dumps(sorted(input_hashes.items())).encode()).hexdigest()
+
+
+# --------------------------------------------------------------------------- the inbox
+
+
+@dataclass
+class _Stuck:
+    """A bundle whose move out of the inbox failed: why, when to retry (clock s), and the
+    owners/modes seen then (:meth:`Inbox._access_key`)."""
+
+    message: str
+    retry_at: float
+    delay_s: float
+    access: tuple
+
+
+@dataclass
+class _Candidate:
+    name: str
+    manifest: Path | None          # None: directory bundle without manifest (yet)
+    members: list[Path]            # everything that moves with the bundle (manifest last)
+    parsed: Manifest | None
+    parse_error: str | None
+    missing: list[str]
+
+
+class Inbox:
+    """Watches ``inbox`` and moves bundles through ``state_dir``/{processing,archive,rejected}.
+
+    ``settle_s``: files must keep size and mtime this long before a bundle is claimed;
+    ``incomplete_timeout_s``: a bundle still missing files after this long is rejected.
+    ``future_tolerance_s`` and ``site`` (latitude, longitude in degrees): see
+    :func:`check_light`, which every manifest passes before its bundle is claimed.
+    ``clock`` (seconds, monotonic) and ``wall_clock`` (epoch seconds, the daemon's own clock
+    that light timestamps are checked against) are injectable for tests.
+    """
+
+    def __init__(self, inbox: Path, state_dir: Path, history: History, *,
+                 settle_s: float = 2.0, incomplete_timeout_s: float = 600.0,
+                 tz: tzinfo | str = UTC, max_attempts: int = 3,
+                 future_tolerance_s: float = FUTURE_TOLERANCE_S,
+                 site: tuple[float, float] | None = None,
+                 clock: Callable[[], float] = time.monotonic,
+                 wall_clock: Callable[[], float] = time.time) -> None:
+        self.inbox = Path(inbox)
+        self.state_dir = Path(state_dir)
+        self.processing = self.state_dir / "processing"
+        self.archive = self.state_dir / "archive"
+        self.rejected = self.state_dir / "rejected"
+        for d in (self.inbox, self.processing, self.archive, self.rejected):
+            d.mkdir(parents=True, exist_ok=True)
+        self.history = history
+        self.settle_s = settle_s
+        self.incomplete_timeout_s = incomplete_timeout_s
+        self.tz = ZoneInfo(tz) if isinstance(tz, str) else tz
+        self.max_attempts = max_attempts
+        self.future_tolerance_s = future_tolerance_s
+        self.site = site
+        self.clock = clock
+        self.wall_clock = wall_clock
+        self._watch: dict[str, tuple[tuple, float, float]] = {}  # name -> (sig, since, first)
+        self._stuck: dict[str, _Stuck] = {}  # bundles whose move out of the inbox failed
+
+    # ------------------------------------------------------------------ scanning
+    def _candidates(self) -> list[_Candidate]:
+        out: list[_Candidate] = []
+        try:
+            entries = sorted(os.scandir(self.inbox), key=lambda e: e.name)
+        except FileNotFoundError:
+            if self.inbox.is_symlink():  # a link to a share that went away: nothing to create
+                raise
+            self.inbox.mkdir(parents=True, exist_ok=True)
+            return out
+        for e in entries:
+            if e.name.startswith("."):
+                continue
+            if e.is_dir(follow_symlinks=False):
+                base = Path(e.path)
+                found = [base / m for m in MANIFEST_NAMES if (base / m).exists()]
+                if len(found) > 1:
+                    out.append(_Candidate(e.name, found[0], [base], None,
+                                          "bundle has both manifest.toml and manifest.json", []))
+                    continue
+                out.append(self._examine(e.name, found[0] if found else None, base, [base]))
+            elif e.name.endswith(FLAT_SUFFIXES):
+                name = e.name[: -len(next(s for s in FLAT_SUFFIXES if e.name.endswith(s)))]
+                out.append(self._examine(name, Path(e.path), self.inbox, None))
+        return out
+
+    def _examine(self, name: str, manifest: Path | None, base: Path,
+                 members: list[Path] | None) -> _Candidate:
+        if manifest is None:
+            return _Candidate(name, None, members or [], None, None, ["manifest.toml"])
+        parsed, err, missing = None, None, []
+        data: dict[str, Any] | None = None
+        try:
+            data = read_manifest_data(manifest)
+            parsed = parse_manifest(data, base, self.tz)
+            check_light(parsed, now=self.wall_clock(),
+                        future_tolerance_s=self.future_tolerance_s, site=self.site)
+        except ManifestError as exc:
+            err = str(exc)
+        if parsed is not None:
+            missing = [p.name for p in parsed.files() if not p.is_file()]
+        if members is None:  # flat bundle: data files first, manifest last
+            if parsed is not None:
+                named = parsed.files()
+            else:  # rejected manifest: still take along the data files it names
+                named = [_member(base, k, data[k]) for k in ("hdri", "checker_raw")
+                         if data is not None and _plain_name(data.get(k))
+                         and not data[k].startswith(".") and not data[k].endswith(FLAT_SUFFIXES)]
+            files = [p for p in named if p.is_file()]
+            members = [*files, manifest]
+        return _Candidate(name, manifest, members, parsed, err, missing)
+
+    @staticmethod
+    def _signature(c: _Candidate) -> tuple:
+        sig = []
+        for m in c.members:
+            paths = [m] if m.is_file() else sorted(p for p in m.rglob("*") if p.is_file())
+            for p in paths:
+                try:
+                    st = p.stat()
+                except FileNotFoundError:
+                    continue
+                sig.append((str(p), st.st_size, st.st_mtime_ns))
+        return tuple(sig)
+
+    # ------------------------------------------------------------------ public API
+    def poll(self, claim: bool = True) -> list[Bundle]:
+        """Scan the inbox once: claim complete, settled bundles into processing/ and return them.
+
+        Bundles with an invalid manifest, or still incomplete after the timeout, are claimed and
+        rejected at once (with their reason); duplicates of already-handled bundles likewise.
+        ``claim=False`` only watches (tracks sizes and mtimes for the settle time), so bundles
+        are settled by the time a later poll may claim them.
+
+        When claiming one bundle fails (OSError, SQLite error: e.g. rejected/ unwritable, a
+        full disk) after others were claimed, those are returned (they are in processing/
+        already and would otherwise wait there until the next restart) and the error is
+        logged; with none claimed, it is raised.
+        """
+        ready: list[Bundle] = []
+        try:
+            self._scan(claim, ready)
+        except (OSError, sqlite3.Error) as exc:
+            if not ready:
+                raise
+            log.error("inbox: claiming a bundle failed (%s); the %d bundle(s) claimed before it "
+                      "go ahead", exc, len(ready))
+        return ready
+
+    def _scan(self, claim: bool, ready: list[Bundle]) -> None:
+        """:meth:`poll`'s scan: claimed bundles are appended to ``ready`` as they are moved."""
+        now = self.clock()
+        names = set()
+        for c in self._candidates():
+            names.add(c.name)
+            stuck = self._stuck.get(c.name)
+            if stuck is not None and now < stuck.retry_at \
+                    and stuck.access == self._access_key(c):
+                continue
+            sig = self._signature(c)
+            prev = self._watch.get(c.name)
+            if prev is None or prev[0] != sig:
+                first = prev[2] if prev else now
+                self._watch[c.name] = (sig, now, first)
+                if self.settle_s > 0:
+                    continue
+                prev = self._watch[c.name]
+            if not claim:
+                continue
+            _, since, first = prev
+            settled = now - since >= self.settle_s
+            if c.missing or c.manifest is None:
+                if now - first >= self.incomplete_timeout_s and settled:
+                    what = ("no manifest.toml or manifest.json" if c.manifest is None
+                            else f"missing file(s) {', '.join(c.missing)}")
+                    self._claim_and_reject(c, f"incomplete bundle after "
+                                              f"{self.incomplete_timeout_s:g} s: {what}")
+                    self._watch.pop(c.name, None)
+                continue
+            if not settled:
+                continue
+            self._watch.pop(c.name, None)
+            if c.parse_error is not None:
+                self._claim_and_reject(c, c.parse_error)
+                continue
+            bundle = self._claim(c)
+            if bundle is not None:
+                ready.append(bundle)
+        for gone in set(self._watch) - names:
+            del self._watch[gone]
+        for gone in set(self._stuck) - names:
+            del self._stuck[gone]
+
+    def problems(self) -> list[str]:
+        """Why bundles wait in the inbox (e.g. permissions), one line each, for status (called
+        from a control-socket thread: reads a snapshot of what the main loop changes)."""
+        stuck = dict(self._stuck)
+        return [stuck[name].message for name in sorted(stuck)]
+
+    def recover(self) -> list[Bundle]:
+        """Reconcile journal and directories after a crash; return bundles to process again."""
+        retry: list[Bundle] = []
+        rows = {j.bundle_id: j for j in self.history.journal("processing")}
+        # 1. flat bundles interrupted half-way into processing/: put them back.
+        for d in sorted(self.processing.glob("*.partial")):
+            bid = d.name[: -len(".partial")]
+            row = rows.pop(bid, None)
+            name = row.name if row else bid.split("-", 1)[-1]
+            self._unclaim_partial(d, name)
+            if row:
+                self.history.journal_forget(row.bundle_hash)
+        # 2. journal rows still "processing".
+        for bid, row in rows.items():
+            here = self.processing / bid
+            if here.is_dir():
+                b = self._retry_or_settle(row.bundle_hash, bid, row.name, row.attempts)
+                if b is not None:
+                    retry.append(b)
+            elif (self.archive / bid).is_dir():  # crashed between move and journal: a
+                # superseded bundle stays superseded (scheduled runs must not take its light)
+                run = self.history.last_run_for_bundle(row.bundle_hash, row.created_at)
+                self.history.journal_finish(
+                    row.bundle_hash, "archived", run_id=None if run is None else run.id,
+                    reason=run.error if run is not None and run.status == "superseded" else None)
+            elif (self.rejected / bid).is_dir():
+                self.history.journal_finish(row.bundle_hash, "rejected",
+                                            reason=self._read_reason(self.rejected / bid))
+            elif (self.inbox / row.name).exists() or any(
+                    (self.inbox / (row.name + s)).exists() for s in FLAT_SUFFIXES):
+                self.history.journal_forget(row.bundle_hash)  # crashed before the move
+            else:
+                log.error("bundle %s vanished from processing/ while the daemon was down", bid)
+                self.history.journal_finish(row.bundle_hash, "rejected",
+                                            reason="bundle files vanished after a crash")
+        # 3. directories in processing/ that the journal does not know (database replaced).
+        known = {j.bundle_id for j in self.history.journal()}
+        for d in sorted(self.processing.iterdir()):
+            if d.is_dir() and not d.name.endswith(".partial") and d.name not in known:
+                name = d.name.split("-", 1)[-1]
+                try:
+                    hashes = self._hash_dir(d)
+                except OSError as exc:
+                    self._finish_dir(d, d.name, None, f"unreadable after a crash: {exc}")
+                    continue
+                h = bundle_hash(hashes)
+                done = self.history.journal_get(h)
+                if done is not None:  # its content is known under another id: a duplicate
+                    # caught mid-rejection by a crash; the original keeps its journal row
+                    self._finish_dir(d, d.name, None, f"duplicate: identical content was "
+                                                      f"already {done.state} as {done.bundle_id}")
+                    continue
+                self.history.journal_claim(h, d.name, name)
+                b = self._retry_or_settle(h, d.name, name, 0)
+                if b is not None:
+                    retry.append(b)
+        return retry
+
+    def begin(self, bundle: Bundle) -> int:
+        """Count one processing attempt of ``bundle`` (call right before processing it)."""
+        return self.history.journal_attempt(bundle.hash)
+
+    def archive_bundle(self, bundle: Bundle, run_id: int | None,
+                       reason: str | None = None) -> Path:
+        """Move a processed bundle to archive/ and mark it archived (``reason``: why it was
+        archived without being applied, e.g. superseded)."""
+        dest = self.archive / bundle.id
+        self._rename(bundle.dir, dest)
+        self.history.journal_finish(bundle.hash, "archived", run_id=run_id, reason=reason)
+        return dest
+
+    def reject_bundle(self, bundle: Bundle, reason: str, run_id: int | None = None) -> Path:
+        """Move a bundle to rejected/ with ``reason`` written to reason.txt; mark it rejected."""
+        return self._finish_dir(bundle.dir, bundle.id, bundle.hash, reason, run_id)
+
+    def archived_manifest(self, bundle_id: str) -> Manifest | None:
+        """The parsed manifest of archived bundle ``bundle_id`` (naive times in the site's
+        zone), or None when its directory or manifest is gone; ManifestError (a DaemonError)
+        when it cannot be read."""
+        d = self.archive / bundle_id
+        mpath = next((d / m for m in MANIFEST_NAMES if (d / m).is_file()), None)
+        return None if mpath is None else parse_manifest(read_manifest_data(mpath), d, self.tz)
+
+    def counts(self) -> dict[str, int]:
+        """Number of entries in inbox, processing, archive and rejected."""
+        def n(d: Path) -> int:
+            return sum(1 for e in d.iterdir() if not e.name.startswith(".")) if d.is_dir() else 0
+        return {"inbox": n(self.inbox), "processing": n(self.processing),
+                "archive": n(self.archive), "rejected": n(self.rejected)}
+
+    # ------------------------------------------------------------------ internals
+    def _retry_or_settle(self, h: str, bid: str, name: str, attempts: int) -> Bundle | None:
+        d = self.processing / bid
+        row = self.history.journal_get(h)
+        done = self.history.ok_run_for_bundle(h, None if row is None else row.created_at)
+        if done is not None:  # processed, crashed before the archive move: do not run again
+            self._rename(d, self.archive / bid)
+            self.history.journal_finish(h, "archived", run_id=done.id)
+            return None
+        if attempts >= self.max_attempts:
+            self._finish_dir(d, bid, h, f"abandoned after {attempts} attempts that did not "
+                                        "finish (the daemon stopped or crashed each time)")
+            return None
+        try:
+            return self._load_claimed(d, bid, name, h)
+        except (IngestError, OSError) as exc:
+            self._finish_dir(d, bid, h, str(exc))
+            return None
+
+    def _load_claimed(self, d: Path, bid: str, name: str, h: str | None) -> Bundle:
+        mpath = next((d / m for m in MANIFEST_NAMES if (d / m).is_file()), None)
+        if mpath is None:
+            raise IngestError("bundle has no manifest.toml or manifest.json")
+        manifest = parse_manifest(read_manifest_data(mpath), d, self.tz)
+        missing = [p.name for p in manifest.files() if not p.is_file()]
+        if missing:
+            raise IngestError(f"missing file(s) {', '.join(missing)}")
+        check_hdri_magic(manifest.hdri)
+        hashes = self._hash_dir(d)
+        return Bundle(id=bid, name=name, hash=h or bundle_hash(hashes), dir=d, manifest=manifest,
+                      input_hashes=hashes)
+
+    @staticmethod
+    def _hash_dir(d: Path) -> dict[str, str]:
+        return {str(p.relative_to(d)): sha256_file(p) for p in sorted(d.rglob("*"))
+                if p.is_file() and p.name != REASON_FILE}
+
+    def _hash_members(self, c: _Candidate) -> dict[str, str]:
+        hashes: dict[str, str] = {}
+        for m in c.members:
+            if m.is_dir():
+                hashes.update(self._hash_dir(m))
+            elif m.is_file():
+                key = ("manifest" + m.name[m.name.rfind(".") :]) if m == c.manifest else m.name
+                hashes[key] = sha256_file(m)
+        return hashes
+
+    def _bundle_id(self, h: str, name: str) -> str:
+        return f"{h[:12]}-{_SAFE_RE.sub('_', name)[:80]}"
+
+    def _claim(self, c: _Candidate) -> Bundle | None:
+        try:
+            hashes = self._hash_members(c)
+        except OSError as exc:  # a file vanished between scan and claim: look again next time
+            log.warning("bundle %s changed while being claimed: %s", c.name, exc)
+            return None
+        h = bundle_hash(hashes)
+        bid = self._bundle_id(h, c.name)
+        existing = self.history.journal_get(h)
+        if existing is not None:
+            dup = f"{bid}.dup-{time.time_ns()}"
+            d = self._try_move_in(c, dup, None)
+            if d is None:
+                return None
+            self._write_reason(d, f"duplicate: identical content was already {existing.state} "
+                                  f"as {existing.bundle_id}")
+            self._rename(d, self.rejected / dup)
+            return None
+        self.history.journal_claim(h, bid, c.name)
+        d = self._try_move_in(c, bid, h)
+        if d is None:
+            return None
+        try:
+            return self._load_claimed(d, bid, c.name, h)
+        except (IngestError, OSError) as exc:
+            self._finish_dir(d, bid, h, str(exc))
+            return None
+
+    def _claim_and_reject(self, c: _Candidate, reason: str) -> None:
+        try:
+            hashes = self._hash_members(c)
+        except OSError:
+            hashes = {"name": hashlib.sha256(c.name.encode()).hexdigest()}
+        h = bundle_hash(hashes)
+        bid = self._bundle_id(h, c.name)
+        if self.history.journal_get(h) is not None:
+            bid = f"{bid}.dup-{time.time_ns()}"
+            d = self._try_move_in(c, bid, None)
+            if d is not None:
+                self._finish_dir(d, bid, None, reason)
+            return
+        self.history.journal_claim(h, bid, c.name)
+        d = self._try_move_in(c, bid, h)
+        if d is not None:
+            self._finish_dir(d, bid, h, reason)
+
+    def _access_key(self, c: _Candidate) -> tuple:
+        """Owner, group and mode of the inbox and of the bundle's top-level entries: when one
+        changes (someone fixed the permissions) a stuck bundle is tried again at once."""
+        key = []
+        for p in [self.inbox, *c.members]:
+            try:
+                st = p.lstat()
+            except OSError:
+                continue
+            key.append((str(p), st.st_uid, st.st_gid, st.st_mode))
+        return tuple(key)
+
+    def _try_move_in(self, c: _Candidate, bid: str, h: str | None) -> Path | None:
+        """:meth:`_move_in`, or None when the bundle cannot be moved out of the inbox: it is
+        left there as it was, its fresh journal row ``h`` dropped, and tried again after
+        STUCK_RETRY_S (doubling) or as soon as an owner or mode changes; the reason and the
+        fix are logged once and listed by :meth:`problems`."""
+        try:
+            dest = self._move_in(c, bid)
+        except OSError as exc:
+            if h is not None:
+                self.history.journal_forget(h)
+            prev = self._stuck.get(c.name)
+            delay = STUCK_RETRY_S if prev is None else min(prev.delay_s * 2, STUCK_RETRY_MAX_S)
+            msg = self._move_error(c, exc)
+            self._stuck[c.name] = _Stuck(msg, self.clock() + delay, delay, self._access_key(c))
+            if prev is None or prev.message != msg:
+                log.error("%s (it stays in the inbox; tried again when its owner or mode "
+                          "changes, else in %g s)", msg, delay)
+            else:
+                log.debug("bundle %s still cannot be moved; next try in %g s", c.name, delay)
+            return None
+        if self._stuck.pop(c.name, None) is not None:
+            log.info("bundle %s could be moved out of the inbox now", c.name)
+        return dest
+
+    def _move_error(self, c: _Candidate, exc: OSError) -> str:
+        """One line: which bundle could not be moved, why, and what fixes it."""
+        head = f"cannot move bundle {c.name} out of the inbox {self.inbox}: {exc.strerror or exc}"
+        fix = f"chgrp grassd {self.inbox}; chmod 2775 {self.inbox}"
+        if exc.errno not in (errno.EACCES, errno.EPERM):
+            return head + " (give the daemon write access to the inbox and the bundle)"
+        me = os.geteuid()
+        try:
+            inbox_st = self.inbox.stat()
+        except OSError:
+            return head
+        if inbox_st.st_mode & stat.S_ISVTX and inbox_st.st_uid != me:
+            return (head + f": the inbox has the sticky bit (mode {inbox_st.st_mode & 0o7777:o})"
+                    ", so only an entry's owner may move it: chmod -t it, make it group-writable"
+                    f" and setgid ({fix})")
+        for m in c.members:
+            try:
+                st = m.lstat()
+            except OSError:
+                continue
+            if m.is_dir() and st.st_uid != me and not st.st_mode & stat.S_IWGRP:
+                return (head + f": bundle directory {m.name} belongs to uid {st.st_uid} with mode "
+                        f"{st.st_mode & 0o7777:o} (written with umask 022), and moving a "
+                        "directory needs write access to it: make the inbox group-writable and "
+                        f"setgid ({fix}) and have the uploader use "
+                        "umask 002, or upload flat bundles (NAME.manifest.toml beside its files)")
+            if m.is_dir() and not os.access(m, os.W_OK):
+                return (head + f": bundle directory {m.name} (uid {st.st_uid}, mode "
+                        f"{st.st_mode & 0o7777:o}) is not writable by the daemon (uid {me}), "
+                        "and moving a directory needs write access to it: make it group-"
+                        f"writable (uploader umask 002) in a setgid, group-writable inbox ({fix})")
+        return (head + f": the daemon (uid {me}) needs write access to the inbox (mode "
+                f"{inbox_st.st_mode & 0o7777:o}, uid {inbox_st.st_uid}, gid {inbox_st.st_gid}): "
+                f"make it group-writable and setgid ({fix})")
+
+    def _move_in(self, c: _Candidate, bid: str) -> Path:
+        dest = self.processing / bid
+        if len(c.members) == 1 and c.members[0].is_dir():
+            self._rename(c.members[0], dest)
+            return dest
+        partial = self.processing / f"{bid}.partial"
+        partial.mkdir(exist_ok=True)
+        try:
+            for m in c.members:  # manifest is last
+                target = m.name
+                if m == c.manifest:
+                    target = "manifest" + m.name[m.name.rfind(".") :]
+                if m.exists():
+                    self._rename(m, partial / target)
+            self._rename(partial, dest)
+        except OSError:
+            with contextlib.suppress(OSError):  # else recover() puts them back at the next start
+                self._unclaim_partial(partial, c.name)
+            raise
+        return dest
+
+    def _unclaim_partial(self, d: Path, name: str) -> None:
+        files = sorted(d.iterdir())
+        manifests = [f for f in files if f.name in MANIFEST_NAMES]
+        for f in [f for f in files if f not in manifests] + manifests:
+            target = name + "." + f.name if f in manifests else f.name
+            self._rename(f, self.inbox / target)
+        d.rmdir()
+        log.warning("bundle %s was half-way into processing/: moved back to the inbox", name)
+
+    def _finish_dir(self, d: Path, bid: str, h: str | None, reason: str,
+                    run_id: int | None = None) -> Path:
+        self._write_reason(d, reason)
+        dest = self.rejected / bid
+        self._rename(d, dest)
+        if h is not None:
+            self.history.journal_finish(h, "rejected", reason=reason, run_id=run_id)
+        log.warning("rejected bundle %s: %s", bid, reason)
+        return dest
+
+    @staticmethod
+    def _write_reason(d: Path, reason: str) -> None:
+        atomic_write_text(d / REASON_FILE, reason.rstrip() + "\n")
+
+    @staticmethod
+    def _read_reason(d: Path) -> str | None:
+        try:
+            return (d / REASON_FILE).read_text().strip()
+        except OSError:
+            return None
+
+    @staticmethod
+    def _rename(src: Path, dst: Path) -> None:
+        """rename(2) ``src`` to ``dst`` (fsyncing both parents); across file systems, copy the
+        tree to a hidden temporary beside ``dst``, fsync, rename it, then remove ``src``."""
+        try:
+            os.rename(src, dst)
+        except OSError as exc:
+            if exc.errno != errno.EXDEV:
+                raise
+            tmp = dst.parent / f".{dst.name}.copy"
+            if src.is_dir():
+                shutil.copytree(src, tmp, dirs_exist_ok=True)
+            else:
+                shutil.copy2(src, tmp)
+            for p in [tmp, *tmp.rglob("*")] if tmp.is_dir() else [tmp]:
+                if p.is_file():
+                    with open(p, "rb") as fh:
+                        os.fsync(fh.fileno())
+            os.rename(tmp, dst)
+            if src.is_dir():
+                shutil.rmtree(src)
+            else:
+                src.unlink()
+        fsync_dir(dst.parent)
+        if src.parent != dst.parent:
+            fsync_dir(src.parent)

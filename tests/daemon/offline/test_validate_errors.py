@@ -1,0 +1,143 @@
+"""Bad capture directories give one clear, typed error each, and the CLI prints it as one line
+with exit code 2. The captures are real DNGs from the virtual camera and a real EXR."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from grassd.calib.charts import get_chart
+from grassd.calib.virtual_camera import VirtualCamera
+from grassd.daemon.cli.main import main
+from grassd.daemon.offline.validate import (
+    CaptureManifest,
+    CaptureManifestError,
+    CornersOutsideImageError,
+    LengthOrderError,
+    LightSpec,
+    MissingPhotoError,
+    MixedCamerasError,
+    Photo,
+    Series,
+    load_manifest,
+    manifest_to_toml,
+    measure_real,
+)
+from grassd.daemon.offline.virtual_capture import checker_scene
+from grassd.sim.hdri import write_exr
+
+QUAD = ((10.0, 12.0), (54.0, 12.0), (56.0, 50.0), (8.0, 50.0))
+
+
+def _capture(tmp_path, *, lengths=(0.0, 5.0, 10.0, 20.0), camera=None, odd_one=None):
+    """A small capture: checker + flat photos getting greener with length (no rendering)."""
+    cam = camera or VirtualCamera()
+    write_exr(tmp_path / "env.exr", np.full((16, 32, 3), 0.5, np.float32))
+    white = np.full(3, 50.0)
+    img, corners = checker_scene(get_chart("spydercheckr-24"), white)
+    cam.photograph(tmp_path / "checker.dng", img, white)
+    photos = []
+    for i, x in enumerate(lengths):
+        frac = x / 20.0
+        colour = (1 - frac) * np.array([0.5, 0.45, 0.1]) + frac * np.array([0.05, 0.2, 0.03])
+        which = odd_one if (odd_one is not None and i == 2) else cam
+        path = which.photograph(tmp_path / f"p{i}.dng", np.ones((64, 64, 3)) * colour * white,
+                                white)
+        photos.append(Photo(path, x, QUAD))
+    m = CaptureManifest(root=tmp_path, light=LightSpec(tmp_path / "env.exr", 500.0),
+                        checker_photo=tmp_path / "checker.dng",
+                        checker_corners=tuple(map(tuple, corners.tolist())),
+                        series=(Series((170.0, 2.0, 0.0), tuple(photos), True),))
+    (tmp_path / "capture.toml").write_text(manifest_to_toml(m))
+    return m
+
+
+def _cli_error(path) -> str:
+    res = CliRunner().invoke(main, ["validate", str(path), "-q"])
+    assert res.exit_code == 2, res.output
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("grassd: error: "), res.output
+    return lines[0]
+
+
+def test_good_capture_loads_and_measures(tmp_path):
+    _capture(tmp_path)
+    m = load_manifest(tmp_path)
+    assert [p.length_mm for p in m.series[0].photos] == [0.0, 5.0, 10.0, 20.0]
+    real = measure_real(m)
+    assert real.camera["model"] == "Virtual Camera"
+    # the photos get greener with length: OGCD grows monotonically from 0
+    assert real.ogcd[0][0] == 0.0 and np.all(np.diff(real.ogcd[0]) > 0)
+    assert real.checker_rgb.shape == (24, 3)
+
+
+def test_missing_photo(tmp_path):
+    _capture(tmp_path)
+    (tmp_path / "p2.dng").unlink()
+    with pytest.raises(MissingPhotoError, match="p2.dng does not exist"):
+        load_manifest(tmp_path)
+    assert "p2.dng does not exist" in _cli_error(tmp_path)
+
+
+def test_corners_outside_the_image(tmp_path):
+    _capture(tmp_path)
+    text = (tmp_path / "capture.toml").read_text().replace("[56.0, 50.0]", "[156.0, 50.0]", 1)
+    (tmp_path / "capture.toml").write_text(text)
+    with pytest.raises(CornersOutsideImageError, match=r"outside p0.dng \(64 x 64"):
+        measure_real(load_manifest(tmp_path))
+    assert "[[156.0, 50.0]]" in _cli_error(tmp_path)
+    # the checker's corners are checked against the checker photo
+    (tmp_path / "capture.toml").write_text(text.replace("[156.0, 50.0]", "[56.0, 50.0]", 1)
+                                           .replace("[[46.08, 35.84]", "[[46.08, -35.84]", 1))
+    with pytest.raises(CornersOutsideImageError, match=r"checker corner.*outside checker.dng"):
+        measure_real(load_manifest(tmp_path))
+
+
+def test_lengths_not_increasing(tmp_path):
+    _capture(tmp_path, lengths=(0.0, 10.0, 5.0, 20.0))
+    with pytest.raises(LengthOrderError, match="strictly increasing.*5 mm after 10 mm"):
+        load_manifest(tmp_path)
+    assert "strictly increasing" in _cli_error(tmp_path)
+
+
+def test_mixed_cameras(tmp_path):
+    other = VirtualCamera(model="Other Camera", cfa_pattern="BGGR", bits=12)
+    _capture(tmp_path, odd_one=other)
+    with pytest.raises(MixedCamerasError, match="p2.dng was taken with grassd Other Camera"):
+        measure_real(load_manifest(tmp_path))
+    assert "same camera" in _cli_error(tmp_path)
+
+
+def test_malformed_manifests(tmp_path):
+    _capture(tmp_path)
+    good = (tmp_path / "capture.toml").read_text()
+    cases = {
+        "chart = [": "not valid TOML",
+        good.replace("[light]", "[light]\ncolour = 3"): r"unknown key\(s\) colour in \[light\]",
+        good.replace("lux = 500.0", "lux = \"bright\""): "light.lux",
+        good.replace("viewpoint = [170.0, 2.0, 0.0]", "viewpoint = [170.0, 2.0]"): "viewpoint",
+    }
+    for text, message in cases.items():
+        (tmp_path / "capture.toml").write_text(text)
+        with pytest.raises(CaptureManifestError, match=message):
+            load_manifest(tmp_path)
+    (tmp_path / "capture.toml").unlink()
+    with pytest.raises(CaptureManifestError, match="needs a capture.toml"):
+        load_manifest(tmp_path)
+    assert "capture.toml" in _cli_error(tmp_path)
+
+
+@pytest.mark.parametrize("args", [["validate", "CAP", "-q", "--samples", "64"],
+                                  ["experiment", "paper", "--quick", "-q", "--out", "OUT"]])
+def test_one_replicate_is_refused_before_any_work(tmp_path, args):
+    """RenderSettings accepts replicates=1 (an adaptive run's top-up batch), but a run needs
+    two for its standard errors: `--replicates 1` must be refused naming the option, not fail
+    after tracing with an internal "2 independent batches" message (or write NaN errors)."""
+    _capture(tmp_path)
+    args = [str(tmp_path) if a == "CAP" else str(tmp_path / "out") if a == "OUT" else a
+            for a in args]
+    res = CliRunner().invoke(main, [*args, "--replicates", "1"])
+    assert res.exit_code == 2, res.output
+    assert "--replicates" in res.output and "1" in res.output, res.output
+    assert not (tmp_path / "out").exists()

@@ -1,0 +1,90 @@
+"""sd_notify over a real AF_UNIX datagram socket standing in for systemd."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+
+import pytest
+
+from grassd.daemon.runtime.notify import Notifier
+
+
+def _listener(path_or_abstract):
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    s.bind(path_or_abstract)
+    s.settimeout(5)
+    return s
+
+
+def test_messages_reach_a_filesystem_socket(tmp_path):
+    path = str(tmp_path / "notify")
+    srv = _listener(path)
+    n = Notifier(env={"NOTIFY_SOCKET": path})
+    assert n.ready(status="watching /inbox")
+    msg = srv.recv(4096).decode().split("\n")
+    assert msg[0] == "READY=1" and msg[1] == "STATUS=watching /inbox"
+    assert msg[2] == f"MAINPID={os.getpid()}"
+    assert n.status("calibrating") and srv.recv(4096) == b"STATUS=calibrating"
+    assert n.watchdog(force=True) and srv.recv(4096) == b"WATCHDOG=1"
+    assert n.reloading() and srv.recv(4096) == b"RELOADING=1"
+    assert n.stopping() and srv.recv(4096) == b"STOPPING=1"
+    with pytest.raises(ValueError):
+        n.status("two\nlines")
+    n.close()
+    srv.close()
+
+
+def test_abstract_namespace_socket():
+    name = f"grassd-test-{os.getpid()}-{time.monotonic_ns()}"
+    srv = _listener(b"\0" + name.encode())
+    n = Notifier(env={"NOTIFY_SOCKET": "@" + name})
+    assert n.send(STATUS="abstract ok")
+    assert srv.recv(4096) == b"STATUS=abstract ok"
+    srv.close()
+
+
+def test_watchdog_interval_is_half_of_watchdog_usec(tmp_path):
+    path = str(tmp_path / "n")
+    srv = _listener(path)
+    srv.setblocking(False)
+    n = Notifier(env={"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "400000"})
+    assert n.watchdog_interval_s == pytest.approx(0.2)
+    assert n.watchdog()            # first ping goes out
+    assert not n.watchdog()        # too early
+    time.sleep(0.21)
+    assert n.watchdog()
+    assert [srv.recv(100), srv.recv(100)] == [b"WATCHDOG=1", b"WATCHDOG=1"]
+    other_pid = Notifier(env={"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "400000",
+                              "WATCHDOG_PID": "1"})
+    assert other_pid.watchdog_interval_s is None  # the watchdog is meant for another process
+
+
+def test_no_socket_is_a_noop_and_missing_socket_is_not_fatal(tmp_path):
+    assert Notifier(env={}).ready() is False
+    assert Notifier(env={"NOTIFY_SOCKET": str(tmp_path / "gone")}).ready() is False
+
+
+def test_child_process_notifies_parent(tmp_path):
+    """A separate process (as systemd would run it) reaches our socket through the env var."""
+    path = str(tmp_path / "notify")
+    srv = _listener(path)
+    code = "from grassd.daemon.runtime.notify import Notifier; Notifier().ready('up')"
+    subprocess.run([sys.executable, "-c", code], env={**os.environ, "NOTIFY_SOCKET": path},
+                   check=True)
+    assert srv.recv(4096).startswith(b"READY=1\nSTATUS=up\nMAINPID=")
+
+
+def test_full_receiver_never_blocks(tmp_path):
+    """Nobody reads the socket: sends fail fast (False) instead of stalling the daemon."""
+    path = str(tmp_path / "n")
+    srv = _listener(path)
+    n = Notifier(env={"NOTIFY_SOCKET": path})
+    t0 = time.monotonic()
+    results = [n.status("x" * 200) for _ in range(5000)]
+    assert time.monotonic() - t0 < 5.0
+    assert results[0] is True and results[-1] is False
+    srv.close()

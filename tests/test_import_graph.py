@@ -1,0 +1,195 @@
+"""The package layout holds on the real import graph (issue #14):
+
+* ``grassd run`` never imports ``grassd.daemon.offline`` (validation, experiments, sweeps,
+  reports): a real ``grassd run --simulate-hardware`` in a subprocess calibrates one bundle and
+  pushes its table, then lists the modules it loaded;
+* ``grassd.calib``, ``grassd.sim`` and ``grassd.firmware_proto`` never import ``grassd.daemon``
+  (no import statement anywhere in them names it, lazy or not);
+* no import cycles between modules at module level (imports inside functions and under
+  ``if TYPE_CHECKING:`` do not run at import time and are left out);
+* every import of a grassd module, lazy or not, in the packages, tests and benchmarks names a
+  module that exists.
+
+The static checks read every module of the four packages with :mod:`ast`, so a new module is
+covered as soon as it exists.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from daemon_harness import DISPLAY_2X2, drop_midsummer
+
+ROOT = Path(__file__).resolve().parents[1]
+#: source folder -> package (pyproject's package-dir)
+PACKAGES = {"grassd": "grassd", "calib": "grassd.calib", "sim": "grassd.sim",
+            "firmware_proto": "grassd.firmware_proto", "daemon": "grassd.daemon"}
+
+
+def _modules() -> dict[str, Path]:
+    """Dotted name -> file of every module of the distribution."""
+    out = {}
+    for folder, package in PACKAGES.items():
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            parts = list(path.relative_to(ROOT / folder).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts.pop()
+            out[".".join([package, *parts])] = path
+    return out
+
+
+MODULES = _modules()
+
+
+def _imports(path: Path) -> list[tuple[str, bool]]:
+    """(imported grassd module, runs at import time) for every import statement in ``path``.
+    ``from a import b`` counts as importing ``a`` and, when ``a.b`` is a module, ``a.b``."""
+    found: list[tuple[str, bool]] = []
+
+    def visit(node: ast.AST, at_import: bool) -> None:
+        for child in ast.iter_child_nodes(node):
+            now = at_import and not isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef
+                                                 | ast.Lambda)
+            if isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test):
+                now = False
+            if isinstance(child, ast.Import):
+                found.extend((a.name, now) for a in child.names)
+            elif isinstance(child, ast.ImportFrom) and child.module and child.level == 0:
+                found.append((child.module, now))
+                found.extend((f"{child.module}.{a.name}", now) for a in child.names
+                             if f"{child.module}.{a.name}" in MODULES)
+            visit(child, now)
+
+    visit(ast.parse(path.read_text(), str(path)), True)
+    return [(name, now) for name, now in found if name.split(".")[0] == "grassd"]
+
+
+def test_the_graph_sees_every_package():
+    """Precondition of the other checks: the walk finds the modules and their imports."""
+    assert {"grassd.daemon.runtime.service", "grassd.daemon.cli.main", "grassd.sim.renderer",
+            "grassd.calib.ogcd", "grassd.firmware_proto.client"} <= set(MODULES)
+    assert ("grassd.daemon.config.settings", True) in _imports(MODULES["grassd.daemon.cli.run"])
+    assert ("grassd.daemon.runtime.service", False) in _imports(MODULES["grassd.daemon.cli.run"])
+    assert ("grassd.daemon.calibration.calibrate_display", False) in _imports(
+        MODULES["grassd.daemon.calibration.calibrate"])  # lazy: not at import time
+
+
+def test_every_grassd_import_names_an_existing_module():
+    """Lazy imports too (a moved module leaves no stale path behind), in the packages, the
+    tests and the benchmarks."""
+    files = [*MODULES.values(), *sorted((ROOT / "tests").rglob("*.py")),
+             *sorted((ROOT / "bench").glob("*.py"))]
+    missing = sorted({f"{path.relative_to(ROOT)}: {name}" for path in files
+                      for name, _ in _imports(path) if name not in MODULES})
+    assert not missing, missing
+
+
+def test_calib_sim_and_firmware_proto_never_import_the_daemon():
+    bad = [f"{name} imports {imported}"
+           for name, path in MODULES.items()
+           if name.startswith(("grassd.calib", "grassd.sim", "grassd.firmware_proto"))
+           for imported, _ in _imports(path) if imported.startswith("grassd.daemon")]
+    assert not bad, bad
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components of more than one module (Tarjan), each sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1 or v in graph[v]:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_no_import_cycles_at_module_level():
+    graph = {name: {m for m, now in _imports(path) if now and m in MODULES and m != name}
+             for name, path in MODULES.items()}
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert not _cycles(graph), _cycles(graph)
+
+
+#: run in a subprocess: ``grassd run --simulate-hardware`` until its first run is ok, then
+#: SIGTERM; prints the grassd modules the process loaded
+_RUN = """
+import json, os, signal, sys, threading, time
+from grassd.daemon.cli.main import main
+from grassd.daemon.config.settings import load_config
+from grassd.daemon.runtime.control import request
+
+config = sys.argv[1]
+sock = load_config(config).control_socket
+ok = []
+
+def watch():
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and not ok:
+        try:
+            st = request(sock, {"cmd": "status"}, timeout_s=5)["status"]
+            if st["run_counts"]["ok"] and st["health"] == "ok":
+                ok.append(st)
+        except Exception:
+            pass
+        time.sleep(0.2)
+    os.kill(os.getpid(), signal.SIGTERM)
+
+threading.Thread(target=watch, daemon=True).start()
+try:
+    main(["run", "--config", config, "--simulate-hardware", "--tick", "0.2",
+          "--log-level", "warning"], standalone_mode=False)
+except SystemExit:
+    pass
+print(json.dumps({"ok": bool(ok), "modules": sorted(m for m in sys.modules
+                                                    if m.startswith("grassd"))}))
+"""
+
+
+def test_grassd_run_never_imports_offline(tmp_path):
+    """A real ``grassd run`` calibrates a bundle and pushes the table to (simulated) controllers
+    without loading any module of grassd.daemon.offline."""
+    from grassd.daemon.config.settings import parse_config
+
+    config = tmp_path / "grassd.toml"
+    config.write_text(DISPLAY_2X2)
+    inbox = parse_config(DISPLAY_2X2, base_dir=tmp_path).light.inbox
+    inbox.mkdir(parents=True)
+    drop_midsummer(inbox, "b1")
+    proc = subprocess.run([sys.executable, "-c", _RUN, str(config)], capture_output=True,
+                          text=True, timeout=400, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert out["ok"], f"no successful run; stderr: {proc.stderr[-3000:]}"
+    loaded = out["modules"]
+    assert "grassd.daemon.runtime.service" in loaded and "grassd.daemon.cli.main" in loaded
+    assert "grassd.daemon.calibration.calibrate" in loaded
+    offline = [m for m in loaded if m.startswith("grassd.daemon.offline")]
+    assert not offline, offline
