@@ -1,0 +1,61 @@
+/* The controller state machine of PROTOCOL.md sections 3-4, the same as the Python reference
+ * (firmware_proto/firmware.py): feed it received bytes with fw_rx_feed, call fw_tick every
+ * millisecond (FW_TICK_US). All state lives in one fw_controller (no heap, no globals), so a port may run
+ * several on one bus. */
+#ifndef FW_CONTROLLER_H
+#define FW_CONTROLLER_H
+#include <stdint.h>
+#include "banks.h"
+#include "frame.h"
+#include "hal.h"
+#include "limits.h"
+#include "motor.h"
+#include "msg.h"
+
+#define FW_VERSION_MAJOR 1
+#define FW_VERSION_MINOR 0
+#define FW_VERSION_PATCH 0
+
+typedef struct {
+    uint8_t address;          /* 1..247 */
+    uint16_t n_pixels;        /* 1..FW_MAX_PIXELS; also the tables one bank holds */
+    uint32_t uid;
+    uint16_t max_chunk;       /* 1..FW_MAX_CHUNK_DATA */
+    uint16_t max_length_um;   /* 20000 on the paper's pixel */
+} fw_config;
+
+typedef struct fw_controller {
+    const fw_hal *hal;
+    fw_config cfg;
+    fw_rx rx;
+    /* the active table */
+    uint8_t active_bank;      /* 0, 1 or FW_NO_BANK */
+    fw_bank_header active;
+    uint16_t table[FW_MAX_PIXELS][FW_TABLE_ENTRIES];
+    /* the open transfer */
+    uint8_t xfer_open, xfer_bank;
+    fw_table_begin xfer;
+    uint32_t xfer_received;   /* distinct bytes arrived */
+    uint8_t xfer_map[FW_MAX_TABLE_BYTES / 8];
+    /* the last answer, for retransmissions */
+    uint8_t last_valid;
+    uint16_t last_seq;
+    uint32_t last_crc;
+    uint16_t last_len;
+    uint8_t wire[FW_MAX_WIRE + FW_WIRE_SLACK];
+    fw_motors motors;
+} fw_controller;
+
+/* Power-on: check the configuration, select the active bank, load its table, forget all RAM
+ * state, hold the motors where they are. Returns 0, or -1 for an invalid configuration. */
+int fw_boot(fw_controller *c, const fw_hal *hal, const fw_config *cfg);
+/* Bytes received from the bus; answers go out through hal->tx. */
+void fw_rx_feed(fw_controller *c, const uint8_t *data, size_t n);
+/* Handle one CRC-checked body (header + payload). Returns the answer's wire length (at
+ * c->wire; also sent with hal->tx), or 0 when nothing is answered. */
+size_t fw_handle_body(fw_controller *c, const uint8_t *body, size_t n);
+/* One period of the motor loop (every FW_TICK_US; on a microcontroller from a timer interrupt
+ * of higher priority than the UART, so that no frame can delay it). */
+void fw_tick(fw_controller *c);
+
+#endif
