@@ -1,0 +1,361 @@
+/* posix port: N controllers of the C core on one RS-485-style bus, served on a pseudo-terminal,
+ * each with its storage in a file and DC-motor models for its pixels (dcmotor.c).
+ *
+ *   grassfw-posix --state-dir DIR [--count N] [--pixels P] [--link PATH] [--max-chunk B]
+ *                 [--power-cut-at K]
+ *
+ * Prints the pty's path (the --link symlink if given) on stdout, then serves until SIGINT or
+ * SIGTERM. Controller a (1..N) keeps its two banks in DIR/controller-<a>.eeprom (the layout of
+ * firmware_proto/eeprom.py, so either side reads the other's files) and its counters in
+ * DIR/controller-<a>.stats ("boots B writes W"). --power-cut-at K: the K-th storage write or
+ * erase of the process (1-based) stores only its first half, then the process exits with
+ * status 3, as a controller losing power in the middle of that write.
+ *
+ * Lines on stdin control the simulated line (tests): "unplug MS" closes the pty (the host sees
+ * EIO), removes the link, power-cycles the controllers, prints "unplugged", and after MS
+ * milliseconds opens a new pty behind the link and prints "plugged PATH". */
+#include <errno.h>
+#include <fcntl.h>
+#include <poll.h>
+#include <pty.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <termios.h>
+#include <time.h>
+#include <unistd.h>
+#include "../../core/controller.h"
+#include "dcmotor.h"
+
+#define EXIT_POWER_CUT 3
+
+typedef struct unit {
+    fw_controller ctl;
+    fw_hal hal;
+    int nv_fd, stats_fd;
+    uint32_t boots, writes;
+    dc_params plant;
+    dc_state motor[FW_MAX_PIXELS];
+    int16_t duty[FW_MAX_PIXELS];
+} unit;
+
+static struct {
+    int master, slave;
+    char device[128];
+    const char *link;
+    long power_cut_at, writes;
+    uint64_t t0_ms;
+    volatile sig_atomic_t stop;
+} bus = {.master = -1, .slave = -1};
+
+static void die(const char *what)
+{
+    fprintf(stderr, "grassfw-posix: %s: %s\n", what, strerror(errno));
+    exit(2);
+}
+
+static uint64_t now_ms(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (uint64_t)ts.tv_sec * 1000u + (uint64_t)ts.tv_nsec / 1000000u;
+}
+
+/* ---- HAL ------------------------------------------------------------------------------- */
+
+static void save_stats(unit *u)
+{
+    char line[64];
+    int n = snprintf(line, sizeof line, "boots %10u writes %10u\n", u->boots, u->writes);
+    if (pwrite(u->stats_fd, line, (size_t)n, 0) != n)
+        die("cannot write the stats file");
+}
+
+static void hal_tx(void *ctx, const uint8_t *data, size_t n)
+{
+    (void)ctx;
+    if (bus.master >= 0 && write(bus.master, data, n) < 0) {
+        /* nobody reading, or the pty buffer is full: the bytes are lost, as on a wire */
+    }
+}
+
+static int hal_nv_read(void *ctx, uint32_t off, uint8_t *buf, uint32_t n)
+{
+    unit *u = ctx;
+    return pread(u->nv_fd, buf, n, off) == (ssize_t)n ? 0 : -1;
+}
+
+static int nv_store(unit *u, uint32_t off, const uint8_t *data, uint32_t n)
+{
+    uint32_t keep = n;
+    int cut = ++bus.writes == bus.power_cut_at;
+    if (cut)
+        keep = n / 2;   /* power fails half-way through this write */
+    if (keep && pwrite(u->nv_fd, data, keep, off) != (ssize_t)keep)
+        return -1;
+    if (cut) {
+        fprintf(stderr, "grassfw-posix: power cut at storage write %ld (%u of %u bytes at %u)\n",
+                bus.writes, keep, n, off);
+        _exit(EXIT_POWER_CUT);
+    }
+    u->writes++;
+    save_stats(u);
+    return 0;
+}
+
+static int hal_nv_write(void *ctx, uint32_t off, const uint8_t *data, uint32_t n)
+{
+    return nv_store(ctx, off, data, n);
+}
+
+static int hal_nv_erase(void *ctx, uint32_t off, uint32_t n)
+{
+    uint8_t ff[64];
+    memset(ff, 0xFF, sizeof ff);
+    if (n > sizeof ff)
+        return -1;   /* the core erases 4-byte magics only */
+    return nv_store(ctx, off, ff, n);
+}
+
+static uint32_t hal_millis(void *ctx)
+{
+    (void)ctx;
+    return (uint32_t)(now_ms() - bus.t0_ms);
+}
+
+static int32_t hal_encoder(void *ctx, uint16_t p)
+{
+    unit *u = ctx;
+    return dc_encoder(&u->plant, &u->motor[p]);
+}
+
+static void hal_pwm(void *ctx, uint16_t p, int16_t duty)
+{
+    ((unit *)ctx)->duty[p] = duty;
+}
+
+/* ---- storage files --------------------------------------------------------------------- */
+
+static int open_file(const char *dir, int address, const char *suffix, uint32_t size)
+{
+    char path[4096];
+    snprintf(path, sizeof path, "%s/controller-%d.%s", dir, address, suffix);
+    int fd = open(path, O_RDWR | O_CREAT, 0644);
+    if (fd < 0)
+        die(path);
+    off_t have = lseek(fd, 0, SEEK_END);
+    if (size && have != (off_t)size) {   /* new, or laid out for another pixel count: erase */
+        static uint8_t ff[4096];
+        memset(ff, 0xFF, sizeof ff);
+        if (ftruncate(fd, 0) < 0)
+            die(path);
+        for (uint32_t o = 0; o < size; o += sizeof ff) {
+            size_t k = size - o < sizeof ff ? size - o : sizeof ff;
+            if (pwrite(fd, ff, k, o) != (ssize_t)k)
+                die(path);
+        }
+    }
+    return fd;
+}
+
+/* ---- the line -------------------------------------------------------------------------- */
+
+static void plug(void)
+{
+    struct termios t;
+    if (openpty(&bus.master, &bus.slave, bus.device, NULL, NULL) < 0)
+        die("cannot create a pseudo-terminal");
+    if (tcgetattr(bus.slave, &t) == 0) {
+        cfmakeraw(&t);
+        tcsetattr(bus.slave, TCSANOW, &t);
+    }
+    fcntl(bus.master, F_SETFL, fcntl(bus.master, F_GETFL) | O_NONBLOCK);
+    fcntl(bus.master, F_SETFD, FD_CLOEXEC);
+    fcntl(bus.slave, F_SETFD, FD_CLOEXEC);
+    if (bus.link) {
+        char tmp[4200];
+        snprintf(tmp, sizeof tmp, "%s.new", bus.link);
+        unlink(tmp);
+        if (symlink(bus.device, tmp) < 0 || rename(tmp, bus.link) < 0)
+            die(bus.link);
+    }
+}
+
+static void unplug(void)
+{
+    close(bus.master);
+    close(bus.slave);
+    bus.master = bus.slave = -1;
+    if (bus.link)
+        unlink(bus.link);
+}
+
+static void boot(unit *u, const fw_config *cfg)
+{
+    u->boots++;
+    save_stats(u);
+    if (fw_boot(&u->ctl, &u->hal, cfg) < 0) {
+        fprintf(stderr, "grassfw-posix: invalid controller configuration\n");
+        exit(2);
+    }
+}
+
+static void on_signal(int sig)
+{
+    (void)sig;
+    bus.stop = 1;
+}
+
+static long arg_long(const char *name, const char *v, long lo, long hi)
+{
+    char *end;
+    long x = strtol(v, &end, 0);
+    if (*v == 0 || *end != 0 || x < lo || x > hi) {
+        fprintf(stderr, "grassfw-posix: %s must be %ld..%ld, got '%s'\n", name, lo, hi, v);
+        exit(2);
+    }
+    return x;
+}
+
+int main(int argc, char **argv)
+{
+    long count = 1, pixels = 16, max_chunk = 256;
+    const char *dir = NULL;
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
+        if (v == NULL) {
+            fprintf(stderr, "grassfw-posix: %s needs a value\n", a);
+            return 2;
+        }
+        i++;
+        if (!strcmp(a, "--count"))
+            count = arg_long(a, v, 1, FW_MAX_ADDRESS);
+        else if (!strcmp(a, "--pixels"))
+            pixels = arg_long(a, v, 1, FW_MAX_PIXELS);
+        else if (!strcmp(a, "--max-chunk"))
+            max_chunk = arg_long(a, v, 1, FW_MAX_CHUNK_DATA);
+        else if (!strcmp(a, "--power-cut-at"))
+            bus.power_cut_at = arg_long(a, v, 1, 1L << 30);
+        else if (!strcmp(a, "--state-dir"))
+            dir = v;
+        else if (!strcmp(a, "--link"))
+            bus.link = v;
+        else {
+            fprintf(stderr, "grassfw-posix: unknown option %s (see the comment in main.c)\n", a);
+            return 2;
+        }
+    }
+    if (dir == NULL) {
+        fprintf(stderr, "grassfw-posix: --state-dir DIR is required (storage files live there)\n");
+        return 2;
+    }
+    unit *units = calloc((size_t)count, sizeof *units);
+    fw_config *cfgs = calloc((size_t)count, sizeof *cfgs);
+    if (!units || !cfgs)
+        die("out of memory");
+    bus.t0_ms = now_ms();
+    uint32_t nv_size = fw_banks_size((uint16_t)pixels);
+    for (long i = 0; i < count; i++) {
+        unit *u = &units[i];
+        int address = (int)i + 1;
+        u->nv_fd = open_file(dir, address, "eeprom", nv_size);
+        u->stats_fd = open_file(dir, address, "stats", 0);
+        u->plant = dc_default_params();
+        u->hal = (fw_hal){u, hal_tx, hal_nv_read, hal_nv_write, hal_nv_erase, hal_millis,
+                          hal_encoder, hal_pwm};
+        cfgs[i] = (fw_config){.address = (uint8_t)address, .n_pixels = (uint16_t)pixels,
+                              .uid = 0x6A5D0000u + (uint32_t)address,
+                              .max_chunk = (uint16_t)max_chunk, .max_length_um = 20000};
+        boot(u, &cfgs[i]);
+    }
+    struct sigaction sa = {.sa_handler = on_signal};
+    sigaction(SIGINT, &sa, NULL);
+    sigaction(SIGTERM, &sa, NULL);
+    signal(SIGPIPE, SIG_IGN);
+    plug();
+    printf("%s\n", bus.link ? bus.link : bus.device);
+    fflush(stdout);
+
+    uint64_t last = now_ms(), replug_at = 0;
+    int stdin_open = 1, idle = 1;
+    char cmd[256];
+    size_t cmd_len = 0;
+    uint8_t buf[4096];
+    while (!bus.stop) {
+        struct pollfd fds[2] = {{.fd = bus.master, .events = POLLIN}, {.fd = stdin_open ? 0 : -1, .events = POLLIN}};
+        int timeout = idle ? 100 : 1;
+        if (replug_at)
+            timeout = 1;
+        if (poll(fds, 2, timeout) < 0 && errno != EINTR)
+            die("poll");
+        uint64_t now = now_ms();
+        if (replug_at && now >= replug_at) {
+            replug_at = 0;
+            plug();
+            printf("plugged %s\n", bus.device);
+            fflush(stdout);
+        }
+        if (fds[1].revents) {
+            ssize_t n = read(0, cmd + cmd_len, sizeof cmd - 1 - cmd_len);
+            if (n <= 0)
+                stdin_open = 0;
+            else
+                cmd_len += (size_t)n;
+            char *nl;
+            while ((nl = memchr(cmd, '\n', cmd_len)) != NULL) {
+                *nl = 0;
+                long ms;
+                if (sscanf(cmd, "unplug %ld", &ms) == 1 && bus.master >= 0) {
+                    unplug();
+                    for (long i = 0; i < count; i++)
+                        boot(&units[i], &cfgs[i]);
+                    replug_at = now + (uint64_t)(ms > 0 ? ms : 1);
+                    printf("unplugged\n");
+                    fflush(stdout);
+                }
+                size_t used = (size_t)(nl - cmd) + 1;
+                memmove(cmd, cmd + used, cmd_len - used);
+                cmd_len -= used;
+            }
+            if (cmd_len == sizeof cmd - 1)
+                cmd_len = 0;   /* an overlong line: drop it */
+        }
+        if (fds[0].fd >= 0 && (fds[0].revents & POLLIN)) {
+            ssize_t n = read(bus.master, buf, sizeof buf);
+            if (n > 0) {
+                for (long i = 0; i < count; i++)
+                    fw_rx_feed(&units[i].ctl, buf, (size_t)n);
+                if (idle)
+                    last = now;   /* motors were at rest and unpowered: nothing to catch up */
+                idle = 0;
+            }
+        }
+        /* the motor loop: one PD period per elapsed millisecond, the plants in between */
+        uint64_t due = now - last;
+        if (idle) {
+            last = now;
+            continue;
+        }
+        if (due > 1000)
+            due = 1000;
+        last = now;
+        int moving = 0;
+        for (uint64_t k = 0; k < due; k++)
+            for (long i = 0; i < count; i++) {
+                unit *u = &units[i];
+                fw_tick(&u->ctl);
+                for (long p = 0; p < pixels; p++) {
+                    dc_step(&u->plant, &u->motor[p], u->duty[p] / (double)FW_PWM_MAX,
+                            FW_TICK_US * 1e-6);
+                    if (k + 1 == due && (u->duty[p] != 0 || !dc_at_rest(&u->motor[p])))
+                        moving = 1;
+                }
+            }
+        if (due)
+            idle = !moving;
+    }
+    if (bus.link)
+        unlink(bus.link);
+    return 0;
+}
