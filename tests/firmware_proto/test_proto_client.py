@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from firmware_util import firmware_params
 
 from grassd.firmware_proto import client as client_mod
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
@@ -17,16 +18,18 @@ from grassd.firmware_proto.errors import (
     TransientError,
 )
 from grassd.firmware_proto.messages import GetPositions, Nak, NakCode
+from grassd.firmware_proto.sim_backends import open_bus
 from grassd.firmware_proto.simulator import SimulatedBus, make_controllers, start_buses
 from grassd.firmware_proto.tables import table_crc
 
 FAST = RetryPolicy(timeout_s=0.05, retries=2, backoff_s=0.005)
 
 
-@pytest.fixture
-def bus(tmp_path):
-    ctrls = make_controllers(tmp_path / "state", [1, 2, 3], n_pixels=4)
-    with SimulatedBus(ctrls, link_path=tmp_path / "ttyGRASS0") as b:
+@pytest.fixture(params=firmware_params("model", "posix"))
+def bus(request, tmp_path):
+    """Controllers 1-3 (4 pixels) on one pty: the Python model, or the C firmware's posix port."""
+    with open_bus(request.param, tmp_path / "state", [1, 2, 3], n_pixels=4,
+                  link_path=tmp_path / "ttyGRASS0") as b:
         yield b
         assert b.errors == 0
 

@@ -1,9 +1,12 @@
 /* posix port: N controllers of the C core on one RS-485-style bus, served on a pseudo-terminal,
  * each with its storage in a file and DC-motor models for its pixels (dcmotor.c).
  *
- *   grassfw-posix --state-dir DIR [--count N] [--pixels P] [--link PATH] [--max-chunk B]
- *                 [--power-cut-at K]
+ *   grassfw-posix --state-dir DIR [--count N | --addresses A,B,..] [--pixels P[,P2,..]]
+ *                 [--link PATH] [--max-chunk B] [--baud BAUD] [--power-cut-at K]
  *
+ * --count N: addresses 1..N (default 1); --addresses: these addresses instead. --pixels: one
+ * pixel count for all (default 16), or one per controller.
+ * --baud: pace the line as a UART at that rate would (8N1: 10 bit times per byte) both ways.
  * Prints the pty's path (the --link symlink if given) on stdout, then serves until SIGINT or
  * SIGTERM. Controller a (1..N) keeps its two banks in DIR/controller-<a>.eeprom (the layout of
  * firmware_proto/eeprom.py, so either side reads the other's files) and its counters in
@@ -44,7 +47,8 @@ static struct {
     int master, slave;
     char device[128];
     const char *link;
-    long power_cut_at, writes;
+    long power_cut_at, writes, baud;
+    double line_free;   /* seconds (monotonic) when the paced line is free again */
     uint64_t t0_ms;
     volatile sig_atomic_t stop;
 } bus = {.master = -1, .slave = -1};
@@ -62,6 +66,27 @@ static uint64_t now_ms(void)
     return (uint64_t)ts.tv_sec * 1000u + (uint64_t)ts.tv_nsec / 1000000u;
 }
 
+static double now_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
+}
+
+/* Hold until n more bytes have crossed a line of bus.baud (nothing when unpaced). */
+static void pace(size_t n)
+{
+    if (!bus.baud)
+        return;
+    double now = now_s();
+    bus.line_free = (bus.line_free > now ? bus.line_free : now) + (double)n * 10.0 / (double)bus.baud;
+    double wait = bus.line_free - now;
+    if (wait > 0) {
+        struct timespec ts = {(time_t)wait, (long)((wait - (double)(time_t)wait) * 1e9)};
+        nanosleep(&ts, NULL);
+    }
+}
+
 /* ---- HAL ------------------------------------------------------------------------------- */
 
 static void save_stats(unit *u)
@@ -75,6 +100,7 @@ static void save_stats(unit *u)
 static void hal_tx(void *ctx, const uint8_t *data, size_t n)
 {
     (void)ctx;
+    pace(n);
     if (bus.master >= 0 && write(bus.master, data, n) < 0) {
         /* nobody reading, or the pty buffer is full: the bytes are lost, as on a wire */
     }
@@ -218,10 +244,31 @@ static long arg_long(const char *name, const char *v, long lo, long hi)
     return x;
 }
 
+/* A comma-separated list of numbers lo..hi into out (at most max); returns how many. */
+static long arg_list(const char *name, const char *v, long lo, long hi, long *out, long max)
+{
+    char copy[2048];
+    snprintf(copy, sizeof copy, "%s", v);
+    long n = 0;
+    for (char *save = NULL, *tok = strtok_r(copy, ",", &save); tok; tok = strtok_r(NULL, ",", &save)) {
+        if (n == max) {
+            fprintf(stderr, "grassfw-posix: %s: at most %ld values\n", name, max);
+            exit(2);
+        }
+        out[n++] = arg_long(name, tok, lo, hi);
+    }
+    if (n == 0)
+        arg_long(name, v, lo, hi);   /* reports the empty value */
+    return n;
+}
+
 int main(int argc, char **argv)
 {
-    long count = 1, pixels = 16, max_chunk = 256;
+    static long addresses[FW_MAX_ADDRESS], pixel_list[FW_MAX_ADDRESS];
+    long count = 1, n_pixel_list = 1, max_chunk = 256;
+    int explicit_addresses = 0;
     const char *dir = NULL;
+    pixel_list[0] = 16;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
         if (v == NULL) {
@@ -231,10 +278,15 @@ int main(int argc, char **argv)
         i++;
         if (!strcmp(a, "--count"))
             count = arg_long(a, v, 1, FW_MAX_ADDRESS);
-        else if (!strcmp(a, "--pixels"))
-            pixels = arg_long(a, v, 1, FW_MAX_PIXELS);
+        else if (!strcmp(a, "--addresses")) {
+            count = arg_list(a, v, FW_MIN_ADDRESS, FW_MAX_ADDRESS, addresses, FW_MAX_ADDRESS);
+            explicit_addresses = 1;
+        } else if (!strcmp(a, "--pixels"))
+            n_pixel_list = arg_list(a, v, 1, FW_MAX_PIXELS, pixel_list, FW_MAX_ADDRESS);
         else if (!strcmp(a, "--max-chunk"))
             max_chunk = arg_long(a, v, 1, FW_MAX_CHUNK_DATA);
+        else if (!strcmp(a, "--baud"))
+            bus.baud = arg_long(a, v, 300, 10000000);
         else if (!strcmp(a, "--power-cut-at"))
             bus.power_cut_at = arg_long(a, v, 1, 1L << 30);
         else if (!strcmp(a, "--state-dir"))
@@ -254,11 +306,17 @@ int main(int argc, char **argv)
     fw_config *cfgs = calloc((size_t)count, sizeof *cfgs);
     if (!units || !cfgs)
         die("out of memory");
+    if (n_pixel_list != 1 && n_pixel_list != count) {
+        fprintf(stderr, "grassfw-posix: --pixels needs one value or one per controller (%ld)\n",
+                count);
+        return 2;
+    }
     bus.t0_ms = now_ms();
-    uint32_t nv_size = fw_banks_size((uint16_t)pixels);
     for (long i = 0; i < count; i++) {
         unit *u = &units[i];
-        int address = (int)i + 1;
+        int address = explicit_addresses ? (int)addresses[i] : (int)i + 1;
+        long pixels = pixel_list[n_pixel_list == 1 ? 0 : i];
+        uint32_t nv_size = fw_banks_size((uint16_t)pixels);
         u->nv_fd = open_file(dir, address, "eeprom", nv_size);
         u->stats_fd = open_file(dir, address, "stats", 0);
         u->plant = dc_default_params();
@@ -324,6 +382,7 @@ int main(int argc, char **argv)
         if (fds[0].fd >= 0 && (fds[0].revents & POLLIN)) {
             ssize_t n = read(bus.master, buf, sizeof buf);
             if (n > 0) {
+                pace((size_t)n);
                 for (long i = 0; i < count; i++)
                     fw_rx_feed(&units[i].ctl, buf, (size_t)n);
                 if (idle)
@@ -345,7 +404,7 @@ int main(int argc, char **argv)
             for (long i = 0; i < count; i++) {
                 unit *u = &units[i];
                 fw_tick(&u->ctl);
-                for (long p = 0; p < pixels; p++) {
+                for (long p = 0; p < cfgs[i].n_pixels; p++) {
                     dc_step(&u->plant, &u->motor[p], u->duty[p] / (double)FW_PWM_MAX,
                             FW_TICK_US * 1e-6);
                     if (k + 1 == due && (u->duty[p] != 0 || !dc_at_rest(&u->motor[p])))

@@ -11,19 +11,21 @@ import sys
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from firmware_util import firmware_params
 
 from grassd.daemon.cli.controllers import parse_addresses
 from grassd.daemon.cli.main import main
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.firmware import Controller, ControllerConfig
-from grassd.firmware_proto.simulator import SimulatedBus, make_controllers
+from grassd.firmware_proto.sim_backends import open_bus
 from grassd.firmware_proto.tables import table_crc
 
 
-@pytest.fixture
-def bus(tmp_path):
-    ctrls = make_controllers(tmp_path / "state", [1, 2], n_pixels=3)
-    with SimulatedBus(ctrls, link_path=tmp_path / "tty0") as b:
+@pytest.fixture(params=firmware_params("model", "posix"))
+def bus(request, tmp_path):
+    """Controllers 1-2 (3 pixels) on one pty: the Python model, or the C firmware's posix port."""
+    with open_bus(request.param, tmp_path / "state", [1, 2], n_pixels=3,
+                  link_path=tmp_path / "tty0") as b:
         yield b
         assert b.errors == 0
 
