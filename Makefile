@@ -4,7 +4,9 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 export GRASSD_CACHE_DIR ?= $(CURDIR)/.venv/grassd-cache
 
-.PHONY: setup setup-test demo test bench lint clean
+.PHONY: setup setup-test demo test bench lint clean firmware
+# simulated controllers of `make demo`: model (Python), posix or qemu (the C firmware)
+FIRMWARE ?= model
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -24,9 +26,16 @@ setup: $(VENV)/.grassd-installed
 setup-test: $(VENV)/.grassd-test-installed
 
 demo: setup
-	$(VENV)/bin/grassd demo
+	$(VENV)/bin/grassd demo --firmware $(FIRMWARE)
 
-test: setup-test
+# The C controller firmware: the posix port always, the Cortex-M7 image when the ARM
+# toolchain is on PATH (firmware/README.md).
+firmware:
+	$(MAKE) -C firmware posix
+	@if command -v arm-none-eabi-gcc >/dev/null; then $(MAKE) -C firmware arm; \
+	else echo "firmware: arm-none-eabi-gcc not found, Cortex-M7 image skipped (apt-get install gcc-arm-none-eabi libnewlib-arm-none-eabi)"; fi
+
+test: setup-test firmware
 	$(PY) -m ruff check .
 	$(PY) -m pytest -q tests
 
@@ -37,4 +46,4 @@ lint: setup-test
 	$(PY) -m ruff check .
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache
+	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache firmware/build

@@ -30,7 +30,7 @@ from grassd.daemon.runtime.statelock import StateLock
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.errors import ControllerTimeout, ProtocolError, PushFailed
 from grassd.firmware_proto.messages import MAX_ADDRESS, MIN_ADDRESS, TableKind
-from grassd.firmware_proto.simulator import start_buses
+from grassd.firmware_proto.sim_backends import FIRMWARE_BACKENDS, start_buses
 from grassd.firmware_proto.table_file import load_table_file
 
 
@@ -245,14 +245,19 @@ def push_cmd(port: str, table_file: str, table_id: int | None, addresses: str | 
               help="pace the simulated line at this baud rate (default: unpaced)")
 @click.option("--duration", type=float, default=None,
               help="stop after this many seconds (default: run until Ctrl-C)")
+@click.option("--firmware", type=click.Choice(FIRMWARE_BACKENDS), default=FIRMWARE_BACKENDS[0],
+              show_default=True,
+              help="what answers: the Python model, the C firmware as a Linux process (posix), "
+                   "or its Cortex-M7 image under qemu-system-arm (qemu)")
 def sim_cmd(use_pty: bool, count: int, separate: bool, pixels: int, state_dir: str | None,
-            link_dir: str | None, baud: int | None, duration: float | None) -> None:
+            link_dir: str | None, baud: int | None, duration: float | None,
+            firmware: str) -> None:
     """Start simulated controllers on ptys, print their ports, run until Ctrl-C."""
     if not use_pty:
         raise click.UsageError("only --pty is implemented: simulated controllers live on ptys")
     state = Path(state_dir) if state_dir else Path(tempfile.mkdtemp(prefix="grassd-sim-"))
     links = Path(link_dir) if link_dir else state
-    buses = start_buses(state, count, shared=not separate, link_dir=links, baud=baud,
+    buses = start_buses(firmware, state, count, shared=not separate, link_dir=links, baud=baud,
                         n_pixels=pixels)
     stop = {"now": False}
 

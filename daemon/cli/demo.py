@@ -90,8 +90,21 @@ def example_pixel_rgb(lengths_mm: NDArray[np.float64]) -> NDArray[np.float64]:
 )
 @click.option("--seed", default=1, show_default=True, type=int, help="Noise seed.")
 @click.option("--full", is_flag=True, help="Print all 256 table entries.")
+@click.option(
+    "--firmware",
+    type=click.Choice(["model", "posix", "qemu"]),
+    default="model",
+    show_default=True,
+    help="Simulated controllers: the Python model, or the C firmware (posix process, QEMU).",
+)
 def demo(
-    example_curve: bool, workdir: Path | None, n_lengths: int, noise: float, seed: int, full: bool
+    example_curve: bool,
+    workdir: Path | None,
+    n_lengths: int,
+    noise: float,
+    seed: int,
+    full: bool,
+    firmware: str,
 ) -> None:
     """The main job on the embedded default site, against simulated hardware.
 
@@ -104,7 +117,7 @@ def demo(
     if not example_curve:
         from grassd.daemon.cli.demo_daemon import run_demo
 
-        run_demo(workdir, echo=click.echo)
+        run_demo(workdir, echo=click.echo, firmware=firmware)
         return
     lengths = np.linspace(0.0, 20.0, n_lengths)
     rgb = example_pixel_rgb(lengths)

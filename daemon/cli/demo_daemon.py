@@ -33,9 +33,11 @@ def _grassd() -> list[str]:
 
 
 def run_demo(workdir: str | os.PathLike[str] | None = None, *, lux: float = 5000.0,
-             timeout_s: float = 600.0, echo: Callable[[str], Any] = print) -> dict[str, Any]:
-    """Run the demo in ``workdir`` (default: a new temporary directory, kept); returns the
-    daemon's final status. Raises :class:`DaemonError` if the daemon fails or times out."""
+             timeout_s: float = 600.0, echo: Callable[[str], Any] = print,
+             firmware: str = "model") -> dict[str, Any]:
+    """Run the demo in ``workdir`` (default: a new temporary directory, kept) with the simulated
+    controllers running ``firmware`` (model, posix or qemu); returns the daemon's final status.
+    Raises :class:`DaemonError` if the daemon fails or times out."""
     work = Path(workdir) if workdir else Path(tempfile.mkdtemp(prefix="grassd-demo-"))
     state = work / "state"
     state.mkdir(parents=True, exist_ok=True)
@@ -44,7 +46,7 @@ def run_demo(workdir: str | os.PathLike[str] | None = None, *, lux: float = 5000
     env = {k: v for k, v in os.environ.items()
            if k not in ("RUNTIME_DIRECTORY", "STATE_DIRECTORY", "NOTIFY_SOCKET")}
     cmd = [*_grassd(), "run", "--simulate-hardware", "--state-dir", str(state), "--sim-lux",
-           str(lux), "--tick", "0.2"]
+           str(lux), "--tick", "0.2", "--sim-firmware", firmware]
     echo(f"starting: {' '.join(cmd)}")
     with open(log, "ab") as out:
         proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, env=env)

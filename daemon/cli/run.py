@@ -67,13 +67,14 @@ def _setup_logging(level: str) -> None:
     logging.basicConfig(level=getattr(logging, level.upper()), format=fmt)
 
 
-def _simulated(cfg: Config, lux: float):
-    """Start simulated controllers + lux sensor; returns (hardware, new cfg, transform)."""
+def _simulated(cfg: Config, lux: float, firmware: str = "model"):
+    """Start simulated controllers running ``firmware`` (model, posix or qemu) + lux sensor;
+    returns (hardware, new cfg, transform)."""
     import dataclasses
 
     from grassd.daemon.hardware.simulated import SimulatedHardware
 
-    hw = SimulatedHardware(cfg, cfg.state_dir / "simhw", lux=lux)
+    hw = SimulatedHardware(cfg, cfg.state_dir / "simhw", lux=lux, firmware=firmware)
     new = hw.start()
 
     def transform(c: Config) -> Config:
@@ -96,12 +97,16 @@ def _simulated(cfg: Config, lux: float):
                    "127.0.0.1 (no hardware needed)")
 @click.option("--sim-lux", type=float, default=5000.0, show_default=True,
               help="illuminance (lux) the simulated lux sensor reports")
+@click.option("--sim-firmware", type=click.Choice(["model", "posix", "qemu"]), default="model",
+              show_default=True,
+              help="with --simulate-hardware: the controllers are the Python model, the C "
+                   "firmware as a Linux process (posix), or its Cortex-M7 image under QEMU")
 @click.option("--tick", "tick_s", type=float, default=1.0, show_default=True,
               help="main-loop period (s)")
 @click.option("--log-level", default="info", show_default=True,
               type=click.Choice(["debug", "info", "warning", "error"]))
 def run_cmd(config_path: str | None, state_dir: str | None, simulate_hardware: bool,
-            sim_lux: float, tick_s: float, log_level: str) -> None:
+            sim_lux: float, sim_firmware: str, tick_s: float, log_level: str) -> None:
     """Run the daemon: watch the inbox, calibrate, push tables, serve the control socket."""
     from grassd.daemon.runtime.service import Service
 
@@ -109,7 +114,7 @@ def run_cmd(config_path: str | None, state_dir: str | None, simulate_hardware: b
     cfg = resolve_config(config_path, state_dir)
     hw, transform = None, None
     if simulate_hardware:
-        hw, cfg, transform = _simulated(cfg, sim_lux)
+        hw, cfg, transform = _simulated(cfg, sim_lux, sim_firmware)
         for port, dev in hw.ports.items():
             click.echo(f"simulated controller port {port} -> {dev}", err=True)
         if hw.sensor is not None:

@@ -26,7 +26,7 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 
 from grassd.daemon.config.settings import Config, ModbusConfig
 from grassd.daemon.hardware.luxsensor import encode_lux
-from grassd.firmware_proto.simulator import SimulatedBus, make_controllers
+from grassd.firmware_proto.sim_backends import FIRMWARE_BACKENDS, open_bus
 
 log = logging.getLogger(__name__)
 
@@ -219,15 +219,18 @@ class SimulatedHardware:
 
     :meth:`start` returns the config rewritten to point at the simulated devices; the port
     symlinks ``root/ports/<n>`` stay the same across restarts with the same ``root``.
+    ``firmware``: what answers on the buses (:data:`~grassd.firmware_proto.sim_backends.
+    FIRMWARE_BACKENDS`: the Python model, or the C firmware as a process or under QEMU).
     """
 
     def __init__(self, cfg: Config, root: str | os.PathLike[str], lux: float = 5000.0,
-                 baud: int | None = None) -> None:
+                 baud: int | None = None, firmware: str = FIRMWARE_BACKENDS[0]) -> None:
         self.cfg = cfg
+        self.firmware = firmware
         self.root = Path(root)
         self.lux = lux
         self.baud = baud
-        self.buses: list[SimulatedBus] = []
+        self.buses: list = []
         self.sensor: SimLuxSensor | None = None
         self.ports: dict[str, str] = {}
 
@@ -239,14 +242,12 @@ class SimulatedHardware:
         (self.root / "ports").mkdir(parents=True, exist_ok=True)
         try:
             for i, (port, ctrls) in enumerate(by_port.items()):
-                devices = [
-                    make_controllers(self.root / "eeprom" / f"bus{i}", [c.address],
-                                     n_pixels=_pixel_count(c.pixels))[0]
-                    for c in ctrls
-                ]
-                bus = SimulatedBus(devices, link_path=self.root / "ports" / f"bus{i}",
-                                   baud=self.baud).start()
+                bus = open_bus(self.firmware, self.root / "eeprom" / f"bus{i}",
+                               [c.address for c in ctrls],
+                               n_pixels=[_pixel_count(c.pixels) for c in ctrls],
+                               link_path=self.root / "ports" / f"bus{i}", baud=self.baud)
                 self.buses.append(bus)
+                bus.start()
                 self.ports[port] = bus.path
             light = self.cfg.light
             if light.modbus is not None:

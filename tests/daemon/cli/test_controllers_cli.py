@@ -91,12 +91,13 @@ def test_parse_addresses():
     assert parse_addresses("3, 1-2,3") == [1, 2, 3]
 
 
-def test_sim_command_serves_ptys_until_interrupted(tmp_path):
+@pytest.mark.parametrize("firmware", firmware_params("model", "posix"))
+def test_sim_command_serves_ptys_until_interrupted(tmp_path, firmware):
     """``grassd controllers sim`` in its own process: print ports, serve them, stop on Ctrl-C."""
     proc = subprocess.Popen(
         [sys.executable, "-c", "from grassd.daemon.cli.main import main; main()", "controllers",
          "sim", "--pty", "--count", "2", "--separate", "--pixels", "2",
-         "--state-dir", str(tmp_path / "sim")],
+         "--state-dir", str(tmp_path / "sim"), "--firmware", firmware],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         lines = [proc.stdout.readline() for _ in range(2)]
@@ -118,7 +119,7 @@ def test_sim_command_serves_ptys_until_interrupted(tmp_path):
     # the EEPROM files persist: a new simulator on the same state dir has the tables
     r = CliRunner().invoke(main, ["controllers", "sim", "--count", "2", "--separate",
                                   "--pixels", "2", "--state-dir", str(tmp_path / "sim"),
-                                  "--duration", "0.01"])
+                                  "--duration", "0.01", "--firmware", firmware])
     assert r.exit_code == 0, r.output
     eeprom = sorted((tmp_path / "sim").rglob("*.eeprom"))
     assert len(eeprom) == 2

@@ -68,10 +68,12 @@ max_jump_mm = 20.0
 class Daemon:
     """A `grassd run` subprocess plus the simulated hardware and notify socket it talks to."""
 
-    def __init__(self, root: Path, baud: int | None = None, lux: float = 4000.0) -> None:
+    def __init__(self, root: Path, baud: int | None = None, lux: float = 4000.0,
+                 firmware: str = "model") -> None:
         self.root = root
         self.state = root / "state"
-        self.hw = SimulatedHardware(load_default_config(), root / "hw", lux=lux, baud=baud)
+        self.hw = SimulatedHardware(load_default_config(), root / "hw", lux=lux, baud=baud,
+                                    firmware=firmware)
         self.cfg = self.hw.start()
         self.config = root / "grassd.toml"
         self.config.write_text(config_text(self.state, self.cfg, baud=baud or 115200))
