@@ -57,3 +57,12 @@ def build_firmware(target: str, output: str) -> Path:
 def posix_firmware() -> Path:
     """Path of the built posix firmware process (``grassfw-posix``), building it if needed."""
     return build_firmware("posix", "grassfw-posix")
+
+
+def mps2_image() -> Path:
+    """Path of the Cortex-M7 image for ``qemu-system-arm -M mps2-an500``, building it if
+    needed; :class:`FirmwareUnavailable` when arm-none-eabi-gcc is missing."""
+    if shutil.which("arm-none-eabi-gcc") is None:
+        raise FirmwareUnavailable("arm-none-eabi-gcc is not on PATH: apt-get install "
+                                  "gcc-arm-none-eabi libnewlib-arm-none-eabi")
+    return build_firmware("arm", "mps2/grassfw-mps2.elf")

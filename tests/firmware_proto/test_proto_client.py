@@ -25,9 +25,10 @@ from grassd.firmware_proto.tables import table_crc
 FAST = RetryPolicy(timeout_s=0.05, retries=2, backoff_s=0.005)
 
 
-@pytest.fixture(params=firmware_params("model", "posix"))
+@pytest.fixture(params=firmware_params("model", "posix", "qemu"))
 def bus(request, tmp_path):
-    """Controllers 1-3 (4 pixels) on one pty: the Python model, or the C firmware's posix port."""
+    """Controllers 1-3 (4 pixels) on one pty: the Python model or the C firmware
+    (posix process, QEMU image)."""
     with open_bus(request.param, tmp_path / "state", [1, 2, 3], n_pixels=4,
                   link_path=tmp_path / "ttyGRASS0") as b:
         yield b

@@ -5,7 +5,7 @@ dc_params dc_default_params(void)
 {
     return (dc_params){.vmax_um_s = 60000.0, .tau_s = 0.02, .coulomb = 0.03, .stiction = 0.05,
                        .backlash_um = 40.0, .um_per_count = 12.5, .min_um = -500.0,
-                       .max_um = 20500.0};
+                       .max_um = 20500.0, .substep_s = 1e-4};
 }
 
 static void substep(const dc_params *p, dc_state *s, double u, double h)
@@ -33,7 +33,7 @@ static void substep(const dc_params *p, dc_state *s, double u, double h)
 void dc_step(const dc_params *p, dc_state *s, double u, double dt)
 {
     u = u > 1.0 ? 1.0 : u < -1.0 ? -1.0 : u;
-    int n = (int)ceil(dt / 1e-4);
+    int n = (int)ceil(dt / p->substep_s - 1e-9);
     for (int i = 0; i < n; i++)
         substep(p, s, u, dt / n);
 }

@@ -19,6 +19,7 @@ typedef struct {
     double backlash_um;   /* gear backlash, total play */
     double um_per_count;  /* encoder resolution */
     double min_um, max_um;  /* end stops of the mechanism */
+    double substep_s;     /* integration step (s) */
 } dc_params;
 
 typedef struct {
@@ -27,7 +28,7 @@ typedef struct {
 
 /* The parameters of the paper-like pixel used everywhere (posix port, bench, tests). */
 dc_params dc_default_params(void);
-/* Advance by dt seconds with duty u (-1..1), in substeps of at most 0.1 ms. */
+/* Advance by dt seconds with duty u (-1..1), in substeps of at most substep_s. */
 void dc_step(const dc_params *p, dc_state *s, double u, double dt);
 int32_t dc_encoder(const dc_params *p, const dc_state *s);
 /* At rest: not moving. */

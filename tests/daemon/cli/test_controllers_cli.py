@@ -21,9 +21,10 @@ from grassd.firmware_proto.sim_backends import open_bus
 from grassd.firmware_proto.tables import table_crc
 
 
-@pytest.fixture(params=firmware_params("model", "posix"))
+@pytest.fixture(params=firmware_params("model", "posix", "qemu"))
 def bus(request, tmp_path):
-    """Controllers 1-2 (3 pixels) on one pty: the Python model, or the C firmware's posix port."""
+    """Controllers 1-2 (3 pixels) on one pty: the Python model or the C firmware
+    (posix process, QEMU image)."""
     with open_bus(request.param, tmp_path / "state", [1, 2], n_pixels=3,
                   link_path=tmp_path / "tty0") as b:
         yield b

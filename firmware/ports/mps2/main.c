@@ -1,0 +1,152 @@
+/* mps2-an500 port: the core on a Cortex-M7 under qemu-system-arm -M mps2-an500.
+ *
+ * - bus: CMSDK APB UART0 (0x40004000, on QEMU's -serial), received bytes through the RX
+ *   interrupt into a ring buffer, answers sent by polling;
+ * - storage: a RAM array in .noinit (kept over a system reset, lost when QEMU exits);
+ * - clock and motor loop: SysTick at 1 kHz; its handler runs the PD loop (fw_tick) at a higher
+ *   priority than the UART, so no frame can delay it, and steps the DC-motor model of the
+ *   pixels (ports/posix/dcmotor.c, on the FPU) standing in for the motors and encoders;
+ * - configuration: a block at 0x203FFF00 that QEMU's -device loader fills (address, pixels,
+ *   max_chunk, uid), defaults when absent.
+ * The main loop sleeps (WFI) until an interrupt. */
+#include <stdint.h>
+#include <string.h>
+#include "../../core/controller.h"
+#include "../../core/nv_ram.h"
+#include "../posix/dcmotor.h"
+
+#define UART0 0x40004000u
+#define UART_DATA (*(volatile uint32_t *)(UART0 + 0x000))
+#define UART_STATE (*(volatile uint32_t *)(UART0 + 0x004))
+#define UART_CTRL (*(volatile uint32_t *)(UART0 + 0x008))
+#define UART_INTCLEAR (*(volatile uint32_t *)(UART0 + 0x00C))
+#define UART_BAUDDIV (*(volatile uint32_t *)(UART0 + 0x010))
+#define SYST_CSR (*(volatile uint32_t *)0xE000E010u)
+#define SYST_RVR (*(volatile uint32_t *)0xE000E014u)
+#define SYST_CVR (*(volatile uint32_t *)0xE000E018u)
+#define NVIC_ISER0 (*(volatile uint32_t *)0xE000E100u)
+#define NVIC_IPR0 (*(volatile uint8_t *)0xE000E400u)
+#define SHPR3 (*(volatile uint32_t *)0xE000ED20u)
+#define SYSCLK_HZ 25000000u
+
+#define CONFIG_MAGIC 0x47464346u   /* "FCFG" */
+typedef struct {
+    uint32_t magic, address, n_pixels, max_chunk, uid;
+} board_config;
+__attribute__((section(".fwconfig"))) volatile board_config fwconfig;
+
+/* What the host reads back through QEMU's monitor (pmemsave): counters and the storage. */
+#define STATS_MAGIC 0x53574647u
+typedef struct {
+    uint32_t magic, boots, writes, nv_size;
+} board_stats;
+__attribute__((section(".noinit"))) board_stats fw_stats;
+__attribute__((section(".noinit"))) uint8_t fw_storage[2 * (FW_BANK_HEADER_SIZE + FW_MAX_TABLE_BYTES)];
+
+static fw_nv_ram nv;
+static fw_controller ctl;
+static fw_hal hal;
+static volatile uint32_t ms;
+static dc_params plant;
+static dc_state motor[FW_MAX_PIXELS];
+static int16_t duty[FW_MAX_PIXELS];
+static volatile uint8_t moving;
+
+static uint8_t ring[2048];
+static volatile uint32_t ring_head, ring_tail;
+
+void uart0_rx_handler(void)
+{
+    UART_INTCLEAR = 2u;
+    while (UART_STATE & 2u) {   /* RX buffer full */
+        uint8_t b = (uint8_t)UART_DATA;
+        uint32_t next = (ring_head + 1u) % sizeof ring;
+        if (next != ring_tail) {   /* else dropped, as an overrun */
+            ring[ring_head] = b;
+            ring_head = next;
+        }
+    }
+}
+
+void systick_handler(void)
+{
+    ms++;
+    if (!moving)
+        return;   /* motors at rest and unpowered: nothing changes until a new target */
+    fw_tick(&ctl);
+    uint8_t any = 0;
+    for (uint16_t p = 0; p < ctl.cfg.n_pixels; p++) {
+        dc_step(&plant, &motor[p], duty[p] / (double)FW_PWM_MAX, FW_TICK_US * 1e-6);
+        if (duty[p] != 0 || !dc_at_rest(&motor[p]))
+            any = 1;
+    }
+    moving = any;
+}
+
+static void tx(void *ctx, const uint8_t *data, size_t n)
+{
+    (void)ctx;
+    for (size_t i = 0; i < n; i++) {
+        while (UART_STATE & 1u) {   /* TX buffer full */
+        }
+        UART_DATA = data[i];
+    }
+}
+static int nv_read(void *ctx, uint32_t o, uint8_t *b, uint32_t n) { return fw_nv_ram_read(ctx, o, b, n); }
+static int nv_write(void *ctx, uint32_t o, const uint8_t *d, uint32_t n)
+{
+    fw_stats.writes++;
+    return fw_nv_ram_write(ctx, o, d, n);
+}
+static int nv_erase(void *ctx, uint32_t o, uint32_t n)
+{
+    fw_stats.writes++;
+    return fw_nv_ram_erase(ctx, o, n);
+}
+static uint32_t millis(void *ctx) { (void)ctx; return ms; }
+static int32_t encoder(void *ctx, uint16_t p) { (void)ctx; return dc_encoder(&plant, &motor[p]); }
+static void pwm(void *ctx, uint16_t p, int16_t d) { (void)ctx; duty[p] = d; }
+
+int main(void)
+{
+    fw_config cfg = {.address = 1, .n_pixels = FW_MAX_PIXELS, .uid = 0x6A5D0001u,
+                     .max_chunk = 256, .max_length_um = 20000};
+    if (fwconfig.magic == CONFIG_MAGIC) {
+        cfg.address = (uint8_t)fwconfig.address;
+        cfg.n_pixels = (uint16_t)fwconfig.n_pixels;
+        cfg.max_chunk = (uint16_t)fwconfig.max_chunk;
+        cfg.uid = fwconfig.uid;
+    }
+    uint32_t nv_size = fw_banks_size(cfg.n_pixels);
+    if (fw_stats.magic != STATS_MAGIC || fw_stats.nv_size != nv_size) {   /* first power-on */
+        fw_nv_ram_init(&nv, fw_storage, nv_size);
+        fw_stats = (board_stats){STATS_MAGIC, 0, 0, nv_size};
+    } else {
+        nv = (fw_nv_ram){fw_storage, nv_size, 0};
+    }
+    fw_stats.boots++;
+    plant = dc_default_params();
+    plant.substep_s = 1e-3;   /* one Euler step per period: tau = 20 ms keeps it stable */
+    hal = (fw_hal){&nv, tx, nv_read, nv_write, nv_erase, millis, encoder, pwm};
+    if (fw_boot(&ctl, &hal, &cfg) < 0)
+        cfg = (fw_config){1, 1, 0x6A5D0001u, 256, 20000}, fw_boot(&ctl, &hal, &cfg);
+
+    UART_BAUDDIV = 16;
+    UART_CTRL = 1u | 2u | 8u;   /* TX enable, RX enable, RX interrupt */
+    NVIC_IPR0 = 0x40;           /* UART0 RX below SysTick */
+    NVIC_ISER0 = 1u;
+    SHPR3 = (SHPR3 & 0x00FFFFFFu);   /* SysTick priority 0: the motor loop preempts all */
+    SYST_RVR = SYSCLK_HZ / 1000u - 1u;
+    SYST_CVR = 0;
+    SYST_CSR = 7u;              /* processor clock, interrupt, enable */
+
+    for (;;) {
+        while (ring_tail != ring_head) {
+            uint8_t b = ring[ring_tail];
+            ring_tail = (ring_tail + 1u) % sizeof ring;
+            fw_rx_feed(&ctl, &b, 1);
+            moving = 1;   /* a frame may have set targets: run the loop until all rest */
+        }
+        __asm volatile("wfi");
+    }
+}

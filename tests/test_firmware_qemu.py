@@ -1,0 +1,45 @@
+"""`grassd controllers sim --firmware qemu`: N QEMU instances of the Cortex-M7 image joined into
+one RS-485-style bus by the relay, in its own process; the host scans them all and pushes."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from firmware_util import missing_reason
+
+from grassd.firmware_proto.client import ControllerClient, RetryPolicy
+from grassd.firmware_proto.tables import table_crc
+
+pytestmark = pytest.mark.skipif(missing_reason("qemu") is not None,
+                                reason=str(missing_reason("qemu")))
+
+
+def test_sim_command_joins_qemu_instances_into_one_bus(tmp_path):
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "from grassd.daemon.cli import main; main()", "controllers",
+         "sim", "--firmware", "qemu", "--count", "3", "--pixels", "16",
+         "--state-dir", str(tmp_path / "sim")],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()
+        assert "addresses 1-3, 16 pixels each" in line, line + proc.stderr.read()
+        path = line.split(" -> ")[0]
+        t = np.random.default_rng(2).integers(0, 20001, (16, 256)).astype(np.uint16)
+        with ControllerClient(path, policy=RetryPolicy(timeout_s=0.3)) as c:
+            found = c.scan(range(1, 6), timeout_s=0.1)
+            assert sorted(found) == [1, 2, 3]
+            assert all(i.n_pixels == 16 and i.max_chunk == 256 for i in found.values())
+            assert c.push_table(2, t, table_id=9).table_crc == table_crc(t)
+            assert c.read_status(1).active_bank == 0xFF  # only the addressed one took it
+            c.set_levels(2, list(range(0, 256, 16)))
+            assert c.read_positions(2)[:, 1].tolist() == [int(t[p, 16 * p]) for p in range(16)]
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
