@@ -2,6 +2,14 @@
 #ifndef FW_LIMITS_H
 #define FW_LIMITS_H
 
+/* A port that cannot pass -D options (an Arduino sketch) puts its settings in
+ * fw_port_config.h next to the core's files. */
+#if defined(__has_include)
+#if __has_include("fw_port_config.h")
+#include "fw_port_config.h"
+#endif
+#endif
+
 #define FW_PROTOCOL_VERSION 1u
 #define FW_HEADER_SIZE 5u              /* version address type seq:u16 */
 #define FW_CRC_SIZE 4u
