@@ -105,6 +105,9 @@ def _messages() -> dict:
          "commit refused: bytes from offset 256 missing"),
         ("zero_heavy", Frame(247, 0xFF00, TableChunk(0, 0, bytes(300))),
          "300 zero bytes: COBS overhead stays one byte per 254"),
+        ("cobs_full_block", Frame(1, 0x0101, TableChunk(0, 0, bytes([1, *range(1, 250)]))),
+         "body + CRC end in a run of 254 non-zero bytes: its 0xFF block ends the frame, no "
+         "code byte follows (PROTOCOL.md section 2)"),
     ]
     return {
         "description": "One frame of every message type. hex = wire bytes including the final "
