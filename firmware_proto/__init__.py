@@ -13,6 +13,10 @@ Modules, from the wire up:
 * :mod:`.eeprom` - file-backed EEPROM and the two-bank store; :mod:`.firmware` - the
   controller state machine; :mod:`.faults` - fault injection; :mod:`.simulator` - controllers
   on ptys; :mod:`.golden` - the test vectors in ``vectors/``.
+* The C firmware (``firmware/`` in the source tree): :mod:`.native_build` builds it;
+  :mod:`.posix_bus` runs its posix port, :mod:`.qemu_bus` its Cortex-M7 image under QEMU, as
+  buses like :class:`~.simulator.SimulatedBus`; :mod:`.sim_backends` picks model, posix or
+  qemu by name; :mod:`.power_cut` sweeps a power cut over every storage write of an update.
 * :mod:`.errors` - :class:`~.errors.ProtocolError`; :class:`~.errors.TransientError` means
   retrying may help.
 """
