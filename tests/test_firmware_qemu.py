@@ -3,6 +3,7 @@ one RS-485-style bus by the relay, in its own process; the host scans them all a
 
 from __future__ import annotations
 
+import re
 import signal
 import subprocess
 import sys
@@ -43,3 +44,16 @@ def test_sim_command_joins_qemu_instances_into_one_bus(tmp_path):
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 0, err
+
+
+def test_cortex_m7_core_fits_its_flash_and_ram_budget():
+    """The core for the Cortex-M7 (16 pixels of per-pixel tables): <= 32 KiB flash and one
+    controller's RAM <= 24 KiB, as arm-none-eabi-size and nm report for the mps2 build."""
+    from grassd.firmware_proto.native_build import BUILD_DIR, mps2_image
+
+    mps2_image()
+    text = (BUILD_DIR / "mps2" / "size.txt").read_text()
+    flash = int(re.search(r"core flash \(text\+data\) (\d+) B", text).group(1))
+    static = int(re.search(r"static RAM \(data\+bss\) (\d+) B", text).group(1))
+    ctl = int(re.search(r"one fw_controller .* (\d+) B", text).group(1))
+    assert flash <= 32 * 1024 and static + ctl <= 24 * 1024, text
