@@ -191,6 +191,8 @@ class PosixBus:
                 self.errors += 1
         elif self.proc.returncode != EXIT_POWER_CUT or self.power_cut_at is None:
             self.errors += 1
+        if self._reader is not None:  # the process is gone: its stdout ends
+            self._reader.join(5)
         for f in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
             if f is not None:
                 try:
@@ -199,8 +201,6 @@ class PosixBus:
                     f.close()
                 except (OSError, ValueError):
                     pass
-        if self._reader is not None:
-            self._reader.join(2)
         if self.link_path is not None and self.link_path.is_symlink():
             self.link_path.unlink()
 

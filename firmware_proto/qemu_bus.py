@@ -30,10 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
+from grassd.firmware_proto.codec import Frame, encode_frame
 from grassd.firmware_proto.eeprom import BankStore
 from grassd.firmware_proto.errors import SimulatorError
 from grassd.firmware_proto.firmware import ControllerConfig
-from grassd.firmware_proto.messages import TABLE_BYTES, TableKind
+from grassd.firmware_proto.framing import FrameReader
+from grassd.firmware_proto.messages import TABLE_BYTES, Hello, TableKind
 from grassd.firmware_proto.native_build import FirmwareUnavailable, mps2_image
 from grassd.firmware_proto.tables import table_from_bytes
 
@@ -110,18 +112,43 @@ class _Instance:
                "-display", "none", "-monitor", "none", "-serial", "pty",
                "-qmp", f"unix:{self.qmp_path},server=on,wait=off", "-kernel", str(elf),
                *loaders]
-        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                     stdin=subprocess.DEVNULL, text=True)
-        line = self.proc.stdout.readline() if self.proc.stdout else ""
-        m = _PTY_RE.search(line)
-        if not m:
-            rest = self.proc.stdout.read() if self.proc.stdout else ""
-            self.proc.kill()
-            raise SimulatorError(f"qemu-system-arm did not start: {line}{rest}".strip())
+        self.log = workdir / f"qemu-{config.address}.log"
+        with open(self.log, "w") as log:  # QEMU names its pty there; nothing blocks on a pipe
+            self.proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT,
+                                         stdin=subprocess.DEVNULL)
+        deadline = time.monotonic() + 20.0
+        while not (m := _PTY_RE.search(self.log.read_text())):
+            if self.proc.poll() is not None or time.monotonic() > deadline:
+                self.proc.kill()
+                self.proc.wait()
+                raise SimulatorError(f"qemu-system-arm did not start: "
+                                     f"{self.log.read_text().strip()}")
+            time.sleep(0.01)
         self.pty = m.group(1)
         self.fd = os.open(self.pty, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
         tty.setraw(self.fd)
         self.qmp = _Qmp(self.qmp_path)
+        self.address = config.address
+
+    def wait_ready(self, timeout_s: float = 20.0) -> None:
+        """Wait until the firmware answers a HELLO on this instance's pty: QEMU notices that
+        its pty was opened only on its next poll (up to a second), and drops bytes until then.
+        """
+        hello = encode_frame(Frame(self.address, 0xFFFF, Hello()))
+        reader = FrameReader()
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            os.write(self.fd, b"\x00" + hello)
+            until = time.monotonic() + 0.1
+            while (left := until - time.monotonic()) > 0:
+                if select.select([self.fd], [], [], left)[0]:
+                    try:
+                        if reader.feed(os.read(self.fd, 4096)):
+                            return
+                    except BlockingIOError:
+                        pass
+        raise SimulatorError(f"the firmware in QEMU (address {self.address}) did not answer "
+                             f"within {timeout_s:g} s; see {self.log}")
 
     def stop(self) -> int | None:
         for close in (lambda: os.close(self.fd), self.qmp.close):
@@ -245,6 +272,8 @@ class QemuBus:
         try:
             for c in self.controllers:
                 self._instances[c.config.address] = _Instance(elf, self.workdir, c.config)
+            for inst in self._instances.values():
+                inst.wait_ready()
             self._plug()
         except BaseException:
             self.stop()
