@@ -39,12 +39,15 @@ def power_cut() -> None:
     rng = np.random.default_rng(1)
     old = rng.integers(0, 20001, 256).astype(np.uint16)
     new = rng.integers(0, 20001, (16, 256)).astype(np.uint16)
+    keeps = ("none", "half", "all-but-one")
     with tempfile.TemporaryDirectory() as tmp:
-        out = power_cut_sweep(tmp, old, new, n_pixels=16, max_chunk=256)
+        out = power_cut_sweep(tmp, old, new, n_pixels=16, max_chunk=256, keeps=keeps)
     cuts = [o for o in out if o.cut]
+    writes = len(cuts) // len(keeps)
     ok = all(o.active in ("old", "new") and o.status_crc_ok and o.recovered for o in out)
-    print(f"power cut: {len(cuts)} cut points tested (every storage write of BEGIN, "
-          f"{len(cuts) - 2} chunks and COMMIT) + 1 uncut run; after each restart: "
+    print(f"power cut: {len(cuts)} cut points tested ({writes} storage writes: BEGIN, "
+          f"{writes - 2} chunks, COMMIT; each torn 3 ways: none, half, all but one byte "
+          f"landed) + {len(keeps)} uncut runs; after each restart: "
           f"{sum(o.active == 'old' for o in out)} x old table, "
           f"{sum(o.active == 'new' for o in out)} x new, "
           f"{sum(o.active == 'mix' for o in out)} x mix; all CRCs valid: {ok}")

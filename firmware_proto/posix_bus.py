@@ -84,13 +84,14 @@ class PosixBus:
     ``n_pixels``: pixels per controller (one value, or one per address). ``link_path``: a
     symlink kept pointing at the pty (the pty changes on unplug). ``baud``: pace the line at
     this rate (None: as fast as the pty goes). ``power_cut_at``: the process
-    loses power at its k-th storage write (see ``firmware/ports/posix/main.c``).
+    loses power at its k-th storage write, when ``power_cut_keep`` ("half", "none" or
+    "all-but-one") of that write's bytes have landed (see ``firmware/ports/posix/main.c``).
     """
 
     def __init__(self, state_dir: str | Path, addresses: Sequence[int], *,
                  n_pixels: int | Sequence[int] = 16, link_path: str | Path | None = None,
                  max_chunk: int = 256, power_cut_at: int | None = None,
-                 baud: int | None = None) -> None:
+                 power_cut_keep: str = "half", baud: int | None = None) -> None:
         if not addresses:
             raise SimulatorError("a posix firmware bus needs at least one controller")
         if len(set(addresses)) != len(addresses):
@@ -100,6 +101,7 @@ class PosixBus:
         self.link_path = Path(link_path) if link_path is not None else None
         self.max_chunk = max_chunk
         self.power_cut_at = power_cut_at
+        self.power_cut_keep = power_cut_keep
         self.baud = baud
         self.controllers = [
             NativeController(ControllerConfig(address=a, n_pixels=p, uid=0x6A5D0000 + a,
@@ -132,7 +134,7 @@ class PosixBus:
         if self.baud:
             cmd += ["--baud", str(self.baud)]
         if self.power_cut_at is not None:
-            cmd += ["--power-cut-at", str(self.power_cut_at)]
+            cmd += ["--power-cut-at", f"{self.power_cut_at}:{self.power_cut_keep}"]
         self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      stderr=subprocess.PIPE, text=True)
         first = self.proc.stdout.readline().strip() if self.proc.stdout else ""

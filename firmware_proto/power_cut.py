@@ -1,8 +1,9 @@
 """Power cut at every storage write of a table update, on the C firmware's posix port.
 
 :func:`power_cut_sweep` stages the controller's storage with an *old* table (or none), then
-for every k pushes a *new* table to a ``grassfw-posix`` process that loses power half-way
-through its k-th storage write (``--power-cut-at k``), restarts the firmware on the storage it
+for every k pushes a *new* table to a ``grassfw-posix`` process that loses power during its
+k-th storage write (``--power-cut-at k:keep``: none, half or all but one of its bytes land),
+restarts the firmware on the storage it
 left, and records what is active: by PROTOCOL.md §4 the old or the new table, with a valid
 CRC, never a mix. k runs over every write of the transfer and commit (the BEGIN's bank
 invalidation, each chunk, the header switch), and one past them (no cut: the push completes).
@@ -30,6 +31,7 @@ class CutOutcome:
     """What one cut left behind."""
 
     k: int  #: the storage write that lost power (1-based); writes + 1 = no cut
+    keep: str  #: how much of that write landed: "half", "none" or "all-but-one"
     cut: bool  #: the process did lose power (else the push completed)
     active: str  #: "old", "new", "none", or "mix" (a table that is neither: a failure)
     status_crc_ok: bool  #: TABLE_STATUS's table_crc is the CRC of the table actually stored
@@ -47,9 +49,11 @@ def _classify(table: np.ndarray | None, old: np.ndarray | None, new: np.ndarray)
 
 
 def power_cut_sweep(workdir: str | Path, old: np.ndarray | None, new: np.ndarray, *,
-                    n_pixels: int = 16, max_chunk: int = 256) -> list[CutOutcome]:
+                    n_pixels: int = 16, max_chunk: int = 256,
+                    keeps: tuple[str, ...] = ("half",)) -> list[CutOutcome]:
     """Sweep the power cut over every storage write of pushing ``new`` (um) over ``old``
-    (um, or None for a controller that never had a table). Returns one outcome per k."""
+    (um, or None for a controller that never had a table), for each way the cut write can
+    be torn in ``keeps``. Returns one outcome per (keep, k), k = writes + 1 being no cut."""
     work = Path(workdir)
     base = work / "base"
     with PosixBus(base, [1], n_pixels=n_pixels, max_chunk=max_chunk) as bus:
@@ -63,11 +67,12 @@ def power_cut_sweep(workdir: str | Path, old: np.ndarray | None, new: np.ndarray
             writes = bus.controllers[0].eeprom.writes - before
         bus.controllers[0].storage_path.write_bytes(probe)  # back to the old table
     out = []
-    for k in range(1, writes + 2):
-        run = work / f"cut{k}"
+    for keep, k in [(keep, k) for keep in keeps for k in range(1, writes + 2)]:
+        run = work / f"cut{k}-{keep}"
         shutil.copytree(base, run)
         (run / "controller-1.stats").unlink()
-        bus = PosixBus(run, [1], n_pixels=n_pixels, max_chunk=max_chunk, power_cut_at=k).start()
+        bus = PosixBus(run, [1], n_pixels=n_pixels, max_chunk=max_chunk, power_cut_at=k,
+                       power_cut_keep=keep).start()
         try:
             with ControllerClient(bus.path, policy=_QUICK) as c:
                 try:
@@ -88,5 +93,5 @@ def power_cut_sweep(workdir: str | Path, old: np.ndarray | None, new: np.ndarray
                 recovered = c.push_table(1, new, table_id=2).table_crc == table_crc(new)
             except ProtocolError:
                 recovered = False
-        out.append(CutOutcome(k, cut, active, crc_ok, recovered))
+        out.append(CutOutcome(k, keep, cut, active, crc_ok, recovered))
     return out

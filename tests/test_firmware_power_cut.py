@@ -23,18 +23,21 @@ def tables():
     return old, new
 
 
-@pytest.mark.parametrize("has_old", [True, False], ids=["over-old-table", "first-table"])
-def test_every_cut_leaves_old_or_new_table(tmp_path, has_old):
+@pytest.mark.parametrize(("has_old", "keeps"), [
+    (True, ("none", "half", "all-but-one")), (False, ("half",))],
+    ids=["over-old-table", "first-table"])
+def test_every_cut_leaves_old_or_new_table(tmp_path, has_old, keeps):
     old, new = tables()
     old = old if has_old else None
-    out = power_cut_sweep(tmp_path, old, new, n_pixels=N_PIXELS, max_chunk=128)
-    writes = len(out) - 1
+    out = power_cut_sweep(tmp_path, old, new, n_pixels=N_PIXELS, max_chunk=128, keeps=keeps)
+    writes = len(out) // len(keeps) - 1
     # BEGIN's invalidation + 2048 bytes in 128-byte chunks + the header switch
     assert writes == 1 + 16 + 1
-    print(f"power cut tested at {writes} storage writes (+1 uncut run), "
-          f"{'over an old table' if has_old else 'first table'}: "
-          + " ".join(f"{o.k}:{o.active}" for o in out))
-    assert [o.cut for o in out] == [True] * writes + [False]
+    cuts = sum(o.cut for o in out)
+    print(f"power cut tested at {cuts} points ({writes} storage writes x {len(keeps)} ways to "
+          f"tear the cut write: {', '.join(keeps)}) + {len(keeps)} uncut runs, "
+          f"{'over an old table' if has_old else 'first table'}")
+    assert [o.cut for o in out] == ([True] * writes + [False]) * len(keeps)
     before_switch = "old" if has_old else "none"
-    assert [o.active for o in out] == [before_switch] * writes + ["new"]
+    assert [o.active for o in out] == ([before_switch] * writes + ["new"]) * len(keeps)
     assert all(o.status_crc_ok and o.recovered for o in out)

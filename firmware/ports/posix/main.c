@@ -2,7 +2,7 @@
  * each with its storage in a file and DC-motor models for its pixels (dcmotor.c).
  *
  *   grassfw-posix --state-dir DIR [--count N | --addresses A,B,..] [--pixels P[,P2,..]]
- *                 [--link PATH] [--max-chunk B] [--baud BAUD] [--power-cut-at K]
+ *                 [--link PATH] [--max-chunk B] [--baud BAUD] [--power-cut-at K[:KEEP]]
  *
  * --count N: addresses 1..N (default 1); --addresses: these addresses instead. --pixels: one
  * pixel count for all (default 16), or one per controller.
@@ -11,8 +11,9 @@
  * SIGTERM. Controller a (1..N) keeps its two banks in DIR/controller-<a>.eeprom (the layout of
  * firmware_proto/eeprom.py, so either side reads the other's files) and its counters in
  * DIR/controller-<a>.stats ("boots B writes W"). --power-cut-at K: the K-th storage write or
- * erase of the process (1-based) stores only its first half, then the process exits with
- * status 3, as a controller losing power in the middle of that write.
+ * erase of the process (1-based) stores only its first half (KEEP: "half", "none" or "all-but-
+ * one" of its bytes), then the process exits with status 3, as a controller losing power in
+ * the middle of that write.
  *
  * Lines on stdin control the simulated line (tests): "unplug MS" closes the pty (the host sees
  * EIO), removes the link, power-cycles the controllers, prints "unplugged", and after MS
@@ -48,6 +49,7 @@ static struct {
     char device[128];
     const char *link;
     long power_cut_at, writes, baud;
+    int cut_keep;   /* 0: half of the write lands, 1: none of it, 2: all but its last byte */
     double line_free;   /* seconds (monotonic) when the paced line is free again */
     uint64_t t0_ms;
     volatile sig_atomic_t stop;
@@ -117,7 +119,7 @@ static int nv_store(unit *u, uint32_t off, const uint8_t *data, uint32_t n)
     uint32_t keep = n;
     int cut = ++bus.writes == bus.power_cut_at;
     if (cut)
-        keep = n / 2;   /* power fails half-way through this write */
+        keep = bus.cut_keep == 1 ? 0 : bus.cut_keep == 2 ? n - 1 : n / 2;   /* power fails */
     if (keep && pwrite(u->nv_fd, data, keep, off) != (ssize_t)keep)
         return -1;
     if (cut) {
@@ -287,8 +289,23 @@ int main(int argc, char **argv)
             max_chunk = arg_long(a, v, 1, FW_MAX_CHUNK_DATA);
         else if (!strcmp(a, "--baud"))
             bus.baud = arg_long(a, v, 300, 10000000);
-        else if (!strcmp(a, "--power-cut-at"))
-            bus.power_cut_at = arg_long(a, v, 1, 1L << 30);
+        else if (!strcmp(a, "--power-cut-at")) {
+            char k[32];
+            snprintf(k, sizeof k, "%s", v);
+            char *colon = strchr(k, ':');
+            if (colon) {
+                *colon = 0;
+                const char *keep = colon + 1;
+                bus.cut_keep = !strcmp(keep, "half") ? 0 : !strcmp(keep, "none") ? 1
+                             : !strcmp(keep, "all-but-one") ? 2 : -1;
+                if (bus.cut_keep < 0) {
+                    fprintf(stderr, "grassfw-posix: --power-cut-at K:KEEP, KEEP is half, none "
+                                    "or all-but-one, got '%s'\n", keep);
+                    return 2;
+                }
+            }
+            bus.power_cut_at = arg_long(a, k, 1, 1L << 30);
+        }
         else if (!strcmp(a, "--state-dir"))
             dir = v;
         else if (!strcmp(a, "--link"))
