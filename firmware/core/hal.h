@@ -21,7 +21,8 @@ typedef struct fw_hal {
     int (*nv_write)(void *ctx, uint32_t offset, const uint8_t *data, uint32_t n);
     /* Set n bytes at offset to 0xFF. */
     int (*nv_erase)(void *ctx, uint32_t offset, uint32_t n);
-    /* Milliseconds since boot (wraps at 2^32). */
+    /* Milliseconds since boot (wraps at 2^32): the clock a port schedules fw_tick from
+     * (the core itself is driven by fw_tick and never waits on it). */
     uint32_t (*millis)(void *ctx);
     /* Encoder position of a pixel's motor in counts (signed, 0 = grass fully retracted). */
     int32_t (*encoder_read)(void *ctx, uint16_t pixel);
