@@ -171,6 +171,12 @@ class PosixBus:
             raise SimulatorError("the posix firmware did not carry out the unplug")
         self.unplugs += 1
 
+    def power_cycle(self) -> None:
+        """Restart the firmware process on the storage it left (a clean power cycle: the pty
+        and :attr:`device` change, a ``link_path`` follows)."""
+        self.stop()
+        self.start()
+
     def wait_exit(self, timeout_s: float = 10.0) -> int:
         """Wait for the process to exit by itself (a power cut); returns its exit status."""
         assert self.proc is not None

@@ -346,6 +346,21 @@ class QemuBus:
                     except OSError:
                         pass  # nobody reading: lost, as on a wire
 
+    def power_cycle(self, timeout_s: float = 10.0) -> None:
+        """Reset every controller (QEMU ``system_reset``: RAM storage is kept) and return once
+        each has booted again and listens on its UART."""
+        before = {c.config.address: c.boots for c in self.controllers}
+        with self._lock:
+            for inst in self._instances.values():
+                inst.qmp.command("system_reset")
+        deadline = time.monotonic() + timeout_s
+        for c in self.controllers:
+            while c.boots <= before[c.config.address]:
+                if time.monotonic() > deadline:
+                    raise SimulatorError(f"controller {c.config.address} did not boot again "
+                                         f"after a reset")
+                time.sleep(0.002)
+
     def unplug(self, down_s: float, wait_s: float = 5.0) -> None:
         """Pull the plug: the host pty goes away, every controller is reset (power cycle), and
         a fresh pty appears behind :attr:`path` after ``down_s`` seconds."""

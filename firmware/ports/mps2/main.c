@@ -124,7 +124,6 @@ int main(void)
     } else {
         nv = (fw_nv_ram){fw_storage, nv_size, 0};
     }
-    fw_stats.boots++;
     plant = dc_default_params();
     plant.substep_s = 1e-3;   /* one Euler step per period: tau = 20 ms keeps it stable */
     hal = (fw_hal){&nv, tx, nv_read, nv_write, nv_erase, millis, encoder, pwm};
@@ -139,6 +138,7 @@ int main(void)
     SYST_RVR = SYSCLK_HZ / 1000u - 1u;
     SYST_CVR = 0;
     SYST_CSR = 7u;              /* processor clock, interrupt, enable */
+    fw_stats.boots++;           /* a completed boot: the UART takes bytes from here on */
 
     for (;;) {
         while (ring_tail != ring_head) {
