@@ -100,7 +100,8 @@ class _Qmp:
 class _Instance:
     """One qemu-system-arm process: its QMP connection and its serial pty (opened raw)."""
 
-    def __init__(self, elf: Path, workdir: Path, config: ControllerConfig) -> None:
+    def __init__(self, elf: Path, workdir: Path, config: ControllerConfig,
+                 extra_args: Sequence[str] = ()) -> None:
         self.qmp_path = workdir / f"qmp-{config.address}.sock"
         self.qmp_path.unlink(missing_ok=True)
         words = [CONFIG_MAGIC, config.address, config.n_pixels, config.max_chunk, config.uid]
@@ -111,7 +112,7 @@ class _Instance:
         cmd = [shutil.which("qemu-system-arm") or "qemu-system-arm", "-M", "mps2-an500",
                "-display", "none", "-monitor", "none", "-serial", "pty",
                "-qmp", f"unix:{self.qmp_path},server=on,wait=off", "-kernel", str(elf),
-               *loaders]
+               *loaders, *extra_args]
         self.log = workdir / f"qemu-{config.address}.log"
         with open(self.log, "w") as log:  # QEMU names its pty there; nothing blocks on a pipe
             self.proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT,
@@ -193,8 +194,17 @@ class QemuController:
                                  filename=f.name)
             return Path(f.name).read_bytes()
 
-    def _stats(self) -> tuple[int, int, int, int]:
-        return struct.unpack("<4I", self._dump("fw_stats", 16))
+    def _stats(self) -> tuple[int, ...]:
+        """magic, boots, storage writes, storage size, longest byte (SysTick counts), and
+        the type of the frame that byte completed (ports/mps2/main.c, board_stats)."""
+        return struct.unpack("<6I", self._dump("fw_stats", 24))
+
+    def worst_byte(self) -> tuple[int, int]:
+        """(SysTick counts, frame type) of the longest time the firmware spent on one received
+        byte since QEMU started; a count is 1/25 MHz, 40 instructions under ``-icount
+        shift=0``."""
+        stats = self._stats()
+        return stats[4], stats[5]
 
     @property
     def boots(self) -> int:
@@ -226,11 +236,14 @@ class QemuBus:
     ``n_pixels``: per controller (one value, or one per address; at most 16, the image's
     FW_MAX_PIXELS). ``link_path``: a symlink kept pointing at the host-side pty. ``baud``:
     pace the relayed line (None: unpaced). ``state_dir`` holds the QMP sockets and dumps.
+    ``qemu_args``: more qemu-system-arm options (e.g. ``-icount shift=0`` to count
+    instructions).
     """
 
     def __init__(self, state_dir: str | Path, addresses: Sequence[int], *,
                  n_pixels: int | Sequence[int] = 16, link_path: str | Path | None = None,
-                 baud: int | None = None, max_chunk: int = 256) -> None:
+                 baud: int | None = None, max_chunk: int = 256,
+                 qemu_args: Sequence[str] = ()) -> None:
         if not addresses:
             raise SimulatorError("a QEMU bus needs at least one controller")
         if len(set(addresses)) != len(addresses):
@@ -242,6 +255,7 @@ class QemuBus:
         self.workdir = Path(state_dir)
         self.link_path = Path(link_path) if link_path is not None else None
         self.baud = baud
+        self.qemu_args = tuple(qemu_args)
         self.controllers = [
             QemuController(ControllerConfig(address=a, n_pixels=p, uid=0x6A5D0000 + a,
                                             max_chunk=max_chunk), self)
@@ -271,7 +285,8 @@ class QemuBus:
         self.workdir.mkdir(parents=True, exist_ok=True)
         try:
             for c in self.controllers:
-                self._instances[c.config.address] = _Instance(elf, self.workdir, c.config)
+                self._instances[c.config.address] = _Instance(elf, self.workdir, c.config,
+                                                              self.qemu_args)
             for inst in self._instances.values():
                 inst.wait_ready()
             self._plug()

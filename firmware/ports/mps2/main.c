@@ -39,6 +39,9 @@ __attribute__((section(".fwconfig"))) volatile board_config fwconfig;
 #define STATS_MAGIC 0x53574647u
 typedef struct {
     uint32_t magic, boots, writes, nv_size;
+    /* the longest fw_rx_feed of one byte, in SysTick counts (1/25 MHz; with QEMU's -icount
+     * shift=0 one count is 40 instructions), and the type of the frame that byte completed */
+    uint32_t max_byte_ticks, max_byte_type;
 } board_stats;
 __attribute__((section(".noinit"))) board_stats fw_stats;
 __attribute__((section(".noinit"))) uint8_t fw_storage[2 * (FW_BANK_HEADER_SIZE + FW_MAX_TABLE_BYTES)];
@@ -120,7 +123,7 @@ int main(void)
     uint32_t nv_size = fw_banks_size(cfg.n_pixels);
     if (fw_stats.magic != STATS_MAGIC || fw_stats.nv_size != nv_size) {   /* first power-on */
         fw_nv_ram_init(&nv, fw_storage, nv_size);
-        fw_stats = (board_stats){STATS_MAGIC, 0, 0, nv_size};
+        fw_stats = (board_stats){STATS_MAGIC, 0, 0, nv_size, 0, 0};
     } else {
         nv = (fw_nv_ram){fw_storage, nv_size, 0};
     }
@@ -144,7 +147,14 @@ int main(void)
         while (ring_tail != ring_head) {
             uint8_t b = ring[ring_tail];
             ring_tail = (ring_tail + 1u) % sizeof ring;
+            uint32_t ms0 = ms, t0 = SYST_CVR;
             fw_rx_feed(&ctl, &b, 1);
+            uint32_t t1 = SYST_CVR, ms1 = ms;
+            uint32_t ticks = (ms1 - ms0) * (SYST_RVR + 1u) + t0 - t1;   /* counts down */
+            if (ticks > fw_stats.max_byte_ticks && ticks < 0x80000000u) {
+                fw_stats.max_byte_ticks = ticks;
+                fw_stats.max_byte_type = b == 0 ? ctl.rx.buf[2] : 0x100u;
+            }
             moving = 1;   /* a frame may have set targets: run the loop until all rest */
         }
         __asm volatile("wfi");
