@@ -81,6 +81,17 @@ class ControllerConfig:
         return self.table_capacity if self.table_capacity is not None else self.n_pixels
 
 
+#: Simulated controller ``a`` reports uid ``SIM_UID_BASE + a`` (the C firmware's posix port
+#: uses the same numbering).
+SIM_UID_BASE = 0x6A5D0000
+
+
+def simulated_config(address: int, **fields: object) -> ControllerConfig:
+    """The configuration of simulated controller ``address`` (model, posix or QEMU): uid
+    ``SIM_UID_BASE + address``, other fields as given, else ControllerConfig's defaults."""
+    return ControllerConfig(address=address, uid=SIM_UID_BASE + address, **fields)
+
+
 @dataclass
 class _Transfer:
     begin: TableBegin

@@ -21,7 +21,7 @@ import numpy as np
 
 from grassd.firmware_proto.eeprom import BankStore
 from grassd.firmware_proto.errors import SimulatorError
-from grassd.firmware_proto.firmware import ControllerConfig
+from grassd.firmware_proto.firmware import ControllerConfig, simulated_config
 from grassd.firmware_proto.messages import TABLE_BYTES, TableKind
 from grassd.firmware_proto.native_build import posix_firmware
 from grassd.firmware_proto.tables import table_from_bytes
@@ -89,8 +89,9 @@ class PosixBus:
     """
 
     def __init__(self, state_dir: str | Path, addresses: Sequence[int], *,
-                 n_pixels: int | Sequence[int] = 16, link_path: str | Path | None = None,
-                 max_chunk: int = 256, power_cut_at: int | None = None,
+                 n_pixels: int | Sequence[int] = ControllerConfig.n_pixels,
+                 link_path: str | Path | None = None,
+                 max_chunk: int = ControllerConfig.max_chunk, power_cut_at: int | None = None,
                  power_cut_keep: str = "half", baud: int | None = None) -> None:
         if not addresses:
             raise SimulatorError("a posix firmware bus needs at least one controller")
@@ -104,8 +105,7 @@ class PosixBus:
         self.power_cut_keep = power_cut_keep
         self.baud = baud
         self.controllers = [
-            NativeController(ControllerConfig(address=a, n_pixels=p, uid=0x6A5D0000 + a,
-                                              max_chunk=max_chunk), self.state_dir)
+            NativeController(simulated_config(a, n_pixels=p, max_chunk=max_chunk), self.state_dir)
             for a, p in zip(addresses, pixels, strict=True)]
         self.errors = 0  #: unexpected exits of the firmware process
         self.unplugs = 0

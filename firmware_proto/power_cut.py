@@ -19,6 +19,7 @@ import numpy as np
 
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.errors import ProtocolError
+from grassd.firmware_proto.firmware import ControllerConfig
 from grassd.firmware_proto.posix_bus import EXIT_POWER_CUT, PosixBus
 from grassd.firmware_proto.tables import table_crc
 
@@ -49,7 +50,8 @@ def _classify(table: np.ndarray | None, old: np.ndarray | None, new: np.ndarray)
 
 
 def power_cut_sweep(workdir: str | Path, old: np.ndarray | None, new: np.ndarray, *,
-                    n_pixels: int = 16, max_chunk: int = 256,
+                    n_pixels: int = ControllerConfig.n_pixels,
+                    max_chunk: int = ControllerConfig.max_chunk,
                     keeps: tuple[str, ...] = ("half",)) -> list[CutOutcome]:
     """Sweep the power cut over every storage write of pushing ``new`` (um) over ``old``
     (um, or None for a controller that never had a table), for each way the cut write can

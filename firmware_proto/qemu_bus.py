@@ -33,7 +33,7 @@ import numpy as np
 from grassd.firmware_proto.codec import Frame, encode_frame
 from grassd.firmware_proto.eeprom import BankStore
 from grassd.firmware_proto.errors import SimulatorError
-from grassd.firmware_proto.firmware import ControllerConfig
+from grassd.firmware_proto.firmware import ControllerConfig, simulated_config
 from grassd.firmware_proto.framing import FrameReader
 from grassd.firmware_proto.messages import TABLE_BYTES, Hello, TableKind
 from grassd.firmware_proto.native_build import FirmwareUnavailable, mps2_image
@@ -133,23 +133,34 @@ class _Instance:
 
     def wait_ready(self, timeout_s: float = 20.0) -> None:
         """Wait until the firmware answers a HELLO on this instance's pty: QEMU notices that
-        its pty was opened only on its next poll (up to a second), and drops bytes until then.
+        its pty was opened only on its next poll (up to a second) and reads nothing until then.
+        The HELLOs sent meanwhile then arrive at once and are all answered: those answers are
+        drained here, so that none reaches the host.
         """
-        hello = encode_frame(Frame(self.address, 0xFFFF, Hello()))
         reader = FrameReader()
         deadline = time.monotonic() + timeout_s
+        seq = 0xFF00
         while time.monotonic() < deadline:
-            os.write(self.fd, b"\x00" + hello)
-            until = time.monotonic() + 0.1
-            while (left := until - time.monotonic()) > 0:
-                if select.select([self.fd], [], [], left)[0]:
-                    try:
-                        if reader.feed(os.read(self.fd, 4096)):
-                            return
-                    except BlockingIOError:
-                        pass
+            os.write(self.fd, b"\x00" + encode_frame(Frame(self.address, seq, Hello())))
+            seq += 1
+            if self._read_until_silent(reader, first_s=0.3):
+                return
         raise SimulatorError(f"the firmware in QEMU (address {self.address}) did not answer "
                              f"within {timeout_s:g} s; see {self.log}")
+
+    def _read_until_silent(self, reader: FrameReader, first_s: float) -> bool:
+        """Read frames from the instance until it is silent for 0.2 s after the first one
+        (waiting up to ``first_s`` for that); True when any frame came."""
+        got = False
+        wait = first_s
+        while select.select([self.fd], [], [], wait)[0]:
+            try:
+                got |= bool(reader.feed(os.read(self.fd, 4096)))
+            except BlockingIOError:
+                continue
+            if got:
+                wait = 0.2
+        return got
 
     def stop(self) -> int | None:
         for close in (lambda: os.close(self.fd), self.qmp.close):
@@ -241,8 +252,9 @@ class QemuBus:
     """
 
     def __init__(self, state_dir: str | Path, addresses: Sequence[int], *,
-                 n_pixels: int | Sequence[int] = 16, link_path: str | Path | None = None,
-                 baud: int | None = None, max_chunk: int = 256,
+                 n_pixels: int | Sequence[int] = ControllerConfig.n_pixels,
+                 link_path: str | Path | None = None,
+                 baud: int | None = None, max_chunk: int = ControllerConfig.max_chunk,
                  qemu_args: Sequence[str] = ()) -> None:
         if not addresses:
             raise SimulatorError("a QEMU bus needs at least one controller")
@@ -257,8 +269,7 @@ class QemuBus:
         self.baud = baud
         self.qemu_args = tuple(qemu_args)
         self.controllers = [
-            QemuController(ControllerConfig(address=a, n_pixels=p, uid=0x6A5D0000 + a,
-                                            max_chunk=max_chunk), self)
+            QemuController(simulated_config(a, n_pixels=p, max_chunk=max_chunk), self)
             for a, p in zip(addresses, pixels, strict=True)]
         self.errors = 0
         self.unplugs = 0

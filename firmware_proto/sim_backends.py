@@ -18,13 +18,15 @@ from pathlib import Path
 from typing import Any
 
 from grassd.firmware_proto.errors import SimulatorError
+from grassd.firmware_proto.firmware import ControllerConfig, simulated_config
 
 #: Firmware backends a simulated bus can run, the first being the default.
 FIRMWARE_BACKENDS = ("model", "posix", "qemu")
 
 
 def open_bus(firmware: str, state_dir: str | Path, addresses: Sequence[int], *,
-             n_pixels: int | Sequence[int] = 16, link_path: str | Path | None = None,
+             n_pixels: int | Sequence[int] = ControllerConfig.n_pixels,
+             link_path: str | Path | None = None,
              baud: int | None = None) -> Any:
     """A bus (not yet started) of controllers at ``addresses`` running ``firmware``; their
     storage lives in ``state_dir`` (reused, so tables survive a restart). ``n_pixels``: per
@@ -32,11 +34,10 @@ def open_bus(firmware: str, state_dir: str | Path, addresses: Sequence[int], *,
     state_dir = Path(state_dir)
     pixels = [n_pixels] * len(addresses) if isinstance(n_pixels, int) else list(n_pixels)
     if firmware == "model":
-        from grassd.firmware_proto.firmware import Controller, ControllerConfig
+        from grassd.firmware_proto.firmware import Controller
         from grassd.firmware_proto.simulator import SimulatedBus
 
-        ctrls = [Controller(ControllerConfig(address=a, uid=0x6A5D0000 + a, n_pixels=p),
-                            state_dir / f"controller-{a}.eeprom")
+        ctrls = [Controller(simulated_config(a, n_pixels=p), state_dir / f"controller-{a}.eeprom")
                  for a, p in zip(addresses, pixels, strict=True)]
         return SimulatedBus(ctrls, link_path=link_path, baud=baud)
     if firmware == "posix":
@@ -53,7 +54,7 @@ def open_bus(firmware: str, state_dir: str | Path, addresses: Sequence[int], *,
 
 def start_buses(firmware: str, state_dir: str | Path, count: int, *, shared: bool = True,
                 link_dir: str | Path | None = None, baud: int | None = None,
-                n_pixels: int = 16) -> list[Any]:
+                n_pixels: int = ControllerConfig.n_pixels) -> list[Any]:
     """Start ``count`` controllers running ``firmware``: all on one bus (addresses 1..count) if
     ``shared``, else each on its own pty with address 1. Symlinks ``link_dir/bus<i>`` name the
     ports."""

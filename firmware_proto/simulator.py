@@ -25,7 +25,7 @@ from pathlib import Path
 
 from grassd.firmware_proto.errors import SimulatorError
 from grassd.firmware_proto.faults import FaultInjector
-from grassd.firmware_proto.firmware import Controller, ControllerConfig
+from grassd.firmware_proto.firmware import Controller, simulated_config
 from grassd.firmware_proto.framing import FrameReader
 
 log = logging.getLogger(__name__)
@@ -39,7 +39,7 @@ def make_controllers(state_dir: str | Path, addresses: Iterable[int],
     Existing EEPROM files are reused, so tables survive a restart of the simulator.
     """
     state_dir = Path(state_dir)
-    return [Controller(ControllerConfig(address=a, uid=0x6A5D0000 + a, **config),
+    return [Controller(simulated_config(a, **config),
                        state_dir / f"controller-{a}.eeprom") for a in addresses]
 
 
