@@ -283,8 +283,9 @@ int main(int argc, char **argv)
         else if (!strcmp(a, "--addresses")) {
             count = arg_list(a, v, FW_MIN_ADDRESS, FW_MAX_ADDRESS, addresses, FW_MAX_ADDRESS);
             explicit_addresses = 1;
-        } else if (!strcmp(a, "--pixels"))
-            n_pixel_list = arg_list(a, v, 1, FW_MAX_PIXELS, pixel_list, FW_MAX_ADDRESS);
+        } else if (!strcmp(a, "--pixels"))   /* FW_MAX_PIXELS: make POSIX_PIXELS=N to raise */
+            n_pixel_list = arg_list("--pixels (this build's FW_MAX_PIXELS; make POSIX_PIXELS=N "
+                                    "raises it)", v, 1, FW_MAX_PIXELS, pixel_list, FW_MAX_ADDRESS);
         else if (!strcmp(a, "--max-chunk"))
             max_chunk = arg_long(a, v, 1, FW_MAX_CHUNK_DATA);
         else if (!strcmp(a, "--baud"))
