@@ -57,3 +57,25 @@ def test_cortex_m7_core_fits_its_flash_and_ram_budget():
     static = int(re.search(r"static RAM \(data\+bss\) (\d+) B", text).group(1))
     ctl = int(re.search(r"one fw_controller .* (\d+) B", text).group(1))
     assert flash <= 32 * 1024 and static + ctl <= 24 * 1024, text
+
+
+def test_teensy_sketch_carries_the_tested_core(tmp_path):
+    """`make -C firmware teensy41` assembles a sketch whose core is byte for byte firmware/core
+    and compiles for the Teensy 4.1's Cortex-M7 with the sketch's own settings (8 pixels)."""
+    from grassd.firmware_proto.native_build import BUILD_DIR, FIRMWARE_DIR, build_firmware
+
+    build_firmware("teensy41", "teensy41")
+    core = BUILD_DIR / "teensy41" / "grassfw_teensy41" / "src" / "core"
+    for src in sorted((FIRMWARE_DIR / "core").glob("*.[ch]")):
+        assert (core / src.name).read_bytes() == src.read_bytes(), src.name
+    check = tmp_path / "check.c"
+    check.write_text('#include "controller.h"\n'
+                     '_Static_assert(FW_MAX_PIXELS == 8u, "the sketch sets 8 pixels");\n')
+    objs = []
+    for src in [*sorted(core.glob("*.c")), check]:
+        obj = tmp_path / (src.stem + ".o")
+        subprocess.run(["arm-none-eabi-gcc", "-std=gnu11", "-Wall", "-Wextra", "-Werror",
+                        "-mcpu=cortex-m7", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv5-d16",
+                        "-Os", "-I", str(core), "-c", str(src), "-o", str(obj)], check=True)
+        objs.append(obj)
+    assert len(objs) == len(list(core.glob("*.c"))) + 1
