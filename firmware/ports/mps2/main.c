@@ -5,7 +5,8 @@
  * - storage: a RAM array in .noinit (kept over a system reset, lost when QEMU exits);
  * - clock and motor loop: SysTick at 1 kHz; its handler runs the PD loop (fw_tick) at a higher
  *   priority than the UART, so no frame can delay it, and steps the DC-motor model of the
- *   pixels (ports/posix/dcmotor.c, on the FPU) standing in for the motors and encoders;
+ *   pixels (ports/posix/dcmotor.c, on the FPU) standing in for the motors and encoders; while
+ *   every motor rests unpowered it ticks every 50 ms instead (an idle QEMU then sleeps);
  * - configuration: a block at 0x203FFF00 that QEMU's -device loader fills (address, pixels,
  *   max_chunk, uid), defaults when absent.
  * The main loop sleeps (WFI) until an interrupt. */
@@ -71,11 +72,44 @@ void uart0_rx_handler(void)
     }
 }
 
+/* SysTick runs at 1 kHz while a motor moves and at IDLE_TICK_MS while all rest (so that an
+ * idle QEMU sleeps); period_now is the period being counted, period_next the one in RVR. */
+#define COUNTS_PER_MS (SYSCLK_HZ / 1000u)
+#define IDLE_TICK_MS 50u
+static volatile uint32_t period_now = 1, period_next = 1;
+static volatile uint8_t feeding;   /* the main loop is handling a byte: keep the 1 kHz period */
+
+static void set_period(uint32_t p)
+{
+    SYST_RVR = p * COUNTS_PER_MS - 1u;
+    period_next = p;
+}
+
+/* A byte arrived (a frame may set targets): run the motor loop at 1 kHz from now until every
+ * motor rests, accounting for the part of an idle period gone. */
+static void wake_motor_loop(void)
+{
+    __asm volatile("cpsid i");
+    moving = 1;
+    if (period_now != 1u || period_next != 1u) {
+        uint32_t left = SYST_CVR;
+        ms += (period_now * COUNTS_PER_MS - 1u - left) / COUNTS_PER_MS;
+        set_period(1);
+        SYST_CVR = 0;   /* restart the count from the new reload value */
+        period_now = 1;
+    }
+    __asm volatile("cpsie i");
+}
+
 void systick_handler(void)
 {
-    ms++;
-    if (!moving)
+    ms += period_now;
+    period_now = period_next;
+    if (!moving) {
+        if (period_next == 1u && !feeding)
+            set_period(IDLE_TICK_MS);
         return;   /* motors at rest and unpowered: nothing changes until a new target */
+    }
     fw_tick(&ctl);
     uint8_t any = 0;
     for (uint16_t p = 0; p < ctl.cfg.n_pixels; p++) {
@@ -138,7 +172,7 @@ int main(void)
     NVIC_IPR0 = 0x40;           /* UART0 RX below SysTick */
     NVIC_ISER0 = 1u;
     SHPR3 = (SHPR3 & 0x00FFFFFFu);   /* SysTick priority 0: the motor loop preempts all */
-    SYST_RVR = SYSCLK_HZ / 1000u - 1u;
+    set_period(1);
     SYST_CVR = 0;
     SYST_CSR = 7u;              /* processor clock, interrupt, enable */
     fw_stats.boots++;           /* a completed boot: the UART takes bytes from here on */
@@ -147,15 +181,17 @@ int main(void)
         while (ring_tail != ring_head) {
             uint8_t b = ring[ring_tail];
             ring_tail = (ring_tail + 1u) % sizeof ring;
+            feeding = 1;
+            wake_motor_loop();
             uint32_t ms0 = ms, t0 = SYST_CVR;
             fw_rx_feed(&ctl, &b, 1);
             uint32_t t1 = SYST_CVR, ms1 = ms;
+            feeding = 0;
             uint32_t ticks = (ms1 - ms0) * (SYST_RVR + 1u) + t0 - t1;   /* counts down */
             if (ticks > fw_stats.max_byte_ticks && ticks < 0x80000000u) {
                 fw_stats.max_byte_ticks = ticks;
                 fw_stats.max_byte_type = b == 0 ? ctl.rx.buf[2] : 0x100u;
             }
-            moving = 1;   /* a frame may have set targets: run the loop until all rest */
         }
         __asm volatile("wfi");
     }
