@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from firmware_util import firmware_params
+from firmware_tiers import firmware_params
 
 from grassd.firmware_proto import client as client_mod
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy

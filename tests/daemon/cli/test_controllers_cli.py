@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from firmware_util import firmware_params
+from firmware_tiers import firmware_params
 
 from grassd.daemon.cli.controllers import parse_addresses
 from grassd.daemon.cli.main import main

@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 import pytest
-from firmware_util import firmware_params, missing_reason
+from firmware_tiers import firmware_params, missing_reason
 
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.native_build import build_firmware

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from firmware_util import missing_reason
+from firmware_tiers import missing_reason
 
 from grassd.firmware_proto.power_cut import power_cut_sweep
 

@@ -15,7 +15,7 @@ import tty
 
 import numpy as np
 import pytest
-from firmware_util import firmware_params
+from firmware_tiers import firmware_params
 
 from grassd.firmware_proto.codec import Frame, encode_body_of, encode_frame
 from grassd.firmware_proto.crc import crc32_iso_hdlc

@@ -10,7 +10,7 @@ import sys
 
 import numpy as np
 import pytest
-from firmware_util import missing_reason
+from firmware_tiers import missing_reason
 
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.tables import table_crc
@@ -21,7 +21,7 @@ pytestmark = pytest.mark.skipif(missing_reason("qemu") is not None,
 
 def test_sim_command_joins_qemu_instances_into_one_bus(tmp_path):
     proc = subprocess.Popen(
-        [sys.executable, "-c", "from grassd.daemon.cli import main; main()", "controllers",
+        [sys.executable, "-c", "from grassd.daemon.cli.main import main; main()", "controllers",
          "sim", "--firmware", "qemu", "--count", "3", "--pixels", "16",
          "--state-dir", str(tmp_path / "sim")],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

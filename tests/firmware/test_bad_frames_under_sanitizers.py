@@ -9,7 +9,7 @@ import re
 import subprocess
 
 import pytest
-from firmware_util import missing_reason
+from firmware_tiers import missing_reason
 
 from grassd.firmware_proto.native_build import build_firmware
 

@@ -5,8 +5,8 @@ QEMU mps2-an500 instance behind the bus relay, and the table becomes active and 
 from __future__ import annotations
 
 import pytest
-from firmware_util import firmware_params
-from test_daemon_e2e import Daemon, manifest, wait_for
+from firmware_tiers import firmware_params
+from test_grassd_run_end_to_end import Daemon, manifest, wait_for
 
 
 @pytest.mark.parametrize("firmware", firmware_params("posix", "qemu"))
