@@ -33,6 +33,7 @@ from grassd.calib.characteristic import Characteristic, fit_characteristic
 from grassd.calib.colour_spaces import M_REC709_TO_XYZ
 from grassd.calib.exposure import normalise_exposure
 from grassd.calib.length_table import build_length_table
+from grassd.firmware_proto.sim_backends import FIRMWARE_BACKENDS
 
 YELLOW_SRGB8 = (200, 176, 92)
 GREEN_SRGB8 = (58, 112, 46)
@@ -92,8 +93,8 @@ def example_pixel_rgb(lengths_mm: NDArray[np.float64]) -> NDArray[np.float64]:
 @click.option("--full", is_flag=True, help="Print all 256 table entries.")
 @click.option(
     "--firmware",
-    type=click.Choice(["model", "posix", "qemu"]),
-    default="model",
+    type=click.Choice(FIRMWARE_BACKENDS),
+    default=FIRMWARE_BACKENDS[0],
     show_default=True,
     help="Simulated controllers: the Python model, or the C firmware (posix process, QEMU).",
 )

@@ -25,6 +25,7 @@ from typing import Any
 from grassd.daemon.cli.run import print_status
 from grassd.daemon.errors import ControlError, DaemonError, DaemonNotRunning
 from grassd.daemon.runtime.control import request
+from grassd.firmware_proto.sim_backends import FIRMWARE_BACKENDS
 
 
 def _grassd() -> list[str]:
@@ -34,7 +35,7 @@ def _grassd() -> list[str]:
 
 def run_demo(workdir: str | os.PathLike[str] | None = None, *, lux: float = 5000.0,
              timeout_s: float = 600.0, echo: Callable[[str], Any] = print,
-             firmware: str = "model") -> dict[str, Any]:
+             firmware: str = FIRMWARE_BACKENDS[0]) -> dict[str, Any]:
     """Run the demo in ``workdir`` (default: a new temporary directory, kept) with the simulated
     controllers running ``firmware`` (model, posix or qemu); returns the daemon's final status.
     Raises :class:`DaemonError` if the daemon fails or times out."""

@@ -14,6 +14,7 @@ from grassd.daemon.config.settings import (
     load_default_config,
     not_used_by_the_daemon,
 )
+from grassd.firmware_proto.sim_backends import FIRMWARE_BACKENDS
 
 _CONFIG_HELP = (f"configuration file (default {DEFAULT_CONFIG_PATH}; "
                 "the embedded default when that is absent)")
@@ -67,7 +68,7 @@ def _setup_logging(level: str) -> None:
     logging.basicConfig(level=getattr(logging, level.upper()), format=fmt)
 
 
-def _simulated(cfg: Config, lux: float, firmware: str = "model"):
+def _simulated(cfg: Config, lux: float, firmware: str = FIRMWARE_BACKENDS[0]):
     """Start simulated controllers running ``firmware`` (model, posix or qemu) + lux sensor;
     returns (hardware, new cfg, transform)."""
     import dataclasses
@@ -97,8 +98,8 @@ def _simulated(cfg: Config, lux: float, firmware: str = "model"):
                    "127.0.0.1 (no hardware needed)")
 @click.option("--sim-lux", type=float, default=5000.0, show_default=True,
               help="illuminance (lux) the simulated lux sensor reports")
-@click.option("--sim-firmware", type=click.Choice(["model", "posix", "qemu"]), default="model",
-              show_default=True,
+@click.option("--sim-firmware", type=click.Choice(FIRMWARE_BACKENDS),
+              default=FIRMWARE_BACKENDS[0], show_default=True,
               help="with --simulate-hardware: the controllers are the Python model, the C "
                    "firmware as a Linux process (posix), or its Cortex-M7 image under QEMU")
 @click.option("--tick", "tick_s", type=float, default=1.0, show_default=True,
