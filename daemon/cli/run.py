@@ -70,10 +70,13 @@ def _setup_logging(level: str) -> None:
 
 def _simulated(cfg: Config, lux: float, firmware: str = FIRMWARE_BACKENDS[0]):
     """Start simulated controllers running ``firmware`` (model, posix or qemu) + lux sensor;
-    returns (hardware, new cfg, transform)."""
+    returns (hardware, new cfg, transform). Metrics then always go to the state directory
+    (never to a real node_exporter's)."""
     import dataclasses
 
+    from grassd.daemon.config.settings import MetricsConfig
     from grassd.daemon.hardware.simulated import SimulatedHardware
+    from grassd.daemon.metrics import state_dir_textfile
 
     hw = SimulatedHardware(cfg, cfg.state_dir / "simhw", lux=lux, firmware=firmware)
     new = hw.start()
@@ -84,9 +87,10 @@ def _simulated(cfg: Config, lux: float, firmware: str = FIRMWARE_BACKENDS[0]):
         light = c.light
         if light.modbus is not None and hw.sensor is not None:
             light = dataclasses.replace(light, modbus=hw.sensor.config)
-        return dataclasses.replace(c, controllers=ctrls, light=light)
+        return dataclasses.replace(c, controllers=ctrls, light=light,
+                                   metrics=MetricsConfig(state_dir_textfile(c.state_dir)))
 
-    return hw, new, transform
+    return hw, transform(new), transform
 
 
 @click.command("run")

@@ -27,6 +27,8 @@ The file (default ``/etc/grassd/grassd.toml``; the embedded default is
     [audience]     optional region: polygon = [[x, y], ...] (m), h_cm = [low, high],
                    ground_samples, height_samples, objective = "mean" | "worst"; when set,
                    the daemon's table(s) come from the region instead of [[viewpoints]]
+    [metrics]      textfile (see MetricsConfig): node_exporter textfile of Prometheus metrics
+    [alerts]       command, min_interval_s, timeout_s (see AlertsConfig): run on health changes
 
 Relative paths are resolved against the directory of the config file, except ``light.inbox``
 which, when relative, lies inside ``state_dir``.
@@ -52,6 +54,7 @@ import dataclasses
 import math
 import os
 import re
+import shlex
 import tomllib
 import types
 from collections.abc import Callable, Mapping
@@ -298,6 +301,29 @@ class AudienceConfig:
 
 
 @dataclass(frozen=True)
+class MetricsConfig:
+    """Prometheus metrics (:mod:`grassd.daemon.metrics`): ``textfile`` is the file written for
+    node_exporter's textfile collector after every run and reconcile; None: the default
+    (:func:`grassd.daemon.metrics.textfile_path`: Debian's node-exporter directory when it
+    exists, else ``state_dir/metrics/grassd.prom``)."""
+
+    textfile: Path | None = None
+
+
+@dataclass(frozen=True)
+class AlertsConfig:
+    """Alerts without Prometheus (:mod:`grassd.daemon.alerts`): ``command`` (split like a shell
+    line, run without a shell; None: no alerts) runs when health changes between ok, degraded
+    and failed, with a JSON description of the change on its standard input; at most one run
+    per ``min_interval_s`` seconds (changes meanwhile are summed up in the next); a run still
+    going after ``timeout_s`` seconds is killed."""
+
+    command: str | None = None
+    min_interval_s: float = 300.0
+    timeout_s: float = 60.0
+
+
+@dataclass(frozen=True)
 class Config:
     """The whole validated configuration. ``source`` is the file it came from."""
 
@@ -316,6 +342,8 @@ class Config:
     tables: TablesConfig = TablesConfig()
     audience: AudienceConfig | None = None
     retention: RetentionConfig = RetentionConfig()
+    metrics: MetricsConfig = MetricsConfig()
+    alerts: AlertsConfig = AlertsConfig()
 
     @property
     def serial_ports(self) -> list[str]:
@@ -624,6 +652,7 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         "viewpoints": _F(list), "light": _F(dict), "schedule": _F(dict, {}),
         "simulation": _F(dict, {}), "calibration": _F(dict, {}),
         "tables": _F(dict, {}), "audience": _F(dict, None), "retention": _F(dict, {}),
+        "metrics": _F(dict, {}), "alerts": _F(dict, {}),
     })
 
     s = _table(ctx, ("site",), top["site"], {
@@ -785,6 +814,7 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
     })
     calibration = CalibrationConfig(**ca)
     tables, audience = _parse_tables_audience(ctx, top["tables"], top["audience"])
+    metrics, alerts = _parse_operator(ctx, top["metrics"], top["alerts"])
 
     env = os.environ
     if top["state_dir"] is not None:
@@ -821,7 +851,31 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
                   simulation=simulation, calibration=calibration, state_dir=state_dir,
                   cache_dir=cache_dir,
                   control_socket=sock, source=ctx.source, tables=tables, audience=audience,
-                  retention=retention)
+                  retention=retention, metrics=metrics, alerts=alerts)
+
+
+def _parse_operator(ctx: _Ctx, metrics_raw: Any, alerts_raw: Any
+                    ) -> tuple[MetricsConfig, AlertsConfig]:
+    """``[metrics]`` and ``[alerts]`` (see their dataclasses)."""
+    m = _table(ctx, ("metrics",), metrics_raw, {"textfile": _F(str, None, _non_empty)})
+    textfile = None if m["textfile"] is None else _resolve(ctx, m["textfile"])
+    if textfile is not None and textfile.suffix != ".prom":
+        raise ctx.error(("metrics", "textfile"), "must end in .prom (node_exporter's textfile "
+                        f"collector reads only *.prom files), got {textfile.name!r}")
+    a = _table(ctx, ("alerts",), alerts_raw, {
+        "command": _F(str, AlertsConfig.command, _shell_words),
+        "min_interval_s": _F(float, AlertsConfig.min_interval_s, _non_negative),
+        "timeout_s": _F(float, AlertsConfig.timeout_s, _positive),
+    })
+    return MetricsConfig(textfile=textfile), AlertsConfig(**a)
+
+
+def _shell_words(v: str) -> str | None:
+    try:
+        words = shlex.split(v)
+    except ValueError as exc:
+        return f"cannot be split into words like a shell line: {exc}"
+    return None if words else "must name a program"
 
 
 def _parse_tables_audience(ctx: _Ctx, tables_raw: Any, audience_raw: Any

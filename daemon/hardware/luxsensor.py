@@ -84,6 +84,10 @@ class LuxSensor:
     def __init__(self, cfg: ModbusConfig) -> None:
         self.cfg = cfg
         self._client: ModbusTcpClient | ModbusSerialClient | None = None
+        #: outcome of the last :meth:`read_lux` (None: none yet) and when the sensor last gave
+        #: a reading (epoch s), for the operator's metrics
+        self.last_ok: bool | None = None
+        self.last_success_at: float | None = None
 
     @property
     def endpoint(self) -> str:
@@ -149,6 +153,7 @@ class LuxSensor:
     def read_lux(self) -> float:
         """Read the illuminance in lux (retrying ``cfg.retries`` times with 0.1-0.8 s backoff)."""
         last: LuxSensorError | None = None
+        self.last_ok = False
         for attempt in range(self.cfg.retries + 1):
             if attempt:
                 time.sleep(min(0.1 * 2 ** (attempt - 1), 0.8))
@@ -163,6 +168,7 @@ class LuxSensor:
                 raise LuxSensorError(f"lux sensor at {self.endpoint} reads {lux:g} lux, which is "
                                      "not a usable illuminance: check scale, offset, value_type "
                                      "and word_order")
+            self.last_ok, self.last_success_at = True, time.time()
             return lux
         assert last is not None
         n = self.cfg.retries + 1

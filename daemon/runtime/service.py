@@ -74,6 +74,8 @@ from grassd.daemon.errors import (
 )
 from grassd.daemon.hardware.fleet import Fleet, table_checksum
 from grassd.daemon.hardware.luxsensor import LuxSensor
+from grassd.daemon.metrics import run_r2
+from grassd.daemon.operator_view import OperatorView
 from grassd.daemon.runtime.control import ControlServer
 from grassd.daemon.runtime.notify import Notifier
 from grassd.daemon.runtime.retention import prune
@@ -227,6 +229,7 @@ class Service:
         self.lock = StateLock(cfg.state_dir).acquire()
         try:
             self.history = History(cfg.state_dir / STATE_DB)
+            self.operator = OperatorView(self)  # metrics, alerts, status page
             self._build(cfg)
         except BaseException:
             self.lock.release()
@@ -251,6 +254,7 @@ class Service:
         self.calibrator = Calibrator(cfg)
         self.reports_dir = cfg.state_dir / "reports"
         self.reports_dir.mkdir(parents=True, exist_ok=True)
+        self.operator.configure(cfg)
 
     def _progress(self, text: str) -> None:
         self.activity = text
@@ -411,6 +415,7 @@ class Service:
         self.fleet.close()
         if self.sensor is not None:
             self.sensor.close()
+        self.operator.close()
         self.history.close()
         self.notifier.close()
         self.lock.release()
@@ -521,6 +526,7 @@ class Service:
             out = self._defer(b, self._survived(exc, f"bundle {b.name}", os_action(exc)),
                               error=True)
         self.prune()
+        self.operator.after_run(out)
         return out
 
     def _defer(self, b: Bundle, reason: str, limit_s: float | None = None,
@@ -687,6 +693,7 @@ class Service:
         out = self._scheduled_run(trigger, force)
         if out["status"] != "skipped":
             self.prune()
+            self.operator.after_run(out)
         return out
 
     def _scheduled_run(self, trigger: str, force: bool) -> dict[str, Any]:
@@ -827,7 +834,13 @@ class Service:
 
     def reconcile(self) -> list:
         """Push the current table to every controller that does not report it (its own table
-        when the run has one per controller; the run's table to any it has none for)."""
+        when the run has one per controller; the run's table to any it has none for); then
+        update the operator's metrics and alerts."""
+        reports = self._reconcile()
+        self.operator.after_reconcile(reports)
+        return reports
+
+    def _reconcile(self) -> list:
         self._last_reconcile = time.monotonic()
         cur = self.history.current_table()
         if cur is None:
@@ -962,7 +975,7 @@ def collect_status(history: History, cfg: Config, runs: int = 5) -> dict[str, An
 
 def _run_summary(r) -> dict[str, Any]:
     m = r.metrics or {}
-    r2 = m.get("r2_after_fit") if m.get("check") == "fit" else m.get("r2_closed_loop")
+    r2 = run_r2(m)
     return {"id": r.id, "trigger": r.trigger, "status": r.status, "started_at": r.started_at,
             "finished_at": r.finished_at, "lux": r.lux, "lux_source": r.lux_source,
             "error": r.error, "r2": r2, "max_dev_de00": m.get("max_dev_de00"),

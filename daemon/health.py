@@ -1,0 +1,70 @@
+"""The daemon's health as one of three levels, for alerts, metrics and the status page.
+
+:func:`assess` reads a status (what :meth:`grassd.daemon.service.Service.status` or
+:func:`grassd.daemon.service.collect_status` returns) and answers
+
+- ``ok``: a table is active and every controller reports it, nothing waits on an error;
+- ``degraded``: the display works but something needs a look: some controllers do not hold
+  the active table, there is no table yet, a main-loop pass survived an error (full disk,
+  database), a reload was refused, or a bundle waits for the lux sensor;
+- ``failed``: the display is not calibrated: no controller holds the active table, or no table
+  exists although runs were tried (every one failed or was rejected).
+
+Each level comes with the reasons, one line each, naming what to look at.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+#: The levels, best first; a level's index is its severity (the ``grassd_health`` metric).
+LEVELS = ("ok", "degraded", "failed")
+
+
+@dataclass(frozen=True)
+class Health:
+    """A health ``level`` (one of :data:`LEVELS`) and the ``reasons`` for it (empty for ok)."""
+
+    level: str
+    reasons: tuple[str, ...] = ()
+
+    @property
+    def severity(self) -> int:
+        """0 ok, 1 degraded, 2 failed."""
+        return LEVELS.index(self.level)
+
+
+def assess(status: Mapping[str, Any]) -> Health:
+    """The health level of ``status`` (see the module docstring) with its reasons."""
+    failed: list[str] = []
+    degraded: list[str] = []
+    desired = status.get("desired_table")
+    controllers = status.get("controllers") or []
+    if desired is None:
+        counts = status.get("run_counts") or {}
+        tried = counts.get("failed", 0) + counts.get("rejected", 0)
+        if tried and not counts.get("ok", 0):
+            failed.append(f"no table: all {tried} run(s) so far failed or were rejected")
+        else:
+            degraded.append("no table yet")
+    else:
+        bad = [c for c in controllers if not c.get("in_sync")]
+        for c in bad:
+            what = "unreachable" if not c.get("reachable") else "out of sync"
+            err = f": {c['error']}" if c.get("error") else ""
+            (failed if len(bad) == len(controllers) else degraded).append(
+                f"controller {c['name']} {what} (table {c.get('table_id')}, not "
+                f"{desired['table_id']}){err}")
+    if status.get("last_error"):
+        degraded.append(f"error: {status['last_error']}")
+    if status.get("reload_error"):
+        degraded.append(f"reload refused: {status['reload_error']}")
+    for w in status.get("waiting_bundles") or []:
+        degraded.append(f"bundle {w['bundle']} waits: {w['reason']}")
+    if failed:
+        return Health("failed", tuple(failed + degraded))
+    if degraded:
+        return Health("degraded", tuple(degraded))
+    return Health("ok")

@@ -1,0 +1,209 @@
+"""Prometheus metrics of the daemon as a file for node_exporter's textfile collector.
+
+The daemon opens no network port: after every run and every reconcile it writes the
+exposition (``prometheus_client``'s text format, built by its registry, never by hand)
+atomically (temporary file, fsync, rename; the temporary name does not end in ``.prom``, so
+the collector never reads half a file) to ``[metrics] textfile``, by default Debian's
+``/var/lib/prometheus/node-exporter/grassd.prom`` when that directory exists (package
+prometheus-node-exporter), else ``<state_dir>/metrics/grassd.prom``; always the latter with
+``--simulate-hardware``.
+
+Metrics (units in the names: seconds, lux, dE00 = CIEDE2000 units):
+
+======================================================  ======================================
+``grassd_up``                                           1 (the file was written by a live run)
+``grassd_health``                                       0 ok, 1 degraded, 2 failed
+                                                        (:mod:`grassd.daemon.health`)
+``grassd_last_success_timestamp_seconds``               end of the last successful run
+``grassd_last_success_duration_seconds``                its duration
+``grassd_table_id``                                     the active table's id
+``grassd_table_ogcd_range_de00``                        OGCD range of the active table
+``grassd_table_r2``                                     R^2 of OGCD vs level (closed loop)
+``grassd_table_max_deviation_de00``                     largest deviation from the target
+``grassd_lux{source}``                                  the latest lux reading of a run and
+                                                        where it came from (manifest, modbus)
+``grassd_lux_sensor_up``                                1/0: the last read of the Modbus lux
+                                                        sensor succeeded (absent: none read)
+``grassd_lux_sensor_last_success_timestamp_seconds``    when it last answered
+``grassd_bundles{outcome}``                             kept bundles per outcome
+                                                        (:mod:`grassd.daemon.outcomes`)
+``grassd_bundle_queue{queue}``                          bundles in inbox/ and processing/
+``grassd_controller_reachable{controller}``             1/0
+``grassd_controller_in_sync{controller}``               1/0: it reports its desired table
+``grassd_controller_push_failures_total{controller}``   failed pushes since the daemon started
+``grassd_controller_last_seen_timestamp_seconds``       when it last answered
+``grassd_capture_last_success_timestamp_seconds``       the capture station's last capture
+                                                        (only with a capture provider)
+======================================================  ======================================
+
+Example alert rules: ``systemd/grassd-alerts.rules.yml``.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from prometheus_client import CollectorRegistry, generate_latest
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
+from prometheus_client.registry import Collector
+
+from grassd.daemon.health import Health
+from grassd.daemon.outcomes import count_outcomes
+from grassd.daemon.store.atomic import atomic_write_bytes
+from grassd.daemon.store.history import History, RunRecord
+
+log = logging.getLogger(__name__)
+
+#: Debian's directory for node_exporter's textfile collector (package prometheus-node-exporter)
+DEBIAN_TEXTFILE_DIR = Path("/var/lib/prometheus/node-exporter")
+TEXTFILE_NAME = "grassd.prom"
+
+
+def state_dir_textfile(state_dir: Path) -> Path:
+    """The textfile inside the state directory: ``state_dir/metrics/grassd.prom``."""
+    return Path(state_dir) / "metrics" / TEXTFILE_NAME
+
+
+def textfile_path(configured: Path | None, state_dir: Path,
+                  debian_dir: Path = DEBIAN_TEXTFILE_DIR) -> Path:
+    """Where the metrics go: ``configured`` (``[metrics] textfile``) when set, else
+    ``debian_dir/grassd.prom`` when that directory exists, else :func:`state_dir_textfile`."""
+    if configured is not None:
+        return Path(configured)
+    if debian_dir.is_dir():
+        return debian_dir / TEXTFILE_NAME
+    return state_dir_textfile(state_dir)
+
+
+@dataclass(frozen=True)
+class SensorState:
+    """The Modbus lux sensor as the daemon last saw it: ``up`` True/False after a read (None:
+    not read since start), ``last_success_at`` epoch s of the last good reading."""
+
+    up: bool | None
+    last_success_at: float | None
+
+
+def run_r2(metrics: Mapping[str, Any]) -> float | None:
+    """R^2 of OGCD vs level of a run's metrics: the closed loop's, else the fit's."""
+    r2 = metrics.get("r2_closed_loop")
+    return metrics.get("r2_after_fit") if r2 is None else r2
+
+
+class _Snapshot(Collector):
+    """One scrape's worth of metrics, built from the values given (see :func:`registry`)."""
+
+    def __init__(self, status: Mapping[str, Any], health: Health, history: History,
+                 push_failures: Mapping[str, int], sensor: SensorState | None,
+                 capture_at: float | None) -> None:
+        self.status, self.health, self.history = status, health, history
+        self.push_failures, self.sensor, self.capture_at = push_failures, sensor, capture_at
+
+    def collect(self) -> Iterator[Metric]:
+        st, h = self.status, self.history
+
+        def gauge(name: str, doc: str, value: float | None = None,
+                  labels: tuple[str, ...] = ()) -> GaugeMetricFamily:
+            g = GaugeMetricFamily(name, doc, labels=list(labels) or None)
+            if value is not None:
+                g.add_metric([], float(value))
+            return g
+
+        yield gauge("grassd_up", "1 while the daemon writes this file", 1)
+        yield gauge("grassd_health", "Health: 0 ok, 1 degraded, 2 failed", self.health.severity)
+        cur = h.current_table()
+        yield from self._table(cur, gauge)
+        lux_run = next((r for r in h.runs(50) if r.lux is not None), None)
+        g = gauge("grassd_lux", "Latest ambient illuminance of a run (lux), by source",
+                  labels=("source",))
+        if lux_run is not None:
+            g.add_metric([lux_run.lux_source or "unknown"], lux_run.lux)
+        yield g
+        if self.sensor is not None:
+            if self.sensor.up is not None:
+                yield gauge("grassd_lux_sensor_up",
+                            "1 when the last read of the Modbus lux sensor succeeded",
+                            int(self.sensor.up))
+            if self.sensor.last_success_at is not None:
+                yield gauge("grassd_lux_sensor_last_success_timestamp_seconds",
+                            "When the Modbus lux sensor last gave a reading (epoch s)",
+                            self.sensor.last_success_at)
+        g = gauge("grassd_bundles", "Bundles kept in the ingest journal, by outcome",
+                  labels=("outcome",))
+        for outcome, n in count_outcomes(h.journal()).items():
+            g.add_metric([outcome], n)
+        yield g
+        g = gauge("grassd_bundle_queue", "Bundles waiting in inbox/ and processing/",
+                  labels=("queue",))
+        counts = st.get("inbox") or {}
+        for q in ("inbox", "processing"):
+            g.add_metric([q], counts.get(q, 0))
+        yield g
+        yield from self._controllers(st.get("controllers") or [])
+        if self.capture_at is not None:
+            yield gauge("grassd_capture_last_success_timestamp_seconds",
+                        "When the capture station last delivered a bundle (epoch s)",
+                        self.capture_at)
+
+    def _table(self, cur: RunRecord | None, gauge) -> Iterator[Metric]:
+        if cur is None or cur.finished_at is None:
+            return
+        m = cur.metrics
+        yield gauge("grassd_last_success_timestamp_seconds",
+                    "End of the last successful calibration run (epoch s)", cur.finished_at)
+        yield gauge("grassd_last_success_duration_seconds",
+                    "Duration of the last successful calibration run (s)",
+                    cur.finished_at - cur.started_at)
+        yield gauge("grassd_table_id", "Id of the active table", cur.table_id)
+        for name, doc, v in (
+                ("grassd_table_ogcd_range_de00", "OGCD range of the active table (dE00)",
+                 m.get("ogcd_range_de00")),
+                ("grassd_table_r2", "R^2 of OGCD vs level of the active table", run_r2(m)),
+                ("grassd_table_max_deviation_de00",
+                 "Largest OGCD deviation from the target of the active table (dE00)",
+                 m.get("max_dev_de00"))):
+            if v is not None:
+                yield gauge(name, doc, v)
+
+    def _controllers(self, controllers: list[Mapping[str, Any]]) -> Iterator[Metric]:
+        lab = ["controller"]
+        reach = GaugeMetricFamily("grassd_controller_reachable",
+                                  "1 when the controller answered its last status read",
+                                  labels=lab)
+        sync = GaugeMetricFamily("grassd_controller_in_sync",
+                                 "1 when the controller reports its desired table", labels=lab)
+        fails = CounterMetricFamily("grassd_controller_push_failures",
+                                    "Failed pushes to the controller since the daemon started",
+                                    labels=lab)
+        seen = GaugeMetricFamily("grassd_controller_last_seen_timestamp_seconds",
+                                 "When the controller last answered (epoch s)", labels=lab)
+        for c in controllers:
+            name = [c["name"]]
+            reach.add_metric(name, int(bool(c.get("reachable"))))
+            sync.add_metric(name, int(bool(c.get("in_sync"))))
+            fails.add_metric(name, self.push_failures.get(c["name"], 0))
+            if c.get("last_seen") is not None:
+                seen.add_metric(name, c["last_seen"])
+        yield from (reach, sync, fails, seen)
+
+
+def registry(status: Mapping[str, Any], health: Health, history: History, *,
+             push_failures: Mapping[str, int] | None = None, sensor: SensorState | None = None,
+             capture_at: float | None = None) -> CollectorRegistry:
+    """A registry holding the metrics of ``status`` (a daemon status), ``health`` and
+    ``history``; ``push_failures``: failed pushes per controller name since start; ``sensor``:
+    the lux sensor's state (None: no sensor configured); ``capture_at``: the capture station's
+    last capture (epoch s; None: no capture station)."""
+    reg = CollectorRegistry(auto_describe=True)
+    reg.register(_Snapshot(status, health, history, push_failures or {}, sensor, capture_at))
+    return reg
+
+
+def write_textfile(path: str | os.PathLike[str], reg: CollectorRegistry) -> Path:
+    """Write ``reg``'s exposition to ``path`` atomically (the directory is created)."""
+    return atomic_write_bytes(path, generate_latest(reg))

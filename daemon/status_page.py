@@ -1,0 +1,258 @@
+"""The status page: one static, self-contained ``reports/index.html`` for the operator.
+
+Regenerated atomically after every run (and when the health or a controller's state changes)
+by the daemon; no server: any web server, or a file browser, shows it. It holds the health
+with its reasons, the active table with its plot (the run's PNG embedded as a data URI),
+every controller's state, the last runs, trends over the kept history (OGCD range, lux and
+R^2 against time, as inline SVG) and the rejected and quarantined bundles with their
+reasons. No script, no external resource; the layout adapts to a phone's width (viewport
+meta, tables scroll sideways, plots scale).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import os
+from collections.abc import Mapping, Sequence
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+from zoneinfo import ZoneInfo
+
+import numpy as np
+
+from grassd import __version__
+from grassd.daemon.health import Health
+from grassd.daemon.metrics import run_r2
+from grassd.daemon.outcomes import refused
+from grassd.daemon.store.atomic import atomic_write_text
+from grassd.daemon.store.history import History, RunRecord
+
+PAGE_NAME = "index.html"
+#: runs shown in "last runs" and kept runs plotted in the trends (newest)
+LAST_RUNS = 15
+TREND_RUNS = 2000
+
+_CSS = """
+:root { --ok: #1b7f3b; --degraded: #b36b00; --failed: #b3261e; }
+* { box-sizing: border-box; }
+body { font-family: system-ui, sans-serif; margin: 0 auto; max-width: 1100px; padding: 0 12px;
+       color: #1d1d1d; background: #fafafa; line-height: 1.4; }
+header.health { color: #fff; padding: 12px 16px; margin: 12px 0; border-radius: 6px; }
+header.ok { background: var(--ok); } header.degraded { background: var(--degraded); }
+header.failed { background: var(--failed); }
+header h1 { margin: 0; font-size: 1.5em; } header ul { margin: 6px 0 0; padding-left: 20px; }
+p.meta { color: #555; font-size: 0.85em; margin: 4px 0; }
+h2 { font-size: 1.15em; margin: 1.4em 0 0.4em; border-bottom: 1px solid #ccc; }
+.scroll { overflow-x: auto; -webkit-overflow-scrolling: touch; }
+table { border-collapse: collapse; font-size: 0.9em; min-width: 100%; }
+th, td { border: 1px solid #ccc; padding: 4px 8px; text-align: left; vertical-align: top; }
+th { background: #eee; } td.n { text-align: right; font-variant-numeric: tabular-nums; }
+td.ok { color: var(--ok); } td.bad { color: var(--failed); font-weight: 600; }
+dl { display: grid; grid-template-columns: max-content 1fr; gap: 2px 12px; margin: 0; }
+dt { color: #555; } dd { margin: 0; }
+img, svg { max-width: 100%; height: auto; display: block; }
+.trends { display: grid; grid-template-columns: repeat(auto-fit, minmax(300px, 1fr));
+          gap: 12px; }
+figure { margin: 0; background: #fff; border: 1px solid #ddd; border-radius: 4px; padding: 6px; }
+figcaption { font-size: 0.9em; color: #333; }
+.reason { white-space: pre-wrap; word-break: break-word; }
+@media (max-width: 600px) { body { padding: 0 6px; } table { font-size: 0.8em; } }
+"""
+
+
+def _esc(v: Any) -> str:
+    return html.escape("-" if v is None else str(v))
+
+
+def _num(v: float | None, fmt: str) -> str:
+    return "-" if v is None else format(v, fmt)
+
+
+class _Clock:
+    """Epoch seconds -> local time of the site."""
+
+    def __init__(self, tz: str) -> None:
+        self.tz = ZoneInfo(tz)
+
+    def __call__(self, t: float | None) -> str:
+        if t is None:
+            return "-"
+        return datetime.fromtimestamp(t, self.tz).strftime("%Y-%m-%d %H:%M:%S")
+
+
+def _table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """An HTML table of cells already escaped (each ``<td>`` markup given whole)."""
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in headers)
+    body = "".join("<tr>" + "".join(r) + "</tr>" for r in rows)
+    return f'<div class="scroll"><table><thead><tr>{head}</tr></thead><tbody>{body}</tbody>' \
+           f"</table></div>"
+
+
+def _td(v: Any, cls: str = "") -> str:
+    return f'<td class="{cls}">{_esc(v)}</td>' if cls else f"<td>{_esc(v)}</td>"
+
+
+def svg_trend(times_s: np.ndarray, values: np.ndarray, label: str, clock: _Clock,
+              colour: str = "#1b6fb3", width: int = 480, height: int = 200) -> str:
+    """An inline SVG line plot of ``values`` against ``times_s`` (epoch seconds), with the
+    value range and the first and last time as axis labels; "no data" when empty."""
+    ok = np.isfinite(values)
+    t, v = np.asarray(times_s, float)[ok], np.asarray(values, float)[ok]
+    pad_l, pad_r, pad_t, pad_b = 56, 10, 10, 36
+    w, h = width - pad_l - pad_r, height - pad_t - pad_b
+    parts = [f'<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 {width} {height}" '
+             f'width="{width}" height="{height}" role="img" aria-label="{html.escape(label)}">',
+             f'<rect x="{pad_l}" y="{pad_t}" width="{w}" height="{h}" fill="#fff" '
+             'stroke="#999"/>']
+    if t.size == 0:
+        parts.append(f'<text x="{pad_l + w / 2}" y="{pad_t + h / 2}" text-anchor="middle" '
+                     'font-size="14" fill="#777">no data yet</text></svg>')
+        return "".join(parts)
+    t0, t1 = float(t.min()), float(t.max())
+    lo, hi = float(v.min()), float(v.max())
+    if hi - lo < 1e-12 * max(1.0, abs(hi)):
+        lo, hi = lo - max(abs(lo) * 0.01, 1e-6), hi + max(abs(hi) * 0.01, 1e-6)
+    span_t = t1 - t0 if t1 > t0 else 1.0
+    x = pad_l + (t - t0) / span_t * w if t1 > t0 else np.full(t.size, pad_l + w / 2)
+    y = pad_t + (hi - v) / (hi - lo) * h
+    for frac in (0.0, 0.5, 1.0):  # horizontal grid lines with their values
+        yy = pad_t + frac * h
+        val = hi - frac * (hi - lo)
+        parts.append(f'<line x1="{pad_l}" x2="{pad_l + w}" y1="{yy:.1f}" y2="{yy:.1f}" '
+                     'stroke="#e3e3e3"/>')
+        parts.append(f'<text x="{pad_l - 4}" y="{yy + 4:.1f}" text-anchor="end" '
+                     f'font-size="11" fill="#333">{val:.4g}</text>')
+    pts = " ".join(f"{a:.1f},{b:.1f}" for a, b in zip(x, y, strict=True))
+    parts.append(f'<polyline points="{pts}" fill="none" stroke="{colour}" stroke-width="1.8"/>')
+    if t.size <= 200:
+        parts.extend(f'<circle cx="{a:.1f}" cy="{b:.1f}" r="2.6" fill="{colour}"/>'
+                     for a, b in zip(x, y, strict=True))
+    for tt, anchor, xx in ((t0, "start", pad_l), (t1, "end", pad_l + w)):
+        parts.append(f'<text x="{xx}" y="{height - 20}" text-anchor="{anchor}" font-size="11" '
+                     f'fill="#333">{html.escape(clock(tt))}</text>')
+    parts.append(f'<text x="{pad_l + w / 2}" y="{height - 4}" text-anchor="middle" '
+                 f'font-size="11" fill="#555">{t.size} run(s)</text></svg>')
+    return "".join(parts)
+
+
+def _embedded_png(path: str | None) -> str:
+    if not path:
+        return '<p class="meta">no plot kept for this run</p>'
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        return f'<p class="meta">plot {html.escape(path)} unreadable: ' \
+               f"{html.escape(exc.strerror or str(exc))}</p>"
+    uri = base64.b64encode(data).decode("ascii")
+    return (f'<img src="data:image/png;base64,{uri}" alt="characteristic and table of the '
+            'active run">')
+
+
+def _active_table(cur: RunRecord | None, clock: _Clock) -> str:
+    if cur is None:
+        return "<p>No table yet: the first successful run makes one.</p>"
+    m = cur.metrics
+    items = [("table", f"{cur.table_id} (crc {cur.table_crc:#010x})"),
+             ("made by run", f"{cur.id} ({cur.trigger}) at {clock(cur.finished_at)}"),
+             ("light captured", clock(cur.light_at)),
+             ("lux", f"{_num(cur.lux, '.0f')} ({cur.lux_source or '-'})"),
+             ("R\u00b2 (OGCD vs level)", _num(run_r2(m), ".5f")),
+             ("max deviation", f"{_num(m.get('max_dev_de00'), '.3f')} dE00"),
+             ("OGCD range", f"{_num(m.get('ogcd_range_de00'), '.2f')} dE00")]
+    if m.get("granularity"):
+        items.append(("tables", f"{m.get('tables')} {m['granularity']} table(s)"))
+    dl = "".join(f"<dt>{html.escape(k)}</dt><dd>{_esc(v)}</dd>" for k, v in items)
+    return f"<dl>{dl}</dl>{_embedded_png(cur.plot_path)}"
+
+
+def _controllers(controllers: Sequence[Mapping[str, Any]],
+                 push_failures: Mapping[str, int], clock: _Clock) -> str:
+    rows = []
+    for c in controllers:
+        state = "in sync" if c["in_sync"] else ("unreachable" if not c["reachable"]
+                                                 else "out of sync")
+        rows.append([_td(c["name"]), _td(state, "ok" if c["in_sync"] else "bad"),
+                     _td(c.get("table_id"), "n"), _td(clock(c.get("last_seen"))),
+                     _td(push_failures.get(c["name"], 0), "n"),
+                     f'<td class="reason">{_esc(None if c["in_sync"] else c.get("error"))}</td>'])
+    return _table(["controller", "state", "table", "last seen", "push failures", "error"], rows)
+
+
+def _runs(runs: Sequence[RunRecord], clock: _Clock) -> str:
+    rows = []
+    for r in runs:
+        cls = "ok" if r.status == "ok" else ("bad" if r.status == "failed" else "")
+        rows.append([_td(r.id, "n"), _td(clock(r.started_at)), _td(r.trigger),
+                     _td(r.status, cls),
+                     _td(None if r.lux is None else f"{r.lux:.0f} ({r.lux_source})", "n"),
+                     _td(_num(run_r2(r.metrics), ".5f"), "n"),
+                     _td(_num(r.metrics.get("max_dev_de00"), ".3f"), "n"),
+                     _td(None if r.finished_at is None
+                         else f"{r.finished_at - r.started_at:.1f}", "n"),
+                     f'<td class="reason">{_esc(r.error)}</td>'])
+    return _table(["run", "started", "trigger", "status", "lux", "R\u00b2", "max dev (dE00)",
+                   "seconds", "error"], rows)
+
+
+def _trends(history: History, clock: _Clock) -> str:
+    ok = [r for r in history.runs(TREND_RUNS) if r.status == "ok" and r.finished_at]
+    ok.reverse()
+    t = np.array([r.finished_at for r in ok], float)
+
+    def series(f) -> np.ndarray:
+        return np.array([np.nan if (x := f(r)) is None else float(x) for r in ok], float)
+
+    figs = [("OGCD range (dE00)", series(lambda r: r.metrics.get("ogcd_range_de00")),
+             "#1b7f3b"),
+            ("ambient illuminance (lux)", series(lambda r: r.lux), "#b36b00"),
+            ("R\u00b2 of OGCD vs level", series(lambda r: run_r2(r.metrics)), "#1b6fb3")]
+    return '<div class="trends">' + "".join(
+        f"<figure>{svg_trend(t, v, label, clock, colour)}<figcaption>{html.escape(label)}"
+        "</figcaption></figure>" for label, v, colour in figs) + "</div>"
+
+
+def _refused(history: History, clock: _Clock) -> str:
+    rows = [[_td(o, "bad" if o == "quarantined" else ""), _td(e.name), _td(e.bundle_id),
+             _td(clock(e.updated_at)), _td(e.attempts, "n"),
+             f'<td class="reason">{_esc(e.reason)}</td>'] for o, e in refused(history)]
+    if not rows:
+        return "<p>None.</p>"
+    return _table(["outcome", "bundle", "id", "when", "attempts", "reason"], rows)
+
+
+def render(status: Mapping[str, Any], health: Health, history: History, *, timezone: str,
+           push_failures: Mapping[str, int] | None = None, now: float | None = None) -> str:
+    """The page (HTML text) for daemon ``status``, its ``health`` and ``history``; times
+    shown in the site's ``timezone`` (IANA name)."""
+    clock = _Clock(timezone)
+    now = datetime.now().timestamp() if now is None else now
+    reasons = "".join(f"<li>{html.escape(r)}</li>" for r in health.reasons)
+    inbox = status.get("inbox") or {}
+    queue = ", ".join(f"{k} {v}" for k, v in inbox.items()) or "-"
+    sections = [
+        ("Active table", _active_table(history.current_table(), clock)),
+        ("Controllers", _controllers(status.get("controllers") or [], push_failures or {},
+                                     clock)),
+        ("Last runs", _runs(history.runs(LAST_RUNS), clock)),
+        ("Trends", _trends(history, clock)),
+        ("Rejected and quarantined bundles", _refused(history, clock)),
+    ]
+    body = "".join(f"<section><h2>{html.escape(t)}</h2>{s}</section>" for t, s in sections)
+    return (
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+        "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
+        "<meta http-equiv=\"refresh\" content=\"60\">"
+        f"<title>grassd: {html.escape(health.level)}</title><style>{_CSS}</style></head><body>"
+        f'<header class="health {health.level}"><h1>grassd: {html.escape(health.level)}</h1>'
+        f"{f'<ul>{reasons}</ul>' if reasons else ''}</header>"
+        f'<p class="meta">{_esc(status.get("health"))} &middot; bundles: {_esc(queue)}'
+        f" &middot; page written {_esc(clock(now))} ({html.escape(timezone)}) &middot; grassd "
+        f"{html.escape(__version__)} &middot; state {_esc(status.get('state_dir'))}</p>"
+        f"{body}</body></html>\n")
+
+
+def write_page(path: str | os.PathLike[str], text: str) -> Path:
+    """Write the page ``text`` to ``path`` atomically."""
+    return atomic_write_text(path, text)
