@@ -33,6 +33,8 @@ PAGE_NAME = "index.html"
 #: runs shown in "last runs" and kept runs plotted in the trends (newest)
 LAST_RUNS = 15
 TREND_RUNS = 2000
+#: a trend's value axis spans at least this fraction of its largest value
+MIN_SPAN = 0.02
 
 _CSS = """
 :root { --ok: #1b7f3b; --degraded: #b36b00; --failed: #b3261e; }
@@ -49,7 +51,8 @@ h2 { font-size: 1.15em; margin: 1.4em 0 0.4em; border-bottom: 1px solid #ccc; }
 table { border-collapse: collapse; font-size: 0.9em; min-width: 100%; }
 th, td { border: 1px solid #ccc; padding: 4px 8px; text-align: left; vertical-align: top; }
 th { background: #eee; } td.n { text-align: right; font-variant-numeric: tabular-nums; }
-td.ok { color: var(--ok); } td.bad { color: var(--failed); font-weight: 600; }
+td.t { white-space: nowrap; } td.ok { color: var(--ok); }
+td.bad { color: var(--failed); font-weight: 600; }
 dl { display: grid; grid-template-columns: max-content 1fr; gap: 2px 12px; margin: 0; }
 dt { color: #555; } dd { margin: 0; }
 img, svg { max-width: 100%; height: auto; display: block; }
@@ -58,7 +61,18 @@ img, svg { max-width: 100%; height: auto; display: block; }
 figure { margin: 0; background: #fff; border: 1px solid #ddd; border-radius: 4px; padding: 6px; }
 figcaption { font-size: 0.9em; color: #333; }
 .reason { white-space: pre-wrap; word-break: break-word; }
-@media (max-width: 600px) { body { padding: 0 6px; } table { font-size: 0.8em; } }
+header, p.meta, dd, figcaption { overflow-wrap: anywhere; }
+.plot img { min-width: 640px; }
+@media (max-width: 600px) {
+  body { padding: 0 6px; }
+  /* tables become one card per row, each cell labelled with its column */
+  table, tbody, tr, td { display: block; min-width: 0; } thead { display: none; }
+  tr { border: 1px solid #ccc; border-radius: 4px; margin: 0 0 8px; background: #fff; }
+  td { border: 0; border-bottom: 1px solid #eee; text-align: left; overflow-wrap: anywhere; }
+  td.n { text-align: left; }
+  td::before { content: attr(data-label); display: inline-block; min-width: 9.5em;
+               color: #555; font-weight: 600; }
+}
 """
 
 
@@ -83,9 +97,12 @@ class _Clock:
 
 
 def _table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    """An HTML table of cells already escaped (each ``<td>`` markup given whole)."""
+    """An HTML table of cells already escaped (each ``<td>`` markup given whole); every cell
+    is labelled with its column (``data-label``, shown on a phone where rows become cards)."""
     head = "".join(f"<th>{html.escape(h)}</th>" for h in headers)
-    body = "".join("<tr>" + "".join(r) + "</tr>" for r in rows)
+    labels = [f'<td data-label="{html.escape(h)}"' for h in headers]
+    body = "".join("<tr>" + "".join(cell.replace("<td", label, 1) for cell, label
+                                    in zip(r, labels, strict=True)) + "</tr>" for r in rows)
     return f'<div class="scroll"><table><thead><tr>{head}</tr></thead><tbody>{body}</tbody>' \
            f"</table></div>"
 
@@ -94,8 +111,13 @@ def _td(v: Any, cls: str = "") -> str:
     return f'<td class="{cls}">{_esc(v)}</td>' if cls else f"<td>{_esc(v)}</td>"
 
 
+def _tick(v: float) -> str:
+    """A value-axis label: whole numbers from 100 up, else four significant digits."""
+    return f"{v:.0f}" if abs(v) >= 100 else f"{v:.4g}"
+
+
 def svg_trend(times_s: np.ndarray, values: np.ndarray, label: str, clock: _Clock,
-              colour: str = "#1b6fb3", width: int = 480, height: int = 200) -> str:
+              colour: str = "#1b6fb3", width: int = 380, height: int = 190) -> str:
     """An inline SVG line plot of ``values`` against ``times_s`` (epoch seconds), with the
     value range and the first and last time as axis labels; "no data" when empty."""
     ok = np.isfinite(values)
@@ -112,8 +134,10 @@ def svg_trend(times_s: np.ndarray, values: np.ndarray, label: str, clock: _Clock
         return "".join(parts)
     t0, t1 = float(t.min()), float(t.max())
     lo, hi = float(v.min()), float(v.max())
-    if hi - lo < 1e-12 * max(1.0, abs(hi)):
-        lo, hi = lo - max(abs(lo) * 0.01, 1e-6), hi + max(abs(hi) * 0.01, 1e-6)
+    min_span = max(MIN_SPAN * max(abs(lo), abs(hi)), 1e-9)
+    if hi - lo < min_span:  # a flat series: a flat line in the middle, not magnified noise
+        mid = (hi + lo) / 2
+        lo, hi = mid - min_span / 2, mid + min_span / 2
     span_t = t1 - t0 if t1 > t0 else 1.0
     x = pad_l + (t - t0) / span_t * w if t1 > t0 else np.full(t.size, pad_l + w / 2)
     y = pad_t + (hi - v) / (hi - lo) * h
@@ -123,7 +147,7 @@ def svg_trend(times_s: np.ndarray, values: np.ndarray, label: str, clock: _Clock
         parts.append(f'<line x1="{pad_l}" x2="{pad_l + w}" y1="{yy:.1f}" y2="{yy:.1f}" '
                      'stroke="#e3e3e3"/>')
         parts.append(f'<text x="{pad_l - 4}" y="{yy + 4:.1f}" text-anchor="end" '
-                     f'font-size="11" fill="#333">{val:.4g}</text>')
+                     f'font-size="11" fill="#333">{_tick(val)}</text>')
     pts = " ".join(f"{a:.1f},{b:.1f}" for a, b in zip(x, y, strict=True))
     parts.append(f'<polyline points="{pts}" fill="none" stroke="{colour}" stroke-width="1.8"/>')
     if t.size <= 200:
@@ -146,8 +170,8 @@ def _embedded_png(path: str | None) -> str:
         return f'<p class="meta">plot {html.escape(path)} unreadable: ' \
                f"{html.escape(exc.strerror or str(exc))}</p>"
     uri = base64.b64encode(data).decode("ascii")
-    return (f'<img src="data:image/png;base64,{uri}" alt="characteristic and table of the '
-            'active run">')
+    return (f'<div class="scroll plot"><img src="data:image/png;base64,{uri}" '
+            'alt="characteristic and table of the active run"></div>')
 
 
 def _active_table(cur: RunRecord | None, clock: _Clock) -> str:
@@ -174,7 +198,7 @@ def _controllers(controllers: Sequence[Mapping[str, Any]],
         state = "in sync" if c["in_sync"] else ("unreachable" if not c["reachable"]
                                                  else "out of sync")
         rows.append([_td(c["name"]), _td(state, "ok" if c["in_sync"] else "bad"),
-                     _td(c.get("table_id"), "n"), _td(clock(c.get("last_seen"))),
+                     _td(c.get("table_id"), "n"), _td(clock(c.get("last_seen")), "t"),
                      _td(push_failures.get(c["name"], 0), "n"),
                      f'<td class="reason">{_esc(None if c["in_sync"] else c.get("error"))}</td>'])
     return _table(["controller", "state", "table", "last seen", "push failures", "error"], rows)
@@ -184,7 +208,7 @@ def _runs(runs: Sequence[RunRecord], clock: _Clock) -> str:
     rows = []
     for r in runs:
         cls = "ok" if r.status == "ok" else ("bad" if r.status == "failed" else "")
-        rows.append([_td(r.id, "n"), _td(clock(r.started_at)), _td(r.trigger),
+        rows.append([_td(r.id, "n"), _td(clock(r.started_at), "t"), _td(r.trigger),
                      _td(r.status, cls),
                      _td(None if r.lux is None else f"{r.lux:.0f} ({r.lux_source})", "n"),
                      _td(_num(run_r2(r.metrics), ".5f"), "n"),
@@ -215,7 +239,7 @@ def _trends(history: History, clock: _Clock) -> str:
 
 def _refused(history: History, clock: _Clock) -> str:
     rows = [[_td(o, "bad" if o == "quarantined" else ""), _td(e.name), _td(e.bundle_id),
-             _td(clock(e.updated_at)), _td(e.attempts, "n"),
+             _td(clock(e.updated_at), "t"), _td(e.attempts, "n"),
              f'<td class="reason">{_esc(e.reason)}</td>'] for o, e in refused(history)]
     if not rows:
         return "<p>None.</p>"
