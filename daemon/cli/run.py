@@ -60,12 +60,9 @@ def check_config(config_path: str | None) -> None:
 
 
 def _setup_logging(level: str) -> None:
-    import logging
-    import os
+    from grassd.daemon.journal import setup_logging
 
-    fmt = ("%(levelname)s %(name)s: %(message)s" if os.environ.get("JOURNAL_STREAM")
-           else "%(asctime)s %(levelname)s %(name)s: %(message)s")
-    logging.basicConfig(level=getattr(logging, level.upper()), format=fmt)
+    setup_logging(level)  # journald priorities and fields under systemd
 
 
 def _simulated(cfg: Config, lux: float, firmware: str = FIRMWARE_BACKENDS[0]):
