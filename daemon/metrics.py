@@ -11,7 +11,8 @@ prometheus-node-exporter), else ``<state_dir>/metrics/grassd.prom``; always the 
 Metrics (units in the names: seconds, lux, dE00 = CIEDE2000 units):
 
 ======================================================  ======================================
-``grassd_up``                                           1 (the file was written by a live run)
+``grassd_up``                                           1 while the daemon runs, 0 after a clean
+                                                        stop
 ``grassd_health``                                       0 ok, 1 degraded, 2 failed
                                                         (:mod:`grassd.daemon.health`)
 ``grassd_last_success_timestamp_seconds``               end of the last successful run
@@ -100,9 +101,10 @@ class _Snapshot(Collector):
 
     def __init__(self, status: Mapping[str, Any], health: Health, history: History,
                  push_failures: Mapping[str, int], sensor: SensorState | None,
-                 capture_at: float | None) -> None:
+                 capture_at: float | None, up: bool) -> None:
         self.status, self.health, self.history = status, health, history
         self.push_failures, self.sensor, self.capture_at = push_failures, sensor, capture_at
+        self.up = up
 
     def collect(self) -> Iterator[Metric]:
         st, h = self.status, self.history
@@ -114,7 +116,7 @@ class _Snapshot(Collector):
                 g.add_metric([], float(value))
             return g
 
-        yield gauge("grassd_up", "1 while the daemon writes this file", 1)
+        yield gauge("grassd_up", "1 while the daemon runs, 0 after a clean stop", int(self.up))
         yield gauge("grassd_health", "Health: 0 ok, 1 degraded, 2 failed", self.health.severity)
         cur = h.current_table()
         yield from self._table(cur, gauge)
@@ -194,13 +196,15 @@ class _Snapshot(Collector):
 
 def registry(status: Mapping[str, Any], health: Health, history: History, *,
              push_failures: Mapping[str, int] | None = None, sensor: SensorState | None = None,
-             capture_at: float | None = None) -> CollectorRegistry:
+             capture_at: float | None = None, up: bool = True) -> CollectorRegistry:
     """A registry holding the metrics of ``status`` (a daemon status), ``health`` and
     ``history``; ``push_failures``: failed pushes per controller name since start; ``sensor``:
     the lux sensor's state (None: no sensor configured); ``capture_at``: the capture station's
-    last capture (epoch s; None: no capture station)."""
+    last capture (epoch s; None: no capture station); ``up``: False for the last file written
+    at a clean stop."""
     reg = CollectorRegistry(auto_describe=True)
-    reg.register(_Snapshot(status, health, history, push_failures or {}, sensor, capture_at))
+    reg.register(_Snapshot(status, health, history, push_failures or {}, sensor, capture_at,
+                           up))
     return reg
 
 

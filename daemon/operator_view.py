@@ -82,11 +82,16 @@ class OperatorView:
                 name = r["controller"]
                 self.push_failures[name] = self.push_failures.get(name, 0) + 1
 
-    def _update(self, page: bool) -> None:
+    def _status(self) -> Mapping[str, Any] | None:
         try:
-            status = self.service.status()
+            return self.service.status()
         except Exception as exc:  # e.g. the database is unreadable: nothing to show
             self._failed("status", f"cannot read the daemon's status: {exc}")
+            return None
+
+    def _update(self, page: bool) -> None:
+        status = self._status()
+        if status is None:
             return
         self.health = health = assess(status)
         self.alerter.observe(health, status)
@@ -103,13 +108,14 @@ class OperatorView:
             return None
         return SensorState(up=s.last_ok, last_success_at=s.last_success_at)
 
-    def _write_metrics(self, status: Mapping[str, Any], health: Health) -> None:
+    def _write_metrics(self, status: Mapping[str, Any], health: Health,
+                       up: bool = True) -> None:
         path = self.textfile
         try:
             capture = self.last_capture() if self.last_capture is not None else None
             reg = registry(status, health, self.service.history,
                            push_failures=self.push_failures, sensor=self._sensor(),
-                           capture_at=capture)
+                           capture_at=capture, up=up)
             write_textfile(path, reg)
         except Exception as exc:
             self._failed("metrics", f"cannot write the metrics to {path}: {exc} (set "
@@ -138,5 +144,9 @@ class OperatorView:
             log.info("%s written again", what)
 
     def close(self, timeout_s: float = 5.0) -> None:
-        """Wait up to ``timeout_s`` for a running alert command (at shutdown)."""
+        """At a clean stop: write the metrics once more with ``grassd_up`` 0 and wait up to
+        ``timeout_s`` for a running alert command."""
+        status = self._status()
+        if status is not None:
+            self._write_metrics(status, assess(status), up=False)
         self.alerter.wait(timeout_s)

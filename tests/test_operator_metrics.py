@@ -151,6 +151,7 @@ def test_every_metric_after_simulated_hardware_runs(tmp_path, hw):
     assert one(scrape(prom), "grassd_capture_last_success_timestamp_seconds") == 1234567890.0
     assert not list(prom.parent.glob(".*"))  # no temporary file left beside it
     svc.shutdown()
+    assert one(scrape(prom), "grassd_up") == 0  # a clean stop says so
 
     # the example alert rules use only metrics the daemon writes
     import yaml

@@ -4,8 +4,8 @@
 configuration (two simulated controllers on pseudo-terminals, a Modbus/TCP lux sensor on
 127.0.0.1), drops one light bundle built from the bundled CC0 site HDRI into the inbox (no lux
 in the manifest, so the daemon reads the sensor), waits until the new table is active on every
-controller, prints the status and where the report and plot are, and stops the daemon with
-SIGTERM.
+controller, prints the status (with where the status page and the metrics file are) and where
+the report and plot are, and stops the daemon with SIGTERM.
 """
 
 from __future__ import annotations

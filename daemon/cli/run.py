@@ -184,6 +184,9 @@ def print_status(st: dict, echo=click.echo) -> None:
                    f"{r['status']:8s} {extra}")
         if r.get("report") and r["status"] == "ok":
             echo(f"      report {r['report']}  plot {r['plot']}")
+    if st.get("status_page"):
+        echo(f"status page: {st['status_page']}")
+        echo(f"metrics:     {st['metrics_textfile']}")
 
 
 @click.command("status")

@@ -884,6 +884,8 @@ class Service:
             "last_error": self.last_error,
             "last_error_seen": None if seen is None else dict(seen),
             "inbox_problems": inbox.problems(),
+            "metrics_textfile": str(self.operator.textfile),
+            "status_page": str(self.operator.page),
             "waiting_bundles": [
                 {"bundle": d.bundle.name, "id": d.bundle.id, "reason": d.reason,
                  "since": d.since, "retry_in_s": max(d.retry_at - now, 0.0)}

@@ -394,4 +394,14 @@ def test_demo_runs_the_whole_daemon(tmp_path, monkeypatch):
     assert run["lux_source"] == "modbus" and run["lux"] == pytest.approx(5000.0)
     assert Path(run["report"]).is_file() and Path(run["plot"]).is_file()
     assert any(line.startswith("report: ") for line in lines)
+    # the operator's view: where the status page and the metrics are, both written
+    page = tmp_path / "state" / "reports" / "index.html"
+    prom = tmp_path / "state" / "metrics" / "grassd.prom"  # always here with simulated hardware
+    assert f"status page: {page}" in lines and f"metrics:     {prom}" in lines
+    assert "<title>grassd: ok</title>" in page.read_text()
+    from prometheus_client.parser import text_string_to_metric_families
+
+    samples = {s.name: s.value for f in text_string_to_metric_families(prom.read_text())
+               for s in f.samples}
+    assert samples["grassd_health"] == 0 and samples["grassd_table_id"] == run["id"]
     assert not (tmp_path / "state" / "control.sock").exists()  # daemon stopped cleanly
