@@ -144,4 +144,15 @@ def setup_logging(level: str = "info", *, env: dict[str, str] | None = None,
         root.removeHandler(h)
     root.addHandler(handler)
     root.setLevel(getattr(logging, level.upper()))
+    sys.excepthook = _log_uncaught
     return handler
+
+
+def _log_uncaught(kind: type[BaseException], exc: BaseException, tb: Any) -> None:
+    """An exception that ends the program is logged as CRITICAL (priority 2, with its
+    traceback), not written to stderr without a priority."""
+    if issubclass(kind, KeyboardInterrupt):
+        sys.__excepthook__(kind, exc, tb)
+        return
+    logging.getLogger("grassd").critical("uncaught exception, the program ends",
+                                         exc_info=(kind, exc, tb))

@@ -52,6 +52,11 @@ def check_config(config_path: str | None) -> None:
         lux += f" (modbus {m.mode} {where} unit {m.unit} fc {m.function_code} reg {m.register})"
     click.echo(f"  inbox: {cfg.light.inbox}; lux from {lux}")
     click.echo(f"  state: {cfg.state_dir}; cache: {cfg.cache_dir}; socket: {cfg.control_socket}")
+    from grassd.daemon.metrics import textfile_path
+    from grassd.daemon.status_page import PAGE_NAME
+
+    click.echo(f"  metrics: {textfile_path(cfg.metrics.textfile, cfg.state_dir)}; status page: "
+               f"{cfg.state_dir / 'reports' / PAGE_NAME}; alerts: {cfg.alerts.command or 'none'}")
     for note in not_used_by_the_daemon(cfg):
         click.echo(f"  warning: {note}")
 
