@@ -8,10 +8,14 @@ description of the change on its standard input::
     {"service": "grassd", "host": "kiosk-3", "at": "2026-06-21T12:00:00+00:00",
      "previous": "ok", "level": "degraded", "reasons": ["controller ... unreachable ..."],
      "changes": [{"at": "...", "from": "ok", "to": "degraded", "reasons": [...]}],
-     "health": "degraded: 1 controller(s) not on table 7", "state_dir": "/var/lib/grassd"}
+     "health": "degraded: 1 controller(s) not on table 7",
+     "controllers": [{"name": "/dev/ttyACM0#1", "reachable": false, "in_sync": false,
+                      "table_id": 6, "error": "..."}, ...],
+     "state_dir": "/var/lib/grassd"}
 
-and ``GRASSD_HEALTH`` / ``GRASSD_PREVIOUS_HEALTH`` in its environment. ``changes`` lists every
-change since the last alert.
+and ``GRASSD_HEALTH`` / ``GRASSD_PREVIOUS_HEALTH`` in its environment. ``changes`` lists the
+changes since the last alert (the latest :data:`MAX_CHANGES`). Without a command the levels are
+only followed (a command set by a reload starts from the level then current).
 
 Rate limit: at most one run per ``min_interval_s``. Changes meanwhile are summed up in one
 alert from the last level alerted to the level then current (``changes`` lists them); a level
@@ -35,6 +39,7 @@ import socket
 import subprocess
 import threading
 import time
+from collections import deque
 from collections.abc import Mapping
 from datetime import UTC, datetime
 from typing import Any
@@ -47,6 +52,8 @@ log = logging.getLogger(__name__)
 
 #: meta key of the state database holding the level last alerted
 META_KEY = "alerts.level"
+#: changes listed in one alert (the oldest are dropped beyond it)
+MAX_CHANGES = 50
 
 
 def _iso(t: float) -> str:
@@ -62,11 +69,11 @@ class Alerter:
         self.history = history
         self._alerted: str | None = history.get_meta(META_KEY)
         self._current: str | None = None
-        self._changes: list[dict[str, Any]] = []
+        self._changes: deque[dict[str, Any]] = deque(maxlen=MAX_CHANGES)
         self._last_run = -float("inf")  # monotonic s
         self._worker: threading.Thread | None = None
-        #: finished runs: (argv, exit status or None when it could not run, stderr/error)
-        self.runs: list[tuple[list[str], int | None, str]] = []
+        #: the latest finished runs: (argv, exit status or None when it could not run, stderr)
+        self.runs: deque[tuple[list[str], int | None, str]] = deque(maxlen=MAX_CHANGES)
 
     def configure(self, cfg: AlertsConfig) -> None:
         """Take a reloaded ``[alerts]`` (the level last alerted and pending changes stay)."""
@@ -78,6 +85,10 @@ class Alerter:
         due (see the module docstring). Returns True when it started one. Never blocks."""
         now = time.monotonic() if now is None else now
         level = health.level
+        if self.cfg.command is None:  # no alerts: only follow, so that one set later starts
+            self._current = self._alerted = level  # from the level then current
+            self._changes.clear()
+            return False
         if self._alerted is None:  # a new state directory: take the first level as known
             if level != "failed":
                 self._current = level
@@ -92,7 +103,7 @@ class Alerter:
         if level == self._alerted:
             self._changes.clear()  # back where the last alert left it: nothing to say
             return False
-        if (self.cfg.command is None or now - self._last_run < self.cfg.min_interval_s
+        if (now - self._last_run < self.cfg.min_interval_s
                 or (self._worker is not None and self._worker.is_alive())):
             return False
         event = {
@@ -100,6 +111,9 @@ class Alerter:
             "previous": self._alerted, "level": level, "reasons": list(health.reasons),
             "changes": list(self._changes),
             "health": None if status is None else status.get("health"),
+            "controllers": [] if status is None else [
+                {k: c.get(k) for k in ("name", "reachable", "in_sync", "table_id", "error")}
+                for c in status.get("controllers") or []],
             "state_dir": None if status is None else status.get("state_dir"),
         }
         argv = shlex.split(self.cfg.command)

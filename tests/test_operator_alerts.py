@@ -66,6 +66,8 @@ def test_silent_controller_alerts_once_and_once_on_recovery(tmp_path, hw):
                                                              ["ok", "degraded"])
     assert any(bus.path in r and "unreachable" in r for r in gone["reasons"]), gone
     assert gone["service"] == "grassd" and gone["health"].startswith("degraded")
+    assert [(c["name"].startswith(bus.path), c["reachable"]) for c in gone["controllers"]] == [
+        (True, False), (False, True)]
     tick_until(svc, lambda: alerted(2))  # it comes back and gets its table again
     back = alerts(out)[1]
     assert (back["previous"], back["level"], back["reasons"]) == ("degraded", "ok", [])
@@ -141,6 +143,20 @@ def test_observe_does_not_wait_for_the_command(tmp_path):
         a.wait(10)
     assert [(e["previous"], e["level"]) for e in alerts(out)] == [("ok", "degraded"),
                                                                   ("degraded", "ok")]
+
+
+def test_without_a_command_levels_are_only_followed(tmp_path):
+    out = tmp_path / "alerts.jsonl"
+    with History(tmp_path / "state.db") as h:
+        a = Alerter(AlertsConfig(command=None), h)
+        for i, health in enumerate((OK, DOWN, FAILED, DOWN) * 30):
+            assert a.observe(health, now=i) is False
+        a.configure(AlertsConfig(command=f"{alert_script(tmp_path)} {out}", min_interval_s=0))
+        assert a.observe(DOWN, now=200) is False  # the level then current is known
+        assert a.observe(OK, now=201) is True
+        a.wait(10)
+    [event] = alerts(out)
+    assert (event["previous"], event["level"], len(event["changes"])) == ("degraded", "ok", 1)
 
 
 def test_failing_command_is_logged_not_fatal(tmp_path, caplog):
