@@ -137,7 +137,7 @@ class _Snapshot(Collector):
                             self.sensor.last_success_at)
         g = gauge("grassd_bundles", "Bundles kept in the ingest journal, by outcome",
                   labels=("outcome",))
-        for outcome, n in count_outcomes(h.journal()).items():
+        for outcome, n in count_outcomes(h).items():
             g.add_metric([outcome], n)
         yield g
         g = gauge("grassd_bundle_queue", "Bundles waiting in inbox/ and processing/",
@@ -202,7 +202,7 @@ def registry(status: Mapping[str, Any], health: Health, history: History, *,
     the lux sensor's state (None: no sensor configured); ``capture_at``: the capture station's
     last capture (epoch s; None: no capture station); ``up``: False for the last file written
     at a clean stop."""
-    reg = CollectorRegistry(auto_describe=True)
+    reg = CollectorRegistry(auto_describe=False)  # collect once, at generation
     reg.register(_Snapshot(status, health, history, push_failures or {}, sensor, capture_at,
                            up))
     return reg

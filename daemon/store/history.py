@@ -552,6 +552,18 @@ class History:
             return self._query("SELECT COUNT(*) FROM journal")[0][0]
         return self._query("SELECT COUNT(*) FROM journal WHERE state = ?", (state,))[0][0]
 
+    def journal_tally(self, prefixes: Sequence[str]) -> dict[tuple[str, str | None], int]:
+        """Journal rows counted by state and by which of ``prefixes`` their reason starts with
+        (the first that matches; None: none does, or no reason), in one query."""
+        args: list[Any] = []
+        for prefix in prefixes:
+            args += [len(prefix), prefix, prefix]
+        case = ("CASE " + " ".join("WHEN substr(reason, 1, ?) = ? THEN ?" for _ in prefixes)
+                + " ELSE NULL END") if prefixes else "NULL"
+        rows = self._query(f"SELECT state, {case} AS p, COUNT(*) FROM journal "
+                           "GROUP BY state, p", args)
+        return {(state, p): n for state, p, n in rows}
+
     def latest_archived(self) -> JournalEntry | None:
         """The most recently archived bundle that a run used (the light of scheduled runs): not
         one archived as superseded (journal reason "superseded: ...")."""
