@@ -4,11 +4,12 @@
 :func:`setup_logging` picks the destination:
 
 - under systemd with standard error connected to the journal (``$JOURNAL_STREAM`` names the
-  device and inode of our standard error, see systemd.exec(5)) and with the ``systemd.journal``
-  module (Debian: python3-systemd; PyPI: systemd-python): journald's native protocol through
-  :class:`systemd.journal.JournalHandler`, with the structured fields ``RUN_ID``, ``BUNDLE``
-  and ``CONTROLLER`` (``journalctl -u grassd RUN_ID=12``);
-- under systemd without that module: standard error, every line prefixed with ``<N>``, its
+  device and inode of our standard error, see systemd.exec(5)), with the ``systemd.journal``
+  module (Debian: python3-systemd; PyPI: systemd-python) and journald's native socket:
+  journald's native protocol through :class:`systemd.journal.JournalHandler`, with the
+  structured fields ``RUN_ID``, ``BUNDLE`` and ``CONTROLLER`` (``journalctl -u grassd
+  RUN_ID=12``);
+- under systemd without that module or socket: standard error, every line prefixed with ``<N>``, its
   syslog priority (the sd-daemon(3) convention, which journald reads from a service's
   standard error);
 - elsewhere (a terminal): standard error with time stamps and level names.
@@ -28,12 +29,15 @@ import logging
 import os
 import re
 import sys
+from pathlib import Path
 from typing import IO, Any
 
 #: structured journal fields and the word that introduces each in a log message
 FIELDS = {"RUN_ID": "run", "BUNDLE": "bundle", "CONTROLLER": "controller"}
 _SUBJECT = re.compile(r"\b(run|bundle|controller) (%[sdr])")
 _ARG = re.compile(r"%(?:\([^)]*\))?[-#0 +]*(?:\d+|\*)?(?:\.(?:\d+|\*))?[diouxXeEfFgGcrsa%]")
+#: journald's socket for its native protocol (where systemd.journal.send writes)
+NATIVE_SOCKET = Path("/run/systemd/journal/socket")
 TERMINAL_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 JOURNAL_FORMAT = "%(name)s: %(message)s"
 
@@ -102,14 +106,18 @@ def stderr_is_journal(env: dict[str, str] | None = None, stream: IO[Any] | None 
     return (st.st_dev, st.st_ino) == (dev, ino)
 
 
-def journal_handler(identifier: str = "grassd", sender: Any = None) -> logging.Handler | None:
+def journal_handler(identifier: str = "grassd", sender: Any = None,
+                    socket_path: Path = NATIVE_SOCKET) -> logging.Handler | None:
     """A :class:`systemd.journal.JournalHandler` (native protocol, structured fields; the
     logger's name goes in field LOGGER, so MESSAGE is the message alone), or None when the
-    ``systemd.journal`` module is not installed. ``sender``: its ``sender_function``
-    (default :func:`systemd.journal.send`)."""
+    ``systemd.journal`` module is not installed or, with the default ``sender``
+    (:func:`systemd.journal.send`, which always writes to :data:`NATIVE_SOCKET`), journald's
+    native socket ``socket_path`` is absent."""
     try:
         from systemd.journal import JournalHandler
     except ImportError:
+        return None
+    if sender is None and not Path(socket_path).is_socket():
         return None
     kw = {} if sender is None else {"sender_function": sender}
     handler = JournalHandler(SYSLOG_IDENTIFIER=identifier, **kw)
