@@ -163,3 +163,24 @@ def test_every_metric_after_simulated_hardware_runs(tmp_path, hw):
     assert {"grassd_last_success_timestamp_seconds", "grassd_controller_in_sync",
             "grassd_table_r2", "grassd_lux_sensor_up"} <= used
     assert used <= written, used - written
+
+
+def test_unwritable_textfile_is_logged_once_never_fatal(tmp_path, hw, caplog):
+    import logging
+
+    _, cfg = hw
+    blocker = tmp_path / "not-a-dir"
+    blocker.write_text("a file where the directory should be")
+    conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg,
+                        extra=f'[metrics]\ntextfile = "{blocker}/grassd.prom"\n')
+    svc = service(conf)
+    caplog.set_level(logging.WARNING, "grassd.daemon.operator_view")
+    drop(svc.cfg.light.inbox, "b1")
+    svc.tick()
+    for _ in range(3):
+        svc.reconcile()
+    assert svc.history.current_table() is not None  # the run went through
+    msgs = [r.getMessage() for r in caplog.records if "cannot write the metrics" in r.getMessage()]
+    assert len(msgs) == 1 and str(blocker) in msgs[0] and "[metrics] textfile" in msgs[0]
+    assert (svc.reports_dir / "index.html").is_file()  # the page does not depend on it
+    svc.shutdown()
