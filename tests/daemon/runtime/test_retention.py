@@ -19,7 +19,8 @@ from grassd.daemon.errors import ConfigError
 
 
 def reports(svc) -> list[str]:
-    return sorted(p.name for p in svc.reports_dir.iterdir())
+    """The run reports kept in reports/ (beside them the status page, index.html)."""
+    return sorted(p.name for p in svc.reports_dir.iterdir() if p.name != "index.html")
 
 
 def corrupt_bundle(inbox, name: str) -> None:
@@ -62,6 +63,7 @@ def test_counts_are_bounded_and_the_active_table_survives(tmp_path, hw):
     assert out["status"] == "ok", out
     assert [r.id for r in svc.history.runs(10)] == [out["run_id"]]
     assert reports(svc) == [f"run-{out['run_id']:06d}.json", f"run-{out['run_id']:06d}.png"]
+    assert (svc.reports_dir / "index.html").is_file()  # retention leaves the status page
     svc.shutdown()
 
 
