@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 
 from grassd.daemon.config.settings import load_default_config
-from grassd.daemon.health import assess
-from grassd.daemon.metrics import registry, write_textfile
+from grassd.daemon.monitoring.health import assess
+from grassd.daemon.monitoring.metrics import registry, write_textfile
+from grassd.daemon.monitoring.status_page import render, write_page
 from grassd.daemon.runtime.service import collect_status
-from grassd.daemon.status_page import render, write_page
 from grassd.daemon.store.history import History
 
 RUNS = 5000

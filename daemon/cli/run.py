@@ -52,8 +52,8 @@ def check_config(config_path: str | None) -> None:
         lux += f" (modbus {m.mode} {where} unit {m.unit} fc {m.function_code} reg {m.register})"
     click.echo(f"  inbox: {cfg.light.inbox}; lux from {lux}")
     click.echo(f"  state: {cfg.state_dir}; cache: {cfg.cache_dir}; socket: {cfg.control_socket}")
-    from grassd.daemon.metrics import textfile_path
-    from grassd.daemon.status_page import PAGE_NAME
+    from grassd.daemon.monitoring.metrics import textfile_path
+    from grassd.daemon.monitoring.status_page import PAGE_NAME
 
     click.echo(f"  metrics: {textfile_path(cfg.metrics.textfile, cfg.state_dir)}; status page: "
                f"{cfg.state_dir / 'reports' / PAGE_NAME}; alerts: {cfg.alerts.command or 'none'}")
@@ -65,7 +65,7 @@ def check_config(config_path: str | None) -> None:
 
 
 def _setup_logging(level: str) -> None:
-    from grassd.daemon.journal import setup_logging
+    from grassd.daemon.monitoring.journal import setup_logging
 
     setup_logging(level)  # journald priorities and fields under systemd
 
@@ -78,7 +78,7 @@ def _simulated(cfg: Config, lux: float, firmware: str = FIRMWARE_BACKENDS[0]):
 
     from grassd.daemon.config.settings import MetricsConfig
     from grassd.daemon.hardware.simulated import SimulatedHardware
-    from grassd.daemon.metrics import state_dir_textfile
+    from grassd.daemon.monitoring.metrics import state_dir_textfile
 
     hw = SimulatedHardware(cfg, cfg.state_dir / "simhw", lux=lux, firmware=firmware)
     new = hw.start()

@@ -302,21 +302,21 @@ class AudienceConfig:
 
 @dataclass(frozen=True)
 class MetricsConfig:
-    """Prometheus metrics (:mod:`grassd.daemon.metrics`): ``textfile`` is the file written for
-    node_exporter's textfile collector after every run and reconcile; None: the default
-    (:func:`grassd.daemon.metrics.textfile_path`: Debian's node-exporter directory when it
-    exists, else ``state_dir/metrics/grassd.prom``)."""
+    """Prometheus metrics (:mod:`grassd.daemon.monitoring.metrics`): ``textfile`` is the file
+    written for node_exporter's textfile collector after every run and reconcile; None: the
+    default (:func:`grassd.daemon.monitoring.metrics.textfile_path`: Debian's node-exporter
+    directory when it exists, else ``state_dir/metrics/grassd.prom``)."""
 
     textfile: Path | None = None
 
 
 @dataclass(frozen=True)
 class AlertsConfig:
-    """Alerts without Prometheus (:mod:`grassd.daemon.alerts`): ``command`` (split like a shell
-    line, run without a shell; None: no alerts) runs when health changes between ok, degraded
-    and failed, with a JSON description of the change on its standard input; at most one run
-    per ``min_interval_s`` seconds (changes meanwhile are summed up in the next); a run still
-    going after ``timeout_s`` seconds is killed."""
+    """Alerts without Prometheus (:mod:`grassd.daemon.monitoring.alerts`): ``command`` (split
+    like a shell line, run without a shell; None: no alerts) runs when health changes between
+    ok, degraded and failed, with a JSON description of the change on its standard input; at
+    most one run per ``min_interval_s`` seconds (changes meanwhile are summed up in the next);
+    a run still going after ``timeout_s`` seconds is killed."""
 
     command: str | None = None
     min_interval_s: float = 300.0

@@ -74,8 +74,8 @@ from grassd.daemon.errors import (
 )
 from grassd.daemon.hardware.fleet import Fleet, table_checksum
 from grassd.daemon.hardware.luxsensor import LuxSensor
-from grassd.daemon.metrics import run_r2
-from grassd.daemon.operator_view import OperatorView
+from grassd.daemon.monitoring.metrics import run_r2
+from grassd.daemon.monitoring.operator_view import OperatorView
 from grassd.daemon.runtime.control import ControlServer
 from grassd.daemon.runtime.notify import Notifier
 from grassd.daemon.runtime.retention import prune

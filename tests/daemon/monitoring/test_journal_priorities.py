@@ -15,10 +15,10 @@ CHILD = """
 import json, logging, sys
 if sys.argv[1] == "no-module":
     sys.modules["systemd.journal"] = None  # as on a machine without python3-systemd
-from grassd.daemon.journal import setup_logging
+from grassd.daemon.monitoring.journal import setup_logging
 native = None
 if sys.argv[1] == "native":
-    from grassd.daemon.journal import journal_handler
+    from grassd.daemon.monitoring.journal import journal_handler
     out = open(sys.argv[2], "a")
     def sender(MESSAGE, **fields):  # what sd_journal_send gets, written to a file
         fields = {k.upper(): str(v) for k, v in fields.items()}
@@ -87,7 +87,7 @@ def test_journal_stream_of_another_file_is_not_ours(tmp_path):
     other = tmp_path / "other"
     other.write_text("")
     st = os.stat(other)
-    from grassd.daemon.journal import stderr_is_journal
+    from grassd.daemon.monitoring.journal import stderr_is_journal
 
     with open(other) as fh:
         assert stderr_is_journal({"JOURNAL_STREAM": f"{st.st_dev}:{st.st_ino}"}, fh)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from grassd.daemon.health import assess
+from grassd.daemon.monitoring.health import assess
 
 
 def status(*in_sync: bool, reachable: bool = True, table: bool = True, **extra) -> dict:

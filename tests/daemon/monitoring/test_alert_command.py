@@ -11,9 +11,9 @@ from pathlib import Path
 
 from daemon_harness import drop, service, tick_until, write_config
 
-from grassd.daemon.alerts import META_KEY, Alerter
 from grassd.daemon.config.settings import AlertsConfig
-from grassd.daemon.health import Health
+from grassd.daemon.monitoring.alerts import META_KEY, Alerter
+from grassd.daemon.monitoring.health import Health
 from grassd.daemon.store.history import History
 
 #: the alert command: appends one JSON line per alert (its stdin plus its environment) to the
@@ -160,7 +160,7 @@ def test_without_a_command_levels_are_only_followed(tmp_path):
 
 
 def test_failing_command_is_logged_not_fatal(tmp_path, caplog):
-    caplog.set_level(logging.ERROR, "grassd.daemon.alerts")
+    caplog.set_level(logging.ERROR, "grassd.daemon.monitoring.alerts")
     fails = tmp_path / "fails.sh"
     fails.write_text("#!/bin/sh\necho 'no route to ops' >&2\nexit 3\n")
     fails.chmod(0o755)

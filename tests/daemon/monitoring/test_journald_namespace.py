@@ -173,7 +173,7 @@ def test_structured_fields_reach_journald(journald):
                         "python3-systemd (apt-get install python3-systemd) or systemd-python")
     import logging
 
-    from grassd.daemon.journal import SubjectFields, journal_handler
+    from grassd.daemon.monitoring.journal import SubjectFields, journal_handler
 
     handler = journal_handler(sender=native_sender(journald))
     handler.addFilter(SubjectFields())

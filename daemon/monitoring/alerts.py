@@ -1,9 +1,10 @@
 """Alerts without Prometheus: run ``[alerts] command`` when the health level changes.
 
-The daemon calls :meth:`Alerter.observe` with its :class:`~grassd.daemon.health.Health` after
-every run and reconcile (main thread; it returns at once). When the level differs from the
-last one alerted (ok <-> degraded <-> failed), the command runs in a worker thread with a JSON
-description of the change on its standard input::
+The daemon calls :meth:`Alerter.observe` with its
+:class:`~grassd.daemon.monitoring.health.Health` after every run and reconcile (main thread; it
+returns at once). When the level differs from the last one alerted (ok <-> degraded <->
+failed), the command runs in a worker thread with a JSON description of the change on its
+standard input::
 
     {"service": "grassd", "host": "kiosk-3", "at": "2026-06-21T12:00:00+00:00",
      "previous": "ok", "level": "degraded", "reasons": ["controller ... unreachable ..."],
@@ -45,7 +46,7 @@ from datetime import UTC, datetime
 from typing import Any
 
 from grassd.daemon.config.settings import AlertsConfig
-from grassd.daemon.health import Health
+from grassd.daemon.monitoring.health import Health
 from grassd.daemon.store.history import History
 
 log = logging.getLogger(__name__)

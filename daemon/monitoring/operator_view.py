@@ -1,6 +1,7 @@
 """What the daemon shows its operator after every run and reconcile: the metrics textfile
-(:mod:`grassd.daemon.metrics`), the alert command on health changes
-(:mod:`grassd.daemon.alerts`) and the status page (:mod:`grassd.daemon.status_page`).
+(:mod:`grassd.daemon.monitoring.metrics`), the alert command on health changes
+(:mod:`grassd.daemon.monitoring.alerts`) and the status page
+(:mod:`grassd.daemon.monitoring.status_page`).
 
 The service calls :meth:`OperatorView.after_run` after each run (whatever its outcome) and
 :meth:`OperatorView.after_reconcile` after each reconcile, both in its main thread. Neither
@@ -20,11 +21,11 @@ from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from grassd.daemon.alerts import Alerter
 from grassd.daemon.config.settings import Config
-from grassd.daemon.health import Health, assess
-from grassd.daemon.metrics import SensorState, registry, textfile_path, write_textfile
-from grassd.daemon.status_page import PAGE_NAME, render, write_page
+from grassd.daemon.monitoring.alerts import Alerter
+from grassd.daemon.monitoring.health import Health, assess
+from grassd.daemon.monitoring.metrics import SensorState, registry, textfile_path, write_textfile
+from grassd.daemon.monitoring.status_page import PAGE_NAME, render, write_page
 
 if TYPE_CHECKING:
     from grassd.daemon.runtime.service import Service

@@ -13,9 +13,9 @@ from daemon_harness import drop, service, write_config
 from prometheus_client.parser import text_string_to_metric_families
 
 from grassd.daemon.config.settings import parse_config
-from grassd.daemon.metrics import TEXTFILE_NAME, state_dir_textfile, textfile_path
+from grassd.daemon.monitoring.metrics import TEXTFILE_NAME, state_dir_textfile, textfile_path
 
-RULES = Path(__file__).resolve().parents[1] / "systemd" / "grassd-alerts.rules.yml"
+RULES = Path(__file__).resolve().parents[3] / "systemd" / "grassd-alerts.rules.yml"
 
 
 def scrape(path: Path) -> dict[tuple[str, tuple], float]:
@@ -174,7 +174,7 @@ def test_unwritable_textfile_is_logged_once_never_fatal(tmp_path, hw, caplog):
     conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg,
                         extra=f'[metrics]\ntextfile = "{blocker}/grassd.prom"\n')
     svc = service(conf)
-    caplog.set_level(logging.WARNING, "grassd.daemon.operator_view")
+    caplog.set_level(logging.WARNING, "grassd.daemon.monitoring.operator_view")
     drop(svc.cfg.light.inbox, "b1")
     svc.tick()
     for _ in range(3):

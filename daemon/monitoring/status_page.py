@@ -23,11 +23,11 @@ from zoneinfo import ZoneInfo
 import numpy as np
 
 from grassd import __version__
-from grassd.daemon.health import Health
-from grassd.daemon.metrics import run_r2
-from grassd.daemon.outcomes import refused
+from grassd.daemon.monitoring.health import Health
+from grassd.daemon.monitoring.metrics import run_r2
 from grassd.daemon.store.atomic import atomic_write_text
 from grassd.daemon.store.history import History, RunRecord
+from grassd.daemon.store.outcomes import refused
 
 PAGE_NAME = "index.html"
 #: runs shown in "last runs" and kept runs plotted in the trends (newest)

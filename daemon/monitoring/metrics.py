@@ -14,7 +14,7 @@ Metrics (units in the names: seconds, lux, dE00 = CIEDE2000 units):
 ``grassd_up``                                           1 while the daemon runs, 0 after a clean
                                                         stop
 ``grassd_health``                                       0 ok, 1 degraded, 2 failed
-                                                        (:mod:`grassd.daemon.health`)
+                                                        (:mod:`grassd.daemon.monitoring.health`)
 ``grassd_last_success_timestamp_seconds``               end of the last successful run
 ``grassd_last_success_duration_seconds``                its duration
 ``grassd_table_id``                                     the active table's id
@@ -27,7 +27,7 @@ Metrics (units in the names: seconds, lux, dE00 = CIEDE2000 units):
                                                         sensor succeeded (absent: none read)
 ``grassd_lux_sensor_last_success_timestamp_seconds``    when it last answered
 ``grassd_bundles{outcome}``                             kept bundles per outcome
-                                                        (:mod:`grassd.daemon.outcomes`)
+                                                        (:mod:`grassd.daemon.store.outcomes`)
 ``grassd_bundle_queue{queue}``                          bundles in inbox/ and processing/
 ``grassd_controller_reachable{controller}``             1/0
 ``grassd_controller_in_sync{controller}``               1/0: it reports its desired table
@@ -53,10 +53,10 @@ from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector
 
-from grassd.daemon.health import Health
-from grassd.daemon.outcomes import count_outcomes
+from grassd.daemon.monitoring.health import Health
 from grassd.daemon.store.atomic import atomic_write_bytes
 from grassd.daemon.store.history import History, RunRecord
+from grassd.daemon.store.outcomes import count_outcomes
 
 log = logging.getLogger(__name__)
 
