@@ -58,3 +58,15 @@ class DngWriteError(CalibError, ValueError):
 
 class ExposureError(CalibError, ValueError):
     """The grey reference used for exposure normalisation is unusable (black or non-finite)."""
+
+
+class HdrMergeError(CalibError, ValueError):
+    """An exposure bracket cannot be merged into a radiance map (shapes, exposures, response)."""
+
+
+class BracketClippedError(HdrMergeError):
+    """Even the shortest exposure of a bracket is clipped over most of the image."""
+
+
+class BracketBlackError(HdrMergeError):
+    """Even the longest exposure of a bracket is black over most of the image."""

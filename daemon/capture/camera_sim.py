@@ -1,0 +1,511 @@
+"""A simulated Open Spherical Camera: a real HTTP server on 127.0.0.1 that photographs an HDRI.
+
+``grassd camera sim --hdri FILE`` runs one; tests and ``--simulate-hardware`` start one in a
+thread. It speaks the subset of the OSC API (level 2, RICOH THETA Web API v2.1 options) that
+:mod:`grassd.daemon.capture.osc_client` uses, with the same JSON shapes, so the capture
+station drives it exactly as it drives a THETA; only the URL differs.
+
+Photographing (one shot at shutter ``t`` s, ``iso``, f-number ``N``): the scene radiance ``L``
+(HDRI value x ``scene_scale``, cd/m^2-like units) gives the linear sensor signal
+``x = 0.18 L t S / (K N^2)`` with the reflected-light meter constant K = 12.5 (ISO 2720), so a
+metered exposure puts a mid-grey at 0.18 of full scale. Photon and read noise are added
+(``full_well`` electrons at x = 1), then the camera's response curve (:class:`ResponseCurve`,
+its own and never told to the merge), 8-bit quantisation and clipping, and the shot is served
+as a JPEG (quality 95) whose EXIF holds the real exposure: shutter values snap to the THETA
+Z1's list (:data:`SHUTTER_SPEEDS_S`) as a real camera does, and an unsupported value is
+refused with ``invalidParameterValue``.
+
+Exposure programs: 1 manual (``shutterSpeed`` and ``iso`` as set); 2 normal and 9 ISO
+priority: the camera meters, choosing the shutter that puts the median luminance at 0.18.
+
+Fault knobs (:class:`Faults`, for tests): HTTP errors, malformed JSON, a takePicture that never
+finishes, truncated downloads, shots without a recorded exposure. Each fault affects the next
+``times`` requests it applies to (None: until cleared).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import hmac
+import io
+import itertools
+import json
+import logging
+import os
+import threading
+import time
+import uuid
+from dataclasses import dataclass
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from grassd.daemon.capture.bracket import SHUTTER_SPEEDS_S
+
+log = logging.getLogger(__name__)
+
+#: Reflected-light meter calibration constant K (ISO 2720, cd s / m^2 / ISO).
+METER_K: float = 12.5
+#: ISO values the simulated camera accepts (THETA Z1 list).
+ISO_VALUES: tuple[int, ...] = (80, 100, 125, 160, 200, 250, 320, 400, 500, 640, 800, 1000,
+                               1250, 1600, 2000, 2500, 3200, 4000, 5000, 6400)
+#: White balance names accepted (OSC whiteBalance values).
+WHITE_BALANCES: tuple[str, ...] = ("auto", "daylight", "shade", "cloudy-daylight",
+                                   "incandescent", "fluorescent")
+#: The lens' f-number (a THETA V/Z1-like fixed aperture).
+F_NUMBER: float = 2.0
+
+
+@dataclass(frozen=True)
+class ResponseCurve:
+    """A camera's encoding of linear signal x (0..1 = full scale) into 0..1 codes:
+    ``y = x^(1/gamma)``, then a shoulder ``(1 + s) y / (y + s)`` (s = ``shoulder``; none when
+    infinite), so f(0) = 0 and f(1) = 1. Different cameras, different curves."""
+
+    gamma: float = 2.2
+    shoulder: float = float("inf")
+
+    def encode(self, x: NDArray) -> NDArray[np.float64]:
+        """Encoded value 0..1 of linear signal ``x`` (clipped to 0..1 first)."""
+        y = np.clip(np.asarray(x, dtype=np.float64), 0.0, 1.0) ** (1.0 / self.gamma)
+        if np.isinf(self.shoulder):
+            return y
+        return (1.0 + self.shoulder) * y / (y + self.shoulder)
+
+
+#: Named curves: none of them is known to the merge (it recovers the curve from the shots).
+CURVES: dict[str, ResponseCurve] = {
+    "gamma22": ResponseCurve(2.2),
+    "filmic": ResponseCurve(2.6, 0.6),
+    "soft": ResponseCurve(1.8, 0.3),
+}
+
+
+@dataclass
+class Faults:
+    """What the simulated camera does wrong (tests). ``times``: how many more requests each
+    active fault spoils (None: all until cleared)."""
+
+    http_status: int | None = None      # answer /osc/* with this HTTP status
+    malformed_json: bool = False        # answer /osc/* with broken JSON
+    never_finish: bool = False          # takePicture stays inProgress forever
+    truncated_download: bool = False    # send half of a file, with the full Content-Length
+    missing_exposure: bool = False      # no ExposureTime in EXIF, options or metadata
+    times: int | None = None
+
+    def spend(self) -> None:
+        """One request was spoilt; clear every fault when ``times`` runs out."""
+        if self.times is not None:
+            self.times -= 1
+            if self.times <= 0:
+                self.clear()
+
+    def clear(self) -> None:
+        """Behave again."""
+        self.http_status, self.malformed_json, self.never_finish = None, False, False
+        self.truncated_download, self.missing_exposure, self.times = False, False, None
+
+
+def jpeg_bytes(codes: NDArray[np.uint8], exif: dict[str, Any] | None) -> bytes:
+    """Encode (H, W, 3) uint8 ``codes`` as a quality-95 JPEG whose EXIF holds ``exif``
+    (ExposureTime s, FNumber, ISO, Make, Model, Software; any may be absent)."""
+    from PIL import ExifTags, Image  # noqa: PLC0415
+
+    img = Image.fromarray(np.ascontiguousarray(codes), "RGB")
+    ex = Image.Exif()
+    exif = exif or {}
+    for key, tag in (("Make", ExifTags.Base.Make), ("Model", ExifTags.Base.Model),
+                     ("Software", ExifTags.Base.Software)):
+        if key in exif:
+            ex[tag] = str(exif[key])
+    sub = ex.get_ifd(ExifTags.IFD.Exif)
+    if "ExposureTime" in exif:
+        sub[ExifTags.Base.ExposureTime] = float(exif["ExposureTime"])
+    if "FNumber" in exif:
+        sub[ExifTags.Base.FNumber] = float(exif["FNumber"])
+    if "ISO" in exif:
+        sub[ExifTags.Base.ISOSpeedRatings] = int(exif["ISO"])
+    buf = io.BytesIO()
+    img.save(buf, "JPEG", quality=95, subsampling=0, exif=ex)
+    return buf.getvalue()
+
+
+class SimCamera:
+    """A simulated OSC camera photographing ``env`` (an (H, W, 3) linear radiance map, e.g.
+    :func:`grassd.sim.hdri.load_hdri`) on ``host``:``port`` (0 = any free port).
+
+    ``scene_scale``: radiance units per map unit (the light level; change it or :meth:`set_scene`
+    between shots for another light); ``curve``: the response (a :data:`CURVES` name or a
+    :class:`ResponseCurve`); ``full_well``: electrons at full scale (photon noise);
+    ``username``/``password``: require HTTP digest auth as a THETA in client mode does.
+    """
+
+    def __init__(self, env: NDArray, *, scene_scale: float = 1000.0,
+                 curve: str | ResponseCurve = "filmic", full_well: float = 20000.0,
+                 read_noise: float = 2e-4, seed: int = 0, host: str = "127.0.0.1",
+                 port: int = 0, username: str | None = None, password: str | None = None,
+                 model: str = "grassd SimCam Z1", serial: str | None = None,
+                 latency_s: float = 0.05) -> None:
+        self.curve = CURVES[curve] if isinstance(curve, str) else curve
+        self.curve_name = curve if isinstance(curve, str) else "custom"
+        self.env = np.ascontiguousarray(env, dtype=np.float32)
+        self.scene_scale = float(scene_scale)
+        self.full_well = float(full_well)
+        self.read_noise = float(read_noise)
+        self.rng = np.random.default_rng(seed)
+        self.host, self.port = host, port
+        self.username, self.password = username, password
+        self.model = model
+        digest = hashlib.sha1(repr(self.curve).encode()).hexdigest()[:8]  # noqa: S324
+        self.serial = serial or f"SIM{digest}"
+        self.latency_s = latency_s
+        self.faults = Faults()
+        self.options: dict[str, Any] = {
+            "exposureProgram": 2, "iso": 0, "shutterSpeed": 0, "whiteBalance": "auto",
+            "fileFormat": {"type": "jpeg", "width": self.env.shape[1],
+                           "height": self.env.shape[0]},
+            "aperture": F_NUMBER}
+        self.shots_taken = 0
+        self.files: dict[str, bytes] = {}
+        self.metadata: dict[str, dict[str, Any]] = {}
+        self._commands: dict[str, dict[str, Any]] = {}
+        self._ids = itertools.count(1)
+        self._lock = threading.Lock()
+        self._server: ThreadingHTTPServer | None = None
+        self._thread: threading.Thread | None = None
+        self._nonces: set[str] = set()
+
+    # ------------------------------------------------------------------ lifecycle
+    @property
+    def url(self) -> str:
+        """The camera's base URL (after :meth:`start`)."""
+        return f"http://{self.host}:{self.port}"
+
+    def start(self) -> SimCamera:
+        """Serve in a background thread; returns self once listening."""
+        cam = self
+
+        class Handler(_Handler):
+            camera = cam
+
+        self._server = ThreadingHTTPServer((self.host, self.port), Handler)
+        self._server.daemon_threads = True
+        self.port = self._server.server_address[1]
+        self._thread = threading.Thread(target=self._server.serve_forever, name="sim-camera",
+                                        daemon=True)
+        self._thread.start()
+        log.info("simulated OSC camera (%s curve) on %s", self.curve_name, self.url)
+        return self
+
+    def stop(self) -> None:
+        """Stop serving."""
+        if self._server is not None:
+            self._server.shutdown()
+            self._server.server_close()
+            self._server = None
+        if self._thread is not None:
+            self._thread.join(5)
+            self._thread = None
+
+    def __enter__(self) -> SimCamera:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def set_scene(self, env: NDArray | None = None, scene_scale: float | None = None) -> None:
+        """Change what the camera sees: another map and/or light level."""
+        with self._lock:
+            if env is not None:
+                self.env = np.ascontiguousarray(env, dtype=np.float32)
+            if scene_scale is not None:
+                self.scene_scale = float(scene_scale)
+
+    # ------------------------------------------------------------------ photography
+    def signal(self, shutter_s: float, iso: float) -> NDArray[np.float64]:
+        """Noise-free linear sensor signal (full scale 1) of a shot (module docstring)."""
+        k = 0.18 * shutter_s * iso / (METER_K * F_NUMBER ** 2)
+        return self.env.astype(np.float64) * (self.scene_scale * k)
+
+    def metered_shutter(self, iso: float) -> float:
+        """The shutter (s, from the list) a meter chooses: median luminance at 0.18."""
+        lum = self.env.astype(np.float64) @ np.array([0.2126, 0.7152, 0.0722])
+        median = max(float(np.median(lum)) * self.scene_scale, 1e-9)
+        t = METER_K * F_NUMBER ** 2 / (median * iso)
+        return min(SHUTTER_SPEEDS_S, key=lambda s: abs(np.log(s / t)))
+
+    def photograph(self, shutter_s: float, iso: float) -> NDArray[np.uint8]:
+        """(H, W, 3) 8-bit codes of one shot: signal + noise -> response -> quantise."""
+        x = self.signal(shutter_s, iso)
+        sigma = np.sqrt(np.clip(x, 0.0, 1.0) / self.full_well + self.read_noise ** 2)
+        x = x + self.rng.standard_normal(x.shape) * sigma
+        return np.clip(np.rint(self.curve.encode(x) * 255.0), 0, 255).astype(np.uint8)
+
+    def _take(self) -> dict[str, Any]:
+        o = self.options
+        iso = o["iso"] if o["iso"] else 100
+        if o["exposureProgram"] in (2, 9) or not o["shutterSpeed"]:
+            shutter = self.metered_shutter(iso)
+        else:
+            shutter = float(o["shutterSpeed"])
+        with self._lock:
+            codes = self.photograph(shutter, iso)
+            self.shots_taken += 1
+        name = f"R{self.shots_taken:07d}.JPG"
+        exif = {"Make": "grassd", "Model": self.model, "Software": "simcam 1.0",
+                "ExposureTime": shutter, "FNumber": F_NUMBER, "ISO": iso}
+        if self.faults.missing_exposure:
+            del exif["ExposureTime"]
+        self.files[name] = jpeg_bytes(codes, exif)
+        meta = {k: v for k, v in exif.items()}
+        meta["PhotographicSensitivity"] = meta.pop("ISO")
+        self.metadata[f"{self.url}/files/{name}"] = meta
+        return {"fileUrl": f"{self.url}/files/{name}"}
+
+    # ------------------------------------------------------------------ OSC
+    def info(self) -> dict[str, Any]:
+        """The ``/osc/info`` object."""
+        return {"manufacturer": "grassd", "model": self.model, "serialNumber": self.serial,
+                "firmwareVersion": "1.0.0", "supportUrl": "https://example.invalid/",
+                "gps": False, "gyro": False, "uptime": 1, "api": ["/osc/info", "/osc/state",
+                "/osc/commands/execute", "/osc/commands/status"],
+                "endpoints": {"httpPort": self.port, "httpUpdatesPort": self.port},
+                "apiLevel": [2]}
+
+    def execute(self, name: str, params: dict[str, Any]) -> dict[str, Any]:
+        """Run one command; returns the OSC command object."""
+        if name == "camera.setOptions":
+            opts = params.get("options")
+            if not isinstance(opts, dict):
+                return _error(name, "missingParameter", "options is required")
+            for key, value in opts.items():
+                problem = self._check_option(key, value)
+                if problem:
+                    return _error(name, "invalidParameterValue", problem)
+            self.options.update(opts)
+            return {"name": name, "state": "done"}
+        if name == "camera.getOptions":
+            names = params.get("optionNames")
+            if not isinstance(names, list):
+                return _error(name, "missingParameter", "optionNames is required")
+            out = {n: self.options[n] for n in names if n in self.options}
+            if self.faults.missing_exposure:
+                out.pop("shutterSpeed", None)
+            return {"name": name, "state": "done", "results": {"options": out}}
+        if name == "camera.takePicture":
+            cid = str(next(self._ids))
+            entry: dict[str, Any] = {"name": name, "state": "inProgress", "id": cid,
+                                     "progress": {"completion": 0.0},
+                                     "ready_at": time.monotonic() + self.latency_s,
+                                     "never": self.faults.never_finish}
+            if self.faults.never_finish:
+                self.faults.spend()
+            else:
+                entry["results"] = self._take()
+                if self.faults.missing_exposure:
+                    self.faults.spend()
+            self._commands[cid] = entry
+            return _public(entry)
+        if name == "camera._getMetadata":
+            url = params.get("fileUrl")
+            if url not in self.metadata:
+                return _error(name, "invalidParameterValue", f"no such file {url!r}")
+            return {"name": name, "state": "done", "results": {"exif": self.metadata[url],
+                                                                "xmp": {}}}
+        return _error(name, "unknownCommand", f"command {name} is not supported")
+
+    def status(self, cid: Any) -> dict[str, Any]:
+        """The ``/osc/commands/status`` object of command ``cid``."""
+        entry = self._commands.get(str(cid))
+        if entry is None:
+            return _error("camera.status", "invalidParameterValue", f"no command id {cid!r}")
+        if not entry["never"] and time.monotonic() >= entry["ready_at"]:
+            entry["state"] = "done"
+            entry["progress"] = {"completion": 1.0}
+        return _public(entry)
+
+    @staticmethod
+    def _check_option(key: str, value: Any) -> str | None:
+        if key == "shutterSpeed":
+            if value != 0 and not any(abs(value - s) <= 1e-9 + 1e-6 * s
+                                      for s in SHUTTER_SPEEDS_S):
+                return f"shutterSpeed {value} is not a supported value"
+        elif key == "iso":
+            if value != 0 and value not in ISO_VALUES:
+                return f"iso {value} is not a supported value"
+        elif key == "exposureProgram":
+            if value not in (1, 2, 4, 9):
+                return f"exposureProgram {value} is not supported"
+        elif key == "whiteBalance":
+            if value not in WHITE_BALANCES:
+                return f"whiteBalance {value!r} is not supported"
+        elif key == "fileFormat":
+            if not isinstance(value, dict) or value.get("type") != "jpeg":
+                return f"fileFormat {value!r} is not supported (jpeg only)"
+        elif key not in ("aperture", "exposureCompensation", "_colorTemperature"):
+            return f"unknown option {key}"
+        return None
+
+    # ------------------------------------------------------------------ digest auth
+    def _check_auth(self, header: str | None, method: str) -> bool:
+        """RFC 7616 digest (MD5, qop=auth) check of an Authorization header."""
+        if self.username is None:
+            return True
+        if not header or not header.startswith("Digest "):
+            return False
+        fields: dict[str, str] = {}
+        for part in header[7:].split(","):
+            if "=" in part:
+                k, v = part.strip().split("=", 1)
+                fields[k] = v.strip('"')
+        if fields.get("username") != self.username or fields.get("nonce") not in self._nonces:
+            return False
+
+        def md5(s: str) -> str:
+            return hashlib.md5(s.encode()).hexdigest()  # noqa: S324 - RFC 7616 MD5
+
+        ha1 = md5(f"{self.username}:{fields.get('realm')}:{self.password or ''}")
+        ha2 = md5(f"{method}:{fields.get('uri')}")
+        expect = md5(f"{ha1}:{fields['nonce']}:{fields.get('nc')}:{fields.get('cnonce')}:"
+                     f"{fields.get('qop')}:{ha2}")
+        return hmac.compare_digest(expect, fields.get("response", ""))
+
+    def new_nonce(self) -> str:
+        """A fresh server nonce for a digest challenge."""
+        nonce = uuid.uuid4().hex
+        self._nonces.add(nonce)
+        return nonce
+
+
+def _error(name: str, code: str, message: str) -> dict[str, Any]:
+    return {"name": name, "state": "error", "error": {"code": code, "message": message}}
+
+
+def _public(entry: dict[str, Any]) -> dict[str, Any]:
+    out = {k: v for k, v in entry.items() if k not in ("ready_at", "never")}
+    if out.get("state") != "done":
+        out.pop("results", None)
+    return out
+
+
+class _Handler(BaseHTTPRequestHandler):
+    camera: SimCamera
+    protocol_version = "HTTP/1.1"
+
+    def log_message(self, fmt: str, *args: Any) -> None:  # quiet
+        log.debug("sim camera: " + fmt, *args)
+
+    def _send(self, status: int, body: bytes, ctype: str = "application/json;charset=utf-8",
+              length: int | None = None, headers: dict[str, str] | None = None) -> None:
+        self.send_response(status)
+        self.send_header("Content-Type", ctype)
+        self.send_header("Content-Length", str(len(body) if length is None else length))
+        self.send_header("X-Content-Type-Options", "nosniff")
+        for k, v in (headers or {}).items():
+            self.send_header(k, v)
+        self.end_headers()
+        self.wfile.write(body)
+        self.wfile.flush()
+
+    def _authorised(self) -> bool:
+        cam = self.camera
+        if cam._check_auth(self.headers.get("Authorization"), self.command):
+            return True
+        challenge = (f'Digest realm="sim-camera", qop="auth", nonce="{cam.new_nonce()}", '
+                     'algorithm=MD5')
+        self._send(401, b'{"error": "unauthorized"}', headers={"WWW-Authenticate": challenge})
+        return False
+
+    def _faulty(self) -> bool:
+        f = self.camera.faults
+        if f.http_status is not None:
+            status = f.http_status
+            f.spend()
+            self._send(status, json.dumps({"error": {"code": "serviceUnavailable",
+                                                     "message": "simulated fault"}}).encode())
+            return True
+        if f.malformed_json:
+            f.spend()
+            self._send(200, b'{"name": "camera.takePicture", "state": ')
+            return True
+        return False
+
+    def _body(self) -> dict[str, Any]:
+        n = int(self.headers.get("Content-Length") or 0)
+        raw = self.rfile.read(n) if n else b""
+        try:
+            data = json.loads(raw or b"{}")
+        except json.JSONDecodeError:
+            data = None
+        return data if isinstance(data, dict) else {}
+
+    def do_GET(self) -> None:  # noqa: N802 - http.server API
+        if not self._authorised():
+            return
+        cam = self.camera
+        if self.path == "/osc/info":
+            if not self._faulty():
+                self._send(200, json.dumps(cam.info()).encode())
+            return
+        if self.path.startswith("/files/"):
+            data = cam.files.get(self.path[len("/files/"):])
+            if data is None:
+                self._send(404, b'{"error": "no such file"}')
+                return
+            if cam.faults.truncated_download:
+                cam.faults.spend()
+                self._send(200, data[: len(data) // 2], "image/jpeg", length=len(data))
+                self.close_connection = True
+                return
+            self._send(200, data, "image/jpeg")
+            return
+        self._send(404, b'{"error": "not found"}')
+
+    def do_POST(self) -> None:  # noqa: N802 - http.server API
+        body = self._body()
+        if not self._authorised():
+            return
+        if self._faulty():
+            return
+        cam = self.camera
+        if self.path == "/osc/state":
+            out = {"fingerprint": f"FIG_{cam.shots_taken}", "state": {
+                "batteryLevel": 1.0, "storageUri": "sim", "_captureStatus": "idle",
+                "_apiVersion": 2}}
+        elif self.path == "/osc/commands/execute":
+            params = body.get("parameters") if isinstance(body.get("parameters"), dict) else {}
+            out = cam.execute(str(body.get("name")), params)
+        elif self.path == "/osc/commands/status":
+            out = cam.status(body.get("id"))
+        else:
+            self._send(404, b'{"error": "not found"}')
+            return
+        status = 400 if out.get("state") == "error" else 200
+        self._send(status, json.dumps(out).encode())
+
+
+def sim_camera_from_file(hdri: str | os.PathLike[str], *, width: int | None = None,
+                         **kwargs: Any) -> SimCamera:
+    """A :class:`SimCamera` photographing the HDRI file ``hdri`` (downsampled to at most
+    ``width`` texels across by whole factors; default: as stored)."""
+    from grassd.sim.hdri import downsample, load_hdri  # noqa: PLC0415
+
+    env = load_hdri(hdri)
+    if width is not None and env.shape[1] > width:
+        factor = env.shape[1] // width
+        while env.shape[0] % factor:
+            factor -= 1
+        if factor > 1:
+            env = downsample(env, factor)
+    return SimCamera(env, **kwargs)
+
+
+def replace_faults(cam: SimCamera, **changes: Any) -> None:
+    """Set fault knobs of ``cam`` (names of :class:`Faults`)."""
+    for k, v in changes.items():
+        if k not in {f.name for f in dataclasses.fields(Faults)}:
+            raise ValueError(f"unknown fault {k!r}")
+        setattr(cam.faults, k, v)
