@@ -80,6 +80,9 @@ class LightInput:
     checker_raw: Path | None = None
     checker_corners: tuple[tuple[float, float], ...] | None = None
     checker_chart: str = "spydercheckr-24"
+    #: the sun is clipped in the HDRI (a capture station said so): restore it from the lux
+    #: reading (grassd.sim.sun.split_sun) instead of adding one from site and time
+    sun_from_hdri: bool = False
 
 
 @dataclass(frozen=True)
@@ -321,6 +324,10 @@ class Calibrator:
         from grassd.sim.lighting import build_lighting
         from grassd.sim.sun import sun_position
 
+        if light.sun_from_hdri:
+            return build_lighting(light.hdri, light.ambient_lux, sun_lux=light.sun_lux,
+                                  sun_from_hdri=True, flip=self.cfg.light.hdri_flip,
+                                  rotation_deg=self.cfg.light.hdri_rotation_deg)
         az, el = light.sun_azimuth_deg, light.sun_elevation_deg
         sun = light.sun_lux
         notes: list[str] = []

@@ -38,6 +38,7 @@ import time
 import uuid
 from dataclasses import dataclass
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -509,3 +510,22 @@ def replace_faults(cam: SimCamera, **changes: Any) -> None:
         if k not in {f.name for f in dataclasses.fields(Faults)}:
             raise ValueError(f"unknown fault {k!r}")
         setattr(cam.faults, k, v)
+
+
+def site_hdri() -> Path:
+    """The packaged site panorama (``grassd/sim/data/default_site.exr``)."""
+    from importlib import resources  # noqa: PLC0415
+
+    return Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
+
+
+def start_site_camera(hw: Any, width: int = 256) -> SimCamera:
+    """Start a simulated camera photographing the packaged site panorama at the light level of
+    the simulated lux sensor of ``hw`` (a :class:`grassd.daemon.sim_hardware.SimulatedHardware`;
+    horizontal illuminance of the photographed scene = its lux), for ``--simulate-hardware``."""
+    from grassd.sim.lighting import horizontal_illuminance  # noqa: PLC0415
+
+    cam = sim_camera_from_file(site_hdri(), width=width)
+    lux = float(getattr(hw, "lux", 5000.0))
+    cam.set_scene(scene_scale=lux / horizontal_illuminance(cam.env))
+    return cam.start()

@@ -82,6 +82,11 @@ def _simulated(cfg: Config, lux: float, firmware: str = FIRMWARE_BACKENDS[0]):
 
     hw = SimulatedHardware(cfg, cfg.state_dir / "simhw", lux=lux, firmware=firmware)
     new = hw.start()
+    camera = None
+    if cfg.capture is not None:  # [capture]: a simulated OSC camera photographing the site
+        from grassd.daemon.capture.camera_sim import start_site_camera
+
+        camera = start_site_camera(hw)
 
     def transform(c: Config) -> Config:
         ctrls = tuple(dataclasses.replace(x, port=hw.ports.get(x.port, x.port))
@@ -89,7 +94,10 @@ def _simulated(cfg: Config, lux: float, firmware: str = FIRMWARE_BACKENDS[0]):
         light = c.light
         if light.modbus is not None and hw.sensor is not None:
             light = dataclasses.replace(light, modbus=hw.sensor.config)
-        return dataclasses.replace(c, controllers=ctrls, light=light,
+        cap = c.capture
+        if cap is not None and camera is not None:
+            cap = dataclasses.replace(cap, camera=camera.url, username="", password="")
+        return dataclasses.replace(c, controllers=ctrls, light=light, capture=cap,
                                    metrics=MetricsConfig(state_dir_textfile(c.state_dir)))
 
     return hw, transform(new), transform
@@ -126,6 +134,8 @@ def run_cmd(config_path: str | None, state_dir: str | None, simulate_hardware: b
             click.echo(f"simulated controller port {port} -> {dev}", err=True)
         if hw.sensor is not None:
             click.echo(f"simulated lux sensor on 127.0.0.1:{hw.sensor.port}", err=True)
+        if cfg.capture is not None:
+            click.echo(f"simulated OSC camera on {cfg.capture.camera}", err=True)
     src = config_path or (str(DEFAULT_CONFIG_PATH) if DEFAULT_CONFIG_PATH.exists() else None)
     try:
         svc = Service(cfg, config_path=src, tick_s=tick_s, transform=transform)

@@ -24,6 +24,8 @@ The file (default ``/etc/grassd/grassd.toml``; the embedded default is
     [tables]       granularity = "global" | "controller" | "pixel", eye = "world" | "pixel",
                    group_tolerance_deg, distance_tolerance, check_groups (see TablesConfig):
                    the table(s) the daemon pushes, one per controller / per pixel or global
+    [capture]      optional capture station: camera URL, bracket, interval
+                   (see grassd.daemon.capture.settings)
     [audience]     optional region: polygon = [[x, y], ...] (m), h_cm = [low, high],
                    ground_samples, height_samples, objective = "mean" | "worst"; when set,
                    the daemon's table(s) come from the region instead of [[viewpoints]]
@@ -61,12 +63,15 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 from grassd.daemon.errors import ConfigError
 from grassd.daemon.store.ingest import FUTURE_TOLERANCE_S
 from grassd.firmware_proto.messages import MAX_ADDRESS, MIN_ADDRESS
+
+if TYPE_CHECKING:
+    from grassd.daemon.capture.settings import CaptureConfig
 
 #: Where the packaged daemon looks when no ``--config`` is given.
 DEFAULT_CONFIG_PATH = Path("/etc/grassd/grassd.toml")
@@ -344,6 +349,8 @@ class Config:
     retention: RetentionConfig = RetentionConfig()
     metrics: MetricsConfig = MetricsConfig()
     alerts: AlertsConfig = AlertsConfig()
+    #: the capture station (:mod:`grassd.daemon.capture.settings`), None without [capture]
+    capture: CaptureConfig | None = None
 
     @property
     def serial_ports(self) -> list[str]:
@@ -653,6 +660,7 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         "simulation": _F(dict, {}), "calibration": _F(dict, {}),
         "tables": _F(dict, {}), "audience": _F(dict, None), "retention": _F(dict, {}),
         "metrics": _F(dict, {}), "alerts": _F(dict, {}),
+        "capture": _F(dict, None),
     })
 
     s = _table(ctx, ("site",), top["site"], {
@@ -851,7 +859,8 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
                   simulation=simulation, calibration=calibration, state_dir=state_dir,
                   cache_dir=cache_dir,
                   control_socket=sock, source=ctx.source, tables=tables, audience=audience,
-                  retention=retention, metrics=metrics, alerts=alerts)
+                  retention=retention, metrics=metrics, alerts=alerts,
+                  capture=_capture_section(ctx, top["capture"]))
 
 
 def _parse_operator(ctx: _Ctx, metrics_raw: Any, alerts_raw: Any
@@ -876,6 +885,14 @@ def _shell_words(v: str) -> str | None:
     except ValueError as exc:
         return f"cannot be split into words like a shell line: {exc}"
     return None if words else "must name a program"
+
+
+def _capture_section(ctx: _Ctx, raw: Any) -> CaptureConfig | None:
+    """``[capture]``, validated by :mod:`grassd.daemon.capture.settings` (imported lazily: it
+    uses this module's checkers)."""
+    from grassd.daemon.capture.settings import parse_capture  # noqa: PLC0415
+
+    return parse_capture(ctx, raw)
 
 
 def _parse_tables_audience(ctx: _Ctx, tables_raw: Any, audience_raw: Any

@@ -236,6 +236,8 @@ class Service:
             raise
         self.control: ControlServer | None = None
         self._watchdog_thread: threading.Thread | None = None
+        #: the capture station's thread ([capture]), grassd.daemon.capture.station
+        self.capture_loop: Any = None
 
     # ------------------------------------------------------------------ setup
     def _build(self, cfg: Config) -> None:
@@ -292,6 +294,10 @@ class Service:
         pending = self.inbox.recover()
         self.prune()
         self.notifier.ready(f"watching {self.cfg.light.inbox}")
+        if self.cfg.capture is not None:  # its own thread: never blocks a calibration
+            from grassd.daemon.capture.station import start_capture_loop  # noqa: PLC0415
+
+            self.capture_loop = start_capture_loop(self.cfg)
         self.activity = "idle"
         log.info("grassd %s ready: inbox %s, %d controller(s), socket %s", __version__,
                  self.cfg.light.inbox, len(self.cfg.controllers), self.cfg.control_socket)
@@ -403,6 +409,8 @@ class Service:
     def shutdown(self) -> None:
         """Stop serving, close ports and the database (called once at exit)."""
         self.notifier.stopping("stopping")
+        if self.capture_loop is not None:
+            self.capture_loop.stop()
         if self.control is not None:
             self.control.stop()
         while True:  # answer anybody still waiting for a run
@@ -604,7 +612,8 @@ class Service:
         light = LightInput(hdri=m.hdri, ambient_lux=lux, timestamp=m.timestamp,
                            sun_lux=m.sun_lux, sun_azimuth_deg=m.sun_azimuth_deg,
                            sun_elevation_deg=m.sun_elevation_deg, checker_raw=m.checker_raw,
-                           checker_corners=m.checker_corners, checker_chart=m.checker_chart)
+                           checker_corners=m.checker_corners, checker_chart=m.checker_chart,
+                           sun_from_hdri=m.sun_clipped)
         run_id = self.history.start_run("bundle", bundle_hash=b.hash,
                                         input_hashes=b.input_hashes, lux=lux, lux_source=source,
                                         light_at=m.timestamp.timestamp())

@@ -19,6 +19,9 @@ write ``.partial`` names and rename. Manifest keys::
     checker_raw = "checker.dng"              # optional colour-checker RAW
     checker_corners = [[x, y], x4]           # chart corners in the RAW (pixels), with checker_raw
     checker_chart = "spydercheckr-24"        # optional: reference chart (or colorchecker-classic)
+    [capture]                                # optional: how a capture station made it
+    sun_clipped = true                       #   (camera, exposures, merge; archived as is);
+                                             #   sun_clipped: restore the sun from lux
 
 Life of a bundle (all moves are ``rename(2)`` inside the state directory, so each is atomic)::
 
@@ -69,10 +72,11 @@ import sqlite3
 import stat
 import time
 import tomllib
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime, tzinfo
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 from zoneinfo import ZoneInfo
 
@@ -115,6 +119,13 @@ class Manifest:
     checker_raw: Path | None
     checker_corners: tuple[tuple[float, float], ...] | None
     checker_chart: str = "spydercheckr-24"
+    #: the ``[capture]`` table of a bundle made by ``grassd capture`` (metadata), or None
+    capture: Mapping[str, Any] | None = None
+
+    @property
+    def sun_clipped(self) -> bool:
+        """The capture station flagged a sun still clipped in its shortest exposure."""
+        return bool(self.capture and self.capture.get("sun_clipped") is True)
 
     def files(self) -> list[Path]:
         """The data files the manifest names."""
@@ -137,7 +148,8 @@ class Bundle:
 
 
 _MANIFEST_KEYS = {"timestamp", "hdri", "ambient_lux", "sun_lux", "sun_azimuth_deg",
-                  "sun_elevation_deg", "checker_raw", "checker_corners", "checker_chart"}
+                  "sun_elevation_deg", "checker_raw", "checker_corners", "checker_chart",
+                  "capture"}
 
 
 def read_manifest_data(path: Path) -> dict[str, Any]:
@@ -236,9 +248,13 @@ def parse_manifest(data: dict[str, Any], base: Path, tz: tzinfo = UTC) -> Manife
     chart = data.get("checker_chart", "spydercheckr-24")
     if not isinstance(chart, str) or not chart:
         raise ManifestError(f"checker_chart must be a chart name, got {chart!r}")
+    capture = data.get("capture")
+    if capture is not None and not isinstance(capture, dict):
+        raise ManifestError("capture must be a table (written by grassd capture)")
     return Manifest(timestamp=ts, hdri=hdri, ambient_lux=ambient, sun_lux=sun, sun_azimuth_deg=az,
                     sun_elevation_deg=el, checker_raw=raw, checker_corners=corners,
-                    checker_chart=chart)
+                    checker_chart=chart,
+                    capture=None if capture is None else MappingProxyType(dict(capture)))
 
 
 #: How far (s) a bundle's light may be stamped ahead of the daemon's clock (clocks drift; a

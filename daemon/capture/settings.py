@@ -1,0 +1,103 @@
+"""The ``[capture]`` config section: the capture station's camera, bracket and schedule.
+
+::
+
+    [capture]
+    camera = "http://192.168.1.1"   # the OSC camera's base URL
+    username = ""                   # digest auth (THETA in Wi-Fi client mode: THETAYN..., and
+    password = ""                   #   the serial digits); empty: no authentication
+    interval_s = 1800.0             # one capture every this many seconds (daemon's own loop)
+    shots = 9                       # exposures in the bracket
+    ev_step = 2.0                   # EV between neighbouring exposures
+    iso = 100                       # fixed ISO
+    white_balance = "daylight"      # fixed OSC whiteBalance
+    shutter_s = 0.0                 # centre shutter (s); 0 = meter it with one shot
+    max_shutter_s = 1.0             # longest shutter used (s)
+    timeout_s = 10.0                # per HTTP request (s)
+    command_timeout_s = 120.0       # per camera command until done (s)
+    retries = 3                     # attempts after a failed capture, with backoff
+    retry_s = 10.0                  # first backoff (s), doubling
+    response_max_age_days = 30.0    # the cached camera response is recovered again when older
+    shaded_unit = 0                 # Modbus unit of a second, shaded lux sensor (0 = none) on
+    shaded_port = 0                 #   [light.modbus]'s link (TCP port 0 = the same port)
+
+Lux comes from ``[light.modbus]`` (read right after the bracket); with ``shaded_unit`` the
+reading of that shaded sensor is the ambient lux and the difference is the sun's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from grassd.daemon.capture.bracket import BracketPlan
+
+
+@dataclass(frozen=True)
+class CaptureConfig:
+    """Validated ``[capture]`` section (see the module docstring; seconds, EV, ISO)."""
+
+    camera: str
+    username: str = ""
+    password: str = ""
+    interval_s: float = 1800.0
+    shots: int = 9
+    ev_step: float = 2.0
+    iso: int = 100
+    white_balance: str = "daylight"
+    shutter_s: float = 0.0
+    max_shutter_s: float = 1.0
+    timeout_s: float = 10.0
+    command_timeout_s: float = 120.0
+    retries: int = 3
+    retry_s: float = 10.0
+    response_max_age_days: float = 30.0
+    shaded_unit: int = 0
+    shaded_port: int = 0
+
+    def plan(self) -> BracketPlan:
+        """The bracket this section asks for."""
+        return BracketPlan(shots=self.shots, ev_step=self.ev_step, iso=self.iso,
+                           white_balance=self.white_balance,
+                           centre_shutter_s=self.shutter_s or None,
+                           max_shutter_s=self.max_shutter_s)
+
+
+def parse_capture(ctx: Any, raw: Any) -> CaptureConfig | None:
+    """Validate the ``[capture]`` table ``raw`` (None when absent) with the config module's
+    checker ``ctx`` (errors name the key and line)."""
+    if raw is None:
+        return None
+    from grassd.daemon.config import (  # noqa: PLC0415 - config imports this module lazily
+        _F,
+        _between,
+        _non_empty,
+        _one_of,
+        _positive,
+        _table,
+    )
+
+    d = CaptureConfig
+    c = _table(ctx, ("capture",), raw, {
+        "camera": _F(str, check=_non_empty), "username": _F(str, d.username),
+        "password": _F(str, d.password),
+        "interval_s": _F(float, d.interval_s, _between(10.0, 7 * 86400.0, " s")),
+        "shots": _F(int, d.shots, _between(3, 15)),
+        "ev_step": _F(float, d.ev_step, _between(0.5, 4.0, " EV")),
+        "iso": _F(int, d.iso, _between(50, 12800)),
+        "white_balance": _F(str, d.white_balance, _one_of(
+            "daylight", "shade", "cloudy-daylight", "incandescent", "fluorescent", "auto")),
+        "shutter_s": _F(float, d.shutter_s, _between(0.0, 60.0, " s")),
+        "max_shutter_s": _F(float, d.max_shutter_s, _between(1e-4, 60.0, " s")),
+        "timeout_s": _F(float, d.timeout_s, _positive),
+        "command_timeout_s": _F(float, d.command_timeout_s, _positive),
+        "retries": _F(int, d.retries, _between(0, 20)),
+        "retry_s": _F(float, d.retry_s, _between(0.0, 3600.0, " s")),
+        "response_max_age_days": _F(float, d.response_max_age_days, _positive),
+        "shaded_unit": _F(int, d.shaded_unit, _between(0, 247)),
+        "shaded_port": _F(int, d.shaded_port, _between(0, 65535)),
+    })
+    if not c["camera"].startswith(("http://", "https://")):
+        raise ctx.error(("capture", "camera"), "must be an http:// URL of the OSC camera "
+                        "(e.g. http://192.168.1.1)")
+    return CaptureConfig(**c)

@@ -1,0 +1,297 @@
+"""The capture station: bracket -> merged EXR + lux -> a bundle in the inbox, once or on a
+schedule.
+
+One capture (:meth:`Station.capture_once`):
+
+1. ``/osc/info`` (model, serial, firmware), then the bracket (:mod:`.bracket`) into a private
+   work directory under ``state_dir/capture/work``;
+2. the camera response: the cached one of this camera (``state_dir/capture/response/<camera
+   key>-iso<ISO>-<white balance>.json``) while younger than ``response_max_age_days``, else
+   recovered from this bracket (:func:`grassd.calib.hdr_merge.recover_response`) and cached;
+3. the merge (:func:`grassd.calib.hdr_merge.merge_ldr`) into a scene-linear EXR; a sun that
+   is still clipped in the shortest exposure is flagged (``capture.sun_clipped``) so that the
+   daemon restores it from the lux reading (``sun_from_hdri``, :func:`grassd.sim.sun.split_sun`);
+4. lux from ``[light.modbus]`` right after the bracket (or ``lux`` given); with a shaded
+   sensor, ambient = shaded and sun = unshaded - shaded;
+5. the bundle: a directory written under a hidden name in the inbox (the inbox ignores
+   names starting with ``.``), manifest last, fsynced, then renamed to its final name in one
+   ``rename(2)``. A failure at any step leaves nothing in the inbox.
+
+Failures are typed (:mod:`.errors`, :class:`~grassd.daemon.errors.LuxSensorError`);
+:meth:`Station.capture` retries them ``retries`` times with doubling backoff.
+:class:`CaptureLoop` runs captures every ``interval_s`` in its own thread, so a capture never
+blocks or delays a calibration (the daemon's main thread only sees the finished bundle).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import logging
+import os
+import shutil
+import threading
+import time
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from grassd.calib.errors import BracketBlackError, BracketClippedError, HdrMergeError
+from grassd.daemon.atomic import atomic_write_json, atomic_write_text, fsync_dir
+from grassd.daemon.capture.bracket import capture_bracket, load_codes
+from grassd.daemon.capture.errors import BracketUnusable, CaptureError
+from grassd.daemon.capture.osc_client import CameraInfo, OscClient
+from grassd.daemon.capture.settings import CaptureConfig
+from grassd.daemon.config import Config, ModbusConfig
+from grassd.daemon.errors import LuxSensorError
+
+log = logging.getLogger(__name__)
+
+#: Name of the merged panorama inside a capture bundle.
+HDRI_NAME = "sky.exr"
+
+
+@dataclass(frozen=True)
+class CaptureResult:
+    """A written bundle: its directory in the inbox and its manifest (as written)."""
+
+    bundle: Path
+    manifest: dict[str, Any]
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        return repr(float(v)) if isinstance(v, float) else str(v)
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    return json.dumps(str(v))  # a TOML basic string is a JSON string
+
+
+def manifest_toml(manifest: dict[str, Any]) -> str:
+    """TOML text of a bundle manifest: top-level keys, then the ``[capture]`` table."""
+    lines = [f"{k} = {_toml_value(v)}" for k, v in manifest.items() if not isinstance(v, dict)]
+    for name, table in manifest.items():
+        if isinstance(table, dict):
+            lines.append(f"\n[{name}]")
+            lines += [f"{k} = {_toml_value(v)}" for k, v in table.items()]
+    return "\n".join(lines) + "\n"
+
+
+class Station:
+    """Makes bundles from the camera of ``cfg`` into ``inbox``; ``modbus`` is the lux sensor
+    (None: the bundle carries lux only when given to :meth:`capture_once`)."""
+
+    def __init__(self, cfg: CaptureConfig, inbox: Path, state_dir: Path,
+                 modbus: ModbusConfig | None = None) -> None:
+        self.cfg = cfg
+        self.inbox = Path(inbox)
+        self.root = Path(state_dir) / "capture"
+        self.modbus = modbus
+        self.client = OscClient(cfg.camera, username=cfg.username or None,
+                                password=cfg.password or None, timeout_s=cfg.timeout_s,
+                                command_timeout_s=cfg.command_timeout_s)
+        self.captures = 0
+        self.last_error: str | None = None
+
+    # ------------------------------------------------------------------ response cache
+    def _response_path(self, info: CameraInfo) -> Path:
+        wb = "".join(ch if ch.isalnum() else "_" for ch in self.cfg.white_balance)
+        return self.root / "response" / f"{info.key}-iso{self.cfg.iso}-{wb}.json"
+
+    def _cached_response(self, path: Path) -> tuple[np.ndarray, str] | None:
+        try:
+            data = json.loads(path.read_text())
+            resp = np.asarray(data["response"], dtype=np.float64)
+            age_days = (time.time() - float(data["recovered_at"])) / 86400.0
+        except (OSError, ValueError, KeyError, TypeError):
+            return None
+        if resp.shape != (256, 3) or age_days > self.cfg.response_max_age_days:
+            return None
+        return resp, str(data.get("recovered_at_iso", ""))
+
+    def response(self, info: CameraInfo, codes: list[np.ndarray],
+                 exposures: list[float]) -> tuple[np.ndarray, str]:
+        """The camera response for this bracket and how it was obtained (step 2)."""
+        from grassd.calib.hdr_merge import recover_response  # noqa: PLC0415
+
+        path = self._response_path(info)
+        cached = self._cached_response(path)
+        if cached is not None:
+            return cached[0], f"cached (recovered {cached[1]})"
+        resp = recover_response(codes, exposures)
+        now = time.time()
+        atomic_write_json(path, {"camera": info.key, "iso": self.cfg.iso,
+                                 "white_balance": self.cfg.white_balance,
+                                 "method": "debevec1997", "recovered_at": now,
+                                 "recovered_at_iso": datetime.fromtimestamp(now, UTC)
+                                 .isoformat(timespec="seconds"),
+                                 "response": resp.tolist()})
+        return resp, "recovered from this bracket"
+
+    # ------------------------------------------------------------------ lux
+    def read_lux(self) -> tuple[float, float | None, str]:
+        """(ambient lux, sun lux or None, source) from the sensor(s) (step 4)."""
+        from grassd.daemon.luxsensor import read_lux  # noqa: PLC0415
+
+        if self.modbus is None:
+            raise LuxSensorError("no lux: [light.modbus] names no sensor and no --lux was "
+                                 "given")
+        total = read_lux(self.modbus)
+        if not self.cfg.shaded_unit:
+            return total, None, "modbus"
+        shaded_cfg = dataclasses.replace(self.modbus, unit=self.cfg.shaded_unit,
+                                         port=self.cfg.shaded_port or self.modbus.port)
+        shaded = read_lux(shaded_cfg)
+        return shaded, max(total - shaded, 0.0), "modbus (shaded + unshaded)"
+
+    # ------------------------------------------------------------------ one capture
+    def capture_once(self, lux: float | None = None) -> CaptureResult:
+        """One capture attempt (module docstring); raises a typed error, leaving no bundle."""
+        from grassd.calib.hdr_merge import merge_ldr, relative_exposure  # noqa: PLC0415
+        from grassd.sim.hdri import write_exr  # noqa: PLC0415
+        from grassd.sim.sun import sun_mask  # noqa: PLC0415
+
+        started = datetime.now(UTC)
+        stamp = started.strftime("%Y%m%dT%H%M%S") + f"{started.microsecond // 1000:03d}Z"
+        work = self.root / "work" / stamp
+        name = f"capture-{stamp}"
+        partial = self.inbox / f".{name}.partial"
+        try:
+            info = self.client.info()
+            self.client.state()
+            shots = capture_bracket(self.client, self.cfg.plan(), work)
+            if lux is None:
+                ambient, sun_lux, lux_source = self.read_lux()
+            else:
+                ambient, sun_lux, lux_source = float(lux), None, "--lux"
+            codes = load_codes(shots)
+            exposures = [relative_exposure(s.exposure_s, s.iso, s.f_number) for s in shots]
+            try:
+                resp, how = self.response(info, codes, exposures)
+                merged = merge_ldr(codes, exposures, resp)
+            except (BracketClippedError, BracketBlackError) as exc:
+                raise BracketUnusable(f"bracket from {self.cfg.camera} unusable: {exc}") from None
+            except HdrMergeError as exc:
+                raise BracketUnusable(f"bracket from {self.cfg.camera} cannot be merged: "
+                                      f"{exc}") from None
+            mask = sun_mask(merged.radiance)
+            sun_clipped = bool(mask is not None and (mask & merged.clipped).any())
+            manifest: dict[str, Any] = {
+                "timestamp": started.isoformat(timespec="seconds"), "hdri": HDRI_NAME,
+                "ambient_lux": round(ambient, 3)}
+            if sun_lux is not None:
+                manifest["sun_lux"] = round(sun_lux, 3)
+            manifest["capture"] = {
+                "camera_url": self.cfg.camera, "camera_model": info.model,
+                "camera_manufacturer": info.manufacturer, "camera_serial": info.serial,
+                "camera_firmware": info.firmware,
+                "exposures_s": [s.exposure_s for s in shots],
+                "requested_s": [s.requested_s for s in shots],
+                "exposure_source": sorted({s.source for s in shots}),
+                "iso": self.cfg.iso, "white_balance": self.cfg.white_balance,
+                "f_number": shots[0].f_number,
+                "merge_method": merged.method, "response": how,
+                "shots_used": merged.shots_used,
+                "clipped_fraction": round(merged.clipped_fraction, 6),
+                "black_fraction": round(merged.black_fraction, 6),
+                "sun_clipped": sun_clipped, "lux_source": lux_source,
+            }
+            partial.mkdir(parents=True)
+            write_exr(partial / HDRI_NAME, merged.radiance)
+            atomic_write_text(partial / "manifest.toml", manifest_toml(manifest))
+            fsync_dir(partial)
+            final = self.inbox / name
+            os.rename(partial, final)
+            fsync_dir(self.inbox)
+        except BaseException:
+            shutil.rmtree(partial, ignore_errors=True)
+            raise
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
+        self.captures += 1
+        log.info("capture %s: %d shots %.3g..%.3g s, response %s, clipped %.2f%%%s -> %s",
+                 name, len(shots), shots[0].exposure_s, shots[-1].exposure_s, how,
+                 100 * merged.clipped_fraction, ", sun clipped" if sun_clipped else "", final)
+        return CaptureResult(final, manifest)
+
+    def capture(self, lux: float | None = None, stop: threading.Event | None = None,
+                sleep=time.sleep) -> CaptureResult:
+        """:meth:`capture_once`, retried ``retries`` times after a typed failure with backoff
+        ``retry_s``, doubling; raises the last error. ``stop`` ends the waiting early."""
+        delay = self.cfg.retry_s
+        for attempt in range(self.cfg.retries + 1):
+            try:
+                out = self.capture_once(lux)
+                self.last_error = None
+                return out
+            except (CaptureError, LuxSensorError, OSError) as exc:
+                self.last_error = str(exc)
+                if attempt == self.cfg.retries or (stop is not None and stop.is_set()):
+                    raise
+                log.warning("capture failed (attempt %d of %d), again in %g s: %s",
+                            attempt + 1, self.cfg.retries + 1, delay, exc)
+                if stop is not None:
+                    if stop.wait(delay):
+                        raise
+                else:
+                    sleep(delay)
+                delay *= 2
+        raise AssertionError("unreachable")
+
+
+class CaptureLoop:
+    """Captures every ``cfg.interval_s`` seconds in a daemon thread until :meth:`stop`; the
+    first capture right after :meth:`start`. Failures are logged and kept in
+    :attr:`last_error`; the loop goes on with the next interval."""
+
+    def __init__(self, station: Station) -> None:
+        self.station = station
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.last_bundle: Path | None = None
+        self.last_error: str | None = None
+
+    def start(self) -> CaptureLoop:
+        """Start the capture thread."""
+        self._thread = threading.Thread(target=self._run, name="capture", daemon=True)
+        self._thread.start()
+        log.info("capture station: %s every %g s", self.station.cfg.camera,
+                 self.station.cfg.interval_s)
+        return self
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            begun = time.monotonic()
+            try:
+                self.last_bundle = self.station.capture(stop=self._stop).bundle
+                self.last_error = None
+            except (CaptureError, LuxSensorError, OSError) as exc:
+                self.last_error = str(exc)
+                log.error("capture failed after %d attempt(s): %s (next in %g s)",
+                          self.station.cfg.retries + 1, exc, self.station.cfg.interval_s)
+            except Exception as exc:  # noqa: BLE001 - never let the thread die silently
+                self.last_error = f"{type(exc).__name__}: {exc}"
+                log.exception("capture crashed; the loop goes on")
+            wait = self.station.cfg.interval_s - (time.monotonic() - begun)
+            self._stop.wait(max(wait, 0.0))
+
+    def stop(self, timeout_s: float = 30.0) -> None:
+        """Stop after the capture in progress (if any) ends."""
+        self._stop.set()
+        if self._thread is not None:
+            with contextlib.suppress(RuntimeError):
+                self._thread.join(timeout_s)
+            self._thread = None
+
+
+def start_capture_loop(cfg: Config) -> CaptureLoop:
+    """The daemon's capture thread for ``cfg`` ([capture], the inbox, [light.modbus])."""
+    assert cfg.capture is not None
+    return CaptureLoop(Station(cfg.capture, cfg.light.inbox, cfg.state_dir,
+                               cfg.light.modbus)).start()
