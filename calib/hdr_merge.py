@@ -144,6 +144,7 @@ def recover_response(images: Sequence[ArrayLike], exposures: ArrayLike, *,
     from colour_hdri import g_solve, samples_Grossberg2003  # noqa: PLC0415 - heavy import
 
     imgs, h = _check_stack(images, exposures, np.uint8)
+    _check_usable(imgs[0].max(axis=2) >= CLIP_CODE, imgs[-1].min(axis=2) <= BLACK_CODE)
     stack = np.stack([im.astype(np.float64) / (CODES - 1) for im in imgs], axis=-1)
     z = samples_Grossberg2003(stack, samples, CODES).astype(np.int64)  # (samples, N, 3)
     w_codes = _hat(np.arange(CODES, dtype=np.float64), BLACK_CODE, CLIP_CODE)
@@ -241,9 +242,9 @@ def merge_linear(images: Sequence[ArrayLike], exposures: ArrayLike) -> MergeResu
                     worst_last <= BLACK_LINEAR, "linear")
 
 
-def _combine(lin: list[NDArray], weights: list[NDArray], bright_in_shortest: NDArray,
-             dark_in_longest: NDArray, clipped: NDArray, black: NDArray,
-             method: str) -> MergeResult:
+def _check_usable(clipped: NDArray, black: NDArray) -> None:
+    """Refuse a bracket clipped in its shortest or black in its longest shot over more than
+    :data:`UNUSABLE_FRACTION` of the texels."""
     if clipped.mean() > UNUSABLE_FRACTION:
         raise BracketClippedError(
             f"{100 * clipped.mean():.0f}% of the image is clipped even in the shortest "
@@ -252,6 +253,12 @@ def _combine(lin: list[NDArray], weights: list[NDArray], bright_in_shortest: NDA
         raise BracketBlackError(
             f"{100 * black.mean():.0f}% of the image is black even in the longest exposure: "
             "lengthen the bracket's exposures (or check the lens cap)")
+
+
+def _combine(lin: list[NDArray], weights: list[NDArray], bright_in_shortest: NDArray,
+             dark_in_longest: NDArray, clipped: NDArray, black: NDArray,
+             method: str) -> MergeResult:
+    _check_usable(clipped, black)
     w = [np.array(x, dtype=np.float64) for x in weights]
     w[0] = np.where(bright_in_shortest & (w[0] == 0), 1.0, w[0])
     w[0] = np.where(clipped, 1.0, w[0])  # nothing better than the shortest exists there

@@ -1,0 +1,151 @@
+"""Bad camera and sensor behaviour: each is a clear typed error, retried with backoff, and no
+bundle (not even a partial one) is left in the inbox. The camera is a real HTTP server on
+127.0.0.1, the lux sensor a real pymodbus server."""
+
+from __future__ import annotations
+
+import dataclasses
+import socket
+import tomllib
+
+import numpy as np
+import pytest
+
+from grassd.daemon.capture.camera_sim import SimCamera
+from grassd.daemon.capture.errors import (
+    BracketUnusable,
+    CameraCommandTimeout,
+    CameraDownloadError,
+    CameraHttpError,
+    CameraProtocolError,
+    CameraUnreachable,
+    ExposureMissing,
+)
+from grassd.daemon.capture.settings import CaptureConfig
+from grassd.daemon.capture.station import Station
+from grassd.daemon.config import load_default_config
+from grassd.daemon.errors import LuxSensorSilent
+from grassd.daemon.ingest import parse_manifest
+from grassd.daemon.sim_hardware import SimLuxSensor
+
+
+def small_env() -> np.ndarray:
+    """A 64 x 32 sky: smooth gradient plus a bright compact sun."""
+    h, w = 32, 64
+    v = np.linspace(1.0, 0.2, h)[:, None, None] * np.ones((h, w, 3))
+    v[5:7, 20:22] = 3000.0
+    return v.astype(np.float32)
+
+
+@pytest.fixture
+def camera():
+    with SimCamera(small_env(), scene_scale=1000.0, latency_s=0.01) as cam:
+        yield cam
+
+
+def station(tmp_path, url: str, **kw) -> Station:
+    cfg = CaptureConfig(camera=url, shots=5, retries=kw.pop("retries", 1), retry_s=0.01,
+                        timeout_s=2.0, command_timeout_s=kw.pop("command_timeout_s", 2.0), **kw)
+    st = Station(cfg, tmp_path / "inbox", tmp_path / "state", kw.get("modbus"))
+    st.client.poll_s = 0.01
+    (tmp_path / "inbox").mkdir(exist_ok=True)
+    return st
+
+
+def inbox_entries(tmp_path) -> list[str]:
+    return sorted(p.name for p in (tmp_path / "inbox").iterdir())
+
+
+def test_good_capture_writes_one_complete_bundle(tmp_path, camera):
+    out = station(tmp_path, camera.url).capture(lux=8000.0)
+    assert inbox_entries(tmp_path) == [out.bundle.name]
+    data = tomllib.loads((out.bundle / "manifest.toml").read_text())
+    m = parse_manifest(data, out.bundle)  # the daemon's own parser accepts it
+    assert m.ambient_lux == 8000.0 and m.hdri.exists()
+    assert data["capture"]["camera_model"] == "grassd SimCam Z1"
+    assert len(data["capture"]["exposures_s"]) == 5
+    assert m.sun_clipped == data["capture"]["sun_clipped"]
+
+
+FAULTS = [
+    ({"http_status": 503}, CameraHttpError),
+    ({"http_status": 404}, CameraHttpError),
+    ({"malformed_json": True}, CameraProtocolError),
+    ({"never_finish": True}, CameraCommandTimeout),
+    ({"truncated_download": True}, CameraDownloadError),
+    ({"missing_exposure": True}, ExposureMissing),
+]
+
+
+@pytest.mark.parametrize(("fault", "error"), FAULTS, ids=[next(iter(f)) for f, _ in FAULTS])
+def test_camera_fault_is_typed_retried_and_leaves_no_bundle(tmp_path, camera, fault, error,
+                                                            caplog):
+    for k, v in fault.items():
+        setattr(camera.faults, k, v)
+    st = station(tmp_path, camera.url, command_timeout_s=0.3)
+    with pytest.raises(error) as exc:
+        st.capture(lux=5000.0)
+    assert str(exc.value)  # one line that says what happened
+    assert "attempt 1 of 2" in caplog.text  # retried once, with backoff
+    assert inbox_entries(tmp_path) == []
+
+
+def test_fault_that_clears_is_retried_into_a_bundle(tmp_path, camera):
+    camera.faults.http_status, camera.faults.times = 503, 2
+    out = station(tmp_path, camera.url, retries=3).capture(lux=5000.0)
+    assert inbox_entries(tmp_path) == [out.bundle.name]
+
+
+def test_camera_unreachable(tmp_path):
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with pytest.raises(CameraUnreachable, match="unreachable"):
+        station(tmp_path, f"http://127.0.0.1:{port}").capture(lux=5000.0)
+    assert inbox_entries(tmp_path) == []
+
+
+@pytest.mark.parametrize(("scale", "word"), [(1e9, "clipped"), (1e-9, "black")])
+def test_bracket_all_clipped_or_all_black(tmp_path, camera, scale, word):
+    camera.set_scene(scene_scale=scale)
+    st = station(tmp_path, camera.url, shutter_s=0.001)  # a fixed bracket: no meter to save it
+    with pytest.raises(BracketUnusable, match=word):
+        st.capture(lux=5000.0)
+    assert inbox_entries(tmp_path) == []
+
+
+def test_silent_lux_sensor(tmp_path, camera):
+    modbus = load_default_config().light.modbus
+    with SimLuxSensor(modbus, lux=12000.0) as sensor:
+        cfg = dataclasses.replace(sensor.config, timeout_s=0.2, retries=0)
+        st = station(tmp_path, camera.url)
+        st.modbus = cfg
+        sensor.silent = True
+        with pytest.raises(LuxSensorSilent):
+            st.capture()
+        assert inbox_entries(tmp_path) == []
+        sensor.silent = False
+        out = st.capture()  # the same station reads it once it answers again
+        assert out.manifest["ambient_lux"] == pytest.approx(12000.0)
+
+
+def test_digest_auth_as_a_theta_in_client_mode(tmp_path):
+    with SimCamera(small_env(), username="THETAYN10010104", password="10010104",
+                   latency_s=0.01) as cam:
+        bad = station(tmp_path, cam.url, username="THETAYN10010104", password="wrong",
+                      retries=0)
+        with pytest.raises(CameraHttpError, match="401"):
+            bad.capture(lux=5000.0)
+        good = station(tmp_path, cam.url, username="THETAYN10010104", password="10010104")
+        assert good.capture(lux=5000.0).bundle.exists()
+
+
+def test_two_sensors_split_ambient_and_sun(tmp_path, camera):
+    modbus = load_default_config().light.modbus
+    with SimLuxSensor(modbus, lux=50000.0) as sun_side, \
+            SimLuxSensor(dataclasses.replace(modbus, unit=2), lux=15000.0) as shaded:
+        st = station(tmp_path, camera.url, shaded_unit=2, shaded_port=shaded.port)
+        st.modbus = dataclasses.replace(sun_side.config, timeout_s=0.5)
+        out = st.capture()
+    assert out.manifest["ambient_lux"] == pytest.approx(15000.0)
+    assert out.manifest["sun_lux"] == pytest.approx(35000.0)
