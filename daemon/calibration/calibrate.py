@@ -321,16 +321,21 @@ class Calibrator:
     # ------------------------------------------------------------------ pieces
     def lighting(self, light: LightInput) -> Any:
         """Build the :class:`grassd.sim.lighting.Lighting` of ``light`` (lux-scaled HDRI + sun)."""
+        from grassd.sim.errors import LightingError
         from grassd.sim.lighting import build_lighting
         from grassd.sim.sun import sun_position
 
-        if light.sun_from_hdri:
-            return build_lighting(light.hdri, light.ambient_lux, sun_lux=light.sun_lux,
-                                  sun_from_hdri=True, flip=self.cfg.light.hdri_flip,
-                                  rotation_deg=self.cfg.light.hdri_rotation_deg)
+        notes: list[str] = []
+        if light.sun_from_hdri and light.sun_azimuth_deg is None:
+            try:
+                return build_lighting(light.hdri, light.ambient_lux, sun_lux=light.sun_lux,
+                                      sun_from_hdri=True, flip=self.cfg.light.hdri_flip,
+                                      rotation_deg=self.cfg.light.hdri_rotation_deg)
+            except LightingError as exc:  # the clipped sun is not found as a compact sun
+                notes.append(f"clipped sun not restored from the HDRI ({exc}); sun from "
+                             "site and time")
         az, el = light.sun_azimuth_deg, light.sun_elevation_deg
         sun = light.sun_lux
-        notes: list[str] = []
         if sun is not None and sun > 0 and az is None:
             az, el = sun_position(self.cfg.site.latitude, self.cfg.site.longitude,
                                   light.timestamp)

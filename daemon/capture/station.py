@@ -83,6 +83,28 @@ def manifest_toml(manifest: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def clipped_sun(clipped: np.ndarray) -> bool:
+    """True when texels clipped even in the shortest exposure (``clipped``, (H, W) bool) form a
+    compact region above the horizon: a sun whose radiance in the map is only a lower bound.
+    Compact: an 8-connected component whose solid angle is at most
+    :data:`grassd.sim.sun.MAX_SUN_SOLID_ANGLE_SR` (a window or white wall is larger)."""
+    from scipy import ndimage  # noqa: PLC0415
+
+    from grassd.sim.lighting import texel_solid_angles  # noqa: PLC0415
+    from grassd.sim.sun import MAX_SUN_SOLID_ANGLE_SR  # noqa: PLC0415
+
+    h, w = clipped.shape
+    if not clipped[: h // 2].any():
+        return False
+    labels, n = ndimage.label(clipped, structure=np.ones((3, 3), bool))
+    omega = np.broadcast_to(texel_solid_angles(h, w)[:, None], (h, w))
+    rows = np.arange(h)[:, None] * np.ones((1, w))
+    index = np.arange(1, n + 1)
+    area = ndimage.sum_labels(omega, labels, index)
+    centre_row = ndimage.mean(rows, labels, index)
+    return bool(((area <= MAX_SUN_SOLID_ANGLE_SR) & (centre_row < h / 2)).any())
+
+
 class Station:
     """Makes bundles from the camera of ``cfg`` into ``inbox``; ``modbus`` is the lux sensor
     (None: the bundle carries lux only when given to :meth:`capture_once`)."""
@@ -155,8 +177,6 @@ class Station:
         """One capture attempt (module docstring); raises a typed error, leaving no bundle."""
         from grassd.calib.hdr_merge import merge_ldr, relative_exposure  # noqa: PLC0415
         from grassd.sim.hdri import write_exr  # noqa: PLC0415
-        from grassd.sim.sun import sun_mask  # noqa: PLC0415
-
         started = datetime.now(UTC)
         stamp = started.strftime("%Y%m%dT%H%M%S") + f"{started.microsecond // 1000:03d}Z"
         work = self.root / "work" / stamp
@@ -180,8 +200,7 @@ class Station:
             except HdrMergeError as exc:
                 raise BracketUnusable(f"bracket from {self.cfg.camera} cannot be merged: "
                                       f"{exc}") from None
-            mask = sun_mask(merged.radiance)
-            sun_clipped = bool(mask is not None and (mask & merged.clipped).any())
+            sun_clipped = clipped_sun(merged.clipped)
             manifest: dict[str, Any] = {
                 "timestamp": started.isoformat(timespec="seconds"), "hdri": HDRI_NAME,
                 "ambient_lux": round(ambient, 3)}
