@@ -26,7 +26,7 @@ def main() -> None:
     print(f"{'curve':8s} {'shots':>5s} {'capture s':>9s} {'response s':>10s} {'merge s':>7s} "
           f"{'med lum err':>11s} {'E err':>6s} {'sun deg':>7s}")
     for curve in CURVES:
-        with SimCamera(env, scene_scale=10.0, curve=curve, seed=7) as cam, \
+        with SimCamera(env, scene_scale=80.0, curve=curve, seed=7) as cam, \
                 tempfile.TemporaryDirectory() as d:
             t0 = time.perf_counter()
             shots = capture_bracket(OscClient(cam.url, poll_s=0.02), plan, Path(d))

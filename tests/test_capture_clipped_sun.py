@@ -35,7 +35,7 @@ def capture(tmp_path, sun: float):
         return st.capture(lux=60000.0)
 
 
-@pytest.mark.parametrize(("sun", "clipped"), [(1e5, True), (20.0, False)])
+@pytest.mark.parametrize(("sun", "clipped"), [(1e6, True), (20.0, False)])
 def test_clipped_sun_is_flagged(tmp_path, sun, clipped):
     out = capture(tmp_path, sun)
     assert out.manifest["capture"]["sun_clipped"] is clipped
@@ -44,7 +44,7 @@ def test_clipped_sun_is_flagged(tmp_path, sun, clipped):
 def test_daemon_restores_a_flagged_sun_from_lux(tmp_path):
     import tomllib
 
-    out = capture(tmp_path, 1e5)
+    out = capture(tmp_path, 1e6)
     m = parse_manifest(tomllib.loads((out.bundle / "manifest.toml").read_text()), out.bundle)
     assert m.sun_clipped
     cal = Calibrator(load_default_config())

@@ -25,7 +25,7 @@ def site_env() -> np.ndarray:
 
 def round_trip(curve: str, tmp_path, seed: int) -> dict[str, float]:
     env = site_env()
-    with SimCamera(env, scene_scale=10.0, curve=curve, seed=seed) as cam:
+    with SimCamera(env, scene_scale=80.0, curve=curve, seed=seed) as cam:
         client = OscClient(cam.url, timeout_s=5, command_timeout_s=10, poll_s=0.02)
         shots = capture_bracket(client, PLAN, tmp_path / curve)
         codes = load_codes(shots)
@@ -63,7 +63,7 @@ def test_two_curves_recover_two_responses(tmp_path):
     env = site_env()
     responses = []
     for curve in ("filmic", "gamma22"):
-        with SimCamera(env, scene_scale=10.0, curve=curve, seed=1) as cam:
+        with SimCamera(env, scene_scale=80.0, curve=curve, seed=1) as cam:
             client = OscClient(cam.url, timeout_s=5, poll_s=0.02)
             shots = capture_bracket(client, PLAN, tmp_path / curve)
             codes = load_codes(shots)

@@ -56,8 +56,9 @@ ISO_VALUES: tuple[int, ...] = (80, 100, 125, 160, 200, 250, 320, 400, 500, 640, 
 #: White balance names accepted (OSC whiteBalance values).
 WHITE_BALANCES: tuple[str, ...] = ("auto", "daylight", "shade", "cloudy-daylight",
                                    "incandescent", "fluorescent")
-#: The lens' f-number (a THETA V/Z1-like fixed aperture).
-F_NUMBER: float = 2.0
+#: The lens' f-number: a THETA Z1 stopped down to its smallest aperture, as a sky capture wants
+#: (even so, at 1/25000 s the real sun, about 1.6e9 cd/m^2, clips: the daemon restores it).
+F_NUMBER: float = 5.6
 
 
 @dataclass(frozen=True)

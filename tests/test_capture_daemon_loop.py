@@ -1,0 +1,138 @@
+"""The whole loop with nobody in between: `grassd run` (a subprocess) with a [capture] section
+captures from a simulated OSC camera on 127.0.0.1, reads the simulated Modbus sensor, drops
+bundles into its own inbox, calibrates and pushes to simulated controllers on ptys. Two
+captures under two different lights make two different tables."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from robust_util import CACHE
+
+from grassd.daemon.capture.camera_sim import SimCamera, site_hdri
+from grassd.daemon.config import load_default_config
+from grassd.daemon.history import History
+from grassd.daemon.sim_hardware import SimulatedHardware, hardware_toml
+from grassd.firmware_proto.tables import table_crc
+from grassd.sim.hdri import downsample, load_hdri
+
+GRASSD = str(Path(sys.executable).parent / "grassd")
+
+
+def config_text(state: Path, cfg, camera_url: str) -> str:
+    return f"""state_dir = "{state}"
+cache_dir = "{CACHE}"
+[site]
+latitude = 35.0
+longitude = 139.0
+timezone = "Asia/Tokyo"
+{hardware_toml(cfg)}[[viewpoints]]
+h_cm = 170
+d_m = 2
+[light]
+inbox = "inbox"
+lux = "modbus"
+settle_s = 0.2
+[light.modbus]
+host = "127.0.0.1"
+port = {cfg.light.modbus.port}
+words = 2
+scale = 0.1
+timeout_s = 0.5
+retries = 1
+[schedule]
+interval_s = 0
+[simulation]
+samples = 64
+seed = 2
+lengths = 7
+[calibration]
+check_levels = 5
+max_rounds = 1
+replicates = 2
+max_jump_mm = 20.0
+[capture]
+camera = "{camera_url}"
+interval_s = 10
+shots = 7
+retry_s = 1
+"""
+
+
+def wait_for(cond, timeout: float, what: str, proc, log: Path):
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        v = cond()
+        if v:
+            return v
+        if proc.poll() is not None:
+            raise AssertionError(f"daemon exited while waiting for {what}:\n"
+                                 f"{log.read_text()[-3000:]}")
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}:\n{log.read_text()[-3000:]}")
+
+
+def captures(state: Path) -> list[str]:
+    names = []
+    for d in ("inbox", "processing", "archive", "rejected"):
+        if (state / d).is_dir():
+            names += [p.name for p in (state / d).iterdir() if "capture-" in p.name
+                      and not p.name.startswith(".")]
+    return names
+
+
+def ok_runs(state: Path) -> list:
+    if not (state / "state.db").exists():
+        return []
+    with History(state / "state.db") as h:
+        return [r for r in reversed(h.runs(20)) if r.status == "ok"]
+
+
+@pytest.mark.slow
+def test_daemon_captures_under_two_lights_and_makes_two_tables(tmp_path):
+    env = load_hdri(site_hdri())
+    env = downsample(env, env.shape[1] // 256) if env.shape[1] > 256 else env
+    # the second light: brighter (the sensor reads 12000 lx) and warmer
+    later = env * np.array([1.0, 0.9, 0.75], np.float32)
+    hw = SimulatedHardware(load_default_config(), tmp_path / "hw", lux=4000.0)
+    cfg = hw.start()
+    cam = SimCamera(env, scene_scale=1000.0).start()
+    state = tmp_path / "state"
+    config = tmp_path / "grassd.toml"
+    config.write_text(config_text(state, cfg, cam.url))
+    log = tmp_path / "daemon.log"
+    proc = subprocess.Popen([GRASSD, "run", "--config", str(config), "--tick", "0.2"],
+                            stdout=open(log, "ab"), stderr=subprocess.STDOUT)
+    try:
+        wait_for(lambda: captures(state), 120, "the first capture", proc, log)
+        cam.set_scene(env=later, scene_scale=3000.0)  # the light changes before the next one
+        assert hw.sensor is not None
+        hw.sensor.lux = 12000.0
+        runs = wait_for(lambda: (r := ok_runs(state)) and len(r) >= 2 and r, 180,
+                        "two calibrations from two captures", proc, log)
+        first, second = runs[0], runs[1]
+        assert (first.lux, second.lux) == (4000.0, 12000.0)  # the sensor, read at capture
+        assert first.table_crc != second.table_crc  # two lights, two tables
+        with History(state / "state.db") as h:
+            assert [p.ok for p in h.pushes(second.id)] == [True, True]
+        active = [table_crc(dev.active_table()) for bus in hw.buses for dev in bus.controllers]
+        assert set(active) == {runs[-1].table_crc}
+        archived = sorted(p.name for p in (state / "archive").iterdir())
+        assert len([a for a in archived if "capture-" in a]) >= 2
+        assert not [p for p in (state / "inbox").iterdir() if p.name.startswith(".")]
+        print(f"\nruns {first.id} ({first.lux:g} lx, crc {first.table_crc:#010x}) and "
+              f"{second.id} ({second.lux:g} lx, crc {second.table_crc:#010x})")
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        cam.stop()
+        hw.stop()
