@@ -1,31 +1,33 @@
 """The daemon demo (for ``make demo``): the whole service on simulated hardware, end to end.
 
 :func:`run_demo` starts ``grassd run --simulate-hardware`` with the embedded default
-configuration (two simulated controllers on pseudo-terminals, a Modbus/TCP lux sensor on
-127.0.0.1), drops one light bundle built from the bundled CC0 site HDRI into the inbox (no lux
-in the manifest, so the daemon reads the sensor), waits until the new table is active on every
-controller, prints the status (with where the status page and the metrics file are) and where
-the report and plot are, and stops the daemon with SIGTERM.
+configuration plus a ``[capture]`` section (two simulated controllers on pseudo-terminals, a
+Modbus/TCP lux sensor and a simulated OSC camera on 127.0.0.1): the capture station
+photographs the bundled CC0 site HDRI, reads the sensor and drops the bundle into the inbox by
+itself; the demo waits until the new table is active on every controller, prints the status
+(with where the status page and the metrics file are) and where the report and plot are, and
+stops the daemon with SIGTERM.
 """
 
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
 import tempfile
 import time
 from collections.abc import Callable
-from datetime import UTC, datetime
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
 from grassd.daemon.cli.run import print_status
+from grassd.daemon.config.settings import default_config_text
 from grassd.daemon.errors import ControlError, DaemonError, DaemonNotRunning
 from grassd.daemon.runtime.control import request
 from grassd.firmware_proto.sim_backends import FIRMWARE_BACKENDS
+
+#: The demo's capture station: one capture at start (the next an hour later).
+DEMO_CAPTURE = '\n[capture]\ncamera = "http://127.0.0.1:8080"\ninterval_s = 3600.0\n'
 
 
 def _grassd() -> list[str]:
@@ -46,8 +48,10 @@ def run_demo(workdir: str | os.PathLike[str] | None = None, *, lux: float = 5000
     sock = state / "control.sock"
     env = {k: v for k, v in os.environ.items()
            if k not in ("RUNTIME_DIRECTORY", "STATE_DIRECTORY", "NOTIFY_SOCKET")}
-    cmd = [*_grassd(), "run", "--simulate-hardware", "--state-dir", str(state), "--sim-lux",
-           str(lux), "--tick", "0.2", "--sim-firmware", firmware]
+    config = work / "grassd.toml"  # the default plus a capture station (camera simulated)
+    config.write_text(default_config_text() + DEMO_CAPTURE)
+    cmd = [*_grassd(), "run", "--simulate-hardware", "--config", str(config), "--state-dir",
+           str(state), "--sim-lux", str(lux), "--tick", "0.2", "--sim-firmware", firmware]
     echo(f"starting: {' '.join(cmd)}")
     with open(log, "ab") as out:
         proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, env=env)
@@ -73,15 +77,8 @@ def run_demo(workdir: str | os.PathLike[str] | None = None, *, lux: float = 5000
     try:
         wait(lambda: request(sock, {"cmd": "ping"}, timeout_s=5), "starting")
         echo(f"daemon running (pid {proc.pid}), state in {state}")
-        site = Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
-        tmp = state / "inbox" / ".demo-bundle"
-        tmp.mkdir(parents=True, exist_ok=True)
-        shutil.copy(site, tmp / "sky.exr")
-        stamp = datetime.now(UTC).replace(microsecond=0).isoformat()
-        (tmp / "manifest.toml").write_text(f'timestamp = {stamp}\nhdri = "sky.exr"\n')
-        bundle = state / "inbox" / f"demo-{int(time.time())}"
-        os.rename(tmp, bundle)
-        echo(f"dropped bundle {bundle.name} (CC0 site HDRI; lux from the simulated sensor)")
+        echo("the capture station photographs the site (simulated OSC camera) and drops the "
+             "bundle into the inbox")
 
         def pushed() -> dict[str, Any] | None:
             st = status()

@@ -382,7 +382,8 @@ def test_one_shot_calibrate_without_daemon(tmp_path):
 
 
 def test_demo_runs_the_whole_daemon(tmp_path, monkeypatch):
-    """`make demo`'s daemon part: embedded default config on simulated hardware."""
+    """`make demo`'s daemon part: embedded default config on simulated hardware, the light
+    captured by the capture station from a simulated camera (no bundle dropped by hand)."""
     from grassd.daemon.cli.demo_daemon import run_demo
 
     monkeypatch.setenv("GRASSD_CACHE_DIR", CACHE)
@@ -391,7 +392,8 @@ def test_demo_runs_the_whole_daemon(tmp_path, monkeypatch):
     assert st["health"] == "ok" and st["run_counts"]["ok"] == 1
     assert all(c["in_sync"] for c in st["controllers"]) and len(st["controllers"]) == 2
     run = st["runs"][0]
-    assert run["lux_source"] == "modbus" and run["lux"] == pytest.approx(5000.0)
+    # the capture station read the simulated sensor and wrote its lux into the bundle
+    assert run["lux_source"] == "manifest" and run["lux"] == pytest.approx(5000.0)
     assert Path(run["report"]).is_file() and Path(run["plot"]).is_file()
     assert any(line.startswith("report: ") for line in lines)
     # the operator's view: where the status page and the metrics are, both written
