@@ -71,12 +71,14 @@ def _wb_params(white_balance: str | Sequence[float]) -> dict:
     return {"user_wb": wb, "use_camera_wb": False, "use_auto_wb": False}
 
 
-def develop_raw(path: str | Path, white_balance: str | Sequence[float] = "camera") -> DevelopedRaw:
+def develop_raw(path: str | Path, white_balance: str | Sequence[float] = "camera",
+                half_size: bool = False) -> DevelopedRaw:
     """Develop a RAW file to linear ProPhoto RGB (16-bit precision, returned as float32 0..1).
 
     Args:
         path: a RAW file LibRaw understands (DNG, CR2, NEF, ARW, ...).
         white_balance: "camera" (as shot) or channel multipliers (R, G, B[, G2]).
+        half_size: one pixel per 2 x 2 Bayer block (no demosaicing; half the width and height).
 
     Raises:
         RawReadError: missing, unreadable, truncated, corrupt or non-RAW file.
@@ -100,6 +102,7 @@ def develop_raw(path: str | Path, white_balance: str | Sequence[float] = "camera
                 no_auto_bright=True,
                 output_bps=16,
                 adjust_maximum_thr=0.0,
+                half_size=half_size,
                 **params,
             )
             used = params.get("user_wb") or list(raw.camera_whitebalance)

@@ -149,3 +149,11 @@ def test_two_sensors_split_ambient_and_sun(tmp_path, camera):
         out = st.capture()
     assert out.manifest["ambient_lux"] == pytest.approx(15000.0)
     assert out.manifest["sun_lux"] == pytest.approx(35000.0)
+
+
+def test_raw_plus_capture_merges_the_dngs(tmp_path, camera):
+    out = station(tmp_path, camera.url, file_format="raw+").capture(lux=5000.0)
+    c = out.manifest["capture"]
+    assert c["merge_method"] == "linear" and c["response"] == "linear RAW (rawpy)"
+    assert c["file_format"] == "raw+"
+    assert inbox_entries(tmp_path) == [out.bundle.name]

@@ -3,6 +3,8 @@ merged map must reproduce the photographed HDRI, with response curves the merge 
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -71,3 +73,29 @@ def test_two_curves_recover_two_responses(tmp_path):
         responses.append(recover_response(codes, h)[:, 1])
     # the two inverse responses differ where the curves do (mid-dark codes)
     assert abs(np.log(responses[0][60] / responses[1][60])) > 0.1
+
+
+def test_raw_bracket_merges_linearly(tmp_path):
+    """RAW+ (as a THETA Z1): the DNGs of the bracket are developed by rawpy and merged
+    linearly, without any response."""
+    from grassd.calib.hdr_merge import merge_linear
+    from grassd.calib.raw_bracket import develop_bracket
+
+    env = site_env()
+    plan = dataclasses.replace(PLAN, file_format="raw+")  # the shortest holds the sun
+    with SimCamera(env, scene_scale=80.0, seed=5) as cam:
+        shots = capture_bracket(OscClient(cam.url, poll_s=0.02), plan, tmp_path)
+    assert all(s.raw_path is not None and s.raw_path.suffix == ".dng" for s in shots)
+    h = [relative_exposure(s.exposure_s, s.iso, s.f_number) for s in shots]
+    merged = merge_linear(develop_bracket([s.raw_path for s in shots]), h)
+    lum_src = env.astype(np.float64) @ REC709_LUMINANCE
+    lum = merged.radiance.astype(np.float64) @ REC709_LUMINANCE
+    ok = ~merged.clipped & (lum_src > 0)
+    scale = float(np.median(lum_src[ok] / lum[ok]))
+    err = float(np.median(np.abs(lum[ok] * scale / lum_src[ok] - 1.0)))
+    e_err = abs(horizontal_illuminance(merged.radiance * scale) / horizontal_illuminance(env)
+                - 1.0)
+    print(f"\nraw+: {len(shots)} shots, median |rel. luminance error| {100 * err:.2f} %, "
+          f"horizontal illuminance error {100 * e_err:.2f} %")
+    assert merged.method == "linear"
+    assert err <= 0.03 and e_err <= 0.02

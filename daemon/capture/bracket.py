@@ -24,7 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from grassd.daemon.capture.errors import CameraDownloadError, ExposureMissing
+from grassd.daemon.capture.errors import (
+    CameraDownloadError,
+    CameraProtocolError,
+    ExposureMissing,
+)
 from grassd.daemon.capture.osc_client import OscClient
 
 log = logging.getLogger(__name__)
@@ -46,7 +50,7 @@ MISMATCH_EV: float = 0.5
 class BracketPlan:
     """What to shoot: ``shots`` exposures ``ev_step`` EV apart, ``iso``, ``white_balance`` (an
     OSC whiteBalance name), centre shutter ``centre_shutter_s`` (s; None = meter first),
-    shutter limits (s)."""
+    shutter limits (s), ``file_format`` "jpeg" or "raw+" (JPEG and DNG per shot, THETA Z1)."""
 
     shots: int = 9
     ev_step: float = 2.0
@@ -55,12 +59,14 @@ class BracketPlan:
     centre_shutter_s: float | None = None
     min_shutter_s: float = 0.00004
     max_shutter_s: float = 1.0
+    file_format: str = "jpeg"
 
 
 @dataclass(frozen=True)
 class Shot:
     """One shot: its ``path``, the requested shutter (s) and the real exposure: shutter
-    ``exposure_s`` (s), ``iso``, ``f_number``, and where that came from (``source``)."""
+    ``exposure_s`` (s), ``iso``, ``f_number``, and where that came from (``source``);
+    ``raw_path``: its DNG (RAW+ only)."""
 
     path: Path
     requested_s: float
@@ -68,6 +74,7 @@ class Shot:
     iso: float
     f_number: float
     source: str
+    raw_path: Path | None = None
 
 
 def snap_shutter(seconds: float) -> float:
@@ -166,6 +173,11 @@ def capture_bracket(client: OscClient, plan: BracketPlan, dest: Path) -> list[Sh
         meter.unlink()
         log.info("metered centre shutter %.6g s at ISO %d", centre, plan.iso)
     client.set_options(exposureProgram=1, iso=plan.iso, whiteBalance=plan.white_balance)
+    if plan.file_format != "jpeg":  # keep the camera's size, change the type
+        size = client.get_options("fileFormat").get("fileFormat")
+        if not isinstance(size, dict):
+            raise CameraProtocolError("camera.getOptions gave no fileFormat object")
+        client.set_options(fileFormat={**size, "type": plan.file_format})
     shots = []
     for k, t in enumerate(plan_shutters(plan, centre)):
         client.set_options(shutterSpeed=t)
@@ -175,7 +187,13 @@ def capture_bracket(client: OscClient, plan: BracketPlan, dest: Path) -> list[Sh
         if abs(math.log2(exposure / t)) > MISMATCH_EV:
             log.warning("shot %d: requested %.6g s but the camera exposed %.6g s (used)", k, t,
                         exposure)
-        shots.append(Shot(path, t, exposure, iso, f_number, source))
+        raw = None
+        if plan.file_format == "raw+":
+            if not isinstance(res.get("_dngFileUrl"), str):
+                raise CameraProtocolError("camera.takePicture in raw+ gave no _dngFileUrl "
+                                          "(RAW+ needs a THETA Z1 or later)")
+            raw = client.download(res["_dngFileUrl"], dest / f"shot{k:02d}.dng")
+        shots.append(Shot(path, t, exposure, iso, f_number, source, raw))
     shots.sort(key=lambda s: s.exposure_s * s.iso / s.f_number ** 2)
     return shots
 

@@ -11,9 +11,10 @@ Photographing (one shot at shutter ``t`` s, ``iso``, f-number ``N``): the scene 
 metered exposure puts a mid-grey at 0.18 of full scale. Photon and read noise are added
 (``full_well`` electrons at x = 1), then the camera's response curve (:class:`ResponseCurve`,
 its own and never told to the merge), 8-bit quantisation and clipping, and the shot is served
-as a JPEG (quality 95) whose EXIF holds the real exposure: shutter values snap to the THETA
-Z1's list (:data:`SHUTTER_SPEEDS_S`) as a real camera does, and an unsupported value is
-refused with ``invalidParameterValue``.
+as a JPEG (quality 95) whose EXIF holds the real exposure (with ``fileFormat`` type "raw+",
+as a THETA Z1, also as a DNG of the same linear signal, ``_dngFileUrl``). Shutter values are
+those of the THETA Z1's list (:data:`SHUTTER_SPEEDS_S`), as a real camera's; an unsupported
+value is refused with ``invalidParameterValue``.
 
 Exposure programs: 1 manual (``shutterSpeed`` and ``iso`` as set); 2 normal and 9 ISO
 priority: the camera meters, choosing the shutter that puts the median luminance at 0.18.
@@ -135,6 +136,23 @@ def jpeg_bytes(codes: NDArray[np.uint8], exif: dict[str, Any] | None) -> bytes:
     return buf.getvalue()
 
 
+def dng_bytes(signal: NDArray) -> bytes:
+    """A DNG (the project's writer, :mod:`grassd.calib.dng`) of linear sensor ``signal``
+    (H, W, 3, Rec.709 camera RGB, 1 = full scale) on a sensor of twice the resolution (a whole
+    2 x 2 Bayer block per texel, as a real sensor resolves a sun of many photosites):
+    mosaiced, clipped at the white level."""
+    import tempfile  # noqa: PLC0415
+
+    from grassd.calib.dng import DngCamera, mosaic, write_dng  # noqa: PLC0415
+
+    cam = DngCamera(model="SimCam Z1 RAW")
+    fine = np.repeat(np.repeat(np.clip(signal, 0.0, None), 2, axis=0), 2, axis=1)
+    raw = mosaic(fine, cam)
+    with tempfile.TemporaryDirectory() as d:
+        path = write_dng(Path(d) / "shot.dng", raw, cam)
+        return path.read_bytes()
+
+
 class SimCamera:
     """A simulated OSC camera photographing ``env`` (an (H, W, 3) linear radiance map, e.g.
     :func:`grassd.sim.hdri.load_hdri`) on ``host``:``port`` (0 = any free port).
@@ -239,11 +257,18 @@ class SimCamera:
         t = METER_K * F_NUMBER ** 2 / (median * iso)
         return min(SHUTTER_SPEEDS_S, key=lambda s: abs(np.log(s / t)))
 
-    def photograph(self, shutter_s: float, iso: float) -> NDArray[np.uint8]:
-        """(H, W, 3) 8-bit codes of one shot: signal + noise -> response -> quantise."""
+    def exposed(self, shutter_s: float, iso: float) -> NDArray[np.float64]:
+        """The linear sensor signal of one shot with photon and read noise (not clipped)."""
         x = self.signal(shutter_s, iso)
         sigma = np.sqrt(np.clip(x, 0.0, 1.0) / self.full_well + self.read_noise ** 2)
-        x = x + self.rng.standard_normal(x.shape) * sigma
+        return x + self.rng.standard_normal(x.shape) * sigma
+
+    def photograph(self, shutter_s: float, iso: float) -> NDArray[np.uint8]:
+        """(H, W, 3) 8-bit codes of one shot: signal + noise -> response -> quantise."""
+        return self.encode(self.exposed(shutter_s, iso))
+
+    def encode(self, x: NDArray) -> NDArray[np.uint8]:
+        """8-bit codes of linear signal ``x``: the response curve, quantised, clipped."""
         return np.clip(np.rint(self.curve.encode(x) * 255.0), 0, 255).astype(np.uint8)
 
     def _take(self) -> dict[str, Any]:
@@ -254,9 +279,15 @@ class SimCamera:
         else:
             shutter = float(o["shutterSpeed"])
         with self._lock:
-            codes = self.photograph(shutter, iso)
+            x = self.exposed(shutter, iso)
             self.shots_taken += 1
+        codes = self.encode(x)
         name = f"R{self.shots_taken:07d}.JPG"
+        out = {"fileUrl": f"{self.url}/files/{name}"}
+        if o["fileFormat"].get("type") == "raw+":  # RAW+: a DNG of the same exposure too
+            raw_name = name[:-4] + ".DNG"
+            self.files[raw_name] = dng_bytes(x)
+            out["_dngFileUrl"] = f"{self.url}/files/{raw_name}"
         exif = {"Make": "grassd", "Model": self.model, "Software": "simcam 1.0",
                 "ExposureTime": shutter, "FNumber": F_NUMBER, "ISO": iso}
         if self.faults.missing_exposure:
@@ -265,7 +296,7 @@ class SimCamera:
         meta = {k: v for k, v in exif.items()}
         meta["PhotographicSensitivity"] = meta.pop("ISO")
         self.metadata[f"{self.url}/files/{name}"] = meta
-        return {"fileUrl": f"{self.url}/files/{name}"}
+        return out
 
     # ------------------------------------------------------------------ OSC
     def info(self) -> dict[str, Any]:
@@ -345,8 +376,8 @@ class SimCamera:
             if value not in WHITE_BALANCES:
                 return f"whiteBalance {value!r} is not supported"
         elif key == "fileFormat":
-            if not isinstance(value, dict) or value.get("type") != "jpeg":
-                return f"fileFormat {value!r} is not supported (jpeg only)"
+            if not isinstance(value, dict) or value.get("type") not in ("jpeg", "raw+"):
+                return f"fileFormat {value!r} is not supported (jpeg or raw+)"
         elif key not in ("aperture", "exposureCompensation", "_colorTemperature"):
             return f"unknown option {key}"
         return None

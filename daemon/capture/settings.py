@@ -12,6 +12,7 @@
     iso = 100                       # fixed ISO
     white_balance = "daylight"      # fixed OSC whiteBalance
     shutter_s = 0.0                 # centre shutter (s); 0 = meter it with one shot
+    file_format = "jpeg"            # or "raw+" (THETA Z1: JPEG + DNG, merged linearly)
     max_shutter_s = 1.0             # longest shutter used (s)
     timeout_s = 10.0                # per HTTP request (s)
     command_timeout_s = 120.0       # per camera command until done (s)
@@ -47,6 +48,7 @@ class CaptureConfig:
     white_balance: str = "daylight"
     shutter_s: float = 0.0
     max_shutter_s: float = 1.0
+    file_format: str = "jpeg"
     timeout_s: float = 10.0
     command_timeout_s: float = 120.0
     retries: int = 3
@@ -60,7 +62,7 @@ class CaptureConfig:
         return BracketPlan(shots=self.shots, ev_step=self.ev_step, iso=self.iso,
                            white_balance=self.white_balance,
                            centre_shutter_s=self.shutter_s or None,
-                           max_shutter_s=self.max_shutter_s)
+                           max_shutter_s=self.max_shutter_s, file_format=self.file_format)
 
 
 def parse_capture(ctx: Any, raw: Any) -> CaptureConfig | None:
@@ -89,6 +91,7 @@ def parse_capture(ctx: Any, raw: Any) -> CaptureConfig | None:
             "daylight", "shade", "cloudy-daylight", "incandescent", "fluorescent", "auto")),
         "shutter_s": _F(float, d.shutter_s, _between(0.0, 60.0, " s")),
         "max_shutter_s": _F(float, d.max_shutter_s, _between(1e-4, 60.0, " s")),
+        "file_format": _F(str, d.file_format, _one_of("jpeg", "raw+")),
         "timeout_s": _F(float, d.timeout_s, _positive),
         "command_timeout_s": _F(float, d.command_timeout_s, _positive),
         "retries": _F(int, d.retries, _between(0, 20)),

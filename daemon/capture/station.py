@@ -40,7 +40,12 @@ from typing import Any
 
 import numpy as np
 
-from grassd.calib.errors import BracketBlackError, BracketClippedError, HdrMergeError
+from grassd.calib.errors import (
+    BracketBlackError,
+    BracketClippedError,
+    HdrMergeError,
+    RawReadError,
+)
 from grassd.daemon.atomic import atomic_write_json, atomic_write_text, fsync_dir
 from grassd.daemon.capture.bracket import capture_bracket, load_codes
 from grassd.daemon.capture.errors import BracketUnusable, CaptureError
@@ -156,6 +161,20 @@ class Station:
                                  "response": resp.tolist()})
         return resp, "recovered from this bracket"
 
+    def merge(self, info: CameraInfo, shots: list, exposures: list[float]) -> tuple[Any, str]:
+        """The merged bracket and how its linearisation was obtained (step 3): RAW+ shots
+        linearly through rawpy, JPEG shots with the camera response."""
+        from grassd.calib.hdr_merge import merge_ldr, merge_linear  # noqa: PLC0415
+
+        if all(s.raw_path is not None for s in shots):
+            from grassd.calib.raw_bracket import develop_bracket  # noqa: PLC0415
+
+            images = develop_bracket([s.raw_path for s in shots])
+            return merge_linear(images, exposures), "linear RAW (rawpy)"
+        codes = load_codes(shots)
+        resp, how = self.response(info, codes, exposures)
+        return merge_ldr(codes, exposures, resp), how
+
     # ------------------------------------------------------------------ lux
     def read_lux(self) -> tuple[float, float | None, str]:
         """(ambient lux, sun lux or None, source) from the sensor(s) (step 4)."""
@@ -175,7 +194,7 @@ class Station:
     # ------------------------------------------------------------------ one capture
     def capture_once(self, lux: float | None = None) -> CaptureResult:
         """One capture attempt (module docstring); raises a typed error, leaving no bundle."""
-        from grassd.calib.hdr_merge import merge_ldr, relative_exposure  # noqa: PLC0415
+        from grassd.calib.hdr_merge import relative_exposure  # noqa: PLC0415
         from grassd.sim.hdri import write_exr  # noqa: PLC0415
         started = datetime.now(UTC)
         stamp = started.strftime("%Y%m%dT%H%M%S") + f"{started.microsecond // 1000:03d}Z"
@@ -190,14 +209,12 @@ class Station:
                 ambient, sun_lux, lux_source = self.read_lux()
             else:
                 ambient, sun_lux, lux_source = float(lux), None, "--lux"
-            codes = load_codes(shots)
             exposures = [relative_exposure(s.exposure_s, s.iso, s.f_number) for s in shots]
             try:
-                resp, how = self.response(info, codes, exposures)
-                merged = merge_ldr(codes, exposures, resp)
+                merged, how = self.merge(info, shots, exposures)
             except (BracketClippedError, BracketBlackError) as exc:
                 raise BracketUnusable(f"bracket from {self.cfg.camera} unusable: {exc}") from None
-            except HdrMergeError as exc:
+            except (HdrMergeError, RawReadError) as exc:
                 raise BracketUnusable(f"bracket from {self.cfg.camera} cannot be merged: "
                                       f"{exc}") from None
             sun_clipped = clipped_sun(merged.clipped)
@@ -214,6 +231,7 @@ class Station:
                 "requested_s": [s.requested_s for s in shots],
                 "exposure_source": sorted({s.source for s in shots}),
                 "iso": self.cfg.iso, "white_balance": self.cfg.white_balance,
+                "file_format": self.cfg.file_format,
                 "f_number": shots[0].f_number,
                 "merge_method": merged.method, "response": how,
                 "shots_used": merged.shots_used,
