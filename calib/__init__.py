@@ -36,6 +36,11 @@ Characteristics and tables (``characteristic``, ``length_table``)
     dE00], ``.inverse(ogcd)`` [-> mm], ``.ogcd_range``);
     ``build_length_table(c)`` -> ``LengthTable`` (``.lengths_um`` (256,) uint16 [um],
     ``.r2_before``, ``.r2_after``, ``.ogcd_range``, ``.target_ogcd``, ``.achieved_ogcd``).
+HDR brackets (``hdr_merge``, ``raw_bracket``)
+    ``recover_response(shots_uint8, exposures)`` -> (256, 3) inverse response (Debevec-Malik);
+    ``merge_ldr(shots, exposures, response)`` / ``merge_linear(shots, exposures)`` ->
+    ``MergeResult`` (``.radiance`` relative linear, ``.clipped``, ``.black``);
+    ``develop_bracket(dng_paths)`` -> linear Rec.709 shots with saturation marked.
 Comparison (``compare``)
     ``discrete_frechet(p, q)``, ``frechet_characteristics(a, b)``, ``max_ogcd_error(a, b)``.
 """
