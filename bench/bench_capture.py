@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 
 from grassd.calib.hdr_merge import merge_ldr, recover_response, relative_exposure
-from grassd.daemon.capture.bracket import BracketPlan, capture_bracket, load_codes
-from grassd.daemon.capture.camera_sim import CURVES, SimCamera, site_hdri
-from grassd.daemon.capture.osc_client import OscClient
+from grassd.daemon.hardware.bracket import BracketPlan, capture_bracket, load_codes
+from grassd.daemon.hardware.camera import OscClient
+from grassd.daemon.hardware.simulated_camera import CURVES, SimCamera, site_hdri
 from grassd.sim.hdri import REC709_LUMINANCE, downsample, load_hdri
 from grassd.sim.lighting import horizontal_illuminance
 from grassd.sim.sun import find_sun

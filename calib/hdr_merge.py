@@ -141,7 +141,8 @@ def recover_response(images: Sequence[ArrayLike], exposures: ArrayLike, *,
     strictly increasing, ``R[128, c] = 1``. Raises :class:`HdrMergeError` when the bracket
     holds too few mid-tone codes to constrain the curve.
     """
-    from colour_hdri import g_solve, samples_Grossberg2003  # noqa: PLC0415 - heavy import
+    from colour_hdri import g_solve, samples_Grossberg2003  # heavy: only when recovering
+    from threadpoolctl import threadpool_limits
 
     imgs, h = _check_stack(images, exposures, np.uint8)
     _check_usable(imgs[0].max(axis=2) >= CLIP_CODE, imgs[-1].min(axis=2) <= BLACK_CODE)
@@ -159,9 +160,10 @@ def recover_response(images: Sequence[ArrayLike], exposures: ArrayLike, *,
         return _hat(np.asarray(x) * (CODES - 1), BLACK_CODE, CLIP_CODE)
 
     curves = []
-    for c in range(3):
-        g, _ = g_solve(z[..., c], log_h, smoothing, weight, CODES)
-        curves.append(g - g[CODES // 2])
+    with threadpool_limits(1):  # a small dense solve: BLAS threads only fight over the cores
+        for c in range(3):
+            g, _ = g_solve(z[..., c], log_h, smoothing, weight, CODES)
+            curves.append(g - g[CODES // 2])
     resp = np.exp(np.stack(curves, axis=-1))
     return _monotone(resp)
 

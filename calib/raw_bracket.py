@@ -30,7 +30,7 @@ SATURATION: float = 0.98
 def saturated_texels(path: str | Path) -> NDArray[np.bool_]:
     """(H / 2, W / 2) bool: the 2 x 2 Bayer blocks holding a saturated photosite (one per
     texel of a half-size development)."""
-    import rawpy  # noqa: PLC0415
+    import rawpy
 
     try:
         with rawpy.imread(str(path)) as raw:

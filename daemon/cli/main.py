@@ -12,6 +12,7 @@ import sys
 import click
 
 from grassd import __version__
+from grassd.daemon.cli.capture import camera_group, capture_cmd
 from grassd.daemon.cli.controllers import controllers
 from grassd.daemon.cli.demo import demo
 from grassd.daemon.cli.run import calibrate_cmd, check_config, history_cmd, run_cmd, status_cmd
@@ -39,5 +40,5 @@ def main() -> None:
 
 
 for _command in (demo, check_config, run_cmd, status_cmd, history_cmd, calibrate_cmd, controllers,
-                 simulate, validate, experiment, sweep):
+                 simulate, validate, experiment, sweep, capture_cmd, camera_group):
     main.add_command(_command)

@@ -84,7 +84,7 @@ def _simulated(cfg: Config, lux: float, firmware: str = FIRMWARE_BACKENDS[0]):
     new = hw.start()
     camera = None
     if cfg.capture is not None:  # [capture]: a simulated OSC camera photographing the site
-        from grassd.daemon.capture.camera_sim import start_site_camera
+        from grassd.daemon.hardware.simulated_camera import start_site_camera
 
         camera = start_site_camera(hw)
 

@@ -25,7 +25,7 @@ The file (default ``/etc/grassd/grassd.toml``; the embedded default is
                    group_tolerance_deg, distance_tolerance, check_groups (see TablesConfig):
                    the table(s) the daemon pushes, one per controller / per pixel or global
     [capture]      optional capture station: camera URL, bracket, interval
-                   (see grassd.daemon.capture.settings)
+                   (see grassd.daemon.config.capture)
     [audience]     optional region: polygon = [[x, y], ...] (m), h_cm = [low, high],
                    ground_samples, height_samples, objective = "mean" | "worst"; when set,
                    the daemon's table(s) come from the region instead of [[viewpoints]]
@@ -71,7 +71,7 @@ from grassd.daemon.store.ingest import FUTURE_TOLERANCE_S
 from grassd.firmware_proto.messages import MAX_ADDRESS, MIN_ADDRESS
 
 if TYPE_CHECKING:
-    from grassd.daemon.capture.settings import CaptureConfig
+    from grassd.daemon.config.capture import CaptureConfig
 
 #: Where the packaged daemon looks when no ``--config`` is given.
 DEFAULT_CONFIG_PATH = Path("/etc/grassd/grassd.toml")
@@ -349,7 +349,7 @@ class Config:
     retention: RetentionConfig = RetentionConfig()
     metrics: MetricsConfig = MetricsConfig()
     alerts: AlertsConfig = AlertsConfig()
-    #: the capture station (:mod:`grassd.daemon.capture.settings`), None without [capture]
+    #: the capture station (:mod:`grassd.daemon.config.capture`), None without [capture]
     capture: CaptureConfig | None = None
 
     @property
@@ -888,9 +888,9 @@ def _shell_words(v: str) -> str | None:
 
 
 def _capture_section(ctx: _Ctx, raw: Any) -> CaptureConfig | None:
-    """``[capture]``, validated by :mod:`grassd.daemon.capture.settings` (imported lazily: it
+    """``[capture]``, validated by :mod:`grassd.daemon.config.capture` (imported lazily: it
     uses this module's checkers)."""
-    from grassd.daemon.capture.settings import parse_capture  # noqa: PLC0415
+    from grassd.daemon.config.capture import parse_capture
 
     return parse_capture(ctx, raw)
 

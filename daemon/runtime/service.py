@@ -236,7 +236,7 @@ class Service:
             raise
         self.control: ControlServer | None = None
         self._watchdog_thread: threading.Thread | None = None
-        #: the capture station's thread ([capture]), grassd.daemon.capture.station
+        #: the capture station's thread ([capture]), grassd.daemon.runtime.capture
         self.capture_loop: Any = None
 
     # ------------------------------------------------------------------ setup
@@ -295,7 +295,7 @@ class Service:
         self.prune()
         self.notifier.ready(f"watching {self.cfg.light.inbox}")
         if self.cfg.capture is not None:  # its own thread: never blocks a calibration
-            from grassd.daemon.capture.station import start_capture_loop  # noqa: PLC0415
+            from grassd.daemon.runtime.capture import start_capture_loop
 
             self.capture_loop = start_capture_loop(self.cfg)
         self.activity = "idle"

@@ -10,7 +10,7 @@ snapped to the standard 1/3-EV series a camera accepts (:func:`snap_shutter`) an
 Each shot's real exposure comes from, in order: the EXIF of the downloaded file (ExposureTime,
 FNumber, ISOSpeedRatings), THETA's ``camera._getMetadata``, and the camera's reported
 ``shutterSpeed`` option after the shot. A shot with none of these raises
-:class:`~grassd.daemon.capture.errors.ExposureMissing`: the merge needs real exposures, and a
+:class:`~grassd.daemon.errors.ExposureMissing`: the merge needs real exposures, and a
 requested one may differ from what the camera did.
 """
 
@@ -24,12 +24,12 @@ from typing import Any
 
 import numpy as np
 
-from grassd.daemon.capture.errors import (
+from grassd.daemon.errors import (
     CameraDownloadError,
     CameraProtocolError,
     ExposureMissing,
 )
-from grassd.daemon.capture.osc_client import OscClient
+from grassd.daemon.hardware.camera import OscClient
 
 log = logging.getLogger(__name__)
 
@@ -116,7 +116,7 @@ def _ratio(v: Any) -> float | None:
 
 def file_exposure(path: Path) -> dict[str, float]:
     """ExposureTime (s), FNumber and ISO from a JPEG's EXIF ({} for the ones missing)."""
-    from PIL import ExifTags, Image, UnidentifiedImageError  # noqa: PLC0415
+    from PIL import ExifTags, Image, UnidentifiedImageError
 
     try:
         with Image.open(path) as img:
@@ -200,7 +200,7 @@ def capture_bracket(client: OscClient, plan: BracketPlan, dest: Path) -> list[Sh
 
 def load_codes(shots: list[Shot]) -> list[np.ndarray]:
     """The shots' decoded 8-bit RGB codes, (H, W, 3) uint8 each."""
-    from PIL import Image, UnidentifiedImageError  # noqa: PLC0415
+    from PIL import Image, UnidentifiedImageError
 
     out = []
     for s in shots:

@@ -2,7 +2,7 @@
 
 ``grassd camera sim --hdri FILE`` runs one; tests and ``--simulate-hardware`` start one in a
 thread. It speaks the subset of the OSC API (level 2, RICOH THETA Web API v2.1 options) that
-:mod:`grassd.daemon.capture.osc_client` uses, with the same JSON shapes, so the capture
+:mod:`grassd.daemon.hardware.camera` uses, with the same JSON shapes, so the capture
 station drives it exactly as it drives a THETA; only the URL differs.
 
 Photographing (one shot at shutter ``t`` s, ``iso``, f-number ``N``): the scene radiance ``L``
@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from grassd.daemon.capture.bracket import SHUTTER_SPEEDS_S
+from grassd.daemon.hardware.bracket import SHUTTER_SPEEDS_S
 
 log = logging.getLogger(__name__)
 
@@ -115,7 +115,7 @@ class Faults:
 def jpeg_bytes(codes: NDArray[np.uint8], exif: dict[str, Any] | None) -> bytes:
     """Encode (H, W, 3) uint8 ``codes`` as a quality-95 JPEG whose EXIF holds ``exif``
     (ExposureTime s, FNumber, ISO, Make, Model, Software; any may be absent)."""
-    from PIL import ExifTags, Image  # noqa: PLC0415
+    from PIL import ExifTags, Image
 
     img = Image.fromarray(np.ascontiguousarray(codes), "RGB")
     ex = Image.Exif()
@@ -141,9 +141,9 @@ def dng_bytes(signal: NDArray) -> bytes:
     (H, W, 3, Rec.709 camera RGB, 1 = full scale) on a sensor of twice the resolution (a whole
     2 x 2 Bayer block per texel, as a real sensor resolves a sun of many photosites):
     mosaiced, clipped at the white level."""
-    import tempfile  # noqa: PLC0415
+    import tempfile
 
-    from grassd.calib.dng import DngCamera, mosaic, write_dng  # noqa: PLC0415
+    from grassd.calib.dng import DngCamera, mosaic, write_dng
 
     cam = DngCamera(model="SimCam Z1 RAW")
     fine = np.repeat(np.repeat(np.clip(signal, 0.0, None), 2, axis=0), 2, axis=1)
@@ -524,7 +524,7 @@ def sim_camera_from_file(hdri: str | os.PathLike[str], *, width: int | None = No
                          **kwargs: Any) -> SimCamera:
     """A :class:`SimCamera` photographing the HDRI file ``hdri`` (downsampled to at most
     ``width`` texels across by whole factors; default: as stored)."""
-    from grassd.sim.hdri import downsample, load_hdri  # noqa: PLC0415
+    from grassd.sim.hdri import downsample, load_hdri
 
     env = load_hdri(hdri)
     if width is not None and env.shape[1] > width:
@@ -546,16 +546,17 @@ def replace_faults(cam: SimCamera, **changes: Any) -> None:
 
 def site_hdri() -> Path:
     """The packaged site panorama (``grassd/sim/data/default_site.exr``)."""
-    from importlib import resources  # noqa: PLC0415
+    from importlib import resources
 
     return Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
 
 
 def start_site_camera(hw: Any, width: int = 256) -> SimCamera:
     """Start a simulated camera photographing the packaged site panorama at the light level of
-    the simulated lux sensor of ``hw`` (a :class:`grassd.daemon.sim_hardware.SimulatedHardware`;
-    horizontal illuminance of the photographed scene = its lux), for ``--simulate-hardware``."""
-    from grassd.sim.lighting import horizontal_illuminance  # noqa: PLC0415
+    the simulated lux sensor of ``hw`` (a
+    :class:`grassd.daemon.hardware.simulated.SimulatedHardware`; horizontal illuminance of the
+    photographed scene = its lux), for ``--simulate-hardware``."""
+    from grassd.sim.lighting import horizontal_illuminance
 
     cam = sim_camera_from_file(site_hdri(), width=width)
     lux = float(getattr(hw, "lux", 5000.0))

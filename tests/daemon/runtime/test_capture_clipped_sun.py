@@ -8,12 +8,12 @@ from datetime import UTC, datetime
 import numpy as np
 import pytest
 
-from grassd.daemon.calibrate import Calibrator, LightInput
-from grassd.daemon.capture.camera_sim import SimCamera
-from grassd.daemon.capture.settings import CaptureConfig
-from grassd.daemon.capture.station import Station
-from grassd.daemon.config import load_default_config
-from grassd.daemon.ingest import parse_manifest
+from grassd.daemon.calibration.calibrate import Calibrator, LightInput
+from grassd.daemon.config.capture import CaptureConfig
+from grassd.daemon.config.settings import load_default_config
+from grassd.daemon.hardware.simulated_camera import SimCamera
+from grassd.daemon.runtime.capture import Station
+from grassd.daemon.store.ingest import parse_manifest
 from grassd.sim.hdri import load_hdri
 from grassd.sim.lighting import uv_to_direction
 

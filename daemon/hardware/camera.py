@@ -20,7 +20,7 @@ user name = the camera's ID printed on it (``THETAYN`` + the serial digits on a 
 ``THETAYL...`` on a V), password = the serial digits unless changed; in access-point mode no
 authentication is asked. Digest auth is urllib's ``HTTPDigestAuthHandler``.
 
-Every failure is a typed :class:`~grassd.daemon.capture.errors.CameraError` naming the URL.
+Every failure is a typed :class:`~grassd.daemon.errors.CameraError` naming the URL.
 Network traffic goes only to the configured URL.
 """
 
@@ -37,7 +37,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from grassd.daemon.capture.errors import (
+from grassd.daemon.errors import (
     CameraCommandTimeout,
     CameraDownloadError,
     CameraHttpError,

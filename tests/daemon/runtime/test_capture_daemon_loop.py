@@ -12,12 +12,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from robust_util import CACHE
+from daemon_harness import CACHE
 
-from grassd.daemon.capture.camera_sim import SimCamera, site_hdri
-from grassd.daemon.config import load_default_config
-from grassd.daemon.history import History
-from grassd.daemon.sim_hardware import SimulatedHardware, hardware_toml
+from grassd.daemon.config.settings import load_default_config
+from grassd.daemon.hardware.simulated import SimulatedHardware, hardware_toml
+from grassd.daemon.hardware.simulated_camera import SimCamera, site_hdri
+from grassd.daemon.store.history import History
 from grassd.firmware_proto.tables import table_crc
 from grassd.sim.hdri import downsample, load_hdri
 

@@ -1,10 +1,12 @@
 """The capture station: bracket -> merged EXR + lux -> a bundle in the inbox, once or on a
-schedule.
+schedule (``grassd capture``, the ``[capture]`` section :mod:`grassd.daemon.config.capture`,
+the simulated camera :mod:`grassd.daemon.hardware.simulated_camera`).
 
 One capture (:meth:`Station.capture_once`):
 
-1. ``/osc/info`` (model, serial, firmware), then the bracket (:mod:`.bracket`) into a private
-   work directory under ``state_dir/capture/work``;
+1. ``/osc/info`` (model, serial, firmware), then the bracket
+   (:mod:`grassd.daemon.hardware.bracket`; the camera: :mod:`grassd.daemon.hardware.camera`)
+   into a private work directory under ``state_dir/capture/work``;
 2. the camera response: the cached one of this camera (``state_dir/capture/response/<camera
    key>-iso<ISO>-<white balance>.json``) while younger than ``response_max_age_days``, else
    recovered from this bracket (:func:`grassd.calib.hdr_merge.recover_response`) and cached;
@@ -17,7 +19,8 @@ One capture (:meth:`Station.capture_once`):
    names starting with ``.``), manifest last, fsynced, then renamed to its final name in one
    ``rename(2)``. A failure at any step leaves nothing in the inbox.
 
-Failures are typed (:mod:`.errors`, :class:`~grassd.daemon.errors.LuxSensorError`);
+Failures are typed (:class:`~grassd.daemon.errors.CaptureError` and its subclasses,
+:class:`~grassd.daemon.errors.LuxSensorError`);
 :meth:`Station.capture` retries them ``retries`` times with doubling backoff.
 :class:`CaptureLoop` runs captures every ``interval_s`` in its own thread, so a capture never
 blocks or delays a calibration (the daemon's main thread only sees the finished bundle).
@@ -46,13 +49,12 @@ from grassd.calib.errors import (
     HdrMergeError,
     RawReadError,
 )
-from grassd.daemon.atomic import atomic_write_json, atomic_write_text, fsync_dir
-from grassd.daemon.capture.bracket import capture_bracket, load_codes
-from grassd.daemon.capture.errors import BracketUnusable, CaptureError
-from grassd.daemon.capture.osc_client import CameraInfo, OscClient
-from grassd.daemon.capture.settings import CaptureConfig
-from grassd.daemon.config import Config, ModbusConfig
-from grassd.daemon.errors import LuxSensorError
+from grassd.daemon.config.capture import CaptureConfig
+from grassd.daemon.config.settings import Config, ModbusConfig
+from grassd.daemon.errors import BracketUnusable, CaptureError, LuxSensorError
+from grassd.daemon.hardware.bracket import BracketPlan, capture_bracket, load_codes
+from grassd.daemon.hardware.camera import CameraInfo, OscClient
+from grassd.daemon.store.atomic import atomic_write_json, atomic_write_text, fsync_dir
 
 log = logging.getLogger(__name__)
 
@@ -93,10 +95,10 @@ def clipped_sun(clipped: np.ndarray) -> bool:
     compact region above the horizon: a sun whose radiance in the map is only a lower bound.
     Compact: an 8-connected component whose solid angle is at most
     :data:`grassd.sim.sun.MAX_SUN_SOLID_ANGLE_SR` (a window or white wall is larger)."""
-    from scipy import ndimage  # noqa: PLC0415
+    from scipy import ndimage
 
-    from grassd.sim.lighting import texel_solid_angles  # noqa: PLC0415
-    from grassd.sim.sun import MAX_SUN_SOLID_ANGLE_SR  # noqa: PLC0415
+    from grassd.sim.lighting import texel_solid_angles
+    from grassd.sim.sun import MAX_SUN_SOLID_ANGLE_SR
 
     h, w = clipped.shape
     if not clipped[: h // 2].any():
@@ -126,6 +128,13 @@ class Station:
         self.captures = 0
         self.last_error: str | None = None
 
+    def plan(self) -> BracketPlan:
+        """The bracket ``[capture]`` asks for."""
+        c = self.cfg
+        return BracketPlan(shots=c.shots, ev_step=c.ev_step, iso=c.iso,
+                           white_balance=c.white_balance, centre_shutter_s=c.shutter_s or None,
+                           max_shutter_s=c.max_shutter_s, file_format=c.file_format)
+
     # ------------------------------------------------------------------ response cache
     def _response_path(self, info: CameraInfo) -> Path:
         wb = "".join(ch if ch.isalnum() else "_" for ch in self.cfg.white_balance)
@@ -145,7 +154,7 @@ class Station:
     def response(self, info: CameraInfo, codes: list[np.ndarray],
                  exposures: list[float]) -> tuple[np.ndarray, str]:
         """The camera response for this bracket and how it was obtained (step 2)."""
-        from grassd.calib.hdr_merge import recover_response  # noqa: PLC0415
+        from grassd.calib.hdr_merge import recover_response
 
         path = self._response_path(info)
         cached = self._cached_response(path)
@@ -164,10 +173,10 @@ class Station:
     def merge(self, info: CameraInfo, shots: list, exposures: list[float]) -> tuple[Any, str]:
         """The merged bracket and how its linearisation was obtained (step 3): RAW+ shots
         linearly through rawpy, JPEG shots with the camera response."""
-        from grassd.calib.hdr_merge import merge_ldr, merge_linear  # noqa: PLC0415
+        from grassd.calib.hdr_merge import merge_ldr, merge_linear
 
         if all(s.raw_path is not None for s in shots):
-            from grassd.calib.raw_bracket import develop_bracket  # noqa: PLC0415
+            from grassd.calib.raw_bracket import develop_bracket
 
             images = develop_bracket([s.raw_path for s in shots])
             return merge_linear(images, exposures), "linear RAW (rawpy)"
@@ -178,7 +187,7 @@ class Station:
     # ------------------------------------------------------------------ lux
     def read_lux(self) -> tuple[float, float | None, str]:
         """(ambient lux, sun lux or None, source) from the sensor(s) (step 4)."""
-        from grassd.daemon.luxsensor import read_lux  # noqa: PLC0415
+        from grassd.daemon.hardware.luxsensor import read_lux
 
         if self.modbus is None:
             raise LuxSensorError("no lux: [light.modbus] names no sensor and no --lux was "
@@ -194,8 +203,8 @@ class Station:
     # ------------------------------------------------------------------ one capture
     def capture_once(self, lux: float | None = None) -> CaptureResult:
         """One capture attempt (module docstring); raises a typed error, leaving no bundle."""
-        from grassd.calib.hdr_merge import relative_exposure  # noqa: PLC0415
-        from grassd.sim.hdri import write_exr  # noqa: PLC0415
+        from grassd.calib.hdr_merge import relative_exposure
+        from grassd.sim.hdri import write_exr
         started = datetime.now(UTC)
         stamp = started.strftime("%Y%m%dT%H%M%S") + f"{started.microsecond // 1000:03d}Z"
         work = self.root / "work" / stamp
@@ -204,7 +213,7 @@ class Station:
         try:
             info = self.client.info()
             self.client.state()
-            shots = capture_bracket(self.client, self.cfg.plan(), work)
+            shots = capture_bracket(self.client, self.plan(), work)
             if lux is None:
                 ambient, sun_lux, lux_source = self.read_lux()
             else:

@@ -1,5 +1,5 @@
 """``grassd capture`` (one capture into the inbox) and ``grassd camera sim`` (a simulated OSC
-camera): the capture station's command-line face (:mod:`grassd.daemon.capture`)."""
+camera): the capture station's command-line face (:mod:`grassd.daemon.runtime.capture`)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from grassd.daemon.cli_run import _CONFIG_HELP, resolve_config
+from grassd.daemon.cli.run import _CONFIG_HELP, resolve_config
 
 
 @click.command("capture")
@@ -31,9 +31,9 @@ def capture_cmd(camera: str | None, inbox: str | None, lux: float | None,
     """Take one bracket with the camera, merge it and drop the bundle into the inbox."""
     import logging
 
-    from grassd.daemon.capture.settings import CaptureConfig
-    from grassd.daemon.capture.station import Station
+    from grassd.daemon.config.capture import CaptureConfig
     from grassd.daemon.errors import ConfigError
+    from grassd.daemon.runtime.capture import Station
 
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     cfg = resolve_config(config_path, state_dir)
@@ -80,7 +80,7 @@ def camera_sim_cmd(hdri: str, port: int, curve: str, width: int, scene_scale: fl
     """Run a simulated OSC camera on 127.0.0.1 that photographs HDRI; prints its URL."""
     import threading
 
-    from grassd.daemon.capture.camera_sim import sim_camera_from_file
+    from grassd.daemon.hardware.simulated_camera import sim_camera_from_file
 
     cam = sim_camera_from_file(hdri, width=width, curve=curve, scene_scale=scene_scale,
                                port=port, username=username, password=password).start()

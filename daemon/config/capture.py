@@ -31,8 +31,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from grassd.daemon.capture.bracket import BracketPlan
-
 
 @dataclass(frozen=True)
 class CaptureConfig:
@@ -57,20 +55,13 @@ class CaptureConfig:
     shaded_unit: int = 0
     shaded_port: int = 0
 
-    def plan(self) -> BracketPlan:
-        """The bracket this section asks for."""
-        return BracketPlan(shots=self.shots, ev_step=self.ev_step, iso=self.iso,
-                           white_balance=self.white_balance,
-                           centre_shutter_s=self.shutter_s or None,
-                           max_shutter_s=self.max_shutter_s, file_format=self.file_format)
-
 
 def parse_capture(ctx: Any, raw: Any) -> CaptureConfig | None:
     """Validate the ``[capture]`` table ``raw`` (None when absent) with the config module's
     checker ``ctx`` (errors name the key and line)."""
     if raw is None:
         return None
-    from grassd.daemon.config import (  # noqa: PLC0415 - config imports this module lazily
+    from grassd.daemon.config.settings import (  # config.settings imports this module lazily
         _F,
         _between,
         _non_empty,

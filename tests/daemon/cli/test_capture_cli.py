@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from grassd.daemon.capture.camera_sim import site_hdri
-from grassd.daemon.config import default_config_text, parse_config
+from grassd.daemon.config.settings import default_config_text, parse_config
 from grassd.daemon.errors import ConfigError
+from grassd.daemon.hardware.simulated_camera import site_hdri
 
 GRASSD = str(Path(sys.executable).parent / "grassd")
 
@@ -59,7 +59,7 @@ def test_capture_section_parses_and_names_bad_keys():
     cfg = parse_config(default_config_text() + '\n[capture]\ncamera = "http://10.0.0.5"\n'
                        'shots = 7\nfile_format = "raw+"\n')
     assert cfg.capture is not None and cfg.capture.shots == 7
-    assert cfg.capture.plan().file_format == "raw+" and cfg.capture.plan().centre_shutter_s is None
+    assert cfg.capture.file_format == "raw+" and cfg.capture.shutter_s == 0.0  # 0: metered
     assert parse_config(default_config_text()).capture is None
     for bad, key in (('camera = "http://x"\nshots = 1', "capture.shots"),
                      ('camera = "192.168.1.1"', "capture.camera"),

@@ -11,8 +11,9 @@ import tomllib
 import numpy as np
 import pytest
 
-from grassd.daemon.capture.camera_sim import SimCamera
-from grassd.daemon.capture.errors import (
+from grassd.daemon.config.capture import CaptureConfig
+from grassd.daemon.config.settings import load_default_config
+from grassd.daemon.errors import (
     BracketUnusable,
     CameraCommandTimeout,
     CameraDownloadError,
@@ -20,13 +21,12 @@ from grassd.daemon.capture.errors import (
     CameraProtocolError,
     CameraUnreachable,
     ExposureMissing,
+    LuxSensorSilent,
 )
-from grassd.daemon.capture.settings import CaptureConfig
-from grassd.daemon.capture.station import Station
-from grassd.daemon.config import load_default_config
-from grassd.daemon.errors import LuxSensorSilent
-from grassd.daemon.ingest import parse_manifest
-from grassd.daemon.sim_hardware import SimLuxSensor
+from grassd.daemon.hardware.simulated import SimLuxSensor
+from grassd.daemon.hardware.simulated_camera import SimCamera
+from grassd.daemon.runtime.capture import Station
+from grassd.daemon.store.ingest import parse_manifest
 
 
 def small_env() -> np.ndarray:
