@@ -177,6 +177,11 @@ def print_status(st: dict, echo=click.echo) -> None:
         echo(f"last error (cleared {seen['cleared_at']}): {seen['at']} {seen['error']}")
     for w in st.get("waiting_bundles") or []:
         echo(f"bundle {w['bundle']} waits (retry in {w['retry_in_s']:.0f} s): {w['reason']}")
+    if cap := st.get("capture"):
+        due = "-" if cap["next_in_s"] is None else f"{cap['next_in_s']:.0f} s"
+        echo(f"capture: {cap['camera']} every {cap['interval_s']:g} s, {cap['captures']} "
+             f"bundle(s), next in {due}"
+             + (f"; last error: {cap['last_error']}" if cap["last_error"] else ""))
     for p in st.get("inbox_problems") or []:
         echo(f"inbox: {p}")
     echo("controllers:")

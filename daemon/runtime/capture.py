@@ -127,6 +127,16 @@ class Station:
                                 command_timeout_s=cfg.command_timeout_s)
         self.captures = 0
         self.last_error: str | None = None
+        self._clean_leftovers()
+
+    def _clean_leftovers(self) -> None:
+        """Remove what a capture cut short by a crash or power cut left behind: hidden
+        partial bundles in the inbox (the inbox ignores them) and work directories."""
+        with contextlib.suppress(OSError):
+            for p in self.inbox.glob(".capture-*.partial"):
+                log.warning("removing the partial bundle %s of an interrupted capture", p)
+                shutil.rmtree(p, ignore_errors=True)
+        shutil.rmtree(self.root / "work", ignore_errors=True)
 
     def plan(self) -> BracketPlan:
         """The bracket ``[capture]`` asks for."""
@@ -293,8 +303,9 @@ class Station:
 
 class CaptureLoop:
     """Captures every ``cfg.interval_s`` seconds in a daemon thread until :meth:`stop`; the
-    first capture right after :meth:`start`. Failures are logged and kept in
-    :attr:`last_error`; the loop goes on with the next interval."""
+    first capture right after :meth:`start` (after the thread of ``after``, a loop being
+    replaced, has finished its capture: one camera, one client at a time). Failures are
+    logged and kept in :attr:`last_error`; the loop goes on with the next interval."""
 
     def __init__(self, station: Station) -> None:
         self.station = station
@@ -302,16 +313,22 @@ class CaptureLoop:
         self._thread: threading.Thread | None = None
         self.last_bundle: Path | None = None
         self.last_error: str | None = None
+        self.last_at: float | None = None
+        self.next_at: float | None = None
 
-    def start(self) -> CaptureLoop:
+    def start(self, after: CaptureLoop | None = None) -> CaptureLoop:
         """Start the capture thread."""
-        self._thread = threading.Thread(target=self._run, name="capture", daemon=True)
+        before = None if after is None else after._thread
+        self._thread = threading.Thread(target=self._run, args=(before,), name="capture",
+                                        daemon=True)
         self._thread.start()
         log.info("capture station: %s every %g s", self.station.cfg.camera,
                  self.station.cfg.interval_s)
         return self
 
-    def _run(self) -> None:
+    def _run(self, before: threading.Thread | None) -> None:
+        if before is not None:
+            before.join()
         while not self._stop.is_set():
             begun = time.monotonic()
             try:
@@ -324,20 +341,33 @@ class CaptureLoop:
             except Exception as exc:  # noqa: BLE001 - never let the thread die silently
                 self.last_error = f"{type(exc).__name__}: {exc}"
                 log.exception("capture crashed; the loop goes on")
-            wait = self.station.cfg.interval_s - (time.monotonic() - begun)
-            self._stop.wait(max(wait, 0.0))
+            self.last_at = time.time()
+            wait = max(self.station.cfg.interval_s - (time.monotonic() - begun), 0.0)
+            self.next_at = time.time() + wait
+            self._stop.wait(wait)
 
-    def stop(self, timeout_s: float = 30.0) -> None:
-        """Stop after the capture in progress (if any) ends."""
+    def stop(self, timeout_s: float | None = 30.0) -> None:
+        """Ask the loop to stop after the capture in progress (if any); wait up to
+        ``timeout_s`` seconds for it (None: do not wait)."""
         self._stop.set()
-        if self._thread is not None:
+        if self._thread is not None and timeout_s is not None:
             with contextlib.suppress(RuntimeError):
                 self._thread.join(timeout_s)
-            self._thread = None
+
+    def summary(self) -> dict[str, Any]:
+        """For ``grassd status``: camera, interval, captures made, last bundle and error, and
+        when the next capture is due (s)."""
+        return {"camera": self.station.cfg.camera, "interval_s": self.station.cfg.interval_s,
+                "captures": self.station.captures, "last_at": self.last_at,
+                "last_bundle": None if self.last_bundle is None else self.last_bundle.name,
+                "last_error": self.last_error,
+                "next_in_s": None if self.next_at is None else max(self.next_at - time.time(),
+                                                                   0.0)}
 
 
-def start_capture_loop(cfg: Config) -> CaptureLoop:
-    """The daemon's capture thread for ``cfg`` ([capture], the inbox, [light.modbus])."""
+def start_capture_loop(cfg: Config, after: CaptureLoop | None = None) -> CaptureLoop:
+    """The daemon's capture thread for ``cfg`` ([capture], the inbox, [light.modbus]),
+    starting once ``after`` (a loop it replaces) has finished."""
     assert cfg.capture is not None
     return CaptureLoop(Station(cfg.capture, cfg.light.inbox, cfg.state_dir,
-                               cfg.light.modbus)).start()
+                               cfg.light.modbus)).start(after)

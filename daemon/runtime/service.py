@@ -294,10 +294,7 @@ class Service:
         pending = self.inbox.recover()
         self.prune()
         self.notifier.ready(f"watching {self.cfg.light.inbox}")
-        if self.cfg.capture is not None:  # its own thread: never blocks a calibration
-            from grassd.daemon.runtime.capture import start_capture_loop
-
-            self.capture_loop = start_capture_loop(self.cfg)
+        self._restart_capture()
         self.activity = "idle"
         log.info("grassd %s ready: inbox %s, %d controller(s), socket %s", __version__,
                  self.cfg.light.inbox, len(self.cfg.controllers), self.cfg.control_socket)
@@ -492,9 +489,25 @@ class Service:
             return False
         self.reload_error = None
         self._last_reconcile = 0.0
+        if (new.capture, new.light.inbox, new.light.modbus) != (
+                old.capture, old.light.inbox, old.light.modbus):
+            self._restart_capture()
         log.info("configuration reloaded from %s", self.config_path)
         self.notifier.ready("configuration reloaded")
         return True
+
+    def _restart_capture(self) -> None:
+        """(Re)start the capture station's thread for the current ``[capture]`` (none without
+        it). Its own thread: a capture never blocks or delays a calibration, and a replaced
+        loop finishes its capture in the background before the new one starts."""
+        old = self.capture_loop
+        if old is not None:
+            old.stop(timeout_s=None)
+        self.capture_loop = None
+        if self.cfg.capture is not None:
+            from grassd.daemon.runtime.capture import start_capture_loop
+
+            self.capture_loop = start_capture_loop(self.cfg, after=old)
 
     # ------------------------------------------------------------------ runs
     def _resolve_lux(self, manifest_lux: float | None) -> tuple[float, str]:
@@ -895,6 +908,7 @@ class Service:
             "inbox_problems": inbox.problems(),
             "metrics_textfile": str(self.operator.textfile),
             "status_page": str(self.operator.page),
+            "capture": None if self.capture_loop is None else self.capture_loop.summary(),
             "waiting_bundles": [
                 {"bundle": d.bundle.name, "id": d.bundle.id, "reason": d.reason,
                  "since": d.since, "retry_in_s": max(d.retry_at - now, 0.0)}

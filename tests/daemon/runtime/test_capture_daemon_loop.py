@@ -17,6 +17,7 @@ from daemon_harness import CACHE
 from grassd.daemon.config.settings import load_default_config
 from grassd.daemon.hardware.simulated import SimulatedHardware, hardware_toml
 from grassd.daemon.hardware.simulated_camera import SimCamera, site_hdri
+from grassd.daemon.runtime.control import request
 from grassd.daemon.store.history import History
 from grassd.firmware_proto.tables import table_crc
 from grassd.sim.hdri import downsample, load_hdri
@@ -122,6 +123,8 @@ def test_daemon_captures_under_two_lights_and_makes_two_tables(tmp_path):
             assert [p.ok for p in h.pushes(second.id)] == [True, True]
         active = [table_crc(dev.active_table()) for bus in hw.buses for dev in bus.controllers]
         assert set(active) == {runs[-1].table_crc}
+        cap = request(state / "control.sock", {"cmd": "status"}, timeout_s=30)["status"]
+        assert cap["capture"]["camera"] == cam.url and cap["capture"]["captures"] >= 2
         archived = sorted(p.name for p in (state / "archive").iterdir())
         assert len([a for a in archived if "capture-" in a]) >= 2
         assert not [p for p in (state / "inbox").iterdir() if p.name.startswith(".")]
@@ -136,3 +139,40 @@ def test_daemon_captures_under_two_lights_and_makes_two_tables(tmp_path):
             proc.wait()
         cam.stop()
         hw.stop()
+
+
+def test_reload_starts_and_stops_the_capture_station(tmp_path, hw):
+    """SIGHUP (Service.reload) with a new [capture] section starts the station's thread, a
+    reload without it stops it; a calibration is never waited for."""
+    import daemon_harness
+
+    _, cfg = hw
+    env = load_hdri(site_hdri())
+    env = downsample(env, env.shape[1] // 128) if env.shape[1] > 128 else env
+    path = daemon_harness.write_config(tmp_path / "g.toml", tmp_path / "state", cfg)
+    svc = daemon_harness.service(path)
+    try:
+        assert svc.capture_loop is None
+        with SimCamera(env, scene_scale=1000.0, latency_s=0.01) as cam:
+            daemon_harness.write_config(path, tmp_path / "state", cfg, extra=(
+                f'[capture]\ncamera = "{cam.url}"\ninterval_s = 3600\nshots = 5\n'))
+            assert svc.reload() is True and svc.capture_loop is not None
+            wait_for(lambda: svc.capture_loop.last_bundle is not None
+                     or svc.capture_loop.last_error, 60, "a capture", _Alive(), path)
+            assert svc.capture_loop.last_error is None
+            assert svc.status()["capture"]["captures"] == 1
+            loop = svc.capture_loop
+            daemon_harness.write_config(path, tmp_path / "state", cfg)
+            assert svc.reload() is True and svc.capture_loop is None
+            loop._thread.join(10)
+            assert not loop._thread.is_alive()
+        daemon_harness.tick_until(svc, lambda: svc.history.current_table() is not None, 60)
+    finally:
+        svc.shutdown()
+
+
+class _Alive:
+    """A stand-in process for :func:`wait_for` that never exits."""
+
+    def poll(self) -> None:
+        return None

@@ -157,3 +157,12 @@ def test_raw_plus_capture_merges_the_dngs(tmp_path, camera):
     assert c["merge_method"] == "linear" and c["response"] == "linear RAW (rawpy)"
     assert c["file_format"] == "raw+"
     assert inbox_entries(tmp_path) == [out.bundle.name]
+
+
+def test_a_partial_bundle_left_by_a_crash_is_removed(tmp_path, camera):
+    (tmp_path / "inbox").mkdir()
+    leftover = tmp_path / "inbox" / ".capture-20260101T000000000Z.partial"
+    leftover.mkdir()
+    (leftover / "sky.exr").write_bytes(b"half")
+    out = station(tmp_path, camera.url).capture(lux=5000.0)
+    assert inbox_entries(tmp_path) == [out.bundle.name]
