@@ -51,6 +51,12 @@ def check_config(config_path: str | None) -> None:
         where = f"{m.host}:{m.port}" if m.mode == "tcp" else m.serial_port
         lux += f" (modbus {m.mode} {where} unit {m.unit} fc {m.function_code} reg {m.register})"
     click.echo(f"  inbox: {cfg.light.inbox}; lux from {lux}")
+    if (cap := cfg.capture) is not None:
+        centre = f"{cap.shutter_s:g} s" if cap.shutter_s else "a metered shutter"
+        click.echo(f"  capture: {cap.camera} every {cap.interval_s:g} s, {cap.shots} "
+                   f"{cap.file_format} shots {cap.ev_step:g} EV apart around {centre}, ISO "
+                   f"{cap.iso}, {cap.white_balance}"
+                   + (f"; shaded sensor unit {cap.shaded_unit}" if cap.shaded_unit else ""))
     click.echo(f"  state: {cfg.state_dir}; cache: {cfg.cache_dir}; socket: {cfg.control_socket}")
     from grassd.daemon.monitoring.metrics import textfile_path
     from grassd.daemon.monitoring.status_page import PAGE_NAME

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from grassd.daemon.config.capture import CaptureConfig
 from grassd.daemon.errors import (
     CameraDownloadError,
     CameraProtocolError,
@@ -50,16 +51,17 @@ MISMATCH_EV: float = 0.5
 class BracketPlan:
     """What to shoot: ``shots`` exposures ``ev_step`` EV apart, ``iso``, ``white_balance`` (an
     OSC whiteBalance name), centre shutter ``centre_shutter_s`` (s; None = meter first),
-    shutter limits (s), ``file_format`` "jpeg" or "raw+" (JPEG and DNG per shot, THETA Z1)."""
+    shutter limits (s), ``file_format`` "jpeg" or "raw+" (JPEG and DNG per shot, THETA Z1).
+    Defaults: those of ``[capture]`` (:class:`~grassd.daemon.config.capture.CaptureConfig`)."""
 
-    shots: int = 9
-    ev_step: float = 2.0
-    iso: int = 100
-    white_balance: str = "daylight"
+    shots: int = CaptureConfig.shots
+    ev_step: float = CaptureConfig.ev_step
+    iso: int = CaptureConfig.iso
+    white_balance: str = CaptureConfig.white_balance
     centre_shutter_s: float | None = None
-    min_shutter_s: float = 0.00004
-    max_shutter_s: float = 1.0
-    file_format: str = "jpeg"
+    min_shutter_s: float = SHUTTER_SPEEDS_S[0]
+    max_shutter_s: float = CaptureConfig.max_shutter_s
+    file_format: str = CaptureConfig.file_format
 
 
 @dataclass(frozen=True)

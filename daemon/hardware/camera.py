@@ -37,6 +37,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from grassd.daemon.config.capture import CaptureConfig
 from grassd.daemon.errors import (
     CameraCommandTimeout,
     CameraDownloadError,
@@ -47,11 +48,11 @@ from grassd.daemon.errors import (
 
 log = logging.getLogger(__name__)
 
-#: Seconds an HTTP request may take before the camera counts as unreachable.
-DEFAULT_TIMEOUT_S = 10.0
+#: Seconds an HTTP request may take before the camera counts as unreachable ([capture]'s).
+DEFAULT_TIMEOUT_S = CaptureConfig.timeout_s
 #: Seconds a command (takePicture: exposure + stitching, up to a minute on a THETA Z1 at long
-#: exposures) may stay inProgress.
-DEFAULT_COMMAND_TIMEOUT_S = 120.0
+#: exposures) may stay inProgress ([capture]'s).
+DEFAULT_COMMAND_TIMEOUT_S = CaptureConfig.command_timeout_s
 #: Seconds between two /osc/commands/status polls.
 DEFAULT_POLL_S = 0.25
 
