@@ -10,6 +10,7 @@
     shots = 9                       # exposures in the bracket
     ev_step = 2.0                   # EV between neighbouring exposures
     iso = 100                       # fixed ISO
+    aperture = 0.0                  # f-number to set (THETA Z1: 2.1, 3.5, 5.6); 0 = leave it
     white_balance = "daylight"      # fixed OSC whiteBalance
     shutter_s = 0.0                 # centre shutter (s); 0 = meter it with one shot
     file_format = "jpeg"            # or "raw+" (THETA Z1: JPEG + DNG, merged linearly)
@@ -43,6 +44,7 @@ class CaptureConfig:
     shots: int = 9
     ev_step: float = 2.0
     iso: int = 100
+    aperture: float = 0.0
     white_balance: str = "daylight"
     shutter_s: float = 0.0
     max_shutter_s: float = 1.0
@@ -78,6 +80,7 @@ def parse_capture(ctx: Any, raw: Any) -> CaptureConfig | None:
         "shots": _F(int, d.shots, _between(3, 15)),
         "ev_step": _F(float, d.ev_step, _between(0.5, 4.0, " EV")),
         "iso": _F(int, d.iso, _between(50, 12800)),
+        "aperture": _F(float, d.aperture, _between(0.0, 32.0)),
         "white_balance": _F(str, d.white_balance, _one_of(
             "daylight", "shade", "cloudy-daylight", "incandescent", "fluorescent", "auto")),
         "shutter_s": _F(float, d.shutter_s, _between(0.0, 60.0, " s")),

@@ -49,14 +49,16 @@ MISMATCH_EV: float = 0.5
 
 @dataclass(frozen=True)
 class BracketPlan:
-    """What to shoot: ``shots`` exposures ``ev_step`` EV apart, ``iso``, ``white_balance`` (an
-    OSC whiteBalance name), centre shutter ``centre_shutter_s`` (s; None = meter first),
-    shutter limits (s), ``file_format`` "jpeg" or "raw+" (JPEG and DNG per shot, THETA Z1).
+    """What to shoot: ``shots`` exposures ``ev_step`` EV apart, ``iso``, ``aperture``
+    (f-number; 0 = as the camera is), ``white_balance`` (an OSC whiteBalance name), centre
+    shutter ``centre_shutter_s`` (s; None = meter first), shutter limits (s), ``file_format``
+    "jpeg" or "raw+" (JPEG and DNG per shot, THETA Z1).
     Defaults: those of ``[capture]`` (:class:`~grassd.daemon.config.capture.CaptureConfig`)."""
 
     shots: int = CaptureConfig.shots
     ev_step: float = CaptureConfig.ev_step
     iso: int = CaptureConfig.iso
+    aperture: float = CaptureConfig.aperture
     white_balance: str = CaptureConfig.white_balance
     centre_shutter_s: float | None = None
     min_shutter_s: float = SHUTTER_SPEEDS_S[0]
@@ -166,6 +168,8 @@ def real_exposure(client: OscClient, result: dict[str, Any], path: Path,
 def capture_bracket(client: OscClient, plan: BracketPlan, dest: Path) -> list[Shot]:
     """Shoot ``plan`` with ``client`` into directory ``dest``; shots sorted by exposure."""
     dest.mkdir(parents=True, exist_ok=True)
+    if plan.aperture:
+        client.set_options(aperture=plan.aperture)
     centre = plan.centre_shutter_s
     if centre is None:  # meter: ISO priority at the bracket's ISO
         client.set_options(exposureProgram=9, iso=plan.iso, whiteBalance=plan.white_balance)

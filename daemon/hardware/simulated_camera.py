@@ -57,9 +57,11 @@ ISO_VALUES: tuple[int, ...] = (80, 100, 125, 160, 200, 250, 320, 400, 500, 640, 
 #: White balance names accepted (OSC whiteBalance values).
 WHITE_BALANCES: tuple[str, ...] = ("auto", "daylight", "shade", "cloudy-daylight",
                                    "incandescent", "fluorescent")
-#: The lens' f-number: a THETA Z1 stopped down to its smallest aperture, as a sky capture wants
-#: (even so, at 1/25000 s the real sun, about 1.6e9 cd/m^2, clips: the daemon restores it).
-F_NUMBER: float = 5.6
+#: The lens' f-numbers (the THETA Z1's aperture option); the default is the smallest aperture,
+#: as a sky capture wants (even so, at 1/25000 s the real sun, about 1.6e9 cd/m^2, clips: the
+#: daemon restores it).
+APERTURES: tuple[float, ...] = (2.1, 3.5, 5.6)
+F_NUMBER: float = APERTURES[-1]
 
 
 @dataclass(frozen=True)
@@ -245,16 +247,21 @@ class SimCamera:
                 self.scene_scale = float(scene_scale)
 
     # ------------------------------------------------------------------ photography
+    @property
+    def f_number(self) -> float:
+        """The lens' current f-number (option ``aperture``)."""
+        return float(self.options["aperture"])
+
     def signal(self, shutter_s: float, iso: float) -> NDArray[np.float64]:
         """Noise-free linear sensor signal (full scale 1) of a shot (module docstring)."""
-        k = 0.18 * shutter_s * iso / (METER_K * F_NUMBER ** 2)
+        k = 0.18 * shutter_s * iso / (METER_K * self.f_number ** 2)
         return self.env.astype(np.float64) * (self.scene_scale * k)
 
     def metered_shutter(self, iso: float) -> float:
         """The shutter (s, from the list) a meter chooses: median luminance at 0.18."""
         lum = self.env.astype(np.float64) @ np.array([0.2126, 0.7152, 0.0722])
         median = max(float(np.median(lum)) * self.scene_scale, 1e-9)
-        t = METER_K * F_NUMBER ** 2 / (median * iso)
+        t = METER_K * self.f_number ** 2 / (median * iso)
         return min(SHUTTER_SPEEDS_S, key=lambda s: abs(np.log(s / t)))
 
     def exposed(self, shutter_s: float, iso: float) -> NDArray[np.float64]:
@@ -289,7 +296,7 @@ class SimCamera:
             self.files[raw_name] = dng_bytes(x)
             out["_dngFileUrl"] = f"{self.url}/files/{raw_name}"
         exif = {"Make": "grassd", "Model": self.model, "Software": "simcam 1.0",
-                "ExposureTime": shutter, "FNumber": F_NUMBER, "ISO": iso}
+                "ExposureTime": shutter, "FNumber": self.f_number, "ISO": iso}
         if self.faults.missing_exposure:
             del exif["ExposureTime"]
         self.files[name] = jpeg_bytes(codes, exif)
@@ -378,7 +385,10 @@ class SimCamera:
         elif key == "fileFormat":
             if not isinstance(value, dict) or value.get("type") not in ("jpeg", "raw+"):
                 return f"fileFormat {value!r} is not supported (jpeg or raw+)"
-        elif key not in ("aperture", "exposureCompensation", "_colorTemperature"):
+        elif key == "aperture":
+            if value not in APERTURES:
+                return f"aperture {value} is not supported (one of {APERTURES})"
+        elif key not in ("exposureCompensation", "_colorTemperature"):
             return f"unknown option {key}"
         return None
 

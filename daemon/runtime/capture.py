@@ -141,7 +141,7 @@ class Station:
     def plan(self) -> BracketPlan:
         """The bracket ``[capture]`` asks for."""
         c = self.cfg
-        return BracketPlan(shots=c.shots, ev_step=c.ev_step, iso=c.iso,
+        return BracketPlan(shots=c.shots, ev_step=c.ev_step, iso=c.iso, aperture=c.aperture,
                            white_balance=c.white_balance, centre_shutter_s=c.shutter_s or None,
                            max_shutter_s=c.max_shutter_s, file_format=c.file_format)
 

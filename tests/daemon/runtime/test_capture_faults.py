@@ -166,3 +166,10 @@ def test_a_partial_bundle_left_by_a_crash_is_removed(tmp_path, camera):
     (leftover / "sky.exr").write_bytes(b"half")
     out = station(tmp_path, camera.url).capture(lux=5000.0)
     assert inbox_entries(tmp_path) == [out.bundle.name]
+
+
+def test_aperture_is_set_and_recorded(tmp_path, camera):
+    out = station(tmp_path, camera.url, aperture=3.5).capture(lux=5000.0)
+    assert camera.f_number == 3.5 and out.manifest["capture"]["f_number"] == 3.5
+    with pytest.raises(CameraHttpError, match="aperture"):  # not one of the lens' f-numbers
+        station(tmp_path, camera.url, aperture=4.0, retries=0).capture(lux=5000.0)
