@@ -6,7 +6,8 @@
 - ``ok``: a table is active and every controller reports it, nothing waits on an error;
 - ``degraded``: the display works but something needs a look: some controllers do not hold
   the active table, there is no table yet, a main-loop pass survived an error (full disk,
-  database), a reload was refused, or a bundle waits for the lux sensor;
+  database), a reload was refused, a bundle waits for the lux sensor, or the capture station's
+  last capture failed (after its retries);
 - ``failed``: the display is not calibrated: no controller holds the active table, or no table
   exists although runs were tried (every one failed or was rejected).
 
@@ -63,6 +64,9 @@ def assess(status: Mapping[str, Any]) -> Health:
         degraded.append(f"reload refused: {status['reload_error']}")
     for w in status.get("waiting_bundles") or []:
         degraded.append(f"bundle {w['bundle']} waits: {w['reason']}")
+    capture = status.get("capture") or {}
+    if capture.get("last_error"):  # the light stops arriving: the table goes stale
+        degraded.append(f"capture station {capture['camera']}: {capture['last_error']}")
     if failed:
         return Health("failed", tuple(failed + degraded))
     if degraded:
