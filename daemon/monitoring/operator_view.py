@@ -9,15 +9,15 @@ ever raises: a file that cannot be written is logged (once per distinct error) a
 goes on. The status page is regenerated after every run, and after a reconcile only when the
 health or a controller's state changed (its trend plots cost more than the metrics).
 
-The capture station (``grassd capture``) plugs in through :attr:`OperatorView.last_capture`:
-a callable returning when it last delivered a bundle (epoch s, or None); while it is None the
-``grassd_capture_last_success_timestamp_seconds`` metric is not written.
+With a capture station (``[capture]``, the service's ``capture_loop``), the metric
+``grassd_capture_last_success_timestamp_seconds`` says when it last delivered a bundle; it is
+not written before the first delivery, nor without a station.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -42,8 +42,6 @@ class OperatorView:
         self.alerter = Alerter(service.cfg.alerts, service.history)
         #: failed pushes per controller name since the daemon started
         self.push_failures: dict[str, int] = {}
-        #: the capture station's last delivery (epoch s): see the module docstring
-        self.last_capture: Callable[[], float | None] | None = None
         self.health: Health | None = None
         self._page_key: tuple | None = None
         self._errors: dict[str, str] = {}
@@ -113,7 +111,8 @@ class OperatorView:
                        up: bool = True) -> None:
         path = self.textfile
         try:
-            capture = self.last_capture() if self.last_capture is not None else None
+            loop = self.service.capture_loop
+            capture = None if loop is None else loop.last_success_at
             reg = registry(status, health, self.service.history,
                            push_failures=self.push_failures, sensor=self._sensor(),
                            capture_at=capture, up=up)

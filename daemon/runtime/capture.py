@@ -314,6 +314,8 @@ class CaptureLoop:
         self.last_bundle: Path | None = None
         self.last_error: str | None = None
         self.last_at: float | None = None
+        #: when a capture last delivered a bundle (epoch s; None: not yet)
+        self.last_success_at: float | None = None
         self.next_at: float | None = None
 
     def start(self, after: CaptureLoop | None = None) -> CaptureLoop:
@@ -334,6 +336,7 @@ class CaptureLoop:
             try:
                 self.last_bundle = self.station.capture(stop=self._stop).bundle
                 self.last_error = None
+                self.last_success_at = time.time()
             except (CaptureError, LuxSensorError, OSError) as exc:
                 self.last_error = str(exc)
                 log.error("capture failed after %d attempt(s): %s (next in %g s)",
@@ -359,6 +362,7 @@ class CaptureLoop:
         when the next capture is due (s)."""
         return {"camera": self.station.cfg.camera, "interval_s": self.station.cfg.interval_s,
                 "captures": self.station.captures, "last_at": self.last_at,
+                "last_success_at": self.last_success_at,
                 "last_bundle": None if self.last_bundle is None else self.last_bundle.name,
                 "last_error": self.last_error,
                 "next_in_s": None if self.next_at is None else max(self.next_at - time.time(),

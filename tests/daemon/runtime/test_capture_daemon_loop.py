@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from daemon_harness import CACHE
+from prometheus_client.parser import text_string_to_metric_families
 
 from grassd.daemon.config.settings import load_default_config
 from grassd.daemon.hardware.simulated import SimulatedHardware, hardware_toml
@@ -107,6 +108,7 @@ def test_daemon_captures_under_two_lights_and_makes_two_tables(tmp_path):
     config = tmp_path / "grassd.toml"
     config.write_text(config_text(state, cfg, cam.url))
     log = tmp_path / "daemon.log"
+    started = time.time()
     proc = subprocess.Popen([GRASSD, "run", "--config", str(config), "--tick", "0.2"],
                             stdout=open(log, "ab"), stderr=subprocess.STDOUT)
     try:
@@ -128,6 +130,11 @@ def test_daemon_captures_under_two_lights_and_makes_two_tables(tmp_path):
         wait_for(pushed, 60, "the latest table on both controllers", proc, log)
         cap = request(state / "control.sock", {"cmd": "status"}, timeout_s=30)["status"]
         assert cap["capture"]["camera"] == cam.url and cap["capture"]["captures"] >= 2
+        # the operator's metrics say when the station last delivered a bundle
+        prom = Path(cap["metrics_textfile"]).read_text()
+        [delivered] = [f.samples[0].value for f in text_string_to_metric_families(prom)
+                       if f.name == "grassd_capture_last_success_timestamp_seconds"]
+        assert started < delivered <= cap["capture"]["last_success_at"]
         archived = sorted(p.name for p in (state / "archive").iterdir())
         assert len([a for a in archived if "capture-" in a]) >= 2
         assert not [p for p in (state / "inbox").iterdir() if p.name.startswith(".")]
