@@ -334,7 +334,12 @@ def test_sigterm_during_push_then_restart_resumes(tmp_path):
         d.drop("next", 'timestamp = 2026-11-10T11:30:00+09:00\nhdri = "sky.exr"\n'
                        "ambient_lux = 800.0\nsun_lux = 30000.0\nsun_azimuth_deg = 180.6\n"
                        "sun_elevation_deg = 37.9\n")
-        wait_for(lambda: d.status()["activity"].startswith("pushing"), 60, "push started", d)
+        def pushing_next() -> bool:  # the new table's push, not a late one of the old table
+            st = d.status()
+            return st["activity"].startswith("pushing") \
+                and st["desired_table"]["table_crc"] != old
+
+        wait_for(pushing_next, 60, "push of the new table started", d)
         t0 = time.monotonic()
         assert d.stop() == 0
         print(f"\nexit {time.monotonic() - t0:.1f} s after SIGTERM during a push")
