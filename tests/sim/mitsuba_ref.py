@@ -25,8 +25,7 @@ from grassd.sim.mitsuba_scene import (
 def _mi():
     import mitsuba as mi
 
-    if mi.variant() is None:
-        mi.set_variant("llvm_ad_rgb" if configure_llvm() else "scalar_rgb")
+    mi.set_variant("llvm_ad_rgb" if configure_llvm() else "scalar_rgb")  # others may switch
     return mi
 
 
