@@ -8,18 +8,20 @@ quad (:mod:`grassd.sim.mitsuba_scene`). grassd traces the same quad with its def
 (4096 paths x 8 replicates), at the one length and as the 21-length characteristic 0..20 mm.
 
 Efficiency = 1 / (seconds x relative variance of the quad's G), both sides measured in the same
-process, interleaved round by round (the CPU is shared, so timings drift together). Scene load,
-upload and JIT are not timed. The variance of one Mitsuba render comes from its pixels: they are
-independent, so ``sum_i w_i^2 s_i^2 / (sum w)^2`` with s_i^2 each pixel's variance over the
-renders; grassd's from its replicates. For the characteristic Mitsuba counts as 21 renders and
-both sides use the variance at 10 mm. Agreement: the pooled means per channel, their
-difference in % and in combined standard errors; Mitsuba's side for it is measured exactly
-(camera rays uniform over the quad, :func:`grassd.sim.mitsuba_scene.quad_mean`, untimed), as
-the film's partly covered pixels carry light from outside the quad (printed too).
+process, interleaved round by round (the CPU is shared, so timings drift together), with wall
+seconds (medians) and, less sensitive to other processes, CPU seconds of the process (all its
+threads). Scene load, upload and JIT are not timed. The variance of one Mitsuba render comes
+from its pixels: they are independent, so ``sum_i w_i^2 s_i^2 / (sum w)^2`` with s_i^2 each
+pixel's variance over the renders; grassd's from its replicates. For the characteristic
+Mitsuba counts as 21 renders and both sides use the variance at 10 mm. Agreement: the pooled
+means per channel, their difference in % and in combined standard errors; Mitsuba's side for
+it is measured exactly (camera rays uniform over the quad,
+:func:`grassd.sim.mitsuba_scene.quad_mean`, untimed), as the film's partly covered pixels
+carry light from outside the quad (printed too).
 
 Run: ``python -m bench mitsuba``. Needs the test extra (mitsuba) and libLLVM >= 16 (Debian:
 ``apt-get install libllvm19``); without either it prints one line and skips.
-``GRASSD_BENCH_MITSUBA_ROUNDS`` (default 5) sets the rounds, ``GRASSD_BENCH_MITSUBA_SCENES``
+``GRASSD_BENCH_MITSUBA_ROUNDS`` (default 10) sets the rounds, ``GRASSD_BENCH_MITSUBA_SCENES``
 a comma list of panoramas.
 """
 
@@ -75,6 +77,7 @@ class MitsubaSide:
         self.exact_scene = mi.load_dict(scene_dict(scene_dir, 1, 64))
         self.images: list[np.ndarray] = []
         self.seconds: list[float] = []
+        self.cpu_seconds: list[float] = []
         self.exact: list[np.ndarray] = []
         self._seed = 1 << 20
         self.render(keep=False)  # JIT, not timed
@@ -82,12 +85,13 @@ class MitsubaSide:
 
     def render(self, keep: bool = True) -> None:
         self._seed += 1
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         img = np.array(self.mi.render(self.scene, seed=self._seed), dtype=np.float64)[..., :3]
-        dt = time.perf_counter() - t0
+        dt, dc = time.perf_counter() - t0, time.process_time() - c0
         if keep:
             self.images.append(img)
             self.seconds.append(dt)
+            self.cpu_seconds.append(dc)
 
     def measure_exact(self, keep: bool = True) -> None:
         from grassd.sim.mitsuba_scene import quad_mean
@@ -106,25 +110,27 @@ class MitsubaSide:
         return per_render.mean(axis=0), np.sqrt(var_one / len(imgs)), var_one
 
 
-def _summary(name: str, g_mean, g_se, g_t1, g_v1, g_t21, g_v21, m: MitsubaSide,
-             traces: float) -> None:
+def _summary(name: str, g_mean, g_se, g: dict, m: MitsubaSide, traces: float) -> None:
+    """Print efficiencies (wall and CPU seconds) and the agreement of one scene. ``g``: grassd's
+    median seconds ("t1", "t21", "c1", "c21": wall/CPU, one/21 lengths) and mean variances
+    ("v1", "v21", RGB) of one run."""
     f_mean, f_se, m_var = m.estimate()
     exact = np.array(m.exact)
     m_mean, m_se = exact.mean(axis=0), exact.std(axis=0, ddof=1) / np.sqrt(len(exact))
-    t_m = float(np.median(m.seconds))
     rel = lambda v, mu: v[1] / mu[1] ** 2  # noqa: E731  (G channel)
-    e_m = 1.0 / (t_m * rel(m_var, f_mean))
-    e_g1 = 1.0 / (g_t1 * rel(g_v1, g_mean))
-    e_g21 = 1.0 / (g_t21 * rel(g_v21, g_mean))
-    e_m21 = e_m / len(LENGTHS_MM)
-    print(f"{name}: Mitsuba {t_m:.3f} s per render ({SPP} spp, {m.weights.size} px cropped, "
-          f"{len(m.seconds)} renders), rel. sd of G {np.sqrt(rel(m_var, f_mean)) * 100:.3f} %;"
-          f" grassd one length {g_t1:.3f} s (rel. sd {np.sqrt(rel(g_v1, g_mean)) * 100:.3f} %),"
-          f" 21 lengths {g_t21:.3f} s (rel. sd at {LENGTH_MM:g} mm "
-          f"{np.sqrt(rel(g_v21, g_mean)) * 100:.3f} %, {traces:.2f} traces per path)")
-    print(f"{name}: efficiency 1/(s x relvar G): one length grassd {e_g1:.3g}, Mitsuba "
-          f"{e_m:.3g}, ratio {e_g1 / e_m:.2f}x; 21 lengths grassd {e_g21:.3g}, Mitsuba "
-          f"{e_m21:.3g} (21 renders), ratio {e_g21 / e_m21:.2f}x")
+    rv_m, rv1, rv21 = rel(m_var, f_mean), rel(g["v1"], g_mean), rel(g["v21"], g_mean)
+    n = len(LENGTHS_MM)
+    print(f"{name}: Mitsuba {np.median(m.seconds):.3f} s per render ({SPP} spp, "
+          f"{m.weights.size} px cropped, {len(m.seconds)} renders), rel. sd of G "
+          f"{np.sqrt(rv_m) * 100:.3f} %; grassd one length {g['t1']:.3f} s (rel. sd "
+          f"{np.sqrt(rv1) * 100:.3f} %), 21 lengths {g['t21']:.3f} s (rel. sd at {LENGTH_MM:g} "
+          f"mm {np.sqrt(rv21) * 100:.3f} %, {traces:.2f} traces per path)")
+    for clock, t_m, t1, t21 in (("wall", np.median(m.seconds), g["t1"], g["t21"]),
+                                ("CPU", np.median(m.cpu_seconds), g["c1"], g["c21"])):
+        e_m, e1, e21 = 1 / (t_m * rv_m), 1 / (t1 * rv1), 1 / (t21 * rv21)
+        print(f"{name}: efficiency 1/({clock} s x relvar G): one length grassd {e1:.3g}, "
+              f"Mitsuba {e_m:.3g}, ratio {e1 / e_m:.2f}x; 21 lengths grassd {e21:.3g}, "
+              f"Mitsuba {e_m / n:.3g} ({n} renders), ratio {e21 / (e_m / n):.2f}x")
     diff = (g_mean - m_mean) / m_mean * 100
     z = (g_mean - m_mean) / np.sqrt(g_se ** 2 + m_se ** 2)
     prec = np.sqrt(g_se ** 2 + m_se ** 2) / m_mean * 100
@@ -152,24 +158,26 @@ def run_scene(name: str, rounds: int, renderer) -> None:
     one = np.array([LENGTH_MM])
     k10 = int(np.argmin(np.abs(LENGTHS_MM - LENGTH_MM)))
     renderer.characteristic(display, lighting, vp, one, RenderSettings(samples=64, replicates=2))
-    reps, t1, v1, t21, v21, traces = [], [], [], [], [], []
+    reps, traces = [], []
+    g: dict[str, list] = {k: [] for k in ("t1", "c1", "v1", "t21", "c21", "v21")}
     for r in range(rounds):
         for _ in range(RENDERS_PER_ROUND):
             mits.render()
         mits.measure_exact()
-        a = renderer.characteristic(display, lighting, vp, one, RenderSettings(seed=1000 + r))
-        b = renderer.characteristic(display, lighting, vp, LENGTHS_MM, RenderSettings(seed=r))
-        t1.append(a.seconds["trace"])
-        t21.append(b.seconds["trace"])
-        v1.append(a.rgb_stderr[0] ** 2)
-        v21.append(b.rgb_stderr[k10] ** 2)
-        reps += [a.rgb_replicates[:, 0], b.rgb_replicates[:, k10]]
-        traces.append(b.paths_traced / b.samples_per_length)
+        for key, lengths, seed, k in (("1", one, 1000 + r, 0), ("21", LENGTHS_MM, r, k10)):
+            c0 = time.process_time()
+            res = renderer.characteristic(display, lighting, vp, lengths, RenderSettings(seed=seed))
+            g["c" + key].append(time.process_time() - c0)
+            g["t" + key].append(res.seconds["trace"])
+            g["v" + key].append(res.rgb_stderr[k] ** 2)
+            reps.append(res.rgb_replicates[:, k])
+        traces.append(res.paths_traced / res.samples_per_length)
     reps = np.concatenate(reps)
     g_mean = reps.mean(axis=0)
     g_se = reps.std(axis=0, ddof=1) / np.sqrt(len(reps))
-    _summary(name, g_mean, g_se, float(np.median(t1)), np.mean(v1, axis=0),
-             float(np.median(t21)), np.mean(v21, axis=0), mits, float(np.mean(traces)))
+    summary = {k: (float(np.median(v)) if k[0] in "tc" else np.mean(v, axis=0))
+               for k, v in g.items()}
+    _summary(name, g_mean, g_se, summary, mits, float(np.mean(traces)))
 
 
 def main() -> None:
@@ -185,7 +193,7 @@ def main() -> None:
     mi.set_variant("llvm_ad_rgb")
     backend.init(os.environ.get("GRASSD_BENCH_ARCH", "cpu"))
     renderer = Renderer.shared()
-    rounds = int(os.environ.get("GRASSD_BENCH_MITSUBA_ROUNDS", "5"))
+    rounds = int(os.environ.get("GRASSD_BENCH_MITSUBA_ROUNDS", "10"))
     names = os.environ.get("GRASSD_BENCH_MITSUBA_SCENES", "courtyard,forest").split(",")
     print(f"Mitsuba {mi.__version__} llvm_ad_rgb (libLLVM {os.environ['DRJIT_LIBLLVM_PATH']}),"
           f" {os.cpu_count()} CPU cores, {rounds} interleaved rounds")
