@@ -230,7 +230,7 @@ def invert_cdf(cdf: ti.template(), base: ti.i32, n: ti.i32, u: ti.f32):
     rescaled to [0, 1]."""
     lo, hi = 0, n
     while hi - lo > 1:
-        mid = (lo + hi) // 2
+        mid = (lo + hi) >> 1  # non-negative: a shift, not a signed division
         if cdf[base + mid] <= u:
             lo = mid
         else:
