@@ -8,8 +8,9 @@ under an importance-sampled equirectangular environment plus an optional directi
   proportion to luminance x solid angle x a cosine bound, :mod:`grassd.sim.env_sampler`) and
   of the sun (ray-traced shadow), cosine-weighted
   BSDF sampling, the two environment strategies combined by Veach's power heuristic. Up to
-  ``max_bounces`` surface interactions; no Russian roulette, so the estimate is unbiased for that
-  depth.
+  ``max_bounces`` surface interactions, Russian roulette from the third one on (survivors
+  weighted by the inverse survival probability, so the estimate stays unbiased for that depth;
+  the decision is a random number of the path, the same at every length).
 * Measurement: the mean linear RGB radiance over the image-plane quad that joins the projections
   of the pixel's four top corners (the paper's measurement area), estimated by stratified
   sampling of the bilinear parametrisation of that quad, weighted by its Jacobian so the
@@ -74,6 +75,13 @@ EPS = 2e-6  # m: offset of secondary ray origins along the facing normal
 ZCULL = 1e-5  # m: margin of the per-cell height culling of primitives
 MIN_LAUNCH_PATHS = 1 << 17  # paths: smaller kernel launches pay more per path (thread start-up)
 PREVIEW_MAX = 1024  # largest preview image side (pixels)
+# Russian roulette from the third surface on (depth index 2): its light and everything after it
+# are about 2 % of the quad's radiance but 2 of a path's 9 rays. Measured against none
+# (courtyard/forest 5000 lx, 10 mm, CPU seconds, same seeds): relative variance of G x time
+# -10 to -15 %, OGCD variance x time (courtyard 8000 lx, city 20000 lx, 21 lengths) -3 to -4 %.
+# From the second surface (survival 0.5 or 0.7) G gained 12-37 % but OGCD lost up to 21 %.
+RR_DEPTH = 2
+RR_SURVIVAL = 0.5
 
 
 @dataclass(frozen=True)
@@ -531,6 +539,10 @@ class Renderer:
                 break
             if depth == max_bounces:
                 break
+            if depth >= RR_DEPTH:  # Russian roulette (unbiased: survivors weigh 1 / p)
+                if tf.rand01(key, 144 + depth) >= RR_SURVIVAL:
+                    break
+                beta /= RR_SURVIVAL
             nn = n
             if nn.dot(d) > 0.0:
                 nn = -nn
