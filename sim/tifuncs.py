@@ -45,53 +45,74 @@ def rand01(key: ti.u32, dim: ti.i32) -> ti.f32:
 
 
 @ti.func
-def permute(i: ti.u32, n: ti.u32, p: ti.u32) -> ti.u32:
-    """A pseudo-random permutation of 0..n-1 chosen by ``p``, evaluated at ``i``: an invertible
-    hash on the next power of two with cycle-walking back into range (after Kensler,
-    "Correlated Multi-Jittered Sampling", Pixar Technical Memo 13-01, 2013)."""
-    w = n - ti.u32(1)
-    w |= w >> ti.u32(1)
-    w |= w >> ti.u32(2)
-    w |= w >> ti.u32(4)
-    w |= w >> ti.u32(8)
-    w |= w >> ti.u32(16)
-    x = i
-    searching = True
-    while searching:
-        x ^= p
-        x *= ti.u32(0xE170893D)
-        x ^= p >> ti.u32(16)
-        x ^= (x & w) >> ti.u32(4)
-        x ^= p >> ti.u32(8)
-        x *= ti.u32(0x0929EB3F)
-        x ^= p >> ti.u32(23)
-        x ^= (x & w) >> ti.u32(1)
-        x *= ti.u32(1) | (p >> ti.u32(27))
-        x *= ti.u32(0x6935FA69)
-        x ^= (x & w) >> ti.u32(11)
-        x *= ti.u32(0x74DCB303)
-        x ^= (x & w) >> ti.u32(2)
-        x *= ti.u32(0x9E501CC3)
-        x ^= (x & w) >> ti.u32(2)
-        x *= ti.u32(0xC860A3DF)
-        x &= w
-        x ^= x >> ti.u32(5)
-        searching = x >= n
-    return (x + p) % n
+def reverse_bits(x: ti.u32) -> ti.u32:
+    """The 32 bits of x in reverse order."""
+    x = ((x >> ti.u32(1)) & ti.u32(0x55555555)) | ((x & ti.u32(0x55555555)) << ti.u32(1))
+    x = ((x >> ti.u32(2)) & ti.u32(0x33333333)) | ((x & ti.u32(0x33333333)) << ti.u32(2))
+    x = ((x >> ti.u32(4)) & ti.u32(0x0F0F0F0F)) | ((x & ti.u32(0x0F0F0F0F)) << ti.u32(4))
+    x = ((x >> ti.u32(8)) & ti.u32(0x00FF00FF)) | ((x & ti.u32(0x00FF00FF)) << ti.u32(8))
+    return (x >> ti.u32(16)) | (x << ti.u32(16))
 
 
 @ti.func
-def padded_pair(index: ti.i32, strata: ti.i32, rep_key: ti.u32, key: ti.u32, pair: ti.i32):
-    """Two uniform numbers for dimension pair ``pair`` of path ``index``: jittered in the
-    stratum that a per-pair permutation assigns to the path, so that every 2D projection of the
-    ``strata**2`` paths of a replicate is stratified (padded 2D jittered sampling). Depends on
-    the replicate and path only, not on the grass length (common random numbers)."""
-    n = ti.u32(strata * strata)
-    cell = ti.cast(permute(ti.u32(index), n, pcg_hash(rep_key + ti.u32(pair) * ti.u32(0x68E31DA4))),
-                   ti.i32)
-    u1 = (cell % strata + rand01(key, 2 * pair)) / strata
-    u2 = (cell // strata + rand01(key, 2 * pair + 1)) / strata
-    return ti.min(u1, 0.99999994), ti.min(u2, 0.99999994)
+def owen_scramble(x: ti.u32, seed: ti.u32) -> ti.u32:
+    """Hash-based nested uniform (Owen) scrambling of a 32-bit fixed-point number in [0, 1):
+    the Laine-Karras permutation on the reversed bits, with Burley's constants (B. Burley,
+    "Practical Hash-based Owen Scrambling", JCGT 9(4), 2020). Each output digit depends only on
+    the digits above it, and the map is a bijection on every prefix."""
+    x = reverse_bits(x)
+    x ^= x * ti.u32(0x3D20ADEA)
+    x += seed
+    x *= (seed >> ti.u32(16)) | ti.u32(1)
+    x ^= x * ti.u32(0x05526C56)
+    x ^= x * ti.u32(0x53A22864)
+    return reverse_bits(x)
+
+
+@ti.func
+def sobol_2d(i: ti.u32):
+    """The first two dimensions of the Sobol' sequence at index i < 2^26, as 32-bit fixed
+    point: the van der Corput sequence and the dimension with direction numbers
+    v_k = v_(k-1) xor (v_(k-1) >> 1), together a (0, 2)-sequence in base 2."""
+    x = reverse_bits(i)
+    y = ti.u32(0)
+    v = ti.u32(0x80000000)
+    for b in ti.static(range(26)):
+        if (i >> ti.u32(b)) & ti.u32(1):
+            y ^= v
+        v ^= v >> ti.u32(1)
+    return x, y
+
+
+@ti.func
+def owen_sobol_pair(index: ti.i32, n: ti.i32, rep_key: ti.u32, pair: ti.i32, sub: ti.i32,
+                    n_sub: ti.i32):
+    """Two uniform numbers for dimension pair ``pair`` of path ``index`` of the ``n`` paths of a
+    replicate, sample ``sub`` of the ``n_sub`` that the path takes in this pair: the 2D Sobol'
+    points, Owen-scrambled per (replicate, pair), at index ``shuffled(index) * n_sub + sub``
+    where an Owen scramble per (replicate, pair) shuffles the paths (Burley 2020's padded,
+    shuffled Sobol'; n x n_sub < 2^26).
+
+    For powers of two, the n x n_sub samples of a replicate form a (0, m, 2)-net in every pair
+    (one point in each of the elementary intervals of every shape: strips, squares, ...), and
+    so do a path's own n_sub samples (an aligned block of a (0, 2)-sequence); other counts
+    take a subset of the next power of two's net. Every point is uniform on its own (the
+    scrambles are random), so estimates are unbiased; replicates use independent scrambles,
+    so their spread gives an honest standard error. Depends on the replicate and path only,
+    not on the grass length (common random numbers)."""
+    seed = pcg_hash(rep_key + ti.u32(pair) * ti.u32(0x68E31DA4))
+    m = ti.u32(n - 1)
+    m |= m >> ti.u32(1)
+    m |= m >> ti.u32(2)
+    m |= m >> ti.u32(4)
+    m |= m >> ti.u32(8)
+    m |= m >> ti.u32(16)
+    j = (owen_scramble(ti.u32(index), seed) & m) * ti.u32(n_sub) + ti.u32(sub)
+    x, y = sobol_2d(j)
+    x = owen_scramble(x, pcg_hash(seed ^ ti.u32(0xA511E9B3)))
+    y = owen_scramble(y, pcg_hash(seed ^ ti.u32(0x63D83595)))
+    return (ti.cast(x >> ti.u32(8), ti.f32) * (1.0 / 16777216.0),
+            ti.cast(y >> ti.u32(8), ti.f32) * (1.0 / 16777216.0))
 
 
 @ti.func
@@ -209,7 +230,7 @@ def invert_cdf(cdf: ti.template(), base: ti.i32, n: ti.i32, u: ti.f32):
     rescaled to [0, 1]."""
     lo, hi = 0, n
     while hi - lo > 1:
-        mid = (lo + hi) // 2
+        mid = (lo + hi) >> 1  # non-negative: a shift, not a signed division
         if cdf[base + mid] <= u:
             lo = mid
         else:

@@ -1,58 +1,112 @@
-"""The renderer's random-number helpers: permutations, padded stratification, CRN keys."""
+"""The renderer's random-number helpers: Owen-scrambled Sobol' pairs, their independence across
+replicates and dimension pairs, and a path's own stratified light samples."""
 
 # (no "from __future__ import annotations": Taichi reads kernel annotations as objects)
 
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
+N_MAX = 4096
+
 
 @pytest.fixture(scope="module")
-def kernels(renderer):  # the renderer fixture initialises Taichi
+def k(renderer):  # the renderer fixture initialises Taichi
     from grassd.sim import tifuncs as tf
     from grassd.sim.backend import ti
 
-    out_i = ti.field(ti.i32, 4096)
-    out_f = ti.Vector.field(2, ti.f32, 4096)
+    out_i = ti.field(ti.i32, N_MAX)
+    out_f = ti.Vector.field(2, ti.f32, N_MAX)
 
     @ti.kernel
-    def permute_all(n: ti.i32, p: ti.u32):
+    def shuffle_all(n: ti.i32, seed: ti.u32):
         for i in range(n):
-            out_i[i] = ti.cast(tf.permute(ti.u32(i), ti.u32(n), p), ti.i32)
+            out_i[i] = ti.cast(tf.owen_scramble(ti.u32(i), seed) & ti.u32(n - 1), ti.i32)
 
     @ti.kernel
-    def pairs(strata: ti.i32, rep_key: ti.u32, pair: ti.i32):
-        for i in range(strata * strata):
-            u1, u2 = tf.padded_pair(i, strata, rep_key, tf.pcg_hash(rep_key + ti.u32(i)), pair)
+    def pairs(n: ti.i32, rep_key: ti.u32, pair: ti.i32, n_sub: ti.i32):
+        for i in range(n * n_sub):
+            u1, u2 = tf.owen_sobol_pair(i // n_sub, n, rep_key, pair, i % n_sub, n_sub)
             out_f[i] = ti.Vector([u1, u2])
 
-    return permute_all, pairs, out_i, out_f
+    @ti.kernel
+    def one_point(n_keys: ti.i32, index: ti.i32, n: ti.i32):
+        for key in range(n_keys):
+            u1, u2 = tf.owen_sobol_pair(index, n, tf.replicate_key(7, key), 3, 1, 2)
+            out_f[key] = ti.Vector([u1, u2])
+
+    def shuffled(n, seed):
+        shuffle_all(n, seed)
+        return out_i.to_numpy()[:n]
+
+    def points(n, rep_key, pair, n_sub=1):
+        pairs(n, rep_key, pair, n_sub)
+        return out_f.to_numpy()[: n * n_sub].astype(np.float64)
+
+    def over_replicates(n_keys, index, n):
+        one_point(n_keys, index, n)
+        return out_f.to_numpy()[:n_keys].astype(np.float64)
+
+    return SimpleNamespace(shuffled=shuffled, points=points, over_replicates=over_replicates)
 
 
-@pytest.mark.parametrize("n", [1, 7, 64, 100, 1000, 4096])
-def test_permute_is_a_permutation(kernels, n):
-    permute_all, _, out_i, _ = kernels
+def _one_per_interval(u: np.ndarray, bx: int, by: int) -> bool:
+    cells = np.floor(u[:, 0] * bx).astype(int) + bx * np.floor(u[:, 1] * by).astype(int)
+    return sorted(cells.tolist()) == list(range(bx * by))
+
+
+@pytest.mark.parametrize("n", [1, 64, 1024, 4096])
+def test_owen_scrambled_index_is_a_permutation(k, n):
     seen = []
-    for p in (0, 12345, 0xDEADBEEF):
-        permute_all(n, p)
-        perm = out_i.to_numpy()[:n]
+    for seed in (0, 12345, 0xDEADBEEF):
+        perm = k.shuffled(n, seed)
         assert sorted(perm.tolist()) == list(range(n))
         seen.append(perm)
     if n >= 64:
         assert not np.array_equal(seen[1], seen[2])  # different seeds, different orders
 
 
-def test_padded_pairs_are_stratified_and_decorrelated(kernels):
-    _, pairs, _, out_f = kernels
-    m = 32
+def test_pairs_are_nets_and_decorrelated(k):
+    """1024 = 2^10 paths: one point in every elementary interval (32 x 32 squares, 1024 x 1
+    and 1 x 1024 strips, 64 x 16 boxes) of every pair; pairs are not aligned."""
+    n = 1024
     got = []
     for pair in (1, 2):
-        pairs(m, 777, pair)
-        u = out_f.to_numpy()[: m * m].astype(np.float64)
+        u = k.points(n, 777, pair)
         assert np.all((u >= 0) & (u < 1))
-        cells = np.floor(u * m).astype(int)
-        ids = cells[:, 0] + m * cells[:, 1]
-        assert sorted(ids.tolist()) == list(range(m * m))  # one sample per stratum
+        for bx, by in ((32, 32), (1024, 1), (1, 1024), (64, 16), (16, 64)):
+            assert _one_per_interval(u, bx, by), (bx, by)
         got.append(u)
     # two dimension pairs of the same paths are not aligned (no correlation between them)
     assert abs(np.corrcoef(got[0][:, 0], got[1][:, 0])[0, 1]) < 0.1
+    assert abs(np.corrcoef(got[0][:, 1], got[1][:, 1])[0, 1]) < 0.1
+    assert not np.allclose(k.points(n, 778, 1), got[0])  # another replicate, another net
+
+
+def test_a_paths_light_samples_are_stratified_too(k):
+    """512 paths x 4 samples: the 2048 samples are a net, and each path's own 4 samples lie in
+    the 4 different quadrants of the unit square."""
+    n, n_sub = 512, 4
+    u = k.points(n, 99, 5, n_sub)
+    assert _one_per_interval(u, 64, 32) and _one_per_interval(u, 2048, 1)
+    quadrant = (np.floor(u[:, 0] * 2) + 2 * np.floor(u[:, 1] * 2)).reshape(n, n_sub)
+    assert all(sorted(q.tolist()) == [0, 1, 2, 3] for q in quadrant)
+
+
+def test_each_point_is_uniform_over_replicates(k):
+    """The estimator is unbiased because every single point is uniform on [0, 1)^2 over the
+    random scrambles, also for a count of paths that is not a power of two."""
+    for index, n in ((5, 4096), (77, 100)):
+        u = k.over_replicates(N_MAX, index, n)
+        hist, _, _ = np.histogram2d(u[:, 0], u[:, 1], bins=4, range=((0, 1), (0, 1)))
+        expected = N_MAX / 16
+        chi2 = float(((hist - expected) ** 2 / expected).sum())
+        assert chi2 < 45.0, chi2  # 15 degrees of freedom: p < 1e-4
+
+
+def test_non_power_of_two_counts_stay_in_range_and_spread(k):
+    u = k.points(100, 5, 1)
+    assert np.all((u >= 0) & (u < 1))
+    assert len(np.unique(np.floor(u[:, 0] * 10))) == 10  # every tenth is visited

@@ -1,0 +1,205 @@
+"""grassd against Mitsuba 3 (``llvm_ad_rgb``) on the exported scene: efficiency and agreement.
+
+Issue #17. The scene is what ``grassd simulate export-scene`` writes for courtyard and forest at
+5000 lx, view (170, 2, 0), green length 10 mm; Mitsuba renders it with its ``path`` integrator
+(``max_depth`` 4 = 3 bounces, no Russian roulette), the ``independent`` sampler at 4 spp, the
+film cropped to the quad's bounding box and each pixel weighted by its exact coverage of the
+quad (:mod:`grassd.sim.mitsuba_scene`). grassd traces the same quad with its default settings
+(4096 paths x 8 replicates), at the one length and as the 21-length characteristic 0..20 mm.
+
+Efficiency = 1 / (seconds x relative variance of the quad's G), both sides measured in the same
+process, interleaved round by round (the CPU is shared, so timings drift together), with wall
+seconds (medians) and, less sensitive to other processes, CPU seconds of the process (all its
+threads). Scene load, upload and JIT are not timed. The variance of one Mitsuba render comes
+from its pixels: they are independent, so ``sum_i w_i^2 s_i^2 / (sum w)^2`` with s_i^2 each
+pixel's variance over the renders; grassd's from its replicates. For the characteristic
+Mitsuba counts as 21 renders and both sides use the variance at 10 mm. Agreement: the pooled
+means per channel, their difference in % and in combined standard errors; Mitsuba's side for
+it is measured exactly (camera rays uniform over the quad,
+:func:`grassd.sim.mitsuba_scene.quad_mean`, untimed), as the film's partly covered pixels
+carry light from outside the quad (printed too).
+
+Run: ``python -m bench mitsuba``. Needs the test extra (mitsuba) and libLLVM >= 16 (Debian:
+``apt-get install libllvm19``); without either it prints one line and skips.
+``GRASSD_BENCH_MITSUBA_ROUNDS`` (default 10) sets the rounds, ``GRASSD_BENCH_MITSUBA_SCENES``
+a comma list of panoramas.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HDRI_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "hdri"
+LUX = 5000.0
+LENGTH_MM = 10.0
+LENGTHS_MM = np.arange(0.0, 20.01, 1.0)
+SPP = 4
+WIDTH = 512  #: film width (export-scene's default)
+RENDERS_PER_ROUND = 2
+EXACT_RAYS = 1 << 20  #: Mitsuba paths per round for the agreement (untimed)
+
+
+def _skip_reason() -> str | None:
+    from grassd.sim.mitsuba_scene import configure_llvm
+
+    try:
+        import mitsuba  # noqa: F401
+    except ImportError:
+        return "mitsuba not installed (pip install -e '.[test]')"
+    if configure_llvm() is None:
+        return "no libLLVM >= 16 for Dr.Jit's llvm variant (apt-get install libllvm19)"
+    if not HDRI_DIR.is_dir():
+        return f"{HDRI_DIR} absent (the shared HDRIs)"
+    return None
+
+
+class MitsubaSide:
+    """One exported scene in Mitsuba: the cropped film (timed; the exported map as it is, as a
+    user would render it) and the exact quad measurement for the agreement (the map resampled
+    to Mitsuba's convention, camera rays uniform over the quad: no partly covered pixels)."""
+
+    def __init__(self, scene_dir: Path, width: int = WIDTH, spp: int = SPP) -> None:
+        import mitsuba as mi
+
+        from grassd.sim.mitsuba_scene import quad_coverage, read_doc, scene_dict
+
+        self.mi = mi
+        self.doc = read_doc(scene_dir)
+        (x0, y0), self.weights = quad_coverage(self.doc, width)
+        h, w = self.weights.shape
+        self.scene = mi.load_dict(scene_dict(scene_dir, spp, width, crop=((x0, y0), (w, h)),
+                                             env_refine=0))
+        self.exact_scene = mi.load_dict(scene_dict(scene_dir, 1, 64))
+        self.images: list[np.ndarray] = []
+        self.seconds: list[float] = []
+        self.cpu_seconds: list[float] = []
+        self.exact: list[np.ndarray] = []
+        self._seed = 1 << 20
+        self.render(keep=False)  # JIT, not timed
+        self.measure_exact(keep=False)
+
+    def render(self, keep: bool = True) -> None:
+        self._seed += 1
+        t0, c0 = time.perf_counter(), time.process_time()
+        img = np.array(self.mi.render(self.scene, seed=self._seed), dtype=np.float64)[..., :3]
+        dt, dc = time.perf_counter() - t0, time.process_time() - c0
+        if keep:
+            self.images.append(img)
+            self.seconds.append(dt)
+            self.cpu_seconds.append(dc)
+
+    def measure_exact(self, keep: bool = True) -> None:
+        from grassd.sim.mitsuba_scene import quad_mean
+
+        self._seed += 1
+        rgb = quad_mean(self.exact_scene, self.doc, EXACT_RAYS, self._seed)
+        if keep:
+            self.exact.append(rgb)
+
+    def estimate(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(mean RGB over renders, its standard error, variance of one render's RGB)."""
+        imgs = np.stack(self.images)  # (n, h, w, 3)
+        w = self.weights / self.weights.sum()
+        per_render = np.einsum("nhwc,hw->nc", imgs, w)
+        var_one = np.einsum("hwc,hw->c", imgs.var(axis=0, ddof=1), w * w)
+        return per_render.mean(axis=0), np.sqrt(var_one / len(imgs)), var_one
+
+
+def _summary(name: str, g_mean, g_se, g: dict, m: MitsubaSide, traces: float) -> None:
+    """Print efficiencies (wall and CPU seconds) and the agreement of one scene. ``g``: grassd's
+    median seconds ("t1", "t21", "c1", "c21": wall/CPU, one/21 lengths) and mean variances
+    ("v1", "v21", RGB) of one run."""
+    f_mean, f_se, m_var = m.estimate()
+    exact = np.array(m.exact)
+    m_mean, m_se = exact.mean(axis=0), exact.std(axis=0, ddof=1) / np.sqrt(len(exact))
+    rel = lambda v, mu: v[1] / mu[1] ** 2  # noqa: E731  (G channel)
+    rv_m, rv1, rv21 = rel(m_var, f_mean), rel(g["v1"], g_mean), rel(g["v21"], g_mean)
+    n = len(LENGTHS_MM)
+    print(f"{name}: Mitsuba {np.median(m.seconds):.3f} s per render ({SPP} spp, "
+          f"{m.weights.size} px cropped, {len(m.seconds)} renders), rel. sd of G "
+          f"{np.sqrt(rv_m) * 100:.3f} %; grassd one length {g['t1']:.3f} s (rel. sd "
+          f"{np.sqrt(rv1) * 100:.3f} %), 21 lengths {g['t21']:.3f} s (rel. sd at {LENGTH_MM:g} "
+          f"mm {np.sqrt(rv21) * 100:.3f} %, {traces:.2f} traces per path)")
+    for clock, t_m, t1, t21 in (("wall", np.median(m.seconds), g["t1"], g["t21"]),
+                                ("CPU", np.median(m.cpu_seconds), g["c1"], g["c21"])):
+        e_m, e1, e21 = 1 / (t_m * rv_m), 1 / (t1 * rv1), 1 / (t21 * rv21)
+        print(f"{name}: efficiency 1/({clock} s x relvar G): one length grassd {e1:.3g}, "
+              f"Mitsuba {e_m:.3g}, ratio {e1 / e_m:.2f}x; 21 lengths grassd {e21:.3g}, "
+              f"Mitsuba {e_m / n:.3g} ({n} renders), ratio {e21 / (e_m / n):.2f}x")
+    diff = (g_mean - m_mean) / m_mean * 100
+    z = (g_mean - m_mean) / np.sqrt(g_se ** 2 + m_se ** 2)
+    prec = np.sqrt(g_se ** 2 + m_se ** 2) / m_mean * 100
+    agree = bool(np.all(np.abs(z) < 2.0))
+    print(f"{name}: means grassd {np.round(g_mean, 3)} Mitsuba {np.round(m_mean, 3)} nits "
+          f"(quad sampled exactly, {len(exact)} x {EXACT_RAYS} paths); difference R G B "
+          f"{np.round(diff, 3)} % = {np.round(z, 2)} combined SE (SE {np.round(prec, 3)} %): "
+          f"{'agree' if agree else 'DIFFER'} within 2 SE")
+    fdiff = (g_mean - f_mean) / f_mean * 100
+    fz = (g_mean - f_mean) / np.sqrt(g_se ** 2 + f_se ** 2)
+    print(f"{name}: Mitsuba's coverage-weighted film instead: difference {np.round(fdiff, 3)} % "
+          f"= {np.round(fz, 2)} SE (partly covered pixels carry light from outside the quad)")
+
+
+def run_scene(name: str, rounds: int, renderer) -> None:
+    from grassd.sim.export import export_scene
+    from grassd.sim.lighting import build_lighting
+    from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
+
+    display, vp = DisplaySpec(), Viewpoint(170, 2, 0)
+    lighting = build_lighting(HDRI_DIR / f"{name}.exr", LUX)
+    with tempfile.TemporaryDirectory() as tmp:
+        export_scene(tmp, display, lighting, vp, LENGTH_MM, RenderSettings(max_bounces=3))
+        mits = MitsubaSide(Path(tmp))
+    one = np.array([LENGTH_MM])
+    k10 = int(np.argmin(np.abs(LENGTHS_MM - LENGTH_MM)))
+    renderer.characteristic(display, lighting, vp, one, RenderSettings(samples=64, replicates=2))
+    reps, traces = [], []
+    g: dict[str, list] = {k: [] for k in ("t1", "c1", "v1", "t21", "c21", "v21")}
+    for r in range(rounds):
+        for _ in range(RENDERS_PER_ROUND):
+            mits.render()
+        mits.measure_exact()
+        for key, lengths, seed, k in (("1", one, 1000 + r, 0), ("21", LENGTHS_MM, r, k10)):
+            c0 = time.process_time()
+            res = renderer.characteristic(display, lighting, vp, lengths, RenderSettings(seed=seed))
+            g["c" + key].append(time.process_time() - c0)
+            g["t" + key].append(res.seconds["trace"])
+            g["v" + key].append(res.rgb_stderr[k] ** 2)
+            reps.append(res.rgb_replicates[:, k])
+        traces.append(res.paths_traced / res.samples_per_length)
+    reps = np.concatenate(reps)
+    g_mean = reps.mean(axis=0)
+    g_se = reps.std(axis=0, ddof=1) / np.sqrt(len(reps))
+    summary = {k: (float(np.median(v)) if k[0] in "tc" else np.mean(v, axis=0))
+               for k, v in g.items()}
+    _summary(name, g_mean, g_se, summary, mits, float(np.mean(traces)))
+
+
+def main() -> None:
+    reason = _skip_reason()
+    if reason:
+        print(f"bench mitsuba skipped: {reason}")
+        return
+    import mitsuba as mi
+
+    from grassd.sim import backend
+    from grassd.sim.renderer import Renderer
+
+    mi.set_variant("llvm_ad_rgb")
+    backend.init(os.environ.get("GRASSD_BENCH_ARCH", "cpu"))
+    renderer = Renderer.shared()
+    rounds = int(os.environ.get("GRASSD_BENCH_MITSUBA_ROUNDS", "10"))
+    names = os.environ.get("GRASSD_BENCH_MITSUBA_SCENES", "courtyard,forest").split(",")
+    print(f"Mitsuba {mi.__version__} llvm_ad_rgb (libLLVM {os.environ['DRJIT_LIBLLVM_PATH']}),"
+          f" {os.cpu_count()} CPU cores, {rounds} interleaved rounds")
+    for name in names:
+        run_scene(name.strip(), rounds, renderer)
+
+
+if __name__ == "__main__":
+    main()
