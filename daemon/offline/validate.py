@@ -69,6 +69,7 @@ from grassd.calib.ogcd import ogcd_from_lab
 from grassd.calib.raw import develop_raw
 from grassd.calib.regions import checker_patch_quads, quad_mask
 from grassd.daemon.errors import DaemonError
+from grassd.sim.light_input import LightInput
 
 #: File name of the manifest inside a capture directory.
 MANIFEST_NAME: str = "capture.toml"
@@ -113,38 +114,17 @@ def default_renderer(arch: str = "cpu") -> Any:
 
 
 # ----------------------------------------------------------------------------- manifest
-@dataclass(frozen=True)
-class LightSpec:
-    """The light of the capture: HDRI file, lux readings, sun (see ``grassd simulate``)."""
-
-    hdri: Path
-    lux: float
-    sun_lux: float | None = None
-    sun_azimuth_deg: float | None = None
-    sun_elevation_deg: float | None = None
-    sun_from_hdri: bool = False
-    rotation_deg: float = 0.0
-
-    def build(self, hdri: Any = None):
-        """The :class:`grassd.sim.lighting.Lighting` (``hdri``: an already loaded array)."""
-        from grassd.sim.lighting import build_lighting
-
-        return build_lighting(self.hdri if hdri is None else hdri, self.lux, sun_lux=self.sun_lux,
-                              sun_azimuth_deg=self.sun_azimuth_deg,
-                              sun_elevation_deg=self.sun_elevation_deg,
-                              sun_from_hdri=self.sun_from_hdri, rotation_deg=self.rotation_deg)
-
-    def to_toml_dict(self) -> dict[str, Any]:
-        """The ``[light]`` table."""
-        d: dict[str, Any] = {"hdri": str(self.hdri), "lux": self.lux}
-        for k in ("sun_lux", "sun_azimuth_deg", "sun_elevation_deg"):
-            if getattr(self, k) is not None:
-                d[k] = getattr(self, k)
-        if self.sun_from_hdri:
-            d["sun_from_hdri"] = True
-        if self.rotation_deg:
-            d["rotation_deg"] = self.rotation_deg
-        return d
+def light_toml(light: LightInput) -> dict[str, Any]:
+    """The ``[light]`` table of ``capture.toml`` for ``light`` (``lux`` is its ambient lux)."""
+    d: dict[str, Any] = {"hdri": str(light.hdri), "lux": light.ambient_lux}
+    for k in ("sun_lux", "sun_azimuth_deg", "sun_elevation_deg"):
+        if getattr(light, k) is not None:
+            d[k] = getattr(light, k)
+    if light.sun_from_hdri:
+        d["sun_from_hdri"] = True
+    if light.rotation_deg:
+        d["rotation_deg"] = light.rotation_deg
+    return d
 
 
 @dataclass(frozen=True)
@@ -181,7 +161,7 @@ class CaptureManifest:
     """A parsed ``capture.toml`` (paths resolved against the capture directory)."""
 
     root: Path
-    light: LightSpec
+    light: LightInput
     checker_photo: Path
     checker_corners: tuple[tuple[float, float], ...]
     series: tuple[Series, ...]
@@ -225,7 +205,7 @@ def manifest_to_toml(m: CaptureManifest) -> str:
         except ValueError:
             return str(Path(p).resolve())
 
-    light = m.light.to_toml_dict()
+    light = light_toml(m.light)
     light["hdri"] = rel(m.light.hdri)
     lines = [f"chart = {_fmt(m.chart)}", "", "[light]"]
     lines += [f"{k} = {_fmt(v)}" for k, v in light.items()]
@@ -310,8 +290,8 @@ def load_manifest(path: str | Path) -> CaptureManifest:
     if not hdri.is_file():
         raise MissingPhotoError(f"{p}: light.hdri {hdri} does not exist; copy the panorama "
                                 "taken with the photos into the capture directory")
-    light = LightSpec(
-        hdri=hdri, lux=_number(lt, "lux", "light", p),
+    light = LightInput(
+        hdri=hdri, ambient_lux=_number(lt, "lux", "light", p),
         sun_lux=_number(lt, "sun_lux", "light", p, None),
         sun_azimuth_deg=_number(lt, "sun_azimuth_deg", "light", p, None),
         sun_elevation_deg=_number(lt, "sun_elevation_deg", "light", p, None),
@@ -779,7 +759,7 @@ def validate_capture(m: CaptureManifest, *, renderer: Any = None, settings: Any 
     settings = settings or RenderSettings(samples=4096, replicates=8)
     if progress:
         progress("building the lighting")
-    lighting = lighting if lighting is not None else m.light.build()
+    lighting = lighting if lighting is not None else m.light.lighting()
     if renderer is None:
         renderer = default_renderer(arch)
     display = DisplaySpec(PixelSpec(**m.pixel))

@@ -84,6 +84,7 @@ from grassd.daemon.errors import IngestError, ManifestError
 from grassd.daemon.store.atomic import atomic_write_text, fsync_dir
 from grassd.daemon.store.history import History
 from grassd.sim.errors import LightingError
+from grassd.sim.light_input import LightInput
 from grassd.sim.sun import check_sun_reading
 
 log = logging.getLogger(__name__)
@@ -103,33 +104,38 @@ _SAFE_RE = re.compile(r"[^A-Za-z0-9._-]+")
 
 
 @dataclass(frozen=True)
+class CheckerPhoto:
+    """A bundle's colour-checker RAW: file, the chart's four corners in it (pixels, top-left
+    first, clockwise) and the reference chart's name (:func:`grassd.calib.charts.get_chart`)."""
+
+    raw: Path
+    corners: tuple[tuple[float, float], ...]
+    chart: str = "spydercheckr-24"
+
+
+@dataclass(frozen=True)
 class Manifest:
     """A validated bundle manifest; paths are absolute (inside the bundle's directory).
 
-    Illuminances in lux, angles in degrees (azimuth clockwise from north, elevation above the
-    horizon); ``timestamp`` is timezone-aware.
+    ``light``: the measured light (``ambient_lux`` None when the manifest leaves it to the lux
+    sensor; ``timestamp`` always set, timezone-aware); ``checker``: the colour-checker photo, if
+    the bundle has one.
     """
 
-    timestamp: datetime
-    hdri: Path
-    ambient_lux: float | None
-    sun_lux: float | None
-    sun_azimuth_deg: float | None
-    sun_elevation_deg: float | None
-    checker_raw: Path | None
-    checker_corners: tuple[tuple[float, float], ...] | None
-    checker_chart: str = "spydercheckr-24"
-    #: the ``[capture]`` table of a bundle made by ``grassd capture`` (metadata), or None
+    light: LightInput
+    checker: CheckerPhoto | None = None
+    #: the ``[capture]`` table of a bundle made by ``grassd capture`` (metadata), or None; its
+    #: ``sun_clipped = true`` sets ``light.sun_from_hdri`` (restore the sun from lux)
     capture: Mapping[str, Any] | None = None
 
     @property
-    def sun_clipped(self) -> bool:
-        """The capture station flagged a sun still clipped in its shortest exposure."""
-        return bool(self.capture and self.capture.get("sun_clipped") is True)
+    def timestamp(self) -> datetime:
+        """When the light was measured (timezone-aware; a manifest always has one)."""
+        return self.light.timestamp  # type: ignore[return-value]  # parse_manifest sets it
 
     def files(self) -> list[Path]:
         """The data files the manifest names."""
-        return [p for p in (self.hdri, self.checker_raw) if p is not None]
+        return [self.light.hdri] + ([] if self.checker is None else [self.checker.raw])
 
 
 @dataclass(frozen=True)
@@ -251,10 +257,12 @@ def parse_manifest(data: dict[str, Any], base: Path, tz: tzinfo = UTC) -> Manife
     capture = data.get("capture")
     if capture is not None and not isinstance(capture, dict):
         raise ManifestError("capture must be a table (written by grassd capture)")
-    return Manifest(timestamp=ts, hdri=hdri, ambient_lux=ambient, sun_lux=sun, sun_azimuth_deg=az,
-                    sun_elevation_deg=el, checker_raw=raw, checker_corners=corners,
-                    checker_chart=chart,
-                    capture=None if capture is None else MappingProxyType(dict(capture)))
+    capture = None if capture is None else MappingProxyType(dict(capture))
+    light = LightInput(hdri=hdri, ambient_lux=ambient, sun_lux=sun, sun_azimuth_deg=az,
+                       sun_elevation_deg=el,
+                       sun_from_hdri=bool(capture and capture.get("sun_clipped") is True),
+                       timestamp=ts)
+    return Manifest(light, None if raw is None else CheckerPhoto(raw, corners, chart), capture)
 
 
 #: How far (s) a bundle's light may be stamped ahead of the daemon's clock (clocks drift; a
@@ -283,8 +291,8 @@ def check_light(m: Manifest, *, now: float, future_tolerance_s: float = FUTURE_T
             f"clock (and time zone) right, then send the bundle again")
     lat, lon = site if site is not None else (None, None)
     try:
-        check_sun_reading(m.sun_lux, m.sun_azimuth_deg, m.sun_elevation_deg, latitude_deg=lat,
-                          longitude_deg=lon, when=m.timestamp)
+        check_sun_reading(m.light.sun_lux, m.light.sun_azimuth_deg, m.light.sun_elevation_deg,
+                          latitude_deg=lat, longitude_deg=lon, when=m.timestamp)
     except LightingError as exc:
         raise ManifestError(f"impossible sun: {exc}") from None
 
@@ -642,7 +650,7 @@ class Inbox:
         missing = [p.name for p in manifest.files() if not p.is_file()]
         if missing:
             raise IngestError(f"missing file(s) {', '.join(missing)}")
-        check_hdri_magic(manifest.hdri)
+        check_hdri_magic(manifest.light.hdri)
         hashes = self._hash_dir(d)
         return Bundle(id=bid, name=name, hash=h or bundle_hash(hashes), dir=d, manifest=manifest,
                       input_hashes=hashes)
