@@ -37,35 +37,36 @@ which, when relative, lies inside ``state_dir``.
 
 Validation is strict: an unknown key, a missing required key, a wrong type (``true`` where a
 number belongs; ``1`` is accepted for a float, never for a bool) or an out-of-range value raises
-:class:`~grassd.daemon.errors.ConfigError` naming the dotted key and the file line.
-
-How the line is found: :mod:`tomllib` reports positions only for syntax errors, so after parsing
-we scan the raw text line by line, tracking the current table header (``[a.b]`` and ``[[a]]``,
-counting repeated array-of-tables headers so ``controllers[2]`` means the third
-``[[controllers]]``). A key's line is the first ``key =`` line (bare or quoted key, or a dotted
-key whose first part is the key) inside its table's header block; a table's line is its header.
-Keys written inside inline tables or multi-line arrays fall back to the line of the enclosing key
-or header. The scan ignores comments and multi-line strings only approximately (a line starting
-with ``key =`` inside a multi-line string could be mistaken for the key); that only affects the
-reported line, never the validation itself.
+:class:`~grassd.daemon.errors.ConfigError` naming the dotted key and the file line (the schema
+machinery of :mod:`grassd.daemon.config.schema`). Each default is written once, on its dataclass.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 import re
 import shlex
 import tomllib
 import types
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
+from grassd.daemon.config.schema import Context as _Ctx
+from grassd.daemon.config.schema import Field as _F
+from grassd.daemon.config.schema import between as _between
+from grassd.daemon.config.schema import check_type as _check_type
+from grassd.daemon.config.schema import non_empty as _non_empty
+from grassd.daemon.config.schema import non_negative as _non_negative
+from grassd.daemon.config.schema import numbers as _numbers
+from grassd.daemon.config.schema import one_of as _one_of
+from grassd.daemon.config.schema import positive as _positive
+from grassd.daemon.config.schema import schema as _schema
+from grassd.daemon.config.schema import table as _table
 from grassd.daemon.errors import ConfigError
 from grassd.daemon.store.ingest import FUTURE_TOLERANCE_S
 from grassd.firmware_proto.messages import MAX_ADDRESS, MIN_ADDRESS
@@ -374,188 +375,7 @@ class Config:
                                    control_socket=move(self.control_socket))
 
 
-# --------------------------------------------------------------------------- line locator
-
-
-_HEADER_RE = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?\s*(#.*)?$")
-_KEY_RE = re.compile(r"""^\s*("(?:[^"\\]|\\.)*"|'[^']*'|[A-Za-z0-9_-]+)\s*[.=]""")
-
-
-def _split_dotted(name: str) -> list[str]:
-    parts = []
-    for m in re.finditer(r"""\s*("(?:[^"\\]|\\.)*"|'[^']*'|[^.\s]+)\s*(?:\.|$)""", name):
-        p = m.group(1)
-        if p[:1] in "\"'":
-            p = p[1:-1]
-        parts.append(p)
-    return parts
-
-
-class LineLocator:
-    """Maps table paths and keys of a TOML text to 1-based line numbers (see module docstring)."""
-
-    def __init__(self, text: str) -> None:
-        # table path (tuple, with array indices) -> (header line, {key: line})
-        self._tables: dict[tuple, tuple[int, dict[str, int]]] = {(): (1, {})}
-        counts: dict[tuple, int] = {}
-        current: tuple = ()
-        for lineno, raw in enumerate(text.splitlines(), start=1):
-            line = raw.strip()
-            if not line or line.startswith("#"):
-                continue
-            hm = _HEADER_RE.match(line) if line.startswith("[") else None
-            if hm:
-                parts = _split_dotted(hm.group(2))
-                # Resolve parent parts to the latest index of arrays of tables.
-                resolved: list = []
-                for part in parts[:-1]:
-                    resolved.append(part)
-                    if tuple(resolved) in counts:
-                        resolved.append(counts[tuple(resolved)] - 1)
-                resolved.append(parts[-1])
-                key = tuple(resolved)
-                if hm.group(1) == "[[":
-                    idx = counts.get(key, 0)
-                    counts[key] = idx + 1
-                    key = key + (idx,)
-                current = key
-                self._tables.setdefault(current, (lineno, {}))
-                continue
-            km = _KEY_RE.match(line)
-            if km:
-                k = km.group(1)
-                if k[:1] in "\"'":
-                    k = k[1:-1]
-                self._tables.setdefault(current, (lineno, {}))[1].setdefault(k, lineno)
-
-    def line_of(self, path: tuple) -> int | None:
-        """Line of the key or table at ``path`` (e.g. ``("controllers", 1, "baud")``)."""
-        path = tuple(path)
-        for cut in range(len(path), 0, -1):
-            table, key = path[: cut - 1], path[cut - 1]
-            if path[:cut] in self._tables:
-                return self._tables[path[:cut]][0]
-            if table in self._tables and isinstance(key, str):
-                line = self._tables[table][1].get(key)
-                if line is not None:
-                    return line
-        return None
-
-
-# --------------------------------------------------------------------------- validation core
-
-
-def _fmt(path: tuple) -> str:
-    out = ""
-    for p in path:
-        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else p)
-    return out
-
-
-class _Ctx:
-    def __init__(self, text: str, source: str, base_dir: Path) -> None:
-        self.locator = LineLocator(text)
-        self.source = source
-        self.base_dir = base_dir
-
-    def error(self, path: tuple, message: str) -> ConfigError:
-        return ConfigError(
-            message, key=_fmt(path) or None, line=self.locator.line_of(path), path=self.source
-        )
-
-
-_TYPE_NAMES = {int: "an integer", float: "a number", str: "a string", bool: "true or false",
-               list: "an array", dict: "a table"}
-
-
-def _check_type(ctx: _Ctx, path: tuple, value: Any, kind: type) -> Any:
-    ok = isinstance(value, kind) and not (kind in (int, float) and isinstance(value, bool))
-    if kind is float and isinstance(value, int) and not isinstance(value, bool):
-        ok, value = True, float(value)
-    if not ok:
-        got = type(value).__name__
-        raise ctx.error(path, f"must be {_TYPE_NAMES[kind]}, got {got} {value!r}")
-    if kind is float and not math.isfinite(value):
-        raise ctx.error(path, f"must be a finite number, got {value!r}")
-    return value
-
-
-_MISSING = object()
-
-
-@dataclass
-class _F:
-    """Schema of one key: type, default (``_MISSING`` = required), extra check."""
-
-    kind: type
-    default: Any = _MISSING
-    check: Callable[[Any], str | None] | None = None
-
-
-def _schema(model: type, **keys: _F) -> dict[str, _F]:
-    """The schema of a table that fills the dataclass ``model``: a key named like a field of
-    ``model`` that has a default takes that default, so every default is written once, on the
-    dataclass (a key that has no such field, e.g. a raw value parsed further, keeps its own)."""
-    defaults = {f.name: f.default for f in dataclasses.fields(model)
-                if f.default is not dataclasses.MISSING}
-    out = {}
-    for name, f in keys.items():
-        if name in defaults:
-            if f.default is not _MISSING:
-                raise TypeError(f"the default of {model.__name__}.{name} is written twice")
-            f = dataclasses.replace(f, default=defaults[name])
-        out[name] = f
-    return out
-
-
-def _table(ctx: _Ctx, path: tuple, data: Any, schema: dict[str, _F]) -> dict[str, Any]:
-    """Validate one table against its schema; return plain values with defaults filled in."""
-    if not isinstance(data, dict):
-        raise ctx.error(path, f"must be a table, got {type(data).__name__}")
-    unknown = sorted(set(data) - set(schema))
-    if unknown:
-        allowed = ", ".join(sorted(schema))
-        raise ctx.error(path + (unknown[0],), f"unknown key (allowed here: {allowed})")
-    out: dict[str, Any] = {}
-    for name, f in schema.items():
-        if name not in data:
-            if f.default is _MISSING:
-                raise ctx.error(path + (name,), f"required key is missing ({_TYPE_NAMES[f.kind]})")
-            out[name] = f.default
-            continue
-        value = _check_type(ctx, path + (name,), data[name], f.kind)
-        if f.check is not None:
-            msg = f.check(value)
-            if msg:
-                raise ctx.error(path + (name,), msg)
-        out[name] = value
-    return out
-
-
-def _between(lo: float, hi: float, unit: str = "") -> Callable[[Any], str | None]:
-    def check(v: float) -> str | None:
-        if not lo <= v <= hi:
-            return f"must be between {lo} and {hi}{unit}, got {v}"
-        return None
-
-    return check
-
-
-def _positive(v: float) -> str | None:
-    return None if v > 0 else f"must be > 0, got {v}"
-
-
-def _non_negative(v: float) -> str | None:
-    return None if v >= 0 else f"must be >= 0, got {v}"
-
-
-def _one_of(*choices: Any) -> Callable[[Any], str | None]:
-    def check(v: Any) -> str | None:
-        if v in choices:
-            return None
-        return f"must be one of {', '.join(map(repr, choices))}; got {v!r}"
-
-    return check
+# --------------------------------------------------------------------------- checks
 
 
 def _timezone(v: str) -> str | None:
@@ -564,10 +384,6 @@ def _timezone(v: str) -> str | None:
     except (ZoneInfoNotFoundError, ValueError):
         return f"unknown time zone {v!r} (use an IANA name such as 'Europe/Berlin' or 'UTC')"
     return None
-
-
-def _non_empty(v: str) -> str | None:
-    return None if v.strip() else "must not be empty"
 
 
 # --------------------------------------------------------------------------- sections
@@ -583,15 +399,6 @@ def _pixel_fields() -> dict[str, Any]:
                 isinstance(v, tuple) and all(isinstance(x, int | float) for x in v)):
             out[f.name] = v
     return out
-
-
-def _numbers(n: int) -> Callable[[Any], str | None]:
-    def check(v: list) -> str | None:
-        ok = len(v) == n and all(isinstance(x, int | float) and not isinstance(x, bool)
-                                 and math.isfinite(x) for x in v)
-        return None if ok else f"must be an array of {n} numbers, got {v!r}"
-
-    return check
 
 
 def _check_pixel_spec(ctx: _Ctx, pixel: dict[str, Any]) -> None:

@@ -68,7 +68,7 @@ from grassd.calib.length_table import LEVELS, build_length_table, r_squared
 from grassd.calib.ogcd import ogcd_from_lab
 from grassd.calib.raw import develop_raw
 from grassd.calib.regions import checker_patch_quads, quad_mask
-from grassd.daemon.errors import DaemonError
+from grassd.daemon.errors import DaemonError, LocatedError
 from grassd.sim.light_input import LightInput
 
 #: File name of the manifest inside a capture directory.
@@ -81,7 +81,7 @@ class ValidateError(DaemonError):
     """A capture directory cannot be validated; the message says what to fix."""
 
 
-class CaptureManifestError(ValidateError):
+class CaptureManifestError(ValidateError, LocatedError):
     """``capture.toml`` is missing, malformed, or holds an unknown key or a bad value."""
 
 
