@@ -117,7 +117,7 @@ class Context:
     (``source``), the directory relative paths resolve against, and the error type it raises
     (constructed as ``error(message, key=dotted key, line=line, path=source)``)."""
 
-    def __init__(self, text: str, source: str, base_dir: Path | None = None,
+    def __init__(self, text: str, source: str | None, base_dir: Path | None = None,
                  error: type[LocatedError] = ConfigError) -> None:
         self.locator = LineLocator(text)
         self.source = source
@@ -136,15 +136,16 @@ TYPE_NAMES = {int: "an integer", float: "a finite number", str: "a string", bool
                list: "an array", dict: "a table"}
 
 
-def check_type(ctx: Context, path: tuple, value: Any, kind: type) -> Any:
-    """``value`` of the key at ``path`` checked to be a ``kind`` (an int is taken as a float,
-    a bool never as a number; floats must be finite); raises ``ctx.error`` otherwise."""
+def check_type(ctx: Context, path: tuple, value: Any, kind: Any, hint: str | None = None) -> Any:
+    """``value`` of the key at ``path`` checked to be a ``kind`` (a type or a union of types; an
+    int is taken as a float, a bool never as a number; floats must be finite); raises
+    ``ctx.error`` otherwise, naming the expected value as ``hint`` or by :data:`TYPE_NAMES`."""
     ok = isinstance(value, kind) and not (kind in (int, float) and isinstance(value, bool))
     if kind is float and isinstance(value, int) and not isinstance(value, bool):
         ok, value = True, float(value)
     if not ok:
         got = type(value).__name__
-        raise ctx.error(path, f"must be {TYPE_NAMES[kind]}, got {got} {value!r}")
+        raise ctx.error(path, f"must be {hint or TYPE_NAMES[kind]}, got {got} {value!r}")
     if kind is float and not math.isfinite(value):
         raise ctx.error(path, f"must be a finite number, got {value!r}")
     return value
@@ -156,11 +157,13 @@ MISSING = object()
 
 @dataclass
 class Field:
-    """Schema of one key: type, default (``MISSING`` = required), extra check."""
+    """Schema of one key: type (or union of types), default (``MISSING`` = required), extra
+    check, and how messages name the expected value (``hint``; default :data:`TYPE_NAMES`)."""
 
-    kind: type
+    kind: Any
     default: Any = MISSING
     check: Callable[[Any], str | None] | None = None
+    hint: str | None = None
 
 
 def schema(model: type, **keys: Field) -> dict[str, Field]:
@@ -192,10 +195,11 @@ def table(ctx: Context, path: tuple, data: Any, fields: dict[str, Field]) -> dic
     for name, f in fields.items():
         if name not in data:
             if f.default is MISSING:
-                raise ctx.error(path + (name,), f"required key is missing ({TYPE_NAMES[f.kind]})")
+                raise ctx.error(path + (name,),
+                                f"required key is missing ({f.hint or TYPE_NAMES[f.kind]})")
             out[name] = f.default
             continue
-        value = check_type(ctx, path + (name,), data[name], f.kind)
+        value = check_type(ctx, path + (name,), data[name], f.kind, f.hint)
         if f.check is not None:
             msg = f.check(value)
             if msg:

@@ -70,12 +70,12 @@ def test_manifest_validation():
                         "ambient_lux": 500}, base, tz=__import__("zoneinfo").ZoneInfo("UTC"))
     assert m.light.hdri == base / "a.hdr" and m.light.ambient_lux == 500.0 and m.timestamp.tzinfo
     bad = [
-        ({"hdri": "a.exr"}, "timestamp is missing"),
+        ({"hdri": "a.exr"}, "timestamp: required key is missing"),
         ({"timestamp": "x", "hdri": "a.exr"}, "ISO 8601"),
         ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "a.png"}, ".exr"),
         ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "../a.exr"}, "plain file name"),
         ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "a.exr", "ambient_lux": -5},
-         "ambient_lux = -5 lux is impossible"),
+         "ambient_lux: -5 lux is impossible"),
         ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "a.exr", "sun_azimuth_deg": 3},
          "both"),
         ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "a.exr", "lux": 3}, "unknown"),
@@ -141,7 +141,7 @@ def test_flat_bundle_with_bad_manifest_is_rejected_whole(env):
     (inbox.inbox / "unrelated.txt").write_text("left alone")
     assert settle(inbox, clock) == []
     [rej] = list(inbox.rejected.iterdir())
-    assert "ambient_lux = -5 lux is impossible" in (rej / "reason.txt").read_text()
+    assert "ambient_lux: -5 lux is impossible" in (rej / "reason.txt").read_text()
     assert sorted(p.name for p in rej.iterdir()) == ["manifest.json", "noon.exr", "reason.txt"]
     assert sorted(p.name for p in inbox.inbox.iterdir()) == ["unrelated.txt"]
 
@@ -149,7 +149,7 @@ def test_flat_bundle_with_bad_manifest_is_rejected_whole(env):
 @pytest.mark.parametrize(
     ("setup", "reason"),
     [
-        ("lux", "ambient_lux = -5 lux is impossible"),
+        ("lux", "ambient_lux: -5 lux is impossible"),
         ("corrupt", "not an OpenEXR file"),
         ("syntax", "not valid TOML"),
     ],
