@@ -157,7 +157,7 @@ def conditions(hdris: Sequence[str], times: Sequence[str], views: Sequence[tuple
     return out
 
 
-def validate(spec: SweepSpec, conds: Sequence[Condition]) -> None:
+def check_conditions(spec: SweepSpec, conds: Sequence[Condition]) -> None:
     """Raise :class:`SweepError` naming what to fix before any work starts."""
     from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint
 
@@ -432,7 +432,7 @@ def run_sweep(spec: SweepSpec, conds: Sequence[Condition], out_dir: str | Path, 
     ``scheduler`` address (workers keep their own settings). ``progress(done,
     total)`` after each stored task; ``on_result(row)`` too (tests use it to act mid-sweep).
     """
-    validate(spec, conds)
+    check_conditions(spec, conds)
     out = Path(out_dir)
     store = SweepStore(out / "sweep.sqlite", spec, restart=restart)
     t0 = time.perf_counter()

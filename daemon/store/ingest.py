@@ -85,6 +85,7 @@ from grassd.daemon.store.atomic import atomic_write_text, fsync_dir
 from grassd.daemon.store.history import History
 from grassd.sim.errors import LightingError
 from grassd.sim.light_input import LightInput
+from grassd.sim.lighting import MAX_LUX
 from grassd.sim.sun import check_sun_reading
 
 log = logging.getLogger(__name__)
@@ -97,8 +98,6 @@ REASON_FILE = "reason.txt"
 #: after each failure up to STUCK_RETRY_MAX_S; at once when its owner or mode changes).
 STUCK_RETRY_S = 60.0
 STUCK_RETRY_MAX_S = 3600.0
-#: Largest plausible illuminance (lux): direct summer sun is about 1.2e5 lux.
-MAX_LUX = 200_000.0
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
 _SAFE_RE = re.compile(r"[^A-Za-z0-9._-]+")
 
