@@ -677,16 +677,16 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
 def _parse_operator(ctx: _Ctx, metrics_raw: Any, alerts_raw: Any
                     ) -> tuple[MetricsConfig, AlertsConfig]:
     """``[metrics]`` and ``[alerts]`` (see their dataclasses)."""
-    m = _table(ctx, ("metrics",), metrics_raw, {"textfile": _F(str, None, _non_empty)})
+    m = _table(ctx, ("metrics",), metrics_raw,
+               _schema(MetricsConfig, textfile=_F(str, check=_non_empty)))
     textfile = None if m["textfile"] is None else _resolve(ctx, m["textfile"])
     if textfile is not None and textfile.suffix != ".prom":
         raise ctx.error(("metrics", "textfile"), "must end in .prom (node_exporter's textfile "
                         f"collector reads only *.prom files), got {textfile.name!r}")
-    a = _table(ctx, ("alerts",), alerts_raw, {
-        "command": _F(str, AlertsConfig.command, _shell_words),
-        "min_interval_s": _F(float, AlertsConfig.min_interval_s, _non_negative),
-        "timeout_s": _F(float, AlertsConfig.timeout_s, _positive),
-    })
+    a = _table(ctx, ("alerts",), alerts_raw, _schema(
+        AlertsConfig, command=_F(str, check=_shell_words),
+        min_interval_s=_F(float, check=_non_negative), timeout_s=_F(float, check=_positive),
+    ))
     return MetricsConfig(textfile=textfile), AlertsConfig(**a)
 
 
