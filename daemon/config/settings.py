@@ -699,8 +699,8 @@ def _shell_words(v: str) -> str | None:
 
 
 def _capture_section(ctx: _Ctx, raw: Any) -> CaptureConfig | None:
-    """``[capture]``, validated by :mod:`grassd.daemon.config.capture` (imported lazily: it
-    uses this module's checkers)."""
+    """``[capture]``, validated by :mod:`grassd.daemon.config.capture` (imported lazily: only
+    a configuration with a capture station needs it)."""
     from grassd.daemon.config.capture import parse_capture
 
     return parse_capture(ctx, raw)
