@@ -38,17 +38,18 @@ def main(argv: list[str] | None = None) -> None:
         run_paper,
         text_report,
     )
-    from grassd.daemon.offline.validate import LightSpec, load_manifest, measure_real
+    from grassd.daemon.offline.validate import load_manifest, measure_real
     from grassd.daemon.offline.virtual_capture import capture_world
     from grassd.sim import backend
+    from grassd.sim.light_input import LightInput
     from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
 
     backend.init(args.arch)
     from grassd.sim.renderer import Renderer
 
     renderer = Renderer.shared()
-    light = LightSpec(default_hdri_dir() / "interior.exr", 500.0)
-    lighting = light.build()
+    light = LightInput(default_hdri_dir() / "interior.exr", 500.0)
+    lighting = light.lighting()
     lengths = np.arange(0.0, 20.01, 1.0)
     settings = RenderSettings(samples=4096, replicates=8)
     display = DisplaySpec()

@@ -18,10 +18,10 @@ import colour
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from grassd.calib.array_checks import as_float_array, same_shape
 from grassd.calib.colour_spaces import prophoto_to_lab
 from grassd.calib.delta_e import delta_e_cie2000
 from grassd.calib.errors import ShapeError, UnknownMethodError
-from grassd.calib.validation import as_float_array, same_shape
 
 
 @dataclass(frozen=True, eq=False)

@@ -33,9 +33,9 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import PchipInterpolator
 from scipy.optimize import isotonic_regression
 
+from grassd.calib.array_checks import as_float_array, same_shape
 from grassd.calib.errors import FlatCharacteristicError, ShapeError, TooFewLengthsError
 from grassd.calib.ogcd import ogcd_from_lab, ogcd_from_rgb
-from grassd.calib.validation import as_float_array, same_shape
 
 #: A characteristic needs at least this many distinct grass lengths.
 MIN_DISTINCT_LENGTHS: int = 3

@@ -25,8 +25,8 @@ import colour
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from grassd.calib.array_checks import as_float_array
 from grassd.calib.errors import UnknownMethodError
-from grassd.calib.validation import as_float_array
 
 #: Chromatic adaptation transform used everywhere (never colour-science's CAT02 default).
 ADAPTATION: str = "Bradford"
@@ -132,15 +132,6 @@ def to_prophoto(rgb: ArrayLike, space: str) -> NDArray[np.float64]:
     """Linear RGB (..., 3) in ``space`` ("prophoto" or "rec709") -> ProPhoto linear RGB."""
     return (
         rec709_to_prophoto(rgb)
-        if space_key(space) == "rec709"
-        else as_float_array(rgb, "rgb", last_dim=3)
-    )
-
-
-def from_prophoto(rgb: ArrayLike, space: str) -> NDArray[np.float64]:
-    """ProPhoto linear RGB (..., 3) -> linear RGB in ``space`` ("prophoto" or "rec709")."""
-    return (
-        prophoto_to_rec709(rgb)
         if space_key(space) == "rec709"
         else as_float_array(rgb, "rgb", last_dim=3)
     )

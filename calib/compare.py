@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from grassd.calib.array_checks import as_float_array
 from grassd.calib.characteristic import Characteristic
 from grassd.calib.errors import ShapeError
-from grassd.calib.validation import as_float_array
 
 
 def _curve(points: ArrayLike, name: str) -> NDArray[np.float64]:

@@ -16,8 +16,8 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from grassd.calib.array_checks import as_float_array
 from grassd.calib.errors import ShapeError, UnknownMethodError
-from grassd.calib.validation import as_float_array
 
 
 def _pair(lab1: ArrayLike, lab2: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

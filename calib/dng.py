@@ -24,9 +24,9 @@ import numpy as np
 import tifffile
 from numpy.typing import ArrayLike, NDArray
 
+from grassd.calib.array_checks import as_float_array
 from grassd.calib.colour_spaces import M_REC709_TO_XYZ, WHITE_D65_XYZ
 from grassd.calib.errors import DngWriteError
-from grassd.calib.validation import as_float_array
 
 #: Bayer layouts: name -> 2x2 colour indices (0 = R, 1 = G, 2 = B), row-major.
 CFA_PATTERNS: dict[str, tuple[int, int, int, int]] = {

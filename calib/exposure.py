@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from grassd.calib.array_checks import as_float_array
 from grassd.calib.colour_spaces import (
     M_PROPHOTO_TO_REC709,
     M_REC709_TO_PROPHOTO,
@@ -20,7 +21,6 @@ from grassd.calib.colour_spaces import (
     space_key,
 )
 from grassd.calib.errors import ExposureError
-from grassd.calib.validation import as_float_array
 
 #: Luminance factor of a photographic 18 % grey card (Y relative to a perfect white = 1).
 GREY_CARD_Y: float = 0.18

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from grassd.calib.array_checks import as_float_array
 from grassd.calib.characteristic import (
     MIN_OGCD_RANGE,
     Characteristic,
@@ -24,7 +25,6 @@ from grassd.calib.characteristic import (
     fit_characteristic,
 )
 from grassd.calib.errors import FlatCharacteristicError, ShapeError
-from grassd.calib.validation import as_float_array
 
 #: Number of entries of an 8-bit table.
 LEVELS: int = 256

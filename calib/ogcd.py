@@ -29,10 +29,10 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from grassd.calib.array_checks import as_float_array, same_shape
 from grassd.calib.colour_spaces import prophoto_to_lab, to_prophoto
 from grassd.calib.delta_e import delta_e
 from grassd.calib.errors import ShapeError
-from grassd.calib.validation import as_float_array, same_shape
 
 
 class _Correction(Protocol):

@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from grassd.calib.array_checks import as_float_array
 from grassd.calib.charts import CHART_GRID
 from grassd.calib.errors import GeometryError
-from grassd.calib.validation import as_float_array
 
 
 def _check_quad(corners: ArrayLike, name: str = "corners") -> NDArray[np.float64]:

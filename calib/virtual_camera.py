@@ -35,10 +35,10 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from grassd.calib.array_checks import as_float_array
 from grassd.calib.colour_spaces import M_REC709_TO_XYZ
 from grassd.calib.dng import CFA_PATTERNS, DngCamera, write_dng
 from grassd.calib.errors import DngWriteError
-from grassd.calib.validation import as_float_array
 
 #: XYZ (D65) -> camera native RGB of a Canon EOS 5D Mark II (DNG ColorMatrix1, D65).
 CANON_5D2_XYZ_TO_CAMERA: NDArray[np.float64] = np.array(

@@ -9,8 +9,9 @@ class DaemonError(Exception):
     """Base class of every error raised by grassd.daemon."""
 
 
-class ConfigError(DaemonError):
-    """The configuration file is missing, malformed or holds an invalid value.
+class LocatedError(DaemonError):
+    """A document a user wrote (configuration, bundle manifest, capture.toml) is malformed or
+    holds an invalid value (raised by :mod:`grassd.daemon.config.schema`).
 
     ``key`` is the dotted key path (e.g. ``controllers[1].baud``), ``line`` the 1-based line of
     the file where it was found (``None`` when it could not be located), ``path`` the file.
@@ -35,11 +36,15 @@ class ConfigError(DaemonError):
         self.reason = message
 
 
+class ConfigError(LocatedError):
+    """The configuration file is missing, malformed or holds an invalid value."""
+
+
 class IngestError(DaemonError):
     """A bundle in the inbox is malformed; the bundle is rejected with this message as reason."""
 
 
-class ManifestError(IngestError):
+class ManifestError(IngestError, LocatedError):
     """The bundle manifest cannot be parsed or holds invalid values (e.g. lux <= 0)."""
 
 

@@ -46,14 +46,6 @@ class Framing:
         """Full horizontal (= vertical) field of view in degrees."""
         return math.degrees(2 * math.atan(self.half))
 
-    def ray_grid(self, width: int) -> np.ndarray:
-        """(width, width, 3) unit ray directions through pixel centres, row 0 at the top."""
-        s = ((np.arange(width) + 0.5) / width * 2 - 1) * self.half
-        x, y = np.meshgrid(s, -s)
-        d = self.forward + x[..., None] * self.right + y[..., None] * self.up
-        return d / np.linalg.norm(d, axis=-1, keepdims=True)
-
-
 def frame_quad(eye: np.ndarray, corners: np.ndarray, margin: float = 0.1) -> Framing:
     """The square view of ``corners`` (4, 3) [m] from ``eye`` with a relative ``margin``."""
     target = corners.mean(axis=0)

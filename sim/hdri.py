@@ -11,7 +11,7 @@ Rec.709/D65 is converted to linear Rec.709 with a Bradford adaptation to D65 (fo
 Poly Haven maps, whose attribute holds the sRGB primaries adapted to D50, that conversion is the
 identity within 1e-4 and is skipped). Radiance ``EXPOSURE=`` lines are divided out.
 
-Validation (:func:`validate_env`, run by :func:`load_hdri`) raises :class:`HdriError` with one
+Checks (:func:`check_env`, run by :func:`load_hdri`) raises :class:`HdriError` with one
 line naming the problem for: a missing, unreadable, truncated or corrupt file; a map that is not
 2:1 or has fewer than :data:`MIN_HEIGHT` rows; more than ``max_texels`` texels (default
 :data:`MAX_TEXELS`, checked from the header before any pixel is allocated); NaN or infinite
@@ -47,7 +47,7 @@ __all__ = [
     "NEGATIVE_TOLERANCE",
     "REC709_LUMINANCE",
     "load_hdri",
-    "validate_env",
+    "check_env",
     "write_exr",
     "write_hdr",
     "downsample",
@@ -127,7 +127,7 @@ def _check_size(width: int, height: int, max_texels: int, source: str) -> None:
                         f"{2 * MIN_HEIGHT} x {MIN_HEIGHT}")
 
 
-def validate_env(img: np.ndarray, source: str = "environment map",
+def check_env(img: np.ndarray, source: str = "environment map",
                  max_texels: int = MAX_TEXELS) -> np.ndarray:
     """Check an equirectangular radiance map and return it as clean float32 (H, W, 3).
 
@@ -210,7 +210,7 @@ def load_hdri(path: str | os.PathLike, max_texels: int = MAX_TEXELS) -> np.ndarr
             f"{source}: neither OpenEXR nor Radiance .hdr (unrecognised first bytes); "
             "convert the panorama to .exr"
         )
-    return validate_env(img, source, max_texels)
+    return check_env(img, source, max_texels)
 
 
 def _read_exr(p: Path, max_texels: int) -> np.ndarray:

@@ -69,7 +69,7 @@ from functools import cached_property
 import numpy as np
 
 from grassd.sim.errors import LightingError
-from grassd.sim.hdri import REC709_LUMINANCE, load_hdri, validate_env
+from grassd.sim.hdri import REC709_LUMINANCE, check_env, load_hdri
 
 __all__ = [
     "DEFAULT_SUN_COLOUR",
@@ -376,7 +376,7 @@ def build_lighting(
     if isinstance(hdri, str | os.PathLike):
         raw = load_hdri(hdri)
     else:
-        raw = validate_env(hdri, "HDRI array")
+        raw = check_env(hdri, "HDRI array")
     env0 = orient_env(raw, rotation_deg, flip)
     e_map = horizontal_illuminance(env0)
     if e_map <= 0.0:

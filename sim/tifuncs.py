@@ -201,15 +201,6 @@ def dir_to_uv(d: vec3):
 
 
 @ti.func
-def uv_to_dir(u: ti.f32, v: ti.f32) -> vec3:
-    """Inverse of :func:`dir_to_uv`."""
-    phi = 2.0 * PI * u
-    theta = PI * v
-    s = ti.sin(theta)
-    return vec3(s * ti.cos(phi), s * ti.sin(phi), ti.cos(theta))
-
-
-@ti.func
 def normal_bin(n: vec3, side: ti.i32) -> ti.i32:
     """Bin of unit vector n on a side x side grid over its octahedral map (Engelhardt &
     Dachsbacher 2008), row-major; as :func:`grassd.sim.env_sampler.normal_bin`."""

@@ -41,8 +41,6 @@ import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from datetime import datetime
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -58,31 +56,15 @@ from grassd.calib.raw import develop_raw
 from grassd.daemon.calibration.simulation import simulate_curve, white_radiance
 from grassd.daemon.config.settings import Config, ViewpointConfig
 from grassd.daemon.errors import CalibrationRejected, RunInterrupted
+from grassd.sim.light_input import LightInput
 
 if TYPE_CHECKING:
     from grassd.daemon.calibration.calibrate_display import DisplayCalibrationResult
+    from grassd.daemon.store.ingest import CheckerPhoto
 
 log = logging.getLogger(__name__)
 
 Progress = Callable[[str], None]
-
-
-@dataclass(frozen=True)
-class LightInput:
-    """The light of one run (lux in lux, angles in degrees, paths to bundle files)."""
-
-    hdri: Path
-    ambient_lux: float
-    timestamp: datetime
-    sun_lux: float | None = None
-    sun_azimuth_deg: float | None = None
-    sun_elevation_deg: float | None = None
-    checker_raw: Path | None = None
-    checker_corners: tuple[tuple[float, float], ...] | None = None
-    checker_chart: str = "spydercheckr-24"
-    #: the sun is clipped in the HDRI (a capture station said so): restore it from the lux
-    #: reading (grassd.sim.sun.split_sun) instead of adding one from site and time
-    sun_from_hdri: bool = False
 
 
 @dataclass(frozen=True)
@@ -320,17 +302,20 @@ class Calibrator:
 
     # ------------------------------------------------------------------ pieces
     def lighting(self, light: LightInput) -> Any:
-        """Build the :class:`grassd.sim.lighting.Lighting` of ``light`` (lux-scaled HDRI + sun)."""
+        """Build the :class:`grassd.sim.lighting.Lighting` of ``light`` (lux-scaled HDRI + sun),
+        the HDRI oriented by ``[light] hdri_flip`` / ``hdri_rotation_deg``. A light whose sun is
+        clipped in the HDRI (``sun_from_hdri``, flagged by a capture station) and that has no sun
+        direction gets its sun restored from the map; otherwise (or when that fails) the sun
+        of a sun lux reading is placed from site and time."""
         from grassd.sim.errors import LightingError
-        from grassd.sim.lighting import build_lighting
         from grassd.sim.sun import sun_position
 
+        light = replace(light, flip=self.cfg.light.hdri_flip,
+                        rotation_deg=self.cfg.light.hdri_rotation_deg)
         notes: list[str] = []
         if light.sun_from_hdri and light.sun_azimuth_deg is None:
             try:
-                return build_lighting(light.hdri, light.ambient_lux, sun_lux=light.sun_lux,
-                                      sun_from_hdri=True, flip=self.cfg.light.hdri_flip,
-                                      rotation_deg=self.cfg.light.hdri_rotation_deg)
+                return light.lighting()
             except LightingError as exc:  # the clipped sun is not found as a compact sun
                 notes.append(f"clipped sun not restored from the HDRI ({exc}); sun from "
                              "site and time")
@@ -346,10 +331,8 @@ class Calibrator:
                 sun, az, el = None, None, None
         if sun is not None and sun == 0:
             sun, az, el = None, None, None
-        lighting = build_lighting(light.hdri, light.ambient_lux, sun_lux=sun,
-                                  sun_azimuth_deg=az, sun_elevation_deg=el,
-                                  flip=self.cfg.light.hdri_flip,
-                                  rotation_deg=self.cfg.light.hdri_rotation_deg)
+        lighting = replace(light, sun_lux=sun, sun_azimuth_deg=az, sun_elevation_deg=el,
+                           sun_from_hdri=False).lighting()
         object.__setattr__(lighting, "notes", tuple(lighting.notes) + tuple(notes))
         return lighting
 
@@ -370,10 +353,10 @@ class Calibrator:
         :mod:`grassd.daemon.calibration.simulation`)."""
         return white_radiance(lighting)
 
-    def fit_checker_ccm(self, light: LightInput) -> ColourCorrection:
+    def fit_checker_ccm(self, checker: CheckerPhoto) -> ColourCorrection:
         """3x3 CCM from the bundle's checker RAW (see module docstring, step 4)."""
-        chart = get_chart(light.checker_chart)
-        real = develop_raw(light.checker_raw).checker_patches(light.checker_corners)
+        chart = get_chart(checker.chart)
+        real = develop_raw(checker.raw).checker_patches(checker.corners)
         # The analytic virtual checker in the renders' normalisation (radiance divided by the
         # white card's, channel by channel): each patch reads its albedo, in ProPhoto linear.
         virtual = chart.prophoto()
@@ -427,18 +410,20 @@ class Calibrator:
         go through :func:`grassd.daemon.calibration.calibrate_display.calibrate_display`."""
         return self.cfg.tables.granularity != "global" or self.cfg.audience is not None
 
-    def light_and_ccm(self, light: LightInput, previous_ccm: NDArray | None,
+    def light_and_ccm(self, light: LightInput, checker: CheckerPhoto | None,
+                      previous_ccm: NDArray | None,
                       progress: Progress | None) -> tuple[Any, ColourCorrection | None, str]:
-        """(Lighting, colour correction or None, its source "bundle"/"previous"/"none")."""
+        """(Lighting, colour correction or None, its source "bundle" (fitted to ``checker``) /
+        "previous" / "none")."""
         if progress:
             progress("building the lighting")
         lighting = self.lighting(light)
         ccm: ColourCorrection | None = None
         ccm_source = "none"
-        if light.checker_raw is not None:
+        if checker is not None:
             if progress:
                 progress("fitting the colour-correction matrix from the checker RAW")
-            ccm = self.fit_checker_ccm(light)
+            ccm = self.fit_checker_ccm(checker)
             ccm_source = "bundle"
         elif previous_ccm is not None:
             m = np.asarray(previous_ccm, float)
@@ -446,13 +431,15 @@ class Calibrator:
             ccm_source = "previous"
         return lighting, ccm, ccm_source
 
-    def run(self, light: LightInput, *, previous_um: NDArray | None = None,
+    def run(self, light: LightInput, *, checker: CheckerPhoto | None = None,
+            previous_um: NDArray | None = None,
             previous_ccm: NDArray | None = None, force: bool = False,
             stop: threading.Event | None = None,
             progress: Progress | None = None,
             previous_tables: Mapping[str, NDArray] | None = None
             ) -> CalibrationResult | DisplayCalibrationResult:
-        """Calibrate for ``light``; raises CalibError/SimError/CalibrationRejected on bad input
+        """Calibrate for ``light`` (colour-corrected with the bundle's ``checker`` photo if
+        given); raises CalibError/SimError/CalibrationRejected on bad input
         and :class:`RunInterrupted` when ``stop`` is set.
 
         Returns a :class:`CalibrationResult` (one global table from [[viewpoints]]) or, when
@@ -463,13 +450,13 @@ class Calibrator:
         if self.per_display:
             from grassd.daemon.calibration.calibrate_display import calibrate_display
 
-            return calibrate_display(self, light, previous_um=previous_um,
+            return calibrate_display(self, light, checker=checker, previous_um=previous_um,
                                      previous_tables=previous_tables,
                                      previous_ccm=previous_ccm, force=force, stop=stop,
                                      progress=progress)
         cal = self.cfg.calibration
         t_start = time.perf_counter()
-        lighting, ccm, ccm_source = self.light_and_ccm(light, previous_ccm, progress)
+        lighting, ccm, ccm_source = self.light_and_ccm(light, checker, previous_ccm, progress)
 
         lengths = np.asarray(self.cfg.simulation.lengths_mm, float)
         seed = self.cfg.simulation.seed

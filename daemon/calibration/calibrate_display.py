@@ -98,7 +98,9 @@ from grassd.daemon.errors import CalibrationRejected, RunInterrupted
 from grassd.firmware_proto.tables import as_table_array, table_crc
 
 if TYPE_CHECKING:
-    from grassd.daemon.calibration.calibrate import Calibrator, LightInput
+    from grassd.daemon.calibration.calibrate import Calibrator
+    from grassd.daemon.store.ingest import CheckerPhoto
+    from grassd.sim.light_input import LightInput
 
 Progress = Callable[[str], None]
 log = logging.getLogger(__name__)
@@ -576,6 +578,7 @@ def controller_tables_of(cfg: Any, units: Sequence[UnitTable], unit_of_pixel: ND
 
 
 def calibrate_display(cal: Calibrator, light: LightInput, *,
+                      checker: CheckerPhoto | None = None,
                       previous_um: NDArray | None = None,
                       previous_tables: Mapping[str, NDArray] | None = None,
                       previous_ccm: NDArray | None = None, force: bool = False,
@@ -589,7 +592,7 @@ def calibrate_display(cal: Calibrator, light: LightInput, *,
 
     cfg = cal.cfg
     t_start = time.perf_counter()
-    lighting, ccm, ccm_source = cal.light_and_ccm(light, previous_ccm, progress)
+    lighting, ccm, ccm_source = cal.light_and_ccm(light, checker, previous_ccm, progress)
     d = cfg.display
     display = display_spec_for_config(cfg)
     renderer = Renderer.shared(capacity_for(d.rows * d.cols))

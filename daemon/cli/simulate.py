@@ -99,15 +99,15 @@ def _sun_from_site(site: str | None, when: str | None, azimuth, elevation):
 
 def _lighting(hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri, rotation, flip,
               site=None, when=None):
-    from grassd.sim.lighting import build_lighting
+    from grassd.sim.light_input import LightInput
 
     sun_azimuth, sun_elevation = _sun_from_site(site, when, sun_azimuth, sun_elevation)
     if site is not None and sun_elevation <= 0:
         raise click.BadParameter(f"the sun is below the horizon at {when} "
                                  f"(elevation {sun_elevation:.1f} deg)", param_hint="--time")
-    return build_lighting(hdri, lux, sun_lux=sun_lux, sun_azimuth_deg=sun_azimuth,
-                          sun_elevation_deg=sun_elevation, sun_from_hdri=sun_from_hdri,
-                          rotation_deg=rotation, flip=flip)
+    return LightInput(hdri, lux, sun_lux=sun_lux, sun_azimuth_deg=sun_azimuth,
+                      sun_elevation_deg=sun_elevation, sun_from_hdri=sun_from_hdri,
+                      rotation_deg=rotation, flip=flip).lighting()
 
 
 def _plot(path: Path, curves) -> None:

@@ -148,12 +148,13 @@ def virtual_capture_cmd(out_dir, hdri, lux, views, lengths, splay, width, spp, r
     """Photograph a simulated pixel with the virtual camera into OUT_DIR (DNGs + capture.toml)
     for ``grassd validate``."""
     from grassd.calib.virtual_camera import VirtualCamera
-    from grassd.daemon.offline.validate import LightSpec, default_renderer
+    from grassd.daemon.offline.validate import default_renderer
     from grassd.daemon.offline.virtual_capture import capture_world
+    from grassd.sim.light_input import LightInput
     from grassd.sim.scene import PixelSpec, Viewpoint, parse_lengths
 
     vps = [Viewpoint.parse(v) for v in views]
-    light = LightSpec(hdri=hdri.resolve(), lux=lux)
+    light = LightInput(hdri=hdri.resolve(), ambient_lux=lux)
     renderer = default_renderer(arch)
     with click.progressbar(length=len(vps) * len(parse_lengths(lengths)), label="photographing",
                            file=sys.stderr) as bar:

@@ -32,6 +32,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from grassd.daemon.config import schema
+
 
 @dataclass(frozen=True)
 class CaptureConfig:
@@ -58,42 +60,33 @@ class CaptureConfig:
     shaded_port: int = 0
 
 
-def parse_capture(ctx: Any, raw: Any) -> CaptureConfig | None:
-    """Validate the ``[capture]`` table ``raw`` (None when absent) with the config module's
-    checker ``ctx`` (errors name the key and line)."""
+def parse_capture(ctx: schema.Context, raw: Any) -> CaptureConfig | None:
+    """Validate the ``[capture]`` table ``raw`` (None when absent) in the configuration being
+    read (``ctx``: errors name the key and line); defaults are :class:`CaptureConfig`'s."""
     if raw is None:
         return None
-    from grassd.daemon.config.settings import (  # config.settings imports this module lazily
-        _F,
-        _between,
-        _non_empty,
-        _one_of,
-        _positive,
-        _table,
-    )
-
-    d = CaptureConfig
-    c = _table(ctx, ("capture",), raw, {
-        "camera": _F(str, check=_non_empty), "username": _F(str, d.username),
-        "password": _F(str, d.password),
-        "interval_s": _F(float, d.interval_s, _between(10.0, 7 * 86400.0, " s")),
-        "shots": _F(int, d.shots, _between(3, 15)),
-        "ev_step": _F(float, d.ev_step, _between(0.5, 4.0, " EV")),
-        "iso": _F(int, d.iso, _between(50, 12800)),
-        "aperture": _F(float, d.aperture, _between(0.0, 32.0)),
-        "white_balance": _F(str, d.white_balance, _one_of(
+    F = schema.Field
+    c = schema.table(ctx, ("capture",), raw, schema.schema(
+        CaptureConfig,
+        camera=F(str, check=schema.non_empty), username=F(str), password=F(str),
+        interval_s=F(float, check=schema.between(10.0, 7 * 86400.0, " s")),
+        shots=F(int, check=schema.between(3, 15)),
+        ev_step=F(float, check=schema.between(0.5, 4.0, " EV")),
+        iso=F(int, check=schema.between(50, 12800)),
+        aperture=F(float, check=schema.between(0.0, 32.0)),
+        white_balance=F(str, check=schema.one_of(
             "daylight", "shade", "cloudy-daylight", "incandescent", "fluorescent", "auto")),
-        "shutter_s": _F(float, d.shutter_s, _between(0.0, 60.0, " s")),
-        "max_shutter_s": _F(float, d.max_shutter_s, _between(1e-4, 60.0, " s")),
-        "file_format": _F(str, d.file_format, _one_of("jpeg", "raw+")),
-        "timeout_s": _F(float, d.timeout_s, _positive),
-        "command_timeout_s": _F(float, d.command_timeout_s, _positive),
-        "retries": _F(int, d.retries, _between(0, 20)),
-        "retry_s": _F(float, d.retry_s, _between(0.0, 3600.0, " s")),
-        "response_max_age_days": _F(float, d.response_max_age_days, _positive),
-        "shaded_unit": _F(int, d.shaded_unit, _between(0, 247)),
-        "shaded_port": _F(int, d.shaded_port, _between(0, 65535)),
-    })
+        shutter_s=F(float, check=schema.between(0.0, 60.0, " s")),
+        max_shutter_s=F(float, check=schema.between(1e-4, 60.0, " s")),
+        file_format=F(str, check=schema.one_of("jpeg", "raw+")),
+        timeout_s=F(float, check=schema.positive),
+        command_timeout_s=F(float, check=schema.positive),
+        retries=F(int, check=schema.between(0, 20)),
+        retry_s=F(float, check=schema.between(0.0, 3600.0, " s")),
+        response_max_age_days=F(float, check=schema.positive),
+        shaded_unit=F(int, check=schema.between(0, 247)),
+        shaded_port=F(int, check=schema.between(0, 65535)),
+    ))
     if not c["camera"].startswith(("http://", "https://")):
         raise ctx.error(("capture", "camera"), "must be an http:// URL of the OSC camera "
                         "(e.g. http://192.168.1.1)")

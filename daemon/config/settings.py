@@ -37,38 +37,41 @@ which, when relative, lies inside ``state_dir``.
 
 Validation is strict: an unknown key, a missing required key, a wrong type (``true`` where a
 number belongs; ``1`` is accepted for a float, never for a bool) or an out-of-range value raises
-:class:`~grassd.daemon.errors.ConfigError` naming the dotted key and the file line.
-
-How the line is found: :mod:`tomllib` reports positions only for syntax errors, so after parsing
-we scan the raw text line by line, tracking the current table header (``[a.b]`` and ``[[a]]``,
-counting repeated array-of-tables headers so ``controllers[2]`` means the third
-``[[controllers]]``). A key's line is the first ``key =`` line (bare or quoted key, or a dotted
-key whose first part is the key) inside its table's header block; a table's line is its header.
-Keys written inside inline tables or multi-line arrays fall back to the line of the enclosing key
-or header. The scan ignores comments and multi-line strings only approximately (a line starting
-with ``key =`` inside a multi-line string could be mistaken for the key); that only affects the
-reported line, never the validation itself.
+:class:`~grassd.daemon.errors.ConfigError` naming the dotted key and the file line (the schema
+machinery of :mod:`grassd.daemon.config.schema`). Each default is written once, on its dataclass.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 import re
 import shlex
 import tomllib
 import types
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
+from grassd.daemon.config.schema import Context as _Ctx
+from grassd.daemon.config.schema import Field as _F
+from grassd.daemon.config.schema import between as _between
+from grassd.daemon.config.schema import check_type as _check_type
+from grassd.daemon.config.schema import non_empty as _non_empty
+from grassd.daemon.config.schema import non_negative as _non_negative
+from grassd.daemon.config.schema import numbers as _numbers
+from grassd.daemon.config.schema import one_of as _one_of
+from grassd.daemon.config.schema import positive as _positive
+from grassd.daemon.config.schema import schema as _schema
+from grassd.daemon.config.schema import table as _table
 from grassd.daemon.errors import ConfigError
 from grassd.daemon.store.ingest import FUTURE_TOLERANCE_S
 from grassd.firmware_proto.messages import MAX_ADDRESS, MIN_ADDRESS
+from grassd.sim.errors import SimError
+from grassd.sim.scene import MAX_REPLICATES, PixelSpec
 
 if TYPE_CHECKING:
     from grassd.daemon.config.capture import CaptureConfig
@@ -77,17 +80,6 @@ if TYPE_CHECKING:
 DEFAULT_CONFIG_PATH = Path("/etc/grassd/grassd.toml")
 #: The service's RuntimeDirectory (exists while it runs); holds the control socket.
 SYSTEM_RUNTIME_DIR = Path("/run/grassd")
-
-#: Default pixel-spec fields (paper, section 3: 33.5 mm pixel, 15 mm base, 10 mm yellow blades,
-#: three 5.7 mm slits, green 0-20 mm). Used when ``grassd.sim.scene.PixelSpec`` is not importable.
-_FALLBACK_PIXEL_FIELDS: dict[str, float | int] = {
-    "top_mm": 33.5,
-    "base_height_mm": 15.0,
-    "yellow_height_mm": 10.0,
-    "slit_count": 3,
-    "slit_width_mm": 5.7,
-    "green_max_mm": 20.0,
-}
 
 MODBUS_MODES = ("rtu", "tcp")
 WORD_ORDERS = ("big", "little")
@@ -103,7 +95,7 @@ class SiteConfig:
 
     latitude: float
     longitude: float
-    timezone: str
+    timezone: str = "UTC"
 
 
 @dataclass(frozen=True)
@@ -116,8 +108,8 @@ class DisplayConfig:
 
     rows: int
     cols: int
-    pitch_mm: float
-    pixel: Mapping[str, Any]
+    pitch_mm: float = 33.5
+    pixel: Mapping[str, Any] = field(kw_only=True)
 
     @property
     def pixel_count(self) -> int:
@@ -126,9 +118,9 @@ class DisplayConfig:
 
     @property
     def green_max_mm(self) -> float:
-        """The longest green length a pixel shows [mm]: ``pixel["green_max_mm"]``, else 20 mm
-        (PixelSpec's default); no table entry may exceed it."""
-        return float(self.pixel.get("green_max_mm", 20.0))
+        """The longest green length a pixel shows [mm]: ``pixel["green_max_mm"]``, else
+        PixelSpec's default; no table entry may exceed it."""
+        return float(self.pixel.get("green_max_mm", PixelSpec.green_max_mm))
 
 
 @dataclass(frozen=True)
@@ -139,9 +131,9 @@ class ControllerConfig:
     """
 
     port: str
-    baud: int
-    address: int
-    pixels: tuple[tuple[int, int], ...]
+    baud: int = 115200
+    address: int = 1
+    pixels: tuple[tuple[int, int], ...] = field(kw_only=True)
 
     @property
     def name(self) -> str:
@@ -155,29 +147,29 @@ class ViewpointConfig:
 
     h_cm: float
     d_m: float
-    theta_deg: float
-    weight: float
+    theta_deg: float = 0.0
+    weight: float = 1.0
 
 
 @dataclass(frozen=True)
 class ModbusConfig:
     """Register map of a Modbus lux sensor; lux = scale x decoded register value + offset."""
 
-    mode: str
-    host: str
-    port: int
-    serial_port: str
-    baud: int
-    unit: int
-    function_code: int
-    register: int
-    words: int
-    word_order: str
-    value_type: str
-    scale: float
-    offset: float
-    timeout_s: float
-    retries: int
+    mode: str = "tcp"
+    host: str = "127.0.0.1"
+    port: int = 502
+    serial_port: str = ""
+    baud: int = 9600
+    unit: int = 1
+    function_code: int = 4
+    register: int = 0
+    words: int = 1
+    word_order: str = "big"
+    value_type: str = "uint"
+    scale: float = 1.0
+    offset: float = 0.0
+    timeout_s: float = 1.0
+    retries: int = 3
 
 
 @dataclass(frozen=True)
@@ -200,8 +192,8 @@ class LightConfig:
     """
 
     inbox: Path
-    lux: str
-    modbus: ModbusConfig | None
+    lux: str = "manifest"
+    modbus: ModbusConfig | None = None
     settle_s: float = 2.0
     incomplete_timeout_s: float = 600.0
     lux_wait_s: float = 900.0
@@ -214,8 +206,8 @@ class LightConfig:
 class ScheduleConfig:
     """``interval_s``: recalibrate at least this often (0 = only on new bundles / requests)."""
 
-    interval_s: float
-    on_new_bundle: bool
+    interval_s: float = 3600.0
+    on_new_bundle: bool = True
 
 
 @dataclass(frozen=True)
@@ -238,9 +230,9 @@ class RetentionConfig:
 class SimulationConfig:
     """Monte Carlo ``samples`` per pixel measurement, RNG ``seed``, green lengths in mm."""
 
-    samples: int
-    seed: int
-    lengths_mm: tuple[float, ...]
+    samples: int = 4096
+    seed: int = 0
+    lengths_mm: tuple[float, ...] = field(kw_only=True)
 
 
 @dataclass(frozen=True)
@@ -383,172 +375,7 @@ class Config:
                                    control_socket=move(self.control_socket))
 
 
-# --------------------------------------------------------------------------- line locator
-
-
-_HEADER_RE = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?\s*(#.*)?$")
-_KEY_RE = re.compile(r"""^\s*("(?:[^"\\]|\\.)*"|'[^']*'|[A-Za-z0-9_-]+)\s*[.=]""")
-
-
-def _split_dotted(name: str) -> list[str]:
-    parts = []
-    for m in re.finditer(r"""\s*("(?:[^"\\]|\\.)*"|'[^']*'|[^.\s]+)\s*(?:\.|$)""", name):
-        p = m.group(1)
-        if p[:1] in "\"'":
-            p = p[1:-1]
-        parts.append(p)
-    return parts
-
-
-class LineLocator:
-    """Maps table paths and keys of a TOML text to 1-based line numbers (see module docstring)."""
-
-    def __init__(self, text: str) -> None:
-        # table path (tuple, with array indices) -> (header line, {key: line})
-        self._tables: dict[tuple, tuple[int, dict[str, int]]] = {(): (1, {})}
-        counts: dict[tuple, int] = {}
-        current: tuple = ()
-        for lineno, raw in enumerate(text.splitlines(), start=1):
-            line = raw.strip()
-            if not line or line.startswith("#"):
-                continue
-            hm = _HEADER_RE.match(line) if line.startswith("[") else None
-            if hm:
-                parts = _split_dotted(hm.group(2))
-                # Resolve parent parts to the latest index of arrays of tables.
-                resolved: list = []
-                for part in parts[:-1]:
-                    resolved.append(part)
-                    if tuple(resolved) in counts:
-                        resolved.append(counts[tuple(resolved)] - 1)
-                resolved.append(parts[-1])
-                key = tuple(resolved)
-                if hm.group(1) == "[[":
-                    idx = counts.get(key, 0)
-                    counts[key] = idx + 1
-                    key = key + (idx,)
-                current = key
-                self._tables.setdefault(current, (lineno, {}))
-                continue
-            km = _KEY_RE.match(line)
-            if km:
-                k = km.group(1)
-                if k[:1] in "\"'":
-                    k = k[1:-1]
-                self._tables.setdefault(current, (lineno, {}))[1].setdefault(k, lineno)
-
-    def line_of(self, path: tuple) -> int | None:
-        """Line of the key or table at ``path`` (e.g. ``("controllers", 1, "baud")``)."""
-        path = tuple(path)
-        for cut in range(len(path), 0, -1):
-            table, key = path[: cut - 1], path[cut - 1]
-            if path[:cut] in self._tables:
-                return self._tables[path[:cut]][0]
-            if table in self._tables and isinstance(key, str):
-                line = self._tables[table][1].get(key)
-                if line is not None:
-                    return line
-        return None
-
-
-# --------------------------------------------------------------------------- validation core
-
-
-def _fmt(path: tuple) -> str:
-    out = ""
-    for p in path:
-        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else p)
-    return out
-
-
-class _Ctx:
-    def __init__(self, text: str, source: str, base_dir: Path) -> None:
-        self.locator = LineLocator(text)
-        self.source = source
-        self.base_dir = base_dir
-
-    def error(self, path: tuple, message: str) -> ConfigError:
-        return ConfigError(
-            message, key=_fmt(path) or None, line=self.locator.line_of(path), path=self.source
-        )
-
-
-_TYPE_NAMES = {int: "an integer", float: "a number", str: "a string", bool: "true or false",
-               list: "an array", dict: "a table"}
-
-
-def _check_type(ctx: _Ctx, path: tuple, value: Any, kind: type) -> Any:
-    ok = isinstance(value, kind) and not (kind in (int, float) and isinstance(value, bool))
-    if kind is float and isinstance(value, int) and not isinstance(value, bool):
-        ok, value = True, float(value)
-    if not ok:
-        got = type(value).__name__
-        raise ctx.error(path, f"must be {_TYPE_NAMES[kind]}, got {got} {value!r}")
-    if kind is float and not math.isfinite(value):
-        raise ctx.error(path, f"must be a finite number, got {value!r}")
-    return value
-
-
-_MISSING = object()
-
-
-@dataclass
-class _F:
-    """Schema of one key: type, default (``_MISSING`` = required), extra check."""
-
-    kind: type
-    default: Any = _MISSING
-    check: Callable[[Any], str | None] | None = None
-
-
-def _table(ctx: _Ctx, path: tuple, data: Any, schema: dict[str, _F]) -> dict[str, Any]:
-    """Validate one table against its schema; return plain values with defaults filled in."""
-    if not isinstance(data, dict):
-        raise ctx.error(path, f"must be a table, got {type(data).__name__}")
-    unknown = sorted(set(data) - set(schema))
-    if unknown:
-        allowed = ", ".join(sorted(schema))
-        raise ctx.error(path + (unknown[0],), f"unknown key (allowed here: {allowed})")
-    out: dict[str, Any] = {}
-    for name, f in schema.items():
-        if name not in data:
-            if f.default is _MISSING:
-                raise ctx.error(path + (name,), f"required key is missing ({_TYPE_NAMES[f.kind]})")
-            out[name] = f.default
-            continue
-        value = _check_type(ctx, path + (name,), data[name], f.kind)
-        if f.check is not None:
-            msg = f.check(value)
-            if msg:
-                raise ctx.error(path + (name,), msg)
-        out[name] = value
-    return out
-
-
-def _between(lo: float, hi: float, unit: str = "") -> Callable[[Any], str | None]:
-    def check(v: float) -> str | None:
-        if not lo <= v <= hi:
-            return f"must be between {lo} and {hi}{unit}, got {v}"
-        return None
-
-    return check
-
-
-def _positive(v: float) -> str | None:
-    return None if v > 0 else f"must be > 0, got {v}"
-
-
-def _non_negative(v: float) -> str | None:
-    return None if v >= 0 else f"must be >= 0, got {v}"
-
-
-def _one_of(*choices: Any) -> Callable[[Any], str | None]:
-    def check(v: Any) -> str | None:
-        if v in choices:
-            return None
-        return f"must be one of {', '.join(map(repr, choices))}; got {v!r}"
-
-    return check
+# --------------------------------------------------------------------------- checks
 
 
 def _timezone(v: str) -> str | None:
@@ -559,21 +386,11 @@ def _timezone(v: str) -> str | None:
     return None
 
 
-def _non_empty(v: str) -> str | None:
-    return None if v.strip() else "must not be empty"
-
-
 # --------------------------------------------------------------------------- sections
 
 
 def _pixel_fields() -> dict[str, Any]:
-    """Pixel-spec field defaults: from grassd.sim.scene.PixelSpec when importable."""
-    try:
-        from grassd.sim.scene import PixelSpec  # optional, sim may be absent
-    except Exception:  # sim not there (yet): use the paper's numbers
-        return dict(_FALLBACK_PIXEL_FIELDS)
-    if not dataclasses.is_dataclass(PixelSpec):
-        return dict(_FALLBACK_PIXEL_FIELDS)
+    """Pixel-spec field defaults: those of :class:`grassd.sim.scene.PixelSpec`."""
     spec = PixelSpec()
     out = {}
     for f in dataclasses.fields(spec):
@@ -584,22 +401,8 @@ def _pixel_fields() -> dict[str, Any]:
     return out
 
 
-def _numbers(n: int) -> Callable[[Any], str | None]:
-    def check(v: list) -> str | None:
-        ok = len(v) == n and all(isinstance(x, int | float) and not isinstance(x, bool)
-                                 and math.isfinite(x) for x in v)
-        return None if ok else f"must be an array of {n} numbers, got {v!r}"
-
-    return check
-
-
 def _check_pixel_spec(ctx: _Ctx, pixel: dict[str, Any]) -> None:
-    """Let grassd.sim.scene.PixelSpec validate the fields together (when sim is importable)."""
-    try:
-        from grassd.sim.errors import SimError
-        from grassd.sim.scene import PixelSpec
-    except Exception:  # sim not importable: per-field checks only
-        return
+    """Let grassd.sim.scene.PixelSpec validate the fields together."""
     try:
         PixelSpec(**pixel)
     except SimError as exc:
@@ -663,19 +466,20 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         "capture": _F(dict, None),
     })
 
-    s = _table(ctx, ("site",), top["site"], {
-        "latitude": _F(float, check=_between(-90, 90, " degrees")),
-        "longitude": _F(float, check=_between(-180, 180, " degrees")),
-        "timezone": _F(str, "UTC", _timezone),
-    })
+    s = _table(ctx, ("site",), top["site"], _schema(
+        SiteConfig,
+        latitude=_F(float, check=_between(-90, 90, " degrees")),
+        longitude=_F(float, check=_between(-180, 180, " degrees")),
+        timezone=_F(str, check=_timezone),
+    ))
     site = SiteConfig(**s)
 
     d_raw = top["display"]
     pixel_raw = d_raw.get("pixel", {}) if isinstance(d_raw, dict) else {}
-    d = _table(ctx, ("display",), d_raw, {
-        "rows": _F(int, check=_positive), "cols": _F(int, check=_positive),
-        "pitch_mm": _F(float, 33.5, _positive), "pixel": _F(dict, {}),
-    })
+    d = _table(ctx, ("display",), d_raw, _schema(
+        DisplayConfig, rows=_F(int, check=_positive), cols=_F(int, check=_positive),
+        pitch_mm=_F(float, check=_positive), pixel=_F(dict, {}),
+    ))
     pdefaults = _pixel_fields()
     pschema = {}
     for name, default in pdefaults.items():
@@ -697,10 +501,11 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
     seen_addr: dict[tuple[str, int], int] = {}
     taken: list[tuple[int, int, int]] = []  # (first, last, controller index)
     for i, c_raw in enumerate(top["controllers"]):
-        c = _table(ctx, ("controllers", i), c_raw, {
-            "port": _F(str, check=_non_empty), "baud": _F(int, 115200, _positive),
-            "address": _F(int, 1, _between(MIN_ADDRESS, MAX_ADDRESS)), "pixels": _F(str, "all"),
-        })
+        c = _table(ctx, ("controllers", i), c_raw, _schema(
+            ControllerConfig, port=_F(str, check=_non_empty), baud=_F(int, check=_positive),
+            address=_F(int, check=_between(MIN_ADDRESS, MAX_ADDRESS)),
+            pixels=_F(str, "all"),  # the raw ranges, parsed below
+        ))
         try:
             ranges = parse_pixel_ranges(c["pixels"], display.pixel_count)
         except ValueError as exc:
@@ -730,38 +535,41 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
     if not top["viewpoints"]:
         raise ctx.error(("viewpoints",), "at least one [[viewpoints]] entry is required")
     for i, v_raw in enumerate(top["viewpoints"]):
-        v = _table(ctx, ("viewpoints", i), v_raw, {
-            "h_cm": _F(float, check=_between(10, 1000, " cm")),
-            "d_m": _F(float, check=_between(0.1, 100, " m")),
-            "theta_deg": _F(float, 0.0, _between(-90, 90, " degrees")),
-            "weight": _F(float, 1.0, _positive),
-        })
+        v = _table(ctx, ("viewpoints", i), v_raw, _schema(
+            ViewpointConfig,
+            h_cm=_F(float, check=_between(10, 1000, " cm")),
+            d_m=_F(float, check=_between(0.1, 100, " m")),
+            theta_deg=_F(float, check=_between(-90, 90, " degrees")),
+            weight=_F(float, check=_positive),
+        ))
         viewpoints.append(ViewpointConfig(**v))
 
-    lt = _table(ctx, ("light",), top["light"], {
-        "inbox": _F(str, check=_non_empty),
-        "lux": _F(str, "manifest", _one_of("manifest", "modbus")),
-        "modbus": _F(dict, None), "settle_s": _F(float, 2.0, _non_negative),
-        "incomplete_timeout_s": _F(float, 600.0, _positive),
-        "lux_wait_s": _F(float, 900.0, _non_negative),
-        "future_tolerance_s": _F(float, FUTURE_TOLERANCE_S, _non_negative),
-        "hdri_flip": _F(bool, False),
-        "hdri_rotation_deg": _F(float, 0.0, _between(-360, 360, " degrees")),
-    })
+    lt = _table(ctx, ("light",), top["light"], _schema(
+        LightConfig,
+        inbox=_F(str, check=_non_empty),
+        lux=_F(str, check=_one_of("manifest", "modbus")),
+        modbus=_F(dict), settle_s=_F(float, check=_non_negative),
+        incomplete_timeout_s=_F(float, check=_positive),
+        lux_wait_s=_F(float, check=_non_negative),
+        future_tolerance_s=_F(float, check=_non_negative),
+        hdri_flip=_F(bool),
+        hdri_rotation_deg=_F(float, check=_between(-360, 360, " degrees")),
+    ))
     modbus = None
     if lt["modbus"] is not None:
-        m = _table(ctx, ("light", "modbus"), lt["modbus"], {
-            "mode": _F(str, "tcp", _one_of(*MODBUS_MODES)), "host": _F(str, "127.0.0.1"),
-            "port": _F(int, 502, _between(1, 65535)), "serial_port": _F(str, ""),
-            "baud": _F(int, 9600, _positive), "unit": _F(int, 1, _between(0, 247)),
-            "function_code": _F(int, 4, _one_of(3, 4)),
-            "register": _F(int, 0, _between(0, 65535)), "words": _F(int, 1, _one_of(1, 2)),
-            "word_order": _F(str, "big", _one_of(*WORD_ORDERS)),
-            "value_type": _F(str, "uint", _one_of(*VALUE_TYPES)),
-            "scale": _F(float, 1.0, lambda v: None if v != 0 else "must not be 0"),
-            "offset": _F(float, 0.0), "timeout_s": _F(float, 1.0, _positive),
-            "retries": _F(int, 3, _between(0, 20)),
-        })
+        m = _table(ctx, ("light", "modbus"), lt["modbus"], _schema(
+            ModbusConfig,
+            mode=_F(str, check=_one_of(*MODBUS_MODES)), host=_F(str),
+            port=_F(int, check=_between(1, 65535)), serial_port=_F(str),
+            baud=_F(int, check=_positive), unit=_F(int, check=_between(0, 247)),
+            function_code=_F(int, check=_one_of(3, 4)),
+            register=_F(int, check=_between(0, 65535)), words=_F(int, check=_one_of(1, 2)),
+            word_order=_F(str, check=_one_of(*WORD_ORDERS)),
+            value_type=_F(str, check=_one_of(*VALUE_TYPES)),
+            scale=_F(float, check=lambda v: None if v != 0 else "must not be 0"),
+            offset=_F(float), timeout_s=_F(float, check=_positive),
+            retries=_F(int, check=_between(0, 20)),
+        ))
         if m["mode"] == "rtu" and not m["serial_port"]:
             raise ctx.error(("light", "modbus", "serial_port"),
                             "required when mode = \"rtu\" (e.g. /dev/serial/by-id/usb-...)")
@@ -771,30 +579,32 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
     if lt["lux"] == "modbus" and modbus is None:
         raise ctx.error(("light", "lux"), "lux = \"modbus\" needs a [light.modbus] table")
 
-    sc = _table(ctx, ("schedule",), top["schedule"], {
-        "interval_s": _F(float, 3600.0, _non_negative), "on_new_bundle": _F(bool, True),
-    })
+    sc = _table(ctx, ("schedule",), top["schedule"], _schema(
+        ScheduleConfig, interval_s=_F(float, check=_non_negative), on_new_bundle=_F(bool),
+    ))
     if sc["interval_s"] == 0 and not sc["on_new_bundle"]:
         raise ctx.error(("schedule", "on_new_bundle"),
                         "with interval_s = 0 too, bundles in the inbox would never be picked up: "
                         "set on_new_bundle = true or interval_s > 0")
     schedule = ScheduleConfig(**sc)
-    retention = RetentionConfig(**_table(ctx, ("retention",), top["retention"], {
-        "keep_days": _F(float, RetentionConfig.keep_days, _positive),
-        "keep_reports": _F(int, RetentionConfig.keep_reports, _between(1, 10**7)),
-        "keep_runs": _F(int, RetentionConfig.keep_runs, _between(1, 10**9)),
-    }))
+    retention = RetentionConfig(**_table(ctx, ("retention",), top["retention"], _schema(
+        RetentionConfig,
+        keep_days=_F(float, check=_positive),
+        keep_reports=_F(int, check=_between(1, 10**7)),
+        keep_runs=_F(int, check=_between(1, 10**9)),
+    )))
 
     sim_raw = top["simulation"]
     lengths_raw = sim_raw.get("lengths", 11) if isinstance(sim_raw, dict) else 11
     sim_check = dict(sim_raw) if isinstance(sim_raw, dict) else sim_raw
     if isinstance(sim_check, dict):
         sim_check.pop("lengths", None)
-    si = _table(ctx, ("simulation",), sim_check, {
-        "samples": _F(int, 4096, _between(1, 1 << 20)), "seed": _F(int, 0, _non_negative),
-    })
+    si = _table(ctx, ("simulation",), sim_check, _schema(
+        SimulationConfig, samples=_F(int, check=_between(1, 1 << 20)),
+        seed=_F(int, check=_non_negative),
+    ))
     lo = float(pixel.get("green_min_mm", 0.0))
-    hi = float(pixel.get("green_max_mm", 20.0))
+    hi = float(pixel["green_max_mm"])  # every PixelSpec field is filled in above
     lpath = ("simulation", "lengths")
     if isinstance(lengths_raw, int) and not isinstance(lengths_raw, bool):
         if not 3 <= lengths_raw <= 1000:
@@ -813,13 +623,14 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         raise ctx.error(lpath, f"must be an integer count or an array of mm, got {lengths_raw!r}")
     simulation = SimulationConfig(samples=si["samples"], seed=si["seed"], lengths_mm=lengths)
 
-    ca = _table(ctx, ("calibration",), top["calibration"], {
-        "max_jump_mm": _F(float, 3.0, _positive), "target_de00": _F(float, 0.5, _positive),
-        "max_rounds": _F(int, 3, _between(1, 10)), "check_levels": _F(int, 17, _between(3, 256)),
-        "r2_goal": _F(float, 0.999, _between(0.0, 1.0)),
-        "max_flat_fraction": _F(float, 0.6, _between(0.0, 1.0)),
-        "replicates": _F(int, 8, _between(2, 64)),
-    })
+    ca = _table(ctx, ("calibration",), top["calibration"], _schema(
+        CalibrationConfig,
+        max_jump_mm=_F(float, check=_positive), target_de00=_F(float, check=_positive),
+        max_rounds=_F(int, check=_between(1, 10)), check_levels=_F(int, check=_between(3, 256)),
+        r2_goal=_F(float, check=_between(0.0, 1.0)),
+        max_flat_fraction=_F(float, check=_between(0.0, 1.0)),
+        replicates=_F(int, check=_between(2, MAX_REPLICATES)),
+    ))
     calibration = CalibrationConfig(**ca)
     tables, audience = _parse_tables_audience(ctx, top["tables"], top["audience"])
     metrics, alerts = _parse_operator(ctx, top["metrics"], top["alerts"])
@@ -866,16 +677,16 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
 def _parse_operator(ctx: _Ctx, metrics_raw: Any, alerts_raw: Any
                     ) -> tuple[MetricsConfig, AlertsConfig]:
     """``[metrics]`` and ``[alerts]`` (see their dataclasses)."""
-    m = _table(ctx, ("metrics",), metrics_raw, {"textfile": _F(str, None, _non_empty)})
+    m = _table(ctx, ("metrics",), metrics_raw,
+               _schema(MetricsConfig, textfile=_F(str, check=_non_empty)))
     textfile = None if m["textfile"] is None else _resolve(ctx, m["textfile"])
     if textfile is not None and textfile.suffix != ".prom":
         raise ctx.error(("metrics", "textfile"), "must end in .prom (node_exporter's textfile "
                         f"collector reads only *.prom files), got {textfile.name!r}")
-    a = _table(ctx, ("alerts",), alerts_raw, {
-        "command": _F(str, AlertsConfig.command, _shell_words),
-        "min_interval_s": _F(float, AlertsConfig.min_interval_s, _non_negative),
-        "timeout_s": _F(float, AlertsConfig.timeout_s, _positive),
-    })
+    a = _table(ctx, ("alerts",), alerts_raw, _schema(
+        AlertsConfig, command=_F(str, check=_shell_words),
+        min_interval_s=_F(float, check=_non_negative), timeout_s=_F(float, check=_positive),
+    ))
     return MetricsConfig(textfile=textfile), AlertsConfig(**a)
 
 
@@ -888,8 +699,8 @@ def _shell_words(v: str) -> str | None:
 
 
 def _capture_section(ctx: _Ctx, raw: Any) -> CaptureConfig | None:
-    """``[capture]``, validated by :mod:`grassd.daemon.config.capture` (imported lazily: it
-    uses this module's checkers)."""
+    """``[capture]``, validated by :mod:`grassd.daemon.config.capture` (imported lazily: only
+    a configuration with a capture station needs it)."""
     from grassd.daemon.config.capture import parse_capture
 
     return parse_capture(ctx, raw)
@@ -898,14 +709,15 @@ def _capture_section(ctx: _Ctx, raw: Any) -> CaptureConfig | None:
 def _parse_tables_audience(ctx: _Ctx, tables_raw: Any, audience_raw: Any
                            ) -> tuple[TablesConfig, AudienceConfig | None]:
     """``[tables]`` and the optional ``[audience]`` region (see their dataclasses)."""
-    t = _table(ctx, ("tables",), tables_raw, {
-        "granularity": _F(str, "global", _one_of("global", "controller", "pixel")),
-        "eye": _F(str, "world", _one_of("world", "pixel")),
-        "group_tolerance_deg": _F(float, 2.0, _between(0.0, 90.0, " degrees")),
-        "distance_tolerance": _F(float, 0.1, _between(1e-3, 10.0)),
-        "check_groups": _F(int, 4, _between(-1, 4096)),
-        "layout": _F(str, "auto", _one_of("auto", "shared", "per_pixel")),
-    })
+    t = _table(ctx, ("tables",), tables_raw, _schema(
+        TablesConfig,
+        granularity=_F(str, check=_one_of("global", "controller", "pixel")),
+        eye=_F(str, check=_one_of("world", "pixel")),
+        group_tolerance_deg=_F(float, check=_between(0.0, 90.0, " degrees")),
+        distance_tolerance=_F(float, check=_between(1e-3, 10.0)),
+        check_groups=_F(int, check=_between(-1, 4096)),
+        layout=_F(str, check=_one_of("auto", "shared", "per_pixel")),
+    ))
     if audience_raw is None:
         return TablesConfig(**t), None
 
@@ -913,12 +725,13 @@ def _parse_tables_audience(ctx: _Ctx, tables_raw: Any, audience_raw: Any
         ok = len(v) >= 3 and all(isinstance(p, list) and _numbers(2)(p) is None for p in v)
         return None if ok else "must be an array of at least 3 [x, y] points in metres"
 
-    a = _table(ctx, ("audience",), audience_raw, {
-        "polygon": _F(list, check=polygon_check), "h_cm": _F(list, check=_numbers(2)),
-        "ground_samples": _F(int, 16, _between(1, 10000)),
-        "height_samples": _F(int, 2, _between(1, 100)),
-        "objective": _F(str, "mean", _one_of("mean", "worst")),
-    })
+    a = _table(ctx, ("audience",), audience_raw, _schema(
+        AudienceConfig,
+        polygon=_F(list, check=polygon_check), h_cm=_F(list, check=_numbers(2)),
+        ground_samples=_F(int, check=_between(1, 10000)),
+        height_samples=_F(int, check=_between(1, 100)),
+        objective=_F(str, check=_one_of("mean", "worst")),
+    ))
     lo, hi = (float(x) for x in a["h_cm"])
     if not 10 <= lo <= hi <= 1000:
         raise ctx.error(("audience", "h_cm"), f"must be [low, high] with 10 <= low <= high <= "

@@ -303,9 +303,3 @@ class Fleet:
             table = as_table_array(lengths_um[c.name] if c.name in lengths_um else fallback)
             out[c.name] = (table, table_crc(table))
         return out
-
-
-def with_ports(controllers: Sequence[ControllerConfig],
-               ports: dict[str, str]) -> tuple[ControllerConfig, ...]:
-    """Controllers with their ``port`` replaced through the mapping ``ports`` (old -> new)."""
-    return tuple(replace(c, port=ports.get(c.port, c.port)) for c in controllers)

@@ -27,12 +27,10 @@ from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOEx
 
 from grassd.daemon.config.settings import ModbusConfig
 from grassd.daemon.errors import LuxSensorError, LuxSensorSilent, LuxSensorUnreachable
+from grassd.sim.lighting import MAX_LUX
 
 log = logging.getLogger(__name__)
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)  # we report failures ourselves
-
-#: Largest plausible illuminance (lux); direct sun is about 1.2e5 lux.
-MAX_LUX = 200_000.0
 
 
 def decode_registers(registers: Sequence[int], cfg: ModbusConfig) -> float:

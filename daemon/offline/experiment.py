@@ -24,14 +24,13 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from grassd.daemon.offline.validate import (
-    LightSpec,
     MissingPhotoError,
     ValidateError,
     ViewpointComparison,
@@ -39,6 +38,7 @@ from grassd.daemon.offline.validate import (
     load_manifest,
     validate_capture,
 )
+from grassd.sim.light_input import LightInput
 
 #: Blade splay of the stand-in real pixel at full length (deg): the paper's stated cause of its
 #: theta = 90 deg error (real green blades spread out as they grow).
@@ -54,34 +54,29 @@ REAL_LAYOUT_SEED: int = 101
 
 @dataclass(frozen=True)
 class Environment:
-    """A paper environment mapped onto a bundled HDRI, with plausible lux readings."""
+    """A paper environment mapped onto a bundled HDRI (``light.hdri``: its file name), with
+    plausible lux readings."""
 
     key: str
     name: str
-    hdri: str
-    lux: float
-    sun_lux: float | None = None
-    sun_azimuth_deg: float | None = None
-    sun_elevation_deg: float | None = None
-    sun_from_hdri: bool = False
+    light: LightInput
 
-    def light(self, hdri_dir: Path) -> LightSpec:
-        """The :class:`LightSpec` of this environment."""
-        return LightSpec(hdri=hdri_dir / self.hdri, lux=self.lux, sun_lux=self.sun_lux,
-                         sun_azimuth_deg=self.sun_azimuth_deg,
-                         sun_elevation_deg=self.sun_elevation_deg,
-                         sun_from_hdri=self.sun_from_hdri)
+    def light_in(self, hdri_dir: Path) -> LightInput:
+        """The light of this environment, its HDRI in ``hdri_dir``."""
+        return replace(self.light, hdri=hdri_dir / self.light.hdri)
 
 
 #: Paper section 4.2's five environments on the bundled HDRIs (see shared/hdri/LICENSE.txt).
 ENVIRONMENTS: tuple[Environment, ...] = (
-    Environment("Env 1", "standard colour evaluation (ISO 3664, 2000 lx)", "studio.exr", 2000.0),
-    Environment("Env 2", "indoor with natural light", "interior.exr", 500.0),
-    Environment("Env 3", "tree-shaded area", "forest.exr", 6000.0),
-    Environment("Env 4", "paved courtyard with direct sun (directional light)", "courtyard.exr",
-                12000.0, sun_lux=45000.0, sun_azimuth_deg=200.0, sun_elevation_deg=45.0),
-    Environment("Env 5", "open area, sun inside the HDRI", "city.exr", 70000.0,
-                sun_from_hdri=True),
+    Environment("Env 1", "standard colour evaluation (ISO 3664, 2000 lx)",
+                LightInput(Path("studio.exr"), 2000.0)),
+    Environment("Env 2", "indoor with natural light", LightInput(Path("interior.exr"), 500.0)),
+    Environment("Env 3", "tree-shaded area", LightInput(Path("forest.exr"), 6000.0)),
+    Environment("Env 4", "paved courtyard with direct sun (directional light)",
+                LightInput(Path("courtyard.exr"), 12000.0, sun_lux=45000.0,
+                           sun_azimuth_deg=200.0, sun_elevation_deg=45.0)),
+    Environment("Env 5", "open area, sun inside the HDRI",
+                LightInput(Path("city.exr"), 70000.0, sun_from_hdri=True)),
 )
 #: The environment of the multi-viewpoint experiment (the paper used a classroom).
 MULTIVIEW_ENV: str = "Env 2"
@@ -185,8 +180,9 @@ def run_paper(out_dir: str | Path, *, settings: ExperimentSettings | None = None
     if unknown:
         raise ValidateError(f"unknown environment(s) {unknown}; use {list(envs)}")
     for key in st.environments:
-        if not (hdri / envs[key].hdri).is_file():
-            raise MissingPhotoError(f"HDRI {hdri / envs[key].hdri} for {key} does not exist; "
+        path = envs[key].light_in(hdri).hdri
+        if not path.is_file():
+            raise MissingPhotoError(f"HDRI {path} for {key} does not exist; "
                                     "give --hdri-dir with the bundled panoramas")
     if renderer is None:
         renderer = default_renderer()
@@ -198,8 +194,8 @@ def run_paper(out_dir: str | Path, *, settings: ExperimentSettings | None = None
     capture_s = validate_s = 0.0
     for key in st.environments:
         env = envs[key]
-        light = env.light(hdri)
-        lighting = light.build()
+        light = env.light_in(hdri)
+        lighting = light.lighting()
         result.notes += [f"{key}: {n}" for n in lighting.notes]
         views = list(st.viewpoints) if key == MULTIVIEW_ENV else [REFERENCE]
         if REFERENCE in views:  # the reference viewpoint first: it is the series M belongs to
@@ -264,7 +260,7 @@ def environment_rows(result: ExperimentResult) -> list[list[str]]:
     rows = []
     for key, v in result.environments.items():
         p = PAPER["environments"][key]
-        rows.append([key, envs[key].hdri, f"{v.frechet:.2f}", _paper(p["frechet"]),
+        rows.append([key, str(envs[key].light.hdri), f"{v.frechet:.2f}", _paper(p["frechet"]),
                      f"{v.max_error:.2f}", _paper(p["max_error"]),
                      f"{v.max_error_length_mm:.1f}", _paper(p["at_mm"]), f"{v.real_range:.2f}",
                      f"{v.sim_range:.2f}", f"{v.sim_seconds:.2f}"])

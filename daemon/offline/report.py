@@ -248,7 +248,7 @@ def validation_html(result: Any) -> str:
          "; ".join(" ".join(f"{v:.3f}" for v in row) for row in r.ccm.matrix)],
         ["checker residual after M (mean / max dE00)",
          f"{r.ccm.mean_de00:.2f} / {r.ccm.max_de00:.2f}"],
-        ["light", f"{r.manifest.light.hdri.name}, {r.manifest.light.lux:g} lx"],
+        ["light", f"{r.manifest.light.hdri.name}, {r.manifest.light.ambient_lux:g} lx"],
         ["render settings", ", ".join(f"{k} {v}" for k, v in r.settings.items())],
         ["seconds", ", ".join(f"{k} {v:.1f}" for k, v in r.seconds.items())],
     ], left=2)

@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from grassd.daemon.errors import DaemonError
+from grassd.sim.light_input import LightInput
 
 SCHEMA_VERSION = 1
 #: Below this OGCD range (dE00) a condition counts as one where the display loses contrast.
@@ -156,7 +157,7 @@ def conditions(hdris: Sequence[str], times: Sequence[str], views: Sequence[tuple
     return out
 
 
-def validate(spec: SweepSpec, conds: Sequence[Condition]) -> None:
+def check_conditions(spec: SweepSpec, conds: Sequence[Condition]) -> None:
     """Raise :class:`SweepError` naming what to fix before any work starts."""
     from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint
 
@@ -201,21 +202,12 @@ def _local_time(spec: SweepSpec, hhmm: str) -> dt.datetime:
 # --------------------------------------------------------------------------- light
 
 
-@dataclass(frozen=True)
-class LightCondition:
-    """The light of one (HDRI, time): sun compass azimuth/elevation [deg] (None: no time),
-    diffuse (ambient) and direct horizontal lux [lx]."""
-
-    sun_azimuth_deg: float | None
-    sun_elevation_deg: float | None
-    ambient_lux: float
-    sun_lux: float
-
-
-def light_condition(spec: SweepSpec, hhmm: str) -> LightCondition:
-    """Clear-sky light at local time ``hhmm`` (see the module docstring); fixed lux if ""."""
+def light_condition(spec: SweepSpec, hhmm: str, hdri: str | Path) -> LightInput:
+    """Clear-sky light on ``hdri`` at local time ``hhmm`` (see the module docstring): the sun's
+    compass azimuth/elevation [deg], the diffuse (ambient) and direct (sun, 0 below 3 deg)
+    horizontal lux [lx]; fixed ``spec.lux`` without a sun if ``hhmm`` is ""."""
     if not hhmm:
-        return LightCondition(None, None, float(spec.lux), 0.0)
+        return LightInput(Path(hdri), float(spec.lux))
     from pvlib import clearsky
 
     from grassd.sim.sun import GLOBAL_EFFICACY_LM_W, clear_sky_direct_fraction, sun_position
@@ -223,13 +215,14 @@ def light_condition(spec: SweepSpec, hhmm: str) -> LightCondition:
     when = _local_time(spec, hhmm)
     az, el = sun_position(spec.latitude, spec.longitude, when)
     if el <= 3.0:
-        return LightCondition(az, el, float(spec.night_lux), 0.0)
+        return LightInput(Path(hdri), float(spec.night_lux), 0.0, az, el, timestamp=when)
     import pandas as pd
 
     ghi = float(clearsky.haurwitz(pd.Series([90.0 - el]))["ghi"].iloc[0])
     total = ghi * GLOBAL_EFFICACY_LM_W
     f = clear_sky_direct_fraction(total, el, when.timetuple().tm_yday)
-    return LightCondition(az, el, max(total * (1 - f), spec.night_lux), total * f)
+    return LightInput(Path(hdri), max(total * (1 - f), spec.night_lux), total * f, az, el,
+                      timestamp=when)
 
 
 # --------------------------------------------------------------------------- task (workers)
@@ -273,22 +266,17 @@ def run_task(spec: SweepSpec, cond: Condition) -> dict:
     from grassd.calib.errors import CalibError
     from grassd.calib.length_table import build_length_table, r_squared
     from grassd.daemon.calibration.simulation import simulate_curve
-    from grassd.sim.lighting import build_lighting
     from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint
 
     t0 = time.perf_counter()
     with _worker_lock:  # one trace at a time per process (the renderer owns its fields)
         state = _worker_state()
         renderer = _renderer_for(spec.rows * spec.cols)
-        light = light_condition(spec, cond.time)
+        light = light_condition(spec, cond.time, cond.hdri)
         lkey = (cond.hdri, cond.time, spec.to_json())
         lighting = state["lights"].get(lkey)
         if lighting is None:
-            kw = {}
-            if light.sun_lux > 0:
-                kw = dict(sun_lux=light.sun_lux, sun_azimuth_deg=light.sun_azimuth_deg,
-                          sun_elevation_deg=light.sun_elevation_deg)
-            lighting = build_lighting(cond.hdri, light.ambient_lux, **kw)
+            lighting = light.lighting()
             if len(state["lights"]) > 8:
                 state["lights"].clear()
             state["lights"][lkey] = lighting
@@ -317,7 +305,7 @@ def run_task(spec: SweepSpec, cond: Condition) -> dict:
         "h_cm": cond.view[0], "d_m": cond.view[1], "theta_deg": cond.view[2],
         "pixel": cond.pixel, "seed": cond.seed(spec),
         "sun_azimuth_deg": light.sun_azimuth_deg, "sun_elevation_deg": light.sun_elevation_deg,
-        "ambient_lux": light.ambient_lux, "sun_lux": light.sun_lux,
+        "ambient_lux": light.ambient_lux, "sun_lux": light.sun_lux or 0.0,
         "ogcd_range": ogcd_range, "linearity_r2": linearity, "table_r2_after": table_r2,
         "max_ogcd_stderr": float(curve.ogcd_stderr.max()),
         "seconds": time.perf_counter() - t0, "worker": f"{socket.gethostname()}:{os.getpid()}",
@@ -444,7 +432,7 @@ def run_sweep(spec: SweepSpec, conds: Sequence[Condition], out_dir: str | Path, 
     ``scheduler`` address (workers keep their own settings). ``progress(done,
     total)`` after each stored task; ``on_result(row)`` too (tests use it to act mid-sweep).
     """
-    validate(spec, conds)
+    check_conditions(spec, conds)
     out = Path(out_dir)
     store = SweepStore(out / "sweep.sqlite", spec, restart=restart)
     t0 = time.perf_counter()

@@ -46,7 +46,6 @@ patch of albedo ``a`` (the chart's reference colour) reads ``a`` after the same 
 
 from __future__ import annotations
 
-import math
 import time
 import tomllib
 from collections.abc import Callable, Sequence
@@ -68,7 +67,9 @@ from grassd.calib.length_table import LEVELS, build_length_table, r_squared
 from grassd.calib.ogcd import ogcd_from_lab
 from grassd.calib.raw import develop_raw
 from grassd.calib.regions import checker_patch_quads, quad_mask
-from grassd.daemon.errors import DaemonError
+from grassd.daemon.config import schema
+from grassd.daemon.errors import DaemonError, LocatedError
+from grassd.sim.light_input import LightInput
 
 #: File name of the manifest inside a capture directory.
 MANIFEST_NAME: str = "capture.toml"
@@ -80,7 +81,7 @@ class ValidateError(DaemonError):
     """A capture directory cannot be validated; the message says what to fix."""
 
 
-class CaptureManifestError(ValidateError):
+class CaptureManifestError(ValidateError, LocatedError):
     """``capture.toml`` is missing, malformed, or holds an unknown key or a bad value."""
 
 
@@ -113,38 +114,17 @@ def default_renderer(arch: str = "cpu") -> Any:
 
 
 # ----------------------------------------------------------------------------- manifest
-@dataclass(frozen=True)
-class LightSpec:
-    """The light of the capture: HDRI file, lux readings, sun (see ``grassd simulate``)."""
-
-    hdri: Path
-    lux: float
-    sun_lux: float | None = None
-    sun_azimuth_deg: float | None = None
-    sun_elevation_deg: float | None = None
-    sun_from_hdri: bool = False
-    rotation_deg: float = 0.0
-
-    def build(self, hdri: Any = None):
-        """The :class:`grassd.sim.lighting.Lighting` (``hdri``: an already loaded array)."""
-        from grassd.sim.lighting import build_lighting
-
-        return build_lighting(self.hdri if hdri is None else hdri, self.lux, sun_lux=self.sun_lux,
-                              sun_azimuth_deg=self.sun_azimuth_deg,
-                              sun_elevation_deg=self.sun_elevation_deg,
-                              sun_from_hdri=self.sun_from_hdri, rotation_deg=self.rotation_deg)
-
-    def to_toml_dict(self) -> dict[str, Any]:
-        """The ``[light]`` table."""
-        d: dict[str, Any] = {"hdri": str(self.hdri), "lux": self.lux}
-        for k in ("sun_lux", "sun_azimuth_deg", "sun_elevation_deg"):
-            if getattr(self, k) is not None:
-                d[k] = getattr(self, k)
-        if self.sun_from_hdri:
-            d["sun_from_hdri"] = True
-        if self.rotation_deg:
-            d["rotation_deg"] = self.rotation_deg
-        return d
+def light_toml(light: LightInput) -> dict[str, Any]:
+    """The ``[light]`` table of ``capture.toml`` for ``light`` (``lux`` is its ambient lux)."""
+    d: dict[str, Any] = {"hdri": str(light.hdri), "lux": light.ambient_lux}
+    for k in ("sun_lux", "sun_azimuth_deg", "sun_elevation_deg"):
+        if getattr(light, k) is not None:
+            d[k] = getattr(light, k)
+    if light.sun_from_hdri:
+        d["sun_from_hdri"] = True
+    if light.rotation_deg:
+        d["rotation_deg"] = light.rotation_deg
+    return d
 
 
 @dataclass(frozen=True)
@@ -181,7 +161,7 @@ class CaptureManifest:
     """A parsed ``capture.toml`` (paths resolved against the capture directory)."""
 
     root: Path
-    light: LightSpec
+    light: LightInput
     checker_photo: Path
     checker_corners: tuple[tuple[float, float], ...]
     series: tuple[Series, ...]
@@ -225,7 +205,7 @@ def manifest_to_toml(m: CaptureManifest) -> str:
         except ValueError:
             return str(Path(p).resolve())
 
-    light = m.light.to_toml_dict()
+    light = light_toml(m.light)
     light["hdri"] = rel(m.light.hdri)
     lines = [f"chart = {_fmt(m.chart)}", "", "[light]"]
     lines += [f"{k} = {_fmt(v)}" for k, v in light.items()]
@@ -245,119 +225,93 @@ def manifest_to_toml(m: CaptureManifest) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _keys(table: dict, allowed: set[str], where: str, path: Path) -> None:
-    unknown = sorted(set(table) - allowed)
-    if unknown:
-        raise CaptureManifestError(f"{path}: unknown key(s) {', '.join(unknown)} in {where}; "
-                                   f"allowed: {', '.join(sorted(allowed))}")
-
-
-def _number(table: dict, key: str, where: str, path: Path, default: Any = ...) -> Any:
-    if key not in table:
-        if default is ...:
-            raise CaptureManifestError(f"{path}: {where}.{key} is missing")
-        return default
-    v = table[key]
-    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-        raise CaptureManifestError(f"{path}: {where}.{key} = {v!r} must be a finite number")
-    return float(v)
-
-
-def _corners(v: Any, where: str, path: Path) -> tuple[tuple[float, float], ...]:
+def _corners(v: list) -> str | None:
     try:
         arr = np.asarray(v, dtype=np.float64)
     except (TypeError, ValueError):
         arr = np.zeros(0)
     if arr.shape != (4, 2) or not np.isfinite(arr).all():
-        raise CaptureManifestError(f"{path}: {where} must be four [x, y] image points (pixels), "
-                                   f"in order around the area; got {v!r}")
-    return tuple((float(x), float(y)) for x, y in arr)
+        return f"must be four [x, y] image points (pixels), in order around the area; got {v!r}"
+    return None
 
 
-def _file(root: Path, v: Any, where: str, path: Path) -> Path:
-    if not isinstance(v, str) or not v:
-        raise CaptureManifestError(f"{path}: {where} must be a file name; got {v!r}")
-    p = Path(v)
-    return p if p.is_absolute() else root / p
+def _quad(v: list) -> tuple[tuple[float, float], ...]:
+    """Corners already checked by :func:`_corners` as a tuple of (x, y)."""
+    return tuple((float(x), float(y)) for x, y in v)
+
+
+def _at_least_3(v: list) -> str | None:
+    return None if len(v) >= 3 else "must list at least 3 photos ({ file = ..., length_mm = ... })"
 
 
 def load_manifest(path: str | Path) -> CaptureManifest:
     """Parse and check ``capture.toml`` (a file, or a directory holding one).
 
-    Raises :class:`CaptureManifestError` (syntax, missing/unknown keys, bad values),
-    :class:`MissingPhotoError` (a listed RAW or the HDRI does not exist) and
-    :class:`LengthOrderError` (lengths of a series not strictly increasing).
+    Raises :class:`CaptureManifestError` (syntax, missing/unknown keys, bad values; the message
+    names the key and its line, :mod:`grassd.daemon.config.schema`), :class:`MissingPhotoError`
+    (a listed RAW or the HDRI does not exist) and :class:`LengthOrderError` (lengths of a series
+    not strictly increasing).
     """
+    from grassd.sim.scene import PixelSpec
+
     p = Path(path)
     if p.is_dir():
         p = p / MANIFEST_NAME
     root = p.parent
     try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
+        text = p.read_text(encoding="utf-8")
+        data = tomllib.loads(text)
     except FileNotFoundError:
         raise CaptureManifestError(f"{p} does not exist: a capture directory needs a "
                                    f"{MANIFEST_NAME} manifest") from None
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise CaptureManifestError(f"{p} is not valid TOML: {exc}") from None
-    _keys(data, {"chart", "light", "checker", "pixel", "series"}, "the top level", p)
-    for key in ("light", "checker", "series"):
-        if key not in data:
-            raise CaptureManifestError(f"{p}: the [{key}] section is missing")
-    lt = data["light"]
-    _keys(lt, {"hdri", "lux", "sun_lux", "sun_azimuth_deg", "sun_elevation_deg",
-               "sun_from_hdri", "rotation_deg"}, "[light]", p)
-    hdri = _file(root, lt.get("hdri"), "light.hdri", p)
+    ctx = schema.Context(text, str(p), root, error=CaptureManifestError)
+    F = schema.Field
+
+    def file(name: str) -> Path:
+        f = Path(name)
+        return f if f.is_absolute() else root / f
+
+    top = schema.table(ctx, (), data, schema.schema(
+        CaptureManifest, chart=F(str, check=schema.non_empty), light=F(dict), checker=F(dict),
+        pixel=F(dict, {}), series=F(list)))
+    lt = schema.table(ctx, ("light",), top["light"], schema.schema(
+        LightInput, hdri=F(str, check=schema.non_empty), lux=F(float),
+        sun_lux=F(float), sun_azimuth_deg=F(float), sun_elevation_deg=F(float),
+        sun_from_hdri=F(bool), rotation_deg=F(float)))
+    hdri = file(lt["hdri"])
     if not hdri.is_file():
         raise MissingPhotoError(f"{p}: light.hdri {hdri} does not exist; copy the panorama "
                                 "taken with the photos into the capture directory")
-    light = LightSpec(
-        hdri=hdri, lux=_number(lt, "lux", "light", p),
-        sun_lux=_number(lt, "sun_lux", "light", p, None),
-        sun_azimuth_deg=_number(lt, "sun_azimuth_deg", "light", p, None),
-        sun_elevation_deg=_number(lt, "sun_elevation_deg", "light", p, None),
-        sun_from_hdri=bool(lt.get("sun_from_hdri", False)),
-        rotation_deg=_number(lt, "rotation_deg", "light", p, 0.0))
-    ck = data["checker"]
-    _keys(ck, {"photo", "corners"}, "[checker]", p)
-    checker = _file(root, ck.get("photo"), "checker.photo", p)
-    checker_corners = _corners(ck.get("corners"), "checker.corners", p)
-    pixel = {k: tuple(v) if isinstance(v, list) else v for k, v in data.get("pixel", {}).items()}
-    from grassd.sim.scene import PixelSpec
-
-    _keys(pixel, set(PixelSpec.__dataclass_fields__), "[pixel]", p)
-    series_list = data["series"]
-    if not isinstance(series_list, list) or not series_list:
-        raise CaptureManifestError(f"{p}: give at least one [[series]] of photos")
+    light = LightInput(hdri=hdri, ambient_lux=lt["lux"], sun_lux=lt["sun_lux"],
+                       sun_azimuth_deg=lt["sun_azimuth_deg"],
+                       sun_elevation_deg=lt["sun_elevation_deg"],
+                       sun_from_hdri=lt["sun_from_hdri"], rotation_deg=lt["rotation_deg"])
+    ck = schema.table(ctx, ("checker",), top["checker"], {
+        "photo": F(str, check=schema.non_empty), "corners": F(list, check=_corners)})
+    schema.table(ctx, ("pixel",), top["pixel"],  # PixelSpec checks the values when it is built
+                 {k: F(object, None) for k in PixelSpec.__dataclass_fields__})
+    pixel = {k: tuple(v) if isinstance(v, list) else v for k, v in top["pixel"].items()}
+    if not top["series"]:
+        raise ctx.error(("series",), "give at least one [[series]] of photos")
     series = []
-    for i, st in enumerate(series_list):
+    for i, st_raw in enumerate(top["series"]):
         where = f"series[{i}]"
-        _keys(st, {"viewpoint", "corners", "reference", "photos"}, where, p)
-        vp = st.get("viewpoint")
-        if (not isinstance(vp, list) or len(vp) != 3
-                or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in vp)):
-            raise CaptureManifestError(f"{p}: {where}.viewpoint must be [h_cm, d_m, theta_deg]; "
-                                       f"got {vp!r}")
-        default = _corners(st["corners"], f"{where}.corners", p) if "corners" in st else None
+        st = schema.table(ctx, ("series", i), st_raw, schema.schema(
+            Series, viewpoint=F(list, check=schema.numbers(3), hint="[h_cm, d_m, theta_deg]"),
+            corners=F(list, None, _corners), reference=F(bool),
+            photos=F(list, check=_at_least_3)))
         photos = []
-        if not isinstance(st.get("photos"), list) or len(st["photos"]) < 3:
-            raise CaptureManifestError(f"{p}: {where}.photos must list at least 3 photos "
-                                       "({ file = ..., length_mm = ... })")
-        for j, ph in enumerate(st["photos"]):
-            pw = f"{where}.photos[{j}]"
-            if not isinstance(ph, dict):
-                raise CaptureManifestError(f"{p}: {pw} must be {{ file = ..., length_mm = ... }}")
-            _keys(ph, {"file", "length_mm", "corners"}, pw, p)
-            if "corners" in ph:
-                corners = _corners(ph["corners"], f"{pw}.corners", p)
-            elif default is not None:
-                corners = default
-            else:
-                raise CaptureManifestError(f"{p}: {pw} has no corners and {where} gives no "
-                                           "default corners")
-            length = _number(ph, "length_mm", pw, p)
-            if length < 0:
-                raise CaptureManifestError(f"{p}: {pw}.length_mm = {length:g} must be >= 0 mm")
-            photos.append(Photo(_file(root, ph.get("file"), f"{pw}.file", p), length, corners))
+        for j, ph_raw in enumerate(st["photos"]):
+            pw = ("series", i, "photos", j)
+            ph = schema.table(ctx, pw, ph_raw, {
+                "file": F(str, check=schema.non_empty),
+                "length_mm": F(float, check=schema.non_negative),
+                "corners": F(list, st["corners"], _corners)})
+            if ph["corners"] is None:
+                raise ctx.error(pw, f"has no corners and {where} gives no default corners")
+            photos.append(Photo(file(ph["file"]), ph["length_mm"], _quad(ph["corners"])))
         lengths = [ph.length_mm for ph in photos]
         bad = [k for k in range(1, len(lengths)) if lengths[k] <= lengths[k - 1]]
         if bad:
@@ -366,14 +320,13 @@ def load_manifest(path: str | Path) -> CaptureManifest:
                 f"{p}: {where} lengths must be strictly increasing (the first photo is the "
                 f"OGCD reference); photo {k} ({photos[k].path.name}) has {lengths[k]:g} mm after "
                 f"{lengths[k - 1]:g} mm")
-        series.append(Series(tuple(float(v) for v in vp), tuple(photos),  # type: ignore[arg-type]
-                             bool(st.get("reference", False))))
+        series.append(Series(tuple(float(v) for v in st["viewpoint"]),  # type: ignore[arg-type]
+                             tuple(photos), st["reference"]))
     if sum(s.reference for s in series) > 1:
-        raise CaptureManifestError(f"{p}: more than one series is marked reference = true")
-    chart = data.get("chart", "spydercheckr-24")
-    m = CaptureManifest(root=root, light=light, checker_photo=checker,
-                        checker_corners=checker_corners, series=tuple(series),
-                        chart=str(chart), pixel=pixel)
+        raise ctx.error(("series",), "more than one series is marked reference = true")
+    m = CaptureManifest(root=root, light=light, checker_photo=file(ck["photo"]),
+                        checker_corners=_quad(ck["corners"]), series=tuple(series),
+                        chart=top["chart"], pixel=pixel)
     for photo in m.photos():
         if not photo.is_file():
             raise MissingPhotoError(f"{p}: photo {photo} does not exist; copy it into the "
@@ -779,7 +732,7 @@ def validate_capture(m: CaptureManifest, *, renderer: Any = None, settings: Any 
     settings = settings or RenderSettings(samples=4096, replicates=8)
     if progress:
         progress("building the lighting")
-    lighting = lighting if lighting is not None else m.light.build()
+    lighting = lighting if lighting is not None else m.light.lighting()
     if renderer is None:
         renderer = default_renderer(arch)
     display = DisplaySpec(PixelSpec(**m.pixel))

@@ -28,13 +28,13 @@ from grassd.calib.virtual_camera import VirtualCamera
 from grassd.daemon.offline.validate import (
     MANIFEST_NAME,
     CaptureManifest,
-    LightSpec,
     Photo,
     Series,
     default_renderer,
     manifest_to_toml,
 )
 from grassd.daemon.store.atomic import atomic_write_text
+from grassd.sim.light_input import LightInput
 
 #: Where the chart's patch area lies in the checker photo, as fractions of (width, height):
 #: top-left, top-right, bottom-right, bottom-left (slightly in perspective).
@@ -70,7 +70,7 @@ def checker_scene(chart: ReferenceChart, white_rgb709: Sequence[float], width: i
     return img * np.asarray(white_rgb709, dtype=np.float64), corners
 
 
-def capture_world(out_dir: str | Path, light: LightSpec,
+def capture_world(out_dir: str | Path, light: LightInput,
                   viewpoints: Sequence[tuple[float, float, float]], lengths_mm: Sequence[float],
                   *, real_pixel: Any = None, model_pixel: dict[str, Any] | None = None,
                   camera: VirtualCamera | None = None, renderer: Any = None,
@@ -98,7 +98,7 @@ def capture_world(out_dir: str | Path, light: LightSpec,
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     camera = camera or VirtualCamera()
-    lighting = lighting if lighting is not None else light.build()
+    lighting = lighting if lighting is not None else light.lighting()
     model_pixel = {k: tuple(v) if isinstance(v, list) else v
                    for k, v in (model_pixel or {}).items()}
     real_pixel = real_pixel if real_pixel is not None else PixelSpec(**model_pixel)

@@ -43,7 +43,7 @@ import threading
 import time
 import traceback
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from importlib import resources
 from pathlib import Path
@@ -53,7 +53,6 @@ from grassd import __version__
 from grassd.daemon.calibration.calibrate import (
     CalibrationResult,
     Calibrator,
-    LightInput,
     init_backend,
 )
 from grassd.daemon.calibration.calibrate_display import DisplayCalibrationResult
@@ -87,8 +86,9 @@ from grassd.daemon.store.atomic import (
     describe_write_error,
 )
 from grassd.daemon.store.history import ControllerTable, History
-from grassd.daemon.store.ingest import Bundle, Inbox
+from grassd.daemon.store.ingest import Bundle, CheckerPhoto, Inbox
 from grassd.firmware_proto.client import RetryPolicy
+from grassd.sim.light_input import LightInput
 
 log = logging.getLogger(__name__)
 
@@ -607,7 +607,7 @@ class Service:
         self._progress(f"processing bundle {b.name}")
         m = b.manifest
         try:
-            lux, source = self._resolve_lux(m.ambient_lux)
+            lux, source = self._resolve_lux(m.light.ambient_lux)
         except (LuxSensorUnreachable, LuxSensorSilent) as exc:  # an outage: wait for it
             d = self.deferred.get(b.hash)
             wait_s = self.cfg.light.lux_wait_s
@@ -622,15 +622,11 @@ class Service:
         except DaemonError as exc:  # a bad reading or no lux source at all: permanent
             self.inbox.reject_bundle(b, f"no ambient lux: {exc}")
             return {"status": "rejected", "error": str(exc)}
-        light = LightInput(hdri=m.hdri, ambient_lux=lux, timestamp=m.timestamp,
-                           sun_lux=m.sun_lux, sun_azimuth_deg=m.sun_azimuth_deg,
-                           sun_elevation_deg=m.sun_elevation_deg, checker_raw=m.checker_raw,
-                           checker_corners=m.checker_corners, checker_chart=m.checker_chart,
-                           sun_from_hdri=m.sun_clipped)
+        light = replace(m.light, ambient_lux=lux)
         run_id = self.history.start_run("bundle", bundle_hash=b.hash,
                                         input_hashes=b.input_hashes, lux=lux, lux_source=source,
                                         light_at=m.timestamp.timestamp())
-        out = self._calibrate_and_commit(run_id, light, force=False)
+        out = self._calibrate_and_commit(run_id, light, force=False, checker=m.checker)
         try:
             if out["status"] == "ok":
                 self.inbox.archive_bundle(b, run_id)
@@ -732,10 +728,10 @@ class Service:
         try:
             if manifest is not None:
                 sensor_first = self.cfg.light.lux == "modbus" and self.sensor is not None
-                lux, source = self._resolve_lux(None if sensor_first else manifest.ambient_lux)
-                light = LightInput(hdri=manifest.hdri, ambient_lux=lux,
-                                   timestamp=datetime.now(UTC), sun_lux=None,
-                                   checker_raw=None, checker_chart=manifest.checker_chart)
+                lux, source = self._resolve_lux(None if sensor_first
+                                                else manifest.light.ambient_lux)
+                light = LightInput(hdri=manifest.light.hdri, ambient_lux=lux,
+                                   timestamp=datetime.now(UTC))
                 hashes = {"bundle": last.bundle_hash}
             else:
                 lux, source = self._resolve_lux(None)
@@ -749,13 +745,13 @@ class Service:
                                         light_at=light_at)
         return self._calibrate_and_commit(run_id, light, force=force)
 
-    def _calibrate_and_commit(self, run_id: int, light: LightInput,
-                              force: bool) -> dict[str, Any]:
+    def _calibrate_and_commit(self, run_id: int, light: LightInput, force: bool,
+                              checker: CheckerPhoto | None = None) -> dict[str, Any]:
         cur = self.history.current_table()  # the active table, the run's starting point
         prev_table = None if cur is None else list(cur.lengths_um)
         prev_own = None if cur is None else self._own_tables(cur.id)
         try:
-            result = self.calibrator.run(light, previous_um=prev_table,
+            result = self.calibrator.run(light, checker=checker, previous_um=prev_table,
                                          previous_ccm=self.history.get_meta("ccm"),
                                          force=force, stop=self.stop_event,
                                          progress=self._progress, previous_tables=prev_own)

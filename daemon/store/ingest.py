@@ -64,7 +64,6 @@ import errno
 import hashlib
 import json
 import logging
-import math
 import os
 import re
 import shutil
@@ -80,10 +79,13 @@ from types import MappingProxyType
 from typing import Any
 from zoneinfo import ZoneInfo
 
+from grassd.daemon.config import schema
 from grassd.daemon.errors import IngestError, ManifestError
 from grassd.daemon.store.atomic import atomic_write_text, fsync_dir
 from grassd.daemon.store.history import History
 from grassd.sim.errors import LightingError
+from grassd.sim.light_input import LightInput
+from grassd.sim.lighting import MAX_LUX
 from grassd.sim.sun import check_sun_reading
 
 log = logging.getLogger(__name__)
@@ -96,40 +98,43 @@ REASON_FILE = "reason.txt"
 #: after each failure up to STUCK_RETRY_MAX_S; at once when its owner or mode changes).
 STUCK_RETRY_S = 60.0
 STUCK_RETRY_MAX_S = 3600.0
-#: Largest plausible illuminance (lux): direct summer sun is about 1.2e5 lux.
-MAX_LUX = 200_000.0
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
 _SAFE_RE = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+@dataclass(frozen=True)
+class CheckerPhoto:
+    """A bundle's colour-checker RAW: file, the chart's four corners in it (pixels, top-left
+    first, clockwise) and the reference chart's name (:func:`grassd.calib.charts.get_chart`)."""
+
+    raw: Path
+    corners: tuple[tuple[float, float], ...]
+    chart: str = "spydercheckr-24"
 
 
 @dataclass(frozen=True)
 class Manifest:
     """A validated bundle manifest; paths are absolute (inside the bundle's directory).
 
-    Illuminances in lux, angles in degrees (azimuth clockwise from north, elevation above the
-    horizon); ``timestamp`` is timezone-aware.
+    ``light``: the measured light (``ambient_lux`` None when the manifest leaves it to the lux
+    sensor; ``timestamp`` always set, timezone-aware); ``checker``: the colour-checker photo, if
+    the bundle has one.
     """
 
-    timestamp: datetime
-    hdri: Path
-    ambient_lux: float | None
-    sun_lux: float | None
-    sun_azimuth_deg: float | None
-    sun_elevation_deg: float | None
-    checker_raw: Path | None
-    checker_corners: tuple[tuple[float, float], ...] | None
-    checker_chart: str = "spydercheckr-24"
-    #: the ``[capture]`` table of a bundle made by ``grassd capture`` (metadata), or None
+    light: LightInput
+    checker: CheckerPhoto | None = None
+    #: the ``[capture]`` table of a bundle made by ``grassd capture`` (metadata), or None; its
+    #: ``sun_clipped = true`` sets ``light.sun_from_hdri`` (restore the sun from lux)
     capture: Mapping[str, Any] | None = None
 
     @property
-    def sun_clipped(self) -> bool:
-        """The capture station flagged a sun still clipped in its shortest exposure."""
-        return bool(self.capture and self.capture.get("sun_clipped") is True)
+    def timestamp(self) -> datetime:
+        """When the light was measured (timezone-aware; a manifest always has one)."""
+        return self.light.timestamp  # type: ignore[return-value]  # parse_manifest sets it
 
     def files(self) -> list[Path]:
         """The data files the manifest names."""
-        return [p for p in (self.hdri, self.checker_raw) if p is not None]
+        return [self.light.hdri] + ([] if self.checker is None else [self.checker.raw])
 
 
 @dataclass(frozen=True)
@@ -145,11 +150,6 @@ class Bundle:
 
 
 # --------------------------------------------------------------------------- manifest
-
-
-_MANIFEST_KEYS = {"timestamp", "hdri", "ambient_lux", "sun_lux", "sun_azimuth_deg",
-                  "sun_elevation_deg", "checker_raw", "checker_corners", "checker_chart",
-                  "capture"}
 
 
 def read_manifest_data(path: Path) -> dict[str, Any]:
@@ -172,17 +172,6 @@ def read_manifest_data(path: Path) -> dict[str, Any]:
     return data
 
 
-def _num(data: dict, key: str, lo: float, hi: float, unit: str) -> float | None:
-    v = data.get(key)
-    if v is None:
-        return None
-    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-        raise ManifestError(f"{key} must be a finite number ({unit}), got {v!r}")
-    if not lo <= v <= hi:
-        raise ManifestError(f"{key} = {v} {unit} is out of range ({lo} .. {hi} {unit})")
-    return float(v)
-
-
 def _member(base: Path, key: str, v: Any) -> Path:
     if not isinstance(v, str) or not v or "/" in v or "\\" in v or v in (".", ".."):
         raise ManifestError(f"{key} must be a plain file name inside the bundle, got {v!r}")
@@ -195,66 +184,80 @@ def _plain_name(v: Any) -> bool:
         and v not in (".", "..")
 
 
+def _lux(lo_exclusive: bool) -> Callable[[Any], str | None]:
+    def check(v: float) -> str | None:
+        if (v <= 0 if lo_exclusive else v < 0) or v > MAX_LUX:
+            return (f"{v:g} lux is impossible: it must be {'>' if lo_exclusive else '>='} 0 and "
+                    f"<= {MAX_LUX:g} lux")
+        return None
+
+    return check
+
+
+def _file_name(v: str) -> str | None:
+    return None if _plain_name(v) else f"must be a plain file name inside the bundle, got {v!r}"
+
+
+def _hdri_name(v: str) -> str | None:
+    if not _plain_name(v):
+        return _file_name(v)
+    if Path(v).suffix.lower() not in HDRI_SUFFIXES:
+        return f"{v!r} must be an OpenEXR (.exr) or Radiance (.hdr) file"
+    return None
+
+
+def _corners(v: list) -> str | None:
+    ok = len(v) == 4 and all(isinstance(c, list) and schema.numbers(2)(c) is None for c in v)
+    return None if ok else "must be four [x, y] pixel positions"
+
+
 def parse_manifest(data: dict[str, Any], base: Path, tz: tzinfo = UTC) -> Manifest:
     """Validate manifest ``data``; file names resolve inside ``base``; naive times are in ``tz``.
 
     Checks names and ranges only, not that the files exist (see :func:`missing_files`).
+    Raises :class:`ManifestError` naming the key (:mod:`grassd.daemon.config.schema`).
     """
-    unknown = sorted(set(data) - _MANIFEST_KEYS)
-    if unknown:
-        raise ManifestError(f"unknown manifest key {unknown[0]!r} "
-                            f"(allowed: {', '.join(sorted(_MANIFEST_KEYS))})")
-    ts = data.get("timestamp")
-    if ts is None:
-        raise ManifestError("timestamp is missing (ISO 8601, e.g. 2026-06-21T12:00:00+02:00)")
+    ctx = schema.Context("", None, base, error=ManifestError)
+    F = schema.Field
+    m = schema.table(ctx, (), data, {
+        "timestamp": F(str | datetime, hint="a date-time, ISO 8601, e.g. "
+                       "2026-06-21T12:00:00+02:00"),
+        "hdri": F(str, check=_hdri_name, hint="the name of the .exr or .hdr panorama"),
+        "ambient_lux": F(float, None, _lux(lo_exclusive=True)),
+        "sun_lux": F(float, None, _lux(lo_exclusive=False)),
+        "sun_azimuth_deg": F(float, None, schema.between(0.0, 360.0, " degrees")),
+        "sun_elevation_deg": F(float, None, schema.between(-90.0, 90.0, " degrees")),
+        "checker_raw": F(str, None, _file_name),
+        "checker_corners": F(list, None, _corners),
+        "checker_chart": F(str, CheckerPhoto.chart, schema.non_empty),
+        "capture": F(dict, None, hint="a table (written by grassd capture)"),
+    })
+    ts = m["timestamp"]
     if isinstance(ts, str):
         try:
             ts = datetime.fromisoformat(ts.replace("Z", "+00:00"))
         except ValueError:
-            raise ManifestError(f"timestamp {ts!r} is not ISO 8601") from None
-    if not isinstance(ts, datetime):
-        raise ManifestError(f"timestamp must be a date-time, got {ts!r}")
+            raise ctx.error(("timestamp",), f"{ts!r} is not ISO 8601 (e.g. "
+                            "2026-06-21T12:00:00+02:00)") from None
     if ts.tzinfo is None:
         ts = ts.replace(tzinfo=tz)
-    if "hdri" not in data:
-        raise ManifestError("hdri is missing (name of the .exr or .hdr panorama)")
-    hdri = _member(base, "hdri", data["hdri"])
-    if hdri.suffix.lower() not in HDRI_SUFFIXES:
-        raise ManifestError(f"hdri {hdri.name!r} must be an OpenEXR (.exr) or Radiance (.hdr) file")
-    ambient = _num(data, "ambient_lux", -math.inf, math.inf, "lux")
-    if ambient is not None and not 0 < ambient <= MAX_LUX:
-        raise ManifestError(f"ambient_lux = {ambient:g} lux is impossible: it must be > 0 and "
-                            f"<= {MAX_LUX:g} lux")
-    sun = _num(data, "sun_lux", 0.0, MAX_LUX, "lux")
-    az = _num(data, "sun_azimuth_deg", 0.0, 360.0, "degrees")
-    el = _num(data, "sun_elevation_deg", -90.0, 90.0, "degrees")
-    if (az is None) != (el is None):
-        raise ManifestError("give both sun_azimuth_deg and sun_elevation_deg, or neither")
-    raw = _member(base, "checker_raw", data["checker_raw"]) if "checker_raw" in data else None
-    corners = data.get("checker_corners")
-    if corners is not None:
-        ok = (isinstance(corners, list) and len(corners) == 4
-              and all(isinstance(c, list) and len(c) == 2 and
-                      all(isinstance(x, int | float) and not isinstance(x, bool) for x in c)
-                      for c in corners))
-        if not ok:
-            raise ManifestError("checker_corners must be four [x, y] pixel positions")
-        if raw is None:
-            raise ManifestError("checker_corners given without checker_raw")
-        corners = tuple((float(x), float(y)) for x, y in corners)
+    if (m["sun_azimuth_deg"] is None) != (m["sun_elevation_deg"] is None):
+        raise ctx.error((), "give both sun_azimuth_deg and sun_elevation_deg, or neither")
+    raw, corners = m["checker_raw"], m["checker_corners"]
+    if corners is not None and raw is None:
+        raise ctx.error(("checker_corners",), "given without checker_raw")
     if raw is not None and corners is None:
-        raise ManifestError("checker_raw needs checker_corners: the four chart corners in the RAW "
-                            "image (pixels, top-left first, clockwise)")
-    chart = data.get("checker_chart", "spydercheckr-24")
-    if not isinstance(chart, str) or not chart:
-        raise ManifestError(f"checker_chart must be a chart name, got {chart!r}")
-    capture = data.get("capture")
-    if capture is not None and not isinstance(capture, dict):
-        raise ManifestError("capture must be a table (written by grassd capture)")
-    return Manifest(timestamp=ts, hdri=hdri, ambient_lux=ambient, sun_lux=sun, sun_azimuth_deg=az,
-                    sun_elevation_deg=el, checker_raw=raw, checker_corners=corners,
-                    checker_chart=chart,
-                    capture=None if capture is None else MappingProxyType(dict(capture)))
+        raise ctx.error(("checker_raw",), "needs checker_corners: the four chart corners in the "
+                        "RAW image (pixels, top-left first, clockwise)")
+    capture = m["capture"]
+    light = LightInput(hdri=base / m["hdri"], ambient_lux=m["ambient_lux"], sun_lux=m["sun_lux"],
+                       sun_azimuth_deg=m["sun_azimuth_deg"],
+                       sun_elevation_deg=m["sun_elevation_deg"],
+                       sun_from_hdri=bool(capture and capture.get("sun_clipped") is True),
+                       timestamp=ts)
+    checker = None if raw is None else CheckerPhoto(
+        base / raw, tuple((float(x), float(y)) for x, y in corners), m["checker_chart"])
+    return Manifest(light, checker, None if capture is None else MappingProxyType(dict(capture)))
 
 
 #: How far (s) a bundle's light may be stamped ahead of the daemon's clock (clocks drift; a
@@ -283,8 +286,8 @@ def check_light(m: Manifest, *, now: float, future_tolerance_s: float = FUTURE_T
             f"clock (and time zone) right, then send the bundle again")
     lat, lon = site if site is not None else (None, None)
     try:
-        check_sun_reading(m.sun_lux, m.sun_azimuth_deg, m.sun_elevation_deg, latitude_deg=lat,
-                          longitude_deg=lon, when=m.timestamp)
+        check_sun_reading(m.light.sun_lux, m.light.sun_azimuth_deg, m.light.sun_elevation_deg,
+                          latitude_deg=lat, longitude_deg=lon, when=m.timestamp)
     except LightingError as exc:
         raise ManifestError(f"impossible sun: {exc}") from None
 
@@ -642,7 +645,7 @@ class Inbox:
         missing = [p.name for p in manifest.files() if not p.is_file()]
         if missing:
             raise IngestError(f"missing file(s) {', '.join(missing)}")
-        check_hdri_magic(manifest.hdri)
+        check_hdri_magic(manifest.light.hdri)
         hashes = self._hash_dir(d)
         return Bundle(id=bid, name=name, hash=h or bundle_hash(hashes), dir=d, manifest=manifest,
                       input_hashes=hashes)

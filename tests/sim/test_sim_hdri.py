@@ -53,11 +53,11 @@ def test_negative_dwab_noise_is_clamped_and_counted(caplog):
 def test_negative_tolerance_rule(tmp_path):
     img = np.ones((16, 32, 3), np.float32)
     img[10, 5, 1] = -0.009  # 0.9 % of the 90th percentile luminance (1.0): noise
-    out = hdri.validate_env(img)
+    out = hdri.check_env(img)
     assert out[10, 5, 1] == 0.0 and img[10, 5, 1] == np.float32(-0.009)  # input untouched
     img[10, 5, 1] = -0.011  # 1.1 %: refused
     with pytest.raises(HdriError, match="negative beyond compression noise"):
-        hdri.validate_env(img)
+        hdri.check_env(img)
     # a genuinely negative map (offset subtracted) is refused from a file too
     path = tmp_path / "offset.exr"
     hdri.write_exr(path, img - 0.5)
@@ -322,10 +322,10 @@ def test_old_style_rle_and_bad_headers(tmp_path):
         hdri.load_hdri(tmp_path / "nohead.hdr")
 
 
-def test_validate_env_shape_and_dtype_errors():
+def test_check_env_shape_and_dtype_errors():
     with pytest.raises(HdriError, match=r"expected an \(H, W, 3\)"):
-        hdri.validate_env(np.ones((4, 8)))
+        hdri.check_env(np.ones((4, 8)))
     with pytest.raises(HdriError, match="floating point"):
-        hdri.validate_env(np.ones((4, 8, 3), np.uint8))
+        hdri.check_env(np.ones((4, 8, 3), np.uint8))
     with pytest.raises(HdriError, match="too small"):
-        hdri.validate_env(np.ones((2, 4, 3)))
+        hdri.check_env(np.ones((2, 4, 3)))

@@ -16,7 +16,6 @@ from grassd.calib.exposure import normalise_exposure
 from grassd.calib.regions import apply_homography, homography
 from grassd.daemon.calibration.calibrate import (
     Calibrator,
-    LightInput,
     check_shape,
     check_table,
     init_backend,
@@ -24,6 +23,8 @@ from grassd.daemon.calibration.calibrate import (
 from grassd.daemon.config.settings import parse_config
 from grassd.daemon.errors import CalibrationRejected, ConfigError
 from grassd.daemon.store.atomic import atomic_save_figure, atomic_write_json
+from grassd.daemon.store.ingest import CheckerPhoto
+from grassd.sim.light_input import LightInput
 
 TINY = HEAD + """[display]
 rows = 3
@@ -185,7 +186,7 @@ def test_checker_raw_gives_ccm(cfg, tmp_path):
     corners = np.array([(40.0, 30.0), (260.0, 45.0), (250.0, 175.0), (30.0, 165.0)])
     xyz = xyz_d50_to_d65(prophoto_to_xyz(_chart_image(real, corners)))
     dng = write_linear_dng(tmp_path / "chart.dng", xyz, DngCamera(), exposure=0.8)
-    ccm = cal.fit_checker_ccm(light(checker_raw=dng, checker_corners=tuple(map(tuple, corners))))
+    ccm = cal.fit_checker_ccm(CheckerPhoto(dng, tuple(map(tuple, corners))))
     print(f"\nCCM from DNG: mean {ccm.mean_de00:.3f}, max {ccm.max_de00:.3f} dE00")
     assert ccm.mean_de00 < 1.0
     got = ccm.matrix / ccm.matrix.sum(axis=1, keepdims=True)

@@ -135,8 +135,8 @@ def test_tables_per_pixel_controller_global(per_pixel):
 def test_controller_pixels_from_config_ranges():
     from grassd.daemon.config.settings import ControllerConfig
 
-    cs = [ControllerConfig("/dev/a", 115200, 1, ((0, 3), (8, 8))),
-          ControllerConfig("/dev/a", 115200, 2, ((4, 7),))]
+    cs = [ControllerConfig("/dev/a", 115200, 1, pixels=((0, 3), (8, 8))),
+          ControllerConfig("/dev/a", 115200, 2, pixels=((4, 7),))]
     got = controller_pixels(cs, 9)
     assert [g.tolist() for g in got] == [[0, 1, 2, 3, 8], [4, 5, 6, 7]]
     with pytest.raises(DisplaySimulationError, match="display has 6"):

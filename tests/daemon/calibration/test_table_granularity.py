@@ -22,11 +22,12 @@ from daemon_harness import DISPLAY_2X2 as BASE
 from daemon_harness import POLICY, SITE
 from daemon_harness import drop_midsummer as drop
 
-from grassd.daemon.calibration.calibrate import Calibrator, LightInput, init_backend
+from grassd.daemon.calibration.calibrate import Calibrator, init_backend
 from grassd.daemon.config.settings import not_used_by_the_daemon, parse_config
 from grassd.daemon.hardware.fleet import Fleet, table_checksum
 from grassd.daemon.hardware.simulated import SimulatedHardware
 from grassd.daemon.runtime.service import Service, collect_status
+from grassd.sim.light_input import LightInput
 
 AUDIENCE = """
 [audience]

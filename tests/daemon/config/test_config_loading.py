@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
+from grassd.daemon.config.schema import LineLocator
 from grassd.daemon.config.settings import (
-    LineLocator,
     default_config_text,
     load_config,
     load_default_config,

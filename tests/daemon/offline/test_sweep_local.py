@@ -50,16 +50,16 @@ def full(sky, tmp_path_factory):
     return out, summary
 
 
-def test_light_through_the_day():
-    noon = light_condition(SPEC, "12:00")
-    morning = light_condition(SPEC, "09:00")
-    night = light_condition(SPEC, "19:30")
+def test_light_through_the_day(sky):
+    noon = light_condition(SPEC, "12:00", sky)
+    morning = light_condition(SPEC, "09:00", sky)
+    night = light_condition(SPEC, "19:30", sky)
     assert noon.sun_elevation_deg > morning.sun_elevation_deg > 3 > night.sun_elevation_deg
     assert noon.sun_lux > morning.sun_lux > 0 and night.sun_lux == 0
     assert 60000 < noon.ambient_lux + noon.sun_lux < 130000  # clear summer noon
     assert night.ambient_lux == SPEC.night_lux
     assert 150 < noon.sun_azimuth_deg < 210  # the sun is south at noon in Tokyo
-    fixed = light_condition(SPEC, "")
+    fixed = light_condition(SPEC, "", sky)
     assert fixed.sun_azimuth_deg is None and fixed.ambient_lux == SPEC.lux
 
 
@@ -97,7 +97,7 @@ def test_stored_task_equals_a_direct_render_bit_for_bit(full, sky, renderer):
     out, _ = full
     cond = _conds(sky)[7]  # 09:00, (160, 3, 60), splay 10 deg
     assert cond.pixel == "splay10"
-    light = light_condition(SPEC, cond.time)
+    light = light_condition(SPEC, cond.time, sky)
     lighting = build_lighting(sky, light.ambient_lux, sun_lux=light.sun_lux,
                               sun_azimuth_deg=light.sun_azimuth_deg,
                               sun_elevation_deg=light.sun_elevation_deg)

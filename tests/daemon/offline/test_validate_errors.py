@@ -15,7 +15,6 @@ from grassd.daemon.offline.validate import (
     CaptureManifestError,
     CornersOutsideImageError,
     LengthOrderError,
-    LightSpec,
     MissingPhotoError,
     MixedCamerasError,
     Photo,
@@ -26,6 +25,7 @@ from grassd.daemon.offline.validate import (
 )
 from grassd.daemon.offline.virtual_capture import checker_scene
 from grassd.sim.hdri import write_exr
+from grassd.sim.light_input import LightInput
 
 QUAD = ((10.0, 12.0), (54.0, 12.0), (56.0, 50.0), (8.0, 50.0))
 
@@ -45,7 +45,7 @@ def _capture(tmp_path, *, lengths=(0.0, 5.0, 10.0, 20.0), camera=None, odd_one=N
         path = which.photograph(tmp_path / f"p{i}.dng", np.ones((64, 64, 3)) * colour * white,
                                 white)
         photos.append(Photo(path, x, QUAD))
-    m = CaptureManifest(root=tmp_path, light=LightSpec(tmp_path / "env.exr", 500.0),
+    m = CaptureManifest(root=tmp_path, light=LightInput(tmp_path / "env.exr", 500.0),
                         checker_photo=tmp_path / "checker.dng",
                         checker_corners=tuple(map(tuple, corners.tolist())),
                         series=(Series((170.0, 2.0, 0.0), tuple(photos), True),))
@@ -114,8 +114,8 @@ def test_malformed_manifests(tmp_path):
     good = (tmp_path / "capture.toml").read_text()
     cases = {
         "chart = [": "not valid TOML",
-        good.replace("[light]", "[light]\ncolour = 3"): r"unknown key\(s\) colour in \[light\]",
-        good.replace("lux = 500.0", "lux = \"bright\""): "light.lux",
+        good.replace("[light]", "[light]\ncolour = 3"): r"light\.colour: unknown key",
+        good.replace("lux = 500.0", "lux = \"bright\""): r"capture\.toml:\d+: light\.lux: must",
         good.replace("viewpoint = [170.0, 2.0, 0.0]", "viewpoint = [170.0, 2.0]"): "viewpoint",
     }
     for text, message in cases.items():

@@ -17,8 +17,9 @@ import numpy as np
 import pytest
 
 from grassd.daemon.offline.report import REAL_COLOUR, SIM_COLOUR, validation_html
-from grassd.daemon.offline.validate import LightSpec, load_manifest, validate_capture
+from grassd.daemon.offline.validate import load_manifest, validate_capture
 from grassd.daemon.offline.virtual_capture import capture_world
+from grassd.sim.light_input import LightInput
 
 CHROMIUM = next((p for p in ("/usr/bin/chromium", shutil.which("chromium"),
                              shutil.which("chromium-browser"))
@@ -31,8 +32,8 @@ def report(renderer, shared_hdri, tmp_path_factory):
     from grassd.sim.scene import PixelSpec, RenderSettings
 
     root = tmp_path_factory.mktemp("capture")
-    light = LightSpec(shared_hdri("courtyard"), 8000.0)
-    lighting = light.build()
+    light = LightInput(shared_hdri("courtyard"), 8000.0)
+    lighting = light.lighting()
     capture_world(root, light, VIEWS, [0.0, 5.0, 10.0, 15.0, 20.0],
                   real_pixel=PixelSpec(splay_deg=15.0), renderer=renderer, lighting=lighting,
                   width=64, spp=4)

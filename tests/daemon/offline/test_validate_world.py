@@ -15,13 +15,13 @@ from grassd.calib.ogcd import ogcd_from_samples
 from grassd.calib.virtual_camera import VirtualCamera
 from grassd.daemon.calibration.simulation import white_radiance
 from grassd.daemon.offline.validate import (
-    LightSpec,
     load_manifest,
     max_error_at,
     validate_capture,
     virtual_checker,
 )
 from grassd.daemon.offline.virtual_capture import capture_world
+from grassd.sim.light_input import LightInput
 
 LENGTHS = np.arange(0.0, 20.1, 4.0)
 PHOTO = {"width": 128, "spp": 16}
@@ -31,8 +31,8 @@ PHOTO = {"width": 128, "spp": 16}
 def world(renderer, shared_hdri):
     from grassd.sim.scene import RenderSettings
 
-    light = LightSpec(shared_hdri("interior"), 500.0)
-    return {"light": light, "lighting": light.build(), "cache": {},
+    light = LightInput(shared_hdri("interior"), 500.0)
+    return {"light": light, "lighting": light.lighting(), "cache": {},
             "settings": RenderSettings(samples=16384, replicates=4)}
 
 

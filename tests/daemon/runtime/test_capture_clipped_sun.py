@@ -3,12 +3,13 @@ restores it from the lux reading (sun_from_hdri) instead of trusting the clipped
 
 from __future__ import annotations
 
+from dataclasses import replace
 from datetime import UTC, datetime
 
 import numpy as np
 import pytest
 
-from grassd.daemon.calibration.calibrate import Calibrator, LightInput
+from grassd.daemon.calibration.calibrate import Calibrator
 from grassd.daemon.config.capture import CaptureConfig
 from grassd.daemon.config.settings import load_default_config
 from grassd.daemon.hardware.simulated_camera import SimCamera
@@ -46,17 +47,15 @@ def test_daemon_restores_a_flagged_sun_from_lux(tmp_path):
 
     out = capture(tmp_path, 1e6)
     m = parse_manifest(tomllib.loads((out.bundle / "manifest.toml").read_text()), out.bundle)
-    assert m.sun_clipped
+    assert m.light.sun_from_hdri
     cal = Calibrator(load_default_config())
-    light = LightInput(hdri=m.hdri, ambient_lux=m.ambient_lux, timestamp=datetime.now(UTC),
-                       sun_from_hdri=m.sun_clipped)
+    light = replace(m.light, timestamp=datetime.now(UTC))
     lighting = cal.lighting(light)
     assert lighting.sun_direction is not None and lighting.sun_lux > 0  # restored from lux
     expected = uv_to_direction(np.array([81.0 / 256]), np.array([21.0 / 128]))[0]
     angle = np.degrees(np.arccos(np.clip(lighting.sun_direction @ expected, -1, 1)))
     assert angle < 2.0
     assert lighting.ambient_lux + lighting.sun_lux == pytest.approx(60000.0, rel=1e-3)
-    plain = cal.lighting(LightInput(hdri=m.hdri, ambient_lux=m.ambient_lux,
-                                    timestamp=datetime.now(UTC)))
+    plain = cal.lighting(replace(light, sun_from_hdri=False))
     assert plain.sun_direction is None  # unflagged: the clipped map alone, no sun added
-    assert load_hdri(m.hdri).shape == (128, 256, 3)
+    assert load_hdri(m.light.hdri).shape == (128, 256, 3)

@@ -61,10 +61,10 @@ def test_good_capture_writes_one_complete_bundle(tmp_path, camera):
     assert inbox_entries(tmp_path) == [out.bundle.name]
     data = tomllib.loads((out.bundle / "manifest.toml").read_text())
     m = parse_manifest(data, out.bundle)  # the daemon's own parser accepts it
-    assert m.ambient_lux == 8000.0 and m.hdri.exists()
+    assert m.light.ambient_lux == 8000.0 and m.light.hdri.exists()
     assert data["capture"]["camera_model"] == "grassd SimCam Z1"
     assert len(data["capture"]["exposures_s"]) == 5
-    assert m.sun_clipped == data["capture"]["sun_clipped"]
+    assert m.light.sun_from_hdri == data["capture"]["sun_clipped"]
 
 
 FAULTS = [

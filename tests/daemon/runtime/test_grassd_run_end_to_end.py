@@ -230,7 +230,7 @@ def test_bad_bundles_rejected_daemon_healthy_old_table_kept(daemon):
     got = wait_for(reasons, 60, "four rejections", d)
     print("\n" + "\n".join(f"  {k}: {v.strip()}" for k, v in sorted(got.items())))
     assert "HDRI" in got["corrupt"] or "EXR" in got["corrupt"]
-    assert "ambient_lux = -5 lux is impossible" in got["neglux"]
+    assert "ambient_lux: -5 lux is impossible" in got["neglux"]
     assert "missing file(s) sky.exr" in got["half"]
     assert "missing file(s) chart.dng" in got["noraw"]
     assert d.ctl("ping")["pid"] == d.proc.pid

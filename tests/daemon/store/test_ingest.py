@@ -68,14 +68,14 @@ def test_manifest_validation():
     base = Path("/b")
     m = parse_manifest({"timestamp": "2026-01-01T10:00:00", "hdri": "a.hdr",
                         "ambient_lux": 500}, base, tz=__import__("zoneinfo").ZoneInfo("UTC"))
-    assert m.hdri == base / "a.hdr" and m.ambient_lux == 500.0 and m.timestamp.tzinfo
+    assert m.light.hdri == base / "a.hdr" and m.light.ambient_lux == 500.0 and m.timestamp.tzinfo
     bad = [
-        ({"hdri": "a.exr"}, "timestamp is missing"),
+        ({"hdri": "a.exr"}, "timestamp: required key is missing"),
         ({"timestamp": "x", "hdri": "a.exr"}, "ISO 8601"),
         ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "a.png"}, ".exr"),
         ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "../a.exr"}, "plain file name"),
         ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "a.exr", "ambient_lux": -5},
-         "ambient_lux = -5 lux is impossible"),
+         "ambient_lux: -5 lux is impossible"),
         ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "a.exr", "sun_azimuth_deg": 3},
          "both"),
         ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "a.exr", "lux": 3}, "unknown"),
@@ -96,7 +96,7 @@ def test_directory_bundle_waits_for_settle_then_archives(env):
     [b] = inbox.poll()
     assert b.dir == inbox.processing / b.id and b.dir.is_dir()
     assert not (inbox.inbox / "b1").exists()
-    assert b.manifest.ambient_lux == 12000.0 and b.manifest.sun_elevation_deg == 40.0
+    assert b.manifest.light.ambient_lux == 12000.0 and b.manifest.light.sun_elevation_deg == 40.0
     assert set(b.input_hashes) == {"sky.exr", "manifest.toml"}
     assert h.journal_get(b.hash).state == "processing"
     assert inbox.begin(b) == 1
@@ -141,7 +141,7 @@ def test_flat_bundle_with_bad_manifest_is_rejected_whole(env):
     (inbox.inbox / "unrelated.txt").write_text("left alone")
     assert settle(inbox, clock) == []
     [rej] = list(inbox.rejected.iterdir())
-    assert "ambient_lux = -5 lux is impossible" in (rej / "reason.txt").read_text()
+    assert "ambient_lux: -5 lux is impossible" in (rej / "reason.txt").read_text()
     assert sorted(p.name for p in rej.iterdir()) == ["manifest.json", "noon.exr", "reason.txt"]
     assert sorted(p.name for p in inbox.inbox.iterdir()) == ["unrelated.txt"]
 
@@ -149,7 +149,7 @@ def test_flat_bundle_with_bad_manifest_is_rejected_whole(env):
 @pytest.mark.parametrize(
     ("setup", "reason"),
     [
-        ("lux", "ambient_lux = -5 lux is impossible"),
+        ("lux", "ambient_lux: -5 lux is impossible"),
         ("corrupt", "not an OpenEXR file"),
         ("syntax", "not valid TOML"),
     ],
@@ -350,7 +350,7 @@ def test_inbox_on_another_file_system(tmp_path):
         assert list(inbox.inbox.iterdir()) == []
         for b in got:
             assert os.stat(b.dir).st_dev == os.stat(tmp_path).st_dev
-            assert b.manifest.hdri.is_file()
+            assert b.manifest.light.hdri.is_file()
         assert not list(inbox.processing.glob(".*"))  # no temporary copies left
         h.close()
     finally:

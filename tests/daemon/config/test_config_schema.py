@@ -1,0 +1,59 @@
+"""grassd.daemon.config.schema: one validator for config, bundle manifests and capture.toml."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import pytest
+
+from grassd.daemon.config import schema
+from grassd.daemon.config.settings import CalibrationConfig, default_config_text, parse_config
+from grassd.daemon.errors import ConfigError, ManifestError
+from grassd.sim.scene import MAX_REPLICATES
+
+
+@dataclass(frozen=True)
+class Pump:
+    name: str
+    rate_l_min: float = 2.5
+    on: bool = True
+
+
+def test_schema_takes_each_default_from_the_dataclass():
+    fields = schema.schema(Pump, name=schema.Field(str), rate_l_min=schema.Field(float),
+                           on=schema.Field(bool), note=schema.Field(str, ""))
+    assert fields["name"].default is schema.MISSING
+    assert (fields["rate_l_min"].default, fields["on"].default, fields["note"].default) == (
+        2.5, True, "")
+    ctx = schema.Context('name = "p1"\n', "pump.toml")
+    assert schema.table(ctx, (), {"name": "p1"}, fields) == {
+        "name": "p1", "rate_l_min": 2.5, "on": True, "note": ""}
+
+
+def test_a_default_written_on_both_sides_is_refused():
+    with pytest.raises(TypeError, match="Pump.rate_l_min is written twice"):
+        schema.schema(Pump, rate_l_min=schema.Field(float, 3.0))
+
+
+def test_errors_name_file_line_and_key_in_the_documents_error_type():
+    text = 'name = "p1"\n\n[pipe]\nlength_m = "long"\n'
+    ctx = schema.Context(text, "pump.toml", error=ManifestError)
+    with pytest.raises(ManifestError) as info:
+        schema.table(ctx, ("pipe",), {"length_m": "long"}, {"length_m": schema.Field(float)})
+    assert str(info.value) == ("pump.toml:4: pipe.length_m: must be a finite number, "
+                               "got str 'long'")
+    assert (info.value.key, info.value.line) == ("pipe.length_m", 4)
+    json_ctx = schema.Context("", None, error=ManifestError)  # JSON: the key, no file line
+    with pytest.raises(ManifestError, match="^length_m: unknown key"):
+        schema.table(json_ctx, (), {"length_m": 1}, {"name": schema.Field(str)})
+
+
+def test_the_replicate_limit_is_the_renderers():
+    text = default_config_text()
+    assert parse_config(text).calibration.replicates == CalibrationConfig.replicates
+    top = text + f"\n[calibration]\nreplicates = {MAX_REPLICATES}\n"
+    assert parse_config(top).calibration.replicates == MAX_REPLICATES
+    with pytest.raises(ConfigError, match=f"between 2 and {MAX_REPLICATES}, got "
+                                          f"{MAX_REPLICATES + 1}"):
+        parse_config(top.replace(f"replicates = {MAX_REPLICATES}",
+                                 f"replicates = {MAX_REPLICATES + 1}", 1))
