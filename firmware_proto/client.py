@@ -34,6 +34,7 @@ from grassd.firmware_proto.errors import (
     TransferInterrupted,
     TransientError,
 )
+from grassd.firmware_proto.line_quality import LineQuality
 from grassd.firmware_proto.link import SerialLink
 from grassd.firmware_proto.messages import (
     MAX_ADDRESS,
@@ -61,7 +62,6 @@ from grassd.firmware_proto.messages import (
 )
 from grassd.firmware_proto.tables import (
     as_table_array,
-    chunk_spans,
     table_bytes,
     table_crc,
     table_kind,
@@ -91,6 +91,11 @@ class RetryPolicy:
     restarts: int = 3  #: restarts of a table transfer from TABLE_BEGIN
     readback_retries: int = 10  #: retries when reading TABLE_STATUS back after a push
     chunk_bytes: int = MAX_CHUNK_DATA  #: largest chunk this host sends (device limit applies)
+    #: adapt the chunk size to the line (see :mod:`~.line_quality`): halve it after a failed
+    #: chunk down to min_chunk_bytes, double it after chunk_grow_after clean chunks in a row
+    adaptive_chunks: bool = True
+    min_chunk_bytes: int = 16
+    chunk_grow_after: int = 2
 
 
 def _table_matches(status: TableStatus, table_id: int, crc: int) -> bool:
@@ -103,14 +108,20 @@ class ControllerClient:
     ``port`` is a device path; ``baudrate`` the line speed (also used to size timeouts);
     ``seed`` fixes the starting sequence number and backoff jitter (for reproducible tests);
     ``rs485`` turns on the kernel's RS-485 direction control (see :class:`~.link.SerialLink`).
-    Not thread-safe: use one client per port from one thread.
+    ``link``: another transport with SerialLink's ``send`` / ``receive`` / ``close`` (e.g. the
+    in-process :class:`~.loopback.LoopbackLink` of benchmarks); ``port`` then only names it.
+    :attr:`quality` tracks the line (adaptive chunk size, tries without answer).
+    Not thread-safe: use one client per port from one thread (``quality`` may be read from any).
     """
 
     def __init__(self, port: str, *, baudrate: int = 115_200,
                  policy: RetryPolicy | None = None, seed: int | None = None,
-                 rs485: bool = False) -> None:
-        self.link = SerialLink(port, baudrate, rs485=rs485)
+                 rs485: bool = False, link: SerialLink | None = None) -> None:
+        self.link = link if link is not None else SerialLink(port, baudrate, rs485=rs485)
         self.policy = policy or RetryPolicy()
+        p = self.policy
+        self.quality = LineQuality(p.chunk_bytes, min(p.min_chunk_bytes, p.chunk_bytes),
+                                   p.chunk_grow_after, p.adaptive_chunks)
         self._rng = random.Random(seed)
         self._seq = self._rng.randrange(0x10000)
         self.retransmissions = 0
@@ -172,12 +183,14 @@ class ControllerClient:
                     m = frame.message
                     if (frame.address == address and frame.seq == seq
                             and m.TYPE in (expected, MsgType.NAK)):
+                        self.quality.note_try(True)
                         return m
                     self.stale_frames += 1
                 last = ControllerTimeout(f"no answer within {timeout:.3f} s")
             except PortUnavailable as exc:
                 last = exc
                 self._info.clear()  # whatever comes back on this port may be another board
+            self.quality.note_try(False)
         what = f"controller {address} on {self.port}: {message.TYPE.name} failed after " \
                f"{retries + 1} tries"
         if isinstance(last, PortUnavailable):
@@ -297,11 +310,39 @@ class ControllerClient:
 
     def _transfer(self, address: int, info: Info, tid: int, kind: TableKind, n_tables: int,
                   data: bytes, crc: int) -> None:
+        tries0 = self.quality.tries
         self._expect(address, TableBegin(tid, kind, n_tables, len(data), crc), Ack)
-        chunk = max(1, min(info.max_chunk, self.policy.chunk_bytes))
-        for offset, length in chunk_spans(len(data), chunk):
-            self._expect(address, TableChunk(tid, offset, data[offset:offset + length]), Ack)
+        size = self._send_chunks(address, info, tid, data)
         self._expect(address, TableCommit(tid, crc), Ack)
+        self.quality.note_transfer(size, self.quality.tries - tries0)
+
+    def _send_chunks(self, address: int, info: Info, tid: int, data: bytes) -> int:
+        """Send ``data`` as TABLE_CHUNKs whose size follows the line (:mod:`~.line_quality`):
+        a chunk without answer is sent again at half the size, from the same offset; only
+        where it cannot shrink further are its tries limited (``retries`` + 1 in a row, then
+        ControllerTimeout, and the push restarts from TABLE_BEGIN). Returns the size reached."""
+        q, limit = self.quality, max(1, min(info.max_chunk, self.policy.chunk_bytes))
+        offset = failed = 0
+        while offset < len(data):
+            full = q.chunk_size(limit)
+            size = min(full, len(data) - offset)
+            try:
+                self._expect(address, TableChunk(tid, offset, data[offset:offset + size]), Ack,
+                             retries=0)
+            except ControllerTimeout as exc:
+                q.note_chunk(False, size, tail=size < full)
+                self.retransmissions += 1
+                smaller = min(q.chunk_size(limit), len(data) - offset) < size
+                failed = 0 if smaller else failed + 1
+                if failed > self.policy.retries:
+                    raise ControllerTimeout(f"{exc} ({failed} tries in a row at {size}-byte "
+                                            f"chunks)") from None
+                time.sleep(self._backoff(max(failed, 1)))
+                continue
+            q.note_chunk(True, size, tail=size < full)
+            offset += size
+            failed = 0
+        return q.chunk_size(limit)
 
 
 def _client(port: str, baudrate: int, policy: RetryPolicy | None, **overrides) -> ControllerClient:

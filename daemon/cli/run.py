@@ -202,6 +202,12 @@ def print_status(st: dict, echo=click.echo) -> None:
             err += (f"; {b['failures']} failed push(es), next attempt in "
                     f"{b['retry_in_s']:.0f} s")
         echo(f"  {c['name']}: table {tid}, {state}{err}")
+    if st.get("lines"):
+        from grassd.daemon.line_report import describe_line
+
+        echo("serial lines:")
+        for port, q in st["lines"].items():
+            echo(f"  {describe_line(port, q)}")
     echo("last runs:")
     for r in st["runs"]:
         extra = (f"R^2 {r['r2']:.4f}, max dev {r['max_dev_de00']:.2f} dE00"

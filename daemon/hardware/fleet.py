@@ -252,6 +252,12 @@ class Fleet:
                        "retry_in_s": max(b.retry_at - now, 0.0), "error": b.error}
                 for name, b in dict(self._backoff).items()}
 
+    def line_quality(self) -> dict[str, dict[str, object]]:
+        """Serial port -> how frames get through it (adaptive chunk size, tries without an
+        answer: :meth:`~grassd.firmware_proto.line_quality.LineQuality.snapshot`), for the
+        ports used so far. Safe to call from another thread (reads a snapshot)."""
+        return {port: client.quality.snapshot() for port, client in dict(self._clients).items()}
+
     def push(self, lengths_um: ArrayLike | Mapping[str, ArrayLike], table_id: int,
              stop: threading.Event | None = None,
              fallback: ArrayLike | None = None, hold: bool = False) -> list[ControllerReport]:

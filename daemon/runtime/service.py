@@ -905,6 +905,7 @@ class Service:
             "metrics_textfile": str(self.operator.textfile),
             "status_page": str(self.operator.page),
             "capture": None if self.capture_loop is None else self.capture_loop.summary(),
+            "lines": self.fleet.line_quality(),
             "waiting_bundles": [
                 {"bundle": d.bundle.name, "id": d.bundle.id, "reason": d.reason,
                  "since": d.since, "retry_in_s": max(d.retry_at - now, 0.0)}
