@@ -40,6 +40,7 @@ import numpy as np
 import OpenEXR
 
 from grassd.sim.errors import HdriError
+from grassd.sim.native_output import capture_native_output
 
 __all__ = [
     "MAX_TEXELS",
@@ -215,10 +216,7 @@ def load_hdri(path: str | os.PathLike, max_texels: int = MAX_TEXELS) -> np.ndarr
 
 def _read_exr(p: Path, max_texels: int) -> np.ndarray:
     source = str(p)
-    try:
-        header = OpenEXR.File(source, header_only=True).header()
-    except Exception as exc:  # the binding raises RuntimeError/ValueError for bad files
-        raise HdriError(f"{source}: corrupt or truncated OpenEXR header ({exc})") from exc
+    header = _exr_call(source, "header", lambda: OpenEXR.File(source, header_only=True).header())
     if "dataWindow" not in header:
         raise HdriError(f"{source}: OpenEXR header lacks a dataWindow")
     (x0, y0), (x1, y1) = header["dataWindow"]
@@ -230,10 +228,8 @@ def _read_exr(p: Path, max_texels: int) -> np.ndarray:
     for ch in header.get("channels", []):
         if getattr(ch, "xSampling", 1) != 1 or getattr(ch, "ySampling", 1) != 1:
             raise HdriError(f"{source}: channel {ch.name} is subsampled; save full-resolution RGB")
-    try:
-        channels = OpenEXR.File(source, separate_channels=True).channels()
-    except Exception as exc:
-        raise HdriError(f"{source}: corrupt or truncated OpenEXR pixel data ({exc})") from exc
+    channels = _exr_call(source, "pixel data",
+                         lambda: OpenEXR.File(source, separate_channels=True).channels())
     names = set(channels)
     if {"R", "G", "B"} <= names:
         planes = [channels[n].pixels for n in ("R", "G", "B")]
@@ -253,6 +249,20 @@ def _read_exr(p: Path, max_texels: int) -> np.ndarray:
         chroma = tuple(float(c) for c in chroma)
         img = _apply_matrix(img, _to_rec709_matrix(chroma[:6], chroma[6:8]), source)
     return img
+
+
+def _exr_call(source: str, what: str, read):
+    """``read()`` with OpenEXR's own messages on fd 1/2 captured (the user sees only our
+    one-line error; the library's most specific EXR_ERR line goes into it)."""
+    failure: Exception | None = None
+    with capture_native_output() as native:
+        try:
+            return read()
+        except Exception as exc:  # the binding raises RuntimeError/ValueError for bad files
+            failure = exc
+    detail = native.reason(source) or str(failure)  # the binding's text is often generic
+    raise HdriError(f"{source}: corrupt or truncated OpenEXR {what} ({detail}); re-copy the "
+                    "file or export it again") from failure
 
 
 # Radiance RGBE ---------------------------------------------------------------------------
