@@ -12,6 +12,7 @@ import sys
 import click
 
 from grassd import __version__
+from grassd.daemon.cli.bundles import bundles
 from grassd.daemon.cli.capture import camera_group, capture_cmd
 from grassd.daemon.cli.controllers import controllers
 from grassd.daemon.cli.demo import demo
@@ -39,6 +40,6 @@ def main() -> None:
     """grassd keeps a grass display's colours true as the light around it changes."""
 
 
-for _command in (demo, check_config, run_cmd, status_cmd, history_cmd, calibrate_cmd, controllers,
-                 simulate, validate, experiment, sweep, capture_cmd, camera_group):
+for _command in (demo, check_config, run_cmd, status_cmd, history_cmd, calibrate_cmd, bundles,
+                 controllers, simulate, validate, experiment, sweep, capture_cmd, camera_group):
     main.add_command(_command)

@@ -190,6 +190,9 @@ def print_status(st: dict, echo=click.echo) -> None:
              + (f"; last error: {cap['last_error']}" if cap["last_error"] else ""))
     for p in st.get("inbox_problems") or []:
         echo(f"inbox: {p}")
+    for q in st.get("quarantined") or []:
+        echo(f"quarantined bundle {q['bundle']} ({q['attempts']} interrupted attempts, since "
+             f"{_fmt_time(q['since'])}): `grassd bundles retry {q['bundle']}` runs it again")
     echo("controllers:")
     for c in st["controllers"]:
         state = "in sync" if c["in_sync"] else ("unreachable" if not c["reachable"]

@@ -8,6 +8,8 @@ Requests (``{"cmd": ...}``) and answers::
                                                   -> {"ok": true, "run": {...}} when it finished
                                                      {"ok": true, "queued": 3} without wait
     {"cmd": "reload"}                             -> {"ok": true}  (same as SIGHUP)
+    {"cmd": "bundles_retry", "bundle": "NAME"}    -> {"ok": true, "retry": {...}}  (a
+                                                     quarantined bundle back into the inbox)
 
 Failures answer ``{"ok": false, "error": "..."}``. The socket lives in the RuntimeDirectory
 (``/run/grassd/control.sock``), mode 0660, so members of group grassd may talk to the daemon.

@@ -42,7 +42,7 @@ import sqlite3
 import threading
 import time
 import traceback
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from importlib import resources
@@ -87,6 +87,7 @@ from grassd.daemon.store.atomic import (
 )
 from grassd.daemon.store.history import ControllerTable, History
 from grassd.daemon.store.ingest import Bundle, CheckerPhoto, Inbox
+from grassd.daemon.store.quarantine import quarantined, retry_request
 from grassd.firmware_proto.client import RetryPolicy
 from grassd.sim.light_input import LightInput
 
@@ -129,6 +130,8 @@ class _Request:
     force: bool
     done: threading.Event = field(default_factory=threading.Event)
     result: dict[str, Any] | None = None
+    #: main-loop work other than a calibration (e.g. putting a quarantined bundle back)
+    task: Callable[[], dict[str, Any]] | None = None
 
 
 def _now_iso() -> str:
@@ -370,7 +373,8 @@ class Service:
             except queue.Empty:
                 break
             try:
-                req.result = self.scheduled_run("request", force=req.force)
+                req.result = req.task() if req.task else self.scheduled_run("request",
+                                                                            force=req.force)
             except BaseException as exc:  # the waiting client learns it now, not at its timeout
                 req.result = {"status": "failed", "error": self._describe(exc)}
                 raise
@@ -923,6 +927,17 @@ class Service:
         if cmd == "reload":
             self.reload_event.set()
             return {"ok": True}
+        if cmd == "bundles_retry":  # in the main loop, which also claims and prunes bundles
+            name = str(req.get("bundle", ""))
+            r = _Request(force=False, task=lambda: retry_request(self.inbox, name))
+            try:
+                self.requests.put_nowait(r)
+            except queue.Full:
+                return {"ok": False, "busy": True, "error": "busy: try again later"}
+            if not r.done.wait(float(req.get("timeout_s", 3600))):
+                return {"ok": False, "error": "the daemon did not get to it in time"}
+            out = r.result or {}
+            return {"ok": out.get("status") == "ok", "retry": out, "error": out.get("error")}
         if cmd == "calibrate":
             if self.stop_event.is_set():
                 return {"ok": False, "error": "daemon is stopping"}
@@ -940,7 +955,7 @@ class Service:
                 return {"ok": False, "error": f"run did not finish within {timeout:g} s"}
             return {"ok": True, "run": r.result}
         return {"ok": False, "error": f"unknown command {cmd!r} "
-                                      "(use ping, status, calibrate, reload)"}
+                                      "(use ping, status, calibrate, reload, bundles_retry)"}
 
 
 def usable_run_tables(history: History, run_id: int,
@@ -991,6 +1006,8 @@ def collect_status(history: History, cfg: Config, runs: int = 5) -> dict[str, An
         "health": health, "desired_table": desired, "controllers": controllers,
         "runs": [_run_summary(r) for r in history.runs(runs)],
         "run_counts": {s: history.run_count(s) for s in ("ok", "rejected", "failed", "superseded")},
+        "quarantined": [q.as_dict() for q in
+                        quarantined(history, cfg.light.inbox, cfg.state_dir)],
         "state_dir": str(cfg.state_dir), "running": False,
     }
 

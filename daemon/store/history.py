@@ -513,11 +513,12 @@ class History:
                        "updated_at=? WHERE bundle_hash=?",
                        (state, reason, run_id, time.time(), bundle_hash))
 
-    def journal_forget(self, bundle_hash: str) -> None:
-        """Drop a ``processing`` row whose bundle went back to the inbox."""
+    def journal_forget(self, bundle_hash: str, state: str = "processing") -> None:
+        """Drop a row in ``state`` whose bundle went back to the inbox (``rejected``: a
+        quarantined bundle put back by :func:`grassd.daemon.store.quarantine.retry_bundle`)."""
         with self._tx() as db:
-            db.execute("DELETE FROM journal WHERE bundle_hash=? AND state='processing'",
-                       (bundle_hash,))
+            db.execute("DELETE FROM journal WHERE bundle_hash=? AND state=?",
+                       (bundle_hash, state))
 
     def journal_get(self, bundle_hash: str) -> JournalEntry | None:
         """The journal row of ``bundle_hash``, if any."""

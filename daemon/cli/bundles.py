@@ -1,0 +1,80 @@
+"""``grassd bundles list`` and ``grassd bundles retry``: quarantined bundles.
+
+A bundle whose processing was interrupted ``max_attempts`` times ends in ``rejected/`` as
+"abandoned" (see :mod:`grassd.daemon.store.quarantine`). ``list`` shows them (``grassd status``
+too); ``retry NAME`` puts one back into the inbox with a fresh attempt count, through the
+running daemon's control socket (it does it between two passes of its main loop), or, when no
+daemon runs, itself while holding the state directory's lock.
+"""
+
+from __future__ import annotations
+
+import json
+
+import click
+
+from grassd.daemon.cli.run import _CONFIG_HELP, _fmt_time, resolve_config
+
+
+@click.group("bundles")
+def bundles() -> None:
+    """Bundles quarantined after repeated interrupted attempts: list them, retry one."""
+
+
+@bundles.command("list")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), help=_CONFIG_HELP)
+@click.option("--state-dir", type=click.Path(file_okay=False), help="override the state directory")
+@click.option("--json", "as_json", is_flag=True, help="print JSON")
+def list_cmd(config_path: str | None, state_dir: str | None, as_json: bool) -> None:
+    """Quarantined bundles: id, upload name, attempts, since when (read from the state
+    database; works with or without a running daemon)."""
+    from grassd.daemon.errors import HistoryError
+    from grassd.daemon.runtime.service import STATE_DB
+    from grassd.daemon.store.history import History
+    from grassd.daemon.store.quarantine import quarantined
+
+    cfg = resolve_config(config_path, state_dir)
+    db = cfg.state_dir / STATE_DB
+    if not db.exists():
+        raise HistoryError(f"no state database at {db}")
+    with History(db) as h:
+        found = quarantined(h, cfg.light.inbox, cfg.state_dir)
+    if as_json:
+        click.echo(json.dumps([q.as_dict() for q in found], indent=2))
+        return
+    if not found:
+        click.echo("no quarantined bundles")
+    for q in found:
+        click.echo(f"{q.bundle}  {q.name}  {q.attempts} attempts, since {_fmt_time(q.since)}: "
+                   f"{q.reason}")
+
+
+@bundles.command("retry")
+@click.argument("bundle")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), help=_CONFIG_HELP)
+@click.option("--state-dir", type=click.Path(file_okay=False), help="override the state directory")
+def retry_cmd(bundle: str, config_path: str | None, state_dir: str | None) -> None:
+    """Put quarantined BUNDLE (its id, or its upload name) back into the inbox to run again."""
+    from grassd.daemon.errors import DaemonNotRunning
+    from grassd.daemon.runtime.control import request
+    from grassd.daemon.runtime.service import STATE_DB
+    from grassd.daemon.runtime.statelock import StateLock
+    from grassd.daemon.store.history import History
+    from grassd.daemon.store.ingest import Inbox
+    from grassd.daemon.store.quarantine import BundleRetryError, retry_request
+
+    cfg = resolve_config(config_path, state_dir)
+    try:
+        out = request(cfg.control_socket, {"cmd": "bundles_retry", "bundle": bundle},
+                      timeout_s=3600)["retry"]
+        how = "the daemon put"
+    except DaemonNotRunning:
+        with StateLock(cfg.state_dir, "grassd bundles retry"), \
+                History(cfg.state_dir / STATE_DB) as h:
+            out = retry_request(Inbox(cfg.light.inbox, cfg.state_dir, h,
+                                      tz=cfg.site.timezone), bundle)
+        if out["status"] != "ok":
+            raise BundleRetryError(out["error"]) from None
+        how = "put"
+    click.echo(f"{how} {out['bundle']} back into the inbox as {out['inbox_path']} (it had "
+               f"{out['attempts']} interrupted attempts); it runs as a new upload")
