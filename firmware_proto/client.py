@@ -96,6 +96,9 @@ class RetryPolicy:
     adaptive_chunks: bool = True
     min_chunk_bytes: int = 16
     chunk_grow_after: int = 2
+    #: tries in a row of a chunk that cannot shrink any further before the transfer restarts
+    #: (more than ``retries``: at 1 % byte errors a 16-byte chunk gets through 60 % of tries)
+    chunk_floor_tries: int = 8
 
 
 def _table_matches(status: TableStatus, table_id: int, crc: int) -> bool:
@@ -319,9 +322,12 @@ class ControllerClient:
     def _send_chunks(self, address: int, info: Info, tid: int, data: bytes) -> int:
         """Send ``data`` as TABLE_CHUNKs whose size follows the line (:mod:`~.line_quality`):
         a chunk without answer is sent again at half the size, from the same offset; only
-        where it cannot shrink further are its tries limited (``retries`` + 1 in a row, then
-        ControllerTimeout, and the push restarts from TABLE_BEGIN). Returns the size reached."""
-        q, limit = self.quality, max(1, min(info.max_chunk, self.policy.chunk_bytes))
+        where it cannot shrink further are its tries limited (``chunk_floor_tries`` in a row,
+        then ControllerTimeout, and the push restarts from TABLE_BEGIN; without adaptation
+        ``retries`` + 1 tries, as any request). Returns the size reached."""
+        p, q = self.policy, self.quality
+        limit = max(1, min(info.max_chunk, p.chunk_bytes))
+        floor_tries = p.chunk_floor_tries if p.adaptive_chunks else p.retries + 1  # as before
         offset = failed = 0
         while offset < len(data):
             full = q.chunk_size(limit)
@@ -329,14 +335,16 @@ class ControllerClient:
             try:
                 self._expect(address, TableChunk(tid, offset, data[offset:offset + size]), Ack,
                              retries=0)
-            except ControllerTimeout as exc:
+            except ControllerTimeout:
                 q.note_chunk(False, size, tail=size < full)
                 self.retransmissions += 1
                 smaller = min(q.chunk_size(limit), len(data) - offset) < size
                 failed = 0 if smaller else failed + 1
-                if failed > self.policy.retries:
-                    raise ControllerTimeout(f"{exc} ({failed} tries in a row at {size}-byte "
-                                            f"chunks)") from None
+                if failed >= floor_tries:
+                    raise ControllerTimeout(
+                        f"controller {address} on {self.port}: TABLE_CHUNK at offset {offset} "
+                        f"unanswered {failed} times in a row at {size}-byte chunks; check the "
+                        f"address, wiring and baud rate") from None
                 time.sleep(self._backoff(max(failed, 1)))
                 continue
             q.note_chunk(True, size, tail=size < full)
