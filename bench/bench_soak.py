@@ -32,10 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
-from grassd.daemon.config import load_default_config
-from grassd.daemon.control import request
+from grassd.daemon.config.settings import load_default_config
 from grassd.daemon.errors import DaemonNotRunning
-from grassd.daemon.sim_hardware import SimulatedHardware, hardware_toml
+from grassd.daemon.hardware.simulated import SimulatedHardware, hardware_toml
+from grassd.daemon.runtime.control import request
 from grassd.sim.hdri import write_exr
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -66,7 +66,8 @@ def test_quarantined_bundle_listed_and_retried_through_the_daemon_and_without(tm
                  "archived", d)
         [j] = _row(d, "poison")
         assert j.attempts == 1  # counted afresh
-        assert d.status()["quarantined"] == [] and d.status()["health"] == "ok"
+        assert d.status()["quarantined"] == []
+        wait_for(lambda: d.status()["health"] == "ok", 30, "its table on every controller", d)
         assert _grassd(d, "bundles", "list").stdout.strip() == "no quarantined bundles"
         assert d.stop() == 0
 

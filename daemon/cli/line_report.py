@@ -1,7 +1,7 @@
 """A serial line's quality in words, for ``grassd status``: an operator sees a cable going bad
 (requests retried, TABLE_CHUNKs cut short) before pushes start to fail.
 
-The numbers come from :meth:`grassd.daemon.fleet.Fleet.line_quality` (one
+The numbers come from :meth:`grassd.daemon.hardware.fleet.Fleet.line_quality` (one
 :meth:`~grassd.firmware_proto.line_quality.LineQuality.snapshot` per port) and are also in
 ``grassd status --json`` under ``lines``.
 """

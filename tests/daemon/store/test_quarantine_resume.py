@@ -5,11 +5,11 @@ and running the retry again completes it. A namesake in the inbox is refused."""
 from __future__ import annotations
 
 import pytest
-from robust_util import drop
+from daemon_harness import drop
 
-from grassd.daemon.history import History
-from grassd.daemon.ingest import Inbox
-from grassd.daemon.quarantine import (
+from grassd.daemon.store.history import History
+from grassd.daemon.store.ingest import Inbox
+from grassd.daemon.store.quarantine import (
     RETRY_PREFIX,
     BundleRetryError,
     quarantined,

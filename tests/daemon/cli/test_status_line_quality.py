@@ -5,10 +5,10 @@ host cut its chunks to; a clean bus as good. In the JSON under ``lines``, and in
 from __future__ import annotations
 
 import numpy as np
-from robust_util import after_first_bundle
+from daemon_harness import after_first_bundle
 
-from grassd.daemon.cli_run import _print_status
-from grassd.daemon.line_report import describe_line, line_verdict
+from grassd.daemon.cli.line_report import describe_line, line_verdict
+from grassd.daemon.cli.run import print_status
 from grassd.firmware_proto.faults import FaultInjector, FaultPlan
 
 
@@ -31,7 +31,7 @@ def test_status_reports_a_noisy_line_and_a_good_one(tmp_path, hw):
     assert line_verdict(lines[good]) == "good", lines[good]
     assert lines[good]["recent_failure_rate"] == 0.0
     out: list[str] = []
-    _print_status(st, echo=out.append)
+    print_status(st, echo=out.append)
     text = "\n".join(out)
     assert "serial lines:" in text
     assert describe_line(bad, lines[bad]) in text and "check the cable" in text
