@@ -9,8 +9,8 @@ different colour and brightness. Retention is set so that it keeps only a minute
 
 Every ``--every`` bundles it prints the daemon's resident memory (from /proc), its open file
 descriptors, the state directory's size, the database's size (with its WAL), the time of a
-status query over the control socket (what `grassd status` does) and the mean seconds per
-bundle over those K.
+status query over the control socket (what `grassd status` does; median of 5) and the mean
+seconds per bundle over those K.
 At the end it fits a line to each column after warm-up (the first 20 %) and prints the slope per
 1000 bundles: flat means no leak and no growth.
 
@@ -44,6 +44,7 @@ SKIES = 8  #: distinct tiny HDRIs the bundles cycle through
 START = datetime(2025, 1, 1, 6, 0, tzinfo=UTC)
 KEEP_S = 20.0  #: retention's keep_days, in seconds: at about 0.3 s a bundle, ~70 bundles
 WARM_UP = 0.2  #: fraction of the bundles left out of the fitted slopes
+STATUS_QUERIES = 5  #: status queries per printed row; their median is printed
 
 
 def _config(state: Path, cfg) -> str:
@@ -196,9 +197,12 @@ def main(argv: list[str] | None = None) -> int:
                 now = time.monotonic()
                 per = (now - last) / (1 if i == 0 else every)  # mean over the block
                 last = now
-                q0 = time.perf_counter()
-                st = status()
-                q_ms = (time.perf_counter() - q0) * 1e3
+                times = []
+                for _ in range(STATUS_QUERIES):
+                    q0 = time.perf_counter()
+                    st = status()
+                    times.append(time.perf_counter() - q0)
+                q_ms = float(np.median(times)) * 1e3
                 db = sum(p.stat().st_size for p in state.glob("state.db*"))
                 row = (i + 1, _rss_mib(proc.pid), _fds(proc.pid), _dir_bytes(state), db,
                        q_ms, per)
