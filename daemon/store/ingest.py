@@ -83,6 +83,7 @@ from grassd.daemon.config import schema
 from grassd.daemon.errors import IngestError, ManifestError
 from grassd.daemon.store.atomic import atomic_write_text, fsync_dir
 from grassd.daemon.store.history import History
+from grassd.daemon.store.outcomes import QUARANTINED_PREFIX
 from grassd.sim.errors import LightingError
 from grassd.sim.light_input import LightInput
 from grassd.sim.lighting import MAX_LUX
@@ -99,9 +100,6 @@ REASON_FILE = "reason.txt"
 STUCK_RETRY_S = 60.0
 STUCK_RETRY_MAX_S = 3600.0
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
-#: Start of the reason of a bundle quarantined after ``max_attempts`` interrupted attempts
-#: (listed and retried by :mod:`grassd.daemon.store.quarantine`).
-ABANDONED = "abandoned after "
 _SAFE_RE = re.compile(r"[^A-Za-z0-9._-]+")
 
 
@@ -631,9 +629,9 @@ class Inbox:
             self.history.journal_finish(h, "archived", run_id=done.id)
             return None
         if attempts >= self.max_attempts:
-            self._finish_dir(d, bid, h, f"{ABANDONED}{attempts} attempts that did not finish "
-                                        "(the daemon stopped or crashed each time); `grassd "
-                                        f"bundles retry {bid}` runs it again")
+            self._finish_dir(d, bid, h, f"{QUARANTINED_PREFIX} {attempts} attempts that did not "
+                                        "finish (the daemon stopped or crashed each time); "
+                                        f"`grassd bundles retry {bid}` runs it again")
             return None
         try:
             return self._load_claimed(d, bid, name, h)

@@ -28,7 +28,8 @@ from pathlib import Path
 
 from grassd.daemon.errors import DaemonError
 from grassd.daemon.store.history import History
-from grassd.daemon.store.ingest import ABANDONED, REASON_FILE, Inbox
+from grassd.daemon.store.ingest import REASON_FILE, Inbox
+from grassd.daemon.store.outcomes import outcome
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +65,7 @@ def quarantined(history: History, inbox_dir: Path, state_dir: Path) -> list[Quar
     out, seen = [], set()
     rejected = state_dir / "rejected"
     for j in history.journal("rejected"):
-        if not (j.reason or "").startswith(ABANDONED):
+        if outcome(j.state, j.reason) != "quarantined":
             continue
         if (rejected / j.bundle_id).is_dir() \
                 or (inbox_dir / f"{RETRY_PREFIX}{j.bundle_id}").is_dir():
