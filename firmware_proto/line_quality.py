@@ -18,6 +18,10 @@ from __future__ import annotations
 import threading
 from collections import deque
 
+#: Share of recent request tries without an answer from which a line counts as noisy: a clean
+#: line loses none (a controller rebooting now and then costs a few).
+NOISY_RATE = 0.02
+
 
 class LineQuality:
     """Adaptive chunk size and request statistics of one serial line (thread-safe reads).
@@ -95,6 +99,12 @@ class LineQuality:
         """Record the chunk size (bytes) a transfer ended with and the tries it took."""
         with self._lock:
             self.last_push_chunk, self.last_push_tries = chunk, tries
+
+    def noisy(self) -> bool:
+        """True when at least :data:`NOISY_RATE` of the recent request tries got no answer."""
+        with self._lock:
+            n = len(self._recent)
+            return n > 0 and self._recent.count(False) >= NOISY_RATE * n
 
     def snapshot(self) -> dict[str, object]:
         """Counters for status: ``chunk_bytes`` (current adaptive size), ``max_chunk_bytes``

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-#: Fraction of recent request tries without an answer from which a line is called noisy; a
-#: clean line loses none (a controller rebooting now and then costs a few).
-NOISY_RATE = 0.02
-#: ... and from which it is called failing: most frames are damaged.
+from grassd.firmware_proto.line_quality import NOISY_RATE
+
+#: Share of recent request tries without an answer from which a line is called failing (from
+#: NOISY_RATE on it is noisy): most frames are damaged.
 FAILING_RATE = 0.5
 
 

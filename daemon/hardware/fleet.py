@@ -118,6 +118,12 @@ class Fleet:
             self._clients[c.port] = client
         return client
 
+    def _probe(self, c: ControllerConfig) -> int:
+        """Retries of a status read: ``probe_retries`` on a clean line, the policy's
+        ``retries`` on a noisy one, so that noise alone rarely makes a controller look gone."""
+        noisy = self._client(c).quality.noisy()
+        return max(self.probe_retries, self.policy.retries) if noisy else self.probe_retries
+
     def close(self) -> None:
         """Close every serial port."""
         with self._lock:
@@ -138,7 +144,7 @@ class Fleet:
             for c in self.controllers:
                 try:
                     out.append((c, self._client(c).read_status(c.address,
-                                                               retries=self.probe_retries), None))
+                                                               retries=self._probe(c)), None))
                 except ProtocolError as exc:
                     out.append((c, None, str(exc)))
         return out
@@ -149,7 +155,7 @@ class Fleet:
         holds the push back); returns the report and what it reported before the attempt."""
         client = self._client(c)
         try:
-            status = client.read_status(c.address, retries=self.probe_retries)
+            status = client.read_status(c.address, retries=self._probe(c))
         except TransientError as exc:
             r = ControllerReport(c.name, False, False, False, None, None, str(exc))
             return self._held(r, ("unreachable",), (table_id, crc), hold), ("unreachable",)

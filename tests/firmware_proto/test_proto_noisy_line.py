@@ -43,6 +43,10 @@ def test_line_quality_halves_on_failure_and_doubles_after_clean_chunks():
     assert q.chunk_size(256) == 16
     snap = q.snapshot()
     assert snap["smallest_chunk_bytes"] == 16 and snap["shrinks"] == 5 and snap["grows"] == 1
+    assert q.noisy() is False  # no request tries counted yet
+    for answered in [True] * 97 + [False] * 3:
+        q.note_try(answered)
+    assert q.noisy() and q.snapshot()["recent_failure_rate"] == 0.03
     fixed = LineQuality(max_bytes=256, min_bytes=16, grow_after=2, adaptive=False)
     fixed.note_chunk(False, 256)
     assert fixed.chunk_size(256) == 256
