@@ -12,13 +12,20 @@ the sensor does not answer in time or answers with a Modbus exception, and
 :class:`~grassd.daemon.errors.LuxSensorError` when it answers with a Modbus exception (wrong
 unit, register or function code: not retried) or a reading that is not a usable illuminance.
 Unreachable and silent attempts are retried ``retries`` times with a short backoff.
+
+An RS-485 (RTU) bus has one master: every :class:`LuxSensor` on one serial port in this process
+(the daemon's, kept open, and the capture station's shaded and unshaded one-shot reads) shares
+one client and takes its transactions one at a time (:class:`_RtuBus`). A serial port opened a
+second time fails, and two requests on the line at once garble both answers.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import struct
+import threading
 import time
 from collections.abc import Sequence
 
@@ -72,6 +79,39 @@ def encode_lux(lux: float, cfg: ModbusConfig) -> list[int]:
     return regs
 
 
+class _RtuBus:
+    """The Modbus RTU client of one serial port, shared by every :class:`LuxSensor` on it in
+    this process (``users`` of them), with the lock that keeps one transaction on the bus."""
+
+    _open: dict[str, _RtuBus] = {}
+    _guard = threading.Lock()
+
+    def __init__(self, cfg: ModbusConfig) -> None:
+        self.client = ModbusSerialClient(cfg.serial_port, baudrate=cfg.baud,
+                                         timeout=cfg.timeout_s, retries=0)
+        self.lock = threading.RLock()
+        self.users = 0
+
+    @classmethod
+    def join(cls, cfg: ModbusConfig) -> _RtuBus:
+        """The bus of ``cfg.serial_port``, opened by its first user (its baud rate and timeout
+        hold for all: one bus, one line speed)."""
+        with cls._guard:
+            bus = cls._open.get(cfg.serial_port)
+            if bus is None:
+                bus = cls._open[cfg.serial_port] = cls(cfg)
+            bus.users += 1
+            return bus
+
+    def leave(self, port: str) -> None:
+        """One user less; the last one closes the port."""
+        with self._guard, self.lock:
+            self.users -= 1
+            if self.users <= 0:
+                self.client.close()
+                self._open.pop(port, None)
+
+
 class LuxSensor:
     """A Modbus lux sensor described by ``cfg``; :meth:`read_lux` returns lux.
 
@@ -82,6 +122,7 @@ class LuxSensor:
     def __init__(self, cfg: ModbusConfig) -> None:
         self.cfg = cfg
         self._client: ModbusTcpClient | ModbusSerialClient | None = None
+        self._bus: _RtuBus | None = None  # RTU: the port's shared client and lock
         #: outcome of the last :meth:`read_lux` (None: none yet) and when the sensor last gave
         #: a reading (epoch s), for the operator's metrics
         self.last_ok: bool | None = None
@@ -98,13 +139,29 @@ class LuxSensor:
         c = self.cfg
         if c.mode == "tcp":
             return ModbusTcpClient(c.host, port=c.port, timeout=c.timeout_s, retries=0)
-        return ModbusSerialClient(c.serial_port, baudrate=c.baud, timeout=c.timeout_s, retries=0)
+        self._bus = _RtuBus.join(c)
+        return self._bus.client
 
     def close(self) -> None:
-        """Close the connection (reopened by the next read)."""
-        if self._client is not None:
+        """Close the connection (reopened by the next read); on a shared RTU bus, the port
+        closes with its last user."""
+        if self._bus is not None:
+            self._bus.leave(self.cfg.serial_port)
+        elif self._client is not None:
             self._client.close()
-            self._client = None
+        self._client, self._bus = None, None
+
+    def _reset(self) -> None:
+        """After a failed request: drop the connection, so that the next request opens it
+        afresh (on an RTU bus, for every sensor on it; called holding the bus's lock)."""
+        if self._bus is not None:
+            self._bus.client.close()
+        else:
+            self.close()
+
+    def _transaction(self) -> contextlib.AbstractContextManager:
+        """Held for one request and its answer: the RTU bus's lock (TCP: nothing)."""
+        return self._bus.lock if self._bus is not None else contextlib.nullcontext()
 
     def __enter__(self) -> LuxSensor:
         return self
@@ -113,11 +170,16 @@ class LuxSensor:
         self.close()
 
     def _read_once(self) -> list[int]:
-        c = self.cfg
         if self._client is None:
             self._client = self._make_client()
+        with self._transaction():
+            return self._request()
+
+    def _request(self) -> list[int]:
+        c = self.cfg
+        assert self._client is not None
         if not self._client.connected and not self._client.connect():
-            self.close()
+            self._reset()
             raise LuxSensorUnreachable(
                 f"lux sensor at {self.endpoint} is unreachable (connection refused or port "
                 "missing): check [light.modbus] host/port or serial_port, wiring and power")
@@ -126,16 +188,16 @@ class LuxSensor:
         try:
             resp = read(c.register, count=c.words, device_id=c.unit)
         except ConnectionException as exc:
-            self.close()
+            self._reset()
             raise LuxSensorUnreachable(f"lux sensor at {self.endpoint} dropped the connection: "
                                        f"{exc}") from None
         except ModbusIOException:
-            self.close()
+            self._reset()
             raise LuxSensorSilent(
                 f"lux sensor at {self.endpoint} did not answer within {c.timeout_s:g} s: check "
                 "unit id, baud rate and A/B wiring") from None
         except ModbusException as exc:
-            self.close()
+            self._reset()
             raise LuxSensorSilent(f"lux sensor at {self.endpoint} failed: {exc}") from None
         if resp.isError():
             code = getattr(resp, "exception_code", "?")

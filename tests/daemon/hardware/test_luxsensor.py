@@ -111,3 +111,35 @@ def test_rtu_over_null_modem_ptys():
 def test_rtu_missing_port_is_unreachable(tmp_path):
     with pytest.raises(LuxSensorUnreachable, match="rtu"):
         read_lux(cfg(mode="rtu", serial_port=str(tmp_path / "ttyUSB9"), retries=0))
+
+
+def test_rtu_bus_shared_by_two_readers_in_one_process():
+    """The daemon's sensor (a connection kept open) and the capture station's one-shot reads
+    share one RS-485 bus: a Modbus RTU bus has one master, so their transactions must not
+    overlap. Two threads read 40 times each over the same null-modem pty; every reading is
+    right and none times out."""
+    import threading
+
+    c = cfg(baud=115200, word_order="little", value_type="float", scale=1.0, timeout_s=0.5,
+            retries=0)
+    with SimLuxSensor(c, 777.5, rtu=True) as sim:
+        errors: list[BaseException] = []
+        readings: list[float] = []
+
+        def reader(kept_open: bool) -> None:
+            try:
+                if kept_open:
+                    with LuxSensor(sim.config) as sensor:
+                        readings.extend(sensor.read_lux() for _ in range(40))
+                else:
+                    readings.extend(read_lux(sim.config) for _ in range(40))
+            except BaseException as exc:  # noqa: BLE001 - reported by the assertion below
+                errors.append(exc)
+
+        threads = [threading.Thread(target=reader, args=(k,)) for k in (True, False)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(60)
+        assert not errors, errors
+        assert readings == [777.5] * 80
