@@ -37,6 +37,7 @@ from grassd.firmware_proto.firmware import ControllerConfig, simulated_config
 from grassd.firmware_proto.framing import FrameReader
 from grassd.firmware_proto.messages import TABLE_BYTES, Hello, TableKind
 from grassd.firmware_proto.native_build import FirmwareUnavailable, mps2_image
+from grassd.firmware_proto.pty_line import LinePacer, close_fds, open_raw_pty
 from grassd.firmware_proto.tables import table_from_bytes
 
 #: Where the firmware reads its configuration (ports/mps2/mps2.ld, .fwconfig).
@@ -282,7 +283,7 @@ class QemuBus:
         self._requests: list[tuple[float, threading.Event]] = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._line_free = 0.0
+        self._pacer = LinePacer(baud)
 
     @property
     def path(self) -> str:
@@ -310,33 +311,11 @@ class QemuBus:
         return self
 
     def _plug(self) -> None:
-        master, slave = os.openpty()
-        tty.setraw(slave)
-        os.set_blocking(master, False)
-        self._master, self._slave = master, slave
-        self.device = os.ttyname(slave)
-        if self.link_path is not None:
-            tmp = self.link_path.with_name(self.link_path.name + ".new")
-            tmp.unlink(missing_ok=True)
-            tmp.symlink_to(self.device)
-            os.replace(tmp, self.link_path)
+        self._master, self._slave, self.device = open_raw_pty(self.link_path)
 
     def _close_pty(self) -> None:
-        for fd in (self._master, self._slave):
-            if fd >= 0:
-                try:
-                    os.close(fd)
-                except OSError:
-                    pass
+        close_fds(self._master, self._slave)
         self._master = self._slave = -1
-
-    def _pace(self, n: int) -> None:
-        if not self.baud:
-            return
-        now = time.monotonic()
-        self._line_free = max(now, self._line_free) + n * 10 / self.baud
-        if self._line_free > now:
-            time.sleep(self._line_free - now)
 
     def _relay(self) -> None:
         fds = {inst.fd for inst in self._instances.values()}
@@ -362,7 +341,7 @@ class QemuBus:
                     continue
                 if not data:
                     continue
-                self._pace(len(data))
+                self._pacer.pace(len(data))
                 targets = fds if fd == self._master else [self._master]
                 for t in targets:
                     if t < 0:
