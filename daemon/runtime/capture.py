@@ -51,6 +51,7 @@ from grassd.calib.errors import (
 )
 from grassd.daemon.config.capture import CaptureConfig
 from grassd.daemon.config.settings import Config, ModbusConfig
+from grassd.daemon.config.toml_text import toml_value
 from grassd.daemon.errors import BracketUnusable, CaptureError, LuxSensorError
 from grassd.daemon.hardware.bracket import BracketPlan, capture_bracket, load_codes
 from grassd.daemon.hardware.camera import CameraInfo, OscClient
@@ -70,23 +71,13 @@ class CaptureResult:
     manifest: dict[str, Any]
 
 
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int | float):
-        return repr(float(v)) if isinstance(v, float) else str(v)
-    if isinstance(v, list):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    return json.dumps(str(v))  # a TOML basic string is a JSON string
-
-
 def manifest_toml(manifest: dict[str, Any]) -> str:
     """TOML text of a bundle manifest: top-level keys, then the ``[capture]`` table."""
-    lines = [f"{k} = {_toml_value(v)}" for k, v in manifest.items() if not isinstance(v, dict)]
+    lines = [f"{k} = {toml_value(v)}" for k, v in manifest.items() if not isinstance(v, dict)]
     for name, table in manifest.items():
         if isinstance(table, dict):
             lines.append(f"\n[{name}]")
-            lines += [f"{k} = {_toml_value(v)}" for k, v in table.items()]
+            lines += [f"{k} = {toml_value(v)}" for k, v in table.items()]
     return "\n".join(lines) + "\n"
 
 
