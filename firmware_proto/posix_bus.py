@@ -19,26 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-from grassd.firmware_proto.eeprom import BankStore
+from grassd.firmware_proto.eeprom import active_table_in
 from grassd.firmware_proto.errors import SimulatorError
 from grassd.firmware_proto.firmware import ControllerConfig, simulated_config
-from grassd.firmware_proto.messages import TABLE_BYTES, TableKind
 from grassd.firmware_proto.native_build import posix_firmware
-from grassd.firmware_proto.tables import table_from_bytes
 
 #: Exit status of a posix firmware process that lost power at ``--power-cut-at``.
 EXIT_POWER_CUT = 3
-
-
-class _StorageImage:
-    """The bytes of a storage file, as :class:`~.eeprom.BankStore` reads them."""
-
-    def __init__(self, path: Path) -> None:
-        self.data = path.read_bytes()
-        self.size = len(self.data)
-
-    def read(self, offset: int, n: int) -> bytes:
-        return self.data[offset:offset + n]
 
 
 class _Counters:
@@ -70,12 +57,7 @@ class NativeController:
 
     def active_table(self) -> np.ndarray | None:
         """The table the controller boots with (um): the valid bank of largest generation."""
-        store = BankStore(_StorageImage(self.storage_path), self.config.capacity)  # type: ignore[arg-type]
-        bank, header = store.select_active()
-        if header is None:
-            return None
-        data = store.read_data(bank, header.n_tables * TABLE_BYTES)
-        return table_from_bytes(data, header.n_tables, TableKind(header.kind))
+        return active_table_in(self.storage_path.read_bytes(), self.config.capacity)
 
 
 class PosixBus:

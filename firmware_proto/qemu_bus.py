@@ -31,14 +31,13 @@ from pathlib import Path
 import numpy as np
 
 from grassd.firmware_proto.codec import Frame, encode_frame
-from grassd.firmware_proto.eeprom import BankStore
+from grassd.firmware_proto.eeprom import BankStore, active_table_in
 from grassd.firmware_proto.errors import SimulatorError
 from grassd.firmware_proto.firmware import ControllerConfig, simulated_config
 from grassd.firmware_proto.framing import FrameReader
-from grassd.firmware_proto.messages import TABLE_BYTES, Hello, TableKind
+from grassd.firmware_proto.messages import Hello
 from grassd.firmware_proto.native_build import FirmwareUnavailable, mps2_image
 from grassd.firmware_proto.pty_line import LinePacer, close_fds, open_raw_pty
-from grassd.firmware_proto.tables import table_from_bytes
 
 #: Where the firmware reads its configuration (ports/mps2/mps2.ld, .fwconfig).
 CONFIG_ADDR = 0x203FFF00
@@ -226,20 +225,7 @@ class QemuController:
     def active_table(self) -> np.ndarray | None:
         """The table the controller boots with (um), read from its RAM storage."""
         data = self._dump("fw_storage", BankStore.required_size(self.config.capacity))
-
-        class Image:
-            size = len(data)
-
-            @staticmethod
-            def read(offset: int, n: int) -> bytes:
-                return data[offset:offset + n]
-
-        store = BankStore(Image(), self.config.capacity)  # type: ignore[arg-type]
-        bank, header = store.select_active()
-        if header is None:
-            return None
-        raw = store.read_data(bank, header.n_tables * TABLE_BYTES)
-        return table_from_bytes(raw, header.n_tables, TableKind(header.kind))
+        return active_table_in(data, self.config.capacity)
 
 
 class QemuBus:
