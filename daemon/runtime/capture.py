@@ -16,8 +16,8 @@ One capture (:meth:`Station.capture_once`):
 4. lux from ``[light.modbus]`` right after the bracket (or ``lux`` given); with a shaded
    sensor, ambient = shaded and sun = unshaded - shaded;
 5. the bundle: a directory written under a hidden name in the inbox (the inbox ignores
-   names starting with ``.``), manifest last, fsynced, then renamed to its final name in one
-   ``rename(2)``. A failure at any step leaves nothing in the inbox.
+   names starting with ``.``), every file fsynced, manifest last, then renamed to its final
+   name in one ``rename(2)``. A failure at any step leaves nothing in the inbox.
 
 Failures are typed (:class:`~grassd.daemon.errors.CaptureError` and its subclasses,
 :class:`~grassd.daemon.errors.LuxSensorError`);
@@ -55,7 +55,12 @@ from grassd.daemon.config.toml_text import toml_value
 from grassd.daemon.errors import BracketUnusable, CaptureError, LuxSensorError
 from grassd.daemon.hardware.bracket import BracketPlan, capture_bracket, load_codes
 from grassd.daemon.hardware.camera import CameraInfo, OscClient
-from grassd.daemon.store.atomic import atomic_write_json, atomic_write_text, fsync_dir
+from grassd.daemon.store.atomic import (
+    atomic_write_json,
+    atomic_write_text,
+    fsync_dir,
+    fsync_file,
+)
 
 log = logging.getLogger(__name__)
 
@@ -251,6 +256,7 @@ class Station:
             }
             partial.mkdir(parents=True)
             write_exr(partial / HDRI_NAME, merged.radiance)
+            fsync_file(partial / HDRI_NAME)  # write_exr renames but does not fsync
             atomic_write_text(partial / "manifest.toml", manifest_toml(manifest))
             fsync_dir(partial)
             final = self.inbox / name
