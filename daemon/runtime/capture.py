@@ -61,6 +61,7 @@ from grassd.daemon.store.atomic import (
     fsync_dir,
     fsync_file,
 )
+from grassd.daemon.timestamps import utc_iso
 
 log = logging.getLogger(__name__)
 
@@ -171,8 +172,7 @@ class Station:
         atomic_write_json(path, {"camera": info.key, "iso": self.cfg.iso,
                                  "white_balance": self.cfg.white_balance,
                                  "method": "debevec1997", "recovered_at": now,
-                                 "recovered_at_iso": datetime.fromtimestamp(now, UTC)
-                                 .isoformat(timespec="seconds"),
+                                 "recovered_at_iso": utc_iso(now),
                                  "response": resp.tolist()})
         return resp, "recovered from this bracket"
 
