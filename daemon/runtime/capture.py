@@ -124,11 +124,14 @@ class Station:
                                 command_timeout_s=cfg.command_timeout_s)
         self.captures = 0
         self.last_error: str | None = None
-        self._clean_leftovers()
+        self._cleaned = False
 
     def _clean_leftovers(self) -> None:
         """Remove what a capture cut short by a crash or power cut left behind: hidden
-        partial bundles in the inbox (the inbox ignores them) and work directories."""
+        partial bundles in the inbox (the inbox ignores them) and work directories. Done at
+        this station's first capture, not when it is made: a station replacing another (a
+        reload) is made while the other may still be capturing into the same places."""
+        self._cleaned = True
         with contextlib.suppress(OSError):
             for p in self.inbox.glob(".capture-*.partial"):
                 log.warning("removing the partial bundle %s of an interrupted capture", p)
@@ -277,6 +280,8 @@ class Station:
                 sleep=time.sleep) -> CaptureResult:
         """:meth:`capture_once`, retried ``retries`` times after a typed failure with backoff
         ``retry_s``, doubling; raises the last error. ``stop`` ends the waiting early."""
+        if not self._cleaned:
+            self._clean_leftovers()
         delay = self.cfg.retry_s
         for attempt in range(self.cfg.retries + 1):
             try:
