@@ -21,7 +21,7 @@ import numpy as np
 
 from grassd.firmware_proto.eeprom import active_table_in
 from grassd.firmware_proto.errors import SimulatorError
-from grassd.firmware_proto.firmware import ControllerConfig, simulated_config
+from grassd.firmware_proto.firmware import ControllerConfig, bus_pixels, simulated_config
 from grassd.firmware_proto.native_build import posix_firmware
 
 #: Exit status of a posix firmware process that lost power at ``--power-cut-at``.
@@ -75,11 +75,7 @@ class PosixBus:
                  link_path: str | Path | None = None,
                  max_chunk: int = ControllerConfig.max_chunk, power_cut_at: int | None = None,
                  power_cut_keep: str = "half", baud: int | None = None) -> None:
-        if not addresses:
-            raise SimulatorError("a posix firmware bus needs at least one controller")
-        if len(set(addresses)) != len(addresses):
-            raise SimulatorError(f"two controllers on one bus share an address: {list(addresses)}")
-        pixels = [n_pixels] * len(addresses) if isinstance(n_pixels, int) else list(n_pixels)
+        pixels = bus_pixels("a posix firmware bus", addresses, n_pixels)
         self.state_dir = Path(state_dir)
         self.link_path = Path(link_path) if link_path is not None else None
         self.max_chunk = max_chunk

@@ -33,7 +33,7 @@ import numpy as np
 from grassd.firmware_proto.codec import Frame, encode_frame
 from grassd.firmware_proto.eeprom import BankStore, active_table_in
 from grassd.firmware_proto.errors import SimulatorError
-from grassd.firmware_proto.firmware import ControllerConfig, simulated_config
+from grassd.firmware_proto.firmware import ControllerConfig, bus_pixels, simulated_config
 from grassd.firmware_proto.framing import FrameReader
 from grassd.firmware_proto.messages import Hello
 from grassd.firmware_proto.native_build import FirmwareUnavailable, mps2_image
@@ -243,11 +243,7 @@ class QemuBus:
                  link_path: str | Path | None = None,
                  baud: int | None = None, max_chunk: int = ControllerConfig.max_chunk,
                  qemu_args: Sequence[str] = ()) -> None:
-        if not addresses:
-            raise SimulatorError("a QEMU bus needs at least one controller")
-        if len(set(addresses)) != len(addresses):
-            raise SimulatorError(f"two controllers on one bus share an address: {list(addresses)}")
-        pixels = [n_pixels] * len(addresses) if isinstance(n_pixels, int) else list(n_pixels)
+        pixels = bus_pixels("a QEMU bus", addresses, n_pixels)
         if max(pixels) > 16:
             raise SimulatorError(f"the mps2-an500 image drives at most 16 pixels, "
                                  f"got {max(pixels)}")
