@@ -13,6 +13,7 @@ in all channels, which ``merge_linear`` treats as clipped.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -29,20 +30,22 @@ SATURATION: float = 0.98
 
 def saturated_texels(path: str | Path) -> NDArray[np.bool_]:
     """(H / 2, W / 2) bool: the 2 x 2 Bayer blocks holding a saturated photosite (one per
-    texel of a half-size development)."""
+    texel of a half-size development). Compared in the raw integers (a photosite is saturated
+    at or above the integer ceiling of the threshold), block by block, without a float copy of
+    the sensor (a 27 Mpx THETA Z1 frame would take 210 MB)."""
     import rawpy
 
     try:
         with rawpy.imread(str(path)) as raw:
-            data = raw.raw_image_visible.astype(np.float64)
             black = float(np.mean(raw.black_level_per_channel))
-            white = float(raw.white_level)
+            limit = math.ceil(black + SATURATION * (float(raw.white_level) - black))
+            data = raw.raw_image_visible
+            h2, w2 = data.shape[0] - data.shape[0] % 2, data.shape[1] - data.shape[1] % 2
+            d = data[:h2, :w2]
+            return ((d[0::2, 0::2] >= limit) | (d[0::2, 1::2] >= limit)
+                    | (d[1::2, 0::2] >= limit) | (d[1::2, 1::2] >= limit))
     except (rawpy.LibRawError, OSError, ValueError) as exc:
         raise RawReadError(f"{path} is not a RAW file LibRaw can open ({exc})") from exc
-    sat = data >= black + SATURATION * (white - black)
-    h, w = sat.shape
-    h2, w2 = h - h % 2, w - w % 2
-    return sat[:h2, :w2].reshape(h2 // 2, 2, w2 // 2, 2).any(axis=(1, 3))
 
 
 def develop_bracket(paths: Sequence[str | Path]) -> list[NDArray[np.float32]]:

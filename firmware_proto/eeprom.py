@@ -17,9 +17,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from grassd.firmware_proto.crc import crc32_iso_hdlc
 from grassd.firmware_proto.errors import SimulatorError
-from grassd.firmware_proto.messages import TABLE_BYTES
+from grassd.firmware_proto.messages import TABLE_BYTES, TableKind
+from grassd.firmware_proto.tables import table_from_bytes
 
 #: Header magic "GRT1" read as a little-endian u32.
 BANK_MAGIC = 0x31545247
@@ -154,3 +157,27 @@ class BankStore:
     def write_header(self, bank: int, header: BankHeader) -> None:
         """Write the header: the single write that makes a staged bank the active one."""
         self.eeprom.write(self._base(bank), header.pack())
+
+
+class StorageImage:
+    """Storage bytes read back from outside a controller (the posix firmware's file, a RAM
+    dump of the QEMU image), read only, as :class:`BankStore` reads an :class:`Eeprom`."""
+
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+        self.size = len(data)
+
+    def read(self, offset: int, n: int) -> bytes:
+        """``n`` bytes at ``offset``."""
+        return self.data[offset:offset + n]
+
+
+def active_table_in(data: bytes, capacity: int) -> np.ndarray | None:
+    """The table (um) a controller whose storage holds ``data`` (two banks of ``capacity``
+    tables) boots with: that of the valid bank of largest generation; None without one."""
+    store = BankStore(StorageImage(data), capacity)  # type: ignore[arg-type]
+    bank, header = store.select_active()
+    if bank is None or header is None:
+        return None
+    raw = store.read_data(bank, header.n_tables * TABLE_BYTES)
+    return table_from_bytes(raw, header.n_tables, TableKind(header.kind))

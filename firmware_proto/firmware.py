@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -90,6 +90,22 @@ def simulated_config(address: int, **fields: object) -> ControllerConfig:
     """The configuration of simulated controller ``address`` (model, posix or QEMU): uid
     ``SIM_UID_BASE + address``, other fields as given, else ControllerConfig's defaults."""
     return ControllerConfig(address=address, uid=SIM_UID_BASE + address, **fields)
+
+
+def bus_pixels(what: str, addresses: Sequence[int],
+               n_pixels: int | Sequence[int]) -> list[int]:
+    """Check the controller ``addresses`` of one simulated bus (``what``, e.g. "a QEMU bus":
+    at least one, all distinct) and return the pixel count of each: ``n_pixels`` is one value
+    for all or one per address. Raises :class:`SimulatorError`."""
+    if not addresses:
+        raise SimulatorError(f"{what} needs at least one controller")
+    if len(set(addresses)) != len(addresses):
+        raise SimulatorError(f"two controllers on one bus share an address: {list(addresses)}")
+    pixels = [n_pixels] * len(addresses) if isinstance(n_pixels, int) else list(n_pixels)
+    if len(pixels) != len(addresses):
+        raise SimulatorError(f"{len(pixels)} pixel counts for {len(addresses)} controllers: "
+                             "give one for all or one per address")
+    return pixels
 
 
 @dataclass

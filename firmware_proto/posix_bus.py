@@ -19,26 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-from grassd.firmware_proto.eeprom import BankStore
+from grassd.firmware_proto.eeprom import active_table_in
 from grassd.firmware_proto.errors import SimulatorError
-from grassd.firmware_proto.firmware import ControllerConfig, simulated_config
-from grassd.firmware_proto.messages import TABLE_BYTES, TableKind
+from grassd.firmware_proto.firmware import ControllerConfig, bus_pixels, simulated_config
 from grassd.firmware_proto.native_build import posix_firmware
-from grassd.firmware_proto.tables import table_from_bytes
 
 #: Exit status of a posix firmware process that lost power at ``--power-cut-at``.
 EXIT_POWER_CUT = 3
-
-
-class _StorageImage:
-    """The bytes of a storage file, as :class:`~.eeprom.BankStore` reads them."""
-
-    def __init__(self, path: Path) -> None:
-        self.data = path.read_bytes()
-        self.size = len(self.data)
-
-    def read(self, offset: int, n: int) -> bytes:
-        return self.data[offset:offset + n]
 
 
 class _Counters:
@@ -70,12 +57,7 @@ class NativeController:
 
     def active_table(self) -> np.ndarray | None:
         """The table the controller boots with (um): the valid bank of largest generation."""
-        store = BankStore(_StorageImage(self.storage_path), self.config.capacity)  # type: ignore[arg-type]
-        bank, header = store.select_active()
-        if header is None:
-            return None
-        data = store.read_data(bank, header.n_tables * TABLE_BYTES)
-        return table_from_bytes(data, header.n_tables, TableKind(header.kind))
+        return active_table_in(self.storage_path.read_bytes(), self.config.capacity)
 
 
 class PosixBus:
@@ -93,11 +75,7 @@ class PosixBus:
                  link_path: str | Path | None = None,
                  max_chunk: int = ControllerConfig.max_chunk, power_cut_at: int | None = None,
                  power_cut_keep: str = "half", baud: int | None = None) -> None:
-        if not addresses:
-            raise SimulatorError("a posix firmware bus needs at least one controller")
-        if len(set(addresses)) != len(addresses):
-            raise SimulatorError(f"two controllers on one bus share an address: {list(addresses)}")
-        pixels = [n_pixels] * len(addresses) if isinstance(n_pixels, int) else list(n_pixels)
+        pixels = bus_pixels("a posix firmware bus", addresses, n_pixels)
         self.state_dir = Path(state_dir)
         self.link_path = Path(link_path) if link_path is not None else None
         self.max_chunk = max_chunk

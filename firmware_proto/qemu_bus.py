@@ -31,13 +31,13 @@ from pathlib import Path
 import numpy as np
 
 from grassd.firmware_proto.codec import Frame, encode_frame
-from grassd.firmware_proto.eeprom import BankStore
+from grassd.firmware_proto.eeprom import BankStore, active_table_in
 from grassd.firmware_proto.errors import SimulatorError
-from grassd.firmware_proto.firmware import ControllerConfig, simulated_config
+from grassd.firmware_proto.firmware import ControllerConfig, bus_pixels, simulated_config
 from grassd.firmware_proto.framing import FrameReader
-from grassd.firmware_proto.messages import TABLE_BYTES, Hello, TableKind
+from grassd.firmware_proto.messages import Hello
 from grassd.firmware_proto.native_build import FirmwareUnavailable, mps2_image
-from grassd.firmware_proto.tables import table_from_bytes
+from grassd.firmware_proto.pty_line import LinePacer, close_fds, open_raw_pty
 
 #: Where the firmware reads its configuration (ports/mps2/mps2.ld, .fwconfig).
 CONFIG_ADDR = 0x203FFF00
@@ -225,20 +225,7 @@ class QemuController:
     def active_table(self) -> np.ndarray | None:
         """The table the controller boots with (um), read from its RAM storage."""
         data = self._dump("fw_storage", BankStore.required_size(self.config.capacity))
-
-        class Image:
-            size = len(data)
-
-            @staticmethod
-            def read(offset: int, n: int) -> bytes:
-                return data[offset:offset + n]
-
-        store = BankStore(Image(), self.config.capacity)  # type: ignore[arg-type]
-        bank, header = store.select_active()
-        if header is None:
-            return None
-        raw = store.read_data(bank, header.n_tables * TABLE_BYTES)
-        return table_from_bytes(raw, header.n_tables, TableKind(header.kind))
+        return active_table_in(data, self.config.capacity)
 
 
 class QemuBus:
@@ -256,11 +243,7 @@ class QemuBus:
                  link_path: str | Path | None = None,
                  baud: int | None = None, max_chunk: int = ControllerConfig.max_chunk,
                  qemu_args: Sequence[str] = ()) -> None:
-        if not addresses:
-            raise SimulatorError("a QEMU bus needs at least one controller")
-        if len(set(addresses)) != len(addresses):
-            raise SimulatorError(f"two controllers on one bus share an address: {list(addresses)}")
-        pixels = [n_pixels] * len(addresses) if isinstance(n_pixels, int) else list(n_pixels)
+        pixels = bus_pixels("a QEMU bus", addresses, n_pixels)
         if max(pixels) > 16:
             raise SimulatorError(f"the mps2-an500 image drives at most 16 pixels, "
                                  f"got {max(pixels)}")
@@ -282,7 +265,7 @@ class QemuBus:
         self._requests: list[tuple[float, threading.Event]] = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._line_free = 0.0
+        self._pacer = LinePacer(baud)
 
     @property
     def path(self) -> str:
@@ -310,33 +293,11 @@ class QemuBus:
         return self
 
     def _plug(self) -> None:
-        master, slave = os.openpty()
-        tty.setraw(slave)
-        os.set_blocking(master, False)
-        self._master, self._slave = master, slave
-        self.device = os.ttyname(slave)
-        if self.link_path is not None:
-            tmp = self.link_path.with_name(self.link_path.name + ".new")
-            tmp.unlink(missing_ok=True)
-            tmp.symlink_to(self.device)
-            os.replace(tmp, self.link_path)
+        self._master, self._slave, self.device = open_raw_pty(self.link_path)
 
     def _close_pty(self) -> None:
-        for fd in (self._master, self._slave):
-            if fd >= 0:
-                try:
-                    os.close(fd)
-                except OSError:
-                    pass
+        close_fds(self._master, self._slave)
         self._master = self._slave = -1
-
-    def _pace(self, n: int) -> None:
-        if not self.baud:
-            return
-        now = time.monotonic()
-        self._line_free = max(now, self._line_free) + n * 10 / self.baud
-        if self._line_free > now:
-            time.sleep(self._line_free - now)
 
     def _relay(self) -> None:
         fds = {inst.fd for inst in self._instances.values()}
@@ -362,7 +323,7 @@ class QemuBus:
                     continue
                 if not data:
                     continue
-                self._pace(len(data))
+                self._pacer.pace(len(data))
                 targets = fds if fd == self._master else [self._master]
                 for t in targets:
                     if t < 0:

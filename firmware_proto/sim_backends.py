@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from grassd.firmware_proto.errors import SimulatorError
-from grassd.firmware_proto.firmware import ControllerConfig, simulated_config
+from grassd.firmware_proto.firmware import ControllerConfig, bus_pixels, simulated_config
 
 #: Firmware backends a simulated bus can run, the first being the default.
 FIRMWARE_BACKENDS = ("model", "posix", "qemu")
@@ -32,7 +32,10 @@ def open_bus(firmware: str, state_dir: str | Path, addresses: Sequence[int], *,
     storage lives in ``state_dir`` (reused, so tables survive a restart). ``n_pixels``: per
     controller, one value or one per address. ``baud``: pace the line (None: unpaced)."""
     state_dir = Path(state_dir)
-    pixels = [n_pixels] * len(addresses) if isinstance(n_pixels, int) else list(n_pixels)
+    if firmware not in FIRMWARE_BACKENDS:
+        raise SimulatorError(f"unknown firmware {firmware!r}; choose one of "
+                             f"{', '.join(FIRMWARE_BACKENDS)}")
+    pixels = bus_pixels("a simulated bus", addresses, n_pixels)
     if firmware == "model":
         from grassd.firmware_proto.firmware import Controller
         from grassd.firmware_proto.simulator import SimulatedBus
@@ -44,12 +47,9 @@ def open_bus(firmware: str, state_dir: str | Path, addresses: Sequence[int], *,
         from grassd.firmware_proto.posix_bus import PosixBus
 
         return PosixBus(state_dir, addresses, n_pixels=pixels, link_path=link_path, baud=baud)
-    if firmware == "qemu":
-        from grassd.firmware_proto.qemu_bus import QemuBus
+    from grassd.firmware_proto.qemu_bus import QemuBus  # "qemu"
 
-        return QemuBus(state_dir, addresses, n_pixels=pixels, link_path=link_path, baud=baud)
-    raise SimulatorError(f"unknown firmware {firmware!r}; choose one of "
-                         f"{', '.join(FIRMWARE_BACKENDS)}")
+    return QemuBus(state_dir, addresses, n_pixels=pixels, link_path=link_path, baud=baud)
 
 
 def start_buses(firmware: str, state_dir: str | Path, count: int, *, shared: bool = True,

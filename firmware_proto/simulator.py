@@ -18,7 +18,6 @@ import select
 import tempfile
 import threading
 import time
-import tty
 from collections import deque
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -27,6 +26,7 @@ from grassd.firmware_proto.errors import SimulatorError
 from grassd.firmware_proto.faults import FaultInjector
 from grassd.firmware_proto.firmware import Controller, simulated_config
 from grassd.firmware_proto.framing import FrameReader
+from grassd.firmware_proto.pty_line import LinePacer, close_fds, open_raw_pty
 
 log = logging.getLogger(__name__)
 
@@ -80,7 +80,7 @@ class SimulatedBus:
         self.errors = 0  #: unexpected exceptions while serving (a simulator bug if > 0)
         self.device = ""
         self._master = self._slave = -1
-        self._line_free = 0.0
+        self._pacer = LinePacer(baud)
         self._replug_at: float | None = None
         self._requests: deque[tuple[float, threading.Event]] = deque()
         self._stop = threading.Event()
@@ -121,28 +121,11 @@ class SimulatedBus:
         self.stop()
 
     def _plug(self) -> None:
-        try:
-            master, slave = os.openpty()
-            tty.setraw(slave)
-            os.set_blocking(master, False)
-            self.device = os.ttyname(slave)
-            if self.link_path is not None:
-                tmp = self.link_path.with_name(self.link_path.name + ".new")
-                tmp.unlink(missing_ok=True)
-                tmp.symlink_to(self.device)
-                os.replace(tmp, self.link_path)
-        except OSError as exc:
-            raise SimulatorError(f"cannot create a pseudo-terminal: {exc}") from None
-        self._master, self._slave = master, slave
+        self._master, self._slave, self.device = open_raw_pty(self.link_path)
         self.reader.reset()
 
     def _close_pty(self) -> None:
-        for fd in (self._master, self._slave):
-            if fd >= 0:
-                try:
-                    os.close(fd)
-                except OSError:
-                    pass
+        close_fds(self._master, self._slave)
         self._master = self._slave = -1
 
     def unplug(self, down_s: float, wait_s: float = 5.0) -> None:
@@ -170,15 +153,6 @@ class SimulatedBus:
         self._replug_at = time.monotonic() + down_s
 
     # --- the line -------------------------------------------------------------------------
-    def _pace(self, n_bytes: int) -> None:
-        """Hold the thread until n_bytes more have crossed a line of ``baud`` (8N1)."""
-        if not self.baud:
-            return
-        now = time.monotonic()
-        self._line_free = max(now, self._line_free) + n_bytes * 10 / self.baud
-        if self._line_free > now:
-            time.sleep(self._line_free - now)
-
     def _run(self) -> None:
         while not self._stop.is_set():
             while self._requests:
@@ -208,7 +182,7 @@ class SimulatedBus:
             for stall, piece in pieces:
                 if stall:
                     time.sleep(stall)
-                self._pace(len(piece))
+                self._pacer.pace(len(piece))
                 for body in self.reader.feed(piece):
                     try:
                         self._on_frame(body)
@@ -250,7 +224,7 @@ class SimulatedBus:
         for stall, piece in pieces:
             if stall:
                 time.sleep(stall)
-            self._pace(len(piece))
+            self._pacer.pace(len(piece))
             if not self._write(piece):
                 return
             self.bytes_to_host += len(piece)

@@ -36,12 +36,12 @@ import threading
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
-from datetime import UTC, datetime
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from grassd.daemon.config.settings import ControllerConfig
+from grassd.daemon.timestamps import utc_iso
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.errors import ProtocolError, PushFailed, TransientError
 from grassd.firmware_proto.tables import as_table_array, table_crc
@@ -245,7 +245,7 @@ class Fleet:
         b.failures += 1
         b.delay_s = min(b.delay_s * 2, self.retry_max_s)
         b.retry_at, b.error = now + b.delay_s, r.error
-        since = datetime.fromtimestamp(b.since, UTC).isoformat(timespec="seconds")
+        since = utc_iso(b.since)
         log.warning("controller %s: push failed again (%d failures since %s): %s; next "
                     "attempt in %g s", name, b.failures, since, r.error, b.delay_s)
 

@@ -25,6 +25,7 @@ from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from grassd.daemon.config.settings import Config, ModbusConfig
+from grassd.daemon.config.toml_text import toml_value
 from grassd.daemon.hardware.luxsensor import encode_lux
 from grassd.firmware_proto.sim_backends import FIRMWARE_BACKENDS, open_bus
 
@@ -285,6 +286,6 @@ def hardware_toml(cfg: Config, baud: int | None = None) -> str:
     """
     speed = "" if baud is None else f"baud = {baud}\n"
     ctrls = "".join(
-        f'[[controllers]]\nport = "{c.port}"\naddress = {c.address}\n{speed}'
+        f'[[controllers]]\nport = {toml_value(str(c.port))}\naddress = {c.address}\n{speed}'
         f'pixels = "{",".join(f"{a}-{b}" for a, b in c.pixels)}"\n' for c in cfg.controllers)
     return f"[display]\nrows = {cfg.display.rows}\ncols = {cfg.display.cols}\n{ctrls}"

@@ -42,12 +42,12 @@ import threading
 import time
 from collections import deque
 from collections.abc import Mapping
-from datetime import UTC, datetime
 from typing import Any
 
 from grassd.daemon.config.settings import AlertsConfig
 from grassd.daemon.monitoring.health import Health
 from grassd.daemon.store.history import History
+from grassd.daemon.timestamps import utc_iso
 
 log = logging.getLogger(__name__)
 
@@ -55,10 +55,6 @@ log = logging.getLogger(__name__)
 META_KEY = "alerts.level"
 #: changes listed in one alert (the oldest are dropped beyond it)
 MAX_CHANGES = 50
-
-
-def _iso(t: float) -> str:
-    return datetime.fromtimestamp(t, UTC).isoformat(timespec="seconds")
 
 
 class Alerter:
@@ -97,7 +93,7 @@ class Alerter:
                 return False
             self._alerted = self._current = "ok"
         if level != self._current:
-            self._changes.append({"at": _iso(time.time()), "from": self._current or
+            self._changes.append({"at": utc_iso(time.time()), "from": self._current or
                                   self._alerted, "to": level,
                                   "reasons": list(health.reasons)})
             self._current = level
@@ -108,7 +104,7 @@ class Alerter:
                 or (self._worker is not None and self._worker.is_alive())):
             return False
         event = {
-            "service": "grassd", "host": socket.gethostname(), "at": _iso(time.time()),
+            "service": "grassd", "host": socket.gethostname(), "at": utc_iso(time.time()),
             "previous": self._alerted, "level": level, "reasons": list(health.reasons),
             "changes": list(self._changes),
             "health": None if status is None else status.get("health"),

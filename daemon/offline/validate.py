@@ -68,6 +68,7 @@ from grassd.calib.ogcd import ogcd_from_lab
 from grassd.calib.raw import develop_raw
 from grassd.calib.regions import checker_patch_quads, quad_mask
 from grassd.daemon.config import schema
+from grassd.daemon.config.toml_text import toml_value
 from grassd.daemon.errors import DaemonError, LocatedError
 from grassd.sim.light_input import LightInput
 
@@ -184,18 +185,6 @@ class CaptureManifest:
         return [self.checker_photo] + [p.path for s in self.series for p in s.photos]
 
 
-def _fmt(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int | float):
-        return repr(float(v)) if isinstance(v, float) else str(v)
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, dict):
-        return "{ " + ", ".join(f"{k} = {_fmt(x)}" for k, x in v.items()) + " }"
-    return "[" + ", ".join(_fmt(x) for x in v) + "]"
-
-
 def manifest_to_toml(m: CaptureManifest) -> str:
     """TOML text of a manifest (paths relative to ``m.root`` where they lie inside it)."""
 
@@ -207,19 +196,19 @@ def manifest_to_toml(m: CaptureManifest) -> str:
 
     light = light_toml(m.light)
     light["hdri"] = rel(m.light.hdri)
-    lines = [f"chart = {_fmt(m.chart)}", "", "[light]"]
-    lines += [f"{k} = {_fmt(v)}" for k, v in light.items()]
-    lines += ["", "[checker]", f"photo = {_fmt(rel(m.checker_photo))}",
-              f"corners = {_fmt([list(c) for c in m.checker_corners])}"]
+    lines = [f"chart = {toml_value(m.chart)}", "", "[light]"]
+    lines += [f"{k} = {toml_value(v)}" for k, v in light.items()]
+    lines += ["", "[checker]", f"photo = {toml_value(rel(m.checker_photo))}",
+              f"corners = {toml_value([list(c) for c in m.checker_corners])}"]
     if m.pixel:
-        lines += ["", "[pixel]"] + [f"{k} = {_fmt(v)}" for k, v in m.pixel.items()]
+        lines += ["", "[pixel]"] + [f"{k} = {toml_value(v)}" for k, v in m.pixel.items()]
     for s in m.series:
-        lines += ["", "[[series]]", f"viewpoint = {_fmt(list(s.viewpoint))}"]
+        lines += ["", "[[series]]", f"viewpoint = {toml_value(list(s.viewpoint))}"]
         if s.reference:
             lines.append("reference = true")
         lines.append("photos = [")
         for p in s.photos:
-            lines.append("  " + _fmt({"file": rel(p.path), "length_mm": p.length_mm,
+            lines.append("  " + toml_value({"file": rel(p.path), "length_mm": p.length_mm,
                                       "corners": [list(c) for c in p.corners]}) + ",")
         lines.append("]")
     return "\n".join(lines) + "\n"

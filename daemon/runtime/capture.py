@@ -16,8 +16,8 @@ One capture (:meth:`Station.capture_once`):
 4. lux from ``[light.modbus]`` right after the bracket (or ``lux`` given); with a shaded
    sensor, ambient = shaded and sun = unshaded - shaded;
 5. the bundle: a directory written under a hidden name in the inbox (the inbox ignores
-   names starting with ``.``), manifest last, fsynced, then renamed to its final name in one
-   ``rename(2)``. A failure at any step leaves nothing in the inbox.
+   names starting with ``.``), every file fsynced, manifest last, then renamed to its final
+   name in one ``rename(2)``. A failure at any step leaves nothing in the inbox.
 
 Failures are typed (:class:`~grassd.daemon.errors.CaptureError` and its subclasses,
 :class:`~grassd.daemon.errors.LuxSensorError`);
@@ -51,10 +51,17 @@ from grassd.calib.errors import (
 )
 from grassd.daemon.config.capture import CaptureConfig
 from grassd.daemon.config.settings import Config, ModbusConfig
+from grassd.daemon.config.toml_text import toml_value
 from grassd.daemon.errors import BracketUnusable, CaptureError, LuxSensorError
 from grassd.daemon.hardware.bracket import BracketPlan, capture_bracket, load_codes
 from grassd.daemon.hardware.camera import CameraInfo, OscClient
-from grassd.daemon.store.atomic import atomic_write_json, atomic_write_text, fsync_dir
+from grassd.daemon.store.atomic import (
+    atomic_write_json,
+    atomic_write_text,
+    fsync_dir,
+    fsync_file,
+)
+from grassd.daemon.timestamps import utc_iso
 
 log = logging.getLogger(__name__)
 
@@ -70,23 +77,13 @@ class CaptureResult:
     manifest: dict[str, Any]
 
 
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int | float):
-        return repr(float(v)) if isinstance(v, float) else str(v)
-    if isinstance(v, list):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    return json.dumps(str(v))  # a TOML basic string is a JSON string
-
-
 def manifest_toml(manifest: dict[str, Any]) -> str:
     """TOML text of a bundle manifest: top-level keys, then the ``[capture]`` table."""
-    lines = [f"{k} = {_toml_value(v)}" for k, v in manifest.items() if not isinstance(v, dict)]
+    lines = [f"{k} = {toml_value(v)}" for k, v in manifest.items() if not isinstance(v, dict)]
     for name, table in manifest.items():
         if isinstance(table, dict):
             lines.append(f"\n[{name}]")
-            lines += [f"{k} = {_toml_value(v)}" for k, v in table.items()]
+            lines += [f"{k} = {toml_value(v)}" for k, v in table.items()]
     return "\n".join(lines) + "\n"
 
 
@@ -127,11 +124,14 @@ class Station:
                                 command_timeout_s=cfg.command_timeout_s)
         self.captures = 0
         self.last_error: str | None = None
-        self._clean_leftovers()
+        self._cleaned = False
 
     def _clean_leftovers(self) -> None:
         """Remove what a capture cut short by a crash or power cut left behind: hidden
-        partial bundles in the inbox (the inbox ignores them) and work directories."""
+        partial bundles in the inbox (the inbox ignores them) and work directories. Done at
+        this station's first capture, not when it is made: a station replacing another (a
+        reload) is made while the other may still be capturing into the same places."""
+        self._cleaned = True
         with contextlib.suppress(OSError):
             for p in self.inbox.glob(".capture-*.partial"):
                 log.warning("removing the partial bundle %s of an interrupted capture", p)
@@ -175,8 +175,7 @@ class Station:
         atomic_write_json(path, {"camera": info.key, "iso": self.cfg.iso,
                                  "white_balance": self.cfg.white_balance,
                                  "method": "debevec1997", "recovered_at": now,
-                                 "recovered_at_iso": datetime.fromtimestamp(now, UTC)
-                                 .isoformat(timespec="seconds"),
+                                 "recovered_at_iso": utc_iso(now),
                                  "response": resp.tolist()})
         return resp, "recovered from this bracket"
 
@@ -260,6 +259,7 @@ class Station:
             }
             partial.mkdir(parents=True)
             write_exr(partial / HDRI_NAME, merged.radiance)
+            fsync_file(partial / HDRI_NAME)  # write_exr renames but does not fsync
             atomic_write_text(partial / "manifest.toml", manifest_toml(manifest))
             fsync_dir(partial)
             final = self.inbox / name
@@ -280,6 +280,8 @@ class Station:
                 sleep=time.sleep) -> CaptureResult:
         """:meth:`capture_once`, retried ``retries`` times after a typed failure with backoff
         ``retry_s``, doubling; raises the last error. ``stop`` ends the waiting early."""
+        if not self._cleaned:
+            self._clean_leftovers()
         delay = self.cfg.retry_s
         for attempt in range(self.cfg.retries + 1):
             try:

@@ -84,6 +84,7 @@ from grassd.daemon.errors import IngestError, ManifestError
 from grassd.daemon.store.atomic import atomic_write_text, fsync_dir
 from grassd.daemon.store.history import History
 from grassd.daemon.store.outcomes import QUARANTINED_PREFIX
+from grassd.daemon.timestamps import utc_iso
 from grassd.sim.errors import LightingError
 from grassd.sim.light_input import LightInput
 from grassd.sim.lighting import MAX_LUX
@@ -279,7 +280,7 @@ def check_light(m: Manifest, *, now: float, future_tolerance_s: float = FUTURE_T
     """
     ahead = m.timestamp.timestamp() - now
     if ahead > future_tolerance_s:
-        clock = datetime.fromtimestamp(now, UTC).isoformat(timespec="seconds")
+        clock = utc_iso(now)
         raise ManifestError(
             f"light from the future: timestamp {m.timestamp.isoformat()} is "
             f"{_duration(ahead)} ahead of the daemon's clock ({clock}); tolerance "
