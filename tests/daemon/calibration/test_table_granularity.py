@@ -80,7 +80,9 @@ def run_bundle(svc: Service, name: str = "b1") -> dict:
 def test_controller_tables_pushed_and_reconciled_after_unplug(rig):
     svc, sim = rig('[tables]\ngranularity = "controller"\ncheck_groups = 0\n')
     names = [c.name for c in svc.cfg.controllers]
+    t0 = time.monotonic()
     out = run_bundle(svc)
+    first_run_s = time.monotonic() - t0
     crcs = out["controller_crcs"]
     assert sorted(crcs) == sorted(names)
     assert crcs[names[0]] != crcs[names[1]]  # two controllers, two tables
@@ -110,14 +112,17 @@ def test_controller_tables_pushed_and_reconciled_after_unplug(rig):
 
     # the second controller is unplugged during the next run: it keeps the old table, then
     # gets ITS table of the new run when it answers again
-    sim.buses[1].unplug(down_s=1.0)
+    # (down for three times as long as the first run took, so that it is still down when the
+    # run pushes, however loaded the machine is)
+    down_s = max(1.0, 3 * first_run_s)
+    sim.buses[1].unplug(down_s=down_s)
     out2 = svc.scheduled_run("request")
     assert out2["status"] == "ok"
     crcs2 = out2["controller_crcs"]
     assert [r["ok"] for r in out2["controllers"]] == [True, False]
     st = collect_status(svc.history, svc.cfg)
     assert st["health"].startswith("degraded: 1 controller")
-    deadline = time.monotonic() + 10
+    deadline = time.monotonic() + down_s + 10
     while time.monotonic() < deadline:
         reports = svc.reconcile()
         if all(r.ok for r in reports):
