@@ -6,64 +6,33 @@ captures under two different lights make two different tables."""
 from __future__ import annotations
 
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from daemon_harness import CACHE
 from prometheus_client.parser import text_string_to_metric_families
+from test_grassd_run_end_to_end import GRASSD
+from test_grassd_run_end_to_end import config_text as e2e_config_text
 
 from grassd.daemon.config.settings import load_default_config
-from grassd.daemon.hardware.simulated import SimulatedHardware, hardware_toml
+from grassd.daemon.hardware.simulated import SimulatedHardware
 from grassd.daemon.hardware.simulated_camera import SimCamera, site_hdri
 from grassd.daemon.runtime.control import request
 from grassd.daemon.store.history import History
 from grassd.firmware_proto.tables import table_crc
 from grassd.sim.hdri import downsample, load_hdri
 
-GRASSD = str(Path(sys.executable).parent / "grassd")
-
 
 def config_text(state: Path, cfg, camera_url: str) -> str:
-    return f"""state_dir = "{state}"
-cache_dir = "{CACHE}"
-[site]
-latitude = 35.0
-longitude = 139.0
-timezone = "Asia/Tokyo"
-{hardware_toml(cfg)}[[viewpoints]]
-h_cm = 170
-d_m = 2
-[light]
-inbox = "inbox"
-lux = "modbus"
-settle_s = 0.2
-[light.modbus]
-host = "127.0.0.1"
-port = {cfg.light.modbus.port}
-words = 2
-scale = 0.1
-timeout_s = 0.5
-retries = 1
-[schedule]
-interval_s = 0
-[simulation]
-samples = 64
-seed = 2
-lengths = 7
-[calibration]
-check_levels = 5
-max_rounds = 1
-replicates = 2
-max_jump_mm = 20.0
-[capture]
+    """The end-to-end tests' configuration plus a capture station photographing ``camera_url``
+    every 10 s."""
+    return e2e_config_text(state, cfg, extra=f"""[capture]
 camera = "{camera_url}"
 interval_s = 10
 shots = 7
 retry_s = 1
-"""
+""")
 
 
 def wait_for(cond, timeout: float, what: str, proc, log: Path):
