@@ -48,7 +48,8 @@ def capture_cmd(camera: str | None, inbox: str | None, lux: float | None,
     cap = dataclasses.replace(cap, **changes)
     target = Path(inbox).absolute() if inbox else cfg.light.inbox
     target.mkdir(parents=True, exist_ok=True)
-    station = Station(cap, target, cfg.state_dir, None if lux is not None else cfg.light.modbus)
+    station = Station(cap, target, cfg.state_dir, None if lux is not None else cfg.light.modbus,
+                      site=(cfg.site.latitude, cfg.site.longitude))
     out = station.capture(lux=lux)
     c = out.manifest["capture"]
     click.echo(f"bundle {out.bundle}: {len(c['exposures_s'])} shots, {c['merge_method']} "

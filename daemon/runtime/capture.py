@@ -114,8 +114,10 @@ class Station:
     (None: the bundle carries lux only when given to :meth:`capture_once`)."""
 
     def __init__(self, cfg: CaptureConfig, inbox: Path, state_dir: Path,
-                 modbus: ModbusConfig | None = None) -> None:
+                 modbus: ModbusConfig | None = None,
+                 site: tuple[float, float] | None = None) -> None:
         self.cfg = cfg
+        self.site = site  # (latitude, longitude) in degrees, east +: see sun_share
         self.inbox = Path(inbox)
         self.root = Path(state_dir) / "capture"
         self.modbus = modbus
@@ -209,6 +211,22 @@ class Station:
         shaded = read_lux(shaded_cfg)
         return shaded, max(total - shaded, 0.0), "modbus (shaded + unshaded)"
 
+    def sun_share(self, sun_lux: float | None, when: datetime) -> float | None:
+        """The sun lux [lx] a bundle records from two sensors' difference at ``when``: as
+        read while the sun is above the horizon at the site; 0 while it is below (then the
+        difference is the sensors' mismatch, and ingest refuses sun lux from below the
+        horizon). Unchanged without a site or a second sensor."""
+        if not sun_lux or self.site is None:
+            return sun_lux
+        from grassd.sim.sun import sun_position
+
+        elevation = sun_position(*self.site, when)[1]
+        if elevation > 0.0:
+            return sun_lux
+        log.info("capture: the sensors differ by %.1f lx with the sun %.1f deg below the "
+                 "horizon: recorded as no sun", sun_lux, -elevation)
+        return 0.0
+
     # ------------------------------------------------------------------ one capture
     def capture_once(self, lux: float | None = None) -> CaptureResult:
         """One capture attempt (module docstring); raises a typed error, leaving no bundle."""
@@ -225,6 +243,7 @@ class Station:
             shots = capture_bracket(self.client, self.plan(), work)
             if lux is None:
                 ambient, sun_lux, lux_source = self.read_lux()
+                sun_lux = self.sun_share(sun_lux, started)
             else:
                 ambient, sun_lux, lux_source = float(lux), None, "--lux"
             exposures = [relative_exposure(s.exposure_s, s.iso, s.f_number) for s in shots]
@@ -375,5 +394,5 @@ def start_capture_loop(cfg: Config, after: CaptureLoop | None = None) -> Capture
     """The daemon's capture thread for ``cfg`` ([capture], the inbox, [light.modbus]),
     starting once ``after`` (a loop it replaces) has finished."""
     assert cfg.capture is not None
-    return CaptureLoop(Station(cfg.capture, cfg.light.inbox, cfg.state_dir,
-                               cfg.light.modbus)).start(after)
+    return CaptureLoop(Station(cfg.capture, cfg.light.inbox, cfg.state_dir, cfg.light.modbus,
+                               site=(cfg.site.latitude, cfg.site.longitude))).start(after)

@@ -151,6 +151,31 @@ def test_two_sensors_split_ambient_and_sun(tmp_path, camera):
     assert out.manifest["sun_lux"] == pytest.approx(35000.0)
 
 
+def test_sensor_difference_with_the_sun_below_the_horizon_is_no_sun(tmp_path, camera):
+    """At a site where it is night now, what the two sensors differ by is their mismatch: the
+    bundle records sun_lux 0 (ingest would refuse sun lux from below the horizon); where the
+    sun is up, the difference stands."""
+    from datetime import UTC, datetime
+
+    from grassd.sim.sun import sun_position
+
+    now = datetime.now(UTC)
+    sites = [(0.0, float(lon)) for lon in range(-180, 180, 15)]
+    night = min(sites, key=lambda s: sun_position(*s, now)[1])
+    day = max(sites, key=lambda s: sun_position(*s, now)[1])
+    modbus = load_default_config().light.modbus
+    with SimLuxSensor(modbus, lux=1500.0) as unshaded, \
+            SimLuxSensor(dataclasses.replace(modbus, unit=2), lux=1000.0) as shaded:
+        got = {}
+        for name, site in (("night", night), ("day", day)):
+            (tmp_path / name).mkdir()
+            st = station(tmp_path / name, camera.url, shaded_unit=2, shaded_port=shaded.port)
+            st.modbus = dataclasses.replace(unshaded.config, timeout_s=0.5)
+            st.site = site
+            got[name] = st.capture().manifest["sun_lux"]
+    assert got == {"night": 0.0, "day": pytest.approx(500.0)}
+
+
 def test_raw_plus_capture_merges_the_dngs(tmp_path, camera):
     out = station(tmp_path, camera.url, file_format="raw+").capture(lux=5000.0)
     c = out.manifest["capture"]
