@@ -31,7 +31,6 @@ the controller) and an interrupted bundle is retried at the next start.
 
 from __future__ import annotations
 
-import contextlib
 import faulthandler
 import logging
 import os
@@ -69,17 +68,18 @@ from grassd.daemon.errors import (
     LuxSensorUnreachable,
     RunInterrupted,
 )
-from grassd.daemon.hardware.fleet import Fleet, table_checksum
+from grassd.daemon.hardware.fleet import Fleet
 from grassd.daemon.hardware.luxsensor import LuxSensor
 from grassd.daemon.monitoring.operator_view import OperatorView
+from grassd.daemon.runtime.commit import commit_run
 from grassd.daemon.runtime.control import ControlServer
 from grassd.daemon.runtime.notify import Notifier
+from grassd.daemon.runtime.push_outcomes import PushOutcomes
+from grassd.daemon.runtime.reconcile import OwnTables, reconcile_controllers
 from grassd.daemon.runtime.retention import prune
 from grassd.daemon.runtime.statelock import StateLock
 from grassd.daemon.runtime.status import collect_status, rss_mb, usable_run_tables
 from grassd.daemon.store.atomic import (
-    atomic_save_figure,
-    atomic_write_json,
     describe_os_error,
     describe_write_error,
 )
@@ -112,17 +112,6 @@ class _Deferred:
     delay_s: float
     give_up_at: float | None
     error: bool = False
-
-
-@dataclass
-class _FailStreak:
-    """Consecutive failed pushes to one controller: first failure (epoch s), the last row
-    recorded (monotonic s), failures so far and how many went unrecorded since that row."""
-
-    since: float
-    last_row: float
-    failures: int = 1
-    unrecorded: int = 0
 
 
 @dataclass
@@ -196,12 +185,6 @@ class Service:
         self.last_progress = time.monotonic()
         self.last_run_at: float | None = None
         self._last_reconcile = 0.0
-        self._last_ctrl: dict[str, tuple] = {}
-        #: a controller whose pushes keep failing gets one history row per ``failure_row_s``
-        #: (its first failure, then a summary), not one per reconcile
-        self.failure_row_s = failure_row_s
-        self._streaks: dict[str, _FailStreak] = {}
-        self._own_cache: tuple[tuple | None, dict[str, Any]] = (None, {})
         self.reload_error: str | None = None
         #: bundles waiting for a transient failure (full disk, lux sensor down) to clear; the
         #: first retry after ``retry_s``, then doubling up to ``retry_max_s``
@@ -223,6 +206,10 @@ class Service:
         self.lock = StateLock(cfg.state_dir).acquire()
         try:
             self.history = History(cfg.state_dir / STATE_DB)
+            #: a controller whose pushes keep failing gets one history row per
+            #: ``failure_row_s`` (its first failure, then a summary), not one per reconcile
+            self.push_outcomes = PushOutcomes(self.history, failure_row_s)
+            self.own_tables = OwnTables(self.history)
             self.operator = OperatorView(self)  # metrics, alerts, status page
             self._build(cfg)
         except BaseException:
@@ -514,16 +501,6 @@ class Service:
         self._progress("reading the lux sensor")
         return self.sensor.read_lux(), "modbus"
 
-    def _own_tables(self, run_id: int) -> dict[str, Any]:
-        """Controller name -> its own table of run ``run_id`` (empty when the run has one table
-        for all; see :func:`usable_run_tables`); cached for the latest run and controller
-        configuration asked, as reconcile asks every few seconds."""
-        key = (run_id, self.cfg.controllers)
-        if self._own_cache[0] != key:
-            self._own_cache = (key, {k: t.lengths_um for k, t in usable_run_tables(
-                self.history, run_id, self.cfg.controllers).items()})
-        return self._own_cache[1]
-
     def prune(self) -> None:
         """Apply ``[retention]`` (old bundles, reports, history rows); never fails a run."""
         try:
@@ -744,7 +721,8 @@ class Service:
                               checker: CheckerPhoto | None = None) -> dict[str, Any]:
         cur = self.history.current_table()  # the active table, the run's starting point
         prev_table = None if cur is None else list(cur.lengths_um)
-        prev_own = None if cur is None else self._own_tables(cur.id)
+        prev_own = None if cur is None else self.own_tables.of_run(cur.id,
+                                                                   self.cfg.controllers)
         try:
             result = self.calibrator.run(light, checker=checker, previous_um=prev_table,
                                          previous_ccm=self.history.get_meta("ccm"),
@@ -765,111 +743,27 @@ class Service:
 
     def _commit(self, run_id: int, result: CalibrationResult | DisplayCalibrationResult
                 ) -> dict[str, Any]:
-        cal = self.cfg.calibration
-        metrics = result.metrics(cal.r2_goal, cal.target_de00)
-        crc = table_checksum(result.lengths_um)
-        # a table per controller ([tables] granularity "controller"/"pixel"), else one for all
-        own = getattr(result, "controller_tables", None) or {}
-        own_crcs = result.controller_crcs() if own else {}
-        base = self.reports_dir / f"run-{run_id:06d}"
-        report = {"run_id": run_id, "table_id": run_id, "table_crc": crc, "metrics": metrics,
-                  **result.report()}
-        try:
-            report_path = atomic_write_json(base.with_suffix(".json"), report)
-            plot_path = atomic_save_figure(base.with_suffix(".png"), result.figure())
-        except OSError as exc:  # full / read-only disk: the previous table stays active
-            with contextlib.suppress(OSError):
-                base.with_suffix(".json").unlink(missing_ok=True)
-            msg = (describe_write_error(exc, self.reports_dir)
-                   + "; the previous table stays active")
-            log.error("run %d not committed: %s", run_id, msg)
-            self.history.finish_run(run_id, "failed", error=msg)
-            return {"status": "failed", "run_id": run_id, "error": msg, "transient": True}
-        if result.ccm is not None and result.ccm_source == "bundle":
-            self.history.set_meta("ccm", result.ccm.matrix.tolist())
-        if own:  # before the run becomes the current table
-            self.history.record_run_tables(run_id, own, own_crcs)
-        self.history.finish_run(run_id, "ok", metrics=metrics, lengths_um=result.lengths_um,
-                                table_id=run_id, table_crc=crc, report_path=report_path,
-                                plot_path=plot_path)
+        out = commit_run(run_id, result, cfg=self.cfg, history=self.history, fleet=self.fleet,
+                         reports_dir=self.reports_dir, outcomes=self.push_outcomes,
+                         stop=self.stop_event, progress=self._progress,
+                         committed=self._committed)
+        if out["status"] == "ok":
+            self._last_reconcile = time.monotonic()  # the push reached every controller
+        return out
+
+    def _committed(self, run_id: int) -> None:
         self.runs_done += 1
         self.rss_log.append((run_id, rss_mb()))
-        self._progress(f"pushing table {run_id} to {len(self.cfg.controllers)} controller(s)")
-        reports = self.fleet.push(own or result.lengths_um, run_id, stop=self.stop_event,
-                                  fallback=result.lengths_um)
-        for r in reports:
-            self._record(r, run_id, "push")
-        self._last_reconcile = time.monotonic()
-        log.info("run %d committed: R^2 %.5f, max deviation %.3f dE00, %d/%d controllers",
-                 run_id, metrics["r2_closed_loop"] or metrics["r2_after_fit"] or 0,
-                 metrics["max_dev_de00"] or 0,
-                 sum(r.ok for r in reports), len(self.cfg.controllers))
-        return {"status": "ok", "run_id": run_id, "table_id": run_id, "table_crc": crc,
-                "controller_crcs": own_crcs,
-                "metrics": metrics, "report": str(report_path), "plot": str(plot_path),
-                "controllers": [r.__dict__ for r in reports]}
-
-    def _record(self, r, run_id: int | None, kind: str) -> None:
-        """Record a push outcome: always for a run's own push and for a change of state; of a
-        streak of failed reconcile pushes only the first and then one per ``failure_row_s``
-        (saying how many failed since when)."""
-        now = time.monotonic()
-        error = r.error
-        if r.ok:
-            self._streaks.pop(r.controller, None)
-        else:
-            s = self._streaks.get(r.controller)
-            if s is None:
-                self._streaks[r.controller] = _FailStreak(time.time(), now)
-            else:
-                s.failures += 1
-                if kind == "reconcile" and now - s.last_row < self.failure_row_s:
-                    s.unrecorded += 1
-                    self._note_controller(r)
-                    return
-                since = datetime.fromtimestamp(s.since, UTC).isoformat(timespec="seconds")
-                error = (f"{r.error} ({s.failures} failed pushes since {since}, "
-                         f"{s.unrecorded} not recorded)")
-                s.last_row, s.unrecorded = now, 0
-        self.history.record_push(run_id, r.controller, r.ok, table_id=r.table_id,
-                                 table_crc=r.table_crc, error=error, kind=kind)
-        self._note_controller(r, always=True)
-
-    def _note_controller(self, r, always: bool = False) -> None:
-        """Store controller report ``r``'s state (reachable, reported table, error) in the
-        history when it changed since the last one stored (``always``: in any case)."""
-        state = (r.ok, r.reachable, r.table_id)
-        if always or self._last_ctrl.get(r.controller) != state:
-            self.history.set_controller(r.controller, reachable=r.reachable,
-                                        reported_id=r.table_id, reported_crc=r.table_crc,
-                                        error=r.error)
-            self._last_ctrl[r.controller] = state
 
     def reconcile(self) -> list:
         """Push the current table to every controller that does not report it (its own table
         when the run has one per controller; the run's table to any it has none for); then
         update the operator's metrics and alerts."""
-        reports = self._reconcile()
-        self.operator.after_reconcile(reports)
-        return reports
-
-    def _reconcile(self) -> list:
         self._last_reconcile = time.monotonic()
-        cur = self.history.current_table()
-        if cur is None:
-            return []
-        own = self._own_tables(cur.id)
-        reports = self.fleet.reconcile(own or cur.lengths_um, cur.table_id,
-                                       stop=self.stop_event, fallback=cur.lengths_um)
-        for r in reports:
-            if r.ok and not r.pushed:  # holds its table (again): any failure streak is over
-                self._streaks.pop(r.controller, None)
-            if r.pushed:
-                self._record(r, cur.id, "reconcile")
-                if r.ok:
-                    log.info("controller %s reconciled to table %d", r.controller, cur.table_id)
-            else:
-                self._note_controller(r)
+        reports = reconcile_controllers(self.history, self.fleet, self.own_tables,
+                                        self.cfg.controllers, self.push_outcomes,
+                                        self.stop_event)
+        self.operator.after_reconcile(reports)
         return reports
 
     # ------------------------------------------------------------------ control socket
