@@ -41,7 +41,7 @@ import threading
 import time
 import traceback
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from importlib import resources
 from pathlib import Path
@@ -63,14 +63,17 @@ from grassd.daemon.errors import (
     USER_ERRORS,
     ConfigError,
     DaemonError,
-    LuxSensorError,
-    LuxSensorSilent,
-    LuxSensorUnreachable,
     RunInterrupted,
 )
 from grassd.daemon.hardware.fleet import Fleet
 from grassd.daemon.hardware.luxsensor import LuxSensor
 from grassd.daemon.monitoring.operator_view import OperatorView
+from grassd.daemon.runtime.ambient_lux import resolve_lux
+from grassd.daemon.runtime.bundle_pipeline import (
+    WaitingBundles,
+    attempt_bundle,
+    light_time,
+)
 from grassd.daemon.runtime.commit import commit_run
 from grassd.daemon.runtime.control import ControlServer
 from grassd.daemon.runtime.notify import Notifier
@@ -81,7 +84,6 @@ from grassd.daemon.runtime.statelock import StateLock
 from grassd.daemon.runtime.status import collect_status, rss_mb, usable_run_tables
 from grassd.daemon.store.atomic import (
     describe_os_error,
-    describe_write_error,
 )
 from grassd.daemon.store.history import History
 from grassd.daemon.store.ingest import Bundle, CheckerPhoto, Inbox
@@ -94,24 +96,6 @@ log = logging.getLogger(__name__)
 STATE_DB = "state.db"
 #: imported from here by the CLI, tests and benchmarks
 __all__ = ["STATE_DB", "Service", "collect_status", "os_action", "rss_mb", "usable_run_tables"]
-
-
-@dataclass
-class _Deferred:
-    """A claimed bundle that waits in processing/ for a transient condition to clear.
-
-    ``retry_at`` and ``give_up_at`` are monotonic seconds (``give_up_at`` None: never);
-    ``since`` is epoch seconds (shown in status); ``error``: it waits after an error a pass
-    survived (``last_error`` stays until it went through or waits for something else).
-    """
-
-    bundle: Bundle
-    reason: str
-    since: float
-    retry_at: float
-    delay_s: float
-    give_up_at: float | None
-    error: bool = False
 
 
 @dataclass
@@ -143,12 +127,6 @@ def os_action(exc: BaseException, written: Sequence[Path] = (), otherwise: str =
         if any(p == d or d in p.parents for d in written):
             return "write"
     return otherwise
-
-
-def _light_time(b: Bundle) -> datetime:
-    """When bundle ``b``'s light was captured (its manifest timestamp, timezone-aware)."""
-    return b.manifest.timestamp
-
 
 
 class Service:
@@ -186,11 +164,6 @@ class Service:
         self.last_run_at: float | None = None
         self._last_reconcile = 0.0
         self.reload_error: str | None = None
-        #: bundles waiting for a transient failure (full disk, lux sensor down) to clear; the
-        #: first retry after ``retry_s``, then doubling up to ``retry_max_s``
-        self.deferred: dict[str, _Deferred] = {}
-        self.retry_s = retry_s
-        self.retry_max_s = retry_max_s
         #: the error of the latest main-loop pass that survived one (OSError / SQLite), for
         #: status; cleared by the next pass that completes without one. ``_error_seen`` keeps
         #: the last one with its times ("at", "error", "cleared_at") after it was cleared.
@@ -210,6 +183,10 @@ class Service:
             #: ``failure_row_s`` (its first failure, then a summary), not one per reconcile
             self.push_outcomes = PushOutcomes(self.history, failure_row_s)
             self.own_tables = OwnTables(self.history)
+            #: bundles waiting for a transient failure (full disk, lux sensor down) to clear;
+            #: the first retry after ``retry_s``, then doubling up to ``retry_max_s``
+            self.waiting = WaitingBundles(self.history, retry_s, retry_max_s)
+            self.deferred = self.waiting.bundles
             self.operator = OperatorView(self)  # metrics, alerts, status page
             self._build(cfg)
         except BaseException:
@@ -339,7 +316,7 @@ class Service:
             ib = self.inbox
             self._survived(exc, f"inbox {self.cfg.light.inbox}", os_action(
                 exc, (ib.processing, ib.archive, ib.rejected), otherwise="read"))
-        bundles.sort(key=_light_time, reverse=True)  # newest light first (ties: in order),
+        bundles.sort(key=light_time, reverse=True)  # newest light first (ties: in order),
         # so that a backlog costs one calibration: the older ones are then superseded
         for b in bundles:
             if self.stop_event.is_set():
@@ -423,7 +400,7 @@ class Service:
         init_backend(self.cfg)
         self.history.abandon_running("daemon stopped or crashed during the run")
         self.inbox.settle_s = 0.0
-        bundles = sorted(self.inbox.recover() + self.inbox.poll(), key=_light_time,
+        bundles = sorted(self.inbox.recover() + self.inbox.poll(), key=light_time,
                          reverse=True)
         results = [self.process_bundle(b) for b in bundles]
         out = results[0] if results else self.scheduled_run("request", force=force)
@@ -493,13 +470,11 @@ class Service:
 
     # ------------------------------------------------------------------ runs
     def _resolve_lux(self, manifest_lux: float | None) -> tuple[float, str]:
-        if manifest_lux is not None:
-            return manifest_lux, "manifest"
-        if self.cfg.light.lux != "modbus" or self.sensor is None:
-            raise LuxSensorError("the manifest has no ambient_lux and no Modbus lux sensor is "
-                                 "configured (set [light] lux = \"modbus\" and [light.modbus])")
-        self._progress("reading the lux sensor")
-        return self.sensor.read_lux(), "modbus"
+        return resolve_lux(manifest_lux, self.cfg.light, self.sensor, self._progress)
+
+    def _run_started(self, activity: str) -> None:
+        self.last_run_at = time.time()
+        self._progress(activity)
 
     def prune(self) -> None:
         """Apply ``[retention]`` (old bundles, reports, history rows); never fails a run."""
@@ -524,31 +499,9 @@ class Service:
 
     def _defer(self, b: Bundle, reason: str, limit_s: float | None = None,
                error: bool = False) -> dict[str, Any]:
-        """Leave ``b`` in processing/ (attempt not counted) and retry it with backoff
-        (``error``: after an error the pass survived, see ``last_error``)."""
-        now = time.monotonic()
-        d = self.deferred.get(b.hash)
-        if d is None:
-            d = _Deferred(b, reason, time.time(), now + self.retry_s, self.retry_s,
-                          None if limit_s is None else now + limit_s)
-            self.deferred[b.hash] = d
-        else:
-            d.delay_s = min(d.delay_s * 2, self.retry_max_s)
-            d.retry_at, d.reason = now + d.delay_s, reason
-            if limit_s is not None and d.give_up_at is None:
-                d.give_up_at = now + limit_s
-        d.error = error
-        if limit_s is not None and d.give_up_at is not None and d.give_up_at > now:
-            # a wait with a deadline: its last try falls on the deadline, not far beyond; once
-            # it has passed, or when it waits for something else (an error), the backoff holds
-            d.retry_at = min(d.retry_at, d.give_up_at)
-        try:
-            self.history.journal_release(b.hash)
-        except sqlite3.Error as exc:  # e.g. the disk is full: the attempt stays counted
-            log.warning("bundle %s: cannot release its attempt: %s", b.name, exc)
-        log.warning("bundle %s waits in processing/: %s; retried in %g s", b.name, reason,
-                    d.delay_s)
-        return {"status": "deferred", "error": reason, "retry_in_s": d.delay_s}
+        """Leave ``b`` in processing/ and retry it with backoff (see
+        :meth:`WaitingBundles.defer`)."""
+        return self.waiting.defer(b, reason, limit_s=limit_s, error=error)
 
     def _process_bundle(self, b: Bundle) -> dict[str, Any]:
         out = self._attempt_bundle(b)
@@ -557,124 +510,13 @@ class Service:
         return out
 
     def _attempt_bundle(self, b: Bundle) -> dict[str, Any]:
-        mine = self.history.journal_get(b.hash)
-        done = self.history.ok_run_for_bundle(b.hash, None if mine is None else mine.created_at)
-        if done is not None:  # committed, but the archive move failed last time (a run of
-            # an earlier upload whose journal row retention pruned does not count)
-            self.inbox.archive_bundle(b, done.id)
-            return {"status": "ok", "run_id": done.id, "table_id": done.table_id,
-                    "table_crc": done.table_crc, "metrics": done.metrics,
-                    "report": done.report_path, "plot": done.plot_path, "controllers": []}
-        why = self._superseded(b)
-        if why is not None:  # newer light made the active table: do not apply older light
-            run_id = self.history.start_run("bundle", bundle_hash=b.hash,
-                                            input_hashes=b.input_hashes,
-                                            light_at=b.manifest.timestamp.timestamp())
-            self.history.finish_run(run_id, "superseded", error=why)
-            self.inbox.archive_bundle(b, run_id, reason=why)
-            log.warning("bundle %s archived unused: %s", b.name, why)
-            return {"status": "superseded", "run_id": run_id, "error": why}
-        self.inbox.begin(b)
-        self.last_run_at = time.time()
-        self._progress(f"processing bundle {b.name}")
-        m = b.manifest
-        try:
-            lux, source = self._resolve_lux(m.light.ambient_lux)
-        except (LuxSensorUnreachable, LuxSensorSilent) as exc:  # an outage: wait for it
-            d = self.deferred.get(b.hash)
-            wait_s = self.cfg.light.lux_wait_s
-            if wait_s > 0 and (d is None or d.give_up_at is None
-                               or time.monotonic() < d.give_up_at):
-                return self._defer(b, f"waiting for the lux sensor: {exc}", limit_s=wait_s)
-            waited = 0.0 if d is None else time.time() - d.since
-            why = (f"no ambient lux: the lux sensor stayed unavailable for {waited:.0f} s "
-                   f"(light.lux_wait_s = {wait_s:g}): {exc}")
-            self.inbox.reject_bundle(b, why)
-            return {"status": "rejected", "error": why}
-        except DaemonError as exc:  # a bad reading or no lux source at all: permanent
-            self.inbox.reject_bundle(b, f"no ambient lux: {exc}")
-            return {"status": "rejected", "error": str(exc)}
-        light = replace(m.light, ambient_lux=lux)
-        run_id = self.history.start_run("bundle", bundle_hash=b.hash,
-                                        input_hashes=b.input_hashes, lux=lux, lux_source=source,
-                                        light_at=m.timestamp.timestamp())
-        out = self._calibrate_and_commit(run_id, light, force=False, checker=m.checker)
-        try:
-            if out["status"] == "ok":
-                self.inbox.archive_bundle(b, run_id)
-            elif out["status"] == "interrupted":
-                self.history.journal_release(b.hash)  # retried at the next start
-            elif out.get("transient"):  # could not write: the bundle is fine, try again later
-                return {**out, **self._defer(b, out["error"])}
-            else:
-                self.inbox.reject_bundle(b, out["error"], run_id)
-        except OSError as exc:  # e.g. no space for reason.txt: keep the bundle, try again
-            return {**out, **self._defer(b, describe_write_error(exc, exc.filename or
-                                                                 self.inbox.state_dir))}
-        return out
+        return attempt_bundle(b, history=self.history, inbox=self.inbox, light=self.cfg.light,
+                              waiting=self.waiting, lux=self._resolve_lux,
+                              begin=self._run_started, run=self._run_bundle)
 
-    def _superseded(self, b: Bundle) -> str | None:
-        """Why bundle ``b`` must not be applied, or None: its light is older than the light of
-        the run whose table is active (:meth:`History.current_table`), whether it was held
-        back (waiting for the lux sensor, after a write failure, across a restart) or simply
-        uploaded late. Applying it would replace a table made for newer light with one for
-        stale conditions.
-
-        Compared by light capture time (manifest timestamps, which the manifest parser
-        requires, so every bundle has one). Light exactly as old as the active table's is
-        applied: it is a corrected re-upload of the same measurement (identical content is a
-        duplicate and never gets here), and the later upload wins. Only a run that made the
-        active table counts: a newer run that failed or was rejected made none. The very
-        first bundle (no active table) and a bundle arriving while the active table came from
-        the embedded default site (no light time) are applied. Where the active run's light
-        time was not recorded (a database from before ``light_at``) it is read from that
-        run's archived bundle; failing that, only a held-back bundle that arrived before the
-        active run's bundle is superseded (by journal claim time). `grassd calibrate --now`
-        processes the inbox through here too: the rule holds for it (see
-        :meth:`one_shot`)."""
-        cur = self.history.current_table()
-        if cur is None:
-            return None
-        active_at = cur.light_at if cur.light_at is not None else self._archived_light_at(cur)
-        if active_at is not None and active_at > time.time() + self.cfg.light.future_tolerance_s:
-            # stamped in the future, by a daemon from before that was refused at ingest: it
-            # outranks nothing, or it would pin the active table until that date
-            log.warning("the active table's light (run %d) is stamped in the future (%s); "
-                        "bundle %s is not superseded by it", cur.id,
-                        datetime.fromtimestamp(active_at, UTC).isoformat(timespec="seconds"),
-                        b.name)
-            return None
-        if active_at is not None:
-            ts = b.manifest.timestamp.timestamp()
-            if ts >= active_at:
-                return None
-            iso = [datetime.fromtimestamp(t, UTC).isoformat(timespec="seconds")
-                   for t in (ts, active_at)]
-            return (f"superseded: its light ({iso[0]}) is older than the light ({iso[1]}) "
-                    f"of run {cur.id}, which made the active table {cur.table_id}")
-        mine = self.history.journal_get(b.hash)
-        if mine is None or mine.created_at >= cur.started_at:
-            return None
-        src = cur.light_bundle
-        other = None if src is None else self.history.journal_get(src)
-        if other is None or mine.created_at >= other.created_at:
-            return None
-        return (f"superseded: it arrived before bundle {other.bundle_id}, whose light made "
-                f"the active table {cur.table_id} (run {cur.id})")
-
-    def _archived_light_at(self, run) -> float | None:
-        """Light capture time (epoch s) of run ``run``'s bundle from its archived manifest,
-        for a run recorded without ``light_at``; None when it has no bundle or the bundle is
-        gone or unreadable."""
-        src = run.light_bundle
-        j = None if src is None else self.history.journal_get(src)
-        if j is None or j.state != "archived":
-            return None
-        try:
-            m = self.inbox.archived_manifest(j.bundle_id)
-        except DaemonError:
-            return None
-        return None if m is None else m.timestamp.timestamp()
+    def _run_bundle(self, run_id: int, light: LightInput, checker: CheckerPhoto | None
+                    ) -> dict[str, Any]:
+        return self._calibrate_and_commit(run_id, light, force=False, checker=checker)
 
     def scheduled_run(self, trigger: str, force: bool = False) -> dict[str, Any]:
         """A run without a new bundle: light of the last archived bundle (or the embedded

@@ -28,7 +28,8 @@ from grassd.daemon.config.settings import parse_config
 from grassd.daemon.errors import DaemonError, StateDirLocked
 from grassd.daemon.hardware.fleet import Fleet, table_checksum
 from grassd.daemon.hardware.simulated import SimLuxSensor, SimulatedHardware
-from grassd.daemon.runtime.service import Service, _Deferred, collect_status
+from grassd.daemon.runtime.bundle_pipeline import Deferred
+from grassd.daemon.runtime.service import Service, collect_status
 from grassd.daemon.runtime.statelock import StateLock
 
 PIXEL = '[tables]\ngranularity = "pixel"\ncheck_groups = 0\n'
@@ -393,13 +394,13 @@ def test_status_from_a_socket_thread_while_the_main_loop_defers_bundles(tmp_path
         [b] = svc.inbox.poll()
         now = time.monotonic()
         for i in range(300):
-            svc.deferred[f"h{i}"] = _Deferred(b, "disk full", time.time(), now, 1.0, None)
+            svc.deferred[f"h{i}"] = Deferred(b, "disk full", time.time(), now, 1.0, None)
         stop = threading.Event()
 
         def main_loop() -> None:  # what the main thread does to the waiting bundles
             i = 300
             while not stop.is_set():
-                svc.deferred[f"h{i}"] = _Deferred(b, "disk full", time.time(), now, 1.0, None)
+                svc.deferred[f"h{i}"] = Deferred(b, "disk full", time.time(), now, 1.0, None)
                 svc.deferred.pop(f"h{i - 300}", None)
                 i += 1
 
