@@ -1,4 +1,10 @@
-"""The daemon: main loop, calibration runs, control socket, signals, systemd notification.
+"""The daemon's main loop and its wiring: setup, signals, systemd notification, reload, the
+errors a pass survives, and the order of the work below. The parts it wires live beside it in
+``grassd.daemon.runtime``: ``bundle_pipeline`` (one attempt at a bundle, superseded light,
+bundles waiting in processing/), ``ambient_lux`` (manifest or lux sensor), ``scheduled`` (the
+input of a run without a new bundle), ``commit`` (report, history row, push),
+``push_outcomes`` (what the history keeps of pushes), ``reconcile``, ``status`` (what status
+shows) and ``control_commands`` (the control socket's commands; ``control`` serves them).
 
 One main thread does all the work (Taichi kernels run in the thread that initialised Taichi);
 each *tick* (``tick_s``) it
@@ -18,8 +24,8 @@ Side threads only answer the control socket (status is read from SQLite) and sen
 watchdog ping while the main thread shows progress (at least every ``stall_s`` seconds; a
 calibration reports progress per viewpoint), so a hung main loop is restarted by systemd.
 
-A run commits in this order: history row ``ok`` with the table, JSON report and PNG plot
-(atomic writes), then the push to every controller, then the bundle moves to ``archive/``. With
+A run commits in this order: JSON report and PNG plot (atomic writes), history row ``ok``
+with the table, then the push to every controller, then the bundle moves to ``archive/``. With
 ``[tables] granularity`` "controller"/"pixel" every controller's own table and CRC are stored
 (``run_tables``) before the row turns ``ok``; push, reconcile and status then check each
 controller against its own table (the run's display-wide table for one it has none for). A
@@ -40,10 +46,8 @@ import sqlite3
 import threading
 import time
 import traceback
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
 from datetime import UTC, datetime
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -76,15 +80,15 @@ from grassd.daemon.runtime.bundle_pipeline import (
 )
 from grassd.daemon.runtime.commit import commit_run
 from grassd.daemon.runtime.control import ControlServer
+from grassd.daemon.runtime.control_commands import ControlCommands, QueuedRequest
 from grassd.daemon.runtime.notify import Notifier
 from grassd.daemon.runtime.push_outcomes import PushOutcomes
 from grassd.daemon.runtime.reconcile import OwnTables, reconcile_controllers
 from grassd.daemon.runtime.retention import prune
+from grassd.daemon.runtime.scheduled import scheduled_input
 from grassd.daemon.runtime.statelock import StateLock
 from grassd.daemon.runtime.status import collect_status, rss_mb, usable_run_tables
-from grassd.daemon.store.atomic import (
-    describe_os_error,
-)
+from grassd.daemon.store.atomic import describe_os_error
 from grassd.daemon.store.history import History
 from grassd.daemon.store.ingest import Bundle, CheckerPhoto, Inbox
 from grassd.daemon.store.quarantine import retry_request
@@ -96,15 +100,6 @@ log = logging.getLogger(__name__)
 STATE_DB = "state.db"
 #: imported from here by the CLI, tests and benchmarks
 __all__ = ["STATE_DB", "Service", "collect_status", "os_action", "rss_mb", "usable_run_tables"]
-
-
-@dataclass
-class _Request:
-    force: bool
-    done: threading.Event = field(default_factory=threading.Event)
-    result: dict[str, Any] | None = None
-    #: main-loop work other than a calibration (e.g. putting a quarantined bundle back)
-    task: Callable[[], dict[str, Any]] | None = None
 
 
 def _now_iso() -> str:
@@ -157,7 +152,9 @@ class Service:
         self.reload_event = threading.Event()
         #: calibration requests from the control socket; bounded, so that clients waiting for
         #: runs cannot hold every control-socket slot (status stays answerable)
-        self.requests: queue.Queue[_Request] = queue.Queue(maxsize=max_queued)
+        self.requests: queue.Queue[QueuedRequest] = queue.Queue(maxsize=max_queued)
+        self.commands = ControlCommands(self.status, self.reload_event, self.stop_event,
+                                        self.requests, self._retry_bundle)
         self.activity = "starting"
         self.started_at = time.time()
         self.last_progress = time.monotonic()
@@ -531,33 +528,16 @@ class Service:
     def _scheduled_run(self, trigger: str, force: bool) -> dict[str, Any]:
         self._progress(f"{trigger} calibration")
         self.last_run_at = time.time()
-        last = self.history.latest_archived()
-        manifest = None
-        if last is not None:
-            try:
-                manifest = self.inbox.archived_manifest(last.bundle_id)
-            except DaemonError as exc:
-                log.warning("last archived bundle %s unusable: %s", last.bundle_id, exc)
-        light_at = None if manifest is None else manifest.timestamp.timestamp()
         try:
-            if manifest is not None:
-                sensor_first = self.cfg.light.lux == "modbus" and self.sensor is not None
-                lux, source = self._resolve_lux(None if sensor_first
-                                                else manifest.light.ambient_lux)
-                light = LightInput(hdri=manifest.light.hdri, ambient_lux=lux,
-                                   timestamp=datetime.now(UTC))
-                hashes = {"bundle": last.bundle_hash}
-            else:
-                lux, source = self._resolve_lux(None)
-                hdri = Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
-                light = LightInput(hdri=hdri, ambient_lux=lux, timestamp=datetime.now(UTC))
-                hashes = {"hdri": "embedded default_site.exr"}
+            inp = scheduled_input(self.history, self.inbox,
+                                  self.cfg.light.lux == "modbus" and self.sensor is not None,
+                                  self._resolve_lux)
         except DaemonError as exc:
             log.warning("%s run skipped: %s", trigger, exc)
             return {"status": "skipped", "error": str(exc)}
-        run_id = self.history.start_run(trigger, input_hashes=hashes, lux=lux, lux_source=source,
-                                        light_at=light_at)
-        return self._calibrate_and_commit(run_id, light, force=force)
+        run_id = self.history.start_run(trigger, input_hashes=inp.input_hashes, lux=inp.lux,
+                                        lux_source=inp.lux_source, light_at=inp.light_at)
+        return self._calibrate_and_commit(run_id, inp.light, force=force)
 
     def _calibrate_and_commit(self, run_id: int, light: LightInput, force: bool,
                               checker: CheckerPhoto | None = None) -> dict[str, Any]:
@@ -645,41 +625,10 @@ class Service:
         return st
 
     def handle_request(self, req: dict[str, Any]) -> dict[str, Any]:
-        """Answer one control-socket request (runs in a socket thread)."""
-        cmd = req["cmd"]
-        if cmd == "ping":
-            return {"ok": True, "pid": os.getpid(), "version": __version__}
-        if cmd == "status":
-            return {"ok": True, "status": self.status()}
-        if cmd == "reload":
-            self.reload_event.set()
-            return {"ok": True}
-        if cmd == "bundles_retry":  # in the main loop, which also claims and prunes bundles
-            name = str(req.get("bundle", ""))
-            r = _Request(force=False, task=lambda: retry_request(self.inbox, name))
-            try:
-                self.requests.put_nowait(r)
-            except queue.Full:
-                return {"ok": False, "busy": True, "error": "busy: try again later"}
-            if not r.done.wait(float(req.get("timeout_s", 3600))):
-                return {"ok": False, "error": "the daemon did not get to it in time"}
-            out = r.result or {}
-            return {"ok": out.get("status") == "ok", "retry": out, "error": out.get("error")}
-        if cmd == "calibrate":
-            if self.stop_event.is_set():
-                return {"ok": False, "error": "daemon is stopping"}
-            r = _Request(force=bool(req.get("force", False)))
-            try:
-                self.requests.put_nowait(r)
-            except queue.Full:
-                return {"ok": False, "busy": True,
-                        "error": f"busy: {self.requests.maxsize} calibration requests are "
-                                 "already queued; try again after they ran"}
-            if not req.get("wait", False):
-                return {"ok": True, "queued": self.requests.qsize()}
-            timeout = float(req.get("timeout_s", 3600))
-            if not r.done.wait(timeout):
-                return {"ok": False, "error": f"run did not finish within {timeout:g} s"}
-            return {"ok": True, "run": r.result}
-        return {"ok": False, "error": f"unknown command {cmd!r} "
-                                      "(use ping, status, calibrate, reload, bundles_retry)"}
+        """Answer one control-socket request (runs in a socket thread; see
+        :class:`~grassd.daemon.runtime.control_commands.ControlCommands`)."""
+        return self.commands.handle(req)
+
+    def _retry_bundle(self, name: str) -> dict[str, Any]:
+        """Put quarantined bundle ``name`` back into the inbox (in the main loop)."""
+        return retry_request(self.inbox, name)

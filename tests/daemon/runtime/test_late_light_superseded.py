@@ -61,7 +61,7 @@ def test_late_upload_of_older_light_is_archived_as_superseded(tmp_path, hw, capl
 
     # a late upload of the 11:00 light, after the noon table went out
     caplog.clear()
-    with caplog.at_level(logging.WARNING, logger="grassd.daemon.runtime.service"):
+    with caplog.at_level(logging.WARNING, logger="grassd.daemon.runtime.bundle_pipeline"):
         drop(inbox, "late", lux=1500.0, timestamp="2026-03-01T11:00:00+01:00")
         svc.tick()
     _assert_superseded(svc, "late", noon, "2026-03-01T10:00:00+00:00",
