@@ -15,7 +15,7 @@ import sqlite3
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from datetime import UTC, datetime
+from datetime import datetime
 from typing import Any
 
 from grassd.daemon.config.settings import LightConfig
@@ -23,6 +23,7 @@ from grassd.daemon.errors import DaemonError, LuxSensorSilent, LuxSensorUnreacha
 from grassd.daemon.store.atomic import describe_write_error
 from grassd.daemon.store.history import History, RunRecord
 from grassd.daemon.store.ingest import Bundle, CheckerPhoto, Inbox
+from grassd.daemon.timestamps import utc_iso
 from grassd.sim.light_input import LightInput
 
 log = logging.getLogger(__name__)
@@ -123,16 +124,13 @@ def superseded(b: Bundle, history: History, inbox: Inbox, future_tolerance_s: fl
         # stamped in the future, by a daemon from before that was refused at ingest: it
         # outranks nothing, or it would pin the active table until that date
         log.warning("the active table's light (run %d) is stamped in the future (%s); "
-                    "bundle %s is not superseded by it", cur.id,
-                    datetime.fromtimestamp(active_at, UTC).isoformat(timespec="seconds"),
-                    b.name)
+                    "bundle %s is not superseded by it", cur.id, utc_iso(active_at), b.name)
         return None
     if active_at is not None:
         ts = b.manifest.timestamp.timestamp()
         if ts >= active_at:
             return None
-        iso = [datetime.fromtimestamp(t, UTC).isoformat(timespec="seconds")
-               for t in (ts, active_at)]
+        iso = [utc_iso(t) for t in (ts, active_at)]
         return (f"superseded: its light ({iso[0]}) is older than the light ({iso[1]}) "
                 f"of run {cur.id}, which made the active table {cur.table_id}")
     mine = history.journal_get(b.hash)

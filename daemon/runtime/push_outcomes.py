@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from datetime import UTC, datetime
 
 from grassd.daemon.hardware.fleet import ControllerReport
 from grassd.daemon.store.history import History
+from grassd.daemon.timestamps import utc_iso
 
 
 @dataclass
@@ -53,7 +53,7 @@ class PushOutcomes:
                     s.unrecorded += 1
                     self.note(r)
                     return
-                since = datetime.fromtimestamp(s.since, UTC).isoformat(timespec="seconds")
+                since = utc_iso(s.since)
                 error = (f"{r.error} ({s.failures} failed pushes since {since}, "
                          f"{s.unrecorded} not recorded)")
                 s.last_row, s.unrecorded = now, 0

@@ -1,10 +1,11 @@
-"""The daemon's main loop and its wiring: setup, signals, systemd notification, reload, the
-errors a pass survives, and the order of the work below. The parts it wires live beside it in
-``grassd.daemon.runtime``: ``bundle_pipeline`` (one attempt at a bundle, superseded light,
-bundles waiting in processing/), ``ambient_lux`` (manifest or lux sensor), ``scheduled`` (the
-input of a run without a new bundle), ``commit`` (report, history row, push),
-``push_outcomes`` (what the history keeps of pushes), ``reconcile``, ``status`` (what status
-shows) and ``control_commands`` (the control socket's commands; ``control`` serves them).
+"""The daemon's main loop and its wiring: setup, signals, systemd notification, reload and
+the order of the work below. The parts it wires live beside it in ``grassd.daemon.runtime``:
+``pass_errors`` (the errors a pass survives, for status), ``bundle_pipeline`` (one attempt at
+a bundle, superseded light, bundles waiting in processing/), ``ambient_lux`` (manifest or lux
+sensor), ``scheduled`` (the input of a run without a new bundle), ``commit`` (report, history
+row, push), ``push_outcomes`` (what the history keeps of pushes), ``reconcile``, ``status``
+(what status shows) and ``control_commands`` (the control socket's commands; ``control``
+serves them).
 
 One main thread does all the work (Taichi kernels run in the thread that initialised Taichi);
 each *tick* (``tick_s``) it
@@ -46,8 +47,6 @@ import sqlite3
 import threading
 import time
 import traceback
-from collections.abc import Sequence
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -82,13 +81,13 @@ from grassd.daemon.runtime.commit import commit_run
 from grassd.daemon.runtime.control import ControlServer
 from grassd.daemon.runtime.control_commands import ControlCommands, QueuedRequest
 from grassd.daemon.runtime.notify import Notifier
+from grassd.daemon.runtime.pass_errors import PassErrors, describe_error, os_action
 from grassd.daemon.runtime.push_outcomes import PushOutcomes
 from grassd.daemon.runtime.reconcile import OwnTables, reconcile_controllers
 from grassd.daemon.runtime.retention import prune
 from grassd.daemon.runtime.scheduled import scheduled_input
 from grassd.daemon.runtime.statelock import StateLock
 from grassd.daemon.runtime.status import collect_status, rss_mb, usable_run_tables
-from grassd.daemon.store.atomic import describe_os_error
 from grassd.daemon.store.history import History
 from grassd.daemon.store.ingest import Bundle, CheckerPhoto, Inbox
 from grassd.daemon.store.quarantine import retry_request
@@ -100,28 +99,6 @@ log = logging.getLogger(__name__)
 STATE_DB = "state.db"
 #: imported from here by the CLI, tests and benchmarks
 __all__ = ["STATE_DB", "Service", "collect_status", "os_action", "rss_mb", "usable_run_tables"]
-
-
-def _now_iso() -> str:
-    return datetime.now(UTC).isoformat(timespec="seconds")
-
-
-def os_action(exc: BaseException, written: Sequence[Path] = (), otherwise: str = "access"
-              ) -> str:
-    """What an OSError ``exc`` failed to do, for :func:`describe_os_error`: "write" for a
-    rename/link (two paths) or a file below one of the directories ``written``; else
-    ``otherwise`` ("read" where only reads remain, "access" where it is not known). An error
-    only writes meet (full disk, quota, read-only file system, size limit) is worded as a
-    write by :func:`describe_os_error` itself, whatever this says."""
-    if not isinstance(exc, OSError):
-        return otherwise
-    if exc.filename2 is not None:
-        return "write"
-    if exc.filename is not None:
-        p = Path(os.fsdecode(exc.filename))
-        if any(p == d or d in p.parents for d in written):
-            return "write"
-    return otherwise
 
 
 class Service:
@@ -161,14 +138,8 @@ class Service:
         self.last_run_at: float | None = None
         self._last_reconcile = 0.0
         self.reload_error: str | None = None
-        #: the error of the latest main-loop pass that survived one (OSError / SQLite), for
-        #: status; cleared by the next pass that completes without one. ``_error_seen`` keeps
-        #: the last one with its times ("at", "error", "cleared_at") after it was cleared.
-        self.last_error: str | None = None
-        self._error_seen: dict[str, Any] | None = None
-        self._pass_errors = 0
-        #: the last error ended a pass (raised out of tick), see main_loop_pass
-        self._error_escaped = False
+        #: the errors main-loop passes survived (OSError / SQLite), for status
+        self.errors = PassErrors()
         self.runs_done = 0
         self.rss_log: list[tuple[int, float]] = []
         cfg.state_dir.mkdir(parents=True, exist_ok=True)
@@ -269,7 +240,7 @@ class Service:
             self.tick(pending)
         except (OSError, sqlite3.Error) as exc:  # e.g. a full or read-only disk
             self._survived(exc, "main loop", os_action(exc))
-            self._error_escaped = True
+            self.errors.escaped = True
 
     def tick(self, pending: list[Bundle] | None = None) -> None:
         """One pass of the main loop (see module docstring). A pass that completes without
@@ -277,20 +248,22 @@ class Service:
         unless a bundle deferred by such an error still waits for its retry, or the error
         ended a pass (:meth:`main_loop_pass`) and this pass did not reconcile."""
         self.last_progress = time.monotonic()
-        self._pass_errors = 0
+        self.errors.in_pass = 0
         reconciled = self._last_reconcile
         self._tick(pending)
-        if (self._pass_errors == 0 and self.last_error is not None
+        if (self.errors.in_pass == 0 and self.errors.last is not None
                 and not any(d.error for d in list(self.deferred.values()))  # a bundle
                 # still waiting after its error (not retried in this pass) keeps it, and an
                 # error that ended a pass (e.g. in reconcile, every reconcile_s) clears only
                 # in a pass that reconciled
-                and (not self._error_escaped or self._last_reconcile != reconciled)):
-            self.last_error = None
-            self._error_escaped = False
-            if self._error_seen is not None:  # replaced, not changed: status reads it
-                self._error_seen = {**self._error_seen, "cleared_at": _now_iso()}
-            log.info("the error of an earlier pass has cleared")
+                and (not self.errors.escaped or self._last_reconcile != reconciled)):
+            self.errors.clear()
+
+    @property
+    def last_error(self) -> str | None:
+        """The error of the latest main-loop pass that survived one ("<UTC time> <line>"),
+        until a later pass completes without one (see :meth:`tick`)."""
+        return self.errors.last
 
     def _tick(self, pending: list[Bundle] | None) -> None:
         if self.reload_event.is_set():
@@ -340,24 +313,12 @@ class Service:
             self._progress("idle")
 
     def _describe(self, exc: BaseException, action: str = "access") -> str:
-        """One line for an error a main-loop pass survives (what, why, the fix); ``action``:
-        what failed on an OSError's file (see :func:`os_action`)."""
-        if isinstance(exc, OSError):
-            return describe_os_error(exc, exc.filename or self.cfg.state_dir, action)
-        if isinstance(exc, sqlite3.Error):
-            return f"state database {self.history.path}: {exc}"
-        return f"internal error: {exc!r}"
+        """One line for an error a main-loop pass survives (see :func:`describe_error`)."""
+        return describe_error(exc, self.cfg.state_dir, self.history.path, action)
 
     def _survived(self, exc: BaseException, where: str, action: str = "access") -> str:
         """Log ``exc`` (OSError / SQLite error) and keep it for status as ``last_error``."""
-        msg = self._describe(exc, action)
-        at = _now_iso()
-        self._pass_errors += 1
-        self._error_escaped = False
-        self._error_seen = {"at": at, "error": msg, "cleared_at": None}
-        self.last_error = f"{at} {msg}"
-        log.error("%s: %s (the daemon keeps running)", where, msg)
-        return msg
+        return self.errors.survived(self._describe(exc, action), where)
 
     def shutdown(self) -> None:
         """Stop serving, close ports and the database (called once at exit)."""
@@ -570,7 +531,7 @@ class Service:
                          stop=self.stop_event, progress=self._progress,
                          committed=self._committed)
         if out["status"] == "ok":
-            self._last_reconcile = time.monotonic()  # the push reached every controller
+            self._last_reconcile = time.monotonic()  # it just pushed: no reconcile yet
         return out
 
     def _committed(self, run_id: int) -> None:
@@ -597,7 +558,7 @@ class Service:
         over snapshots of its collections (``list()`` / ``dict()`` of a dict is one C call,
         atomic under the GIL); the history database has its own lock.
         """
-        cfg, inbox, seen = self.cfg, self.inbox, self._error_seen
+        cfg, inbox, seen = self.cfg, self.inbox, self.errors.seen
         waiting = list(self.deferred.values())
         backoff = self.fleet.backoff()
         st = collect_status(self.history, cfg)
@@ -610,7 +571,7 @@ class Service:
             "started_at": self.started_at, "uptime_s": time.time() - self.started_at,
             "config": cfg.source, "reload_error": self.reload_error,
             "inbox": inbox.counts(), "rss_mb": rss_mb(), "running": True,
-            "last_error": self.last_error,
+            "last_error": self.errors.last,
             "last_error_seen": None if seen is None else dict(seen),
             "inbox_problems": inbox.problems(),
             "metrics_textfile": str(self.operator.textfile),
