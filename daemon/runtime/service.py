@@ -462,19 +462,14 @@ class Service:
         return self.waiting.defer(b, reason, limit_s=limit_s, error=error)
 
     def _process_bundle(self, b: Bundle) -> dict[str, Any]:
-        out = self._attempt_bundle(b)
+        out = attempt_bundle(b, history=self.history, inbox=self.inbox, light=self.cfg.light,
+                             waiting=self.waiting, lux=self._resolve_lux,
+                             begin=self._run_started,
+                             run=lambda run_id, light, checker: self._calibrate_and_commit(
+                                 run_id, light, force=False, checker=checker))
         if out["status"] != "deferred":
             self.deferred.pop(b.hash, None)
         return out
-
-    def _attempt_bundle(self, b: Bundle) -> dict[str, Any]:
-        return attempt_bundle(b, history=self.history, inbox=self.inbox, light=self.cfg.light,
-                              waiting=self.waiting, lux=self._resolve_lux,
-                              begin=self._run_started, run=self._run_bundle)
-
-    def _run_bundle(self, run_id: int, light: LightInput, checker: CheckerPhoto | None
-                    ) -> dict[str, Any]:
-        return self._calibrate_and_commit(run_id, light, force=False, checker=checker)
 
     def scheduled_run(self, trigger: str, force: bool = False) -> dict[str, Any]:
         """A run without a new bundle: light of the last archived bundle (or the embedded
