@@ -16,12 +16,11 @@ import numpy as np
 import pytest
 
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
-from grassd.firmware_proto.eeprom import BankStore, Eeprom
 from grassd.firmware_proto.errors import PushFailed
 from grassd.firmware_proto.faults import FaultInjector, FaultPlan
-from grassd.firmware_proto.messages import TABLE_BYTES, TableKind
+from grassd.firmware_proto.push_audit import booted_table
 from grassd.firmware_proto.simulator import SimulatedBus, make_controllers
-from grassd.firmware_proto.tables import table_crc, table_from_bytes
+from grassd.firmware_proto.tables import table_crc
 
 PUSHES = 200
 
@@ -42,20 +41,6 @@ PER_PIXEL = {"combined": 2}
 # Few retries so that some pushes do fail and the failure path is exercised too.
 POLICY = RetryPolicy(timeout_s=0.02, retries=1, backoff_s=0.002, backoff_max_s=0.02,
                      restarts=1, readback_retries=12)
-
-
-def booted_table(ctl) -> np.ndarray | None:
-    """The table a controller would load if it booted now: read from its EEPROM file afresh."""
-    eeprom = Eeprom(ctl.eeprom.path, ctl.eeprom.size)
-    try:
-        store = BankStore(eeprom, ctl.config.capacity)
-        bank, header = store.select_active()
-        if header is None:
-            return None
-        return table_from_bytes(store.read_data(bank, TABLE_BYTES * header.n_tables),
-                                header.n_tables, TableKind(header.kind))
-    finally:
-        eeprom.close()
 
 
 @pytest.mark.parametrize("fault", list(PLANS))
