@@ -14,29 +14,20 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from grassd.firmware_proto.client import ControllerClient
-from grassd.firmware_proto.eeprom import BankStore, Eeprom
+from grassd.firmware_proto.eeprom import active_table_in
 from grassd.firmware_proto.errors import PushFailed
 from grassd.firmware_proto.firmware import Controller
-from grassd.firmware_proto.messages import TABLE_BYTES, TableKind
-from grassd.firmware_proto.tables import table_crc, table_from_bytes
+from grassd.firmware_proto.tables import table_crc
 
 
 def booted_table(ctl: Controller) -> np.ndarray | None:
     """The table (um) ``ctl`` would load if it booted now, read from its EEPROM file afresh."""
-    eeprom = Eeprom(ctl.eeprom.path, ctl.eeprom.size)
-    try:
-        store = BankStore(eeprom, ctl.config.capacity)
-        bank, header = store.select_active()
-        if header is None:
-            return None
-        return table_from_bytes(store.read_data(bank, TABLE_BYTES * header.n_tables),
-                                header.n_tables, TableKind(header.kind))
-    finally:
-        eeprom.close()
+    return active_table_in(Path(ctl.eeprom.path).read_bytes(), ctl.config.capacity)
 
 
 def _same(a: np.ndarray | None, b: np.ndarray | None) -> bool:
