@@ -13,10 +13,10 @@ import time
 from importlib import resources
 from pathlib import Path
 
+from bench.daemon_process import status as daemon_status
+from bench.daemon_process import wait_ready
 from grassd.daemon.config.settings import load_default_config
-from grassd.daemon.errors import DaemonNotRunning
 from grassd.daemon.hardware.simulated import SimulatedHardware, hardware_toml
-from grassd.daemon.runtime.control import request
 
 BUNDLES = int(os.environ.get("GRASSD_BENCH_BUNDLES", "100"))
 ROOT = Path(__file__).resolve().parents[1]
@@ -68,19 +68,11 @@ def main() -> None:
     sock = state / "control.sock"
 
     def status() -> dict:
-        return request(sock, {"cmd": "status"}, timeout_s=60)["status"]
+        return daemon_status(sock)
 
     try:
-        t_start = time.monotonic()
-        while True:
-            try:
-                status()
-                break
-            except DaemonNotRunning:
-                if time.monotonic() - t_start > 120 or proc.poll() is not None:
-                    raise RuntimeError("daemon did not start; see " + str(tmp / "log")) from None
-                time.sleep(0.2)
-        print(f"daemon ready in {time.monotonic() - t_start:.1f} s")
+        ready_s = wait_ready(sock, proc, tmp / "log", 120)
+        print(f"daemon ready in {ready_s:.1f} s")
         print(f"{'bundle':>6} {'s/bundle':>9} {'RSS MiB':>8}")
         t0 = time.monotonic()
         last, last_i = t0, 0

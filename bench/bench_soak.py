@@ -32,10 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.daemon_process import status as daemon_status
+from bench.daemon_process import wait_ready
 from grassd.daemon.config.settings import load_default_config
-from grassd.daemon.errors import DaemonNotRunning
 from grassd.daemon.hardware.simulated import SimulatedHardware, hardware_toml
-from grassd.daemon.runtime.control import request
 from grassd.sim.hdri import write_exr
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -161,20 +161,12 @@ def main(argv: list[str] | None = None) -> int:
     sock = state / "control.sock"
 
     def status() -> dict:
-        return request(sock, {"cmd": "status"}, timeout_s=60)["status"]
+        return daemon_status(sock)
 
     rows: list[tuple[int, float, int, int, int, float, float]] = []
     try:
-        t_start = time.monotonic()
-        while True:
-            try:
-                status()
-                break
-            except DaemonNotRunning:
-                if time.monotonic() - t_start > 180 or proc.poll() is not None:
-                    raise RuntimeError(f"daemon did not start; see {log_path}") from None
-                time.sleep(0.2)
-        print(f"daemon ready in {time.monotonic() - t_start:.1f} s; {n} bundles, cheap "
+        ready_s = wait_ready(sock, proc, log_path, 180)
+        print(f"daemon ready in {ready_s:.1f} s; {n} bundles, cheap "
               f"settings (16 samples, 4 lengths, 16x32 HDRIs), retention: {KEEP_S:g} s of bundles, "
               f"20 reports, 100 runs", flush=True)
         print(f"{'bundle':>6} {'RSS MiB':>8} {'fds':>4} {'state MiB':>9} {'db MiB':>7} "
