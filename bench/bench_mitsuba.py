@@ -10,7 +10,10 @@ quad (:mod:`grassd.sim.mitsuba_scene`). grassd traces the same quad with its def
 Efficiency = 1 / (seconds x relative variance of the quad's G), both sides measured in the same
 process, interleaved round by round (the CPU is shared, so timings drift together), with wall
 seconds (medians) and, less sensitive to other processes, CPU seconds of the process (all its
-threads). Scene load, upload and JIT are not timed. The variance of one Mitsuba render comes
+threads). Scene load, upload and JIT are not timed. Each timed call starts after a
+``SETTLE_S`` pause: Dr.Jit's worker threads keep spinning for a few milliseconds after a render,
+and grassd timed right after one ran about 25 % slower (forest: 0.054 s against 0.040-0.044 s
+with a 10 ms to 1 s pause; Mitsuba's own time did not move). The variance of one Mitsuba render comes
 from its pixels: they are independent, so ``sum_i w_i^2 s_i^2 / (sum w)^2`` with s_i^2 each
 pixel's variance over the renders; grassd's from its replicates. For the characteristic
 Mitsuba counts as 21 renders and both sides use the variance at 10 mm. Agreement: the pooled
@@ -42,6 +45,7 @@ SPP = 4
 WIDTH = 512  #: film width (export-scene's default)
 RENDERS_PER_ROUND = 2
 EXACT_RAYS = 1 << 20  #: Mitsuba paths per round for the agreement (untimed)
+SETTLE_S = 0.05  #: pause before each timed call, so neither side runs beside the other's threads
 
 
 def _skip_reason() -> str | None:
@@ -85,6 +89,7 @@ class MitsubaSide:
 
     def render(self, keep: bool = True) -> None:
         self._seed += 1
+        time.sleep(SETTLE_S)
         t0, c0 = time.perf_counter(), time.process_time()
         img = np.array(self.mi.render(self.scene, seed=self._seed), dtype=np.float64)[..., :3]
         dt, dc = time.perf_counter() - t0, time.process_time() - c0
@@ -165,6 +170,7 @@ def run_scene(name: str, rounds: int, renderer) -> None:
             mits.render()
         mits.measure_exact()
         for key, lengths, seed, k in (("1", one, 1000 + r, 0), ("21", LENGTHS_MM, r, k10)):
+            time.sleep(SETTLE_S)
             c0 = time.process_time()
             res = renderer.characteristic(display, lighting, vp, lengths, RenderSettings(seed=seed))
             g["c" + key].append(time.process_time() - c0)
