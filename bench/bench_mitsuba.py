@@ -13,8 +13,8 @@ seconds (medians) and, less sensitive to other processes, CPU seconds of the pro
 threads). Scene load, upload and JIT are not timed. Each timed call starts after a
 ``SETTLE_S`` pause: Dr.Jit's worker threads keep spinning for a few milliseconds after a render,
 and grassd timed right after one ran about 25 % slower (forest: 0.054 s against 0.040-0.044 s
-with a 10 ms to 1 s pause; Mitsuba's own time did not move). The variance of one Mitsuba render comes
-from its pixels: they are independent, so ``sum_i w_i^2 s_i^2 / (sum w)^2`` with s_i^2 each
+with a 10 ms to 1 s pause; Mitsuba's own time did not move). The variance of one Mitsuba render
+comes from its pixels: they are independent, so ``sum_i w_i^2 s_i^2 / (sum w)^2`` with s_i^2 each
 pixel's variance over the renders; grassd's from its replicates. For the characteristic
 Mitsuba counts as 21 renders and both sides use the variance at 10 mm. Agreement: the pooled
 means per channel, their difference in % and in combined standard errors; Mitsuba's side for

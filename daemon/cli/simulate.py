@@ -15,7 +15,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from grassd.daemon.cli.options import REPLICATES
+from grassd.daemon.cli.options import RENDER_DEFAULTS, REPLICATES
 from grassd.daemon.store.atomic import atomic_save_figure, atomic_write_bytes, atomic_write_text
 
 
@@ -136,13 +136,15 @@ def _plot(path: Path, curves) -> None:
               help="Viewpoint: eye height (cm), distance (m), angle (deg). Repeatable.")
 @click.option("--lengths", default="0:20:1", show_default=True,
               help="Green lengths in mm: START:STOP:STEP or a comma list (0,5,12.5).")
-@click.option("--samples", type=int, default=4096, show_default=True,
+@click.option("--samples", type=int, default=RENDER_DEFAULTS.samples, show_default=True,
               help="Camera paths per length per replicate.")
-@click.option("--replicates", type=REPLICATES, default=8, show_default=True,
+@click.option("--replicates", type=REPLICATES, default=RENDER_DEFAULTS.replicates,
+              show_default=True,
               help="Independent replicates (their spread gives the standard error).")
 @click.option("--target-stderr", type=float, default=None,
               help="Add replicates until every OGCD standard error is at most this (dE00).")
-@click.option("--light-samples", type=int, default=2, show_default=True,
+@click.option("--light-samples", type=int, default=RENDER_DEFAULTS.light_samples,
+              show_default=True,
               help="Environment shadow rays at each of the first two surfaces of a path.")
 @click.option("--arch", type=click.Choice(["cpu", "gpu"]), default="cpu", show_default=True)
 @click.option("--json", "json_out", type=click.Path(dir_okay=False, path_type=Path))

@@ -48,6 +48,7 @@ import numpy as np
 
 from grassd.daemon.errors import DaemonError
 from grassd.sim.light_input import LightInput
+from grassd.sim.scene import RenderSettings
 
 SCHEMA_VERSION = 1
 #: Below this OGCD range (dE00) a condition counts as one where the display loses contrast.
@@ -75,9 +76,9 @@ class SweepSpec:
 
     lengths_mm: tuple[float, ...]
     samples: int = 1024
-    replicates: int = 8
-    bounces: int = 3
-    light_samples: int = 2
+    replicates: int = RenderSettings.replicates
+    bounces: int = RenderSettings.max_bounces
+    light_samples: int = RenderSettings.light_samples
     target_stderr: float | None = None
     seed: int = 0
     lux: float = 20000.0
@@ -159,7 +160,7 @@ def conditions(hdris: Sequence[str], times: Sequence[str], views: Sequence[tuple
 
 def check_conditions(spec: SweepSpec, conds: Sequence[Condition]) -> None:
     """Raise :class:`SweepError` naming what to fix before any work starts."""
-    from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint
+    from grassd.sim.scene import DisplaySpec, PixelSpec, Viewpoint
 
     if not conds:
         raise SweepError("a sweep needs at least one HDRI and one viewpoint")
@@ -266,7 +267,7 @@ def run_task(spec: SweepSpec, cond: Condition) -> dict:
     from grassd.calib.errors import CalibError
     from grassd.calib.length_table import build_length_table, r_squared
     from grassd.daemon.calibration.simulation import simulate_curve
-    from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint
+    from grassd.sim.scene import DisplaySpec, PixelSpec, Viewpoint
 
     t0 = time.perf_counter()
     with _worker_lock:  # one trace at a time per process (the renderer owns its fields)
