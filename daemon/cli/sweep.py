@@ -8,16 +8,12 @@ already in the database are skipped.
 
 from __future__ import annotations
 
-import dataclasses
 import re
 import sys
 
 import click
 
-from grassd.daemon.cli.options import REPLICATES
-from grassd.daemon.offline.sweep import SweepSpec
-
-_SPEC_DEFAULTS = {f.name: f.default for f in dataclasses.fields(SweepSpec)}
+from grassd.daemon.cli.options import RENDER_DEFAULTS, REPLICATES
 
 
 def _views(_ctx, _param, values):
@@ -58,13 +54,13 @@ def _display(_ctx, _param, value: str) -> tuple[int, int]:
               help="ROWSxCOLS of the simulated display (its centre pixel is measured).")
 @click.option("--lengths", default="0:20:2", show_default=True,
               help="Green lengths in mm: START:STOP:STEP or a comma list.")
-@click.option("--samples", type=int, default=_SPEC_DEFAULTS["samples"], show_default=True)
-@click.option("--replicates", type=REPLICATES, default=_SPEC_DEFAULTS["replicates"],
+@click.option("--samples", type=int, default=1024, show_default=True)
+@click.option("--replicates", type=REPLICATES, default=RENDER_DEFAULTS.replicates,
               show_default=True)
 @click.option("--target-stderr", type=float, default=None,
               help="Add replicates until every OGCD standard error is at most this (dE00).")
-@click.option("--bounces", type=int, default=_SPEC_DEFAULTS["bounces"], show_default=True)
-@click.option("--light-samples", type=int, default=_SPEC_DEFAULTS["light_samples"],
+@click.option("--bounces", type=int, default=RENDER_DEFAULTS.max_bounces, show_default=True)
+@click.option("--light-samples", type=int, default=RENDER_DEFAULTS.light_samples,
               show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True,
               help="Mixed into every task's deterministic seed.")
