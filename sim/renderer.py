@@ -130,23 +130,33 @@ def _fill(fld, arr: np.ndarray) -> None:
     fld.from_numpy(full)
 
 
-def _cell_tops(sc: SceneArrays) -> np.ndarray:
-    """(cells, 2) per grid cell: the highest point of its fixed primitives (yellow blades,
-    rectangles, green cavity parts) and the highest root of its green blades (-1e30 if none),
-    in metres, for skipping cells that a ray passes over."""
+def _cell_table(sc: SceneArrays) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The grid's items reordered so that each cell lists its blades before its rectangles,
+    the index of each cell's first rectangle item, and per cell (cells, 3): the highest point of
+    its fixed primitives (yellow blades, rectangles, green cavity parts), the highest root of
+    its green blades (-1e30 if none) and the highest point of its rectangles (-1e30 if none),
+    in metres. A ray that passes over a cell skips it; one that passes over its rectangles
+    (the base top, walls and cavities, all at or below the display plane) stops after the
+    blades: in the paper's pixel about half of a cell's items are rectangles, and a ray in
+    the grass passes over them."""
     green = sc.blade_params[:, 3] > 0.5
     root = sc.blade_p0[:, 2].astype(np.float64)
     b = sc.rect_bounds.astype(np.float64)
-    fixed = np.concatenate([root + np.where(green, 0.0, sc.blade_params[:, 1]),
-                            np.where(sc.rect_axis == 2, b[:, 0], b[:, 4])])
+    rect_top = np.where(sc.rect_axis == 2, b[:, 0], b[:, 4])
+    fixed = np.concatenate([root + np.where(green, 0.0, sc.blade_params[:, 1]), rect_top])
     groot = np.concatenate([np.where(green, root, -1e30), np.full(sc.n_rects, -1e30)])
+    rtop = np.concatenate([np.full(sc.n_blades, -1e30), rect_top])
     n_cells = len(sc.cell_start) - 1
     counts = np.diff(sc.cell_start)
     cell_of = np.repeat(np.arange(n_cells), counts)
-    out = np.full((n_cells, 2), -1e30)
-    np.maximum.at(out[:, 0], cell_of, fixed[sc.cell_items])
-    np.maximum.at(out[:, 1], cell_of, groot[sc.cell_items])
-    return out.astype(np.float32)
+    order = np.lexsort((sc.cell_items, cell_of))  # by cell, then blades (ids < nb) first
+    items = sc.cell_items[order]
+    n_blade_items = np.bincount(cell_of, items < sc.n_blades, minlength=n_cells)
+    split = (sc.cell_start[:-1] + n_blade_items).astype(np.int32)
+    out = np.full((n_cells, 3), -1e30)
+    for k, value in enumerate((fixed, groot, rtop)):
+        np.maximum.at(out[:, k], cell_of, value[items])
+    return items.astype(np.int32), split, out.astype(np.float32)
 
 
 @ti.data_oriented
@@ -178,9 +188,10 @@ class Renderer:
         self.rect_mat = ti.field(ti.i32, cap.rects)
         self.cell_start = ti.field(ti.i32, cap.cells + 1)
         self.cell_items = ti.field(ti.i32, cap.items)
-        # Per cell: (top of its fixed primitives, highest green root or -INF) [m]; a green
-        # blade of length x reaches root + x.
-        self.cell_top = ti.Vector.field(2, ti.f32, cap.cells)
+        self.cell_split = ti.field(ti.i32, cap.cells)  # first rectangle item of each cell
+        # Per cell: (top of its fixed primitives, highest green root or -INF, top of its
+        # rectangles or -INF) [m]; a green blade of length x reaches root + x.
+        self.cell_top = ti.Vector.field(3, ti.f32, cap.cells)
         self.albedo = ti.Vector.field(3, ti.f32, 4)
         self.lengths = ti.field(ti.f32, 256)
         self.env = ti.Vector.field(3, ti.f32, cap.env_texels)
@@ -260,9 +271,11 @@ class Renderer:
         _fill(self.rect_axis, sc.rect_axis)
         _fill(self.rect_b, sc.rect_bounds)
         _fill(self.rect_mat, sc.rect_material)
+        items, split, tops = _cell_table(sc)
         _fill(self.cell_start, sc.cell_start)
-        _fill(self.cell_items, sc.cell_items)
-        _fill(self.cell_top, _cell_tops(sc))
+        _fill(self.cell_items, items)
+        _fill(self.cell_split, split)
+        _fill(self.cell_top, tops)
         self.albedo.from_numpy(sc.albedo)
         f = self.fpar
         f[0], f[1] = float(sc.grid_origin[0]), float(sc.grid_origin[1])
@@ -479,7 +492,10 @@ class Renderer:
                 zlo, zhi = ti.min(za, zb), ti.max(za, zb)
                 ct = self.cell_top[c]
                 if zlo <= ti.max(ct.x, ct.y + x_cull) + ZCULL:  # else it passes over the cell
-                    for j in range(self.cell_start[c], self.cell_start[c + 1]):
+                    end = self.cell_start[c + 1]
+                    if zlo > ct.z + ZCULL:  # over the cell's rectangles: its blades only
+                        end = self.cell_split[c]
+                    for j in range(self.cell_start[c], end):
                         prim = self.cell_items[j]
                         t, n, m, g = self.hit_primitive(prim, o, d, x, x_cull, best_t, zlo, zhi)
                         grow = ti.min(grow, g)
