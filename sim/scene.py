@@ -207,15 +207,15 @@ class RenderSettings:
     error (one alone gives none: a top-up batch of an adaptive run), ``max_bounces`` surface
     interactions per path (1 = direct light only; Mitsuba's ``max_depth`` is
     ``max_bounces + 1``), ``seed`` makes results bit-reproducible,
-    ``light_samples`` environment samples (shadow rays) at each of the first two surfaces a
-    path meets (one at later ones).
+    ``light_samples`` environment samples (shadow rays) at the first surface a path meets (one
+    at later ones; :mod:`grassd.sim.renderer` gives the measurements behind the default).
     """
 
     samples: int = 4096
     replicates: int = 8
     max_bounces: int = 3
     seed: int = 0
-    light_samples: int = 2
+    light_samples: int = 4
 
     def __post_init__(self) -> None:
         if not 1 <= self.samples <= 4_000_000:

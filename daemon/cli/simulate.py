@@ -145,7 +145,7 @@ def _plot(path: Path, curves) -> None:
               help="Add replicates until every OGCD standard error is at most this (dE00).")
 @click.option("--light-samples", type=int, default=RENDER_DEFAULTS.light_samples,
               show_default=True,
-              help="Environment shadow rays at each of the first two surfaces of a path.")
+              help="Environment shadow rays at the first surface of a path (one at later ones).")
 @click.option("--arch", type=click.Choice(["cpu", "gpu"]), default="cpu", show_default=True)
 @click.option("--json", "json_out", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--plot", "plot_out", type=click.Path(dir_okay=False, path_type=Path),

@@ -140,8 +140,8 @@ def test_adaptive_replicates_stop_at_the_first_round_meeting_the_target(renderer
 
     lighting = build_lighting(shared_hdri("courtyard"), ambient_lux=8000)
     lengths = np.arange(0.0, 20.01, 2.5)
-    # (a seed whose run stops lengths at different rounds; seeds 2, 4 and 9 of 0-11 do)
-    settings = RenderSettings(samples=256, replicates=4, seed=2)
+    # (a seed whose run stops lengths at different rounds; 10 of seeds 0-15 do, 4 among them)
+    settings = RenderSettings(samples=256, replicates=4, seed=4)
     plain = simulate_curve(renderer, DisplaySpec(), lighting, Viewpoint(), lengths, settings)
     target = 0.6 * float(plain.ogcd_stderr.max())
     c = simulate_curve(renderer, DisplaySpec(), lighting, Viewpoint(), lengths, settings,
