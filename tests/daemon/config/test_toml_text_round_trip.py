@@ -26,8 +26,11 @@ from grassd.sim.light_input import LightInput
 AWKWARD = ['THETA Z1 \U0001F600', 'a "quoted" \\ name', "line\nbreak\ttab\r\x07\x1f\x7f", "é"]
 QUAD = ((10.0, 12.0), (54.0, 12.0), (56.0, 50.0), (8.0, 50.0))
 
+# Subnormal floats are left out: once a Taichi kernel has run in a process (the daemon renders
+# in its own), Taichi's CPU runtime has set denormals-are-zero for the thread, and float() --
+# hence tomllib -- reads 1e-308 back as 0.0, whoever wrote the text.
 _scalars = (st.text() | st.booleans() | st.integers(-2**63, 2**63 - 1)
-            | st.floats(allow_nan=False))
+            | st.floats(allow_nan=False, allow_subnormal=False))
 _values = st.recursive(
     _scalars, lambda inner: st.lists(inner, max_size=4)
     | st.dictionaries(st.from_regex(r"[A-Za-z_][A-Za-z0-9_]{0,8}", fullmatch=True), inner,
