@@ -115,7 +115,8 @@ class MitsubaSide:
         return per_render.mean(axis=0), np.sqrt(var_one / len(imgs)), var_one
 
 
-def _summary(name: str, g_mean, g_se, g: dict, m: MitsubaSide, traces: float) -> None:
+def _summary(name: str, g_mean, g_se, g: dict, m: MitsubaSide, traces: tuple[float, float]
+             ) -> None:
     """Print efficiencies (wall and CPU seconds) and the agreement of one scene. ``g``: grassd's
     median seconds ("t1", "t21", "c1", "c21": wall/CPU, one/21 lengths) and mean variances
     ("v1", "v21", RGB) of one run."""
@@ -129,7 +130,8 @@ def _summary(name: str, g_mean, g_se, g: dict, m: MitsubaSide, traces: float) ->
           f"{m.weights.size} px cropped, {len(m.seconds)} renders), rel. sd of G "
           f"{np.sqrt(rv_m) * 100:.3f} %; grassd one length {g['t1']:.3f} s (rel. sd "
           f"{np.sqrt(rv1) * 100:.3f} %), 21 lengths {g['t21']:.3f} s (rel. sd at {LENGTH_MM:g} "
-          f"mm {np.sqrt(rv21) * 100:.3f} %, {traces:.2f} traces per path)")
+          f"mm {np.sqrt(rv21) * 100:.3f} %, {traces[0]:.2f} traces and {traces[1]:.1f} rays "
+          f"per path)")
     for clock, t_m, t1, t21 in (("wall", np.median(m.seconds), g["t1"], g["t21"]),
                                 ("CPU", np.median(m.cpu_seconds), g["c1"], g["c21"])):
         e_m, e1, e21 = 1 / (t_m * rv_m), 1 / (t1 * rv1), 1 / (t21 * rv21)
@@ -177,13 +179,14 @@ def run_scene(name: str, rounds: int, renderer) -> None:
             g["t" + key].append(res.seconds["trace"])
             g["v" + key].append(res.rgb_stderr[k] ** 2)
             reps.append(res.rgb_replicates[:, k])
-        traces.append(res.paths_traced / res.samples_per_length)
+        traces.append((res.paths_traced / res.samples_per_length,
+                       res.rays_traced / res.samples_per_length))
     reps = np.concatenate(reps)
     g_mean = reps.mean(axis=0)
     g_se = reps.std(axis=0, ddof=1) / np.sqrt(len(reps))
     summary = {k: (float(np.median(v)) if k[0] in "tc" else np.mean(v, axis=0))
                for k, v in g.items()}
-    _summary(name, g_mean, g_se, summary, mits, float(np.mean(traces)))
+    _summary(name, g_mean, g_se, summary, mits, tuple(np.mean(traces, axis=0)))
 
 
 def main() -> None:

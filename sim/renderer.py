@@ -30,7 +30,10 @@ under an importance-sampled equirectangular environment plus an optional directi
   it without tracing; the path is traced again at the first length past it. A green blade's
   outline grows with its length (longer blades hold shorter ones; splay turns them, so with
   splay every length is traced). On the paper's pixel a path is traced about 4 times for 21
-  lengths, within 3 % of the number of lengths at which its radiance actually changes.
+  lengths, within 3 % of the number of lengths at which its radiance actually changes. A
+  trace at a longer length keeps the answers of the path's rays up to the first one that may
+  change there (each ray has its own growth length), so only the rest of the path is traced
+  again.
 * Sampling: randomised quasi-Monte Carlo. Every pair of dimensions (quad position, light
   samples, bounce directions) takes the 2D Sobol' points, Owen-scrambled and index-shuffled per
   (replicate, pair) (:func:`grassd.sim.tifuncs.owen_sobol_pair`): the strata**2 paths of a
@@ -83,6 +86,9 @@ PREVIEW_MAX = 1024  # largest preview image side (pixels)
 # From the second surface (survival 0.5 or 0.7) G gained 12-37 % but OGCD lost up to 21 %.
 RR_DEPTH = 2
 RR_SURVIVAL = 0.5
+# Rays of a path whose answers are kept for its next length (trace_memo): enough for the
+# default path (4 + 1 light samples, sun, 3 bounces: 13 rays); later rays are traced again.
+MEMO_RAYS = 16
 
 
 @dataclass(frozen=True)
@@ -108,6 +114,8 @@ class Measurement:
     random numbers across lengths within a replicate). ``seconds``: compile, trace, total.
     ``paths_traced``: camera paths actually traced, at most n x ``samples_per_length``; a path
     is traced again only at a length from which on its rays may meet other surfaces.
+    ``rays_traced``: rays (camera, bounce and shadow) actually traced; a path traced again
+    keeps the answers of its rays up to the first vertex that moves.
     """
 
     viewpoint: Viewpoint
@@ -118,6 +126,7 @@ class Measurement:
     samples_per_length: int
     seconds: dict[str, float] = field(default_factory=dict)
     paths_traced: int = 0
+    rays_traced: int = 0
 
 
 _SHARED: dict[Capacity, "Renderer"] = {}
@@ -203,7 +212,7 @@ class Renderer:
         self.block_cdf = ti.field(ti.f32, cap.env_texels + COARSE_ROWS_MAX * COARSE_COLS_MAX)
         self.out = ti.Vector.field(3, ti.f32, cap.paths)
         self.sums = ti.Vector.field(3, ti.f64, 256 * 64)  # per (length, replicate) of a launch
-        self.traced = ti.field(ti.i32, ())  # path traces of the last launch
+        self.traced = ti.field(ti.i64, 2)  # path traces and rays traced by the last launch
         self.quad = ti.Vector.field(3, ti.f32, 4)
         self.image = ti.Vector.field(3, ti.f32, (PREVIEW_MAX, PREVIEW_MAX))
         # Scalars: see _upload_* for the meaning of each slot.
@@ -526,13 +535,56 @@ class Renderer:
         return best_t, best_n, best_m, grow
 
     @ti.func
+    def trace_memo(self, memo, n_memo: ti.i32, ray: ti.i32, reuse: ti.i32, o, d, x: ti.f32,
+                   x_cull: ti.f32, any_hit: ti.i32):
+        """:meth:`trace` for ray number ``ray`` of a path, taking the answer kept in ``memo``
+        (rows: t, normal, material, growth length) from the path's trace at a shorter length
+        when the path's earlier vertices all kept theirs (``reuse``: the ray is then the same)
+        and this length is below the ray's growth length (it then meets the same surface at
+        the same point: :meth:`trace`). A ray traced again leaves ``reuse`` set when it moves
+        no vertex: a shadow ray (``any_hit``; its answer only weighs a light sample), or a ray
+        that meets the same surface at the same distance. Returns the answer, the updated
+        memo, ``reuse`` and whether the ray was traced (1) or taken from the memo (0)."""
+        t, n, mat, g = 0.0, vec3(0.0), -1, 0.0
+        kept = 0  # this ray's row of the memo: 0 none, 1 valid at this length, 2 outgrown
+        if ray < n_memo:  # (nested ifs: Taichi's `and` evaluates both sides)
+            kept = 2
+            if reuse and x < memo[ray, 5]:
+                kept = 1
+        if kept == 1:
+            t, g = memo[ray, 0], memo[ray, 5]
+            n = vec3(memo[ray, 1], memo[ray, 2], memo[ray, 3])
+            mat = ti.cast(memo[ray, 4], ti.i32)
+        else:
+            t, n, mat, g = self.trace(o, d, x, x_cull, tf.INF, any_hit)
+            if not any_hit:
+                same = False
+                if kept == 2:
+                    same = (t == memo[ray, 0] and mat == ti.cast(memo[ray, 4], ti.i32)
+                            and n.x == memo[ray, 1] and n.y == memo[ray, 2]
+                            and n.z == memo[ray, 3])
+                if not same:
+                    reuse = 0
+            if ray < MEMO_RAYS:
+                memo[ray, 0], memo[ray, 1], memo[ray, 2] = t, n.x, n.y
+                memo[ray, 3], memo[ray, 4], memo[ray, 5] = n.z, ti.cast(mat, ti.f32), g
+        return t, n, mat, g, memo, reuse, 1 if kept != 1 else 0
+
+    @ti.func
     def radiance(self, o, d, x: ti.f32, x_cull: ti.f32, index: ti.i32, strata: ti.i32,
-                 rep_key: ti.u32, key: ti.u32, max_bounces: ti.i32):
+                 rep_key: ti.u32, key: ti.u32, max_bounces: ti.i32, memo, n_memo: ti.i32):
         """Path-traced radiance along o + t d (linear Rec.709) with green blades ``x`` long,
         and the least green length from which on the path may change (meaningful up to
         ``x_cull``; ``x`` itself when blades splay, as their planes turn with the length):
         the same random numbers give the same radiance for every length in [x, that
-        length)."""
+        length). ``memo``, ``n_memo``: the answers of the first rays of this path's trace at
+        a shorter length (n_memo = 0: none); rays up to the first one whose answer changes at
+        ``x`` take them instead of tracing (:meth:`trace_memo`), which gives the same
+        radiance bit for bit. Returns the radiance, the growth length, the memo and its count
+        for the next length, and the number of rays traced."""
+        ray = 0
+        rays = 0
+        reuse = 1 if n_memo > 0 and self.fpar[7] <= 0.0 else 0  # splay turns every blade
         grow = tf.INF
         total = vec3(0.0)
         beta = vec3(1.0)
@@ -545,7 +597,10 @@ class Renderer:
         ks, nexp = self.fpar[16], self.fpar[17]
         for depth in range(max_bounces + 1):
             # The last segment only asks whether the environment is visible (any hit).
-            t, n, mat, g = self.trace(o, d, x, x_cull, tf.INF, 1 if depth == max_bounces else 0)
+            t, n, mat, g, memo, reuse, fresh = self.trace_memo(
+                memo, n_memo, ray, reuse, o, d, x, x_cull, 1 if depth == max_bounces else 0)
+            ray += 1
+            rays += fresh
             grow = ti.min(grow, g)
             if mat < 0:  # escaped to the environment
                 le = self.env_radiance(d)
@@ -600,7 +655,10 @@ class Renderer:
                     fcos, _ = tf.bsdf_eval(alb, nn, wo, sun_dir, ks, nexp)
                     contrib = sun_e * fcos
                 if nn.dot(wl) > 0.0 and contrib.max() > 0.0:
-                    ts, _, ms, gs = self.trace(p, wl, x, x_cull, tf.INF, 1)
+                    ts, _, ms, gs, memo, reuse, fresh = self.trace_memo(memo, n_memo, ray, reuse,
+                                                                        p, wl, x, x_cull, 1)
+                    ray += 1
+                    rays += fresh
                     grow = ti.min(grow, gs)
                     if ms < 0:
                         total += beta * contrib
@@ -616,7 +674,7 @@ class Renderer:
                 break
         if self.fpar[7] > 0.0:
             grow = x
-        return total, grow
+        return total, grow, memo, ti.min(ray, MEMO_RAYS), rays
 
     @ti.kernel
     def _trace_kernel(self, n_len: ti.i32, rep0: ti.i32, n_rep: ti.i32, strata: ti.i32,
@@ -629,7 +687,8 @@ class Renderer:
         + i]."""
         n_samp = strata * strata
         x_cull = self.lengths[ti.max(n_len - 1, 0)]
-        self.traced[None] = 0
+        self.traced[0] = 0
+        self.traced[1] = 0
         for rr, i in ti.ndrange(n_rep, n_samp):
             r = rep0 + rr
             rep_key = tf.replicate_key(seed, r)
@@ -643,17 +702,23 @@ class Renderer:
             d = (q - eye).normalized()
             k = 0
             traces = 0
+            rays = 0
+            memo = ti.Matrix.zero(ti.f32, MEMO_RAYS, 6)
+            n_memo = 0
             while k < n_len:
                 traces += 1
-                rad, grow = self.radiance(eye, d, self.lengths[k], x_cull, i, strata, rep_key,
-                                          key, max_bounces)
+                rad, grow, memo, n_memo, n_rays = self.radiance(
+                    eye, d, self.lengths[k], x_cull, i, strata, rep_key, key, max_bounces, memo,
+                    n_memo)
+                rays += n_rays
                 value = jac * rad
                 self.out[(k * n_rep + rr) * n_samp + i] = value
                 k += 1
                 while k < n_len and self.lengths[k] < grow:
                     self.out[(k * n_rep + rr) * n_samp + i] = value
                     k += 1
-            self.traced[None] += traces
+            self.traced[0] += traces
+            self.traced[1] += rays
 
     @ti.kernel
     def _reduce_kernel(self, n_groups: ti.i32, n_samp: ti.i32):
@@ -679,7 +744,9 @@ class Renderer:
                 sx = ((px + tf.rand01(key, 0)) / width * 2.0 - 1.0) * half
                 sy = ((py + tf.rand01(key, 1)) / width * 2.0 - 1.0) * half
                 d = (forward + sx * right - sy * up).normalized()
-                rad, _ = self.radiance(eye, d, x, x, s, m, rep_key, key, max_bounces)
+                memo = ti.Matrix.zero(ti.f32, MEMO_RAYS, 6)  # one length: nothing kept
+                rad, _, memo, _, _ = self.radiance(eye, d, x, x, s, m, rep_key, key,
+                                                   max_bounces, memo, 0)
                 acc += rad
             self.image[py, px] = acc / (m * m)
 
@@ -742,7 +809,7 @@ class Renderer:
         eye_ti = ti.Vector(eye.astype(np.float32).tolist())
         t_compile = self._ensure_compiled()
         t_trace0 = time.perf_counter()
-        traced = 0
+        traced = rays = 0
         for done, (s, r0) in enumerate(launches, start=1):
             rows = order[s: s + len_chunk]
             reps = min(rep_chunk, n_rep - r0)
@@ -753,7 +820,8 @@ class Renderer:
                                eye_ti, float(area))
             n_groups = len(rows) * reps
             self._reduce_kernel(n_groups, n_samp)
-            traced += int(self.traced[None])
+            traced += int(self.traced[0])
+            rays += int(self.traced[1])
             sums = self.sums.to_numpy()[:n_groups].reshape(len(rows), reps, 3)
             out[rows, r0: r0 + reps] = sums / n_samp
             if progress:
@@ -768,7 +836,7 @@ class Renderer:
         return Measurement(
             viewpoint=viewpoint, lengths_mm=lengths_mm, rgb_linear=rgb, rgb_stderr=stderr,
             rgb_replicates=np.transpose(out, (1, 0, 2)), samples_per_length=n_rep * n_samp,
-            paths_traced=traced,
+            paths_traced=traced, rays_traced=rays,
             seconds={"compile": t_compile, "trace": t_end - t_trace0,
                      "total": t_end - t_start},
         )
