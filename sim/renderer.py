@@ -88,7 +88,9 @@ RR_DEPTH = 2
 RR_SURVIVAL = 0.5
 # Rays of a path whose answers are kept for its next length (trace_memo): enough for the
 # default path (4 + 1 light samples, sun, 3 bounces: 13 rays); later rays are traced again.
+# A row: t, normal (3), material, growth length.
 MEMO_RAYS = 16
+MEMO_COLS = 6
 
 
 @dataclass(frozen=True)
@@ -538,7 +540,7 @@ class Renderer:
     def trace_memo(self, memo, n_memo: ti.i32, ray: ti.i32, reuse: ti.i32, o, d, x: ti.f32,
                    x_cull: ti.f32, any_hit: ti.i32):
         """:meth:`trace` for ray number ``ray`` of a path, taking the answer kept in ``memo``
-        (rows: t, normal, material, growth length) from the path's trace at a shorter length
+        (a row per ray: ``MEMO_COLS``) from the path's trace at a shorter length
         when the path's earlier vertices all kept theirs (``reuse``: the ray is then the same)
         and this length is below the ray's growth length (it then meets the same surface at
         the same point: :meth:`trace`). A ray traced again leaves ``reuse`` set when it moves
@@ -703,7 +705,7 @@ class Renderer:
             k = 0
             traces = 0
             rays = 0
-            memo = ti.Matrix.zero(ti.f32, MEMO_RAYS, 6)
+            memo = ti.Matrix.zero(ti.f32, MEMO_RAYS, MEMO_COLS)
             n_memo = 0
             while k < n_len:
                 traces += 1
@@ -744,7 +746,7 @@ class Renderer:
                 sx = ((px + tf.rand01(key, 0)) / width * 2.0 - 1.0) * half
                 sy = ((py + tf.rand01(key, 1)) / width * 2.0 - 1.0) * half
                 d = (forward + sx * right - sy * up).normalized()
-                memo = ti.Matrix.zero(ti.f32, MEMO_RAYS, 6)  # one length: nothing kept
+                memo = ti.Matrix.zero(ti.f32, MEMO_RAYS, MEMO_COLS)  # one length: nothing kept
                 rad, _, memo, _, _ = self.radiance(eye, d, x, x, s, m, rep_key, key,
                                                    max_bounces, memo, 0)
                 acc += rad
