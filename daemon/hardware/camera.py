@@ -21,7 +21,9 @@ user name = the camera's ID printed on it (``THETAYN`` + the serial digits on a 
 authentication is asked. Digest auth is urllib's ``HTTPDigestAuthHandler``.
 
 Every failure is a typed :class:`~grassd.daemon.errors.CameraError` naming the URL.
-Network traffic goes only to the configured URL.
+Network traffic goes only to the configured URL: a ``fileUrl`` naming another host (a THETA
+in client mode names its own IP, while the configuration may name it by host name) is fetched
+from the configured one, and one that is not http(s) (``file:///etc/...``) is refused.
 """
 
 from __future__ import annotations
@@ -225,9 +227,22 @@ class OscClient:
         exif = res.get("exif")
         return exif if isinstance(exif, dict) else None
 
+    def own_url(self, file_url: str) -> str:
+        """``file_url`` as served by the configured camera: its path and query on the
+        configured scheme and host. A URL that is not http(s) raises CameraProtocolError."""
+        got = urllib.parse.urlsplit(file_url)
+        if got.scheme not in ("http", "https") or not got.path:
+            raise CameraProtocolError(f"camera {self.url} named the file {file_url!r}, which is "
+                                      "not an http(s) URL of a file on it; refusing to open it")
+        own = urllib.parse.urlsplit(self.url)
+        if (got.scheme, got.netloc) != (own.scheme, own.netloc):
+            log.debug("fetching %s from the configured camera %s", file_url, self.url)
+        return urllib.parse.urlunsplit((own.scheme, own.netloc, got.path, got.query, ""))
+
     def download(self, file_url: str, dest: Path) -> Path:
-        """Download ``file_url`` to ``dest``; the length must match Content-Length."""
-        req = urllib.request.Request(file_url, method="GET")
+        """Download ``file_url`` (from the configured camera: :meth:`own_url`) to ``dest``;
+        the length must match Content-Length."""
+        req = urllib.request.Request(self.own_url(file_url), method="GET")
         with self._open(req, timeout=max(self.timeout_s, 30.0)) as resp:
             expected = resp.headers.get("Content-Length")
             try:

@@ -99,6 +99,7 @@ class Faults:
     never_finish: bool = False          # takePicture stays inProgress forever
     truncated_download: bool = False    # send half of a file, with the full Content-Length
     missing_exposure: bool = False      # no ExposureTime in EXIF, options or metadata
+    file_url_base: str | None = None    # fileUrl's scheme://host instead of the camera's own
     times: int | None = None
 
     def spend(self) -> None:
@@ -112,6 +113,7 @@ class Faults:
         """Behave again."""
         self.http_status, self.malformed_json, self.never_finish = None, False, False
         self.truncated_download, self.missing_exposure, self.times = False, False, None
+        self.file_url_base = None
 
 
 def jpeg_bytes(codes: NDArray[np.uint8], exif: dict[str, Any] | None) -> bytes:
@@ -290,11 +292,12 @@ class SimCamera:
             self.shots_taken += 1
         codes = self.encode(x)
         name = f"R{self.shots_taken:07d}.JPG"
-        out = {"fileUrl": f"{self.url}/files/{name}"}
+        base = self.faults.file_url_base or self.url
+        out = {"fileUrl": f"{base}/files/{name}"}
         if o["fileFormat"].get("type") == "raw+":  # RAW+: a DNG of the same exposure too
             raw_name = name[:-4] + ".DNG"
             self.files[raw_name] = dng_bytes(x)
-            out["_dngFileUrl"] = f"{self.url}/files/{raw_name}"
+            out["_dngFileUrl"] = f"{base}/files/{raw_name}"
         exif = {"Make": "grassd", "Model": self.model, "Software": "simcam 1.0",
                 "ExposureTime": shutter, "FNumber": self.f_number, "ISO": iso}
         if self.faults.missing_exposure:
@@ -302,7 +305,7 @@ class SimCamera:
         self.files[name] = jpeg_bytes(codes, exif)
         meta = {k: v for k, v in exif.items()}
         meta["PhotographicSensitivity"] = meta.pop("ISO")
-        self.metadata[f"{self.url}/files/{name}"] = meta
+        self.metadata[out["fileUrl"]] = meta
         return out
 
     # ------------------------------------------------------------------ OSC

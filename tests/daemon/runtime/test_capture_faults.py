@@ -74,6 +74,7 @@ FAULTS = [
     ({"never_finish": True}, CameraCommandTimeout),
     ({"truncated_download": True}, CameraDownloadError),
     ({"missing_exposure": True}, ExposureMissing),
+    ({"file_url_base": "file://"}, CameraProtocolError),  # file:///files/R0000001.JPG
 ]
 
 
@@ -94,6 +95,17 @@ def test_fault_that_clears_is_retried_into_a_bundle(tmp_path, camera):
     camera.faults.http_status, camera.faults.times = 503, 2
     out = station(tmp_path, camera.url, retries=3).capture(lux=5000.0)
     assert inbox_entries(tmp_path) == [out.bundle.name]
+
+
+def test_a_file_url_naming_another_host_is_fetched_from_the_camera(tmp_path, camera):
+    """A THETA in client mode names its files by its own IP, while the configuration may
+    name it otherwise: the shots are fetched from the configured camera, never from the host
+    a fileUrl names (203.0.113.9 is TEST-NET-3: nothing answers there)."""
+    camera.faults.file_url_base = "http://203.0.113.9:9"
+    out = station(tmp_path, camera.url).capture(lux=5000.0)
+    assert inbox_entries(tmp_path) == [out.bundle.name]
+    assert len(tomllib.loads((out.bundle / "manifest.toml").read_text())
+               ["capture"]["exposures_s"]) == 5
 
 
 def test_camera_unreachable(tmp_path):
