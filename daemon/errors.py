@@ -100,6 +100,11 @@ class CameraError(CaptureError):
     """The camera could not be driven or did not deliver a usable shot."""
 
 
+class CameraBusy(CaptureError):
+    """Another capture into the same state directory (the daemon's or ``grassd capture``)
+    holds the camera; this one did not start."""
+
+
 class CameraUnreachable(CameraError):
     """No HTTP connection to the camera (wrong URL, camera off, Wi-Fi down, timeout)."""
 

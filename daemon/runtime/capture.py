@@ -21,7 +21,12 @@ One capture (:meth:`Station.capture_once`):
 
 Failures are typed (:class:`~grassd.daemon.errors.CaptureError` and its subclasses,
 :class:`~grassd.daemon.errors.LuxSensorError`);
-:meth:`Station.capture` retries them ``retries`` times with doubling backoff.
+:meth:`Station.capture` retries them ``retries`` times with doubling backoff. It holds
+``state_dir/capture/camera.lock`` (an flock, :class:`~grassd.daemon.runtime.statelock.StateLock`)
+meanwhile: a second capture into the same state directory (``grassd capture`` while the daemon
+captures) fails at once with :class:`~grassd.daemon.errors.CameraBusy` naming the holder,
+instead of driving the camera between the other's shots and removing its work files as
+leftovers.
 :class:`CaptureLoop` runs captures every ``interval_s`` in its own thread, so a capture never
 blocks or delays a calibration (the daemon's main thread only sees the finished bundle).
 """
@@ -52,9 +57,10 @@ from grassd.calib.errors import (
 from grassd.daemon.config.capture import CaptureConfig
 from grassd.daemon.config.settings import Config, ModbusConfig
 from grassd.daemon.config.toml_text import toml_value
-from grassd.daemon.errors import BracketUnusable, CaptureError, LuxSensorError
+from grassd.daemon.errors import BracketUnusable, CameraBusy, CaptureError, LuxSensorError
 from grassd.daemon.hardware.bracket import BracketPlan, capture_bracket, load_codes
 from grassd.daemon.hardware.camera import CameraInfo, OscClient
+from grassd.daemon.runtime.statelock import StateLock
 from grassd.daemon.store.atomic import (
     atomic_write_json,
     atomic_write_text,
@@ -67,6 +73,8 @@ log = logging.getLogger(__name__)
 
 #: Name of the merged panorama inside a capture bundle.
 HDRI_NAME = "sky.exr"
+#: Lock file under ``state_dir/capture`` held while a station captures.
+CAMERA_LOCK = "camera.lock"
 
 
 @dataclass(frozen=True)
@@ -298,7 +306,20 @@ class Station:
     def capture(self, lux: float | None = None, stop: threading.Event | None = None,
                 sleep=time.sleep) -> CaptureResult:
         """:meth:`capture_once`, retried ``retries`` times after a typed failure with backoff
-        ``retry_s``, doubling; raises the last error. ``stop`` ends the waiting early."""
+        ``retry_s``, doubling; raises the last error. ``stop`` ends the waiting early.
+        :class:`CameraBusy` when another capture into this state directory is running."""
+        lock = StateLock(self.root, name=CAMERA_LOCK)
+        if not lock.try_acquire():
+            raise CameraBusy(f"camera {self.cfg.camera} is busy: "
+                             f"{lock.holder_name('another grassd process')} is capturing into "
+                             f"{self.root.parent}; try again when it has finished")
+        try:
+            return self._capture_locked(lux, stop, sleep)
+        finally:
+            lock.release()
+
+    def _capture_locked(self, lux: float | None, stop: threading.Event | None,
+                        sleep) -> CaptureResult:
         if not self._cleaned:
             self._clean_leftovers()
         delay = self.cfg.retry_s

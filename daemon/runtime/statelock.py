@@ -59,10 +59,12 @@ def _alive(pid: int) -> bool:
 
 
 class StateLock:
-    """Exclusive lock on ``state_dir``/grassd.lock; ``what`` describes the holder."""
+    """Exclusive lock on ``state_dir``/``name`` (grassd.lock: the state directory's; the
+    capture station locks its camera with another name); ``what`` describes the holder."""
 
-    def __init__(self, state_dir: str | os.PathLike[str], what: str | None = None) -> None:
-        self.path = Path(state_dir) / LOCK_NAME
+    def __init__(self, state_dir: str | os.PathLike[str], what: str | None = None,
+                 name: str = LOCK_NAME) -> None:
+        self.path = Path(state_dir) / name
         self.what = what or command_line()
         self._fd: int | None = None
 
@@ -84,7 +86,7 @@ class StateLock:
             time.sleep(0.01)
         return None, ""
 
-    def _holder_name(self, unknown: str) -> str:
+    def holder_name(self, unknown: str) -> str:
         """The holder for a message, e.g. "grassd run (PID 12)"; ``unknown`` when its PID is
         not known (:meth:`holder`)."""
         pid, what = self.holder()
@@ -119,8 +121,20 @@ class StateLock:
     def acquire(self) -> StateLock:
         """Take the lock or raise :class:`StateDirLocked` naming the holder's PID
         (:class:`StateDirUnwritable` when the lock file cannot be created or opened)."""
+        if not self.try_acquire():
+            who = self.holder_name("another grassd process (e.g. a `grassd controllers` "
+                                   "command)")
+            raise StateDirLocked(
+                f"state directory {self.path.parent} is in use by {who}: stop it first, or "
+                "let it finish (`grassd calibrate --now` asks a running daemon over its control "
+                "socket)")
+        return self
+
+    def try_acquire(self) -> bool:
+        """Take the lock and note this holder in it, or return False when another holds it
+        (:class:`StateDirUnwritable` when the lock file cannot be created or opened)."""
         if self._fd is not None:
-            return self
+            return True
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
@@ -133,12 +147,7 @@ class StateLock:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             os.close(fd)
-            who = self._holder_name("another grassd process (e.g. a `grassd controllers` "
-                                    "command)")
-            raise StateDirLocked(
-                f"state directory {self.path.parent} is in use by {who}: stop it first, or "
-                "let it finish (`grassd calibrate --now` asks a running daemon over its control "
-                "socket)") from None
+            return False
         except BaseException:
             os.close(fd)
             raise
@@ -148,7 +157,7 @@ class StateLock:
         except OSError as exc:  # e.g. a full disk: the daemon must still (re)start
             log.warning("cannot note PID %d in %s (%s); the lock holds all the same",
                         os.getpid(), self.path, exc)
-        return self
+        return True
 
     @contextlib.contextmanager
     def shared(self, refuse: Callable[[str], str],
@@ -178,7 +187,7 @@ class StateLock:
             except BlockingIOError:
                 owned = self.holder_ports()
                 if port is None or owned is None or os.path.realpath(port) in owned:
-                    raise StateDirLocked(refuse(self._holder_name("another grassd process"))
+                    raise StateDirLocked(refuse(self.holder_name("another grassd process"))
                                          ) from None
             yield
         finally:

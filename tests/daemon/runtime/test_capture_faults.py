@@ -5,7 +5,10 @@ bundle (not even a partial one) is left in the inbox. The camera is a real HTTP 
 from __future__ import annotations
 
 import dataclasses
+import os
 import socket
+import threading
+import time
 import tomllib
 
 import numpy as np
@@ -15,6 +18,7 @@ from grassd.daemon.config.capture import CaptureConfig
 from grassd.daemon.config.settings import load_default_config
 from grassd.daemon.errors import (
     BracketUnusable,
+    CameraBusy,
     CameraCommandTimeout,
     CameraDownloadError,
     CameraHttpError,
@@ -106,6 +110,30 @@ def test_a_file_url_naming_another_host_is_fetched_from_the_camera(tmp_path, cam
     assert inbox_entries(tmp_path) == [out.bundle.name]
     assert len(tomllib.loads((out.bundle / "manifest.toml").read_text())
                ["capture"]["exposures_s"]) == 5
+
+
+def test_a_second_capture_into_the_same_state_directory_is_refused_while_one_runs(tmp_path):
+    """`grassd capture` while the daemon captures (one state directory, one camera) would
+    shoot between the other's exposures and remove its work files as leftovers: it fails at
+    once with CameraBusy naming the holder, and the running capture completes."""
+    with SimCamera(small_env(), scene_scale=1000.0, latency_s=0.05) as cam:
+        first, second = station(tmp_path, cam.url), station(tmp_path, cam.url)
+        result: dict = {}
+        t = threading.Thread(target=lambda: result.update(out=first.capture(lux=5000.0)))
+        t.start()
+        lock_file = tmp_path / "state" / "capture" / "camera.lock"
+        deadline = time.monotonic() + 10.0
+        while not (lock_file.exists() and lock_file.read_text()) and time.monotonic() < deadline:
+            time.sleep(0.005)
+        with pytest.raises(CameraBusy, match=rf"PID {os.getpid()}\)"):
+            second.capture(lux=5000.0)
+        t.join(30.0)
+        assert inbox_entries(tmp_path) == [result["out"].bundle.name]
+        assert lock_file.read_text() == ""  # released: the next capture may run
+        n_first = cam.shots_taken
+        again = second.capture(lux=5000.0)
+        assert cam.shots_taken - n_first == n_first  # the refused one took no shot
+    assert inbox_entries(tmp_path) == sorted([result["out"].bundle.name, again.bundle.name])
 
 
 def test_camera_unreachable(tmp_path):
