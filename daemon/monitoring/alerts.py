@@ -9,7 +9,7 @@ standard input::
     {"service": "grassd", "host": "kiosk-3", "at": "2026-06-21T12:00:00+00:00",
      "previous": "ok", "level": "degraded", "reasons": ["controller ... unreachable ..."],
      "changes": [{"at": "...", "from": "ok", "to": "degraded", "reasons": [...]}],
-     "health": "degraded: 1 controller(s) not on table 7",
+     "health": "degraded: controller /dev/ttyACM0#1 unreachable (table 6, not 7): ...",
      "controllers": [{"name": "/dev/ttyACM0#1", "reachable": false, "in_sync": false,
                       "table_id": 6, "error": "..."}, ...],
      "state_dir": "/var/lib/grassd"}

@@ -36,6 +36,11 @@ class Health:
         """0 ok, 1 degraded, 2 failed."""
         return LEVELS.index(self.level)
 
+    def summary(self) -> str:
+        """One line: ``ok``, or the level and its reasons (``degraded: no table yet``), as
+        ``grassd status`` prints it and its JSON carries it in ``health``."""
+        return self.level if not self.reasons else f"{self.level}: {'; '.join(self.reasons)}"
+
 
 def assess(status: Mapping[str, Any]) -> Health:
     """The health level of ``status`` (see the module docstring) with its reasons."""

@@ -271,7 +271,7 @@ def render(status: Mapping[str, Any], health: Health, history: History, *, timez
         f"<title>grassd: {html.escape(health.level)}</title><style>{_CSS}</style></head><body>"
         f'<header class="health {health.level}"><h1>grassd: {html.escape(health.level)}</h1>'
         f"{f'<ul>{reasons}</ul>' if reasons else ''}</header>"
-        f'<p class="meta">{_esc(status.get("health"))} &middot; bundles: {_esc(queue)}'
+        f'<p class="meta">bundles: {_esc(queue)}'
         f" &middot; page written {_esc(clock(now))} ({html.escape(timezone)}) &middot; grassd "
         f"{html.escape(__version__)} &middot; state {_esc(status.get('state_dir'))}</p>"
         f"{body}</body></html>\n")

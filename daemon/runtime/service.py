@@ -70,6 +70,7 @@ from grassd.daemon.errors import (
 )
 from grassd.daemon.hardware.fleet import Fleet
 from grassd.daemon.hardware.luxsensor import LuxSensor
+from grassd.daemon.monitoring.health import assess
 from grassd.daemon.monitoring.operator_view import OperatorView
 from grassd.daemon.runtime.ambient_lux import resolve_lux
 from grassd.daemon.runtime.bundle_pipeline import (
@@ -578,6 +579,7 @@ class Service:
                  "since": d.since, "retry_in_s": max(d.retry_at - now, 0.0)}
                 for d in waiting],
         })
+        st["health"] = assess(st).summary()  # now with the live errors, waits and capture
         return st
 
     def handle_request(self, req: dict[str, Any]) -> dict[str, Any]:

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from grassd.daemon.config.settings import Config, ControllerConfig
+from grassd.daemon.monitoring.health import assess
 from grassd.daemon.monitoring.metrics import run_r2
 from grassd.daemon.store.history import ControllerTable, History
 from grassd.daemon.store.quarantine import quarantined
@@ -63,21 +64,16 @@ def collect_status(history: History, cfg: Config, runs: int = 5) -> dict[str, An
             "desired_crc": want_crc, "in_sync": in_sync, "last_seen": s.last_seen if s else None,
             "error": s.last_error if s else None,
         })
-    if cur is None:
-        health = "no table yet"
-    elif all(c["in_sync"] for c in controllers):
-        health = "ok"
-    else:
-        bad = [c["name"] for c in controllers if not c["in_sync"]]
-        health = f"degraded: {len(bad)} controller(s) not on table {cur.table_id}"
-    return {
-        "health": health, "desired_table": desired, "controllers": controllers,
+    status = {
+        "desired_table": desired, "controllers": controllers,
         "runs": [_run_summary(r) for r in history.runs(runs)],
         "run_counts": {s: history.run_count(s) for s in ("ok", "rejected", "failed", "superseded")},
         "quarantined": [q.as_dict() for q in
                         quarantined(history, cfg.light.inbox, cfg.state_dir)],
         "state_dir": str(cfg.state_dir), "running": False,
     }
+    status["health"] = assess(status).summary()  # what the database alone tells
+    return status
 
 
 def _run_summary(r) -> dict[str, Any]:

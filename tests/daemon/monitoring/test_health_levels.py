@@ -39,3 +39,13 @@ def test_errors_and_waiting_bundles_degrade():
     assert h.reasons == ("bundle b1 waits: lux sensor silent",)
     h = assess(status(False, last_error="disk full"))  # failed wins, every reason kept
     assert h.level == "failed" and h.reasons[-1] == "error: disk full"
+
+
+def test_summary_is_the_status_health_line():
+    """`grassd status` prints ``health`` as the level and its reasons, one line: the same
+    verdict as the alerts, metrics and status page."""
+    assert assess(status(True, True)).summary() == "ok"
+    assert assess(status(table=False)).summary() == "degraded: no table yet"
+    assert assess(status(True, False, last_error="disk full")).summary() == (
+        "degraded: controller /dev/ttyACM1#1 out of sync (table 2, not 3): timeout; "
+        "error: disk full")
