@@ -206,7 +206,7 @@ def print_status(st: dict, echo=click.echo) -> None:
                     f"{b['retry_in_s']:.0f} s")
         echo(f"  {c['name']}: table {tid}, {state}{err}")
     if st.get("lines"):
-        from grassd.daemon.cli.line_report import describe_line
+        from grassd.daemon.monitoring.line_report import describe_line
 
         echo("serial lines:")
         for port, q in st["lines"].items():

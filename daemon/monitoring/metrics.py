@@ -35,6 +35,12 @@ Metrics (units in the names: seconds, lux, dE00 = CIEDE2000 units):
 ``grassd_controller_last_seen_timestamp_seconds``       when it last answered
 ``grassd_capture_last_success_timestamp_seconds``       the capture station's last capture
                                                         (only with a capture provider)
+``grassd_line_recent_unanswered_ratio{port}``           share of the serial line's recent
+                                                        request tries without an answer
+``grassd_line_chunk_bytes{port}``                       TABLE_CHUNK size its transfer reached
+``grassd_line_request_tries_total{port}``               request tries since its bus opened
+``grassd_line_request_unanswered_total{port}``          of them without an answer (both
+                                                        start again when a reload reopens it)
 ======================================================  ======================================
 
 Example alert rules: ``systemd/grassd-alerts.rules.yml``.
@@ -147,6 +153,7 @@ class _Snapshot(Collector):
             g.add_metric([q], counts.get(q, 0))
         yield g
         yield from self._controllers(st.get("controllers") or [])
+        yield from self._lines(st.get("lines") or {})
         if self.capture_at is not None:
             yield gauge("grassd_capture_last_success_timestamp_seconds",
                         "When the capture station last delivered a bundle (epoch s)",
@@ -192,6 +199,31 @@ class _Snapshot(Collector):
             if c.get("last_seen") is not None:
                 seen.add_metric(name, c["last_seen"])
         yield from (reach, sync, fails, seen)
+
+
+    @staticmethod
+    def _lines(lines: Mapping[str, Mapping[str, Any]]) -> Iterator[Metric]:
+        """Per serial port the daemon has used (:meth:`Fleet.line_quality`): how requests get
+        through. The counters start again when a reload rebuilds the buses."""
+        lab = ["port"]
+        rate = GaugeMetricFamily("grassd_line_recent_unanswered_ratio",
+                                 "Share of the line's recent request tries without an answer",
+                                 labels=lab)
+        chunk = GaugeMetricFamily("grassd_line_chunk_bytes",
+                                  "TABLE_CHUNK size the line's adaptive transfer has reached "
+                                  "(bytes)", labels=lab)
+        tries = CounterMetricFamily("grassd_line_request_tries",
+                                    "Request tries on the line since its bus was opened",
+                                    labels=lab)
+        fails = CounterMetricFamily("grassd_line_request_unanswered",
+                                    "Request tries on the line that got no answer", labels=lab)
+        for port, q in lines.items():
+            if q.get("recent_failure_rate") is not None:
+                rate.add_metric([port], q["recent_failure_rate"])
+            chunk.add_metric([port], q["chunk_bytes"])
+            tries.add_metric([port], q["tries"])
+            fails.add_metric([port], q["failures"])
+        yield from (rate, chunk, tries, fails)
 
 
 def registry(status: Mapping[str, Any], health: Health, history: History, *,

@@ -24,6 +24,7 @@ import numpy as np
 
 from grassd import __version__
 from grassd.daemon.monitoring.health import Health
+from grassd.daemon.monitoring.line_report import describe_line, line_verdict
 from grassd.daemon.monitoring.metrics import run_r2
 from grassd.daemon.store.atomic import atomic_write_text
 from grassd.daemon.store.history import History, RunRecord
@@ -204,6 +205,23 @@ def _controllers(controllers: Sequence[Mapping[str, Any]],
     return _table(["controller", "state", "table", "last seen", "push failures", "error"], rows)
 
 
+def _lines(lines: Mapping[str, Mapping[str, Any]]) -> str:
+    """The serial lines the daemon has used: verdict, recent unanswered share, TABLE_CHUNK
+    size reached (:mod:`grassd.daemon.monitoring.line_report`)."""
+    if not lines:
+        return "<p>None used yet.</p>"
+    rows = []
+    for port, q in lines.items():
+        verdict = line_verdict(q)
+        rate = q.get("recent_failure_rate")
+        rows.append([_td(port), _td(verdict, {"good": "ok", "noisy": "", "failing": "bad"}
+                                    .get(verdict, "")),
+                     _td(None if rate is None else f"{100 * rate:.1f}", "n"),
+                     _td(f"{q['chunk_bytes']} of {q['max_chunk_bytes']}", "n"),
+                     f'<td class="reason">{_esc(describe_line(port, q))}</td>'])
+    return _table(["port", "line", "unanswered (%)", "chunk (bytes)", "detail"], rows)
+
+
 def _runs(runs: Sequence[RunRecord], clock: _Clock) -> str:
     rows = []
     for r in runs:
@@ -259,6 +277,7 @@ def render(status: Mapping[str, Any], health: Health, history: History, *, timez
         ("Active table", _active_table(history.current_table(), clock)),
         ("Controllers", _controllers(status.get("controllers") or [], push_failures or {},
                                      clock)),
+        ("Serial lines", _lines(status.get("lines") or {})),
         ("Last runs", _runs(history.runs(LAST_RUNS), clock)),
         ("Trends", _trends(history, clock)),
         ("Rejected and quarantined bundles", _refused(history, clock)),

@@ -46,9 +46,12 @@ def test_page_holds_every_section(page_after_runs):
     page, svc = page_after_runs
     text = page.read_text()
     assert '<meta name="viewport" content="width=device-width, initial-scale=1">' in text
-    for heading in ("Active table", "Controllers", "Last runs", "Trends",
+    for heading in ("Active table", "Controllers", "Serial lines", "Last runs", "Trends",
                     "Rejected and quarantined bundles"):
         assert f"<h2>{heading}</h2>" in text
+    for port in svc.status()["lines"]:  # each bus the daemon used, with its verdict
+        assert re.search(rf'<td data-label="port">{re.escape(port)}</td>'
+                         r'<td data-label="line"[^>]*>(good|noisy|failing)</td>', text), port
     assert "grassd: degraded" in text and "unreachable" in text
     assert text.count("data:image/png;base64,") == 1 and text.count("<svg") == 3
     assert "abandoned after 3 attempts" in text and ">quarantined<" in text

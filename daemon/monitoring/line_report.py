@@ -1,5 +1,6 @@
-"""A serial line's quality in words, for ``grassd status``: an operator sees a cable going bad
-(requests retried, TABLE_CHUNKs cut short) before pushes start to fail.
+"""A serial line's quality in words, for ``grassd status`` and the status page: an operator
+sees a cable going bad (requests retried, TABLE_CHUNKs cut short) before pushes start to fail.
+The metrics carry the same numbers (:mod:`grassd.daemon.monitoring.metrics`).
 
 The numbers come from :meth:`grassd.daemon.hardware.fleet.Fleet.line_quality` (one
 :meth:`~grassd.firmware_proto.line_quality.LineQuality.snapshot` per port) and are also in

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 from daemon_harness import after_first_bundle
 
-from grassd.daemon.cli.line_report import describe_line, line_verdict
 from grassd.daemon.cli.run import print_status
+from grassd.daemon.monitoring.line_report import describe_line, line_verdict
 from grassd.firmware_proto.faults import FaultInjector, FaultPlan
 
 
