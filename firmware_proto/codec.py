@@ -17,7 +17,7 @@ import struct
 from dataclasses import dataclass
 
 from grassd.firmware_proto.errors import FrameError
-from grassd.firmware_proto.framing import HEADER_SIZE, decode_body, encode_body
+from grassd.firmware_proto.framing import HEADER_SIZE, FrameReader, decode_body, encode_body
 from grassd.firmware_proto.messages import PROTOCOL_VERSION, Message, unpack_payload
 
 _HEADER = struct.Struct("<BBBH")
@@ -74,6 +74,19 @@ def parse_body(body: bytes) -> Frame:
                          f"{PROTOCOL_VERSION}")
     return Frame(header.address, header.seq, unpack_payload(header.msg_type, header.payload),
                  header.version)
+
+
+def read_frames(reader: FrameReader, data: bytes) -> list[Frame]:
+    """The frames that ``data`` completes in ``reader``, decoded; a CRC-checked body that
+    does not decode (another protocol version, an unknown message) counts as bad in
+    ``reader.stats`` and is dropped, like a body that fails its CRC."""
+    frames = []
+    for body in reader.feed(data):
+        try:
+            frames.append(parse_body(body))
+        except FrameError:
+            reader.stats.bad += 1
+    return frames
 
 
 def decode_frame(encoded: bytes) -> Frame:

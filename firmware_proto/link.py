@@ -16,8 +16,8 @@ from collections import deque
 import serial
 import serial.rs485
 
-from grassd.firmware_proto.codec import Frame, parse_body
-from grassd.firmware_proto.errors import FrameError, PortConfigError, PortUnavailable
+from grassd.firmware_proto.codec import Frame, read_frames
+from grassd.firmware_proto.errors import PortConfigError, PortUnavailable
 from grassd.firmware_proto.framing import FrameReader
 
 #: pyserial read timeout used to poll until a deadline (seconds).
@@ -121,9 +121,5 @@ class SerialLink:
                 raise self._fail("read", exc) from None
             if data:
                 self.bytes_received += len(data)
-                for body in self.reader.feed(data):
-                    try:
-                        self._pending.append(parse_body(body))
-                    except FrameError:
-                        self.reader.stats.bad += 1
+                self._pending.extend(read_frames(self.reader, data))
         return self._pending.popleft()

@@ -17,8 +17,8 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Sequence
 
-from grassd.firmware_proto.codec import Frame, parse_body
-from grassd.firmware_proto.errors import FrameError, SimulatorError
+from grassd.firmware_proto.codec import Frame, read_frames
+from grassd.firmware_proto.errors import SimulatorError
 from grassd.firmware_proto.faults import FaultInjector
 from grassd.firmware_proto.firmware import Controller
 from grassd.firmware_proto.framing import FrameReader
@@ -86,11 +86,7 @@ class LoopbackLink:
 
     def _hear(self, data: bytes) -> None:
         self.bytes_received += len(data)
-        for body in self.reader.feed(data):
-            try:
-                self._pending.append(parse_body(body))
-            except FrameError:
-                self.reader.stats.bad += 1
+        self._pending.extend(read_frames(self.reader, data))
 
     def receive(self, deadline: float) -> Frame | None:
         """The next frame the host heard, or None at once when none is queued (``deadline``
