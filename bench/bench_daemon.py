@@ -6,17 +6,12 @@ from __future__ import annotations
 
 import os
 import shutil
-import subprocess
-import sys
-import tempfile
 import time
 from importlib import resources
 from pathlib import Path
 
-from bench.daemon_process import status as daemon_status
-from bench.daemon_process import wait_ready
-from grassd.daemon.config.settings import load_default_config
-from grassd.daemon.hardware.simulated import SimulatedHardware, hardware_toml
+from bench.daemon_process import BenchDaemon
+from grassd.daemon.hardware.simulated import hardware_toml
 
 BUNDLES = int(os.environ.get("GRASSD_BENCH_BUNDLES", "100"))
 ROOT = Path(__file__).resolve().parents[1]
@@ -56,22 +51,10 @@ max_jump_mm = 20.0
 def main() -> None:
     """Run the benchmark and print the numbers."""
     site = Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
-    grassd = str(Path(sys.executable).parent / "grassd")
-    tmp = Path(tempfile.mkdtemp(prefix="grassd-bench-"))
-    hw = SimulatedHardware(load_default_config(), tmp / "hw", lux=3000.0)
-    cfg = hw.start()
-    state = tmp / "state"
-    conf = tmp / "grassd.toml"
-    conf.write_text(_config(state, cfg))
-    proc = subprocess.Popen([grassd, "run", "--config", str(conf), "--tick", "0.1"],
-                            stdout=subprocess.DEVNULL, stderr=open(tmp / "log", "w"))
-    sock = state / "control.sock"
-
-    def status() -> dict:
-        return daemon_status(sock)
-
+    daemon = BenchDaemon("grassd-bench-", _config, tick_s=0.1)
+    state, status = daemon.state, daemon.status
     try:
-        ready_s = wait_ready(sock, proc, tmp / "log", 120)
+        ready_s = daemon.wait_ready(120)
         print(f"daemon ready in {ready_s:.1f} s")
         print(f"{'bundle':>6} {'s/bundle':>9} {'RSS MiB':>8}")
         t0 = time.monotonic()
@@ -105,10 +88,7 @@ def main() -> None:
               f"runs ok {st['run_counts']['ok']}, health {st['health']} "
               f"{time.monotonic() - t_sync:.1f} s after the last run was recorded")
     finally:
-        proc.terminate()
-        proc.wait(60)
-        hw.stop()
-        shutil.rmtree(tmp, ignore_errors=True)
+        daemon.stop()
 
 
 if __name__ == "__main__":

@@ -23,19 +23,15 @@ import argparse
 import math
 import os
 import shutil
-import subprocess
 import sys
-import tempfile
 import time
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import numpy as np
 
-from bench.daemon_process import status as daemon_status
-from bench.daemon_process import wait_ready
-from grassd.daemon.config.settings import load_default_config
-from grassd.daemon.hardware.simulated import SimulatedHardware, hardware_toml
+from bench.daemon_process import BenchDaemon
+from grassd.daemon.hardware.simulated import hardware_toml
 from grassd.sim.hdri import write_exr
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -147,25 +143,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--every", type=int, default=50, help="print a row every K bundles")
     args = ap.parse_args([] if argv is None else argv)
     n, every = args.bundles, max(1, args.every)
-    grassd = str(Path(sys.executable).parent / "grassd")
-    tmp = Path(tempfile.mkdtemp(prefix="grassd-soak-"))
-    hw = SimulatedHardware(load_default_config(), tmp / "hw", lux=3000.0)
-    cfg = hw.start()
-    state = tmp / "state"
-    conf = tmp / "grassd.toml"
-    conf.write_text(_config(state, cfg))
-    skies = _skies(tmp / "skies")
-    log_path = tmp / "daemon.log"
-    proc = subprocess.Popen([grassd, "run", "--config", str(conf), "--tick", "0.02"],
-                            stdout=subprocess.DEVNULL, stderr=open(log_path, "w"))
-    sock = state / "control.sock"
-
-    def status() -> dict:
-        return daemon_status(sock)
-
+    daemon = BenchDaemon("grassd-soak-", _config, tick_s=0.02)
+    state, status, proc, log_path = daemon.state, daemon.status, daemon.proc, daemon.log
     rows: list[tuple[int, float, int, int, int, float, float]] = []
     try:
-        ready_s = wait_ready(sock, proc, log_path, 180)
+        skies = _skies(daemon.tmp / "skies")
+        ready_s = daemon.wait_ready(180)
         print(f"daemon ready in {ready_s:.1f} s; {n} bundles, cheap "
               f"settings (16 samples, 4 lengths, 16x32 HDRIs), retention: {KEEP_S:g} s of bundles, "
               f"20 reports, 100 runs", flush=True)
@@ -224,14 +207,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{span(3, 2**20, '.2f')} MiB, db {span(4, 2**20, '.2f')} MiB, status query "
               f"{span(5)} ms, time per bundle {span(6, fmt='.2f')} s")
     finally:
-        proc.terminate()
-        try:
-            proc.wait(60)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-        hw.stop()
-        shutil.rmtree(tmp, ignore_errors=True)
+        daemon.stop()
     return 0
 
 

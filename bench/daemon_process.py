@@ -1,13 +1,20 @@
-"""A `grassd run` subprocess for the daemon benchmarks: its status over the control socket, and
-waiting until it answers."""
+"""A `grassd run` subprocess for the daemon benchmarks: started on simulated hardware in a
+temporary directory, its status over the control socket, waiting until it answers, and
+stopping it with everything it made."""
 
 from __future__ import annotations
 
+import shutil
 import subprocess
+import sys
+import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
+from grassd.daemon.config.settings import load_default_config
 from grassd.daemon.errors import DaemonNotRunning
+from grassd.daemon.hardware.simulated import SimulatedHardware
 from grassd.daemon.runtime.control import request
 
 
@@ -28,3 +35,43 @@ def wait_ready(sock: Path, proc: subprocess.Popen, log: Path, limit_s: float) ->
             if time.monotonic() - t0 > limit_s or proc.poll() is not None:
                 raise RuntimeError(f"daemon did not start; see {log}") from None
             time.sleep(0.2)
+
+
+class BenchDaemon:
+    """``grassd run --tick TICK`` on a config ``config(state_dir, hardware_config)`` (TOML
+    text) and simulated hardware (3000 lux), all under a fresh temporary directory ``tmp``;
+    its stderr goes to ``log``. :meth:`stop` ends it and removes the directory."""
+
+    def __init__(self, prefix: str, config: Callable[[Path, object], str],
+                 tick_s: float) -> None:
+        self.tmp = Path(tempfile.mkdtemp(prefix=prefix))
+        self.hw = SimulatedHardware(load_default_config(), self.tmp / "hw", lux=3000.0)
+        cfg = self.hw.start()
+        self.state = self.tmp / "state"
+        self.sock = self.state / "control.sock"
+        self.log = self.tmp / "daemon.log"
+        conf = self.tmp / "grassd.toml"
+        conf.write_text(config(self.state, cfg))
+        grassd = str(Path(sys.executable).parent / "grassd")
+        with open(self.log, "w") as err:
+            self.proc = subprocess.Popen([grassd, "run", "--config", str(conf), "--tick",
+                                          str(tick_s)], stdout=subprocess.DEVNULL, stderr=err)
+
+    def status(self) -> dict:
+        """The daemon's status (:func:`status`)."""
+        return status(self.sock)
+
+    def wait_ready(self, limit_s: float) -> float:
+        """Seconds until it answers (:func:`wait_ready`)."""
+        return wait_ready(self.sock, self.proc, self.log, limit_s)
+
+    def stop(self) -> None:
+        """SIGTERM, then SIGKILL after 60 s; stop the hardware; remove the directory."""
+        self.proc.terminate()
+        try:
+            self.proc.wait(60)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        self.hw.stop()
+        shutil.rmtree(self.tmp, ignore_errors=True)
