@@ -14,7 +14,7 @@ seconds per bundle over those K.
 At the end it fits a line to each column after warm-up (the first 20 %) and prints the slope per
 1000 bundles: flat means no leak and no growth.
 
-Run: ``python -m bench soak`` or ``python bench/bench_soak.py [--bundles N] [--every K]``.
+Run: ``python -m bench soak`` or ``python -m bench.bench_soak [--bundles N] [--every K]``.
 """
 
 from __future__ import annotations
