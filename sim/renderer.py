@@ -92,9 +92,11 @@ RR_DEPTH = 2
 RR_SURVIVAL = 0.5
 # Rays of a path whose answers are kept for its next length (trace_memo): enough for the
 # default path (4 + 1 light samples, sun, 3 bounces: 12 rays); later rays are traced again.
-# A row: t, normal (3), material, growth length.
+# A row: t, normal (3), material, growth length; a light sample's row also its direction (3)
+# and contribution (3, linear RGB), so that a vertex that stays does not sample the environment
+# again (measured, 21 lengths, courtyard / forest 5000 lx: -7.5 / -8.1 % time per path).
 MEMO_RAYS = 16
-MEMO_COLS = 6
+MEMO_COLS = 12
 
 
 @dataclass(frozen=True)
@@ -550,8 +552,9 @@ class Renderer:
         and this length is below the ray's growth length (it then meets the same surface at
         the same point: :meth:`trace`). A ray traced again leaves ``reuse`` set when it moves
         no vertex: a shadow ray (``any_hit``; its answer only weighs a light sample), or a ray
-        that meets the same surface at the same distance. Returns the answer, the updated
-        memo, ``reuse`` and whether the ray was traced (1) or taken from the memo (0)."""
+        that meets the same surface at the same distance. Returns the answer, ``reuse`` and
+        whether the ray was traced (1) or taken from the memo (0); ``memo`` (by reference)
+        holds the answer afterwards."""
         t, n, mat, g = 0.0, vec3(0.0), -1, 0.0
         kept = 0  # this ray's row of the memo: 0 none, 1 valid at this length, 2 outgrown
         if ray < n_memo:  # (nested ifs: Taichi's `and` evaluates both sides)
@@ -587,9 +590,12 @@ class Renderer:
         the same random numbers give the same radiance for every length in [x, that
         length). ``memo``, ``n_memo``: the answers of the first rays of this path's trace at
         a shorter length (n_memo = 0: none); rays up to the first one whose answer changes at
-        ``x`` take them instead of tracing (:meth:`trace_memo`), which gives the same
-        radiance bit for bit. Returns the radiance, the growth length, the memo and its count
-        for the next length, and the number of rays traced."""
+        ``x`` take them instead of tracing (:meth:`trace_memo`), and light samples at a vertex
+        that stays take their direction and contribution from it instead of sampling the
+        environment again; this gives the same radiance to float rounding (a kept
+        contribution is read back, a fresh one may be rounded in another order). Every light
+        sample has a row, traced or not. Returns the radiance, the growth length, the memo's
+        row count for the next length, and the number of rays traced."""
         ray = 0
         rays = 0
         reuse = 1 if n_memo > 0 and self.fpar[7] <= 0.0 else 0  # splay turns every blade
@@ -652,7 +658,14 @@ class Renderer:
             for j in range(n_nee + sun_on):
                 wl = sun_dir
                 contrib = vec3(0.0)
-                if j < n_nee:
+                kept = False  # this vertex and its sample are those of the shorter length's trace
+                if reuse:  # (nested ifs: Taichi's `and` evaluates both sides)
+                    if ray < n_memo:
+                        kept = True
+                if kept:
+                    wl = vec3(memo[ray, 6], memo[ray, 7], memo[ray, 8])
+                    contrib = vec3(memo[ray, 9], memo[ray, 10], memo[ray, 11])
+                elif j < n_nee:
                     e1, e2 = tf.owen_sobol_pair(index, strata * strata, rep_key, pair, j,
                                                 n_nee)
                     wl, pdf_l, le = self.sample_env(e1, e2, nbin)
@@ -668,11 +681,16 @@ class Renderer:
                 if nn.dot(wl) > 0.0 and contrib.max() > 0.0:
                     ts, _, ms, gs, reuse, fresh = self.trace_memo(memo, n_memo, ray, reuse,
                                                                         p, wl, x, x_cull, 1)
-                    ray += 1
                     rays += fresh
                     grow = ti.min(grow, gs)
                     if ms < 0:
                         total += beta * contrib
+                elif ray < MEMO_RAYS:
+                    memo[ray, 5] = tf.INF  # no shadow ray: nothing to outgrow
+                if ray < MEMO_RAYS and not kept:
+                    for c in ti.static(range(3)):
+                        memo[ray, 6 + c], memo[ray, 9 + c] = wl[c], contrib[c]
+                ray += 1
             if last:
                 break
             # Continue the path by sampling the BSDF (Lambertian: throughput *= albedo).

@@ -232,10 +232,12 @@ def test_a_scene_built_for_longer_grass_serves_shorter_lengths_unchanged(rendere
 @pytest.mark.parametrize("case", ["courtyard", "sun", "splay"])
 def test_one_path_for_all_lengths_equals_tracing_each_length_alone(renderer, shared_hdri,
                                                                    case):
-    """A path traced once and reused up to the length where it may change gives, bit for
-    bit, what tracing every length on its own gives (lengths unsorted, repeated, off the
-    1 mm grid), while tracing far fewer paths, and of those paths fewer rays; with splay
-    every length and every ray is traced."""
+    """A path traced once and reused up to the length where it may change gives what
+    tracing every length on its own gives (lengths unsorted, repeated, off the 1 mm grid), to
+    float rounding (a kept light sample's contribution is read back where tracing alone
+    computes it, and the compiler may round that product in another order: about 1e-8
+    relative), while tracing far fewer paths, and of those paths fewer rays; with splay every
+    length and every ray is traced."""
     sun = dict(sun_lux=30000.0, sun_azimuth_deg=40.0, sun_elevation_deg=25.0)
     lighting = build_lighting(shared_hdri("courtyard"), ambient_lux=5000,
                               **(sun if case == "sun" else {}))
@@ -245,8 +247,9 @@ def test_one_path_for_all_lengths_equals_tracing_each_length_alone(renderer, sha
     vp = Viewpoint(165, 2, 20)
     many = renderer.characteristic(display, lighting, vp, lengths, s)
     alone = [renderer.characteristic(display, lighting, vp, [x], s) for x in lengths]
-    np.testing.assert_array_equal(many.rgb_replicates,
-                                  np.stack([m.rgb_replicates[:, 0] for m in alone], axis=1))
+    np.testing.assert_allclose(many.rgb_replicates,
+                               np.stack([m.rgb_replicates[:, 0] for m in alone], axis=1),
+                               rtol=1e-6, atol=0)
     slots = len(lengths) * many.samples_per_length
     rays_alone = sum(m.rays_traced for m in alone)
     if case == "splay":
