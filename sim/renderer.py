@@ -98,6 +98,11 @@ RR_SURVIVAL = 0.5
 # bounce ray's row the direction (3), throughput weight (3) and pdf its BSDF sample gave
 # (-2.5 to -2.8 % more).
 MEMO_RAYS = 16
+# m: a shadow ray that got through at a shorter length is blocked at any length this far past
+# its growth length (the length from which a green blade it missed holds the point where the
+# ray crosses the blade's plane: tifuncs.hit_growing_blade, which takes 0.1 um off it), so it
+# is not traced again there.
+GROWN_IN = 1e-6
 MEMO_COLS = 13
 
 
@@ -558,15 +563,22 @@ class Renderer:
         whether the ray was traced (1) or taken from the memo (0); ``memo`` (by reference)
         holds the answer afterwards."""
         t, n, mat, g = 0.0, vec3(0.0), -1, 0.0
-        kept = 0  # this ray's row of the memo: 0 none, 1 valid at this length, 2 outgrown
+        kept = 0  # this ray's row of the memo: 0 none, 1 valid at this length, 2 outgrown,
+        # 3 a shadow ray that got through and is now blocked by the blade that grew into it
         if ray < n_memo:  # (nested ifs: Taichi's `and` evaluates both sides)
             kept = 2
-            if reuse and x < memo[ray, 5]:
-                kept = 1
+            if reuse:
+                if x < memo[ray, 5]:
+                    kept = 1
+                elif any_hit and memo[ray, 4] < 0.0 and x >= memo[ray, 5] + GROWN_IN:
+                    kept = 3
         if kept == 1:
             t, g = memo[ray, 0], memo[ray, 5]
             n = vec3(memo[ray, 1], memo[ray, 2], memo[ray, 3])
             mat = ti.cast(memo[ray, 4], ti.i32)
+        elif kept == 3:
+            t, n, mat, g = memo[ray, 0], vec3(0.0, 0.0, 1.0), 0, tf.INF
+            memo[ray, 4], memo[ray, 5] = 0.0, tf.INF
         else:
             t, n, mat, g = self.trace(o, d, x, x_cull, tf.INF, any_hit)
             if not any_hit:
@@ -580,7 +592,7 @@ class Renderer:
             if ray < MEMO_RAYS:
                 memo[ray, 0], memo[ray, 1], memo[ray, 2] = t, n.x, n.y
                 memo[ray, 3], memo[ray, 4], memo[ray, 5] = n.z, ti.cast(mat, ti.f32), g
-        return t, n, mat, g, reuse, 1 if kept != 1 else 0
+        return t, n, mat, g, reuse, 1 if kept == 0 or kept == 2 else 0
 
     @ti.func
     def radiance(self, o, d, x: ti.f32, x_cull: ti.f32, index: ti.i32, strata: ti.i32,
