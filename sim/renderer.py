@@ -98,12 +98,12 @@ RR_SURVIVAL = 0.5
 # bounce ray's row the direction (3), throughput weight (3) and pdf its BSDF sample gave
 # (-2.5 to -2.8 % more).
 MEMO_RAYS = 16
+MEMO_COLS = 13
 # m: a shadow ray that got through at a shorter length is blocked at any length this far past
 # its growth length (the length from which a green blade it missed holds the point where the
 # ray crosses the blade's plane: tifuncs.hit_growing_blade, which takes 0.1 um off it), so it
 # is not traced again there.
 GROWN_IN = 1e-6
-MEMO_COLS = 13
 
 
 @dataclass(frozen=True)
@@ -145,6 +145,18 @@ class Measurement:
 
 
 _SHARED: dict[Capacity, "Renderer"] = {}
+
+
+@ti.func
+def _kept(reuse: ti.i32, ray: ti.i32, n_memo: ti.i32) -> ti.i32:
+    """Whether memo row ``ray`` holds what this trace would compute at the same point: every
+    earlier vertex of the path kept its answer (``reuse``) and the shorter length's trace got
+    that far. (Nested ifs: Taichi's ``and`` evaluates both sides.)"""
+    kept = 0
+    if reuse:
+        if ray < n_memo:
+            kept = 1
+    return kept
 
 
 def _fill(fld, arr: np.ndarray) -> None:
@@ -551,8 +563,7 @@ class Renderer:
 
     @ti.func
     def trace_memo(self, memo: ti.template(), n_memo: ti.i32, ray: ti.i32, reuse: ti.i32, o, d,
-                   x: ti.f32,
-                   x_cull: ti.f32, any_hit: ti.i32):
+                   x: ti.f32, x_cull: ti.f32, any_hit: ti.i32):
         """:meth:`trace` for ray number ``ray`` of a path, taking the answer kept in ``memo``
         (a row per ray: ``MEMO_COLS``) from the path's trace at a shorter length
         when the path's earlier vertices all kept theirs (``reuse``: the ray is then the same)
@@ -565,7 +576,7 @@ class Renderer:
         t, n, mat, g = 0.0, vec3(0.0), -1, 0.0
         kept = 0  # this ray's row of the memo: 0 none, 1 valid at this length, 2 outgrown,
         # 3 a shadow ray that got through and is now blocked by the blade that grew into it
-        if ray < n_memo:  # (nested ifs: Taichi's `and` evaluates both sides)
+        if ray < n_memo:
             kept = 2
             if reuse:
                 if x < memo[ray, 5]:
@@ -672,10 +683,7 @@ class Renderer:
             for j in range(n_nee + sun_on):
                 wl = sun_dir
                 contrib = vec3(0.0)
-                kept = False  # this vertex and its sample are those of the shorter length's trace
-                if reuse:  # (nested ifs: Taichi's `and` evaluates both sides)
-                    if ray < n_memo:
-                        kept = True
+                kept = _kept(reuse, ray, n_memo)  # this sample is the shorter length's
                 if kept:
                     wl = vec3(memo[ray, 6], memo[ray, 7], memo[ray, 8])
                     contrib = vec3(memo[ray, 9], memo[ray, 10], memo[ray, 11])
@@ -708,12 +716,8 @@ class Renderer:
             if last:
                 break
             # Continue the path by sampling the BSDF (Lambertian: throughput *= albedo).
-            kept_vertex = False
-            if reuse:
-                if ray < n_memo:
-                    kept_vertex = True
             weight = vec3(0.0)
-            if kept_vertex:
+            if _kept(reuse, ray, n_memo):  # this bounce is the shorter length's
                 d = vec3(memo[ray, 6], memo[ray, 7], memo[ray, 8])
                 weight = vec3(memo[ray, 9], memo[ray, 10], memo[ray, 11])
                 pdf_bsdf = memo[ray, 12]
@@ -804,8 +808,8 @@ class Renderer:
                 sy = ((py + tf.rand01(key, 1)) / width * 2.0 - 1.0) * half
                 d = (forward + sx * right - sy * up).normalized()
                 memo = ti.Matrix.zero(ti.f32, MEMO_RAYS, MEMO_COLS)  # one length: nothing kept
-                rad, _, _, _ = self.radiance(eye, d, x, x, s, m, rep_key, key,
-                                                   max_bounces, memo, 0)
+                rad, _, _, _ = self.radiance(eye, d, x, x, s, m, rep_key, key, max_bounces,
+                                             memo, 0)
                 acc += rad
             self.image[py, px] = acc / (m * m)
 
