@@ -14,8 +14,9 @@ the two are still draws of one estimator. The comparison prints, per scene:
 - paths and rays traced (the per-ray memo's decisions) on each;
 - trace time per length-path on each, after a warm-up launch.
 
-Run: ``python -m bench backend`` (skips with one line where Taichi finds no GPU), or one side
-alone: ``python -m bench.bench_backend --arch gpu --out gpu.npz``.
+Run: ``python -m bench backend`` (one line and no comparison where Taichi's ``gpu`` falls back
+to the CPU; a software Vulkan driver, as on a machine without a GPU, counts as a GPU and takes
+about 40 s), or one side alone: ``python -m bench.bench_backend --arch gpu --out gpu.npz``.
 """
 
 from __future__ import annotations

@@ -10,8 +10,8 @@ under an importance-sampled equirectangular environment plus an optional directi
   BSDF sampling, the two environment strategies combined by Veach's power heuristic. The last
   surface of a path of several takes light samples alone: its BSDF sample would only ask
   whether the environment is visible (one more upward ray for a share of that surface's
-  direct light, itself about 2 % of the quad's radiance;
-  measured, courtyard / forest 5000 lx: -3 to -6 % time per path, variance unchanged). Up to
+  direct light, itself about 2 % of the quad's radiance; measured, courtyard / forest
+  5000 lx: -3 to -6 % time per path, variance unchanged). Up to
   ``max_bounces`` surface interactions, Russian roulette from the third one on (survivors
   weighted by the inverse survival probability, so the estimate stays unbiased for that depth;
   the decision is a random number of the path, the same at every length).

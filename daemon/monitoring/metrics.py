@@ -200,7 +200,6 @@ class _Snapshot(Collector):
                 seen.add_metric(name, c["last_seen"])
         yield from (reach, sync, fails, seen)
 
-
     @staticmethod
     def _lines(lines: Mapping[str, Mapping[str, Any]]) -> Iterator[Metric]:
         """Per serial port the daemon has used (:meth:`Fleet.line_quality`): how requests get
