@@ -55,33 +55,43 @@ def reverse_bits(x: ti.u32) -> ti.u32:
 
 
 @ti.func
-def owen_scramble(x: ti.u32, seed: ti.u32) -> ti.u32:
-    """Hash-based nested uniform (Owen) scrambling of a 32-bit fixed-point number in [0, 1):
-    the Laine-Karras permutation on the reversed bits, with Burley's constants (B. Burley,
-    "Practical Hash-based Owen Scrambling", JCGT 9(4), 2020). Each output digit depends only on
-    the digits above it, and the map is a bijection on every prefix."""
-    x = reverse_bits(x)
+def laine_karras(x: ti.u32, seed: ti.u32) -> ti.u32:
+    """The Laine-Karras permutation with Burley's constants: each output bit depends only on
+    the input bits below it, so applied to reversed bits it is a nested uniform (Owen)
+    scramble (B. Burley, "Practical Hash-based Owen Scrambling", JCGT 9(4), 2020)."""
     x ^= x * ti.u32(0x3D20ADEA)
     x += seed
     x *= (seed >> ti.u32(16)) | ti.u32(1)
     x ^= x * ti.u32(0x05526C56)
     x ^= x * ti.u32(0x53A22864)
-    return reverse_bits(x)
+    return x
 
 
 @ti.func
-def sobol_2d(i: ti.u32):
+def owen_scramble(x: ti.u32, seed: ti.u32) -> ti.u32:
+    """Hash-based nested uniform (Owen) scrambling of a 32-bit fixed-point number in [0, 1):
+    :func:`laine_karras` on the reversed bits. Each output digit depends only on the digits
+    above it, and the map is a bijection on every prefix."""
+    return reverse_bits(laine_karras(reverse_bits(x), seed))
+
+
+@ti.func
+def sobol_2d_reversed(i: ti.u32):
     """The first two dimensions of the Sobol' sequence at index i < 2^26, as 32-bit fixed
-    point: the van der Corput sequence and the dimension with direction numbers
-    v_k = v_(k-1) xor (v_(k-1) >> 1), together a (0, 2)-sequence in base 2."""
-    x = reverse_bits(i)
-    y = ti.u32(0)
-    v = ti.u32(0x80000000)
-    for b in ti.static(range(26)):
-        if (i >> ti.u32(b)) & ti.u32(1):
-            y ^= v
-        v ^= v >> ti.u32(1)
-    return x, y
+    point with the bits reversed (bit k holds the digit of weight 2^-(k+1)): the van der
+    Corput sequence (i itself) and the dimension with direction numbers
+    v_k = v_(k-1) xor (v_(k-1) >> 1), together a (0, 2)-sequence in base 2.
+
+    That dimension's generator matrix is Pascal's triangle mod 2: digit k is the xor of the
+    bits b of i with C(b, k) odd, that is (Lucas) of the bits b whose set bits include k's,
+    a superset transform computed in five shift-and-mask steps."""
+    y = i
+    y ^= (y >> ti.u32(1)) & ti.u32(0x55555555)
+    y ^= (y >> ti.u32(2)) & ti.u32(0x33333333)
+    y ^= (y >> ti.u32(4)) & ti.u32(0x0F0F0F0F)
+    y ^= (y >> ti.u32(8)) & ti.u32(0x00FF00FF)
+    y ^= (y >> ti.u32(16)) & ti.u32(0x0000FFFF)
+    return i, y
 
 
 @ti.func
@@ -99,7 +109,8 @@ def owen_sobol_pair(index: ti.i32, n: ti.i32, rep_key: ti.u32, pair: ti.i32, sub
     take a subset of the next power of two's net. Every point is uniform on its own (the
     scrambles are random), so estimates are unbiased; replicates use independent scrambles,
     so their spread gives an honest standard error. Depends on the replicate and path only,
-    not on the grass length (common random numbers)."""
+    not on the grass length (common random numbers). The points are scrambled in reversed
+    bit order (:func:`sobol_2d_reversed`), so each takes one bit reversal, not three."""
     seed = pcg_hash(rep_key + ti.u32(pair) * ti.u32(0x68E31DA4))
     m = ti.u32(n - 1)
     m |= m >> ti.u32(1)
@@ -108,9 +119,9 @@ def owen_sobol_pair(index: ti.i32, n: ti.i32, rep_key: ti.u32, pair: ti.i32, sub
     m |= m >> ti.u32(8)
     m |= m >> ti.u32(16)
     j = (owen_scramble(ti.u32(index), seed) & m) * ti.u32(n_sub) + ti.u32(sub)
-    x, y = sobol_2d(j)
-    x = owen_scramble(x, pcg_hash(seed ^ ti.u32(0xA511E9B3)))
-    y = owen_scramble(y, pcg_hash(seed ^ ti.u32(0x63D83595)))
+    xr, yr = sobol_2d_reversed(j)
+    x = reverse_bits(laine_karras(xr, pcg_hash(seed ^ ti.u32(0xA511E9B3))))
+    y = reverse_bits(laine_karras(yr, pcg_hash(seed ^ ti.u32(0x63D83595))))
     return (ti.cast(x >> ti.u32(8), ti.f32) * (1.0 / 16777216.0),
             ti.cast(y >> ti.u32(8), ti.f32) * (1.0 / 16777216.0))
 

@@ -19,6 +19,7 @@ def k(renderer):  # the renderer fixture initialises Taichi
 
     out_i = ti.field(ti.i32, N_MAX)
     out_f = ti.Vector.field(2, ti.f32, N_MAX)
+    out_u = ti.Vector.field(2, ti.u32, N_MAX)
 
     @ti.kernel
     def shuffle_all(n: ti.i32, seed: ti.u32):
@@ -37,6 +38,16 @@ def k(renderer):  # the renderer fixture initialises Taichi
             u1, u2 = tf.owen_sobol_pair(index, n, tf.replicate_key(7, key), 3, 1, 2)
             out_f[key] = ti.Vector([u1, u2])
 
+    @ti.kernel
+    def sobol(index0: ti.i32, n: ti.i32):
+        for i in range(n):
+            x, y = tf.sobol_2d_reversed(ti.u32(index0 + i))
+            out_u[i] = ti.Vector([tf.reverse_bits(x), tf.reverse_bits(y)])
+
+    def sobol_points(index0, n):
+        sobol(index0, n)
+        return out_u.to_numpy()[:n].astype(np.uint64)
+
     def shuffled(n, seed):
         shuffle_all(n, seed)
         return out_i.to_numpy()[:n]
@@ -49,12 +60,34 @@ def k(renderer):  # the renderer fixture initialises Taichi
         one_point(n_keys, index, n)
         return out_f.to_numpy()[:n_keys].astype(np.float64)
 
-    return SimpleNamespace(shuffled=shuffled, points=points, over_replicates=over_replicates)
+    return SimpleNamespace(shuffled=shuffled, points=points, over_replicates=over_replicates,
+                           sobol_points=sobol_points)
 
 
 def _one_per_interval(u: np.ndarray, bx: int, by: int) -> bool:
     cells = np.floor(u[:, 0] * bx).astype(int) + bx * np.floor(u[:, 1] * by).astype(int)
     return sorted(cells.tolist()) == list(range(bx * by))
+
+
+def _sobol_by_direction_numbers(i: int) -> tuple[int, int]:
+    """Sobol' dimensions 1 and 2 from their definition: x_b = 2^(31 - b), y_0 = 2^31,
+    y_b = y_(b-1) xor (y_(b-1) >> 1), xor-ed over the set bits b of i."""
+    x = y = 0
+    v = 1 << 31
+    for b in range(26):
+        if i >> b & 1:
+            x ^= 1 << (31 - b)
+            y ^= v
+        v ^= v >> 1
+    return x, y
+
+
+@pytest.mark.parametrize("index0", [0, (1 << 26) - 2048])
+def test_sobol_points_follow_the_direction_numbers(k, index0):
+    got = k.sobol_points(index0, 2048)
+    rng = np.random.default_rng(index0)
+    for i in [*range(64), *rng.integers(0, 2048, 64).tolist(), 2047]:
+        assert tuple(got[i].tolist()) == _sobol_by_direction_numbers(index0 + i), i
 
 
 @pytest.mark.parametrize("n", [1, 64, 1024, 4096])
