@@ -154,14 +154,16 @@ def reflect(wo: vec3, n: vec3) -> vec3:
 
 
 @ti.func
-def bsdf_eval(alb: vec3, n: vec3, wo: vec3, wi: vec3, ks: ti.f32, nexp: ti.f32):
+def bsdf_eval(alb: vec3, n: vec3, wo: vec3, wi: vec3, ks: ti.f32, nexp: ti.f32,
+              glossy: ti.template()):
     """(f * cos(theta_i), pdf of :func:`bsdf_sample`) for a Lambertian lobe of albedo
     ``(1 - ks) * alb`` plus a normalised modified-Phong lobe ``ks (n + 2) / 2pi cos^n`` about
-    the mirror direction (Lafortune & Willems 1994); ``ks = 0`` is pure Lambertian."""
+    the mirror direction (Lafortune & Willems 1994); ``ks = 0`` is pure Lambertian.
+    ``glossy`` (compile time): False compiles the Lambertian lobe alone (``ks`` is 0)."""
     cos_i = ti.max(n.dot(wi), 0.0)
     fcos = alb * (cos_i / PI)
     pdf = cos_i / PI
-    if ks > 0.0:
+    if ti.static(glossy):
         c = ti.max(reflect(wo, n).dot(wi), 0.0)
         lobe = c ** nexp / (2.0 * PI)
         ps = glossy_probability(alb, ks)
@@ -179,13 +181,14 @@ def glossy_probability(alb: vec3, ks: ti.f32) -> ti.f32:
 
 @ti.func
 def bsdf_sample(alb: vec3, n: vec3, wo: vec3, ks: ti.f32, nexp: ti.f32, u1: ti.f32,
-                u2: ti.f32, u3: ti.f32):
+                u2: ti.f32, u3: ti.f32, glossy: ti.template()):
     """Direction, throughput weight f cos / pdf, and pdf of one BSDF sample (see
-    :func:`bsdf_eval`). A glossy sample below the surface returns a zero weight."""
+    :func:`bsdf_eval`, also for ``glossy``). A glossy sample below the surface returns a zero
+    weight."""
     wi = cosine_hemisphere(n, u1, u2)
     weight = alb
     pdf = ti.max(n.dot(wi), 0.0) / PI
-    if ks > 0.0:
+    if ti.static(glossy):
         if u3 < glossy_probability(alb, ks):
             r = reflect(wo, n)
             cos_a = u1 ** (1.0 / (nexp + 1.0))
@@ -193,7 +196,7 @@ def bsdf_sample(alb: vec3, n: vec3, wo: vec3, ks: ti.f32, nexp: ti.f32, u1: ti.f
             t, b = onb_from(r)
             phi = 2.0 * PI * u2
             wi = (t * (sin_a * ti.cos(phi)) + b * (sin_a * ti.sin(phi)) + r * cos_a).normalized()
-        fcos, pdf_all = bsdf_eval(alb, n, wo, wi, ks, nexp)
+        fcos, pdf_all = bsdf_eval(alb, n, wo, wi, ks, nexp, True)
         pdf = pdf_all
         weight = vec3(0.0)
         if n.dot(wi) > 0.0 and pdf_all > 0.0:
