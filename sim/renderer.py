@@ -629,8 +629,9 @@ class Renderer:
         that stays take their direction and contribution from it instead of sampling the
         environment again; this gives the same radiance to float rounding (a kept
         contribution is read back, a fresh one may be rounded in another order). Every light
-        sample has a row, traced or not. Returns the radiance, the growth length, the memo's
-        row count for the next length, and the number of rays traced."""
+        sample has a row, traced or not. ``glossy``, ``splay``: compile-time flags of the
+        scene (:attr:`_features`). Returns the radiance, the growth length, the memo's row
+        count for the next length, and the number of rays traced."""
         ray = 0
         rays = 0
         reuse = 0
