@@ -491,11 +491,18 @@ class Renderer:
         blades are culled as if ``x_cull`` long). Below that length the ray meets the same
         surface at the same point (the outline of a longer blade holds that of a shorter
         one), so a path whose rays all keep their answers has the same radiance. Cells and
-        blades are culled for lengths up to ``x_cull`` (>= x)."""
+        blades are culled for lengths up to ``x_cull`` (>= x), or up to the ray's least growth
+        length so far once that is lower (measured, 21 lengths, courtyard / forest 5000 lx:
+        -6.6 / -4.4 % time per path, bit for bit the same)."""
         best_t = tmax_in
         best_n = vec3(0.0, 0.0, 1.0)
         best_m = -1
         grow = tf.INF
+        # Green blades are culled as if x_cap long: x_cull, or this ray's least growth length
+        # so far once it is lower. A green blade rises at most its length above its root, so
+        # one culled at x_cap could only meet the ray from a longer length on: it cannot
+        # lower the growth length, and culling it leaves the answer as it was.
+        x_cap = x_cull
         t0 = 0.0
         t1 = tmax_in
         gx0, gy0, cell = self.fpar[0], self.fpar[1], self.fpar[2]
@@ -537,15 +544,16 @@ class Renderer:
                 zb = o.z + d.z * ti.min(t_out, best_t)
                 zlo, zhi = ti.min(za, zb), ti.max(za, zb)
                 ct = self.cell_top[c]
-                if zlo <= ti.max(ct.x, ct.y + x_cull) + ZCULL:  # else it passes over the cell
+                if zlo <= ti.max(ct.x, ct.y + x_cap) + ZCULL:  # else it passes over the cell
                     end = self.cell_start[c + 1]
                     if zlo > ct.z + ZCULL:  # over the cell's rectangles: its blades only
                         end = self.cell_split[c]
                     for j in range(self.cell_start[c], end):
                         prim = self.cell_items[j]
-                        t, n, m, g = self.hit_primitive(prim, o, d, x, x_cull, best_t, zlo, zhi,
+                        t, n, m, g = self.hit_primitive(prim, o, d, x, x_cap, best_t, zlo, zhi,
                                                         splay)
                         grow = ti.min(grow, g)
+                        x_cap = ti.min(x_cull, ti.max(grow, x))
                         if t < best_t:
                             best_t = t
                             best_n = n
