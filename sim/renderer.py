@@ -248,21 +248,25 @@ class Renderer:
         # Compile-time features of the uploaded scene (glossy lobe, splay): each combination
         # compiles its own kernels, so a Lambertian scene without splay (the default) runs
         # without their code (measured, courtyard / forest 5000 lx: -2 to -3 % time per path).
+        # Likewise a launch of one length runs without growth lengths and the memo (-3.5 to
+        # -4.4 % time per path).
         self._features = (False, False)
-        self._compiled: set[tuple[bool, bool]] = set()
+        self._compiled: set[tuple[bool, bool, bool]] = set()
         self._scene_key: tuple | None = None
         self._scene: SceneArrays | None = None
         self._lighting: Lighting | None = None
 
-    def _ensure_compiled(self) -> float:
-        """JIT-compile (or load from the offline cache) the kernel for the uploaded scene's
-        features; returns seconds spent."""
-        if self._features in self._compiled:
-            return 0.0
+    def _ensure_compiled(self, several: tuple[bool, ...] = (True,)) -> float:
+        """JIT-compile (or load from the offline cache) the kernels for the uploaded scene's
+        features, for launches of several lengths (True) and/or of one (False); returns
+        seconds spent."""
         t0 = time.perf_counter()
-        self._trace_kernel(0, 0, 1, 1, 0, 1, ti.Vector([0.0, 0.0, 1.0]), 1.0, *self._features)
-        ti.sync()
-        self._compiled.add(self._features)
+        for flag in several:
+            key = (*self._features, flag)
+            if key not in self._compiled:
+                self._trace_kernel(0, 0, 1, 1, 0, 1, ti.Vector([0.0, 0.0, 1.0]), 1.0, *key)
+                ti.sync()
+                self._compiled.add(key)
         return time.perf_counter() - t0
 
     # ----------------------------------------------------------------------------- uploads
@@ -483,7 +487,7 @@ class Renderer:
 
     @ti.func
     def trace(self, o, d, x: ti.f32, x_cull: ti.f32, tmax_in: ti.f32, any_hit: ti.i32,
-              splay: ti.template()):
+              splay: ti.template(), several: ti.template()):
         """Nearest hit (or any hit, for shadows) along o + t d, t in (0, tmax_in), with green
         blades ``x`` long, and the green length from which on the answer may differ: the
         least length at which a green blade missed here would come in front of the hit (for
@@ -552,8 +556,9 @@ class Renderer:
                         prim = self.cell_items[j]
                         t, n, m, g = self.hit_primitive(prim, o, d, x, x_cap, best_t, zlo, zhi,
                                                         splay)
-                        grow = ti.min(grow, g)
-                        x_cap = ti.min(x_cull, ti.max(grow, x))
+                        if ti.static(several):
+                            grow = ti.min(grow, g)
+                            x_cap = ti.min(x_cull, ti.max(grow, x))
                         if t < best_t:
                             best_t = t
                             best_n = n
@@ -581,7 +586,8 @@ class Renderer:
 
     @ti.func
     def trace_memo(self, memo: ti.template(), n_memo: ti.i32, ray: ti.i32, reuse: ti.i32, o, d,
-                   x: ti.f32, x_cull: ti.f32, any_hit: ti.i32, splay: ti.template()):
+                   x: ti.f32, x_cull: ti.f32, any_hit: ti.i32, splay: ti.template(),
+                   several: ti.template()):
         """:meth:`trace` for ray number ``ray`` of a path, taking the answer kept in ``memo``
         (a row per ray: ``MEMO_COLS``) from the path's trace at a shorter length
         when the path's earlier vertices all kept theirs (``reuse``: the ray is then the same)
@@ -609,7 +615,7 @@ class Renderer:
             t, n, mat, g = memo[ray, 0], vec3(0.0, 0.0, 1.0), 0, tf.INF
             memo[ray, 4], memo[ray, 5] = 0.0, tf.INF
         else:
-            t, n, mat, g = self.trace(o, d, x, x_cull, tf.INF, any_hit, splay)
+            t, n, mat, g = self.trace(o, d, x, x_cull, tf.INF, any_hit, splay, several)
             if not any_hit:
                 same = False
                 if kept == 2:
@@ -618,7 +624,7 @@ class Renderer:
                             and n.z == memo[ray, 3])
                 if not same:
                     reuse = 0
-            if ray < MEMO_RAYS:
+            if ray < ti.static(MEMO_RAYS if several else 0):
                 memo[ray, 0], memo[ray, 1], memo[ray, 2] = t, n.x, n.y
                 memo[ray, 3], memo[ray, 4], memo[ray, 5] = n.z, ti.cast(mat, ti.f32), g
         return t, n, mat, g, reuse, 1 if kept == 0 or kept == 2 else 0
@@ -626,7 +632,8 @@ class Renderer:
     @ti.func
     def radiance(self, o, d, x: ti.f32, x_cull: ti.f32, index: ti.i32, strata: ti.i32,
                  rep_key: ti.u32, key: ti.u32, max_bounces: ti.i32, memo: ti.template(),
-                 n_memo: ti.i32, glossy: ti.template(), splay: ti.template()):
+                 n_memo: ti.i32, glossy: ti.template(), splay: ti.template(),
+                 several: ti.template()):
         """Path-traced radiance along o + t d (linear Rec.709) with green blades ``x`` long,
         and the least green length from which on the path may change (meaningful up to
         ``x_cull``; ``x`` itself when blades splay, as their planes turn with the length):
@@ -643,8 +650,9 @@ class Renderer:
         ray = 0
         rays = 0
         reuse = 0
-        if ti.static(not splay):  # splay turns every blade
+        if ti.static(several and not splay):  # splay turns every blade
             reuse = 1 if n_memo > 0 else 0
+        rows = ti.static(MEMO_RAYS if several else 0)  # memo rows kept for the next length
         grow = tf.INF
         total = vec3(0.0)
         beta = vec3(1.0)
@@ -658,7 +666,8 @@ class Renderer:
         for depth in range(max_bounces + 1):
             # The last segment only asks whether the environment is visible (any hit).
             t, n, mat, g, reuse, fresh = self.trace_memo(
-                memo, n_memo, ray, reuse, o, d, x, x_cull, 1 if depth == max_bounces else 0, splay)
+                memo, n_memo, ray, reuse, o, d, x, x_cull, 1 if depth == max_bounces else 0, splay,
+                several)
             ray += 1
             rays += fresh
             grow = ti.min(grow, g)
@@ -723,14 +732,15 @@ class Renderer:
                     contrib = sun_e * fcos
                 if nn.dot(wl) > 0.0 and contrib.max() > 0.0:
                     ts, _, ms, gs, reuse, fresh = self.trace_memo(memo, n_memo, ray, reuse,
-                                                                        p, wl, x, x_cull, 1, splay)
+                                                                        p, wl, x, x_cull, 1, splay,
+                                                                        several)
                     rays += fresh
                     grow = ti.min(grow, gs)
                     if ms < 0:
                         total += beta * contrib
-                elif ray < MEMO_RAYS:
+                elif ray < rows:
                     memo[ray, 5] = tf.INF  # no shadow ray: nothing to outgrow
-                if ray < MEMO_RAYS and not kept:
+                if ray < rows and not kept:
                     for c in ti.static(range(3)):
                         memo[ray, 6 + c], memo[ray, 9 + c] = wl[c], contrib[c]
                 ray += 1
@@ -746,7 +756,7 @@ class Renderer:
                 b1, b2 = tf.owen_sobol_pair(index, strata * strata, rep_key, pair + 1, 0, 1)
                 d, weight, pdf_bsdf = tf.bsdf_sample(alb, nn, wo, ks, nexp, b1, b2,
                                                      tf.rand01(key, 128 + depth), glossy)
-                if ray < MEMO_RAYS:
+                if ray < rows:
                     for c in ti.static(range(3)):
                         memo[ray, 6 + c], memo[ray, 9 + c] = d[c], weight[c]
                     memo[ray, 12] = pdf_bsdf
@@ -758,12 +768,12 @@ class Renderer:
                 break
         if ti.static(splay):
             grow = x
-        return total, grow, ti.min(ray, MEMO_RAYS), rays
+        return total, grow, ti.min(ray, rows), rays
 
     @ti.kernel
     def _trace_kernel(self, n_len: ti.i32, rep0: ti.i32, n_rep: ti.i32, strata: ti.i32,
                       seed: ti.u32, max_bounces: ti.i32, eye: vec3, area: ti.f32,
-                      glossy: ti.template(), splay: ti.template()):
+                      glossy: ti.template(), splay: ti.template(), several: ti.template()):
         """Trace replicates rep0 .. rep0 + n_rep - 1 at the first n_len entries of
         ``self.lengths`` (ascending, m). Each camera path is traced at the shortest length
         and again only at a length from which on it may change (:meth:`radiance`); lengths in
@@ -794,7 +804,7 @@ class Renderer:
                 traces += 1
                 rad, grow, n_memo, n_rays = self.radiance(
                     eye, d, self.lengths[k], x_cull, i, strata, rep_key, key, max_bounces, memo,
-                    n_memo, glossy, splay)
+                    n_memo, glossy, splay, several)
                 rays += n_rays
                 value = jac * rad
                 self.out[(k * n_rep + rr) * n_samp + i] = value
@@ -831,7 +841,7 @@ class Renderer:
                 d = (forward + sx * right - sy * up).normalized()
                 memo = ti.Matrix.zero(ti.f32, MEMO_RAYS, MEMO_COLS)  # one length: nothing kept
                 rad, _, _, _ = self.radiance(eye, d, x, x, s, m, rep_key, key, max_bounces,
-                                             memo, 0, glossy, splay)
+                                             memo, 0, glossy, splay, False)
                 acc += rad
             self.image[py, px] = acc / (m * m)
 
@@ -892,7 +902,8 @@ class Renderer:
         out = np.empty((n, n_rep, 3), np.float64)
         self.ipar[7] = settings.light_samples
         eye_ti = ti.Vector(eye.astype(np.float32).tolist())
-        t_compile = self._ensure_compiled()
+        t_compile = self._ensure_compiled(tuple({len(order[s: s + len_chunk]) > 1
+                                                 for s, _ in launches}))
         t_trace0 = time.perf_counter()
         traced = rays = 0
         for done, (s, r0) in enumerate(launches, start=1):
@@ -902,7 +913,7 @@ class Renderer:
             buf[: len(rows)] = lengths_mm[rows] * 1e-3
             self.lengths.from_numpy(buf)
             self._trace_kernel(len(rows), r0, reps, m, settings.seed, settings.max_bounces,
-                               eye_ti, float(area), *self._features)
+                               eye_ti, float(area), *self._features, len(rows) > 1)
             n_groups = len(rows) * reps
             self._reduce_kernel(n_groups, n_samp)
             traced += int(self.traced[0])
