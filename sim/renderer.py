@@ -7,7 +7,10 @@ under an importance-sampled equirectangular environment plus an optional directi
   off by default), next-event estimation of the environment (sampled per normal bin in
   proportion to luminance x solid angle x a cosine bound, :mod:`grassd.sim.env_sampler`) and
   of the sun (ray-traced shadow), cosine-weighted
-  BSDF sampling, the two environment strategies combined by Veach's power heuristic. The last
+  BSDF sampling, the two environment strategies combined by Veach's balance heuristic
+  (measured against the power heuristic, courtyard / forest 5000 lx, city 20000 lx, 40 seeds
+  x 8 replicates: variance of the 21-length OGCD -6 / -6 / -4 %, of G at 10 mm +3 / -5 / -5 %;
+  a power of 1.5 gained half as much). The last
   surface of a path of several takes light samples alone: its BSDF sample would only ask
   whether the environment is visible (one more upward ray for a share of that surface's
   direct light, itself about 2 % of the quad's radiance; measured, courtyard / forest
@@ -675,7 +678,7 @@ class Renderer:
                 le = self.env_radiance(d)
                 w = 1.0
                 if depth > 0:
-                    w = tf.power_heuristic(pdf_bsdf, n_prev * self.env_pdf(d, bin_prev))
+                    w = tf.balance_heuristic(pdf_bsdf, n_prev * self.env_pdf(d, bin_prev))
                 total += beta * le * w
                 break
             if depth == max_bounces:
@@ -725,7 +728,7 @@ class Renderer:
                         fcos, pdf_b = tf.bsdf_eval(alb, nn, wo, wl, ks, nexp, glossy)
                         w = 1.0
                         if not last:
-                            w = tf.power_heuristic(n_nee * pdf_l, pdf_b)
+                            w = tf.balance_heuristic(n_nee * pdf_l, pdf_b)
                         contrib = le * fcos * (w / (pdf_l * n_nee))
                 else:
                     fcos, _ = tf.bsdf_eval(alb, nn, wo, sun_dir, ks, nexp, glossy)

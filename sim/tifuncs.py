@@ -246,10 +246,10 @@ def invert_cdf(cdf: ti.template(), base: ti.i32, n: ti.i32, u: ti.f32):
 
 
 @ti.func
-def power_heuristic(pdf_a: ti.f32, pdf_b: ti.f32) -> ti.f32:
-    """Veach's power heuristic (beta = 2) weight for the strategy with ``pdf_a``."""
-    a2 = pdf_a * pdf_a
-    return a2 / ti.max(a2 + pdf_b * pdf_b, 1e-30)
+def balance_heuristic(pdf_a: ti.f32, pdf_b: ti.f32) -> ti.f32:
+    """Veach's balance heuristic weight for the strategy with ``pdf_a`` (each pdf times its
+    strategy's sample count; E. Veach, PhD thesis, Stanford 1997, section 9.2.2)."""
+    return pdf_a / ti.max(pdf_a + pdf_b, 1e-30)
 
 
 @ti.func
