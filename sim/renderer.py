@@ -428,7 +428,7 @@ class Renderer:
         of the ray inside the current grid cell: a part lying wholly above or below it is not
         tested (a blade rises at most its length above its root, a green blade's cavity part
         spans the cavity depth below it). Green blades are culled as if ``x_cull`` (>= x)
-        long, so that their growth up to that length is seen."""
+        long, so that their growth up to that length is seen. ``splay``: compile-time flag."""
         nb = self.ipar[0]
         t = tf.INF
         grow = tf.INF
@@ -500,7 +500,9 @@ class Renderer:
         one), so a path whose rays all keep their answers has the same radiance. Cells and
         blades are culled for lengths up to ``x_cull`` (>= x), or up to the ray's least growth
         length so far once that is lower (measured, 21 lengths, courtyard / forest 5000 lx:
-        -6.6 / -4.4 % time per path, bit for bit the same)."""
+        -6.6 / -4.4 % time per path, bit for bit the same). ``splay``, ``several``
+        (compile time): the scene's green blades splay; the launch traces several lengths
+        (without, no growth lengths are computed and INF is returned)."""
         best_t = tmax_in
         best_n = vec3(0.0, 0.0, 1.0)
         best_m = -1
@@ -669,8 +671,8 @@ class Renderer:
         for depth in range(max_bounces + 1):
             # The last segment only asks whether the environment is visible (any hit).
             t, n, mat, g, reuse, fresh = self.trace_memo(
-                memo, n_memo, ray, reuse, o, d, x, x_cull, 1 if depth == max_bounces else 0, splay,
-                several)
+                memo, n_memo, ray, reuse, o, d, x, x_cull, 1 if depth == max_bounces else 0,
+                splay, several)
             ray += 1
             rays += fresh
             grow = ti.min(grow, g)
