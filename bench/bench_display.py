@@ -146,7 +146,7 @@ def main() -> None:
                             if "--lengths" in sys.argv else "0:20:2")
     renderer = _renderer_for(64)
     t0 = time.perf_counter()
-    renderer._ensure_compiled()
+    renderer._ensure_compiled((True, False))  # several lengths, and one-length top-ups
     print(f"{len(lengths)} lengths {lengths.min():g}..{lengths.max():g} mm; "
           f"kernel compile/load: {time.perf_counter() - t0:.2f} s; light: "
           f"{'courtyard.exr' if HDRI.exists() else 'synthetic sky'} 20000 lx + sun 40000 lx")

@@ -57,7 +57,7 @@ def reverse_bits(x: ti.u32) -> ti.u32:
 @ti.func
 def laine_karras(x: ti.u32, seed: ti.u32) -> ti.u32:
     """The Laine-Karras permutation with Burley's constants: each output bit depends only on
-    the input bits below it, so applied to reversed bits it is a nested uniform (Owen)
+    the input bits at or below it, so applied to reversed bits it is a nested uniform (Owen)
     scramble (B. Burley, "Practical Hash-based Owen Scrambling", JCGT 9(4), 2020)."""
     x ^= x * ti.u32(0x3D20ADEA)
     x += seed
