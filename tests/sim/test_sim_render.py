@@ -235,9 +235,9 @@ def test_one_path_for_all_lengths_equals_tracing_each_length_alone(renderer, sha
     """A path traced once and reused up to the length where it may change gives what
     tracing every length on its own gives (lengths unsorted, repeated, off the 1 mm grid), to
     float rounding (a kept light sample's contribution is read back where tracing alone
-    computes it, and the compiler may round that product in another order: about 1e-8
-    relative), while tracing far fewer paths, and of those paths fewer rays; with splay every
-    length and every ray is traced."""
+    computes it, and a length alone runs the one-length kernel, compiled on its own: either
+    may round in another order, about 1e-8 relative), while tracing far fewer paths, and of
+    those paths fewer rays; with splay every length and every ray is traced."""
     sun = dict(sun_lux=30000.0, sun_azimuth_deg=40.0, sun_elevation_deg=25.0)
     lighting = build_lighting(shared_hdri("courtyard"), ambient_lux=5000,
                               **(sun if case == "sun" else {}))
