@@ -7,6 +7,15 @@ relative (the runs are deterministic; the tolerance only absorbs last-bit platfo
 After a deliberate change of the command line or of the reports, regenerate the golden files
 with ``GRASSD_UPDATE_GOLDEN=1 .venv/bin/python -m pytest -q tests/test_cli_surface.py`` and
 review the diff.
+
+The reports are deterministic on one CPU model, not across models: Taichi compiles its kernels
+for the host CPU, and another instruction selection rounds some float32 hit points 0.1 um
+differently, which flips the odd ray that grazes a blade. A table entry then moves by 1 um, and
+the closed loop amplifies that (seen: the same commit gave controller reports 4 % and per-pixel
+ones 14 % apart in their closed-loop errors on two CPU models). So the golden reports are kept
+with a fingerprint of the renderer's output on the machine that recorded them (a hash of the
+replicate means of a small trace), and a machine whose fingerprint differs skips the comparison,
+saying so, instead of failing on rounding.
 """
 
 from __future__ import annotations
@@ -135,6 +144,41 @@ def _same(a: Any, b: Any, where: str = "$") -> None:
         assert a == b, f"{where}: {a!r} != {b!r}"
 
 
+def _renderer_fingerprint() -> str:
+    """Hex digest of the replicate means (float64 bytes) of a small trace: the default pixel
+    under the reports' light (the default site at 8000 lx), view (170, 2, 0), 5 lengths,
+    4096 paths x 4 replicates, seed 3 (0.2 s; enough paths that a grazing ray flips in it
+    where the reports' run has one). Equal on machines whose kernels round alike."""
+    import hashlib
+
+    import numpy as np
+
+    from grassd.sim.lighting import build_lighting
+    from grassd.sim.renderer import Renderer
+    from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
+
+    m = Renderer.shared().characteristic(
+        DisplaySpec(), build_lighting(SITE, 8000.0), Viewpoint(170, 2, 0),
+        np.linspace(0.0, 20.0, 5), RenderSettings(samples=4096, replicates=4, seed=3))
+    return hashlib.sha256(np.ascontiguousarray(m.rgb_replicates, "<f8").tobytes()).hexdigest()
+
+
+def _skip_unless_recorded_here() -> None:
+    """Record (GRASSD_UPDATE_GOLDEN=1) or check the renderer fingerprint of the golden
+    reports; skip when this machine's kernels round differently from the recording one's."""
+    path = GOLDEN / "reports" / "renderer_fingerprint.txt"
+    here = _renderer_fingerprint()
+    if UPDATE:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(here + "\n")
+    assert path.is_file(), f"no golden file {path}: run with GRASSD_UPDATE_GOLDEN=1"
+    recorded = path.read_text().strip()
+    if here != recorded:
+        pytest.skip(f"golden reports recorded on a CPU whose kernels round differently "
+                    f"(renderer fingerprint {recorded[:12]}, here {here[:12]}); "
+                    f"GRASSD_UPDATE_GOLDEN=1 records them for this machine")
+
+
 @pytest.mark.parametrize("granularity", ["global", "controller", "pixel"])
 def test_calibration_report_is_unchanged(tmp_path, granularity):
     """The report and metrics of one run per granularity (seed 3, 2 closed-loop rounds)."""
@@ -144,6 +188,7 @@ def test_calibration_report_is_unchanged(tmp_path, granularity):
     text = RUN + f'[tables]\ngranularity = "{granularity}"\ncheck_groups = 0\n'
     cfg = parse_config(text, base_dir=tmp_path)
     init_backend(cfg)
+    _skip_unless_recorded_here()
     light = LightInput(hdri=SITE, ambient_lux=8000.0,
                        timestamp=datetime(2026, 6, 21, 10, tzinfo=UTC))
     res = Calibrator(cfg).run(light)
