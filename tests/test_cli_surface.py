@@ -147,8 +147,9 @@ def _same(a: Any, b: Any, where: str = "$") -> None:
 def _renderer_fingerprint() -> str:
     """Hex digest of the replicate means (float64 bytes) of a small trace: the default pixel
     under the reports' light (the default site at 8000 lx), view (170, 2, 0), 5 lengths,
-    4096 paths x 4 replicates, seed 3 (0.2 s; enough paths that a grazing ray flips in it
-    where the reports' run has one). Equal on machines whose kernels round alike."""
+    4096 paths x 4 replicates, seed 3 (0.2 s). Kernels that round any hit point, weight or
+    sum of these 82k paths differently give other bytes; machines whose kernels round alike
+    give the same digest."""
     import hashlib
 
     import numpy as np

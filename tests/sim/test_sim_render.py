@@ -241,9 +241,10 @@ def test_one_path_for_all_lengths_equals_tracing_each_length_alone(renderer, sha
     A length on its own is traced as [x, x], so that it runs the same compiled kernel as the
     many lengths. Alone, a length runs the one-length kernel, compiled on its own: its float32
     rounding of a hit point 2.6 m from the eye differs by ~0.1 um, which flips a ray that
-    grazes a blade (seen on one CPU: a shadow ray at 0.4 deg to a blade's plane, 1 um inside
-    its outline in one kernel and 5 um outside in the other, changed one path of 400). So
-    that kernel is held to the many lengths' means within their standard errors."""
+    grazes a blade (seen on an Intel Xeon of family 6 model 207: a shadow ray at 0.4 deg to a
+    blade's plane, 1 um inside its outline in one kernel and 5 um outside in the other,
+    changed one path of 400). So that kernel is held to the many lengths' means within their
+    standard errors."""
     sun = dict(sun_lux=30000.0, sun_azimuth_deg=40.0, sun_elevation_deg=25.0)
     lighting = build_lighting(shared_hdri("courtyard"), ambient_lux=5000,
                               **(sun if case == "sun" else {}))
