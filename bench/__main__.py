@@ -2,7 +2,7 @@
 
 The first line names the machine (CPU model, cores, cache sizes): speed ratios move with the
 CPU (grassd against Mitsuba: the same code gave forest 1.52-1.56x at one length on one 2-core
-machine and 1.47-1.59x on another whose Mitsuba ran 1.8x slower), so a number is only read
+machine and 1.37-1.64x on another whose Mitsuba ran 1.8x slower), so a number is only read
 beside the machine that gave it.
 """
 

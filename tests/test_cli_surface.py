@@ -20,6 +20,7 @@ saying so, instead of failing on rounding.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -144,12 +145,13 @@ def _same(a: Any, b: Any, where: str = "$") -> None:
         assert a == b, f"{where}: {a!r} != {b!r}"
 
 
+@functools.cache
 def _renderer_fingerprint() -> str:
     """Hex digest of the replicate means (float64 bytes) of a small trace: the default pixel
     under the reports' light (the default site at 8000 lx), view (170, 2, 0), 5 lengths,
     4096 paths x 4 replicates, seed 3 (0.2 s). Kernels that round any hit point, weight or
     sum of these 82k paths differently give other bytes; machines whose kernels round alike
-    give the same digest."""
+    give the same digest. Computed once per session (the three reports share it)."""
     import hashlib
 
     import numpy as np
