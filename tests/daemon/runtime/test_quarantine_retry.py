@@ -88,6 +88,8 @@ def test_quarantined_bundle_listed_and_retried_through_the_daemon_and_without(tm
         d.start()
         wait_for(lambda: d.status()["run_counts"]["ok"] == 2, 120, "the second retried run",
                  d)
-        assert [j.state for j in _row(d, "second")] == ["archived"]
+        # the run is recorded ok just before its bundle moves to the archive
+        wait_for(lambda: [j.state for j in _row(d, "second")] == ["archived"], 30,
+                 "archived", d)
     finally:
         d.close()
