@@ -13,7 +13,14 @@ import sys
 
 import click
 
-from grassd.daemon.cli.options import RENDER_DEFAULTS, REPLICATES
+from grassd.daemon.cli.options import REPLICATES
+from grassd.daemon.config.sweep import (
+    DEFAULT_CONTRAST_THRESHOLD,
+    SWEEP_RETRIES,
+    SWEEP_WORKERS,
+    SweepSpec,
+    spec_default,
+)
 
 
 def _views(_ctx, _param, values):
@@ -40,10 +47,11 @@ def _display(_ctx, _param, value: str) -> tuple[int, int]:
 @click.option("--date", default=None, metavar="YYYY-MM-DD", help="Day of the times.")
 @click.option("--latitude", type=float, default=None, help="Site latitude (deg, north +).")
 @click.option("--longitude", type=float, default=None, help="Site longitude (deg, east +).")
-@click.option("--timezone", default="UTC", show_default=True, help="IANA time zone.")
-@click.option("--lux", type=float, default=20000.0, show_default=True,
+@click.option("--timezone", default=spec_default("timezone"), show_default=True,
+              help="IANA time zone.")
+@click.option("--lux", type=float, default=spec_default("lux"), show_default=True,
               help="Ambient lux when no --time is given.")
-@click.option("--night-lux", type=float, default=50.0, show_default=True,
+@click.option("--night-lux", type=float, default=spec_default("night_lux"), show_default=True,
               help="Sky lux when the sun is below 3 deg.")
 @click.option("--view", "views", multiple=True, required=True, callback=_views,
               metavar="H,D,THETA", help="Viewpoint (cm, m, deg). Repeatable.")
@@ -54,37 +62,33 @@ def _display(_ctx, _param, value: str) -> tuple[int, int]:
               help="ROWSxCOLS of the simulated display (its centre pixel is measured).")
 @click.option("--lengths", default="0:20:2", show_default=True,
               help="Green lengths in mm: START:STOP:STEP or a comma list.")
-@click.option("--samples", type=int, default=1024, show_default=True)
-@click.option("--replicates", type=REPLICATES, default=RENDER_DEFAULTS.replicates,
+@click.option("--samples", type=int, default=spec_default("samples"), show_default=True)
+@click.option("--replicates", type=REPLICATES, default=spec_default("replicates"),
               show_default=True)
 @click.option("--target-stderr", type=float, default=None,
               help="Add replicates until every OGCD standard error is at most this (dE00).")
-@click.option("--bounces", type=int, default=RENDER_DEFAULTS.max_bounces, show_default=True)
-@click.option("--light-samples", type=int, default=RENDER_DEFAULTS.light_samples,
+@click.option("--bounces", type=int, default=spec_default("bounces"), show_default=True)
+@click.option("--light-samples", type=int, default=spec_default("light_samples"),
               show_default=True)
-@click.option("--seed", type=int, default=0, show_default=True,
+@click.option("--seed", type=int, default=spec_default("seed"), show_default=True,
               help="Mixed into every task's deterministic seed.")
 @click.option("--out", "out_dir", required=True,
               type=click.Path(file_okay=False), help="Output directory.")
-@click.option("--workers", type=int, default=2, show_default=True,
+@click.option("--workers", type=int, default=SWEEP_WORKERS, show_default=True,
               help="Local worker processes (ignored with --scheduler).")
 @click.option("--scheduler", default=None, metavar="tcp://HOST:8786",
               help="Run on this dask.distributed scheduler instead of local processes.")
-@click.option("--retries", type=int, default=2, show_default=True,
+@click.option("--retries", type=int, default=SWEEP_RETRIES, show_default=True,
               help="Extra attempts of a failing task on the cluster.")
 @click.option("--restart", is_flag=True, help="Discard OUT/sweep.sqlite instead of resuming.")
-@click.option("--contrast-threshold", type=float, default=5.0, show_default=True,
+@click.option("--contrast-threshold", type=float, default=DEFAULT_CONTRAST_THRESHOLD,
+              show_default=True,
               help="OGCD range (dE00) below which a condition counts as losing contrast.")
 def sweep(hdris, times, date, latitude, longitude, timezone, lux, night_lux, views, pixels,
           display, lengths, samples, replicates, target_stderr, bounces, light_samples, seed,
           out_dir, workers, scheduler, retries, restart, contrast_threshold):
     """Run characteristics over many conditions; one tidy SQLite table plus summary plots."""
-    from grassd.daemon.offline.sweep import (
-        SweepSpec,
-        conditions,
-        parse_pixel_option,
-        run_sweep,
-    )
+    from grassd.daemon.offline.sweep import conditions, parse_pixel_option, run_sweep
     from grassd.sim.scene import parse_lengths
 
     spec = SweepSpec(lengths_mm=tuple(float(x) for x in parse_lengths(lengths)),

@@ -46,13 +46,17 @@ from pathlib import Path
 
 import numpy as np
 
+from grassd.daemon.config.sweep import (
+    DEFAULT_CONTRAST_THRESHOLD,
+    SWEEP_RETRIES,
+    SWEEP_WORKERS,
+    SweepSpec,
+)
 from grassd.daemon.errors import DaemonError
 from grassd.sim.light_input import LightInput
 from grassd.sim.scene import RenderSettings
 
 SCHEMA_VERSION = 1
-#: Below this OGCD range (dE00) a condition counts as one where the display loses contrast.
-DEFAULT_CONTRAST_THRESHOLD = 5.0
 
 
 class SweepError(DaemonError):
@@ -60,39 +64,6 @@ class SweepError(DaemonError):
 
 
 # --------------------------------------------------------------------------- spec
-
-
-@dataclass(frozen=True)
-class SweepSpec:
-    """Settings shared by every task of a sweep.
-
-    Lengths [mm]; ``lux`` [lx]: ambient lux when no time of day is given; site ``latitude`` /
-    ``longitude`` [deg], ``date`` (YYYY-MM-DD) and ``timezone`` (IANA) for times of day;
-    ``night_lux`` [lx] of sky light when the sun is below 3 deg; display ``rows`` x ``cols``
-    (the centre pixel is measured); Monte Carlo ``samples``, ``replicates``, ``bounces``,
-    ``light_samples``, ``target_stderr`` [dE00] (None: fixed replicates); ``seed`` mixes into
-    every task's seed.
-    """
-
-    lengths_mm: tuple[float, ...]
-    samples: int = 1024
-    replicates: int = RenderSettings.replicates
-    bounces: int = RenderSettings.max_bounces
-    light_samples: int = RenderSettings.light_samples
-    target_stderr: float | None = None
-    seed: int = 0
-    lux: float = 20000.0
-    night_lux: float = 50.0
-    latitude: float | None = None
-    longitude: float | None = None
-    date: str | None = None
-    timezone: str = "UTC"
-    rows: int = 1
-    cols: int = 1
-
-    def to_json(self) -> str:
-        """Canonical JSON (sorted keys) used for task keys and the output's metadata."""
-        return json.dumps(asdict(self), sort_keys=True)
 
 
 @dataclass(frozen=True)
@@ -419,9 +390,9 @@ class SweepSummary:
 
 
 def run_sweep(spec: SweepSpec, conds: Sequence[Condition], out_dir: str | Path, *,
-              workers: int = 2, scheduler: str | None = None, restart: bool = False,
+              workers: int = SWEEP_WORKERS, scheduler: str | None = None, restart: bool = False,
               threads_per_worker: int | None = None,
-              retries: int = 2, connect_timeout_s: float = 30.0,
+              retries: int = SWEEP_RETRIES, connect_timeout_s: float = 30.0,
               progress: Callable[[int, int], None] | None = None,
               on_result: Callable[[dict], None] | None = None,
               plots: bool = True,
