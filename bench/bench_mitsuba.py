@@ -10,17 +10,21 @@ quad (:mod:`grassd.sim.mitsuba_scene`). grassd traces the same quad with its def
 Efficiency = 1 / (seconds x relative variance of the quad's G), both sides measured in the same
 process, interleaved round by round (the CPU is shared, so timings drift together), with wall
 seconds (medians) and, less sensitive to other processes, CPU seconds of the process (all its
-threads). Scene load, upload and JIT are not timed. Each timed call starts after a
-``SETTLE_S`` pause: Dr.Jit's worker threads keep spinning for a few milliseconds after a render,
-and grassd timed right after one ran about 25 % slower (forest: 0.054 s against 0.040-0.044 s
-with a 10 ms to 1 s pause; Mitsuba's own time did not move). The variance of one Mitsuba render
-comes from its pixels: they are independent, so ``sum_i w_i^2 s_i^2 / (sum w)^2`` with s_i^2 each
-pixel's variance over the renders; grassd's from its replicates. For the characteristic
-Mitsuba counts as 21 renders and both sides use the variance at 10 mm. Agreement: the pooled
-means per channel, their difference in % and in combined standard errors; Mitsuba's side for
-it is measured exactly (camera rays uniform over the quad,
-:func:`grassd.sim.mitsuba_scene.quad_mean`, untimed), as the film's partly covered pixels
-carry light from outside the quad (printed too).
+threads). Each ratio is printed from the medians over all rounds and, as median [quartiles], round
+by round (both sides' times from the same round, so the machine's drift between rounds weighs less;
+the variances are the pooled ones). Scene load, upload and JIT are not timed. Each timed call
+starts after a ``SETTLE_S`` pause: Dr.Jit's worker threads keep spinning for a few milliseconds
+after a render, and grassd timed right after one ran about 25 % slower (forest: 0.054 s against
+0.040-0.044 s with a 10 ms to 1 s pause; Mitsuba's own time did not move; on a second CPU,
+with the pause, grassd's forest one length took 90.2 ms after a Mitsuba render and 90.3 ms after
+a call of its own, medians of 12). The variance of one
+Mitsuba render comes from its pixels: they are independent, so ``sum_i w_i^2 s_i^2 / (sum w)^2``
+with s_i^2 each pixel's variance over the renders; grassd's from its replicates. For the
+characteristic Mitsuba counts as 21 renders and both sides use the variance at 10 mm. Agreement:
+the pooled means per channel, their difference in % and in combined standard errors; Mitsuba's side
+for it is measured exactly (camera rays uniform over the quad,
+:func:`grassd.sim.mitsuba_scene.quad_mean`, untimed), as the film's partly covered pixels carry
+light from outside the quad (printed too).
 
 Run: ``python -m bench mitsuba``. Needs the test extra (mitsuba) and libLLVM >= 16 (Debian:
 ``apt-get install libllvm19``); without either it prints one line and skips.
@@ -115,10 +119,16 @@ class MitsubaSide:
         return per_render.mean(axis=0), np.sqrt(var_one / len(imgs)), var_one
 
 
+def _spread(ratios: np.ndarray) -> str:
+    """``median [q25, q75]x`` of per-round efficiency ratios."""
+    q25, q50, q75 = np.percentile(ratios, [25, 50, 75])
+    return f"{q50:.2f}x [{q25:.2f}, {q75:.2f}]"
+
+
 def _summary(name: str, g_mean, g_se, g: dict, m: MitsubaSide, traces: tuple[float, float]
              ) -> None:
     """Print efficiencies (wall and CPU seconds) and the agreement of one scene. ``g``: grassd's
-    median seconds ("t1", "t21", "c1", "c21": wall/CPU, one/21 lengths) and mean variances
+    seconds per round ("t1", "t21", "c1", "c21": wall/CPU, one/21 lengths) and mean variances
     ("v1", "v21", RGB) of one run."""
     f_mean, f_se, m_var = m.estimate()
     exact = np.array(m.exact)
@@ -128,16 +138,24 @@ def _summary(name: str, g_mean, g_se, g: dict, m: MitsubaSide, traces: tuple[flo
     n = len(LENGTHS_MM)
     print(f"{name}: Mitsuba {np.median(m.seconds):.3f} s per render ({SPP} spp, "
           f"{m.weights.size} px cropped, {len(m.seconds)} renders), rel. sd of G "
-          f"{np.sqrt(rv_m) * 100:.3f} %; grassd one length {g['t1']:.3f} s (rel. sd "
-          f"{np.sqrt(rv1) * 100:.3f} %), 21 lengths {g['t21']:.3f} s (rel. sd at {LENGTH_MM:g} "
+          f"{np.sqrt(rv_m) * 100:.3f} %; grassd one length {np.median(g['t1']):.3f} s (rel. sd "
+          f"{np.sqrt(rv1) * 100:.3f} %), 21 lengths {np.median(g['t21']):.3f} s (rel. sd at "
+          f"{LENGTH_MM:g} "
           f"mm {np.sqrt(rv21) * 100:.3f} %, {traces[0]:.2f} traces and {traces[1]:.1f} rays "
           f"per path)")
-    for clock, t_m, t1, t21 in (("wall", np.median(m.seconds), g["t1"], g["t21"]),
-                                ("CPU", np.median(m.cpu_seconds), g["c1"], g["c21"])):
+    for clock, m_s, g1, g21 in (("wall", m.seconds, g["t1"], g["t21"]),
+                                ("CPU", m.cpu_seconds, g["c1"], g["c21"])):
+        t_m, t1, t21 = np.median(m_s), np.median(g1), np.median(g21)
         e_m, e1, e21 = 1 / (t_m * rv_m), 1 / (t1 * rv1), 1 / (t21 * rv21)
+        # the same ratios round by round (each side's time in that round), where the machine's
+        # drift between rounds cancels
+        m_r = np.median(np.reshape(m_s, (-1, RENDERS_PER_ROUND)), axis=1)
+        r1 = m_r * rv_m / (np.asarray(g1) * rv1)
+        r21 = m_r * rv_m * n / (np.asarray(g21) * rv21)
         print(f"{name}: efficiency 1/({clock} s x relvar G): one length grassd {e1:.3g}, "
               f"Mitsuba {e_m:.3g}, ratio {e1 / e_m:.2f}x; 21 lengths grassd {e21:.3g}, "
-              f"Mitsuba {e_m / n:.3g} ({n} renders), ratio {e21 / (e_m / n):.2f}x")
+              f"Mitsuba {e_m / n:.3g} ({n} renders), ratio {e21 / (e_m / n):.2f}x; round by "
+              f"round {_spread(r1)} and {_spread(r21)}")
     diff = (g_mean - m_mean) / m_mean * 100
     z = (g_mean - m_mean) / np.sqrt(g_se ** 2 + m_se ** 2)
     prec = np.sqrt(g_se ** 2 + m_se ** 2) / m_mean * 100
@@ -184,8 +202,7 @@ def run_scene(name: str, rounds: int, renderer) -> None:
     reps = np.concatenate(reps)
     g_mean = reps.mean(axis=0)
     g_se = reps.std(axis=0, ddof=1) / np.sqrt(len(reps))
-    summary = {k: (float(np.median(v)) if k[0] in "tc" else np.mean(v, axis=0))
-               for k, v in g.items()}
+    summary = {k: (v if k[0] in "tc" else np.mean(v, axis=0)) for k, v in g.items()}
     _summary(name, g_mean, g_se, summary, mits, tuple(np.mean(traces, axis=0)))
 
 
