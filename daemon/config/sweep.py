@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict, dataclass, fields
+from typing import Any
 
 from grassd.sim.scene import RenderSettings
 
@@ -53,7 +54,7 @@ class SweepSpec:
         return json.dumps(asdict(self), sort_keys=True)
 
 
-def spec_default(name: str):
+def spec_default(name: str) -> Any:
     """The default of :class:`SweepSpec` field ``name`` (``KeyError`` for a field without one).
 
     >>> spec_default("lux")

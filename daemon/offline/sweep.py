@@ -63,7 +63,7 @@ class SweepError(DaemonError):
     """A sweep cannot run or resume (bad spec, output of another sweep, unreachable cluster)."""
 
 
-# --------------------------------------------------------------------------- spec
+# ---------------------------------------------------------------------- conditions
 
 
 @dataclass(frozen=True)
