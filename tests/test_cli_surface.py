@@ -21,6 +21,7 @@ saying so, instead of failing on rounding.
 from __future__ import annotations
 
 import functools
+import hashlib
 import json
 import math
 import os
@@ -31,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import click
+import numpy as np
 import pytest
 from click.testing import CliRunner
 from daemon_harness import HEAD, SITE
@@ -152,10 +154,6 @@ def _renderer_fingerprint() -> str:
     4096 paths x 4 replicates, seed 3 (0.2 s). Kernels that round any hit point, weight or
     sum of these 82k paths differently give other bytes; machines whose kernels round alike
     give the same digest. Computed once per session (the three reports share it)."""
-    import hashlib
-
-    import numpy as np
-
     from grassd.sim.lighting import build_lighting
     from grassd.sim.renderer import Renderer
     from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
