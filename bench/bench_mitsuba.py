@@ -4,8 +4,13 @@ Issue #17. The scene is what ``grassd simulate export-scene`` writes for courtya
 5000 lx, view (170, 2, 0), green length 10 mm; Mitsuba renders it with its ``path`` integrator
 (``max_depth`` 4 = 3 bounces, no Russian roulette), the ``independent`` sampler at 4 spp, the
 film cropped to the quad's bounding box and each pixel weighted by its exact coverage of the
-quad (:mod:`grassd.sim.mitsuba_scene`). grassd traces the same quad with its default settings
-(4096 paths x 8 replicates), at the one length and as the 21-length characteristic 0..20 mm.
+quad (:mod:`grassd.sim.mitsuba_scene`). grassd traces the same quad at the one length and as the 21-length characteristic 0..20 mm,
+twice: with its default settings (4096 paths x 8 replicates), and at Mitsuba's noise, the issue's
+terms (as many replicates of 4096 paths as make grassd's G at one length as noisy as one Mitsuba
+render, chosen by untimed pilots of both sides). Randomised quasi-Monte Carlo's variance falls
+faster than 1 / paths and Mitsuba pays a fixed cost per render (here 1 spp took 0.148 s, 4 spp
+0.439 s), so efficiency depends on the noise it is measured at; measured, the two settings give
+the same ratios within the bench's noise.
 
 Efficiency = 1 / (seconds x relative variance of the quad's G), both sides measured in the same
 process, interleaved round by round (the CPU is shared, so timings drift together), with wall
@@ -50,6 +55,8 @@ WIDTH = 512  #: film width (export-scene's default)
 RENDERS_PER_ROUND = 2
 EXACT_RAYS = 1 << 20  #: Mitsuba paths per round for the agreement (untimed)
 SETTLE_S = 0.05  #: pause before each timed call, so neither side runs beside the other's threads
+PILOT_RENDERS = 4  #: untimed Mitsuba renders that set grassd's replicates at Mitsuba's noise
+PILOT_SEEDS = range(900, 906)  #: grassd's untimed calls for the same (seeds the rounds do not use)
 
 
 def _skip_reason() -> str | None:
@@ -91,7 +98,13 @@ class MitsubaSide:
         self.render(keep=False)  # JIT, not timed
         self.measure_exact(keep=False)
 
-    def render(self, keep: bool = True) -> None:
+    def pilot_relvar(self, renders: int = PILOT_RENDERS) -> float:
+        """Relative variance of one render's G, from ``renders`` untimed renders (not kept)."""
+        images = [self.render(keep=False) for _ in range(renders)]
+        mean, _, var = self.estimate(images)
+        return float(var[1] / mean[1] ** 2)
+
+    def render(self, keep: bool = True) -> np.ndarray:
         self._seed += 1
         time.sleep(SETTLE_S)
         t0, c0 = time.perf_counter(), time.process_time()
@@ -101,6 +114,7 @@ class MitsubaSide:
             self.images.append(img)
             self.seconds.append(dt)
             self.cpu_seconds.append(dc)
+        return img
 
     def measure_exact(self, keep: bool = True) -> None:
         from grassd.sim.mitsuba_scene import quad_mean
@@ -110,9 +124,11 @@ class MitsubaSide:
         if keep:
             self.exact.append(rgb)
 
-    def estimate(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(mean RGB over renders, its standard error, variance of one render's RGB)."""
-        imgs = np.stack(self.images)  # (n, h, w, 3)
+    def estimate(self, images: list[np.ndarray] | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(mean RGB over renders, its standard error, variance of one render's RGB), of the
+        kept renders or of ``images``."""
+        imgs = np.stack(self.images if images is None else images)  # (n, h, w, 3)
         w = self.weights / self.weights.sum()
         per_render = np.einsum("nhwc,hw->nc", imgs, w)
         var_one = np.einsum("hwc,hw->c", imgs.var(axis=0, ddof=1), w * w)
@@ -125,24 +141,11 @@ def _spread(ratios: np.ndarray) -> str:
     return f"{q50:.2f}x [{q25:.2f}, {q75:.2f}]"
 
 
-def _summary(name: str, g_mean, g_se, g: dict, m: MitsubaSide, traces: tuple[float, float]
-             ) -> None:
-    """Print efficiencies (wall and CPU seconds) and the agreement of one scene. ``g``: grassd's
-    seconds per round ("t1", "t21", "c1", "c21": wall/CPU, one/21 lengths) and mean variances
-    ("v1", "v21", RGB) of one run."""
-    f_mean, f_se, m_var = m.estimate()
-    exact = np.array(m.exact)
-    m_mean, m_se = exact.mean(axis=0), exact.std(axis=0, ddof=1) / np.sqrt(len(exact))
-    rel = lambda v, mu: v[1] / mu[1] ** 2  # noqa: E731  (G channel)
-    rv_m, rv1, rv21 = rel(m_var, f_mean), rel(g["v1"], g_mean), rel(g["v21"], g_mean)
+def _efficiencies(name: str, label: str, g: dict, rv1: float, rv21: float, m: MitsubaSide,
+                  rv_m: float) -> None:
+    """Print grassd's and Mitsuba's efficiencies and their ratios for one grassd setting
+    (``label``), with wall and CPU seconds: overall (medians) and round by round."""
     n = len(LENGTHS_MM)
-    print(f"{name}: Mitsuba {np.median(m.seconds):.3f} s per render ({SPP} spp, "
-          f"{m.weights.size} px cropped, {len(m.seconds)} renders), rel. sd of G "
-          f"{np.sqrt(rv_m) * 100:.3f} %; grassd one length {np.median(g['t1']):.3f} s (rel. sd "
-          f"{np.sqrt(rv1) * 100:.3f} %), 21 lengths {np.median(g['t21']):.3f} s (rel. sd at "
-          f"{LENGTH_MM:g} "
-          f"mm {np.sqrt(rv21) * 100:.3f} %, {traces[0]:.2f} traces and {traces[1]:.1f} rays "
-          f"per path)")
     for clock, m_s, g1, g21 in (("wall", m.seconds, g["t1"], g["t21"]),
                                 ("CPU", m.cpu_seconds, g["c1"], g["c21"])):
         t_m, t1, t21 = np.median(m_s), np.median(g1), np.median(g21)
@@ -152,10 +155,33 @@ def _summary(name: str, g_mean, g_se, g: dict, m: MitsubaSide, traces: tuple[flo
         m_r = np.median(np.reshape(m_s, (-1, RENDERS_PER_ROUND)), axis=1)
         r1 = m_r * rv_m / (np.asarray(g1) * rv1)
         r21 = m_r * rv_m * n / (np.asarray(g21) * rv21)
-        print(f"{name}: efficiency 1/({clock} s x relvar G): one length grassd {e1:.3g}, "
-              f"Mitsuba {e_m:.3g}, ratio {e1 / e_m:.2f}x; 21 lengths grassd {e21:.3g}, "
+        print(f"{name}, {label}: efficiency 1/({clock} s x relvar G): one length grassd "
+              f"{e1:.3g}, Mitsuba {e_m:.3g}, ratio {e1 / e_m:.2f}x; 21 lengths grassd {e21:.3g}, "
               f"Mitsuba {e_m / n:.3g} ({n} renders), ratio {e21 / (e_m / n):.2f}x; round by "
               f"round {_spread(r1)} and {_spread(r21)}")
+
+
+def _summary(name: str, g_mean, g_se, runs: dict[str, tuple[int, dict]], m: MitsubaSide,
+             traces: tuple[float, float]) -> None:
+    """Print efficiencies (wall and CPU seconds) and the agreement of one scene. ``runs``: per
+    grassd setting (label), its replicates and its seconds per round ("t1", "t21", "c1",
+    "c21": wall/CPU, one/21 lengths) and mean variances ("v1", "v21", RGB)."""
+    f_mean, f_se, m_var = m.estimate()
+    exact = np.array(m.exact)
+    m_mean, m_se = exact.mean(axis=0), exact.std(axis=0, ddof=1) / np.sqrt(len(exact))
+    rel = lambda v, mu: v[1] / mu[1] ** 2  # noqa: E731  (G channel)
+    rv_m = rel(m_var, f_mean)
+    print(f"{name}: Mitsuba {np.median(m.seconds):.3f} s per render ({SPP} spp, "
+          f"{m.weights.size} px cropped, {len(m.seconds)} renders), rel. sd of G "
+          f"{np.sqrt(rv_m) * 100:.3f} %; {traces[0]:.2f} traces and {traces[1]:.1f} rays per "
+          f"grassd path at 21 lengths")
+    for label, (reps, g) in runs.items():
+        rv1, rv21 = rel(g["v1"], g_mean), rel(g["v21"], g_mean)
+        print(f"{name}, {label}: grassd 4096 paths x {reps} replicates, one length "
+              f"{np.median(g['t1']):.3f} s (rel. sd {np.sqrt(rv1) * 100:.3f} %), 21 lengths "
+              f"{np.median(g['t21']):.3f} s (rel. sd at {LENGTH_MM:g} mm "
+              f"{np.sqrt(rv21) * 100:.3f} %)")
+        _efficiencies(name, label, g, rv1, rv21, m, rv_m)
     diff = (g_mean - m_mean) / m_mean * 100
     z = (g_mean - m_mean) / np.sqrt(g_se ** 2 + m_se ** 2)
     prec = np.sqrt(g_se ** 2 + m_se ** 2) / m_mean * 100
@@ -170,7 +196,22 @@ def _summary(name: str, g_mean, g_se, g: dict, m: MitsubaSide, traces: tuple[flo
           f"= {np.round(fz, 2)} SE (partly covered pixels carry light from outside the quad)")
 
 
+def _replicates_at_noise(m: MitsubaSide, call, one: np.ndarray) -> int:
+    """grassd's replicates (of its default paths per replicate) whose one-length G is at most
+    as noisy as one Mitsuba render: untimed pilots of both sides (:data:`PILOT_RENDERS`
+    renders, :data:`PILOT_SEEDS`)."""
+    from grassd.sim.scene import MAX_REPLICATES, RenderSettings
+
+    rv_m = m.pilot_relvar()
+    reps = np.concatenate([call(one, RenderSettings(seed=s)).rgb_replicates[:, 0, 1]
+                           for s in PILOT_SEEDS])
+    rv_rep = reps.var(ddof=1) / reps.mean() ** 2  # one replicate's relative variance of G
+    return int(np.clip(np.ceil(rv_rep / rv_m), 2, MAX_REPLICATES))
+
+
 def run_scene(name: str, rounds: int, renderer) -> None:
+    """Interleave ``rounds`` rounds of Mitsuba renders and grassd calls on one panorama: grassd
+    at its defaults and at Mitsuba's noise (more replicates), each at one and 21 lengths."""
     from grassd.sim.export import export_scene
     from grassd.sim.lighting import build_lighting
     from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
@@ -182,27 +223,38 @@ def run_scene(name: str, rounds: int, renderer) -> None:
         mits = MitsubaSide(Path(tmp))
     one = np.array([LENGTH_MM])
     k10 = int(np.argmin(np.abs(LENGTHS_MM - LENGTH_MM)))
-    renderer.characteristic(display, lighting, vp, one, RenderSettings(samples=64, replicates=2))
-    reps, traces = [], []
-    g: dict[str, list] = {k: [] for k in ("t1", "c1", "v1", "t21", "c21", "v21")}
+
+    def call(lengths: np.ndarray, settings):
+        return renderer.characteristic(display, lighting, vp, lengths, settings)
+
+    call(one, RenderSettings(samples=64, replicates=2))
+    # label: replicates, seed offset (the defaults keep the seeds of earlier runs of the bench)
+    labels = {"defaults": (RenderSettings().replicates, 0),
+              "at Mitsuba's noise": (_replicates_at_noise(mits, call, one), 100_000)}
+    runs = {label: (reps, offset, {k: [] for k in ("t1", "c1", "v1", "t21", "c21", "v21")})
+            for label, (reps, offset) in labels.items()}
+    samples, traces = [], []
     for r in range(rounds):
         for _ in range(RENDERS_PER_ROUND):
             mits.render()
         mits.measure_exact()
-        for key, lengths, seed, k in (("1", one, 1000 + r, 0), ("21", LENGTHS_MM, r, k10)):
-            time.sleep(SETTLE_S)
-            c0 = time.process_time()
-            res = renderer.characteristic(display, lighting, vp, lengths, RenderSettings(seed=seed))
-            g["c" + key].append(time.process_time() - c0)
-            g["t" + key].append(res.seconds["trace"])
-            g["v" + key].append(res.rgb_stderr[k] ** 2)
-            reps.append(res.rgb_replicates[:, k])
-        traces.append((res.paths_traced / res.samples_per_length,
-                       res.rays_traced / res.samples_per_length))
-    reps = np.concatenate(reps)
-    g_mean = reps.mean(axis=0)
-    g_se = reps.std(axis=0, ddof=1) / np.sqrt(len(reps))
-    summary = {k: (v if k[0] in "tc" else np.mean(v, axis=0)) for k, v in g.items()}
+        for reps, offset, g in runs.values():
+            for key, lengths, seed, k in (("1", one, 1000 + r, 0), ("21", LENGTHS_MM, r, k10)):
+                time.sleep(SETTLE_S)
+                c0 = time.process_time()
+                res = call(lengths, RenderSettings(seed=seed + offset, replicates=reps))
+                g["c" + key].append(time.process_time() - c0)
+                g["t" + key].append(res.seconds["trace"])
+                g["v" + key].append(res.rgb_stderr[k] ** 2)
+                samples.append(res.rgb_replicates[:, k])
+            traces.append((res.paths_traced / res.samples_per_length,
+                           res.rays_traced / res.samples_per_length))
+    samples = np.concatenate(samples)
+    g_mean = samples.mean(axis=0)
+    g_se = samples.std(axis=0, ddof=1) / np.sqrt(len(samples))
+    summary = {label: (reps, {k: (v if k[0] in "tc" else np.mean(v, axis=0))
+                              for k, v in g.items()})
+               for label, (reps, _, g) in runs.items()}
     _summary(name, g_mean, g_se, summary, mits, tuple(np.mean(traces, axis=0)))
 
 
