@@ -4,10 +4,11 @@ Issue #17. The scene is what ``grassd simulate export-scene`` writes for courtya
 5000 lx, view (170, 2, 0), green length 10 mm; Mitsuba renders it with its ``path`` integrator
 (``max_depth`` 4 = 3 bounces, no Russian roulette), the ``independent`` sampler at 4 spp, the
 film cropped to the quad's bounding box and each pixel weighted by its exact coverage of the
-quad (:mod:`grassd.sim.mitsuba_scene`). grassd traces the same quad at the one length and as the 21-length characteristic 0..20 mm,
-twice: with its default settings (4096 paths x 8 replicates), and at Mitsuba's noise, the issue's
-terms (as many replicates of 4096 paths as make grassd's G at one length as noisy as one Mitsuba
-render, chosen by untimed pilots of both sides). Randomised quasi-Monte Carlo's variance falls
+quad (:mod:`grassd.sim.mitsuba_scene`). grassd traces the same quad at the one length and as
+the 21-length characteristic 0..20 mm, twice: with its default settings (4096 paths x 8
+replicates), and at Mitsuba's noise, the issue's terms (as many replicates of 4096 paths as make
+grassd's G at one length as noisy as one Mitsuba render, chosen by untimed pilots of both
+sides). Randomised quasi-Monte Carlo's variance falls
 faster than 1 / paths and Mitsuba pays a fixed cost per render (here 1 spp took 0.148 s, 4 spp
 0.439 s), so efficiency depends on the noise it is measured at; measured, the two settings give
 the same ratios within the bench's noise.
