@@ -8,10 +8,10 @@ quad (:mod:`grassd.sim.mitsuba_scene`). grassd traces the same quad at the one l
 the 21-length characteristic 0..20 mm, twice: with its default settings (4096 paths x 8
 replicates), and at Mitsuba's noise, the issue's terms (as many replicates of 4096 paths as make
 grassd's G at one length as noisy as one Mitsuba render, chosen by untimed pilots of both
-sides). Randomised quasi-Monte Carlo's variance falls
-faster than 1 / paths and Mitsuba pays a fixed cost per render (here 1 spp took 0.148 s, 4 spp
-0.439 s), so efficiency depends on the noise it is measured at; measured, the two settings give
-the same ratios within the bench's noise.
+sides). Randomised quasi-Monte Carlo's variance falls faster than 1 / paths and Mitsuba pays a
+fixed cost per render (here 1 spp took 0.148 s, 4 spp 0.439 s), so efficiency depends on the
+noise it is measured at; measured, the two settings give the same ratios within the bench's
+noise.
 
 Efficiency = 1 / (seconds x relative variance of the quad's G), both sides measured in the same
 process, interleaved round by round (the CPU is shared, so timings drift together), with wall
@@ -25,7 +25,11 @@ after a render, and grassd timed right after one ran about 25 % slower (forest: 
 with the pause, grassd's forest one length took 90.2 ms after a Mitsuba render and 90.3 ms after
 a call of its own, medians of 12). The variance of one
 Mitsuba render comes from its pixels: they are independent, so ``sum_i w_i^2 s_i^2 / (sum w)^2``
-with s_i^2 each pixel's variance over the renders; grassd's from its replicates. For the
+with s_i^2 each pixel's variance over the renders; grassd's from its replicates, all of them
+pooled: every replicate of either setting, at one length or at 10 mm of the 21, is a draw of the
+same estimator of 4096 paths (a length's radiance does not depend on the other lengths traced),
+so both settings share one variance per replicate, known to about +-5 % from 10 rounds (each
+setting's own replicates alone moved its efficiency by +-15 % in 10 rounds, 2x in 3). For the
 characteristic Mitsuba counts as 21 renders and both sides use the variance at 10 mm. Agreement:
 the pooled means per channel, their difference in % and in combined standard errors; Mitsuba's side
 for it is measured exactly (camera rays uniform over the quad,
@@ -142,47 +146,53 @@ def _spread(ratios: np.ndarray) -> str:
     return f"{q50:.2f}x [{q25:.2f}, {q75:.2f}]"
 
 
-def _efficiencies(name: str, label: str, g: dict, rv1: float, rv21: float, m: MitsubaSide,
-                  rv_m: float) -> None:
+def _efficiencies(name: str, label: str, g: dict, rv: float, m: MitsubaSide, rv_m: float
+                  ) -> None:
     """Print grassd's and Mitsuba's efficiencies and their ratios for one grassd setting
-    (``label``), with wall and CPU seconds: overall (medians) and round by round."""
+    (``label``; ``rv``: the relative variance of its G at 10 mm, one length or 21), with wall
+    and CPU seconds: overall (medians) and round by round."""
     n = len(LENGTHS_MM)
     for clock, m_s, g1, g21 in (("wall", m.seconds, g["t1"], g["t21"]),
                                 ("CPU", m.cpu_seconds, g["c1"], g["c21"])):
         t_m, t1, t21 = np.median(m_s), np.median(g1), np.median(g21)
-        e_m, e1, e21 = 1 / (t_m * rv_m), 1 / (t1 * rv1), 1 / (t21 * rv21)
+        e_m, e1, e21 = 1 / (t_m * rv_m), 1 / (t1 * rv), 1 / (t21 * rv)
         # the same ratios round by round (each side's time in that round), where the machine's
         # drift between rounds cancels
         m_r = np.median(np.reshape(m_s, (-1, RENDERS_PER_ROUND)), axis=1)
-        r1 = m_r * rv_m / (np.asarray(g1) * rv1)
-        r21 = m_r * rv_m * n / (np.asarray(g21) * rv21)
+        r1 = m_r * rv_m / (np.asarray(g1) * rv)
+        r21 = m_r * rv_m * n / (np.asarray(g21) * rv)
         print(f"{name}, {label}: efficiency 1/({clock} s x relvar G): one length grassd "
               f"{e1:.3g}, Mitsuba {e_m:.3g}, ratio {e1 / e_m:.2f}x; 21 lengths grassd {e21:.3g}, "
               f"Mitsuba {e_m / n:.3g} ({n} renders), ratio {e21 / (e_m / n):.2f}x; round by "
               f"round {_spread(r1)} and {_spread(r21)}")
 
 
-def _summary(name: str, g_mean, g_se, runs: dict[str, tuple[int, dict]], m: MitsubaSide,
-             traces: tuple[float, float]) -> None:
-    """Print efficiencies (wall and CPU seconds) and the agreement of one scene. ``runs``: per
-    grassd setting (label), its replicates and its seconds per round ("t1", "t21", "c1",
-    "c21": wall/CPU, one/21 lengths) and mean variances ("v1", "v21", RGB)."""
+def _summary(name: str, samples: np.ndarray, runs: dict[str, tuple[int, dict]],
+             m: MitsubaSide, traces: tuple[float, float]) -> None:
+    """Print efficiencies (wall and CPU seconds) and the agreement of one scene. ``samples``
+    (n, 3): every grassd replicate's RGB at 10 mm, one length or 21, both settings: draws of
+    one estimator (a length's radiance does not depend on the other lengths traced), pooled
+    for its variance. ``runs``: per grassd setting (label), its replicates and its seconds per
+    round ("t1", "t21", "c1", "c21": wall/CPU, one/21 lengths)."""
+    g_mean = samples.mean(axis=0)
+    g_se = samples.std(axis=0, ddof=1) / np.sqrt(len(samples))
+    rv_rep = samples[:, 1].var(ddof=1) / g_mean[1] ** 2  # one replicate's, G
     f_mean, f_se, m_var = m.estimate()
     exact = np.array(m.exact)
     m_mean, m_se = exact.mean(axis=0), exact.std(axis=0, ddof=1) / np.sqrt(len(exact))
-    rel = lambda v, mu: v[1] / mu[1] ** 2  # noqa: E731  (G channel)
-    rv_m = rel(m_var, f_mean)
+    rv_m = m_var[1] / f_mean[1] ** 2
     print(f"{name}: Mitsuba {np.median(m.seconds):.3f} s per render ({SPP} spp, "
           f"{m.weights.size} px cropped, {len(m.seconds)} renders), rel. sd of G "
           f"{np.sqrt(rv_m) * 100:.3f} %; {traces[0]:.2f} traces and {traces[1]:.1f} rays per "
-          f"grassd path at 21 lengths")
+          f"grassd path at 21 lengths; grassd's variance from {len(samples)} replicates")
+    from grassd.sim.scene import RenderSettings
+
     for label, (reps, g) in runs.items():
-        rv1, rv21 = rel(g["v1"], g_mean), rel(g["v21"], g_mean)
-        print(f"{name}, {label}: grassd 4096 paths x {reps} replicates, one length "
-              f"{np.median(g['t1']):.3f} s (rel. sd {np.sqrt(rv1) * 100:.3f} %), 21 lengths "
-              f"{np.median(g['t21']):.3f} s (rel. sd at {LENGTH_MM:g} mm "
-              f"{np.sqrt(rv21) * 100:.3f} %)")
-        _efficiencies(name, label, g, rv1, rv21, m, rv_m)
+        rv = rv_rep / reps
+        print(f"{name}, {label}: grassd {RenderSettings().samples} paths x {reps} replicates, "
+              f"one length {np.median(g['t1']):.3f} s, 21 lengths {np.median(g['t21']):.3f} s "
+              f"(rel. sd of G at {LENGTH_MM:g} mm {np.sqrt(rv) * 100:.3f} %)")
+        _efficiencies(name, label, g, rv, m, rv_m)
     diff = (g_mean - m_mean) / m_mean * 100
     z = (g_mean - m_mean) / np.sqrt(g_se ** 2 + m_se ** 2)
     prec = np.sqrt(g_se ** 2 + m_se ** 2) / m_mean * 100
@@ -232,7 +242,7 @@ def run_scene(name: str, rounds: int, renderer) -> None:
     # label: replicates, seed offset (the defaults keep the seeds of earlier runs of the bench)
     labels = {"defaults": (RenderSettings().replicates, 0),
               "at Mitsuba's noise": (_replicates_at_noise(mits, call, one), 100_000)}
-    runs = {label: (reps, offset, {k: [] for k in ("t1", "c1", "v1", "t21", "c21", "v21")})
+    runs = {label: (reps, offset, {k: [] for k in ("t1", "c1", "t21", "c21")})
             for label, (reps, offset) in labels.items()}
     samples, traces = [], []
     for r in range(rounds):
@@ -246,17 +256,11 @@ def run_scene(name: str, rounds: int, renderer) -> None:
                 res = call(lengths, RenderSettings(seed=seed + offset, replicates=reps))
                 g["c" + key].append(time.process_time() - c0)
                 g["t" + key].append(res.seconds["trace"])
-                g["v" + key].append(res.rgb_stderr[k] ** 2)
                 samples.append(res.rgb_replicates[:, k])
             traces.append((res.paths_traced / res.samples_per_length,
                            res.rays_traced / res.samples_per_length))
-    samples = np.concatenate(samples)
-    g_mean = samples.mean(axis=0)
-    g_se = samples.std(axis=0, ddof=1) / np.sqrt(len(samples))
-    summary = {label: (reps, {k: (v if k[0] in "tc" else np.mean(v, axis=0))
-                              for k, v in g.items()})
-               for label, (reps, _, g) in runs.items()}
-    _summary(name, g_mean, g_se, summary, mits, tuple(np.mean(traces, axis=0)))
+    summary = {label: (reps, g) for label, (reps, _, g) in runs.items()}
+    _summary(name, np.concatenate(samples), summary, mits, tuple(np.mean(traces, axis=0)))
 
 
 def main() -> None:
