@@ -153,6 +153,11 @@ def _spread(ratios: np.ndarray) -> str:
     return f"{q50:.2f}x [{q25:.2f}, {q75:.2f}]"
 
 
+def _relvar(g: np.ndarray) -> float:
+    """Relative variance of one grassd replicate's G, from replicate means ``g`` (nits)."""
+    return float(g.var(ddof=1) / g.mean() ** 2)
+
+
 def _efficiencies(name: str, label: str, g: dict, rv: float, m: MitsubaSide, rv_m: float
                   ) -> None:
     """Print grassd's and Mitsuba's efficiencies and their ratios for one grassd setting
@@ -185,7 +190,7 @@ def _summary(name: str, samples: np.ndarray, runs: dict[str, tuple[int, dict]],
 
     g_mean = samples.mean(axis=0)
     g_se = samples.std(axis=0, ddof=1) / np.sqrt(len(samples))
-    rv_rep = samples[:, 1].var(ddof=1) / g_mean[1] ** 2  # one replicate's, G
+    rv_rep = _relvar(samples[:, 1])
     f_mean, f_se, m_var = m.estimate()
     exact = np.array(m.exact)
     m_mean, m_se = exact.mean(axis=0), exact.std(axis=0, ddof=1) / np.sqrt(len(exact))
@@ -224,8 +229,7 @@ def _replicates_at_noise(m: MitsubaSide, call, one: np.ndarray) -> int:
     rv_m = m.pilot_relvar()
     g_reps = np.concatenate([call(one, RenderSettings(seed=s)).rgb_replicates[:, 0, 1]
                              for s in PILOT_SEEDS])
-    rv_rep = g_reps.var(ddof=1) / g_reps.mean() ** 2  # one replicate's relative variance of G
-    need = int(np.ceil(rv_rep / rv_m))
+    need = int(np.ceil(_relvar(g_reps) / rv_m))
     if need > MAX_REPLICATES:
         print(f"grassd would need {need} replicates to match Mitsuba's noise; "
               f"taking {MAX_REPLICATES}, so its row 'at Mitsuba's noise' is noisier than that")
@@ -255,14 +259,15 @@ def run_scene(name: str, rounds: int, renderer) -> None:
     # label: replicates, seed offset (the defaults keep grassd's seeds of earlier runs)
     labels = {"defaults": (RenderSettings().replicates, 0),
               "at Mitsuba's noise": (_replicates_at_noise(mits, call, one), 100_000)}
-    runs = {label: (reps, offset, {k: [] for k in ("t1", "c1", "t21", "c21")})
-            for label, (reps, offset) in labels.items()}
+    times: dict[str, dict[str, list[float]]] = {
+        label: {k: [] for k in ("t1", "c1", "t21", "c21")} for label in labels}
     samples, traces = [], []
     for r in range(rounds):
         for _ in range(RENDERS_PER_ROUND):
             mits.render()
         mits.measure_exact()
-        for reps, offset, g in runs.values():
+        for label, (reps, offset) in labels.items():
+            g = times[label]
             for key, lengths, seed, k in (("1", one, 1000 + r, 0), ("21", LENGTHS_MM, r, k10)):
                 time.sleep(SETTLE_S)
                 c0 = time.process_time()
@@ -272,8 +277,8 @@ def run_scene(name: str, rounds: int, renderer) -> None:
                 samples.append(res.rgb_replicates[:, k])
             traces.append((res.paths_traced / res.samples_per_length,
                            res.rays_traced / res.samples_per_length))
-    summary = {label: (reps, g) for label, (reps, _, g) in runs.items()}
-    _summary(name, np.concatenate(samples), summary, mits, tuple(np.mean(traces, axis=0)))
+    runs = {label: (reps, times[label]) for label, (reps, _) in labels.items()}
+    _summary(name, np.concatenate(samples), runs, mits, tuple(np.mean(traces, axis=0)))
 
 
 def main() -> None:
