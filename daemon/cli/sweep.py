@@ -36,6 +36,17 @@ def _display(_ctx, _param, value: str) -> tuple[int, int]:
     return int(m.group(1)), int(m.group(2))
 
 
+def _pixels(_ctx, _param, values) -> list[tuple[str, tuple]]:
+    """``--pixel`` values parsed (field values typed as PixelSpec's fields); a bad one is a
+    click usage error naming the field."""
+    from grassd.daemon.offline.sweep import SweepError, parse_pixel_option
+
+    try:
+        return [parse_pixel_option(v) for v in values]
+    except SweepError as exc:
+        raise click.BadParameter(str(exc)) from None
+
+
 @click.command("sweep")
 @click.option("--hdri", "hdris", multiple=True, required=True,
               type=click.Path(exists=True, dir_okay=False),
@@ -55,7 +66,7 @@ def _display(_ctx, _param, value: str) -> tuple[int, int]:
               help="Sky lux when the sun is below 3 deg.")
 @click.option("--view", "views", multiple=True, required=True, callback=_views,
               metavar="H,D,THETA", help="Viewpoint (cm, m, deg). Repeatable.")
-@click.option("--pixel", "pixels", multiple=True, metavar="NAME[:FIELD=V,...]",
+@click.option("--pixel", "pixels", multiple=True, callback=_pixels, metavar="NAME[:FIELD=V,...]",
               help="Pixel spec variant, e.g. splay10:splay_deg=10. Repeatable "
                    "(default: the standard pixel).")
 @click.option("--display", "display", default="1x1", show_default=True, callback=_display,
@@ -88,7 +99,7 @@ def sweep(hdris, times, date, latitude, longitude, timezone, lux, night_lux, vie
           display, lengths, samples, replicates, target_stderr, bounces, light_samples, seed,
           out_dir, workers, scheduler, retries, restart, contrast_threshold):
     """Run characteristics over many conditions; one tidy SQLite table plus summary plots."""
-    from grassd.daemon.offline.sweep import conditions, parse_pixel_option, run_sweep
+    from grassd.daemon.offline.sweep import conditions, run_sweep
     from grassd.sim.scene import parse_lengths
 
     spec = SweepSpec(lengths_mm=tuple(float(x) for x in parse_lengths(lengths)),
@@ -96,7 +107,7 @@ def sweep(hdris, times, date, latitude, longitude, timezone, lux, night_lux, vie
                      light_samples=light_samples, target_stderr=target_stderr, seed=seed,
                      lux=lux, night_lux=night_lux, latitude=latitude, longitude=longitude,
                      date=date, timezone=timezone, rows=display[0], cols=display[1])
-    pix = [parse_pixel_option(p) for p in pixels] or [("default", ())]
+    pix = pixels or [("default", ())]
     conds = conditions(hdris, times, views, pix)
     bar = click.progressbar(length=len(conds), label="sweep", file=sys.stderr)
     state = {"shown": 0}

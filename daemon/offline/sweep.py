@@ -76,7 +76,7 @@ class Condition:
     time: str
     view: tuple[float, float, float]
     pixel: str = "default"
-    pixel_fields: tuple[tuple[str, float], ...] = ()
+    pixel_fields: tuple[tuple[str, float | int], ...] = ()
 
     def key(self, spec: SweepSpec) -> str:
         """Stable task id: SHA-256 of the condition and the shared settings (hex, 20 chars)."""
@@ -88,31 +88,67 @@ class Condition:
         return int(self.key(spec), 16) % (2**31 - 1)
 
 
-def parse_pixel_option(text: str) -> tuple[str, tuple[tuple[str, float], ...]]:
-    """``NAME`` or ``NAME:field=value,field=value`` (PixelSpec fields, numbers).
+def parse_pixel_option(text: str) -> tuple[str, tuple[tuple[str, float | int], ...]]:
+    """``NAME`` or ``NAME:field=value,field=value`` (PixelSpec's number fields).
+
+    Each value takes its field's type: ``int`` fields (``slit_count``, ``layout_seed``) take
+    whole numbers only (``3``, also ``3.0``), ``float`` fields any finite number. Raises
+    :class:`SweepError` naming the field and what it accepts.
 
     >>> parse_pixel_option("splay10:splay_deg=10")
     ('splay10', (('splay_deg', 10.0),))
+    >>> parse_pixel_option("l2:layout_seed=2")
+    ('l2', (('layout_seed', 2),))
     """
+    name, _, rest = text.partition(":")
+    if not name.strip():
+        raise SweepError(f"pixel spec {text!r} needs a name, e.g. splay10:splay_deg=10")
+    kinds = _pixel_number_fields()
+    pairs = []
+    for part in filter(None, (p.strip() for p in rest.split(","))):
+        k, eq, v = part.partition("=")
+        k, v = k.strip(), v.strip()
+        if not eq or k not in kinds:
+            raise SweepError(f"pixel spec {text!r}: {part!r} must be FIELD=NUMBER with FIELD "
+                             f"one of {', '.join(sorted(kinds))}")
+        pairs.append((k, _pixel_number(text, k, v, kinds[k])))
+    return name.strip(), tuple(sorted(pairs))
+
+
+def _pixel_number_fields() -> dict[str, type]:
+    """PixelSpec's fields that ``--pixel`` can set -> their type (int or float); the sRGB
+    triples are not numbers and stay with the config file."""
     from dataclasses import fields
 
     from grassd.sim.scene import PixelSpec
 
-    name, _, rest = text.partition(":")
-    if not name.strip():
-        raise SweepError(f"pixel spec {text!r} needs a name, e.g. splay10:splay_deg=10")
-    known = {f.name for f in fields(PixelSpec)}
-    pairs = []
-    for part in filter(None, (p.strip() for p in rest.split(","))):
-        k, eq, v = part.partition("=")
-        if not eq or k.strip() not in known:
-            raise SweepError(f"pixel spec {text!r}: {part!r} must be FIELD=NUMBER with FIELD "
-                             f"one of {', '.join(sorted(known))}")
-        try:
-            pairs.append((k.strip(), float(v)))
-        except ValueError:
-            raise SweepError(f"pixel spec {text!r}: {v!r} is not a number") from None
-    return name.strip(), tuple(sorted(pairs))
+    out: dict[str, type] = {}
+    for f in fields(PixelSpec):
+        kind = {"int": int, "float": float}.get(f.type if isinstance(f.type, str)
+                                                else getattr(f.type, "__name__", ""))
+        if kind is not None:
+            out[f.name] = kind
+    return out
+
+
+def _pixel_number(text: str, field: str, value: str, kind: type) -> float | int:
+    """``value`` of PixelSpec ``field`` (of type ``kind``) parsed; :class:`SweepError` if it
+    is not a finite number, or for an int field (a count or a seed) not a whole number >= 0."""
+    try:
+        x = float(value)
+    except ValueError:
+        x = math.nan
+    if not math.isfinite(x):
+        raise SweepError(f"pixel spec {text!r}: {field}={value!r} is not a number")
+    if kind is not int:
+        return x
+    if not x.is_integer() or x < 0:
+        raise SweepError(f"pixel spec {text!r}: {field} must be a whole number >= 0 (an "
+                         f"int), got {value!r}; e.g. {field}={max(math.floor(x), 0)}")
+    try:
+        return int(value)  # exact, also beyond float's 53 bits
+    except ValueError:
+        return int(x)  # "3.0", "1e3"
 
 
 def conditions(hdris: Sequence[str], times: Sequence[str], views: Sequence[tuple],
