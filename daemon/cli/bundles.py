@@ -72,7 +72,8 @@ def retry_cmd(bundle: str, config_path: str | None, state_dir: str | None) -> No
         with StateLock(cfg.state_dir, "grassd bundles retry"), \
                 History(cfg.state_dir / STATE_DB) as h:
             out = retry_request(Inbox(cfg.light.inbox, cfg.state_dir, h,
-                                      tz=cfg.site.timezone), bundle)
+                                      tz=cfg.site.timezone, limits=cfg.light.limits),
+                                bundle)
         if out["status"] != "ok":
             raise BundleRetryError(out["error"]) from None
         how = "put"

@@ -15,7 +15,8 @@ The file (default ``/etc/grassd/grassd.toml``; the embedded default is
     [[viewpoints]] h_cm, d_m, theta_deg, weight
     [light]        inbox, lux = "manifest" | "modbus", settle_s, incomplete_timeout_s,
                    lux_wait_s;
-                   [light.modbus] sensor register map
+                   [light.modbus] sensor register map;
+                   [light.limits] manifest_kib, file_mib, bundle_mib, entries (caps on a bundle)
     [schedule]     interval_s, on_new_bundle
     [retention]    keep_days, keep_reports, keep_runs (see RetentionConfig)
     [simulation]   samples, seed, lengths (count of evenly spaced lengths, or a list in mm)
@@ -56,6 +57,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
+from grassd.daemon.config.limits import BundleLimits
 from grassd.daemon.config.schema import Context as _Ctx
 from grassd.daemon.config.schema import Field as _F
 from grassd.daemon.config.schema import between as _between
@@ -189,6 +191,8 @@ class LightConfig:
     cameras store the mirror image, so a real site wants ``hdri_flip = true``, and the rotation
     (degrees, counter-clockwise seen from above) puts north where the camera did not; without
     them a sun placed from the site's latitude, longitude and time misses the sun in the map.
+    ``limits`` (``[light.limits]``): caps on a bundle's manifest, files and entries
+    (:class:`~grassd.daemon.config.limits.BundleLimits`); a bundle over one is rejected.
     """
 
     inbox: Path
@@ -200,6 +204,7 @@ class LightConfig:
     future_tolerance_s: float = FUTURE_TOLERANCE_S
     hdri_flip: bool = False
     hdri_rotation_deg: float = 0.0
+    limits: BundleLimits = BundleLimits()
 
 
 @dataclass(frozen=True)
@@ -554,7 +559,17 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         future_tolerance_s=_F(float, check=_non_negative),
         hdri_flip=_F(bool),
         hdri_rotation_deg=_F(float, check=_between(-360, 360, " degrees")),
+        limits=_F(dict),
     ))
+    limits = lt["limits"]
+    if not isinstance(limits, BundleLimits):  # else the table was left out: the defaults
+        limits = BundleLimits(**_table(ctx, ("light", "limits"), limits, _schema(
+            BundleLimits,
+            manifest_kib=_F(int, check=_between(1, 16 * 1024, " KiB")),
+            file_mib=_F(int, check=_between(1, 64 * 1024, " MiB")),
+            bundle_mib=_F(int, check=_between(1, 256 * 1024, " MiB")),
+            entries=_F(int, check=_between(2, 100_000)),
+        )))
     modbus = None
     if lt["modbus"] is not None:
         m = _table(ctx, ("light", "modbus"), lt["modbus"], _schema(
@@ -663,7 +678,7 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
                         incomplete_timeout_s=lt["incomplete_timeout_s"],
                         lux_wait_s=lt["lux_wait_s"],
                         future_tolerance_s=lt["future_tolerance_s"], hdri_flip=lt["hdri_flip"],
-                        hdri_rotation_deg=lt["hdri_rotation_deg"])
+                        hdri_rotation_deg=lt["hdri_rotation_deg"], limits=limits)
 
     return Config(site=site, display=display, controllers=tuple(controllers),
                   viewpoints=tuple(viewpoints), light=light, schedule=schedule,

@@ -33,7 +33,10 @@ controller against its own table (the run's display-wide table for one it has no
 crash after the commit resumes cleanly: the bundle is archived without running again and the
 controllers are reconciled. SIGTERM sets a stop flag checked between viewpoints and between
 controllers, so the daemon exits within one render or one table push (each push is atomic on
-the controller) and an interrupted bundle is retried at the next start.
+the controller) and an interrupted bundle is retried at the next start. The signal handlers
+only write to a self-pipe; a relay thread sets the stop and reload events
+(:mod:`grassd.daemon.runtime.signal_relay`: setting an event from a handler can deadlock on
+the lock of the event the main loop waits on).
 """
 
 from __future__ import annotations
@@ -46,7 +49,6 @@ import signal
 import sqlite3
 import threading
 import time
-import traceback
 from pathlib import Path
 from typing import Any
 
@@ -87,6 +89,7 @@ from grassd.daemon.runtime.push_outcomes import PushOutcomes
 from grassd.daemon.runtime.reconcile import OwnTables, reconcile_controllers
 from grassd.daemon.runtime.retention import prune
 from grassd.daemon.runtime.scheduled import scheduled_input
+from grassd.daemon.runtime.signal_relay import SignalRelay
 from grassd.daemon.runtime.statelock import StateLock
 from grassd.daemon.runtime.status import collect_status, rss_mb, usable_run_tables
 from grassd.daemon.store.history import History
@@ -163,6 +166,7 @@ class Service:
             raise
         self.control: ControlServer | None = None
         self._watchdog_thread: threading.Thread | None = None
+        self._signals: SignalRelay | None = None
         #: the capture station's thread ([capture]), grassd.daemon.runtime.capture
         self.capture_loop: Any = None
 
@@ -174,7 +178,8 @@ class Service:
                            incomplete_timeout_s=cfg.light.incomplete_timeout_s,
                            tz=cfg.site.timezone,
                            future_tolerance_s=cfg.light.future_tolerance_s,
-                           site=(cfg.site.latitude, cfg.site.longitude))
+                           site=(cfg.site.latitude, cfg.site.longitude),
+                           limits=cfg.light.limits)
         self.fleet = Fleet(cfg.controllers, policy=self.policy, retry_s=self.push_retry_s,
                            retry_max_s=self.push_retry_max_s)  # a reload resets the backoff
         # `grassd controllers` may talk on other ports while we run (see statelock)
@@ -191,10 +196,13 @@ class Service:
         self.notifier.status(text)
 
     def _install_signals(self) -> None:
+        """SIGTERM/SIGINT stop, SIGHUP reloads, through a :class:`SignalRelay` (the handlers
+        never touch an event themselves); SIGUSR1 dumps every thread's stack."""
         faulthandler.register(signal.SIGUSR1, all_threads=True)  # stack dump for debugging
-        signal.signal(signal.SIGTERM, lambda *_: self.stop_event.set())
-        signal.signal(signal.SIGINT, lambda *_: self.stop_event.set())
-        signal.signal(signal.SIGHUP, lambda *_: self.reload_event.set())
+        stop = (signal.SIGTERM, signal.SIGINT)
+        self._signals = SignalRelay({**dict.fromkeys(stop, self.stop_event.set),
+                                     signal.SIGHUP: self.reload_event.set},
+                                    latched=stop).install()
 
     def _watchdog_loop(self) -> None:
         interval = self.notifier.watchdog_interval_s
@@ -232,6 +240,8 @@ class Service:
                 self.stop_event.wait(self.tick_s)
         finally:
             self.shutdown()
+            if self._signals is not None:  # later signals are ignored: we are done
+                self._signals.close()
         return 0
 
     def main_loop_pass(self, pending: list[Bundle] | None = None) -> None:
@@ -515,7 +525,7 @@ class Service:
             log.warning("run %d rejected: %s", run_id, exc)
             return {"status": "rejected", "run_id": run_id, "error": str(exc)}
         except Exception as exc:  # a bug must not kill the service
-            log.error("run %d failed:\n%s", run_id, traceback.format_exc())
+            log.exception("run %d failed", run_id)  # one record, its traceback below
             self.history.finish_run(run_id, "failed", error=f"internal error: {exc!r}")
             return {"status": "failed", "run_id": run_id, "error": f"internal error: {exc!r}"}
         return self._commit(run_id, result)

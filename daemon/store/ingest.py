@@ -60,6 +60,7 @@ earlier upload is not mistaken for this upload's (only runs started after its cl
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import errno
 import hashlib
 import json
@@ -71,7 +72,7 @@ import sqlite3
 import stat
 import time
 import tomllib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime, tzinfo
 from pathlib import Path
@@ -80,10 +81,18 @@ from typing import Any
 from zoneinfo import ZoneInfo
 
 from grassd.daemon.config import schema
+from grassd.daemon.config.limits import DEFAULT_LIMITS, BundleLimits
 from grassd.daemon.errors import IngestError, ManifestError
 from grassd.daemon.store.atomic import atomic_write_text, fsync_dir
 from grassd.daemon.store.history import History
 from grassd.daemon.store.outcomes import QUARANTINED_PREFIX
+from grassd.daemon.store.untrusted import (
+    UntrustedFileError,
+    check_regular,
+    open_regular,
+    read_regular,
+    sha256_regular,
+)
 from grassd.daemon.timestamps import utc_iso
 from grassd.sim.errors import LightingError
 from grassd.sim.light_input import LightInput
@@ -101,6 +110,10 @@ REASON_FILE = "reason.txt"
 STUCK_RETRY_S = 60.0
 STUCK_RETRY_MAX_S = 3600.0
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
+#: How deeply a manifest's arrays and tables may nest (a real one: 3, checker_corners)
+MAX_MANIFEST_DEPTH = 8
+#: The bytes of a reason.txt read back (the daemon writes one line; a longer one is cut)
+MAX_REASON_BYTES = 64 * 1024
 _SAFE_RE = re.compile(r"[^A-Za-z0-9._-]+")
 
 
@@ -154,24 +167,63 @@ class Bundle:
 # --------------------------------------------------------------------------- manifest
 
 
-def read_manifest_data(path: Path) -> dict[str, Any]:
-    """Parse a TOML or JSON manifest file into a dict (ManifestError when malformed)."""
+def read_manifest_data(path: Path,
+                       max_bytes: int = DEFAULT_LIMITS.manifest_bytes) -> dict[str, Any]:
+    """Parse a TOML or JSON manifest file into a dict (ManifestError when malformed).
+
+    The file must be a regular file of at most ``max_bytes`` bytes (never a link, FIFO or
+    device: :mod:`grassd.daemon.store.untrusted`); a parse error of any kind (bad syntax,
+    encoding, nesting deeper than MAX_MANIFEST_DEPTH or than the parser's recursion limit)
+    is a ManifestError naming the file."""
     try:
-        raw = path.read_bytes()
+        raw = read_regular(path, max_bytes)
+    except UntrustedFileError as exc:
+        raise ManifestError(f"manifest {exc}") from None
     except OSError as exc:
         raise ManifestError(f"cannot read manifest {path.name}: {exc.strerror}") from None
+    kind = "JSON" if path.name.endswith(".json") else "TOML"
     try:
         text = raw.decode("utf-8")
         if path.name.endswith(".json"):
             data = json.loads(text)
         else:
             data = tomllib.loads(text)
-    except (UnicodeDecodeError, json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
-        kind = "JSON" if path.name.endswith(".json") else "TOML"
+    except RecursionError:
+        data = None  # nested past the parser's own limit: reported as too deep below
+    except (ValueError, TypeError) as exc:  # UnicodeDecodeError, JSON/TOMLDecodeError
+        # and whatever else a parser raises on hostile text
         raise ManifestError(f"manifest {path.name} is not valid {kind}: {exc}") from None
+    if data is None or _depth(data) > MAX_MANIFEST_DEPTH:
+        raise ManifestError(f"manifest {path.name} nests arrays or tables more than "
+                            f"{MAX_MANIFEST_DEPTH} deep: not a bundle manifest")
     if not isinstance(data, dict):
         raise ManifestError(f"manifest {path.name} must hold a table/object at top level")
     return data
+
+
+def _depth(v: Any) -> int:
+    """How deeply lists and dicts nest in ``v`` (a scalar: 0); stops counting past
+    MAX_MANIFEST_DEPTH + 1, so it never recurses deeply."""
+    depth, level = 0, [v]
+    while level and depth <= MAX_MANIFEST_DEPTH:
+        nxt: list[Any] = []
+        for x in level:
+            if isinstance(x, dict):
+                nxt.extend(x.values())
+            elif isinstance(x, list):
+                nxt.extend(x)
+        if not nxt and not any(isinstance(x, dict | list) for x in level):
+            break
+        depth += 1
+        level = nxt
+    return depth
+
+
+def _flat_owner(file_name: str, flat_names: list[str]) -> str | None:
+    """The flat bundle that a data file in the inbox belongs to: the longest bundle name N
+    (of those whose manifest is there, ``flat_names`` longest first) with the file named
+    ``N.<something>``; None when no bundle's name prefixes it."""
+    return next((n for n in flat_names if file_name.startswith(n + ".")), None)
 
 
 def _member(base: Path, key: str, v: Any) -> Path:
@@ -303,26 +355,21 @@ def _duration(seconds: float) -> str:
     return f"{seconds:.0f} s"
 
 
-def check_hdri_magic(path: Path) -> None:
-    """Reject an HDRI whose first bytes are not OpenEXR or Radiance RGBE (cheap early check)."""
+def check_hdri_magic(path: Path, max_bytes: int = DEFAULT_LIMITS.file_bytes) -> None:
+    """Reject an HDRI whose first bytes are not OpenEXR or Radiance RGBE (cheap early check),
+    or that is not a regular file of at most ``max_bytes`` bytes."""
     try:
-        with open(path, "rb") as fh:
-            head = fh.read(16)
+        fd = open_regular(path, max_bytes)
+        try:
+            head = os.read(fd, 16)
+        finally:
+            os.close(fd)
     except OSError as exc:
         raise IngestError(f"cannot read HDRI {path.name}: {exc.strerror}") from None
     if path.suffix.lower() == ".exr" and head[:4] != _EXR_MAGIC:
         raise IngestError(f"HDRI {path.name} is not an OpenEXR file (bad magic number)")
     if path.suffix.lower() == ".hdr" and not head.startswith((b"#?RADIANCE", b"#?RGBE")):
         raise IngestError(f"HDRI {path.name} is not a Radiance .hdr file (no #?RADIANCE header)")
-
-
-def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
-    """Hex SHA-256 of a file's content."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        while block := fh.read(chunk):
-            h.update(block)
-    return h.hexdigest()
 
 
 def bundle_hash(input_hashes: dict[str, str]) -> str:
@@ -352,6 +399,53 @@ class _Candidate:
     parsed: Manifest | None
     parse_error: str | None
     missing: list[str]
+    #: (path, lstat) of every entry of the members (a directory's walked without following
+    #: links, at most the entries cap + 1): the settle signature and the caps' input
+    entries: list[tuple[Path, os.stat_result]] = dataclasses.field(default_factory=list)
+
+
+def walk_entries(members: list[Path], cap: int) -> list[tuple[Path, os.stat_result]]:
+    """(path, lstat) of ``members`` and, for a directory, everything below it, never following
+    a link; stops after ``cap`` + 1 entries. Entries that vanish meanwhile are left out."""
+    out: list[tuple[Path, os.stat_result]] = []
+    todo = list(reversed(members))
+    while todo and len(out) <= cap:
+        p = todo.pop()
+        try:
+            st = p.lstat()
+        except OSError:
+            continue
+        if p not in members:
+            out.append((p, st))
+        elif not stat.S_ISDIR(st.st_mode):
+            out.append((p, st))
+        if stat.S_ISDIR(st.st_mode):
+            try:
+                with os.scandir(p) as it:
+                    todo.extend(sorted((Path(e.path) for e in it), reverse=True))
+            except OSError:
+                continue
+    return out
+
+
+def check_entries(entries: list[tuple[Path, os.stat_result]], base: Path,
+                  limits: BundleLimits) -> None:
+    """Refuse a bundle whose entries break ``limits`` or are not regular files or directories
+    (UntrustedFileError naming the first such entry relative to ``base``)."""
+    if len(entries) > limits.entries:
+        raise UntrustedFileError(f"bundle holds more than {limits.entries} files and folders "
+                                 "([light.limits] entries in the configuration)")
+    total = 0
+    for p, st in entries:
+        if stat.S_ISDIR(st.st_mode):
+            continue
+        name = str(p.relative_to(base)) if p.is_relative_to(base) else p.name
+        check_regular(st, name, limits.file_bytes)
+        total += st.st_size
+    if total > limits.bundle_bytes:
+        raise UntrustedFileError(f"bundle holds {total} bytes, over the cap of "
+                                 f"{limits.bundle_bytes} ([light.limits] bundle_mib in the "
+                                 "configuration)")
 
 
 class Inbox:
@@ -361,6 +455,9 @@ class Inbox:
     ``incomplete_timeout_s``: a bundle still missing files after this long is rejected.
     ``future_tolerance_s`` and ``site`` (latitude, longitude in degrees): see
     :func:`check_light`, which every manifest passes before its bundle is claimed.
+    ``limits``: the caps on a bundle (:class:`~grassd.daemon.config.limits.BundleLimits`);
+    whatever arrives is read as hostile (:mod:`grassd.daemon.store.untrusted`), and a manifest
+    is parsed once per (inode, mtime, size), not on every scan.
     ``clock`` (seconds, monotonic) and ``wall_clock`` (epoch seconds, the daemon's own clock
     that light timestamps are checked against) are injectable for tests.
     """
@@ -370,6 +467,7 @@ class Inbox:
                  tz: tzinfo | str = UTC, max_attempts: int = 3,
                  future_tolerance_s: float = FUTURE_TOLERANCE_S,
                  site: tuple[float, float] | None = None,
+                 limits: BundleLimits = DEFAULT_LIMITS,
                  clock: Callable[[], float] = time.monotonic,
                  wall_clock: Callable[[], float] = time.time) -> None:
         self.inbox = Path(inbox)
@@ -386,10 +484,14 @@ class Inbox:
         self.max_attempts = max_attempts
         self.future_tolerance_s = future_tolerance_s
         self.site = site
+        self.limits = limits
         self.clock = clock
         self.wall_clock = wall_clock
         self._watch: dict[str, tuple[tuple, float, float]] = {}  # name -> (sig, since, first)
         self._stuck: dict[str, _Stuck] = {}  # bundles whose move out of the inbox failed
+        #: manifest path -> ((dev, inode, mtime, size), data or None, Manifest or None, error)
+        self._parsed: dict[Path, tuple[tuple, dict[str, Any] | None, Manifest | None,
+                                       str | None]] = {}
 
     # ------------------------------------------------------------------ scanning
     def _candidates(self) -> list[_Candidate]:
@@ -401,60 +503,109 @@ class Inbox:
                 raise
             self.inbox.mkdir(parents=True, exist_ok=True)
             return out
+        flat = sorted((e.name[: -len(next(s for s in FLAT_SUFFIXES if e.name.endswith(s)))]
+                       for e in entries if e.name.endswith(FLAT_SUFFIXES)
+                       and not e.name.startswith(".")), key=len, reverse=True)
         for e in entries:
             if e.name.startswith("."):
                 continue
-            if e.is_dir(follow_symlinks=False):
-                base = Path(e.path)
-                found = [base / m for m in MANIFEST_NAMES if (base / m).exists()]
-                if len(found) > 1:
-                    out.append(_Candidate(e.name, found[0], [base], None,
-                                          "bundle has both manifest.toml and manifest.json", []))
-                    continue
-                out.append(self._examine(e.name, found[0] if found else None, base, [base]))
-            elif e.name.endswith(FLAT_SUFFIXES):
-                name = e.name[: -len(next(s for s in FLAT_SUFFIXES if e.name.endswith(s)))]
-                out.append(self._examine(name, Path(e.path), self.inbox, None))
+            try:
+                if e.is_dir(follow_symlinks=False):
+                    base = Path(e.path)
+                    found = [base / m for m in MANIFEST_NAMES if os.path.lexists(base / m)]
+                    if len(found) > 1:
+                        out.append(_Candidate(e.name, found[0], [base], None, "bundle has both "
+                                              "manifest.toml and manifest.json", []))
+                        continue
+                    out.append(self._examine(e.name, found[0] if found else None, base, [base]))
+                elif e.name.endswith(FLAT_SUFFIXES):
+                    name = e.name[: -len(next(s for s in FLAT_SUFFIXES if e.name.endswith(s)))]
+                    out.append(self._examine(name, Path(e.path), self.inbox, None, flat))
+            except (OSError, sqlite3.Error):
+                raise
+            except Exception as exc:  # noqa: BLE001 - hostile input must not stop the scan
+                log.exception("inbox: examining %r failed", e.name)
+                out.append(_Candidate(e.name, None, [Path(e.path)], None,
+                                      f"could not be examined: {type(exc).__name__}: {exc}", []))
+        for gone in set(self._parsed) - {c.manifest for c in out}:
+            del self._parsed[gone]
         return out
 
-    def _examine(self, name: str, manifest: Path | None, base: Path,
-                 members: list[Path] | None) -> _Candidate:
-        if manifest is None:
-            return _Candidate(name, None, members or [], None, None, ["manifest.toml"])
-        parsed, err, missing = None, None, []
-        data: dict[str, Any] | None = None
+    def _read_manifest(self, manifest: Path, base: Path
+                       ) -> tuple[dict[str, Any] | None, Manifest | None, str | None]:
+        """(data, parsed manifest, error) of ``manifest``: parsed once per (device, inode,
+        mtime, size), so a large manifest waiting for its files costs one parse, not one per
+        scan."""
         try:
-            data = read_manifest_data(manifest)
+            st = manifest.lstat()
+            key: tuple = (st.st_dev, st.st_ino, st.st_mtime_ns, st.st_size, st.st_mode)
+        except OSError:
+            key = ()
+        cached = self._parsed.get(manifest)
+        if cached is not None and key and cached[0] == key:
+            return cached[1:]
+        data: dict[str, Any] | None = None
+        parsed, err = None, None
+        try:
+            data = read_manifest_data(manifest, self.limits.manifest_bytes)
             parsed = parse_manifest(data, base, self.tz)
-            check_light(parsed, now=self.wall_clock(),
-                        future_tolerance_s=self.future_tolerance_s, site=self.site)
         except ManifestError as exc:
             err = str(exc)
+        self._parsed[manifest] = (key, data, parsed, err)
+        return data, parsed, err
+
+    def _examine(self, name: str, manifest: Path | None, base: Path,
+                 members: list[Path] | None, flat: list[str] = ()) -> _Candidate:
+        if manifest is None:
+            c = _Candidate(name, None, members or [], None, None, ["manifest.toml"])
+            c.entries = walk_entries(c.members, self.limits.entries)
+            return c
+        missing = []
+        data, parsed, err = self._read_manifest(manifest, base)
         if parsed is not None:
-            missing = [p.name for p in parsed.files() if not p.is_file()]
+            try:
+                check_light(parsed, now=self.wall_clock(),
+                            future_tolerance_s=self.future_tolerance_s, site=self.site)
+            except ManifestError as exc:
+                err = str(exc)
+        named = [] if parsed is None else parsed.files()
         if members is None:  # flat bundle: data files first, manifest last
-            if parsed is not None:
-                named = parsed.files()
-            else:  # rejected manifest: still take along the data files it names
+            if parsed is None:  # rejected manifest: still take along the data files it names
                 named = [_member(base, k, data[k]) for k in ("hdri", "checker_raw")
                          if data is not None and _plain_name(data.get(k))
                          and not data[k].startswith(".") and not data[k].endswith(FLAT_SUFFIXES)]
-            files = [p for p in named if p.is_file()]
-            members = [*files, manifest]
-        return _Candidate(name, manifest, members, parsed, err, missing)
+            stolen = [p.name for p in named if _flat_owner(p.name, flat) != name]
+            if stolen:  # another flat bundle's file (or nobody's): never move it
+                named = [p for p in named if p.name not in stolen]
+                err = err or (f"names {', '.join(stolen)}, which a flat bundle {name} may not: "
+                              f"its files must be named {name}.<something> (and not belong to "
+                              "a longer bundle name)")
+            members = [*(p for p in named if os.path.lexists(p)), manifest]
+        for p in named:
+            try:
+                st = p.lstat()
+            except FileNotFoundError:
+                missing.append(p.name)
+                continue
+            except OSError as exc:
+                err = err or f"cannot examine {p.name}: {exc.strerror}"
+                continue
+            try:
+                check_regular(st, p.name, self.limits.file_bytes)
+            except UntrustedFileError as exc:
+                err = err or str(exc)
+        c = _Candidate(name, manifest, members, parsed, err, missing)
+        c.entries = walk_entries(members, self.limits.entries)
+        if c.parse_error is None:
+            try:
+                check_entries(c.entries, manifest.parent, self.limits)
+            except UntrustedFileError as exc:
+                c.parse_error = str(exc)
+        return c
 
     @staticmethod
     def _signature(c: _Candidate) -> tuple:
-        sig = []
-        for m in c.members:
-            paths = [m] if m.is_file() else sorted(p for p in m.rglob("*") if p.is_file())
-            for p in paths:
-                try:
-                    st = p.stat()
-                except FileNotFoundError:
-                    continue
-                sig.append((str(p), st.st_size, st.st_mtime_ns))
-        return tuple(sig)
+        return tuple((str(p), st.st_mode, st.st_size, st.st_mtime_ns) for p, st in c.entries)
 
     # ------------------------------------------------------------------ public API
     def poll(self, claim: bool = True) -> list[Bundle]:
@@ -486,43 +637,55 @@ class Inbox:
         names = set()
         for c in self._candidates():
             names.add(c.name)
-            stuck = self._stuck.get(c.name)
-            if stuck is not None and now < stuck.retry_at \
-                    and stuck.access == self._access_key(c):
-                continue
-            sig = self._signature(c)
-            prev = self._watch.get(c.name)
-            if prev is None or prev[0] != sig:
-                first = prev[2] if prev else now
-                self._watch[c.name] = (sig, now, first)
-                if self.settle_s > 0:
-                    continue
-                prev = self._watch[c.name]
-            if not claim:
-                continue
-            _, since, first = prev
-            settled = now - since >= self.settle_s
-            if c.missing or c.manifest is None:
-                if now - first >= self.incomplete_timeout_s and settled:
-                    what = ("no manifest.toml or manifest.json" if c.manifest is None
-                            else f"missing file(s) {', '.join(c.missing)}")
-                    self._claim_and_reject(c, f"incomplete bundle after "
-                                              f"{self.incomplete_timeout_s:g} s: {what}")
-                    self._watch.pop(c.name, None)
-                continue
-            if not settled:
-                continue
-            self._watch.pop(c.name, None)
-            if c.parse_error is not None:
-                self._claim_and_reject(c, c.parse_error)
-                continue
-            bundle = self._claim(c)
-            if bundle is not None:
-                ready.append(bundle)
+            try:
+                self._consider(c, now, claim, ready)
+            except (OSError, sqlite3.Error):
+                raise
+            except Exception as exc:  # noqa: BLE001 - one hostile bundle must not stop the
+                # daemon (a parser's RecursionError, a name no file system takes, ...)
+                log.exception("inbox: bundle %r could not be handled", c.name)
+                self._watch.pop(c.name, None)
+                self._claim_and_reject(c, f"could not be handled: {type(exc).__name__}: {exc}")
         for gone in set(self._watch) - names:
             del self._watch[gone]
         for gone in set(self._stuck) - names:
             del self._stuck[gone]
+
+    def _consider(self, c: _Candidate, now: float, claim: bool, ready: list[Bundle]) -> None:
+        """:meth:`_scan` for one candidate: watch it settle, then claim or reject it."""
+        stuck = self._stuck.get(c.name)
+        if stuck is not None and now < stuck.retry_at \
+                and stuck.access == self._access_key(c):
+            return
+        sig = self._signature(c)
+        prev = self._watch.get(c.name)
+        if prev is None or prev[0] != sig:
+            first = prev[2] if prev else now
+            self._watch[c.name] = (sig, now, first)
+            if self.settle_s > 0:
+                return
+            prev = self._watch[c.name]
+        if not claim:
+            return
+        _, since, first = prev
+        settled = now - since >= self.settle_s
+        if (c.missing or c.manifest is None) and c.parse_error is None:
+            if now - first >= self.incomplete_timeout_s and settled:
+                what = ("no manifest.toml or manifest.json" if c.manifest is None
+                        else f"missing file(s) {', '.join(c.missing)}")
+                self._claim_and_reject(c, f"incomplete bundle after "
+                                          f"{self.incomplete_timeout_s:g} s: {what}")
+                self._watch.pop(c.name, None)
+            return
+        if not settled:
+            return
+        self._watch.pop(c.name, None)
+        if c.parse_error is not None:
+            self._claim_and_reject(c, c.parse_error)
+            return
+        bundle = self._claim(c)
+        if bundle is not None:
+            ready.append(bundle)
 
     def problems(self) -> list[str]:
         """Why bundles wait in the inbox (e.g. permissions), one line each, for status (called
@@ -531,62 +694,99 @@ class Inbox:
         return [stuck[name].message for name in sorted(stuck)]
 
     def recover(self) -> list[Bundle]:
-        """Reconcile journal and directories after a crash; return bundles to process again."""
+        """Reconcile journal and directories after a crash; return bundles to process again.
+
+        Each bundle is recovered on its own: one that cannot be (an error of any kind) is
+        quarantined in rejected/ with the error as its reason, or, when even that fails, left
+        where it is and logged, so no bundle can keep the daemon from starting."""
         retry: list[Bundle] = []
         rows = {j.bundle_id: j for j in self.history.journal("processing")}
         # 1. flat bundles interrupted half-way into processing/: put them back.
         for d in sorted(self.processing.glob("*.partial")):
             bid = d.name[: -len(".partial")]
             row = rows.pop(bid, None)
-            name = row.name if row else bid.split("-", 1)[-1]
-            self._unclaim_partial(d, name)
-            if row:
-                self.history.journal_forget(row.bundle_hash)
+            with self._recovering(d, row):
+                name = row.name if row else bid.split("-", 1)[-1]
+                self._unclaim_partial(d, name)
+                if row:
+                    self.history.journal_forget(row.bundle_hash)
         # 2. journal rows still "processing".
         for bid, row in rows.items():
-            here = self.processing / bid
-            if here.is_dir():
-                b = self._retry_or_settle(row.bundle_hash, bid, row.name, row.attempts)
-                if b is not None:
-                    retry.append(b)
-            elif (self.archive / bid).is_dir():  # crashed between move and journal: a
-                # superseded bundle stays superseded (scheduled runs must not take its light)
-                run = self.history.last_run_for_bundle(row.bundle_hash, row.created_at)
-                self.history.journal_finish(
-                    row.bundle_hash, "archived", run_id=None if run is None else run.id,
-                    reason=run.error if run is not None and run.status == "superseded" else None)
-            elif (self.rejected / bid).is_dir():
-                self.history.journal_finish(row.bundle_hash, "rejected",
-                                            reason=self._read_reason(self.rejected / bid))
-            elif (self.inbox / row.name).exists() or any(
-                    (self.inbox / (row.name + s)).exists() for s in FLAT_SUFFIXES):
-                self.history.journal_forget(row.bundle_hash)  # crashed before the move
-            else:
-                log.error("bundle %s vanished from processing/ while the daemon was down", bid)
-                self.history.journal_finish(row.bundle_hash, "rejected",
-                                            reason="bundle files vanished after a crash")
+            with self._recovering(self.processing / bid, row):
+                self._recover_row(bid, row, retry)
         # 3. directories in processing/ that the journal does not know (database replaced).
         known = {j.bundle_id for j in self.history.journal()}
         for d in sorted(self.processing.iterdir()):
-            if d.is_dir() and not d.name.endswith(".partial") and d.name not in known:
-                name = d.name.split("-", 1)[-1]
-                try:
-                    hashes = self._hash_dir(d)
-                except OSError as exc:
-                    self._finish_dir(d, d.name, None, f"unreadable after a crash: {exc}")
-                    continue
-                h = bundle_hash(hashes)
-                done = self.history.journal_get(h)
-                if done is not None:  # its content is known under another id: a duplicate
-                    # caught mid-rejection by a crash; the original keeps its journal row
-                    self._finish_dir(d, d.name, None, f"duplicate: identical content was "
-                                                      f"already {done.state} as {done.bundle_id}")
-                    continue
-                self.history.journal_claim(h, d.name, name)
-                b = self._retry_or_settle(h, d.name, name, 0)
-                if b is not None:
-                    retry.append(b)
+            if d.is_dir() and not d.is_symlink() and not d.name.endswith(".partial") \
+                    and d.name not in known:
+                with self._recovering(d, None):
+                    self._recover_unknown(d, retry)
         return retry
+
+    @contextlib.contextmanager
+    def _recovering(self, d: Path, row: Any) -> Iterator[None]:
+        """Recover bundle directory ``d`` (journal ``row`` or None) on its own (:meth:`recover`)."""
+        try:
+            yield
+        except sqlite3.Error:
+            raise  # the journal itself: not one bundle's fault
+        except Exception as exc:  # noqa: BLE001 - quarantine the one bundle, go on
+            log.exception("recovering bundle %s failed", d.name)
+            reason = (f"{QUARANTINED_PREFIX} could not be recovered after a restart: "
+                      f"{type(exc).__name__}: {exc}")
+            try:
+                if d.is_dir() and not d.is_symlink():
+                    self._finish_dir(d, d.name.removesuffix(".partial"),
+                                     None if row is None else row.bundle_hash, reason)
+                elif row is not None:
+                    self.history.journal_finish(row.bundle_hash, "rejected", reason=reason)
+            except Exception:  # noqa: BLE001 - e.g. a full disk: left for the next start
+                log.exception("bundle %s could not be quarantined either; it stays in %s",
+                              d.name, d.parent)
+
+    def _recover_row(self, bid: str, row: Any, retry: list[Bundle]) -> None:
+        """:meth:`recover` step 2 for one journal row still ``processing``."""
+        here = self.processing / bid
+        if here.is_dir():
+            b = self._retry_or_settle(row.bundle_hash, bid, row.name, row.attempts)
+            if b is not None:
+                retry.append(b)
+        elif (self.archive / bid).is_dir():  # crashed between move and journal: a
+            # superseded bundle stays superseded (scheduled runs must not take its light)
+            run = self.history.last_run_for_bundle(row.bundle_hash, row.created_at)
+            self.history.journal_finish(
+                row.bundle_hash, "archived", run_id=None if run is None else run.id,
+                reason=run.error if run is not None and run.status == "superseded" else None)
+        elif (self.rejected / bid).is_dir():
+            self.history.journal_finish(row.bundle_hash, "rejected",
+                                        reason=self._read_reason(self.rejected / bid))
+        elif (self.inbox / row.name).exists() or any(
+                (self.inbox / (row.name + s)).exists() for s in FLAT_SUFFIXES):
+            self.history.journal_forget(row.bundle_hash)  # crashed before the move
+        else:
+            log.error("bundle %s vanished from processing/ while the daemon was down", bid)
+            self.history.journal_finish(row.bundle_hash, "rejected",
+                                        reason="bundle files vanished after a crash")
+
+    def _recover_unknown(self, d: Path, retry: list[Bundle]) -> None:
+        """:meth:`recover` step 3 for one directory the journal does not know."""
+        name = d.name.split("-", 1)[-1]
+        try:
+            hashes = self._hash_dir(d)
+        except (OSError, IngestError) as exc:
+            self._finish_dir(d, d.name, None, f"unreadable after a crash: {exc}")
+            return
+        h = bundle_hash(hashes)
+        done = self.history.journal_get(h)
+        if done is not None:  # its content is known under another id: a duplicate
+            # caught mid-rejection by a crash; the original keeps its journal row
+            self._finish_dir(d, d.name, None, f"duplicate: identical content was "
+                                              f"already {done.state} as {done.bundle_id}")
+            return
+        self.history.journal_claim(h, d.name, name)
+        b = self._retry_or_settle(h, d.name, name, 0)
+        if b is not None:
+            retry.append(b)
 
     def begin(self, bundle: Bundle) -> int:
         """Count one processing attempt of ``bundle`` (call right before processing it)."""
@@ -641,31 +841,37 @@ class Inbox:
             return None
 
     def _load_claimed(self, d: Path, bid: str, name: str, h: str | None) -> Bundle:
-        mpath = next((d / m for m in MANIFEST_NAMES if (d / m).is_file()), None)
+        mpath = next((d / m for m in MANIFEST_NAMES if os.path.lexists(d / m)), None)
         if mpath is None:
             raise IngestError("bundle has no manifest.toml or manifest.json")
-        manifest = parse_manifest(read_manifest_data(mpath), d, self.tz)
-        missing = [p.name for p in manifest.files() if not p.is_file()]
+        manifest = parse_manifest(read_manifest_data(mpath, self.limits.manifest_bytes), d,
+                                  self.tz)
+        missing = [p.name for p in manifest.files() if not os.path.lexists(p)]
         if missing:
             raise IngestError(f"missing file(s) {', '.join(missing)}")
-        check_hdri_magic(manifest.light.hdri)
-        hashes = self._hash_dir(d)
+        hashes = self._hash_dir(d)  # every entry a regular file within the caps
+        check_hdri_magic(manifest.light.hdri, self.limits.file_bytes)
         return Bundle(id=bid, name=name, hash=h or bundle_hash(hashes), dir=d, manifest=manifest,
                       input_hashes=hashes)
 
-    @staticmethod
-    def _hash_dir(d: Path) -> dict[str, str]:
-        return {str(p.relative_to(d)): sha256_file(p) for p in sorted(d.rglob("*"))
-                if p.is_file() and p.name != REASON_FILE}
+    def _hash_dir(self, d: Path) -> dict[str, str]:
+        """``{path relative to d: SHA-256}`` of every file below ``d`` but the daemon's
+        reason.txt; UntrustedFileError when an entry is not a regular file or a cap is
+        broken (:func:`check_entries`)."""
+        entries = walk_entries([d], self.limits.entries)
+        check_entries([(p, st) for p, st in entries if p != d / REASON_FILE], d, self.limits)
+        return {str(p.relative_to(d)): sha256_regular(p, self.limits.file_bytes)
+                for p, st in sorted(entries, key=lambda e: e[0])
+                if stat.S_ISREG(st.st_mode) and p != d / REASON_FILE}
 
     def _hash_members(self, c: _Candidate) -> dict[str, str]:
         hashes: dict[str, str] = {}
         for m in c.members:
-            if m.is_dir():
+            if m.is_dir() and not m.is_symlink():
                 hashes.update(self._hash_dir(m))
-            elif m.is_file():
+            else:
                 key = ("manifest" + m.name[m.name.rfind(".") :]) if m == c.manifest else m.name
-                hashes[key] = sha256_file(m)
+                hashes[key] = sha256_regular(m, self.limits.file_bytes)
         return hashes
 
     def _bundle_id(self, h: str, name: str) -> str:
@@ -674,6 +880,9 @@ class Inbox:
     def _claim(self, c: _Candidate) -> Bundle | None:
         try:
             hashes = self._hash_members(c)
+        except UntrustedFileError as exc:  # changed into something the daemon will not read
+            self._claim_and_reject(c, str(exc))
+            return None
         except OSError as exc:  # a file vanished between scan and claim: look again next time
             log.warning("bundle %s changed while being claimed: %s", c.name, exc)
             return None
@@ -702,8 +911,9 @@ class Inbox:
     def _claim_and_reject(self, c: _Candidate, reason: str) -> None:
         try:
             hashes = self._hash_members(c)
-        except OSError:
-            hashes = {"name": hashlib.sha256(c.name.encode()).hexdigest()}
+        except (OSError, IngestError):  # e.g. a FIFO: the entries' kinds and sizes then
+            hashes = {"name": hashlib.sha256(c.name.encode()).hexdigest(),
+                      "entries": hashlib.sha256(repr(self._signature(c)).encode()).hexdigest()}
         h = bundle_hash(hashes)
         bid = self._bundle_id(h, c.name)
         if self.history.journal_get(h) is not None:
@@ -800,7 +1010,7 @@ class Inbox:
                 target = m.name
                 if m == c.manifest:
                     target = "manifest" + m.name[m.name.rfind(".") :]
-                if m.exists():
+                if os.path.lexists(m):
                     self._rename(m, partial / target)
             self._rename(partial, dest)
         except OSError:
@@ -830,14 +1040,28 @@ class Inbox:
 
     @staticmethod
     def _write_reason(d: Path, reason: str) -> None:
-        atomic_write_text(d / REASON_FILE, reason.rstrip() + "\n")
+        """Write ``reason`` to ``d``/reason.txt; an uploaded reason.txt that is not a regular
+        file (a directory, a FIFO: a rename could not replace it, or a reader would block) is
+        first moved aside to ``uploaded-reason.txt-<ns>``."""
+        target = d / REASON_FILE
+        with contextlib.suppress(FileNotFoundError):
+            if not stat.S_ISREG(target.lstat().st_mode):
+                os.rename(target, d / f"uploaded-{REASON_FILE}-{time.time_ns()}")
+        atomic_write_text(target, reason.rstrip() + "\n")
 
     @staticmethod
     def _read_reason(d: Path) -> str | None:
+        """The reason.txt of bundle directory ``d`` (None when unreadable or not a regular
+        file; cut at MAX_REASON_BYTES)."""
         try:
-            return (d / REASON_FILE).read_text().strip()
-        except OSError:
+            fd = open_regular(d / REASON_FILE, 1 << 62)
+            try:
+                raw = os.read(fd, MAX_REASON_BYTES)
+            finally:
+                os.close(fd)
+        except (OSError, IngestError):
             return None
+        return raw.decode("utf-8", errors="replace").strip()
 
     @staticmethod
     def _rename(src: Path, dst: Path) -> None:
@@ -849,10 +1073,11 @@ class Inbox:
             if exc.errno != errno.EXDEV:
                 raise
             tmp = dst.parent / f".{dst.name}.copy"
-            if src.is_dir():
-                shutil.copytree(src, tmp, dirs_exist_ok=True)
+            if src.is_dir() and not src.is_symlink():  # links copied as links, never followed
+                shutil.copytree(src, tmp, symlinks=True, dirs_exist_ok=True,
+                                copy_function=_copy_regular)
             else:
-                shutil.copy2(src, tmp)
+                _copy_regular(src, tmp)
             for p in [tmp, *tmp.rglob("*")] if tmp.is_dir() else [tmp]:
                 if p.is_file():
                     with open(p, "rb") as fh:
@@ -865,3 +1090,12 @@ class Inbox:
         fsync_dir(dst.parent)
         if src.parent != dst.parent:
             fsync_dir(src.parent)
+
+
+def _copy_regular(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> None:
+    """shutil.copy2 for a regular file or a link (copied as the link); anything else (a FIFO,
+    a device: reading it could block or never end) becomes an empty file of the same name."""
+    if stat.S_ISREG(os.lstat(src).st_mode) or os.path.islink(src):
+        shutil.copy2(src, dst, follow_symlinks=False)
+    else:
+        Path(dst).touch()
