@@ -7,13 +7,28 @@ after start-up, ``STATUS=...`` free text for ``systemctl status``, ``WATCHDOG=1`
 ``STOPPING=1``. A socket name starting with ``@`` is in the Linux abstract namespace (the ``@``
 stands for a leading NUL byte). Without ``$NOTIFY_SOCKET`` (not run by systemd) every call is a
 silent no-op that returns False.
+
+Notifying is never fatal (issue 27): a value is made one line by
+:func:`~grassd.daemon.safe_text.one_line` (a newline in ``STATUS=`` would end the assignment and
+start another: a bundle's name could forge ``READY=1`` or ``MAINPID=``) and cut to
+:data:`MAX_VALUE_CHARS` (systemd ignores a datagram over 4096 bytes); a send that fails for
+any reason returns False, logged once as a warning and then at debug level.
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import socket
 import time
+
+from grassd.daemon.safe_text import one_line
+
+log = logging.getLogger(__name__)
+
+#: characters kept of one value (a UTF-8 character has up to 4 bytes; systemd drops a
+#: notification of 4096 bytes or more whole)
+MAX_VALUE_CHARS = 900
 
 
 class Notifier:
@@ -33,6 +48,7 @@ class Notifier:
             self.watchdog_interval_s = int(usec) / 2e6
         self._last_ping = 0.0
         self._sock: socket.socket | None = None
+        self._warned = False
 
     @property
     def enabled(self) -> bool:
@@ -46,27 +62,38 @@ class Notifier:
         return self.socket_path
 
     def send(self, **fields: str | int) -> bool:
-        """Send ``KEY=VALUE`` lines (keys upper-cased); returns True when a datagram was sent.
+        """Send ``KEY=VALUE`` lines (keys upper-cased, each value made one line and cut to
+        :data:`MAX_VALUE_CHARS`); returns True when a datagram was sent. Never raises: a
+        failure (no socket, systemd gone, its queue full) returns False.
 
         >>> Notifier(env={}).send(READY=1)
         False
         """
         if not self.enabled:
             return False
-        lines = []
-        for key, value in fields.items():
-            text = str(value)
-            if "\n" in text:
-                raise ValueError(f"sd_notify value of {key} must not contain a newline")
-            lines.append(f"{key.upper()}={text}")
-        if self._sock is None:
-            self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
-            self._sock.setblocking(False)  # a full receiver must never stall the service
         try:
+            lines = [f"{key.upper()}={one_line(value, MAX_VALUE_CHARS)}"
+                     for key, value in fields.items()]
+            if self._sock is None:
+                self._sock = socket.socket(socket.AF_UNIX,
+                                           socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
+                self._sock.setblocking(False)  # a full receiver must never stall the service
             self._sock.sendto("\n".join(lines).encode(), self._address())
-        except OSError:
-            return False  # systemd gone, socket missing or its queue full: never fatal
+        except (OSError, ValueError) as exc:  # systemd gone, socket missing or its queue
+            # full, a name that cannot be encoded: never fatal
+            self._failed(exc)
+            return False
         return True
+
+    def _failed(self, exc: Exception) -> None:
+        """Log a failed send: the first as a warning, later ones at debug level (a full
+        queue repeats at every status change)."""
+        if self._warned:
+            log.debug("sd_notify to %s failed: %s", self.socket_path, exc)
+            return
+        self._warned = True
+        log.warning("sd_notify to %s failed: %s (the daemon goes on; further failures are "
+                    "logged at debug level)", self.socket_path, exc)
 
     def ready(self, status: str | None = None) -> bool:
         """Tell systemd that start-up finished (``READY=1``), with an optional status line."""

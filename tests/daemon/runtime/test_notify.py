@@ -32,8 +32,7 @@ def test_messages_reach_a_filesystem_socket(tmp_path):
     assert n.watchdog(force=True) and srv.recv(4096) == b"WATCHDOG=1"
     assert n.reloading() and srv.recv(4096) == b"RELOADING=1"
     assert n.stopping() and srv.recv(4096) == b"STOPPING=1"
-    with pytest.raises(ValueError):
-        n.status("two\nlines")
+    assert n.status("two\nlines") and srv.recv(4096) == b"STATUS=two\\nlines"  # never raises
     n.close()
     srv.close()
 
@@ -88,3 +87,36 @@ def test_full_receiver_never_blocks(tmp_path):
     assert time.monotonic() - t0 < 5.0
     assert results[0] is True and results[-1] is False
     srv.close()
+
+
+def test_a_hostile_status_is_one_assignment(tmp_path, caplog):
+    """A status holding a bundle's name (chosen by whoever writes the inbox) never raises and
+    cannot forge another assignment: a newline, NUL, ANSI escape or undecodable byte is sent
+    escaped, a very long name is cut below systemd's 4096-byte limit."""
+    path = str(tmp_path / "notify")
+    srv = _listener(path)
+    n = Notifier(env={"NOTIFY_SOCKET": path})
+    name = "b1\nREADY=1\nMAINPID=1\r\x00\x1b[31m\udcff" + "\u00e9" * 3000
+    assert n.status(f"processing bundle {name}")
+    msg = srv.recv(65536)
+    assert len(msg) < 4096 and b"\n" not in msg and b"\x00" not in msg and b"\x1b" not in msg
+    assert msg.startswith(b"STATUS=processing bundle b1\\nREADY=1\\nMAINPID=1\\r\\x00\\x1b[31m"
+                          b"\\xff\xc3\xa9")
+    assert msg.endswith(b" more characters)")
+    assert n.ready(status="x\ny") and srv.recv(4096).split(b"\n")[:2] == [b"READY=1",
+                                                                         b"STATUS=x\\ny"]
+    assert not caplog.records  # nothing failed
+    n.close()
+    srv.close()
+
+
+def test_a_failing_socket_is_logged_once_and_never_raises(tmp_path, caplog):
+    """A socket name that cannot be used (NUL in it, a directory, nobody listening): every
+    call returns False; the first failure is a warning, later ones are debug lines."""
+    caplog.set_level("DEBUG", logger="grassd.daemon.runtime.notify")
+    for bad in (f"{tmp_path}/a\0b", str(tmp_path), str(tmp_path / "gone"), "@\udcff"):
+        caplog.clear()
+        n = Notifier(env={"NOTIFY_SOCKET": bad})
+        assert [n.ready("up"), n.status("x"), n.stopping("bye")] == [False] * 3
+        assert [r.levelname for r in caplog.records] == ["WARNING", "DEBUG", "DEBUG"], bad
+        n.close()
