@@ -156,7 +156,8 @@ def too_many_entries(tmp: Path) -> None:
 
 def not_utf8(tmp: Path) -> None:
     _sky(tmp)
-    (tmp / "manifest.toml").write_bytes(b'timestamp = 2026-06-21T08:00:00+09:00\nhdri = "\xff\xfe"\n')
+    (tmp / "manifest.toml").write_bytes(b'timestamp = 2026-06-21T08:00:00+09:00\n'
+                                        b'hdri = "\xff\xfe"\n')
 
 
 #: attack -> a word the reason must hold
