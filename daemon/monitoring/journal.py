@@ -21,6 +21,14 @@ The structured fields come from the record: an explicit ``extra={"RUN_ID": 12}``
 they are read from the message by the project's convention of naming the subject first with
 its argument: ``"run %d ..."`` -> RUN_ID, ``"bundle %s ..."`` -> BUNDLE, ``"controller %s ..."``
 -> CONTROLLER (:class:`SubjectFields`).
+
+One record is one line (issue 27): a message may carry a name chosen by whoever writes the
+inbox, and a newline in it would print a forged second line (under systemd one with a
+priority prefix of its choosing). Every formatter here writes the message through
+:func:`~grassd.daemon.safe_text.one_line` (``\\n``, ``\\x1b`` ... instead of the raw
+characters), as the structured fields too; only a traceback keeps its lines (each prefixed
+with the record's priority), with the exception's own text made one line. Logging never
+stops the daemon: a handler that fails reports it once on standard error and goes on.
 """
 
 from __future__ import annotations
@@ -29,8 +37,11 @@ import logging
 import os
 import re
 import sys
+import traceback
 from pathlib import Path
 from typing import IO, Any
+
+from grassd.daemon.safe_text import one_line
 
 #: structured journal fields and the word that introduces each in a log message
 FIELDS = {"RUN_ID": "run", "BUNDLE": "bundle", "CONTROLLER": "controller"}
@@ -61,10 +72,19 @@ def syslog_priority(levelno: int) -> int:
 
 
 class SubjectFields(logging.Filter):
-    """Sets ``RUN_ID``, ``BUNDLE`` and ``CONTROLLER`` on a record (module docstring); records
-    pass unchanged otherwise."""
+    """Sets ``RUN_ID``, ``BUNDLE`` and ``CONTROLLER`` on a record (module docstring), each
+    made one line (:func:`~grassd.daemon.safe_text.one_line`); records pass unchanged
+    otherwise. Never raises (a record it cannot read gets no fields)."""
 
     def filter(self, record: logging.LogRecord) -> bool:
+        try:
+            self._fields(record)
+        except Exception:  # a filter runs outside the handler's error handling
+            pass
+        return True
+
+    @staticmethod
+    def _fields(record: logging.LogRecord) -> None:
         args = record.args if isinstance(record.args, tuple) else ()
         msg = record.msg if isinstance(record.msg, str) else ""
         found: dict[str, Any] = {}
@@ -78,18 +98,114 @@ class SubjectFields(logging.Filter):
                     found.setdefault(m.group(1), args[i])
         for field, word in FIELDS.items():
             if not hasattr(record, field) and word in found:
-                setattr(record, field, str(found[word]))
-        return True
+                setattr(record, field, one_line(found[word]))
 
 
-class PriorityPrefixFormatter(logging.Formatter):
+def _exception_only_lines(te: traceback.TracebackException) -> set[str]:
+    """What :meth:`~traceback.TracebackException.format` writes for the exceptions
+    themselves ("Type: message", notes) along ``te``'s chain, as opposed to frames."""
+    out: set[str] = set()
+    seen: set[int] = set()
+    todo = [te]
+    while todo:
+        t = todo.pop()
+        if id(t) in seen:
+            continue
+        seen.add(id(t))
+        out.update(t.format_exception_only())
+        todo.extend(x for x in (t.__cause__, t.__context__) if x is not None)
+        todo.extend(getattr(t, "exceptions", None) or ())
+    return out
+
+
+class OneLineFormatter(logging.Formatter):
+    """A :class:`logging.Formatter` whose message is always one line (module docstring):
+    control characters of the message, after ``%`` interpolation, become visible escapes.
+    A traceback keeps its lines, but an exception's text in it (which may quote a name) is
+    made one line, and no line carries a control character."""
+
+    def formatMessage(self, record: logging.LogRecord) -> str:  # noqa: N802 (logging's name)
+        """The format applied to the record with its message made one line."""
+        message = record.message
+        record.message = one_line(message, None)
+        try:
+            return super().formatMessage(record)
+        finally:
+            record.message = message
+
+    def formatException(self, ei: Any) -> str:  # noqa: N802 (logging's name)
+        """The traceback of ``ei`` (``sys.exc_info()``): one text line per line of the
+        traceback."""
+        if ei[1] is None:  # logged with exc_info outside an exception handler
+            return _lines_safe(super().formatException(ei))
+        te = traceback.TracebackException(*ei)
+        own = _exception_only_lines(te)
+        parts = [one_line(p.removesuffix("\n"), None) + "\n" if p in own else p
+                 for p in te.format()]
+        return _lines_safe("".join(parts).removesuffix("\n"))
+
+    def formatStack(self, stack_info: str) -> str:  # noqa: N802 (logging's name)
+        """A stack as Python wrote it, each line without control characters."""
+        return _lines_safe(stack_info)
+
+
+def _lines_safe(text: str) -> str:
+    """``text`` with its line breaks kept and every line made one line."""
+    return "\n".join(one_line(line, None) for line in text.split("\n"))
+
+
+class PriorityPrefixFormatter(OneLineFormatter):
     """Prefixes every line of a formatted record with ``<N>``, its syslog priority, so that
-    journald files a traceback's lines under the record's priority too."""
+    journald files a traceback's lines under the record's priority too. The message itself
+    is one line (:class:`OneLineFormatter`), so no text in it starts a line of its own."""
 
     def format(self, record: logging.LogRecord) -> str:
+        """The record's lines, each prefixed with ``<N>``."""
         text = super().format(record)
         prefix = f"<{syslog_priority(record.levelno)}>"
         return "\n".join(prefix + line for line in text.split("\n"))
+
+
+class _ReportOnce:
+    """A handler's ``handleError``: the first failure of each kind is reported on standard
+    error in one line (with the priority prefix, for journald), later ones are dropped;
+    never raises."""
+
+    def __init__(self, handler: logging.Handler) -> None:
+        self.handler = handler
+        self.seen: set[str] = set()
+
+    def __call__(self, record: logging.LogRecord) -> None:
+        try:
+            exc = sys.exc_info()[1]
+            kind = type(exc).__name__
+            if kind in self.seen:
+                return
+            self.seen.add(kind)
+            sys.stderr.write(f"<4>grassd: logging through {type(self.handler).__name__} "
+                             f"failed: {one_line(f'{kind}: {exc}', 500)} (the daemon goes on; "
+                             "further failures of this kind are not reported)\n")
+            sys.stderr.flush()
+        except Exception:
+            pass
+
+
+def _never_raise(handler: logging.Handler) -> logging.Handler:
+    """Make ``handler`` never raise into the code that logs: its errors (a formatter's, a
+    failed write or send, even RecursionError, which :class:`logging.StreamHandler` passes
+    on) go to a once-per-kind report (:class:`_ReportOnce`)."""
+    report = _ReportOnce(handler)
+    emit = handler.emit
+
+    def safe_emit(record: logging.LogRecord) -> None:
+        try:
+            emit(record)
+        except Exception:
+            report(record)
+
+    handler.emit = safe_emit  # type: ignore[method-assign]
+    handler.handleError = report  # type: ignore[method-assign]
+    return handler
 
 
 def stderr_is_journal(env: dict[str, str] | None = None, stream: IO[Any] | None = None) -> bool:
@@ -121,7 +237,7 @@ def journal_handler(identifier: str = "grassd", sender: Any = None,
         return None
     kw = {} if sender is None else {"sender_function": sender}
     handler = JournalHandler(SYSLOG_IDENTIFIER=identifier, **kw)
-    handler.setFormatter(logging.Formatter("%(message)s"))
+    handler.setFormatter(OneLineFormatter("%(message)s"))
     return handler
 
 
@@ -145,8 +261,9 @@ def setup_logging(level: str = "info", *, env: dict[str, str] | None = None,
             handler.setFormatter(PriorityPrefixFormatter(JOURNAL_FORMAT))
     else:
         handler = logging.StreamHandler(stream)
-        handler.setFormatter(logging.Formatter(TERMINAL_FORMAT))
+        handler.setFormatter(OneLineFormatter(TERMINAL_FORMAT))
     handler.addFilter(SubjectFields())
+    _never_raise(handler)
     handler._grassd_journal = True  # type: ignore[attr-defined]
     for h in list(root.handlers):
         root.removeHandler(h)

@@ -30,7 +30,10 @@ log = logging.getLogger("grassd.daemon.runtime.service")
 log.debug("reading the lux sensor")
 log.info("run %d committed: R^2 %.5f", 12, 0.99931)
 log.warning("controller %s: not answering: %s", "/dev/ttyACM0#2", "timeout")
-log.error("run %d failed:\\n%s", 13, "Traceback (most recent call last):\\n  boom")
+try:
+    raise ValueError("boom")
+except ValueError:
+    log.exception("run %d failed", 13)  # as the service logs a run's internal error
 log.warning("rejected bundle %s: %s", "3f2a-sky", "HDRI is not an OpenEXR file")
 log.info("100%% of %s done", "x")
 log.warning("explicit", extra={"RUN_ID": 99})
@@ -57,20 +60,23 @@ def run_child(tmp_path: Path, mode: str, journal_stream: bool) -> tuple[str, Pat
 def test_stderr_lines_carry_syslog_priorities_under_systemd(tmp_path):
     text, _ = run_child(tmp_path, "no-module", journal_stream=True)
     lines = text.splitlines()
-    assert lines[:11] == [
+    assert lines[5].startswith('<3>  File "<string>", line ')  # the traceback's frame
+    lines[5] = "<3>  File ..."
+    assert lines[:12] == [
         "<7>grassd.daemon.runtime.service: reading the lux sensor",
         "<6>grassd.daemon.runtime.service: run 12 committed: R^2 0.99931",
         "<4>grassd.daemon.runtime.service: controller /dev/ttyACM0#2: not answering: timeout",
-        "<3>grassd.daemon.runtime.service: run 13 failed:",
+        "<3>grassd.daemon.runtime.service: run 13 failed",
         "<3>Traceback (most recent call last):",
-        "<3>  boom",
+        "<3>  File ...",
+        "<3>ValueError: boom",
         "<4>grassd.daemon.runtime.service: rejected bundle 3f2a-sky: HDRI is not an OpenEXR file",
         "<6>grassd.daemon.runtime.service: 100% of x done",
         "<4>grassd.daemon.runtime.service: explicit",
         "<2>grassd: uncaught exception, the program ends",
         "<2>Traceback (most recent call last):",
     ]
-    assert lines[-1] == "<2>RuntimeError: bug" and all(ln.startswith("<2>") for ln in lines[9:])
+    assert lines[-1] == "<2>RuntimeError: bug" and all(ln.startswith("<2>") for ln in lines[10:])
     # journalctl -p warning: priorities 0-4, exactly the problems, tracebacks whole
     problems = [ln for ln in lines if int(ln[1]) <= 4]
     assert len(problems) == len(lines) - 3
