@@ -28,6 +28,11 @@ The level last alerted is kept in the state database (meta ``alerts.level``), so
 neither repeats an alert nor misses a change that happened while the daemon was down. Without
 one (a new state directory) the first level seen is taken as known, except ``failed``, which is
 alerted.
+
+What the description says may quote a bundle's name (a waiting bundle's reason) chosen by
+whoever writes the inbox: every reason, the health line and a controller's name and error
+are made one line (:func:`~grassd.daemon.safe_text.one_line`; issue 27), so a consumer that
+puts them in a subject line or a chat message gets no forged line and no terminal escape.
 """
 
 from __future__ import annotations
@@ -46,6 +51,7 @@ from typing import Any
 
 from grassd.daemon.config.settings import AlertsConfig
 from grassd.daemon.monitoring.health import Health
+from grassd.daemon.safe_text import one_line
 from grassd.daemon.store.history import History
 from grassd.daemon.timestamps import utc_iso
 
@@ -55,6 +61,16 @@ log = logging.getLogger(__name__)
 META_KEY = "alerts.level"
 #: changes listed in one alert (the oldest are dropped beyond it)
 MAX_CHANGES = 50
+
+
+def _text(v: Any) -> str | None:
+    """A text of the description made one line (None stays None)."""
+    return None if v is None else one_line(v, None)
+
+
+def _lines(texts: Any) -> list[str]:
+    """Reasons, each made one line."""
+    return [one_line(t, None) for t in texts]
 
 
 class Alerter:
@@ -95,7 +111,7 @@ class Alerter:
         if level != self._current:
             self._changes.append({"at": utc_iso(time.time()), "from": self._current or
                                   self._alerted, "to": level,
-                                  "reasons": list(health.reasons)})
+                                  "reasons": _lines(health.reasons)})
             self._current = level
         if level == self._alerted:
             self._changes.clear()  # back where the last alert left it: nothing to say
@@ -105,11 +121,13 @@ class Alerter:
             return False
         event = {
             "service": "grassd", "host": socket.gethostname(), "at": utc_iso(time.time()),
-            "previous": self._alerted, "level": level, "reasons": list(health.reasons),
+            "previous": self._alerted, "level": level, "reasons": _lines(health.reasons),
             "changes": list(self._changes),
-            "health": None if status is None else status.get("health"),
+            "health": None if status is None else _text(status.get("health")),
             "controllers": [] if status is None else [
-                {k: c.get(k) for k in ("name", "reachable", "in_sync", "table_id", "error")}
+                {"name": _text(c.get("name")), "reachable": c.get("reachable"),
+                 "in_sync": c.get("in_sync"), "table_id": c.get("table_id"),
+                 "error": _text(c.get("error"))}
                 for c in status.get("controllers") or []],
             "state_dir": None if status is None else status.get("state_dir"),
         }

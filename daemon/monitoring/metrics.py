@@ -44,6 +44,12 @@ Metrics (units in the names: seconds, lux, dE00 = CIEDE2000 units):
 ======================================================  ======================================
 
 Example alert rules: ``systemd/grassd-alerts.rules.yml``.
+
+A label value (a controller's name, a port) is made one line first by
+:func:`~grassd.daemon.safe_text.one_line` (issue 27: a newline or other control character
+becomes a visible escape such as ``\\n``, an undecodable byte ``\\xNN``); then
+``prometheus_client`` escapes its backslashes and double quotes (``\\\\``, ``\\"``) as the
+text format requires, so no value can end its line or its quotes.
 """
 
 from __future__ import annotations
@@ -60,6 +66,7 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metri
 from prometheus_client.registry import Collector
 
 from grassd.daemon.monitoring.health import Health
+from grassd.daemon.safe_text import one_line
 from grassd.daemon.store.atomic import atomic_write_bytes
 from grassd.daemon.store.history import History, RunRecord
 from grassd.daemon.store.outcomes import count_outcomes
@@ -102,6 +109,11 @@ def run_r2(metrics: Mapping[str, Any]) -> float | None:
     return metrics.get("r2_after_fit") if r2 is None else r2
 
 
+def _label(value: Any) -> str:
+    """A label value made one line (module docstring); prometheus_client escapes the rest."""
+    return one_line(value, None)
+
+
 class _Snapshot(Collector):
     """One scrape's worth of metrics, built from the values given (see :func:`registry`)."""
 
@@ -130,7 +142,7 @@ class _Snapshot(Collector):
         g = gauge("grassd_lux", "Latest ambient illuminance of a run (lux), by source",
                   labels=("source",))
         if lux_run is not None:
-            g.add_metric([lux_run.lux_source or "unknown"], lux_run.lux)
+            g.add_metric([_label(lux_run.lux_source or "unknown")], lux_run.lux)
         yield g
         if self.sensor is not None:
             if self.sensor.up is not None:
@@ -144,7 +156,7 @@ class _Snapshot(Collector):
         g = gauge("grassd_bundles", "Bundles kept in the ingest journal, by outcome",
                   labels=("outcome",))
         for outcome, n in count_outcomes(h).items():
-            g.add_metric([outcome], n)
+            g.add_metric([_label(outcome)], n)
         yield g
         g = gauge("grassd_bundle_queue", "Bundles waiting in inbox/ and processing/",
                   labels=("queue",))
@@ -192,7 +204,7 @@ class _Snapshot(Collector):
         seen = GaugeMetricFamily("grassd_controller_last_seen_timestamp_seconds",
                                  "When the controller last answered (epoch s)", labels=lab)
         for c in controllers:
-            name = [c["name"]]
+            name = [_label(c["name"])]
             reach.add_metric(name, int(bool(c.get("reachable"))))
             sync.add_metric(name, int(bool(c.get("in_sync"))))
             fails.add_metric(name, self.push_failures.get(c["name"], 0))
@@ -217,11 +229,12 @@ class _Snapshot(Collector):
         fails = CounterMetricFamily("grassd_line_request_unanswered",
                                     "Request tries on the line that got no answer", labels=lab)
         for port, q in lines.items():
+            lv = [_label(port)]
             if q.get("recent_failure_rate") is not None:
-                rate.add_metric([port], q["recent_failure_rate"])
-            chunk.add_metric([port], q["chunk_bytes"])
-            tries.add_metric([port], q["tries"])
-            fails.add_metric([port], q["failures"])
+                rate.add_metric(lv, q["recent_failure_rate"])
+            chunk.add_metric(lv, q["chunk_bytes"])
+            tries.add_metric(lv, q["tries"])
+            fails.add_metric(lv, q["failures"])
         yield from (rate, chunk, tries, fails)
 
 

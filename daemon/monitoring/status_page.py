@@ -7,6 +7,10 @@ every controller's state, the last runs, trends over the kept history (OGCD rang
 R^2 against time, as inline SVG) and the rejected and quarantined bundles with their
 reasons. No script, no external resource; the layout adapts to a phone's width (viewport
 meta, tables scroll sideways, plots scale).
+
+Every text on the page is HTML-escaped, and no line of it carries a control character
+(:func:`~grassd.daemon.safe_text.one_line`, issue 27): a bundle's name, chosen by whoever writes
+the inbox, shows as one line with its newline as ``\\n``; a multi-line reason keeps its lines.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from grassd import __version__
 from grassd.daemon.monitoring.health import Health
 from grassd.daemon.monitoring.line_report import describe_line, line_verdict
 from grassd.daemon.monitoring.metrics import run_r2
+from grassd.daemon.safe_text import one_line
 from grassd.daemon.store.atomic import atomic_write_text
 from grassd.daemon.store.history import History, RunRecord
 from grassd.daemon.store.outcomes import refused
@@ -78,7 +83,14 @@ header, p.meta, dd, figcaption { overflow-wrap: anywhere; }
 
 
 def _esc(v: Any) -> str:
-    return html.escape("-" if v is None else str(v))
+    """``v`` as HTML text: escaped, every line without control characters ("-" for None)."""
+    text = "-" if v is None else str(v)
+    return html.escape("\n".join(one_line(line, None) for line in text.split("\n")))
+
+
+def _name(v: Any) -> str:
+    """A name (a bundle's, its id) as HTML text: one line, escaped, cut when very long."""
+    return html.escape("-" if v is None else one_line(v))
 
 
 def _num(v: float | None, fmt: str) -> str:
@@ -110,6 +122,10 @@ def _table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
 
 def _td(v: Any, cls: str = "") -> str:
     return f'<td class="{cls}">{_esc(v)}</td>' if cls else f"<td>{_esc(v)}</td>"
+
+
+def _name_td(v: Any) -> str:
+    return f"<td>{_name(v)}</td>"
 
 
 def _tick(v: float) -> str:
@@ -198,7 +214,7 @@ def _controllers(controllers: Sequence[Mapping[str, Any]],
     for c in controllers:
         state = "in sync" if c["in_sync"] else ("unreachable" if not c["reachable"]
                                                  else "out of sync")
-        rows.append([_td(c["name"]), _td(state, "ok" if c["in_sync"] else "bad"),
+        rows.append([_name_td(c["name"]), _td(state, "ok" if c["in_sync"] else "bad"),
                      _td(c.get("table_id"), "n"), _td(clock(c.get("last_seen")), "t"),
                      _td(push_failures.get(c["name"], 0), "n"),
                      f'<td class="reason">{_esc(None if c["in_sync"] else c.get("error"))}</td>'])
@@ -256,7 +272,8 @@ def _trends(history: History, clock: _Clock) -> str:
 
 
 def _refused(history: History, clock: _Clock) -> str:
-    rows = [[_td(o, "bad" if o == "quarantined" else ""), _td(e.name), _td(e.bundle_id),
+    rows = [[_td(o, "bad" if o == "quarantined" else ""), _name_td(e.name),
+             _name_td(e.bundle_id),
              _td(clock(e.updated_at), "t"), _td(e.attempts, "n"),
              f'<td class="reason">{_esc(e.reason)}</td>'] for o, e in refused(history)]
     if not rows:
@@ -270,7 +287,8 @@ def render(status: Mapping[str, Any], health: Health, history: History, *, timez
     shown in the site's ``timezone`` (IANA name)."""
     clock = _Clock(timezone)
     now = datetime.now().timestamp() if now is None else now
-    reasons = "".join(f"<li>{html.escape(r)}</li>" for r in health.reasons)
+    reasons = "".join(f"<li>{html.escape(one_line(r, None))}</li>"  # one line each
+                      for r in health.reasons)
     inbox = status.get("inbox") or {}
     queue = ", ".join(f"{k} {v}" for k, v in inbox.items()) or "-"
     sections = [

@@ -20,6 +20,7 @@ from typing import Any
 
 from grassd.daemon.config.settings import LightConfig
 from grassd.daemon.errors import DaemonError, LuxSensorSilent, LuxSensorUnreachable
+from grassd.daemon.safe_text import one_line
 from grassd.daemon.store.atomic import describe_write_error
 from grassd.daemon.store.history import History, RunRecord
 from grassd.daemon.store.ingest import Bundle, CheckerPhoto, Inbox
@@ -191,7 +192,8 @@ def attempt_bundle(b: Bundle, *, history: History, inbox: Inbox, light: LightCon
         log.warning("bundle %s archived unused: %s", b.name, why)
         return {"status": "superseded", "run_id": run_id, "error": why}
     inbox.begin(b)
-    begin(f"processing bundle {b.name}")
+    begin(f"processing bundle {one_line(b.name)}")  # status and sd_notify: the uploader
+    # chose the name (a newline, escapes, any length)
     m = b.manifest
     try:
         ambient, source = lux(m.light.ambient_lux)
