@@ -1,0 +1,107 @@
+"""Hostile input (issue #27): what each attack costs a running daemon, and a longer fuzz.
+
+1. A `grassd run` subprocess on simulated hardware takes every attack of
+   :data:`bench.inbox_fuzz.ATTACKS`, one at a time. Before each, the daemon's peak resident
+   memory is reset (``5`` written to ``/proc/PID/clear_refs``); the line printed for it holds
+   the seconds until the bundle was in rejected/ and the peak RSS (``VmHWM``) meanwhile, beside
+   the daemon's RSS when idle. Before the fix, ``dev-zero-manifest`` grew about 350 MB/s until
+   MemoryError, and ``fifo-manifest`` never returned.
+2. The fuzz of ``tests/daemon/store/test_inbox_fuzz.py``, longer (``--bundles``, default 1000)
+   and on another seed: bundles per second and the outcome counts.
+
+Run: ``python -m bench hostile`` or ``python -m bench.bench_hostile [--bundles N] [--seed S]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from bench.daemon_process import BenchDaemon
+from bench.inbox_fuzz import ATTACKS, drop_attack, fuzz_inbox
+from grassd.daemon.hardware.simulated import hardware_toml
+
+
+def _config(state: Path, cfg) -> str:
+    return f"""state_dir = "{state}"
+[site]
+latitude = 35.0
+longitude = 139.0
+{hardware_toml(cfg)}[[viewpoints]]
+h_cm = 170
+d_m = 2
+[light]
+inbox = "inbox"
+lux = "manifest"
+settle_s = 0.2
+incomplete_timeout_s = 2.0
+[schedule]
+interval_s = 0
+[simulation]
+samples = 64
+lengths = 5
+[calibration]
+check_levels = 5
+max_rounds = 1
+replicates = 2
+"""
+
+
+def _proc_kib(pid: int, key: str) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith(key + ":"):
+            return int(line.split()[1])
+    raise KeyError(key)
+
+
+def attacks(limit_s: float = 120.0) -> None:
+    """Part 1: each attack against one daemon; seconds to rejection and peak RSS (MiB)."""
+    d = BenchDaemon("grassd-bench-hostile-", _config, tick_s=0.2)
+    try:
+        d.wait_ready(120)
+        pid = d.proc.pid
+        idle = _proc_kib(pid, "VmRSS") / 1024
+        print(f"daemon idle: RSS {idle:.0f} MiB")
+        print(f"{'attack':28s} {'rejected after':>15s} {'peak RSS':>10s}")
+        inbox = d.state / "inbox"
+        for name, (build, _) in ATTACKS.items():
+            Path(f"/proc/{pid}/clear_refs").write_text("5")
+            t0 = time.monotonic()
+            drop_attack(inbox, name, build)
+            while not any(p.name.endswith(f"-{name}") for p in (d.state / "rejected").iterdir()):
+                if time.monotonic() - t0 > limit_s or d.proc.poll() is not None:
+                    print(f"{name:28s} {'NOT REJECTED':>15s} (daemon "
+                          f"{'exited' if d.proc.poll() is not None else 'still running'})")
+                    break
+                time.sleep(0.05)
+            else:
+                peak = _proc_kib(pid, "VmHWM") / 1024
+                print(f"{name:28s} {time.monotonic() - t0:13.2f} s {peak:7.0f} MiB", flush=True)
+    finally:
+        d.stop()
+
+
+def fuzz(bundles: int, seed: int) -> None:
+    """Part 2: ``bundles`` random bundles through an inbox (seed ``seed``)."""
+    with tempfile.TemporaryDirectory(prefix="grassd-bench-fuzz-") as tmp:
+        t0 = time.perf_counter()
+        counts = fuzz_inbox(Path(tmp), seed, bundles)
+        dt = time.perf_counter() - t0
+    print(f"fuzz: {bundles} random bundles (seed {seed}) in {dt:.1f} s "
+          f"({bundles / dt:.1f} per s): {counts}; no poll blocked or raised")
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--bundles", type=int, default=1000)
+    ap.add_argument("--seed", type=int, default=7)
+    args = ap.parse_args(argv if argv is not None else [])
+    attacks()
+    fuzz(args.bundles, args.seed)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

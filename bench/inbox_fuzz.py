@@ -1,0 +1,358 @@
+"""Hostile light bundles, made as an attacker with write access to the inbox would (issue #27).
+
+Two sources, shared by the tests (``tests/daemon/runtime/test_hostile_bundles.py``,
+``tests/daemon/store/test_inbox_fuzz.py``) and the benchmark (``bench_hostile``):
+
+* :data:`ATTACKS`: each proven attack and its neighbours, a function that fills a bundle
+  directory, with a word its rejection reason holds;
+* :func:`random_bundle`: a random bundle from a seeded generator: file kinds (regular, FIFO,
+  symbolic link, directory, socket, hard link, sparse giant), sizes, names (newlines, escape
+  sequences, long, non-ASCII) and manifests (valid, mutated, truncated, nested, random bytes).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import stat
+import tempfile
+import threading
+from collections.abc import Callable
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from grassd.daemon.store.history import History
+from grassd.daemon.store.ingest import FLAT_SUFFIXES, Inbox
+
+#: a poll that takes longer is taken for blocked (a FIFO open, an endless read)
+POLL_LIMIT_S = 20.0
+SITE = Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
+#: a valid manifest (light of 21 June 2026, 08:00 at +09:00)
+MANIFEST = 'timestamp = 2026-06-21T08:00:00+09:00\nhdri = "sky.exr"\nambient_lux = 1000.0\n'
+
+
+def _sky(tmp: Path) -> None:
+    shutil.copy(SITE, tmp / "sky.exr")
+
+
+def _manifest(tmp: Path) -> None:
+    (tmp / "manifest.toml").write_text(MANIFEST)
+
+
+def fifo_manifest(tmp: Path) -> None:
+    """manifest.toml is a FIFO (an open() without O_NONBLOCK blocks for ever)."""
+    _sky(tmp)
+    os.mkfifo(tmp / "manifest.toml")
+
+
+def dev_zero_manifest(tmp: Path) -> None:
+    """manifest.toml is a link to /dev/zero (a read without a cap never ends)."""
+    _sky(tmp)
+    os.symlink("/dev/zero", tmp / "manifest.toml")
+
+
+def nested_toml_100k(tmp: Path) -> None:
+    """100 kB of nested TOML arrays (over the manifest cap)."""
+    _sky(tmp)
+    (tmp / "manifest.toml").write_text("x = " + "[" * 50_000 + "]" * 50_000 + "\n")
+
+
+def nested_toml(tmp: Path) -> None:
+    """40 kB of nested TOML arrays: under the cap, past the parser's recursion limit."""
+    _sky(tmp)
+    (tmp / "manifest.toml").write_text("x = " + "[" * 20_000 + "]" * 20_000 + "\n")
+
+
+def nested_json(tmp: Path) -> None:
+    """40 kB of nested JSON arrays: under the cap, past the parser's recursion limit."""
+    _sky(tmp)
+    (tmp / "manifest.json").write_text('{"x": ' + "[" * 20_000 + "]" * 20_000 + "}")
+
+
+def reason_txt_directory(tmp: Path) -> None:
+    """A bad bundle holding a directory named reason.txt (where the reason is written)."""
+    _sky(tmp)
+    (tmp / "reason.txt").mkdir()
+    (tmp / "reason.txt" / "inside").write_text("x")
+    (tmp / "manifest.toml").write_text("this is not TOML [[[\n")
+
+
+def huge_manifest_missing_file(tmp: Path) -> None:
+    """A 3 MB manifest naming a file that never arrives (parsed again on every scan)."""
+    (tmp / "manifest.toml").write_text(MANIFEST + "# " + "x" * 3_000_000 + "\n")
+
+
+def hdri_link_to_huge_file(tmp: Path) -> None:
+    """The HDRI is a link to a 4 GiB (sparse) readable file: hashing it takes minutes."""
+    huge = tmp.parent.parent / "huge.bin"
+    with open(huge, "wb") as fh:
+        fh.truncate(4 << 30)
+    os.symlink(huge, tmp / "sky.exr")
+    _manifest(tmp)
+
+
+def hdri_dev_zero(tmp: Path) -> None:
+    """The HDRI is a link to /dev/zero."""
+    os.symlink("/dev/zero", tmp / "sky.exr")
+    _manifest(tmp)
+
+
+def hdri_fifo(tmp: Path) -> None:
+    """The HDRI is a FIFO."""
+    os.mkfifo(tmp / "sky.exr")
+    _manifest(tmp)
+
+
+def hdri_device(tmp: Path) -> None:
+    """The HDRI is a character device with /dev/zero's numbers (needs root: else a FIFO)."""
+    if os.geteuid() == 0:
+        os.mknod(tmp / "sky.exr", 0o600 | stat.S_IFCHR, os.makedev(1, 5))
+    else:
+        os.mkfifo(tmp / "sky.exr")
+    _manifest(tmp)
+
+
+def hdri_socket(tmp: Path) -> None:
+    """The HDRI is a Unix socket."""
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        s.bind(str(tmp / "sky.exr"))
+    finally:
+        s.close()
+    _manifest(tmp)
+
+
+def hdri_hard_link(tmp: Path) -> None:
+    """The HDRI is a hard link to someone else's file."""
+    other = tmp.parent.parent / f"someone-elses-{tmp.name}.exr"
+    shutil.copy(SITE, other)
+    os.link(other, tmp / "sky.exr")
+    _manifest(tmp)
+
+
+def hdri_directory(tmp: Path) -> None:
+    """A directory where the HDRI file belongs."""
+    (tmp / "sky.exr").mkdir()
+    _manifest(tmp)
+
+
+def stray_fifo(tmp: Path) -> None:
+    """A valid bundle plus a FIFO the manifest does not name."""
+    _sky(tmp)
+    os.mkfifo(tmp / "notes.txt")
+    _manifest(tmp)
+
+
+def too_many_entries(tmp: Path) -> None:
+    """A valid bundle plus 200 small files."""
+    _sky(tmp)
+    for k in range(200):
+        (tmp / f"extra{k}.txt").write_text("x")
+    _manifest(tmp)
+
+
+def not_utf8(tmp: Path) -> None:
+    """A manifest that is not UTF-8."""
+    _sky(tmp)
+    (tmp / "manifest.toml").write_bytes(b'timestamp = 2026-06-21T08:00:00+09:00\n'
+                                        b'hdri = "\xff\xfe"\n')
+
+
+#: attack name -> (fills a bundle directory, a word its rejection reason holds)
+ATTACKS: dict[str, tuple[Callable[[Path], None], str]] = {
+    "fifo-manifest": (fifo_manifest, "FIFO"),
+    "dev-zero-manifest": (dev_zero_manifest, "symbolic link"),
+    "nested-toml-100k": (nested_toml_100k, "over the cap"),
+    "nested-toml": (nested_toml, "deep"),
+    "nested-json": (nested_json, "deep"),
+    "reason-txt-dir": (reason_txt_directory, "not valid TOML"),
+    "huge-manifest-missing-file": (huge_manifest_missing_file, "over the cap"),
+    "hdri-link-to-huge-file": (hdri_link_to_huge_file, "symbolic link"),
+    "hdri-dev-zero": (hdri_dev_zero, "symbolic link"),
+    "hdri-fifo": (hdri_fifo, "FIFO"),
+    "hdri-device": (hdri_device, "device" if os.geteuid() == 0 else "FIFO"),
+    "hdri-socket": (hdri_socket, "socket"),
+    "hdri-hard-link": (hdri_hard_link, "hard link"),
+    "hdri-directory": (hdri_directory, "directory"),
+    "stray-fifo": (stray_fifo, "FIFO"),
+    "too-many-entries": (too_many_entries, "more than"),
+    "not-utf8": (not_utf8, "not valid TOML"),
+}
+
+
+def drop_attack(inbox: Path, name: str, build: Callable[[Path], None]) -> Path:
+    """Make a directory bundle ``name`` in ``inbox`` as an uploader would: a hidden name that
+    ``build`` fills, then one rename."""
+    tmp = inbox / f".{name}"
+    tmp.mkdir(parents=True)
+    build(tmp)
+    os.rename(tmp, inbox / name)
+    return inbox / name
+
+
+# --------------------------------------------------------------------------- random bundles
+
+_NAME_PARTS = ["sky", "b", "evil\nSTATUS=x", "\x1b[31mred", "ünïcødé", "-rf", "a b",
+               "<script>", "%s%n", "x" * 120, "\t", "..", "manifest", "reason.txt"]
+_KINDS = ["regular", "regular", "regular", "regular", "fifo", "link-dev-zero",
+          "link-missing", "directory", "socket", "hard-link", "giant", "missing"]
+
+
+def _name(rng: np.random.Generator, k: int) -> str:
+    parts = [str(p) for p in rng.choice(_NAME_PARTS, size=int(rng.integers(1, 3)))]
+    name = "".join(parts).replace("/", "_") + f"-{k}"
+    return name.encode()[-200:].decode("utf-8", errors="ignore").lstrip(".") or f"n{k}"
+
+
+def _entry(rng: np.random.Generator, path: Path, kind: str, content: bytes, scratch: Path
+           ) -> None:
+    """Make ``path`` as ``kind`` (regular files get ``content``)."""
+    if kind == "regular":
+        path.write_bytes(content)
+    elif kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "link-dev-zero":
+        os.symlink("/dev/zero", path)
+    elif kind == "link-missing":
+        os.symlink(scratch / "nowhere", path)
+    elif kind == "directory":
+        path.mkdir()
+        if rng.random() < 0.5:
+            (path / "inside").write_bytes(content[:100])
+    elif kind == "socket":
+        s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            s.bind(str(path))
+        except OSError:  # a path too long for sun_path: a FIFO instead
+            os.mkfifo(path)
+        finally:
+            s.close()
+    elif kind == "hard-link":
+        other = Path(tempfile.mkstemp(dir=scratch)[1])
+        other.write_bytes(content)
+        os.link(other, path)
+    elif kind == "giant":
+        with open(path, "wb") as fh:
+            fh.truncate(int(rng.integers(1 << 30, 8 << 30)))
+
+
+def _manifest_bytes(rng: np.random.Generator, hdri: str) -> bytes:
+    text = MANIFEST.replace("sky.exr", hdri).encode()
+    op = 0 if rng.random() < 0.25 else int(rng.integers(1, 9))
+    if op == 0:
+        return text
+    if op == 1:  # bit flips
+        b = bytearray(text)
+        for i in rng.integers(0, len(b), size=int(rng.integers(1, 6))):
+            b[i] ^= 1 << int(rng.integers(0, 8))
+        return bytes(b)
+    if op == 2:  # truncated
+        return text[: int(rng.integers(0, len(text)))]
+    if op == 3:  # deep nesting, under or over the cap
+        n = int(rng.integers(10, 60_000))
+        return text + b"deep = " + b"[" * n + b"]" * n + b"\n"
+    if op == 4:  # random bytes
+        return rng.bytes(int(rng.integers(0, 4096)))
+    if op == 5:  # wrong types and unknown keys
+        return text + rng.choice([b"ambient_lux = \"bright\"\n", b"capture = 3\n",
+                                  b"checker_raw = \"../../etc/passwd\"\n",
+                                  b"sun_lux = 1e400\n", b"[capture]\nx = [[[[[[[[[[1]]]]]]]]]]\n"])
+    if op == 6:  # huge
+        return text + b"#" + b"x" * int(rng.integers(60_000, 400_000)) + b"\n"
+    if op == 7:  # a hostile capture table
+        return text + b"[capture]\nsun_clipped = true\nnote = \"\x1b[2J\\nforged\"\n"
+    return text.replace(b"2026-06-21T08:00:00+09:00",
+                        rng.choice([b"9999-12-31T23:59:59Z", b"0001-01-01T00:00:00Z",
+                                    b"\"not a time\"", b"2026-02-30T00:00:00"]))
+
+
+def random_bundle(rng: np.random.Generator, inbox: Path, k: int, scratch: Path) -> str:
+    """Write random bundle number ``k`` into ``inbox`` (a directory bundle, renamed in at the
+    end, or a flat one); ``scratch``: a directory outside the inbox for link targets. Returns
+    the name it was given."""
+    name = _name(rng, k)
+    hdri = rng.choice(["sky.exr", "sky.hdr", f"{name}.exr"]) if rng.random() < 0.9 \
+        else _name(rng, k + 1)
+    hdri_kind = "regular" if rng.random() < 0.5 else str(rng.choice(_KINDS))
+    sky = SITE.read_bytes() if rng.random() < 0.7 else rng.bytes(int(rng.integers(0, 200_000)))
+    manifest_kind = "regular" if rng.random() < 0.8 else str(rng.choice(_KINDS))
+    manifest = _manifest_bytes(rng, str(hdri))
+    if rng.random() < 0.7:  # a directory bundle
+        tmp = inbox / f".{name}"
+        tmp.mkdir()
+        if hdri_kind != "missing":
+            _entry(rng, tmp / str(hdri), hdri_kind, sky, scratch)
+        for j in range(int(rng.integers(0, 4)) if rng.random() < 0.3 else 0):
+            extra = str(rng.choice(["reason.txt", f"extra{j}", "manifest.json", "sub"]))
+            if not os.path.lexists(tmp / extra):
+                _entry(rng, tmp / extra, str(rng.choice(_KINDS[:-1])), b"x" * 10, scratch)
+        mname = "manifest.json" if rng.random() < 0.1 else "manifest.toml"
+        if manifest_kind != "missing" and not os.path.lexists(tmp / mname):
+            _entry(rng, tmp / mname, manifest_kind, manifest, scratch)
+        os.rename(tmp, inbox / name)
+    else:  # flat: data files first, the manifest last
+        if hdri_kind != "missing" and not os.path.lexists(inbox / str(hdri)):
+            _entry(rng, inbox / str(hdri), hdri_kind, sky, scratch)
+        if manifest_kind != "missing":
+            _entry(rng, inbox / f"{name}.manifest.toml", manifest_kind, manifest, scratch)
+    return name
+
+
+# --------------------------------------------------------------------------- fuzzing
+
+
+def _poll(inbox: Inbox) -> list:
+    """``inbox.poll()``, failing (AssertionError) when it blocks or raises."""
+    out: dict = {}
+    t = threading.Thread(target=lambda: out.setdefault("got", inbox.poll()), daemon=True)
+    t.start()
+    t.join(POLL_LIMIT_S)
+    assert not t.is_alive(), "inbox poll blocked"
+    assert "got" in out, "inbox poll raised (see the thread's traceback above)"
+    return out["got"]
+
+
+def fuzz_inbox(root: Path, seed: int, bundles: int) -> dict[str, int]:
+    """Drop ``bundles`` random bundles into a fresh inbox under ``root``, polling between them
+    on a fake clock; archive what is claimed. Returns counts by outcome (journal rows: a
+    rejected duplicate has none). AssertionError when a poll blocks or raises, a bundle is left
+    neither claimed nor rejected, a rejected one has no reason.txt file, or a restart's
+    recover() finds anything to do."""
+    rng = np.random.default_rng(seed)
+    scratch = root / "scratch"
+    scratch.mkdir()
+    now = [0.0]
+    history = History(root / "state" / "state.db")
+    inbox = Inbox(root / "inbox", root / "state", history, settle_s=1.0,
+                  incomplete_timeout_s=5.0, clock=lambda: now[0])
+    claimed = 0
+    try:
+        for k in range(bundles):
+            random_bundle(rng, inbox.inbox, k, scratch)
+            for b in _poll(inbox):
+                inbox.archive_bundle(b, None)
+                claimed += 1
+            now[0] += float(rng.choice([0.2, 1.5, 6.0]))
+        for _ in range(3):  # past every settle and incomplete timeout
+            now[0] += 6.0
+            for b in _poll(inbox):
+                inbox.archive_bundle(b, None)
+                claimed += 1
+        left = [e for e in os.scandir(inbox.inbox) if not e.name.startswith(".")
+                and (e.is_dir(follow_symlinks=False) or e.name.endswith(FLAT_SUFFIXES))]
+        assert left == [], f"bundles neither claimed nor rejected: {[e.name for e in left]}"
+        for d in inbox.rejected.iterdir():
+            reason = d / "reason.txt"
+            assert stat.S_ISREG(reason.lstat().st_mode), f"{d.name}: no reason.txt file"
+            assert reason.read_text().strip()
+        rejected = len(history.journal("rejected"))
+    finally:
+        history.close()
+    with History(root / "state" / "state.db") as h:  # a restart on the same state
+        again = Inbox(root / "inbox", root / "state", h)
+        assert again.recover() == []
+    assert not any(inbox.processing.iterdir())
+    return {"claimed": claimed, "rejected": rejected}
