@@ -15,7 +15,11 @@
     shutter_s = 0.0                 # centre shutter (s); 0 = meter it with one shot
     file_format = "jpeg"            # or "raw+" (THETA Z1: JPEG + DNG, merged linearly)
     max_shutter_s = 1.0             # longest shutter used (s)
-    timeout_s = 10.0                # per HTTP request (s)
+    timeout_s = 10.0                # per HTTP read (s): connect, and each wait for data
+    request_deadline_s = 30.0       # whole JSON request, start to last byte (s)
+    download_deadline_s = 300.0     # whole shot download, start to last byte (s)
+    max_json_bytes = 1048576        # largest JSON answer accepted (bytes)
+    max_download_bytes = 134217728  # largest shot file accepted (bytes)
     command_timeout_s = 120.0       # per camera command until done (s)
     retries = 3                     # attempts after a failed capture, with backoff
     retry_s = 10.0                  # first backoff (s), doubling
@@ -25,6 +29,12 @@
 
 Lux comes from ``[light.modbus]`` (read right after the bracket); with ``shaded_unit`` the
 reading of that shaded sensor is the ambient lux and the difference is the sun's.
+
+The camera and anyone on its network are not trusted: the client follows no redirect, reads no
+answer past its byte cap, and ends every request at its deadline however slowly the bytes come
+(:mod:`grassd.daemon.hardware.camera`). OSC answers are a few kB (a THETA's ``_getMetadata``
+EXIF, the largest, about 5 kB); a THETA Z1 DNG is about 50 MB and its JPEG about 10 MB, which a
+weak 2 Mbit/s link brings in about 200 s.
 """
 
 from __future__ import annotations
@@ -52,6 +62,10 @@ class CaptureConfig:
     max_shutter_s: float = 1.0
     file_format: str = "jpeg"
     timeout_s: float = 10.0
+    request_deadline_s: float = 30.0
+    download_deadline_s: float = 300.0
+    max_json_bytes: int = 1 << 20
+    max_download_bytes: int = 128 << 20
     command_timeout_s: float = 120.0
     retries: int = 3
     retry_s: float = 10.0
@@ -80,6 +94,10 @@ def parse_capture(ctx: schema.Context, raw: Any) -> CaptureConfig | None:
         max_shutter_s=F(float, check=schema.between(1e-4, 60.0, " s")),
         file_format=F(str, check=schema.one_of("jpeg", "raw+")),
         timeout_s=F(float, check=schema.positive),
+        request_deadline_s=F(float, check=schema.positive),
+        download_deadline_s=F(float, check=schema.positive),
+        max_json_bytes=F(int, check=schema.between(4096, 1 << 30, " bytes")),
+        max_download_bytes=F(int, check=schema.between(1 << 20, 1 << 34, " bytes")),
         command_timeout_s=F(float, check=schema.positive),
         retries=F(int, check=schema.between(0, 20)),
         retry_s=F(float, check=schema.between(0.0, 3600.0, " s")),

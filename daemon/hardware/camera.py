@@ -24,25 +24,44 @@ Every failure is a typed :class:`~grassd.daemon.errors.CameraError` naming the U
 Network traffic goes only to the configured URL: a ``fileUrl`` naming another host (a THETA
 in client mode names its own IP, while the configuration may name it by host name) is fetched
 from the configured one, and one that is not http(s) (``file:///etc/...``) is refused.
+
+What the camera (or anyone on its Wi-Fi) sends is not trusted:
+
+* no redirect is followed (an OSC camera never redirects; following one would send the request,
+  and the digest credentials' next attempt, to whatever host it names): a 3xx answer is a
+  :class:`~grassd.daemon.errors.CameraHttpError` saying where it pointed;
+* every answer is read in chunks up to a byte cap (``max_json_bytes`` for the JSON of
+  commands, ``max_download_bytes`` for a shot, which is streamed to disk, never held in
+  memory): one byte more is a typed error, and a Content-Length above the cap is refused
+  before any of the body is read;
+* every request has a wall-clock deadline (``request_deadline_s``, ``download_deadline_s``)
+  from connecting to the last byte, on top of ``timeout_s`` per read: when it passes, a
+  watchdog shuts the request's sockets down, so an answer trickling one byte a second ends
+  at the deadline however many reads it takes.
 """
 
 from __future__ import annotations
 
+import contextlib
 import http.client
 import json
 import logging
+import os
+import socket
+import threading
 import time
 import urllib.error
 import urllib.parse
 import urllib.request
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from grassd.daemon.config.capture import CaptureConfig
 from grassd.daemon.errors import (
     CameraCommandTimeout,
     CameraDownloadError,
+    CameraError,
     CameraHttpError,
     CameraProtocolError,
     CameraUnreachable,
@@ -57,6 +76,18 @@ DEFAULT_TIMEOUT_S = CaptureConfig.timeout_s
 DEFAULT_COMMAND_TIMEOUT_S = CaptureConfig.command_timeout_s
 #: Seconds between two /osc/commands/status polls.
 DEFAULT_POLL_S = 0.25
+#: Seconds a JSON request may take in all, connecting to last byte ([capture]'s).
+DEFAULT_REQUEST_DEADLINE_S = CaptureConfig.request_deadline_s
+#: Seconds a shot's download may take in all ([capture]'s).
+DEFAULT_DOWNLOAD_DEADLINE_S = CaptureConfig.download_deadline_s
+#: Bytes a JSON answer may hold ([capture]'s).
+DEFAULT_MAX_JSON_BYTES = CaptureConfig.max_json_bytes
+#: Bytes a downloaded shot may hold ([capture]'s).
+DEFAULT_MAX_DOWNLOAD_BYTES = CaptureConfig.max_download_bytes
+#: Bytes read from a socket at a time.
+CHUNK_BYTES = 64 * 1024
+#: Bytes of an HTTP error's body quoted in the error message.
+_ERROR_BODY_BYTES = 300
 
 
 @dataclass(frozen=True)
@@ -77,17 +108,164 @@ class CameraInfo:
         return "".join(ch if ch.isalnum() or ch in "._-" else "_" for ch in raw)
 
 
+def _mib(n: int) -> str:
+    return f"{n / (1 << 20):.3g} MiB"
+
+
+def _origin(url: str) -> tuple[str, str, int | None]:
+    """(scheme, host, port) of ``url``, the port filled in for http and https."""
+    parts = urllib.parse.urlsplit(url)
+    try:
+        port = parts.port
+    except ValueError:
+        port = None
+    return (parts.scheme.lower(), (parts.hostname or "").lower(),
+            port or {"http": 80, "https": 443}.get(parts.scheme.lower()))
+
+
+class _Deadline:
+    """The wall-clock limit of one request. Every socket opened for the request (the first, a
+    digest-auth retry's) is registered; when ``seconds`` have passed, a timer thread shuts them
+    down, so a blocked read returns at once (end of stream) whatever the per-read timeout.
+    ``expired`` then tells the reader why its stream ended."""
+
+    def __init__(self, seconds: float) -> None:
+        self.seconds = seconds
+        self.end = time.monotonic() + seconds
+        self.expired = False
+        self._socks: list[socket.socket] = []
+        self._lock = threading.Lock()
+        self._timer = threading.Timer(seconds, self._expire)
+        self._timer.daemon = True
+
+    def __enter__(self) -> _Deadline:
+        self._timer.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._timer.cancel()
+
+    @property
+    def over(self) -> bool:
+        """The deadline has passed (or will within 50 ms: a read timeout cut to the time left
+        fires just before the watchdog)."""
+        return self.expired or self.remaining() < 0.05
+
+    def remaining(self) -> float:
+        """Seconds left (0 when passed)."""
+        return max(self.end - time.monotonic(), 0.0)
+
+    def clamp(self, timeout: float | None) -> float:
+        """``timeout`` (s; None: none) cut to the time left, at least 1 ms."""
+        left = max(self.remaining(), 0.001)
+        return left if timeout is None else min(timeout, left)
+
+    def add(self, sock: socket.socket) -> None:
+        """Shut ``sock`` down when the deadline passes (at once if it has)."""
+        with self._lock:
+            self._socks.append(sock)
+            if not self.expired:
+                return
+        self._shut(sock)
+
+    def _expire(self) -> None:
+        with self._lock:
+            self.expired = True
+            socks = list(self._socks)
+        for sock in socks:
+            self._shut(sock)
+
+    @staticmethod
+    def _shut(sock: socket.socket) -> None:
+        # shutdown, not close: the fd stays the reader's (closing it under a blocked read could
+        # let a new socket reuse its number); a closed socket raises OSError here, ignored
+        with contextlib.suppress(OSError):
+            sock.shutdown(socket.SHUT_RDWR)
+
+
+class _DeadlineConnection:
+    """Mixin for http.client connections: the connect timeout is cut to the time left of the
+    current request's deadline (TLS's handshake, too, is bounded by it as a whole), and the
+    connected socket is registered with that deadline."""
+
+    def __init__(self, *args: Any, deadline_of: Any, **kw: Any) -> None:
+        self._deadline_of = deadline_of
+        super().__init__(*args, **kw)  # type: ignore[call-arg]
+
+    def connect(self) -> None:
+        deadline: _Deadline | None = self._deadline_of()
+        if deadline is not None:
+            self.timeout = deadline.clamp(self.timeout)  # type: ignore[attr-defined]
+        super().connect()  # type: ignore[misc]
+        if deadline is not None:
+            deadline.add(self.sock)  # type: ignore[attr-defined]
+
+
+class _HttpConnection(_DeadlineConnection, http.client.HTTPConnection):
+    pass
+
+
+class _HttpsConnection(_DeadlineConnection, http.client.HTTPSConnection):
+    pass
+
+
+class _HttpHandler(urllib.request.HTTPHandler):
+    def __init__(self, deadline_of: Any) -> None:
+        super().__init__()
+        self._deadline_of = deadline_of
+
+    def http_open(self, req: urllib.request.Request) -> Any:
+        def connection(host: str, **kw: Any) -> _HttpConnection:
+            return _HttpConnection(host, deadline_of=self._deadline_of, **kw)
+        return self.do_open(connection, req)
+
+
+class _HttpsHandler(urllib.request.HTTPSHandler):
+    def __init__(self, deadline_of: Any) -> None:
+        super().__init__()
+        self._deadline_of = deadline_of
+
+    def https_open(self, req: urllib.request.Request) -> Any:
+        def connection(host: str, **kw: Any) -> _HttpsConnection:
+            return _HttpsConnection(host, deadline_of=self._deadline_of, **kw)
+        return self.do_open(connection, req, context=self._context)
+
+
+class _NoRedirects(urllib.request.HTTPRedirectHandler):
+    """Refuses every redirect with a CameraHttpError saying where it pointed (before reading its
+    body), instead of urllib's following it to any host."""
+
+    def redirect_request(self, req: urllib.request.Request, fp: Any, code: int, msg: str,
+                         headers: Any, newurl: str) -> NoReturn:
+        fp.close()
+        elsewhere = _origin(newurl) != _origin(req.full_url)
+        where = ("another host" if _origin(newurl)[1] != _origin(req.full_url)[1]
+                 else "another scheme or port" if elsewhere else "another path")
+        raise CameraHttpError(
+            f"camera {req.full_url} answered HTTP {code} {msg}, a redirect to {where} "
+            f"({newurl[:200]!r}); grassd follows no redirects (an OSC camera never sends one, "
+            "so something else answers at this address): check [capture] camera and who is on "
+            "the camera's network", code)
+
+
 class OscClient:
     """An OSC camera at ``url`` (e.g. ``http://192.168.1.1`` in access-point mode).
 
     ``username``/``password``: digest authentication (THETA in Wi-Fi client mode);
-    ``timeout_s``: per HTTP request; ``command_timeout_s``: per command until done.
+    ``timeout_s``: per HTTP read (connect, each wait for data); ``command_timeout_s``: per
+    command until done; ``request_deadline_s`` / ``download_deadline_s``: per JSON request /
+    per download, start to last byte, however slowly the bytes come (s); ``max_json_bytes`` /
+    ``max_download_bytes``: the largest answer / file accepted (bytes).
     """
 
     def __init__(self, url: str, *, username: str | None = None, password: str | None = None,
                  timeout_s: float = DEFAULT_TIMEOUT_S,
                  command_timeout_s: float = DEFAULT_COMMAND_TIMEOUT_S,
-                 poll_s: float = DEFAULT_POLL_S) -> None:
+                 poll_s: float = DEFAULT_POLL_S,
+                 request_deadline_s: float = DEFAULT_REQUEST_DEADLINE_S,
+                 download_deadline_s: float = DEFAULT_DOWNLOAD_DEADLINE_S,
+                 max_json_bytes: int = DEFAULT_MAX_JSON_BYTES,
+                 max_download_bytes: int = DEFAULT_MAX_DOWNLOAD_BYTES) -> None:
         parsed = urllib.parse.urlparse(url)
         if parsed.scheme not in ("http", "https") or not parsed.netloc:
             raise CameraUnreachable(f"camera URL {url!r} is not an http:// URL "
@@ -96,56 +274,145 @@ class OscClient:
         self.timeout_s = timeout_s
         self.command_timeout_s = command_timeout_s
         self.poll_s = poll_s
-        handlers: list[urllib.request.BaseHandler] = []
+        self.request_deadline_s = request_deadline_s
+        self.download_deadline_s = download_deadline_s
+        self.max_json_bytes = max_json_bytes
+        self.max_download_bytes = max_download_bytes
+        self._local = threading.local()  # .deadline: the current request's, per thread
+
+        def deadline_of() -> _Deadline | None:
+            return getattr(self._local, "deadline", None)
+
+        handlers: list[urllib.request.BaseHandler] = [
+            _HttpHandler(deadline_of), _HttpsHandler(deadline_of), _NoRedirects()]
         if username:
             mgr = urllib.request.HTTPPasswordMgrWithDefaultRealm()
             mgr.add_password(None, self.url, username, password or "")
             handlers.append(urllib.request.HTTPDigestAuthHandler(mgr))
         self._opener = urllib.request.build_opener(*handlers)
 
+    @classmethod
+    def from_config(cls, cfg: CaptureConfig) -> OscClient:
+        """A client with every setting of a ``[capture]`` section."""
+        return cls(cfg.camera, username=cfg.username or None, password=cfg.password or None,
+                   timeout_s=cfg.timeout_s, command_timeout_s=cfg.command_timeout_s,
+                   request_deadline_s=cfg.request_deadline_s,
+                   download_deadline_s=cfg.download_deadline_s,
+                   max_json_bytes=cfg.max_json_bytes, max_download_bytes=cfg.max_download_bytes)
+
     # ------------------------------------------------------------------ HTTP
-    def _open(self, req: urllib.request.Request, timeout: float | None = None) -> Any:
+    @contextlib.contextmanager
+    def _exchange(self, req: urllib.request.Request, deadline_s: float,
+                  timeout: float | None = None) -> Any:
+        """Open ``req`` under a deadline of ``deadline_s``; yields (response, deadline). The
+        deadline holds until the block ends (reading the body included)."""
+        with _Deadline(deadline_s) as deadline:
+            self._local.deadline = deadline
+            try:
+                resp = self._open(req, deadline, timeout)
+                try:
+                    yield resp, deadline
+                finally:
+                    with contextlib.suppress(OSError, http.client.HTTPException):
+                        resp.close()
+            finally:
+                self._local.deadline = None
+
+    def _open(self, req: urllib.request.Request, deadline: _Deadline,
+              timeout: float | None = None) -> Any:
         where = req.full_url
         try:
-            return self._opener.open(req, timeout=timeout or self.timeout_s)
+            return self._opener.open(req, timeout=deadline.clamp(timeout or self.timeout_s))
         except urllib.error.HTTPError as exc:
             body = b""
             try:
-                body = exc.read()[:300]
-            except OSError:
+                body = exc.read(_ERROR_BODY_BYTES)
+            except (OSError, http.client.HTTPException, ValueError):
                 pass
+            finally:
+                with contextlib.suppress(OSError, http.client.HTTPException):
+                    exc.close()
             detail = body.decode("utf-8", "replace").strip()
             hint = ("check the user name and password (digest auth: THETA in client mode)"
                     if exc.code == 401 else
+                    "grassd follows no redirects: check [capture] camera"
+                    if 300 <= exc.code < 400 else
                     "the request was refused: check the command and options for this model"
                     if exc.code < 500 else "the camera failed: it may be busy or need a restart")
             raise CameraHttpError(f"camera {where} answered HTTP {exc.code} {exc.reason}"
-                                  + (f" ({detail})" if detail else "") + f": {hint}",
+                                  + (f" ({detail!r})" if detail else "") + f": {hint}",
                                   exc.code) from None
-        except (urllib.error.URLError, TimeoutError, ConnectionError) as exc:
+        except (urllib.error.URLError, OSError, http.client.HTTPException, ValueError) as exc:
+            if deadline.over:
+                self._late(f"camera {where}", deadline, CameraUnreachable)
             why = getattr(exc, "reason", exc)
             raise CameraUnreachable(f"camera {where} is unreachable ({why}): check the URL, "
                                     "that the camera is on and on the network") from None
+
+    @staticmethod
+    def _late(what: str, deadline: _Deadline, error: type[CameraError]) -> NoReturn:
+        raise error(f"{what} did not finish within the {deadline.seconds:g} s deadline"
+                    " (an answer trickling in, or a weak link): check the camera's "
+                    "Wi-Fi, and restart it if it keeps happening") from None
+
+    def _read_body(self, resp: Any, deadline: _Deadline, cap: int, sink: Any, what: str,
+                   error: type[CameraError], too_big: type[CameraError]) -> int:
+        """Copy ``resp``'s body into ``sink`` (called with each chunk) in chunks of
+        :data:`CHUNK_BYTES`, at most ``cap`` bytes; returns the byte count. One byte beyond
+        ``cap`` or a Content-Length beyond it is ``too_big``; a broken or short body or the
+        deadline is ``error``."""
+        declared = _content_length(resp)
+        if declared is not None and declared > cap:
+            raise too_big(f"{what} announces {declared} bytes ({_mib(declared)}), more than the "
+                        f"cap of {cap} bytes ({_mib(cap)}); not read") from None
+        n = 0
+        while True:
+            if deadline.expired:
+                self._late(what, deadline, error)
+            try:
+                chunk = resp.read(min(CHUNK_BYTES, cap + 1 - n))
+            except (OSError, http.client.HTTPException, ValueError) as exc:
+                if deadline.over:
+                    self._late(what, deadline, error)
+                if isinstance(exc, http.client.IncompleteRead):
+                    break  # the length check below says what arrived
+                raise error(f"{what} broke off after {n} bytes: {exc!r}") from None
+            if not chunk:
+                break
+            n += len(chunk)
+            if n > cap:
+                raise too_big(f"{what} is larger than the cap of {cap} bytes ({_mib(cap)}); "
+                            "stopped reading") from None
+            sink(chunk)
+        if declared is not None and n != declared:
+            if deadline.over:
+                self._late(what, deadline, error)
+            raise error(f"{what} is truncated: {n} of {declared} bytes arrived; the Wi-Fi link "
+                        "may be weak") from None
+        if deadline.expired and declared is None:
+            self._late(what, deadline, error)  # the end of stream may be the watchdog's
+        return n
 
     def _json(self, method: str, path: str, body: dict[str, Any] | None = None) -> dict:
         data = None if body is None else json.dumps(body).encode("utf-8")
         req = urllib.request.Request(self.url + path, data=data, method=method, headers={
             "Content-Type": "application/json;charset=utf-8", "Accept": "application/json",
             "X-XSRF-Protected": "1"})
-        with self._open(req) as resp:
-            try:
-                raw = resp.read()
-            except (TimeoutError, ConnectionError, OSError, http.client.HTTPException) as exc:
-                raise CameraUnreachable(f"camera {self.url}{path} stopped answering: "
-                                        f"{exc}") from None
+        where = f"camera {self.url}{path}"
+        parts: list[bytes] = []
+        with self._exchange(req, self.request_deadline_s) as (resp, deadline):
+            self._read_body(resp, deadline, self.max_json_bytes, parts.append,
+                            f"the answer of {where} (an OSC answer is a few kB)",
+                            CameraUnreachable, CameraProtocolError)
+        raw = b"".join(parts)
         try:
             out = json.loads(raw.decode("utf-8"))
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise CameraProtocolError(f"camera {self.url}{path} sent malformed JSON ({exc}): "
-                                      f"{raw[:80]!r}; is this an OSC camera?") from None
+        except (ValueError, RecursionError) as exc:  # JSONDecodeError, UnicodeDecodeError
+            raise CameraProtocolError(f"{where} sent malformed JSON ({type(exc).__name__}: "
+                                      f"{str(exc)[:120]}): {raw[:80]!r}; is this an OSC "
+                                      "camera?") from None
         if not isinstance(out, dict):
-            raise CameraProtocolError(f"camera {self.url}{path} sent {type(out).__name__}, "
-                                      "not a JSON object")
+            raise CameraProtocolError(f"{where} sent {type(out).__name__}, not a JSON object")
         return out
 
     # ------------------------------------------------------------------ API
@@ -240,23 +507,36 @@ class OscClient:
         return urllib.parse.urlunsplit((own.scheme, own.netloc, got.path, got.query, ""))
 
     def download(self, file_url: str, dest: Path) -> Path:
-        """Download ``file_url`` (from the configured camera: :meth:`own_url`) to ``dest``;
-        the length must match Content-Length."""
+        """Download ``file_url`` (from the configured camera: :meth:`own_url`) to ``dest``,
+        streamed through a hidden file beside it and renamed when whole: at most
+        ``max_download_bytes``, within ``download_deadline_s``; the length must match
+        Content-Length. Raises CameraDownloadError otherwise (nothing is left at ``dest``)."""
         req = urllib.request.Request(self.own_url(file_url), method="GET")
-        with self._open(req, timeout=max(self.timeout_s, 30.0)) as resp:
-            expected = resp.headers.get("Content-Length")
-            try:
-                data = resp.read()
-            except http.client.IncompleteRead as exc:
-                raise CameraDownloadError(
-                    f"download of {file_url} is truncated: {len(exc.partial)} of {expected} "
-                    "bytes arrived; the Wi-Fi link may be weak") from None
-            except (TimeoutError, ConnectionError, OSError, http.client.HTTPException) as exc:
-                raise CameraDownloadError(f"download of {file_url} broke off: {exc}") from None
-        if expected is not None and len(data) != int(expected):
-            raise CameraDownloadError(f"download of {file_url} is truncated: {len(data)} of "
-                                      f"{expected} bytes; the Wi-Fi link may be weak")
-        if not data:
-            raise CameraDownloadError(f"download of {file_url} is empty")
-        dest.write_bytes(data)
+        part = dest.with_name(f".{dest.name}.part")
+        try:
+            with (self._exchange(req, self.download_deadline_s,
+                                 timeout=max(self.timeout_s, 30.0)) as (resp, deadline),
+                  part.open("wb") as fh):
+                n = self._read_body(resp, deadline, self.max_download_bytes, fh.write,
+                                    f"download of {file_url}", CameraDownloadError,
+                                    CameraDownloadError)
+            if not n:
+                raise CameraDownloadError(f"download of {file_url} is empty")
+            os.replace(part, dest)
+        except BaseException:
+            part.unlink(missing_ok=True)
+            raise
         return dest
+
+
+def _content_length(resp: Any) -> int | None:
+    """The Content-Length of ``resp`` as a number of bytes, or None when absent; a malformed
+    one counts as absent (the cap still holds while reading)."""
+    value = resp.headers.get("Content-Length")
+    if value is None:
+        return None
+    try:
+        n = int(str(value).strip()[:20])
+    except ValueError:
+        return None
+    return n if n >= 0 else None

@@ -1,0 +1,371 @@
+"""The OSC camera client against a hostile camera (or anyone on its Wi-Fi): a real HTTP server on
+127.0.0.1 that redirects elsewhere, sends a 300 MiB body, trickles one byte a second, or sends
+nonsense. Each ends in a typed CameraError within a bound of time and memory; nothing else is
+contacted, nothing is left on disk."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import threading
+import time
+import tracemalloc
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+import pytest
+
+from grassd.daemon.config.capture import CaptureConfig
+from grassd.daemon.errors import (
+    CameraDownloadError,
+    CameraHttpError,
+    CameraProtocolError,
+    CameraUnreachable,
+    CaptureError,
+)
+from grassd.daemon.hardware.camera import OscClient
+
+pytestmark = pytest.mark.timeout(60)
+
+MiB = 1 << 20
+HUGE = 300 * MiB
+_BLOCK = b"\0" * MiB
+
+
+class Hostile(BaseHTTPRequestHandler):
+    """Answers by the path's first component (``/<mode>/...``); counts requests and bytes."""
+
+    protocol_version = "HTTP/1.1"
+    server: HostileServer
+
+    def log_message(self, *args) -> None:  # quiet
+        pass
+
+    def do_GET(self) -> None:
+        self._serve()
+
+    def do_POST(self) -> None:
+        length = int(self.headers.get("Content-Length") or 0)
+        self.rfile.read(length)
+        self._serve()
+
+    def _send_huge(self, declare: bool, status: int = 200) -> None:
+        self.send_response(status)
+        if declare:
+            self.send_header("Content-Length", str(HUGE))
+        else:
+            self.send_header("Connection", "close")  # body ends at close, no length
+        self.end_headers()
+        for _ in range(HUGE // MiB):
+            if self.server.stop.is_set():
+                return
+            self.wfile.write(_BLOCK)
+            self.server.sent += MiB
+
+    def _trickle(self, data: bytes) -> None:
+        for i in range(len(data)):
+            if self.server.stop.wait(self.server.trickle_s):
+                return
+            self.wfile.write(data[i:i + 1])
+            self.wfile.flush()
+            self.server.sent += 1
+
+    def _serve(self) -> None:
+        srv = self.server
+        srv.hits.append(self.path)
+        mode = self.path.split("/")[1]
+        try:
+            if mode == "redirect":
+                self.send_response(302)
+                self.send_header("Location", srv.redirect_to)
+                self.send_header("Content-Length", "0")
+                self.end_headers()
+            elif mode in ("huge", "huge-declared"):
+                self._send_huge(declare=mode == "huge-declared")
+            elif mode == "huge-error":
+                self._send_huge(declare=False, status=500)
+            elif mode == "trickle-body":
+                body = json.dumps({"state": {}, "pad": "x" * 200}).encode()
+                self.send_response(200)
+                self.send_header("Content-Length", str(len(body)))
+                self.end_headers()
+                self._trickle(body)
+            elif mode == "trickle-head":
+                self.close_connection = True
+                self._trickle(b"HTTP/1.1 200 OK\r\nContent-Length: 2\r\n" + b"X-Pad: a\r\n" * 50)
+            elif mode == "nested":
+                body = b"[" * 200_000 + b"]" * 200_000
+                self.send_response(200)
+                self.send_header("Content-Length", str(len(body)))
+                self.end_headers()
+                self.wfile.write(body)
+            elif mode == "garbage":
+                self.close_connection = True
+                self.wfile.write(b"\x00\xffNOT HTTP AT ALL\r\n\r\n")
+            elif mode == "bad-length":
+                self.close_connection = True
+                self.send_response(200)
+                self.send_header("Content-Length", "lots")
+                self.send_header("Connection", "close")
+                self.end_headers()
+                self.wfile.write(b'{"state": {}}')
+            else:  # an honest camera's file
+                body = b"\xff\xd8 a small shot \xff\xd9"
+                self.send_response(200)
+                self.send_header("Content-Length", str(len(body)))
+                self.end_headers()
+                self.wfile.write(body)
+        except OSError:  # the client hung up: what it should do
+            srv.client_hung_up = True
+
+
+class HostileServer(ThreadingHTTPServer):
+    daemon_threads = True
+
+    def __init__(self) -> None:
+        super().__init__(("127.0.0.1", 0), Hostile)
+        self.hits: list[str] = []
+        self.sent = 0
+        self.stop = threading.Event()
+        self.client_hung_up = False
+        self.redirect_to = ""
+        self.trickle_s = 1.0  # one byte a second
+        self.thread = threading.Thread(target=self.serve_forever, kwargs={"poll_interval": 0.05},
+                                       daemon=True)
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.server_address[1]}"
+
+    def __enter__(self) -> HostileServer:
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop.set()
+        self.shutdown()
+        self.server_close()
+        self.thread.join(timeout=5)
+        assert not self.thread.is_alive()
+
+
+@pytest.fixture
+def hostile():
+    with HostileServer() as srv:
+        yield srv
+
+
+def client(url: str, **kw) -> OscClient:
+    kw.setdefault("timeout_s", 5.0)
+    return OscClient(url, poll_s=0.01, **kw)
+
+
+def test_errors_stay_retryable_capture_errors():
+    """The station retries every CaptureError: the new failures must stay of that family."""
+    for cls in (CameraUnreachable, CameraProtocolError, CameraDownloadError, CameraHttpError):
+        assert issubclass(cls, CaptureError)
+
+
+def test_config_defaults_reach_the_client():
+    cfg = CaptureConfig(camera="http://127.0.0.1:9")
+    cli = OscClient.from_config(cfg)
+    assert (cli.request_deadline_s, cli.download_deadline_s) == (
+        cfg.request_deadline_s, cfg.download_deadline_s)
+    assert (cli.max_json_bytes, cli.max_download_bytes) == (
+        cfg.max_json_bytes, cfg.max_download_bytes)
+    assert cfg.max_json_bytes < cfg.max_download_bytes < HUGE
+
+
+# --------------------------------------------------------------------------- redirects
+
+
+def test_redirect_to_another_host_is_refused_and_never_followed(hostile):
+    with HostileServer() as elsewhere:
+        hostile.redirect_to = f"{elsewhere.url}/osc/info"
+        cam = client(f"{hostile.url}/redirect")
+        with pytest.raises(CameraHttpError) as err:
+            cam.info()
+        assert elsewhere.hits == []  # nothing went to the other host
+    msg = str(err.value)
+    assert err.value.status == 302
+    assert "redirect" in msg and "another scheme or port" in msg and elsewhere.url in msg
+    assert "follows no redirects" in msg
+
+
+def test_redirect_to_a_named_host_says_so(hostile):
+    hostile.redirect_to = "http://attacker.example/osc/info"
+    with pytest.raises(CameraHttpError, match="redirect to another host"):
+        client(f"{hostile.url}/redirect").state()
+
+
+def test_redirect_of_a_download_is_refused_and_leaves_no_file(hostile, tmp_path):
+    with HostileServer() as elsewhere:
+        hostile.redirect_to = f"{elsewhere.url}/shot.jpg"
+        cam = client(hostile.url)
+        with pytest.raises(CameraHttpError, match="redirect"):
+            cam.download(f"{hostile.url}/redirect/shot.jpg", tmp_path / "shot.jpg")
+        assert elsewhere.hits == []
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_same_host_redirect_is_refused_too(hostile):
+    hostile.redirect_to = "/osc/elsewhere"
+    with pytest.raises(CameraHttpError, match="redirect to another path"):
+        client(f"{hostile.url}/redirect").info()
+    assert hostile.hits == ["/redirect/osc/info"]
+
+
+# --------------------------------------------------------------------------- byte caps
+
+
+def _rss() -> int:
+    """Resident set size of this process now (bytes; Linux)."""
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+def _peak(fn):
+    """(exception raised by fn, seconds, peak Python allocation, peak RSS growth), the
+    sizes in bytes; the RSS is sampled every 5 ms while fn runs."""
+    base = _rss()
+    top = [base]
+    done = threading.Event()
+
+    def sample() -> None:
+        while not done.wait(0.005):
+            top[0] = max(top[0], _rss())
+
+    sampler = threading.Thread(target=sample, daemon=True)
+    sampler.start()
+    tracemalloc.start()
+    t0 = time.monotonic()
+    try:
+        fn()
+    except Exception as exc:  # noqa: BLE001 - returned for the caller to check
+        raised = exc
+    else:
+        raised = None
+    seconds = time.monotonic() - t0
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    done.set()
+    sampler.join(timeout=5)
+    return raised, seconds, peak, max(top[0], _rss()) - base
+
+
+def test_huge_json_answer_stops_at_the_cap(hostile):
+    cam = client(f"{hostile.url}/huge")
+    exc, seconds, peak, rss = _peak(cam.state)
+    assert isinstance(exc, CameraProtocolError), exc
+    assert f"cap of {cam.max_json_bytes} bytes" in str(exc)
+    assert peak < cam.max_json_bytes + 8 * MiB
+    assert rss < 32 * MiB
+    time.sleep(0.2)
+    # the server got rid of at most the cap plus what the socket buffers hold
+    assert hostile.sent < cam.max_json_bytes + 16 * MiB
+    assert seconds < 5
+
+
+def test_declared_huge_json_answer_is_refused_before_reading(hostile):
+    cam = client(f"{hostile.url}/huge-declared")
+    exc, seconds, peak, _ = _peak(cam.info)
+    assert isinstance(exc, CameraProtocolError), exc
+    assert f"announces {HUGE} bytes" in str(exc)
+    assert peak < 4 * MiB and seconds < 5
+
+
+def test_huge_error_body_is_not_read(hostile):
+    cam = client(f"{hostile.url}/huge-error")
+    exc, seconds, peak, _ = _peak(cam.info)
+    assert isinstance(exc, CameraHttpError) and exc.status == 500, exc
+    assert peak < 4 * MiB and seconds < 5
+
+
+@pytest.mark.parametrize("mode", ["huge", "huge-declared"])
+def test_huge_download_stops_at_the_cap_and_leaves_nothing(hostile, tmp_path, mode):
+    cam = client(hostile.url)  # the default download cap, 128 MiB
+    dest = tmp_path / "shot.jpg"
+    exc, seconds, peak, rss = _peak(lambda: cam.download(f"{hostile.url}/{mode}/x.jpg", dest))
+    assert isinstance(exc, CameraDownloadError), exc
+    assert str(cam.max_download_bytes) in str(exc)
+    assert list(tmp_path.iterdir()) == []  # neither the shot nor its partial file
+    assert peak < 8 * MiB  # streamed to disk, never held
+    assert rss < 32 * MiB
+    time.sleep(0.2)
+    assert hostile.sent < cam.max_download_bytes + 16 * MiB
+    print(f"\n{mode}: refused after {seconds:.2f} s, {hostile.sent / MiB:.0f} MiB sent by the "
+          f"server, Python peak {peak / MiB:.2f} MiB, peak RSS +{rss / MiB:.1f} MiB")
+
+
+def test_honest_download_still_works(hostile, tmp_path):
+    dest = client(hostile.url).download(f"{hostile.url}/files/shot.jpg", tmp_path / "s.jpg")
+    assert dest.read_bytes() == b"\xff\xd8 a small shot \xff\xd9"
+    assert [p.name for p in tmp_path.iterdir()] == ["s.jpg"]
+
+
+# --------------------------------------------------------------------------- deadline
+
+
+@pytest.mark.parametrize("mode", ["trickle-body", "trickle-head"])
+def test_trickle_fails_at_the_deadline_not_per_read(hostile, mode):
+    hostile.trickle_s = 0.25  # well inside the per-read timeout: it never fires
+    cam = client(f"{hostile.url}/{mode}", timeout_s=1.0, request_deadline_s=1.5)
+    t0 = time.monotonic()
+    with pytest.raises(CameraUnreachable, match=r"within the 1\.5 s deadline"):
+        cam.state()
+    elapsed = time.monotonic() - t0
+    assert 1.4 <= elapsed < 2.5, elapsed
+    assert hostile.sent >= 3  # bytes did come, each within the per-read timeout
+
+
+def test_one_byte_a_second_download_fails_at_the_deadline(hostile, tmp_path):
+    # 1 byte/s against a 2 s deadline and a 30 s per-read timeout (a download's floor)
+    hostile.redirect_to = ""
+    cam = client(hostile.url, download_deadline_s=2.0)
+    t0 = time.monotonic()
+    with pytest.raises(CameraDownloadError, match=r"within the 2 s deadline"):
+        cam.download(f"{hostile.url}/trickle-body/x.jpg", tmp_path / "x.jpg")
+    elapsed = time.monotonic() - t0
+    assert 1.9 <= elapsed < 3.0, elapsed
+    assert list(tmp_path.iterdir()) == []
+    print(f"\n1 byte/s download: failed after {elapsed:.2f} s (deadline 2 s)")
+
+
+def test_silent_server_fails_at_the_deadline():
+    """A server that accepts and never answers: the deadline, shorter than the per-read
+    timeout, ends the request."""
+    with socket.socket() as srv:
+        srv.bind(("127.0.0.1", 0))
+        srv.listen()
+        cam = client(f"http://127.0.0.1:{srv.getsockname()[1]}", timeout_s=10.0,
+                     request_deadline_s=1.0)
+        t0 = time.monotonic()
+        with pytest.raises(CameraUnreachable, match="deadline"):
+            cam.info()
+        assert time.monotonic() - t0 < 2.0
+
+
+# --------------------------------------------------------------------------- nonsense
+
+
+def test_deeply_nested_json_is_a_protocol_error(hostile):
+    with pytest.raises(CameraProtocolError, match="malformed JSON"):
+        client(f"{hostile.url}/nested").info()
+
+
+def test_garbage_instead_of_http_is_typed(hostile):
+    with pytest.raises(CameraUnreachable):
+        client(f"{hostile.url}/garbage").info()
+
+
+def test_malformed_content_length_is_ignored_and_the_cap_still_holds(hostile):
+    assert client(f"{hostile.url}/bad-length").state() == {"state": {}}
+
+
+def test_no_watchdog_threads_are_left_behind(hostile, tmp_path):
+    before = threading.active_count()
+    cam = client(hostile.url)
+    for _ in range(5):
+        cam.download(f"{hostile.url}/files/shot.jpg", tmp_path / "s.jpg")
+    time.sleep(0.1)
+    assert threading.active_count() <= before + 1  # the server's handler thread, at most
