@@ -29,6 +29,7 @@ from grassd.firmware_proto.errors import (
     ControllerTimeout,
     NakError,
     PortUnavailable,
+    ProtocolError,
     PushFailed,
     TableError,
     TransferInterrupted,
@@ -71,6 +72,22 @@ from grassd.firmware_proto.tables import (
 RESTARTABLE_NAKS = frozenset({NakCode.NO_TRANSFER, NakCode.INCOMPLETE, NakCode.CRC_MISMATCH,
                               NakCode.STORAGE_FAILED})
 
+#: Default wall-clock limit of one :meth:`ControllerClient.push_table`, in seconds: HELLO,
+#: status, every transfer and restart, and the read-back together. A controller that answered
+#: each chunk just before the request timeout and refused every commit held one push for
+#: ~9 min; now it holds the caller at most this long, then the push fails with
+#: :class:`PushFailed` (transient: the daemon keeps the old table and retries with backoff).
+#: Why 25 s: systemd kills the daemon when it goes ``WatchdogSec=60`` (systemd/grassd.service)
+#: without a ping, and the daemon pings every WatchdogSec/2 = 30 s (runtime/notify.py); a push
+#: that starts just before a ping is due must end before the next 30 s run out, with 5 s to
+#: spare. It also keeps a SIGTERM, honoured between pushes, inside ``TimeoutStopSec=60``.
+#: Enough for a 512-byte table on a line with 1 % byte errors at 115200 baud (12.1 s at most,
+#: README ``bench_noisy_line``) and for 16 per-pixel tables (8 KiB) on a clean line at 9600
+#: baud (~10 s); not for 16 per-pixel tables on a 1 %-error line (83 s measured): that push
+#: fails and ``grassd status`` shows the line as noisy: fix the wiring, or raise
+#: :attr:`RetryPolicy.push_deadline_s` where the watchdog allows.
+PUSH_DEADLINE_S = 25.0
+
 #: Largest payload of each answer type (bytes), to size timeouts at low baud rates.
 _MAX_ANSWER_PAYLOAD = {MsgType.INFO: 16, MsgType.TABLE_STATUS: 21, MsgType.ACK: 1,
                        MsgType.POSITIONS: 2 + 4 * MAX_POSITIONS}
@@ -99,6 +116,27 @@ class RetryPolicy:
     #: tries in a row of a chunk that cannot shrink any further before the transfer restarts
     #: (more than ``retries``: at 1 % byte errors a 16-byte chunk gets through 60 % of tries)
     chunk_floor_tries: int = 8
+    #: wall-clock limit of one push_table call, in seconds (see :data:`PUSH_DEADLINE_S`)
+    push_deadline_s: float = PUSH_DEADLINE_S
+
+    def __post_init__(self) -> None:
+        if not self.push_deadline_s > 0:
+            raise ValueError(f"push_deadline_s must be > 0 s, got {self.push_deadline_s!r}")
+        if not 1 <= self.min_chunk_bytes <= MAX_CHUNK_DATA:
+            raise ValueError(f"min_chunk_bytes must be 1..{MAX_CHUNK_DATA}, got "
+                             f"{self.min_chunk_bytes!r}")
+
+
+class ControllerUnsupported(ProtocolError):
+    """A controller advertises limits this host will not work with (a permanent refusal of
+    the push, before anything is sent): e.g. a ``max_chunk`` below
+    :attr:`RetryPolicy.min_chunk_bytes`, which would let it stretch one push over thousands of
+    requests. The message says what to change on the controller."""
+
+
+class _PushDeadline(TransientError):
+    """The push's wall-clock deadline passed (internal: :meth:`ControllerClient.push_table`
+    turns it into :class:`PushFailed`)."""
 
 
 def _table_matches(status: TableStatus, table_id: int, crc: int) -> bool:
@@ -130,6 +168,8 @@ class ControllerClient:
         self.retransmissions = 0
         self.stale_frames = 0
         self._info: dict[int, Info] = {}
+        #: time.monotonic() by which the push in progress must end (None: no push)
+        self._deadline: float | None = None
 
     # --- plumbing -------------------------------------------------------------------------
     def __enter__(self) -> ControllerClient:
@@ -153,6 +193,18 @@ class ControllerClient:
     def _backoff(self, attempt: int) -> float:
         p = self.policy
         return min(p.backoff_max_s, p.backoff_s * 2 ** (attempt - 1)) * (0.5 + self._rng.random())
+
+    def _sleep(self, seconds: float) -> None:
+        """Sleep ``seconds``, but not past the push deadline (which then raises)."""
+        if self._deadline is not None:
+            seconds = min(seconds, self._deadline - time.monotonic())
+        if seconds > 0:
+            time.sleep(seconds)
+        self._check_deadline()
+
+    def _check_deadline(self) -> None:
+        if self._deadline is not None and time.monotonic() >= self._deadline:
+            raise _PushDeadline("the push deadline passed")
 
     def request(self, address: int, message: Message, *, retries: int | None = None,
                 timeout_s: float | None = None) -> Message:
@@ -178,10 +230,13 @@ class ControllerClient:
         for attempt in range(retries + 1):
             if attempt:
                 self.retransmissions += 1
-                time.sleep(self._backoff(attempt))
+                self._sleep(self._backoff(attempt))
+            self._check_deadline()
             try:
                 self.link.send(wire)
                 deadline = time.monotonic() + timeout
+                if self._deadline is not None:
+                    deadline = min(deadline, self._deadline)
                 while (frame := self.link.receive(deadline)) is not None:
                     m = frame.message
                     if (frame.address == address and frame.seq == seq
@@ -189,6 +244,7 @@ class ControllerClient:
                         self.quality.note_try(True)
                         return m
                     self.stale_frames += 1
+                self._check_deadline()  # cut short by the push's deadline: not the line's fault
                 last = ControllerTimeout(f"no answer within {timeout:.3f} s")
             except PortUnavailable as exc:
                 last = exc
@@ -262,10 +318,12 @@ class ControllerClient:
 
         Stages it chunk by chunk, commits, and reads TABLE_STATUS back. ``table_id`` defaults
         to the table's CRC-32/ISO-HDLC. Returns the status actually active afterwards, which
-        carries this table's id and CRC. Raises :class:`TableError` / :class:`NakError` for a
-        table the controller cannot take (nothing was changed), and :class:`PushFailed` when
-        transient failures outlasted every retry; its ``active`` is the status read back
-        (the old table), or None if the controller could not be reached at all.
+        carries this table's id and CRC. Raises :class:`TableError` / :class:`NakError` /
+        :class:`ControllerUnsupported` for a table the controller cannot take (nothing was
+        changed), and :class:`PushFailed` when transient failures outlasted every retry or the
+        push ran past its wall-clock deadline (``policy.push_deadline_s``); its ``active`` is the
+        status read back (the old table), or None if the controller could not be reached at
+        all. The call returns within that deadline (the read-back included).
         """
         arr = as_table_array(table)
         kind, n_tables = table_kind(arr)
@@ -274,33 +332,64 @@ class ControllerClient:
         tid = crc if table_id is None else int(table_id)
         if not 0 <= tid <= 0xFFFFFFFF:
             raise TableError(f"table_id must be 0..4294967295, got {tid}")
+        budget = self.policy.push_deadline_s
+        end = time.monotonic() + budget
+        # the read-back of the old table keeps the time of one status request
+        self._deadline = end - self._request_timeout(GetStatus())
         last: BaseException | None = None
-        for _ in range(self.policy.restarts + 1):
-            try:
-                info = self._info.get(address) or self.hello(address)
-                self._check_fits(address, info, arr, kind, n_tables)
-                status = self.read_status(address)
-                if _table_matches(status, tid, crc):
-                    return status  # already active: nothing to do
-                self._transfer(address, info, tid, kind, n_tables, data, crc)
-                break
-            except TransientError as exc:
-                last = exc
+        late = False
         try:
-            final = self.read_status(address, retries=self.policy.readback_retries)
-        except TransientError as exc:
-            raise PushFailed(f"push of table {tid:#010x} to controller {address} on "
-                             f"{self.port}: state unknown, cannot read it back ({exc}); "
-                             f"earlier error: {last}", active=None, cause=exc) from None
+            for _ in range(self.policy.restarts + 1):
+                try:
+                    info = self._info.get(address) or self.hello(address)
+                    self._check_fits(address, info, arr, kind, n_tables)
+                    status = self.read_status(address)
+                    if _table_matches(status, tid, crc):
+                        return status  # already active: nothing to do
+                    self._transfer(address, info, tid, kind, n_tables, data, crc)
+                    break
+                except _PushDeadline:
+                    late = True
+                    break
+                except TransientError as exc:
+                    last = exc
+            self._deadline = end
+            try:
+                final = self.read_status(address, retries=self.policy.readback_retries)
+            except TransientError as exc:
+                raise PushFailed(f"push of table {tid:#010x} to controller {address} on "
+                                 f"{self.port}: state unknown, cannot read it back ({exc}); "
+                                 f"earlier error: {last}", active=None, cause=exc) from None
+        finally:
+            self._deadline = None
         if _table_matches(final, tid, crc):
             return final
+        why = last
+        if late:
+            why = (f"not done within the push deadline of {budget:.1f} s: the controller "
+                   f"answers too slowly or refuses the commit; last error: {last}")
         raise PushFailed(f"push of table {tid:#010x} to controller {address} on {self.port} "
-                         f"failed ({last}); table {final.table_id:#010x} is still active",
+                         f"failed ({why}); table {final.table_id:#010x} is still active",
                          active=final, cause=last)
+
+    def _request_timeout(self, message: Message) -> float:
+        """How long :meth:`request` waits for the answer to one try of ``message`` (s)."""
+        expected = RESPONSE_TYPES[message.TYPE]
+        answer = 12 + max(_MAX_ANSWER_PAYLOAD[expected], 6)  # header, CRC, COBS, delimiter
+        return self.policy.timeout_s + self._wire_time(len(encode_frame(Frame(1, 0, message)))
+                                                       + answer)
 
     def _check_fits(self, address: int, info: Info, arr: np.ndarray, kind: TableKind,
                     n_tables: int) -> None:
         where = f"controller {address} on {self.port}"
+        least = min(self.policy.min_chunk_bytes, self.policy.chunk_bytes)
+        if info.max_chunk < least:
+            raise ControllerUnsupported(
+                f"{where} takes table chunks of at most {info.max_chunk} bytes (max_chunk in "
+                f"its INFO); this host sends no chunk smaller than {least} bytes, so that a "
+                f"controller cannot stretch a push over thousands of requests. Configure the "
+                f"controller with max_chunk >= {least} (the C firmware's fw_config.max_chunk, "
+                f"grassfw-posix --max-chunk; 256 is the default)")
         if kind == TableKind.PER_PIXEL and n_tables != info.n_pixels:
             raise TableError(f"{where} has {info.n_pixels} pixels; per-pixel tables must have "
                              f"shape ({info.n_pixels}, 256), got {arr.shape}")
@@ -345,7 +434,7 @@ class ControllerClient:
                         f"controller {address} on {self.port}: TABLE_CHUNK at offset {offset} "
                         f"unanswered {failed} times in a row at {size}-byte chunks; check the "
                         f"address, wiring and baud rate") from None
-                time.sleep(self._backoff(max(failed, 1)))
+                self._sleep(self._backoff(max(failed, 1)))
                 continue
             q.note_chunk(True, size, tail=size < full)
             offset += size
