@@ -2,10 +2,16 @@
 protocol): ``ping``, ``status``, ``reload``, ``calibrate`` and ``bundles_retry``. They run in
 socket threads; a calibration, or putting a quarantined bundle back, is queued for the main
 loop (a bounded queue, so that clients waiting for runs cannot hold every control-socket slot
-and status stays answerable)."""
+and status stays answerable).
+
+Only :data:`READ_ONLY_COMMANDS` may be sent by any client that can connect (the readers'
+group); every other command changes the daemon's state and is served only for root and the
+daemon's own user: :class:`~grassd.daemon.runtime.control.ControlServer` checks the peer's
+credentials (``SO_PEERCRED``) before a command gets here."""
 
 from __future__ import annotations
 
+import math
 import os
 import queue
 import threading
@@ -14,6 +20,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from grassd import __version__
+
+#: Commands that only read: any client that can connect to the socket may send them. Every
+#: other command (``calibrate``, ``reload``, ``bundles_retry``, an unknown one) needs root or
+#: the daemon's own user.
+READ_ONLY_COMMANDS: frozenset[str] = frozenset({"ping", "status"})
+#: The longest ``timeout_s`` a client may ask a waiting request to wait (a day).
+MAX_WAIT_S = 86400.0
 
 
 @dataclass
@@ -53,19 +66,24 @@ class ControlCommands:
             self.reload_event.set()
             return {"ok": True}
         if cmd == "bundles_retry":  # in the main loop, which also claims and prunes bundles
-            name = str(req.get("bundle", ""))
+            name = req.get("bundle", "")
+            if not isinstance(name, str) or not name:
+                raise ValueError('bundles_retry needs "bundle": the name of a quarantined bundle '
+                                 "(see `grassd status`)")
+            timeout = _timeout(req)
             r = QueuedRequest(force=False, task=lambda: self.retry_bundle(name))
             try:
                 self.requests.put_nowait(r)
             except queue.Full:
                 return {"ok": False, "busy": True, "error": "busy: try again later"}
-            if not r.done.wait(float(req.get("timeout_s", 3600))):
+            if not r.done.wait(timeout):
                 return {"ok": False, "error": "the daemon did not get to it in time"}
             out = r.result or {}
             return {"ok": out.get("status") == "ok", "retry": out, "error": out.get("error")}
         if cmd == "calibrate":
             if self.stop_event.is_set():
                 return {"ok": False, "error": "daemon is stopping"}
+            timeout = _timeout(req)  # checked before anything is queued
             r = QueuedRequest(force=bool(req.get("force", False)))
             try:
                 self.requests.put_nowait(r)
@@ -75,9 +93,19 @@ class ControlCommands:
                                  "already queued; try again after they ran"}
             if not req.get("wait", False):
                 return {"ok": True, "queued": self.requests.qsize()}
-            timeout = float(req.get("timeout_s", 3600))
             if not r.done.wait(timeout):
                 return {"ok": False, "error": f"run did not finish within {timeout:g} s"}
             return {"ok": True, "run": r.result}
         return {"ok": False, "error": f"unknown command {cmd!r} "
                                       "(use ping, status, calibrate, reload, bundles_retry)"}
+
+
+def _timeout(req: dict[str, Any]) -> float:
+    """The request's ``timeout_s`` (default 3600 s), a finite number of seconds in
+    (0, :data:`MAX_WAIT_S`]; raises :class:`ValueError` naming the fix otherwise."""
+    value = req.get("timeout_s", 3600)
+    if isinstance(value, bool) or not isinstance(value, int | float) \
+            or not math.isfinite(value) or not 0 < value <= MAX_WAIT_S:
+        raise ValueError(f'"timeout_s" must be a number of seconds in (0, {MAX_WAIT_S:g}], '
+                         f"not {str(value)[:40]!r}")
+    return float(value)

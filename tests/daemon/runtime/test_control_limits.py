@@ -49,10 +49,9 @@ def test_excess_clients_are_told_busy_without_threads(tmp_path):
             assert answer["ok"] is False and answer["busy"] is True
             assert f"busy: {MAX_CLIENTS} clients" in answer["error"]
             s.close()
-        t0 = time.monotonic()
+        # answered busy, not left hanging (that would be a ControlError "did not answer")
         with pytest.raises(DaemonBusy, match="busy"):
-            request(srv.path, {"cmd": "ping"}, timeout_s=5)
-        assert time.monotonic() - t0 < 2.0  # answered, not left hanging until a timeout
+            request(srv.path, {"cmd": "ping"}, timeout_s=30)
         assert threading.active_count() <= threads_busy  # no thread per refused client
         assert srv.refused == 41
         release.set()

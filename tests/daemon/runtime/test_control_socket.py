@@ -6,19 +6,21 @@ import json
 import socket
 import stat
 import threading
-import time
 
 import pytest
 
 from grassd.daemon.errors import ControlError, DaemonNotRunning
 from grassd.daemon.runtime.control import ControlServer, request
 
+#: the "together" requests wait here until 5 of them run at once (or fail after 10 s)
+together = threading.Barrier(5, timeout=10)
+
 
 def handler(req):
     if req["cmd"] == "echo":
         return {"ok": True, "echo": req.get("x")}
-    if req["cmd"] == "slow":
-        time.sleep(0.3)
+    if req["cmd"] == "together":
+        together.wait()  # BrokenBarrierError if they were served one after the other
         return {"ok": True}
     if req["cmd"] == "boom":
         raise RuntimeError("handler exploded")
@@ -52,19 +54,20 @@ def test_errors_are_control_errors_and_server_survives(server):
 
 
 def test_concurrent_clients_are_served_in_parallel(server):
+    """Five requests that each wait for the other four: they can only all succeed when they
+    are handled at the same time (an event, not a measured duration)."""
+    together.reset()
     results = []
 
     def call():
-        results.append(request(server.path, {"cmd": "slow"}))
+        results.append(request(server.path, {"cmd": "together"}, timeout_s=20))
 
     threads = [threading.Thread(target=call) for _ in range(5)]
-    t0 = time.monotonic()
     for t in threads:
         t.start()
     for t in threads:
-        t.join()
-    took = time.monotonic() - t0
-    assert len(results) == 5 and took < 1.2  # 5 x 0.3 s in parallel, not 1.5 s in series
+        t.join(20)
+    assert len(results) == 5 and all(r["ok"] for r in results)
 
 
 def test_no_daemon_is_daemon_not_running(tmp_path):
