@@ -33,6 +33,7 @@ from __future__ import annotations
 import logging
 import os
 import re
+import stat
 import tempfile
 from pathlib import Path
 
@@ -70,6 +71,8 @@ REC709_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 _REC709_PRIMARIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06)
 _D65 = (0.3127, 0.3290)
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
+#: The channels an OpenEXR panorama may have: colour (R, G, B or luminance Y) and alpha.
+_EXR_CHANNELS = ("R", "G", "B", "A", "Y")
 _BRADFORD = np.array(
     [[0.8951, 0.2664, -0.1614], [-0.7502, 1.7135, 0.0367], [0.0389, -0.0685, 1.0296]]
 )
@@ -195,8 +198,11 @@ def load_hdri(path: str | os.PathLike, max_texels: int = MAX_TEXELS) -> np.ndarr
         raise HdriError(f"HDRI file {source} does not exist")
     if not p.is_file():
         raise HdriError(f"HDRI path {source} is not a regular file")
-    try:
-        with p.open("rb") as fh:
+    try:  # non-blocking: a FIFO swapped in after the check above must not hang the read
+        fd = os.open(p, os.O_RDONLY | os.O_NONBLOCK)
+        with os.fdopen(fd, "rb") as fh:
+            if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
+                raise HdriError(f"HDRI path {source} is not a regular file")
             magic = fh.read(16)
     except OSError as exc:
         raise HdriError(f"cannot read HDRI file {source}: {exc.strerror or exc}") from exc
@@ -214,20 +220,67 @@ def load_hdri(path: str | os.PathLike, max_texels: int = MAX_TEXELS) -> np.ndarr
     return check_env(img, source, max_texels)
 
 
+def _part_summary(parts: list) -> str:
+    """``'name' W x H`` of each part (the first few), for an error message."""
+    shown = [f"{name!r} {w} x {h}" for name, w, h, _ in parts[:4]]
+    more = f" and {len(parts) - 4} more" if len(parts) > 4 else ""
+    return ", ".join(shown) + more
+
+
+def _exr_parts(source: str) -> list[tuple[str, int, int, dict]]:
+    """(name, width, height, header) of every part of an OpenEXR file, from its headers
+    alone (no pixel is read)."""
+    headers = _exr_call(source, "header", lambda: [
+        part.header for part in OpenEXR.File(source, header_only=True).parts])
+    out = []
+    for i, header in enumerate(headers):
+        if "dataWindow" not in header:
+            raise HdriError(f"{source}: OpenEXR part {i} lacks a dataWindow")
+        (x0, y0), (x1, y1) = header["dataWindow"]
+        name = str(header.get("name") or f"part {i}")
+        out.append((name, int(x1) - int(x0) + 1, int(y1) - int(y0) + 1, header))
+    if not out:
+        raise HdriError(f"{source}: the OpenEXR file has no part")
+    return out
+
+
+def _check_exr_channels(source: str, header: dict) -> list[str]:
+    """The channel names of a panorama's header; raises HdriError for any channel other than
+    R, G, B, A and Y (named in the message), for neither R, G, B nor Y, or a subsampled one."""
+    chans = list(header.get("channels", []))
+    names = [str(ch.name) for ch in chans]
+    extra = sorted(set(names) - set(_EXR_CHANNELS))
+    if extra:
+        shown = ", ".join(extra[:8]) + (f" and {len(extra) - 8} more" if len(extra) > 8 else "")
+        raise HdriError(
+            f"{source}: {len(names)} channels, {len(extra)} of them not a panorama's "
+            f"({shown}); an environment map has R, G, B (or Y) and optionally A: export "
+            "only those (e.g. oiiotool in.exr --ch R,G,B -o out.exr)")
+    if not ({"R", "G", "B"} <= set(names) or "Y" in names):
+        raise HdriError(f"{source}: no R, G, B (or Y) channels; the file has {sorted(names)}")
+    for ch in chans:
+        if getattr(ch, "xSampling", 1) != 1 or getattr(ch, "ySampling", 1) != 1:
+            raise HdriError(f"{source}: channel {ch.name} is subsampled; save full-resolution RGB")
+    return names
+
+
 def _read_exr(p: Path, max_texels: int) -> np.ndarray:
     source = str(p)
-    header = _exr_call(source, "header", lambda: OpenEXR.File(source, header_only=True).header())
-    if "dataWindow" not in header:
-        raise HdriError(f"{source}: OpenEXR header lacks a dataWindow")
-    (x0, y0), (x1, y1) = header["dataWindow"]
-    width, height = int(x1) - int(x0) + 1, int(y1) - int(y0) + 1
+    parts = _exr_parts(source)
+    if len(parts) != 1:  # refused from the headers: every part's size is named, none decoded
+        over = [f"part {i} ({name!r}) alone declares {w} x {h} = {w * h} texels, over the "
+                f"limit of {max_texels}" for i, (name, w, h, _) in enumerate(parts)
+                if w > 0 and h > 0 and w * h > max_texels]
+        raise HdriError(
+            f"{source}: a multi-part OpenEXR with {len(parts)} parts ({_part_summary(parts)})"
+            + (f"; {over[0]}" if over else "") + "; a panorama is a single part: re-export "
+            "it alone (e.g. oiiotool in.exr --subimage 0 -o out.exr)")
+    _, width, height, header = parts[0]
     _check_size(width, height, max_texels, source)
     kind = str(header.get("type", ""))
     if "deep" in kind:
         raise HdriError(f"{source}: deep OpenEXR images are not environment maps")
-    for ch in header.get("channels", []):
-        if getattr(ch, "xSampling", 1) != 1 or getattr(ch, "ySampling", 1) != 1:
-            raise HdriError(f"{source}: channel {ch.name} is subsampled; save full-resolution RGB")
+    _check_exr_channels(source, header)
     channels = _exr_call(source, "pixel data",
                          lambda: OpenEXR.File(source, separate_channels=True).channels())
     names = set(channels)
@@ -343,6 +396,10 @@ def _decode_rgbe(data: bytes, height: int, width: int, source: str) -> np.ndarra
             raise HdriError(f"{source}: old-style Radiance run-length encoding is not supported; "
                             "re-save the file (e.g. with oiiotool) as .exr or new-style .hdr")
         return px
+    least = height * (4 + 4 * 2 * -(-width // 127))  # every scanline in runs of 127
+    if len(data) < least:  # before allocating the image
+        raise HdriError(f"{source}: truncated Radiance pixel data ({len(data)} bytes; "
+                        f"{width} x {height} run-length encoded needs at least {least})")
     out = bytearray(4 * width * height)
     pos, n_data = 0, len(data)
     marker = bytes((2, 2, width >> 8, width & 0xFF))

@@ -1,0 +1,222 @@
+"""grassd.sim.hdri refuses a panorama from its headers, before decoding: a multi-part EXR whose
+second part declares 16384 x 8192 (a valid 0.8 MB file that decodes to 768 MiB), an EXR with
+203 channels (a valid 0.4 MB file that decodes to 812 MiB), a Radiance file whose resolution
+line is huge or whose pixel data cannot fill it. Each refusal names the problem and takes
+little time and memory."""
+
+from __future__ import annotations
+
+import os
+import struct
+import threading
+import time
+import zlib
+
+import numpy as np
+import OpenEXR
+import pytest
+
+from grassd.sim import hdri
+from grassd.sim.errors import HdriError
+
+pytestmark = pytest.mark.timeout(120)
+
+MiB = 1 << 20
+
+
+# ------------------------------------------------------------------ a small OpenEXR writer
+# The Python binding needs every pixel in memory to write a part, so the hostile files are
+# written here by hand (OpenEXR file layout 2.0: headers, offset tables, ZIP chunks of zeros).
+
+
+def _attr(name: str, typ: str, value: bytes) -> bytes:
+    return name.encode() + b"\0" + typ.encode() + b"\0" + struct.pack("<i", len(value)) + value
+
+
+def _header(name: str, width: int, height: int, channels: list[str], chunks: int,
+            display: tuple[int, int], multipart: bool) -> bytes:
+    def box(w: int, h: int) -> bytes:
+        return struct.pack("<4i", 0, 0, w - 1, h - 1)
+
+    chlist = b"".join(c.encode() + b"\0" + struct.pack("<iB3xii", 1, 0, 1, 1)  # HALF
+                      for c in sorted(channels)) + b"\0"
+    attrs = [
+        _attr("channels", "chlist", chlist),
+        _attr("compression", "compression", bytes([3])),  # ZIP: 16 scanlines per chunk
+        _attr("dataWindow", "box2i", box(width, height)),
+        _attr("displayWindow", "box2i", box(*display)),
+        _attr("lineOrder", "lineOrder", bytes([0])),
+        _attr("pixelAspectRatio", "float", struct.pack("<f", 1.0)),
+        _attr("screenWindowCenter", "v2f", struct.pack("<2f", 0.0, 0.0)),
+        _attr("screenWindowWidth", "float", struct.pack("<f", 1.0)),
+    ]
+    if multipart:
+        attrs += [_attr("chunkCount", "int", struct.pack("<i", chunks)),
+                  _attr("name", "string", name.encode()),
+                  _attr("type", "string", b"scanlineimage")]
+    return b"".join(attrs) + b"\0"
+
+
+def _zip_zeros(n_bytes: int) -> bytes:
+    """OpenEXR's ZIP of n zero bytes: interleave, delta predictor (+128), zlib."""
+    predicted = np.full(n_bytes, 128, np.uint8)
+    predicted[0] = 0
+    return zlib.compress(predicted.tobytes(), 9)
+
+
+def write_zero_exr(path, parts: list[tuple[str, int, int, list[str]]]) -> int:
+    """Write an all-zero half-float scanline EXR with the given (name, width, height, channels)
+    parts (multi-part when more than one); returns the file's size in bytes."""
+    multipart = len(parts) > 1
+    lines = 16
+    display = (parts[0][1], parts[0][2])
+    counts = [(h + lines - 1) // lines for _, _, h, _ in parts]
+    heads = b"".join(_header(n, w, h, c, k, display, multipart)
+                     for (n, w, h, c), k in zip(parts, counts, strict=True))
+    version = 2 | (0x1000 if multipart else 0)
+    prefix = b"\x76\x2f\x31\x01" + struct.pack("<I", version) + heads + (b"\0" if multipart
+                                                                         else b"")
+    pos = len(prefix) + 8 * sum(counts)
+    offsets, chunks = [], []
+    for idx, (_, w, h, chans) in enumerate(parts):
+        cache: dict[int, bytes] = {}
+        for y in range(0, h, lines):
+            rows = min(lines, h - y)
+            if rows not in cache:
+                cache[rows] = _zip_zeros(rows * len(chans) * w * 2)
+            lead = struct.pack("<iii", idx, y, len(cache[rows])) if multipart else struct.pack(
+                "<ii", y, len(cache[rows]))
+            offsets.append(pos)
+            chunks.append(lead + cache[rows])
+            pos += len(chunks[-1])
+    with open(path, "wb") as fh:
+        fh.write(prefix + struct.pack(f"<{len(offsets)}Q", *offsets) + b"".join(chunks))
+    return pos
+
+
+def _rss() -> int:
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+def refused(path, **kw) -> tuple[str, float, int]:
+    """(error message, seconds, peak RSS growth in bytes, sampled every 2 ms) of loading
+    ``path``, which must raise HdriError."""
+    base = _rss()
+    top = [base]
+    done = threading.Event()
+
+    def sample() -> None:
+        while not done.wait(0.002):
+            top[0] = max(top[0], _rss())
+
+    sampler = threading.Thread(target=sample, daemon=True)
+    sampler.start()
+    t0 = time.perf_counter()
+    try:
+        with pytest.raises(HdriError) as err:
+            hdri.load_hdri(path, **kw)
+    finally:
+        seconds = time.perf_counter() - t0
+        done.set()
+        sampler.join(timeout=5)
+    return str(err.value), seconds, max(top) - base
+
+
+# ------------------------------------------------------------------------------ the writer
+
+
+def test_the_handmade_writer_makes_files_openexr_decodes(tmp_path):
+    write_zero_exr(tmp_path / "one.exr", [("rgb", 16, 8, ["R", "G", "B"])])
+    write_zero_exr(tmp_path / "two.exr", [("rgb", 16, 8, ["R", "G", "B"]),
+                                          ("more", 32, 4, ["R", "G", "B"])])
+    one = OpenEXR.File(str(tmp_path / "one.exr"), separate_channels=True)
+    assert one.channels()["R"].pixels.shape == (8, 16)
+    two = OpenEXR.File(str(tmp_path / "two.exr"), separate_channels=True)
+    assert [p.channels["G"].pixels.shape for p in two.parts] == [(8, 16), (4, 32)]
+    assert not two.parts[1].channels["B"].pixels.any()
+
+
+# ------------------------------------------------------------------------------ multi-part
+
+
+def test_second_part_of_16384_x_8192_is_refused_from_the_headers(tmp_path):
+    path = tmp_path / "two_parts.exr"
+    size = write_zero_exr(path, [("rgb", 2048, 1024, ["R", "G", "B"]),
+                                 ("big", 16384, 8192, ["R", "G", "B"])])
+    assert size < 1 * MiB  # on disk; decoded, part 1 alone is 768 MiB of half floats
+    msg, seconds, rss = refused(path)
+    assert "multi-part OpenEXR with 2 parts" in msg
+    assert "'big' 16384 x 8192" in msg
+    assert "part 1 ('big') alone declares 16384 x 8192 = 134217728 texels" in msg
+    assert "single part" in msg
+    assert seconds < 1.0 and rss < 64 * MiB, (seconds, rss)
+    print(f"\n2-part EXR ({size / 1e3:.0f} kB): refused in {seconds * 1e3:.0f} ms, "
+          f"RSS +{rss / MiB:.1f} MiB")
+
+
+def test_multi_part_file_of_small_parts_is_refused_too(tmp_path):
+    path = tmp_path / "two_small.exr"
+    write_zero_exr(path, [("left", 16, 8, ["R", "G", "B"]), ("right", 16, 8, ["R", "G", "B"])])
+    msg, _, _ = refused(path)
+    assert "2 parts ('left' 16 x 8, 'right' 16 x 8)" in msg
+
+
+# ------------------------------------------------------------------------------ channels
+
+
+def test_203_channels_are_refused_naming_them(tmp_path):
+    path = tmp_path / "many.exr"
+    junk = [f"junk.{i:03d}" for i in range(200)]
+    size = write_zero_exr(path, [("many", 2048, 1024, ["R", "G", "B", *junk])])
+    assert size < 1 * MiB  # decoded: 203 x 4 MiB = 812 MiB
+    msg, seconds, rss = refused(path)
+    assert "203 channels, 200 of them not a panorama's" in msg
+    assert "junk.000, junk.001" in msg and "and 192 more" in msg
+    assert "R, G, B (or Y)" in msg
+    assert seconds < 1.0 and rss < 64 * MiB, (seconds, rss)
+    print(f"\n203-channel EXR ({size / 1e3:.0f} kB): refused in {seconds * 1e3:.0f} ms, "
+          f"RSS +{rss / MiB:.1f} MiB")
+
+
+def test_one_extra_channel_is_named(tmp_path):
+    img = np.ones((4, 8), np.float32)
+    OpenEXR.File({}, {"R": img, "G": img, "B": img, "Z": img}).write(str(tmp_path / "z.exr"))
+    msg, _, _ = refused(tmp_path / "z.exr")
+    assert "4 channels, 1 of them not a panorama's (Z)" in msg
+
+
+@pytest.mark.parametrize("names", [("R", "G", "B", "A"), ("Y",), ("Y", "A")])
+def test_rgb_y_and_alpha_are_accepted(tmp_path, names):
+    img = np.linspace(0.1, 2.0, 32, dtype=np.float32).reshape(4, 8)
+    OpenEXR.File({}, {n: img for n in names}).write(str(tmp_path / "ok.exr"))
+    out = hdri.load_hdri(tmp_path / "ok.exr")
+    np.testing.assert_array_equal(out[..., 0], img)
+
+
+# ------------------------------------------------------------------------------ Radiance
+
+
+def test_hdr_declaring_a_huge_size_is_refused_before_reading(tmp_path):
+    path = tmp_path / "huge.hdr"
+    path.write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 1000000 +X 2000000\n"
+                     + b"\x02\x02\x00\x08" * 16)
+    msg, seconds, rss = refused(path)
+    assert "2000000 x 1000000 = 2000000000000 texels exceeds the limit" in msg
+    assert seconds < 0.5 and rss < 16 * MiB, (seconds, rss)
+
+
+def test_hdr_whose_data_cannot_fill_its_size_is_refused_before_allocating(tmp_path):
+    path = tmp_path / "short.hdr"  # the largest size allowed, 20 bytes of pixels
+    path.write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 4096 +X 8192\n"
+                     + bytes((2, 2, 0x20, 0x00)) + b"\x80\x00" * 8)
+    msg, seconds, rss = refused(path)
+    assert "truncated Radiance pixel data" in msg and "needs at least" in msg
+    assert seconds < 0.5 and rss < 64 * MiB, (seconds, rss)  # not the 128 MiB image
+
+
+def test_a_fifo_is_refused_without_blocking(tmp_path):
+    fifo = tmp_path / "pano.exr"
+    os.mkfifo(fifo)
+    msg, seconds, _ = refused(fifo)
+    assert "not a regular file" in msg and seconds < 1.0
