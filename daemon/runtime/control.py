@@ -208,7 +208,10 @@ class ControlServer:
         if group is None:
             return
         try:
-            gid = group if isinstance(group, int) else grp.getgrnam(group).gr_gid
+            if isinstance(group, int) or group.isdigit():
+                gid = int(group)
+            else:
+                gid = grp.getgrnam(group).gr_gid
             os.chown(self.path, -1, gid)
         except (KeyError, OSError) as exc:
             why = "no such group" if isinstance(exc, KeyError) else exc.strerror

@@ -477,6 +477,12 @@ def test_socket_is_handed_to_the_readers_group(tmp_path, monkeypatch, caplog):
         assert srv.path.stat().st_gid == gid
     finally:
         srv.stop()
+    monkeypatch.setenv(GROUP_ENV, str(gid))  # from the unit's environment, as a number
+    srv = ControlServer(tmp_path / "n.sock", status_handler).start()
+    try:
+        assert srv.path.stat().st_gid == gid
+    finally:
+        srv.stop()
     monkeypatch.setenv(GROUP_ENV, "no-such-group-grassd")
     with caplog.at_level(logging.WARNING):
         srv = ControlServer(tmp_path / "b.sock", status_handler).start()
