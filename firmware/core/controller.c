@@ -215,8 +215,9 @@ static size_t on_get_positions(fw_controller *c, const fw_get_positions *g, uint
     fw_put16(payload, g->first_pixel);
     for (uint16_t i = 0; i < g->count; i++) {
         uint16_t p = (uint16_t)(g->first_pixel + i);
-        fw_put16(payload + 2 + 4 * i, fw_counts_to_um(c->hal->encoder_read(c->hal->ctx, p)));
-        fw_put16(payload + 4 + 4 * i, c->motors.target_um[p]);
+        uint16_t target_um;
+        fw_put16(payload + 2 + 4 * i, fw_motor_position(&c->motors, c->hal, p, &target_um));
+        fw_put16(payload + 4 + 4 * i, target_um);
     }
     return 2u + 4u * g->count;
 }

@@ -47,7 +47,9 @@ typedef struct fw_controller {
 } fw_controller;
 
 /* Power-on: check the configuration, select the active bank, load its table, forget all RAM
- * state, hold the motors where they are. Returns 0, or -1 for an invalid configuration. */
+ * state, hold the motors where they are. Returns 0, or -1 for an invalid configuration.
+ * Call it before the port starts calling fw_tick (it rewrites the hal and pixel count the tick
+ * reads); the motor state itself is set inside critical sections (hal.h). */
 int fw_boot(fw_controller *c, const fw_hal *hal, const fw_config *cfg);
 /* Bytes received from the bus; answers go out through hal->tx. */
 void fw_rx_feed(fw_controller *c, const uint8_t *data, size_t n);
@@ -55,7 +57,8 @@ void fw_rx_feed(fw_controller *c, const uint8_t *data, size_t n);
  * c->wire; also sent with hal->tx), or 0 when nothing is answered. */
 size_t fw_handle_body(fw_controller *c, const uint8_t *body, size_t n);
 /* One period of the motor loop (every FW_TICK_US; on a microcontroller from a timer interrupt
- * of higher priority than the UART, so that no frame can delay it). */
+ * of higher priority than the UART, so that no frame can delay it). What it shares with the
+ * frame handlers (the motors' targets) they only touch inside fw_irq_save / fw_irq_restore. */
 void fw_tick(fw_controller *c);
 
 #endif

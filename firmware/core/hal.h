@@ -30,4 +30,24 @@ typedef struct fw_hal {
     void (*pwm_write)(void *ctx, uint16_t pixel, int16_t duty);
 } fw_hal;
 
+/* Critical sections around data the core shares with an interrupt handler (as Klipper's
+ * src/generic/irq.h). A port may run fw_tick from a timer interrupt (mps2: SysTick; Teensy:
+ * IntervalTimer) while its main context feeds received bytes, so the core brackets every access
+ * to what both touch (the motors' targets and loop state, an encoder read that the tick's plant
+ * may be updating) with
+ *
+ *     fw_irqstatus flag = fw_irq_save();   masks those interrupts, returns the previous state
+ *     ...
+ *     fw_irq_restore(flag);                puts that state back (so sections nest)
+ *
+ * Unlike the rest of the HAL these are plain functions, not fw_hal members: interrupts belong to
+ * the CPU, not to one controller instance. Every port and test program links one pair: Cortex-M
+ * saves PRIMASK and sets it (mrs / cpsid i / msr), the posix port blocks signals
+ * (ports/posix/irq.c), host tests without interrupts use test/irq_none.c. A section lasts at most
+ * one SET_LEVEL frame's targets or one GET_POSITIONS pixel; it must not call back into the
+ * port's tx or storage. */
+typedef uint32_t fw_irqstatus;
+fw_irqstatus fw_irq_save(void);
+void fw_irq_restore(fw_irqstatus flag);
+
 #endif

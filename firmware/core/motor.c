@@ -17,18 +17,33 @@ void fw_motors_init(fw_motors *m, const fw_hal *hal, uint16_t n_pixels)
 {
     /* the motors stay where they are: targets are the current positions */
     for (uint16_t p = 0; p < n_pixels; p++) {
+        fw_irqstatus flag = fw_irq_save();   /* the tick may be running the loop already */
         int32_t enc = hal->encoder_read(hal->ctx, p);
         m->target[p] = enc;
         m->prev_err[p] = 0;
         m->target_um[p] = fw_counts_to_um(enc);
         hal->pwm_write(hal->ctx, p, 0);
+        fw_irq_restore(flag);
     }
 }
 
 void fw_motor_set_target(fw_motors *m, uint16_t pixel, uint16_t um)
 {
+    int32_t counts = fw_um_to_counts(um);   /* the division outside the section */
+    fw_irqstatus flag = fw_irq_save();      /* the tick reads target: never half of a pair */
     m->target_um[pixel] = um;
-    m->target[pixel] = fw_um_to_counts(um);
+    m->target[pixel] = counts;
+    fw_irq_restore(flag);
+}
+
+uint16_t fw_motor_position(const fw_motors *m, const fw_hal *hal, uint16_t pixel,
+                           uint16_t *target_um)
+{
+    fw_irqstatus flag = fw_irq_save();   /* the tick's plant may be moving the encoder */
+    int32_t enc = hal->encoder_read(hal->ctx, pixel);
+    *target_um = m->target_um[pixel];
+    fw_irq_restore(flag);
+    return fw_counts_to_um(enc);
 }
 
 void fw_motors_tick(fw_motors *m, const fw_hal *hal, uint16_t n_pixels)

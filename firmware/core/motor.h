@@ -35,9 +35,17 @@ typedef struct {
     uint16_t target_um[FW_MAX_PIXELS];
 } fw_motors;
 
+/* fw_motors is shared between the main context (targets set and read from frames) and
+ * fw_motors_tick, which a port may run from a timer interrupt: the main-context functions below
+ * take a critical section (fw_irq_save / fw_irq_restore, hal.h) around each access, so the tick
+ * never sees a pixel's target half written (target and target_um are one pair) and never runs
+ * between an init's reads and writes. fw_motors_tick takes none: it is the interrupt. */
 void fw_motors_init(fw_motors *m, const fw_hal *hal, uint16_t n_pixels);
 /* Set a pixel's target length (um). */
 void fw_motor_set_target(fw_motors *m, uint16_t pixel, uint16_t um);
+/* A pixel's encoder position (um) and, in *target_um, its target, read together. */
+uint16_t fw_motor_position(const fw_motors *m, const fw_hal *hal, uint16_t pixel,
+                           uint16_t *target_um);
 /* One control period for every pixel. */
 void fw_motors_tick(fw_motors *m, const fw_hal *hal, uint16_t n_pixels);
 /* Encoder counts -> um (rounded, clamped to 0..65535). */

@@ -9,6 +9,9 @@
  *   every motor rests unpowered it ticks every 50 ms instead (an idle QEMU then sleeps);
  * - configuration: a block at 0x203FFF00 that QEMU's -device loader fills (address, pixels,
  *   max_chunk, uid), defaults when absent.
+ * - critical sections (core/hal.h): PRIMASK saved and set (cpsid i), then put back, around
+ *   everything the main loop shares with SysTick (targets and positions in the core, the tick
+ *   period and clock here);
  * The main loop sleeps (WFI) until an interrupt. */
 #include <stdint.h>
 #include <string.h>
@@ -72,6 +75,21 @@ void uart0_rx_handler(void)
     }
 }
 
+/* Critical sections as Klipper's src/generic/armcm_irq.c: the previous PRIMASK (1 = masked)
+ * comes back, so sections nest; the "memory" clobbers keep the compiler from moving accesses
+ * out of them. */
+fw_irqstatus fw_irq_save(void)
+{
+    uint32_t flag;
+    __asm volatile("mrs %0, primask\n\tcpsid i" : "=r"(flag) : : "memory");
+    return flag;
+}
+
+void fw_irq_restore(fw_irqstatus flag)
+{
+    __asm volatile("msr primask, %0" : : "r"(flag) : "memory");
+}
+
 /* SysTick runs at 1 kHz while a motor moves and at IDLE_TICK_MS while all rest (so that an
  * idle QEMU sleeps); period_now is the period being counted, period_next the one in RVR. */
 #define COUNTS_PER_MS (SYSCLK_HZ / 1000u)
@@ -89,7 +107,7 @@ static void set_period(uint32_t p)
  * motor rests, accounting for the part of an idle period gone. */
 static void wake_motor_loop(void)
 {
-    __asm volatile("cpsid i");
+    fw_irqstatus flag = fw_irq_save();
     moving = 1;
     if (period_now != 1u || period_next != 1u) {
         uint32_t left = SYST_CVR;
@@ -98,7 +116,7 @@ static void wake_motor_loop(void)
         SYST_CVR = 0;   /* restart the count from the new reload value */
         period_now = 1;
     }
-    __asm volatile("cpsie i");
+    fw_irq_restore(flag);
 }
 
 void systick_handler(void)
@@ -183,9 +201,13 @@ int main(void)
             ring_tail = (ring_tail + 1u) % sizeof ring;
             feeding = 1;
             wake_motor_loop();
+            fw_irqstatus flag = fw_irq_save();   /* the clock and its counter as one pair */
             uint32_t ms0 = ms, t0 = SYST_CVR;
+            fw_irq_restore(flag);
             fw_rx_feed(&ctl, &b, 1);
+            flag = fw_irq_save();
             uint32_t t1 = SYST_CVR, ms1 = ms;
+            fw_irq_restore(flag);
             feeding = 0;
             uint32_t ticks = (ms1 - ms0) * (SYST_RVR + 1u) + t0 - t1;   /* counts down */
             if (ticks > fw_stats.max_byte_ticks && ticks < 0x80000000u) {

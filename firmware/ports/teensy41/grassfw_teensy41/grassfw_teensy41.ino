@@ -71,7 +71,29 @@ static int nv_fail_erase(void *, uint32_t, uint32_t) { return -1; }
 
 static uint32_t now_ms(void *) { return millis(); }
 
-static int32_t encoder_read(void *, uint16_t p) { return encoders[p]->read(); }
+// Critical sections of the core (core/hal.h): PRIMASK saved and set, then put back, as on
+// the mps2 port and in Klipper's src/generic/armcm_irq.c.
+extern "C" fw_irqstatus fw_irq_save(void)
+{
+    uint32_t flag;
+    __asm__ volatile("mrs %0, primask\n\tcpsid i" : "=r"(flag) : : "memory");
+    return flag;
+}
+
+extern "C" void fw_irq_restore(fw_irqstatus flag)
+{
+    __asm__ volatile("msr primask, %0" : : "r"(flag) : "memory");
+}
+
+// Encoder::read() ends with interrupts(), which would end a caller's critical section early:
+// put the caller's PRIMASK back after it.
+static int32_t encoder_read(void *, uint16_t p)
+{
+    fw_irqstatus flag = fw_irq_save();
+    int32_t v = encoders[p]->read();
+    fw_irq_restore(flag);
+    return v;
+}
 
 static void pwm_write(void *, uint16_t p, int16_t duty)
 {
