@@ -6,10 +6,18 @@ ProPhoto matrix uses Bradford adaptation, matching :mod:`grassd.calib.colour_spa
 the data by a per-image maximum), with the camera's white balance or given multipliers.
 Both ``rawpy.imread`` and ``postprocess`` are guarded: a truncated file usually opens fine and
 fails only when its pixels are decoded.
+
+A RAW file is not trusted to be what its header says (:func:`open_raw`): its size on disk is
+checked before LibRaw opens it (:data:`MAX_RAW_FILE_BYTES`), and the sensor and image
+dimensions LibRaw reads from the header are checked (:data:`MAX_RAW_PIXELS`) before any pixel
+is unpacked or developed: a 1.5 kB DNG may declare 60000 x 40000 photosites, which LibRaw would
+try to allocate (4.8 GB) and develop (14 GB).
 """
 
 from __future__ import annotations
 
+import os
+import stat
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +31,14 @@ from grassd.calib.regions import extract_checker_patches, quad_mean
 
 #: Full scale of LibRaw's 16-bit output.
 FULL_SCALE: int = 65535
+#: Most photosites (and developed pixels) a RAW file may declare: 4 x 8192 x 4096 = 134 M.
+#: Every camera sensor sold fits (medium format: 102 to 150 Mpx is the largest); a half-size
+#: development of the largest is 8192 x 4096 texels, the largest panorama grassd.sim takes.
+#: Developed at full size it takes about 3.2 GB (16-bit and float32 RGB).
+MAX_RAW_PIXELS: int = 4 * 8192 * 4096
+#: Largest RAW file accepted, in bytes (1 GiB): an uncompressed 16-bit linear DNG (three
+#: samples per pixel) of 134 M pixels is 805 MB with its previews; a THETA Z1 DNG is about 50 MB.
+MAX_RAW_FILE_BYTES: int = 1 << 30
 
 
 @dataclass(frozen=True, eq=False)
@@ -71,6 +87,52 @@ def _wb_params(white_balance: str | Sequence[float]) -> dict:
     return {"user_wb": wb, "use_camera_wb": False, "use_auto_wb": False}
 
 
+def open_raw(path: str | Path) -> rawpy.RawPy:
+    """Open a RAW file with LibRaw once its declared size is known to be sane; the caller
+    closes it (``with open_raw(p) as raw:``).
+
+    Checked before LibRaw reads a byte: a regular file of at most :data:`MAX_RAW_FILE_BYTES`;
+    then, from the header LibRaw parsed (no pixel is unpacked yet), at most
+    :data:`MAX_RAW_PIXELS` photosites on the sensor and pixels in the image.
+
+    Raises:
+        RawReadError: missing, not a regular file, too large (on disk or declared), or not a RAW
+            file LibRaw can open; the message names the size and the limit.
+    """
+    p = Path(path)
+    try:
+        st = os.stat(p)
+    except OSError as exc:
+        raise RawReadError(f"RAW file {p} does not exist or cannot be read "
+                           f"({exc.strerror or exc}); check the path") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise RawReadError(f"RAW file {p} is not a regular file; give the camera's file itself")
+    if st.st_size > MAX_RAW_FILE_BYTES:
+        raise RawReadError(f"RAW file {p} is {st.st_size} bytes, more than the limit of "
+                           f"{MAX_RAW_FILE_BYTES} bytes ({MAX_RAW_FILE_BYTES >> 20} MiB); "
+                           "not a camera RAW grassd develops")
+    try:
+        raw = rawpy.imread(str(p))
+    except (rawpy.LibRawError, OSError, ValueError, MemoryError) as exc:
+        raise RawReadError(
+            f"{p} is not a RAW file LibRaw can open ({_why(exc)}); "
+            "give an unmodified camera RAW or DNG"
+        ) from exc
+    try:
+        sizes = raw.sizes
+        for what, w, h in (("sensor", sizes.raw_width, sizes.raw_height),
+                           ("image", sizes.width, sizes.height)):
+            if w <= 0 or h <= 0 or w * h > MAX_RAW_PIXELS:
+                raise RawReadError(
+                    f"{p} declares a {what} of {w} x {h} = {w * h} pixels, outside 1 to "
+                    f"{MAX_RAW_PIXELS} (the limit); nothing was decoded: the file is corrupt or "
+                    "not a camera's RAW")
+    except BaseException:
+        raw.close()
+        raise
+    return raw
+
+
 def develop_raw(path: str | Path, white_balance: str | Sequence[float] = "camera",
                 half_size: bool = False) -> DevelopedRaw:
     """Develop a RAW file to linear ProPhoto RGB (16-bit precision, returned as float32 0..1).
@@ -84,16 +146,8 @@ def develop_raw(path: str | Path, white_balance: str | Sequence[float] = "camera
         RawReadError: missing, unreadable, truncated, corrupt or non-RAW file.
     """
     p = Path(path)
-    if not p.is_file():
-        raise RawReadError(f"RAW file {p} does not exist or is not a file; check the path")
     params = _wb_params(white_balance)
-    try:
-        raw = rawpy.imread(str(p))
-    except (rawpy.LibRawError, OSError, ValueError) as exc:
-        raise RawReadError(
-            f"{p} is not a RAW file LibRaw can open ({_why(exc)}); "
-            "give an unmodified camera RAW or DNG"
-        ) from exc
+    raw = open_raw(p)
     try:
         with raw:
             rgb16 = raw.postprocess(

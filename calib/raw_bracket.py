@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from grassd.calib.colour_spaces import prophoto_to_rec709
 from grassd.calib.errors import RawReadError
-from grassd.calib.raw import develop_raw
+from grassd.calib.raw import develop_raw, open_raw
 
 #: Fraction of the raw range above which a photosite counts as saturated.
 SATURATION: float = 0.98
@@ -35,8 +35,9 @@ def saturated_texels(path: str | Path) -> NDArray[np.bool_]:
     the sensor (a 27 Mpx THETA Z1 frame would take 210 MB)."""
     import rawpy
 
+    raw_file = open_raw(path)  # its declared size checked before unpacking
     try:
-        with rawpy.imread(str(path)) as raw:
+        with raw_file as raw:
             black = float(np.mean(raw.black_level_per_channel))
             limit = math.ceil(black + SATURATION * (float(raw.white_level) - black))
             data = raw.raw_image_visible
