@@ -16,8 +16,10 @@ requested one may differ from what the camera did.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -118,14 +120,42 @@ def _ratio(v: Any) -> float | None:
     return f if math.isfinite(f) and f > 0 else None
 
 
-def file_exposure(path: Path) -> dict[str, float]:
-    """ExposureTime (s), FNumber and ISO from a JPEG's EXIF ({} for the ones missing)."""
-    from PIL import ExifTags, Image, UnidentifiedImageError
+@contextlib.contextmanager
+def open_shot(path: Path) -> Iterator[Any]:
+    """A shot opened with Pillow, its declared size checked before any pixel is decoded
+    (Pillow's open reads the header only): at most :data:`grassd.sim.hdri.MAX_TEXELS` pixels,
+    the largest panorama a bundle may hold (the merge keeps the shots' size). Raises
+    CameraDownloadError naming the size for a larger one, an unreadable one, or one that
+    Pillow's own decompression-bomb check refuses."""
+    from PIL import Image
+
+    from grassd.sim.hdri import MAX_TEXELS
 
     try:
-        with Image.open(path) as img:
+        img = Image.open(path)
+    except Image.DecompressionBombError as exc:
+        raise CameraDownloadError(f"shot {path.name} declares too many pixels ({exc}); "
+                                  "not decoded") from None
+    except (OSError, ValueError, SyntaxError) as exc:  # UnidentifiedImageError is an OSError
+        raise CameraDownloadError(f"shot {path.name} is not a readable image: {exc}") from None
+    with img:
+        width, height = img.size
+        if width <= 0 or height <= 0 or width * height > MAX_TEXELS:
+            raise CameraDownloadError(
+                f"shot {path.name} declares {width} x {height} = {width * height} pixels, "
+                f"over the limit of {MAX_TEXELS} (the largest panorama grassd takes); not "
+                "decoded: set the camera's fileFormat to a smaller size")
+        yield img
+
+
+def file_exposure(path: Path) -> dict[str, float]:
+    """ExposureTime (s), FNumber and ISO from a JPEG's EXIF ({} for the ones missing)."""
+    from PIL import ExifTags
+
+    try:
+        with open_shot(path) as img:
             sub = img.getexif().get_ifd(ExifTags.IFD.Exif)
-    except (UnidentifiedImageError, OSError) as exc:
+    except (OSError, ValueError, SyntaxError) as exc:
         raise CameraDownloadError(f"shot {path.name} is not a readable image: {exc}") from None
     out: dict[str, float] = {}
     for key, tag in (("exposure_s", ExifTags.Base.ExposureTime),
@@ -206,14 +236,14 @@ def capture_bracket(client: OscClient, plan: BracketPlan, dest: Path) -> list[Sh
 
 def load_codes(shots: list[Shot]) -> list[np.ndarray]:
     """The shots' decoded 8-bit RGB codes, (H, W, 3) uint8 each."""
-    from PIL import Image, UnidentifiedImageError
+    from PIL import Image
 
     out = []
     for s in shots:
         try:
-            with Image.open(s.path) as img:
+            with open_shot(s.path) as img:
                 out.append(np.asarray(img.convert("RGB"), dtype=np.uint8))
-        except (UnidentifiedImageError, OSError) as exc:
+        except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
             raise CameraDownloadError(f"shot {s.path.name} cannot be decoded ({exc}): the "
                                       "download may be corrupt") from None
     return out
