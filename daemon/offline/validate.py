@@ -65,7 +65,7 @@ from grassd.calib.errors import CalibError
 from grassd.calib.exposure import GREY_CARD_Y
 from grassd.calib.length_table import LEVELS, build_length_table, r_squared
 from grassd.calib.ogcd import ogcd_from_lab
-from grassd.calib.raw import develop_raw
+from grassd.calib.raw import develop_raw, open_raw
 from grassd.calib.regions import checker_patch_quads, quad_mask
 from grassd.daemon.config import schema
 from grassd.daemon.config.toml_text import toml_value
@@ -327,8 +327,6 @@ def load_manifest(path: str | Path) -> CaptureManifest:
 def camera_signature(path: Path) -> dict[str, Any]:
     """What identifies the camera of a RAW: make/model (TIFF-based RAWs), colour filter layout,
     white level and LibRaw's colour matrix."""
-    import rawpy
-
     sig: dict[str, Any] = {"make": "", "model": ""}
     try:
         import tifffile
@@ -341,7 +339,7 @@ def camera_signature(path: Path) -> dict[str, Any]:
     except Exception:  # non-TIFF RAW formats (CR3, RAF...) carry no such tags
         pass
     try:
-        with rawpy.imread(str(path)) as raw:
+        with open_raw(path) as raw:
             sig["cfa"] = raw.color_desc.decode(errors="replace") + ":" + "".join(
                 map(str, np.asarray(raw.raw_pattern).ravel()))
             sig["white_level"] = int(raw.white_level)
@@ -419,9 +417,7 @@ def checker_white_balance(path: Path, corners: Sequence[Sequence[float]],
     linear sRGB; normalised to green = 1. Where LibRaw reports no colour matrix the grey is
     made neutral (``wb = mean green / c``).
     """
-    import rawpy
-
-    with rawpy.imread(str(path)) as raw:
+    with open_raw(path) as raw:
         img = raw.raw_image_visible.astype(np.float64)
         colours = np.asarray(raw.raw_colors_visible)
         black = np.asarray(raw.black_level_per_channel, dtype=np.float64)

@@ -129,9 +129,7 @@ class Station:
         self.inbox = Path(inbox)
         self.root = Path(state_dir) / "capture"
         self.modbus = modbus
-        self.client = OscClient(cfg.camera, username=cfg.username or None,
-                                password=cfg.password or None, timeout_s=cfg.timeout_s,
-                                command_timeout_s=cfg.command_timeout_s)
+        self.client = OscClient.from_config(cfg)
         self.captures = 0
         self.last_error: str | None = None
         self._cleaned = False
