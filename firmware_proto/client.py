@@ -16,8 +16,9 @@ Typical use (the daemon reconciling one controller)::
 from __future__ import annotations
 
 import random
+import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -77,16 +78,18 @@ RESTARTABLE_NAKS = frozenset({NakCode.NO_TRANSFER, NakCode.INCOMPLETE, NakCode.C
 #: each chunk just before the request timeout and refused every commit held one push for
 #: ~9 min; now it holds the caller at most this long, then the push fails with
 #: :class:`PushFailed` (transient: the daemon keeps the old table and retries with backoff).
-#: Why 25 s: systemd kills the daemon when it goes ``WatchdogSec=60`` (systemd/grassd.service)
-#: without a ping, and the daemon pings every WatchdogSec/2 = 30 s (runtime/notify.py); a push
-#: that starts just before a ping is due must end before the next 30 s run out, with 5 s to
-#: spare. It also keeps a SIGTERM, honoured between pushes, inside ``TimeoutStopSec=60``.
-#: Enough for a 512-byte table on a line with 1 % byte errors at 115200 baud (12.1 s at most,
-#: README ``bench_noisy_line``) and for 16 per-pixel tables (8 KiB) on a clean line at 9600
-#: baud (~10 s); not for 16 per-pixel tables on a 1 %-error line (83 s measured): that push
-#: fails and ``grassd status`` shows the line as noisy: fix the wiring, or raise
-#: :attr:`RetryPolicy.push_deadline_s` where the watchdog allows.
+#: The wall-clock deadline of one push (s) is this, or the table's bytes over
+#: :data:`MIN_PUSH_BYTES_PER_S`, whichever is longer. 25 s holds a 512-byte table on a line with
+#: 1 % byte errors at 115200 baud (12.1 s at most, README ``bench_noisy_line``) with room.
+#: A stalling controller (each chunk answered just before its timeout, every commit refused)
+#: held one push for 348 s before there was a deadline.
 PUSH_DEADLINE_S = 25.0
+#: The slowest average a push may make (bytes of table per second) before its deadline cuts it:
+#: 16 per-pixel tables (8 KiB) on that 1 %-error line took 83-173 s (48-99 B/s), so their
+#: deadline is 205 s. The daemon's watchdog is fed while chunks are acknowledged
+#: (:attr:`ControllerClient.on_progress`), not only between pushes, and a stop request ends
+#: the push at the next chunk (:attr:`ControllerClient.cancel`): the old table stays active.
+MIN_PUSH_BYTES_PER_S = 40.0
 
 #: Largest payload of each answer type (bytes), to size timeouts at low baud rates.
 _MAX_ANSWER_PAYLOAD = {MsgType.INFO: 16, MsgType.TABLE_STATUS: 21, MsgType.ACK: 1,
@@ -116,12 +119,21 @@ class RetryPolicy:
     #: tries in a row of a chunk that cannot shrink any further before the transfer restarts
     #: (more than ``retries``: at 1 % byte errors a 16-byte chunk gets through 60 % of tries)
     chunk_floor_tries: int = 8
-    #: wall-clock limit of one push_table call, in seconds (see :data:`PUSH_DEADLINE_S`)
+    #: wall-clock limit of one push_table call, in seconds, or the table's size over
+    #: ``min_push_bytes_per_s`` where that is longer (see :data:`PUSH_DEADLINE_S`)
     push_deadline_s: float = PUSH_DEADLINE_S
+    min_push_bytes_per_s: float = MIN_PUSH_BYTES_PER_S
+
+    def push_deadline_for(self, n_bytes: int) -> float:
+        """The wall-clock deadline (s) of a push of ``n_bytes`` bytes of table data."""
+        return max(self.push_deadline_s, n_bytes / self.min_push_bytes_per_s)
 
     def __post_init__(self) -> None:
         if not self.push_deadline_s > 0:
             raise ValueError(f"push_deadline_s must be > 0 s, got {self.push_deadline_s!r}")
+        if not self.min_push_bytes_per_s > 0:
+            raise ValueError(f"min_push_bytes_per_s must be > 0, got "
+                             f"{self.min_push_bytes_per_s!r}")
         if not 1 <= self.min_chunk_bytes <= MAX_CHUNK_DATA:
             raise ValueError(f"min_chunk_bytes must be 1..{MAX_CHUNK_DATA}, got "
                              f"{self.min_chunk_bytes!r}")
@@ -152,8 +164,14 @@ class ControllerClient:
     ``link``: another transport with SerialLink's ``send`` / ``receive`` / ``close`` (e.g. the
     in-process :class:`~.loopback.LoopbackLink` of benchmarks); ``port`` then only names it.
     :attr:`quality` tracks the line (adaptive chunk size, tries without answer).
+    :attr:`on_progress` (if set) is called after every acknowledged table chunk, so that a
+    long push counts as progress (the daemon's watchdog); :attr:`cancel` (if set) ends a push
+    at its next wait once set, as if its deadline had passed (the old table stays active).
     Not thread-safe: use one client per port from one thread (``quality`` may be read from any).
     """
+
+    on_progress: Callable[[], None] | None = None
+    cancel: threading.Event | None = None
 
     def __init__(self, port: str, *, baudrate: int = 115_200,
                  policy: RetryPolicy | None = None, seed: int | None = None,
@@ -170,6 +188,8 @@ class ControllerClient:
         self._info: dict[int, Info] = {}
         #: time.monotonic() by which the push in progress must end (None: no push)
         self._deadline: float | None = None
+        #: the push's last read-back, which a stop request does not cut short
+        self._reading_back = False
 
     # --- plumbing -------------------------------------------------------------------------
     def __enter__(self) -> ControllerClient:
@@ -203,8 +223,12 @@ class ControllerClient:
         self._check_deadline()
 
     def _check_deadline(self) -> None:
-        if self._deadline is not None and time.monotonic() >= self._deadline:
+        if self._deadline is None:
+            return
+        if time.monotonic() >= self._deadline:
             raise _PushDeadline("the push deadline passed")
+        if self.cancel is not None and self.cancel.is_set() and not self._reading_back:
+            raise _PushDeadline("the push was stopped (the daemon is stopping)")
 
     def request(self, address: int, message: Message, *, retries: int | None = None,
                 timeout_s: float | None = None) -> Message:
@@ -332,12 +356,12 @@ class ControllerClient:
         tid = crc if table_id is None else int(table_id)
         if not 0 <= tid <= 0xFFFFFFFF:
             raise TableError(f"table_id must be 0..4294967295, got {tid}")
-        budget = self.policy.push_deadline_s
+        budget = self.policy.push_deadline_for(len(data))
         end = time.monotonic() + budget
         # the read-back of the old table keeps the time of one status request
         self._deadline = end - self._request_timeout(GetStatus())
         last: BaseException | None = None
-        late = False
+        late: _PushDeadline | None = None
         try:
             for _ in range(self.policy.restarts + 1):
                 try:
@@ -348,12 +372,13 @@ class ControllerClient:
                         return status  # already active: nothing to do
                     self._transfer(address, info, tid, kind, n_tables, data, crc)
                     break
-                except _PushDeadline:
-                    late = True
+                except _PushDeadline as exc:
+                    late = exc
                     break
                 except TransientError as exc:
                     last = exc
             self._deadline = end
+            self._reading_back = True
             try:
                 final = self.read_status(address, retries=self.policy.readback_retries)
             except TransientError as exc:
@@ -362,10 +387,13 @@ class ControllerClient:
                                  f"earlier error: {last}", active=None, cause=exc) from None
         finally:
             self._deadline = None
+            self._reading_back = False
         if _table_matches(final, tid, crc):
             return final
         why = last
-        if late:
+        if late is not None and "stopped" in str(late):
+            why = f"{late}; last error: {last}"
+        elif late is not None:
             why = (f"not done within the push deadline of {budget:.1f} s: the controller "
                    f"answers too slowly or refuses the commit; last error: {last}")
         raise PushFailed(f"push of table {tid:#010x} to controller {address} on {self.port} "
@@ -439,6 +467,9 @@ class ControllerClient:
             q.note_chunk(True, size, tail=size < full)
             offset += size
             failed = 0
+            if self.on_progress is not None:
+                self.on_progress()
+            self._check_deadline()  # also a stop request
         return q.chunk_size(limit)
 
 

@@ -34,7 +34,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -97,12 +97,18 @@ def table_checksum(lengths_um: ArrayLike) -> int:
 class Fleet:
     """All configured controllers. ``policy`` sets the protocol client's timeouts and retries;
     ``retry_s``/``retry_max_s`` the reconcile backoff of a controller whose pushes fail
-    (seconds; 0 disables it)."""
+    (seconds; 0 disables it). ``on_progress`` is called after every table chunk a controller
+    acknowledges (the daemon's watchdog counts it as progress); once ``cancel`` is set, a push
+    in progress ends at its next chunk or wait (the old table stays active)."""
 
     def __init__(self, controllers: Sequence[ControllerConfig],
                  policy: RetryPolicy | None = None, probe_retries: int = 1,
-                 retry_s: float = 2.0, retry_max_s: float = 300.0) -> None:
+                 retry_s: float = 2.0, retry_max_s: float = 300.0,
+                 on_progress: Callable[[], None] | None = None,
+                 cancel: threading.Event | None = None) -> None:
         self.controllers = tuple(controllers)
+        self.on_progress = on_progress
+        self.cancel = cancel
         self.policy = policy or RetryPolicy()
         self.probe_retries = probe_retries
         self.retry_s = retry_s
@@ -115,6 +121,7 @@ class Fleet:
         client = self._clients.get(c.port)
         if client is None:
             client = ControllerClient(c.port, baudrate=c.baud, policy=self.policy)
+            client.on_progress, client.cancel = self.on_progress, self.cancel
             self._clients[c.port] = client
         return client
 

@@ -181,7 +181,8 @@ class Service:
                            site=(cfg.site.latitude, cfg.site.longitude),
                            limits=cfg.light.limits)
         self.fleet = Fleet(cfg.controllers, policy=self.policy, retry_s=self.push_retry_s,
-                           retry_max_s=self.push_retry_max_s)  # a reload resets the backoff
+                           retry_max_s=self.push_retry_max_s,  # a reload resets the backoff
+                           on_progress=self._pushed_chunk, cancel=self.stop_event)
         # `grassd controllers` may talk on other ports while we run (see statelock)
         self.lock.note_ports(cfg.serial_ports)
         self.sensor = LuxSensor(cfg.light.modbus) if cfg.light.modbus is not None else None
@@ -189,6 +190,10 @@ class Service:
         self.reports_dir = cfg.state_dir / "reports"
         self.reports_dir.mkdir(parents=True, exist_ok=True)
         self.operator.configure(cfg)
+
+    def _pushed_chunk(self) -> None:
+        """A controller acknowledged a table chunk: a long push is progress too (watchdog)."""
+        self.last_progress = time.monotonic()
 
     def _progress(self, text: str) -> None:
         self.activity = text

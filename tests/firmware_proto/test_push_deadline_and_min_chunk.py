@@ -1,15 +1,18 @@
 """A hostile controller on the bus cannot hold the host: a push ends within its wall-clock
-deadline (the old table stays active, the daemon's fleet reports it), and a controller that asks
-for tiny chunks is refused before anything is sent. Over a real pseudo-terminal."""
+deadline (the old table stays active, the daemon's fleet reports it), a long push reports
+progress per chunk and ends at once when the daemon stops, and a controller that asks for tiny
+chunks is refused before anything is sent. Over a real pseudo-terminal."""
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
 import pytest
 
 from grassd.firmware_proto.client import (
+    MIN_PUSH_BYTES_PER_S,
     PUSH_DEADLINE_S,
     ControllerClient,
     ControllerUnsupported,
@@ -61,9 +64,11 @@ def _table(seed: int, shape: tuple[int, ...] = (N_PIXELS, 256)) -> np.ndarray:
 
 
 def _policy(**kw) -> RetryPolicy:
-    # restarts: enough that the deadline, not their count, ends the push
-    return RetryPolicy(timeout_s=TIMEOUT_S, retries=2, backoff_s=0.005, restarts=20,
-                       push_deadline_s=DEADLINE_S, **kw)
+    # restarts: enough that the deadline, not their count, ends the push; the deadline of
+    # every table size is DEADLINE_S (no allowance per byte) unless a test sets one
+    kw.setdefault("min_push_bytes_per_s", 1e9)
+    kw.setdefault("push_deadline_s", DEADLINE_S)
+    return RetryPolicy(timeout_s=TIMEOUT_S, retries=2, backoff_s=0.005, restarts=20, **kw)
 
 
 @pytest.fixture
@@ -76,11 +81,39 @@ def stalling(tmp_path):
         assert bus.errors == 0
 
 
-def test_default_deadline_fits_the_watchdog():
-    # systemd/grassd.service: WatchdogSec=60, pinged every 30 s: a push must end inside 30 s
-    assert RetryPolicy().push_deadline_s == PUSH_DEADLINE_S <= 30
+def test_deadline_grows_with_the_table_beyond_the_base():
+    p = RetryPolicy()
+    assert p.push_deadline_for(512) == PUSH_DEADLINE_S == 25.0  # one global table
+    # 16 per-pixel tables: 83-173 s measured on a line with 1 % byte errors at 115200 baud
+    assert p.push_deadline_for(16 * 512) == 16 * 512 / MIN_PUSH_BYTES_PER_S > 173
     with pytest.raises(ValueError, match="push_deadline_s"):
         RetryPolicy(push_deadline_s=0)
+    with pytest.raises(ValueError, match="min_push_bytes_per_s"):
+        RetryPolicy(min_push_bytes_per_s=0)
+
+
+def test_a_slow_push_reports_progress_per_chunk_and_ends_when_the_daemon_stops(stalling):
+    bus, ctl = stalling
+    ctl.stall_s = 0.01
+    stop = threading.Event()
+    chunks: list[float] = []
+
+    def progress():
+        chunks.append(time.monotonic())
+        if len(chunks) == 20:
+            stop.set()  # SIGTERM arrives in the middle of the transfer
+
+    with ControllerClient(bus.path, policy=_policy(push_deadline_s=30.0), seed=3) as client:
+        assert client.push_table(1, _table(1), table_id=1).table_id == 1
+        client.on_progress, client.cancel = progress, stop
+        ctl.hostile = True
+        t0 = time.monotonic()
+        with pytest.raises(PushFailed) as exc:
+            client.push_table(1, _table(2), table_id=2)
+        held_s = time.monotonic() - t0
+    assert len(chunks) == 20 and held_s < 5.0, held_s  # not the 30 s deadline
+    assert "stopped" in str(exc.value) and exc.value.active.table_id == 1
+    assert np.array_equal(ctl.active_table(), _table(1))
 
 
 @pytest.mark.parametrize("shape, stall_s, commits", [
