@@ -16,8 +16,10 @@ import os
 import shutil
 import socket
 import stat
+import struct
 import tempfile
 import threading
+import zlib
 from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
@@ -38,41 +40,37 @@ def _sky(tmp: Path) -> None:
     shutil.copy(SITE, tmp / "sky.exr")
 
 
-def _manifest(tmp: Path) -> None:
-    (tmp / "manifest.toml").write_text(MANIFEST)
-
-
-def fifo_manifest(tmp: Path) -> None:
+def fifo_manifest(tmp: Path, manifest: str = MANIFEST) -> None:
     """manifest.toml is a FIFO (an open() without O_NONBLOCK blocks for ever)."""
     _sky(tmp)
     os.mkfifo(tmp / "manifest.toml")
 
 
-def dev_zero_manifest(tmp: Path) -> None:
+def dev_zero_manifest(tmp: Path, manifest: str = MANIFEST) -> None:
     """manifest.toml is a link to /dev/zero (a read without a cap never ends)."""
     _sky(tmp)
     os.symlink("/dev/zero", tmp / "manifest.toml")
 
 
-def nested_toml_100k(tmp: Path) -> None:
+def nested_toml_100k(tmp: Path, manifest: str = MANIFEST) -> None:
     """100 kB of nested TOML arrays (over the manifest cap)."""
     _sky(tmp)
     (tmp / "manifest.toml").write_text("x = " + "[" * 50_000 + "]" * 50_000 + "\n")
 
 
-def nested_toml(tmp: Path) -> None:
+def nested_toml(tmp: Path, manifest: str = MANIFEST) -> None:
     """40 kB of nested TOML arrays: under the cap, past the parser's recursion limit."""
     _sky(tmp)
     (tmp / "manifest.toml").write_text("x = " + "[" * 20_000 + "]" * 20_000 + "\n")
 
 
-def nested_json(tmp: Path) -> None:
+def nested_json(tmp: Path, manifest: str = MANIFEST) -> None:
     """40 kB of nested JSON arrays: under the cap, past the parser's recursion limit."""
     _sky(tmp)
     (tmp / "manifest.json").write_text('{"x": ' + "[" * 20_000 + "]" * 20_000 + "}")
 
 
-def reason_txt_directory(tmp: Path) -> None:
+def reason_txt_directory(tmp: Path, manifest: str = MANIFEST) -> None:
     """A bad bundle holding a directory named reason.txt (where the reason is written)."""
     _sky(tmp)
     (tmp / "reason.txt").mkdir()
@@ -80,89 +78,175 @@ def reason_txt_directory(tmp: Path) -> None:
     (tmp / "manifest.toml").write_text("this is not TOML [[[\n")
 
 
-def huge_manifest_missing_file(tmp: Path) -> None:
+def huge_manifest_missing_file(tmp: Path, manifest: str = MANIFEST) -> None:
     """A 3 MB manifest naming a file that never arrives (parsed again on every scan)."""
-    (tmp / "manifest.toml").write_text(MANIFEST + "# " + "x" * 3_000_000 + "\n")
+    (tmp / "manifest.toml").write_text(manifest + "# " + "x" * 3_000_000 + "\n")
 
 
-def hdri_link_to_huge_file(tmp: Path) -> None:
+def hdri_link_to_huge_file(tmp: Path, manifest: str = MANIFEST) -> None:
     """The HDRI is a link to a 4 GiB (sparse) readable file: hashing it takes minutes."""
     huge = tmp.parent.parent / "huge.bin"
     with open(huge, "wb") as fh:
         fh.truncate(4 << 30)
     os.symlink(huge, tmp / "sky.exr")
-    _manifest(tmp)
+    (tmp / "manifest.toml").write_text(manifest)
 
 
-def hdri_dev_zero(tmp: Path) -> None:
+def hdri_dev_zero(tmp: Path, manifest: str = MANIFEST) -> None:
     """The HDRI is a link to /dev/zero."""
     os.symlink("/dev/zero", tmp / "sky.exr")
-    _manifest(tmp)
+    (tmp / "manifest.toml").write_text(manifest)
 
 
-def hdri_fifo(tmp: Path) -> None:
+def hdri_fifo(tmp: Path, manifest: str = MANIFEST) -> None:
     """The HDRI is a FIFO."""
     os.mkfifo(tmp / "sky.exr")
-    _manifest(tmp)
+    (tmp / "manifest.toml").write_text(manifest)
 
 
-def hdri_device(tmp: Path) -> None:
+def hdri_device(tmp: Path, manifest: str = MANIFEST) -> None:
     """The HDRI is a character device with /dev/zero's numbers (needs root: else a FIFO)."""
     if os.geteuid() == 0:
         os.mknod(tmp / "sky.exr", 0o600 | stat.S_IFCHR, os.makedev(1, 5))
     else:
         os.mkfifo(tmp / "sky.exr")
-    _manifest(tmp)
+    (tmp / "manifest.toml").write_text(manifest)
 
 
-def hdri_socket(tmp: Path) -> None:
+def hdri_socket(tmp: Path, manifest: str = MANIFEST) -> None:
     """The HDRI is a Unix socket."""
     s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     try:
         s.bind(str(tmp / "sky.exr"))
     finally:
         s.close()
-    _manifest(tmp)
+    (tmp / "manifest.toml").write_text(manifest)
 
 
-def hdri_hard_link(tmp: Path) -> None:
+def hdri_hard_link(tmp: Path, manifest: str = MANIFEST) -> None:
     """The HDRI is a hard link to someone else's file."""
     other = tmp.parent.parent / f"someone-elses-{tmp.name}.exr"
     shutil.copy(SITE, other)
     os.link(other, tmp / "sky.exr")
-    _manifest(tmp)
+    (tmp / "manifest.toml").write_text(manifest)
 
 
-def hdri_directory(tmp: Path) -> None:
+def hdri_directory(tmp: Path, manifest: str = MANIFEST) -> None:
     """A directory where the HDRI file belongs."""
     (tmp / "sky.exr").mkdir()
-    _manifest(tmp)
+    (tmp / "manifest.toml").write_text(manifest)
 
 
-def stray_fifo(tmp: Path) -> None:
+def stray_fifo(tmp: Path, manifest: str = MANIFEST) -> None:
     """A valid bundle plus a FIFO the manifest does not name."""
     _sky(tmp)
     os.mkfifo(tmp / "notes.txt")
-    _manifest(tmp)
+    (tmp / "manifest.toml").write_text(manifest)
 
 
-def too_many_entries(tmp: Path) -> None:
+def too_many_entries(tmp: Path, manifest: str = MANIFEST) -> None:
     """A valid bundle plus 200 small files."""
     _sky(tmp)
     for k in range(200):
         (tmp / f"extra{k}.txt").write_text("x")
-    _manifest(tmp)
+    (tmp / "manifest.toml").write_text(manifest)
 
 
-def not_utf8(tmp: Path) -> None:
+def not_utf8(tmp: Path, manifest: str = MANIFEST) -> None:
     """A manifest that is not UTF-8."""
     _sky(tmp)
     (tmp / "manifest.toml").write_bytes(b'timestamp = 2026-06-21T08:00:00+09:00\n'
                                         b'hdri = "\xff\xfe"\n')
 
 
+# --------------------------------------------------------------------------- hostile EXRs
+# The Python binding needs every pixel in memory to write a part, so the hostile files are
+# written here by hand (OpenEXR file layout 2.0: headers, offset tables, ZIP chunks of zeros).
+
+
+def _attr(name: str, typ: str, value: bytes) -> bytes:
+    return name.encode() + b"\0" + typ.encode() + b"\0" + struct.pack("<i", len(value)) + value
+
+
+def _header(name: str, width: int, height: int, channels: list[str], chunks: int,
+            display: tuple[int, int], multipart: bool) -> bytes:
+    def box(w: int, h: int) -> bytes:
+        return struct.pack("<4i", 0, 0, w - 1, h - 1)
+
+    chlist = b"".join(c.encode() + b"\0" + struct.pack("<iB3xii", 1, 0, 1, 1)  # HALF
+                      for c in sorted(channels)) + b"\0"
+    attrs = [
+        _attr("channels", "chlist", chlist),
+        _attr("compression", "compression", bytes([3])),  # ZIP: 16 scanlines per chunk
+        _attr("dataWindow", "box2i", box(width, height)),
+        _attr("displayWindow", "box2i", box(*display)),
+        _attr("lineOrder", "lineOrder", bytes([0])),
+        _attr("pixelAspectRatio", "float", struct.pack("<f", 1.0)),
+        _attr("screenWindowCenter", "v2f", struct.pack("<2f", 0.0, 0.0)),
+        _attr("screenWindowWidth", "float", struct.pack("<f", 1.0)),
+    ]
+    if multipart:
+        attrs += [_attr("chunkCount", "int", struct.pack("<i", chunks)),
+                  _attr("name", "string", name.encode()),
+                  _attr("type", "string", b"scanlineimage")]
+    return b"".join(attrs) + b"\0"
+
+
+def _zip_zeros(n_bytes: int) -> bytes:
+    """OpenEXR's ZIP of n zero bytes: interleave, delta predictor (+128), zlib."""
+    predicted = np.full(n_bytes, 128, np.uint8)
+    predicted[0] = 0
+    return zlib.compress(predicted.tobytes(), 9)
+
+
+def write_zero_exr(path, parts: list[tuple[str, int, int, list[str]]]) -> int:
+    """Write an all-zero half-float scanline EXR with the given (name, width, height, channels)
+    parts (multi-part when more than one); returns the file's size in bytes."""
+    multipart = len(parts) > 1
+    lines = 16
+    display = (parts[0][1], parts[0][2])
+    counts = [(h + lines - 1) // lines for _, _, h, _ in parts]
+    heads = b"".join(_header(n, w, h, c, k, display, multipart)
+                     for (n, w, h, c), k in zip(parts, counts, strict=True))
+    version = 2 | (0x1000 if multipart else 0)
+    prefix = b"\x76\x2f\x31\x01" + struct.pack("<I", version) + heads + (b"\0" if multipart
+                                                                         else b"")
+    pos = len(prefix) + 8 * sum(counts)
+    offsets, chunks = [], []
+    for idx, (_, w, h, chans) in enumerate(parts):
+        cache: dict[int, bytes] = {}
+        for y in range(0, h, lines):
+            rows = min(lines, h - y)
+            if rows not in cache:
+                cache[rows] = _zip_zeros(rows * len(chans) * w * 2)
+            lead = struct.pack("<iii", idx, y, len(cache[rows])) if multipart else struct.pack(
+                "<ii", y, len(cache[rows]))
+            offsets.append(pos)
+            chunks.append(lead + cache[rows])
+            pos += len(chunks[-1])
+    with open(path, "wb") as fh:
+        fh.write(prefix + struct.pack(f"<{len(offsets)}Q", *offsets) + b"".join(chunks))
+    return pos
+
+
+def exr_second_part_huge(tmp: Path, manifest: str = MANIFEST) -> None:
+    """A valid two-part EXR whose second part declares 16384 x 8192 (0.8 MB on disk, 768 MiB
+    decoded)."""
+    write_zero_exr(tmp / "sky.exr", [("sky", 64, 32, ["B", "G", "R"]),
+                                     ("extra", 16384, 8192, ["B", "G", "R"])])
+    (tmp / "manifest.toml").write_text(manifest)
+
+
+def exr_203_channels(tmp: Path, manifest: str = MANIFEST) -> None:
+    """A valid EXR of 1024 x 512 with 203 channels (0.4 MB on disk, 203 MiB decoded)."""
+    write_zero_exr(tmp / "sky.exr", [("sky", 1024, 512, ["B", "G", "R"] + [
+        f"junk.{k:03d}" for k in range(200)])])
+    (tmp / "manifest.toml").write_text(manifest)
+
+
 #: attack name -> (fills a bundle directory, a word its rejection reason holds)
-ATTACKS: dict[str, tuple[Callable[[Path], None], str]] = {
+#: (``build(directory, manifest)``: ``manifest`` is a valid manifest the attack may use)
+ATTACKS: dict[str, tuple[Callable[[Path, str], None], str]] = {
     "fifo-manifest": (fifo_manifest, "FIFO"),
     "dev-zero-manifest": (dev_zero_manifest, "symbolic link"),
     "nested-toml-100k": (nested_toml_100k, "over the cap"),
@@ -180,15 +264,19 @@ ATTACKS: dict[str, tuple[Callable[[Path], None], str]] = {
     "stray-fifo": (stray_fifo, "FIFO"),
     "too-many-entries": (too_many_entries, "more than"),
     "not-utf8": (not_utf8, "not valid TOML"),
+    "exr-second-part-16384x8192": (exr_second_part_huge, "part"),
+    "exr-203-channels": (exr_203_channels, "203 channels"),
 }
 
 
-def drop_attack(inbox: Path, name: str, build: Callable[[Path], None]) -> Path:
+def drop_attack(inbox: Path, name: str, build: Callable[[Path, str], None],
+                manifest: str = MANIFEST) -> Path:
     """Make a directory bundle ``name`` in ``inbox`` as an uploader would: a hidden name that
-    ``build`` fills, then one rename."""
+    ``build`` fills (``manifest``: the valid manifest it may use, e.g. with light newer than
+    the active table's, so that the daemon reads its HDRI), then one rename."""
     tmp = inbox / f".{name}"
     tmp.mkdir(parents=True)
-    build(tmp)
+    build(tmp, manifest)
     os.rename(tmp, inbox / name)
     return inbox / name
 

@@ -7,91 +7,20 @@ little time and memory."""
 from __future__ import annotations
 
 import os
-import struct
 import threading
 import time
-import zlib
 
 import numpy as np
 import OpenEXR
 import pytest
 
+from bench.inbox_fuzz import write_zero_exr
 from grassd.sim import hdri
 from grassd.sim.errors import HdriError
 
 pytestmark = pytest.mark.timeout(120)
 
 MiB = 1 << 20
-
-
-# ------------------------------------------------------------------ a small OpenEXR writer
-# The Python binding needs every pixel in memory to write a part, so the hostile files are
-# written here by hand (OpenEXR file layout 2.0: headers, offset tables, ZIP chunks of zeros).
-
-
-def _attr(name: str, typ: str, value: bytes) -> bytes:
-    return name.encode() + b"\0" + typ.encode() + b"\0" + struct.pack("<i", len(value)) + value
-
-
-def _header(name: str, width: int, height: int, channels: list[str], chunks: int,
-            display: tuple[int, int], multipart: bool) -> bytes:
-    def box(w: int, h: int) -> bytes:
-        return struct.pack("<4i", 0, 0, w - 1, h - 1)
-
-    chlist = b"".join(c.encode() + b"\0" + struct.pack("<iB3xii", 1, 0, 1, 1)  # HALF
-                      for c in sorted(channels)) + b"\0"
-    attrs = [
-        _attr("channels", "chlist", chlist),
-        _attr("compression", "compression", bytes([3])),  # ZIP: 16 scanlines per chunk
-        _attr("dataWindow", "box2i", box(width, height)),
-        _attr("displayWindow", "box2i", box(*display)),
-        _attr("lineOrder", "lineOrder", bytes([0])),
-        _attr("pixelAspectRatio", "float", struct.pack("<f", 1.0)),
-        _attr("screenWindowCenter", "v2f", struct.pack("<2f", 0.0, 0.0)),
-        _attr("screenWindowWidth", "float", struct.pack("<f", 1.0)),
-    ]
-    if multipart:
-        attrs += [_attr("chunkCount", "int", struct.pack("<i", chunks)),
-                  _attr("name", "string", name.encode()),
-                  _attr("type", "string", b"scanlineimage")]
-    return b"".join(attrs) + b"\0"
-
-
-def _zip_zeros(n_bytes: int) -> bytes:
-    """OpenEXR's ZIP of n zero bytes: interleave, delta predictor (+128), zlib."""
-    predicted = np.full(n_bytes, 128, np.uint8)
-    predicted[0] = 0
-    return zlib.compress(predicted.tobytes(), 9)
-
-
-def write_zero_exr(path, parts: list[tuple[str, int, int, list[str]]]) -> int:
-    """Write an all-zero half-float scanline EXR with the given (name, width, height, channels)
-    parts (multi-part when more than one); returns the file's size in bytes."""
-    multipart = len(parts) > 1
-    lines = 16
-    display = (parts[0][1], parts[0][2])
-    counts = [(h + lines - 1) // lines for _, _, h, _ in parts]
-    heads = b"".join(_header(n, w, h, c, k, display, multipart)
-                     for (n, w, h, c), k in zip(parts, counts, strict=True))
-    version = 2 | (0x1000 if multipart else 0)
-    prefix = b"\x76\x2f\x31\x01" + struct.pack("<I", version) + heads + (b"\0" if multipart
-                                                                         else b"")
-    pos = len(prefix) + 8 * sum(counts)
-    offsets, chunks = [], []
-    for idx, (_, w, h, chans) in enumerate(parts):
-        cache: dict[int, bytes] = {}
-        for y in range(0, h, lines):
-            rows = min(lines, h - y)
-            if rows not in cache:
-                cache[rows] = _zip_zeros(rows * len(chans) * w * 2)
-            lead = struct.pack("<iii", idx, y, len(cache[rows])) if multipart else struct.pack(
-                "<ii", y, len(cache[rows]))
-            offsets.append(pos)
-            chunks.append(lead + cache[rows])
-            pos += len(chunks[-1])
-    with open(path, "wb") as fh:
-        fh.write(prefix + struct.pack(f"<{len(offsets)}Q", *offsets) + b"".join(chunks))
-    return pos
 
 
 def _rss() -> int:

@@ -55,7 +55,8 @@ def daemon(tmp_path_factory):
 @pytest.mark.parametrize("attack", sorted(ATTACKS))
 def test_hostile_bundle_rejected_and_daemon_goes_on(daemon, attack):
     build, word = ATTACKS[attack]
-    drop_attack(daemon.state / "inbox", attack, build)
+    # light newer than any before, so that the daemon reads the HDRI (older is superseded)
+    drop_attack(daemon.state / "inbox", attack, build, manifest(next(_counter), lux=1000.0))
     reason = _rejected_reason(daemon, attack)
     print(f"\n  {attack}: {reason.strip()[:200]}")
     assert word in reason
