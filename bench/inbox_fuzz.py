@@ -284,7 +284,8 @@ def drop_attack(inbox: Path, name: str, build: Callable[[Path, str], None],
 # --------------------------------------------------------------------------- random bundles
 
 _NAME_PARTS = ["sky", "b", "evil\nSTATUS=x", "\x1b[31mred", "ünïcødé", "-rf", "a b",
-               "<script>", "%s%n", "x" * 120, "\t", "..", "manifest", "reason.txt"]
+               "<script>", "%s%n", "x" * 120, "\t", "..", "manifest", "reason.txt",
+               "not-utf8-\udcff\udcfe"]  # bytes 0xff 0xfe, as os.fsdecode gives them
 _KINDS = ["regular", "regular", "regular", "regular", "fifo", "link-dev-zero",
           "link-missing", "directory", "socket", "hard-link", "giant", "missing"]
 
@@ -292,7 +293,7 @@ _KINDS = ["regular", "regular", "regular", "regular", "fifo", "link-dev-zero",
 def _name(rng: np.random.Generator, k: int) -> str:
     parts = [str(p) for p in rng.choice(_NAME_PARTS, size=int(rng.integers(1, 3)))]
     name = "".join(parts).replace("/", "_") + f"-{k}"
-    return name.encode()[-200:].decode("utf-8", errors="ignore").lstrip(".") or f"n{k}"
+    return os.fsdecode(os.fsencode(name)[-200:]).lstrip(".") or f"n{k}"
 
 
 def _entry(rng: np.random.Generator, path: Path, kind: str, content: bytes, scratch: Path
@@ -328,7 +329,7 @@ def _entry(rng: np.random.Generator, path: Path, kind: str, content: bytes, scra
 
 
 def _manifest_bytes(rng: np.random.Generator, hdri: str) -> bytes:
-    text = MANIFEST.replace("sky.exr", hdri).encode()
+    text = MANIFEST.replace("sky.exr", hdri).encode("utf-8", "surrogateescape")
     op = 0 if rng.random() < 0.25 else int(rng.integers(1, 9))
     if op == 0:
         return text

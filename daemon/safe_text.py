@@ -63,3 +63,17 @@ def one_line(text: object, max_chars: int | None = MAX_NAME_CHARS) -> str:
         kept.append(piece)
         n += len(piece)
     return "".join(kept)  # not reached: the escaped text was longer than max_chars
+
+
+_SURROGATE = re.compile("[\ud800-\udfff]")
+
+
+def storable(text: str) -> str:
+    """``text`` made encodable as UTF-8 (for a database, a file, JSON): lone surrogates (the
+    undecodable bytes of a file name, or a ``\\ud800`` escape in JSON) become visible escapes
+    as in :func:`one_line`; everything else, line breaks included, is kept.
+
+    >>> storable("bad" + bytes([0xff]).decode("utf-8", "surrogateescape") + "name\\n")
+    'bad\\\\xffname\\n'
+    """
+    return _SURROGATE.sub(lambda m: _escape(m.group()), text)

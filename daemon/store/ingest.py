@@ -83,6 +83,7 @@ from zoneinfo import ZoneInfo
 from grassd.daemon.config import schema
 from grassd.daemon.config.limits import DEFAULT_LIMITS, BundleLimits
 from grassd.daemon.errors import IngestError, ManifestError
+from grassd.daemon.safe_text import storable
 from grassd.daemon.store.atomic import atomic_write_text, fsync_dir
 from grassd.daemon.store.history import History
 from grassd.daemon.store.outcomes import QUARANTINED_PREFIX
@@ -514,18 +515,21 @@ class Inbox:
                     base = Path(e.path)
                     found = [base / m for m in MANIFEST_NAMES if os.path.lexists(base / m)]
                     if len(found) > 1:
-                        out.append(_Candidate(e.name, found[0], [base], None, "bundle has both "
-                                              "manifest.toml and manifest.json", []))
+                        out.append(_Candidate(storable(e.name), found[0], [base], None,
+                                              "bundle has both manifest.toml and "
+                                              "manifest.json", []))
                         continue
-                    out.append(self._examine(e.name, found[0] if found else None, base, [base]))
+                    out.append(self._examine(storable(e.name), found[0] if found else None,
+                                             base, [base]))
                 elif e.name.endswith(FLAT_SUFFIXES):
                     name = e.name[: -len(next(s for s in FLAT_SUFFIXES if e.name.endswith(s)))]
-                    out.append(self._examine(name, Path(e.path), self.inbox, None, flat))
+                    out.append(self._examine(storable(name), Path(e.path), self.inbox, None,
+                                             flat))
             except (OSError, sqlite3.Error):
                 raise
             except Exception as exc:  # noqa: BLE001 - hostile input must not stop the scan
                 log.exception("inbox: examining %r failed", e.name)
-                out.append(_Candidate(e.name, None, [Path(e.path)], None,
+                out.append(_Candidate(storable(e.name), None, [Path(e.path)], None,
                                       f"could not be examined: {type(exc).__name__}: {exc}", []))
         for gone in set(self._parsed) - {c.manifest for c in out}:
             del self._parsed[gone]
@@ -1030,6 +1034,7 @@ class Inbox:
 
     def _finish_dir(self, d: Path, bid: str, h: str | None, reason: str,
                     run_id: int | None = None) -> Path:
+        reason = storable(reason)  # it may quote names that are not UTF-8
         self._write_reason(d, reason)
         dest = self.rejected / bid
         self._rename(d, dest)

@@ -86,6 +86,31 @@ def test_valid_bundle_with_a_newline_in_its_name_is_processed(daemon):
     _valid_after(daemon)
 
 
+def test_names_that_are_not_utf8_and_lone_surrogates(daemon):
+    """A directory name with a byte that is not UTF-8 (a file name decodes it to a lone
+    surrogate, which SQLite and reason.txt cannot store) is processed under an escaped name;
+    a JSON manifest whose strings hold lone surrogates is rejected with a reason."""
+    inbox = os.fsencode(daemon.state / "inbox")
+    i = next(_counter)
+    tmp = daemon.state / "inbox" / ".bytes"
+    tmp.mkdir()
+    shutil.copy(SITE, tmp / "sky.exr")
+    (tmp / "manifest.toml").write_text(manifest(i, lux=3000.0))
+    os.rename(os.fsencode(tmp), inbox + b"/bad\xffname")
+    wait_for(lambda: any(p.name.endswith("-bad_xffname") for p in (daemon.state / "archive")
+                         .iterdir()), WAIT_S, "the bundle with a non-UTF-8 name archived", daemon)
+    tmp = daemon.state / "inbox" / ".surrogates"
+    tmp.mkdir()
+    shutil.copy(SITE, tmp / "sky.exr")
+    (tmp / "manifest.json").write_text(json.dumps({
+        "timestamp": "2026-06-21T12:00:00+09:00", "hdri": "\ud800.exr",
+        "capture": {"note": "\udcff"}}))
+    os.rename(tmp, daemon.state / "inbox" / "surrogates")
+    reason = _rejected_reason(daemon, "surrogates")
+    assert "\\ud800" in reason
+    _valid_after(daemon)
+
+
 def test_daemon_starts_again_on_the_same_state_directory(daemon):
     """After every attack above (module order: this test runs last), a restart comes up and
     still processes bundles; a bundle stranded in processing/ with a reason.txt directory and
