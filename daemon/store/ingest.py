@@ -649,7 +649,17 @@ class Inbox:
                 # daemon (a parser's RecursionError, a name no file system takes, ...)
                 log.exception("inbox: bundle %r could not be handled", c.name)
                 self._watch.pop(c.name, None)
-                self._claim_and_reject(c, f"could not be handled: {type(exc).__name__}: {exc}")
+                try:
+                    self._claim_and_reject(c, f"could not be handled: {type(exc).__name__}: "
+                                              f"{exc}")
+                except Exception as again:  # noqa: BLE001 - left in the inbox, tried later
+                    prev = self._stuck.get(c.name)
+                    delay = STUCK_RETRY_S if prev is None else min(prev.delay_s * 2,
+                                                                   STUCK_RETRY_MAX_S)
+                    msg = (f"bundle {c.name} can be neither processed nor rejected "
+                           f"({type(again).__name__}: {again}); remove it from the inbox")
+                    self._stuck[c.name] = _Stuck(msg, now + delay, delay, self._access_key(c))
+                    log.error("%s (tried again in %g s)", msg, delay)
         for gone in set(self._watch) - names:
             del self._watch[gone]
         for gone in set(self._stuck) - names:

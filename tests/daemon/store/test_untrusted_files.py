@@ -157,3 +157,21 @@ def test_flat_bundle_files_are_named_after_it(env):
     [row] = h.journal("rejected")
     assert row.name == "w" and "w.<something>" in row.reason
     assert (inbox.inbox / "z.exr").exists(), "a file of no bundle of this name was moved"
+
+
+def test_a_bundle_that_can_be_neither_processed_nor_rejected_waits_in_the_inbox(env,
+                                                                                monkeypatch):
+    inbox, h, clock = env
+    make_dir_bundle(inbox.inbox, "cursed")
+
+    def broken(*a, **kw):
+        raise ValueError("a bug met on one bundle")
+
+    monkeypatch.setattr(ingest, "parse_manifest", broken)
+    monkeypatch.setattr(h, "journal_claim", broken)
+    inbox.poll()
+    clock.t += 1.5
+    assert inbox.poll() == []  # no exception reaches the main loop
+    [problem] = inbox.problems()
+    assert "cursed can be neither processed nor rejected" in problem
+    assert (inbox.inbox / "cursed").is_dir()
