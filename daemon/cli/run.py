@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import click
@@ -242,6 +243,12 @@ def status_cmd(config_path: str | None, state_dir: str | None, as_json: bool) ->
         st = request(cfg.control_socket, {"cmd": "status"}, timeout_s=10)["status"]
     except DaemonNotRunning:
         db = cfg.state_dir / STATE_DB
+        if (db.parent.is_dir() and not os.access(db.parent, os.X_OK)) or (
+                db.exists() and not os.access(db, os.R_OK)):
+            raise HistoryError(
+                f"no daemon running, and the state database {db} is readable by the daemon's "
+                "user only: ask while the daemon runs (members of group grassd-status may), "
+                "or run this as root or as user grassd") from None
         if not db.exists():
             raise HistoryError(f"no daemon running and no state database at {db}") from None
         with History(db) as h:
