@@ -6,7 +6,13 @@
    the seconds until the bundle was in rejected/ and the peak RSS (``VmHWM``) meanwhile, beside
    the daemon's RSS when idle. Before the fix, ``dev-zero-manifest`` grew about 350 MB/s until
    MemoryError, and ``fifo-manifest`` never returned.
-2. The fuzz of ``tests/daemon/store/test_inbox_fuzz.py``, longer (``--bundles``, default 1000)
+2. The same daemon's control socket while 16 clients trickle a byte now and then: the latency
+   of ``status`` (before the fix every slot was held and ``status`` answered busy), the answer
+   to 16 kB of nested JSON (it killed the handler thread) and the daemon's peak RSS.
+3. The camera client against a hostile camera on 127.0.0.1 (:mod:`bench.hostile_camera`): a
+   300 MiB JSON answer, a 300 MiB download, a download trickled one byte a second: seconds
+   until the typed error and this process's peak RSS growth.
+4. The fuzz of ``tests/daemon/store/test_inbox_fuzz.py``, longer (``--bundles``, default 1000)
    and on another seed: bundles per second and the outcome counts.
 
 Run: ``python -m bench hostile`` or ``python -m bench.bench_hostile [--bundles N] [--seed S]``.
@@ -15,14 +21,22 @@ Run: ``python -m bench hostile`` or ``python -m bench.bench_hostile [--bundles N
 from __future__ import annotations
 
 import argparse
+import os
+import socket
+import statistics
 import sys
 import tempfile
+import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from bench.daemon_process import BenchDaemon
+from bench.hostile_camera import HostileServer
 from bench.inbox_fuzz import ATTACKS, drop_attack, fuzz_inbox
+from grassd.daemon.hardware.camera import OscClient
 from grassd.daemon.hardware.simulated import hardware_toml
+from grassd.daemon.runtime.control import request
 
 
 def _config(state: Path, cfg) -> str:
@@ -58,7 +72,8 @@ def _proc_kib(pid: int, key: str) -> int:
 
 
 def attacks(limit_s: float = 120.0) -> None:
-    """Part 1: each attack against one daemon; seconds to rejection and peak RSS (MiB)."""
+    """Parts 1 and 2: each attack against one daemon; seconds to rejection and peak RSS
+    (MiB); then its control socket under slow and nested clients."""
     d = BenchDaemon("grassd-bench-hostile-", _config, tick_s=0.2)
     try:
         d.wait_ready(120)
@@ -80,8 +95,92 @@ def attacks(limit_s: float = 120.0) -> None:
             else:
                 peak = _proc_kib(pid, "VmHWM") / 1024
                 print(f"{name:28s} {time.monotonic() - t0:13.2f} s {peak:7.0f} MiB", flush=True)
+        control(d)
     finally:
         d.stop()
+
+
+def control(d: BenchDaemon, slow_clients: int = 16, asks: int = 20) -> None:
+    """Part 2: ``status`` while ``slow_clients`` trickle bytes and one sends nested JSON."""
+    pid = d.proc.pid
+    Path(f"/proc/{pid}/clear_refs").write_text("5")
+    slow = []
+    for _ in range(slow_clients):
+        s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        s.connect(str(d.sock))
+        s.send(b"{")
+        slow.append(s)
+    try:
+        times = []
+        for _ in range(asks):
+            for s in slow:  # a byte now and then, as the attack does
+                try:
+                    s.send(b" ")
+                except OSError:
+                    pass  # cut at the deadline: what should happen
+            t0 = time.perf_counter()
+            request(d.sock, {"cmd": "status"}, timeout_s=10)
+            times.append((time.perf_counter() - t0) * 1000)
+        raw = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        raw.connect(str(d.sock))
+        raw.sendall(b"[" * 8000 + b"]" * 8000 + b"\n")  # under the request cap, over the
+        # parser's recursion limit
+        raw.settimeout(10)
+        answer = raw.recv(200).decode(errors="replace").strip()
+        raw.close()
+    finally:
+        for s in slow:
+            s.close()
+    peak = _proc_kib(pid, "VmHWM") / 1024
+    print(f"control socket, {slow_clients} slow clients: status {asks}/{asks} answered, median "
+          f"{statistics.median(times):.1f} ms, max {max(times):.1f} ms; 16 kB of nested JSON "
+          f"answered {answer[:80]}; peak RSS {peak:.0f} MiB")
+
+
+def _peak_rss_growth(fn: Callable[[], object]) -> tuple[BaseException | None, float, float]:
+    """(what ``fn`` raised, seconds, peak RSS growth of this process in MiB, sampled every
+    5 ms)."""
+    def rss() -> int:
+        return _proc_kib(os.getpid(), "VmRSS") * 1024
+
+    base = rss()
+    top = [base]
+    done = threading.Event()
+
+    def sample() -> None:
+        while not done.wait(0.005):
+            top[0] = max(top[0], rss())
+
+    sampler = threading.Thread(target=sample, daemon=True)
+    sampler.start()
+    t0 = time.monotonic()
+    raised = None
+    try:
+        fn()
+    except Exception as exc:  # noqa: BLE001 - reported
+        raised = exc
+    seconds = time.monotonic() - t0
+    done.set()
+    sampler.join(5)
+    return raised, seconds, (max(top[0], rss()) - base) / (1 << 20)
+
+
+def camera() -> None:
+    """Part 3: the camera client against a hostile camera."""
+    with HostileServer() as srv, tempfile.TemporaryDirectory() as tmp:
+        srv.trickle_s = 1.0
+        cases = [
+            ("300 MiB JSON answer", lambda: OscClient(f"{srv.url}/huge", poll_s=0.01).state()),
+            ("300 MiB download", lambda: OscClient(srv.url, poll_s=0.01).download(
+                f"{srv.url}/huge/x.jpg", Path(tmp) / "a.jpg")),
+            ("1 B/s download, 3 s deadline", lambda: OscClient(
+                srv.url, poll_s=0.01, download_deadline_s=3.0).download(
+                f"{srv.url}/trickle-body/x.jpg", Path(tmp) / "b.jpg")),
+        ]
+        for what, fn in cases:
+            exc, seconds, growth = _peak_rss_growth(fn)
+            print(f"camera: {what:30s} {type(exc).__name__} after {seconds:.2f} s, peak RSS "
+                  f"+{growth:.1f} MiB")
 
 
 def fuzz(bundles: int, seed: int) -> None:
@@ -100,6 +199,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seed", type=int, default=7)
     args = ap.parse_args(argv if argv is not None else [])
     attacks()
+    camera()
     fuzz(args.bundles, args.seed)
 
 
