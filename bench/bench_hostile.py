@@ -21,19 +21,17 @@ Run: ``python -m bench hostile`` or ``python -m bench.bench_hostile [--bundles N
 from __future__ import annotations
 
 import argparse
-import os
 import socket
 import statistics
 import sys
 import tempfile
-import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 from bench.daemon_process import BenchDaemon
 from bench.hostile_camera import HostileServer
 from bench.inbox_fuzz import ATTACKS, drop_attack, fuzz_inbox
+from bench.peak_memory import peak_rss_growth
 from grassd.daemon.hardware.camera import OscClient
 from grassd.daemon.hardware.simulated import hardware_toml
 from grassd.daemon.runtime.control import request
@@ -137,34 +135,6 @@ def control(d: BenchDaemon, slow_clients: int = 16, asks: int = 20) -> None:
           f"answered {answer[:80]}; peak RSS {peak:.0f} MiB")
 
 
-def _peak_rss_growth(fn: Callable[[], object]) -> tuple[BaseException | None, float, float]:
-    """(what ``fn`` raised, seconds, peak RSS growth of this process in MiB, sampled every
-    5 ms)."""
-    def rss() -> int:
-        return _proc_kib(os.getpid(), "VmRSS") * 1024
-
-    base = rss()
-    top = [base]
-    done = threading.Event()
-
-    def sample() -> None:
-        while not done.wait(0.005):
-            top[0] = max(top[0], rss())
-
-    sampler = threading.Thread(target=sample, daemon=True)
-    sampler.start()
-    t0 = time.monotonic()
-    raised = None
-    try:
-        fn()
-    except Exception as exc:  # noqa: BLE001 - reported
-        raised = exc
-    seconds = time.monotonic() - t0
-    done.set()
-    sampler.join(5)
-    return raised, seconds, (max(top[0], rss()) - base) / (1 << 20)
-
-
 def camera() -> None:
     """Part 3: the camera client against a hostile camera."""
     with HostileServer() as srv, tempfile.TemporaryDirectory() as tmp:
@@ -178,9 +148,9 @@ def camera() -> None:
                 f"{srv.url}/trickle-body/x.jpg", Path(tmp) / "b.jpg")),
         ]
         for what, fn in cases:
-            exc, seconds, growth = _peak_rss_growth(fn)
+            exc, seconds, growth = peak_rss_growth(fn, every_s=0.005)
             print(f"camera: {what:30s} {type(exc).__name__} after {seconds:.2f} s, peak RSS "
-                  f"+{growth:.1f} MiB")
+                  f"+{growth / (1 << 20):.1f} MiB")
 
 
 def fuzz(bundles: int, seed: int) -> None:

@@ -6,13 +6,12 @@ from __future__ import annotations
 
 import os
 import struct
-import threading
-import time
 
 import numpy as np
 import pytest
 import tifffile
 
+from bench.peak_memory import refusal_cost
 from grassd.calib import raw as raw_mod
 from grassd.calib.dng import DngCamera, mosaic, write_dng
 from grassd.calib.errors import RawReadError
@@ -24,33 +23,10 @@ pytestmark = pytest.mark.timeout(60)
 MiB = 1 << 20
 
 
-def _rss() -> int:
-    with open("/proc/self/statm") as fh:
-        return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-
-
 def _refused(fn, path) -> tuple[str, float, int]:
-    """(message, seconds, peak RSS growth in bytes sampled every 2 ms) of fn(path), which
-    must raise RawReadError."""
-    base = _rss()
-    top = [base]
-    done = threading.Event()
-
-    def sample() -> None:
-        while not done.wait(0.002):
-            top[0] = max(top[0], _rss())
-
-    sampler = threading.Thread(target=sample, daemon=True)
-    sampler.start()
-    t0 = time.perf_counter()
-    try:
-        with pytest.raises(RawReadError) as err:
-            fn(path)
-    finally:
-        seconds = time.perf_counter() - t0
-        done.set()
-        sampler.join(timeout=5)
-    return str(err.value), seconds, max(top) - base
+    """(message, seconds, peak RSS growth in bytes) of fn(path), which must raise
+    RawReadError."""
+    return refusal_cost(lambda: fn(path), RawReadError)
 
 
 def _dng(path, width=128, height=64):

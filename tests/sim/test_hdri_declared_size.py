@@ -7,14 +7,13 @@ little time and memory."""
 from __future__ import annotations
 
 import os
-import threading
-import time
 
 import numpy as np
 import OpenEXR
 import pytest
 
 from bench.inbox_fuzz import write_zero_exr
+from bench.peak_memory import refusal_cost
 from grassd.sim import hdri
 from grassd.sim.errors import HdriError
 
@@ -23,33 +22,10 @@ pytestmark = pytest.mark.timeout(120)
 MiB = 1 << 20
 
 
-def _rss() -> int:
-    with open("/proc/self/statm") as fh:
-        return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-
-
 def refused(path, **kw) -> tuple[str, float, int]:
-    """(error message, seconds, peak RSS growth in bytes, sampled every 2 ms) of loading
-    ``path``, which must raise HdriError."""
-    base = _rss()
-    top = [base]
-    done = threading.Event()
-
-    def sample() -> None:
-        while not done.wait(0.002):
-            top[0] = max(top[0], _rss())
-
-    sampler = threading.Thread(target=sample, daemon=True)
-    sampler.start()
-    t0 = time.perf_counter()
-    try:
-        with pytest.raises(HdriError) as err:
-            hdri.load_hdri(path, **kw)
-    finally:
-        seconds = time.perf_counter() - t0
-        done.set()
-        sampler.join(timeout=5)
-    return str(err.value), seconds, max(top) - base
+    """(error message, seconds, peak RSS growth in bytes) of loading ``path``, which must
+    raise HdriError."""
+    return refusal_cost(lambda: hdri.load_hdri(path, **kw), HdriError)
 
 
 # ------------------------------------------------------------------------------ the writer

@@ -5,7 +5,6 @@ contacted, nothing is left on disk."""
 
 from __future__ import annotations
 
-import os
 import socket
 import threading
 import time
@@ -14,6 +13,7 @@ import tracemalloc
 import pytest
 
 from bench.hostile_camera import HUGE, HostileServer, MiB
+from bench.peak_memory import peak_rss_growth
 from grassd.daemon.config.capture import CaptureConfig
 from grassd.daemon.errors import (
     CameraDownloadError,
@@ -95,39 +95,16 @@ def test_same_host_redirect_is_refused_too(hostile):
 # --------------------------------------------------------------------------- byte caps
 
 
-def _rss() -> int:
-    """Resident set size of this process now (bytes; Linux)."""
-    with open("/proc/self/statm") as fh:
-        return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-
-
 def _peak(fn):
     """(exception raised by fn, seconds, peak Python allocation, peak RSS growth), the
-    sizes in bytes; the RSS is sampled every 5 ms while fn runs."""
-    base = _rss()
-    top = [base]
-    done = threading.Event()
-
-    def sample() -> None:
-        while not done.wait(0.005):
-            top[0] = max(top[0], _rss())
-
-    sampler = threading.Thread(target=sample, daemon=True)
-    sampler.start()
+    sizes in bytes."""
     tracemalloc.start()
-    t0 = time.monotonic()
     try:
-        fn()
-    except Exception as exc:  # noqa: BLE001 - returned for the caller to check
-        raised = exc
-    else:
-        raised = None
-    seconds = time.monotonic() - t0
-    _, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
-    done.set()
-    sampler.join(timeout=5)
-    return raised, seconds, peak, max(top[0], _rss()) - base
+        raised, seconds, rss = peak_rss_growth(fn, every_s=0.005)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    return raised, seconds, peak, rss
 
 
 def test_huge_json_answer_stops_at_the_cap(hostile):

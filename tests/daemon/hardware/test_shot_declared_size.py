@@ -6,15 +6,13 @@ size, at once and in little memory."""
 from __future__ import annotations
 
 import io
-import os
-import threading
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
 
+from bench.peak_memory import refusal_cost
 from grassd.daemon.errors import CameraDownloadError
 from grassd.daemon.hardware.bracket import Shot, file_exposure, load_codes
 from grassd.sim.hdri import MAX_TEXELS
@@ -39,31 +37,10 @@ def _declaring(path: Path, width: int, height: int) -> Path:
     return path
 
 
-def _rss() -> int:
-    with open("/proc/self/statm") as fh:
-        return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-
-
 def _refused(fn) -> tuple[str, float, int]:
-    base = _rss()
-    top = [base]
-    done = threading.Event()
-
-    def sample() -> None:
-        while not done.wait(0.002):
-            top[0] = max(top[0], _rss())
-
-    sampler = threading.Thread(target=sample, daemon=True)
-    sampler.start()
-    t0 = time.perf_counter()
-    try:
-        with pytest.raises(CameraDownloadError) as err:
-            fn()
-    finally:
-        seconds = time.perf_counter() - t0
-        done.set()
-        sampler.join(timeout=5)
-    return str(err.value), seconds, max(top) - base
+    """(message, seconds, peak RSS growth in bytes) of fn(), which must raise
+    CameraDownloadError."""
+    return refusal_cost(fn, CameraDownloadError)
 
 
 def _shot(path: Path) -> Shot:
