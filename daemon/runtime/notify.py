@@ -89,11 +89,11 @@ class Notifier:
         """Log a failed send: the first as a warning, later ones at debug level (a full
         queue repeats at every status change)."""
         if self._warned:
-            log.debug("sd_notify to %s failed: %s", self.socket_path, exc)
+            log.debug("sd_notify to %s failed: %s", one_line(self.socket_path), one_line(exc))
             return
         self._warned = True
         log.warning("sd_notify to %s failed: %s (the daemon goes on; further failures are "
-                    "logged at debug level)", self.socket_path, exc)
+                    "logged at debug level)", one_line(self.socket_path), one_line(exc))
 
     def ready(self, status: str | None = None) -> bool:
         """Tell systemd that start-up finished (``READY=1``), with an optional status line."""
