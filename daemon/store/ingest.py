@@ -394,7 +394,7 @@ class _Stuck:
 
 @dataclass
 class _Candidate:
-    name: str
+    name: str                      # as the journal and messages show it (storable)
     manifest: Path | None          # None: directory bundle without manifest (yet)
     members: list[Path]            # everything that moves with the bundle (manifest last)
     parsed: Manifest | None
@@ -403,6 +403,14 @@ class _Candidate:
     #: (path, lstat) of every entry of the members (a directory's walked without following
     #: links, at most the entries cap + 1): the settle signature and the caps' input
     entries: list[tuple[Path, os.stat_result]] = dataclasses.field(default_factory=list)
+    #: the name as the file system has it (``name`` escapes bytes that are not UTF-8): the
+    #: key of the inbox's watch and backoff, and what files are matched and moved back by
+    raw: str = ""
+
+    @property
+    def key(self) -> str:
+        """The name on disk (:attr:`raw`, else :attr:`name`)."""
+        return self.raw or self.name
 
 
 def walk_entries(members: list[Path], cap: int) -> list[tuple[Path, os.stat_result]]:
@@ -517,20 +525,20 @@ class Inbox:
                     if len(found) > 1:
                         out.append(_Candidate(storable(e.name), found[0], [base], None,
                                               "bundle has both manifest.toml and "
-                                              "manifest.json", []))
+                                              "manifest.json", [], raw=e.name))
                         continue
-                    out.append(self._examine(storable(e.name), found[0] if found else None,
-                                             base, [base]))
+                    out.append(self._examine(e.name, found[0] if found else None, base,
+                                             [base]))
                 elif e.name.endswith(FLAT_SUFFIXES):
                     name = e.name[: -len(next(s for s in FLAT_SUFFIXES if e.name.endswith(s)))]
-                    out.append(self._examine(storable(name), Path(e.path), self.inbox, None,
-                                             flat))
+                    out.append(self._examine(name, Path(e.path), self.inbox, None, flat))
             except (OSError, sqlite3.Error):
                 raise
             except Exception as exc:  # noqa: BLE001 - hostile input must not stop the scan
                 log.exception("inbox: examining %r failed", e.name)
                 out.append(_Candidate(storable(e.name), None, [Path(e.path)], None,
-                                      f"could not be examined: {type(exc).__name__}: {exc}", []))
+                                      f"could not be examined: {type(exc).__name__}: {exc}", [],
+                                      raw=e.name))
         for gone in set(self._parsed) - {c.manifest for c in out}:
             del self._parsed[gone]
         return out
@@ -558,10 +566,14 @@ class Inbox:
         self._parsed[manifest] = (key, data, parsed, err)
         return data, parsed, err
 
-    def _examine(self, name: str, manifest: Path | None, base: Path,
+    def _examine(self, raw: str, manifest: Path | None, base: Path,
                  members: list[Path] | None, flat: list[str] = ()) -> _Candidate:
+        """The candidate bundle ``raw`` (its name on disk) with ``manifest`` (None: none yet)
+        in ``base``; ``members``: what moves with it (None: a flat bundle's, found from its
+        manifest; ``flat``: the flat bundles' names on disk, longest first)."""
+        name = storable(raw)
         if manifest is None:
-            c = _Candidate(name, None, members or [], None, None, ["manifest.toml"])
+            c = _Candidate(name, None, members or [], None, None, ["manifest.toml"], raw=raw)
             c.entries = walk_entries(c.members, self.limits.entries)
             return c
         missing = []
@@ -578,7 +590,7 @@ class Inbox:
                 named = [_member(base, k, data[k]) for k in ("hdri", "checker_raw")
                          if data is not None and _plain_name(data.get(k))
                          and not data[k].startswith(".") and not data[k].endswith(FLAT_SUFFIXES)]
-            stolen = [p.name for p in named if _flat_owner(p.name, flat) != name]
+            stolen = [p.name for p in named if _flat_owner(p.name, flat) != raw]
             if stolen:  # another flat bundle's file (or nobody's): never move it
                 named = [p for p in named if p.name not in stolen]
                 err = err or (f"names {', '.join(stolen)}, which a flat bundle {name} may not: "
@@ -598,7 +610,7 @@ class Inbox:
                 check_regular(st, p.name, self.limits.file_bytes)
             except UntrustedFileError as exc:
                 err = err or str(exc)
-        c = _Candidate(name, manifest, members, parsed, err, missing)
+        c = _Candidate(name, manifest, members, parsed, err, missing, raw=raw)
         c.entries = walk_entries(members, self.limits.entries)
         if c.parse_error is None:
             try:
@@ -640,7 +652,7 @@ class Inbox:
         now = self.clock()
         names = set()
         for c in self._candidates():
-            names.add(c.name)
+            names.add(c.key)
             try:
                 self._consider(c, now, claim, ready)
             except (OSError, sqlite3.Error):
@@ -648,17 +660,17 @@ class Inbox:
             except Exception as exc:  # noqa: BLE001 - one hostile bundle must not stop the
                 # daemon (a parser's RecursionError, a name no file system takes, ...)
                 log.exception("inbox: bundle %r could not be handled", c.name)
-                self._watch.pop(c.name, None)
+                self._watch.pop(c.key, None)
                 try:
                     self._claim_and_reject(c, f"could not be handled: {type(exc).__name__}: "
                                               f"{exc}")
                 except Exception as again:  # noqa: BLE001 - left in the inbox, tried later
-                    prev = self._stuck.get(c.name)
+                    prev = self._stuck.get(c.key)
                     delay = STUCK_RETRY_S if prev is None else min(prev.delay_s * 2,
                                                                    STUCK_RETRY_MAX_S)
                     msg = (f"bundle {c.name} can be neither processed nor rejected "
                            f"({type(again).__name__}: {again}); remove it from the inbox")
-                    self._stuck[c.name] = _Stuck(msg, now + delay, delay, self._access_key(c))
+                    self._stuck[c.key] = _Stuck(msg, now + delay, delay, self._access_key(c))
                     log.error("%s (tried again in %g s)", msg, delay)
         for gone in set(self._watch) - names:
             del self._watch[gone]
@@ -667,18 +679,18 @@ class Inbox:
 
     def _consider(self, c: _Candidate, now: float, claim: bool, ready: list[Bundle]) -> None:
         """:meth:`_scan` for one candidate: watch it settle, then claim or reject it."""
-        stuck = self._stuck.get(c.name)
+        stuck = self._stuck.get(c.key)
         if stuck is not None and now < stuck.retry_at \
                 and stuck.access == self._access_key(c):
             return
         sig = self._signature(c)
-        prev = self._watch.get(c.name)
+        prev = self._watch.get(c.key)
         if prev is None or prev[0] != sig:
             first = prev[2] if prev else now
-            self._watch[c.name] = (sig, now, first)
+            self._watch[c.key] = (sig, now, first)
             if self.settle_s > 0:
                 return
-            prev = self._watch[c.name]
+            prev = self._watch[c.key]
         if not claim:
             return
         _, since, first = prev
@@ -689,11 +701,11 @@ class Inbox:
                         else f"missing file(s) {', '.join(c.missing)}")
                 self._claim_and_reject(c, f"incomplete bundle after "
                                           f"{self.incomplete_timeout_s:g} s: {what}")
-                self._watch.pop(c.name, None)
+                self._watch.pop(c.key, None)
             return
         if not settled:
             return
-        self._watch.pop(c.name, None)
+        self._watch.pop(c.key, None)
         if c.parse_error is not None:
             self._claim_and_reject(c, c.parse_error)
             return
@@ -963,17 +975,17 @@ class Inbox:
         except OSError as exc:
             if h is not None:
                 self.history.journal_forget(h)
-            prev = self._stuck.get(c.name)
+            prev = self._stuck.get(c.key)
             delay = STUCK_RETRY_S if prev is None else min(prev.delay_s * 2, STUCK_RETRY_MAX_S)
             msg = self._move_error(c, exc)
-            self._stuck[c.name] = _Stuck(msg, self.clock() + delay, delay, self._access_key(c))
+            self._stuck[c.key] = _Stuck(msg, self.clock() + delay, delay, self._access_key(c))
             if prev is None or prev.message != msg:
                 log.error("%s (it stays in the inbox; tried again when its owner or mode "
                           "changes, else in %g s)", msg, delay)
             else:
                 log.debug("bundle %s still cannot be moved; next try in %g s", c.name, delay)
             return None
-        if self._stuck.pop(c.name, None) is not None:
+        if self._stuck.pop(c.key, None) is not None:
             log.info("bundle %s could be moved out of the inbox now", c.name)
         return dest
 
@@ -1029,7 +1041,7 @@ class Inbox:
             self._rename(partial, dest)
         except OSError:
             with contextlib.suppress(OSError):  # else recover() puts them back at the next start
-                self._unclaim_partial(partial, c.name)
+                self._unclaim_partial(partial, c.key)
             raise
         return dest
 

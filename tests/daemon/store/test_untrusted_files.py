@@ -3,6 +3,7 @@ blocking open; a manifest is parsed once while it does not change (issue #27).""
 
 from __future__ import annotations
 
+import json
 import os
 import threading
 
@@ -175,3 +176,19 @@ def test_a_bundle_that_can_be_neither_processed_nor_rejected_waits_in_the_inbox(
     [problem] = inbox.problems()
     assert "cursed can be neither processed nor rejected" in problem
     assert (inbox.inbox / "cursed").is_dir()
+
+
+def test_flat_bundle_whose_name_is_not_utf8_takes_its_own_files(env):
+    inbox, h, clock = env
+    raw = os.fsdecode(b"bad\xffname")  # as os.scandir gives it: a lone surrogate
+    write_exr(inbox.inbox / ".sky.exr")  # OpenEXR writes str paths it can encode only
+    os.rename(inbox.inbox / ".sky.exr", inbox.inbox / f"{raw}.exr")
+    (inbox.inbox / f"{raw}.manifest.json").write_text(json.dumps({
+        "timestamp": "2026-06-21T12:00:00+02:00", "hdri": f"{raw}.exr"}))
+    inbox.poll()
+    clock.t += 1.5
+    [b] = inbox.poll()
+    assert b.name == "bad\\xffname" and b.id.endswith("-bad_xffname")
+    assert sorted(p.name for p in b.dir.iterdir()) == sorted([f"{raw}.exr", "manifest.json"])
+    assert list(inbox.inbox.iterdir()) == []
+    assert h.journal_get(b.hash).name == "bad\\xffname"
