@@ -14,6 +14,7 @@ import json
 import click
 
 from grassd.daemon.cli.run import _CONFIG_HELP, _fmt_time, resolve_config
+from grassd.daemon.safe_text import one_line
 
 
 @click.group("bundles")
@@ -45,8 +46,8 @@ def list_cmd(config_path: str | None, state_dir: str | None, as_json: bool) -> N
     if not found:
         click.echo("no quarantined bundles")
     for q in found:
-        click.echo(f"{q.bundle}  {q.name}  {q.attempts} attempts, since {_fmt_time(q.since)}: "
-                   f"{q.reason}")
+        click.echo(one_line(f"{q.bundle}  {q.name}  {q.attempts} attempts, since "
+                            f"{_fmt_time(q.since)}: {q.reason}", None))  # names escaped
 
 
 @bundles.command("retry")

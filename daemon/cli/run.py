@@ -15,6 +15,7 @@ from grassd.daemon.config.settings import (
     load_default_config,
     not_used_by_the_daemon,
 )
+from grassd.daemon.safe_text import one_line
 from grassd.firmware_proto.sim_backends import FIRMWARE_BACKENDS
 
 _CONFIG_HELP = (f"configuration file (default {DEFAULT_CONFIG_PATH}; "
@@ -178,22 +179,26 @@ def print_status(st: dict, echo=click.echo) -> None:
         echo("bundles: " + ", ".join(f"{k} {v}" for k, v in st["inbox"].items()))
     if st.get("reload_error"):
         echo(f"last reload refused: {st['reload_error']}")
+    # the lines below may quote names an uploader chose: one line each, controls escaped
     if st.get("last_error"):
-        echo(f"last error: {st['last_error']}")
+        echo(one_line(f"last error: {st['last_error']}", None))
     elif (seen := st.get("last_error_seen")) and seen.get("cleared_at"):
-        echo(f"last error (cleared {seen['cleared_at']}): {seen['at']} {seen['error']}")
+        echo(one_line(f"last error (cleared {seen['cleared_at']}): {seen['at']} "
+                      f"{seen['error']}", None))
     for w in st.get("waiting_bundles") or []:
-        echo(f"bundle {w['bundle']} waits (retry in {w['retry_in_s']:.0f} s): {w['reason']}")
+        echo(one_line(f"bundle {w['bundle']} waits (retry in {w['retry_in_s']:.0f} s): "
+                      f"{w['reason']}", None))
     if cap := st.get("capture"):
         due = "-" if cap["next_in_s"] is None else f"{cap['next_in_s']:.0f} s"
         echo(f"capture: {cap['camera']} every {cap['interval_s']:g} s, {cap['captures']} "
              f"bundle(s), next in {due}"
              + (f"; last error: {cap['last_error']}" if cap["last_error"] else ""))
     for p in st.get("inbox_problems") or []:
-        echo(f"inbox: {p}")
+        echo(one_line(f"inbox: {p}", None))
     for q in st.get("quarantined") or []:
-        echo(f"quarantined bundle {q['bundle']} ({q['attempts']} interrupted attempts, since "
-             f"{_fmt_time(q['since'])}): `grassd bundles retry {q['bundle']}` runs it again")
+        echo(one_line(f"quarantined bundle {q['bundle']} ({q['attempts']} interrupted attempts, "
+                      f"since {_fmt_time(q['since'])}): `grassd bundles retry {q['bundle']}` "
+                      "runs it again", None))
     echo("controllers:")
     for c in st["controllers"]:
         state = "in sync" if c["in_sync"] else ("unreachable" if not c["reachable"]
@@ -216,8 +221,8 @@ def print_status(st: dict, echo=click.echo) -> None:
     for r in st["runs"]:
         extra = (f"R^2 {r['r2']:.4f}, max dev {r['max_dev_de00']:.2f} dE00"
                  if r["status"] == "ok" and r["r2"] is not None else (r["error"] or ""))
-        echo(f"  #{r['id']} {_fmt_time(r['started_at'])} {r['trigger']:8s} "
-                   f"{r['status']:8s} {extra}")
+        echo(one_line(f"  #{r['id']} {_fmt_time(r['started_at'])} {r['trigger']:8s} "
+                      f"{r['status']:8s} {extra}", None))
         if r.get("report") and r["status"] == "ok":
             echo(f"      report {r['report']}  plot {r['plot']}")
     if st.get("status_page"):
