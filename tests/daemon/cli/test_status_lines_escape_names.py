@@ -20,4 +20,4 @@ def test_status_prints_hostile_names_on_one_line_each():
     print_status(st, echo=lines.append)
     assert all("\n" not in line and "\x1b" not in line and "\r" not in line for line in lines)
     named = [line for line in lines if "b1\\n<2>forged line\\x1b[2J\\r" in line]
-    assert len(named) == 6, lines
+    assert len(named) == 5, lines  # last error, waiting, inbox, quarantined, run
