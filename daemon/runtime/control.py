@@ -159,6 +159,7 @@ class ControlServer:
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._accept_warned = -math.inf
+        self._denied_warned: dict[int, float] = {}  # uid -> when its refusal was last logged
 
     @property
     def active(self) -> int:
@@ -342,8 +343,12 @@ class ControlServer:
         cmd = req["cmd"]
         if cmd not in self.read_only and p.peer.uid not in self.privileged_uids:
             self.denied += 1
-            log.warning("control socket: %r refused for uid %d (pid %d)", cmd[:40],
-                        p.peer.uid, p.peer.pid)
+            now = time.monotonic()
+            if now - self._denied_warned.get(p.peer.uid, -math.inf) > 60:  # no flood
+                self._denied_warned[p.peer.uid] = now
+                log.warning("control socket: %r refused for uid %d (pid %d; further refusals "
+                            "of this uid within a minute are counted, not logged)", cmd[:40],
+                            p.peer.uid, p.peer.pid)
             self._reply_now(p.conn, {
                 "ok": False, "denied": True,
                 "error": f"permission denied: {cmd[:40]!r} changes the daemon's state and is "
@@ -445,7 +450,11 @@ class ControlServer:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(2)
-        if self._sel is not None:
+            if self._thread.is_alive():  # still inside a select: closing it under the thread
+                log.warning("control socket: the reader thread did not stop within 2 s")
+            elif self._sel is not None:
+                self._sel.close()
+        elif self._sel is not None:
             self._sel.close()
         if self._sock is not None:
             self._sock.close()

@@ -75,9 +75,13 @@ class SignalRelay:
                     data = os.read(rfd, 512)
                 except InterruptedError:
                     continue
+                except OSError:  # the pipe is gone: nothing more can arrive
+                    log.exception("the signal relay's pipe failed; signals are no longer relayed")
+                    return
                 if not data:
                     return  # closed
-                for signum in dict.fromkeys([*data, *self._arrived]):  # in order, once each
+                # tuple(): one C-level copy, so a handler adding meanwhile cannot break it
+                for signum in dict.fromkeys([*data, *tuple(self._arrived)]):  # in order, once
                     self._run(signum)
         finally:
             os.close(rfd)
