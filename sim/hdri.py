@@ -220,9 +220,16 @@ def load_hdri(path: str | os.PathLike, max_texels: int = MAX_TEXELS) -> np.ndarr
     return check_env(img, source, max_texels)
 
 
+def _header_text(v: object, max_chars: int = 64) -> str:
+    """A name from a file's header as it may appear in a message: repr (controls escaped,
+    one line), cut to ``max_chars`` characters (a header may hold kilobytes of name)."""
+    text = repr(str(v))
+    return text if len(text) <= max_chars else text[:max_chars] + "...'"
+
+
 def _part_summary(parts: list) -> str:
     """``'name' W x H`` of each part (the first few), for an error message."""
-    shown = [f"{name!r} {w} x {h}" for name, w, h, _ in parts[:4]]
+    shown = [f"{name} {w} x {h}" for name, w, h, _ in parts[:4]]
     more = f" and {len(parts) - 4} more" if len(parts) > 4 else ""
     return ", ".join(shown) + more
 
@@ -237,7 +244,7 @@ def _exr_parts(source: str) -> list[tuple[str, int, int, dict]]:
         if "dataWindow" not in header:
             raise HdriError(f"{source}: OpenEXR part {i} lacks a dataWindow")
         (x0, y0), (x1, y1) = header["dataWindow"]
-        name = str(header.get("name") or f"part {i}")
+        name = _header_text(header.get("name") or f"part {i}")
         out.append((name, int(x1) - int(x0) + 1, int(y1) - int(y0) + 1, header))
     if not out:
         raise HdriError(f"{source}: the OpenEXR file has no part")
@@ -251,13 +258,15 @@ def _check_exr_channels(source: str, header: dict) -> list[str]:
     names = [str(ch.name) for ch in chans]
     extra = sorted(set(names) - set(_EXR_CHANNELS))
     if extra:
-        shown = ", ".join(extra[:8]) + (f" and {len(extra) - 8} more" if len(extra) > 8 else "")
+        shown = ", ".join(_header_text(n) for n in extra[:8]) + (
+            f" and {len(extra) - 8} more" if len(extra) > 8 else "")
         raise HdriError(
             f"{source}: {len(names)} channels, {len(extra)} of them not a panorama's "
             f"({shown}); an environment map has R, G, B (or Y) and optionally A: export "
             "only those (e.g. oiiotool in.exr --ch R,G,B -o out.exr)")
     if not ({"R", "G", "B"} <= set(names) or "Y" in names):
-        raise HdriError(f"{source}: no R, G, B (or Y) channels; the file has {sorted(names)}")
+        raise HdriError(f"{source}: no R, G, B (or Y) channels; the file has "
+                        f"{', '.join(_header_text(n) for n in sorted(names)[:8])}")
     for ch in chans:
         if getattr(ch, "xSampling", 1) != 1 or getattr(ch, "ySampling", 1) != 1:
             raise HdriError(f"{source}: channel {ch.name} is subsampled; save full-resolution RGB")
@@ -268,7 +277,7 @@ def _read_exr(p: Path, max_texels: int) -> np.ndarray:
     source = str(p)
     parts = _exr_parts(source)
     if len(parts) != 1:  # refused from the headers: every part's size is named, none decoded
-        over = [f"part {i} ({name!r}) alone declares {w} x {h} = {w * h} texels, over the "
+        over = [f"part {i} ({name}) alone declares {w} x {h} = {w * h} texels, over the "
                 f"limit of {max_texels}" for i, (name, w, h, _) in enumerate(parts)
                 if w > 0 and h > 0 and w * h > max_texels]
         raise HdriError(
@@ -289,7 +298,8 @@ def _read_exr(p: Path, max_texels: int) -> np.ndarray:
     elif "Y" in names:
         planes = [channels["Y"].pixels] * 3
     else:
-        raise HdriError(f"{source}: no R, G, B (or Y) channels; the file has {sorted(names)}")
+        raise HdriError(f"{source}: no R, G, B (or Y) channels; the file has "
+                        f"{', '.join(_header_text(n) for n in sorted(names)[:8])}")
     for plane in planes:
         if plane.shape != (height, width):
             raise HdriError(f"{source}: channel data {plane.shape} disagrees with the header's "
