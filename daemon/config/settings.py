@@ -57,7 +57,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
-from grassd.daemon.config.limits import BundleLimits
+from grassd.daemon.config.limits import DEFAULT_LIMITS, BundleLimits
 from grassd.daemon.config.schema import Context as _Ctx
 from grassd.daemon.config.schema import Field as _F
 from grassd.daemon.config.schema import between as _between
@@ -204,7 +204,7 @@ class LightConfig:
     future_tolerance_s: float = FUTURE_TOLERANCE_S
     hdri_flip: bool = False
     hdri_rotation_deg: float = 0.0
-    limits: BundleLimits = BundleLimits()
+    limits: BundleLimits = DEFAULT_LIMITS
 
 
 @dataclass(frozen=True)

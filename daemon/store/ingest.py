@@ -89,10 +89,12 @@ from grassd.daemon.store.history import History
 from grassd.daemon.store.outcomes import QUARANTINED_PREFIX
 from grassd.daemon.store.untrusted import (
     UntrustedFileError,
+    check_entries,
     check_regular,
     open_regular,
     read_regular,
     sha256_regular,
+    walk_entries,
 )
 from grassd.daemon.timestamps import utc_iso
 from grassd.sim.errors import LightingError
@@ -411,50 +413,6 @@ class _Candidate:
     def key(self) -> str:
         """The name on disk (:attr:`raw`, else :attr:`name`)."""
         return self.raw or self.name
-
-
-def walk_entries(members: list[Path], cap: int) -> list[tuple[Path, os.stat_result]]:
-    """(path, lstat) of ``members`` and, for a directory, everything below it, never following
-    a link; stops after ``cap`` + 1 entries. Entries that vanish meanwhile are left out."""
-    out: list[tuple[Path, os.stat_result]] = []
-    todo = list(reversed(members))
-    while todo and len(out) <= cap:
-        p = todo.pop()
-        try:
-            st = p.lstat()
-        except OSError:
-            continue
-        if p not in members:
-            out.append((p, st))
-        elif not stat.S_ISDIR(st.st_mode):
-            out.append((p, st))
-        if stat.S_ISDIR(st.st_mode):
-            try:
-                with os.scandir(p) as it:
-                    todo.extend(sorted((Path(e.path) for e in it), reverse=True))
-            except OSError:
-                continue
-    return out
-
-
-def check_entries(entries: list[tuple[Path, os.stat_result]], base: Path,
-                  limits: BundleLimits) -> None:
-    """Refuse a bundle whose entries break ``limits`` or are not regular files or directories
-    (UntrustedFileError naming the first such entry relative to ``base``)."""
-    if len(entries) > limits.entries:
-        raise UntrustedFileError(f"bundle holds more than {limits.entries} files and folders "
-                                 "([light.limits] entries in the configuration)")
-    total = 0
-    for p, st in entries:
-        if stat.S_ISDIR(st.st_mode):
-            continue
-        name = str(p.relative_to(base)) if p.is_relative_to(base) else p.name
-        check_regular(st, name, limits.file_bytes)
-        total += st.st_size
-    if total > limits.bundle_bytes:
-        raise UntrustedFileError(f"bundle holds {total} bytes, over the cap of "
-                                 f"{limits.bundle_bytes} ([light.limits] bundle_mib in the "
-                                 "configuration)")
 
 
 class Inbox:
@@ -836,8 +794,9 @@ class Inbox:
         zone), or None when its directory or manifest is gone; ManifestError (a DaemonError)
         when it cannot be read."""
         d = self.archive / bundle_id
-        mpath = next((d / m for m in MANIFEST_NAMES if (d / m).is_file()), None)
-        return None if mpath is None else parse_manifest(read_manifest_data(mpath), d, self.tz)
+        mpath = next((d / m for m in MANIFEST_NAMES if os.path.lexists(d / m)), None)
+        return None if mpath is None else parse_manifest(
+            read_manifest_data(mpath, self.limits.manifest_bytes), d, self.tz)
 
     def counts(self) -> dict[str, int]:
         """Number of entries in inbox, processing, archive and rejected."""
@@ -1106,9 +1065,12 @@ class Inbox:
             else:
                 _copy_regular(src, tmp)
             for p in [tmp, *tmp.rglob("*")] if tmp.is_dir() else [tmp]:
-                if p.is_file():
-                    with open(p, "rb") as fh:
-                        os.fsync(fh.fileno())
+                if stat.S_ISREG(p.lstat().st_mode):  # a link was copied as a link: skipped
+                    fd = os.open(p, os.O_RDONLY | os.O_NOFOLLOW)
+                    try:
+                        os.fsync(fd)
+                    finally:
+                        os.close(fd)
             os.rename(tmp, dst)
             if src.is_dir():
                 shutil.rmtree(src)

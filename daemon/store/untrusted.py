@@ -6,7 +6,8 @@ main loop for ever), a device (``/dev/zero`` reads without end), a socket or a d
 refused, and so is a regular file with a second name (a hard link: its content belongs to
 someone else too) or one larger than the caller's cap. Reads stop at the cap even when the file
 grows while it is read. Refusals are :class:`UntrustedFileError` (an :class:`IngestError`), whose
-message names the file and says what to upload instead.
+message names the file and says what to upload instead. A directory is walked without following
+a link, up to a cap of entries (:func:`walk_entries`), and judged whole (:func:`check_entries`).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import os
 import stat
 from pathlib import Path
 
+from grassd.daemon.config.limits import BundleLimits
 from grassd.daemon.errors import IngestError
 
 _OPEN_FLAGS = os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0)
@@ -104,3 +106,48 @@ def sha256_regular(path: Path, max_bytes: int) -> str:
         raise UntrustedFileError(f"{path.name} grew past the cap of {max_bytes} bytes while "
                                  "it was read ([light.limits] in the configuration)")
     return h.hexdigest()
+
+
+def walk_entries(members: list[Path], cap: int) -> list[tuple[Path, os.stat_result]]:
+    """(path, lstat) of ``members`` and, for a directory, everything below it, never following
+    a link; stops after ``cap`` + 1 entries. Entries that vanish meanwhile are left out."""
+    out: list[tuple[Path, os.stat_result]] = []
+    todo = list(reversed(members))
+    while todo and len(out) <= cap:
+        p = todo.pop()
+        try:
+            st = p.lstat()
+        except OSError:
+            continue
+        if p not in members:
+            out.append((p, st))
+        elif not stat.S_ISDIR(st.st_mode):
+            out.append((p, st))
+        if stat.S_ISDIR(st.st_mode):
+            try:
+                with os.scandir(p) as it:
+                    todo.extend(sorted((Path(e.path) for e in it), reverse=True))
+            except OSError:
+                continue
+    return out
+
+
+def check_entries(entries: list[tuple[Path, os.stat_result]], base: Path,
+                  limits: BundleLimits) -> None:
+    """Refuse a bundle whose entries (:func:`walk_entries`) break ``limits`` (entries; bytes
+    per file and in all) or are not regular files or directories (UntrustedFileError naming
+    the first such entry relative to ``base``)."""
+    if len(entries) > limits.entries:
+        raise UntrustedFileError(f"bundle holds more than {limits.entries} files and folders "
+                                 "([light.limits] entries in the configuration)")
+    total = 0
+    for p, st in entries:
+        if stat.S_ISDIR(st.st_mode):
+            continue
+        name = str(p.relative_to(base)) if p.is_relative_to(base) else p.name
+        check_regular(st, name, limits.file_bytes)
+        total += st.st_size
+    if total > limits.bundle_bytes:
+        raise UntrustedFileError(f"bundle holds {total} bytes, over the cap of "
+                                 f"{limits.bundle_bytes} ([light.limits] bundle_mib in the "
+                                 "configuration)")
