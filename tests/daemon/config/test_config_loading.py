@@ -264,3 +264,20 @@ def test_settings_the_daemon_does_not_act_on_are_reported(tmp_path):
     res = CliRunner().invoke(main, ["check-config", "--config", str(path)])
     assert res.exit_code == 0, res.output
     assert "warning: tables.eye = 'pixel' is ignored with [audience]" in res.output
+
+
+def test_bundle_limits_of_the_template_are_the_defaults_and_are_checked():
+    """default.toml states the caps on a bundle ([light.limits]); they must be the dataclass
+    defaults (written once there), and a cap out of bounds names its key and line."""
+    from grassd.daemon.config.limits import DEFAULT_LIMITS
+    from grassd.daemon.config.settings import parse_config
+
+    text = default_config_text()
+    assert "[light.limits]" in text
+    assert load_default_config().light.limits == DEFAULT_LIMITS
+    with pytest.raises(ConfigError, match=r":\d+: light\.limits\.file_mib: must be between"):
+        parse_config(text.replace("file_mib = 512", "file_mib = 0"))
+    no_table = text.replace("[light.limits]", "[unused_limits_table]")
+    cut = no_table[:no_table.index("[unused_limits_table]")] + no_table[
+        no_table.index("[light.modbus]"):]
+    assert parse_config(cut).light.limits == DEFAULT_LIMITS  # the table may be left out
