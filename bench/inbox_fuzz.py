@@ -12,6 +12,7 @@ Two sources, shared by the tests (``tests/daemon/runtime/test_hostile_bundles.py
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import socket
@@ -26,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from grassd.daemon.safe_text import storable
 from grassd.daemon.store.history import History
 from grassd.daemon.store.ingest import FLAT_SUFFIXES, Inbox
 
@@ -328,8 +330,14 @@ def _entry(rng: np.random.Generator, path: Path, kind: str, content: bytes, scra
             fh.truncate(int(rng.integers(1 << 30, 8 << 30)))
 
 
+def _manifest_naming(hdri: str) -> bytes:
+    """The valid manifest naming ``hdri``, a TOML basic string with JSON's escapes (\\uXXXX
+    for a control character: valid TOML too)."""
+    return MANIFEST.replace('"sky.exr"', json.dumps(hdri)).encode("utf-8", "surrogateescape")
+
+
 def _manifest_bytes(rng: np.random.Generator, hdri: str) -> bytes:
-    text = MANIFEST.replace("sky.exr", hdri).encode("utf-8", "surrogateescape")
+    text = _manifest_naming(hdri)
     op = 0 if rng.random() < 0.25 else int(rng.integers(1, 9))
     if op == 0:
         return text
@@ -358,36 +366,51 @@ def _manifest_bytes(rng: np.random.Generator, hdri: str) -> bytes:
                                     b"\"not a time\"", b"2026-02-30T00:00:00"]))
 
 
-def random_bundle(rng: np.random.Generator, inbox: Path, k: int, scratch: Path) -> str:
+def random_bundle(rng: np.random.Generator, inbox: Path, k: int, scratch: Path
+                  ) -> tuple[str, bool]:
     """Write random bundle number ``k`` into ``inbox`` (a directory bundle, renamed in at the
     end, or a flat one); ``scratch``: a directory outside the inbox for link targets. Returns
-    the name it was given."""
+    the name it was given and whether the bundle is valid (a regular, unmutated manifest with
+    content of its own, the site's EXR as a regular file named .exr, nothing else in it)."""
     name = _name(rng, k)
+    directory = rng.random() < 0.7
     hdri = rng.choice(["sky.exr", "sky.hdr", f"{name}.exr"]) if rng.random() < 0.9 \
         else _name(rng, k + 1)
     hdri_kind = "regular" if rng.random() < 0.5 else str(rng.choice(_KINDS))
     sky = SITE.read_bytes() if rng.random() < 0.7 else rng.bytes(int(rng.integers(0, 200_000)))
     manifest_kind = "regular" if rng.random() < 0.8 else str(rng.choice(_KINDS))
     manifest = _manifest_bytes(rng, str(hdri))
-    if rng.random() < 0.7:  # a directory bundle
+    if rng.random() < 0.15:  # a valid bundle (with an odd name, maybe), which must be taken
+        hdri = "sky.exr" if directory else f"{name}.exr"
+        hdri_kind = manifest_kind = "regular"
+        sky, manifest = SITE.read_bytes(), _manifest_naming(hdri)
+    valid = (manifest == _manifest_naming(str(hdri)) and storable(str(hdri)) == str(hdri)
+             and manifest_kind == hdri_kind == "regular" and sky == SITE.read_bytes()
+             and str(hdri).endswith(".exr"))  # TOML cannot name a file that is not UTF-8
+    if valid:
+        manifest += f"# bundle {k}\n".encode()  # content of its own: not a duplicate
+    if directory:
         tmp = inbox / f".{name}"
         tmp.mkdir()
         if hdri_kind != "missing":
             _entry(rng, tmp / str(hdri), hdri_kind, sky, scratch)
-        for j in range(int(rng.integers(0, 4)) if rng.random() < 0.3 else 0):
+        for j in range(int(rng.integers(0, 4)) if rng.random() < 0.3 and not valid else 0):
             extra = str(rng.choice(["reason.txt", f"extra{j}", "manifest.json", "sub"]))
             if not os.path.lexists(tmp / extra):
                 _entry(rng, tmp / extra, str(rng.choice(_KINDS[:-1])), b"x" * 10, scratch)
-        mname = "manifest.json" if rng.random() < 0.1 else "manifest.toml"
+                valid = False
+        mname = "manifest.json" if rng.random() < 0.1 and not valid else "manifest.toml"
+        valid = valid and mname == "manifest.toml"
         if manifest_kind != "missing" and not os.path.lexists(tmp / mname):
             _entry(rng, tmp / mname, manifest_kind, manifest, scratch)
         os.rename(tmp, inbox / name)
-    else:  # flat: data files first, the manifest last
+    else:  # flat: data files first, the manifest last; its files must be named after it
+        valid = valid and hdri == f"{name}.exr"
         if hdri_kind != "missing" and not os.path.lexists(inbox / str(hdri)):
             _entry(rng, inbox / str(hdri), hdri_kind, sky, scratch)
         if manifest_kind != "missing":
             _entry(rng, inbox / f"{name}.manifest.toml", manifest_kind, manifest, scratch)
-    return name
+    return name, valid
 
 
 # --------------------------------------------------------------------------- fuzzing
@@ -408,7 +431,8 @@ def fuzz_inbox(root: Path, seed: int, bundles: int) -> dict[str, int]:
     """Drop ``bundles`` random bundles into a fresh inbox under ``root``, polling between them
     on a fake clock; archive what is claimed. Returns counts by outcome (journal rows: a
     rejected duplicate has none). AssertionError when a poll blocks or raises, a bundle is left
-    neither claimed nor rejected, a rejected one has no reason.txt file, or a restart's
+    neither claimed nor rejected, a valid one is not claimed, a rejected one has no reason.txt
+    file, or a restart's
     recover() finds anything to do."""
     rng = np.random.default_rng(seed)
     scratch = root / "scratch"
@@ -417,22 +441,26 @@ def fuzz_inbox(root: Path, seed: int, bundles: int) -> dict[str, int]:
     history = History(root / "state" / "state.db")
     inbox = Inbox(root / "inbox", root / "state", history, settle_s=1.0,
                   incomplete_timeout_s=5.0, clock=lambda: now[0])
-    claimed = 0
+    claimed: set[str] = set()
+    valid: set[str] = set()
     try:
         for k in range(bundles):
-            random_bundle(rng, inbox.inbox, k, scratch)
+            name, ok = random_bundle(rng, inbox.inbox, k, scratch)
+            if ok:
+                valid.add(storable(name))
             for b in _poll(inbox):
                 inbox.archive_bundle(b, None)
-                claimed += 1
+                claimed.add(b.name)
             now[0] += float(rng.choice([0.2, 1.5, 6.0]))
         for _ in range(3):  # past every settle and incomplete timeout
             now[0] += 6.0
             for b in _poll(inbox):
                 inbox.archive_bundle(b, None)
-                claimed += 1
+                claimed.add(b.name)
         left = [e for e in os.scandir(inbox.inbox) if not e.name.startswith(".")
                 and (e.is_dir(follow_symlinks=False) or e.name.endswith(FLAT_SUFFIXES))]
         assert left == [], f"bundles neither claimed nor rejected: {[e.name for e in left]}"
+        assert valid <= claimed, f"valid bundles not claimed: {sorted(valid - claimed)}"
         for d in inbox.rejected.iterdir():
             reason = d / "reason.txt"
             assert stat.S_ISREG(reason.lstat().st_mode), f"{d.name}: no reason.txt file"
@@ -444,4 +472,4 @@ def fuzz_inbox(root: Path, seed: int, bundles: int) -> dict[str, int]:
         again = Inbox(root / "inbox", root / "state", h)
         assert again.recover() == []
     assert not any(inbox.processing.iterdir())
-    return {"claimed": claimed, "rejected": rejected}
+    return {"claimed": len(claimed), "valid": len(valid), "rejected": rejected}

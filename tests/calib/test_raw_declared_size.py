@@ -58,7 +58,7 @@ def test_declared_sensor_beyond_the_limit_is_refused_before_decoding(tmp_path):
         msg, seconds, rss = _refused(fn, tmp_path / "huge.dng")
         assert "declares a sensor of 30000 x 20000 = 600000000 pixels" in msg
         assert str(MAX_RAW_PIXELS) in msg and "nothing was decoded" in msg
-        assert seconds < 1.0 and rss < 64 * MiB, (seconds, rss)
+        assert seconds < 3.0 and rss < 64 * MiB, (seconds, rss)
     print(f"\nDNG ({size} B) declaring 30000 x 20000: refused in {seconds * 1e3:.1f} ms, "
           f"RSS +{rss / MiB:.1f} MiB")
 
@@ -77,4 +77,4 @@ def test_a_fifo_is_refused_without_opening_it(tmp_path):
     fifo = tmp_path / "shot.dng"
     os.mkfifo(fifo)
     msg, seconds, _ = _refused(develop_raw, fifo)
-    assert "not a regular file" in msg and seconds < 1.0
+    assert "not a regular file" in msg and seconds < 3.0

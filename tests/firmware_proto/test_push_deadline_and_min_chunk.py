@@ -33,7 +33,7 @@ STALL_S = 0.08
 DEADLINE_S = 1.5
 #: what the push may run past its deadline: pyserial's poll period (5 ms), thread switches
 #: on a loaded machine (the structure itself ends it by the deadline)
-SLACK_S = 0.25
+SLACK_S = 1.0
 
 
 class StallingController(Controller):

@@ -55,7 +55,7 @@ def test_second_part_of_16384_x_8192_is_refused_from_the_headers(tmp_path):
     assert "'big' 16384 x 8192" in msg
     assert "part 1 ('big') alone declares 16384 x 8192 = 134217728 texels" in msg
     assert "single part" in msg
-    assert seconds < 1.0 and rss < 64 * MiB, (seconds, rss)
+    assert seconds < 3.0 and rss < 64 * MiB, (seconds, rss)
     print(f"\n2-part EXR ({size / 1e3:.0f} kB): refused in {seconds * 1e3:.0f} ms, "
           f"RSS +{rss / MiB:.1f} MiB")
 
@@ -79,7 +79,7 @@ def test_203_channels_are_refused_naming_them(tmp_path):
     assert "203 channels, 200 of them not a panorama's" in msg
     assert "'junk.000', 'junk.001'" in msg and "and 192 more" in msg
     assert "R, G, B (or Y)" in msg
-    assert seconds < 1.0 and rss < 64 * MiB, (seconds, rss)
+    assert seconds < 3.0 and rss < 64 * MiB, (seconds, rss)
     print(f"\n203-channel EXR ({size / 1e3:.0f} kB): refused in {seconds * 1e3:.0f} ms, "
           f"RSS +{rss / MiB:.1f} MiB")
 
@@ -108,7 +108,7 @@ def test_hdr_declaring_a_huge_size_is_refused_before_reading(tmp_path):
                      + b"\x02\x02\x00\x08" * 16)
     msg, seconds, rss = refused(path)
     assert "2000000 x 1000000 = 2000000000000 texels exceeds the limit" in msg
-    assert seconds < 0.5 and rss < 16 * MiB, (seconds, rss)
+    assert seconds < 3.0 and rss < 16 * MiB, (seconds, rss)
 
 
 def test_hdr_whose_data_cannot_fill_its_size_is_refused_before_allocating(tmp_path):
@@ -117,11 +117,11 @@ def test_hdr_whose_data_cannot_fill_its_size_is_refused_before_allocating(tmp_pa
                      + bytes((2, 2, 0x20, 0x00)) + b"\x80\x00" * 8)
     msg, seconds, rss = refused(path)
     assert "truncated Radiance pixel data" in msg and "needs at least" in msg
-    assert seconds < 0.5 and rss < 64 * MiB, (seconds, rss)  # not the 128 MiB image
+    assert seconds < 3.0 and rss < 64 * MiB, (seconds, rss)  # not the 128 MiB image
 
 
 def test_a_fifo_is_refused_without_blocking(tmp_path):
     fifo = tmp_path / "pano.exr"
     os.mkfifo(fifo)
     msg, seconds, _ = refused(fifo)
-    assert "not a regular file" in msg and seconds < 1.0
+    assert "not a regular file" in msg and seconds < 3.0
