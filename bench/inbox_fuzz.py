@@ -375,7 +375,7 @@ def random_bundle(rng: np.random.Generator, inbox: Path, k: int, scratch: Path
     name = _name(rng, k)
     directory = rng.random() < 0.7
     hdri = rng.choice(["sky.exr", "sky.hdr", f"{name}.exr"]) if rng.random() < 0.9 \
-        else _name(rng, k + 1)
+        else f"{_name(rng, k)}.data"  # never another bundle's name
     hdri_kind = "regular" if rng.random() < 0.5 else str(rng.choice(_KINDS))
     sky = SITE.read_bytes() if rng.random() < 0.7 else rng.bytes(int(rng.integers(0, 200_000)))
     manifest_kind = "regular" if rng.random() < 0.8 else str(rng.choice(_KINDS))
