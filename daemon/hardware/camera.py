@@ -43,6 +43,7 @@ What the camera (or anyone on its Wi-Fi) sends is not trusted:
 from __future__ import annotations
 
 import contextlib
+import functools
 import http.client
 import json
 import logging
@@ -209,26 +210,20 @@ class _HttpsConnection(_DeadlineConnection, http.client.HTTPSConnection):
     pass
 
 
-class _HttpHandler(urllib.request.HTTPHandler):
+class _DeadlineHandler(urllib.request.HTTPHandler, urllib.request.HTTPSHandler):
+    """urllib's http and https handlers, opening :class:`_DeadlineConnection` connections."""
+
     def __init__(self, deadline_of: Any) -> None:
-        super().__init__()
+        urllib.request.HTTPSHandler.__init__(self)
         self._deadline_of = deadline_of
 
     def http_open(self, req: urllib.request.Request) -> Any:
-        def connection(host: str, **kw: Any) -> _HttpConnection:
-            return _HttpConnection(host, deadline_of=self._deadline_of, **kw)
-        return self.do_open(connection, req)
-
-
-class _HttpsHandler(urllib.request.HTTPSHandler):
-    def __init__(self, deadline_of: Any) -> None:
-        super().__init__()
-        self._deadline_of = deadline_of
+        return self.do_open(functools.partial(_HttpConnection, deadline_of=self._deadline_of),
+                            req)
 
     def https_open(self, req: urllib.request.Request) -> Any:
-        def connection(host: str, **kw: Any) -> _HttpsConnection:
-            return _HttpsConnection(host, deadline_of=self._deadline_of, **kw)
-        return self.do_open(connection, req, context=self._context)
+        return self.do_open(functools.partial(_HttpsConnection, deadline_of=self._deadline_of),
+                            req, context=self._context)
 
 
 class _NoRedirects(urllib.request.HTTPRedirectHandler):
@@ -284,7 +279,7 @@ class OscClient:
             return getattr(self._local, "deadline", None)
 
         handlers: list[urllib.request.BaseHandler] = [
-            _HttpHandler(deadline_of), _HttpsHandler(deadline_of), _NoRedirects()]
+            _DeadlineHandler(deadline_of), _NoRedirects()]
         if username:
             mgr = urllib.request.HTTPPasswordMgrWithDefaultRealm()
             mgr.add_password(None, self.url, username, password or "")
