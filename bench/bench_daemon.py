@@ -10,34 +10,17 @@ import time
 from importlib import resources
 from pathlib import Path
 
-from bench.daemon_process import BenchDaemon
-from grassd.daemon.hardware.simulated import hardware_toml
+from bench.daemon_process import BenchDaemon, daemon_config
 
 BUNDLES = int(os.environ.get("GRASSD_BENCH_BUNDLES", "100"))
-ROOT = Path(__file__).resolve().parents[1]
-CACHE = os.environ.get("GRASSD_CACHE_DIR", str(ROOT / ".venv" / "grassd-cache"))
-
-
 def _config(state: Path, cfg) -> str:
-    return f"""state_dir = "{state}"
-cache_dir = "{CACHE}"
-[site]
-latitude = 35.0
-longitude = 139.0
-{hardware_toml(cfg)}[[viewpoints]]
-h_cm = 170
-d_m = 2
-[light]
-inbox = "inbox"
-lux = "modbus"
+    return daemon_config(state, cfg, light=f"""lux = "modbus"
 settle_s = 0.1
 [light.modbus]
 port = {cfg.light.modbus.port}
 words = 2
 scale = 0.1
-[schedule]
-interval_s = 0
-[simulation]
+""", tail="""[simulation]
 samples = 256
 lengths = 9
 [calibration]
@@ -45,7 +28,7 @@ check_levels = 9
 max_rounds = 2
 replicates = 4
 max_jump_mm = 20.0
-"""
+""")
 
 
 def main() -> None:

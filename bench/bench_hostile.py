@@ -29,38 +29,26 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench.daemon_process import BenchDaemon
+from bench.daemon_process import BenchDaemon, daemon_config
 from bench.hostile_camera import HostileServer
 from bench.inbox_fuzz import ATTACKS, drop_attack, fuzz_inbox
 from bench.peak_memory import peak_rss_growth
 from grassd.daemon.hardware.camera import OscClient
-from grassd.daemon.hardware.simulated import hardware_toml
 from grassd.daemon.runtime.control import request
 
 
 def _config(state: Path, cfg) -> str:
-    return f"""state_dir = "{state}"
-[site]
-latitude = 35.0
-longitude = 139.0
-{hardware_toml(cfg)}[[viewpoints]]
-h_cm = 170
-d_m = 2
-[light]
-inbox = "inbox"
-lux = "manifest"
+    return daemon_config(state, cfg, light="""lux = "manifest"
 settle_s = 0.2
 incomplete_timeout_s = 2.0
-[schedule]
-interval_s = 0
-[simulation]
+""", tail="""[simulation]
 samples = 64
 lengths = 5
 [calibration]
 check_levels = 5
 max_rounds = 1
 replicates = 2
-"""
+""")
 
 
 def _proc_kib(pid: int, key: str) -> int:

@@ -30,12 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.daemon_process import BenchDaemon
-from grassd.daemon.hardware.simulated import hardware_toml
+from bench.daemon_process import BenchDaemon, daemon_config
 from grassd.sim.hdri import write_exr
 
-ROOT = Path(__file__).resolve().parents[1]
-CACHE = os.environ.get("GRASSD_CACHE_DIR", str(ROOT / ".venv" / "grassd-cache"))
 SKIES = 8  #: distinct tiny HDRIs the bundles cycle through
 START = datetime(2025, 1, 1, 6, 0, tzinfo=UTC)
 KEEP_S = 20.0  #: retention's keep_days, in seconds: at about 0.3 s a bundle, ~70 bundles
@@ -44,22 +41,12 @@ STATUS_QUERIES = 5  #: status queries per printed row; their median is printed
 
 
 def _config(state: Path, cfg) -> str:
-    return f"""state_dir = "{state}"
-cache_dir = "{CACHE}"
-[site]
-latitude = 48.1
+    return daemon_config(state, cfg, site="""latitude = 48.1
 longitude = 11.6
 timezone = "Europe/Berlin"
-{hardware_toml(cfg)}[[viewpoints]]
-h_cm = 170
-d_m = 2
-[light]
-inbox = "inbox"
-lux = "manifest"
+""", light="""lux = "manifest"
 settle_s = 0
-[schedule]
-interval_s = 0
-[simulation]
+""", tail=f"""[simulation]
 samples = 16
 lengths = 4
 [calibration]
@@ -71,7 +58,7 @@ max_jump_mm = 20.0
 keep_days = {KEEP_S / 86400:.8f}
 keep_reports = 20
 keep_runs = 100
-"""
+""")
 
 
 def _skies(d: Path) -> list[Path]:

@@ -4,6 +4,7 @@ stopping it with everything it made."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -14,8 +15,32 @@ from pathlib import Path
 
 from grassd.daemon.config.settings import load_default_config
 from grassd.daemon.errors import DaemonNotRunning
-from grassd.daemon.hardware.simulated import SimulatedHardware
+from grassd.daemon.hardware.simulated import SimulatedHardware, hardware_toml
 from grassd.daemon.runtime.control import request
+
+ROOT = Path(__file__).resolve().parents[1]
+#: the Taichi kernel cache the benchmarks' daemons share (as `make` sets it)
+CACHE = os.environ.get("GRASSD_CACHE_DIR", str(ROOT / ".venv" / "grassd-cache"))
+#: Tokyo, the embedded default's site
+TOKYO = "latitude = 35.0\nlongitude = 139.0\n"
+
+
+def daemon_config(state: Path, cfg: object, *, light: str, tail: str, site: str = TOKYO) -> str:
+    """A benchmark daemon's configuration (TOML): ``state`` and the shared kernel cache,
+    ``site`` ([site] keys), the simulated hardware of ``cfg``, the paper's reference viewpoint,
+    the inbox with ``light`` (more [light] keys and tables), no scheduled runs, then ``tail``
+    (the [simulation], [calibration], ... tables)."""
+    return f"""state_dir = "{state}"
+cache_dir = "{CACHE}"
+[site]
+{site}{hardware_toml(cfg)}[[viewpoints]]
+h_cm = 170
+d_m = 2
+[light]
+inbox = "inbox"
+{light}[schedule]
+interval_s = 0
+{tail}"""
 
 
 def status(sock: Path) -> dict:
