@@ -222,6 +222,11 @@ def _depth(v: Any) -> int:
     return depth
 
 
+def _flat_name(manifest_name: str) -> str:
+    """The bundle name of a flat manifest ``NAME.manifest.toml`` (or ``.json``): ``NAME``."""
+    return manifest_name[: -len(next(s for s in FLAT_SUFFIXES if manifest_name.endswith(s)))]
+
+
 def _flat_owner(file_name: str, flat_names: list[str]) -> str | None:
     """The flat bundle that a data file in the inbox belongs to: the longest bundle name N
     (of those whose manifest is there, ``flat_names`` longest first) with the file named
@@ -470,8 +475,7 @@ class Inbox:
                 raise
             self.inbox.mkdir(parents=True, exist_ok=True)
             return out
-        flat = sorted((e.name[: -len(next(s for s in FLAT_SUFFIXES if e.name.endswith(s)))]
-                       for e in entries if e.name.endswith(FLAT_SUFFIXES)
+        flat = sorted((_flat_name(e.name) for e in entries if e.name.endswith(FLAT_SUFFIXES)
                        and not e.name.startswith(".")), key=len, reverse=True)
         for e in entries:
             if e.name.startswith("."):
@@ -488,8 +492,8 @@ class Inbox:
                     out.append(self._examine(e.name, found[0] if found else None, base,
                                              [base]))
                 elif e.name.endswith(FLAT_SUFFIXES):
-                    name = e.name[: -len(next(s for s in FLAT_SUFFIXES if e.name.endswith(s)))]
-                    out.append(self._examine(name, Path(e.path), self.inbox, None, flat))
+                    out.append(self._examine(_flat_name(e.name), Path(e.path), self.inbox,
+                                             None, flat))
             except (OSError, sqlite3.Error):
                 raise
             except Exception as exc:  # noqa: BLE001 - hostile input must not stop the scan
