@@ -170,13 +170,14 @@ class ControllerClient:
     Not thread-safe: use one client per port from one thread (``quality`` may be read from any).
     """
 
-    on_progress: Callable[[], None] | None = None
-    cancel: threading.Event | None = None
-
     def __init__(self, port: str, *, baudrate: int = 115_200,
                  policy: RetryPolicy | None = None, seed: int | None = None,
-                 rs485: bool = False, link: SerialLink | None = None) -> None:
+                 rs485: bool = False, link: SerialLink | None = None,
+                 on_progress: Callable[[], None] | None = None,
+                 cancel: threading.Event | None = None) -> None:
         self.link = link if link is not None else SerialLink(port, baudrate, rs485=rs485)
+        self.on_progress = on_progress
+        self.cancel = cancel
         self.policy = policy or RetryPolicy()
         p = self.policy
         self.quality = LineQuality(p.chunk_bytes, min(p.min_chunk_bytes, p.chunk_bytes),

@@ -120,8 +120,8 @@ class Fleet:
     def _client(self, c: ControllerConfig) -> ControllerClient:
         client = self._clients.get(c.port)
         if client is None:
-            client = ControllerClient(c.port, baudrate=c.baud, policy=self.policy)
-            client.on_progress, client.cancel = self.on_progress, self.cancel
+            client = ControllerClient(c.port, baudrate=c.baud, policy=self.policy,
+                                      on_progress=self.on_progress, cancel=self.cancel)
             self._clients[c.port] = client
         return client
 
