@@ -32,7 +32,7 @@ from pathlib import Path
 from bench.daemon_process import BenchDaemon, daemon_config
 from bench.hostile_camera import HostileServer
 from bench.inbox_fuzz import ATTACKS, drop_attack, fuzz_inbox
-from bench.peak_memory import peak_rss_growth
+from bench.peak_memory import peak_rss_growth, proc_mib
 from grassd.daemon.hardware.camera import OscClient
 from grassd.daemon.runtime.control import request
 
@@ -51,13 +51,6 @@ replicates = 2
 """)
 
 
-def _proc_kib(pid: int, key: str) -> int:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith(key + ":"):
-            return int(line.split()[1])
-    raise KeyError(key)
-
-
 def attacks(limit_s: float = 120.0) -> None:
     """Parts 1 and 2: each attack against one daemon; seconds to rejection and peak RSS
     (MiB); then its control socket under slow and nested clients."""
@@ -65,7 +58,7 @@ def attacks(limit_s: float = 120.0) -> None:
     try:
         d.wait_ready(120)
         pid = d.proc.pid
-        idle = _proc_kib(pid, "VmRSS") / 1024
+        idle = proc_mib(pid)
         print(f"daemon idle: RSS {idle:.0f} MiB")
         print(f"{'attack':28s} {'rejected after':>15s} {'peak RSS':>10s}")
         inbox = d.state / "inbox"
@@ -80,7 +73,7 @@ def attacks(limit_s: float = 120.0) -> None:
                     break
                 time.sleep(0.05)
             else:
-                peak = _proc_kib(pid, "VmHWM") / 1024
+                peak = proc_mib(pid, "VmHWM")
                 print(f"{name:28s} {time.monotonic() - t0:13.2f} s {peak:7.0f} MiB", flush=True)
         control(d)
     finally:
@@ -118,7 +111,7 @@ def control(d: BenchDaemon, slow_clients: int = 16, asks: int = 20) -> None:
     finally:
         for s in slow:
             s.close()
-    peak = _proc_kib(pid, "VmHWM") / 1024
+    peak = proc_mib(pid, "VmHWM")
     print(f"control socket, {slow_clients} slow clients: status {asks}/{asks} answered, median "
           f"{statistics.median(times):.1f} ms, max {max(times):.1f} ms; 16 kB of nested JSON "
           f"answered {answer[:80]}; peak RSS {peak:.0f} MiB")

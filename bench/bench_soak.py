@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.daemon_process import BenchDaemon, daemon_config
+from bench.peak_memory import proc_mib
 from grassd.sim.hdri import write_exr
 
 SKIES = 8  #: distinct tiny HDRIs the bundles cycle through
@@ -106,13 +107,6 @@ def _dir_bytes(d: Path) -> int:
     return total
 
 
-def _rss_mib(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    raise RuntimeError(f"no VmRSS for pid {pid}")
-
-
 def _fds(pid: int) -> int:
     return len(os.listdir(f"/proc/{pid}/fd"))
 
@@ -166,7 +160,7 @@ def main(argv: list[str] | None = None) -> int:
                     times.append(time.perf_counter() - q0)
                 q_ms = float(np.median(times)) * 1e3
                 db = sum(p.stat().st_size for p in state.glob("state.db*"))
-                row = (i + 1, _rss_mib(proc.pid), _fds(proc.pid), _dir_bytes(state), db,
+                row = (i + 1, proc_mib(proc.pid), _fds(proc.pid), _dir_bytes(state), db,
                        q_ms, per)
                 rows.append(row)
                 print(f"{row[0]:>6} {row[1]:>8.1f} {row[2]:>4} {row[3] / 2**20:>9.2f} "

@@ -7,12 +7,23 @@ import os
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 
 def rss_bytes() -> int:
     """This process's resident set size now (bytes; Linux /proc)."""
     with open("/proc/self/statm") as fh:
         return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+def proc_mib(pid: int, key: str = "VmRSS") -> float:
+    """A memory figure of process ``pid`` from /proc/PID/status, in MiB: ``VmRSS`` (resident
+    now) or ``VmHWM`` (peak resident since start, or since ``5`` was written to its
+    clear_refs)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith(key + ":"):
+            return int(line.split()[1]) / 1024
+    raise RuntimeError(f"no {key} for pid {pid}")
 
 
 def peak_rss_growth(fn: Callable[[], object], every_s: float = 0.002
