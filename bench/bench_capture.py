@@ -1,30 +1,129 @@
-"""Capture station round trip: the simulated OSC camera (real HTTP on 127.0.0.1) photographs
-the site map with response curves the merge never sees; prints the merge's accuracy and time."""
+"""Capture station round trip: the simulated OSC camera (real HTTP on 127.0.0.1) photographs a
+panorama with response curves the merge never sees; prints the merge's accuracy and time.
+
+Two tables:
+
+* **default path** (issue #28): each shared HDRI (``../shared/hdri``) as ``grassd camera sim
+  --hdri FILE`` serves it with its defaults (:data:`SIM_WIDTH` texels wide, curve
+  :data:`SIM_CURVE`, light level :data:`SIM_SCENE_SCALE`), captured by a station with
+  ``[capture]``'s defaults and the scene's true horizontal illuminance as its lux: what a
+  bundle of the default path holds (:func:`default_path_round_trip`);
+* **curves**: the packaged site map at 256 x 128 through a fixed bracket, one row per curve.
+
+Errors (:func:`round_trip_errors`): *lum* is the median |relative luminance error| per texel of
+the map scaled to the lux reading, as the daemon scales it; *gain lum* the same with the
+camera's gain fitted instead (median texel ratio); *E* the map's horizontal illuminance with
+that gain against the scene's. Texels saturated even in the shortest shot are left out of the
+medians (their radiance is a lower bound; the daemon restores a clipped sun from lux) but
+counted in E. Targets: lum <= 3 %, E within 2 %.
+"""
 
 from __future__ import annotations
 
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from grassd.calib.hdr_merge import merge_ldr, recover_response, relative_exposure
+from grassd.daemon.config.capture import CaptureConfig
 from grassd.daemon.hardware.bracket import BracketPlan, capture_bracket, load_codes
 from grassd.daemon.hardware.camera import OscClient
-from grassd.daemon.hardware.simulated_camera import CURVES, SimCamera, site_hdri
+from grassd.daemon.hardware.simulated_camera import (
+    CURVES,
+    SIM_CURVE,
+    SIM_SCENE_SCALE,
+    SIM_WIDTH,
+    SimCamera,
+    sim_camera_from_file,
+    site_hdri,
+)
+from grassd.daemon.runtime.capture import HDRI_NAME, Station
 from grassd.sim.hdri import REC709_LUMINANCE, downsample, load_hdri
 from grassd.sim.lighting import horizontal_illuminance
 from grassd.sim.sun import find_sun
 
+HDRI_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "hdri"
+SHARED_MAPS = ("forest", "city", "courtyard", "interior", "studio")
+#: Goals of the round trip (fractions): median |luminance error|, horizontal illuminance error.
+LUMINANCE_GOAL = 0.03
+ILLUMINANCE_GOAL = 0.02
 
-def main() -> None:
+
+def round_trip_errors(reference: np.ndarray, radiance: np.ndarray,
+                      excluded: np.ndarray | None = None) -> dict[str, float]:
+    """Errors (fractions) of a merged map ``radiance`` (H, W, 3, any scale) against the
+    ``reference`` radiance (H, W, 3, cd/m^2) the camera photographed: ``lum`` median
+    |relative luminance error| with the map scaled to the reference's horizontal illuminance
+    (as the daemon scales a bundle to its lux reading), ``gain_lum`` the same with the gain
+    fitted as the median texel ratio, ``illuminance`` |E error| of the map with that gain.
+    ``excluded`` (H, W) bool: texels left out of the medians (saturated ones)."""
+    ls = reference.astype(np.float64) @ REC709_LUMINANCE
+    lm = radiance.astype(np.float64) @ REC709_LUMINANCE
+    ok = (ls > 0) & (lm > 0)
+    if excluded is not None:
+        ok &= ~excluded
+    e_ref, e_map = horizontal_illuminance(reference), horizontal_illuminance(radiance)
+    gain = float(np.median(ls[ok] / lm[ok]))
+    return {"lum": float(np.median(np.abs(lm[ok] * (e_ref / e_map) / ls[ok] - 1.0))),
+            "gain_lum": float(np.median(np.abs(lm[ok] * gain / ls[ok] - 1.0))),
+            "illuminance": abs(e_map * gain / e_ref - 1.0)}
+
+
+def default_path_round_trip(hdri: Path, work: Path, seed: int = 0) -> dict[str, Any]:
+    """One capture of ``hdri`` through the default path (module docstring) into directory
+    ``work``: :func:`round_trip_errors` plus ``width`` (texels served), ``shots``,
+    ``exposures_s`` (s), ``sun_clipped`` and ``seconds`` (wall time of the capture)."""
+    with sim_camera_from_file(hdri, width=SIM_WIDTH, seed=seed, latency_s=0.01) as cam:
+        reference = cam.env.astype(np.float64) * cam.scene_scale
+        station = Station(CaptureConfig(camera=cam.url), work / "inbox", work / "state")
+        station.client.poll_s = 0.01
+        (work / "inbox").mkdir(parents=True, exist_ok=True)
+        t0 = time.perf_counter()
+        out = station.capture(lux=horizontal_illuminance(reference))
+        seconds = time.perf_counter() - t0
+        c = out.manifest["capture"]
+        saturated = cam.signal(min(c["exposures_s"]), c["iso"]).max(axis=2) >= 1.0
+    errors = round_trip_errors(reference, load_hdri(out.bundle / HDRI_NAME), saturated)
+    return {**errors, "width": reference.shape[1], "shots": len(c["exposures_s"]),
+            "exposures_s": c["exposures_s"], "sun_clipped": c["sun_clipped"],
+            "saturated": int(saturated.sum()), "seconds": seconds}
+
+
+def default_path_table() -> None:
+    """The default path's round trip of each shared HDRI (module docstring)."""
+    maps = [HDRI_DIR / f"{n}.exr" for n in SHARED_MAPS if (HDRI_DIR / f"{n}.exr").exists()]
+    print(f"default path: grassd camera sim --hdri FILE (width {SIM_WIDTH}, curve {SIM_CURVE}, "
+          f"scene scale {SIM_SCENE_SCALE:g} cd/m^2 per unit), [capture] defaults, true lux")
+    if not maps:
+        print(f"  (no HDRIs in {HDRI_DIR}: skipped)")
+        return
+    print(f"{'map':10s} {'width':>5s} {'shots':>5s} {'shortest s':>10s} {'saturated':>9s} "
+          f"{'sun clipped':>11s} {'lum err':>7s} {'gain lum':>8s} {'E err':>6s} "
+          f"{'capture s':>9s}")
+    for path in maps:
+        with tempfile.TemporaryDirectory() as d:
+            r = default_path_round_trip(path, Path(d))
+        print(f"{path.stem:10s} {r['width']:5d} {r['shots']:5d} {min(r['exposures_s']):10.2g} "
+              f"{r['saturated']:9d} {'yes' if r['sun_clipped'] else 'no':>11s} "
+              f"{100 * r['lum']:6.2f}% {100 * r['gain_lum']:7.2f}% "
+              f"{100 * r['illuminance']:5.2f}% {r['seconds']:9.2f}")
+    print(f"goals: lum err <= {100 * LUMINANCE_GOAL:g} %, E err <= {100 * ILLUMINANCE_GOAL:g} % "
+          "(asserted for forest by tests/daemon/runtime/test_capture_default_path.py); a sun "
+          "beyond the camera's range (1/25000 s at f/5.6) stays clipped: the bundle flags it and "
+          "the daemon restores it from lux")
+
+
+def curves_table() -> None:
+    """The packaged site map at 256 x 128 through a fixed bracket, one row per curve."""
     env = load_hdri(site_hdri())
     env = downsample(env, env.shape[1] // 256) if env.shape[1] > 256 else env
     plan = BracketPlan(shots=9, ev_step=2.0, centre_shutter_s=0.01)
-    lum_src = env.astype(np.float64) @ REC709_LUMINANCE
+    print(f"\ncurves: the site map at {env.shape[1]} x {env.shape[0]}, 9 shots from 1/25000 s")
     print(f"{'curve':8s} {'shots':>5s} {'capture s':>9s} {'response s':>10s} {'merge s':>7s} "
-          f"{'med lum err':>11s} {'E err':>6s} {'sun deg':>7s}")
+          f"{'gain lum':>8s} {'E err':>6s} {'sun deg':>7s}")
     for curve in CURVES:
         with SimCamera(env, scene_scale=80.0, curve=curve, seed=7) as cam, \
                 tempfile.TemporaryDirectory() as d:
@@ -37,13 +136,14 @@ def main() -> None:
         t2 = time.perf_counter()
         m = merge_ldr(codes, h, resp)
         t3 = time.perf_counter()
-        lum = m.radiance.astype(np.float64) @ REC709_LUMINANCE
-        ok = ~m.clipped & (lum_src > 0)
-        k = float(np.median(lum_src[ok] / lum[ok]))
-        err = float(np.median(np.abs(lum[ok] * k / lum_src[ok] - 1)))
-        e_err = abs(horizontal_illuminance(m.radiance * k) / horizontal_illuminance(env) - 1)
+        r = round_trip_errors(env, m.radiance, m.clipped)
         a, b = find_sun(env), find_sun(m.radiance)
         sun = float(np.degrees(np.arccos(np.clip(a.direction @ b.direction, -1, 1))))
         print(f"{curve:8s} {len(shots):5d} {t1 - t0:9.2f} {t2 - t1:10.2f} {t3 - t2:7.3f} "
-              f"{100 * err:10.2f}% {100 * e_err:5.2f}% {sun:7.3f}")
+              f"{100 * r['gain_lum']:7.2f}% {100 * r['illuminance']:5.2f}% {sun:7.3f}")
     print("targets: median |rel. luminance error| <= 3 %, E within 2 %, sun within 1 deg")
+
+
+def main() -> None:
+    default_path_table()
+    curves_table()

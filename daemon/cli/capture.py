@@ -9,6 +9,12 @@ from pathlib import Path
 import click
 
 from grassd.daemon.cli.run import _CONFIG_HELP, resolve_config
+from grassd.daemon.hardware.simulated_camera import (
+    CURVES,
+    SIM_CURVE,
+    SIM_SCENE_SCALE,
+    SIM_WIDTH,
+)
 
 
 @click.command("capture")
@@ -67,11 +73,11 @@ def camera_group() -> None:
 @click.option("--hdri", required=True, type=click.Path(exists=True, dir_okay=False),
               help="the panorama the camera photographs (.exr or .hdr)")
 @click.option("--port", type=int, default=0, show_default=True, help="TCP port (0 = any free)")
-@click.option("--curve", type=click.Choice(["gamma22", "filmic", "soft"]), default="filmic",
+@click.option("--curve", type=click.Choice(list(CURVES)), default=SIM_CURVE,
               show_default=True, help="the camera's response curve")
-@click.option("--width", type=int, default=512, show_default=True,
+@click.option("--width", type=int, default=SIM_WIDTH, show_default=True,
               help="largest panorama width served (downsampled by whole factors)")
-@click.option("--scene-scale", type=float, default=1000.0, show_default=True,
+@click.option("--scene-scale", type=float, default=SIM_SCENE_SCALE, show_default=True,
               help="radiance (cd/m^2) per HDRI unit: the light level")
 @click.option("--username", help="require digest auth with this user (as a THETA in client "
                                  "mode)")

@@ -5,7 +5,9 @@ shutter, at a fixed ISO and white balance (manual program, ``exposureProgram = 1
 only the shutter changes. The centre is either given or metered: one shot in ISO-priority
 program (9) at the same ISO, whose real shutter (EXIF) becomes the centre. Shutter values are
 snapped to the standard 1/3-EV series a camera accepts (:func:`snap_shutter`) and clamped to
-``[min_shutter_s, max_shutter_s]``; duplicates after clamping are dropped.
+``[min_shutter_s, max_shutter_s]``; a shot the clamp would merge into its neighbour at one end
+is taken beyond the other end instead (:func:`plan_shutters`), so that a dark scene's bracket,
+whose longest shots the 1 s limit drops, still reaches the short shutters its highlights need.
 
 Each shot's real exposure comes from, in order: the EXIF of the downloaded file (ExposureTime,
 FNumber, ISOSpeedRatings), THETA's ``camera._getMetadata``, and the camera's reported
@@ -95,15 +97,37 @@ def snap_shutter(seconds: float) -> float:
 
 def plan_shutters(plan: BracketPlan, centre_s: float) -> list[float]:
     """Shutter times (s, ascending, distinct, snapped and clamped) of ``plan`` around
-    ``centre_s``."""
-    half = (plan.shots - 1) / 2.0
-    out: list[float] = []
-    for k in range(plan.shots):
-        t = centre_s * 2.0 ** ((k - half) * plan.ev_step)
-        t = snap_shutter(min(max(t, plan.min_shutter_s), plan.max_shutter_s))
-        if t not in out:
-            out.append(t)
-    return sorted(out)
+    ``centre_s`` (s): ``shots`` of them ``ev_step`` EV apart. A shot that the clamp to
+    ``[min_shutter_s, max_shutter_s]`` merges into its neighbour at one end is taken one step
+    beyond the other end instead, while that end is inside its limit: a dark scene's bracket,
+    whose longest shots the 1 s limit drops, reaches the shorter shutters that hold its
+    highlights (and a bright one's the longer ones for its shadows). Never more than
+    ``shots``; fewer only when both ends are at their limits.
+
+    >>> plan_shutters(BracketPlan(shots=5, ev_step=2.0, max_shutter_s=1.0), 0.25)  # 4 s -> 1/250
+    [0.004, 0.01666666, 0.06666666, 0.25, 1.0]
+    """
+    lo = -(plan.shots - 1) / 2.0  # the bracket's ends, in ev_step steps from the centre
+    hi = -lo
+
+    def ideal(step: float) -> float:
+        return centre_s * 2.0 ** (step * plan.ev_step)
+
+    def shutters() -> list[float]:
+        steps = (lo + k for k in range(round(hi - lo) + 1))
+        return sorted({snap_shutter(min(max(ideal(s), plan.min_shutter_s),
+                                        plan.max_shutter_s)) for s in steps})
+
+    out = shutters()
+    while len(out) < plan.shots:
+        if ideal(lo) > plan.min_shutter_s:
+            lo -= 1.0
+        elif ideal(hi) < plan.max_shutter_s:
+            hi += 1.0
+        else:
+            break
+        out = shutters()
+    return out
 
 
 def _ratio(v: Any) -> float | None:

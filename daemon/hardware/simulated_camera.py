@@ -88,6 +88,13 @@ CURVES: dict[str, ResponseCurve] = {
     "soft": ResponseCurve(1.8, 0.3),
 }
 
+#: Defaults of ``grassd camera sim`` (and of :class:`SimCamera`): the largest panorama width
+#: served (texels; a wider map is downsampled by whole factors, :func:`sim_camera_from_file`),
+#: the response curve (a :data:`CURVES` name) and the light level (cd/m^2 per map unit).
+SIM_WIDTH: int = 512
+SIM_CURVE: str = "filmic"
+SIM_SCENE_SCALE: float = 1000.0
+
 
 @dataclass
 class Faults:
@@ -167,8 +174,8 @@ class SimCamera:
     ``username``/``password``: require HTTP digest auth as a THETA in client mode does.
     """
 
-    def __init__(self, env: NDArray, *, scene_scale: float = 1000.0,
-                 curve: str | ResponseCurve = "filmic", full_well: float = 20000.0,
+    def __init__(self, env: NDArray, *, scene_scale: float = SIM_SCENE_SCALE,
+                 curve: str | ResponseCurve = SIM_CURVE, full_well: float = 20000.0,
                  read_noise: float = 2e-4, seed: int = 0, host: str = "127.0.0.1",
                  port: int = 0, username: str | None = None, password: str | None = None,
                  model: str = "grassd SimCam Z1", serial: str | None = None,
