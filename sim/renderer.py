@@ -68,6 +68,15 @@ import numpy as np
 
 from grassd.sim import geometry
 from grassd.sim import tifuncs as tf
+from grassd.sim.albedo_terms import (
+    CODE_BASE,
+    MAX_DEGREE,
+    N_MONOMIALS,
+    N_SYMBOLS,
+    SPECULAR,
+    AlbedoTerms,
+    code_table,
+)
 from grassd.sim.backend import is_initialised, ti
 from grassd.sim.camera import frame_quad, image_quad
 from grassd.sim.env_sampler import (
@@ -107,6 +116,10 @@ MEMO_COLS = 13
 # ray crosses the blade's plane: tifuncs.hit_growing_blade, which takes 0.1 um off it), so it
 # is not traced again there.
 GROWN_IN = 1e-6
+# The recording mode (albedo_terms): each thread sums TERM_BLOCK camera paths of one (length,
+# replicate) serially into its own row of term_acc, so the sums do not depend on scheduling.
+TERM_BLOCK = 256
+TERM_THREADS = 1 << 12
 
 
 @dataclass(frozen=True)
@@ -244,6 +257,9 @@ class Renderer:
         self.sums = ti.Vector.field(3, ti.f64, 256 * 64)  # per (length, replicate) of a launch
         self.traced = ti.field(ti.i64, 2)  # path traces and rays traced by the last launch
         self.quad = ti.Vector.field(3, ti.f32, 4)
+        self.mono_index = ti.field(ti.i32, CODE_BASE ** N_SYMBOLS)  # monomial of each code
+        self.term_acc = ti.Vector.field(3, ti.f64, (TERM_THREADS, N_MONOMIALS))
+        self._mono_uploaded = False
         self.image = ti.Vector.field(3, ti.f32, (PREVIEW_MAX, PREVIEW_MAX))
         # Scalars: see _upload_* for the meaning of each slot.
         self.fpar = ti.field(ti.f32, 32)
@@ -254,7 +270,7 @@ class Renderer:
         # Likewise a launch of one length runs without growth lengths and the memo (-3.5 to
         # -4.4 % time per path).
         self._features = (False, False)
-        self._compiled: set[tuple[bool, bool, bool]] = set()
+        self._compiled: set[tuple] = set()  # kernel variants compiled (features, launch kind)
         self._scene_key: tuple | None = None
         self._scene: SceneArrays | None = None
         self._lighting: Lighting | None = None
@@ -780,6 +796,156 @@ class Renderer:
             grow = x
         return total, grow, ti.min(ray, rows), rays
 
+    @ti.func
+    def camera_ray(self, i: ti.i32, n_samp: ti.i32, rep_key: ti.u32, eye, area: ti.f32):
+        """Direction from the eye through sample ``i`` of the ``n_samp`` of a replicate on the
+        measurement quad (the bilinear parametrisation of ``self.quad``), and the Jacobian of
+        that parametrisation over the quad's area (the sample's weight in the area mean)."""
+        su, sv = tf.owen_sobol_pair(i, n_samp, rep_key, 0, 0, 1)
+        q0, q1, q2, q3 = self.quad[0], self.quad[1], self.quad[2], self.quad[3]
+        q = (1 - su) * (1 - sv) * q0 + su * (1 - sv) * q1 + su * sv * q2 + (1 - su) * sv * q3
+        dpu = (1 - sv) * (q1 - q0) + sv * (q2 - q3)
+        dpv = (1 - su) * (q3 - q0) + su * (q2 - q1)
+        return (q - eye).normalized(), dpu.cross(dpv).norm() / area
+
+    @ti.func
+    def add_terms(self, th: ti.i32, tcode: ti.template(), tgeo: ti.template(), n_terms: ti.i32,
+                  mat: ti.i32, first, second, glossy: ti.template()):
+        """Add light that reflects at a vertex on material ``mat`` to thread ``th``'s monomial
+        sums: each of the path's ``n_terms`` terms so far (code, weight) times ``first`` (the
+        Lambertian lobe's share, a factor of that material's symbol) and, if ``glossy``,
+        times ``second`` (the glossy lobe's, a factor of the specular symbol)."""
+        for j in range(n_terms):
+            g = vec3(tgeo[j, 0], tgeo[j, 1], tgeo[j, 2])
+            code = tcode[j] + (1 << (2 * mat))
+            self.term_acc[th, self.mono_index[code]] += ti.cast(g * first, ti.f64)
+            if ti.static(glossy):
+                code_s = tcode[j] + (1 << (2 * SPECULAR))
+                self.term_acc[th, self.mono_index[code_s]] += ti.cast(g * second, ti.f64)
+
+    @ti.func
+    def record_path(self, th: ti.i32, scale: ti.f32, o, d, x: ti.f32, index: ti.i32,
+                    strata: ti.i32, rep_key: ti.u32, key: ti.u32, max_bounces: ti.i32,
+                    glossy: ti.template(), splay: ti.template()):
+        """:meth:`radiance` of one camera path at green length ``x``, recorded as terms of the
+        polynomial in the materials (:mod:`grassd.sim.albedo_terms`) into thread ``th``'s row
+        of ``term_acc``, each weighted by ``scale``. The path is sampled exactly as
+        :meth:`radiance` samples it with the uploaded materials (the reference: same random
+        numbers, lobe choices and MIS weights); every vertex's reflectance is split into its
+        Lambertian lobe per unit of ``(1 - ks) albedo`` and its glossy lobe per unit of ``ks``,
+        so that the path's terms hold for any albedos and ``ks``. A term is (code of its
+        monomial, weight); a glossy scene doubles them at every bounce (at most 4 before the
+        last vertex with ``max_bounces <= 3``). No memo: every ray is traced."""
+        tcode = ti.Vector([0, 0, 0, 0, 0, 0, 0, 0], ti.i32)
+        tgeo = ti.Matrix.zero(ti.f32, 8, 3)
+        for c in ti.static(range(3)):
+            tgeo[0, c] = scale
+        n_terms = 1
+        pdf_bsdf = 0.0
+        n_prev = 1
+        bin_prev = 0
+        sun_on = self.ipar[6]
+        sun_dir = vec3(self.fpar[10], self.fpar[11], self.fpar[12])
+        sun_e = vec3(self.fpar[13], self.fpar[14], self.fpar[15])
+        ks, nexp = self.fpar[16], self.fpar[17]
+        for depth in range(max_bounces + 1):
+            t, n, mat, _grow = self.trace(o, d, x, x, tf.INF,
+                                          1 if depth == max_bounces else 0, splay, False)
+            if mat < 0:  # escaped to the environment: the terms so far times its radiance
+                le = self.env_radiance(d)
+                w = 1.0
+                if depth > 0:
+                    w = tf.balance_heuristic(pdf_bsdf, n_prev * self.env_pdf(d, bin_prev))
+                for j in range(n_terms):
+                    g = vec3(tgeo[j, 0], tgeo[j, 1], tgeo[j, 2])
+                    self.term_acc[th, self.mono_index[tcode[j]]] += ti.cast(g * le * w, ti.f64)
+                break
+            if depth == max_bounces:
+                break
+            if depth >= RR_DEPTH:
+                if tf.rand01(key, 144 + depth) >= RR_SURVIVAL:
+                    break
+                tgeo /= RR_SURVIVAL
+            nn = n
+            if nn.dot(d) > 0.0:
+                nn = -nn
+            p = o + t * d + EPS * nn
+            alb = self.albedo[mat]
+            wo = -d
+            nbin = tf.normal_bin(nn, NORMAL_BINS_SIDE)
+            pair = 1 + depth * 2
+            n_nee = 1
+            if depth == 0:
+                n_nee = self.ipar[7]
+            last = depth > 0 and depth == max_bounces - 1
+            for j in range(n_nee + sun_on):
+                wl = sun_dir
+                light = vec3(0.0)
+                if j < n_nee:
+                    e1, e2 = tf.owen_sobol_pair(index, strata * strata, rep_key, pair, j, n_nee)
+                    wl, pdf_l, le = self.sample_env(e1, e2, nbin)
+                    if pdf_l > 0.0:
+                        _fcos, pdf_b = tf.bsdf_eval(alb, nn, wo, wl, ks, nexp, glossy)
+                        w = 1.0
+                        if not last:
+                            w = tf.balance_heuristic(n_nee * pdf_l, pdf_b)
+                        light = le * (w / (pdf_l * n_nee))
+                else:
+                    light = sun_e
+                if nn.dot(wl) > 0.0 and light.max() > 0.0:
+                    _ts, _ns, ms, _gs = self.trace(p, wl, x, x, tf.INF, 1, splay, False)
+                    if ms < 0:
+                        first, second = tf.bsdf_lobes(nn, wo, wl, nexp, glossy)
+                        self.add_terms(th, tcode, tgeo, n_terms, mat, light * first,
+                                       light * second, glossy)
+            if last:
+                break
+            b1, b2 = tf.owen_sobol_pair(index, strata * strata, rep_key, pair + 1, 0, 1)
+            d, _weight, pdf_bsdf = tf.bsdf_sample(alb, nn, wo, ks, nexp, b1, b2,
+                                            tf.rand01(key, 128 + depth), glossy)
+            part_d, part_s = 1.0, 0.0  # Lambertian: f cos / pdf is the albedo itself
+            if ti.static(glossy):
+                part_d = 0.0
+                if nn.dot(d) > 0.0 and pdf_bsdf > 0.0:
+                    lobe_d, lobe_s = tf.bsdf_lobes(nn, wo, d, nexp, True)
+                    part_d, part_s = lobe_d / pdf_bsdf, lobe_s / pdf_bsdf
+            if part_d + part_s <= 0.0:
+                break
+            for j in range(n_terms):
+                if ti.static(glossy):
+                    tcode[n_terms + j] = tcode[j] + (1 << (2 * SPECULAR))
+                    for c in ti.static(range(3)):
+                        tgeo[n_terms + j, c] = tgeo[j, c] * part_s
+                tcode[j] += 1 << (2 * mat)
+                for c in ti.static(range(3)):
+                    tgeo[j, c] *= part_d
+            if ti.static(glossy):
+                n_terms *= 2
+            n_prev = n_nee
+            bin_prev = nbin
+            o = p
+
+    @ti.kernel
+    def _terms_kernel(self, n_len: ti.i32, rep0: ti.i32, n_rep: ti.i32, strata: ti.i32,
+                      seed: ti.u32, max_bounces: ti.i32, eye: vec3, area: ti.f32,
+                      glossy: ti.template(), splay: ti.template()):
+        """Record replicates rep0 .. rep0 + n_rep - 1 at the first n_len entries of
+        ``self.lengths`` (m) as monomial sums: thread (k, r, b) sums paths b * TERM_BLOCK ..
+        of length k, replicate rep0 + r into term_acc[(k * n_rep + r) * n_blocks + b]."""
+        n_samp = strata * strata
+        n_blocks = (n_samp + TERM_BLOCK - 1) // TERM_BLOCK
+        for k, rr, b in ti.ndrange(n_len, n_rep, n_blocks):
+            th = (k * n_rep + rr) * n_blocks + b
+            for m in range(N_MONOMIALS):
+                self.term_acc[th, m] = ti.Vector([0.0, 0.0, 0.0], dt=ti.f64)
+            r = rep0 + rr
+            rep_key = tf.replicate_key(seed, r)
+            for i in range(b * TERM_BLOCK, ti.min((b + 1) * TERM_BLOCK, n_samp)):
+                key = tf.sample_key(seed, r, i)
+                d, jac = self.camera_ray(i, n_samp, rep_key, eye, area)
+                self.record_path(th, jac, eye, d, self.lengths[k], i, strata, rep_key, key,
+                                 max_bounces, glossy, splay)
+
     @ti.kernel
     def _trace_kernel(self, n_len: ti.i32, rep0: ti.i32, n_rep: ti.i32, strata: ti.i32,
                       seed: ti.u32, max_bounces: ti.i32, eye: vec3, area: ti.f32,
@@ -798,13 +964,7 @@ class Renderer:
             r = rep0 + rr
             rep_key = tf.replicate_key(seed, r)
             key = tf.sample_key(seed, r, i)
-            su, sv = tf.owen_sobol_pair(i, n_samp, rep_key, 0, 0, 1)
-            q0, q1, q2, q3 = self.quad[0], self.quad[1], self.quad[2], self.quad[3]
-            q = (1 - su) * (1 - sv) * q0 + su * (1 - sv) * q1 + su * sv * q2 + (1 - su) * sv * q3
-            dpu = (1 - sv) * (q1 - q0) + sv * (q2 - q3)
-            dpv = (1 - su) * (q3 - q0) + su * (q2 - q1)
-            jac = dpu.cross(dpv).norm() / area
-            d = (q - eye).normalized()
+            d, jac = self.camera_ray(i, n_samp, rep_key, eye, area)
             k = 0
             traces = 0
             rays = 0
@@ -856,6 +1016,21 @@ class Renderer:
             self.image[py, px] = acc / (m * m)
 
     # ----------------------------------------------------------------------------- public API
+    def _upload_quad(self, display: DisplaySpec, scene: SceneArrays, viewpoint: Viewpoint,
+                     pixel_index: int) -> tuple[np.ndarray, float]:
+        """Upload the image-plane measurement quad of pixel ``pixel_index`` seen from
+        ``viewpoint``; returns the eye (world m) and the quad's area."""
+        centres = display.pixel_centres_m()
+        if not 0 <= pixel_index < len(centres):
+            raise SceneError(f"pixel_index {pixel_index} outside the display's "
+                             f"{len(centres)} pixels")
+        cxy = centres[pixel_index]
+        corners = scene.quad_corners + np.array([cxy[0], cxy[1], 0.0])
+        eye = viewpoint.eye_m(tuple(cxy))
+        quad = image_quad(eye, corners)
+        self.quad.from_numpy(quad.astype(np.float32))
+        return eye, float(0.5 * np.linalg.norm(np.cross(quad[2] - quad[0], quad[3] - quad[1])))
+
     def characteristic(
         self,
         display: DisplaySpec,
@@ -880,16 +1055,7 @@ class Renderer:
         if lengths_mm.ndim != 1 or not 1 <= len(lengths_mm) <= 256:
             raise SceneError("give 1..256 green lengths (mm)")
         scene = self._prepare(display, lengths_mm, lighting)
-        centres = display.pixel_centres_m()
-        if not 0 <= pixel_index < len(centres):
-            raise SceneError(f"pixel_index {pixel_index} outside the display's "
-                             f"{len(centres)} pixels")
-        cxy = centres[pixel_index]
-        corners = scene.quad_corners + np.array([cxy[0], cxy[1], 0.0])
-        eye = viewpoint.eye_m(tuple(cxy))
-        quad = image_quad(eye, corners)
-        self.quad.from_numpy(quad.astype(np.float32))
-        area = 0.5 * np.linalg.norm(np.cross(quad[2] - quad[0], quad[3] - quad[1]))
+        eye, area = self._upload_quad(display, scene, viewpoint, pixel_index)
 
         m = settings.strata
         n_samp = m * m
@@ -946,6 +1112,74 @@ class Renderer:
             seconds={"compile": t_compile, "trace": t_end - t_trace0,
                      "total": t_end - t_start},
         )
+
+    def albedo_terms(self, display: DisplaySpec, lighting: Lighting, viewpoint: Viewpoint,
+                     lengths_mm: np.ndarray, settings: RenderSettings | None = None,
+                     pixel_index: int = 0, glossy: bool = False) -> AlbedoTerms:
+        """Trace the measurement quad at every green length (mm) as :meth:`characteristic`
+        does, recording the radiance as a polynomial in the materials
+        (:class:`~grassd.sim.albedo_terms.AlbedoTerms`): evaluated at the display's own
+        albedos and ``specular`` it gives what :meth:`characteristic` gives with the same
+        settings (to float rounding), and at any others what it would give for the same paths.
+
+        Paths are sampled with the display's materials (the reference). ``glossy`` records
+        the glossy lobe even where the display's ``specular`` is 0 (its lobe is then sampled
+        by the cosine lobe alone: unbiased, noisier for a sharp lobe; give the reference a
+        small ``specular`` instead). Needs ``max_bounces <= 3`` and at most
+        ``TERM_THREADS / ceil(samples / TERM_BLOCK)`` lengths. Every length is traced in full
+        (no reuse between lengths).
+        """
+        settings = settings or RenderSettings()
+        t_start = time.perf_counter()
+        if settings.max_bounces > MAX_DEGREE:
+            raise SceneError(f"recording the materials' terms needs max_bounces <= {MAX_DEGREE}"
+                             f", got {settings.max_bounces}")
+        lengths_mm = np.asarray(lengths_mm, dtype=np.float64)
+        if lengths_mm.ndim != 1 or not 1 <= len(lengths_mm) <= 256:
+            raise SceneError("give 1..256 green lengths (mm)")
+        scene = self._prepare(display, lengths_mm, lighting)
+        eye, area = self._upload_quad(display, scene, viewpoint, pixel_index)
+        if not self._mono_uploaded:
+            self.mono_index.from_numpy(code_table())
+            self._mono_uploaded = True
+        m = settings.strata
+        n_samp = m * m
+        n_len = len(lengths_mm)
+        n_blocks = -(-n_samp // TERM_BLOCK)
+        if n_len * n_blocks > TERM_THREADS:
+            raise SceneError(f"{n_len} lengths x {n_samp} paths exceed the recording's "
+                             f"{TERM_THREADS * TERM_BLOCK} paths per replicate; lower samples "
+                             f"or lengths")
+        rep_chunk = max(1, TERM_THREADS // (n_len * n_blocks))
+        features = (bool(glossy or self._features[0]), self._features[1])
+        buf = np.zeros(self.lengths.shape[0], np.float32)
+        buf[:n_len] = lengths_mm * 1e-3
+        self.lengths.from_numpy(buf)
+        self.ipar[7] = settings.light_samples
+        eye_ti = ti.Vector(eye.astype(np.float32).tolist())
+        t_compile = 0.0
+        if ("terms", *features) not in self._compiled:
+            t0 = time.perf_counter()
+            self._terms_kernel(0, 0, 1, 1, 0, 1, eye_ti, 1.0, *features)
+            ti.sync()
+            self._compiled.add(("terms", *features))
+            t_compile = time.perf_counter() - t0
+        t_trace0 = time.perf_counter()
+        coeffs = np.empty((settings.replicates, n_len, N_MONOMIALS, 3))
+        for r0 in range(0, settings.replicates, rep_chunk):
+            reps = min(rep_chunk, settings.replicates - r0)
+            self._terms_kernel(n_len, r0, reps, m, settings.seed, settings.max_bounces, eye_ti,
+                               area, *features)
+            acc = self.term_acc.to_numpy()[: n_len * reps * n_blocks]
+            acc = acc.reshape(n_len, reps, n_blocks, N_MONOMIALS, 3).sum(axis=2) / n_samp
+            coeffs[r0: r0 + reps] = np.transpose(acc, (1, 0, 2, 3))
+        if not np.all(np.isfinite(coeffs)):
+            raise SimError("the renderer recorded non-finite terms; check the lighting values")
+        t_end = time.perf_counter()
+        return AlbedoTerms(viewpoint=viewpoint, lengths_mm=lengths_mm, coefficients=coeffs,
+                           glossy=features[0], samples_per_length=settings.replicates * n_samp,
+                           seconds={"compile": t_compile, "trace": t_end - t_trace0,
+                                    "total": t_end - t_start})
 
     def preview(self, display: DisplaySpec, lighting: Lighting, viewpoint: Viewpoint,
                 length_mm: float, width: int = 256, spp: int = 16,

@@ -173,6 +173,20 @@ def bsdf_eval(alb: vec3, n: vec3, wo: vec3, wi: vec3, ks: ti.f32, nexp: ti.f32,
 
 
 @ti.func
+def bsdf_lobes(n: vec3, wo: vec3, wi: vec3, nexp: ti.f32, glossy: ti.template()):
+    """The two lobes of :func:`bsdf_eval` per unit of their weights: ``cos_i / pi`` (the
+    Lambertian lobe per unit of ``(1 - ks) * albedo``) and ``(n + 2) / 2pi cos^n cos_i`` (the
+    glossy lobe per unit of ``ks``; 0 unless ``glossy``), so that ``f cos = (1 - ks) albedo *
+    first + ks * second`` (:mod:`grassd.sim.albedo_terms`)."""
+    cos_i = ti.max(n.dot(wi), 0.0)
+    lobe = 0.0
+    if ti.static(glossy):
+        c = ti.max(reflect(wo, n).dot(wi), 0.0)
+        lobe = (nexp + 2.0) * c ** nexp / (2.0 * PI) * cos_i
+    return cos_i / PI, lobe
+
+
+@ti.func
 def glossy_probability(alb: vec3, ks: ti.f32) -> ti.f32:
     """Probability of sampling the glossy lobe: its share of the reflected energy."""
     kd = (1.0 - ks) * ti.max(alb.x, alb.y, alb.z)
