@@ -118,8 +118,10 @@ MEMO_COLS = 13
 GROWN_IN = 1e-6
 # The recording mode (albedo_terms): each thread sums TERM_BLOCK camera paths of one (length,
 # replicate) serially into its own row of term_acc, so the sums do not depend on scheduling.
-TERM_BLOCK = 256
-TERM_THREADS = 1 << 12
+# Small blocks give Taichi's adaptive CPU scheduling enough iterations to balance: measured
+# (6 lengths x 4096 x 8 paths, 2 cores) 256 paths a block use 1.4 cores, 64 1.85, 16 1.9.
+TERM_BLOCK = 16
+TERM_THREADS = 1 << 14
 
 
 @dataclass(frozen=True)
@@ -809,27 +811,33 @@ class Renderer:
         return (q - eye).normalized(), dpu.cross(dpv).norm() / area
 
     @ti.func
-    def add_terms(self, th: ti.i32, tcode: ti.template(), tgeo: ti.template(), n_terms: ti.i32,
-                  mat: ti.i32, first, second, glossy: ti.template()):
-        """Add light that reflects at a vertex on material ``mat`` to thread ``th``'s monomial
-        sums: each of the path's ``n_terms`` terms so far (code, weight) times ``first`` (the
-        Lambertian lobe's share, a factor of that material's symbol) and, if ``glossy``,
-        times ``second`` (the glossy lobe's, a factor of the specular symbol)."""
+    def add_terms(self, acc: ti.template(), tcode: ti.template(), tgeo: ti.template(),
+                  n_terms: ti.i32, mat: ti.i32, first, second, glossy: ti.template()):
+        """Add light that reflects at a vertex on material ``mat`` to the monomial sums ``acc``
+        (a local (56, 3) float64 matrix, by reference): each of the path's ``n_terms`` terms
+        so far (code, weight) times ``first`` (the Lambertian lobe's share, a factor of that
+        material's symbol) and, if ``glossy``, times ``second`` (the glossy lobe's, a factor
+        of the specular symbol)."""
         for j in range(n_terms):
             g = vec3(tgeo[j, 0], tgeo[j, 1], tgeo[j, 2])
-            code = tcode[j] + (1 << (2 * mat))
-            self.term_acc[th, self.mono_index[code]] += ti.cast(g * first, ti.f64)
+            self.add_term(acc, tcode[j] + (1 << (2 * mat)), g * first)
             if ti.static(glossy):
-                code_s = tcode[j] + (1 << (2 * SPECULAR))
-                self.term_acc[th, self.mono_index[code_s]] += ti.cast(g * second, ti.f64)
+                self.add_term(acc, tcode[j] + (1 << (2 * SPECULAR)), g * second)
 
     @ti.func
-    def record_path(self, th: ti.i32, scale: ti.f32, o, d, x: ti.f32, index: ti.i32,
+    def add_term(self, acc: ti.template(), code: ti.i32, value):
+        """``acc[monomial of code] += value`` (a local matrix: no atomics)."""
+        row = self.mono_index[code]
+        for c in ti.static(range(3)):
+            acc[row, c] += ti.cast(value[c], ti.f64)
+
+    @ti.func
+    def record_path(self, acc: ti.template(), scale: ti.f32, o, d, x: ti.f32, index: ti.i32,
                     strata: ti.i32, rep_key: ti.u32, key: ti.u32, max_bounces: ti.i32,
                     glossy: ti.template(), splay: ti.template()):
         """:meth:`radiance` of one camera path at green length ``x``, recorded as terms of the
-        polynomial in the materials (:mod:`grassd.sim.albedo_terms`) into thread ``th``'s row
-        of ``term_acc``, each weighted by ``scale``. The path is sampled exactly as
+        polynomial in the materials (:mod:`grassd.sim.albedo_terms`) into the monomial sums
+        ``acc`` (by reference), each weighted by ``scale``. The path is sampled exactly as
         :meth:`radiance` samples it with the uploaded materials (the reference: same random
         numbers, lobe choices and MIS weights); every vertex's reflectance is split into its
         Lambertian lobe per unit of ``(1 - ks) albedo`` and its glossy lobe per unit of ``ks``,
@@ -858,7 +866,7 @@ class Renderer:
                     w = tf.balance_heuristic(pdf_bsdf, n_prev * self.env_pdf(d, bin_prev))
                 for j in range(n_terms):
                     g = vec3(tgeo[j, 0], tgeo[j, 1], tgeo[j, 2])
-                    self.term_acc[th, self.mono_index[tcode[j]]] += ti.cast(g * le * w, ti.f64)
+                    self.add_term(acc, tcode[j], g * le * w)
                 break
             if depth == max_bounces:
                 break
@@ -896,7 +904,7 @@ class Renderer:
                     _ts, _ns, ms, _gs = self.trace(p, wl, x, x, tf.INF, 1, splay, False)
                     if ms < 0:
                         first, second = tf.bsdf_lobes(nn, wo, wl, nexp, glossy)
-                        self.add_terms(th, tcode, tgeo, n_terms, mat, light * first,
+                        self.add_terms(acc, tcode, tgeo, n_terms, mat, light * first,
                                        light * second, glossy)
             if last:
                 break
@@ -934,17 +942,18 @@ class Renderer:
         of length k, replicate rep0 + r into term_acc[(k * n_rep + r) * n_blocks + b]."""
         n_samp = strata * strata
         n_blocks = (n_samp + TERM_BLOCK - 1) // TERM_BLOCK
-        for k, rr, b in ti.ndrange(n_len, n_rep, n_blocks):
-            th = (k * n_rep + rr) * n_blocks + b
-            for m in range(N_MONOMIALS):
-                self.term_acc[th, m] = ti.Vector([0.0, 0.0, 0.0], dt=ti.f64)
+        for b, rr, k in ti.ndrange(n_blocks, n_rep, n_len):  # lengths interleaved: balanced
+            acc = ti.Matrix.zero(ti.f64, N_MONOMIALS, 3)
             r = rep0 + rr
             rep_key = tf.replicate_key(seed, r)
             for i in range(b * TERM_BLOCK, ti.min((b + 1) * TERM_BLOCK, n_samp)):
                 key = tf.sample_key(seed, r, i)
                 d, jac = self.camera_ray(i, n_samp, rep_key, eye, area)
-                self.record_path(th, jac, eye, d, self.lengths[k], i, strata, rep_key, key,
+                self.record_path(acc, jac, eye, d, self.lengths[k], i, strata, rep_key, key,
                                  max_bounces, glossy, splay)
+            th = (k * n_rep + rr) * n_blocks + b
+            for m in range(N_MONOMIALS):
+                self.term_acc[th, m] = ti.Vector([acc[m, 0], acc[m, 1], acc[m, 2]], dt=ti.f64)
 
     @ti.kernel
     def _trace_kernel(self, n_len: ti.i32, rep0: ti.i32, n_rep: ti.i32, strata: ti.i32,
