@@ -16,6 +16,7 @@ from grassd.daemon.cli.bundles import bundles
 from grassd.daemon.cli.capture import camera_group, capture_cmd
 from grassd.daemon.cli.controllers import controllers
 from grassd.daemon.cli.demo import demo
+from grassd.daemon.cli.fit import fit
 from grassd.daemon.cli.run import calibrate_cmd, check_config, history_cmd, run_cmd, status_cmd
 from grassd.daemon.cli.simulate import simulate
 from grassd.daemon.cli.sweep import sweep
@@ -41,5 +42,6 @@ def main() -> None:
 
 
 for _command in (demo, check_config, run_cmd, status_cmd, history_cmd, calibrate_cmd, bundles,
-                 controllers, simulate, validate, experiment, sweep, capture_cmd, camera_group):
+                 controllers, simulate, validate, fit, experiment, sweep, capture_cmd,
+                 camera_group):
     main.add_command(_command)

@@ -31,8 +31,12 @@ def _progress(msg: str) -> None:
               help="Write the JSON report here.")
 @click.option("--html", "html_out", type=click.Path(dir_okay=False, path_type=Path),
               help="Write the self-contained HTML report (PNG plots embedded) here.")
+@click.option("--pixel", "pixel_file", type=click.Path(dir_okay=False, path_type=Path),
+              help="Simulate this pixel instead of the capture's [pixel]: a grassd fit JSON "
+                   "report, or a TOML file with a [display.pixel] table.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress messages.")
-def validate(capture, samples, replicates, target_stderr, seed, arch, json_out, html_out, quiet):
+def validate(capture, samples, replicates, target_stderr, seed, arch, json_out, html_out,
+             pixel_file, quiet):
     """Compare real captures (RAW photos + capture.toml in CAPTURE) with the simulation.
 
     Prints, per viewpoint, the discrete Frechet distance, the maximum OGCD error and where it
@@ -43,6 +47,12 @@ def validate(capture, samples, replicates, target_stderr, seed, arch, json_out, 
     from grassd.sim.scene import RenderSettings
 
     manifest = load_manifest(capture)
+    if pixel_file is not None:
+        from dataclasses import replace
+
+        from grassd.daemon.offline.fit import load_pixel_fields
+
+        manifest = replace(manifest, pixel=load_pixel_fields(pixel_file))
     settings = RenderSettings(samples=samples, replicates=replicates, seed=seed)
     result = validate_capture(manifest, settings=settings, arch=arch,
                               target_stderr=target_stderr,

@@ -261,3 +261,69 @@ def validation_html(result: Any) -> str:
                 intro="Discrete Frechet distance and maximum OGCD error between the measured "
                       "and the simulated characteristic (paper section 4; paper reference "
                       "viewpoint: Frechet 1.16, maximum error 1.51).")
+
+
+# ----------------------------------------------------------------------------- fit
+START_COLOUR = "#888888"
+
+
+def fit_figure(viewpoints: Sequence[Any]) -> Any:
+    """Real, starting and fitted OGCD vs length per viewpoint of a ``grassd fit`` result
+    (held-out viewpoints marked in the title)."""
+    plt = _plt()
+    n = len(viewpoints)
+    cols = min(n, 4)
+    rows = int(np.ceil(n / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(3.3 * cols, 2.9 * rows), squeeze=False,
+                             sharey=True)
+    for k, v in enumerate(viewpoints):
+        ax = axes[k // cols][k % cols]
+        x = v.fitted.real.lengths_mm
+        ax.plot(x, v.fitted.real.ogcd, "o-", color=REAL_COLOUR, ms=4, label="real")
+        ax.plot(x, v.start.sim.ogcd, "s--", color=START_COLOUR, ms=3, label="start")
+        ax.errorbar(x, v.fitted.sim.ogcd, yerr=v.fitted.sim.ogcd_stderr, fmt="s-",
+                    color=SIM_COLOUR, ms=3, capsize=2, label="fitted")
+        h, d, t = v.viewpoint
+        ax.set_title(f"({h:g}, {d:g}, {t:g})" + (" held out" if v.held_out else ""),
+                     fontsize=9)
+        ax.text(0.03, 0.95, f"F start {v.start.frechet:.2f}\nF fitted {v.fitted.frechet:.2f}",
+                transform=ax.transAxes, va="top", fontsize=8)
+        ax.set_xlabel("green length [mm]")
+        ax.grid(alpha=0.3)
+    for k in range(n, rows * cols):
+        axes[k // cols][k % cols].axis("off")
+    axes[0][0].set_ylabel("OGCD [dE00]")
+    axes[0][0].legend(fontsize=8, loc="lower right")
+    fig.tight_layout()
+    return fig
+
+
+def fit_html(result: Any) -> str:
+    """The ``grassd fit`` HTML report of a :class:`grassd.daemon.offline.fit.FitResult`."""
+
+    def fmt(v: Any) -> str:
+        if v is None:
+            return "-"
+        return ", ".join(f"{c:.1f}" for c in v) if isinstance(v, list) else f"{v:.4g}"
+
+    params = table(["field", "start", "fitted", "standard error"],
+                   [[k, fmt(result.start[k]), fmt(v), fmt(result.stderr.get(k))]
+                    for k, v in result.pixel.items()])
+    views = table(["viewpoint (h, d, theta)", "held out", "Frechet start", "Frechet fitted",
+                   "max error start", "max error fitted"],
+                  [[f"({v.viewpoint[0]:g}, {v.viewpoint[1]:g}, {v.viewpoint[2]:g})",
+                    "yes" if v.held_out else "", f2(v.start.frechet), f2(v.fitted.frechet),
+                    f2(v.start.max_error), f2(v.fitted.max_error)] for v in result.viewpoints])
+    sections = [("Fitted materials", params), ("Per viewpoint", views),
+                ("Characteristics", img_tag(figure_png(fit_figure(result.viewpoints)),
+                                            "real, starting and fitted OGCD per viewpoint"))]
+    if result.notes:
+        sections.append(("Notes", "".join(f"<p class=\"note\">{html.escape(n)}</p>"
+                                          for n in result.notes)))
+    sections.append(("[display.pixel] for grassd.toml",
+                     f"<pre>{html.escape(result.to_toml())}</pre>"))
+    return page("grassd fit: the pixel's materials from photos", sections,
+                intro=f"Fitted to {sum(not v.held_out for v in result.viewpoints)} viewpoint(s), "
+                      f"chi2 {result.chi2:.1f} on {result.dof} degrees of freedom, "
+                      f"{result.seconds:.1f} s. Simulated curves average "
+                      f"{result.settings.layouts} random tuft layouts.")

@@ -1,0 +1,643 @@
+"""``grassd fit``: the grass pixel's materials from photos of it.
+
+The capture directory is the one ``grassd validate`` reads (:mod:`grassd.daemon.offline.validate`):
+RAW photos of the pixel at several green lengths from one or more viewpoints, the checker photo
+and the light. The fit finds the :class:`~grassd.sim.scene.PixelSpec` fields that make the
+simulated photos match the real ones: the yellow, green and base albedos (8-bit encoded sRGB, as
+the config writes them), the glossy lobe (``specular``, ``smoothness``) and the green blades'
+``splay_deg``.
+
+How (fast by construction, every sample kept):
+
+* **Albedos and specular: one render, then milliseconds.** With the paths' random numbers
+  fixed, the radiance is a polynomial in the materials' reflectances and ``ks`` whose
+  coefficients the renderer records once per viewpoint
+  (:meth:`grassd.sim.renderer.Renderer.albedo_terms`, after Ben-Artzi et al. 2008). A
+  candidate's photos are then a contraction of those coefficients, and a Gauss-Newton fit
+  (:func:`scipy.optimize.least_squares`) of CIELAB residuals over every fitted photo takes a
+  few milliseconds.
+* **Splay and smoothness: re-rendered.** They move the geometry and the lobe's shape, which no
+  polynomial holds: each candidate value is recorded anew (the same random numbers: common
+  random numbers make the comparison between candidates smooth), the albedos fitted inside it,
+  and the profile of the misfit over a coarse grid is refined by a parabola through its
+  lowest three points.
+* **The layout.** The model's tufts are random; the photographed pixel's are one accident. The
+  simulation is averaged over ``layouts`` random layouts, and their spread (per viewpoint and
+  CIELAB component) weighs the residuals next to the Monte Carlo error and a floor for the
+  photos' own noise, so that no parameter bends to one layout.
+* **Uncertainty.** Standard errors from the weighted residuals: the Gauss-Newton covariance
+  ``(J^T J)^-1`` for albedos and specular, the profile's curvature (``2 / C''``) for splay and
+  smoothness, both scaled by the reduced chi-square where it exceeds 1.
+* **Judging.** Every viewpoint's real OGCD is compared with the starting model's and the
+  fitted one's (discrete Frechet distance and largest OGCD error, as ``validate``); held-out
+  viewpoints (``holdout``) take no part in the fit and show how well it predicts a view it
+  never saw.
+
+Units: albedos 8-bit encoded sRGB (0..255), ``specular`` 0..1, ``smoothness`` 0..0.97,
+``splay_deg`` degrees, lengths mm, colour differences CIEDE2000.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from grassd.calib.ccm import fit_ccm
+from grassd.calib.charts import get_chart
+from grassd.calib.colour_spaces import prophoto_to_lab, rec709_to_prophoto
+from grassd.calib.delta_e import delta_e_cie2000
+from grassd.calib.ogcd import ogcd_from_samples
+from grassd.daemon.config.toml_text import toml_value
+from grassd.daemon.offline.validate import (
+    CaptureManifest,
+    RealCapture,
+    ValidateError,
+    ViewpointComparison,
+    compare_viewpoint,
+    default_renderer,
+    measure_real,
+    virtual_checker,
+)
+
+#: The fitted PixelSpec fields, by their config names, in the order they are reported.
+FIT_PARAMS: tuple[str, ...] = ("yellow_srgb", "green_srgb", "base_srgb", "specular",
+                               "smoothness", "splay_deg")
+#: Albedo fields and their material rows in the renderer (yellow, green, base; cavity fixed).
+ALBEDO_ROWS: dict[str, int] = {"yellow_srgb": 0, "green_srgb": 1, "base_srgb": 2}
+#: Candidate splays (deg) of the coarse profile; the parabola refines between them.
+SPLAY_GRID: tuple[float, ...] = (0.0, 4.0, 8.0, 12.0, 16.0)
+#: Candidate smoothnesses of the coarse profile.
+SMOOTHNESS_GRID: tuple[float, ...] = (0.3, 0.5, 0.7, 0.85)
+#: Reference ``ks`` the paths are sampled with when ``specular`` is fitted from a start of 0:
+#: the glossy lobe is then sampled too (any ``ks`` is evaluated from the same paths).
+SAMPLING_SPECULAR: float = 0.05
+#: Photos must show green at least this long (fraction of ``green_max_mm``) to tell splay.
+SPLAY_MIN_LENGTH_FRACTION: float = 0.4
+#: Below this fitted ``specular`` the lobe's shape (``smoothness``) cannot be seen.
+MIN_VISIBLE_SPECULAR: float = 0.01
+#: A parameter whose standard error exceeds this is not determined by the photos.
+MAX_STDERR: dict[str, float] = {"yellow_srgb": 25.0, "green_srgb": 25.0, "base_srgb": 25.0,
+                                "specular": 0.2, "smoothness": 0.3, "splay_deg": 6.0}
+#: Photos whose median CIEDE2000 from the fitted model exceeds this contradict each other (or
+#: the model): no materials make them agree.
+CONTRADICTION_DE00: float = 4.0
+
+
+class FitError(ValidateError):
+    """The materials cannot be fitted from this capture; the message says what to change."""
+
+
+class NotIdentifiableError(FitError):
+    """The photos do not determine a parameter (too few lengths or viewpoints)."""
+
+
+class ContradictoryPhotosError(FitError):
+    """No materials make the simulation agree with the photos."""
+
+
+class FitNotConvergedError(FitError):
+    """The least-squares fit stopped before it converged."""
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """Monte Carlo settings of the fit: ``samples`` camera paths per length per replicate,
+    ``replicates`` per layout, ``layouts`` random tuft layouts averaged (seeds from the start
+    pixel's ``layout_seed`` on), ``seed`` of the paths, ``max_bounces`` (at most 3: the
+    recorded polynomial's degree), ``lab_floor``: the photos' own noise per CIELAB component,
+    added to the layout spread and the Monte Carlo error in the residuals' weights."""
+
+    samples: int = 1024
+    replicates: int = 4
+    layouts: int = 6
+    seed: int = 0
+    max_bounces: int = 3
+    lab_floor: float = 0.25
+
+    def __post_init__(self) -> None:
+        if self.layouts < 2:
+            raise FitError("fit needs at least 2 layouts: their spread is part of the error")
+        if self.replicates < 1 or self.samples < 16:
+            raise FitError("fit needs at least 1 replicate of 16 samples per layout")
+
+
+@dataclass(frozen=True)
+class ViewpointFit:
+    """One viewpoint judged: the real OGCD against the starting and the fitted model."""
+
+    viewpoint: tuple[float, float, float]
+    held_out: bool
+    start: ViewpointComparison
+    fitted: ViewpointComparison
+
+    def to_json(self) -> dict[str, Any]:
+        """``viewpoint``, ``held_out``, ``frechet`` and ``max_error`` (start, fitted), and the
+        curves."""
+        return {
+            "viewpoint": list(self.viewpoint), "held_out": self.held_out,
+            "frechet": {"start": self.start.frechet, "fitted": self.fitted.frechet},
+            "max_error": {"start": self.start.max_error, "fitted": self.fitted.max_error},
+            "lengths_mm": self.fitted.real.lengths_mm.tolist(),
+            "real_ogcd": self.fitted.real.ogcd.tolist(),
+            "start_ogcd": self.start.sim.ogcd.tolist(),
+            "fitted_ogcd": self.fitted.sim.ogcd.tolist(),
+        }
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """What ``grassd fit`` reports. ``pixel``: the fitted fields (config names; albedos as
+    8-bit sRGB lists); ``stderr``: their standard errors, same keys; ``start``: the model's
+    PixelSpec fields the fit started from (manifest ``[pixel]`` over the defaults);
+    ``notes``: what the fit could not determine and kept; ``profile``: per re-rendered
+    parameter the (value, misfit) pairs tried."""
+
+    pixel: dict[str, Any]
+    stderr: dict[str, Any]
+    start: dict[str, Any]
+    viewpoints: tuple[ViewpointFit, ...]
+    chi2: float
+    dof: int
+    seconds: float
+    settings: FitSettings
+    notes: tuple[str, ...] = ()
+    profile: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON report."""
+        return {
+            "pixel": self.pixel, "stderr": self.stderr, "start": self.start,
+            "viewpoints": [v.to_json() for v in self.viewpoints],
+            "chi2": self.chi2, "dof": self.dof, "notes": list(self.notes),
+            "profile": {k: [list(p) for p in v] for k, v in self.profile.items()},
+            "settings": {k: getattr(self.settings, k) for k in FitSettings.__dataclass_fields__},
+            "seconds": self.seconds,
+        }
+
+    def pixel_spec_fields(self) -> dict[str, Any]:
+        """The start's fields with the fitted ones over them (PixelSpec keyword arguments)."""
+        out = {**self.start, **self.pixel}
+        return {k: tuple(v) if isinstance(v, list) else v for k, v in out.items()}
+
+    def to_toml(self) -> str:
+        """A ``[display.pixel]`` table for grassd.toml: the capture's model with the fitted
+        fields over it, standard errors as comments."""
+        from grassd.sim.scene import PixelSpec
+
+        default = PixelSpec()
+        lines = ["# Fitted by grassd fit from photos of the pixel "
+                 f"(chi2 {self.chi2:.1f} on {self.dof} degrees of freedom).",
+                 "[display.pixel]"]
+        for k, v in self.pixel_spec_fields().items():
+            if k not in self.pixel and v == getattr(default, k):
+                continue
+            value = [round(float(c), 1) for c in v] if isinstance(v, tuple) else v
+            if isinstance(value, float):
+                value = round(value, 4)
+            note = ""
+            if k in self.stderr and self.stderr[k] is not None:
+                se = self.stderr[k]
+                note = "  # +- " + (", ".join(f"{s:.1f}" for s in se) if isinstance(se, list)
+                                    else f"{se:.3g}")
+            lines.append(f"{k} = {toml_value(value)}{note}")
+        return "\n".join(lines) + "\n"
+
+
+def parse_params(text: str | None) -> tuple[str, ...]:
+    """The fitted parameter names from ``--params`` (comma list; None: all of
+    :data:`FIT_PARAMS`), in report order. Raises :class:`FitError` naming an unknown one."""
+    if text is None:
+        return FIT_PARAMS
+    names = [p.strip() for p in text.split(",") if p.strip()]
+    unknown = [p for p in names if p not in FIT_PARAMS]
+    if unknown or not names:
+        raise FitError(f"--params {text!r}: unknown {', '.join(unknown) or 'empty list'}; "
+                       f"choose from {', '.join(FIT_PARAMS)}")
+    return tuple(p for p in FIT_PARAMS if p in names)
+
+
+def _srgb_to_linear(srgb8: NDArray[np.float64]) -> NDArray[np.float64]:
+    """8-bit encoded sRGB (any shape) to linear (IEC 61966-2-1), vectorised."""
+    c = np.clip(np.asarray(srgb8, dtype=np.float64), 0.0, 255.0) / 255.0
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+class _Model:
+    """The simulated photos of a capture as a function of the pixel's materials: recorded
+    terms per (shape, series), cached, and their CIELAB for any albedos and ``ks``."""
+
+    def __init__(self, renderer: Any, lighting: Any, manifest: CaptureManifest,
+                 ccm: NDArray[np.float64], start: Any, settings: FitSettings,
+                 glossy: bool) -> None:
+        from grassd.daemon.calibration.simulation import white_radiance
+
+        self.renderer, self.lighting, self.manifest = renderer, lighting, manifest
+        self.ccm, self.start, self.settings, self.glossy = ccm, start, settings, glossy
+        self.white = white_radiance(lighting)
+        self.fit_series: list[int] = []  # recorded together whenever a shape is recorded
+        self._cache: dict[tuple, list[Any]] = {}
+
+    def terms(self, shape: tuple[float, float], series: int) -> list[Any]:
+        """The recorded terms of ``series`` at (smoothness, splay_deg), one per layout. A shape
+        not yet recorded is recorded for every fitted series at once, layout by layout (the
+        renderer then builds each layout's scene once)."""
+        if (shape, series) not in self._cache:
+            self._record(shape, sorted({series, *self.fit_series}))
+        return self._cache[(shape, series)]
+
+    def _record(self, shape: tuple[float, float], series: Sequence[int]) -> None:
+        from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
+
+        s = self.settings
+        ref = replace(self.start, smoothness=shape[0], splay_deg=shape[1])
+        if self.glossy and ref.specular == 0.0:
+            ref = replace(ref, specular=SAMPLING_SPECULAR)
+        rs = RenderSettings(samples=s.samples, replicates=s.replicates,
+                            max_bounces=s.max_bounces, seed=s.seed)
+        todo = [i for i in series if (shape, i) not in self._cache]
+        for i in todo:
+            self._cache[(shape, i)] = []
+        for k in range(s.layouts):
+            display = DisplaySpec(replace(ref, layout_seed=ref.layout_seed + k))
+            for i in todo:
+                sr = self.manifest.series[i]
+                self._cache[(shape, i)].append(self.renderer.albedo_terms(
+                    display, self.lighting, Viewpoint(*sr.viewpoint), sr.lengths_mm, rs,
+                    glossy=self.glossy))
+
+    def replicates(self, shape: tuple[float, float], series: int, albedo: NDArray[np.float64],
+                   ks: float) -> NDArray[np.float64]:
+        """(layouts, replicates, n, 3) normalised linear Rec.709 (the white card reads 1)."""
+        return np.stack([t.radiance(albedo, ks) for t in self.terms(shape, series)]) / self.white
+
+    def lab(self, rgb: NDArray[np.float64]) -> NDArray[np.float64]:
+        """CIELAB of normalised linear Rec.709 through the capture's colour correction."""
+        return prophoto_to_lab(rec709_to_prophoto(np.clip(rgb, 0.0, None)) @ self.ccm.T)
+
+
+@dataclass
+class _Inner:
+    """The albedo / specular fit at one shape: parameters, whitened residuals, Jacobian."""
+
+    x: NDArray[np.float64]
+    residuals: NDArray[np.float64]
+    jac: NDArray[np.float64]
+    cost: float  # sum of squared whitened residuals (chi-square)
+    noise: float = 0.0  # the part of ``cost`` the simulation's own noise adds, expected
+
+    @property
+    def misfit(self) -> float:
+        """``cost - noise``: what compares shapes recorded with different noise (a sharper
+        lobe's glints are noisier, and noise alone raises chi-square)."""
+        return self.cost - self.noise
+
+
+class _Problem:
+    """Fitted parameters in a flat vector (albedo triples in 8-bit sRGB, then ``ks``), the
+    residuals of the fitted series, and the layout-aware weights."""
+
+    def __init__(self, model: _Model, real: RealCapture, fit_series: Sequence[int],
+                 params: Sequence[str]) -> None:
+        self.model, self.real, self.fit_series = model, real, list(fit_series)
+        self.albedo_params = [p for p in params if p in ALBEDO_ROWS]
+        self.fit_ks = "specular" in params
+        start = model.start
+        self.base_albedo = _srgb_to_linear(np.array([start.yellow_srgb, start.green_srgb,
+                                                     start.base_srgb, start.cavity_srgb]))
+        self.x0 = np.array([c for p in self.albedo_params for c in getattr(start, p)]
+                           + ([start.specular] if self.fit_ks else []), dtype=np.float64)
+        self.lower = np.array([0.0] * (3 * len(self.albedo_params))
+                              + ([0.0] if self.fit_ks else []))
+        self.upper = np.array([255.0] * (3 * len(self.albedo_params))
+                              + ([0.9] if self.fit_ks else []))
+        self.sigma: dict[int, NDArray[np.float64]] = {}
+
+    def unpack(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
+        """(4, 3) linear albedos and ``ks`` of parameter vector ``x``."""
+        albedo = self.base_albedo.copy()
+        for i, p in enumerate(self.albedo_params):
+            albedo[ALBEDO_ROWS[p]] = _srgb_to_linear(x[3 * i: 3 * i + 3])
+        ks = float(x[-1]) if self.fit_ks else float(self.model.start.specular)
+        return albedo, ks
+
+    def weights(self, shape: tuple[float, float]) -> None:
+        """Per fitted series and CIELAB component, the residuals' standard deviation: the
+        layouts' spread (the real pixel is one more layout), the Monte Carlo error of the
+        layout mean, and the photos' floor, pooled over the series' lengths."""
+        albedo, ks = self.unpack(self.x0)
+        floor = self.model.settings.lab_floor
+        for s in self.fit_series:
+            reps = self.model.replicates(shape, s, albedo, ks)  # (L, R, n, 3)
+            n_layouts, n_reps = reps.shape[:2]
+            spread = self.model.lab(reps.mean(axis=1)).var(axis=0, ddof=1)  # (n, 3)
+            # The layout means' spread holds their own Monte Carlo error: take it out (the
+            # replicates' spread within a layout) to leave the layouts' own.
+            mc = (self.model.lab(reps).var(axis=1, ddof=1).mean(axis=0) / n_reps
+                  if n_reps > 1 else np.zeros_like(spread))
+            layout = np.clip(spread - mc, 0.0, None)
+            self.sigma[s] = np.sqrt((layout + spread / n_layouts).mean(axis=0) + floor ** 2)
+
+    def residuals(self, shape: tuple[float, float], x: NDArray[np.float64]
+                  ) -> NDArray[np.float64]:
+        """Whitened CIELAB residuals (real - simulated) of every fitted photo."""
+        albedo, ks = self.unpack(x)
+        out = []
+        for s in self.fit_series:
+            mean = self.model.replicates(shape, s, albedo, ks).mean(axis=(0, 1))
+            out.append(((self.real.lab[s] - self.model.lab(mean)) / self.sigma[s]).ravel())
+        return np.concatenate(out)
+
+    def solve(self, shape: tuple[float, float], x0: NDArray[np.float64] | None = None) -> _Inner:
+        """Least squares of the albedos / ``ks`` at one shape (Gauss-Newton, trust region)."""
+        from scipy.optimize import least_squares
+
+        if not self.sigma:
+            self.weights(shape)
+        start = np.clip(self.x0 if x0 is None else x0, self.lower, self.upper)
+        if not len(start):
+            r = self.residuals(shape, start)
+            return _Inner(start, r, np.zeros((len(r), 0)), float(r @ r))
+        res = least_squares(lambda x: self.residuals(shape, x), start,
+                            bounds=(self.lower, self.upper), x_scale="jac", max_nfev=200)
+        if res.status <= 0:
+            raise FitNotConvergedError(
+                f"the albedo fit did not converge in {res.nfev} evaluations ({res.message}); "
+                "check that the photos show the pixel named in the manifest")
+        return _Inner(res.x, res.fun, res.jac, float(res.fun @ res.fun),
+                      self.noise(shape, res.x))
+
+    def noise(self, shape: tuple[float, float], x: NDArray[np.float64]) -> float:
+        """Expected chi-square contribution of the simulation's noise at ``x``: per photo and
+        CIELAB component, the variance of the simulated mean (from the spread of its layouts'
+        replicates) over the residual's variance."""
+        albedo, ks = self.unpack(x)
+        total = 0.0
+        for s in self.fit_series:
+            reps = self.model.replicates(shape, s, albedo, ks)
+            flat = reps.reshape(-1, *reps.shape[2:])  # every (layout, replicate)
+            var_mean = self.model.lab(flat).var(axis=0, ddof=1) / len(flat)
+            total += float((var_mean / self.sigma[s] ** 2).sum())
+        return total
+
+
+def _parabola_min(points: Sequence[tuple[float, float]], lo: float, hi: float
+                  ) -> tuple[float, float | None]:
+    """Vertex (clipped to [lo, hi]) and curvature C'' of the least-squares parabola through the
+    lowest point and its nearest neighbours on the profile (four points where there are: a
+    minimum at the edge of the grid still has a curvature); (lowest point, None) if that
+    parabola is not convex."""
+    pts = sorted(points)
+    i = min(range(len(pts)), key=lambda k: pts[k][1])
+    near = sorted(pts, key=lambda p: abs(p[0] - pts[i][0]))[:4]
+    if len(near) < 3:
+        return pts[i][0], None
+    a, b, _ = np.polyfit([p[0] for p in near], [p[1] for p in near], 2)
+    if a <= 0:
+        return pts[i][0], None
+    return float(np.clip(-b / (2 * a), lo, hi)), float(2 * a)
+
+
+def _covariance(inner: _Inner, dof: int) -> NDArray[np.float64]:
+    """Gauss-Newton covariance ``(J^T J)^-1`` of the whitened fit, scaled by the reduced
+    chi-square where it exceeds 1 (the residuals are then wider than their weights say).
+    Raises :class:`numpy.linalg.LinAlgError` when the parameters are not determined."""
+    jtj = inner.jac.T @ inner.jac
+    if np.linalg.cond(jtj) > 1e12:
+        raise np.linalg.LinAlgError("singular")
+    return np.linalg.inv(jtj) * max(1.0, inner.cost / max(dof, 1))
+
+
+def _check_identifiable(manifest: CaptureManifest, fit_series: Sequence[int],
+                        params: Sequence[str], start: Any) -> None:
+    """Refuse, naming the parameter, what the fitted photos cannot determine."""
+    if not fit_series:
+        raise NotIdentifiableError("every viewpoint is held out: keep at least one for fitting "
+                                   "(--holdout names the ones to judge with only)")
+    longest = max(float(manifest.series[s].lengths_mm.max()) for s in fit_series)
+    need = SPLAY_MIN_LENGTH_FRACTION * start.green_max_mm
+    if "splay_deg" in params and longest < need:
+        raise NotIdentifiableError(
+            f"splay_deg cannot be identified: the longest green length photographed is "
+            f"{longest:g} mm; splay shows on long blades, photograph lengths up to at least "
+            f"{need:g} mm or leave splay_deg out of --params")
+    views = {manifest.series[s].viewpoint for s in fit_series}
+    for p in ("specular", "smoothness"):
+        if p in params and len(views) < 2:
+            raise NotIdentifiableError(
+                f"{p} cannot be identified from one viewpoint: a glossy lobe is told from the "
+                f"albedos only by how the colour changes with the view; photograph at least 2 "
+                f"viewpoints (not held out) or leave {p} out of --params")
+
+
+def _match_holdout(manifest: CaptureManifest, holdout: Sequence[tuple[float, float, float]]
+                   ) -> set[int]:
+    out = set()
+    for vp in holdout:
+        hits = [i for i, s in enumerate(manifest.series)
+                if np.allclose(s.viewpoint, vp, atol=1e-6)]
+        if not hits:
+            have = ", ".join(s.label for s in manifest.series)
+            raise FitError(f"--holdout {vp[0]:g},{vp[1]:g},{vp[2]:g} is not a viewpoint of the "
+                           f"capture (it has {have})")
+        out.update(hits)
+    return out
+
+
+def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, float, float]] = (),
+                params: Sequence[str] = FIT_PARAMS, settings: FitSettings | None = None,
+                renderer: Any = None, lighting: Any = None, arch: str = "cpu",
+                progress: Callable[[str], None] | None = None) -> FitResult:
+    """Fit the pixel's materials to a capture (see the module docstring).
+
+    ``holdout``: viewpoints (h cm, d m, theta deg) judged but not fitted; ``params``: the
+    fitted fields (the rest stay as the manifest's ``[pixel]`` says); ``renderer`` /
+    ``lighting``: prebuilt ones (else built here on ``arch``). Raises :class:`FitError`
+    subclasses naming what to change.
+    """
+    from grassd.sim.scene import PixelSpec
+
+    t0 = time.perf_counter()
+    settings = settings or FitSettings()
+    say = progress or (lambda _m: None)
+    params = tuple(p for p in FIT_PARAMS if p in params)
+    start = PixelSpec(**manifest.pixel)
+    held = _match_holdout(manifest, holdout)
+    fit_series = [i for i in range(len(manifest.series)) if i not in held]
+    _check_identifiable(manifest, fit_series, params, start)
+    chart = get_chart(manifest.chart)
+    real = measure_real(manifest, chart, progress)
+    virtual, s = virtual_checker(chart)
+    ccm = fit_ccm(virtual, real.checker_rgb, "3x3").matrix * s
+    say("building the lighting")
+    lighting = lighting if lighting is not None else manifest.light.lighting()
+    renderer = renderer if renderer is not None else default_renderer(arch)
+    glossy = "specular" in params or start.specular > 0
+    model = _Model(renderer, lighting, manifest, ccm, start, settings, glossy)
+    model.fit_series = fit_series
+    problem = _Problem(model, real, fit_series, params)
+    notes: list[str] = []
+    profile: dict[str, list[tuple[float, float]]] = {}
+    shape = (start.smoothness, start.splay_deg)
+    say(f"fitting albedos at smoothness {shape[0]:g}, splay {shape[1]:g} deg")
+    best = problem.solve(shape)
+    curvature: dict[str, float | None] = {}
+
+    def search(name: str, grid: Sequence[float], index: int, lo: float, hi: float) -> None:
+        nonlocal shape, best
+        tried: dict[float, _Inner] = {}
+        for v in grid:
+            cand = (v, shape[1]) if index == 0 else (shape[0], v)
+            say(f"recording {name} = {v:g}")
+            tried[v] = problem.solve(cand, best.x)
+        v_best, c2 = _parabola_min([(v, r.misfit) for v, r in tried.items()], lo, hi)
+        if v_best not in tried:
+            cand = (v_best, shape[1]) if index == 0 else (shape[0], v_best)
+            say(f"recording {name} = {v_best:.3g} (refined)")
+            tried[v_best] = problem.solve(cand, best.x)
+        v_best = min(tried, key=lambda v: tried[v].misfit)
+        shape = (v_best, shape[1]) if index == 0 else (shape[0], v_best)
+        best = tried[v_best]
+        curvature[name] = c2
+        profile[name] = sorted((v, r.misfit) for v, r in tried.items())
+
+    # The lobe's shape first (a sharp lobe fitted with a broad one's shape looks like no
+    # gloss at all), then the splay at that shape, then the shape again where the splay moved.
+    glossy_fit = "smoothness" in params and (problem.fit_ks or start.specular > 0)
+    kept: set[str] = set()  # fitted parameters the photos could not show: kept at the start
+    if "smoothness" in params and not glossy_fit:
+        kept.add("smoothness")
+        notes.append(f"smoothness kept at {shape[0]:g}: without a glossy lobe (specular 0, "
+                     "not fitted) its shape does not show")
+    if glossy_fit:
+        search("smoothness", SMOOTHNESS_GRID, 0, 0.0, 0.97)
+    if "splay_deg" in params:
+        search("splay_deg", SPLAY_GRID, 1, 0.0, 30.0)
+        if glossy_fit and abs(shape[1] - start.splay_deg) > 2.0:
+            search("smoothness", SMOOTHNESS_GRID, 0, 0.0, 0.97)
+    if glossy_fit and problem.fit_ks:
+        ks = problem.unpack(best.x)[1]
+        ks_se = float(np.sqrt(_covariance(best, best.residuals.size - best.x.size)[-1, -1]))
+        if ks < max(MIN_VISIBLE_SPECULAR, 3.0 * ks_se):
+            # No lobe to speak of: its shape is noise. Keep the start's, refitted there.
+            notes.append(f"smoothness kept at {start.smoothness:g}: the fitted specular "
+                         f"({ks:.3f} +- {ks_se:.3f}) shows no glossy lobe whose shape the "
+                         "photos could tell")
+            shape = (start.smoothness, shape[1])
+            best = problem.solve(shape, best.x)
+            kept.add("smoothness")
+
+    n_obs = len(best.residuals)
+    n_par = len(best.x) + sum(1 for p in ("splay_deg", "smoothness")
+                              if p in curvature and p not in kept)
+    dof = max(n_obs - n_par, 1)
+    inflate = max(1.0, best.cost / dof)
+    albedo, ks = problem.unpack(best.x)
+    pixel: dict[str, Any] = {}
+    stderr: dict[str, Any] = {}
+    if len(best.x):
+        try:
+            se = np.sqrt(np.diag(_covariance(best, dof)))
+        except np.linalg.LinAlgError:
+            weakest = problem.albedo_params + (["specular"] if problem.fit_ks else [])
+            raise NotIdentifiableError(
+                f"the photos do not determine {', '.join(weakest)} together (singular fit); "
+                "add lengths or viewpoints, or fit fewer parameters with --params") from None
+    else:
+        se = np.zeros(0)
+    for i, p in enumerate(problem.albedo_params):
+        pixel[p] = [round(float(v), 2) for v in best.x[3 * i: 3 * i + 3]]
+        stderr[p] = [round(float(v), 2) for v in se[3 * i: 3 * i + 3]]
+    if problem.fit_ks:
+        pixel["specular"] = round(ks, 4)
+        stderr["specular"] = round(float(se[-1]), 4)
+    for name, index in (("smoothness", 0), ("splay_deg", 1)):
+        if name in params:
+            pixel[name] = round(float(shape[index]), 3)
+            c2 = None if name in kept else curvature.get(name)
+            stderr[name] = (None if c2 is None
+                            else round(math.sqrt(2.0 / c2 * inflate), 3))
+    for p, limit in MAX_STDERR.items():
+        v = stderr.get(p)
+        worst = max(v) if isinstance(v, list) else v
+        if p in params and p not in kept and (worst is None or worst > limit):
+            tried = "".join(f"; misfit (chi2) by {p}: " + ", ".join(
+                f"{v:g}: {c:.1f}" for v, c in profile[p]) if p in profile else "")
+            raise NotIdentifiableError(
+                f"the photos do not determine {p} (standard error "
+                f"{'unbounded' if worst is None else f'{worst:.3g}'}, limit {limit:g}{tried}); "
+                "photograph more lengths or viewpoints, or leave it out of --params")
+
+    # Contradiction: the fitted model should reach every photo within the layout noise.
+    de = []
+    for s_i in fit_series:
+        mean = model.replicates(shape, s_i, albedo, ks).mean(axis=(0, 1))
+        de.extend(zip(delta_e_cie2000(real.lab[s_i], model.lab(mean)),
+                      [p.path.name for p in manifest.series[s_i].photos], strict=True))
+    median = float(np.median([d for d, _ in de]))
+    if median > CONTRADICTION_DE00:
+        worst_de, worst_name = max(de)
+        raise ContradictoryPhotosError(
+            f"no materials make the simulation agree with the photos: after fitting they still "
+            f"differ by a median {median:.1f} dE00 (worst {worst_name}, {worst_de:.1f}); check "
+            "that every photo shows the same pixel under the light in the manifest, with the "
+            "checker taken at the same time")
+
+    say("judging every viewpoint")
+    judged = []
+    start_shape = (start.smoothness, start.splay_deg)
+    start_albedo, start_ks = problem.unpack(problem.x0)
+    for i, sr in enumerate(manifest.series):
+        comps = []
+        for shp, alb, k in ((start_shape, start_albedo, start.specular), (shape, albedo, ks)):
+            reps = model.replicates(shp, i, alb, k)
+            x = reps.reshape(-1, *reps.shape[2:])
+            res = ogcd_from_samples(np.clip(x, 0.0, None), space="rec709", ccm=model.ccm)
+            comps.append(compare_viewpoint(sr.viewpoint, sr.lengths_mm, real.ogcd[i], res.ogcd,
+                                           sim_stderr=res.ogcd_stderr, real_lab=real.lab[i],
+                                           sim_lab=res.lab, reference=False))
+        judged.append(ViewpointFit(sr.viewpoint, i in held, comps[0], comps[1]))
+    start_fields = {k: (list(v) if isinstance(v, tuple) else v)
+                    for k, v in asdict(start).items()}
+    return FitResult(pixel=pixel, stderr=stderr, start=start_fields, viewpoints=tuple(judged),
+                     chi2=best.cost, dof=dof, seconds=time.perf_counter() - t0,
+                     settings=settings, notes=tuple(notes), profile=profile)
+
+
+def load_pixel_fields(path: str | Path) -> dict[str, Any]:
+    """PixelSpec fields from a ``grassd fit`` result: its JSON report (the start with the
+    fitted fields over it) or a TOML file holding a ``[display.pixel]`` table (what
+    ``--toml`` writes, or a whole grassd.toml) or a ``[pixel]`` table. Raises
+    :class:`FitError` for another file or an unknown field."""
+    import json
+    import tomllib
+
+    from grassd.sim.scene import PixelSpec
+
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise FitError(f"cannot read the fitted pixel {p}: {exc.strerror}") from None
+    try:
+        if p.suffix == ".json":
+            data = json.loads(text)
+            fields = {**data["start"], **data["pixel"]}
+        else:
+            data = tomllib.loads(text)
+            fields = data.get("display", {}).get("pixel", data.get("pixel"))
+            if fields is None:
+                raise KeyError("pixel")
+    except (ValueError, KeyError, TypeError, AttributeError):
+        raise FitError(f"{p} holds no fitted pixel: give the JSON report of grassd fit or a "
+                       "TOML file with a [display.pixel] table") from None
+    unknown = sorted(set(fields) - set(PixelSpec.__dataclass_fields__))
+    if unknown:
+        raise FitError(f"{p}: unknown pixel field(s) {', '.join(unknown)}")
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()}

@@ -1,0 +1,201 @@
+"""grassd fit against virtual captures of pixels whose materials are known: the real renderer
+draws the "real" pixel (its own tuft layout), the virtual camera photographs it into DNGs, and
+the fit must find its materials from the photos alone, starting from the defaults."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from bench.fit_worlds import (
+    ALBEDOS,
+    HELD_OUT,
+    LENGTHS,
+    PHOTO,
+    VIEWS,
+    WORLDS,
+    albedo_de00,
+    capture_known_pixel,
+    true_fields,
+)
+from grassd.daemon.cli.main import main
+from grassd.daemon.offline.fit import (
+    ContradictoryPhotosError,
+    FitError,
+    NotIdentifiableError,
+    fit_capture,
+    load_pixel_fields,
+    parse_params,
+)
+from grassd.daemon.offline.validate import Series
+from grassd.daemon.offline.virtual_capture import capture_world
+from grassd.sim.light_input import LightInput
+from grassd.sim.scene import PixelSpec
+
+
+@pytest.fixture(scope="module")
+def captures(tmp_path_factory, renderer, shared_hdri):
+    """Photograph a world once per module: name -> (manifest, lighting)."""
+    done: dict = {}
+
+    def get(name: str):
+        if name not in done:
+            done[name] = capture_known_pixel(tmp_path_factory.mktemp(name), name,
+                                             shared_hdri("forest").parent, renderer)
+        return done[name]
+
+    return get
+
+
+@pytest.fixture(scope="module", params=list(WORLDS))
+def world(request, captures, renderer):
+    """A world photographed, fitted from the defaults, and judged with its true materials."""
+    name = request.param
+    manifest, lighting = captures(name)
+    fitted = fit_capture(manifest, holdout=[HELD_OUT], renderer=renderer, lighting=lighting)
+    known = fit_capture(replace(manifest, pixel=true_fields(name)), holdout=[HELD_OUT],
+                        params=(), renderer=renderer, lighting=lighting)
+    return {"name": name, "truth": WORLDS[name][0], "manifest": manifest,
+            "lighting": lighting, "fit": fitted, "known": known}
+
+
+@pytest.fixture(scope="module")
+def pink(captures):
+    """The pink world's capture (no fit): for the command line and bad input."""
+    manifest, lighting = captures("pink")
+    return {"manifest": manifest, "lighting": lighting}
+
+
+def _held_out(result):
+    return next(v for v in result.viewpoints if v.held_out)
+
+
+@pytest.mark.slow
+def test_fit_recovers_the_albedos_and_the_splay(world):
+    res, truth = world["fit"], world["truth"]
+    assert set(res.pixel) == {"yellow_srgb", "green_srgb", "base_srgb", "specular",
+                              "smoothness", "splay_deg"}
+    assert set(res.stderr) == set(res.pixel)
+    for name in ALBEDOS:
+        de = albedo_de00(res.pixel[name], getattr(truth, name))
+        assert de <= 2.0, (name, res.pixel[name], getattr(truth, name), de)
+        # the defaults are far from the truth: a fit that did not run cannot pass
+        assert albedo_de00(getattr(PixelSpec(), name), getattr(truth, name)) > 5.0
+    assert abs(res.pixel["splay_deg"] - truth.splay_deg) <= 2.0, res.profile["splay_deg"]
+    assert [v for v, _ in res.profile["splay_deg"]][:5] == [0.0, 4.0, 8.0, 12.0, 16.0]
+
+
+@pytest.mark.slow
+def test_held_out_viewpoint_is_predicted_as_the_true_materials_predict_it(world):
+    held, truth = _held_out(world["fit"]), _held_out(world["known"])
+    assert held.viewpoint == HELD_OUT
+    assert held.start.frechet >= 3.0 * held.fitted.frechet, (held.start.frechet,
+                                                             held.fitted.frechet)
+    assert held.fitted.frechet <= truth.fitted.frechet + 0.25, (held.fitted.frechet,
+                                                                truth.fitted.frechet)
+
+
+@pytest.mark.slow
+def test_the_glossy_lobe_is_found_where_there_is_one(world):
+    res, truth = world["fit"], world["truth"]
+    if truth.specular:
+        assert abs(res.pixel["specular"] - truth.specular) <= 0.03, res.pixel
+        assert res.stderr["specular"] > 0 and res.stderr["smoothness"] is not None
+    else:
+        assert res.pixel["specular"] <= 0.04, res.pixel
+
+
+@pytest.mark.slow
+def test_standard_errors_come_from_the_data(world):
+    res = world["fit"]
+    for name in ALBEDOS:
+        assert all(0.1 < s < 10.0 for s in res.stderr[name]), res.stderr
+    assert 0.0 < res.stderr["splay_deg"] < 3.0
+    assert res.dof > 0 and np.isfinite(res.chi2)
+
+
+@pytest.mark.slow
+def test_cli_writes_reports_that_check_config_and_validate_accept(pink, tmp_path):
+    root = pink["manifest"].root
+    out = {k: tmp_path / f"fit.{k}" for k in ("json", "toml", "html")}
+    r = CliRunner().invoke(main, ["fit", str(root), "--holdout", "150,1.2,60", "--params",
+                                  "green_srgb", "--samples", "256", "-q",
+                                  "--json", str(out["json"]), "--toml", str(out["toml"]),
+                                  "--html", str(out["html"])])
+    assert r.exit_code == 0, r.output
+    report = json.loads(out["json"].read_text())
+    assert set(report) >= {"pixel", "stderr", "viewpoints", "seconds"}
+    assert list(report["pixel"]) == ["green_srgb"] and len(report["stderr"]["green_srgb"]) == 3
+    assert albedo_de00(report["pixel"]["green_srgb"], WORLDS["pink"][0].green_srgb) < 5.0
+    held = [v for v in report["viewpoints"] if v["held_out"]]
+    assert [v["viewpoint"] for v in held] == [list(HELD_OUT)]
+    assert set(held[0]["frechet"]) == {"start", "fitted"} and "max_error" in held[0]
+    assert "<img" in out["html"].read_text() and "held out" in out["html"].read_text()
+    table = out["toml"].read_text()
+    assert table.splitlines()[1] == "[display.pixel]" and "green_srgb = [" in table
+    # pasted into the default config in place of its empty [display.pixel] table
+    from importlib.resources import files
+
+    default = files("grassd.daemon.config").joinpath("default.toml").read_text()
+    head, _, tail = default.partition("[display.pixel]")
+    config = tmp_path / "grassd.toml"
+    config.write_text(head + table + tail.split("\n", 1)[1])
+    r = CliRunner().invoke(main, ["check-config", "--config", str(config)])
+    assert r.exit_code == 0, r.output
+    assert load_pixel_fields(out["toml"])["green_srgb"] == tuple(report["pixel"]["green_srgb"])
+    assert load_pixel_fields(out["json"])["green_srgb"] == tuple(report["pixel"]["green_srgb"])
+    r = CliRunner().invoke(main, ["validate", str(root), "--pixel", str(out["json"]),
+                                  "--samples", "256", "--replicates", "2", "-q"])
+    assert r.exit_code == 0, r.output
+
+
+def test_params_names_are_checked():
+    assert parse_params("splay_deg,green_srgb") == ("green_srgb", "splay_deg")
+    with pytest.raises(FitError, match="unknown metallic"):
+        parse_params("green_srgb,metallic")
+
+
+def _manifest_of(series, tmp_path):
+    """A manifest whose photos exist nowhere: the checks below run before any photo is read."""
+    from grassd.daemon.offline.validate import CaptureManifest
+
+    return CaptureManifest(root=tmp_path, light=LightInput(tmp_path / "env.exr", 500.0),
+                           checker_photo=tmp_path / "checker.dng",
+                           checker_corners=((0, 0), (1, 0), (1, 1), (0, 1)),
+                           series=tuple(series))
+
+
+def _series(viewpoint, lengths):
+    from grassd.daemon.offline.validate import Photo
+
+    quad = ((0, 0), (1, 0), (1, 1), (0, 1))
+    return Series(viewpoint, tuple(Photo(f"{x}.dng", x, quad) for x in lengths))
+
+
+def test_too_few_viewpoints_or_lengths_are_named(tmp_path):
+    one_view = _manifest_of([_series(VIEWS[0], list(LENGTHS))], tmp_path)
+    with pytest.raises(NotIdentifiableError, match="specular cannot be identified from one"):
+        fit_capture(one_view)
+    short = _manifest_of([_series(v, [0.0, 2.0, 4.0]) for v in VIEWS[:2]], tmp_path)
+    with pytest.raises(NotIdentifiableError, match="splay_deg cannot be identified.*4 mm"):
+        fit_capture(short)
+    with pytest.raises(NotIdentifiableError, match="every viewpoint is held out"):
+        fit_capture(one_view, holdout=[VIEWS[0]])
+    with pytest.raises(FitError, match="not a viewpoint of the capture"):
+        fit_capture(one_view, holdout=[(1.0, 1.0, 1.0)])
+
+
+@pytest.mark.slow
+def test_photos_of_two_different_pixels_contradict_each_other(pink, renderer, tmp_path):
+    """One viewpoint photographed on the pink pixel, another on a default one: no materials
+    make both agree."""
+    other = capture_world(tmp_path, pink["manifest"].light, [VIEWS[1]], list(LENGTHS),
+                          real_pixel=PixelSpec(layout_seed=101), renderer=renderer,
+                          lighting=pink["lighting"], **PHOTO)
+    mixed = replace(pink["manifest"], series=(pink["manifest"].series[0], other.series[0]))
+    with pytest.raises(ContradictoryPhotosError, match="median .* dE00"):
+        fit_capture(mixed, params=ALBEDOS, renderer=renderer, lighting=pink["lighting"])
