@@ -198,7 +198,7 @@ class FitResult:
         for k, v in self.pixel_spec_fields().items():
             if k not in self.pixel and v == getattr(default, k):
                 continue
-            value = [round(float(c), 1) for c in v] if isinstance(v, tuple) else v
+            value = [round(float(c), 2) for c in v] if isinstance(v, tuple) else v
             if isinstance(value, float):
                 value = round(value, 4)
             note = ""
@@ -563,17 +563,6 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
             c2 = None if name in kept else curvature.get(name)
             stderr[name] = (None if c2 is None
                             else round(math.sqrt(2.0 / c2 * inflate), 3))
-    for p, limit in MAX_STDERR.items():
-        v = stderr.get(p)
-        worst = max(v) if isinstance(v, list) else v
-        if p in params and p not in kept and (worst is None or worst > limit):
-            tried = "".join(f"; misfit (chi2) by {p}: " + ", ".join(
-                f"{v:g}: {c:.1f}" for v, c in profile[p]) if p in profile else "")
-            raise NotIdentifiableError(
-                f"the photos do not determine {p} (standard error "
-                f"{'unbounded' if worst is None else f'{worst:.3g}'}, limit {limit:g}{tried}); "
-                "photograph more lengths or viewpoints, or leave it out of --params")
-
     # Contradiction: the fitted model should reach every photo within the layout noise.
     de = []
     for s_i in fit_series:
@@ -588,6 +577,17 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
             f"differ by a median {median:.1f} dE00 (worst {worst_name}, {worst_de:.1f}); check "
             "that every photo shows the same pixel under the light in the manifest, with the "
             "checker taken at the same time")
+
+    for p, limit in MAX_STDERR.items():
+        v = stderr.get(p)
+        worst = max(v) if isinstance(v, list) else v
+        if p in params and p not in kept and (worst is None or worst > limit):
+            tried = "".join(f"; misfit (chi2) by {p}: " + ", ".join(
+                f"{v:g}: {c:.1f}" for v, c in profile[p]) if p in profile else "")
+            raise NotIdentifiableError(
+                f"the photos do not determine {p} (standard error "
+                f"{'unbounded' if worst is None else f'{worst:.3g}'}, limit {limit:g}{tried}); "
+                "photograph more lengths or viewpoints, or leave it out of --params")
 
     say("judging every viewpoint")
     judged = []
