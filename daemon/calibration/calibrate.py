@@ -388,7 +388,7 @@ class Calibrator:
             c = simulate_curve(Renderer.shared(), display, lighting,
                                Viewpoint(vp.h_cm, vp.d_m, vp.theta_deg),
                                np.asarray(lengths_mm, float), settings, ccm=ccm,
-                               pixel_index=centre)
+                               pixel_index=centre, layouts=self.cfg.simulation.layouts)
             curves.append(ViewpointCurve(vp, np.asarray(lengths_mm, float), c.ogcd,
                                          c.ogcd_stderr, time.perf_counter() - t0))
         return curves
