@@ -533,14 +533,36 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
             best = problem.solve(shape, best.x)
             kept.add("smoothness")
 
-    n_obs = len(best.residuals)
     n_par = len(best.x) + sum(1 for p in ("splay_deg", "smoothness")
                               if p in curvature and p not in kept)
-    dof = max(n_obs - n_par, 1)
-    inflate = max(1.0, best.cost / dof)
+    dof = max(len(best.residuals) - n_par, 1)
     albedo, ks = problem.unpack(best.x)
+    _check_agreement(model, real, fit_series, shape, albedo, ks)
+    pixel, stderr = _fitted_fields(problem, best, shape, params, dof, curvature, kept)
+    _check_determined(stderr, params, kept, profile)
+    say("judging every viewpoint")
+    start_shape = (start.smoothness, start.splay_deg)
+    start_albedo, _ = problem.unpack(problem.x0)
+    judged = tuple(
+        ViewpointFit(sr.viewpoint, i in held,
+                     _judge(model, real, i, start_shape, start_albedo, start.specular),
+                     _judge(model, real, i, shape, albedo, ks))
+        for i, sr in enumerate(manifest.series))
+    start_fields = {k: (list(v) if isinstance(v, tuple) else v)
+                    for k, v in asdict(start).items()}
+    return FitResult(pixel=pixel, stderr=stderr, start=start_fields, viewpoints=judged,
+                     chi2=best.cost, dof=dof, seconds=time.perf_counter() - t0,
+                     settings=settings, notes=tuple(notes), profile=profile)
+
+
+def _fitted_fields(problem: _Problem, best: _Inner, shape: tuple[float, float],
+                   params: Sequence[str], dof: int, curvature: dict[str, float | None],
+                   kept: set[str]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The fitted fields by their config names and their standard errors (None where a
+    parameter was kept at its start or its profile has no curvature)."""
     pixel: dict[str, Any] = {}
     stderr: dict[str, Any] = {}
+    se = np.zeros(0)
     if len(best.x):
         try:
             se = np.sqrt(np.diag(_covariance(best, dof)))
@@ -549,26 +571,31 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
             raise NotIdentifiableError(
                 f"the photos do not determine {', '.join(weakest)} together (singular fit); "
                 "add lengths or viewpoints, or fit fewer parameters with --params") from None
-    else:
-        se = np.zeros(0)
     for i, p in enumerate(problem.albedo_params):
         pixel[p] = [round(float(v), 2) for v in best.x[3 * i: 3 * i + 3]]
         stderr[p] = [round(float(v), 2) for v in se[3 * i: 3 * i + 3]]
     if problem.fit_ks:
-        pixel["specular"] = round(ks, 4)
+        pixel["specular"] = round(problem.unpack(best.x)[1], 4)
         stderr["specular"] = round(float(se[-1]), 4)
+    inflate = max(1.0, best.cost / dof)
     for name, index in (("smoothness", 0), ("splay_deg", 1)):
         if name in params:
             pixel[name] = round(float(shape[index]), 3)
             c2 = None if name in kept else curvature.get(name)
-            stderr[name] = (None if c2 is None
-                            else round(math.sqrt(2.0 / c2 * inflate), 3))
-    # Contradiction: the fitted model should reach every photo within the layout noise.
+            stderr[name] = None if c2 is None else round(math.sqrt(2.0 / c2 * inflate), 3)
+    return pixel, stderr
+
+
+def _check_agreement(model: _Model, real: RealCapture, fit_series: Sequence[int],
+                     shape: tuple[float, float], albedo: NDArray[np.float64], ks: float) -> None:
+    """Refuse photos that no materials reconcile: the fitted model should reach every photo
+    within the layout noise (checked before any standard error, which their misfit would
+    inflate)."""
     de = []
-    for s_i in fit_series:
-        mean = model.replicates(shape, s_i, albedo, ks).mean(axis=(0, 1))
-        de.extend(zip(delta_e_cie2000(real.lab[s_i], model.lab(mean)),
-                      [p.path.name for p in manifest.series[s_i].photos], strict=True))
+    for i in fit_series:
+        mean = model.replicates(shape, i, albedo, ks).mean(axis=(0, 1))
+        de.extend(zip(delta_e_cie2000(real.lab[i], model.lab(mean)),
+                      [p.path.name for p in model.manifest.series[i].photos], strict=True))
     median = float(np.median([d for d, _ in de]))
     if median > CONTRADICTION_DE00:
         worst_de, worst_name = max(de)
@@ -578,6 +605,10 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
             "that every photo shows the same pixel under the light in the manifest, with the "
             "checker taken at the same time")
 
+
+def _check_determined(stderr: dict[str, Any], params: Sequence[str], kept: set[str],
+                      profile: dict[str, list[tuple[float, float]]]) -> None:
+    """Refuse, naming it, a fitted parameter whose standard error exceeds its limit."""
     for p, limit in MAX_STDERR.items():
         v = stderr.get(p)
         worst = max(v) if isinstance(v, list) else v
@@ -589,25 +620,17 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
                 f"{'unbounded' if worst is None else f'{worst:.3g}'}, limit {limit:g}{tried}); "
                 "photograph more lengths or viewpoints, or leave it out of --params")
 
-    say("judging every viewpoint")
-    judged = []
-    start_shape = (start.smoothness, start.splay_deg)
-    start_albedo, start_ks = problem.unpack(problem.x0)
-    for i, sr in enumerate(manifest.series):
-        comps = []
-        for shp, alb, k in ((start_shape, start_albedo, start.specular), (shape, albedo, ks)):
-            reps = model.replicates(shp, i, alb, k)
-            x = reps.reshape(-1, *reps.shape[2:])
-            res = ogcd_from_samples(np.clip(x, 0.0, None), space="rec709", ccm=model.ccm)
-            comps.append(compare_viewpoint(sr.viewpoint, sr.lengths_mm, real.ogcd[i], res.ogcd,
-                                           sim_stderr=res.ogcd_stderr, real_lab=real.lab[i],
-                                           sim_lab=res.lab, reference=False))
-        judged.append(ViewpointFit(sr.viewpoint, i in held, comps[0], comps[1]))
-    start_fields = {k: (list(v) if isinstance(v, tuple) else v)
-                    for k, v in asdict(start).items()}
-    return FitResult(pixel=pixel, stderr=stderr, start=start_fields, viewpoints=tuple(judged),
-                     chi2=best.cost, dof=dof, seconds=time.perf_counter() - t0,
-                     settings=settings, notes=tuple(notes), profile=profile)
+
+def _judge(model: _Model, real: RealCapture, series: int, shape: tuple[float, float],
+           albedo: NDArray[np.float64], ks: float) -> ViewpointComparison:
+    """A series' real characteristic against the model's (every layout's replicates)."""
+    sr = model.manifest.series[series]
+    reps = model.replicates(shape, series, albedo, ks)
+    x = reps.reshape(-1, *reps.shape[2:])
+    res = ogcd_from_samples(np.clip(x, 0.0, None), space="rec709", ccm=model.ccm)
+    return compare_viewpoint(sr.viewpoint, sr.lengths_mm, real.ogcd[series], res.ogcd,
+                             sim_stderr=res.ogcd_stderr, real_lab=real.lab[series],
+                             sim_lab=res.lab)
 
 
 def load_pixel_fields(path: str | Path) -> dict[str, Any]:
