@@ -658,6 +658,34 @@ class Renderer:
         return t, n, mat, g, reuse, 1 if kept == 0 or kept == 2 else 0
 
     @ti.func
+    def escape_weight(self, d, depth: ti.i32, pdf_bsdf: ti.f32, n_prev: ti.i32,
+                      bin_prev: ti.i32) -> ti.f32:
+        """MIS weight of the environment seen along a BSDF-sampled ray ``d`` (1 for a camera
+        ray): balance heuristic against the previous vertex's ``n_prev`` light samples."""
+        w = 1.0
+        if depth > 0:
+            w = tf.balance_heuristic(pdf_bsdf, n_prev * self.env_pdf(d, bin_prev))
+        return w
+
+    @ti.func
+    def surface_vertex(self, o, d, t: ti.f32, n, mat: ti.i32, depth: ti.i32,
+                       max_bounces: ti.i32):
+        """What a path needs at the surface it met at ``o + t d``: the normal facing the ray,
+        the offset point, the material's albedo, the outgoing direction, the normal's bin for
+        light sampling, the Sobol' pair of this depth, its number of light samples (the
+        first vertex ``ipar[7]``, later ones 1) and whether it is the last vertex (light
+        sampling alone, no MIS)."""
+        nn = n
+        if nn.dot(d) > 0.0:
+            nn = -nn
+        n_nee = 1
+        if depth == 0:
+            n_nee = self.ipar[7]
+        return (nn, o + t * d + EPS * nn, self.albedo[mat], -d,
+                tf.normal_bin(nn, NORMAL_BINS_SIDE), 1 + depth * 2, n_nee,
+                depth > 0 and depth == max_bounces - 1)
+
+    @ti.func
     def radiance(self, o, d, x: ti.f32, x_cull: ti.f32, index: ti.i32, strata: ti.i32,
                  rep_key: ti.u32, key: ti.u32, max_bounces: ti.i32, memo: ti.template(),
                  n_memo: ti.i32, glossy: ti.template(), splay: ti.template(),
@@ -701,9 +729,7 @@ class Renderer:
             grow = ti.min(grow, g)
             if mat < 0:  # escaped to the environment
                 le = self.env_radiance(d)
-                w = 1.0
-                if depth > 0:
-                    w = tf.balance_heuristic(pdf_bsdf, n_prev * self.env_pdf(d, bin_prev))
+                w = self.escape_weight(d, depth, pdf_bsdf, n_prev, bin_prev)
                 total += beta * le * w
                 break
             if depth == max_bounces:
@@ -712,14 +738,8 @@ class Renderer:
                 if tf.rand01(key, 144 + depth) >= RR_SURVIVAL:
                     break
                 beta /= RR_SURVIVAL
-            nn = n
-            if nn.dot(d) > 0.0:
-                nn = -nn
-            p = o + t * d + EPS * nn
-            alb = self.albedo[mat]
-            wo = -d
-            nbin = tf.normal_bin(nn, NORMAL_BINS_SIDE)
-            pair = 1 + depth * 2
+            nn, p, alb, wo, nbin, pair, n_nee, last = self.surface_vertex(
+                o, d, t, n, mat, depth, max_bounces)
             # Next-event estimation: environment, MIS against the BSDF strategy. The first vertex
             # takes ``n_nee`` light samples, later ones one. Its shadow rays decide the
             # variance: half of them are blocked by blades, in no pattern of height or
@@ -734,10 +754,6 @@ class Renderer:
             # light: no MIS). All shadow rays share one trace call, so the kernel inlines the
             # traversal twice, not four times. Light sample j is point j of the path's n_nee in
             # the light pair's net (pair 0 is the quad position); the lobe choice is rand01.
-            n_nee = 1
-            if depth == 0:
-                n_nee = self.ipar[7]
-            last = depth > 0 and depth == max_bounces - 1  # light sampling alone (no MIS)
             for j in range(n_nee + sun_on):
                 wl = sun_dir
                 contrib = vec3(0.0)
@@ -861,9 +877,7 @@ class Renderer:
                                           1 if depth == max_bounces else 0, splay, False)
             if mat < 0:  # escaped to the environment: the terms so far times its radiance
                 le = self.env_radiance(d)
-                w = 1.0
-                if depth > 0:
-                    w = tf.balance_heuristic(pdf_bsdf, n_prev * self.env_pdf(d, bin_prev))
+                w = self.escape_weight(d, depth, pdf_bsdf, n_prev, bin_prev)
                 for j in range(n_terms):
                     g = vec3(tgeo[j, 0], tgeo[j, 1], tgeo[j, 2])
                     self.add_term(acc, tcode[j], g * le * w)
@@ -874,18 +888,8 @@ class Renderer:
                 if tf.rand01(key, 144 + depth) >= RR_SURVIVAL:
                     break
                 tgeo /= RR_SURVIVAL
-            nn = n
-            if nn.dot(d) > 0.0:
-                nn = -nn
-            p = o + t * d + EPS * nn
-            alb = self.albedo[mat]
-            wo = -d
-            nbin = tf.normal_bin(nn, NORMAL_BINS_SIDE)
-            pair = 1 + depth * 2
-            n_nee = 1
-            if depth == 0:
-                n_nee = self.ipar[7]
-            last = depth > 0 and depth == max_bounces - 1
+            nn, p, alb, wo, nbin, pair, n_nee, last = self.surface_vertex(
+                o, d, t, n, mat, depth, max_bounces)
             for j in range(n_nee + sun_on):
                 wl = sun_dir
                 light = vec3(0.0)
