@@ -2,7 +2,8 @@
 indoors, glossy splayed olive turf outdoors; :mod:`bench.fit_worlds`), fitted from the
 defaults. Two runs per pixel:
 
-* the speed case of issue #28: 3 viewpoints x 6 lengths, 2 fitted and 1 held out;
+* the speed case of issue #28: 3 viewpoints x 6 lengths, 2 fitted (a steep view across the
+  slits, which sees the base, and one along them, which sees the splay) and 1 held out;
 * the accuracy case of the tests: 4 viewpoints fitted, 1 held out.
 
 Prints the fit's time, every recovered parameter against the truth (albedos as dE00), and the
@@ -25,7 +26,7 @@ from bench.fit_worlds import (
     capture_known_pixel,
     true_fields,
 )
-from grassd.daemon.offline.fit import fit_capture
+from grassd.daemon.offline.fit import FitError, fit_capture
 from grassd.daemon.offline.validate import default_renderer
 
 HDRI_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "hdri"
@@ -33,7 +34,11 @@ HDRI_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "hdri"
 
 def _row(name: str, case: str, manifest, lighting, renderer) -> None:
     truth = WORLDS[name][0]
-    fit = fit_capture(manifest, holdout=[HELD_OUT], renderer=renderer, lighting=lighting)
+    try:
+        fit = fit_capture(manifest, holdout=[HELD_OUT], renderer=renderer, lighting=lighting)
+    except FitError as exc:
+        print(f"{name:6s} {case:22s} refused: {exc}")
+        return
     known = fit_capture(replace(manifest, pixel=true_fields(name)), holdout=[HELD_OUT],
                         params=(), renderer=renderer, lighting=lighting)
     held = next(v for v in fit.viewpoints if v.held_out)
@@ -65,7 +70,7 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as tmp:
             manifest, lighting = capture_known_pixel(tmp, name, HDRI_DIR, renderer)
             three = replace(manifest, series=tuple(
-                s for s in manifest.series if s.viewpoint in (VIEWS[0], VIEWS[1], HELD_OUT)))
+                s for s in manifest.series if s.viewpoint in (VIEWS[1], VIEWS[3], HELD_OUT)))
             _row(name, "3 views x 6 lengths", three, lighting, renderer)
             _row(name, "5 views x 6 lengths", manifest, lighting, renderer)
 

@@ -70,7 +70,7 @@ def fit(capture, holdout, params, json_out, toml_out, html_out, samples, layouts
         start = result.start[k]
         rows.append([k, fmt(start), fmt(v), "-" if se is None else fmt(se)])
     click.echo(format_table(["field", "start", "fitted", "stderr"], rows))
-    rows = [[f"({v.viewpoint[0]:g}, {v.viewpoint[1]:g}, {v.viewpoint[2]:g})"
+    rows = [[v.fitted.label
              + (" held out" if v.held_out else ""), f"{v.start.frechet:.2f}",
              f"{v.fitted.frechet:.2f}", f"{v.start.max_error:.2f}", f"{v.fitted.max_error:.2f}"]
             for v in result.viewpoints]

@@ -109,22 +109,28 @@ def _curve_axes(ax: Any, vc: Any, title: str, small: bool = False) -> None:
     ax.grid(alpha=0.3)
 
 
+def _panels(n: int, max_cols: int, size: tuple[float, float]) -> tuple[Any, list[Any]]:
+    """A figure of ``n`` panels sharing their y axis, ``max_cols`` a row at most, each
+    ``size`` inches; the first panel is labelled OGCD and the unused ones are hidden."""
+    plt = _plt()
+    cols = min(n, max_cols)
+    rows = int(np.ceil(n / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(size[0] * cols, size[1] * rows),
+                             squeeze=False, sharey=True)
+    flat = list(axes.ravel())
+    for ax in flat[n:]:
+        ax.axis("off")
+    flat[0].set_ylabel("OGCD [dE00]")
+    return fig, flat[:n]
+
+
 def curves_figure(viewpoints: Sequence[Any], titles: Sequence[str] | None = None) -> Any:
     """Real vs simulated OGCD vs length, one panel per comparison (up to 5 columns)."""
-    plt = _plt()
-    n = len(viewpoints)
-    cols = min(n, 5)
-    rows = int(np.ceil(n / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.8 * rows), squeeze=False,
-                             sharey=True)
-    for k, vc in enumerate(viewpoints):
-        ax = axes[k // cols][k % cols]
+    fig, axes = _panels(len(viewpoints), 5, (3.2, 2.8))
+    for k, (ax, vc) in enumerate(zip(axes, viewpoints, strict=True)):
         _curve_axes(ax, vc, titles[k] if titles else vc.label)
         ax.set_xlabel("green length [mm]")
-    for k in range(n, rows * cols):
-        axes[k // cols][k % cols].axis("off")
-    axes[0][0].set_ylabel("OGCD [dE00]")
-    axes[0][0].legend(fontsize=8, loc="lower right")
+    axes[0].legend(fontsize=8, loc="lower right")
     fig.tight_layout()
     return fig
 
@@ -270,30 +276,19 @@ START_COLOUR = "#888888"
 def fit_figure(viewpoints: Sequence[Any]) -> Any:
     """Real, starting and fitted OGCD vs length per viewpoint of a ``grassd fit`` result
     (held-out viewpoints marked in the title)."""
-    plt = _plt()
-    n = len(viewpoints)
-    cols = min(n, 4)
-    rows = int(np.ceil(n / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(3.3 * cols, 2.9 * rows), squeeze=False,
-                             sharey=True)
-    for k, v in enumerate(viewpoints):
-        ax = axes[k // cols][k % cols]
+    fig, axes = _panels(len(viewpoints), 4, (3.3, 2.9))
+    for ax, v in zip(axes, viewpoints, strict=True):
         x = v.fitted.real.lengths_mm
         ax.plot(x, v.fitted.real.ogcd, "o-", color=REAL_COLOUR, ms=4, label="real")
         ax.plot(x, v.start.sim.ogcd, "s--", color=START_COLOUR, ms=3, label="start")
         ax.errorbar(x, v.fitted.sim.ogcd, yerr=v.fitted.sim.ogcd_stderr, fmt="s-",
                     color=SIM_COLOUR, ms=3, capsize=2, label="fitted")
-        h, d, t = v.viewpoint
-        ax.set_title(f"({h:g}, {d:g}, {t:g})" + (" held out" if v.held_out else ""),
-                     fontsize=9)
+        ax.set_title(v.fitted.label + (" held out" if v.held_out else ""), fontsize=9)
         ax.text(0.03, 0.95, f"F start {v.start.frechet:.2f}\nF fitted {v.fitted.frechet:.2f}",
                 transform=ax.transAxes, va="top", fontsize=8)
         ax.set_xlabel("green length [mm]")
         ax.grid(alpha=0.3)
-    for k in range(n, rows * cols):
-        axes[k // cols][k % cols].axis("off")
-    axes[0][0].set_ylabel("OGCD [dE00]")
-    axes[0][0].legend(fontsize=8, loc="lower right")
+    axes[0].legend(fontsize=8, loc="lower right")
     fig.tight_layout()
     return fig
 
@@ -311,7 +306,7 @@ def fit_html(result: Any) -> str:
                     for k, v in result.pixel.items()])
     views = table(["viewpoint (h, d, theta)", "held out", "Frechet start", "Frechet fitted",
                    "max error start", "max error fitted"],
-                  [[f"({v.viewpoint[0]:g}, {v.viewpoint[1]:g}, {v.viewpoint[2]:g})",
+                  [[v.fitted.label,
                     "yes" if v.held_out else "", f2(v.start.frechet), f2(v.fitted.frechet),
                     f2(v.start.max_error), f2(v.fitted.max_error)] for v in result.viewpoints])
     sections = [("Fitted materials", params), ("Per viewpoint", views),
