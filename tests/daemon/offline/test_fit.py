@@ -71,11 +71,13 @@ def pink(captures):
 
 
 #: Largest CIEDE2000 between a fitted and the true albedo. The olive pixel's base is the
-#: exception: hidden under the blades and seen through a glossy lobe, it is fitted 3.4-3.6 dE00
-#: off (its blue channel 49-53 for 70) with a standard error of 5 levels in blue. The virtual
-#: photos are 0.1-0.65 L* darker than the simulation even with the exact layout and materials
-#: (view-dependent, not their resolution nor the lens blur alone), and the lobe and the hidden
-#: base absorb that.
+#: exception: hidden under the blades and seen through a glossy lobe, it is fitted 3.1-3.6 dE00
+#: off (its blue channel 49-53 for 70, standard error 5 levels) while the lobe comes out
+#: broader and stronger than the truth (smoothness 0.5 for 0.6, specular 0.079 for 0.06): the
+#: photographed layout's gloss is its own accident, and the fit's lobe and the hidden base
+#: absorb it. (The photos also read 0.1-0.5 L* darker than the simulation with the exact
+#: layout, because the lens blur spreads the pixel's bright rim outside its quad; at 256 px that
+#: halves and the olive fit does not change.)
 ALBEDO_DE00 = {(w, a): 2.0 for w in WORLDS for a in ALBEDOS} | {("olive", "base_srgb"): 4.0}
 
 
