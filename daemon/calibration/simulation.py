@@ -75,6 +75,12 @@ class SimulatedCurve:
 LAYOUT_SEED_STEP: int = 104729
 
 
+def layout_seed(seed: int, layout: int) -> int:
+    """The path seed of tuft layout ``layout`` (0, 1, ...) of a simulation seeded ``seed``:
+    layout 0 keeps the seed, the others draw their own paths."""
+    return (seed + LAYOUT_SEED_STEP * layout) % 2**31
+
+
 def white_radiance(lighting) -> np.ndarray:
     """Linear Rec.709 radiance (nits) of a perfect diffuse white lying flat at the display."""
     return np.asarray(lighting.horizontal_irradiance_rgb, dtype=np.float64) / math.pi
@@ -98,13 +104,15 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     common random numbers keep cancelling); a length at or below the target keeps them. A
     replicate of 4096 paths x 21 lengths costs about 0.03 s on 2 cores.
 
-    ``layouts``: replicate j traces the display with ``layout_seed + (j mod layouts)``, so the
-    curve is the mean over that many random tuft layouts and its standard error holds their
-    spread. The installed pixels' tufts are none of them, so the mean of several is the truer
-    target: measured against the mean of 32 layouts (courtyard 5000 lx, forest 8000 lx,
-    interior 500 lx; (170, 2, 0), 21 lengths, 4096 x 8 paths, 6 draws each), the OGCD's RMS
-    error is 0.27-0.35 dE00 from one layout, 0.16-0.18 from 4 and 0.12-0.13 from 8 (largest
-    error 0.41-0.60, 0.26-0.28, 0.20-0.24), for the same paths.
+    ``layouts``: replicate j traces the display with ``layout_seed + (j mod layouts)`` and its
+    own paths (:func:`layout_seed`), so the curve is the mean over that many random tuft
+    layouts (as many as the first round's replicates at most; equal weights when they divide
+    the replicates) and its standard error holds their spread. The installed pixels' tufts
+    are none of them, so the mean of several is the truer target: measured against the mean
+    of 32 layouts (courtyard 5000 lx, forest 8000 lx, interior 500 lx; (170, 2, 0), 21
+    lengths, 4096 x 8 paths, 6 draws each), the OGCD's RMS error is 0.27-0.35 dE00 from one
+    layout, 0.16-0.18 from 4 and 0.12-0.13 from 8 (largest error 0.41-0.60, 0.26-0.28,
+    0.20-0.24), for the same paths.
     """
     if settings.replicates < 2:
         raise SceneError(f"simulate_curve needs at least 2 replicates (their spread is the "
@@ -128,13 +136,13 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
         block = np.full((b, n_len, 3), np.nan)
         # Replicate j (counted over the rounds) traces tuft layout j mod ``layouts``.
         first = int(counts[0])
-        for layout in range(min(layouts, b)):
+        for layout in sorted({(first + i) % layouts for i in range(b)}):
             rows = [i for i in range(b) if (first + i) % layouts == layout]
             shown = display if layout == 0 else replace(display, pixel=replace(
                 display.pixel, layout_seed=display.pixel.layout_seed + layout))
             m = renderer.characteristic(shown, lighting, viewpoint, lengths_mm[cols],
                                         replace(settings, replicates=len(rows),
-                                                seed=(seed + LAYOUT_SEED_STEP * layout) % 2**31),
+                                                seed=layout_seed(seed, layout)),
                                         pixel_index=pixel_index, progress=progress)
             seconds["compile"] += m.seconds.get("compile", 0.0)
             seconds["trace"] += m.seconds.get("trace", 0.0)

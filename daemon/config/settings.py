@@ -653,6 +653,11 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         replicates=_F(int, check=_between(2, MAX_REPLICATES)),
     ))
     calibration = CalibrationConfig(**ca)
+    if simulation.layouts > calibration.replicates:
+        raise ctx.error(("simulation", "layouts"),
+                        f"{simulation.layouts} layouts need at least as many replicates; "
+                        f"[calibration] replicates is {calibration.replicates}: lower layouts "
+                        "or raise replicates")
     tables, audience = _parse_tables_audience(ctx, top["tables"], top["audience"])
     metrics, alerts = _parse_operator(ctx, top["metrics"], top["alerts"])
 

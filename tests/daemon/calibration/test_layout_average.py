@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from grassd.calib.ogcd import ogcd_from_samples
-from grassd.daemon.calibration.simulation import LAYOUT_SEED_STEP, simulate_curve, white_radiance
+from grassd.daemon.calibration.simulation import layout_seed, simulate_curve, white_radiance
 from grassd.daemon.config.settings import parse_config
 from grassd.daemon.errors import ConfigError
 from grassd.sim.light_input import LightInput
@@ -32,7 +32,7 @@ def test_replicates_cycle_through_the_layouts(renderer, lighting):
     for k in range(3):  # replicates 0 and 3 trace layout 5, 1 and 4 layout 6, 2 and 5 layout 7
         shown = replace(display, pixel=replace(display.pixel, layout_seed=5 + k))
         m = renderer.characteristic(shown, lighting, VIEW, LENGTHS, replace(
-            settings, replicates=2, seed=3 + LAYOUT_SEED_STEP * k))
+            settings, replicates=2, seed=layout_seed(3, k)))
         parts.append(m.rgb_replicates)
     by_layout = np.concatenate(parts)
     assert np.allclose(curve.rgb_linear, by_layout.mean(axis=0), rtol=1e-12)
@@ -42,6 +42,15 @@ def test_replicates_cycle_through_the_layouts(renderer, lighting):
     own = renderer.characteristic(display, lighting, VIEW, LENGTHS, settings)
     assert np.array_equal(one.rgb_linear, own.rgb_linear)  # layouts = 1: one launch as before
     assert not np.allclose(one.rgb_linear, curve.rgb_linear)
+
+
+def test_adaptive_rounds_continue_the_layout_cycle(renderer, lighting):
+    """Later rounds of an adaptive run take the next layouts in turn (a round of one
+    replicate traces one layout)."""
+    settings = RenderSettings(samples=64, replicates=2, seed=1)
+    curve = simulate_curve(renderer, DisplaySpec(PixelSpec()), lighting, VIEW, LENGTHS,
+                           settings, layouts=3, target_stderr=1e-4, max_replicates=5)
+    assert curve.replicates == 5 and np.isfinite(curve.ogcd).all()
 
 
 def test_config_reads_layouts_with_its_default_and_bounds():
@@ -56,3 +65,5 @@ def test_config_reads_layouts_with_its_default_and_bounds():
     assert with_layouts(1).simulation.layouts == 1
     with pytest.raises(ConfigError, match="layouts"):
         with_layouts(0)
+    with pytest.raises(ConfigError, match="9 layouts need at least as many replicates"):
+        with_layouts(9)  # 8 replicates by default
