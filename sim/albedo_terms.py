@@ -14,10 +14,12 @@ carries, per colour channel, a sum of products of the symbols
 one factor per vertex, times a geometric weight that depends on the lobe's shape (smoothness)
 and the geometry (lengths, splay, layout) but not on the symbols. The renderer's recording mode
 (:meth:`grassd.sim.renderer.Renderer.albedo_terms`) samples paths with one reference material,
-splits every vertex's reflectance into its two lobes, and sums each path's weights per monomial:
-the estimate is then exact, for the same random numbers, at any albedos and any ``ks``
-(importance sampling from the reference; unbiased wherever the reference's sampling covers the
-lobes: the cosine lobe covers the hemisphere). Up to three vertices carry reflectance
+splits every vertex's reflectance into its two lobes, and sums each path's weights per monomial.
+For Lambertian surfaces the paths do not depend on the albedos, so the polynomial gives, for the
+same random numbers, exactly what tracing other albedos would. With a glossy lobe the lobe
+choice and the MIS weights follow the reference, so another albedo or ``ks`` is an unbiased
+reweighting of the reference's paths (importance sampling; the cosine lobe covers the
+hemisphere), noisier the further it is from the reference. Up to three vertices carry reflectance
 (``max_bounces <= 3``), so the monomials have degree 0..3 in 5 symbols: 56 of them.
 
 Units: albedos linear Rec.709 in [0, 1]; coefficients in the radiance units of the scaled

@@ -1133,7 +1133,9 @@ class Renderer:
         does, recording the radiance as a polynomial in the materials
         (:class:`~grassd.sim.albedo_terms.AlbedoTerms`): evaluated at the display's own
         albedos and ``specular`` it gives what :meth:`characteristic` gives with the same
-        settings (to float rounding), and at any others what it would give for the same paths.
+        settings (to float rounding); at other albedos of a Lambertian display, what tracing
+        them would give for the same paths; with a glossy lobe, an unbiased reweighting of the
+        reference's paths.
 
         Paths are sampled with the display's materials (the reference). ``glossy`` records
         the glossy lobe even where the display's ``specular`` is 0 (its lobe is then sampled

@@ -29,7 +29,8 @@ def _holdout(_ctx: click.Context, _param: click.Parameter, values: tuple[str, ..
 @click.command("fit")
 @click.argument("capture", type=click.Path(path_type=Path))
 @click.option("--holdout", multiple=True, callback=_holdout, metavar="H,D,THETA",
-              help="A viewpoint (cm, m, deg) judged but not fitted; repeat for several.")
+              help="A viewpoint (cm, m, deg) judged but not fitted (every series taken "
+                   "there); repeat for several.")
 @click.option("--params", default=None, metavar="NAMES",
               help="Comma list of the fields to fit (default: yellow_srgb, green_srgb, "
                    "base_srgb, specular, smoothness, splay_deg); the rest stay as the "
@@ -46,7 +47,8 @@ def _holdout(_ctx: click.Context, _param: click.Parameter, values: tuple[str, ..
 @click.option("--layouts", type=click.IntRange(2, 32), default=FitSettings.layouts,
               show_default=True,
               help="Random tuft layouts the simulation is averaged over.")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=click.IntRange(0, 2**31 - 1), default=FitSettings.seed,
+              show_default=True, help="Seed of the simulation's paths.")
 @click.option("--arch", type=click.Choice(["cpu", "gpu"]), default="cpu", show_default=True)
 @click.option("-q", "--quiet", is_flag=True, help="No progress messages.")
 def fit(capture, holdout, params, json_out, toml_out, html_out, samples, layouts, seed, arch,

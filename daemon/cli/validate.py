@@ -32,8 +32,8 @@ def _progress(msg: str) -> None:
 @click.option("--html", "html_out", type=click.Path(dir_okay=False, path_type=Path),
               help="Write the self-contained HTML report (PNG plots embedded) here.")
 @click.option("--pixel", "pixel_file", type=click.Path(dir_okay=False, path_type=Path),
-              help="Simulate this pixel instead of the capture's [pixel]: a grassd fit JSON "
-                   "report, or a TOML file with a [display.pixel] table.")
+              help="Simulate this pixel: a grassd fit JSON report, or a TOML file with a "
+                   "[display.pixel] table (its fields over the capture's [pixel]).")
 @click.option("-q", "--quiet", is_flag=True, help="No progress messages.")
 def validate(capture, samples, replicates, target_stderr, seed, arch, json_out, html_out,
              pixel_file, quiet):
@@ -52,7 +52,7 @@ def validate(capture, samples, replicates, target_stderr, seed, arch, json_out, 
 
         from grassd.daemon.offline.fit import load_pixel_fields
 
-        manifest = replace(manifest, pixel=load_pixel_fields(pixel_file))
+        manifest = replace(manifest, pixel={**manifest.pixel, **load_pixel_fields(pixel_file)})
     settings = RenderSettings(samples=samples, replicates=replicates, seed=seed)
     result = validate_capture(manifest, settings=settings, arch=arch,
                               target_stderr=target_stderr,

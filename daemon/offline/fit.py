@@ -19,15 +19,19 @@ How (fast by construction, every sample kept):
 * **Splay and smoothness: re-rendered.** They move the geometry and the lobe's shape, which no
   polynomial holds: each candidate value is recorded anew (the same random numbers: common
   random numbers make the comparison between candidates smooth), the albedos fitted inside it,
-  and the profile of the misfit over a coarse grid is refined by a parabola through its
-  lowest three points.
+  and the profile of the misfit over a coarse grid is refined by the least-squares parabola
+  through its lowest point and nearest neighbours.
 * **The layout.** The model's tufts are random; the photographed pixel's are one accident. The
   simulation is averaged over ``layouts`` random layouts, and their spread (per viewpoint and
   CIELAB component) weighs the residuals next to the Monte Carlo error and a floor for the
   photos' own noise, so that no parameter bends to one layout.
-* **Uncertainty.** Standard errors from the weighted residuals: the Gauss-Newton covariance
-  ``(J^T J)^-1`` for albedos and specular, the profile's curvature (``2 / C''``) for splay and
-  smoothness, both scaled by the reduced chi-square where it exceeds 1.
+* **Uncertainty.** The real pixel is one layout seen in every photo, so its accident is
+  shared by all residuals. Albedos and specular: the Gauss-Newton covariance ``(J^T J)^-1``
+  (scaled by the reduced chi-square where it exceeds 1) plus the spread of the fits that take
+  each simulated layout in turn for the photographed one (a layout jackknife). Splay and
+  smoothness: where the profile of the misfit rises above its minimum by the reduced
+  chi-square (at least 1) times the albedos' inflation by the jackknife, interpolated between
+  the candidates tried.
 * **Judging.** Every viewpoint's real OGCD is compared with the starting model's and the
   fitted one's (discrete Frechet distance and largest OGCD error, as ``validate``); held-out
   viewpoints (``holdout``) take no part in the fit and show how well it predicts a view it
@@ -39,7 +43,6 @@ Units: albedos 8-bit encoded sRGB (0..255), ``specular`` 0..1, ``smoothness`` 0.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
@@ -49,11 +52,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from grassd.calib.ccm import fit_ccm
 from grassd.calib.charts import get_chart
 from grassd.calib.colour_spaces import prophoto_to_lab, rec709_to_prophoto
 from grassd.calib.delta_e import delta_e_cie2000
 from grassd.calib.ogcd import ogcd_from_samples
+from grassd.daemon.calibration.simulation import layout_seed
 from grassd.daemon.config.toml_text import toml_value
 from grassd.daemon.offline.validate import (
     CaptureManifest,
@@ -62,9 +65,9 @@ from grassd.daemon.offline.validate import (
     ViewpointComparison,
     compare_viewpoint,
     default_renderer,
-    measure_real,
-    virtual_checker,
+    measure_and_correct,
 )
+from grassd.sim.scene import srgb_to_linear
 
 #: The fitted PixelSpec fields, by their config names, in the order they are reported.
 FIT_PARAMS: tuple[str, ...] = ("yellow_srgb", "green_srgb", "base_srgb", "specular",
@@ -132,16 +135,17 @@ class FitSettings:
 class ViewpointFit:
     """One viewpoint judged: the real OGCD against the starting and the fitted model."""
 
+    series: int  # index of the capture's [[series]] (repeated trials share a viewpoint)
     viewpoint: tuple[float, float, float]
     held_out: bool
     start: ViewpointComparison
     fitted: ViewpointComparison
 
     def to_json(self) -> dict[str, Any]:
-        """``viewpoint``, ``held_out``, ``frechet`` and ``max_error`` (start, fitted), and the
-        curves."""
+        """``series``, ``viewpoint``, ``held_out``, ``frechet`` and ``max_error`` (start,
+        fitted), and the curves."""
         return {
-            "viewpoint": list(self.viewpoint), "held_out": self.held_out,
+            "series": self.series, "viewpoint": list(self.viewpoint), "held_out": self.held_out,
             "frechet": {"start": self.start.frechet, "fitted": self.fitted.frechet},
             "max_error": {"start": self.start.max_error, "fitted": self.fitted.max_error},
             "lengths_mm": self.fitted.real.lengths_mm.tolist(),
@@ -218,15 +222,9 @@ def parse_params(text: str | None) -> tuple[str, ...]:
     names = [p.strip() for p in text.split(",") if p.strip()]
     unknown = [p for p in names if p not in FIT_PARAMS]
     if unknown or not names:
-        raise FitError(f"--params {text!r}: unknown {', '.join(unknown) or 'empty list'}; "
-                       f"choose from {', '.join(FIT_PARAMS)}")
+        what = f"unknown {', '.join(unknown)}" if unknown else "names no parameter"
+        raise FitError(f"--params {text!r}: {what}; choose from {', '.join(FIT_PARAMS)}")
     return tuple(p for p in FIT_PARAMS if p in names)
-
-
-def _srgb_to_linear(srgb8: NDArray[np.float64]) -> NDArray[np.float64]:
-    """8-bit encoded sRGB (any shape) to linear (IEC 61966-2-1), vectorised."""
-    c = np.clip(np.asarray(srgb8, dtype=np.float64), 0.0, 255.0) / 255.0
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
 class _Model:
@@ -244,13 +242,19 @@ class _Model:
         self.fit_series: list[int] = []  # recorded together whenever a shape is recorded
         self._cache: dict[tuple, list[Any]] = {}
 
+    def _key(self, shape: tuple[float, float], series: int) -> tuple:
+        """What a recording depends on: the shape and the series' viewpoint and lengths
+        (repeated trials of one viewpoint share it)."""
+        sr = self.manifest.series[series]
+        return (shape, sr.viewpoint, tuple(sr.lengths_mm))
+
     def terms(self, shape: tuple[float, float], series: int) -> list[Any]:
         """The recorded terms of ``series`` at (smoothness, splay_deg), one per layout. A shape
         not yet recorded is recorded for every fitted series at once, layout by layout (the
         renderer then builds each layout's scene once)."""
-        if (shape, series) not in self._cache:
+        if self._key(shape, series) not in self._cache:
             self._record(shape, sorted({series, *self.fit_series}))
-        return self._cache[(shape, series)]
+        return self._cache[self._key(shape, series)]
 
     def _record(self, shape: tuple[float, float], series: Sequence[int]) -> None:
         from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
@@ -259,16 +263,17 @@ class _Model:
         ref = replace(self.start, smoothness=shape[0], splay_deg=shape[1])
         if self.glossy and ref.specular == 0.0:
             ref = replace(ref, specular=SAMPLING_SPECULAR)
-        rs = RenderSettings(samples=s.samples, replicates=s.replicates,
-                            max_bounces=s.max_bounces, seed=s.seed)
-        todo = [i for i in series if (shape, i) not in self._cache]
-        for i in todo:
-            self._cache[(shape, i)] = []
+        todo = {self._key(shape, i): i for i in series}
+        todo = {key: i for key, i in todo.items() if key not in self._cache}
+        for key in todo:
+            self._cache[key] = []
         for k in range(s.layouts):
             display = DisplaySpec(replace(ref, layout_seed=ref.layout_seed + k))
-            for i in todo:
+            rs = RenderSettings(samples=s.samples, replicates=s.replicates,
+                                max_bounces=s.max_bounces, seed=layout_seed(s.seed, k))
+            for key, i in todo.items():
                 sr = self.manifest.series[i]
-                self._cache[(shape, i)].append(self.renderer.albedo_terms(
+                self._cache[key].append(self.renderer.albedo_terms(
                     display, self.lighting, Viewpoint(*sr.viewpoint), sr.lengths_mm, rs,
                     glossy=self.glossy))
 
@@ -308,8 +313,9 @@ class _Problem:
         self.model, self.real, self.fit_series = model, real, list(fit_series)
         self.albedo_params = [p for p in params if p in ALBEDO_ROWS]
         self.fit_ks = "specular" in params
+        self.fixed_ks = float(model.start.specular)  # ks where it is not fitted
         start = model.start
-        self.base_albedo = _srgb_to_linear(np.array([start.yellow_srgb, start.green_srgb,
+        self.base_albedo = srgb_to_linear(np.array([start.yellow_srgb, start.green_srgb,
                                                      start.base_srgb, start.cavity_srgb]))
         self.x0 = np.array([c for p in self.albedo_params for c in getattr(start, p)]
                            + ([start.specular] if self.fit_ks else []), dtype=np.float64)
@@ -319,19 +325,26 @@ class _Problem:
                               + ([0.9] if self.fit_ks else []))
         self.sigma: dict[int, NDArray[np.float64]] = {}
 
+    def fix_specular(self, x: NDArray[np.float64], ks: float) -> NDArray[np.float64]:
+        """Stop fitting ``ks``: hold it at ``ks`` from now on; returns ``x`` without it."""
+        self.fit_ks, self.fixed_ks = False, float(ks)
+        self.lower, self.upper, self.x0 = self.lower[:-1], self.upper[:-1], self.x0[:-1]
+        return x[:-1]
+
     def unpack(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
         """(4, 3) linear albedos and ``ks`` of parameter vector ``x``."""
         albedo = self.base_albedo.copy()
         for i, p in enumerate(self.albedo_params):
-            albedo[ALBEDO_ROWS[p]] = _srgb_to_linear(x[3 * i: 3 * i + 3])
-        ks = float(x[-1]) if self.fit_ks else float(self.model.start.specular)
+            albedo[ALBEDO_ROWS[p]] = srgb_to_linear(x[3 * i: 3 * i + 3])
+        ks = float(x[-1]) if self.fit_ks else self.fixed_ks
         return albedo, ks
 
-    def weights(self, shape: tuple[float, float]) -> None:
-        """Per fitted series and CIELAB component, the residuals' standard deviation: the
-        layouts' spread (the real pixel is one more layout), the Monte Carlo error of the
-        layout mean, and the photos' floor, pooled over the series' lengths."""
-        albedo, ks = self.unpack(self.x0)
+    def weights(self, shape: tuple[float, float], x: NDArray[np.float64] | None = None) -> None:
+        """Per fitted series and CIELAB component, the residuals' standard deviation at
+        parameters ``x`` (default: the start): the layouts' spread (the real pixel is one more
+        layout), the Monte Carlo error of the layout mean, and the photos' floor, pooled over
+        the series' lengths."""
+        albedo, ks = self.unpack(self.x0 if x is None else x)
         floor = self.model.settings.lab_floor
         for s in self.fit_series:
             reps = self.model.replicates(shape, s, albedo, ks)  # (L, R, n, 3)
@@ -363,7 +376,8 @@ class _Problem:
         start = np.clip(self.x0 if x0 is None else x0, self.lower, self.upper)
         if not len(start):
             r = self.residuals(shape, start)
-            return _Inner(start, r, np.zeros((len(r), 0)), float(r @ r))
+            return _Inner(start, r, np.zeros((len(r), 0)), float(r @ r),
+                          self.noise(shape, start))
         res = least_squares(lambda x: self.residuals(shape, x), start,
                             bounds=(self.lower, self.upper), x_scale="jac", max_nfev=200)
         if res.status <= 0:
@@ -374,34 +388,83 @@ class _Problem:
                       self.noise(shape, res.x))
 
     def noise(self, shape: tuple[float, float], x: NDArray[np.float64]) -> float:
-        """Expected chi-square contribution of the simulation's noise at ``x``: per photo and
-        CIELAB component, the variance of the simulated mean (from the spread of its layouts'
-        replicates) over the residual's variance."""
+        """Expected chi-square contribution of the simulation's Monte Carlo noise at ``x``: per
+        photo and CIELAB component, the variance of the simulated mean (the replicates'
+        spread within each layout, over all replicates) over the residual's variance."""
         albedo, ks = self.unpack(x)
         total = 0.0
         for s in self.fit_series:
-            reps = self.model.replicates(shape, s, albedo, ks)
-            flat = reps.reshape(-1, *reps.shape[2:])  # every (layout, replicate)
-            var_mean = self.model.lab(flat).var(axis=0, ddof=1) / len(flat)
-            total += float((var_mean / self.sigma[s] ** 2).sum())
+            reps = self.model.replicates(shape, s, albedo, ks)  # (L, R, n, 3)
+            n_layouts, n_reps = reps.shape[:2]
+            if n_reps < 2:
+                continue
+            within = self.model.lab(reps).var(axis=1, ddof=1).mean(axis=0)
+            total += float((within / (n_layouts * n_reps) / self.sigma[s] ** 2).sum())
         return total
 
+    def layout_jackknife(self, shape: tuple[float, float], x: NDArray[np.float64]
+                         ) -> NDArray[np.float64]:
+        """Covariance of the fitted albedos / ``ks`` that the photographed layout's accident
+        causes: each simulated layout in turn stands in for the photographed pixel (its own
+        mean at ``x``) and is fitted with the mean of the other layouts; the covariance of
+        those fits (ddof 1). Costs one small least-squares fit per layout (milliseconds)."""
+        from scipy.optimize import least_squares
 
-def _parabola_min(points: Sequence[tuple[float, float]], lo: float, hi: float
-                  ) -> tuple[float, float | None]:
-    """Vertex (clipped to [lo, hi]) and curvature C'' of the least-squares parabola through the
-    lowest point and its nearest neighbours on the profile (four points where there are: a
-    minimum at the edge of the grid still has a curvature); (lowest point, None) if that
-    parabola is not convex."""
+        albedo, ks = self.unpack(x)
+        reps = {s: self.model.replicates(shape, s, albedo, ks) for s in self.fit_series}
+        n_layouts = next(iter(reps.values())).shape[0]
+        fits = []
+        for k in range(n_layouts):
+            target = {s: self.model.lab(r[k].mean(axis=0)) for s, r in reps.items()}
+            others = [j for j in range(n_layouts) if j != k]
+
+            def resid(y: NDArray[np.float64], target=target, others=others) -> NDArray:
+                a, k_s = self.unpack(y)
+                out = []
+                for s in self.fit_series:
+                    sim = self.model.replicates(shape, s, a, k_s)[others].mean(axis=(0, 1))
+                    out.append(((target[s] - self.model.lab(sim)) / self.sigma[s]).ravel())
+                return np.concatenate(out)
+
+            fits.append(least_squares(resid, x, bounds=(self.lower, self.upper),
+                                      x_scale="jac", max_nfev=100).x)
+        return np.atleast_2d(np.cov(np.array(fits), rowvar=False, ddof=1))
+
+
+def _parabola_min(points: Sequence[tuple[float, float]], lo: float, hi: float) -> float:
+    """Vertex (clipped to [lo, hi]) of the least-squares parabola through the lowest point of a
+    profile and its nearest neighbours (four where there are); the lowest point itself where
+    that parabola is not convex."""
     pts = sorted(points)
     i = min(range(len(pts)), key=lambda k: pts[k][1])
     near = sorted(pts, key=lambda p: abs(p[0] - pts[i][0]))[:4]
     if len(near) < 3:
-        return pts[i][0], None
+        return pts[i][0]
     a, b, _ = np.polyfit([p[0] for p in near], [p[1] for p in near], 2)
-    if a <= 0:
-        return pts[i][0], None
-    return float(np.clip(-b / (2 * a), lo, hi)), float(2 * a)
+    return float(np.clip(-b / (2 * a), lo, hi)) if a > 0 else pts[i][0]
+
+
+def _profile_stderr(points: Sequence[tuple[float, float]], rise: float) -> float | None:
+    """Standard error of a re-rendered parameter from the profile of the misfit: the distance
+    from the lowest point to where the profile rises by ``rise`` (1 for a chi-square, more
+    where the residuals are wider than their weights), interpolated linearly between the
+    points tried, on each side that reaches it (their mean where both do; one side at the
+    edge of the grid). None where no side reaches it: the photos do not determine it.
+
+    >>> _profile_stderr([(0, 4.0), (4, 0.0), (8, 4.0)], 1.0)
+    1.0
+    """
+    pts = sorted(points)
+    i = min(range(len(pts)), key=lambda k: pts[k][1])
+    x0, y0 = pts[i]
+    widths = []
+    target = y0 + rise
+    for side in (pts[i::-1], pts[i:]):  # outward from the lowest point
+        for (xa, ya), (xb, yb) in zip(side, side[1:], strict=False):
+            if yb >= target:  # the previous point is below the target
+                widths.append(abs(xa + (xb - xa) * (target - ya) / (yb - ya) - x0))
+                break
+    return float(np.mean(widths)) if widths else None
 
 
 def _covariance(inner: _Inner, dof: int) -> NDArray[np.float64]:
@@ -466,15 +529,17 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
     t0 = time.perf_counter()
     settings = settings or FitSettings()
     say = progress or (lambda _m: None)
+    unknown = sorted(set(params) - set(FIT_PARAMS))
+    if unknown:
+        raise FitError(f"unknown parameter(s) {', '.join(unknown)}; choose from "
+                       f"{', '.join(FIT_PARAMS)}")
     params = tuple(p for p in FIT_PARAMS if p in params)
     start = PixelSpec(**manifest.pixel)
     held = _match_holdout(manifest, holdout)
     fit_series = [i for i in range(len(manifest.series)) if i not in held]
     _check_identifiable(manifest, fit_series, params, start)
-    chart = get_chart(manifest.chart)
-    real = measure_real(manifest, chart, progress)
-    virtual, s = virtual_checker(chart)
-    ccm = fit_ccm(virtual, real.checker_rgb, "3x3").matrix * s
+    real, correction, scale = measure_and_correct(manifest, get_chart(manifest.chart), progress)
+    ccm = correction.matrix * scale
     say("building the lighting")
     lighting = lighting if lighting is not None else manifest.light.lighting()
     renderer = renderer if renderer is not None else default_renderer(arch)
@@ -487,30 +552,41 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
     shape = (start.smoothness, start.splay_deg)
     say(f"fitting albedos at smoothness {shape[0]:g}, splay {shape[1]:g} deg")
     best = problem.solve(shape)
-    curvature: dict[str, float | None] = {}
+    if len(best.x):  # the layouts' spread in CIELAB depends on the colours: weigh at the fit's
+        problem.weights(shape, best.x)
+        best = problem.solve(shape, best.x)
 
     def search(name: str, grid: Sequence[float], index: int, lo: float, hi: float) -> None:
         nonlocal shape, best
         tried: dict[float, _Inner] = {}
-        for v in grid:
+
+        def attempt(v: float, what: str) -> None:
             cand = (v, shape[1]) if index == 0 else (shape[0], v)
-            say(f"recording {name} = {v:g}")
-            tried[v] = problem.solve(cand, best.x)
-        v_best, c2 = _parabola_min([(v, r.misfit) for v, r in tried.items()], lo, hi)
+            say(f"recording {name} = {v:.3g}{what}")
+            try:
+                tried[v] = problem.solve(cand, best.x)
+            except FitNotConvergedError:  # a far-off candidate: out of the running
+                pass
+
+        for v in grid:
+            attempt(v, "")
+        if not tried:
+            raise FitNotConvergedError(f"the albedo fit converged at no {name} tried "
+                                       f"({', '.join(f'{v:g}' for v in grid)}); check that "
+                                       "the photos show the pixel named in the manifest")
+        v_best = _parabola_min([(v, r.misfit) for v, r in tried.items()], lo, hi)
         if v_best not in tried:
-            cand = (v_best, shape[1]) if index == 0 else (shape[0], v_best)
-            say(f"recording {name} = {v_best:.3g} (refined)")
-            tried[v_best] = problem.solve(cand, best.x)
+            attempt(v_best, " (refined)")
         v_best = min(tried, key=lambda v: tried[v].misfit)
         shape = (v_best, shape[1]) if index == 0 else (shape[0], v_best)
         best = tried[v_best]
-        curvature[name] = c2
         profile[name] = sorted((v, r.misfit) for v, r in tried.items())
 
     # The lobe's shape first (a sharp lobe fitted with a broad one's shape looks like no
     # gloss at all), then the splay at that shape, then the shape again where the splay moved.
     glossy_fit = "smoothness" in params and (problem.fit_ks or start.specular > 0)
     kept: set[str] = set()  # fitted parameters the photos could not show: kept at the start
+    specular_se = 0.0  # of a fitted specular set to 0
     if "smoothness" in params and not glossy_fit:
         kept.add("smoothness")
         notes.append(f"smoothness kept at {shape[0]:g}: without a glossy lobe (specular 0, "
@@ -523,28 +599,48 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
             search("smoothness", SMOOTHNESS_GRID, 0, 0.0, 0.97)
     if glossy_fit and problem.fit_ks:
         ks = problem.unpack(best.x)[1]
-        ks_se = float(np.sqrt(_covariance(best, best.residuals.size - best.x.size)[-1, -1]))
+        try:
+            cov = (_covariance(best, best.residuals.size - best.x.size)
+                   + problem.layout_jackknife(shape, best.x))
+        except np.linalg.LinAlgError:
+            raise NotIdentifiableError(
+                "the photos do not determine specular together with the albedos (singular "
+                "fit); add viewpoints or leave specular and smoothness out of --params"
+            ) from None
+        ks_se = float(np.sqrt(cov[-1, -1]))
         if ks < max(MIN_VISIBLE_SPECULAR, 3.0 * ks_se):
             # No lobe to speak of: its shape is noise. Keep the start's, refitted there.
             notes.append(f"smoothness kept at {start.smoothness:g}: the fitted specular "
                          f"({ks:.3f} +- {ks_se:.3f}) shows no glossy lobe whose shape the "
                          "photos could tell")
             shape = (start.smoothness, shape[1])
-            best = problem.solve(shape, best.x)
             kept.add("smoothness")
+            if ks < max(MIN_VISIBLE_SPECULAR, 2.0 * ks_se):
+                # Within 2 standard errors of none: the simpler pixel, without a lobe.
+                notes.append(f"specular set to 0: the fitted {ks:.3f} +- {ks_se:.3f} is within "
+                             "2 standard errors of no gloss")
+                kept.add("specular")
+                specular_se = ks_se
+                best = problem.solve(shape, problem.fix_specular(best.x, 0.0))
+            else:
+                best = problem.solve(shape, best.x)
 
     n_par = len(best.x) + sum(1 for p in ("splay_deg", "smoothness")
-                              if p in curvature and p not in kept)
+                              if p in profile and p not in kept)
     dof = max(len(best.residuals) - n_par, 1)
     albedo, ks = problem.unpack(best.x)
     _check_agreement(model, real, fit_series, shape, albedo, ks)
-    pixel, stderr = _fitted_fields(problem, best, shape, params, dof, curvature, kept)
+    pixel, stderr = _fitted_fields(problem, best, shape, params, dof, profile, kept)
+    if "specular" in kept:
+        pixel["specular"], stderr["specular"] = 0.0, round(specular_se, 4)
+        pixel = {k: pixel[k] for k in FIT_PARAMS if k in pixel}  # report order
+        stderr = {k: stderr[k] for k in FIT_PARAMS if k in stderr}
     _check_determined(stderr, params, kept, profile)
     say("judging every viewpoint")
     start_shape = (start.smoothness, start.splay_deg)
     start_albedo, _ = problem.unpack(problem.x0)
     judged = tuple(
-        ViewpointFit(sr.viewpoint, i in held,
+        ViewpointFit(i, sr.viewpoint, i in held,
                      _judge(model, real, i, start_shape, start_albedo, start.specular),
                      _judge(model, real, i, shape, albedo, ks))
         for i, sr in enumerate(manifest.series))
@@ -556,33 +652,42 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
 
 
 def _fitted_fields(problem: _Problem, best: _Inner, shape: tuple[float, float],
-                   params: Sequence[str], dof: int, curvature: dict[str, float | None],
+                   params: Sequence[str], dof: int,
+                   profile: dict[str, list[tuple[float, float]]],
                    kept: set[str]) -> tuple[dict[str, Any], dict[str, Any]]:
-    """The fitted fields by their config names and their standard errors (None where a
-    parameter was kept at its start or its profile has no curvature)."""
+    """The fitted fields by their config names and their standard errors (module docstring;
+    None where a parameter was kept at its start or its profile never rises enough)."""
     pixel: dict[str, Any] = {}
     stderr: dict[str, Any] = {}
     se = np.zeros(0)
+    design = 1.0  # how much the shared layout accident inflates a variance
     if len(best.x):
         try:
-            se = np.sqrt(np.diag(_covariance(best, dof)))
+            gauss_newton = _covariance(best, dof)
+            cov = gauss_newton + problem.layout_jackknife(shape, best.x)
+            design = float(np.mean(np.diag(cov) / np.diag(gauss_newton)))
         except np.linalg.LinAlgError:
             weakest = problem.albedo_params + (["specular"] if problem.fit_ks else [])
             raise NotIdentifiableError(
                 f"the photos do not determine {', '.join(weakest)} together (singular fit); "
                 "add lengths or viewpoints, or fit fewer parameters with --params") from None
+        se = np.sqrt(np.diag(cov))
     for i, p in enumerate(problem.albedo_params):
         pixel[p] = [round(float(v), 2) for v in best.x[3 * i: 3 * i + 3]]
         stderr[p] = [round(float(v), 2) for v in se[3 * i: 3 * i + 3]]
     if problem.fit_ks:
         pixel["specular"] = round(problem.unpack(best.x)[1], 4)
         stderr["specular"] = round(float(se[-1]), 4)
-    inflate = max(1.0, best.cost / dof)
+    # The profile's rise: 1 for a chi-square, more where the residuals are wider than their
+    # weights, times the albedos' inflation by the layout accident (which splay and smoothness
+    # share, but whose jackknife would need every layout recorded at every candidate).
+    rise = max(1.0, best.cost / dof) * design
     for name, index in (("smoothness", 0), ("splay_deg", 1)):
         if name in params:
             pixel[name] = round(float(shape[index]), 3)
-            c2 = None if name in kept else curvature.get(name)
-            stderr[name] = None if c2 is None else round(math.sqrt(2.0 / c2 * inflate), 3)
+            width = (None if name in kept or name not in profile
+                     else _profile_stderr(profile[name], rise))
+            stderr[name] = None if width is None else round(width, 3)
     return pixel, stderr
 
 

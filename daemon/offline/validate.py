@@ -694,6 +694,17 @@ def repeatability(m: CaptureManifest, real: RealCapture) -> dict[str, dict[str, 
     return out
 
 
+def measure_and_correct(m: CaptureManifest, chart: ReferenceChart,
+                        progress: Callable[[str], None] | None = None
+                        ) -> tuple[RealCapture, ColourCorrection, float]:
+    """The real side of a capture (:func:`measure_real`), the 3x3 colour correction M from the
+    virtual to the real checker, and the factor ``s`` that scales the white-card-normalised
+    simulation before M (:func:`virtual_checker`)."""
+    real = measure_real(m, chart, progress)
+    virtual, s = virtual_checker(chart)
+    return real, fit_ccm(virtual, real.checker_rgb, "3x3"), s
+
+
 def validate_capture(m: CaptureManifest, *, renderer: Any = None, settings: Any = None,
                      target_stderr: float | None = None, lighting: Any = None,
                      arch: str = "cpu",
@@ -709,10 +720,7 @@ def validate_capture(m: CaptureManifest, *, renderer: Any = None, settings: Any 
     from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint
 
     t0 = time.perf_counter()
-    chart = get_chart(m.chart)
-    real = measure_real(m, chart, progress)
-    virtual, s = virtual_checker(chart)
-    ccm = fit_ccm(virtual, real.checker_rgb, "3x3")
+    real, ccm, s = measure_and_correct(m, get_chart(m.chart), progress)
     t1 = time.perf_counter()
     settings = settings or RenderSettings(samples=4096, replicates=8)
     if progress:
