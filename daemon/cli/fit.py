@@ -65,13 +65,7 @@ def fit(capture, holdout, params, json_out, toml_out, html_out, samples, layouts
     settings = FitSettings(samples=samples, layouts=layouts, seed=seed)
     result = fit_capture(manifest, holdout=holdout, params=names, settings=settings, arch=arch,
                          progress=None if quiet else lambda m: click.echo(m, err=True))
-    rows = []
-    for k, v in result.pixel.items():
-        se = result.stderr.get(k)
-        fmt = (lambda x: ", ".join(f"{c:.1f}" for c in x)) if isinstance(v, list) else "{:g}".format
-        start = result.start[k]
-        rows.append([k, fmt(start), fmt(v), "-" if se is None else fmt(se)])
-    click.echo(format_table(["field", "start", "fitted", "stderr"], rows))
+    click.echo(format_table(["field", "start", "fitted", "stderr"], result.rows()))
     rows = [[v.fitted.label
              + (" held out" if v.held_out else ""), f"{v.start.frechet:.2f}",
              f"{v.fitted.frechet:.2f}", f"{v.start.max_error:.2f}", f"{v.fitted.max_error:.2f}"]

@@ -185,6 +185,18 @@ class FitResult:
             "seconds": self.seconds,
         }
 
+    def rows(self) -> list[list[str]]:
+        """Per fitted field: its name, start, fitted value and standard error as text (albedo
+        channels to 0.1 level, "-" for no standard error), for the CLI and HTML tables."""
+
+        def text(v: Any) -> str:
+            if v is None:
+                return "-"
+            return ", ".join(f"{c:.1f}" for c in v) if isinstance(v, list) else f"{v:.4g}"
+
+        return [[k, text(self.start[k]), text(v), text(self.stderr.get(k))]
+                for k, v in self.pixel.items()]
+
     def pixel_spec_fields(self) -> dict[str, Any]:
         """The start's fields with the fitted ones over them (PixelSpec keyword arguments)."""
         out = {**self.start, **self.pixel}

@@ -295,15 +295,7 @@ def fit_figure(viewpoints: Sequence[Any]) -> Any:
 
 def fit_html(result: Any) -> str:
     """The ``grassd fit`` HTML report of a :class:`grassd.daemon.offline.fit.FitResult`."""
-
-    def fmt(v: Any) -> str:
-        if v is None:
-            return "-"
-        return ", ".join(f"{c:.1f}" for c in v) if isinstance(v, list) else f"{v:.4g}"
-
-    params = table(["field", "start", "fitted", "standard error"],
-                   [[k, fmt(result.start[k]), fmt(v), fmt(result.stderr.get(k))]
-                    for k, v in result.pixel.items()])
+    params = table(["field", "start", "fitted", "standard error"], result.rows())
     views = table(["viewpoint (h, d, theta)", "held out", "Frechet start", "Frechet fitted",
                    "max error start", "max error fitted"],
                   [[v.fitted.label,
