@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from grassd.daemon.offline.fit import FitSettings
+from grassd.daemon.config.fit import FitSettings
 from grassd.daemon.store.atomic import atomic_write_text
 
 

@@ -57,6 +57,7 @@ from grassd.calib.colour_spaces import prophoto_to_lab, rec709_to_prophoto
 from grassd.calib.delta_e import delta_e_cie2000
 from grassd.calib.ogcd import ogcd_from_samples
 from grassd.daemon.calibration.simulation import layout_seed
+from grassd.daemon.config.fit import FitSettings
 from grassd.daemon.config.toml_text import toml_value
 from grassd.daemon.offline.validate import (
     CaptureManifest,
@@ -107,28 +108,6 @@ class ContradictoryPhotosError(FitError):
 
 class FitNotConvergedError(FitError):
     """The least-squares fit stopped before it converged."""
-
-
-@dataclass(frozen=True)
-class FitSettings:
-    """Monte Carlo settings of the fit: ``samples`` camera paths per length per replicate,
-    ``replicates`` per layout, ``layouts`` random tuft layouts averaged (seeds from the start
-    pixel's ``layout_seed`` on), ``seed`` of the paths, ``max_bounces`` (at most 3: the
-    recorded polynomial's degree), ``lab_floor``: the photos' own noise per CIELAB component,
-    added to the layout spread and the Monte Carlo error in the residuals' weights."""
-
-    samples: int = 1024
-    replicates: int = 4
-    layouts: int = 6
-    seed: int = 0
-    max_bounces: int = 3
-    lab_floor: float = 0.25
-
-    def __post_init__(self) -> None:
-        if self.layouts < 2:
-            raise FitError("fit needs at least 2 layouts: their spread is part of the error")
-        if self.replicates < 1 or self.samples < 16:
-            raise FitError("fit needs at least 1 replicate of 16 samples per layout")
 
 
 @dataclass(frozen=True)
