@@ -658,6 +658,13 @@ class Renderer:
         return t, n, mat, g, reuse, 1 if kept == 0 or kept == 2 else 0
 
     @ti.func
+    def light_and_lobe(self):
+        """The uploaded sun (on, unit direction, irradiance in linear RGB) and glossy lobe
+        (``ks``, Phong exponent): what every vertex of a path reads."""
+        return (self.ipar[6], vec3(self.fpar[10], self.fpar[11], self.fpar[12]),
+                vec3(self.fpar[13], self.fpar[14], self.fpar[15]), self.fpar[16], self.fpar[17])
+
+    @ti.func
     def escape_weight(self, d, depth: ti.i32, pdf_bsdf: ti.f32, n_prev: ti.i32,
                       bin_prev: ti.i32) -> ti.f32:
         """MIS weight of the environment seen along a BSDF-sampled ray ``d`` (1 for a camera
@@ -715,10 +722,7 @@ class Renderer:
         pdf_bsdf = 0.0
         n_prev = 1
         bin_prev = 0
-        sun_on = self.ipar[6]
-        sun_dir = vec3(self.fpar[10], self.fpar[11], self.fpar[12])
-        sun_e = vec3(self.fpar[13], self.fpar[14], self.fpar[15])
-        ks, nexp = self.fpar[16], self.fpar[17]
+        sun_on, sun_dir, sun_e, ks, nexp = self.light_and_lobe()
         for depth in range(max_bounces + 1):
             # The last segment only asks whether the environment is visible (any hit).
             t, n, mat, g, reuse, fresh = self.trace_memo(
@@ -868,10 +872,7 @@ class Renderer:
         pdf_bsdf = 0.0
         n_prev = 1
         bin_prev = 0
-        sun_on = self.ipar[6]
-        sun_dir = vec3(self.fpar[10], self.fpar[11], self.fpar[12])
-        sun_e = vec3(self.fpar[13], self.fpar[14], self.fpar[15])
-        ks, nexp = self.fpar[16], self.fpar[17]
+        sun_on, sun_dir, sun_e, ks, nexp = self.light_and_lobe()
         for depth in range(max_bounces + 1):
             t, n, mat, _grow = self.trace(o, d, x, x, tf.INF,
                                           1 if depth == max_bounces else 0, splay, False)
