@@ -68,6 +68,7 @@ from grassd.daemon.offline.validate import (
     default_renderer,
     measure_and_correct,
 )
+from grassd.sim.albedo_terms import monomial_values
 from grassd.sim.scene import srgb_to_linear
 
 #: The fitted PixelSpec fields, by their config names, in the order they are reported.
@@ -232,6 +233,7 @@ class _Model:
         self.white = white_radiance(lighting)
         self.fit_series: list[int] = []  # recorded together whenever a shape is recorded
         self._cache: dict[tuple, list[Any]] = {}
+        self._means: dict[tuple, NDArray[np.float64]] = {}  # mean coefficients (n, 56, 3)
 
     def _key(self, shape: tuple[float, float], series: int) -> tuple:
         """What a recording depends on: the shape and the series' viewpoint and lengths
@@ -272,6 +274,21 @@ class _Model:
                    ks: float) -> NDArray[np.float64]:
         """(layouts, replicates, n, 3) normalised linear Rec.709 (the white card reads 1)."""
         return np.stack([t.radiance(albedo, ks) for t in self.terms(shape, series)]) / self.white
+
+    def mean(self, shape: tuple[float, float], series: int, albedo: NDArray[np.float64],
+             ks: float, layouts: Sequence[int] | None = None) -> NDArray[np.float64]:
+        """(n, 3) normalised linear Rec.709 of the mean over ``layouts`` (default all) and
+        their replicates, the same as ``replicates(...)[layouts].mean(axis=(0, 1))``: the
+        polynomial is linear in its coefficients, so their mean is kept per (shape, series,
+        layouts) and a candidate costs one contraction (the fit's inner loop)."""
+        terms = self.terms(shape, series)
+        chosen = tuple(range(len(terms)) if layouts is None else layouts)
+        key = (self._key(shape, series), chosen)
+        if key not in self._means:
+            self._means[key] = np.mean([terms[k].coefficients.mean(axis=0) for k in chosen],
+                                       axis=0)
+        mono = monomial_values(albedo, ks)
+        return np.einsum("nmc,mc->nc", self._means[key], mono) / self.white
 
     def lab(self, rgb: NDArray[np.float64]) -> NDArray[np.float64]:
         """CIELAB of normalised linear Rec.709 through the capture's colour correction."""
@@ -354,7 +371,7 @@ class _Problem:
         albedo, ks = self.unpack(x)
         out = []
         for s in self.fit_series:
-            mean = self.model.replicates(shape, s, albedo, ks).mean(axis=(0, 1))
+            mean = self.model.mean(shape, s, albedo, ks)
             out.append(((self.real.lab[s] - self.model.lab(mean)) / self.sigma[s]).ravel())
         return np.concatenate(out)
 
@@ -413,7 +430,7 @@ class _Problem:
                 a, k_s = self.unpack(y)
                 out = []
                 for s in self.fit_series:
-                    sim = self.model.replicates(shape, s, a, k_s)[others].mean(axis=(0, 1))
+                    sim = self.model.mean(shape, s, a, k_s, others)
                     out.append(((target[s] - self.model.lab(sim)) / self.sigma[s]).ravel())
                 return np.concatenate(out)
 
@@ -689,7 +706,7 @@ def _check_agreement(model: _Model, real: RealCapture, fit_series: Sequence[int]
     inflate)."""
     de = []
     for i in fit_series:
-        mean = model.replicates(shape, i, albedo, ks).mean(axis=(0, 1))
+        mean = model.mean(shape, i, albedo, ks)
         de.extend(zip(delta_e_cie2000(real.lab[i], model.lab(mean)),
                       [p.path.name for p in model.manifest.series[i].photos], strict=True))
     median = float(np.median([d for d, _ in de]))

@@ -124,8 +124,7 @@ def test_the_glossy_lobe_is_found_where_there_is_one(world):
 @pytest.mark.slow
 def test_standard_errors_cover_the_truth(world):
     """The photographed layout's accident is shared by every photo: the standard errors count
-    it, so the truth lies within 3 of them (a fit that believed its photos independent gave
-    the olive base's blue +- 5 levels for an error of 21)."""
+    it, so the truth lies within 3 of them (the olive base's blue is 20 levels off)."""
     res, truth = world["fit"], world["truth"]
     for name in ALBEDOS:
         err = np.abs(np.subtract(res.pixel[name], getattr(truth, name)))
