@@ -10,6 +10,7 @@ import os
 import shutil
 import subprocess
 import time
+from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -211,3 +212,21 @@ def full(d: Path):
         yield
     finally:
         filler.unlink()
+
+
+def wait_for(cond: Callable[[], Any], timeout: float, what: str, *, poll: float = 0.05,
+             check: Callable[[], None] | None = None,
+             context: Callable[[], str] | None = None) -> Any:
+    """Poll ``cond`` every ``poll`` s until it returns something true and return that, for at
+    most ``timeout`` s. ``check`` runs after each poll that is not yet true and may raise (a
+    process that died); ``context`` adds text (a log tail) to the timeout's message."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        v = cond()
+        if v:
+            return v
+        if check is not None:
+            check()
+        time.sleep(poll)
+    extra = f"\n{context()}" if context is not None else ""
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}{extra}")

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from daemon_harness import wait_for as harness_wait_for
 from prometheus_client.parser import text_string_to_metric_families
 from test_grassd_run_end_to_end import GRASSD
 from test_grassd_run_end_to_end import config_text as e2e_config_text
@@ -36,16 +37,15 @@ retry_s = 1
 
 
 def wait_for(cond, timeout: float, what: str, proc, log: Path):
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < timeout:
-        v = cond()
-        if v:
-            return v
+    """:func:`daemon_harness.wait_for`, failing at once if the daemon process exits."""
+
+    def alive() -> None:
         if proc.poll() is not None:
             raise AssertionError(f"daemon exited while waiting for {what}:\n"
                                  f"{log.read_text()[-3000:]}")
-        time.sleep(0.05)
-    raise AssertionError(f"timed out waiting for {what}:\n{log.read_text()[-3000:]}")
+
+    return harness_wait_for(cond, timeout, what, check=alive,
+                            context=lambda: log.read_text()[-3000:])
 
 
 def captures(state: Path) -> list[str]:

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from daemon_harness import write_config
+from daemon_harness import wait_for, write_config
 
 from grassd.daemon.config.settings import load_config
 from grassd.daemon.errors import ControlError, DaemonBusy
@@ -43,13 +43,7 @@ BOUND_S = 20.0  # the most any single wait of these tests may take
 
 def wait_until(cond: Callable[[], Any], what: str, timeout: float = BOUND_S) -> Any:
     """Poll ``cond`` until it is true (bounded)."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        v = cond()
-        if v:
-            return v
-        time.sleep(0.01)
-    raise AssertionError(f"timed out waiting for {what}")
+    return wait_for(cond, timeout, what, poll=0.01)
 
 
 def read_answer(s: socket.socket, timeout: float = BOUND_S) -> dict:

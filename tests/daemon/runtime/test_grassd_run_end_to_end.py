@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from daemon_harness import CACHE, SITE
+from daemon_harness import wait_for as harness_wait_for
 
 from grassd.daemon.config.settings import load_default_config
 from grassd.daemon.errors import DaemonNotRunning
@@ -155,19 +156,22 @@ def manifest(i: int, lux: float | None = None, extra: str = "") -> str:
 
 
 def wait_for(cond, timeout: float, what: str, daemon: Daemon | None = None):
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < timeout:
-        if daemon is not None:
-            daemon.drain()
-        v = cond()
-        if v:
-            return v
-        if daemon is not None and daemon.proc is not None and daemon.proc.poll() is not None:
+    """:func:`daemon_harness.wait_for`, draining ``daemon``'s output and failing at once if
+    it exits."""
+    if daemon is None:
+        return harness_wait_for(cond, timeout, what, poll=0.1)
+
+    def drained() -> object:
+        daemon.drain()
+        return cond()
+
+    def alive() -> None:
+        if daemon.proc is not None and daemon.proc.poll() is not None:
             raise AssertionError(f"daemon exited ({daemon.proc.returncode}) while waiting for "
                                  f"{what}:\n{daemon.log.read_text()[-3000:]}")
-        time.sleep(0.1)
-    log = daemon.log.read_text()[-3000:] if daemon else ""
-    raise AssertionError(f"timed out after {timeout} s waiting for {what}\n{log}")
+
+    return harness_wait_for(drained, timeout, what, poll=0.1, check=alive,
+                            context=lambda: daemon.log.read_text()[-3000:])
 
 
 def runs_ok(d: Daemon) -> int:

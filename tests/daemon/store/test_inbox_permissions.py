@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
-from daemon_harness import SITE, write_config
+from daemon_harness import SITE, wait_for, write_config
 
 from grassd.daemon.errors import ControlError
 from grassd.daemon.runtime.control import request
@@ -46,14 +46,6 @@ def status(sock: Path, proc: subprocess.Popen, timeout: float = 60) -> dict:
     raise AssertionError("daemon did not answer")
 
 
-def wait_for(cond, timeout: float, what: str):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        v = cond()
-        if v:
-            return v
-        time.sleep(0.2)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 def test_unmovable_bundle_is_reported_once_and_taken_when_fixed(tmp_path, hw):
