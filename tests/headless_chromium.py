@@ -179,3 +179,39 @@ class Page:
                                     "height": int(size["height"]), "scale": 1})
         path.write_bytes(base64.b64decode(r["data"]))
         return path
+
+    def wait_for(self, expression: str, timeout_s: float = 60.0, poll_s: float = 0.1) -> Any:
+        """Poll JavaScript ``expression`` until it is truthy; its value (AssertionError with
+        the page's problems on timeout)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            value = self.evaluate(expression)
+            if value:
+                return value
+            if time.monotonic() > deadline:
+                raise AssertionError(f"{expression!r} still false after {timeout_s} s; "
+                                     f"page problems: {self.problems()}")
+            time.sleep(poll_s)
+
+    def set_files(self, selector: str, paths: list[Path]) -> None:
+        """Choose ``paths`` in the file input ``selector`` (as a person picking files does:
+        its change event fires)."""
+        root = self.browser.send("DOM.getDocument", self.session)["root"]["nodeId"]
+        node = self.browser.send("DOM.querySelector", self.session, nodeId=root,
+                                 selector=selector)["nodeId"]
+        self.browser.send("DOM.setFileInputFiles", self.session, nodeId=node,
+                          files=[str(p) for p in paths])
+
+    def drag(self, start: tuple[float, float], end: tuple[float, float], steps: int = 8) -> None:
+        """Press the mouse at ``start`` (CSS px in the viewport), move to ``end`` in ``steps``
+        and release."""
+        def mouse(kind: str, x: float, y: float, buttons: int) -> None:
+            self.browser.send("Input.dispatchMouseEvent", self.session, type=kind, x=x, y=y,
+                              button="left", buttons=buttons, clickCount=1)
+
+        mouse("mousePressed", *start, 1)
+        for k in range(1, steps + 1):
+            t = k / steps
+            mouse("mouseMoved", start[0] + t * (end[0] - start[0]),
+                  start[1] + t * (end[1] - start[1]), 1)
+        mouse("mouseReleased", *end, 0)

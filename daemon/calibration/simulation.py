@@ -89,7 +89,8 @@ def white_radiance(lighting) -> np.ndarray:
 def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarray, settings,
                    *, ccm=None, pixel_index: int = 0, target_stderr: float | None = None,
                    max_replicates: int = 256, layouts: int = 1,
-                   progress: Callable[[int, int], None] | None = None) -> SimulatedCurve:
+                   progress: Callable[[int, int], None] | None = None,
+                   on_round: Callable[[SimulatedCurve], None] | None = None) -> SimulatedCurve:
     """Render one viewpoint at ``lengths_mm`` (mm, first = reference) and derive its OGCD.
 
     With ``target_stderr`` (CIEDE2000), further batches of independent replicates (new seeds,
@@ -113,6 +114,9 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     lengths, 4096 x 8 paths, 6 draws each), the OGCD's RMS error is 0.27-0.35 dE00 from one
     layout, 0.16-0.18 from 4 and 0.12-0.13 from 8 (largest error 0.41-0.60, 0.26-0.28,
     0.20-0.24), for the same paths.
+
+    ``on_round`` is called with the curve so far after every round (an interactive view
+    refines as they arrive); an exception it raises ends the run.
     """
     if settings.replicates < 2:
         raise SceneError(f"simulate_curve needs at least 2 replicates (their spread is the "
@@ -157,8 +161,20 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
         n = int(counts[0])
         worst = float(np.max(se))
         rounds.append((n, worst))
-        if target_stderr is None or worst <= target_stderr or n >= max_replicates:
-            break
+        done = target_stderr is None or worst <= target_stderr or n >= max_replicates
+        if on_round is not None or done:
+            mean = np.nanmean(x, axis=0)  # NaN: replicates that did not trace the length
+            rgb_se = np.nanstd(x, axis=0, ddof=1) / np.sqrt(counts)[:, None]
+            curve = SimulatedCurve(
+                h_cm=viewpoint.h_cm, d_m=viewpoint.d_m, theta_deg=viewpoint.theta_deg,
+                lengths_mm=lengths_mm, rgb_linear=mean, rgb_stderr=rgb_se, lab=lab, ogcd=ogcd,
+                ogcd_stderr=se, replicates=n, seconds=dict(seconds), rounds=tuple(rounds),
+                length_replicates=counts.copy(), paths_traced=traced_paths,
+            )
+            if on_round is not None:
+                on_round(curve)
+            if done:
+                return curve
         # The lengths above the target take what the 1/sqrt(R) law says the neediest of them
         # needs, at least one replicate and (as the worst of n noisy estimates overstates the
         # error) at most doubling its count; the reference takes them too.
@@ -168,14 +184,6 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
         b = min(b, max_replicates - n, MAX_REPLICATES)
         cols = np.union1d([0], np.flatnonzero(above))
         k += 1
-    mean = np.nanmean(x, axis=0)  # NaN: replicates that did not trace the length
-    rgb_se = np.nanstd(x, axis=0, ddof=1) / np.sqrt(counts)[:, None]
-    return SimulatedCurve(
-        h_cm=viewpoint.h_cm, d_m=viewpoint.d_m, theta_deg=viewpoint.theta_deg,
-        lengths_mm=lengths_mm, rgb_linear=mean, rgb_stderr=rgb_se, lab=lab, ogcd=ogcd,
-        ogcd_stderr=se, replicates=n, seconds=seconds, rounds=tuple(rounds),
-        length_replicates=counts, paths_traced=traced_paths,
-    )
 
 
 def _ogcd_by_replicates(x: np.ndarray, counts: np.ndarray, white: np.ndarray, ccm,

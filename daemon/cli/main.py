@@ -19,6 +19,7 @@ from grassd.daemon.cli.demo import demo
 from grassd.daemon.cli.fit import fit
 from grassd.daemon.cli.run import calibrate_cmd, check_config, history_cmd, run_cmd, status_cmd
 from grassd.daemon.cli.simulate import simulate
+from grassd.daemon.cli.studio import studio
 from grassd.daemon.cli.sweep import sweep
 from grassd.daemon.cli.validate import experiment, validate
 from grassd.daemon.errors import USER_ERRORS
@@ -42,6 +43,6 @@ def main() -> None:
 
 
 for _command in (demo, check_config, run_cmd, status_cmd, history_cmd, calibrate_cmd, bundles,
-                 controllers, simulate, validate, fit, experiment, sweep, capture_cmd,
+                 controllers, simulate, validate, fit, experiment, sweep, studio, capture_cmd,
                  camera_group):
     main.add_command(_command)

@@ -1,0 +1,98 @@
+"""``grassd studio``: the interactive view of a site in a browser (:mod:`grassd.daemon.studio`)."""
+
+from __future__ import annotations
+
+import asyncio
+import secrets
+from pathlib import Path
+
+import click
+
+from grassd.daemon.cli.run import _CONFIG_HELP, resolve_config
+
+#: The port the studio listens on unless told otherwise.
+DEFAULT_PORT: int = 8420
+
+
+def _active_table(state_dir: Path):
+    """The daemon's active table (256,) [um] from the state directory's history, or None."""
+    from grassd.daemon.runtime.service import STATE_DB
+    from grassd.daemon.store.history import History
+
+    db = state_dir / STATE_DB
+    if not db.is_file():
+        return None
+    with History(db) as history:
+        run = history.current_table()
+    return None if run is None or run.lengths_um is None else list(run.lengths_um)
+
+
+@click.command("studio")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), help=_CONFIG_HELP)
+@click.option("--state-dir", type=click.Path(file_okay=False, path_type=Path),
+              help="The daemon's state directory: its archived bundles become light sources "
+                   "and its active table can be shown.")
+@click.option("--hdri", type=click.Path(dir_okay=False, exists=True, path_type=Path),
+              help="An equirectangular panorama (.exr or .hdr) to light the display with.")
+@click.option("--pixel", "pixel_file", type=click.Path(dir_okay=False, path_type=Path),
+              help="The pixel's materials from a grassd fit result (its JSON report or "
+                   "--toml file) over the config's [display.pixel].")
+@click.option("--port", type=click.IntRange(0, 65535), default=DEFAULT_PORT, show_default=True,
+              help="TCP port (0: any free one).")
+@click.option("--host", default="127.0.0.1", show_default=True,
+              help="Address to bind. Any other than 127.0.0.1 needs the token printed at "
+                   "start.")
+@click.option("--arch", type=click.Choice(["cpu", "gpu"]), default="cpu", show_default=True)
+def studio(config_path, state_dir, hdri, pixel_file, port, host, arch) -> None:
+    """Serve the interactive studio: move the eye, change the light, see the pixel, its
+    colour characteristic, the table and a picture on the display. Prints its URL."""
+    from grassd.daemon.studio.lights import (
+        Lights,
+        LightSource,
+        archived_sources,
+        default_site_path,
+    )
+    from grassd.daemon.studio.server import LOCAL_HOST, serve
+    from grassd.daemon.studio.session import Studio
+
+    cfg = resolve_config(config_path, str(state_dir) if state_dir else None)
+    sources = []
+    if hdri is not None:
+        sources.append(LightSource(name="file", label=f"file: {hdri.name}", path=hdri))
+    active = None
+    if state_dir is not None:
+        sources += archived_sources(cfg.state_dir, cfg)
+        active = _active_table(cfg.state_dir)
+    if not sources:
+        sources.append(LightSource(name="default-site", label="embedded default site",
+                                   path=default_site_path()))
+    fields, pixel_source = None, "config"
+    if pixel_file is not None:
+        from grassd.daemon.offline.fit import load_pixel_fields
+
+        fields, pixel_source = load_pixel_fields(pixel_file), f"fit: {pixel_file.name}"
+    model = Studio(cfg, Lights(sources), pixel_fields=fields, pixel_source=pixel_source,
+                   active_um=active, arch=arch)
+    token = None if host == LOCAL_HOST else secrets.token_urlsafe(18)
+
+    async def main() -> None:
+        ready = asyncio.get_running_loop().create_future()
+        server = asyncio.create_task(serve(model, host, port, token, ready))
+        done, _ = await asyncio.wait({server, ready}, return_when=asyncio.FIRST_COMPLETED)
+        if server in done:
+            server.result()  # raises the bind error
+        h, p = ready.result()
+        shown = f"[{h}]" if ":" in h else h
+        url = f"http://{shown}:{p}/" + (f"?token={token}" if token else "")
+        click.echo(f"grassd studio: {url}", err=False)
+        click.echo(f"  light: {sources[0].label}; pixel: {pixel_source}; "
+                   f"{len(sources)} light source(s); Ctrl-C stops", err=True)
+        await server
+
+    try:
+        asyncio.run(main())
+    except KeyboardInterrupt:
+        pass
+    except OSError as exc:
+        raise click.ClickException(f"cannot listen on {host}:{port}: {exc.strerror or exc}; "
+                                   f"choose another --port or --host") from None

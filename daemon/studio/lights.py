@@ -1,0 +1,249 @@
+"""Where the studio's light comes from: an HDRI file given on the command line, the daemon's
+archived bundles (newest first) when a state directory is given, HDRIs uploaded in the page,
+and the embedded default site when there is nothing else.
+
+A source holds its panorama as loaded (linear Rec.709, relative units) reduced to at most
+:data:`STUDIO_WIDTH` texels wide, and what was measured with it (lux, sun). Building the
+:class:`~grassd.sim.lighting.Lighting` of a condition scales it (:meth:`Lights.lighting`,
+the last few kept).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import tempfile
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass
+from datetime import UTC
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from grassd.daemon.hardware.simulated_camera import SIM_WIDTH
+from grassd.daemon.studio.inputs import Condition, StudioInputError
+
+log = logging.getLogger(__name__)
+
+#: Widest panorama the studio simulates (texels): the width the capture station's simulated
+#: camera delivers, where the renderer's light sampling is measured (README, capture).
+STUDIO_WIDTH: int = SIM_WIDTH
+#: Largest HDRI upload accepted (bytes).
+MAX_HDRI_BYTES: int = 256 * 2**20
+#: Lightings kept built (one per recent light, lux and sun).
+KEPT_LIGHTINGS: int = 8
+
+
+@dataclass
+class LightSource:
+    """One panorama and what was measured with it: ``ambient_lux`` [lx] (None: not measured),
+    the sun (``sun_lux`` [lx], compass ``sun_azimuth_deg``, ``sun_elevation_deg``) when the
+    bundle has one, ``taken`` (ISO 8601) when known, ``flip``/``rotation_deg`` its
+    orientation (the config's ``[light]`` for bundles)."""
+
+    name: str
+    label: str
+    path: Path
+    ambient_lux: float | None = None
+    sun_lux: float | None = None
+    sun_azimuth_deg: float | None = None
+    sun_elevation_deg: float | None = None
+    taken: str | None = None
+    flip: bool = False
+    rotation_deg: float = 0.0
+    image: np.ndarray | None = None
+
+    def describe(self) -> dict[str, Any]:
+        """The source as the page lists it."""
+        return {"name": self.name, "label": self.label, "ambient_lux": self.ambient_lux,
+                "sun_lux": self.sun_lux, "sun_azimuth_deg": self.sun_azimuth_deg,
+                "sun_elevation_deg": self.sun_elevation_deg, "taken": self.taken}
+
+
+def reduce_width(img: np.ndarray, width: int = STUDIO_WIDTH) -> np.ndarray:
+    """The panorama box-filtered down by the smallest integer factor that makes it at most
+    ``width`` texels wide (power-preserving, :func:`grassd.sim.hdri.downsample`)."""
+    from grassd.sim.hdri import downsample
+
+    h, w, _ = img.shape
+    factor = 1
+    while w // factor > width or (h % factor or w % factor):
+        factor += 1
+        if factor > w:
+            return img
+    return img if factor == 1 else downsample(img, factor)
+
+
+def load_panorama(path: Path) -> np.ndarray:
+    """An HDRI file as the studio simulates it (:func:`reduce_width`); StudioInputError with
+    the loader's reason for a file that is not a usable panorama."""
+    from grassd.sim.errors import SimError
+    from grassd.sim.hdri import load_hdri
+
+    try:
+        return reduce_width(load_hdri(path))
+    except SimError as exc:
+        raise StudioInputError(f"cannot use {path.name} as the light: {exc}") from None
+
+
+def archived_sources(state_dir: Path, cfg) -> list[LightSource]:
+    """The light of every archived bundle in ``state_dir``, newest first (bundles whose
+    manifest cannot be read are left out, with a log line)."""
+    from grassd.daemon.errors import DaemonError
+    from grassd.daemon.store.ingest import MANIFEST_NAMES, parse_manifest, read_manifest_data
+
+    archive = Path(state_dir) / "archive"
+    if not archive.is_dir():
+        return []
+    dirs = sorted((d for d in archive.iterdir() if d.is_dir()),
+                  key=lambda d: d.stat().st_mtime, reverse=True)
+    from zoneinfo import ZoneInfo
+
+    tz = ZoneInfo(cfg.site.timezone)
+    out = []
+    for i, d in enumerate(dirs):
+        mpath = next((d / m for m in MANIFEST_NAMES if (d / m).is_file()), None)
+        if mpath is None:
+            continue
+        try:
+            m = parse_manifest(read_manifest_data(mpath), d, tz)
+        except DaemonError as exc:
+            log.warning("archived bundle %s left out: %s", d.name, exc)
+            continue
+        light = m.light
+        out.append(LightSource(
+            name=f"bundle:{d.name}", label=("current: " if i == 0 else "") + d.name,
+            path=light.hdri, ambient_lux=light.ambient_lux, sun_lux=light.sun_lux,
+            sun_azimuth_deg=light.sun_azimuth_deg, sun_elevation_deg=light.sun_elevation_deg,
+            taken=m.timestamp.astimezone(UTC).isoformat(), flip=cfg.light.hdri_flip,
+            rotation_deg=cfg.light.hdri_rotation_deg))
+    return out
+
+
+def default_site_path() -> Path:
+    """The embedded default site's panorama (the light of ``make demo``)."""
+    return Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
+
+
+class Lights:
+    """The studio's light sources by name, loaded on first use, and the lightings built from
+    them (thread-safe: the server lists and adds, the worker builds)."""
+
+    def __init__(self, sources: list[LightSource], upload_dir: Path | None = None) -> None:
+        if not sources:
+            raise StudioInputError("the studio needs at least one light")
+        self._sources: dict[str, LightSource] = {s.name: s for s in sources}
+        self.default = sources[0].name
+        self._built: OrderedDict[tuple, Any] = OrderedDict()
+        self._lock = threading.Lock()
+        self._uploads = 0
+        self._upload_dir = Path(upload_dir or tempfile.mkdtemp(prefix="grassd-studio-"))
+
+    @property
+    def names(self) -> set[str]:
+        """The names a condition may give."""
+        with self._lock:
+            return set(self._sources)
+
+    def describe(self) -> list[dict[str, Any]]:
+        """Every source as the page lists it (in the order they came)."""
+        with self._lock:
+            return [s.describe() for s in self._sources.values()]
+
+    def source(self, name: str) -> LightSource:
+        """The source ``name``, its panorama loaded (StudioInputError when it is broken)."""
+        with self._lock:
+            src = self._sources.get(name)
+        if src is None:
+            raise StudioInputError(f"no light named {name!r}")
+        if src.image is None:
+            src.image = load_panorama(src.path)
+        return src
+
+    def add_upload(self, filename: str, data: bytes) -> LightSource:
+        """Check an uploaded HDRI (.exr/.hdr) and add it as a source (StudioInputError, and
+        nothing added, for a file that is not a usable panorama)."""
+        suffix = Path(filename or "").suffix.lower()
+        if suffix not in (".exr", ".hdr"):
+            raise StudioInputError(f"an HDRI must be an .exr or .hdr file, got {filename!r}")
+        if len(data) > MAX_HDRI_BYTES:
+            raise StudioInputError(f"the HDRI is {len(data) / 2**20:.0f} MiB; at most "
+                                   f"{MAX_HDRI_BYTES // 2**20} MiB")
+        with self._lock:
+            self._uploads += 1
+            n = self._uploads
+        path = self._upload_dir / f"upload-{n}{suffix}"
+        path.write_bytes(data)
+        try:
+            image = load_panorama(path)
+        except StudioInputError:
+            os.unlink(path)
+            raise
+        src = LightSource(name=f"upload:{n}", label=f"uploaded: {Path(filename).name}",
+                          path=path, image=image)
+        with self._lock:
+            self._sources[src.name] = src
+        return src
+
+    def lighting(self, cond: Condition, site: tuple[float, float]) -> Any:
+        """The :class:`~grassd.sim.lighting.Lighting` of ``cond`` (its source scaled to its
+        lux, with its sun); ``site`` = (latitude, longitude) deg for a sun placed by time.
+        StudioInputError for readings that cannot be (lux out of range, sun below the
+        horizon)."""
+        from grassd.sim.errors import LightingError
+        from grassd.sim.light_input import LightInput
+        from grassd.sim.sun import sun_position
+
+        src = self.source(cond.light)
+        sun = cond.sun
+        lux, az, el = None, None, None
+        if sun.mode == "measured":
+            if src.sun_lux is None or src.sun_azimuth_deg is None:
+                raise StudioInputError(f"{src.label} has no measured sun; choose the sun by "
+                                       f"time of day or none")
+            lux, az, el = src.sun_lux, src.sun_azimuth_deg, src.sun_elevation_deg
+        elif sun.mode == "site":
+            az, el = sun_position(site[0], site[1], sun.when)
+            if el <= 0:
+                raise StudioInputError(f"the sun is below the horizon at {sun.when:%H:%M} "
+                                       f"(elevation {el:.1f} deg); choose another time or no sun")
+            lux = sun.lux
+        elif sun.mode == "direction":
+            lux, az, el = sun.lux, sun.azimuth_deg, sun.elevation_deg
+        if lux == 0:
+            lux, az, el = None, None, None
+        key = (src.name, cond.ambient_lux, lux, az, el)
+        with self._lock:
+            if key in self._built:
+                self._built.move_to_end(key)
+                return self._built[key]
+        try:
+            lighting = LightInput(src.path, cond.ambient_lux, sun_lux=lux, sun_azimuth_deg=az,
+                                  sun_elevation_deg=el, rotation_deg=src.rotation_deg,
+                                  flip=src.flip).lighting(src.image)
+        except LightingError as exc:
+            raise StudioInputError(f"the light cannot be built: {exc}") from None
+        with self._lock:
+            self._built[key] = lighting
+            while len(self._built) > KEPT_LIGHTINGS:
+                self._built.popitem(last=False)
+        return lighting
+
+    def sun_direction(self, cond: Condition, site: tuple[float, float]
+                      ) -> tuple[float, float] | None:
+        """(azimuth, elevation) deg of the condition's sun, None without one."""
+        from grassd.sim.sun import sun_position
+
+        sun = cond.sun
+        if sun.mode == "site":
+            return sun_position(site[0], site[1], sun.when)
+        if sun.mode == "direction":
+            return sun.azimuth_deg, sun.elevation_deg
+        if sun.mode == "measured":
+            src = self.source(cond.light)
+            if src.sun_azimuth_deg is not None:
+                return src.sun_azimuth_deg, src.sun_elevation_deg
+        return None

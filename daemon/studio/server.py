@@ -1,0 +1,261 @@
+"""The studio's web server (aiohttp): the page and its assets (all served from the package, so
+the studio works offline on site), a JSON API that scripts and tests use as the page does, and a
+WebSocket per page over which the views stream as they refine.
+
+aiohttp rather than an ASGI framework plus a server: one well-kept dependency gives the HTTP
+server, WebSockets and the test client, and it runs in the command's own event loop.
+
+API (JSON; a bad value gets a 4xx with ``{"error": message}`` and the server keeps serving):
+
+- ``GET /api/state``: the display, site, lights, pixel, viewpoints and audience region.
+- ``POST /api/characteristic``: ``ambient_lux``, ``viewpoint`` [h_cm, d_m, theta_deg],
+  ``lengths_mm``, optional ``target_stderr``, ``sun_lux``, ``sun_azimuth_deg``,
+  ``sun_elevation_deg`` (as in a bundle manifest), ``light``, ``splay_deg`` -> ``lengths_mm``,
+  ``ogcd``, ``ogcd_stderr``, ``replicates``, ``seconds``. Without ``target_stderr`` it is the
+  daemon's own simulation (``[simulation] samples`` x ``[calibration] replicates``).
+- ``POST /api/hdri?name=FILE.exr`` (the file as the body): a new light source.
+- ``POST /api/picture`` (a PNG/JPEG as the body): a picture for the display view.
+- ``GET /ws``: send ``{"type": "inputs", "id": n, "condition": {...}}``; receive ``light``,
+  ``curve``, ``pixel``, ``table``, ``contrast``, ``display``, ``audience`` and ``error``
+  messages tagged with that ``id``.
+
+Bound to 127.0.0.1 by default; on any other address every request needs the token printed at
+start (``?token=`` on the page's URL, which sets a cookie, or an ``X-Grassd-Token`` header).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hmac
+import json
+import logging
+import time
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from aiohttp import WSMsgType, web
+
+from grassd.daemon.studio.inputs import StudioInputError, parse_condition
+from grassd.daemon.studio.lights import MAX_HDRI_BYTES
+from grassd.daemon.studio.session import Studio, curve_message
+from grassd.daemon.studio.views import MAX_IMAGE_BYTES
+from grassd.daemon.studio.worker import Superseded, Worker
+
+log = logging.getLogger(__name__)
+
+#: The address the studio binds unless told otherwise: this computer only, no token.
+LOCAL_HOST: str = "127.0.0.1"
+COOKIE = "grassd_studio_token"
+STUDIO: web.AppKey[Studio] = web.AppKey("studio", Studio)
+WORKER: web.AppKey[Worker] = web.AppKey("worker", Worker)
+TOKEN: web.AppKey[str | None] = web.AppKey("token", str)
+
+
+def static_dir() -> Path:
+    """The page and its vendored assets (package data)."""
+    return Path(str(resources.files("grassd.daemon.studio").joinpath("static")))
+
+
+def _error(status: int, message: str) -> web.Response:
+    return web.json_response({"error": message}, status=status)
+
+
+@web.middleware
+async def _guard(request: web.Request, handler):
+    """The token check (when the studio has one) and JSON errors for every failure."""
+    token = request.app[TOKEN]
+    if token is not None:
+        given = (request.query.get("token") or request.headers.get("X-Grassd-Token")
+                 or request.cookies.get(COOKIE) or "")
+        if not hmac.compare_digest(given.encode(), token.encode()):
+            return _error(401, "this studio needs its token: open the URL it printed at start "
+                               "(…/?token=…)")
+    try:
+        response = await handler(request)
+    except web.HTTPRequestEntityTooLarge as exc:
+        return _error(413, f"the upload is too large ({exc.text})")
+    except web.HTTPException as exc:
+        if exc.status >= 400:
+            return _error(exc.status, exc.reason)
+        raise
+    if token is not None and request.query.get("token") == token:
+        response.set_cookie(COOKIE, token, httponly=True, samesite="Strict")
+    return response
+
+
+async def _index(request: web.Request) -> web.StreamResponse:
+    return web.FileResponse(static_dir() / "index.html",
+                            headers={"Cache-Control": "no-cache"})
+
+
+async def _state(request: web.Request) -> web.Response:
+    return web.json_response(request.app[STUDIO].state())
+
+
+async def _json_body(request: web.Request) -> Any:
+    try:
+        return await request.json()
+    except (ValueError, UnicodeDecodeError):
+        raise StudioInputError("the body must be JSON") from None
+
+
+def _condition(studio: Studio, data: Any):
+    return parse_condition(data, green_max_mm=studio.display.pixel.green_max_mm,
+                           timezone=studio.cfg.site.timezone, lights=studio.lights.names,
+                           default_light=studio.lights.default)
+
+
+async def _characteristic(request: web.Request) -> web.Response:
+    studio = request.app[STUDIO]
+    try:
+        data = await _json_body(request)
+        cond = _condition(studio, data)
+        target = data.get("target_stderr")
+        if target is None:
+            kw = dict(target_stderr=None, samples=studio.cfg.simulation.samples,
+                      replicates=studio.cfg.calibration.replicates)
+        else:
+            kw = dict(target_stderr=cond.target_stderr)
+    except StudioInputError as exc:
+        return _error(400, str(exc))
+    t0 = time.perf_counter()
+    fut = request.app[WORKER].submit(object(), lambda check: studio.characteristic(cond, **kw))
+    try:
+        curve = await asyncio.wrap_future(fut)
+    except StudioInputError as exc:
+        return _error(400, str(exc))
+    msg = curve_message(curve, kw["target_stderr"])
+    out = {k: msg[k] for k in ("lengths_mm", "ogcd", "ogcd_stderr", "replicates")}
+    out["seconds"] = round(time.perf_counter() - t0, 4)
+    return web.json_response(out)
+
+
+async def _read_capped(request: web.Request, limit: int, what: str) -> bytes:
+    if request.content_length is not None and request.content_length > limit:
+        raise web.HTTPRequestEntityTooLarge(max_size=limit, actual_size=request.content_length,
+                                            text=f"{what}: at most {limit // 2**20} MiB")
+    data = await request.content.read(limit + 1)
+    if len(data) > limit:
+        raise web.HTTPRequestEntityTooLarge(max_size=limit, actual_size=len(data),
+                                            text=f"{what}: at most {limit // 2**20} MiB")
+    return data
+
+
+async def _hdri(request: web.Request) -> web.Response:
+    studio = request.app[STUDIO]
+    data = await _read_capped(request, MAX_HDRI_BYTES, "an HDRI")
+    name = request.query.get("name", "")
+    loop = asyncio.get_running_loop()
+    try:
+        src = await loop.run_in_executor(None, studio.lights.add_upload, name, data)
+    except StudioInputError as exc:
+        return _error(400, str(exc))
+    return web.json_response({"light": src.describe(), "lights": studio.lights.describe()})
+
+
+async def _picture(request: web.Request) -> web.Response:
+    studio = request.app[STUDIO]
+    data = await _read_capped(request, MAX_IMAGE_BYTES, "a picture")
+    try:
+        return web.json_response(studio.add_picture(data))
+    except StudioInputError as exc:
+        return _error(400, str(exc))
+
+
+async def _socket(request: web.Request) -> web.WebSocketResponse:
+    """One page: its latest inputs run on the worker, the views stream back."""
+    studio, worker = request.app[STUDIO], request.app[WORKER]
+    ws = web.WebSocketResponse(heartbeat=30.0, max_msg_size=1 << 20)
+    await ws.prepare(request)
+    loop = asyncio.get_running_loop()
+    outbox: asyncio.Queue = asyncio.Queue()
+    owner = object()
+
+    async def sender() -> None:
+        while True:
+            msg = await outbox.get()
+            if ws.closed:
+                return
+            await ws.send_json(msg)
+
+    task = asyncio.create_task(sender())
+
+    def job(cond, tag: int):
+        def emit(msg: dict[str, Any]) -> None:
+            msg["id"] = tag
+            loop.call_soon_threadsafe(outbox.put_nowait, msg)
+
+        def run(check) -> None:
+            try:
+                studio.run(cond, emit, check)
+                emit({"type": "done"})
+            except Superseded:
+                pass
+            except StudioInputError as exc:
+                emit({"type": "error", "message": str(exc)})
+            except Exception as exc:  # a renderer or colour error: shown, the studio goes on
+                log.exception("studio views failed")
+                emit({"type": "error", "message": f"{type(exc).__name__}: {exc}"})
+        return run
+
+    try:
+        async for m in ws:
+            if m.type != WSMsgType.TEXT:
+                continue
+            try:
+                data = json.loads(m.data)
+                tag = int(data.get("id", 0)) if isinstance(data, dict) else 0
+                if not isinstance(data, dict) or data.get("type") != "inputs":
+                    raise StudioInputError("send {\"type\": \"inputs\", \"id\": n, "
+                                           "\"condition\": {...}}")
+                cond = _condition(studio, data.get("condition"))
+            except (ValueError, StudioInputError) as exc:
+                worker.cancel(owner)
+                outbox.put_nowait({"type": "error", "id": locals().get("tag", 0),
+                                   "message": str(exc)})
+                continue
+            worker.submit(owner, job(cond, tag))
+    finally:
+        worker.cancel(owner)
+        task.cancel()
+        worker.forget(owner)
+    return ws
+
+
+def make_app(studio: Studio, worker: Worker, token: str | None = None) -> web.Application:
+    """The studio's aiohttp application (the page, the API, the WebSocket)."""
+    app = web.Application(middlewares=[_guard], client_max_size=MAX_HDRI_BYTES + 2**20)
+    app[STUDIO] = studio
+    app[WORKER] = worker
+    app[TOKEN] = token
+    app.router.add_get("/", _index)
+    app.router.add_get("/api/state", _state)
+    app.router.add_post("/api/characteristic", _characteristic)
+    app.router.add_post("/api/hdri", _hdri)
+    app.router.add_post("/api/picture", _picture)
+    app.router.add_get("/ws", _socket)
+    app.router.add_static("/static/", static_dir(), append_version=False)
+    return app
+
+
+async def serve(studio: Studio, host: str, port: int, token: str | None,
+                ready: asyncio.Future | None = None) -> None:
+    """Serve until cancelled; ``ready`` gets the bound (host, port)."""
+    worker = Worker()
+    worker.submit("warm-up", lambda check: studio.warm_up())
+    runner = web.AppRunner(make_app(studio, worker, token), access_log=None)
+    await runner.setup()
+    site = web.TCPSite(runner, host, port)
+    await site.start()
+    bound = site._server.sockets[0].getsockname()[:2]  # the port the OS chose for port 0
+    if ready is not None:
+        ready.set_result(bound)
+    try:
+        await asyncio.Event().wait()
+    finally:
+        await runner.cleanup()
+        worker.stop()
+
+
+__all__ = ["LOCAL_HOST", "make_app", "serve", "static_dir"]

@@ -1,0 +1,308 @@
+"""One studio: a configuration's display and pixel, its lights and the daemon's active table,
+and the job that turns a :class:`~grassd.daemon.studio.inputs.Condition` into the views,
+streamed as they refine.
+
+The order of a job is set by the latency goals (issue #29: first characteristic within 150 ms,
+first image of the pixel within 300 ms, converged within 1 s, warm, 2 cores):
+
+1. the characteristic's first round, :data:`FIRST_REPLICATES` replicates of
+   :data:`STUDIO_SAMPLES` paths (about 75 ms for 11 lengths);
+2. the pixel's first image, :data:`FIRST_IMAGE` (width, paths per image pixel) (about 150 ms);
+3. further rounds until every OGCD standard error is at most the target
+   (:func:`~grassd.daemon.calibration.simulation.simulate_curve`'s adaptive rounds, each sent);
+4. the table, the contrast, the display showing the uploaded picture;
+5. the audience map: the OGCD range from each place of the audience region;
+6. the pixel's image refined: :data:`REFINE_IMAGE` passes accumulated.
+
+Every step checks whether a newer request superseded this one.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from grassd.daemon.studio import views
+from grassd.daemon.studio.inputs import Condition, StudioInputError
+from grassd.daemon.studio.lights import Lights
+from grassd.daemon.studio.worker import Check
+
+log = logging.getLogger(__name__)
+
+#: Camera paths per replicate in the studio: small replicates, so the first round is quick and
+#: later rounds add just what the target needs (the same paths per length as the daemon's
+#: 4096 x 8 after 32 replicates).
+STUDIO_SAMPLES: int = 1024
+#: Replicates of the first round (their spread is the first error band).
+FIRST_REPLICATES: int = 4
+#: Most replicates a characteristic takes before it is sent as it is.
+MAX_REPLICATES: int = 256
+#: (width px, paths per image pixel) of the pixel's first image, and of each refining pass.
+FIRST_IMAGE: tuple[int, int] = (128, 4)
+REFINE_IMAGE: tuple[int, int] = (256, 2)
+#: Refining passes of the pixel's image after everything else (32 paths per image pixel).
+REFINE_PASSES: int = 16
+#: Places of the audience map: a grid of about this many points over the region.
+AUDIENCE_POINTS: int = 36
+#: The region mapped when the config has no ``[audience]``: x -3..3 m, y -5..-0.5 m (in front of
+#: the display, whose centre is the origin; +y north, the audience towards -y).
+DEFAULT_REGION: tuple[tuple[float, float], ...] = ((-3.0, -5.0), (3.0, -5.0), (3.0, -0.5),
+                                                   (-3.0, -0.5))
+
+Emit = Callable[[dict[str, Any]], None]
+
+
+def _rounded(a: np.ndarray, digits: int = 4) -> list[float]:
+    return np.round(np.asarray(a, np.float64), digits).tolist()
+
+
+class Studio:
+    """The studio's model of one site. Its simulation methods run on the worker thread only
+    (the renderer is one per process); the rest may be called from the server's thread."""
+
+    def __init__(self, cfg, lights: Lights, *, pixel_fields: dict[str, Any] | None = None,
+                 pixel_source: str = "config", active_um: np.ndarray | None = None,
+                 arch: str = "cpu") -> None:
+        from grassd.daemon.calibration.calibrate import Calibrator
+
+        self.cfg = cfg
+        self.lights = lights
+        self.arch = arch
+        display, self.centre = Calibrator(cfg).display()
+        if pixel_fields:
+            display = replace(display, pixel=replace(display.pixel, **pixel_fields))
+        self.display = display
+        self.pixel_source = pixel_source
+        self.active_um = None if active_um is None else np.asarray(active_um, np.uint16)
+        self.region = np.asarray(cfg.audience.polygon if cfg.audience is not None
+                                 else DEFAULT_REGION, np.float64)
+        self.pictures: dict[str, np.ndarray] = {}
+        self._picture_ids = itertools.count(1)
+        self._lock = threading.Lock()
+        self.ready = False
+
+    # ------------------------------------------------------------------ what the page needs
+    @property
+    def site(self) -> tuple[float, float]:
+        """(latitude, longitude) deg of the display."""
+        return self.cfg.site.latitude, self.cfg.site.longitude
+
+    def state(self) -> dict[str, Any]:
+        """What the page draws its inputs from (``GET /api/state``)."""
+        from grassd.daemon.studio.inputs import TARGET_STDERR, default_lengths
+
+        d = self.cfg.display
+        p = self.display.pixel
+        return {
+            "ready": self.ready, "arch": self.arch,
+            "display": {"rows": d.rows, "cols": d.cols, "pitch_mm": d.pitch_mm,
+                        "green_max_mm": p.green_max_mm},
+            "site": {"latitude": self.cfg.site.latitude, "longitude": self.cfg.site.longitude,
+                     "timezone": self.cfg.site.timezone},
+            "viewpoints": [[v.h_cm, v.d_m, v.theta_deg] for v in self.cfg.viewpoints],
+            "region": self.region.tolist(),
+            "region_is_default": self.cfg.audience is None,
+            "lights": self.lights.describe(), "light": self.lights.default,
+            "pixel": {"source": self.pixel_source, "splay_deg": p.splay_deg,
+                      "specular": p.specular, "smoothness": p.smoothness,
+                      "green_srgb": list(p.green_srgb), "yellow_srgb": list(p.yellow_srgb),
+                      "base_srgb": list(p.base_srgb)},
+            "tables": {"active": self.active_um is not None},
+            "lengths_mm": list(default_lengths(p.green_max_mm)),
+            "target_stderr": TARGET_STDERR,
+            "jnd_de00": views.JND_DE00, "contrast_loss": views.CONTRAST_LOSS,
+        }
+
+    def add_picture(self, data: bytes) -> dict[str, Any]:
+        """Read an uploaded picture as the display's levels; its id for the conditions.
+        StudioInputError for bytes that are not a readable picture or too large."""
+        d = self.cfg.display
+        try:
+            levels = views.picture_levels(data, d.rows, d.cols)
+        except ValueError as exc:
+            raise StudioInputError(f"cannot show that picture: {exc}") from None
+        with self._lock:
+            key = f"picture-{next(self._picture_ids)}"
+            self.pictures[key] = levels
+            while len(self.pictures) > 16:
+                self.pictures.pop(next(iter(self.pictures)))
+        return {"image": key, "rows": d.rows, "cols": d.cols,
+                "levels": levels.tolist()}
+
+    # ------------------------------------------------------------------ simulation (worker)
+    def warm_up(self) -> float:
+        """Initialise Taichi and compile (or load from the cache) the kernels the views use;
+        seconds taken. Runs on the worker thread."""
+        from grassd.daemon.studio.inputs import parse_condition
+        from grassd.sim import backend
+
+        t0 = time.perf_counter()
+        backend.init(self.arch, cache_dir=self.cfg.cache_dir / "taichi")
+        cond = parse_condition({"ambient_lux": 1000.0, "viewpoint": [170, 2, 0]},
+                               green_max_mm=self.display.pixel.green_max_mm,
+                               timezone=self.cfg.site.timezone, lights=self.lights.names,
+                               default_light=self.lights.default)
+        try:
+            self.characteristic(cond, target_stderr=None, replicates=2)
+            self._image(cond, self.display, FIRST_IMAGE, 0)
+        except StudioInputError as exc:  # a broken first light: the page says so later
+            log.warning("warm-up skipped: %s", exc)
+        self.ready = True
+        return time.perf_counter() - t0
+
+    def _display(self, cond: Condition):
+        if cond.splay_deg is None:
+            return self.display
+        return replace(self.display, pixel=replace(self.display.pixel, splay_deg=cond.splay_deg))
+
+    def characteristic(self, cond: Condition, *, target_stderr: float | None,
+                       samples: int = STUDIO_SAMPLES, replicates: int = FIRST_REPLICATES,
+                       on_round: Callable | None = None, lengths_mm=None):
+        """The simulated characteristic of ``cond`` (:func:`simulate_curve` at the centre
+        pixel of the display's patch), refined to ``target_stderr`` (CIEDE2000) when given."""
+        from grassd.daemon.calibration.simulation import simulate_curve
+        from grassd.sim.renderer import Renderer
+        from grassd.sim.scene import RenderSettings, Viewpoint
+
+        lighting = self.lights.lighting(cond, self.site)
+        settings = RenderSettings(samples=samples, replicates=replicates,
+                                  seed=self.cfg.simulation.seed)
+        lengths = np.asarray(cond.lengths_mm if lengths_mm is None else lengths_mm, float)
+        return simulate_curve(Renderer.shared(), self._display(cond), lighting,
+                              Viewpoint(*cond.viewpoint), lengths, settings,
+                              pixel_index=self.centre, target_stderr=target_stderr,
+                              max_replicates=MAX_REPLICATES, on_round=on_round)
+
+    def _image(self, cond: Condition, display, size: tuple[int, int], seed: int) -> np.ndarray:
+        from grassd.sim.renderer import Renderer
+        from grassd.sim.scene import RenderSettings, Viewpoint
+
+        lighting = self.lights.lighting(cond, self.site)
+        img, _quad = Renderer.shared().preview(
+            display, lighting, Viewpoint(*cond.viewpoint), cond.length_mm, width=size[0],
+            spp=size[1], settings=RenderSettings(seed=seed))
+        return img
+
+    def run(self, cond: Condition, emit: Emit, check: Check) -> None:
+        """Compute every view of ``cond`` in the order of the module docstring, sending each as
+        it is ready (``emit``); ``check`` raises when a newer request supersedes this one."""
+        from grassd.calib.characteristic import fit_characteristic
+        from grassd.calib.errors import CalibError
+        from grassd.daemon.calibration.display import curve_characteristic
+        from grassd.daemon.calibration.simulation import white_radiance
+
+        t0 = time.perf_counter()
+
+        def send(msg: dict[str, Any]) -> None:
+            msg["ms"] = round((time.perf_counter() - t0) * 1000.0, 1)
+            emit(msg)
+
+        lighting = self.lights.lighting(cond, self.site)
+        white = white_radiance(lighting)
+        display = self._display(cond)
+        sun = self.lights.sun_direction(cond, self.site)
+        send({"type": "light", "notes": list(getattr(lighting, "notes", ())),
+              "sun": None if sun is None else {"azimuth_deg": sun[0], "elevation_deg": sun[1]},
+              "white_nits": _rounded(white)})
+        first = [True]
+
+        def on_round(curve) -> None:
+            check()
+            send(curve_message(curve, cond.target_stderr))
+            if first[0]:
+                first[0] = False
+                img = self._image(cond, display, FIRST_IMAGE, 0)
+                send({"type": "pixel", "image": views.pixel_png(img, white),
+                      "width": FIRST_IMAGE[0], "spp": FIRST_IMAGE[1]})
+                check()
+
+        curve = self.characteristic(cond, target_stderr=cond.target_stderr, on_round=on_round)
+        check()
+        try:
+            fit = fit_characteristic(curve_characteristic(curve))
+            table = views.table_view(fit, self.active_um if cond.tables == "active" else None)
+        except CalibError as exc:
+            send({"type": "table", "error": str(exc)})
+            fit = table = None
+        if table is not None:
+            send({"type": "table", **table})
+            eye_range = fit.ogcd_range
+            send({"type": "contrast", **views.contrast_view(eye_range)})
+            levels = self.pictures.get(cond.image) if cond.image else None
+            if levels is not None:
+                eye = np.asarray(cond_eye(cond), float)
+                send({"type": "display", "image": views.display_view(
+                    levels, np.asarray(table["lengths_mm"]), curve.lengths_mm, curve.lab,
+                    self.cfg.display.pitch_mm, eye)})
+            self._audience(cond, eye_range, send, check)
+        self._refine_image(cond, display, white, send, check)
+
+    def _audience(self, cond: Condition, eye_range: float, send: Emit, check: Check) -> None:
+        """The OGCD range from places over the audience region at the eye's height (two
+        lengths each: the reference and the longest), sent as one map."""
+        from grassd.daemon.calibration.audience import points_in_polygon
+
+        region = self.region
+        lo, hi = region.min(axis=0), region.max(axis=0)
+        step = math.sqrt(float(np.prod(hi - lo)) / AUDIENCE_POINTS)
+        xs = np.arange(lo[0] + step / 2, hi[0], step)
+        ys = np.arange(lo[1] + step / 2, hi[1], step)
+        grid = np.array([(x, y) for y in ys for x in xs])
+        inside = grid[points_in_polygon(grid, region)] if grid.size else grid
+        ends = (cond.lengths_mm[0], max(cond.lengths_mm))
+        places = []
+        for x, y in inside:
+            d = math.hypot(x, y)
+            if d < 0.05:
+                continue
+            theta = math.degrees(math.atan2(x, -y))
+            at = replace(cond, viewpoint=(cond.viewpoint[0], min(d, 1000.0), theta))
+            c = self.characteristic(at, target_stderr=None, lengths_mm=ends)
+            places.append((float(x), float(y), float(c.ogcd[1] - c.ogcd[0]),
+                           float(c.ogcd_stderr[1])))
+            check()
+        if not places:
+            return
+        ranges = np.array([p[2] for p in places])
+        warn = views.audience_warning(ranges, eye_range)
+        send({"type": "audience", "step_m": step, "eye_range": eye_range,
+              "h_cm": cond.viewpoint[0],
+              "places": [{"x": p[0], "y": p[1], "range": round(p[2], 3),
+                          "stderr": round(p[3], 3), "warn": bool(w)}
+                         for p, w in zip(places, warn, strict=True)],
+              "warned": int(warn.sum()), "loss": views.CONTRAST_LOSS})
+
+    def _refine_image(self, cond: Condition, display, white: np.ndarray, send: Emit,
+                      check: Check) -> None:
+        total = None
+        for k in range(REFINE_PASSES):
+            img = self._image(cond, display, REFINE_IMAGE, 1 + k)
+            total = img if total is None else total + img
+            check()
+            send({"type": "pixel", "image": views.pixel_png(total / (k + 1), white),
+                  "width": REFINE_IMAGE[0], "spp": REFINE_IMAGE[1] * (k + 1)})
+
+
+def cond_eye(cond: Condition) -> tuple[float, float, float]:
+    """The eye of ``cond`` in metres, the display's centre at the origin."""
+    from grassd.sim.scene import Viewpoint
+
+    return tuple(Viewpoint(*cond.viewpoint).eye_m())
+
+
+def curve_message(curve, target: float | None) -> dict[str, Any]:
+    """A characteristic as the page and the API send it: lengths (mm), OGCD and its standard
+    error (CIEDE2000), the simulated pixel's colour per length (sRGB), replicates so far."""
+    worst = float(np.max(curve.ogcd_stderr))
+    return {"type": "curve", "lengths_mm": _rounded(curve.lengths_mm),
+            "ogcd": _rounded(curve.ogcd), "ogcd_stderr": _rounded(curve.ogcd_stderr, 5),
+            "srgb": views.lab_to_srgb8(curve.lab).tolist(), "replicates": curve.replicates,
+            "max_stderr": worst, "converged": target is not None and worst <= target}

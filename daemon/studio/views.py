@@ -1,0 +1,174 @@
+"""The studio's views, computed from a simulated characteristic with numpy: the table with its
+R^2, the contrast a content designer has left, the pixel's image as a PNG, and the whole display
+showing a picture through the table, drawn from the eye.
+
+Colours shown are the simulation's, normalised as a camera with a fixed white balance sees
+them (:mod:`grassd.daemon.calibration.simulation`: a white card at the display reads 1), then
+encoded as sRGB (IEC 61966-2-1) for the screen.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import math
+from typing import Any
+
+import numpy as np
+
+#: Just-noticeable colour difference (CIEDE2000) the contrast view counts steps against: about
+#: 1 dE00 is perceptible to a trained observer side by side (Mokrzycki & Tatol 2011, "Colour
+#: difference Delta E - a survey", Machine Graphics & Vision 20(4)).
+JND_DE00: float = 1.0
+#: The contrast view warns where a place in the audience keeps less than this fraction of the
+#: OGCD range the eye has.
+CONTRAST_LOSS: float = 0.3
+#: Levels of an 8-bit table.
+LEVELS: int = 256
+#: Largest picture upload (bytes) and the largest side it is read at (pixels).
+MAX_IMAGE_BYTES: int = 8 * 2**20
+MAX_IMAGE_SIDE: int = 8192
+
+
+def srgb_encode(linear: np.ndarray) -> np.ndarray:
+    """IEC 61966-2-1 encoding of linear values (clipped to 0..1) as uint8."""
+    x = np.clip(np.asarray(linear, np.float64), 0.0, 1.0)
+    v = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    return np.rint(v * 255.0).astype(np.uint8)
+
+
+def png_data_url(rgb8: np.ndarray) -> str:
+    """A ``data:image/png;base64,...`` URL of an (H, W, 3) uint8 image."""
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(rgb8), "RGB").save(buf, "PNG", compress_level=1)
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def pixel_png(radiance: np.ndarray, white: np.ndarray) -> str:
+    """The pixel view: linear Rec.709 radiance (H, W, 3) [nits] divided by the white card's
+    ``white`` (3,) [nits], sRGB-encoded, as a PNG data URL."""
+    return png_data_url(srgb_encode(np.asarray(radiance) / np.asarray(white)[None, None, :]))
+
+
+def lab_to_srgb8(lab: np.ndarray) -> np.ndarray:
+    """D50 CIELAB (..., 3) to sRGB uint8 (Bradford to D65, clipped)."""
+    from grassd.calib.colour_spaces import lab_to_xyz, xyz_d50_to_d65, xyz_to_rec709
+
+    return srgb_encode(xyz_to_rec709(xyz_d50_to_d65(lab_to_xyz(lab))))
+
+
+def table_view(fit, active_um: np.ndarray | None) -> dict[str, Any]:
+    """The 8-bit table of a fitted characteristic and its R^2 (OGCD vs level) before (length
+    linear in level) and after: the live table built from ``fit``
+    (:func:`grassd.calib.length_table.build_length_table`), or ``active_um`` (256,) [um], the
+    daemon's table, judged against ``fit``."""
+    from grassd.calib.length_table import build_length_table, r_squared
+
+    live = build_length_table(fit)
+    levels = np.arange(LEVELS, dtype=np.float64)
+    if active_um is None:
+        lengths = live.lengths_mm
+        achieved = live.achieved_ogcd
+        r2_after = live.r2_after
+    else:
+        lengths = np.asarray(active_um, np.float64) / 1000.0
+        achieved = fit(np.clip(lengths, fit.min_length_mm, fit.max_length_mm))
+        r2_after = r_squared(levels, achieved)
+    target = live.target_ogcd
+    return {"source": "live" if active_um is None else "active",
+            "lengths_mm": np.round(lengths, 4).tolist(),
+            "achieved_ogcd": np.round(achieved, 4).tolist(),
+            "uncalibrated_ogcd": np.round(live.uncalibrated_ogcd, 4).tolist(),
+            "r2_before": live.r2_before, "r2_after": r2_after,
+            "max_level_error": float(np.abs(achieved - target).max())}
+
+
+def contrast_view(ogcd_range: float, jnd: float = JND_DE00) -> dict[str, Any]:
+    """What a content designer has to work with from one eye: the OGCD range (CIEDE2000), the
+    colour step between adjacent levels of a linear table (range / 255), the smallest step in
+    levels a viewer notices (``jnd`` dE00) and how many levels stay mutually distinguishable
+    (range / jnd + 1, at most 256)."""
+    step = ogcd_range / (LEVELS - 1)
+    distinct = int(min(LEVELS, math.floor(ogcd_range / jnd) + 1)) if ogcd_range > 0 else 1
+    min_step = int(math.ceil(jnd / step)) if step > 0 else LEVELS
+    return {"ogcd_range": ogcd_range, "jnd_de00": jnd, "step_de00": step,
+            "distinct_levels": distinct, "min_visible_step_levels": min(min_step, LEVELS)}
+
+
+def audience_warning(ranges: np.ndarray, eye_range: float,
+                     loss: float = CONTRAST_LOSS) -> np.ndarray:
+    """True where a place keeps less than ``1 - loss`` of the eye's OGCD range."""
+    return np.asarray(ranges) < (1.0 - loss) * eye_range
+
+
+def picture_levels(data: bytes, rows: int, cols: int) -> np.ndarray:
+    """An uploaded picture (PNG, JPEG, ...) as the (rows, cols) 8-bit levels a grass display
+    shows: its luminance (ITU-R BT.601 weights, as Pillow's "L") box-filtered to one value
+    per pixel. ValueError with the reason for bytes that are not a readable picture."""
+    from PIL import Image, UnidentifiedImageError
+
+    if len(data) > MAX_IMAGE_BYTES:
+        raise ValueError(f"the picture is {len(data) / 2**20:.1f} MiB; at most "
+                         f"{MAX_IMAGE_BYTES // 2**20} MiB")
+    try:
+        with Image.open(io.BytesIO(data)) as im:
+            if max(im.size) > MAX_IMAGE_SIDE:
+                raise ValueError(f"the picture is {im.size[0]} x {im.size[1]} pixels; at most "
+                                 f"{MAX_IMAGE_SIDE} on a side")
+            grey = im.convert("L").resize((cols, rows), Image.Resampling.BOX)
+    except (UnidentifiedImageError, OSError, Image.DecompressionBombError) as exc:
+        raise ValueError(f"not a picture Pillow can read: {exc}") from None
+    return np.asarray(grey, np.uint8)
+
+
+def display_view(levels: np.ndarray, table_mm: np.ndarray, lengths_mm: np.ndarray,
+                 lab: np.ndarray, pitch_mm: float, eye_m: np.ndarray,
+                 width: int = 480) -> str:
+    """The display showing ``levels`` (rows, cols) through ``table_mm`` (256,), drawn from the
+    eye at ``eye_m`` (3,) [m, display centre at the origin, rows along +y] with a pinhole
+    camera aimed at the display's centre: each pixel's square filled with the colour the
+    simulation gives at its length (``lab`` (n, 3) D50 CIELAB at ``lengths_mm``, linearly
+    interpolated; every pixel takes the simulated pixel's view). A PNG data URL."""
+    from PIL import Image, ImageDraw
+
+    rows, cols = levels.shape
+    length = np.asarray(table_mm, np.float64)[levels]  # (rows, cols) mm
+    order = np.argsort(lengths_mm)
+    xs = np.asarray(lengths_mm, np.float64)[order]
+    colour = np.stack([np.interp(length, xs, np.asarray(lab)[order, k]) for k in range(3)],
+                      axis=-1)
+    rgb = lab_to_srgb8(colour)
+    p = pitch_mm / 1000.0
+    r, c = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
+    cx = (c - (cols - 1) / 2) * p
+    cy = (r - (rows - 1) / 2) * p
+    half = p / 2
+    corners = np.stack([np.stack([cx + sx * half, cy + sy * half, np.zeros_like(cx)], -1)
+                        for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))], axis=2)
+    eye = np.asarray(eye_m, np.float64)
+    forward = -eye / np.linalg.norm(eye)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    if np.linalg.norm(right) < 1e-9:  # straight above: rows run up the picture
+        right = np.array([1.0, 0.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    rel = corners - eye
+    depth = rel @ forward
+    u = (rel @ right) / depth
+    v = (rel @ up) / depth
+    urange = max(float(np.ptp(u)), 1e-9)
+    vrange = max(float(np.ptp(v)), 1e-9)
+    height = int(round(width * min(1.0, max(0.25, vrange / urange))))
+    scale = 0.92 * min(width / urange, height / vrange)
+    px = (u - (u.max() + u.min()) / 2) * scale + width / 2
+    py = height / 2 - (v - (v.max() + v.min()) / 2) * scale
+    img = Image.new("RGB", (width, height), (24, 24, 24))
+    draw = ImageDraw.Draw(img)
+    # far pixels first, so nearer ones cover them
+    for idx in np.argsort(-depth.mean(axis=2), axis=None):
+        i, j = divmod(int(idx), cols)
+        draw.polygon([(float(px[i, j, k]), float(py[i, j, k])) for k in range(4)],
+                     fill=tuple(int(x) for x in rgb[i, j]))
+    return png_data_url(np.asarray(img))

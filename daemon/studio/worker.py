@@ -1,0 +1,90 @@
+"""The one thread that runs the studio's simulations (the renderer holds one scene at a time).
+
+Requests are queued in order; each belongs to an owner (a page's WebSocket, an API call). A
+newer request of the same owner supersedes the older one: a queued one is skipped, a running one
+stops at its next check (between rounds of the characteristic, images, audience places), so an
+input change restarts the views at once instead of waiting for stale work.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import queue
+import threading
+from collections.abc import Callable
+from concurrent.futures import Future
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+
+class Superseded(Exception):
+    """A newer request of the same owner came in (or the owner left): this one stops."""
+
+
+Check = Callable[[], None]
+
+
+class Worker:
+    """A daemon thread running submitted jobs ``fn(check)`` one at a time; ``check()`` raises
+    :class:`Superseded` once the job's owner has submitted a newer one or was cancelled."""
+
+    def __init__(self, name: str = "grassd-studio-worker") -> None:
+        self._queue: queue.Queue = queue.Queue()
+        self._latest: dict[Any, int] = {}
+        self._ids = itertools.count(1)
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
+        self._thread.start()
+
+    def submit(self, owner: Any, fn: Callable[[Check], Any]) -> Future:
+        """Queue ``fn`` for ``owner``, superseding the owner's earlier jobs; returns its
+        future (its exception is :class:`Superseded` when a newer job replaced it)."""
+        fut: Future = Future()
+        with self._lock:
+            job = next(self._ids)
+            self._latest[owner] = job
+        self._queue.put((owner, job, fn, fut))
+        return fut
+
+    def cancel(self, owner: Any) -> None:
+        """Stop the owner's queued and running jobs (its page went away)."""
+        with self._lock:
+            self._latest[owner] = -1
+
+    def forget(self, owner: Any) -> None:
+        """Drop what is kept about ``owner`` once its jobs are cancelled and done."""
+        with self._lock:
+            if self._latest.get(owner) == -1:
+                del self._latest[owner]
+
+    def stop(self) -> None:
+        """End the thread after the jobs already queued."""
+        self._queue.put(None)
+        self._thread.join(timeout=30)
+
+    def _current(self, owner: Any, job: int) -> bool:
+        with self._lock:
+            return self._latest.get(owner) == job
+
+    def _loop(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            owner, job, fn, fut = item
+            if not fut.set_running_or_notify_cancel():
+                continue
+
+            def check(owner=owner, job=job) -> None:
+                if not self._current(owner, job):
+                    raise Superseded("a newer request replaced this one")
+
+            try:
+                check()
+                fut.set_result(fn(check))
+            except BaseException as exc:  # handed to the waiting side through the future
+                if not isinstance(exc, Superseded | Exception):
+                    log.exception("studio job failed")
+                fut.set_exception(exc)

@@ -1,0 +1,88 @@
+"""A real ``grassd studio`` process on 127.0.0.1 (port chosen by the OS) for the studio's tests:
+started once per test module, its URL read from what it prints, stopped afterwards."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+#: ../shared/hdri beside the clone (as tests/conftest.py finds it)
+HDRI_DIR = Path(__file__).resolve().parents[3].parent / "shared" / "hdri"
+
+
+@dataclass
+class StudioProcess:
+    """A running studio: its base ``url`` (ending in /), the process and its stderr file."""
+
+    url: str
+    proc: subprocess.Popen
+    log: Path
+
+    def request(self, path: str, body: bytes | dict | None = None,
+                headers: dict[str, str] | None = None) -> tuple[int, dict]:
+        """(HTTP status, JSON body) of GET (no body) or POST ``path``."""
+        data = json.dumps(body).encode() if isinstance(body, dict) else body
+        req = urllib.request.Request(self.url + path.lstrip("/"), data=data,
+                                     headers=headers or {},
+                                     method="GET" if body is None else "POST")
+        try:
+            with urllib.request.urlopen(req, timeout=120) as r:
+                return r.status, json.loads(r.read())
+        except urllib.error.HTTPError as exc:
+            return exc.code, json.loads(exc.read())
+
+
+def start_studio(tmp: Path, *args: str) -> StudioProcess:
+    """Start ``grassd studio --port 0 ARGS`` and wait until it serves and has warmed up."""
+    log = tmp / "studio.log"
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "grassd.daemon.cli", "studio", "--port", "0",
+                             *args], stdout=subprocess.PIPE, stderr=log.open("wb"), text=True,
+                            env=env)
+    line = proc.stdout.readline()
+    if not line.startswith("grassd studio: http"):
+        proc.kill()
+        raise AssertionError(f"studio did not start: {line!r} {log.read_text()}")
+    url = line.split(": ", 1)[1].strip()
+    studio = StudioProcess(url.split("?")[0], proc, log)
+    token = url.split("token=")[1] if "token=" in url else None
+    deadline = time.monotonic() + 240
+    while True:  # the first start compiles the kernels (later ones load them from the cache)
+        status, state = studio.request("api/state",
+                                       headers={"X-Grassd-Token": token} if token else None)
+        if status == 200 and state["ready"]:
+            return studio
+        assert proc.poll() is None, log.read_text()
+        assert time.monotonic() < deadline, "studio did not warm up in 240 s"
+        time.sleep(0.3)
+
+
+def stop_studio(studio: StudioProcess) -> None:
+    """End the process (SIGTERM, then SIGKILL)."""
+    studio.proc.terminate()
+    try:
+        studio.proc.wait(15)
+    except subprocess.TimeoutExpired:
+        studio.proc.kill()
+        studio.proc.wait()
+
+
+@pytest.fixture(scope="module")
+def studio(tmp_path_factory) -> Iterator[StudioProcess]:
+    """The studio lit by ../shared/hdri/courtyard.exr (skips when shared/ is absent)."""
+    hdri = HDRI_DIR / "courtyard.exr"
+    if not hdri.exists():
+        pytest.skip(f"{hdri} not present (CI provides ../shared beside the clone)")
+    s = start_studio(tmp_path_factory.mktemp("studio"), "--hdri", str(hdri))
+    yield s
+    stop_studio(s)
