@@ -2,8 +2,9 @@
 archived bundles (newest first) when a state directory is given, HDRIs uploaded in the page,
 and the embedded default site when there is nothing else.
 
-A source holds its panorama as loaded (linear Rec.709, relative units) reduced to at most
-:data:`STUDIO_WIDTH` texels wide, and what was measured with it (lux, sun). Building the
+A source holds its panorama as loaded (linear Rec.709, relative units), reduced to at most
+:data:`STUDIO_WIDTH` texels wide when it is wider (a map that size or smaller is simulated as
+the daemon simulates it, texel for texel), and what was measured with it (lux, sun). Building the
 :class:`~grassd.sim.lighting.Lighting` of a condition scales it (:meth:`Lights.lighting`,
 the last few kept).
 """
@@ -23,14 +24,13 @@ from typing import Any
 
 import numpy as np
 
-from grassd.daemon.hardware.simulated_camera import SIM_WIDTH
 from grassd.daemon.studio.inputs import Condition, StudioInputError
 
 log = logging.getLogger(__name__)
 
-#: Widest panorama the studio simulates (texels): the width the capture station's simulated
-#: camera delivers, where the renderer's light sampling is measured (README, capture).
-STUDIO_WIDTH: int = SIM_WIDTH
+#: Widest panorama the studio simulates (texels): wider maps (a camera's 8K) are box-filtered
+#: down so that a change of light is rebuilt in tens of milliseconds, not seconds.
+STUDIO_WIDTH: int = 2048
 #: Largest HDRI upload accepted (bytes).
 MAX_HDRI_BYTES: int = 256 * 2**20
 #: Lightings kept built (one per recent light, lux and sun).
@@ -77,16 +77,19 @@ def reduce_width(img: np.ndarray, width: int = STUDIO_WIDTH) -> np.ndarray:
     return img if factor == 1 else downsample(img, factor)
 
 
-def load_panorama(path: Path) -> np.ndarray:
+def load_panorama(path: Path, shown: str | None = None) -> np.ndarray:
     """An HDRI file as the studio simulates it (:func:`reduce_width`); StudioInputError with
-    the loader's reason for a file that is not a usable panorama."""
+    the loader's reason for a file that is not a usable panorama, naming it ``shown`` (default:
+    the path)."""
     from grassd.sim.errors import SimError
     from grassd.sim.hdri import load_hdri
 
     try:
         return reduce_width(load_hdri(path))
     except SimError as exc:
-        raise StudioInputError(f"cannot use {path.name} as the light: {exc}") from None
+        name = shown or str(path)
+        reason = str(exc).replace(str(path), name)
+        raise StudioInputError(f"cannot use {name} as the light: {reason}") from None
 
 
 def archived_sources(state_dir: Path, cfg) -> list[LightSource]:
@@ -178,7 +181,7 @@ class Lights:
         path = self._upload_dir / f"upload-{n}{suffix}"
         path.write_bytes(data)
         try:
-            image = load_panorama(path)
+            image = load_panorama(path, Path(filename).name)
         except StudioInputError:
             os.unlink(path)
             raise

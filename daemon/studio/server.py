@@ -189,7 +189,6 @@ async def _socket(request: web.Request) -> web.WebSocketResponse:
         def run(check) -> None:
             try:
                 studio.run(cond, emit, check)
-                emit({"type": "done"})
             except Superseded:
                 pass
             except StudioInputError as exc:

@@ -12,7 +12,7 @@ first image of the pixel within 300 ms, converged within 1 s, warm, 2 cores):
    (:func:`~grassd.daemon.calibration.simulation.simulate_curve`'s adaptive rounds, each sent);
 4. the table, the contrast, the display showing the uploaded picture;
 5. the audience map: the OGCD range from each place of the audience region;
-6. the pixel's image refined: :data:`REFINE_IMAGE` passes accumulated.
+6. the pixel's image refined: :data:`REFINE_IMAGE` passes accumulated; then ``done``.
 
 Every step checks whether a newer request superseded this one.
 """
@@ -244,6 +244,7 @@ class Studio:
                     self.cfg.display.pitch_mm, eye)})
             self._audience(cond, eye_range, send, check)
         self._refine_image(cond, display, white, send, check)
+        send({"type": "done"})
 
     def _audience(self, cond: Condition, eye_range: float, send: Emit, check: Check) -> None:
         """The OGCD range from places over the audience region at the eye's height (two

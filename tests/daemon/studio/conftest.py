@@ -22,11 +22,13 @@ HDRI_DIR = Path(__file__).resolve().parents[3].parent / "shared" / "hdri"
 
 @dataclass
 class StudioProcess:
-    """A running studio: its base ``url`` (ending in /), the process and its stderr file."""
+    """A running studio: its base ``url`` (ending in /), the process, its stderr file and the
+    token it printed (None on 127.0.0.1)."""
 
     url: str
     proc: subprocess.Popen
     log: Path
+    token: str | None = None
 
     def request(self, path: str, body: bytes | dict | None = None,
                 headers: dict[str, str] | None = None) -> tuple[int, dict]:
@@ -54,8 +56,8 @@ def start_studio(tmp: Path, *args: str) -> StudioProcess:
         proc.kill()
         raise AssertionError(f"studio did not start: {line!r} {log.read_text()}")
     url = line.split(": ", 1)[1].strip()
-    studio = StudioProcess(url.split("?")[0], proc, log)
     token = url.split("token=")[1] if "token=" in url else None
+    studio = StudioProcess(url.split("?")[0], proc, log, token)
     deadline = time.monotonic() + 240
     while True:  # the first start compiles the kernels (later ones load them from the cache)
         status, state = studio.request("api/state",

@@ -1,0 +1,185 @@
+"""The studio's HTTP JSON API and WebSocket, against a real ``grassd studio`` process: the
+characteristic it returns is the daemon's simulation, bad input gets a 4xx naming the value and
+the server goes on serving, uploads become lights and pictures, and a page's newer inputs
+supersede its older ones while the views stream in order."""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import json
+
+import numpy as np
+import pytest
+from conftest import HDRI_DIR, start_studio, stop_studio
+
+GOOD = {"ambient_lux": 5000.0, "viewpoint": [170, 2, 0], "lengths_mm": [0, 5, 10, 15, 20]}
+
+
+def test_characteristic_refines_to_the_target(studio):
+    status, body = studio.request("api/characteristic", {**GOOD, "target_stderr": 0.1})
+    assert status == 200, body
+    assert body["lengths_mm"] == GOOD["lengths_mm"]
+    ogcd, se = np.array(body["ogcd"]), np.array(body["ogcd_stderr"])
+    assert ogcd[0] == 0.0 and se[0] == 0.0  # the reference
+    assert np.all(se[1:] > 0) and se.max() <= 0.1
+    assert ogcd[-1] > 10 and np.all(np.diff(ogcd) > -3 * se[1:].max())
+    assert body["replicates"] >= 4 and body["seconds"] > 0
+
+
+def test_characteristic_without_target_is_the_daemons_simulation(studio, renderer):
+    """Same config, light, seed and settings ([simulation] samples x [calibration]
+    replicates): the same numbers as simulate_curve in this process."""
+    from grassd.daemon.calibration.calibrate import Calibrator
+    from grassd.daemon.calibration.simulation import simulate_curve
+    from grassd.daemon.config.settings import load_default_config
+    from grassd.sim.light_input import LightInput
+    from grassd.sim.scene import RenderSettings, Viewpoint
+
+    status, body = studio.request("api/characteristic", GOOD)
+    assert status == 200, body
+    cfg = load_default_config()
+    display, centre = Calibrator(cfg).display()
+    lighting = LightInput(HDRI_DIR / "courtyard.exr", 5000.0).lighting()
+    settings = RenderSettings(samples=cfg.simulation.samples,
+                              replicates=cfg.calibration.replicates, seed=cfg.simulation.seed)
+    c = simulate_curve(renderer, display, lighting, Viewpoint(170, 2, 0),
+                       np.array(GOOD["lengths_mm"], float), settings, pixel_index=centre)
+    assert body["replicates"] == cfg.calibration.replicates
+    np.testing.assert_allclose(body["ogcd"], c.ogcd, atol=1e-4)
+    np.testing.assert_allclose(body["ogcd_stderr"], c.ogcd_stderr, atol=1e-5)
+
+
+@pytest.mark.parametrize(("change", "words"), [
+    ({"ambient_lux": 5e9}, "ambient_lux = 5e+09 is out of range"),
+    ({"ambient_lux": "bright"}, "ambient_lux must be a number"),
+    ({"viewpoint": [-20, 2, 0]}, "behind the display"),
+    ({"viewpoint": [170, 2]}, "viewpoint must be [h_cm, d_m, theta_deg]"),
+    ({"viewpoint": [170, 2, 270]}, "theta must be in [-180, 180]"),
+    ({"lengths_mm": [0, 25]}, "outside 0..20 mm"),
+    ({"light": "nowhere"}, "light 'nowhere' is not one of"),
+    ({"sun_lux": 30000}, "sun_lux needs sun_azimuth_deg"),
+    ({"target_stderr": 0.0}, "target_stderr = 0 is out of range"),
+])
+def test_bad_characteristic_requests_get_a_400_naming_the_value(studio, change, words):
+    status, body = studio.request("api/characteristic", {**GOOD, **change})
+    assert status == 400
+    assert words in body["error"]
+
+
+def test_bad_uploads_get_a_4xx_and_the_server_keeps_serving(studio):
+    status, body = studio.request("api/characteristic", b"{not json")
+    assert (status, body["error"]) == (400, "the body must be JSON")
+    status, body = studio.request("api/hdri?name=broken.exr", b"\x76\x2f\x31\x01" + b"x" * 500)
+    assert status == 400 and "cannot use broken.exr as the light" in body["error"]
+    status, body = studio.request("api/hdri?name=notes.txt", b"hello")
+    assert status == 400 and ".exr or .hdr" in body["error"]
+    status, body = studio.request("api/picture", b"GIF89a not really")
+    assert status == 400 and "cannot show that picture" in body["error"]
+    status, body = studio.request("api/picture", b"\0" * (9 * 2**20))
+    assert status == 413 and "at most 8 MiB" in body["error"]
+    status, body = studio.request("api/state")
+    assert status == 200 and [s["name"] for s in body["lights"]] == ["file"]
+    assert studio.request("api/characteristic", GOOD)[0] == 200
+    assert studio.proc.poll() is None
+
+
+def test_an_uploaded_hdri_becomes_a_light(studio, tmp_path):
+    from grassd.sim.hdri import downsample, load_hdri, write_hdr
+
+    path = tmp_path / "small.hdr"
+    write_hdr(path, downsample(load_hdri(HDRI_DIR / "forest.exr"), 4))
+    status, body = studio.request("api/hdri?name=small.hdr", path.read_bytes())
+    assert status == 200, body
+    name = body["light"]["name"]
+    assert name.startswith("upload:") and body["light"]["label"] == "uploaded: small.hdr"
+    status, lit = studio.request("api/characteristic", {**GOOD, "light": name})
+    status0, base = studio.request("api/characteristic", GOOD)
+    assert status == status0 == 200
+    assert lit["ogcd"] != base["ogcd"]  # another light, another characteristic
+
+
+def _png(levels: np.ndarray) -> bytes:
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(levels.astype(np.uint8), "L").save(buf, "PNG")
+    return buf.getvalue()
+
+
+async def _session(url: str, requests: list[dict], until_id: int) -> list[dict]:
+    """Send the inputs over one WebSocket; every message received until ``until_id`` is done."""
+    import aiohttp
+
+    got = []
+    async with aiohttp.ClientSession() as s, s.ws_connect(url.replace("http", "ws") + "ws") as ws:
+        for r in requests:
+            await ws.send_str(json.dumps(r))
+        async with asyncio.timeout(120):
+            async for m in ws:
+                msg = json.loads(m.data)
+                got.append(msg)
+                if msg["id"] == until_id and msg["type"] in ("done", "error"):
+                    return got
+    return got
+
+
+def test_the_websocket_streams_the_views_and_newer_inputs_supersede(studio):
+    status, pic = studio.request("api/picture", _png(np.tile(np.linspace(0, 255, 16), (8, 1))))
+    assert status == 200 and (pic["rows"], pic["cols"]) == (4, 8)
+    assert pic["levels"][0][0] < 40 and pic["levels"][0][-1] > 215  # box-filtered to 4 x 8
+    old = {"type": "inputs", "id": 1, "condition": {"ambient_lux": 5000, "viewpoint": [170, 2, 0]}}
+    new = {"type": "inputs", "id": 2, "condition": {
+        "ambient_lux": 8000, "viewpoint": [160, 3, 25], "image": pic["image"],
+        "sun": {"mode": "site", "lux": 30000, "when": "2026-06-21T12:00"}}}
+    got = asyncio.run(_session(studio.url, [old, new], until_id=2))
+    mine = [m for m in got if m["id"] == 2]
+    kinds = [m["type"] for m in mine]
+    assert not any(m["type"] == "done" for m in got if m["id"] == 1)  # superseded
+    assert kinds[0] == "light" and kinds[1] == "curve" and kinds[2] == "pixel", kinds
+    assert {"table", "contrast", "display", "audience"} <= set(kinds) and kinds[-1] == "done"
+    light = mine[0]
+    # site 35 N 139 E, Asia/Tokyo: solar noon at about 11:45, the sun high in the south
+    assert 150 < light["sun"]["azimuth_deg"] < 210 and light["sun"]["elevation_deg"] > 70
+    curves = [m for m in mine if m["type"] == "curve"]
+    assert curves[0]["replicates"] == 4 and not curves[0]["converged"]
+    assert curves[-1]["converged"] and curves[-1]["max_stderr"] <= 0.1
+    assert [c["replicates"] for c in curves] == sorted(c["replicates"] for c in curves)
+    assert [m["ms"] for m in mine] == sorted(m["ms"] for m in mine)
+    table = next(m for m in mine if m["type"] == "table")
+    assert table["source"] == "live" and table["r2_after"] > table["r2_before"]
+    assert len(table["lengths_mm"]) == 256 and table["lengths_mm"] == sorted(table["lengths_mm"])
+    contrast = next(m for m in mine if m["type"] == "contrast")
+    assert contrast["distinct_levels"] == int(contrast["ogcd_range"]) + 1
+    audience = next(m for m in mine if m["type"] == "audience")
+    assert len(audience["places"]) >= 20 and audience["h_cm"] == 160
+    pixels = [m for m in mine if m["type"] == "pixel"]
+    assert pixels[0]["width"] == 128 and pixels[-1]["spp"] > pixels[0]["spp"]
+    assert all(m["image"].startswith("data:image/png;base64,") for m in pixels)
+
+
+def test_a_bad_input_over_the_websocket_is_an_error_message(studio):
+    bad = {"type": "inputs", "id": 7, "condition": {"ambient_lux": 5000,
+                                                     "viewpoint": [170, 2, 0],
+                                                     "sun": {"mode": "measured"}}}
+    got = asyncio.run(_session(studio.url, [bad], until_id=7))
+    assert got[-1]["type"] == "error" and "has no measured sun" in got[-1]["message"]
+    assert studio.request("api/characteristic", GOOD)[0] == 200
+
+
+def test_another_address_needs_the_printed_token(tmp_path):
+    hdri = HDRI_DIR / "courtyard.exr"
+    if not hdri.exists():
+        pytest.skip(f"{hdri} not present")
+    s = start_studio(tmp_path, "--hdri", str(hdri), "--host", "127.0.0.2")
+    try:
+        assert s.url.startswith("http://127.0.0.2:") and len(s.token) >= 20
+        status, body = s.request("api/state")
+        assert status == 401 and "needs its token" in body["error"]
+        assert s.request("api/state", headers={"X-Grassd-Token": "wrong"})[0] == 401
+        assert s.request("api/state", headers={"X-Grassd-Token": s.token})[0] == 200
+        assert s.request(f"api/state?token={s.token}")[0] == 200
+        status, _ = s.request("api/characteristic", GOOD)
+        assert status == 401
+    finally:
+        stop_studio(s)
