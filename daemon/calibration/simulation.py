@@ -90,7 +90,8 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
                    *, ccm=None, pixel_index: int = 0, target_stderr: float | None = None,
                    max_replicates: int = 256, layouts: int = 1,
                    progress: Callable[[int, int], None] | None = None,
-                   on_round: Callable[[SimulatedCurve], None] | None = None) -> SimulatedCurve:
+                   on_round: Callable[[SimulatedCurve], None] | None = None,
+                   round_replicates: int = MAX_REPLICATES) -> SimulatedCurve:
     """Render one viewpoint at ``lengths_mm`` (mm, first = reference) and derive its OGCD.
 
     With ``target_stderr`` (CIEDE2000), further batches of independent replicates (new seeds,
@@ -116,7 +117,9 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     0.20-0.24), for the same paths.
 
     ``on_round`` is called with the curve so far after every round (an interactive view
-    refines as they arrive); an exception it raises ends the run.
+    refines as they arrive); an exception it raises ends the run. ``round_replicates`` caps
+    the replicates a later round adds (an interactive view keeps its rounds short, so that a
+    new input waits little for the round in flight).
     """
     if settings.replicates < 2:
         raise SceneError(f"simulate_curve needs at least 2 replicates (their spread is the "
@@ -181,7 +184,7 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
         above = se > target_stderr
         ratio = np.minimum((se[above] / target_stderr) ** 2, 2.0)
         b = int(np.max(np.maximum(np.ceil(counts[above] * ratio) - counts[above], 1)))
-        b = min(b, max_replicates - n, MAX_REPLICATES)
+        b = min(b, max_replicates - n, round_replicates, MAX_REPLICATES)
         cols = np.union1d([0], np.flatnonzero(above))
         k += 1
 

@@ -52,8 +52,8 @@ def studio(config_path, state_dir, hdri, pixel_file, port, host, arch) -> None:
         archived_sources,
         default_site_path,
     )
+    from grassd.daemon.studio.process import StudioArgs
     from grassd.daemon.studio.server import LOCAL_HOST, serve
-    from grassd.daemon.studio.session import Studio
 
     cfg = resolve_config(config_path, str(state_dir) if state_dir else None)
     sources = []
@@ -71,13 +71,16 @@ def studio(config_path, state_dir, hdri, pixel_file, port, host, arch) -> None:
         from grassd.daemon.offline.fit import load_pixel_fields
 
         fields, pixel_source = load_pixel_fields(pixel_file), f"fit: {pixel_file.name}"
-    model = Studio(cfg, Lights(sources), pixel_fields=fields, pixel_source=pixel_source,
-                   active_um=active, arch=arch)
+    Lights(sources)  # at least one
+    args = StudioArgs(config_path, str(state_dir) if state_dir else None, tuple(sources),
+                      pixel_fields=fields, pixel_source=pixel_source,
+                      active_um=None if active is None else tuple(int(v) for v in active),
+                      arch=arch)
     token = None if host == LOCAL_HOST else secrets.token_urlsafe(18)
 
     async def main() -> None:
         ready = asyncio.get_running_loop().create_future()
-        server = asyncio.create_task(serve(model, host, port, token, ready))
+        server = asyncio.create_task(serve(args, host, port, token, ready))
         done, _ = await asyncio.wait({server, ready}, return_when=asyncio.FIRST_COMPLETED)
         if server in done:
             server.result()  # raises the bind error

@@ -187,9 +187,13 @@ class Lights:
             raise
         src = LightSource(name=f"upload:{n}", label=f"uploaded: {Path(filename).name}",
                           path=path, image=image)
+        self.add_source(src)
+        return src
+
+    def add_source(self, src: LightSource) -> None:
+        """Add a source checked elsewhere (an upload the server has read)."""
         with self._lock:
             self._sources[src.name] = src
-        return src
 
     def lighting(self, cond: Condition, site: tuple[float, float]) -> Any:
         """The :class:`~grassd.sim.lighting.Lighting` of ``cond`` (its source scaled to its

@@ -27,9 +27,11 @@ from __future__ import annotations
 
 import asyncio
 import hmac
+import itertools
 import json
 import logging
 import time
+from dataclasses import replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -38,17 +40,20 @@ from aiohttp import WSMsgType, web
 
 from grassd.daemon.studio.inputs import StudioInputError, parse_condition
 from grassd.daemon.studio.lights import MAX_HDRI_BYTES
+from grassd.daemon.studio.process import SimulatorProcess, StudioArgs
 from grassd.daemon.studio.session import Studio, curve_message
 from grassd.daemon.studio.views import MAX_IMAGE_BYTES
-from grassd.daemon.studio.worker import Superseded, Worker
+from grassd.daemon.studio.worker import Superseded
 
 log = logging.getLogger(__name__)
 
+#: Owners of simulator jobs: one per page and per API request.
+_OWNERS = itertools.count(1)
 #: The address the studio binds unless told otherwise: this computer only, no token.
 LOCAL_HOST: str = "127.0.0.1"
 COOKIE = "grassd_studio_token"
 STUDIO: web.AppKey[Studio] = web.AppKey("studio", Studio)
-WORKER: web.AppKey[Worker] = web.AppKey("worker", Worker)
+SIMULATOR: web.AppKey[SimulatorProcess] = web.AppKey("simulator", SimulatorProcess)
 TOKEN: web.AppKey[str | None] = web.AppKey("token", str)
 
 
@@ -120,11 +125,12 @@ async def _characteristic(request: web.Request) -> web.Response:
     except StudioInputError as exc:
         return _error(400, str(exc))
     t0 = time.perf_counter()
-    fut = request.app[WORKER].submit(object(), lambda check: studio.characteristic(cond, **kw))
     try:
-        curve = await asyncio.wrap_future(fut)
+        curve = await request.app[SIMULATOR].submit(next(_OWNERS), "characteristic", (cond, kw))
     except StudioInputError as exc:
         return _error(400, str(exc))
+    except RuntimeError as exc:  # the renderer failed: said, the studio goes on
+        return _error(500, str(exc))
     msg = curve_message(curve, kw["target_stderr"])
     out = {k: msg[k] for k in ("lengths_mm", "ogcd", "ogcd_stderr", "replicates")}
     out["seconds"] = round(time.perf_counter() - t0, 4)
@@ -151,6 +157,7 @@ async def _hdri(request: web.Request) -> web.Response:
         src = await loop.run_in_executor(None, studio.lights.add_upload, name, data)
     except StudioInputError as exc:
         return _error(400, str(exc))
+    request.app[SIMULATOR].add_light(replace(src, image=None))
     return web.json_response({"light": src.describe(), "lights": studio.lights.describe()})
 
 
@@ -164,13 +171,12 @@ async def _picture(request: web.Request) -> web.Response:
 
 
 async def _socket(request: web.Request) -> web.WebSocketResponse:
-    """One page: its latest inputs run on the worker, the views stream back."""
-    studio, worker = request.app[STUDIO], request.app[WORKER]
+    """One page: its latest inputs run on the simulator, the views stream back."""
+    studio, simulator = request.app[STUDIO], request.app[SIMULATOR]
     ws = web.WebSocketResponse(heartbeat=30.0, max_msg_size=1 << 20)
     await ws.prepare(request)
-    loop = asyncio.get_running_loop()
+    owner = next(_OWNERS)
     outbox: asyncio.Queue = asyncio.Queue()
-    owner = object()
 
     async def sender() -> None:
         while True:
@@ -179,54 +185,49 @@ async def _socket(request: web.Request) -> web.WebSocketResponse:
                 return
             await ws.send_json(msg)
 
+    def finished(fut: asyncio.Future, tag: int) -> None:
+        exc = None if fut.cancelled() else fut.exception()
+        if isinstance(exc, StudioInputError) or (exc is not None
+                                                 and not isinstance(exc, Superseded)):
+            outbox.put_nowait({"type": "error", "id": tag, "message": str(exc)})
+
     task = asyncio.create_task(sender())
-
-    def job(cond, tag: int):
-        def emit(msg: dict[str, Any]) -> None:
-            msg["id"] = tag
-            loop.call_soon_threadsafe(outbox.put_nowait, msg)
-
-        def run(check) -> None:
-            try:
-                studio.run(cond, emit, check)
-            except Superseded:
-                pass
-            except StudioInputError as exc:
-                emit({"type": "error", "message": str(exc)})
-            except Exception as exc:  # a renderer or colour error: shown, the studio goes on
-                log.exception("studio views failed")
-                emit({"type": "error", "message": f"{type(exc).__name__}: {exc}"})
-        return run
-
     try:
         async for m in ws:
             if m.type != WSMsgType.TEXT:
                 continue
+            tag = 0
             try:
                 data = json.loads(m.data)
-                tag = int(data.get("id", 0)) if isinstance(data, dict) else 0
                 if not isinstance(data, dict) or data.get("type") != "inputs":
                     raise StudioInputError("send {\"type\": \"inputs\", \"id\": n, "
                                            "\"condition\": {...}}")
+                tag = int(data.get("id", 0))
                 cond = _condition(studio, data.get("condition"))
-            except (ValueError, StudioInputError) as exc:
-                worker.cancel(owner)
-                outbox.put_nowait({"type": "error", "id": locals().get("tag", 0),
-                                   "message": str(exc)})
+                levels = studio.picture(cond.image)
+            except (ValueError, TypeError, StudioInputError) as exc:
+                simulator.cancel(owner)
+                outbox.put_nowait({"type": "error", "id": tag, "message": str(exc)})
                 continue
-            worker.submit(owner, job(cond, tag))
+
+            def emit(msg: dict[str, Any], tag: int = tag) -> None:
+                msg["id"] = tag
+                outbox.put_nowait(msg)
+
+            fut = simulator.submit(owner, "views", (cond, levels), emit)
+            fut.add_done_callback(lambda f, tag=tag: finished(f, tag))
     finally:
-        worker.cancel(owner)
+        simulator.cancel(owner)
         task.cancel()
-        worker.forget(owner)
     return ws
 
 
-def make_app(studio: Studio, worker: Worker, token: str | None = None) -> web.Application:
+def make_app(studio: Studio, simulator: SimulatorProcess,
+             token: str | None = None) -> web.Application:
     """The studio's aiohttp application (the page, the API, the WebSocket)."""
     app = web.Application(middlewares=[_guard], client_max_size=MAX_HDRI_BYTES + 2**20)
     app[STUDIO] = studio
-    app[WORKER] = worker
+    app[SIMULATOR] = simulator
     app[TOKEN] = token
     app.router.add_get("/", _index)
     app.router.add_get("/api/state", _state)
@@ -238,23 +239,29 @@ def make_app(studio: Studio, worker: Worker, token: str | None = None) -> web.Ap
     return app
 
 
-async def serve(studio: Studio, host: str, port: int, token: str | None,
+async def serve(args: StudioArgs, host: str, port: int, token: str | None,
                 ready: asyncio.Future | None = None) -> None:
-    """Serve until cancelled; ``ready`` gets the bound (host, port)."""
-    worker = Worker()
-    worker.submit("warm-up", lambda check: studio.warm_up())
-    runner = web.AppRunner(make_app(studio, worker, token), access_log=None)
-    await runner.setup()
-    site = web.TCPSite(runner, host, port)
-    await site.start()
-    bound = site._server.sockets[0].getsockname()[:2]  # the port the OS chose for port 0
-    if ready is not None:
-        ready.set_result(bound)
+    """Serve the studio ``args`` describe until cancelled; ``ready`` gets the bound
+    (host, port). The simulations run in a child process (:mod:`.process`)."""
+    studio = args.build()
+
+    def warmed(seconds: float) -> None:
+        studio.ready = True
+        log.info("studio warmed up in %.1f s", seconds)
+
+    simulator = SimulatorProcess(args, warmed)
+    runner = web.AppRunner(make_app(studio, simulator, token), access_log=None)
     try:
+        await runner.setup()
+        site = web.TCPSite(runner, host, port)
+        await site.start()
+        bound = site._server.sockets[0].getsockname()[:2]  # the port the OS chose for port 0
+        if ready is not None:
+            ready.set_result(bound)
         await asyncio.Event().wait()
     finally:
         await runner.cleanup()
-        worker.stop()
+        simulator.stop()
 
 
 __all__ = ["LOCAL_HOST", "make_app", "serve", "static_dir"]

@@ -7,9 +7,10 @@ first image of the pixel within 300 ms, converged within 1 s, warm, 2 cores):
 
 1. the characteristic's first round, :data:`FIRST_REPLICATES` replicates of
    :data:`STUDIO_SAMPLES` paths (about 75 ms for 11 lengths);
-2. the pixel's first image, :data:`FIRST_IMAGE` (width, paths per image pixel) (about 150 ms);
+2. the pixel's first image, :data:`FIRST_IMAGE` (width, paths per image pixel) (about 110 ms);
 3. further rounds until every OGCD standard error is at most the target
-   (:func:`~grassd.daemon.calibration.simulation.simulate_curve`'s adaptive rounds, each sent);
+   (:func:`~grassd.daemon.calibration.simulation.simulate_curve`'s adaptive rounds of at most
+   :data:`ROUND_REPLICATES`, each sent);
 4. the table, the contrast, the display showing the uploaded picture;
 5. the audience map: the OGCD range from each place of the audience region;
 6. the pixel's image refined: :data:`REFINE_IMAGE` passes accumulated; then ``done``.
@@ -45,11 +46,16 @@ STUDIO_SAMPLES: int = 1024
 FIRST_REPLICATES: int = 4
 #: Most replicates a characteristic takes before it is sent as it is.
 MAX_REPLICATES: int = 256
-#: (width px, paths per image pixel) of the pixel's first image, and of each refining pass.
-FIRST_IMAGE: tuple[int, int] = (128, 4)
-REFINE_IMAGE: tuple[int, int] = (256, 2)
-#: Refining passes of the pixel's image after everything else (32 paths per image pixel).
-REFINE_PASSES: int = 16
+#: Most replicates a later round adds: a round then takes at most about 0.1 s (11 lengths), so
+#: a new input waits at most that long for the round in flight.
+ROUND_REPLICATES: int = 8
+#: (width px, paths per image pixel) of the pixel's first image, and of each refining pass:
+#: each about 0.11 s on 2 cores (the preview kernel's time grows in steps with the width:
+#: 128 px took 0.19 s whether with 2 or 4 paths per pixel).
+FIRST_IMAGE: tuple[int, int] = (96, 4)
+REFINE_IMAGE: tuple[int, int] = (192, 1)
+#: Refining passes of the pixel's image after everything else (24 paths per image pixel).
+REFINE_PASSES: int = 24
 #: Places of the audience map: a grid of about this many points over the region.
 AUDIENCE_POINTS: int = 36
 #: The region mapped when the config has no ``[audience]``: x -3..3 m, y -5..-0.5 m (in front of
@@ -121,6 +127,17 @@ class Studio:
             "jnd_de00": views.JND_DE00, "contrast_loss": views.CONTRAST_LOSS,
         }
 
+    def picture(self, key: str | None) -> np.ndarray | None:
+        """The levels of uploaded picture ``key`` (None: none chosen); StudioInputError for an
+        id this studio never gave (or has dropped: the 16 newest are kept)."""
+        if key is None:
+            return None
+        with self._lock:
+            levels = self.pictures.get(key)
+        if levels is None:
+            raise StudioInputError(f"no picture {key!r}: upload it again")
+        return levels
+
     def add_picture(self, data: bytes) -> dict[str, Any]:
         """Read an uploaded picture as the display's levels; its id for the conditions.
         StudioInputError for bytes that are not a readable picture or too large."""
@@ -179,7 +196,8 @@ class Studio:
         return simulate_curve(Renderer.shared(), self._display(cond), lighting,
                               Viewpoint(*cond.viewpoint), lengths, settings,
                               pixel_index=self.centre, target_stderr=target_stderr,
-                              max_replicates=MAX_REPLICATES, on_round=on_round)
+                              max_replicates=MAX_REPLICATES, on_round=on_round,
+                              round_replicates=ROUND_REPLICATES)
 
     def _image(self, cond: Condition, display, size: tuple[int, int], seed: int) -> np.ndarray:
         from grassd.sim.renderer import Renderer
@@ -191,9 +209,11 @@ class Studio:
             spp=size[1], settings=RenderSettings(seed=seed))
         return img
 
-    def run(self, cond: Condition, emit: Emit, check: Check) -> None:
+    def run(self, cond: Condition, emit: Emit, check: Check,
+            levels: np.ndarray | None = None) -> None:
         """Compute every view of ``cond`` in the order of the module docstring, sending each as
-        it is ready (``emit``); ``check`` raises when a newer request supersedes this one."""
+        it is ready (``emit``); ``check`` raises when a newer request supersedes this one.
+        ``levels``: the (rows, cols) 8-bit picture the display view shows, if any."""
         from grassd.calib.characteristic import fit_characteristic
         from grassd.calib.errors import CalibError
         from grassd.daemon.calibration.display import curve_characteristic
@@ -236,7 +256,6 @@ class Studio:
             send({"type": "table", **table})
             eye_range = fit.ogcd_range
             send({"type": "contrast", **views.contrast_view(eye_range)})
-            levels = self.pictures.get(cond.image) if cond.image else None
             if levels is not None:
                 eye = np.asarray(cond_eye(cond), float)
                 send({"type": "display", "image": views.display_view(

@@ -154,7 +154,7 @@ def test_the_websocket_streams_the_views_and_newer_inputs_supersede(studio):
     audience = next(m for m in mine if m["type"] == "audience")
     assert len(audience["places"]) >= 20 and audience["h_cm"] == 160
     pixels = [m for m in mine if m["type"] == "pixel"]
-    assert pixels[0]["width"] == 128 and pixels[-1]["spp"] > pixels[0]["spp"]
+    assert pixels[0]["width"] == 96 and pixels[-1]["spp"] > pixels[0]["spp"]
     assert all(m["image"].startswith("data:image/png;base64,") for m in pixels)
 
 

@@ -1,0 +1,130 @@
+"""``grassd studio`` latency, warm, as a page sees it (issue #29; Nielsen's limits: 0.1 s feels
+instantaneous, 1 s keeps the flow).
+
+A real ``grassd studio --port 0 --hdri courtyard.exr`` process; a WebSocket client (aiohttp)
+changes one input at a time and times, from sending it, the first characteristic, the first
+image of the pixel and the characteristic converged (every OGCD standard error <= 0.1 dE00).
+Two cases:
+
+* idle: the previous input's views had all finished;
+* busy: the input arrives while the previous one's views are still refining (the worker
+  finishes the step it is in, then starts the new input): what a person dragging the eye sees.
+
+Goals: first characteristic <= 150 ms, first pixel image <= 300 ms, converged <= 1 s.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HDRI = Path(__file__).resolve().parents[1].parent / "shared" / "hdri" / "courtyard.exr"
+#: (what changes, condition) of each timed input, repeated ROUNDS times
+CHANGES = [
+    ("eye moves", {"viewpoint": [170, 2.5, 15]}),
+    ("eye moves", {"viewpoint": [170, 3.0, -20]}),
+    ("eye lower", {"viewpoint": [120, 3.0, -20]}),
+    ("lux", {"ambient_lux": 12000}),
+    ("sun time", {"sun": {"mode": "site", "lux": 40000, "when": "2026-11-27T15:00"}}),
+    ("splay", {"splay_deg": 8.0}),
+    ("length shown", {"length_mm": 14.0}),
+]
+ROUNDS = 2
+GOALS_MS = {"first curve": 150.0, "first pixel": 300.0, "converged": 1000.0}
+
+
+def _start() -> tuple[subprocess.Popen, str]:
+    log = open(Path(tempfile.mkdtemp(prefix="bench-studio-")) / "studio.log", "wb")
+    proc = subprocess.Popen([sys.executable, "-m", "grassd.daemon.cli", "studio", "--port", "0",
+                             "--hdri", str(HDRI)], stdout=subprocess.PIPE, stderr=log,
+                            text=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    line = proc.stdout.readline()
+    if not line.startswith("grassd studio: "):
+        proc.kill()
+        raise SystemExit(f"studio did not start: {line!r}")
+    return proc, line.split(": ", 1)[1].strip()
+
+
+async def _time_one(ws, tag: int, cond: dict, busy_after_s: float | None) -> dict[str, float]:
+    """Send ``cond`` as input ``tag``; the client-side ms to each milestone. With
+    ``busy_after_s``, a throwaway input goes first and ``cond`` follows that long after it."""
+    if busy_after_s is not None:
+        await ws.send_str(json.dumps({"type": "inputs", "id": tag - 1,
+                                      "condition": {**cond, "viewpoint": [150, 2.2, 5]}}))
+        await asyncio.sleep(busy_after_s)
+    t0 = time.perf_counter()
+    await ws.send_str(json.dumps({"type": "inputs", "id": tag, "condition": cond}))
+    got: dict[str, float] = {}
+    async for m in ws:
+        msg = json.loads(m.data)
+        if msg["id"] != tag:
+            continue
+        ms = (time.perf_counter() - t0) * 1000.0
+        if msg["type"] == "curve":
+            got.setdefault("first curve", ms)
+            if msg["converged"]:
+                got.setdefault("converged", ms)
+        elif msg["type"] == "pixel":
+            got.setdefault("first pixel", ms)
+        elif msg["type"] == "error":
+            raise SystemExit(f"studio error: {msg['message']}")
+        elif msg["type"] == "done":
+            return got
+    return got
+
+
+async def _run(url: str) -> dict[str, dict[str, list[float]]]:
+    import aiohttp
+
+    base = {"ambient_lux": 5000, "viewpoint": [170, 2, 0]}
+    out: dict[str, dict[str, list[float]]] = {"idle": {}, "busy": {}}
+    async with aiohttp.ClientSession() as s:
+        for _ in range(600):  # warm-up: kernels compiled or loaded from the cache
+            async with s.get(url + "api/state") as r:
+                if (await r.json())["ready"]:
+                    break
+            await asyncio.sleep(0.5)
+        async with s.ws_connect(url.replace("http", "ws") + "ws") as ws:
+            tag = 10
+            await _time_one(ws, tag, base, None)  # warm: the first light and scene built
+            for _ in range(ROUNDS):
+                for _name, change in CHANGES:
+                    for case, busy in (("idle", None), ("busy", 0.5)):
+                        tag += 2
+                        got = await _time_one(ws, tag, {**base, **change}, busy)
+                        for k, v in got.items():
+                            out[case].setdefault(k, []).append(v)
+    return out
+
+
+def main() -> None:
+    if not HDRI.exists():
+        print(f"bench_studio: {HDRI} not present (../shared beside the clone); skipped")
+        return
+    proc, url = _start()
+    try:
+        res = asyncio.run(_run(url))
+    finally:
+        proc.terminate()
+        proc.wait(20)
+    n = len(CHANGES) * ROUNDS
+    print(f"grassd studio, warm, courtyard.exr 1024 x 512, 11 lengths, {n} input changes "
+          f"({', '.join(sorted({c[0] for c in CHANGES}))}); client-side ms:")
+    for case in ("idle", "busy"):
+        for k in ("first curve", "first pixel", "converged"):
+            v = np.array(res[case].get(k, [np.nan]))
+            print(f"  {case:4s} {k:12s} median {np.median(v):6.0f}  p90 {np.percentile(v, 90):6.0f}"
+                  f"  max {v.max():6.0f}  (goal {GOALS_MS[k]:.0f}; "
+                  f"{int(np.sum(v <= GOALS_MS[k]))}/{v.size} within)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,215 @@
+"""The studio's simulations run in a process of their own.
+
+Taichi holds Python's GIL while a kernel runs (measured: a thread ticking every 5 ms saw gaps
+of 113 ms during the renderer's launches), so in one process the web server could send nothing
+while the renderer works: a characteristic ready after 75 ms reached the page only after the
+next kernel. The server process therefore never imports Taichi; a child process (``spawn``,
+as Taichi does not survive ``fork``) builds the same :class:`~grassd.daemon.studio.session.Studio`
+from :class:`StudioArgs` and runs its jobs on a :class:`~grassd.daemon.studio.worker.Worker`
+thread, superseding as the server says. Messages are pickled over one pipe each way.
+
+Server -> simulator: ``("job", owner, job, kind, payload)`` with kind ``"views"`` (a condition
+and the picture's levels) or ``"characteristic"`` (a condition and keyword arguments);
+``("cancel", owner)``; ``("light", LightSource)``; ``("stop",)``.
+Simulator -> server: ``("ready", seconds)``, ``("msg", job, dict)``, ``("result", job,
+value)``, ``("error", job, kind, message)`` with kind "input" (a StudioInputError), "superseded"
+or the exception's class name.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import logging
+import multiprocessing
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from grassd.daemon.studio.inputs import StudioInputError
+from grassd.daemon.studio.lights import LightSource
+from grassd.daemon.studio.worker import Superseded
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class StudioArgs:
+    """What builds a :class:`~grassd.daemon.studio.session.Studio` in either process: the
+    config (``config_path``/``state_dir`` as ``grassd studio`` was given them), the light
+    sources, the fitted pixel's fields and where they came from, the daemon's active table
+    (256 um values) and the Taichi arch."""
+
+    config_path: str | None
+    state_dir: str | None
+    sources: tuple[LightSource, ...]
+    pixel_fields: dict[str, Any] | None = None
+    pixel_source: str = "config"
+    active_um: tuple[int, ...] | None = None
+    arch: str = "cpu"
+
+    def build(self):
+        """The Studio these arguments describe."""
+        import numpy as np
+
+        from grassd.daemon.cli.run import resolve_config
+        from grassd.daemon.studio.lights import Lights
+        from grassd.daemon.studio.session import Studio
+
+        cfg = resolve_config(self.config_path, self.state_dir)
+        return Studio(cfg, Lights(list(self.sources)), pixel_fields=self.pixel_fields,
+                      pixel_source=self.pixel_source,
+                      active_um=None if self.active_um is None else np.array(self.active_um),
+                      arch=self.arch)
+
+
+def simulator_main(conn, args: StudioArgs) -> None:
+    """The simulator process: build the Studio, warm it up, then run what the server sends."""
+    from grassd.daemon.studio.worker import Worker
+
+    studio = args.build()
+    send_lock = threading.Lock()
+
+    def send(item: tuple) -> None:
+        with send_lock:
+            conn.send(item)
+
+    worker = Worker()
+    warm = worker.submit("warm-up", lambda check: studio.warm_up())
+
+    def ready(fut) -> None:
+        exc = fut.exception()
+        send(("ready", 0.0 if exc else fut.result()))
+
+    warm.add_done_callback(ready)
+
+    def run(job: int, kind: str, payload: tuple) -> Callable:
+        def go(check) -> None:
+            try:
+                if kind == "views":
+                    cond, levels = payload
+                    studio.run(cond, lambda msg: send(("msg", job, msg)), check, levels)
+                    send(("result", job, None))
+                else:
+                    cond, kw = payload
+                    curve = studio.characteristic(cond, **kw)
+                    send(("result", job, curve))
+            except Superseded:
+                send(("error", job, "superseded", "a newer request replaced this one"))
+            except StudioInputError as exc:
+                send(("error", job, "input", str(exc)))
+            except Exception as exc:  # a renderer or colour error: reported, the studio goes on
+                log.exception("studio job failed")
+                send(("error", job, type(exc).__name__, f"{type(exc).__name__}: {exc}"))
+        return go
+
+    while True:
+        try:
+            item = conn.recv()
+        except EOFError:  # the server went away
+            break
+        if item[0] == "job":
+            _, owner, job, kind, payload = item
+            worker.submit(owner, run(job, kind, payload))
+        elif item[0] == "cancel":
+            worker.cancel(item[1])
+        elif item[0] == "light":
+            studio.lights.add_source(item[1])
+        elif item[0] == "stop":
+            break
+    worker.stop()
+
+
+class SimulatorProcess:
+    """The server's handle on the simulator process: submit jobs, stream their messages,
+    await their results (on the server's event loop)."""
+
+    def __init__(self, args: StudioArgs, on_ready: Callable[[float], None]) -> None:
+        ctx = multiprocessing.get_context("spawn")
+        self._conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=simulator_main, args=(child, args),
+                                name="grassd-studio-simulator", daemon=True)
+        self.proc.start()
+        child.close()
+        self._on_ready = on_ready
+        self._jobs = itertools.count(1)
+        self._pending: dict[int, tuple[asyncio.Future, Callable | None]] = {}
+        self._lock = threading.Lock()
+        self._loop = asyncio.get_running_loop()
+        self._reader = threading.Thread(target=self._read, name="grassd-studio-reader",
+                                        daemon=True)
+        self._reader.start()
+
+    def _send(self, item: tuple) -> None:
+        with self._lock:
+            self._conn.send(item)
+
+    def _read(self) -> None:
+        while True:
+            try:
+                item = self._conn.recv()
+            except (EOFError, OSError):
+                self._loop.call_soon_threadsafe(self._gone)
+                return
+            self._loop.call_soon_threadsafe(self._dispatch, item)
+
+    def _gone(self) -> None:
+        for fut, _ in self._pending.values():
+            if not fut.done():
+                fut.set_exception(RuntimeError("the studio's simulator process ended; see "
+                                               "its log above and restart grassd studio"))
+        self._pending.clear()
+
+    def _dispatch(self, item: tuple) -> None:
+        if item[0] == "ready":
+            self._on_ready(item[1])
+            return
+        job = item[1]
+        if item[0] == "msg":
+            entry = self._pending.get(job)
+            if entry is not None and entry[1] is not None:
+                entry[1](item[2])
+            return
+        fut, _ = self._pending.pop(job, (None, None))
+        if fut is None or fut.done():
+            return
+        if item[0] == "result":
+            fut.set_result(item[2])
+        elif item[2] == "superseded":
+            fut.set_exception(Superseded(item[3]))
+        elif item[2] == "input":
+            fut.set_exception(StudioInputError(item[3]))
+        else:
+            fut.set_exception(RuntimeError(item[3]))
+
+    def submit(self, owner: int, kind: str, payload: tuple,
+               on_message: Callable[[dict], None] | None = None) -> asyncio.Future:
+        """Run a job of ``owner`` (superseding its earlier ones); its future gets the result,
+        ``on_message`` each streamed message (on the event loop)."""
+        job = next(self._jobs)
+        fut = self._loop.create_future()
+        self._pending[job] = (fut, on_message)
+        self._send(("job", owner, job, kind, payload))
+        return fut
+
+    def cancel(self, owner: int) -> None:
+        """Stop the owner's jobs (its page went away)."""
+        self._send(("cancel", owner))
+
+    def add_light(self, source: LightSource) -> None:
+        """Make an uploaded light known to the simulator (its file, not its pixels)."""
+        self._send(("light", source))
+
+    def stop(self) -> None:
+        """End the simulator process."""
+        try:
+            self._send(("stop",))
+        except OSError:
+            pass
+        self.proc.join(timeout=20)
+        if self.proc.is_alive():
+            self.proc.kill()
+            self.proc.join()
+
+
