@@ -161,6 +161,9 @@ def parse_sun(data: dict[str, Any], timezone: str) -> Sun:
         return Sun()
     if mode == "measured":
         return Sun("measured")
+    if mode not in ("site", "direction"):
+        raise StudioInputError(f"sun mode {mode!r} is not one of none, measured, site, "
+                               f"direction")
     lux = _number(sun, "lux", lo=0.0, hi=MAX_LUX, unit="lx")
     if mode == "site":
         when = sun.get("when")
@@ -172,10 +175,8 @@ def parse_sun(data: dict[str, Any], timezone: str) -> Sun:
         if moment.tzinfo is None:
             moment = moment.replace(tzinfo=ZoneInfo(timezone))
         return Sun("site", lux, when=moment)
-    if mode == "direction":
-        return Sun("direction", lux, _number(sun, "azimuth_deg", lo=0.0, hi=360.0, unit="deg"),
-                   _number(sun, "elevation_deg", lo=0.0, hi=90.0, unit="deg"))
-    raise StudioInputError(f"sun mode {mode!r} is not one of none, measured, site, direction")
+    return Sun("direction", lux, _number(sun, "azimuth_deg", lo=0.0, hi=360.0, unit="deg"),
+               _number(sun, "elevation_deg", lo=0.0, hi=90.0, unit="deg"))
 
 
 def parse_condition(data: Any, *, green_max_mm: float, timezone: str, lights: set[str],

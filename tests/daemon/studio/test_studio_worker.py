@@ -1,0 +1,50 @@
+"""The studio's job runner: one job at a time, and a newer job of the same owner supersedes
+the older one, queued or running; other owners' jobs are not touched."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+
+from grassd.daemon.studio.worker import Superseded, Worker
+
+
+def test_a_newer_job_of_the_same_owner_stops_the_running_one():
+    w = Worker()
+    started, release = threading.Event(), threading.Event()
+
+    def long(check):
+        started.set()
+        release.wait(10)
+        check()  # the next check after the newer job came in raises
+        return "not reached"
+
+    first = w.submit("page", long)
+    assert started.wait(10)
+    queued = w.submit("page", lambda check: "queued, then replaced")
+    other = w.submit("another page", lambda check: "other owner")
+    newest = w.submit("page", lambda check: "newest")
+    release.set()
+    with pytest.raises(Superseded):
+        first.result(10)
+    with pytest.raises(Superseded):
+        queued.result(10)
+    assert other.result(10) == "other owner"
+    assert newest.result(10) == "newest"
+    w.stop()
+
+
+def test_cancel_stops_an_owners_jobs_and_errors_reach_the_future():
+    w = Worker()
+    gate = threading.Event()
+    running = w.submit("page", lambda check: (gate.wait(10), check()))
+    w.cancel("page")
+    gate.set()
+    with pytest.raises(Superseded):
+        running.result(10)
+    w.forget("page")
+    failing = w.submit("api", lambda check: 1 / 0)
+    with pytest.raises(ZeroDivisionError):
+        failing.result(10)
+    w.stop()
