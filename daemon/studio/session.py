@@ -56,6 +56,9 @@ FIRST_IMAGE: tuple[int, int] = (96, 4)
 REFINE_IMAGE: tuple[int, int] = (192, 1)
 #: Refining passes of the pixel's image after everything else (24 paths per image pixel).
 REFINE_PASSES: int = 24
+#: Converged characteristics kept for conditions seen again (the length shown, the tables or the
+#: picture changed, or the eye came back).
+KEPT_CURVES: int = 16
 #: Places of the audience map: a grid of about this many points over the region.
 AUDIENCE_POINTS: int = 36
 #: The region mapped when the config has no ``[audience]``: x -3..3 m, y -5..-0.5 m (in front of
@@ -94,6 +97,7 @@ class Studio:
         self._picture_ids = itertools.count(1)
         self._lock = threading.Lock()
         self.ready = False
+        self._curves: dict[tuple, Any] = {}  # converged characteristics of recent conditions
 
     # ------------------------------------------------------------------ what the page needs
     @property
@@ -234,17 +238,31 @@ class Studio:
               "white_nits": _rounded(white)})
         first = [True]
 
+        def first_image() -> None:
+            img = self._image(cond, display, FIRST_IMAGE, 0)
+            send({"type": "pixel", "image": views.pixel_png(img, white),
+                  "width": FIRST_IMAGE[0], "spp": FIRST_IMAGE[1]})
+            check()
+
         def on_round(curve) -> None:
             check()
             send(curve_message(curve, cond.target_stderr))
             if first[0]:
                 first[0] = False
-                img = self._image(cond, display, FIRST_IMAGE, 0)
-                send({"type": "pixel", "image": views.pixel_png(img, white),
-                      "width": FIRST_IMAGE[0], "spp": FIRST_IMAGE[1]})
-                check()
+                first_image()
 
-        curve = self.characteristic(cond, target_stderr=cond.target_stderr, on_round=on_round)
+        key = (cond.light, cond.ambient_lux, cond.sun, cond.viewpoint, cond.splay_deg,
+               cond.lengths_mm, cond.target_stderr)
+        curve = self._curves.get(key)
+        if curve is not None:  # only the length shown, the tables or the picture changed
+            send(curve_message(curve, cond.target_stderr))
+            first_image()
+        else:
+            curve = self.characteristic(cond, target_stderr=cond.target_stderr,
+                                        on_round=on_round)
+            self._curves[key] = curve
+            while len(self._curves) > KEPT_CURVES:
+                self._curves.pop(next(iter(self._curves)))
         check()
         try:
             fit = fit_characteristic(curve_characteristic(curve))
