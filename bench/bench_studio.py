@@ -88,6 +88,7 @@ async def _run(url: str) -> dict[str, dict[str, list[float]]]:
 
     base = {"ambient_lux": 5000, "viewpoint": [170, 2, 0]}
     out: dict[str, dict[str, list[float]]] = {"idle": {}, "busy": {}}
+    by_change: dict[str, dict[str, list[float]]] = {}
     async with aiohttp.ClientSession() as s:
         for _ in range(600):  # warm-up: kernels compiled or loaded from the cache
             async with s.get(url + "api/state") as r:
@@ -98,7 +99,7 @@ async def _run(url: str) -> dict[str, dict[str, list[float]]]:
             tag = 10
             await _time_one(ws, tag, base, None)  # warm: the first light and scene built
             for r in range(ROUNDS):
-                for _name, change in CHANGES:
+                for name, change in CHANGES:
                     for k, (case, busy) in enumerate((("idle", None), ("busy", 0.5))):
                         tag += 2
                         cond = {**base, **change}
@@ -106,8 +107,11 @@ async def _run(url: str) -> dict[str, dict[str, list[float]]]:
                         h, d, theta = cond["viewpoint"]
                         cond["viewpoint"] = [h, d, theta + 2.0 * r + k]
                         got = await _time_one(ws, tag, cond, busy)
-                        for k, v in got.items():
-                            out[case].setdefault(k, []).append(v)
+                        for key, v in got.items():
+                            out[case].setdefault(key, []).append(v)
+                            if case == "idle":
+                                by_change.setdefault(name, {}).setdefault(key, []).append(v)
+    out["by change (idle)"] = by_change
     return out
 
 
@@ -130,6 +134,11 @@ def main() -> None:
             print(f"  {case:4s} {k:12s} median {np.median(v):6.0f}  p90 {np.percentile(v, 90):6.0f}"
                   f"  max {v.max():6.0f}  (goal {GOALS_MS[k]:.0f}; "
                   f"{int(np.sum(v <= GOALS_MS[k]))}/{v.size} within)")
+    print("  idle, median ms by what changed (first curve / first pixel / converged):")
+    for name, got in res["by change (idle)"].items():
+        print(f"    {name:13s}" + " / ".join(
+            f"{np.median(got.get(k, [np.nan])):5.0f}"
+            for k in ("first curve", "first pixel", "converged")))
 
 
 if __name__ == "__main__":
