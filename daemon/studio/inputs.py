@@ -55,7 +55,9 @@ class Condition:
     blades' outward lean at full length (None: the pixel's own); ``length_mm`` the green
     length the pixel view shows; ``lengths_mm`` the characteristic's lengths (first = the
     reference); ``tables`` "active" (the daemon's table) or "live" (built from this
-    characteristic); ``image`` the id of an uploaded picture for the display view, or None."""
+    characteristic); ``image`` the id of an uploaded picture for the display view, or None;
+    ``pixel`` "config" or "fit" (a ``grassd fit`` result given to the studio), None for the
+    studio's default."""
 
     light: str
     ambient_lux: float
@@ -67,6 +69,7 @@ class Condition:
     tables: str = "live"
     image: str | None = None
     target_stderr: float = TARGET_STDERR
+    pixel: str | None = None
 
 
 def _number(data: dict[str, Any], key: str, default: float | None = None, *,
@@ -203,6 +206,9 @@ def parse_condition(data: Any, *, green_max_mm: float, timezone: str, lights: se
     image = data.get("image")
     if image is not None and not isinstance(image, str):
         raise StudioInputError("image must be the id an upload returned")
+    pixel = data.get("pixel")
+    if pixel is not None and pixel not in ("config", "fit"):
+        raise StudioInputError(f"pixel must be \"config\" or \"fit\", got {pixel!r}")
     target = _number(data, "target_stderr", TARGET_STDERR, lo=STDERR_BOUNDS[0],
                      hi=STDERR_BOUNDS[1], unit="dE00")
     return Condition(
@@ -210,4 +216,4 @@ def parse_condition(data: Any, *, green_max_mm: float, timezone: str, lights: se
         viewpoint=parse_viewpoint(data.get("viewpoint")), splay_deg=splay,
         length_mm=_number(data, "length_mm", green_max_mm / 2, lo=0.0, hi=green_max_mm,
                           unit="mm"),
-        lengths_mm=lengths, tables=tables, image=image, target_stderr=target)
+        lengths_mm=lengths, tables=tables, image=image, target_stderr=target, pixel=pixel)

@@ -126,39 +126,57 @@ class SimulatorProcess:
     await their results (on the server's event loop)."""
 
     def __init__(self, args: StudioArgs, on_ready: Callable[[float], None]) -> None:
-        ctx = multiprocessing.get_context("spawn")
-        self._conn, child = ctx.Pipe()
-        self.proc = ctx.Process(target=simulator_main, args=(child, args),
-                                name="grassd-studio-simulator", daemon=True)
-        self.proc.start()
-        child.close()
+        self._args = args
         self._on_ready = on_ready
         self._jobs = itertools.count(1)
         self._pending: dict[int, tuple[asyncio.Future, Callable | None]] = {}
         self._lock = threading.Lock()
         self._loop = asyncio.get_running_loop()
-        self._reader = threading.Thread(target=self._read, name="grassd-studio-reader",
-                                        daemon=True)
-        self._reader.start()
+        self._lights: list[LightSource] = []  # uploads, given again to a restarted process
+        self.restarts = 0
+        self._start()
+
+    def _start(self) -> None:
+        ctx = multiprocessing.get_context("spawn")
+        self._conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=simulator_main, args=(child, self._args),
+                                name="grassd-studio-simulator", daemon=True)
+        self.proc.start()
+        child.close()
+        self.alive = True
+        for src in self._lights:
+            self._conn.send(("light", src))
+        threading.Thread(target=self._read, args=(self._conn,), name="grassd-studio-reader",
+                         daemon=True).start()
 
     def _send(self, item: tuple) -> None:
         with self._lock:
+            if not self.alive:  # it died (a crash in the renderer): a fresh one takes over
+                self.restarts += 1
+                log.warning("the studio's simulator process ended (exit code %s); starting "
+                            "it again", self.proc.exitcode)
+                self._start()
             self._conn.send(item)
 
-    def _read(self) -> None:
+    def _read(self, conn) -> None:
         while True:
             try:
-                item = self._conn.recv()
+                item = conn.recv()
             except (EOFError, OSError):
-                self._loop.call_soon_threadsafe(self._gone)
+                self._loop.call_soon_threadsafe(self._gone, conn)
                 return
             self._loop.call_soon_threadsafe(self._dispatch, item)
 
-    def _gone(self) -> None:
+    def _gone(self, conn) -> None:
+        if conn is not self._conn:
+            return
+        self.alive = False
+        self.proc.join(timeout=5)
         for fut, _ in self._pending.values():
             if not fut.done():
-                fut.set_exception(RuntimeError("the studio's simulator process ended; see "
-                                               "its log above and restart grassd studio"))
+                fut.set_exception(RuntimeError(
+                    f"the studio's simulator process ended (exit code {self.proc.exitcode}) "
+                    f"during this request; it starts again with the next one"))
         self._pending.clear()
 
     def _dispatch(self, item: tuple) -> None:
@@ -199,14 +217,17 @@ class SimulatorProcess:
 
     def add_light(self, source: LightSource) -> None:
         """Make an uploaded light known to the simulator (its file, not its pixels)."""
+        self._lights.append(source)
         self._send(("light", source))
 
     def stop(self) -> None:
         """End the simulator process."""
-        try:
-            self._send(("stop",))
-        except OSError:
-            pass
+        if self.alive:
+            try:
+                with self._lock:
+                    self._conn.send(("stop",))
+            except OSError:
+                pass
         self.proc.join(timeout=20)
         if self.proc.is_alive():
             self.proc.kill()

@@ -10,14 +10,15 @@ API (JSON; a bad value gets a 4xx with ``{"error": message}`` and the server kee
 - ``GET /api/state``: the display, site, lights, pixel, viewpoints and audience region.
 - ``POST /api/characteristic``: ``ambient_lux``, ``viewpoint`` [h_cm, d_m, theta_deg],
   ``lengths_mm``, optional ``target_stderr``, ``sun_lux``, ``sun_azimuth_deg``,
-  ``sun_elevation_deg`` (as in a bundle manifest), ``light``, ``splay_deg`` -> ``lengths_mm``,
-  ``ogcd``, ``ogcd_stderr``, ``replicates``, ``seconds``. Without ``target_stderr`` it is the
-  daemon's own simulation (``[simulation] samples`` x ``[calibration] replicates``).
+  ``sun_elevation_deg`` (as in a bundle manifest), ``light``, ``pixel``, ``splay_deg`` ->
+  ``lengths_mm``, ``ogcd``, ``ogcd_stderr``, ``replicates``, ``seconds``. Without
+  ``target_stderr`` it is the daemon's own simulation (``[simulation] samples`` x
+  ``[calibration] replicates``).
 - ``POST /api/hdri?name=FILE.exr`` (the file as the body): a new light source.
 - ``POST /api/picture`` (a PNG/JPEG as the body): a picture for the display view.
 - ``GET /ws``: send ``{"type": "inputs", "id": n, "condition": {...}}``; receive ``light``,
-  ``curve``, ``pixel``, ``table``, ``contrast``, ``display``, ``audience`` and ``error``
-  messages tagged with that ``id``.
+  ``curve``, ``pixel``, ``table``, ``contrast``, ``display``, ``audience``, ``done`` and
+  ``error`` messages tagged with that ``id`` (each with ``ms`` since the job started).
 
 Bound to 127.0.0.1 by default; on any other address every request needs the token printed at
 start (``?token=`` on the page's URL, which sets a cookie, or an ``X-Grassd-Token`` header).
@@ -95,7 +96,10 @@ async def _index(request: web.Request) -> web.StreamResponse:
 
 
 async def _state(request: web.Request) -> web.Response:
-    return web.json_response(request.app[STUDIO].state())
+    sim = request.app[SIMULATOR]
+    return web.json_response({**request.app[STUDIO].state(),
+                              "simulator": {"pid": sim.proc.pid, "alive": sim.alive,
+                                            "restarts": sim.restarts}})
 
 
 async def _json_body(request: web.Request) -> Any:

@@ -87,9 +87,13 @@ class Studio:
         self.lights = lights
         self.arch = arch
         display, self.centre = Calibrator(cfg).display()
+        #: the pixels a condition may choose: the config's, and a fit result's when given
+        self.displays = {"config": display}
         if pixel_fields:
-            display = replace(display, pixel=replace(display.pixel, **pixel_fields))
-        self.display = display
+            self.displays["fit"] = replace(display, pixel=replace(display.pixel,
+                                                                  **pixel_fields))
+        self.default_pixel = "fit" if pixel_fields else "config"
+        self.display = self.displays[self.default_pixel]
         self.pixel_source = pixel_source
         self.active_um = None if active_um is None else np.asarray(active_um, np.uint16)
         self.region = np.asarray(cfg.audience.polygon if cfg.audience is not None
@@ -122,10 +126,11 @@ class Studio:
             "region": self.region.tolist(),
             "region_is_default": self.cfg.audience is None,
             "lights": self.lights.describe(), "light": self.lights.default,
-            "pixel": {"source": self.pixel_source, "splay_deg": p.splay_deg,
-                      "specular": p.specular, "smoothness": p.smoothness,
-                      "green_srgb": list(p.green_srgb), "yellow_srgb": list(p.yellow_srgb),
-                      "base_srgb": list(p.base_srgb)},
+            "pixel": {"source": self.pixel_source, "default": self.default_pixel,
+                      "choices": {name: _materials(d.pixel, "config" if name == "config"
+                                                   else self.pixel_source)
+                                  for name, d in self.displays.items()},
+                      **_materials(p, self.pixel_source)},
             "tables": {"active": self.active_um is not None},
             "lengths_mm": list(default_lengths(p.green_max_mm)),
             "target_stderr": TARGET_STDERR,
@@ -191,9 +196,14 @@ class Studio:
         return time.perf_counter() - t0
 
     def _display(self, cond: Condition):
+        """The display patch of ``cond``: its pixel choice, with its splay."""
+        base = self.displays.get(cond.pixel or self.default_pixel)
+        if base is None:
+            raise StudioInputError(f"pixel {cond.pixel!r} is not one of the studio's: "
+                                   + ", ".join(self.displays))
         if cond.splay_deg is None:
-            return self.display
-        return replace(self.display, pixel=replace(self.display.pixel, splay_deg=cond.splay_deg))
+            return base
+        return replace(base, pixel=replace(base.pixel, splay_deg=cond.splay_deg))
 
     def characteristic(self, cond: Condition, *, target_stderr: float | None,
                        samples: int = STUDIO_SAMPLES, replicates: int = FIRST_REPLICATES,
@@ -262,8 +272,8 @@ class Studio:
                 first[0] = False
                 first_image()
 
-        key = (cond.light, cond.ambient_lux, cond.sun, cond.viewpoint, cond.splay_deg,
-               cond.lengths_mm, cond.target_stderr)
+        key = (cond.light, cond.ambient_lux, cond.sun, cond.viewpoint, cond.pixel,
+               cond.splay_deg, cond.lengths_mm, cond.target_stderr)
         curve = self._curves.get(key)
         if curve is not None:  # only the length shown, the tables or the picture changed
             send(curve_message(curve, cond.target_stderr))
@@ -338,6 +348,13 @@ class Studio:
             check()
             send({"type": "pixel", "image": views.pixel_png(total / (k + 1), white),
                   "width": REFINE_IMAGE[0], "spp": REFINE_IMAGE[1] * (k + 1)})
+
+
+def _materials(p, source: str) -> dict[str, Any]:
+    """A pixel's materials as the page shows them (8-bit sRGB albedos, gloss, splay)."""
+    return {"source": source, "splay_deg": p.splay_deg, "specular": p.specular,
+            "smoothness": p.smoothness, "green_srgb": list(p.green_srgb),
+            "yellow_srgb": list(p.yellow_srgb), "base_srgb": list(p.base_srgb)}
 
 
 def cond_eye(cond: Condition) -> tuple[float, float, float]:

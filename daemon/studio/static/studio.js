@@ -33,7 +33,8 @@ function condition() {
   }
   const c = {light: $("light").value, ambient_lux: Number($("lux").value), sun,
              viewpoint: viewpoint(), splay_deg: Number($("splay").value),
-             length_mm: Number($("length").value), tables: $("tables").value};
+             length_mm: Number($("length").value), tables: $("tables").value,
+             pixel: $("pixel-choice").value || null};
   if (S.image) c.image = S.image;
   return c;
 }
@@ -266,9 +267,19 @@ async function init() {
   $("eye-h").value = v[0];
   fillLights(st.lights, st.light);
   $("length").max = st.display.green_max_mm; $("length").value = st.display.green_max_mm / 2;
-  $("splay").value = st.pixel.splay_deg;
-  $("pixel-source").textContent = `materials: ${st.pixel.source} · green sRGB ${st.pixel.green_srgb.join(", ")}` +
-    (st.pixel.specular ? ` · specular ${st.pixel.specular}` : "");
+  $("pixel-choice").replaceChildren(...Object.entries(st.pixel.choices).map(([name, m]) => {
+    const o = document.createElement("option"); o.value = name; o.textContent = m.source; return o;
+  }));
+  $("pixel-choice").value = st.pixel.default;
+  $("pixel-choice-row").hidden = Object.keys(st.pixel.choices).length < 2;
+  const showPixel = () => {
+    const m = st.pixel.choices[$("pixel-choice").value];
+    $("splay").value = m.splay_deg;
+    $("pixel-source").textContent = `green sRGB ${m.green_srgb.join(", ")} · yellow ` +
+      `${m.yellow_srgb.join(", ")}` + (m.specular ? ` · specular ${m.specular}` : "");
+  };
+  showPixel();
+  $("pixel-choice").addEventListener("change", () => { showPixel(); send(); });
   $("tables").querySelector("option[value=active]").disabled = !st.tables.active;
   $("sun-date").value = new Date().toISOString().slice(0, 10);
   for (const id of ["lux", "sun-mode", "sun-date", "sun-lux", "tables", "light"])

@@ -167,19 +167,62 @@ def test_a_bad_input_over_the_websocket_is_an_error_message(studio):
     assert studio.request("api/characteristic", GOOD)[0] == 200
 
 
-def test_another_address_needs_the_printed_token(tmp_path):
+@pytest.fixture(scope="module")
+def remote_studio(tmp_path_factory):
+    """A studio on 127.0.0.2 (so with a token) given a fit result: pink green blades."""
     hdri = HDRI_DIR / "courtyard.exr"
     if not hdri.exists():
         pytest.skip(f"{hdri} not present")
-    s = start_studio(tmp_path, "--hdri", str(hdri), "--host", "127.0.0.2")
-    try:
-        assert s.url.startswith("http://127.0.0.2:") and len(s.token) >= 20
-        status, body = s.request("api/state")
-        assert status == 401 and "needs its token" in body["error"]
-        assert s.request("api/state", headers={"X-Grassd-Token": "wrong"})[0] == 401
-        assert s.request("api/state", headers={"X-Grassd-Token": s.token})[0] == 200
-        assert s.request(f"api/state?token={s.token}")[0] == 200
-        status, _ = s.request("api/characteristic", GOOD)
-        assert status == 401
-    finally:
-        stop_studio(s)
+    tmp = tmp_path_factory.mktemp("remote")
+    (tmp / "pixel.toml").write_text("[display.pixel]\ngreen_srgb = [214.0, 96.0, 170.0]\n"
+                                    "splay_deg = 6.0\n")
+    s = start_studio(tmp, "--hdri", str(hdri), "--host", "127.0.0.2",
+                     "--pixel", str(tmp / "pixel.toml"))
+    yield s
+    stop_studio(s)
+
+
+def test_another_address_needs_the_printed_token(remote_studio):
+    s = remote_studio
+    assert s.url.startswith("http://127.0.0.2:") and len(s.token) >= 20
+    status, body = s.request("api/state")
+    assert status == 401 and "needs its token" in body["error"]
+    assert s.request("api/state", headers={"X-Grassd-Token": "wrong"})[0] == 401
+    assert s.request("api/state", headers={"X-Grassd-Token": s.token})[0] == 200
+    assert s.request(f"api/state?token={s.token}")[0] == 200
+    assert s.request("api/characteristic", GOOD)[0] == 401
+
+
+def test_a_fit_result_is_the_default_pixel_and_the_config_stays_a_choice(remote_studio):
+    s, auth = remote_studio, {"X-Grassd-Token": remote_studio.token}
+    _, state = s.request("api/state", headers=auth)
+    pixel = state["pixel"]
+    assert pixel["default"] == "fit" and pixel["source"] == "fit: pixel.toml"
+    assert pixel["choices"]["fit"]["green_srgb"] == [214.0, 96.0, 170.0]
+    assert pixel["choices"]["fit"]["splay_deg"] == 6.0
+    assert pixel["choices"]["config"]["green_srgb"] == [62.0, 118.0, 46.0]
+    fit = s.request("api/characteristic", {**GOOD, "target_stderr": 0.2}, headers=auth)[1]
+    config = s.request("api/characteristic", {**GOOD, "target_stderr": 0.2, "pixel": "config"},
+                       headers=auth)[1]
+    assert abs(fit["ogcd"][-1] - config["ogcd"][-1]) > 3  # another green, another range
+    status, body = s.request("api/characteristic", {**GOOD, "pixel": "mine"}, headers=auth)
+    assert status == 400 and "pixel must be" in body["error"]
+
+
+def test_a_simulator_that_dies_is_started_again(studio):
+    import os
+    import signal
+    import time
+
+    _, state = studio.request("api/state")
+    pid = state["simulator"]["pid"]
+    os.kill(pid, signal.SIGKILL)
+    deadline = time.monotonic() + 30
+    while studio.request("api/state")[1]["simulator"]["alive"]:
+        assert time.monotonic() < deadline, "the server did not notice its simulator died"
+        time.sleep(0.1)
+    status, body = studio.request("api/characteristic", GOOD)
+    assert status == 200, body
+    _, state = studio.request("api/state")
+    assert state["simulator"]["restarts"] == 1 and state["simulator"]["pid"] != pid
+    assert studio.proc.poll() is None
