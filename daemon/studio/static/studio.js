@@ -191,8 +191,9 @@ function showAudience() {
 function showCompare() {
   if (!S.pinned) return;
   $("compare").hidden = false;
-  $("b-img").src = S.pinned.pixel || ""; $("b-cap").textContent = S.pinned.caption;
-  if (S.pixel) $("a-img").src = S.pixel;
+  if (S.pinned.pixel) { $("b-img").src = S.pinned.pixel; $("b-img").hidden = false; }
+  $("b-cap").textContent = S.pinned.caption;
+  if (S.pixel) { $("a-img").src = S.pixel; $("a-img").hidden = false; }
   const r = S.contrast ? `range ${S.contrast.ogcd_range.toFixed(2)} ΔE00` : "";
   $("a-cap").textContent = `A: ${describe(S.condition)} ${r}`;
 }
@@ -214,7 +215,7 @@ function onMessage(ev) {
       setStatus(m.converged ? `converged in ${Math.round(m.ms)} ms` : `refining… ${Math.round(m.ms)} ms`);
       plotCurve(); break;
     case "pixel":
-      S.pixel = m.image; S.pixels += 1; $("pixel-img").src = m.image;
+      S.pixel = m.image; S.pixels += 1; $("pixel-img").src = m.image; $("pixel-img").hidden = false;
       $("pixel-info").textContent = `${$("length").value} mm · ${m.width} px · ${m.spp} paths/px`;
       if (S.pinned) showCompare();
       break;

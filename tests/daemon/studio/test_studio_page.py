@@ -61,6 +61,7 @@ def test_the_page_follows_the_eye_shows_a_picture_and_reports_bad_input(studio, 
     with Browser(timeout_s=60) as browser:
         page = browser.open(studio.url, 1280, 900)
         page.wait_for(CONVERGED)
+        assert page.evaluate("document.getElementById('pixel-choice-row').hidden")  # one pixel
         first = page.evaluate("window.studio.curve.ogcd")
         assert page.evaluate("window.studio.condition.viewpoint") == [170, 2, 0]
         assert page.wait_for("window.studio.pixels") >= 1
@@ -119,7 +120,8 @@ def test_the_page_follows_the_eye_shows_a_picture_and_reports_bad_input(studio, 
         assert page.problems() == []
 
         narrow = browser.open(studio.url, 390, 844, mobile=True)
-        narrow.wait_for(CONVERGED)
+        narrow.wait_for(CONVERGED + " && window.studio.pixels > 0 && window.studio.table"
+                        " && window.studio.audience")
         width = narrow.evaluate("document.documentElement.scrollWidth")
         assert width <= 390, f"the page scrolls sideways at 390 px ({width} px wide)"
         narrow.screenshot(tmp_path / "studio-390.png")
