@@ -2,8 +2,10 @@
 
 ``inputs`` (what a person sets: the light, the eye, the pixel, the tables, each checked),
 ``lights`` (where the light comes from: an HDRI file, the daemon's bundles, an upload),
-``views`` (what is computed from them: the characteristic refined round by round, the pixel's
-image, the table, the display showing an image, the contrast left), ``worker`` (the one
-thread that runs the renderer, newest request first) and ``server`` (the aiohttp app: the page,
-its JSON API and the WebSocket that streams the views as they refine).
+``session`` and ``views`` (what is computed from them: the characteristic refined round by
+round, the pixel's image, the table, the display showing a picture, the contrast left),
+``worker`` (the thread that runs the renderer's jobs in order, a page's newer request
+superseding its older one), ``process`` (the simulator process that thread lives in) and
+``server`` (the aiohttp app: the page, its JSON API and the WebSocket that streams the views as
+they refine).
 """

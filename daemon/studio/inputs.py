@@ -72,13 +72,21 @@ class Condition:
     pixel: str | None = None
 
 
+def _finite(x: Any) -> bool:
+    """A JSON number that is a finite float (a huge integer is not)."""
+    try:
+        return math.isfinite(float(x))
+    except OverflowError:
+        return False
+
+
 def _number(data: dict[str, Any], key: str, default: float | None = None, *,
             lo: float | None = None, hi: float | None = None, unit: str = "") -> float:
     """``data[key]`` as a finite float within [lo, hi] (StudioInputError otherwise)."""
     v = data.get(key, default)
     if v is None:
         raise StudioInputError(f"{key} is required ({unit})" if unit else f"{key} is required")
-    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+    if isinstance(v, bool) or not isinstance(v, int | float) or not _finite(v):
         raise StudioInputError(f"{key} must be a number, got {v!r}")
     v = float(v)
     if (lo is not None and v < lo) or (hi is not None and v > hi):
@@ -95,9 +103,9 @@ def parse_viewpoint(v: Any) -> tuple[float, float, float]:
     if not isinstance(v, list | tuple) or len(v) != 3 or not all(
             isinstance(x, int | float) and not isinstance(x, bool) for x in v):
         raise StudioInputError(f"viewpoint must be [h_cm, d_m, theta_deg], got {v!r}")
-    h, d, theta = (float(x) for x in v)
-    if not all(math.isfinite(x) for x in (h, d, theta)):
+    if not all(_finite(x) for x in v):
         raise StudioInputError(f"viewpoint {v!r} must be finite numbers")
+    h, d, theta = (float(x) for x in v)
     if h <= 0:
         raise StudioInputError(f"viewpoint ({h:g}, {d:g}, {theta:g}) is behind the display: "
                                f"the eye must be above its plane (h_cm > 0)")
@@ -115,7 +123,7 @@ def parse_lengths(v: Any, green_max_mm: float) -> tuple[float, ...]:
                                f"the first the reference")
     out = []
     for x in v:
-        if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
+        if isinstance(x, bool) or not isinstance(x, int | float) or not _finite(x):
             raise StudioInputError(f"lengths_mm holds {x!r}: give numbers (mm)")
         if not 0.0 <= x <= green_max_mm:
             raise StudioInputError(f"length {x:g} mm is outside 0..{green_max_mm:g} mm (the "
@@ -191,7 +199,7 @@ def parse_condition(data: Any, *, green_max_mm: float, timezone: str, lights: se
     if not isinstance(data, dict):
         raise StudioInputError("send a JSON object")
     light = data.get("light", default_light)
-    if light not in lights:
+    if not isinstance(light, str) or light not in lights:
         raise StudioInputError(f"light {light!r} is not one of the studio's: "
                                + ", ".join(sorted(lights)))
     lux = _number(data, "ambient_lux", lo=1e-3, hi=MAX_LUX, unit="lx")

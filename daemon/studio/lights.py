@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import os
+import shutil
 import tempfile
 import threading
 from collections import OrderedDict
@@ -64,8 +65,9 @@ class LightSource:
 
 
 def reduce_width(img: np.ndarray, width: int = STUDIO_WIDTH) -> np.ndarray:
-    """The panorama box-filtered down by the smallest integer factor that makes it at most
-    ``width`` texels wide (power-preserving, :func:`grassd.sim.hdri.downsample`)."""
+    """The panorama box-filtered down by the smallest integer factor that divides both sides
+    and makes it at most ``width`` texels wide (power-preserving,
+    :func:`grassd.sim.hdri.downsample`); unchanged when no such factor exists."""
     from grassd.sim.hdri import downsample
 
     h, w, _ = img.shape
@@ -143,7 +145,8 @@ class Lights:
         self._built: OrderedDict[tuple, Any] = OrderedDict()
         self._lock = threading.Lock()
         self._uploads = 0
-        self._upload_dir = Path(upload_dir or tempfile.mkdtemp(prefix="grassd-studio-"))
+        self._upload_dir = None if upload_dir is None else Path(upload_dir)
+        self._own_dir = upload_dir is None
 
     @property
     def names(self) -> set[str]:
@@ -178,6 +181,8 @@ class Lights:
         with self._lock:
             self._uploads += 1
             n = self._uploads
+            if self._upload_dir is None:  # made on the first upload, removed by cleanup()
+                self._upload_dir = Path(tempfile.mkdtemp(prefix="grassd-studio-"))
         path = self._upload_dir / f"upload-{n}{suffix}"
         path.write_bytes(data)
         try:
@@ -189,6 +194,12 @@ class Lights:
                           path=path, image=image)
         self.add_source(src)
         return src
+
+    def cleanup(self) -> None:
+        """Remove the uploads' temporary folder (when this object made it)."""
+        if self._own_dir and self._upload_dir is not None:
+            shutil.rmtree(self._upload_dir, ignore_errors=True)
+            self._upload_dir = None
 
     def add_source(self, src: LightSource) -> None:
         """Add a source checked elsewhere (an upload the server has read)."""

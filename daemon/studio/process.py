@@ -80,6 +80,8 @@ def simulator_main(conn, args: StudioArgs) -> None:
 
     def ready(fut) -> None:
         exc = fut.exception()
+        if exc is not None:
+            log.error("the studio's warm-up failed: %s: %s", type(exc).__name__, exc)
         send(("ready", 0.0 if exc else fut.result()))
 
     warm.add_done_callback(ready)
@@ -111,7 +113,12 @@ def simulator_main(conn, args: StudioArgs) -> None:
             break
         if item[0] == "job":
             _, owner, job, kind, payload = item
-            worker.submit(owner, run(job, kind, payload))
+
+            def skipped(fut, job=job) -> None:  # superseded while queued: go() never ran
+                if not fut.cancelled() and isinstance(fut.exception(), Superseded):
+                    send(("error", job, "superseded", "a newer request replaced this one"))
+
+            worker.submit(owner, run(job, kind, payload)).add_done_callback(skipped)
         elif item[0] == "cancel":
             worker.cancel(item[1])
         elif item[0] == "light":
@@ -151,12 +158,19 @@ class SimulatorProcess:
 
     def _send(self, item: tuple) -> None:
         with self._lock:
-            if not self.alive:  # it died (a crash in the renderer): a fresh one takes over
-                self.restarts += 1
-                log.warning("the studio's simulator process ended (exit code %s); starting "
-                            "it again", self.proc.exitcode)
-                self._start()
-            self._conn.send(item)
+            for attempt in (1, 2):
+                if not self.alive:  # it died (a crash in the renderer): a fresh one takes over
+                    self.restarts += 1
+                    log.warning("the studio's simulator process ended (exit code %s); "
+                                "starting it again", self.proc.exitcode)
+                    self._start()
+                try:
+                    self._conn.send(item)
+                    return
+                except OSError:  # died before the reader saw it
+                    self.alive = False
+                    if attempt == 2:
+                        raise
 
     def _read(self, conn) -> None:
         while True:
@@ -171,7 +185,7 @@ class SimulatorProcess:
         if conn is not self._conn:
             return
         self.alive = False
-        self.proc.join(timeout=5)
+        self.proc.join(timeout=0.2)
         for fut, _ in self._pending.values():
             if not fut.done():
                 fut.set_exception(RuntimeError(

@@ -36,6 +36,7 @@ from dataclasses import replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
 
@@ -69,7 +70,12 @@ def _error(status: int, message: str) -> web.Response:
 
 @web.middleware
 async def _guard(request: web.Request, handler):
-    """The token check (when the studio has one) and JSON errors for every failure."""
+    """The origin and token checks and JSON errors for every failure. A request a browser sends
+    from another site's page (its Origin is not this server) is refused: without it, any page
+    the user visits could drive a studio on 127.0.0.1 and upload into it."""
+    origin = request.headers.get("Origin")
+    if origin is not None and urlsplit(origin).netloc != request.host:
+        return _error(403, f"requests from {origin} are refused: open the studio's own page")
     token = request.app[TOKEN]
     if token is not None:
         given = (request.query.get("token") or request.headers.get("X-Grassd-Token")
@@ -145,11 +151,14 @@ async def _read_capped(request: web.Request, limit: int, what: str) -> bytes:
     if request.content_length is not None and request.content_length > limit:
         raise web.HTTPRequestEntityTooLarge(max_size=limit, actual_size=request.content_length,
                                             text=f"{what}: at most {limit // 2**20} MiB")
-    data = await request.content.read(limit + 1)
-    if len(data) > limit:
-        raise web.HTTPRequestEntityTooLarge(max_size=limit, actual_size=len(data),
-                                            text=f"{what}: at most {limit // 2**20} MiB")
-    return data
+    chunks, size = [], 0
+    async for chunk in request.content.iter_chunked(1 << 16):  # to the end of the body
+        size += len(chunk)
+        if size > limit:
+            raise web.HTTPRequestEntityTooLarge(max_size=limit, actual_size=size,
+                                                text=f"{what}: at most {limit // 2**20} MiB")
+        chunks.append(chunk)
+    return b"".join(chunks)
 
 
 async def _hdri(request: web.Request) -> web.Response:
@@ -161,6 +170,7 @@ async def _hdri(request: web.Request) -> web.Response:
         src = await loop.run_in_executor(None, studio.lights.add_upload, name, data)
     except StudioInputError as exc:
         return _error(400, str(exc))
+    src.image = None  # checked; only the simulator renders it (it reads the file again)
     request.app[SIMULATOR].add_light(replace(src, image=None))
     return web.json_response({"light": src.describe(), "lights": studio.lights.describe()})
 
@@ -209,7 +219,7 @@ async def _socket(request: web.Request) -> web.WebSocketResponse:
                 tag = int(data.get("id", 0))
                 cond = _condition(studio, data.get("condition"))
                 levels = studio.picture(cond.image)
-            except (ValueError, TypeError, StudioInputError) as exc:
+            except (ValueError, TypeError, OverflowError, StudioInputError) as exc:
                 simulator.cancel(owner)
                 outbox.put_nowait({"type": "error", "id": tag, "message": str(exc)})
                 continue
@@ -266,6 +276,7 @@ async def serve(args: StudioArgs, host: str, port: int, token: str | None,
     finally:
         await runner.cleanup()
         simulator.stop()
+        studio.lights.cleanup()
 
 
 __all__ = ["LOCAL_HOST", "make_app", "serve", "static_dir"]

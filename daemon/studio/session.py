@@ -293,14 +293,15 @@ class Studio:
             fit = table = None
         if table is not None:
             send({"type": "table", **table})
-            eye_range = fit.ogcd_range
-            send({"type": "contrast", **views.contrast_view(eye_range)})
+            send({"type": "contrast", **views.contrast_view(fit.ogcd_range)})
             if levels is not None:
                 eye = np.asarray(cond_eye(cond), float)
                 send({"type": "display", "image": views.display_view(
                     levels, np.asarray(table["lengths_mm"]), curve.lengths_mm, curve.lab,
                     self.cfg.display.pitch_mm, eye)})
-            self._audience(cond, eye_range, send, check)
+            # the audience's places are judged as the eye is: the reference vs the longest
+            ends = curve.ogcd[int(np.argmax(curve.lengths_mm))] - curve.ogcd[0]
+            self._audience(cond, float(ends), send, check)
         self._refine_image(cond, display, white, send, check)
         send({"type": "done"})
 

@@ -126,13 +126,16 @@ def picture_levels(data: bytes, rows: int, cols: int) -> np.ndarray:
 def display_view(levels: np.ndarray, table_mm: np.ndarray, lengths_mm: np.ndarray,
                  lab: np.ndarray, pitch_mm: float, eye_m: np.ndarray,
                  width: int = 480) -> str:
-    """The display showing ``levels`` (rows, cols) through ``table_mm`` (256,), drawn from the
-    eye at ``eye_m`` (3,) [m, display centre at the origin, rows along +y] with a pinhole
+    """The display showing ``levels`` (rows, cols; row 0 the picture's top) through
+    ``table_mm`` (256,), drawn from the eye at ``eye_m`` (3,) [m, display centre at the
+    origin, the audience towards -y] with a pinhole
     camera aimed at the display's centre: each pixel's square filled with the colour the
     simulation gives at its length (``lab`` (n, 3) D50 CIELAB at ``lengths_mm``, linearly
-    interpolated; every pixel takes the simulated pixel's view). A PNG data URL."""
+    interpolated; every pixel takes the simulated pixel's view). The picture stands upright
+    for the audience: its top row on the display's far edge (+y). A PNG data URL."""
     from PIL import Image, ImageDraw
 
+    levels = np.asarray(levels)[::-1]  # display row 0 is nearest the audience (-y)
     rows, cols = levels.shape
     length = np.asarray(table_mm, np.float64)[levels]  # (rows, cols) mm
     order = np.argsort(lengths_mm)

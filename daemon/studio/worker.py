@@ -33,6 +33,7 @@ class Worker:
     def __init__(self, name: str = "grassd-studio-worker") -> None:
         self._queue: queue.Queue = queue.Queue()
         self._latest: dict[Any, int] = {}
+        self._queued: dict[Any, int] = {}  # jobs of each owner not yet finished
         self._ids = itertools.count(1)
         self._lock = threading.Lock()
         self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
@@ -45,19 +46,27 @@ class Worker:
         with self._lock:
             job = next(self._ids)
             self._latest[owner] = job
+            self._queued[owner] = self._queued.get(owner, 0) + 1
         self._queue.put((owner, job, fn, fut))
         return fut
 
     def cancel(self, owner: Any) -> None:
         """Stop the owner's queued and running jobs (its page went away)."""
         with self._lock:
-            self._latest[owner] = -1
+            if self._queued.get(owner):
+                self._latest[owner] = -1
+            else:
+                self._latest.pop(owner, None)
 
-    def forget(self, owner: Any) -> None:
-        """Drop what is kept about ``owner`` once its jobs are cancelled and done."""
+    def _finished(self, owner: Any) -> None:
+        """One job of ``owner`` is done: forget the owner when it has no other."""
         with self._lock:
-            if self._latest.get(owner) == -1:
-                del self._latest[owner]
+            left = self._queued.get(owner, 1) - 1
+            if left > 0:
+                self._queued[owner] = left
+            else:
+                self._queued.pop(owner, None)
+                self._latest.pop(owner, None)
 
     def stop(self) -> None:
         """End the thread after the jobs already queued."""
@@ -83,8 +92,12 @@ class Worker:
 
             try:
                 check()
-                fut.set_result(fn(check))
+                result = fn(check)
             except BaseException as exc:  # handed to the waiting side through the future
-                if not isinstance(exc, Superseded | Exception):
-                    log.exception("studio job failed")
+                if not isinstance(exc, Superseded):
+                    log.debug("studio job failed: %r", exc)
+                self._finished(owner)
                 fut.set_exception(exc)
+            else:
+                self._finished(owner)
+                fut.set_result(result)

@@ -32,7 +32,7 @@ function condition() {
     sun = {mode: "site", lux: Number($("sun-lux").value), when: `${$("sun-date").value}T${hh}:${mm}`};
   }
   const c = {light: $("light").value, ambient_lux: Number($("lux").value), sun,
-             viewpoint: viewpoint(), splay_deg: Number($("splay").value),
+             viewpoint: viewpoint(), splay_deg: S.splayMoved ? Number($("splay").value) : null,
              length_mm: Number($("length").value), tables: $("tables").value,
              pixel: $("pixel-choice").value || null};
   if (S.image) c.image = S.image;
@@ -49,6 +49,7 @@ function send() {
   if (dragging && now - lastSend < 60) {       // pointer moves: at most ~16 requests a second
     clearTimeout(pendingSend); pendingSend = setTimeout(send, 60); return;
   }
+  clearTimeout(pendingSend);
   lastSend = now;
   S.id += 1; S.sentAt = now; S.firstCurveMs = null;
   S.condition = condition();
@@ -275,7 +276,7 @@ async function init() {
   $("pixel-choice-row").hidden = Object.keys(st.pixel.choices).length < 2;
   const showPixel = () => {
     const m = st.pixel.choices[$("pixel-choice").value];
-    $("splay").value = m.splay_deg;
+    $("splay").value = m.splay_deg; S.splayMoved = false;   // the pixel's own splay until moved
     $("pixel-source").textContent = `green sRGB ${m.green_srgb.join(", ")} · yellow ` +
       `${m.yellow_srgb.join(", ")}` + (m.specular ? ` · specular ${m.specular}` : "");
   };
@@ -283,12 +284,14 @@ async function init() {
   $("pixel-choice").addEventListener("change", () => { showPixel(); send(); });
   $("tables").querySelector("option[value=active]").disabled = !st.tables.active;
   $("sun-date").value = new Date().toISOString().slice(0, 10);
-  for (const id of ["lux", "sun-mode", "sun-date", "sun-lux", "tables", "light"])
+  for (const id of ["lux", "sun-mode", "sun-date", "sun-lux", "tables"])
     $(id).addEventListener("change", send);
+  $("splay").addEventListener("input", () => { S.splayMoved = true; });  // before its send
   for (const id of ["eye-h", "splay", "length", "sun-time"]) $(id).addEventListener("input", send);
-  $("light").addEventListener("change", () => {
+  $("light").addEventListener("change", () => {   // the source's own lux first, then send
     const src = S.state.lights.find(l => l.name === $("light").value);
     if (src && src.ambient_lux) $("lux").value = src.ambient_lux;
+    send();
   });
   const c = $("topview");
   c.addEventListener("pointerdown", ev => { dragging = true; c.setPointerCapture(ev.pointerId); pointerEye(ev); });

@@ -78,6 +78,14 @@ def test_bad_uploads_get_a_4xx_and_the_server_keeps_serving(studio):
     assert status == 400 and "cannot show that picture" in body["error"]
     status, body = studio.request("api/picture", b"\0" * (9 * 2**20))
     assert status == 413 and "at most 8 MiB" in body["error"]
+    status, body = studio.request("api/characteristic", {**GOOD, "light": []})
+    assert status == 400 and "light [] is not one of" in body["error"]
+    status, body = studio.request("api/characteristic", {**GOOD, "ambient_lux": 10**400})
+    assert status == 400 and "ambient_lux must be a number" in body["error"]
+    # another site's page may not drive the studio (no token on 127.0.0.1)
+    status, body = studio.request("api/characteristic", GOOD,
+                                  headers={"Origin": "http://evil.example"})
+    assert status == 403 and "http://evil.example are refused" in body["error"]
     status, body = studio.request("api/state")
     assert status == 200 and [s["name"] for s in body["lights"]] == ["file"]
     assert studio.request("api/characteristic", GOOD)[0] == 200

@@ -87,6 +87,18 @@ def test_the_display_view_draws_each_pixel_in_its_simulated_colour():
     np.testing.assert_allclose(left.mean(axis=0), views.lab_to_srgb8(lab[0]), atol=3)
     np.testing.assert_allclose(right.mean(axis=0), views.lab_to_srgb8(lab[2]), atol=3)
 
+    # the picture's top row lies on the far edge: the top of the view from the audience
+    top = np.zeros((4, 8), np.uint8)
+    top[0] = 255
+    img = _decode(views.display_view(top, table, lengths, lab, 33.5,
+                                     np.array([0.0, -2.0, 1.7]), width=320))
+    lit_rows = np.flatnonzero((img.sum(axis=2) > 80).any(axis=1))
+    first, last = img[lit_rows[1]], img[lit_rows[-2]]
+    first = first[first.sum(axis=1) > 80].mean(axis=0)
+    last = last[last.sum(axis=1) > 80].mean(axis=0)
+    np.testing.assert_allclose(first, views.lab_to_srgb8(lab[2]), atol=3)  # far: top row
+    np.testing.assert_allclose(last, views.lab_to_srgb8(lab[0]), atol=3)
+
 
 def test_srgb_encoding_follows_iec_61966_2_1():
     assert views.srgb_encode(np.array([0.0, 0.0031308, 0.18, 1.0, 2.0])).tolist() == \

@@ -32,6 +32,7 @@ def test_a_newer_job_of_the_same_owner_stops_the_running_one():
         queued.result(10)
     assert other.result(10) == "other owner"
     assert newest.result(10) == "newest"
+    assert w._latest == {} and w._queued == {}
     w.stop()
 
 
@@ -43,7 +44,7 @@ def test_cancel_stops_an_owners_jobs_and_errors_reach_the_future():
     gate.set()
     with pytest.raises(Superseded):
         running.result(10)
-    w.forget("page")
+    assert w._latest == {} and w._queued == {}  # nothing kept about finished owners
     failing = w.submit("api", lambda check: 1 / 0)
     with pytest.raises(ZeroDivisionError):
         failing.result(10)
