@@ -25,10 +25,10 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from datetime import UTC, datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -36,6 +36,9 @@ from grassd.daemon.studio import views
 from grassd.daemon.studio.inputs import Condition, StudioInputError
 from grassd.daemon.studio.lights import Lights
 from grassd.daemon.studio.worker import Check
+
+if TYPE_CHECKING:
+    from grassd.daemon.calibration.simulation import SimulatedCurve
 
 log = logging.getLogger(__name__)
 
@@ -207,9 +210,12 @@ class Studio:
 
     def characteristic(self, cond: Condition, *, target_stderr: float | None,
                        samples: int = STUDIO_SAMPLES, replicates: int = FIRST_REPLICATES,
-                       on_round: Callable | None = None, lengths_mm=None):
+                       on_round: Callable | None = None,
+                       lengths_mm: Sequence[float] | None = None) -> SimulatedCurve:
         """The simulated characteristic of ``cond`` (:func:`simulate_curve` at the centre
-        pixel of the display's patch), refined to ``target_stderr`` (CIEDE2000) when given."""
+        pixel of the display's patch) at ``lengths_mm`` (mm; default the condition's),
+        ``samples`` paths x ``replicates`` per round, refined to ``target_stderr``
+        (CIEDE2000) when given."""
         from grassd.daemon.calibration.simulation import simulate_curve
         from grassd.sim.renderer import Renderer
         from grassd.sim.scene import RenderSettings, Viewpoint
@@ -225,6 +231,7 @@ class Studio:
                               round_replicates=ROUND_REPLICATES)
 
     def _image(self, cond: Condition, display, size: tuple[int, int], seed: int) -> np.ndarray:
+        """The pixel path-traced from the eye: (width, width, 3) linear Rec.709 [nits]."""
         from grassd.sim.renderer import Renderer
         from grassd.sim.scene import RenderSettings, Viewpoint
 
