@@ -53,6 +53,9 @@ def test_all_controllers_down_commits_then_reconciles(tmp_path, hw):
     sim, cfg = hw
     conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg)
     svc = service(conf)
+    # A first run while the controllers are up builds the renderer's kernels in this process
+    # (4 s cold: Taichi's AST transform), so the run under test ends inside the 1.5 s unplug.
+    assert svc.scheduled_run("interval")["status"] == "ok"
     for bus in sim.buses:
         bus.unplug(down_s=1.5)
     drop(svc.cfg.light.inbox, "b")
