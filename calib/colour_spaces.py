@@ -180,3 +180,20 @@ def luminance(rgb: ArrayLike, space: str = "prophoto") -> NDArray[np.float64]:
     arr = as_float_array(rgb, "rgb", last_dim=3)
     row = M_REC709_TO_XYZ[1] if space_key(space) == "rec709" else M_PROPHOTO_TO_XYZ[1]
     return arr @ row
+
+
+def srgb_encode(linear: ArrayLike) -> NDArray[np.float64]:
+    """IEC 61966-2-1 (sRGB) encoding of linear Rec.709 values, clipped to 0..1 first; encoded
+    values in 0..1 (for display).
+
+    >>> srgb_encode([0.0, 0.18, 1.0, 2.0]).round(4).tolist()
+    [0.0, 0.4614, 1.0, 1.0]
+    """
+    x = np.clip(np.asarray(linear, dtype=np.float64), 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+
+
+def lab_to_srgb(lab: ArrayLike) -> NDArray[np.float64]:
+    """Encoded sRGB (..., 3) in 0..1 of D50 CIELAB colours (Bradford to D65; for display,
+    clipped to the gamut)."""
+    return srgb_encode(prophoto_to_rec709(lab_to_prophoto(np.asarray(lab, dtype=np.float64))))

@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from grassd.calib.colour_spaces import lab_to_srgb
+
 REAL_COLOUR = "#2e8b3a"
 SIM_COLOUR = "#f08c1e"
 _CSS = """
@@ -181,14 +183,6 @@ def calibration_figure(cal: Any) -> Any:
     axes[0].set_ylabel("OGCD of the real pixel [dE00]")
     fig.tight_layout()
     return fig
-
-
-def lab_to_srgb(lab: Any) -> np.ndarray:
-    """Encoded sRGB (..., 3) in 0..1 of D50 CIELAB colours (for display; clipped to the gamut)."""
-    from grassd.calib.colour_spaces import lab_to_prophoto, prophoto_to_rec709
-
-    lin = np.clip(prophoto_to_rec709(lab_to_prophoto(np.asarray(lab, dtype=np.float64))), 0, 1)
-    return np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
 
 
 def appearance_figure(vc: Any) -> Any:

@@ -249,19 +249,3 @@ class Lights:
             while len(self._built) > KEPT_LIGHTINGS:
                 self._built.popitem(last=False)
         return lighting
-
-    def sun_direction(self, cond: Condition, site: tuple[float, float]
-                      ) -> tuple[float, float] | None:
-        """(azimuth, elevation) deg of the condition's sun, None without one."""
-        from grassd.sim.sun import sun_position
-
-        sun = cond.sun
-        if sun.mode == "site":
-            return sun_position(site[0], site[1], sun.when)
-        if sun.mode == "direction":
-            return sun.azimuth_deg, sun.elevation_deg
-        if sun.mode == "measured":
-            src = self.source(cond.light)
-            if src.sun_azimuth_deg is not None:
-                return src.sun_azimuth_deg, src.sun_elevation_deg
-        return None

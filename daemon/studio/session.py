@@ -250,6 +250,7 @@ class Studio:
         from grassd.calib.errors import CalibError
         from grassd.daemon.calibration.display import curve_characteristic
         from grassd.daemon.calibration.simulation import white_radiance
+        from grassd.sim.lighting import azimuth_elevation_from_direction
 
         t0 = time.perf_counter()
 
@@ -260,9 +261,11 @@ class Studio:
         lighting = self.lights.lighting(cond, self.site)
         white = white_radiance(lighting)
         display = self._display(cond)
-        sun = self.lights.sun_direction(cond, self.site)
-        send({"type": "light", "notes": list(getattr(lighting, "notes", ())),
-              "sun": None if sun is None else {"azimuth_deg": sun[0], "elevation_deg": sun[1]},
+        sun = None
+        if lighting.sun_direction is not None:  # where the lighting put it (compass degrees)
+            az, el = azimuth_elevation_from_direction(lighting.sun_direction)
+            sun = {"azimuth_deg": float(az), "elevation_deg": float(el)}
+        send({"type": "light", "notes": list(getattr(lighting, "notes", ())), "sun": sun,
               "white_nits": _rounded(white)})
         first = [True]
 

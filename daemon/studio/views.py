@@ -31,10 +31,11 @@ MAX_IMAGE_SIDE: int = 8192
 
 
 def srgb_encode(linear: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 encoding of linear values (clipped to 0..1) as uint8."""
-    x = np.clip(np.asarray(linear, np.float64), 0.0, 1.0)
-    v = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-    return np.rint(v * 255.0).astype(np.uint8)
+    """IEC 61966-2-1 encoding of linear values (clipped to 0..1) as uint8
+    (:func:`grassd.calib.colour_spaces.srgb_encode`)."""
+    from grassd.calib.colour_spaces import srgb_encode as encode
+
+    return np.rint(encode(linear) * 255.0).astype(np.uint8)
 
 
 def png_data_url(rgb8: np.ndarray) -> str:
@@ -53,10 +54,10 @@ def pixel_png(radiance: np.ndarray, white: np.ndarray) -> str:
 
 
 def lab_to_srgb8(lab: np.ndarray) -> np.ndarray:
-    """D50 CIELAB (..., 3) to sRGB uint8 (Bradford to D65, clipped)."""
-    from grassd.calib.colour_spaces import lab_to_xyz, xyz_d50_to_d65, xyz_to_rec709
+    """D50 CIELAB (..., 3) to sRGB uint8 (:func:`grassd.calib.colour_spaces.lab_to_srgb`)."""
+    from grassd.calib.colour_spaces import lab_to_srgb
 
-    return srgb_encode(xyz_to_rec709(xyz_d50_to_d65(lab_to_xyz(lab))))
+    return np.rint(lab_to_srgb(lab) * 255.0).astype(np.uint8)
 
 
 def table_view(fit, active_um: np.ndarray | None) -> dict[str, Any]:
