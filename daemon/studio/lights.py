@@ -11,6 +11,7 @@ the last few kept).
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import shutil
@@ -128,6 +129,16 @@ def archived_sources(state_dir: Path, cfg) -> list[LightSource]:
     return out
 
 
+@functools.lru_cache(maxsize=64)
+def solar_position(latitude: float, longitude: float, when) -> tuple[float, float]:
+    """(compass azimuth, elevation) deg of the sun (:func:`grassd.sim.sun.sun_position`), kept
+    for recent times: a job builds its lighting for every characteristic and image it traces
+    (about 60 with the audience map), and pvlib takes 4 ms a call."""
+    from grassd.sim.sun import sun_position
+
+    return sun_position(latitude, longitude, when)
+
+
 def default_site_path() -> Path:
     """The embedded default site's panorama (the light of ``make demo``)."""
     return Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
@@ -213,7 +224,6 @@ class Lights:
         horizon)."""
         from grassd.sim.errors import LightingError
         from grassd.sim.light_input import LightInput
-        from grassd.sim.sun import sun_position
 
         src = self.source(cond.light)
         sun = cond.sun
@@ -224,7 +234,7 @@ class Lights:
                                        f"time of day or none")
             lux, az, el = src.sun_lux, src.sun_azimuth_deg, src.sun_elevation_deg
         elif sun.mode == "site":
-            az, el = sun_position(site[0], site[1], sun.when)
+            az, el = solar_position(site[0], site[1], sun.when)
             if el <= 0:
                 raise StudioInputError(f"the sun is below the horizon at {sun.when:%H:%M} "
                                        f"(elevation {el:.1f} deg); choose another time or no sun")

@@ -192,9 +192,9 @@ class Studio:
                 log.warning("warm-up skipped: %s", exc)
                 break
         # pvlib's solar position takes 0.75 s on its first call, 4 ms later
-        from grassd.sim.sun import sun_position
+        from grassd.daemon.studio.lights import solar_position
 
-        sun_position(*self.site, datetime.now(UTC))
+        solar_position(*self.site, datetime.now(UTC))
         self.ready = True
         return time.perf_counter() - t0
 
