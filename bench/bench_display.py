@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from grassd.daemon.calibration.display import (
+from grassd.daemon.calibration.display_model import (
     build_display_tables,
     errors_on,
     group_pixels,
@@ -42,7 +42,7 @@ def _lighting():
 
 
 def _renderer_for(n_pixels: int):
-    from grassd.daemon.calibration.display import capacity_for
+    from grassd.daemon.calibration.display_model import capacity_for
     from grassd.sim.renderer import Renderer
 
     return Renderer.shared(capacity_for(n_pixels))

@@ -6,7 +6,7 @@ heights above the display surface (cm). :meth:`AudienceRegion.sample` lays a reg
 the polygon (even-odd rule) and crosses it with evenly spaced eye heights;
 :func:`simulate_region` computes the characteristic of one pixel (default: the display's centre
 pixel, neighbours present) from every sampled eye, each from its own direction
-(:func:`grassd.daemon.calibration.display.geometry_from_eye`).
+(:func:`grassd.daemon.calibration.display_model.geometry_from_eye`).
 
 The table (:func:`region_table`): for viewpoint j with monotone fitted characteristic f_j
 (:func:`grassd.calib.fit_characteristic`), driving level v at length L gives the deviation from
@@ -30,7 +30,7 @@ import numpy as np
 
 from grassd.calib.characteristic import FittedCharacteristic, fit_characteristic
 from grassd.calib.length_table import LEVELS, build_length_table
-from grassd.daemon.calibration.display import (
+from grassd.daemon.calibration.display_model import (
     DisplaySimulationError,
     curve_characteristic,
     display_spec_for_config,

@@ -338,9 +338,9 @@ class Calibrator:
 
     def display(self) -> tuple[Any, int]:
         """(DisplaySpec of an up-to-3x3 patch of the display, with the ``[tables] layout`` of
-        :func:`grassd.daemon.calibration.display.display_spec_for_config`; index of its centre
+        :func:`grassd.daemon.calibration.display_model.display_spec_for_config`; index of its centre
         pixel)."""
-        from grassd.daemon.calibration.display import display_spec_for_config
+        from grassd.daemon.calibration.display_model import display_spec_for_config
 
         d = self.cfg.display
         rows, cols = min(d.rows, 3), min(d.cols, 3)

@@ -7,19 +7,19 @@ are those of the API; nothing here re-implements them:
 
 * **From [[viewpoints]]** (no ``[audience]``): every viewpoint is a viewer of the whole display
   (``[display]`` rows x cols, neighbours present, each pixel seen from its own direction, pixels
-  grouped by viewing geometry; :func:`grassd.daemon.calibration.display.display_tables_for_config`),
+  grouped by viewing geometry; :func:`grassd.daemon.calibration.display_model.display_tables_for_config`),
   the viewers' characteristics averaged with their weights, then one table per controller (its
   pixels' mean characteristic) or per pixel (per geometry group, shared by its members)
-  (:func:`grassd.daemon.calibration.display.build_display_tables`).
+  (:func:`grassd.daemon.calibration.display_model.build_display_tables`).
 * **From [audience]**: the region is sampled
   (:func:`grassd.daemon.calibration.audience.region_from_config`). Granularity "global": the
   display's centre pixel from every sampled eye and the table that minimises the mean (or worst)
   deviation from linear OGCD over the eyes
   (:func:`grassd.daemon.calibration.audience.region_table`). "controller"/"pixel": the whole display
-  is traced from every eye (:func:`grassd.daemon.calibration.display.simulate_display` with
-  :func:`grassd.daemon.calibration.display.geometry_from_eye`); each controller (its pixels' mean
+  is traced from every eye (:func:`grassd.daemon.calibration.display_model.simulate_display` with
+  :func:`grassd.daemon.calibration.display_model.geometry_from_eye`); each controller (its pixels' mean
   characteristic for that eye) or each pixel group (groups combined over the eyes,
-  :func:`grassd.daemon.calibration.display.combine_viewpoints`) gets the region table over the eyes.
+  :func:`grassd.daemon.calibration.display_model.combine_viewpoints`) gets the region table over the eyes.
   The grouping error (``[tables] check_groups``) is measured from the first sampled eye only.
 
 Each run also gives a *display-wide* table (all pixels' mean characteristic, or the region table
@@ -81,7 +81,7 @@ from grassd.daemon.calibration.calibrate import (
     check_table,
     pooled_characteristic,
 )
-from grassd.daemon.calibration.display import (
+from grassd.daemon.calibration.display_model import (
     capacity_for,
     combine_viewpoints,
     controller_pixels,
@@ -376,7 +376,7 @@ def _merge_grouping(sims: Sequence[Any]) -> dict | None:
 @dataclass(frozen=True, eq=False)
 class Viewers:
     """Who looks at the display in a run: one
-    :class:`grassd.daemon.calibration.display.PixelGeometry` per viewer (a [[viewpoints]] entry or a
+    :class:`grassd.daemon.calibration.display_model.PixelGeometry` per viewer (a [[viewpoints]] entry or a
     sampled eye) with its ``weights``, and the pixel groups over all viewers (``labels`` (N,),
     ``representatives`` (G,): members of a group are seen alike by every viewer), for the
     closed-loop check; from [[viewpoints]] also every group's viewer-weighted characteristic

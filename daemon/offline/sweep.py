@@ -253,7 +253,7 @@ def _worker_state(threads: int | None = None) -> dict:
 
 
 def _renderer_for(n_pixels: int):
-    from grassd.daemon.calibration.display import capacity_for
+    from grassd.daemon.calibration.display_model import capacity_for
     from grassd.sim.renderer import Renderer
 
     _worker_state()  # Taichi first

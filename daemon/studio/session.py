@@ -248,7 +248,7 @@ class Studio:
         ``levels``: the (rows, cols) 8-bit picture the display view shows, if any."""
         from grassd.calib.characteristic import fit_characteristic
         from grassd.calib.errors import CalibError
-        from grassd.daemon.calibration.display import curve_characteristic
+        from grassd.daemon.calibration.display_model import curve_characteristic
         from grassd.daemon.calibration.simulation import white_radiance
         from grassd.sim.lighting import azimuth_elevation_from_direction
 

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from grassd.daemon.calibration.display import (
+from grassd.daemon.calibration.display_model import (
     DisplaySimulationError,
     DisplayTables,
     build_display_tables,

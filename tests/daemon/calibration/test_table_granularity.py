@@ -342,7 +342,7 @@ def test_closed_loop_measures_every_pixel_at_its_own_controller_table(tmp_path):
     controllers own rows 0-1 and 2-3). The closed loop must check each controller's table on
     its own pixels, not one member's table for the whole group: otherwise a controller's loop
     deviation, and the points that refine its table, come from the other controller's table."""
-    from grassd.daemon.calibration.display import (
+    from grassd.daemon.calibration.display_model import (
         display_spec_for_config,
         group_pixels,
         pixel_geometry,

@@ -55,7 +55,7 @@ ground_samples = 24
 def test_layout_is_shared_for_pixel_tables_unless_configured(granularity, layout, shared):
     """[tables] layout: "auto" (default) traces one tuft layout for every pixel when the tables
     are per pixel (they must not be fitted to a random draw), each pixel's own otherwise."""
-    from grassd.daemon.calibration.display import display_spec_for_config
+    from grassd.daemon.calibration.display_model import display_spec_for_config
 
     extra = f'[tables]\ngranularity = "{granularity}"\n'
     if layout is not None:
@@ -94,7 +94,7 @@ def test_config_drives_whole_display_tables(renderer):
     """[display] 2x2, two weighted viewpoints, [tables] per controller -> two tables."""
     import numpy as np
 
-    from grassd.daemon.calibration.display import display_tables_for_config, simulate_display
+    from grassd.daemon.calibration.display_model import display_tables_for_config, simulate_display
     from grassd.sim.lighting import build_lighting
     from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
 
@@ -122,7 +122,7 @@ def test_config_drives_whole_display_tables(renderer):
                          check_groups=0)
     np.testing.assert_array_equal(a.pixel_ogcd(), sims[0].pixel_ogcd())
     want = (1.0 * a.pixel_ogcd() + 0.5 * b.pixel_ogcd()) / 1.5
-    from grassd.daemon.calibration.display import combine_viewpoints
+    from grassd.daemon.calibration.display_model import combine_viewpoints
 
     np.testing.assert_allclose(combine_viewpoints(sims, [1.0, 0.5]).pixel_ogcd(), want,
                                rtol=1e-12)
