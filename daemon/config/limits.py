@@ -2,8 +2,10 @@
 
 The inbox is writable by an upload service (the ``grassd-upload`` group), so everything in it is
 treated as hostile: the caps below bound the bytes and entries the daemon reads before it decides
-to reject a bundle. They are the ``[light.limits]`` table of the configuration; each default is
-written once, here.
+to reject a bundle. They are the ``[light.limits]`` table of the configuration, and
+:data:`FUTURE_TOLERANCE_S` is ``[light] future_tolerance_s``; each default is written once, here
+(:mod:`grassd.daemon.store.ingest` reads them from here: the store depends on the config, never
+the other way round).
 """
 
 from __future__ import annotations
@@ -48,3 +50,8 @@ class BundleLimits:
 
 #: The caps when the configuration sets none.
 DEFAULT_LIMITS = BundleLimits()
+
+
+#: How far (s) a bundle's light may be stamped ahead of the daemon's clock (clocks drift; a
+#: camera synchronised by NTP is within a second). Config: ``[light] future_tolerance_s``.
+FUTURE_TOLERANCE_S = 300.0

@@ -58,7 +58,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
-from grassd.daemon.config.limits import DEFAULT_LIMITS, BundleLimits
+from grassd.daemon.config.limits import DEFAULT_LIMITS, FUTURE_TOLERANCE_S, BundleLimits
 from grassd.daemon.config.schema import Context as _Ctx
 from grassd.daemon.config.schema import Field as _F
 from grassd.daemon.config.schema import between as _between
@@ -71,7 +71,6 @@ from grassd.daemon.config.schema import positive as _positive
 from grassd.daemon.config.schema import schema as _schema
 from grassd.daemon.config.schema import table as _table
 from grassd.daemon.errors import ConfigError
-from grassd.daemon.store.ingest import FUTURE_TOLERANCE_S
 from grassd.firmware_proto.messages import MAX_ADDRESS, MIN_ADDRESS
 from grassd.sim.errors import SimError
 from grassd.sim.scene import MAX_REPLICATES, PixelSpec
@@ -273,7 +272,7 @@ class CalibrationConfig:
 
 @dataclass(frozen=True)
 class TablesConfig:
-    """Whole-display tables (:mod:`grassd.daemon.calibration.display`).
+    """Whole-display tables (:mod:`grassd.daemon.calibration.display_model`).
 
     ``granularity``: "global" (one table), "controller" (one per controller, its pixels' mean
     characteristic) or "pixel"; ``eye``: "world" (a viewpoint is one spot relative to the
@@ -283,7 +282,7 @@ class TablesConfig:
     share one simulation; ``check_groups`` groups are re-simulated to report the grouping error.
     ``layout``: the simulated tuft layout, "shared" (one random layout copied to every pixel),
     "per_pixel" (each pixel draws its own) or "auto" (shared for "pixel" tables, per pixel
-    otherwise; see :func:`grassd.daemon.calibration.display.display_spec_for_config`).
+    otherwise; see :func:`grassd.daemon.calibration.display_model.display_spec_for_config`).
     The daemon pushes them (:mod:`grassd.daemon.calibration.calibrate_display`): "controller" gives
     each controller one (256,) table, "pixel" an (n_pixels, 256) table for the pixels it drives;
     "global" without ``[audience]`` is the one-table run of

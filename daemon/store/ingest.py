@@ -81,7 +81,7 @@ from typing import Any
 from zoneinfo import ZoneInfo
 
 from grassd.daemon.config import schema
-from grassd.daemon.config.limits import DEFAULT_LIMITS, BundleLimits
+from grassd.daemon.config.limits import DEFAULT_LIMITS, FUTURE_TOLERANCE_S, BundleLimits
 from grassd.daemon.errors import IngestError, ManifestError
 from grassd.daemon.safe_text import storable
 from grassd.daemon.store.atomic import atomic_write_text, fsync_dir
@@ -320,11 +320,6 @@ def parse_manifest(data: dict[str, Any], base: Path, tz: tzinfo = UTC) -> Manife
     checker = None if raw is None else CheckerPhoto(
         base / raw, tuple((float(x), float(y)) for x, y in corners), m["checker_chart"])
     return Manifest(light, checker, None if capture is None else MappingProxyType(dict(capture)))
-
-
-#: How far (s) a bundle's light may be stamped ahead of the daemon's clock (clocks drift; a
-#: camera synchronised by NTP is within a second). Config: ``[light] future_tolerance_s``.
-FUTURE_TOLERANCE_S = 300.0
 
 
 def check_light(m: Manifest, *, now: float, future_tolerance_s: float = FUTURE_TOLERANCE_S,
