@@ -470,6 +470,8 @@ def _resolve(ctx: _Ctx, value: str) -> Path:
 
 
 def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
+    """The whole configuration from the TOML ``data``: the top-level keys, then each section
+    (one function each, in the order the errors of a file with several mistakes are reported)."""
     top = _table(ctx, (), data, {
         "state_dir": _F(str, None), "cache_dir": _F(str, None), "control_socket": _F(str, None),
         "site": _F(dict), "display": _F(dict), "controllers": _F(list),
@@ -479,49 +481,94 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         "metrics": _F(dict, {}), "alerts": _F(dict, {}),
         "capture": _F(dict, None),
     })
+    site = _parse_site(ctx, top["site"])
+    display = _parse_display(ctx, top["display"])
+    controllers = _parse_controllers(ctx, top["controllers"], display.pixel_count)
+    viewpoints = _parse_viewpoints(ctx, top["viewpoints"])
+    state_dir, cache_dir, sock = _parse_paths(ctx, top)  # raises nothing
+    light = _parse_light(ctx, top["light"], state_dir)
+    schedule = _parse_schedule(ctx, top["schedule"])
+    retention = RetentionConfig(**_table(ctx, ("retention",), top["retention"], _schema(
+        RetentionConfig,
+        keep_days=_F(float, check=_positive),
+        keep_reports=_F(int, check=_between(1, 10**7)),
+        keep_runs=_F(int, check=_between(1, 10**9)),
+    )))
+    simulation = _parse_simulation(ctx, top["simulation"], display.pixel)
+    calibration = CalibrationConfig(**_table(ctx, ("calibration",), top["calibration"], _schema(
+        CalibrationConfig,
+        max_jump_mm=_F(float, check=_positive), target_de00=_F(float, check=_positive),
+        max_rounds=_F(int, check=_between(1, 10)), check_levels=_F(int, check=_between(3, 256)),
+        r2_goal=_F(float, check=_between(0.0, 1.0)),
+        max_flat_fraction=_F(float, check=_between(0.0, 1.0)),
+        replicates=_F(int, check=_between(2, MAX_REPLICATES)),
+    )))
+    tables, audience = _parse_tables_audience(ctx, top["tables"], top["audience"])
+    metrics, alerts = _parse_operator(ctx, top["metrics"], top["alerts"])
+    return Config(site=site, display=display, controllers=controllers,
+                  viewpoints=viewpoints, light=light, schedule=schedule,
+                  simulation=simulation, calibration=calibration, state_dir=state_dir,
+                  cache_dir=cache_dir,
+                  control_socket=sock, source=ctx.source, tables=tables, audience=audience,
+                  retention=retention, metrics=metrics, alerts=alerts,
+                  capture=_capture_section(ctx, top["capture"]))
 
-    s = _table(ctx, ("site",), top["site"], _schema(
+
+def _parse_site(ctx: _Ctx, raw: Any) -> SiteConfig:
+    """``[site]``: latitude, longitude (degrees) and an IANA time zone."""
+    return SiteConfig(**_table(ctx, ("site",), raw, _schema(
         SiteConfig,
         latitude=_F(float, check=_between(-90, 90, " degrees")),
         longitude=_F(float, check=_between(-180, 180, " degrees")),
         timezone=_F(str, check=_timezone),
-    ))
-    site = SiteConfig(**s)
+    )))
 
-    d_raw = top["display"]
-    pixel_raw = d_raw.get("pixel", {}) if isinstance(d_raw, dict) else {}
-    d = _table(ctx, ("display",), d_raw, _schema(
+
+def _parse_display(ctx: _Ctx, raw: Any) -> DisplayConfig:
+    """``[display]`` and its ``[display.pixel]`` table (PixelSpec fields, mm and counts)."""
+    pixel_raw = raw.get("pixel", {}) if isinstance(raw, dict) else {}
+    d = _table(ctx, ("display",), raw, _schema(
         DisplayConfig, rows=_F(int, check=_positive), cols=_F(int, check=_positive),
         pitch_mm=_F(float, check=_positive), pixel=_F(dict, {}),
     ))
-    pdefaults = _pixel_fields()
+    return DisplayConfig(rows=d["rows"], cols=d["cols"], pitch_mm=d["pitch_mm"],
+                         pixel=types.MappingProxyType(_parse_pixel(ctx, pixel_raw)))
+
+
+def _parse_pixel(ctx: _Ctx, raw: Any) -> dict[str, Any]:
+    """``[display.pixel]``: every PixelSpec field, the table's value else PixelSpec's default
+    (arrays as tuples), checked together by PixelSpec itself."""
     pschema = {}
-    for name, default in pdefaults.items():
+    for name, default in _pixel_fields().items():
         if isinstance(default, tuple):
             pschema[name] = _F(list, default, _numbers(len(default)))
             continue
         kind = bool if isinstance(default, bool) else type(default)
         pschema[name] = _F(kind, default, _non_negative if kind in (int, float) else None)
-    pixel = _table(ctx, ("display", "pixel"), pixel_raw, pschema)
+    pixel = _table(ctx, ("display", "pixel"), raw, pschema)
     pixel = {k: tuple(float(x) for x in v) if isinstance(v, list) else v
              for k, v in pixel.items()}
     _check_pixel_spec(ctx, pixel)
-    display = DisplayConfig(rows=d["rows"], cols=d["cols"], pitch_mm=d["pitch_mm"],
-                            pixel=types.MappingProxyType(pixel))
+    return pixel
 
-    controllers = []
-    if not top["controllers"]:
+
+def _parse_controllers(ctx: _Ctx, raw: list[Any], pixel_count: int
+                       ) -> tuple[ControllerConfig, ...]:
+    """``[[controllers]]``: at least one; no port and address twice, one baud per port, and no
+    pixel driven by two controllers (of the display's ``pixel_count``)."""
+    controllers: list[ControllerConfig] = []
+    if not raw:
         raise ctx.error(("controllers",), "at least one [[controllers]] entry is required")
     seen_addr: dict[tuple[str, int], int] = {}
     taken: list[tuple[int, int, int]] = []  # (first, last, controller index)
-    for i, c_raw in enumerate(top["controllers"]):
+    for i, c_raw in enumerate(raw):
         c = _table(ctx, ("controllers", i), c_raw, _schema(
             ControllerConfig, port=_F(str, check=_non_empty), baud=_F(int, check=_positive),
             address=_F(int, check=_between(MIN_ADDRESS, MAX_ADDRESS)),
             pixels=_F(str, "all"),  # the raw ranges, parsed below
         ))
         try:
-            ranges = parse_pixel_ranges(c["pixels"], display.pixel_count)
+            ranges = parse_pixel_ranges(c["pixels"], pixel_count)
         except ValueError as exc:
             raise ctx.error(("controllers", i, "pixels"), str(exc)) from None
         key = (c["port"], c["address"])
@@ -544,122 +591,26 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         taken.extend((a, b, i) for a, b in ranges)
         controllers.append(ControllerConfig(port=c["port"], baud=c["baud"],
                                             address=c["address"], pixels=ranges))
+    return tuple(controllers)
 
-    viewpoints = []
-    if not top["viewpoints"]:
+
+def _parse_viewpoints(ctx: _Ctx, raw: list[Any]) -> tuple[ViewpointConfig, ...]:
+    """``[[viewpoints]]``: at least one (cm, m, degrees, relative weight)."""
+    if not raw:
         raise ctx.error(("viewpoints",), "at least one [[viewpoints]] entry is required")
-    for i, v_raw in enumerate(top["viewpoints"]):
-        v = _table(ctx, ("viewpoints", i), v_raw, _schema(
-            ViewpointConfig,
-            h_cm=_F(float, check=_between(10, 1000, " cm")),
-            d_m=_F(float, check=_between(0.1, 100, " m")),
-            theta_deg=_F(float, check=_between(-90, 90, " degrees")),
-            weight=_F(float, check=_positive),
-        ))
-        viewpoints.append(ViewpointConfig(**v))
+    return tuple(ViewpointConfig(**_table(ctx, ("viewpoints", i), v_raw, _schema(
+        ViewpointConfig,
+        h_cm=_F(float, check=_between(10, 1000, " cm")),
+        d_m=_F(float, check=_between(0.1, 100, " m")),
+        theta_deg=_F(float, check=_between(-90, 90, " degrees")),
+        weight=_F(float, check=_positive),
+    ))) for i, v_raw in enumerate(raw))
 
-    lt = _table(ctx, ("light",), top["light"], _schema(
-        LightConfig,
-        inbox=_F(str, check=_non_empty),
-        lux=_F(str, check=_one_of("manifest", "modbus")),
-        modbus=_F(dict), settle_s=_F(float, check=_non_negative),
-        incomplete_timeout_s=_F(float, check=_positive),
-        lux_wait_s=_F(float, check=_non_negative),
-        future_tolerance_s=_F(float, check=_non_negative),
-        hdri_flip=_F(bool),
-        hdri_rotation_deg=_F(float, check=_between(-360, 360, " degrees")),
-        limits=_F(dict),
-    ))
-    limits = lt["limits"]
-    if not isinstance(limits, BundleLimits):  # else the table was left out: the defaults
-        limits = BundleLimits(**_table(ctx, ("light", "limits"), limits, _schema(
-            BundleLimits,
-            manifest_kib=_F(int, check=_between(1, 16 * 1024, " KiB")),
-            file_mib=_F(int, check=_between(1, 64 * 1024, " MiB")),
-            bundle_mib=_F(int, check=_between(1, 256 * 1024, " MiB")),
-            entries=_F(int, check=_between(2, 100_000)),
-        )))
-    modbus = None
-    if lt["modbus"] is not None:
-        m = _table(ctx, ("light", "modbus"), lt["modbus"], _schema(
-            ModbusConfig,
-            mode=_F(str, check=_one_of(*MODBUS_MODES)), host=_F(str),
-            port=_F(int, check=_between(1, 65535)), serial_port=_F(str),
-            baud=_F(int, check=_positive), unit=_F(int, check=_between(0, 247)),
-            function_code=_F(int, check=_one_of(3, 4)),
-            register=_F(int, check=_between(0, 65535)), words=_F(int, check=_one_of(1, 2)),
-            word_order=_F(str, check=_one_of(*WORD_ORDERS)),
-            value_type=_F(str, check=_one_of(*VALUE_TYPES)),
-            scale=_F(float, check=lambda v: None if v != 0 else "must not be 0"),
-            offset=_F(float), timeout_s=_F(float, check=_positive),
-            retries=_F(int, check=_between(0, 20)),
-        ))
-        if m["mode"] == "rtu" and not m["serial_port"]:
-            raise ctx.error(("light", "modbus", "serial_port"),
-                            "required when mode = \"rtu\" (e.g. /dev/serial/by-id/usb-...)")
-        if m["value_type"] == "float" and m["words"] != 2:
-            raise ctx.error(("light", "modbus", "words"), "value_type = \"float\" needs words = 2")
-        modbus = ModbusConfig(**m)
-    if lt["lux"] == "modbus" and modbus is None:
-        raise ctx.error(("light", "lux"), "lux = \"modbus\" needs a [light.modbus] table")
 
-    sc = _table(ctx, ("schedule",), top["schedule"], _schema(
-        ScheduleConfig, interval_s=_F(float, check=_non_negative), on_new_bundle=_F(bool),
-    ))
-    if sc["interval_s"] == 0 and not sc["on_new_bundle"]:
-        raise ctx.error(("schedule", "on_new_bundle"),
-                        "with interval_s = 0 too, bundles in the inbox would never be picked up: "
-                        "set on_new_bundle = true or interval_s > 0")
-    schedule = ScheduleConfig(**sc)
-    retention = RetentionConfig(**_table(ctx, ("retention",), top["retention"], _schema(
-        RetentionConfig,
-        keep_days=_F(float, check=_positive),
-        keep_reports=_F(int, check=_between(1, 10**7)),
-        keep_runs=_F(int, check=_between(1, 10**9)),
-    )))
-
-    sim_raw = top["simulation"]
-    lengths_raw = sim_raw.get("lengths", 11) if isinstance(sim_raw, dict) else 11
-    sim_check = dict(sim_raw) if isinstance(sim_raw, dict) else sim_raw
-    if isinstance(sim_check, dict):
-        sim_check.pop("lengths", None)
-    si = _table(ctx, ("simulation",), sim_check, _schema(
-        SimulationConfig, samples=_F(int, check=_between(1, 1 << 20)),
-        seed=_F(int, check=_non_negative), layouts=_F(int, check=_between(1, 64)),
-    ))
-    lo = float(pixel.get("green_min_mm", 0.0))
-    hi = float(pixel["green_max_mm"])  # every PixelSpec field is filled in above
-    lpath = ("simulation", "lengths")
-    if isinstance(lengths_raw, int) and not isinstance(lengths_raw, bool):
-        if not 3 <= lengths_raw <= 1000:
-            raise ctx.error(lpath, f"count must be between 3 and 1000, got {lengths_raw}")
-        lengths = tuple(lo + (hi - lo) * k / (lengths_raw - 1) for k in range(lengths_raw))
-    elif isinstance(lengths_raw, list):
-        vals = [_check_type(ctx, lpath, x, float) for x in lengths_raw]
-        if len(vals) < 3:
-            raise ctx.error(lpath, f"needs at least 3 lengths, got {len(vals)}")
-        if any(b <= a for a, b in zip(vals, vals[1:], strict=False)):
-            raise ctx.error(lpath, "lengths must be strictly increasing (mm)")
-        if vals[0] < lo or vals[-1] > hi:
-            raise ctx.error(lpath, f"lengths must lie within {lo}-{hi} mm")
-        lengths = tuple(vals)
-    else:
-        raise ctx.error(lpath, f"must be an integer count or an array of mm, got {lengths_raw!r}")
-    simulation = SimulationConfig(samples=si["samples"], seed=si["seed"],
-                                  layouts=si["layouts"], lengths_mm=lengths)
-
-    ca = _table(ctx, ("calibration",), top["calibration"], _schema(
-        CalibrationConfig,
-        max_jump_mm=_F(float, check=_positive), target_de00=_F(float, check=_positive),
-        max_rounds=_F(int, check=_between(1, 10)), check_levels=_F(int, check=_between(3, 256)),
-        r2_goal=_F(float, check=_between(0.0, 1.0)),
-        max_flat_fraction=_F(float, check=_between(0.0, 1.0)),
-        replicates=_F(int, check=_between(2, MAX_REPLICATES)),
-    ))
-    calibration = CalibrationConfig(**ca)
-    tables, audience = _parse_tables_audience(ctx, top["tables"], top["audience"])
-    metrics, alerts = _parse_operator(ctx, top["metrics"], top["alerts"])
-
+def _parse_paths(ctx: _Ctx, top: dict[str, Any]) -> tuple[Path, Path, Path]:
+    """(state directory, cache directory, control socket): the file's keys, else the service's
+    environment ($STATE_DIRECTORY, $GRASSD_CACHE_DIR, $CACHE_DIRECTORY, $RUNTIME_DIRECTORY),
+    else the defaults the module docstring lists."""
     env = os.environ
     if top["state_dir"] is not None:
         state_dir = _resolve(ctx, top["state_dir"])
@@ -681,22 +632,120 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         sock = SYSTEM_RUNTIME_DIR / "control.sock"  # the service's socket, seen from a shell
     else:
         sock = state_dir / "control.sock"
+    return state_dir, cache_dir, sock
 
+
+def _parse_light(ctx: _Ctx, raw: Any, state_dir: Path) -> LightConfig:
+    """``[light]`` with its ``[light.limits]`` and ``[light.modbus]`` tables; a relative
+    ``inbox`` lies inside ``state_dir``."""
+    lt = _table(ctx, ("light",), raw, _schema(
+        LightConfig,
+        inbox=_F(str, check=_non_empty),
+        lux=_F(str, check=_one_of("manifest", "modbus")),
+        modbus=_F(dict), settle_s=_F(float, check=_non_negative),
+        incomplete_timeout_s=_F(float, check=_positive),
+        lux_wait_s=_F(float, check=_non_negative),
+        future_tolerance_s=_F(float, check=_non_negative),
+        hdri_flip=_F(bool),
+        hdri_rotation_deg=_F(float, check=_between(-360, 360, " degrees")),
+        limits=_F(dict),
+    ))
+    limits = lt["limits"]
+    if not isinstance(limits, BundleLimits):  # else the table was left out: the defaults
+        limits = _parse_light_limits(ctx, limits)
+    modbus = None if lt["modbus"] is None else _parse_modbus(ctx, lt["modbus"])
+    if lt["lux"] == "modbus" and modbus is None:
+        raise ctx.error(("light", "lux"), "lux = \"modbus\" needs a [light.modbus] table")
     inbox = Path(os.path.expandvars(os.path.expanduser(lt["inbox"])))
-    light = LightConfig(inbox=inbox if inbox.is_absolute() else state_dir / inbox,
-                        lux=lt["lux"], modbus=modbus, settle_s=lt["settle_s"],
-                        incomplete_timeout_s=lt["incomplete_timeout_s"],
-                        lux_wait_s=lt["lux_wait_s"],
-                        future_tolerance_s=lt["future_tolerance_s"], hdri_flip=lt["hdri_flip"],
-                        hdri_rotation_deg=lt["hdri_rotation_deg"], limits=limits)
+    return LightConfig(inbox=inbox if inbox.is_absolute() else state_dir / inbox,
+                       lux=lt["lux"], modbus=modbus, settle_s=lt["settle_s"],
+                       incomplete_timeout_s=lt["incomplete_timeout_s"],
+                       lux_wait_s=lt["lux_wait_s"],
+                       future_tolerance_s=lt["future_tolerance_s"], hdri_flip=lt["hdri_flip"],
+                       hdri_rotation_deg=lt["hdri_rotation_deg"], limits=limits)
 
-    return Config(site=site, display=display, controllers=tuple(controllers),
-                  viewpoints=tuple(viewpoints), light=light, schedule=schedule,
-                  simulation=simulation, calibration=calibration, state_dir=state_dir,
-                  cache_dir=cache_dir,
-                  control_socket=sock, source=ctx.source, tables=tables, audience=audience,
-                  retention=retention, metrics=metrics, alerts=alerts,
-                  capture=_capture_section(ctx, top["capture"]))
+
+def _parse_light_limits(ctx: _Ctx, raw: Any) -> BundleLimits:
+    """``[light.limits]``: caps on a bundle (KiB, MiB, entries)."""
+    return BundleLimits(**_table(ctx, ("light", "limits"), raw, _schema(
+        BundleLimits,
+        manifest_kib=_F(int, check=_between(1, 16 * 1024, " KiB")),
+        file_mib=_F(int, check=_between(1, 64 * 1024, " MiB")),
+        bundle_mib=_F(int, check=_between(1, 256 * 1024, " MiB")),
+        entries=_F(int, check=_between(2, 100_000)),
+    )))
+
+
+def _parse_modbus(ctx: _Ctx, raw: Any) -> ModbusConfig:
+    """``[light.modbus]``: the lux sensor's link and register map."""
+    m = _table(ctx, ("light", "modbus"), raw, _schema(
+        ModbusConfig,
+        mode=_F(str, check=_one_of(*MODBUS_MODES)), host=_F(str),
+        port=_F(int, check=_between(1, 65535)), serial_port=_F(str),
+        baud=_F(int, check=_positive), unit=_F(int, check=_between(0, 247)),
+        function_code=_F(int, check=_one_of(3, 4)),
+        register=_F(int, check=_between(0, 65535)), words=_F(int, check=_one_of(1, 2)),
+        word_order=_F(str, check=_one_of(*WORD_ORDERS)),
+        value_type=_F(str, check=_one_of(*VALUE_TYPES)),
+        scale=_F(float, check=lambda v: None if v != 0 else "must not be 0"),
+        offset=_F(float), timeout_s=_F(float, check=_positive),
+        retries=_F(int, check=_between(0, 20)),
+    ))
+    if m["mode"] == "rtu" and not m["serial_port"]:
+        raise ctx.error(("light", "modbus", "serial_port"),
+                        "required when mode = \"rtu\" (e.g. /dev/serial/by-id/usb-...)")
+    if m["value_type"] == "float" and m["words"] != 2:
+        raise ctx.error(("light", "modbus", "words"), "value_type = \"float\" needs words = 2")
+    return ModbusConfig(**m)
+
+
+def _parse_schedule(ctx: _Ctx, raw: Any) -> ScheduleConfig:
+    """``[schedule]``: a run at least every ``interval_s`` seconds and/or on each new bundle."""
+    sc = _table(ctx, ("schedule",), raw, _schema(
+        ScheduleConfig, interval_s=_F(float, check=_non_negative), on_new_bundle=_F(bool),
+    ))
+    if sc["interval_s"] == 0 and not sc["on_new_bundle"]:
+        raise ctx.error(("schedule", "on_new_bundle"),
+                        "with interval_s = 0 too, bundles in the inbox would never be picked up: "
+                        "set on_new_bundle = true or interval_s > 0")
+    return ScheduleConfig(**sc)
+
+
+def _parse_simulation(ctx: _Ctx, raw: Any, pixel: Mapping[str, Any]) -> SimulationConfig:
+    """``[simulation]``; its ``lengths`` (a count, or mm) lie within the ``pixel``'s green
+    range."""
+    lengths_raw = raw.get("lengths", 11) if isinstance(raw, dict) else 11
+    sim_check = dict(raw) if isinstance(raw, dict) else raw
+    if isinstance(sim_check, dict):
+        sim_check.pop("lengths", None)
+    si = _table(ctx, ("simulation",), sim_check, _schema(
+        SimulationConfig, samples=_F(int, check=_between(1, 1 << 20)),
+        seed=_F(int, check=_non_negative), layouts=_F(int, check=_between(1, 64)),
+    ))
+    lo = float(pixel.get("green_min_mm", 0.0))
+    hi = float(pixel["green_max_mm"])  # every PixelSpec field is filled in by _parse_pixel
+    return SimulationConfig(samples=si["samples"], seed=si["seed"], layouts=si["layouts"],
+                            lengths_mm=_simulation_lengths(ctx, lengths_raw, lo, hi))
+
+
+def _simulation_lengths(ctx: _Ctx, raw: Any, lo: float, hi: float) -> tuple[float, ...]:
+    """``[simulation] lengths``: a count of evenly spaced lengths from ``lo`` to ``hi`` mm, or
+    a strictly increasing array of mm within them."""
+    lpath = ("simulation", "lengths")
+    if isinstance(raw, int) and not isinstance(raw, bool):
+        if not 3 <= raw <= 1000:
+            raise ctx.error(lpath, f"count must be between 3 and 1000, got {raw}")
+        return tuple(lo + (hi - lo) * k / (raw - 1) for k in range(raw))
+    if isinstance(raw, list):
+        vals = [_check_type(ctx, lpath, x, float) for x in raw]
+        if len(vals) < 3:
+            raise ctx.error(lpath, f"needs at least 3 lengths, got {len(vals)}")
+        if any(b <= a for a, b in zip(vals, vals[1:], strict=False)):
+            raise ctx.error(lpath, "lengths must be strictly increasing (mm)")
+        if vals[0] < lo or vals[-1] > hi:
+            raise ctx.error(lpath, f"lengths must lie within {lo}-{hi} mm")
+        return tuple(vals)
+    raise ctx.error(lpath, f"must be an integer count or an array of mm, got {raw!r}")
 
 
 def _parse_operator(ctx: _Ctx, metrics_raw: Any, alerts_raw: Any
