@@ -17,8 +17,8 @@ import tempfile
 
 import numpy as np
 
-from grassd.firmware_proto.native_build import BUILD_DIR, build_firmware
-from grassd.firmware_proto.power_cut import power_cut_sweep
+from grassd.rigs.native_build import BUILD_DIR, build_firmware
+from grassd.rigs.power_cut import power_cut_sweep
 
 
 def motor() -> None:
@@ -72,7 +72,7 @@ def cortex_m7_byte_cost() -> None:
         print("Cortex-M7 byte cost: skipped, needs qemu-system-arm and arm-none-eabi-gcc")
         return
     from grassd.firmware_proto.client import ControllerClient, RetryPolicy
-    from grassd.firmware_proto.qemu_bus import QemuBus
+    from grassd.rigs.qemu_bus import QemuBus
 
     rng = np.random.default_rng(5)
     with tempfile.TemporaryDirectory() as tmp, \

@@ -4,7 +4,7 @@ Issue #17. The scene is what ``grassd simulate export-scene`` writes for courtya
 5000 lx, view (170, 2, 0), green length 10 mm; Mitsuba renders it with its ``path`` integrator
 (``max_depth`` 4 = 3 bounces, no Russian roulette), the ``independent`` sampler at 4 spp, the
 film cropped to the quad's bounding box and each pixel weighted by its exact coverage of the
-quad (:mod:`grassd.sim.mitsuba_scene`). grassd traces the same quad at the one length and as
+quad (:mod:`grassd.rigs.mitsuba_scene`). grassd traces the same quad at the one length and as
 the 21-length characteristic 0..20 mm, twice: with its default settings (4096 paths x 8
 replicates), and at Mitsuba's noise, the issue's terms (as many replicates of 4096 paths as make
 grassd's G at one length about as noisy as one Mitsuba render, chosen by untimed pilots of both
@@ -34,7 +34,7 @@ setting's own replicates alone moved its efficiency by +-15 % in 10 rounds, 2x i
 characteristic Mitsuba counts as 21 renders and both sides use the variance at 10 mm. Agreement:
 the pooled means per channel, their difference in % and in combined standard errors; Mitsuba's side
 for it is measured exactly (camera rays uniform over the quad,
-:func:`grassd.sim.mitsuba_scene.quad_mean`, untimed), as the film's partly covered pixels carry
+:func:`grassd.rigs.mitsuba_scene.quad_mean`, untimed), as the film's partly covered pixels carry
 light from outside the quad (printed too).
 
 Run: ``python -m bench mitsuba``. Needs the test extra (mitsuba) and libLLVM >= 16 (Debian:
@@ -67,7 +67,7 @@ PILOT_MITSUBA_SEED = 1 << 24  #: first seed of Mitsuba's pilot renders (beyond t
 
 
 def _skip_reason() -> str | None:
-    from grassd.sim.mitsuba_scene import configure_llvm
+    from grassd.rigs.mitsuba_scene import configure_llvm
 
     try:
         import mitsuba  # noqa: F401
@@ -88,7 +88,7 @@ class MitsubaSide:
     def __init__(self, scene_dir: Path, width: int = WIDTH, spp: int = SPP) -> None:
         import mitsuba as mi
 
-        from grassd.sim.mitsuba_scene import quad_coverage, read_doc, scene_dict
+        from grassd.rigs.mitsuba_scene import quad_coverage, read_doc, scene_dict
 
         self.mi = mi
         self.doc = read_doc(scene_dir)
@@ -129,7 +129,7 @@ class MitsubaSide:
         return img
 
     def measure_exact(self, keep: bool = True) -> None:
-        from grassd.sim.mitsuba_scene import quad_mean
+        from grassd.rigs.mitsuba_scene import quad_mean
 
         self._seed += 1
         rgb = quad_mean(self.exact_scene, self.doc, EXACT_RAYS, self._seed)

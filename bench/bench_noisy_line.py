@@ -1,12 +1,12 @@
 """Benchmark: table pushes over a noisy serial line (1 % byte errors both ways), adaptive chunks.
 
-Two parts, both with a seeded :class:`~grassd.firmware_proto.faults.FaultInjector` and the
+Two parts, both with a seeded :class:`~grassd.rigs.faults.FaultInjector` and the
 production :class:`~grassd.firmware_proto.client.ControllerClient`, every push audited against
-the controller's RAM and EEPROM (:func:`~grassd.firmware_proto.push_audit.audit_pushes`: old or
+the controller's RAM and EEPROM (:func:`~grassd.rigs.push_audit.audit_pushes`: old or
 new table, never corrupt or mixed):
 
 1. 10 000 pushes of a 512-byte (256-entry) table in-process
-   (:class:`~grassd.firmware_proto.loopback.LoopbackLink`: the same client, framing and firmware
+   (:class:`~grassd.rigs.loopback.LoopbackLink`: the same client, framing and firmware
    code, no pty, no waiting), with reboots and torn EEPROM writes on top of the byte errors;
    again with fixed-size chunks for comparison (fewer pushes);
 2. pushes over a real pty paced at 115200 baud (8N1) with the daemon's default retry policy:
@@ -26,10 +26,10 @@ from pathlib import Path
 import numpy as np
 
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
-from grassd.firmware_proto.faults import FaultInjector, FaultPlan
-from grassd.firmware_proto.loopback import LoopbackLink
-from grassd.firmware_proto.push_audit import PushAudit, audit_pushes
-from grassd.firmware_proto.simulator import SimulatedBus, make_controllers
+from grassd.rigs.faults import FaultInjector, FaultPlan
+from grassd.rigs.loopback import LoopbackLink
+from grassd.rigs.push_audit import PushAudit, audit_pushes
+from grassd.rigs.simulator import SimulatedBus, make_controllers
 
 BAUD = 115_200
 #: 1 % of the bytes damaged, in both directions: flipped, dropped or duplicated.

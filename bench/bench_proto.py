@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
-from grassd.firmware_proto.simulator import SimulatedBus, make_controllers
 from grassd.firmware_proto.tables import table_bytes
+from grassd.rigs.simulator import SimulatedBus, make_controllers
 
 BAUD = 115_200
 CONTROLLERS = 8

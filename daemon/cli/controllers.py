@@ -30,8 +30,8 @@ from grassd.daemon.runtime.statelock import StateLock
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.errors import ControllerTimeout, ProtocolError, PushFailed
 from grassd.firmware_proto.messages import MAX_ADDRESS, MIN_ADDRESS, TableKind
-from grassd.firmware_proto.sim_backends import FIRMWARE_BACKENDS, start_buses
 from grassd.firmware_proto.table_file import load_table_file
+from grassd.rigs import FIRMWARE_BACKENDS
 
 
 def parse_addresses(text: str) -> list[int]:
@@ -255,6 +255,8 @@ def sim_cmd(use_pty: bool, count: int, separate: bool, pixels: int, state_dir: s
     """Start simulated controllers on ptys, print their ports, run until Ctrl-C."""
     if not use_pty:
         raise click.UsageError("only --pty is implemented: simulated controllers live on ptys")
+    from grassd.rigs.sim_backends import start_buses  # simulated hardware: this command only
+
     state = Path(state_dir) if state_dir else Path(tempfile.mkdtemp(prefix="grassd-sim-"))
     links = Path(link_dir) if link_dir else state
     buses = start_buses(firmware, state, count, shared=not separate, link_dir=links, baud=baud,

@@ -33,7 +33,7 @@ from grassd.calib.characteristic import Characteristic, fit_characteristic
 from grassd.calib.colour_spaces import M_REC709_TO_XYZ
 from grassd.calib.exposure import normalise_exposure
 from grassd.calib.length_table import build_length_table
-from grassd.firmware_proto.sim_backends import FIRMWARE_BACKENDS
+from grassd.rigs import FIRMWARE_BACKENDS
 
 YELLOW_SRGB8 = (200, 176, 92)
 GREEN_SRGB8 = (58, 112, 46)

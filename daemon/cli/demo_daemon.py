@@ -23,8 +23,9 @@ from typing import Any
 from grassd.daemon.cli.run import print_status
 from grassd.daemon.config.settings import default_config_text
 from grassd.daemon.errors import ControlError, DaemonError, DaemonNotRunning
+from grassd.daemon.monitoring.status_types import Status
 from grassd.daemon.runtime.control import request
-from grassd.firmware_proto.sim_backends import FIRMWARE_BACKENDS
+from grassd.rigs import FIRMWARE_BACKENDS
 
 #: The demo's capture station: one capture at start (the next an hour later).
 DEMO_CAPTURE = '\n[capture]\ncamera = "http://127.0.0.1:8080"\ninterval_s = 3600.0\n'
@@ -37,7 +38,7 @@ def _grassd() -> list[str]:
 
 def run_demo(workdir: str | os.PathLike[str] | None = None, *, lux: float = 5000.0,
              timeout_s: float = 600.0, echo: Callable[[str], Any] = print,
-             firmware: str = FIRMWARE_BACKENDS[0]) -> dict[str, Any]:
+             firmware: str = FIRMWARE_BACKENDS[0]) -> Status:
     """Run the demo in ``workdir`` (default: a new temporary directory, kept) with the simulated
     controllers running ``firmware`` (model, posix or qemu); returns the daemon's final status.
     Raises :class:`DaemonError` if the daemon fails or times out."""
@@ -57,8 +58,8 @@ def run_demo(workdir: str | os.PathLike[str] | None = None, *, lux: float = 5000
         proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, env=env)
     t0 = time.monotonic()
 
-    def status() -> dict[str, Any]:
-        return request(sock, {"cmd": "status"}, timeout_s=30)["status"]
+    def status() -> Status:
+        return Status.from_json(request(sock, {"cmd": "status"}, timeout_s=30)["status"])
 
     def wait(cond: Callable[[], Any], what: str) -> Any:
         while time.monotonic() - t0 < timeout_s:
@@ -80,17 +81,17 @@ def run_demo(workdir: str | os.PathLike[str] | None = None, *, lux: float = 5000
         echo("the capture station photographs the site (simulated OSC camera) and drops the "
              "bundle into the inbox")
 
-        def pushed() -> dict[str, Any] | None:
+        def pushed() -> Status | None:
             st = status()
-            if st["run_counts"]["rejected"] or st["run_counts"]["failed"]:
-                raise DaemonError(f"the demo run did not succeed: {st['runs'][0]['error']}")
-            return st if st["health"] == "ok" else None
+            if st.run_counts.rejected or st.run_counts.failed:
+                raise DaemonError(f"the demo run did not succeed: {st.runs[0].error}")
+            return st if st.health.level == "ok" else None
 
         st = wait(pushed, "calibrating and pushing")
         echo(f"table active on all controllers after {time.monotonic() - t0:.1f} s")
         print_status(st, echo)
-        run = st["runs"][0]
-        for line in (f"report: {run['report']}", f"plot:   {run['plot']}", f"log:    {log}"):
+        run = st.runs[0]
+        for line in (f"report: {run.report}", f"plot:   {run.plot}", f"log:    {log}"):
             echo(line)
         return st
     finally:

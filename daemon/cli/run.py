@@ -4,7 +4,9 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -16,7 +18,10 @@ from grassd.daemon.config.settings import (
     not_used_by_the_daemon,
 )
 from grassd.daemon.safe_text import one_line
-from grassd.firmware_proto.sim_backends import FIRMWARE_BACKENDS
+from grassd.rigs import FIRMWARE_BACKENDS
+
+if TYPE_CHECKING:
+    from grassd.daemon.monitoring.status_types import Status
 
 _CONFIG_HELP = (f"configuration file (default {DEFAULT_CONFIG_PATH}; "
                 "the embedded default when that is absent)")
@@ -165,69 +170,66 @@ def _fmt_time(t: float | None) -> str:
     return _dt.datetime.fromtimestamp(t).strftime("%Y-%m-%d %H:%M:%S")
 
 
-def print_status(st: dict, echo=click.echo) -> None:
-    """Print a status dict (:func:`grassd.daemon.runtime.service.collect_status` or the control
-    socket's answer) as ``grassd status`` shows it, one line at a time through ``echo``."""
-    echo(f"daemon: {'running, pid ' + str(st['pid']) if st.get('running') else 'not running'}"
-               + (f" ({st['activity']})" if st.get("activity") else ""))
-    echo(f"health: {st['health']}")
-    d = st.get("desired_table")
-    echo("current table: " + (f"{d['table_id']} (crc {d['table_crc']:#010x})" if d
-                                    else "none")
-         + (", one per controller" if d and d.get("per_controller") else ""))
-    if st.get("inbox"):
-        echo("bundles: " + ", ".join(f"{k} {v}" for k, v in st["inbox"].items()))
-    if st.get("reload_error"):
-        echo(f"last reload refused: {st['reload_error']}")
+def print_status(st: Status, echo: Callable[[str], Any] = click.echo) -> None:
+    """Print a status (:func:`grassd.daemon.runtime.status.collect_status`, or the control
+    socket's answer read back by :meth:`Status.from_json`) as ``grassd status`` shows it, one
+    line at a time through ``echo``."""
+    live = st.daemon
+    echo(f"daemon: {'running, pid ' + str(live.pid) if live else 'not running'}"
+         + (f" ({live.activity})" if live and live.activity else ""))
+    echo(f"health: {st.health.summary()}")
+    d = st.desired_table
+    echo("current table: " + (f"{d.table_id} (crc {d.table_crc:#010x})" if d else "none")
+         + (", one per controller" if d and d.per_controller else ""))
+    if live and live.inbox:
+        echo("bundles: " + ", ".join(f"{k} {v}" for k, v in live.inbox.items()))
+    if live and live.reload_error:
+        echo(f"last reload refused: {live.reload_error}")
     # the lines below may quote names an uploader chose: one line each, controls escaped
-    if st.get("last_error"):
-        echo(one_line(f"last error: {st['last_error']}", None))
-    elif (seen := st.get("last_error_seen")) and seen.get("cleared_at"):
-        echo(one_line(f"last error (cleared {seen['cleared_at']}): {seen['at']} "
-                      f"{seen['error']}", None))
-    for w in st.get("waiting_bundles") or []:
-        echo(one_line(f"bundle {w['bundle']} waits (retry in {w['retry_in_s']:.0f} s): "
-                      f"{w['reason']}", None))
-    if cap := st.get("capture"):
+    if live and live.last_error:
+        echo(one_line(f"last error: {live.last_error}", None))
+    elif live and (seen := live.last_error_seen) and seen.cleared_at:
+        echo(one_line(f"last error (cleared {seen.cleared_at}): {seen.at} {seen.error}", None))
+    for w in live.waiting_bundles if live else ():
+        echo(one_line(f"bundle {w.bundle} waits (retry in {w.retry_in_s:.0f} s): {w.reason}",
+                      None))
+    if live and (cap := live.capture):
         due = "-" if cap["next_in_s"] is None else f"{cap['next_in_s']:.0f} s"
         echo(f"capture: {cap['camera']} every {cap['interval_s']:g} s, {cap['captures']} "
              f"bundle(s), next in {due}"
              + (f"; last error: {cap['last_error']}" if cap["last_error"] else ""))
-    for p in st.get("inbox_problems") or []:
+    for p in live.inbox_problems if live else ():
         echo(one_line(f"inbox: {p}", None))
-    for q in st.get("quarantined") or []:
-        echo(one_line(f"quarantined bundle {q['bundle']} ({q['attempts']} interrupted attempts, "
-                      f"since {_fmt_time(q['since'])}): `grassd bundles retry {q['bundle']}` "
+    for q in st.quarantined:
+        echo(one_line(f"quarantined bundle {q.bundle} ({q.attempts} interrupted attempts, "
+                      f"since {_fmt_time(q.since)}): `grassd bundles retry {q.bundle}` "
                       "runs it again", None))
     echo("controllers:")
-    for c in st["controllers"]:
-        state = "in sync" if c["in_sync"] else ("unreachable" if not c["reachable"]
-                                                 else "out of sync")
-        tid = "-" if c["table_id"] is None else str(c["table_id"])
-        if d and d.get("per_controller") and c.get("desired_crc") is not None:
-            tid += f" (own table crc {c['desired_crc']:#010x})"
-        err = f"  ({c['error']})" if c["error"] and not c["in_sync"] else ""
-        if b := c.get("push_retry"):
-            err += (f"; {b['failures']} failed push(es), next attempt in "
-                    f"{b['retry_in_s']:.0f} s")
-        echo(f"  {c['name']}: table {tid}, {state}{err}")
-    if st.get("lines"):
+    for c in st.controllers:
+        tid = "-" if c.table_id is None else str(c.table_id)
+        if d and d.per_controller and c.desired_crc is not None:
+            tid += f" (own table crc {c.desired_crc:#010x})"
+        err = f"  ({c.error})" if c.error and not c.in_sync else ""
+        if b := c.push_retry:
+            err += f"; {b.failures} failed push(es), next attempt in {b.retry_in_s:.0f} s"
+        echo(f"  {c.name}: table {tid}, {c.state}{err}")
+    if live and live.lines:
         from grassd.daemon.monitoring.line_report import describe_line
 
         echo("serial lines:")
-        for port, q in st["lines"].items():
+        for port, q in live.lines.items():
             echo(f"  {describe_line(port, q)}")
     echo("last runs:")
-    for r in st["runs"]:
-        extra = (f"R^2 {r['r2']:.4f}, max dev {r['max_dev_de00']:.2f} dE00"
-                 if r["status"] == "ok" and r["r2"] is not None else (r["error"] or ""))
-        echo(one_line(f"  #{r['id']} {_fmt_time(r['started_at'])} {r['trigger']:8s} "
-                      f"{r['status']:8s} {extra}", None))
-        if r.get("report") and r["status"] == "ok":
-            echo(f"      report {r['report']}  plot {r['plot']}")
-    if st.get("status_page"):
-        echo(f"status page: {st['status_page']}")
-        echo(f"metrics:     {st['metrics_textfile']}")
+    for r in st.runs:
+        extra = (f"R^2 {r.r2:.4f}, max dev {r.max_dev_de00:.2f} dE00"
+                 if r.status == "ok" and r.r2 is not None else (r.error or ""))
+        echo(one_line(f"  #{r.id} {_fmt_time(r.started_at)} {r.trigger:8s} "
+                      f"{r.status:8s} {extra}", None))
+        if r.report and r.status == "ok":
+            echo(f"      report {r.report}  plot {r.plot}")
+    if live and live.status_page:
+        echo(f"status page: {live.status_page}")
+        echo(f"metrics:     {live.metrics_textfile}")
 
 
 @click.command("status")
@@ -239,13 +241,15 @@ def status_cmd(config_path: str | None, state_dir: str | None, as_json: bool) ->
     import json
 
     from grassd.daemon.errors import DaemonNotRunning, HistoryError
+    from grassd.daemon.monitoring.status_types import Status
     from grassd.daemon.runtime.control import request
     from grassd.daemon.runtime.service import STATE_DB, collect_status
     from grassd.daemon.store.history import History
 
     cfg = resolve_config(config_path, state_dir)
     try:
-        st = request(cfg.control_socket, {"cmd": "status"}, timeout_s=10)["status"]
+        st = Status.from_json(request(cfg.control_socket, {"cmd": "status"},
+                                      timeout_s=10)["status"])
     except DaemonNotRunning:
         db = cfg.state_dir / STATE_DB
         if (db.parent.is_dir() and not os.access(db.parent, os.X_OK)) or (
@@ -259,7 +263,7 @@ def status_cmd(config_path: str | None, state_dir: str | None, as_json: bool) ->
         with History(db) as h:
             st = collect_status(h, cfg)
     if as_json:
-        click.echo(json.dumps(st, indent=2, default=str))
+        click.echo(json.dumps(st.to_json(), indent=2, default=str))
     else:
         print_status(st)
 

@@ -27,7 +27,7 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 from grassd.daemon.config.settings import Config, ModbusConfig
 from grassd.daemon.config.toml_text import toml_value
 from grassd.daemon.hardware.luxsensor import encode_lux
-from grassd.firmware_proto.sim_backends import FIRMWARE_BACKENDS, open_bus
+from grassd.rigs.sim_backends import FIRMWARE_BACKENDS, open_bus
 
 log = logging.getLogger(__name__)
 
@@ -220,8 +220,8 @@ class SimulatedHardware:
 
     :meth:`start` returns the config rewritten to point at the simulated devices; the port
     symlinks ``root/ports/<n>`` stay the same across restarts with the same ``root``.
-    ``firmware``: what answers on the buses (:data:`~grassd.firmware_proto.sim_backends.
-    FIRMWARE_BACKENDS`: the Python model, or the C firmware as a process or under QEMU).
+    ``firmware``: what answers on the buses (:data:`~grassd.rigs.FIRMWARE_BACKENDS`: the
+    Python model, or the C firmware as a process or under QEMU).
     """
 
     def __init__(self, cfg: Config, root: str | os.PathLike[str], lux: float = 5000.0,

@@ -19,7 +19,6 @@ from firmware_tiers import firmware_params
 
 from grassd.firmware_proto.codec import Frame, encode_body_of, encode_frame
 from grassd.firmware_proto.crc import crc32_iso_hdlc
-from grassd.firmware_proto.firmware import Controller, ControllerConfig
 from grassd.firmware_proto.framing import FrameReader, encode_body
 from grassd.firmware_proto.messages import (
     GetStatus,
@@ -29,7 +28,8 @@ from grassd.firmware_proto.messages import (
     TableChunk,
     TableCommit,
 )
-from grassd.firmware_proto.sim_backends import open_bus
+from grassd.rigs.firmware import Controller, ControllerConfig
+from grassd.rigs.sim_backends import open_bus
 
 N_PIXELS = 3
 

@@ -49,7 +49,7 @@ def test_sim_command_joins_qemu_instances_into_one_bus(tmp_path):
 def test_cortex_m7_core_fits_its_flash_and_ram_budget():
     """The core for the Cortex-M7 (16 pixels of per-pixel tables): <= 32 KiB flash and one
     controller's RAM <= 24 KiB, as arm-none-eabi-size and nm report for the mps2 build."""
-    from grassd.firmware_proto.native_build import BUILD_DIR, mps2_image
+    from grassd.rigs.native_build import BUILD_DIR, mps2_image
 
     mps2_image()
     text = (BUILD_DIR / "mps2" / "size.txt").read_text()
@@ -62,7 +62,7 @@ def test_cortex_m7_core_fits_its_flash_and_ram_budget():
 def test_teensy_sketch_carries_the_tested_core(tmp_path):
     """`make -C firmware teensy41` assembles a sketch whose core is byte for byte firmware/core
     and compiles for the Teensy 4.1's Cortex-M7 with the sketch's own settings (8 pixels)."""
-    from grassd.firmware_proto.native_build import BUILD_DIR, FIRMWARE_DIR, build_firmware
+    from grassd.rigs.native_build import BUILD_DIR, FIRMWARE_DIR, build_firmware
 
     build_firmware("teensy41", "teensy41")
     core = BUILD_DIR / "teensy41" / "grassfw_teensy41" / "src" / "core"

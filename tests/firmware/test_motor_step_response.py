@@ -13,8 +13,8 @@ import pytest
 from firmware_tiers import firmware_params, missing_reason
 
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
-from grassd.firmware_proto.native_build import build_firmware
-from grassd.firmware_proto.sim_backends import open_bus
+from grassd.rigs.native_build import build_firmware
+from grassd.rigs.sim_backends import open_bus
 
 
 @pytest.mark.skipif(missing_reason("posix") is not None, reason=str(missing_reason("posix")))

@@ -13,7 +13,7 @@ import subprocess
 import pytest
 from firmware_tiers import missing_reason
 
-from grassd.firmware_proto.native_build import build_firmware
+from grassd.rigs.native_build import build_firmware
 
 pytestmark = [pytest.mark.skipif(missing_reason("posix") is not None,
                                  reason=str(missing_reason("posix"))),

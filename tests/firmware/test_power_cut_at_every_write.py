@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from firmware_tiers import missing_reason
 
-from grassd.firmware_proto.power_cut import power_cut_sweep
+from grassd.rigs.power_cut import power_cut_sweep
 
 pytestmark = pytest.mark.skipif(missing_reason("posix") is not None,
                                 reason=str(missing_reason("posix")))

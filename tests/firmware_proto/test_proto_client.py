@@ -18,9 +18,9 @@ from grassd.firmware_proto.errors import (
     TransientError,
 )
 from grassd.firmware_proto.messages import GetPositions, Nak, NakCode
-from grassd.firmware_proto.sim_backends import open_bus
-from grassd.firmware_proto.simulator import SimulatedBus, make_controllers, start_buses
 from grassd.firmware_proto.tables import table_crc
+from grassd.rigs.sim_backends import open_bus
+from grassd.rigs.simulator import SimulatedBus, make_controllers, start_buses
 
 FAST = RetryPolicy(timeout_s=0.05, retries=2, backoff_s=0.005)
 #: the same for the QEMU image where a test counts retransmissions: an emulated Cortex-M7 on a

@@ -16,12 +16,6 @@ from grassd.firmware_proto.codec import Frame, decode_frame, encode_frame, parse
 from grassd.firmware_proto.crc import CRC32_ISO_HDLC_CHECK, crc32_iso_hdlc
 from grassd.firmware_proto.errors import FrameError, TableError, TableFileError
 from grassd.firmware_proto.framing import MAX_ENCODED, FrameReader, decode_body, encode_body
-from grassd.firmware_proto.golden import (
-    build_vectors,
-    frame_from_meaning,
-    frame_to_meaning,
-    load_vectors,
-)
 from grassd.firmware_proto.messages import MESSAGE_CLASSES, TableKind
 from grassd.firmware_proto.table_file import load_table_file
 from grassd.firmware_proto.tables import (
@@ -30,6 +24,12 @@ from grassd.firmware_proto.tables import (
     table_bytes,
     table_crc,
     table_from_bytes,
+)
+from grassd.rigs.golden import (
+    build_vectors,
+    frame_from_meaning,
+    frame_to_meaning,
+    load_vectors,
 )
 
 _INT = {"B": 0xFF, "H": 0xFFFF, "I": 0xFFFFFFFF}

@@ -17,10 +17,10 @@ import pytest
 
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.errors import PushFailed
-from grassd.firmware_proto.faults import FaultInjector, FaultPlan
-from grassd.firmware_proto.push_audit import booted_table
-from grassd.firmware_proto.simulator import SimulatedBus, make_controllers
 from grassd.firmware_proto.tables import table_crc
+from grassd.rigs.faults import FaultInjector, FaultPlan
+from grassd.rigs.push_audit import booted_table
+from grassd.rigs.simulator import SimulatedBus, make_controllers
 
 PUSHES = 200
 

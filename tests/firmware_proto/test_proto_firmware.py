@@ -12,8 +12,6 @@ from hypothesis import strategies as _st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, rule
 
 from grassd.firmware_proto.codec import Frame, decode_frame, encode_body_of, encode_frame
-from grassd.firmware_proto.eeprom import BankStore
-from grassd.firmware_proto.firmware import Controller, ControllerConfig
 from grassd.firmware_proto.messages import (
     NO_BANK,
     Ack,
@@ -32,6 +30,8 @@ from grassd.firmware_proto.messages import (
     TableStatus,
 )
 from grassd.firmware_proto.tables import chunk_spans, table_bytes, table_crc
+from grassd.rigs.eeprom import BankStore
+from grassd.rigs.firmware import Controller, ControllerConfig
 
 _seq = itertools.count(1)
 

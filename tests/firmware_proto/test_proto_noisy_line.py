@@ -2,7 +2,7 @@
 
 The client shrinks its TABLE_CHUNKs after failed ones and grows them back after clean ones
 (firmware_proto.line_quality). Every push is audited against the controller's RAM and EEPROM:
-old or new table, never a corrupt or mixed one (firmware_proto.push_audit).
+old or new table, never a corrupt or mixed one (rigs.push_audit).
 """
 
 from __future__ import annotations
@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
-from grassd.firmware_proto.faults import FaultInjector, FaultPlan
 from grassd.firmware_proto.line_quality import LineQuality
-from grassd.firmware_proto.loopback import LoopbackLink
-from grassd.firmware_proto.push_audit import audit_pushes
-from grassd.firmware_proto.simulator import SimulatedBus, make_controllers
+from grassd.rigs.faults import FaultInjector, FaultPlan
+from grassd.rigs.loopback import LoopbackLink
+from grassd.rigs.push_audit import audit_pushes
+from grassd.rigs.simulator import SimulatedBus, make_controllers
 
 #: 1 % of the bytes damaged in both directions
 NOISE = FaultPlan(flip=0.004, drop=0.003, duplicate=0.003)

@@ -19,9 +19,9 @@ from grassd.firmware_proto.client import (
     RetryPolicy,
 )
 from grassd.firmware_proto.errors import PushFailed
-from grassd.firmware_proto.firmware import Controller, simulated_config
 from grassd.firmware_proto.messages import Message, Nak, NakCode, TableChunk, TableCommit
-from grassd.firmware_proto.simulator import SimulatedBus
+from grassd.rigs.firmware import Controller, simulated_config
+from grassd.rigs.simulator import SimulatedBus
 
 pytestmark = pytest.mark.timeout(60)
 

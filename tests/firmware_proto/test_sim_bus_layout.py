@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from grassd.firmware_proto.errors import SimulatorError
-from grassd.firmware_proto.sim_backends import FIRMWARE_BACKENDS, open_bus
+from grassd.rigs.sim_backends import FIRMWARE_BACKENDS, open_bus
 
 
 @pytest.mark.parametrize("firmware", FIRMWARE_BACKENDS)

@@ -1,7 +1,7 @@
 """Render a directory written by ``grassd simulate export-scene`` with Mitsuba 3.
 
 Used by the cross-check tests as an independent renderer: it reads only the exported files,
-through :mod:`grassd.sim.mitsuba_scene` (units, environment convention, quad coverage).
+through :mod:`grassd.rigs.mitsuba_scene` (units, environment convention, quad coverage).
 ``llvm_ad_rgb`` when a libLLVM >= 16 is installed, else ``scalar_rgb``.
 """
 
@@ -11,8 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from grassd.sim.hdri import load_hdri
-from grassd.sim.mitsuba_scene import (
+from grassd.rigs.mitsuba_scene import (
     ENV_TO_WORLD,
     configure_llvm,
     mitsuba_env,
@@ -20,6 +19,7 @@ from grassd.sim.mitsuba_scene import (
     read_doc,
     scene_dict,
 )
+from grassd.sim.hdri import load_hdri
 
 
 def _mi():
@@ -41,7 +41,7 @@ def render_mean(scene_dir: Path, spp: int = 64, width: int = 128, seed: int = 0)
 
 
 def env_probe(scene_dir: Path, direction: np.ndarray) -> np.ndarray:
-    """Radiance Mitsuba's envmap, fed as :func:`grassd.sim.mitsuba_scene.scene_dict` feeds it,
+    """Radiance Mitsuba's envmap, fed as :func:`grassd.rigs.mitsuba_scene.scene_dict` feeds it,
     returns for a world direction."""
     mi = _mi()
     doc = read_doc(scene_dir)

@@ -14,10 +14,10 @@ import pytest
 
 from grassd.calib.colour_spaces import prophoto_to_lab, rec709_to_prophoto
 from grassd.calib.delta_e import delta_e
+from grassd.rigs.mitsuba_scene import ENV_REFINE, configure_llvm, quad_mean, scene_dict
 from grassd.sim.export import export_scene
 from grassd.sim.hdri import downsample, load_hdri
 from grassd.sim.lighting import build_lighting, env_radiance
-from grassd.sim.mitsuba_scene import ENV_REFINE, configure_llvm, quad_mean, scene_dict
 from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
 
 mitsuba_ref = pytest.importorskip("mitsuba_ref", reason="tests/ not on sys.path")

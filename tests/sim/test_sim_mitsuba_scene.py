@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from grassd.sim.mitsuba_scene import _llvm_major, mitsuba_env, quad_coverage, quad_pixels
+from grassd.rigs.mitsuba_scene import _llvm_major, mitsuba_env, quad_coverage, quad_pixels
 
 
 def _mitsuba_lookup(fine: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -16,9 +16,9 @@ from firmware_tiers import firmware_params
 from grassd.daemon.cli.controllers import parse_addresses
 from grassd.daemon.cli.main import main
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
-from grassd.firmware_proto.firmware import Controller, ControllerConfig
-from grassd.firmware_proto.sim_backends import open_bus
 from grassd.firmware_proto.tables import table_crc
+from grassd.rigs.firmware import Controller, ControllerConfig
+from grassd.rigs.sim_backends import open_bus
 
 
 @pytest.fixture(params=firmware_params("model", "posix", "qemu"))

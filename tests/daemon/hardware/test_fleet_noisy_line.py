@@ -8,7 +8,7 @@ import numpy as np
 
 from grassd.daemon.hardware.fleet import Fleet
 from grassd.firmware_proto.client import RetryPolicy
-from grassd.firmware_proto.faults import FaultInjector, FaultPlan
+from grassd.rigs.faults import FaultInjector, FaultPlan
 
 
 def test_status_reads_on_a_noisy_line_get_more_tries(hw):

@@ -9,7 +9,7 @@ from daemon_harness import after_first_bundle
 
 from grassd.daemon.cli.run import print_status
 from grassd.daemon.monitoring.line_report import describe_line, line_verdict
-from grassd.firmware_proto.faults import FaultInjector, FaultPlan
+from grassd.rigs.faults import FaultInjector, FaultPlan
 
 
 def test_status_reports_a_noisy_line_and_a_good_one(tmp_path, hw):

@@ -14,7 +14,7 @@ import time
 
 from daemon_harness import after_first_bundle
 
-from grassd.firmware_proto.faults import FaultInjector, FaultPlan
+from grassd.rigs.faults import FaultInjector, FaultPlan
 
 
 def _fleet_warnings(caplog, name: str) -> list[str]:

@@ -8,7 +8,7 @@ import time
 
 from daemon_harness import after_first_bundle, drop
 
-from grassd.firmware_proto.faults import FaultInjector, FaultPlan
+from grassd.rigs.faults import FaultInjector, FaultPlan
 
 
 def test_failing_controller_rows_are_deduplicated(tmp_path, hw):

@@ -19,7 +19,6 @@ import numpy as np
 
 from grassd.firmware_proto.codec import Frame, encode_frame, parse_header
 from grassd.firmware_proto.crc import crc32_iso_hdlc
-from grassd.firmware_proto.eeprom import BankHeader, BankStore, Eeprom, PowerLoss
 from grassd.firmware_proto.errors import FrameError, SimulatorError
 from grassd.firmware_proto.messages import (
     MAX_ADDRESS,
@@ -49,6 +48,7 @@ from grassd.firmware_proto.messages import (
     unpack_payload,
 )
 from grassd.firmware_proto.tables import table_from_bytes
+from grassd.rigs.eeprom import BankHeader, BankStore, Eeprom, PowerLoss
 
 
 @dataclass(frozen=True)

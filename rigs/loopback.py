@@ -1,15 +1,16 @@
 """An in-process line to simulated controllers, for pushing thousands of tables in seconds.
 
-:class:`LoopbackLink` has :class:`~.link.SerialLink`'s interface (``send``, ``receive``,
-``close``, ``reader``, counters), so :class:`~.client.ControllerClient` runs its real request,
-retry, adaptive-chunk and framing code over it. What the host sends goes through a
-:class:`~.faults.FaultInjector` (byte faults, controller reboots), a
-:class:`~.framing.FrameReader` and :meth:`~.firmware.Controller.handle`, the answers through the
-injector and the host's reader, exactly as on :class:`~.simulator.SimulatedBus`, but in the
-calling thread: nothing is paced, and a frame that was lost makes ``receive`` return None at
-once instead of waiting out the timeout. So it measures what the code decides (corrupt or mixed
-tables, successes, tries), not timing: for timing use a :class:`~.simulator.SimulatedBus` on a
-pty. Unplug faults are not simulated here (they need a device node).
+:class:`LoopbackLink` has :class:`~grassd.firmware_proto.link.SerialLink`'s interface (``send``,
+``receive``, ``close``, ``reader``, counters), so
+:class:`~grassd.firmware_proto.client.ControllerClient` runs its real request, retry, adaptive-chunk
+and framing code over it. What the host sends goes through a :class:`~.faults.FaultInjector` (byte
+faults, controller reboots), a :class:`~grassd.firmware_proto.framing.FrameReader` and
+:meth:`~.firmware.Controller.handle`, the answers through the injector and the host's reader,
+exactly as on :class:`~.simulator.SimulatedBus`, but in the calling thread: nothing is paced, and a
+frame that was lost makes ``receive`` return None at once instead of waiting out the timeout. So it
+measures what the code decides (corrupt or mixed tables, successes, tries), not timing: for timing
+use a :class:`~.simulator.SimulatedBus` on a pty. Unplug faults are not simulated here (they need a
+device node).
 """
 
 from __future__ import annotations
@@ -19,9 +20,9 @@ from collections.abc import Sequence
 
 from grassd.firmware_proto.codec import Frame, read_frames
 from grassd.firmware_proto.errors import SimulatorError
-from grassd.firmware_proto.faults import FaultInjector
-from grassd.firmware_proto.firmware import Controller
 from grassd.firmware_proto.framing import FrameReader
+from grassd.rigs.faults import FaultInjector
+from grassd.rigs.firmware import Controller
 
 
 class LoopbackLink:

@@ -19,9 +19,9 @@ import numpy as np
 
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.errors import ProtocolError
-from grassd.firmware_proto.firmware import ControllerConfig
-from grassd.firmware_proto.posix_bus import EXIT_POWER_CUT, PosixBus
 from grassd.firmware_proto.tables import table_crc
+from grassd.rigs.firmware import ControllerConfig
+from grassd.rigs.posix_bus import EXIT_POWER_CUT, PosixBus
 
 _QUICK = RetryPolicy(timeout_s=0.1, retries=0, restarts=0, readback_retries=0)
 _PATIENT = RetryPolicy(timeout_s=0.2, retries=3, backoff_s=0.01)

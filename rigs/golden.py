@@ -1,8 +1,11 @@
-"""Golden test vectors: wire bytes in hex with their decoded meaning (``vectors/*.json``).
+"""Golden test vectors: wire bytes in hex with their decoded meaning.
 
-The firmware's own tests replay the same bytes. Regenerate after an intended protocol change
-with ``python -m grassd.firmware_proto.golden`` (the test suite checks that the checked-in
-files equal what this module builds, and that every vector decodes and re-encodes exactly).
+The vector files stay next to the protocol they exemplify, in ``firmware_proto/vectors/*.json``
+(:data:`VECTOR_DIR`, beside PROTOCOL.md), where the C firmware's tests read them too
+(``firmware/Makefile``); this module, which builds and loads them, is a rig. Regenerate after
+an intended protocol change with ``python -m grassd.rigs.golden`` (the test suite checks that
+the checked-in files equal what this module builds, and that every vector decodes and
+re-encodes exactly).
 
 Files:
 
@@ -24,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from grassd import firmware_proto
 from grassd.firmware_proto.codec import Frame, encode_frame, parse_body
 from grassd.firmware_proto.crc import crc32_iso_hdlc
 from grassd.firmware_proto.messages import (
@@ -46,8 +50,8 @@ from grassd.firmware_proto.messages import (
 )
 from grassd.firmware_proto.tables import chunk_spans, table_bytes, table_crc
 
-#: Folder holding the vector files.
-VECTOR_DIR = Path(__file__).with_name("vectors")
+#: Folder holding the vector files: ``vectors/`` of :mod:`grassd.firmware_proto`.
+VECTOR_DIR = Path(firmware_proto.__file__).with_name("vectors")
 
 
 def frame_to_meaning(frame: Frame) -> dict:
@@ -142,8 +146,8 @@ def _framing() -> dict:
 
 
 def _transfer() -> dict:
-    from grassd.firmware_proto.firmware import Controller, ControllerConfig
     from grassd.firmware_proto.framing import FrameReader
+    from grassd.rigs.firmware import Controller, ControllerConfig
 
     t = example_table()
     data, crc = table_bytes(t), table_crc(t)

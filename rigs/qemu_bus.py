@@ -31,13 +31,13 @@ from pathlib import Path
 import numpy as np
 
 from grassd.firmware_proto.codec import Frame, encode_frame
-from grassd.firmware_proto.eeprom import BankStore, active_table_in
 from grassd.firmware_proto.errors import SimulatorError
-from grassd.firmware_proto.firmware import ControllerConfig, bus_pixels, simulated_config
 from grassd.firmware_proto.framing import FrameReader
 from grassd.firmware_proto.messages import Hello
-from grassd.firmware_proto.native_build import FirmwareUnavailable, mps2_image
-from grassd.firmware_proto.pty_line import LinePacer, close_fds, open_raw_pty
+from grassd.rigs.eeprom import BankStore, active_table_in
+from grassd.rigs.firmware import ControllerConfig, bus_pixels, simulated_config
+from grassd.rigs.native_build import FirmwareUnavailable, mps2_image
+from grassd.rigs.pty_line import LinePacer, close_fds, open_raw_pty
 
 #: Where the firmware reads its configuration (ports/mps2/mps2.ld, .fwconfig).
 CONFIG_ADDR = 0x203FFF00

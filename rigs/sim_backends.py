@@ -18,10 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from grassd.firmware_proto.errors import SimulatorError
-from grassd.firmware_proto.firmware import ControllerConfig, bus_pixels, simulated_config
-
-#: Firmware backends a simulated bus can run, the first being the default.
-FIRMWARE_BACKENDS = ("model", "posix", "qemu")
+from grassd.rigs import FIRMWARE_BACKENDS
+from grassd.rigs.firmware import ControllerConfig, bus_pixels, simulated_config
 
 
 def open_bus(firmware: str, state_dir: str | Path, addresses: Sequence[int], *,
@@ -37,17 +35,17 @@ def open_bus(firmware: str, state_dir: str | Path, addresses: Sequence[int], *,
                              f"{', '.join(FIRMWARE_BACKENDS)}")
     pixels = bus_pixels("a simulated bus", addresses, n_pixels)
     if firmware == "model":
-        from grassd.firmware_proto.firmware import Controller
-        from grassd.firmware_proto.simulator import SimulatedBus
+        from grassd.rigs.firmware import Controller
+        from grassd.rigs.simulator import SimulatedBus
 
         ctrls = [Controller(simulated_config(a, n_pixels=p), state_dir / f"controller-{a}.eeprom")
                  for a, p in zip(addresses, pixels, strict=True)]
         return SimulatedBus(ctrls, link_path=link_path, baud=baud)
     if firmware == "posix":
-        from grassd.firmware_proto.posix_bus import PosixBus
+        from grassd.rigs.posix_bus import PosixBus
 
         return PosixBus(state_dir, addresses, n_pixels=pixels, link_path=link_path, baud=baud)
-    from grassd.firmware_proto.qemu_bus import QemuBus  # "qemu"
+    from grassd.rigs.qemu_bus import QemuBus  # "qemu"
 
     return QemuBus(state_dir, addresses, n_pixels=pixels, link_path=link_path, baud=baud)
 

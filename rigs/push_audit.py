@@ -1,13 +1,13 @@
 """Push tables through a faulty line and check each outcome against the controller's truth.
 
 :func:`audit_pushes` pushes fresh random tables to one simulated controller through a real
-:class:`~.client.ControllerClient` (over a pty or a :class:`~.loopback.LoopbackLink`) and, after
-every push, compares what the client reported with what the controller holds in RAM and what a
-fresh boot would load from its EEPROM file. A push must end *old or new*: reported success means
-the new table is active and stored; a reported failure means the old one still is (or, when
-the client could not read the state back, one of the two). Anything else is counted as
-corrupt (a table that is neither) or mixed (RAM and EEPROM disagree, or the report is false).
-Benchmarks and tests share this one check.
+:class:`~grassd.firmware_proto.client.ControllerClient` (over a pty or a
+:class:`~.loopback.LoopbackLink`) and, after every push, compares what the client reported with what
+the controller holds in RAM and what a fresh boot would load from its EEPROM file. A push must end
+*old or new*: reported success means the new table is active and stored; a reported failure means
+the old one still is (or, when the client could not read the state back, one of the two). Anything
+else is counted as corrupt (a table that is neither) or mixed (RAM and EEPROM disagree, or the
+report is false). Benchmarks and tests share this one check.
 """
 
 from __future__ import annotations
@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 
 from grassd.firmware_proto.client import ControllerClient
-from grassd.firmware_proto.eeprom import active_table_in
 from grassd.firmware_proto.errors import PushFailed
-from grassd.firmware_proto.firmware import Controller
 from grassd.firmware_proto.tables import table_crc
+from grassd.rigs.eeprom import active_table_in
+from grassd.rigs.firmware import Controller
 
 
 def booted_table(ctl: Controller) -> np.ndarray | None:

@@ -23,10 +23,10 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 from grassd.firmware_proto.errors import SimulatorError
-from grassd.firmware_proto.faults import FaultInjector
-from grassd.firmware_proto.firmware import Controller, simulated_config
 from grassd.firmware_proto.framing import FrameReader
-from grassd.firmware_proto.pty_line import LinePacer, close_fds, open_raw_pty
+from grassd.rigs.faults import FaultInjector
+from grassd.rigs.firmware import Controller, simulated_config
+from grassd.rigs.pty_line import LinePacer, close_fds, open_raw_pty
 
 log = logging.getLogger(__name__)
 

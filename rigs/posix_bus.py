@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from grassd.firmware_proto.eeprom import active_table_in
 from grassd.firmware_proto.errors import SimulatorError
-from grassd.firmware_proto.firmware import ControllerConfig, bus_pixels, simulated_config
-from grassd.firmware_proto.native_build import posix_firmware
+from grassd.rigs.eeprom import active_table_in
+from grassd.rigs.firmware import ControllerConfig, bus_pixels, simulated_config
+from grassd.rigs.native_build import posix_firmware
 
 #: Exit status of a posix firmware process that lost power at ``--power-cut-at``.
 EXIT_POWER_CUT = 3
