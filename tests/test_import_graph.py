@@ -5,12 +5,16 @@
   pushes its table, then lists the modules it loaded;
 * ``grassd.calib``, ``grassd.sim`` and ``grassd.firmware_proto`` never import ``grassd.daemon``
   (no import statement anywhere in them names it, lazy or not);
+* no runtime path imports a rig (issue #30): no module of ``grassd.calib``, ``grassd.sim``,
+  ``grassd.firmware_proto`` or ``grassd.daemon`` imports a module of ``grassd.rigs`` (test rigs
+  and simulated hardware), lazy or not, but the entry points that serve simulated hardware
+  (``grassd/rigs/__init__.py`` states the rule); importing the command line loads none;
 * no import cycles between modules at module level (imports inside functions and under
   ``if TYPE_CHECKING:`` do not run at import time and are left out);
 * every import of a grassd module, lazy or not, in the packages, tests and benchmarks names a
   module that exists.
 
-The static checks read every module of the four packages with :mod:`ast`, so a new module is
+The static checks read every module of the five packages with :mod:`ast`, so a new module is
 covered as soon as it exists.
 """
 
@@ -27,7 +31,8 @@ from daemon_harness import DISPLAY_2X2, drop_midsummer
 ROOT = Path(__file__).resolve().parents[1]
 #: source folder -> package (pyproject's package-dir)
 PACKAGES = {"grassd": "grassd", "calib": "grassd.calib", "sim": "grassd.sim",
-            "firmware_proto": "grassd.firmware_proto", "daemon": "grassd.daemon"}
+            "firmware_proto": "grassd.firmware_proto", "rigs": "grassd.rigs",
+            "daemon": "grassd.daemon"}
 
 
 def _modules() -> dict[str, Path]:
@@ -74,7 +79,7 @@ def test_the_graph_sees_every_package():
             "grassd.calib.ogcd", "grassd.firmware_proto.client"} <= set(MODULES)
     assert ("grassd.daemon.config.settings", True) in _imports(MODULES["grassd.daemon.cli.run"])
     assert ("grassd.daemon.runtime.service", False) in _imports(MODULES["grassd.daemon.cli.run"])
-    assert ("grassd.daemon.calibration.calibrate_display", False) in _imports(
+    assert ("grassd.sim.renderer", False) in _imports(
         MODULES["grassd.daemon.calibration.calibrate"])  # lazy: not at import time
 
 
@@ -94,6 +99,67 @@ def test_calib_sim_and_firmware_proto_never_import_the_daemon():
            if name.startswith(("grassd.calib", "grassd.sim", "grassd.firmware_proto"))
            for imported, _ in _imports(path) if imported.startswith("grassd.daemon")]
     assert not bad, bad
+
+
+#: The entry points that serve simulated hardware: the only modules outside grassd.rigs that
+#: import its modules, and whether they may at module level or only inside functions.
+SIMULATED_HARDWARE_ENTRY_POINTS = {
+    # the simulated site of ``grassd run --simulate-hardware`` and ``grassd demo``
+    "grassd.daemon.hardware.simulated": "module level",
+    # ``grassd controllers sim``: inside that command only (scan, status and push stay clean)
+    "grassd.daemon.cli.controllers": "inside functions",
+}
+
+
+def _is_rig(imported: str) -> bool:
+    return imported == "grassd.rigs" or imported.startswith("grassd.rigs.")
+
+
+def test_no_rig_imported_by_a_runtime_path():
+    """Test rigs and simulated hardware (``grassd.rigs``) are imported by no module of calib,
+    sim, firmware_proto or daemon, lazily or not, but by the simulated-hardware entry points;
+    the daemon may import the package itself (``from grassd.rigs import FIRMWARE_BACKENDS``: the
+    command line's choices), whose ``__init__`` imports nothing. The simulated site is in turn
+    imported by the rest of the daemon only inside functions (the ``--simulate-hardware``
+    path)."""
+    assert {"grassd.rigs", "grassd.rigs.simulator", "grassd.rigs.golden",
+            "grassd.rigs.mitsuba_scene"} <= set(MODULES)
+    assert set(SIMULATED_HARDWARE_ENTRY_POINTS) <= set(MODULES)
+    init = ast.parse(MODULES["grassd.rigs"].read_text())
+    assert not [node for node in ast.walk(init)
+                if isinstance(node, ast.Import | ast.ImportFrom)
+                and getattr(node, "module", None) != "__future__"], "grassd.rigs imports"
+    bad = []
+    for name, path in MODULES.items():
+        if name == "grassd" or _is_rig(name):
+            continue
+        allowed = SIMULATED_HARDWARE_ENTRY_POINTS.get(name)
+        for imported, now in _imports(path):
+            if not _is_rig(imported):
+                continue
+            if imported == "grassd.rigs" and name.startswith("grassd.daemon"):
+                continue  # the backend names only
+            if allowed == "module level" or (allowed == "inside functions" and not now):
+                continue
+            bad.append(f"{name} imports {imported}" + (" at module level" if now else ""))
+    assert not bad, bad
+    eager = [f"{name} imports {imported} at module level"
+             for name, path in MODULES.items()
+             if name.startswith("grassd.daemon") and name not in SIMULATED_HARDWARE_ENTRY_POINTS
+             for imported, now in _imports(path)
+             if now and SIMULATED_HARDWARE_ENTRY_POINTS.get(imported) == "module level"]
+    assert not eager, eager
+
+
+def test_the_command_line_loads_no_rig():
+    """What the static rule promises, on the real import: loading ``grassd`` with every command
+    (as ``grassd run`` on a site does) loads the rigs' name list and no rig module."""
+    code = ("import sys, grassd.daemon.cli.main; "
+            "print(sorted(m for m in sys.modules if m.startswith('grassd.rigs')))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.stdout.split("\n")[-2] == "['grassd.rigs']", proc.stdout
 
 
 def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
