@@ -26,7 +26,6 @@ finishes, truncated downloads, shots without a recorded exposure. Each fault aff
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import hmac
 import io
@@ -554,14 +553,6 @@ def sim_camera_from_file(hdri: str | os.PathLike[str], *, width: int | None = No
         if factor > 1:
             env = downsample(env, factor)
     return SimCamera(env, **kwargs)
-
-
-def replace_faults(cam: SimCamera, **changes: Any) -> None:
-    """Set fault knobs of ``cam`` (names of :class:`Faults`)."""
-    for k, v in changes.items():
-        if k not in {f.name for f in dataclasses.fields(Faults)}:
-            raise ValueError(f"unknown fault {k!r}")
-        setattr(cam.faults, k, v)
 
 
 def site_hdri() -> Path:
