@@ -23,6 +23,9 @@ write ``.partial`` names and rename. Manifest keys::
     sun_clipped = true                       #   (camera, exposures, merge; archived as is);
                                              #   sun_clipped: restore the sun from lux
 
+The light and checker keys, their types and ranges are those of every light document
+(:mod:`grassd.daemon.config.manifest_fields`, shared with a capture directory's capture.toml).
+
 Life of a bundle (all moves are ``rename(2)`` inside the state directory, so each is atomic)::
 
     inbox/<name> --claim--> processing/<id> --> archive/<id>
@@ -80,8 +83,9 @@ from types import MappingProxyType
 from typing import Any
 from zoneinfo import ZoneInfo
 
-from grassd.daemon.config import schema
+from grassd.daemon.config import manifest_fields, schema
 from grassd.daemon.config.limits import DEFAULT_LIMITS, FUTURE_TOLERANCE_S, BundleLimits
+from grassd.daemon.config.manifest_fields import plain_name as _plain_name
 from grassd.daemon.errors import IngestError, ManifestError
 from grassd.daemon.safe_text import storable
 from grassd.daemon.store.atomic import atomic_write_text, fsync_dir
@@ -99,14 +103,12 @@ from grassd.daemon.store.untrusted import (
 from grassd.daemon.timestamps import utc_iso
 from grassd.sim.errors import LightingError
 from grassd.sim.light_input import LightInput
-from grassd.sim.lighting import MAX_LUX
 from grassd.sim.sun import check_sun_reading
 
 log = logging.getLogger(__name__)
 
 MANIFEST_NAMES = ("manifest.toml", "manifest.json")
 FLAT_SUFFIXES = (".manifest.toml", ".manifest.json")
-HDRI_SUFFIXES = (".exr", ".hdr")
 REASON_FILE = "reason.txt"
 #: Seconds before a bundle that could not be moved out of the inbox is tried again (doubling
 #: after each failure up to STUCK_RETRY_MAX_S; at once when its owner or mode changes).
@@ -127,7 +129,7 @@ class CheckerPhoto:
 
     raw: Path
     corners: tuple[tuple[float, float], ...]
-    chart: str = "spydercheckr-24"
+    chart: str = manifest_fields.DEFAULT_CHART
 
 
 @dataclass(frozen=True)
@@ -235,42 +237,9 @@ def _flat_owner(file_name: str, flat_names: list[str]) -> str | None:
 
 
 def _member(base: Path, key: str, v: Any) -> Path:
-    if not isinstance(v, str) or not v or "/" in v or "\\" in v or v in (".", ".."):
+    if not _plain_name(v):
         raise ManifestError(f"{key} must be a plain file name inside the bundle, got {v!r}")
     return base / v
-
-
-def _plain_name(v: Any) -> bool:
-    """True when ``v`` would pass :func:`_member` (a plain file name inside the bundle)."""
-    return isinstance(v, str) and bool(v) and "/" not in v and "\\" not in v \
-        and v not in (".", "..")
-
-
-def _lux(lo_exclusive: bool) -> Callable[[Any], str | None]:
-    def check(v: float) -> str | None:
-        if (v <= 0 if lo_exclusive else v < 0) or v > MAX_LUX:
-            return (f"{v:g} lux is impossible: it must be {'>' if lo_exclusive else '>='} 0 and "
-                    f"<= {MAX_LUX:g} lux")
-        return None
-
-    return check
-
-
-def _file_name(v: str) -> str | None:
-    return None if _plain_name(v) else f"must be a plain file name inside the bundle, got {v!r}"
-
-
-def _hdri_name(v: str) -> str | None:
-    if not _plain_name(v):
-        return _file_name(v)
-    if Path(v).suffix.lower() not in HDRI_SUFFIXES:
-        return f"{v!r} must be an OpenEXR (.exr) or Radiance (.hdr) file"
-    return None
-
-
-def _corners(v: list) -> str | None:
-    ok = len(v) == 4 and all(isinstance(c, list) and schema.numbers(2)(c) is None for c in v)
-    return None if ok else "must be four [x, y] pixel positions"
 
 
 def parse_manifest(data: dict[str, Any], base: Path, tz: tzinfo = UTC) -> Manifest:
@@ -284,14 +253,7 @@ def parse_manifest(data: dict[str, Any], base: Path, tz: tzinfo = UTC) -> Manife
     m = schema.table(ctx, (), data, {
         "timestamp": F(str | datetime, hint="a date-time, ISO 8601, e.g. "
                        "2026-06-21T12:00:00+02:00"),
-        "hdri": F(str, check=_hdri_name, hint="the name of the .exr or .hdr panorama"),
-        "ambient_lux": F(float, None, _lux(lo_exclusive=True)),
-        "sun_lux": F(float, None, _lux(lo_exclusive=False)),
-        "sun_azimuth_deg": F(float, None, schema.between(0.0, 360.0, " degrees")),
-        "sun_elevation_deg": F(float, None, schema.between(-90.0, 90.0, " degrees")),
-        "checker_raw": F(str, None, _file_name),
-        "checker_corners": F(list, None, _corners),
-        "checker_chart": F(str, CheckerPhoto.chart, schema.non_empty),
+        **manifest_fields.light_fields(plain_names=True, ambient_required=False),
         "capture": F(dict, None, hint="a table (written by grassd capture)"),
     })
     ts = m["timestamp"]
@@ -303,14 +265,8 @@ def parse_manifest(data: dict[str, Any], base: Path, tz: tzinfo = UTC) -> Manife
                             "2026-06-21T12:00:00+02:00)") from None
     if ts.tzinfo is None:
         ts = ts.replace(tzinfo=tz)
-    if (m["sun_azimuth_deg"] is None) != (m["sun_elevation_deg"] is None):
-        raise ctx.error((), "give both sun_azimuth_deg and sun_elevation_deg, or neither")
+    manifest_fields.check_together(ctx, m)
     raw, corners = m["checker_raw"], m["checker_corners"]
-    if corners is not None and raw is None:
-        raise ctx.error(("checker_corners",), "given without checker_raw")
-    if raw is not None and corners is None:
-        raise ctx.error(("checker_raw",), "needs checker_corners: the four chart corners in the "
-                        "RAW image (pixels, top-left first, clockwise)")
     capture = m["capture"]
     light = LightInput(hdri=base / m["hdri"], ambient_lux=m["ambient_lux"], sun_lux=m["sun_lux"],
                        sun_azimuth_deg=m["sun_azimuth_deg"],
@@ -318,7 +274,7 @@ def parse_manifest(data: dict[str, Any], base: Path, tz: tzinfo = UTC) -> Manife
                        sun_from_hdri=bool(capture and capture.get("sun_clipped") is True),
                        timestamp=ts)
     checker = None if raw is None else CheckerPhoto(
-        base / raw, tuple((float(x), float(y)) for x, y in corners), m["checker_chart"])
+        base / raw, manifest_fields.as_quad(corners), m["checker_chart"])
     return Manifest(light, checker, None if capture is None else MappingProxyType(dict(capture)))
 
 
