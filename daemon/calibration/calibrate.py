@@ -1,37 +1,35 @@
-"""One calibration run: light -> simulated characteristics -> table -> checks -> closed loop.
+"""One calibration run: light -> simulated characteristics -> tables -> checks -> closed loop.
 
 Composition of :mod:`grassd.sim` and :mod:`grassd.calib` (pushing and recording are the
-service's job, :mod:`grassd.daemon.runtime.service`):
+service's job, :mod:`grassd.daemon.runtime.service`). Every run, whatever ``[tables]
+granularity`` and ``[audience]`` ask, goes through :meth:`Calibrator.run`:
 
 1. **Lighting** from the bundle: the HDRI scaled to the ambient lux, plus a directional sun of
    ``sun_lux`` (direction from the manifest, else from the site's latitude/longitude and the
    bundle time, NREL SPA via :func:`grassd.sim.sun.sun_position`).
-2. **Simulate** the centre pixel of a (up to) 3 x 3 patch of the display (so neighbours shade
-   it as on the real display) from every configured viewpoint at the configured lengths (mm),
-   with ``replicates`` independent Monte Carlo estimates (common random numbers across lengths).
-3. **Exposure**: renders are in nits; they are divided by the radiance of a perfect diffuse white
-   lying flat at the display (horizontal irradiance / pi), so Y = 1 is reference white as CIELAB
-   expects and an 18 % grey card reads 0.18 (the convention of ``grassd simulate``:
-   :func:`grassd.daemon.calibration.simulation.simulate_curve` does the rendering and OGCD here
-   too).
-4. **Colour correction** (paper, section 5.2): with a colour-checker RAW in the bundle, the
+2. **Colour correction** (paper, section 5.2): with a colour-checker RAW in the bundle, the
    virtual patches are the chart's reference reflectances lit by the same horizontal
    irradiance (a flat chart at the display), the real ones the developed RAW's patches; both are
    exposure-normalised on the grey patch and a 3x3 matrix is fitted (real ~= M . virtual).
    Without a RAW the last matrix is reused (``previous_ccm``), else none is applied.
-5. **Weighted characteristic**: OGCD per viewpoint (CIEDE2000 from the shortest length, with
-   correlation-aware errors from the replicates), averaged with the viewpoint weights.
-6. **Shape check** (as OpenVPCal refuses a calibration from a bad measurement): refuse a
-   characteristic with too many flat steps (|step| <= max(2 sigma, 1 % of the range)) or any
-   wild step (a drop of more than 3 sigma + 10 % of the range).
-7. **Table**: monotone fit and 256-entry inversion (:func:`grassd.calib.build_length_table`).
-8. **Sanity**: 256 finite, integer, non-decreasing entries within 0..green_max; no entry moves
-   more than ``max_jump_mm`` from the last table unless forced.
-9. **Closed loop** (as ArgyllCMS dispcal re-measures and corrects until a dE threshold):
-   re-simulate at the table's lengths for ``check_levels`` levels, compare OGCD with the target
-   ``v / 255 x OGCD(255)``; while the largest deviation exceeds ``target_de00`` and fewer than
-   ``max_rounds`` rounds ran, add the new points to the characteristic (fresh seed, so they
-   average with the old ones), refit and rebuild. R^2 of OGCD vs level is reported per round.
+3. **Units** from the run's source (:mod:`grassd.daemon.calibration.units`): the centre pixel of
+   a patch from every viewpoint (one table), the whole display from every viewpoint, or an
+   audience region; renders in nits are divided by the radiance of a perfect diffuse white
+   lying flat at the display (:func:`grassd.daemon.calibration.simulation.simulate_curve`), OGCD
+   per viewer with correlation-aware errors from ``replicates``, averaged with the weights.
+4. **Shape check** of every unit's characteristic and **table checks** of every table
+   (:mod:`grassd.daemon.calibration.checks`).
+5. **Closed loop** (as ArgyllCMS dispcal re-measures and corrects until a dE threshold), up to
+   ``max_rounds`` rounds (:func:`closed_loop_check`): every pixel group's representative (a
+   group whose members two tables drive is checked once per table,
+   :meth:`~grassd.daemon.calibration.units.Viewers.split_by_table`) is re-simulated by every
+   viewer at its own table's lengths for ``check_levels`` levels (a fresh seed per round) and
+   its weighted OGCD is compared with the linear target ``v / 255 x OGCD(255)``; a unit whose
+   pixels deviate by more than ``target_de00`` gets the round's points added to its fit and a
+   new table (:func:`refine_unit`), which passes the table checks again, and the next round
+   re-checks. ``max_dev_de00`` and ``r2_closed_loop`` are the worst group's in the last round.
+   Tables from ``[audience]`` are checked in one round and not refined: a region table is not
+   the inverse of one characteristic.
 """
 
 from __future__ import annotations
@@ -40,251 +38,59 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from grassd.calib.ccm import ColourCorrection, fit_ccm
-from grassd.calib.characteristic import Characteristic, fit_characteristic, floor_stderr
+from grassd.calib.characteristic import Characteristic, fit_characteristic
 from grassd.calib.charts import get_chart
 from grassd.calib.colour_spaces import luminance
 from grassd.calib.exposure import normalise_exposure
-from grassd.calib.length_table import LEVELS, LengthTable, build_length_table, r_squared
+from grassd.calib.length_table import LEVELS, build_length_table, r_squared
 from grassd.calib.raw import develop_raw
+from grassd.daemon.calibration.checks import (
+    check_levels,
+    check_shape,
+    check_table,
+    pooled_characteristic,
+)
+from grassd.daemon.calibration.display_model import (
+    capacity_for,
+    display_spec_for_config,
+    table_deviation,
+)
+from grassd.daemon.calibration.result import (
+    CENTRE,
+    CalibrationResult,
+    LoopCheck,
+    UnitTable,
+    ViewpointCurve,
+)
 from grassd.daemon.calibration.simulation import simulate_curve, white_radiance
+from grassd.daemon.calibration.units import (
+    Viewers,
+    audience_units,
+    centre_units,
+    controller_tables_of,
+    r2_pair,
+    viewpoint_units,
+)
 from grassd.daemon.config.settings import Config, ViewpointConfig
 from grassd.daemon.errors import CalibrationRejected, RunInterrupted
 from grassd.sim.light_input import LightInput
 
 if TYPE_CHECKING:
-    from grassd.daemon.calibration.calibrate_display import DisplayCalibrationResult
     from grassd.daemon.store.ingest import CheckerPhoto
 
 log = logging.getLogger(__name__)
 
 Progress = Callable[[str], None]
 
-
-@dataclass(frozen=True)
-class ViewpointCurve:
-    """OGCD (dE00) vs length (mm) simulated from one viewpoint."""
-
-    viewpoint: ViewpointConfig
-    lengths_mm: NDArray[np.float64]
-    ogcd: NDArray[np.float64]
-    ogcd_stderr: NDArray[np.float64]
-    seconds: float
-
-
-@dataclass(frozen=True)
-class LoopRound:
-    """One closed-loop check: OGCD measured at the table's lengths for the check levels."""
-
-    round: int
-    levels: NDArray[np.int64]
-    lengths_mm: NDArray[np.float64]
-    ogcd: NDArray[np.float64]
-    target: NDArray[np.float64]
-    max_dev_de00: float
-    r2: float
-
-
-@dataclass
-class CalibrationResult:
-    """Everything a run produced. ``lengths_um``: the 256-entry table (uint16 micrometres)."""
-
-    table: LengthTable
-    curves: list[ViewpointCurve]
-    weighted: Characteristic
-    rounds: list[LoopRound]
-    ccm: ColourCorrection | None
-    ccm_source: str
-    lighting_notes: tuple[str, ...]
-    seconds: dict[str, float] = field(default_factory=dict)
-    max_step_um: int | None = None
-
-    @property
-    def lengths_um(self) -> NDArray[np.uint16]:
-        """The final table (uint16 micrometres, one entry per 8-bit level)."""
-        return self.table.lengths_um
-
-    def metrics(self, r2_goal: float = 0.999, target_de00: float = 0.5) -> dict[str, Any]:
-        """Summary numbers for history and status (dE00 = CIEDE2000 units)."""
-        last = self.rounds[-1] if self.rounds else None
-        return {
-            "r2_before": self.table.r2_before,
-            "r2_after_fit": self.table.r2_after,
-            "r2_closed_loop": last.r2 if last else None,
-            "r2_goal": r2_goal,
-            "r2_goal_met": bool(last and last.r2 >= r2_goal),
-            "max_dev_de00": last.max_dev_de00 if last else None,
-            "max_dev_goal_de00": target_de00,
-            "max_dev_goal_met": bool(last and last.max_dev_de00 <= target_de00),
-            "rounds": len(self.rounds),
-            "ogcd_range_de00": self.table.ogcd_range,
-            "mean_ogcd_stderr_de00": float(np.mean(self.weighted.ogcd_stderr))
-            if self.weighted.ogcd_stderr is not None else None,
-            "ccm_source": self.ccm_source,
-            "ccm_mean_de00": _finite_or_none(self.ccm.mean_de00) if self.ccm else None,
-            "ccm_max_de00": _finite_or_none(self.ccm.max_de00) if self.ccm else None,
-            "max_step_from_last_um": self.max_step_um,
-            "seconds": dict(self.seconds),
-        }
-
-    def report(self) -> dict[str, Any]:
-        """A JSON-serialisable report of the run (arrays as lists)."""
-        return {
-            "table_um": self.lengths_um.tolist(),
-            "characteristic": {
-                "lengths_mm": self.weighted.lengths_mm.tolist(),
-                "ogcd_de00": self.weighted.ogcd.tolist(),
-                "ogcd_stderr_de00": None if self.weighted.ogcd_stderr is None
-                else self.weighted.ogcd_stderr.tolist(),
-            },
-            "viewpoints": [
-                {"h_cm": c.viewpoint.h_cm, "d_m": c.viewpoint.d_m,
-                 "theta_deg": c.viewpoint.theta_deg, "weight": c.viewpoint.weight,
-                 "lengths_mm": c.lengths_mm.tolist(), "ogcd_de00": c.ogcd.tolist(),
-                 "ogcd_stderr_de00": c.ogcd_stderr.tolist(), "seconds": c.seconds}
-                for c in self.curves
-            ],
-            "closed_loop": [
-                {"round": r.round, "levels": r.levels.tolist(), "lengths_mm": r.lengths_mm.tolist(),
-                 "ogcd_de00": r.ogcd.tolist(), "target_de00": r.target.tolist(),
-                 "max_dev_de00": r.max_dev_de00, "r2": r.r2}
-                for r in self.rounds
-            ],
-            "ccm": None if self.ccm is None else {
-                "source": self.ccm_source, "method": self.ccm.method,
-                "matrix": self.ccm.matrix.tolist(),
-                "mean_de00": _finite_or_none(self.ccm.mean_de00),
-                "max_de00": _finite_or_none(self.ccm.max_de00),
-            },
-            "lighting_notes": list(self.lighting_notes),
-        }
-
-    def figure(self) -> Any:
-        """A matplotlib Figure: characteristics, the table, and the closed-loop check."""
-        from matplotlib.figure import Figure  # only when plotting
-
-        fig = Figure(figsize=(12, 4), dpi=100)
-        ax1, ax2, ax3 = fig.subplots(1, 3)
-        for c in self.curves:
-            v = c.viewpoint
-            ax1.errorbar(c.lengths_mm, c.ogcd, yerr=c.ogcd_stderr, fmt=".-", lw=0.8,
-                         label=f"({v.h_cm:g}, {v.d_m:g}, {v.theta_deg:g}) w={v.weight:g}")
-        w = self.weighted
-        ax1.plot(w.lengths_mm, w.ogcd, "k.", label="weighted + loop points")
-        ax1.set(xlabel="green length (mm)", ylabel="OGCD (dE00)", title="Characteristic")
-        ax1.legend(fontsize=7)
-        levels = np.arange(LEVELS)
-        ax2.plot(levels, self.lengths_um / 1000.0, "g-")
-        ax2.set(xlabel="8-bit level", ylabel="length (mm)", title="Length table")
-        ax3.plot(levels, self.table.uncalibrated_ogcd, "r-", lw=0.8, label="linear lengths (fit)")
-        ax3.plot(levels, self.table.achieved_ogcd, "g-", lw=0.8, label="table (fit)")
-        if self.rounds:
-            r = self.rounds[-1]
-            ax3.plot(r.levels, r.ogcd, "ko", ms=3, label=f"re-simulated, round {r.round}")
-            ax3.plot(r.levels, r.target, "b--", lw=0.8, label="target")
-        ax3.set(xlabel="8-bit level", ylabel="OGCD (dE00)", title="Linearity")
-        ax3.legend(fontsize=7)
-        fig.tight_layout()
-        return fig
-
-
-def _finite_or_none(x: float | None) -> float | None:
-    """``x`` as a float, or None when it is missing or not finite (reports are strict JSON: a
-    reused matrix has no residuals, so its mean/max dE00 are NaN)."""
-    if x is None or not np.isfinite(x):
-        return None
-    return float(x)
-
-
-# --------------------------------------------------------------------------- checks
-
-
-def check_shape(lengths_mm: NDArray, ogcd: NDArray, stderr: NDArray | None,
-                max_flat_fraction: float) -> dict[str, float]:
-    """Refuse a characteristic with too many flat or any wild steps (see module docstring).
-
-    Returns the step statistics; raises :class:`CalibrationRejected`.
-    """
-    order = np.argsort(lengths_mm, kind="stable")
-    y = np.asarray(ogcd, float)[order]
-    se = np.zeros_like(y) if stderr is None else np.asarray(stderr, float)[order]
-    steps = np.diff(y)
-    noise = np.sqrt(se[:-1] ** 2 + se[1:] ** 2)
-    rng = float(y.max() - y.min())
-    flat = np.abs(steps) <= np.maximum(2.0 * noise, 0.01 * rng)
-    wild = steps < -(3.0 * noise + 0.10 * rng)
-    flat_fraction = float(flat.mean()) if steps.size else 1.0
-    stats = {"flat_fraction": flat_fraction, "wild_steps": int(wild.sum()), "range": rng}
-    if wild.any():
-        i = int(np.argmax(wild))
-        x = np.asarray(lengths_mm, float)[order]
-        raise CalibrationRejected(
-            f"characteristic has a wild step: OGCD drops by {-steps[i]:.2f} dE00 between "
-            f"{x[i]:g} and {x[i + 1]:g} mm (noise {noise[i]:.2f}); check the light inputs")
-    if flat_fraction > max_flat_fraction:
-        raise CalibrationRejected(
-            f"characteristic is flat over {flat_fraction:.0%} of its steps (limit "
-            f"{max_flat_fraction:.0%}): the light cannot show the grass; no table built")
-    return stats
-
-
-def check_levels(n: int) -> NDArray[np.int64]:
-    """The 8-bit levels the closed loop re-simulates: ``n`` evenly spaced over 0..255, rounded,
-    duplicates dropped (level 0 is the reference length, 255 the top of the range).
-
-    >>> check_levels(5).tolist()
-    [0, 64, 128, 191, 255]
-    """
-    return np.unique(np.rint(np.linspace(0, LEVELS - 1, n)).astype(np.int64))
-
-
-def pooled_characteristic(xs: Sequence[NDArray], ys: Sequence[NDArray],
-                          ses: Sequence[NDArray]) -> Characteristic:
-    """One characteristic of every point simulated for a table so far (the first simulation's
-    lengths [mm], OGCD and standard errors [dE00], then each closed-loop round's), the errors
-    floored (:func:`grassd.calib.characteristic.floor_stderr`) so that every point keeps a
-    finite fit weight: what a closed loop refits its table to."""
-    return Characteristic(np.concatenate(xs), np.concatenate(ys),
-                          floor_stderr(np.concatenate(ses)))
-
-
-def check_table(lengths_um: NDArray, green_max_mm: float, previous_um: NDArray | None,
-                max_jump_mm: float, force: bool, what: str = "table") -> int | None:
-    """Sanity checks of a table (micrometres); returns the largest step from ``previous_um``.
-
-    ``lengths_um``: one table (256,) or per-pixel tables (n, 256), every row checked;
-    ``previous_um`` must broadcast against it (a (256,) table against (n, 256) compares every
-    row). ``what`` names the table in messages (e.g. a controller). Raises
-    :class:`CalibrationRejected` naming the first problem found.
-    """
-    t = np.asarray(lengths_um)
-    if t.ndim not in (1, 2) or t.shape[-1] != LEVELS or t.size == 0:
-        raise CalibrationRejected(f"{what} has shape {t.shape}, expected ({LEVELS},) or "
-                                  f"(n_pixels, {LEVELS})")
-    if not np.all(np.isfinite(t.astype(float))):
-        raise CalibrationRejected(f"{what} holds non-finite entries")
-    if np.any(np.diff(t.astype(np.int64), axis=-1) < 0):
-        raise CalibrationRejected(f"{what} is not monotone (non-decreasing)")
-    top = round(green_max_mm * 1000)
-    if int(t.min()) < 0 or int(t.max()) > top:
-        raise CalibrationRejected(f"{what} leaves the range 0..{top} um")
-    if previous_um is None:
-        return None
-    jump = int(np.abs(t.astype(np.int64) - np.asarray(previous_um, np.int64)).max())
-    if jump > max_jump_mm * 1000 and not force:
-        raise CalibrationRejected(
-            f"{what} differs from the active one by up to {jump / 1000:.2f} mm (limit "
-            f"{max_jump_mm:g} mm): a wild jump; run `grassd calibrate --now --force` to accept it")
-    return jump
-
-
-# --------------------------------------------------------------------------- the run
+__all__ = ["Calibrator", "CalibrationResult", "LightInput", "closed_loop_check", "init_backend",
+           "refine_unit"]
 
 
 def init_backend(cfg: Config) -> str:
@@ -372,7 +178,7 @@ class Calibrator:
                  progress: Progress | None) -> list[ViewpointCurve]:
         """OGCD vs ``lengths_mm`` (first entry = reference) from every viewpoint."""
         from grassd.sim.renderer import Renderer  # imports Taichi
-        from grassd.sim.scene import RenderSettings, Viewpoint
+        from grassd.sim.scene import RenderSettings
 
         display, centre = self.display()
         settings = RenderSettings(samples=self.cfg.simulation.samples,
@@ -385,13 +191,29 @@ class Calibrator:
                 progress(f"simulating viewpoint {i + 1}/{len(self.cfg.viewpoints)} "
                          f"({vp.h_cm:g}, {vp.d_m:g}, {vp.theta_deg:g})")
             t0 = time.perf_counter()
-            c = simulate_curve(Renderer.shared(), display, lighting,
-                               Viewpoint(vp.h_cm, vp.d_m, vp.theta_deg),
+            c = simulate_curve(Renderer.shared(), display, lighting, self.viewpoint(vp),
                                np.asarray(lengths_mm, float), settings, ccm=ccm,
                                pixel_index=centre, layouts=self.cfg.simulation.layouts)
             curves.append(ViewpointCurve(vp, np.asarray(lengths_mm, float), c.ogcd,
                                          c.ogcd_stderr, time.perf_counter() - t0))
         return curves
+
+    @staticmethod
+    def viewpoint(vp: ViewpointConfig) -> Any:
+        """The :class:`grassd.sim.scene.Viewpoint` of a [[viewpoints]] entry (cm, m, deg)."""
+        from grassd.sim.scene import Viewpoint
+
+        return Viewpoint(vp.h_cm, vp.d_m, vp.theta_deg)
+
+    @property
+    def source(self) -> str:
+        """Who the run's tables are for: :data:`~grassd.daemon.calibration.result.CENTRE` (one
+        table from [[viewpoints]]: ``[tables] granularity = "global"`` without
+        ``[audience]``), "viewpoints" (a table per controller or per pixel group) or
+        "audience"."""
+        if self.cfg.audience is not None:
+            return "audience"
+        return CENTRE if self.cfg.tables.granularity == "global" else "viewpoints"
 
     @staticmethod
     def weighted(curves: list[ViewpointCurve]) -> tuple[NDArray, NDArray]:
@@ -401,14 +223,6 @@ class Calibrator:
         y = np.stack([c.ogcd for c in curves])
         se = np.stack([c.ogcd_stderr for c in curves])
         return w @ y, np.sqrt((w**2) @ (se**2))
-
-    # ------------------------------------------------------------------ run
-    @property
-    def per_display(self) -> bool:
-        """True when the config asks for more than the one global table from [[viewpoints]]:
-        ``[tables] granularity`` "controller"/"pixel", or an ``[audience]`` region. Such runs
-        go through :func:`grassd.daemon.calibration.calibrate_display.calibrate_display`."""
-        return self.cfg.tables.granularity != "global" or self.cfg.audience is not None
 
     def light_and_ccm(self, light: LightInput, checker: CheckerPhoto | None,
                       previous_ccm: NDArray | None,
@@ -436,67 +250,191 @@ class Calibrator:
             previous_ccm: NDArray | None = None, force: bool = False,
             stop: threading.Event | None = None,
             progress: Progress | None = None,
-            previous_tables: Mapping[str, NDArray] | None = None
-            ) -> CalibrationResult | DisplayCalibrationResult:
+            previous_tables: Mapping[str, NDArray] | None = None) -> CalibrationResult:
         """Calibrate for ``light`` (colour-corrected with the bundle's ``checker`` photo if
-        given); raises CalibError/SimError/CalibrationRejected on bad input
-        and :class:`RunInterrupted` when ``stop`` is set.
+        given; see the module docstring). ``previous_um`` is the active display-wide table and
+        ``previous_tables`` the last run's tables by controller name, for the jump check.
 
-        Returns a :class:`CalibrationResult` (one global table from [[viewpoints]]) or, when
-        :attr:`per_display`, a
-        :class:`grassd.daemon.calibration.calibrate_display.DisplayCalibrationResult` (a table per
-        controller / per pixel, or from the audience region; ``previous_tables`` are the last run's
-        tables by controller name, for the jump check)."""
-        if self.per_display:
-            from grassd.daemon.calibration.calibrate_display import calibrate_display
+        Raises CalibError/SimError/:class:`CalibrationRejected` on bad input and
+        :class:`RunInterrupted` when ``stop`` is set (checked per trace)."""
+        from grassd.sim.renderer import Renderer
+        from grassd.sim.scene import RenderSettings
 
-            return calibrate_display(self, light, checker=checker, previous_um=previous_um,
-                                     previous_tables=previous_tables,
-                                     previous_ccm=previous_ccm, force=force, stop=stop,
-                                     progress=progress)
-        cal = self.cfg.calibration
+        cfg, cc, source = self.cfg, self.cfg.calibration, self.source
         t_start = time.perf_counter()
         lighting, ccm, ccm_source = self.light_and_ccm(light, checker, previous_ccm, progress)
+        settings = RenderSettings(samples=cfg.simulation.samples,
+                                  replicates=cc.replicates, seed=cfg.simulation.seed)
+        lengths = np.asarray(cfg.simulation.lengths_mm, float)
 
-        lengths = np.asarray(self.cfg.simulation.lengths_mm, float)
-        seed = self.cfg.simulation.seed
-        curves = self.simulate(lighting, lengths, seed, ccm, stop, progress)
+        def stepper(what: str) -> Callable[[int, int], None]:
+            def step(done: int, total: int) -> None:
+                if stop is not None and stop.is_set():
+                    raise RunInterrupted("calibration stopped (daemon shutting down)")
+                if progress:
+                    progress(f"{what} ({source}, {cfg.tables.granularity} tables): "
+                             f"trace {done}/{total}")
+            return step
+
+        if source == CENTRE:
+            display, centre = self.display()
+            renderer = Renderer.shared()
+            found = centre_units(self, display, centre, lighting, lengths, settings.seed, ccm,
+                                 stop, progress)
+        else:
+            display = display_spec_for_config(cfg)
+            renderer = Renderer.shared(capacity_for(display.rows * display.cols))
+            step = stepper("simulating the display")
+            step(0, 1)
+            units_of = viewpoint_units if source == "viewpoints" else audience_units
+            found = units_of(self, renderer, display, lighting, lengths, settings, ccm, step)
         t_sim = time.perf_counter() - t_start
-        y, se = self.weighted(curves)
-        check_shape(lengths, y, se, cal.max_flat_fraction)
-        all_x, all_y, all_se = [lengths], [y], [se]
-        weighted = pooled_characteristic(all_x, all_y, all_se)
-        table = build_length_table(fit_characteristic(weighted))
-        green_max = self.cfg.display.green_max_mm
-
-        rounds: list[LoopRound] = []
-        levels = check_levels(cal.check_levels)
-        for k in range(1, cal.max_rounds + 1):
-            check_table(table.lengths_um, green_max, None, cal.max_jump_mm, force)
-            if progress:
-                progress(f"closed loop round {k}: re-simulating {levels.size} levels")
-            lx = table.lengths_um[levels].astype(float) / 1000.0
-            loop_progress = (None if progress is None else
-                             lambda text, k=k: progress(f"closed loop round {k}: {text}"))
-            loop_curves = self.simulate(lighting, lx, seed + 1000 * k, ccm, stop, loop_progress)
-            ly, lse = self.weighted(loop_curves)
-            target = levels / (LEVELS - 1) * ly[-1]
-            dev = float(np.abs(ly - target).max())
-            r2 = r_squared(levels, ly)
-            rounds.append(LoopRound(k, levels, lx, ly, target, dev, r2))
-            log.info("closed loop round %d: max deviation %.3f dE00, R^2 %.5f", k, dev, r2)
-            if dev <= cal.target_de00 or k == cal.max_rounds:
+        units, unit_of_pixel = list(found.units), found.unit_of_pixel
+        viewers = found.viewers.split_by_table(unit_of_pixel)  # each table on its own pixels
+        for u in units:  # one check per table (controllers or pixel groups), never per pixel
+            try:
+                check_shape(u.characteristic.lengths_mm, u.characteristic.ogcd,
+                            u.characteristic.ogcd_stderr, cc.max_flat_fraction)
+            except CalibrationRejected as exc:
+                raise CalibrationRejected(f"{u.name}: {exc}") from None
+        checked = _TableChecks(cfg, unit_of_pixel, found.whole, previous_um, previous_tables,
+                               force, own_tables=source != CENTRE)
+        controller_tables, max_step = checked(units)
+        t_loop = time.perf_counter()
+        levels = check_levels(cc.check_levels)
+        rounds: list[LoopCheck] = []
+        for k in range(1, cc.max_rounds + 1):
+            pixel_tables = np.stack([u.lengths_um for u in units])[unit_of_pixel]
+            loop = closed_loop_check(renderer, display, lighting, viewers, pixel_tables, levels,
+                                     replace(settings, seed=settings.seed + 1000 * k), ccm,
+                                     stepper(f"closed loop round {k}"), round_no=k)
+            rounds.append(loop)
+            pixel_dev = loop.pixel_dev()
+            off = [i for i, u in enumerate(units)
+                   if u.pixels.size and pixel_dev[u.pixels].max() > cc.target_de00]
+            log.info("closed loop round %d: max deviation %.3f dE00, R^2 %.5f, %d of %d "
+                     "tables above %.2f", k, float(loop.max_dev.max()), float(loop.r2.min()),
+                     len(off), len(units), cc.target_de00)
+            if not off or k == cc.max_rounds or viewers.group_characteristics is None:
                 break
-            all_x.append(lx)
-            all_y.append(ly)
-            all_se.append(lse)
-            weighted = pooled_characteristic(all_x, all_y, all_se)
-            table = build_length_table(fit_characteristic(weighted))
-
-        max_step = check_table(table.lengths_um, green_max, previous_um, cal.max_jump_mm, force)
-        notes = tuple(getattr(lighting, "notes", ()))
+            for i in off:  # every round so far measured the unit's table of its time
+                units[i] = refine_unit(units[i], rounds, viewers.group_characteristics)
+            controller_tables, max_step = checked(units)
+        pixel_dev, pixel_r2 = loop.pixel_dev(), loop.r2[loop.labels]
+        units = [replace(u, loop_max_dev=float(pixel_dev[u.pixels].max()),
+                         loop_r2=float(pixel_r2[u.pixels].min())) if u.pixels.size else u
+                 for u in units]
+        whole = found.whole if found.whole is not None else units[0]
         total = time.perf_counter() - t_start
-        return CalibrationResult(table=table, curves=curves, weighted=weighted, rounds=rounds,
-                                 ccm=ccm, ccm_source=ccm_source, lighting_notes=notes,
-                                 seconds={"simulate": t_sim, "total": total},
-                                 max_step_um=max_step)
+        return CalibrationResult(
+            granularity=cfg.tables.granularity, source=source,
+            shape=(display.rows, display.cols), table_um=whole.lengths_um,
+            controller_tables=controller_tables, units=units, unit_of_pixel=unit_of_pixel,
+            ccm=ccm, ccm_source=ccm_source,
+            lighting_notes=tuple(getattr(lighting, "notes", ())), grouping=found.grouping,
+            region=found.region, loop_rounds=rounds,
+            seconds={"simulate": t_sim, "closed_loop": total - (t_loop - t_start),
+                     "total": total},
+            max_step_um=max_step, curves=found.curves)
+
+
+class _TableChecks:
+    """The table checks of a run (:func:`grassd.daemon.calibration.checks.check_table`), run
+    on its first tables and again after every refinement: every controller's table against its
+    own previous one (or the active display-wide table when it had none of that shape); the
+    display-wide table once, against the active one when it is what every controller gets (a
+    run with no tables of its own, ``own_tables`` False: a centre-pixel run's table is every
+    controller's)."""
+
+    def __init__(self, cfg: Config, unit_of_pixel: NDArray, whole: UnitTable | None,
+                 previous_um: NDArray | None, previous_tables: Mapping[str, NDArray] | None,
+                 force: bool, own_tables: bool) -> None:
+        self.cfg, self.unit_of_pixel, self.whole = cfg, unit_of_pixel, whole
+        self.own_tables = own_tables
+        self.previous_um, self.previous_tables, self.force = previous_um, previous_tables, force
+        self.whole_step: int | None = None
+        if whole is not None:  # never refined: checked once
+            self.whole_step = self._check(whole.lengths_um, None, "display-wide table")
+
+    def _check(self, table: NDArray, previous: NDArray | None, what: str) -> int | None:
+        cc = self.cfg.calibration
+        return check_table(table, self.cfg.display.green_max_mm, previous, cc.max_jump_mm,
+                           self.force, what)
+
+    def __call__(self, units: Sequence[UnitTable]) -> tuple[dict[str, NDArray], int | None]:
+        """(every controller's table, the largest step [um] from the active tables or None)."""
+        tables = (controller_tables_of(self.cfg, units, self.unit_of_pixel)
+                  if self.own_tables else {})
+        steps = [self.whole_step]
+        if self.whole is None:  # the run's one unit is the display-wide table
+            steps.append(self._check(units[0].lengths_um, self.previous_um,
+                                     "table" if not tables else "display-wide table"))
+        for name, table in tables.items():
+            prev = None if self.previous_tables is None else self.previous_tables.get(name)
+            if prev is not None and np.ndim(prev) != 1 and np.shape(prev) != table.shape:
+                prev = None  # its pixel count changed: compare with the display-wide table
+            steps.append(self._check(table, prev if prev is not None else self.previous_um,
+                                     f"table of controller {name}"))
+        known = [s for s in steps if s is not None]
+        return tables, max(known) if known else None
+
+
+def closed_loop_check(renderer: Any, display: Any, lighting: Any, viewers: Viewers,
+                      pixel_tables_um: NDArray, levels: NDArray, settings: Any, ccm: Any,
+                      step: Callable[[int, int], None], round_no: int = 1) -> LoopCheck:
+    """Re-simulate every group's representative pixel from every viewer at the lengths its
+    table gives ``levels`` (``pixel_tables_um`` (N, 256) [um], first level 0 = the reference
+    length), average the viewers' OGCD with their weights and compare it with the linear
+    target ``level / 255 x OGCD(255)`` (the check of the global run's closed loop).
+    ``settings`` carries the round's own seed. One trace per (group, viewer)."""
+    w = viewers.weights / viewers.weights.sum()
+    reps = viewers.representatives
+    lx = pixel_tables_um[reps][:, levels].astype(np.float64) / 1000.0  # (G, L) mm
+    total = len(reps) * len(w)
+    ogcd = np.empty_like(lx)
+    se = np.empty_like(lx)
+    done = 0
+    for g, p in enumerate(reps):  # one trace per group and viewer, never per pixel
+        ys, es = [], []
+        for vp in viewers.viewpoints_of(int(p)):
+            c = simulate_curve(renderer, display, lighting, vp, lx[g], settings, ccm=ccm,
+                               pixel_index=int(p), layouts=viewers.layouts)
+            ys.append(c.ogcd)
+            es.append(c.ogcd_stderr)
+            done += 1
+            step(done, total)
+        ogcd[g] = w @ np.stack(ys)
+        se[g] = w @ np.stack(es)
+    target = levels[None, :] / (LEVELS - 1) * ogcd[:, -1:]
+    r2 = np.array([r_squared(levels, y) for y in ogcd])
+    return LoopCheck(levels=levels, representatives=reps, labels=viewers.labels,
+                     lengths_mm=lx, ogcd=ogcd, target=target,
+                     max_dev=np.abs(ogcd - target).max(axis=1), r2=r2, ogcd_stderr=se,
+                     round=round_no)
+
+
+def refine_unit(u: UnitTable, loops: Sequence[LoopCheck],
+                group_characteristics: Sequence[Characteristic]) -> UnitTable:
+    """``u`` with its table rebuilt from its characteristic plus the points of every
+    closed-loop round in ``loops`` (its table's lengths at the check levels [mm] and its pixels'
+    mean loop OGCD [dE00], weighted by pixel count), as the global run refines its table
+    (:meth:`Calibrator.run`). The errors are re-measured on the
+    unit's pixels' own characteristics (``group_characteristics``, one per loop group); R^2 and the
+    OGCD range on the refined fit."""
+    groups, counts = np.unique(loops[0].labels[u.pixels], return_counts=True)
+    w = counts / counts.sum()
+    c = u.characteristic
+    se0 = c.ogcd_stderr if c.ogcd_stderr is not None else np.zeros_like(c.ogcd)
+    xs, ys, ses = [c.lengths_mm], [c.ogcd], [se0]
+    for lp in loops:  # the unit's table drives all its groups: one set of lengths per round
+        xs.append(lp.lengths_mm[groups[0]])
+        ys.append(w @ lp.ogcd[groups])
+        ses.append(w @ lp.ogcd_stderr[groups])
+    fit = fit_characteristic(pooled_characteristic(xs, ys, ses))
+    table = build_length_table(fit)
+    errs = np.array([np.abs(table_deviation(fit_characteristic(group_characteristics[g]),
+                                            table.lengths_mm)).max() for g in groups])
+    r2b, r2a = r2_pair(fit, table.lengths_um)
+    return replace(u, lengths_um=np.asarray(table.lengths_um, np.uint16),
+                   max_error=float(errs.max()), mean_error=float(w @ errs), r2_before=r2b,
+                   r2_after=r2a, ogcd_range=float(fit.ogcd_range), refined_rounds=len(loops))

@@ -33,7 +33,7 @@ Tables (:func:`build_display_tables`): one per pixel (per group, shared by its m
 controller (its pixels' mean characteristic) or one global table (all pixels' mean). Every
 pixel's error is the largest deviation of its OGCD from the linear ramp of its own OGCD range
 when driven by its table (CIEDE2000 units). ``grassd run`` pushes these tables to the
-controllers (:mod:`grassd.daemon.calibration.calibrate_display`).
+controllers (:mod:`grassd.daemon.calibration.units`).
 """
 
 from __future__ import annotations

@@ -12,8 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from grassd.daemon.calibration.calibrate import CalibrationResult
-from grassd.daemon.calibration.calibrate_display import DisplayCalibrationResult
+from grassd.daemon.calibration.result import CalibrationResult
 from grassd.daemon.config.settings import Config
 from grassd.daemon.hardware.fleet import Fleet, table_checksum
 from grassd.daemon.runtime.push_outcomes import PushOutcomes
@@ -27,7 +26,7 @@ from grassd.daemon.store.history import History
 log = logging.getLogger(__name__)
 
 
-def commit_run(run_id: int, result: CalibrationResult | DisplayCalibrationResult, *,
+def commit_run(run_id: int, result: CalibrationResult, *,
                cfg: Config, history: History, fleet: Fleet, reports_dir: Path,
                outcomes: PushOutcomes, stop: threading.Event,
                progress: Callable[[str], None],
@@ -42,7 +41,7 @@ def commit_run(run_id: int, result: CalibrationResult | DisplayCalibrationResult
     metrics = result.metrics(cal.r2_goal, cal.target_de00)
     crc = table_checksum(result.lengths_um)
     # a table per controller ([tables] granularity "controller"/"pixel"), else one for all
-    own = getattr(result, "controller_tables", None) or {}
+    own = result.controller_tables
     own_crcs = result.controller_crcs() if own else {}
     base = reports_dir / f"run-{run_id:06d}"
     report = {"run_id": run_id, "table_id": run_id, "table_crc": crc, "metrics": metrics,
