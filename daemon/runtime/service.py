@@ -58,7 +58,6 @@ from grassd.daemon.calibration.calibrate import (
     Calibrator,
     init_backend,
 )
-from grassd.daemon.calibration.calibrate_display import DisplayCalibrationResult
 from grassd.daemon.config.settings import (
     Config,
     load_config,
@@ -535,7 +534,7 @@ class Service:
             return {"status": "failed", "run_id": run_id, "error": f"internal error: {exc!r}"}
         return self._commit(run_id, result)
 
-    def _commit(self, run_id: int, result: CalibrationResult | DisplayCalibrationResult
+    def _commit(self, run_id: int, result: CalibrationResult
                 ) -> dict[str, Any]:
         out = commit_run(run_id, result, cfg=self.cfg, history=self.history, fleet=self.fleet,
                          reports_dir=self.reports_dir, outcomes=self.push_outcomes,
