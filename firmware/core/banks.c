@@ -17,7 +17,7 @@ int fw_bank_scan(const fw_hal *hal, uint16_t capacity, uint8_t bank, uint32_t n,
                  const uint16_t *max_value, uint32_t *first_over)
 {
     uint8_t piece[64];
-    uint32_t c = 0, over = 0xFFFFFFFFu;
+    uint32_t c = 0, over = FW_NONE_OVER;
     uint32_t at = base(capacity, bank) + FW_BANK_HEADER_SIZE;
     for (uint32_t done = 0; done < n; done += sizeof piece) {
         uint32_t k = n - done < sizeof piece ? n - done : (uint32_t)sizeof piece;
@@ -25,7 +25,7 @@ int fw_bank_scan(const fw_hal *hal, uint16_t capacity, uint8_t bank, uint32_t n,
         if (rc < 0)
             return rc;
         c = fw_crc32_update(c, piece, k);
-        if (max_value != NULL && over == 0xFFFFFFFFu)
+        if (max_value != NULL && over == FW_NONE_OVER)
             for (uint32_t i = 0; i + 1 < k; i += 2)
                 if (fw_get16(piece + i) > *max_value) {
                     over = (done + i) / 2u;

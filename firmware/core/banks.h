@@ -29,7 +29,8 @@ int fw_bank_read_data(const fw_hal *hal, uint16_t capacity, uint8_t bank, uint32
                       uint8_t *buf, uint32_t n);
 /* CRC-32 of the first n data bytes of a bank, read back from storage in small pieces; when
  * max_value is not NULL also the index of the first u16 entry above *max_value (else
- * 0xFFFFFFFF) in *first_over. Returns 0 or a storage error. */
+ * FW_NONE_OVER) in *first_over. Returns 0 or a storage error. */
+#define FW_NONE_OVER 0xFFFFFFFFu
 int fw_bank_scan(const fw_hal *hal, uint16_t capacity, uint8_t bank, uint32_t n, uint32_t *crc,
                  const uint16_t *max_value, uint32_t *first_over);
 /* The one-step switch: write the whole header (magic, fields, header CRC) in one write. */

@@ -1,5 +1,8 @@
 #include "cobs.h"
 
+/* A code byte: the next code-1 bytes are non-zero; below MAX_CODE a 0x00 follows them. */
+#define MAX_CODE 0xFFu
+
 size_t fw_cobs_encode(const uint8_t *in, size_t n, uint8_t *out)
 {
     size_t code_at = 0, o = 1;
@@ -14,7 +17,7 @@ size_t fw_cobs_encode(const uint8_t *in, size_t n, uint8_t *out)
             continue;
         }
         out[o++] = b;
-        if (++code == 0xFF) {
+        if (++code == MAX_CODE) {
             out[code_at] = code;
             code = 1;
             if (i + 1 < n)
@@ -43,7 +46,7 @@ long fw_cobs_decode(uint8_t *buf, size_t n)
                 return -1;
             buf[o++] = buf[i];
         }
-        if (i < n && code < 0xFF)
+        if (i < n && code < MAX_CODE)
             buf[o++] = 0;
     }
     return (long)o;

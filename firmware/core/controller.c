@@ -3,6 +3,10 @@
 #include "crc32.h"
 #include "le.h"
 
+/* The transfer bitmap: bit i % 8 of byte i / 8 is set once data byte i of the table arrived. */
+#define XFER_BIT(i) ((uint8_t)(1u << ((i) % 8u)))
+#define XFER_ALL_EIGHT 0xFFu
+
 static uint16_t capacity(const fw_controller *c) { return c->cfg.n_pixels; }
 
 static int load_active(fw_controller *c)
@@ -123,7 +127,7 @@ static fw_msg on_chunk(fw_controller *c, const fw_table_chunk *k)
     if (fw_bank_write_data(c->hal, capacity(c), c->xfer_bank, k->offset, k->data, k->data_len) < 0)
         return nak(FW_TABLE_CHUNK, FW_NAK_STORAGE_FAILED, 0);
     for (uint32_t i = k->offset; i < k->offset + k->data_len; i++) {
-        uint8_t bit = (uint8_t)(1u << (i % 8u));
+        uint8_t bit = XFER_BIT(i);
         if (!(c->xfer_map[i / 8u] & bit)) {
             c->xfer_map[i / 8u] |= bit;
             c->xfer_received++;
@@ -137,9 +141,9 @@ static uint32_t first_missing(const fw_controller *c)
     uint32_t total = c->xfer.total_bytes;
     for (uint32_t i = 0; i < total; i += 8) {
         uint8_t byte = c->xfer_map[i / 8u];
-        if (byte != 0xFF)
+        if (byte != XFER_ALL_EIGHT)
             for (uint32_t j = i; j < i + 8 && j < total; j++)
-                if (!(byte & (1u << (j % 8u))))
+                if (!(byte & XFER_BIT(j)))
                     return j;
     }
     return total;
@@ -166,7 +170,7 @@ static fw_msg on_commit(fw_controller *c, const fw_table_commit *m)
         c->xfer_open = 0;
         return nak(FW_TABLE_COMMIT, FW_NAK_CRC_MISMATCH, crc);
     }
-    if (over != 0xFFFFFFFFu) {
+    if (over != FW_NONE_OVER) {
         c->xfer_open = 0;
         return nak(FW_TABLE_COMMIT, FW_NAK_VALUE_RANGE, over);
     }
@@ -228,9 +232,10 @@ size_t fw_handle_body(fw_controller *c, const uint8_t *body, size_t n)
 {
     if (n < FW_HEADER_SIZE)
         return 0;
-    uint8_t version = body[0], address = body[1], type = body[2];
-    uint16_t seq = fw_get16(body + 3);
-    if (address != c->cfg.address || (type & 0x80))
+    uint8_t version = body[FW_HEADER_VERSION], address = body[FW_HEADER_ADDRESS];
+    uint8_t type = body[FW_HEADER_TYPE];
+    uint16_t seq = fw_get16(body + FW_HEADER_SEQ);
+    if (address != c->cfg.address || (type & FW_TYPE_RESPONSE))
         return 0;
     uint32_t crc = fw_crc32(body, n);
     if (c->last_valid && c->last_seq == seq && c->last_crc == crc) {
@@ -280,13 +285,17 @@ size_t fw_handle_body(fw_controller *c, const uint8_t *body, size_t n)
     return c->last_len;
 }
 
-void fw_rx_feed(fw_controller *c, const uint8_t *data, size_t n)
+int fw_rx_feed(fw_controller *c, const uint8_t *data, size_t n)
 {
+    int type = FW_RX_NO_FRAME;
     for (size_t i = 0; i < n; i++) {
         size_t body = fw_rx_byte(&c->rx, data[i]);
-        if (body)
+        if (body) {
+            type = c->rx.buf[FW_HEADER_TYPE];
             fw_handle_body(c, c->rx.buf, body);
+        }
     }
+    return type;
 }
 
 void fw_tick(fw_controller *c)

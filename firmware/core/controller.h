@@ -6,6 +6,7 @@
 #define FW_CONTROLLER_H
 #include <stdint.h>
 #include "banks.h"
+#include "board_defaults.h"
 #include "frame.h"
 #include "hal.h"
 #include "limits.h"
@@ -21,8 +22,21 @@ typedef struct {
     uint16_t n_pixels;        /* 1..FW_MAX_PIXELS; also the tables one bank holds */
     uint32_t uid;
     uint16_t max_chunk;       /* 1..FW_MAX_CHUNK_DATA */
-    uint16_t max_length_um;   /* 20000 on the paper's pixel */
+    uint16_t max_length_um;   /* FW_DEFAULT_MAX_LENGTH_UM on the paper's pixel */
 } fw_config;
+
+/* The configuration of controller `address` with n_pixels, the rest board_defaults.h's. (Plain
+ * assignments, so that a C++ port such as the Teensy sketch can call it too.) */
+static inline fw_config fw_config_default(uint8_t address, uint16_t n_pixels)
+{
+    fw_config cfg;
+    cfg.address = address;
+    cfg.n_pixels = n_pixels;
+    cfg.uid = FW_DEFAULT_UID(address);
+    cfg.max_chunk = FW_DEFAULT_MAX_CHUNK;
+    cfg.max_length_um = FW_DEFAULT_MAX_LENGTH_UM;
+    return cfg;
+}
 
 typedef struct fw_controller {
     const fw_hal *hal;
@@ -51,8 +65,11 @@ typedef struct fw_controller {
  * Call it before the port starts calling fw_tick (it rewrites the hal and pixel count the tick
  * reads); the motor state itself is set inside critical sections (hal.h). */
 int fw_boot(fw_controller *c, const fw_hal *hal, const fw_config *cfg);
-/* Bytes received from the bus; answers go out through hal->tx. */
-void fw_rx_feed(fw_controller *c, const uint8_t *data, size_t n);
+/* Bytes received from the bus; answers go out through hal->tx. Returns the type byte of the
+ * last frame these bytes completed with a valid CRC (to any address), or FW_RX_NO_FRAME: what a
+ * port that times its bytes reports the costliest one by (ports/mps2). */
+#define FW_RX_NO_FRAME (-1)
+int fw_rx_feed(fw_controller *c, const uint8_t *data, size_t n);
 /* Handle one CRC-checked body (header + payload). Returns the answer's wire length (at
  * c->wire; also sent with hal->tx), or 0 when nothing is answered. */
 size_t fw_handle_body(fw_controller *c, const uint8_t *body, size_t n);

@@ -54,8 +54,8 @@ size_t fw_frame_wrap(uint8_t *wire, size_t body_len)
 
 void fw_put_header(uint8_t *body, uint8_t version, uint8_t address, uint8_t type, uint16_t seq)
 {
-    body[0] = version;
-    body[1] = address;
-    body[2] = type;
-    fw_put16(body + 3, seq);
+    body[FW_HEADER_VERSION] = version;
+    body[FW_HEADER_ADDRESS] = address;
+    body[FW_HEADER_TYPE] = type;
+    fw_put16(body + FW_HEADER_SEQ, seq);
 }

@@ -27,6 +27,8 @@ size_t fw_rx_byte(fw_rx *rx, uint8_t byte);
  * COBS-encode it to wire[0..] and add the delimiter. wire holds FW_MAX_WIRE + FW_WIRE_SLACK
  * bytes. Returns the wire length. */
 size_t fw_frame_wrap(uint8_t *wire, size_t body_len);
+/* Offsets of the 5-byte header's fields in a body (PROTOCOL.md section 2). */
+enum { FW_HEADER_VERSION = 0, FW_HEADER_ADDRESS = 1, FW_HEADER_TYPE = 2, FW_HEADER_SEQ = 3 };
 /* Write the 5-byte header at body. */
 void fw_put_header(uint8_t *body, uint8_t version, uint8_t address, uint8_t type, uint16_t seq);
 

@@ -10,6 +10,9 @@
 #include <stddef.h>
 #include <stdint.h>
 
+/* The byte storage reads as where nothing was written, or after nv_erase. */
+#define FW_NV_ERASED 0xFFu
+
 /* PWM duty is signed per mille: -1000 full reverse .. +1000 full forward. */
 #define FW_PWM_MAX 1000
 
@@ -19,7 +22,7 @@ typedef struct fw_hal {
     void (*tx)(void *ctx, const uint8_t *data, size_t n);
     int (*nv_read)(void *ctx, uint32_t offset, uint8_t *buf, uint32_t n);
     int (*nv_write)(void *ctx, uint32_t offset, const uint8_t *data, uint32_t n);
-    /* Set n bytes at offset to 0xFF. */
+    /* Set n bytes at offset to FW_NV_ERASED. */
     int (*nv_erase)(void *ctx, uint32_t offset, uint32_t n);
     /* Milliseconds since boot (wraps at 2^32): the clock a port schedules fw_tick from
      * (the core itself is driven by fw_tick and never waits on it). */
@@ -42,7 +45,7 @@ typedef struct fw_hal {
  *
  * Unlike the rest of the HAL these are plain functions, not fw_hal members: interrupts belong to
  * the CPU, not to one controller instance. Every port and test program links one pair: Cortex-M
- * saves PRIMASK and sets it (mrs / cpsid i / msr), the posix port blocks signals
+ * saves PRIMASK and sets it (mrs / cpsid i / msr, generic/armcm_irq.c), the posix port blocks signals
  * (ports/posix/irq.c), host tests without interrupts use test/irq_none.c. A section lasts at most
  * one SET_LEVEL frame's targets or one GET_POSITIONS pixel; it must not call back into the
  * port's tx or storage. */

@@ -13,6 +13,9 @@ enum fw_type {
     FW_INFO = 0x81, FW_TABLE_STATUS = 0x82, FW_POSITIONS = 0x87, FW_ACK = 0x90, FW_NAK = 0x91,
 };
 
+/* Bit 7 of a type: set on answers (controller -> host), clear on requests. */
+#define FW_TYPE_RESPONSE 0x80u
+
 enum fw_nak {
     FW_NAK_BAD_PAYLOAD = 1, FW_NAK_UNKNOWN_TYPE = 2, FW_NAK_UNSUPPORTED_VERSION = 3,
     FW_NAK_NO_TRANSFER = 4, FW_NAK_OUT_OF_RANGE = 5, FW_NAK_INCOMPLETE = 6,

@@ -1,4 +1,5 @@
 #include "nv_ram.h"
+#include "hal.h"
 #include <string.h>
 
 void fw_nv_ram_init(fw_nv_ram *nv, uint8_t *mem, uint32_t size)
@@ -6,7 +7,7 @@ void fw_nv_ram_init(fw_nv_ram *nv, uint8_t *mem, uint32_t size)
     nv->mem = mem;
     nv->size = size;
     nv->writes = 0;
-    memset(mem, 0xFF, size);
+    memset(mem, FW_NV_ERASED, size);
 }
 
 static int inside(const fw_nv_ram *nv, uint32_t offset, uint32_t n)
@@ -35,7 +36,7 @@ int fw_nv_ram_erase(fw_nv_ram *nv, uint32_t offset, uint32_t n)
 {
     if (!inside(nv, offset, n))
         return -1;
-    memset(nv->mem + offset, 0xFF, n);
+    memset(nv->mem + offset, FW_NV_ERASED, n);
     nv->writes++;
     return 0;
 }
