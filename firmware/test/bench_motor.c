@@ -1,5 +1,5 @@
 /* Motor step response: the core's PD loop (motor.c, 1 ms period) driving the DC-motor model of
- * the posix port (ports/posix/dcmotor.c) through the HAL. Prints, per step, the settling time
+ * the posix and mps2 ports (generic/dcmotor.c) through the HAL. Prints, per step, the settling time
  * into +-0.1 mm of the target and the overshoot, measured on the grass (after the backlash),
  * and exits non-zero when the 0 -> 20 mm step misses settle <= 1 s or overshoot <= 0.2 mm.
  * Usage: bench_motor [--json] */
@@ -7,7 +7,7 @@
 #include <stdio.h>
 #include <string.h>
 #include "../core/controller.h"
-#include "../ports/posix/dcmotor.h"
+#include "../generic/dcmotor.h"
 
 typedef struct { dc_params p; dc_state s; int16_t duty; } plant;
 

@@ -5,33 +5,20 @@
  * - storage: a RAM array in .noinit (kept over a system reset, lost when QEMU exits);
  * - clock and motor loop: SysTick at 1 kHz; its handler runs the PD loop (fw_tick) at a higher
  *   priority than the UART, so no frame can delay it, and steps the DC-motor model of the
- *   pixels (ports/posix/dcmotor.c, on the FPU) standing in for the motors and encoders; while
+ *   pixels (generic/sim_pixels.c, on the FPU) standing in for the motors and encoders; while
  *   every motor rests unpowered it ticks every 50 ms instead (an idle QEMU then sleeps);
  * - configuration: a block at 0x203FFF00 that QEMU's -device loader fills (address, pixels,
- *   max_chunk, uid), defaults when absent.
- * - critical sections (core/hal.h): PRIMASK saved and set (cpsid i), then put back, around
- *   everything the main loop shares with SysTick (targets and positions in the core, the tick
- *   period and clock here);
+ *   max_chunk, uid), core/board_defaults.h when absent.
+ * - critical sections (core/hal.h): PRIMASK saved and set (cpsid i, generic/armcm_irq.c), then
+ *   put back, around everything the main loop shares with SysTick (targets and positions in
+ *   the core, the tick period and clock here);
  * The main loop sleeps (WFI) until an interrupt. */
 #include <stdint.h>
 #include <string.h>
 #include "../../core/controller.h"
 #include "../../core/nv_ram.h"
-#include "../posix/dcmotor.h"
-
-#define UART0 0x40004000u
-#define UART_DATA (*(volatile uint32_t *)(UART0 + 0x000))
-#define UART_STATE (*(volatile uint32_t *)(UART0 + 0x004))
-#define UART_CTRL (*(volatile uint32_t *)(UART0 + 0x008))
-#define UART_INTCLEAR (*(volatile uint32_t *)(UART0 + 0x00C))
-#define UART_BAUDDIV (*(volatile uint32_t *)(UART0 + 0x010))
-#define SYST_CSR (*(volatile uint32_t *)0xE000E010u)
-#define SYST_RVR (*(volatile uint32_t *)0xE000E014u)
-#define SYST_CVR (*(volatile uint32_t *)0xE000E018u)
-#define NVIC_ISER0 (*(volatile uint32_t *)0xE000E100u)
-#define NVIC_IPR0 (*(volatile uint8_t *)0xE000E400u)
-#define SHPR3 (*(volatile uint32_t *)0xE000ED20u)
-#define SYSCLK_HZ 25000000u
+#include "../../generic/sim_pixels.h"
+#include "mps2_regs.h"
 
 #define CONFIG_MAGIC 0x47464346u   /* "FCFG" */
 typedef struct {
@@ -41,6 +28,7 @@ __attribute__((section(".fwconfig"))) volatile board_config fwconfig;
 
 /* What the host reads back through QEMU's monitor (pmemsave): counters and the storage. */
 #define STATS_MAGIC 0x53574647u
+#define NO_FRAME 0x100u   /* max_byte_type when the byte completed no valid frame */
 typedef struct {
     uint32_t magic, boots, writes, nv_size;
     /* the longest fw_rx_feed of one byte, in SysTick counts (1/25 MHz; with QEMU's -icount
@@ -54,9 +42,8 @@ static fw_nv_ram nv;
 static fw_controller ctl;
 static fw_hal hal;
 static volatile uint32_t ms;
-static dc_params plant;
-static dc_state motor[FW_MAX_PIXELS];
-static int16_t duty[FW_MAX_PIXELS];
+static sim_pixels pixels;
+static uint16_t n_pixels;   /* of the configuration booted */
 static volatile uint8_t moving;
 
 static uint8_t ring[2048];
@@ -64,8 +51,8 @@ static volatile uint32_t ring_head, ring_tail;
 
 void uart0_rx_handler(void)
 {
-    UART_INTCLEAR = 2u;
-    while (UART_STATE & 2u) {   /* RX buffer full */
+    UART_INTCLEAR = UART_INT_RX;
+    while (UART_STATE & UART_STATE_RX_FULL) {
         uint8_t b = (uint8_t)UART_DATA;
         uint32_t next = (ring_head + 1u) % sizeof ring;
         if (next != ring_tail) {   /* else dropped, as an overrun */
@@ -73,21 +60,6 @@ void uart0_rx_handler(void)
             ring_head = next;
         }
     }
-}
-
-/* Critical sections as Klipper's src/generic/armcm_irq.c: the previous PRIMASK (1 = masked)
- * comes back, so sections nest; the "memory" clobbers keep the compiler from moving accesses
- * out of them. */
-fw_irqstatus fw_irq_save(void)
-{
-    uint32_t flag;
-    __asm volatile("mrs %0, primask\n\tcpsid i" : "=r"(flag) : : "memory");
-    return flag;
-}
-
-void fw_irq_restore(fw_irqstatus flag)
-{
-    __asm volatile("msr primask, %0" : : "r"(flag) : "memory");
 }
 
 /* SysTick runs at 1 kHz while a motor moves and at IDLE_TICK_MS while all rest (so that an
@@ -129,20 +101,14 @@ void systick_handler(void)
         return;   /* motors at rest and unpowered: nothing changes until a new target */
     }
     fw_tick(&ctl);
-    uint8_t any = 0;
-    for (uint16_t p = 0; p < ctl.cfg.n_pixels; p++) {
-        dc_step(&plant, &motor[p], duty[p] / (double)FW_PWM_MAX, FW_TICK_US * 1e-6);
-        if (duty[p] != 0 || !dc_at_rest(&motor[p]))
-            any = 1;
-    }
-    moving = any;
+    moving = (uint8_t)sim_pixels_step(&pixels, n_pixels);
 }
 
 static void tx(void *ctx, const uint8_t *data, size_t n)
 {
     (void)ctx;
     for (size_t i = 0; i < n; i++) {
-        while (UART_STATE & 1u) {   /* TX buffer full */
+        while (UART_STATE & UART_STATE_TX_FULL) {
         }
         UART_DATA = data[i];
     }
@@ -159,13 +125,12 @@ static int nv_erase(void *ctx, uint32_t o, uint32_t n)
     return fw_nv_ram_erase(ctx, o, n);
 }
 static uint32_t millis(void *ctx) { (void)ctx; return ms; }
-static int32_t encoder(void *ctx, uint16_t p) { (void)ctx; return dc_encoder(&plant, &motor[p]); }
-static void pwm(void *ctx, uint16_t p, int16_t d) { (void)ctx; duty[p] = d; }
+static int32_t encoder(void *ctx, uint16_t p) { (void)ctx; return sim_pixels_encoder(&pixels, p); }
+static void pwm(void *ctx, uint16_t p, int16_t d) { (void)ctx; pixels.duty[p] = d; }
 
 int main(void)
 {
-    fw_config cfg = {.address = 1, .n_pixels = FW_MAX_PIXELS, .uid = 0x6A5D0001u,
-                     .max_chunk = 256, .max_length_um = 20000};
+    fw_config cfg = fw_config_default(FW_DEFAULT_ADDRESS, FW_MAX_PIXELS);
     if (fwconfig.magic == CONFIG_MAGIC) {
         cfg.address = (uint8_t)fwconfig.address;
         cfg.n_pixels = (uint16_t)fwconfig.n_pixels;
@@ -179,20 +144,22 @@ int main(void)
     } else {
         nv = (fw_nv_ram){fw_storage, nv_size, 0};
     }
-    plant = dc_default_params();
-    plant.substep_s = 1e-3;   /* one Euler step per period: tau = 20 ms keeps it stable */
+    sim_pixels_init(&pixels);
+    pixels.plant.substep_s = 1e-3;   /* one Euler step per period: tau = 20 ms keeps it stable */
     hal = (fw_hal){&nv, tx, nv_read, nv_write, nv_erase, millis, encoder, pwm};
-    if (fw_boot(&ctl, &hal, &cfg) < 0)
-        cfg = (fw_config){1, 1, 0x6A5D0001u, 256, 20000}, fw_boot(&ctl, &hal, &cfg);
+    if (fw_boot(&ctl, &hal, &cfg) < 0)   /* a bad block from the loader: one pixel, defaults */
+        cfg = fw_config_default(FW_DEFAULT_ADDRESS, 1), fw_boot(&ctl, &hal, &cfg);
+    n_pixels = cfg.n_pixels;
 
-    UART_BAUDDIV = 16;
-    UART_CTRL = 1u | 2u | 8u;   /* TX enable, RX enable, RX interrupt */
-    NVIC_IPR0 = 0x40;           /* UART0 RX below SysTick */
-    NVIC_ISER0 = 1u;
-    SHPR3 = (SHPR3 & 0x00FFFFFFu);   /* SysTick priority 0: the motor loop preempts all */
+    UART_BAUDDIV = UART_BAUDDIV_VALUE;
+    UART_CTRL = UART_CTRL_TX_EN | UART_CTRL_RX_EN | UART_CTRL_RX_INT_EN;
+    NVIC_IPR0 = UART0_RX_PRIORITY;   /* UART0 RX below SysTick */
+    NVIC_ISER0 = NVIC_BIT(UART0_RX_IRQ);
+    SHPR3 = (SHPR3 & ~SHPR3_PRI_SYSTICK_MASK)   /* SysTick priority 0: the motor loop preempts all */
+            | (SYSTICK_PRIORITY << SHPR3_PRI_SYSTICK_SHIFT);
     set_period(1);
     SYST_CVR = 0;
-    SYST_CSR = 7u;              /* processor clock, interrupt, enable */
+    SYST_CSR = SYST_CSR_CLKSOURCE | SYST_CSR_TICKINT | SYST_CSR_ENABLE;
     fw_stats.boots++;           /* a completed boot: the UART takes bytes from here on */
 
     for (;;) {
@@ -204,15 +171,15 @@ int main(void)
             fw_irqstatus flag = fw_irq_save();   /* the clock and its counter as one pair */
             uint32_t ms0 = ms, t0 = SYST_CVR;
             fw_irq_restore(flag);
-            fw_rx_feed(&ctl, &b, 1);
+            int type = fw_rx_feed(&ctl, &b, 1);
             flag = fw_irq_save();
             uint32_t t1 = SYST_CVR, ms1 = ms;
             fw_irq_restore(flag);
             feeding = 0;
             uint32_t ticks = (ms1 - ms0) * (SYST_RVR + 1u) + t0 - t1;   /* counts down */
-            if (ticks > fw_stats.max_byte_ticks && ticks < 0x80000000u) {
+            if (ticks > fw_stats.max_byte_ticks && ticks < 0x80000000u) {   /* not wrapped */
                 fw_stats.max_byte_ticks = ticks;
-                fw_stats.max_byte_type = b == 0 ? ctl.rx.buf[2] : 0x100u;
+                fw_stats.max_byte_type = type != FW_RX_NO_FRAME ? (uint32_t)type : NO_FRAME;
             }
         }
         __asm volatile("wfi");

@@ -1,6 +1,7 @@
 /* Cortex-M7 reset and vector table for mps2-an500: copy .data, clear .bss, enable the FPU,
  * run main. Interrupts used: SysTick (the 1 ms motor loop) and UART0 RX (IRQ 0). */
 #include <stdint.h>
+#include "mps2_regs.h"
 
 extern uint32_t _data_load, _data_start, _data_end, _bss_start, _bss_end, _stack_top;
 int main(void);
@@ -20,7 +21,7 @@ void reset_handler(void)
         *dst++ = *src++;
     for (dst = &_bss_start; dst < &_bss_end; dst++)
         *dst = 0;
-    *(volatile uint32_t *)0xE000ED88u |= 0xFu << 20;   /* CPACR: CP10, CP11 full access */
+    CPACR |= CPACR_CP10_FULL | CPACR_CP11_FULL;   /* the FPU */
     __asm volatile("dsb\n isb");
     main();
     default_handler();

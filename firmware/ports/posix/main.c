@@ -1,11 +1,12 @@
 /* posix port: N controllers of the C core on one RS-485-style bus, served on a pseudo-terminal,
- * each with its storage in a file and DC-motor models for its pixels (dcmotor.c).
+ * each with its storage in a file and DC-motor models for its pixels (generic/sim_pixels.c).
  *
  *   grassfw-posix --state-dir DIR [--count N | --addresses A,B,..] [--pixels P[,P2,..]]
  *                 [--link PATH] [--max-chunk B] [--baud BAUD] [--power-cut-at K[:KEEP]]
  *
  * --count N: addresses 1..N (default 1); --addresses: these addresses instead. --pixels: one
- * pixel count for all (default 16), or one per controller.
+ * pixel count for all (default FW_DEFAULT_PIXELS, 16), or one per controller. Controller a reports
+ * uid FW_DEFAULT_UID(a); --max-chunk defaults to FW_DEFAULT_MAX_CHUNK (core/board_defaults.h).
  * --baud: pace the line as a UART at that rate would (8N1: 10 bit times per byte) both ways.
  * Prints the pty's path (the --link symlink if given) on stdout, then serves until SIGINT or
  * SIGTERM. Controller a (1..N) keeps its two banks in DIR/controller-<a>.eeprom (the layout of
@@ -30,7 +31,7 @@
 #include <time.h>
 #include <unistd.h>
 #include "../../core/controller.h"
-#include "dcmotor.h"
+#include "../../generic/sim_pixels.h"
 
 #define EXIT_POWER_CUT 3
 
@@ -39,9 +40,7 @@ typedef struct unit {
     fw_hal hal;
     int nv_fd, stats_fd;
     uint32_t boots, writes;
-    dc_params plant;
-    dc_state motor[FW_MAX_PIXELS];
-    int16_t duty[FW_MAX_PIXELS];
+    sim_pixels pixels;
 } unit;
 
 static struct {
@@ -140,7 +139,7 @@ static int hal_nv_write(void *ctx, uint32_t off, const uint8_t *data, uint32_t n
 static int hal_nv_erase(void *ctx, uint32_t off, uint32_t n)
 {
     uint8_t ff[64];
-    memset(ff, 0xFF, sizeof ff);
+    memset(ff, FW_NV_ERASED, sizeof ff);
     if (n > sizeof ff)
         return -1;   /* the core erases 4-byte magics only */
     return nv_store(ctx, off, ff, n);
@@ -155,12 +154,12 @@ static uint32_t hal_millis(void *ctx)
 static int32_t hal_encoder(void *ctx, uint16_t p)
 {
     unit *u = ctx;
-    return dc_encoder(&u->plant, &u->motor[p]);
+    return sim_pixels_encoder(&u->pixels, p);
 }
 
 static void hal_pwm(void *ctx, uint16_t p, int16_t duty)
 {
-    ((unit *)ctx)->duty[p] = duty;
+    ((unit *)ctx)->pixels.duty[p] = duty;
 }
 
 /* ---- storage files --------------------------------------------------------------------- */
@@ -175,7 +174,7 @@ static int open_file(const char *dir, int address, const char *suffix, uint32_t 
     off_t have = lseek(fd, 0, SEEK_END);
     if (size && have != (off_t)size) {   /* new, or laid out for another pixel count: erase */
         static uint8_t ff[4096];
-        memset(ff, 0xFF, sizeof ff);
+        memset(ff, FW_NV_ERASED, sizeof ff);
         if (ftruncate(fd, 0) < 0)
             die(path);
         for (uint32_t o = 0; o < size; o += sizeof ff) {
@@ -267,10 +266,10 @@ static long arg_list(const char *name, const char *v, long lo, long hi, long *ou
 int main(int argc, char **argv)
 {
     static long addresses[FW_MAX_ADDRESS], pixel_list[FW_MAX_ADDRESS];
-    long count = 1, n_pixel_list = 1, max_chunk = 256;
+    long count = 1, n_pixel_list = 1, max_chunk = FW_DEFAULT_MAX_CHUNK;
     int explicit_addresses = 0;
     const char *dir = NULL;
-    pixel_list[0] = 16;
+    pixel_list[0] = FW_DEFAULT_PIXELS < FW_MAX_PIXELS ? FW_DEFAULT_PIXELS : FW_MAX_PIXELS;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
         if (v == NULL) {
@@ -337,12 +336,11 @@ int main(int argc, char **argv)
         uint32_t nv_size = fw_banks_size((uint16_t)pixels);
         u->nv_fd = open_file(dir, address, "eeprom", nv_size);
         u->stats_fd = open_file(dir, address, "stats", 0);
-        u->plant = dc_default_params();
+        sim_pixels_init(&u->pixels);
         u->hal = (fw_hal){u, hal_tx, hal_nv_read, hal_nv_write, hal_nv_erase, hal_millis,
                           hal_encoder, hal_pwm};
-        cfgs[i] = (fw_config){.address = (uint8_t)address, .n_pixels = (uint16_t)pixels,
-                              .uid = 0x6A5D0000u + (uint32_t)address,
-                              .max_chunk = (uint16_t)max_chunk, .max_length_um = 20000};
+        cfgs[i] = fw_config_default((uint8_t)address, (uint16_t)pixels);
+        cfgs[i].max_chunk = (uint16_t)max_chunk;
         boot(u, &cfgs[i]);
     }
     struct sigaction sa = {.sa_handler = on_signal};
@@ -420,14 +418,9 @@ int main(int argc, char **argv)
         int moving = 0;
         for (uint64_t k = 0; k < due; k++)
             for (long i = 0; i < count; i++) {
-                unit *u = &units[i];
-                fw_tick(&u->ctl);
-                for (long p = 0; p < cfgs[i].n_pixels; p++) {
-                    dc_step(&u->plant, &u->motor[p], u->duty[p] / (double)FW_PWM_MAX,
-                            FW_TICK_US * 1e-6);
-                    if (k + 1 == due && (u->duty[p] != 0 || !dc_at_rest(&u->motor[p])))
-                        moving = 1;
-                }
+                fw_tick(&units[i].ctl);
+                if (sim_pixels_step(&units[i].pixels, cfgs[i].n_pixels) && k + 1 == due)
+                    moving = 1;
             }
         if (due)
             idle = !moving;

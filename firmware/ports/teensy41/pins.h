@@ -31,9 +31,10 @@ static const pixel_pins PIXEL_PINS[] = {
 #define GRASS_RS485_DE_PIN 18
 #define GRASS_RS485_BAUD 115200
 
-/* This controller's bus address (1..247) and id. */
+/* This controller's bus address (1..247) and id: by default the numbering of
+ * core/board_defaults.h (address 1: 0x6A5D0001); give each board of a display its own. */
 #define GRASS_ADDRESS 1
-#define GRASS_UID 0x6A5D0001u
+#define GRASS_UID FW_DEFAULT_UID(GRASS_ADDRESS)
 
 /* PWM: 20 kHz (above hearing), 10-bit. */
 #define GRASS_PWM_HZ 20000

@@ -1,5 +1,6 @@
 // grassd controller firmware for Teensy 4.1: a thin layer over the portable C core (the same
-// core/*.c that CI builds and tests as the posix and mps2-an500 ports). Build and flash:
+// core/*.c that CI builds and tests as the posix and mps2-an500 ports, and generic/armcm_irq.c
+// as the mps2 port has it). Build and flash:
 // firmware/ports/teensy41/README.md. Pins, address and bus: pins.h.
 //
 //   bus      USB Serial, or Serial1 + DE pin for RS-485 (Serial1.transmitterEnable)
@@ -55,7 +56,7 @@ static int nv_write(void *, uint32_t off, const uint8_t *data, uint32_t n)
 static int nv_erase(void *ctx, uint32_t off, uint32_t n)
 {
     uint8_t ff[16];
-    memset(ff, 0xFF, sizeof ff);
+    memset(ff, FW_NV_ERASED, sizeof ff);
     for (uint32_t done = 0; done < n; done += sizeof ff) {
         uint32_t k = n - done < sizeof ff ? n - done : sizeof ff;
         if (nv_write(ctx, off + done, ff, k) < 0)
@@ -71,19 +72,8 @@ static int nv_fail_erase(void *, uint32_t, uint32_t) { return -1; }
 
 static uint32_t now_ms(void *) { return millis(); }
 
-// Critical sections of the core (core/hal.h): PRIMASK saved and set, then put back, as on
-// the mps2 port and in Klipper's src/generic/armcm_irq.c.
-extern "C" fw_irqstatus fw_irq_save(void)
-{
-    uint32_t flag;
-    __asm__ volatile("mrs %0, primask\n\tcpsid i" : "=r"(flag) : : "memory");
-    return flag;
-}
-
-extern "C" void fw_irq_restore(fw_irqstatus flag)
-{
-    __asm__ volatile("msr primask, %0" : : "r"(flag) : "memory");
-}
+// Critical sections of the core (core/hal.h): PRIMASK saved and set, then put back, in
+// src/generic/armcm_irq.c (firmware/generic/, shared with the mps2 port).
 
 // Encoder::read() ends with interrupts(), which would end a caller's critical section early:
 // put the caller's PRIMASK back after it.
@@ -114,7 +104,7 @@ static bool open_banks(uint32_t size)
         return false;
     if (banks.size() != size) {   // first start, or another pixel count: erased banks
         uint8_t ff[64];
-        memset(ff, 0xFF, sizeof ff);
+        memset(ff, FW_NV_ERASED, sizeof ff);
         banks.truncate(0);
         for (uint32_t o = 0; o < size; o += sizeof ff)
             banks.write(ff, size - o < sizeof ff ? size - o : sizeof ff);
@@ -139,7 +129,8 @@ void setup()
     Serial.begin(115200);   // USB CDC: the baud rate is ignored
 #endif
     hal = fw_hal{nullptr, tx, nv_read, nv_write, nv_erase, now_ms, encoder_read, pwm_write};
-    fw_config cfg = {GRASS_ADDRESS, N_PIXELS, GRASS_UID, 256, 20000};
+    fw_config cfg = fw_config_default(GRASS_ADDRESS, N_PIXELS);   // core/board_defaults.h
+    cfg.uid = GRASS_UID;
     if (!open_banks(fw_banks_size(N_PIXELS))) {
         hal.nv_read = nv_fail_read;
         hal.nv_write = nv_fail_write;

@@ -1,5 +1,6 @@
-/* A DC motor driving one grass pixel through a gear with backlash, as the posix port and the
- * motor bench simulate it. Units: micrometres of grass length, seconds, duty -1..1.
+/* A DC motor driving one grass pixel through a gear with backlash: the plant that the ports
+ * without real motors (posix, mps2) and the motor bench simulate. Units: micrometres of grass
+ * length, seconds, duty -1..1.
  *
  *   dv/dt = (vmax * (u - coulomb * sign(v)) - v) / tau      while moving
  *   the motor stays at rest while |u| <= stiction               (static friction)
