@@ -1,6 +1,6 @@
 /* A controller's configuration where its port is given none: written here once for every port
  * (posix, mps2, teensy41). The Python reference has the same defaults
- * (firmware_proto/firmware.py: ControllerConfig, SIM_UID_BASE);
+ * (rigs/firmware.py: ControllerConfig, SIM_UID_BASE);
  * tests/firmware/test_board_defaults.py checks that the two agree. */
 #ifndef FW_BOARD_DEFAULTS_H
 #define FW_BOARD_DEFAULTS_H
