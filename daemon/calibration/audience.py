@@ -14,8 +14,7 @@ linear OGCD ``e_j(v, L) = f_j(L) - (f_j(L_min) + v / 255 (f_j(L_max) - f_j(L_min
 (each viewer's own range, as the paper's 8-bit calibration defines it). The levels separate, so
 for every level the length minimising ``sum_j w_j |e_j|`` (objective "mean") or ``max_j |e_j|``
 (objective "worst") is found exactly on a grid of lengths (1 um by default), vectorised, then the
-table is made non-decreasing. :func:`write_heatmap` draws each ground point's worst error and
-OGCD range over its eye heights as a PNG.
+table is made non-decreasing.
 """
 
 from __future__ import annotations
@@ -24,16 +23,13 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from grassd.calib.characteristic import FittedCharacteristic, fit_characteristic
-from grassd.calib.length_table import LEVELS, build_length_table
+from grassd.calib.characteristic import FittedCharacteristic
+from grassd.calib.length_table import LEVELS
 from grassd.daemon.calibration.display_model import (
     DisplaySimulationError,
-    curve_characteristic,
-    display_spec_for_config,
     geometry_from_eye,
 )
 from grassd.daemon.calibration.simulation import SimulatedCurve, simulate_curve
@@ -168,11 +164,6 @@ def simulate_region(renderer, display, lighting, samples: AudienceSamples,
     return curves
 
 
-def fit_curves(curves: Sequence[SimulatedCurve]) -> list[FittedCharacteristic]:
-    """Monotone fits of simulated curves (lengths mm -> OGCD dE00), errors as weights."""
-    return [fit_characteristic(curve_characteristic(c)) for c in curves]
-
-
 def table_deviations(fits: Sequence[FittedCharacteristic], table_mm: np.ndarray) -> np.ndarray:
     """(J, 256) deviation from linear OGCD [dE00] of every viewpoint when levels 0..255 drive
     the lengths ``table_mm`` (256,) [mm] (see the module docstring for e_j)."""
@@ -271,103 +262,8 @@ def region_table(fits: Sequence[FittedCharacteristic], objective: str = "mean",
     return RegionTable(**{**out.__dict__, "seconds": {"optimise": time.perf_counter() - t0}})
 
 
-def single_view_table_um(fit: FittedCharacteristic) -> np.ndarray:
-    """The ordinary one-viewpoint table (:func:`grassd.calib.build_length_table`) [um]."""
-    return build_length_table(fit).lengths_um
-
-
-def region_report(samples: AudienceSamples, display, table: RegionTable,
-                  pixel_index: int | None = None) -> dict:
-    """JSON-ready per-viewpoint report: eye [m], (h, d, theta) seen from the measured pixel,
-    OGCD range, worst and mean |deviation| [dE00]; plus the region summary and the table."""
-    p = centre_pixel(display) if pixel_index is None else int(pixel_index)
-    rows = []
-    for k, eye in enumerate(samples.eyes_m):
-        vp = geometry_from_eye(display, eye).viewpoint(p)
-        rows.append({"eye_m": [float(x) for x in eye], "h_cm": vp.h_cm, "d_m": vp.d_m,
-                     "theta_deg": vp.theta_deg, "ogcd_range": float(table.ogcd_range[k]),
-                     "max_error": float(table.max_error[k]),
-                     "mean_error": float(table.mean_error[k])})
-    return {"summary": table.summary(), "pixel_index": p, "viewpoints": rows,
-            "lengths_um": table.lengths_um.tolist()}
-
-
-def write_heatmap(path: str | Path, region: AudienceRegion, samples: AudienceSamples,
-                  table: RegionTable, display=None) -> Path:
-    """PNG with two maps over the region: each ground point's worst |deviation from linear
-    OGCD| over its eye heights [dE00], and its smallest OGCD range [dE00]. Written atomically."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from grassd.daemon.store.atomic import atomic_save_figure
-
-    n_ground = len(samples.ground_xy)
-    worst = np.full(n_ground, -np.inf)
-    np.maximum.at(worst, samples.ground, table.max_error)
-    rng = np.full(n_ground, np.inf)
-    np.minimum.at(rng, samples.ground, table.ogcd_range)
-    shape = (len(samples.grid_y), len(samples.grid_x))
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), dpi=110)
-    for ax, values, title, cmap in (
-            (axes[0], worst, f"worst |OGCD - linear| [dE00] ({table.objective} table)",
-             "magma_r"),
-            (axes[1], rng, "OGCD range [dE00] (lowest over eye heights)", "viridis")):
-        img = np.full(shape, np.nan)
-        img[samples.cell_of_ground[:, 0], samples.cell_of_ground[:, 1]] = values
-        dx = (samples.grid_x[1] - samples.grid_x[0]) if shape[1] > 1 else 1.0
-        dy = (samples.grid_y[1] - samples.grid_y[0]) if shape[0] > 1 else 1.0
-        ext = [samples.grid_x[0] - dx / 2, samples.grid_x[-1] + dx / 2,
-               samples.grid_y[0] - dy / 2, samples.grid_y[-1] + dy / 2]
-        im = ax.imshow(img, origin="lower", extent=ext, cmap=cmap, aspect="equal")
-        fig.colorbar(im, ax=ax, shrink=0.85)
-        poly = np.vstack([region.polygon_m, region.polygon_m[:1]])
-        ax.plot(poly[:, 0], poly[:, 1], "k-", lw=1)
-        if display is not None:
-            hx = display.cols * display.pitch_mm / 2000
-            hy = display.rows * display.pitch_mm / 2000
-            ax.add_patch(plt.Rectangle((-hx, -hy), 2 * hx, 2 * hy, fill=False, ec="tab:green",
-                                       lw=1.5, label="display"))
-            ax.legend(loc="upper right", fontsize=7)
-        ax.set_xlabel("x east [m]")
-        ax.set_ylabel("y north [m]")
-        ax.set_title(title, fontsize=9)
-        ax.set_xlim(min(ext[0], poly[:, 0].min()) - 0.1, max(ext[1], poly[:, 0].max()) + 0.1)
-        ax.set_ylim(min(ext[2], poly[:, 1].min(), 0) - 0.1, max(ext[3], poly[:, 1].max(), 0)
-                    + 0.1)
-    fig.suptitle(f"audience region: {samples.n} viewpoints, eye {region.h_cm[0]:g}-"
-                 f"{region.h_cm[1]:g} cm", fontsize=10)
-    fig.tight_layout()
-    out = atomic_save_figure(path, fig)
-    plt.close(fig)
-    return out
-
-
 def region_from_config(audience) -> tuple[AudienceRegion, AudienceSamples]:
     """The region and its samples from a config ``[audience]`` table
     (:class:`grassd.daemon.config.settings.AudienceConfig`)."""
     region = AudienceRegion(np.asarray(audience.polygon, np.float64), tuple(audience.h_cm))
     return region, region.sample(audience.ground_samples, audience.height_samples)
-
-
-def audience_table_for_config(renderer, cfg, lighting, lengths_mm: np.ndarray, settings, *,
-                              heatmap: str | Path | None = None,
-                              target_stderr: float | None = None, ccm=None,
-                              progress: Callable[[int, int], None] | None = None
-                              ) -> tuple[RegionTable, dict]:
-    """The region table for a daemon ``Config`` with an ``[audience]`` table: sample the
-    region, simulate the display's centre pixel (``[display]``) from every sampled eye, build
-    the ``objective`` table; optionally write the heat map PNG. Returns the table and
-    :func:`region_report` (JSON-ready; also holds the heat map path when written)."""
-    if cfg.audience is None:
-        raise AudienceError("the configuration has no [audience] region")
-    display = display_spec_for_config(cfg)
-    region, samples = region_from_config(cfg.audience)
-    curves = simulate_region(renderer, display, lighting, samples, lengths_mm, settings,
-                             target_stderr=target_stderr, ccm=ccm, progress=progress)
-    table = region_table(fit_curves(curves), cfg.audience.objective)
-    report = region_report(samples, display, table)
-    if heatmap is not None:
-        report["heatmap"] = str(write_heatmap(heatmap, region, samples, table, display))
-    return table, report

@@ -1,23 +1,22 @@
-"""Audience regions: sampling, the mean/worst region table, per-viewpoint report, heat map."""
+"""Audience regions: sampling and the mean/worst region table."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from grassd.calib.characteristic import fit_characteristic
+from grassd.calib.length_table import build_length_table
 from grassd.daemon.calibration.audience import (
     AudienceError,
     AudienceRegion,
     centre_pixel,
     evaluate_table,
-    fit_curves,
     points_in_polygon,
-    region_report,
     region_table,
     simulate_region,
-    single_view_table_um,
-    write_heatmap,
 )
+from grassd.daemon.calibration.display_model import curve_characteristic
 
 LENGTHS = np.array([0.0, 5.0, 10.0, 15.0, 20.0])
 #: An L-shaped walkway south and east of the display (m).
@@ -75,7 +74,8 @@ def region_fits(renderer):
     samples = region.sample(n_ground=8, n_heights=2)
     curves = simulate_region(renderer, display, lighting, samples, LENGTHS,
                              RenderSettings(samples=256, replicates=4, seed=5))
-    return region, samples, display, curves, fit_curves(curves)
+    return region, samples, display, curves, [fit_characteristic(curve_characteristic(c))
+                                              for c in curves]
 
 
 def test_each_viewpoint_sees_the_centre_pixel_from_its_own_direction(region_fits):
@@ -95,7 +95,7 @@ def test_worst_table_beats_every_single_viewpoint_table_on_the_worst_error(regio
     _r, _s, _d, _c, fits = region_fits
     worst = region_table(fits, "worst")
     mean = region_table(fits, "mean")
-    singles = [evaluate_table(fits, single_view_table_um(f)) for f in fits]
+    singles = [evaluate_table(fits, build_length_table(f).lengths_um) for f in fits]
     best_single_worst = min(t.max_error.max() for t in singles)
     best_single_mean = min(t.mean_error.mean() for t in singles)
     # exact per-level optimisation on a 1 um grid (tolerance: grid step x steepest slope)
@@ -109,7 +109,7 @@ def test_worst_table_beats_every_single_viewpoint_table_on_the_worst_error(regio
         assert t.deviation.shape == (len(fits), 256)
     # a single viewpoint's region table is its own ordinary table, up to micrometre rounding
     solo = region_table(fits[:1], "worst")
-    assert np.abs(solo.lengths_um.astype(int) - single_view_table_um(fits[0])).max() <= 2
+    assert np.abs(solo.lengths_um.astype(int) - build_length_table(fits[0]).lengths_um).max() <= 2
 
 
 def test_weights_pull_the_mean_table_towards_a_viewpoint(region_fits):
@@ -123,42 +123,3 @@ def test_weights_pull_the_mean_table_towards_a_viewpoint(region_fits):
         region_table(fits, "median")
     with pytest.raises(AudienceError, match="weights"):
         region_table(fits, "mean", weights=np.zeros(len(fits)))
-
-
-def test_report_and_heat_map(region_fits, tmp_path):
-    import matplotlib.image as mpimg
-
-    region, samples, display, _c, fits = region_fits
-    table = region_table(fits, "worst")
-    rep = region_report(samples, display, table)
-    assert len(rep["viewpoints"]) == samples.n and rep["pixel_index"] == 4
-    assert rep["summary"]["worst_error"] == pytest.approx(table.max_error.max())
-    assert all(v["ogcd_range"] > 0 for v in rep["viewpoints"])
-    png = write_heatmap(tmp_path / "heat.png", region, samples, table, display)
-    img = mpimg.imread(png)
-    assert img.ndim == 3 and img.shape[0] > 300 and img.shape[1] > 600
-    assert np.ptp(img[..., :3]) > 0.5  # not a blank image
-
-
-def test_region_table_from_config(renderer, tmp_path):
-    from grassd.daemon.calibration.audience import audience_table_for_config
-    from grassd.daemon.config.settings import default_config_text, parse_config
-    from grassd.sim.lighting import build_lighting
-    from grassd.sim.scene import RenderSettings
-
-    text = default_config_text().replace("rows = 4\ncols = 8", "rows = 2\ncols = 2")
-    text = text.replace('pixels = "0-15"', 'pixels = "0-1"').replace(
-        'pixels = "16-31"', 'pixels = "2-3"')
-    cfg = parse_config(text + '\n[audience]\npolygon = [[-1, -3], [1, -3], [1, -2], [-1, -2]]'
-                       '\nh_cm = [160, 160]\nground_samples = 2\nheight_samples = 1\n'
-                       'objective = "worst"\n')
-    env = np.ones((32, 64, 3), np.float32)
-    env[:16] *= 2.0
-    table, rep = audience_table_for_config(
-        renderer, cfg, build_lighting(env, 10000.0), np.array([0.0, 10.0, 20.0]),
-        RenderSettings(samples=256, replicates=4), heatmap=tmp_path / "h.png")
-    assert table.objective == "worst" and len(rep["viewpoints"]) == 2
-    assert rep["pixel_index"] == 3 and (tmp_path / "h.png").stat().st_size > 10000
-    assert all(v["eye_m"][2] == pytest.approx(1.6) for v in rep["viewpoints"])
-    with pytest.raises(AudienceError, match="no \\[audience\\]"):
-        audience_table_for_config(renderer, parse_config(text), None, None, None)
