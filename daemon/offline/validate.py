@@ -1,18 +1,18 @@
 """``grassd validate``: compare the simulated grass colour characteristic with real captures.
 
 A *capture directory* holds what a user photographs on site (the paper's real-environment
-process, section 3.4.1) and a manifest ``capture.toml`` describing it::
+process, section 3.4.1) and a manifest ``capture.toml`` describing it. Its light and checker
+keys are those of a light bundle's ``manifest.toml``, with the same checks
+(:mod:`grassd.daemon.config.manifest_fields`); file names are paths, relative to the capture
+directory or absolute::
 
-    chart = "spydercheckr-24"            # reference chart name or CSV path (optional)
-
-    [light]                               # the light at the moment of capture
-    hdri = "env.exr"                      # relative to the capture directory, or absolute
-    lux = 500.0                           # horizontal illuminance, sun shaded (lux)
-    # sun_lux, sun_azimuth_deg, sun_elevation_deg, sun_from_hdri, rotation_deg: optional
-
-    [checker]                             # one RAW of the colour checker at the measuring point
-    photo = "checker.dng"
-    corners = [[x, y], [x, y], [x, y], [x, y]]   # patch area: TL, TR, BR, BL (image pixels)
+    hdri = "env.exr"                      # the panorama taken with the photos (.exr or .hdr)
+    ambient_lux = 500.0                   # horizontal illuminance, sun shaded (lux)
+    # sun_lux, sun_azimuth_deg, sun_elevation_deg: optional, as in a bundle; and, for
+    # capture.toml only, sun_from_hdri (find the sun in the map), rotation_deg (of the map)
+    checker_raw = "checker.dng"           # one RAW of the colour checker at the measuring point
+    checker_corners = [[x, y], [x, y], [x, y], [x, y]]   # patch area: TL, TR, BR, BL (pixels)
+    checker_chart = "spydercheckr-24"     # reference chart name or CSV path (optional)
 
     [pixel]                               # optional PixelSpec fields of the simulation model
     splay_deg = 0.0
@@ -22,6 +22,9 @@ process, section 3.4.1) and a manifest ``capture.toml`` describing it::
     corners = [[x, y], ...]               # the pixel's top quad (default for its photos)
     reference = true                      # the viewpoint M is reported for (default 170, 2, 0)
     photos = [{ file = "v0_00.dng", length_mm = 0.0 }, ...]   # lengths strictly increasing
+
+Older capture directories wrote ``chart``, a ``[light]`` table (``hdri``, ``lux``, ...) and a
+``[checker]`` table (``photo``, ``corners``): :data:`OLD_NAMES` are still read, with a warning.
 
 Corners are pixel coordinates (x = column, y = row) of the developed image as LibRaw outputs
 it (i.e. after the camera's orientation flag is applied), pixel (0, 0) covering [0, 1) x [0, 1).
@@ -46,10 +49,11 @@ patch of albedo ``a`` (the chart's reference colour) reads ``a`` after the same 
 
 from __future__ import annotations
 
+import logging
 import time
 import tomllib
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -67,10 +71,12 @@ from grassd.calib.length_table import LEVELS, build_length_table, r_squared
 from grassd.calib.ogcd import ogcd_from_lab
 from grassd.calib.raw import develop_raw, open_raw
 from grassd.calib.regions import checker_patch_quads, quad_mask
-from grassd.daemon.config import schema
+from grassd.daemon.config import manifest_fields, schema
 from grassd.daemon.config.toml_text import toml_value
 from grassd.daemon.errors import DaemonError, LocatedError
 from grassd.sim.light_input import LightInput
+
+log = logging.getLogger(__name__)
 
 #: File name of the manifest inside a capture directory.
 MANIFEST_NAME: str = "capture.toml"
@@ -115,19 +121,6 @@ def default_renderer(arch: str = "cpu") -> Any:
 
 
 # ----------------------------------------------------------------------------- manifest
-def light_toml(light: LightInput) -> dict[str, Any]:
-    """The ``[light]`` table of ``capture.toml`` for ``light`` (``lux`` is its ambient lux)."""
-    d: dict[str, Any] = {"hdri": str(light.hdri), "lux": light.ambient_lux}
-    for k in ("sun_lux", "sun_azimuth_deg", "sun_elevation_deg"):
-        if getattr(light, k) is not None:
-            d[k] = getattr(light, k)
-    if light.sun_from_hdri:
-        d["sun_from_hdri"] = True
-    if light.rotation_deg:
-        d["rotation_deg"] = light.rotation_deg
-    return d
-
-
 @dataclass(frozen=True)
 class Photo:
     """One RAW of the grass pixel: file, green length (mm), top-quad corners (4, 2) (x, y)."""
@@ -166,7 +159,7 @@ class CaptureManifest:
     checker_photo: Path
     checker_corners: tuple[tuple[float, float], ...]
     series: tuple[Series, ...]
-    chart: str = "spydercheckr-24"
+    chart: str = manifest_fields.DEFAULT_CHART
     pixel: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -186,7 +179,8 @@ class CaptureManifest:
 
 
 def manifest_to_toml(m: CaptureManifest) -> str:
-    """TOML text of a manifest (paths relative to ``m.root`` where they lie inside it)."""
+    """TOML text of a manifest (paths relative to ``m.root`` where they lie inside it), in the
+    bundle manifest's vocabulary (:mod:`grassd.daemon.config.manifest_fields`)."""
 
     def rel(p: Path) -> str:
         try:
@@ -194,12 +188,18 @@ def manifest_to_toml(m: CaptureManifest) -> str:
         except ValueError:
             return str(Path(p).resolve())
 
-    light = light_toml(m.light)
-    light["hdri"] = rel(m.light.hdri)
-    lines = [f"chart = {toml_value(m.chart)}", "", "[light]"]
-    lines += [f"{k} = {toml_value(v)}" for k, v in light.items()]
-    lines += ["", "[checker]", f"photo = {toml_value(rel(m.checker_photo))}",
-              f"corners = {toml_value([list(c) for c in m.checker_corners])}"]
+    light = m.light
+    head: dict[str, Any] = {"hdri": rel(light.hdri), "ambient_lux": light.ambient_lux}
+    for k in ("sun_lux", "sun_azimuth_deg", "sun_elevation_deg"):
+        if getattr(light, k) is not None:
+            head[k] = getattr(light, k)
+    if light.sun_from_hdri:
+        head["sun_from_hdri"] = True
+    if light.rotation_deg:
+        head["rotation_deg"] = light.rotation_deg
+    head.update(checker_raw=rel(m.checker_photo),
+                checker_corners=[list(c) for c in m.checker_corners], checker_chart=m.chart)
+    lines = [f"{k} = {toml_value(v)}" for k, v in head.items()]
     if m.pixel:
         lines += ["", "[pixel]"] + [f"{k} = {toml_value(v)}" for k, v in m.pixel.items()]
     for s in m.series:
@@ -214,108 +214,179 @@ def manifest_to_toml(m: CaptureManifest) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _corners(v: list) -> str | None:
-    try:
-        arr = np.asarray(v, dtype=np.float64)
-    except (TypeError, ValueError):
-        arr = np.zeros(0)
-    if arr.shape != (4, 2) or not np.isfinite(arr).all():
-        return f"must be four [x, y] image points (pixels), in order around the area; got {v!r}"
-    return None
+#: capture.toml's old names, still read (deprecated): where they were written (a table, or the
+#: top level) -> {old key: the bundle manifest's name, now written at the top level}.
+OLD_NAMES: dict[tuple[str, ...], dict[str, str]] = {
+    (): {"chart": "checker_chart"},
+    ("light",): {"hdri": "hdri", "lux": "ambient_lux", "sun_lux": "sun_lux",
+                 "sun_azimuth_deg": "sun_azimuth_deg", "sun_elevation_deg": "sun_elevation_deg",
+                 "sun_from_hdri": "sun_from_hdri", "rotation_deg": "rotation_deg"},
+    ("checker",): {"photo": "checker_raw", "corners": "checker_corners"},
+}
 
 
-def _quad(v: list) -> tuple[tuple[float, float], ...]:
-    """Corners already checked by :func:`_corners` as a tuple of (x, y)."""
-    return tuple((float(x), float(y)) for x, y in v)
+def _light_fields() -> dict[str, schema.Field]:
+    """The schema of capture.toml's light and checker keys: the bundle manifest's
+    (:func:`grassd.daemon.config.manifest_fields.light_fields`; files as paths, the ambient lux
+    and the checker required) and ``sun_from_hdri``, ``rotation_deg`` (degrees; defaults:
+    :class:`LightInput`'s)."""
+    F = schema.Field
+    fields = manifest_fields.light_fields(plain_names=False, ambient_required=True)
+    fields["checker_raw"] = replace(fields["checker_raw"], default=schema.MISSING,
+                                    hint="the path of the checker's RAW photo")
+    fields["checker_corners"] = replace(fields["checker_corners"], default=schema.MISSING,
+                                        hint="four [x, y] corners of the chart (pixels)")
+    return {**fields, **schema.schema(
+        LightInput, sun_from_hdri=F(bool),
+        rotation_deg=F(float, check=schema.between(-360.0, 360.0, " degrees")))}
+
+
+def _rename_old(ctx: schema.Context, data: dict[str, Any], source: Path
+                ) -> tuple[dict[str, Any], dict[str, tuple]]:
+    """``data`` with the old names (:data:`OLD_NAMES`) checked where they are written and moved
+    to the new ones, and where each moved key was written (for later errors); logs one
+    deprecation warning naming the renames."""
+    fields = _light_fields()
+    out, where = dict(data), {}
+    for prefix, names in OLD_NAMES.items():
+        if prefix:
+            if prefix[0] not in data:
+                continue
+            written = out.pop(prefix[0])
+        else:
+            written = {k: out.pop(k) for k in names if k in data}
+            if not written:
+                continue
+        values = schema.table(ctx, prefix, written, {o: fields[n] for o, n in names.items()})
+        for old, new in names.items():
+            if old not in written:
+                continue
+            if new in data:
+                raise ctx.error((new,), f"given twice: also as {schema.key_path(prefix + (old,))}"
+                                ", its old name; delete that one")
+            out[new], where[new] = values[old], prefix + (old,)
+    if where:
+        renamed = ", ".join(f"{schema.key_path(w)} -> {n}" for n, w in where.items())
+        log.warning("%s uses deprecated names (%s): write these keys at the top of the file, "
+                    "before [pixel] and [[series]], as a bundle's manifest.toml names them "
+                    "(the old names will stop being read)", source, renamed)
+    return out, where
 
 
 def _at_least_3(v: list) -> str | None:
     return None if len(v) >= 3 else "must list at least 3 photos ({ file = ..., length_mm = ... })"
 
 
-def load_manifest(path: str | Path) -> CaptureManifest:
-    """Parse and check ``capture.toml`` (a file, or a directory holding one).
-
-    Raises :class:`CaptureManifestError` (syntax, missing/unknown keys, bad values; the message
-    names the key and its line, :mod:`grassd.daemon.config.schema`), :class:`MissingPhotoError`
-    (a listed RAW or the HDRI does not exist) and :class:`LengthOrderError` (lengths of a series
-    not strictly increasing).
-    """
-    from grassd.sim.scene import PixelSpec
-
+def _read_toml(path: str | Path) -> tuple[Path, str, dict[str, Any]]:
+    """(the manifest's path, its text, its data) of ``capture.toml`` at ``path`` (a file, or a
+    directory holding one); CaptureManifestError when it is missing or not TOML."""
     p = Path(path)
     if p.is_dir():
         p = p / MANIFEST_NAME
-    root = p.parent
     try:
         text = p.read_text(encoding="utf-8")
-        data = tomllib.loads(text)
+        return p, text, tomllib.loads(text)
     except FileNotFoundError:
         raise CaptureManifestError(f"{p} does not exist: a capture directory needs a "
                                    f"{MANIFEST_NAME} manifest") from None
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise CaptureManifestError(f"{p} is not valid TOML: {exc}") from None
-    ctx = schema.Context(text, str(p), root, error=CaptureManifestError)
-    F = schema.Field
 
-    def file(name: str) -> Path:
-        f = Path(name)
-        return f if f.is_absolute() else root / f
 
-    top = schema.table(ctx, (), data, schema.schema(
-        CaptureManifest, chart=F(str, check=schema.non_empty), light=F(dict), checker=F(dict),
-        pixel=F(dict, {}), series=F(list)))
-    lt = schema.table(ctx, ("light",), top["light"], schema.schema(
-        LightInput, hdri=F(str, check=schema.non_empty), lux=F(float),
-        sun_lux=F(float), sun_azimuth_deg=F(float), sun_elevation_deg=F(float),
-        sun_from_hdri=F(bool), rotation_deg=F(float)))
-    hdri = file(lt["hdri"])
+def _light(ctx: schema.Context, top: dict[str, Any], where: Callable[[str], tuple]
+           ) -> LightInput:
+    """The light of the validated keys ``top``: the HDRI must exist and the sun reading be one
+    that can be (:func:`grassd.sim.sun.check_sun_reading`)."""
+    from grassd.sim.errors import LightingError
+    from grassd.sim.sun import check_sun_reading
+
+    hdri = _path(ctx, top["hdri"])
     if not hdri.is_file():
-        raise MissingPhotoError(f"{p}: light.hdri {hdri} does not exist; copy the panorama "
-                                "taken with the photos into the capture directory")
-    light = LightInput(hdri=hdri, ambient_lux=lt["lux"], sun_lux=lt["sun_lux"],
-                       sun_azimuth_deg=lt["sun_azimuth_deg"],
-                       sun_elevation_deg=lt["sun_elevation_deg"],
-                       sun_from_hdri=lt["sun_from_hdri"], rotation_deg=lt["rotation_deg"])
-    ck = schema.table(ctx, ("checker",), top["checker"], {
-        "photo": F(str, check=schema.non_empty), "corners": F(list, check=_corners)})
+        raise MissingPhotoError(f"{ctx.source}: {schema.key_path(where('hdri'))} {hdri} does "
+                                "not exist; copy the panorama taken with the photos into the "
+                                "capture directory")
+    try:
+        check_sun_reading(top["sun_lux"], top["sun_azimuth_deg"], top["sun_elevation_deg"])
+    except LightingError as exc:
+        raise ctx.error(where("sun_lux"), f"impossible sun: {exc}") from None
+    return LightInput(hdri=hdri, ambient_lux=top["ambient_lux"], sun_lux=top["sun_lux"],
+                      sun_azimuth_deg=top["sun_azimuth_deg"],
+                      sun_elevation_deg=top["sun_elevation_deg"],
+                      sun_from_hdri=top["sun_from_hdri"], rotation_deg=top["rotation_deg"])
+
+
+def _path(ctx: schema.Context, name: str) -> Path:
+    """A file named in the manifest: absolute, or relative to the capture directory."""
+    f = Path(name)
+    return f if f.is_absolute() else ctx.base_dir / f
+
+
+def _series(ctx: schema.Context, i: int, raw: Any) -> Series:
+    """``[[series]]`` number ``i``: its viewpoint and photos (lengths strictly increasing)."""
+    F = schema.Field
+    where = f"series[{i}]"
+    st = schema.table(ctx, ("series", i), raw, schema.schema(
+        Series, viewpoint=F(list, check=schema.numbers(3), hint="[h_cm, d_m, theta_deg]"),
+        corners=F(list, None, manifest_fields.quad), reference=F(bool),
+        photos=F(list, check=_at_least_3)))
+    photos = []
+    for j, ph_raw in enumerate(st["photos"]):
+        pw = ("series", i, "photos", j)
+        ph = schema.table(ctx, pw, ph_raw, {
+            "file": F(str, check=schema.non_empty),
+            "length_mm": F(float, check=schema.non_negative),
+            "corners": F(list, st["corners"], manifest_fields.quad)})
+        if ph["corners"] is None:
+            raise ctx.error(pw, f"has no corners and {where} gives no default corners")
+        photos.append(Photo(_path(ctx, ph["file"]), ph["length_mm"],
+                            manifest_fields.as_quad(ph["corners"])))
+    lengths = [ph.length_mm for ph in photos]
+    bad = [k for k in range(1, len(lengths)) if lengths[k] <= lengths[k - 1]]
+    if bad:
+        k = bad[0]
+        raise LengthOrderError(
+            f"{ctx.source}: {where} lengths must be strictly increasing (the first photo is the "
+            f"OGCD reference); photo {k} ({photos[k].path.name}) has {lengths[k]:g} mm after "
+            f"{lengths[k - 1]:g} mm")
+    return Series(tuple(float(v) for v in st["viewpoint"]),  # type: ignore[arg-type]
+                  tuple(photos), st["reference"])
+
+
+def load_manifest(path: str | Path) -> CaptureManifest:
+    """Parse and check ``capture.toml`` (a file, or a directory holding one).
+
+    Its light and checker keys are a bundle manifest's, checked the same way
+    (:mod:`grassd.daemon.config.manifest_fields`); the old names (:data:`OLD_NAMES`) are still
+    read, with a deprecation warning. Raises :class:`CaptureManifestError` (syntax,
+    missing/unknown keys, bad values; the message names the key and its line,
+    :mod:`grassd.daemon.config.schema`), :class:`MissingPhotoError` (a listed RAW or the HDRI
+    does not exist) and :class:`LengthOrderError` (lengths of a series not strictly increasing).
+    """
+    from grassd.sim.scene import PixelSpec
+
+    p, text, data = _read_toml(path)
+    ctx = schema.Context(text, str(p), p.parent, error=CaptureManifestError)
+    F = schema.Field
+    data, moved = _rename_old(ctx, data, p)
+
+    def where(key: str) -> tuple:
+        return moved.get(key, (key,))
+
+    top = schema.table(ctx, (), data, {**_light_fields(), "pixel": F(dict, {}),
+                                       "series": F(list)})
+    manifest_fields.check_together(ctx, top, where)
+    light = _light(ctx, top, where)
     schema.table(ctx, ("pixel",), top["pixel"],  # PixelSpec checks the values when it is built
                  {k: F(object, None) for k in PixelSpec.__dataclass_fields__})
     pixel = {k: tuple(v) if isinstance(v, list) else v for k, v in top["pixel"].items()}
     if not top["series"]:
         raise ctx.error(("series",), "give at least one [[series]] of photos")
-    series = []
-    for i, st_raw in enumerate(top["series"]):
-        where = f"series[{i}]"
-        st = schema.table(ctx, ("series", i), st_raw, schema.schema(
-            Series, viewpoint=F(list, check=schema.numbers(3), hint="[h_cm, d_m, theta_deg]"),
-            corners=F(list, None, _corners), reference=F(bool),
-            photos=F(list, check=_at_least_3)))
-        photos = []
-        for j, ph_raw in enumerate(st["photos"]):
-            pw = ("series", i, "photos", j)
-            ph = schema.table(ctx, pw, ph_raw, {
-                "file": F(str, check=schema.non_empty),
-                "length_mm": F(float, check=schema.non_negative),
-                "corners": F(list, st["corners"], _corners)})
-            if ph["corners"] is None:
-                raise ctx.error(pw, f"has no corners and {where} gives no default corners")
-            photos.append(Photo(file(ph["file"]), ph["length_mm"], _quad(ph["corners"])))
-        lengths = [ph.length_mm for ph in photos]
-        bad = [k for k in range(1, len(lengths)) if lengths[k] <= lengths[k - 1]]
-        if bad:
-            k = bad[0]
-            raise LengthOrderError(
-                f"{p}: {where} lengths must be strictly increasing (the first photo is the "
-                f"OGCD reference); photo {k} ({photos[k].path.name}) has {lengths[k]:g} mm after "
-                f"{lengths[k - 1]:g} mm")
-        series.append(Series(tuple(float(v) for v in st["viewpoint"]),  # type: ignore[arg-type]
-                             tuple(photos), st["reference"]))
+    series = tuple(_series(ctx, i, raw) for i, raw in enumerate(top["series"]))
     if sum(s.reference for s in series) > 1:
         raise ctx.error(("series",), "more than one series is marked reference = true")
-    m = CaptureManifest(root=root, light=light, checker_photo=file(ck["photo"]),
-                        checker_corners=_quad(ck["corners"]), series=tuple(series),
-                        chart=top["chart"], pixel=pixel)
+    m = CaptureManifest(root=p.parent, light=light, checker_photo=_path(ctx, top["checker_raw"]),
+                        checker_corners=manifest_fields.as_quad(top["checker_corners"]),
+                        series=series, chart=top["checker_chart"], pixel=pixel)
     for photo in m.photos():
         if not photo.is_file():
             raise MissingPhotoError(f"{p}: photo {photo} does not exist; copy it into the "

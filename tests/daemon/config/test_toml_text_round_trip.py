@@ -65,8 +65,8 @@ def test_capture_toml_keeps_awkward_paths(tmp_path):
     text = manifest_to_toml(m)
     (root / "capture.toml").write_text(text, encoding="utf-8")
     data = tomllib.loads(text)
-    assert data["light"]["hdri"] == 'env "sky".exr'
-    assert data["checker"]["photo"] == "checker\\1.dng"
+    assert data["hdri"] == 'env "sky".exr'
+    assert data["checker_raw"] == "checker\\1.dng"
     assert [p["file"] for p in data["series"][0]["photos"]] == names
     for n in names + ['env "sky".exr', "checker\\1.dng"]:
         (root / n).write_bytes(b"")

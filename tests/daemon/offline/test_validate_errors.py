@@ -3,6 +3,8 @@ with exit code 2. The captures are real DNGs from the virtual camera and a real 
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -112,10 +114,25 @@ def test_mixed_cameras(tmp_path):
 def test_malformed_manifests(tmp_path):
     _capture(tmp_path)
     good = (tmp_path / "capture.toml").read_text()
+    assert good.startswith('hdri = "env.exr"\nambient_lux = 500.0\n')  # a bundle's names
+    top = 'hdri = "env.exr"\n'
     cases = {
-        "chart = [": "not valid TOML",
-        good.replace("[light]", "[light]\ncolour = 3"): r"light\.colour: unknown key",
-        good.replace("lux = 500.0", "lux = \"bright\""): r"capture\.toml:\d+: light\.lux: must",
+        "checker_chart = [": "not valid TOML",
+        good.replace(top, top + "colour = 3\n"): r"capture\.toml:2: colour: unknown key",
+        good.replace("ambient_lux = 500.0", "ambient_lux = \"bright\""):
+            r"capture\.toml:2: ambient_lux: must be a finite number",
+        # checked as a bundle's manifest is: lux range, sun direction, file type, pairs
+        good.replace("ambient_lux = 500.0", "ambient_lux = -5.0"):
+            r"ambient_lux: -5 lux is impossible",
+        good.replace(top, top + "sun_lux = 30000.0\nsun_azimuth_deg = 400.0\n"
+                     "sun_elevation_deg = 40.0\n"): r":3: sun_azimuth_deg: must be between 0.0",
+        good.replace(top, top + "sun_lux = 30000.0\nsun_azimuth_deg = 180.0\n"):
+            "give both sun_azimuth_deg and sun_elevation_deg, or neither",
+        good.replace(top, top + "sun_lux = 40000.0\nsun_azimuth_deg = 180.0\n"
+                     "sun_elevation_deg = -5.0\n"): r"sun_lux: impossible sun: .*horizon",
+        good.replace('hdri = "env.exr"', 'hdri = "env.png"'): r"hdri: 'env.png' must be an "
+                                                              r"OpenEXR \(.exr\) or Radiance",
+        good.replace('checker_raw = "checker.dng"\n', ""): r"checker_raw: required key",
         good.replace("viewpoint = [170.0, 2.0, 0.0]", "viewpoint = [170.0, 2.0]"): "viewpoint",
     }
     for text, message in cases.items():
@@ -126,6 +143,47 @@ def test_malformed_manifests(tmp_path):
     with pytest.raises(CaptureManifestError, match="needs a capture.toml"):
         load_manifest(tmp_path)
     assert "capture.toml" in _cli_error(tmp_path)
+
+
+def _old_names(text: str) -> str:
+    """``text`` (written now) as capture.toml was written before it took a bundle manifest's
+    names: ``chart``, ``[light] hdri, lux``, ``[checker] photo, corners``."""
+    head, rest = text.split("\n\n", 1)
+    keys = dict(line.split(" = ", 1) for line in head.splitlines())
+    return (f"chart = {keys['checker_chart']}\n\n[light]\nhdri = {keys['hdri']}\n"
+            f"lux = {keys['ambient_lux']}\n\n[checker]\nphoto = {keys['checker_raw']}\n"
+            f"corners = {keys['checker_corners']}\n\n{rest}")
+
+
+def test_old_names_are_read_with_a_warning(tmp_path, caplog):
+    """A capture directory written before the vocabulary was the bundle's still loads, to the
+    same manifest, with one warning that names each rename; its mistakes name the old keys."""
+    _capture(tmp_path)
+    new = load_manifest(tmp_path)
+    assert not caplog.records
+    old = _old_names((tmp_path / "capture.toml").read_text())
+    (tmp_path / "capture.toml").write_text(old)
+    with caplog.at_level(logging.WARNING, logger="grassd.daemon.offline.validate"):
+        assert load_manifest(tmp_path) == new
+    [warning] = caplog.records
+    assert warning.levelno == logging.WARNING
+    for rename in ("chart -> checker_chart", "light.hdri -> hdri", "light.lux -> ambient_lux",
+                   "checker.photo -> checker_raw", "checker.corners -> checker_corners"):
+        assert rename in warning.getMessage()
+    assert "deprecated" in warning.getMessage()
+    cases = {
+        old.replace("[light]", "[light]\ncolour = 3"): r"light\.colour: unknown key",
+        old.replace("lux = 500.0", "lux = \"bright\""): r"capture\.toml:\d+: light\.lux: must",
+        old.replace("lux = 500.0", "lux = -5.0"): r"light\.lux: -5 lux is impossible",
+        old.replace("[light]", "ambient_lux = 400.0\n[light]"):
+            r"ambient_lux: given twice: also as light\.lux",
+        old.replace("[light]", "sun_azimuth_deg = 180.0\n[light]"):
+            r"capture\.toml: give both sun_azimuth_deg",
+    }
+    for text, message in cases.items():
+        (tmp_path / "capture.toml").write_text(text)
+        with pytest.raises(CaptureManifestError, match=message):
+            load_manifest(tmp_path)
 
 
 @pytest.mark.parametrize("args", [["validate", "CAP", "-q", "--samples", "64"],
