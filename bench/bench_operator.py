@@ -14,7 +14,6 @@ from pathlib import Path
 import numpy as np
 
 from grassd.daemon.config.settings import load_default_config
-from grassd.daemon.monitoring.health import assess
 from grassd.daemon.monitoring.metrics import registry, write_textfile
 from grassd.daemon.monitoring.status_page import render, write_page
 from grassd.daemon.runtime.service import collect_status
@@ -72,10 +71,10 @@ def main() -> None:
 
         def after_reconcile() -> None:
             st = collect_status(h, cfg)
-            write_textfile(prom, registry(st, assess(st), h))
+            write_textfile(prom, registry(st, h))
 
         def after_run() -> None:
-            write_page(page, render(status, assess(status), h, timezone="UTC"))
+            write_page(page, render(status, h, timezone="UTC"))
 
         ms_rec = _time(after_reconcile, 20)
         ms_run = _time(after_run, 5)

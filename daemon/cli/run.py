@@ -177,7 +177,7 @@ def print_status(st: Status, echo: Callable[[str], Any] = click.echo) -> None:
     live = st.daemon
     echo(f"daemon: {'running, pid ' + str(live.pid) if live else 'not running'}"
          + (f" ({live.activity})" if live and live.activity else ""))
-    echo(f"health: {st.health.summary()}")
+    echo(one_line(f"health: {st.health.summary()}", None))  # its reasons may quote names
     d = st.desired_table
     echo("current table: " + (f"{d.table_id} (crc {d.table_crc:#010x})" if d else "none")
          + (", one per controller" if d and d.per_controller else ""))

@@ -46,11 +46,11 @@ import subprocess
 import threading
 import time
 from collections import deque
-from collections.abc import Mapping
 from typing import Any
 
 from grassd.daemon.config.settings import AlertsConfig
 from grassd.daemon.monitoring.health import Health
+from grassd.daemon.monitoring.status_types import Status
 from grassd.daemon.safe_text import one_line
 from grassd.daemon.store.history import History
 from grassd.daemon.timestamps import utc_iso
@@ -92,7 +92,7 @@ class Alerter:
         """Take a reloaded ``[alerts]`` (the level last alerted and pending changes stay)."""
         self.cfg = cfg
 
-    def observe(self, health: Health, status: Mapping[str, Any] | None = None,
+    def observe(self, health: Health, status: Status | None = None,
                 now: float | None = None) -> bool:
         """Note ``health`` (with ``status`` for the description); start the alert command when
         due (see the module docstring). Returns True when it started one. Never blocks."""
@@ -123,13 +123,12 @@ class Alerter:
             "service": "grassd", "host": socket.gethostname(), "at": utc_iso(time.time()),
             "previous": self._alerted, "level": level, "reasons": _lines(health.reasons),
             "changes": list(self._changes),
-            "health": None if status is None else _text(status.get("health")),
+            "health": None if status is None else _text(status.health.summary()),
             "controllers": [] if status is None else [
-                {"name": _text(c.get("name")), "reachable": c.get("reachable"),
-                 "in_sync": c.get("in_sync"), "table_id": c.get("table_id"),
-                 "error": _text(c.get("error"))}
-                for c in status.get("controllers") or []],
-            "state_dir": None if status is None else status.get("state_dir"),
+                {"name": _text(c.name), "reachable": c.reachable, "in_sync": c.in_sync,
+                 "table_id": c.table_id, "error": _text(c.error)}
+                for c in status.controllers],
+            "state_dir": None if status is None else status.state_dir,
         }
         argv = shlex.split(self.cfg.command)
         self._worker = threading.Thread(target=self._run, args=(argv, event), daemon=True,

@@ -1,7 +1,8 @@
 """The daemon's health as one of three levels, for alerts, metrics and the status page.
 
-:func:`assess` reads a status (what :meth:`grassd.daemon.service.Service.status` or
-:func:`grassd.daemon.service.collect_status` returns) and answers
+:func:`assess` reads a :class:`~grassd.daemon.monitoring.status_types.Status` (what
+:meth:`grassd.daemon.runtime.service.Service.status` or
+:func:`grassd.daemon.runtime.status.collect_status` returns) and answers
 
 - ``ok``: a table is active and every controller reports it, nothing waits on an error;
 - ``degraded``: the display works but something needs a look: some controllers do not hold
@@ -16,9 +17,11 @@ Each level comes with the reasons, one line each, naming what to look at.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the status computes its health with assess: imported there at run time
+    from grassd.daemon.monitoring.status_types import Status
 
 #: The levels, best first; a level's index is its severity (the ``grassd_health`` metric).
 LEVELS = ("ok", "degraded", "failed")
@@ -42,36 +45,39 @@ class Health:
         return self.level if not self.reasons else f"{self.level}: {'; '.join(self.reasons)}"
 
 
-def assess(status: Mapping[str, Any]) -> Health:
-    """The health level of ``status`` (see the module docstring) with its reasons."""
+def assess(status: Status) -> Health:
+    """The health level of ``status`` (see the module docstring) with its reasons: the one
+    verdict that `grassd status`, the metrics, the alerts and the status page show (a
+    :class:`~grassd.daemon.monitoring.status_types.Status` carries it as ``health``)."""
     failed: list[str] = []
     degraded: list[str] = []
-    desired = status.get("desired_table")
-    controllers = status.get("controllers") or []
+    desired = status.desired_table
+    controllers = status.controllers
     if desired is None:
-        counts = status.get("run_counts") or {}
-        tried = counts.get("failed", 0) + counts.get("rejected", 0)
-        if tried and not counts.get("ok", 0):
+        counts = status.run_counts
+        tried = counts.failed + counts.rejected
+        if tried and not counts.ok:
             failed.append(f"no table: all {tried} run(s) so far failed or were rejected")
         else:
             degraded.append("no table yet")
     else:
-        bad = [c for c in controllers if not c.get("in_sync")]
+        bad = [c for c in controllers if not c.in_sync]
         for c in bad:
-            what = "unreachable" if not c.get("reachable") else "out of sync"
-            err = f": {c['error']}" if c.get("error") else ""
+            err = f": {c.error}" if c.error else ""
             (failed if len(bad) == len(controllers) else degraded).append(
-                f"controller {c['name']} {what} (table {c.get('table_id')}, not "
-                f"{desired['table_id']}){err}")
-    if status.get("last_error"):
-        degraded.append(f"error: {status['last_error']}")
-    if status.get("reload_error"):
-        degraded.append(f"reload refused: {status['reload_error']}")
-    for w in status.get("waiting_bundles") or []:
-        degraded.append(f"bundle {w['bundle']} waits: {w['reason']}")
-    capture = status.get("capture") or {}
-    if capture.get("last_error"):  # the light stops arriving: the table goes stale
-        degraded.append(f"capture station {capture['camera']}: {capture['last_error']}")
+                f"controller {c.name} {c.state} (table {c.table_id}, not "
+                f"{desired.table_id}){err}")
+    live = status.daemon
+    if live is not None:
+        if live.last_error:
+            degraded.append(f"error: {live.last_error}")
+        if live.reload_error:
+            degraded.append(f"reload refused: {live.reload_error}")
+        for w in live.waiting_bundles:
+            degraded.append(f"bundle {w.bundle} waits: {w.reason}")
+        capture = live.capture or {}
+        if capture.get("last_error"):  # the light stops arriving: the table goes stale
+            degraded.append(f"capture station {capture['camera']}: {capture['last_error']}")
     if failed:
         return Health("failed", tuple(failed + degraded))
     if degraded:

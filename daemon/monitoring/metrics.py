@@ -56,7 +56,7 @@ from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -65,7 +65,7 @@ from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector
 
-from grassd.daemon.monitoring.health import Health
+from grassd.daemon.monitoring.status_types import ControllerStatus, Status
 from grassd.daemon.safe_text import one_line
 from grassd.daemon.store.atomic import atomic_write_bytes
 from grassd.daemon.store.history import History, RunRecord
@@ -117,10 +117,10 @@ def _label(value: Any) -> str:
 class _Snapshot(Collector):
     """One scrape's worth of metrics, built from the values given (see :func:`registry`)."""
 
-    def __init__(self, status: Mapping[str, Any], health: Health, history: History,
+    def __init__(self, status: Status, history: History,
                  push_failures: Mapping[str, int], sensor: SensorState | None,
                  capture_at: float | None, up: bool) -> None:
-        self.status, self.health, self.history = status, health, history
+        self.status, self.history = status, history
         self.push_failures, self.sensor, self.capture_at = push_failures, sensor, capture_at
         self.up = up
 
@@ -135,7 +135,8 @@ class _Snapshot(Collector):
             return g
 
         yield gauge("grassd_up", "1 while the daemon runs, 0 after a clean stop", int(self.up))
-        yield gauge("grassd_health", "Health: 0 ok, 1 degraded, 2 failed", self.health.severity)
+        yield gauge("grassd_health", "Health: 0 ok, 1 degraded, 2 failed",
+                    st.health.severity)
         cur = h.current_table()
         yield from self._table(cur, gauge)
         lux_run = next((r for r in h.runs(50) if r.lux is not None), None)
@@ -160,12 +161,12 @@ class _Snapshot(Collector):
         yield g
         g = gauge("grassd_bundle_queue", "Bundles waiting in inbox/ and processing/",
                   labels=("queue",))
-        counts = st.get("inbox") or {}
+        counts = {} if st.daemon is None else st.daemon.inbox
         for q in ("inbox", "processing"):
             g.add_metric([q], counts.get(q, 0))
         yield g
-        yield from self._controllers(st.get("controllers") or [])
-        yield from self._lines(st.get("lines") or {})
+        yield from self._controllers(st.controllers)
+        yield from self._lines({} if st.daemon is None else st.daemon.lines)
         if self.capture_at is not None:
             yield gauge("grassd_capture_last_success_timestamp_seconds",
                         "When the capture station last delivered a bundle (epoch s)",
@@ -191,7 +192,7 @@ class _Snapshot(Collector):
             if v is not None:
                 yield gauge(name, doc, v)
 
-    def _controllers(self, controllers: list[Mapping[str, Any]]) -> Iterator[Metric]:
+    def _controllers(self, controllers: Sequence[ControllerStatus]) -> Iterator[Metric]:
         lab = ["controller"]
         reach = GaugeMetricFamily("grassd_controller_reachable",
                                   "1 when the controller answered its last status read",
@@ -204,12 +205,12 @@ class _Snapshot(Collector):
         seen = GaugeMetricFamily("grassd_controller_last_seen_timestamp_seconds",
                                  "When the controller last answered (epoch s)", labels=lab)
         for c in controllers:
-            name = [_label(c["name"])]
-            reach.add_metric(name, int(bool(c.get("reachable"))))
-            sync.add_metric(name, int(bool(c.get("in_sync"))))
-            fails.add_metric(name, self.push_failures.get(c["name"], 0))
-            if c.get("last_seen") is not None:
-                seen.add_metric(name, c["last_seen"])
+            name = [_label(c.name)]
+            reach.add_metric(name, int(c.reachable))
+            sync.add_metric(name, int(c.in_sync))
+            fails.add_metric(name, self.push_failures.get(c.name, 0))
+            if c.last_seen is not None:
+                seen.add_metric(name, c.last_seen)
         yield from (reach, sync, fails, seen)
 
     @staticmethod
@@ -238,17 +239,16 @@ class _Snapshot(Collector):
         yield from (rate, chunk, tries, fails)
 
 
-def registry(status: Mapping[str, Any], health: Health, history: History, *,
+def registry(status: Status, history: History, *,
              push_failures: Mapping[str, int] | None = None, sensor: SensorState | None = None,
              capture_at: float | None = None, up: bool = True) -> CollectorRegistry:
-    """A registry holding the metrics of ``status`` (a daemon status), ``health`` and
+    """A registry holding the metrics of ``status`` (a daemon status, with its health) and
     ``history``; ``push_failures``: failed pushes per controller name since start; ``sensor``:
     the lux sensor's state (None: no sensor configured); ``capture_at``: the capture station's
     last capture (epoch s; None: no capture station); ``up``: False for the last file written
     at a clean stop."""
     reg = CollectorRegistry(auto_describe=False)  # collect once, at generation
-    reg.register(_Snapshot(status, health, history, push_failures or {}, sensor, capture_at,
-                           up))
+    reg.register(_Snapshot(status, history, push_failures or {}, sensor, capture_at, up))
     return reg
 
 

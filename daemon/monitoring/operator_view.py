@@ -3,13 +3,16 @@
 (:mod:`grassd.daemon.monitoring.alerts`) and the status page
 (:mod:`grassd.daemon.monitoring.status_page`).
 
-The service calls :meth:`OperatorView.after_run` after each run (whatever its outcome) and
+The view never reads the live service: it is given the configuration, the history and a
+function that returns an :class:`OperatorSnapshot` (the service's status, the lux sensor's
+state and the capture station's last success, taken at once). The service calls
+:meth:`OperatorView.after_run` after each run (whatever its outcome) and
 :meth:`OperatorView.after_reconcile` after each reconcile, both in its main thread. Neither
 ever raises: a file that cannot be written is logged (once per distinct error) and the daemon
 goes on. The status page is regenerated after every run, and after a reconcile only when the
 health or a controller's state changed (its trend plots cost more than the metrics).
 
-With a capture station (``[capture]``, the service's ``capture_loop``), the metric
+With a capture station (``[capture]``), the metric
 ``grassd_capture_last_success_timestamp_seconds`` says when it last delivered a bundle; it is
 not written before the first delivery, nor without a station.
 """
@@ -17,29 +20,44 @@ not written before the first delivery, nor without a station.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from grassd.daemon.config.settings import Config
 from grassd.daemon.monitoring.alerts import Alerter
-from grassd.daemon.monitoring.health import Health, assess
+from grassd.daemon.monitoring.health import Health
 from grassd.daemon.monitoring.metrics import SensorState, registry, textfile_path, write_textfile
 from grassd.daemon.monitoring.status_page import PAGE_NAME, render, write_page
-
-if TYPE_CHECKING:
-    from grassd.daemon.runtime.service import Service
+from grassd.daemon.monitoring.status_types import Status
+from grassd.daemon.store.history import History
 
 log = logging.getLogger(__name__)
 
 
-class OperatorView:
-    """Metrics, alerts and status page of the daemon ``service`` (reads its ``status()``,
-    ``history``, ``cfg``, ``sensor`` and ``reports_dir``)."""
+@dataclass(frozen=True)
+class OperatorSnapshot:
+    """What the operator's outputs show, taken at one moment by the service: its ``status``,
+    the Modbus lux ``sensor``'s state (None: no sensor configured) and ``capture_at``, when the
+    capture station last delivered a bundle (epoch s; None: no station, or none yet)."""
 
-    def __init__(self, service: Service) -> None:
-        self.service = service
-        self.alerter = Alerter(service.cfg.alerts, service.history)
+    status: Status
+    sensor: SensorState | None = None
+    capture_at: float | None = None
+
+
+class OperatorView:
+    """Metrics, alerts and status page of the daemon configured by ``cfg``, keeping its
+    ``history``; ``snapshot`` returns the daemon's state at the moment it is called (it may
+    raise, e.g. on an unreadable database: logged, nothing written)."""
+
+    def __init__(self, cfg: Config, history: History,
+                 snapshot: Callable[[], OperatorSnapshot]) -> None:
+        self.cfg = cfg
+        self.history = history
+        self.snapshot = snapshot
+        self.alerter = Alerter(cfg.alerts, history)
         #: failed pushes per controller name since the daemon started
         self.push_failures: dict[str, int] = {}
         self.health: Health | None = None
@@ -49,16 +67,17 @@ class OperatorView:
     @property
     def textfile(self) -> Path:
         """Where the metrics are written (``[metrics] textfile`` or its default)."""
-        cfg: Config = self.service.cfg
-        return textfile_path(cfg.metrics.textfile, cfg.state_dir)
+        return textfile_path(self.cfg.metrics.textfile, self.cfg.state_dir)
 
     @property
     def page(self) -> Path:
         """Where the status page is written: ``<state_dir>/reports/index.html``."""
-        return self.service.reports_dir / PAGE_NAME
+        return self.cfg.state_dir / "reports" / PAGE_NAME
 
     def configure(self, cfg: Config) -> None:
-        """Take a reloaded configuration (``[alerts]``; ``[metrics]`` is read at each write)."""
+        """Take a reloaded configuration (``[alerts]``; ``[metrics]``, the state directory and
+        the site's time zone are read at each write)."""
+        self.cfg = cfg
         self.alerter.configure(cfg.alerts)
 
     def after_run(self, result: Mapping[str, Any]) -> None:
@@ -81,41 +100,32 @@ class OperatorView:
                 name = r["controller"]
                 self.push_failures[name] = self.push_failures.get(name, 0) + 1
 
-    def _status(self) -> Mapping[str, Any] | None:
+    def _snapshot(self) -> OperatorSnapshot | None:
         try:
-            return self.service.status()
+            return self.snapshot()
         except Exception as exc:  # e.g. the database is unreadable: nothing to show
             self._failed("status", f"cannot read the daemon's status: {exc}")
             return None
 
     def _update(self, page: bool) -> None:
-        status = self._status()
-        if status is None:
+        snap = self._snapshot()
+        if snap is None:
             return
-        self.health = health = assess(status)
+        status = snap.status
+        self.health = health = status.health
         self.alerter.observe(health, status)
-        self._write_metrics(status, health)
-        key = (health, tuple((c["name"], c["reachable"], c["in_sync"], c["table_id"])
-                             for c in status["controllers"]))
+        self._write_metrics(snap)
+        key = (health, tuple((c.name, c.reachable, c.in_sync, c.table_id)
+                             for c in status.controllers))
         if page or key != self._page_key:
-            self._write_page(status, health)
+            self._write_page(status)
             self._page_key = key
 
-    def _sensor(self) -> SensorState | None:
-        s = self.service.sensor
-        if s is None:
-            return None
-        return SensorState(up=s.last_ok, last_success_at=s.last_success_at)
-
-    def _write_metrics(self, status: Mapping[str, Any], health: Health,
-                       up: bool = True) -> None:
+    def _write_metrics(self, snap: OperatorSnapshot, up: bool = True) -> None:
         path = self.textfile
         try:
-            loop = self.service.capture_loop
-            capture = None if loop is None else loop.last_success_at
-            reg = registry(status, health, self.service.history,
-                           push_failures=self.push_failures, sensor=self._sensor(),
-                           capture_at=capture, up=up)
+            reg = registry(snap.status, self.history, push_failures=self.push_failures,
+                           sensor=snap.sensor, capture_at=snap.capture_at, up=up)
             write_textfile(path, reg)
         except Exception as exc:
             self._failed("metrics", f"cannot write the metrics to {path}: {exc} (set "
@@ -123,10 +133,9 @@ class OperatorView:
         else:
             self._cleared("metrics")
 
-    def _write_page(self, status: Mapping[str, Any], health: Health) -> None:
+    def _write_page(self, status: Status) -> None:
         try:
-            text = render(status, health, self.service.history,
-                          timezone=self.service.cfg.site.timezone,
+            text = render(status, self.history, timezone=self.cfg.site.timezone,
                           push_failures=self.push_failures)
             write_page(self.page, text)
         except Exception as exc:
@@ -146,7 +155,7 @@ class OperatorView:
     def close(self, timeout_s: float = 5.0) -> None:
         """At a clean stop: write the metrics once more with ``grassd_up`` 0 and wait up to
         ``timeout_s`` for a running alert command."""
-        status = self._status()
-        if status is not None:
-            self._write_metrics(status, assess(status), up=False)
+        snap = self._snapshot()
+        if snap is not None:
+            self._write_metrics(snap, up=False)
         self.alerter.wait(timeout_s)

@@ -27,9 +27,9 @@ from zoneinfo import ZoneInfo
 import numpy as np
 
 from grassd import __version__
-from grassd.daemon.monitoring.health import Health
 from grassd.daemon.monitoring.line_report import describe_line, line_verdict
 from grassd.daemon.monitoring.metrics import run_r2
+from grassd.daemon.monitoring.status_types import ControllerStatus, Status
 from grassd.daemon.safe_text import one_line
 from grassd.daemon.store.atomic import atomic_write_text
 from grassd.daemon.store.history import History, RunRecord
@@ -208,16 +208,14 @@ def _active_table(cur: RunRecord | None, clock: _Clock) -> str:
     return f"<dl>{dl}</dl>{_embedded_png(cur.plot_path)}"
 
 
-def _controllers(controllers: Sequence[Mapping[str, Any]],
+def _controllers(controllers: Sequence[ControllerStatus],
                  push_failures: Mapping[str, int], clock: _Clock) -> str:
     rows = []
     for c in controllers:
-        state = "in sync" if c["in_sync"] else ("unreachable" if not c["reachable"]
-                                                 else "out of sync")
-        rows.append([_name_td(c["name"]), _td(state, "ok" if c["in_sync"] else "bad"),
-                     _td(c.get("table_id"), "n"), _td(clock(c.get("last_seen")), "t"),
-                     _td(push_failures.get(c["name"], 0), "n"),
-                     f'<td class="reason">{_esc(None if c["in_sync"] else c.get("error"))}</td>'])
+        rows.append([_name_td(c.name), _td(c.state, "ok" if c.in_sync else "bad"),
+                     _td(c.table_id, "n"), _td(clock(c.last_seen), "t"),
+                     _td(push_failures.get(c.name, 0), "n"),
+                     f'<td class="reason">{_esc(None if c.in_sync else c.error)}</td>'])
     return _table(["controller", "state", "table", "last seen", "push failures", "error"], rows)
 
 
@@ -281,21 +279,22 @@ def _refused(history: History, clock: _Clock) -> str:
     return _table(["outcome", "bundle", "id", "when", "attempts", "reason"], rows)
 
 
-def render(status: Mapping[str, Any], health: Health, history: History, *, timezone: str,
+def render(status: Status, history: History, *, timezone: str,
            push_failures: Mapping[str, int] | None = None, now: float | None = None) -> str:
-    """The page (HTML text) for daemon ``status``, its ``health`` and ``history``; times
-    shown in the site's ``timezone`` (IANA name)."""
+    """The page (HTML text) for daemon ``status`` (with its health) and ``history``; times
+    shown in the site's ``timezone`` (IANA name); ``now`` epoch s (the page's time)."""
     clock = _Clock(timezone)
+    health = status.health
+    live = status.daemon
     now = datetime.now().timestamp() if now is None else now
     reasons = "".join(f"<li>{html.escape(one_line(r, None))}</li>"  # one line each
                       for r in health.reasons)
-    inbox = status.get("inbox") or {}
+    inbox = {} if live is None else live.inbox
     queue = ", ".join(f"{k} {v}" for k, v in inbox.items()) or "-"
     sections = [
         ("Active table", _active_table(history.current_table(), clock)),
-        ("Controllers", _controllers(status.get("controllers") or [], push_failures or {},
-                                     clock)),
-        ("Serial lines", _lines(status.get("lines") or {})),
+        ("Controllers", _controllers(status.controllers, push_failures or {}, clock)),
+        ("Serial lines", _lines({} if live is None else live.lines)),
         ("Last runs", _runs(history.runs(LAST_RUNS), clock)),
         ("Trends", _trends(history, clock)),
         ("Rejected and quarantined bundles", _refused(history, clock)),
@@ -310,7 +309,7 @@ def render(status: Mapping[str, Any], health: Health, history: History, *, timez
         f"{f'<ul>{reasons}</ul>' if reasons else ''}</header>"
         f'<p class="meta">bundles: {_esc(queue)}'
         f" &middot; page written {_esc(clock(now))} ({html.escape(timezone)}) &middot; grassd "
-        f"{html.escape(__version__)} &middot; state {_esc(status.get('state_dir'))}</p>"
+        f"{html.escape(__version__)} &middot; state {_esc(status.state_dir)}</p>"
         f"{body}</body></html>\n")
 
 

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from grassd import __version__
+from grassd.daemon.monitoring.status_types import Status
 
 #: Commands that only read: any client that can connect to the socket may send them. Every
 #: other command (``calibrate``, ``reload``, ``bundles_retry``, an unknown one) needs root or
@@ -42,11 +43,12 @@ class QueuedRequest:
 
 
 class ControlCommands:
-    """Answers control-socket requests: ``status()`` gives the live status, ``reload`` sets
+    """Answers control-socket requests: ``status()`` gives the live status (sent in its JSON
+    form, :meth:`~grassd.daemon.monitoring.status_types.Status.to_json`), ``reload`` sets
     ``reload_event``, ``calibrate`` queues a :class:`QueuedRequest` on ``requests`` (not
     while ``stop_event`` is set), ``bundles_retry`` queues ``retry_bundle(name)``."""
 
-    def __init__(self, status: Callable[[], dict[str, Any]], reload_event: threading.Event,
+    def __init__(self, status: Callable[[], Status], reload_event: threading.Event,
                  stop_event: threading.Event, requests: queue.Queue[QueuedRequest],
                  retry_bundle: Callable[[str], dict[str, Any]]) -> None:
         self.status = status
@@ -61,7 +63,7 @@ class ControlCommands:
         if cmd == "ping":
             return {"ok": True, "pid": os.getpid(), "version": __version__}
         if cmd == "status":
-            return {"ok": True, "status": self.status()}
+            return {"ok": True, "status": self.status().to_json()}
         if cmd == "reload":
             self.reload_event.set()
             return {"ok": True}

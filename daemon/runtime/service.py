@@ -71,8 +71,9 @@ from grassd.daemon.errors import (
 )
 from grassd.daemon.hardware.fleet import Fleet
 from grassd.daemon.hardware.luxsensor import LuxSensor
-from grassd.daemon.monitoring.health import assess
-from grassd.daemon.monitoring.operator_view import OperatorView
+from grassd.daemon.monitoring.metrics import SensorState
+from grassd.daemon.monitoring.operator_view import OperatorSnapshot, OperatorView
+from grassd.daemon.monitoring.status_types import DaemonState, ErrorSeen, Status, WaitingBundle
 from grassd.daemon.runtime.ambient_lux import resolve_lux
 from grassd.daemon.runtime.bundle_pipeline import (
     WaitingBundles,
@@ -158,7 +159,8 @@ class Service:
             #: the first retry after ``retry_s``, then doubling up to ``retry_max_s``
             self.waiting = WaitingBundles(self.history, retry_s, retry_max_s)
             self.deferred = self.waiting.bundles
-            self.operator = OperatorView(self)  # metrics, alerts, status page
+            #: metrics, alerts, status page, from snapshots of the status
+            self.operator = OperatorView(cfg, self.history, self._operator_snapshot)
             self._build(cfg)
         except BaseException:
             self.lock.release()
@@ -560,7 +562,7 @@ class Service:
         return reports
 
     # ------------------------------------------------------------------ control socket
-    def status(self) -> dict[str, Any]:
+    def status(self) -> Status:
         """Live status: activity, inbox counts, runs, controllers and health.
 
         Runs in a control-socket thread while the main thread works: it reads the main
@@ -571,30 +573,33 @@ class Service:
         cfg, inbox, seen = self.cfg, self.inbox, self.errors.seen
         waiting = list(self.deferred.values())
         backoff = self.fleet.backoff()
-        st = collect_status(self.history, cfg)
-        for c in st["controllers"]:  # when a controller whose pushes fail is tried again
-            b = backoff.get(c["name"])
-            c["push_retry"] = None if b is None or c["in_sync"] else b
         now = time.monotonic()
-        st.update({
-            "pid": os.getpid(), "version": __version__, "activity": self.activity,
-            "started_at": self.started_at, "uptime_s": time.time() - self.started_at,
-            "config": cfg.source, "reload_error": self.reload_error,
-            "inbox": inbox.counts(), "rss_mb": rss_mb(), "running": True,
-            "last_error": self.errors.last,
-            "last_error_seen": None if seen is None else dict(seen),
-            "inbox_problems": inbox.problems(),
-            "metrics_textfile": str(self.operator.textfile),
-            "status_page": str(self.operator.page),
-            "capture": None if self.capture_loop is None else self.capture_loop.summary(),
-            "lines": self.fleet.line_quality(),
-            "waiting_bundles": [
-                {"bundle": d.bundle.name, "id": d.bundle.id, "reason": d.reason,
-                 "since": d.since, "retry_in_s": max(d.retry_at - now, 0.0)}
-                for d in waiting],
-        })
-        st["health"] = assess(st).summary()  # now with the live errors, waits and capture
-        return st
+        live = DaemonState(
+            pid=os.getpid(), version=__version__, activity=self.activity,
+            started_at=self.started_at, uptime_s=time.time() - self.started_at,
+            config=cfg.source, reload_error=self.reload_error, inbox=inbox.counts(),
+            rss_mb=rss_mb(), last_error=self.errors.last,
+            last_error_seen=None if seen is None else ErrorSeen.from_json(seen),
+            inbox_problems=tuple(inbox.problems()),
+            metrics_textfile=str(self.operator.textfile), status_page=str(self.operator.page),
+            capture=None if self.capture_loop is None else self.capture_loop.summary(),
+            lines=self.fleet.line_quality(),
+            waiting_bundles=tuple(
+                WaitingBundle(bundle=d.bundle.name, id=d.bundle.id, reason=d.reason,
+                              since=d.since, retry_in_s=max(d.retry_at - now, 0.0))
+                for d in waiting))
+        # its health now counts the live errors, waits and capture station too
+        return collect_status(self.history, cfg, push_backoff=backoff, daemon=live)
+
+    def _operator_snapshot(self) -> OperatorSnapshot:
+        """The status, the lux sensor's state and the capture station's last success, for
+        the operator's metrics, alerts and status page."""
+        sensor, loop = self.sensor, self.capture_loop
+        return OperatorSnapshot(
+            status=self.status(),
+            sensor=None if sensor is None else SensorState(up=sensor.last_ok,
+                                                           last_success_at=sensor.last_success_at),
+            capture_at=None if loop is None else loop.last_success_at)
 
     def handle_request(self, req: dict[str, Any]) -> dict[str, Any]:
         """Answer one control-socket request (runs in a socket thread; see

@@ -96,7 +96,7 @@ def test_controller_tables_pushed_and_reconciled_after_unplug(rig):
         np.testing.assert_array_equal(dev.active_table().ravel(), stored[name].lengths_um)
     reported = {c.name: (st.table_id, st.table_crc) for c, st, _ in svc.fleet.read_all()}
     assert reported == {n: (out["run_id"], crc) for n, crc in crcs.items()}  # over the wire
-    st = collect_status(svc.history, svc.cfg)
+    st = collect_status(svc.history, svc.cfg).to_json()
     assert st["health"] == "ok" and st["desired_table"]["per_controller"] == crcs
     assert {c["name"]: (c["desired_crc"], c["table_crc"], c["in_sync"])
             for c in st["controllers"]} == {n: (crcs[n], crcs[n], True) for n in names}
@@ -120,7 +120,7 @@ def test_controller_tables_pushed_and_reconciled_after_unplug(rig):
     assert out2["status"] == "ok"
     crcs2 = out2["controller_crcs"]
     assert [r["ok"] for r in out2["controllers"]] == [True, False]
-    st = collect_status(svc.history, svc.cfg)
+    st = collect_status(svc.history, svc.cfg).to_json()
     bad = st["controllers"][1]["name"]
     assert st["health"].startswith(f"degraded: controller {bad} ")  # one of two is off
     deadline = time.monotonic() + down_s + 10
@@ -138,7 +138,7 @@ def test_controller_tables_pushed_and_reconciled_after_unplug(rig):
     np.testing.assert_array_equal(devices(sim, svc.cfg)[names[1]].active_table().ravel(), own)
     [rec] = [p for p in svc.history.pushes(out2["run_id"]) if p.kind == "reconcile"]
     assert (rec.controller, rec.ok, rec.table_crc) == (names[1], True, crcs2[names[1]])
-    assert collect_status(svc.history, svc.cfg)["health"] == "ok"
+    assert collect_status(svc.history, svc.cfg).to_json()["health"] == "ok"
 
 
 def test_pixel_tables_one_row_per_pixel_on_each_controller(rig):
@@ -156,7 +156,7 @@ def test_pixel_tables_one_row_per_pixel_on_each_controller(rig):
     reported = {c.name: (st.table_id, st.table_crc) for c, st, _ in svc.fleet.read_all()}
     assert reported == {n: (out["run_id"], crc) for n, crc in crcs.items()}  # over the wire
     assert [r["ok"] for r in out["controllers"]] == [True, True]
-    assert collect_status(svc.history, svc.cfg)["health"] == "ok"
+    assert collect_status(svc.history, svc.cfg).to_json()["health"] == "ok"
     assert out["metrics"]["granularity"] == "pixel" and out["metrics"]["tables"] == 4
 
 

@@ -8,10 +8,11 @@ import json
 import sys
 
 from prometheus_client.parser import text_string_to_metric_families
+from status_samples import controller, daemon_state, status, waiting
 
 from grassd.daemon.config.settings import AlertsConfig
 from grassd.daemon.monitoring.alerts import Alerter
-from grassd.daemon.monitoring.health import Health, assess
+from grassd.daemon.monitoring.health import Health
 from grassd.daemon.monitoring.metrics import registry, write_textfile
 from grassd.daemon.monitoring.status_page import render
 from grassd.daemon.safe_text import MAX_NAME_CHARS, one_line
@@ -43,10 +44,10 @@ def _history_with(tmp_path, name: str) -> History:
 
 def test_status_page_shows_a_name_escaped_on_one_line(tmp_path):
     h = _history_with(tmp_path, EVIL.replace("\udcfe", "\x85"))  # SQLite takes no surrogate
-    status = {"controllers": [{"name": EVIL, "reachable": False, "in_sync": False,
-                               "table_id": None, "error": f"no answer <b>{EVIL}</b>"}],
-              "inbox": {"inbox": 1}, "waiting_bundles": [{"bundle": EVIL, "reason": "r"}]}
-    page = render(status, assess(status), h, timezone="UTC")
+    st = status(controller(EVIL, reachable=False, in_sync=False, table_id=None,
+                           error=f"no answer <b>{EVIL}</b>"),
+                daemon=daemon_state(inbox={"inbox": 1}, waiting_bundles=(waiting(EVIL, "r"),)))
+    page = render(st, h, timezone="UTC")
     h.close()
     assert "<script" not in page and "<b>" not in page and "\x1b" not in page
     assert "\r" not in page and "\u2028" not in page and "\u202e" not in page
@@ -65,11 +66,11 @@ def test_status_page_shows_a_name_escaped_on_one_line(tmp_path):
 def test_metrics_label_values_are_escaped(tmp_path):
     h = History(tmp_path / "state.db")
     name = 'ctl\\"a"\nb\x1b'
-    status = {"controllers": [{"name": name, "reachable": True, "in_sync": True,
-                               "table_id": 1, "last_seen": 5.0}],
-              "inbox": {}, "lines": {name: {"recent_failure_rate": 0.5, "chunk_bytes": 64,
-                                            "tries": 2, "failures": 1}}}
-    path = write_textfile(tmp_path / "grassd.prom", registry(status, Health("ok"), h))
+    st = status(controller(name, table_id=1, last_seen=5.0), table_id=1,
+                daemon=daemon_state(lines={name: {"recent_failure_rate": 0.5,
+                                                  "chunk_bytes": 64, "tries": 2,
+                                                  "failures": 1}}))
+    path = write_textfile(tmp_path / "grassd.prom", registry(st, h))
     h.close()
     text = path.read_text()
     line = next(ln for ln in text.splitlines() if ln.startswith("grassd_controller_in_sync{"))
@@ -88,10 +89,10 @@ def test_an_alert_describes_names_on_one_line(tmp_path):
     h = History(tmp_path / "state.db")
     a = Alerter(AlertsConfig(command=cmd, min_interval_s=0), h)
     a.observe(Health("ok"))
-    status = {"health": f"degraded: bundle {EVIL} waits: r", "state_dir": "/s",
-              "controllers": [{"name": EVIL, "reachable": True, "in_sync": False,
-                               "table_id": 1, "error": "a\nb"}]}
-    assert a.observe(Health("degraded", (f"bundle {EVIL} waits: r",)), status)
+    st = status(controller(EVIL, in_sync=False, table_id=1, error="a\nb"), controller("ok#1"),
+                daemon=daemon_state(waiting_bundles=(waiting(EVIL, "r"),)))
+    assert EVIL in st.health.summary()
+    assert a.observe(Health("degraded", (f"bundle {EVIL} waits: r",)), st)
     a.wait(30)
     h.close()
     event = json.loads(out.read_text())

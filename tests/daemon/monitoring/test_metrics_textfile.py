@@ -121,7 +121,7 @@ def test_every_metric_after_simulated_hardware_runs(tmp_path, hw):
         assert one(m, "grassd_controller_last_seen_timestamp_seconds",
                    controller=name) == st.last_seen
     assert not any(k[0].startswith("grassd_capture") for k in m)  # no capture station yet
-    lines = svc.status()["lines"]
+    lines = svc.status().daemon.lines
     assert len(lines) == 2  # the two simulated buses, clean: every request answered
     for port, q in lines.items():
         assert one(m, "grassd_line_recent_unanswered_ratio", port=port) == 0.0

@@ -21,7 +21,7 @@ def test_status_reports_a_noisy_line_and_a_good_one(tmp_path, hw):
     for i in range(3):  # the daemon pushes new tables over both buses
         svc.fleet.push(rng.integers(0, 20001, 256).astype(np.uint16), table_id=1000 + i)
     st = svc.status()
-    lines = st["lines"]
+    lines = st.daemon.lines
     assert set(lines) == {c.port for c in svc.fleet.controllers}
     bad = next(p for p in lines if p.endswith(noisy.link_path.name))
     good = next(p for p in lines if p.endswith(clean.link_path.name))

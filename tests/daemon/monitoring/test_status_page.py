@@ -49,7 +49,7 @@ def test_page_holds_every_section(page_after_runs):
     for heading in ("Active table", "Controllers", "Serial lines", "Last runs", "Trends",
                     "Rejected and quarantined bundles"):
         assert f"<h2>{heading}</h2>" in text
-    for port in svc.status()["lines"]:  # each bus the daemon used, with its verdict
+    for port in svc.status().daemon.lines:  # each bus the daemon used, with its verdict
         assert re.search(rf'<td data-label="port">{re.escape(port)}</td>'
                          r'<td data-label="line"[^>]*>(good|noisy|failing)</td>', text), port
     assert "grassd: degraded" in text and "unreachable" in text

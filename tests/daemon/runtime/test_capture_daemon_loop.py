@@ -139,7 +139,7 @@ def test_reload_starts_and_stops_the_capture_station(tmp_path, hw):
             wait_for(lambda: svc.capture_loop.last_bundle is not None
                      or svc.capture_loop.last_error, 60, "a capture", _Alive(), path)
             assert svc.capture_loop.last_error is None
-            assert svc.status()["capture"]["captures"] == 1
+            assert svc.status().to_json()["capture"]["captures"] == 1
             loop = svc.capture_loop
             daemon_harness.write_config(path, tmp_path / "state", cfg)
             assert svc.reload() is True and svc.capture_loop is None

@@ -67,7 +67,7 @@ def test_full_disk_fails_the_run_not_the_daemon(tmp_path, hw):
         assert {table_crc(dev.active_table()) for bus in sim.buses
                 for dev in bus.controllers} == {good.table_crc}
         assert svc.inbox.counts()["processing"] == 1  # the bundle waits, not rejected
-        st = svc.status()
+        st = svc.status().to_json()
         [w] = st["waiting_bundles"]
         assert w["bundle"] == "b2" and code in w["reason"]
         assert st["runs"][0]["error"] == failed.error
@@ -76,13 +76,13 @@ def test_full_disk_fails_the_run_not_the_daemon(tmp_path, hw):
         time.sleep(0.6)
         svc.tick()  # retried once, still full: backoff doubles
         assert svc.history.run_count() == runs_before + 2
-        assert svc.status()["waiting_bundles"][0]["retry_in_s"] > 0.5
+        assert svc.status().to_json()["waiting_bundles"][0]["retry_in_s"] > 0.5
 
     time.sleep(1.1)  # space is back
     svc.tick()
     new = svc.history.current_table()
     assert new.id > failed.id and new.report_path and Path(new.report_path).is_file()
     assert svc.inbox.counts()["processing"] == 0 and svc.inbox.counts()["archive"] == 2
-    assert svc.status()["waiting_bundles"] == []
+    assert svc.status().to_json()["waiting_bundles"] == []
     assert svc.history.run(good.id).status == "ok"  # history kept
     svc.shutdown()

@@ -24,18 +24,18 @@ def test_last_error_stays_while_a_bundle_still_waits_on_it(tmp_path, hw):
             assert len(claimed) == 1
             with full(state):
                 svc.tick(claimed)
-                assert "full" in (svc.status()["last_error"] or "")
+                assert "full" in (svc.status().to_json()["last_error"] or "")
                 svc.main_loop_pass()  # the bundle's retry is not due: nothing was retried
-                st = svc.status()
+                st = svc.status().to_json()
                 assert [w["bundle"] for w in st["waiting_bundles"]] == ["b1"]
                 assert "full" in (st["last_error"] or ""), st["last_error"]
             for d in svc.deferred.values():  # space is back: retry now
                 d.retry_at = time.monotonic()
             svc.main_loop_pass()
-            st = svc.status()
+            st = svc.status().to_json()
             assert st["waiting_bundles"] == [] and svc.inbox.counts()["archive"] == 1
             svc.main_loop_pass()
-            st = svc.status()
+            st = svc.status().to_json()
             assert st["last_error"] is None
             assert st["last_error_seen"]["cleared_at"] is not None
         finally:
@@ -86,16 +86,16 @@ def test_last_error_of_a_failing_reconcile_does_not_flip_between_passes(tmp_path
                 t0 = time.monotonic()
                 while time.monotonic() - t0 < 5.0:
                     svc.main_loop_pass()
-                    seen.append(svc.status()["last_error"])
+                    seen.append(svc.status().to_json()["last_error"])
                     time.sleep(0.3)
             first = next(i for i, e in enumerate(seen) if e is not None)
             assert first <= 6 and "full" in seen[first], seen
             assert all(e is not None for e in seen[first:]), seen
             deadline = time.monotonic() + 10.0  # space is back: the next reconcile clears it
-            while svc.status()["last_error"] is not None:
+            while svc.status().to_json()["last_error"] is not None:
                 assert time.monotonic() < deadline
                 svc.main_loop_pass()
                 time.sleep(0.3)
-            assert svc.status()["last_error_seen"]["cleared_at"] is not None
+            assert svc.status().to_json()["last_error_seen"]["cleared_at"] is not None
         finally:
             svc.shutdown()

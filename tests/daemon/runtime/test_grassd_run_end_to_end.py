@@ -398,12 +398,12 @@ def test_demo_runs_the_whole_daemon(tmp_path, monkeypatch):
     monkeypatch.setenv("GRASSD_CACHE_DIR", CACHE)
     lines: list[str] = []
     st = run_demo(tmp_path, echo=lines.append, timeout_s=300)
-    assert st["health"] == "ok" and st["run_counts"]["ok"] == 1
-    assert all(c["in_sync"] for c in st["controllers"]) and len(st["controllers"]) == 2
-    run = st["runs"][0]
+    assert st.health.level == "ok" and st.run_counts.ok == 1
+    assert all(c.in_sync for c in st.controllers) and len(st.controllers) == 2
+    run = st.runs[0]
     # the capture station read the simulated sensor and wrote its lux into the bundle
-    assert run["lux_source"] == "manifest" and run["lux"] == pytest.approx(5000.0)
-    assert Path(run["report"]).is_file() and Path(run["plot"]).is_file()
+    assert run.lux_source == "manifest" and run.lux == pytest.approx(5000.0)
+    assert Path(run.report).is_file() and Path(run.plot).is_file()
     assert any(line.startswith("report: ") for line in lines)
     # the operator's view: where the status page and the metrics are, both written
     page = tmp_path / "state" / "reports" / "index.html"
@@ -414,5 +414,5 @@ def test_demo_runs_the_whole_daemon(tmp_path, monkeypatch):
 
     samples = {s.name: s.value for f in text_string_to_metric_families(prom.read_text())
                for s in f.samples}
-    assert samples["grassd_health"] == 0 and samples["grassd_table_id"] == run["id"]
+    assert samples["grassd_health"] == 0 and samples["grassd_table_id"] == run.id
     assert not (tmp_path / "state" / "control.sock").exists()  # daemon stopped cleanly

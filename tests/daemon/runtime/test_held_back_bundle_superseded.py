@@ -23,14 +23,14 @@ def test_held_back_older_bundle_is_superseded_newer_one_applies(tmp_path, hw):
 
     drop(inbox, "morning", lux=None, timestamp="2026-03-01T09:00:00+01:00")
     svc.tick()
-    assert [w["bundle"] for w in svc.status()["waiting_bundles"]] == ["morning"]
+    assert [w["bundle"] for w in svc.status().to_json()["waiting_bundles"]] == ["morning"]
     drop(inbox, "noon", lux=4000.0, timestamp="2026-03-01T12:00:00+01:00")
     svc.tick()  # noon has its lux: it runs and becomes the active table
     noon = svc.history.current_table()
     assert noon is not None and noon.bundle_hash == journal_entry(svc, "noon").bundle_hash
     assert noon.light_at == datetime.fromisoformat("2026-03-01T12:00:00+01:00").timestamp()
     assert reported(svc) == {(noon.table_id, noon.table_crc)}
-    assert [w["bundle"] for w in svc.status()["waiting_bundles"]] == ["morning"]
+    assert [w["bundle"] for w in svc.status().to_json()["waiting_bundles"]] == ["morning"]
 
     back = SimLuxSensor(regmap, lux=3210.0, port=port).start()
     try:
@@ -48,13 +48,13 @@ def test_held_back_older_bundle_is_superseded_newer_one_applies(tmp_path, hw):
         assert reported(svc) == {(noon.table_id, noon.table_crc)}  # ... on every controller
         # scheduled runs keep using noon's light, not the superseded bundle's
         assert svc.history.latest_archived().name == "noon"
-        assert svc.status()["waiting_bundles"] == []
+        assert svc.status().to_json()["waiting_bundles"] == []
 
         # a held-back bundle whose light is NEWER than the active table's is applied
         back.stop()
         drop(inbox, "evening", lux=None, timestamp="2026-03-01T18:00:00+01:00")
         svc.tick()
-        assert [w["bundle"] for w in svc.status()["waiting_bundles"]] == ["evening"]
+        assert [w["bundle"] for w in svc.status().to_json()["waiting_bundles"]] == ["evening"]
         drop(inbox, "afternoon", lux=3000.0, timestamp="2026-03-01T15:00:00+01:00")
         svc.tick()
         afternoon = svc.history.current_table()

@@ -72,7 +72,7 @@ def test_late_upload_of_older_light_is_archived_as_superseded(tmp_path, hw, capl
     assert len(svc.history.pushes(limit=10_000)) == pushes  # no push at all, no reconcile
     assert svc.history.latest_archived().name == "noon"  # scheduled runs keep noon's light
     # status (live, and from the database alone as `grassd status` without a daemon shows it)
-    for st in (svc.status(), collect_status(svc.history, svc.cfg)):
+    for st in (svc.status().to_json(), collect_status(svc.history, svc.cfg).to_json()):
         top = st["runs"][0]
         assert (top["status"], top["error"]) == ("superseded", journal_entry(svc, "late").reason)
         assert st["desired_table"]["run_id"] == noon.id and st["health"] == "ok"

@@ -24,7 +24,7 @@ def test_sensor_outage_defers_then_runs_when_back(tmp_path, hw):
     drop(svc.cfg.light.inbox, "b", lux=None)
     svc.tick()
     assert svc.inbox.counts()["processing"] == 1 and svc.inbox.counts()["rejected"] == 0
-    [w] = svc.status()["waiting_bundles"]
+    [w] = svc.status().to_json()["waiting_bundles"]
     assert w["bundle"] == "b" and "unreachable" in w["reason"]
     assert svc.history.run_count() == 0
     h = svc.history.journal("processing")[0]
@@ -37,12 +37,12 @@ def test_sensor_outage_defers_then_runs_when_back(tmp_path, hw):
         tick_until(svc, lambda: svc.history.run_count() == 1)
         run = svc.history.runs(1)[0]
         assert (run.status, run.lux, run.lux_source) == ("ok", pytest.approx(3210.0), "modbus")
-        assert svc.inbox.counts()["archive"] == 1 and svc.status()["waiting_bundles"] == []
+        assert svc.inbox.counts()["archive"] == 1 and svc.status().daemon.waiting_bundles == ()
 
         back.lux = 0.0  # a real bad value: rejected at the first try, no waiting
         drop(svc.cfg.light.inbox, "zero", lux=None)
         svc.tick()
-        assert svc.inbox.counts()["rejected"] == 1 and svc.status()["waiting_bundles"] == []
+        assert svc.inbox.counts()["rejected"] == 1 and svc.status().daemon.waiting_bundles == ()
         [rej] = list(svc.inbox.rejected.iterdir())
         assert "not a usable illuminance" in (rej / "reason.txt").read_text()
     finally:
@@ -60,12 +60,12 @@ def test_outage_longer_than_lux_wait_rejects_with_reason(tmp_path, hw):
     t0 = time.monotonic()
     svc.tick()
     assert svc.inbox.counts()["processing"] == 1
-    assert "did not answer" in svc.status()["waiting_bundles"][0]["reason"]
+    assert "did not answer" in svc.status().to_json()["waiting_bundles"][0]["reason"]
     tick_until(svc, lambda: svc.inbox.counts()["rejected"] == 1)
     assert 1.0 <= time.monotonic() - t0 < 6.0  # bounded by lux_wait_s (+ one sensor timeout)
     [rej] = list(svc.inbox.rejected.iterdir())
     reason = (rej / "reason.txt").read_text()
     assert "stayed unavailable" in reason and "lux_wait_s = 1" in reason
-    assert svc.status()["waiting_bundles"] == [] and svc.history.run_count() == 0
+    assert svc.status().to_json()["waiting_bundles"] == [] and svc.history.run_count() == 0
     sim.sensor.silent = False
     svc.shutdown()

@@ -80,7 +80,7 @@ def test_failing_controller_backs_off_and_is_pushed_on_reset(tmp_path, hw, caplo
     torn = injector.counts.torn_writes - torn0
     assert torn > 0 and torn <= len(attempts) * torn0  # transfers only at the attempts
 
-    st = {c["name"]: c for c in svc.status()["controllers"]}
+    st = {c["name"]: c for c in svc.status().to_json()["controllers"]}
     retry = st[bad]["push_retry"]
     assert retry["failures"] == 1 + len(attempts)
     assert 0 < retry["retry_in_s"] <= retry["delay_s"] == 2.0 * 2 ** len(attempts)
@@ -101,7 +101,7 @@ def test_failing_controller_backs_off_and_is_pushed_on_reset(tmp_path, hw, caplo
         dev.store.invalidate(dev.active_bank)
     r = _until_back(svc, sim.buses[0], bad, down_s=1.0)  # raises unless seen down, then back
     assert r.ok and r.pushed and r.table_id == cur.table_id
-    assert svc.status()["health"] == "ok"
+    assert svc.status().to_json()["health"] == "ok"
     assert svc.fleet.backoff() == {}
     assert any("active after" in m.getMessage() for m in caplog.records
                if m.name == "grassd.daemon.hardware.fleet" and bad in m.getMessage())

@@ -58,7 +58,7 @@ def test_journal_rows_expire_with_their_bundles(tmp_path, hw):
         _bad(inbox, f"bad{i}")
     drop(inbox, "waiting", lux=None, timestamp="2026-03-01T13:00:00+01:00")
     svc.tick()
-    assert [w["bundle"] for w in svc.status()["waiting_bundles"]] == ["waiting"]
+    assert [w["bundle"] for w in svc.status().to_json()["waiting_bundles"]] == ["waiting"]
     assert _names(svc, "processing") == {"waiting"}
     assert all(j.reason.startswith("superseded: ") for j in svc.history.journal("archived")
                if j.name.startswith("old"))

@@ -76,7 +76,7 @@ def test_all_controllers_down_commits_then_reconciles(tmp_path, hw):
     assert all(r.ok for r in reports) and pushed == {r.controller for r in reports}
     from grassd.daemon.runtime.service import collect_status
 
-    assert collect_status(svc.history, svc.cfg)["health"] == "ok"
+    assert collect_status(svc.history, svc.cfg).to_json()["health"] == "ok"
     svc.shutdown()
 
 

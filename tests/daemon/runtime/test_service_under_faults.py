@@ -95,7 +95,7 @@ def test_reconcile_after_a_pixel_count_change_pushes_the_display_wide_table(resi
     reports = svc.reconcile()
     assert [(r.ok, r.table_id) for r in reports] == [(True, first["run_id"])] * 2, reports
     assert {r.table_crc for r in reports} == {first["table_crc"]}  # display-wide table
-    st = collect_status(svc.history, svc.cfg)
+    st = collect_status(svc.history, svc.cfg).to_json()
     assert st["health"] == "ok", st["controllers"]
 
 # --------------------------------------------------------------------------- a full state disk
@@ -118,7 +118,7 @@ def test_claimed_bundles_survive_a_full_state_disk(tmp_path, hw):
             with full(state):
                 svc.tick(claimed)  # must not raise: the daemon survives, the bundles wait
                 assert svc.inbox.counts()["processing"] == 2
-                st = svc.status()
+                st = svc.status().to_json()
                 assert sorted(w["bundle"] for w in st["waiting_bundles"]) == ["b1", "b2"]
                 assert "full" in st["last_error"]
             deadline = time.monotonic() + 20
@@ -127,7 +127,7 @@ def test_claimed_bundles_survive_a_full_state_disk(tmp_path, hw):
                 svc.main_loop_pass()
             assert svc.inbox.counts() == {"inbox": 0, "processing": 0, "archive": 2,
                                           "rejected": 0}
-            assert svc.status()["waiting_bundles"] == []
+            assert svc.status().to_json()["waiting_bundles"] == []
             assert [r.status for r in svc.history.runs(5)].count("ok") == 2
         finally:
             svc.shutdown()
@@ -263,7 +263,7 @@ def test_unreadable_inbox_does_not_stop_reconcile_and_requests(tmp_path, hw):
         assert table_checksum(dev.active_table()) == svc.history.current_table().table_crc
         assert svc.requests.empty()
         assert svc.history.runs(1)[0].trigger == "request"
-        assert "inbox" in (svc.status()["last_error"] or "")
+        assert "inbox" in (svc.status().to_json()["last_error"] or "")
     finally:
         svc.shutdown()
 
@@ -328,7 +328,7 @@ def test_write_failure_after_a_lux_wait_backs_off(tmp_path, hw):
     try:
         rdrop(svc.cfg.light.inbox, "b", lux=None)
         svc.tick()
-        assert svc.status()["waiting_bundles"][0]["reason"].startswith("waiting for the lux")
+        assert svc.status().daemon.waiting_bundles[0].reason.startswith("waiting for the lux")
         back = SimLuxSensor(regmap, lux=3000.0, port=port).start()
         with readonly(svc.reports_dir):
             deadline = time.monotonic() + 20
@@ -341,7 +341,7 @@ def test_write_failure_after_a_lux_wait_backs_off(tmp_path, hw):
                 time.sleep(0.05)
                 svc.tick()
             assert svc.history.run_count() == runs
-            [w] = svc.status()["waiting_bundles"]
+            [w] = svc.status().to_json()["waiting_bundles"]
             assert w["retry_in_s"] > 0.5
     finally:
         if back is not None:
@@ -363,16 +363,16 @@ def test_last_error_names_a_read_failure_and_clears_after_a_clean_pass(tmp_path,
     svc = service(conf, reconcile_s=1e9)
     try:
         svc.main_loop_pass()
-        assert svc.status()["last_error"] is None
+        assert svc.status().to_json()["last_error"] is None
         share.rmdir()  # the share is gone
         svc.main_loop_pass()
-        err = svc.status()["last_error"]
+        err = svc.status().to_json()["last_error"]
         assert err is not None and f"cannot read {inbox}:" in err, err
         assert "write" not in err and "ENOENT" in err
         assert not share.exists()  # nothing was created in its place
         share.mkdir()  # the share is back
         svc.main_loop_pass()
-        st = svc.status()
+        st = svc.status().to_json()
         assert st["last_error"] is None
         seen = st["last_error_seen"]
         assert err == f"{seen['at']} {seen['error']}"
@@ -409,7 +409,7 @@ def test_status_from_a_socket_thread_while_the_main_loop_defers_bundles(tmp_path
         t.start()
         try:
             for _ in range(100):
-                st = svc.status()
+                st = svc.status().to_json()
                 assert 299 <= len(st["waiting_bundles"]) <= 301
         finally:
             stop.set()
