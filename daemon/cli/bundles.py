@@ -30,12 +30,12 @@ def list_cmd(config_path: str | None, state_dir: str | None, as_json: bool) -> N
     """Quarantined bundles: id, upload name, attempts, since when (read from the state
     database; works with or without a running daemon)."""
     from grassd.daemon.errors import HistoryError
-    from grassd.daemon.runtime.service import STATE_DB
     from grassd.daemon.store.history import History
+    from grassd.daemon.store.layout import StateLayout
     from grassd.daemon.store.quarantine import quarantined
 
     cfg = resolve_config(config_path, state_dir)
-    db = cfg.state_dir / STATE_DB
+    db = StateLayout(cfg.state_dir).db
     if not db.exists():
         raise HistoryError(f"no state database at {db}")
     with History(db) as h:
@@ -58,10 +58,10 @@ def retry_cmd(bundle: str, config_path: str | None, state_dir: str | None) -> No
     """Put quarantined BUNDLE (its id, or its upload name) back into the inbox to run again."""
     from grassd.daemon.errors import DaemonNotRunning
     from grassd.daemon.runtime.control import request
-    from grassd.daemon.runtime.service import STATE_DB
     from grassd.daemon.runtime.statelock import StateLock
     from grassd.daemon.store.history import History
     from grassd.daemon.store.ingest import Inbox
+    from grassd.daemon.store.layout import StateLayout
     from grassd.daemon.store.quarantine import BundleRetryError, retry_request
 
     cfg = resolve_config(config_path, state_dir)
@@ -71,7 +71,7 @@ def retry_cmd(bundle: str, config_path: str | None, state_dir: str | None) -> No
         how = "the daemon put"
     except DaemonNotRunning:
         with StateLock(cfg.state_dir, "grassd bundles retry"), \
-                History(cfg.state_dir / STATE_DB) as h:
+                History(StateLayout(cfg.state_dir).db) as h:
             out = retry_request(Inbox(cfg.light.inbox, cfg.state_dir, h,
                                       tz=cfg.site.timezone, limits=cfg.light.limits),
                                 bundle)

@@ -66,10 +66,10 @@ def check_config(config_path: str | None) -> None:
                    + (f"; shaded sensor unit {cap.shaded_unit}" if cap.shaded_unit else ""))
     click.echo(f"  state: {cfg.state_dir}; cache: {cfg.cache_dir}; socket: {cfg.control_socket}")
     from grassd.daemon.monitoring.metrics import textfile_path
-    from grassd.daemon.monitoring.status_page import PAGE_NAME
+    from grassd.daemon.store.layout import StateLayout
 
     click.echo(f"  metrics: {textfile_path(cfg.metrics.textfile, cfg.state_dir)}; status page: "
-               f"{cfg.state_dir / 'reports' / PAGE_NAME}; alerts: {cfg.alerts.command or 'none'}")
+               f"{StateLayout(cfg.state_dir).status_page}; alerts: {cfg.alerts.command or 'none'}")
     for note in not_used_by_the_daemon(cfg):
         click.echo(f"  warning: {note}")
 
@@ -243,15 +243,16 @@ def status_cmd(config_path: str | None, state_dir: str | None, as_json: bool) ->
     from grassd.daemon.errors import DaemonNotRunning, HistoryError
     from grassd.daemon.monitoring.status_types import Status
     from grassd.daemon.runtime.control import request
-    from grassd.daemon.runtime.service import STATE_DB, collect_status
+    from grassd.daemon.runtime.service import collect_status
     from grassd.daemon.store.history import History
+    from grassd.daemon.store.layout import StateLayout
 
     cfg = resolve_config(config_path, state_dir)
     try:
         st = Status.from_json(request(cfg.control_socket, {"cmd": "status"},
                                       timeout_s=10)["status"])
     except DaemonNotRunning:
-        db = cfg.state_dir / STATE_DB
+        db = StateLayout(cfg.state_dir).db
         if (db.parent.is_dir() and not os.access(db.parent, os.X_OK)) or (
                 db.exists() and not os.access(db, os.R_OK)):
             raise HistoryError(
@@ -280,11 +281,11 @@ def history_cmd(config_path: str | None, state_dir: str | None, limit: int,
     import json
 
     from grassd.daemon.errors import HistoryError
-    from grassd.daemon.runtime.service import STATE_DB
     from grassd.daemon.store.history import History
+    from grassd.daemon.store.layout import StateLayout
 
     cfg = resolve_config(config_path, state_dir)
-    db = cfg.state_dir / STATE_DB
+    db = StateLayout(cfg.state_dir).db
     if not db.exists():
         raise HistoryError(f"no state database at {db}: the daemon has not run yet")
     with History(db) as h:

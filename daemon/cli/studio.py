@@ -16,10 +16,10 @@ DEFAULT_PORT: int = 8420
 
 def _active_table(state_dir: Path):
     """The daemon's active table (256,) [um] from the state directory's history, or None."""
-    from grassd.daemon.runtime.service import STATE_DB
     from grassd.daemon.store.history import History
+    from grassd.daemon.store.layout import StateLayout
 
-    db = state_dir / STATE_DB
+    db = StateLayout(state_dir).db
     if not db.is_file():
         return None
     with History(db) as history:

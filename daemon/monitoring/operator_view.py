@@ -29,9 +29,10 @@ from grassd.daemon.config.settings import Config
 from grassd.daemon.monitoring.alerts import Alerter
 from grassd.daemon.monitoring.health import Health
 from grassd.daemon.monitoring.metrics import SensorState, registry, textfile_path, write_textfile
-from grassd.daemon.monitoring.status_page import PAGE_NAME, render, write_page
+from grassd.daemon.monitoring.status_page import render, write_page
 from grassd.daemon.monitoring.status_types import Status
 from grassd.daemon.store.history import History
+from grassd.daemon.store.layout import StateLayout
 
 log = logging.getLogger(__name__)
 
@@ -72,7 +73,7 @@ class OperatorView:
     @property
     def page(self) -> Path:
         """Where the status page is written: ``<state_dir>/reports/index.html``."""
-        return self.cfg.state_dir / "reports" / PAGE_NAME
+        return StateLayout(self.cfg.state_dir).status_page
 
     def configure(self, cfg: Config) -> None:
         """Take a reloaded configuration (``[alerts]``; ``[metrics]``, the state directory and

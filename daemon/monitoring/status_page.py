@@ -35,7 +35,6 @@ from grassd.daemon.store.atomic import atomic_write_text
 from grassd.daemon.store.history import History, RunRecord
 from grassd.daemon.store.outcomes import refused
 
-PAGE_NAME = "index.html"
 #: runs shown in "last runs" and kept runs plotted in the trends (newest)
 LAST_RUNS = 15
 TREND_RUNS = 2000

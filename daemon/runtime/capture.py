@@ -67,6 +67,7 @@ from grassd.daemon.store.atomic import (
     fsync_dir,
     fsync_file,
 )
+from grassd.daemon.store.layout import CAMERA_LOCK
 from grassd.daemon.timestamps import utc_iso
 
 log = logging.getLogger(__name__)
@@ -74,7 +75,6 @@ log = logging.getLogger(__name__)
 #: Name of the merged panorama inside a capture bundle.
 HDRI_NAME = "sky.exr"
 #: Lock file under ``state_dir/capture`` held while a station captures.
-CAMERA_LOCK = "camera.lock"
 
 
 @dataclass(frozen=True)

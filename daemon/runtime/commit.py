@@ -22,6 +22,7 @@ from grassd.daemon.store.atomic import (
     describe_write_error,
 )
 from grassd.daemon.store.history import History
+from grassd.daemon.store.layout import report_stem
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +44,7 @@ def commit_run(run_id: int, result: CalibrationResult, *,
     # a table per controller ([tables] granularity "controller"/"pixel"), else one for all
     own = result.controller_tables
     own_crcs = result.controller_crcs() if own else {}
-    base = reports_dir / f"run-{run_id:06d}"
+    base = reports_dir / report_stem(run_id)
     report = {"run_id": run_id, "table_id": run_id, "table_crc": crc, "metrics": metrics,
               **result.report()}
     try:

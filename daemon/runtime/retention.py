@@ -31,7 +31,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-import re
 import shutil
 import time
 from dataclasses import dataclass, field
@@ -39,13 +38,13 @@ from pathlib import Path
 
 from grassd.daemon.config.settings import RetentionConfig
 from grassd.daemon.store.history import History
+from grassd.daemon.store.layout import StateLayout, report_run_id
 
 log = logging.getLogger(__name__)
 
 DAY_S = 86400.0
 #: Hidden temporaries of interrupted writes older than this (s) are removed.
 STALE_TEMP_S = 3600.0
-_REPORT_RE = re.compile(r"^run-(\d+)\.(json|png)$")
 
 
 @dataclass
@@ -88,8 +87,8 @@ def prune(state_dir: str | os.PathLike[str], history: History, keep: RetentionCo
     A file that cannot be removed (permissions) is logged and skipped: pruning never fails a
     run.
     """
-    state = Path(state_dir)
-    reports = Path(reports_dir) if reports_dir is not None else state / "reports"
+    layout = StateLayout(state_dir)
+    reports = Path(reports_dir) if reports_dir is not None else layout.reports
     now = time.time() if now is None else now
     cutoff = now - keep.keep_days * DAY_S
     out = PruneResult()
@@ -108,8 +107,7 @@ def prune(state_dir: str | os.PathLike[str], history: History, keep: RetentionCo
     latest = history.latest_archived()
     protected = {latest.bundle_id} if latest is not None else set()
     present: set[str] = set()  # bundle directories left in archive/ and rejected/
-    for sub in ("archive", "rejected"):
-        d = state / sub
+    for d in (layout.archive, layout.rejected):
         if not d.is_dir():
             continue
         for e in sorted(d.iterdir()):
@@ -137,9 +135,9 @@ def prune(state_dir: str | os.PathLike[str], history: History, keep: RetentionCo
     if reports.is_dir():
         by_run: dict[int, list[Path]] = {}
         for e in reports.iterdir():
-            m = _REPORT_RE.match(e.name)
-            if m:
-                by_run.setdefault(int(m.group(1)), []).append(e)
+            run_id = report_run_id(e.name)
+            if run_id is not None:
+                by_run.setdefault(run_id, []).append(e)
             elif (e.name.startswith(".") and e.name.endswith(".tmp")
                   and _newest_mtime(e) < now - STALE_TEMP_S):
                 drop(e, out.temporaries)

@@ -94,15 +94,15 @@ from grassd.daemon.runtime.statelock import StateLock
 from grassd.daemon.runtime.status import collect_status, rss_mb, usable_run_tables
 from grassd.daemon.store.history import History
 from grassd.daemon.store.ingest import Bundle, CheckerPhoto, Inbox
+from grassd.daemon.store.layout import StateLayout
 from grassd.daemon.store.quarantine import retry_request
 from grassd.firmware_proto.client import RetryPolicy
 from grassd.sim.light_input import LightInput
 
 log = logging.getLogger(__name__)
 
-STATE_DB = "state.db"
 #: imported from here by the CLI, tests and benchmarks
-__all__ = ["STATE_DB", "Service", "collect_status", "os_action", "rss_mb", "usable_run_tables"]
+__all__ = ["Service", "collect_status", "os_action", "rss_mb", "usable_run_tables"]
 
 
 class Service:
@@ -150,7 +150,7 @@ class Service:
         #: one grassd process per state directory (daemon or one-shot), see statelock
         self.lock = StateLock(cfg.state_dir).acquire()
         try:
-            self.history = History(cfg.state_dir / STATE_DB)
+            self.history = History(StateLayout(cfg.state_dir).db)
             #: a controller whose pushes keep failing gets one history row per
             #: ``failure_row_s`` (its first failure, then a summary), not one per reconcile
             self.push_outcomes = PushOutcomes(self.history, failure_row_s)
@@ -188,7 +188,7 @@ class Service:
         self.lock.note_ports(cfg.serial_ports)
         self.sensor = LuxSensor(cfg.light.modbus) if cfg.light.modbus is not None else None
         self.calibrator = Calibrator(cfg)
-        self.reports_dir = cfg.state_dir / "reports"
+        self.reports_dir = StateLayout(cfg.state_dir).reports
         self.reports_dir.mkdir(parents=True, exist_ok=True)
         self.operator.configure(cfg)
 

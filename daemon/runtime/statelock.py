@@ -32,10 +32,10 @@ from pathlib import Path
 
 from grassd.daemon.errors import StateDirLocked, StateDirUnwritable
 from grassd.daemon.store.atomic import describe_write_error
+from grassd.daemon.store.layout import LOCK_NAME
 
 log = logging.getLogger(__name__)
 
-LOCK_NAME = "grassd.lock"
 
 
 def command_line() -> str:

@@ -90,6 +90,7 @@ from grassd.daemon.errors import IngestError, ManifestError
 from grassd.daemon.safe_text import storable
 from grassd.daemon.store.atomic import atomic_write_text, fsync_dir
 from grassd.daemon.store.history import History
+from grassd.daemon.store.layout import StateLayout
 from grassd.daemon.store.outcomes import QUARANTINED_PREFIX
 from grassd.daemon.store.untrusted import (
     UntrustedFileError,
@@ -395,9 +396,9 @@ class Inbox:
                  wall_clock: Callable[[], float] = time.time) -> None:
         self.inbox = Path(inbox)
         self.state_dir = Path(state_dir)
-        self.processing = self.state_dir / "processing"
-        self.archive = self.state_dir / "archive"
-        self.rejected = self.state_dir / "rejected"
+        layout = StateLayout(self.state_dir)
+        self.processing, self.archive, self.rejected = (layout.processing, layout.archive,
+                                                         layout.rejected)
         for d in (self.inbox, self.processing, self.archive, self.rejected):
             d.mkdir(parents=True, exist_ok=True)
         self.history = history

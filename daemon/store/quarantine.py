@@ -29,6 +29,7 @@ from pathlib import Path
 from grassd.daemon.errors import DaemonError
 from grassd.daemon.store.history import History
 from grassd.daemon.store.ingest import REASON_FILE, Inbox
+from grassd.daemon.store.layout import StateLayout
 from grassd.daemon.store.outcomes import outcome
 
 log = logging.getLogger(__name__)
@@ -63,7 +64,7 @@ def quarantined(history: History, inbox_dir: Path, state_dir: Path) -> list[Quar
     ``state_dir/rejected/``, oldest first, then any that a crash left half-way back into
     ``inbox_dir``. Reads only (safe from a status thread, or without a daemon)."""
     out, seen = [], set()
-    rejected = state_dir / "rejected"
+    rejected = StateLayout(state_dir).rejected
     for j in history.journal("rejected"):
         if outcome(j.state, j.reason) != "quarantined":
             continue

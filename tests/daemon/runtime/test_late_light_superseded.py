@@ -16,7 +16,8 @@ from click.testing import CliRunner
 from daemon_harness import drop, journal_entry, reported, service, write_config
 
 from grassd.daemon.cli.main import main as cli
-from grassd.daemon.runtime.service import STATE_DB, collect_status
+from grassd.daemon.runtime.service import collect_status
+from grassd.daemon.store.layout import STATE_DB
 
 NOON = "2026-03-01T12:00:00+01:00"  # 11:00 UTC
 

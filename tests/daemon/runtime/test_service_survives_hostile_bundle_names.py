@@ -18,7 +18,7 @@ import re
 import pytest
 from test_grassd_run_end_to_end import Daemon, manifest, wait_for
 
-from grassd.daemon.monitoring.status_page import PAGE_NAME
+from grassd.daemon.store.layout import PAGE_NAME
 
 #: a calibration or a rejection on a loaded CI machine
 WAIT_S = 120.0
