@@ -107,7 +107,7 @@ def test_unit_bounds_memory_network_and_config_access():
     settings = _settings()
     text = UNIT.read_text()
     high, top = _bytes(settings["MemoryHigh"][0]), _bytes(settings["MemoryMax"][0])
-    soak_rss = 444 * 2**20  # README, "A year of bundles"
+    soak_rss = 444 * 2**20  # docs/operating/service.md, "A year of bundles"
     assert soak_rss * 1.5 < high < top <= 4 * soak_rss
     assert "bench_soak" in text and "443-444 MiB" in text
     assert settings["IPAddressDeny"] == ["any"]

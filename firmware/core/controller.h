@@ -1,5 +1,5 @@
 /* The controller state machine of PROTOCOL.md sections 3-4, the same as the Python reference
- * (firmware_proto/firmware.py): feed it received bytes with fw_rx_feed, call fw_tick every
+ * (rigs/firmware.py): feed it received bytes with fw_rx_feed, call fw_tick every
  * millisecond (FW_TICK_US). All state lives in one fw_controller (no heap, no globals), so a port may run
  * several on one bus. */
 #ifndef FW_CONTROLLER_H

@@ -10,7 +10,7 @@
  * --baud: pace the line as a UART at that rate would (8N1: 10 bit times per byte) both ways.
  * Prints the pty's path (the --link symlink if given) on stdout, then serves until SIGINT or
  * SIGTERM. Controller a (1..N) keeps its two banks in DIR/controller-<a>.eeprom (the layout of
- * firmware_proto/eeprom.py, so either side reads the other's files) and its counters in
+ * rigs/eeprom.py, so either side reads the other's files) and its counters in
  * DIR/controller-<a>.stats ("boots B writes W"). --power-cut-at K: the K-th storage write or
  * erase of the process (1-based) stores only its first half (KEEP: "half", "none" or "all-but-
  * one" of its bytes), then the process exits with status 3, as a controller losing power in
