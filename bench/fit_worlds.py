@@ -8,8 +8,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from colour import delta_E
+
 from grassd.calib.colour_spaces import rec709_to_xyz, xyz_d65_to_d50, xyz_to_lab
-from grassd.calib.delta_e import delta_e_cie2000
 from grassd.daemon.offline.validate import CaptureManifest, load_manifest
 from grassd.daemon.offline.virtual_capture import capture_world
 from grassd.sim.light_input import LightInput
@@ -39,7 +40,7 @@ def albedo_de00(a: Any, b: Any) -> float:
     """CIEDE2000 between two 8-bit sRGB albedos, as a colour reader would compare them (D65
     sRGB to D50 CIELAB)."""
     lab = [xyz_to_lab(xyz_d65_to_d50(rec709_to_xyz(srgb_to_linear(c)))) for c in (a, b)]
-    return float(delta_e_cie2000(*lab))
+    return float(delta_E(*lab))
 
 
 def capture_known_pixel(root: str | Path, name: str, hdri_dir: Path, renderer: Any = None

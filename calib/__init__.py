@@ -10,8 +10,9 @@ Colour spaces (``colour_spaces``)
     ``rec709_to_prophoto(rgb)``, ``prophoto_to_rec709(rgb)``, ``rec709_to_xyz``,
     ``prophoto_to_xyz``, ``xyz_to_lab(xyz)`` (D50 white), ``prophoto_to_lab(rgb)``,
     ``luminance(rgb, space)``; constants ``WHITE_D50_XYZ``, ``M_REC709_TO_PROPHOTO`` ...
-Colour difference (``delta_e``)
-    ``delta_e(lab1, lab2, method="CIE 2000")``, ``delta_e_cie2000(lab1, lab2, kL=, kC=, kH=)``.
+Colour difference
+    colour-science's ``colour.delta_E(lab1, lab2, method="CIE 2000")`` (CIEDE2000, Sharma,
+    Wu & Dalal 2005); no copy of our own (#30: see :mod:`grassd.calib.ogcd`).
 Exposure (``exposure``)
     ``normalise_exposure(rgb, grey_rgb, space="prophoto"|"rec709", white_balance=False)``
     -> linear RGB with the grey at Y = 0.18; ``exposure_matrix(grey_rgb, ...)`` -> (3, 3).

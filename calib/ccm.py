@@ -20,7 +20,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from grassd.calib.array_checks import as_float_array, same_shape
 from grassd.calib.colour_spaces import prophoto_to_lab
-from grassd.calib.delta_e import delta_e_cie2000
 from grassd.calib.errors import ShapeError, UnknownMethodError
 
 
@@ -51,7 +50,7 @@ class ColourCorrection:
 
 def residual_de00(predicted: ArrayLike, real: ArrayLike) -> NDArray[np.float64]:
     """Per-patch CIEDE2000 between two ProPhoto linear RGB arrays (N, 3), via D50 CIELAB."""
-    return delta_e_cie2000(prophoto_to_lab(predicted), prophoto_to_lab(real))
+    return colour.delta_E(prophoto_to_lab(predicted), prophoto_to_lab(real), method="CIE 2000")
 
 
 def _fit_3x3(virtual: NDArray, real: NDArray, degree: int) -> NDArray[np.float64]:

@@ -50,15 +50,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tomli_w
+from colour import delta_E
 from numpy.typing import NDArray
 
 from grassd.calib.charts import get_chart
 from grassd.calib.colour_spaces import prophoto_to_lab, rec709_to_prophoto
-from grassd.calib.delta_e import delta_e_cie2000
 from grassd.calib.ogcd import ogcd_from_samples
 from grassd.daemon.calibration.simulation import layout_seed
 from grassd.daemon.config.fit import FitSettings
-from grassd.daemon.config.toml_text import toml_value
 from grassd.daemon.offline.validate import (
     CaptureManifest,
     RealCapture,
@@ -202,7 +202,7 @@ class FitResult:
                 se = self.stderr[k]
                 note = "  # +- " + (", ".join(f"{s:.1f}" for s in se) if isinstance(se, list)
                                     else f"{se:.3g}")
-            lines.append(f"{k} = {toml_value(value)}{note}")
+            lines.append(tomli_w.dumps({k: value}).rstrip("\n") + note)
         return "\n".join(lines) + "\n"
 
 
@@ -707,7 +707,7 @@ def _check_agreement(model: _Model, real: RealCapture, fit_series: Sequence[int]
     de = []
     for i in fit_series:
         mean = model.mean(shape, i, albedo, ks)
-        de.extend(zip(delta_e_cie2000(real.lab[i], model.lab(mean)),
+        de.extend(zip(delta_E(real.lab[i], model.lab(mean), method="CIE 2000"),
                       [p.path.name for p in model.manifest.series[i].photos], strict=True))
     median = float(np.median([d for d, _ in de]))
     if median > CONTRADICTION_DE00:

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from colour import delta_E
 
 from grassd.calib.ccm import compare_ccm_methods, fit_ccm, residual_de00
 from grassd.calib.charts import colorchecker_classic, get_chart, load_chart, spyder_checkr_24
 from grassd.calib.colour_spaces import prophoto_to_lab
-from grassd.calib.delta_e import delta_e_cie2000
 from grassd.calib.errors import ChartError, NonFiniteError, ShapeError, UnknownMethodError
 
 # A plausible "virtual -> real" mismatch: renderer and camera disagree on white and saturation.
@@ -76,7 +76,7 @@ def test_3x3_recovers_known_matrix_from_noisy_patches():
     assert np.abs(fit.matrix - M_TRUE).max() < 0.03
     # residual report is right: recompute independently
     predicted = noisy @ fit.matrix.T
-    expected = delta_e_cie2000(prophoto_to_lab(predicted), prophoto_to_lab(real))
+    expected = delta_E(prophoto_to_lab(predicted), prophoto_to_lab(real))
     np.testing.assert_allclose(fit.residual_de00, expected, atol=1e-10)
     assert fit.mean_de00 == pytest.approx(expected.mean())
     assert fit.max_de00 == pytest.approx(expected.max())

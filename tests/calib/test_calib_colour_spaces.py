@@ -8,7 +8,6 @@ import pytest
 
 from grassd.calib import colour_spaces as cs
 from grassd.calib.charts import colorchecker_classic
-from grassd.calib.delta_e import delta_e_cie2000
 from grassd.calib.errors import ExposureError, NegativeValueError, UnknownMethodError
 from grassd.calib.exposure import exposure_matrix, normalise_exposure
 
@@ -52,7 +51,7 @@ def test_adaptation_is_bradford_and_differs_from_cat02():
     assert np.abs(cs.M_REC709_TO_PROPHOTO - cat02).max() > 3e-3
     # On a ColorChecker, the two adaptations differ by a visible amount (the 0.6 dE00).
     rec = cs.prophoto_to_rec709(colorchecker_classic().prophoto())
-    de = delta_e_cie2000(
+    de = colour.delta_E(
         cs.prophoto_to_lab(rec @ cs.M_REC709_TO_PROPHOTO.T), cs.prophoto_to_lab(rec @ cat02.T)
     )
     assert 0.2 < de.max() < 1.5

@@ -13,7 +13,7 @@ from grassd.daemon.cli.demo import example_pixel_rgb, green_coverage
 from grassd.daemon.cli.main import main
 
 CALIB_MODULES = [
-    "colour_spaces", "delta_e", "exposure", "ccm", "regions", "ogcd", "length_table", "compare",
+    "colour_spaces", "exposure", "ccm", "regions", "ogcd", "length_table", "compare",
 ]  # fmt: skip
 
 

@@ -11,9 +11,9 @@ import math
 
 import numpy as np
 import pytest
+from colour import delta_E
 
 from grassd.calib.colour_spaces import prophoto_to_lab, rec709_to_prophoto
-from grassd.calib.delta_e import delta_e
 from grassd.rigs.mitsuba_scene import ENV_REFINE, configure_llvm, quad_mean, scene_dict
 from grassd.sim.export import export_scene
 from grassd.sim.hdri import downsample, load_hdri
@@ -92,9 +92,9 @@ def test_mean_colours_and_ogcd_agree_with_mitsuba(renderer, lighting, tmp_path):
             export_scene(d, DisplaySpec(), lighting, vp, x, settings=settings)
             ref.append(mitsuba_ref.render_mean(d, spp=64, width=128))
         lab_ours, lab_ref = to_lab(ours.rgb_linear), to_lab(np.array(ref))
-        de = delta_e(lab_ours, lab_ref)
-        ogcd_ours = delta_e(lab_ours[:1], lab_ours)
-        ogcd_ref = delta_e(lab_ref[:1], lab_ref)
+        de = delta_E(lab_ours, lab_ref)
+        ogcd_ours = delta_E(lab_ours[:1], lab_ours)
+        ogcd_ref = delta_E(lab_ref[:1], lab_ref)
         print(f"{vp.label()}: dE00 {np.round(de, 3)}, OGCD ours {np.round(ogcd_ours, 2)} "
               f"mitsuba {np.round(ogcd_ref, 2)}")
         assert np.all(de < 1.0), de

@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from colour import delta_E
 
 from grassd.calib.characteristic import Characteristic
 from grassd.calib.compare import frechet_characteristics, max_ogcd_error
-from grassd.calib.delta_e import delta_e_cie2000
 from grassd.calib.ogcd import ogcd_from_samples
 from grassd.calib.virtual_camera import VirtualCamera
 from grassd.daemon.calibration.simulation import white_radiance
@@ -65,10 +65,10 @@ def test_zero_difference_world_agrees(tmp_path, renderer, world):
     assert res.ccm.mean_de00 < 0.5  # camera noise only: the 3x3 is exact for a linear camera
     for v in res.viewpoints:
         print(f"zero-difference {v.label}: Frechet {v.frechet:.3f}, max error "
-              f"{v.max_error:.3f}, Lab dE00 max {delta_e_cie2000(v.real_lab, v.sim_lab).max():.2f}")
+              f"{v.max_error:.3f}, Lab dE00 max {delta_E(v.real_lab, v.sim_lab).max():.2f}")
         assert v.frechet < 0.3, (v.label, v.real.ogcd, v.sim.ogcd)
         # not only the differences: the absolute colours agree too
-        assert delta_e_cie2000(v.real_lab, v.sim_lab).max() < 1.5
+        assert delta_E(v.real_lab, v.sim_lab).max() < 1.5
         assert v.max_error < 0.3
         assert abs(v.real_range - v.sim_range) < 0.3
         assert v.max_error == pytest.approx(max_ogcd_error(v.real, v.sim))
