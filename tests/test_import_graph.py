@@ -11,6 +11,8 @@
   (``grassd/rigs/__init__.py`` states the rule); importing the command line loads none;
 * no import cycles between modules at module level (imports inside functions and under
   ``if TYPE_CHECKING:`` do not run at import time and are left out);
+* no import cycles between the daemon's subpackages (issue #30), counting every import,
+  lazy or not;
 * every import of a grassd module, lazy or not, in the packages, tests and benchmarks names a
   module that exists.
 
@@ -202,6 +204,41 @@ def test_no_import_cycles_at_module_level():
              for name, path in MODULES.items()}
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert not _cycles(graph), _cycles(graph)
+
+
+def _subpackage(module: str) -> str | None:
+    """``grassd.daemon.<sub>`` of a module of a daemon subpackage (None for anything else,
+    e.g. ``grassd.daemon.errors``, which every subpackage may import)."""
+    parts = module.split(".")
+    if parts[:2] != ["grassd", "daemon"] or len(parts) < 3:
+        return None
+    sub = ".".join(parts[:3])
+    return sub if (ROOT / "daemon" / parts[2]).is_dir() else None
+
+
+def test_no_import_cycles_between_daemon_subpackages():
+    """The daemon's subpackages (cli, runtime, monitoring, store, config...) depend on each
+    other one way: no two import each other, directly or round a loop. Every import statement
+    counts, lazy or under ``if TYPE_CHECKING:`` too (either way one package names the other's
+    modules, so neither can change or move alone)."""
+    graph: dict[str, set[str]] = {}
+    why: dict[tuple[str, str], list[str]] = {}
+    for name, path in MODULES.items():
+        a = _subpackage(name)
+        if a is None:
+            continue
+        graph.setdefault(a, set())
+        for imported, _ in _imports(path):
+            b = _subpackage(imported)
+            if b is not None and b != a:
+                graph[a].add(b)
+                graph.setdefault(b, set())
+                why.setdefault((a, b), []).append(f"{name} imports {imported}")
+    assert {"grassd.daemon.runtime", "grassd.daemon.monitoring"} <= set(graph)
+    bad = [{"cycle": cycle, "imports": sorted(i for a in cycle for b in cycle
+                                              for i in why.get((a, b), []))}
+           for cycle in _cycles(graph)]
+    assert not bad, bad
 
 
 #: run in a subprocess: ``grassd run --simulate-hardware`` until its first run is ok, then
