@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from daemon_harness import DISPLAY_2X2 as BASE
-from daemon_harness import POLICY, full, service, tmpfs, write_config
+from daemon_harness import POLICY, full, service, tmpfs, wait_for, write_config
 from daemon_harness import drop as rdrop
 from daemon_harness import drop_midsummer as drop
 
@@ -45,6 +45,18 @@ def _run_bundle(svc: Service, name: str, lux: float = 8000.0) -> dict:
     drop(svc.cfg.light.inbox, name, lux)
     [b] = svc.inbox.poll()
     return svc.process_bundle(b)
+
+
+def _passes_until(svc: Service, cond, what: str, timeout: float = 120.0) -> None:
+    """Run main-loop passes of ``svc`` (as its run loop does) until ``cond()`` holds. The
+    timeout only ends a test that hangs; it is no speed target."""
+    def done() -> bool:
+        if cond():
+            return True
+        svc.main_loop_pass()
+        return False
+
+    wait_for(done, timeout, what)
 
 
 @pytest.fixture
@@ -121,10 +133,8 @@ def test_claimed_bundles_survive_a_full_state_disk(tmp_path, hw):
                 st = svc.status().to_json()
                 assert sorted(w["bundle"] for w in st["waiting_bundles"]) == ["b1", "b2"]
                 assert "full" in st["last_error"]
-            deadline = time.monotonic() + 20
-            while svc.inbox.counts()["archive"] < 2 and time.monotonic() < deadline:
-                time.sleep(0.3)
-                svc.main_loop_pass()
+            _passes_until(svc, lambda: svc.inbox.counts()["archive"] == 2,
+                          "both bundles archived once space is back")
             assert svc.inbox.counts() == {"inbox": 0, "processing": 0, "archive": 2,
                                           "rejected": 0}
             assert svc.status().to_json()["waiting_bundles"] == []
@@ -135,7 +145,9 @@ def test_claimed_bundles_survive_a_full_state_disk(tmp_path, hw):
 
 def test_calibrate_request_is_answered_when_its_run_hits_a_full_disk(tmp_path, hw):
     """`grassd calibrate --now --wait` while the state disk is full: the client gets the
-    failure at once, not a hang until its timeout (it held a control-socket slot)."""
+    failure once the main-loop pass that ran it returns, not a hang until its timeout (it held
+    a control-socket slot). The request may wait an hour (the default); the answer must be
+    there when the pass returned (the join's deadline only ends a test that hangs)."""
     _, cfg = hw
     with tmpfs(tmp_path / "state") as state:
         conf = write_config(tmp_path / "g.toml", state, cfg)
@@ -144,16 +156,14 @@ def test_calibrate_request_is_answered_when_its_run_hits_a_full_disk(tmp_path, h
             answers: list[dict] = []
             with full(state):
                 t = threading.Thread(target=lambda: answers.append(svc.handle_request(
-                    {"cmd": "calibrate", "wait": True, "timeout_s": 5})))
+                    {"cmd": "calibrate", "wait": True, "timeout_s": 3600})), daemon=True)
                 t.start()
-                while svc.requests.empty() and t.is_alive():
-                    time.sleep(0.01)
-                t0 = time.monotonic()
-                svc.main_loop_pass()
-                t.join(10)
-                waited = time.monotonic() - t0
+                wait_for(lambda: not svc.requests.empty() or not t.is_alive(), 60,
+                         "the request in the main loop's queue")
+                svc.main_loop_pass()  # runs the request; its run fails on the full disk
+                t.join(60)
+            assert not t.is_alive(), "the client still waits after the pass that ran its run"
             [ans] = answers
-            assert waited < 4, ans
             assert ans["ok"] and ans["run"]["status"] == "failed", ans
             assert "full" in ans["run"]["error"]
         finally:
@@ -295,21 +305,29 @@ def test_an_error_wait_is_not_pulled_onto_the_lux_deadline(tmp_path, hw):
     before it was retried at once (a third run within a few ms: a flaky test under load)."""
     sim, cfg = hw
     conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg)
-    svc = service(conf, retry_s=0.3, retry_max_s=10.0, reconcile_s=1e9)
+    # delays of 30 s and up and a lux deadline 50 s ahead: every time read below brackets a
+    # call (t0 before, t1 after), so the checks hold however slowly the machine runs them
+    svc = service(conf, retry_s=30.0, retry_max_s=1000.0, reconcile_s=1e9)
     try:
         rdrop(svc.cfg.light.inbox, "b", lux=None)
         [b] = svc.inbox.poll()
-        t0 = time.monotonic()
-        svc._defer(b, "waiting for the lux sensor: down", limit_s=0.5)
+
+        def defer(reason: str, **kw) -> tuple[float, float]:
+            t0 = time.monotonic()
+            svc._defer(b, reason, **kw)
+            return t0, time.monotonic()
+
+        t0, t1 = defer("waiting for the lux sensor: down", limit_s=50.0)
         d = svc.deferred[b.hash]
-        assert d.retry_at <= t0 + 0.31 and d.give_up_at <= t0 + 0.51
-        svc._defer(b, "cannot write the report", error=True)  # delay 0.6 > the deadline
-        assert d.retry_at - time.monotonic() > 0.55
-        svc._defer(b, "cannot write the report", error=True)  # delay 1.2
-        assert d.retry_at - time.monotonic() > 1.15
-        ahead = time.monotonic() < d.give_up_at
-        svc._defer(b, "waiting for the lux sensor: down", limit_s=0.5)  # a lux wait again:
-        assert (d.retry_at <= d.give_up_at) == ahead  # capped while its deadline is ahead
+        assert t0 + 30 <= d.retry_at <= t1 + 30
+        assert d.give_up_at - d.retry_at == pytest.approx(20)  # deadline 50 s after the wait
+        t0, t1 = defer("cannot write the report", error=True)  # delay 60 s > the deadline
+        assert t0 + 60 <= d.retry_at <= t1 + 60  # not pulled onto the deadline (< t0 + 50)
+        t0, t1 = defer("cannot write the report", error=True)  # delay 120 s
+        assert t0 + 120 <= d.retry_at <= t1 + 120
+        defer("waiting for the lux sensor: down", limit_s=50.0)  # a lux wait again (240 s):
+        assert time.monotonic() < d.give_up_at, "the test stalled past the lux deadline"
+        assert d.retry_at == d.give_up_at  # capped while its deadline is ahead
     finally:
         svc.shutdown()
 
@@ -317,7 +335,10 @@ def test_an_error_wait_is_not_pulled_onto_the_lux_deadline(tmp_path, hw):
 def test_write_failure_after_a_lux_wait_backs_off(tmp_path, hw):
     """A bundle waited for the lux sensor (deadline lux_wait_s), then its run cannot write its
     report. Once that deadline has passed, it must still be retried with backoff, not at every
-    main-loop pass (a whole calibration run and a failed history row per second)."""
+    main-loop pass (a whole calibration run and a failed history row per second). Checked by
+    what happens when, not by how long passes take: the run of a pass that began after the
+    deadline sets a retry time one backoff after that pass began, status counts down to it,
+    passes that end before it run nothing, and a pass after it retries."""
     sim, cfg = hw
     conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg,
                         light_extra="lux_wait_s = 1.0")
@@ -329,20 +350,37 @@ def test_write_failure_after_a_lux_wait_backs_off(tmp_path, hw):
         rdrop(svc.cfg.light.inbox, "b", lux=None)
         svc.tick()
         assert svc.status().daemon.waiting_bundles[0].reason.startswith("waiting for the lux")
+        [d] = svc.deferred.values()
+        lux_deadline = d.give_up_at
         back = SimLuxSensor(regmap, lux=3000.0, port=port).start()
         with readonly(svc.reports_dir):
-            deadline = time.monotonic() + 20
-            while svc.history.run_count() < 2:  # one failed run before the deadline, one after
-                assert time.monotonic() < deadline
-                time.sleep(0.05)
+            def failed_after_the_deadline() -> float | None:
+                """One pass; when it began after the lux deadline and made a run: its start."""
+                began, runs = time.monotonic(), svc.history.run_count()
                 svc.tick()
-            runs = svc.history.run_count()
-            for _ in range(5):  # well within the next backoff (>= 1.2 s)
-                time.sleep(0.05)
-                svc.tick()
-            assert svc.history.run_count() == runs
+                ran = svc.history.run_count() > runs
+                return began if ran and began > lux_deadline else None
+
+            began = wait_for(failed_after_the_deadline, 60,
+                             "a run in a pass that began after the lux deadline")
+            assert svc.history.runs(1)[0].status == "failed"
+            d = svc.deferred[d.bundle.hash]
+            assert d.delay_s >= 0.6  # 0.3 s (the lux wait), doubled at each failed run
+            retry_at = d.retry_at  # (a retry moves d's)
+            assert retry_at >= began + d.delay_s  # from that run, not the past deadline
+            t0 = time.monotonic()
             [w] = svc.status().to_json()["waiting_bundles"]
-            assert w["retry_in_s"] > 0.5
+            t1 = time.monotonic()
+            assert max(retry_at - t1, 0.0) <= w["retry_in_s"] <= retry_at - t0
+            runs = svc.history.run_count()
+            while True:  # passes that end before the retry time run nothing
+                svc.tick()
+                if time.monotonic() >= retry_at:
+                    break
+                assert svc.history.run_count() == runs, "retried before its backoff"
+                time.sleep(0.05)
+            _passes_until(svc, lambda: svc.history.run_count() > runs,
+                          "the retry once its backoff has passed")
     finally:
         if back is not None:
             back.stop()
