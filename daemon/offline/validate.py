@@ -58,6 +58,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tomli_w
 from numpy.typing import NDArray
 
 from grassd.calib.ccm import ColourCorrection, fit_ccm
@@ -72,7 +73,6 @@ from grassd.calib.ogcd import ogcd_from_lab
 from grassd.calib.raw import develop_raw, open_raw
 from grassd.calib.regions import checker_patch_quads, quad_mask
 from grassd.daemon.config import manifest_fields, schema
-from grassd.daemon.config.toml_text import toml_value
 from grassd.daemon.errors import DaemonError, LocatedError
 from grassd.sim.light_input import LightInput
 
@@ -199,19 +199,15 @@ def manifest_to_toml(m: CaptureManifest) -> str:
         head["rotation_deg"] = light.rotation_deg
     head.update(checker_raw=rel(m.checker_photo),
                 checker_corners=[list(c) for c in m.checker_corners], checker_chart=m.chart)
-    lines = [f"{k} = {toml_value(v)}" for k, v in head.items()]
     if m.pixel:
-        lines += ["", "[pixel]"] + [f"{k} = {toml_value(v)}" for k, v in m.pixel.items()]
-    for s in m.series:
-        lines += ["", "[[series]]", f"viewpoint = {toml_value(list(s.viewpoint))}"]
-        if s.reference:
-            lines.append("reference = true")
-        lines.append("photos = [")
-        for p in s.photos:
-            lines.append("  " + toml_value({"file": rel(p.path), "length_mm": p.length_mm,
-                                      "corners": [list(c) for c in p.corners]}) + ",")
-        lines.append("]")
-    return "\n".join(lines) + "\n"
+        head["pixel"] = dict(m.pixel)
+    if m.series:
+        head["series"] = [
+            {"viewpoint": list(s.viewpoint), **({"reference": True} if s.reference else {}),
+             "photos": [{"file": rel(p.path), "length_mm": p.length_mm,
+                         "corners": [list(c) for c in p.corners]} for p in s.photos]}
+            for s in m.series]
+    return tomli_w.dumps(head)
 
 
 #: capture.toml's old names, still read (deprecated): where they were written (a table, or the
@@ -247,7 +243,8 @@ def _rename_old(ctx: schema.Context, data: dict[str, Any], source: Path
     to the new ones, and where each moved key was written (for later errors); logs one
     deprecation warning naming the renames."""
     fields = _light_fields()
-    out, where = dict(data), {}
+    out = dict(data)
+    where: dict[str, tuple] = {}
     for prefix, names in OLD_NAMES.items():
         if prefix:
             if prefix[0] not in data:
