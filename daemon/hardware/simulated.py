@@ -20,12 +20,12 @@ import tty
 from pathlib import Path
 from typing import Any
 
+import tomli_w
 from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from grassd.daemon.config.settings import Config, ModbusConfig
-from grassd.daemon.config.toml_text import toml_value
 from grassd.daemon.hardware.luxsensor import encode_lux
 from grassd.rigs.sim_backends import FIRMWARE_BACKENDS, open_bus
 
@@ -284,8 +284,12 @@ def hardware_toml(cfg: Config, baud: int | None = None) -> str:
      'port = "/dev/serial/by-id/usb-grassd_controller_0-if00"', 'address = 1', 'baud = 9600',
      'pixels = "0-15"']
     """
-    speed = "" if baud is None else f"baud = {baud}\n"
+    speed = {} if baud is None else {"baud": baud}
+    # each table's header written here, its keys by tomli-w: the text is spliced between
+    # other tables of a configuration, so it must start with a header
     ctrls = "".join(
-        f'[[controllers]]\nport = {toml_value(str(c.port))}\naddress = {c.address}\n{speed}'
-        f'pixels = "{",".join(f"{a}-{b}" for a, b in c.pixels)}"\n' for c in cfg.controllers)
-    return f"[display]\nrows = {cfg.display.rows}\ncols = {cfg.display.cols}\n{ctrls}"
+        "[[controllers]]\n" + tomli_w.dumps({
+            "port": str(c.port), "address": c.address, **speed,
+            "pixels": ",".join(f"{a}-{b}" for a, b in c.pixels)}) for c in cfg.controllers)
+    size = {"rows": cfg.display.rows, "cols": cfg.display.cols}
+    return f"[display]\n{tomli_w.dumps(size)}{ctrls}"

@@ -47,6 +47,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tomli_w
 
 from grassd.calib.errors import (
     BracketBlackError,
@@ -56,7 +57,6 @@ from grassd.calib.errors import (
 )
 from grassd.daemon.config.capture import CaptureConfig
 from grassd.daemon.config.settings import Config, ModbusConfig
-from grassd.daemon.config.toml_text import toml_value
 from grassd.daemon.errors import BracketUnusable, CameraBusy, CaptureError, LuxSensorError
 from grassd.daemon.hardware.bracket import BracketPlan, capture_bracket, load_codes
 from grassd.daemon.hardware.camera import CameraInfo, OscClient
@@ -87,12 +87,7 @@ class CaptureResult:
 
 def manifest_toml(manifest: dict[str, Any]) -> str:
     """TOML text of a bundle manifest: top-level keys, then the ``[capture]`` table."""
-    lines = [f"{k} = {toml_value(v)}" for k, v in manifest.items() if not isinstance(v, dict)]
-    for name, table in manifest.items():
-        if isinstance(table, dict):
-            lines.append(f"\n[{name}]")
-            lines += [f"{k} = {toml_value(v)}" for k, v in table.items()]
-    return "\n".join(lines) + "\n"
+    return tomli_w.dumps(manifest)
 
 
 def clipped_sun(clipped: np.ndarray) -> bool:

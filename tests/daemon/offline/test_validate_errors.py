@@ -4,9 +4,11 @@ with exit code 2. The captures are real DNGs from the virtual camera and a real 
 from __future__ import annotations
 
 import logging
+import tomllib
 
 import numpy as np
 import pytest
+import tomli_w
 from click.testing import CliRunner
 
 from grassd.calib.charts import get_chart
@@ -82,16 +84,29 @@ def test_missing_photo(tmp_path):
     assert "p2.dng does not exist" in _cli_error(tmp_path)
 
 
+def _edited(text: str, change) -> str:
+    """capture.toml ``text`` with ``change`` (a function of its parsed table) applied."""
+    data = tomllib.loads(text)
+    change(data)
+    return tomli_w.dumps(data)
+
+
 def test_corners_outside_the_image(tmp_path):
     _capture(tmp_path)
-    text = (tmp_path / "capture.toml").read_text().replace("[56.0, 50.0]", "[156.0, 50.0]", 1)
-    (tmp_path / "capture.toml").write_text(text)
+    good = (tmp_path / "capture.toml").read_text()
+
+    def third_corner_out(d):
+        d["series"][0]["photos"][0]["corners"][2] = [156.0, 50.0]
+
+    def checker_corner_out(d):
+        d["checker_corners"][0][1] = -35.84
+
+    (tmp_path / "capture.toml").write_text(_edited(good, third_corner_out))
     with pytest.raises(CornersOutsideImageError, match=r"outside p0.dng \(64 x 64"):
         measure_real(load_manifest(tmp_path))
     assert "[[156.0, 50.0]]" in _cli_error(tmp_path)
     # the checker's corners are checked against the checker photo
-    (tmp_path / "capture.toml").write_text(text.replace("[156.0, 50.0]", "[56.0, 50.0]", 1)
-                                           .replace("[[46.08, 35.84]", "[[46.08, -35.84]", 1))
+    (tmp_path / "capture.toml").write_text(_edited(good, checker_corner_out))
     with pytest.raises(CornersOutsideImageError, match=r"checker corner.*outside checker.dng"):
         measure_real(load_manifest(tmp_path))
 
@@ -133,7 +148,7 @@ def test_malformed_manifests(tmp_path):
         good.replace('hdri = "env.exr"', 'hdri = "env.png"'): r"hdri: 'env.png' must be an "
                                                               r"OpenEXR \(.exr\) or Radiance",
         good.replace('checker_raw = "checker.dng"\n', ""): r"checker_raw: required key",
-        good.replace("viewpoint = [170.0, 2.0, 0.0]", "viewpoint = [170.0, 2.0]"): "viewpoint",
+        _edited(good, lambda d: d["series"][0].update(viewpoint=[170.0, 2.0])): "viewpoint",
     }
     for text, message in cases.items():
         (tmp_path / "capture.toml").write_text(text)
@@ -148,11 +163,11 @@ def test_malformed_manifests(tmp_path):
 def _old_names(text: str) -> str:
     """``text`` (written now) as capture.toml was written before it took a bundle manifest's
     names: ``chart``, ``[light] hdri, lux``, ``[checker] photo, corners``."""
-    head, rest = text.split("\n\n", 1)
-    keys = dict(line.split(" = ", 1) for line in head.splitlines())
-    return (f"chart = {keys['checker_chart']}\n\n[light]\nhdri = {keys['hdri']}\n"
-            f"lux = {keys['ambient_lux']}\n\n[checker]\nphoto = {keys['checker_raw']}\n"
-            f"corners = {keys['checker_corners']}\n\n{rest}")
+    d = tomllib.loads(text)
+    return tomli_w.dumps({
+        "chart": d.pop("checker_chart"),
+        "light": {"hdri": d.pop("hdri"), "lux": d.pop("ambient_lux")},
+        "checker": {"photo": d.pop("checker_raw"), "corners": d.pop("checker_corners")}, **d})
 
 
 def test_old_names_are_read_with_a_warning(tmp_path, caplog):
