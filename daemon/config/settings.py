@@ -283,10 +283,9 @@ class TablesConfig:
     ``layout``: the simulated tuft layout, "shared" (one random layout copied to every pixel),
     "per_pixel" (each pixel draws its own) or "auto" (shared for "pixel" tables, per pixel
     otherwise; see :func:`grassd.daemon.calibration.display_model.display_spec_for_config`).
-    The daemon pushes them (:mod:`grassd.daemon.calibration.calibrate_display`): "controller" gives
-    each controller one (256,) table, "pixel" an (n_pixels, 256) table for the pixels it drives;
-    "global" without ``[audience]`` is the one-table run of
-    :mod:`grassd.daemon.calibration.calibrate`.
+    The daemon pushes them (:mod:`grassd.daemon.calibration.units`): "controller" gives each
+    controller one (256,) table, "pixel" an (n_pixels, 256) table for the pixels it drives;
+    "global" without ``[audience]`` gives one table, from the centre pixel.
     """
 
     granularity: str = "global"
@@ -869,7 +868,7 @@ def not_used_by_the_daemon(cfg: Config) -> list[str]:
 
     The daemon honours ``[tables] granularity`` (a table per controller or per pixel) and
     ``[audience]`` (tables from the region instead of ``[[viewpoints]]``):
-    :mod:`grassd.daemon.calibration.calibrate_display`. With ``[audience]`` every eye is a world
+    :mod:`grassd.daemon.calibration.units`. With ``[audience]`` every eye is a world
     position, so ``[tables] eye = "pixel"`` has no meaning there.
     """
     notes = []
