@@ -13,7 +13,8 @@ import json
 
 import click
 
-from grassd.daemon.cli.run import _CONFIG_HELP, _fmt_time, resolve_config
+from grassd.daemon.cli.run import _CONFIG_HELP, _fmt_time
+from grassd.daemon.config.settings import resolve_config
 from grassd.daemon.safe_text import one_line
 
 

@@ -86,7 +86,7 @@ def _bus_free(config_path: str | None, state_dir: str | None, command: str,
     (:meth:`StateLock.shared`, kept until the block ends so that a daemon starting meanwhile
     waits) or the daemon holding it does not own ``port``; else StateDirLocked, one line
     saying to use ``instead`` or stop the daemon."""
-    from grassd.daemon.cli.run import resolve_config
+    from grassd.daemon.config.settings import resolve_config
 
     cfg = resolve_config(config_path, state_dir)
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import click
@@ -13,9 +12,8 @@ import click
 from grassd.daemon.config.settings import (
     DEFAULT_CONFIG_PATH,
     Config,
-    load_config,
-    load_default_config,
     not_used_by_the_daemon,
+    resolve_config,
 )
 from grassd.daemon.safe_text import one_line
 from grassd.rigs import FIRMWARE_BACKENDS
@@ -25,17 +23,6 @@ if TYPE_CHECKING:
 
 _CONFIG_HELP = (f"configuration file (default {DEFAULT_CONFIG_PATH}; "
                 "the embedded default when that is absent)")
-
-
-def resolve_config(path: str | None, state_dir: str | None = None) -> Config:
-    """Load ``path`` (or /etc/grassd/grassd.toml, or the embedded default when that is absent)."""
-    if path is not None:
-        cfg = load_config(path)
-    elif DEFAULT_CONFIG_PATH.exists():
-        cfg = load_config(DEFAULT_CONFIG_PATH)
-    else:
-        cfg = load_default_config()
-    return cfg.with_state_dir(Path(state_dir).absolute()) if state_dir else cfg
 
 
 @click.command("check-config")

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import click
 
-from grassd.daemon.cli.run import _CONFIG_HELP, resolve_config
+from grassd.daemon.cli.run import _CONFIG_HELP
+from grassd.daemon.config.settings import resolve_config
 
 #: The port the studio listens on unless told otherwise.
 DEFAULT_PORT: int = 8420

@@ -863,6 +863,20 @@ def load_default_config(**overrides: Any) -> Config:
     return cfg.replace(**overrides) if overrides else cfg
 
 
+def resolve_config(path: str | os.PathLike[str] | None,
+                   state_dir: str | os.PathLike[str] | None = None) -> Config:
+    """The configuration a command runs with: ``path``, else :data:`DEFAULT_CONFIG_PATH` when
+    it exists, else the embedded default; with ``state_dir`` (made absolute) instead of the
+    configured one when given."""
+    if path is not None:
+        cfg = load_config(path)
+    elif DEFAULT_CONFIG_PATH.exists():
+        cfg = load_config(DEFAULT_CONFIG_PATH)
+    else:
+        cfg = load_default_config()
+    return cfg.with_state_dir(Path(state_dir).absolute()) if state_dir else cfg
+
+
 def not_used_by_the_daemon(cfg: Config) -> list[str]:
     """Settings that ``grassd run`` does not act on, as warnings (empty when all are used).
 

@@ -53,7 +53,7 @@ class StudioArgs:
         """The Studio these arguments describe."""
         import numpy as np
 
-        from grassd.daemon.cli.run import resolve_config
+        from grassd.daemon.config.settings import resolve_config
         from grassd.daemon.studio.lights import Lights
         from grassd.daemon.studio.session import Studio
 
