@@ -2,26 +2,25 @@
 reports of a global, a per-controller and a per-pixel calibration run (fixed seeds) are compared
 with golden files in ``tests/data/cli_surface/``.
 
-Timings (every ``"seconds"`` entry) are left out of the reports; floats are compared to 1e-9
-relative (the runs are deterministic; the tolerance only absorbs last-bit platform noise).
-After a deliberate change of the command line or of the reports, regenerate the golden files
-with ``GRASSD_UPDATE_GOLDEN=1 .venv/bin/python -m pytest -q tests/test_cli_surface.py`` and
-review the diff.
+Help texts are compared exactly. The reports are compared within the tolerances stated below
+(:data:`DE00_TOL_STDERRS`, :data:`LENGTH_TOL_UM`, :data:`R2_TOL`), by the kind of each value;
+everything else (keys, list lengths, strings, counts, flags, configured values) exactly. Timings
+(every ``"seconds"`` entry) are left out. After a deliberate change of the command line or of the
+reports, regenerate the golden files with
+``GRASSD_UPDATE_GOLDEN=1 .venv/bin/python -m pytest -q tests/test_cli_surface.py`` and review
+the diff.
 
-The reports are deterministic on one CPU model, not across models: Taichi compiles its kernels
-for the host CPU, and another instruction selection rounds some float32 hit points 0.1 um
-differently, which flips the odd ray that grazes a blade. A table entry then moves by 1 um, and
-the closed loop amplifies that (seen: the same commit gave controller reports 4 % and per-pixel
-ones 14 % apart in their closed-loop errors on two CPU models). So the golden reports are kept
-with a fingerprint of the renderer's output on the machine that recorded them (a hash of the
-replicate means of a small trace), and a machine whose fingerprint differs skips the comparison,
-saying so, instead of failing on rounding.
+Why tolerances: the reports are deterministic on one CPU model, not across models. Taichi
+compiles its kernels for the host CPU, and another instruction selection rounds some float32
+hit points 0.1 um differently, which flips the odd ray that grazes a blade. A table entry then
+moves by a few um and the closed loop amplifies that (the same commit gave controller and
+per-pixel closed-loop errors 4 % and 14 % apart on two CPU models, 415c94a). The tolerances sit
+between how far such rounding moves a report and how far a different Monte Carlo sample (another
+seed, i.e. any change to what is traced) moves it; see the measurements at the constants.
 """
 
 from __future__ import annotations
 
-import functools
-import hashlib
 import json
 import math
 import os
@@ -129,67 +128,126 @@ def _strip_timings(obj: Any) -> Any:
     return obj
 
 
-def _same(a: Any, b: Any, where: str = "$") -> None:
-    """``a`` equals ``b`` (floats to 1e-9 relative); fails naming the first differing path."""
-    if isinstance(a, float) or isinstance(b, float):
-        assert isinstance(a, int | float) and isinstance(b, int | float), where
-        assert math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12) or (a != a and b != b), (
-            f"{where}: {a!r} != {b!r}")
-    elif isinstance(a, dict):
-        assert isinstance(b, dict) and sorted(a) == sorted(b), (where, sorted(a), sorted(b))
-        for k in a:
-            _same(a[k], b[k], f"{where}.{k}")
-    elif isinstance(a, list):
-        assert isinstance(b, list) and len(a) == len(b), (where, len(a), len(b))
+#: Tolerances of the golden reports, by the kind of value (how :func:`_kind` sorts the keys).
+#: Measured: the largest move of a value of each kind over the three reports (dE00, lengths,
+#: R^2) when the same calibration runs
+#:   - on two CPU models (the goldens of 415c94a^ and 415c94a, same code): 0.046, 33 um, 1.6e-4;
+#:   - on this CPU with Taichi's fast_math off (another instruction selection, so other
+#:     rounding; 1 thread or cfg_optimization on gave bit-identical reports): 0.030, 30 um,
+#:     2.7e-4;
+#:   - with seed 4, 5, 6 or 7 instead of 3 (another Monte Carlo sample): 0.89-2.2,
+#:     636-1860 um, 3.2e-3-1.8e-2.
+#: Each tolerance is 3-4x the largest rounding move and 3-6x below the smallest move of another
+#: sample. Also measured: a viewpoint 1 cm higher or blades 4 % wider fail all three reports; a
+#: change below what rounding can do passes (the blades' green 118 -> 120 of 255 moved values
+#: by at most 0.11 dE00 and 43 um). The goal flags (``*_goal_met``) are compared exactly: the
+#: golden values lie at least 0.33 dE00 and 8e-4 (R^2) from their goals, 3x or more of what
+#: rounding moves them.
+#:
+#: dE00 values (OGCD, targets, deviations, errors, ranges, standard errors), as a multiple of
+#: the Monte Carlo standard error the golden report carries (``mean_ogcd_stderr_de00``,
+#: 0.28-0.30 dE00 in these reports): half of it, 0.14-0.15 dE00.
+DE00_TOL_STDERRS = 0.5
+#: lengths (``lengths_mm`` of characteristics and closed-loop rounds, the entries of every
+#: table in um): 100 um, about the dE00 tolerance along the characteristics' mean slope
+#: (22 dE00 over 20 mm: 0.1 mm is 0.11 dE00)
+LENGTH_TOL_UM = 100
+#: coefficients of determination (``r2``, ``r2_before``, ``closed_loop_r2``, ``r2_min``, ...)
+R2_TOL = 1e-3
+#: every other float (viewpoints, goals: configured values) to 1e-9 relative, last-bit noise
+EXACT_REL = 1e-9
+
+
+def _kind(key: str) -> str:
+    """How values under report key ``key`` are compared: "de00", "length_mm", "length_um",
+    "r2", "crc" or "exact"."""
+    if key in ("r2_goal", "max_dev_goal_de00"):  # configured, not computed
+        return "exact"
+    if key == "table_crc":
+        return "crc"
+    if key == "lengths_mm":
+        return "length_mm"
+    if key in ("lengths_um", "table_um"):
+        return "length_um"
+    if key.startswith("r2") or key.endswith("_r2"):
+        return "r2"
+    if key.endswith("_de00"):
+        return "de00"
+    return "exact"
+
+
+def _tolerances(golden: dict) -> dict[str, float]:
+    """Absolute tolerance per kind for the golden report ``golden``."""
+    stderr = golden["metrics"]["mean_ogcd_stderr_de00"]
+    return {"de00": DE00_TOL_STDERRS * stderr, "length_mm": LENGTH_TOL_UM / 1000.0,
+            "length_um": LENGTH_TOL_UM, "r2": R2_TOL}
+
+
+def _differences(a: Any, b: Any, tol: dict[str, float], kind: str = "exact",
+                 where: str = "$") -> list[str]:
+    """Where report ``a`` differs from golden report ``b`` beyond the tolerance of each value's
+    kind (``tol``, see :func:`_tolerances`), one line each. Keys, list lengths, types, strings,
+    bools, None and ints that are no lengths must be equal; a ``table_crc`` equal when its
+    table's lengths are, and otherwise the CRC of the table it is reported with."""
+    if isinstance(a, dict) or isinstance(b, dict):
+        if not (isinstance(a, dict) and isinstance(b, dict)):
+            return [f"{where}: {a!r} != {b!r}"]
+        if sorted(a) != sorted(b):
+            return [f"{where}: keys {sorted(a)} != {sorted(b)}"]
+        if "table_crc" in a and "lengths_um" in a:  # a table pushed to a controller
+            return _table_differences(a, b, tol, where)
+        out: list[str] = []
+        for k in sorted(a):
+            out += _differences(a[k], b[k], tol, _kind(k), f"{where}.{k}")
+        return out
+    if isinstance(a, list) or isinstance(b, list):
+        if not (isinstance(a, list) and isinstance(b, list)) or len(a) != len(b):
+            return [f"{where}: {a!r} != {b!r}"]
+        out = []
         for i, (x, y) in enumerate(zip(a, b, strict=True)):
-            _same(x, y, f"{where}[{i}]")
-    else:
-        assert a == b, f"{where}: {a!r} != {b!r}"
+            out += _differences(x, y, tol, kind, f"{where}[{i}]")
+        return out
+    numbers = isinstance(a, int | float) and isinstance(b, int | float)
+    if not numbers or isinstance(a, bool) or isinstance(b, bool) or a is None or b is None:
+        return [] if type(a) is type(b) and a == b else [f"{where}: {a!r} != {b!r}"]
+    if kind in tol:
+        if type(a) is not type(b) or not (abs(a - b) <= tol[kind] or (a != a and b != b)):
+            return [f"{where}: {a!r} != {b!r} (tolerance {tol[kind]:.3g}, {kind})"]
+        return []
+    if isinstance(a, float) or isinstance(b, float):
+        if not (math.isclose(a, b, rel_tol=EXACT_REL, abs_tol=1e-12) or (a != a and b != b)):
+            return [f"{where}: {a!r} != {b!r}"]
+        return []
+    return [] if a == b else [f"{where}: {a!r} != {b!r}"]
 
 
-@functools.cache
-def _renderer_fingerprint() -> str:
-    """Hex digest of the replicate means (float64 bytes) of a small trace: the default pixel
-    under the reports' light (the default site at 8000 lx), view (170, 2, 0), 5 lengths,
-    4096 paths x 4 replicates, seed 3 (0.2 s). Kernels that round any hit point, weight or
-    sum of these 82k paths differently give other bytes; machines whose kernels round alike
-    give the same digest. Computed once per session (the three reports share it)."""
-    from grassd.sim.lighting import build_lighting
-    from grassd.sim.renderer import Renderer
-    from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
+def _table_differences(a: dict, b: dict, tol: dict[str, float], where: str) -> list[str]:
+    """A controller table ``{"table_crc", "shape", "lengths_um"}`` against the golden one: its
+    lengths within tolerance, its CRC the golden one when the lengths are equal and else the
+    CRC of its own lengths (a 1 um move changes every bit of it)."""
+    from grassd.firmware_proto.tables import as_table_array, table_crc
 
-    m = Renderer.shared().characteristic(
-        DisplaySpec(), build_lighting(SITE, 8000.0), Viewpoint(170, 2, 0),
-        np.linspace(0.0, 20.0, 5), RenderSettings(samples=4096, replicates=4, seed=3))
-    return hashlib.sha256(np.ascontiguousarray(m.rgb_replicates, "<f8").tobytes()).hexdigest()
-
-
-def _skip_unless_recorded_here() -> None:
-    """Record (GRASSD_UPDATE_GOLDEN=1) or check the renderer fingerprint of the golden
-    reports; skip when this machine's kernels round differently from the recording one's."""
-    path = GOLDEN / "reports" / "renderer_fingerprint.txt"
-    here = _renderer_fingerprint()
-    if UPDATE:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(here + "\n")
-    assert path.is_file(), f"no golden file {path}: run with GRASSD_UPDATE_GOLDEN=1"
-    recorded = path.read_text().strip()
-    if here != recorded:
-        pytest.skip(f"golden reports recorded on a CPU whose kernels round differently "
-                    f"(renderer fingerprint {recorded[:12]}, here {here[:12]}); "
-                    f"GRASSD_UPDATE_GOLDEN=1 records them for this machine")
+    out: list[str] = []
+    for k in sorted(a):
+        if k != "table_crc":
+            out += _differences(a[k], b[k], tol, _kind(k), f"{where}.{k}")
+    crc = b["table_crc"] if a["lengths_um"] == b["lengths_um"] else table_crc(
+        as_table_array(np.asarray(a["lengths_um"])))
+    if a["table_crc"] != crc:
+        out.append(f"{where}.table_crc: {a['table_crc']!r} != {crc!r}")
+    return out
 
 
 @pytest.mark.parametrize("granularity", ["global", "controller", "pixel"])
 def test_calibration_report_is_unchanged(tmp_path, granularity):
-    """The report and metrics of one run per granularity (seed 3, 2 closed-loop rounds)."""
+    """The report and metrics of one run per granularity (seed 3, 2 closed-loop rounds), within
+    the tolerances above."""
     from grassd.daemon.calibration.calibrate import Calibrator, LightInput, init_backend
     from grassd.daemon.config.settings import parse_config
 
     text = RUN + f'[tables]\ngranularity = "{granularity}"\ncheck_groups = 0\n'
     cfg = parse_config(text, base_dir=tmp_path)
     init_backend(cfg)
-    _skip_unless_recorded_here()
     light = LightInput(hdri=SITE, ambient_lux=8000.0,
                        timestamp=datetime(2026, 6, 21, 10, tzinfo=UTC))
     res = Calibrator(cfg).run(light)
@@ -200,4 +258,7 @@ def test_calibration_report_is_unchanged(tmp_path, granularity):
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(got, indent=1, sort_keys=True) + "\n")
     assert path.is_file(), f"no golden file {path}: run with GRASSD_UPDATE_GOLDEN=1"
-    _same(got, json.loads(path.read_text()))
+    golden = json.loads(path.read_text())
+    diff = _differences(got, golden, _tolerances(golden))
+    assert not diff, (f"{granularity} report changed beyond its tolerances "
+                      f"({len(diff)} values):\n" + "\n".join(diff[:20]))
