@@ -89,8 +89,8 @@ log = logging.getLogger(__name__)
 
 Progress = Callable[[str], None]
 
-__all__ = ["Calibrator", "CalibrationResult", "LightInput", "closed_loop_check", "init_backend",
-           "refine_unit"]
+__all__ = ["Calibrator", "CalibrationResult", "LightInput", "closed_loop", "closed_loop_check",
+           "init_backend", "refine_unit"]
 
 
 def init_backend(cfg: Config) -> str:
@@ -299,31 +299,11 @@ class Calibrator:
                 raise CalibrationRejected(f"{u.name}: {exc}") from None
         checked = _TableChecks(cfg, unit_of_pixel, found.whole, previous_um, previous_tables,
                                force, own_tables=source != CENTRE)
-        controller_tables, max_step = checked(units)
+        checked(units)  # the first tables, before the closed loop spends time on them
         t_loop = time.perf_counter()
-        levels = check_levels(cc.check_levels)
-        rounds: list[LoopCheck] = []
-        for k in range(1, cc.max_rounds + 1):
-            pixel_tables = np.stack([u.lengths_um for u in units])[unit_of_pixel]
-            loop = closed_loop_check(renderer, display, lighting, viewers, pixel_tables, levels,
-                                     replace(settings, seed=settings.seed + 1000 * k), ccm,
-                                     stepper(f"closed loop round {k}"), round_no=k)
-            rounds.append(loop)
-            pixel_dev = loop.pixel_dev()
-            off = [i for i, u in enumerate(units)
-                   if u.pixels.size and pixel_dev[u.pixels].max() > cc.target_de00]
-            log.info("closed loop round %d: max deviation %.3f dE00, R^2 %.5f, %d of %d "
-                     "tables above %.2f", k, float(loop.max_dev.max()), float(loop.r2.min()),
-                     len(off), len(units), cc.target_de00)
-            if not off or k == cc.max_rounds or viewers.group_characteristics is None:
-                break
-            for i in off:  # every round so far measured the unit's table of its time
-                units[i] = refine_unit(units[i], rounds, viewers.group_characteristics)
-            controller_tables, max_step = checked(units)
-        pixel_dev, pixel_r2 = loop.pixel_dev(), loop.r2[loop.labels]
-        units = [replace(u, loop_max_dev=float(pixel_dev[u.pixels].max()),
-                         loop_r2=float(pixel_r2[u.pixels].min())) if u.pixels.size else u
-                 for u in units]
+        units, rounds = closed_loop(renderer, display, lighting, viewers, units, unit_of_pixel,
+                                    settings, ccm, cc, checked, stepper)
+        controller_tables, max_step = checked(units)
         whole = found.whole if found.whole is not None else units[0]
         total = time.perf_counter() - t_start
         return CalibrationResult(
@@ -377,6 +357,42 @@ class _TableChecks:
                                      f"table of controller {name}"))
         known = [s for s in steps if s is not None]
         return tables, max(known) if known else None
+
+
+def closed_loop(renderer: Any, display: Any, lighting: Any, viewers: Viewers,
+                units: list[UnitTable], unit_of_pixel: NDArray, settings: Any, ccm: Any,
+                cc: Any, checked: Callable[[list[UnitTable]], Any],
+                stepper: Callable[[str], Callable[[int, int], None]]
+                ) -> tuple[list[UnitTable], list[LoopCheck]]:
+    """Up to ``cc.max_rounds`` rounds of :func:`closed_loop_check` (round k with seed
+    ``settings.seed + 1000 k``); after each, every unit whose pixels deviate by more than
+    ``cc.target_de00`` [dE00] is refined (:func:`refine_unit`, when the viewers carry group
+    characteristics) and the tables are ``checked`` again. Returns the units, each with its
+    last round's ``loop_max_dev`` and ``loop_r2``, and the rounds."""
+    levels = check_levels(cc.check_levels)
+    rounds: list[LoopCheck] = []
+    for k in range(1, cc.max_rounds + 1):
+        pixel_tables = np.stack([u.lengths_um for u in units])[unit_of_pixel]
+        loop = closed_loop_check(renderer, display, lighting, viewers, pixel_tables, levels,
+                                 replace(settings, seed=settings.seed + 1000 * k), ccm,
+                                 stepper(f"closed loop round {k}"), round_no=k)
+        rounds.append(loop)
+        pixel_dev = loop.pixel_dev()
+        off = [i for i, u in enumerate(units)
+               if u.pixels.size and pixel_dev[u.pixels].max() > cc.target_de00]
+        log.info("closed loop round %d: max deviation %.3f dE00, R^2 %.5f, %d of %d "
+                 "tables above %.2f", k, float(loop.max_dev.max()), float(loop.r2.min()),
+                 len(off), len(units), cc.target_de00)
+        if not off or k == cc.max_rounds or viewers.group_characteristics is None:
+            break
+        for i in off:  # every round so far measured the unit's table of its time
+            units[i] = refine_unit(units[i], rounds, viewers.group_characteristics)
+        checked(units)
+    pixel_dev, pixel_r2 = loop.pixel_dev(), loop.r2[loop.labels]
+    units = [replace(u, loop_max_dev=float(pixel_dev[u.pixels].max()),
+                     loop_r2=float(pixel_r2[u.pixels].min())) if u.pixels.size else u
+             for u in units]
+    return units, rounds
 
 
 def closed_loop_check(renderer: Any, display: Any, lighting: Any, viewers: Viewers,

@@ -33,6 +33,7 @@ import logging
 import os
 import shutil
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -76,6 +77,33 @@ def _remove(p: Path) -> None:
         shutil.rmtree(p)
     else:
         p.unlink()
+
+
+def _prune_reports(reports: Path, history: History, keep_reports: int, active: set[int],
+                   cutoff: float, now: float, drop: Callable[[Path, list[str]], None],
+                   out: PruneResult) -> None:
+    """Drop the report files (``run-NNNNNN.json``/``.png``) of runs beyond the newest
+    ``keep_reports`` or older than ``cutoff`` (epoch s), never those of the ``active`` run, and
+    stale temporaries; a run whose files are all gone loses its report paths in history."""
+    by_run: dict[int, list[Path]] = {}
+    for e in reports.iterdir():
+        run_id = report_run_id(e.name)
+        if run_id is not None:
+            by_run.setdefault(run_id, []).append(e)
+        elif (e.name.startswith(".") and e.name.endswith(".tmp")
+              and _newest_mtime(e) < now - STALE_TEMP_S):
+            drop(e, out.temporaries)
+    newest = set(sorted(by_run, reverse=True)[:keep_reports])
+    for run_id, files in sorted(by_run.items()):
+        if run_id in active:
+            continue
+        if run_id in newest and max(_newest_mtime(f) for f in files) >= cutoff:
+            continue
+        before = len(out.reports)
+        for f in files:
+            drop(f, out.reports)
+        if len(out.reports) - before == len(files):
+            history.update_run(run_id, report_path=None, plot_path=None)
 
 
 def prune(state_dir: str | os.PathLike[str], history: History, keep: RetentionConfig, *,
@@ -133,25 +161,7 @@ def prune(state_dir: str | os.PathLike[str], history: History, keep: RetentionCo
     # ---- reports
     active = {cur.id} if cur is not None else set()
     if reports.is_dir():
-        by_run: dict[int, list[Path]] = {}
-        for e in reports.iterdir():
-            run_id = report_run_id(e.name)
-            if run_id is not None:
-                by_run.setdefault(run_id, []).append(e)
-            elif (e.name.startswith(".") and e.name.endswith(".tmp")
-                  and _newest_mtime(e) < now - STALE_TEMP_S):
-                drop(e, out.temporaries)
-        newest = set(sorted(by_run, reverse=True)[: keep.keep_reports])
-        for run_id, files in sorted(by_run.items()):
-            if run_id in active:
-                continue
-            if run_id in newest and max(_newest_mtime(f) for f in files) >= cutoff:
-                continue
-            before = len(out.reports)
-            for f in files:
-                drop(f, out.reports)
-            if len(out.reports) - before == len(files):
-                history.update_run(run_id, report_path=None, plot_path=None)
+        _prune_reports(reports, history, keep.keep_reports, active, cutoff, now, drop, out)
 
     # ---- history rows
     out.runs = history.prune_runs(keep.keep_runs, protect=active, reconcile_before=cutoff)
