@@ -80,7 +80,8 @@ RESTARTABLE_NAKS = frozenset({NakCode.NO_TRANSFER, NakCode.INCOMPLETE, NakCode.C
 #: :class:`PushFailed` (transient: the daemon keeps the old table and retries with backoff).
 #: The wall-clock deadline of one push (s) is this, or the table's bytes over
 #: :data:`MIN_PUSH_BYTES_PER_S`, whichever is longer. 25 s holds a 512-byte table on a line with
-#: 1 % byte errors at 115200 baud (12.1 s at most, docs/operating/service.md, ``bench_noisy_line``) with room.
+#: 1 % byte errors at 115200 baud (12.1 s at most: ``bench_noisy_line``,
+#: docs/operating/service.md) with room.
 #: A stalling controller (each chunk answered just before its timeout, every commit refused)
 #: held one push for 348 s before there was a deadline.
 PUSH_DEADLINE_S = 25.0
