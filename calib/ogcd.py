@@ -47,11 +47,16 @@ class _Correction(Protocol):
 
 @dataclass(frozen=True, eq=False)
 class OGCDResult:
-    """OGCD values (n,) in CIEDE2000 units, their standard errors (or None) and the Lab (n, 3)."""
+    """OGCD values (n,) in CIEDE2000 units, their standard errors (or None) and the Lab (n, 3);
+    ``step_stderr`` (n - 1,): standard errors of the steps OGCD[i + 1] - OGCD[i] (or None).
+    Estimates correlated across lengths (common random numbers, a tuft layout shared by all
+    lengths) move the whole curve together, so a step's error is not
+    ``hypot(stderr[i], stderr[i + 1])``: it can be far smaller."""
 
     ogcd: NDArray[np.float64]
     ogcd_stderr: NDArray[np.float64] | None
     lab: NDArray[np.float64]
+    step_stderr: NDArray[np.float64] | None = None
 
 
 def ogcd_from_lab(lab: ArrayLike, method: str = "CIE 2000") -> NDArray[np.float64]:
@@ -162,7 +167,11 @@ def ogcd_from_samples(
     Each of the S batches gives linear RGB at all n lengths; errors may be correlated across
     lengths within a batch (common random numbers) but batches are independent. The standard
     error is the delta method with the sample covariance of the batch means, including the
-    covariance between the reference length and length i.
+    covariance between the reference length and length i: each batch's linearised deviation
+    ``T[s, i] = g0_i . d[s, 0] + gi_i . d[s, i]`` (``g0``, ``gi`` the gradients of dE at the mean
+    Lab's reference and length i, ``d`` the batch's deviation from the mean RGB) gives
+    ``var(OGCD_i) = sum_s T[s, i]^2 / (S (S - 1))``, and the steps' errors (``step_stderr``)
+    come from ``T[s, i + 1] - T[s, i]`` the same way.
     """
     x = as_float_array(rgb_samples, "rgb_samples", last_dim=3, ndim=3, non_negative=True)
     n_s = x.shape[0]
@@ -176,13 +185,10 @@ def ogcd_from_samples(
     g0, gi = _gradients(mean, to_lab, method)
     d = x - mean  # (S, n, 3)
     scale = 1.0 / ((n_s - 1) * n_s)  # covariance of the mean
-    c00 = np.einsum("sa,sb->ab", d[:, 0], d[:, 0]) * scale
-    cii = np.einsum("sia,sib->iab", d, d) * scale
-    c0i = np.einsum("sa,sib->iab", d[:, 0], d) * scale
-    var = (
-        np.einsum("ia,ab,ib->i", g0, c00, g0)
-        + np.einsum("ia,iab,ib->i", gi, cii, gi)
-        + 2.0 * np.einsum("ia,iab,ib->i", g0, c0i, gi)
-    )
-    var[0] = 0.0
-    return OGCDResult(ogcd=ogcd, ogcd_stderr=np.sqrt(np.clip(var, 0.0, None)), lab=lab)
+    t = np.einsum("ia,sa->si", g0, d[:, 0]) + np.einsum("ia,sia->si", gi, d)  # (S, n)
+    t[:, 0] = 0.0  # the reference's OGCD is 0 in every batch
+    var = np.einsum("si,si->i", t, t) * scale
+    steps = np.diff(t, axis=1)
+    step_var = np.einsum("si,si->i", steps, steps) * scale
+    return OGCDResult(ogcd=ogcd, ogcd_stderr=np.sqrt(np.clip(var, 0.0, None)), lab=lab,
+                      step_stderr=np.sqrt(np.clip(step_var, 0.0, None)))

@@ -195,7 +195,8 @@ class Calibrator:
                                np.asarray(lengths_mm, float), settings, ccm=ccm,
                                pixel_index=centre, layouts=self.cfg.simulation.layouts)
             curves.append(ViewpointCurve(vp, np.asarray(lengths_mm, float), c.ogcd,
-                                         c.ogcd_stderr, time.perf_counter() - t0))
+                                         c.ogcd_stderr, time.perf_counter() - t0,
+                                         step_stderr=c.step_stderr))
         return curves
 
     @staticmethod
@@ -216,13 +217,17 @@ class Calibrator:
         return CENTRE if self.cfg.tables.granularity == "global" else "viewpoints"
 
     @staticmethod
-    def weighted(curves: list[ViewpointCurve]) -> tuple[NDArray, NDArray]:
-        """Viewpoint-weighted mean OGCD and its standard error (independent viewpoints)."""
+    def weighted(curves: list[ViewpointCurve]) -> tuple[NDArray, NDArray, NDArray | None]:
+        """Viewpoint-weighted mean OGCD [dE00], its standard error and that of its steps (None
+        when a curve has none), the viewpoints taken as independent."""
         w = np.array([c.viewpoint.weight for c in curves], float)
         w = w / w.sum()
         y = np.stack([c.ogcd for c in curves])
         se = np.stack([c.ogcd_stderr for c in curves])
-        return w @ y, np.sqrt((w**2) @ (se**2))
+        steps = None
+        if all(c.step_stderr is not None for c in curves):
+            steps = np.sqrt((w**2) @ np.stack([c.step_stderr for c in curves]) ** 2)
+        return w @ y, np.sqrt((w**2) @ (se**2)), steps
 
     def light_and_ccm(self, light: LightInput, checker: CheckerPhoto | None,
                       previous_ccm: NDArray | None,
@@ -294,7 +299,8 @@ class Calibrator:
         for u in units:  # one check per table (controllers or pixel groups), never per pixel
             try:
                 check_shape(u.characteristic.lengths_mm, u.characteristic.ogcd,
-                            u.characteristic.ogcd_stderr, cc.max_flat_fraction)
+                            u.characteristic.ogcd_stderr, cc.max_flat_fraction,
+                            u.step_stderr)
             except CalibrationRejected as exc:
                 raise CalibrationRejected(f"{u.name}: {exc}") from None
         checked = _TableChecks(cfg, unit_of_pixel, found.whole, previous_um, previous_tables,

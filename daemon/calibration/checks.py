@@ -30,16 +30,25 @@ def finite_or_none(x: float | None) -> float | None:
 
 
 def check_shape(lengths_mm: NDArray, ogcd: NDArray, stderr: NDArray | None,
-                max_flat_fraction: float) -> dict[str, float]:
+                max_flat_fraction: float, step_stderr: NDArray | None = None
+                ) -> dict[str, float]:
     """Refuse a characteristic with too many flat or any wild steps (see module docstring).
 
-    Returns the step statistics; raises :class:`CalibrationRejected`.
+    ``stderr`` (n,): OGCD's standard errors [dE00]; ``step_stderr`` (n - 1,): those of its
+    steps between neighbouring lengths, in the order given (sorted lengths), when known
+    (:class:`grassd.calib.ogcd.OGCDResult`); otherwise a step's error is taken as
+    ``hypot(stderr[i], stderr[i + 1])``, which overstates it when the errors move the whole
+    curve together (a tuft layout does). Returns the step statistics; raises
+    :class:`CalibrationRejected`.
     """
     order = np.argsort(lengths_mm, kind="stable")
     y = np.asarray(ogcd, float)[order]
     se = np.zeros_like(y) if stderr is None else np.asarray(stderr, float)[order]
     steps = np.diff(y)
-    noise = np.sqrt(se[:-1] ** 2 + se[1:] ** 2)
+    if step_stderr is not None and np.array_equal(order, np.arange(order.size)):
+        noise = np.asarray(step_stderr, float)
+    else:
+        noise = np.sqrt(se[:-1] ** 2 + se[1:] ** 2)
     rng = float(y.max() - y.min())
     flat = np.abs(steps) <= np.maximum(2.0 * noise, 0.01 * rng)
     wild = steps < -(3.0 * noise + 0.10 * rng)

@@ -37,13 +37,15 @@ CENTRE = "centre pixel"
 @dataclass(frozen=True)
 class ViewpointCurve:
     """OGCD [dE00] vs length [mm] simulated from one viewpoint (a centre-pixel run's first
-    simulation, before the viewpoints are weighted); ``seconds`` its wall time."""
+    simulation, before the viewpoints are weighted); ``seconds`` its wall time;
+    ``step_stderr`` the standard errors of its steps (None when unknown)."""
 
     viewpoint: ViewpointConfig
     lengths_mm: NDArray[np.float64]
     ogcd: NDArray[np.float64]
     ogcd_stderr: NDArray[np.float64]
     seconds: float
+    step_stderr: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,7 +62,8 @@ class UnitTable:
     ``r2_before``/``r2_after`` R^2 of the fitted OGCD vs level with linear lengths / the table;
     ``refined_rounds``: closed-loop rounds whose points were added to the fit behind the table
     (:func:`refine_unit`: every round up to its last refinement; ``characteristic`` stays the
-    first simulation's).
+    first simulation's); ``step_stderr`` the standard errors of its characteristic's steps
+    when known (a centre-pixel run's, for the shape check), else None.
     """
 
     name: str
@@ -75,6 +78,7 @@ class UnitTable:
     loop_max_dev: float = float("nan")
     loop_r2: float = float("nan")
     refined_rounds: int = 0
+    step_stderr: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True, eq=False)

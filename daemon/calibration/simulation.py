@@ -41,6 +41,9 @@ class SimulatedCurve:
     once its error meets the target). ``rounds``: (replicates so far, largest OGCD stderr then)
     after each batch of an adaptive run, one entry otherwise. ``paths_traced``: camera path
     traces the renderer ran (a path is traced again only at lengths where it may change).
+    ``step_stderr`` (n - 1,): standard errors of OGCD's steps between neighbouring lengths
+    [dE00] when every length shares its replicates (None after an adaptive run stopped some
+    lengths early; :class:`grassd.calib.ogcd.OGCDResult`).
     """
 
     h_cm: float
@@ -57,6 +60,7 @@ class SimulatedCurve:
     rounds: tuple[tuple[int, float], ...] = ()
     length_replicates: np.ndarray | None = None
     paths_traced: int = 0
+    step_stderr: np.ndarray | None = None
 
     def to_json(self) -> dict:
         """The per-viewpoint JSON object of ``grassd simulate --json``."""
@@ -159,7 +163,7 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
         counts[cols] += b
         t0 = time.perf_counter()
         x = np.concatenate(blocks)
-        lab, ogcd, se = _ogcd_by_replicates(x, counts, white, ccm, cache)
+        lab, ogcd, se, step_se = _ogcd_by_replicates(x, counts, white, ccm, cache)
         seconds["colour"] += time.perf_counter() - t0
         n = int(counts[0])
         worst = float(np.max(se))
@@ -173,6 +177,7 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
                 lengths_mm=lengths_mm, rgb_linear=mean, rgb_stderr=rgb_se, lab=lab, ogcd=ogcd,
                 ogcd_stderr=se, replicates=n, seconds=dict(seconds), rounds=tuple(rounds),
                 length_replicates=counts.copy(), paths_traced=traced_paths,
+                step_stderr=step_se,
             )
             if on_round is not None:
                 on_round(curve)
@@ -190,13 +195,15 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
 
 
 def _ogcd_by_replicates(x: np.ndarray, counts: np.ndarray, white: np.ndarray, ccm,
-                        cache: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                        cache: dict
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """Lab (n, 3), OGCD and its standard error (n,) of replicates ``x`` (R, n, 3) linear RGB
     [nits], length i traced in the first ``counts[i]`` replicates (a round traces the
     reference, column 0, and the lengths still above the target, so a length's replicates
     are those of the rounds before it met it): the lengths with the same count are taken
     together with the reference over those replicates. ``cache`` (kept across the rounds of
-    one run) skips groups whose replicates and lengths did not change."""
+    one run) skips groups whose replicates and lengths did not change. Last: the steps'
+    standard errors (n - 1,) when every length has the same replicates, else None."""
     n = x.shape[1]
     lab = np.empty((n, 3))
     ogcd = np.zeros(n)
@@ -208,9 +215,9 @@ def _ogcd_by_replicates(x: np.ndarray, counts: np.ndarray, white: np.ndarray, cc
         if key not in cache:  # a finished length's numbers do not change
             res = ogcd_from_samples(np.clip(x[:c][:, cols] / white, 0.0, None),
                                     space="rec709", ccm=ccm)
-            cache[key] = (res.lab, res.ogcd, res.ogcd_stderr)
-        lab[cols], ogcd[cols], se[cols] = cache[key]
-    return lab, ogcd, se
+            cache[key] = (res.lab, res.ogcd, res.ogcd_stderr, res.step_stderr)
+        lab[cols], ogcd[cols], se[cols], step_se = cache[key]
+    return lab, ogcd, se, step_se if len(np.unique(counts)) == 1 else None
 
 
 def simulate_curves(renderer, display, lighting, viewpoints: Sequence, lengths_mm: np.ndarray,

@@ -290,14 +290,17 @@ def centre_units(cal: Calibrator, display: Any, centre: int, lighting: Any, leng
     (:meth:`Calibrator.weighted`), shape-checked before its table is built, so that a flat
     light is named as such."""
     curves = cal.simulate(lighting, lengths, seed, ccm, stop, progress)
-    y, se = cal.weighted(curves)
-    check_shape(lengths, y, se, cal.cfg.calibration.max_flat_fraction)
+    y, se, step_se = cal.weighted(curves)
+    if not np.all(np.diff(lengths) > 0):
+        step_se = None  # the steps' errors are those of neighbours in increasing length
+    check_shape(lengths, y, se, cal.cfg.calibration.max_flat_fraction, step_se)
     char = pooled_characteristic([lengths], [y], [se])
     fit = fit_characteristic(char)
     table = build_length_table(fit)
     err = np.abs(table_deviation(fit, table.lengths_mm))
     n = display.rows * display.cols
-    unit = _unit("display", np.arange(n), table.lengths_um, char, err.max(), err.mean())
+    unit = replace(_unit("display", np.arange(n), table.lengths_um, char, err.max(), err.mean()),
+                   step_stderr=step_se)
     vps = cal.cfg.viewpoints
     viewers = Viewers([], np.array([v.weight for v in vps], np.float64), np.zeros(n, np.int64),
                       np.array([centre], np.int64), [char],

@@ -237,15 +237,14 @@ class SimulationConfig:
     the random tuft ``layouts`` a global table's characteristic averages (replicate j traces
     layout j mod layouts, so at most ``[calibration] replicates`` of them are traced;
     :func:`grassd.daemon.calibration.simulation.simulate_curve` gives the measurements: the
-    mean of 8 is 2-3x closer to the mean of all layouts than one). Default 1: the layouts'
-    spread enters each length's OGCD error, and the shape check reads those errors as
-    independent between lengths (they are not: a layout moves its whole curve), so with few
-    replicates it calls good characteristics flat (seen with 2 replicates: 67 % of steps flat
-    against the 60 % limit)."""
+    mean of 8 is 2-3x closer to the mean of all layouts than one: docs/calibration.md). The
+    layouts' spread enters each length's OGCD error but hardly its steps (a layout moves the
+    whole curve), so the shape check reads the steps' own errors
+    (:attr:`grassd.daemon.calibration.simulation.SimulatedCurve.step_stderr`)."""
 
     samples: int = 4096
     seed: int = 0
-    layouts: int = 1
+    layouts: int = 8
     lengths_mm: tuple[float, ...] = field(kw_only=True)
 
 

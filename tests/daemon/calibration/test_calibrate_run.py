@@ -75,6 +75,21 @@ def test_shape_check():
         check_shape(x, wild, np.full(11, 0.1), 0.6)
 
 
+def test_shape_check_reads_the_steps_own_errors():
+    """Errors that move the whole curve (a tuft layout) are large per length but small per
+    step: with the steps' own errors the same curve is no longer called flat."""
+    x = np.linspace(0.0, 20.0, 11)
+    y = np.linspace(0.0, 5.0, 11)  # steps of 0.5 dE00
+    se = np.full(11, 0.3)  # hypot 0.42: every step within 2 sigma
+    with pytest.raises(CalibrationRejected, match="flat"):
+        check_shape(x, y, se, 0.6)
+    stats = check_shape(x, y, se, 0.6, step_stderr=np.full(10, 0.05))
+    assert stats["flat_fraction"] == 0.0
+    # unsorted lengths: the steps' errors cannot be matched, so they are not used
+    with pytest.raises(CalibrationRejected, match="flat"):
+        check_shape(x[::-1], y[::-1], se, 0.6, step_stderr=np.full(10, 0.05))
+
+
 def test_table_checks():
     t = np.linspace(0, 20000, 256).astype(np.uint16)
     assert check_table(t, 20.0, None, 3.0, False) is None

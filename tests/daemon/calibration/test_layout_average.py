@@ -57,7 +57,7 @@ def test_config_reads_layouts_with_its_default_and_bounds():
     from importlib.resources import files
 
     default = files("grassd.daemon.config").joinpath("default.toml").read_text()
-    assert parse_config(default).simulation.layouts == 1
+    assert parse_config(default).simulation.layouts == 8
 
     def with_layouts(n: int):
         return parse_config(default.replace("[simulation]\n", f"[simulation]\nlayouts = {n}\n"))
