@@ -253,7 +253,10 @@ class Lighting:
     vector towards the sun, or None. ``sun_irradiance_rgb``: (3,) sun irradiance on a plane
     perpendicular to it (lux-like linear Rec.709; zeros without a sun). ``ambient_lux``: what
     ``env`` gives on the upward horizontal plane; ``sun_lux``: what the sun gives there (0
-    without a sun). ``rotation_deg`` / ``flipped``: how the file was oriented.
+    without a sun). ``rotation_deg`` / ``flipped``: how the file was oriented. ``env_map``:
+    the oriented map before scaling (``env = np.float32(env_scale) * env_map``, float32), or
+    None when unknown: two lights of one map at other lux share it, so a renderer keeps the
+    map's importance sampler (:meth:`grassd.sim.renderer.Renderer._prepare`).
     """
 
     env: np.ndarray
@@ -265,6 +268,7 @@ class Lighting:
     rotation_deg: float = 0.0
     flipped: bool = False
     notes: tuple[str, ...] = field(default=())
+    env_map: np.ndarray | None = None
 
     @cached_property
     def horizontal_irradiance_rgb(self) -> np.ndarray:
@@ -282,6 +286,8 @@ class Lighting:
     @property
     def env_unscaled(self) -> np.ndarray:
         """The oriented map before scaling (what ``export-scene`` writes as env.exr)."""
+        if self.env_map is not None:
+            return self.env_map
         return (self.env / np.float32(self.env_scale)).astype(np.float32)
 
 
@@ -383,7 +389,8 @@ def build_lighting(
         raise LightingError("the HDRI gives no light on a horizontal plane (upper hemisphere "
                             "black after orientation)")
 
-    common = dict(rotation_deg=float(rotation_deg), flipped=bool(flip))
+    common = dict(rotation_deg=float(rotation_deg), flipped=bool(flip),
+                  env_map=_readonly(env0))
     if sun_from_hdri:
         if sun_azimuth_deg is not None:
             raise LightingError("sun_from_hdri takes the sun direction from the map; do not also "

@@ -164,6 +164,24 @@ class Measurement:
 
 _SHARED: dict[Capacity, "Renderer"] = {}
 
+#: fpar slot of the scale the kernel applies to the uploaded (unscaled) environment map
+ENV_SCALE = 18
+
+
+def _map_and_scale(lighting: Lighting) -> tuple[np.ndarray, float]:
+    """The environment map a renderer uploads and the scale its kernels apply to it: the
+    light's unscaled map and its scale when known, else its scaled map and 1 (both float32
+    products, so ``map * scale`` is ``lighting.env`` texel for texel)."""
+    if lighting.env_map is not None:
+        return lighting.env_map, float(np.float32(lighting.env_scale))
+    return lighting.env, 1.0
+
+
+def _same_map(a: Lighting, b: Lighting) -> bool:
+    """Whether two lights upload the same map (then its fields and sampler are kept)."""
+    ma, mb = _map_and_scale(a)[0], _map_and_scale(b)[0]
+    return ma is mb or np.array_equal(ma, mb)
+
 
 @ti.func
 def _kept(reuse: ti.i32, ray: ti.i32, n_memo: ti.i32) -> ti.i32:
@@ -307,11 +325,12 @@ class Renderer:
             self._scene, self._scene_key = scene, (*key, longest)
         if self._lighting is not lighting:
             previous, self._lighting = self._lighting, None
-            # Another light with the same map (the sun moved: a time-of-day slider) keeps the
-            # uploaded map and its sampler (57 ms for 1024 x 512 on 2 cores); equal texels give
-            # the same fields, so the images are the same bit for bit.
+            # Another light with the same map (the sun moved: a time-of-day slider; another
+            # lux: the map is uploaded unscaled and scaled in the kernel) keeps the uploaded
+            # map and its sampler (57 ms for 1024 x 512 on 2 cores); equal texels give the same
+            # fields, so the images are the same bit for bit whatever ran before.
             self._upload_light(lighting, env_kept=previous is not None
-                               and np.array_equal(previous.env, lighting.env))
+                               and _same_map(previous, lighting))
             self._lighting = lighting
         return self._scene
 
@@ -360,8 +379,10 @@ class Renderer:
         i[0], i[1], i[2], i[3] = nb, nr, nx, ny
 
     def _upload_light(self, lighting: Lighting, env_kept: bool = False) -> None:
+        env_map, scale = _map_and_scale(lighting)
         if not env_kept:
-            self._upload_env(lighting.env)
+            self._upload_env(env_map)
+        self.fpar[ENV_SCALE] = scale
         sun_on = lighting.sun_direction is not None and lighting.sun_irradiance_rgb is not None
         self.ipar[6] = int(sun_on)
         if sun_on:
@@ -398,7 +419,7 @@ class Renderer:
         h, w = self.ipar[4], self.ipar[5]
         row = ti.min(ti.cast(v * h, ti.i32), h - 1)
         col = ti.min(ti.cast(u * w, ti.i32), w - 1)
-        return self.env[row * w + col]
+        return self.env[row * w + col] * self.fpar[ENV_SCALE]
 
     @ti.func
     def row_solid_angle(self, row: ti.i32) -> ti.f32:
@@ -440,7 +461,7 @@ class Renderer:
         phi = 2.0 * tf.PI * (col + fu) / w
         d = vec3(sin_t * ti.cos(phi), sin_t * ti.sin(phi), cos_t)
         pdf = p_row * p_col * p_tex / self.row_solid_angle(row)
-        return d, pdf, self.env[row * w + col]
+        return d, pdf, self.env[row * w + col] * self.fpar[ENV_SCALE]
 
     @ti.func
     def hit_primitive(self, prim: ti.i32, o, d, x: ti.f32, x_cull: ti.f32, tmax: ti.f32,
