@@ -16,10 +16,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from grassd.sim.errors import SceneError
+
+if TYPE_CHECKING:  # numpy inside the functions: parsing a configuration (its PixelSpec)
+    # needs none, and ``grassd status`` starts without it (issue #32)
+    import numpy as np
 
 
 def srgb_to_linear(srgb8: tuple[float, float, float]) -> np.ndarray:
@@ -28,6 +31,8 @@ def srgb_to_linear(srgb8: tuple[float, float, float]) -> np.ndarray:
     >>> srgb_to_linear((255, 255, 255)).round(6).tolist()
     [1.0, 1.0, 1.0]
     """
+    import numpy as np
+
     c = np.asarray(srgb8, dtype=np.float64) / 255.0
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
@@ -119,6 +124,8 @@ class PixelSpec:
 
     def slit_centres_mm(self) -> np.ndarray:
         """Centres (y, mm) of the slits, evenly spread across the pixel."""
+        import numpy as np
+
         pitch = self.top_mm / max(self.slit_count, 1)
         return (np.arange(self.slit_count) + 0.5) * pitch - self.top_mm / 2
 
@@ -147,6 +154,8 @@ class DisplaySpec:
 
     def pixel_centres_m(self) -> np.ndarray:
         """(rows*cols, 2) xy centres in metres; row 0 is nearest the viewer at theta = 0 (-y)."""
+        import numpy as np
+
         r, c = np.meshgrid(np.arange(self.rows), np.arange(self.cols), indexing="ij")
         x = (c - (self.cols - 1) / 2) * self.pitch_mm
         y = (r - (self.rows - 1) / 2) * self.pitch_mm
@@ -178,6 +187,8 @@ class Viewpoint:
 
     def eye_m(self, target_xy_m: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
         """Eye position in world metres for a pixel centred at ``target_xy_m``."""
+        import numpy as np
+
         t = math.radians(self.theta_deg)
         return np.array([target_xy_m[0] + self.d_m * math.sin(t),
                          target_xy_m[1] - self.d_m * math.cos(t),
@@ -243,6 +254,8 @@ def parse_lengths(text: str) -> np.ndarray:
     >>> parse_lengths("0,5,12.5").tolist()
     [0.0, 5.0, 12.5]
     """
+    import numpy as np
+
     try:
         if ":" in text:
             start, stop, step = (float(p) for p in text.split(":"))

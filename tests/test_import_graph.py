@@ -156,7 +156,8 @@ def test_no_rig_imported_by_a_runtime_path():
 def test_the_command_line_loads_no_rig():
     """What the static rule promises, on the real import: loading ``grassd`` with every command
     (as ``grassd run`` on a site does) loads the rigs' name list and no rig module."""
-    code = ("import sys, grassd.daemon.cli.main; "
+    code = ("import sys; from grassd.daemon.cli.main import main; "
+            "[main.commands[name] for name in list(main.commands)]; "  # each loads on first use
             "print(sorted(m for m in sys.modules if m.startswith('grassd.rigs')))")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=120)
@@ -296,3 +297,76 @@ def test_grassd_run_never_imports_offline(tmp_path):
     assert "grassd.daemon.calibration.calibrate" in loaded
     offline = [m for m in loaded if m.startswith("grassd.daemon.offline")]
     assert not offline, offline
+
+
+#: Libraries that take seconds or tens of MiB to import: the light commands load none
+#: (issue #32: ``grassd --help`` and ``grassd status`` in 0.3 s, ``grassd check-config`` in
+#: 0.5 s). numpy too: none of the three needs it.
+HEAVY = ("taichi", "colour", "colour_hdri", "matplotlib", "pandas", "scipy", "numpy", "dask",
+         "distributed", "aiohttp", "prometheus_client", "PIL", "OpenEXR", "rawpy", "pvlib")
+
+#: run in a subprocess: ``grassd ARGS...`` as the console script runs it, then the heavy
+#: libraries loaded (one JSON line)
+_LIGHT = """
+import json, sys
+from grassd.daemon.cli.main import main
+try:
+    main(sys.argv[2:], prog_name="grassd", standalone_mode=False)
+except SystemExit as exc:
+    assert not exc.code, exc.code
+heavy = json.loads(sys.argv[1])
+print(json.dumps(sorted({m.split(".")[0] for m in sys.modules} & set(heavy))))
+"""
+
+
+def _heavy_loaded(tmp_path: Path, *args: str) -> tuple[list[str], str]:
+    """(the :data:`HEAVY` libraries ``grassd ARGS`` loaded, what it printed)."""
+    proc = subprocess.run([sys.executable, "-c", _LIGHT, json.dumps(HEAVY), *args],
+                          capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1]), proc.stdout
+
+
+def test_grassd_help_loads_no_heavy_library(tmp_path):
+    """``grassd --help`` lists every command without importing one (issue #32)."""
+    loaded, out = _heavy_loaded(tmp_path, "--help")
+    assert "check-config" in out and "Commands:" in out
+    assert not loaded, loaded
+
+
+def test_grassd_check_config_loads_no_heavy_library(tmp_path):
+    """``grassd check-config`` on the embedded default configuration, written to a file."""
+    from grassd.daemon.config.settings import default_config_text
+
+    config = tmp_path / "grassd.toml"
+    config.write_text(default_config_text())
+    loaded, out = _heavy_loaded(tmp_path, "check-config", "--config", str(config))
+    assert f"{config}: OK" in out
+    assert not loaded, loaded
+
+
+def test_grassd_status_without_a_daemon_loads_no_heavy_library(tmp_path):
+    """``grassd status`` with no daemon running reads the state database: a finished run with
+    its display-wide table (the default), a push. (A run with a table of its own per controller
+    or pixel reads those as numpy arrays.)"""
+    from grassd.daemon.config.settings import default_config_text
+    from grassd.daemon.store.history import History
+    from grassd.daemon.store.layout import StateLayout
+
+    config = tmp_path / "grassd.toml"
+    config.write_text(default_config_text())
+    state = tmp_path / "state"
+    db = StateLayout(state).db
+    db.parent.mkdir(parents=True, exist_ok=True)
+    with History(db) as h:
+        run = h.start_run("manual", lux=1000.0, lux_source="manifest")
+        names = ["/dev/serial/by-id/usb-grassd_controller_0-if00#1",
+                 "/dev/serial/by-id/usb-grassd_controller_1-if00#2"]
+        h.finish_run(run, "ok", table_id=1, table_crc=7, lengths_um=[1000] * 256,
+                     metrics={"r2_closed_loop": 0.99, "max_dev_de00": 0.4})
+        h.record_push(run, names[0], True, table_id=1, table_crc=7)
+    loaded, out = _heavy_loaded(tmp_path, "status", "--config", str(config), "--state-dir",
+                                str(state))
+    assert "daemon: not running" in out and f"#{run} " in out
+    assert "current table: 1 (crc 0x00000007)" in out
+    assert not loaded, loaded

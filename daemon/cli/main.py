@@ -1,8 +1,10 @@
 """The ``grassd`` command line (click).
 
-Sub-commands live in the other modules of this package (``daemon/cli/*.py``) and are added to
-:func:`main` below. User errors (bad input, bad config, unreachable hardware) print one line and
-exit with code 2.
+Sub-commands live in the other modules of this package (``daemon/cli/*.py``). :func:`main`
+names them in :data:`COMMANDS` and imports a module only when one of its commands runs (or
+shows its own help), so ``grassd --help`` and the light commands start fast (issue #32; the
+import-graph test checks which modules they load). User errors (bad input, bad config,
+unreachable hardware) print one line and exit with code 2.
 """
 
 from __future__ import annotations
@@ -12,20 +14,52 @@ import sys
 import click
 
 from grassd import __version__
-from grassd.daemon.cli.bundles import bundles
-from grassd.daemon.cli.capture import camera_group, capture_cmd
-from grassd.daemon.cli.controllers import controllers
-from grassd.daemon.cli.demo import demo
-from grassd.daemon.cli.fit import fit
-from grassd.daemon.cli.run import calibrate_cmd, check_config, history_cmd, run_cmd, status_cmd
-from grassd.daemon.cli.simulate import simulate
-from grassd.daemon.cli.studio import studio
-from grassd.daemon.cli.sweep import sweep
-from grassd.daemon.cli.validate import experiment, validate
+from grassd.daemon.cli.lazy import LazyCommand, LazyGroup
 from grassd.daemon.errors import USER_ERRORS
 
+_CLI = "grassd.daemon.cli."
 
-class _Group(click.Group):
+#: Every sub-command of ``grassd``: its name -> where it lives and the first paragraph of its
+#: help (tests/daemon/cli/test_lazy_commands.py checks each against the loaded command).
+COMMANDS: dict[str, LazyCommand] = {
+    "bundles": LazyCommand(_CLI + "bundles", "bundles", "Bundles quarantined after repeated "
+                           "interrupted attempts: list them, retry one."),
+    "calibrate": LazyCommand(_CLI + "run", "calibrate_cmd", "Ask the running daemon for a "
+                             "calibration, or run one here when no daemon runs."),
+    "camera": LazyCommand(_CLI + "capture", "camera_group", "Cameras of the capture station."),
+    "capture": LazyCommand(_CLI + "capture", "capture_cmd", "Take one bracket with the camera, "
+                           "merge it and drop the bundle into the inbox."),
+    "check-config": LazyCommand(_CLI + "run", "check_config", "Validate the configuration file "
+                                "and print a summary (exit 2 naming key and line if bad)."),
+    "controllers": LazyCommand(_CLI + "controllers", "controllers", "Talk to the display's "
+                               "controllers over serial, or run simulated ones."),
+    "demo": LazyCommand(_CLI + "demo", "demo", "The main job on the embedded default site, "
+                        "against simulated hardware."),
+    "experiment": LazyCommand(_CLI + "validate", "experiment",
+                              "The paper's experiments and virtual captures."),
+    "fit": LazyCommand(_CLI + "fit", "fit", "Fit the pixel's materials to the photos in CAPTURE "
+                       "(the capture directory that ``grassd validate`` reads): albedos, glossy "
+                       "lobe and splay, with standard errors, judged per viewpoint against the "
+                       "starting model."),
+    "history": LazyCommand(_CLI + "run", "history_cmd", "The run history: inputs, lux, metrics, "
+                           "table and per-controller push results."),
+    "run": LazyCommand(_CLI + "run", "run_cmd", "Run the daemon: watch the inbox, calibrate, "
+                       "push tables, serve the control socket."),
+    "simulate": LazyCommand(_CLI + "simulate", "simulate", "Simulate the grass colour "
+                            "characteristic (OGCD vs green length) per viewpoint."),
+    "status": LazyCommand(_CLI + "run", "status_cmd", "Last runs, each controller's active "
+                          "table, and health (asks the daemon if it runs)."),
+    "studio": LazyCommand(_CLI + "studio", "studio", "Serve the interactive studio: move the "
+                          "eye, change the light, see the pixel, its colour characteristic, the "
+                          "table and a picture on the display. Prints its URL."),
+    "sweep": LazyCommand(_CLI + "sweep", "sweep", "Run characteristics over many conditions; one "
+                         "tidy SQLite table plus summary plots."),
+    "validate": LazyCommand(_CLI + "validate", "validate", "Compare real captures (RAW photos + "
+                            "capture.toml in CAPTURE) with the simulation."),
+}
+
+
+class _Group(LazyGroup):
     """Top-level group that turns user errors into one line and exit code 2."""
 
     def invoke(self, ctx: click.Context):  # click API
@@ -36,13 +70,7 @@ class _Group(click.Group):
             sys.exit(2)
 
 
-@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=_Group, lazy=COMMANDS, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="grassd")
 def main() -> None:
     """grassd keeps a grass display's colours true as the light around it changes."""
-
-
-for _command in (demo, check_config, run_cmd, status_cmd, history_cmd, calibrate_cmd, bundles,
-                 controllers, simulate, validate, fit, experiment, sweep, studio, capture_cmd,
-                 camera_group):
-    main.add_command(_command)

@@ -52,7 +52,7 @@ def check_config(config_path: str | None) -> None:
                    f"{cap.iso}, {cap.white_balance}"
                    + (f"; shaded sensor unit {cap.shaded_unit}" if cap.shaded_unit else ""))
     click.echo(f"  state: {cfg.state_dir}; cache: {cfg.cache_dir}; socket: {cfg.control_socket}")
-    from grassd.daemon.monitoring.metrics import textfile_path
+    from grassd.daemon.monitoring.textfile import textfile_path
     from grassd.daemon.store.layout import StateLayout
 
     click.echo(f"  metrics: {textfile_path(cfg.metrics.textfile, cfg.state_dir)}; status page: "
@@ -78,7 +78,7 @@ def _simulated(cfg: Config, lux: float, firmware: str = FIRMWARE_BACKENDS[0]):
 
     from grassd.daemon.config.settings import MetricsConfig
     from grassd.daemon.hardware.simulated import SimulatedHardware
-    from grassd.daemon.monitoring.metrics import state_dir_textfile
+    from grassd.daemon.monitoring.textfile import state_dir_textfile
 
     hw = SimulatedHardware(cfg, cfg.state_dir / "simhw", lux=lux, firmware=firmware)
     new = hw.start()
@@ -230,7 +230,7 @@ def status_cmd(config_path: str | None, state_dir: str | None, as_json: bool) ->
     from grassd.daemon.errors import DaemonNotRunning, HistoryError
     from grassd.daemon.monitoring.status_types import Status
     from grassd.daemon.runtime.control import request
-    from grassd.daemon.runtime.service import collect_status
+    from grassd.daemon.runtime.status import collect_status
     from grassd.daemon.store.history import History
     from grassd.daemon.store.layout import StateLayout
 

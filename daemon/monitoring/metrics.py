@@ -65,33 +65,19 @@ from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector
 
-from grassd.daemon.monitoring.status_types import ControllerStatus, Status
+from grassd.daemon.monitoring.status_types import ControllerStatus, Status, run_r2
+from grassd.daemon.monitoring.textfile import (  # the file's path, named here too
+    DEBIAN_TEXTFILE_DIR as DEBIAN_TEXTFILE_DIR,
+)
+from grassd.daemon.monitoring.textfile import TEXTFILE_NAME as TEXTFILE_NAME
+from grassd.daemon.monitoring.textfile import state_dir_textfile as state_dir_textfile
+from grassd.daemon.monitoring.textfile import textfile_path as textfile_path
 from grassd.daemon.safe_text import one_line
 from grassd.daemon.store.atomic import atomic_write_bytes
 from grassd.daemon.store.history import History, RunRecord
 from grassd.daemon.store.outcomes import count_outcomes
 
 log = logging.getLogger(__name__)
-
-#: Debian's directory for node_exporter's textfile collector (package prometheus-node-exporter)
-DEBIAN_TEXTFILE_DIR = Path("/var/lib/prometheus/node-exporter")
-TEXTFILE_NAME = "grassd.prom"
-
-
-def state_dir_textfile(state_dir: Path) -> Path:
-    """The textfile inside the state directory: ``state_dir/metrics/grassd.prom``."""
-    return Path(state_dir) / "metrics" / TEXTFILE_NAME
-
-
-def textfile_path(configured: Path | None, state_dir: Path,
-                  debian_dir: Path = DEBIAN_TEXTFILE_DIR) -> Path:
-    """Where the metrics go: ``configured`` (``[metrics] textfile``) when set, else
-    ``debian_dir/grassd.prom`` when that directory exists, else :func:`state_dir_textfile`."""
-    if configured is not None:
-        return Path(configured)
-    if debian_dir.is_dir():
-        return debian_dir / TEXTFILE_NAME
-    return state_dir_textfile(state_dir)
 
 
 @dataclass(frozen=True)
@@ -101,12 +87,6 @@ class SensorState:
 
     up: bool | None
     last_success_at: float | None
-
-
-def run_r2(metrics: Mapping[str, Any]) -> float | None:
-    """R^2 of OGCD vs level of a run's metrics: the closed loop's, else the fit's."""
-    r2 = metrics.get("r2_closed_loop")
-    return metrics.get("r2_after_fit") if r2 is None else r2
 
 
 def _label(value: Any) -> str:

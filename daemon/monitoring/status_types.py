@@ -26,7 +26,7 @@ from grassd.daemon.monitoring.health import Health, assess
 from grassd.daemon.store.quarantine import QuarantinedBundle
 
 __all__ = ["ControllerStatus", "DaemonState", "DesiredTable", "ErrorSeen", "PushRetry",
-           "RunCounts", "RunSummary", "Status", "WaitingBundle"]
+           "RunCounts", "RunSummary", "Status", "WaitingBundle", "run_r2"]
 
 
 def _known(cls: type, d: Mapping[str, Any]) -> dict[str, Any]:
@@ -39,6 +39,14 @@ def _known(cls: type, d: Mapping[str, Any]) -> dict[str, Any]:
 def _plain(obj: Any) -> dict[str, Any]:
     """The fields of a flat dataclass as a dict, in declaration order."""
     return {f.name: getattr(obj, f.name) for f in fields(obj)}
+
+
+def run_r2(metrics: Mapping[str, Any]) -> float | None:
+    """R^2 of OGCD vs level of a run's metrics: the closed loop's, else the fit's (here, not
+    in :mod:`~grassd.daemon.monitoring.metrics`: ``grassd status`` needs it without
+    prometheus_client)."""
+    r2 = metrics.get("r2_closed_loop")
+    return metrics.get("r2_after_fit") if r2 is None else r2
 
 
 @dataclass(frozen=True)

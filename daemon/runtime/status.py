@@ -12,7 +12,6 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from grassd.daemon.config.settings import Config, ControllerConfig
-from grassd.daemon.monitoring.metrics import run_r2
 from grassd.daemon.monitoring.status_types import (
     ControllerStatus,
     DaemonState,
@@ -21,6 +20,7 @@ from grassd.daemon.monitoring.status_types import (
     RunCounts,
     RunSummary,
     Status,
+    run_r2,
 )
 from grassd.daemon.store.history import ControllerTable, History, RunRecord
 from grassd.daemon.store.quarantine import quarantined

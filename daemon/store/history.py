@@ -34,11 +34,12 @@ from collections.abc import Collection, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from grassd.daemon.errors import HistoryError
+
+if TYPE_CHECKING:
+    import numpy as np
 
 SCHEMA_VERSION = 1
 
@@ -402,6 +403,8 @@ class History:
         """Store every controller's own table of run ``run_id`` (name -> (256,) or
         (n_pixels, 256) integer micrometres) with its CRC, in one transaction. Call it before
         :meth:`finish_run` marks the run ok, so a current table never lacks them."""
+        import numpy as np  # here: ``grassd status`` reads the history without numpy
+
         rows = [(run_id, name, int(crcs[name]), json.dumps(np.asarray(t, np.int64).tolist()))
                 for name, t in tables.items()]
         with self._tx() as db:
@@ -412,6 +415,10 @@ class History:
         """Controller name -> its own table of run ``run_id`` (empty: one table for all)."""
         rows = self._query("SELECT run_id, controller, table_crc, lengths_um FROM run_tables "
                            "WHERE run_id = ? ORDER BY controller", (run_id,))
+        if not rows:
+            return {}  # without numpy: ``grassd status`` of a display-wide table needs none
+        import numpy as np
+
         return {r[1]: ControllerTable(r[0], r[1], r[2], np.asarray(json.loads(r[3]), np.uint16))
                 for r in rows}
 

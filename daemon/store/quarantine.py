@@ -25,12 +25,16 @@ from __future__ import annotations
 import logging
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from grassd.daemon.errors import DaemonError
-from grassd.daemon.store.history import History
-from grassd.daemon.store.ingest import REASON_FILE, Inbox
 from grassd.daemon.store.layout import StateLayout
 from grassd.daemon.store.outcomes import outcome
+
+if TYPE_CHECKING:  # the inbox (and the light it parses) only where a bundle is put back:
+    # ``grassd status`` reads the quarantine without it (issue #32: start-up)
+    from grassd.daemon.store.history import History
+    from grassd.daemon.store.ingest import Inbox
 
 log = logging.getLogger(__name__)
 
@@ -105,6 +109,8 @@ def retry_bundle(inbox: Inbox, bundle: str) -> dict[str, object]:
     with a fresh attempt count (module docstring); returns what was done (``bundle``, ``name``,
     ``inbox_path``, ``attempts`` before). Raises :class:`BundleRetryError` when there is no such
     bundle or the inbox already holds one of that name."""
+    from grassd.daemon.store.ingest import REASON_FILE
+
     q = _find(inbox, bundle)
     target = inbox.inbox / q.name
     if target.exists() or any((inbox.inbox / (q.name + s)).exists()

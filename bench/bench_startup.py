@@ -1,0 +1,161 @@
+"""Start-up and idle memory (issue #32): how long the light commands take, and what an idle
+daemon holds.
+
+1. ``grassd --help``, ``grassd status`` (a state directory with a database and no daemon: the
+   status read from the database) and ``grassd check-config`` (the embedded default
+   configuration written to a file), each run as a whole process (the console script next to
+   this Python) ``--runs`` times after one warm-up: min and median wall seconds. Targets: 0.3 s,
+   0.3 s and 0.5 s.
+2. The resident memory (``VmRSS``) of an idle ``grassd run``, with an empty inbox and no
+   scheduled run, so no simulation has run (or been imported), once it answers on its control
+   socket and 3 s later: ``grassd run --simulate-hardware`` (the simulated controllers and lux
+   sensor in the daemon's process) and ``grassd run`` against simulated hardware in this
+   process (the daemon alone). Target: 150 MiB. The line also names the heavy libraries whose
+   shared objects the daemon has mapped (``/proc/PID/maps``): none of Taichi, matplotlib,
+   pandas, scipy.
+
+To compare with another tree (the figures before a change), put a tree whose ``grassd``
+package is laid out as installed first on ``PYTHONPATH``: the subprocesses inherit it.
+
+Run: ``python -m bench startup`` or ``python -m bench.bench_startup [--runs N]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from bench.daemon_process import CACHE, BenchDaemon, daemon_config, wait_ready
+from bench.peak_memory import proc_mib
+
+GRASSD = str(Path(sys.executable).parent / "grassd")
+#: shared objects whose presence in a daemon's memory map means a heavy library was imported
+HEAVY = ("taichi", "matplotlib", "pandas", "scipy", "PIL")
+
+
+def _wall_s(argv: list[str], runs: int) -> list[float]:
+    """Wall seconds of ``runs`` runs of ``argv`` (after one warm-up run); RuntimeError when
+    one fails."""
+    times = []
+    for i in range(runs + 1):
+        t0 = time.perf_counter()
+        proc = subprocess.run(argv, capture_output=True, text=True, timeout=120)
+        dt = time.perf_counter() - t0
+        if proc.returncode != 0:
+            raise RuntimeError(f"{' '.join(argv)} failed: {proc.stderr[-2000:]}")
+        if i:
+            times.append(dt)
+    return times
+
+
+def _state_with_database(state: Path) -> None:
+    """A state directory holding an empty history database, as after a daemon's first start."""
+    from grassd.daemon.store.history import History
+    from grassd.daemon.store.layout import StateLayout
+
+    db = StateLayout(state).db
+    db.parent.mkdir(parents=True, exist_ok=True)
+    with History(db):
+        pass
+
+
+def startup_times(runs: int) -> None:
+    """Print min and median wall seconds of the three light commands."""
+    from grassd.daemon.config.settings import default_config_text
+
+    tmp = Path(tempfile.mkdtemp(prefix="grassd-bench-startup-"))
+    try:
+        config = tmp / "grassd.toml"
+        config.write_text(default_config_text())
+        _state_with_database(tmp / "state")
+        commands = {
+            "grassd --help": ([GRASSD, "--help"], 0.3),
+            "grassd status": ([GRASSD, "status", "--config", str(config), "--state-dir",
+                               str(tmp / "state")], 0.3),
+            "grassd check-config": ([GRASSD, "check-config", "--config", str(config)], 0.5),
+        }
+        for name, (argv, target_s) in commands.items():
+            t = _wall_s(argv, runs)
+            print(f"{name:20s} min {min(t):.3f} s  median {statistics.median(t):.3f} s  "
+                  f"(target {target_s} s; {runs} warm runs)", flush=True)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _mapped_heavy(pid: int) -> list[str]:
+    """Which of :data:`HEAVY` have a file mapped into process ``pid``."""
+    maps = Path(f"/proc/{pid}/maps").read_text()
+    return [name for name in HEAVY if f"/{name}" in maps]
+
+
+def _report_rss(label: str, pid: int) -> None:
+    ready = proc_mib(pid)
+    time.sleep(3.0)
+    heavy = _mapped_heavy(pid)
+    print(f"{label}: RSS {ready:.0f} MiB when ready, {proc_mib(pid):.0f} MiB 3 s later "
+          f"(target 150 MiB); heavy libraries mapped: {', '.join(heavy) or 'none'}", flush=True)
+
+
+def rss_simulate_hardware() -> None:
+    """RSS of an idle ``grassd run --simulate-hardware`` (embedded default site)."""
+    from grassd.daemon.config.settings import default_config_text, load_config
+
+    tmp = Path(tempfile.mkdtemp(prefix="grassd-bench-rss-"))
+    config = tmp / "grassd.toml"
+    config.write_text(f'state_dir = "{tmp / "state"}"\ncache_dir = "{CACHE}"\n'
+                      + default_config_text().replace("interval_s = 3600.0", "interval_s = 0"))
+    sock = load_config(config).control_socket
+    log = tmp / "daemon.log"
+    with open(log, "w") as err:
+        proc = subprocess.Popen([GRASSD, "run", "--config", str(config), "--simulate-hardware",
+                                 "--tick", "0.2"], stdout=subprocess.DEVNULL, stderr=err)
+    try:
+        ready_s = wait_ready(sock, proc, log, 120)
+        _report_rss(f"grassd run --simulate-hardware, idle (ready in {ready_s:.1f} s)", proc.pid)
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def rss_daemon_alone() -> None:
+    """RSS of an idle ``grassd run`` whose simulated hardware runs in this process."""
+    daemon = BenchDaemon("grassd-bench-rss-", lambda state, cfg: daemon_config(
+        state, cfg, light=f"""lux = "modbus"
+[light.modbus]
+port = {cfg.light.modbus.port}
+words = 2
+scale = 0.1
+""", tail=""), tick_s=0.2)
+    try:
+        ready_s = daemon.wait_ready(120)
+        _report_rss(f"grassd run (hardware outside), idle (ready in {ready_s:.1f} s)",
+                    daemon.proc.pid)
+    finally:
+        daemon.stop()
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Run the benchmark and print the numbers."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=int(os.environ.get("GRASSD_BENCH_RUNS", "10")),
+                    help="warm runs of each command (default 10)")
+    args = ap.parse_args([] if argv is None else argv)
+    startup_times(args.runs)
+    rss_simulate_hardware()
+    rss_daemon_alone()
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
