@@ -4,15 +4,16 @@ daemon holds.
 1. ``grassd --help``, ``grassd status`` (a state directory with a database and no daemon: the
    status read from the database) and ``grassd check-config`` (the embedded default
    configuration written to a file), each run as a whole process (the console script next to
-   this Python) ``--runs`` times after one warm-up: min and median wall seconds. Targets: 0.3 s,
-   0.3 s and 0.5 s.
+   this Python) ``--runs`` times after one warm-up, warm (page cache and bytecode cached, in a
+   temporary ``PYTHONPYCACHEPREFIX``): min and median wall seconds. Targets: 0.3 s, 0.3 s and
+   0.5 s.
 2. The resident memory (``VmRSS``) of an idle ``grassd run``, with an empty inbox and no
-   scheduled run, so no simulation has run (or been imported), once it answers on its control
-   socket and 3 s later: ``grassd run --simulate-hardware`` (the simulated controllers and lux
-   sensor in the daemon's process) and ``grassd run`` against simulated hardware in this
-   process (the daemon alone). Target: 150 MiB. The line also names the heavy libraries whose
-   shared objects the daemon has mapped (``/proc/PID/maps``): none of Taichi, matplotlib,
-   pandas, scipy.
+   scheduled run, once it answers on its control socket and 3 s later: ``grassd run
+   --simulate-hardware`` (the simulated controllers and lux sensor in the daemon's process)
+   and ``grassd run`` against simulated hardware in this process (the daemon alone); each with
+   local simulation (Taichi initialised at start) and without (``[compute] scheduler``, where
+   the tree knows it). Target without local simulation: 150 MiB. The line also names the heavy
+   libraries whose shared objects the daemon has mapped (``/proc/PID/maps``).
 
 To compare with another tree (the figures before a change), put a tree whose ``grassd``
 package is laid out as installed first on ``PYTHONPATH``: the subprocesses inherit it.
@@ -40,13 +41,13 @@ GRASSD = str(Path(sys.executable).parent / "grassd")
 HEAVY = ("taichi", "matplotlib", "pandas", "scipy", "PIL")
 
 
-def _wall_s(argv: list[str], runs: int) -> list[float]:
-    """Wall seconds of ``runs`` runs of ``argv`` (after one warm-up run); RuntimeError when
-    one fails."""
+def _wall_s(argv: list[str], runs: int, env: dict[str, str]) -> list[float]:
+    """Wall seconds of ``runs`` runs of ``argv`` (after one warm-up run) in environment
+    ``env``; RuntimeError when one fails."""
     times = []
     for i in range(runs + 1):
         t0 = time.perf_counter()
-        proc = subprocess.run(argv, capture_output=True, text=True, timeout=120)
+        proc = subprocess.run(argv, capture_output=True, text=True, timeout=120, env=env)
         dt = time.perf_counter() - t0
         if proc.returncode != 0:
             raise RuntimeError(f"{' '.join(argv)} failed: {proc.stderr[-2000:]}")
@@ -81,8 +82,12 @@ def startup_times(runs: int) -> None:
                                str(tmp / "state")], 0.3),
             "grassd check-config": ([GRASSD, "check-config", "--config", str(config)], 0.5),
         }
+        # warm: the bytecode cached, as pip leaves an installed grassd (not in the tree: in a
+        # temporary prefix, and even where PYTHONDONTWRITEBYTECODE is set)
+        env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+        env["PYTHONPYCACHEPREFIX"] = str(tmp / "pycache")
         for name, (argv, target_s) in commands.items():
-            t = _wall_s(argv, runs)
+            t = _wall_s(argv, runs, env)
             print(f"{name:20s} min {min(t):.3f} s  median {statistics.median(t):.3f} s  "
                   f"(target {target_s} s; {runs} warm runs)", flush=True)
     finally:
@@ -103,14 +108,35 @@ def _report_rss(label: str, pid: int) -> None:
           f"(target 150 MiB); heavy libraries mapped: {', '.join(heavy) or 'none'}", flush=True)
 
 
-def rss_simulate_hardware() -> None:
-    """RSS of an idle ``grassd run --simulate-hardware`` (embedded default site)."""
+#: ``[compute]``: the simulations on a Dask scheduler (none listens: an idle daemon never asks)
+REMOTE = '[compute]\nscheduler = "tcp://127.0.0.1:8786"\n'
+
+
+def _has_compute_table() -> bool:
+    """Whether the ``grassd`` that the subprocesses run knows ``[compute]`` (a tree from
+    before it does not)."""
+    code = ("import dataclasses; from grassd.daemon.config.settings import Config; "
+            "print('compute' in {f.name for f in dataclasses.fields(Config)})")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120, cwd=tempfile.gettempdir())
+    return proc.stdout.strip() == "True"
+
+
+def _where(remote: bool) -> str:
+    return ("no local simulation ([compute] scheduler)" if remote
+            else "local simulation (Taichi initialised at start)")
+
+
+def rss_simulate_hardware(remote: bool) -> None:
+    """RSS of an idle ``grassd run --simulate-hardware`` (embedded default site), its
+    simulations here or (``remote``) on a Dask scheduler."""
     from grassd.daemon.config.settings import default_config_text, load_config
 
     tmp = Path(tempfile.mkdtemp(prefix="grassd-bench-rss-"))
     config = tmp / "grassd.toml"
     config.write_text(f'state_dir = "{tmp / "state"}"\ncache_dir = "{CACHE}"\n'
-                      + default_config_text().replace("interval_s = 3600.0", "interval_s = 0"))
+                      + default_config_text().replace("interval_s = 3600.0", "interval_s = 0")
+                      + (REMOTE if remote else ""))
     sock = load_config(config).control_socket
     log = tmp / "daemon.log"
     with open(log, "w") as err:
@@ -118,7 +144,8 @@ def rss_simulate_hardware() -> None:
                                  "--tick", "0.2"], stdout=subprocess.DEVNULL, stderr=err)
     try:
         ready_s = wait_ready(sock, proc, log, 120)
-        _report_rss(f"grassd run --simulate-hardware, idle (ready in {ready_s:.1f} s)", proc.pid)
+        _report_rss(f"grassd run --simulate-hardware, {_where(remote)}, idle (ready in "
+                    f"{ready_s:.1f} s)", proc.pid)
     finally:
         proc.terminate()
         try:
@@ -129,19 +156,20 @@ def rss_simulate_hardware() -> None:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def rss_daemon_alone() -> None:
-    """RSS of an idle ``grassd run`` whose simulated hardware runs in this process."""
+def rss_daemon_alone(remote: bool) -> None:
+    """RSS of an idle ``grassd run`` whose simulated hardware runs in this process, its
+    simulations here or (``remote``) on a Dask scheduler."""
     daemon = BenchDaemon("grassd-bench-rss-", lambda state, cfg: daemon_config(
         state, cfg, light=f"""lux = "modbus"
 [light.modbus]
 port = {cfg.light.modbus.port}
 words = 2
 scale = 0.1
-""", tail=""), tick_s=0.2)
+""", tail=REMOTE if remote else ""), tick_s=0.2)
     try:
         ready_s = daemon.wait_ready(120)
-        _report_rss(f"grassd run (hardware outside), idle (ready in {ready_s:.1f} s)",
-                    daemon.proc.pid)
+        _report_rss(f"grassd run, hardware in another process, {_where(remote)}, idle (ready "
+                    f"in {ready_s:.1f} s)", daemon.proc.pid)
     finally:
         daemon.stop()
 
@@ -153,8 +181,12 @@ def main(argv: list[str] | None = None) -> None:
                     help="warm runs of each command (default 10)")
     args = ap.parse_args([] if argv is None else argv)
     startup_times(args.runs)
-    rss_simulate_hardware()
-    rss_daemon_alone()
+    remote = _has_compute_table()
+    if not remote:
+        print("this grassd has no [compute] table: idle RSS with local simulation only")
+    for where in (False, True) if remote else (False,):
+        rss_simulate_hardware(where)
+        rss_daemon_alone(where)
 
 
 if __name__ == "__main__":

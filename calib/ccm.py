@@ -14,7 +14,6 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import colour
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -50,6 +49,8 @@ class ColourCorrection:
 
 def residual_de00(predicted: ArrayLike, real: ArrayLike) -> NDArray[np.float64]:
     """Per-patch CIEDE2000 between two ProPhoto linear RGB arrays (N, 3), via D50 CIELAB."""
+    import colour  # on first use: see grassd.calib.colour_spaces
+
     return colour.delta_E(prophoto_to_lab(predicted), prophoto_to_lab(real), method="CIE 2000")
 
 
@@ -64,6 +65,8 @@ def _apply_3x3(rgb: NDArray, matrix: NDArray, degree: int) -> NDArray[np.float64
 
 
 def _fit_root_poly(virtual: NDArray, real: NDArray, degree: int) -> NDArray[np.float64]:
+    import colour  # on first use: see grassd.calib.colour_spaces
+
     return np.asarray(
         colour.characterisation.matrix_colour_correction(
             virtual, real, method="Finlayson 2015", degree=degree, root_polynomial_expansion=True
@@ -73,6 +76,8 @@ def _fit_root_poly(virtual: NDArray, real: NDArray, degree: int) -> NDArray[np.f
 
 
 def _apply_root_poly(rgb: NDArray, matrix: NDArray, degree: int) -> NDArray[np.float64]:
+    import colour  # on first use: see grassd.calib.colour_spaces
+
     return np.asarray(
         colour.characterisation.apply_matrix_colour_correction_Finlayson2015(
             rgb, matrix, degree=degree, root_polynomial_expansion=True

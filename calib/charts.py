@@ -18,7 +18,6 @@ import csv
 from dataclasses import dataclass
 from pathlib import Path
 
-import colour
 import numpy as np
 from numpy.typing import NDArray
 
@@ -64,6 +63,8 @@ def _make(name: str, names: list[str], lab: NDArray[np.float64], source: str) ->
 
 def colorchecker_classic() -> ReferenceChart:
     """X-Rite ColorChecker Classic (after November 2014), from colour-science (D50 CIELAB)."""
+    import colour  # on first use: see grassd.calib.colour_spaces
+
     cc = colour.CCS_COLOURCHECKERS["ColorChecker24 - After November 2014"]
     xyy = np.array(list(cc.data.values()), dtype=np.float64)
     if not np.allclose(cc.illuminant, WHITE_D50_XY, atol=1e-5):  # pragma: no cover - data guard

@@ -15,13 +15,16 @@ Conventions (the single source of truth for the whole package):
 * **CIELAB** uses the **ProPhoto (D50) white**. colour-science's ``XYZ_to_Lab`` defaults to D65,
   so the white is always passed explicitly.
 
-Matrices are computed once from colour-science's colourspace definitions at import time and are
-exposed read-only. References: ITU-R BT.709-6; ANSI/I3A IT10.7666 (ROMM RGB); CIE 15:2018 (CIELAB).
+The matrices are colour-science's (its colourspace definitions and Bradford transform), written
+out here to the last bit and exposed read-only; tests/calib/test_colour_space_constants.py checks
+them against colour-science. ``import colour`` loads its plotting too (matplotlib, pandas: about
+100 MiB and seconds), so it happens only in the functions that call colour-science (CIELAB
+conversions): the daemon idles and the light commands start without it (issue #32).
+References: ITU-R BT.709-6; ANSI/I3A IT10.7666 (ROMM RGB); CIE 15:2018 (CIELAB).
 """
 
 from __future__ import annotations
 
-import colour
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -31,8 +34,21 @@ from grassd.calib.errors import UnknownMethodError
 #: Chromatic adaptation transform used everywhere (never colour-science's CAT02 default).
 ADAPTATION: str = "Bradford"
 
-_REC709 = colour.RGB_COLOURSPACES["ITU-R BT.709"]
-_PROPHOTO = colour.RGB_COLOURSPACES["ProPhoto RGB"]
+#: colour-science's ``RGB_COLOURSPACES["ITU-R BT.709"].matrix_RGB_to_XYZ``
+_REC709_RGB_TO_XYZ = (
+    (0.41239079926595934, 0.35758433938387796, 0.1804807884018343),
+    (0.2126390058715103, 0.7151686787677559, 0.07219231536073371),
+    (0.019330818715591825, 0.11919477979462595, 0.9505321522496606),
+)
+#: colour-science's ``RGB_COLOURSPACES["ProPhoto RGB"].matrix_RGB_to_XYZ``
+_PROPHOTO_RGB_TO_XYZ = ((0.7977, 0.1352, 0.0313), (0.288, 0.7119, 0.0001), (0.0, 0.0, 0.8249))
+#: colour-science's ``adaptation.matrix_chromatic_adaptation_VonKries(WHITE_D65_XYZ,
+#: WHITE_D50_XYZ, transform="Bradford")``
+_BRADFORD_D65_TO_D50 = (
+    (1.0478860032225505, 0.022918765174779504, -0.050216095311733044),
+    (0.02958178249800338, 0.9904835184905487, -0.01707870770448269),
+    (-0.009251880839208845, 0.015072607487031322, 0.7516781336176034),
+)
 
 
 def _frozen(m: ArrayLike) -> NDArray[np.float64]:
@@ -46,28 +62,24 @@ def _XYZ_to_xy(xyz: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 #: XYZ of the D65 white (Y = 1): Rec.709 RGB (1, 1, 1); xy = (0.3127, 0.3290).
-WHITE_D65_XYZ: NDArray[np.float64] = _frozen(np.asarray(_REC709.matrix_RGB_to_XYZ).sum(axis=1))
+WHITE_D65_XYZ: NDArray[np.float64] = _frozen(np.asarray(_REC709_RGB_TO_XYZ).sum(axis=1))
 #: XYZ of the D50 ICC white (Y = 1): ProPhoto RGB (1, 1, 1) = (0.9642, 1, 0.8249); the CIELAB white.
-WHITE_D50_XYZ: NDArray[np.float64] = _frozen(np.asarray(_PROPHOTO.matrix_RGB_to_XYZ).sum(axis=1))
+WHITE_D50_XYZ: NDArray[np.float64] = _frozen(np.asarray(_PROPHOTO_RGB_TO_XYZ).sum(axis=1))
 #: CIE 1931 2-degree chromaticity of the D65 white.
 WHITE_D65_XY: NDArray[np.float64] = _XYZ_to_xy(WHITE_D65_XYZ)
 #: CIE 1931 2-degree chromaticity of the D50 white, (0.34570, 0.35854).
 WHITE_D50_XY: NDArray[np.float64] = _XYZ_to_xy(WHITE_D50_XYZ)
 
 #: Linear Rec.709 -> XYZ (D65-relative).
-M_REC709_TO_XYZ = _frozen(_REC709.matrix_RGB_to_XYZ)
+M_REC709_TO_XYZ = _frozen(_REC709_RGB_TO_XYZ)
 #: XYZ (D65-relative) -> linear Rec.709.
 M_XYZ_TO_REC709 = _frozen(np.linalg.inv(M_REC709_TO_XYZ))
 #: ProPhoto linear RGB -> XYZ (D50-relative).
-M_PROPHOTO_TO_XYZ = _frozen(_PROPHOTO.matrix_RGB_to_XYZ)
+M_PROPHOTO_TO_XYZ = _frozen(_PROPHOTO_RGB_TO_XYZ)
 #: XYZ (D50-relative) -> ProPhoto linear RGB.
 M_XYZ_TO_PROPHOTO = _frozen(np.linalg.inv(M_PROPHOTO_TO_XYZ))
 #: Bradford adaptation of XYZ from D65 to D50.
-M_CAT_D65_TO_D50 = _frozen(
-    colour.adaptation.matrix_chromatic_adaptation_VonKries(
-        WHITE_D65_XYZ, WHITE_D50_XYZ, transform=ADAPTATION
-    )
-)
+M_CAT_D65_TO_D50 = _frozen(_BRADFORD_D65_TO_D50)
 #: Bradford adaptation of XYZ from D50 to D65.
 M_CAT_D50_TO_D65 = _frozen(np.linalg.inv(M_CAT_D65_TO_D50))
 #: Linear Rec.709 (D65) -> ProPhoto linear (D50), Bradford; equals LibRaw's ``prophoto_rgb``.
@@ -155,12 +167,16 @@ def xyz_to_lab(xyz: ArrayLike) -> NDArray[np.float64]:
     >>> (np.round(xyz_to_lab(WHITE_D50_XYZ), 10) + 0.0).tolist()
     [100.0, 0.0, 0.0]
     """
+    import colour  # here: module docstring
+
     arr = as_float_array(xyz, "xyz", last_dim=3)
     return np.asarray(colour.XYZ_to_Lab(arr, illuminant=WHITE_D50_XY), dtype=np.float64)
 
 
 def lab_to_xyz(lab: ArrayLike) -> NDArray[np.float64]:
     """CIELAB with the D50 white (..., 3) -> CIE XYZ relative to D50 (Y of white = 1)."""
+    import colour
+
     arr = as_float_array(lab, "lab", last_dim=3)
     return np.asarray(colour.Lab_to_XYZ(arr, illuminant=WHITE_D50_XY), dtype=np.float64)
 

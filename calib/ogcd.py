@@ -33,7 +33,6 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
-from colour import delta_E
 from numpy.typing import ArrayLike, NDArray
 
 from grassd.calib.array_checks import as_float_array, same_shape
@@ -43,6 +42,16 @@ from grassd.calib.errors import ShapeError
 
 class _Correction(Protocol):
     def apply(self, rgb: ArrayLike) -> NDArray[np.float64]: ...
+
+
+def delta_E(lab1: ArrayLike, lab2: ArrayLike, method: str = "CIE 2000"
+            ) -> NDArray[np.float64]:
+    """colour-science's :func:`colour.delta_E` (dE units of ``method``), imported on the
+    first call: ``import colour`` loads its plotting too (matplotlib, pandas: about 100 MiB and
+    seconds), which the daemon's idle process and the light commands go without (issue #32)."""
+    from colour import delta_E as colour_delta_e
+
+    return colour_delta_e(lab1, lab2, method=method)
 
 
 @dataclass(frozen=True, eq=False)

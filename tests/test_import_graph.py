@@ -370,3 +370,20 @@ def test_grassd_status_without_a_daemon_loads_no_heavy_library(tmp_path):
     assert "daemon: not running" in out and f"#{run} " in out
     assert "current table: 1 (crc 0x00000007)" in out
     assert not loaded, loaded
+
+
+def test_the_daemon_loads_no_colour_science_or_taichi_before_its_first_run():
+    """What ``grassd run`` imports before it calibrates (the service and the command) holds no
+    colour-science (with its plotting: matplotlib, pandas), Taichi or Dask: an idle daemon
+    whose simulations run on a cluster stays small (issue #32: 150 MiB; numpy and scipy, for
+    the inbox's light checks, it has). Taichi loads when the daemon initialises its renderer,
+    colour-science at the first colour difference."""
+    code = ("import json, sys, grassd.daemon.runtime.service, grassd.daemon.cli.run; "
+            f"print(json.dumps(sorted({{m.split('.')[0] for m in sys.modules}} & {set(HEAVY)!r})))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    loaded = set(json.loads(proc.stdout.strip().splitlines()[-1]))
+    assert "numpy" in loaded  # the check sees imports
+    assert not loaded & {"taichi", "colour", "colour_hdri", "matplotlib", "pandas", "dask",
+                         "distributed", "aiohttp"}, loaded
