@@ -168,7 +168,8 @@ def service(path: Path, **kw) -> Service:
     """An in-process daemon for config file ``path`` (Taichi initialised, short timeouts)."""
     from grassd.daemon.calibration.calibrate import init_backend
 
-    svc = Service(load_config(path), config_path=path, policy=POLICY, **kw)
+    kw.setdefault("policy", POLICY)
+    svc = Service(load_config(path), config_path=path, **kw)
     init_backend(svc.cfg)
     return svc
 
