@@ -301,10 +301,10 @@ def test_calibrate_now_over_socket_and_cli(daemon, tmp_path):
     with d.history() as h:
         assert h.run(res["run_id"]).trigger == "request"
     r = subprocess.run([GRASSD, "status", "--config", str(d.config)], capture_output=True,
-                       text=True, timeout=30)
+                       text=True, timeout=120)
     assert r.returncode == 0 and "daemon: running" in r.stdout and "in sync" in r.stdout
     r = subprocess.run([GRASSD, "history", "--config", str(d.config), "-n", "50"],
-                       capture_output=True, text=True, timeout=30)
+                       capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and "request" in r.stdout and "rejected" in r.stdout
 
 
@@ -384,7 +384,7 @@ def test_one_shot_calibrate_without_daemon(tmp_path):
         crcs = {table_crc(dev.active_table()) for b in hw.buses for dev in b.controllers}
         assert crcs == {res["table_crc"]}
         r = subprocess.run([GRASSD, "status", "--config", str(conf)], capture_output=True,
-                           text=True, timeout=30)
+                           text=True, timeout=120)
         assert "daemon: not running" in r.stdout and "health: ok" in r.stdout
     finally:
         hw.stop()
