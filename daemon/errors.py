@@ -84,6 +84,17 @@ class StateDirUnwritable(DaemonError):
     """The state directory's lock file cannot be created or opened (read-only, permissions)."""
 
 
+class TransientError(DaemonError):
+    """A condition that clears by itself (a service that is down, a connection that dropped):
+    the daemon keeps what it was working on and retries with backoff, never rejects it."""
+
+
+class ComputeUnavailable(TransientError):
+    """The Dask cluster of ``[compute] scheduler`` could not run a calibration: the scheduler
+    is unreachable, it has no worker, or the worker running the calibration died. The active
+    table stays; the bundle waits in processing/ and is retried with backoff."""
+
+
 class RunInterrupted(DaemonError):
     """A calibration run was stopped part-way (daemon shutting down); nothing was committed."""
 

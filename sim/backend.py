@@ -1,5 +1,10 @@
 """The one module that imports Taichi. Everything else in grassd reaches Taichi through here.
 
+Where Taichi is missing (no wheels for Linux aarch64; a plain ``pip install grassd`` there
+leaves it out, ``grassd[sim]`` asks for it) importing this module raises
+:class:`~grassd.sim.errors.RendererMissing`, a one-line :class:`SimError` that every command
+needing the renderer shows as it is.
+
 Taichi 1.7.4 is the last upstream release; keeping the import behind this module makes a move
 to a maintained fork a one-file change. :func:`init` is called once by the program's entry point
 (the CLI, the daemon, a benchmark, a test fixture), never at import time.
@@ -14,9 +19,19 @@ from pathlib import Path
 
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")  # keep stdout clean for JSON
 
-import taichi as ti
+from grassd.sim.errors import RendererMissing, SimError
 
-from grassd.sim.errors import SimError
+try:
+    import taichi as ti
+except ImportError as _exc:  # e.g. Linux aarch64: Taichi publishes no wheels for it
+    import platform as _platform
+
+    raise RendererMissing(
+        f"the renderer needs Taichi, which is not installed here ({sys.platform} "
+        f"{_platform.machine()}, Python {_platform.python_version()}: {_exc}); Taichi has "
+        "wheels for x86-64 Linux and Windows and for macOS: pip install 'grassd[sim]' there, "
+        "or set [compute] scheduler = \"tcp://host:8786\" (grassd calibrate --scheduler) to "
+        "simulate on a Dask cluster whose workers have it") from None
 
 __all__ = ["ti", "init", "is_initialised", "default_cache_dir"]
 

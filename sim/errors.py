@@ -15,3 +15,8 @@ class LightingError(SimError):
 
 class SceneError(SimError):
     """Pixel/display geometry or viewpoint parameters are invalid."""
+
+
+class RendererMissing(SimError):
+    """Taichi, which the renderer needs, cannot be imported here (no wheels for this platform,
+    or installed without ``grassd[sim]``); raised by :mod:`grassd.sim.backend`."""

@@ -33,6 +33,8 @@ The file (default ``/etc/grassd/grassd.toml``; the embedded default is
                    the daemon's table(s) come from the region instead of [[viewpoints]]
     [metrics]      textfile (see MetricsConfig): node_exporter textfile of Prometheus metrics
     [alerts]       command, min_interval_s, timeout_s (see AlertsConfig): run on health changes
+    [compute]      scheduler = "tcp://host:8786", connect_timeout_s, worker_wait_s (see
+                   ComputeConfig): the daemon's simulations on a dask.distributed cluster
 
 Relative paths are resolved against the directory of the config file, except ``light.inbox``
 which, when relative, lies inside ``state_dir``.
@@ -333,6 +335,19 @@ class AlertsConfig:
 
 
 @dataclass(frozen=True)
+class ComputeConfig:
+    """Where the daemon's calibrations are simulated (:mod:`grassd.daemon.calibration.remote`):
+    ``scheduler`` None here (needs Taichi, ``grassd[sim]``), else the address of a
+    dask.distributed scheduler (``"tcp://host:8786"``) whose workers have ``grassd[sim]``.
+    ``connect_timeout_s`` [s]: how long connecting to it may take; ``worker_wait_s`` [s]: how
+    long a run waits while the cluster has no worker. Either failing defers the bundle."""
+
+    scheduler: str | None = None
+    connect_timeout_s: float = 10.0
+    worker_wait_s: float = 60.0
+
+
+@dataclass(frozen=True)
 class Config:
     """The whole validated configuration. ``source`` is the file it came from."""
 
@@ -353,6 +368,7 @@ class Config:
     retention: RetentionConfig = RetentionConfig()
     metrics: MetricsConfig = MetricsConfig()
     alerts: AlertsConfig = AlertsConfig()
+    compute: ComputeConfig = ComputeConfig()
     #: the capture station (:mod:`grassd.daemon.config.capture`), None without [capture]
     capture: CaptureConfig | None = None
 
@@ -477,7 +493,7 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         "simulation": _F(dict, {}), "calibration": _F(dict, {}),
         "tables": _F(dict, {}), "audience": _F(dict, None), "retention": _F(dict, {}),
         "metrics": _F(dict, {}), "alerts": _F(dict, {}),
-        "capture": _F(dict, None),
+        "capture": _F(dict, None), "compute": _F(dict, {}),
     })
     site = _parse_site(ctx, top["site"])
     display = _parse_display(ctx, top["display"])
@@ -509,7 +525,8 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
                   cache_dir=cache_dir,
                   control_socket=sock, source=ctx.source, tables=tables, audience=audience,
                   retention=retention, metrics=metrics, alerts=alerts,
-                  capture=_capture_section(ctx, top["capture"]))
+                  capture=_capture_section(ctx, top["capture"]),
+                  compute=_parse_compute(ctx, top["compute"]))
 
 
 def _parse_site(ctx: _Ctx, raw: Any) -> SiteConfig:
@@ -760,6 +777,26 @@ def _parse_operator(ctx: _Ctx, metrics_raw: Any, alerts_raw: Any
         min_interval_s=_F(float, check=_non_negative), timeout_s=_F(float, check=_positive),
     ))
     return MetricsConfig(textfile=textfile), AlertsConfig(**a)
+
+
+#: the address forms of a dask.distributed scheduler: protocol://host:port
+_SCHEDULER_RE = re.compile(r"^(tcp|tls|ws|wss|ucx)://([^\s/:]+|\[[0-9A-Fa-f:.]+\]):\d{1,5}$")
+
+
+def _scheduler_address(v: str) -> str | None:
+    if _SCHEDULER_RE.match(v):
+        return None
+    return (f"must be a Dask scheduler address such as \"tcp://host:8786\" (protocol tcp, tls, "
+            f"ws, wss or ucx, then host:port), got {v!r}")
+
+
+def _parse_compute(ctx: _Ctx, raw: Any) -> ComputeConfig:
+    """``[compute]``: the scheduler address (absent: simulate here) and its timeouts [s]."""
+    return ComputeConfig(**_table(ctx, ("compute",), raw, _schema(
+        ComputeConfig, scheduler=_F(str, check=_scheduler_address),
+        connect_timeout_s=_F(float, check=_between(0.1, 3600.0, " s")),
+        worker_wait_s=_F(float, check=_between(0.0, 86400.0, " s")),
+    )))
 
 
 def _shell_words(v: str) -> str | None:

@@ -53,11 +53,8 @@ from pathlib import Path
 from typing import Any
 
 from grassd import __version__
-from grassd.daemon.calibration.calibrate import (
-    CalibrationResult,
-    Calibrator,
-    init_backend,
-)
+from grassd.daemon.calibration.calibrate import CalibrationResult, init_backend
+from grassd.daemon.calibration.remote import calibrator_for
 from grassd.daemon.config.settings import (
     Config,
     load_config,
@@ -65,6 +62,7 @@ from grassd.daemon.config.settings import (
 )
 from grassd.daemon.errors import (
     USER_ERRORS,
+    ComputeUnavailable,
     ConfigError,
     DaemonError,
     RunInterrupted,
@@ -97,6 +95,7 @@ from grassd.daemon.store.ingest import Bundle, CheckerPhoto, Inbox
 from grassd.daemon.store.layout import StateLayout
 from grassd.daemon.store.quarantine import retry_request
 from grassd.firmware_proto.client import RetryPolicy
+from grassd.sim.errors import SimError
 from grassd.sim.light_input import LightInput
 
 log = logging.getLogger(__name__)
@@ -187,7 +186,8 @@ class Service:
         # `grassd controllers` may talk on other ports while we run (see statelock)
         self.lock.note_ports(cfg.serial_ports)
         self.sensor = LuxSensor(cfg.light.modbus) if cfg.light.modbus is not None else None
-        self.calibrator = Calibrator(cfg)
+        #: runs the calibrations: here (Taichi), or on the Dask cluster of [compute] scheduler
+        self.calibrator = calibrator_for(cfg)
         self.reports_dir = StateLayout(cfg.state_dir).reports
         self.reports_dir.mkdir(parents=True, exist_ok=True)
         self.operator.configure(cfg)
@@ -222,8 +222,7 @@ class Service:
         self._install_signals()
         for note in not_used_by_the_daemon(self.cfg):
             log.warning("config: %s", note)
-        self._progress("initialising the renderer")
-        init_backend(self.cfg)
+        self._init_renderer()
         abandoned = self.history.abandon_running("daemon stopped or crashed during the run")
         if abandoned:
             log.warning("%d run(s) left unfinished by the previous daemon marked failed",
@@ -372,7 +371,7 @@ class Service:
         the newest, the result is ``{"status": "superseded", ...}`` and the CLI exits 2 with
         the reason. Without a bundle the run uses the latest applied bundle's light, which
         is never older."""
-        init_backend(self.cfg)
+        self._init_renderer()
         self.history.abandon_running("daemon stopped or crashed during the run")
         self.inbox.settle_s = 0.0
         bundles = sorted(self.inbox.recover() + self.inbox.poll(), key=light_time,
@@ -381,6 +380,16 @@ class Service:
         out = results[0] if results else self.scheduled_run("request", force=force)
         self.reconcile()
         return out
+
+    def _init_renderer(self) -> None:
+        """Initialise Taichi here unless ``[compute] scheduler`` sends the simulations to a
+        Dask cluster (then this computer needs no Taichi). Idempotent."""
+        if self.cfg.compute.scheduler is None:
+            from grassd.sim import backend  # RendererMissing where Taichi is not installed
+
+            if not backend.is_initialised():
+                self._progress("initialising the renderer")
+            init_backend(self.cfg)
 
     # ------------------------------------------------------------------ reload
     def reload(self) -> bool:
@@ -415,7 +424,9 @@ class Service:
         old = self.cfg
         try:
             self._build(new)
-        except (OSError, DaemonError) as exc:  # valid, but cannot be set up (e.g. the inbox)
+            self._init_renderer()  # without [compute] scheduler now: Taichi here, if it can
+        except (OSError, DaemonError, SimError) as exc:  # valid, but cannot be set up (e.g.
+            # the inbox, or a renderer that this computer has not)
             self._build(old)
             self.reload_error = f"{self.config_path}: {exc}"
             log.error("reload refused, keeping the old configuration: %s", exc)
@@ -526,6 +537,10 @@ class Service:
         except RunInterrupted as exc:
             self.history.finish_run(run_id, "failed", error=str(exc))
             return {"status": "interrupted", "run_id": run_id, "error": str(exc)}
+        except ComputeUnavailable as exc:  # the cluster, not the input: a bundle waits
+            self.history.finish_run(run_id, "failed", error=str(exc))
+            log.warning("run %d could not be computed: %s", run_id, exc)
+            return {"status": "failed", "run_id": run_id, "error": str(exc), "transient": True}
         except USER_ERRORS as exc:
             self.history.finish_run(run_id, "rejected", error=str(exc))
             log.warning("run %d rejected: %s", run_id, exc)

@@ -1,0 +1,159 @@
+"""`grassd run` with ``[compute] scheduler``: a daemon that cannot import Taichi (as on Linux
+aarch64) calibrates on a real dask scheduler and worker (processes on 127.0.0.1,
+tests/dask_cluster.py) against simulated controllers (``--simulate-hardware``). The worker is
+killed in the middle of a run: the active table stays, health turns degraded with the reason,
+the bundle waits in processing/ (neither lost nor rejected), and once a worker is back the
+retry makes the new table."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from daemon_harness import CACHE, HEAD, drop
+from dask_cluster import DaskCluster
+
+from grassd.daemon.errors import ControlError
+from grassd.daemon.runtime.control import request
+
+pytest.importorskip("distributed")
+pytestmark = pytest.mark.slow
+
+#: `grassd` in a Python where ``import taichi`` fails, as where Taichi has no wheels
+NO_TAICHI = ("import sys; sys.modules['taichi'] = None; "
+             "from grassd.daemon.cli.main import main; main()")
+
+CONFIG = HEAD + """[display]
+rows = 2
+cols = 2
+[[controllers]]
+port = "/dev/grassd-test-bus0"
+address = 1
+pixels = "0-1"
+[[controllers]]
+port = "/dev/grassd-test-bus1"
+address = 2
+pixels = "2-3"
+[[viewpoints]]
+h_cm = 170
+d_m = 2
+[[viewpoints]]
+h_cm = 160
+d_m = 2
+theta_deg = 30
+weight = 0.5
+[light]
+inbox = "inbox"
+lux = "manifest"
+settle_s = 0
+[schedule]
+interval_s = 0
+[simulation]
+samples = 64
+seed = 5
+lengths = 5
+layouts = 2
+[calibration]
+replicates = 2
+check_levels = 5
+max_rounds = 2
+max_jump_mm = 20.0
+[compute]
+scheduler = "{address}"
+connect_timeout_s = 5.0
+worker_wait_s = 5.0
+"""
+
+
+def wait_for(cond, timeout_s: float, what: str, log: Path):
+    """Poll ``cond()`` until it returns a true value (returned); fail naming ``what``."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        got = cond()
+        if got:
+            return got
+        if time.monotonic() > deadline:
+            pytest.fail(f"{what} not within {timeout_s} s; daemon log:\n"
+                        + log.read_text(errors="replace")[-4000:])
+        time.sleep(0.2)
+
+
+def test_worker_killed_mid_run_keeps_the_table_and_the_retry_succeeds(tmp_path):
+    from distributed import Client
+
+    log = tmp_path / "daemon.log"
+    with DaskCluster(tmp_path / "dask", cache_dir=CACHE) as cluster:
+        cluster.add_worker("w1")
+        config = tmp_path / "grassd.toml"
+        config.write_text(CONFIG.format(address=cluster.address))
+        sock = tmp_path / "state" / "control.sock"
+        with open(log, "wb") as out:
+            daemon = subprocess.Popen(
+                [sys.executable, "-c", NO_TAICHI, "run", "--config", str(config),
+                 "--simulate-hardware", "--tick", "0.2", "--log-level", "info"],
+                stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+        try:
+            def status() -> dict | None:
+                assert daemon.poll() is None, log.read_text(errors="replace")[-4000:]
+                try:
+                    return request(sock, {"cmd": "status"}, timeout_s=10)["status"]
+                except ControlError:
+                    return None
+
+            wait_for(status, 60, "the daemon's control socket", log)
+            inbox = tmp_path / "state" / "inbox"
+            drop(inbox, "b1", lux=6000.0, timestamp="2026-06-21T10:00:00+02:00")
+            first = wait_for(lambda: (s := status()) and s["health"] == "ok"
+                             and s["desired_table"] and s, 240, "the first table", log)
+            table = first["desired_table"]
+            assert first["run_counts"]["ok"] == 1
+
+            # a second bundle; its run starts on w1 (a run lasts seconds on a warm worker),
+            # which dies as soon as the scheduler shows the run on it
+            with Client(cluster.address, timeout=10, set_as_default=False) as client:
+                drop(inbox, "b2", lux=9000.0, timestamp="2026-06-21T11:00:00+02:00")
+                wait_for(lambda: any(k.startswith("grassd-calibrate-")
+                                     for keys in client.processing().values() for k in keys),
+                         60, "the second run on the Dask worker", log)
+                cluster.kill_worker("w1")
+
+            waiting = wait_for(lambda: (s := status()) and s["waiting_bundles"] and s, 60,
+                               "the bundle waiting after the worker died", log)
+            [w] = waiting["waiting_bundles"]
+            # the daemon saw the run on w1 and w1 leave, or (killed before its first look)
+            # the cluster without a worker for worker_wait_s
+            assert w["bundle"] == "b2"
+            assert re.search(r"Dask worker tcp://127\.0\.0\.1:\d+ died or left during the run"
+                             r"|has had no worker for \d+ s", w["reason"]), w["reason"]
+            assert waiting["health"].startswith("degraded: ")
+            assert f"bundle b2 waits: {w['reason']}" in waiting["health"]
+            assert waiting["desired_table"] == table  # the last good table stays active
+            assert all(c["in_sync"] and c["table_id"] == table["table_id"]
+                       for c in waiting["controllers"])
+            assert waiting["inbox"]["processing"] == 1 and waiting["inbox"]["rejected"] == 0
+            assert waiting["run_counts"]["rejected"] == 0
+
+            cluster.add_worker("w2")  # the retry (backoff 30 s) finds a worker again
+            done = wait_for(lambda: (s := status()) and s["health"] == "ok"
+                            and s["desired_table"]["table_id"] != table["table_id"] and s,
+                            240, "the retried run's table", log)
+            assert done["waiting_bundles"] == [] and done["run_counts"]["ok"] == 2
+            assert done["inbox"] == {"inbox": 0, "processing": 0, "archive": 2, "rejected": 0}
+            assert all(c["in_sync"] and c["table_id"] == done["desired_table"]["table_id"]
+                       for c in done["controllers"])
+        finally:
+            if daemon.poll() is None:
+                os.killpg(daemon.pid, signal.SIGTERM)
+                try:
+                    assert daemon.wait(30) == 0
+                except subprocess.TimeoutExpired:
+                    os.killpg(daemon.pid, signal.SIGKILL)
+                    daemon.wait(10)
+    text = log.read_text(errors="replace")
+    assert "Traceback" not in text and "initialising the renderer" not in text
