@@ -19,19 +19,12 @@ from pathlib import Path
 
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")  # keep stdout clean for JSON
 
-from grassd.sim.errors import RendererMissing, SimError
+from grassd.sim.errors import SimError, renderer_missing
 
 try:
     import taichi as ti
 except ImportError as _exc:  # e.g. Linux aarch64: Taichi publishes no wheels for it
-    import platform as _platform
-
-    raise RendererMissing(
-        f"the renderer needs Taichi, which is not installed here ({sys.platform} "
-        f"{_platform.machine()}, Python {_platform.python_version()}: {_exc}); Taichi has "
-        "wheels for x86-64 Linux and Windows and for macOS: pip install 'grassd[sim]' there, "
-        "or set [compute] scheduler = \"tcp://host:8786\" (grassd calibrate --scheduler) to "
-        "simulate on a Dask cluster whose workers have it") from None
+    raise renderer_missing(str(_exc)) from None
 
 __all__ = ["ti", "init", "is_initialised", "default_cache_dir"]
 

@@ -19,4 +19,33 @@ class SceneError(SimError):
 
 class RendererMissing(SimError):
     """Taichi, which the renderer needs, cannot be imported here (no wheels for this platform,
-    or installed without ``grassd[sim]``); raised by :mod:`grassd.sim.backend`."""
+    or installed without ``grassd[sim]``); raised by :mod:`grassd.sim.backend` and
+    :func:`require_renderer`, worded by :func:`renderer_missing`."""
+
+
+def renderer_missing(why: str) -> RendererMissing:
+    """The one-line error of every command that needs the renderer where Taichi cannot be
+    imported (``why``: the import's own message), naming the platform and the two ways out."""
+    import platform
+    import sys
+
+    return RendererMissing(
+        f"the renderer needs Taichi, which is not installed here ({sys.platform} "
+        f"{platform.machine()}, Python {platform.python_version()}: {why}); Taichi has wheels "
+        "for x86-64 Linux and Windows and for Apple silicon macOS: pip install 'grassd[sim]' "
+        "there, or set [compute] scheduler = \"tcp://host:8786\" (grassd calibrate "
+        "--scheduler) to simulate on a Dask cluster whose workers have it")
+
+
+def require_renderer() -> None:
+    """Raise :func:`renderer_missing` unless Taichi can be imported, without importing it: for
+    a process that leaves the rendering to child processes (the studio, a local sweep), so
+    that the user reads the reason rather than a child that died."""
+    import importlib.util
+
+    try:
+        found = importlib.util.find_spec("taichi") is not None
+    except (ImportError, ValueError) as exc:
+        raise renderer_missing(str(exc)) from None
+    if not found:
+        raise renderer_missing("No module named 'taichi'")

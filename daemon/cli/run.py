@@ -312,9 +312,12 @@ def history_cmd(config_path: str | None, state_dir: str | None, limit: int,
               help="one-shot only: use simulated controllers and lux sensor")
 @click.option("--timeout", "timeout_s", type=float, default=3600.0, show_default=True,
               help="seconds to wait for the daemon's run")
+@click.option("--scheduler", metavar="ADDRESS",
+              help="one-shot only: simulate on the workers of this dask.distributed "
+                   "scheduler, e.g. tcp://host:8786 (overrides [compute] scheduler)")
 def calibrate_cmd(now: bool, wait: bool, force: bool, json_out: str | None,
                   config_path: str | None, state_dir: str | None, simulate_hardware: bool,
-                  timeout_s: float) -> None:
+                  timeout_s: float, scheduler: str | None) -> None:
     """Ask the running daemon for a calibration, or run one here when no daemon runs."""
     import json
 
@@ -323,12 +326,23 @@ def calibrate_cmd(now: bool, wait: bool, force: bool, json_out: str | None,
     from grassd.daemon.store.atomic import atomic_write_json
 
     cfg = resolve_config(config_path, state_dir)
+    if scheduler is not None:
+        import dataclasses
+
+        from grassd.daemon.config.settings import scheduler_address_problem
+
+        if (problem := scheduler_address_problem(scheduler)) is not None:
+            raise click.BadParameter(problem, param_hint="--scheduler")
+        cfg = cfg.replace(compute=dataclasses.replace(cfg.compute, scheduler=scheduler))
     try:
         ans = request(cfg.control_socket, {"cmd": "calibrate", "force": force, "wait": wait,
                                            "timeout_s": timeout_s},
                       timeout_s=timeout_s + 10 if wait else 30)
         result = ans.get("run") or {"status": "queued", "queued": ans.get("queued")}
         where = "daemon"
+        if scheduler is not None:
+            click.echo("grassd: note: the running daemon computes with its own [compute] "
+                       "scheduler; --scheduler applies to one-shot runs only", err=True)
     except DaemonNotRunning:
         from grassd.daemon.runtime.service import Service
 

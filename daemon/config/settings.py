@@ -783,7 +783,9 @@ def _parse_operator(ctx: _Ctx, metrics_raw: Any, alerts_raw: Any
 _SCHEDULER_RE = re.compile(r"^(tcp|tls|ws|wss|ucx)://([^\s/:]+|\[[0-9A-Fa-f:.]+\]):\d{1,5}$")
 
 
-def _scheduler_address(v: str) -> str | None:
+def scheduler_address_problem(v: str) -> str | None:
+    """What is wrong with ``v`` as a Dask scheduler address (``[compute] scheduler``,
+    ``grassd calibrate --scheduler``), or None when it is one."""
     if _SCHEDULER_RE.match(v):
         return None
     return (f"must be a Dask scheduler address such as \"tcp://host:8786\" (protocol tcp, tls, "
@@ -793,7 +795,7 @@ def _scheduler_address(v: str) -> str | None:
 def _parse_compute(ctx: _Ctx, raw: Any) -> ComputeConfig:
     """``[compute]``: the scheduler address (absent: simulate here) and its timeouts [s]."""
     return ComputeConfig(**_table(ctx, ("compute",), raw, _schema(
-        ComputeConfig, scheduler=_F(str, check=_scheduler_address),
+        ComputeConfig, scheduler=_F(str, check=scheduler_address_problem),
         connect_timeout_s=_F(float, check=_between(0.1, 3600.0, " s")),
         worker_wait_s=_F(float, check=_between(0.0, 86400.0, " s")),
     )))

@@ -484,6 +484,10 @@ def _run_local(spec: SweepSpec, todo: Sequence[Condition], workers: int,
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from concurrent.futures.process import BrokenProcessPool
 
+    from grassd.sim.errors import require_renderer
+
+    require_renderer()  # here, in one line, rather than as worker processes that died
+
     if workers < 1:
         raise SweepError(f"--workers must be >= 1, got {workers}")
     workers = min(workers, len(todo))

@@ -133,6 +133,9 @@ class SimulatorProcess:
     await their results (on the server's event loop)."""
 
     def __init__(self, args: StudioArgs, on_ready: Callable[[float], None]) -> None:
+        from grassd.sim.errors import require_renderer
+
+        require_renderer()  # here, in one line, rather than as a child that keeps dying
         self._args = args
         self._on_ready = on_ready
         self._jobs = itertools.count(1)
