@@ -20,6 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
+#: the paper environments' HDRIs: ``shared/hdri`` beside the repository
+HDRI_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "hdri"
+
 
 def main(argv: list[str] | None = None) -> None:
     """Run the benchmarks (``argv``: command-line flags; None = defaults, as ``python -m
@@ -34,7 +37,6 @@ def main(argv: list[str] | None = None) -> None:
         PAPER,
         VIEWPOINTS,
         ExperimentSettings,
-        default_hdri_dir,
         run_paper,
         text_report,
     )
@@ -48,7 +50,7 @@ def main(argv: list[str] | None = None) -> None:
     from grassd.sim.renderer import Renderer
 
     renderer = Renderer.shared()
-    light = LightInput(default_hdri_dir() / "interior.exr", 500.0)
+    light = LightInput(HDRI_DIR / "interior.exr", 500.0)
     lighting = light.lighting()
     lengths = np.arange(0.0, 20.01, 1.0)
     settings = RenderSettings(samples=4096, replicates=8)
@@ -85,7 +87,8 @@ def main(argv: list[str] | None = None) -> None:
 
     if args.full:
         with tempfile.TemporaryDirectory() as tmp:
-            res = run_paper(tmp, settings=ExperimentSettings(), renderer=renderer)
+            res = run_paper(tmp, settings=ExperimentSettings(), hdri_dir=HDRI_DIR,
+                            renderer=renderer)
             print(text_report(res))
 
 

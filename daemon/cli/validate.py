@@ -94,9 +94,9 @@ def experiment() -> None:
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
               default=Path("grassd-experiment"), show_default=True,
               help="Directory for the stand-in captures, report.html and report.json.")
-@click.option("--hdri-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Folder with studio/interior/forest/courtyard/city.exr "
-                   "(default: shared/hdri beside the repository).")
+@click.option("--hdri-dir", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Folder with studio/interior/forest/courtyard/city.exr (none ship with "
+                   "grassd; the project keeps CC0 ones in shared/hdri beside its sources).")
 @click.option("--quick", is_flag=True, help="Few lengths and samples: a smoke run in seconds.")
 @click.option("--env", "envs", multiple=True,
               help="Run only these environments ('Env 1' .. 'Env 5'); repeatable.")

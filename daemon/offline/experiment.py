@@ -103,11 +103,6 @@ PAPER: dict[str, Any] = {
 }
 
 
-def default_hdri_dir() -> Path:
-    """``shared/hdri`` beside the repository (``<repo>/../shared/hdri``)."""
-    return Path(__file__).resolve().parents[2].parent / "shared" / "hdri"
-
-
 @dataclass(frozen=True)
 class ExperimentSettings:
     """Sizes of the run. ``quick()`` is for tests and smoke runs (seconds, not minutes)."""
@@ -167,14 +162,18 @@ class ExperimentResult:
 
 
 def run_paper(out_dir: str | Path, *, settings: ExperimentSettings | None = None,
-              hdri_dir: str | Path | None = None, renderer: Any = None,
+              hdri_dir: str | Path, renderer: Any = None,
               progress: Callable[[str], None] | None = None) -> ExperimentResult:
-    """Run the paper's experiments; capture directories go under ``out_dir``."""
+    """Run the paper's experiments; capture directories go under ``out_dir``.
+
+    ``hdri_dir`` holds the environments' panoramas (:data:`ENVIRONMENTS`: studio, interior,
+    forest, courtyard and city.exr). None ship with the package: the project keeps CC0 ones in
+    its ``shared/hdri`` folder, beside the sources."""
     from grassd.daemon.offline.virtual_capture import capture_world
     from grassd.sim.scene import PixelSpec, RenderSettings
 
     st = settings or ExperimentSettings()
-    hdri = Path(hdri_dir) if hdri_dir is not None else default_hdri_dir()
+    hdri = Path(hdri_dir)
     envs = {e.key: e for e in ENVIRONMENTS}
     unknown = [k for k in st.environments if k not in envs]
     if unknown:
