@@ -40,43 +40,51 @@ timezone = "Europe/Berlin"
 #: short controller timeouts for tests (the simulated controllers answer at once)
 POLICY = RetryPolicy(timeout_s=0.1, retries=1, restarts=1, readback_retries=2)
 
-#: a 2 x 2 display driven by two controllers (one bus each, pixels 0-1 and 2-3), one viewpoint,
-#: lux from the manifest, low sample counts (seed 3), one closed-loop round
-DISPLAY_2X2 = HEAD + """[display]
+#: the one viewpoint of :func:`write_config`; TWO_VIEWS adds a second one off-axis
+ONE_VIEW = "[[viewpoints]]\nh_cm = 170\nd_m = 2\n"
+TWO_VIEWS = ONE_VIEW + "[[viewpoints]]\nh_cm = 165\nd_m = 3\ntheta_deg = 20\n"
+
+
+def display_2x2(head: str = HEAD, *, ports: tuple[str, str] = ("/dev/grassd-test-bus0",
+                                                                  "/dev/grassd-test-bus1"),
+                viewpoints: str = ONE_VIEW, samples: int = 256, seed: int = 3,
+                replicates: int = 4, layouts: int | None = None, max_rounds: int = 1,
+                extra: str = "") -> str:
+    """Config text after ``head``: a 2 x 2 display driven by two controllers (one bus each on
+    ``ports``, pixels 0-1 and 2-3), lux from the manifest, no schedule, few ``samples`` per
+    replicate, 5 lengths, ``max_rounds`` closed-loop rounds; ``extra`` (further tables) last."""
+    sim = f"samples = {samples}\nseed = {seed}\nlengths = 5\n"
+    if layouts is not None:
+        sim += f"layouts = {layouts}\n"
+    return head + f"""[display]
 rows = 2
 cols = 2
 [[controllers]]
-port = "/dev/grassd-test-bus0"
+port = "{ports[0]}"
 address = 1
 pixels = "0-1"
 [[controllers]]
-port = "/dev/grassd-test-bus1"
+port = "{ports[1]}"
 address = 2
 pixels = "2-3"
-[[viewpoints]]
-h_cm = 170
-d_m = 2
-[light]
+{viewpoints}[light]
 inbox = "inbox"
 lux = "manifest"
 settle_s = 0
 [schedule]
 interval_s = 0
 [simulation]
-samples = 256
-seed = 3
-lengths = 5
-[calibration]
-replicates = 4
+{sim}[calibration]
+replicates = {replicates}
 max_jump_mm = 20.0
 check_levels = 5
-max_rounds = 1
-"""
+max_rounds = {max_rounds}
+{extra}"""
 
 
-#: the one viewpoint of :func:`write_config`; TWO_VIEWS adds a second one off-axis
-ONE_VIEW = "[[viewpoints]]\nh_cm = 170\nd_m = 2\n"
-TWO_VIEWS = ONE_VIEW + "[[viewpoints]]\nh_cm = 165\nd_m = 3\ntheta_deg = 20\n"
+#: a 2 x 2 display driven by two controllers (one bus each, pixels 0-1 and 2-3), one viewpoint,
+#: lux from the manifest, low sample counts (seed 3), one closed-loop round
+DISPLAY_2X2 = display_2x2()
 
 
 def write_config(path: Path, state: Path, cfg, extra: str = "", interval: float = 0,

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from daemon_harness import display_2x2
 
 ROOT = Path(__file__).resolve().parents[1]
 OPT = "/opt/grassd"
@@ -334,42 +335,10 @@ def _config(installed: Install, extra: str = "") -> Path:
     """A small configuration: a 2 x 2 display on two controllers, one viewpoint, cheap
     simulation settings (``run --simulate-hardware`` replaces the ports and the sensor)."""
     path = installed.work / "grassd.toml"
-    path.write_text(f"""state_dir = "state"
-cache_dir = "{CACHE}"
-[site]
-latitude = 48.1
-longitude = 11.6
-timezone = "Europe/Berlin"
-[display]
-rows = 2
-cols = 2
-[[controllers]]
-port = "/dev/grassd-test-bus0"
-address = 1
-pixels = "0-1"
-[[controllers]]
-port = "/dev/grassd-test-bus1"
-address = 2
-pixels = "2-3"
-[[viewpoints]]
-h_cm = 170
-d_m = 2
-[light]
-inbox = "inbox"
-lux = "manifest"
-settle_s = 0
-[schedule]
-interval_s = 0
-[simulation]
-samples = 64
-seed = 2
-lengths = 5
-[calibration]
-replicates = 2
-check_levels = 5
-max_rounds = 1
-max_jump_mm = 20.0
-{extra}""")
+    path.write_text(display_2x2(f'state_dir = "state"\ncache_dir = "{CACHE}"\n'
+                                '[site]\nlatitude = 48.1\nlongitude = 11.6\n'
+                                'timezone = "Europe/Berlin"\n',
+                                samples=64, seed=2, replicates=2, extra=extra))
     return path
 
 

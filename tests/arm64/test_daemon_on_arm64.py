@@ -29,7 +29,7 @@ from arm64_root import (
     missing_reason,
     run_in_root,
 )
-from daemon_harness import CACHE, drop, wait_for
+from daemon_harness import CACHE, display_2x2, drop, wait_for
 
 from grassd.daemon.errors import DaemonNotRunning
 from grassd.daemon.runtime.control import request
@@ -44,47 +44,13 @@ SITE_DIR = "/mnt/site"
 
 #: a 2 x 2 display on two controllers (one bus each), lux from the manifest, few samples: the
 #: run itself takes seconds on the worker
-CONFIG = """state_dir = "state"
-cache_dir = "cache"
-[site]
-latitude = 48.1
-longitude = 11.6
-timezone = "Europe/Berlin"
-[display]
-rows = 2
-cols = 2
-[[controllers]]
-port = "/dev/grassd-arm64-bus0"
-address = 1
-pixels = "0-1"
-[[controllers]]
-port = "/dev/grassd-arm64-bus1"
-address = 2
-pixels = "2-3"
-[[viewpoints]]
-h_cm = 170
-d_m = 2
-[light]
-inbox = "inbox"
-lux = "manifest"
-settle_s = 0
-[schedule]
-interval_s = 0
-[simulation]
-samples = 64
-seed = 3
-lengths = 5
-layouts = 2
-[calibration]
-replicates = 2
-max_jump_mm = 20.0
-check_levels = 5
-max_rounds = 1
-[compute]
-scheduler = "{scheduler}"
-connect_timeout_s = 60
-worker_wait_s = 120
-"""
+CONFIG = display_2x2(
+    'state_dir = "state"\ncache_dir = "cache"\n'
+    '[site]\nlatitude = 48.1\nlongitude = 11.6\ntimezone = "Europe/Berlin"\n',
+    ports=("/dev/grassd-arm64-bus0", "/dev/grassd-arm64-bus1"), samples=64,
+    replicates=2, layouts=2,
+    extra='[compute]\nscheduler = "{scheduler}"\nconnect_timeout_s = 60\n'
+          "worker_wait_s = 120\n")
 
 
 def _status(sock: Path) -> dict | None:

@@ -12,11 +12,11 @@ import re
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
-from daemon_harness import CACHE, HEAD, drop
+from daemon_harness import CACHE, ONE_VIEW, display_2x2, drop
+from daemon_harness import wait_for as harness_wait_for
 from dask_cluster import DaskCluster
 
 from grassd.daemon.errors import ControlError
@@ -29,59 +29,17 @@ pytestmark = pytest.mark.slow
 NO_TAICHI = ("import sys; sys.modules['taichi'] = None; "
              "from grassd.daemon.cli.main import main; main()")
 
-CONFIG = HEAD + """[display]
-rows = 2
-cols = 2
-[[controllers]]
-port = "/dev/grassd-test-bus0"
-address = 1
-pixels = "0-1"
-[[controllers]]
-port = "/dev/grassd-test-bus1"
-address = 2
-pixels = "2-3"
-[[viewpoints]]
-h_cm = 170
-d_m = 2
-[[viewpoints]]
-h_cm = 160
-d_m = 2
-theta_deg = 30
-weight = 0.5
-[light]
-inbox = "inbox"
-lux = "manifest"
-settle_s = 0
-[schedule]
-interval_s = 0
-[simulation]
-samples = 64
-seed = 5
-lengths = 5
-layouts = 2
-[calibration]
-replicates = 2
-check_levels = 5
-max_rounds = 2
-max_jump_mm = 20.0
-[compute]
-scheduler = "{address}"
-connect_timeout_s = 5.0
-worker_wait_s = 5.0
-"""
+CONFIG = display_2x2(
+    viewpoints=ONE_VIEW + "[[viewpoints]]\nh_cm = 160\nd_m = 2\ntheta_deg = 30\nweight = 0.5\n",
+    samples=64, seed=5, replicates=2, layouts=2, max_rounds=2,
+    extra='[compute]\nscheduler = "{address}"\nconnect_timeout_s = 5.0\nworker_wait_s = 5.0\n')
 
 
 def wait_for(cond, timeout_s: float, what: str, log: Path):
-    """Poll ``cond()`` until it returns a true value (returned); fail naming ``what``."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        got = cond()
-        if got:
-            return got
-        if time.monotonic() > deadline:
-            pytest.fail(f"{what} not within {timeout_s} s; daemon log:\n"
-                        + log.read_text(errors="replace")[-4000:])
-        time.sleep(0.2)
+    """:func:`daemon_harness.wait_for` with the daemon log's tail in its failure."""
+    return harness_wait_for(cond, timeout_s, what, poll=0.2,
+                            context=lambda: "daemon log:\n"
+                            + log.read_text(errors="replace")[-4000:])
 
 
 def test_worker_killed_mid_run_keeps_the_table_and_the_retry_succeeds(tmp_path):
