@@ -233,14 +233,14 @@ def solve_pose(bearings: ArrayLike, points_m: ArrayLike, *,
     if (norm <= 0).any():
         raise PoseError("a bearing is the zero vector")
     pose = _fit_pose(b / norm, xy)
-    if pose.position_m[2] <= 0:
-        raise PoseError(f"the pose puts the camera {pose.position_m[2]:.3f} m below the display "
-                        "plane: the points are matched to the bearings mirrored (check the "
-                        "corner order)")
     if not pose.rms_deg <= max_rms_deg:
         raise PoseError(f"the pose leaves an rms angular residual of {pose.rms_deg:.3g} deg "
                         f"(accepted: {max_rms_deg:g} deg): the points do not match the bearings "
                         "(wrong correspondences or display dimensions)")
+    if pose.position_m[2] <= 0:
+        raise PoseError(f"the pose puts the camera {pose.position_m[2]:.3f} m below the display "
+                        "plane: the points are matched to the bearings mirrored (check the "
+                        "corner order)")
     return pose
 
 
