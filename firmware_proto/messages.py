@@ -33,6 +33,12 @@ MAX_POSITIONS = 255
 MIN_ADDRESS, MAX_ADDRESS = 1, 247
 #: ``active_bank`` value meaning "no valid table".
 NO_BANK = 0xFF
+#: INFO ``features`` bit: the controller implements PATTERN / PATTERN_END (test patterns).
+FEATURE_PATTERNS = 0x0001
+#: Payload bytes of INFO before ``features`` existed (controllers without any feature bit).
+INFO_V1_BASE_BYTES = 16
+#: Most lengths one PATTERN frame carries (payload minus timeout_ds and first_pixel, 2 B each).
+MAX_PATTERN_PIXELS = (MAX_PAYLOAD - 4) // 2
 
 
 class MsgType(IntEnum):
@@ -45,6 +51,8 @@ class MsgType(IntEnum):
     TABLE_COMMIT = 0x05
     SET_LEVEL = 0x06
     GET_POSITIONS = 0x07
+    PATTERN = 0x08
+    PATTERN_END = 0x09
     INFO = 0x81
     TABLE_STATUS = 0x82
     POSITIONS = 0x87
@@ -149,10 +157,15 @@ class Hello(Message):
 
 @dataclass(frozen=True)
 class Info(Message):
-    """Response to HELLO: versions and capacities of a controller."""
+    """Response to HELLO: versions, capacities and optional features of a controller.
+
+    ``features`` (u16, a bit set, :data:`FEATURE_PATTERNS` = bit 0) came after the first v1
+    controllers, whose INFO ends before it: :meth:`unpack` takes that 16-byte payload as
+    ``features`` = 0, and ignores bytes after the fields it knows (later additions).
+    """
 
     TYPE: ClassVar[MsgType] = MsgType.INFO
-    _FMT: ClassVar[str] = "<BBBBIHHHH"
+    _FMT: ClassVar[str] = "<BBBBIHHHHH"
     protocol_version: int
     fw_major: int
     fw_minor: int
@@ -162,11 +175,28 @@ class Info(Message):
     table_capacity: int  #: 256-entry tables one bank holds
     max_chunk: int  #: largest TABLE_CHUNK data accepted (bytes)
     max_length_um: int  #: longest grass the mechanism reaches (micrometres)
+    features: int = 0  #: bit set of optional features (FEATURE_*); 0 from older controllers
 
     @property
     def firmware_version(self) -> str:
         """Firmware version as ``"major.minor.patch"``."""
         return f"{self.fw_major}.{self.fw_minor}.{self.fw_patch}"
+
+    @property
+    def supports_patterns(self) -> bool:
+        """True when the controller takes PATTERN / PATTERN_END (raw lengths, watchdog)."""
+        return bool(self.features & FEATURE_PATTERNS)
+
+    @classmethod
+    def unpack(cls, payload: bytes) -> Message:
+        """Decode INFO of 16 bytes (``features`` = 0) or of 18 and more (extra bytes ignored)."""
+        size = struct.calcsize(cls._FMT)
+        if len(payload) == INFO_V1_BASE_BYTES:
+            return cls(*struct.unpack(cls._FMT[:-1], payload), features=0)
+        if len(payload) < size:
+            raise FrameError(f"Info payload is {len(payload)} bytes, expected "
+                             f"{INFO_V1_BASE_BYTES} or at least {size}")
+        return cls(*struct.unpack(cls._FMT, payload[:size]))
 
 
 @dataclass(frozen=True)
@@ -274,6 +304,34 @@ class Positions(Message):
 
 
 @dataclass(frozen=True)
+class Pattern(Message):
+    """Request: drive pixel ``first_pixel + i`` to raw length ``lengths[i]`` (u16 LE bytes,
+    micrometres), bypassing the active table; enter pattern mode, which ends by itself
+    ``timeout_ds`` tenths of a second after the last PATTERN (PROTOCOL.md §3, test patterns)."""
+
+    TYPE: ClassVar[MsgType] = MsgType.PATTERN
+    _FMT: ClassVar[str] = "<HH"
+    _TAIL: ClassVar[str] = "lengths"
+    _TAIL_MIN: ClassVar[int] = 2
+    _TAIL_MAX: ClassVar[int] = 2 * MAX_PATTERN_PIXELS
+    _TAIL_STEP: ClassVar[int] = 2
+    timeout_ds: int  #: watchdog, tenths of a second (1..65535)
+    first_pixel: int
+    lengths: bytes  #: u16 little-endian per pixel, micrometres
+
+    def lengths_um(self) -> list[int]:
+        """The lengths (micrometres), one per pixel from ``first_pixel``."""
+        return [v for (v,) in struct.iter_unpack("<H", self.lengths)]
+
+
+@dataclass(frozen=True)
+class PatternEnd(Message):
+    """Request: leave pattern mode; every pixel returns to normal display at once."""
+
+    TYPE: ClassVar[MsgType] = MsgType.PATTERN_END
+
+
+@dataclass(frozen=True)
 class Ack(Message):
     """Response: the request of type ``request_type`` was carried out."""
 
@@ -297,7 +355,7 @@ class Nak(Message):
 MESSAGE_CLASSES: dict[int, type[Message]] = {
     cls.TYPE: cls
     for cls in (Hello, Info, GetStatus, TableStatus, TableBegin, TableChunk, TableCommit,
-                SetLevel, GetPositions, Positions, Ack, Nak)
+                SetLevel, GetPositions, Pattern, PatternEnd, Positions, Ack, Nak)
 }
 
 #: Response types a request may be answered with (besides NAK).
@@ -309,6 +367,8 @@ RESPONSE_TYPES: dict[int, MsgType] = {
     MsgType.TABLE_COMMIT: MsgType.ACK,
     MsgType.SET_LEVEL: MsgType.ACK,
     MsgType.GET_POSITIONS: MsgType.POSITIONS,
+    MsgType.PATTERN: MsgType.ACK,
+    MsgType.PATTERN_END: MsgType.ACK,
 }
 
 

@@ -21,6 +21,8 @@ from grassd.firmware_proto.codec import Frame, encode_frame, parse_header
 from grassd.firmware_proto.crc import crc32_iso_hdlc
 from grassd.firmware_proto.errors import FrameError, SimulatorError
 from grassd.firmware_proto.messages import (
+    FEATURE_PATTERNS,
+    INFO_V1_BASE_BYTES,
     MAX_ADDRESS,
     MAX_CHUNK_DATA,
     MAX_POSITIONS,
@@ -37,6 +39,8 @@ from grassd.firmware_proto.messages import (
     MsgType,
     Nak,
     NakCode,
+    Pattern,
+    PatternEnd,
     Positions,
     SetLevel,
     StagingState,
@@ -65,6 +69,9 @@ class ControllerConfig:
     speed_um_s: float = 20_000.0  #: motor speed limit, micrometres per second
     encoder_um: float = 12.5  #: encoder resolution, micrometres per count
     boot_s: float = 0.0  #: after power-on the controller ignores the bus this long (seconds)
+    #: implements test patterns (PATTERN / PATTERN_END, INFO features bit 0); False answers
+    #: as a controller from before them: 16-byte INFO, NAK UNKNOWN_TYPE to 0x08 / 0x09
+    patterns: bool = True
 
     def __post_init__(self) -> None:
         if not MIN_ADDRESS <= self.address <= MAX_ADDRESS:
@@ -108,6 +115,14 @@ def bus_pixels(what: str, addresses: Sequence[int],
     return pixels
 
 
+@dataclass(frozen=True)
+class _InfoBeforeFeatures(Info):
+    """INFO as controllers from before the ``features`` field send it (16 bytes)."""
+
+    def pack(self) -> bytes:
+        return super().pack()[:INFO_V1_BASE_BYTES]
+
+
 @dataclass
 class _Transfer:
     begin: TableBegin
@@ -122,7 +137,9 @@ class _Transfer:
 class Controller:
     """One controller: protocol state machine, two-bank store, motors. Thread-safe.
 
-    ``clock`` gives seconds (monotonic); it drives motion and the boot delay.
+    ``clock`` gives seconds (monotonic); it drives motion, the boot delay and the test
+    pattern's watchdog (which ends pattern mode at its deadline whenever the controller is
+    next looked at: a frame, or :meth:`positions_um`).
     """
 
     def __init__(self, config: ControllerConfig, eeprom_path: str | Path,
@@ -135,6 +152,8 @@ class Controller:
         n = config.n_pixels
         self._pos = np.zeros(n)  # physical positions survive a reboot
         self._target = np.zeros(n)
+        self._normal = np.zeros(n)  # targets of normal display (shown when no pattern is)
+        self._pattern_until: float | None = None  # clock time the pattern's watchdog ends it
         self._t = clock()
         self.boots = 0
         self.boot()
@@ -153,6 +172,8 @@ class Controller:
             self.transfer: _Transfer | None = None
             self._last: tuple[int, int, bytes] | None = None  # (seq, body crc, reply)
             self._target = self._pos.copy()  # motors stop where they are
+            self._normal = self._target.copy()
+            self._pattern_until = None  # pattern mode lives in RAM only
             self._ready_at = self.clock() + self.config.boot_s
             self.boots += 1
 
@@ -171,6 +192,19 @@ class Controller:
         """Copy of the table the controller uses now (um), or None."""
         with self._lock:
             return None if self.table is None else self.table.copy()
+
+    @property
+    def in_pattern(self) -> bool:
+        """True while a test pattern is shown (after advancing the watchdog to now)."""
+        with self._lock:
+            self._advance()
+            return self._pattern_until is not None
+
+    def targets_um(self) -> np.ndarray:
+        """Every pixel's target (um) the motors drive towards now."""
+        with self._lock:
+            self._advance()
+            return np.round(self._target)
 
     def positions_um(self) -> np.ndarray:
         """Encoder readings of every pixel (um), after advancing the motion to now."""
@@ -195,6 +229,7 @@ class Controller:
         with self._lock:
             if self.clock() < self._ready_at:
                 return None
+            self._advance()  # a pattern whose watchdog ran out ends before this frame
             key = (header.seq, crc32_iso_hdlc(body))
             if self._last is not None and self._last[:2] == key:
                 return self._last[2]
@@ -215,21 +250,30 @@ class Controller:
         try:
             msg = unpack_payload(msg_type, payload)
         except FrameError:
-            known = msg_type in MsgType.__members__.values()
+            known = msg_type in MsgType.__members__.values() and self._knows(msg_type)
             code = NakCode.BAD_PAYLOAD if known else NakCode.UNKNOWN_TYPE
             return Nak(msg_type, code, len(payload))
+        if not self._knows(msg_type):
+            return Nak(msg_type, NakCode.UNKNOWN_TYPE, len(payload))
         handler = {
             Hello: self._hello, GetStatus: self._status, TableBegin: self._begin,
             TableChunk: self._chunk, TableCommit: self._commit, SetLevel: self._set_level,
-            GetPositions: self._get_positions,
+            GetPositions: self._get_positions, Pattern: self._pattern,
+            PatternEnd: self._pattern_end,
         }[type(msg)]
         return handler(msg)
+
+    def _knows(self, msg_type: int) -> bool:
+        return self.config.patterns or msg_type not in (MsgType.PATTERN, MsgType.PATTERN_END)
 
     # --- handlers -------------------------------------------------------------------------
     def _hello(self, _: Hello) -> Message:
         c = self.config
+        if not c.patterns:
+            return _InfoBeforeFeatures(PROTOCOL_VERSION, *c.firmware_version, c.uid, c.n_pixels,
+                                       c.capacity, c.max_chunk, c.max_length_um)
         return Info(PROTOCOL_VERSION, *c.firmware_version, c.uid, c.n_pixels, c.capacity,
-                    c.max_chunk, c.max_length_um)
+                    c.max_chunk, c.max_length_um, FEATURE_PATTERNS)
 
     def _status(self, _: GetStatus) -> Message:
         h, t = self.active_header, self.transfer
@@ -311,10 +355,38 @@ class Controller:
         levels = np.frombuffer(m.levels, dtype=np.uint8)
         pixels = np.arange(m.first_pixel, m.first_pixel + levels.size)
         if self.table.ndim == 1:
-            self._target[pixels] = self.table[levels]
+            self._normal[pixels] = self.table[levels]
         else:
-            self._target[pixels] = self.table[pixels, levels]
+            self._normal[pixels] = self.table[pixels, levels]
+        if self._pattern_until is None:  # a pattern holds every pixel until it ends
+            self._target[pixels] = self._normal[pixels]
         return Ack(m.TYPE)
+
+    def _pattern(self, m: Pattern) -> Message:
+        n = self.config.n_pixels
+        if m.timeout_ds == 0:
+            return Nak(m.TYPE, NakCode.BAD_PAYLOAD, 0)
+        lengths = np.asarray(m.lengths_um())
+        if m.first_pixel + lengths.size > n:
+            return Nak(m.TYPE, NakCode.BAD_PIXEL, n)
+        over = np.flatnonzero(lengths > self.config.max_length_um)
+        if over.size:
+            return Nak(m.TYPE, NakCode.VALUE_RANGE, int(over[0]))
+        self._advance()
+        self._target[m.first_pixel:m.first_pixel + lengths.size] = lengths
+        self._pattern_until = self.clock() + m.timeout_ds / 10  # (re-)armed
+        return Ack(m.TYPE)
+
+    def _pattern_end(self, m: PatternEnd) -> Message:
+        self._advance()
+        self._end_pattern()
+        return Ack(m.TYPE)
+
+    def _end_pattern(self) -> None:
+        """Every pixel back to normal display (a no-op outside pattern mode)."""
+        if self._pattern_until is not None:
+            self._target = self._normal.copy()
+            self._pattern_until = None
 
     def _get_positions(self, m: GetPositions) -> Message:
         n = self.config.n_pixels
@@ -329,10 +401,17 @@ class Controller:
 
     # --- motion ---------------------------------------------------------------------------
     def _advance(self) -> None:
-        """Move every motor towards its target for the time elapsed, at most speed_um_s."""
+        """Move every motor towards its target for the time elapsed, at most speed_um_s;
+        a pattern whose watchdog ran out ends at its deadline, on the way."""
         now = self.clock()
+        if self._pattern_until is not None and now >= self._pattern_until:
+            self._move(self._pattern_until)
+            self._end_pattern()
+        self._move(now)
+
+    def _move(self, now: float) -> None:
         step = self.config.speed_um_s * max(0.0, now - self._t)
-        self._t = now
+        self._t = max(self._t, now)
         self._pos += np.clip(self._target - self._pos, -step, step)
 
     def _encoder(self) -> np.ndarray:

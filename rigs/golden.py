@@ -14,6 +14,9 @@ Files:
   garbage between frames together with the frames a receiver must extract from it.
 * ``transfer.json``: a complete table push (HELLO, GET_STATUS, BEGIN, CHUNKs, COMMIT,
   GET_STATUS) as exchanged with the reference firmware, request and answer per step.
+* ``pattern.json``: test patterns (PATTERN, PATTERN_END) with the reference firmware: raw
+  lengths with and without a table, the NAKs, a table push and SET_LEVEL held by the pattern,
+  PATTERN_END restoring table[level]; request and answer per step.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from grassd import firmware_proto
 from grassd.firmware_proto.codec import Frame, encode_frame, parse_body
 from grassd.firmware_proto.crc import crc32_iso_hdlc
 from grassd.firmware_proto.messages import (
+    FEATURE_PATTERNS,
     MESSAGE_CLASSES,
     Ack,
     GetPositions,
@@ -40,6 +44,8 @@ from grassd.firmware_proto.messages import (
     MsgType,
     Nak,
     NakCode,
+    Pattern,
+    PatternEnd,
     Positions,
     SetLevel,
     TableBegin,
@@ -91,7 +97,10 @@ def _messages() -> dict:
     crc = table_crc(t)
     frames = [
         ("hello", Frame(1, 0x0001, Hello())),
-        ("info", Frame(1, 0x0001, Info(1, 1, 0, 0, 0x6A5D0001, 16, 16, 256, 20000))),
+        ("info", Frame(1, 0x0001, Info(1, 1, 0, 0, 0x6A5D0001, 16, 16, 256, 20000,
+                                       FEATURE_PATTERNS)),
+         "features bit 0: test patterns (a controller from before features sends the first "
+         "16 payload bytes only, read as features 0)"),
         ("get_status", Frame(1, 0x0002, GetStatus())),
         ("table_status_none", Frame(1, 0x0002, TableStatus(0xFF, 0, 0, 0, 0, 0, 0, 0)),
          "no valid table committed yet"),
@@ -104,6 +113,12 @@ def _messages() -> dict:
         ("get_positions", Frame(5, 0x0007, GetPositions(0, 2))),
         ("positions", Frame(5, 0x0007, Positions(0, bytes.fromhex("e02ee02e00000000"))),
          "pixel 0 at 12000 um target 12000, pixel 1 at 0 target 0"),
+        ("pattern", Frame(5, 0x0008, Pattern(30, 1, _lengths([5000, 20000]))),
+         "pixels 1 and 2 to 5 mm and 20 mm for 3.0 s after this frame"),
+        ("pattern_end", Frame(5, 0x0009, PatternEnd())),
+        ("nak_pattern_value_range", Frame(5, 0x0008, Nak(MsgType.PATTERN, NakCode.VALUE_RANGE,
+                                                          1)),
+         "the second length of the frame is over max_length_um"),
         ("ack", Frame(1, 0x0004, Ack(MsgType.TABLE_CHUNK))),
         ("nak_incomplete", Frame(1, 0x0005, Nak(MsgType.TABLE_COMMIT, NakCode.INCOMPLETE, 256)),
          "commit refused: bytes from offset 256 missing"),
@@ -145,22 +160,23 @@ def _framing() -> dict:
     }
 
 
-def _transfer() -> dict:
+def _lengths(um: list[int]) -> bytes:
+    return np.asarray(um, dtype="<u2").tobytes()
+
+
+def _conversation(requests: list, seq0: int) -> list[dict]:
+    """Each request (seq ``seq0 + i``) to a fresh controller at address 3 (16 pixels, clock
+    stopped at 0: no motion, no watchdog), with the answer's wire bytes and meaning."""
     from grassd.firmware_proto.framing import FrameReader
     from grassd.rigs.firmware import Controller, ControllerConfig
 
-    t = example_table()
-    data, crc = table_bytes(t), table_crc(t)
-    requests = [Hello(), GetStatus(), TableBegin(0x2A, TableKind.GLOBAL, 1, len(data), crc)]
-    requests += [TableChunk(0x2A, o, data[o:o + n]) for o, n in chunk_spans(len(data), 256)]
-    requests += [TableCommit(0x2A, crc), GetStatus()]
     steps = []
     with tempfile.TemporaryDirectory() as tmp:
         ctl = Controller(ControllerConfig(address=3, n_pixels=16), Path(tmp) / "e.eeprom",
                          clock=lambda: 0.0)
         reader = FrameReader()
         for i, req in enumerate(requests):
-            frame = Frame(3, 0x0100 + i, req)
+            frame = Frame(3, seq0 + i, req)
             wire = encode_frame(frame)
             (body,) = reader.feed(wire)
             answer = ctl.handle(body)
@@ -169,6 +185,16 @@ def _transfer() -> dict:
                           "answer": {"hex": answer.hex(),
                                      "meaning": frame_to_meaning(parse_body(answer_body))}})
         ctl.close()
+    return steps
+
+
+def _transfer() -> dict:
+    t = example_table()
+    data, crc = table_bytes(t), table_crc(t)
+    requests = [Hello(), GetStatus(), TableBegin(0x2A, TableKind.GLOBAL, 1, len(data), crc)]
+    requests += [TableChunk(0x2A, o, data[o:o + n]) for o, n in chunk_spans(len(data), 256)]
+    requests += [TableCommit(0x2A, crc), GetStatus()]
+    steps = _conversation(requests, 0x0100)
     return {
         "description": "A fresh controller (address 3, 16 pixels, max_chunk 256) receives the "
                        "example table (level v -> round(v*20000/255) um) as table_id 0x2A in two "
@@ -179,10 +205,39 @@ def _transfer() -> dict:
     }
 
 
+def _pattern() -> dict:
+    t = example_table()
+    data, crc = table_bytes(t), table_crc(t)
+    four = GetPositions(0, 4)
+    requests = [
+        Hello(), PatternEnd(),  # ACK outside pattern mode too
+        Pattern(50, 1, _lengths([5000, 20000])), four,  # without a table
+        Pattern(50, 0, _lengths([100, 20001])),  # NAK VALUE_RANGE 1: nothing changes
+        Pattern(50, 15, _lengths([1, 2])),  # NAK BAD_PIXEL 16
+        Pattern(0, 0, _lengths([1])),  # NAK BAD_PAYLOAD 0: timeout 0
+        TableBegin(0x2A, TableKind.GLOBAL, 1, len(data), crc),
+        *[TableChunk(0x2A, o, data[o:o + n]) for o, n in chunk_spans(len(data), 256)],
+        TableCommit(0x2A, crc), SetLevel(0, bytes([0, 64, 128, 255])),
+        four,  # the pattern still holds every pixel
+        Pattern(50, 3, _lengths([7000])), four,  # re-armed; pixel 3 joins it
+        PatternEnd(), four,  # table[level] for the levels SET_LEVEL gave
+        PatternEnd(), GetStatus(),
+    ]
+    return {
+        "description": "Test patterns with a fresh controller (address 3, 16 pixels, "
+                       "max_length_um 20000, clock stopped: motors at 0, no watchdog): raw "
+                       "lengths without a table, the NAKs, the example table pushed and "
+                       "SET_LEVEL sent during the pattern (no target moves), PATTERN_END "
+                       "restoring table[level]; GET_POSITIONS shows (position, target) pairs.",
+        "table_um": t.tolist(),
+        "steps": _conversation(requests, 0x0200),
+    }
+
+
 def build_vectors() -> dict[str, dict]:
     """Every vector file's content, keyed by file name."""
     return {"messages.json": _messages(), "framing.json": _framing(),
-            "transfer.json": _transfer()}
+            "transfer.json": _transfer(), "pattern.json": _pattern()}
 
 
 def load_vectors() -> dict[str, dict]:

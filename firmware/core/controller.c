@@ -41,6 +41,7 @@ int fw_boot(fw_controller *c, const fw_hal *hal, const fw_config *cfg)
     c->xfer_open = 0;
     c->last_valid = 0;
     fw_motors_init(&c->motors, hal, cfg->n_pixels);
+    fw_pattern_boot(&c->pattern, &c->motors, cfg->n_pixels);
     return 0;
 }
 
@@ -69,7 +70,7 @@ static fw_msg on_hello(fw_controller *c)
     fw_msg m = {.type = FW_INFO};
     m.u.info = (fw_info){FW_PROTOCOL_VERSION, FW_VERSION_MAJOR, FW_VERSION_MINOR,
                          FW_VERSION_PATCH, c->cfg.uid, c->cfg.n_pixels, capacity(c),
-                         c->cfg.max_chunk, c->cfg.max_length_um};
+                         c->cfg.max_chunk, c->cfg.max_length_um, FW_FEATURE_PATTERNS};
     return m;
 }
 
@@ -198,9 +199,23 @@ static fw_msg on_set_level(fw_controller *c, const fw_set_level *s)
     for (uint16_t i = 0; i < s->levels_len; i++) {
         uint16_t p = (uint16_t)(s->first_pixel + i);
         uint16_t t = c->active.kind == FW_KIND_PER_PIXEL && p < c->active.n_tables ? p : 0;
-        fw_motor_set_target(&c->motors, p, c->table[t][s->levels[i]]);
+        fw_pattern_set_normal(&c->pattern, &c->motors, p, c->table[t][s->levels[i]]);
     }
     return ack(FW_SET_LEVEL);
+}
+
+static fw_msg on_pattern(fw_controller *c, const fw_pattern *p)
+{
+    uint32_t detail = 0;
+    int error = fw_pattern_show(&c->pattern, &c->motors, p, c->cfg.n_pixels,
+                                c->cfg.max_length_um, c->hal->millis(c->hal->ctx), &detail);
+    return error ? nak(FW_PATTERN, (uint8_t)error, detail) : ack(FW_PATTERN);
+}
+
+static fw_msg on_pattern_end(fw_controller *c)
+{
+    fw_pattern_end(&c->pattern, &c->motors, c->cfg.n_pixels);
+    return ack(FW_PATTERN_END);
 }
 
 /* POSITIONS is built in place in c->wire; returns the payload length, or 0 with *refusal set. */
@@ -230,6 +245,7 @@ static size_t on_get_positions(fw_controller *c, const fw_get_positions *g, uint
 
 size_t fw_handle_body(fw_controller *c, const uint8_t *body, size_t n)
 {
+    fw_poll(c);   /* a pattern whose watchdog ran out ends before this frame */
     if (n < FW_HEADER_SIZE)
         return 0;
     uint8_t version = body[FW_HEADER_VERSION], address = body[FW_HEADER_ADDRESS];
@@ -263,6 +279,8 @@ size_t fw_handle_body(fw_controller *c, const uint8_t *body, size_t n)
             case FW_TABLE_CHUNK: ans = on_chunk(c, &req.u.table_chunk); break;
             case FW_TABLE_COMMIT: ans = on_commit(c, &req.u.table_commit); break;
             case FW_SET_LEVEL: ans = on_set_level(c, &req.u.set_level); break;
+            case FW_PATTERN: ans = on_pattern(c, &req.u.pattern); break;
+            case FW_PATTERN_END: ans = on_pattern_end(c); break;
             case FW_GET_POSITIONS:
                 out_payload = on_get_positions(c, &req.u.get_positions, out + FW_HEADER_SIZE, &ans);
                 if (out_payload)
@@ -296,6 +314,11 @@ int fw_rx_feed(fw_controller *c, const uint8_t *data, size_t n)
         }
     }
     return type;
+}
+
+int fw_poll(fw_controller *c)
+{
+    return fw_pattern_poll(&c->pattern, &c->motors, c->cfg.n_pixels, c->hal->millis(c->hal->ctx));
 }
 
 void fw_tick(fw_controller *c)

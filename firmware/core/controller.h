@@ -12,6 +12,7 @@
 #include "limits.h"
 #include "motor.h"
 #include "msg.h"
+#include "pattern.h"
 
 #define FW_VERSION_MAJOR 1
 #define FW_VERSION_MINOR 0
@@ -58,6 +59,7 @@ typedef struct fw_controller {
     uint16_t last_len;
     uint8_t wire[FW_MAX_WIRE + FW_WIRE_SLACK];
     fw_motors motors;
+    fw_pattern_state pattern;   /* test patterns: RAM only, normal display after a boot */
 } fw_controller;
 
 /* Power-on: check the configuration, select the active bank, load its table, forget all RAM
@@ -77,5 +79,10 @@ size_t fw_handle_body(fw_controller *c, const uint8_t *body, size_t n);
  * of higher priority than the UART, so that no frame can delay it). What it shares with the
  * frame handlers (the motors' targets) they only touch inside fw_irq_save / fw_irq_restore. */
 void fw_tick(fw_controller *c);
+/* The test pattern's watchdog (PROTOCOL.md section 3): call it from the main loop, often (a
+ * pattern ends no later than its timeout plus the loop's period; every frame polls it too).
+ * Returns 1 when it just ended a pattern, i.e. moved targets: a port whose motor loop rests
+ * while no motor moves must wake it then. Main context, as fw_rx_feed. */
+int fw_poll(fw_controller *c);
 
 #endif

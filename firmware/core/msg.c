@@ -9,7 +9,8 @@ static const layout layouts[] = {
     {FW_HELLO, 0, 0, 0, 0},          {FW_GET_STATUS, 0, 0, 0, 0},
     {FW_TABLE_BEGIN, 15, 0, 0, 0},   {FW_TABLE_CHUNK, 8, 1, FW_MAX_CHUNK_DATA, 1},
     {FW_TABLE_COMMIT, 8, 0, 0, 0},   {FW_SET_LEVEL, 2, 1, FW_MAX_PAYLOAD - 2u, 1},
-    {FW_GET_POSITIONS, 4, 0, 0, 0},  {FW_INFO, 16, 0, 0, 0},
+    {FW_GET_POSITIONS, 4, 0, 0, 0},  {FW_PATTERN, 4, 2, 2u * FW_MAX_PATTERN_PIXELS, 2},
+    {FW_PATTERN_END, 0, 0, 0, 0},    {FW_INFO, 18, 0, 0, 0},
     {FW_TABLE_STATUS, 21, 0, 0, 0},  {FW_POSITIONS, 2, 0, 4u * FW_MAX_POSITIONS, 4},
     {FW_ACK, 1, 0, 0, 0},            {FW_NAK, 6, 0, 0, 0},
 };
@@ -46,7 +47,7 @@ int fw_msg_unpack(uint8_t type, const uint8_t *p, size_t n, fw_msg *m)
         x->protocol_version = p[0]; x->fw_major = p[1]; x->fw_minor = p[2]; x->fw_patch = p[3];
         x->uid = fw_get32(p + 4); x->n_pixels = fw_get16(p + 8);
         x->table_capacity = fw_get16(p + 10); x->max_chunk = fw_get16(p + 12);
-        x->max_length_um = fw_get16(p + 14);
+        x->max_length_um = fw_get16(p + 14); x->features = fw_get16(p + 16);
         break;
     }
     case FW_TABLE_STATUS: {
@@ -81,6 +82,12 @@ int fw_msg_unpack(uint8_t type, const uint8_t *p, size_t n, fw_msg *m)
         m->u.get_positions.first_pixel = fw_get16(p);
         m->u.get_positions.count = fw_get16(p + 2);
         break;
+    case FW_PATTERN:
+        m->u.pattern.timeout_ds = fw_get16(p);
+        m->u.pattern.first_pixel = fw_get16(p + 2);
+        m->u.pattern.lengths = p + 4;
+        m->u.pattern.lengths_len = tail_len;
+        break;
     case FW_POSITIONS:
         m->u.positions.first_pixel = fw_get16(p);
         m->u.positions.positions = p + 2;
@@ -92,7 +99,7 @@ int fw_msg_unpack(uint8_t type, const uint8_t *p, size_t n, fw_msg *m)
     case FW_NAK:
         m->u.nak.request_type = p[0]; m->u.nak.error = p[1]; m->u.nak.detail = fw_get32(p + 2);
         break;
-    default:   /* HELLO, GET_STATUS: empty */
+    default:   /* HELLO, GET_STATUS, PATTERN_END: empty */
         break;
     }
     return FW_MSG_OK;
@@ -106,7 +113,8 @@ size_t fw_msg_pack(const fw_msg *m, uint8_t *p)
         p[0] = x->protocol_version; p[1] = x->fw_major; p[2] = x->fw_minor; p[3] = x->fw_patch;
         fw_put32(p + 4, x->uid); fw_put16(p + 8, x->n_pixels); fw_put16(p + 10, x->table_capacity);
         fw_put16(p + 12, x->max_chunk); fw_put16(p + 14, x->max_length_um);
-        return 16;
+        fw_put16(p + 16, x->features);
+        return 18;
     }
     case FW_TABLE_STATUS: {
         const fw_table_status *x = &m->u.table_status;
@@ -138,6 +146,11 @@ size_t fw_msg_pack(const fw_msg *m, uint8_t *p)
         fw_put16(p, m->u.get_positions.first_pixel);
         fw_put16(p + 2, m->u.get_positions.count);
         return 4;
+    case FW_PATTERN:
+        fw_put16(p, m->u.pattern.timeout_ds);
+        fw_put16(p + 2, m->u.pattern.first_pixel);
+        memcpy(p + 4, m->u.pattern.lengths, m->u.pattern.lengths_len);
+        return 4u + m->u.pattern.lengths_len;
     case FW_POSITIONS:
         fw_put16(p, m->u.positions.first_pixel);
         memcpy(p + 2, m->u.positions.positions, m->u.positions.positions_len);

@@ -9,7 +9,8 @@
 
 enum fw_type {
     FW_HELLO = 0x01, FW_GET_STATUS = 0x02, FW_TABLE_BEGIN = 0x03, FW_TABLE_CHUNK = 0x04,
-    FW_TABLE_COMMIT = 0x05, FW_SET_LEVEL = 0x06, FW_GET_POSITIONS = 0x07,
+    FW_TABLE_COMMIT = 0x05, FW_SET_LEVEL = 0x06, FW_GET_POSITIONS = 0x07, FW_PATTERN = 0x08,
+    FW_PATTERN_END = 0x09,
     FW_INFO = 0x81, FW_TABLE_STATUS = 0x82, FW_POSITIONS = 0x87, FW_ACK = 0x90, FW_NAK = 0x91,
 };
 
@@ -25,10 +26,16 @@ enum fw_nak {
 
 enum { FW_KIND_GLOBAL = 0, FW_KIND_PER_PIXEL = 1 };
 
+/* INFO features bits: what a controller implements beyond the first v1 messages. */
+#define FW_FEATURE_PATTERNS 0x0001u   /* PATTERN / PATTERN_END */
+/* Most lengths one PATTERN carries: payload minus timeout_ds and first_pixel, 2 bytes each. */
+#define FW_MAX_PATTERN_PIXELS ((FW_MAX_PAYLOAD - 4u) / 2u)
+
 typedef struct {
     uint8_t protocol_version, fw_major, fw_minor, fw_patch;
     uint32_t uid;
     uint16_t n_pixels, table_capacity, max_chunk, max_length_um;
+    uint16_t features;   /* FW_FEATURE_* bits */
 } fw_info;
 
 typedef struct {
@@ -50,6 +57,12 @@ typedef struct { uint32_t table_id, offset; const uint8_t *data; uint16_t data_l
 typedef struct { uint32_t table_id, table_crc; } fw_table_commit;
 typedef struct { uint16_t first_pixel; const uint8_t *levels; uint16_t levels_len; } fw_set_level;
 typedef struct { uint16_t first_pixel, count; } fw_get_positions;
+/* lengths: lengths_len / 2 x length_um:u16, little-endian, as on the wire */
+typedef struct {
+    uint16_t timeout_ds, first_pixel;
+    const uint8_t *lengths;
+    uint16_t lengths_len;
+} fw_pattern;
 /* positions: count x (position_um:u16 target_um:u16), little-endian, as on the wire */
 typedef struct { uint16_t first_pixel; const uint8_t *positions; uint16_t positions_len; } fw_positions;
 typedef struct { uint8_t request_type; } fw_ack;
@@ -65,6 +78,7 @@ typedef struct {
         fw_table_commit table_commit;
         fw_set_level set_level;
         fw_get_positions get_positions;
+        fw_pattern pattern;
         fw_positions positions;
         fw_ack ack;
         fw_nakmsg nak;

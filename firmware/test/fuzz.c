@@ -55,7 +55,7 @@ static long failures;
 /* One request body: a valid message of a random type with random fields, or a random type. */
 static size_t make_body(uint8_t *b, uint16_t seq, uint32_t table_id, uint32_t total, uint32_t crc)
 {
-    uint8_t type = (uint8_t)(below(10) == 0 ? rnd() : 1 + below(7));
+    uint8_t type = (uint8_t)(below(10) == 0 ? rnd() : 1 + below(9));
     uint8_t version = below(50) == 0 ? (uint8_t)rnd() : FW_PROTOCOL_VERSION;
     uint8_t addr = below(8) == 0 ? (uint8_t)rnd() : (uint8_t)(1 + below(N_CTL));
     fw_put_header(b, version, addr, type, seq);
@@ -100,7 +100,16 @@ static size_t make_body(uint8_t *b, uint16_t seq, uint32_t table_id, uint32_t to
         fw_put16(p + 2, (uint16_t)below(below(8) == 0 ? 0x10000 : N_PIX + 2));
         n = 4;
         break;
-    default:   /* HELLO, GET_STATUS, unknown types: random short payloads sometimes */
+    case FW_PATTERN: {   /* mostly in range, sometimes over 20000 um, timeout 0 */
+        uint32_t count = 1 + below(below(8) == 0 ? FW_MAX_PATTERN_PIXELS : N_PIX + 2);
+        fw_put16(p, (uint16_t)(below(8) == 0 ? 0 : 1 + below(below(2) ? 50 : 0xFFFF)));
+        fw_put16(p + 2, (uint16_t)below(below(8) == 0 ? 0x10000 : N_PIX + 2));
+        for (uint32_t i = 0; i < count; i++)
+            fw_put16(p + 4 + 2 * i, (uint16_t)(below(20) == 0 ? rnd() : below(20001)));
+        n = 4 + 2 * count;
+        break;
+    }
+    default:   /* HELLO, GET_STATUS, PATTERN_END, unknown types: random short payloads sometimes */
         n = below(6) == 0 ? below(40) : 0;
         for (size_t i = 0; i < n; i++)
             p[i] = (uint8_t)rnd();
@@ -189,6 +198,13 @@ static void check_answers(void)
             FAIL("active_bank %u", k->active_bank);
         if (k->xfer_open && k->xfer_received > k->xfer.total_bytes)
             FAIL("received %u of %u", (unsigned)k->xfer_received, (unsigned)k->xfer.total_bytes);
+        if (k->pattern.active > 1 || (k->pattern.active && (k->pattern.timeout_ms == 0
+                                                             || k->pattern.timeout_ms > 6553500u)))
+            FAIL("pattern state active %u timeout %u ms", k->pattern.active,
+                 (unsigned)k->pattern.timeout_ms);
+        for (uint16_t p = 0; p < k->cfg.n_pixels; p++)
+            if (k->motors.target_um[p] > k->cfg.max_length_um)
+                FAIL("pixel %u target %u um over max_length_um", p, k->motors.target_um[p]);
     }
 }
 
@@ -263,6 +279,11 @@ int main(int argc, char **argv)
         if (below(20000) == 0)
             for (int c = 0; c < N_CTL; c++)
                 fw_boot(&ctl[c], &hw[c].hal, &cfg[c]);
+        for (int c = 0; c < N_CTL; c++) {   /* time passes: test patterns' watchdogs run out */
+            hw[c].ms += below(300);
+            if (below(4) == 0)
+                fw_poll(&ctl[c]);
+        }
         uint16_t seq = (uint16_t)(below(4) == 0 ? f - 1 : f);   /* some retransmissions */
         size_t n = make_body(body, seq, table_id, total, crc);
         int kind = (int)below(4), type = body[2];

@@ -143,6 +143,71 @@ static void test_transfer(void)
           "status after reboot differs");
 }
 
+#define N_PATTERN_STEPS (sizeof pattern_steps / sizeof pattern_steps[0])
+
+/* Feed one step's request; 1 when the answer is the step's bytes. */
+static int answers_like(const vec_step *s)
+{
+    hw.out_len = 0;
+    fw_rx_feed(&ctl, s->request, s->request_len);
+    return hw.out_len == s->answer_len && memcmp(hw.out, s->answer, s->answer_len) == 0;
+}
+
+/* Pattern step i, checked to be a request of `type` (the vector file's order). */
+static const vec_step *pattern_step(size_t i, const char *type)
+{
+    CHECK(i < N_PATTERN_STEPS && strstr(pattern_steps[i].name, type) != NULL,
+          "pattern step %zu is not a %s", i, type);
+    return &pattern_steps[i < N_PATTERN_STEPS ? i : 0];
+}
+
+/* Test patterns: the vector conversation byte for byte (and retransmitted), normal display
+ * after a reboot in pattern mode, and the watchdog on hal millis across its wrap at 2^32. */
+static void test_pattern(void)
+{
+    fw_config cfg = {.address = 3, .n_pixels = 16, .uid = 0x6A5D0001u, .max_chunk = 256,
+                     .max_length_um = 20000};
+    ram_hal_init(&hw);
+    CHECK(fw_boot(&ctl, &hw.hal, &cfg) == 0, "boot");
+    for (size_t i = 0; i < N_PATTERN_STEPS; i++) {
+        const vec_step *s = &pattern_steps[i];
+        CHECK(answers_like(s), "pattern %s: answer differs (%zu bytes, expected %zu)", s->name,
+              hw.out_len, s->answer_len);
+        CHECK(answers_like(s), "pattern %s: retransmission differs", s->name);
+    }
+    /* a power cut in pattern mode: after the boot SET_LEVEL moves pixels again */
+    CHECK(answers_like(pattern_step(13, "PATTERN")) && ctl.pattern.active, "pattern again");
+    CHECK(fw_boot(&ctl, &hw.hal, &cfg) == 0 && !ctl.pattern.active, "reboot in pattern mode");
+    CHECK(answers_like(pattern_step(11, "SET_LEVEL")), "SET_LEVEL after the reboot");
+    CHECK(answers_like(pattern_step(16, "GET_POSITIONS")), "targets table[level] after reboot");
+
+    /* the watchdog: PATTERN of 5.0 s armed 4096 ms before millis wraps */
+    ram_hal_init(&hw);
+    hw.ms = 0xFFFFF000u;
+    CHECK(fw_boot(&ctl, &hw.hal, &cfg) == 0, "boot");
+    CHECK(answers_like(pattern_step(2, "PATTERN")), "PATTERN of 50 ds");
+    CHECK(answers_like(pattern_step(3, "GET_POSITIONS")), "pattern targets");
+    hw.ms += 4999u;
+    CHECK(fw_poll(&ctl) == 0 && ctl.motors.target_um[1] == 5000 && ctl.motors.target_um[2] == 20000,
+          "watchdog ended the pattern 1 ms early (ms %u)", (unsigned)hw.ms);
+    hw.ms += 1u;
+    CHECK(fw_poll(&ctl) == 1 && ctl.motors.target_um[1] == 0 && ctl.motors.target_um[2] == 0
+          && !ctl.pattern.active, "watchdog did not end the pattern after 5000 ms (ms %u)",
+          (unsigned)hw.ms);
+    CHECK(fw_poll(&ctl) == 0, "watchdog ended the pattern twice");
+    /* re-armed by each PATTERN; a frame after the deadline finds normal display already */
+    CHECK(answers_like(pattern_step(2, "PATTERN")), "PATTERN (new seq after a poll)");
+    hw.ms += 3000u;
+    CHECK(answers_like(pattern_step(13, "PATTERN")), "PATTERN re-arms");
+    hw.ms += 4000u;
+    CHECK(fw_poll(&ctl) == 0 && ctl.motors.target_um[1] == 5000, "re-armed watchdog ran early");
+    hw.ms += 1000u;
+    hw.out_len = 0;
+    fw_rx_feed(&ctl, pattern_steps[0].request, pattern_steps[0].request_len);   /* HELLO */
+    CHECK(hw.out_len > 0 && !ctl.pattern.active && ctl.motors.target_um[1] == 0
+          && ctl.motors.target_um[3] == 0, "a frame after the deadline saw the pattern");
+}
+
 /* COBS: the in-place encoder equals a separate-buffer encode, and decodes back (runs of 254). */
 static void test_cobs_runs(void)
 {
@@ -165,11 +230,12 @@ int main(void)
     test_messages();
     test_framing();
     test_transfer();
+    test_pattern();
     test_cobs_runs();
     printf("%d checks, %d failed: %zu message vectors, %zu rejected frames, %zu stream frames, "
-           "%zu transfer steps\n", checks, failures, sizeof message_vectors / sizeof message_vectors[0],
+           "%zu transfer steps, %zu pattern steps\n", checks, failures, sizeof message_vectors / sizeof message_vectors[0],
            sizeof rejected_vectors / sizeof rejected_vectors[0],
            sizeof stream_frames / sizeof stream_frames[0],
-           sizeof transfer_steps / sizeof transfer_steps[0]);
+           sizeof transfer_steps / sizeof transfer_steps[0], N_PATTERN_STEPS);
     return failures != 0;
 }

@@ -1,10 +1,11 @@
 """The C firmware answers like the Python reference, byte for byte, over long random request
 sequences: transfers with chunks in any order, out of range, oversized, retransmitted; commits
-with wrong or right CRCs and out-of-range values; levels; unknown types, other versions, bad
-payload lengths; and power cycles (the posix process restarted on its storage, the QEMU
-instance reset with its RAM storage kept, the model power-cycled). The firmware is driven over
-its real pty (through the bus relay for QEMU); GET_POSITIONS is left out (the implementations
-simulate different motors)."""
+with wrong or right CRCs and out-of-range values; levels and test patterns (PATTERN with good
+and bad timeouts, pixels and lengths, PATTERN_END) in any order; unknown types, other
+versions, bad payload lengths; and power cycles (the posix process restarted on its storage,
+the QEMU instance reset with its RAM storage kept, the model power-cycled). The firmware is
+driven over its real pty (through the bus relay for QEMU); GET_POSITIONS is left out (the
+implementations simulate different motors)."""
 
 from __future__ import annotations
 
@@ -23,6 +24,8 @@ from grassd.firmware_proto.framing import FrameReader, encode_body
 from grassd.firmware_proto.messages import (
     GetStatus,
     Hello,
+    Pattern,
+    PatternEnd,
     SetLevel,
     TableBegin,
     TableChunk,
@@ -107,8 +110,14 @@ def random_requests(rng: np.random.Generator, n: int):
         elif r < 0.8:
             msg = SetLevel(int(rng.integers(0, 4)), bytes(rng.integers(0, 256, int(
                 rng.integers(1, 5))).astype(np.uint8)))
-        elif r < 0.88:
+        elif r < 0.84:
             msg = GetStatus()
+        elif r < 0.865:  # test patterns: long watchdogs (answers never depend on it anyway)
+            count = int(rng.integers(1, 5))
+            msg = Pattern(int(rng.choice([0, 3000, 65535])), int(rng.integers(0, 4)),
+                          rng.integers(0, 21000, count).astype("<u2").tobytes())
+        elif r < 0.88:
+            msg = PatternEnd()
         elif r < 0.9:
             msg = Hello()
         else:  # malformed: unknown type, other version, wrong payload length

@@ -215,7 +215,7 @@ def test_encode_body_limits():
 
 def test_message_fields_match_spec_sizes():
     """Payload sizes as in PROTOCOL.md §3 (firmware authors size their structs from them)."""
-    sizes = {"INFO": 16, "TABLE_STATUS": 21, "TABLE_BEGIN": 15, "TABLE_COMMIT": 8, "ACK": 1,
+    sizes = {"INFO": 18, "TABLE_STATUS": 21, "TABLE_BEGIN": 15, "TABLE_COMMIT": 8, "ACK": 1,
              "NAK": 6, "GET_POSITIONS": 4, "HELLO": 0, "GET_STATUS": 0}
     for cls in MESSAGE_CLASSES.values():
         if cls.TYPE.name in sizes:

@@ -182,6 +182,8 @@ int main(void)
                 fw_stats.max_byte_type = type != FW_RX_NO_FRAME ? (uint32_t)type : NO_FRAME;
             }
         }
-        __asm volatile("wfi");
+        if (fw_poll(&ctl))   /* a test pattern's watchdog ended it: new targets */
+            wake_motor_loop();
+        __asm volatile("wfi");   /* SysTick wakes it at least every IDLE_TICK_MS */
     }
 }

@@ -406,6 +406,12 @@ int main(int argc, char **argv)
                 idle = 0;
             }
         }
+        /* a test pattern's watchdog (fw_poll) may move targets while no byte arrives */
+        for (long i = 0; i < count; i++)
+            if (fw_poll(&units[i].ctl) && idle) {
+                idle = 0;
+                last = now;   /* motors were at rest: nothing to catch up */
+            }
         /* the motor loop: one PD period per elapsed millisecond, the plants in between */
         uint64_t due = now - last;
         if (idle) {

@@ -149,4 +149,5 @@ void loop()
         n = BUS.readBytes((char *)buf, n < (int)sizeof buf ? n : (int)sizeof buf);
         fw_rx_feed(&ctl, buf, (size_t)n);
     }
+    fw_poll(&ctl);   // a test pattern's watchdog (the motor tick runs all the time here)
 }
