@@ -15,10 +15,11 @@ Typical use (the daemon reconciling one controller)::
 
 from __future__ import annotations
 
+import math
 import random
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -41,6 +42,7 @@ from grassd.firmware_proto.link import SerialLink
 from grassd.firmware_proto.messages import (
     MAX_ADDRESS,
     MAX_CHUNK_DATA,
+    MAX_PATTERN_PIXELS,
     MAX_POSITIONS,
     MIN_ADDRESS,
     RESPONSE_TYPES,
@@ -53,6 +55,8 @@ from grassd.firmware_proto.messages import (
     MsgType,
     Nak,
     NakCode,
+    Pattern,
+    PatternEnd,
     Positions,
     SetLevel,
     TableBegin,
@@ -93,7 +97,7 @@ PUSH_DEADLINE_S = 25.0
 MIN_PUSH_BYTES_PER_S = 40.0
 
 #: Largest payload of each answer type (bytes), to size timeouts at low baud rates.
-_MAX_ANSWER_PAYLOAD = {MsgType.INFO: 16, MsgType.TABLE_STATUS: 21, MsgType.ACK: 1,
+_MAX_ANSWER_PAYLOAD = {MsgType.INFO: 18, MsgType.TABLE_STATUS: 21, MsgType.ACK: 1,
                        MsgType.POSITIONS: 2 + 4 * MAX_POSITIONS}
 
 
@@ -140,11 +144,16 @@ class RetryPolicy:
                              f"{self.min_chunk_bytes!r}")
 
 
+#: Longest watchdog a test pattern may have (s): PATTERN's timeout_ds is a u16 of 0.1 s.
+MAX_PATTERN_TIMEOUT_S = 0xFFFF / 10
+
+
 class ControllerUnsupported(ProtocolError):
-    """A controller advertises limits this host will not work with (a permanent refusal of
-    the push, before anything is sent): e.g. a ``max_chunk`` below
+    """A controller advertises limits this host will not work with, or lacks a feature asked
+    for (a permanent refusal, before anything is sent): e.g. a ``max_chunk`` below
     :attr:`RetryPolicy.min_chunk_bytes`, which would let it stretch one push over thousands of
-    requests. The message says what to change on the controller."""
+    requests, or test patterns on a controller whose INFO lacks the feature bit. The message
+    says what to change on the controller."""
 
 
 class _PushDeadline(TransientError):
@@ -336,6 +345,59 @@ class ControllerClient:
             reply = self._expect(address, GetPositions(start, n), Positions)
             out.append(np.frombuffer(reply.positions, dtype="<u2").reshape(-1, 2))
         return np.concatenate(out).astype(np.uint16)
+
+    # --- test patterns --------------------------------------------------------------------
+    def show_pattern(self, address: int, lengths_um: Sequence[int] | ArrayLike, *,
+                     timeout_s: float, first_pixel: int = 0) -> None:
+        """PATTERN: drive pixel ``first_pixel + i`` to the raw length ``lengths_um[i]``
+        (micrometres), bypassing the active table, until :meth:`end_pattern` or until
+        ``timeout_s`` seconds (rounded up to 0.1 s, at most 6553.5 s) pass without another
+        ``show_pattern`` to this controller (its watchdog; every call re-arms it). Pixels not
+        named keep their current targets; SET_LEVEL and table pushes meanwhile move no pixel
+        until the pattern ends. More pixels than one frame holds (510) go in several frames.
+
+        Raises :class:`ControllerUnsupported` when the controller's INFO lacks the test-pattern
+        feature (nothing sent), :class:`TableError` for lengths that are not a non-empty 1-D
+        sequence of integers 0..max_length_um or pixels outside the controller,
+        :class:`ValueError` for a timeout outside (0, 6553.5] s, :class:`NakError` when the
+        controller refuses a frame, and the transient errors of :meth:`request`. Confirm
+        what is shown with :meth:`read_positions` (its targets).
+        """
+        if not 0 < timeout_s <= MAX_PATTERN_TIMEOUT_S:
+            raise ValueError(f"timeout_s must be > 0 and <= {MAX_PATTERN_TIMEOUT_S} s, got "
+                             f"{timeout_s!r}")
+        timeout_ds = min(0xFFFF, math.ceil(round(timeout_s * 10, 6)))
+        info = self._pattern_info(address)
+        where = f"controller {address} on {self.port}"
+        lv = np.asarray(lengths_um)
+        if (lv.ndim != 1 or lv.size == 0 or not np.issubdtype(lv.dtype, np.integer)
+                or lv.min() < 0 or lv.max() > info.max_length_um):
+            raise TableError(f"{where}: pattern lengths must be a non-empty 1-D sequence of "
+                             f"integers 0..{info.max_length_um} um (its max_length_um)")
+        if first_pixel < 0 or first_pixel + lv.size > info.n_pixels:
+            raise TableError(f"{where} has pixels 0..{info.n_pixels - 1}; a pattern of "
+                             f"{lv.size} from pixel {first_pixel} does not fit")
+        raw = lv.astype("<u2")
+        for start in range(0, raw.size, MAX_PATTERN_PIXELS):
+            part = raw[start:start + MAX_PATTERN_PIXELS]
+            self._expect(address, Pattern(timeout_ds, first_pixel + start, part.tobytes()), Ack)
+
+    def end_pattern(self, address: int) -> None:
+        """PATTERN_END: every pixel back to normal display at once (the table's length for the
+        last levels set); harmless when no pattern is shown. Raises
+        :class:`ControllerUnsupported` when the controller has no test patterns, and the
+        errors of :meth:`request`."""
+        self._pattern_info(address)
+        self._expect(address, PatternEnd(), Ack)
+
+    def _pattern_info(self, address: int) -> Info:
+        info = self._info.get(address) or self.hello(address)
+        if not info.supports_patterns:
+            raise ControllerUnsupported(
+                f"controller {address} on {self.port} (firmware {info.firmware_version}) has "
+                f"no test patterns: its INFO lacks features bit 0 (PATTERN / PATTERN_END). "
+                f"Flash firmware that has them")
+        return info
 
     # --- table push -----------------------------------------------------------------------
     def push_table(self, address: int, table: ArrayLike,
