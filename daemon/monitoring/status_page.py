@@ -3,9 +3,11 @@
 Regenerated atomically after every run (and when the health or a controller's state changes)
 by the daemon; no server: any web server, or a file browser, shows it. It holds the health
 with its reasons, the active table with its plot (the run's PNG embedded as a data URI),
-every controller's state, the last runs, trends over the kept history (OGCD range, lux and
-R^2 against time, as inline SVG) and the rejected and quarantined bundles with their
-reasons. No script, no external resource; the layout adapts to a phone's width (viewport
+every controller's state, the display's last measurement (``grassd measure``: its verdict,
+uniformity before and after, a link to its HTML report and the last trend points, read from
+``<state>/measure/*.json`` as the page is written), the last runs, trends over the kept history
+(OGCD range, lux and R^2 against time, as inline SVG) and the rejected and quarantined bundles
+with their reasons. No script, no external resource; the layout adapts to a phone's width (viewport
 meta, tables scroll sideways, plots scale).
 
 Every text on the page is HTML-escaped, and no line of it carries a control character
@@ -18,6 +20,7 @@ from __future__ import annotations
 import base64
 import html
 import os
+import urllib.parse
 from collections.abc import Mapping, Sequence
 from datetime import datetime
 from pathlib import Path
@@ -33,11 +36,15 @@ from grassd.daemon.monitoring.status_types import ControllerStatus, Status
 from grassd.daemon.safe_text import one_line
 from grassd.daemon.store.atomic import atomic_write_text
 from grassd.daemon.store.history import History, RunRecord
+from grassd.daemon.store.layout import StateLayout
 from grassd.daemon.store.outcomes import refused
 
 #: runs shown in "last runs" and kept runs plotted in the trends (newest)
 LAST_RUNS = 15
 TREND_RUNS = 2000
+#: measurements read for the status page's card, and trend points it shows (newest)
+CARD_MEASUREMENTS = 50
+CARD_TREND = 5
 #: a trend's value axis spans at least this fraction of its largest value
 MIN_SPAN = 0.02
 
@@ -57,7 +64,7 @@ table { border-collapse: collapse; font-size: 0.9em; min-width: 100%; }
 th, td { border: 1px solid #ccc; padding: 4px 8px; text-align: left; vertical-align: top; }
 th { background: #eee; } td.n { text-align: right; font-variant-numeric: tabular-nums; }
 td.t { white-space: nowrap; } td.ok { color: var(--ok); }
-td.bad { color: var(--failed); font-weight: 600; }
+td.bad, dd.bad { color: var(--failed); font-weight: 600; } dd.ok { color: var(--ok); }
 dl { display: grid; grid-template-columns: max-content 1fr; gap: 2px 12px; margin: 0; }
 dt { color: #555; } dd { margin: 0; }
 img, svg { max-width: 100%; height: auto; display: block; }
@@ -268,6 +275,54 @@ def _trends(history: History, clock: _Clock) -> str:
         "</figcaption></figure>" for label, v, colour in figs) + "</div>"
 
 
+def _measurement(state_dir: str, clock: _Clock) -> str:
+    """The display's last measurement (``grassd measure``) from the JSON reports in
+    ``<state_dir>/measure``: verdict, uniformity before -> after (dE00), when, a link to its HTML
+    report (relative: the page is ``<state_dir>/reports/index.html``) and the last trend points;
+    "never measured" when there is none."""
+    from grassd.daemon.measure.report import epoch_of, headline, load_reports, trend
+
+    try:
+        reports = load_reports(StateLayout(state_dir), CARD_MEASUREMENTS)
+    except OSError as exc:
+        return f"<p>Measurements unreadable: {_esc(exc)}</p>"
+    if not reports:
+        return ("<p>Never measured: <code>grassd measure</code> photographs the display under "
+                "test patterns and corrects each pixel's departure from the model.</p>")
+    last = reports[-1]
+    word = headline(last)
+    cls = {"within tolerance": "ok"}.get(word, "bad")
+    u = last.get("uniformity") if isinstance(last.get("uniformity"), Mapping) else {}
+
+    def de(v: Any) -> str:
+        return f"{v:.2f} dE00" if isinstance(v, int | float) and not isinstance(v, bool) \
+            else "-"
+
+    imp = u.get("improvement")
+    uni = f"{de(u.get('before'))} \u2192 {de(u.get('after'))}" + (
+        f" ({imp:.1f}\u00d7 better)" if isinstance(imp, int | float) and imp > 0 else "")
+    verdict = last.get("verdict") if isinstance(last.get("verdict"), Mapping) else {}
+    detail = verdict.get("reason") if last.get("status") == "ok" else last.get("error")
+    page = Path(str(last.get("report", ""))).with_suffix(".html")
+    link = (f'<a href="../measure/{html.escape(urllib.parse.quote(page.name))}">'
+            f"{_name(page.name)}</a>" if page.name and page.is_file() else "-")
+    items = [f'<dt>verdict</dt><dd class="{cls}"><strong>{_esc(word)}</strong></dd>',
+             f'<dt>why</dt><dd class="reason">{_esc(detail)}</dd>',
+             f"<dt>uniformity (worst pixel pair)</dt><dd>{_esc(uni)}</dd>",
+             f"<dt>when</dt><dd>{_esc(clock(epoch_of(last.get('started_at'))))} "
+             f"({_esc(last.get('trigger'))})</dd>",
+             f"<dt>report</dt><dd>{link}</dd>"]
+    points = trend(reports)[-CARD_TREND:]
+    rows = [[_td(clock(epoch_of(p["started_at"])), "t"),
+             _td(p["verdict"], "ok" if p["verdict"] == "within tolerance" else "bad"),
+             _td(_num(p["before_de00"], ".2f"), "n"), _td(_num(p["after_de00"], ".2f"), "n"),
+             _td(_num(p["green_gain"], ".4f"), "n"), _td(_num(p["yellow_gain"], ".4f"), "n"),
+             _td(_num(p["abs_offset_mm"], ".3f"), "n")] for p in reversed(points)]
+    table = _table(["measured", "verdict", "before (dE00)", "after (dE00)", "green gain",
+                    "yellow gain", "|offset| (mm)"], rows) if rows else ""
+    return f"<dl>{''.join(items)}</dl>{table}"
+
+
 def _refused(history: History, clock: _Clock) -> str:
     rows = [[_td(o, "bad" if o == "quarantined" else ""), _name_td(e.name),
              _name_td(e.bundle_id),
@@ -292,6 +347,7 @@ def render(status: Status, history: History, *, timezone: str,
     queue = ", ".join(f"{k} {v}" for k, v in inbox.items()) or "-"
     sections = [
         ("Active table", _active_table(history.current_table(), clock)),
+        ("Display measurement", _measurement(status.state_dir, clock)),
         ("Controllers", _controllers(status.controllers, push_failures or {}, clock)),
         ("Serial lines", _lines({} if live is None else live.lines)),
         ("Last runs", _runs(history.runs(LAST_RUNS), clock)),
