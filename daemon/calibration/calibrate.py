@@ -57,6 +57,7 @@ from grassd.daemon.calibration.checks import (
     check_table,
     pooled_characteristic,
 )
+from grassd.daemon.calibration.correction import SAVED, with_correction
 from grassd.daemon.calibration.display_model import (
     capacity_for,
     display_spec_for_config,
@@ -255,10 +256,14 @@ class Calibrator:
             previous_ccm: NDArray | None = None, force: bool = False,
             stop: threading.Event | None = None,
             progress: Progress | None = None,
-            previous_tables: Mapping[str, NDArray] | None = None) -> CalibrationResult:
+            previous_tables: Mapping[str, NDArray] | None = None,
+            correction: Any = SAVED) -> CalibrationResult:
         """Calibrate for ``light`` (colour-corrected with the bundle's ``checker`` photo if
         given; see the module docstring). ``previous_um`` is the active display-wide table and
         ``previous_tables`` the last run's tables by controller name, for the jump check.
+        ``correction``: the display's per-pixel correction the tables include
+        (:class:`~grassd.daemon.calibration.correction.DisplayCorrection`): by default the one the
+        state directory holds (none before the display was measured), None for none.
 
         Raises CalibError/SimError/:class:`CalibrationRejected` on bad input and
         :class:`RunInterrupted` when ``stop`` is set (checked per trace)."""
@@ -312,7 +317,7 @@ class Calibrator:
         controller_tables, max_step = checked(units)
         whole = found.whole if found.whole is not None else units[0]
         total = time.perf_counter() - t_start
-        return CalibrationResult(
+        result = CalibrationResult(
             granularity=cfg.tables.granularity, source=source,
             shape=(display.rows, display.cols), table_um=whole.lengths_um,
             controller_tables=controller_tables, units=units, unit_of_pixel=unit_of_pixel,
@@ -322,6 +327,7 @@ class Calibrator:
             seconds={"simulate": t_sim, "closed_loop": total - (t_loop - t_start),
                      "total": total},
             max_step_um=max_step, curves=found.curves)
+        return with_correction(cfg, result, correction)
 
 
 class _TableChecks:

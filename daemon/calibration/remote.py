@@ -40,6 +40,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from grassd.daemon.calibration.correction import SAVED, with_correction
 from grassd.daemon.config.settings import Config
 from grassd.daemon.errors import ComputeUnavailable, RunInterrupted
 from grassd.sim.light_input import LightInput
@@ -157,14 +158,16 @@ class RemoteCalibrator:
             previous_um: NDArray | None = None, previous_ccm: NDArray | None = None,
             force: bool = False, stop: threading.Event | None = None,
             progress: Callable[[str], None] | None = None,
-            previous_tables: Mapping[str, NDArray] | None = None) -> CalibrationResult:
+            previous_tables: Mapping[str, NDArray] | None = None,
+            correction: Any = SAVED) -> CalibrationResult:
         """Calibrate for ``light`` on the cluster (arguments as ``Calibrator.run``; ``stop``
         and ``progress`` act here: ``progress`` is called every :data:`POLL_S` seconds while
-        the task runs, ``stop`` cancels it). Raises :class:`ComputeUnavailable` when the
+        the task runs, ``stop`` cancels it; the display's ``correction``, which this state
+        directory holds, is applied here). Raises :class:`ComputeUnavailable` when the
         cluster cannot run it, :class:`RunInterrupted` when ``stop`` is set, and what the run
         itself raises (CalibError, SimError, CalibrationRejected)."""
         payload = self.job(light, checker, previous_um=previous_um, previous_ccm=previous_ccm,
-                           force=force, previous_tables=previous_tables)
+                           force=force, previous_tables=previous_tables, correction=None)
         try:
             from distributed import Client
         except ImportError:
@@ -181,10 +184,11 @@ class RemoteCalibrator:
                 f"cannot reach the Dask scheduler at {self.address} ({exc}); check that it "
                 "runs and that [compute] scheduler names it") from None
         try:
-            return loads(_Watch(client, self.address, self.cfg.compute.worker_wait_s, stop,
-                                progress).result(payload))
+            result = loads(_Watch(client, self.address, self.cfg.compute.worker_wait_s, stop,
+                                  progress).result(payload))
         finally:
             client.close()
+        return with_correction(self.cfg, result, correction)
 
 
 class _Watch:

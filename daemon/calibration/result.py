@@ -140,6 +140,8 @@ class CalibrationResult:
     seconds: dict[str, float] = field(default_factory=dict)
     max_step_um: int | None = None
     curves: list[ViewpointCurve] = field(default_factory=list)
+    #: the display measurement whose per-pixel correction the tables include, or None
+    correction: str | None = None
 
     @property
     def loop(self) -> LoopCheck | None:
@@ -160,7 +162,7 @@ class CalibrationResult:
         loop, and of the worst unit in the fits (``*_fit*``). A centre-pixel run gives the
         keys it always gave (:meth:`_centre_metrics`)."""
         if self.source == CENTRE:
-            return self._centre_metrics(r2_goal, target_de00)
+            return self._corrected(self._centre_metrics(r2_goal, target_de00))
         r2_after = min(u.r2_after for u in self.units)
         fit_worst = max(u.max_error for u in self.units)
         loop = self.loop
@@ -190,13 +192,13 @@ class CalibrationResult:
             "max_step_from_last_um": self.max_step_um,
             "grouping": self.grouping, "region": self.region,
             "seconds": dict(self.seconds),
-        }
+        } | self._corrected({})
 
     def report(self) -> dict[str, Any]:
         """A JSON-serialisable report (arrays as lists), with every controller's table CRC; a
         centre-pixel run's in its own form (:meth:`_centre_report`)."""
         if self.source == CENTRE:
-            return self._centre_report()
+            return self._corrected(self._centre_report())
         crcs = self.controller_crcs()
         return {
             "granularity": self.granularity, "table_source": self.source,
@@ -228,7 +230,7 @@ class CalibrationResult:
                 "source": self.ccm_source, "method": self.ccm.method,
                 "matrix": self.ccm.matrix.tolist()},
             "lighting_notes": list(self.lighting_notes),
-        }
+        } | self._corrected({})
 
     # ------------------------------------------------------------------ one table
     def pooled(self) -> Characteristic:
@@ -266,6 +268,11 @@ class CalibrationResult:
             "max_step_from_last_um": self.max_step_um,
             "seconds": dict(self.seconds),
         }
+
+    def _corrected(self, out: dict[str, Any]) -> dict[str, Any]:
+        """``out`` with ``display_correction`` (the measurement whose per-pixel correction the
+        tables include) when there is one; a run without keeps its historic keys."""
+        return out if self.correction is None else {**out, "display_correction": self.correction}
 
     def _centre_report(self) -> dict[str, Any]:
         """Report of a centre-pixel run: its table, pooled characteristic, per-viewpoint

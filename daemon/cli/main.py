@@ -43,6 +43,8 @@ COMMANDS: dict[str, LazyCommand] = {
                        "starting model."),
     "history": LazyCommand(_CLI + "run", "history_cmd", "The run history: inputs, lux, metrics, "
                            "table and per-controller push results."),
+    "measure": LazyCommand(_CLI + "measure", "measure", "Photograph the display under test "
+                           "patterns and correct each pixel's tables."),
     "run": LazyCommand(_CLI + "run", "run_cmd", "Run the daemon: watch the inbox, calibrate, "
                        "push tables, serve the control socket."),
     "simulate": LazyCommand(_CLI + "simulate", "simulate", "Simulate the grass colour "

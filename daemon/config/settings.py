@@ -28,6 +28,8 @@ The file (default ``/etc/grassd/grassd.toml``; the embedded default is
                    the table(s) the daemon pushes, one per controller / per pixel or global
     [capture]      optional capture station: camera URL, bracket, interval
                    (see grassd.daemon.config.capture)
+    [measure]      optional: the camera that photographs the display, interval, tolerance
+                   (see grassd.daemon.config.measure)
     [audience]     optional region: polygon = [[x, y], ...] (m), h_cm = [low, high],
                    ground_samples, height_samples, objective = "mean" | "worst"; when set,
                    the daemon's table(s) come from the region instead of [[viewpoints]]
@@ -79,6 +81,7 @@ from grassd.sim.scene import MAX_REPLICATES, PixelSpec
 
 if TYPE_CHECKING:
     from grassd.daemon.config.capture import CaptureConfig
+    from grassd.daemon.config.measure import MeasureConfig
 
 #: Where the packaged daemon looks when no ``--config`` is given.
 DEFAULT_CONFIG_PATH = Path("/etc/grassd/grassd.toml")
@@ -371,6 +374,8 @@ class Config:
     compute: ComputeConfig = ComputeConfig()
     #: the capture station (:mod:`grassd.daemon.config.capture`), None without [capture]
     capture: CaptureConfig | None = None
+    #: the display's measuring camera (:mod:`grassd.daemon.config.measure`), None without
+    measure: MeasureConfig | None = None
 
     @property
     def serial_ports(self) -> list[str]:
@@ -493,7 +498,7 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         "simulation": _F(dict, {}), "calibration": _F(dict, {}),
         "tables": _F(dict, {}), "audience": _F(dict, None), "retention": _F(dict, {}),
         "metrics": _F(dict, {}), "alerts": _F(dict, {}),
-        "capture": _F(dict, None), "compute": _F(dict, {}),
+        "capture": _F(dict, None), "compute": _F(dict, {}), "measure": _F(dict, None),
     })
     site = _parse_site(ctx, top["site"])
     display = _parse_display(ctx, top["display"])
@@ -526,7 +531,8 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
                   control_socket=sock, source=ctx.source, tables=tables, audience=audience,
                   retention=retention, metrics=metrics, alerts=alerts,
                   capture=_capture_section(ctx, top["capture"]),
-                  compute=_parse_compute(ctx, top["compute"]))
+                  compute=_parse_compute(ctx, top["compute"]),
+                  measure=_measure_section(ctx, top["measure"], top["capture"] is not None))
 
 
 def _parse_site(ctx: _Ctx, raw: Any) -> SiteConfig:
@@ -807,6 +813,13 @@ def _shell_words(v: str) -> str | None:
     except ValueError as exc:
         return f"cannot be split into words like a shell line: {exc}"
     return None if words else "must name a program"
+
+
+def _measure_section(ctx: _Ctx, raw: Any, has_capture: bool) -> MeasureConfig | None:
+    """``[measure]``, validated by :mod:`grassd.daemon.config.measure` (imported lazily)."""
+    from grassd.daemon.config.measure import parse_measure
+
+    return parse_measure(ctx, raw, has_capture)
 
 
 def _capture_section(ctx: _Ctx, raw: Any) -> CaptureConfig | None:

@@ -125,6 +125,12 @@ class Fleet:
             self._clients[c.port] = client
         return client
 
+    def client(self, c: ControllerConfig) -> ControllerClient:
+        """The protocol client of controller ``c``'s port (one per port, shared), for
+        requests beyond pushes: test patterns (:mod:`grassd.daemon.measure.patterns`)."""
+        with self._lock:
+            return self._client(c)
+
     def _probe(self, c: ControllerConfig) -> int:
         """Retries of a status read: ``probe_retries`` on a clean line, the policy's
         ``retries`` on a noisy one, so that noise alone rarely makes a controller look gone."""

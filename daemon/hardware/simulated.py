@@ -20,6 +20,7 @@ import tty
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import tomli_w
 from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
@@ -260,6 +261,27 @@ class SimulatedHardware:
         controllers = tuple(dataclasses.replace(c, port=self.ports[c.port])
                             for c in self.cfg.controllers)
         return dataclasses.replace(self.cfg, controllers=controllers, light=light)
+
+    def positions_um(self) -> np.ndarray:
+        """(N,) where every display pixel's grass stands now (micrometres, row-major display
+        pixels through the controllers' ``pixels`` ranges): what a camera sees. Needs the
+        Python model on the buses (the C firmware keeps its motors inside its process)."""
+        from grassd.daemon.calibration.display_model import controller_pixels
+
+        n = self.cfg.display.rows * self.cfg.display.cols
+        ports = list(dict.fromkeys(c.port for c in self.cfg.controllers))
+        out = np.zeros(n)
+        for c, pix in zip(self.cfg.controllers, controller_pixels(self.cfg.controllers, n),
+                          strict=True):
+            bus = self.buses[ports.index(c.port)]
+            ctrls = getattr(bus, "controllers", None)
+            if ctrls is None:
+                raise RuntimeError(f"the simulated display needs --sim-firmware "
+                                   f"{FIRMWARE_BACKENDS[0]}: the {self.firmware} firmware's "
+                                   "motors are not visible from outside its process")
+            ctrl = next(x for x in ctrls if x.config.address == c.address)
+            out[pix] = ctrl.positions_um()[:len(pix)]
+        return out
 
     def stop(self) -> None:
         """Stop every simulated device."""

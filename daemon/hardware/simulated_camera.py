@@ -36,6 +36,7 @@ import os
 import threading
 import time
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
@@ -171,6 +172,8 @@ class SimCamera:
     between shots for another light); ``curve``: the response (a :data:`CURVES` name or a
     :class:`ResponseCurve`); ``full_well``: electrons at full scale (photon noise);
     ``username``/``password``: require HTTP digest auth as a THETA in client mode does.
+    ``scene_source``: called at every shot for the map to photograph (a scene that changes,
+    e.g. the simulated display of :mod:`grassd.daemon.hardware.simulated_display`).
     """
 
     def __init__(self, env: NDArray, *, scene_scale: float = SIM_SCENE_SCALE,
@@ -178,7 +181,8 @@ class SimCamera:
                  read_noise: float = 2e-4, seed: int = 0, host: str = "127.0.0.1",
                  port: int = 0, username: str | None = None, password: str | None = None,
                  model: str = "grassd SimCam Z1", serial: str | None = None,
-                 latency_s: float = 0.05) -> None:
+                 latency_s: float = 0.05,
+                 scene_source: Callable[[], NDArray] | None = None) -> None:
         self.curve = CURVES[curve] if isinstance(curve, str) else curve
         self.curve_name = curve if isinstance(curve, str) else "custom"
         self.env = np.ascontiguousarray(env, dtype=np.float32)
@@ -192,6 +196,7 @@ class SimCamera:
         digest = hashlib.sha1(repr(self.curve).encode()).hexdigest()[:8]  # noqa: S324
         self.serial = serial or f"SIM{digest}"
         self.latency_s = latency_s
+        self.scene_source = scene_source
         self.faults = Faults()
         self.options: dict[str, Any] = {
             "exposureProgram": 2, "iso": 0, "shutterSpeed": 0, "whiteBalance": "auto",
@@ -287,6 +292,8 @@ class SimCamera:
         return np.clip(np.rint(self.curve.encode(x) * 255.0), 0, 255).astype(np.uint8)
 
     def _take(self) -> dict[str, Any]:
+        if self.scene_source is not None:
+            self.set_scene(env=self.scene_source())
         o = self.options
         iso = o["iso"] if o["iso"] else 100
         if o["exposureProgram"] in (2, 9) or not o["shutterSpeed"]:

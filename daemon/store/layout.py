@@ -11,6 +11,9 @@
         rejected/<id>/        bundles refused, each with its reason.txt
         reports/run-NNNNNN.json, .png   a run's report and plot
         reports/index.html    the operator's status page
+        measure/setup.json    the measuring camera's colour chain (checker photographed at set-up)
+        measure/correction.json   the display's per-pixel correction the tables include
+        measure/YYYYmmddTHHMMSSZ.json, .html, photos/   one measurement: report and its photos
 
 The inbox is configured (``[light] inbox``) and may lie elsewhere. Run reports are named by
 :func:`report_stem` and read back (retention) by :func:`report_run_id`.
@@ -27,6 +30,8 @@ STATE_DB = "state.db"
 LOCK_NAME = "grassd.lock"
 CAMERA_LOCK = "camera.lock"
 PAGE_NAME = "index.html"
+MEASURE_SETUP = "setup.json"
+CORRECTION = "correction.json"
 
 _REPORT_RE = re.compile(r"^run-(\d+)\.(json|png)$")
 
@@ -94,3 +99,22 @@ class StateLayout:
     def report_base(self, run_id: int) -> Path:
         """A run's report path without its suffix (``.json`` report, ``.png`` plot)."""
         return self.reports / report_stem(run_id)
+
+    @property
+    def measure(self) -> Path:
+        """Measurements of the display (``grassd measure``): reports, photos, correction."""
+        return self.root / "measure"
+
+    @property
+    def correction(self) -> Path:
+        """The display's per-pixel correction that every run's tables include."""
+        return self.measure / CORRECTION
+
+    @property
+    def measure_setup(self) -> Path:
+        """The measuring camera's colour chain from the checker photographed at set-up."""
+        return self.measure / MEASURE_SETUP
+
+    def measurement_reports(self) -> list[Path]:
+        """Every measurement's JSON report, oldest first (named by their UTC start time)."""
+        return sorted(p for p in self.measure.glob("*T*Z.json") if p.is_file())

@@ -6,19 +6,16 @@ from __future__ import annotations
 
 import dataclasses
 import re
-import sys
 from pathlib import Path
 from urllib.parse import unquote
 
+from measurement_samples import failed_report, ok_report
 from status_samples import status
 
-from grassd.daemon.measure.report import write_report
+from grassd.daemon.monitoring.measurement_report import write_report
 from grassd.daemon.monitoring.status_page import CARD_TREND, render
 from grassd.daemon.store.history import History
 from grassd.daemon.store.layout import StateLayout
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "measure"))
-from test_report import failed_report, ok_report  # noqa: E402
 
 
 def _card(page: str) -> str:

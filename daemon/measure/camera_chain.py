@@ -1,0 +1,187 @@
+"""The measuring camera: its shots, and the colour chain from its RAW to CIELAB.
+
+The chain is ``grassd validate``'s (:mod:`grassd.daemon.offline.validate`), with the colour
+checker photographed once, at set-up, instead of in every capture:
+
+* **Set-up** (:func:`setup_from_checker`): the checker lying at the display, photographed with
+  the measuring camera, gives the LibRaw white balance that develops its grey patch to the grey's
+  reference colour (:func:`~grassd.daemon.offline.validate.checker_white_balance`), the scale
+  ``k`` that puts that grey at Y = 0.18, and the 3 x 3 colour correction from the analytic
+  virtual checker to the photographed one (with the scale ``s`` of the white-card-normalised
+  simulation, :func:`~grassd.daemon.offline.validate.virtual_checker`): the same ``ccm`` that
+  ``validate`` hands the simulation.
+* **A measurement shot**: its DNG developed (half size: one texel per 2 x 2 Bayer block) with that
+  white balance, to linear ProPhoto, scaled by ``k`` times the ratio of the set-up exposure to the
+  shot's (shutter x ISO / f-number^2) times the ratio of the set-up lux to the lux now: what the
+  checker's grey would read if it lay there now. The simulation is normalised by the white card
+  under the light now, so both sides share their white.
+
+Units: exposure values s x ISO / f-number^2; lux; colours linear ProPhoto (grey card Y = 0.18).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import asdict, dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from grassd.daemon.errors import DaemonError
+
+log = logging.getLogger(__name__)
+
+
+class MeasureSetupError(DaemonError):
+    """The measuring camera has no usable set-up (photograph the checker: grassd measure
+    setup)."""
+
+
+@dataclass(frozen=True)
+class Exposure:
+    """A shot's exposure: shutter (s), ISO and f-number."""
+
+    shutter_s: float
+    iso: float
+    f_number: float
+
+    @property
+    def value(self) -> float:
+        """Relative exposure, shutter x ISO / f-number^2 (signal per unit radiance)."""
+        return self.shutter_s * self.iso / self.f_number ** 2
+
+
+@dataclass(frozen=True)
+class Shot:
+    """One measurement photo: its DNG ``raw_path`` and its ``exposure``."""
+
+    raw_path: Path
+    exposure: Exposure
+
+
+@dataclass(frozen=True)
+class MeasureSetup:
+    """The measuring camera's colour chain (module docstring): LibRaw ``white_balance``
+    (R, G, B, G2), ``scale`` k (grey at Y = 0.18 in the set-up shot), the set-up shot's
+    ``exposure`` and ``lux``, ``ccm`` (3, 3) for the simulation (scale included), the
+    ``chart`` and the ``photo`` it came from, ``made_at`` (ISO 8601 UTC)."""
+
+    white_balance: tuple[float, float, float, float]
+    scale: float
+    exposure: Exposure
+    lux: float
+    ccm: tuple[tuple[float, ...], ...]
+    chart: str
+    photo: str
+    made_at: str
+
+    def to_json(self) -> dict[str, Any]:
+        """The set-up as JSON (``setup.json``)."""
+        return asdict(self)
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> MeasureSetup:
+        """Read :meth:`to_json`'s form back."""
+        return cls(white_balance=tuple(d["white_balance"]), scale=float(d["scale"]),
+                   exposure=Exposure(**d["exposure"]), lux=float(d["lux"]),
+                   ccm=tuple(tuple(r) for r in d["ccm"]), chart=str(d["chart"]),
+                   photo=str(d["photo"]), made_at=str(d["made_at"]))
+
+    def normalise(self, prophoto: NDArray, exposure: Exposure, lux: float) -> NDArray:
+        """Developed linear ProPhoto of a shot at ``exposure`` under ``lux`` -> the scale of the
+        white-card-normalised simulation (module docstring)."""
+        if lux <= 0:
+            raise MeasureSetupError(f"lux {lux} must be positive to compare with the set-up")
+        return np.asarray(prophoto) * (self.scale * self.exposure.value / exposure.value
+                                       * self.lux / lux)
+
+
+def setup_from_checker(path: Path, corners: Any, chart: str, exposure: Exposure,
+                       lux: float) -> MeasureSetup:
+    """The set-up from a RAW ``path`` of the checker (``chart``, patch-area ``corners`` TL, TR,
+    BR, BL in pixels of the full-size developed image) photographed at ``exposure`` under
+    ``lux`` at the display (module docstring)."""
+    from grassd.calib.ccm import fit_ccm
+    from grassd.calib.charts import get_chart
+    from grassd.calib.colour_spaces import luminance
+    from grassd.calib.exposure import GREY_CARD_Y
+    from grassd.calib.raw import develop_raw
+    from grassd.daemon.offline.validate import checker_white_balance, virtual_checker
+
+    ref = get_chart(chart)
+    wb = checker_white_balance(path, corners, ref)
+    patches = develop_raw(path, white_balance=wb).checker_patches(corners)
+    grey = float(luminance(patches[ref.grey_index()], "prophoto"))
+    if not grey > 0:
+        raise MeasureSetupError(f"{path.name}: the checker's grey patch is black; check the "
+                                "corners and the exposure")
+    k = GREY_CARD_Y / grey
+    virtual, s = virtual_checker(ref)
+    ccm = fit_ccm(virtual, patches * k, "3x3").matrix * s
+    return MeasureSetup(white_balance=tuple(float(v) for v in wb), scale=k, exposure=exposure,
+                        lux=float(lux), ccm=tuple(tuple(float(x) for x in r) for r in ccm),
+                        chart=chart, photo=str(path),
+                        made_at=datetime.now(UTC).isoformat(timespec="seconds"))
+
+
+def load_setup(path: Path) -> MeasureSetup:
+    """Read ``setup.json``; :class:`MeasureSetupError` telling how to make one."""
+    try:
+        return MeasureSetup.from_json(json.loads(path.read_text(encoding="utf-8")))
+    except FileNotFoundError:
+        raise MeasureSetupError(
+            "the measuring camera is not set up: lay the colour checker at the display and run "
+            "grassd measure setup --corners 'x,y x,y x,y x,y'") from None
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise MeasureSetupError(f"{path} is unreadable ({exc}); run grassd measure setup "
+                                "again") from None
+
+
+def develop_shot(shot: Shot, setup: MeasureSetup, lux: float) -> NDArray[np.float64]:
+    """(H, W, 3) linear ProPhoto of a shot, developed half size with the set-up's white
+    balance and normalised (:meth:`MeasureSetup.normalise`)."""
+    from grassd.calib.raw import develop_raw
+
+    dev = develop_raw(shot.raw_path, white_balance=setup.white_balance, half_size=True)
+    return setup.normalise(dev.rgb.astype(np.float64), shot.exposure, lux)
+
+
+class MeasuringCamera:
+    """Shots from an OSC camera (:class:`~grassd.daemon.hardware.camera.OscClient`) in RAW+
+    at a fixed ISO into ``dest``; the exposure is metered by the camera for each shot and read
+    back as the capture station reads it (:func:`~grassd.daemon.hardware.bracket.real_exposure`)."""
+
+    def __init__(self, client: Any, dest: Path, iso: int) -> None:
+        self.client, self.dest, self.iso = client, dest, iso
+        self._metered_s: float | None = None
+
+    def shoot(self, name: str, ev: float = 0.0) -> Shot:
+        """Take one shot named ``name`` (file stem); returns its DNG and exposure. ``ev``:
+        0 lets the camera meter (ISO priority); otherwise the shutter is set ``ev`` stops from
+        the last metered one (manual exposure), e.g. -2 for a scene the meter overexposes."""
+        from grassd.daemon.hardware.bracket import SHUTTER_SPEEDS_S, BracketPlan, real_exposure
+
+        self.dest.mkdir(parents=True, exist_ok=True)
+        if ev == 0.0 or self._metered_s is None:
+            options: dict[str, Any] = {"exposureProgram": 9}
+        else:
+            want = self._metered_s * 2.0 ** ev
+            options = {"exposureProgram": 1, "shutterSpeed": min(
+                SHUTTER_SPEEDS_S, key=lambda t: abs(np.log(t / want)))}
+        self.client.set_options(iso=self.iso, whiteBalance="daylight",
+                                fileFormat={"type": "raw+"}, **options)
+        res = self.client.take_picture()
+        if not isinstance(res.get("_dngFileUrl"), str):
+            raise MeasureSetupError("the measuring camera gave no DNG (_dngFileUrl) for a RAW+ "
+                                    "shot; it must support fileFormat raw+ (e.g. THETA Z1)")
+        jpeg = self.client.download(res["fileUrl"], self.dest / f"{name}.jpg")
+        raw = self.client.download(res["_dngFileUrl"], self.dest / f"{name}.dng")
+        t, iso, f, _ = real_exposure(self.client, res, jpeg, BracketPlan(iso=self.iso))
+        jpeg.unlink(missing_ok=True)
+        if options["exposureProgram"] == 9:
+            self._metered_s = float(t)
+        return Shot(raw, Exposure(float(t), float(iso), float(f)))

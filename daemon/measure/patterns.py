@@ -1,0 +1,125 @@
+"""Test patterns on the display's controllers: every pixel at a raw length, then content again.
+
+A :class:`PatternSession` drives the controllers of a :class:`~grassd.daemon.hardware.fleet.Fleet`
+through the protocol's PATTERN / PATTERN_END messages (PROTOCOL.md): each pixel goes to the
+length asked, bypassing the active table, until the session ends. Leaving the session, however
+that happens (an error, a stop request, ^C), sends PATTERN_END to every controller; and a
+controller whose host died on the way returns to content by itself when its watchdog
+(``timeout_s``, re-armed by every pattern) runs out. A controller in pattern mode loses it on a
+power cut: it boots showing content.
+
+A pattern is only taken as shown once every pixel's motor target equals the length asked and its
+position is within ``tolerance_um`` of it (GET_POSITIONS): a controller that rebooted in the
+meantime shows its table again and is caught here, before a photo is taken of it.
+
+Units: lengths mm at the interface, micrometres on the wire; seconds.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from grassd.daemon.errors import DaemonError
+
+log = logging.getLogger(__name__)
+
+
+class PatternError(DaemonError):
+    """A test pattern could not be shown (the message says which controller and why)."""
+
+
+class PatternsUnsupported(PatternError):
+    """A controller's firmware has no test patterns (update it to a version whose INFO
+    announces them)."""
+
+
+class PatternSession:
+    """Test patterns on ``controllers`` (their ``pixels`` ranges map display pixels, row-major,
+    to each controller's pixels) through ``fleet``. Use as a context manager."""
+
+    def __init__(self, fleet: Any, controllers: Sequence[Any], n_pixels: int, *,
+                 timeout_s: float, settle_s: float, tolerance_um: int = 150,
+                 stop: Callable[[], bool] | None = None) -> None:
+        from grassd.daemon.calibration.display_model import controller_pixels
+
+        self.fleet, self.controllers = fleet, tuple(controllers)
+        self.pixels = controller_pixels(self.controllers, n_pixels)
+        self.n_pixels = n_pixels
+        self.timeout_s, self.settle_s, self.tolerance_um = timeout_s, settle_s, tolerance_um
+        self.stop = stop or (lambda: False)
+        self.shown: NDArray[np.int64] | None = None
+
+    def __enter__(self) -> PatternSession:
+        for c in self.controllers:
+            info = self.fleet.client(c).hello(c.address)
+            if not getattr(info, "supports_patterns", False):
+                raise PatternsUnsupported(
+                    f"controller {c.name} (firmware {info.firmware_version}) has no test "
+                    "patterns; update its firmware before measuring the display")
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.end()
+
+    def show(self, lengths_mm: NDArray | float) -> None:
+        """Drive every pixel to ``lengths_mm`` ((N,) or one value, mm) and wait until the
+        motors are there (:class:`PatternError` after ``settle_s``)."""
+        um = np.rint(np.broadcast_to(np.asarray(lengths_mm, dtype=np.float64) * 1000.0,
+                                     (self.n_pixels,))).astype(np.int64)
+        for c, pix in zip(self.controllers, self.pixels, strict=True):
+            self.fleet.client(c).show_pattern(c.address, um[pix].tolist(),
+                                              timeout_s=self.timeout_s)
+        self.shown = um
+        self.wait_shown()
+
+    def wait_shown(self) -> None:
+        """Wait until every pixel's target is the pattern and its position within tolerance;
+        raises :class:`PatternError` when a controller shows something else (it rebooted) or
+        the motors are not there after ``settle_s``."""
+        if self.shown is None:
+            raise PatternError("no pattern was shown")
+        deadline = time.monotonic() + self.settle_s
+        while True:
+            off, far = self._state()
+            if off:
+                raise PatternError(f"controller(s) {', '.join(off)} left the test pattern "
+                                   "(rebooted or timed out); the pattern is shown again")
+            if not far:
+                return
+            if time.monotonic() > deadline or self.stop():
+                raise PatternError(f"pixels of {', '.join(far)} did not reach the pattern in "
+                                   f"{self.settle_s:g} s; check the motors")
+            time.sleep(0.05)
+
+    def _state(self) -> tuple[list[str], list[str]]:
+        """(controllers whose targets are not the pattern, controllers not there yet)."""
+        off, far = [], []
+        for c, pix in zip(self.controllers, self.pixels, strict=True):
+            pos = self.fleet.client(c).read_positions(c.address, 0, len(pix))
+            want = self.shown[pix]
+            if np.any(pos[:, 1] != want):
+                off.append(c.name)
+            elif np.any(np.abs(pos[:, 0].astype(np.int64) - want) > self.tolerance_um):
+                far.append(c.name)
+        return off, far
+
+    def end(self) -> list[str]:
+        """PATTERN_END to every controller (each tried, failures logged): the display shows
+        content again. Returns the controllers that did not acknowledge (their watchdog ends
+        the pattern within ``timeout_s``)."""
+        failed = []
+        for c in self.controllers:
+            try:
+                self.fleet.client(c).end_pattern(c.address)
+            except Exception as exc:  # every controller must be tried
+                log.warning("controller %s: PATTERN_END failed (%s); its watchdog ends the "
+                            "pattern within %g s", c.name, exc, self.timeout_s)
+                failed.append(c.name)
+        self.shown = None
+        return failed

@@ -1,0 +1,353 @@
+"""One measurement of the display, from test patterns to a verdict (``grassd measure``).
+
+1. **The tables without correction**: a calibration run for the light now, as any run, but with
+   no display correction (:meth:`Calibrator.run <grassd.daemon.calibration.calibrate.Calibrator
+   .run>`, ``correction=None``).
+2. **Photos under test patterns** (:class:`~grassd.daemon.measure.patterns.PatternSession`):
+   every pixel at its shortest and longest grass (the difference finds the display), at
+   ``[measure] patterns`` lengths (the pixels' characteristics), and at :data:`CHECK_LEVELS`
+   through the uncorrected tables (uniformity before). The lux is read at every shot; light that
+   changes by more than ``steady_lux`` ends the measurement.
+3. **Where the camera stands**: the display located in the photos and the pose solved from its
+   known size (:mod:`grassd.calib.display_in_photo`); that pose is the viewpoint the photos stand
+   for. Each pixel's mean colour through the camera's chain
+   (:mod:`grassd.daemon.measure.camera_chain`) to CIELAB.
+4. **Each pixel's departure** (:func:`~grassd.daemon.calibration.pixel_model.fit_variation`):
+   length offset, green and yellow gain, fitted to its colours against the model pixel recorded
+   at its own viewpoint from the camera.
+5. **The correction** carried to the configured viewers
+   (:func:`~grassd.daemon.calibration.pixel_model.corrected_commands`) and the tables with it.
+6. **Verification**: the corrected tables' levels shown and photographed (uniformity after).
+7. Patterns end: the display shows content again, whatever happened before. Only a measurement
+   that got this far, and whose correction makes the display more uniform, is kept: its
+   correction saved and its tables committed and pushed as a run (trigger "measure"). Nothing
+   from a measurement that failed or was interrupted is pushed; the last good tables stay.
+
+**Uniformity** (the report's ``uniformity``): at each checked level, every pixel's measured
+colour with its viewing geometry divided out (measured / model pixel at its own viewpoint, times
+the display's mean model colour, in linear ProPhoto), so that what remains is how the pixels
+differ, not where the camera stands. ``worst_pair``: the largest CIEDE2000 between two pixels at
+the mid level (128); ``ogcd_spread``: per level, the standard deviation across pixels of the
+OGCD (each pixel's difference from its own level-0 colour).
+
+Units: lengths mm, colours CIELAB (D50), differences CIEDE2000, lux, seconds.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from colour import delta_E
+from numpy.typing import NDArray
+
+from grassd.daemon.errors import DaemonError
+
+log = logging.getLogger(__name__)
+
+#: Levels photographed through the tables before and after the correction (the mid level,
+#: 128, gives the worst pixel pair).
+CHECK_LEVELS: tuple[int, ...] = (0, 64, 128, 192, 255)
+MID_LEVEL: int = 128
+#: Spacing of the pixel models' length grid (mm).
+GRID_STEP_MM: float = 0.5
+
+
+class MeasureError(DaemonError):
+    """A measurement failed; the last good tables stay active (the message says why)."""
+
+
+class UnsteadyLight(MeasureError):
+    """The light changed too much while the display was photographed."""
+
+
+@dataclass
+class Photos:
+    """Each pixel's mean developed colour (linear ProPhoto, normalised) per shot name."""
+
+    rgb: dict[str, NDArray[np.float64]] = field(default_factory=dict)
+    lux: list[float] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class MeasureContext:
+    """What a measurement uses of the daemon: its config, fleet, calibrator, the light now
+    (``light``, a LightInput; ``lux()`` reads the sensor, or the manifest's lux), the
+    measuring camera's client and set-up, where its files go (``dest``), ``stop()`` and
+    ``progress(text)``."""
+
+    cfg: Any
+    fleet: Any
+    calibrator: Any
+    light: Any
+    lux: Callable[[], float]
+    camera: Any
+    setup: Any
+    dest: Path
+    stop: Callable[[], bool]
+    progress: Callable[[str], None]
+
+
+def measurement_id(at: datetime | None = None) -> str:
+    """A measurement's id: its UTC start, ``YYYYmmddTHHMMSSZ`` (report file stem)."""
+    return (at or datetime.now(UTC)).strftime("%Y%m%dT%H%M%SZ")
+
+
+def pattern_lengths(count: int, green_max_mm: float) -> NDArray[np.float64]:
+    """``count`` lengths (mm) evenly over the range, 1 mm in from its ends (an offset there
+    would be clamped, telling nothing).
+
+    >>> pattern_lengths(4, 20.0).tolist()
+    [1.0, 7.0, 13.0, 19.0]
+    """
+    return np.linspace(1.0, green_max_mm - 1.0, count)
+
+
+def level_lengths_mm(cfg: Any, result: Any, n_pixels: int, level: int) -> NDArray[np.float64]:
+    """(N,) length (mm) every display pixel shows at ``level`` through ``result``'s tables."""
+    from grassd.daemon.calibration.display_model import controller_pixels
+
+    out = np.full(n_pixels, float(result.table_um[level]) / 1000.0)
+    for c, pix in zip(cfg.controllers, controller_pixels(cfg.controllers, n_pixels),
+                      strict=True):
+        own = result.controller_tables.get(c.name)
+        if own is not None:
+            out[pix] = (own[:, level] if own.ndim == 2 else own[level]) / 1000.0
+    return out
+
+
+def run_measurement(ctx: MeasureContext) -> dict[str, Any]:
+    """One measurement (module docstring). Returns its report (JSON-ready) with, under the key
+    ``"_accepted"``, the correction and the corrected CalibrationResult to keep, or None."""
+    from grassd.daemon.measure.patterns import PatternSession
+
+    cfg = ctx.cfg
+    mc = cfg.measure
+    t0 = time.perf_counter()
+    started = datetime.now(UTC)
+    mid = measurement_id(started)
+    d = cfg.display
+    n = d.rows * d.cols
+    green_max = float(d.green_max_mm)
+    ctx.progress("measure: tables without correction")
+    nominal = ctx.calibrator.run(ctx.light, correction=None, progress=ctx.progress)
+    t_cal = time.perf_counter()
+    photos = Photos()
+    lengths = pattern_lengths(mc.patterns, green_max)
+    from grassd.daemon.measure.camera_chain import MeasuringCamera
+
+    cam = MeasuringCamera(ctx.camera, ctx.dest / mid, mc.iso)
+    shots: dict[str, Any] = {}
+
+    def shoot(name: str, pattern: NDArray | float) -> None:
+        if ctx.stop():
+            raise MeasureError("measurement stopped (daemon shutting down)")
+        ctx.progress(f"measure: photographing {name}")
+        session.show(pattern)
+        shots[name] = cam.shoot(name)
+        session.wait_shown()  # still the pattern after the shot: a reboot is caught here
+        photos.lux.append(float(ctx.lux()))
+        lo, hi = min(photos.lux), max(photos.lux)
+        if hi > lo * (1.0 + mc.steady_lux):
+            raise UnsteadyLight(f"the light changed from {lo:.0f} to {hi:.0f} lux while the "
+                                f"display was photographed (over {mc.steady_lux:.0%}); "
+                                "measure at a time of steady light")
+
+    with PatternSession(ctx.fleet, cfg.controllers, n, timeout_s=mc.pattern_timeout_s,
+                        settle_s=mc.settle_s, stop=ctx.stop) as session:
+        shoot("short", 0.0)
+        shoot("long", green_max)
+        for k, x in enumerate(lengths):
+            shoot(f"pattern-{k:02d}", x)
+        for lv in CHECK_LEVELS:
+            shoot(f"before-{lv:03d}", level_lengths_mm(cfg, nominal, n, lv))
+        t_shoot = time.perf_counter()
+        found = _analyse(ctx, mid, shots, photos, lengths, nominal, n)
+        corrected = found["correction"].apply(cfg, nominal)
+        for lv in CHECK_LEVELS:
+            shoot(f"after-{lv:03d}", level_lengths_mm(cfg, corrected, n, lv))
+    t_end = time.perf_counter()
+    ctx.progress("measure: patterns ended, display shows content")
+    after = _pixel_colours(ctx, shots, photos, [f"after-{lv:03d}" for lv in CHECK_LEVELS],
+                           found["locate"])
+    report = _report(ctx, mid, started, found, nominal, photos, after, lengths, n)
+    report["seconds"] = {"calibrate": t_cal - t0, "photos_before": t_shoot - t_cal,
+                         "analyse_and_after": t_end - t_shoot,
+                         "total": time.perf_counter() - t0}
+    better = report["uniformity"]["after"] < report["uniformity"]["before"]
+    report["_accepted"] = (found["correction"], corrected) if better else None
+    return report
+
+
+def _pixel_colours(ctx: MeasureContext, shots: dict[str, Any], photos: Photos,
+                   names: list[str], located: Any) -> NDArray[np.float64]:
+    """(N, len(names), 3) every pixel's mean normalised ProPhoto in the named shots."""
+    from grassd.calib.display_in_photo import pixel_means
+    from grassd.daemon.measure.camera_chain import develop_shot
+
+    out = []
+    for name in names:
+        k = list(shots).index(name)
+        img = develop_shot(shots[name], ctx.setup, photos.lux[k])
+        out.append(pixel_means(img, located))
+    return np.stack(out, axis=1)
+
+
+def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Any], photos: Photos,
+             lengths: NDArray, nominal: Any, n: int) -> dict[str, Any]:
+    """Locate, pose, colours, fit, correction (steps 3 to 5 of the module docstring)."""
+    from grassd.calib.colour_spaces import prophoto_to_lab
+    from grassd.calib.display_in_photo import locate_display
+    from grassd.daemon.calibration.correction import DisplayCorrection
+    from grassd.daemon.calibration.display_model import (
+        capacity_for,
+        display_spec_for_config,
+        geometry_from_eye,
+    )
+    from grassd.daemon.calibration.pixel_model import (
+        corrected_commands,
+        fit_variation,
+        record_pixel_model,
+    )
+    from grassd.daemon.measure.camera_chain import develop_shot
+    from grassd.sim.renderer import Renderer
+    from grassd.sim.scene import RenderSettings
+
+    cfg, mc = ctx.cfg, ctx.cfg.measure
+    ctx.progress("measure: finding the display in the photos")
+    short = develop_shot(shots["short"], ctx.setup, photos.lux[0])
+    long_ = develop_shot(shots["long"], ctx.setup, photos.lux[1])
+    display = replace(display_spec_for_config(cfg), same_layout=True)  # the model pixel
+    located = locate_display(short, long_, display.rows, display.cols, display.pitch_mm,
+                             display.pixel.top_mm)
+    pose = located.pose  # from the corners' and pixel centres' bearings
+    eye = np.asarray(pose.position_m, dtype=np.float64)
+    names = [f"pattern-{k:02d}" for k in range(len(lengths))]
+    measured = prophoto_to_lab(_pixel_colours(ctx, shots, photos, names, located))
+    before = _pixel_colours(ctx, shots, photos, [f"before-{lv:03d}" for lv in CHECK_LEVELS],
+                            located)
+    renderer = Renderer.shared(capacity_for(n))
+    lighting = ctx.calibrator.lighting(ctx.light)
+    grid = np.arange(0.0, display.pixel.green_max_mm + GRID_STEP_MM / 2, GRID_STEP_MM)
+    settings = RenderSettings(samples=mc.samples, replicates=4, max_bounces=3,
+                              seed=cfg.simulation.seed)
+
+    def model_from(eye_m: NDArray, what: str) -> Any:
+        geo = geometry_from_eye(display, eye_m)
+        return record_pixel_model(
+            renderer, display, lighting, [geo.viewpoint(i) for i in range(n)], grid, settings,
+            layouts=mc.layouts,
+            progress=lambda done, total: ctx.progress(f"measure: {what} {done}/{total}"))
+
+    camera_model = model_from(eye, "pixel models from the camera")
+    ccm = np.asarray(ctx.setup.ccm)
+    ctx.progress("measure: fitting every pixel")
+    fit = fit_variation(camera_model, lengths, measured, ccm)
+    viewers = [model_from(_eye_of(vp), f"viewer {i + 1}") for i, vp in enumerate(cfg.viewpoints)]
+    commands = corrected_commands(viewers, [vp.weight for vp in cfg.viewpoints],
+                                  fit.variation, grid)
+    correction = DisplayCorrection(fit.variation, grid, commands, (display.rows, display.cols),
+                                   mid)
+    return {"locate": located, "pose": pose, "measured_lab": measured, "before": before,
+            "camera_model": camera_model, "fit": fit, "correction": correction, "ccm": ccm,
+            "nominal_lengths": {lv: level_lengths_mm(cfg, nominal, n, lv)
+                                for lv in CHECK_LEVELS}}
+
+
+def _eye_of(vp: Any) -> NDArray[np.float64]:
+    """World eye position (m) of a [[viewpoints]] entry standing relative to the display's
+    centre (``grassd.sim.scene.Viewpoint.eye_m``)."""
+    from grassd.sim.scene import Viewpoint
+
+    return np.asarray(Viewpoint(vp.h_cm, vp.d_m, vp.theta_deg).eye_m((0.0, 0.0)))
+
+
+def normalised_lab(rgb: NDArray, model: Any, nominal_mm: NDArray, ccm: NDArray
+                   ) -> NDArray[np.float64]:
+    """(N, 3) CIELAB of every pixel's measured ``rgb`` (N, 3, normalised ProPhoto) with its
+    viewing geometry divided out: rgb / (model pixel at its own viewpoint and ``nominal_mm``
+    (N,)) x the display's mean of that model colour (module docstring)."""
+    from grassd.calib.colour_spaces import prophoto_to_lab, rec709_to_prophoto
+    from grassd.daemon.calibration.variation import DisplayVariation
+
+    none = DisplayVariation.none(model.n_pixels)
+    m = np.stack([rec709_to_prophoto(model.rgb(np.array([x]), none, np.array([i]))[0, 0])
+                  for i, x in enumerate(nominal_mm)]) @ np.asarray(ccm).T
+    return prophoto_to_lab(rgb / np.clip(m, 1e-6, None) * m.mean(axis=0))
+
+
+def uniformity(colours: NDArray, model: Any, nominal: dict[int, NDArray], ccm: NDArray
+               ) -> dict[str, Any]:
+    """Uniformity of (N, levels, 3) measured colours at :data:`CHECK_LEVELS` (module
+    docstring): worst pair at the mid level (dE00 and the two pixels), OGCD spread per
+    level."""
+    labs = np.stack([normalised_lab(colours[:, k], model, nominal[lv], ccm)
+                     for k, lv in enumerate(CHECK_LEVELS)], axis=1)  # (N, L, 3)
+    mid = labs[:, CHECK_LEVELS.index(MID_LEVEL)]
+    pair = delta_E(mid[:, None, :], mid[None, :, :], method="CIE 2000")
+    i, j = np.unravel_index(int(np.argmax(pair)), pair.shape)
+    ogcd = delta_E(labs, labs[:, :1], method="CIE 2000")  # (N, L)
+    return {"worst_pair_de00": float(pair[i, j]), "worst_pair": [int(i), int(j)],
+            "ogcd_spread_de00": ogcd.std(axis=0).round(4).tolist(),
+            "mean_ogcd_de00": ogcd.mean(axis=0).round(4).tolist()}
+
+
+def _report(ctx: MeasureContext, mid: str, started: datetime, found: dict[str, Any],
+            nominal: Any, photos: Photos, after: NDArray, lengths: NDArray, n: int
+            ) -> dict[str, Any]:
+    """The measurement's report (JSON-ready; written by
+    :mod:`grassd.daemon.monitoring.measurement_report`)."""
+    from grassd.calib.ogcd import ogcd_from_lab
+    from grassd.daemon.calibration.pixel_model import lab_of
+    from grassd.daemon.calibration.variation import DisplayVariation
+
+    mc = ctx.cfg.measure
+    fit, model, ccm = found["fit"], found["camera_model"], found["ccm"]
+    before_u = uniformity(found["before"], model, found["nominal_lengths"], ccm)
+    after_u = uniformity(after, model, found["nominal_lengths"], ccm)
+    measured = found["measured_lab"]
+    predicted = lab_of(model.rgb(lengths, DisplayVariation.none(n)), ccm)
+    fitted = lab_of(model.rgb(lengths, fit.variation), ccm)
+    real_ogcd = np.stack([ogcd_from_lab(m) for m in measured])
+    pred_ogcd = np.stack([ogcd_from_lab(m) for m in predicted])
+    fit_ogcd = np.stack([ogcd_from_lab(m) for m in fitted])
+    pose = found["pose"]
+    eye = np.asarray(pose.position_m, dtype=float)
+    b, a = before_u["worst_pair_de00"], after_u["worst_pair_de00"]
+    within = a <= mc.tolerance_de00
+    return {
+        "measurement": mid, "started_at": started.isoformat(timespec="seconds"),
+        "status": "ok",
+        "camera": {"url": getattr(ctx.camera, "url", None),
+                   "position_m": eye.round(4).tolist(),
+                   "rms_deg": float(pose.rms_deg),
+                   "viewpoint": {"h_cm": float(eye[2] * 100.0),
+                                 "d_m": float(np.hypot(eye[0], eye[1])),
+                                 "theta_deg": float(np.degrees(np.arctan2(eye[0], -eye[1])))}},
+        "light": {"hdri": str(ctx.light.hdri), "lux": [round(x, 1) for x in photos.lux]},
+        "patterns_mm": lengths.round(3).tolist(),
+        "pixels": [{**p, "rms_lab": float(fit.rms_lab[p["index"]]),
+                    "rms_lab_model": float(fit.rms_lab_model[p["index"]])}
+                   for p in fit.variation.pixels()],
+        "characteristic": {
+            "lengths_mm": lengths.round(3).tolist(),
+            "measured_ogcd": real_ogcd.round(3).tolist(),
+            "predicted_ogcd": pred_ogcd.round(3).tolist(),
+            "fitted_ogcd": fit_ogcd.round(3).tolist(),
+            "max_error_predicted_de00": float(np.abs(real_ogcd - pred_ogcd).max()),
+            "max_error_fitted_de00": float(np.abs(real_ogcd - fit_ogcd).max())},
+        "uniformity": {"level": MID_LEVEL, "levels": list(CHECK_LEVELS), "before": b,
+                       "after": a, "improvement": b / a if a > 0 else None,
+                       "before_detail": before_u, "after_detail": after_u},
+        "verdict": {"state": "within tolerance" if within else "recalibrate",
+                    "tolerance_de00": mc.tolerance_de00,
+                    "reason": (f"worst pixel pair {a:.2f} dE00 after correction (before "
+                               f"{b:.2f}), tolerance {mc.tolerance_de00:g}")},
+        "tables": {"granularity": "pixel", "nominal_source": nominal.source},
+    }
