@@ -280,7 +280,7 @@ def _measurement(state_dir: str, clock: _Clock) -> str:
     ``<state_dir>/measure``: verdict, uniformity before -> after (dE00), when, a link to its HTML
     report (relative: the page is ``<state_dir>/reports/index.html``) and the last trend points;
     "never measured" when there is none."""
-    from grassd.daemon.measure.report import epoch_of, headline, load_reports, trend
+    from grassd.daemon.monitoring.measurement_report import epoch_of, headline, load_reports, trend
 
     try:
         reports = load_reports(StateLayout(state_dir), CARD_MEASUREMENTS)
