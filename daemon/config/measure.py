@@ -18,7 +18,8 @@
     tolerance_de00 = 2.0            # worst pixel pair at mid level (dE00) within tolerance
     iso = 100                       # fixed ISO of the shots
     samples = 1024                  # render samples per length for the pixel models
-    layouts = 2                     # tuft layouts the pixel model averages
+    layouts = 4                     # tuft layouts the pixel model averages (their spread
+                                    #   weighs the fit: a real pixel is one layout)
 
 The colour checker, photographed once at set-up with this camera (``grassd measure setup``),
 gives the camera's white balance, colour correction and exposure scale
@@ -50,7 +51,7 @@ class MeasureConfig:
     tolerance_de00: float = 2.0
     iso: int = 100
     samples: int = 1024
-    layouts: int = 2
+    layouts: int = 4
 
     def in_window(self, hour: int) -> bool:
         """Whether a scheduled measurement may start at local ``hour`` (0..23)."""

@@ -203,7 +203,7 @@ def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Any], photos: Photo
              lengths: NDArray, nominal: Any, n: int) -> dict[str, Any]:
     """Locate, pose, colours, fit, correction (steps 3 to 5 of the module docstring)."""
     from grassd.calib.colour_spaces import prophoto_to_lab
-    from grassd.calib.display_in_photo import locate_display
+    from grassd.calib.display_in_photo import locate_display, pixel_means
     from grassd.daemon.calibration.correction import DisplayCorrection
     from grassd.daemon.calibration.display_model import (
         capacity_for,
@@ -232,32 +232,43 @@ def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Any], photos: Photo
     measured = prophoto_to_lab(_pixel_colours(ctx, shots, photos, names, located))
     before = _pixel_colours(ctx, shots, photos, [f"before-{lv:03d}" for lv in CHECK_LEVELS],
                             located)
+    nominal_lengths = {lv: level_lengths_mm(cfg, nominal, n, lv) for lv in CHECK_LEVELS}
+    # every photo at known commanded lengths informs the fit: the patterns, the all-short and
+    # all-long pair (an offset shows most where the range clamps it) and the levels before
+    ends = np.stack([pixel_means(short, located), pixel_means(long_, located)], axis=1)
+    fit_lab = np.concatenate([prophoto_to_lab(ends), measured, prophoto_to_lab(before)], axis=1)
+    fit_cmd = np.concatenate([np.tile([0.0, display.pixel.green_max_mm], (n, 1)),
+                              np.tile(lengths, (n, 1)),
+                              np.stack([nominal_lengths[lv] for lv in CHECK_LEVELS], axis=1)],
+                             axis=1)
     renderer = Renderer.shared(capacity_for(n))
     lighting = ctx.calibrator.lighting(ctx.light)
     grid = np.arange(0.0, display.pixel.green_max_mm + GRID_STEP_MM / 2, GRID_STEP_MM)
     settings = RenderSettings(samples=mc.samples, replicates=4, max_bounces=3,
                               seed=cfg.simulation.seed)
 
-    def model_from(eye_m: NDArray, what: str) -> Any:
+    def model_from(eye_m: NDArray, what: str, layouts: int) -> Any:
         geo = geometry_from_eye(display, eye_m)
         return record_pixel_model(
             renderer, display, lighting, [geo.viewpoint(i) for i in range(n)], grid, settings,
-            layouts=mc.layouts,
+            layouts=layouts,
             progress=lambda done, total: ctx.progress(f"measure: {what} {done}/{total}"))
 
-    camera_model = model_from(eye, "pixel models from the camera")
+    camera_model = model_from(eye, "pixel models from the camera", mc.layouts)
     ccm = np.asarray(ctx.setup.ccm)
     ctx.progress("measure: fitting every pixel")
-    fit = fit_variation(camera_model, lengths, measured, ccm)
-    viewers = [model_from(_eye_of(vp), f"viewer {i + 1}") for i, vp in enumerate(cfg.viewpoints)]
+    fit = fit_variation(camera_model, fit_cmd, fit_lab, ccm)
+    # the viewers' models only carry the fitted variation to them: the tuft layout's accident
+    # is the same with and without it, so one layout does
+    viewers = [model_from(_eye_of(vp), f"viewer {i + 1}", 1)
+               for i, vp in enumerate(cfg.viewpoints)]
     commands = corrected_commands(viewers, [vp.weight for vp in cfg.viewpoints],
                                   fit.variation, grid)
     correction = DisplayCorrection(fit.variation, grid, commands, (display.rows, display.cols),
                                    mid)
     return {"locate": located, "pose": pose, "measured_lab": measured, "before": before,
             "camera_model": camera_model, "fit": fit, "correction": correction, "ccm": ccm,
-            "nominal_lengths": {lv: level_lengths_mm(cfg, nominal, n, lv)
-                                for lv in CHECK_LEVELS}}
+            "nominal_lengths": nominal_lengths}
 
 
 def _eye_of(vp: Any) -> NDArray[np.float64]:
@@ -313,7 +324,7 @@ def _report(ctx: MeasureContext, mid: str, started: datetime, found: dict[str, A
     after_u = uniformity(after, model, found["nominal_lengths"], ccm)
     measured = found["measured_lab"]
     predicted = lab_of(model.rgb(lengths, DisplayVariation.none(n)), ccm)
-    fitted = lab_of(model.rgb(lengths, fit.variation), ccm)
+    fitted = lab_of(model.rgb(lengths, fit.variation), fit.colour @ ccm)
     real_ogcd = np.stack([ogcd_from_lab(m) for m in measured])
     pred_ogcd = np.stack([ogcd_from_lab(m) for m in predicted])
     fit_ogcd = np.stack([ogcd_from_lab(m) for m in fitted])
@@ -332,6 +343,8 @@ def _report(ctx: MeasureContext, mid: str, started: datetime, found: dict[str, A
                                  "theta_deg": float(np.degrees(np.arctan2(eye[0], -eye[1])))}},
         "light": {"hdri": str(ctx.light.hdri), "lux": [round(x, 1) for x in photos.lux]},
         "patterns_mm": lengths.round(3).tolist(),
+        "shape": [ctx.cfg.display.rows, ctx.cfg.display.cols],
+        "display_colour_balance": np.diag(fit.colour).round(4).tolist(),
         "pixels": [{**p, "rms_lab": float(fit.rms_lab[p["index"]]),
                     "rms_lab_model": float(fit.rms_lab_model[p["index"]])}
                    for p in fit.variation.pixels()],
