@@ -76,8 +76,8 @@ class DisplayVariation:
                  "yellow_gain": float(self.yellow_gain[i])} for i in range(self.n_pixels)]
 
     def to_toml(self) -> str:
-        """The variation as a file's TOML text (every pixel listed)."""
-        return tomli_w.dumps({"pixel": self.pixels()})
+        """The variation as a file's TOML text, one ``[[pixel]]`` table per pixel."""
+        return "\n".join("[[pixel]]\n" + tomli_w.dumps(p) for p in self.pixels())
 
     @classmethod
     def from_pixels(cls, rows: list[Mapping[str, Any]], n_pixels: int) -> DisplayVariation:

@@ -34,37 +34,56 @@ def _measure_config(cfg: Config, camera_url: str | None = None) -> Config:
     return cfg.replace(measure=mc)
 
 
+def measuring_site(hw: Any, cfg: Config, transform: Any, variation_file: str | None,
+                   lux: float) -> tuple[Config, Any, Any]:
+    """Add the simulated display's measuring camera to ``hw``'s simulated site: (config whose
+    ``[measure] camera`` is it, the config transform that keeps it so on reload, the camera).
+    Makes the camera's set-up (the simulated operator's checker shot) when the state
+    directory has none."""
+    from grassd.daemon.store.layout import StateLayout
+
+    display, camera = start_measuring_camera(hw, cfg, variation_file, lux)
+    try:
+        cfg = _measure_config(cfg, camera.url)
+        if not StateLayout(cfg.state_dir).measure_setup.exists():
+            simulated_setup(cfg, display, camera.url, lux)
+    except BaseException:
+        camera.stop()
+        raise
+
+    def keep_camera(c: Config) -> Config:
+        return _measure_config(transform(c), camera.url)
+
+    return cfg, keep_camera, camera
+
+
 class SimulatedSite:
     """Simulated controllers and lux sensor (as ``grassd run --simulate-hardware``) plus the
-    simulated display and the camera that photographs it
-    (:mod:`grassd.daemon.hardware.simulated_display`)."""
+    simulated display and the camera that photographs it (:func:`measuring_site`)."""
 
     def __init__(self, cfg: Config, variation_file: str | None, lux: float = 5000.0,
                  firmware: str = FIRMWARE_BACKENDS[0]) -> None:
         from grassd.daemon.cli.run import _simulated
 
-        self.hw, cfg, self.transform = _simulated(cfg, lux, firmware)
-        self.camera = None
+        self.hw, cfg, transform = _simulated(cfg, lux, firmware)
         try:
-            self.display, self.camera = start_measuring_camera(self.hw, cfg, variation_file,
-                                                               lux)
+            self.cfg, _, self.camera = measuring_site(self.hw, cfg, transform,
+                                                      variation_file, lux)
         except BaseException:
             self.hw.stop()
             raise
-        self.cfg = _measure_config(cfg, self.camera.url)
 
     def stop(self) -> None:
         """Stop the camera and the simulated hardware."""
-        if self.camera is not None:
-            self.camera.stop()
+        self.camera.stop()
         self.hw.stop()
 
 
 def start_measuring_camera(hw: Any, cfg: Config, variation_file: str | None,
-                           lux: float) -> tuple[Any, Any]:
+                           lux: float, samples: int = 1024) -> tuple[Any, Any]:
     """The simulated display of ``hw``'s controllers (pixels varied as ``variation_file``
-    says, or not at all) and a started simulated OSC camera photographing it: (display,
-    camera). Initialises the renderer."""
+    says, or not at all; ``samples`` per length for its pixels' radiance) and a started
+    simulated OSC camera photographing it: (display, camera). Initialises the renderer."""
     from grassd.daemon.calibration.calibrate import Calibrator, init_backend
     from grassd.daemon.calibration.display_model import capacity_for
     from grassd.daemon.calibration.variation import DisplayVariation, load_variation
@@ -79,7 +98,7 @@ def start_measuring_camera(hw: Any, cfg: Config, variation_file: str | None,
     init_backend(cfg)
     lighting = Calibrator(cfg).lighting(LightInput(hdri=site_hdri(), ambient_lux=lux))
     display = SimulatedDisplay(cfg, lighting, variation, hw.positions_um,
-                               Renderer.shared(capacity_for(n)))
+                               Renderer.shared(capacity_for(n)), samples=samples)
     h = display.width // 2
     import numpy as np
 
@@ -158,15 +177,13 @@ def measure(ctx: click.Context, now: bool, config_path: str | None, state_dir: s
     from grassd.daemon.runtime.service import Service
 
     cfg = resolve_config(config_path, state_dir)
+    if not simulate_hardware and (report := _ask_daemon(cfg)) is not None:
+        _output(report, json_out)
+        return
     site = None
     if simulate_hardware:
         site = SimulatedSite(cfg, variation_file, sim_lux)
         cfg = site.cfg
-        from grassd.daemon.store.layout import StateLayout
-
-        if not StateLayout(cfg.state_dir).measure_setup.exists():
-            click.echo("simulated set-up: photographing the colour checker", err=True)
-            simulated_setup(cfg, site.display, cfg.measure.camera, sim_lux)
     elif cfg.measure is None:
         raise DaemonError(f"{cfg.source}: no [measure] section; name the measuring camera "
                           '([measure] camera = "capture" or its http:// URL)')
@@ -180,6 +197,27 @@ def measure(ctx: click.Context, now: bool, config_path: str | None, state_dir: s
         if site is not None:
             site.stop()
     _output(report, json_out)
+
+
+def _ask_daemon(cfg: Config) -> dict[str, Any] | None:
+    """The running daemon's measurement (it owns the controllers), or None when none runs."""
+    from grassd.daemon.errors import DaemonNotRunning
+    from grassd.daemon.runtime.control import request
+
+    try:
+        ans = request(cfg.control_socket, {"cmd": "measure", "timeout_s": MEASURE_WAIT_S},
+                      timeout_s=MEASURE_WAIT_S + 10)
+    except DaemonNotRunning:
+        return None
+    if "measurement" not in ans:
+        from grassd.daemon.errors import DaemonError
+
+        raise DaemonError(f"the running daemon refused the measurement: {ans.get('error')}")
+    return ans["measurement"]
+
+
+#: Seconds ``grassd measure --now`` waits for the running daemon's measurement.
+MEASURE_WAIT_S: float = 3600.0
 
 
 def _output(report: dict[str, Any], json_out: str | None) -> None:

@@ -51,6 +51,11 @@ def check_config(config_path: str | None) -> None:
                    f"{cap.file_format} shots {cap.ev_step:g} EV apart around {centre}, ISO "
                    f"{cap.iso}, {cap.white_balance}"
                    + (f"; shaded sensor unit {cap.shaded_unit}" if cap.shaded_unit else ""))
+    if (ms := cfg.measure) is not None:
+        when = (f"every {ms.interval_s:g} s between {ms.start_hour}:00 and {ms.end_hour}:00"
+                if ms.interval_s > 0 else "on request")
+        click.echo(f"  measure: camera {ms.camera} {when}, {ms.patterns} patterns, tolerance "
+                   f"{ms.tolerance_de00:g} dE00, watchdog {ms.pattern_timeout_s:g} s")
     click.echo(f"  state: {cfg.state_dir}; cache: {cfg.cache_dir}; socket: {cfg.control_socket}")
     from grassd.daemon.monitoring.textfile import textfile_path
     from grassd.daemon.store.layout import StateLayout
@@ -116,20 +121,34 @@ def _simulated(cfg: Config, lux: float, firmware: str = FIRMWARE_BACKENDS[0]):
               default=FIRMWARE_BACKENDS[0], show_default=True,
               help="with --simulate-hardware: the controllers are the Python model, the C "
                    "firmware as a Linux process (posix), or its Cortex-M7 image under QEMU")
+@click.option("--sim-display-variation", "variation_file",
+              type=click.Path(dir_okay=False, exists=True),
+              help="with --simulate-hardware: a camera photographs the simulated display for "
+                   "grassd measure, its pixels varied as this TOML says ([[pixel]] index, "
+                   "length_offset_mm, green_gain, yellow_gain)")
 @click.option("--tick", "tick_s", type=float, default=1.0, show_default=True,
               help="main-loop period (s)")
 @click.option("--log-level", default="info", show_default=True,
               type=click.Choice(["debug", "info", "warning", "error"]))
 def run_cmd(config_path: str | None, state_dir: str | None, simulate_hardware: bool,
-            sim_lux: float, sim_firmware: str, tick_s: float, log_level: str) -> None:
+            sim_lux: float, sim_firmware: str, variation_file: str | None, tick_s: float,
+            log_level: str) -> None:
     """Run the daemon: watch the inbox, calibrate, push tables, serve the control socket."""
     from grassd.daemon.runtime.service import Service
 
     _setup_logging(log_level)
     cfg = resolve_config(config_path, state_dir)
-    hw, transform = None, None
+    if variation_file and not simulate_hardware:
+        raise click.UsageError("--sim-display-variation needs --simulate-hardware")
+    hw, transform, camera = None, None, None
     if simulate_hardware:
         hw, cfg, transform = _simulated(cfg, sim_lux, sim_firmware)
+        if variation_file or cfg.measure is not None:  # the display's measuring camera
+            from grassd.daemon.cli.measure import measuring_site
+
+            cfg, transform, camera = measuring_site(hw, cfg, transform, variation_file,
+                                                    sim_lux)
+            click.echo(f"simulated measuring camera on {camera.url}", err=True)
         for port, dev in hw.ports.items():
             click.echo(f"simulated controller port {port} -> {dev}", err=True)
         if hw.sensor is not None:
@@ -141,6 +160,8 @@ def run_cmd(config_path: str | None, state_dir: str | None, simulate_hardware: b
         svc = Service(cfg, config_path=src, tick_s=tick_s, transform=transform)
         code = svc.run()
     finally:
+        if camera is not None:
+            camera.stop()
         if hw is not None:
             hw.stop()
     raise SystemExit(code)

@@ -50,8 +50,10 @@ class ControlCommands:
 
     def __init__(self, status: Callable[[], Status], reload_event: threading.Event,
                  stop_event: threading.Event, requests: queue.Queue[QueuedRequest],
-                 retry_bundle: Callable[[str], dict[str, Any]]) -> None:
+                 retry_bundle: Callable[[str], dict[str, Any]],
+                 measure: Callable[[], dict[str, Any]] | None = None) -> None:
         self.status = status
+        self.measure = measure
         self.reload_event = reload_event
         self.stop_event = stop_event
         self.requests = requests
@@ -82,6 +84,20 @@ class ControlCommands:
                 return {"ok": False, "error": "the daemon did not get to it in time"}
             out = r.result or {}
             return {"ok": out.get("status") == "ok", "retry": out, "error": out.get("error")}
+        if cmd == "measure" and self.measure is not None:  # in the main loop, like a run
+            if self.stop_event.is_set():
+                return {"ok": False, "error": "daemon is stopping"}
+            timeout = _timeout(req)
+            r = QueuedRequest(force=False, task=self.measure)
+            try:
+                self.requests.put_nowait(r)
+            except queue.Full:
+                return {"ok": False, "busy": True, "error": "busy: try again later"}
+            if not r.done.wait(timeout):
+                return {"ok": False, "error": f"measurement did not finish within {timeout:g} s"}
+            out = r.result or {}
+            return {"ok": out.get("status") == "ok", "measurement": out,
+                    "error": out.get("error")}
         if cmd == "calibrate":
             if self.stop_event.is_set():
                 return {"ok": False, "error": "daemon is stopping"}
@@ -99,7 +115,8 @@ class ControlCommands:
                 return {"ok": False, "error": f"run did not finish within {timeout:g} s"}
             return {"ok": True, "run": r.result}
         return {"ok": False, "error": f"unknown command {cmd!r} "
-                                      "(use ping, status, calibrate, reload, bundles_retry)"}
+                                      "(use ping, status, calibrate, measure, reload, "
+                                      "bundles_retry)"}
 
 
 def _timeout(req: dict[str, Any]) -> float:

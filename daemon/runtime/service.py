@@ -49,8 +49,10 @@ import signal
 import sqlite3
 import threading
 import time
+from datetime import datetime
 from pathlib import Path
 from typing import Any
+from zoneinfo import ZoneInfo
 
 from grassd import __version__
 from grassd.daemon.calibration.calibrate import CalibrationResult, init_backend
@@ -134,11 +136,12 @@ class Service:
         #: runs cannot hold every control-socket slot (status stays answerable)
         self.requests: queue.Queue[QueuedRequest] = queue.Queue(maxsize=max_queued)
         self.commands = ControlCommands(self.status, self.reload_event, self.stop_event,
-                                        self.requests, self._retry_bundle)
+                                        self.requests, self._retry_bundle, self.measure)
         self.activity = "starting"
         self.started_at = time.time()
         self.last_progress = time.monotonic()
         self.last_run_at: float | None = None
+        self.last_measure_at: float | None = None
         self._last_reconcile = 0.0
         self.reload_error: str | None = None
         #: the errors main-loop passes survived (OSError / SQLite), for status
@@ -323,10 +326,40 @@ class Service:
                 req.done.set()
         if due and not bundles and not self.stop_event.is_set():
             self.scheduled_run("interval")
+        if self._measure_due() and not self.stop_event.is_set():
+            self.measure("interval")
         if time.monotonic() - self._last_reconcile >= self.reconcile_s:
             self.reconcile()
         if self.activity != "idle":
             self._progress("idle")
+
+    def measure(self, trigger: str = "request") -> dict[str, Any]:
+        """Measure the display now (:func:`grassd.daemon.runtime.measurement.measure_with`);
+        returns the measurement's report."""
+        from grassd.daemon.runtime.measurement import measure_with
+
+        self._progress(f"{trigger} measurement of the display")
+        self.last_measure_at = time.time()
+        try:
+            return measure_with(self, trigger)
+        finally:
+            self.operator.after_run({})  # the status page's measurement card
+
+    def _measure_due(self) -> bool:
+        """A scheduled measurement is due: ``[measure] interval_s`` since the last one (or the
+        daemon's start), within the local hours ``start_hour`` .. ``end_hour``."""
+        mc = self.cfg.measure
+        if mc is None or mc.interval_s <= 0:
+            return False
+        if self.last_measure_at is None:
+            from grassd.daemon.monitoring.measurement_report import epoch_of, load_reports
+
+            last = load_reports(StateLayout(self.cfg.state_dir), limit=1)
+            self.last_measure_at = (epoch_of(last[-1].get("started_at")) if last else None
+                                    ) or self.started_at
+        now = time.time()
+        hour = datetime.fromtimestamp(now, ZoneInfo(self.cfg.site.timezone)).hour
+        return now - self.last_measure_at >= mc.interval_s and mc.in_window(hour)
 
     def _describe(self, exc: BaseException, action: str = "access") -> str:
         """One line for an error a main-loop pass survives (see :func:`describe_error`)."""
