@@ -9,8 +9,10 @@ controller whose host died on the way returns to content by itself when its watc
 power cut: it boots showing content.
 
 A pattern is only taken as shown once every pixel's motor target equals the length asked and its
-position is within ``tolerance_um`` of it (GET_POSITIONS): a controller that rebooted in the
-meantime shows its table again and is caught here, before a photo is taken of it.
+position is within ``tolerance_um`` of it (GET_POSITIONS), before and after each photo: a
+controller whose pixels moved away meanwhile (it rebooted and was sent content, its watchdog ran
+out) is caught, and the photo refused. One that rebooted while its motors held the pattern's
+lengths still shows them: its photo stands, and the next pattern is sent to it again.
 
 Units: lengths mm at the interface, micrometres on the wire; seconds.
 """
