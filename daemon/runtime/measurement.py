@@ -23,7 +23,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from grassd.daemon.errors import DaemonError, RunInterrupted
+from grassd.daemon.errors import USER_ERRORS, DaemonError, RunInterrupted
 
 log = logging.getLogger(__name__)
 
@@ -66,6 +66,7 @@ def measure_with(svc: Any, trigger: str = "request") -> dict[str, Any]:
         svc._init_renderer()
         setup = load_setup(layout.measure_setup)
         camera, lock_dir = measuring_camera(cfg)
+        camera.info()  # reachable before the display is taken over
         if lock_dir is not None:
             lock = StateLock(lock_dir, name=CAMERA_LOCK)
             lock_dir.mkdir(parents=True, exist_ok=True)
@@ -98,9 +99,12 @@ def measure_with(svc: Any, trigger: str = "request") -> dict[str, Any]:
                                      "correction did not make the display more uniform"})
     except RunInterrupted as exc:
         report.update(status="interrupted", error=str(exc))
-    except DaemonError as exc:
+    except (*USER_ERRORS, OSError) as exc:  # the display, camera, light or controllers
         report.update(status="failed", error=str(exc))
         log.warning("measurement failed: %s", exc)
+    except Exception as exc:  # a bug must not kill the service
+        log.exception("measurement failed")
+        report.update(status="failed", error=f"internal error: {exc!r}")
     finally:
         if lock is not None:
             lock.release()
