@@ -17,10 +17,9 @@ from typing import Any
 
 import click
 
+from grassd.daemon.cli.run import _CONFIG_HELP
 from grassd.daemon.config.settings import Config, resolve_config
 from grassd.rigs import FIRMWARE_BACKENDS
-
-_CONFIG_HELP = "configuration file (default /etc/grassd/grassd.toml, else the embedded default)"
 
 
 def _measure_config(cfg: Config, camera_url: str | None = None) -> Config:
