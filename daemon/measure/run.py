@@ -8,7 +8,8 @@
    ``[measure] patterns`` lengths (the pixels' characteristics), and at :data:`CHECK_LEVELS`
    through the uncorrected tables (uniformity before). The lux is read at every shot; light that
    changes by more than ``steady_lux`` ends the measurement.
-3. **Where the camera stands**: the display located in the photos and the pose solved from its
+3. (The display shows content while the photos are analysed: steps 3 to 5 take a minute or
+   two.) **Where the camera stands**: the display located in the photos and the pose solved from its
    known size (:mod:`grassd.calib.display_in_photo`); that pose is the viewpoint the photos stand
    for. Each pixel's mean colour through the camera's chain
    (:mod:`grassd.daemon.measure.camera_chain`) to CIELAB.
@@ -17,7 +18,8 @@
    at its own viewpoint from the camera.
 5. **The correction** carried to the configured viewers
    (:func:`~grassd.daemon.calibration.pixel_model.corrected_commands`) and the tables with it.
-6. **Verification**: the corrected tables' levels shown and photographed (uniformity after).
+6. **Verification**: the corrected tables' levels shown as patterns again and photographed
+   (uniformity after).
 7. Patterns end: the display shows content again, whatever happened before. Only a measurement
    that got this far, and whose correction makes the display more uniform, is kept: its
    correction saved and its tables committed and pushed as a run (trigger "measure"). Nothing
@@ -47,7 +49,7 @@ import numpy as np
 from colour import delta_E
 from numpy.typing import NDArray
 
-from grassd.daemon.errors import DaemonError
+from grassd.daemon.errors import DaemonError, RunInterrupted
 
 log = logging.getLogger(__name__)
 
@@ -147,11 +149,11 @@ def run_measurement(ctx: MeasureContext) -> dict[str, Any]:
 
     def shoot(name: str, pattern: NDArray | float) -> None:
         if ctx.stop():
-            raise MeasureError("measurement stopped (daemon shutting down)")
+            raise RunInterrupted("measurement stopped (daemon shutting down)")
         ctx.progress(f"measure: photographing {name}")
         session.show(pattern)
         shots[name] = cam.shoot(name)
-        session.wait_shown()  # still the pattern after the shot: a reboot is caught here
+        session.wait_shown()  # pixels that moved during the shot are caught here
         photos.lux.append(float(ctx.lux()))
         lo, hi = min(photos.lux), max(photos.lux)
         if hi > lo * (1.0 + mc.steady_lux):
@@ -168,6 +170,7 @@ def run_measurement(ctx: MeasureContext) -> dict[str, Any]:
         for lv in CHECK_LEVELS:
             shoot(f"before-{lv:03d}", level_lengths_mm(cfg, nominal, n, lv))
         t_shoot = time.perf_counter()
+        session.end()  # content while the photos are analysed (a minute or two)
         found = _analyse(ctx, mid, shots, photos, lengths, nominal, n)
         corrected = found["correction"].apply(cfg, nominal)
         for lv in CHECK_LEVELS:
