@@ -49,6 +49,7 @@ COMMANDS = {
     "experiment": "test_experiment_virtual_capture, test_experiment_paper",
     "fit": "test_fit",
     "history": "test_daemon_on_simulated_hardware",
+    "measure": "test_measure_refuses_a_camera_never_set_up",
     "run": "test_daemon_on_simulated_hardware",
     "simulate": "test_simulate_and_export_scene",
     "status": "test_daemon_on_simulated_hardware",
@@ -306,6 +307,20 @@ def test_fit(installed, virtual_capture):
     installed.grassd("fit", virtual_capture, "--params", "splay_deg", "--samples", "16",
                      "--layouts", "2", "-q", "--json", installed.work / "fit.json")
     assert "splay_deg" in (installed.work / "fit.json").read_text()
+
+
+def test_measure_refuses_a_camera_never_set_up(installed):
+    """The installed ``grassd measure --now`` loads the measurement (renderer included) and,
+    with a camera never set up, fails with its report and the fix (the whole measurement runs
+    in tests/daemon/measure)."""
+    cfg = installed.work / "measure.toml"
+    state = installed.work / "measure-state"
+    cfg.write_text(f'state_dir = "{state}"\ncontrol_socket = "{state}/control.sock"\n'
+                   + installed.config.read_text()
+                   + '\n[measure]\ncamera = "http://127.0.0.1:9"\n')
+    r = installed.grassd("measure", "--now", "--config", cfg, rc=2)
+    assert "grassd measure setup" in r.stderr, r.stderr
+    assert len(list((state / "measure").glob("*T*Z.json"))) == 1
 
 
 def test_experiment_paper(installed):
