@@ -315,9 +315,9 @@ def test_measure_refuses_a_camera_never_set_up(installed):
     in tests/daemon/measure)."""
     cfg = installed.work / "measure.toml"
     state = installed.work / "measure-state"
+    default = ROOT / "daemon" / "config" / "default.toml"  # the installed copy: a test edits it
     cfg.write_text(f'state_dir = "{state}"\ncontrol_socket = "{state}/control.sock"\n'
-                   + installed.config.read_text()
-                   + '\n[measure]\ncamera = "http://127.0.0.1:9"\n')
+                   + default.read_text() + '\n[measure]\ncamera = "http://127.0.0.1:9"\n')
     r = installed.grassd("measure", "--now", "--config", cfg, rc=2)
     assert "grassd measure setup" in r.stderr, r.stderr
     assert len(list((state / "measure").glob("*T*Z.json"))) == 1
