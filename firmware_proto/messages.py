@@ -187,16 +187,29 @@ class Info(Message):
         """True when the controller takes PATTERN / PATTERN_END (raw lengths, watchdog)."""
         return bool(self.features & FEATURE_PATTERNS)
 
+    def pack(self) -> bytes:
+        """The payload: as received when decoded from the wire (an older controller's 16
+        bytes, a newer one's later fields: a decoded frame re-encodes to the same bytes), else
+        this version's form."""
+        received = getattr(self, "_received", None)
+        return super().pack() if received is None else received
+
+    @classmethod
+    def _decoded(cls, values: tuple, payload: bytes, **kw: int) -> Info:
+        info = cls(*values, **kw)
+        object.__setattr__(info, "_received", bytes(payload))  # not a field: not compared
+        return info
+
     @classmethod
     def unpack(cls, payload: bytes) -> Message:
         """Decode INFO of 16 bytes (``features`` = 0) or of 18 and more (extra bytes ignored)."""
         size = struct.calcsize(cls._FMT)
         if len(payload) == INFO_V1_BASE_BYTES:
-            return cls(*struct.unpack(cls._FMT[:-1], payload), features=0)
+            return cls._decoded(struct.unpack(cls._FMT[:-1], payload), payload, features=0)
         if len(payload) < size:
             raise FrameError(f"Info payload is {len(payload)} bytes, expected "
                              f"{INFO_V1_BASE_BYTES} or at least {size}")
-        return cls(*struct.unpack(cls._FMT, payload[:size]))
+        return cls._decoded(struct.unpack(cls._FMT, payload[:size]), payload)
 
 
 @dataclass(frozen=True)

@@ -219,6 +219,9 @@ def test_info_decodes_the_old_16_byte_payload_and_the_new_one():
     assert old == Info(1, 1, 0, 0, 0x6A5D0001, 16, 16, 256, 20000)
     # later fields after features are ignored by this host
     assert Info.unpack(payload + b"\xAA\xBB\xCC") == new
+    # and whatever decodes re-encodes to the bytes received (hypothesis found a 24-byte one)
+    for received in (payload[:16], payload + b"\xAA\xBB\xCC", bytes(24)):
+        assert Info.unpack(received).pack() == received
     for bad in (payload[:15], payload[:17], b""):
         with pytest.raises(FrameError):
             Info.unpack(bad)
