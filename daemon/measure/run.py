@@ -291,8 +291,8 @@ def normalised_lab(rgb: NDArray, model: Any, nominal_mm: NDArray, ccm: NDArray
     from grassd.daemon.calibration.variation import DisplayVariation
 
     none = DisplayVariation.none(model.n_pixels)
-    m = np.stack([rec709_to_prophoto(model.rgb(np.array([x]), none, np.array([i]))[0, 0])
-                  for i, x in enumerate(nominal_mm)]) @ np.asarray(ccm).T
+    own = np.asarray(nominal_mm, dtype=np.float64)[:, None]  # each pixel at its own length
+    m = rec709_to_prophoto(model.rgb(own, none)[:, 0]) @ np.asarray(ccm).T
     return prophoto_to_lab(rgb / np.clip(m, 1e-6, None) * m.mean(axis=0))
 
 
