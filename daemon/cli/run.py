@@ -201,6 +201,9 @@ def print_status(st: Status, echo: Callable[[str], Any] = click.echo) -> None:
     for w in live.waiting_bundles if live else ():
         echo(one_line(f"bundle {w.bundle} waits (retry in {w.retry_in_s:.0f} s): {w.reason}",
                       None))
+    if live and (cw := live.compute_wait):
+        echo(one_line(f"{cw.trigger} run waits for compute ({cw.attempts} failed, retry in "
+                      f"{cw.retry_in_s:.0f} s): {cw.reason}", None))
     if live and (cap := live.capture):
         due = "-" if cap["next_in_s"] is None else f"{cap['next_in_s']:.0f} s"
         echo(f"capture: {cap['camera']} every {cap['interval_s']:g} s, {cap['captures']} "

@@ -7,8 +7,9 @@
 - ``ok``: a table is active and every controller reports it, nothing waits on an error;
 - ``degraded``: the display works but something needs a look: some controllers do not hold
   the active table, there is no table yet, a main-loop pass survived an error (full disk,
-  database), a reload was refused, a bundle waits for the lux sensor, or the capture station's
-  last capture failed (after its retries);
+  database), a reload was refused, a bundle waits for the lux sensor or the Dask cluster, a
+  scheduled or requested run waits for the Dask cluster, or the capture station's last capture
+  failed (after its retries);
 - ``failed``: the display is not calibrated: no controller holds the active table, or no table
   exists although runs were tried (every one failed or was rejected).
 
@@ -75,6 +76,9 @@ def assess(status: Status) -> Health:
             degraded.append(f"reload refused: {live.reload_error}")
         for w in live.waiting_bundles:
             degraded.append(f"bundle {w.bundle} waits: {w.reason}")
+        if (cw := live.compute_wait) is not None:
+            degraded.append(f"{cw.trigger} run waits for compute ({cw.attempts} failed, retry "
+                            f"in {cw.retry_in_s:.0f} s): {cw.reason}")
         capture = live.capture or {}
         if capture.get("last_error"):  # the light stops arriving: the table goes stale
             degraded.append(f"capture station {capture['camera']}: {capture['last_error']}")

@@ -191,6 +191,25 @@ class WaitingBundle:
 
 
 @dataclass(frozen=True)
+class ComputeWait:
+    """A run without a bundle (scheduled or requested) that the Dask cluster of ``[compute]
+    scheduler`` could not compute, and its automatic retry: ``trigger`` (the run's), ``reason``,
+    ``since`` (epoch s of the first failure), ``attempts`` (failed runs in a row) and
+    ``retry_in_s``."""
+
+    trigger: str
+    reason: str
+    since: float
+    attempts: int
+    retry_in_s: float
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> ComputeWait:
+        """From its JSON form (the keys of the fields)."""
+        return cls(**_known(cls, d))
+
+
+@dataclass(frozen=True)
 class ErrorSeen:
     """The last error a main-loop pass survived: ``at`` (ISO 8601), ``error``, and
     ``cleared_at`` (ISO 8601; None while it lasts)."""
@@ -212,7 +231,8 @@ class DaemonState:
     and a refused reload (``reload_error``), the inbox (``inbox``: entries per directory,
     ``inbox_problems``), errors its passes survived (``last_error``, ``last_error_seen``),
     bundles waiting on a transient failure, where its metrics and status page are written,
-    the capture station and the serial lines."""
+    the capture station, the serial lines, and a run waiting for compute (``compute_wait``,
+    None unless the Dask cluster could not compute the last run without a bundle)."""
 
     pid: int
     version: str
@@ -237,11 +257,15 @@ class DaemonState:
     #: grassd.daemon.monitoring.line_report); free-form: its keys are the line counters'
     lines: Mapping[str, Mapping[str, Any]]
     waiting_bundles: tuple[WaitingBundle, ...]
+    compute_wait: ComputeWait | None = None
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> DaemonState:
-        """From a status's JSON form (its live keys; the others are ignored)."""
-        kw = {f.name: d[f.name] for f in fields(cls)}
+        """From a status's JSON form (its live keys; the others are ignored; a daemon from
+        before ``compute_wait`` has none)."""
+        kw = {f.name: d[f.name] for f in fields(cls) if f.name != "compute_wait"}
+        wait = d.get("compute_wait")
+        kw["compute_wait"] = None if wait is None else ComputeWait.from_json(wait)
         seen = kw["last_error_seen"]
         kw["last_error_seen"] = None if seen is None else ErrorSeen.from_json(seen)
         kw["inbox_problems"] = tuple(kw["inbox_problems"])
@@ -258,6 +282,7 @@ class DaemonState:
         d["capture"] = None if self.capture is None else dict(self.capture)
         d["lines"] = {port: dict(q) for port, q in self.lines.items()}
         d["waiting_bundles"] = [_plain(w) for w in self.waiting_bundles]
+        d["compute_wait"] = None if self.compute_wait is None else _plain(self.compute_wait)
         return d
 
 

@@ -81,6 +81,7 @@ from grassd.daemon.runtime.bundle_pipeline import (
     light_time,
 )
 from grassd.daemon.runtime.commit import commit_run
+from grassd.daemon.runtime.compute_retry import ComputeRetry
 from grassd.daemon.runtime.control import ControlServer
 from grassd.daemon.runtime.control_commands import ControlCommands, QueuedRequest
 from grassd.daemon.runtime.notify import Notifier
@@ -161,6 +162,9 @@ class Service:
             #: the first retry after ``retry_s``, then doubling up to ``retry_max_s``
             self.waiting = WaitingBundles(self.history, retry_s, retry_max_s)
             self.deferred = self.waiting.bundles
+            #: a scheduled or requested run the Dask cluster could not compute, retried with
+            #: the same backoff
+            self.compute_retry = ComputeRetry(retry_s, retry_max_s)
             #: metrics, alerts, status page, from snapshots of the status
             self.operator = OperatorView(cfg, self.history, self._operator_snapshot)
             self._build(cfg)
@@ -324,8 +328,11 @@ class Service:
                 raise
             finally:
                 req.done.set()
+        retry = self.compute_retry.due()
         if due and not bundles and not self.stop_event.is_set():
             self.scheduled_run("interval")
+        elif retry and not bundles and not self.stop_event.is_set():
+            self.scheduled_run(retry)
         if self._measure_due() and not self.stop_event.is_set():
             self.measure("interval")
         if time.monotonic() - self._last_reconcile >= self.reconcile_s:
@@ -537,6 +544,8 @@ class Service:
         default site), lux from the sensor when configured, else from that bundle. Then prune
         per ``[retention]``."""
         out = self._scheduled_run(trigger, force)
+        if out.get("transient") and out.get("compute"):  # no bundle to wait: the run waits
+            out["retry_in_s"] = self.compute_retry.failed(trigger, out["error"])
         if out["status"] != "skipped":
             self.prune()
             self.operator.after_run(out)
@@ -573,7 +582,8 @@ class Service:
         except ComputeUnavailable as exc:  # the cluster, not the input: a bundle waits
             self.history.finish_run(run_id, "failed", error=str(exc))
             log.warning("run %d could not be computed: %s", run_id, exc)
-            return {"status": "failed", "run_id": run_id, "error": str(exc), "transient": True}
+            return {"status": "failed", "run_id": run_id, "error": str(exc), "transient": True,
+                    "compute": True}
         except USER_ERRORS as exc:
             self.history.finish_run(run_id, "rejected", error=str(exc))
             log.warning("run %d rejected: %s", run_id, exc)
@@ -582,6 +592,7 @@ class Service:
             log.exception("run %d failed", run_id)  # one record, its traceback below
             self.history.finish_run(run_id, "failed", error=f"internal error: {exc!r}")
             return {"status": "failed", "run_id": run_id, "error": f"internal error: {exc!r}"}
+        self.compute_retry.computed()
         return self._commit(run_id, result)
 
     def _commit(self, run_id: int, result: CalibrationResult
@@ -635,7 +646,8 @@ class Service:
             waiting_bundles=tuple(
                 WaitingBundle(bundle=d.bundle.name, id=d.bundle.id, reason=d.reason,
                               since=d.since, retry_in_s=max(d.retry_at - now, 0.0))
-                for d in waiting))
+                for d in waiting),
+            compute_wait=self.compute_retry.snapshot())
         # its health now counts the live errors, waits and capture station too
         return collect_status(self.history, cfg, push_backoff=backoff, daemon=live)
 

@@ -14,7 +14,13 @@ from daemon_harness import after_first_bundle
 from status_samples import controller, daemon_state, status, waiting
 
 from grassd.daemon.cli.run import print_status
-from grassd.daemon.monitoring.status_types import ErrorSeen, PushRetry, RunSummary, Status
+from grassd.daemon.monitoring.status_types import (
+    ComputeWait,
+    ErrorSeen,
+    PushRetry,
+    RunSummary,
+    Status,
+)
 from grassd.daemon.runtime.service import collect_status
 from grassd.daemon.store.quarantine import QuarantinedBundle
 
@@ -25,7 +31,7 @@ DB_KEYS = ["desired_table", "controllers", "runs", "run_counts", "quarantined", 
 LIVE_KEYS = [*DB_KEYS, "pid", "version", "activity", "started_at", "uptime_s", "config",
              "reload_error", "inbox", "rss_mb", "last_error", "last_error_seen",
              "inbox_problems", "metrics_textfile", "status_page", "capture", "lines",
-             "waiting_bundles"]
+             "waiting_bundles", "compute_wait"]
 DESIRED_KEYS = ["table_id", "table_crc", "run_id", "per_controller"]
 CONTROLLER_KEYS = ["name", "port", "address", "reachable", "table_id", "table_crc",
                    "desired_crc", "in_sync", "last_seen", "error"]
@@ -36,6 +42,7 @@ RUN_KEYS = ["id", "trigger", "status", "started_at", "finished_at", "lux", "lux_
 RUN_COUNT_KEYS = ["ok", "rejected", "failed", "superseded"]
 QUARANTINED_KEYS = ["bundle", "name", "attempts", "since", "reason"]
 WAITING_KEYS = ["bundle", "id", "reason", "since", "retry_in_s"]
+COMPUTE_WAIT_KEYS = ["trigger", "reason", "since", "attempts", "retry_in_s"]
 ERROR_SEEN_KEYS = ["at", "error", "cleared_at"]
 INBOX_KEYS = ["inbox", "processing", "archive", "rejected"]
 
@@ -62,6 +69,8 @@ def _full() -> Status:
             last_error_seen=ErrorSeen(at="2026-06-21T12:00:00+00:00", error="disk full",
                                       cleared_at=None),
             waiting_bundles=(waiting("b2", "lux sensor silent", 9.0),),
+            compute_wait=ComputeWait(trigger="interval", reason="cannot reach the Dask "
+                                     "scheduler", since=4.0, attempts=2, retry_in_s=60.0),
             capture={"camera": "http://cam", "interval_s": 600.0, "captures": 2,
                      "last_at": 3.0, "last_success_at": 3.0, "last_bundle": "b2",
                      "last_error": None, "next_in_s": 500.0}))
@@ -79,9 +88,11 @@ def test_every_key_at_every_level():
     assert [list(q) for q in js["quarantined"]] == [QUARANTINED_KEYS]
     assert [list(w) for w in js["waiting_bundles"]] == [WAITING_KEYS]
     assert list(js["last_error_seen"]) == ERROR_SEEN_KEYS
+    assert list(js["compute_wait"]) == COMPUTE_WAIT_KEYS
     assert js["running"] is True and js["health"] == (
         "degraded: controller bus0#1 out of sync (table 2, not 3): timeout; bundle b2 waits: "
-        "lux sensor silent")
+        "lux sensor silent; interval run waits for compute (2 failed, retry in 60 s): cannot "
+        "reach the Dask scheduler")
     db = _wire(status(controller("bus0#1")))  # no daemon: no live key, no push_retry
     assert list(db) == DB_KEYS and list(db["controllers"][0]) == CONTROLLER_KEYS
     assert db["running"] is False and db["health"] == "ok"
@@ -99,6 +110,12 @@ def test_keys_a_newer_daemon_adds_are_left_out():
     js["new_key"] = 1
     js["controllers"][0]["new_key"] = 2
     assert Status.from_json(js) == _full()
+
+
+def test_a_status_from_a_daemon_before_compute_wait_reads():
+    js = _wire(_full())
+    del js["compute_wait"]
+    assert Status.from_json(js).daemon.compute_wait is None
 
 
 def test_a_daemon_and_the_database_give_these_keys(tmp_path, hw):
@@ -131,3 +148,5 @@ def test_grassd_status_prints_the_status_verdict():
     assert "  bus0#1: table 2, out of sync  (timeout); 2 failed push(es), next attempt in 3 s" \
         in lines
     assert "  bus1#1: table 3, in sync" in lines
+    assert ("interval run waits for compute (2 failed, retry in 60 s): cannot reach the Dask "
+            "scheduler") in lines

@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from daemon_harness import CACHE, ONE_VIEW, display_2x2, drop
+from daemon_harness import CACHE, ONE_VIEW, display_2x2, drop, service, tick_until, write_config
 from daemon_harness import wait_for as harness_wait_for
 from dask_cluster import DaskCluster
 
@@ -115,3 +115,48 @@ def test_worker_killed_mid_run_keeps_the_table_and_the_retry_succeeds(tmp_path):
                     daemon.wait(10)
     text = log.read_text(errors="replace")
     assert "Traceback" not in text and "initialising the renderer" not in text
+
+
+def test_a_run_without_a_bundle_waits_for_compute_with_health_degraded(tmp_path, hw):
+    """A scheduled run (no bundle to leave waiting) on a cluster whose worker died: the run
+    fails without a rejection, the last good table stays active, health says degraded with
+    the reason, the main loop retries it with backoff, and once a worker is back the retry
+    makes the new table and health is ok again. An in-process daemon on simulated hardware."""
+    sim, cfg = hw
+    with DaskCluster(tmp_path / "dask", cache_dir=CACHE) as cluster:
+        cluster.add_worker("w1")
+        path = write_config(tmp_path / "g.toml", tmp_path / "state", cfg, extra=(
+            f'[compute]\nscheduler = "{cluster.address}"\nconnect_timeout_s = 5.0\n'
+            'worker_wait_s = 2.0\n'))
+        svc = service(path, retry_s=1.0, retry_max_s=2.0)
+        try:
+            drop(svc.cfg.light.inbox, "b1", lux=1000.0)
+            svc.tick()
+            table = svc.history.current_table()
+            assert table is not None and svc.status().health.level == "ok"
+
+            cluster.kill_worker("w1")
+            out = svc.scheduled_run("interval")
+            assert out["status"] == "failed" and out["retry_in_s"] == 1.0, out
+            st = svc.status()
+            assert st.daemon.compute_wait.attempts == 1
+            assert st.health.level == "degraded"
+            [reason] = st.health.reasons
+            assert reason.startswith("interval run waits for compute (1 failed, retry in 1 s): ")
+            assert re.search(r"died or left during the run|has had no worker for \d+ s", reason)
+            assert svc.history.current_table().id == table.id  # the last good table stays
+            assert all(c.in_sync and c.table_id == table.id for c in st.controllers)
+            assert st.run_counts.rejected == 0 and st.run_counts.failed == 1
+
+            # the main loop retries it (backoff 1 s, then 2 s) while no worker is there
+            tick_until(svc, lambda: svc.status().daemon.compute_wait.attempts == 2, timeout=60)
+            assert svc.status().daemon.compute_wait.retry_in_s <= 2.0
+
+            cluster.add_worker("w2")
+            tick_until(svc, lambda: svc.status().daemon.compute_wait is None, timeout=240)
+            st = svc.status()
+            assert st.health.level == "ok", st.health
+            assert st.desired_table.table_id != table.id and st.run_counts.ok == 2
+            assert st.runs[0].trigger == "interval" and st.runs[0].status == "ok"
+        finally:
+            svc.shutdown()
