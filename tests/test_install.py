@@ -34,6 +34,8 @@ from pathlib import Path
 import pytest
 from daemon_harness import display_2x2
 
+pytestmark = pytest.mark.long
+
 ROOT = Path(__file__).resolve().parents[1]
 OPT = "/opt/grassd"
 CACHE = os.environ.get("GRASSD_CACHE_DIR", str(ROOT / ".venv" / "grassd-cache"))

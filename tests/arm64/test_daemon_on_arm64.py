@@ -35,7 +35,7 @@ from grassd.daemon.errors import DaemonNotRunning
 from grassd.daemon.runtime.control import request
 
 REASON = missing_reason()
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(3000)]
+pytestmark = [pytest.mark.slow, pytest.mark.long, pytest.mark.timeout(3000)]
 if REASON is not None:
     pytestmark.append(pytest.mark.skip(reason=REASON))
 

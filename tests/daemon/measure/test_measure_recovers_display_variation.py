@@ -11,10 +11,13 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from grassd.daemon.calibration.variation import load_variation
 from grassd.daemon.store.history import History
 from grassd.daemon.store.layout import StateLayout
+
+pytestmark = pytest.mark.long
 
 GRASSD = str(Path(sys.executable).parent / "grassd")
 SECRET = Path(__file__).resolve().parents[2] / "data" / "measure" / "secret_variation.toml"

@@ -26,6 +26,8 @@ from grassd.daemon.store.history import History
 from grassd.daemon.store.layout import StateLayout
 from grassd.firmware_proto.client import ControllerClient
 
+pytestmark = pytest.mark.long
+
 GRASSD = str(Path(sys.executable).parent / "grassd")
 LEVEL = 128
 #: the controllers' watchdog in these tests (s): a dead host's pattern ends this soon

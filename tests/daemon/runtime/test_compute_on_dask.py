@@ -23,7 +23,7 @@ from grassd.daemon.errors import ControlError
 from grassd.daemon.runtime.control import request
 
 pytest.importorskip("distributed")
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.long]
 
 #: `grassd` in a Python where ``import taichi`` fails, as where Taichi has no wheels
 NO_TAICHI = ("import sys; sys.modules['taichi'] = None; "
