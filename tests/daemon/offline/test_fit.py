@@ -85,7 +85,7 @@ def _held_out(result):
     return next(v for v in result.viewpoints if v.held_out)
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_fit_recovers_the_albedos_and_the_splay(world):
     res, truth = world["fit"], world["truth"]
     assert set(res.pixel) == {"yellow_srgb", "green_srgb", "base_srgb", "specular",
@@ -101,7 +101,7 @@ def test_fit_recovers_the_albedos_and_the_splay(world):
     assert {0.0, 4.0, 8.0, 12.0, 16.0} <= {v for v, _ in res.profile["splay_deg"]}
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_held_out_viewpoint_is_predicted_as_the_true_materials_predict_it(world):
     held, truth = _held_out(world["fit"]), _held_out(world["known"])
     assert held.viewpoint == HELD_OUT
@@ -111,7 +111,7 @@ def test_held_out_viewpoint_is_predicted_as_the_true_materials_predict_it(world)
                                                                 truth.fitted.frechet)
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_the_glossy_lobe_is_found_where_there_is_one(world):
     res, truth = world["fit"], world["truth"]
     if truth.specular:
@@ -121,7 +121,7 @@ def test_the_glossy_lobe_is_found_where_there_is_one(world):
         assert res.pixel["specular"] <= 0.04, res.pixel
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_standard_errors_cover_the_truth(world):
     """The photographed layout's accident is shared by every photo: the standard errors count
     it, so the truth lies within 3 of them (the olive base's blue is 20 levels off)."""
@@ -135,7 +135,7 @@ def test_standard_errors_cover_the_truth(world):
     assert res.dof > 0 and np.isfinite(res.chi2)
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_cli_writes_reports_that_check_config_and_validate_accept(pink, tmp_path):
     root = pink["manifest"].root
     out = {k: tmp_path / f"fit.{k}" for k in ("json", "toml", "html")}
@@ -206,7 +206,7 @@ def test_too_few_viewpoints_or_lengths_are_named(tmp_path):
         fit_capture(one_view, holdout=[(1.0, 1.0, 1.0)])
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_photos_of_two_different_pixels_contradict_each_other(pink, renderer, tmp_path):
     """One viewpoint photographed on the pink pixel, another on a default one: no materials
     make both agree."""
