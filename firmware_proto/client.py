@@ -37,14 +37,13 @@ from grassd.firmware_proto.errors import (
     TransferInterrupted,
     TransientError,
 )
+from grassd.firmware_proto.framing import MAX_ADDRESS, MIN_ADDRESS
 from grassd.firmware_proto.line_quality import LineQuality
 from grassd.firmware_proto.link import SerialLink
 from grassd.firmware_proto.messages import (
-    MAX_ADDRESS,
     MAX_CHUNK_DATA,
     MAX_PATTERN_PIXELS,
     MAX_POSITIONS,
-    MIN_ADDRESS,
     RESPONSE_TYPES,
     Ack,
     GetPositions,

@@ -23,6 +23,8 @@ from grassd.firmware_proto.errors import FrameError
 DELIMITER = b"\x00"
 #: Header: version, address, type, seq.
 HEADER_SIZE = 5
+#: Addresses a controller may have, the header's address byte (0 and 248..255 are reserved).
+MIN_ADDRESS, MAX_ADDRESS = 1, 247
 #: CRC-32 trailer size.
 CRC_SIZE = 4
 #: Largest payload a frame may carry (bytes).

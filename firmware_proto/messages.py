@@ -29,8 +29,6 @@ TABLE_BYTES = 2 * TABLE_ENTRIES
 MAX_CHUNK_DATA = MAX_PAYLOAD - 8
 #: Largest POSITIONS count.
 MAX_POSITIONS = 255
-#: Addresses a controller may have (0 and 248..255 are reserved).
-MIN_ADDRESS, MAX_ADDRESS = 1, 247
 #: ``active_bank`` value meaning "no valid table".
 NO_BANK = 0xFF
 #: INFO ``features`` bit: the controller implements PATTERN / PATTERN_END (test patterns).
@@ -39,7 +37,6 @@ FEATURE_PATTERNS = 0x0001
 INFO_V1_BASE_BYTES = 16
 #: Most lengths one PATTERN frame carries (payload minus timeout_ds and first_pixel, 2 B each).
 MAX_PATTERN_PIXELS = (MAX_PAYLOAD - 4) // 2
-
 
 class MsgType(IntEnum):
     """Message type codes; requests have bit 7 clear, responses set."""

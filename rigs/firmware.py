@@ -20,13 +20,12 @@ import numpy as np
 from grassd.firmware_proto.codec import Frame, encode_frame, parse_header
 from grassd.firmware_proto.crc import crc32_iso_hdlc
 from grassd.firmware_proto.errors import FrameError, SimulatorError
+from grassd.firmware_proto.framing import MAX_ADDRESS, MIN_ADDRESS
 from grassd.firmware_proto.messages import (
     FEATURE_PATTERNS,
     INFO_V1_BASE_BYTES,
-    MAX_ADDRESS,
     MAX_CHUNK_DATA,
     MAX_POSITIONS,
-    MIN_ADDRESS,
     NO_BANK,
     PROTOCOL_VERSION,
     TABLE_BYTES,

@@ -29,7 +29,8 @@ import click
 from grassd.daemon.runtime.statelock import StateLock
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.errors import ControllerTimeout, ProtocolError, PushFailed
-from grassd.firmware_proto.messages import MAX_ADDRESS, MIN_ADDRESS, TableKind
+from grassd.firmware_proto.framing import MAX_ADDRESS, MIN_ADDRESS
+from grassd.firmware_proto.messages import TableKind
 from grassd.firmware_proto.table_file import load_table_file
 from grassd.rigs import FIRMWARE_BACKENDS
 

@@ -48,8 +48,8 @@ def test_python_protocol_sizes_equal_the_c_limits():
     assert c["FW_CRC_SIZE"] == framing.CRC_SIZE
     assert c["FW_MAX_PAYLOAD"] == framing.MAX_PAYLOAD
     assert c["FW_MAX_POSITIONS"] == messages.MAX_POSITIONS
-    assert (c["FW_MIN_ADDRESS"], c["FW_MAX_ADDRESS"]) == (messages.MIN_ADDRESS,
-                                                          messages.MAX_ADDRESS)
+    assert (c["FW_MIN_ADDRESS"], c["FW_MAX_ADDRESS"]) == (framing.MIN_ADDRESS,
+                                                          framing.MAX_ADDRESS)
     assert c["FW_NO_BANK"] == messages.NO_BANK
     assert c["FW_TABLE_ENTRIES"] == messages.TABLE_ENTRIES
     assert c["FW_TABLE_BYTES"] == messages.TABLE_BYTES
