@@ -22,7 +22,9 @@ the ray (2D DDA), testing each cell's primitives.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -214,13 +216,59 @@ def check_lengths(spec: PixelSpec, lengths_mm) -> np.ndarray:
     return lengths_mm
 
 
-def build_scene(display: DisplaySpec, lengths_mm: np.ndarray) -> SceneArrays:
-    """Build the traced scene for a display, conservative for every length in ``lengths_mm``.
+@dataclass(frozen=True)
+class _Layout:
+    """What a scene keeps whatever its splay and lengths: the blades as laid out (``cat``, the
+    per-blade arrays of :func:`_pixel_blades` over every pixel, mm), their float32 rows, the
+    rectangles and their xy boxes [m]. Every array is read-only (layouts are shared)."""
 
-    Lengths are green grass lengths in mm above the base top (0 .. ``green_max_mm``).
-    """
+    cat: dict[str, np.ndarray]
+    blade_p0: np.ndarray
+    blade_axis: np.ndarray
+    blade_lean: np.ndarray
+    blade_params: np.ndarray
+    rect_axis: np.ndarray
+    rect_bounds: np.ndarray
+    rect_material: np.ndarray
+    rect_boxes: np.ndarray
+    albedo: np.ndarray
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
+#: Layouts kept (least recently used dropped first), and the most blades a kept one may have (a
+#: renderer's default capacity: larger displays, exported or checked, are laid out each time).
+KEPT_LAYOUTS = 4
+KEPT_LAYOUT_BLADES = 1 << 16
+_layouts: OrderedDict[DisplaySpec, _Layout] = OrderedDict()
+_layouts_lock = threading.Lock()
+
+
+def _layout(display: DisplaySpec) -> _Layout:
+    """The blade and rectangle layout of ``display``, kept for the next call with an equal
+    display (a pure function of it: the blades are drawn from ``layout_seed``). Its pixel's
+    ``splay_deg`` plays no part: :func:`build_scene` asks with 0, so that every splay of one
+    display shares one layout."""
+    with _layouts_lock:
+        lay = _layouts.get(display)
+        if lay is not None:
+            _layouts.move_to_end(display)
+            return lay
+    lay = _draw_layout(display)
+    if len(lay.blade_p0) <= KEPT_LAYOUT_BLADES:
+        with _layouts_lock:
+            _layouts[display] = lay
+            while len(_layouts) > KEPT_LAYOUTS:
+                _layouts.popitem(last=False)
+    return lay
+
+
+def _draw_layout(display: DisplaySpec) -> _Layout:
+    """Lay out the blades and rectangles of ``display`` (see :class:`_Layout`)."""
     spec = display.pixel
-    lengths_mm = check_lengths(spec, lengths_mm)
     rng = np.random.default_rng(spec.layout_seed)
     one = _pixel_blades(spec, rng)
     centres_mm = display.pixel_centres_m() * 1000.0
@@ -236,7 +284,7 @@ def build_scene(display: DisplaySpec, lengths_mm: np.ndarray) -> SceneArrays:
         pixels = [one] + [_pixel_blades(spec, rng) for _ in range(n_pix - 1)]
     for p, c in zip(pixels, centres_mm, strict=True):
         p["xy"] = p["xy"] + c
-    cat = {k: np.concatenate([p[k] for p in pixels]) for k in one}
+    cat = {k: _readonly(np.concatenate([p[k] for p in pixels])) for k in one}
     nb = len(cat["xy"])
 
     mm = 1e-3
@@ -245,19 +293,64 @@ def build_scene(display: DisplaySpec, lengths_mm: np.ndarray) -> SceneArrays:
                                     cat["is_green"], cat["depth"] * mm,
                                     cat["material"]]).astype(np.float32)
 
-    rect_rows = []
-    for c in centres_mm:
-        for axis, coord, lo0, hi0, lo1, hi1, mat in _pixel_rects(spec):
-            off = {0: (c[0], c[1], 0.0), 1: (c[1], c[0], 0.0), 2: (0.0, c[0], c[1])}[axis]
-            # off = (offset of the normal coordinate, of axis-0 bounds, of axis-1 bounds)
-            rect_rows.append((axis, coord + off[0], lo0 + off[1], hi0 + off[1], lo1 + off[2],
-                              hi1 + off[2], mat))
-    rects = np.array(rect_rows, dtype=np.float64)
+    # Rectangles of every pixel: one pixel's, offset by each centre (the normal coordinate by
+    # the centre's coordinate on that axis, the bounds by those on the other two).
+    one_rects = np.array(_pixel_rects(spec), dtype=np.float64)  # (k, 7)
+    axis1 = one_rects[:, 0].astype(np.int64)
+    cx, cy = centres_mm[:, 0][:, None], centres_mm[:, 1][:, None]  # (n_pix, 1)
+    zero = np.zeros_like(cx)
+    offsets = {0: (cx, cy, zero), 1: (cy, cx, zero), 2: (zero, cx, cy)}
+    off = np.zeros((n_pix, len(one_rects), 3))
+    for ax, (o0, o1, o2) in offsets.items():
+        sel = axis1 == ax
+        off[:, sel, 0], off[:, sel, 1], off[:, sel, 2] = o0, o1, o2
+    rects = np.empty((n_pix, len(one_rects), 7))
+    rects[..., 0] = one_rects[:, 0]
+    rects[..., 1] = one_rects[:, 1] + off[..., 0]
+    rects[..., 2] = one_rects[:, 2] + off[..., 1]
+    rects[..., 3] = one_rects[:, 3] + off[..., 1]
+    rects[..., 4] = one_rects[:, 4] + off[..., 2]
+    rects[..., 5] = one_rects[:, 5] + off[..., 2]
+    rects[..., 6] = one_rects[:, 6]
+    rects = rects.reshape(-1, 7)
     rect_axis = rects[:, 0].astype(np.int32)
     rect_bounds = (rects[:, 1:6] * mm).astype(np.float32)
     rect_material = rects[:, 6].astype(np.int32)
+    b = rect_bounds.astype(np.float64)
+    rect_boxes = np.empty((len(rects), 4))
+    for ax, cols in ((0, (0, 1, 0, 2)),    # x = coord, y in [lo0, hi0]
+                     (1, (1, 0, 2, 0)),    # y = coord, x in [lo0, hi0]
+                     (2, (1, 3, 2, 4))):   # z = coord, x in lo0..hi0, y in lo1..hi1
+        sel = rect_axis == ax
+        rect_boxes[sel] = b[sel][:, list(cols)]
+    albedo = np.stack([srgb_to_linear(spec.yellow_srgb), srgb_to_linear(spec.green_srgb),
+                       srgb_to_linear(spec.base_srgb), srgb_to_linear(spec.cavity_srgb)])
+    return _Layout(cat=cat, blade_p0=_readonly(blade_p0),
+                   blade_axis=_readonly(cat["axis"].astype(np.float32)),
+                   blade_lean=_readonly(cat["lean"].astype(np.float32)),
+                   blade_params=_readonly(blade_params), rect_axis=_readonly(rect_axis),
+                   rect_bounds=_readonly(rect_bounds), rect_material=_readonly(rect_material),
+                   rect_boxes=_readonly(rect_boxes),
+                   albedo=_readonly(albedo.astype(np.float32)))
+
+
+def build_scene(display: DisplaySpec, lengths_mm: np.ndarray) -> SceneArrays:
+    """Build the traced scene for a display, conservative for every length in ``lengths_mm``.
+
+    Lengths are green grass lengths in mm above the base top (0 .. ``green_max_mm``).
+
+    The blades and rectangles of a display are laid out once and kept (the last few displays,
+    whatever their splay; their arrays are read-only and shared by the scenes built from them):
+    a scene of another splay or other lengths only bins the primitives into its grid again.
+    """
+    spec = display.pixel
+    lengths_mm = check_lengths(spec, lengths_mm)
+    lay = _layout(replace(display, pixel=replace(spec, splay_deg=0.0))
+                  if spec.splay_deg else display)
+    cat = lay.cat
 
     # Footprints (xy boxes, m) of blades at their widest lean over all lengths.
+    mm = 1e-3
     splay = math.radians(spec.splay_deg)
     lmax = lengths_mm.max() * mm
     length = np.where(cat["is_green"] > 0, lmax, cat["length"] * mm)
@@ -266,13 +359,7 @@ def build_scene(display: DisplaySpec, lengths_mm: np.ndarray) -> SceneArrays:
     reach = np.abs(cat["axis"]) * (cat["hw"] * mm)[:, None]
     p = cat["xy"] * mm
     blade_boxes = np.column_stack([np.minimum(p, tip) - reach, np.maximum(p, tip) + reach])
-    rect_boxes = np.empty((len(rects), 4))
-    xy_bounds = {0: lambda b: (b[0], b[1], b[0], b[2]),   # x = coord, y in [lo0, hi0]
-                 1: lambda b: (b[1], b[0], b[2], b[0]),   # y = coord, x in [lo0, hi0]
-                 2: lambda b: (b[1], b[3], b[2], b[4])}   # z = coord, x in lo0..hi0, y lo1..hi1
-    for i, (axis, b) in enumerate(zip(rect_axis, rect_bounds.astype(np.float64), strict=True)):
-        rect_boxes[i] = xy_bounds[int(axis)](b)
-    boxes = np.concatenate([blade_boxes, rect_boxes])
+    boxes = np.concatenate([blade_boxes, lay.rect_boxes])
     margin = 1e-4
     origin = boxes[:, :2].min(axis=0) - margin
     extent = boxes[:, 2:].max(axis=0) + margin - origin
@@ -282,17 +369,14 @@ def build_scene(display: DisplaySpec, lengths_mm: np.ndarray) -> SceneArrays:
 
     z_top = max(lmax, float(np.max(cat["length"], initial=0.0)) * mm) + 1e-4
     z_range = np.array([-spec.base_height_mm * mm - 1e-4, z_top], dtype=np.float32)
-    albedo = np.stack([srgb_to_linear(spec.yellow_srgb), srgb_to_linear(spec.green_srgb),
-                       srgb_to_linear(spec.base_srgb), srgb_to_linear(spec.cavity_srgb)])
     s = spec.top_mm / 2 * mm
     quad = np.array([[-s, -s, 0.0], [s, -s, 0.0], [s, s, 0.0], [-s, s, 0.0]])
     return SceneArrays(
-        blade_p0=blade_p0, blade_axis=cat["axis"].astype(np.float32),
-        blade_lean=cat["lean"].astype(np.float32), blade_params=blade_params,
-        rect_axis=rect_axis, rect_bounds=rect_bounds, rect_material=rect_material,
-        grid_origin=origin.astype(np.float32), grid_cell=float(cell), grid_shape=shape,
-        cell_start=cell_start, cell_items=cell_items, z_range=z_range,
-        albedo=albedo.astype(np.float32), taper_m=spec.taper_mm * mm,
+        blade_p0=lay.blade_p0, blade_axis=lay.blade_axis, blade_lean=lay.blade_lean,
+        blade_params=lay.blade_params, rect_axis=lay.rect_axis, rect_bounds=lay.rect_bounds,
+        rect_material=lay.rect_material, grid_origin=origin.astype(np.float32),
+        grid_cell=float(cell), grid_shape=shape, cell_start=cell_start, cell_items=cell_items,
+        z_range=z_range, albedo=lay.albedo, taper_m=spec.taper_mm * mm,
         tip_ratio=spec.blade_tip_ratio, splay_rad=splay, green_max_m=spec.green_max_mm * mm,
         quad_corners=quad, specular=spec.specular, phong_exponent=spec.phong_exponent,
     )

@@ -195,6 +195,12 @@ def _kept(reuse: ti.i32, ray: ti.i32, n_memo: ti.i32) -> ti.i32:
     return kept
 
 
+#: the layout arrays a scene shares with others of its display (see Renderer._upload_scene)
+_LAYOUT_ARRAYS = ("blade_p0", "blade_axis", "blade_lean", "blade_params", "rect_axis",
+                  "rect_bounds", "rect_material")
+_NP_DTYPE = {ti.f32: np.float32, ti.i32: np.int32}
+
+
 def _fill(fld, arr: np.ndarray) -> None:
     """Copy ``arr`` (n, ...) into the first n entries of a field allocated at capacity, zeros
     after it."""
@@ -293,6 +299,7 @@ class Renderer:
         self._compiled: set[tuple] = set()  # kernel variants compiled (features, launch kind)
         self._scene_key: tuple | None = None
         self._scene: SceneArrays | None = None
+        self._uploaded: SceneArrays | None = None  # the scene on the fields (None: unsure)
         self._lighting: Lighting | None = None
 
     def _ensure_compiled(self, several: tuple[bool, ...] = (True,)) -> float:
@@ -345,27 +352,30 @@ class Renderer:
                 raise SceneError(f"scene needs {need} {name}, the renderer holds {have}; "
                                  f"construct Renderer(Capacity(...)) larger or lower the density")
 
-        a3 = np.column_stack([sc.blade_axis, np.zeros(nb, np.float32)])
-        lean = np.column_stack([sc.blade_lean, sc.blade_params[:, 2]])
-        par = sc.blade_params[:, [0, 1, 3, 4]]
-        _fill(self.blade_p0, sc.blade_p0)
-        _fill(self.blade_a, a3.astype(np.float32))
-        _fill(self.blade_lean, lean.astype(np.float32))
-        _fill(self.blade_par, par.astype(np.float32))
-        u, _ = blade_rise(sc, 0.0)  # splay-free axes (exact unless green blades splay)
-        n = np.cross(a3.astype(np.float64), u)
-        n /= np.linalg.norm(n, axis=1, keepdims=True)
-        _fill(self.blade_u, u.astype(np.float32))
-        _fill(self.blade_n, n.astype(np.float32))
-        _fill(self.blade_mat, sc.blade_params[:, 5].astype(np.int32))
-        _fill(self.rect_axis, sc.rect_axis)
-        _fill(self.rect_b, sc.rect_bounds)
-        _fill(self.rect_mat, sc.rect_material)
+        prev = self._uploaded
+        self._uploaded = None
+        # A scene of the same layout (another splay or other lengths: geometry.build_scene
+        # shares its read-only arrays) keeps the blades and rectangles on the fields; only the
+        # grid is uploaded again, and only its used part (the kernels read no further than the
+        # counts in ipar and the grid's own offsets).
+        if prev is None or not all(getattr(prev, k) is getattr(sc, k) for k in _LAYOUT_ARRAYS):
+            a3 = np.column_stack([sc.blade_axis, np.zeros(nb, np.float32)])
+            lean = np.column_stack([sc.blade_lean, sc.blade_params[:, 2]])
+            par = sc.blade_params[:, [0, 1, 3, 4]]
+            u, _ = blade_rise(sc, 0.0)  # splay-free axes (exact unless green blades splay)
+            n = np.cross(a3.astype(np.float64), u)
+            n /= np.linalg.norm(n, axis=1, keepdims=True)
+            for fld, arr in ((self.blade_p0, sc.blade_p0), (self.blade_a, a3),
+                             (self.blade_lean, lean), (self.blade_par, par),
+                             (self.blade_u, u), (self.blade_n, n),
+                             (self.blade_mat, sc.blade_params[:, 5].astype(np.int32)),
+                             (self.rect_axis, sc.rect_axis), (self.rect_b, sc.rect_bounds),
+                             (self.rect_mat, sc.rect_material)):
+                self._put(fld, arr)
         items, split, tops = _cell_table(sc)
-        _fill(self.cell_start, sc.cell_start)
-        _fill(self.cell_items, items)
-        _fill(self.cell_split, split)
-        _fill(self.cell_top, tops)
+        for fld, arr in ((self.cell_start, sc.cell_start), (self.cell_items, items),
+                         (self.cell_split, split), (self.cell_top, tops)):
+            self._put(fld, arr)
         self.albedo.from_numpy(sc.albedo)
         f = self.fpar
         f[0], f[1] = float(sc.grid_origin[0]), float(sc.grid_origin[1])
@@ -377,6 +387,29 @@ class Renderer:
         f[9] = float(np.max(sc.blade_params[:, 1], initial=0.0))  # tallest fixed blade [m]
         i = self.ipar
         i[0], i[1], i[2], i[3] = nb, nr, nx, ny
+        self._uploaded = sc
+
+    def _put(self, fld, arr: np.ndarray) -> None:
+        """Copy ``arr`` (n, ...) into the first n entries of ``fld`` (allocated at capacity,
+        n no more than it holds), as the field's dtype; the entries after n keep what they
+        held (no kernel reads them)."""
+        arr = np.ascontiguousarray(arr, dtype=_NP_DTYPE[fld.dtype])
+        if len(arr):
+            if arr.ndim == 1:
+                self._put_scalars(fld, arr, len(arr))
+            else:
+                self._put_vectors(fld, arr, len(arr))
+
+    @ti.kernel
+    def _put_scalars(self, fld: ti.template(), arr: ti.types.ndarray(), n: ti.i32):
+        for i in range(n):
+            fld[i] = arr[i]
+
+    @ti.kernel
+    def _put_vectors(self, fld: ti.template(), arr: ti.types.ndarray(), n: ti.i32):
+        for i in range(n):
+            for j in ti.static(range(fld.n)):
+                fld[i][j] = arr[i, j]
 
     def _upload_light(self, lighting: Lighting, env_kept: bool = False) -> None:
         env_map, scale = _map_and_scale(lighting)
