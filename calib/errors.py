@@ -70,3 +70,12 @@ class BracketClippedError(HdrMergeError):
 
 class BracketBlackError(HdrMergeError):
     """Even the longest exposure of a bracket is black over most of the image."""
+
+
+class CornersOutsideImageError(CalibError, ValueError):
+    """A quad or checker corner lies outside the photo it belongs to."""
+
+
+class CheckerPhotoError(CalibError, ValueError):
+    """The checker's photo cannot give a white balance: not an R/G/B Bayer sensor, an
+    unsupported orientation, a grey patch too small, clipped or black."""

@@ -123,8 +123,8 @@ def simulated_setup(cfg: Config, display: Any, camera_url: str, lux: float) -> P
 def make_setup(cfg: Config, client: Any, corners: Any, lux: float,
                chart: str = "spydercheckr-24") -> Path:
     """Photograph the checker with ``client`` and save the measuring camera's set-up."""
+    from grassd.calib.errors import CheckerPhotoError
     from grassd.daemon.measure.camera_chain import MeasuringCamera, setup_from_checker
-    from grassd.daemon.offline.validate import ValidateError
     from grassd.daemon.store.atomic import atomic_write_json
     from grassd.daemon.store.layout import StateLayout
 
@@ -135,7 +135,7 @@ def make_setup(cfg: Config, client: Any, corners: Any, lux: float,
         try:
             setup = setup_from_checker(shot.raw_path, corners, chart, shot.exposure, lux)
             break
-        except ValidateError as exc:
+        except CheckerPhotoError as exc:
             if "clipped" not in str(exc) or ev == SETUP_EV[-1]:
                 raise
     return atomic_write_json(layout.measure_setup, setup.to_json())

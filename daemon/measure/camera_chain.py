@@ -1,14 +1,14 @@
 """The measuring camera: its shots, and the colour chain from its RAW to CIELAB.
 
-The chain is ``grassd validate``'s (:mod:`grassd.daemon.offline.validate`), with the colour
+The chain is ``grassd validate``'s (:mod:`grassd.calib.checker_photo`), with the colour
 checker photographed once, at set-up, instead of in every capture:
 
 * **Set-up** (:func:`setup_from_checker`): the checker lying at the display, photographed with
   the measuring camera, gives the LibRaw white balance that develops its grey patch to the grey's
-  reference colour (:func:`~grassd.daemon.offline.validate.checker_white_balance`), the scale
+  reference colour (:func:`~grassd.calib.checker_photo.checker_white_balance`), the scale
   ``k`` that puts that grey at Y = 0.18, and the 3 x 3 colour correction from the analytic
   virtual checker to the photographed one (with the scale ``s`` of the white-card-normalised
-  simulation, :func:`~grassd.daemon.offline.validate.virtual_checker`): the same ``ccm`` that
+  simulation, :func:`~grassd.calib.checker_photo.virtual_checker`): the same ``ccm`` that
   ``validate`` hands the simulation.
 * **A measurement shot**: its DNG developed (half size: one texel per 2 x 2 Bayer block) with that
   white balance, to linear ProPhoto, scaled by ``k`` times the ratio of the set-up exposure to the
@@ -107,10 +107,10 @@ def setup_from_checker(path: Path, corners: Any, chart: str, exposure: Exposure,
     ``lux`` at the display (module docstring)."""
     from grassd.calib.ccm import fit_ccm
     from grassd.calib.charts import get_chart
+    from grassd.calib.checker_photo import checker_white_balance, virtual_checker
     from grassd.calib.colour_spaces import luminance
     from grassd.calib.exposure import GREY_CARD_Y
     from grassd.calib.raw import develop_raw
-    from grassd.daemon.offline.validate import checker_white_balance, virtual_checker
 
     ref = get_chart(chart)
     wb = checker_white_balance(path, corners, ref)

@@ -64,14 +64,14 @@ from numpy.typing import NDArray
 from grassd.calib.ccm import ColourCorrection, fit_ccm
 from grassd.calib.characteristic import Characteristic, fit_characteristic, floor_stderr
 from grassd.calib.charts import ReferenceChart, get_chart
-from grassd.calib.colour_spaces import luminance, prophoto_to_lab, prophoto_to_rec709
+from grassd.calib.checker_photo import check_inside, checker_white_balance, virtual_checker
+from grassd.calib.colour_spaces import luminance, prophoto_to_lab
 from grassd.calib.compare import frechet_characteristics
 from grassd.calib.errors import CalibError
 from grassd.calib.exposure import GREY_CARD_Y
 from grassd.calib.length_table import LEVELS, build_length_table, r_squared
 from grassd.calib.ogcd import ogcd_from_lab
 from grassd.calib.raw import develop_raw, open_raw
-from grassd.calib.regions import checker_patch_quads, quad_mask
 from grassd.daemon.config import manifest_fields, schema
 from grassd.daemon.errors import DaemonError, LocatedError
 from grassd.sim.light_input import LightInput
@@ -94,10 +94,6 @@ class CaptureManifestError(ValidateError, LocatedError):
 
 class MissingPhotoError(ValidateError):
     """A photo named in the manifest does not exist."""
-
-
-class CornersOutsideImageError(ValidateError):
-    """A quad or checker corner lies outside the photo it belongs to."""
 
 
 class LengthOrderError(ValidateError):
@@ -437,97 +433,6 @@ def check_same_camera(paths: Sequence[Path]) -> dict[str, Any]:
     return first
 
 
-def _check_inside(corners: Sequence[Sequence[float]], shape: tuple[int, ...], path: Path,
-                  what: str) -> None:
-    c = np.asarray(corners, dtype=np.float64)
-    h, w = shape[:2]
-    bad = (c[:, 0] < 0) | (c[:, 0] > w) | (c[:, 1] < 0) | (c[:, 1] > h)
-    if bad.any():
-        raise CornersOutsideImageError(
-            f"{what} corner(s) {c[bad].tolist()} lie outside {path.name} ({w} x {h} pixels; "
-            "x = column 0..width, y = row 0..height); check the corner coordinates")
-
-
-def developed_to_raw(corners: Sequence[Sequence[float]], raw_shape: tuple[int, ...],
-                     flip: int) -> NDArray[np.float64]:
-    """Map (x, y) points of the developed image onto the undeveloped sensor data.
-
-    LibRaw's ``flip`` (from the camera's orientation tag): 0 none, 3 rotated 180 deg, 5 rotated
-    90 deg counter-clockwise, 6 rotated 90 deg clockwise; ``raw_shape`` = (rows, columns) of
-    the visible sensor area.
-
-    >>> developed_to_raw([[1.0, 2.0]], (10, 20), 3).tolist()
-    [[19.0, 8.0]]
-    """
-    c = np.asarray(corners, dtype=np.float64).reshape(-1, 2)
-    h, w = raw_shape[:2]
-    x, y = c[:, 0], c[:, 1]
-    if flip == 0:
-        return c
-    if flip == 3:
-        return np.column_stack([w - x, h - y])
-    if flip == 6:  # developed = raw turned clockwise: (xd, yd) = (h - yr, xr)
-        return np.column_stack([y, h - x])
-    if flip == 5:  # counter-clockwise: (xd, yd) = (yr, w - xr)
-        return np.column_stack([w - y, x])
-    raise ValidateError(f"unsupported image orientation (LibRaw flip {flip}); rotate or "
-                        "mirror the RAW back to its sensor orientation")
-
-
-def checker_white_balance(path: Path, corners: Sequence[Sequence[float]],
-                          chart: ReferenceChart) -> tuple[float, float, float, float]:
-    """LibRaw channel multipliers (R, G, B, G2) that develop the checker's grey patch to the
-    chromaticity of its reference colour (a grey card is nearly, not exactly, neutral).
-
-    Measured on the undeveloped Bayer data: ``c`` = the black-subtracted mean of each colour
-    filter inside the grey patch. LibRaw develops ``out = rgb_cam . diag(wb) . c`` (then a fixed
-    sRGB -> ProPhoto matrix), so ``wb = (rgb_cam^-1 . t) / c`` with ``t`` the reference grey in
-    linear sRGB; normalised to green = 1. Where LibRaw reports no colour matrix the grey is
-    made neutral (``wb = mean green / c``).
-    """
-    with open_raw(path) as raw:
-        img = raw.raw_image_visible.astype(np.float64)
-        colours = np.asarray(raw.raw_colors_visible)
-        black = np.asarray(raw.black_level_per_channel, dtype=np.float64)
-        white = float(raw.white_level)
-        desc = raw.color_desc.decode(errors="replace")
-        rgb_cam = np.asarray(raw.color_matrix, dtype=np.float64)[:, :3]
-        flip = int(raw.sizes.flip)
-    developed_shape = img.shape[::-1] if flip in (5, 6) else img.shape
-    _check_inside(corners, developed_shape, path, "checker")
-    corners = developed_to_raw(corners, img.shape, flip)
-    if len(desc) not in (3, 4) or set(desc[:3]) != set("RGB") or set(desc) - set("RGB"):
-        raise ValidateError(f"{path.name}: colour filters {desc!r} are not an R/G/B Bayer "
-                            "sensor; white balance from the checker needs one")
-    quad = checker_patch_quads(corners)[chart.grey_index()]
-    mask = quad_mask(img.shape, quad)
-    means = np.zeros(len(desc))
-    for c in range(len(desc)):
-        sel = mask & (colours == c)
-        if not sel.any():
-            raise ValidateError(f"{path.name}: the grey patch covers no {desc[c]} photosite; the "
-                                "checker is too small in the photo")
-        if img[sel].max() >= white:
-            raise ValidateError(f"{path.name}: the checker's grey patch is clipped (raw values at "
-                                f"the white level {white:g}); lower the exposure")
-        means[c] = img[sel].mean() - black[c]
-    if means.min() <= 0:
-        raise ValidateError(f"{path.name}: the checker's grey patch reads no light above black "
-                            f"({means.round(1).tolist()}); check the checker corners")
-    index = {ch: [c for c in range(len(desc)) if desc[c] == ch] for ch in "RGB"}
-    target = np.ones(3)
-    if np.isfinite(rgb_cam).all() and abs(np.linalg.det(rgb_cam)) > 1e-9:
-        grey_srgb = prophoto_to_rec709(chart.prophoto()[chart.grey_index()])
-        target = np.linalg.solve(rgb_cam, grey_srgb)
-        if (target <= 0).any():
-            target = np.ones(3)
-    per = {ch: target["RGB".index(ch)] for ch in "RGB"}
-    mult = np.array([per[desc[c]] / means[c] for c in range(len(desc))])
-    mult = mult / np.mean([mult[c] for c in index["G"]])
-    wb = [float(v) for v in mult] + ([float(mult[index["G"][0]])] if len(desc) == 3 else [])
-    return tuple(wb)  # type: ignore[return-value]
-
-
 @dataclass(frozen=True)
 class RealCapture:
     """The measured (real) side of a capture.
@@ -555,7 +460,7 @@ def measure_real(m: CaptureManifest, chart: ReferenceChart | None = None,
     camera = check_same_camera(m.photos())
     wb = checker_white_balance(m.checker_photo, m.checker_corners, chart)
     dev = develop_raw(m.checker_photo, white_balance=wb)
-    _check_inside(m.checker_corners, dev.rgb.shape, m.checker_photo, "checker")
+    check_inside(m.checker_corners, dev.rgb.shape, m.checker_photo, "checker")
     patches = dev.checker_patches(m.checker_corners)
     grey_y = float(luminance(patches[chart.grey_index()], "prophoto"))
     if grey_y <= 0:
@@ -568,7 +473,7 @@ def measure_real(m: CaptureManifest, chart: ReferenceChart | None = None,
             if progress:
                 progress(f"developing {ph.path.name}")
             img = develop_raw(ph.path, white_balance=wb)
-            _check_inside(ph.corners, img.rgb.shape, ph.path, "pixel quad")
+            check_inside(ph.corners, img.rgb.shape, ph.path, "pixel quad")
             rows.append(img.quad_mean(ph.corners) * k)
         rgb = np.array(rows)
         lab = prophoto_to_lab(rgb)
@@ -581,14 +486,6 @@ def measure_real(m: CaptureManifest, chart: ReferenceChart | None = None,
 
 
 # ----------------------------------------------------------------------------- comparison
-def virtual_checker(chart: ReferenceChart) -> tuple[NDArray[np.float64], float]:
-    """Normalised ProPhoto linear patches (24, 3) of the analytic virtual checker and the factor
-    ``s`` (0.18 / Y of its grey) that the white-card-normalised simulation is scaled by."""
-    pp = chart.prophoto()  # the analytic patches need no Rec.709 detour (nor its gamut)
-    s = GREY_CARD_Y / float(luminance(pp[chart.grey_index()], "prophoto"))
-    return pp * s, s
-
-
 def max_error_at(real: Characteristic, sim: Characteristic) -> tuple[float, float]:
     """Largest |OGCD_real - OGCD_sim| (dE00) and the length (mm) where it occurs, on the union
     of both samplings within their common range (as :func:`grassd.calib.compare.max_ogcd_error`)."""

@@ -12,12 +12,12 @@ import tomli_w
 from click.testing import CliRunner
 
 from grassd.calib.charts import get_chart
+from grassd.calib.errors import CornersOutsideImageError
 from grassd.calib.virtual_camera import VirtualCamera
 from grassd.daemon.cli.main import main
 from grassd.daemon.offline.validate import (
     CaptureManifest,
     CaptureManifestError,
-    CornersOutsideImageError,
     LengthOrderError,
     MissingPhotoError,
     MixedCamerasError,

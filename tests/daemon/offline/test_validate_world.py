@@ -10,6 +10,7 @@ import pytest
 from colour import delta_E
 
 from grassd.calib.characteristic import Characteristic
+from grassd.calib.checker_photo import virtual_checker
 from grassd.calib.compare import frechet_characteristics, max_ogcd_error
 from grassd.calib.ogcd import ogcd_from_samples
 from grassd.calib.virtual_camera import VirtualCamera
@@ -18,7 +19,6 @@ from grassd.daemon.offline.validate import (
     load_manifest,
     max_error_at,
     validate_capture,
-    virtual_checker,
 )
 from grassd.daemon.offline.virtual_capture import capture_world
 from grassd.sim.light_input import LightInput
