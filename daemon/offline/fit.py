@@ -19,8 +19,12 @@ How (fast by construction, every sample kept):
 * **Splay and smoothness: re-rendered.** They move the geometry and the lobe's shape, which no
   polynomial holds: each candidate value is recorded anew (the same random numbers: common
   random numbers make the comparison between candidates smooth), the albedos fitted inside it,
-  and the profile of the misfit over a coarse grid is refined by the least-squares parabola
-  through its lowest point and nearest neighbours.
+  and the profile of the misfit over a coarse grid is refined by successive parabolas through
+  its lowest point and its neighbours (:func:`_next_candidate`). Smoothness is searched
+  coarsely, then splay, then smoothness again near its best at the fitted splay, to
+  :data:`REFINE_TOLERANCE`: a base hidden under the blades takes its colour from what the lobe
+  leaves over, so it follows the lobe's shape closely (the olive test pixel's base blue moves
+  about 3 levels per 0.01 of smoothness).
 * **The layout.** The model's tufts are random; the photographed pixel's are one accident. The
   simulation is averaged over ``layouts`` random layouts, and their spread (per viewpoint and
   CIELAB component) weighs the residuals next to the Monte Carlo error and a floor for the
@@ -80,6 +84,11 @@ ALBEDO_ROWS: dict[str, int] = {"yellow_srgb": 0, "green_srgb": 1, "base_srgb": 2
 SPLAY_GRID: tuple[float, ...] = (0.0, 4.0, 8.0, 12.0, 16.0)
 #: Candidate smoothnesses of the coarse profile.
 SMOOTHNESS_GRID: tuple[float, ...] = (0.3, 0.5, 0.7, 0.85)
+#: Spacing of the fine smoothness profile around the coarse minimum (at the fitted splay).
+SMOOTHNESS_STEP: float = 0.1
+#: Most parabolic refinements of a profile, and when a candidate is close enough to one tried.
+MAX_REFINE: int = 4
+REFINE_TOLERANCE: dict[str, float] = {"smoothness": 0.01, "splay_deg": 0.5}
 #: Reference ``ks`` the paths are sampled with when ``specular`` is fitted from a start of 0:
 #: the glossy lobe is then sampled too (any ``ks`` is evaluated from the same paths).
 SAMPLING_SPECULAR: float = 0.05
@@ -439,17 +448,35 @@ class _Problem:
         return np.atleast_2d(np.cov(np.array(fits), rowvar=False, ddof=1))
 
 
-def _parabola_min(points: Sequence[tuple[float, float]], lo: float, hi: float) -> float:
-    """Vertex (clipped to [lo, hi]) of the least-squares parabola through the lowest point of a
-    profile and its nearest neighbours (four where there are); the lowest point itself where
-    that parabola is not convex."""
+def _next_candidate(points: Sequence[tuple[float, float]], lo: float, hi: float) -> float:
+    """The next value to try in a profile of the misfit: where the lowest point lies inside
+    the values tried, the vertex of the parabola through it and its two neighbours (kept
+    between them; the lowest point itself where that parabola is not convex); where it lies at
+    an end short of ``lo`` / ``hi``, one spacing further out (the minimum is not bracketed).
+
+    >>> _next_candidate([(0.0, 4.0), (1.0, 1.0), (2.0, 2.0)], 0.0, 3.0)
+    1.25
+    >>> _next_candidate([(0.0, 4.0), (1.0, 2.0), (2.0, 1.0)], 0.0, 3.0)
+    3.0
+    """
     pts = sorted(points)
     i = min(range(len(pts)), key=lambda k: pts[k][1])
-    near = sorted(pts, key=lambda p: abs(p[0] - pts[i][0]))[:4]
-    if len(near) < 3:
+    if len(pts) < 3:
         return pts[i][0]
-    a, b, _ = np.polyfit([p[0] for p in near], [p[1] for p in near], 2)
-    return float(np.clip(-b / (2 * a), lo, hi)) if a > 0 else pts[i][0]
+    if i in (0, len(pts) - 1):
+        j = 1 if i == 0 else len(pts) - 2
+        step = pts[i][0] - pts[j][0]
+        out = float(np.clip(pts[i][0] + step, lo, hi))
+        if out != pts[i][0]:
+            return out
+        i = j  # at lo / hi: the vertex of the three nearest, clipped to lo / hi
+    (xa, ya), (xb, yb), (xc, yc) = pts[i - 1: i + 2]
+    a, b, _ = np.polyfit([xa, xb, xc], [ya, yb, yc], 2)
+    if a <= 0:
+        return pts[min(range(len(pts)), key=lambda k: pts[k][1])][0]
+    lowest = min(pts, key=lambda p: p[1])[0]
+    span = (xa, xc) if lowest not in (pts[0][0], pts[-1][0]) else (lo, hi)
+    return round(float(np.clip(-b / (2 * a), *span)), 4)
 
 
 def _profile_stderr(points: Sequence[tuple[float, float]], rise: float) -> float | None:
@@ -564,7 +591,8 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
         problem.weights(shape, best.x)
         best = problem.solve(shape, best.x)
 
-    def search(name: str, grid: Sequence[float], index: int, lo: float, hi: float) -> None:
+    def search(name: str, grid: Sequence[float], index: int, lo: float, hi: float,
+               refine: int) -> None:
         nonlocal shape, best
         tried: dict[float, _Inner] = {}
 
@@ -574,24 +602,33 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
             try:
                 tried[v] = problem.solve(cand, best.x)
             except FitNotConvergedError:  # a far-off candidate: out of the running
-                pass
+                tried[v] = None  # type: ignore[assignment]
 
         for v in grid:
-            attempt(v, "")
-        if not tried:
+            attempt(float(v), "")
+        for _ in range(refine):  # successive parabolic interpolation, kept in its bracket
+            points = [(v, r.misfit) for v, r in tried.items() if r is not None]
+            if not points:
+                break
+            v_next = _next_candidate(points, lo, hi)
+            if min(abs(v_next - v) for v in tried) < REFINE_TOLERANCE[name]:
+                break
+            attempt(v_next, " (refined)")
+        ok = {v: r for v, r in tried.items() if r is not None}
+        if not ok:
             raise FitNotConvergedError(f"the albedo fit converged at no {name} tried "
                                        f"({', '.join(f'{v:g}' for v in grid)}); check that "
                                        "the photos show the pixel named in the manifest")
-        v_best = _parabola_min([(v, r.misfit) for v, r in tried.items()], lo, hi)
-        if v_best not in tried:
-            attempt(v_best, " (refined)")
-        v_best = min(tried, key=lambda v: tried[v].misfit)
+        v_best = min(ok, key=lambda v: ok[v].misfit)
         shape = (v_best, shape[1]) if index == 0 else (shape[0], v_best)
-        best = tried[v_best]
-        profile[name] = sorted((v, r.misfit) for v, r in tried.items())
+        best = ok[v_best]
+        profile[name] = sorted((v, r.misfit) for v, r in ok.items())
 
-    # The lobe's shape first (a sharp lobe fitted with a broad one's shape looks like no
-    # gloss at all), then the splay at that shape, then the shape again where the splay moved.
+    # The lobe's shape first, coarsely (a sharp lobe fitted with a broad one's shape looks like
+    # no gloss at all), then the splay at that shape, then the shape again, finely, at that
+    # splay: the hidden base's colour follows the lobe's shape closely (the olive pixel's blue
+    # moves about 3 levels per 0.01 of smoothness), so the shape's minimum is refined to
+    # REFINE_TOLERANCE rather than read off a coarse grid.
     glossy_fit = "smoothness" in params and (problem.fit_ks or start.specular > 0)
     kept: set[str] = set()  # fitted parameters the photos could not show: kept at the start
     specular_se = 0.0  # of a fitted specular set to 0
@@ -599,14 +636,12 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
         kept.add("smoothness")
         notes.append(f"smoothness kept at {shape[0]:g}: without a glossy lobe (specular 0, "
                      "not fitted) its shape does not show")
+    splay_fit = "splay_deg" in params
     if glossy_fit:
-        search("smoothness", SMOOTHNESS_GRID, 0, 0.0, 0.97)
-    if "splay_deg" in params:
-        search("splay_deg", SPLAY_GRID, 1, 0.0, 30.0)
-        if glossy_fit and abs(shape[1] - start.splay_deg) > 2.0:
-            search("smoothness", SMOOTHNESS_GRID, 0, 0.0, 0.97)
-    if glossy_fit and problem.fit_ks:
-        ks = problem.unpack(best.x)[1]
+        search("smoothness", SMOOTHNESS_GRID, 0, 0.0, 0.97,
+               1 if splay_fit else MAX_REFINE)
+    def specular_error() -> tuple[float, float]:
+        """The fitted ``ks`` and its standard error at the current shape."""
         try:
             cov = (_covariance(best, best.residuals.size - best.x.size)
                    + problem.layout_jackknife(shape, best.x))
@@ -615,8 +650,21 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
                 "the photos do not determine specular together with the albedos (singular "
                 "fit); add viewpoints or leave specular and smoothness out of --params"
             ) from None
-        ks_se = float(np.sqrt(cov[-1, -1]))
-        if ks < max(MIN_VISIBLE_SPECULAR, 3.0 * ks_se):
+        return problem.unpack(best.x)[1], float(np.sqrt(cov[-1, -1]))
+
+    def lobe_hidden(ks: float, ks_se: float) -> bool:
+        return ks < max(MIN_VISIBLE_SPECULAR, 3.0 * ks_se)
+
+    if splay_fit:
+        search("splay_deg", SPLAY_GRID, 1, 0.0, 30.0, MAX_REFINE)
+        if glossy_fit and not (problem.fit_ks and lobe_hidden(*specular_error())):
+            s0 = shape[0]
+            local = sorted({float(np.clip(s0 + d, 0.0, 0.97))
+                            for d in (-SMOOTHNESS_STEP, 0.0, SMOOTHNESS_STEP)})
+            search("smoothness", local, 0, 0.0, 0.97, MAX_REFINE)
+    if glossy_fit and problem.fit_ks:
+        ks, ks_se = specular_error()
+        if lobe_hidden(ks, ks_se):
             # No lobe to speak of: its shape is noise. Keep the start's, refitted there.
             notes.append(f"smoothness kept at {start.smoothness:g}: the fitted specular "
                          f"({ks:.3f} +- {ks_se:.3f}) shows no glossy lobe whose shape the "

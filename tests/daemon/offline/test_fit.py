@@ -70,15 +70,12 @@ def pink(captures):
     return {"manifest": manifest, "lighting": lighting}
 
 
-#: Largest CIEDE2000 between a fitted and the true albedo. The olive pixel's base is the
-#: exception: hidden under the blades and seen through a glossy lobe, it is fitted 3.1-3.6 dE00
-#: off (its blue channel 49-53 for 70, standard error 5 levels) while the lobe comes out
-#: broader and stronger than the truth (smoothness 0.5 for 0.6, specular 0.079 for 0.06): the
-#: photographed layout's gloss is its own accident, and the fit's lobe and the hidden base
-#: absorb it. (The photos also read 0.1-0.5 L* darker than the simulation with the exact
-#: layout, because the lens blur spreads the pixel's bright rim outside its quad; at 256 px that
-#: halves and the olive fit does not change.)
-ALBEDO_DE00 = {(w, a): 2.0 for w in WORLDS for a in ALBEDOS} | {("olive", "base_srgb"): 4.0}
+#: Largest CIEDE2000 between a fitted and the true albedo, every albedo of both pixels. (The
+#: olive pixel's base, hidden under the blades and seen next to a glossy lobe, follows the
+#: fitted smoothness closely: its blue moves about 3 levels per 0.01 of smoothness, so the fit
+#: refines the lobe's shape to 0.01 at the fitted splay; read off the coarse grid's 0.5 it was
+#: 3.4 dE00 off.)
+ALBEDO_DE00 = {(w, a): 2.0 for w in WORLDS for a in ALBEDOS}
 
 
 def _held_out(result):
@@ -124,7 +121,7 @@ def test_the_glossy_lobe_is_found_where_there_is_one(world):
 @pytest.mark.long
 def test_standard_errors_cover_the_truth(world):
     """The photographed layout's accident is shared by every photo: the standard errors count
-    it, so the truth lies within 3 of them (the olive base's blue is 20 levels off)."""
+    it, so the truth lies within 3 of them."""
     res, truth = world["fit"], world["truth"]
     for name in ALBEDOS:
         err = np.abs(np.subtract(res.pixel[name], getattr(truth, name)))
@@ -132,6 +129,8 @@ def test_standard_errors_cover_the_truth(world):
         assert (se > 0).all() and (err <= 3 * se).all(), (name, err, se)
     assert abs(res.pixel["splay_deg"] - truth.splay_deg) <= 3 * res.stderr["splay_deg"]
     assert abs(res.pixel["specular"] - truth.specular) <= 3 * res.stderr["specular"]
+    if truth.specular:  # the lobe's shape, refined: the hidden base's colour follows it
+        assert abs(res.pixel["smoothness"] - truth.smoothness) <= 3 * res.stderr["smoothness"]
     assert res.dof > 0 and np.isfinite(res.chi2)
 
 
