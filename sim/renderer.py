@@ -300,6 +300,10 @@ class Renderer:
         self._scene_key: tuple | None = None
         self._scene: SceneArrays | None = None
         self._uploaded: SceneArrays | None = None  # the scene on the fields (None: unsure)
+        #: Fewest camera paths a launch of :meth:`characteristic` takes (when there are that
+        #: many): an interactive caller lowers it to have ``progress`` called (and stop the
+        #: run there) more often.
+        self.min_launch_paths: int = MIN_LAUNCH_PATHS
         self._lighting: Lighting | None = None
 
     def _ensure_compiled(self, several: tuple[bool, ...] = (True,)) -> float:
@@ -1142,14 +1146,15 @@ class Renderer:
         # Launches: every length (ascending, so a path moves on to longer blades) of a run of
         # replicates. The buffer holds len_chunk lengths x rep_chunk replicates; a launch takes
         # at most a quarter of the replicates so progress is reported as the work goes, unless
-        # that makes it smaller than MIN_LAUNCH_PATHS camera paths (small launches run up to
-        # 7 % slower per path).
+        # that makes it smaller than min_launch_paths camera paths (small launches run up to
+        # 7 % slower per path). The split changes no number: a path's random numbers depend
+        # on its replicate, and each (length, replicate) group is summed serially.
         n = len(lengths_mm)
         order = np.argsort(lengths_mm, kind="stable")
         len_chunk = min(n, self.cap.paths // n_samp, self.sums.shape[0])
         rep_chunk = max(1, min(self.cap.paths // (len_chunk * n_samp),
                                self.sums.shape[0] // len_chunk,
-                               max(-(-n_rep // 4), -(-MIN_LAUNCH_PATHS // n_samp))))
+                               max(-(-n_rep // 4), -(-self.min_launch_paths // n_samp))))
         launches = [(s, r) for s in range(0, n, len_chunk) for r in range(0, n_rep, rep_chunk)]
         out = np.empty((n, n_rep, 3), np.float64)
         self.ipar[7] = settings.light_samples

@@ -6,7 +6,8 @@ The order of a job is set by the latency goals (issue #29: first characteristic 
 first image of the pixel within 300 ms, converged within 1 s, warm, 2 cores):
 
 1. the characteristic's first round, :data:`FIRST_REPLICATES` replicates of
-   :data:`STUDIO_SAMPLES` paths (about 75 ms for 11 lengths);
+   :data:`STUDIO_SAMPLES` paths (about 75 ms for 11 lengths); where the blades splay (every
+   length traced, 4x the time), replicates of :data:`SPLAY_SAMPLES` paths, 4x as many;
 2. the pixel's first image, :data:`FIRST_IMAGE` (width, paths per image pixel) (about 110 ms);
 3. further rounds until every OGCD standard error is at most the target
    (:func:`~grassd.daemon.calibration.simulation.simulate_curve`'s adaptive rounds of at most
@@ -15,7 +16,8 @@ first image of the pixel within 300 ms, converged within 1 s, warm, 2 cores):
 5. the audience map: the OGCD range from each place of the audience region;
 6. the pixel's image refined: :data:`REFINE_IMAGE` passes accumulated; then ``done``.
 
-Every step checks whether a newer request superseded this one.
+Every step checks whether a newer request superseded this one, and so does the renderer between
+its launches of :data:`STUDIO_LAUNCH_PATHS` camera paths (a round of several).
 """
 
 from __future__ import annotations
@@ -46,6 +48,21 @@ log = logging.getLogger(__name__)
 #: later rounds add just what the target needs (the same paths per length as the daemon's
 #: 4096 x 8 after 32 replicates).
 STUDIO_SAMPLES: int = 1024
+#: Camera paths per replicate when the green blades splay. The renderer then traces every
+#: length of a path (the blades' planes turn with the length) instead of about 3 of the 11,
+#: so a replicate costs about 4x as much (measured, 11 lengths x 4 x 1024 paths, 2 busy
+#: cores: 0.98 s against 0.26 s) and the first round took 0.3 s of a splay change's 0.43 s.
+#: A quarter of the paths a replicate and 4x the replicates a round (:func:`studio_pace`) keep
+#: the first round's time and each round's paths. Measured in process, 3 splay changes, load
+#: 2-3 on 2 cores: first curve 124-176 ms, converged 4.2-4.7 s; a first look of 4 x 256
+#: paths sent before rounds of 1024-path replicates instead: 142-162 ms, 4.9-6.0 s.
+SPLAY_SAMPLES: int = 256
+#: Fewest camera paths a renderer launch takes in the studio (the renderer's default is
+#: 131072, one launch a round): a round of 8 x 1024 paths goes in launches of 2 replicates,
+#: and the run checks for a newer input between them, so an input that comes in while a
+#: round computes waits for one launch (about a quarter of the round), not the whole round.
+#: The numbers do not depend on how the replicates are split into launches.
+STUDIO_LAUNCH_PATHS: int = 2048
 #: Replicates of the first round (their spread is the first error band).
 FIRST_REPLICATES: int = 4
 #: Most replicates a characteristic takes before it is sent as it is.
@@ -209,26 +226,38 @@ class Studio:
         return replace(base, pixel=replace(base.pixel, splay_deg=cond.splay_deg))
 
     def characteristic(self, cond: Condition, *, target_stderr: float | None,
-                       samples: int = STUDIO_SAMPLES, replicates: int = FIRST_REPLICATES,
+                       samples: int | None = None, replicates: int = FIRST_REPLICATES,
                        on_round: Callable | None = None,
-                       lengths_mm: Sequence[float] | None = None) -> SimulatedCurve:
+                       lengths_mm: Sequence[float] | None = None,
+                       check: Check | None = None) -> SimulatedCurve:
         """The simulated characteristic of ``cond`` (:func:`simulate_curve` at the centre
         pixel of the display's patch) at ``lengths_mm`` (mm; default the condition's),
         ``samples`` paths x ``replicates`` per round, refined to ``target_stderr``
-        (CIEDE2000) when given."""
+        (CIEDE2000) when given. ``samples`` None: the studio's pace (:func:`studio_pace`:
+        fewer paths a replicate and more replicates a round where the blades splay).
+        ``check`` is called between the renderer's launches (it raises to stop the run: a
+        newer input came in)."""
         from grassd.daemon.calibration.simulation import simulate_curve
         from grassd.sim.renderer import Renderer
         from grassd.sim.scene import RenderSettings, Viewpoint
 
         lighting = self.lights.lighting(cond, self.site)
+        display = self._display(cond)
+        lengths = np.asarray(cond.lengths_mm if lengths_mm is None else lengths_mm, float)
+        if samples is None:
+            samples, per_round, most = studio_pace(display.pixel.splay_deg, len(lengths))
+        else:
+            per_round, most = ROUND_REPLICATES, MAX_REPLICATES
         settings = RenderSettings(samples=samples, replicates=replicates,
                                   seed=self.cfg.simulation.seed)
-        lengths = np.asarray(cond.lengths_mm if lengths_mm is None else lengths_mm, float)
-        return simulate_curve(Renderer.shared(), self._display(cond), lighting,
-                              Viewpoint(*cond.viewpoint), lengths, settings,
-                              pixel_index=self.centre, target_stderr=target_stderr,
-                              max_replicates=MAX_REPLICATES, on_round=on_round,
-                              round_replicates=ROUND_REPLICATES)
+        renderer = Renderer.shared()
+        renderer.min_launch_paths = STUDIO_LAUNCH_PATHS
+        progress = None if check is None else (lambda _done, _total: check())
+        return simulate_curve(renderer, display, lighting, Viewpoint(*cond.viewpoint),
+                              lengths, settings, pixel_index=self.centre,
+                              target_stderr=target_stderr, max_replicates=most,
+                              on_round=on_round, round_replicates=per_round,
+                              progress=progress)
 
     def _image(self, cond: Condition, display, size: tuple[int, int], seed: int) -> np.ndarray:
         """The pixel path-traced from the eye: (width, width, 3) linear Rec.709 [nits]."""
@@ -290,7 +319,7 @@ class Studio:
             first_image()
         else:
             curve = self.characteristic(cond, target_stderr=cond.target_stderr,
-                                        on_round=on_round)
+                                        on_round=on_round, check=check)
             self._curves[key] = curve
             while len(self._curves) > KEPT_CURVES:
                 self._curves.pop(next(iter(self._curves)))
@@ -335,7 +364,8 @@ class Studio:
                 continue
             theta = math.degrees(math.atan2(x, -y))
             at = replace(cond, viewpoint=(cond.viewpoint[0], min(d, 1000.0), theta))
-            c = self.characteristic(at, target_stderr=None, lengths_mm=ends)
+            c = self.characteristic(at, target_stderr=None, lengths_mm=ends,
+                                    samples=STUDIO_SAMPLES, check=check)
             places.append((float(x), float(y), float(c.ogcd[1] - c.ogcd[0]),
                            float(c.ogcd_stderr[1])))
             check()
@@ -366,6 +396,18 @@ def _materials(p, source: str) -> dict[str, Any]:
     return {"source": source, "splay_deg": p.splay_deg, "specular": p.specular,
             "smoothness": p.smoothness, "green_srgb": list(p.green_srgb),
             "yellow_srgb": list(p.yellow_srgb), "base_srgb": list(p.base_srgb)}
+
+
+def studio_pace(splay_deg: float, n_lengths: int) -> tuple[int, int, int]:
+    """(camera paths a replicate, most replicates a later round adds, most replicates in all)
+    of the studio's characteristic of ``n_lengths`` lengths, green blades splayed by
+    ``splay_deg`` (deg): :data:`STUDIO_SAMPLES`, :data:`ROUND_REPLICATES`,
+    :data:`MAX_REPLICATES` without splay (or with 2 lengths or fewer); with it,
+    :data:`SPLAY_SAMPLES` a replicate and the replicates scaled to the same paths."""
+    if splay_deg <= 0 or n_lengths <= 2:
+        return STUDIO_SAMPLES, ROUND_REPLICATES, MAX_REPLICATES
+    scale = STUDIO_SAMPLES // SPLAY_SAMPLES
+    return SPLAY_SAMPLES, ROUND_REPLICATES * scale, MAX_REPLICATES * scale
 
 
 def cond_eye(cond: Condition) -> tuple[float, float, float]:

@@ -71,3 +71,23 @@ def test_what_a_larger_scene_left_on_the_fields_changes_nothing(renderer):
     assert renderer._uploaded is not None
     back = run(small)
     np.testing.assert_array_equal(first[0], back[0])
+
+
+def test_smaller_launches_change_no_number(renderer):
+    """The studio lowers ``min_launch_paths`` so that it can stop a run between launches."""
+    env = np.random.default_rng(5).uniform(0.2, 2.0, (32, 64, 3)).astype(np.float32)
+    light = build_lighting(env, 5000.0)
+    display = DisplaySpec(PixelSpec(splay_deg=4.0))
+    s = RenderSettings(samples=256, replicates=4, seed=2)
+    calls = []
+    one = renderer.characteristic(display, light, Viewpoint(150, 3, -10), LENGTHS, s)
+    kept = renderer.min_launch_paths
+    try:
+        renderer.min_launch_paths = 256  # one replicate a launch
+        split = renderer.characteristic(display, light, Viewpoint(150, 3, -10), LENGTHS, s,
+                                        progress=lambda done, n: calls.append(done))
+    finally:
+        renderer.min_launch_paths = kept
+    assert len(calls) == 4
+    np.testing.assert_array_equal(one.rgb_replicates, split.rgb_replicates)
+    assert (one.paths_traced, one.rays_traced) == (split.paths_traced, split.rays_traced)
