@@ -5,6 +5,8 @@ A site's photos (``grassd validate`` and ``grassd fit`` of a pixel, ``grassd mea
 display) are developed with the LibRaw channel multipliers that make the checker's grey patch
 its reference colour (:func:`checker_white_balance`), and scaled so that grey has Y = 0.18; the
 simulation, normalised to a white card, is scaled the same way (:func:`virtual_checker`).
+:func:`checker_scene` is the radiance a virtual camera photographs of a checker lying at the
+display (``grassd experiment virtual-capture``, the simulated display of ``grassd measure``).
 """
 
 from __future__ import annotations
@@ -15,12 +17,12 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from grassd.calib.charts import ReferenceChart
+from grassd.calib.charts import CHART_GRID, ReferenceChart
 from grassd.calib.colour_spaces import luminance, prophoto_to_rec709
 from grassd.calib.errors import CheckerPhotoError, CornersOutsideImageError
 from grassd.calib.exposure import GREY_CARD_Y
 from grassd.calib.raw import open_raw
-from grassd.calib.regions import checker_patch_quads, quad_mask
+from grassd.calib.regions import apply_homography, checker_patch_quads, homography, quad_mask
 
 
 def check_inside(corners: Sequence[Sequence[float]], shape: tuple[int, ...], path: Path,
@@ -123,3 +125,38 @@ def virtual_checker(chart: ReferenceChart) -> tuple[NDArray[np.float64], float]:
     pp = chart.prophoto()  # the analytic patches need no Rec.709 detour (nor its gamut)
     s = GREY_CARD_Y / float(luminance(pp[chart.grey_index()], "prophoto"))
     return pp * s, s
+
+
+# ------------------------------------------------------------------ a simulated checker photo
+#: Where the chart's patch area lies in the checker photo, as fractions of (width, height):
+#: top-left, top-right, bottom-right, bottom-left (slightly in perspective).
+CHART_LAYOUT: NDArray[np.float64] = np.array(
+    [(0.12, 0.14), (0.90, 0.18), (0.86, 0.88), (0.09, 0.82)])
+#: Albedo of the chart body between the patches (linear).
+CHART_BODY_ALBEDO: float = 0.03
+
+
+def checker_scene(chart: ReferenceChart, white_rgb709: Sequence[float], width: int = 384,
+                  height: int = 256) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Radiance image (height, width, 3) of a colour checker lying flat at the display, and the
+    (4, 2) image corners of its patch area (TL, TR, BR, BL; pixels (x, y)).
+
+    A Lambertian patch of albedo ``a`` under horizontal irradiance ``E`` has radiance
+    ``a * E / pi`` = ``a * white_rgb709`` (linear Rec.709, negative components kept for the
+    patches outside its gamut, as scRGB does); patches fill 80 % of their cells.
+    """
+    corners = CHART_LAYOUT * np.array([width, height])
+    albedo = prophoto_to_rec709(chart.prophoto())  # scRGB: out-of-gamut patches go negative
+    hinv = homography(corners, [(0, 0), (1, 0), (1, 1), (0, 1)])
+    yy, xx = np.mgrid[0:height, 0:width]
+    uv = apply_homography(hinv, np.stack([xx + 0.5, yy + 0.5], axis=-1))
+    rows, cols = CHART_GRID
+    u, v = uv[..., 0], uv[..., 1]
+    col = np.floor(u * cols).astype(int)
+    row = np.floor(v * rows).astype(int)
+    inside = ((u >= 0) & (u < 1) & (v >= 0) & (v < 1)
+              & (np.abs(u * cols - col - 0.5) < 0.4) & (np.abs(v * rows - row - 0.5) < 0.4))
+    img = np.full((height, width, 3), CHART_BODY_ALBEDO)
+    idx = np.clip(row, 0, rows - 1) * cols + np.clip(col, 0, cols - 1)
+    img[inside] = albedo[idx[inside]]
+    return img * np.asarray(white_rgb709, dtype=np.float64), corners

@@ -3,6 +3,9 @@
 * ``grassd run`` never imports ``grassd.daemon.offline`` (validation, experiments, sweeps,
   reports): a real ``grassd run --simulate-hardware`` in a subprocess calibrates one bundle and
   pushes its table, then lists the modules it loaded;
+* nor does any module the daemon runs (``runtime``, ``measure``, ``calibration``, ``hardware``,
+  ``monitoring``, ``store``, ``config``): no import statement in them names an offline module,
+  lazy or not, so a scheduled measurement or a path the first test does not take cannot either;
 * ``grassd.calib``, ``grassd.sim`` and ``grassd.firmware_proto`` never import ``grassd.daemon``
   (no import statement anywhere in them names it, lazy or not);
 * no runtime path imports a rig (issue #30): no module of ``grassd.calib``, ``grassd.sim``,
@@ -275,6 +278,20 @@ except SystemExit:
 print(json.dumps({"ok": bool(ok), "modules": sorted(m for m in sys.modules
                                                     if m.startswith("grassd"))}))
 """
+
+
+#: the daemon's subpackages: what ``grassd run`` runs
+DAEMON_RUNS = ("runtime", "measure", "calibration", "hardware", "monitoring", "store", "config")
+
+
+def test_no_module_the_daemon_runs_names_an_offline_module():
+    """Every import statement, lazy or not, of the daemon's own subpackages."""
+    bad = [f"{name} imports {imported}" for name, path in MODULES.items()
+           if name.split(".")[2:3] and name.split(".")[2] in DAEMON_RUNS
+           and name.startswith("grassd.daemon.")
+           for imported, _ in _imports(path) if imported.startswith("grassd.daemon.offline")]
+    assert any(n.startswith("grassd.daemon.measure.") for n in MODULES)
+    assert not bad, bad
 
 
 def test_grassd_run_never_imports_offline(tmp_path):

@@ -106,7 +106,7 @@ class SimulatedDisplay:
 
     def _checker(self, height: int) -> NDArray[np.float64]:
         from grassd.calib.charts import get_chart
-        from grassd.daemon.offline.virtual_capture import checker_scene
+        from grassd.calib.checker_photo import checker_scene
 
         img, _ = checker_scene(get_chart(CHECKER_CHART), self.white, self.width, height)
         return img
@@ -114,7 +114,7 @@ class SimulatedDisplay:
     def checker_corners(self) -> list[list[float]]:
         """The checker's patch-area corners (TL, TR, BR, BL) in the full-size developed set-up
         shot (x, y pixels: twice the texels of the camera's view, its DNG's resolution)."""
-        from grassd.daemon.offline.virtual_capture import CHART_LAYOUT
+        from grassd.calib.checker_photo import CHART_LAYOUT
 
         return (CHART_LAYOUT * np.array([self.width, self.width // 2]) * 2).tolist()
 

@@ -19,11 +19,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
-from grassd.calib.charts import CHART_GRID, ReferenceChart, get_chart
-from grassd.calib.colour_spaces import prophoto_to_rec709
-from grassd.calib.regions import apply_homography, homography
+from grassd.calib.charts import get_chart
+from grassd.calib.checker_photo import checker_scene
 from grassd.calib.virtual_camera import VirtualCamera
 from grassd.daemon.offline.validate import (
     MANIFEST_NAME,
@@ -35,39 +33,6 @@ from grassd.daemon.offline.validate import (
 )
 from grassd.daemon.store.atomic import atomic_write_text
 from grassd.sim.light_input import LightInput
-
-#: Where the chart's patch area lies in the checker photo, as fractions of (width, height):
-#: top-left, top-right, bottom-right, bottom-left (slightly in perspective).
-CHART_LAYOUT: NDArray[np.float64] = np.array(
-    [(0.12, 0.14), (0.90, 0.18), (0.86, 0.88), (0.09, 0.82)])
-#: Albedo of the chart body between the patches (linear).
-CHART_BODY_ALBEDO: float = 0.03
-
-
-def checker_scene(chart: ReferenceChart, white_rgb709: Sequence[float], width: int = 384,
-                  height: int = 256) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Radiance image (height, width, 3) of a colour checker lying flat at the display, and the
-    (4, 2) image corners of its patch area (TL, TR, BR, BL; pixels (x, y)).
-
-    A Lambertian patch of albedo ``a`` under horizontal irradiance ``E`` has radiance
-    ``a * E / pi`` = ``a * white_rgb709`` (linear Rec.709, negative components kept for the
-    patches outside its gamut, as scRGB does); patches fill 80 % of their cells.
-    """
-    corners = CHART_LAYOUT * np.array([width, height])
-    albedo = prophoto_to_rec709(chart.prophoto())  # scRGB: out-of-gamut patches go negative
-    hinv = homography(corners, [(0, 0), (1, 0), (1, 1), (0, 1)])
-    yy, xx = np.mgrid[0:height, 0:width]
-    uv = apply_homography(hinv, np.stack([xx + 0.5, yy + 0.5], axis=-1))
-    rows, cols = CHART_GRID
-    u, v = uv[..., 0], uv[..., 1]
-    col = np.floor(u * cols).astype(int)
-    row = np.floor(v * rows).astype(int)
-    inside = ((u >= 0) & (u < 1) & (v >= 0) & (v < 1)
-              & (np.abs(u * cols - col - 0.5) < 0.4) & (np.abs(v * rows - row - 0.5) < 0.4))
-    img = np.full((height, width, 3), CHART_BODY_ALBEDO)
-    idx = np.clip(row, 0, rows - 1) * cols + np.clip(col, 0, cols - 1)
-    img[inside] = albedo[idx[inside]]
-    return img * np.asarray(white_rgb709, dtype=np.float64), corners
 
 
 def capture_world(out_dir: str | Path, light: LightInput,

@@ -16,7 +16,7 @@ from colour import delta_E
 
 from grassd.calib.ccm import fit_ccm
 from grassd.calib.charts import get_chart
-from grassd.calib.checker_photo import checker_white_balance
+from grassd.calib.checker_photo import checker_scene, checker_white_balance
 from grassd.calib.colour_spaces import (
     luminance,
     prophoto_to_lab,
@@ -24,7 +24,6 @@ from grassd.calib.colour_spaces import (
 from grassd.calib.errors import DngWriteError
 from grassd.calib.raw import develop_raw
 from grassd.calib.virtual_camera import CANON_5D2_XYZ_TO_CAMERA, VirtualCamera
-from grassd.daemon.offline.virtual_capture import checker_scene
 
 CHART = get_chart("spydercheckr-24")
 #: The checker's reference colours (two SpyderCheckr patches lie outside Rec.709: the scene

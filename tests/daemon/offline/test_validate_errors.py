@@ -12,6 +12,7 @@ import tomli_w
 from click.testing import CliRunner
 
 from grassd.calib.charts import get_chart
+from grassd.calib.checker_photo import checker_scene
 from grassd.calib.errors import CornersOutsideImageError
 from grassd.calib.virtual_camera import VirtualCamera
 from grassd.daemon.cli.main import main
@@ -27,7 +28,6 @@ from grassd.daemon.offline.validate import (
     manifest_to_toml,
     measure_real,
 )
-from grassd.daemon.offline.virtual_capture import checker_scene
 from grassd.sim.hdri import write_exr
 from grassd.sim.light_input import LightInput
 
