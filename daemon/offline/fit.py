@@ -638,8 +638,8 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
                      "not fitted) its shape does not show")
     splay_fit = "splay_deg" in params
     if glossy_fit:
-        search("smoothness", SMOOTHNESS_GRID, 0, 0.0, 0.97,
-               1 if splay_fit else MAX_REFINE)
+        # Coarse only where the splay follows: the fine pass then starts at its best.
+        search("smoothness", SMOOTHNESS_GRID, 0, 0.0, 0.97, 0 if splay_fit else MAX_REFINE)
     def specular_error() -> tuple[float, float]:
         """The fitted ``ks`` and its standard error at the current shape."""
         try:
