@@ -267,7 +267,9 @@ def sim_cmd(use_pty: bool, count: int, separate: bool, pixels: int, state_dir: s
     def _on_signal(signum, _frame):
         stop["now"] = True
 
-    old = signal.signal(signal.SIGTERM, _on_signal)
+    # Ctrl-C and SIGTERM stop it the same way, wherever they arrive (a KeyboardInterrupt
+    # between printing the ports and the loop below would abort with status 1)
+    old = {s: signal.signal(s, _on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
     try:
         for bus in buses:
             addrs = [c.config.address for c in bus.controllers]
@@ -275,13 +277,11 @@ def sim_cmd(use_pty: bool, count: int, separate: bool, pixels: int, state_dir: s
             click.echo(f"{bus.path} -> {bus.device}  addresses {span}, {pixels} pixels each")
         click.echo(f"EEPROM files in {state}; Ctrl-C to stop", err=True)
         deadline = None if duration is None else time.monotonic() + duration
-        try:
-            while not stop["now"] and (deadline is None or time.monotonic() < deadline):
-                time.sleep(0.1)
-        except KeyboardInterrupt:
-            pass
+        while not stop["now"] and (deadline is None or time.monotonic() < deadline):
+            time.sleep(0.1)
     finally:
-        signal.signal(signal.SIGTERM, old)
+        for s, handler in old.items():
+            signal.signal(s, handler)
         for bus in buses:
             bus.stop()
     click.echo("simulated controllers stopped", err=True)
