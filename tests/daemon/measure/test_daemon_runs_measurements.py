@@ -6,8 +6,10 @@ and by whom it runs: its report names the trigger."""
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
+from collections.abc import Iterator
 from datetime import datetime
 from pathlib import Path
 from zoneinfo import ZoneInfo
@@ -17,16 +19,27 @@ from daemon_harness import service, write_config
 from grassd.daemon.errors import ControlError
 from grassd.daemon.monitoring.measurement_report import load_reports
 from grassd.daemon.runtime.control import ControlServer, request
+from grassd.daemon.runtime.service import Service
 from grassd.daemon.store.layout import StateLayout
 
 #: the daemon's site time zone (write_config's configuration has none: the default)
 TZ = "UTC"
 
 
-def _config(tmp_path: Path, cfg, hours: tuple[int, int]) -> Path:
-    return write_config(tmp_path / "grassd.toml", tmp_path / "state", cfg, extra=(
+@contextlib.contextmanager
+def _daemon(tmp_path: Path, cfg, hours_from_now: int) -> Iterator[Service]:
+    """An in-process daemon measuring every hour (``interval_s`` 3600) within a 2-hour window
+    that starts ``hours_from_now`` hours from the current local hour (0: it is open now,
+    and stays open if the hour turns during the test)."""
+    start = (datetime.now(ZoneInfo(TZ)).hour + hours_from_now) % 24
+    svc = service(write_config(tmp_path / "grassd.toml", tmp_path / "state", cfg, extra=(
         '[measure]\ncamera = "http://127.0.0.1:9"\ninterval_s = 3600\n'
-        f"start_hour = {hours[0]}\nend_hour = {hours[1]}\n"))
+        f"start_hour = {start}\nend_hour = {(start + 2) % 24}\n")))
+    try:
+        assert svc.cfg.site.timezone == TZ
+        yield svc
+    finally:
+        svc.shutdown()
 
 
 def _reports(tmp_path: Path) -> list[dict]:
@@ -35,10 +48,7 @@ def _reports(tmp_path: Path) -> list[dict]:
 
 def test_a_measurement_runs_once_its_interval_has_passed_within_its_hours(tmp_path, hw):
     sim, cfg = hw
-    hour = datetime.now(ZoneInfo(TZ)).hour
-    svc = service(_config(tmp_path, cfg, (hour, (hour + 1) % 24)))
-    try:
-        assert svc.cfg.site.timezone == TZ
+    with _daemon(tmp_path, cfg, 0) as svc:
         svc.tick()
         assert _reports(tmp_path) == []  # the interval counts from the daemon's start
         svc.last_measure_at = time.time() - 3601  # as if the last one was an hour ago
@@ -48,26 +58,27 @@ def test_a_measurement_runs_once_its_interval_has_passed_within_its_hours(tmp_pa
         assert "grassd measure setup" in report["error"]
         svc.tick()  # the next one is an interval away
         assert len(_reports(tmp_path)) == 1
-    finally:
-        svc.shutdown()
 
 
 def test_no_measurement_outside_its_hours(tmp_path, hw):
     sim, cfg = hw
-    hour = datetime.now(ZoneInfo(TZ)).hour
-    svc = service(_config(tmp_path, cfg, ((hour + 2) % 24, (hour + 3) % 24)))
-    try:
+    with _daemon(tmp_path, cfg, 3) as svc:  # opens in 3 hours, at the earliest 2 from now
         svc.last_measure_at = time.time() - 10 * 3600
         svc.tick()
         assert _reports(tmp_path) == []
-    finally:
-        svc.shutdown()
 
 
 def test_the_control_socket_measures_in_the_main_loop(tmp_path, hw):
     sim, cfg = hw
-    hour = datetime.now(ZoneInfo(TZ)).hour
-    svc = service(_config(tmp_path, cfg, ((hour + 2) % 24, (hour + 3) % 24)))
+    with _daemon(tmp_path, cfg, 3) as svc:  # no scheduled one: only the request measures
+        _request_a_measurement(tmp_path, svc)
+    [report] = _reports(tmp_path)
+    assert report["trigger"] == "request" and report["status"] == "failed"
+
+
+def _request_a_measurement(tmp_path: Path, svc: Service) -> None:
+    """Ask ``svc``'s control socket to measure while its main loop runs; the measurement
+    fails (the camera was never set up) and the client gets its error."""
     server = ControlServer(tmp_path / "control.sock", svc.handle_request).start()
     answer: list[BaseException] = []
 
@@ -87,8 +98,5 @@ def test_the_control_socket_measures_in_the_main_loop(tmp_path, hw):
         assert not client.is_alive(), "the measure request was never answered"
         [error] = answer
         assert "grassd measure setup" in str(error)
-        [report] = _reports(tmp_path)
-        assert report["trigger"] == "request" and report["status"] == "failed"
     finally:
         server.stop()
-        svc.shutdown()
