@@ -7,6 +7,8 @@ import shutil
 
 import pytest
 
+from grassd.firmware_proto.client import RetryPolicy
+
 #: Why each firmware tier cannot run here, or None when it can.
 _TOOLS = {
     "model": (),
@@ -35,3 +37,10 @@ def firmware_params(*names: str) -> list:
         marks = [pytest.mark.skip(reason=reason)] if reason else []
         out.append(pytest.param(n, id=n, marks=marks))
     return out
+
+
+#: For a test that asserts a clean link needs no retransmission. Every answer comes well within
+#: a millisecond; the timeout bounds only how long a loaded 2-core machine may leave the
+#: controller's process or thread unscheduled (the Python model at 50 ms retransmitted once in
+#: a CI run, the QEMU image at 50 ms twice here), so it is generous and costs nothing.
+CLEAN_LINK = RetryPolicy(timeout_s=1.0, retries=2, backoff_s=0.005)

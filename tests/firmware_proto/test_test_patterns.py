@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 import pytest
-from firmware_tiers import firmware_params
+from firmware_tiers import CLEAN_LINK, firmware_params
 
 from grassd.firmware_proto.client import (
     ControllerClient,
@@ -243,7 +243,7 @@ def bus(request, tmp_path):
 
 
 def test_client_shows_a_pattern_and_ends_it(bus):
-    with ControllerClient(bus.path, policy=FAST, seed=3) as c:
+    with ControllerClient(bus.path, policy=CLEAN_LINK, seed=3) as c:
         assert c.hello(1).supports_patterns
         c.push_table(1, TABLE)
         c.set_levels(1, [10, 20, 30, 40])
