@@ -11,7 +11,10 @@ first image of the pixel within 300 ms, converged within 1 s, warm, 2 cores):
 2. the pixel's first image, :data:`FIRST_IMAGE` (width, paths per image pixel) (about 110 ms);
 3. further rounds until every OGCD standard error is at most the target
    (:func:`~grassd.daemon.calibration.simulation.simulate_curve`'s adaptive rounds of at most
-   :data:`ROUND_REPLICATES`, each sent);
+   :data:`ROUND_REPLICATES`, each sent); where the first round says the target needs more
+   than 64 x 1024 paths (a low sun's light and shadow on the blades), a new series of
+   8192-path replicates, whose error falls faster per path
+   (:class:`~grassd.daemon.calibration.simulation.LargerReplicates`), sent from its 4th;
 4. the table, the contrast, the display showing the uploaded picture;
 5. the audience map: the OGCD range from each place of the audience region;
 6. the pixel's image refined: :data:`REFINE_IMAGE` passes accumulated; then ``done``.
@@ -237,15 +240,17 @@ class Studio:
         fewer paths a replicate and more replicates a round where the blades splay).
         ``check`` is called between the renderer's launches (it raises to stop the run: a
         newer input came in)."""
-        from grassd.daemon.calibration.simulation import simulate_curve
+        from grassd.daemon.calibration.simulation import LargerReplicates, simulate_curve
         from grassd.sim.renderer import Renderer
         from grassd.sim.scene import RenderSettings, Viewpoint
 
         lighting = self.lights.lighting(cond, self.site)
         display = self._display(cond)
         lengths = np.asarray(cond.lengths_mm if lengths_mm is None else lengths_mm, float)
+        larger = None
         if samples is None:
             samples, per_round, most = studio_pace(display.pixel.splay_deg, len(lengths))
+            larger = LargerReplicates()
         else:
             per_round, most = ROUND_REPLICATES, MAX_REPLICATES
         settings = RenderSettings(samples=samples, replicates=replicates,
@@ -257,7 +262,7 @@ class Studio:
                               lengths, settings, pixel_index=self.centre,
                               target_stderr=target_stderr, max_replicates=most,
                               on_round=on_round, round_replicates=per_round,
-                              progress=progress)
+                              progress=progress, larger=larger)
 
     def _image(self, cond: Condition, display, size: tuple[int, int], seed: int) -> np.ndarray:
         """The pixel path-traced from the eye: (width, width, 3) linear Rec.709 [nits]."""

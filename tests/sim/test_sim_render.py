@@ -378,3 +378,51 @@ def test_same_layout_copies_pixel_0_everywhere():
     different = build_scene(DisplaySpec(rows=2, cols=2), np.array([10.0]))
     assert different.n_blades != sc.n_blades or not np.allclose(
         different.blade_p0[per:2 * per, :2] - centres[1], rel[0], atol=1e-7)
+
+
+class _NetRenderer(_NoisyRenderer):
+    """A stand-in whose replicate noise falls as paths^-0.7, as a low sun's does (a larger
+    scrambled net's error falls faster than 1/sqrt(paths))."""
+
+    def characteristic(self, display, lighting, viewpoint, lengths_mm, settings,
+                       pixel_index=0, progress=None):
+        self.noise = 0.08 * (settings.samples / 1024) ** -0.7
+        m = super().characteristic(display, lighting, viewpoint, lengths_mm, settings)
+        self.calls[-1] = (settings.samples, len(lengths_mm), settings.replicates)
+        return m
+
+
+def test_a_run_that_needs_many_paths_goes_on_with_larger_replicates():
+    """With ``larger``, the first paths (look_paths) judge the paths the target needs: past
+    after_paths the run starts a series of larger replicates, takes at least ``least`` of
+    them, shows it from the first round's count of replicates on, and returns it alone; a
+    run the first paths judge cheap keeps its replicates and its numbers."""
+    from grassd.daemon.calibration.simulation import LargerReplicates, simulate_curve
+
+    light = uniform_lighting(1.0)
+    lengths = np.arange(0.0, 20.01, 5.0)
+    larger = LargerReplicates(samples=8192, after_paths=65536, look_paths=8192, least=8)
+    fake, shown = _NetRenderer(noise=0.0), []
+    c = simulate_curve(fake, DisplaySpec(), light, Viewpoint(), lengths,
+                       RenderSettings(samples=1024, replicates=4), target_stderr=0.1,
+                       round_replicates=8, larger=larger, on_round=shown.append)
+    sizes = [s for s, _, _ in fake.calls]
+    assert sizes[:2] == [1024, 1024] and set(sizes[2:]) == {8192}  # looked at 8 x 1024
+    assert c.replicates >= 8 and c.replicates == sum(r for s, _, r in fake.calls if s == 8192)
+    assert float(c.ogcd_stderr.max()) <= 0.1
+    assert [s.replicates for s in shown[:2]] == [4, 8]  # the first look, as it came
+    assert all(s.replicates >= 4 for s in shown[2:]) and shown[-1] is c
+    assert max(r for s, _, r in fake.calls if s == 8192) <= 2  # rounds of 8 x 1024 paths
+    # the same run without ``larger`` takes many more small replicates (and paths)
+    small = _NetRenderer(noise=0.0)
+    d = simulate_curve(small, DisplaySpec(), light, Viewpoint(), lengths,
+                       RenderSettings(samples=1024, replicates=4), target_stderr=0.1,
+                       round_replicates=8, max_replicates=1024)
+    assert d.replicates * 1024 > 2 * c.replicates * 8192
+    # judged cheap (a target easily met): the run is what it is without ``larger``
+    cheap = [simulate_curve(_NetRenderer(noise=0.0), DisplaySpec(), light, Viewpoint(),
+                            lengths, RenderSettings(samples=1024, replicates=4, seed=2),
+                            target_stderr=0.5, round_replicates=8, larger=lg)
+             for lg in (larger, None)]
+    np.testing.assert_array_equal(cheap[0].ogcd, cheap[1].ogcd)
+    assert cheap[0].rounds == cheap[1].rounds

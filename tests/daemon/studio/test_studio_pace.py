@@ -1,6 +1,6 @@
 """The studio's pace (issue #29): a splayed characteristic takes replicates of fewer paths (its
-every length is traced), and a run stops between the renderer's launches when a newer input
-comes in, not only between rounds."""
+every length is traced), one under a low sun goes on with larger replicates, and a run stops
+between the renderer's launches when a newer input comes in, not only between rounds."""
 
 from __future__ import annotations
 
@@ -22,17 +22,39 @@ def test_a_splayed_characteristic_takes_smaller_replicates_and_as_many_paths():
     assert per_round <= 64  # a render's replicate limit (grassd.sim.scene.MAX_REPLICATES)
 
 
-def test_a_round_stops_between_launches(renderer, shared_hdri):
+def _studio_and_condition(shared_hdri, condition: dict):
     from grassd.daemon.config.settings import resolve_config
     from grassd.daemon.studio.inputs import parse_condition
     from grassd.daemon.studio.lights import Lights, LightSource
 
     st = session.Studio(resolve_config(None, None),
                         Lights([LightSource("file", "f", shared_hdri("courtyard"))]))
-    cond = parse_condition({"ambient_lux": 5000, "viewpoint": [170, 2, 7]},
-                           green_max_mm=st.display.pixel.green_max_mm,
+    cond = parse_condition(condition, green_max_mm=st.display.pixel.green_max_mm,
                            timezone=st.cfg.site.timezone, lights=st.lights.names,
                            default_light=st.lights.default)
+    return st, cond
+
+
+def test_a_low_sun_converges_on_larger_replicates(renderer, shared_hdri):
+    """Under a low sun the first 8 x 1024 paths say the target needs more than 64 x 1024, so
+    the run goes on with replicates of 8192 paths: it meets 0.1 dE00 with 8-32 of them
+    (with replicates of 1024 it took 106-149, 2.4 s against 1.4 s)."""
+    from grassd.daemon.calibration.simulation import LargerReplicates
+
+    st, cond = _studio_and_condition(shared_hdri, {
+        "ambient_lux": 5000, "viewpoint": [170, 2, 3],
+        "sun": {"mode": "site", "lux": 40000, "when": "2026-11-27T15:00"}})
+    seen = []
+    curve = st.characteristic(cond, target_stderr=0.1, on_round=seen.append)
+    assert [c.replicates for c in seen[:2]] == [session.FIRST_REPLICATES, 8]
+    assert LargerReplicates().least <= curve.replicates <= 32
+    assert float(curve.ogcd_stderr.max()) <= 0.1 and seen[-1] is curve
+    assert curve.paths_traced > 0 and curve.ogcd[-1] > 20  # the sunlit blades' contrast
+
+
+def test_a_round_stops_between_launches(renderer, shared_hdri):
+    st, cond = _studio_and_condition(shared_hdri, {"ambient_lux": 5000,
+                                                   "viewpoint": [170, 2, 7]})
     calls = []
 
     def check() -> None:
