@@ -35,7 +35,11 @@ How (fast by construction, every sample kept):
   each simulated layout in turn for the photographed one (a layout jackknife). Splay and
   smoothness: where the profile of the misfit rises above its minimum by the reduced
   chi-square (at least 1) times the albedos' inflation by the jackknife, interpolated between
-  the candidates tried.
+  the candidates tried. The albedos and specular fitted at the best splay and smoothness
+  move with them, so their covariance also takes ``g g^T se^2`` per re-rendered parameter,
+  ``g`` the albedos' slope along its profile (the fits at the candidates tried nearest on
+  either side) and ``se`` its standard error (the olive test pixel's base blue: about 3
+  levels per 0.01 of smoothness).
 * **Judging.** Every viewpoint's real OGCD is compared with the starting model's and the
   fitted one's (discrete Frechet distance and largest OGCD error, as ``validate``); held-out
   viewpoints (``holdout``) take no part in the fit and show how well it predicts a view it
@@ -584,6 +588,7 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
     problem = _Problem(model, real, fit_series, params)
     notes: list[str] = []
     profile: dict[str, list[tuple[float, float]]] = {}
+    along: dict[str, dict[float, NDArray[np.float64]]] = {}  # the fitted x along each profile
     shape = (start.smoothness, start.splay_deg)
     say(f"fitting albedos at smoothness {shape[0]:g}, splay {shape[1]:g} deg")
     best = problem.solve(shape)
@@ -623,6 +628,7 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
         shape = (v_best, shape[1]) if index == 0 else (shape[0], v_best)
         best = ok[v_best]
         profile[name] = sorted((v, r.misfit) for v, r in ok.items())
+        along[name] = {v: r.x for v, r in ok.items()}
 
     # The lobe's shape first, coarsely (a sharp lobe fitted with a broad one's shape looks like
     # no gloss at all), then the splay at that shape, then the shape again, finely, at that
@@ -686,12 +692,23 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
     dof = max(len(best.residuals) - n_par, 1)
     albedo, ks = problem.unpack(best.x)
     _check_agreement(model, real, fit_series, shape, albedo, ks)
-    pixel, stderr = _fitted_fields(problem, best, shape, params, dof, profile, kept)
+    pixel, stderr, given_shape = _fitted_fields(problem, best, shape, params, dof, profile,
+                                                kept, along)
     if "specular" in kept:
         pixel["specular"], stderr["specular"] = 0.0, round(specular_se, 4)
         pixel = {k: pixel[k] for k in FIT_PARAMS if k in pixel}  # report order
         stderr = {k: stderr[k] for k in FIT_PARAMS if k in stderr}
-    _check_determined(stderr, params, kept, profile)
+    # What the photos do not determine even at the fitted shape is refused; what is uncertain
+    # through the shape's uncertainty is reported, with a note.
+    _check_determined({**stderr, **given_shape}, params, kept, profile)
+    for p, v in given_shape.items():
+        worst = max(stderr[p]) if isinstance(stderr[p], list) else stderr[p]
+        if worst > MAX_STDERR[p]:
+            notes.append(f"{p}'s standard error is up to {worst:.3g} ("
+                         f"{max(v) if isinstance(v, list) else v:.3g} if the splay and "
+                         "smoothness were exact): it follows the lobe's shape or the splay, "
+                         "which the photos pin down loosely; more viewpoints (steep ones for "
+                         "the base) narrow it")
     say("judging every viewpoint")
     start_shape = (start.smoothness, start.splay_deg)
     start_albedo, _ = problem.unpack(problem.x0)
@@ -710,12 +727,17 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
 def _fitted_fields(problem: _Problem, best: _Inner, shape: tuple[float, float],
                    params: Sequence[str], dof: int,
                    profile: dict[str, list[tuple[float, float]]],
-                   kept: set[str]) -> tuple[dict[str, Any], dict[str, Any]]:
-    """The fitted fields by their config names and their standard errors (module docstring;
-    None where a parameter was kept at its start or its profile never rises enough)."""
+                   kept: set[str], along: dict[str, dict[float, NDArray[np.float64]]] | None = None
+                   ) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
+    """The fitted fields by their config names, their standard errors (module docstring;
+    None where a parameter was kept at its start or its profile never rises enough), and the
+    albedos' and specular's standard errors at the fitted splay and smoothness (without their
+    uncertainty). ``along``: per re-rendered parameter, the fitted parameter vector at each
+    value tried, whose slope carries that parameter's uncertainty into the albedos' and
+    specular's."""
     pixel: dict[str, Any] = {}
     stderr: dict[str, Any] = {}
-    se = np.zeros(0)
+    cov = np.zeros((0, 0))
     design = 1.0  # how much the shared layout accident inflates a variance
     if len(best.x):
         try:
@@ -727,24 +749,53 @@ def _fitted_fields(problem: _Problem, best: _Inner, shape: tuple[float, float],
             raise NotIdentifiableError(
                 f"the photos do not determine {', '.join(weakest)} together (singular fit); "
                 "add lengths or viewpoints, or fit fewer parameters with --params") from None
-        se = np.sqrt(np.diag(cov))
-    for i, p in enumerate(problem.albedo_params):
-        pixel[p] = [round(float(v), 2) for v in best.x[3 * i: 3 * i + 3]]
-        stderr[p] = [round(float(v), 2) for v in se[3 * i: 3 * i + 3]]
-    if problem.fit_ks:
-        pixel["specular"] = round(problem.unpack(best.x)[1], 4)
-        stderr["specular"] = round(float(se[-1]), 4)
     # The profile's rise: 1 for a chi-square, more where the residuals are wider than their
     # weights, times the albedos' inflation by the layout accident (which splay and smoothness
     # share, but whose jackknife would need every layout recorded at every candidate).
     rise = max(1.0, best.cost / dof) * design
+    given = np.sqrt(np.diag(cov))
+    shape_fields: dict[str, Any] = {}
+    shape_se: dict[str, Any] = {}
     for name, index in (("smoothness", 0), ("splay_deg", 1)):
         if name in params:
-            pixel[name] = round(float(shape[index]), 3)
+            shape_fields[name] = round(float(shape[index]), 3)
             width = (None if name in kept or name not in profile
                      else _profile_stderr(profile[name], rise))
-            stderr[name] = None if width is None else round(width, 3)
-    return pixel, stderr
+            shape_se[name] = None if width is None else round(width, 3)
+            slope = (None if width is None or len(best.x) == 0 or name not in (along or {})
+                     else _slope(along[name], float(shape[index]), len(best.x)))
+            if slope is not None:  # the albedos move with it
+                cov = cov + np.outer(slope, slope) * width ** 2
+    se = np.sqrt(np.diag(cov))
+    given_shape: dict[str, Any] = {}
+    for i, p in enumerate(problem.albedo_params):
+        pixel[p] = [round(float(v), 2) for v in best.x[3 * i: 3 * i + 3]]
+        stderr[p] = [round(float(v), 2) for v in se[3 * i: 3 * i + 3]]
+        given_shape[p] = [round(float(v), 2) for v in given[3 * i: 3 * i + 3]]
+    if problem.fit_ks:
+        pixel["specular"] = round(problem.unpack(best.x)[1], 4)
+        stderr["specular"] = round(float(se[-1]), 4)
+        given_shape["specular"] = round(float(given[-1]), 4)
+    return {**pixel, **shape_fields}, {**stderr, **shape_se}, given_shape
+
+
+def _slope(points: dict[float, NDArray[np.float64]], at: float, size: int
+           ) -> NDArray[np.float64] | None:
+    """The slope of the fitted parameter vector along a profile at ``at``: the difference of
+    the fits tried nearest below and above it (one side and ``at`` itself at the edge of
+    what was tried), the first ``size`` entries (a specular set to 0 later drops the last);
+    None where only ``at`` was tried.
+
+    >>> _slope({0.0: np.array([1.0]), 0.5: np.array([2.0]), 1.0: np.array([4.0])}, 0.5, 1).tolist()
+    [3.0]
+    """
+    below = [v for v in points if v < at]
+    above = [v for v in points if v > at]
+    lo = max(below) if below else at
+    hi = min(above) if above else at
+    if hi == lo or lo not in points or hi not in points:
+        return None
+    return (points[hi][:size] - points[lo][:size]) / (hi - lo)
 
 
 def _check_agreement(model: _Model, real: RealCapture, fit_series: Sequence[int],
