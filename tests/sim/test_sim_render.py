@@ -236,7 +236,8 @@ def test_one_path_for_all_lengths_equals_tracing_each_length_alone(renderer, sha
     tracing every length on its own gives (lengths unsorted, repeated, off the 1 mm grid), to
     float rounding (a kept light sample's contribution is read back where tracing alone
     computes it, about 1e-8 relative), while tracing far fewer paths, and of those paths
-    fewer rays; with splay every length and every ray is traced.
+    fewer rays; with splay a path is traced again at about every length, keeping its rays'
+    answers up to the first that changes (test_sim_splay_reuse.py).
 
     A length on its own is traced as [x, x], so that it runs the same compiled kernel as the
     many lengths. Alone, a length runs the one-length kernel, compiled on its own: its float32
@@ -260,9 +261,11 @@ def test_one_path_for_all_lengths_equals_tracing_each_length_alone(renderer, sha
     for m in alone:  # the second x takes the first one's radiance
         np.testing.assert_array_equal(m.rgb_replicates[:, 0], m.rgb_replicates[:, 1])
     slots = len(lengths) * many.samples_per_length
-    rays_alone = sum(m.rays_traced for m in alone)  # each x once, but with splay twice
+    rays_alone = sum(m.rays_traced for m in alone)  # each x once (with splay twice, the
+    # second keeping what it can)
     if case == "splay":
-        assert many.paths_traced == slots and 2 * many.rays_traced == rays_alone
+        assert many.samples_per_length <= many.paths_traced <= slots
+        assert many.rays_traced < rays_alone
     else:
         assert many.samples_per_length <= many.paths_traced < 0.6 * slots
         # a path traced again keeps its rays' answers up to the first vertex that moves

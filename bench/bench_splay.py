@@ -1,0 +1,78 @@
+"""The studio's splayed characteristic (issue #29): traces, rays and wall time per launch set.
+
+The studio's pixel (``resolve_config(None, None)``, the centre of its 3x3 patch), courtyard
+5000 lx, viewpoint (170, 2, 5), 11 lengths 0..20 mm, warm kernels, launches of at least 2048
+paths as the studio runs them: splay 8 deg with 16 x 256 paths (a studio round), and the same
+pixel without splay with 4 x 1024 paths. Prints the median of ``GRASSD_BENCH_SPLAY_RUNS``
+(default 6) runs, traces and rays per camera path. Asserts nothing.
+
+Run: ``python -m bench splay``. For an A/B against an older renderer, set
+``GRASSD_BENCH_SPLAY_OLD`` to a copy of its ``sim/renderer.py``: both run interleaved in one
+process (each Renderer compiles its own kernels).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import statistics
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+HDRI = Path(__file__).resolve().parents[1].parent / "shared" / "hdri" / "courtyard.exr"
+RUNS = int(os.environ.get("GRASSD_BENCH_SPLAY_RUNS", "6"))
+
+
+def main() -> None:
+    from grassd.daemon.calibration.calibrate import Calibrator
+    from grassd.daemon.config.settings import resolve_config
+    from grassd.sim import renderer as current
+    from grassd.sim.backend import init
+    from grassd.sim.hdri import load_hdri
+    from grassd.sim.lighting import build_lighting
+    from grassd.sim.scene import RenderSettings, Viewpoint
+
+    init("cpu")
+    renderers = {"current": current.Renderer()}
+    old = os.environ.get("GRASSD_BENCH_SPLAY_OLD")
+    if old:
+        spec = importlib.util.spec_from_file_location("renderer_old", old)
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        renderers["old"] = module.Renderer()
+    for r in renderers.values():
+        r.min_launch_paths = 2048  # the studio's launches
+    display, centre = Calibrator(resolve_config(None, None)).display()
+    light = build_lighting(load_hdri(HDRI), ambient_lux=5000)
+    lengths = np.arange(0.0, display.pixel.green_max_mm + 1e-9, 2.0)
+    for splay, samples, reps in ((8.0, 256, 16), (0.0, 1024, 4)):
+        d = replace(display, pixel=replace(display.pixel, splay_deg=splay))
+        times: dict[str, list[float]] = {k: [] for k in renderers}
+        last = {}
+        for run in range(RUNS + 1):  # run 0 warms (compiles)
+            names = list(renderers) if run % 2 else list(renderers)[::-1]
+            for name in names:
+                s = RenderSettings(samples=samples, replicates=reps, seed=run)
+                t0 = time.perf_counter()
+                last[name] = renderers[name].characteristic(
+                    d, light, Viewpoint(170, 2, 5), lengths, s, pixel_index=centre)
+                if run:
+                    times[name].append(time.perf_counter() - t0)
+        print(f"splay {splay:g} deg, {len(lengths)} lengths x {reps} x {samples} paths:")
+        for name, m in last.items():
+            print(f"  {name}: {statistics.median(times[name]) * 1e3:.0f} ms median of {RUNS}, "
+                  f"{m.paths_traced / m.samples_per_length:.2f} traces and "
+                  f"{m.rays_traced / m.samples_per_length:.1f} rays a path")
+        if "old" in last:
+            a, b = last["current"].rgb_replicates, last["old"].rgb_replicates
+            same = np.array_equal(a, b)
+            print(f"  old == current: {same}" + ("" if same else
+                  f" (largest relative difference {np.max(np.abs(a - b) / np.abs(b)):.2g}: "
+                  "the kernels' compiled rounding, grazing rays)"))
+
+
+if __name__ == "__main__":
+    main()
