@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import threading
 from collections import OrderedDict
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -41,7 +41,22 @@ GRID_CELL_BLADE_WIDTHS = 1.5
 
 
 @dataclass(frozen=True)
-class SceneArrays:
+class Primitives:
+    """The blades and rectangles of a laid-out display as float32/int32 rows (shapes and units
+    in :class:`SceneArrays`): what a scene of any splay and lengths shares with others of its
+    display."""
+
+    blade_p0: np.ndarray
+    blade_axis: np.ndarray
+    blade_lean: np.ndarray
+    blade_params: np.ndarray
+    rect_axis: np.ndarray
+    rect_bounds: np.ndarray
+    rect_material: np.ndarray
+
+
+@dataclass(frozen=True)
+class SceneArrays(Primitives):
     """The traced scene as flat float32/int32 arrays (shapes named per field).
 
     Blades (``nb`` rows): ``blade_p0`` (nb, 3) pivot [m]; ``blade_axis`` (nb, 2) width axis;
@@ -57,13 +72,6 @@ class SceneArrays:
     ``albedo`` (4, 3) linear Rec.709 per material.
     """
 
-    blade_p0: np.ndarray
-    blade_axis: np.ndarray
-    blade_lean: np.ndarray
-    blade_params: np.ndarray
-    rect_axis: np.ndarray
-    rect_bounds: np.ndarray
-    rect_material: np.ndarray
     grid_origin: np.ndarray
     grid_cell: float
     grid_shape: tuple[int, int]
@@ -217,19 +225,12 @@ def check_lengths(spec: PixelSpec, lengths_mm) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class _Layout:
+class _Layout(Primitives):
     """What a scene keeps whatever its splay and lengths: the blades as laid out (``cat``, the
     per-blade arrays of :func:`_pixel_blades` over every pixel, mm), their float32 rows, the
     rectangles and their xy boxes [m]. Every array is read-only (layouts are shared)."""
 
     cat: dict[str, np.ndarray]
-    blade_p0: np.ndarray
-    blade_axis: np.ndarray
-    blade_lean: np.ndarray
-    blade_params: np.ndarray
-    rect_axis: np.ndarray
-    rect_bounds: np.ndarray
-    rect_material: np.ndarray
     rect_boxes: np.ndarray
     albedo: np.ndarray
 
@@ -371,10 +372,9 @@ def build_scene(display: DisplaySpec, lengths_mm: np.ndarray) -> SceneArrays:
     z_range = np.array([-spec.base_height_mm * mm - 1e-4, z_top], dtype=np.float32)
     s = spec.top_mm / 2 * mm
     quad = np.array([[-s, -s, 0.0], [s, -s, 0.0], [s, s, 0.0], [-s, s, 0.0]])
+    shared = {f.name: getattr(lay, f.name) for f in fields(Primitives)}
     return SceneArrays(
-        blade_p0=lay.blade_p0, blade_axis=lay.blade_axis, blade_lean=lay.blade_lean,
-        blade_params=lay.blade_params, rect_axis=lay.rect_axis, rect_bounds=lay.rect_bounds,
-        rect_material=lay.rect_material, grid_origin=origin.astype(np.float32),
+        **shared, grid_origin=origin.astype(np.float32),
         grid_cell=float(cell), grid_shape=shape, cell_start=cell_start, cell_items=cell_items,
         z_range=z_range, albedo=lay.albedo, taper_m=spec.taper_mm * mm,
         tip_ratio=spec.blade_tip_ratio, splay_rad=splay, green_max_m=spec.green_max_mm * mm,

@@ -70,7 +70,7 @@ a ``Lighting`` (from :mod:`grassd.sim.lighting`), a viewpoint and lengths (mm), 
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -204,8 +204,7 @@ def _kept(reuse: ti.i32, ray: ti.i32, n_memo: ti.i32) -> ti.i32:
 
 
 #: the layout arrays a scene shares with others of its display (see Renderer._upload_scene)
-_LAYOUT_ARRAYS = ("blade_p0", "blade_axis", "blade_lean", "blade_params", "rect_axis",
-                  "rect_bounds", "rect_material")
+_LAYOUT_ARRAYS = tuple(f.name for f in fields(geometry.Primitives))
 _NP_DTYPE = {ti.f32: np.float32, ti.i32: np.int32}
 
 

@@ -101,8 +101,8 @@ class LargerReplicates:
     variance ~ paths^-1.4), all from the light at the first surface (one bounce: 0.149;
     1 or 8 light samples: 0.156, 0.157). Under diffuse light (no sun) the error goes as
     1/sqrt(paths) whatever the replicates' size, so the run keeps its small replicates
-    unless the first round says it needs many (then the larger ones cost about the same paths;
-    ``least`` of them is the default ``after_paths``).
+    unless its first paths say it needs many: the default ``after_paths`` is what ``least``
+    larger replicates hold, so where it switches the larger ones cost no more paths.
 
     Measured, the studio's runs to 0.1 dE00 (first round 4 x 1024 paths; 11 lengths; four
     viewpoints each; 2 cores, median s): that sun 2.40 s with replicates of 1024 paths, 1.88 s
@@ -157,7 +157,7 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     the replicates a later round adds (an interactive view keeps its rounds short, so that a
     new input waits little for the round in flight).
 
-    ``larger``: with a target, replicates of more paths where the first round says the target
+    ``larger``: with a target, replicates of more paths where the first paths say the target
     needs many (:class:`LargerReplicates`); ``max_replicates`` and ``round_replicates`` then
     count paths as the first series' replicates do (scaled by their sizes), and ``on_round``
     sees the new series once it has as many replicates as the first round had.
