@@ -727,7 +727,7 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
 def _fitted_fields(problem: _Problem, best: _Inner, shape: tuple[float, float],
                    params: Sequence[str], dof: int,
                    profile: dict[str, list[tuple[float, float]]],
-                   kept: set[str], along: dict[str, dict[float, NDArray[np.float64]]] | None = None
+                   kept: set[str], along: dict[str, dict[float, NDArray[np.float64]]]
                    ) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
     """The fitted fields by their config names, their standard errors (module docstring;
     None where a parameter was kept at its start or its profile never rises enough), and the
@@ -762,7 +762,7 @@ def _fitted_fields(problem: _Problem, best: _Inner, shape: tuple[float, float],
             width = (None if name in kept or name not in profile
                      else _profile_stderr(profile[name], rise))
             shape_se[name] = None if width is None else round(width, 3)
-            slope = (None if width is None or len(best.x) == 0 or name not in (along or {})
+            slope = (None if width is None or len(best.x) == 0 or name not in along
                      else _slope(along[name], float(shape[index]), len(best.x)))
             if slope is not None:  # the albedos move with it
                 cov = cov + np.outer(slope, slope) * width ** 2
