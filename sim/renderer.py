@@ -15,7 +15,8 @@ under an importance-sampled equirectangular environment plus an optional directi
   whether the environment is visible (one more upward ray for a share of that surface's
   direct light, itself about 2 % of the quad's radiance; measured, courtyard / forest
   5000 lx: -3 to -6 % time per path, variance unchanged). Up to
-  ``max_bounces`` surface interactions, Russian roulette from the third one on (survivors
+  ``max_bounces`` surface interactions, Russian roulette from the ``roulette_from``-th on
+  (by default the third; survivors
   weighted by the inverse survival probability, so the estimate stays unbiased for that depth;
   the decision is a random number of the path, the same at every length).
 * Measurement: the mean linear RGB radiance over the image-plane quad that joins the projections
@@ -103,12 +104,12 @@ EPS = 2e-6  # m: offset of secondary ray origins along the facing normal
 ZCULL = 1e-5  # m: margin of the per-cell height culling of primitives
 MIN_LAUNCH_PATHS = 1 << 17  # paths: smaller kernel launches pay more per path (thread start-up)
 PREVIEW_MAX = 1024  # largest preview image side (pixels)
-# Russian roulette from the third surface on (depth index 2): its light and everything after it
+# Russian roulette (RenderSettings.roulette_from, the surface index from which it plays, is 2 by
+# default: the third surface): its light and everything after it
 # are about 2 % of the quad's radiance but 2 of a path's 9 rays. Measured against none
 # (courtyard/forest 5000 lx, 10 mm, CPU seconds, same seeds): relative variance of G x time
 # -10 to -15 %, OGCD variance x time (courtyard 8000 lx, city 20000 lx, 21 lengths) -3 to -4 %.
 # From the second surface (survival 0.5 or 0.7) G gained 12-37 % but OGCD lost up to 21 %.
-RR_DEPTH = 2
 RR_SURVIVAL = 0.5
 # Rays of a path whose answers are kept for its next length (trace_memo): enough for the
 # default path (4 + 1 light samples, sun, 3 bounces: 12 rays); later rays are traced again.
@@ -455,6 +456,12 @@ class Renderer:
             self.ipar[k] = v
         for k, v in enumerate((cr, cc, bh, bw), start=8):
             self.ipar[k] = v
+
+    def _put_path_settings(self, settings: RenderSettings) -> None:
+        """The path's runtime settings: light samples at the first surface (``ipar[7]``) and
+        the surface from which Russian roulette plays (``ipar[12]``)."""
+        self.ipar[7] = settings.light_samples
+        self.ipar[12] = settings.roulette_from
 
     # ----------------------------------------------------------------------------- kernel side
     @ti.func
@@ -845,7 +852,7 @@ class Renderer:
                 break
             if depth == max_bounces:
                 break
-            if depth >= RR_DEPTH:  # Russian roulette (unbiased: survivors weigh 1 / p)
+            if depth >= self.ipar[12]:  # Russian roulette (unbiased: survivors weigh 1 / p)
                 if tf.rand01(key, 144 + depth) >= RR_SURVIVAL:
                     break
                 beta /= RR_SURVIVAL
@@ -990,7 +997,7 @@ class Renderer:
                 break
             if depth == max_bounces:
                 break
-            if depth >= RR_DEPTH:
+            if depth >= self.ipar[12]:
                 if tf.rand01(key, 144 + depth) >= RR_SURVIVAL:
                     break
                 tgeo /= RR_SURVIVAL
@@ -1196,7 +1203,7 @@ class Renderer:
                                max(-(-n_rep // 4), -(-self.min_launch_paths // n_samp))))
         launches = [(s, r) for s in range(0, n, len_chunk) for r in range(0, n_rep, rep_chunk)]
         out = np.empty((n, n_rep, 3), np.float64)
-        self.ipar[7] = settings.light_samples
+        self._put_path_settings(settings)
         eye_ti = ti.Vector(eye.astype(np.float32).tolist())
         t_compile = self._ensure_compiled(tuple({len(order[s: s + len_chunk]) > 1
                                                  for s, _ in launches}))
@@ -1277,7 +1284,7 @@ class Renderer:
         buf = np.zeros(self.lengths.shape[0], np.float32)
         buf[:n_len] = lengths_mm * 1e-3
         self.lengths.from_numpy(buf)
-        self.ipar[7] = settings.light_samples
+        self._put_path_settings(settings)
         eye_ti = ti.Vector(eye.astype(np.float32).tolist())
         t_compile = 0.0
         if ("terms", *features) not in self._compiled:
@@ -1315,7 +1322,7 @@ class Renderer:
         cxy = display.pixel_centres_m()[0]
         corners = scene.quad_corners + np.array([cxy[0], cxy[1], 0.0])
         view = frame_quad(viewpoint.eye_m(tuple(cxy)), corners)
-        self.ipar[7] = settings.light_samples
+        self._put_path_settings(settings)
         f32 = lambda v: ti.Vector(np.asarray(v, np.float32).tolist())  # noqa: E731
         self._preview_kernel(width, spp, settings.seed, settings.max_bounces, f32(view.eye),
                              f32(view.forward), f32(view.right), f32(view.up), view.half,

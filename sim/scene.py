@@ -219,7 +219,9 @@ class RenderSettings:
     interactions per path (1 = direct light only; Mitsuba's ``max_depth`` is
     ``max_bounces + 1``), ``seed`` makes results bit-reproducible,
     ``light_samples`` environment samples (shadow rays) at the first surface a path meets (one
-    at later ones; :mod:`grassd.sim.renderer` gives the measurements behind the default).
+    at later ones), ``roulette_from`` the surface (0 = the first a path meets) from which on
+    Russian roulette may end a path (:mod:`grassd.sim.renderer` gives the measurements behind
+    both defaults).
     """
 
     samples: int = 4096
@@ -227,6 +229,7 @@ class RenderSettings:
     max_bounces: int = 3
     seed: int = 0
     light_samples: int = 4
+    roulette_from: int = 2
 
     def __post_init__(self) -> None:
         if not 1 <= self.samples <= 4_000_000:
@@ -237,6 +240,8 @@ class RenderSettings:
             raise SceneError(f"max_bounces must be in 1..16, got {self.max_bounces}")
         if not 1 <= self.light_samples <= 16:
             raise SceneError(f"light_samples must be in 1..16, got {self.light_samples}")
+        if not 1 <= self.roulette_from <= 16:
+            raise SceneError(f"roulette_from must be in 1..16, got {self.roulette_from}")
         if not 0 <= self.seed < 2**31:
             raise SceneError(f"seed must be in 0..2^31-1, got {self.seed}")
 

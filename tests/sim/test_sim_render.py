@@ -429,3 +429,68 @@ def test_a_run_that_needs_many_paths_goes_on_with_larger_replicates():
              for lg in (larger, None)]
     np.testing.assert_array_equal(cheap[0].ogcd, cheap[1].ogcd)
     assert cheap[0].rounds == cheap[1].rounds
+
+
+class _SettingsRenderer(_NetRenderer):
+    """A stand-in that keeps each call's settings; ``quiet_first`` makes the first call's
+    replicates 10x less noisy (a first look whose spread happens to be small)."""
+
+    def __init__(self, quiet_first: bool = False) -> None:
+        super().__init__(noise=0.0)
+        self.settings, self.quiet_first = [], quiet_first
+
+    def characteristic(self, display, lighting, viewpoint, lengths_mm, settings,
+                       pixel_index=0, progress=None):
+        self.settings.append(settings)
+        m = super().characteristic(display, lighting, viewpoint, lengths_mm, settings)
+        if self.quiet_first and len(self.settings) == 1:
+            m.rgb_replicates = m.rgb_replicates.mean(0) + 0.1 * (
+                m.rgb_replicates - m.rgb_replicates.mean(0))
+        return m
+
+
+def test_under_a_sun_the_larger_replicates_take_one_light_sample_and_come_sooner():
+    """Under a sun the first round (sun_look_paths) may already start the larger series, which
+    takes LargerReplicates' light samples and roulette; a first look that judges the run cheap
+    is judged again at look_paths. Without a sun the series keeps the run's settings."""
+    from grassd.daemon.calibration.simulation import LargerReplicates, simulate_curve
+
+    lengths = np.arange(0.0, 20.01, 5.0)
+    larger = LargerReplicates()
+    start = RenderSettings(samples=1024, replicates=4)
+    sun = uniform_lighting(1.0, sun_lux=1.0, sun_azimuth_deg=200.0, sun_elevation_deg=15.0)
+
+    def run(light, fake):
+        simulate_curve(fake, DisplaySpec(), light, Viewpoint(), lengths, start,
+                       target_stderr=0.1, round_replicates=8, larger=larger)
+        return [(s.samples, s.light_samples, s.roulette_from) for s in fake.settings]
+
+    under_sun = run(sun, _SettingsRenderer())
+    assert under_sun[0] == (1024, start.light_samples, start.roulette_from)
+    assert set(under_sun[1:]) == {(8192, larger.light_samples, larger.roulette_from)}
+    assert (larger.light_samples, larger.roulette_from) != (start.light_samples,
+                                                            start.roulette_from)
+    no_sun = run(uniform_lighting(1.0), _SettingsRenderer())
+    assert no_sun[:2] == [(1024, start.light_samples, start.roulette_from)] * 2
+    assert set(no_sun[2:]) == {(8192, start.light_samples, start.roulette_from)}
+    looked_twice = run(sun, _SettingsRenderer(quiet_first=True))
+    assert [s for s, _, _ in looked_twice[:2]] == [1024, 1024]
+    assert set(looked_twice[2:]) == {(8192, larger.light_samples, larger.roulette_from)}
+
+
+def test_roulette_from_the_second_surface_keeps_the_mean(renderer, shared_hdri):
+    """Russian roulette weighs survivors by 1 / p, so starting it a surface sooner changes the
+    noise, not the expected radiance (courtyard with a low sun, the studio's lengths)."""
+    lighting = build_lighting(shared_hdri("courtyard"), ambient_lux=5000, sun_lux=30000.0,
+                              sun_azimuth_deg=200.0, sun_elevation_deg=15.0)
+    lengths = [0.0, 8.0, 16.0]
+    got = [renderer.characteristic(DisplaySpec(), lighting, Viewpoint(170, 2, 3), lengths,
+                                   RenderSettings(samples=4096, replicates=8, seed=5,
+                                                  light_samples=ls, roulette_from=rr))
+           for ls, rr in ((4, 2), (1, 1))]
+    diff = got[1].rgb_linear - got[0].rgb_linear
+    se = np.hypot(got[0].rgb_stderr, got[1].rgb_stderr)
+    assert np.all(np.abs(diff) <= 4 * se), diff / se
+    assert not np.array_equal(got[0].rgb_replicates, got[1].rgb_replicates)
+    with pytest.raises(SceneError, match="roulette_from"):
+        RenderSettings(roulette_from=0)
