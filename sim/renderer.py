@@ -312,6 +312,11 @@ class Renderer:
         #: many): an interactive caller lowers it to have ``progress`` called (and stop the
         #: run there) more often.
         self.min_launch_paths: int = MIN_LAUNCH_PATHS
+        #: Most camera paths a launch of :meth:`characteristic` takes (None: no limit): a
+        #: replicate of more is traced in launches of consecutive shares of its paths, so that
+        #: an interactive caller's ``progress`` (where it may stop the run) waits for no long
+        #: launch.
+        self.max_launch_paths: int | None = None
         self._lighting: Lighting | None = None
 
     def _ensure_compiled(self, several: tuple[bool, ...] = (True,)) -> float:
@@ -322,7 +327,8 @@ class Renderer:
         for flag in several:
             key = (*self._features, flag)
             if key not in self._compiled:
-                self._trace_kernel(0, 0, 1, 1, 0, 1, ti.Vector([0.0, 0.0, 1.0]), 1.0, *key)
+                self._trace_kernel(0, 0, 1, 1, 0, 1, 0, 1, ti.Vector([0.0, 0.0, 1.0]), 1.0,
+                                   *key)
                 ti.sync()
                 self._compiled.add(key)
         return time.perf_counter() - t0
@@ -1074,20 +1080,22 @@ class Renderer:
 
     @ti.kernel
     def _trace_kernel(self, n_len: ti.i32, rep0: ti.i32, n_rep: ti.i32, strata: ti.i32,
-                      seed: ti.u32, max_bounces: ti.i32, eye: vec3, area: ti.f32,
-                      glossy: ti.template(), splay: ti.template(), several: ti.template()):
-        """Trace replicates rep0 .. rep0 + n_rep - 1 at the first n_len entries of
-        ``self.lengths`` (ascending, m). Each camera path is traced at the shortest length
-        and again only at a length from which on it may change (:meth:`radiance`); lengths in
-        between take its radiance, which tracing them would give bit for bit (same random
-        numbers, same surfaces). Path (k, r, i) lands in out[(k * n_rep + r - rep0) * n_samp
-        + i]."""
+                      i0: ti.i32, n_part: ti.i32, seed: ti.u32, max_bounces: ti.i32, eye: vec3,
+                      area: ti.f32, glossy: ti.template(), splay: ti.template(),
+                      several: ti.template()):
+        """Trace paths i0 .. i0 + n_part - 1 of replicates rep0 .. rep0 + n_rep - 1 at the
+        first n_len entries of ``self.lengths`` (ascending, m). Each camera path is traced at
+        the shortest length and again only at a length from which on it may change
+        (:meth:`radiance`); lengths in between take its radiance, which tracing them would give
+        bit for bit (same random numbers, same surfaces). Path (k, r, i) lands in
+        out[(k * n_rep + r - rep0) * n_part + i - i0]."""
         n_samp = strata * strata
         x_cull = self.lengths[ti.max(n_len - 1, 0)]
         self.traced[0] = 0
         self.traced[1] = 0
-        for rr, i in ti.ndrange(n_rep, n_samp):
+        for rr, ii in ti.ndrange(n_rep, n_part):
             r = rep0 + rr
+            i = i0 + ii
             rep_key = tf.replicate_key(seed, r)
             key = tf.sample_key(seed, r, i)
             d, jac = self.camera_ray(i, n_samp, rep_key, eye, area)
@@ -1103,10 +1111,10 @@ class Renderer:
                     n_memo, glossy, splay, several)
                 rays += n_rays
                 value = jac * rad
-                self.out[(k * n_rep + rr) * n_samp + i] = value
+                self.out[(k * n_rep + rr) * n_part + ii] = value
                 k += 1
                 while k < n_len and self.lengths[k] < grow:
-                    self.out[(k * n_rep + rr) * n_samp + i] = value
+                    self.out[(k * n_rep + rr) * n_part + ii] = value
                     k += 1
             self.traced[0] += traces
             self.traced[1] += rays
@@ -1171,8 +1179,9 @@ class Renderer:
 
         Lengths must be finite, within 0..green_max_mm, at most 256 of them. ``progress`` is
         called with (done, total) in lengths as launches finish: a launch traces all lengths
-        (or as many as the path buffer holds) of a share of the replicates, and ``done`` is
-        that share of the lengths. With one replicate the standard
+        (or as many as the path buffer holds) of a share of the replicates (or of one
+        replicate's paths, :attr:`max_launch_paths`), and ``done`` is that share of the
+        lengths. With one replicate the standard
         errors are NaN (no spread to estimate them from).
         """
         settings = settings or RenderSettings()
@@ -1194,37 +1203,48 @@ class Renderer:
         # at most a quarter of the replicates so progress is reported as the work goes, unless
         # that makes it smaller than min_launch_paths camera paths (small launches run up to
         # 7 % slower per path). The split changes no number: a path's random numbers depend
-        # on its replicate, and each (length, replicate) group is summed serially.
+        # on its replicate, and each (length, replicate) group is summed serially (a
+        # replicate split by max_launch_paths adds its shares' sums: float64 rounding).
         n = len(lengths_mm)
         order = np.argsort(lengths_mm, kind="stable")
         len_chunk = min(n, self.cap.paths // n_samp, self.sums.shape[0])
         rep_chunk = max(1, min(self.cap.paths // (len_chunk * n_samp),
                                self.sums.shape[0] // len_chunk,
                                max(-(-n_rep // 4), -(-self.min_launch_paths // n_samp))))
-        launches = [(s, r) for s in range(0, n, len_chunk) for r in range(0, n_rep, rep_chunk)]
-        out = np.empty((n, n_rep, 3), np.float64)
+        # A replicate of more than max_launch_paths paths: launches of a share of its paths
+        # each, their groups' sums added (in float64; one share alone is the sum above).
+        part = n_samp
+        if self.max_launch_paths is not None and n_samp > self.max_launch_paths:
+            rep_chunk = 1
+            part = -(-n_samp // -(-n_samp // max(1, self.max_launch_paths)))
+        launches = [(s, r, i) for s in range(0, n, len_chunk) for r in range(0, n_rep, rep_chunk)
+                    for i in range(0, n_samp, part)]
+        out = np.zeros((n, n_rep, 3), np.float64)
         self._put_path_settings(settings)
         eye_ti = ti.Vector(eye.astype(np.float32).tolist())
         t_compile = self._ensure_compiled(tuple({len(order[s: s + len_chunk]) > 1
-                                                 for s, _ in launches}))
+                                                 for s, _, _ in launches}))
         t_trace0 = time.perf_counter()
         traced = rays = 0
-        for done, (s, r0) in enumerate(launches, start=1):
+        for done, (s, r0, i0) in enumerate(launches, start=1):
             rows = order[s: s + len_chunk]
             reps = min(rep_chunk, n_rep - r0)
+            n_part = min(part, n_samp - i0)
             buf = np.zeros(self.lengths.shape[0], np.float32)
             buf[: len(rows)] = lengths_mm[rows] * 1e-3
             self.lengths.from_numpy(buf)
-            self._trace_kernel(len(rows), r0, reps, m, settings.seed, settings.max_bounces,
-                               eye_ti, float(area), *self._features, len(rows) > 1)
+            self._trace_kernel(len(rows), r0, reps, m, i0, n_part, settings.seed,
+                               settings.max_bounces, eye_ti, float(area), *self._features,
+                               len(rows) > 1)
             n_groups = len(rows) * reps
-            self._reduce_kernel(n_groups, n_samp)
+            self._reduce_kernel(n_groups, n_part)
             traced += int(self.traced[0])
             rays += int(self.traced[1])
             sums = self.sums.to_numpy()[:n_groups].reshape(len(rows), reps, 3)
-            out[rows, r0: r0 + reps] = sums / n_samp
+            out[rows, r0: r0 + reps] += sums
             if progress:
                 progress(n * done // len(launches), n)
+        out /= n_samp
         if not np.all(np.isfinite(out)):
             raise SimError("the renderer produced non-finite radiance; check the lighting "
                            "values (NaN/Inf texels or sun irradiance)")

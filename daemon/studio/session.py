@@ -20,7 +20,7 @@ first image of the pixel within 300 ms, converged within 1 s, warm, 2 cores):
 6. the pixel's image refined: :data:`REFINE_IMAGE` passes accumulated; then ``done``.
 
 Every step checks whether a newer request superseded this one, and so does the renderer between
-its launches of :data:`STUDIO_LAUNCH_PATHS` camera paths (a round of several).
+its launches of :data:`STUDIO_LAUNCH_PATHS` to :data:`STUDIO_MAX_LAUNCH_PATHS` camera paths.
 """
 
 from __future__ import annotations
@@ -68,6 +68,11 @@ SPLAY_SAMPLES: int = 256
 #: round computes waits for one launch (about a quarter of the round), not the whole round.
 #: The numbers do not depend on how the replicates are split into launches.
 STUDIO_LAUNCH_PATHS: int = 2048
+#: Most camera paths a renderer launch takes in the studio: a larger replicate (a low sun's
+#: 8192 paths, :class:`~grassd.daemon.calibration.simulation.LargerReplicates`) goes in
+#: launches of a share of its paths, so a new input waits for one of about 30 ms, not the
+#: replicate's 80 ms (the numbers change by float64 rounding only).
+STUDIO_MAX_LAUNCH_PATHS: int = 4096
 #: Replicates of the first round (their spread is the first error band).
 FIRST_REPLICATES: int = 4
 #: Most replicates a characteristic takes before it is sent as it is.
@@ -259,6 +264,7 @@ class Studio:
                                   seed=self.cfg.simulation.seed)
         renderer = Renderer.shared()
         renderer.min_launch_paths = STUDIO_LAUNCH_PATHS
+        renderer.max_launch_paths = STUDIO_MAX_LAUNCH_PATHS
         progress = None if check is None else (lambda _done, _total: check())
         return simulate_curve(renderer, display, lighting, Viewpoint(*cond.viewpoint),
                               lengths, settings, pixel_index=self.centre,
