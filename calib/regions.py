@@ -74,6 +74,21 @@ def quad_mask(shape: tuple[int, int], corners: ArrayLike) -> NDArray[np.bool_]:
     return mask
 
 
+def quad_max(image: ArrayLike, corners: ArrayLike) -> float:
+    """Largest value of ``image`` (H, W) or (H, W, C) at the pixels whose centres lie inside a
+    convex quadrilateral (-inf where it covers none), e.g. to find clipped raw values.
+
+    >>> img = np.zeros((10, 10)); img[3, 4] = 7.0; img[0, 0] = 9.0
+    >>> quad_max(img, [(3, 2), (8, 2), (8, 5), (3, 5)])
+    7.0
+    """
+    img = np.asarray(image)
+    y0, y1, x0, x1, mask = _quad_window(img.shape[:2], corners)
+    if not mask.any():
+        return float("-inf")
+    return float(img[y0:y1, x0:x1][mask].max())
+
+
 def quad_mean(image: ArrayLike, corners: ArrayLike) -> NDArray[np.float64]:
     """Mean linear RGB (3,) of the pixels of ``image`` (H, W, 3) inside a convex quadrilateral.
 

@@ -250,6 +250,7 @@ def setup_cmd(corners: str, chart: str, lux: float | None, config_path: str | No
               state_dir: str | None) -> None:
     """Photograph the colour checker lying at the display (the camera's colour chain)."""
     from grassd.daemon.errors import DaemonError
+    from grassd.daemon.measure.camera_chain import load_setup
     from grassd.daemon.runtime.measurement import measuring_camera
 
     cfg = resolve_config(config_path, state_dir)
@@ -271,3 +272,7 @@ def setup_cmd(corners: str, chart: str, lux: float | None, config_path: str | No
     client, _ = measuring_camera(cfg)
     path = make_setup(cfg, client, pts, lux, chart)
     click.echo(f"measuring camera set up: {path}")
+    setup = load_setup(path)
+    if setup.ccm_de00 is not None:
+        click.echo(f"checker colour correction: mean {setup.ccm_de00[0]:.2f}, max "
+                   f"{setup.ccm_de00[1]:.2f} dE00 on the patches")

@@ -68,7 +68,9 @@ class MeasureSetup:
     """The measuring camera's colour chain (module docstring): LibRaw ``white_balance``
     (R, G, B, G2), ``scale`` k (grey at Y = 0.18 in the set-up shot), the set-up shot's
     ``exposure`` and ``lux``, ``ccm`` (3, 3) for the simulation (scale included), the
-    ``chart`` and the ``photo`` it came from, ``made_at`` (ISO 8601 UTC)."""
+    ``chart`` and the ``photo`` it came from, ``made_at`` (ISO 8601 UTC), ``ccm_de00`` the
+    correction's mean and largest CIEDE2000 residual on the patches (None: a set-up made
+    before it was kept)."""
 
     white_balance: tuple[float, float, float, float]
     scale: float
@@ -78,6 +80,7 @@ class MeasureSetup:
     chart: str
     photo: str
     made_at: str
+    ccm_de00: tuple[float, float] | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The set-up as JSON (``setup.json``)."""
@@ -89,7 +92,9 @@ class MeasureSetup:
         return cls(white_balance=tuple(d["white_balance"]), scale=float(d["scale"]),
                    exposure=Exposure(**d["exposure"]), lux=float(d["lux"]),
                    ccm=tuple(tuple(r) for r in d["ccm"]), chart=str(d["chart"]),
-                   photo=str(d["photo"]), made_at=str(d["made_at"]))
+                   photo=str(d["photo"]), made_at=str(d["made_at"]),
+                   ccm_de00=None if d.get("ccm_de00") is None
+                   else (float(d["ccm_de00"][0]), float(d["ccm_de00"][1])))
 
     def normalise(self, prophoto: NDArray, exposure: Exposure, lux: float) -> NDArray:
         """Developed linear ProPhoto of a shot at ``exposure`` under ``lux`` -> the scale of the
@@ -121,11 +126,13 @@ def setup_from_checker(path: Path, corners: Any, chart: str, exposure: Exposure,
                                 "corners and the exposure")
     k = GREY_CARD_Y / grey
     virtual, s = virtual_checker(ref)
-    ccm = fit_ccm(virtual, patches * k, "3x3").matrix * s
+    fit = fit_ccm(virtual, patches * k, "3x3")
+    ccm = fit.matrix * s
     return MeasureSetup(white_balance=tuple(float(v) for v in wb), scale=k, exposure=exposure,
                         lux=float(lux), ccm=tuple(tuple(float(x) for x in r) for r in ccm),
                         chart=chart, photo=str(path),
-                        made_at=datetime.now(UTC).isoformat(timespec="seconds"))
+                        made_at=datetime.now(UTC).isoformat(timespec="seconds"),
+                        ccm_de00=(fit.mean_de00, fit.max_de00))
 
 
 def load_setup(path: Path) -> MeasureSetup:
