@@ -312,10 +312,10 @@ class Renderer:
         #: many): an interactive caller lowers it to have ``progress`` called (and stop the
         #: run there) more often.
         self.min_launch_paths: int = MIN_LAUNCH_PATHS
-        #: Most camera paths a launch of :meth:`characteristic` takes (None: no limit): a
-        #: replicate of more is traced in launches of consecutive shares of its paths, so that
-        #: an interactive caller's ``progress`` (where it may stop the run) waits for no long
-        #: launch.
+        #: Most camera paths a launch of :meth:`characteristic` takes (None: no limit; it
+        #: wins over ``min_launch_paths``): a replicate of more is traced in launches of
+        #: consecutive shares of its paths, so that an interactive caller's ``progress`` (where
+        #: it may stop the run) waits for no long launch.
         self.max_launch_paths: int | None = None
         self._lighting: Lighting | None = None
 
@@ -1214,9 +1214,10 @@ class Renderer:
         # A replicate of more than max_launch_paths paths: launches of a share of its paths
         # each, their groups' sums added (in float64; one share alone is the sum above).
         part = n_samp
-        if self.max_launch_paths is not None and n_samp > self.max_launch_paths:
-            rep_chunk = 1
-            part = -(-n_samp // -(-n_samp // max(1, self.max_launch_paths)))
+        if self.max_launch_paths is not None:
+            rep_chunk = max(1, min(rep_chunk, self.max_launch_paths // n_samp))
+            if n_samp > self.max_launch_paths:
+                part = -(-n_samp // -(-n_samp // max(1, self.max_launch_paths)))
         launches = [(s, r, i) for s in range(0, n, len_chunk) for r in range(0, n_rep, rep_chunk)
                     for i in range(0, n_samp, part)]
         out = np.zeros((n, n_rep, 3), np.float64)

@@ -68,10 +68,13 @@ SPLAY_SAMPLES: int = 256
 #: round computes waits for one launch (about a quarter of the round), not the whole round.
 #: The numbers do not depend on how the replicates are split into launches.
 STUDIO_LAUNCH_PATHS: int = 2048
-#: Most camera paths a renderer launch takes in the studio: a larger replicate (a low sun's
-#: 8192 paths, :class:`~grassd.daemon.calibration.simulation.LargerReplicates`) goes in
-#: launches of a share of its paths, so a new input waits for one of about 30 ms, not the
-#: replicate's 80 ms (the numbers change by float64 rounding only).
+#: Most camera paths a renderer launch takes in the studio, scaled like the replicates
+#: (:func:`studio_pace`: a quarter where the blades splay, whose paths cost 3x): a larger
+#: replicate (a low sun's 8192 paths,
+#: :class:`~grassd.daemon.calibration.simulation.LargerReplicates`) goes in launches of a share
+#: of its paths (the numbers change by float64 rounding only), and a splayed round in launches
+#: of 4 replicates instead of 8, so a new input waits for a launch of 30-50 ms, not one of
+#: 80-100 ms.
 STUDIO_MAX_LAUNCH_PATHS: int = 4096
 #: Replicates of the first round (their spread is the first error band).
 FIRST_REPLICATES: int = 4
@@ -264,7 +267,7 @@ class Studio:
                                   seed=self.cfg.simulation.seed)
         renderer = Renderer.shared()
         renderer.min_launch_paths = STUDIO_LAUNCH_PATHS
-        renderer.max_launch_paths = STUDIO_MAX_LAUNCH_PATHS
+        renderer.max_launch_paths = STUDIO_MAX_LAUNCH_PATHS * samples // STUDIO_SAMPLES
         progress = None if check is None else (lambda _done, _total: check())
         return simulate_curve(renderer, display, lighting, Viewpoint(*cond.viewpoint),
                               lengths, settings, pixel_index=self.centre,
