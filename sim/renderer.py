@@ -15,8 +15,8 @@ under an importance-sampled equirectangular environment plus an optional directi
   whether the environment is visible (one more upward ray for a share of that surface's
   direct light, itself about 2 % of the quad's radiance; measured, courtyard / forest
   5000 lx: -3 to -6 % time per path, variance unchanged). Up to
-  ``max_bounces`` surface interactions, Russian roulette from the ``roulette_from``-th on
-  (by default the third; survivors
+  ``max_bounces`` surface interactions, Russian roulette from surface ``roulette_from`` on
+  (0 = the first a path meets; by default 2, the third; survivors
   weighted by the inverse survival probability, so the estimate stays unbiased for that depth;
   the decision is a random number of the path, the same at every length).
 * Measurement: the mean linear RGB radiance over the image-plane quad that joins the projections
@@ -109,7 +109,8 @@ PREVIEW_MAX = 1024  # largest preview image side (pixels)
 # are about 2 % of the quad's radiance but 2 of a path's 9 rays. Measured against none
 # (courtyard/forest 5000 lx, 10 mm, CPU seconds, same seeds): relative variance of G x time
 # -10 to -15 %, OGCD variance x time (courtyard 8000 lx, city 20000 lx, 21 lengths) -3 to -4 %.
-# From the second surface (survival 0.5 or 0.7) G gained 12-37 % but OGCD lost up to 21 %.
+# From the second surface (survival 0.5 or 0.7) G gained 12-37 % but OGCD lost up to 21 %
+# (under a low sun it gains: daemon.calibration.simulation.LargerReplicates).
 RR_SURVIVAL = 0.5
 # Rays of a path whose answers are kept for its next length (trace_memo): enough for the
 # default path (4 + 1 light samples, sun, 3 bounces: 12 rays); later rays are traced again.
@@ -1211,8 +1212,9 @@ class Renderer:
         rep_chunk = max(1, min(self.cap.paths // (len_chunk * n_samp),
                                self.sums.shape[0] // len_chunk,
                                max(-(-n_rep // 4), -(-self.min_launch_paths // n_samp))))
-        # A replicate of more than max_launch_paths paths: launches of a share of its paths
-        # each, their groups' sums added (in float64; one share alone is the sum above).
+        # max_launch_paths caps a launch's replicates, and a replicate of more paths goes in
+        # launches of a share of its paths each, their groups' sums added (in float64; one
+        # share alone is the sum above).
         part = n_samp
         if self.max_launch_paths is not None:
             rep_chunk = max(1, min(rep_chunk, self.max_launch_paths // n_samp))
