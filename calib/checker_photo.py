@@ -96,29 +96,26 @@ def checker_white_balance(path: Path, corners: Sequence[Sequence[float]],
     if len(desc) not in (3, 4) or set(desc[:3]) != set("RGB") or set(desc) - set("RGB"):
         raise CheckerPhotoError(f"{path.name}: colour filters {desc!r} are not an R/G/B Bayer "
                                 "sensor; white balance from the checker needs one")
-    quad = checker_patch_quads(corners)[chart.grey_index()]
-    mask = quad_mask(img.shape, quad)
+    quads = checker_patch_quads(corners)
+    # Any clipped patch, not only the grey, would bend the colour correction fitted to the
+    # patches: a metered shot of a checker on a dark ground clips its white and light patches
+    # (the grey not), and its 3x3 correction was then 3.2 dE00 off on average, 7.2 at most.
+    clipped = [i for i, q in enumerate(quads) if quad_max(img, q) >= white]
+    if clipped:
+        names = ", ".join(f"{i + 1} ({chart.patch_names[i]})" for i in clipped)
+        raise CheckerPhotoError(f"{path.name}: the checker's patch(es) {names} are clipped (raw "
+                                f"values at the white level {white:g}); lower the exposure")
+    mask = quad_mask(img.shape, quads[chart.grey_index()])
     means = np.zeros(len(desc))
     for c in range(len(desc)):
         sel = mask & (colours == c)
         if not sel.any():
             raise CheckerPhotoError(f"{path.name}: the grey patch covers no {desc[c]} "
                                     "photosite; the checker is too small in the photo")
-        if img[sel].max() >= white:
-            raise CheckerPhotoError(f"{path.name}: the checker's grey patch is clipped (raw "
-                                    f"values at the white level {white:g}); lower the exposure")
         means[c] = img[sel].mean() - black[c]
     if means.min() <= 0:
         raise CheckerPhotoError(f"{path.name}: the checker's grey patch reads no light above black "
                                 f"({means.round(1).tolist()}); check the checker corners")
-    # A brighter patch clipped (the grey is not) would bend the colour correction fitted to
-    # the patches: a metered shot of a checker on a dark ground clips its white and light
-    # patches, and its 3x3 correction was then 3.2 dE00 off on average, 7.2 at most.
-    clipped = [i for i, q in enumerate(checker_patch_quads(corners)) if quad_max(img, q) >= white]
-    if clipped:
-        names = ", ".join(f"{i + 1} ({chart.patch_names[i]})" for i in clipped)
-        raise CheckerPhotoError(f"{path.name}: the checker's patch(es) {names} are clipped (raw "
-                                f"values at the white level {white:g}); lower the exposure")
     index = {ch: [c for c in range(len(desc)) if desc[c] == ch] for ch in "RGB"}
     target = np.ones(3)
     if np.isfinite(rgb_cam).all() and abs(np.linalg.det(rgb_cam)) > 1e-9:

@@ -78,4 +78,4 @@ class CornersOutsideImageError(CalibError, ValueError):
 
 class CheckerPhotoError(CalibError, ValueError):
     """The checker's photo cannot give a white balance: not an R/G/B Bayer sensor, an
-    unsupported orientation, a grey patch too small, clipped or black."""
+    unsupported orientation, a clipped patch, a grey patch too small or black."""

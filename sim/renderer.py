@@ -1218,8 +1218,8 @@ class Renderer:
         part = n_samp
         if self.max_launch_paths is not None:
             rep_chunk = max(1, min(rep_chunk, self.max_launch_paths // n_samp))
-            if n_samp > self.max_launch_paths:
-                part = -(-n_samp // -(-n_samp // max(1, self.max_launch_paths)))
+            if n_samp > self.max_launch_paths:  # equal shares, as few as the cap allows
+                part = math.ceil(n_samp / math.ceil(n_samp / max(1, self.max_launch_paths)))
         launches = [(s, r, i) for s in range(0, n, len_chunk) for r in range(0, n_rep, rep_chunk)
                     for i in range(0, n_samp, part)]
         out = np.zeros((n, n_rep, 3), np.float64)

@@ -193,6 +193,7 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     lengths_mm = np.asarray(lengths_mm, float)
     n_len = len(lengths_mm)
     white = white_radiance(lighting)
+    sunlit = lighting.sun_direction is not None  # ``larger`` looks sooner and samples less
     seconds = {"compile": 0.0, "trace": 0.0, "colour": 0.0}
     cols = np.arange(n_len)  # lengths traced this round
     b = first_round = settings.replicates  # replicates this round
@@ -247,14 +248,14 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
             if done:
                 return curve
         if (larger is not None and not looked and larger.samples > settings.samples
-                and n * settings.samples >= (larger.look_paths if lighting.sun_direction is None
-                                             else larger.sun_look_paths)):
+                and n * settings.samples >= (larger.sun_look_paths if sunlit
+                                             else larger.look_paths)):
             looked = n * settings.samples >= larger.look_paths  # under a sun: a first look
             needed = n * (worst / target_stderr) ** 2 * settings.samples  # paths, 1/sqrt law
             if needed > larger.after_paths:  # a new series of larger replicates
                 scale = larger.samples / settings.samples
                 settings = replace(settings, samples=larger.samples)
-                if lighting.sun_direction is not None:  # the first surface's edges: the noise
+                if sunlit:  # the first surface's light and shadow: the noise
                     settings = replace(settings, light_samples=larger.light_samples,
                                        roulette_from=larger.roulette_from)
                 max_replicates = max(larger.least, int(max_replicates / scale))

@@ -141,7 +141,7 @@ def make_setup(cfg: Config, client: Any, corners: Any, lux: float,
     return atomic_write_json(layout.measure_setup, setup.to_json())
 
 
-#: Exposures (stops from the metered one) tried for the set-up shot, until its grey is unclipped.
+#: Exposures (stops from the metered one) tried for the set-up shot, until no patch is clipped.
 SETUP_EV: tuple[float, ...] = (0.0, -2.0, -4.0, -6.0)
 
 
