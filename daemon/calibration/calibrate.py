@@ -84,7 +84,7 @@ from grassd.daemon.errors import CalibrationRejected, RunInterrupted
 from grassd.sim.light_input import LightInput
 
 if TYPE_CHECKING:
-    from grassd.daemon.store.ingest import CheckerPhoto
+    from grassd.daemon.store.manifest import CheckerPhoto
 
 log = logging.getLogger(__name__)
 

@@ -49,7 +49,7 @@ if TYPE_CHECKING:
     from numpy.typing import NDArray
 
     from grassd.daemon.calibration.result import CalibrationResult
-    from grassd.daemon.store.ingest import CheckerPhoto
+    from grassd.daemon.store.manifest import CheckerPhoto
 
 log = logging.getLogger(__name__)
 

@@ -1,7 +1,7 @@
 """The light and colour-checker keys that every light document shares, and their checks.
 
 Two documents describe a light measurement: a light bundle's ``manifest.toml``
-(:mod:`grassd.daemon.store.ingest`) and a capture directory's ``capture.toml``
+(:mod:`grassd.daemon.store.manifest`) and a capture directory's ``capture.toml``
 (:mod:`grassd.daemon.offline.validate`). They use the same names, with the same types and
 ranges, defined here once::
 

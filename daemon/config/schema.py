@@ -1,7 +1,7 @@
 """Validation of TOML (and JSON) documents against a schema, with key and line in every error.
 
 One machinery for every document a user writes: the daemon's configuration
-(:mod:`grassd.daemon.config.settings`), a bundle manifest (:mod:`grassd.daemon.store.ingest`) and
+(:mod:`grassd.daemon.config.settings`), a bundle manifest (:mod:`grassd.daemon.store.manifest`) and
 a capture directory's ``capture.toml`` (:mod:`grassd.daemon.offline.validate`). A schema maps each
 key of a table to a :class:`Field` (type, default, extra check); :func:`table` checks a table
 against it (an unknown key, a missing required key, a wrong type -- ``true`` where a number

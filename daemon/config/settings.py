@@ -188,7 +188,7 @@ class LightConfig:
     sensor while it is unreachable or silent waits (retried with backoff) up to ``lux_wait_s``
     seconds before it is rejected; a reading that is not a usable illuminance rejects it at once.
     A bundle whose light is stamped more than ``future_tolerance_s`` seconds after the daemon's
-    clock is rejected (:func:`grassd.daemon.store.ingest.check_light`).
+    clock is rejected (:func:`grassd.daemon.store.manifest.check_light`).
     ``hdri_flip``/``hdri_rotation_deg`` bring the site camera's panoramas into the renderer's
     convention (:mod:`grassd.sim.lighting`: u = atan2(y, x) / 2 pi, +y north): most 360-degree
     cameras store the mirror image, so a real site wants ``hdri_flip = true``, and the rotation

@@ -23,7 +23,8 @@ from grassd.daemon.errors import DaemonError, LuxSensorSilent, LuxSensorUnreacha
 from grassd.daemon.safe_text import one_line
 from grassd.daemon.store.atomic import describe_write_error
 from grassd.daemon.store.history import History, RunRecord
-from grassd.daemon.store.ingest import Bundle, CheckerPhoto, Inbox
+from grassd.daemon.store.ingest import Bundle, Inbox
+from grassd.daemon.store.manifest import CheckerPhoto
 from grassd.daemon.timestamps import utc_iso
 from grassd.sim.light_input import LightInput
 

@@ -94,8 +94,9 @@ from grassd.daemon.runtime.signal_relay import SignalRelay
 from grassd.daemon.runtime.statelock import StateLock
 from grassd.daemon.runtime.status import collect_status, rss_mb, usable_run_tables
 from grassd.daemon.store.history import History
-from grassd.daemon.store.ingest import Bundle, CheckerPhoto, Inbox
+from grassd.daemon.store.ingest import Bundle, Inbox
 from grassd.daemon.store.layout import StateLayout
+from grassd.daemon.store.manifest import CheckerPhoto
 from grassd.daemon.store.quarantine import retry_request
 from grassd.firmware_proto.client import RetryPolicy
 from grassd.sim.errors import SimError

@@ -8,35 +8,13 @@ A *bundle* is either
   names, side by side.
 
 The manifest is written last. Hidden names (starting with ``.``) are ignored, so writers may
-write ``.partial`` names and rename. Manifest keys::
-
-    timestamp = 2026-06-21T12:00:00+02:00   # TOML datetime or ISO 8601 string; naive = site time
-    hdri = "sky.exr"                         # equirectangular HDRI, .exr or .hdr
-    ambient_lux = 12000.0                    # optional when a Modbus lux sensor is configured
-    sun_lux = 40000.0                        # optional: (lux with sun) - (lux without)
-    sun_azimuth_deg = 180.0                  # optional, with sun_elevation_deg
-    sun_elevation_deg = 35.0
-    checker_raw = "checker.dng"              # optional colour-checker RAW
-    checker_corners = [[x, y], x4]           # chart corners in the RAW (pixels), with checker_raw
-    checker_chart = "spydercheckr-24"        # optional: reference chart (or colorchecker-classic)
-    [capture]                                # optional: how a capture station made it
-    sun_clipped = true                       #   (camera, exposures, merge; archived as is);
-                                             #   sun_clipped: restore the sun from lux
-
-The light and checker keys, their types and ranges are those of every light document
-(:mod:`grassd.daemon.config.manifest_fields`, shared with a capture directory's capture.toml).
+write ``.partial`` names and rename. Its keys, and the checks that its light can have been,
+are :mod:`grassd.daemon.store.manifest`'s.
 
 Life of a bundle (all moves are ``rename(2)`` inside the state directory, so each is atomic)::
 
     inbox/<name> --claim--> processing/<id> --> archive/<id>
                                             \\-> rejected/<id> (+ reason.txt)
-
-A manifest must also describe light that can have been: :func:`check_light` refuses light stamped
-in the future (beyond ``[light] future_tolerance_s`` of the daemon's own clock: a camera whose
-clock was never set would otherwise make every later bundle look older, so it could pin the
-active table) and a sun reading that contradicts itself or the site and time (a sun below the
-horizon that gives lux, more lux than sunlight has, a direction far from the sun's position).
-Such a bundle is rejected at once, with the reason.
 
 ``<id>`` = first 12 hex digits of the bundle hash + name. The bundle hash is the SHA-256 over the
 names and SHA-256 digests of every file of the bundle, so identical content has one hash.
@@ -74,16 +52,13 @@ import shutil
 import sqlite3
 import stat
 import time
-import tomllib
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from datetime import UTC, datetime, tzinfo
+from datetime import UTC, tzinfo
 from pathlib import Path
-from types import MappingProxyType
 from typing import Any
 from zoneinfo import ZoneInfo
 
-from grassd.daemon.config import manifest_fields, schema
 from grassd.daemon.config.limits import DEFAULT_LIMITS, FUTURE_TOLERANCE_S, BundleLimits
 from grassd.daemon.config.manifest_fields import plain_name as _plain_name
 from grassd.daemon.errors import IngestError, ManifestError
@@ -91,24 +66,25 @@ from grassd.daemon.safe_text import storable
 from grassd.daemon.store.atomic import atomic_write_text, fsync_dir
 from grassd.daemon.store.history import History
 from grassd.daemon.store.layout import StateLayout
+from grassd.daemon.store.manifest import (
+    MANIFEST_NAMES,
+    Manifest,
+    check_light,
+    parse_manifest,
+    read_manifest_data,
+)
 from grassd.daemon.store.outcomes import QUARANTINED_PREFIX
 from grassd.daemon.store.untrusted import (
     UntrustedFileError,
     check_entries,
     check_regular,
     open_regular,
-    read_regular,
     sha256_regular,
     walk_entries,
 )
-from grassd.daemon.timestamps import utc_iso
-from grassd.sim.errors import LightingError
-from grassd.sim.light_input import LightInput
-from grassd.sim.sun import check_sun_reading
 
 log = logging.getLogger(__name__)
 
-MANIFEST_NAMES = ("manifest.toml", "manifest.json")
 FLAT_SUFFIXES = (".manifest.toml", ".manifest.json")
 REASON_FILE = "reason.txt"
 #: Seconds before a bundle that could not be moved out of the inbox is tried again (doubling
@@ -116,46 +92,9 @@ REASON_FILE = "reason.txt"
 STUCK_RETRY_S = 60.0
 STUCK_RETRY_MAX_S = 3600.0
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
-#: How deeply a manifest's arrays and tables may nest (a real one: 3, checker_corners)
-MAX_MANIFEST_DEPTH = 8
 #: The bytes of a reason.txt read back (the daemon writes one line; a longer one is cut)
 MAX_REASON_BYTES = 64 * 1024
 _SAFE_RE = re.compile(r"[^A-Za-z0-9._-]+")
-
-
-@dataclass(frozen=True)
-class CheckerPhoto:
-    """A bundle's colour-checker RAW: file, the chart's four corners in it (pixels, top-left
-    first, clockwise) and the reference chart's name (:func:`grassd.calib.charts.get_chart`)."""
-
-    raw: Path
-    corners: tuple[tuple[float, float], ...]
-    chart: str = manifest_fields.DEFAULT_CHART
-
-
-@dataclass(frozen=True)
-class Manifest:
-    """A validated bundle manifest; paths are absolute (inside the bundle's directory).
-
-    ``light``: the measured light (``ambient_lux`` None when the manifest leaves it to the lux
-    sensor; ``timestamp`` always set, timezone-aware); ``checker``: the colour-checker photo, if
-    the bundle has one.
-    """
-
-    light: LightInput
-    checker: CheckerPhoto | None = None
-    #: the ``[capture]`` table of a bundle made by ``grassd capture`` (metadata), or None; its
-    #: ``sun_clipped = true`` sets ``light.sun_from_hdri`` (restore the sun from lux)
-    capture: Mapping[str, Any] | None = None
-
-    @property
-    def timestamp(self) -> datetime:
-        """When the light was measured (timezone-aware; a manifest always has one)."""
-        return self.light.timestamp  # type: ignore[return-value]  # parse_manifest sets it
-
-    def files(self) -> list[Path]:
-        """The data files the manifest names."""
-        return [self.light.hdri] + ([] if self.checker is None else [self.checker.raw])
 
 
 @dataclass(frozen=True)
@@ -170,59 +109,7 @@ class Bundle:
     input_hashes: dict[str, str]
 
 
-# --------------------------------------------------------------------------- manifest
-
-
-def read_manifest_data(path: Path,
-                       max_bytes: int = DEFAULT_LIMITS.manifest_bytes) -> dict[str, Any]:
-    """Parse a TOML or JSON manifest file into a dict (ManifestError when malformed).
-
-    The file must be a regular file of at most ``max_bytes`` bytes (never a link, FIFO or
-    device: :mod:`grassd.daemon.store.untrusted`); a parse error of any kind (bad syntax,
-    encoding, nesting deeper than MAX_MANIFEST_DEPTH or than the parser's recursion limit)
-    is a ManifestError naming the file."""
-    try:
-        raw = read_regular(path, max_bytes)
-    except UntrustedFileError as exc:
-        raise ManifestError(f"manifest {exc}") from None
-    except OSError as exc:
-        raise ManifestError(f"cannot read manifest {path.name}: {exc.strerror}") from None
-    kind = "JSON" if path.name.endswith(".json") else "TOML"
-    try:
-        text = raw.decode("utf-8")
-        if path.name.endswith(".json"):
-            data = json.loads(text)
-        else:
-            data = tomllib.loads(text)
-    except RecursionError:
-        data = None  # nested past the parser's own limit: reported as too deep below
-    except (ValueError, TypeError) as exc:  # UnicodeDecodeError, JSON/TOMLDecodeError
-        # and whatever else a parser raises on hostile text
-        raise ManifestError(f"manifest {path.name} is not valid {kind}: {exc}") from None
-    if data is None or _depth(data) > MAX_MANIFEST_DEPTH:
-        raise ManifestError(f"manifest {path.name} nests arrays or tables more than "
-                            f"{MAX_MANIFEST_DEPTH} deep: not a bundle manifest")
-    if not isinstance(data, dict):
-        raise ManifestError(f"manifest {path.name} must hold a table/object at top level")
-    return data
-
-
-def _depth(v: Any) -> int:
-    """How deeply lists and dicts nest in ``v`` (a scalar: 0); stops counting past
-    MAX_MANIFEST_DEPTH + 1, so it never recurses deeply."""
-    depth, level = 0, [v]
-    while level and depth <= MAX_MANIFEST_DEPTH:
-        nxt: list[Any] = []
-        for x in level:
-            if isinstance(x, dict):
-                nxt.extend(x.values())
-            elif isinstance(x, list):
-                nxt.extend(x)
-        if not nxt and not any(isinstance(x, dict | list) for x in level):
-            break
-        depth += 1
-        level = nxt
-    return depth
+# --------------------------------------------------------------------------- bundle files
 
 
 def _flat_name(manifest_name: str) -> str:
@@ -241,78 +128,6 @@ def _member(base: Path, key: str, v: Any) -> Path:
     if not _plain_name(v):
         raise ManifestError(f"{key} must be a plain file name inside the bundle, got {v!r}")
     return base / v
-
-
-def parse_manifest(data: dict[str, Any], base: Path, tz: tzinfo = UTC) -> Manifest:
-    """Validate manifest ``data``; file names resolve inside ``base``; naive times are in ``tz``.
-
-    Checks names and ranges only, not that the files exist (see :func:`missing_files`).
-    Raises :class:`ManifestError` naming the key (:mod:`grassd.daemon.config.schema`).
-    """
-    ctx = schema.Context("", None, base, error=ManifestError)
-    F = schema.Field
-    m = schema.table(ctx, (), data, {
-        "timestamp": F(str | datetime, hint="a date-time, ISO 8601, e.g. "
-                       "2026-06-21T12:00:00+02:00"),
-        **manifest_fields.light_fields(plain_names=True, ambient_required=False),
-        "capture": F(dict, None, hint="a table (written by grassd capture)"),
-    })
-    ts = m["timestamp"]
-    if isinstance(ts, str):
-        try:
-            ts = datetime.fromisoformat(ts.replace("Z", "+00:00"))
-        except ValueError:
-            raise ctx.error(("timestamp",), f"{ts!r} is not ISO 8601 (e.g. "
-                            "2026-06-21T12:00:00+02:00)") from None
-    if ts.tzinfo is None:
-        ts = ts.replace(tzinfo=tz)
-    manifest_fields.check_together(ctx, m)
-    raw, corners = m["checker_raw"], m["checker_corners"]
-    capture = m["capture"]
-    light = LightInput(hdri=base / m["hdri"], ambient_lux=m["ambient_lux"], sun_lux=m["sun_lux"],
-                       sun_azimuth_deg=m["sun_azimuth_deg"],
-                       sun_elevation_deg=m["sun_elevation_deg"],
-                       sun_from_hdri=bool(capture and capture.get("sun_clipped") is True),
-                       timestamp=ts)
-    checker = None if raw is None else CheckerPhoto(
-        base / raw, manifest_fields.as_quad(corners), m["checker_chart"])
-    return Manifest(light, checker, None if capture is None else MappingProxyType(dict(capture)))
-
-
-def check_light(m: Manifest, *, now: float, future_tolerance_s: float = FUTURE_TOLERANCE_S,
-                site: tuple[float, float] | None = None) -> None:
-    """Refuse a manifest whose light cannot have been captured (ManifestError, with the fix).
-
-    ``now``: the daemon's clock (epoch s). Light stamped more than ``future_tolerance_s``
-    seconds after ``now`` is refused: a newer timestamp outranks every later bundle (older light
-    is superseded), so one camera clock set years ahead would pin the active table. Light from
-    long ago is fine: such a bundle is simply superseded. ``site``: (latitude, longitude) in
-    degrees, east +; with it the sun reading is checked against the sun's position at the
-    manifest's time (:func:`grassd.sim.sun.check_sun_reading`), without it only against itself.
-    """
-    ahead = m.timestamp.timestamp() - now
-    if ahead > future_tolerance_s:
-        clock = utc_iso(now)
-        raise ManifestError(
-            f"light from the future: timestamp {m.timestamp.isoformat()} is "
-            f"{_duration(ahead)} ahead of the daemon's clock ({clock}); tolerance "
-            f"{future_tolerance_s:g} s ([light] future_tolerance_s). Set the capture device's "
-            f"clock (and time zone) right, then send the bundle again")
-    lat, lon = site if site is not None else (None, None)
-    try:
-        check_sun_reading(m.light.sun_lux, m.light.sun_azimuth_deg, m.light.sun_elevation_deg,
-                          latitude_deg=lat, longitude_deg=lon, when=m.timestamp)
-    except LightingError as exc:
-        raise ManifestError(f"impossible sun: {exc}") from None
-
-
-def _duration(seconds: float) -> str:
-    """``seconds`` in the largest fitting unit, e.g. '26.5 h', '73.0 days'."""
-    for unit, size in (("years", 365.25 * 86400), ("days", 86400.0), ("h", 3600.0),
-                       ("min", 60.0)):
-        if seconds >= 2 * size:
-            return f"{seconds / size:.1f} {unit}"
-    return f"{seconds:.0f} s"
 
 
 def check_hdri_magic(path: Path, max_bytes: int = DEFAULT_LIMITS.file_bytes) -> None:
@@ -378,7 +193,8 @@ class Inbox:
     ``settle_s``: files must keep size and mtime this long before a bundle is claimed;
     ``incomplete_timeout_s``: a bundle still missing files after this long is rejected.
     ``future_tolerance_s`` and ``site`` (latitude, longitude in degrees): see
-    :func:`check_light`, which every manifest passes before its bundle is claimed.
+    :func:`~grassd.daemon.store.manifest.check_light`, which every manifest passes before its
+    bundle is claimed.
     ``limits``: the caps on a bundle (:class:`~grassd.daemon.config.limits.BundleLimits`);
     whatever arrives is read as hostile (:mod:`grassd.daemon.store.untrusted`), and a manifest
     is parsed once per (inode, mtime, size), not on every scan.

@@ -99,7 +99,7 @@ def archived_sources(state_dir: Path, cfg) -> list[LightSource]:
     """The light of every archived bundle in ``state_dir``, newest first (bundles whose
     manifest cannot be read are left out, with a log line)."""
     from grassd.daemon.errors import DaemonError
-    from grassd.daemon.store.ingest import MANIFEST_NAMES, parse_manifest, read_manifest_data
+    from grassd.daemon.store.manifest import MANIFEST_NAMES, parse_manifest, read_manifest_data
 
     archive = Path(state_dir) / "archive"
     if not archive.is_dir():

@@ -19,7 +19,7 @@ from grassd.daemon.calibration.checks import check_shape, check_table
 from grassd.daemon.config.settings import parse_config
 from grassd.daemon.errors import CalibrationRejected, ConfigError
 from grassd.daemon.store.atomic import atomic_save_figure, atomic_write_json
-from grassd.daemon.store.ingest import CheckerPhoto
+from grassd.daemon.store.manifest import CheckerPhoto
 from grassd.sim.light_input import LightInput
 
 TINY = HEAD + """[display]

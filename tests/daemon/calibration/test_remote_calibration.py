@@ -26,7 +26,7 @@ from grassd.daemon.calibration.calibrate import Calibrator, init_backend
 from grassd.daemon.calibration.remote import RemoteCalibrator, calibrator_for
 from grassd.daemon.config.settings import ComputeConfig, parse_config
 from grassd.daemon.errors import ComputeUnavailable, ConfigError
-from grassd.daemon.store.ingest import CheckerPhoto
+from grassd.daemon.store.manifest import CheckerPhoto
 from grassd.sim.light_input import LightInput
 
 pytest.importorskip("distributed")

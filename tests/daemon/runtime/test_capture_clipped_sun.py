@@ -14,7 +14,7 @@ from grassd.daemon.config.capture import CaptureConfig
 from grassd.daemon.config.settings import load_default_config
 from grassd.daemon.hardware.simulated_camera import SimCamera
 from grassd.daemon.runtime.capture import Station
-from grassd.daemon.store.ingest import parse_manifest
+from grassd.daemon.store.manifest import parse_manifest
 from grassd.sim.hdri import load_hdri
 from grassd.sim.lighting import uv_to_direction
 

@@ -30,7 +30,7 @@ from grassd.daemon.errors import (
 from grassd.daemon.hardware.simulated import SimLuxSensor
 from grassd.daemon.hardware.simulated_camera import SimCamera
 from grassd.daemon.runtime.capture import Station
-from grassd.daemon.store.ingest import parse_manifest
+from grassd.daemon.store.manifest import parse_manifest
 
 
 def small_env() -> np.ndarray:

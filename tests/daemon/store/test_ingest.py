@@ -13,9 +13,8 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from grassd.daemon.errors import ManifestError
 from grassd.daemon.store.history import History
-from grassd.daemon.store.ingest import Inbox, parse_manifest
+from grassd.daemon.store.ingest import Inbox
 
 MANIFEST = """timestamp = 2026-06-21T12:00:00+02:00
 hdri = "sky.exr"
@@ -62,28 +61,6 @@ def settle(inbox: Inbox, clock: Clock) -> list:
     got = inbox.poll()
     clock.t += 1.5
     return got + inbox.poll()
-
-
-def test_manifest_validation():
-    base = Path("/b")
-    m = parse_manifest({"timestamp": "2026-01-01T10:00:00", "hdri": "a.hdr",
-                        "ambient_lux": 500}, base, tz=__import__("zoneinfo").ZoneInfo("UTC"))
-    assert m.light.hdri == base / "a.hdr" and m.light.ambient_lux == 500.0 and m.timestamp.tzinfo
-    bad = [
-        ({"hdri": "a.exr"}, "timestamp: required key is missing"),
-        ({"timestamp": "x", "hdri": "a.exr"}, "ISO 8601"),
-        ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "a.png"}, ".exr"),
-        ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "../a.exr"}, "plain file name"),
-        ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "a.exr", "ambient_lux": -5},
-         "ambient_lux: -5 lux is impossible"),
-        ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "a.exr", "sun_azimuth_deg": 3},
-         "both"),
-        ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "a.exr", "lux": 3}, "unknown"),
-        ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "a.exr", "ambient_lux": True}, "finite"),
-    ]
-    for data, words in bad:
-        with pytest.raises(ManifestError, match=words.replace(".", r"\.")):
-            parse_manifest(data, base)
 
 
 def test_directory_bundle_waits_for_settle_then_archives(env):

@@ -1,0 +1,33 @@
+"""A bundle manifest is validated key by key; each bad value is named with its fix."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from zoneinfo import ZoneInfo
+
+import pytest
+
+from grassd.daemon.errors import ManifestError
+from grassd.daemon.store.manifest import parse_manifest
+
+
+def test_a_manifest_is_validated_and_every_bad_key_named():
+    base = Path("/b")
+    m = parse_manifest({"timestamp": "2026-01-01T10:00:00", "hdri": "a.hdr",
+                        "ambient_lux": 500}, base, tz=ZoneInfo("UTC"))
+    assert m.light.hdri == base / "a.hdr" and m.light.ambient_lux == 500.0 and m.timestamp.tzinfo
+    bad = [
+        ({"hdri": "a.exr"}, "timestamp: required key is missing"),
+        ({"timestamp": "x", "hdri": "a.exr"}, "ISO 8601"),
+        ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "a.png"}, ".exr"),
+        ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "../a.exr"}, "plain file name"),
+        ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "a.exr", "ambient_lux": -5},
+         "ambient_lux: -5 lux is impossible"),
+        ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "a.exr", "sun_azimuth_deg": 3},
+         "both"),
+        ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "a.exr", "lux": 3}, "unknown"),
+        ({"timestamp": "2026-01-01T00:00:00Z", "hdri": "a.exr", "ambient_lux": True}, "finite"),
+    ]
+    for data, words in bad:
+        with pytest.raises(ManifestError, match=words.replace(".", r"\.")):
+            parse_manifest(data, base)
