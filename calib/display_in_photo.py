@@ -468,48 +468,27 @@ def _largest_cluster(cand: NDArray, min_texels: int, wrap: bool
     return (labels == best) & cand_r, shift, sl
 
 
-def locate_display(short_img: ArrayLike, long_img: ArrayLike, rows: int, cols: int,
-                   pitch_mm: float, top_mm: float, *, projection: str = "equirect",
-                   inner: float = 0.6, max_rms_deg: float = MAX_RMS_DEG) -> DisplayInPhoto:
-    """Find a ``rows x cols`` display in an equirect photo pair and solve the camera pose.
+@dataclass(frozen=True)
+class _Differing:
+    """Step 1's result: where the two photos differ. ``rel`` (h, w): the relative difference,
+    computed inside the window (rows ``r0:r1``, columns ``win_cols``) and 0 elsewhere; ``thr``:
+    the noise threshold; ``level``: the median relative difference over the display's texels
+    ``rows``, ``cols``."""
 
-    Args:
-        short_img, long_img: (H, W, 3) linear photos (W = 2 H) of the display with every pixel
-            at its shortest and at its longest grass; all else unchanged but noise.
-        rows, cols: the display's pixel grid; ``pitch_mm`` centre-to-centre spacing [mm],
-            ``top_mm`` side of a pixel's visible top square [mm].
-        projection: the photos' projection; only ``"equirect"``.
-        inner: linear fraction (per side, 0 < inner <= 1) of each top square that is sampled
-            around its centre (0.6 keeps 20 % of the side clear of each edge).
-        max_rms_deg: largest accepted angular rms residual of the pose [deg].
+    rel: NDArray
+    thr: float
+    level: float
+    rows: NDArray
+    cols: NDArray
+    r0: int
+    r1: int
+    win_cols: NDArray
 
-    Returns the :class:`DisplayInPhoto` (module docstring for the method and references).
 
-    Raises:
-        DisplayNotFoundError: the photos differ nowhere above noise, the differing region is
-            too small, too close to the camera, or its shape does not fit ``rows x cols``.
-        GeometryError: malformed arguments.
-    """
-    from scipy import ndimage
-    from scipy.spatial import ConvexHull, QhullError
-
-    if projection != "equirect":
-        raise GeometryError(f"projection {projection!r} is not supported; only 'equirect'")
-    short = np.asarray(short_img)
-    long = np.asarray(long_img)
-    if short.ndim != 3 or short.shape[2] != 3 or short.shape != long.shape:
-        raise GeometryError(f"short_img and long_img must be two (H, W, 3) photos of one size; "
-                            f"got {short.shape} and {long.shape}")
+def _differing_region(short: NDArray, long: NDArray) -> _Differing:
+    """Step 1 (module docstring): found on every second texel, then at full resolution in a
+    window around what was found."""
     h, w = short.shape[:2]
-    if w != 2 * h:
-        raise GeometryError(f"an equirect photo has width = 2 x height; got {w} x {h}")
-    if rows < 1 or cols < 1 or not (0 < top_mm <= pitch_mm) or not 0 < inner <= 1:
-        raise GeometryError(f"need rows, cols >= 1, 0 < top_mm <= pitch_mm and 0 < inner <= 1; "
-                            f"got {rows} x {cols}, top {top_mm} mm, pitch {pitch_mm} mm, "
-                            f"inner {inner}")
-
-    # 1. where the photos differ: found on every second texel, then at full resolution in a
-    # window around what was found
     rel_c, eps = _rel_diff(short[::2, ::2], long[::2, ::2])
     sub = rel_c[::2, ::2]
     med = float(np.median(sub))
@@ -528,35 +507,47 @@ def locate_display(short_img: ArrayLike, long_img: ArrayLike, rows: int, cols: i
     rr, cc = np.nonzero(blob[sl])
     cc_orig = win_cols[(cc + sl[1].start - shift) % len(win_cols)]
     rr = rr + sl[0].start + r0
-    level = float(np.median(rel[rr, cc_orig]))
-    dirs = _equirect_dirs(rr, cc_orig, h, w)
-    m = (dirs * np.sin(np.pi * (rr + 0.5) / h)[:, None]).sum(axis=0)
+    return _Differing(rel, thr, float(np.median(rel[rr, cc_orig])), rr, cc_orig, r0, r1,
+                      win_cols)
+
+
+def _view_along(region: _Differing, h: int, w: int) -> GnomonicView:
+    """Step 2: the gnomonic view along the region's mean direction, framing it with a margin
+    (DisplayNotFoundError when the region spans too much of the sphere to be one display)."""
+    dirs = _equirect_dirs(region.rows, region.cols, h, w)
+    m = (dirs * np.sin(np.pi * (region.rows + 0.5) / h)[:, None]).sum(axis=0)
     m /= np.linalg.norm(m)
     max_angle = float(np.degrees(np.arccos(np.clip(dirs @ m, -1, 1).min())))
     if max_angle > 70.0:
         raise DisplayNotFoundError(
             f"the display spans {2 * max_angle:.0f} deg of the photo: too close to (or under) "
             "the camera to be located; move the camera farther from the display")
-
-    # 2. gnomonic view along the mean direction
     ref = np.array([0.0, 0.0, 1.0]) if abs(m[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
     e1 = np.cross(ref, m)
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(m, e1)
     f = w / (2.0 * np.pi)
-    tmp = GnomonicView(m, e1, e2, f, 0.0, 0.0, (0, 0))
-    xy = tmp.to_view(dirs)
+    xy = GnomonicView(m, e1, e2, f, 0.0, 0.0, (0, 0)).to_view(dirs)
     lo, hi = xy.min(axis=0), xy.max(axis=0)
     margin = 12.0 + 0.1 * float((hi - lo).max())
     vw = int(math.ceil(hi[0] - lo[0] + 2 * margin))
     vh = int(math.ceil(hi[1] - lo[1] + 2 * margin))
-    view = GnomonicView(m, e1, e2, f, float(margin - lo[0]), float(margin - lo[1]), (vw, vh))
+    return GnomonicView(m, e1, e2, f, float(margin - lo[0]), float(margin - lo[1]), (vw, vh))
+
+
+def _display_quad(short: NDArray, long: NDArray, region: _Differing,
+                  view: GnomonicView) -> NDArray:
+    """Step 3: the display's corners in ``view`` (4, 2), counter-clockwise: the coarse
+    quadrilateral of the region, then three passes of sub-texel edges from profiles of the
+    signed difference."""
+    from scipy import ndimage
+    from scipy.spatial import ConvexHull, QhullError
+
+    vw, vh = view.size
     gy, gx = np.mgrid[0:vh, 0:vw]
     grid = np.stack([gx + 0.5, gy + 0.5], axis=-1)
-    rel_view = _bilinear(rel, view.to_direction(grid))
-
-    # 3. coarse quadrilateral, then sub-texel edges from profiles of the signed difference
-    vmask = rel_view > 0.5 * level
+    rel_view = _bilinear(region.rel, view.to_direction(grid))
+    vmask = rel_view > 0.5 * region.level
     lab, nl = ndimage.label(vmask)
     if nl == 0:
         raise DisplayNotFoundError("no display found in the rectified view of the differing "
@@ -571,7 +562,8 @@ def locate_display(short_img: ArrayLike, long_img: ArrayLike, rows: int, cols: i
         raise DisplayNotFoundError("the differing region is a line, not a display; check the "
                                    "photos") from exc
     quad = _simplify_to_quad(pts[hull.vertices])  # counter-clockwise in (x, y)
-    diff_mean = (long[rr, cc_orig] - short[rr, cc_orig]).astype(np.float64).mean(axis=0)
+    diff_mean = (long[region.rows, region.cols]
+                 - short[region.rows, region.cols]).astype(np.float64).mean(axis=0)
     g = diff_mean / max(float(np.linalg.norm(diff_mean)), 1e-30)
 
     def signal(xy_pts: NDArray) -> NDArray:
@@ -620,15 +612,15 @@ def locate_display(short_img: ArrayLike, long_img: ArrayLike, rows: int, cols: i
             edge = base[good] + (tau[0] + area)[:, None] * dirs_p[good]
             lines.append(_fit_line(edge))
         quad = np.array([_intersect(*lines[k - 1], *lines[k]) for k in range(4)])
+    return quad
 
-    # 4. labelling, homography, pose
-    half_x = (cols - 1) / 2.0 * pitch_mm + top_mm / 2.0
-    half_y = (rows - 1) / 2.0 * pitch_mm + top_mm / 2.0
-    corners_mm = np.array([(-half_x, -half_y), (half_x, -half_y), (half_x, half_y),
-                           (-half_x, half_y)])
-    r_i, c_i = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
-    centres_mm = np.column_stack([((c_i - (cols - 1) / 2.0) * pitch_mm).ravel(),
-                                  ((r_i - (rows - 1) / 2.0) * pitch_mm).ravel()])
+
+def _labelled_corners(quad: NDArray, view: GnomonicView, corners_mm: NDArray, rows: int,
+                      cols: int, max_rms_deg: float) -> NDArray:
+    """Step 4: ``quad``'s corners in the order of ``corners_mm`` (the display's outer corners,
+    mm): of every labelling, one that puts the camera above the plane, fits the pose within
+    ``max_rms_deg`` and the display's aspect, and of those the camera on the row-0 side."""
+    half_x, half_y = corners_mm[2]
     corner_dirs_view = view.to_direction(quad)
     # The quadrilateral's own shape: a homography from the unit square onto the corner
     # bearings is [a r1, r2, t] up to scale for a rectangle of aspect a (width / depth).
@@ -657,8 +649,61 @@ def locate_display(short_img: ArrayLike, long_img: ArrayLike, rows: int, cols: i
             f"display of {2 * half_x:.0f} x {2 * half_y:.0f} mm (aspect {expected:.3g}; "
             f"measured {found:.3g}); check rows, cols, pitch_mm and top_mm, and that nothing "
             "else changed between the two photos")
-    pose4, idx, _ = min(ok, key=lambda c: c[0].position_m[1])
-    corners_view = quad[idx]
+    _, idx, _ = min(ok, key=lambda c: c[0].position_m[1])
+    return quad[idx]
+
+
+def locate_display(short_img: ArrayLike, long_img: ArrayLike, rows: int, cols: int,
+                   pitch_mm: float, top_mm: float, *, projection: str = "equirect",
+                   inner: float = 0.6, max_rms_deg: float = MAX_RMS_DEG) -> DisplayInPhoto:
+    """Find a ``rows x cols`` display in an equirect photo pair and solve the camera pose.
+
+    Args:
+        short_img, long_img: (H, W, 3) linear photos (W = 2 H) of the display with every pixel
+            at its shortest and at its longest grass; all else unchanged but noise.
+        rows, cols: the display's pixel grid; ``pitch_mm`` centre-to-centre spacing [mm],
+            ``top_mm`` side of a pixel's visible top square [mm].
+        projection: the photos' projection; only ``"equirect"``.
+        inner: linear fraction (per side, 0 < inner <= 1) of each top square that is sampled
+            around its centre (0.6 keeps 20 % of the side clear of each edge).
+        max_rms_deg: largest accepted angular rms residual of the pose [deg].
+
+    Returns the :class:`DisplayInPhoto` (module docstring for the method and references: its
+    steps 1-6 are this function's).
+
+    Raises:
+        DisplayNotFoundError: the photos differ nowhere above noise, the differing region is
+            too small, too close to the camera, or its shape does not fit ``rows x cols``.
+        GeometryError: malformed arguments.
+    """
+    if projection != "equirect":
+        raise GeometryError(f"projection {projection!r} is not supported; only 'equirect'")
+    short = np.asarray(short_img)
+    long = np.asarray(long_img)
+    if short.ndim != 3 or short.shape[2] != 3 or short.shape != long.shape:
+        raise GeometryError(f"short_img and long_img must be two (H, W, 3) photos of one size; "
+                            f"got {short.shape} and {long.shape}")
+    h, w = short.shape[:2]
+    if w != 2 * h:
+        raise GeometryError(f"an equirect photo has width = 2 x height; got {w} x {h}")
+    if rows < 1 or cols < 1 or not (0 < top_mm <= pitch_mm) or not 0 < inner <= 1:
+        raise GeometryError(f"need rows, cols >= 1, 0 < top_mm <= pitch_mm and 0 < inner <= 1; "
+                            f"got {rows} x {cols}, top {top_mm} mm, pitch {pitch_mm} mm, "
+                            f"inner {inner}")
+
+    region = _differing_region(short, long)
+    view = _view_along(region, h, w)
+    quad = _display_quad(short, long, region, view)
+
+    # 4. labelling and homography; 5. the pose from every corner and pixel centre
+    half_x = (cols - 1) / 2.0 * pitch_mm + top_mm / 2.0
+    half_y = (rows - 1) / 2.0 * pitch_mm + top_mm / 2.0
+    corners_mm = np.array([(-half_x, -half_y), (half_x, -half_y), (half_x, half_y),
+                           (-half_x, half_y)])
+    r_i, c_i = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
+    centres_mm = np.column_stack([((c_i - (cols - 1) / 2.0) * pitch_mm).ravel(),
+                                  ((r_i - (rows - 1) / 2.0) * pitch_mm).ravel()])
+    corners_view = _labelled_corners(quad, view, corners_mm, rows, cols, max_rms_deg)
     hom = homography(corners_mm, corners_view)
     corner_bearings = view.to_direction(corners_view)
     centre_bearings = view.to_direction(apply_homography(hom, centres_mm))
@@ -671,7 +716,8 @@ def locate_display(short_img: ArrayLike, long_img: ArrayLike, rows: int, cols: i
                                    f"{exc}") from exc
 
     # 6. sampling regions
-    tr, tc = np.meshgrid(np.arange(r0, r1), np.unique(win_cols), indexing="ij")
+    tr, tc = np.meshgrid(np.arange(region.r0, region.r1), np.unique(region.win_cols),
+                         indexing="ij")
     tr, tc = tr.ravel(), tc.ravel()
     mm = apply_homography(np.linalg.inv(hom), view.to_view(_equirect_dirs(tr, tc, h, w)))
     with np.errstate(invalid="ignore"):
@@ -688,12 +734,11 @@ def locate_display(short_img: ArrayLike, long_img: ArrayLike, rows: int, cols: i
         inner=float(inner), image_shape=(h, w), corners_mm=corners_mm,
         corner_bearings=corner_bearings, homography=hom, view=view,
         centre_bearings=centre_bearings, pose=pose, texel_rows=tr[inside][order_k],
-        texel_cols=tc[inside][order_k], texel_pixel=pix[order_k], threshold=thr)
+        texel_cols=tc[inside][order_k], texel_pixel=pix[order_k], threshold=region.thr)
     empty = np.flatnonzero(located.region_sizes() == 0)
     if len(empty):
         raise DisplayNotFoundError(
             f"{len(empty)} pixel(s) (first: {int(empty[0])}) cover no texel of the photo "
             f"inside the central {inner:g} of their top; move the camera closer or use a "
             "higher resolution")
-    del pose4
     return located
