@@ -552,6 +552,76 @@ def _match_holdout(manifest: CaptureManifest, holdout: Sequence[tuple[float, flo
     return out
 
 
+def _lobe_hidden(ks: float, ks_se: float) -> bool:
+    """Whether a fitted specular ``ks`` (with standard error ``ks_se``) shows no glossy lobe
+    whose shape the photos could tell."""
+    return ks < max(MIN_VISIBLE_SPECULAR, 3.0 * ks_se)
+
+
+class _ShapeSearch:
+    """The lobe's shape and the splay, searched over the albedo fit (:meth:`_Problem.solve`):
+    ``shape`` (smoothness, splay_deg) and ``best`` (the fit there) so far, and for every
+    parameter searched, each candidate's misfit (``profile``) and fitted x (``along``)."""
+
+    def __init__(self, problem: _Problem, shape: tuple[float, float], best: _Inner,
+                 say: Callable[[str], None]) -> None:
+        self.problem = problem
+        self.shape = shape
+        self.best = best
+        self.say = say
+        self.profile: dict[str, list[tuple[float, float]]] = {}
+        self.along: dict[str, dict[float, NDArray[np.float64]]] = {}
+
+    def search(self, name: str, grid: Sequence[float], index: int, lo: float, hi: float,
+               refine: int) -> None:
+        """Fit at every ``grid`` value of shape entry ``index`` (``name``), then up to
+        ``refine`` successive parabolic steps kept in [``lo``, ``hi``]; the best becomes
+        ``shape`` and ``best`` (FitNotConvergedError when no candidate converged)."""
+        tried: dict[float, _Inner | None] = {}
+
+        def attempt(v: float, what: str) -> None:
+            cand = (v, self.shape[1]) if index == 0 else (self.shape[0], v)
+            self.say(f"recording {name} = {v:.3g}{what}")
+            try:
+                tried[v] = self.problem.solve(cand, self.best.x)
+            except FitNotConvergedError:  # a far-off candidate: out of the running
+                tried[v] = None
+
+        for v in grid:
+            attempt(float(v), "")
+        for _ in range(refine):  # successive parabolic interpolation, kept in its bracket
+            points = [(v, r.misfit) for v, r in tried.items() if r is not None]
+            if not points:
+                break
+            v_next = _next_candidate(points, lo, hi)
+            if min(abs(v_next - v) for v in tried) < REFINE_TOLERANCE[name]:
+                break
+            attempt(v_next, " (refined)")
+        ok = {v: r for v, r in tried.items() if r is not None}
+        if not ok:
+            raise FitNotConvergedError(f"the albedo fit converged at no {name} tried "
+                                       f"({', '.join(f'{v:g}' for v in grid)}); check that "
+                                       "the photos show the pixel named in the manifest")
+        v_best = min(ok, key=lambda v: ok[v].misfit)
+        self.shape = (v_best, self.shape[1]) if index == 0 else (self.shape[0], v_best)
+        self.best = ok[v_best]
+        self.profile[name] = sorted((v, r.misfit) for v, r in ok.items())
+        self.along[name] = {v: r.x for v, r in ok.items()}
+
+    def specular_error(self) -> tuple[float, float]:
+        """The fitted ``ks`` and its standard error at the current shape."""
+        best = self.best
+        try:
+            cov = (_covariance(best, best.residuals.size - best.x.size)
+                   + self.problem.layout_jackknife(self.shape, best.x))
+        except np.linalg.LinAlgError:
+            raise NotIdentifiableError(
+                "the photos do not determine specular together with the albedos (singular "
+                "fit); add viewpoints or leave specular and smoothness out of --params"
+            ) from None
+        return self.problem.unpack(best.x)[1], float(np.sqrt(cov[-1, -1]))
+
+
 def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, float, float]] = (),
                 params: Sequence[str] = FIT_PARAMS, settings: FitSettings | None = None,
                 renderer: Any = None, lighting: Any = None, arch: str = "cpu",
@@ -587,48 +657,13 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
     model.fit_series = fit_series
     problem = _Problem(model, real, fit_series, params)
     notes: list[str] = []
-    profile: dict[str, list[tuple[float, float]]] = {}
-    along: dict[str, dict[float, NDArray[np.float64]]] = {}  # the fitted x along each profile
     shape = (start.smoothness, start.splay_deg)
     say(f"fitting albedos at smoothness {shape[0]:g}, splay {shape[1]:g} deg")
     best = problem.solve(shape)
     if len(best.x):  # the layouts' spread in CIELAB depends on the colours: weigh at the fit's
         problem.weights(shape, best.x)
         best = problem.solve(shape, best.x)
-
-    def search(name: str, grid: Sequence[float], index: int, lo: float, hi: float,
-               refine: int) -> None:
-        nonlocal shape, best
-        tried: dict[float, _Inner] = {}
-
-        def attempt(v: float, what: str) -> None:
-            cand = (v, shape[1]) if index == 0 else (shape[0], v)
-            say(f"recording {name} = {v:.3g}{what}")
-            try:
-                tried[v] = problem.solve(cand, best.x)
-            except FitNotConvergedError:  # a far-off candidate: out of the running
-                tried[v] = None  # type: ignore[assignment]
-
-        for v in grid:
-            attempt(float(v), "")
-        for _ in range(refine):  # successive parabolic interpolation, kept in its bracket
-            points = [(v, r.misfit) for v, r in tried.items() if r is not None]
-            if not points:
-                break
-            v_next = _next_candidate(points, lo, hi)
-            if min(abs(v_next - v) for v in tried) < REFINE_TOLERANCE[name]:
-                break
-            attempt(v_next, " (refined)")
-        ok = {v: r for v, r in tried.items() if r is not None}
-        if not ok:
-            raise FitNotConvergedError(f"the albedo fit converged at no {name} tried "
-                                       f"({', '.join(f'{v:g}' for v in grid)}); check that "
-                                       "the photos show the pixel named in the manifest")
-        v_best = min(ok, key=lambda v: ok[v].misfit)
-        shape = (v_best, shape[1]) if index == 0 else (shape[0], v_best)
-        best = ok[v_best]
-        profile[name] = sorted((v, r.misfit) for v, r in ok.items())
-        along[name] = {v: r.x for v, r in ok.items()}
+    look = _ShapeSearch(problem, shape, best, say)
 
     # The lobe's shape first, coarsely (a sharp lobe fitted with a broad one's shape looks like
     # no gloss at all), then the splay at that shape, then the shape again, finely, at that
@@ -640,37 +675,23 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
     specular_se = 0.0  # of a fitted specular set to 0
     if "smoothness" in params and not glossy_fit:
         kept.add("smoothness")
-        notes.append(f"smoothness kept at {shape[0]:g}: without a glossy lobe (specular 0, "
+        notes.append(f"smoothness kept at {start.smoothness:g}: without a glossy lobe (specular 0, "
                      "not fitted) its shape does not show")
     splay_fit = "splay_deg" in params
     if glossy_fit:
         # Coarse only where the splay follows: the fine pass then starts at its best.
-        search("smoothness", SMOOTHNESS_GRID, 0, 0.0, 0.97, 0 if splay_fit else MAX_REFINE)
-    def specular_error() -> tuple[float, float]:
-        """The fitted ``ks`` and its standard error at the current shape."""
-        try:
-            cov = (_covariance(best, best.residuals.size - best.x.size)
-                   + problem.layout_jackknife(shape, best.x))
-        except np.linalg.LinAlgError:
-            raise NotIdentifiableError(
-                "the photos do not determine specular together with the albedos (singular "
-                "fit); add viewpoints or leave specular and smoothness out of --params"
-            ) from None
-        return problem.unpack(best.x)[1], float(np.sqrt(cov[-1, -1]))
-
-    def lobe_hidden(ks: float, ks_se: float) -> bool:
-        return ks < max(MIN_VISIBLE_SPECULAR, 3.0 * ks_se)
-
+        look.search("smoothness", SMOOTHNESS_GRID, 0, 0.0, 0.97, 0 if splay_fit else MAX_REFINE)
     if splay_fit:
-        search("splay_deg", SPLAY_GRID, 1, 0.0, 30.0, MAX_REFINE)
-        if glossy_fit and not (problem.fit_ks and lobe_hidden(*specular_error())):
-            s0 = shape[0]
+        look.search("splay_deg", SPLAY_GRID, 1, 0.0, 30.0, MAX_REFINE)
+        if glossy_fit and not (problem.fit_ks and _lobe_hidden(*look.specular_error())):
+            s0 = look.shape[0]
             local = sorted({float(np.clip(s0 + d, 0.0, 0.97))
                             for d in (-SMOOTHNESS_STEP, 0.0, SMOOTHNESS_STEP)})
-            search("smoothness", local, 0, 0.0, 0.97, MAX_REFINE)
+            look.search("smoothness", local, 0, 0.0, 0.97, MAX_REFINE)
+    shape, best, profile = look.shape, look.best, look.profile
     if glossy_fit and problem.fit_ks:
-        ks, ks_se = specular_error()
-        if lobe_hidden(ks, ks_se):
+        ks, ks_se = look.specular_error()
+        if _lobe_hidden(ks, ks_se):
             # No lobe to speak of: its shape is noise. Keep the start's, refitted there.
             notes.append(f"smoothness kept at {start.smoothness:g}: the fitted specular "
                          f"({ks:.3f} +- {ks_se:.3f}) shows no glossy lobe whose shape the "
@@ -693,7 +714,7 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
     albedo, ks = problem.unpack(best.x)
     _check_agreement(model, real, fit_series, shape, albedo, ks)
     pixel, stderr, given_shape = _fitted_fields(problem, best, shape, params, dof, profile,
-                                                kept, along)
+                                                kept, look.along)
     if "specular" in kept:
         pixel["specular"], stderr["specular"] = 0.0, round(specular_se, 4)
         pixel = {k: pixel[k] for k in FIT_PARAMS if k in pixel}  # report order
