@@ -206,22 +206,10 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     looked = False  # whether ``larger`` has judged the first paths
     k = 0
     while True:
-        seed = (settings.seed + 7919 * k) % 2**31
-        block = np.full((b, n_len, 3), np.nan)
-        # Replicate j (counted over the rounds) traces tuft layout j mod ``layouts``.
-        first = int(counts[0])
-        for layout in sorted({(first + i) % layouts for i in range(b)}):
-            rows = [i for i in range(b) if (first + i) % layouts == layout]
-            shown = display if layout == 0 else replace(display, pixel=replace(
-                display.pixel, layout_seed=display.pixel.layout_seed + layout))
-            m = renderer.characteristic(shown, lighting, viewpoint, lengths_mm[cols],
-                                        replace(settings, replicates=len(rows),
-                                                seed=layout_seed(seed, layout)),
-                                        pixel_index=pixel_index, progress=progress)
-            seconds["compile"] += m.seconds.get("compile", 0.0)
-            seconds["trace"] += m.seconds.get("trace", 0.0)
-            traced_paths += m.paths_traced
-            block[np.ix_(rows, cols)] = m.rgb_replicates
+        block, paths = _trace_round(renderer, display, lighting, viewpoint, lengths_mm, cols,
+                                    replace(settings, seed=(settings.seed + 7919 * k) % 2**31),
+                                    b, int(counts[0]), layouts, pixel_index, progress, seconds)
+        traced_paths += paths
         blocks.append(block)
         counts[cols] += b
         t0 = time.perf_counter()
@@ -267,19 +255,54 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
                 b = max(2, min(least, round_replicates))  # its first round: a spread
                 k += 1
                 continue
-        # The lengths above the target take what the 1/sqrt(R) law says the neediest of them
-        # needs, at least one replicate and (as the worst of n noisy estimates overstates the
-        # error) at most doubling its count; the reference takes them too.
-        above = se > target_stderr
-        if n < least:  # every length takes replicates until the series has enough
-            above[:] = True
-            b = least - n
-        else:
-            ratio = np.minimum((se[above] / target_stderr) ** 2, 2.0)
-            b = int(np.max(np.maximum(np.ceil(counts[above] * ratio) - counts[above], 1)))
-        b = min(b, max_replicates - n, round_replicates, MAX_REPLICATES)
-        cols = np.union1d([0], np.flatnonzero(above))
+        b, cols = _next_round(se, counts, target_stderr, least,
+                              min(max_replicates - n, round_replicates, MAX_REPLICATES))
         k += 1
+
+
+def _trace_round(renderer, display, lighting, viewpoint, lengths_mm: np.ndarray,
+                 cols: np.ndarray, settings, b: int, first: int, layouts: int,
+                 pixel_index: int, progress, seconds: dict[str, float]
+                 ) -> tuple[np.ndarray, int]:
+    """Trace a round of ``b`` replicates (the run's ``first`` to ``first + b - 1``, seeded from
+    ``settings.seed``) at the lengths ``lengths_mm[cols]`` (mm): replicate j traces tuft layout
+    j mod ``layouts`` (:func:`layout_seed`). Returns the round's linear RGB [nits] (b, n, 3),
+    NaN at the lengths not traced, and the camera paths traced; adds the renderer's compile
+    and trace seconds to ``seconds``."""
+    block = np.full((b, len(lengths_mm), 3), np.nan)
+    traced_paths = 0
+    for layout in sorted({(first + i) % layouts for i in range(b)}):
+        rows = [i for i in range(b) if (first + i) % layouts == layout]
+        shown = display if layout == 0 else replace(display, pixel=replace(
+            display.pixel, layout_seed=display.pixel.layout_seed + layout))
+        m = renderer.characteristic(shown, lighting, viewpoint, lengths_mm[cols],
+                                    replace(settings, replicates=len(rows),
+                                            seed=layout_seed(settings.seed, layout)),
+                                    pixel_index=pixel_index, progress=progress)
+        seconds["compile"] += m.seconds.get("compile", 0.0)
+        seconds["trace"] += m.seconds.get("trace", 0.0)
+        traced_paths += m.paths_traced
+        block[np.ix_(rows, cols)] = m.rgb_replicates
+    return block, traced_paths
+
+
+def _next_round(se: np.ndarray, counts: np.ndarray, target_stderr: float, least: int,
+                most: int) -> tuple[int, np.ndarray]:
+    """The next round of an adaptive run: how many replicates (at most ``most``), and the
+    lengths (indices, the reference 0 always) that trace them. Until the series has ``least``
+    replicates every length takes them; then the lengths whose OGCD standard error ``se``
+    (dE00) is above the target take what the 1/sqrt(R) law says the neediest of them needs,
+    at least one replicate and (as the worst of n noisy estimates overstates the error) at
+    most doubling its count."""
+    above = se > target_stderr
+    n = int(counts[0])
+    if n < least:
+        above[:] = True
+        b = least - n
+    else:
+        ratio = np.minimum((se[above] / target_stderr) ** 2, 2.0)
+        b = int(np.max(np.maximum(np.ceil(counts[above] * ratio) - counts[above], 1)))
+    return min(b, most), np.union1d([0], np.flatnonzero(above))
 
 
 def _ogcd_by_replicates(x: np.ndarray, counts: np.ndarray, white: np.ndarray, ccm,
