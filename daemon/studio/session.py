@@ -8,7 +8,7 @@ first image of the pixel within 300 ms, converged within 1 s, warm, 2 cores):
 1. the characteristic's first round, :data:`FIRST_REPLICATES` replicates of
    :data:`STUDIO_SAMPLES` paths (about 75 ms for 11 lengths); where the blades splay (nearly
    every length traced, 3x the time), replicates of :data:`SPLAY_SAMPLES` paths, 4x as many;
-2. the pixel's first image, :data:`FIRST_IMAGE` (width, paths per image pixel) (about 110 ms);
+2. the pixel's first image, :data:`FIRST_IMAGE` (width, paths per image pixel) (about 40 ms);
 3. further rounds until every OGCD standard error is at most the target
    (:func:`~grassd.daemon.calibration.simulation.simulate_curve`'s adaptive rounds of at most
    :data:`ROUND_REPLICATES`, each sent); where the first paths say the target needs many (a
@@ -83,10 +83,12 @@ MAX_REPLICATES: int = 256
 #: Most replicates a later round adds: a round then takes at most about 0.1 s (11 lengths), so
 #: a new input waits at most that long for the round in flight.
 ROUND_REPLICATES: int = 8
-#: (width px, paths per image pixel) of the pixel's first image, and of each refining pass:
-#: each about 0.11 s on 2 cores (the preview kernel's time grows in steps with the width:
-#: 128 px took 0.19 s whether with 2 or 4 paths per pixel).
-FIRST_IMAGE: tuple[int, int] = (96, 4)
+#: (width px, paths per image pixel) of the pixel's first image, and of each refining pass
+#: (the preview kernel rounds the paths up to a square: 2 or 4 cost the same). The first image
+#: is drawn between the characteristic's first and second rounds, so its time adds to every
+#: converged time: one path per pixel takes 36-43 ms on 2 cores where 4 took 114-132 ms (its
+#: noise is gone with the refining passes, 0.11-0.13 s each, after everything else).
+FIRST_IMAGE: tuple[int, int] = (96, 1)
 REFINE_IMAGE: tuple[int, int] = (192, 1)
 #: Refining passes of the pixel's image after everything else (24 paths per image pixel).
 REFINE_PASSES: int = 24
