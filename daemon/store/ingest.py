@@ -70,6 +70,7 @@ from grassd.daemon.store.manifest import (
     MANIFEST_NAMES,
     Manifest,
     check_light,
+    load_bundle_manifest,
     parse_manifest,
     read_manifest_data,
 )
@@ -565,10 +566,8 @@ class Inbox:
         """The parsed manifest of archived bundle ``bundle_id`` (naive times in the site's
         zone), or None when its directory or manifest is gone; ManifestError (a DaemonError)
         when it cannot be read."""
-        d = self.archive / bundle_id
-        mpath = next((d / m for m in MANIFEST_NAMES if os.path.lexists(d / m)), None)
-        return None if mpath is None else parse_manifest(
-            read_manifest_data(mpath, self.limits.manifest_bytes), d, self.tz)
+        return load_bundle_manifest(self.archive / bundle_id, self.tz,
+                                    self.limits.manifest_bytes)
 
     def counts(self) -> dict[str, int]:
         """Number of entries in inbox, processing, archive and rejected."""
@@ -598,11 +597,9 @@ class Inbox:
             return None
 
     def _load_claimed(self, d: Path, bid: str, name: str, h: str | None) -> Bundle:
-        mpath = next((d / m for m in MANIFEST_NAMES if os.path.lexists(d / m)), None)
-        if mpath is None:
+        manifest = load_bundle_manifest(d, self.tz, self.limits.manifest_bytes)
+        if manifest is None:
             raise IngestError("bundle has no manifest.toml or manifest.json")
-        manifest = parse_manifest(read_manifest_data(mpath, self.limits.manifest_bytes), d,
-                                  self.tz)
         missing = [p.name for p in manifest.files() if not os.path.lexists(p)]
         if missing:
             raise IngestError(f"missing file(s) {', '.join(missing)}")

@@ -31,6 +31,7 @@ Such a bundle is rejected at once, with the reason.
 from __future__ import annotations
 
 import json
+import os
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -121,6 +122,17 @@ def read_manifest_data(path: Path,
     if not isinstance(data, dict):
         raise ManifestError(f"manifest {path.name} must hold a table/object at top level")
     return data
+
+
+def load_bundle_manifest(directory: Path, tz: tzinfo = UTC,
+                         max_bytes: int = DEFAULT_LIMITS.manifest_bytes) -> Manifest | None:
+    """The manifest of the bundle directory ``directory`` (its ``manifest.toml`` or
+    ``manifest.json``, the first there), read and validated, naive times in ``tz``; None when
+    it has neither. ManifestError when it cannot be read or is invalid."""
+    path = next((directory / m for m in MANIFEST_NAMES if os.path.lexists(directory / m)), None)
+    if path is None:
+        return None
+    return parse_manifest(read_manifest_data(path, max_bytes), directory, tz)
 
 
 def _depth(v: Any) -> int:

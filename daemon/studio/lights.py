@@ -99,7 +99,7 @@ def archived_sources(state_dir: Path, cfg) -> list[LightSource]:
     """The light of every archived bundle in ``state_dir``, newest first (bundles whose
     manifest cannot be read are left out, with a log line)."""
     from grassd.daemon.errors import DaemonError
-    from grassd.daemon.store.manifest import MANIFEST_NAMES, parse_manifest, read_manifest_data
+    from grassd.daemon.store.manifest import load_bundle_manifest
 
     archive = Path(state_dir) / "archive"
     if not archive.is_dir():
@@ -111,13 +111,12 @@ def archived_sources(state_dir: Path, cfg) -> list[LightSource]:
     tz = ZoneInfo(cfg.site.timezone)
     out = []
     for i, d in enumerate(dirs):
-        mpath = next((d / m for m in MANIFEST_NAMES if (d / m).is_file()), None)
-        if mpath is None:
-            continue
         try:
-            m = parse_manifest(read_manifest_data(mpath), d, tz)
+            m = load_bundle_manifest(d, tz)
         except DaemonError as exc:
             log.warning("archived bundle %s left out: %s", d.name, exc)
+            continue
+        if m is None:
             continue
         light = m.light
         out.append(LightSource(
