@@ -13,6 +13,7 @@ to a maintained fork a one-file change. :func:`init` is called once by the progr
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import sys
 from pathlib import Path
@@ -40,6 +41,29 @@ def default_cache_dir() -> Path:
     return Path.home() / ".cache" / "grassd" / "taichi"
 
 
+#: Taichi's compile options, every kernel alike.
+#:
+#: * ``cfg_optimization=False`` skips Taichi's control-flow-graph IR passes: the path-tracing
+#:   kernel compiles in 1.5 s instead of 6.5 s on 2 cores and runs as fast (2.64-2.77 vs
+#:   2.74-2.82 CPU-us per path, measured twice each); LLVM still optimises the code.
+#: * ``make_cpu_multithreading_loop=False`` and ``cpu_block_dim_adaptive=False``: a parallel
+#:   loop on the CPU goes in tasks of Taichi's default 32 iterations, taken by the threads as
+#:   they free up. Taichi's own scheme cuts a loop into one block per thread of at least 512
+#:   iterations, so a launch of 512 camera paths or fewer ran on one core (a splayed launch of
+#:   2 replicates of 256 paths took 28 ms with 1 thread or 2; 14 ms now), and a launch of
+#:   1024 on two blocks, one core idle while the other finished its half. Measured (the
+#:   studio's splayed characteristic to 0.1 dE00, six viewpoints, 2 cores, in process): the
+#:   same CPU time (1.6-1.8 s), 1.5-1.6 cores busy before and 1.7-1.9 after, median 1.06-1.13 s
+#:   before and 0.86-1.05 s after; the daemon's launches (131072 paths) and the pixel's images
+#:   take the time they took.
+COMPILE_OPTIONS: dict = dict(default_fp=ti.f32, random_seed=0, cfg_optimization=False,
+                             make_cpu_multithreading_loop=False, cpu_block_dim_adaptive=False)
+# Taichi's offline cache key leaves the CPU loop options out, so kernels compiled under other
+# options get their own directory (a kernel cached before would otherwise keep its old tasks).
+_CACHE_SUBDIR = "kernels-" + hashlib.sha256(
+    repr(sorted((k, str(v)) for k, v in COMPILE_OPTIONS.items())).encode()).hexdigest()[:8]
+
+
 def init(arch: str = "cpu", cache_dir: Path | None = None, threads: int | None = None) -> str:
     """Initialise Taichi once per process; later calls with the same arch are no-ops.
 
@@ -59,11 +83,8 @@ def init(arch: str = "cpu", cache_dir: Path | None = None, threads: int | None =
     except OSError as exc:
         raise SimError(f"cannot create the kernel cache directory {cache}: {exc.strerror}; set "
                        f"GRASSD_CACHE_DIR to a writable directory") from exc
-    # cfg_optimization=False skips Taichi's control-flow-graph IR passes: the path-tracing
-    # kernel compiles in 1.5 s instead of 6.5 s on 2 cores and runs as fast (2.64-2.77 vs
-    # 2.74-2.82 CPU-us per path, measured twice each); LLVM still optimises the code.
-    kwargs = dict(offline_cache=True, offline_cache_file_path=str(cache), log_level=ti.WARN,
-                  default_fp=ti.f32, random_seed=0, cfg_optimization=False)
+    kwargs = dict(offline_cache=True, offline_cache_file_path=str(cache / _CACHE_SUBDIR),
+                  log_level=ti.WARN, **COMPILE_OPTIONS)
     if threads:
         kwargs["cpu_max_num_threads"] = threads
     with contextlib.redirect_stdout(sys.stderr):  # Taichi prints "Starting on arch=..."
