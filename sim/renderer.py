@@ -103,7 +103,10 @@ vec3 = tf.vec3
 vec4 = ti.types.vector(4, ti.f32)
 EPS = 2e-6  # m: offset of secondary ray origins along the facing normal
 ZCULL = 1e-5  # m: margin of the per-cell height culling of primitives
-MIN_LAUNCH_PATHS = 1 << 17  # paths: smaller kernel launches pay more per path (thread start-up)
+# paths: the fewest a launch takes by default. Under Taichi's own CPU loop scheme smaller launches
+# ran up to 7 % slower per path; in tasks of 32 (grassd.sim.backend.COMPILE_OPTIONS) 4096 x 32
+# paths x 21 lengths took the same in launches of 4096, 8192 or 131072 paths (1.17-1.20 s).
+MIN_LAUNCH_PATHS = 1 << 17
 PREVIEW_MAX = 1024  # largest preview image side (pixels)
 # Russian roulette (RenderSettings.roulette_from, the surface index from which it plays, is 2 by
 # default: the third surface): its light and everything after it
@@ -1215,8 +1218,8 @@ class Renderer:
         # Launches: every length (ascending, so a path moves on to longer blades) of a run of
         # replicates. The buffer holds len_chunk lengths x rep_chunk replicates; a launch takes
         # at most a quarter of the replicates so progress is reported as the work goes, unless
-        # that makes it smaller than min_launch_paths camera paths (small launches run up to
-        # 7 % slower per path). The split changes no number: a path's random numbers depend
+        # that makes it smaller than min_launch_paths camera paths (:data:`MIN_LAUNCH_PATHS`).
+        # The split changes no number: a path's random numbers depend
         # on its replicate, and each (length, replicate) group is summed serially (a
         # replicate split by max_launch_paths adds its shares' sums: float64 rounding).
         n = len(lengths_mm)
