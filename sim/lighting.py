@@ -63,7 +63,7 @@ from __future__ import annotations
 
 import logging
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -77,6 +77,7 @@ __all__ = [
     "MAX_LUX",
     "MAX_SUN_PERPENDICULAR_LUX",
     "Lighting",
+    "add_sun",
     "azimuth_elevation_from_direction",
     "build_lighting",
     "direction_from_azimuth_elevation",
@@ -257,6 +258,9 @@ class Lighting:
     the oriented map before scaling (``env = np.float32(env_scale) * env_map``, float32), or
     None when unknown: two lights of one map at other lux share it, so a renderer keeps the
     map's importance sampler (:meth:`grassd.sim.renderer.Renderer._prepare`).
+    ``env_irradiance_rgb``: (3,) what ``env`` alone gives on the upward horizontal plane
+    (lux-like linear Rec.709), or None when not yet summed; :func:`build_lighting` keeps the
+    sum it took for ``ambient_lux``, and a light with another sun (:func:`add_sun`) keeps it.
     """
 
     env: np.ndarray
@@ -269,11 +273,13 @@ class Lighting:
     flipped: bool = False
     notes: tuple[str, ...] = field(default=())
     env_map: np.ndarray | None = None
+    env_irradiance_rgb: np.ndarray | None = None
 
     @cached_property
     def horizontal_irradiance_rgb(self) -> np.ndarray:
         """(3,) irradiance on the upward horizontal plane: env + sun * max(0, sun_z) (lux-like)."""
-        total = horizontal_irradiance_rgb(self.env)
+        total = (horizontal_irradiance_rgb(self.env) if self.env_irradiance_rgb is None
+                 else self.env_irradiance_rgb)
         if self.sun_direction is not None:
             total = total + self.sun_irradiance_rgb * max(0.0, float(self.sun_direction[2]))
         return _readonly(total)
@@ -398,16 +404,14 @@ def build_lighting(
         from grassd.sim.sun import split_sun  # sun.py builds on this module's geometry
 
         split = split_sun(env0, ambient, sun_l, day_of_year=day_of_year)
-        k = split.env_scale
-        env = env0 * np.float32(k)
+        base = _env_lighting(env0, split.env_scale, notes=split.notes, **common)
         if split.direction is None or split.sun_lux <= 0.0:
-            return Lighting(_readonly(env), k, None, _readonly(np.zeros(3)),
-                            horizontal_illuminance(env), 0.0, notes=split.notes, **common)
+            return base
         colour = split.colour if sun_colour is None else sun_colour
         _, elev = azimuth_elevation_from_direction(split.direction)
         irr = sun_irradiance_from_lux(split.sun_lux, float(elev), colour)
-        return Lighting(_readonly(env), k, _readonly(split.direction), _readonly(irr),
-                        horizontal_illuminance(env), split.sun_lux, notes=split.notes, **common)
+        return replace(base, sun_direction=_readonly(split.direction),
+                       sun_irradiance_rgb=_readonly(irr), sun_lux=split.sun_lux)
 
     if sun_l is not None and sun_azimuth_deg is None:
         raise LightingError("a sun lux was given without a sun direction: give the sun azimuth "
@@ -415,11 +419,38 @@ def build_lighting(
     if sun_l is None and sun_azimuth_deg is not None:
         raise LightingError("a sun direction was given without the sun lux (the horizontal "
                             "reading with the sun minus the reading without)")
-    k = ambient / e_map
-    env = env0 * np.float32(k)
+    base = _env_lighting(env0, ambient / e_map, **common)
     if sun_l is None or sun_l == 0.0:
-        return Lighting(_readonly(env), k, None, _readonly(np.zeros(3)),
-                        horizontal_illuminance(env), 0.0, **common)
+        return base
+    return add_sun(base, sun_l, sun_azimuth_deg, sun_elevation_deg, sun_colour)
+
+
+def _env_lighting(env0: np.ndarray, k: float, **kwargs) -> Lighting:
+    """The light of oriented map ``env0`` scaled by ``k``, without a sun (``kwargs``: the
+    other :class:`Lighting` fields); its horizontal irradiance summed once."""
+    env = env0 * np.float32(k)
+    irr = horizontal_irradiance_rgb(env)
+    return Lighting(_readonly(env), k, None, _readonly(np.zeros(3)),
+                    float(REC709_LUMINANCE @ irr), 0.0, env_irradiance_rgb=_readonly(irr),
+                    **kwargs)
+
+
+def add_sun(base: Lighting, sun_lux: float, sun_azimuth_deg: float, sun_elevation_deg: float,
+            sun_colour=None) -> Lighting:
+    """``base``'s map with a directional sun instead of its own (if any): ``sun_lux`` on the
+    horizontal plane (lux), from compass azimuth / elevation (deg), colour ``sun_colour``
+    (default :data:`DEFAULT_SUN_COLOUR`); what :func:`build_lighting` gives for the same
+    readings, without scaling or summing the map again (a time of day moved in ``grassd
+    studio`` changes only the sun); a sun lux of 0 gives no sun, as there. Raises
+    :class:`LightingError` as :func:`build_lighting` does for a sun lux or direction that
+    cannot be."""
+    sun_l = _check_lux(sun_lux, "sun lux", allow_zero=True)
+    if sun_l == 0.0:
+        return base if base.sun_direction is None else replace(
+            base, sun_direction=None, sun_irradiance_rgb=_readonly(np.zeros(3)), sun_lux=0.0)
+    if base.ambient_lux + sun_l > MAX_LUX:
+        raise LightingError(f"ambient + sun lux = {base.ambient_lux + sun_l:g} lx exceeds "
+                            f"{MAX_LUX:g} lx")
     az, el = float(sun_azimuth_deg), float(sun_elevation_deg)
     if not (np.isfinite(az) and np.isfinite(el)):
         raise LightingError(f"sun azimuth {az} / elevation {el} must be finite")
@@ -431,5 +462,5 @@ def build_lighting(
     direction = direction_from_azimuth_elevation(az % 360.0, el)
     colour = DEFAULT_SUN_COLOUR if sun_colour is None else sun_colour
     irr = sun_irradiance_from_lux(sun_l, el, colour)
-    return Lighting(_readonly(env), k, _readonly(direction), _readonly(irr),
-                    horizontal_illuminance(env), sun_l, **common)
+    return replace(base, sun_direction=_readonly(direction), sun_irradiance_rgb=_readonly(irr),
+                   sun_lux=sun_l)

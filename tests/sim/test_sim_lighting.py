@@ -149,6 +149,24 @@ def test_directional_sun_from_horizontal_lux():
     assert warm.sun_irradiance_rgb[0] / warm.sun_irradiance_rgb[2] == pytest.approx(4.0)
 
 
+def test_a_sun_added_to_a_built_light_is_the_light_built_with_that_sun(shared_hdri):
+    """``add_sun`` keeps the scaled map and its sums (the studio's time of day changes only the
+    sun) and gives every field ``build_lighting`` gives for the same readings, bit for bit."""
+    raw = hdri.load_hdri(shared_hdri("forest"))
+    base = L.build_lighting(raw, 5000.0, rotation_deg=30.0)
+    for lux, az, el in ((40000.0, 200.0, 20.0), (8000.0, -30.0, 60.0), (0.0, 10.0, 5.0)):
+        sunlit = L.add_sun(base, lux, az, el)
+        built = L.build_lighting(raw, 5000.0, sun_lux=lux, sun_azimuth_deg=az,
+                                 sun_elevation_deg=el, rotation_deg=30.0)
+        assert sunlit.env is base.env and sunlit.env_map is base.env_map
+        for f in dataclasses.fields(L.Lighting):
+            a, b = getattr(sunlit, f.name), getattr(built, f.name)
+            assert np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b, f.name
+        assert np.array_equal(sunlit.horizontal_irradiance_rgb, built.horizontal_irradiance_rgb)
+    with pytest.raises(LightingError, match="below the horizon"):
+        L.add_sun(base, 5000.0, 10.0, -2.0)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
