@@ -31,9 +31,9 @@ def test_a_loop_of_256_iterations_is_shared_by_the_cpu_threads(renderer):
 
     @ti.kernel
     def work():
-        for i in range(256):  # each iteration a few tens of microseconds, as a camera path
-            acc = 0.0
-            for k in range(20000):
+        for i in range(256):  # each iteration about a millisecond: tasks long enough that the
+            acc = 0.0  # second thread starts while the first works, on a busy machine too
+            for k in range(60000):
                 acc += ti.sin(acc + k * 1e-3)
             sink[i] = acc
             who[i] = ti.global_thread_idx()
