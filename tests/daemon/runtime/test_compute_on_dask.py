@@ -29,15 +29,19 @@ pytestmark = [pytest.mark.slow, pytest.mark.long]
 NO_TAICHI = ("import sys; sys.modules['taichi'] = None; "
              "from grassd.daemon.cli.main import main; main()")
 
+#: 1024 paths a replicate, so that a run lasts long enough for the test to see it on the worker
+#: (polled every 20 ms) and kill the worker before it ends: with 64, once Taichi's small
+#: launches used both cores, a run on the warm worker was committed within 1.5 s of its bundle
+#: and the test (then polling every 0.2 s) missed it once in four full runs
 CONFIG = display_2x2(
     viewpoints=ONE_VIEW + "[[viewpoints]]\nh_cm = 160\nd_m = 2\ntheta_deg = 30\nweight = 0.5\n",
-    samples=64, seed=5, replicates=2, layouts=2, max_rounds=2,
+    samples=1024, seed=5, replicates=2, layouts=2, max_rounds=2,
     extra='[compute]\nscheduler = "{address}"\nconnect_timeout_s = 5.0\nworker_wait_s = 5.0\n')
 
 
-def wait_for(cond, timeout_s: float, what: str, log: Path):
+def wait_for(cond, timeout_s: float, what: str, log: Path, poll: float = 0.2):
     """:func:`daemon_harness.wait_for` with the daemon log's tail in its failure."""
-    return harness_wait_for(cond, timeout_s, what, poll=0.2,
+    return harness_wait_for(cond, timeout_s, what, poll=poll,
                             context=lambda: "daemon log:\n"
                             + log.read_text(errors="replace")[-4000:])
 
@@ -78,7 +82,7 @@ def test_worker_killed_mid_run_keeps_the_table_and_the_retry_succeeds(tmp_path):
                 drop(inbox, "b2", lux=9000.0, timestamp="2026-06-21T11:00:00+02:00")
                 wait_for(lambda: any(k.startswith("grassd-calibrate-")
                                      for keys in client.processing().values() for k in keys),
-                         60, "the second run on the Dask worker", log)
+                         60, "the second run on the Dask worker", log, poll=0.02)
                 cluster.kill_worker("w1")
 
             waiting = wait_for(lambda: (s := status()) and s["waiting_bundles"] and s, 60,
