@@ -246,7 +246,7 @@ class Lights:
         # the map scaled to the lux, kept apart from the sun: a new time of day only adds its
         # sun to it (courtyard.exr, 2 cores: a new time's light took 16-30 ms, median 18, to
         # check, scale and sum the map; now 2 ms, mostly the sun's position)
-        base = self._kept((src.name, cond.ambient_lux, None, None, None), lambda: LightInput(
+        base = self._kept((src.name, cond.ambient_lux), lambda: LightInput(
             src.path, cond.ambient_lux, rotation_deg=src.rotation_deg,
             flip=src.flip).lighting(src.image))
         if lux is None:
