@@ -546,7 +546,12 @@ class Renderer:
         caller computes it once per ray). Evaluated per blade test, that sin and cos took a
         quarter of a splayed path's time (courtyard 5000 lx, (170, 2, 3), splay 8 deg, 11
         lengths, 32 x 256 paths, 2 cores: 280-365 ms before, 195-250 ms after; results equal
-        to float rounding). ``zlo``..``zhi`` bounds the heights
+        to float rounding). Its normal ``a x u`` is not unit (``a`` and ``u`` need not be
+        orthogonal), and the plane test does not need it to be: :meth:`trace` normalises only
+        the hit's, once per ray, where this normalised it per test (interleaved A/B, same
+        conditions: 32 x 256 paths about 9 % less CPU time; the studio's splayed run to 0.1
+        dE00, ten runs each, median 1017 ms before, 854 ms after; results equal to float
+        rounding). ``zlo``..``zhi`` bounds the heights
         of the ray inside the current grid cell: a part lying wholly above or below it is not
         tested (a blade rises at most its length above its root, a green blade's cavity part
         spans the cavity depth below it). Green blades are culled as if ``x_cull`` (>= x)
@@ -573,7 +578,7 @@ class Renderer:
                 if ti.static(splay):
                     lean = self.blade_lean[prim]
                     u = turn[1] * u + turn[0] * vec3(lean.x, lean.y, lean.z)
-                    nu = a.cross(u).normalized()
+                    nu = a.cross(u)  # not unit: :meth:`trace` normalises the hit's normal
                     splayed = 1
                 else:
                     growing = 1
@@ -737,6 +742,8 @@ class Renderer:
                     tny += tdy
                     if iy < 0 or iy >= ny:
                         done = True
+        if ti.static(splay):
+            best_n = best_n.normalized()  # a turned blade's normal comes unnormalised
         if any_hit and best_m >= 0:
             grow = tf.INF  # blocked now, blocked by anything longer too ...
             if ti.static(splay and several):
