@@ -83,6 +83,7 @@ def init(arch: str = "cpu", cache_dir: Path | None = None, threads: int | None =
     except OSError as exc:
         raise SimError(f"cannot create the kernel cache directory {cache}: {exc.strerror}; set "
                        f"GRASSD_CACHE_DIR to a writable directory") from exc
+    _remove_unkeyed_cache(cache)
     kwargs = dict(offline_cache=True, offline_cache_file_path=str(cache / _CACHE_SUBDIR),
                   log_level=ti.WARN, **COMPILE_OPTIONS)
     if threads:
@@ -92,6 +93,16 @@ def init(arch: str = "cpu", cache_dir: Path | None = None, threads: int | None =
     actual = str(ti.lang.impl.current_cfg().arch).split(".")[-1]
     _state.update(arch=arch, actual=actual)
     return actual
+
+
+def _remove_unkeyed_cache(cache: Path) -> None:
+    """Remove the kernels that grassd cached in ``cache`` itself before they went into a
+    directory per option set (``*.tic`` files and Taichi's index ``ticache.tcb``): no process
+    reads them any more, and Taichi's own clean-up (least recently used, past 100 MB) only runs
+    in the directory it caches in. A file that cannot be removed is left (another user's)."""
+    for path in [*cache.glob("*.tic"), cache / "ticache.tcb"]:
+        with contextlib.suppress(OSError):
+            path.unlink()
 
 
 def is_initialised() -> bool:

@@ -12,14 +12,6 @@ import pytest
 from grassd.sim import backend
 
 
-def test_kernels_are_cached_apart_from_those_compiled_under_other_options(renderer):
-    """Taichi's offline cache key leaves the CPU loop options out: a kernel cached under
-    Taichi's own scheme would keep it, so the options name the cache's directory."""
-    cfg = backend.ti.lang.impl.current_cfg()
-    assert os.path.basename(cfg.offline_cache_file_path).startswith("kernels-")
-    assert not cfg.make_cpu_multithreading_loop and not cfg.cpu_block_dim_adaptive
-
-
 @pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="needs 2 CPU cores")
 def test_a_loop_of_256_iterations_is_shared_by_the_cpu_threads(renderer):
     ti = backend.ti
