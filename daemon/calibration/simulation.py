@@ -195,6 +195,8 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     white = white_radiance(lighting)
     sunlit = lighting.sun_direction is not None  # ``larger`` looks sooner and samples less
     seconds = {"compile": 0.0, "trace": 0.0, "colour": 0.0}
+    tracer = _RoundTracer(renderer, display, lighting, viewpoint, lengths_mm, layouts,
+                          pixel_index, progress, seconds)
     cols = np.arange(n_len)  # lengths traced this round
     b = first_round = settings.replicates  # replicates this round
     traced_paths = 0
@@ -206,9 +208,8 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     looked = False  # whether ``larger`` has judged the first paths
     k = 0
     while True:
-        block, paths = _trace_round(renderer, display, lighting, viewpoint, lengths_mm, cols,
-                                    replace(settings, seed=(settings.seed + 7919 * k) % 2**31),
-                                    b, int(counts[0]), layouts, pixel_index, progress, seconds)
+        block, paths = tracer.round(cols, replace(settings, seed=(settings.seed + 7919 * k)
+                                                  % 2**31), b, int(counts[0]))
         traced_paths += paths
         blocks.append(block)
         counts[cols] += b
@@ -260,30 +261,42 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
         k += 1
 
 
-def _trace_round(renderer, display, lighting, viewpoint, lengths_mm: np.ndarray,
-                 cols: np.ndarray, settings, b: int, first: int, layouts: int,
-                 pixel_index: int, progress, seconds: dict[str, float]
-                 ) -> tuple[np.ndarray, int]:
-    """Trace a round of ``b`` replicates (the run's ``first`` to ``first + b - 1``, seeded from
-    ``settings.seed``) at the lengths ``lengths_mm[cols]`` (mm): replicate j traces tuft layout
-    j mod ``layouts`` (:func:`layout_seed`). Returns the round's linear RGB [nits] (b, n, 3),
-    NaN at the lengths not traced, and the camera paths traced; adds the renderer's compile
-    and trace seconds to ``seconds``."""
-    block = np.full((b, len(lengths_mm), 3), np.nan)
-    traced_paths = 0
-    for layout in sorted({(first + i) % layouts for i in range(b)}):
-        rows = [i for i in range(b) if (first + i) % layouts == layout]
-        shown = display if layout == 0 else replace(display, pixel=replace(
-            display.pixel, layout_seed=display.pixel.layout_seed + layout))
-        m = renderer.characteristic(shown, lighting, viewpoint, lengths_mm[cols],
-                                    replace(settings, replicates=len(rows),
-                                            seed=layout_seed(settings.seed, layout)),
-                                    pixel_index=pixel_index, progress=progress)
-        seconds["compile"] += m.seconds.get("compile", 0.0)
-        seconds["trace"] += m.seconds.get("trace", 0.0)
-        traced_paths += m.paths_traced
-        block[np.ix_(rows, cols)] = m.rgb_replicates
-    return block, traced_paths
+@dataclass(frozen=True)
+class _RoundTracer:
+    """What every round of one :func:`simulate_curve` run traces: the display seen from
+    ``viewpoint`` under ``lighting`` at ``lengths_mm`` (mm), with ``layouts`` tuft layouts;
+    the renderer's compile and trace seconds are added to ``seconds``."""
+
+    renderer: object
+    display: object
+    lighting: object
+    viewpoint: object
+    lengths_mm: np.ndarray
+    layouts: int
+    pixel_index: int
+    progress: Callable[[int, int], None] | None
+    seconds: dict[str, float]
+
+    def round(self, cols: np.ndarray, settings, b: int, first: int) -> tuple[np.ndarray, int]:
+        """Trace a round of ``b`` replicates (the run's ``first`` to ``first + b - 1``, seeded
+        from ``settings.seed``) at the lengths ``lengths_mm[cols]``: replicate j traces tuft
+        layout j mod ``layouts`` (:func:`layout_seed`). Returns the round's linear RGB [nits]
+        (b, n, 3), NaN at the lengths not traced, and the camera paths traced."""
+        block = np.full((b, len(self.lengths_mm), 3), np.nan)
+        traced_paths = 0
+        for layout in sorted({(first + i) % self.layouts for i in range(b)}):
+            rows = [i for i in range(b) if (first + i) % self.layouts == layout]
+            shown = self.display if layout == 0 else replace(self.display, pixel=replace(
+                self.display.pixel, layout_seed=self.display.pixel.layout_seed + layout))
+            m = self.renderer.characteristic(
+                shown, self.lighting, self.viewpoint, self.lengths_mm[cols],
+                replace(settings, replicates=len(rows), seed=layout_seed(settings.seed, layout)),
+                pixel_index=self.pixel_index, progress=self.progress)
+            self.seconds["compile"] += m.seconds.get("compile", 0.0)
+            self.seconds["trace"] += m.seconds.get("trace", 0.0)
+            traced_paths += m.paths_traced
+            block[np.ix_(rows, cols)] = m.rgb_replicates
+        return block, traced_paths
 
 
 def _next_round(se: np.ndarray, counts: np.ndarray, target_stderr: float, least: int,
