@@ -7,7 +7,7 @@ first image of the pixel within 300 ms, converged within 1 s, warm, 2 cores):
 
 1. the characteristic's first round, :data:`FIRST_REPLICATES` replicates of
    :data:`STUDIO_SAMPLES` paths (about 75 ms for 11 lengths); where the blades splay (nearly
-   every length traced, 2.5x the time), replicates of :data:`SPLAY_SAMPLES` paths, 4x as many;
+   every length traced, 2.3x the time), replicates of :data:`SPLAY_SAMPLES` paths, 4x as many;
 2. the pixel's first image, :data:`FIRST_IMAGE` (width, paths per image pixel) (about 40 ms);
 3. further rounds until every OGCD standard error is at most the target
    (:func:`~grassd.daemon.calibration.simulation.simulate_curve`'s adaptive rounds of at most
@@ -53,9 +53,10 @@ log = logging.getLogger(__name__)
 STUDIO_SAMPLES: int = 1024
 #: Camera paths per replicate when the green blades splay. The renderer then traces a path
 #: at nearly every length (the blades' planes turn with the length; it keeps only the rays
-#: clear of every green blade) instead of about 5 of the 11, so a replicate costs about 2.5x
-#: as much (16 x 256 paths 130 ms against 4 x 1024 without splay 51 ms, 2 cores; 3x before
-#: the renderer turned the blades once per ray, 4x before it kept rays with splay), and the
+#: clear of every green blade) instead of about 5 of the 11, so a replicate costs about 2.3x
+#: as much (16 x 256 paths 116 ms against 4 x 1024 without splay 50 ms, 2 cores, median of 12;
+#: 2.5x before the renderer normalised a turned blade's normal only at the hit, 3x before it
+#: turned the blades once per ray, 4x before it kept rays with splay), and the
 #: first round took 0.3 s of a splay change's 0.43 s.
 #: A quarter of the paths a replicate and 4x the replicates a round (:func:`studio_pace`) keep
 #: the first round's time and each round's paths. Measured in process, 3 splay changes, load
@@ -69,7 +70,7 @@ SPLAY_SAMPLES: int = 256
 #: The numbers do not depend on how the replicates are split into launches.
 STUDIO_LAUNCH_PATHS: int = 2048
 #: Most camera paths a renderer launch takes in the studio, scaled like the replicates
-#: (:func:`studio_pace`: a quarter where the blades splay, whose paths cost 2.5x): a larger
+#: (:func:`studio_pace`: a quarter where the blades splay, whose paths cost 2.3x): a larger
 #: replicate (a low sun's 8192 paths,
 #: :class:`~grassd.daemon.calibration.simulation.LargerReplicates`) goes in launches of a share
 #: of its paths (the numbers change by float64 rounding only), and a splayed round in launches
