@@ -334,7 +334,7 @@ class Studio:
                cond.splay_deg, cond.lengths_mm, cond.target_stderr)
         curve = self._curves.get(key)
         if curve is not None:  # only the length shown, the tables or the picture changed
-            send(curve_message(curve, cond.target_stderr))
+            send(curve_message(curve, cond.target_stderr, kept=True))
             first_image()
         else:
             curve = self.characteristic(cond, target_stderr=cond.target_stderr,
@@ -436,11 +436,13 @@ def cond_eye(cond: Condition) -> tuple[float, float, float]:
     return tuple(Viewpoint(*cond.viewpoint).eye_m())
 
 
-def curve_message(curve, target: float | None) -> dict[str, Any]:
+def curve_message(curve, target: float | None, *, kept: bool = False) -> dict[str, Any]:
     """A characteristic as the page and the API send it: lengths (mm), OGCD and its standard
-    error (CIEDE2000), the simulated pixel's colour per length (sRGB), replicates so far."""
+    error (CIEDE2000), the simulated pixel's colour per length (sRGB), replicates so far;
+    ``kept``: computed for an earlier input with the same light, eye, pixel and lengths."""
     worst = float(np.max(curve.ogcd_stderr))
     return {"type": "curve", "lengths_mm": _rounded(curve.lengths_mm),
             "ogcd": _rounded(curve.ogcd), "ogcd_stderr": _rounded(curve.ogcd_stderr, 5),
             "srgb": views.lab_to_srgb8(curve.lab).tolist(), "replicates": curve.replicates,
-            "max_stderr": worst, "converged": target is not None and worst <= target}
+            "max_stderr": worst, "converged": target is not None and worst <= target,
+            "kept": kept}

@@ -213,7 +213,8 @@ function onMessage(ev) {
       if (S.firstCurveMs === null) S.firstCurveMs = performance.now() - S.sentAt;
       $("curve-info").textContent = `${m.replicates} replicates · largest σ ${m.max_stderr.toFixed(3)} ΔE00` +
         (m.converged ? " · converged" : "");
-      setStatus(m.converged ? `converged in ${Math.round(m.ms)} ms` : `refining… ${Math.round(m.ms)} ms`);
+      setStatus(m.kept ? "converged earlier (kept)" :
+        m.converged ? `converged in ${Math.round(m.ms)} ms` : `refining… ${Math.round(m.ms)} ms`);
       plotCurve(); break;
     case "pixel":
       S.pixel = m.image; S.pixels += 1; $("pixel-img").src = m.image; $("pixel-img").hidden = false;

@@ -166,6 +166,21 @@ def test_the_websocket_streams_the_views_and_newer_inputs_supersede(studio):
     assert all(m["image"].startswith("data:image/png;base64,") for m in pixels)
 
 
+def test_a_characteristic_seen_before_is_sent_once_and_marked_kept(studio):
+    """Only the length shown changed: the converged curve of the earlier input comes back at
+    once, marked as kept (the page then says so rather than "converged in 1 ms")."""
+    cond = {"ambient_lux": 6000, "viewpoint": [150, 2.5, -12], "length_mm": 8}
+    first = asyncio.run(_session(studio.url, [{"type": "inputs", "id": 31, "condition": cond}],
+                                 until_id=31))
+    again = asyncio.run(_session(studio.url, [{"type": "inputs", "id": 32, "condition": {
+        **cond, "length_mm": 14}}], until_id=32))
+    fresh = [m for m in first if m["type"] == "curve"]
+    kept = [m for m in again if m["type"] == "curve"]
+    assert len(fresh) > 1 and not any(m["kept"] for m in fresh)
+    assert len(kept) == 1 and kept[0]["kept"] and kept[0]["converged"]
+    assert kept[0]["ogcd"] == fresh[-1]["ogcd"] and again[-1]["type"] == "done"
+
+
 def test_a_bad_input_over_the_websocket_is_an_error_message(studio):
     bad = {"type": "inputs", "id": 7, "condition": {"ambient_lux": 5000,
                                                      "viewpoint": [170, 2, 0],
