@@ -87,9 +87,9 @@ def layout_seed(seed: int, layout: int) -> int:
 
 @dataclass(frozen=True)
 class LargerReplicates:
-    """When an adaptive run's first ``look_paths`` camera paths (per length; under a sun
-    ``sun_look_paths``, see below) say the target
-    needs more than ``after_paths``, the run starts a new series of replicates of
+    """When an adaptive run under a sun (a light with a sun direction) finds from its first
+    camera paths (per length: ``sun_look_paths``, judged again at ``look_paths``, see below)
+    that the target needs more than ``after_paths``, the run starts a new series of replicates of
     ``samples`` paths each (at least ``least`` of them before it stops at the target: their
     spread is the error), and the paths so far were only the first look. (The first round
     alone, 4 replicates, misjudged it by 2x either way.)
@@ -101,9 +101,13 @@ class LargerReplicates:
     64 replicates of 1024 paths, 0.123 from 16 of 4096, 0.102 from 8 of 8192 (a replicate's
     variance ~ paths^-1.4), all from the light at the first surface (one bounce: 0.149;
     1 or 8 light samples: 0.156, 0.157). Under diffuse light (no sun) the error goes as
-    1/sqrt(paths) whatever the replicates' size, so the run keeps its small replicates
-    unless its first paths say it needs many: the default ``after_paths`` is what ``least``
-    larger replicates hold, so where it switches the larger ones cost no more paths.
+    1/sqrt(paths) whatever the replicates' size, so a run without a sun keeps its small
+    replicates: there a larger series gains nothing per path and costs at least ``least`` x
+    ``samples`` paths, and its first 8 replicates overstate the paths needed often enough
+    (the largest of 11 noisy errors) to switch where it should not. Measured (courtyard 5000
+    lx, no sun, eye (120, 3, -14.6 .. -13.1), six runs each, 2 cores, in process): judged to
+    need more than 65536 paths, 8-9 replicates of 8281 paths, 876-998 ms; kept small,
+    34-50 replicates of 1024 paths, 405-598 ms. Nine other eyes without a sun never switched.
 
     Measured, the studio's runs to 0.1 dE00 (first round 4 x 1024 paths; 11 lengths; four
     viewpoints each; 2 cores, median s): that sun 2.40 s with replicates of 1024 paths, 1.88 s
@@ -118,9 +122,7 @@ class LargerReplicates:
     paths, 2 cores): 4 light samples 1.07-1.15 s, largest OGCD stderr 0.102; 1 light sample
     0.83-0.89 s, 0.102 (20.1 rays a path instead of 28.1); roulette from the second surface
     as well 0.64-0.74 s, 0.107. The studio's runs to 0.1 dE00 (six viewpoints, median): 1.90 s,
-    1.38 s with 1 light sample, 1.29 s with the roulette too. Without a sun the environment's
-    light samples are what they were measured for (one under splay, no sun, took the studio's
-    run from 1.85 to 2.8 s), so the series keeps the run's.
+    1.38 s with 1 light sample, 1.29 s with the roulette too.
 
     Under a sun the run judges its paths from ``sun_look_paths`` on (the first round), and
     judges again at ``look_paths`` if that first look said the target was near: a first look
@@ -180,10 +182,11 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     the replicates a later round adds (an interactive view keeps its rounds short, so that a
     new input waits little for the round in flight).
 
-    ``larger``: with a target, replicates of more paths where the first paths say the target
-    needs many (:class:`LargerReplicates`); ``max_replicates`` and ``round_replicates`` then
-    count paths as the first series' replicates do (scaled by their sizes), and ``on_round``
-    sees the new series once it has as many replicates as the first round had.
+    ``larger``: with a target and a sun, replicates of more paths where the first paths say
+    the target needs many (:class:`LargerReplicates`); ``max_replicates`` and
+    ``round_replicates`` then count paths as the first series' replicates do (scaled by their
+    sizes), and ``on_round`` sees the new series once it has as many replicates as the first
+    round had.
     """
     if settings.replicates < 2:
         raise SceneError(f"simulate_curve needs at least 2 replicates (their spread is the "
@@ -193,7 +196,7 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     lengths_mm = np.asarray(lengths_mm, float)
     n_len = len(lengths_mm)
     white = white_radiance(lighting)
-    sunlit = lighting.sun_direction is not None  # ``larger`` looks sooner and samples less
+    sunlit = lighting.sun_direction is not None  # only then may ``larger`` start
     seconds = {"compile": 0.0, "trace": 0.0, "colour": 0.0}
     tracer = _RoundTracer(renderer, display, lighting, viewpoint, lengths_mm, layouts,
                           pixel_index, progress, seconds)
@@ -236,17 +239,17 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
                 on_round(curve)
             if done:
                 return curve
-        if (larger is not None and not looked and larger.samples > settings.samples
-                and n * settings.samples >= (larger.sun_look_paths if sunlit
-                                             else larger.look_paths)):
-            looked = n * settings.samples >= larger.look_paths  # under a sun: a first look
+        if (larger is not None and sunlit and not looked and larger.samples > settings.samples
+                and n * settings.samples >= larger.sun_look_paths):
+            looked = n * settings.samples >= larger.look_paths  # else judged again there
             needed = n * (worst / target_stderr) ** 2 * settings.samples  # paths, 1/sqrt law
             if needed > larger.after_paths:  # a new series of larger replicates
                 scale = larger.samples / settings.samples
-                settings = replace(settings, samples=larger.samples)
-                if sunlit:  # the first surface's light and shadow: the noise
-                    settings = replace(settings, light_samples=larger.light_samples,
-                                       roulette_from=larger.roulette_from)
+                # fewer light samples and bounces: the noise is the first surface's light
+                # and shadow
+                settings = replace(settings, samples=larger.samples,
+                                   light_samples=larger.light_samples,
+                                   roulette_from=larger.roulette_from)
                 max_replicates = max(larger.least, int(max_replicates / scale))
                 round_replicates = max(1, int(round_replicates / scale))
                 show_from, least = min(first_round, larger.least), larger.least

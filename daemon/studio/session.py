@@ -11,10 +11,11 @@ first image of the pixel within 300 ms, converged within 1 s, warm, 2 cores):
 2. the pixel's first image, :data:`FIRST_IMAGE` (width, paths per image pixel) (about 40 ms);
 3. further rounds until every OGCD standard error is at most the target
    (:func:`~grassd.daemon.calibration.simulation.simulate_curve`'s adaptive rounds of at most
-   :data:`ROUND_REPLICATES`, each sent); where the first paths say the target needs many (a
-   low sun's light and shadow on the blades), a new series of larger replicates, whose error
-   falls faster per path (:class:`~grassd.daemon.calibration.simulation.LargerReplicates`),
-   sent once it has :data:`FIRST_REPLICATES`;
+   :data:`ROUND_REPLICATES`, each sent); where, under a sun, the first paths say the target
+   needs many (a low sun's light and shadow on the blades), a new series of larger
+   replicates, whose error falls faster per path
+   (:class:`~grassd.daemon.calibration.simulation.LargerReplicates`), sent once it has
+   :data:`FIRST_REPLICATES`;
 4. the table, the contrast, the display showing the uploaded picture;
 5. the audience map: the OGCD range from each place of the audience region;
 6. the pixel's image refined: :data:`REFINE_IMAGE` passes accumulated; then ``done``.
