@@ -36,6 +36,8 @@ CHANGES = [
     ("eye moves", {"viewpoint": [170, 2.5, 15]}),
     ("eye moves", {"viewpoint": [170, 3.0, -20]}),
     ("eye lower", {"viewpoint": [120, 3.0, -20]}),
+    # where a first look of 8 x 1024 paths overstated the paths needed (diffuse light)
+    ("eye lower", {"viewpoint": [120, 3.0, -14.6]}),
     ("lux", {"ambient_lux": 12000}),
     ("sun time", {"sun": {"mode": "site", "lux": 40000, "when": "2026-11-27T15:00"}}),
     ("splay", {"splay_deg": 8.0}),
