@@ -41,6 +41,8 @@ CHANGES = [
     ("lux", {"ambient_lux": 12000}),
     ("sun time", {"sun": {"mode": "site", "lux": 40000, "when": "2026-11-27T15:00"}}),
     ("splay", {"splay_deg": 8.0}),
+    ("splay in sun", {"splay_deg": 8.0,
+                      "sun": {"mode": "site", "lux": 40000, "when": "2026-11-27T15:00"}}),
     ("length shown", {"length_mm": 14.0}),
 ]
 # "length shown" keeps the condition's characteristic only when it was computed before; here it
