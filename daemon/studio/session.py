@@ -75,9 +75,16 @@ STUDIO_LAUNCH_PATHS: int = 2048
 #: replicate (a low sun's 8192 paths,
 #: :class:`~grassd.daemon.calibration.simulation.LargerReplicates`) goes in launches of a share
 #: of its paths (the numbers change by float64 rounding only), and a splayed round in launches
-#: of 4 replicates instead of 8, so a new input waits for a launch of 30-50 ms, not one of
-#: 80-100 ms.
-STUDIO_MAX_LAUNCH_PATHS: int = 4096
+#: of 8 replicates, so a new input waits for one launch, not the round. Launches of a few
+#: hundred paths cost more per path (the last task of a launch leaves a core idle, and the
+#: threads' start and stop take CPU time): the studio's splayed run in a low sun, in process,
+#: four eyes, took 2005-2330 ms with at most 4096 (1024 splayed paths a launch), 1634-1953
+#: with 8192 and 1395-1756 with 16384 (1.71 cores busy in the kernel with 4096, 1.95 with
+#: 16384); the splay alone 832-996, 691-953 and 806-822 ms. The bench (two rounds of every
+#: change) with 8192: the slowest first curve when the input comes during a run 79 ms, as
+#: with 4096 (77 ms); 16384 would make a launch take up to about 70 ms here (1.8x that on a
+#: slower machine), so the studio takes 8192.
+STUDIO_MAX_LAUNCH_PATHS: int = 8192
 #: Replicates of the first round (their spread is the first error band).
 FIRST_REPLICATES: int = 4
 #: Most replicates a characteristic takes before it is sent as it is.
