@@ -82,8 +82,10 @@ STUDIO_LAUNCH_PATHS: int = 2048
 #: with 8192 and 1395-1756 with 16384 (1.71 cores busy in the kernel with 4096, 1.95 with
 #: 16384); the splay alone 832-996, 691-953 and 806-822 ms. The bench (two rounds of every
 #: change) with 8192: the slowest first curve when the input comes during a run 79 ms, as
-#: with 4096 (77 ms); 16384 would make a launch take up to about 70 ms here (1.8x that on a
-#: slower machine), so the studio takes 8192.
+#: with 4096 (77 ms). A splayed launch of 2048 paths takes about 55 ms here (about 27 us a
+#: path over 11 lengths); 16384 would make it about 110 ms (1.8x that on a slower machine),
+#: so the studio takes 8192. (A round without splay goes in launches of 2 replicates, a
+#: quarter of its 8, whatever this cap: the renderer's own split.)
 STUDIO_MAX_LAUNCH_PATHS: int = 8192
 #: Replicates of the first round (their spread is the first error band).
 FIRST_REPLICATES: int = 4
