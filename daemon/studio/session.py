@@ -75,18 +75,18 @@ STUDIO_LAUNCH_PATHS: int = 2048
 #: replicate (a low sun's 8192 paths,
 #: :class:`~grassd.daemon.calibration.simulation.LargerReplicates`) goes in launches of a share
 #: of its paths (the numbers change by float64 rounding only), and a splayed round in launches
-#: of 8 replicates, so a new input waits for one launch, not the round. Launches of a few
-#: hundred paths cost more per path (the last task of a launch leaves a core idle, and the
+#: of 4 replicates, so a new input waits for one launch (30-50 ms here), not the round.
+#: Larger launches cost less per path (the last task of a launch leaves a core idle, and the
 #: threads' start and stop take CPU time): the studio's splayed run in a low sun, in process,
-#: four eyes, took 2005-2330 ms with at most 4096 (1024 splayed paths a launch), 1634-1953
-#: with 8192 and 1395-1756 with 16384 (1.71 cores busy in the kernel with 4096, 1.95 with
-#: 16384); the splay alone 832-996, 691-953 and 806-822 ms. The bench (two rounds of every
-#: change) with 8192: the slowest first curve when the input comes during a run 79 ms, as
-#: with 4096 (77 ms). A splayed launch of 2048 paths takes about 55 ms here (about 27 us a
-#: path over 11 lengths); 16384 would make it about 110 ms (1.8x that on a slower machine),
-#: so the studio takes 8192. (A round without splay goes in launches of 2 replicates, a
-#: quarter of its 8, whatever this cap: the renderer's own split.)
-STUDIO_MAX_LAUNCH_PATHS: int = 8192
+#: four eyes, took 2005-2330 ms with 4096 (1024 splayed paths a launch), 1634-1953 with 8192
+#: and 1395-1756 with 16384 (1.71 cores busy in the kernel with 4096, 1.95 with 16384); the
+#: splay alone 832-996, 691-953 and 806-822 ms, and in the bench 820-867 ms with 4096 or 8192
+#: alike. Not taken: a splayed launch of 2048 paths takes about 55 ms here (about 27 us a path
+#: over 11 lengths), 1.8x that on the slower machine of earlier measurements, where an input
+#: arriving mid-run already took up to 133 ms to its first curve (goal 150 ms); the one change
+#: it would speed up, the splay in a low sun, misses 1 s either way. (A round without splay
+#: goes in launches of 2 replicates, a quarter of its 8, whatever this cap.)
+STUDIO_MAX_LAUNCH_PATHS: int = 4096
 #: Replicates of the first round (their spread is the first error band).
 FIRST_REPLICATES: int = 4
 #: Most replicates a characteristic takes before it is sent as it is.
