@@ -196,7 +196,8 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     lengths_mm = np.asarray(lengths_mm, float)
     n_len = len(lengths_mm)
     white = white_radiance(lighting)
-    sunlit = lighting.sun_direction is not None  # only then may ``larger`` start
+    if lighting.sun_direction is None:  # under diffuse light larger replicates gain nothing
+        larger = None
     seconds = {"compile": 0.0, "trace": 0.0, "colour": 0.0}
     tracer = _RoundTracer(renderer, display, lighting, viewpoint, lengths_mm, layouts,
                           pixel_index, progress, seconds)
@@ -211,8 +212,8 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     looked = False  # whether ``larger`` has judged the first paths
     k = 0
     while True:
-        block, paths = tracer.round(cols, replace(settings, seed=(settings.seed + 7919 * k)
-                                                  % 2**31), b, int(counts[0]))
+        seed = (settings.seed + 7919 * k) % 2**31
+        block, paths = tracer.round(cols, replace(settings, seed=seed), b, int(counts[0]))
         traced_paths += paths
         blocks.append(block)
         counts[cols] += b
@@ -239,7 +240,7 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
                 on_round(curve)
             if done:
                 return curve
-        if (larger is not None and sunlit and not looked and larger.samples > settings.samples
+        if (larger is not None and not looked and larger.samples > settings.samples
                 and n * settings.samples >= larger.sun_look_paths):
             looked = n * settings.samples >= larger.look_paths  # else judged again there
             needed = n * (worst / target_stderr) ** 2 * settings.samples  # paths, 1/sqrt law
