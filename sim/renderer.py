@@ -96,6 +96,7 @@ from grassd.sim.env_sampler import (
 )
 from grassd.sim.errors import SceneError, SimError
 from grassd.sim.geometry import SceneArrays, blade_rise, build_scene, check_lengths
+from grassd.sim.interrupt import Interrupt
 from grassd.sim.lighting import Lighting
 from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
 
@@ -136,6 +137,9 @@ GROWN_IN = 1e-6
 # (6 lengths x 4096 x 8 paths, 2 cores) 256 paths a block use 1.4 cores, 64 1.85, 16 1.9.
 TERM_BLOCK = 16
 TERM_THREADS = 1 << 14
+# The word a launch reads when its caller gave no :class:`~grassd.sim.interrupt.Interrupt`: it
+# never changes, so the launch runs to its end.
+_NO_WORD = np.zeros(1, np.int32)
 
 
 @dataclass(frozen=True)
@@ -297,6 +301,7 @@ class Renderer:
         self.out = ti.Vector.field(3, ti.f32, cap.paths)
         self.sums = ti.Vector.field(3, ti.f64, 256 * 64)  # per (length, replicate) of a launch
         self.traced = ti.field(ti.i64, 2)  # path traces and rays traced by the last launch
+        self.skipped = ti.field(ti.i64, ())  # paths or pixels the last launch skipped (interrupt)
         self.quad = ti.Vector.field(3, ti.f32, 4)
         self.mono_index = ti.field(ti.i32, CODE_BASE ** N_SYMBOLS)  # monomial of each code
         self.term_acc = ti.Vector.field(3, ti.f64, (TERM_THREADS, N_MONOMIALS))
@@ -324,6 +329,9 @@ class Renderer:
         #: consecutive shares of its paths, so that an interactive caller's ``progress`` (where
         #: it may stop the run) waits for no long launch.
         self.max_launch_paths: int | None = None
+        #: Stops a launch in flight when another process changes its word
+        #: (:mod:`grassd.sim.interrupt`); None: launches run to their end.
+        self.interrupt: Interrupt | None = None
         self._lighting: Lighting | None = None
 
     def _ensure_compiled(self, several: tuple[bool, ...] = (True,)) -> float:
@@ -335,7 +343,7 @@ class Renderer:
             key = (*self._features, flag)
             if key not in self._compiled:
                 self._trace_kernel(0, 0, 1, 1, 0, 1, 0, 1, ti.Vector([0.0, 0.0, 1.0]), 1.0,
-                                   *key)
+                                   _NO_WORD, 0, *key)
                 ti.sync()
                 self._compiled.add(key)
         return time.perf_counter() - t0
@@ -1105,19 +1113,24 @@ class Renderer:
     @ti.kernel
     def _trace_kernel(self, n_len: ti.i32, rep0: ti.i32, n_rep: ti.i32, strata: ti.i32,
                       i0: ti.i32, n_part: ti.i32, seed: ti.u32, max_bounces: ti.i32, eye: vec3,
-                      area: ti.f32, glossy: ti.template(), splay: ti.template(),
-                      several: ti.template()):
+                      area: ti.f32, word: ti.types.ndarray(dtype=ti.i32, ndim=1), base: ti.i32,
+                      glossy: ti.template(), splay: ti.template(), several: ti.template()):
         """Trace paths i0 .. i0 + n_part - 1 of replicates rep0 .. rep0 + n_rep - 1 at the
         first n_len entries of ``self.lengths`` (ascending, m). Each camera path is traced at
         the shortest length and again only at a length from which on it may change
         (:meth:`radiance`); lengths in between take its radiance, which tracing them would give
         bit for bit (same random numbers, same surfaces). Path (k, r, i) lands in
-        out[(k * n_rep + r - rep0) * n_part + i - i0]."""
+        out[(k * n_rep + r - rep0) * n_part + i - i0]. A path that starts once ``word[0]``
+        differs from ``base`` is skipped (counted in ``skipped``: :mod:`grassd.sim.interrupt`)."""
         n_samp = strata * strata
         x_cull = self.lengths[ti.max(n_len - 1, 0)]
         self.traced[0] = 0
         self.traced[1] = 0
+        self.skipped[None] = 0
         for rr, ii in ti.ndrange(n_rep, n_part):
+            if word[0] != base:
+                self.skipped[None] += 1
+                continue
             r = rep0 + rr
             i = i0 + ii
             rep_key = tf.replicate_key(seed, r)
@@ -1157,8 +1170,13 @@ class Renderer:
     @ti.kernel
     def _preview_kernel(self, width: ti.i32, spp: ti.i32, seed: ti.u32, max_bounces: ti.i32,
                         eye: vec3, forward: vec3, right: vec3, up: vec3, half: ti.f32,
-                        x: ti.f32, glossy: ti.template(), splay: ti.template()):
+                        x: ti.f32, word: ti.types.ndarray(dtype=ti.i32, ndim=1), base: ti.i32,
+                        glossy: ti.template(), splay: ti.template()):
+        self.skipped[None] = 0
         for py, px in ti.ndrange(width, width):
+            if word[0] != base:  # interrupted (:mod:`grassd.sim.interrupt`)
+                self.skipped[None] += 1
+                continue
             acc = vec3(0.0)
             rep_key = tf.replicate_key(seed, py * width + px)
             m = ti.cast(ti.ceil(ti.sqrt(ti.cast(spp, ti.f32))), ti.i32)
@@ -1172,6 +1190,21 @@ class Renderer:
                                              memo, 0, glossy, splay, False)
                 acc += rad
             self.image[py, px] = acc / (m * m)
+
+    def _launch(self, kernel: Callable, head: tuple, tail: tuple) -> None:
+        """Run ``kernel(*head, word, base, *tail)`` (a launch that skips its paths once
+        ``word[0]`` differs from ``base``) to its end: under :attr:`interrupt`, a launch that
+        skipped paths is traced anew once :meth:`~grassd.sim.interrupt.Interrupt.arm` allows
+        it (or ``arm`` raises and the run ends). Each path writes its own slot, so a launch
+        traced anew gives the numbers it would have given uninterrupted."""
+        while True:
+            interrupt = self.interrupt
+            if interrupt is None:
+                kernel(*head, _NO_WORD, 0, *tail)
+                return
+            kernel(*head, interrupt.word, interrupt.arm(), *tail)
+            if int(self.skipped[None]) == 0:
+                return
 
     # ----------------------------------------------------------------------------- public API
     def _upload_quad(self, display: DisplaySpec, scene: SceneArrays, viewpoint: Viewpoint,
@@ -1259,9 +1292,10 @@ class Renderer:
             buf = np.zeros(self.lengths.shape[0], np.float32)
             buf[: len(rows)] = lengths_mm[rows] * 1e-3
             self.lengths.from_numpy(buf)
-            self._trace_kernel(len(rows), r0, reps, m, i0, n_part, settings.seed,
-                               settings.max_bounces, eye_ti, float(area), *self._features,
-                               len(rows) > 1)
+            self._launch(self._trace_kernel,
+                         (len(rows), r0, reps, m, i0, n_part, settings.seed,
+                          settings.max_bounces, eye_ti, float(area)),
+                         (*self._features, len(rows) > 1))
             n_groups = len(rows) * reps
             self._reduce_kernel(n_groups, n_part)
             traced += int(self.traced[0])
@@ -1370,9 +1404,10 @@ class Renderer:
         view = frame_quad(viewpoint.eye_m(tuple(cxy)), corners)
         self._put_path_settings(settings)
         f32 = lambda v: ti.Vector(np.asarray(v, np.float32).tolist())  # noqa: E731
-        self._preview_kernel(width, spp, settings.seed, settings.max_bounces, f32(view.eye),
-                             f32(view.forward), f32(view.right), f32(view.up), view.half,
-                             length_mm * 1e-3, *self._features)
+        self._launch(self._preview_kernel,
+                     (width, spp, settings.seed, settings.max_bounces, f32(view.eye),
+                      f32(view.forward), f32(view.right), f32(view.up), view.half,
+                      length_mm * 1e-3), self._features)
         img = self.image.to_numpy()[:width, :width].astype(np.float64)
         rel = image_quad(view.eye, corners) - (view.eye + view.forward)
         px = ((rel @ view.right) / view.half * 0.5 + 0.5) * width

@@ -8,9 +8,17 @@ as Taichi does not survive ``fork``) builds the same :class:`~grassd.daemon.stud
 from :class:`StudioArgs` and runs its jobs on a :class:`~grassd.daemon.studio.worker.Worker`
 thread, superseding as the server says. Messages are pickled over one pipe each way.
 
-Server -> simulator: ``("job", owner, job, kind, payload)`` with kind ``"views"`` (a condition
-and the picture's levels) or ``"characteristic"`` (a condition and keyword arguments);
-``("cancel", owner)``; ``("light", LightSource)``; ``("stop",)``.
+The GIL also keeps the simulator's own threads from reading a message while a launch runs, so
+the two processes share one more word (:mod:`grassd.sim.interrupt`): the server adds one to it
+with every job or cancel it sends, and sends the new value along; a launch in flight stops
+within its current camera path once the word moves, and the simulator takes the message in
+(:class:`Superseding`) before it decides whether to trace the launch again or stop the job. So
+a newer input does not wait for the launch in flight, and the studio's launches can each take a
+whole round (:func:`~grassd.daemon.studio.session.Studio.characteristic`).
+
+Server -> simulator: ``("job", owner, job, kind, payload, word)`` with kind ``"views"`` (a
+condition and the picture's levels) or ``"characteristic"`` (a condition and keyword
+arguments); ``("cancel", owner, word)``; ``("light", LightSource)``; ``("stop",)``.
 Simulator -> server: ``("ready", seconds)``, ``("msg", job, dict)``, ``("result", job,
 value)``, ``("error", job, kind, message)`` with kind "input" (a StudioInputError), "superseded"
 or the exception's class name.
@@ -23,13 +31,21 @@ import itertools
 import logging
 import multiprocessing
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from grassd.daemon.studio.inputs import StudioInputError
 from grassd.daemon.studio.lights import LightSource
-from grassd.daemon.studio.worker import Superseded
+from grassd.daemon.studio.worker import Check, Superseded
+from grassd.sim.interrupt import Interrupt
+
+#: Seconds a stopped launch waits for the message that moved the word (it is sent right
+#: after): past it, the launch is traced anew under the word as it is.
+CATCH_UP_S: float = 1.0
 
 log = logging.getLogger(__name__)
 
@@ -49,8 +65,9 @@ class StudioArgs:
     active_um: tuple[int, ...] | None = None
     arch: str = "cpu"
 
-    def build(self):
-        """The Studio these arguments describe."""
+    def build(self, interrupts: Callable[[Check], Interrupt] | None = None):
+        """The Studio these arguments describe (``interrupts``: see
+        :class:`~grassd.daemon.studio.session.Studio`)."""
         import numpy as np
 
         from grassd.daemon.config.settings import resolve_config
@@ -61,14 +78,58 @@ class StudioArgs:
         return Studio(cfg, Lights(list(self.sources)), pixel_fields=self.pixel_fields,
                       pixel_source=self.pixel_source,
                       active_um=None if self.active_um is None else np.array(self.active_um),
-                      arch=self.arch)
+                      arch=self.arch, interrupts=interrupts)
 
 
-def simulator_main(conn, args: StudioArgs) -> None:
-    """The simulator process: build the Studio, warm it up, then run what the server sends."""
+class Superseding:
+    """The simulator's side of the word it shares with the server: ``seen`` is the word's
+    value that came with the last job or cancel the simulator has taken in (given to the
+    worker); the word itself may already be past it while that message is on its way."""
+
+    def __init__(self, word: np.ndarray) -> None:
+        self.word = word
+        self.seen = 0  # the server's word starts at 0 with each simulator process
+
+    def took(self, value: int) -> None:
+        """A message that moved the word to ``value`` has been taken in."""
+        self.seen = max(self.seen, value)
+
+    def interrupt(self, check: Check) -> Interrupt:
+        """The renderer's :class:`~grassd.sim.interrupt.Interrupt` for a job whose ``check``
+        raises once a newer job superseded it."""
+        return _JobInterrupt(self, check)
+
+
+class _JobInterrupt(Interrupt):
+    """Arms each launch of one job: waits (at most :data:`CATCH_UP_S`) until the messages
+    that moved the word are taken in, then the job's ``check`` raises if one of them
+    superseded it; else the launch runs under the word as taken in."""
+
+    def __init__(self, superseding: Superseding, check: Check) -> None:
+        super().__init__(superseding.word)
+        self._superseding = superseding
+        self._check = check
+
+    def arm(self) -> int:
+        deadline = time.monotonic() + CATCH_UP_S
+        base = self._superseding.seen
+        while base != int(self.word[0]):
+            if time.monotonic() > deadline:
+                base = int(self.word[0])
+                break
+            time.sleep(0.0002)
+            base = self._superseding.seen
+        self._check()
+        return base
+
+
+def simulator_main(conn, args: StudioArgs, word=None) -> None:
+    """The simulator process: build the Studio, warm it up, then run what the server sends.
+    ``word``: the ``multiprocessing`` int array the server moves with every job or cancel."""
     from grassd.daemon.studio.worker import Worker
 
-    studio = args.build()
+    superseding = None if word is None else Superseding(np.frombuffer(word, np.int32))
+    studio = args.build(None if superseding is None else superseding.interrupt)
     send_lock = threading.Lock()
 
     def send(item: tuple) -> None:
@@ -95,7 +156,7 @@ def simulator_main(conn, args: StudioArgs) -> None:
                     send(("result", job, None))
                 else:
                     cond, kw = payload
-                    curve = studio.characteristic(cond, **kw)
+                    curve = studio.characteristic(cond, check=check, **kw)
                     send(("result", job, curve))
             except Superseded:
                 send(("error", job, "superseded", "a newer request replaced this one"))
@@ -112,15 +173,19 @@ def simulator_main(conn, args: StudioArgs) -> None:
         except EOFError:  # the server went away
             break
         if item[0] == "job":
-            _, owner, job, kind, payload = item
+            _, owner, job, kind, payload, moved = item
 
             def skipped(fut, job=job) -> None:  # superseded while queued: go() never ran
                 if not fut.cancelled() and isinstance(fut.exception(), Superseded):
                     send(("error", job, "superseded", "a newer request replaced this one"))
 
             worker.submit(owner, run(job, kind, payload)).add_done_callback(skipped)
+            if superseding is not None:
+                superseding.took(moved)
         elif item[0] == "cancel":
             worker.cancel(item[1])
+            if superseding is not None:
+                superseding.took(item[2])
         elif item[0] == "light":
             studio.lights.add_source(item[1])
         elif item[0] == "stop":
@@ -149,7 +214,8 @@ class SimulatorProcess:
     def _start(self) -> None:
         ctx = multiprocessing.get_context("spawn")
         self._conn, child = ctx.Pipe()
-        self.proc = ctx.Process(target=simulator_main, args=(child, self._args),
+        self._word = ctx.RawArray("i", 1)  # moved with every job and cancel (Superseding)
+        self.proc = ctx.Process(target=simulator_main, args=(child, self._args, self._word),
                                 name="grassd-studio-simulator", daemon=True)
         self.proc.start()
         child.close()
@@ -159,7 +225,9 @@ class SimulatorProcess:
         threading.Thread(target=self._read, args=(self._conn,), name="grassd-studio-reader",
                          daemon=True).start()
 
-    def _send(self, item: tuple) -> None:
+    def _send(self, item: tuple, supersedes: bool = False) -> None:
+        """Send ``item``; one that ``supersedes`` (a job, a cancel) first moves the shared word,
+        which stops the launch in flight, and carries the word's new value."""
         with self._lock:
             for attempt in (1, 2):
                 if not self.alive:  # it died (a crash in the renderer): a fresh one takes over
@@ -168,7 +236,9 @@ class SimulatorProcess:
                                 "starting it again", self.proc.exitcode)
                     self._start()
                 try:
-                    self._conn.send(item)
+                    if supersedes:
+                        self._word[0] += 1
+                    self._conn.send(item + (self._word[0],) if supersedes else item)
                     return
                 except OSError:  # died before the reader saw it
                     self.alive = False
@@ -225,12 +295,12 @@ class SimulatorProcess:
         job = next(self._jobs)
         fut = self._loop.create_future()
         self._pending[job] = (fut, on_message)
-        self._send(("job", owner, job, kind, payload))
+        self._send(("job", owner, job, kind, payload), supersedes=True)
         return fut
 
     def cancel(self, owner: int) -> None:
         """Stop the owner's jobs (its page went away)."""
-        self._send(("cancel", owner))
+        self._send(("cancel", owner), supersedes=True)
 
     def add_light(self, source: LightSource) -> None:
         """Make an uploaded light known to the simulator (its file, not its pixels)."""

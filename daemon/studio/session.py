@@ -20,8 +20,10 @@ first image of the pixel within 300 ms, converged within 1 s, warm, 2 cores):
 5. the audience map: the OGCD range from each place of the audience region;
 6. the pixel's image refined: :data:`REFINE_IMAGE` passes accumulated; then ``done``.
 
-Every step checks whether a newer request superseded this one, and so does the renderer between
-its launches of :data:`STUDIO_LAUNCH_PATHS` to :data:`STUDIO_MAX_LAUNCH_PATHS` camera paths.
+Every step checks whether a newer request superseded this one. In the simulator process a newer
+request also stops the renderer's launch in flight (:attr:`Studio.interrupts`), so a launch
+takes a whole round; elsewhere the renderer checks between its launches of
+:data:`STUDIO_LAUNCH_PATHS` to :data:`STUDIO_MAX_LAUNCH_PATHS` camera paths.
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ from grassd.daemon.studio.worker import Check
 
 if TYPE_CHECKING:
     from grassd.daemon.calibration.simulation import SimulatedCurve
+    from grassd.sim.interrupt import Interrupt
 
 log = logging.getLogger(__name__)
 
@@ -126,12 +129,19 @@ class Studio:
 
     def __init__(self, cfg, lights: Lights, *, pixel_fields: dict[str, Any] | None = None,
                  pixel_source: str = "config", active_um: np.ndarray | None = None,
-                 arch: str = "cpu") -> None:
+                 arch: str = "cpu",
+                 interrupts: Callable[[Check], Interrupt] | None = None) -> None:
         from grassd.daemon.calibration.calibrate import Calibrator
 
         self.cfg = cfg
         self.lights = lights
         self.arch = arch
+        #: The renderer's interrupt for a job's ``check`` (the simulator process's,
+        #: :class:`~grassd.daemon.studio.process.Superseding`): a newer input stops the launch in
+        #: flight, so launches take whole rounds. None (in the server's process, in tests):
+        #: ``check`` runs between launches of :data:`STUDIO_LAUNCH_PATHS` to
+        #: :data:`STUDIO_MAX_LAUNCH_PATHS` paths.
+        self.interrupts = interrupts
         display, self.centre = Calibrator(cfg).display()
         #: the pixels a condition may choose: the config's, and a fit result's when given
         self.displays = {"config": display}
@@ -264,7 +274,6 @@ class Studio:
         ``check`` is called between the renderer's launches (it raises to stop the run: a
         newer input came in)."""
         from grassd.daemon.calibration.simulation import LargerReplicates, simulate_curve
-        from grassd.sim.renderer import Renderer
         from grassd.sim.scene import RenderSettings, Viewpoint
 
         lighting = self.lights.lighting(cond, self.site)
@@ -278,25 +287,48 @@ class Studio:
             per_round, most = ROUND_REPLICATES, MAX_REPLICATES
         settings = RenderSettings(samples=samples, replicates=replicates,
                                   seed=self.cfg.simulation.seed)
-        renderer = Renderer.shared()
-        renderer.min_launch_paths = STUDIO_LAUNCH_PATHS
-        renderer.max_launch_paths = STUDIO_MAX_LAUNCH_PATHS * samples // STUDIO_SAMPLES
+        renderer = self._renderer(check, samples)
         progress = None if check is None else (lambda _done, _total: check())
-        return simulate_curve(renderer, display, lighting, Viewpoint(*cond.viewpoint),
-                              lengths, settings, pixel_index=self.centre,
-                              target_stderr=target_stderr, max_replicates=most,
-                              on_round=on_round, round_replicates=per_round,
-                              progress=progress, larger=larger)
+        try:
+            return simulate_curve(renderer, display, lighting, Viewpoint(*cond.viewpoint),
+                                  lengths, settings, pixel_index=self.centre,
+                                  target_stderr=target_stderr, max_replicates=most,
+                                  on_round=on_round, round_replicates=per_round,
+                                  progress=progress, larger=larger)
+        finally:
+            renderer.interrupt = None
 
-    def _image(self, cond: Condition, display, size: tuple[int, int], seed: int) -> np.ndarray:
-        """The pixel path-traced from the eye: (width, width, 3) linear Rec.709 [nits]."""
-        from grassd.sim.renderer import Renderer
+    def _renderer(self, check: Check | None, samples: int = STUDIO_SAMPLES):
+        """The process's renderer, set up for a job's ``check`` (None: nothing checks) and
+        replicates of ``samples`` paths: interrupted by a newer input and launching whole
+        rounds where :attr:`interrupts` allow, else in launches that ``check`` runs between.
+        The caller sets ``interrupt`` back to None when done."""
+        from grassd.sim.renderer import MIN_LAUNCH_PATHS, Renderer
+
+        renderer = Renderer.shared()
+        if check is not None and self.interrupts is not None:
+            renderer.interrupt = self.interrupts(check)
+            renderer.min_launch_paths, renderer.max_launch_paths = MIN_LAUNCH_PATHS, None
+        else:
+            renderer.interrupt = None
+            renderer.min_launch_paths = STUDIO_LAUNCH_PATHS
+            renderer.max_launch_paths = STUDIO_MAX_LAUNCH_PATHS * samples // STUDIO_SAMPLES
+        return renderer
+
+    def _image(self, cond: Condition, display, size: tuple[int, int], seed: int,
+               check: Check | None = None) -> np.ndarray:
+        """The pixel path-traced from the eye: (width, width, 3) linear Rec.709 [nits]; a
+        newer input stops it where :attr:`interrupts` allow (``check`` raises)."""
         from grassd.sim.scene import RenderSettings, Viewpoint
 
         lighting = self.lights.lighting(cond, self.site)
-        img, _quad = Renderer.shared().preview(
-            display, lighting, Viewpoint(*cond.viewpoint), cond.length_mm, width=size[0],
-            spp=size[1], settings=RenderSettings(seed=seed))
+        renderer = self._renderer(check)
+        try:
+            img, _quad = renderer.preview(
+                display, lighting, Viewpoint(*cond.viewpoint), cond.length_mm, width=size[0],
+                spp=size[1], settings=RenderSettings(seed=seed))
+        finally:
+            renderer.interrupt = None
         return img
 
     def run(self, cond: Condition, emit: Emit, check: Check,
@@ -328,7 +360,7 @@ class Studio:
         first = [True]
 
         def first_image() -> None:
-            img = self._image(cond, display, FIRST_IMAGE, 0)
+            img = self._image(cond, display, FIRST_IMAGE, 0, check)
             send({"type": "pixel", "image": views.pixel_png(img, white),
                   "width": FIRST_IMAGE[0], "spp": FIRST_IMAGE[1]})
             check()
@@ -413,7 +445,7 @@ class Studio:
                       check: Check) -> None:
         total = None
         for k in range(REFINE_PASSES):
-            img = self._image(cond, display, REFINE_IMAGE, 1 + k)
+            img = self._image(cond, display, REFINE_IMAGE, 1 + k, check)
             total = img if total is None else total + img
             check()
             send({"type": "pixel", "image": views.pixel_png(total / (k + 1), white),

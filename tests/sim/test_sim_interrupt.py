@@ -1,0 +1,135 @@
+"""Stopping a launch in flight (``grassd.sim.interrupt``): a launch skips its remaining paths
+once its word changes, and the renderer traces it anew or ends the run as the interrupt says."""
+
+# (no "from __future__ import annotations": Taichi reads kernel annotations as objects)
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from grassd.sim.errors import SimError
+from grassd.sim.interrupt import Interrupt
+from grassd.sim.lighting import build_lighting
+from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
+
+LENGTHS = np.linspace(0.0, 20.0, 11)
+
+
+class Stopped(Exception):
+    pass
+
+
+class Scripted(Interrupt):
+    """Arms each launch with the next of ``bases`` (then the word itself); raises Stopped at
+    call number ``stop_at``."""
+
+    def __init__(self, word, bases=(), stop_at=None):
+        super().__init__(word)
+        self.bases = list(bases)
+        self.stop_at = stop_at
+        self.calls = 0
+
+    def arm(self):
+        self.calls += 1
+        if self.calls == self.stop_at:
+            raise Stopped
+        return self.bases.pop(0) if self.bases else int(self.word[0])
+
+
+@pytest.fixture
+def lighting(shared_hdri):
+    return build_lighting(shared_hdri("courtyard"), ambient_lux=5000)
+
+
+@pytest.fixture
+def launches(renderer):
+    """Sets the shared renderer's launch sizes (other tests change them too) and restores
+    them, with no interrupt, afterwards: ``launches(fewest)`` (no most)."""
+    kept = renderer.min_launch_paths, renderer.max_launch_paths
+
+    def set_fewest(fewest: int) -> None:
+        renderer.min_launch_paths, renderer.max_launch_paths = fewest, None
+
+    yield set_fewest
+    renderer.min_launch_paths, renderer.max_launch_paths = kept
+    renderer.interrupt = None
+
+
+def test_a_launch_armed_with_a_stale_word_is_traced_anew_with_the_same_numbers(
+        renderer, lighting, launches):
+    launches(1 << 17)
+    s = RenderSettings(samples=256, replicates=4, seed=5)
+    vp = Viewpoint(170, 2, 5)
+    plain = renderer.characteristic(DisplaySpec(), lighting, vp, LENGTHS, s)
+    stale = Scripted(np.array([7], np.int32), bases=[6])  # the first launch skips every path
+    renderer.interrupt = stale
+    try:
+        again = renderer.characteristic(DisplaySpec(), lighting, vp, LENGTHS, s)
+    finally:
+        renderer.interrupt = None
+    assert stale.calls == 2  # one launch, armed again after it skipped its paths
+    np.testing.assert_array_equal(again.rgb_replicates, plain.rgb_replicates)
+    assert again.paths_traced == plain.paths_traced
+
+
+def test_each_launch_is_armed_and_a_raising_interrupt_ends_the_run(renderer, lighting,
+                                                                   launches):
+    s = RenderSettings(samples=256, replicates=8, seed=5)
+    launches(512)  # launches of 2 replicates: 4 launches
+    word = np.array([0], np.int32)
+    counted = Scripted(word)
+    renderer.interrupt = counted
+    try:
+        renderer.characteristic(DisplaySpec(), lighting, Viewpoint(170, 2, 5), LENGTHS, s)
+        assert counted.calls == 4
+        renderer.interrupt = Scripted(word, stop_at=3)
+        with pytest.raises(Stopped):
+            renderer.characteristic(DisplaySpec(), lighting, Viewpoint(170, 2, 5), LENGTHS, s)
+        renderer.interrupt = Scripted(word, bases=[1], stop_at=2)  # stale, then stopped
+        with pytest.raises(Stopped):
+            renderer.preview(DisplaySpec(), lighting, Viewpoint(170, 2, 5), 10.0, width=32,
+                             spp=1)
+        assert int(renderer.skipped[None]) == 32 * 32  # the stale launch drew no pixel
+    finally:
+        renderer.interrupt = None
+
+
+def test_another_process_stops_a_launch_in_flight(renderer, lighting, launches, tmp_path):
+    """A second process writes the word (a shared file mapping) 0.2 s into a launch of several
+    seconds: the launch skips the rest of its paths and the renderer arms again."""
+    launches(1 << 20)
+    path = tmp_path / "word"
+    path.write_bytes(bytes(4))
+    word = np.memmap(path, dtype=np.int32, mode="r+", shape=(1,))
+    writer = subprocess.Popen(
+        [sys.executable, "-c", (
+            "import sys, time\n"
+            "import numpy as np\n"
+            f"w = np.memmap({str(path)!r}, dtype=np.int32, mode='r+', shape=(1,))\n"
+            "print('ready', flush=True); sys.stdin.readline(); time.sleep(0.2)\n"
+            "w[0] = 1\n"
+            "w.flush()\n")],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    assert writer.stdout.readline().strip() == "ready"
+    renderer.interrupt = Scripted(np.ndarray((1,), np.int32, buffer=word), stop_at=2)
+    s = RenderSettings(samples=65536, replicates=4, seed=1)  # one launch of 262144 paths
+    writer.stdin.write("go\n")
+    writer.stdin.flush()
+    try:
+        with pytest.raises(Stopped):
+            renderer.characteristic(DisplaySpec(), lighting, Viewpoint(170, 2, 5), LENGTHS, s)
+    finally:
+        renderer.interrupt = None
+        writer.wait(timeout=30)
+    assert int(word[0]) == 1
+    skipped = int(renderer.skipped[None])
+    assert 65536 < skipped < 4 * 65536  # stopped well before its end (it runs for seconds)
+
+
+def test_an_interrupt_word_must_be_one_int32():
+    with pytest.raises(SimError, match="int32"):
+        Interrupt(np.zeros(1, np.int64))
+    with pytest.raises(SimError, match="shape"):
+        Interrupt(np.zeros(2, np.int32))
