@@ -33,7 +33,8 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import replace
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
@@ -67,28 +68,27 @@ STUDIO_SAMPLES: int = 1024
 #: 2-3 on 2 cores: first curve 124-176 ms, converged 4.2-4.7 s; a first look of 4 x 256
 #: paths sent before rounds of 1024-path replicates instead: 142-162 ms, 4.9-6.0 s.
 SPLAY_SAMPLES: int = 256
-#: Fewest camera paths a renderer launch takes in the studio (the renderer's default is
-#: 131072, one launch a round): a round of 8 x 1024 paths goes in launches of 2 replicates,
-#: and the run checks for a newer input between them, so an input that comes in while a
-#: round computes waits for one launch (about a quarter of the round), not the whole round.
-#: The numbers do not depend on how the replicates are split into launches.
+#: Fewest camera paths a renderer launch takes in a studio without interrupts (in the server's
+#: process, in tests; the simulator process launches whole rounds, :attr:`Studio.interrupts`):
+#: a round of 8 x 1024 paths goes in launches of 2 replicates, and the run checks for a newer
+#: input between them, so an input that comes in while a round computes waits for one launch
+#: (about a quarter of the round), not the whole round. The numbers do not depend on how the
+#: replicates are split into launches.
 STUDIO_LAUNCH_PATHS: int = 2048
-#: Most camera paths a renderer launch takes in the studio, scaled like the replicates
+#: Most camera paths a launch takes in a studio without interrupts, scaled like the replicates
 #: (:func:`studio_pace`: a quarter where the blades splay, whose paths cost 2.3x): a larger
 #: replicate (a low sun's 8192 paths,
 #: :class:`~grassd.daemon.calibration.simulation.LargerReplicates`) goes in launches of a share
 #: of its paths (the numbers change by float64 rounding only), and a splayed round in launches
 #: of 4 replicates, so a new input waits for one launch (30-50 ms here), not the round.
-#: Larger launches cost less per path (the last task of a launch leaves a core idle, and the
-#: threads' start and stop take CPU time): the studio's splayed run in a low sun, in process,
-#: four eyes, took 2005-2330 ms with 4096 (1024 splayed paths a launch), 1634-1953 with 8192
-#: and 1395-1756 with 16384 (1.71 cores busy in the kernel with 4096, 1.95 with 16384); the
-#: splay alone 832-996, 691-953 and 806-822 ms, and in the bench 820-867 ms with 4096 or 8192
-#: alike. Not taken: a splayed launch of 2048 paths takes about 55 ms here (about 27 us a path
-#: over 11 lengths), 1.8x that on the slower machine of earlier measurements, where an input
-#: arriving mid-run already took up to 133 ms to its first curve (goal 150 ms); the one change
-#: it would speed up, the splay in a low sun, misses 1 s either way. (A round without splay
-#: goes in launches of 2 replicates, a quarter of its 8, whatever this cap.)
+#: Larger launches cost less per path (the last task of a launch leaves a core idle, the
+#: threads' start and stop take CPU time, and on this 2-core VM a core that idled between
+#: launches joined late: 1.0-1.5 cores busy in a tenth to a half of the launches): the
+#: studio's splayed run in a low sun, in process, four eyes, took 2005-2330 ms with 4096
+#: (1024 splayed paths a launch), 1634-1953 with 8192 and 1395-1756 with 16384. That is why
+#: the simulator process, where a newer input stops the launch in flight, launches whole
+#: rounds. (A round without splay goes in launches of 2 replicates, a quarter of its 8,
+#: whatever this cap.)
 STUDIO_MAX_LAUNCH_PATHS: int = 4096
 #: Replicates of the first round (their spread is the first error band).
 FIRST_REPLICATES: int = 4
@@ -287,25 +287,25 @@ class Studio:
             per_round, most = ROUND_REPLICATES, MAX_REPLICATES
         settings = RenderSettings(samples=samples, replicates=replicates,
                                   seed=self.cfg.simulation.seed)
-        renderer = self._renderer(check, samples)
         progress = None if check is None else (lambda _done, _total: check())
-        try:
+        with self._renderer(check, samples) as renderer:
             return simulate_curve(renderer, display, lighting, Viewpoint(*cond.viewpoint),
                                   lengths, settings, pixel_index=self.centre,
                                   target_stderr=target_stderr, max_replicates=most,
                                   on_round=on_round, round_replicates=per_round,
                                   progress=progress, larger=larger)
-        finally:
-            renderer.interrupt = None
 
-    def _renderer(self, check: Check | None, samples: int = STUDIO_SAMPLES):
+    @contextmanager
+    def _renderer(self, check: Check | None, samples: int = STUDIO_SAMPLES) -> Iterator:
         """The process's renderer, set up for a job's ``check`` (None: nothing checks) and
-        replicates of ``samples`` paths: interrupted by a newer input and launching whole
-        rounds where :attr:`interrupts` allow, else in launches that ``check`` runs between.
-        The caller sets ``interrupt`` back to None when done."""
+        replicates of ``samples`` paths while the block runs: interrupted by a newer input and
+        launching whole rounds where :attr:`interrupts` allow, else in launches that ``check``
+        runs between. Its earlier set-up comes back after the block (the pixel's first image
+        is drawn inside the characteristic's run)."""
         from grassd.sim.renderer import MIN_LAUNCH_PATHS, Renderer
 
         renderer = Renderer.shared()
+        kept = renderer.interrupt, renderer.min_launch_paths, renderer.max_launch_paths
         if check is not None and self.interrupts is not None:
             renderer.interrupt = self.interrupts(check)
             renderer.min_launch_paths, renderer.max_launch_paths = MIN_LAUNCH_PATHS, None
@@ -313,7 +313,10 @@ class Studio:
             renderer.interrupt = None
             renderer.min_launch_paths = STUDIO_LAUNCH_PATHS
             renderer.max_launch_paths = STUDIO_MAX_LAUNCH_PATHS * samples // STUDIO_SAMPLES
-        return renderer
+        try:
+            yield renderer
+        finally:
+            renderer.interrupt, renderer.min_launch_paths, renderer.max_launch_paths = kept
 
     def _image(self, cond: Condition, display, size: tuple[int, int], seed: int,
                check: Check | None = None) -> np.ndarray:
@@ -322,13 +325,10 @@ class Studio:
         from grassd.sim.scene import RenderSettings, Viewpoint
 
         lighting = self.lights.lighting(cond, self.site)
-        renderer = self._renderer(check)
-        try:
+        with self._renderer(check) as renderer:
             img, _quad = renderer.preview(
                 display, lighting, Viewpoint(*cond.viewpoint), cond.length_mm, width=size[0],
                 spp=size[1], settings=RenderSettings(seed=seed))
-        finally:
-            renderer.interrupt = None
         return img
 
     def run(self, cond: Condition, emit: Emit, check: Check,

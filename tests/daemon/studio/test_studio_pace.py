@@ -65,3 +65,42 @@ def test_a_round_stops_between_launches(renderer, shared_hdri):
     with pytest.raises(Superseded):  # 8 replicates of 1024 paths: 4 launches, stopped at 2
         st.characteristic(cond, target_stderr=None, replicates=8, check=check)
     assert len(calls) == 2
+
+
+def test_every_round_is_armed_through_the_first_image(renderer, shared_hdri):
+    """Where a newer input stops the launch in flight (the simulator process's interrupts),
+    every round of the characteristic runs under the job's interrupt, also the rounds after
+    the pixel's first image, which is drawn within the run (its own set-up must not replace the
+    run's). Each round is one launch there, so its interrupt is armed once a round."""
+    import numpy as np
+
+    from grassd.sim.interrupt import Interrupt
+
+    made: list = []
+
+    class Counting(Interrupt):
+        arms = 0
+
+        def arm(self) -> int:
+            self.arms += 1
+            return super().arm()
+
+    def interrupts(check):
+        made.append(Counting(np.zeros(1, np.int32)))
+        return made[-1]
+
+    st, cond = _studio_and_condition(shared_hdri, {"ambient_lux": 5000,
+                                                   "viewpoint": [170, 2, 9]})
+    st.interrupts = interrupts
+    sent: list[dict] = []
+
+    def check() -> None:  # ends the job once the characteristic converged
+        if any(m["type"] == "curve" and m["converged"] for m in sent):
+            raise Superseded("enough")
+
+    with pytest.raises(Superseded):
+        st.run(cond, sent.append, check)
+    rounds = [m for m in sent if m["type"] == "curve"]
+    assert len(rounds) >= 3 and any(m["type"] == "pixel" for m in sent)
+    assert made[0].arms == len(rounds)  # the characteristic's; the image's came after it
+    assert renderer.interrupt is None
