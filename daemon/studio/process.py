@@ -68,8 +68,6 @@ class StudioArgs:
     def build(self, interrupts: Callable[[Check], Interrupt] | None = None):
         """The Studio these arguments describe (``interrupts``: see
         :class:`~grassd.daemon.studio.session.Studio`)."""
-        import numpy as np
-
         from grassd.daemon.config.settings import resolve_config
         from grassd.daemon.studio.lights import Lights
         from grassd.daemon.studio.session import Studio
