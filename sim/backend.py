@@ -105,6 +105,13 @@ def _remove_unkeyed_cache(cache: Path) -> None:
             path.unlink()
 
 
+def runs_on_host() -> bool:
+    """True when the kernels run on this machine's CPU (Taichi's x64 or arm64 backend), where a
+    kernel reads a NumPy array argument in place. On a GPU a kernel reads a copy that Taichi
+    makes at launch and writes back after it."""
+    return _state.get("actual") in ("x64", "arm64")
+
+
 def is_initialised() -> bool:
     """True once :func:`init` has run in this process."""
     return bool(_state)

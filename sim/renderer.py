@@ -86,7 +86,7 @@ from grassd.sim.albedo_terms import (
     AlbedoTerms,
     code_table,
 )
-from grassd.sim.backend import is_initialised, ti
+from grassd.sim.backend import is_initialised, runs_on_host, ti
 from grassd.sim.camera import frame_quad, image_quad
 from grassd.sim.env_sampler import (
     COARSE_COLS_MAX,
@@ -1191,6 +1191,15 @@ class Renderer:
                 acc += rad
             self.image[py, px] = acc / (m * m)
 
+    @property
+    def interruptible(self) -> bool:
+        """Whether :attr:`interrupt` can stop a launch in flight: where the kernels run on the
+        CPU (:func:`~grassd.sim.backend.runs_on_host`). On a GPU a kernel would read a copy of
+        the word made at launch, and the copy written back after it would undo another
+        process's change, so there launches run to their end and callers check between
+        them."""
+        return runs_on_host()
+
     def _launch(self, kernel: Callable, head: tuple, tail: tuple) -> None:
         """Run ``kernel(*head, word, base, *tail)`` (a launch that skips its paths once
         ``word[0]`` differs from ``base``) to its end: under :attr:`interrupt`, a launch that
@@ -1198,7 +1207,7 @@ class Renderer:
         it (or ``arm`` raises and the run ends). Each path writes its own slot, so a launch
         traced anew gives the numbers it would have given uninterrupted."""
         while True:
-            interrupt = self.interrupt
+            interrupt = self.interrupt if self.interruptible else None
             if interrupt is None:
                 kernel(*head, _NO_WORD, 0, *tail)
                 return

@@ -138,9 +138,9 @@ class Studio:
         self.arch = arch
         #: The renderer's interrupt for a job's ``check`` (the simulator process's,
         #: :class:`~grassd.daemon.studio.process.Superseding`): a newer input stops the launch in
-        #: flight, so launches take whole rounds. None (in the server's process, in tests):
-        #: ``check`` runs between launches of :data:`STUDIO_LAUNCH_PATHS` to
-        #: :data:`STUDIO_MAX_LAUNCH_PATHS` paths.
+        #: flight, so launches take whole rounds. None (in the server's process, in tests), or
+        #: on a GPU (``Renderer.interruptible``): ``check`` runs between launches of
+        #: :data:`STUDIO_LAUNCH_PATHS` to :data:`STUDIO_MAX_LAUNCH_PATHS` paths.
         self.interrupts = interrupts
         display, self.centre = Calibrator(cfg).display()
         #: the pixels a condition may choose: the config's, and a fit result's when given
@@ -306,7 +306,7 @@ class Studio:
 
         renderer = Renderer.shared()
         kept = renderer.interrupt, renderer.min_launch_paths, renderer.max_launch_paths
-        if check is not None and self.interrupts is not None:
+        if check is not None and self.interrupts is not None and renderer.interruptible:
             renderer.interrupt = self.interrupts(check)
             renderer.min_launch_paths, renderer.max_launch_paths = MIN_LAUNCH_PATHS, None
         else:

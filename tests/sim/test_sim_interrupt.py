@@ -133,3 +133,19 @@ def test_an_interrupt_word_must_be_one_int32():
         Interrupt(np.zeros(1, np.int64))
     with pytest.raises(SimError, match="shape"):
         Interrupt(np.zeros(2, np.int32))
+
+
+def test_a_renderer_whose_kernels_do_not_read_host_memory_ignores_its_interrupt(
+        renderer, lighting, launches, monkeypatch):
+    """On a GPU a kernel would read a copy of the word (and write it back after): there the
+    interrupt is not armed and launches run to their end. The CPU backend reads it in place."""
+    from grassd.sim import backend
+
+    assert backend.runs_on_host() and renderer.interruptible
+    launches(1 << 17)
+    monkeypatch.setattr(type(renderer), "interruptible", property(lambda self: False))
+    never = Scripted(np.array([7], np.int32), bases=[6], stop_at=1)  # would stop the run
+    renderer.interrupt = never
+    m = renderer.characteristic(DisplaySpec(), lighting, Viewpoint(170, 2, 5), LENGTHS,
+                                RenderSettings(samples=256, replicates=2, seed=5))
+    assert never.calls == 0 and m.paths_traced > 0
