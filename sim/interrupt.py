@@ -7,7 +7,8 @@ about 900 splayed camera paths kept 1.5-1.9 cores busy, whole rounds 1.9-1.96). 
 kernels therefore read one word of memory that another process may write (shared memory)
 before every camera path or image pixel: once the word differs from the value the launch
 started with, the launch skips its remaining paths, and the renderer asks the
-:class:`Interrupt` again (:meth:`Interrupt.arm`) before it traces that launch anew. ``arm``
+:class:`Interrupt` again (:meth:`Interrupt.arm`) before it tries that launch again, tracing only
+the paths it skipped (so an interrupt that ends nothing loses no work). ``arm``
 raises to end the run instead.
 
 Measured: a kernel read the word written by another process within the path in flight (a

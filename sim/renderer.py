@@ -302,6 +302,12 @@ class Renderer:
         self.sums = ti.Vector.field(3, ti.f64, 256 * 64)  # per (length, replicate) of a launch
         self.traced = ti.field(ti.i64, 2)  # path traces and rays traced by the last launch
         self.skipped = ti.field(ti.i64, ())  # paths or pixels the last launch skipped (interrupt)
+        # The launch (a number, :meth:`_launch`) that traced each path slot or image pixel, so
+        # that a launch traced again after an interrupt traces only what it skipped; and the
+        # launch whose counts ``traced`` holds.
+        self.slot_launch = ti.field(ti.i32, max(cap.paths, PREVIEW_MAX * PREVIEW_MAX))
+        self.counted_launch = ti.field(ti.i32, ())
+        self._launches = 0
         self.quad = ti.Vector.field(3, ti.f32, 4)
         self.mono_index = ti.field(ti.i32, CODE_BASE ** N_SYMBOLS)  # monomial of each code
         self.term_acc = ti.Vector.field(3, ti.f64, (TERM_THREADS, N_MONOMIALS))
@@ -342,8 +348,9 @@ class Renderer:
         for flag in several:
             key = (*self._features, flag)
             if key not in self._compiled:
+                self._launches += 1
                 self._trace_kernel(0, 0, 1, 1, 0, 1, 0, 1, ti.Vector([0.0, 0.0, 1.0]), 1.0,
-                                   _NO_WORD, 0, *key)
+                                   _NO_WORD, 0, self._launches, *key)
                 ti.sync()
                 self._compiled.add(key)
         return time.perf_counter() - t0
@@ -1114,22 +1121,20 @@ class Renderer:
     def _trace_kernel(self, n_len: ti.i32, rep0: ti.i32, n_rep: ti.i32, strata: ti.i32,
                       i0: ti.i32, n_part: ti.i32, seed: ti.u32, max_bounces: ti.i32, eye: vec3,
                       area: ti.f32, word: ti.types.ndarray(dtype=ti.i32, ndim=1), base: ti.i32,
-                      glossy: ti.template(), splay: ti.template(), several: ti.template()):
+                      launch: ti.i32, glossy: ti.template(), splay: ti.template(),
+                      several: ti.template()):
         """Trace paths i0 .. i0 + n_part - 1 of replicates rep0 .. rep0 + n_rep - 1 at the
         first n_len entries of ``self.lengths`` (ascending, m). Each camera path is traced at
         the shortest length and again only at a length from which on it may change
         (:meth:`radiance`); lengths in between take its radiance, which tracing them would give
         bit for bit (same random numbers, same surfaces). Path (k, r, i) lands in
-        out[(k * n_rep + r - rep0) * n_part + i - i0]. A path that starts once ``word[0]``
-        differs from ``base`` is skipped (counted in ``skipped``: :mod:`grassd.sim.interrupt`)."""
+        out[(k * n_rep + r - rep0) * n_part + i - i0]. Interrupts: :meth:`_launch_begins`,
+        :meth:`_slot_taken`."""
         n_samp = strata * strata
         x_cull = self.lengths[ti.max(n_len - 1, 0)]
-        self.traced[0] = 0
-        self.traced[1] = 0
-        self.skipped[None] = 0
+        self._launch_begins(launch)
         for rr, ii in ti.ndrange(n_rep, n_part):
-            if word[0] != base:
-                self.skipped[None] += 1
+            if not self._slot_taken(rr * n_part + ii, launch, word, base):
                 continue
             r = rep0 + rr
             i = i0 + ii
@@ -1155,6 +1160,7 @@ class Renderer:
                     k += 1
             self.traced[0] += traces
             self.traced[1] += rays
+            self.slot_launch[rr * n_part + ii] = launch
 
     @ti.kernel
     def _reduce_kernel(self, n_groups: ti.i32, n_samp: ti.i32):
@@ -1171,11 +1177,10 @@ class Renderer:
     def _preview_kernel(self, width: ti.i32, spp: ti.i32, seed: ti.u32, max_bounces: ti.i32,
                         eye: vec3, forward: vec3, right: vec3, up: vec3, half: ti.f32,
                         x: ti.f32, word: ti.types.ndarray(dtype=ti.i32, ndim=1), base: ti.i32,
-                        glossy: ti.template(), splay: ti.template()):
-        self.skipped[None] = 0
+                        launch: ti.i32, glossy: ti.template(), splay: ti.template()):
+        self._launch_begins(launch)
         for py, px in ti.ndrange(width, width):
-            if word[0] != base:  # interrupted (:mod:`grassd.sim.interrupt`)
-                self.skipped[None] += 1
+            if not self._slot_taken(py * width + px, launch, word, base):
                 continue
             acc = vec3(0.0)
             rep_key = tf.replicate_key(seed, py * width + px)
@@ -1190,6 +1195,29 @@ class Renderer:
                                              memo, 0, glossy, splay, False)
                 acc += rad
             self.image[py, px] = acc / (m * m)
+            self.slot_launch[py * width + px] = launch
+
+    @ti.func
+    def _launch_begins(self, launch: ti.i32):
+        """A launch's serial start: no path skipped yet; the traced counts start at 0 on its
+        first try only (a try after an interrupt adds the paths it traces)."""
+        if self.counted_launch[None] != launch:
+            self.traced[0] = 0
+            self.traced[1] = 0
+            self.counted_launch[None] = launch
+        self.skipped[None] = 0
+
+    @ti.func
+    def _slot_taken(self, slot: ti.i32, launch: ti.i32, word: ti.template(),
+                    base: ti.i32) -> ti.i32:
+        """Whether this try of ``launch`` traces path slot (or pixel) ``slot``: not if an
+        earlier try of the launch traced it, nor once ``word[0]`` differs from ``base`` (the
+        slot is then counted in ``skipped``: :mod:`grassd.sim.interrupt`)."""
+        taken = self.slot_launch[slot] != launch
+        if taken and word[0] != base:
+            self.skipped[None] += 1
+            taken = False
+        return taken
 
     @property
     def interruptible(self) -> bool:
@@ -1201,17 +1229,20 @@ class Renderer:
         return runs_on_host()
 
     def _launch(self, kernel: Callable, head: tuple, tail: tuple) -> None:
-        """Run ``kernel(*head, word, base, *tail)`` (a launch that skips its paths once
+        """Run ``kernel(*head, word, base, launch, *tail)`` (a launch that skips its paths once
         ``word[0]`` differs from ``base``) to its end: under :attr:`interrupt`, a launch that
-        skipped paths is traced anew once :meth:`~grassd.sim.interrupt.Interrupt.arm` allows
-        it (or ``arm`` raises and the run ends). Each path writes its own slot, so a launch
-        traced anew gives the numbers it would have given uninterrupted."""
+        skipped paths is tried again once :meth:`~grassd.sim.interrupt.Interrupt.arm` allows it
+        (or ``arm`` raises and the run ends), and that try traces only the paths skipped (the
+        kernels mark each slot with ``launch``). Each path writes its own slot, so the numbers
+        are those of the launch uninterrupted, and an interrupt that supersedes nothing (another
+        page's input) loses no work."""
+        self._launches += 1
         while True:
             interrupt = self.interrupt if self.interruptible else None
             if interrupt is None:
-                kernel(*head, _NO_WORD, 0, *tail)
+                kernel(*head, _NO_WORD, 0, self._launches, *tail)
                 return
-            kernel(*head, interrupt.word, interrupt.arm(), *tail)
+            kernel(*head, interrupt.word, interrupt.arm(), self._launches, *tail)
             if int(self.skipped[None]) == 0:
                 return
 

@@ -12,7 +12,8 @@ The GIL also keeps the simulator's own threads from reading a message while a la
 the two processes share one more word (:mod:`grassd.sim.interrupt`): the server adds one to it
 with every job or cancel it sends, and sends the new value along; a launch in flight stops
 within its current camera path once the word moves, and the simulator takes the message in
-(:class:`Superseding`) before it decides whether to trace the launch again or stop the job. So
+(:class:`Superseding`) before it decides whether to finish the launch (its skipped paths) or stop
+the job; on the CPU only (``Renderer.interruptible``). So
 a newer input does not wait for the launch in flight, and the studio's launches can each take a
 whole round (:func:`~grassd.daemon.studio.session.Studio.characteristic`).
 
@@ -44,7 +45,7 @@ from grassd.daemon.studio.worker import Check, Superseded
 from grassd.sim.interrupt import Interrupt
 
 #: Seconds a stopped launch waits for the message that moved the word (it is sent right
-#: after): past it, the launch is traced anew under the word as it is.
+#: after): past it, the launch goes on under the word as it is.
 CATCH_UP_S: float = 1.0
 
 log = logging.getLogger(__name__)
@@ -89,8 +90,8 @@ class Superseding:
         self.seen = 0  # the server's word starts at 0 with each simulator process
 
     def took(self, value: int) -> None:
-        """A message that moved the word to ``value`` has been taken in."""
-        self.seen = max(self.seen, value)
+        """A message that moved the word to ``value`` has been taken in (they come in order)."""
+        self.seen = value
 
     def interrupt(self, check: Check) -> Interrupt:
         """The renderer's :class:`~grassd.sim.interrupt.Interrupt` for a job whose ``check``

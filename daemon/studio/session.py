@@ -271,8 +271,9 @@ class Studio:
         ``samples`` paths x ``replicates`` per round, refined to ``target_stderr``
         (CIEDE2000) when given. ``samples`` None: the studio's pace (:func:`studio_pace`:
         fewer paths a replicate and more replicates a round where the blades splay).
-        ``check`` is called between the renderer's launches (it raises to stop the run: a
-        newer input came in)."""
+        ``check`` is called between the renderer's launches, and before each one (it raises
+        to stop the run: a newer input came in); with :attr:`interrupts`, a newer input also
+        stops the launch in flight, and a launch takes a whole round."""
         from grassd.daemon.calibration.simulation import LargerReplicates, simulate_curve
         from grassd.sim.scene import RenderSettings, Viewpoint
 

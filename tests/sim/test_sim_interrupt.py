@@ -96,10 +96,16 @@ def test_each_launch_is_armed_and_a_raising_interrupt_ends_the_run(renderer, lig
         renderer.interrupt = None
 
 
-def test_another_process_stops_a_launch_in_flight(renderer, lighting, launches, tmp_path):
-    """A second process writes the word (a shared file mapping) 0.2 s into a launch of several
-    seconds: the launch skips the rest of its paths and the renderer arms again."""
+def test_a_launch_another_process_stops_is_finished_with_the_uninterrupted_numbers(
+        renderer, lighting, launches, tmp_path):
+    """A second process writes the word (a shared file mapping) 0.05 s after the launch is
+    armed, into a launch of 262144 paths (about 1.4 s on 2 cores): the launch skips the rest of
+    its paths; its later tries skip or trace only those, and the launch gives the numbers, and
+    the path count, of the launch uninterrupted."""
     launches(1 << 20)
+    s = RenderSettings(samples=65536, replicates=4, seed=1)  # one launch of 262144 paths
+    vp = Viewpoint(170, 2, 5)
+    plain = renderer.characteristic(DisplaySpec(), lighting, vp, LENGTHS, s)
     path = tmp_path / "word"
     path.write_bytes(bytes(4))
     word = np.memmap(path, dtype=np.int32, mode="r+", shape=(1,))
@@ -108,24 +114,40 @@ def test_another_process_stops_a_launch_in_flight(renderer, lighting, launches, 
             "import sys, time\n"
             "import numpy as np\n"
             f"w = np.memmap({str(path)!r}, dtype=np.int32, mode='r+', shape=(1,))\n"
-            "print('ready', flush=True); sys.stdin.readline(); time.sleep(0.2)\n"
+            "print('ready', flush=True); sys.stdin.readline(); time.sleep(0.05)\n"
             "w[0] = 1\n"
             "w.flush()\n")],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     assert writer.stdout.readline().strip() == "ready"
-    renderer.interrupt = Scripted(np.ndarray((1,), np.int32, buffer=word), stop_at=2)
-    s = RenderSettings(samples=65536, replicates=4, seed=1)  # one launch of 262144 paths
-    writer.stdin.write("go\n")
-    writer.stdin.flush()
+
+    class Timed(Scripted):
+        """Starts the writer's clock when the launch is armed; then arms it once more under the
+        old word (every path not yet traced is skipped again), then under the new one; notes
+        what each try skipped."""
+
+        skips: list = []
+
+        def arm(self):
+            if self.calls == 0:
+                writer.stdin.write("go\n")
+                writer.stdin.flush()
+            else:
+                self.skips.append(int(renderer.skipped[None]))
+            self.calls += 1
+            return 0 if self.calls <= 2 else int(self.word[0])
+
+    timed = Timed(np.ndarray((1,), np.int32, buffer=word))
+    renderer.interrupt = timed
     try:
-        with pytest.raises(Stopped):
-            renderer.characteristic(DisplaySpec(), lighting, Viewpoint(170, 2, 5), LENGTHS, s)
+        again = renderer.characteristic(DisplaySpec(), lighting, vp, LENGTHS, s)
     finally:
         renderer.interrupt = None
         writer.wait(timeout=30)
-    assert int(word[0]) == 1
-    skipped = int(renderer.skipped[None])
-    assert 65536 < skipped < 4 * 65536  # stopped well before its end (it runs for seconds)
+    assert int(word[0]) == 1 and timed.calls == 3
+    assert 0 < timed.skips[0] < 4 * 65536  # stopped part-way through
+    assert timed.skips[1] == timed.skips[0]  # a try skips only what no try has traced
+    np.testing.assert_array_equal(again.rgb_replicates, plain.rgb_replicates)
+    assert again.paths_traced == plain.paths_traced  # each path traced once
 
 
 def test_an_interrupt_word_must_be_one_int32():
