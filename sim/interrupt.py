@@ -11,6 +11,7 @@ started with, the launch skips its remaining paths, and the renderer asks the
 the paths it skipped (so an interrupt that ends nothing loses no work). ``arm``
 raises to end the run instead.
 
+The kernels read the word atomically, so that no task keeps it in a register for its paths.
 Measured: a kernel read the word written by another process within the path in flight (a
 kernel of 860 ms stopped 100 ms after the write).
 """

@@ -137,9 +137,6 @@ GROWN_IN = 1e-6
 # (6 lengths x 4096 x 8 paths, 2 cores) 256 paths a block use 1.4 cores, 64 1.85, 16 1.9.
 TERM_BLOCK = 16
 TERM_THREADS = 1 << 14
-# The word a launch reads when its caller gave no :class:`~grassd.sim.interrupt.Interrupt`: it
-# never changes, so the launch runs to its end.
-_NO_WORD = np.zeros(1, np.int32)
 
 
 @dataclass(frozen=True)
@@ -308,6 +305,10 @@ class Renderer:
         self.slot_launch = ti.field(ti.i32, max(cap.paths, PREVIEW_MAX * PREVIEW_MAX))
         self.counted_launch = ti.field(ti.i32, ())
         self._launches = 0
+        # The word a launch reads when it has no :attr:`interrupt`: it never changes, so the
+        # launch runs to its end. Device memory, so that a GPU launch copies nothing for it
+        # (a NumPy array is copied to the device and back at every launch).
+        self._no_word = ti.ndarray(ti.i32, 1)
         self.quad = ti.Vector.field(3, ti.f32, 4)
         self.mono_index = ti.field(ti.i32, CODE_BASE ** N_SYMBOLS)  # monomial of each code
         self.term_acc = ti.Vector.field(3, ti.f64, (TERM_THREADS, N_MONOMIALS))
@@ -326,19 +327,23 @@ class Renderer:
         self._scene_key: tuple | None = None
         self._scene: SceneArrays | None = None
         self._uploaded: SceneArrays | None = None  # the scene on the fields (None: unsure)
-        #: Fewest camera paths a launch of :meth:`characteristic` takes (when there are that
-        #: many): an interactive caller lowers it to have ``progress`` called (and stop the
-        #: run there) more often.
-        self.min_launch_paths: int = MIN_LAUNCH_PATHS
-        #: Most camera paths a launch of :meth:`characteristic` takes (None: no limit; it
-        #: wins over ``min_launch_paths``): a replicate of more is traced in launches of
-        #: consecutive shares of its paths, so that an interactive caller's ``progress`` (where
-        #: it may stop the run) waits for no long launch.
-        self.max_launch_paths: int | None = None
+        self.min_launch_paths: int
+        self.max_launch_paths: int | None
+        self.launch_paths()
         #: Stops a launch in flight when another process changes its word
         #: (:mod:`grassd.sim.interrupt`); None: launches run to their end.
         self.interrupt: Interrupt | None = None
         self._lighting: Lighting | None = None
+
+    def launch_paths(self, fewest: int = MIN_LAUNCH_PATHS, most: int | None = None) -> None:
+        """Set the camera paths a launch of :meth:`characteristic` takes (the arguments' defaults
+        are the renderer's own). ``fewest`` (when there are that many): an interactive caller
+        without an :attr:`interrupt` lowers it to have ``progress`` called (and stop the run
+        there) more often. ``most`` (None: no limit; it wins over ``fewest``): a replicate of
+        more is traced in launches of consecutive shares of its paths, so that such a
+        caller's ``progress`` waits for no long launch."""
+        self.min_launch_paths = fewest
+        self.max_launch_paths = most
 
     def _ensure_compiled(self, several: tuple[bool, ...] = (True,)) -> float:
         """JIT-compile (or load from the offline cache) the kernels for the uploaded scene's
@@ -350,7 +355,7 @@ class Renderer:
             if key not in self._compiled:
                 self._launches += 1
                 self._trace_kernel(0, 0, 1, 1, 0, 1, 0, 1, ti.Vector([0.0, 0.0, 1.0]), 1.0,
-                                   _NO_WORD, 0, self._launches, *key)
+                                   self._no_word, 0, self._launches, *key)
                 ti.sync()
                 self._compiled.add(key)
         return time.perf_counter() - t0
@@ -1214,7 +1219,8 @@ class Renderer:
         earlier try of the launch traced it, nor once ``word[0]`` differs from ``base`` (the
         slot is then counted in ``skipped``: :mod:`grassd.sim.interrupt`)."""
         taken = self.slot_launch[slot] != launch
-        if taken and word[0] != base:
+        # An atomic read: a plain load could be kept in a register for a task's paths.
+        if taken and ti.atomic_or(word[0], 0) != base:
             self.skipped[None] += 1
             taken = False
         return taken
@@ -1240,7 +1246,7 @@ class Renderer:
         while True:
             interrupt = self.interrupt if self.interruptible else None
             if interrupt is None:
-                kernel(*head, _NO_WORD, 0, self._launches, *tail)
+                kernel(*head, self._no_word, 0, self._launches, *tail)
                 return
             kernel(*head, interrupt.word, interrupt.arm(), self._launches, *tail)
             if int(self.skipped[None]) == 0:

@@ -12,10 +12,10 @@ The GIL also keeps the simulator's own threads from reading a message while a la
 the two processes share one more word (:mod:`grassd.sim.interrupt`): the server adds one to it
 with every job or cancel it sends, and sends the new value along; a launch in flight stops
 within its current camera path once the word moves, and the simulator takes the message in
-(:class:`Superseding`) before it decides whether to finish the launch (its skipped paths) or stop
-the job; on the CPU only (``Renderer.interruptible``). So
-a newer input does not wait for the launch in flight, and the studio's launches can each take a
-whole round (:func:`~grassd.daemon.studio.session.Studio.characteristic`).
+(:mod:`grassd.daemon.studio.superseding`) before it decides whether to finish the launch (its
+skipped paths) or stop the job; on the CPU only (``Renderer.interruptible``). So a newer
+input does not wait for the launch in flight, and the studio's launches can each take a whole
+round (:func:`~grassd.daemon.studio.session.Studio.characteristic`).
 
 Server -> simulator: ``("job", owner, job, kind, payload, word)`` with kind ``"views"`` (a
 condition and the picture's levels) or ``"characteristic"`` (a condition and keyword
@@ -32,7 +32,6 @@ import itertools
 import logging
 import multiprocessing
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -43,10 +42,6 @@ from grassd.daemon.studio.inputs import StudioInputError
 from grassd.daemon.studio.lights import LightSource
 from grassd.daemon.studio.worker import Check, Superseded
 from grassd.sim.interrupt import Interrupt
-
-#: Seconds a stopped launch waits for the message that moved the word (it is sent right
-#: after): past it, the launch goes on under the word as it is.
-CATCH_UP_S: float = 1.0
 
 log = logging.getLogger(__name__)
 
@@ -80,51 +75,10 @@ class StudioArgs:
                       arch=self.arch, interrupts=interrupts)
 
 
-class Superseding:
-    """The simulator's side of the word it shares with the server: ``seen`` is the word's
-    value that came with the last job or cancel the simulator has taken in (given to the
-    worker); the word itself may already be past it while that message is on its way."""
-
-    def __init__(self, word: np.ndarray) -> None:
-        self.word = word
-        self.seen = 0  # the server's word starts at 0 with each simulator process
-
-    def took(self, value: int) -> None:
-        """A message that moved the word to ``value`` has been taken in (they come in order)."""
-        self.seen = value
-
-    def interrupt(self, check: Check) -> Interrupt:
-        """The renderer's :class:`~grassd.sim.interrupt.Interrupt` for a job whose ``check``
-        raises once a newer job superseded it."""
-        return _JobInterrupt(self, check)
-
-
-class _JobInterrupt(Interrupt):
-    """Arms each launch of one job: waits (at most :data:`CATCH_UP_S`) until the messages
-    that moved the word are taken in, then the job's ``check`` raises if one of them
-    superseded it; else the launch runs under the word as taken in."""
-
-    def __init__(self, superseding: Superseding, check: Check) -> None:
-        super().__init__(superseding.word)
-        self._superseding = superseding
-        self._check = check
-
-    def arm(self) -> int:
-        deadline = time.monotonic() + CATCH_UP_S
-        base = self._superseding.seen
-        while base != int(self.word[0]):
-            if time.monotonic() > deadline:
-                base = int(self.word[0])
-                break
-            time.sleep(0.0002)
-            base = self._superseding.seen
-        self._check()
-        return base
-
-
 def simulator_main(conn, args: StudioArgs, word=None) -> None:
     """The simulator process: build the Studio, warm it up, then run what the server sends.
     ``word``: the ``multiprocessing`` int array the server moves with every job or cancel."""
+    from grassd.daemon.studio.superseding import Superseding
     from grassd.daemon.studio.worker import Worker
 
     superseding = None if word is None else Superseding(np.frombuffer(word, np.int32))

@@ -49,6 +49,7 @@ from grassd.daemon.studio.worker import Check
 if TYPE_CHECKING:
     from grassd.daemon.calibration.simulation import SimulatedCurve
     from grassd.sim.interrupt import Interrupt
+    from grassd.sim.renderer import Renderer
 
 log = logging.getLogger(__name__)
 
@@ -137,10 +138,10 @@ class Studio:
         self.lights = lights
         self.arch = arch
         #: The renderer's interrupt for a job's ``check`` (the simulator process's,
-        #: :class:`~grassd.daemon.studio.process.Superseding`): a newer input stops the launch in
-        #: flight, so launches take whole rounds. None (in the server's process, in tests), or
-        #: on a GPU (``Renderer.interruptible``): ``check`` runs between launches of
-        #: :data:`STUDIO_LAUNCH_PATHS` to :data:`STUDIO_MAX_LAUNCH_PATHS` paths.
+        #: :class:`~grassd.daemon.studio.superseding.Superseding`): a newer input stops the
+        #: launch in flight, so launches take whole rounds. None (in the server's process, in
+        #: tests), or on a GPU (``Renderer.interruptible``): ``check`` runs between launches
+        #: of :data:`STUDIO_LAUNCH_PATHS` to :data:`STUDIO_MAX_LAUNCH_PATHS` paths.
         self.interrupts = interrupts
         display, self.centre = Calibrator(cfg).display()
         #: the pixels a condition may choose: the config's, and a fit result's when given
@@ -297,27 +298,29 @@ class Studio:
                                   progress=progress, larger=larger)
 
     @contextmanager
-    def _renderer(self, check: Check | None, samples: int = STUDIO_SAMPLES) -> Iterator:
+    def _renderer(self, check: Check | None,
+                  samples: int = STUDIO_SAMPLES) -> Iterator[Renderer]:
         """The process's renderer, set up for a job's ``check`` (None: nothing checks) and
         replicates of ``samples`` paths while the block runs: interrupted by a newer input and
         launching whole rounds where :attr:`interrupts` allow, else in launches that ``check``
         runs between. Its earlier set-up comes back after the block (the pixel's first image
         is drawn inside the characteristic's run)."""
-        from grassd.sim.renderer import MIN_LAUNCH_PATHS, Renderer
+        from grassd.sim.renderer import Renderer
 
         renderer = Renderer.shared()
         kept = renderer.interrupt, renderer.min_launch_paths, renderer.max_launch_paths
         if check is not None and self.interrupts is not None and renderer.interruptible:
             renderer.interrupt = self.interrupts(check)
-            renderer.min_launch_paths, renderer.max_launch_paths = MIN_LAUNCH_PATHS, None
+            renderer.launch_paths()
         else:
             renderer.interrupt = None
-            renderer.min_launch_paths = STUDIO_LAUNCH_PATHS
-            renderer.max_launch_paths = STUDIO_MAX_LAUNCH_PATHS * samples // STUDIO_SAMPLES
+            renderer.launch_paths(STUDIO_LAUNCH_PATHS,
+                                  STUDIO_MAX_LAUNCH_PATHS * samples // STUDIO_SAMPLES)
         try:
             yield renderer
         finally:
-            renderer.interrupt, renderer.min_launch_paths, renderer.max_launch_paths = kept
+            renderer.interrupt = kept[0]
+            renderer.launch_paths(*kept[1:])
 
     def _image(self, cond: Condition, display, size: tuple[int, int], seed: int,
                check: Check | None = None) -> np.ndarray:

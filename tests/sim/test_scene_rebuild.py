@@ -74,27 +74,27 @@ def test_what_a_larger_scene_left_on_the_fields_changes_nothing(renderer):
 
 
 def test_smaller_launches_change_no_number(renderer):
-    """The studio lowers ``min_launch_paths`` so that it can stop a run between launches."""
+    """The studio lowers the fewest paths a launch takes so that it can stop a run between
+    launches."""
     env = np.random.default_rng(5).uniform(0.2, 2.0, (32, 64, 3)).astype(np.float32)
     light = build_lighting(env, 5000.0)
     display = DisplaySpec(PixelSpec(splay_deg=4.0))
     s = RenderSettings(samples=256, replicates=4, seed=2)
     calls = []
     one = renderer.characteristic(display, light, Viewpoint(150, 3, -10), LENGTHS, s)
-    kept = renderer.min_launch_paths
     try:
-        renderer.min_launch_paths = 256  # one replicate a launch
+        renderer.launch_paths(256)  # one replicate a launch
         split = renderer.characteristic(display, light, Viewpoint(150, 3, -10), LENGTHS, s,
                                         progress=lambda done, n: calls.append(done))
     finally:
-        renderer.min_launch_paths = kept
+        renderer.launch_paths()
     assert len(calls) == 4
     np.testing.assert_array_equal(one.rgb_replicates, split.rgb_replicates)
     assert (one.paths_traced, one.rays_traced) == (split.paths_traced, split.rays_traced)
 
 
 def test_a_replicate_split_across_launches_keeps_its_paths(renderer):
-    """With ``max_launch_paths`` a replicate larger than it goes in launches of consecutive
+    """With a most paths a launch takes, a replicate larger than it goes in launches of consecutive
     shares of its paths (the studio's larger replicates): the same paths, traced the same
     way, their sums added (float64 rounding)."""
     env = np.random.default_rng(6).uniform(0.2, 2.0, (32, 64, 3)).astype(np.float32)
@@ -103,11 +103,11 @@ def test_a_replicate_split_across_launches_keeps_its_paths(renderer):
     one = renderer.characteristic(DisplaySpec(), light, Viewpoint(150, 3, -10), LENGTHS, s)
     calls = []
     try:
-        renderer.max_launch_paths = 300  # 4 shares of 256 paths a replicate
+        renderer.launch_paths(most=300)  # 4 shares of 256 paths a replicate
         split = renderer.characteristic(DisplaySpec(), light, Viewpoint(150, 3, -10), LENGTHS,
                                         s, progress=lambda done, n: calls.append(done))
     finally:
-        renderer.max_launch_paths = None
+        renderer.launch_paths()
     assert len(calls) == 8 and calls[-1] == len(LENGTHS)
     np.testing.assert_allclose(split.rgb_replicates, one.rgb_replicates, rtol=1e-12, atol=0)
     assert not np.allclose(one.rgb_replicates[0], one.rgb_replicates[1], rtol=1e-3)

@@ -50,10 +50,10 @@ def launches(renderer):
     kept = renderer.min_launch_paths, renderer.max_launch_paths
 
     def set_fewest(fewest: int) -> None:
-        renderer.min_launch_paths, renderer.max_launch_paths = fewest, None
+        renderer.launch_paths(fewest)
 
     yield set_fewest
-    renderer.min_launch_paths, renderer.max_launch_paths = kept
+    renderer.launch_paths(*kept)
     renderer.interrupt = None
 
 
