@@ -19,7 +19,8 @@ round (:func:`~grassd.daemon.studio.session.Studio.characteristic`).
 
 Server -> simulator: ``("job", owner, job, kind, payload, word)`` with kind ``"views"`` (a
 condition and the picture's levels) or ``"characteristic"`` (a condition and keyword
-arguments); ``("cancel", owner, word)``; ``("light", LightSource)``; ``("stop",)``.
+arguments); ``("cancel", owner, word)``; ``("light", LightSource)``; ``("stop", word)`` (every
+job stops, and the process ends).
 Simulator -> server: ``("ready", seconds)``, ``("msg", job, dict)``, ``("result", job,
 value)``, ``("error", job, kind, message)`` with kind "input" (a StudioInputError), "superseded"
 or the exception's class name.
@@ -142,6 +143,9 @@ def simulator_main(conn, args: StudioArgs, word=None) -> None:
         elif item[0] == "light":
             studio.lights.add_source(item[1])
         elif item[0] == "stop":
+            worker.cancel_all()
+            if superseding is not None:
+                superseding.took(item[1])
             break
     worker.stop()
 
@@ -261,13 +265,16 @@ class SimulatorProcess:
         self._send(("light", source))
 
     def stop(self) -> None:
-        """End the simulator process."""
+        """End the simulator process: its jobs stop (the launch in flight too, through the
+        word), so it ends within a camera path rather than after its launch."""
         if self.alive:
             try:
                 with self._lock:
-                    self._conn.send(("stop",))
+                    self._word[0] += 1
+                    self._conn.send(("stop", self._word[0]))
             except OSError:
                 pass
+            self.alive = False
         self.proc.join(timeout=20)
         if self.proc.is_alive():
             self.proc.kill()

@@ -58,6 +58,12 @@ class Worker:
             else:
                 self._latest.pop(owner, None)
 
+    def cancel_all(self) -> None:
+        """Stop every owner's queued and running jobs (the studio is ending)."""
+        with self._lock:
+            for owner in list(self._latest):
+                self._latest[owner] = -1
+
     def _finished(self, owner: Any) -> None:
         """One job of ``owner`` is done: forget the owner when it has no other."""
         with self._lock:

@@ -1,11 +1,13 @@
 """The studio's simulator process (``grassd.daemon.studio.process``): a newer job of the same
-owner stops the renderer's launch in flight, through the word the two processes share, instead
-of waiting for it to end."""
+owner, or the studio's end, stops the renderer's launch in flight through the word the two
+processes share, instead of waiting for it to end."""
 
 from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
 
 import pytest
 from conftest import HDRI_DIR
@@ -16,15 +18,16 @@ from grassd.daemon.studio.worker import Superseded
 # replicate takes (the renderer's buffer, Capacity.paths).
 PROBE_PATHS = 1 << 16
 MOST_PATHS = 1 << 22
+# Seconds the long job's launches are sized to by the probe's rate (which overstates them: on 2
+# cores they took about 11 s).
+LONG_LAUNCH_S = 20.0
 
 
-def test_a_newer_job_stops_the_launch_in_flight():
-    """A probe times the machine; job A's replicates of splayed camera paths at 2 lengths are
-    sized from it to launches of about 12 s by the probe's rate (at most the buffer's 4
-    million paths); job B, sent 1 s after A started, supersedes A and is answered within a
-    third of that and 5 s (measured on 2 cores: 0.02 s): A's launch stopped within the camera
-    path in flight. Without the shared word B waited for A's launch
-    to end (6.7 s after it was sent)."""
+@asynccontextmanager
+async def simulator() -> AsyncIterator[tuple[object, Callable[[int], dict], float]]:
+    """A started simulator process, the job payload of ``samples`` splayed camera paths a
+    replicate at 2 lengths, and the paths a replicate that take :data:`LONG_LAUNCH_S` seconds
+    here (at most :data:`MOST_PATHS`), as a probe of 2 x :data:`PROBE_PATHS` paths timed it."""
     from grassd.daemon.config.settings import resolve_config
     from grassd.daemon.studio.inputs import parse_condition
     from grassd.daemon.studio.lights import LightSource
@@ -39,26 +42,40 @@ def test_a_newer_job_stops_the_launch_in_flight():
                            green_max_mm=20.0, timezone=cfg.site.timezone, lights=["file"],
                            default_light="file")
 
+    def job(samples: int, replicates: int = 2) -> tuple:
+        return cond, {"target_stderr": None, "samples": samples, "replicates": replicates,
+                      "lengths_mm": [0.0, 20.0]}
+
+    ready = asyncio.Event()
+    sim = SimulatorProcess(StudioArgs(None, None, (LightSource("file", "courtyard", hdri),)),
+                           lambda _s: ready.set())
+    try:
+        await asyncio.wait_for(ready.wait(), 300)  # the first start compiles the kernels
+        probe = await asyncio.wait_for(sim.submit(1, "characteristic", job(PROBE_PATHS)), 120)
+        per_path = probe.seconds["trace"] / (2 * PROBE_PATHS)
+        yield sim, job, per_path
+    finally:
+        sim.stop()
+
+
+def long_paths(per_path: float) -> int:
+    return min(MOST_PATHS, int(LONG_LAUNCH_S / per_path))
+
+
+def test_a_newer_job_stops_the_launch_in_flight():
+    """Job A's replicates of splayed camera paths are sized to long launches by a probe's rate
+    (at most the buffer's 4 million paths); job B, sent 1 s after A started,
+    supersedes A and is answered within a third of A's launch and 5 s (measured on 2 cores:
+    0.02 s): A's launch stopped within the camera path in flight. Without the shared word B
+    waited for A's launch to end (6.7 s after it was sent)."""
+
     async def scenario() -> tuple[float, object, BaseException | None, float]:
-        ready = asyncio.Event()
-        sim = SimulatorProcess(StudioArgs(None, None, (LightSource("file", "courtyard", hdri),)),
-                               lambda _s: ready.set())
-        try:
-            await asyncio.wait_for(ready.wait(), 300)  # the first start compiles the kernels
-            probe = await asyncio.wait_for(sim.submit(1, "characteristic", (cond, {
-                "target_stderr": None, "samples": PROBE_PATHS, "replicates": 2,
-                "lengths_mm": [0.0, 20.0]})), 120)
-            per_path = probe.seconds["trace"] / (2 * PROBE_PATHS)
-            paths = min(MOST_PATHS, int(12.0 / per_path))
-            slow = sim.submit(1, "characteristic", (cond, {
-                "target_stderr": None, "samples": paths, "replicates": 4,
-                "lengths_mm": [0.0, 20.0]}))
+        async with simulator() as (sim, job, per_path):
+            paths = long_paths(per_path)
+            slow = sim.submit(1, "characteristic", job(paths, 4))
             await asyncio.sleep(1.0)  # A is running: the worker was idle
             t0 = time.monotonic()
-            quick = sim.submit(1, "characteristic", (cond, {
-                "target_stderr": None, "samples": 256, "replicates": 2,
-                "lengths_mm": [0.0, 20.0]}))
-            curve = await asyncio.wait_for(quick, 120)
+            curve = await asyncio.wait_for(sim.submit(1, "characteristic", job(256)), 120)
             answered = time.monotonic() - t0
             try:
                 await asyncio.wait_for(slow, 5)
@@ -66,12 +83,35 @@ def test_a_newer_job_stops_the_launch_in_flight():
             except BaseException as exc:  # noqa: BLE001 (what A ended with is the finding)
                 error = exc
             return answered, curve, error, paths * per_path
-        finally:
-            sim.stop()
 
     answered, curve, error, launch_s = asyncio.run(scenario())
     assert isinstance(error, Superseded), error
     assert curve.ogcd.shape == (2,)
     assert answered < min(5.0, launch_s / 3), (
         f"B answered {answered:.1f} s after it was sent; A's launch takes about "
+        f"{launch_s:.1f} s")
+
+
+def test_the_studio_ends_within_a_camera_path_of_a_long_launch():
+    """Stopping the simulator 1 s into a long launch ends its process cleanly (exit code 0,
+    the job superseded) within a third of the launch and 5 s (measured on 2 cores: 0.1 s);
+    without moving the word it waited for the launch to end (4.8 s into a launch of 12 s
+    by the probe)."""
+
+    async def scenario() -> tuple[float, float, object, BaseException | None]:
+        async with simulator() as (sim, job, per_path):
+            paths = long_paths(per_path)
+            slow = sim.submit(1, "characteristic", job(paths, 4))
+            await asyncio.sleep(1.0)
+            t0 = time.monotonic()
+            sim.stop()
+            took = time.monotonic() - t0
+            await asyncio.sleep(0.1)  # the simulator's last messages reach the future
+            return took, paths * per_path, sim.proc.exitcode, slow.exception()
+
+    took, launch_s, exitcode, error = asyncio.run(scenario())
+    assert exitcode == 0
+    assert isinstance(error, Superseded), error
+    assert took < min(5.0, launch_s / 3), (
+        f"the simulator ended {took:.1f} s after it was told to; its launch takes about "
         f"{launch_s:.1f} s")

@@ -49,3 +49,24 @@ def test_cancel_stops_an_owners_jobs_and_errors_reach_the_future():
     with pytest.raises(ZeroDivisionError):
         failing.result(10)
     w.stop()
+
+
+def test_cancel_all_stops_every_owners_running_and_queued_jobs():
+    w = Worker()
+    started, release = threading.Event(), threading.Event()
+
+    def long(check):
+        started.set()
+        release.wait(10)
+        check()
+        return "not reached"
+
+    running = w.submit("page", long)
+    assert started.wait(10)
+    queued = w.submit("another page", lambda check: "not reached either")
+    w.cancel_all()
+    release.set()
+    for fut in (running, queued):
+        with pytest.raises(Superseded):
+            fut.result(10)
+    w.stop()
