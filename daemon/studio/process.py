@@ -35,7 +35,8 @@ import multiprocessing
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from multiprocessing.connection import Connection
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -43,6 +44,9 @@ from grassd.daemon.studio.inputs import StudioInputError
 from grassd.daemon.studio.lights import LightSource
 from grassd.daemon.studio.worker import Check, Superseded
 from grassd.sim.interrupt import Interrupt
+
+if TYPE_CHECKING:
+    from grassd.daemon.studio.session import Studio
 
 log = logging.getLogger(__name__)
 
@@ -62,7 +66,7 @@ class StudioArgs:
     active_um: tuple[int, ...] | None = None
     arch: str = "cpu"
 
-    def build(self, interrupts: Callable[[Check], Interrupt] | None = None):
+    def build(self, interrupts: Callable[[Check], Interrupt] | None = None) -> Studio:
         """The Studio these arguments describe (``interrupts``: see
         :class:`~grassd.daemon.studio.session.Studio`)."""
         from grassd.daemon.config.settings import resolve_config
@@ -76,9 +80,10 @@ class StudioArgs:
                       arch=self.arch, interrupts=interrupts)
 
 
-def simulator_main(conn, args: StudioArgs, word=None) -> None:
+def simulator_main(conn: Connection, args: StudioArgs, word: Any = None) -> None:
     """The simulator process: build the Studio, warm it up, then run what the server sends.
-    ``word``: the ``multiprocessing`` int array the server moves with every job or cancel."""
+    ``word``: the ``multiprocessing`` int array (``RawArray("i", 1)``) the server moves with
+    every job or cancel; None: launches are not stopped in flight."""
     from grassd.daemon.studio.superseding import Superseding
     from grassd.daemon.studio.worker import Worker
 
@@ -202,7 +207,7 @@ class SimulatorProcess:
                     if attempt == 2:
                         raise
 
-    def _read(self, conn) -> None:
+    def _read(self, conn: Connection) -> None:
         while True:
             try:
                 item = conn.recv()
@@ -211,7 +216,7 @@ class SimulatorProcess:
                 return
             self._loop.call_soon_threadsafe(self._dispatch, item)
 
-    def _gone(self, conn) -> None:
+    def _gone(self, conn: Connection) -> None:
         if conn is not self._conn:
             return
         self.alive = False
