@@ -306,9 +306,12 @@ class Renderer:
         self.counted_launch = ti.field(ti.i32, ())
         self._launches = 0
         # The word a launch reads when it has no :attr:`interrupt`: it never changes, so the
-        # launch runs to its end. Device memory, so that a GPU launch copies nothing for it
-        # (a NumPy array is copied to the device and back at every launch).
-        self._no_word = ti.ndarray(ti.i32, 1)
+        # launch runs to its end. Of the kind an interrupt's word is (a NumPy array) where
+        # interrupts work: Taichi compiles a kernel anew for each kind of array argument
+        # (measured: the first launch with the other kind took 0.85 s more). On a GPU, device
+        # memory: there a NumPy array is copied to the device and back at every launch.
+        self._no_word = (np.zeros(1, np.int32) if self.interruptible
+                         else ti.ndarray(ti.i32, 1))
         self.quad = ti.Vector.field(3, ti.f32, 4)
         self.mono_index = ti.field(ti.i32, CODE_BASE ** N_SYMBOLS)  # monomial of each code
         self.term_acc = ti.Vector.field(3, ti.f64, (TERM_THREADS, N_MONOMIALS))

@@ -171,3 +171,22 @@ def test_a_renderer_whose_kernels_do_not_read_host_memory_ignores_its_interrupt(
     m = renderer.characteristic(DisplaySpec(), lighting, Viewpoint(170, 2, 5), LENGTHS,
                                 RenderSettings(samples=256, replicates=2, seed=5))
     assert never.calls == 0 and m.paths_traced > 0
+
+
+def test_a_launch_under_an_interrupt_compiles_no_kernel_anew(renderer, lighting, launches):
+    """Taichi compiles a kernel once per kind of array argument: the word a launch without an
+    interrupt reads is of the interrupt word's kind (a NumPy array) on the CPU, so the
+    studio's first launch under an interrupt, after its warm-up without one, compiles nothing
+    (with a device array there it compiled the trace kernel again: 0.85 s more)."""
+    from grassd.sim.renderer import Renderer
+
+    s = RenderSettings(samples=256, replicates=2, seed=5)
+    compiled = Renderer._trace_kernel._primal.compiled_kernels
+    renderer.characteristic(DisplaySpec(), lighting, Viewpoint(170, 2, 5), LENGTHS, s)
+    before = len(compiled)
+    renderer.interrupt = Interrupt(np.zeros(1, np.int32))
+    try:
+        renderer.characteristic(DisplaySpec(), lighting, Viewpoint(170, 2, 5), LENGTHS, s)
+    finally:
+        renderer.interrupt = None
+    assert len(compiled) == before
