@@ -31,7 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-HDRI_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "hdri"
+from bench import HDRI_DIR
+
 BUNDLED = Path(__file__).resolve().parents[1] / "sim" / "data" / "default_site.exr"
 SCENES = ("courtyard", "forest")
 LUX = 5000.0

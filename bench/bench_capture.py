@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from bench import HDRI_DIR
 from grassd.calib.hdr_merge import merge_ldr, recover_response, relative_exposure
 from grassd.daemon.config.capture import CaptureConfig
 from grassd.daemon.hardware.bracket import BracketPlan, capture_bracket, load_codes
@@ -45,7 +46,6 @@ from grassd.sim.hdri import REC709_LUMINANCE, downsample, load_hdri
 from grassd.sim.lighting import horizontal_illuminance
 from grassd.sim.sun import find_sun
 
-HDRI_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "hdri"
 SHARED_MAPS = ("forest", "city", "courtyard", "interior", "studio")
 #: Goals of the round trip (fractions): median |luminance error|, horizontal illuminance error.
 LUMINANCE_GOAL = 0.03

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
+from bench import HDRI_DIR
 from grassd.daemon.calibration.display_model import (
     build_display_tables,
     errors_on,
@@ -26,7 +26,7 @@ from grassd.daemon.calibration.display_model import (
 )
 from grassd.daemon.calibration.simulation import simulate_curve
 
-HDRI = Path(__file__).resolve().parents[1].parent / "shared" / "hdri" / "courtyard.exr"
+HDRI = HDRI_DIR / "courtyard.exr"
 
 
 def _lighting():

@@ -9,15 +9,15 @@ Run: ``.venv/bin/python -m bench.bench_display_locate``. Light: ``../shared/hdri
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 
+from bench import HDRI_DIR
 from grassd.calib.display_in_photo import locate_display, pixel_means
 from grassd.sim.display_photo import camera_rotation, display_photo
 from grassd.sim.scene import DisplaySpec
 
-HDRI = Path(__file__).resolve().parents[1].parent / "shared" / "hdri" / "courtyard.exr"
+HDRI = HDRI_DIR / "courtyard.exr"
 POSES = [((0.15, -0.9, 0.7), 30.0), ((0.55, -0.75, 0.65), -20.0), ((-0.1, -1.2, 0.56), 180.0),
          ((0.15, -0.9, 0.7), 99.46), ((0.0, -2.0, 1.5), 90.0)]
 

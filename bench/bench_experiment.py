@@ -20,8 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
+from bench import HDRI_DIR
+
 #: the paper environments' HDRIs: ``shared/hdri`` beside the repository
-HDRI_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "hdri"
 
 
 def main(argv: list[str] | None = None) -> None:

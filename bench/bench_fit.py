@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import tempfile
 from dataclasses import replace
-from pathlib import Path
 
+from bench import ARCH, HDRI_DIR
 from bench.fit_worlds import (
     ALBEDOS,
     HELD_OUT,
@@ -29,8 +29,6 @@ from bench.fit_worlds import (
 )
 from grassd.daemon.offline.fit import FitError, fit_capture
 from grassd.daemon.offline.validate import default_renderer
-
-HDRI_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "hdri"
 
 
 def _row(name: str, case: str, manifest, lighting, renderer, holdout: list) -> None:
@@ -68,7 +66,8 @@ def main() -> None:
     if not HDRI_DIR.is_dir():
         print(f"skipped: {HDRI_DIR} not present")
         return
-    renderer = default_renderer()
+    renderer = default_renderer(ARCH)
+    print(f"grassd fit on Taichi's {ARCH} arch")
     for name in WORLDS:
         with tempfile.TemporaryDirectory() as tmp:
             manifest, lighting = capture_known_pixel(tmp, name, HDRI_DIR, renderer)

@@ -52,7 +52,8 @@ from pathlib import Path
 
 import numpy as np
 
-HDRI_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "hdri"
+from bench import HDRI_DIR
+
 LUX = 5000.0
 LENGTH_MM = 10.0
 LENGTHS_MM = np.arange(0.0, 20.01, 1.0)

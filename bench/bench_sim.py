@@ -24,7 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-HDRI_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "hdri"
+from bench import HDRI_DIR
+
 BUNDLED = Path(__file__).resolve().parents[1] / "sim" / "data" / "default_site.exr"
 TARGET = 0.1
 SEEDS = 5  #: the one-view benchmark runs these seeds (its stopping rule's cost varies)

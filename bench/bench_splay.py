@@ -18,11 +18,12 @@ import os
 import statistics
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 
-HDRI = Path(__file__).resolve().parents[1].parent / "shared" / "hdri" / "courtyard.exr"
+from bench import HDRI_DIR
+
+HDRI = HDRI_DIR / "courtyard.exr"
 RUNS = int(os.environ.get("GRASSD_BENCH_SPLAY_RUNS", "6"))
 
 

@@ -30,7 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-HDRI = Path(__file__).resolve().parents[1].parent / "shared" / "hdri" / "courtyard.exr"
+from bench import ARCH, HDRI_DIR
+
+HDRI = HDRI_DIR / "courtyard.exr"
 #: (what changes, condition) of each timed input, repeated ROUNDS times
 CHANGES = [
     ("eye moves", {"viewpoint": [170, 2.5, 15]}),
@@ -52,14 +54,16 @@ _ONLY = {c.strip() for c in os.environ.get("GRASSD_BENCH_STUDIO_CHANGES", "").sp
          if c.strip()}
 if _ONLY:
     CHANGES = [c for c in CHANGES if c[0] in _ONLY]
+#: GRASSD_BENCH_STUDIO_PROGRESS=1 prints each change's milestones (ms) as it is timed.
+PROGRESS = os.environ.get("GRASSD_BENCH_STUDIO_PROGRESS") == "1"
 GOALS_MS = {"first curve": 150.0, "first pixel": 300.0, "converged": 1000.0}
 
 
 def _start() -> tuple[subprocess.Popen, str]:
     log = open(Path(tempfile.mkdtemp(prefix="bench-studio-")) / "studio.log", "wb")
     proc = subprocess.Popen([sys.executable, "-m", "grassd.daemon.cli", "studio", "--port", "0",
-                             "--hdri", str(HDRI)], stdout=subprocess.PIPE, stderr=log,
-                            text=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+                             "--hdri", str(HDRI), "--arch", ARCH], stdout=subprocess.PIPE,
+                            stderr=log, text=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
     line = proc.stdout.readline()
     if not line.startswith("grassd studio: "):
         proc.kill()
@@ -122,6 +126,9 @@ async def _run(url: str) -> tuple[dict[str, dict[str, list[float]]],
                         h, d, theta = cond["viewpoint"]
                         cond["viewpoint"] = [h, d, theta + 2.0 * r + k]
                         got = await _time_one(ws, tag, cond, busy)
+                        if PROGRESS:  # each change as it is timed (a run cut short keeps them)
+                            print(f"  {case} {name}: " + ", ".join(
+                                f"{key} {v:.0f}" for key, v in got.items()), flush=True)
                         for key, v in got.items():
                             out[case].setdefault(key, []).append(v)
                             by_change[case].setdefault(name, {}).setdefault(key, []).append(v)
@@ -139,8 +146,8 @@ def main() -> None:
         proc.terminate()
         proc.wait(20)
     n = len(CHANGES) * ROUNDS
-    print(f"grassd studio, warm, courtyard.exr 1024 x 512, 11 lengths, {n} input changes "
-          f"({', '.join(sorted({c[0] for c in CHANGES}))}); client-side ms:")
+    print(f"grassd studio --arch {ARCH}, warm, courtyard.exr 1024 x 512, 11 lengths, {n} input "
+          f"changes ({', '.join(sorted({c[0] for c in CHANGES}))}); client-side ms:")
     for case in ("idle", "busy"):
         for k in ("first curve", "first pixel", "converged"):
             v = np.array(res[case].get(k, [np.nan]))

@@ -1,0 +1,82 @@
+#!/usr/bin/env bash
+# The GPU checks, as one script for a session lent a device machine (issue #29: "the studio runs
+# the same with --arch gpu"; #17: the GPU backend against the CPU on the same seeds). Pack first
+# (here): bench/device_pack.sh. Then, through the device tool:
+#   run(command="bash bench/device_check.sh", carry=[".device"], timeout_s=600)
+# Checks (arguments; all by default, in this order): backend (bench_backend: both arches, the
+# same seeds), studio (bench_studio with --arch gpu, then cpu on the same machine), fit
+# (bench_fit with --arch gpu). Each has its own time limit (seconds; CHECK_S_<NAME> overrides,
+# e.g. CHECK_S_STUDIO_GPU),
+# together inside the tool's 10 minutes; a check that runs out is reported and the next runs.
+# Logs go to $OUT (the tool brings them back), else to .device/out.
+set -uo pipefail
+root=$(cd "$(dirname "$0")/.." && pwd)
+out=${OUT:-$root/.device/out}
+mkdir -p "$out"
+site=${DEVICE_SITE:-/tmp/grassd-site}
+py=${PYTHON:-python3}
+cd "$root"
+if [ ! -f .device/site.tar.xz ]; then
+  echo "device_check: .device/site.tar.xz missing: run bench/device_pack.sh here, carry .device"
+  exit 2
+fi
+t0=$(date +%s)
+rm -rf "$site" && mkdir -p "$site"
+tar -C "$site" -xJf .device/site.tar.xz
+# grassd from the tree, its sub-packages mapped as pyproject.toml's package-dir (and the
+# editable install) maps them: a finder after Python's own, loaded at start-up.
+cat > "$site/sitecustomize.py" <<'PY'
+import importlib.util
+import os
+import sys
+
+_TREE = os.environ["GRASSD_TREE"]
+_DIRS = ("calib", "sim", "firmware_proto", "rigs", "daemon")
+
+
+class _GrassdTree:
+    @staticmethod
+    def find_spec(name, path=None, target=None):
+        top, _, sub = name.partition(".")
+        if top != "grassd" or sub not in _DIRS:
+            return None
+        init = os.path.join(_TREE, sub, "__init__.py")
+        return importlib.util.spec_from_file_location(
+            name, init, submodule_search_locations=[os.path.dirname(init)])
+
+
+sys.meta_path.append(_GrassdTree)
+PY
+export GRASSD_TREE="$root" PYTHONPATH="$site:$root${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1
+export GRASSD_BENCH_HDRI_DIR="$root/.device/hdri"
+export GRASSD_BENCH_STUDIO_ROUNDS=1 GRASSD_BENCH_STUDIO_PROGRESS=1
+echo "device_check: unpacked in $(( $(date +%s) - t0 )) s; $("$py" --version)"
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null \
+  | sed 's/^/device_check: GPU /'
+"$py" -c "import grassd.sim.backend as b; print('device_check: Taichi gpu runs on', b.init('gpu'))" \
+  2>&1 | grep -v '^\[Taichi\]' | tail -1
+
+check() {  # name, seconds, command...
+  local name=$1 limit=$2; shift 2
+  local var="CHECK_S_${name^^}"; var=${var//-/_}; limit=${!var:-$limit}
+  local start=$(date +%s)
+  echo "device_check: $name (at most $limit s)"
+  timeout "$limit" "$@" > "$out/$name.log" 2>&1
+  local rc=$?
+  grep -v '^\[Taichi\]' "$out/$name.log" | tail -40
+  echo "device_check: $name rc $rc in $(( $(date +%s) - start )) s"
+}
+
+checks=("$@")
+[ ${#checks[@]} -eq 0 ] && checks=(backend studio fit)
+for c in "${checks[@]}"; do
+  case $c in
+    backend) check backend 150 "$py" -m bench backend ;;
+    studio)
+      GRASSD_BENCH_ARCH=gpu check studio-gpu 150 "$py" -m bench studio
+      GRASSD_BENCH_ARCH=cpu check studio-cpu 90 "$py" -m bench studio ;;
+    fit) GRASSD_BENCH_ARCH=gpu check fit-gpu 190 "$py" -m bench fit ;;
+    *) echo "device_check: unknown check $c (backend, studio, fit)"; exit 2 ;;
+  esac
+done
+echo "device_check: all done in $(( $(date +%s) - t0 )) s"
