@@ -30,6 +30,7 @@ RUNS = int(os.environ.get("GRASSD_BENCH_SPLAY_RUNS", "6"))
 def main() -> None:
     from grassd.daemon.calibration.calibrate import Calibrator
     from grassd.daemon.config.settings import resolve_config
+    from grassd.daemon.studio.session import STUDIO_LAUNCH_PATHS
     from grassd.sim import renderer as current
     from grassd.sim.backend import init
     from grassd.sim.hdri import load_hdri
@@ -45,7 +46,7 @@ def main() -> None:
         spec.loader.exec_module(module)
         renderers["old"] = module.Renderer()
     for r in renderers.values():
-        r.min_launch_paths = 2048  # the studio's launches
+        r.min_launch_paths = STUDIO_LAUNCH_PATHS  # the studio's (also on an older renderer)
     display, centre = Calibrator(resolve_config(None, None)).display()
     light = build_lighting(load_hdri(HDRI), ambient_lux=5000)
     lengths = np.arange(0.0, display.pixel.green_max_mm + 1e-9, 2.0)

@@ -11,7 +11,7 @@
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 py=${PYTHON:-$root/.venv/bin/python}
-hdri=${GRASSD_BENCH_HDRI_DIR:-$root/../shared/hdri}
+hdri=$(cd "$root" && "$py" -c "from bench import HDRI_DIR; print(HDRI_DIR)")
 out=$root/.device
 # distributions the studio, grassd fit and the backend bench import that the image lacks
 dists=(taichi dill OpenEXR colour-science pvlib pytz rawpy tomli_w cobs)
@@ -26,7 +26,7 @@ pins=()
 for d in "${dists[@]}"; do
   pins+=("$d==$("$py" -c "import importlib.metadata as m, sys; print(m.version(sys.argv[1]))" "$d")")
 done
-# cobs has no CPython 3.12 wheel after 1.2.0 (grassd needs >= 1.2)
+# cobs has no CPython 3.12 wheel after 1.2.0 (grassd needs >= 1.2): that one, whatever the .venv has
 pins=("${pins[@]/#cobs==*/cobs==1.2.0}")
 echo "device_pack: ${pins[*]}"
 "$py" -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 \

@@ -358,7 +358,7 @@ class Renderer:
             if key not in self._compiled:
                 self._launches += 1
                 self._trace_kernel(0, 0, 1, 1, 0, 1, 0, 1, ti.Vector([0.0, 0.0, 1.0]), 1.0,
-                                   self._no_word, 0, self._launches, *key)
+                                   self._no_word, 0, self._launches, self.interruptible, *key)
                 ti.sync()
                 self._compiled.add(key)
         return time.perf_counter() - t0
@@ -1129,8 +1129,8 @@ class Renderer:
     def _trace_kernel(self, n_len: ti.i32, rep0: ti.i32, n_rep: ti.i32, strata: ti.i32,
                       i0: ti.i32, n_part: ti.i32, seed: ti.u32, max_bounces: ti.i32, eye: vec3,
                       area: ti.f32, word: ti.types.ndarray(dtype=ti.i32, ndim=1), base: ti.i32,
-                      launch: ti.i32, glossy: ti.template(), splay: ti.template(),
-                      several: ti.template()):
+                      launch: ti.i32, stoppable: ti.template(), glossy: ti.template(),
+                      splay: ti.template(), several: ti.template()):
         """Trace paths i0 .. i0 + n_part - 1 of replicates rep0 .. rep0 + n_rep - 1 at the
         first n_len entries of ``self.lengths`` (ascending, m). Each camera path is traced at
         the shortest length and again only at a length from which on it may change
@@ -1142,7 +1142,7 @@ class Renderer:
         x_cull = self.lengths[ti.max(n_len - 1, 0)]
         self._launch_begins(launch)
         for rr, ii in ti.ndrange(n_rep, n_part):
-            if not self._slot_taken(rr * n_part + ii, launch, word, base):
+            if not self._slot_taken(rr * n_part + ii, launch, word, base, stoppable):
                 continue
             r = rep0 + rr
             i = i0 + ii
@@ -1185,10 +1185,11 @@ class Renderer:
     def _preview_kernel(self, width: ti.i32, spp: ti.i32, seed: ti.u32, max_bounces: ti.i32,
                         eye: vec3, forward: vec3, right: vec3, up: vec3, half: ti.f32,
                         x: ti.f32, word: ti.types.ndarray(dtype=ti.i32, ndim=1), base: ti.i32,
-                        launch: ti.i32, glossy: ti.template(), splay: ti.template()):
+                        launch: ti.i32, stoppable: ti.template(), glossy: ti.template(),
+                        splay: ti.template()):
         self._launch_begins(launch)
         for py, px in ti.ndrange(width, width):
-            if not self._slot_taken(py * width + px, launch, word, base):
+            if not self._slot_taken(py * width + px, launch, word, base, stoppable):
                 continue
             acc = vec3(0.0)
             rep_key = tf.replicate_key(seed, py * width + px)
@@ -1216,16 +1217,20 @@ class Renderer:
         self.skipped[None] = 0
 
     @ti.func
-    def _slot_taken(self, slot: ti.i32, launch: ti.i32, word: ti.template(),
-                    base: ti.i32) -> ti.i32:
+    def _slot_taken(self, slot: ti.i32, launch: ti.i32, word: ti.template(), base: ti.i32,
+                    stoppable: ti.template()) -> ti.i32:
         """Whether this try of ``launch`` traces path slot (or pixel) ``slot``: not if an
-        earlier try of the launch traced it, nor once ``word[0]`` differs from ``base`` (the
-        slot is then counted in ``skipped``: :mod:`grassd.sim.interrupt`)."""
+        earlier try of the launch traced it, nor, where the launch is ``stoppable``
+        (:attr:`interruptible`, a compile-time flag), once ``word[0]`` differs from ``base``
+        (the slot is then counted in ``skipped``: :mod:`grassd.sim.interrupt`). Elsewhere (a
+        GPU) the word is not read: every thread would read one address."""
         taken = self.slot_launch[slot] != launch
-        # An atomic read: a plain load could be kept in a register for a task's paths.
-        if taken and ti.atomic_or(word[0], 0) != base:
-            self.skipped[None] += 1
-            taken = False
+        if ti.static(stoppable):
+            if taken:
+                # An atomic read: a plain load could be kept in a register for a task's paths.
+                if ti.atomic_or(word[0], 0) != base:
+                    self.skipped[None] += 1
+                    taken = False
         return taken
 
     @property
@@ -1238,20 +1243,22 @@ class Renderer:
         return runs_on_host()
 
     def _launch(self, kernel: Callable, head: tuple, tail: tuple) -> None:
-        """Run ``kernel(*head, word, base, launch, *tail)`` (a launch that skips its paths once
-        ``word[0]`` differs from ``base``) to its end: under :attr:`interrupt`, a launch that
-        skipped paths is tried again once :meth:`~grassd.sim.interrupt.Interrupt.arm` allows it
-        (or ``arm`` raises and the run ends), and that try traces only the paths skipped (the
-        kernels mark each slot with ``launch``). Each path writes its own slot, so the numbers
+        """Run ``kernel(*head, word, base, launch, stoppable, *tail)`` (a launch that skips its
+        paths once ``word[0]`` differs from ``base``, where it is ``stoppable``) to its end:
+        under :attr:`interrupt`, a launch that skipped paths is tried again once
+        :meth:`~grassd.sim.interrupt.Interrupt.arm` allows it (or ``arm`` raises and the run
+        ends), and that try traces only the paths skipped (the kernels mark each slot with
+        ``launch``). Each path writes its own slot, so the numbers
         are those of the launch uninterrupted, and an interrupt that supersedes nothing (another
         page's input) loses no work."""
         self._launches += 1
         while True:
-            interrupt = self.interrupt if self.interruptible else None
+            stoppable = self.interruptible
+            interrupt = self.interrupt if stoppable else None
             if interrupt is None:
-                kernel(*head, self._no_word, 0, self._launches, *tail)
+                kernel(*head, self._no_word, 0, self._launches, stoppable, *tail)
                 return
-            kernel(*head, interrupt.word, interrupt.arm(), self._launches, *tail)
+            kernel(*head, interrupt.word, interrupt.arm(), self._launches, stoppable, *tail)
             if int(self.skipped[None]) == 0:
                 return
 

@@ -207,6 +207,7 @@ class Viewpoint:
 
 
 MAX_REPLICATES = 64  #: replicates of one render (an adaptive run adds rounds of at most this)
+MAX_SAMPLES = 4_000_000  #: camera paths of one replicate (within the renderer's buffer, 2^22)
 
 
 @dataclass(frozen=True)
@@ -232,8 +233,8 @@ class RenderSettings:
     roulette_from: int = 2
 
     def __post_init__(self) -> None:
-        if not 1 <= self.samples <= 4_000_000:
-            raise SceneError(f"samples must be in 1..4000000, got {self.samples}")
+        if not 1 <= self.samples <= MAX_SAMPLES:
+            raise SceneError(f"samples must be in 1..{MAX_SAMPLES}, got {self.samples}")
         if not 1 <= self.replicates <= MAX_REPLICATES:
             raise SceneError(f"replicates must be in 1..{MAX_REPLICATES}, got {self.replicates}")
         if not 1 <= self.max_bounces <= 16:

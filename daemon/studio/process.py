@@ -29,6 +29,7 @@ or the exception's class name.
 from __future__ import annotations
 
 import asyncio
+import ctypes
 import itertools
 import logging
 import multiprocessing
@@ -80,7 +81,8 @@ class StudioArgs:
                       arch=self.arch, interrupts=interrupts)
 
 
-def simulator_main(conn: Connection, args: StudioArgs, word: Any = None) -> None:
+def simulator_main(conn: Connection, args: StudioArgs,
+                   word: ctypes.Array[ctypes.c_int] | None = None) -> None:
     """The simulator process: build the Studio, warm it up, then run what the server sends.
     ``word``: the ``multiprocessing`` int array (``RawArray("i", 1)``) the server moves with
     every job or cancel; None: launches are not stopped in flight."""
@@ -171,6 +173,7 @@ class SimulatorProcess:
         self._loop = asyncio.get_running_loop()
         self._lights: list[LightSource] = []  # uploads, given again to a restarted process
         self.restarts = 0
+        self._stopped = False
         self._start()
 
     def _start(self) -> None:
@@ -191,6 +194,8 @@ class SimulatorProcess:
         """Send ``item``; one that ``supersedes`` (a job, a cancel) first moves the shared word,
         which stops the launch in flight, and carries the word's new value."""
         with self._lock:
+            if self._stopped:
+                raise RuntimeError("the studio is stopping: its simulator process has ended")
             for attempt in (1, 2):
                 if not self.alive:  # it died (a crash in the renderer): a fresh one takes over
                     self.restarts += 1
@@ -270,16 +275,19 @@ class SimulatorProcess:
         self._send(("light", source))
 
     def stop(self) -> None:
-        """End the simulator process: its jobs stop (the launch in flight too, through the
-        word), so it ends within a camera path rather than after its launch."""
-        if self.alive:
-            try:
-                with self._lock:
+        """End the simulator process (nothing is sent after): its jobs stop, the launch in
+        flight too through the word, so on the CPU it ends within a camera path rather than
+        after its launch; on a GPU, or during its warm-up (which no job's check stops), after
+        the launch or the warm-up, killed if that takes more than 20 s."""
+        with self._lock:
+            self._stopped = True
+            if self.alive:
+                try:
                     self._word[0] += 1
                     self._conn.send(("stop", self._word[0]))
-            except OSError:
-                pass
-            self.alive = False
+                except OSError:
+                    pass
+                self.alive = False
         self.proc.join(timeout=20)
         if self.proc.is_alive():
             self.proc.kill()

@@ -13,21 +13,20 @@ import pytest
 from conftest import HDRI_DIR
 
 from grassd.daemon.studio.worker import Superseded
+from grassd.sim.scene import MAX_SAMPLES
 
-# Paths a replicate of the probe that times the machine (2 replicates), and the most a
-# replicate takes (the renderer's buffer, Capacity.paths).
+# Paths a replicate of the probe that times the machine (2 replicates).
 PROBE_PATHS = 1 << 16
-MOST_PATHS = 1 << 22
 # Seconds the long job's launches are sized to by the probe's rate (which overstates them: on 2
 # cores they took about 11 s).
 LONG_LAUNCH_S = 20.0
 
 
 @asynccontextmanager
-async def simulator() -> AsyncIterator[tuple[object, Callable[[int], dict], float]]:
+async def simulator() -> AsyncIterator[tuple[object, Callable[..., tuple], float]]:
     """A started simulator process, the job payload of ``samples`` splayed camera paths a
-    replicate at 2 lengths, and the paths a replicate that take :data:`LONG_LAUNCH_S` seconds
-    here (at most :data:`MOST_PATHS`), as a probe of 2 x :data:`PROBE_PATHS` paths timed it."""
+    replicate at 2 lengths, and the seconds a path takes here, as a probe of 2 x
+    :data:`PROBE_PATHS` paths timed it."""
     from grassd.daemon.config.settings import resolve_config
     from grassd.daemon.studio.inputs import parse_condition
     from grassd.daemon.studio.lights import LightSource
@@ -59,14 +58,20 @@ async def simulator() -> AsyncIterator[tuple[object, Callable[[int], dict], floa
 
 
 def long_paths(per_path: float) -> int:
-    return min(MOST_PATHS, int(LONG_LAUNCH_S / per_path))
+    """Paths a replicate of the long job: :data:`LONG_LAUNCH_S` by the probe, at most
+    ``MAX_SAMPLES``; a machine that traces those in under 3 s has no launch long enough to stop."""
+    paths = min(MAX_SAMPLES, int(LONG_LAUNCH_S / per_path))
+    if paths * per_path < 3.0:
+        pytest.skip(f"this machine traces {paths} paths in {paths * per_path:.1f} s: "
+                    f"no launch here is long enough to stop in flight")
+    return paths
 
 
 def test_a_newer_job_stops_the_launch_in_flight():
     """Job A's replicates of splayed camera paths are sized to long launches by a probe's rate
-    (at most the buffer's 4 million paths); job B, sent 1 s after A started,
-    supersedes A and is answered within a third of A's launch and 5 s (measured on 2 cores:
-    0.02 s): A's launch stopped within the camera path in flight. Without the shared word B
+    (at most a replicate's 4 million paths); job B, sent 1 s after A started,
+    supersedes A and is answered within a third of A's launch and 2 s (measured on 2 cores:
+    0.02-0.08 s): A's launch stopped within the camera path in flight. Without the shared word B
     waited for A's launch to end (6.7 s after it was sent)."""
 
     async def scenario() -> tuple[float, object, BaseException | None, float]:
@@ -87,16 +92,16 @@ def test_a_newer_job_stops_the_launch_in_flight():
     answered, curve, error, launch_s = asyncio.run(scenario())
     assert isinstance(error, Superseded), error
     assert curve.ogcd.shape == (2,)
-    assert answered < min(5.0, launch_s / 3), (
+    assert answered < min(2.0, launch_s / 3), (
         f"B answered {answered:.1f} s after it was sent; A's launch takes about "
         f"{launch_s:.1f} s")
 
 
 def test_the_studio_ends_within_a_camera_path_of_a_long_launch():
     """Stopping the simulator 1 s into a long launch ends its process cleanly (exit code 0,
-    the job superseded) within a third of the launch and 5 s (measured on 2 cores: 0.1 s);
-    without moving the word it waited for the launch to end (4.8 s into a launch of 12 s
-    by the probe)."""
+    the job superseded) within a third of the launch and 3 s (measured on 2 cores: 0.5-0.7 s,
+    most of it the process's exit); without moving the word it waited for the launch to end
+    (4.8 s into a launch of 12 s by the probe)."""
 
     async def scenario() -> tuple[float, float, object, BaseException | None]:
         async with simulator() as (sim, job, per_path):
@@ -106,12 +111,13 @@ def test_the_studio_ends_within_a_camera_path_of_a_long_launch():
             t0 = time.monotonic()
             sim.stop()
             took = time.monotonic() - t0
-            await asyncio.sleep(0.1)  # the simulator's last messages reach the future
-            return took, paths * per_path, sim.proc.exitcode, slow.exception()
+            await asyncio.wait([slow], timeout=5)  # the simulator's last message reaches it
+            return (took, paths * per_path, sim.proc.exitcode,
+                    slow.exception() if slow.done() else None)
 
     took, launch_s, exitcode, error = asyncio.run(scenario())
     assert exitcode == 0
     assert isinstance(error, Superseded), error
-    assert took < min(5.0, launch_s / 3), (
+    assert took < min(3.0, launch_s / 3), (
         f"the simulator ended {took:.1f} s after it was told to; its launch takes about "
         f"{launch_s:.1f} s")

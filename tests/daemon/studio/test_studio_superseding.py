@@ -22,7 +22,7 @@ def test_a_word_that_did_not_move_arms_at_once_under_its_value():
     interrupt = Superseding(np.zeros(1, np.int32)).interrupt(lambda: checks.append(1))
     t0 = time.monotonic()
     assert interrupt.arm() == 0
-    assert time.monotonic() - t0 < 0.05 and checks == [1]
+    assert time.monotonic() - t0 < 0.5 and checks == [1]
 
 
 def test_arming_waits_for_the_message_that_moved_the_word_then_asks_the_check():
@@ -57,7 +57,9 @@ def test_a_job_that_was_not_superseded_goes_on_under_the_new_word():
     interrupt = side.interrupt(lambda: None)
     word[0] = 1  # another page's input
     threading.Timer(0.05, side.took, (1,)).start()
+    t0 = time.monotonic()
     assert interrupt.arm() == 1
+    assert time.monotonic() - t0 < module.CATCH_UP_S  # taken in, not timed out
 
 
 def test_a_message_that_never_comes_in_arms_under_the_word_after_the_catch_up_time(
