@@ -1248,16 +1248,16 @@ class Renderer:
         under :attr:`interrupt`, a launch that skipped paths is tried again once
         :meth:`~grassd.sim.interrupt.Interrupt.arm` allows it (or ``arm`` raises and the run
         ends), and that try traces only the paths skipped (the kernels mark each slot with
-        ``launch``). Each path writes its own slot, so the numbers
-        are those of the launch uninterrupted, and an interrupt that supersedes nothing (another
-        page's input) loses no work."""
+        ``launch``). Each path writes its own slot, so the numbers are those of the launch
+        uninterrupted, and an interrupt that supersedes nothing (another page's input) loses no
+        work."""
         self._launches += 1
+        stoppable = self.interruptible
+        interrupt = self.interrupt if stoppable else None
+        if interrupt is None:
+            kernel(*head, self._no_word, 0, self._launches, stoppable, *tail)
+            return
         while True:
-            stoppable = self.interruptible
-            interrupt = self.interrupt if stoppable else None
-            if interrupt is None:
-                kernel(*head, self._no_word, 0, self._launches, stoppable, *tail)
-                return
             kernel(*head, interrupt.word, interrupt.arm(), self._launches, stoppable, *tail)
             if int(self.skipped[None]) == 0:
                 return

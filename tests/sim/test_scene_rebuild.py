@@ -94,7 +94,7 @@ def test_smaller_launches_change_no_number(renderer):
 
 
 def test_a_replicate_split_across_launches_keeps_its_paths(renderer):
-    """With a most paths a launch takes, a replicate larger than it goes in launches of consecutive
+    """With a cap on the paths a launch takes, a larger replicate goes in launches of consecutive
     shares of its paths (the studio's larger replicates): the same paths, traced the same
     way, their sums added (float64 rounding)."""
     env = np.random.default_rng(6).uniform(0.2, 2.0, (32, 64, 3)).astype(np.float32)

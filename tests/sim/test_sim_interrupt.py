@@ -125,7 +125,9 @@ def test_a_launch_another_process_stops_is_finished_with_the_uninterrupted_numbe
         old word (every path not yet traced is skipped again), then under the new one; notes
         what each try skipped."""
 
-        skips: list = []
+        def __init__(self, word):
+            super().__init__(word)
+            self.skips = []
 
         def arm(self):
             if self.calls == 0:

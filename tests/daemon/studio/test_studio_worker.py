@@ -4,22 +4,30 @@ the older one, queued or running; other owners' jobs are not touched."""
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 
 import pytest
 
-from grassd.daemon.studio.worker import Superseded, Worker
+from grassd.daemon.studio.worker import Check, Superseded, Worker
+
+
+def held_job() -> tuple[threading.Event, threading.Event, Callable[[Check], str]]:
+    """A job that signals ``started``, waits for ``release``, then checks (where a newer job
+    or a cancel that came in meanwhile makes it raise)."""
+    started, release = threading.Event(), threading.Event()
+
+    def job(check: Check) -> str:
+        started.set()
+        release.wait(10)
+        check()
+        return "not reached"
+
+    return started, release, job
 
 
 def test_a_newer_job_of_the_same_owner_stops_the_running_one():
     w = Worker()
-    started, release = threading.Event(), threading.Event()
-
-    def long(check):
-        started.set()
-        release.wait(10)
-        check()  # the next check after the newer job came in raises
-        return "not reached"
-
+    started, release, long = held_job()
     first = w.submit("page", long)
     assert started.wait(10)
     queued = w.submit("page", lambda check: "queued, then replaced")
@@ -53,14 +61,7 @@ def test_cancel_stops_an_owners_jobs_and_errors_reach_the_future():
 
 def test_cancel_all_stops_every_owners_running_and_queued_jobs():
     w = Worker()
-    started, release = threading.Event(), threading.Event()
-
-    def long(check):
-        started.set()
-        release.wait(10)
-        check()
-        return "not reached"
-
+    started, release, long = held_job()
     running = w.submit("page", long)
     assert started.wait(10)
     queued = w.submit("another page", lambda check: "not reached either")
