@@ -69,10 +69,10 @@ def long_paths(per_path: float) -> int:
 
 def test_a_newer_job_stops_the_launch_in_flight():
     """Job A's replicates of splayed camera paths are sized to long launches by a probe's rate
-    (at most a replicate's 4 million paths); job B, sent 1 s after A started,
-    supersedes A and is answered within a third of A's launch and 2 s (measured on 2 cores:
-    0.02-0.08 s): A's launch stopped within the camera path in flight. Without the shared word B
-    waited for A's launch to end (6.7 s after it was sent)."""
+    (at most a replicate's 4 million paths); job B, sent 1 s after A started, supersedes A and
+    is answered within a third of A's launch and 5 s (measured on 2 cores: 0.02-0.08 s alone,
+    2.8 s beside another pytest worker): A's launch stopped within the camera path in flight.
+    Without the shared word B waited for A's launch to end (8.0 s after it was sent)."""
 
     async def scenario() -> tuple[float, object, BaseException | None, float]:
         async with simulator() as (sim, job, per_path):
@@ -92,16 +92,16 @@ def test_a_newer_job_stops_the_launch_in_flight():
     answered, curve, error, launch_s = asyncio.run(scenario())
     assert isinstance(error, Superseded), error
     assert curve.ogcd.shape == (2,)
-    assert answered < min(2.0, launch_s / 3), (
+    assert answered < min(5.0, launch_s / 3), (
         f"B answered {answered:.1f} s after it was sent; A's launch takes about "
         f"{launch_s:.1f} s")
 
 
 def test_the_studio_ends_within_a_camera_path_of_a_long_launch():
     """Stopping the simulator 1 s into a long launch ends its process cleanly (exit code 0,
-    the job superseded) within a third of the launch and 3 s (measured on 2 cores: 0.5-0.7 s,
+    the job superseded) within a third of the launch and 5 s (measured on 2 cores: 0.5-0.7 s,
     most of it the process's exit); without moving the word it waited for the launch to end
-    (4.8 s into a launch of 12 s by the probe)."""
+    (7.5 s)."""
 
     async def scenario() -> tuple[float, float, object, BaseException | None]:
         async with simulator() as (sim, job, per_path):
@@ -118,6 +118,6 @@ def test_the_studio_ends_within_a_camera_path_of_a_long_launch():
     took, launch_s, exitcode, error = asyncio.run(scenario())
     assert exitcode == 0
     assert isinstance(error, Superseded), error
-    assert took < min(3.0, launch_s / 3), (
+    assert took < min(5.0, launch_s / 3), (
         f"the simulator ended {took:.1f} s after it was told to; its launch takes about "
         f"{launch_s:.1f} s")
