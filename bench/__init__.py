@@ -17,4 +17,6 @@ from pathlib import Path
 
 HDRI_DIR: Path = Path(os.environ.get(
     "GRASSD_BENCH_HDRI_DIR", Path(__file__).resolve().parents[1].parent / "shared" / "hdri"))
+#: The panorama of the benchmarks that time one light (the studio, the splay, the display).
+COURTYARD: Path = HDRI_DIR / "courtyard.exr"
 ARCH: str = os.environ.get("GRASSD_BENCH_ARCH", "cpu")

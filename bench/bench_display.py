@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from bench import HDRI_DIR
+from bench import COURTYARD
 from grassd.daemon.calibration.display_model import (
     build_display_tables,
     errors_on,
@@ -26,14 +26,12 @@ from grassd.daemon.calibration.display_model import (
 )
 from grassd.daemon.calibration.simulation import simulate_curve
 
-HDRI = HDRI_DIR / "courtyard.exr"
-
 
 def _lighting():
     from grassd.sim.lighting import build_lighting
 
-    if HDRI.exists():
-        src = str(HDRI)
+    if COURTYARD.exists():
+        src = str(COURTYARD)
     else:
         src = np.ones((64, 128, 3), np.float32)
         src[:32] *= 2.0
@@ -149,7 +147,7 @@ def main() -> None:
     renderer._ensure_compiled((True, False))  # several lengths, and one-length top-ups
     print(f"{len(lengths)} lengths {lengths.min():g}..{lengths.max():g} mm; "
           f"kernel compile/load: {time.perf_counter() - t0:.2f} s; light: "
-          f"{'courtyard.exr' if HDRI.exists() else 'synthetic sky'} 20000 lx + sun 40000 lx")
+          f"{'courtyard.exr' if COURTYARD.exists() else 'synthetic sky'} 20000 lx + sun 40000 lx")
     bench_8x8(lighting, renderer, lengths, quick)
     bench_scaling(lighting, lengths, quick)
 

@@ -12,21 +12,20 @@ import time
 
 import numpy as np
 
-from bench import HDRI_DIR
+from bench import COURTYARD
 from grassd.calib.display_in_photo import locate_display, pixel_means
 from grassd.sim.display_photo import camera_rotation, display_photo
 from grassd.sim.scene import DisplaySpec
 
-HDRI = HDRI_DIR / "courtyard.exr"
 POSES = [((0.15, -0.9, 0.7), 30.0), ((0.55, -0.75, 0.65), -20.0), ((-0.1, -1.2, 0.56), 180.0),
          ((0.15, -0.9, 0.7), 99.46), ((0.0, -2.0, 1.5), 90.0)]
 
 
 def main() -> None:
-    if HDRI.exists():
+    if COURTYARD.exists():
         from grassd.sim.hdri import load_hdri
 
-        env = load_hdri(HDRI)[::2, ::2]
+        env = load_hdri(COURTYARD)[::2, ::2]
     else:
         env = np.ones((256, 512, 3), np.float32)
         env[:128] *= 3.0

@@ -21,9 +21,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from bench import HDRI_DIR
+from bench import COURTYARD
 
-HDRI = HDRI_DIR / "courtyard.exr"
 RUNS = int(os.environ.get("GRASSD_BENCH_SPLAY_RUNS", "6"))
 
 
@@ -48,7 +47,7 @@ def main() -> None:
     for r in renderers.values():
         r.min_launch_paths = STUDIO_LAUNCH_PATHS  # the studio's (also on an older renderer)
     display, centre = Calibrator(resolve_config(None, None)).display()
-    light = build_lighting(load_hdri(HDRI), ambient_lux=5000)
+    light = build_lighting(load_hdri(COURTYARD), ambient_lux=5000)
     lengths = np.arange(0.0, display.pixel.green_max_mm + 1e-9, 2.0)
     for splay, samples, reps in ((8.0, 256, 16), (0.0, 1024, 4)):
         d = replace(display, pixel=replace(display.pixel, splay_deg=splay))

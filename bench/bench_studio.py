@@ -30,9 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bench import ARCH, HDRI_DIR
+from bench import ARCH, COURTYARD
 
-HDRI = HDRI_DIR / "courtyard.exr"
 #: (what changes, condition) of each timed input, repeated ROUNDS times
 CHANGES = [
     ("eye moves", {"viewpoint": [170, 2.5, 15]}),
@@ -62,7 +61,7 @@ GOALS_MS = {"first curve": 150.0, "first pixel": 300.0, "converged": 1000.0}
 def _start() -> tuple[subprocess.Popen, str]:
     log = open(Path(tempfile.mkdtemp(prefix="bench-studio-")) / "studio.log", "wb")
     proc = subprocess.Popen([sys.executable, "-m", "grassd.daemon.cli", "studio", "--port", "0",
-                             "--hdri", str(HDRI), "--arch", ARCH], stdout=subprocess.PIPE,
+                             "--hdri", str(COURTYARD), "--arch", ARCH], stdout=subprocess.PIPE,
                             stderr=log, text=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
     line = proc.stdout.readline()
     if not line.startswith("grassd studio: "):
@@ -136,8 +135,8 @@ async def _run(url: str) -> tuple[dict[str, dict[str, list[float]]],
 
 
 def main() -> None:
-    if not HDRI.exists():
-        print(f"bench_studio: {HDRI} not present (../shared beside the clone); skipped")
+    if not COURTYARD.exists():
+        print(f"bench_studio: {COURTYARD} not present (../shared beside the clone); skipped")
         return
     proc, url = _start()
     try:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import logging
 import struct
 import time
-from pathlib import Path
 
 import numpy as np
 import OpenEXR
@@ -14,11 +13,7 @@ import pytest
 from grassd.sim import hdri
 from grassd.sim.errors import HdriError
 
-SHARED = Path(__file__).resolve().parents[3] / "shared" / "hdri"
-if not SHARED.is_dir():  # worktrees other than /work/main
-    SHARED = Path("/work/shared/hdri")
 MAPS = ["city", "courtyard", "forest", "interior", "studio"]
-needs_shared = pytest.mark.skipif(not SHARED.is_dir(), reason="shared HDRIs not present")
 
 
 def _rng_map(h=16, seed=0):
@@ -26,26 +21,24 @@ def _rng_map(h=16, seed=0):
     return (rng.lognormal(0.0, 2.0, size=(h, 2 * h, 3))).astype(np.float32)
 
 
-@needs_shared
 @pytest.mark.parametrize("name", MAPS)
-def test_shared_maps_load_clean(name):
-    img = hdri.load_hdri(SHARED / f"{name}.exr")
+def test_shared_maps_load_clean(shared_hdri, name):
+    img = hdri.load_hdri(shared_hdri(name))
     assert img.shape == (512, 1024, 3) and img.dtype == np.float32
     assert img.flags.c_contiguous
     assert np.isfinite(img).all() and img.min() >= 0.0
-    raw = OpenEXR.File(str(SHARED / f"{name}.exr")).channels()["RGB"].pixels
+    raw = OpenEXR.File(str(shared_hdri(name))).channels()["RGB"].pixels
     # identical to the library's own read except the clamped noise (chromaticity conversion of
     # the D50-adapted sRGB attribute is the identity and skipped)
     np.testing.assert_array_equal(img, np.maximum(raw, 0.0))
 
 
-@needs_shared
-def test_negative_dwab_noise_is_clamped_and_counted(caplog):
-    raw = OpenEXR.File(str(SHARED / "forest.exr")).channels()["RGB"].pixels
+def test_negative_dwab_noise_is_clamped_and_counted(shared_hdri, caplog):
+    raw = OpenEXR.File(str(shared_hdri("forest"))).channels()["RGB"].pixels
     n_neg = int((raw < 0).sum())
     assert n_neg == 826  # the shared file's known compression noise
     with caplog.at_level(logging.WARNING, logger="grassd.sim.hdri"):
-        img = hdri.load_hdri(SHARED / "forest.exr")
+        img = hdri.load_hdri(shared_hdri("forest"))
     assert img.min() == 0.0
     assert f"clamped {n_neg} slightly negative" in caplog.text
 
@@ -215,10 +208,9 @@ def test_missing_empty_and_foreign_files(tmp_path):
         hdri.load_hdri(tmp_path / "notes.exr")
 
 
-@needs_shared
 @pytest.mark.parametrize("fraction", [0.002, 0.1, 0.5, 0.9, 0.999])
-def test_truncated_real_exr(tmp_path, fraction):
-    data = (SHARED / "city.exr").read_bytes()
+def test_truncated_real_exr(shared_hdri, tmp_path, fraction):
+    data = shared_hdri("city").read_bytes()
     cut = tmp_path / "cut.exr"
     cut.write_bytes(data[: int(len(data) * fraction)])
     with pytest.raises(HdriError, match="corrupt or truncated OpenEXR") as info:
@@ -226,9 +218,8 @@ def test_truncated_real_exr(tmp_path, fraction):
     assert "\n" not in str(info.value)
 
 
-@needs_shared
-def test_corrupted_exr_bytes(tmp_path):
-    data = bytearray((SHARED / "city.exr").read_bytes())
+def test_corrupted_exr_bytes(shared_hdri, tmp_path):
+    data = bytearray(shared_hdri("city").read_bytes())
     rng = np.random.default_rng(0)
     start = len(data) // 2
     data[start: start + 4096] = rng.integers(0, 256, 4096, dtype=np.uint8).tobytes()
@@ -270,9 +261,8 @@ def test_not_two_to_one(tmp_path, shape):
         hdri.load_hdri(tmp_path / "a.hdr")
 
 
-@needs_shared
-def test_huge_exr_data_window_refused_before_reading(tmp_path):
-    data = bytearray((SHARED / "city.exr").read_bytes())
+def test_huge_exr_data_window_refused_before_reading(shared_hdri, tmp_path):
+    data = bytearray(shared_hdri("city").read_bytes())
     at = data.index(b"dataWindow\x00box2i\x00") + len(b"dataWindow\x00box2i\x00") + 4
     data[at: at + 16] = struct.pack("<4i", 0, 0, 199_999, 99_999)  # 200000 x 100000
     (tmp_path / "huge.exr").write_bytes(bytes(data))
@@ -282,7 +272,7 @@ def test_huge_exr_data_window_refused_before_reading(tmp_path):
     assert time.perf_counter() - t0 < 2.0  # nothing was allocated or decoded
     # the limit is a parameter: the real 1024 x 512 map is refused under a smaller one
     with pytest.raises(HdriError, match="exceeds the limit of 100000 texels"):
-        hdri.load_hdri(SHARED / "city.exr", max_texels=100_000)
+        hdri.load_hdri(shared_hdri("city"), max_texels=100_000)
 
 
 def test_huge_hdr_resolution_refused(tmp_path):

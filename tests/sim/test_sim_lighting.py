@@ -12,8 +12,6 @@ from grassd.sim import hdri
 from grassd.sim import lighting as L
 from grassd.sim.errors import LightingError
 
-SHARED = Path("/work/shared/hdri")
-needs_shared = pytest.mark.skipif(not SHARED.is_dir(), reason="shared HDRIs not present")
 DEFAULT_SITE = Path(L.__file__).resolve().parent / "data" / "default_site.exr"
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
@@ -82,18 +80,16 @@ def test_uniform_map_gives_pi_l_exactly(h):
         assert L.horizontal_illuminance(env) == pytest.approx(np.pi * 2.5, rel=1e-12)
 
 
-@needs_shared
 @pytest.mark.parametrize("name", ["city", "courtyard", "forest", "interior", "studio"])
-def test_real_map_illuminance_matches_midpoint_quadrature(name):
-    env = hdri.load_hdri(SHARED / f"{name}.exr")
+def test_real_map_illuminance_matches_midpoint_quadrature(shared_hdri, name):
+    env = hdri.load_hdri(shared_hdri(name))
     e_exact = L.horizontal_illuminance(env)
     e_mid = _midpoint_illuminance(env)
     assert abs(e_exact - e_mid) / e_mid < 1e-5
 
 
-@needs_shared
-def test_real_map_illuminance_by_cosine_weighted_monte_carlo():
-    env = hdri.load_hdri(SHARED / "courtyard.exr")
+def test_real_map_illuminance_by_cosine_weighted_monte_carlo(shared_hdri):
+    env = hdri.load_hdri(shared_hdri("courtyard"))
     rng = np.random.default_rng(7)
     n = 2_000_000
     # cosine-weighted hemisphere: E = pi * mean(Y)
@@ -106,9 +102,8 @@ def test_real_map_illuminance_by_cosine_weighted_monte_carlo():
     assert err / e < 0.01  # the check is sharp
 
 
-@needs_shared
-def test_build_lighting_scales_real_map_to_lux():
-    env = hdri.load_hdri(SHARED / "courtyard.exr")
+def test_build_lighting_scales_real_map_to_lux(shared_hdri):
+    env = hdri.load_hdri(shared_hdri("courtyard"))
     lit = L.build_lighting(env, 12345.0)
     assert L.horizontal_illuminance(lit.env) == pytest.approx(12345.0, rel=1e-6)
     assert _midpoint_illuminance(lit.env) == pytest.approx(12345.0, rel=2e-5)

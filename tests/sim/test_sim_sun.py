@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import datetime as dt
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,8 +11,6 @@ from grassd.sim import hdri, sun
 from grassd.sim import lighting as L
 from grassd.sim.errors import LightingError
 
-SHARED = Path("/work/shared/hdri")
-needs_shared = pytest.mark.skipif(not SHARED.is_dir(), reason="shared HDRIs not present")
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 UTC = dt.UTC
 
@@ -102,9 +99,8 @@ def test_find_sun_rejects_broad_dim_or_low_regions():
     assert sun.find_sun(below) is None
 
 
-@needs_shared
-def test_find_sun_on_city_is_the_maps_maximum():
-    env = hdri.load_hdri(SHARED / "city.exr")
+def test_find_sun_on_city_is_the_maps_maximum(shared_hdri):
+    env = hdri.load_hdri(shared_hdri("city"))
     found = sun.find_sun(env)
     assert found is not None
     az, el = L.azimuth_elevation_from_direction(found.direction)
@@ -119,20 +115,18 @@ def test_find_sun_on_city_is_the_maps_maximum():
     assert found.mean_radiance_rgb.min() > 1e4  # the clamp level of the file was 32000
 
 
-@needs_shared
 @pytest.mark.parametrize(("name", "has_sun"), [("courtyard", False), ("studio", False),
                                                ("forest", True), ("interior", True)])
-def test_find_sun_on_the_other_shared_maps(name, has_sun):
-    found = sun.find_sun(hdri.load_hdri(SHARED / f"{name}.exr"))
+def test_find_sun_on_the_other_shared_maps(shared_hdri, name, has_sun):
+    found = sun.find_sun(hdri.load_hdri(shared_hdri(name)))
     assert (found is not None) == has_sun
 
 
 # ---------------------------------------------------------------------- clipped-sun restore
 
 
-@needs_shared
-def test_city_clipped_sun_restored_from_total_lux():
-    env = hdri.load_hdri(SHARED / "city.exr")
+def test_city_clipped_sun_restored_from_total_lux(shared_hdri):
+    env = hdri.load_hdri(shared_hdri("city"))
     total = 80000.0
     lit = L.build_lighting(env, total, sun_from_hdri=True, day_of_year=239)
     found = sun.find_sun(env)
@@ -162,9 +156,8 @@ def test_city_clipped_sun_restored_from_total_lux():
     assert lit.sun_lux > 0.6 * total  # the restored sun dominates, as on a real sunny day
 
 
-@needs_shared
-def test_two_readings_sky_gets_the_shaded_reading():
-    env = hdri.load_hdri(SHARED / "city.exr")
+def test_two_readings_sky_gets_the_shaded_reading(shared_hdri):
+    env = hdri.load_hdri(shared_hdri("city"))
     lit = L.build_lighting(env, 15000.0, sun_lux=65000.0, sun_from_hdri=True)
     mask = sun.sun_mask(env)
     sky = lit.env * ~mask[..., None]
@@ -187,9 +180,8 @@ def test_unclipped_sun_is_trusted_as_it_is():
     assert lit.total_lux == pytest.approx(90000.0, rel=1e-6)
 
 
-@needs_shared
-def test_no_sun_in_map_scales_everything():
-    env = hdri.load_hdri(SHARED / "courtyard.exr")
+def test_no_sun_in_map_scales_everything(shared_hdri):
+    env = hdri.load_hdri(shared_hdri("courtyard"))
     lit = L.build_lighting(env, 9000.0, sun_from_hdri=True)
     assert lit.sun_direction is None and lit.sun_lux == 0.0
     assert lit.total_lux == pytest.approx(9000.0, rel=1e-6)

@@ -16,9 +16,6 @@ from pathlib import Path
 
 import pytest
 
-#: ../shared/hdri beside the clone (as tests/conftest.py finds it)
-HDRI_DIR = Path(__file__).resolve().parents[3].parent / "shared" / "hdri"
-
 
 @dataclass
 class StudioProcess:
@@ -80,11 +77,9 @@ def stop_studio(studio: StudioProcess) -> None:
 
 
 @pytest.fixture(scope="module")
-def studio(tmp_path_factory) -> Iterator[StudioProcess]:
+def studio(tmp_path_factory, shared_hdri) -> Iterator[StudioProcess]:
     """The studio lit by ../shared/hdri/courtyard.exr (skips when shared/ is absent)."""
-    hdri = HDRI_DIR / "courtyard.exr"
-    if not hdri.exists():
-        pytest.skip(f"{hdri} not present (CI provides ../shared beside the clone)")
+    hdri = shared_hdri("courtyard")
     s = start_studio(tmp_path_factory.mktemp("studio"), "--hdri", str(hdri))
     yield s
     stop_studio(s)

@@ -11,7 +11,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import HDRI_DIR, start_studio, stop_studio
+from conftest import start_studio, stop_studio
 
 GOOD = {"ambient_lux": 5000.0, "viewpoint": [170, 2, 0], "lengths_mm": [0, 5, 10, 15, 20]}
 
@@ -27,7 +27,7 @@ def test_characteristic_refines_to_the_target(studio):
     assert body["replicates"] >= 4 and body["seconds"] > 0
 
 
-def test_characteristic_without_target_is_the_daemons_simulation(studio, renderer):
+def test_characteristic_without_target_is_the_daemons_simulation(studio, renderer, shared_hdri):
     """Same config, light, seed and settings ([simulation] samples x [calibration]
     replicates): the same numbers as simulate_curve in this process."""
     from grassd.daemon.calibration.calibrate import Calibrator
@@ -40,7 +40,7 @@ def test_characteristic_without_target_is_the_daemons_simulation(studio, rendere
     assert status == 200, body
     cfg = load_default_config()
     display, centre = Calibrator(cfg).display()
-    lighting = LightInput(HDRI_DIR / "courtyard.exr", 5000.0).lighting()
+    lighting = LightInput(shared_hdri("courtyard"), 5000.0).lighting()
     settings = RenderSettings(samples=cfg.simulation.samples,
                               replicates=cfg.calibration.replicates, seed=cfg.simulation.seed)
     c = simulate_curve(renderer, display, lighting, Viewpoint(170, 2, 0),
@@ -92,11 +92,11 @@ def test_bad_uploads_get_a_4xx_and_the_server_keeps_serving(studio):
     assert studio.proc.poll() is None
 
 
-def test_an_uploaded_hdri_becomes_a_light(studio, tmp_path):
+def test_an_uploaded_hdri_becomes_a_light(studio, tmp_path, shared_hdri):
     from grassd.sim.hdri import downsample, load_hdri, write_hdr
 
     path = tmp_path / "small.hdr"
-    write_hdr(path, downsample(load_hdri(HDRI_DIR / "forest.exr"), 4))
+    write_hdr(path, downsample(load_hdri(shared_hdri("forest")), 4))
     status, body = studio.request("api/hdri?name=small.hdr", path.read_bytes())
     assert status == 200, body
     name = body["light"]["name"]
@@ -191,11 +191,9 @@ def test_a_bad_input_over_the_websocket_is_an_error_message(studio):
 
 
 @pytest.fixture(scope="module")
-def remote_studio(tmp_path_factory):
+def remote_studio(tmp_path_factory, shared_hdri):
     """A studio on 127.0.0.2 (so with a token) given a fit result: pink green blades."""
-    hdri = HDRI_DIR / "courtyard.exr"
-    if not hdri.exists():
-        pytest.skip(f"{hdri} not present")
+    hdri = shared_hdri("courtyard")
     tmp = tmp_path_factory.mktemp("remote")
     (tmp / "pixel.toml").write_text("[display.pixel]\ngreen_srgb = [214.0, 96.0, 170.0]\n"
                                     "splay_deg = 6.0\n")

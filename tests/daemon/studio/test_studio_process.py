@@ -8,9 +8,9 @@ import asyncio
 import time
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
+from pathlib import Path
 
 import pytest
-from conftest import HDRI_DIR
 
 from grassd.daemon.studio.worker import Superseded
 from grassd.sim.scene import MAX_SAMPLES
@@ -23,18 +23,15 @@ LONG_LAUNCH_S = 20.0
 
 
 @asynccontextmanager
-async def simulator() -> AsyncIterator[tuple[object, Callable[..., tuple], float]]:
-    """A started simulator process, the job payload of ``samples`` splayed camera paths a
-    replicate at 2 lengths, and the seconds a path takes here, as a probe of 2 x
-    :data:`PROBE_PATHS` paths timed it."""
+async def simulator(hdri: Path) -> AsyncIterator[tuple[object, Callable[..., tuple], float]]:
+    """A started simulator process lit by the panorama ``hdri``, the job payload of
+    ``samples`` splayed camera paths a replicate at 2 lengths, and the seconds a path takes
+    here, as a probe of 2 x :data:`PROBE_PATHS` paths timed it."""
     from grassd.daemon.config.settings import resolve_config
     from grassd.daemon.studio.inputs import parse_condition
     from grassd.daemon.studio.lights import LightSource
     from grassd.daemon.studio.process import SimulatorProcess, StudioArgs
 
-    hdri = HDRI_DIR / "courtyard.exr"
-    if not hdri.exists():
-        pytest.skip(f"{hdri} not present (CI provides ../shared beside the clone)")
     cfg = resolve_config(None, None)
     cond = parse_condition({"ambient_lux": 5000, "viewpoint": [170, 2, 0], "splay_deg": 8.0,
                             "lengths_mm": [0, 20]},
@@ -67,7 +64,7 @@ def long_paths(per_path: float) -> int:
     return paths
 
 
-def test_a_newer_job_stops_the_launch_in_flight():
+def test_a_newer_job_stops_the_launch_in_flight(shared_hdri):
     """Job A's replicates of splayed camera paths are sized to long launches by a probe's rate
     (at most a replicate's 4 million paths); job B, sent 1 s after A started, supersedes A and
     is answered within a third of A's launch and 5 s (measured on 2 cores: 0.02-0.08 s alone,
@@ -75,7 +72,7 @@ def test_a_newer_job_stops_the_launch_in_flight():
     Without the shared word B waited for A's launch to end (8.0 s after it was sent)."""
 
     async def scenario() -> tuple[float, object, BaseException | None, float]:
-        async with simulator() as (sim, job, per_path):
+        async with simulator(shared_hdri("courtyard")) as (sim, job, per_path):
             paths = long_paths(per_path)
             slow = sim.submit(1, "characteristic", job(paths, 4))
             await asyncio.sleep(1.0)  # A is running: the worker was idle
@@ -97,14 +94,14 @@ def test_a_newer_job_stops_the_launch_in_flight():
         f"{launch_s:.1f} s")
 
 
-def test_the_studio_ends_within_a_camera_path_of_a_long_launch():
+def test_the_studio_ends_within_a_camera_path_of_a_long_launch(shared_hdri):
     """Stopping the simulator 1 s into a long launch ends its process cleanly (exit code 0,
     the job superseded) within a third of the launch and 5 s (measured on 2 cores: 0.5-0.7 s,
     most of it the process's exit); without moving the word it waited for the launch to end
     (7.5 s)."""
 
     async def scenario() -> tuple[float, float, object, BaseException | None]:
-        async with simulator() as (sim, job, per_path):
+        async with simulator(shared_hdri("courtyard")) as (sim, job, per_path):
             paths = long_paths(per_path)
             slow = sim.submit(1, "characteristic", job(paths, 4))
             await asyncio.sleep(1.0)
