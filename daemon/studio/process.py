@@ -18,9 +18,9 @@ input does not wait for the launch in flight, and the studio's launches can each
 round (:func:`~grassd.daemon.studio.session.Studio.characteristic`).
 
 Server -> simulator: ``("job", owner, job, kind, payload, word)`` with kind ``"views"`` (a
-condition and the picture's levels) or ``"characteristic"`` (a condition and keyword
-arguments); ``("cancel", owner, word)``; ``("light", LightSource)``; ``("stop", word)`` (every
-job stops, and the process ends).
+condition, the picture's levels and the condition pinned as B, or None) or
+``"characteristic"`` (a condition and keyword arguments); ``("cancel", owner, word)``;
+``("light", LightSource)``; ``("stop", word)`` (every job stops, and the process ends).
 Simulator -> server: ``("ready", seconds)``, ``("msg", job, dict)``, ``("result", job,
 value)``, ``("error", job, kind, message)`` with kind "input" (a StudioInputError), "superseded"
 or the exception's class name.
@@ -112,8 +112,9 @@ def simulator_main(conn: Connection, args: StudioArgs,
         def go(check) -> None:
             try:
                 if kind == "views":
-                    cond, levels = payload
-                    studio.run(cond, lambda msg: send(("msg", job, msg)), check, levels)
+                    cond, levels, pinned = payload
+                    studio.run(cond, lambda msg: send(("msg", job, msg)), check, levels,
+                               pinned)
                     send(("result", job, None))
                 else:
                     cond, kw = payload

@@ -16,9 +16,11 @@ API (JSON; a bad value gets a 4xx with ``{"error": message}`` and the server kee
   ``[calibration] replicates``).
 - ``POST /api/hdri?name=FILE.exr`` (the file as the body): a new light source.
 - ``POST /api/picture`` (a PNG/JPEG as the body): a picture for the display view.
-- ``GET /ws``: send ``{"type": "inputs", "id": n, "condition": {...}}``; receive ``light``,
-  ``curve``, ``pixel``, ``table``, ``contrast``, ``display``, ``audience``, ``done`` and
-  ``error`` messages tagged with that ``id`` (each with ``ms`` since the job started).
+- ``GET /ws``: send ``{"type": "inputs", "id": n, "condition": {...}}`` (and optionally
+  ``"pinned": {...}``, the condition shown beside it as B, whose image is refined after this
+  one's views); receive ``light``, ``curve``, ``pixel`` (B's with ``"pinned": true``),
+  ``table``, ``contrast``, ``display``, ``audience``, ``done`` and ``error`` messages tagged
+  with that ``id`` (each with ``ms`` since the job started).
 
 Bound to 127.0.0.1 by default; on any other address every request needs the token printed at
 start (``?token=`` on the page's URL, which sets a cookie, or an ``X-Grassd-Token`` header).
@@ -219,6 +221,9 @@ async def _socket(request: web.Request) -> web.WebSocketResponse:
                 tag = int(data.get("id", 0))
                 cond = _condition(studio, data.get("condition"))
                 levels = studio.picture(cond.image)
+                pinned = data.get("pinned")  # the condition shown beside it as B
+                if pinned is not None:
+                    pinned = _condition(studio, pinned)
             except (ValueError, TypeError, OverflowError, StudioInputError) as exc:
                 simulator.cancel(owner)
                 outbox.put_nowait({"type": "error", "id": tag, "message": str(exc)})
@@ -228,7 +233,7 @@ async def _socket(request: web.Request) -> web.WebSocketResponse:
                 msg["id"] = tag
                 outbox.put_nowait(msg)
 
-            fut = simulator.submit(owner, "views", (cond, levels), emit)
+            fut = simulator.submit(owner, "views", (cond, levels, pinned), emit)
             fut.add_done_callback(lambda f, tag=tag: finished(f, tag))
     finally:
         simulator.cancel(owner)

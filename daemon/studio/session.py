@@ -18,7 +18,12 @@ first image of the pixel within 300 ms, converged within 1 s, warm, 2 cores):
    :data:`FIRST_REPLICATES`;
 4. the table, the contrast, the display showing the uploaded picture;
 5. the audience map: the OGCD range from each place of the audience region;
-6. the pixel's image refined: :data:`REFINE_IMAGE` passes accumulated; then ``done``.
+6. the image of the condition pinned as B, if the page sent one, refined to
+   :data:`PINNED_PASSES` passes (sent with ``"pinned": true``);
+7. the pixel's image refined: :data:`REFINE_IMAGE` passes accumulated; then ``done``.
+
+Images are kept summed over their passes (:data:`KEPT_IMAGES`), so a condition seen again, B's
+among them, goes on from the passes it had.
 
 Every step checks whether a newer request superseded this one. In the simulator process a newer
 request also stops the renderer's launch in flight (:attr:`Studio.interrupts`), so a launch
@@ -107,6 +112,12 @@ FIRST_IMAGE: tuple[int, int] = (96, 1)
 REFINE_IMAGE: tuple[int, int] = (192, 1)
 #: Refining passes of the pixel's image after everything else (24 paths per image pixel).
 REFINE_PASSES: int = 24
+#: Refining passes the image of the condition pinned as B gets before A's image is refined (8
+#: paths per image pixel, about 1 s on 2 cores): B was pinned as it was, often with its first
+#: image only, which stayed at half the width and one path a pixel.
+PINNED_PASSES: int = 8
+#: Refined images kept (summed over their passes) for conditions seen again.
+KEPT_IMAGES: int = 8
 #: Converged characteristics kept for conditions seen again (the length shown, the tables or the
 #: picture changed, or the eye came back).
 KEPT_CURVES: int = 16
@@ -160,6 +171,8 @@ class Studio:
         self._lock = threading.Lock()
         self.ready = False
         self._curves: dict[tuple, Any] = {}  # converged characteristics of recent conditions
+        #: refined images of recent conditions: (sum of the passes, passes)
+        self._images: dict[tuple, tuple[np.ndarray, int]] = {}
 
     # ------------------------------------------------------------------ what the page needs
     @property
@@ -336,10 +349,11 @@ class Studio:
         return img
 
     def run(self, cond: Condition, emit: Emit, check: Check,
-            levels: np.ndarray | None = None) -> None:
+            levels: np.ndarray | None = None, pinned: Condition | None = None) -> None:
         """Compute every view of ``cond`` in the order of the module docstring, sending each as
         it is ready (``emit``); ``check`` raises when a newer request supersedes this one.
-        ``levels``: the (rows, cols) 8-bit picture the display view shows, if any."""
+        ``levels``: the (rows, cols) 8-bit picture the display view shows, if any;
+        ``pinned``: the condition the page shows beside it as B, whose image is refined too."""
         from grassd.calib.characteristic import fit_characteristic
         from grassd.calib.errors import CalibError
         from grassd.daemon.calibration.display_model import curve_characteristic
@@ -406,6 +420,10 @@ class Studio:
             # the audience's places are judged as the eye is: the reference vs the longest
             ends = curve.ogcd[int(np.argmax(curve.lengths_mm))] - curve.ogcd[0]
             self._audience(cond, float(ends), send, check)
+        if pinned is not None:
+            self._refine_image(pinned, self._display(pinned),
+                               white_radiance(self.lights.lighting(pinned, self.site)), send,
+                               check, PINNED_PASSES, {"pinned": True})
         self._refine_image(cond, display, white, send, check)
         send({"type": "done"})
 
@@ -446,14 +464,35 @@ class Studio:
               "warned": int(warn.sum()), "loss": views.CONTRAST_LOSS})
 
     def _refine_image(self, cond: Condition, display, white: np.ndarray, send: Emit,
-                      check: Check) -> None:
-        total = None
-        for k in range(REFINE_PASSES):
-            img = self._image(cond, display, REFINE_IMAGE, 1 + k, check)
-            total = img if total is None else total + img
-            check()
-            send({"type": "pixel", "image": views.pixel_png(total / (k + 1), white),
-                  "width": REFINE_IMAGE[0], "spp": REFINE_IMAGE[1] * (k + 1)})
+                      check: Check, passes: int = REFINE_PASSES,
+                      tag: dict[str, Any] | None = None) -> None:
+        """Refine the pixel's image of ``cond`` to ``passes`` passes of :data:`REFINE_IMAGE`,
+        going on from the passes kept for it, and send it after each (with ``tag``'s fields;
+        ``final`` once it has ``passes``). A pass that a newer request interrupts is lost;
+        those before it are kept."""
+        key = (cond.light, cond.ambient_lux, cond.sun, cond.viewpoint, cond.pixel,
+               cond.splay_deg, cond.length_mm)
+        total, done = self._images.pop(key, (None, 0))
+
+        def show() -> None:
+            send({"type": "pixel", "image": views.pixel_png(total / done, white),
+                  "width": REFINE_IMAGE[0], "spp": REFINE_IMAGE[1] * done,
+                  "final": done >= passes, **(tag or {})})
+
+        try:
+            if done:
+                show()
+            for k in range(done, passes):
+                img = self._image(cond, display, REFINE_IMAGE, 1 + k, check)
+                total = img if total is None else total + img
+                done = k + 1
+                check()
+                show()
+        finally:
+            if total is not None:
+                self._images[key] = (total, done)
+                while len(self._images) > KEPT_IMAGES:
+                    self._images.pop(next(iter(self._images)))
 
 
 def _materials(p, source: str) -> dict[str, Any]:

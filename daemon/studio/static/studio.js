@@ -53,7 +53,9 @@ function send() {
   lastSend = now;
   S.id += 1; S.sentAt = now; S.firstCurveMs = null;
   S.condition = condition();
-  S.ws.send(JSON.stringify({type: "inputs", id: S.id, condition: S.condition}));
+  const msg = {type: "inputs", id: S.id, condition: S.condition};
+  if (S.pinned && !S.pinned.final) msg.pinned = S.pinned.condition;  // B's image still refines
+  S.ws.send(JSON.stringify(msg));
   setStatus("computing…");
   showError("");
   updateReadouts();
@@ -217,6 +219,10 @@ function onMessage(ev) {
         m.converged ? `converged in ${Math.round(m.ms)} ms` : `refining… ${Math.round(m.ms)} ms`);
       plotCurve(); break;
     case "pixel":
+      if (m.pinned) {                             // B's image, refined after A's views
+        if (S.pinned) { S.pinned.pixel = m.image; S.pinned.final = m.final; showCompare(); }
+        break;
+      }
       S.pixel = m.image; S.pixels += 1; $("pixel-img").src = m.image; $("pixel-img").hidden = false;
       $("pixel-info").textContent = `${$("length").value} mm · ${m.width} px · ${m.spp} paths/px`;
       if (S.pinned) showCompare();
@@ -311,7 +317,8 @@ async function init() {
     if (body) { S.image = body.image; send(); }
   });
   $("pin").addEventListener("click", () => {
-    S.pinned = {curve: S.curve, pixel: S.pixel, caption: `B: ${describe(S.condition)}` +
+    S.pinned = {curve: S.curve, pixel: S.pixel, condition: S.condition, final: false,
+      caption: `B: ${describe(S.condition)}` +
       (S.contrast ? ` range ${S.contrast.ogcd_range.toFixed(2)} ΔE00` : "")};
     showCompare(); plotCurve();
   });

@@ -83,3 +83,23 @@ def studio(tmp_path_factory, shared_hdri) -> Iterator[StudioProcess]:
     s = start_studio(tmp_path_factory.mktemp("studio"), "--hdri", str(hdri))
     yield s
     stop_studio(s)
+
+
+def studio_and_condition(hdri: Path, condition: dict):
+    """An in-process :class:`~grassd.daemon.studio.session.Studio` of the default config lit by
+    ``hdri`` (light "f"), and ``condition`` (the page's JSON) parsed for it."""
+    from grassd.daemon.config.settings import resolve_config
+    from grassd.daemon.studio.lights import Lights, LightSource
+    from grassd.daemon.studio.session import Studio
+
+    st = Studio(resolve_config(None, None), Lights([LightSource("file", "f", hdri)]))
+    return st, parse_studio_condition(st, condition)
+
+
+def parse_studio_condition(st, condition: dict):
+    """``condition`` (the page's JSON) parsed for studio ``st``, as its server does."""
+    from grassd.daemon.studio.inputs import parse_condition
+
+    return parse_condition(condition, green_max_mm=st.display.pixel.green_max_mm,
+                           timezone=st.cfg.site.timezone, lights=st.lights.names,
+                           default_light=st.lights.default)

@@ -5,6 +5,7 @@ between the renderer's launches when a newer input comes in, not only between ro
 from __future__ import annotations
 
 import pytest
+from conftest import studio_and_condition
 
 from grassd.daemon.studio import session
 from grassd.daemon.studio.session import studio_pace
@@ -22,26 +23,13 @@ def test_a_splayed_characteristic_takes_smaller_replicates_and_as_many_paths():
     assert per_round <= 64  # a render's replicate limit (grassd.sim.scene.MAX_REPLICATES)
 
 
-def _studio_and_condition(shared_hdri, condition: dict):
-    from grassd.daemon.config.settings import resolve_config
-    from grassd.daemon.studio.inputs import parse_condition
-    from grassd.daemon.studio.lights import Lights, LightSource
-
-    st = session.Studio(resolve_config(None, None),
-                        Lights([LightSource("file", "f", shared_hdri("courtyard"))]))
-    cond = parse_condition(condition, green_max_mm=st.display.pixel.green_max_mm,
-                           timezone=st.cfg.site.timezone, lights=st.lights.names,
-                           default_light=st.lights.default)
-    return st, cond
-
-
 def test_a_low_sun_converges_on_larger_replicates(renderer, shared_hdri):
     """Under a low sun the first 8 x 1024 paths say the target needs more than 64 x 1024, so
     the run goes on with replicates of 8192 paths: it meets 0.1 dE00 with 8-32 of them
     (with replicates of 1024 it took 106-149, 2.4 s against 1.4 s)."""
     from grassd.daemon.calibration.simulation import LargerReplicates
 
-    st, cond = _studio_and_condition(shared_hdri, {
+    st, cond = studio_and_condition(shared_hdri("courtyard"), {
         "ambient_lux": 5000, "viewpoint": [170, 2, 3],
         "sun": {"mode": "site", "lux": 40000, "when": "2026-11-27T15:00"}})
     seen = []
@@ -53,7 +41,7 @@ def test_a_low_sun_converges_on_larger_replicates(renderer, shared_hdri):
 
 
 def test_a_round_stops_between_launches(renderer, shared_hdri):
-    st, cond = _studio_and_condition(shared_hdri, {"ambient_lux": 5000,
+    st, cond = studio_and_condition(shared_hdri("courtyard"), {"ambient_lux": 5000,
                                                    "viewpoint": [170, 2, 7]})
     calls = []
 
@@ -89,7 +77,7 @@ def test_every_round_is_armed_through_the_first_image(renderer, shared_hdri):
         made.append(Counting(np.zeros(1, np.int32)))
         return made[-1]
 
-    st, cond = _studio_and_condition(shared_hdri, {"ambient_lux": 5000,
+    st, cond = studio_and_condition(shared_hdri("courtyard"), {"ambient_lux": 5000,
                                                    "viewpoint": [170, 2, 9]})
     st.interrupts = interrupts
     sent: list[dict] = []

@@ -115,6 +115,9 @@ def test_the_page_follows_the_eye_shows_a_picture_and_reports_bad_input(studio, 
         page.wait_for("window.studio.audience && window.studio.audience.id === window.studio.id")
         assert not page.evaluate("document.getElementById('compare').hidden")
         assert page.evaluate("curvePlot.series.length") == 5  # A, its band, B
+        # B was pinned with its first image (96 px); it refines after A's views
+        page.wait_for("window.studio.pinned.final && "
+                      "document.getElementById('b-img').naturalWidth === 192")
         page.screenshot(tmp_path / "studio-1280-compare.png")
         _keep(tmp_path / "studio-1280-compare.png")
         assert page.problems() == []
