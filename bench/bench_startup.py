@@ -37,6 +37,7 @@ from pathlib import Path
 
 from bench.daemon_process import CACHE, BenchDaemon, daemon_config, wait_ready
 from bench.peak_memory import proc_mib
+from grassd.rigs.processes import end_process
 
 GRASSD = str(Path(sys.executable).parent / "grassd")
 #: shared objects whose presence in a daemon's memory map means a heavy library was imported
@@ -154,12 +155,7 @@ def rss_simulate_hardware(remote: bool) -> None:
         _report_rss(f"grassd run --simulate-hardware, {_where(remote)}, idle (ready in "
                     f"{ready_s:.1f} s)", proc.pid)
     finally:
-        proc.terminate()
-        try:
-            proc.wait(60)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        end_process(proc, 60)
         shutil.rmtree(tmp, ignore_errors=True)
 
 

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from bench import ARCH, COURTYARD
+from grassd.rigs.processes import end_process
 
 #: (what changes, condition) of each timed input, repeated ROUNDS times
 CHANGES = [
@@ -142,8 +143,7 @@ def main() -> None:
     try:
         res, by_change = asyncio.run(_run(url))
     finally:
-        proc.terminate()
-        proc.wait(20)
+        end_process(proc, 20)
     n = len(CHANGES) * ROUNDS
     print(f"grassd studio --arch {ARCH}, warm, courtyard.exr 1024 x 512, 11 lengths, {n} input "
           f"changes ({', '.join(sorted({c[0] for c in CHANGES}))}); client-side ms:")

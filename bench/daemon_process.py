@@ -17,6 +17,7 @@ from grassd.daemon.config.settings import load_default_config
 from grassd.daemon.errors import DaemonNotRunning
 from grassd.daemon.hardware.simulated import SimulatedHardware, hardware_toml
 from grassd.daemon.runtime.control import request
+from grassd.rigs.processes import end_process
 
 ROOT = Path(__file__).resolve().parents[1]
 #: the Taichi kernel cache the benchmarks' daemons share (as `make` sets it)
@@ -92,11 +93,6 @@ class BenchDaemon:
 
     def stop(self) -> None:
         """SIGTERM, then SIGKILL after 60 s; stop the hardware; remove the directory."""
-        self.proc.terminate()
-        try:
-            self.proc.wait(60)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
+        end_process(self.proc, 60)
         self.hw.stop()
         shutil.rmtree(self.tmp, ignore_errors=True)

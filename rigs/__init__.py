@@ -22,7 +22,9 @@ Test and benchmark rigs:
   ``firmware_proto/vectors/``, next to PROTOCOL.md); :mod:`.loopback` - an in-process line to
   model controllers; :mod:`.push_audit` - pushes checked against the controller's RAM and
   EEPROM; :mod:`.power_cut` - a power cut at every storage write of an update;
-  :mod:`.mitsuba_scene` - Mitsuba 3 as an independent reference renderer.
+  :mod:`.mitsuba_scene` - Mitsuba 3 as an independent reference renderer; :mod:`.processes` -
+  child processes (a firmware port, QEMU, a daemon, a studio) ended as a service manager ends
+  them.
 
 The rule (``tests/test_import_graph.py``): no module of ``grassd.calib``, ``grassd.sim``,
 ``grassd.firmware_proto`` or ``grassd.daemon`` imports a module of this package, lazily or

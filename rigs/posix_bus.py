@@ -23,6 +23,7 @@ from grassd.firmware_proto.errors import SimulatorError
 from grassd.rigs.eeprom import active_table_in
 from grassd.rigs.firmware import ControllerConfig, bus_pixels, simulated_config
 from grassd.rigs.native_build import posix_firmware
+from grassd.rigs.processes import end_process
 
 #: Exit status of a posix firmware process that lost power at ``--power-cut-at``.
 EXIT_POWER_CUT = 3
@@ -167,13 +168,7 @@ class PosixBus:
         if self.proc is None:
             return
         if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(5)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-            if self.proc.returncode not in (0, -15):
+            if end_process(self.proc, 5) not in (0, -15):
                 self.errors += 1
         elif self.proc.returncode != EXIT_POWER_CUT or self.power_cut_at is None:
             self.errors += 1

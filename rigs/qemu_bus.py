@@ -37,6 +37,7 @@ from grassd.firmware_proto.messages import Hello
 from grassd.rigs.eeprom import BankStore, active_table_in
 from grassd.rigs.firmware import ControllerConfig, bus_pixels, simulated_config
 from grassd.rigs.native_build import FirmwareUnavailable, mps2_image
+from grassd.rigs.processes import end_process
 from grassd.rigs.pty_line import LinePacer, close_fds, open_raw_pty
 
 #: Where the firmware reads its configuration (ports/mps2/mps2.ld, .fwconfig).
@@ -169,12 +170,7 @@ class _Instance:
             except OSError:
                 pass
         if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(5)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+            end_process(self.proc, 5)
             return None
         return self.proc.returncode
 

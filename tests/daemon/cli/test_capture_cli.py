@@ -13,6 +13,7 @@ import pytest
 from grassd.daemon.config.settings import default_config_text, parse_config
 from grassd.daemon.errors import ConfigError
 from grassd.daemon.hardware.simulated_camera import site_hdri
+from grassd.rigs.processes import end_process
 
 GRASSD = str(Path(sys.executable).parent / "grassd")
 
@@ -24,8 +25,7 @@ def sim_camera():
     url = proc.stdout.readline().strip()  # the first line is the URL
     assert url.startswith("http://127.0.0.1:")
     yield url
-    proc.terminate()
-    proc.wait(10)
+    end_process(proc, 10)
 
 
 def test_capture_cli_writes_a_bundle_then_reuses_the_response(sim_camera, tmp_path):

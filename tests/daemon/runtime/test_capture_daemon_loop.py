@@ -22,6 +22,7 @@ from grassd.daemon.hardware.simulated_camera import SimCamera, site_hdri
 from grassd.daemon.runtime.control import request
 from grassd.daemon.store.history import History
 from grassd.firmware_proto.tables import table_crc
+from grassd.rigs.processes import end_process
 from grassd.sim.hdri import downsample, load_hdri
 
 
@@ -110,12 +111,7 @@ def test_daemon_captures_under_two_lights_and_makes_two_tables(tmp_path):
         print(f"\nruns {first.id} ({first.lux:g} lx, crc {first.table_crc:#010x}) and "
               f"{second.id} ({second.lux:g} lx, crc {second.table_crc:#010x})")
     finally:
-        proc.terminate()
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        end_process(proc, 30)
         cam.stop()
         hw.stop()
 

@@ -25,6 +25,7 @@ from grassd.daemon.hardware.simulated import SimulatedHardware, hardware_toml
 from grassd.daemon.runtime.control import request
 from grassd.daemon.store.history import History
 from grassd.firmware_proto.tables import table_crc
+from grassd.rigs.processes import end_process
 
 GRASSD = str(Path(sys.executable).parent / "grassd")
 
@@ -117,12 +118,7 @@ class Daemon:
 
     def close(self) -> None:
         if self.proc is not None:  # SIGTERM first: a clean exit also saves Taichi's kernel cache
-            self.proc.terminate()
-            try:
-                self.proc.wait(30)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+            end_process(self.proc, 30)
         self.hw.stop()
         self.notify.close()
 

@@ -16,6 +16,8 @@ from pathlib import Path
 
 import pytest
 
+from grassd.rigs.processes import end_process
+
 
 @dataclass
 class StudioProcess:
@@ -68,12 +70,7 @@ def start_studio(tmp: Path, *args: str) -> StudioProcess:
 
 def stop_studio(studio: StudioProcess) -> None:
     """End the process (SIGTERM, then SIGKILL)."""
-    studio.proc.terminate()
-    try:
-        studio.proc.wait(15)
-    except subprocess.TimeoutExpired:
-        studio.proc.kill()
-        studio.proc.wait()
+    end_process(studio.proc, 15)
 
 
 @pytest.fixture(scope="module")
