@@ -39,10 +39,9 @@ from grassd.daemon.hardware.simulated_camera import (
     SIM_WIDTH,
     SimCamera,
     sim_camera_from_file,
-    site_hdri,
 )
 from grassd.daemon.runtime.capture import HDRI_NAME, Station
-from grassd.sim.hdri import REC709_LUMINANCE, downsample, load_hdri
+from grassd.sim.hdri import REC709_LUMINANCE, default_site_hdri, downsample, load_hdri
 from grassd.sim.lighting import horizontal_illuminance
 from grassd.sim.sun import find_sun
 
@@ -118,7 +117,7 @@ def default_path_table() -> None:
 
 def curves_table() -> None:
     """The packaged site map at 256 x 128 through a fixed bracket, one row per curve."""
-    env = load_hdri(site_hdri())
+    env = load_hdri(default_site_hdri())
     env = downsample(env, env.shape[1] // 256) if env.shape[1] > 256 else env
     plan = BracketPlan(shots=9, ev_step=2.0, centre_shutter_s=0.01)
     print(f"\ncurves: the site map at {env.shape[1]} x {env.shape[0]}, 9 shots from 1/25000 s")

@@ -70,6 +70,15 @@ REC709_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
 _REC709_PRIMARIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06)
 _D65 = (0.3127, 0.3290)
+def default_site_hdri() -> Path:
+    """The packaged panorama of the embedded default site (``grassd/sim/data/default_site.exr``,
+    256 x 128 texels, linear Rec.709): the light of ``make demo``, of a daemon that has no
+    bundle yet, of the simulated site camera and of a studio given no light."""
+    from importlib import resources
+
+    return Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
+
+
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
 #: The channels an OpenEXR panorama may have: colour (R, G, B or luminance Y) and alpha.
 _EXR_CHANNELS = ("R", "G", "B", "A", "Y")

@@ -20,7 +20,6 @@ import json
 import os
 import re
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -33,6 +32,8 @@ from pathlib import Path
 
 import pytest
 from daemon_harness import display_2x2
+
+from grassd.rigs.processes import end_process
 
 pytestmark = pytest.mark.long
 
@@ -360,12 +361,7 @@ def _config(installed: Install, extra: str = "") -> Path:
 
 
 def _stop(proc: subprocess.Popen) -> int:
-    proc.send_signal(signal.SIGTERM)
-    try:
-        return proc.wait(60)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        return proc.wait()
+    return end_process(proc, 60)
 
 
 def test_camera_sim_and_capture_raw_plus(installed):

@@ -86,8 +86,9 @@ def start_measuring_camera(hw: Any, cfg: Config, variation_file: str | None,
     from grassd.daemon.calibration.calibrate import Calibrator, init_backend
     from grassd.daemon.calibration.display_model import capacity_for
     from grassd.daemon.calibration.variation import DisplayVariation, load_variation
-    from grassd.daemon.hardware.simulated_camera import SimCamera, site_hdri
+    from grassd.daemon.hardware.simulated_camera import SimCamera
     from grassd.daemon.hardware.simulated_display import SimulatedDisplay
+    from grassd.sim.hdri import default_site_hdri
     from grassd.sim.light_input import LightInput
     from grassd.sim.renderer import Renderer
 
@@ -95,7 +96,7 @@ def start_measuring_camera(hw: Any, cfg: Config, variation_file: str | None,
     variation = (load_variation(variation_file, n) if variation_file
                  else DisplayVariation.none(n))
     init_backend(cfg)
-    lighting = Calibrator(cfg).lighting(LightInput(hdri=site_hdri(), ambient_lux=lux))
+    lighting = Calibrator(cfg).lighting(LightInput(hdri=default_site_hdri(), ambient_lux=lux))
     display = SimulatedDisplay(cfg, lighting, variation, hw.positions_um,
                                Renderer.shared(capacity_for(n)), samples=samples)
     h = display.width // 2

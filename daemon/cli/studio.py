@@ -47,14 +47,10 @@ def _active_table(state_dir: Path):
 def studio(config_path, state_dir, hdri, pixel_file, port, host, arch) -> None:
     """Serve the interactive studio: move the eye, change the light, see the pixel, its
     colour characteristic, the table and a picture on the display. Prints its URL."""
-    from grassd.daemon.studio.lights import (
-        Lights,
-        LightSource,
-        archived_sources,
-        default_site_path,
-    )
+    from grassd.daemon.studio.lights import Lights, LightSource, archived_sources
     from grassd.daemon.studio.process import StudioArgs
     from grassd.daemon.studio.server import LOCAL_HOST, serve
+    from grassd.sim.hdri import default_site_hdri
 
     cfg = resolve_config(config_path, str(state_dir) if state_dir else None)
     sources = []
@@ -66,7 +62,7 @@ def studio(config_path, state_dir, hdri, pixel_file, port, host, arch) -> None:
         active = _active_table(cfg.state_dir)
     if not sources:
         sources.append(LightSource(name="default-site", label="embedded default site",
-                                   path=default_site_path()))
+                                   path=default_site_hdri()))
     fields, pixel_source = None, "config"
     if pixel_file is not None:
         from grassd.daemon.offline.fit import load_pixel_fields

@@ -562,21 +562,15 @@ def sim_camera_from_file(hdri: str | os.PathLike[str], *, width: int | None = No
     return SimCamera(env, **kwargs)
 
 
-def site_hdri() -> Path:
-    """The packaged site panorama (``grassd/sim/data/default_site.exr``)."""
-    from importlib import resources
-
-    return Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
-
-
 def start_site_camera(hw: Any, width: int = 256) -> SimCamera:
     """Start a simulated camera photographing the packaged site panorama at the light level of
     the simulated lux sensor of ``hw`` (a
     :class:`grassd.daemon.hardware.simulated.SimulatedHardware`; horizontal illuminance of the
     photographed scene = its lux), for ``--simulate-hardware``."""
+    from grassd.sim.hdri import default_site_hdri
     from grassd.sim.lighting import horizontal_illuminance
 
-    cam = sim_camera_from_file(site_hdri(), width=width)
+    cam = sim_camera_from_file(default_site_hdri(), width=width)
     lux = float(getattr(hw, "lux", 5000.0))
     cam.set_scene(scene_scale=lux / horizontal_illuminance(cam.env))
     return cam.start()

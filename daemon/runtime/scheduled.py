@@ -9,8 +9,6 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from importlib import resources
-from pathlib import Path
 
 from grassd.daemon.errors import DaemonError
 from grassd.daemon.store.history import History
@@ -53,8 +51,10 @@ def scheduled_input(history: History, inbox: Inbox, sensor_first: bool,
                            timestamp=datetime.now(UTC))
         hashes = {"bundle": last.bundle_hash}
     else:
+        from grassd.sim.hdri import default_site_hdri
+
         ambient, source = lux(None)
-        hdri = Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
-        light = LightInput(hdri=hdri, ambient_lux=ambient, timestamp=datetime.now(UTC))
+        light = LightInput(hdri=default_site_hdri(), ambient_lux=ambient,
+                           timestamp=datetime.now(UTC))
         hashes = {"hdri": "embedded default_site.exr"}
     return ScheduledInput(light, hashes, ambient, source, light_at)

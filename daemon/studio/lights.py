@@ -21,7 +21,6 @@ from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -137,11 +136,6 @@ def solar_position(latitude: float, longitude: float, when) -> tuple[float, floa
     from grassd.sim.sun import sun_position
 
     return sun_position(latitude, longitude, when)
-
-
-def default_site_path() -> Path:
-    """The embedded default site's panorama (the light of ``make demo``)."""
-    return Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
 
 
 class Lights:

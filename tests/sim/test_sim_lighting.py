@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,7 +11,6 @@ from grassd.sim import hdri
 from grassd.sim import lighting as L
 from grassd.sim.errors import LightingError
 
-DEFAULT_SITE = Path(L.__file__).resolve().parent / "data" / "default_site.exr"
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
@@ -118,7 +116,7 @@ def test_build_lighting_scales_real_map_to_lux(shared_hdri):
 
 
 def test_build_lighting_from_bundled_default_site():
-    lit = L.build_lighting(DEFAULT_SITE, 30000.0)
+    lit = L.build_lighting(hdri.default_site_hdri(), 30000.0)
     assert lit.env.shape == (128, 256, 3)
     assert lit.total_lux == pytest.approx(30000.0, rel=1e-6)
 

@@ -12,15 +12,15 @@ import pytest
 
 from grassd.daemon.config.settings import default_config_text, parse_config
 from grassd.daemon.errors import ConfigError
-from grassd.daemon.hardware.simulated_camera import site_hdri
 from grassd.rigs.processes import end_process
+from grassd.sim.hdri import default_site_hdri
 
 GRASSD = str(Path(sys.executable).parent / "grassd")
 
 
 @pytest.fixture(scope="module")
 def sim_camera():
-    proc = subprocess.Popen([GRASSD, "camera", "sim", "--hdri", str(site_hdri()), "--width",
+    proc = subprocess.Popen([GRASSD, "camera", "sim", "--hdri", str(default_site_hdri()), "--width",
                              "128", "--curve", "soft"], stdout=subprocess.PIPE, text=True)
     url = proc.stdout.readline().strip()  # the first line is the URL
     assert url.startswith("http://127.0.0.1:")

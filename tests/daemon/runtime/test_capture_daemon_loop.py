@@ -18,12 +18,12 @@ from test_grassd_run_end_to_end import config_text as e2e_config_text
 
 from grassd.daemon.config.settings import load_default_config
 from grassd.daemon.hardware.simulated import SimulatedHardware
-from grassd.daemon.hardware.simulated_camera import SimCamera, site_hdri
+from grassd.daemon.hardware.simulated_camera import SimCamera
 from grassd.daemon.runtime.control import request
 from grassd.daemon.store.history import History
 from grassd.firmware_proto.tables import table_crc
 from grassd.rigs.processes import end_process
-from grassd.sim.hdri import downsample, load_hdri
+from grassd.sim.hdri import default_site_hdri, downsample, load_hdri
 
 
 def config_text(state: Path, cfg, camera_url: str) -> str:
@@ -67,7 +67,7 @@ def ok_runs(state: Path) -> list:
 
 @pytest.mark.slow
 def test_daemon_captures_under_two_lights_and_makes_two_tables(tmp_path):
-    env = load_hdri(site_hdri())
+    env = load_hdri(default_site_hdri())
     env = downsample(env, env.shape[1] // 256) if env.shape[1] > 256 else env
     # the second light: brighter (the sensor reads 12000 lx) and warmer
     later = env * np.array([1.0, 0.9, 0.75], np.float32)
@@ -122,7 +122,7 @@ def test_reload_starts_and_stops_the_capture_station(tmp_path, hw):
     import daemon_harness
 
     _, cfg = hw
-    env = load_hdri(site_hdri())
+    env = load_hdri(default_site_hdri())
     env = downsample(env, env.shape[1] // 128) if env.shape[1] > 128 else env
     path = daemon_harness.write_config(tmp_path / "g.toml", tmp_path / "state", cfg)
     svc = daemon_harness.service(path)

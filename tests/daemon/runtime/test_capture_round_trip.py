@@ -11,8 +11,8 @@ import pytest
 from grassd.calib.hdr_merge import merge_ldr, recover_response, relative_exposure
 from grassd.daemon.hardware.bracket import BracketPlan, capture_bracket, load_codes
 from grassd.daemon.hardware.camera import OscClient
-from grassd.daemon.hardware.simulated_camera import SimCamera, site_hdri
-from grassd.sim.hdri import REC709_LUMINANCE, downsample, load_hdri
+from grassd.daemon.hardware.simulated_camera import SimCamera
+from grassd.sim.hdri import REC709_LUMINANCE, default_site_hdri, downsample, load_hdri
 from grassd.sim.lighting import horizontal_illuminance
 from grassd.sim.sun import find_sun
 
@@ -21,7 +21,7 @@ PLAN = BracketPlan(shots=9, ev_step=2.0, iso=100, centre_shutter_s=0.01, max_shu
 
 
 def site_env() -> np.ndarray:
-    env = load_hdri(site_hdri())
+    env = load_hdri(default_site_hdri())
     return downsample(env, env.shape[1] // 256) if env.shape[1] > 256 else env
 
 
