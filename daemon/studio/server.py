@@ -18,9 +18,11 @@ API (JSON; a bad value gets a 4xx with ``{"error": message}`` and the server kee
 - ``POST /api/picture`` (a PNG/JPEG as the body): a picture for the display view.
 - ``GET /ws``: send ``{"type": "inputs", "id": n, "condition": {...}}`` (and optionally
   ``"pinned": {...}``, the condition shown beside it as B, whose image is refined after this
-  one's views); receive ``light``, ``curve``, ``pixel`` (B's with ``"pinned": true``),
-  ``table``, ``contrast``, ``display``, ``audience``, ``done`` and ``error`` messages tagged
-  with that ``id`` (each with ``ms`` since the job started).
+  one's views); receive ``light``, ``curve``, ``pixel``, ``table``, ``contrast``, ``display``,
+  ``audience``, ``pinned`` (B's image, or an ``error`` where B cannot be computed; A goes on),
+  ``done`` and ``error`` messages tagged with that ``id`` (each with ``ms`` since the job
+  started). A refined image (``pixel``, ``pinned``) says ``final`` once it has all its
+  passes.
 
 Bound to 127.0.0.1 by default; on any other address every request needs the token printed at
 start (``?token=`` on the page's URL, which sets a cookie, or an ``X-Grassd-Token`` header).
@@ -42,7 +44,7 @@ from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
 
-from grassd.daemon.studio.inputs import StudioInputError, parse_condition
+from grassd.daemon.studio.inputs import StudioInputError
 from grassd.daemon.studio.lights import MAX_HDRI_BYTES
 from grassd.daemon.studio.process import SimulatorProcess, StudioArgs
 from grassd.daemon.studio.session import Studio, curve_message
@@ -117,17 +119,11 @@ async def _json_body(request: web.Request) -> Any:
         raise StudioInputError("the body must be JSON") from None
 
 
-def _condition(studio: Studio, data: Any):
-    return parse_condition(data, green_max_mm=studio.display.pixel.green_max_mm,
-                           timezone=studio.cfg.site.timezone, lights=studio.lights.names,
-                           default_light=studio.lights.default)
-
-
 async def _characteristic(request: web.Request) -> web.Response:
     studio = request.app[STUDIO]
     try:
         data = await _json_body(request)
-        cond = _condition(studio, data)
+        cond = studio.parse(data)
         target = data.get("target_stderr")
         if target is None:
             kw = dict(target_stderr=None, samples=studio.cfg.simulation.samples,
@@ -219,15 +215,20 @@ async def _socket(request: web.Request) -> web.WebSocketResponse:
                     raise StudioInputError("send {\"type\": \"inputs\", \"id\": n, "
                                            "\"condition\": {...}}")
                 tag = int(data.get("id", 0))
-                cond = _condition(studio, data.get("condition"))
+                cond = studio.parse(data.get("condition"))
                 levels = studio.picture(cond.image)
-                pinned = data.get("pinned")  # the condition shown beside it as B
-                if pinned is not None:
-                    pinned = _condition(studio, pinned)
             except (ValueError, TypeError, OverflowError, StudioInputError) as exc:
                 simulator.cancel(owner)
                 outbox.put_nowait({"type": "error", "id": tag, "message": str(exc)})
                 continue
+            pinned = data.get("pinned")  # the condition shown beside it as B
+            if pinned is not None:
+                try:
+                    pinned = studio.parse(pinned)
+                except (ValueError, TypeError, OverflowError, StudioInputError) as exc:
+                    outbox.put_nowait({"type": "pinned", "id": tag, "error": str(exc),
+                                       "final": True})  # said as B's; A goes on
+                    pinned = None
 
             def emit(msg: dict[str, Any], tag: int = tag) -> None:
                 msg["id"] = tag

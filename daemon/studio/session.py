@@ -8,7 +8,8 @@ first image of the pixel within 300 ms, converged within 1 s, warm, 2 cores):
 1. the characteristic's first round, :data:`FIRST_REPLICATES` replicates of
    :data:`STUDIO_SAMPLES` paths (about 75 ms for 11 lengths); where the blades splay (nearly
    every length traced, 2.3x the time), replicates of :data:`SPLAY_SAMPLES` paths, 4x as many;
-2. the pixel's first image, :data:`FIRST_IMAGE` (width, paths per image pixel) (about 40 ms);
+2. the pixel's first image, :data:`FIRST_IMAGE` (width, paths per image pixel) (about 40 ms),
+   or its refined image where one is kept for the condition;
 3. further rounds until every OGCD standard error is at most the target
    (:func:`~grassd.daemon.calibration.simulation.simulate_curve`'s adaptive rounds of at most
    :data:`ROUND_REPLICATES`, each sent); where, under a sun, the first paths say the target
@@ -19,7 +20,8 @@ first image of the pixel within 300 ms, converged within 1 s, warm, 2 cores):
 4. the table, the contrast, the display showing the uploaded picture;
 5. the audience map: the OGCD range from each place of the audience region;
 6. the image of the condition pinned as B, if the page sent one, refined to
-   :data:`PINNED_PASSES` passes (sent with ``"pinned": true``);
+   :data:`PINNED_PASSES` passes (``pinned`` messages; one with an ``error`` where B cannot be
+   lit, and A goes on);
 7. the pixel's image refined: :data:`REFINE_IMAGE` passes accumulated; then ``done``.
 
 Images are kept summed over their passes (:data:`KEPT_IMAGES`), so a condition seen again, B's
@@ -135,6 +137,26 @@ def _rounded(a: np.ndarray, digits: int = 4) -> list[float]:
     return np.round(np.asarray(a, np.float64), digits).tolist()
 
 
+def _scene_key(cond: Condition) -> tuple:
+    """What a condition's characteristic and its pixel's images both depend on: the light, the
+    eye and the pixel (the kept curves' and images' keys add their own fields)."""
+    return (cond.light, cond.ambient_lux, cond.sun, cond.viewpoint, cond.pixel,
+            cond.splay_deg)
+
+
+def _image_key(cond: Condition) -> tuple:
+    """The key of ``cond``'s refined image among the kept ones: its scene and length shown."""
+    return (*_scene_key(cond), cond.length_mm)
+
+
+def _image_message(kind: str, total: np.ndarray, done: int, passes: int,
+                   white: np.ndarray) -> dict[str, Any]:
+    """A refined image of ``done`` passes summed in ``total`` (linear Rec.709 nits, scaled by
+    ``white`` for the page) as a ``kind`` message; ``final`` once it has ``passes``."""
+    return {"type": kind, "image": views.pixel_png(total / done, white),
+            "width": REFINE_IMAGE[0], "spp": REFINE_IMAGE[1] * done, "final": done >= passes}
+
+
 class Studio:
     """The studio's model of one site. Its simulation methods run on the worker thread only
     (the renderer is one per process); the rest may be called from the server's thread."""
@@ -240,18 +262,14 @@ class Studio:
         with and without splay (the renderer specialises its kernels on it: a first splay
         would otherwise cost a 2.5 s compile in the middle of a session); seconds taken.
         Runs on the worker thread."""
-        from grassd.daemon.studio.inputs import parse_condition
         from grassd.sim import backend
 
         t0 = time.perf_counter()
         backend.init(self.arch, cache_dir=self.cfg.cache_dir / "taichi")
         splay = self.display.pixel.splay_deg
         for s in (splay, 5.0 if splay == 0 else 0.0):
-            cond = parse_condition({"ambient_lux": 1000.0, "viewpoint": [170, 2, 0],
-                                    "splay_deg": s},
-                                   green_max_mm=self.display.pixel.green_max_mm,
-                                   timezone=self.cfg.site.timezone, lights=self.lights.names,
-                                   default_light=self.lights.default)
+            cond = self.parse({"ambient_lux": 1000.0, "viewpoint": [170, 2, 0],
+                               "splay_deg": s})
             try:
                 self.characteristic(cond, target_stderr=None, replicates=2)
                 self._image(cond, self._display(cond), FIRST_IMAGE, 0)
@@ -264,6 +282,24 @@ class Studio:
         solar_position(*self.site, datetime.now(UTC))
         self.ready = True
         return time.perf_counter() - t0
+
+    def parse(self, data: Any) -> Condition:
+        """The page's or a script's condition (JSON) checked against this studio's pixel, site
+        and lights (StudioInputError naming what is wrong)."""
+        from grassd.daemon.studio.inputs import parse_condition
+
+        return parse_condition(data, green_max_mm=self.display.pixel.green_max_mm,
+                               timezone=self.cfg.site.timezone, lights=self.lights.names,
+                               default_light=self.lights.default)
+
+    def _scene(self, cond: Condition) -> tuple[Any, Any, np.ndarray]:
+        """The lighting of ``cond``, its display and the radiance of a white lying flat under
+        that light (linear Rec.709 nits: what the pixel's images are scaled by);
+        StudioInputError where the condition's light cannot be (its sun below the horizon)."""
+        from grassd.daemon.calibration.simulation import white_radiance
+
+        lighting = self.lights.lighting(cond, self.site)
+        return lighting, self._display(cond), white_radiance(lighting)
 
     def _display(self, cond: Condition):
         """The display patch of ``cond``: its pixel choice, with its splay."""
@@ -357,7 +393,6 @@ class Studio:
         from grassd.calib.characteristic import fit_characteristic
         from grassd.calib.errors import CalibError
         from grassd.daemon.calibration.display_model import curve_characteristic
-        from grassd.daemon.calibration.simulation import white_radiance
         from grassd.sim.lighting import azimuth_elevation_from_direction
 
         t0 = time.perf_counter()
@@ -366,9 +401,7 @@ class Studio:
             msg["ms"] = round((time.perf_counter() - t0) * 1000.0, 1)
             emit(msg)
 
-        lighting = self.lights.lighting(cond, self.site)
-        white = white_radiance(lighting)
-        display = self._display(cond)
+        lighting, display, white = self._scene(cond)
         sun = None
         if lighting.sun_direction is not None:  # where the lighting put it (compass degrees)
             az, el = azimuth_elevation_from_direction(lighting.sun_direction)
@@ -378,6 +411,10 @@ class Studio:
         first = [True]
 
         def first_image() -> None:
+            kept = self._images.get(_image_key(cond))
+            if kept is not None:  # refined before: shown as it was, refined on below
+                send(_image_message("pixel", *kept, REFINE_PASSES, white))
+                return
             img = self._image(cond, display, FIRST_IMAGE, 0, check)
             send({"type": "pixel", "image": views.pixel_png(img, white),
                   "width": FIRST_IMAGE[0], "spp": FIRST_IMAGE[1]})
@@ -390,8 +427,7 @@ class Studio:
                 first[0] = False
                 first_image()
 
-        key = (cond.light, cond.ambient_lux, cond.sun, cond.viewpoint, cond.pixel,
-               cond.splay_deg, cond.lengths_mm, cond.target_stderr)
+        key = (*_scene_key(cond), cond.lengths_mm, cond.target_stderr)
         curve = self._curves.get(key)
         if curve is not None:  # only the length shown, the tables or the picture changed
             send(curve_message(curve, cond.target_stderr, kept=True))
@@ -421,9 +457,13 @@ class Studio:
             ends = curve.ogcd[int(np.argmax(curve.lengths_mm))] - curve.ogcd[0]
             self._audience(cond, float(ends), send, check)
         if pinned is not None:
-            self._refine_image(pinned, self._display(pinned),
-                               white_radiance(self.lights.lighting(pinned, self.site)), send,
-                               check, PINNED_PASSES, {"pinned": True})
+            try:
+                _lighting, b_display, b_white = self._scene(pinned)
+            except StudioInputError as exc:  # e.g. its sun set: said as B's, A goes on
+                send({"type": "pinned", "error": str(exc), "final": True})
+            else:
+                self._refine_image(pinned, b_display, b_white, send, check, PINNED_PASSES,
+                                   "pinned")
         self._refine_image(cond, display, white, send, check)
         send({"type": "done"})
 
@@ -464,20 +504,17 @@ class Studio:
               "warned": int(warn.sum()), "loss": views.CONTRAST_LOSS})
 
     def _refine_image(self, cond: Condition, display, white: np.ndarray, send: Emit,
-                      check: Check, passes: int = REFINE_PASSES,
-                      tag: dict[str, Any] | None = None) -> None:
+                      check: Check, passes: int = REFINE_PASSES, kind: str = "pixel") -> None:
         """Refine the pixel's image of ``cond`` to ``passes`` passes of :data:`REFINE_IMAGE`,
-        going on from the passes kept for it, and send it after each (with ``tag``'s fields;
-        ``final`` once it has ``passes``). A pass that a newer request interrupts is lost;
-        those before it are kept."""
-        key = (cond.light, cond.ambient_lux, cond.sun, cond.viewpoint, cond.pixel,
-               cond.splay_deg, cond.length_mm)
+        going on from the passes kept for it, and send it (a ``kind`` message, ``final`` once
+        it has ``passes``) after each, and first where passes were kept. A pass that a newer
+        request stops is lost; the passes completed are kept, the last perhaps unsent (the
+        image is sent after ``check``), so a run seen again starts by sending it."""
+        key = _image_key(cond)
         total, done = self._images.pop(key, (None, 0))
 
         def show() -> None:
-            send({"type": "pixel", "image": views.pixel_png(total / done, white),
-                  "width": REFINE_IMAGE[0], "spp": REFINE_IMAGE[1] * done,
-                  "final": done >= passes, **(tag or {})})
+            send(_image_message(kind, total, done, passes, white))
 
         try:
             if done:

@@ -218,11 +218,13 @@ function onMessage(ev) {
       setStatus(m.kept ? "converged earlier (kept)" :
         m.converged ? `converged in ${Math.round(m.ms)} ms` : `refining… ${Math.round(m.ms)} ms`);
       plotCurve(); break;
+    case "pinned":                                // B's image, refined after A's views
+      if (!S.pinned) break;
+      S.pinned.final = m.final;
+      if (m.error) showError(`B: ${m.error}`);
+      else { S.pinned.pixel = m.image; showCompare(); }
+      break;
     case "pixel":
-      if (m.pinned) {                             // B's image, refined after A's views
-        if (S.pinned) { S.pinned.pixel = m.image; S.pinned.final = m.final; showCompare(); }
-        break;
-      }
       S.pixel = m.image; S.pixels += 1; $("pixel-img").src = m.image; $("pixel-img").hidden = false;
       $("pixel-info").textContent = `${$("length").value} mm · ${m.width} px · ${m.spp} paths/px`;
       if (S.pinned) showCompare();
@@ -317,10 +319,12 @@ async function init() {
     if (body) { S.image = body.image; send(); }
   });
   $("pin").addEventListener("click", () => {
+    if (!$("error").hidden || !S.curve) return;   // nothing sound to pin
     S.pinned = {curve: S.curve, pixel: S.pixel, condition: S.condition, final: false,
       caption: `B: ${describe(S.condition)}` +
       (S.contrast ? ` range ${S.contrast.ogcd_range.toFixed(2)} ΔE00` : "")};
     showCompare(); plotCurve();
+    send();                                       // B's image refines now (A's views are kept)
   });
   window.addEventListener("resize", () => {
     for (const [p, el] of [[curvePlot, "curve-chart"], [tablePlot, "table-chart"]])

@@ -13,8 +13,13 @@ import urllib.request
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
+
+if TYPE_CHECKING:
+    from grassd.daemon.studio.inputs import Condition
+    from grassd.daemon.studio.session import Studio
 
 from grassd.rigs.processes import end_process
 
@@ -82,21 +87,12 @@ def studio(tmp_path_factory, shared_hdri) -> Iterator[StudioProcess]:
     stop_studio(s)
 
 
-def studio_and_condition(hdri: Path, condition: dict):
-    """An in-process :class:`~grassd.daemon.studio.session.Studio` of the default config lit by
-    ``hdri`` (light "f"), and ``condition`` (the page's JSON) parsed for it."""
+def studio_and_condition(hdri: Path, condition: dict) -> tuple[Studio, Condition]:
+    """An in-process studio of the default config lit by ``hdri`` (light "f"), and
+    ``condition`` (the page's JSON) parsed for it."""
     from grassd.daemon.config.settings import resolve_config
     from grassd.daemon.studio.lights import Lights, LightSource
     from grassd.daemon.studio.session import Studio
 
     st = Studio(resolve_config(None, None), Lights([LightSource("file", "f", hdri)]))
-    return st, parse_studio_condition(st, condition)
-
-
-def parse_studio_condition(st, condition: dict):
-    """``condition`` (the page's JSON) parsed for studio ``st``, as its server does."""
-    from grassd.daemon.studio.inputs import parse_condition
-
-    return parse_condition(condition, green_max_mm=st.display.pixel.green_max_mm,
-                           timezone=st.cfg.site.timezone, lights=st.lights.names,
-                           default_light=st.lights.default)
+    return st, st.parse(condition)
