@@ -19,7 +19,8 @@ API (JSON; a bad value gets a 4xx with ``{"error": message}`` and the server kee
 - ``GET /ws``: send ``{"type": "inputs", "id": n, "condition": {...}}`` (and optionally
   ``"pinned": {...}``, the condition shown beside it as B, whose image is refined after this
   one's views); receive ``light``, ``curve``, ``pixel``, ``table``, ``contrast``, ``display``,
-  ``audience``, ``pinned`` (B's image, or an ``error`` where B cannot be computed; A goes on),
+  ``audience``, ``pinned`` (B's converged ``curve`` with its ``ogcd_range``, then its image;
+  or an ``error`` where B cannot be computed, and A goes on),
   ``done`` and ``error`` messages tagged with that ``id`` (each with ``ms`` since the job
   started). A refined image (``pixel``, ``pinned``) says ``final`` once it has all its
   passes.

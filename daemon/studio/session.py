@@ -19,9 +19,9 @@ first image of the pixel within 300 ms, converged within 1 s, warm, 2 cores):
    :data:`FIRST_REPLICATES`;
 4. the table, the contrast, the display showing the uploaded picture;
 5. the audience map: the OGCD range from each place of the audience region;
-6. the image of the condition pinned as B, if the page sent one, refined to
-   :data:`PINNED_PASSES` passes (``pinned`` messages; one with an ``error`` where B cannot be
-   lit, and A goes on);
+6. the condition pinned as B, if the page sent one (``pinned`` messages): its characteristic
+   (kept, else run to its target) and its image refined to :data:`PINNED_PASSES` passes; one
+   with an ``error`` where B cannot be computed, and A goes on;
 7. the pixel's image refined: :data:`REFINE_IMAGE` passes accumulated; then ``done``.
 
 Images are kept summed over their passes (:data:`KEPT_IMAGES`), so a condition seen again, B's
@@ -142,6 +142,12 @@ def _scene_key(cond: Condition) -> tuple:
     eye and the pixel (the kept curves' and images' keys add their own fields)."""
     return (cond.light, cond.ambient_lux, cond.sun, cond.viewpoint, cond.pixel,
             cond.splay_deg)
+
+
+def _curve_key(cond: Condition) -> tuple:
+    """The key of ``cond``'s characteristic among the kept ones: its scene, lengths and
+    target."""
+    return (*_scene_key(cond), cond.lengths_mm, cond.target_stderr)
 
 
 def _image_key(cond: Condition) -> tuple:
@@ -427,17 +433,12 @@ class Studio:
                 first[0] = False
                 first_image()
 
-        key = (*_scene_key(cond), cond.lengths_mm, cond.target_stderr)
-        curve = self._curves.get(key)
+        curve = self._curves.get(_curve_key(cond))
         if curve is not None:  # only the length shown, the tables or the picture changed
             send(curve_message(curve, cond.target_stderr, kept=True))
             first_image()
         else:
-            curve = self.characteristic(cond, target_stderr=cond.target_stderr,
-                                        on_round=on_round, check=check)
-            self._curves[key] = curve
-            while len(self._curves) > KEPT_CURVES:
-                self._curves.pop(next(iter(self._curves)))
+            curve = self._converged(cond, check, on_round)
         check()
         try:
             fit = fit_characteristic(curve_characteristic(curve))
@@ -457,15 +458,42 @@ class Studio:
             ends = curve.ogcd[int(np.argmax(curve.lengths_mm))] - curve.ogcd[0]
             self._audience(cond, float(ends), send, check)
         if pinned is not None:
-            try:
-                _lighting, b_display, b_white = self._scene(pinned)
-            except StudioInputError as exc:  # e.g. its sun set: said as B's, A goes on
-                send({"type": "pinned", "error": str(exc), "final": True})
-            else:
-                self._refine_image(pinned, b_display, b_white, send, check, PINNED_PASSES,
-                                   "pinned")
+            self._pinned(pinned, send, check)
         self._refine_image(cond, display, white, send, check)
         send({"type": "done"})
+
+    def _converged(self, cond: Condition, check: Check,
+                   on_round: Callable | None = None) -> SimulatedCurve:
+        """``cond``'s characteristic run to its target, and kept (:data:`KEPT_CURVES`)."""
+        curve = self.characteristic(cond, target_stderr=cond.target_stderr, on_round=on_round,
+                                    check=check)
+        self._curves[_curve_key(cond)] = curve
+        while len(self._curves) > KEPT_CURVES:
+            self._curves.pop(next(iter(self._curves)))
+        return curve
+
+    def _pinned(self, cond: Condition, send: Emit, check: Check) -> None:
+        """The views of the condition pinned as B, as ``pinned`` messages: its characteristic
+        (kept, else run to its target: B may have been pinned before it converged) with its
+        OGCD range, then its image refined to :data:`PINNED_PASSES`; one with an ``error``
+        where B cannot be computed (its sun set), and A goes on."""
+        from grassd.calib.characteristic import fit_characteristic
+        from grassd.calib.errors import CalibError
+        from grassd.daemon.calibration.display_model import curve_characteristic
+
+        try:
+            _lighting, display, white = self._scene(cond)
+            curve = self._curves.get(_curve_key(cond)) or self._converged(cond, check)
+        except StudioInputError as exc:
+            send({"type": "pinned", "error": str(exc), "final": True})
+            return
+        msg = {"type": "pinned", "curve": curve_message(curve, cond.target_stderr, kept=True)}
+        try:
+            msg["ogcd_range"] = fit_characteristic(curve_characteristic(curve)).ogcd_range
+        except CalibError:  # no monotone fit: the curve alone
+            pass
+        send(msg)
+        self._refine_image(cond, display, white, send, check, PINNED_PASSES, "pinned")
 
     def _audience(self, cond: Condition, eye_range: float, send: Emit, check: Check) -> None:
         """The OGCD range from places over the audience region at the eye's height (two

@@ -195,7 +195,8 @@ function showCompare() {
   if (!S.pinned) return;
   $("compare").hidden = false;
   if (S.pinned.pixel) { $("b-img").src = S.pinned.pixel; $("b-img").hidden = false; }
-  $("b-cap").textContent = S.pinned.caption;
+  $("b-cap").textContent = S.pinned.label +
+    (S.pinned.range !== null ? ` range ${S.pinned.range.toFixed(2)} ΔE00` : "");
   if (S.pixel) { $("a-img").src = S.pixel; $("a-img").hidden = false; }
   const r = S.contrast ? `range ${S.contrast.ogcd_range.toFixed(2)} ΔE00` : "";
   $("a-cap").textContent = `A: ${describe(S.condition)} ${r}`;
@@ -218,11 +219,15 @@ function onMessage(ev) {
       setStatus(m.kept ? "converged earlier (kept)" :
         m.converged ? `converged in ${Math.round(m.ms)} ms` : `refining… ${Math.round(m.ms)} ms`);
       plotCurve(); break;
-    case "pinned":                                // B's image, refined after A's views
+    case "pinned":                                // B's views, after A's
       if (!S.pinned) break;
-      S.pinned.final = m.final;
-      if (m.error) showError(`B: ${m.error}`);
-      else { S.pinned.pixel = m.image; showCompare(); }
+      if (m.error) { S.pinned.final = true; showError(`B: ${m.error}`); break; }
+      if (m.curve) {                              // converged (B may have been pinned before)
+        S.pinned.curve = m.curve;
+        if (m.ogcd_range !== undefined) S.pinned.range = m.ogcd_range;
+        plotCurve();
+      } else { S.pinned.pixel = m.image; S.pinned.final = m.final; }
+      showCompare();
       break;
     case "pixel":
       S.pixel = m.image; S.pixels += 1; $("pixel-img").src = m.image; $("pixel-img").hidden = false;
@@ -321,8 +326,7 @@ async function init() {
   $("pin").addEventListener("click", () => {
     if (!$("error").hidden || !S.curve) return;   // nothing sound to pin
     S.pinned = {curve: S.curve, pixel: S.pixel, condition: S.condition, final: false,
-      caption: `B: ${describe(S.condition)}` +
-      (S.contrast ? ` range ${S.contrast.ogcd_range.toFixed(2)} ΔE00` : "")};
+      label: `B: ${describe(S.condition)}`, range: S.contrast ? S.contrast.ogcd_range : null};
     showCompare(); plotCurve();
     send();                                       // B's image refines now (A's views are kept)
   });

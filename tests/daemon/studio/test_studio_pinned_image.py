@@ -1,6 +1,7 @@
-"""The image of the condition pinned as B refines after A's views, and refined images are kept:
-a condition seen again goes on from the passes it had instead of starting over. A B that cannot
-be lit is said as B's, and A goes on."""
+"""The condition pinned as B gets its views after A's: its characteristic run to its target (B
+may have been pinned before it converged) and its image refined; refined images are kept, so a
+condition seen again goes on from the passes it had instead of starting over. A B that cannot be
+lit is said as B's, and A goes on."""
 
 from __future__ import annotations
 
@@ -40,9 +41,12 @@ def test_the_pinned_image_refines_after_the_views_and_is_kept(renderer, shared_h
     b = st.parse({"ambient_lux": 5000, "viewpoint": [120, 3, 12], "lengths_mm": LENGTHS})
     sent = _run_until_a_refines(st, a, b)
     kinds = [m["type"] for m in sent]
-    pinned = [m for m in sent if m["type"] == "pinned"]
-    # B refines once A's views are all out (its audience map last), before A's own refinement
+    # B's views come once A's are all out (its audience map last), before A's image refines
     assert kinds.index("pinned") == kinds.index("audience") + 1
+    curve = sent[kinds.index("pinned")]
+    assert curve["curve"]["converged"] and curve["curve"]["max_stderr"] <= 0.1
+    assert curve["curve"]["lengths_mm"] == LENGTHS and curve["ogcd_range"] > 1.0
+    pinned = [m for m in sent if m["type"] == "pinned" and "image" in m]
     assert [m["spp"] for m in pinned] == list(range(1, session.PINNED_PASSES + 1))
     assert [m["final"] for m in pinned] == [False] * (session.PINNED_PASSES - 1) + [True]
     assert all(m["width"] == session.REFINE_IMAGE[0] for m in pinned)
@@ -54,7 +58,9 @@ def test_the_pinned_image_refines_after_the_views_and_is_kept(renderer, shared_h
     again = _run_until_a_refines(st, a, b)
     first = next(m for m in again if m["type"] == "pixel")
     assert first["width"] == session.REFINE_IMAGE[0] and first["spp"] >= 2
-    pinned_again = [m for m in again if m["type"] == "pinned"]
+    curves_again = [m["curve"] for m in again if m["type"] == "pinned" and "curve" in m]
+    assert curves_again == [curve["curve"]]  # kept: sent as it was
+    pinned_again = [m for m in again if m["type"] == "pinned" and "image" in m]
     assert len(pinned_again) == 1 and pinned_again[0]["final"]
     assert pinned_again[0]["spp"] == session.PINNED_PASSES
     assert pinned_again[0]["image"] == pinned[-1]["image"]
