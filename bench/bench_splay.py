@@ -29,7 +29,7 @@ RUNS = int(os.environ.get("GRASSD_BENCH_SPLAY_RUNS", "6"))
 def main() -> None:
     from grassd.daemon.calibration.calibrate import Calibrator
     from grassd.daemon.config.settings import resolve_config
-    from grassd.daemon.studio.session import STUDIO_LAUNCH_PATHS
+    from grassd.daemon.studio.pace import STUDIO_LAUNCH_PATHS
     from grassd.sim import renderer as current
     from grassd.sim.backend import init
     from grassd.sim.hdri import load_hdri

@@ -3,7 +3,8 @@ and the job that turns a :class:`~grassd.daemon.studio.inputs.Condition` into th
 streamed as they refine.
 
 The order of a job is set by the latency goals (issue #29: first characteristic within 150 ms,
-first image of the pixel within 300 ms, converged within 1 s, warm, 2 cores):
+first image of the pixel within 300 ms, converged within 1 s, warm, 2 cores; the sizes named
+here are :mod:`grassd.daemon.studio.pace`'s):
 
 1. the characteristic's first round, :data:`FIRST_REPLICATES` replicates of
    :data:`STUDIO_SAMPLES` paths (about 75 ms for 11 lengths); where the blades splay (nearly
@@ -51,6 +52,19 @@ import numpy as np
 from grassd.daemon.studio import views
 from grassd.daemon.studio.inputs import Condition, StudioInputError
 from grassd.daemon.studio.lights import Lights
+from grassd.daemon.studio.pace import (
+    FIRST_IMAGE,
+    FIRST_REPLICATES,
+    MAX_REPLICATES,
+    PINNED_PASSES,
+    REFINE_IMAGE,
+    REFINE_PASSES,
+    ROUND_REPLICATES,
+    STUDIO_LAUNCH_PATHS,
+    STUDIO_MAX_LAUNCH_PATHS,
+    STUDIO_SAMPLES,
+    studio_pace,
+)
 from grassd.daemon.studio.worker import Check
 
 if TYPE_CHECKING:
@@ -60,64 +74,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-#: Camera paths per replicate in the studio: small replicates, so the first round is quick and
-#: later rounds add just what the target needs (the same paths per length as the daemon's
-#: 4096 x 8 after 32 replicates).
-STUDIO_SAMPLES: int = 1024
-#: Camera paths per replicate when the green blades splay. The renderer then traces a path
-#: at nearly every length (the blades' planes turn with the length; it keeps only the rays
-#: clear of every green blade) instead of about 5 of the 11, so a replicate costs about 2.3x
-#: as much (16 x 256 paths 116 ms against 4 x 1024 without splay 50 ms, 2 cores, median of 12;
-#: 2.5x before the renderer normalised a turned blade's normal only at the hit, 3x before it
-#: turned the blades once per ray, 4x before it kept rays with splay), and the
-#: first round took 0.3 s of a splay change's 0.43 s.
-#: A quarter of the paths a replicate and 4x the replicates a round (:func:`studio_pace`) keep
-#: the first round's time and each round's paths. Measured in process, 3 splay changes, load
-#: 2-3 on 2 cores: first curve 124-176 ms, converged 4.2-4.7 s; a first look of 4 x 256
-#: paths sent before rounds of 1024-path replicates instead: 142-162 ms, 4.9-6.0 s.
-SPLAY_SAMPLES: int = 256
-#: Fewest camera paths a renderer launch takes in a studio without interrupts (in the server's
-#: process, in tests; the simulator process launches whole rounds, :attr:`Studio.interrupts`):
-#: a round of 8 x 1024 paths goes in launches of 2 replicates, and the run checks for a newer
-#: input between them, so an input that comes in while a round computes waits for one launch
-#: (about a quarter of the round), not the whole round. The numbers do not depend on how the
-#: replicates are split into launches.
-STUDIO_LAUNCH_PATHS: int = 2048
-#: Most camera paths a launch takes in a studio without interrupts, scaled like the replicates
-#: (:func:`studio_pace`: a quarter where the blades splay, whose paths cost 2.3x): a larger
-#: replicate (a low sun's 8192 paths,
-#: :class:`~grassd.daemon.calibration.simulation.LargerReplicates`) goes in launches of a share
-#: of its paths (the numbers change by float64 rounding only), and a splayed round in launches
-#: of 4 replicates, so a new input waits for one launch (30-50 ms here), not the round.
-#: Larger launches cost less per path (the last task of a launch leaves a core idle, the
-#: threads' start and stop take CPU time, and on this 2-core VM a core that idled between
-#: launches joined late: 1.0-1.5 cores busy in a tenth to a half of the launches): the
-#: studio's splayed run in a low sun, in process, four eyes, took 2005-2330 ms with 4096
-#: (1024 splayed paths a launch), 1634-1953 with 8192 and 1395-1756 with 16384. That is why
-#: the simulator process, where a newer input stops the launch in flight, launches whole
-#: rounds. (A round without splay goes in launches of 2 replicates, a quarter of its 8,
-#: whatever this cap.)
-STUDIO_MAX_LAUNCH_PATHS: int = 4096
-#: Replicates of the first round (their spread is the first error band).
-FIRST_REPLICATES: int = 4
-#: Most replicates a characteristic takes before it is sent as it is.
-MAX_REPLICATES: int = 256
-#: Most replicates a later round adds: a round then takes at most about 0.1 s (11 lengths), so
-#: a new input waits at most that long for the round in flight.
-ROUND_REPLICATES: int = 8
-#: (width px, paths per image pixel) of the pixel's first image, and of each refining pass
-#: (the preview kernel rounds the paths up to a square: 2 or 4 cost the same). The first image
-#: is drawn between the characteristic's first and second rounds, so its time adds to every
-#: converged time: one path per pixel takes 36-43 ms on 2 cores where 4 took 114-132 ms (its
-#: noise is gone with the refining passes, 0.11-0.13 s each, after everything else).
-FIRST_IMAGE: tuple[int, int] = (96, 1)
-REFINE_IMAGE: tuple[int, int] = (192, 1)
-#: Refining passes of the pixel's image after everything else (24 paths per image pixel).
-REFINE_PASSES: int = 24
-#: Refining passes the image of the condition pinned as B gets before A's image is refined (8
-#: paths per image pixel, about 1 s on 2 cores): B was pinned as it was, often with its first
-#: image only, which stayed at half the width and one path a pixel.
-PINNED_PASSES: int = 8
 #: Refined images kept (summed over their passes) for conditions seen again.
 KEPT_IMAGES: int = 8
 #: Converged characteristics kept for conditions seen again (the length shown, the tables or the
@@ -565,18 +521,6 @@ def _materials(p, source: str) -> dict[str, Any]:
     return {"source": source, "splay_deg": p.splay_deg, "specular": p.specular,
             "smoothness": p.smoothness, "green_srgb": list(p.green_srgb),
             "yellow_srgb": list(p.yellow_srgb), "base_srgb": list(p.base_srgb)}
-
-
-def studio_pace(splay_deg: float, n_lengths: int) -> tuple[int, int, int]:
-    """(camera paths a replicate, most replicates a later round adds, most replicates in all)
-    of the studio's characteristic of ``n_lengths`` lengths, green blades splayed by
-    ``splay_deg`` (deg): :data:`STUDIO_SAMPLES`, :data:`ROUND_REPLICATES`,
-    :data:`MAX_REPLICATES` without splay (or with 2 lengths or fewer); with it,
-    :data:`SPLAY_SAMPLES` a replicate and the replicates scaled to the same paths."""
-    if splay_deg <= 0 or n_lengths <= 2:
-        return STUDIO_SAMPLES, ROUND_REPLICATES, MAX_REPLICATES
-    scale = STUDIO_SAMPLES // SPLAY_SAMPLES
-    return SPLAY_SAMPLES, ROUND_REPLICATES * scale, MAX_REPLICATES * scale
 
 
 def cond_eye(cond: Condition) -> tuple[float, float, float]:

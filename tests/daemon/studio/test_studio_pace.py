@@ -7,19 +7,19 @@ from __future__ import annotations
 import pytest
 from conftest import studio_and_condition
 
-from grassd.daemon.studio import session
-from grassd.daemon.studio.session import studio_pace
+from grassd.daemon.studio import pace
+from grassd.daemon.studio.pace import studio_pace
 from grassd.daemon.studio.worker import Superseded
 
 
 def test_a_splayed_characteristic_takes_smaller_replicates_and_as_many_paths():
-    assert studio_pace(0.0, 11) == (session.STUDIO_SAMPLES, session.ROUND_REPLICATES,
-                                    session.MAX_REPLICATES)
+    assert studio_pace(0.0, 11) == (pace.STUDIO_SAMPLES, pace.ROUND_REPLICATES,
+                                    pace.MAX_REPLICATES)
     assert studio_pace(6.0, 2) == studio_pace(0.0, 2)  # the audience map's two lengths
     samples, per_round, most = studio_pace(6.0, 11)
-    assert samples == session.SPLAY_SAMPLES < session.STUDIO_SAMPLES
-    assert samples * per_round == session.STUDIO_SAMPLES * session.ROUND_REPLICATES
-    assert samples * most == session.STUDIO_SAMPLES * session.MAX_REPLICATES
+    assert samples == pace.SPLAY_SAMPLES < pace.STUDIO_SAMPLES
+    assert samples * per_round == pace.STUDIO_SAMPLES * pace.ROUND_REPLICATES
+    assert samples * most == pace.STUDIO_SAMPLES * pace.MAX_REPLICATES
     assert per_round <= 64  # a render's replicate limit (grassd.sim.scene.MAX_REPLICATES)
 
 
@@ -34,7 +34,7 @@ def test_a_low_sun_converges_on_larger_replicates(renderer, shared_hdri):
         "sun": {"mode": "site", "lux": 40000, "when": "2026-11-27T15:00"}})
     seen = []
     curve = st.characteristic(cond, target_stderr=0.1, on_round=seen.append)
-    assert [c.replicates for c in seen[:2]] == [session.FIRST_REPLICATES, 8]
+    assert [c.replicates for c in seen[:2]] == [pace.FIRST_REPLICATES, 8]
     assert LargerReplicates().least <= curve.replicates <= 32
     assert float(curve.ogcd_stderr.max()) <= 0.1 and seen[-1] is curve
     assert curve.paths_traced > 0 and curve.ogcd[-1] > 20  # the sunlit blades' contrast

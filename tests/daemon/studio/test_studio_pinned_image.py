@@ -8,7 +8,7 @@ from __future__ import annotations
 import pytest
 from conftest import studio_and_condition
 
-from grassd.daemon.studio import session
+from grassd.daemon.studio import pace
 from grassd.daemon.studio.worker import Superseded
 
 LENGTHS = [0, 10, 20]
@@ -18,7 +18,7 @@ def _refined(sent: list[dict]) -> list[dict]:
     """A's refined images (192 px) sent after its views (the audience map)."""
     kinds = [m["type"] for m in sent]
     after = sent[kinds.index("audience") + 1:] if "audience" in kinds else []
-    return [m for m in after if m["type"] == "pixel" and m["width"] == session.REFINE_IMAGE[0]]
+    return [m for m in after if m["type"] == "pixel" and m["width"] == pace.REFINE_IMAGE[0]]
 
 
 def _run_until_a_refines(st, cond, pinned) -> list[dict]:
@@ -47,9 +47,9 @@ def test_the_pinned_image_refines_after_the_views_and_is_kept(renderer, shared_h
     assert curve["curve"]["converged"] and curve["curve"]["max_stderr"] <= 0.1
     assert curve["curve"]["lengths_mm"] == LENGTHS and curve["ogcd_range"] > 1.0
     pinned = [m for m in sent if m["type"] == "pinned" and "image" in m]
-    assert [m["spp"] for m in pinned] == list(range(1, session.PINNED_PASSES + 1))
-    assert [m["final"] for m in pinned] == [False] * (session.PINNED_PASSES - 1) + [True]
-    assert all(m["width"] == session.REFINE_IMAGE[0] for m in pinned)
+    assert [m["spp"] for m in pinned] == list(range(1, pace.PINNED_PASSES + 1))
+    assert [m["final"] for m in pinned] == [False] * (pace.PINNED_PASSES - 1) + [True]
+    assert all(m["width"] == pace.REFINE_IMAGE[0] for m in pinned)
     assert kinds.index("pinned") < sent.index(_refined(sent)[0])
     assert [m["spp"] for m in _refined(sent)] == [1]
 
@@ -57,12 +57,12 @@ def test_the_pinned_image_refines_after_the_views_and_is_kept(renderer, shared_h
     # sent once as it was, and A's goes on
     again = _run_until_a_refines(st, a, b)
     first = next(m for m in again if m["type"] == "pixel")
-    assert first["width"] == session.REFINE_IMAGE[0] and first["spp"] >= 2
+    assert first["width"] == pace.REFINE_IMAGE[0] and first["spp"] >= 2
     curves_again = [m["curve"] for m in again if m["type"] == "pinned" and "curve" in m]
     assert curves_again == [curve["curve"]]  # kept: sent as it was
     pinned_again = [m for m in again if m["type"] == "pinned" and "image" in m]
     assert len(pinned_again) == 1 and pinned_again[0]["final"]
-    assert pinned_again[0]["spp"] == session.PINNED_PASSES
+    assert pinned_again[0]["spp"] == pace.PINNED_PASSES
     assert pinned_again[0]["image"] == pinned[-1]["image"]
     assert _refined(again)[0]["spp"] >= 2  # the passes of the first run kept
 
