@@ -3,8 +3,10 @@
 The studio's pixel (``resolve_config(None, None)``, the centre of its 3x3 patch), courtyard
 5000 lx, viewpoint (170, 2, 5), 11 lengths 0..20 mm, warm kernels, launches of at least 2048
 paths as the studio runs them: splay 8 deg with 16 x 256 paths (a studio round), and the same
-pixel without splay with 4 x 1024 paths. Prints the median of ``GRASSD_BENCH_SPLAY_RUNS``
-(default 6) runs, traces and rays per camera path. Asserts nothing.
+pixel without splay with 4 x 1024 paths; then, under a low sun (:data:`LOW_SUN`, the studio's
+slowest change), both with 2 x 8192 paths and the settings of the larger replicates a run takes
+there (:class:`~grassd.daemon.calibration.simulation.LargerReplicates`). Prints the median of
+``GRASSD_BENCH_SPLAY_RUNS`` (default 6) runs, traces and rays per camera path. Asserts nothing.
 
 Run: ``python -m bench splay``. For an A/B against an older renderer, set
 ``GRASSD_BENCH_SPLAY_OLD`` to a copy of its ``sim/renderer.py``: both run interleaved in one
@@ -24,10 +26,14 @@ import numpy as np
 from bench import COURTYARD
 
 RUNS = int(os.environ.get("GRASSD_BENCH_SPLAY_RUNS", "6"))
+#: bench_studio's "splay in sun": 40,000 lx from where the sun stands over the default site
+#: (35 N, 139 E) on 2026-11-27 at 15:00, over courtyard's 5000 lx.
+LOW_SUN = {"sun_lux": 40000.0, "sun_azimuth_deg": 229.7, "sun_elevation_deg": 15.3}
 
 
 def main() -> None:
     from grassd.daemon.calibration.calibrate import Calibrator
+    from grassd.daemon.calibration.simulation import LargerReplicates
     from grassd.daemon.config.settings import resolve_config
     from grassd.daemon.studio.pace import STUDIO_LAUNCH_PATHS
     from grassd.sim import renderer as current
@@ -47,22 +53,29 @@ def main() -> None:
     for r in renderers.values():
         r.min_launch_paths = STUDIO_LAUNCH_PATHS  # the studio's (also on an older renderer)
     display, centre = Calibrator(resolve_config(None, None)).display()
-    light = build_lighting(load_hdri(COURTYARD), ambient_lux=5000)
+    env = load_hdri(COURTYARD)
+    light = build_lighting(env, ambient_lux=5000)
+    sun = build_lighting(env, ambient_lux=5000, **LOW_SUN)
+    larger = LargerReplicates()
+    low_sun = {"light_samples": larger.light_samples, "roulette_from": larger.roulette_from}
     lengths = np.arange(0.0, display.pixel.green_max_mm + 1e-9, 2.0)
-    for splay, samples, reps in ((8.0, 256, 16), (0.0, 1024, 4)):
+    cases = [("", light, 8.0, 256, 16, {}), ("", light, 0.0, 1024, 4, {}),
+             (" in a low sun", sun, 8.0, larger.samples, 2, low_sun),
+             (" in a low sun", sun, 0.0, larger.samples, 2, low_sun)]
+    for where, lit, splay, samples, reps, extra in cases:
         d = replace(display, pixel=replace(display.pixel, splay_deg=splay))
         times: dict[str, list[float]] = {k: [] for k in renderers}
         last = {}
         for run in range(RUNS + 1):  # run 0 warms (compiles)
             names = list(renderers) if run % 2 else list(renderers)[::-1]
             for name in names:
-                s = RenderSettings(samples=samples, replicates=reps, seed=run)
+                s = RenderSettings(samples=samples, replicates=reps, seed=run, **extra)
                 t0 = time.perf_counter()
                 last[name] = renderers[name].characteristic(
-                    d, light, Viewpoint(170, 2, 5), lengths, s, pixel_index=centre)
+                    d, lit, Viewpoint(170, 2, 5), lengths, s, pixel_index=centre)
                 if run:
                     times[name].append(time.perf_counter() - t0)
-        print(f"splay {splay:g} deg, {len(lengths)} lengths x {reps} x {samples} paths:")
+        print(f"splay {splay:g} deg{where}, {len(lengths)} lengths x {reps} x {samples} paths:")
         for name, m in last.items():
             print(f"  {name}: {statistics.median(times[name]) * 1e3:.0f} ms median of {RUNS}, "
                   f"{m.paths_traced / m.samples_per_length:.2f} traces and "
