@@ -17,13 +17,12 @@ API (JSON; a bad value gets a 4xx with ``{"error": message}`` and the server kee
 - ``POST /api/hdri?name=FILE.exr`` (the file as the body): a new light source.
 - ``POST /api/picture`` (a PNG/JPEG as the body): a picture for the display view.
 - ``GET /ws``: send ``{"type": "inputs", "id": n, "condition": {...}}`` (and optionally
-  ``"pinned": {...}``, the condition shown beside it as B, whose image is refined after this
-  one's views); receive ``light``, ``curve``, ``pixel``, ``table``, ``contrast``, ``display``,
-  ``audience``, ``pinned`` (B's converged ``curve`` with its ``ogcd_range``, then its image;
-  or an ``error`` where B cannot be computed, and A goes on),
-  ``done`` and ``error`` messages tagged with that ``id`` (each with ``ms`` since the job
-  started). A refined image (``pixel``, ``pinned``) says ``final`` once it has all its
-  passes.
+  ``"pinned": {...}``, the condition shown beside it as B, whose views follow this one's);
+  receive ``light``, ``curve``, ``pixel``, ``table``, ``contrast``, ``display``, ``audience``,
+  ``pinned`` (B's converged ``curve`` with its ``ogcd_range``, then its image; or an ``error``
+  where B cannot be computed, and A goes on), ``done`` and ``error`` messages tagged with that
+  ``id`` (those of the job with ``ms`` since it started; an input refused before it, not). A
+  refined image (``pixel``, ``pinned``) says ``final`` once it has all its passes.
 
 Bound to 127.0.0.1 by default; on any other address every request needs the token printed at
 start (``?token=`` on the page's URL, which sets a cookie, or an ``X-Grassd-Token`` header).

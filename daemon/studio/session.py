@@ -23,10 +23,12 @@ here are :mod:`grassd.daemon.studio.pace`'s):
 6. the condition pinned as B, if the page sent one (``pinned`` messages): its characteristic
    (kept, else run to its target) and its image refined to :data:`PINNED_PASSES` passes; one
    with an ``error`` where B cannot be computed, and A goes on;
-7. the pixel's image refined: :data:`REFINE_IMAGE` passes accumulated; then ``done``.
+7. the pixel's image refined: :data:`REFINE_PASSES` passes of :data:`REFINE_IMAGE`
+   accumulated; then ``done``.
 
-Images are kept summed over their passes (:data:`KEPT_IMAGES`), so a condition seen again, B's
-among them, goes on from the passes it had.
+Converged characteristics, audience maps (:data:`KEPT_CURVES`) and images summed over their
+passes (:data:`KEPT_IMAGES`) are kept, so a condition seen again, B's among them, goes on from
+what it had (pinning sends A again: only its table, contrast and display view are redone).
 
 Every step checks whether a newer request superseded this one. In the simulator process a newer
 request also stops the renderer's launch in flight (:attr:`Studio.interrupts`), so a launch
@@ -50,7 +52,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from grassd.daemon.studio import views
-from grassd.daemon.studio.inputs import Condition, StudioInputError
+from grassd.daemon.studio.inputs import Condition, StudioInputError, parse_condition
 from grassd.daemon.studio.lights import Lights
 from grassd.daemon.studio.pace import (
     FIRST_IMAGE,
@@ -111,6 +113,20 @@ def _image_key(cond: Condition) -> tuple:
     return (*_scene_key(cond), cond.length_mm)
 
 
+def _fit(curve: SimulatedCurve) -> tuple[Any, str | None]:
+    """The fitted characteristic of a simulated curve
+    (:func:`grassd.calib.characteristic.fit_characteristic`) and None, or None and why there
+    is none (a CalibError's message: no monotone fit)."""
+    from grassd.calib.characteristic import fit_characteristic
+    from grassd.calib.errors import CalibError
+    from grassd.daemon.calibration.display_model import curve_characteristic
+
+    try:
+        return fit_characteristic(curve_characteristic(curve)), None
+    except CalibError as exc:
+        return None, str(exc)
+
+
 def _image_message(kind: str, total: np.ndarray, done: int, passes: int,
                    white: np.ndarray) -> dict[str, Any]:
     """A refined image of ``done`` passes summed in ``total`` (linear Rec.709 nits, scaled by
@@ -157,6 +173,8 @@ class Studio:
         self._curves: dict[tuple, Any] = {}  # converged characteristics of recent conditions
         #: refined images of recent conditions: (sum of the passes, passes)
         self._images: dict[tuple, tuple[np.ndarray, int]] = {}
+        #: audience maps of recent conditions (their messages; None: no place to map)
+        self._audiences: dict[tuple, dict[str, Any] | None] = {}
 
     # ------------------------------------------------------------------ what the page needs
     @property
@@ -248,8 +266,6 @@ class Studio:
     def parse(self, data: Any) -> Condition:
         """The page's or a script's condition (JSON) checked against this studio's pixel, site
         and lights (StudioInputError naming what is wrong)."""
-        from grassd.daemon.studio.inputs import parse_condition
-
         return parse_condition(data, green_max_mm=self.display.pixel.green_max_mm,
                                timezone=self.cfg.site.timezone, lights=self.lights.names,
                                default_light=self.lights.default)
@@ -351,10 +367,8 @@ class Studio:
         """Compute every view of ``cond`` in the order of the module docstring, sending each as
         it is ready (``emit``); ``check`` raises when a newer request supersedes this one.
         ``levels``: the (rows, cols) 8-bit picture the display view shows, if any;
-        ``pinned``: the condition the page shows beside it as B, whose image is refined too."""
-        from grassd.calib.characteristic import fit_characteristic
-        from grassd.calib.errors import CalibError
-        from grassd.daemon.calibration.display_model import curve_characteristic
+        ``pinned``: the condition the page shows beside it as B, whose characteristic and image
+        follow A's views."""
         from grassd.sim.lighting import azimuth_elevation_from_direction
 
         t0 = time.perf_counter()
@@ -371,11 +385,13 @@ class Studio:
         send({"type": "light", "notes": list(getattr(lighting, "notes", ())), "sun": sun,
               "white_nits": _rounded(white)})
         first = [True]
+        kept_shown = [False]
 
         def first_image() -> None:
             kept = self._images.get(_image_key(cond))
             if kept is not None:  # refined before: shown as it was, refined on below
                 send(_image_message("pixel", *kept, REFINE_PASSES, white))
+                kept_shown[0] = True
                 return
             img = self._image(cond, display, FIRST_IMAGE, 0, check)
             send({"type": "pixel", "image": views.pixel_png(img, white),
@@ -396,12 +412,12 @@ class Studio:
         else:
             curve = self._converged(cond, check, on_round)
         check()
-        try:
-            fit = fit_characteristic(curve_characteristic(curve))
+        fit, why = _fit(curve)
+        table = None
+        if fit is None:
+            send({"type": "table", "error": why})
+        else:
             table = views.table_view(fit, self.active_um if cond.tables == "active" else None)
-        except CalibError as exc:
-            send({"type": "table", "error": str(exc)})
-            fit = table = None
         if table is not None:
             send({"type": "table", **table})
             send({"type": "contrast", **views.contrast_view(fit.ogcd_range)})
@@ -411,11 +427,17 @@ class Studio:
                     levels, np.asarray(table["lengths_mm"]), curve.lengths_mm, curve.lab,
                     self.cfg.display.pitch_mm, eye)})
             # the audience's places are judged as the eye is: the reference vs the longest
-            ends = curve.ogcd[int(np.argmax(curve.lengths_mm))] - curve.ogcd[0]
-            self._audience(cond, float(ends), send, check)
+            key = _curve_key(cond)
+            if key not in self._audiences:
+                ends = curve.ogcd[int(np.argmax(curve.lengths_mm))] - curve.ogcd[0]
+                self._audiences[key] = self._audience(cond, float(ends), check)
+                while len(self._audiences) > KEPT_CURVES:
+                    self._audiences.pop(next(iter(self._audiences)))
+            if self._audiences[key] is not None:
+                send(dict(self._audiences[key]))
         if pinned is not None:
             self._pinned(pinned, send, check)
-        self._refine_image(cond, display, white, send, check)
+        self._refine_image(cond, display, white, send, check, show_kept=not kept_shown[0])
         send({"type": "done"})
 
     def _converged(self, cond: Condition, check: Check,
@@ -433,27 +455,27 @@ class Studio:
         (kept, else run to its target: B may have been pinned before it converged) with its
         OGCD range, then its image refined to :data:`PINNED_PASSES`; one with an ``error``
         where B cannot be computed (its sun set), and A goes on."""
-        from grassd.calib.characteristic import fit_characteristic
-        from grassd.calib.errors import CalibError
-        from grassd.daemon.calibration.display_model import curve_characteristic
-
         try:
             _lighting, display, white = self._scene(cond)
-            curve = self._curves.get(_curve_key(cond)) or self._converged(cond, check)
+            curve = self._curves.get(_curve_key(cond))
+            kept = curve is not None
+            if curve is None:
+                curve = self._converged(cond, check)
         except StudioInputError as exc:
             send({"type": "pinned", "error": str(exc), "final": True})
             return
-        msg = {"type": "pinned", "curve": curve_message(curve, cond.target_stderr, kept=True)}
-        try:
-            msg["ogcd_range"] = fit_characteristic(curve_characteristic(curve)).ogcd_range
-        except CalibError:  # no monotone fit: the curve alone
-            pass
+        msg = {"type": "pinned", "curve": curve_message(curve, cond.target_stderr, kept=kept)}
+        fit, _why = _fit(curve)
+        if fit is not None:  # else no monotone fit: the curve alone
+            msg["ogcd_range"] = fit.ogcd_range
         send(msg)
         self._refine_image(cond, display, white, send, check, PINNED_PASSES, "pinned")
 
-    def _audience(self, cond: Condition, eye_range: float, send: Emit, check: Check) -> None:
+    def _audience(self, cond: Condition, eye_range: float,
+                  check: Check) -> dict[str, Any] | None:
         """The OGCD range from places over the audience region at the eye's height (two
-        lengths each: the reference and the longest), sent as one map."""
+        lengths each: the reference and the longest), as one map's message (None where no
+        place of the region is far enough from the display)."""
         from grassd.daemon.calibration.audience import points_in_polygon
 
         region = self.region
@@ -477,21 +499,23 @@ class Studio:
                            float(c.ogcd_stderr[1])))
             check()
         if not places:
-            return
+            return None
         ranges = np.array([p[2] for p in places])
         warn = views.audience_warning(ranges, eye_range)
-        send({"type": "audience", "step_m": step, "eye_range": eye_range,
-              "h_cm": cond.viewpoint[0],
-              "places": [{"x": p[0], "y": p[1], "range": round(p[2], 3),
-                          "stderr": round(p[3], 3), "warn": bool(w)}
-                         for p, w in zip(places, warn, strict=True)],
-              "warned": int(warn.sum()), "loss": views.CONTRAST_LOSS})
+        return {"type": "audience", "step_m": step, "eye_range": eye_range,
+                "h_cm": cond.viewpoint[0],
+                "places": [{"x": p[0], "y": p[1], "range": round(p[2], 3),
+                            "stderr": round(p[3], 3), "warn": bool(w)}
+                           for p, w in zip(places, warn, strict=True)],
+                "warned": int(warn.sum()), "loss": views.CONTRAST_LOSS}
 
     def _refine_image(self, cond: Condition, display, white: np.ndarray, send: Emit,
-                      check: Check, passes: int = REFINE_PASSES, kind: str = "pixel") -> None:
+                      check: Check, passes: int = REFINE_PASSES, kind: str = "pixel",
+                      show_kept: bool = True) -> None:
         """Refine the pixel's image of ``cond`` to ``passes`` passes of :data:`REFINE_IMAGE`,
         going on from the passes kept for it, and send it (a ``kind`` message, ``final`` once
-        it has ``passes``) after each, and first where passes were kept. A pass that a newer
+        it has ``passes``) after each pass, and first where passes were kept (unless
+        ``show_kept`` is False: the job's first image was that one). A pass that a newer
         request stops is lost; the passes completed are kept, the last perhaps unsent (the
         image is sent after ``check``), so a run seen again starts by sending it."""
         key = _image_key(cond)
@@ -501,7 +525,7 @@ class Studio:
             send(_image_message(kind, total, done, passes, white))
 
         try:
-            if done:
+            if done and show_kept:
                 show()
             for k in range(done, passes):
                 img = self._image(cond, display, REFINE_IMAGE, 1 + k, check)

@@ -5,7 +5,7 @@ const $ = (id) => document.getElementById(id);
 const S = {            // what the page knows; tests read it as window.studio
   state: null, ws: null, id: 0, eye: {x: 0, y: -2}, image: null, pinned: null,
   curve: null, table: null, contrast: null, audience: null, pixel: null, light: null,
-  curves: 0, pixels: 0, displays: 0, errors: [], sentAt: 0, firstCurveMs: null,
+  curves: 0, pixels: 0, displays: 0, errors: [], sentAt: 0, firstCurveMs: null, failed: false,
 };
 window.studio = S;
 let curvePlot = null, tablePlot = null, dragging = false, lastSend = 0, pendingSend = null;
@@ -57,7 +57,7 @@ function send() {
   if (S.pinned && !S.pinned.final) msg.pinned = S.pinned.condition;  // B's image still refines
   S.ws.send(JSON.stringify(msg));
   setStatus("computing…");
-  showError("");
+  showError(""); S.failed = false;
   updateReadouts();
 }
 function updateReadouts() {
@@ -195,8 +195,8 @@ function showCompare() {
   if (!S.pinned) return;
   $("compare").hidden = false;
   if (S.pinned.pixel) { $("b-img").src = S.pinned.pixel; $("b-img").hidden = false; }
-  $("b-cap").textContent = S.pinned.label +
-    (S.pinned.range !== null ? ` range ${S.pinned.range.toFixed(2)} ΔE00` : "");
+  $("b-cap").textContent = S.pinned.label + (S.pinned.error ? ` · ${S.pinned.error}` :
+    S.pinned.range !== null ? ` range ${S.pinned.range.toFixed(2)} ΔE00` : "");
   if (S.pixel) { $("a-img").src = S.pixel; $("a-img").hidden = false; }
   const r = S.contrast ? `range ${S.contrast.ogcd_range.toFixed(2)} ΔE00` : "";
   $("a-cap").textContent = `A: ${describe(S.condition)} ${r}`;
@@ -221,10 +221,9 @@ function onMessage(ev) {
       plotCurve(); break;
     case "pinned":                                // B's views, after A's
       if (!S.pinned) break;
-      if (m.error) { S.pinned.final = true; showError(`B: ${m.error}`); break; }
-      if (m.curve) {                              // converged (B may have been pinned before)
-        S.pinned.curve = m.curve;
-        if (m.ogcd_range !== undefined) S.pinned.range = m.ogcd_range;
+      if (m.error) { S.pinned.final = true; S.pinned.error = m.error; }  // said under B
+      else if (m.curve) {                         // converged (B may have been pinned before)
+        S.pinned.curve = m.curve; S.pinned.range = m.ogcd_range ?? null;
         plotCurve();
       } else { S.pinned.pixel = m.image; S.pinned.final = m.final; }
       showCompare();
@@ -246,7 +245,7 @@ function onMessage(ev) {
       break;
     case "audience": S.audience = m; showAudience(); drawTop(); break;
     case "done": setStatus(`done · ${Math.round(m.ms || 0)} ms`); break;
-    case "error": showError(m.message); setStatus("error"); break;
+    case "error": S.failed = true; showError(m.message); setStatus("error"); break;
   }
 }
 
@@ -324,11 +323,11 @@ async function init() {
     if (body) { S.image = body.image; send(); }
   });
   $("pin").addEventListener("click", () => {
-    if (!$("error").hidden || !S.curve) return;   // nothing sound to pin
+    if (S.failed || !S.curve) return;             // nothing sound to pin
     S.pinned = {curve: S.curve, pixel: S.pixel, condition: S.condition, final: false,
       label: `B: ${describe(S.condition)}`, range: S.contrast ? S.contrast.ogcd_range : null};
     showCompare(); plotCurve();
-    send();                                       // B's image refines now (A's views are kept)
+    send();                                       // B's views now (A's curve and image kept)
   });
   window.addEventListener("resize", () => {
     for (const [p, el] of [[curvePlot, "curve-chart"], [tablePlot, "table-chart"]])

@@ -101,6 +101,8 @@ def test_the_page_follows_the_eye_shows_a_picture_and_reports_bad_input(studio, 
         message = page.wait_for("!document.getElementById('error').hidden && "
                                 "document.getElementById('error').textContent")
         assert "ambient_lux = 5e+09 is out of range" in message
+        page.evaluate("document.getElementById('pin').click()")  # nothing sound to pin
+        assert page.evaluate("window.studio.pinned") is None
         page.evaluate("document.getElementById('lux').value = 8000;"
                       "document.getElementById('lux').dispatchEvent(new Event('change'))")
         page.wait_for("document.getElementById('error').hidden")
@@ -121,6 +123,16 @@ def test_the_page_follows_the_eye_shows_a_picture_and_reports_bad_input(studio, 
         page.screenshot(tmp_path / "studio-1280-compare.png")
         _keep(tmp_path / "studio-1280-compare.png")
         assert page.problems() == []
+
+        # a B that cannot be computed (here its sun set) is said under B, and A goes on
+        page.evaluate("const p = window.studio.pinned; p.final = false;"
+                      "p.condition = {...p.condition, sun: {mode: 'site', lux: 30000,"
+                      " when: '2026-11-27T23:00'}}; send()")
+        page.wait_for("window.studio.pinned.error")
+        assert "below the horizon" in page.evaluate("document.getElementById('b-cap')"
+                                                    ".textContent")
+        assert page.evaluate("document.getElementById('error').hidden")
+        page.wait_for(CONVERGED + " && window.studio.curve.id === window.studio.id")
 
         narrow = browser.open(studio.url, 390, 844, mobile=True)
         narrow.wait_for(CONVERGED + " && window.studio.pixels > 0 && window.studio.table"

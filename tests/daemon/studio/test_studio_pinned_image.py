@@ -53,13 +53,20 @@ def test_the_pinned_image_refines_after_the_views_and_is_kept(renderer, shared_h
     assert kinds.index("pinned") < sent.index(_refined(sent)[0])
     assert [m["spp"] for m in _refined(sent)] == [1]
 
-    # the same two conditions again: A's first image is its refined one as kept, B's image is
-    # sent once as it was, and A's goes on
+    # the same two conditions again: nothing is simulated anew but A's image, which goes on (its
+    # curve, audience map and refined image are kept, B's curve and image too)
+    runs = []
+    characteristic = st.characteristic
+    st.characteristic = lambda *args, **kw: runs.append(args) or characteristic(*args, **kw)
     again = _run_until_a_refines(st, a, b)
+    assert runs == []
+    assert [{**m, "ms": 0} for m in again if m["type"] == "audience"] == [
+        {**m, "ms": 0} for m in sent if m["type"] == "audience"]
     first = next(m for m in again if m["type"] == "pixel")
     assert first["width"] == pace.REFINE_IMAGE[0] and first["spp"] >= 2
     curves_again = [m["curve"] for m in again if m["type"] == "pinned" and "curve" in m]
-    assert curves_again == [curve["curve"]]  # kept: sent as it was
+    assert not curve["curve"]["kept"]
+    assert curves_again == [{**curve["curve"], "kept": True}]  # kept: sent as it was
     pinned_again = [m for m in again if m["type"] == "pinned" and "image" in m]
     assert len(pinned_again) == 1 and pinned_again[0]["final"]
     assert pinned_again[0]["spp"] == pace.PINNED_PASSES
