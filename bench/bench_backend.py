@@ -32,8 +32,9 @@ from pathlib import Path
 import numpy as np
 
 from bench import HDRI_DIR
+from grassd.sim.hdri import default_site_hdri
 
-BUNDLED = Path(__file__).resolve().parents[1] / "sim" / "data" / "default_site.exr"
+BUNDLED = default_site_hdri()
 SCENES = ("courtyard", "forest")
 LUX = 5000.0
 SEEDS = 4

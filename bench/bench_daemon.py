@@ -7,10 +7,10 @@ from __future__ import annotations
 import os
 import shutil
 import time
-from importlib import resources
 from pathlib import Path
 
 from bench.daemon_process import BenchDaemon, daemon_config
+from grassd.sim.hdri import default_site_hdri
 
 BUNDLES = int(os.environ.get("GRASSD_BENCH_BUNDLES", "100"))
 def _config(state: Path, cfg) -> str:
@@ -33,7 +33,7 @@ max_jump_mm = 20.0
 
 def main() -> None:
     """Run the benchmark and print the numbers."""
-    site = Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
+    site = default_site_hdri()
     daemon = BenchDaemon("grassd-bench-", _config, tick_s=0.1)
     state, status = daemon.state, daemon.status
     try:

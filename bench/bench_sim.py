@@ -25,8 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from bench import HDRI_DIR
+from grassd.sim.hdri import default_site_hdri
 
-BUNDLED = Path(__file__).resolve().parents[1] / "sim" / "data" / "default_site.exr"
+BUNDLED = default_site_hdri()
 TARGET = 0.1
 SEEDS = 5  #: the one-view benchmark runs these seeds (its stopping rule's cost varies)
 

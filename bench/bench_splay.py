@@ -3,9 +3,11 @@
 The studio's pixel (``resolve_config(None, None)``, the centre of its 3x3 patch), courtyard
 5000 lx, viewpoint (170, 2, 5), 11 lengths 0..20 mm, warm kernels, launches of at least 2048
 paths as the studio runs them: splay 8 deg with 16 x 256 paths (a studio round), and the same
-pixel without splay with 4 x 1024 paths; then, under a low sun (:data:`LOW_SUN`, the studio's
-slowest change), both with 2 x 8192 paths and the settings of the larger replicates a run takes
-there (:class:`~grassd.daemon.calibration.simulation.LargerReplicates`). Prints the median of
+pixel without splay with 4 x 1024 paths; then, under bench_studio's low sun (its slowest
+change, :data:`bench.bench_studio.LOW_SUN`, lit as the studio lights it), both with 2 x 8192
+paths, the settings of the larger replicates a run takes there
+(:class:`~grassd.daemon.calibration.simulation.LargerReplicates`) and whole replicates a launch,
+as the simulator process launches them. Prints the median of
 ``GRASSD_BENCH_SPLAY_RUNS`` (default 6) runs, traces and rays per camera path. Asserts nothing.
 
 Run: ``python -m bench splay``. For an A/B against an older renderer, set
@@ -24,18 +26,18 @@ from dataclasses import replace
 import numpy as np
 
 from bench import COURTYARD
+from bench.bench_studio import LOW_SUN
 
 RUNS = int(os.environ.get("GRASSD_BENCH_SPLAY_RUNS", "6"))
-#: bench_studio's "splay in sun": 40,000 lx from where the sun stands over the default site
-#: (35 N, 139 E) on 2026-11-27 at 15:00, over courtyard's 5000 lx.
-LOW_SUN = {"sun_lux": 40000.0, "sun_azimuth_deg": 229.7, "sun_elevation_deg": 15.3}
 
 
 def main() -> None:
     from grassd.daemon.calibration.calibrate import Calibrator
     from grassd.daemon.calibration.simulation import LargerReplicates
     from grassd.daemon.config.settings import resolve_config
+    from grassd.daemon.studio.lights import Lights, LightSource
     from grassd.daemon.studio.pace import STUDIO_LAUNCH_PATHS
+    from grassd.daemon.studio.session import Studio
     from grassd.sim import renderer as current
     from grassd.sim.backend import init
     from grassd.sim.hdri import load_hdri
@@ -53,9 +55,10 @@ def main() -> None:
     for r in renderers.values():
         r.min_launch_paths = STUDIO_LAUNCH_PATHS  # the studio's (also on an older renderer)
     display, centre = Calibrator(resolve_config(None, None)).display()
-    env = load_hdri(COURTYARD)
-    light = build_lighting(env, ambient_lux=5000)
-    sun = build_lighting(env, ambient_lux=5000, **LOW_SUN)
+    light = build_lighting(load_hdri(COURTYARD), ambient_lux=5000)
+    studio = Studio(resolve_config(None, None), Lights([LightSource("file", "c", COURTYARD)]))
+    sun = studio.lights.lighting(studio.parse({"ambient_lux": 5000, "viewpoint": [170, 2, 5],
+                                               "sun": LOW_SUN}), studio.site)
     larger = LargerReplicates()
     low_sun = {"light_samples": larger.light_samples, "roulette_from": larger.roulette_from}
     lengths = np.arange(0.0, display.pixel.green_max_mm + 1e-9, 2.0)

@@ -33,6 +33,9 @@ import numpy as np
 from bench import ARCH, COURTYARD
 from grassd.rigs.processes import end_process
 
+#: The sun of the "sun time" and "splay in sun" changes: 40,000 lx at 15:00 on 2026-11-27 over
+#: the config's site (the default's, 35 N 139 E: a low sun, azimuth 229.7, elevation 15.3 deg).
+LOW_SUN = {"mode": "site", "lux": 40000, "when": "2026-11-27T15:00"}
 #: (what changes, condition) of each timed input, repeated ROUNDS times
 CHANGES = [
     ("eye moves", {"viewpoint": [170, 2.5, 15]}),
@@ -41,10 +44,9 @@ CHANGES = [
     # where a first look of 8 x 1024 paths overstated the paths needed (diffuse light)
     ("eye lower", {"viewpoint": [120, 3.0, -14.6]}),
     ("lux", {"ambient_lux": 12000}),
-    ("sun time", {"sun": {"mode": "site", "lux": 40000, "when": "2026-11-27T15:00"}}),
+    ("sun time", {"sun": LOW_SUN}),
     ("splay", {"splay_deg": 8.0}),
-    ("splay in sun", {"splay_deg": 8.0,
-                      "sun": {"mode": "site", "lux": 40000, "when": "2026-11-27T15:00"}}),
+    ("splay in sun", {"splay_deg": 8.0, "sun": LOW_SUN}),
     ("length shown", {"length_mm": 14.0}),
 ]
 # "length shown" keeps the condition's characteristic only when it was computed before; here it

@@ -22,7 +22,6 @@ import tempfile
 import threading
 import zlib
 from collections.abc import Callable
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -30,10 +29,11 @@ import numpy as np
 from grassd.daemon.safe_text import storable
 from grassd.daemon.store.history import History
 from grassd.daemon.store.ingest import FLAT_SUFFIXES, Inbox
+from grassd.sim.hdri import default_site_hdri
 
 #: a poll that takes longer is taken for blocked (a FIFO open, an endless read)
 POLL_LIMIT_S = 20.0
-SITE = Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
+SITE = default_site_hdri()
 #: a valid manifest (light of 21 June 2026, 08:00 at +09:00)
 MANIFEST = 'timestamp = 2026-06-21T08:00:00+09:00\nhdri = "sky.exr"\nambient_lux = 1000.0\n'
 

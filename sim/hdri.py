@@ -70,6 +70,14 @@ REC709_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
 _REC709_PRIMARIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06)
 _D65 = (0.3127, 0.3290)
+_EXR_MAGIC = b"\x76\x2f\x31\x01"
+#: The channels an OpenEXR panorama may have: colour (R, G, B or luminance Y) and alpha.
+_EXR_CHANNELS = ("R", "G", "B", "A", "Y")
+_BRADFORD = np.array(
+    [[0.8951, 0.2664, -0.1614], [-0.7502, 1.7135, 0.0367], [0.0389, -0.0685, 1.0296]]
+)
+
+
 def default_site_hdri() -> Path:
     """The packaged panorama of the embedded default site (``grassd/sim/data/default_site.exr``,
     256 x 128 texels, linear Rec.709): the light of ``make demo``, of a daemon that has no
@@ -77,14 +85,6 @@ def default_site_hdri() -> Path:
     from importlib import resources
 
     return Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
-
-
-_EXR_MAGIC = b"\x76\x2f\x31\x01"
-#: The channels an OpenEXR panorama may have: colour (R, G, B or luminance Y) and alpha.
-_EXR_CHANNELS = ("R", "G", "B", "A", "Y")
-_BRADFORD = np.array(
-    [[0.8951, 0.2664, -0.1614], [-0.7502, 1.7135, 0.0367], [0.0389, -0.0685, 1.0296]]
-)
 
 
 # ----------------------------------------------------------------------------------- colour

@@ -11,7 +11,6 @@ import shutil
 import subprocess
 import time
 from collections.abc import Callable
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -21,10 +20,11 @@ from grassd.daemon.config.settings import load_config
 from grassd.daemon.hardware.simulated import hardware_toml
 from grassd.daemon.runtime.service import Service
 from grassd.firmware_proto.client import RetryPolicy
+from grassd.sim.hdri import default_site_hdri
 
 ROOT = Path(__file__).resolve().parents[1]
 CACHE = os.environ.get("GRASSD_CACHE_DIR", str(ROOT / ".venv" / "grassd-cache"))
-SITE = Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
+SITE = default_site_hdri()
 #: top of a configuration: state directory "state" beside the file, the shared kernel cache,
 #: a site in Munich
 HEAD = f"""

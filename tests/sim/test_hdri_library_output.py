@@ -11,16 +11,15 @@ import os
 import subprocess
 import sys
 import threading
-from importlib import resources
 from pathlib import Path
 
 import pytest
 
 from grassd.sim.errors import HdriError
-from grassd.sim.hdri import load_hdri
+from grassd.sim.hdri import default_site_hdri, load_hdri
 from grassd.sim.native_output import capture_native_output
 
-SITE = Path(str(resources.files("grassd.sim").joinpath("data/default_site.exr")))
+SITE = default_site_hdri()
 
 
 def _cut(tmp_path: Path, fraction: float) -> Path:

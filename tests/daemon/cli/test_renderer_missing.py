@@ -7,17 +7,17 @@ from __future__ import annotations
 
 import subprocess
 import sys
-from importlib import resources
 from pathlib import Path
 
 import pytest
 
 from grassd.daemon.config.settings import default_config_text
+from grassd.sim.hdri import default_site_hdri
 
 #: `grassd` in a Python where ``import taichi`` fails, as where Taichi has no wheels
 NO_TAICHI = ("import sys; sys.modules['taichi'] = None; "
              "from grassd.daemon.cli.main import main; main()")
-SITE = str(resources.files("grassd.sim").joinpath("data/default_site.exr"))
+SITE = str(default_site_hdri())
 
 
 def grassd_without_taichi(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
