@@ -112,6 +112,10 @@ async def _state(request: web.Request) -> web.Response:
                                             "restarts": sim.restarts}})
 
 
+#: What parsing a WebSocket request may raise on a bad value (the message says which).
+_BAD_INPUT = (ValueError, TypeError, OverflowError, StudioInputError)
+
+
 async def _json_body(request: web.Request) -> Any:
     try:
         return await request.json()
@@ -217,7 +221,7 @@ async def _socket(request: web.Request) -> web.WebSocketResponse:
                 tag = int(data.get("id", 0))
                 cond = studio.parse(data.get("condition"))
                 levels = studio.picture(cond.image)
-            except (ValueError, TypeError, OverflowError, StudioInputError) as exc:
+            except _BAD_INPUT as exc:
                 simulator.cancel(owner)
                 outbox.put_nowait({"type": "error", "id": tag, "message": str(exc)})
                 continue
@@ -225,7 +229,7 @@ async def _socket(request: web.Request) -> web.WebSocketResponse:
             if pinned is not None:
                 try:
                     pinned = studio.parse(pinned)
-                except (ValueError, TypeError, OverflowError, StudioInputError) as exc:
+                except _BAD_INPUT as exc:
                     outbox.put_nowait({"type": "pinned", "id": tag, "error": str(exc),
                                        "final": True})  # said as B's; A goes on
                     pinned = None

@@ -95,6 +95,16 @@ def _rounded(a: np.ndarray, digits: int = 4) -> list[float]:
     return np.round(np.asarray(a, np.float64), digits).tolist()
 
 
+def _keep(kept: dict, key: tuple, value: Any, most: int) -> Any:
+    """Keep ``value`` under ``key`` in ``kept`` as its newest entry, dropping the oldest beyond
+    ``most``; returns ``value``."""
+    kept.pop(key, None)
+    kept[key] = value
+    while len(kept) > most:
+        kept.pop(next(iter(kept)))
+    return value
+
+
 def _scene_key(cond: Condition) -> tuple:
     """What a condition's characteristic and its pixel's images both depend on: the light, the
     eye and the pixel (the kept curves' and images' keys add their own fields)."""
@@ -428,13 +438,13 @@ class Studio:
                     self.cfg.display.pitch_mm, eye)})
             # the audience's places are judged as the eye is: the reference vs the longest
             key = _curve_key(cond)
-            if key not in self._audiences:
+            audience = self._audiences.get(key, False)
+            if audience is False:
                 ends = curve.ogcd[int(np.argmax(curve.lengths_mm))] - curve.ogcd[0]
-                self._audiences[key] = self._audience(cond, float(ends), check)
-                while len(self._audiences) > KEPT_CURVES:
-                    self._audiences.pop(next(iter(self._audiences)))
-            if self._audiences[key] is not None:
-                send(dict(self._audiences[key]))
+                audience = _keep(self._audiences, key, self._audience(cond, float(ends), check),
+                                 KEPT_CURVES)
+            if audience is not None:
+                send(dict(audience))
         if pinned is not None:
             self._pinned(pinned, send, check)
         self._refine_image(cond, display, white, send, check, show_kept=not kept_shown[0])
@@ -445,10 +455,7 @@ class Studio:
         """``cond``'s characteristic run to its target, and kept (:data:`KEPT_CURVES`)."""
         curve = self.characteristic(cond, target_stderr=cond.target_stderr, on_round=on_round,
                                     check=check)
-        self._curves[_curve_key(cond)] = curve
-        while len(self._curves) > KEPT_CURVES:
-            self._curves.pop(next(iter(self._curves)))
-        return curve
+        return _keep(self._curves, _curve_key(cond), curve, KEPT_CURVES)
 
     def _pinned(self, cond: Condition, send: Emit, check: Check) -> None:
         """The views of the condition pinned as B, as ``pinned`` messages: its characteristic
@@ -535,9 +542,7 @@ class Studio:
                 show()
         finally:
             if total is not None:
-                self._images[key] = (total, done)
-                while len(self._images) > KEPT_IMAGES:
-                    self._images.pop(next(iter(self._images)))
+                _keep(self._images, key, (total, done), KEPT_IMAGES)
 
 
 def _materials(p, source: str) -> dict[str, Any]:
