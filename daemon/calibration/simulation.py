@@ -152,7 +152,8 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
                    progress: Callable[[int, int], None] | None = None,
                    on_round: Callable[[SimulatedCurve], None] | None = None,
                    round_replicates: int = MAX_REPLICATES,
-                   larger: LargerReplicates | None = None) -> SimulatedCurve:
+                   larger: LargerReplicates | None = None,
+                   resume: CurveRun | None = None) -> SimulatedCurve:
     """Render one viewpoint at ``lengths_mm`` (mm, first = reference) and derive its OGCD.
 
     With ``target_stderr`` (CIEDE2000), further batches of independent replicates (new seeds,
@@ -187,6 +188,13 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     ``round_replicates`` then count paths as the first series' replicates do (scaled by their
     sizes), and ``on_round`` sees the new series once it has as many replicates as the first
     round had.
+
+    ``resume``: the run's state, kept by the caller (:class:`CurveRun`): a run that an
+    exception stopped (a newer input, raised by ``on_round`` or ``progress``) goes on from its
+    last complete round when it is called again with the same state and arguments, first
+    showing ``on_round`` that round's curve (or the last one shown, where a new series of
+    larger replicates has too few yet); the rounds and seeds are those of a run never
+    stopped, so the curve is the same.
     """
     if settings.replicates < 2:
         raise SceneError(f"simulate_curve needs at least 2 replicates (their spread is the "
@@ -198,71 +206,127 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     white = white_radiance(lighting)
     if lighting.sun_direction is None:  # under diffuse light larger replicates gain nothing
         larger = None
-    seconds = {"compile": 0.0, "trace": 0.0, "colour": 0.0}
+    run = CurveRun() if resume is None else resume
+    fresh = run.settings is None
+    if fresh:
+        run.begin(settings, n_len, max_replicates, round_replicates)
+    elif len(run.counts) != n_len:
+        raise SceneError(f"a run of {len(run.counts)} lengths cannot go on at {n_len}")
     tracer = _RoundTracer(renderer, display, lighting, viewpoint, lengths_mm, layouts,
-                          pixel_index, progress, seconds)
-    cols = np.arange(n_len)  # lengths traced this round
-    b = first_round = settings.replicates  # replicates this round
-    traced_paths = 0
-    blocks: list[np.ndarray] = []  # per round (b, n_len, 3), NaN where not traced
-    counts = np.zeros(n_len, np.int64)  # replicates of each length: always the first ones
-    rounds: list[tuple[int, float]] = []
-    cache: dict = {}
-    show_from, least = 0, 0  # replicates before a round is shown, and before the run may stop
-    looked = False  # whether ``larger`` has judged the first paths
-    k = 0
+                          pixel_index, progress, run.seconds)
+    first_round = settings.replicates
+    if (not fresh and on_round is not None and run.shown is not None
+            and (not run.blocks or int(run.counts[0]) < run.show_from)):
+        on_round(run.shown)  # the current series has nothing to show yet: the last shown
     while True:
-        seed = (settings.seed + 7919 * k) % 2**31
-        block, paths = tracer.round(cols, replace(settings, seed=seed), b, int(counts[0]))
-        traced_paths += paths
-        blocks.append(block)
-        counts[cols] += b
+        traced = fresh or not run.blocks  # a resumed run first shows its last round (decided)
+        if traced:
+            seed = (run.settings.seed + 7919 * run.k) % 2**31
+            block, paths = tracer.round(run.cols, replace(run.settings, seed=seed), run.b,
+                                        int(run.counts[0]))
+            run.add_round(block, paths)
         t0 = time.perf_counter()
-        x = np.concatenate(blocks)
-        lab, ogcd, se, step_se = _ogcd_by_replicates(x, counts, white, ccm, cache)
-        seconds["colour"] += time.perf_counter() - t0
+        x = np.concatenate(run.blocks)
+        counts = run.counts
+        lab, ogcd, se, step_se = _ogcd_by_replicates(x, counts, white, ccm, run.cache)
+        run.seconds["colour"] += time.perf_counter() - t0
         n = int(counts[0])
         worst = float(np.max(se))
-        rounds.append((n, worst))
-        done = (target_stderr is None or (worst <= target_stderr and n >= least)
-                or n >= max_replicates)
-        if (on_round is not None and n >= show_from) or done:
+        fresh = True
+        if traced:
+            run.rounds.append((n, worst))
+        done = (target_stderr is None or (worst <= target_stderr and n >= run.least)
+                or n >= run.max_replicates)
+        shown = on_round is not None and n >= run.show_from
+        curve = None
+        if shown or done:
             mean = np.nanmean(x, axis=0)  # NaN: replicates that did not trace the length
             rgb_se = np.nanstd(x, axis=0, ddof=1) / np.sqrt(counts)[:, None]
             curve = SimulatedCurve(
                 h_cm=viewpoint.h_cm, d_m=viewpoint.d_m, theta_deg=viewpoint.theta_deg,
                 lengths_mm=lengths_mm, rgb_linear=mean, rgb_stderr=rgb_se, lab=lab, ogcd=ogcd,
-                ogcd_stderr=se, replicates=n, seconds=dict(seconds), rounds=tuple(rounds),
-                length_replicates=counts.copy(), paths_traced=traced_paths,
-                step_stderr=step_se,
+                ogcd_stderr=se, replicates=n, seconds=dict(run.seconds),
+                rounds=tuple(run.rounds), length_replicates=counts.copy(),
+                paths_traced=run.traced_paths, step_stderr=step_se,
             )
-            if on_round is not None and n >= show_from:
-                on_round(curve)
-            if done:
-                return curve
-        if (larger is not None and not looked and larger.samples > settings.samples
-                and n * settings.samples >= larger.sun_look_paths):
-            looked = n * settings.samples >= larger.look_paths  # else judged again there
-            needed = n * (worst / target_stderr) ** 2 * settings.samples  # paths, 1/sqrt law
-            if needed > larger.after_paths:  # a new series of larger replicates
-                scale = larger.samples / settings.samples
-                # fewer light samples and bounces: the noise is the first surface's light
-                # and shadow
-                settings = replace(settings, samples=larger.samples,
-                                   light_samples=larger.light_samples,
-                                   roulette_from=larger.roulette_from)
-                max_replicates = max(larger.least, int(max_replicates / scale))
-                round_replicates = max(1, int(round_replicates / scale))
-                show_from, least = min(first_round, larger.least), larger.least
-                blocks, cache = [], {}
-                counts[:] = 0
-                cols = np.arange(n_len)
-                b = max(2, min(least, round_replicates))  # its first round: a spread
-                k += 1
-                continue
-        b, cols = _next_round(se, counts, target_stderr, least,
-                              min(max_replicates - n, round_replicates, MAX_REPLICATES))
-        k += 1
+        if traced and not done:  # the next round, decided before the curve is shown (which
+            # may stop the run)
+            if not _larger_series(run, larger, n, worst, target_stderr, first_round):
+                run.b, run.cols = _next_round(
+                    se, counts, target_stderr, run.least,
+                    min(run.max_replicates - n, run.round_replicates, MAX_REPLICATES))
+            run.k += 1
+        if shown:
+            run.shown = curve
+            on_round(curve)
+        if done:
+            return curve
+
+
+@dataclass
+class CurveRun:
+    """Where an adaptive :func:`simulate_curve` run stands after its last complete round, the
+    next round decided: what the run needs to go on where it stopped (a newer input stops the
+    studio's runs; it keeps them per condition). Empty until the run begins."""
+
+    settings: object = None  #: RenderSettings of the current series (None: not begun)
+    k: int = 0  #: rounds traced: the next round's seed is ``seed + 7919 k``
+    b: int = 0  #: replicates of the next round
+    cols: np.ndarray | None = None  #: the lengths (indices) the next round traces
+    blocks: list[np.ndarray] = field(default_factory=list)  #: per round (b, n, 3), NaN: not
+    #: traced (linear RGB, nits) since the current series began
+    counts: np.ndarray | None = None  #: replicates of each length: always the first ones
+    rounds: list[tuple[int, float]] = field(default_factory=list)
+    cache: dict = field(default_factory=dict)  #: :func:`_ogcd_by_replicates`' of the series
+    show_from: int = 0  #: replicates before a round is shown
+    least: int = 0  #: replicates before the run may stop
+    looked: bool = False  #: whether ``larger`` has judged the first paths
+    traced_paths: int = 0
+    shown: SimulatedCurve | None = None  #: the curve last shown to ``on_round``
+    max_replicates: int = 0
+    round_replicates: int = 0
+    seconds: dict[str, float] = field(
+        default_factory=lambda: {"compile": 0.0, "trace": 0.0, "colour": 0.0})
+
+    def begin(self, settings, n_len: int, max_replicates: int, round_replicates: int) -> None:
+        """Start the run: its first round traces every length with ``settings``."""
+        self.settings, self.b = settings, settings.replicates
+        self.cols, self.counts = np.arange(n_len), np.zeros(n_len, np.int64)
+        self.max_replicates, self.round_replicates = max_replicates, round_replicates
+
+    def add_round(self, block: np.ndarray, paths: int) -> None:
+        """Take a traced round: ``block`` (b, n, 3) of ``paths`` camera paths."""
+        self.traced_paths += paths
+        self.blocks.append(block)
+        self.counts[self.cols] += self.b
+
+
+def _larger_series(run: CurveRun, larger: LargerReplicates | None, n: int, worst: float,
+                   target_stderr: float | None, first_round: int) -> bool:
+    """Judge ``run``'s first paths for ``larger`` (``n`` replicates so far, largest OGCD
+    standard error ``worst``, dE00) and, where the target needs more than ``after_paths``,
+    start a new series of larger replicates as the next round (True)."""
+    settings = run.settings
+    if (larger is None or run.looked or larger.samples <= settings.samples
+            or n * settings.samples < larger.sun_look_paths):
+        return False
+    run.looked = n * settings.samples >= larger.look_paths  # else judged again there
+    needed = n * (worst / target_stderr) ** 2 * settings.samples  # paths, 1/sqrt law
+    if needed <= larger.after_paths:
+        return False
+    scale = larger.samples / settings.samples
+    # fewer light samples and bounces: the noise is the first surface's light and shadow
+    run.settings = replace(settings, samples=larger.samples,
+                           light_samples=larger.light_samples,
+                           roulette_from=larger.roulette_from)
+    run.max_replicates = max(larger.least, int(run.max_replicates / scale))
+    run.round_replicates = max(1, int(run.round_replicates / scale))
+    run.show_from, run.least = min(first_round, larger.least), larger.least
+    run.blocks, run.cache = [], {}
+    run.counts[:] = 0
+    run.cols = np.arange(len(run.counts))
+    run.b = max(2, min(run.least, run.round_replicates))  # its first round: a spread
+    return True
 
 
 @dataclass(frozen=True)

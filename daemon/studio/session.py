@@ -28,7 +28,10 @@ here are :mod:`grassd.daemon.studio.pace`'s):
 
 Converged characteristics, audience maps (:data:`KEPT_CURVES`) and images summed over their
 passes (:data:`KEPT_IMAGES`) are kept, so a condition seen again, B's among them, goes on from
-what it had (pinning sends A again: only its table, contrast and display view are redone).
+what it had (pinning sends A again: only its table, contrast and display view are redone). So
+are characteristics a newer input stopped before they converged
+(:class:`~grassd.daemon.calibration.simulation.CurveRun`): the condition's next job shows the
+curve so far at once and goes on from its last complete round.
 
 Every step checks whether a newer request superseded this one. In the simulator process a newer
 request also stops the renderer's launch in flight (:attr:`Studio.interrupts`), so a launch
@@ -70,7 +73,7 @@ from grassd.daemon.studio.pace import (
 from grassd.daemon.studio.worker import Check
 
 if TYPE_CHECKING:
-    from grassd.daemon.calibration.simulation import SimulatedCurve
+    from grassd.daemon.calibration.simulation import CurveRun, SimulatedCurve
     from grassd.sim.interrupt import Interrupt
     from grassd.sim.renderer import Renderer
 
@@ -181,6 +184,8 @@ class Studio:
         self._lock = threading.Lock()
         self.ready = False
         self._curves: dict[tuple, Any] = {}  # converged characteristics of recent conditions
+        #: characteristics a newer input stopped before they converged, to go on from
+        self._runs: dict[tuple, CurveRun] = {}
         #: refined images of recent conditions: (sum of the passes, passes)
         self._images: dict[tuple, tuple[np.ndarray, int]] = {}
         #: audience maps of recent conditions (their messages; None: no place to map)
@@ -303,7 +308,8 @@ class Studio:
                        samples: int | None = None, replicates: int = FIRST_REPLICATES,
                        on_round: Callable | None = None,
                        lengths_mm: Sequence[float] | None = None,
-                       check: Check | None = None) -> SimulatedCurve:
+                       check: Check | None = None,
+                       resume: CurveRun | None = None) -> SimulatedCurve:
         """The simulated characteristic of ``cond`` (:func:`simulate_curve` at the centre
         pixel of the display's patch) at ``lengths_mm`` (mm; default the condition's),
         ``samples`` paths x ``replicates`` per round, refined to ``target_stderr``
@@ -311,7 +317,8 @@ class Studio:
         fewer paths a replicate and more replicates a round where the blades splay).
         ``check`` is called between the renderer's launches, and before each one (it raises
         to stop the run: a newer input came in); with :attr:`interrupts`, a newer input also
-        stops the launch in flight, and a launch takes a whole round."""
+        stops the launch in flight, and a launch takes a whole round. ``resume``: the run's
+        state, to go on from where a newer input stopped it (:class:`CurveRun`)."""
         from grassd.daemon.calibration.simulation import LargerReplicates, simulate_curve
         from grassd.sim.scene import RenderSettings, Viewpoint
 
@@ -332,7 +339,7 @@ class Studio:
                                   lengths, settings, pixel_index=self.centre,
                                   target_stderr=target_stderr, max_replicates=most,
                                   on_round=on_round, round_replicates=per_round,
-                                  progress=progress, larger=larger)
+                                  progress=progress, larger=larger, resume=resume)
 
     @contextmanager
     def _renderer(self, check: Check | None,
@@ -452,10 +459,21 @@ class Studio:
 
     def _converged(self, cond: Condition, check: Check,
                    on_round: Callable | None = None) -> SimulatedCurve:
-        """``cond``'s characteristic run to its target, and kept (:data:`KEPT_CURVES`)."""
-        curve = self.characteristic(cond, target_stderr=cond.target_stderr, on_round=on_round,
-                                    check=check)
-        return _keep(self._curves, _curve_key(cond), curve, KEPT_CURVES)
+        """``cond``'s characteristic run to its target, and kept (:data:`KEPT_CURVES`). A run
+        that a newer input stops is kept too, and the next job of the condition goes on from
+        its last complete round (showing its curve so far at once) instead of starting over."""
+        from grassd.daemon.calibration.simulation import CurveRun
+
+        key = _curve_key(cond)
+        run = self._runs.pop(key, None) or CurveRun()
+        try:
+            curve = self.characteristic(cond, target_stderr=cond.target_stderr,
+                                        on_round=on_round, check=check, resume=run)
+        except BaseException:
+            if run.settings is not None:  # begun: its complete rounds are worth keeping
+                _keep(self._runs, key, run, KEPT_CURVES)
+            raise
+        return _keep(self._curves, key, curve, KEPT_CURVES)
 
     def _pinned(self, cond: Condition, send: Emit, check: Check) -> None:
         """The views of the condition pinned as B, as ``pinned`` messages: its characteristic
