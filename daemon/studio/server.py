@@ -31,10 +31,12 @@ start (``?token=`` on the page's URL, which sets a cookie, or an ``X-Grassd-Toke
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hmac
 import itertools
 import json
 import logging
+import signal
 import time
 from dataclasses import replace
 from importlib import resources
@@ -81,6 +83,9 @@ async def _guard(request: web.Request, handler):
     if origin is not None and urlsplit(origin).netloc != request.host:
         return _error(403, f"requests from {origin} are refused: open the studio's own page")
     token = request.app[TOKEN]
+    if token is None and urlsplit(f"//{request.host}").hostname not in LOCAL_NAMES:
+        return _error(403, f"this studio answers as 127.0.0.1 or localhost only, not as "
+                           f"{request.host[:80]}: open the URL it printed at start")
     if token is not None:
         given = (request.query.get("token") or request.headers.get("X-Grassd-Token")
                  or request.cookies.get(COOKIE) or "")
@@ -114,13 +119,26 @@ async def _state(request: web.Request) -> web.Response:
 
 #: What parsing a WebSocket request may raise on a bad value (the message says which).
 _BAD_INPUT = (ValueError, TypeError, OverflowError, StudioInputError)
+#: Most bytes of a JSON request or WebSocket message (a condition is well under 10 KiB).
+MAX_JSON_BYTES: int = 1 << 20
+#: The names a studio on 127.0.0.1 answers to: a page of another name reaching it (a DNS name
+#: rebound to 127.0.0.1, whose Origin then matches its Host) is refused.
+LOCAL_NAMES: frozenset[str] = frozenset({"127.0.0.1", "localhost", "::1"})
+
+
+def parse_json(text: str | bytes, what: str = "the body") -> Any:
+    """``text`` decoded as JSON; StudioInputError saying why where it is not (too deeply
+    nested, or an integer of more digits than Python converts, included)."""
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise StudioInputError(f"{what} is nested too deeply to be a request") from None
+    except (ValueError, UnicodeDecodeError) as exc:  # JSONDecodeError and integer limits
+        raise StudioInputError(f"{what} must be JSON ({exc})") from None
 
 
 async def _json_body(request: web.Request) -> Any:
-    try:
-        return await request.json()
-    except (ValueError, UnicodeDecodeError):
-        raise StudioInputError("the body must be JSON") from None
+    return parse_json(await _read_capped(request, MAX_JSON_BYTES, "a JSON request"))
 
 
 async def _characteristic(request: web.Request) -> web.Response:
@@ -137,8 +155,12 @@ async def _characteristic(request: web.Request) -> web.Response:
     except StudioInputError as exc:
         return _error(400, str(exc))
     t0 = time.perf_counter()
+    simulator, owner = request.app[SIMULATOR], next(_OWNERS)
     try:
-        curve = await request.app[SIMULATOR].submit(next(_OWNERS), "characteristic", (cond, kw))
+        curve = await simulator.submit(owner, "characteristic", (cond, kw))
+    except asyncio.CancelledError:  # the client went away: its job stops too
+        simulator.cancel(owner)
+        raise
     except StudioInputError as exc:
         return _error(400, str(exc))
     except RuntimeError as exc:  # the renderer failed: said, the studio goes on
@@ -179,17 +201,25 @@ async def _hdri(request: web.Request) -> web.Response:
 
 async def _picture(request: web.Request) -> web.Response:
     studio = request.app[STUDIO]
+    if request.content_type.startswith("multipart/"):
+        return _error(400, "send the picture's own bytes as the request's body, not a form "
+                           "(curl --data-binary @picture.png)")
     data = await _read_capped(request, MAX_IMAGE_BYTES, "a picture")
-    try:
-        return web.json_response(studio.add_picture(data))
+    loop = asyncio.get_running_loop()
+    try:  # decoding a large picture takes a while: not on the event loop
+        return web.json_response(await loop.run_in_executor(None, studio.add_picture, data))
     except StudioInputError as exc:
         return _error(400, str(exc))
+
+
+#: What a page sends over the WebSocket (said to one that sends something else).
+_WS_FORM = 'send text messages {"type": "inputs", "id": n, "condition": {...}}'
 
 
 async def _socket(request: web.Request) -> web.WebSocketResponse:
     """One page: its latest inputs run on the simulator, the views stream back."""
     studio, simulator = request.app[STUDIO], request.app[SIMULATOR]
-    ws = web.WebSocketResponse(heartbeat=30.0, max_msg_size=1 << 20)
+    ws = web.WebSocketResponse(heartbeat=30.0, max_msg_size=MAX_JSON_BYTES)
     await ws.prepare(request)
     owner = next(_OWNERS)
     outbox: asyncio.Queue = asyncio.Queue()
@@ -210,15 +240,20 @@ async def _socket(request: web.Request) -> web.WebSocketResponse:
     task = asyncio.create_task(sender())
     try:
         async for m in ws:
+            if m.type == WSMsgType.BINARY:
+                outbox.put_nowait({"type": "error", "id": 0, "message": _WS_FORM})
+                continue
             if m.type != WSMsgType.TEXT:
                 continue
             tag = 0
             try:
-                data = json.loads(m.data)
+                data = parse_json(m.data, "a message")
                 if not isinstance(data, dict) or data.get("type") != "inputs":
-                    raise StudioInputError("send {\"type\": \"inputs\", \"id\": n, "
-                                           "\"condition\": {...}}")
-                tag = int(data.get("id", 0))
+                    raise StudioInputError(_WS_FORM)
+                tag = data.get("id", 0)
+                if isinstance(tag, bool) or not isinstance(tag, int):
+                    tag = 0
+                    raise StudioInputError(f"{_WS_FORM}: the id is an integer")
                 cond = studio.parse(data.get("condition"))
                 levels = studio.picture(cond.image)
             except _BAD_INPUT as exc:
@@ -265,8 +300,9 @@ def make_app(studio: Studio, simulator: SimulatorProcess,
 
 async def serve(args: StudioArgs, host: str, port: int, token: str | None,
                 ready: asyncio.Future | None = None) -> None:
-    """Serve the studio ``args`` describe until cancelled; ``ready`` gets the bound
-    (host, port). The simulations run in a child process (:mod:`.process`)."""
+    """Serve the studio ``args`` describe until cancelled or sent SIGTERM (uploads removed,
+    the simulator stopped either way); ``ready`` gets the bound (host, port). The simulations
+    run in a child process (:mod:`.process`)."""
     studio = args.build()
 
     def warmed(seconds: float) -> None:
@@ -274,7 +310,12 @@ async def serve(args: StudioArgs, host: str, port: int, token: str | None,
         log.info("studio warmed up in %.1f s", seconds)
 
     simulator = SimulatorProcess(args, warmed)
-    runner = web.AppRunner(make_app(studio, simulator, token), access_log=None)
+    # handler_cancellation: a request whose client went away is cancelled, and so its job
+    runner = web.AppRunner(make_app(studio, simulator, token), access_log=None,
+                           handler_cancellation=True)
+    stop = asyncio.Event()  # SIGTERM (systemd, kill) ends it as Ctrl-C does: cleaned up
+    with contextlib.suppress(NotImplementedError, RuntimeError):  # no signals off the main
+        asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, stop.set)  # thread
     try:
         await runner.setup()
         site = web.TCPSite(runner, host, port)
@@ -282,7 +323,7 @@ async def serve(args: StudioArgs, host: str, port: int, token: str | None,
         bound = site._server.sockets[0].getsockname()[:2]  # the port the OS chose for port 0
         if ready is not None:
             ready.set_result(bound)
-        await asyncio.Event().wait()
+        await stop.wait()
     finally:
         await runner.cleanup()
         simulator.stop()

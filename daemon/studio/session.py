@@ -281,9 +281,14 @@ class Studio:
     def parse(self, data: Any) -> Condition:
         """The page's or a script's condition (JSON) checked against this studio's pixel, site
         and lights (StudioInputError naming what is wrong)."""
-        return parse_condition(data, green_max_mm=self.display.pixel.green_max_mm,
+        cond = parse_condition(data, green_max_mm=self.display.pixel.green_max_mm,
                                timezone=self.cfg.site.timezone, lights=self.lights.names,
                                default_light=self.lights.default)
+        if cond.tables == "active" and self.active_um is None:
+            raise StudioInputError("this studio has no active table: ask for tables \"live\", "
+                                   "or start it with --state-dir of a daemon that has pushed "
+                                   "one")
+        return cond
 
     def _scene(self, cond: Condition) -> tuple[Any, Any, np.ndarray]:
         """The lighting of ``cond``, its display and the radiance of a white lying flat under

@@ -110,6 +110,9 @@ def picture_levels(data: bytes, rows: int, cols: int) -> np.ndarray:
     per pixel. ValueError with the reason for bytes that are not a readable picture."""
     from PIL import Image, UnidentifiedImageError
 
+    if not data:
+        raise ValueError("the body is empty: send the picture's PNG or JPEG bytes as the "
+                         "request's body")
     if len(data) > MAX_IMAGE_BYTES:
         raise ValueError(f"the picture is {len(data) / 2**20:.1f} MiB; at most "
                          f"{MAX_IMAGE_BYTES // 2**20} MiB")
@@ -119,7 +122,10 @@ def picture_levels(data: bytes, rows: int, cols: int) -> np.ndarray:
                 raise ValueError(f"the picture is {im.size[0]} x {im.size[1]} pixels; at most "
                                  f"{MAX_IMAGE_SIDE} on a side")
             grey = im.convert("L").resize((cols, rows), Image.Resampling.BOX)
-    except (UnidentifiedImageError, OSError, Image.DecompressionBombError) as exc:
+    except UnidentifiedImageError:
+        raise ValueError("not a picture Pillow can read (PNG, JPEG, ...): send the file's own "
+                         "bytes as the request's body") from None
+    except (OSError, Image.DecompressionBombError) as exc:  # a known format, broken or huge
         raise ValueError(f"not a picture Pillow can read: {exc}") from None
     return np.asarray(grey, np.uint8)
 

@@ -48,10 +48,11 @@ class StudioProcess:
             return exc.code, json.loads(exc.read())
 
 
-def start_studio(tmp: Path, *args: str) -> StudioProcess:
-    """Start ``grassd studio --port 0 ARGS`` and wait until it serves and has warmed up."""
+def start_studio(tmp: Path, *args: str, env: dict[str, str] | None = None) -> StudioProcess:
+    """Start ``grassd studio --port 0 ARGS`` (``env`` added to the environment) and wait until
+    it serves and has warmed up."""
     log = tmp / "studio.log"
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    env = dict(os.environ, PYTHONUNBUFFERED="1", **(env or {}))
     proc = subprocess.Popen([sys.executable, "-m", "grassd.daemon.cli", "studio", "--port", "0",
                              *args], stdout=subprocess.PIPE, stderr=log.open("wb"), text=True,
                             env=env)

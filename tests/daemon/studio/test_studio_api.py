@@ -69,7 +69,7 @@ def test_bad_characteristic_requests_get_a_400_naming_the_value(studio, change, 
 
 def test_bad_uploads_get_a_4xx_and_the_server_keeps_serving(studio):
     status, body = studio.request("api/characteristic", b"{not json")
-    assert (status, body["error"]) == (400, "the body must be JSON")
+    assert status == 400 and body["error"].startswith("the body must be JSON (")
     status, body = studio.request("api/hdri?name=broken.exr", b"\x76\x2f\x31\x01" + b"x" * 500)
     assert status == 400 and "cannot use broken.exr as the light" in body["error"]
     status, body = studio.request("api/hdri?name=notes.txt", b"hello")
