@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import secrets
+import socket
 from pathlib import Path
 
 import click
@@ -31,8 +32,8 @@ def _active_table(state_dir: Path):
 @click.command("studio")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), help=_CONFIG_HELP)
 @click.option("--state-dir", type=click.Path(file_okay=False, path_type=Path),
-              help="The daemon's state directory: its archived bundles become light sources "
-                   "and its active table can be shown.")
+              help="The daemon's state directory (an existing one): its usable archived "
+                   "bundles become light sources and its active table can be shown.")
 @click.option("--hdri", type=click.Path(dir_okay=False, exists=True, path_type=Path),
               help="An equirectangular panorama (.exr or .hdr) to light the display with.")
 @click.option("--pixel", "pixel_file", type=click.Path(dir_okay=False, path_type=Path),
@@ -47,18 +48,39 @@ def _active_table(state_dir: Path):
 def studio(config_path, state_dir, hdri, pixel_file, port, host, arch) -> None:
     """Serve the interactive studio: move the eye, change the light, see the pixel, its
     colour characteristic, the table and a picture on the display. Prints its URL."""
+    from grassd.daemon.studio.inputs import StudioInputError
     from grassd.daemon.studio.lights import Lights, LightSource, archived_sources
     from grassd.daemon.studio.process import StudioArgs
     from grassd.daemon.studio.server import LOCAL_HOST, serve
+    from grassd.sim.errors import require_renderer
     from grassd.sim.hdri import default_site_hdri
 
+    require_renderer()  # first: without Taichi nothing below matters (one line, exit 2)
+    if state_dir is not None and not state_dir.is_dir():  # a typo would serve the default site
+        raise click.BadParameter(
+            f"{state_dir}: no such directory; give the daemon's state directory (the "
+            f"--state-dir of grassd run, or the config's state_dir), or leave --state-dir out",
+            param_hint="'--state-dir'")
     cfg = resolve_config(config_path, str(state_dir) if state_dir else None)
     sources = []
     if hdri is not None:
-        sources.append(LightSource(name="file", label=f"file: {hdri.name}", path=hdri))
+        file_source = LightSource(name="file", label=f"file: {hdri.name}", path=hdri)
+        try:
+            file_source.check()
+        except StudioInputError as exc:
+            raise click.BadParameter(str(exc), param_hint="'--hdri'") from None
+        sources.append(file_source)
     active = None
     if state_dir is not None:
-        sources += archived_sources(cfg.state_dir, cfg)
+        try:
+            bundles = archived_sources(cfg.state_dir, cfg)
+        except StudioInputError as exc:
+            raise click.BadParameter(str(exc), param_hint="'--state-dir'") from None
+        if not bundles:
+            lit = f"{hdri.name} only" if hdri is not None else "the embedded default site"
+            click.echo(f"grassd studio: {state_dir} holds no usable archived bundle; the light "
+                       f"is {lit}", err=True)
+        sources += bundles
         active = _active_table(cfg.state_dir)
     if not sources:
         sources.append(LightSource(name="default-site", label="embedded default site",
@@ -82,9 +104,14 @@ def studio(config_path, state_dir, hdri, pixel_file, port, host, arch) -> None:
         if server in done:
             server.result()  # raises the bind error
         h, p = ready.result()
-        shown = f"[{h}]" if ":" in h else h
+        every = h in ("0.0.0.0", "::")  # no machine can open that: this one's name instead
+        shown = socket.gethostname() if every else f"[{h}]" if ":" in h else h
         url = f"http://{shown}:{p}/" + (f"?token={token}" if token else "")
         click.echo(f"grassd studio: {url}", err=False)
+        if every:
+            click.echo(f"  listening on every address of this machine ({h}): from another "
+                       f"machine, this name or any of its addresses, with port and token",
+                       err=True)
         click.echo(f"  light: {sources[0].label}; pixel: {pixel_source}; "
                    f"{len(sources)} light source(s); Ctrl-C stops", err=True)
         await server
