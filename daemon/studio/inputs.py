@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import datetime as dt
 import math
+import reprlib
 from dataclasses import dataclass
+from itertools import pairwise
 from typing import Any
 from zoneinfo import ZoneInfo
 
@@ -39,7 +41,7 @@ class Sun:
     """The sun of a condition: ``mode`` "none" (shade or night), "measured" (the light source's
     own reading, when it has one), "site" (direction from the site and ``when``, with
     ``lux`` [lx] of horizontal illuminance) or "direction" (``azimuth_deg`` clockwise from
-    north and ``elevation_deg``, with ``lux``)."""
+    north and ``elevation_deg``, with ``lux``). A sun of 0 lx is parsed as mode "none"."""
 
     mode: str = "none"
     lux: float = 0.0
@@ -72,27 +74,91 @@ class Condition:
     pixel: str | None = None
 
 
+#: The keys a condition may hold (what the page and the API send); any other is refused, so a
+#: misspelt key is said rather than silently ignored.
+CONDITION_KEYS: tuple[str, ...] = (
+    "light", "ambient_lux", "sun", "sun_lux", "sun_azimuth_deg", "sun_elevation_deg",
+    "viewpoint", "splay_deg", "length_mm", "lengths_mm", "tables", "image", "target_stderr",
+    "pixel")
+#: The sun as a bundle manifest names it, at a condition's top level: lux [lx], compass
+#: azimuth and elevation [deg]; all three, or ``sun_lux`` 0 alone (no sun).
+MANIFEST_SUN_KEYS: tuple[str, ...] = ("sun_lux", "sun_azimuth_deg", "sun_elevation_deg")
+#: The keys of a condition's ``sun`` object for each of its modes (each one required).
+SUN_MODE_KEYS: dict[str, tuple[str, ...]] = {
+    "none": ("mode",), "measured": ("mode",), "site": ("mode", "lux", "when"),
+    "direction": ("mode", "lux", "azimuth_deg", "elevation_deg")}
+#: Most characters of a person's value echoed in a message (longer ones are cut).
+MAX_SHOWN_CHARS: int = 40
+
+_SHOWN = reprlib.Repr()
+_SHOWN.maxstring = _SHOWN.maxlong = _SHOWN.maxother = MAX_SHOWN_CHARS
+_SHOWN.maxlist = _SHOWN.maxtuple = _SHOWN.maxdict = 6
+
+
+def _shown(v: Any) -> str:
+    """``repr(v)`` cut to about :data:`MAX_SHOWN_CHARS` characters, for a message that echoes
+    a person's value (a 300-digit number or a long string does not fill the page)."""
+    if isinstance(v, int) and v.bit_length() > 10_000:  # near what int -> str allows
+        sign = "a negative" if v < 0 else "an"
+        return f"{sign} integer of about {round(v.bit_length() * math.log10(2))} digits"
+    try:
+        text = _SHOWN.repr(v)
+    except ValueError:  # an int within a list too long to write out
+        text = f"a {type(v).__name__}"
+    return text if len(text) <= MAX_SHOWN_CHARS else text[:MAX_SHOWN_CHARS - 3] + "..."
+
+
+def _is_number(x: Any) -> bool:
+    """A JSON number (a bool is not one)."""
+    return isinstance(x, int | float) and not isinstance(x, bool)
+
+
+def _real(x: Any) -> float | None:
+    """A JSON number as a float: an integer too large for one is +-inf (out of every range);
+    None for anything else (a string, a bool, NaN)."""
+    if not _is_number(x):
+        return None
+    try:
+        f = float(x)
+    except OverflowError:
+        return math.inf if x > 0 else -math.inf
+    return None if math.isnan(f) else f
+
+
 def _finite(x: Any) -> bool:
     """A JSON number that is a finite float (a huge integer is not)."""
-    try:
-        return math.isfinite(float(x))
-    except OverflowError:
-        return False
+    f = _real(x)
+    return f is not None and math.isfinite(f)
+
+
+def _as_number(v: Any) -> str:
+    """A number for a message: ``:g`` where it is a finite float, else cut (:func:`_shown`)."""
+    return f"{float(v):g}" if _finite(v) else _shown(v)
+
+
+def _given(data: dict[str, Any]) -> dict[str, Any]:
+    """``data`` without its nulls: a JSON null means the same as the key left out."""
+    return {k: v for k, v in data.items() if v is not None}
 
 
 def _number(data: dict[str, Any], key: str, default: float | None = None, *,
-            lo: float | None = None, hi: float | None = None, unit: str = "") -> float:
-    """``data[key]`` as a finite float within [lo, hi] (StudioInputError otherwise)."""
-    v = data.get(key, default)
+            lo: float, hi: float, unit: str = "", above: bool = False) -> float:
+    """``data[key]`` (null or missing: ``default``, required where that is None) as a finite
+    float within [lo, hi], or (lo, hi] where ``above`` (StudioInputError otherwise)."""
+    v = data.get(key)
+    if v is None:
+        v = default
     if v is None:
         raise StudioInputError(f"{key} is required ({unit})" if unit else f"{key} is required")
-    if isinstance(v, bool) or not isinstance(v, int | float) or not _finite(v):
-        raise StudioInputError(f"{key} must be a number, got {v!r}")
-    v = float(v)
-    if (lo is not None and v < lo) or (hi is not None and v > hi):
-        raise StudioInputError(f"{key} = {v:g} is out of range: give {lo:g} to {hi:g} {unit}"
+    f = _real(v)
+    if f is None:
+        raise StudioInputError(f"{key} must be a number{f' ({unit})' if unit else ''}, "
+                               f"got {_shown(v)}")
+    if (f <= lo if above else f < lo) or not f <= hi:
+        span = f"more than {lo:g}, up to {hi:g}" if above else f"{lo:g} to {hi:g}"
+        raise StudioInputError(f"{key} = {_as_number(v)} is out of range: give {span} {unit}"
                                .rstrip())
-    return v
+    return f
 
 
 def parse_viewpoint(v: Any) -> tuple[float, float, float]:
@@ -100,11 +166,16 @@ def parse_viewpoint(v: Any) -> tuple[float, float, float]:
     studio's words: an eye at or below the display plane is behind the display."""
     from grassd.sim.scene import Viewpoint
 
-    if not isinstance(v, list | tuple) or len(v) != 3 or not all(
-            isinstance(x, int | float) and not isinstance(x, bool) for x in v):
-        raise StudioInputError(f"viewpoint must be [h_cm, d_m, theta_deg], got {v!r}")
-    if not all(_finite(x) for x in v):
-        raise StudioInputError(f"viewpoint {v!r} must be finite numbers")
+    if v is None:
+        raise StudioInputError("viewpoint is required: [h_cm, d_m, theta_deg] (cm, m, deg), "
+                               "e.g. [170, 2, 0]")
+    if not isinstance(v, list | tuple) or len(v) != 3 or not all(_is_number(x) for x in v):
+        raise StudioInputError(f"viewpoint must be [h_cm, d_m, theta_deg] (cm, m, deg), e.g. "
+                               f"[170, 2, 0]; got {_shown(v)}")
+    for name, x, unit in zip(("h_cm", "d_m", "theta_deg"), v, ("cm", "m", "deg"), strict=True):
+        if not _finite(x):
+            raise StudioInputError(f"viewpoint {name} = {_as_number(x)} must be a finite "
+                                   f"number ({unit})")
     h, d, theta = (float(x) for x in v)
     if h <= 0:
         raise StudioInputError(f"viewpoint ({h:g}, {d:g}, {theta:g}) is behind the display: "
@@ -117,18 +188,23 @@ def parse_viewpoint(v: Any) -> tuple[float, float, float]:
 
 
 def parse_lengths(v: Any, green_max_mm: float) -> tuple[float, ...]:
-    """Green lengths (mm): 2..MAX_LENGTHS finite values within 0..green_max_mm."""
+    """Green lengths (mm): 2..MAX_LENGTHS values within 0..green_max_mm, strictly increasing
+    (the first is the reference, the shortest grass)."""
     if not isinstance(v, list | tuple) or not 2 <= len(v) <= MAX_LENGTHS:
         raise StudioInputError(f"lengths_mm must be a list of 2 to {MAX_LENGTHS} lengths (mm), "
-                               f"the first the reference")
-    out = []
+                               f"the first the reference; got {_shown(v)}")
+    out: list[float] = []
     for x in v:
-        if isinstance(x, bool) or not isinstance(x, int | float) or not _finite(x):
-            raise StudioInputError(f"lengths_mm holds {x!r}: give numbers (mm)")
-        if not 0.0 <= x <= green_max_mm:
-            raise StudioInputError(f"length {x:g} mm is outside 0..{green_max_mm:g} mm (the "
-                                   f"pixel's green_max_mm)")
-        out.append(float(x))
+        f = _real(x)
+        if f is None:
+            raise StudioInputError(f"lengths_mm holds {_shown(x)}: give numbers (mm)")
+        if not 0.0 <= f <= green_max_mm:
+            raise StudioInputError(f"length {_as_number(x)} mm is outside 0..{green_max_mm:g} mm "
+                                   f"(the pixel's green_max_mm)")
+        out.append(f)
+    if any(b <= a for a, b in pairwise(out)):
+        raise StudioInputError(f"lengths_mm must increase strictly (the first is the "
+                               f"reference, the shortest grass); got {_shown(v)}")
     return tuple(out)
 
 
@@ -141,66 +217,118 @@ def default_lengths(green_max_mm: float) -> tuple[float, ...]:
     return tuple(vals)
 
 
+def _needs(given: list[str], missing: list[str]) -> StudioInputError:
+    """The error for manifest sun keys ``given`` without the ``missing`` ones."""
+    verb = "needs" if len(given) == 1 else "need"
+    return StudioInputError(
+        f"{' and '.join(given)} {verb} {' and '.join(missing)}: give the sun as a bundle "
+        f"manifest does, sun_lux (lx) with sun_azimuth_deg and sun_elevation_deg (deg), or "
+        f"sun_lux 0 alone for no sun")
+
+
+def _direction(data: dict[str, Any], azimuth: str, elevation: str,
+               lux: float) -> tuple[float, float]:
+    """The sun's compass azimuth and elevation (deg) under the keys ``azimuth`` and
+    ``elevation`` of ``data``. A sun that gives light (``lux`` > 0) is above the horizon:
+    elevation more than 0, up to 90; without light (lux 0) any elevation -90 to 90 a reading
+    may have (a bundle manifest's range), checked all the same."""
+    az = _number(data, azimuth, lo=0.0, hi=360.0, unit="deg")
+    if lux > 0:
+        return az, _number(data, elevation, lo=0.0, hi=90.0, unit="deg", above=True)
+    return az, _number(data, elevation, lo=-90.0, hi=90.0, unit="deg")
+
+
 def parse_sun(data: dict[str, Any], timezone: str) -> Sun:
-    """The sun of a request: ``{"mode": ..., "lux": ..., ...}`` under ``data["sun"]``, or the
-    bundle manifest's names at top level (``sun_lux``, ``sun_azimuth_deg``,
-    ``sun_elevation_deg``); ``when`` (ISO 8601, naive = the site's ``timezone``) for mode
-    "site"."""
+    """The sun of a request: ``{"mode": ..., ...}`` under ``data["sun"]`` with the keys of
+    :data:`SUN_MODE_KEYS` (``lux`` [lx]; ``when`` ISO 8601, naive = the site's ``timezone``;
+    ``azimuth_deg``, ``elevation_deg``), or the bundle manifest's names at top level
+    (:data:`MANIFEST_SUN_KEYS`), not both. A null is a key left out; a lux of 0 is no sun
+    (mode "none"), its other values checked all the same."""
     from grassd.sim.lighting import MAX_LUX
 
-    if "sun" not in data:
-        if data.get("sun_lux") is None:
-            if data.get("sun_azimuth_deg") is not None:
-                raise StudioInputError("sun_azimuth_deg needs sun_lux (the sun's horizontal lux)")
-            return Sun()
-        lux = _number(data, "sun_lux", lo=0.0, hi=MAX_LUX, unit="lx")
-        if lux == 0:
-            return Sun()
-        if (data.get("sun_azimuth_deg") is None) != (data.get("sun_elevation_deg") is None):
-            raise StudioInputError("give both sun_azimuth_deg and sun_elevation_deg, or neither")
-        if data.get("sun_azimuth_deg") is None:
-            raise StudioInputError("sun_lux needs sun_azimuth_deg and sun_elevation_deg (the "
-                                   "sun's direction, as in a bundle manifest)")
-        return Sun("direction", lux,
-                   _number(data, "sun_azimuth_deg", lo=0.0, hi=360.0, unit="deg"),
-                   _number(data, "sun_elevation_deg", lo=0.0, hi=90.0, unit="deg"))
-    sun = data["sun"]
+    data = _given(data)
+    manifest = [k for k in MANIFEST_SUN_KEYS if k in data]
+    if "sun" in data:
+        if manifest:
+            raise StudioInputError("give the sun either as `sun` or as sun_lux/sun_azimuth_deg/"
+                                   f"sun_elevation_deg, not both (got sun and "
+                                   f"{', '.join(manifest)})")
+        return _sun_object(data["sun"], timezone)
+    if not manifest:
+        return Sun()
+    lux = _number(data, "sun_lux", lo=0.0, hi=MAX_LUX, unit="lx") if "sun_lux" in data else None
+    missing = [k for k in MANIFEST_SUN_KEYS if k not in data]
+    if lux == 0 and missing == ["sun_azimuth_deg", "sun_elevation_deg"]:
+        return Sun()  # a shaded reading: no sun, and no direction needed
+    if missing:
+        raise _needs(manifest, missing)
+    az, el = _direction(data, "sun_azimuth_deg", "sun_elevation_deg", lux)
+    return Sun("direction", lux, az, el) if lux > 0 else Sun()
+
+
+def _sun_object(sun: Any, timezone: str) -> Sun:
+    """The sun given as an object (see :func:`parse_sun`)."""
+    from grassd.sim.lighting import MAX_LUX
+
+    example = '{"mode": "site", "lux": 40000, "when": "2026-11-27T15:00"}'
     if not isinstance(sun, dict):
-        raise StudioInputError("sun must be an object with a mode")
+        raise StudioInputError(f"sun must be an object with a mode, e.g. {example}; got "
+                               f"{_shown(sun)}")
+    sun = _given(sun)
     mode = sun.get("mode", "none")
+    if not isinstance(mode, str) or mode not in SUN_MODE_KEYS:
+        raise StudioInputError(f"sun mode {_shown(mode)} is not one of "
+                               + ", ".join(SUN_MODE_KEYS))
+    keys = SUN_MODE_KEYS[mode]
+    extra = [_shown(k) for k in sun if k not in keys]
+    if extra:
+        raise StudioInputError(f"sun mode {mode} does not take {', '.join(extra[:5])}: it takes "
+                               + ", ".join(keys))
     if mode == "none":
         return Sun()
     if mode == "measured":
         return Sun("measured")
-    if mode not in ("site", "direction"):
-        raise StudioInputError(f"sun mode {mode!r} is not one of none, measured, site, "
-                               f"direction")
     lux = _number(sun, "lux", lo=0.0, hi=MAX_LUX, unit="lx")
     if mode == "site":
         when = sun.get("when")
+        if when is None:
+            raise StudioInputError(f"sun mode site needs `when`, the time at the site (ISO 8601; "
+                                   f"without a zone, the site's), e.g. {example}")
         try:
-            moment = dt.datetime.fromisoformat(str(when))
+            moment = dt.datetime.fromisoformat(when if isinstance(when, str) else "")
         except ValueError:
-            raise StudioInputError(f"sun time {when!r} is not an ISO 8601 time, e.g. "
+            raise StudioInputError(f"sun time {_shown(when)} is not an ISO 8601 time, e.g. "
                                    f"2026-11-27T17:00") from None
         if moment.tzinfo is None:
             moment = moment.replace(tzinfo=ZoneInfo(timezone))
-        return Sun("site", lux, when=moment)
-    return Sun("direction", lux, _number(sun, "azimuth_deg", lo=0.0, hi=360.0, unit="deg"),
-               _number(sun, "elevation_deg", lo=0.0, hi=90.0, unit="deg"))
+        return Sun("site", lux, when=moment) if lux > 0 else Sun()
+    missing = [k for k in ("azimuth_deg", "elevation_deg") if k not in sun]
+    if missing:
+        raise StudioInputError(f"sun mode direction needs {' and '.join(missing)} (deg), e.g. "
+                               '{"mode": "direction", "lux": 40000, "azimuth_deg": 200, '
+                               '"elevation_deg": 35}')
+    az, el = _direction(sun, "azimuth_deg", "elevation_deg", lux)
+    return Sun("direction", lux, az, el) if lux > 0 else Sun()
 
 
 def parse_condition(data: Any, *, green_max_mm: float, timezone: str, lights: set[str],
                     default_light: str) -> Condition:
     """A :class:`Condition` from a request's JSON object (StudioInputError naming the first
-    bad value). ``lights``: the names of the light sources the studio has."""
+    bad value). ``lights``: the names of the light sources the studio has. Only the keys of
+    :data:`CONDITION_KEYS`; a null is the key left out (its default, or "required")."""
     from grassd.sim.lighting import MAX_LUX
 
     if not isinstance(data, dict):
         raise StudioInputError("send a JSON object")
+    unknown = [_shown(k) for k in data if k not in CONDITION_KEYS]
+    if unknown:
+        raise StudioInputError(f"unknown key{'s' if len(unknown) > 1 else ''} "
+                               f"{', '.join(unknown[:5])}{', ...' if len(unknown) > 5 else ''} "
+                               f"in the condition: it takes " + ", ".join(CONDITION_KEYS))
+    data = _given(data)
     light = data.get("light", default_light)
     if not isinstance(light, str) or light not in lights:
-        raise StudioInputError(f"light {light!r} is not one of the studio's: "
+        raise StudioInputError(f"light {_shown(light)} is not one of the studio's: "
                                + ", ".join(sorted(lights)))
     lux = _number(data, "ambient_lux", lo=1e-3, hi=MAX_LUX, unit="lx")
     splay = data.get("splay_deg")
@@ -210,13 +338,13 @@ def parse_condition(data: Any, *, green_max_mm: float, timezone: str, lights: se
                else default_lengths(green_max_mm))
     tables = data.get("tables", "live")
     if tables not in ("live", "active"):
-        raise StudioInputError(f"tables must be \"live\" or \"active\", got {tables!r}")
+        raise StudioInputError(f"tables must be \"live\" or \"active\", got {_shown(tables)}")
     image = data.get("image")
     if image is not None and not isinstance(image, str):
-        raise StudioInputError("image must be the id an upload returned")
+        raise StudioInputError(f"image must be the id an upload returned, got {_shown(image)}")
     pixel = data.get("pixel")
     if pixel is not None and pixel not in ("config", "fit"):
-        raise StudioInputError(f"pixel must be \"config\" or \"fit\", got {pixel!r}")
+        raise StudioInputError(f"pixel must be \"config\" or \"fit\", got {_shown(pixel)}")
     target = _number(data, "target_stderr", TARGET_STDERR, lo=STDERR_BOUNDS[0],
                      hi=STDERR_BOUNDS[1], unit="dE00")
     return Condition(

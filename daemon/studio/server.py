@@ -5,7 +5,8 @@ WebSocket per page over which the views stream as they refine.
 aiohttp rather than an ASGI framework plus a server: one well-kept dependency gives the HTTP
 server, WebSockets and the test client, and it runs in the command's own event loop.
 
-API (JSON; a bad value gets a 4xx with ``{"error": message}`` and the server keeps serving):
+API (JSON; a bad value gets a 4xx with ``{"error": message}`` and the server keeps serving; a
+condition's unknown keys are refused, and a null is the key left out):
 
 - ``GET /api/state``: the display, site, lights, pixel, viewpoints and audience region.
 - ``POST /api/characteristic``: ``ambient_lux``, ``viewpoint`` [h_cm, d_m, theta_deg],
