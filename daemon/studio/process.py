@@ -43,7 +43,7 @@ import numpy as np
 
 from grassd.daemon.studio.inputs import StudioInputError
 from grassd.daemon.studio.lights import LightSource
-from grassd.daemon.studio.worker import Check, Superseded
+from grassd.daemon.studio.worker import Check, Superseded, Yielded
 from grassd.sim.interrupt import Interrupt
 
 if TYPE_CHECKING:
@@ -109,6 +109,10 @@ def simulator_main(conn: Connection, args: StudioArgs,
     warm.add_done_callback(ready)
 
     def run(job: int, kind: str, payload: tuple) -> Callable:
+        from grassd.daemon.calibration.simulation import CurveRun
+
+        kept = CurveRun()  # a characteristic's rounds, kept when it yields to a page's job
+
         def go(check) -> None:
             try:
                 if kind == "views":
@@ -118,8 +122,10 @@ def simulator_main(conn: Connection, args: StudioArgs,
                     send(("result", job, None))
                 else:
                     cond, kw = payload
-                    curve = studio.characteristic(cond, check=check, **kw)
+                    curve = studio.characteristic(cond, check=check, resume=kept, **kw)
                     send(("result", job, curve))
+            except Yielded:  # the worker queues it again, behind the page's job
+                raise
             except Superseded:
                 send(("error", job, "superseded", "a newer request replaced this one"))
             except StudioInputError as exc:
@@ -141,7 +147,8 @@ def simulator_main(conn: Connection, args: StudioArgs,
                 if not fut.cancelled() and isinstance(fut.exception(), Superseded):
                     send(("error", job, "superseded", "a newer request replaced this one"))
 
-            worker.submit(owner, run(job, kind, payload)).add_done_callback(skipped)
+            worker.submit(owner, run(job, kind, payload),  # a script's gives way to a page's
+                          yields=kind == "characteristic").add_done_callback(skipped)
             if superseding is not None:
                 superseding.took(moved)
         elif item[0] == "cancel":

@@ -276,3 +276,30 @@ def test_every_address_prints_a_url_with_this_machines_name(tmp_path, shared_hdr
         end_process(proc, 15)
     assert line.startswith(f"grassd studio: http://{socket.gethostname()}:"), line
     assert "?token=" in line and "0.0.0.0" not in line
+
+
+def test_a_scripts_long_request_gives_way_to_a_page(studio):
+    """A characteristic that takes many seconds (64 splayed lengths in a low sun) does not hold
+    a page's inputs back: the page's views come while it waits, and it goes on after them to
+    its target."""
+    import threading
+
+    costly = {**GOOD, "lengths_mm": np.linspace(0, 20, 64).round(3).tolist(),
+              "target_stderr": 0.05, "splay_deg": 30, "sun_lux": 30000,
+              "sun_azimuth_deg": 180, "sun_elevation_deg": 15}
+    reply: list = []
+    script = threading.Thread(target=lambda: reply.append(
+        studio.request("api/characteristic", costly)))
+    script.start()
+    try:
+        import time
+
+        time.sleep(2.0)  # the script's job is running
+        got = asyncio.run(_session(studio.url, [{"type": "inputs", "id": 1,
+                                                 "condition": GOOD}], until_id=1))
+        assert got[-1]["type"] == "done" and script.is_alive()  # the page did not wait
+    finally:
+        script.join(300)
+    status, body = reply[0]
+    assert status == 200, body
+    assert max(body["ogcd_stderr"]) <= 0.05 and len(body["ogcd"]) == 64

@@ -71,3 +71,30 @@ def test_cancel_all_stops_every_owners_running_and_queued_jobs():
         with pytest.raises(Superseded):
             fut.result(10)
     w.stop()
+
+
+def test_a_job_that_yields_gives_way_to_a_page_and_goes_on_after_it():
+    """A script's job checks between its steps; a page's job submitted meanwhile runs first,
+    then the script's job is called again and goes on from the steps it kept."""
+    w = Worker()
+    order: list[str] = []
+    done_steps: list[int] = []
+    calls = []
+    page_in = threading.Event()
+
+    def script(check: Check) -> int:
+        calls.append(len(done_steps))
+        while len(done_steps) < 6:
+            if len(done_steps) == 3 and not page_in.is_set():
+                w.submit("page", lambda check: order.append("page"))  # while it runs
+                page_in.set()
+            check()
+            done_steps.append(1)
+        order.append("script")
+        return len(done_steps)
+
+    result = w.submit("api", script, yields=True)
+    assert result.result(10) == 6
+    assert order == ["page", "script"] and calls == [0, 3]  # went on from its 3 steps
+    assert w._waiting == 0 and w._latest == {} and w._queued == {}
+    w.stop()
