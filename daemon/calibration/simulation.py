@@ -208,10 +208,13 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
         larger = None
     run = CurveRun() if resume is None else resume
     fresh = run.settings is None
+    asked = (tuple(lengths_mm.tolist()), settings, target_stderr, max_replicates,
+             round_replicates, layouts, pixel_index, larger)
     if fresh:
-        run.begin(settings, n_len, max_replicates, round_replicates)
-    elif len(run.counts) != n_len:
-        raise SceneError(f"a run of {len(run.counts)} lengths cannot go on at {n_len}")
+        run.begin(settings, n_len, max_replicates, round_replicates, asked)
+    elif run.asked != asked:
+        raise SceneError("a stopped run goes on only with the lengths, settings, target and "
+                         "limits it began with")
     tracer = _RoundTracer(renderer, display, lighting, viewpoint, lengths_mm, layouts,
                           pixel_index, progress, run.seconds)
     first_round = settings.replicates
@@ -219,12 +222,12 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
             and (not run.blocks or int(run.counts[0]) < run.show_from)):
         on_round(run.shown)  # the current series has nothing to show yet: the last shown
     while True:
-        traced = fresh or not run.blocks  # a resumed run first shows its last round (decided)
-        if traced:
-            seed = (run.settings.seed + 7919 * run.k) % 2**31
+        if run.decided and (fresh or not run.blocks):  # a resumed run first shows its last
+            seed = (run.settings.seed + 7919 * run.k) % 2**31  # round, if it has one
             block, paths = tracer.round(run.cols, replace(run.settings, seed=seed), run.b,
                                         int(run.counts[0]))
             run.add_round(block, paths)
+        fresh = True
         t0 = time.perf_counter()
         x = np.concatenate(run.blocks)
         counts = run.counts
@@ -232,9 +235,7 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
         run.seconds["colour"] += time.perf_counter() - t0
         n = int(counts[0])
         worst = float(np.max(se))
-        fresh = True
-        if traced:
-            run.rounds.append((n, worst))
+        rounds = run.rounds if run.decided else [*run.rounds, (n, worst)]
         done = (target_stderr is None or (worst <= target_stderr and n >= run.least)
                 or n >= run.max_replicates)
         shown = on_round is not None and n >= run.show_from
@@ -246,16 +247,22 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
                 h_cm=viewpoint.h_cm, d_m=viewpoint.d_m, theta_deg=viewpoint.theta_deg,
                 lengths_mm=lengths_mm, rgb_linear=mean, rgb_stderr=rgb_se, lab=lab, ogcd=ogcd,
                 ogcd_stderr=se, replicates=n, seconds=dict(run.seconds),
-                rounds=tuple(run.rounds), length_replicates=counts.copy(),
+                rounds=tuple(rounds), length_replicates=counts.copy(),
                 paths_traced=run.traced_paths, step_stderr=step_se,
             )
-        if traced and not done:  # the next round, decided before the curve is shown (which
-            # may stop the run)
-            if not _larger_series(run, larger, n, worst, target_stderr, first_round):
-                run.b, run.cols = _next_round(
-                    se, counts, target_stderr, run.least,
-                    min(run.max_replicates - n, run.round_replicates, MAX_REPLICATES))
-            run.k += 1
+        if not run.decided:  # the next round, decided before the curve is shown (which may
+            # stop the run); what may raise comes first, the run's state changes last
+            if not done:
+                nxt = (None if _larger_series(run, larger, n, worst, target_stderr,
+                                              first_round)
+                       else _next_round(se, counts, target_stderr, run.least,
+                                        min(run.max_replicates - n, run.round_replicates,
+                                            MAX_REPLICATES)))
+                if nxt is not None:
+                    run.b, run.cols = nxt
+                run.k += 1
+            run.rounds.append((n, worst))
+            run.decided = True
         if shown:
             run.shown = curve
             on_round(curve)
@@ -282,15 +289,19 @@ class CurveRun:
     least: int = 0  #: replicates before the run may stop
     looked: bool = False  #: whether ``larger`` has judged the first paths
     traced_paths: int = 0
+    decided: bool = True  #: whether the next round is decided (False: a round just traced)
+    asked: tuple = ()  #: what the run was asked (lengths, settings, target, limits)
     shown: SimulatedCurve | None = None  #: the curve last shown to ``on_round``
     max_replicates: int = 0
     round_replicates: int = 0
     seconds: dict[str, float] = field(
         default_factory=lambda: {"compile": 0.0, "trace": 0.0, "colour": 0.0})
 
-    def begin(self, settings, n_len: int, max_replicates: int, round_replicates: int) -> None:
-        """Start the run: its first round traces every length with ``settings``."""
-        self.settings, self.b = settings, settings.replicates
+    def begin(self, settings, n_len: int, max_replicates: int, round_replicates: int,
+              asked: tuple) -> None:
+        """Start the run: its first round traces every length with ``settings``; ``asked``:
+        what a resumed call must ask again."""
+        self.settings, self.b, self.asked = settings, settings.replicates, asked
         self.cols, self.counts = np.arange(n_len), np.zeros(n_len, np.int64)
         self.max_replicates, self.round_replicates = max_replicates, round_replicates
 
@@ -299,6 +310,7 @@ class CurveRun:
         self.traced_paths += paths
         self.blocks.append(block)
         self.counts[self.cols] += self.b
+        self.decided = False
 
 
 def _larger_series(run: CurveRun, larger: LargerReplicates | None, n: int, worst: float,

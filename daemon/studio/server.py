@@ -48,7 +48,7 @@ from urllib.parse import urlsplit
 from aiohttp import WSMsgType, web
 
 from grassd.daemon.studio.inputs import StudioInputError
-from grassd.daemon.studio.lights import MAX_HDRI_BYTES
+from grassd.daemon.studio.lights import MAX_HDRI_BYTES, LightSource
 from grassd.daemon.studio.process import SimulatorProcess, StudioArgs
 from grassd.daemon.studio.session import Studio, curve_message
 from grassd.daemon.studio.views import MAX_IMAGE_BYTES
@@ -64,6 +64,9 @@ COOKIE = "grassd_studio_token"
 STUDIO: web.AppKey[Studio] = web.AppKey("studio", Studio)
 SIMULATOR: web.AppKey[SimulatorProcess] = web.AppKey("simulator", SimulatorProcess)
 TOKEN: web.AppKey[str | None] = web.AppKey("token", str)
+SOCKETS: web.AppKey[set] = web.AppKey("sockets", set)
+#: Seconds the studio waits at its end for requests in flight (a page's socket is closed).
+SHUTDOWN_S: float = 2.0
 
 
 def static_dir() -> Path:
@@ -81,10 +84,16 @@ async def _guard(request: web.Request, handler):
     from another site's page (its Origin is not this server) is refused: without it, any page
     the user visits could drive a studio on 127.0.0.1 and upload into it."""
     origin = request.headers.get("Origin")
-    if origin is not None and urlsplit(origin).netloc != request.host:
-        return _error(403, f"requests from {origin} are refused: open the studio's own page")
+    try:
+        origin_host = None if origin is None else urlsplit(origin).netloc
+        host_name = urlsplit(f"//{request.host}").hostname
+    except ValueError:  # e.g. "[" or "[::1" as a Host
+        return _error(400, "the request's Host or Origin header is not a host name")
+    if origin is not None and origin_host != request.host:
+        return _error(403, f"requests from {origin[:80]} are refused: open the studio's own "
+                           f"page")
     token = request.app[TOKEN]
-    if token is None and urlsplit(f"//{request.host}").hostname not in LOCAL_NAMES:
+    if token is None and host_name not in LOCAL_NAMES:
         return _error(403, f"this studio answers as 127.0.0.1 or localhost only, not as "
                            f"{request.host[:80]}: open the URL it printed at start")
     if token is not None:
@@ -191,12 +200,17 @@ async def _hdri(request: web.Request) -> web.Response:
     data = await _read_capped(request, MAX_HDRI_BYTES, "an HDRI")
     name = request.query.get("name", "")
     loop = asyncio.get_running_loop()
-    try:
+
+    async def add() -> LightSource:  # both lists get it, even if the client goes away
         src = await loop.run_in_executor(None, studio.lights.add_upload, name, data)
+        src.image = None  # checked; only the simulator renders it (it reads the file again)
+        request.app[SIMULATOR].add_light(replace(src, image=None))
+        return src
+
+    try:
+        src = await asyncio.shield(add())
     except StudioInputError as exc:
         return _error(400, str(exc))
-    src.image = None  # checked; only the simulator renders it (it reads the file again)
-    request.app[SIMULATOR].add_light(replace(src, image=None))
     return web.json_response({"light": src.describe(), "lights": studio.lights.describe()})
 
 
@@ -222,6 +236,7 @@ async def _socket(request: web.Request) -> web.WebSocketResponse:
     studio, simulator = request.app[STUDIO], request.app[SIMULATOR]
     ws = web.WebSocketResponse(heartbeat=30.0, max_msg_size=MAX_JSON_BYTES)
     await ws.prepare(request)
+    request.app[SOCKETS].add(ws)
     owner = next(_OWNERS)
     outbox: asyncio.Queue = asyncio.Queue()
 
@@ -277,9 +292,16 @@ async def _socket(request: web.Request) -> web.WebSocketResponse:
             fut = simulator.submit(owner, "views", (cond, levels, pinned), emit)
             fut.add_done_callback(lambda f, tag=tag: finished(f, tag))
     finally:
+        request.app[SOCKETS].discard(ws)
         simulator.cancel(owner)
         task.cancel()
     return ws
+
+
+async def _close_sockets(app: web.Application) -> None:
+    """At the studio's end: close every page's socket (it would hold the end up otherwise)."""
+    for ws in list(app[SOCKETS]):
+        await ws.close(code=1001, message=b"the studio is stopping")
 
 
 def make_app(studio: Studio, simulator: SimulatorProcess,
@@ -289,6 +311,8 @@ def make_app(studio: Studio, simulator: SimulatorProcess,
     app[STUDIO] = studio
     app[SIMULATOR] = simulator
     app[TOKEN] = token
+    app[SOCKETS] = set()
+    app.on_shutdown.append(_close_sockets)
     app.router.add_get("/", _index)
     app.router.add_get("/api/state", _state)
     app.router.add_post("/api/characteristic", _characteristic)
@@ -313,22 +337,27 @@ async def serve(args: StudioArgs, host: str, port: int, token: str | None,
     simulator = SimulatorProcess(args, warmed)
     # handler_cancellation: a request whose client went away is cancelled, and so its job
     runner = web.AppRunner(make_app(studio, simulator, token), access_log=None,
-                           handler_cancellation=True)
+                           handler_cancellation=True, shutdown_timeout=SHUTDOWN_S)
     stop = asyncio.Event()  # SIGTERM (systemd, kill) ends it as Ctrl-C does: cleaned up
+    loop = asyncio.get_running_loop()
     with contextlib.suppress(NotImplementedError, RuntimeError):  # no signals off the main
-        asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, stop.set)  # thread
+        loop.add_signal_handler(signal.SIGTERM, stop.set)  # thread
     try:
         await runner.setup()
-        site = web.TCPSite(runner, host, port)
+        site = web.TCPSite(runner, host, port, shutdown_timeout=SHUTDOWN_S)
         await site.start()
         bound = site._server.sockets[0].getsockname()[:2]  # the port the OS chose for port 0
         if ready is not None:
             ready.set_result(bound)
         await stop.wait()
     finally:
-        await runner.cleanup()
-        simulator.stop()
-        studio.lights.cleanup()
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.remove_signal_handler(signal.SIGTERM)
+        try:
+            await runner.cleanup()
+        finally:
+            simulator.stop()
+            studio.lights.cleanup()
 
 
 __all__ = ["LOCAL_HOST", "make_app", "serve", "static_dir"]

@@ -83,7 +83,7 @@ def test_a_round_stopped_part_way_is_traced_again_whole(renderer, lighting):
     assert kept[1] == kept[0] and np.all(kept[2] <= whole.length_replicates)
 
 
-def test_a_run_goes_on_only_at_its_own_lengths(renderer, lighting):
+def test_a_run_goes_on_only_as_it_was_asked(renderer, lighting):
     run = CurveRun()
 
     def stop(_curve) -> None:
@@ -91,6 +91,35 @@ def test_a_run_goes_on_only_at_its_own_lengths(renderer, lighting):
 
     with pytest.raises(Stop):
         _run(renderer, lighting, 0.01, on_round=stop, resume=run)
-    with pytest.raises(SceneError, match="cannot go on"):
+    with pytest.raises(SceneError, match="goes on only with the lengths"):
         simulate_curve(renderer, DisplaySpec(), lighting, Viewpoint(), LENGTHS[:3], SETTINGS,
                        target_stderr=0.01, resume=run)
+    with pytest.raises(SceneError, match="goes on only with the lengths"):
+        _run(renderer, lighting, 0.02, resume=run)  # another target
+
+
+def test_a_run_stopped_before_it_decided_its_next_round_decides_it_on_going_on(
+        renderer, lighting, monkeypatch):
+    """An exception between a traced round and the next round's decision (here in deciding
+    it): going on, the run takes that round as traced, decides once, and ends as a run never
+    stopped."""
+    from grassd.daemon.calibration import simulation
+
+    plain = _run(renderer, lighting, None)
+    target = 0.6 * float(plain.ogcd_stderr.max())
+    whole = _run(renderer, lighting, target)
+    decide = simulation._next_round
+    calls = []
+
+    def fails_once(*args, **kw):
+        calls.append(1)
+        if len(calls) == 2:
+            raise Stop
+        return decide(*args, **kw)
+
+    run = CurveRun()
+    monkeypatch.setattr(simulation, "_next_round", fails_once)
+    with pytest.raises(Stop):
+        _run(renderer, lighting, target, resume=run)
+    assert not run.decided and len(run.rounds) == len(run.blocks) - 1
+    _same(_run(renderer, lighting, target, resume=run), whole)

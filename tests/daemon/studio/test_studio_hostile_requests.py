@@ -37,6 +37,8 @@ def test_a_request_to_the_local_studio_under_another_name_is_refused(studio):
                                   headers={"Host": evil, "Origin": f"http://{evil}"})
     assert status == 403 and "answers as 127.0.0.1 or localhost only" in body["error"]
     assert studio.request("api/state", headers={"Host": f"localhost:{port}"})[0] == 200
+    status, body = studio.request("api/state", headers={"Host": "[::1"})
+    assert status == 400 and "not a host name" in body["error"]
 
 
 def test_picture_uploads_that_are_no_picture_say_what_to_send(studio):
@@ -101,7 +103,25 @@ def test_a_request_whose_client_goes_away_stops_its_job(studio):
     assert time.monotonic() - t0 < 20, "the request waited for the abandoned one"
 
 
-def test_sigterm_removes_the_uploads_and_ends_the_studio(tmp_path, shared_hdri):
+async def _page_until_closed(url: str, opened) -> str:
+    """Open a page's socket, send an input, and read until the studio closes it."""
+    import aiohttp
+
+    async with aiohttp.ClientSession() as s, s.ws_connect(url.replace("http", "ws") + "ws") as ws:
+        await ws.send_str(json.dumps({"type": "inputs", "id": 1, "condition": GOOD}))
+        opened.set()
+        async with asyncio.timeout(120):
+            async for _m in ws:
+                pass
+        return ws.close_code
+
+
+def test_sigterm_with_a_page_open_removes_the_uploads_and_ends_the_studio(tmp_path,
+                                                                          shared_hdri):
+    """Within systemd's stop timeout: an open page's socket is closed rather than waited for
+    (aiohttp waits 60 s for each request in flight by default)."""
+    import threading
+
     from grassd.sim.hdri import downsample, load_hdri, write_hdr
 
     tmp = tmp_path / "tmp"
@@ -112,8 +132,17 @@ def test_sigterm_removes_the_uploads_and_ends_the_studio(tmp_path, shared_hdri):
         write_hdr(path, downsample(load_hdri(shared_hdri("forest")), 4))
         assert s.request("api/hdri?name=small.hdr", path.read_bytes())[0] == 200
         assert [p.name.startswith("grassd-studio-") for p in tmp.iterdir()] == [True]
+        opened, closed = threading.Event(), []
+        page = threading.Thread(target=lambda: closed.append(
+            asyncio.run(_page_until_closed(s.url, opened))))
+        page.start()
+        assert opened.wait(30)
+        t0 = time.monotonic()
         s.proc.send_signal(signal.SIGTERM)
-        assert s.proc.wait(timeout=30) == 0, s.log.read_text()
+        assert s.proc.wait(timeout=60) == 0, s.log.read_text()
+        assert time.monotonic() - t0 < 30  # systemd's TimeoutStopSec is 90 s
+        page.join(30)
+        assert closed == [1001]  # "going away", said by the studio
         assert list(tmp.iterdir()) == []
     finally:
         if s.proc.poll() is None:

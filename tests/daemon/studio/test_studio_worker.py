@@ -98,3 +98,27 @@ def test_a_job_that_yields_gives_way_to_a_page_and_goes_on_after_it():
     assert order == ["page", "script"] and calls == [0, 3]  # went on from its 3 steps
     assert w._waiting == 0 and w._latest == {} and w._queued == {}
     w.stop()
+
+
+def test_a_job_that_yielded_and_was_cancelled_meanwhile_ends_superseded():
+    w = Worker()
+    gate, calls = threading.Event(), []
+
+    def page(check: Check) -> str:
+        w.cancel("api")  # the script's client went away while the page's job ran
+        return "page"
+
+    def script(check: Check) -> str:
+        calls.append(1)
+        if len(calls) == 1:
+            w.submit("page", page)
+        gate.wait(0.1)
+        check()
+        return "not reached"
+
+    result = w.submit("api", script, yields=True)
+    with pytest.raises(Superseded):
+        result.result(10)
+    assert calls == [1]  # not called again once cancelled
+    assert w._waiting == 0 and w._latest == {} and w._queued == {}
+    w.stop()
