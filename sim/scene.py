@@ -173,9 +173,9 @@ class Viewpoint:
     def __post_init__(self) -> None:
         if not all(math.isfinite(v) for v in (self.h_cm, self.d_m, self.theta_deg)):
             raise SceneError(f"viewpoint {self.label()} must be finite numbers")
-        if self.h_cm <= 0:
+        if not 0 < self.h_cm <= 100_000:
             raise SceneError(f"viewpoint {self.label()}: eye height must be above the display "
-                             f"plane (h > 0 cm)")
+                             f"plane and at most 1 km (0 < h <= 100000 cm)")
         if not 0 < self.d_m <= 1000:
             raise SceneError(f"viewpoint {self.label()}: distance must be in (0, 1000] m")
         if not -180 <= self.theta_deg <= 180:

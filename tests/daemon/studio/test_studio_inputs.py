@@ -49,6 +49,7 @@ def test_the_sun_as_a_manifest_names_it_by_site_time_or_as_measured():
     ({"ambient_lux": True, "viewpoint": [170, 2, 0]}, "must be a number"),
     ({"ambient_lux": 5, "viewpoint": [0, 2, 0]}, "behind the display"),
     ({"ambient_lux": 5, "viewpoint": [170, 0, 0]}, "distance must be in (0, 1000]"),
+    ({"ambient_lux": 5, "viewpoint": [1e300, 2, 0]}, "at most 1 km (0 < h <= 100000 cm)"),
     ({"ambient_lux": 5, "viewpoint": "170,2,0"}, "[h_cm, d_m, theta_deg]"),
     ({"ambient_lux": 5, "viewpoint": [170, 2, 0], "lengths_mm": [3]}, "2 to 64 lengths"),
     ({"ambient_lux": 5, "viewpoint": [170, 2, 0], "splay_deg": 80}, "splay_deg = 80"),
