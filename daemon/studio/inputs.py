@@ -97,14 +97,9 @@ _SHOWN.maxlist = _SHOWN.maxtuple = _SHOWN.maxdict = 6
 
 def _shown(v: Any) -> str:
     """``repr(v)`` cut to about :data:`MAX_SHOWN_CHARS` characters, for a message that echoes
-    a person's value (a 300-digit number or a long string does not fill the page)."""
-    if isinstance(v, int) and v.bit_length() > 10_000:  # near what int -> str allows
-        sign = "a negative" if v < 0 else "an"
-        return f"{sign} integer of about {round(v.bit_length() * math.log10(2))} digits"
-    try:
-        text = _SHOWN.repr(v)
-    except ValueError:  # an int within a list too long to write out
-        text = f"a {type(v).__name__}"
+    a person's value (a 300-digit number or a long string does not fill the page; JSON gives
+    no integer longer than Python writes out: the server refuses those as not JSON)."""
+    text = _SHOWN.repr(v)
     return text if len(text) <= MAX_SHOWN_CHARS else text[:MAX_SHOWN_CHARS - 3] + "..."
 
 

@@ -86,6 +86,7 @@ def simulator_main(conn: Connection, args: StudioArgs,
     """The simulator process: build the Studio, warm it up, then run what the server sends.
     ``word``: the ``multiprocessing`` int array (``RawArray("i", 1)``) the server moves with
     every job or cancel; None: launches are not stopped in flight."""
+    from grassd.daemon.calibration.simulation import CurveRun
     from grassd.daemon.studio.superseding import Superseding
     from grassd.daemon.studio.worker import Worker
 
@@ -109,9 +110,8 @@ def simulator_main(conn: Connection, args: StudioArgs,
     warm.add_done_callback(ready)
 
     def run(job: int, kind: str, payload: tuple) -> Callable:
-        from grassd.daemon.calibration.simulation import CurveRun
-
-        kept = CurveRun()  # a characteristic's rounds, kept when it yields to a page's job
+        # a characteristic's rounds, kept when it yields to a page's job
+        kept = CurveRun() if kind == "characteristic" else None
 
         def go(check) -> None:
             try:

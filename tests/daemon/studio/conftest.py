@@ -23,6 +23,19 @@ if TYPE_CHECKING:
 
 from grassd.rigs.processes import end_process
 
+#: A condition the studio computes quickly (5 lengths, no sun).
+GOOD: dict = {"ambient_lux": 5000.0, "viewpoint": [170, 2, 0], "lengths_mm": [0, 5, 10, 15, 20]}
+#: The studio's bench low sun (courtyard site, 15:00 in November, about 15 deg up).
+LOW_SUN: dict = {"mode": "site", "lux": 40000, "when": "2026-11-27T15:00"}
+
+
+def costly_condition(target_stderr: float, splay_deg: float) -> dict:
+    """A condition that takes many seconds: 64 lengths of splayed blades under a low sun
+    (given as a bundle manifest gives it) to ``target_stderr`` (dE00)."""
+    return {**GOOD, "lengths_mm": [round(20 * i / 63, 3) for i in range(64)],
+            "target_stderr": target_stderr, "splay_deg": splay_deg, "sun_lux": 30000,
+            "sun_azimuth_deg": 180, "sun_elevation_deg": 15}
+
 
 @dataclass
 class StudioProcess:

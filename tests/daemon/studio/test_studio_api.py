@@ -11,9 +11,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import start_studio, stop_studio
-
-GOOD = {"ambient_lux": 5000.0, "viewpoint": [170, 2, 0], "lengths_mm": [0, 5, 10, 15, 20]}
+from conftest import GOOD, costly_condition, start_studio, stop_studio
 
 
 def test_characteristic_refines_to_the_target(studio):
@@ -284,9 +282,7 @@ def test_a_scripts_long_request_gives_way_to_a_page(studio):
     its target."""
     import threading
 
-    costly = {**GOOD, "lengths_mm": np.linspace(0, 20, 64).round(3).tolist(),
-              "target_stderr": 0.05, "splay_deg": 30, "sun_lux": 30000,
-              "sun_azimuth_deg": 180, "sun_elevation_deg": 15}
+    costly = costly_condition(0.05, 30)
     reply: list = []
     script = threading.Thread(target=lambda: reply.append(
         studio.request("api/characteristic", costly)))

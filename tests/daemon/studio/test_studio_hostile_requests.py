@@ -11,10 +11,7 @@ import socket
 import time
 import urllib.parse
 
-import numpy as np
-from conftest import start_studio
-
-GOOD = {"ambient_lux": 5000.0, "viewpoint": [170, 2, 0], "lengths_mm": [0, 5, 10, 15, 20]}
+from conftest import GOOD, costly_condition, start_studio
 
 
 def test_malformed_json_gets_a_400_saying_why(studio):
@@ -87,9 +84,7 @@ def test_the_websocket_says_what_to_send_and_goes_on(studio):
 def test_a_request_whose_client_goes_away_stops_its_job(studio):
     """A request that would take about a minute (64 lengths to 0.02 dE00 of splayed blades in
     a low sun) is left after a second; the next request does not wait for it."""
-    costly = {**GOOD, "lengths_mm": np.linspace(0, 20, 64).round(3).tolist(),
-              "target_stderr": 0.02, "splay_deg": 45, "sun_lux": 30000,
-              "sun_azimuth_deg": 180, "sun_elevation_deg": 15}
+    costly = costly_condition(0.02, 45)
     body = json.dumps(costly).encode()
     url = urllib.parse.urlsplit(studio.url)
     with socket.create_connection((url.hostname, url.port)) as conn:

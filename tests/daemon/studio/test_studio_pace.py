@@ -5,7 +5,7 @@ between the renderer's launches when a newer input comes in, not only between ro
 from __future__ import annotations
 
 import pytest
-from conftest import studio_and_condition
+from conftest import LOW_SUN, studio_and_condition
 
 from grassd.daemon.studio import pace
 from grassd.daemon.studio.pace import studio_pace
@@ -31,7 +31,7 @@ def test_a_low_sun_converges_on_larger_replicates(renderer, shared_hdri):
 
     st, cond = studio_and_condition(shared_hdri("courtyard"), {
         "ambient_lux": 5000, "viewpoint": [170, 2, 3],
-        "sun": {"mode": "site", "lux": 40000, "when": "2026-11-27T15:00"}})
+        "sun": LOW_SUN})
     seen = []
     curve = st.characteristic(cond, target_stderr=0.1, on_round=seen.append)
     assert [c.replicates for c in seen[:2]] == [pace.FIRST_REPLICATES, 8]

@@ -7,11 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import studio_and_condition
+from conftest import LOW_SUN, studio_and_condition
 
 from grassd.daemon.studio.worker import Superseded
-
-LOW_SUN = {"mode": "site", "lux": 40000, "when": "2026-11-27T15:00"}
 
 
 def _stopped_then_resumed(hdri, condition: dict, stop_at: int):
