@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import logging
 import os
 import sys
 from pathlib import Path
@@ -30,6 +31,7 @@ except ImportError as _exc:  # e.g. Linux aarch64: Taichi publishes no wheels fo
 __all__ = ["ti", "init", "is_initialised", "default_cache_dir"]
 
 _state: dict[str, str] = {}
+log = logging.getLogger(__name__)
 
 
 def default_cache_dir() -> Path:
@@ -92,7 +94,27 @@ def init(arch: str = "cpu", cache_dir: Path | None = None, threads: int | None =
         ti.init(arch=ti.cpu if arch == "cpu" else ti.gpu, **kwargs)
     actual = str(ti.lang.impl.current_cfg().arch).split(".")[-1]
     _state.update(arch=arch, actual=actual)
+    if arch == "gpu":
+        _warn_if_on_cpu(actual)
     return actual
+
+
+def _warn_if_on_cpu(actual: str) -> None:
+    """Warn where the ``gpu`` arch (Taichi arch ``actual``) runs on this machine's CPU after
+    all: Taichi fell back to its CPU backend (it found no GPU), or its Vulkan device is a
+    software one (Mesa's lavapipe, :mod:`grassd.sim.gpu_devices`): measured on 2 cores, the
+    studio's characteristic 33x and ``bench_backend``'s trace 34x slower than the CPU backend."""
+    if actual in ("x64", "arm64"):
+        log.warning("--arch gpu: Taichi found no GPU (no CUDA, no Vulkan device) and runs on "
+                    "the CPU; --arch cpu says so")
+    elif actual == "vulkan":
+        from grassd.sim.gpu_devices import vulkan_devices
+
+        devices = vulkan_devices()
+        if devices and all(d.on_cpu for d in devices):
+            log.warning("--arch gpu runs on %s, a Vulkan driver that runs on the CPU: "
+                        "about 30x slower than --arch cpu; install the GPU's driver (CUDA "
+                        "or Vulkan), or use --arch cpu", devices[0].name)
 
 
 def _remove_unkeyed_cache(cache: Path) -> None:

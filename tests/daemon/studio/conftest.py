@@ -3,6 +3,8 @@ started once per test module, its URL read from what it prints, stopped afterwar
 
 from __future__ import annotations
 
+import asyncio
+import io
 import json
 import os
 import subprocess
@@ -15,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
 import pytest
 
 if TYPE_CHECKING:
@@ -85,6 +88,34 @@ def start_studio(tmp: Path, *args: str, env: dict[str, str] | None = None) -> St
         assert proc.poll() is None, log.read_text()
         assert time.monotonic() < deadline, "studio did not warm up in 240 s"
         time.sleep(0.3)
+
+
+def png_bytes(levels: np.ndarray, mode: str = "L") -> bytes:
+    """``levels`` (uint8 values: rows x cols, or rows x cols x 3 with ``mode`` "RGB") as a PNG."""
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(levels.astype(np.uint8), mode).save(buf, "PNG")
+    return buf.getvalue()
+
+
+async def ws_session(url: str, requests: list[dict], until_id: int,
+                     timeout_s: float = 120) -> list[dict]:
+    """Send the inputs over one WebSocket; every message received until ``until_id`` is done
+    (or has an error), within ``timeout_s``."""
+    import aiohttp
+
+    got = []
+    async with aiohttp.ClientSession() as s, s.ws_connect(url.replace("http", "ws") + "ws") as ws:
+        for r in requests:
+            await ws.send_str(json.dumps(r))
+        async with asyncio.timeout(timeout_s):
+            async for m in ws:
+                msg = json.loads(m.data)
+                got.append(msg)
+                if msg["id"] == until_id and msg["type"] in ("done", "error"):
+                    return got
+    return got
 
 
 def stop_studio(studio: StudioProcess) -> None:

@@ -6,12 +6,10 @@ supersede its older ones while the views stream in order."""
 from __future__ import annotations
 
 import asyncio
-import io
-import json
 
 import numpy as np
 import pytest
-from conftest import GOOD, costly_condition, start_studio, stop_studio
+from conftest import GOOD, costly_condition, png_bytes, start_studio, stop_studio, ws_session
 
 
 def test_characteristic_refines_to_the_target(studio):
@@ -105,40 +103,15 @@ def test_an_uploaded_hdri_becomes_a_light(studio, tmp_path, shared_hdri):
     assert lit["ogcd"] != base["ogcd"]  # another light, another characteristic
 
 
-def _png(levels: np.ndarray) -> bytes:
-    from PIL import Image
-
-    buf = io.BytesIO()
-    Image.fromarray(levels.astype(np.uint8), "L").save(buf, "PNG")
-    return buf.getvalue()
-
-
-async def _session(url: str, requests: list[dict], until_id: int) -> list[dict]:
-    """Send the inputs over one WebSocket; every message received until ``until_id`` is done."""
-    import aiohttp
-
-    got = []
-    async with aiohttp.ClientSession() as s, s.ws_connect(url.replace("http", "ws") + "ws") as ws:
-        for r in requests:
-            await ws.send_str(json.dumps(r))
-        async with asyncio.timeout(120):
-            async for m in ws:
-                msg = json.loads(m.data)
-                got.append(msg)
-                if msg["id"] == until_id and msg["type"] in ("done", "error"):
-                    return got
-    return got
-
-
 def test_the_websocket_streams_the_views_and_newer_inputs_supersede(studio):
-    status, pic = studio.request("api/picture", _png(np.tile(np.linspace(0, 255, 16), (8, 1))))
+    status, pic = studio.request("api/picture", png_bytes(np.tile(np.linspace(0, 255, 16), (8, 1))))
     assert status == 200 and (pic["rows"], pic["cols"]) == (4, 8)
     assert pic["levels"][0][0] < 40 and pic["levels"][0][-1] > 215  # box-filtered to 4 x 8
     old = {"type": "inputs", "id": 1, "condition": {"ambient_lux": 5000, "viewpoint": [170, 2, 0]}}
     new = {"type": "inputs", "id": 2, "condition": {
         "ambient_lux": 8000, "viewpoint": [160, 3, 25], "image": pic["image"],
         "sun": {"mode": "site", "lux": 30000, "when": "2026-06-21T12:00"}}}
-    got = asyncio.run(_session(studio.url, [old, new], until_id=2))
+    got = asyncio.run(ws_session(studio.url, [old, new], until_id=2))
     mine = [m for m in got if m["id"] == 2]
     kinds = [m["type"] for m in mine]
     assert not any(m["type"] == "done" for m in got if m["id"] == 1)  # superseded
@@ -168,9 +141,9 @@ def test_a_characteristic_seen_before_is_sent_once_and_marked_kept(studio):
     """Only the length shown changed: the converged curve of the earlier input comes back at
     once, marked as kept (the page then says so rather than "converged in 1 ms")."""
     cond = {"ambient_lux": 6000, "viewpoint": [150, 2.5, -12], "length_mm": 8}
-    first = asyncio.run(_session(studio.url, [{"type": "inputs", "id": 31, "condition": cond}],
+    first = asyncio.run(ws_session(studio.url, [{"type": "inputs", "id": 31, "condition": cond}],
                                  until_id=31))
-    again = asyncio.run(_session(studio.url, [{"type": "inputs", "id": 32, "condition": {
+    again = asyncio.run(ws_session(studio.url, [{"type": "inputs", "id": 32, "condition": {
         **cond, "length_mm": 14}}], until_id=32))
     fresh = [m for m in first if m["type"] == "curve"]
     kept = [m for m in again if m["type"] == "curve"]
@@ -183,13 +156,13 @@ def test_a_bad_input_over_the_websocket_is_an_error_message(studio):
     bad = {"type": "inputs", "id": 7, "condition": {"ambient_lux": 5000,
                                                      "viewpoint": [170, 2, 0],
                                                      "sun": {"mode": "measured"}}}
-    got = asyncio.run(_session(studio.url, [bad], until_id=7))
+    got = asyncio.run(ws_session(studio.url, [bad], until_id=7))
     assert got[-1]["type"] == "error" and "has no measured sun" in got[-1]["message"]
     assert studio.request("api/characteristic", GOOD)[0] == 200
     # the condition pinned as B is checked as A's is, said as B's, and A goes on
     behind = {"type": "inputs", "id": 8, "condition": GOOD,
               "pinned": {"ambient_lux": 5000, "viewpoint": [-10, 2, 0]}}
-    got = asyncio.run(_session(studio.url, [behind], until_id=8))
+    got = asyncio.run(ws_session(studio.url, [behind], until_id=8))
     pinned = [m for m in got if m["type"] == "pinned"]
     assert len(pinned) == 1 and "behind the display" in pinned[0]["error"], pinned
     assert got[-1]["type"] == "done"
@@ -291,7 +264,7 @@ def test_a_scripts_long_request_gives_way_to_a_page(studio):
         import time
 
         time.sleep(2.0)  # the script's job is running
-        got = asyncio.run(_session(studio.url, [{"type": "inputs", "id": 1,
+        got = asyncio.run(ws_session(studio.url, [{"type": "inputs", "id": 1,
                                                  "condition": GOOD}], until_id=1))
         assert got[-1]["type"] == "done" and script.is_alive()  # the page did not wait
     finally:

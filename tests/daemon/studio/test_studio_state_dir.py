@@ -6,9 +6,8 @@ from __future__ import annotations
 
 import asyncio
 
-from conftest import start_studio, stop_studio
+from conftest import start_studio, stop_studio, ws_session
 from daemon_harness import after_first_bundle
-from test_studio_api import _session
 
 
 def test_the_daemons_bundles_and_active_table_reach_the_studio(tmp_path, hw):
@@ -27,7 +26,7 @@ def test_the_daemons_bundles_and_active_table_reach_the_studio(tmp_path, hw):
         inputs = {"type": "inputs", "id": 1, "condition": {
             "light": bundle["name"], "ambient_lux": 1000, "viewpoint": [170, 2, 0],
             "tables": "active", "target_stderr": 0.3}}
-        got = asyncio.run(_session(studio.url, [inputs], until_id=1))
+        got = asyncio.run(ws_session(studio.url, [inputs], until_id=1))
         assert got[-1]["type"] == "done", got[-1]
         shown = next(m for m in got if m["type"] == "table")
         assert shown["source"] == "active"

@@ -7,6 +7,7 @@ import io
 
 import numpy as np
 import pytest
+from conftest import png_bytes
 
 from grassd.calib.characteristic import Characteristic, fit_characteristic
 from grassd.daemon.studio import views
@@ -42,18 +43,10 @@ def test_the_live_table_linearises_and_an_active_table_is_judged_against_the_cur
     assert active["max_level_error"] > 3 * live["max_level_error"]
 
 
-def _png(a: np.ndarray, mode: str = "L") -> bytes:
-    from PIL import Image
-
-    buf = io.BytesIO()
-    Image.fromarray(a, mode).save(buf, "PNG")
-    return buf.getvalue()
-
-
 def test_a_picture_becomes_the_displays_levels():
     rgb = np.zeros((40, 80, 3), np.uint8)
     rgb[:, 40:] = 255
-    levels = views.picture_levels(_png(rgb, "RGB"), 4, 8)
+    levels = views.picture_levels(png_bytes(rgb, "RGB"), 4, 8)
     assert levels.shape == (4, 8)
     assert levels[:, :4].max() == 0 and levels[:, 4:].min() == 255
     with pytest.raises(ValueError, match="not a picture"):
