@@ -140,13 +140,19 @@ def _check_size(width: int, height: int, max_texels: int, source: str) -> None:
                         f"{2 * MIN_HEIGHT} x {MIN_HEIGHT}")
 
 
+#: The clamped maps already warned of in this process (source, count, lowest): a program that
+#: reads one file again (the studio per request, a benchmark per setting) says it once.
+_CLAMP_WARNED: set[tuple[str, int, float]] = set()
+
+
 def check_env(img: np.ndarray, source: str = "environment map",
-                 max_texels: int = MAX_TEXELS) -> np.ndarray:
+              max_texels: int = MAX_TEXELS, *, warn: bool = True) -> np.ndarray:
     """Check an equirectangular radiance map and return it as clean float32 (H, W, 3).
 
     Units are kept (relative or absolute linear Rec.709 radiance). Small negative texels from
-    lossy compression are clamped to 0 with a warning (rule in the module docstring); the input
-    array is not modified. Raises :class:`HdriError` naming the problem otherwise.
+    lossy compression are clamped to 0 with a warning (rule in the module docstring; once per
+    map and process; ``warn`` False: none, for a check whose map another process uses); the
+    input array is not modified. Raises :class:`HdriError` naming the problem otherwise.
     """
     arr = np.asarray(img)
     if arr.ndim != 3 or arr.shape[2] != 3:
@@ -178,8 +184,10 @@ def check_env(img: np.ndarray, source: str = "environment map",
                 "90th-percentile luminance); the file is not plain radiance"
             )
         count = int((arr < 0.0).sum())
-        log.warning("%s: clamped %d slightly negative texel value(s) (lowest %.3g, compression "
-                    "noise) to 0", source, count, lowest)
+        if warn and (source, count, lowest) not in _CLAMP_WARNED:  # once per map and process
+            _CLAMP_WARNED.add((source, count, lowest))
+            log.warning("%s: clamped %d slightly negative texel value(s) (lowest %.3g, "
+                        "compression noise) to 0", source, count, lowest)
         arr = np.maximum(arr, 0.0)
         lum = np.maximum(lum, 0.0)
     upper_rows = (arr.shape[0] + 1) // 2  # every row whose band reaches above the horizon
@@ -194,12 +202,14 @@ def check_env(img: np.ndarray, source: str = "environment map",
 # ------------------------------------------------------------------------------------ load
 
 
-def load_hdri(path: str | os.PathLike, max_texels: int = MAX_TEXELS) -> np.ndarray:
+def load_hdri(path: str | os.PathLike, max_texels: int = MAX_TEXELS, *,
+              warn: bool = True) -> np.ndarray:
     """Load an equirectangular HDRI (.exr or Radiance .hdr) as validated linear Rec.709 RGB.
 
     Returns a C-contiguous (H, W, 3) float32 array of relative radiance, row 0 = zenith, with
     W = 2 H. The format is recognised from the file's first bytes, not its name. The size is
-    checked against ``max_texels`` from the header before pixels are read.
+    checked against ``max_texels`` from the header before pixels are read. ``warn``: as
+    :func:`check_env`.
     """
     p = Path(path)
     source = str(p)
@@ -226,7 +236,7 @@ def load_hdri(path: str | os.PathLike, max_texels: int = MAX_TEXELS) -> np.ndarr
             f"{source}: neither OpenEXR nor Radiance .hdr (unrecognised first bytes); "
             "convert the panorama to .exr"
         )
-    return check_env(img, source, max_texels)
+    return check_env(img, source, max_texels, warn=warn)
 
 
 def _header_text(v: object, max_chars: int = 64) -> str:

@@ -67,7 +67,7 @@ class LightSource:
         same). Cost: one read of the file (a 1024 x 512 EXR: 30-70 ms, 4096 x 2048: 0.3 s on
         2 cores); nothing when the map is already loaded."""
         if self.image is None:
-            load_panorama(self.path, shown, reduce=False)
+            load_panorama(self.path, shown, reduce=False, warn=False)  # the simulator warns
 
     def describe(self) -> dict[str, Any]:
         """The source as the page lists it."""
@@ -91,16 +91,18 @@ def reduce_width(img: np.ndarray, width: int = STUDIO_WIDTH) -> np.ndarray:
     return img if factor == 1 else downsample(img, factor)
 
 
-def load_panorama(path: Path, shown: str | None = None, *, reduce: bool = True) -> np.ndarray:
+def load_panorama(path: Path, shown: str | None = None, *, reduce: bool = True,
+                  warn: bool = True) -> np.ndarray:
     """An HDRI file as the studio simulates it (:func:`reduce_width`; as read with ``reduce``
     False); StudioInputError with the loader's reason for a file that is not a usable panorama
     (missing, not a regular file, neither OpenEXR nor Radiance, truncated, NaN or infinite
-    texels, a black sky), naming it ``shown`` (default: the path)."""
+    texels, a black sky), naming it ``shown`` (default: the path). ``warn``: the loader's
+    warning of clamped compression noise (:func:`grassd.sim.hdri.check_env`)."""
     from grassd.sim.errors import SimError
     from grassd.sim.hdri import load_hdri
 
     try:
-        img = load_hdri(path)
+        img = load_hdri(path, warn=warn)
     except SimError as exc:
         name = shown or str(path)
         reason = str(exc).replace(str(path), name)
