@@ -29,7 +29,8 @@ function condition() {
   if (sunMode === "site") {
     const m = Number($("sun-time").value);
     const hh = String(Math.floor(m / 60)).padStart(2, "0"), mm = String(m % 60).padStart(2, "0");
-    sun = {mode: "site", lux: Number($("sun-lux").value), when: `${$("sun-date").value}T${hh}:${mm}`};
+    sun = {mode: "site", lux: Number($("sun-lux").value),
+           when: `${$("sun-date").value}T${hh}:${mm}`};
   }
   const c = {light: $("light").value, ambient_lux: Number($("lux").value), sun,
              viewpoint: viewpoint(), splay_deg: S.splayMoved ? Number($("splay").value) : null,
@@ -62,7 +63,8 @@ function send() {
 }
 function updateReadouts() {
   const v = viewpoint();
-  $("eye-readout").textContent = `h ${v[0]} cm · d ${v[1].toFixed(2)} m · θ ${v[2].toFixed(1)}°`;
+  $("eye-readout").textContent =
+    `h ${v[0]} cm · d ${v[1].toFixed(2)} m · θ ${v[2].toFixed(1)}°`;
   $("eye-h-out").textContent = `${v[0]} cm`;
   $("splay-out").textContent = `${$("splay").value}°`;
   $("length-out").textContent = `${$("length").value} mm`;
@@ -85,7 +87,8 @@ function topFrame() {
   const pad = 0.6; x0 -= pad; x1 += pad; y0 -= pad; y1 += pad;
   const s = Math.min(c.width / (x1 - x0), c.height / (y1 - y0));
   const ox = c.width / 2 - s * (x0 + x1) / 2, oy = c.height / 2 + s * (y0 + y1) / 2;
-  return {s, toPx: (x, y) => [ox + s * x, oy - s * y], toM: (px, py) => [(px - ox) / s, (oy - py) / s]};
+  return {s, toPx: (x, y) => [ox + s * x, oy - s * y],
+          toM: (px, py) => [(px - ox) / s, (oy - py) / s]};
 }
 function drawTop() {
   if (!S.state) return;
@@ -97,11 +100,17 @@ function drawTop() {
       const [px, py] = f.toPx(p.x, p.y), k = Math.max(0, Math.min(1, p.range / a.eye_range));
       g.fillStyle = `hsla(${Math.round(120 * k)}, 60%, 50%, 0.45)`;
       g.fillRect(px - half, py - half, 2 * half, 2 * half);
-      if (p.warn) { g.strokeStyle = "#b3261e"; g.lineWidth = 2; g.strokeRect(px - half + 1, py - half + 1, 2 * half - 2, 2 * half - 2); }
+      if (p.warn) {
+        g.strokeStyle = "#b3261e"; g.lineWidth = 2;
+        g.strokeRect(px - half + 1, py - half + 1, 2 * half - 2, 2 * half - 2);
+      }
     }
   }
   g.setLineDash([4, 3]); g.strokeStyle = "#5b6452"; g.lineWidth = 1; g.beginPath();
-  S.state.region.forEach((p, i) => { const [px, py] = f.toPx(p[0], p[1]); i ? g.lineTo(px, py) : g.moveTo(px, py); });
+  S.state.region.forEach((p, i) => {
+    const [px, py] = f.toPx(p[0], p[1]);
+    i ? g.lineTo(px, py) : g.moveTo(px, py);
+  });
   g.closePath(); g.stroke(); g.setLineDash([]);
   const d = S.state.display, w = d.cols * d.pitch_mm / 1000, h = d.rows * d.pitch_mm / 1000;
   const [dx, dy] = f.toPx(-w / 2, h / 2);
@@ -120,7 +129,8 @@ function drawTop() {
 }
 function pointerEye(ev) {
   const c = $("topview"), r = c.getBoundingClientRect();
-  const px = (ev.clientX - r.left) * c.width / r.width, py = (ev.clientY - r.top) * c.height / r.height;
+  const px = (ev.clientX - r.left) * c.width / r.width;
+  const py = (ev.clientY - r.top) * c.height / r.height;
   const [x, y] = topFrame().toM(px, py);
   if (Math.hypot(x, y) < 0.1) return;
   S.eye = {x, y}; send();
@@ -136,14 +146,17 @@ function plotCurve() {
   const data = [x, y, y.map((v, i) => v + 2 * se[i]), y.map((v, i) => v - 2 * se[i])];
   const series = [{label: "length (mm)"},
     {label: "OGCD A", stroke: "#3b7a2a", width: 2, points: {show: true}},
-    {label: "+2σ", stroke: "rgba(59,122,42,0.3)"}, {label: "−2σ", stroke: "rgba(59,122,42,0.3)"}];
+    {label: "+2σ", stroke: "rgba(59,122,42,0.3)"},
+    {label: "−2σ", stroke: "rgba(59,122,42,0.3)"}];
   if (S.pinned && S.pinned.curve) {
     const b = S.pinned.curve, m = new Map(b.lengths_mm.map((l, i) => [l, b.ogcd[i]]));
     data.push(x.map(l => (m.has(l) ? m.get(l) : null)));
     series.push({label: "OGCD B", stroke: "#a05a00", width: 2, dash: [6, 4]});
   }
   const el = $("curve-chart");
-  if (curvePlot && curvePlot.series.length !== series.length) { curvePlot.destroy(); curvePlot = null; }
+  if (curvePlot && curvePlot.series.length !== series.length) {
+    curvePlot.destroy(); curvePlot = null;
+  }
   if (!curvePlot) {
     curvePlot = new uPlot({width: chartWidth(el), height: 240, series,
       bands: [{series: [2, 3], fill: "rgba(59,122,42,0.15)"}],
@@ -151,7 +164,9 @@ function plotCurve() {
       axes: [{label: "green grass length (mm)"}, {label: "OGCD (ΔE00)"}]}, data, el);
   } else curvePlot.setData(data);
   $("swatches").replaceChildren(...at(c.srgb).map(rgb => {
-    const s = document.createElement("span"); s.style.background = `rgb(${rgb.join(",")})`; return s;
+    const s = document.createElement("span");
+    s.style.background = `rgb(${rgb.join(",")})`;
+    return s;
   }));
 }
 function plotTable() {
@@ -180,14 +195,15 @@ function showContrast() {
 function showAudience() {
   const a = S.audience, note = $("audience-note"); if (!a) return;
   const worst = Math.min(...a.places.map(p => p.range));
+  const kept = Math.round((1 - a.loss) * 100);
   if (a.warned) {
     note.className = "note warn";
-    note.textContent = `${a.warned} of ${a.places.length} places in the audience region keep less than ` +
-      `${Math.round((1 - a.loss) * 100)} % of this eye's OGCD range (lowest ${worst.toFixed(1)} ΔE00): ` +
+    note.textContent = `${a.warned} of ${a.places.length} places in the audience region ` +
+      `keep less than ${kept} % of this eye's OGCD range (lowest ${worst.toFixed(1)} ΔE00): ` +
       `content there loses contrast (red squares on the top view).`;
   } else {
     note.className = "note";
-    note.textContent = `All ${a.places.length} places keep at least ${Math.round((1 - a.loss) * 100)} % ` +
+    note.textContent = `All ${a.places.length} places keep at least ${kept} % ` +
       `of this eye's range (lowest ${worst.toFixed(1)} ΔE00).`;
   }
 }
@@ -208,14 +224,14 @@ function onMessage(ev) {
   switch (m.type) {
     case "light":
       S.light = m;
-      $("sun-readout").textContent = m.sun ?
-        `sun azimuth ${m.sun.azimuth_deg.toFixed(1)}°, elevation ${m.sun.elevation_deg.toFixed(1)}°` : "no sun";
+      $("sun-readout").textContent = m.sun ? `sun azimuth ${m.sun.azimuth_deg.toFixed(1)}°, ` +
+        `elevation ${m.sun.elevation_deg.toFixed(1)}°` : "no sun";
       break;
     case "curve":
       S.curve = m; S.curves += 1;
       if (S.firstCurveMs === null) S.firstCurveMs = performance.now() - S.sentAt;
-      $("curve-info").textContent = `${m.replicates} replicates · largest σ ${m.max_stderr.toFixed(3)} ΔE00` +
-        (m.converged ? " · converged" : "");
+      $("curve-info").textContent = `${m.replicates} replicates · ` +
+        `largest σ ${m.max_stderr.toFixed(3)} ΔE00` + (m.converged ? " · converged" : "");
       setStatus(m.kept ? "converged earlier (kept)" :
         m.converged ? `converged in ${Math.round(m.ms)} ms` : `refining… ${Math.round(m.ms)} ms`);
       plotCurve(); break;
@@ -236,12 +252,14 @@ function onMessage(ev) {
     case "table":
       S.table = m;
       $("table-info").textContent = m.error ? m.error :
-        `R² ${m.r2_before.toFixed(4)} before → ${m.r2_after.toFixed(5)} after · worst level ${m.max_level_error.toFixed(2)} ΔE00`;
+        `R² ${m.r2_before.toFixed(4)} before → ${m.r2_after.toFixed(5)} after · ` +
+        `worst level ${m.max_level_error.toFixed(2)} ΔE00`;
       plotTable(); break;
     case "contrast": S.contrast = m; showContrast(); if (S.pinned) showCompare(); break;
     case "display":
       S.displays += 1; $("display-img").src = m.image; $("display-img").hidden = false;
-      $("display-note").textContent = "Your picture through the table, seen from the eye under this light.";
+      $("display-note").textContent =
+        "Your picture through the table, seen from the eye under this light.";
       break;
     case "audience": S.audience = m; showAudience(); drawTop(); break;
     case "done": setStatus(`done · ${Math.round(m.ms || 0)} ms`); break;
@@ -307,7 +325,9 @@ async function init() {
     send();
   });
   const c = $("topview");
-  c.addEventListener("pointerdown", ev => { dragging = true; c.setPointerCapture(ev.pointerId); pointerEye(ev); });
+  c.addEventListener("pointerdown", ev => {
+    dragging = true; c.setPointerCapture(ev.pointerId); pointerEye(ev);
+  });
   c.addEventListener("pointermove", ev => { if (dragging) pointerEye(ev); });
   c.addEventListener("pointerup", ev => { dragging = false; pointerEye(ev); });
   $("hdri").addEventListener("change", async ev => {
