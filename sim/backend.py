@@ -69,8 +69,9 @@ _CACHE_SUBDIR = "kernels-" + hashlib.sha256(
 def init(arch: str = "cpu", cache_dir: Path | None = None, threads: int | None = None) -> str:
     """Initialise Taichi once per process; later calls with the same arch are no-ops.
 
-    ``arch`` is ``"cpu"`` (default) or ``"gpu"`` (CUDA/Vulkan/Metal, whichever Taichi finds).
-    Returns the arch actually in use. The offline cache makes the first call in a fresh process
+    ``arch`` is ``"cpu"`` (default) or ``"gpu"`` (CUDA/Vulkan/Metal, whichever Taichi finds;
+    the CPU, with a warning, where there is none; a warning too where the only Vulkan device
+    runs on the CPU). Returns the arch actually in use. The offline cache makes the first call in a fresh process
     skip LLVM compilation of kernels compiled before.
     """
     if arch not in ("cpu", "gpu"):
@@ -91,12 +92,21 @@ def init(arch: str = "cpu", cache_dir: Path | None = None, threads: int | None =
     if threads:
         kwargs["cpu_max_num_threads"] = threads
     with contextlib.redirect_stdout(sys.stderr):  # Taichi prints "Starting on arch=..."
-        ti.init(arch=ti.cpu if arch == "cpu" else ti.gpu, **kwargs)
+        ti.init(arch=ti.cpu if arch == "cpu" or not _gpu_found() else ti.gpu, **kwargs)
     actual = str(ti.lang.impl.current_cfg().arch).split(".")[-1]
     _state.update(arch=arch, actual=actual)
     if arch == "gpu":
         _warn_if_on_cpu(actual)
     return actual
+
+
+def _gpu_found() -> bool:
+    """Whether Taichi's ``gpu`` arch may be asked for: False where the Vulkan loader lists no
+    device and there is no CUDA driver, where Taichi 1.7.4 would die creating its Vulkan
+    instance (a segmentation fault, measured) instead of falling back to the CPU."""
+    from grassd.sim.gpu_devices import cuda_driver_present, vulkan_devices, vulkan_loader_present
+
+    return cuda_driver_present() or not vulkan_loader_present() or bool(vulkan_devices())
 
 
 def _warn_if_on_cpu(actual: str) -> None:
@@ -105,8 +115,8 @@ def _warn_if_on_cpu(actual: str) -> None:
     software one (Mesa's lavapipe, :mod:`grassd.sim.gpu_devices`): measured on 2 cores, the
     studio's characteristic 33x and ``bench_backend``'s trace 34x slower than the CPU backend."""
     if actual in ("x64", "arm64"):
-        log.warning("--arch gpu: Taichi found no GPU (no CUDA, no Vulkan device) and runs on "
-                    "the CPU; --arch cpu says so")
+        log.warning("--arch gpu: no GPU here (no CUDA driver, no Vulkan device): it runs on "
+                    "the CPU, as --arch cpu does; install the GPU's driver to use it")
     elif actual == "vulkan":
         from grassd.sim.gpu_devices import vulkan_devices
 

@@ -6,6 +6,11 @@ on the CPU, through LLVM. Taichi names neither the device nor its kind, so
 :func:`grassd.sim.backend.init` asks the loader here, to tell the user when ``--arch gpu`` runs
 on the CPU after all (measured on 2 cores: about 30x slower than Taichi's own CPU backend).
 
+Where the loader is installed but lists no device (no GPU driver, no lavapipe), Taichi 1.7.4's
+``gpu`` arch does not fall back to the CPU as it does without a loader: it fails to create its
+Vulkan instance and the process dies (a segmentation fault, measured). :func:`init
+<grassd.sim.backend.init>` therefore takes the CPU itself there.
+
 The loader is called through :mod:`ctypes` (Vulkan 1.0's ``vkCreateInstance``,
 ``vkEnumeratePhysicalDevices``, ``vkGetPhysicalDeviceProperties``, ``vkDestroyInstance``):
 no Python binding is needed for four calls.
@@ -50,6 +55,23 @@ class _InstanceCreateInfo(ctypes.Structure):
                 ("ppEnabledLayerNames", ctypes.c_void_p),
                 ("enabledExtensionCount", ctypes.c_uint32),
                 ("ppEnabledExtensionNames", ctypes.c_void_p)]
+
+
+def cuda_driver_present() -> bool:
+    """Whether NVIDIA's driver library (``libcuda.so``, what Taichi's CUDA backend loads) is
+    installed."""
+    for name in ("libcuda.so", "libcuda.so.1"):
+        try:
+            ctypes.CDLL(name)
+            return True
+        except OSError:
+            continue
+    return False
+
+
+def vulkan_loader_present() -> bool:
+    """Whether the Vulkan loader (Debian: ``libvulkan1``) is installed, devices or not."""
+    return _loader() is not None
 
 
 def _loader() -> ctypes.CDLL | None:
