@@ -71,8 +71,8 @@ def init(arch: str = "cpu", cache_dir: Path | None = None, threads: int | None =
 
     ``arch`` is ``"cpu"`` (default) or ``"gpu"`` (CUDA/Vulkan/Metal, whichever Taichi finds;
     the CPU, with a warning, where there is none; a warning too where the only Vulkan device
-    runs on the CPU). Returns the arch actually in use. The offline cache makes the first call in a fresh process
-    skip LLVM compilation of kernels compiled before.
+    runs on the CPU). Returns the arch actually in use. The offline cache makes the first call
+    in a fresh process skip LLVM compilation of kernels compiled before.
     """
     if arch not in ("cpu", "gpu"):
         raise SimError(f"arch must be 'cpu' or 'gpu', got {arch!r}")
