@@ -22,6 +22,12 @@ from pathlib import Path
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")  # keep stdout clean for JSON
 
 from grassd.sim.errors import SimError, renderer_missing
+from grassd.sim.gpu_devices import (
+    VulkanDevice,
+    cuda_driver_present,
+    vulkan_devices,
+    vulkan_loader_present,
+)
 
 try:
     import taichi as ti
@@ -91,36 +97,34 @@ def init(arch: str = "cpu", cache_dir: Path | None = None, threads: int | None =
                   log_level=ti.WARN, **COMPILE_OPTIONS)
     if threads:
         kwargs["cpu_max_num_threads"] = threads
+    devices: list[VulkanDevice] = []
+    target = ti.cpu
+    if arch == "gpu":
+        devices = vulkan_devices()
+        # Where the Vulkan loader lists no device and there is no CUDA driver, Taichi 1.7.4
+        # dies creating its Vulkan instance (a segmentation fault, measured) instead of
+        # falling back to the CPU as it does without a loader: the CPU is taken here.
+        if cuda_driver_present() or not vulkan_loader_present() or devices:
+            target = ti.gpu
     with contextlib.redirect_stdout(sys.stderr):  # Taichi prints "Starting on arch=..."
-        ti.init(arch=ti.cpu if arch == "cpu" or not _gpu_found() else ti.gpu, **kwargs)
+        ti.init(arch=target, **kwargs)
     actual = str(ti.lang.impl.current_cfg().arch).split(".")[-1]
     _state.update(arch=arch, actual=actual)
     if arch == "gpu":
-        _warn_if_on_cpu(actual)
+        _warn_if_on_cpu(actual, devices)
     return actual
 
 
-def _gpu_found() -> bool:
-    """Whether Taichi's ``gpu`` arch may be asked for: False where the Vulkan loader lists no
-    device and there is no CUDA driver, where Taichi 1.7.4 would die creating its Vulkan
-    instance (a segmentation fault, measured) instead of falling back to the CPU."""
-    from grassd.sim.gpu_devices import cuda_driver_present, vulkan_devices, vulkan_loader_present
-
-    return cuda_driver_present() or not vulkan_loader_present() or bool(vulkan_devices())
-
-
-def _warn_if_on_cpu(actual: str) -> None:
-    """Warn where the ``gpu`` arch (Taichi arch ``actual``) runs on this machine's CPU after
-    all: Taichi fell back to its CPU backend (it found no GPU), or its Vulkan device is a
-    software one (Mesa's lavapipe, :mod:`grassd.sim.gpu_devices`): measured on 2 cores, the
-    studio's characteristic 33x and ``bench_backend``'s trace 34x slower than the CPU backend."""
+def _warn_if_on_cpu(actual: str, devices: list[VulkanDevice]) -> None:
+    """Warn where the ``gpu`` arch (Taichi arch ``actual``; the Vulkan ``devices``,
+    :func:`grassd.sim.gpu_devices.vulkan_devices`) runs on this machine's CPU after all: there
+    is no GPU, or the only Vulkan device is a software one (Mesa's lavapipe): measured on 2
+    cores, the studio's characteristic 33x and ``bench_backend``'s trace 34x slower than the
+    CPU backend."""
     if actual in ("x64", "arm64"):
         log.warning("--arch gpu: no GPU here (no CUDA driver, no Vulkan device): it runs on "
                     "the CPU, as --arch cpu does; install the GPU's driver to use it")
     elif actual == "vulkan":
-        from grassd.sim.gpu_devices import vulkan_devices
-
-        devices = vulkan_devices()
         if devices and all(d.on_cpu for d in devices):
             log.warning("--arch gpu runs on %s, a Vulkan driver that runs on the CPU: "
                         "about 30x slower than --arch cpu; install the GPU's driver (CUDA "
