@@ -40,8 +40,9 @@ firmware:
 TEST_WORKERS ?= 2
 # The long tier (marker `long`): end-to-end proofs of a minute or more each (the measurement
 # recovering a display's variation, a measurement killed, the fit's recovery of two pixels,
-# the daemon on arm64, the Dask worker killed, the installed tree), about 10 of the suite's
-# 20 minutes on 2 cores. GRASSD_TEST_LONG=1 runs them too; CI (.ci/run) sets it.
+# the daemon on arm64, the Dask worker killed, the installed tree, Taichi's GPU arch against
+# its CPU arch), about 7 of the suite's 17 minutes on 2 cores (pytest, 2026-11-29: 568 s
+# without, 1005 s with). GRASSD_TEST_LONG=1 runs them too; CI (.ci/run) sets it.
 GRASSD_TEST_LONG ?=
 
 test: setup-test
@@ -49,7 +50,7 @@ test: setup-test
 	else echo "firmware tier skipped: no C compiler (apt-get install gcc make)"; fi
 	$(PY) -m ruff check .
 	@[ -n "$(GRASSD_TEST_LONG)" ] || echo "long tier skipped: its end-to-end proofs take \
-	about 10 min more on 2 cores; GRASSD_TEST_LONG=1 make test runs them (CI does)"
+	about 7 min more on 2 cores; GRASSD_TEST_LONG=1 make test runs them (CI does)"
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile \
 	    $(if $(GRASSD_TEST_LONG),,-m "not long") tests
 

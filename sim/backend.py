@@ -103,7 +103,9 @@ def init(arch: str = "cpu", cache_dir: Path | None = None, threads: int | None =
         devices = vulkan_devices()
         # Where the Vulkan loader lists no device and there is no CUDA driver, Taichi 1.7.4
         # dies creating its Vulkan instance (a segmentation fault, measured) instead of
-        # falling back to the CPU as it does without a loader: the CPU is taken here.
+        # falling back to the CPU as it does without a loader: the CPU is taken here. (With
+        # a CUDA driver but no usable CUDA device, Taichi goes on to Vulkan and would die the
+        # same way: not seen, as NVIDIA's driver comes with its own Vulkan device.)
         if cuda_driver_present() or not vulkan_loader_present() or devices:
             target = ti.gpu
     with contextlib.redirect_stdout(sys.stderr):  # Taichi prints "Starting on arch=..."
@@ -122,8 +124,9 @@ def _warn_if_on_cpu(actual: str, devices: list[VulkanDevice]) -> None:
     cores, the studio's characteristic 33x and ``bench_backend``'s trace 34x slower than the
     CPU backend."""
     if actual in ("x64", "arm64"):
-        log.warning("--arch gpu: no GPU here (no CUDA driver, no Vulkan device): it runs on "
-                    "the CPU, as --arch cpu does; install the GPU's driver to use it")
+        log.warning("--arch gpu: Taichi found no GPU here (neither CUDA nor a Vulkan "
+                    "device): it runs on the CPU, as --arch cpu does; install the GPU's driver "
+                    "to use it")
     elif actual == "vulkan":
         if devices and all(d.on_cpu for d in devices):
             log.warning("--arch gpu runs on %s, a Vulkan driver that runs on the CPU: "

@@ -1,4 +1,5 @@
-"""The Vulkan devices this machine offers, read from the Vulkan loader (``libvulkan.so.1``).
+"""Which GPU backends Taichi can find here: the Vulkan devices this machine offers, read from the
+Vulkan loader (``libvulkan.so.1``), and whether NVIDIA's CUDA driver is installed.
 
 Taichi's ``gpu`` arch takes CUDA where it finds it, else Vulkan; and on a machine without a
 GPU, Mesa's lavapipe (Debian's ``mesa-vulkan-drivers``) is a Vulkan device too: one that runs

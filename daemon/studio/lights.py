@@ -236,7 +236,7 @@ class Lights:
         path = self._upload_dir / f"upload-{n}{suffix}"
         path.write_bytes(data)
         try:
-            image = load_panorama(path, Path(filename).name)
+            image = load_panorama(path, Path(filename).name, warn=False)  # the simulator warns
         except StudioInputError:
             os.unlink(path)
             raise

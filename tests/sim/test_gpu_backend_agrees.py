@@ -13,7 +13,7 @@ import sys
 
 import numpy as np
 import pytest
-from gpu_tier import GPU_TIER
+from gpu_tier import GPU_TIER, assert_ran_on_a_gpu_arch
 
 pytestmark = GPU_TIER
 
@@ -50,6 +50,8 @@ def _render(arch: str, hdri: str, out) -> dict[str, np.ndarray]:
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=900)
     assert done.returncode == 0, done.stderr[-3000:]
+    if arch == "gpu":
+        assert_ran_on_a_gpu_arch(done.stderr)
     with np.load(out) as z:
         return {k: z[k] for k in RENDERS}
 

@@ -142,7 +142,7 @@ def test_a_characteristic_seen_before_is_sent_once_and_marked_kept(studio):
     once, marked as kept (the page then says so rather than "converged in 1 ms")."""
     cond = {"ambient_lux": 6000, "viewpoint": [150, 2.5, -12], "length_mm": 8}
     first = asyncio.run(ws_session(studio.url, [{"type": "inputs", "id": 31, "condition": cond}],
-                                 until_id=31))
+                                   until_id=31))
     again = asyncio.run(ws_session(studio.url, [{"type": "inputs", "id": 32, "condition": {
         **cond, "length_mm": 14}}], until_id=32))
     fresh = [m for m in first if m["type"] == "curve"]
@@ -265,7 +265,7 @@ def test_a_scripts_long_request_gives_way_to_a_page(studio):
 
         time.sleep(2.0)  # the script's job is running
         got = asyncio.run(ws_session(studio.url, [{"type": "inputs", "id": 1,
-                                                 "condition": GOOD}], until_id=1))
+                                                   "condition": GOOD}], until_id=1))
         assert got[-1]["type"] == "done" and script.is_alive()  # the page did not wait
     finally:
         script.join(300)

@@ -12,7 +12,7 @@ import asyncio
 import numpy as np
 import pytest
 from conftest import GOOD, png_bytes, start_studio, stop_studio, ws_session
-from gpu_tier import GPU_TIER, software_vulkan_only
+from gpu_tier import GPU_TIER, assert_ran_on_a_gpu_arch, software_vulkan_only
 
 pytestmark = GPU_TIER
 
@@ -22,6 +22,7 @@ def gpu_studio(tmp_path_factory, shared_hdri):
     """The studio of the ``studio`` fixture (courtyard.exr) with ``--arch gpu``."""
     s = start_studio(tmp_path_factory.mktemp("gpu-studio"), "--hdri",
                      str(shared_hdri("courtyard")), "--arch", "gpu")
+    assert_ran_on_a_gpu_arch(s.log.read_text())  # its simulator has warmed up
     yield s
     stop_studio(s)
 
