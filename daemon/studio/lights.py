@@ -221,7 +221,8 @@ class Lights:
 
     def add_upload(self, filename: str, data: bytes) -> LightSource:
         """Check an uploaded HDRI (.exr/.hdr) and add it as a source (StudioInputError, and
-        nothing added, for a file that is not a usable panorama)."""
+        nothing added, for a file that is not a usable panorama). Checked, not kept
+        (:meth:`LightSource.check`): the simulator reads the file when it renders it."""
         suffix = Path(filename or "").suffix.lower()
         if suffix not in (".exr", ".hdr"):
             raise StudioInputError(f"an HDRI must be an .exr or .hdr file, got {filename!r}")
@@ -235,13 +236,13 @@ class Lights:
                 self._upload_dir = Path(tempfile.mkdtemp(prefix="grassd-studio-"))
         path = self._upload_dir / f"upload-{n}{suffix}"
         path.write_bytes(data)
+        src = LightSource(name=f"upload:{n}", label=f"uploaded: {Path(filename).name}",
+                          path=path)
         try:
-            image = load_panorama(path, Path(filename).name, warn=False)  # the simulator warns
+            src.check(Path(filename).name)
         except StudioInputError:
             os.unlink(path)
             raise
-        src = LightSource(name=f"upload:{n}", label=f"uploaded: {Path(filename).name}",
-                          path=path, image=image)
         self.add_source(src)
         return src
 

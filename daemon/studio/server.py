@@ -39,7 +39,6 @@ import json
 import logging
 import signal
 import time
-from dataclasses import replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -203,8 +202,7 @@ async def _hdri(request: web.Request) -> web.Response:
 
     async def add() -> LightSource:  # both lists get it, even if the client goes away
         src = await loop.run_in_executor(None, studio.lights.add_upload, name, data)
-        src.image = None  # checked; only the simulator renders it (it reads the file again)
-        request.app[SIMULATOR].add_light(replace(src, image=None))
+        request.app[SIMULATOR].add_light(src)  # its file: only the simulator renders it
         return src
 
     try:
