@@ -26,6 +26,15 @@ def lighting(shared_hdri):
     return LightInput(shared_hdri("courtyard"), 8000.0).lighting()
 
 
+@pytest.fixture(scope="module")
+def target_and_whole(renderer, lighting):
+    """A target that takes several rounds (0.6 of a first round's largest error) and the run
+    to it never stopped."""
+    plain = _run(renderer, lighting, None)
+    target = 0.6 * float(plain.ogcd_stderr.max())
+    return target, _run(renderer, lighting, target)
+
+
 def _run(renderer, lighting, target, **kw):
     return simulate_curve(renderer, DisplaySpec(), lighting, Viewpoint(), LENGTHS, SETTINGS,
                           target_stderr=target, **kw)
@@ -37,10 +46,8 @@ def _same(a, b) -> None:
     assert np.array_equal(a.length_replicates, b.length_replicates)
 
 
-def test_a_run_stopped_after_a_round_goes_on_from_it(renderer, lighting):
-    plain = _run(renderer, lighting, None)
-    target = 0.6 * float(plain.ogcd_stderr.max())
-    whole = _run(renderer, lighting, target)
+def test_a_run_stopped_after_a_round_goes_on_from_it(renderer, lighting, target_and_whole):
+    target, whole = target_and_whole
     assert len(whole.rounds) >= 3
 
     run, seen = CurveRun(), []
@@ -63,10 +70,9 @@ def test_a_run_stopped_after_a_round_goes_on_from_it(renderer, lighting):
     assert again[-1] is curve and len(again) == len(whole.rounds) - 1
 
 
-def test_a_round_stopped_part_way_is_traced_again_whole(renderer, lighting):
-    plain = _run(renderer, lighting, None)
-    target = 0.6 * float(plain.ogcd_stderr.max())
-    whole = _run(renderer, lighting, target)
+def test_a_round_stopped_part_way_is_traced_again_whole(renderer, lighting,
+                                                      target_and_whole):
+    target, whole = target_and_whole
     run, calls = CurveRun(), []
 
     def progress(done: int, total: int) -> None:  # the renderer's, during a round's launch
@@ -99,15 +105,13 @@ def test_a_run_goes_on_only_as_it_was_asked(renderer, lighting):
 
 
 def test_a_run_stopped_before_it_decided_its_next_round_decides_it_on_going_on(
-        renderer, lighting, monkeypatch):
+        renderer, lighting, target_and_whole, monkeypatch):
     """An exception between a traced round and the next round's decision (here in deciding
     it): going on, the run takes that round as traced, decides once, and ends as a run never
     stopped."""
     from grassd.daemon.calibration import simulation
 
-    plain = _run(renderer, lighting, None)
-    target = 0.6 * float(plain.ogcd_stderr.max())
-    whole = _run(renderer, lighting, target)
+    target, whole = target_and_whole
     decide = simulation._next_round
     calls = []
 
