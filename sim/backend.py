@@ -21,6 +21,7 @@ from pathlib import Path
 
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")  # keep stdout clean for JSON
 
+from grassd.sim import kernel_cache
 from grassd.sim.errors import SimError, renderer_missing
 from grassd.sim.gpu_devices import (
     VulkanDevice,
@@ -41,12 +42,10 @@ log = logging.getLogger(__name__)
 
 
 def default_cache_dir() -> Path:
-    """Where compiled kernels are cached: $GRASSD_CACHE_DIR, systemd's $CACHE_DIRECTORY, or
-    ~/.cache/grassd (in that order). The service unit sets CacheDirectory=grassd."""
-    for var in ("GRASSD_CACHE_DIR", "CACHE_DIRECTORY"):
-        if os.environ.get(var):
-            return Path(os.environ[var].split(":")[0]) / "taichi"
-    return Path.home() / ".cache" / "grassd" / "taichi"
+    """Where compiled kernels are cached when :func:`init` is given no directory: the
+    :data:`~grassd.sim.kernel_cache.KERNELS` subdirectory of
+    :func:`grassd.sim.kernel_cache.default_cache_dir` (this user's own)."""
+    return kernel_cache.default_cache_dir() / kernel_cache.KERNELS
 
 
 #: Taichi's compile options, every kernel alike.
@@ -77,8 +76,10 @@ def init(arch: str = "cpu", cache_dir: Path | None = None, threads: int | None =
 
     ``arch`` is ``"cpu"`` (default) or ``"gpu"`` (CUDA/Vulkan/Metal, whichever Taichi finds;
     the CPU, with a warning, where there is none; a warning too where the only Vulkan device
-    runs on the CPU). Returns the arch actually in use. The offline cache makes the first call
-    in a fresh process skip LLVM compilation of kernels compiled before.
+    runs on the CPU). Returns the arch actually in use. The offline cache in ``cache_dir``
+    (default :func:`default_cache_dir`; one that another user may write is ignored with a
+    warning: :func:`grassd.sim.kernel_cache.trusted_kernel_dir`) makes the first call in a
+    fresh process skip LLVM compilation of kernels compiled before.
     """
     if arch not in ("cpu", "gpu"):
         raise SimError(f"arch must be 'cpu' or 'gpu', got {arch!r}")
@@ -86,12 +87,8 @@ def init(arch: str = "cpu", cache_dir: Path | None = None, threads: int | None =
         if _state["arch"] != arch:
             raise SimError(f"Taichi already initialised for {_state['arch']}; one arch per process")
         return _state["actual"]
-    cache = Path(cache_dir) if cache_dir else default_cache_dir()
-    try:
-        cache.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise SimError(f"cannot create the kernel cache directory {cache}: {exc.strerror}; set "
-                       f"GRASSD_CACHE_DIR to a writable directory") from exc
+    cache = kernel_cache.trusted_kernel_dir(Path(cache_dir) if cache_dir else default_cache_dir(),
+                                            _CACHE_SUBDIR)
     _remove_unkeyed_cache(cache)
     kwargs = dict(offline_cache=True, offline_cache_file_path=str(cache / _CACHE_SUBDIR),
                   log_level=ti.WARN, **COMPILE_OPTIONS)

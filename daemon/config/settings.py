@@ -4,8 +4,9 @@ The file (default ``/etc/grassd/grassd.toml``; the embedded default is
 ``grassd/daemon/config/default.toml``) has these tables::
 
     state_dir = "/var/lib/grassd"     # optional: $STATE_DIRECTORY, then /var/lib/grassd
-    cache_dir = "/var/cache/grassd"   # optional: $GRASSD_CACHE_DIR, $CACHE_DIRECTORY,
-                                      #           else state_dir/cache
+    cache_dir = "/var/cache/grassd"   # optional: grassd.sim.kernel_cache.default_cache_dir
+                                      # ($GRASSD_CACHE_DIR, $CACHE_DIRECTORY, else the
+                                      # user's own: $XDG_CACHE_HOME/grassd, ~/.cache/grassd)
     control_socket = "/run/grassd/control.sock"  # optional: $RUNTIME_DIRECTORY/control.sock,
                                       # else /run/grassd/control.sock if that directory exists
                                       # and state_dir is not set, else state_dir/control.sock
@@ -75,6 +76,7 @@ from grassd.daemon.config.schema import table as _table
 from grassd.daemon.errors import ConfigError
 from grassd.firmware_proto.framing import MAX_ADDRESS, MIN_ADDRESS
 from grassd.sim.errors import SimError
+from grassd.sim.kernel_cache import default_cache_dir
 from grassd.sim.scene import MAX_REPLICATES, PixelSpec
 
 if TYPE_CHECKING:
@@ -630,8 +632,9 @@ def _parse_viewpoints(ctx: _Ctx, raw: list[Any]) -> tuple[ViewpointConfig, ...]:
 
 def _parse_paths(ctx: _Ctx, top: dict[str, Any]) -> tuple[Path, Path, Path]:
     """(state directory, cache directory, control socket): the file's keys, else the service's
-    environment ($STATE_DIRECTORY, $GRASSD_CACHE_DIR, $CACHE_DIRECTORY, $RUNTIME_DIRECTORY),
-    else the defaults the module docstring lists."""
+    environment ($STATE_DIRECTORY, $RUNTIME_DIRECTORY; the cache's:
+    :func:`~grassd.sim.kernel_cache.default_cache_dir`), else the defaults the module
+    docstring lists."""
     env = os.environ
     if top["state_dir"] is not None:
         state_dir = _resolve(ctx, top["state_dir"])
@@ -639,12 +642,8 @@ def _parse_paths(ctx: _Ctx, top: dict[str, Any]) -> tuple[Path, Path, Path]:
         state_dir = Path(env.get("STATE_DIRECTORY", "/var/lib/grassd").split(":")[0])
     if top["cache_dir"] is not None:
         cache_dir = _resolve(ctx, top["cache_dir"])
-    elif env.get("GRASSD_CACHE_DIR"):
-        cache_dir = Path(env["GRASSD_CACHE_DIR"])
-    elif env.get("CACHE_DIRECTORY"):
-        cache_dir = Path(env["CACHE_DIRECTORY"].split(":")[0])
     else:
-        cache_dir = state_dir / "cache"
+        cache_dir = default_cache_dir()  # this user's: never the state directory's
     if top["control_socket"] is not None:
         sock = _resolve(ctx, top["control_socket"])
     elif env.get("RUNTIME_DIRECTORY"):
