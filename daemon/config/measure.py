@@ -20,6 +20,10 @@
     samples = 1024                  # render samples per length for the pixel models
     layouts = 4                     # tuft layouts the pixel model averages (their spread
                                     #   weighs the fit: a real pixel is one layout)
+    deadline_s = 3600.0             # the whole measurement, start to verdict (s, 10..86400):
+                                    #   past it the display shows content and the run ends
+    keep_photos = 4                 # the photos of the newest this many measurements are
+                                    #   kept (1..1000); older ones are pruned
 
 The colour checker, photographed once at set-up with this camera (``grassd measure setup``),
 gives the camera's white balance, colour correction and exposure scale
@@ -52,6 +56,8 @@ class MeasureConfig:
     iso: int = 100
     samples: int = 1024
     layouts: int = 4
+    deadline_s: float = 3600.0
+    keep_photos: int = 4
 
     def in_window(self, hour: int) -> bool:
         """Whether a scheduled measurement may start at local ``hour`` (0..23)."""
@@ -81,6 +87,8 @@ def parse_measure(ctx: schema.Context, raw: Any, has_capture: bool) -> MeasureCo
         iso=F(int, check=schema.between(50, 12800)),
         samples=F(int, check=schema.between(64, 65536)),
         layouts=F(int, check=schema.between(1, 16)),
+        deadline_s=F(float, check=schema.between(10.0, 86400.0, " s")),
+        keep_photos=F(int, check=schema.between(1, 1000)),
     ))
     if m["camera"] == "capture":
         if not has_capture:

@@ -38,6 +38,7 @@ Units: lengths mm, colours CIELAB (D50), differences CIEDE2000, lux, seconds.
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -50,6 +51,7 @@ from colour import delta_E
 from numpy.typing import NDArray
 
 from grassd.daemon.errors import DaemonError, RunInterrupted
+from grassd.daemon.measure.evidence import Finding, Refusal
 
 log = logging.getLogger(__name__)
 
@@ -126,19 +128,28 @@ def level_lengths_mm(cfg: Any, result: Any, n_pixels: int, level: int) -> NDArra
 
 def run_measurement(ctx: MeasureContext) -> dict[str, Any]:
     """One measurement (module docstring). Returns its report (JSON-ready) with, under the key
-    ``"_accepted"``, the correction and the corrected CalibrationResult to keep, or None."""
-    from grassd.daemon.measure.patterns import PatternSession
+    ``"_accepted"``, the correction and the corrected CalibrationResult to keep, or None (the
+    report's ``evidence`` and ``status`` "refused" say why). Raises :class:`MeasureDeadline`
+    once ``[measure] deadline_s`` has passed (the display shows content again)."""
+    from grassd.daemon.measure.evidence import shot_order
+    from grassd.daemon.measure.patterns import PatternError, PatternSession
 
     cfg = ctx.cfg
     mc = cfg.measure
     t0 = time.perf_counter()
+    deadline = _Deadline(mc.deadline_s)
     started = datetime.now(UTC)
     mid = measurement_id(started)
     d = cfg.display
     n = d.rows * d.cols
     green_max = float(d.green_max_mm)
-    ctx.progress("measure: tables without correction")
-    nominal = ctx.calibrator.run(ctx.light, correction=None, progress=ctx.progress)
+
+    def progress(text: str) -> None:
+        deadline.check(text)
+        ctx.progress(text)
+
+    progress("measure: tables without correction")
+    nominal = ctx.calibrator.run(ctx.light, correction=None, progress=progress)
     t_cal = time.perf_counter()
     photos = Photos()
     lengths = pattern_lengths(mc.patterns, green_max)
@@ -146,13 +157,27 @@ def run_measurement(ctx: MeasureContext) -> dict[str, Any]:
 
     cam = MeasuringCamera(ctx.camera, ctx.dest / mid, mc.iso)
     shots: dict[str, Any] = {}
+    # the states the display shows, by shot name; taken in an order drawn for this measurement
+    uniform: dict[str, NDArray | float] = {"short": 0.0, "long": green_max}
+    uniform.update({f"pattern-{k:02d}": float(x) for k, x in enumerate(lengths)})
+    states: dict[str, NDArray | float] = {
+        **uniform, **{f"before-{lv:03d}": level_lengths_mm(cfg, nominal, n, lv)
+                      for lv in CHECK_LEVELS}}
+    order, repeat = shot_order(list(states), repeat_of=list(uniform))
+    if repeat is not None:
+        states[repeat] = states[repeat.removeprefix("repeat-")]
 
-    def shoot(name: str, pattern: NDArray | float) -> None:
+    def shoot(name: str) -> None:
         if ctx.stop():
             raise RunInterrupted("measurement stopped (daemon shutting down)")
-        ctx.progress(f"measure: photographing {name}")
-        session.show(pattern)
-        shots[name] = cam.shoot(name)
+        progress(f"measure: photographing {name}")
+        try:
+            session.show(states[name])
+        except PatternError:
+            deadline.check(f"showing {name}")
+            raise
+        shots[name] = _within(deadline, ctx.stop, f"photographing {name}",
+                              lambda: cam.shoot(name))
         session.wait_shown()  # pixels that moved during the shot are caught here
         photos.lux.append(float(ctx.lux()))
         lo, hi = min(photos.lux), max(photos.lux)
@@ -162,30 +187,95 @@ def run_measurement(ctx: MeasureContext) -> dict[str, Any]:
                                 "measure at a time of steady light")
 
     with PatternSession(ctx.fleet, cfg.controllers, n, timeout_s=mc.pattern_timeout_s,
-                        settle_s=mc.settle_s, stop=ctx.stop) as session:
-        shoot("short", 0.0)
-        shoot("long", green_max)
-        for k, x in enumerate(lengths):
-            shoot(f"pattern-{k:02d}", x)
-        for lv in CHECK_LEVELS:
-            shoot(f"before-{lv:03d}", level_lengths_mm(cfg, nominal, n, lv))
+                        settle_s=mc.settle_s,
+                        stop=lambda: ctx.stop() or deadline.over) as session:
+        for name in order:
+            shoot(name)
         t_shoot = time.perf_counter()
         session.end()  # content while the photos are analysed (a minute or two)
-        found = _analyse(ctx, mid, shots, photos, lengths, nominal, n)
+        found = _analyse(ctx, mid, shots, photos, lengths, nominal, n, states, order, repeat,
+                         progress)
         corrected = found["correction"].apply(cfg, nominal)
+        after_names, _ = shot_order([f"after-{lv:03d}" for lv in CHECK_LEVELS])
         for lv in CHECK_LEVELS:
-            shoot(f"after-{lv:03d}", level_lengths_mm(cfg, corrected, n, lv))
+            states[f"after-{lv:03d}"] = level_lengths_mm(cfg, corrected, n, lv)
+        for name in after_names:
+            shoot(name)
     t_end = time.perf_counter()
     ctx.progress("measure: patterns ended, display shows content")
-    after = _pixel_colours(ctx, shots, photos, [f"after-{lv:03d}" for lv in CHECK_LEVELS],
-                           found["locate"])
+    names = [f"after-{lv:03d}" for lv in CHECK_LEVELS]
+    after = _pixel_colours(ctx, shots, photos, names, found["locate"])
+    evidence = _verify(found, names, after, np.stack([states[x] for x in names], axis=1),
+                       (*order, *after_names))
     report = _report(ctx, mid, started, found, nominal, photos, after, lengths, n)
     report["seconds"] = {"calibrate": t_cal - t0, "photos_before": t_shoot - t_cal,
                          "analyse_and_after": t_end - t_shoot,
                          "total": time.perf_counter() - t0}
-    better = report["uniformity"]["after"] < report["uniformity"]["before"]
-    report["_accepted"] = (found["correction"], corrected) if better else None
+    if not report["uniformity"]["after"] < report["uniformity"]["before"]:
+        evidence = evidence.with_finding(Finding(
+            Refusal.NOT_MORE_UNIFORM, "the correction did not make the display more uniform"))
+    report["evidence"] = evidence.to_json()
+    if not evidence.accepted:
+        report.update(status="refused", error=f"correction refused: {evidence.reason()}")
+    report["_accepted"] = (found["correction"], corrected) if evidence.accepted else None
     return report
+
+
+class MeasureDeadline(MeasureError):
+    """The whole measurement took longer than ``[measure] deadline_s``."""
+
+
+class _Deadline:
+    """The whole measurement's wall-clock limit (``seconds`` from now)."""
+
+    def __init__(self, seconds: float) -> None:
+        self.seconds = float(seconds)
+        self.end = time.monotonic() + self.seconds
+
+    @property
+    def over(self) -> bool:
+        """The deadline has passed."""
+        return time.monotonic() >= self.end
+
+    def left(self) -> float:
+        """Seconds left (0 when passed)."""
+        return max(self.end - time.monotonic(), 0.0)
+
+    def check(self, doing: str) -> None:
+        """Raise :class:`MeasureDeadline` (naming what was being done) once passed."""
+        if self.over:
+            raise MeasureDeadline(
+                f"the measurement ran past [measure] deadline_s = {self.seconds:g} s (while "
+                f"{doing.removeprefix('measure: ')}); the display shows content again and the "
+                "last good tables stay: check that the measuring camera answers promptly, or "
+                "raise deadline_s")
+
+
+def _within(deadline: _Deadline, stop: Callable[[], bool], doing: str,
+            work: Callable[[], Any]) -> Any:
+    """``work()`` in a thread of its own, waited for until ``deadline`` (then
+    :class:`MeasureDeadline`) or ``stop()`` (then RunInterrupted); a camera exchange left
+    behind ends at its own timeouts."""
+    out: list[Any] = []
+    err: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            out.append(work())
+        except BaseException as exc:  # handed to the measurement's thread
+            err.append(exc)
+
+    worker = threading.Thread(target=run, name="grassd-measure-shot", daemon=True)
+    worker.start()
+    while worker.is_alive():
+        worker.join(min(0.1, max(deadline.left(), 0.001)))
+        if worker.is_alive():
+            if stop():
+                raise RunInterrupted("measurement stopped (daemon shutting down)")
+            deadline.check(doing)
+    if err:
+        raise err[0]
+    return out[0]
 
 
 def _pixel_colours(ctx: MeasureContext, shots: dict[str, Any], photos: Photos,
@@ -202,9 +292,12 @@ def _pixel_colours(ctx: MeasureContext, shots: dict[str, Any], photos: Photos,
     return np.stack(out, axis=1)
 
 
-def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Any], photos: Photos,
-             lengths: NDArray, nominal: Any, n: int) -> dict[str, Any]:
-    """Locate, pose, colours, fit, correction (steps 3 to 5 of the module docstring)."""
+def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Any], photos: Photos, lengths: NDArray,
+             nominal: Any, n: int, states: dict[str, Any], order: list[str],
+             repeat: str | None, progress: Callable[[str], None]) -> dict[str, Any]:
+    """Locate, pose, colours, fit, the photos judged, correction (steps 3 to 5 of the module
+    docstring); ``states``: every shot's commanded lengths (mm), ``order`` the shots as
+    taken, ``repeat`` the repeated shot's name."""
     from grassd.calib.colour_spaces import prophoto_to_lab
     from grassd.calib.display_in_photo import locate_display, pixel_means
     from grassd.daemon.calibration.correction import DisplayCorrection
@@ -216,16 +309,19 @@ def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Any], photos: Photo
     from grassd.daemon.calibration.pixel_model import (
         corrected_commands,
         fit_variation,
+        lab_of,
         record_pixel_model,
     )
     from grassd.daemon.measure.camera_chain import develop_shot
+    from grassd.daemon.measure.evidence import judge, model_noise
     from grassd.sim.renderer import Renderer
     from grassd.sim.scene import RenderSettings
 
     cfg, mc = ctx.cfg, ctx.cfg.measure
-    ctx.progress("measure: finding the display in the photos")
-    short = develop_shot(shots["short"], ctx.setup, photos.lux[0])
-    long_ = develop_shot(shots["long"], ctx.setup, photos.lux[1])
+    progress("measure: finding the display in the photos")
+    taken = list(shots)
+    short = develop_shot(shots["short"], ctx.setup, photos.lux[taken.index("short")])
+    long_ = develop_shot(shots["long"], ctx.setup, photos.lux[taken.index("long")])
     display = replace(display_spec_for_config(cfg), same_layout=True)  # the model pixel
     located = locate_display(short, long_, display.rows, display.cols, display.pitch_mm,
                              display.pixel.top_mm)
@@ -255,12 +351,28 @@ def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Any], photos: Photo
         return record_pixel_model(
             renderer, display, lighting, [geo.viewpoint(i) for i in range(n)], grid, settings,
             layouts=layouts,
-            progress=lambda done, total: ctx.progress(f"measure: {what} {done}/{total}"))
+            progress=lambda done, total: progress(f"measure: {what} {done}/{total}"))
 
     camera_model = model_from(eye, "pixel models from the camera", mc.layouts)
     ccm = np.asarray(ctx.setup.ccm)
-    ctx.progress("measure: fitting every pixel")
+    progress("measure: fitting every pixel")
     fit = fit_variation(camera_model, fit_cmd, fit_lab, ccm)
+    progress("measure: judging the photos")
+    fit_names = ["short", "long", *(f"pattern-{k:02d}" for k in range(len(lengths))),
+                 *(f"before-{lv:03d}" for lv in CHECK_LEVELS)]
+    check_names, check_lab, check_cmd = fit_names, fit_lab, fit_cmd
+    if repeat is not None:
+        again = prophoto_to_lab(_pixel_colours(ctx, shots, photos, [repeat], located))
+        check_names = [*fit_names, repeat]
+        check_lab = np.concatenate([fit_lab, again], axis=1)
+        check_cmd = np.concatenate([fit_cmd, np.broadcast_to(
+            np.asarray(states[repeat], dtype=np.float64), (n,))[:, None]], axis=1)
+    pairs = (check_lab[:, fit_names.index(repeat.removeprefix("repeat-"))], check_lab[:, -1]
+             ) if repeat is not None else (check_lab[:, 0], check_lab[:, 0])
+    evidence = judge(check_names, check_lab,
+                     lab_of(camera_model.rgb(check_cmd, fit.variation), fit.colour @ ccm),
+                     fit.rms_lab, fit.variation, pairs, model_noise(camera_model, fit_cmd),
+                     order)
     # the viewers' models only carry the fitted variation to them: the tuft layout's accident
     # is the same with and without it, so one layout does
     viewers = [model_from(_eye_of(vp), f"viewer {i + 1}", 1)
@@ -271,7 +383,24 @@ def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Any], photos: Photo
                                    mid)
     return {"locate": located, "pose": pose, "measured_lab": measured, "before": before,
             "camera_model": camera_model, "fit": fit, "correction": correction, "ccm": ccm,
-            "nominal_lengths": nominal_lengths}
+            "nominal_lengths": nominal_lengths, "evidence": evidence}
+
+
+def _verify(found: dict[str, Any], names: list[str], after: NDArray, commanded_mm: NDArray,
+            order: tuple[str, ...]) -> Any:
+    """The evidence of ``found`` with the verification photos judged: ``after`` (N, L, 3)
+    their normalised ProPhoto, ``commanded_mm`` (N, L) the corrected lengths they showed,
+    ``order`` every shot as taken."""
+    from dataclasses import replace as dc_replace
+
+    from grassd.calib.colour_spaces import prophoto_to_lab
+    from grassd.daemon.calibration.pixel_model import lab_of
+    from grassd.daemon.measure.evidence import verify
+
+    fit, model, ccm = found["fit"], found["camera_model"], found["ccm"]
+    predicted = lab_of(model.rgb(commanded_mm, fit.variation), fit.colour @ ccm)
+    ev = dc_replace(found["evidence"], order=order)
+    return verify(ev, names, prophoto_to_lab(after), predicted)
 
 
 def _eye_of(vp: Any) -> NDArray[np.float64]:

@@ -95,8 +95,8 @@ def measure_with(svc: Any, trigger: str = "request") -> dict[str, Any]:
             report["tables"].update({"run_id": run_id, "status": out["status"],
                                      "pushed": [c.get("ok") for c in out.get("controllers", [])]})
         else:
-            report["tables"].update({"run_id": None, "status": "kept the last tables: the "
-                                     "correction did not make the display more uniform"})
+            report["tables"].update({"run_id": None, "status": "kept the last tables: "
+                                     + report.get("error", "the correction was refused")})
     except RunInterrupted as exc:
         report.update(status="interrupted", error=str(exc))
     except (*USER_ERRORS, OSError) as exc:  # the display, camera, light or controllers
