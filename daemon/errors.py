@@ -133,6 +133,23 @@ class CameraProtocolError(CameraError):
     missing fields, a command in state ``error``)."""
 
 
+class CameraCommandRefused(CameraHttpError, CameraProtocolError):
+    """The camera answered a command with an OSC error object (``state`` "error"): the
+    ``command``, the camera's error ``code`` (``invalidParameterValue``, ``disabledCommand``
+    ...) and its ``detail`` message as it sent them; ``status`` is the HTTP status they came
+    with (200 when the error object came with a success status)."""
+
+    def __init__(self, message: str, status: int, *, command: str, code: str,
+                 detail: str) -> None:
+        super().__init__(message, status)
+        self.command, self.code, self.detail = command, code, detail
+
+
+class CaptureModeRefused(CameraCommandRefused):
+    """The camera would not go into still-image capture (OSC option ``captureMode`` "image")
+    before a bracket, or did not report that mode once asked."""
+
+
 class CameraCommandTimeout(CameraError):
     """A camera command stayed ``inProgress`` longer than the command timeout."""
 

@@ -14,6 +14,7 @@ from grassd.daemon.hardware.simulated_camera import (
     SIM_CURVE,
     SIM_SCENE_SCALE,
     SIM_WIDTH,
+    CaptureMode,
 )
 
 
@@ -82,15 +83,20 @@ def camera_group() -> None:
 @click.option("--username", help="require digest auth with this user (as a THETA in client "
                                  "mode)")
 @click.option("--password", default="", help="digest-auth password")
+@click.option("--capture-mode", type=click.Choice([m.value for m in CaptureMode]),
+              default=CaptureMode.IMAGE.value, show_default=True,
+              help="the captureMode it starts in (video: it refuses takePicture until a client "
+                   "sets image, as a THETA left in video mode)")
 def camera_sim_cmd(hdri: str, port: int, curve: str, width: int, scene_scale: float,
-                   username: str | None, password: str) -> None:
+                   username: str | None, password: str, capture_mode: str) -> None:
     """Run a simulated OSC camera on 127.0.0.1 that photographs HDRI; prints its URL."""
     import threading
 
     from grassd.daemon.hardware.simulated_camera import sim_camera_from_file
 
     cam = sim_camera_from_file(hdri, width=width, curve=curve, scene_scale=scene_scale,
-                               port=port, username=username, password=password).start()
+                               port=port, username=username, password=password,
+                               capture_mode=capture_mode).start()
     click.echo(cam.url, nl=True)
     try:
         threading.Event().wait()

@@ -1,6 +1,8 @@
 """An exposure bracket from an OSC camera, with each shot's real exposure.
 
-The plan (:class:`BracketPlan`): ``shots`` exposures ``ev_step`` EV apart around a centre
+The camera is first put in still-image capture (``captureMode`` "image",
+:meth:`~grassd.daemon.hardware.camera.OscClient.ensure_image_mode`). The plan
+(:class:`BracketPlan`): ``shots`` exposures ``ev_step`` EV apart around a centre
 shutter, at a fixed ISO and white balance (manual program, ``exposureProgram = 1``), so that
 only the shutter changes. The centre is either given or metered: one shot in ISO-priority
 program (9) at the same ISO, whose real shutter (EXIF) becomes the centre. Shutter values are
@@ -222,6 +224,7 @@ def real_exposure(client: OscClient, result: dict[str, Any], path: Path,
 def capture_bracket(client: OscClient, plan: BracketPlan, dest: Path) -> list[Shot]:
     """Shoot ``plan`` with ``client`` into directory ``dest``; shots sorted by exposure."""
     dest.mkdir(parents=True, exist_ok=True)
+    client.ensure_image_mode()  # a camera left in video or interval mode takes no picture
     if plan.aperture:
         client.set_options(aperture=plan.aperture)
     centre = plan.centre_shutter_s

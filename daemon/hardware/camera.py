@@ -11,9 +11,17 @@ Endpoints used (https://developers.google.com/streetview/open-spherical-camera/g
 * the shot itself by the absolute ``fileUrl`` of ``camera.takePicture``'s results (and
   ``_dngFileUrl`` for RAW+ on a THETA Z1).
 
-Commands: ``camera.setOptions`` / ``camera.getOptions`` (``exposureProgram``, ``iso``,
-``shutterSpeed``, ``whiteBalance``, ``fileFormat``), ``camera.takePicture`` and THETA's
-``camera._getMetadata`` (the shot's EXIF as JSON; optional, other cameras lack it).
+Commands: ``camera.setOptions`` / ``camera.getOptions`` (``captureMode``, ``exposureProgram``,
+``iso``, ``shutterSpeed``, ``whiteBalance``, ``fileFormat``), ``camera.takePicture`` and THETA's
+``camera._getMetadata`` (the shot's EXIF as JSON; optional, other cameras lack it). Before a
+bracket the camera is put in still-image capture (``captureMode`` "image",
+:meth:`OscClient.ensure_image_mode`): a THETA left in video or interval mode refuses
+``camera.takePicture``.
+
+A command the camera refuses (an OSC error object, whatever HTTP status it came with: 400 or
+403 on a THETA, 200 on some cameras) is a
+:class:`~grassd.daemon.errors.CameraCommandRefused` that quotes the camera's error code and
+message.
 
 A THETA in Wi-Fi client mode (on the site's network) requires HTTP digest authentication:
 user name = the camera's ID printed on it (``THETAYN`` + the serial digits on a Z1,
@@ -60,12 +68,14 @@ from typing import Any, NoReturn
 
 from grassd.daemon.config.capture import CaptureConfig
 from grassd.daemon.errors import (
+    CameraCommandRefused,
     CameraCommandTimeout,
     CameraDownloadError,
     CameraError,
     CameraHttpError,
     CameraProtocolError,
     CameraUnreachable,
+    CaptureModeRefused,
 )
 
 log = logging.getLogger(__name__)
@@ -89,6 +99,10 @@ DEFAULT_MAX_DOWNLOAD_BYTES = CaptureConfig.max_download_bytes
 CHUNK_BYTES = 64 * 1024
 #: Bytes of an HTTP error's body quoted in the error message.
 _ERROR_BODY_BYTES = 300
+#: Bytes of an HTTP error's body read to find an OSC error object in it (one is under 1 kB).
+_OSC_ERROR_BYTES = 8192
+#: The ``captureMode`` of still-image capture (OSC level 2; THETA Web API v2.1).
+IMAGE_MODE = "image"
 
 
 @dataclass(frozen=True)
@@ -321,13 +335,16 @@ class OscClient:
         except urllib.error.HTTPError as exc:
             body = b""
             try:
-                body = exc.read(_ERROR_BODY_BYTES)
+                body = exc.read(_OSC_ERROR_BYTES)
             except (OSError, http.client.HTTPException, ValueError):
                 pass
             finally:
                 with contextlib.suppress(OSError, http.client.HTTPException):
                     exc.close()
-            detail = body.decode("utf-8", "replace").strip()
+            refused = _osc_error(body)
+            if refused is not None:
+                raise _refusal(f"camera {where}", exc.code, refused) from None
+            detail = body[:_ERROR_BODY_BYTES].decode("utf-8", "replace").strip()
             hint = ("check the user name and password (digest auth: THETA in client mode)"
                     if exc.code == 401 else
                     "grassd follows no redirects: check [capture] camera"
@@ -446,9 +463,7 @@ class OscClient:
                     raise CameraProtocolError(f"{name}: results is not a JSON object")
                 return results
             if state == "error":
-                err = cmd.get("error") if isinstance(cmd.get("error"), dict) else {}
-                raise CameraProtocolError(f"camera refused {name}: {err.get('code', '?')} "
-                                          f"{err.get('message', '')}".rstrip())
+                raise _refusal(f"camera {self.url}", 200, {"name": name, **cmd})
             if state != "inProgress" or not isinstance(cmd.get("id"), str | int):
                 raise CameraProtocolError(f"{name}: command state {state!r} without an id "
                                           "(expected done, inProgress with id, or error)")
@@ -470,6 +485,37 @@ class OscClient:
         if not isinstance(opts, dict):
             raise CameraProtocolError("camera.getOptions results lack an options object")
         return opts
+
+    def ensure_image_mode(self) -> None:
+        """Put the camera in still-image capture (``captureMode`` "image") unless it reports it
+        already, then wait until it reports it: a THETA switches modes in its own time (at
+        most ``command_timeout_s`` s, polled every ``poll_s`` s). A camera that refuses, or
+        never reports the mode, raises :class:`~grassd.daemon.errors.CaptureModeRefused`
+        quoting what it answered."""
+        fix = ("a bracket needs still-image mode: stop any video or interval recording on the "
+               "camera (its mode button or its app), check that no plug-in is running, then "
+               "capture again; restart the camera if it persists")
+        try:
+            mode = self.get_options("captureMode").get("captureMode")
+            if mode == IMAGE_MODE:
+                return
+            self.set_options(captureMode=IMAGE_MODE)
+            deadline = time.monotonic() + self.command_timeout_s
+            while (now := self.get_options("captureMode").get("captureMode")) != IMAGE_MODE:
+                if time.monotonic() > deadline:
+                    raise CaptureModeRefused(
+                        f"camera {self.url} accepted captureMode {IMAGE_MODE!r} (it was "
+                        f"{mode!r}) but still reports {now!r} after {self.command_timeout_s:g}"
+                        f" s: {fix}", 200, command="camera.getOptions", code="", detail="")
+                time.sleep(self.poll_s)
+        except CaptureModeRefused:
+            raise
+        except CameraCommandRefused as exc:
+            raise CaptureModeRefused(
+                f"camera {self.url} refused still-image mode (captureMode {IMAGE_MODE!r}): "
+                f"{exc.command} answered {exc.code} {exc.detail!r} (HTTP {exc.status}); {fix}",
+                exc.status, command=exc.command, code=exc.code, detail=exc.detail) from None
+        log.info("camera %s switched from captureMode %r to %r", self.url, mode, IMAGE_MODE)
 
     def take_picture(self) -> dict[str, Any]:
         """``camera.takePicture``: its results, with an absolute ``fileUrl``."""
@@ -522,6 +568,33 @@ class OscClient:
             part.unlink(missing_ok=True)
             raise
         return dest
+
+
+def _osc_error(body: bytes) -> dict[str, Any] | None:
+    """The OSC command object in an HTTP error's ``body`` when it is one in state "error"
+    (``{"name": ..., "state": "error", "error": {"code": ..., "message": ...}}``), else None."""
+    try:
+        out = json.loads(body.decode("utf-8"))
+    except (ValueError, RecursionError):
+        return None
+    if isinstance(out, dict) and out.get("state") == "error" and isinstance(out.get("error"),
+                                                                          dict):
+        return out
+    return None
+
+
+def _refusal(where: str, status: int, cmd: dict[str, Any]) -> CameraCommandRefused:
+    """The typed error of OSC command object ``cmd`` in state "error", answered by the camera
+    at ``where`` with HTTP ``status``: its command, error code and message quoted."""
+    err = cmd.get("error") if isinstance(cmd.get("error"), dict) else {}
+    name = str(cmd.get("name") or "a command")[:80]
+    code = str(err.get("code") or "?")[:80]
+    detail = str(err.get("message") or "")[:300]
+    return CameraCommandRefused(
+        f"{where} refused {name}: {code} {detail!r} (HTTP {status}): the camera does not take "
+        "this command or value in its present state; check the options for this model "
+        "(camera.getOptions of the option's name + 'Support' lists what it takes) and the "
+        "camera's mode", status, command=name, code=code, detail=detail)
 
 
 def _content_length(resp: Any) -> int | None:

@@ -1,9 +1,25 @@
 """A simulated Open Spherical Camera: a real HTTP server on 127.0.0.1 that photographs an HDRI.
 
 ``grassd camera sim --hdri FILE`` runs one; tests and ``--simulate-hardware`` start one in a
-thread. It speaks the subset of the OSC API (level 2, RICOH THETA Web API v2.1 options) that
-:mod:`grassd.daemon.hardware.camera` uses, with the same JSON shapes, so the capture
-station drives it exactly as it drives a THETA; only the URL differs.
+thread. It answers as an OSC API level 2 camera (a RICOH THETA Z1, Web API v2.1) does, with
+the same JSON shapes, so the capture station (:mod:`grassd.daemon.hardware.camera`) and other
+OSC clients drive it as they drive a THETA; only the URL differs:
+
+* ``/osc/info``, ``/osc/state``, ``/osc/commands/execute``, ``/osc/commands/status`` and the
+  shots under ``/files/``;
+* commands ``camera.takePicture`` (inProgress, then done with ``fileUrl``),
+  ``camera.setOptions`` / ``camera.getOptions``, ``camera.listFiles`` (``entries``,
+  ``totalEntries``), ``camera.delete`` (``fileUrls``, or "all" / "image" / "video"),
+  ``camera.reset`` (the options back to their defaults) and THETA's ``camera._getMetadata``;
+* options ``captureMode``, ``exposureProgram``, ``exposureCompensation``, ``iso``,
+  ``shutterSpeed``, ``whiteBalance``, ``_colorTemperature``, ``fileFormat`` and ``aperture``,
+  each with its ``...Support`` value (:data:`OPTIONS`);
+* the spec's error objects, with the HTTP status of the spec's table (:class:`ErrorCode`):
+  ``unknownCommand`` for any other command, ``invalidParameterName`` for an option it does
+  not have (getOptions never leaves out a name it was asked for), ``invalidParameterValue``,
+  ``missingParameter``, ``tooManyParameters``, and ``disabledCommand`` for
+  ``camera.takePicture`` in ``captureMode`` "video" (``capture_mode``, ``--capture-mode``),
+  as a THETA left in video mode answers. The messages are the simulator's own.
 
 Photographing (one shot at shutter ``t`` s, ``iso``, f-number ``N``): the scene radiance ``L``
 (HDRI value x ``scene_scale``, cd/m^2-like units) gives the linear sensor signal
@@ -26,6 +42,7 @@ finishes, truncated downloads, shots without a recorded exposure. Each fault aff
 
 from __future__ import annotations
 
+import base64
 import hashlib
 import hmac
 import io
@@ -35,9 +52,12 @@ import logging
 import os
 import threading
 import time
+import urllib.parse
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import datetime
+from enum import StrEnum
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
@@ -62,6 +82,69 @@ WHITE_BALANCES: tuple[str, ...] = ("auto", "daylight", "shade", "cloudy-daylight
 #: daemon restores it).
 APERTURES: tuple[float, ...] = (2.1, 3.5, 5.6)
 F_NUMBER: float = APERTURES[-1]
+#: Exposure programs (OSC exposureProgram): 1 manual, 2 normal, 4 shutter priority, 9 ISO
+#: priority.
+EXPOSURE_PROGRAMS: tuple[int, ...] = (1, 2, 4, 9)
+#: Exposure compensations (EV; THETA Z1 list), applied by the meter in programs 2 and 9.
+EV_COMPENSATIONS: tuple[float, ...] = (-2.0, -1.7, -1.3, -1.0, -0.7, -0.3, 0.0, 0.3, 0.7, 1.0,
+                                       1.3, 1.7, 2.0)
+#: THETA's ``_colorTemperature`` range (K) and step, its ``_colorTemperatureSupport``.
+COLOR_TEMPERATURE_K: dict[str, int] = {"maxTemperature": 10000, "minTemperature": 2500,
+                                       "stepSize": 100}
+#: The video formats of ``captureMode`` "video" (THETA Z1's two equirectangular ones).
+VIDEO_FORMATS: tuple[dict[str, Any], ...] = (
+    {"type": "mp4", "width": 3840, "height": 1920, "_codec": "H.264/MPEG-4 AVC"},
+    {"type": "mp4", "width": 1920, "height": 960, "_codec": "H.264/MPEG-4 AVC"})
+#: Most file URLs one ``camera.delete`` takes (THETA Web API v2.1).
+MAX_DELETE_URLS: int = 128
+#: The options the camera has; each also has ``NAME + "Support"`` (what it takes).
+OPTIONS: tuple[str, ...] = ("captureMode", "exposureProgram", "exposureCompensation", "iso",
+                            "shutterSpeed", "whiteBalance", "_colorTemperature", "fileFormat",
+                            "aperture")
+
+
+class CaptureMode(StrEnum):
+    """OSC ``captureMode``: still images, or video (a THETA refuses takePicture in it)."""
+
+    IMAGE = "image"
+    VIDEO = "video"
+
+
+class ErrorCode(StrEnum):
+    """The OSC error codes the simulated camera answers (THETA Web API v2.1 errors table)."""
+
+    UNKNOWN_COMMAND = "unknownCommand"
+    DISABLED_COMMAND = "disabledCommand"
+    MISSING_PARAMETER = "missingParameter"
+    INVALID_PARAMETER_NAME = "invalidParameterName"
+    INVALID_PARAMETER_VALUE = "invalidParameterValue"
+    TOO_MANY_PARAMETERS = "tooManyParameters"
+
+    @property
+    def http_status(self) -> int:
+        """The HTTP status the error comes with (the spec's table)."""
+        forbidden = (ErrorCode.DISABLED_COMMAND, ErrorCode.TOO_MANY_PARAMETERS)
+        return 403 if self in forbidden else 400
+
+
+class OscRefusal(Exception):
+    """A command the simulated camera refuses: its ``code`` and ``message``."""
+
+    def __init__(self, code: ErrorCode, message: str) -> None:
+        super().__init__(message)
+        self.code, self.message = code, message
+
+
+@dataclass(frozen=True)
+class ShotFile:
+    """One stored shot: its JPEG's ``name``, when it was ``taken``, its size (texels), its
+    DNG's name (RAW+; None otherwise)."""
+
+    name: str
+    taken: datetime
+    width: int
+    height: int
+    dng: str | None = None
 
 
 @dataclass(frozen=True)
@@ -107,6 +190,7 @@ class Faults:
     truncated_download: bool = False    # send half of a file, with the full Content-Length
     missing_exposure: bool = False      # no ExposureTime in EXIF, options or metadata
     file_url_base: str | None = None    # fileUrl's scheme://host instead of the camera's own
+    mode_locked: bool = False           # captureMode cannot change (disabledCommand)
     times: int | None = None
 
     def spend(self) -> None:
@@ -120,7 +204,7 @@ class Faults:
         """Behave again."""
         self.http_status, self.malformed_json, self.never_finish = None, False, False
         self.truncated_download, self.missing_exposure, self.times = False, False, None
-        self.file_url_base = None
+        self.file_url_base, self.mode_locked = None, False
 
 
 def jpeg_bytes(codes: NDArray[np.uint8], exif: dict[str, Any] | None) -> bytes:
@@ -144,6 +228,17 @@ def jpeg_bytes(codes: NDArray[np.uint8], exif: dict[str, Any] | None) -> bytes:
         sub[ExifTags.Base.ISOSpeedRatings] = int(exif["ISO"])
     buf = io.BytesIO()
     img.save(buf, "JPEG", quality=95, subsampling=0, exif=ex)
+    return buf.getvalue()
+
+
+def _thumbnail(jpeg: bytes, size: int) -> bytes:
+    """A JPEG of ``jpeg`` at most ``size`` texels across (listFiles' thumbnail)."""
+    from PIL import Image
+
+    with Image.open(io.BytesIO(jpeg)) as img:
+        img.thumbnail((size, size))
+        buf = io.BytesIO()
+        img.save(buf, "JPEG", quality=80)
     return buf.getvalue()
 
 
@@ -174,6 +269,8 @@ class SimCamera:
     ``username``/``password``: require HTTP digest auth as a THETA in client mode does.
     ``scene_source``: called at every shot for the map to photograph (a scene that changes,
     e.g. the simulated display of :mod:`grassd.daemon.hardware.simulated_display`).
+    ``capture_mode``: the ``captureMode`` it starts (and resets) in, "image" or "video" (as a
+    THETA someone filmed with; it then refuses takePicture until a client sets "image").
     """
 
     def __init__(self, env: NDArray, *, scene_scale: float = SIM_SCENE_SCALE,
@@ -182,7 +279,8 @@ class SimCamera:
                  port: int = 0, username: str | None = None, password: str | None = None,
                  model: str = "grassd SimCam Z1", serial: str | None = None,
                  latency_s: float = 0.05,
-                 scene_source: Callable[[], NDArray] | None = None) -> None:
+                 scene_source: Callable[[], NDArray] | None = None,
+                 capture_mode: str | CaptureMode = CaptureMode.IMAGE) -> None:
         self.curve = CURVES[curve] if isinstance(curve, str) else curve
         self.curve_name = curve if isinstance(curve, str) else "custom"
         self.env = np.ascontiguousarray(env, dtype=np.float32)
@@ -198,17 +296,18 @@ class SimCamera:
         self.latency_s = latency_s
         self.scene_source = scene_source
         self.faults = Faults()
-        self.options: dict[str, Any] = {
-            "exposureProgram": 2, "iso": 0, "shutterSpeed": 0, "whiteBalance": "auto",
-            "fileFormat": {"type": "jpeg", "width": self.env.shape[1],
-                           "height": self.env.shape[0]},
-            "aperture": F_NUMBER}
+        self.start_mode = CaptureMode(capture_mode)
+        self.options: dict[str, Any] = {}
+        self._other_format: dict[str, Any] = {}
+        self.reset_options()
         self.shots_taken = 0
         self.files: dict[str, bytes] = {}
+        self.shots: list[ShotFile] = []
         self.metadata: dict[str, dict[str, Any]] = {}
         self._commands: dict[str, dict[str, Any]] = {}
         self._ids = itertools.count(1)
         self._lock = threading.Lock()
+        self._command_lock = threading.Lock()
         self._server: ThreadingHTTPServer | None = None
         self._thread: threading.Thread | None = None
         self._nonces: set[str] = set()
@@ -270,11 +369,12 @@ class SimCamera:
         k = 0.18 * shutter_s * iso / (METER_K * self.f_number ** 2)
         return self.env.astype(np.float64) * (self.scene_scale * k)
 
-    def metered_shutter(self, iso: float) -> float:
-        """The shutter (s, from the list) a meter chooses: median luminance at 0.18."""
+    def metered_shutter(self, iso: float, ev: float = 0.0) -> float:
+        """The shutter (s, from the list) a meter chooses: median luminance at 0.18, times
+        2^``ev`` (exposure compensation, EV)."""
         lum = self.env.astype(np.float64) @ np.array([0.2126, 0.7152, 0.0722])
         median = max(float(np.median(lum)) * self.scene_scale, 1e-9)
-        t = METER_K * self.f_number ** 2 / (median * iso)
+        t = METER_K * self.f_number ** 2 / (median * iso) * 2.0 ** ev
         return min(SHUTTER_SPEEDS_S, key=lambda s: abs(np.log(s / t)))
 
     def exposed(self, shutter_s: float, iso: float) -> NDArray[np.float64]:
@@ -297,7 +397,8 @@ class SimCamera:
         o = self.options
         iso = o["iso"] if o["iso"] else 100
         if o["exposureProgram"] in (2, 9) or not o["shutterSpeed"]:
-            shutter = self.metered_shutter(iso)
+            ev = o["exposureCompensation"] if o["exposureProgram"] in (2, 9) else 0.0
+            shutter = self.metered_shutter(iso, ev)
         else:
             shutter = float(o["shutterSpeed"])
         with self._lock:
@@ -307,10 +408,13 @@ class SimCamera:
         name = f"R{self.shots_taken:07d}.JPG"
         base = self.faults.file_url_base or self.url
         out = {"fileUrl": f"{base}/files/{name}"}
+        raw_name = None
         if o["fileFormat"].get("type") == "raw+":  # RAW+: a DNG of the same exposure too
             raw_name = name[:-4] + ".DNG"
             self.files[raw_name] = dng_bytes(x)
             out["_dngFileUrl"] = f"{base}/files/{raw_name}"
+        self.shots.append(ShotFile(name, datetime.now().astimezone(), codes.shape[1],
+                                   codes.shape[0], raw_name))
         exif = {"Make": "grassd", "Model": self.model, "Software": "simcam 1.0",
                 "ExposureTime": shutter, "FNumber": self.f_number, "ISO": iso}
         if self.faults.missing_exposure:
@@ -322,6 +426,41 @@ class SimCamera:
         return out
 
     # ------------------------------------------------------------------ OSC
+    @property
+    def capture_mode(self) -> CaptureMode:
+        """The current ``captureMode``."""
+        return CaptureMode(self.options["captureMode"])
+
+    def image_formats(self) -> list[dict[str, Any]]:
+        """The still-image ``fileFormat`` values: JPEG and RAW+ at the map's size."""
+        h, w = self.env.shape[:2]
+        return [{"type": t, "width": w, "height": h} for t in ("jpeg", "raw+")]
+
+    def reset_options(self) -> None:
+        """Every option back to its default (``camera.reset``), in the starting capture mode."""
+        video = self.start_mode is CaptureMode.VIDEO
+        self.options = {
+            "captureMode": self.start_mode.value, "exposureProgram": 2,
+            "exposureCompensation": 0.0, "iso": 0, "shutterSpeed": 0, "whiteBalance": "auto",
+            "_colorTemperature": 5000, "aperture": F_NUMBER,
+            "fileFormat": dict(VIDEO_FORMATS[0] if video else self.image_formats()[0])}
+        # the format of the other mode, restored when the mode switches back (a THETA keeps one
+        # per mode)
+        self._other_format = dict(self.image_formats()[0] if video else VIDEO_FORMATS[0])
+
+    def support(self, name: str) -> Any:
+        """The ``NAME + "Support"`` value of option ``name`` (what it takes, in the current
+        capture mode)."""
+        formats = (list(VIDEO_FORMATS) if self.capture_mode is CaptureMode.VIDEO
+                   else self.image_formats())
+        return {"captureMode": [m.value for m in CaptureMode],
+                "exposureProgram": list(EXPOSURE_PROGRAMS),
+                "exposureCompensation": list(EV_COMPENSATIONS),
+                "iso": [0, *ISO_VALUES], "shutterSpeed": [0, *SHUTTER_SPEEDS_S],
+                "whiteBalance": [*WHITE_BALANCES, "_colorTemperature"],
+                "_colorTemperature": dict(COLOR_TEMPERATURE_K),
+                "fileFormat": formats, "aperture": list(APERTURES)}[name]
+
     def info(self) -> dict[str, Any]:
         """The ``/osc/info`` object."""
         return {"manufacturer": "grassd", "model": self.model, "serialNumber": self.serial,
@@ -332,81 +471,234 @@ class SimCamera:
                 "apiLevel": [2]}
 
     def execute(self, name: str, params: dict[str, Any]) -> dict[str, Any]:
-        """Run one command; returns the OSC command object."""
-        if name == "camera.setOptions":
-            opts = params.get("options")
-            if not isinstance(opts, dict):
-                return _error(name, "missingParameter", "options is required")
-            for key, value in opts.items():
-                problem = self._check_option(key, value)
-                if problem:
-                    return _error(name, "invalidParameterValue", problem)
-            self.options.update(opts)
-            return {"name": name, "state": "done"}
-        if name == "camera.getOptions":
-            names = params.get("optionNames")
-            if not isinstance(names, list):
-                return _error(name, "missingParameter", "optionNames is required")
-            out = {n: self.options[n] for n in names if n in self.options}
-            if self.faults.missing_exposure:
-                out.pop("shutterSpeed", None)
-            return {"name": name, "state": "done", "results": {"options": out}}
-        if name == "camera.takePicture":
-            cid = str(next(self._ids))
-            entry: dict[str, Any] = {"name": name, "state": "inProgress", "id": cid,
-                                     "progress": {"completion": 0.0},
-                                     "ready_at": time.monotonic() + self.latency_s,
-                                     "never": self.faults.never_finish}
-            if self.faults.never_finish:
-                self.faults.spend()
-            else:
-                entry["results"] = self._take()
-                if self.faults.missing_exposure:
-                    self.faults.spend()
-            self._commands[cid] = entry
-            return _public(entry)
-        if name == "camera._getMetadata":
-            url = params.get("fileUrl")
-            if url not in self.metadata:
-                return _error(name, "invalidParameterValue", f"no such file {url!r}")
-            return {"name": name, "state": "done", "results": {"exif": self.metadata[url],
-                                                                "xmp": {}}}
-        return _error(name, "unknownCommand", f"command {name} is not supported")
+        """Run one command; returns the OSC command object (state done, inProgress or
+        error)."""
+        commands: dict[str, Callable[[dict[str, Any]], dict[str, Any] | None]] = {
+            "camera.setOptions": self._set_options, "camera.getOptions": self._get_options,
+            "camera.listFiles": self._list_files, "camera.delete": self._delete,
+            "camera.reset": self._reset, "camera._getMetadata": self._get_metadata}
+        with self._command_lock:
+            try:
+                if name == "camera.takePicture":
+                    return self._take_picture()
+                run = commands.get(name)
+                if run is None:
+                    raise OscRefusal(ErrorCode.UNKNOWN_COMMAND,
+                                     f"command {name} is not supported")
+                results = run(params)
+            except OscRefusal as exc:
+                return _error(name, exc.code, exc.message)
+        out: dict[str, Any] = {"name": name, "state": "done"}
+        if results is not None:
+            out["results"] = results
+        return out
 
     def status(self, cid: Any) -> dict[str, Any]:
         """The ``/osc/commands/status`` object of command ``cid``."""
         entry = self._commands.get(str(cid))
         if entry is None:
-            return _error("camera.status", "invalidParameterValue", f"no command id {cid!r}")
+            return _error("camera.status", ErrorCode.INVALID_PARAMETER_VALUE,
+                          f"no command id {cid!r}")
         if not entry["never"] and time.monotonic() >= entry["ready_at"]:
             entry["state"] = "done"
             entry["progress"] = {"completion": 1.0}
         return _public(entry)
 
-    @staticmethod
-    def _check_option(key: str, value: Any) -> str | None:
+    def _take_picture(self) -> dict[str, Any]:
+        name = "camera.takePicture"
+        if self.capture_mode is not CaptureMode.IMAGE:
+            raise OscRefusal(ErrorCode.DISABLED_COMMAND,
+                             f"{name} is disabled in captureMode {self.capture_mode.value!r}: "
+                             "set captureMode to 'image' first")
+        cid = str(next(self._ids))
+        entry: dict[str, Any] = {"name": name, "state": "inProgress", "id": cid,
+                                 "progress": {"completion": 0.0},
+                                 "ready_at": time.monotonic() + self.latency_s,
+                                 "never": self.faults.never_finish}
+        if self.faults.never_finish:
+            self.faults.spend()
+        else:
+            entry["results"] = self._take()
+            if self.faults.missing_exposure:
+                self.faults.spend()
+        self._commands[cid] = entry
+        return _public(entry)
+
+    def _set_options(self, params: dict[str, Any]) -> None:
+        opts = params.get("options")
+        if not isinstance(opts, dict):
+            raise OscRefusal(ErrorCode.MISSING_PARAMETER, "options (an object) is required")
+        for key in opts:  # every name and value is checked before any is set
+            if key not in OPTIONS:
+                raise OscRefusal(ErrorCode.INVALID_PARAMETER_NAME,
+                                 f"{key} is not an option that can be set")
+        saved = dict(self.options), self._other_format
+        try:
+            if "captureMode" in opts:
+                self._switch_mode(opts["captureMode"])
+            for key, value in opts.items():
+                problem = self._check_option(key, value)
+                if problem:
+                    raise OscRefusal(ErrorCode.INVALID_PARAMETER_VALUE, problem)
+        except OscRefusal:
+            self.options, self._other_format = saved
+            raise
+        self.options.update(opts)
+        return None
+
+    def _switch_mode(self, value: Any) -> None:
+        """Go into captureMode ``value``: the file format becomes that mode's."""
+        modes = [m.value for m in CaptureMode]
+        if value not in modes:
+            raise OscRefusal(ErrorCode.INVALID_PARAMETER_VALUE,
+                             f"captureMode {value!r} is not supported (one of {modes})")
+        mode = CaptureMode(value)
+        if mode is self.capture_mode:
+            return
+        if self.faults.mode_locked:
+            self.faults.spend()
+            raise OscRefusal(ErrorCode.DISABLED_COMMAND,
+                             "captureMode cannot change while the camera records a video")
+        self.options["fileFormat"], self._other_format = (self._other_format,
+                                                          self.options["fileFormat"])
+        self.options["captureMode"] = mode.value
+
+    def _get_options(self, params: dict[str, Any]) -> dict[str, Any]:
+        names = params.get("optionNames")
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            raise OscRefusal(ErrorCode.MISSING_PARAMETER,
+                             "optionNames (an array of option names) is required")
+        out: dict[str, Any] = {}
+        for n in names:
+            if n in OPTIONS:
+                out[n] = self.options[n]
+            elif n.endswith("Support") and n[: -len("Support")] in OPTIONS:
+                out[n] = self.support(n[: -len("Support")])
+            else:
+                raise OscRefusal(ErrorCode.INVALID_PARAMETER_NAME, f"{n} is not an option")
+        if self.faults.missing_exposure:
+            out.pop("shutterSpeed", None)
+        return {"options": out}
+
+    def _list_files(self, params: dict[str, Any]) -> dict[str, Any]:
+        for key in ("fileType", "entryCount", "maxThumbSize"):
+            if key not in params:
+                raise OscRefusal(ErrorCode.MISSING_PARAMETER, f"{key} is required")
+        kind, count = params["fileType"], params["entryCount"]
+        thumb, start = params["maxThumbSize"], params.get("startPosition", 0)
+        detail = params.get("_detail", True)
+        if kind not in ("all", "image", "video"):
+            raise OscRefusal(ErrorCode.INVALID_PARAMETER_VALUE,
+                             f"fileType {kind!r} is not one of all, image, video")
+        for key, value in (("entryCount", count), ("startPosition", start),
+                           ("maxThumbSize", 0 if thumb is None else thumb)):
+            if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+                raise OscRefusal(ErrorCode.INVALID_PARAMETER_VALUE,
+                                 f"{key} {value!r} is not a whole number >= 0")
+        if not isinstance(detail, bool):
+            raise OscRefusal(ErrorCode.INVALID_PARAMETER_VALUE, "_detail is not a boolean")
+        shots = [] if kind == "video" else self.shots[::-1]  # newest first; no videos here
+        return {"entries": [self._entry(f, detail, thumb or 0)
+                            for f in shots[start:start + count]],
+                "totalEntries": len(shots)}
+
+    def _entry(self, shot: ShotFile, detail: bool, thumb: int) -> dict[str, Any]:
+        """The listFiles entry of ``shot`` (the THETA's fields)."""
+        data = self.files[shot.name]
+        out: dict[str, Any] = {"name": shot.name, "fileUrl": f"{self.url}/files/{shot.name}",
+                               "size": len(data), "isProcessed": True, "previewUrl": ""}
+        if not detail:
+            out["dateTime"] = shot.taken.strftime("%Y:%m:%d %H:%M:%S")
+            return out
+        zone = shot.taken.strftime("%z")
+        out.update({"dateTimeZone": shot.taken.strftime("%Y:%m:%d %H:%M:%S")
+                    + f"{zone[:3]}:{zone[3:]}", "width": shot.width, "height": shot.height,
+                    "_projectionType": "Equirectangular"})
+        if thumb:
+            small = _thumbnail(data, thumb)
+            out.update({"thumbnail": base64.b64encode(small).decode("ascii"),
+                        "_thumbSize": len(small)})
+        return out
+
+    def _delete(self, params: dict[str, Any]) -> None:
+        urls = params.get("fileUrls")
+        if not isinstance(urls, list) or not urls or not all(isinstance(u, str) for u in urls):
+            raise OscRefusal(ErrorCode.MISSING_PARAMETER,
+                             "fileUrls (an array of file URLs) is required")
+        if len(urls) > MAX_DELETE_URLS:
+            raise OscRefusal(ErrorCode.TOO_MANY_PARAMETERS,
+                             f"{len(urls)} file URLs, at most {MAX_DELETE_URLS} at once")
+        special = {"all", "image", "video"} & set(urls)
+        if special and len(urls) > 1:
+            raise OscRefusal(ErrorCode.INVALID_PARAMETER_VALUE,
+                             f"{sorted(special)[0]!r} must be given alone")
+        if special:
+            doomed = [] if urls == ["video"] else list(self.shots)
+        else:
+            by_name = {f.name: f for f in self.shots}
+            doomed = []
+            for u in urls:  # every URL must name a file, else nothing is deleted
+                shot = by_name.get(urllib.parse.urlsplit(u).path.rsplit("/", 1)[-1])
+                if shot is None or not urllib.parse.urlsplit(u).path.startswith("/files/"):
+                    raise OscRefusal(ErrorCode.INVALID_PARAMETER_VALUE,
+                                     f"no such file {u!r}; nothing deleted")
+                doomed.append(shot)
+        for shot in doomed:
+            self.shots.remove(shot)
+            self.files.pop(shot.name, None)
+            if shot.dng:
+                self.files.pop(shot.dng, None)
+            for url in [u for u in self.metadata if u.endswith(f"/files/{shot.name}")]:
+                del self.metadata[url]
+        return None
+
+    def _reset(self, params: dict[str, Any]) -> None:
+        self.reset_options()
+        return None
+
+    def _get_metadata(self, params: dict[str, Any]) -> dict[str, Any]:
+        url = params.get("fileUrl")
+        if not isinstance(url, str):
+            raise OscRefusal(ErrorCode.MISSING_PARAMETER, "fileUrl is required")
+        if url not in self.metadata:
+            raise OscRefusal(ErrorCode.INVALID_PARAMETER_VALUE, f"no such file {url!r}")
+        return {"exif": self.metadata[url], "xmp": {}}
+
+    def _check_option(self, key: str, value: Any) -> str | None:
+        """Why ``value`` is not one option ``key`` takes (None: it is)."""
+        number = isinstance(value, int | float) and not isinstance(value, bool)
         if key == "shutterSpeed":
-            if value != 0 and not any(abs(value - s) <= 1e-9 + 1e-6 * s
-                                      for s in SHUTTER_SPEEDS_S):
-                return f"shutterSpeed {value} is not a supported value"
+            if not number or (value != 0 and not any(abs(value - s) <= 1e-9 + 1e-6 * s
+                                                     for s in SHUTTER_SPEEDS_S)):
+                return f"shutterSpeed {value!r} is not a supported value"
         elif key == "iso":
-            if value != 0 and value not in ISO_VALUES:
-                return f"iso {value} is not a supported value"
+            if not number or (value != 0 and value not in ISO_VALUES):
+                return f"iso {value!r} is not a supported value"
         elif key == "exposureProgram":
-            if value not in (1, 2, 4, 9):
-                return f"exposureProgram {value} is not supported"
+            if not number or value not in EXPOSURE_PROGRAMS:
+                return f"exposureProgram {value!r} is not supported"
+        elif key == "exposureCompensation":
+            if not number or not any(abs(value - e) < 1e-6 for e in EV_COMPENSATIONS):
+                return (f"exposureCompensation {value!r} is not supported (one of "
+                        f"{list(EV_COMPENSATIONS)})")
         elif key == "whiteBalance":
-            if value not in WHITE_BALANCES:
+            if value not in self.support("whiteBalance"):
                 return f"whiteBalance {value!r} is not supported"
+        elif key == "_colorTemperature":
+            k = COLOR_TEMPERATURE_K
+            if (not number or not k["minTemperature"] <= value <= k["maxTemperature"]
+                    or value % k["stepSize"]):
+                return (f"_colorTemperature {value!r} is not supported ({k['minTemperature']}"
+                        f"-{k['maxTemperature']} K in steps of {k['stepSize']})")
         elif key == "fileFormat":
-            if not isinstance(value, dict) or value.get("type") not in ("jpeg", "raw+"):
-                return f"fileFormat {value!r} is not supported (jpeg or raw+)"
+            if value not in self.support("fileFormat"):
+                return (f"fileFormat {value!r} is not supported in captureMode "
+                        f"{self.capture_mode.value!r} (one of {self.support('fileFormat')})")
         elif key == "aperture":
             if value not in APERTURES:
                 return f"aperture {value} is not supported (one of {APERTURES})"
-        elif key not in ("exposureCompensation", "_colorTemperature"):
-            return f"unknown option {key}"
         return None
+
 
     # ------------------------------------------------------------------ digest auth
     def _check_auth(self, header: str | None, method: str) -> bool:
@@ -439,8 +731,8 @@ class SimCamera:
         return nonce
 
 
-def _error(name: str, code: str, message: str) -> dict[str, Any]:
-    return {"name": name, "state": "error", "error": {"code": code, "message": message}}
+def _error(name: str, code: ErrorCode, message: str) -> dict[str, Any]:
+    return {"name": name, "state": "error", "error": {"code": code.value, "message": message}}
 
 
 def _public(entry: dict[str, Any]) -> dict[str, Any]:
@@ -450,6 +742,13 @@ def _public(entry: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _http_status(out: dict[str, Any]) -> int:
+    """The HTTP status of OSC command object ``out``: 200, or its error code's."""
+    if out.get("state") != "error":
+        return 200
+    return ErrorCode(out["error"]["code"]).http_status
+
+
 class _Handler(BaseHTTPRequestHandler):
     camera: SimCamera
     protocol_version = "HTTP/1.1"
@@ -457,7 +756,7 @@ class _Handler(BaseHTTPRequestHandler):
     def log_message(self, fmt: str, *args: Any) -> None:  # quiet
         log.debug("sim camera: " + fmt, *args)
 
-    def _send(self, status: int, body: bytes, ctype: str = "application/json;charset=utf-8",
+    def _send(self, status: int, body: bytes, ctype: str = "application/json; charset=utf-8",
               length: int | None = None, headers: dict[str, str] | None = None) -> None:
         self.send_response(status)
         self.send_header("Content-Type", ctype)
@@ -542,8 +841,7 @@ class _Handler(BaseHTTPRequestHandler):
         else:
             self._send(404, b'{"error": "not found"}')
             return
-        status = 400 if out.get("state") == "error" else 200
-        self._send(status, json.dumps(out).encode())
+        self._send(_http_status(out), json.dumps(out).encode())
 
 
 def sim_camera_from_file(hdri: str | os.PathLike[str], *, width: int | None = None,
