@@ -36,8 +36,10 @@ The file (default ``/etc/grassd/grassd.toml``; the embedded default is
                    the daemon's table(s) come from the region instead of [[viewpoints]]
     [metrics]      textfile (see MetricsConfig): node_exporter textfile of Prometheus metrics
     [alerts]       command, min_interval_s, timeout_s (see AlertsConfig): run on health changes
-    [compute]      scheduler = "tcp://host:8786", connect_timeout_s, worker_wait_s (see
-                   ComputeConfig): the daemon's simulations on a dask.distributed cluster
+    [compute]      scheduler = "tls://host:8786", its TLS files, allow_insecure, timeouts
+                   (see grassd.daemon.config.compute): simulations on a dask.distributed cluster
+    [content]      optional: what the display shows, live sACN / Art-Net, playlist, idle
+                   picture (read by the feature itself: grassd.daemon.content.config)
 
 Relative paths are resolved against the directory of the config file, except ``light.inbox``
 which, when relative, lies inside ``state_dir``.
@@ -61,6 +63,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from grassd.daemon.config.compute import (  # noqa: F401 (scheduler_address_problem)
+    ComputeConfig,
+    parse_compute,
+    scheduler_address_problem,
+)
 from grassd.daemon.config.limits import DEFAULT_LIMITS, FUTURE_TOLERANCE_S, BundleLimits
 from grassd.daemon.config.schema import Context as _Ctx
 from grassd.daemon.config.schema import Field as _F
@@ -82,6 +89,7 @@ from grassd.sim.scene import MAX_REPLICATES, PixelSpec
 if TYPE_CHECKING:
     from grassd.daemon.config.capture import CaptureConfig
     from grassd.daemon.config.measure import MeasureConfig
+    from grassd.daemon.content.config import ContentConfig
 
 #: Where the packaged daemon looks when no ``--config`` is given.
 DEFAULT_CONFIG_PATH = Path("/etc/grassd/grassd.toml")
@@ -338,19 +346,6 @@ class AlertsConfig:
 
 
 @dataclass(frozen=True)
-class ComputeConfig:
-    """Where the daemon's calibrations are simulated (:mod:`grassd.daemon.calibration.remote`):
-    ``scheduler`` None here (needs Taichi, ``grassd[sim]``), else the address of a
-    dask.distributed scheduler (``"tcp://host:8786"``) whose workers have ``grassd[sim]``.
-    ``connect_timeout_s`` [s]: how long connecting to it may take; ``worker_wait_s`` [s]: how
-    long a run waits while the cluster has no worker. Either failing defers the bundle."""
-
-    scheduler: str | None = None
-    connect_timeout_s: float = 10.0
-    worker_wait_s: float = 60.0
-
-
-@dataclass(frozen=True)
 class Config:
     """The whole validated configuration. ``source`` is the file it came from."""
 
@@ -376,6 +371,8 @@ class Config:
     capture: CaptureConfig | None = None
     #: the display's measuring camera (:mod:`grassd.daemon.config.measure`), None without
     measure: MeasureConfig | None = None
+    #: what the display shows (:mod:`grassd.daemon.content.config`), None without [content]
+    content: ContentConfig | None = None
 
     @property
     def serial_ports(self) -> list[str]:
@@ -501,6 +498,7 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         "tables": _F(dict, {}), "audience": _F(dict, None), "retention": _F(dict, {}),
         "metrics": _F(dict, {}), "alerts": _F(dict, {}),
         "capture": _F(dict, None), "compute": _F(dict, {}), "measure": _F(dict, None),
+        "content": _F(dict, None),
     })
     site = _parse_site(ctx, top["site"])
     display = _parse_display(ctx, top["display"])
@@ -533,8 +531,9 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
                   control_socket=sock, source=ctx.source, tables=tables, audience=audience,
                   retention=retention, metrics=metrics, alerts=alerts,
                   capture=_capture_section(ctx, top["capture"]),
-                  compute=_parse_compute(ctx, top["compute"]),
-                  measure=_measure_section(ctx, top["measure"], top["capture"] is not None))
+                  compute=parse_compute(ctx, top["compute"], _resolve),
+                  measure=_measure_section(ctx, top["measure"], top["capture"] is not None),
+                  content=_content_section(ctx, top["content"]))
 
 
 def _parse_site(ctx: _Ctx, raw: Any) -> SiteConfig:
@@ -784,28 +783,6 @@ def _parse_operator(ctx: _Ctx, metrics_raw: Any, alerts_raw: Any
     return MetricsConfig(textfile=textfile), AlertsConfig(**a)
 
 
-#: the address forms of a dask.distributed scheduler: protocol://host:port
-_SCHEDULER_RE = re.compile(r"^(tcp|tls|ws|wss|ucx)://([^\s/:]+|\[[0-9A-Fa-f:.]+\]):\d{1,5}$")
-
-
-def scheduler_address_problem(v: str) -> str | None:
-    """What is wrong with ``v`` as a Dask scheduler address (``[compute] scheduler``,
-    ``grassd calibrate --scheduler``), or None when it is one."""
-    if _SCHEDULER_RE.match(v):
-        return None
-    return (f"must be a Dask scheduler address such as \"tcp://host:8786\" (protocol tcp, tls, "
-            f"ws, wss or ucx, then host:port), got {v!r}")
-
-
-def _parse_compute(ctx: _Ctx, raw: Any) -> ComputeConfig:
-    """``[compute]``: the scheduler address (absent: simulate here) and its timeouts [s]."""
-    return ComputeConfig(**_table(ctx, ("compute",), raw, _schema(
-        ComputeConfig, scheduler=_F(str, check=scheduler_address_problem),
-        connect_timeout_s=_F(float, check=_between(0.1, 3600.0, " s")),
-        worker_wait_s=_F(float, check=_between(0.0, 86400.0, " s")),
-    )))
-
-
 def _shell_words(v: str) -> str | None:
     try:
         words = shlex.split(v)
@@ -819,6 +796,16 @@ def _measure_section(ctx: _Ctx, raw: Any, has_capture: bool) -> MeasureConfig | 
     from grassd.daemon.config.measure import parse_measure
 
     return parse_measure(ctx, raw, has_capture)
+
+
+def _content_section(ctx: _Ctx, raw: Any) -> ContentConfig | None:
+    """``[content]``, validated by the content feature (:mod:`grassd.daemon.content.config`,
+    imported only when the section is there)."""
+    if raw is None:
+        return None
+    from grassd.daemon.content.config import parse_content
+
+    return parse_content(ctx, raw)
 
 
 def _capture_section(ctx: _Ctx, raw: Any) -> CaptureConfig | None:

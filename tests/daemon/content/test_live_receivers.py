@@ -1,0 +1,154 @@
+"""Real senders on 127.0.0.1 through the receivers and the player to a frame sink: the sACN
+library's sender and stupidArtnet; pixel orders, several universes, priorities, HTP, a
+terminated stream, silence and hold."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from conftest import content_config
+from stupidArtnet import StupidArtnet
+
+from grassd.daemon.content.pixel_order import stream_to_display
+from grassd.daemon.content.player import ContentPlayer
+from grassd.daemon.content.status import ContentSource
+
+ROWS, COLS = 4, 8
+
+
+def _player(cfg, sink, rows=ROWS, cols=COLS):
+    return ContentPlayer(cfg, rows, cols, sink).start()
+
+
+@pytest.mark.parametrize("order,serpentine,first", [
+    ("rows", False, "top-left"), ("columns", True, "bottom-right"),
+    ("rows", True, "top-right")])
+def test_sacn_frame_lands_in_pixel_order(ports, sink, sacn_senders, order, serpentine, first):
+    cfg = content_config(ports, order=order, serpentine=serpentine, first=first,
+                         sacn_start_channel=5, artnet_enabled=False)
+    p = _player(cfg, sink)
+    try:
+        stream = (np.arange(ROWS * COLS) * 7 + 3).astype(np.uint8)
+        s = sacn_senders(ports[0])
+        s[1].dmx_data = (0, 0, 0, 0) + tuple(int(v) for v in stream)
+        expect = np.empty_like(stream)
+        expect[stream_to_display(ROWS, COLS, order, serpentine, first)] = stream
+        got = sink.wait_for(lambda f: np.array_equal(f, expect))
+        assert np.array_equal(got, expect)
+        assert p.status().source is ContentSource.SACN
+        assert p.receivers[ContentSource.SACN].stats.accepted > 0
+    finally:
+        p.stop()
+
+
+def test_sacn_display_over_two_universes(ports, sink, sacn_senders):
+    rows, cols = 16, 40  # 640 pixels from channel 100 of universe 3: universes 3 and 4
+    cfg = content_config(ports, sacn_universe=3, sacn_start_channel=100,
+                         artnet_enabled=False)
+    p = _player(cfg, sink, rows, cols)
+    try:
+        stream = (np.arange(rows * cols) % 251).astype(np.uint8)
+        s = sacn_senders(ports[0], universes=(3, 4))
+        first = 512 - 99
+        s[3].dmx_data = (0,) * 99 + tuple(int(v) for v in stream[:first])
+        s[4].dmx_data = tuple(int(v) for v in stream[first:])
+        got = sink.wait_for(lambda f: np.array_equal(f, stream))
+        assert got.shape == (rows * cols,)
+    finally:
+        p.stop()
+
+
+def test_sacn_priority_htp_and_termination(ports, sink, sacn_senders):
+    cfg = content_config(ports, artnet_enabled=False, hold_s=5.0)
+    p = _player(cfg, sink)
+    n = ROWS * COLS
+    try:
+        low = sacn_senders(ports[0], priority=100, name="low")
+        high = sacn_senders(ports[0], priority=150, name="high")
+        low[1].dmx_data = (200,) * n
+        high[1].dmx_data = (10,) * n
+        # the higher priority wins though its levels are lower
+        sink.wait_for(lambda f: np.all(f == 10))
+        time.sleep(0.3)
+        assert np.all(sink.last() == 10)
+        # the high sender ends its stream (three stream-terminated packets): the low one
+        # takes over at once, not after hold_s or the source timeout
+        t0 = time.monotonic()
+        high.deactivate_output(1)
+        sink.wait_for(lambda f: np.all(f == 200), timeout_s=2.0)
+        assert time.monotonic() - t0 < 1.0
+        # a second sender at the same priority: each channel its highest level (HTP)
+        peer = sacn_senders(ports[0], priority=100, name="peer")
+        a = np.zeros(n, np.uint8)
+        a[::2] = 250
+        peer[1].dmx_data = tuple(int(v) for v in a)
+        sink.wait_for(lambda f: np.array_equal(f, np.maximum(a, 200)))
+        assert p.receivers[ContentSource.SACN].stats.terminated >= 1
+    finally:
+        p.stop()
+
+
+def test_artnet_frame_and_silence_hold(ports, sink):
+    hold = 0.6
+    cfg = content_config(ports, sacn_enabled=False, artnet_universe=3, hold_s=hold)
+    p = _player(cfg, sink)
+    art = StupidArtnet("127.0.0.1", 3, ROWS * COLS, 30, port=ports[1])
+    try:
+        levels = bytearray((np.arange(ROWS * COLS) * 5 % 256).astype(np.uint8).tobytes())
+        art.set(levels)
+        for _ in range(5):
+            art.show()
+            time.sleep(0.03)
+        sink.wait_for(lambda f: f.tobytes() == bytes(levels))
+        assert p.status().source is ContentSource.ARTNET
+        # a script frame below it waits while the sender is live ...
+        script = np.full(ROWS * COLS, 77, np.uint8)
+        p.set_frame(script, hold_s=30)
+        for _ in range(10):
+            art.show()
+            time.sleep(0.03)
+        assert sink.last().tobytes() == bytes(levels)
+        # ... and takes over hold_s after the sender went silent
+        t_silent = time.monotonic()
+        sink.wait_for(lambda f: np.all(f == 77), timeout_s=3.0)
+        took = time.monotonic() - t_silent
+        assert hold - 0.05 <= took <= hold + 0.25, took
+        assert p.status().source is ContentSource.SCRIPT
+    finally:
+        art.close()
+        p.stop()
+
+
+def test_sacn_silence_falls_back_to_idle_picture(ports, sink, sacn_senders, tmp_path):
+    from PIL import Image
+
+    idle = tmp_path / "idle.png"
+    Image.new("RGB", (COLS, ROWS), (0, 90, 0)).save(idle)
+    cfg = content_config(ports, artnet_enabled=False, hold_s=0.4, idle=idle, map="green")
+    p = _player(cfg, sink)
+    try:
+        sink.wait_for(lambda f: np.all(f == 90))  # nothing live yet: the idle picture
+        s = sacn_senders(ports[0])
+        s[1].dmx_data = (33,) * (ROWS * COLS)
+        sink.wait_for(lambda f: np.all(f == 33))
+        s.stop()  # silent, not terminated
+        t0 = time.monotonic()
+        sink.wait_for(lambda f: np.all(f == 90), timeout_s=3.0)
+        assert 0.3 <= time.monotonic() - t0 <= 0.8
+        assert p.status().source is ContentSource.IDLE
+    finally:
+        p.stop()
+
+
+def test_receiver_port_in_use_says_how_to_fix(ports, sink):
+    from grassd.daemon.content.receiver import ReceiverBindError
+
+    cfg = content_config(ports, artnet_enabled=False)
+    first = _player(cfg, sink)
+    try:
+        with pytest.raises(ReceiverBindError, match=r"\[content.sacn\] bind/port"):
+            ContentPlayer(cfg, ROWS, COLS, sink)
+    finally:
+        first.stop()
