@@ -95,6 +95,13 @@ class ComputeUnavailable(TransientError):
     table stays; the bundle waits in processing/ and is retried with backoff."""
 
 
+class ComputeResultRefused(ComputeUnavailable):
+    """A Dask worker answered a calibration with something other than its declared form
+    (:mod:`grassd.daemon.calibration.wire`): the answer is dropped unread, the bundle waits
+    and is retried as when the cluster is unavailable. Check the workers' grassd versions and
+    who holds a certificate of the site's CA."""
+
+
 class RunInterrupted(DaemonError):
     """A calibration run was stopped part-way (daemon shutting down); nothing was committed."""
 

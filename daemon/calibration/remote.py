@@ -1,54 +1,66 @@
 """Calibration runs on a dask.distributed cluster (``[compute] scheduler``).
 
-The daemon needs no renderer of its own when ``[compute] scheduler = "tcp://host:8786"`` is
+The daemon needs no renderer of its own when ``[compute] scheduler = "tls://host:8786"`` is
 set: every run, whole, is one Dask task (:func:`calibrate_on_worker`) that does on a worker
-exactly what :meth:`grassd.daemon.calibration.calibrate.Calibrator.run` does here, and returns
-the :class:`~grassd.daemon.calibration.result.CalibrationResult` the daemon commits as its own
-(report, history, push). The workers have ``grassd[sim]`` (Taichi), CPU or GPU; one started
-with ``dask worker tcp://host:8786 --nthreads 1`` (Taichi uses every core itself) initialises
-Taichi on its first task (arch from ``$GRASSD_WORKER_ARCH``: "cpu", the default, or "gpu";
-kernel cache as ``grassd.sim.backend.default_cache_dir``) and keeps its compiled kernels.
+exactly what :meth:`grassd.daemon.calibration.calibrate.Calibrator.run` does here, and answers
+with the :class:`~grassd.daemon.calibration.result.CalibrationResult` the daemon commits as its
+own (report, history, push). The workers have ``grassd[sim]`` (Taichi), CPU or GPU; one started
+with ``dask worker tls://host:8786 --nthreads 1`` and the site's TLS files (Taichi uses every
+core itself) initialises Taichi on its first task (arch from ``$GRASSD_WORKER_ARCH``: "cpu",
+the default, or "gpu"; kernel cache as ``grassd.sim.backend.default_cache_dir``) and keeps its
+compiled kernels.
 
-What travels: the configuration, the light (with the ambient lux already resolved) and the
-bytes of the bundle's HDRI and checker RAW, so no worker needs the daemon's files; the worker
-writes them to a temporary directory under their own names and runs on them. A run there
-gives the same result, bit for bit, as a local run on the worker's CPU (the renderer is
-deterministic for a seed; the timings in ``seconds`` differ).
+Who may join: the client connects with mutual TLS (:class:`distributed.security.Security`:
+the site CA's certificate, this daemon's client certificate and key, ``[compute]
+tls_ca_file``, ``tls_cert``, ``tls_key``); a scheduler without TLS is used only with
+``allow_insecure = true``, with a warning. What travels there: a
+:class:`~grassd.daemon.calibration.remote_job.CalibrationJob` (the configuration sections the
+simulation reads, the light, the bytes of the bundle's HDRI and checker RAW; never a camera's
+credentials or the daemon's paths). What comes back: an answer in the declared form of
+:mod:`grassd.daemon.calibration.wire` (arrays, numbers, text), which the client takes through
+Dask's ``msgpack`` serializer only and checks on arrival (:func:`check_arrival`). What Dask's
+protocol still unpickles in the daemon is listed in docs/operating/compute.md. A run there gives
+the same result, bit for bit, as a local run on the worker's CPU (the renderer is deterministic
+for a seed; the timings in ``seconds`` differ).
 
 When the cluster cannot run it (the scheduler unreachable, no worker for ``worker_wait_s``
-seconds, the worker running it died or left, the connection dropped) the run raises
-:class:`~grassd.daemon.errors.ComputeUnavailable`: the service keeps the active table and the
-bundle, which waits in processing/ and is retried with backoff (health: degraded, with the
-reason). Several daemons (a fleet of displays) may share one scheduler: each run is its own
-task under its own key.
+seconds, the worker running it died or left, the connection dropped, an answer not in the
+declared form) the run raises :class:`~grassd.daemon.errors.ComputeUnavailable`: the service
+keeps the active table and the bundle, which waits in processing/ and is retried with backoff
+(health: degraded, with the reason). Several daemons (a fleet of displays) may share one
+scheduler: each run is its own task under its own key.
 """
 
 from __future__ import annotations
 
-import copyreg
-import io
 import logging
 import os
-import pickle
 import tempfile
 import threading
 import time
-import types
 import uuid
 from collections.abc import Callable, Mapping
-from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from grassd.daemon.calibration.correction import SAVED, with_correction
+from grassd.daemon.calibration.remote_job import CalibrationJob, dumps, loads
+from grassd.daemon.calibration.result import CENTRE, CalibrationResult
+from grassd.daemon.calibration.wire import answer_of, error_answer, read_answer
+from grassd.daemon.config.compute import security_problem
 from grassd.daemon.config.settings import Config
-from grassd.daemon.errors import ComputeUnavailable, RunInterrupted
+from grassd.daemon.errors import (
+    CalibrationRejected,
+    ComputeResultRefused,
+    ComputeUnavailable,
+    ConfigError,
+    RunInterrupted,
+)
 from grassd.sim.light_input import LightInput
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
 
-    from grassd.daemon.calibration.result import CalibrationResult
     from grassd.daemon.store.manifest import CheckerPhoto
 
 log = logging.getLogger(__name__)
@@ -57,35 +69,11 @@ log = logging.getLogger(__name__)
 POLL_S = 1.0
 #: the worker's Taichi arch: "cpu" (the default) or "gpu"
 WORKER_ARCH_ENV = "GRASSD_WORKER_ARCH"
+#: the only Dask serialization family the daemon's client sends and accepts (no pickle)
+SERIALIZERS = ("msgpack",)
 
-__all__ = ["RemoteCalibrator", "calibrate_on_worker", "calibrator_for", "dumps", "loads"]
-
-
-# --------------------------------------------------------------------------- serialisation
-
-
-def _mapping_proxy(d: dict[str, Any]) -> Mapping[str, Any]:
-    """A read-only view of ``d`` (how a pickled ``types.MappingProxyType`` comes back)."""
-    return types.MappingProxyType(d)
-
-
-def _reduce_mapping_proxy(m: Mapping[str, Any]) -> tuple[Any, tuple[dict[str, Any]]]:
-    return _mapping_proxy, (dict(m),)
-
-
-def dumps(obj: Any) -> bytes:
-    """Pickle ``obj`` (a configuration holds read-only mappings, which plain pickle refuses:
-    they travel as dicts and come back read-only)."""
-    buf = io.BytesIO()
-    p = pickle.Pickler(buf, protocol=pickle.HIGHEST_PROTOCOL)
-    p.dispatch_table = {**copyreg.dispatch_table, types.MappingProxyType: _reduce_mapping_proxy}
-    p.dump(obj)
-    return buf.getvalue()
-
-
-def loads(data: bytes) -> Any:
-    """The object :func:`dumps` pickled."""
-    return pickle.loads(data)
+__all__ = ["RemoteCalibrator", "calibrate_on_worker", "calibrator_for", "check_arrival",
+           "security_for"]
 
 
 # --------------------------------------------------------------------------- on the worker
@@ -94,29 +82,21 @@ def loads(data: bytes) -> Any:
 _worker_lock = threading.Lock()
 
 
-def calibrate_on_worker(payload: bytes) -> bytes:
-    """The Dask task: unpickle a job of :meth:`RemoteCalibrator.job`, write its HDRI and
-    checker RAW into a temporary directory, initialise Taichi once per process and run
-    :meth:`Calibrator.run <grassd.daemon.calibration.calibrate.Calibrator.run>` on them;
-    returns the pickled :class:`CalibrationResult`. Errors (a rejected table, bad input)
-    travel back to the daemon as they are."""
-    from grassd.daemon.calibration.calibrate import Calibrator
+def calibrate_on_worker(payload: bytes) -> dict[str, Any]:
+    """The Dask task: unpickle a :class:`CalibrationJob` (from the daemon), initialise Taichi
+    once per process and run it in a temporary directory; answers with the result, or with
+    what the run raised (a rejected table, bad input), in the declared form of
+    :mod:`grassd.daemon.calibration.wire`."""
     from grassd.sim import backend
 
     job = loads(payload)
     with _worker_lock, tempfile.TemporaryDirectory(prefix="grassd-run-") as tmp:
-        backend.init(os.environ.get(WORKER_ARCH_ENV, "cpu"))
-        light: LightInput = job["light"]
-        hdri = Path(tmp) / light.hdri.name
-        hdri.write_bytes(job["hdri"])
-        light = replace(light, hdri=hdri)
-        checker = job["checker"]
-        if checker is not None:
-            raw = Path(tmp) / checker.raw.name
-            raw.write_bytes(job["checker_raw"])
-            checker = replace(checker, raw=raw)
-        result = Calibrator(job["cfg"]).run(light, checker=checker, **job["kwargs"])
-    return dumps(result)
+        try:
+            backend.init(os.environ.get(WORKER_ARCH_ENV, "cpu"))
+            return answer_of(job.run(Path(tmp)))
+        except Exception as exc:  # every error travels back as an answer, by its name
+            log.info("calibration failed on this worker: %s", exc)
+            return error_answer(exc)
 
 
 # --------------------------------------------------------------------------- in the daemon
@@ -133,26 +113,81 @@ def calibrator_for(cfg: Config) -> Any:
     return Calibrator(cfg)
 
 
+def security_for(cfg: Config) -> Any:
+    """The :class:`distributed.security.Security` of ``cfg``'s ``[compute]`` (mutual TLS with
+    the site's CA), or None for a scheduler without TLS (``allow_insecure``)."""
+    c = cfg.compute
+    if not c.uses_tls:
+        return None
+    from distributed.security import Security
+
+    return Security(tls_ca_file=str(c.tls_ca_file), tls_client_cert=str(c.tls_cert),
+                    tls_client_key=str(c.tls_key), require_encryption=True)
+
+
+def check_arrival(cfg: Config, result: CalibrationResult, where: str) -> None:
+    """Checks of a result decoded from a worker's answer, before the daemon uses it: the
+    granularity asked for, tables of the declared form for the configured controllers only
+    (shape, monotone, within 0..green_max_mm), a unit for every pixel. Raises
+    :class:`ComputeResultRefused` naming what is wrong."""
+    from grassd.daemon.calibration.checks import check_table
+
+    def refuse(msg: str) -> ComputeResultRefused:
+        return ComputeResultRefused(f"{where} answered a result that {msg}")
+
+    if result.granularity != cfg.tables.granularity:
+        raise refuse(f"has granularity {result.granularity!r:.40}, not "
+                     f"{cfg.tables.granularity!r}")
+    if result.source not in (CENTRE, "viewpoints", "audience"):
+        raise refuse(f"names the source {result.source!r:.40}")
+    pixels = {c.name: sum(b - a + 1 for a, b in c.pixels) for c in cfg.controllers}
+    if unknown := sorted(set(result.controller_tables) - set(pixels)):
+        raise refuse(f"has tables for controllers that are not configured: {unknown!r:.200}")
+    green_max_mm = cfg.display.green_max_mm
+    try:
+        if result.table_um.ndim != 1:
+            raise CalibrationRejected("its display table is not one (256,) table")
+        check_table(result.table_um, green_max_mm, None, 0.0, True, "its display table")
+        for name, t in result.controller_tables.items():
+            if t.ndim == 2 and len(t) != pixels[name]:
+                raise CalibrationRejected(f"its tables for {name} are {len(t)}, for "
+                                          f"{pixels[name]} pixels")
+            check_table(t, green_max_mm, None, 0.0, True, f"its table for {name}")
+    except CalibrationRejected as exc:
+        raise refuse(str(exc)) from None
+    units = len(result.units)
+    if result.unit_of_pixel.size and (result.unit_of_pixel.ndim != 1
+                                      or result.unit_of_pixel.min() < 0
+                                      or result.unit_of_pixel.max() >= max(units, 1)
+                                      or result.unit_of_pixel.size > cfg.display.pixel_count):
+        raise refuse("maps pixels to units it does not have")
+
+
 class RemoteCalibrator:
     """:meth:`Calibrator.run <grassd.daemon.calibration.calibrate.Calibrator.run>` on the
-    Dask cluster of ``cfg.compute.scheduler`` (see the module docstring)."""
+    Dask cluster of ``cfg.compute.scheduler`` (see the module docstring). Raises
+    :class:`ConfigError` when the scheduler is not secured as ``[compute]`` requires (a
+    ``--scheduler`` given on the command line is checked here); warns once when it is used
+    without TLS."""
 
     def __init__(self, cfg: Config) -> None:
         if cfg.compute.scheduler is None:
             raise ValueError("RemoteCalibrator needs [compute] scheduler")
+        if (problem := security_problem(cfg.compute)) is not None:
+            raise ConfigError(problem[1], key=f"compute.{problem[0]}", path=cfg.source)
         self.cfg = cfg
         self.address: str = cfg.compute.scheduler
+        if not cfg.compute.uses_tls:
+            log.warning("[compute] scheduler %s has no TLS (allow_insecure = true): anyone "
+                        "who can reach it can run code in this daemon; use tls:// with the "
+                        "site's CA (docs/operating/compute.md)", self.address)
 
     def job(self, light: LightInput, checker: CheckerPhoto | None,
             **kwargs: Any) -> bytes:
-        """The pickled job of one run: configuration, light, the HDRI's and the checker RAW's
-        bytes, and the keyword arguments of ``Calibrator.run`` that travel (``previous_um``,
-        ``previous_ccm``, ``force``, ``previous_tables``). Raises OSError when a file cannot
-        be read."""
-        return dumps({"cfg": self.cfg, "light": light, "hdri": Path(light.hdri).read_bytes(),
-                      "checker": checker,
-                      "checker_raw": None if checker is None else Path(checker.raw).read_bytes(),
-                      "kwargs": kwargs})
+        """The pickled :class:`CalibrationJob` of one run (the keyword arguments of
+        ``Calibrator.run`` that travel: ``previous_um``, ``previous_ccm``, ``force``,
+        ``previous_tables``). Raises OSError when a file cannot be read."""
+        return dumps(CalibrationJob.of(self.cfg, light, checker, **kwargs))
 
     def run(self, light: LightInput, *, checker: CheckerPhoto | None = None,
             previous_um: NDArray | None = None, previous_ccm: NDArray | None = None,
@@ -164,10 +199,11 @@ class RemoteCalibrator:
         and ``progress`` act here: ``progress`` is called every :data:`POLL_S` seconds while
         the task runs, ``stop`` cancels it; the display's ``correction``, which this state
         directory holds, is applied here). Raises :class:`ComputeUnavailable` when the
-        cluster cannot run it, :class:`RunInterrupted` when ``stop`` is set, and what the run
-        itself raises (CalibError, SimError, CalibrationRejected)."""
+        cluster cannot run it or answers out of the declared form, :class:`RunInterrupted`
+        when ``stop`` is set, and what the run itself raises (CalibError, SimError,
+        CalibrationRejected)."""
         payload = self.job(light, checker, previous_um=previous_um, previous_ccm=previous_ccm,
-                           force=force, previous_tables=previous_tables, correction=None)
+                           force=force, previous_tables=previous_tables)
         try:
             from distributed import Client
         except ImportError:
@@ -178,16 +214,22 @@ class RemoteCalibrator:
             progress(f"connecting to the Dask scheduler at {self.address}")
         try:
             client = Client(self.address, timeout=self.cfg.compute.connect_timeout_s,
-                            set_as_default=False)
+                            set_as_default=False, security=security_for(self.cfg),
+                            serializers=list(SERIALIZERS), deserializers=list(SERIALIZERS))
         except (OSError, ValueError) as exc:  # TimeoutError is an OSError
             raise ComputeUnavailable(
                 f"cannot reach the Dask scheduler at {self.address} ({exc}); check that it "
-                "runs and that [compute] scheduler names it") from None
+                "runs, that [compute] scheduler names it and that its certificate is signed "
+                "by [compute] tls_ca_file") from None
         try:
-            result = loads(_Watch(client, self.address, self.cfg.compute.worker_wait_s, stop,
-                                  progress).result(payload))
+            watch = _Watch(client, self.address, self.cfg.compute.worker_wait_s, stop,
+                           progress)
+            answer = watch.result(payload)
         finally:
             client.close()
+        where = f"Dask worker {watch.worker or '(unknown)'} of {self.address}"
+        result = read_answer(answer, CalibrationResult, where)
+        check_arrival(self.cfg, result, where)
         return with_correction(self.cfg, result, correction)
 
 
@@ -204,8 +246,9 @@ class _Watch:
         #: what the watch sleeps on between looks (``stop`` when given: it wakes at once)
         self._sleep = stop if stop is not None else threading.Event()
 
-    def result(self, payload: bytes) -> bytes:
-        """The task's result (pickled); see :meth:`RemoteCalibrator.run` for what it raises."""
+    def result(self, payload: bytes) -> Any:
+        """The task's answer (see :mod:`grassd.daemon.calibration.wire`); see
+        :meth:`RemoteCalibrator.run` for what it raises."""
         key = f"grassd-calibrate-{uuid.uuid4().hex}"
         fut = None
         try:
@@ -233,9 +276,10 @@ class _Watch:
                 except (OSError, ValueError, RuntimeError) as exc:
                     log.debug("cannot cancel the Dask task %s: %s", key, exc)
 
-    def _outcome(self, fut: Any) -> bytes:
-        """The finished task's result, or its error re-raised (a worker Dask gave up on as
-        :class:`ComputeUnavailable`)."""
+    def _outcome(self, fut: Any) -> Any:
+        """The finished task's answer as Dask's ``msgpack`` serializer read it (the run's own
+        errors are part of the answer), or :class:`ComputeUnavailable`: a worker Dask gave up
+        on, a task that raised, an answer Dask could not read in that form."""
         from distributed import KilledWorker
 
         try:
@@ -243,6 +287,13 @@ class _Watch:
         except KilledWorker as exc:
             raise ComputeUnavailable(f"the Dask workers at {self.address} died running the "
                                      f"run ({exc})") from None
+        except (OSError, ValueError) as exc:  # the connection dropped
+            raise ComputeUnavailable(f"lost the Dask scheduler at {self.address} while "
+                                     f"fetching the result ({exc})") from None
+        except Exception as exc:  # the task raised, or its answer is not msgpack
+            raise ComputeResultRefused(
+                f"Dask worker {self.worker or '(unknown)'} of {self.address} gave no answer "
+                f"in the declared form ({type(exc).__name__}: {str(exc)[:300]})") from None
 
     def _look(self, key: str, elapsed_s: float) -> None:
         """Check the task's worker and the cluster's workers; report progress. Raises

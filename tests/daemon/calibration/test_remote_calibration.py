@@ -105,7 +105,7 @@ def test_cluster_run_equals_local_run_bit_for_bit(cfg, tmp_path):
     local = Calibrator(cfg).run(LIGHT, checker=checker, previous_um=previous)
     with DaskCluster(tmp_path / "dask", cache_dir=CACHE) as cluster:
         cluster.add_worker("w1")
-        remote_cfg = cfg.replace(compute=ComputeConfig(scheduler=cluster.address))
+        remote_cfg = cfg.replace(compute=cluster.compute())
         calibrator = calibrator_for(remote_cfg)
         assert isinstance(calibrator, RemoteCalibrator)
         seen: list[str] = []
@@ -116,12 +116,12 @@ def test_cluster_run_equals_local_run_bit_for_bit(cfg, tmp_path):
     assert np.array_equal(remote.ccm.matrix, local.ccm.matrix)
     assert (json.dumps(_without_timings(remote.report()), sort_keys=True)
             == json.dumps(_without_timings(local.report()), sort_keys=True))
-    assert any("on Dask worker tcp://127.0.0.1:" in s for s in seen)
+    assert any("on Dask worker tls://127.0.0.1:" in s for s in seen)
 
 
 def test_unreachable_scheduler_is_compute_unavailable(cfg):
     remote = RemoteCalibrator(cfg.replace(compute=ComputeConfig(
-        scheduler=f"tcp://127.0.0.1:{free_port()}", connect_timeout_s=1.0)))
+        scheduler=f"tcp://127.0.0.1:{free_port()}", allow_insecure=True, connect_timeout_s=1.0)))
     t0 = time.monotonic()
     with pytest.raises(ComputeUnavailable, match="cannot reach the Dask scheduler at tcp://"):
         remote.run(LIGHT)
@@ -130,8 +130,7 @@ def test_unreachable_scheduler_is_compute_unavailable(cfg):
 
 def test_cluster_without_workers_is_compute_unavailable_after_the_wait(cfg, tmp_path):
     with DaskCluster(tmp_path / "dask") as cluster:
-        remote = RemoteCalibrator(cfg.replace(compute=ComputeConfig(
-            scheduler=cluster.address, worker_wait_s=2.0)))
+        remote = RemoteCalibrator(cfg.replace(compute=cluster.compute(worker_wait_s=2.0)))
         with pytest.raises(ComputeUnavailable, match="has had no worker for"):
             remote.run(LIGHT)
 
@@ -146,7 +145,7 @@ def test_bad_input_is_rejected_on_the_worker_as_here(cfg, tmp_path):
         Calibrator(cfg).run(bad)
     with DaskCluster(tmp_path / "dask", cache_dir=CACHE) as cluster:
         cluster.add_worker("w1")
-        remote = RemoteCalibrator(cfg.replace(compute=ComputeConfig(scheduler=cluster.address)))
+        remote = RemoteCalibrator(cfg.replace(compute=cluster.compute()))
         with pytest.raises(SimError) as there:
             remote.run(bad)
     assert type(there.value) is type(here.value) and str(there.value) == str(here.value)
@@ -156,5 +155,6 @@ def test_bad_input_is_rejected_on_the_worker_as_here(cfg, tmp_path):
 def test_compute_scheduler_must_be_an_address(address, tmp_path):
     with pytest.raises(ConfigError, match=r"compute\.scheduler: must be a Dask scheduler"):
         parse_config(SMALL + f'[compute]\nscheduler = "{address}"\n', base_dir=tmp_path)
-    c = parse_config(SMALL + '[compute]\nscheduler = "tcp://calib:8786"\n', base_dir=tmp_path)
+    c = parse_config(SMALL + '[compute]\nscheduler = "tcp://calib:8786"\nallow_insecure = true\n',
+                     base_dir=tmp_path)
     assert c.compute.scheduler == "tcp://calib:8786"
