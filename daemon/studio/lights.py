@@ -7,13 +7,17 @@ A source holds its panorama as loaded (linear Rec.709, relative units), reduced 
 the daemon simulates it, texel for texel), and what was measured with it (lux, sun). Building the
 :class:`~grassd.sim.lighting.Lighting` of a condition scales it (:meth:`Lights.lighting`,
 the last few kept).
+
+What is kept is capped (:class:`~grassd.daemon.studio.limits.StudioLimits`): the panoramas
+loaded (``kept_maps``, the least recently used unloaded and read again when chosen), and the
+uploads (``kept_uploads`` of them, ``kept_upload_mib`` of files together: the oldest are
+dropped, their files removed, and the page lists them no more).
 """
 
 from __future__ import annotations
 
 import functools
 import logging
-import os
 import shutil
 import tempfile
 import threading
@@ -27,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from grassd.daemon.studio.inputs import Condition, StudioInputError
+from grassd.daemon.studio.limits import DEFAULT_LIMITS, StudioLimits
 
 log = logging.getLogger(__name__)
 
@@ -185,15 +190,20 @@ def solar_position(latitude: float, longitude: float, when) -> tuple[float, floa
 
 class Lights:
     """The studio's light sources by name, loaded on first use, and the lightings built from
-    them (thread-safe: the server lists and adds, the worker builds)."""
+    them (thread-safe: the server lists and adds, the worker builds); what is kept is capped
+    by ``limits`` (see the module docstring)."""
 
-    def __init__(self, sources: list[LightSource], upload_dir: Path | None = None) -> None:
+    def __init__(self, sources: list[LightSource], upload_dir: Path | None = None,
+                 limits: StudioLimits = DEFAULT_LIMITS) -> None:
         if not sources:
             raise StudioInputError("the studio needs at least one light")
         self._sources: dict[str, LightSource] = {s.name: s for s in sources}
         self.default = sources[0].name
         self._built: OrderedDict[tuple, Any] = OrderedDict()
         self._lock = threading.Lock()
+        self._limits = limits
+        self._loaded: OrderedDict[str, None] = OrderedDict()  # least recently used first
+        self._upload_sizes: OrderedDict[str, int] = OrderedDict()  # uploads kept: bytes, oldest first
         self._uploads = 0
         self._upload_dir = None if upload_dir is None else Path(upload_dir)
         self._own_dir = upload_dir is None
@@ -210,41 +220,100 @@ class Lights:
             return [s.describe() for s in self._sources.values()]
 
     def source(self, name: str) -> LightSource:
-        """The source ``name``, its panorama loaded (StudioInputError when it is broken)."""
+        """The source ``name``, its panorama loaded (StudioInputError when it is broken); the
+        least recently used beyond ``kept_maps`` are unloaded."""
         with self._lock:
             src = self._sources.get(name)
         if src is None:
-            raise StudioInputError(f"no light named {name!r}")
+            raise StudioInputError(f"no light named {name!r}"
+                                   + (": it was dropped for newer uploads; upload it again"
+                                      if name.startswith("upload:") else ""))
         if src.image is None:
             src.image = load_panorama(src.path)
+        with self._lock:
+            self._loaded[name] = None
+            self._loaded.move_to_end(name)
+            while len(self._loaded) > self._limits.kept_maps:
+                old, _ = self._loaded.popitem(last=False)
+                self._unload(old)
         return src
 
-    def add_upload(self, filename: str, data: bytes) -> LightSource:
-        """Check an uploaded HDRI (.exr/.hdr) and add it as a source (StudioInputError, and
-        nothing added, for a file that is not a usable panorama). Checked, not kept
-        (:meth:`LightSource.check`): the simulator reads the file when it renders it."""
+    def loaded(self) -> list[str]:
+        """The names of the sources whose panorama is kept loaded, least recently used first."""
+        with self._lock:
+            return list(self._loaded)
+
+    def _unload(self, name: str) -> None:
+        """Let go of ``name``'s panorama and the lightings built from it (under the lock)."""
+        src = self._sources.get(name)
+        if src is not None:
+            src.image = None
+        for key in [k for k in self._built if k[0] == name]:
+            del self._built[key]
+
+    def upload_path(self, filename: str) -> Path:
+        """Where the next upload named ``filename`` is written (not yet created);
+        StudioInputError when it is not an .exr or .hdr file."""
         suffix = Path(filename or "").suffix.lower()
         if suffix not in (".exr", ".hdr"):
             raise StudioInputError(f"an HDRI must be an .exr or .hdr file, got {filename!r}")
-        if len(data) > MAX_HDRI_BYTES:
-            raise StudioInputError(f"the HDRI is {len(data) / 2**20:.0f} MiB; at most "
-                                   f"{MAX_HDRI_BYTES // 2**20} MiB")
         with self._lock:
             self._uploads += 1
             n = self._uploads
             if self._upload_dir is None:  # made on the first upload, removed by cleanup()
                 self._upload_dir = Path(tempfile.mkdtemp(prefix="grassd-studio-"))
-        path = self._upload_dir / f"upload-{n}{suffix}"
-        path.write_bytes(data)
-        src = LightSource(name=f"upload:{n}", label=f"uploaded: {Path(filename).name}",
-                          path=path)
+            return self._upload_dir / f"upload-{n}{suffix}"
+
+    def add_upload(self, filename: str, path: Path) -> tuple[LightSource, list[str]]:
+        """Check the uploaded HDRI written to ``path`` (:meth:`upload_path`) and add it as a
+        source; (the source, the names of the older uploads dropped to keep within the caps,
+        their files removed). StudioInputError, the file removed and nothing added, for a file
+        that is not a usable panorama. Checked, not kept (:meth:`LightSource.check`): the
+        simulator reads the file when it renders it."""
+        path = Path(path)
+        n = path.stem.rpartition("-")[2]
         try:
+            size = path.stat().st_size
+            if size > MAX_HDRI_BYTES:
+                raise StudioInputError(f"the HDRI is {size / 2**20:.0f} MiB; at most "
+                                       f"{MAX_HDRI_BYTES // 2**20} MiB")
+            src = LightSource(name=f"upload:{n}", label=f"uploaded: {Path(filename).name}",
+                              path=path)
             src.check(Path(filename).name)
-        except StudioInputError:
-            os.unlink(path)
+        except BaseException:
+            path.unlink(missing_ok=True)
             raise
-        self.add_source(src)
-        return src
+        dropped = []
+        with self._lock:
+            self._sources[src.name] = src
+            self._upload_sizes[src.name] = size
+            while len(self._upload_sizes) > self._limits.kept_uploads or (
+                    len(self._upload_sizes) > 1
+                    and sum(self._upload_sizes.values()) > self._limits.kept_upload_bytes):
+                old = next(iter(self._upload_sizes))
+                dropped.append(old)
+                self._forget(old)
+        return src, dropped
+
+    def holds(self, path: Path) -> bool:
+        """Whether a source's panorama is the file ``path``."""
+        with self._lock:
+            return any(s.path == Path(path) for s in self._sources.values())
+
+    def forget(self, name: str) -> None:
+        """Drop the source ``name`` (an upload the server dropped): its panorama, lightings
+        and, when this object made the uploads' folder, its file."""
+        with self._lock:
+            self._forget(name)
+
+    def _forget(self, name: str) -> None:
+        self._unload(name)
+        self._loaded.pop(name, None)
+        self._upload_sizes.pop(name, None)
+        src = self._sources.pop(name, None)
+        if src is not None and self._own_dir and self._upload_dir is not None \
+                and src.path.parent == self._upload_dir:
+            src.path.unlink(missing_ok=True)
 
     def cleanup(self) -> None:
         """Remove the uploads' temporary folder (when this object made it)."""
@@ -266,6 +335,7 @@ class Lights:
         from grassd.sim.lighting import add_sun
 
         src = self.source(cond.light)
+        image = src.image  # held here: a dropped upload's is let go meanwhile
         sun = cond.sun
         lux, az, el = None, None, None
         if sun.mode == "measured":
@@ -288,7 +358,7 @@ class Lights:
         # check, scale and sum the map; now 2 ms, mostly the sun's position)
         base = self._kept((src.name, cond.ambient_lux), lambda: LightInput(
             src.path, cond.ambient_lux, rotation_deg=src.rotation_deg,
-            flip=src.flip).lighting(src.image))
+            flip=src.flip).lighting(image))
         if lux is None:
             return base
         return self._kept((src.name, cond.ambient_lux, lux, az, el),

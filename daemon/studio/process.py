@@ -20,7 +20,8 @@ round (:func:`~grassd.daemon.studio.session.Studio.characteristic`).
 Server -> simulator: ``("job", owner, job, kind, payload, word)`` with kind ``"views"`` (a
 condition, the picture's levels and the condition pinned as B, or None) or
 ``"characteristic"`` (a condition and keyword arguments); ``("cancel", owner, word)``;
-``("light", LightSource)``; ``("stop", word)`` (every job stops, and the process ends).
+``("light", LightSource)``; ``("forget", name)`` (an upload the server dropped);
+``("stop", word)`` (every job stops, and the process ends).
 Simulator -> server: ``("ready", seconds)``, ``("msg", job, dict)``, ``("result", job,
 value)``, ``("error", job, kind, message)`` with kind "input" (a StudioInputError), "superseded"
 or the exception's class name.
@@ -43,6 +44,7 @@ import numpy as np
 
 from grassd.daemon.studio.inputs import StudioInputError
 from grassd.daemon.studio.lights import LightSource
+from grassd.daemon.studio.limits import DEFAULT_LIMITS, StudioLimits
 from grassd.daemon.studio.worker import Check, Superseded, Yielded
 from grassd.sim.interrupt import Interrupt
 
@@ -57,7 +59,7 @@ class StudioArgs:
     """What builds a :class:`~grassd.daemon.studio.session.Studio` in either process: the
     config (``config_path``/``state_dir`` as ``grassd studio`` was given them), the light
     sources, the fitted pixel's fields and where they came from, the daemon's active table
-    (256 um values) and the Taichi arch."""
+    (256 um values), the Taichi arch and the studio's caps."""
 
     config_path: str | None
     state_dir: str | None
@@ -66,6 +68,7 @@ class StudioArgs:
     pixel_source: str = "config"
     active_um: tuple[int, ...] | None = None
     arch: str = "cpu"
+    limits: StudioLimits = DEFAULT_LIMITS
 
     def build(self, interrupts: Callable[[Check], Interrupt] | None = None) -> Studio:
         """The Studio these arguments describe (``interrupts``: see
@@ -75,7 +78,8 @@ class StudioArgs:
         from grassd.daemon.studio.session import Studio
 
         cfg = resolve_config(self.config_path, self.state_dir)
-        return Studio(cfg, Lights(list(self.sources)), pixel_fields=self.pixel_fields,
+        return Studio(cfg, Lights(list(self.sources), limits=self.limits),
+                      pixel_fields=self.pixel_fields,
                       pixel_source=self.pixel_source,
                       active_um=None if self.active_um is None else np.array(self.active_um),
                       arch=self.arch, interrupts=interrupts)
@@ -98,7 +102,7 @@ def simulator_main(conn: Connection, args: StudioArgs,
         with send_lock:
             conn.send(item)
 
-    worker = Worker()
+    worker = Worker(slice_s=args.limits.slice_s)
     warm = worker.submit("warm-up", lambda check: studio.warm_up())
 
     def ready(fut) -> None:
@@ -157,6 +161,8 @@ def simulator_main(conn: Connection, args: StudioArgs,
                 superseding.took(item[2])
         elif item[0] == "light":
             studio.lights.add_source(item[1])
+        elif item[0] == "forget":
+            studio.lights.forget(item[1])
         elif item[0] == "stop":
             worker.cancel_all()
             if superseding is not None:
@@ -281,6 +287,11 @@ class SimulatorProcess:
         """Make an uploaded light known to the simulator (its file, not its pixels)."""
         self._lights.append(source)
         self._send(("light", source))
+
+    def forget_light(self, name: str) -> None:
+        """Make the simulator drop an upload (the server has dropped it and its file)."""
+        self._lights = [s for s in self._lights if s.name != name]
+        self._send(("forget", name))
 
     def stop(self) -> None:
         """End the simulator process (nothing is sent after): its jobs stop, the launch in

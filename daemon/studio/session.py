@@ -299,6 +299,14 @@ class Studio:
         lighting = self.lights.lighting(cond, self.site)
         return lighting, self._display(cond), white_radiance(lighting)
 
+    def splay_deg(self, cond: Condition) -> float:
+        """The splay (deg) ``cond``'s blades have: its own, else its pixel's (0 for a pixel
+        the studio does not have: parsing refuses those)."""
+        if cond.splay_deg is not None:
+            return cond.splay_deg
+        base = self.displays.get(cond.pixel or self.default_pixel)
+        return 0.0 if base is None else base.pixel.splay_deg
+
     def _display(self, cond: Condition):
         """The display patch of ``cond``: its pixel choice, with its splay."""
         base = self.displays.get(cond.pixel or self.default_pixel)

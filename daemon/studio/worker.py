@@ -1,28 +1,42 @@
 """The one thread that runs the studio's simulations (the renderer holds one scene at a time).
 
-Requests are queued in order; each belongs to an owner (a page's WebSocket, an API call). A
-newer request of the same owner supersedes the older one: a queued one is skipped, a running one
-stops at its next check (between rounds of the characteristic, images, audience places), so an
-input change restarts the views at once instead of waiting for stale work.
+Each request belongs to an owner (a page's WebSocket, an API call). A newer request of the same
+owner supersedes the older one: a queued one is skipped, a running one stops at its next check
+(between rounds of the characteristic, images, audience places), so an input change restarts
+the views at once instead of waiting for stale work.
 
-A job submitted as ``yields`` (a script's API request) gives way to the others (a page's): its
-check raises :class:`Yielded` while one of them waits, and the job goes back into the queue
-behind it, to go on where it stopped (a characteristic keeps its complete rounds,
+The owners take turns (round robin), not one queue in order of arrival: a page whose job has
+run for its slice (:attr:`Worker.slice_s`) while another page's job waits gives way at its next
+check (:class:`Yielded`), and goes on after the others have had theirs, from what it kept (a
+characteristic's complete rounds, an image's passes); its next slice is twice as long, so that
+every job ends however many pages wait. So one page's costly input does not hold another
+page's first curve back.
+
+A job submitted as ``yields`` (a script's API request) gives way to the others (a page's) at
+once: its check raises :class:`Yielded` while one of them waits, and the job goes back behind
+it, to go on where it stopped (a characteristic keeps its complete rounds,
 :class:`~grassd.daemon.calibration.simulation.CurveRun`). So a script's long request does not
-hold a page's inputs back; it waits while a page keeps changing.
+hold a page's inputs back; it waits while a page keeps changing. Scripts take turns among
+themselves as pages do.
 """
 
 from __future__ import annotations
 
 import itertools
 import logging
-import queue
 import threading
+import time
+from collections import OrderedDict, deque
 from collections.abc import Callable
 from concurrent.futures import Future
+from dataclasses import dataclass
 from typing import Any
 
 log = logging.getLogger(__name__)
+
+#: Seconds a page's job runs, while another page's waits, before it gives way (the default of
+#: :attr:`~grassd.daemon.studio.limits.StudioLimits.slice_s`).
+SLICE_S: float = 1.0
 
 
 class Superseded(Exception):
@@ -30,38 +44,55 @@ class Superseded(Exception):
 
 
 class Yielded(Exception):  # noqa: N818 (what happened to the job, as Superseded says)
-    """A job that yields stops for one that does not, and goes back into the queue."""
+    """A job gives way to another owner's, and goes back to wait for its turn."""
 
 
 Check = Callable[[], None]
 
 
-class Worker:
-    """A daemon thread running submitted jobs ``fn(check)`` one at a time; ``check()`` raises
-    :class:`Superseded` once the job's owner has submitted a newer one or was cancelled."""
+@dataclass
+class _Job:
+    """A submitted job: its owner, its id, the function, its future, whether it yields to
+    pages (a script's), and how many turns it has given (its slice doubles with each)."""
 
-    def __init__(self, name: str = "grassd-studio-worker") -> None:
-        self._queue: queue.Queue = queue.Queue()
+    owner: Any
+    job: int
+    fn: Callable[[Check], Any]
+    fut: Future
+    yields: bool
+    turns: int = 0
+
+
+class Worker:
+    """A daemon thread running submitted jobs ``fn(check)`` one at a time, the owners in turn;
+    ``check()`` raises :class:`Superseded` once the job's owner has submitted a newer one or was
+    cancelled, and :class:`Yielded` when the job is to give way (see the module docstring).
+    ``slice_s``: seconds a job runs while another owner's of its kind waits."""
+
+    def __init__(self, name: str = "grassd-studio-worker", slice_s: float = SLICE_S) -> None:
+        self.slice_s = slice_s
+        #: owners with jobs waiting, in the order of their turns
+        self._owners: OrderedDict[Any, deque[_Job]] = OrderedDict()
         self._latest: dict[Any, int] = {}
         self._queued: dict[Any, int] = {}  # jobs of each owner not yet finished
-        self._waiting = 0  # queued jobs that do not yield
         self._ids = itertools.count(1)
-        self._lock = threading.Lock()
+        self._lock = threading.Condition()
+        self._stopping = False
         self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
         self._thread.start()
 
     def submit(self, owner: Any, fn: Callable[[Check], Any], *, yields: bool = False) -> Future:
         """Queue ``fn`` for ``owner``, superseding the owner's earlier jobs; returns its
         future (its exception is :class:`Superseded` when a newer job replaced it). ``yields``:
-        the job gives way to those that do not (see the module docstring); ``fn`` is then
-        called again after each :class:`Yielded`, and must go on from what it kept."""
+        the job gives way to those that do not (see the module docstring). A job that gives
+        way is called again at its next turn, and must go on from what it kept."""
         fut: Future = Future()
         with self._lock:
-            job = next(self._ids)
-            self._latest[owner] = job
+            item = _Job(owner, next(self._ids), fn, fut, yields)
+            self._latest[owner] = item.job
             self._queued[owner] = self._queued.get(owner, 0) + 1
-            self._waiting += not yields
-        self._queue.put((owner, job, fn, fut, yields))
+            self._owners.setdefault(owner, deque()).append(item)
+            self._lock.notify()
         return fut
 
     def cancel(self, owner: Any) -> None:
@@ -78,54 +109,112 @@ class Worker:
             for owner in list(self._latest):
                 self._latest[owner] = -1
 
-    def _finished(self, owner: Any) -> None:
-        """One job of ``owner`` is done: forget the owner when it has no other."""
+    def waiting(self) -> int:
+        """Owners whose newest job waits for its turn (not one superseded or cancelled)."""
         with self._lock:
-            left = self._queued.get(owner, 1) - 1
-            if left > 0:
-                self._queued[owner] = left
-            else:
-                self._queued.pop(owner, None)
-                self._latest.pop(owner, None)
+            return sum(self._waits(o, pages_only=False) for o in self._owners)
 
     def stop(self) -> None:
         """End the thread after the jobs already queued."""
-        self._queue.put(None)
+        with self._lock:
+            self._stopping = True
+            self._lock.notify()
         self._thread.join(timeout=30)
 
-    def _current(self, owner: Any, job: int) -> bool:
+    # ------------------------------------------------------------------ the thread's side
+    def _waits(self, owner: Any, *, pages_only: bool) -> bool:
+        """Whether ``owner`` has a current job waiting (a page's, with ``pages_only``); under
+        the lock."""
+        jobs = self._owners.get(owner)
+        if not jobs:
+            return False
+        latest = self._latest.get(owner)
+        return any(j.job == latest and not (pages_only and j.yields) for j in jobs)
+
+    def _finished(self, owner: Any) -> None:
+        """One job of ``owner`` is done: forget the owner when it has no other. Under the
+        lock."""
+        left = self._queued.get(owner, 1) - 1
+        if left > 0:
+            self._queued[owner] = left
+        else:
+            self._queued.pop(owner, None)
+            self._latest.pop(owner, None)
+
+    def _take(self) -> _Job | None:
+        """The next job to run (a page's before a script's, the owners in turn), each stale
+        one met on the way ended as superseded; None when the worker is stopping and nothing
+        is left. Blocks until there is one."""
         with self._lock:
-            return self._latest.get(owner) == job
+            while True:
+                for pages in (True, False):
+                    for owner in list(self._owners):
+                        jobs = self._owners[owner]
+                        while jobs and jobs[0].job != self._latest.get(owner):
+                            stale = jobs.popleft()
+                            self._finished(owner)
+                            if stale.turns or stale.fut.set_running_or_notify_cancel():
+                                stale.fut.set_exception(
+                                    Superseded("a newer request replaced this one"))
+                        if not jobs:
+                            del self._owners[owner]
+                            continue
+                        if pages and jobs[0].yields:
+                            continue
+                        item = jobs.popleft()
+                        del self._owners[owner]
+                        if jobs:  # newer ones behind it: its turn comes again
+                            self._owners[owner] = jobs
+                        return item
+                if self._stopping:
+                    return None
+                self._lock.wait()
+
+    def _gives_way(self, item: _Job, started: float) -> bool:
+        """Whether the running ``item`` is to give way now (under the lock): a script's to any
+        page that waits; any job whose slice is over to another owner of its kind that waits."""
+        others = [o for o in self._owners if o != item.owner]
+        if item.yields and any(self._waits(o, pages_only=True) for o in others):
+            return True
+        if time.monotonic() - started < self.slice_s * 2 ** item.turns:
+            return False
+        return any(self._waits(o, pages_only=not item.yields) for o in others)
 
     def _loop(self) -> None:
         while True:
-            item = self._queue.get()
+            item = self._take()
             if item is None:
                 return
-            owner, job, fn, fut, yields = item
-            if not yields:
+            if not item.turns and not item.fut.set_running_or_notify_cancel():
                 with self._lock:
-                    self._waiting -= 1
-            if not fut.running() and not fut.set_running_or_notify_cancel():
+                    self._finished(item.owner)
                 continue
+            started = time.monotonic()
 
-            def check(owner=owner, job=job, yields=yields) -> None:
-                if not self._current(owner, job):
-                    raise Superseded("a newer request replaced this one")
-                if yields and self._waiting:
-                    raise Yielded("a page's request goes first")
+            def check(item=item, started=started) -> None:
+                with self._lock:
+                    if self._latest.get(item.owner) != item.job:
+                        raise Superseded("a newer request replaced this one")
+                    if self._gives_way(item, started):
+                        raise Yielded("another page's request takes its turn")
 
             try:
                 check()
-                result = fn(check)
-            except Yielded:  # behind the jobs that wait, to go on after them
-                self._queue.put(item)
+                result = item.fn(check)
+            except Yielded:  # behind the others, to go on at its next turn
+                with self._lock:
+                    item.turns += 1
+                    jobs = self._owners.pop(item.owner, deque())
+                    jobs.appendleft(item)
+                    self._owners[item.owner] = jobs  # the owner's turn comes last
                 continue
             except BaseException as exc:  # handed to the waiting side through the future
                 if not isinstance(exc, Superseded):
                     log.debug("studio job failed: %r", exc)
-                self._finished(owner)
-                fut.set_exception(exc)
+                with self._lock:
+                    self._finished(item.owner)
+                item.fut.set_exception(exc)
             else:
-                self._finished(owner)
-                fut.set_result(result)
+                with self._lock:
+                    self._finished(item.owner)
+                item.fut.set_result(result)

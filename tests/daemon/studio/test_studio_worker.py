@@ -96,7 +96,7 @@ def test_a_job_that_yields_gives_way_to_a_page_and_goes_on_after_it():
     result = w.submit("api", script, yields=True)
     assert result.result(10) == 6
     assert order == ["page", "script"] and calls == [0, 3]  # went on from its 3 steps
-    assert w._waiting == 0 and w._latest == {} and w._queued == {}
+    assert w.waiting() == 0 and w._latest == {} and w._queued == {}
     w.stop()
 
 
@@ -120,5 +120,77 @@ def test_a_job_that_yielded_and_was_cancelled_meanwhile_ends_superseded():
     with pytest.raises(Superseded):
         result.result(10)
     assert calls == [1]  # not called again once cancelled
-    assert w._waiting == 0 and w._latest == {} and w._queued == {}
+    assert w.waiting() == 0 and w._latest == {} and w._queued == {}
+    w.stop()
+
+
+def test_pages_take_turns_a_long_job_gives_way_after_its_slice():
+    """Two pages' long jobs and a third page's short one: the short one runs within about a
+    slice of the first, not after the long ones end; the long ones give way in turn and each
+    goes on (called again) until it ends."""
+    import time
+
+    w = Worker(slice_s=0.2)
+    order: list[str] = []
+    calls = {"a": 0, "b": 0}
+
+    def long(name: str) -> Callable[[Check], str]:
+        steps = []
+
+        def job(check: Check) -> str:
+            calls[name] += 1
+            while len(steps) < 40:  # 40 steps of 20 ms: 0.8 s alone
+                check()
+                time.sleep(0.02)
+                steps.append(1)
+            order.append(name)
+            return name
+        return job
+
+    t0 = time.monotonic()
+    a = w.submit("page a", long("a"))
+    b = w.submit("page b", long("b"))
+    time.sleep(0.05)
+    c = w.submit("page c", lambda check: (order.append("c"), time.monotonic() - t0)[1])
+    assert c.result(10) < 0.6  # a's slice, then b's at most
+    assert a.result(10) == "a" and b.result(10) == "b"
+    assert order[0] == "c" and calls["a"] >= 2 and calls["b"] >= 2
+    assert w.waiting() == 0 and w._latest == {} and w._queued == {}
+    w.stop()
+
+
+def test_a_job_alone_does_not_give_way_and_slices_double():
+    """Without another owner waiting a job runs on past its slice; against another one's, its
+    slice doubles at each turn it gives, so that it ends."""
+    import time
+
+    w = Worker(slice_s=0.05)
+    calls = []
+
+    def job(check: Check) -> int:
+        calls.append(time.monotonic())
+        t = time.monotonic()
+        while time.monotonic() - t < 0.3:
+            check()
+            time.sleep(0.005)
+        return len(calls)
+
+    assert w.submit("alone", job).result(10) == 1
+    calls.clear()
+    other_done = []
+
+    def other(check: Check) -> None:  # a page that keeps sending new inputs
+        for _ in range(200):
+            check()
+            time.sleep(0.002)
+        other_done.append(1)
+
+    running = w.submit("page", job)
+    for _ in range(60):  # 3 s of a page that always waits
+        w.submit("busy page", other)
+        time.sleep(0.05)
+        if running.done():
+            break
+    assert running.done(), "it never ended while another page waited"
+    assert running.result() >= 2  # it gave way, then ended on a doubled slice
     w.stop()
