@@ -25,6 +25,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike
 
+from grassd.firmware_proto.bus_lock import BusLock
 from grassd.firmware_proto.codec import Frame, encode_frame
 from grassd.firmware_proto.errors import (
     AddressError,
@@ -37,13 +38,14 @@ from grassd.firmware_proto.errors import (
     TransferInterrupted,
     TransientError,
 )
-from grassd.firmware_proto.framing import MAX_ADDRESS, MIN_ADDRESS
+from grassd.firmware_proto.framing import BROADCAST_ADDRESS, MAX_ADDRESS, MIN_ADDRESS
 from grassd.firmware_proto.line_quality import LineQuality
 from grassd.firmware_proto.link import SerialLink
 from grassd.firmware_proto.messages import (
     MAX_CHUNK_DATA,
     MAX_PATTERN_PIXELS,
     MAX_POSITIONS,
+    MAX_STAGE_PIXELS,
     RESPONSE_TYPES,
     Ack,
     GetPositions,
@@ -58,6 +60,8 @@ from grassd.firmware_proto.messages import (
     PatternEnd,
     Positions,
     SetLevel,
+    Show,
+    StageLevel,
     TableBegin,
     TableChunk,
     TableCommit,
@@ -176,7 +180,11 @@ class ControllerClient:
     :attr:`on_progress` (if set) is called after every acknowledged table chunk, so that a
     long push counts as progress (the daemon's watchdog); :attr:`cancel` (if set) ends a push
     at its next wait once set, as if its deadline had passed (the old table stays active).
-    Not thread-safe: use one client per port from one thread (``quality`` may be read from any).
+    Threads may share a client: every try of a request (send, then wait for the answer) holds
+    :attr:`bus` (a :class:`~.bus_lock.BusLock`, first come first served), a broadcast
+    :meth:`show` too, and a push releases the line between its requests, so frames, pushes and
+    status reads take turns (PROTOCOL.md section 5). :attr:`chunk_cap` (bytes, None: none)
+    limits the TABLE_CHUNKs of pushes from their next chunk on, while content plays.
     """
 
     def __init__(self, port: str, *, baudrate: int = 115_200,
@@ -193,6 +201,8 @@ class ControllerClient:
                                    p.chunk_grow_after, p.adaptive_chunks)
         self._rng = random.Random(seed)
         self._seq = self._rng.randrange(0x10000)
+        self.bus = BusLock()
+        self.chunk_cap: int | None = None
         self.retransmissions = 0
         self.stale_frames = 0
         self._info: dict[int, Info] = {}
@@ -253,8 +263,7 @@ class ControllerClient:
                              f"got {address}")
         p = self.policy
         retries = p.retries if retries is None else retries
-        self._seq = (self._seq + 1) & 0xFFFF
-        seq = self._seq
+        seq = self._next_seq()
         wire = encode_frame(Frame(address, seq, message))
         expected = RESPONSE_TYPES[message.TYPE]
         answer = 12 + max(_MAX_ANSWER_PAYLOAD[expected], 6)  # header, CRC, COBS, delimiter
@@ -267,17 +276,18 @@ class ControllerClient:
                 self._sleep(self._backoff(attempt))
             self._check_deadline()
             try:
-                self.link.send(wire)
-                deadline = time.monotonic() + timeout
-                if self._deadline is not None:
-                    deadline = min(deadline, self._deadline)
-                while (frame := self.link.receive(deadline)) is not None:
-                    m = frame.message
-                    if (frame.address == address and frame.seq == seq
-                            and m.TYPE in (expected, MsgType.NAK)):
-                        self.quality.note_try(True)
-                        return m
-                    self.stale_frames += 1
+                with self.bus:
+                    self.link.send(wire)
+                    deadline = time.monotonic() + timeout
+                    if self._deadline is not None:
+                        deadline = min(deadline, self._deadline)
+                    while (frame := self.link.receive(deadline)) is not None:
+                        m = frame.message
+                        if (frame.address == address and frame.seq == seq
+                                and m.TYPE in (expected, MsgType.NAK)):
+                            self.quality.note_try(True)
+                            return m
+                        self.stale_frames += 1
                 self._check_deadline()  # cut short by the push's deadline: not the line's fault
                 last = ControllerTimeout(f"no answer within {timeout:.3f} s")
             except PortUnavailable as exc:
@@ -289,6 +299,11 @@ class ControllerClient:
         if isinstance(last, PortUnavailable):
             raise PortUnavailable(f"{what}: {last}")
         raise ControllerTimeout(f"{what}: {last}; check the address, wiring and baud rate")
+
+    def _next_seq(self) -> int:
+        with self.bus:
+            self._seq = (self._seq + 1) & 0xFFFF
+            return self._seq
 
     def _expect(self, address: int, message: Message, cls: type[Message], **kw) -> Message:
         reply = self.request(address, message, **kw)
@@ -325,12 +340,54 @@ class ControllerClient:
                 continue
         return found
 
-    def set_levels(self, address: int, levels: ArrayLike, first_pixel: int = 0) -> None:
-        """SET_LEVEL: show 8-bit ``levels[i]`` on pixel ``first_pixel + i``."""
-        lv = np.asarray(levels)
-        if lv.ndim != 1 or lv.size == 0 or lv.min() < 0 or lv.max() > 255:
-            raise TableError("levels must be a non-empty 1-D sequence of integers 0..255")
-        self._expect(address, SetLevel(first_pixel, lv.astype(np.uint8).tobytes()), Ack)
+    def set_levels(self, address: int, levels: ArrayLike, first_pixel: int = 0,
+                   **kw) -> None:
+        """SET_LEVEL: show 8-bit ``levels[i]`` on pixel ``first_pixel + i`` (``kw``: retries,
+        timeout_s of :meth:`request`)."""
+        lv = _levels(levels)
+        self._expect(address, SetLevel(first_pixel, lv.tobytes()), Ack, **kw)
+
+    # --- the frame latch ------------------------------------------------------------------
+    def stage_levels(self, address: int, frame: int, levels: ArrayLike, first_pixel: int = 0,
+                     **kw) -> None:
+        """STAGE_LEVEL: stage 8-bit ``levels[i]`` for pixel ``first_pixel + i`` as part of
+        frame ``frame`` (0..65535); the controller shows them at the :meth:`show` of that
+        frame. More levels than one frame holds (1020) go in several STAGE_LEVELs. ``kw``:
+        retries, timeout_s of :meth:`request`.
+
+        Raises :class:`ControllerUnsupported` when the controller's INFO lacks the latch
+        feature (nothing sent; send :meth:`set_levels` instead), :class:`TableError` for
+        levels that are not a non-empty 1-D sequence of integers 0..255, :class:`NakError`
+        when it refuses (NO_TABLE, BAD_PIXEL), and the transient errors of :meth:`request`.
+        """
+        lv = _levels(levels)
+        self._latch_info(address)
+        for start in range(0, lv.size, MAX_STAGE_PIXELS):
+            part = lv[start:start + MAX_STAGE_PIXELS]
+            self._expect(address, StageLevel(frame & 0xFFFF, first_pixel + start,
+                                             part.tobytes()), Ack, **kw)
+
+    def show(self, frame: int) -> None:
+        """SHOW, broadcast: every controller on this line that staged frame ``frame`` shows
+        it now; none answers (a controller without the latch ignores it). Holds :attr:`bus`
+        while it writes; raises :class:`PortUnavailable` when the port is gone."""
+        seq = self._next_seq()
+        with self.bus:
+            self.link.send(encode_frame(Frame(BROADCAST_ADDRESS, seq, Show(frame & 0xFFFF))))
+
+    def supports_latch(self, address: int) -> bool:
+        """Whether controller ``address`` takes STAGE_LEVEL / SHOW (its INFO, read once)."""
+        info = self._info.get(address) or self.hello(address)
+        return info.supports_latch
+
+    def _latch_info(self, address: int) -> Info:
+        info = self._info.get(address) or self.hello(address)
+        if not info.supports_latch:
+            raise ControllerUnsupported(
+                f"controller {address} on {self.port} (firmware {info.firmware_version}) has "
+                f"no frame latch: its INFO lacks features bit 1 (STAGE_LEVEL / SHOW). Send "
+                f"SET_LEVEL to it, or flash firmware that has the latch")
+        return info
 
     def read_positions(self, address: int, first_pixel: int = 0,
                        count: int | None = None) -> np.ndarray:
@@ -506,10 +563,10 @@ class ControllerClient:
         then ControllerTimeout, and the push restarts from TABLE_BEGIN; without adaptation
         ``retries`` + 1 tries, as any request). Returns the size reached."""
         p, q = self.policy, self.quality
-        limit = max(1, min(info.max_chunk, p.chunk_bytes))
         floor_tries = p.chunk_floor_tries if p.adaptive_chunks else p.retries + 1  # as before
         offset = failed = 0
         while offset < len(data):
+            limit = self._chunk_limit(info)
             full = q.chunk_size(limit)
             size = min(full, len(data) - offset)
             try:
@@ -533,7 +590,26 @@ class ControllerClient:
             if self.on_progress is not None:
                 self.on_progress()
             self._check_deadline()  # also a stop request
-        return q.chunk_size(limit)
+        return q.chunk_size(self._chunk_limit(info))
+
+    def _chunk_limit(self, info: Info) -> int:
+        """The largest chunk to send now: the controller's, the policy's and :attr:`chunk_cap`
+        (never below the policy's ``min_chunk_bytes``)."""
+        p = self.policy
+        limit = max(1, min(info.max_chunk, p.chunk_bytes))
+        cap = self.chunk_cap
+        if cap is not None:
+            limit = min(limit, max(cap, min(p.min_chunk_bytes, limit)))
+        return limit
+
+
+def _levels(levels: ArrayLike) -> np.ndarray:
+    """``levels`` as uint8, checked: a non-empty 1-D sequence of integers 0..255."""
+    lv = np.asarray(levels)
+    if (lv.ndim != 1 or lv.size == 0 or not np.issubdtype(lv.dtype, np.integer)
+            or lv.min() < 0 or lv.max() > 255):
+        raise TableError("levels must be a non-empty 1-D sequence of integers 0..255")
+    return lv.astype(np.uint8)
 
 
 def _client(port: str, baudrate: int, policy: RetryPolicy | None, **overrides) -> ControllerClient:

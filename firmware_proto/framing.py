@@ -25,6 +25,9 @@ DELIMITER = b"\x00"
 HEADER_SIZE = 5
 #: Addresses a controller may have, the header's address byte (0 and 248..255 are reserved).
 MIN_ADDRESS, MAX_ADDRESS = 1, 247
+#: The broadcast address: every controller on the bus takes the frame and none answers (only
+#: SHOW may be broadcast; PROTOCOL.md section 2).
+BROADCAST_ADDRESS = 0
 #: CRC-32 trailer size.
 CRC_SIZE = 4
 #: Largest payload a frame may carry (bytes).

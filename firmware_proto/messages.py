@@ -33,10 +33,14 @@ MAX_POSITIONS = 255
 NO_BANK = 0xFF
 #: INFO ``features`` bit: the controller implements PATTERN / PATTERN_END (test patterns).
 FEATURE_PATTERNS = 0x0001
+#: INFO ``features`` bit: the controller implements STAGE_LEVEL / SHOW (the frame latch).
+FEATURE_LATCH = 0x0002
 #: Payload bytes of INFO before ``features`` existed (controllers without any feature bit).
 INFO_V1_BASE_BYTES = 16
 #: Most lengths one PATTERN frame carries (payload minus timeout_ds and first_pixel, 2 B each).
 MAX_PATTERN_PIXELS = (MAX_PAYLOAD - 4) // 2
+#: Most levels one STAGE_LEVEL frame carries (payload minus frame and first_pixel).
+MAX_STAGE_PIXELS = MAX_PAYLOAD - 4
 
 class MsgType(IntEnum):
     """Message type codes; requests have bit 7 clear, responses set."""
@@ -50,6 +54,8 @@ class MsgType(IntEnum):
     GET_POSITIONS = 0x07
     PATTERN = 0x08
     PATTERN_END = 0x09
+    STAGE_LEVEL = 0x0A
+    SHOW = 0x0B
     INFO = 0x81
     TABLE_STATUS = 0x82
     POSITIONS = 0x87
@@ -183,6 +189,11 @@ class Info(Message):
     def supports_patterns(self) -> bool:
         """True when the controller takes PATTERN / PATTERN_END (raw lengths, watchdog)."""
         return bool(self.features & FEATURE_PATTERNS)
+
+    @property
+    def supports_latch(self) -> bool:
+        """True when the controller takes STAGE_LEVEL / SHOW (levels shown on a broadcast)."""
+        return bool(self.features & FEATURE_LATCH)
 
     def pack(self) -> bytes:
         """The payload: as received when decoded from the wire (an older controller's 16
@@ -342,6 +353,31 @@ class PatternEnd(Message):
 
 
 @dataclass(frozen=True)
+class StageLevel(Message):
+    """Request: stage ``levels[i]`` (8-bit) for pixel ``first_pixel + i`` as part of frame
+    ``frame``; nothing moves until a :class:`Show` of that frame (PROTOCOL.md §3, the frame
+    latch)."""
+
+    TYPE: ClassVar[MsgType] = MsgType.STAGE_LEVEL
+    _FMT: ClassVar[str] = "<HH"
+    _TAIL: ClassVar[str] = "levels"
+    _TAIL_MAX: ClassVar[int] = MAX_STAGE_PIXELS
+    frame: int  #: the host's frame number (u16, wraps)
+    first_pixel: int
+    levels: bytes
+
+
+@dataclass(frozen=True)
+class Show(Message):
+    """Request, usually broadcast (address 0, never answered): every controller that staged
+    frame ``frame`` shows it now; to one controller's address it is answered ACK."""
+
+    TYPE: ClassVar[MsgType] = MsgType.SHOW
+    _FMT: ClassVar[str] = "<H"
+    frame: int
+
+
+@dataclass(frozen=True)
 class Ack(Message):
     """Response: the request of type ``request_type`` was carried out."""
 
@@ -365,7 +401,8 @@ class Nak(Message):
 MESSAGE_CLASSES: dict[int, type[Message]] = {
     cls.TYPE: cls
     for cls in (Hello, Info, GetStatus, TableStatus, TableBegin, TableChunk, TableCommit,
-                SetLevel, GetPositions, Pattern, PatternEnd, Positions, Ack, Nak)
+                SetLevel, GetPositions, Pattern, PatternEnd, StageLevel, Show, Positions, Ack,
+                Nak)
 }
 
 #: Response types a request may be answered with (besides NAK).
@@ -379,6 +416,8 @@ RESPONSE_TYPES: dict[int, MsgType] = {
     MsgType.GET_POSITIONS: MsgType.POSITIONS,
     MsgType.PATTERN: MsgType.ACK,
     MsgType.PATTERN_END: MsgType.ACK,
+    MsgType.STAGE_LEVEL: MsgType.ACK,
+    MsgType.SHOW: MsgType.ACK,
 }
 
 

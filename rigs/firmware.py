@@ -20,8 +20,9 @@ import numpy as np
 from grassd.firmware_proto.codec import Frame, encode_frame, parse_header
 from grassd.firmware_proto.crc import crc32_iso_hdlc
 from grassd.firmware_proto.errors import FrameError, SimulatorError
-from grassd.firmware_proto.framing import MAX_ADDRESS, MIN_ADDRESS
+from grassd.firmware_proto.framing import BROADCAST_ADDRESS, MAX_ADDRESS, MIN_ADDRESS
 from grassd.firmware_proto.messages import (
+    FEATURE_LATCH,
     FEATURE_PATTERNS,
     INFO_V1_BASE_BYTES,
     MAX_CHUNK_DATA,
@@ -42,6 +43,8 @@ from grassd.firmware_proto.messages import (
     PatternEnd,
     Positions,
     SetLevel,
+    Show,
+    StageLevel,
     StagingState,
     TableBegin,
     TableChunk,
@@ -71,6 +74,10 @@ class ControllerConfig:
     #: implements test patterns (PATTERN / PATTERN_END, INFO features bit 0); False answers
     #: as a controller from before them: 16-byte INFO, NAK UNKNOWN_TYPE to 0x08 / 0x09
     patterns: bool = True
+    #: implements the frame latch (STAGE_LEVEL / SHOW, INFO features bit 1); False answers as
+    #: a controller from before it: NAK UNKNOWN_TYPE to 0x0A / 0x0B, a broadcast SHOW ignored
+    #: (a controller without ``patterns``, from before INFO's features, has no latch either)
+    latch: bool = True
 
     def __post_init__(self) -> None:
         if not MIN_ADDRESS <= self.address <= MAX_ADDRESS:
@@ -80,6 +87,11 @@ class ControllerConfig:
             raise SimulatorError(f"n_pixels must be 1..65535, got {self.n_pixels}")
         if not 1 <= self.max_chunk <= MAX_CHUNK_DATA:
             raise SimulatorError(f"max_chunk must be 1..{MAX_CHUNK_DATA}, got {self.max_chunk}")
+
+    @property
+    def has_latch(self) -> bool:
+        """True when it implements STAGE_LEVEL / SHOW (``latch`` on a controller with features)."""
+        return self.latch and self.patterns
 
     @property
     def capacity(self) -> int:
@@ -153,6 +165,9 @@ class Controller:
         self._target = np.zeros(n)
         self._normal = np.zeros(n)  # targets of normal display (shown when no pattern is)
         self._pattern_until: float | None = None  # clock time the pattern's watchdog ends it
+        self._staged = np.zeros(n, dtype=np.uint8)  # the frame latch: levels staged
+        self._staged_mask = np.zeros(n, dtype=bool)  # ... and which pixels a STAGE named
+        self._stage_frame: int | None = None  # the frame number they belong to
         self._t = clock()
         self.boots = 0
         self.boot()
@@ -173,6 +188,8 @@ class Controller:
             self._target = self._pos.copy()  # motors stop where they are
             self._normal = self._target.copy()
             self._pattern_until = None  # pattern mode lives in RAM only
+            self._staged_mask[:] = False  # so does the latch
+            self._stage_frame = None
             self._ready_at = self.clock() + self.config.boot_s
             self.boots += 1
 
@@ -216,13 +233,18 @@ class Controller:
         """Process one CRC-checked frame body; return the wire bytes of the answer, or None.
 
         Frames for other addresses, responses, and frames arriving while booting are ignored.
-        A simulated power loss inside an EEPROM write reboots the controller (no answer).
+        A broadcast (address 0) SHOW is carried out and never answered; the reply cache is
+        left as it was. A simulated power loss inside an EEPROM write reboots the controller
+        (no answer).
         """
         try:
             header = parse_header(body)
         except FrameError:
             return None
         cfg = self.config
+        if header.address == BROADCAST_ADDRESS and not header.msg_type & 0x80:
+            self._broadcast(header.version, header.msg_type, header.payload)
+            return None
         if header.address != cfg.address or header.msg_type & 0x80:
             return None
         with self._lock:
@@ -258,12 +280,32 @@ class Controller:
             Hello: self._hello, GetStatus: self._status, TableBegin: self._begin,
             TableChunk: self._chunk, TableCommit: self._commit, SetLevel: self._set_level,
             GetPositions: self._get_positions, Pattern: self._pattern,
-            PatternEnd: self._pattern_end,
+            PatternEnd: self._pattern_end, StageLevel: self._stage_level, Show: self._show,
         }[type(msg)]
         return handler(msg)
 
     def _knows(self, msg_type: int) -> bool:
-        return self.config.patterns or msg_type not in (MsgType.PATTERN, MsgType.PATTERN_END)
+        if msg_type in (MsgType.PATTERN, MsgType.PATTERN_END):
+            return self.config.patterns
+        if msg_type in (MsgType.STAGE_LEVEL, MsgType.SHOW):
+            return self.config.has_latch
+        return True
+
+    def _broadcast(self, version: int, msg_type: int, payload: bytes) -> None:
+        """A frame to every controller: a SHOW this controller knows is carried out; anything
+        else (another type, version or a bad payload) is ignored. Never answered."""
+        if (version != PROTOCOL_VERSION or msg_type != MsgType.SHOW
+                or not self._knows(msg_type)):
+            return
+        try:
+            msg = unpack_payload(msg_type, payload)
+        except FrameError:
+            return
+        with self._lock:
+            if self.clock() < self._ready_at:
+                return
+            self._advance()
+            self._show(msg)
 
     # --- handlers -------------------------------------------------------------------------
     def _hello(self, _: Hello) -> Message:
@@ -271,8 +313,9 @@ class Controller:
         if not c.patterns:
             return _InfoBeforeFeatures(PROTOCOL_VERSION, *c.firmware_version, c.uid, c.n_pixels,
                                        c.capacity, c.max_chunk, c.max_length_um)
+        features = FEATURE_PATTERNS | (FEATURE_LATCH if c.has_latch else 0)
         return Info(PROTOCOL_VERSION, *c.firmware_version, c.uid, c.n_pixels, c.capacity,
-                    c.max_chunk, c.max_length_um, FEATURE_PATTERNS)
+                    c.max_chunk, c.max_length_um, features)
 
     def _status(self, _: GetStatus) -> Message:
         h, t = self.active_header, self.transfer
@@ -352,13 +395,40 @@ class Controller:
             return Nak(m.TYPE, NakCode.NO_TABLE, 0)
         self._advance()
         levels = np.frombuffer(m.levels, dtype=np.uint8)
-        pixels = np.arange(m.first_pixel, m.first_pixel + levels.size)
+        self._apply_levels(np.arange(m.first_pixel, m.first_pixel + levels.size), levels)
+        return Ack(m.TYPE)
+
+    def _apply_levels(self, pixels: np.ndarray, levels: np.ndarray) -> None:
+        """Normal display of ``pixels`` becomes ``table[levels]``, the table active now."""
         if self.table.ndim == 1:
             self._normal[pixels] = self.table[levels]
         else:
             self._normal[pixels] = self.table[pixels, levels]
         if self._pattern_until is None:  # a pattern holds every pixel until it ends
             self._target[pixels] = self._normal[pixels]
+
+    def _stage_level(self, m: StageLevel) -> Message:
+        n = self.config.n_pixels
+        if m.first_pixel + len(m.levels) > n:
+            return Nak(m.TYPE, NakCode.BAD_PIXEL, n)
+        if self.table is None:
+            return Nak(m.TYPE, NakCode.NO_TABLE, 0)
+        if m.frame != self._stage_frame:  # a new frame: what another one staged is dropped
+            self._staged_mask[:] = False
+            self._stage_frame = m.frame
+        sl = slice(m.first_pixel, m.first_pixel + len(m.levels))
+        self._staged[sl] = np.frombuffer(m.levels, dtype=np.uint8)
+        self._staged_mask[sl] = True
+        return Ack(m.TYPE)
+
+    def _show(self, m: Show) -> Message:
+        """The staged pixels of frame ``m.frame`` take their levels through the table active
+        now; a SHOW of another frame drops what is staged. Staging is empty afterwards."""
+        if m.frame == self._stage_frame and self._staged_mask.any() and self.table is not None:
+            pixels = np.flatnonzero(self._staged_mask)
+            self._apply_levels(pixels, self._staged[pixels])
+        self._staged_mask[:] = False
+        self._stage_frame = None
         return Ack(m.TYPE)
 
     def _pattern(self, m: Pattern) -> Message:

@@ -17,6 +17,10 @@ Files:
 * ``pattern.json``: test patterns (PATTERN, PATTERN_END) with the reference firmware: raw
   lengths with and without a table, the NAKs, a table push and SET_LEVEL held by the pattern,
   PATTERN_END restoring table[level]; request and answer per step.
+* ``latch.json``: the frame latch (STAGE_LEVEL, SHOW) with the reference firmware: staging
+  moves nothing, a broadcast SHOW (no answer) shows the staged frame, a SHOW of another frame
+  shows nothing, a new frame number drops an unshown one, a commit between STAGE and SHOW
+  applies at the SHOW, a unicast SHOW is answered; request and answer (null: none) per step.
 """
 
 from __future__ import annotations
@@ -33,7 +37,9 @@ import numpy as np
 from grassd import firmware_proto
 from grassd.firmware_proto.codec import Frame, encode_frame, parse_body
 from grassd.firmware_proto.crc import crc32_iso_hdlc
+from grassd.firmware_proto.framing import BROADCAST_ADDRESS
 from grassd.firmware_proto.messages import (
+    FEATURE_LATCH,
     FEATURE_PATTERNS,
     MESSAGE_CLASSES,
     Ack,
@@ -48,6 +54,8 @@ from grassd.firmware_proto.messages import (
     PatternEnd,
     Positions,
     SetLevel,
+    Show,
+    StageLevel,
     TableBegin,
     TableChunk,
     TableCommit,
@@ -98,9 +106,9 @@ def _messages() -> dict:
     frames = [
         ("hello", Frame(1, 0x0001, Hello())),
         ("info", Frame(1, 0x0001, Info(1, 1, 0, 0, 0x6A5D0001, 16, 16, 256, 20000,
-                                       FEATURE_PATTERNS)),
-         "features bit 0: test patterns (a controller from before features sends the first "
-         "16 payload bytes only, read as features 0)"),
+                                       FEATURE_PATTERNS | FEATURE_LATCH)),
+         "features bit 0: test patterns, bit 1: the frame latch (a controller from before "
+         "features sends the first 16 payload bytes only, read as features 0)"),
         ("get_status", Frame(1, 0x0002, GetStatus())),
         ("table_status_none", Frame(1, 0x0002, TableStatus(0xFF, 0, 0, 0, 0, 0, 0, 0)),
          "no valid table committed yet"),
@@ -116,6 +124,10 @@ def _messages() -> dict:
         ("pattern", Frame(5, 0x0008, Pattern(30, 1, _lengths([5000, 20000]))),
          "pixels 1 and 2 to 5 mm and 20 mm for 3.0 s after this frame"),
         ("pattern_end", Frame(5, 0x0009, PatternEnd())),
+        ("stage_level", Frame(5, 0x000A, StageLevel(0x0102, 2, bytes([0, 128, 255]))),
+         "levels of pixels 2..4 for frame 0x0102, shown at its SHOW"),
+        ("show_broadcast", Frame(BROADCAST_ADDRESS, 0x000B, Show(0x0102)),
+         "address 0: every controller that staged frame 0x0102 shows it; none answers"),
         ("nak_pattern_value_range", Frame(5, 0x0008, Nak(MsgType.PATTERN, NakCode.VALUE_RANGE,
                                                           1)),
          "the second length of the frame is over max_length_um"),
@@ -166,7 +178,8 @@ def _lengths(um: list[int]) -> bytes:
 
 def _conversation(requests: list, seq0: int) -> list[dict]:
     """Each request (seq ``seq0 + i``) to a fresh controller at address 3 (16 pixels, clock
-    stopped at 0: no motion, no watchdog), with the answer's wire bytes and meaning."""
+    stopped at 0: no motion, no watchdog), with the answer's wire bytes and meaning (None for
+    a broadcast, which is never answered). A request may be ``(address, message)``."""
     from grassd.firmware_proto.framing import FrameReader
     from grassd.rigs.firmware import Controller, ControllerConfig
 
@@ -176,14 +189,18 @@ def _conversation(requests: list, seq0: int) -> list[dict]:
                          clock=lambda: 0.0)
         reader = FrameReader()
         for i, req in enumerate(requests):
-            frame = Frame(3, seq0 + i, req)
+            address, req = req if isinstance(req, tuple) else (3, req)
+            frame = Frame(address, seq0 + i, req)
             wire = encode_frame(frame)
             (body,) = reader.feed(wire)
             answer = ctl.handle(body)
-            (answer_body,) = FrameReader().feed(answer)
-            steps.append({"request": {"hex": wire.hex(), "meaning": frame_to_meaning(frame)},
-                          "answer": {"hex": answer.hex(),
-                                     "meaning": frame_to_meaning(parse_body(answer_body))}})
+            step = {"request": {"hex": wire.hex(), "meaning": frame_to_meaning(frame)},
+                    "answer": None}
+            if answer is not None:
+                (answer_body,) = FrameReader().feed(answer)
+                step["answer"] = {"hex": answer.hex(),
+                                  "meaning": frame_to_meaning(parse_body(answer_body))}
+            steps.append(step)
         ctl.close()
     return steps
 
@@ -234,10 +251,48 @@ def _pattern() -> dict:
     }
 
 
+def _latch() -> dict:
+    t = example_table()
+    data, crc = table_bytes(t), table_crc(t)
+    half = (t // 2).astype(np.uint16)
+    hdata, hcrc = table_bytes(half), table_crc(half)
+    four = GetPositions(0, 4)
+    show = (BROADCAST_ADDRESS, Show(7))
+    requests = [
+        Hello(), StageLevel(7, 0, bytes([255])),  # NAK NO_TABLE: nothing staged
+        TableBegin(0x2A, TableKind.GLOBAL, 1, len(data), crc),
+        *[TableChunk(0x2A, o, data[o:o + n]) for o, n in chunk_spans(len(data), 256)],
+        TableCommit(0x2A, crc),
+        StageLevel(7, 0, bytes([0, 64, 128, 255])), four,  # staged: no target moves
+        (BROADCAST_ADDRESS, Show(6)), four,  # another frame: nothing shown, staging dropped
+        StageLevel(7, 0, bytes([0, 64, 128, 255])), show, four,  # shown at once
+        show, four,  # shown already: a second SHOW changes nothing
+        StageLevel(8, 0, bytes([10, 10])), StageLevel(9, 2, bytes([200, 200])),  # 8 dropped
+        (BROADCAST_ADDRESS, Show(9)), four,  # only frame 9's pixels 2, 3 move
+        StageLevel(10, 0, bytes([255, 255, 255, 255])),
+        TableBegin(0x2B, TableKind.GLOBAL, 1, len(hdata), hcrc),
+        *[TableChunk(0x2B, o, hdata[o:o + n]) for o, n in chunk_spans(len(hdata), 256)],
+        TableCommit(0x2B, hcrc), four,  # committed: nothing moves until the SHOW
+        Show(10), four,  # to its address: answered ACK; table 0x2B's lengths
+        StageLevel(11, 15, bytes([1, 2])),  # NAK BAD_PIXEL 16
+        (BROADCAST_ADDRESS, SetLevel(0, bytes([0]))), four,  # broadcast other than SHOW: ignored
+    ]
+    return {
+        "description": "The frame latch with a fresh controller (address 3, 16 pixels, clock "
+                       "stopped: motors at 0): STAGE_LEVEL moves nothing, a broadcast SHOW "
+                       "(address 0, answer null) shows the staged frame, a SHOW of another "
+                       "frame or a new frame number drops what is staged, a table committed "
+                       "between STAGE and SHOW is the one shown; GET_POSITIONS shows (position, "
+                       "target) pairs.",
+        "table_um": t.tolist(),
+        "steps": _conversation(requests, 0x0300),
+    }
+
+
 def build_vectors() -> dict[str, dict]:
     """Every vector file's content, keyed by file name."""
     return {"messages.json": _messages(), "framing.json": _framing(),
-            "transfer.json": _transfer(), "pattern.json": _pattern()}
+            "transfer.json": _transfer(), "pattern.json": _pattern(), "latch.json": _latch()}
 
 
 def load_vectors() -> dict[str, dict]:

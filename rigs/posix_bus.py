@@ -15,6 +15,7 @@ import os
 import subprocess
 import threading
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,16 @@ from grassd.rigs.processes import end_process
 
 #: Exit status of a posix firmware process that lost power at ``--power-cut-at``.
 EXIT_POWER_CUT = 3
+
+
+@dataclass(frozen=True)
+class TargetChange:
+    """A frame changed ``pixels`` motor targets of controller ``address`` at ``t_ns``
+    (CLOCK_MONOTONIC nanoseconds, :func:`time.monotonic_ns` in this process)."""
+
+    t_ns: int
+    address: int
+    pixels: int
 
 
 class _Counters:
@@ -69,13 +80,16 @@ class PosixBus:
     this rate (None: as fast as the pty goes). ``power_cut_at``: the process
     loses power at its k-th storage write, when ``power_cut_keep`` ("half", "none" or
     "all-but-one") of that write's bytes have landed (see ``firmware/ports/posix/main.c``).
+    ``trace_path``: the process appends a line to this file whenever a frame changed a
+    controller's motor targets (:meth:`target_changes` reads it back).
     """
 
     def __init__(self, state_dir: str | Path, addresses: Sequence[int], *,
                  n_pixels: int | Sequence[int] = ControllerConfig.n_pixels,
                  link_path: str | Path | None = None,
                  max_chunk: int = ControllerConfig.max_chunk, power_cut_at: int | None = None,
-                 power_cut_keep: str = "half", baud: int | None = None) -> None:
+                 power_cut_keep: str = "half", baud: int | None = None,
+                 trace_path: str | Path | None = None) -> None:
         pixels = bus_pixels("a posix firmware bus", addresses, n_pixels)
         self.state_dir = Path(state_dir)
         self.link_path = Path(link_path) if link_path is not None else None
@@ -83,6 +97,7 @@ class PosixBus:
         self.power_cut_at = power_cut_at
         self.power_cut_keep = power_cut_keep
         self.baud = baud
+        self.trace_path = Path(trace_path) if trace_path is not None else None
         self.controllers = [
             NativeController(simulated_config(a, n_pixels=p, max_chunk=max_chunk), self.state_dir)
             for a, p in zip(addresses, pixels, strict=True)]
@@ -112,6 +127,8 @@ class PosixBus:
             cmd += ["--link", str(self.link_path)]
         if self.baud:
             cmd += ["--baud", str(self.baud)]
+        if self.trace_path is not None:
+            cmd += ["--trace", str(self.trace_path)]
         if self.power_cut_at is not None:
             cmd += ["--power-cut-at", f"{self.power_cut_at}:{self.power_cut_keep}"]
         self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
@@ -126,6 +143,18 @@ class PosixBus:
                                         name=f"posixfw:{self.path}")
         self._reader.start()
         return self
+
+    def target_changes(self) -> list[TargetChange]:
+        """Every change of motor targets a frame made so far (needs ``trace_path``), in the
+        order they happened."""
+        if self.trace_path is None or not self.trace_path.exists():
+            return []
+        out = []
+        for line in self.trace_path.read_text().splitlines():
+            words = line.split()
+            if len(words) == 3:  # a line being written is left for the next read
+                out.append(TargetChange(int(words[0]), int(words[1]), int(words[2])))
+        return out
 
     def _read_stdout(self) -> None:
         assert self.proc is not None and self.proc.stdout is not None

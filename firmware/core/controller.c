@@ -42,6 +42,7 @@ int fw_boot(fw_controller *c, const fw_hal *hal, const fw_config *cfg)
     c->last_valid = 0;
     fw_motors_init(&c->motors, hal, cfg->n_pixels);
     fw_pattern_boot(&c->pattern, &c->motors, cfg->n_pixels);
+    fw_latch_boot(&c->latch);
     return 0;
 }
 
@@ -70,7 +71,8 @@ static fw_msg on_hello(fw_controller *c)
     fw_msg m = {.type = FW_INFO};
     m.u.info = (fw_info){FW_PROTOCOL_VERSION, FW_VERSION_MAJOR, FW_VERSION_MINOR,
                          FW_VERSION_PATCH, c->cfg.uid, c->cfg.n_pixels, capacity(c),
-                         c->cfg.max_chunk, c->cfg.max_length_um, FW_FEATURE_PATTERNS};
+                         c->cfg.max_chunk, c->cfg.max_length_um,
+                         FW_FEATURE_PATTERNS | FW_FEATURE_LATCH};
     return m;
 }
 
@@ -189,6 +191,13 @@ static fw_msg on_commit(fw_controller *c, const fw_table_commit *m)
     return ack(FW_TABLE_COMMIT);
 }
 
+/* Normal display of pixel p becomes table[level], the table active now. */
+static void show_level(fw_controller *c, uint16_t p, uint8_t level)
+{
+    uint16_t t = c->active.kind == FW_KIND_PER_PIXEL && p < c->active.n_tables ? p : 0;
+    fw_pattern_set_normal(&c->pattern, &c->motors, p, c->table[t][level]);
+}
+
 static fw_msg on_set_level(fw_controller *c, const fw_set_level *s)
 {
     uint16_t n = c->cfg.n_pixels;
@@ -196,12 +205,40 @@ static fw_msg on_set_level(fw_controller *c, const fw_set_level *s)
         return nak(FW_SET_LEVEL, FW_NAK_BAD_PIXEL, n);
     if (c->active_bank == FW_NO_BANK)
         return nak(FW_SET_LEVEL, FW_NAK_NO_TABLE, 0);
-    for (uint16_t i = 0; i < s->levels_len; i++) {
-        uint16_t p = (uint16_t)(s->first_pixel + i);
-        uint16_t t = c->active.kind == FW_KIND_PER_PIXEL && p < c->active.n_tables ? p : 0;
-        fw_pattern_set_normal(&c->pattern, &c->motors, p, c->table[t][s->levels[i]]);
-    }
+    for (uint16_t i = 0; i < s->levels_len; i++)
+        show_level(c, (uint16_t)(s->first_pixel + i), s->levels[i]);
     return ack(FW_SET_LEVEL);
+}
+
+static fw_msg on_stage_level(fw_controller *c, const fw_stage_level *s)
+{
+    uint16_t n = c->cfg.n_pixels;
+    if ((uint32_t)s->first_pixel + s->levels_len > n)
+        return nak(FW_STAGE_LEVEL, FW_NAK_BAD_PIXEL, n);
+    if (c->active_bank == FW_NO_BANK)
+        return nak(FW_STAGE_LEVEL, FW_NAK_NO_TABLE, 0);
+    fw_latch_stage(&c->latch, s->frame, s->first_pixel, s->levels, s->levels_len);
+    return ack(FW_STAGE_LEVEL);
+}
+
+/* SHOW: the staged pixels of that frame take their levels through the table active now. */
+static fw_msg on_show(fw_controller *c, const fw_show *s)
+{
+    if (fw_latch_take(&c->latch, s->frame) && c->active_bank != FW_NO_BANK)
+        for (uint16_t p = 0; p < c->cfg.n_pixels; p++)
+            if (fw_latch_has(&c->latch, p))
+                show_level(c, p, c->latch.level[p]);
+    fw_latch_clear(&c->latch);
+    return ack(FW_SHOW);
+}
+
+/* A frame to every controller: a valid SHOW is carried out, anything else ignored. */
+static void on_broadcast(fw_controller *c, const uint8_t *body, size_t n)
+{
+    fw_msg req;
+    if (body[FW_HEADER_VERSION] == FW_PROTOCOL_VERSION && body[FW_HEADER_TYPE] == FW_SHOW
+        && fw_msg_unpack(FW_SHOW, body + FW_HEADER_SIZE, n - FW_HEADER_SIZE, &req) == FW_MSG_OK)
+        (void)on_show(c, &req.u.show);
 }
 
 static fw_msg on_pattern(fw_controller *c, const fw_pattern *p)
@@ -251,6 +288,10 @@ size_t fw_handle_body(fw_controller *c, const uint8_t *body, size_t n)
     uint8_t version = body[FW_HEADER_VERSION], address = body[FW_HEADER_ADDRESS];
     uint8_t type = body[FW_HEADER_TYPE];
     uint16_t seq = fw_get16(body + FW_HEADER_SEQ);
+    if (address == FW_BROADCAST_ADDRESS && !(type & FW_TYPE_RESPONSE)) {
+        on_broadcast(c, body, n);
+        return 0;
+    }
     if (address != c->cfg.address || (type & FW_TYPE_RESPONSE))
         return 0;
     uint32_t crc = fw_crc32(body, n);
@@ -281,6 +322,8 @@ size_t fw_handle_body(fw_controller *c, const uint8_t *body, size_t n)
             case FW_SET_LEVEL: ans = on_set_level(c, &req.u.set_level); break;
             case FW_PATTERN: ans = on_pattern(c, &req.u.pattern); break;
             case FW_PATTERN_END: ans = on_pattern_end(c); break;
+            case FW_STAGE_LEVEL: ans = on_stage_level(c, &req.u.stage_level); break;
+            case FW_SHOW: ans = on_show(c, &req.u.show); break;
             case FW_GET_POSITIONS:
                 out_payload = on_get_positions(c, &req.u.get_positions, out + FW_HEADER_SIZE, &ans);
                 if (out_payload)
@@ -319,6 +362,11 @@ int fw_rx_feed(fw_controller *c, const uint8_t *data, size_t n)
 int fw_poll(fw_controller *c)
 {
     return fw_pattern_poll(&c->pattern, &c->motors, c->cfg.n_pixels, c->hal->millis(c->hal->ctx));
+}
+
+uint16_t fw_target_um(const fw_controller *c, uint16_t p)
+{
+    return c->motors.target_um[p];   /* only the main context writes it */
 }
 
 void fw_tick(fw_controller *c)

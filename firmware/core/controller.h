@@ -9,6 +9,7 @@
 #include "board_defaults.h"
 #include "frame.h"
 #include "hal.h"
+#include "latch.h"
 #include "limits.h"
 #include "motor.h"
 #include "msg.h"
@@ -60,6 +61,7 @@ typedef struct fw_controller {
     uint8_t wire[FW_MAX_WIRE + FW_WIRE_SLACK];
     fw_motors motors;
     fw_pattern_state pattern;   /* test patterns: RAM only, normal display after a boot */
+    fw_latch_state latch;       /* levels staged for a SHOW: RAM only, empty after a boot */
 } fw_controller;
 
 /* Power-on: check the configuration, select the active bank, load its table, forget all RAM
@@ -73,7 +75,9 @@ int fw_boot(fw_controller *c, const fw_hal *hal, const fw_config *cfg);
 #define FW_RX_NO_FRAME (-1)
 int fw_rx_feed(fw_controller *c, const uint8_t *data, size_t n);
 /* Handle one CRC-checked body (header + payload). Returns the answer's wire length (at
- * c->wire; also sent with hal->tx), or 0 when nothing is answered. */
+ * c->wire; also sent with hal->tx), or 0 when nothing is answered (another address, a
+ * broadcast: FW_BROADCAST_ADDRESS frames are carried out, never answered, and leave the
+ * reply cache alone). */
 size_t fw_handle_body(fw_controller *c, const uint8_t *body, size_t n);
 /* One period of the motor loop (every FW_TICK_US; on a microcontroller from a timer interrupt
  * of higher priority than the UART, so that no frame can delay it). What it shares with the
@@ -84,5 +88,8 @@ void fw_tick(fw_controller *c);
  * Returns 1 when it just ended a pattern, i.e. moved targets: a port whose motor loop rests
  * while no motor moves must wake it then. Main context, as fw_rx_feed. */
 int fw_poll(fw_controller *c);
+/* The target (um) pixel p's motor drives towards now (what GET_POSITIONS reports as target_um);
+ * for a port that watches what frames change. Main context. */
+uint16_t fw_target_um(const fw_controller *c, uint16_t p);
 
 #endif

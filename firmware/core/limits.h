@@ -23,6 +23,7 @@
 #define FW_MAX_POSITIONS 255u
 #define FW_MIN_ADDRESS 1u
 #define FW_MAX_ADDRESS 247u
+#define FW_BROADCAST_ADDRESS 0u        /* every controller takes it, none answers: SHOW only */
 #define FW_NO_BANK 0xFFu
 #define FW_TABLE_ENTRIES 256u
 #define FW_TABLE_BYTES 512u

@@ -10,7 +10,8 @@ static const layout layouts[] = {
     {FW_TABLE_BEGIN, 15, 0, 0, 0},   {FW_TABLE_CHUNK, 8, 1, FW_MAX_CHUNK_DATA, 1},
     {FW_TABLE_COMMIT, 8, 0, 0, 0},   {FW_SET_LEVEL, 2, 1, FW_MAX_PAYLOAD - 2u, 1},
     {FW_GET_POSITIONS, 4, 0, 0, 0},  {FW_PATTERN, 4, 2, 2u * FW_MAX_PATTERN_PIXELS, 2},
-    {FW_PATTERN_END, 0, 0, 0, 0},    {FW_INFO, 18, 0, 0, 0},
+    {FW_PATTERN_END, 0, 0, 0, 0},    {FW_STAGE_LEVEL, 4, 1, FW_MAX_STAGE_PIXELS, 1},
+    {FW_SHOW, 2, 0, 0, 0},           {FW_INFO, 18, 0, 0, 0},
     {FW_TABLE_STATUS, 21, 0, 0, 0},  {FW_POSITIONS, 2, 0, 4u * FW_MAX_POSITIONS, 4},
     {FW_ACK, 1, 0, 0, 0},            {FW_NAK, 6, 0, 0, 0},
 };
@@ -88,6 +89,15 @@ int fw_msg_unpack(uint8_t type, const uint8_t *p, size_t n, fw_msg *m)
         m->u.pattern.lengths = p + 4;
         m->u.pattern.lengths_len = tail_len;
         break;
+    case FW_STAGE_LEVEL:
+        m->u.stage_level.frame = fw_get16(p);
+        m->u.stage_level.first_pixel = fw_get16(p + 2);
+        m->u.stage_level.levels = p + 4;
+        m->u.stage_level.levels_len = tail_len;
+        break;
+    case FW_SHOW:
+        m->u.show.frame = fw_get16(p);
+        break;
     case FW_POSITIONS:
         m->u.positions.first_pixel = fw_get16(p);
         m->u.positions.positions = p + 2;
@@ -151,6 +161,14 @@ size_t fw_msg_pack(const fw_msg *m, uint8_t *p)
         fw_put16(p + 2, m->u.pattern.first_pixel);
         memcpy(p + 4, m->u.pattern.lengths, m->u.pattern.lengths_len);
         return 4u + m->u.pattern.lengths_len;
+    case FW_STAGE_LEVEL:
+        fw_put16(p, m->u.stage_level.frame);
+        fw_put16(p + 2, m->u.stage_level.first_pixel);
+        memcpy(p + 4, m->u.stage_level.levels, m->u.stage_level.levels_len);
+        return 4u + m->u.stage_level.levels_len;
+    case FW_SHOW:
+        fw_put16(p, m->u.show.frame);
+        return 2;
     case FW_POSITIONS:
         fw_put16(p, m->u.positions.first_pixel);
         memcpy(p + 2, m->u.positions.positions, m->u.positions.positions_len);

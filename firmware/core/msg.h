@@ -10,7 +10,7 @@
 enum fw_type {
     FW_HELLO = 0x01, FW_GET_STATUS = 0x02, FW_TABLE_BEGIN = 0x03, FW_TABLE_CHUNK = 0x04,
     FW_TABLE_COMMIT = 0x05, FW_SET_LEVEL = 0x06, FW_GET_POSITIONS = 0x07, FW_PATTERN = 0x08,
-    FW_PATTERN_END = 0x09,
+    FW_PATTERN_END = 0x09, FW_STAGE_LEVEL = 0x0A, FW_SHOW = 0x0B,
     FW_INFO = 0x81, FW_TABLE_STATUS = 0x82, FW_POSITIONS = 0x87, FW_ACK = 0x90, FW_NAK = 0x91,
 };
 
@@ -28,6 +28,9 @@ enum { FW_KIND_GLOBAL = 0, FW_KIND_PER_PIXEL = 1 };
 
 /* INFO features bits: what a controller implements beyond the first v1 messages. */
 #define FW_FEATURE_PATTERNS 0x0001u   /* PATTERN / PATTERN_END */
+#define FW_FEATURE_LATCH 0x0002u      /* STAGE_LEVEL / SHOW */
+/* Most levels one STAGE_LEVEL carries: payload minus frame and first_pixel. */
+#define FW_MAX_STAGE_PIXELS (FW_MAX_PAYLOAD - 4u)
 /* Most lengths one PATTERN carries: payload minus timeout_ds and first_pixel, 2 bytes each. */
 #define FW_MAX_PATTERN_PIXELS ((FW_MAX_PAYLOAD - 4u) / 2u)
 
@@ -57,6 +60,12 @@ typedef struct { uint32_t table_id, offset; const uint8_t *data; uint16_t data_l
 typedef struct { uint32_t table_id, table_crc; } fw_table_commit;
 typedef struct { uint16_t first_pixel; const uint8_t *levels; uint16_t levels_len; } fw_set_level;
 typedef struct { uint16_t first_pixel, count; } fw_get_positions;
+typedef struct {
+    uint16_t frame, first_pixel;
+    const uint8_t *levels;
+    uint16_t levels_len;
+} fw_stage_level;
+typedef struct { uint16_t frame; } fw_show;
 /* lengths: lengths_len / 2 x length_um:u16, little-endian, as on the wire */
 typedef struct {
     uint16_t timeout_ds, first_pixel;
@@ -79,6 +88,8 @@ typedef struct {
         fw_set_level set_level;
         fw_get_positions get_positions;
         fw_pattern pattern;
+        fw_stage_level stage_level;
+        fw_show show;
         fw_positions positions;
         fw_ack ack;
         fw_nakmsg nak;

@@ -55,9 +55,11 @@ static long failures;
 /* One request body: a valid message of a random type with random fields, or a random type. */
 static size_t make_body(uint8_t *b, uint16_t seq, uint32_t table_id, uint32_t total, uint32_t crc)
 {
-    uint8_t type = (uint8_t)(below(10) == 0 ? rnd() : 1 + below(9));
+    uint8_t type = (uint8_t)(below(10) == 0 ? rnd() : 1 + below(11));
     uint8_t version = below(50) == 0 ? (uint8_t)rnd() : FW_PROTOCOL_VERSION;
     uint8_t addr = below(8) == 0 ? (uint8_t)rnd() : (uint8_t)(1 + below(N_CTL));
+    if (type == FW_SHOW && below(2))
+        addr = FW_BROADCAST_ADDRESS;
     fw_put_header(b, version, addr, type, seq);
     uint8_t *p = b + FW_HEADER_SIZE;
     size_t n = 0;
@@ -109,6 +111,19 @@ static size_t make_body(uint8_t *b, uint16_t seq, uint32_t table_id, uint32_t to
         n = 4 + 2 * count;
         break;
     }
+    case FW_STAGE_LEVEL: {   /* a few frame numbers, so that SHOWs often find theirs */
+        uint32_t len = 1 + below(below(8) == 0 ? FW_MAX_STAGE_PIXELS : N_PIX + 2);
+        fw_put16(p, (uint16_t)below(4));
+        fw_put16(p + 2, (uint16_t)below(below(8) == 0 ? 0x10000 : N_PIX + 2));
+        for (uint32_t i = 0; i < len; i++)
+            p[4 + i] = (uint8_t)rnd();
+        n = 4 + len;
+        break;
+    }
+    case FW_SHOW:
+        fw_put16(p, (uint16_t)below(4));
+        n = 2;
+        break;
     default:   /* HELLO, GET_STATUS, PATTERN_END, unknown types: random short payloads sometimes */
         n = below(6) == 0 ? below(40) : 0;
         for (size_t i = 0; i < n; i++)
@@ -205,6 +220,11 @@ static void check_answers(void)
         for (uint16_t p = 0; p < k->cfg.n_pixels; p++)
             if (k->motors.target_um[p] > k->cfg.max_length_um)
                 FAIL("pixel %u target %u um over max_length_um", p, k->motors.target_um[p]);
+        for (uint16_t p = k->cfg.n_pixels; p < FW_MAX_PIXELS; p++)
+            if (fw_latch_has(&k->latch, p))
+                FAIL("pixel %u staged beyond n_pixels %u", p, k->cfg.n_pixels);
+        if (k->latch.any > 1)
+            FAIL("latch any %u", k->latch.any);
     }
 }
 

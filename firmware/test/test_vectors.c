@@ -150,7 +150,8 @@ static int answers_like(const vec_step *s)
 {
     hw.out_len = 0;
     fw_rx_feed(&ctl, s->request, s->request_len);
-    return hw.out_len == s->answer_len && memcmp(hw.out, s->answer, s->answer_len) == 0;
+    return hw.out_len == s->answer_len
+           && (s->answer_len == 0 || memcmp(hw.out, s->answer, s->answer_len) == 0);
 }
 
 /* Pattern step i, checked to be a request of `type` (the vector file's order). */
@@ -208,6 +209,34 @@ static void test_pattern(void)
           && ctl.motors.target_um[3] == 0, "a frame after the deadline saw the pattern");
 }
 
+#define N_LATCH_STEPS (sizeof latch_steps / sizeof latch_steps[0])
+
+/* The frame latch: the vector conversation byte for byte (broadcasts answered by nothing), each
+ * unicast step retransmitted; after each broadcast the unicast request before it is answered
+ * from the reply cache still (a broadcast leaves it alone); a boot forgets what is staged. */
+static void test_latch(void)
+{
+    fw_config cfg = {.address = 3, .n_pixels = 16, .uid = 0x6A5D0001u, .max_chunk = 256,
+                     .max_length_um = 20000};
+    ram_hal_init(&hw);
+    CHECK(fw_boot(&ctl, &hw.hal, &cfg) == 0, "boot");
+    for (size_t i = 0; i < N_LATCH_STEPS; i++) {
+        const vec_step *s = &latch_steps[i];
+        CHECK(answers_like(s), "latch %s: answer differs (%zu bytes, expected %zu)", s->name,
+              hw.out_len, s->answer_len);
+        if (s->answer_len)
+            CHECK(answers_like(s), "latch %s: retransmission differs", s->name);
+        else if (i > 0 && latch_steps[i - 1].answer_len)
+            CHECK(answers_like(&latch_steps[i - 1]), "latch %s: the broadcast disturbed the "
+                  "reply cache", s->name);
+    }
+    /* staged, then a reboot: the SHOW finds nothing staged */
+    uint8_t level = 99;
+    fw_latch_stage(&ctl.latch, 42, 0, &level, 1);
+    CHECK(ctl.latch.any, "staged");
+    CHECK(fw_boot(&ctl, &hw.hal, &cfg) == 0 && !ctl.latch.any, "a boot kept the staging");
+}
+
 /* COBS: the in-place encoder equals a separate-buffer encode, and decodes back (runs of 254). */
 static void test_cobs_runs(void)
 {
@@ -231,11 +260,13 @@ int main(void)
     test_framing();
     test_transfer();
     test_pattern();
+    test_latch();
     test_cobs_runs();
     printf("%d checks, %d failed: %zu message vectors, %zu rejected frames, %zu stream frames, "
-           "%zu transfer steps, %zu pattern steps\n", checks, failures, sizeof message_vectors / sizeof message_vectors[0],
+           "%zu transfer steps, %zu pattern steps, %zu latch steps\n", checks, failures, sizeof message_vectors / sizeof message_vectors[0],
            sizeof rejected_vectors / sizeof rejected_vectors[0],
            sizeof stream_frames / sizeof stream_frames[0],
-           sizeof transfer_steps / sizeof transfer_steps[0], N_PATTERN_STEPS);
+           sizeof transfer_steps / sizeof transfer_steps[0], N_PATTERN_STEPS,
+           N_LATCH_STEPS);
     return failures != 0;
 }

@@ -3,6 +3,7 @@
  *
  *   grassfw-posix --state-dir DIR [--count N | --addresses A,B,..] [--pixels P[,P2,..]]
  *                 [--link PATH] [--max-chunk B] [--baud BAUD] [--power-cut-at K[:KEEP]]
+ *                 [--trace FILE]
  *
  * --count N: addresses 1..N (default 1); --addresses: these addresses instead. --pixels: one
  * pixel count for all (default FW_DEFAULT_PIXELS, 16), or one per controller. Controller a reports
@@ -14,7 +15,10 @@
  * DIR/controller-<a>.stats ("boots B writes W"). --power-cut-at K: the K-th storage write or
  * erase of the process (1-based) stores only its first half (KEEP: "half", "none" or "all-but-
  * one" of its bytes), then the process exits with status 3, as a controller losing power in
- * the middle of that write.
+ * the middle of that write. --trace FILE: whenever the bytes just received changed a
+ * controller's motor targets, append "NS ADDRESS CHANGED" to FILE (NS: CLOCK_MONOTONIC in
+ * nanoseconds, taken after the frame was handled; CHANGED: pixels whose target changed), so that
+ * tests see when each controller of several processes moved (the frame latch's spread).
  *
  * Lines on stdin control the simulated line (tests): "unplug MS" closes the pty (the host sees
  * EIO), removes the link, power-cycles the controllers, prints "unplugged", and after MS
@@ -41,6 +45,7 @@ typedef struct unit {
     int nv_fd, stats_fd;
     uint32_t boots, writes;
     sim_pixels pixels;
+    uint16_t traced_um[FW_MAX_PIXELS];   /* targets at the last trace check (--trace) */
 } unit;
 
 static struct {
@@ -50,9 +55,10 @@ static struct {
     long power_cut_at, writes, baud;
     int cut_keep;   /* 0: half of the write lands, 1: none of it, 2: all but its last byte */
     double line_free;   /* seconds (monotonic) when the paced line is free again */
+    int trace_fd;       /* --trace FILE, or -1 */
     uint64_t t0_ms;
     volatile sig_atomic_t stop;
-} bus = {.master = -1, .slave = -1};
+} bus = {.master = -1, .slave = -1, .trace_fd = -1};
 
 static void die(const char *what)
 {
@@ -226,6 +232,27 @@ static void boot(unit *u, const fw_config *cfg)
         fprintf(stderr, "grassfw-posix: invalid controller configuration\n");
         exit(2);
     }
+    for (uint16_t p = 0; p < cfg->n_pixels; p++)   /* the boot's targets: not a frame's */
+        u->traced_um[p] = fw_target_um(&u->ctl, p);
+}
+
+/* --trace: one line when a frame just changed some of u's targets. */
+static void trace_targets(unit *u, const fw_config *cfg)
+{
+    uint16_t changed = 0;
+    for (uint16_t p = 0; p < cfg->n_pixels; p++) {
+        uint16_t um = fw_target_um(&u->ctl, p);
+        if (um != u->traced_um[p]) {
+            u->traced_um[p] = um;
+            changed++;
+        }
+    }
+    if (!changed)
+        return;
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    dprintf(bus.trace_fd, "%lld %u %u\n", (long long)ts.tv_sec * 1000000000LL + ts.tv_nsec,
+            cfg->address, changed);
 }
 
 static void on_signal(int sig)
@@ -310,6 +337,11 @@ int main(int argc, char **argv)
             dir = v;
         else if (!strcmp(a, "--link"))
             bus.link = v;
+        else if (!strcmp(a, "--trace")) {
+            bus.trace_fd = open(v, O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
+            if (bus.trace_fd < 0)
+                die(v);
+        }
         else {
             fprintf(stderr, "grassfw-posix: unknown option %s (see the comment in main.c)\n", a);
             return 2;
@@ -399,8 +431,11 @@ int main(int argc, char **argv)
             ssize_t n = read(bus.master, buf, sizeof buf);
             if (n > 0) {
                 pace((size_t)n);
-                for (long i = 0; i < count; i++)
+                for (long i = 0; i < count; i++) {
                     fw_rx_feed(&units[i].ctl, buf, (size_t)n);
+                    if (bus.trace_fd >= 0)
+                        trace_targets(&units[i], &cfgs[i]);
+                }
                 if (idle)
                     last = now;   /* motors were at rest and unpowered: nothing to catch up */
                 idle = 0;
