@@ -201,9 +201,24 @@ def _zip_zeros(n_bytes: int) -> bytes:
     return zlib.compress(predicted.tobytes(), 9)
 
 
+def _zip_chunk(raw: bytes) -> bytes:
+    """OpenEXR's ZIP of a chunk's bytes: even then odd bytes, delta predictor (+128), zlib."""
+    b = np.frombuffer(raw, np.uint8)
+    t = np.concatenate([b[0::2], b[1::2]]).astype(np.int16)
+    t[1:] = (np.diff(t) + 128) & 0xFF
+    return zlib.compress(t.astype(np.uint8).tobytes(), 9)
+
+
 def write_zero_exr(path, parts: list[tuple[str, int, int, list[str]]]) -> int:
     """Write an all-zero half-float scanline EXR with the given (name, width, height, channels)
     parts (multi-part when more than one); returns the file's size in bytes."""
+    return write_flat_exr(path, parts, 0.0)
+
+
+def write_flat_exr(path, parts: list[tuple[str, int, int, list[str]]], value: float) -> int:
+    """Write a half-float scanline EXR, every texel of every channel ``value``, with the given
+    (name, width, height, channels) parts (multi-part when more than one), ZIP-compressed
+    chunk by chunk without holding the image; returns the file's size in bytes."""
     multipart = len(parts) > 1
     lines = 16
     display = (parts[0][1], parts[0][2])
@@ -220,7 +235,9 @@ def write_zero_exr(path, parts: list[tuple[str, int, int, list[str]]]) -> int:
         for y in range(0, h, lines):
             rows = min(lines, h - y)
             if rows not in cache:
-                cache[rows] = _zip_zeros(rows * len(chans) * w * 2)
+                n = rows * len(chans) * w
+                cache[rows] = (_zip_zeros(2 * n) if value == 0.0 else
+                               _zip_chunk(np.full(n, value, np.float16).tobytes()))
             lead = struct.pack("<iii", idx, y, len(cache[rows])) if multipart else struct.pack(
                 "<ii", y, len(cache[rows]))
             offsets.append(pos)
@@ -246,6 +263,14 @@ def exr_203_channels(tmp: Path, manifest: str = MANIFEST) -> None:
     (tmp / "manifest.toml").write_text(manifest)
 
 
+def exr_8192x4096(tmp: Path, manifest: str = MANIFEST) -> None:
+    """A valid single-part EXR of 8192 x 4096, every texel 1.0 (about 200 KiB on disk: its
+    ZIP chunks compress a constant; 384 MiB as float32 RGB), four times the renderer's
+    texels."""
+    write_flat_exr(tmp / "sky.exr", [("sky", 8192, 4096, ["B", "G", "R"])], 1.0)
+    (tmp / "manifest.toml").write_text(manifest)
+
+
 #: attack name -> (fills a bundle directory, a word its rejection reason holds)
 #: (``build(directory, manifest)``: ``manifest`` is a valid manifest the attack may use)
 ATTACKS: dict[str, tuple[Callable[[Path, str], None], str]] = {
@@ -268,6 +293,7 @@ ATTACKS: dict[str, tuple[Callable[[Path, str], None], str]] = {
     "not-utf8": (not_utf8, "not valid TOML"),
     "exr-second-part-16384x8192": (exr_second_part_huge, "part"),
     "exr-203-channels": (exr_203_channels, "203 channels"),
+    "exr-8192x4096": (exr_8192x4096, "exceeds the limit of 2097152 texels"),
 }
 
 

@@ -9,6 +9,15 @@ class HdriError(SimError):
     """The environment map is missing, corrupt, of the wrong shape or holds unusable values."""
 
 
+class HdriTooLarge(HdriError):
+    """The environment map's header declares more texels than the reader that asked takes
+    (``width`` x ``height`` texels against ``limit``); nothing was decoded."""
+
+    def __init__(self, message: str, *, width: int, height: int, limit: int) -> None:
+        super().__init__(message)
+        self.width, self.height, self.limit = width, height, limit
+
+
 class LightingError(SimError):
     """Lux, sun or scaling parameters are out of range or inconsistent with the map."""
 

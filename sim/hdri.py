@@ -35,20 +35,24 @@ import os
 import re
 import stat
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import OpenEXR
 
-from grassd.sim.errors import HdriError
+from grassd.sim.errors import HdriError, HdriTooLarge
 from grassd.sim.native_output import capture_native_output
 
 __all__ = [
     "MAX_TEXELS",
+    "RENDERER_TEXELS",
     "MIN_HEIGHT",
+    "HdriHeader",
     "NEGATIVE_TOLERANCE",
     "REC709_LUMINANCE",
     "load_hdri",
+    "read_header",
     "check_env",
     "write_exr",
     "write_hdr",
@@ -61,6 +65,10 @@ log = logging.getLogger(__name__)
 #: loader briefly holds about three such arrays). Larger panoramas add nothing to a lux-scaled
 #: light probe; downsample them (e.g. ``oiiotool in.exr --resize 4096x2048 -o out.exr``).
 MAX_TEXELS: int = 8192 * 4096
+#: Largest map the renderer holds, in texels (2048 x 1024; the default environment capacity of
+#: :class:`grassd.sim.renderer.Capacity`): a reader that hands its map to the renderer
+#: unreduced (the daemon's calibration) refuses a bigger one from its header.
+RENDERER_TEXELS: int = 2048 * 1024
 #: Smallest accepted height in rows (the width is twice this).
 MIN_HEIGHT: int = 4
 #: Negative texels down to -NEGATIVE_TOLERANCE x (90th percentile luminance) are clamped to 0.
@@ -126,10 +134,10 @@ def _check_size(width: int, height: int, max_texels: int, source: str) -> None:
     if width <= 0 or height <= 0:
         raise HdriError(f"{source}: the header gives an empty image ({width} x {height})")
     if width * height > max_texels:
-        raise HdriError(
+        raise HdriTooLarge(
             f"{source}: {width} x {height} = {width * height} texels exceeds the limit of "
-            f"{max_texels} texels; downsample the panorama (e.g. to 2048 x 1024)"
-        )
+            f"{max_texels} texels; nothing was decoded: downsample the panorama (e.g. to "
+            "2048 x 1024)", width=width, height=height, limit=max_texels)
     if width != 2 * height:
         raise HdriError(
             f"{source}: {width} x {height} is not an equirectangular panorama; "
@@ -202,16 +210,19 @@ def check_env(img: np.ndarray, source: str = "environment map",
 # ------------------------------------------------------------------------------------ load
 
 
-def load_hdri(path: str | os.PathLike, max_texels: int = MAX_TEXELS, *,
-              warn: bool = True) -> np.ndarray:
-    """Load an equirectangular HDRI (.exr or Radiance .hdr) as validated linear Rec.709 RGB.
+@dataclass(frozen=True)
+class HdriHeader:
+    """What a panorama's header declares: ``width`` x ``height`` texels and its ``format``
+    ("OpenEXR" or "Radiance")."""
 
-    Returns a C-contiguous (H, W, 3) float32 array of relative radiance, row 0 = zenith, with
-    W = 2 H. The format is recognised from the file's first bytes, not its name. The size is
-    checked against ``max_texels`` from the header before pixels are read. ``warn``: as
-    :func:`check_env`.
-    """
-    p = Path(path)
+    width: int
+    height: int
+    format: str
+
+
+def _magic(p: Path) -> bytes:
+    """The first 16 bytes of a regular file ``p`` (HdriError: missing, not regular, unreadable,
+    empty)."""
     source = str(p)
     if not p.exists():
         raise HdriError(f"HDRI file {source} does not exist")
@@ -225,18 +236,51 @@ def load_hdri(path: str | os.PathLike, max_texels: int = MAX_TEXELS, *,
             magic = fh.read(16)
     except OSError as exc:
         raise HdriError(f"cannot read HDRI file {source}: {exc.strerror or exc}") from exc
-    if magic[:4] == _EXR_MAGIC:
-        img = _read_exr(p, max_texels)
-    elif magic.startswith(b"#?"):
-        img = _read_hdr(p, max_texels)
-    elif not magic:
+    if not magic:
         raise HdriError(f"{source}: the file is empty")
-    else:
+    if magic[:4] != _EXR_MAGIC and not magic.startswith(b"#?"):
         raise HdriError(
             f"{source}: neither OpenEXR nor Radiance .hdr (unrecognised first bytes); "
             "convert the panorama to .exr"
         )
-    return check_env(img, source, max_texels, warn=warn)
+    return magic
+
+
+def read_header(path: str | os.PathLike, max_texels: int = MAX_TEXELS) -> HdriHeader:
+    """Read and check a panorama's header alone: every check :func:`load_hdri` makes before
+    it decodes a pixel (a regular OpenEXR or Radiance file, one part, a panorama's channels,
+    2:1, at least :data:`MIN_HEIGHT` rows, at most ``max_texels`` texels). Reads a few
+    kilobytes whatever the file declares.
+
+    Raises:
+        HdriTooLarge: more than ``max_texels`` texels (the message names both).
+        HdriError: any other problem, named.
+    """
+    p = Path(path)
+    if _magic(p)[:4] == _EXR_MAGIC:
+        width, height, _ = _exr_header(str(p), max_texels)
+        return HdriHeader(width, height, "OpenEXR")
+    with p.open("rb") as fh:
+        head = _hdr_header(fh, str(p), max_texels)
+    return HdriHeader(head.width, head.height, "Radiance")
+
+
+def load_hdri(path: str | os.PathLike, max_texels: int = MAX_TEXELS, *,
+              warn: bool = True) -> np.ndarray:
+    """Load an equirectangular HDRI (.exr or Radiance .hdr) as validated linear Rec.709 RGB.
+
+    Returns a C-contiguous (H, W, 3) float32 array of relative radiance, row 0 = zenith, with
+    W = 2 H. The format is recognised from the file's first bytes, not its name. The size is
+    checked against ``max_texels`` from the header before pixels are read
+    (:func:`read_header`; :class:`~grassd.sim.errors.HdriTooLarge` when over). ``warn``: as
+    :func:`check_env`.
+    """
+    p = Path(path)
+    if _magic(p)[:4] == _EXR_MAGIC:
+        img = _read_exr(p, max_texels)
+    else:
+        img = _read_hdr(p, max_texels)
+    return check_env(img, str(p), max_texels, warn=warn)
 
 
 def _header_text(v: object, max_chars: int = 64) -> str:
@@ -292,8 +336,9 @@ def _check_exr_channels(source: str, header: dict) -> list[str]:
     return names
 
 
-def _read_exr(p: Path, max_texels: int) -> np.ndarray:
-    source = str(p)
+def _exr_header(source: str, max_texels: int) -> tuple[int, int, dict]:
+    """(width, height, header) of a single-part OpenEXR panorama, checked from its headers
+    (parts, size, kind, channels); no pixel is read."""
     parts = _exr_parts(source)
     if len(parts) != 1:  # refused from the headers: every part's size is named, none decoded
         over = [f"part {i} ({name}) alone declares {w} x {h} = {w * h} texels, over the "
@@ -309,6 +354,12 @@ def _read_exr(p: Path, max_texels: int) -> np.ndarray:
     if "deep" in kind:
         raise HdriError(f"{source}: deep OpenEXR images are not environment maps")
     _check_exr_channels(source, header)
+    return width, height, header
+
+
+def _read_exr(p: Path, max_texels: int) -> np.ndarray:
+    source = str(p)
+    width, height, header = _exr_header(source, max_texels)
     channels = _exr_call(source, "pixel data",
                          lambda: OpenEXR.File(source, separate_channels=True).channels())
     names = set(channels)
@@ -353,59 +404,82 @@ _RES_RE = re.compile(rb"^([-+])([XY]) (\d+) ([-+])([XY]) (\d+)$")
 _RUN_BYTES = [bytes([v]) * 128 for v in range(256)]
 
 
+@dataclass(frozen=True)
+class _HdrHead:
+    """A Radiance header as parsed: size, FORMAT, EXPOSURE product, PRIMARIES (or None), the
+    resolution line's signs (``y_sign`` "+": stored bottom-up; ``x_sign`` "-": right to left),
+    and the offset of the first pixel byte."""
+
+    width: int
+    height: int
+    fmt: bytes
+    exposure: float
+    primaries: tuple[float, ...] | None
+    y_sign: bytes
+    x_sign: bytes
+    data_at: int
+
+
+def _hdr_header(fh, source: str, max_texels: int) -> _HdrHead:
+    """Parse and check the header of the Radiance file open as ``fh`` (reads at most 64 KiB)."""
+    head = fh.read(65536)
+    end = head.find(b"\n\n")
+    if end < 0:
+        raise HdriError(f"{source}: Radiance header has no blank line before the resolution "
+                        "(truncated or not an .hdr file)")
+    nl = head.find(b"\n", end + 2)
+    if nl < 0:
+        raise HdriError(f"{source}: Radiance resolution line is missing (truncated file)")
+    lines = head[:end].split(b"\n")
+    res = head[end + 2: nl].strip()
+    fmt, exposure, primaries = b"32-bit_rle_rgbe", 1.0, None
+    for line in lines[1:]:
+        if line.startswith(b"FORMAT="):
+            fmt = line[7:].strip()
+        elif line.startswith(b"EXPOSURE="):
+            try:
+                exposure *= float(line[9:])
+            except ValueError as exc:
+                raise HdriError(f"{source}: bad EXPOSURE line {line!r}") from exc
+        elif line.startswith(b"PRIMARIES="):
+            try:
+                primaries = tuple(float(v) for v in line[10:].split())
+            except ValueError as exc:
+                raise HdriError(f"{source}: bad PRIMARIES line {line!r}") from exc
+            if len(primaries) != 8:
+                raise HdriError(f"{source}: PRIMARIES needs 8 numbers, got {line!r}")
+    if fmt not in (b"32-bit_rle_rgbe", b"32-bit_rle_xyze"):
+        raise HdriError(f"{source}: unsupported Radiance FORMAT {fmt.decode(errors='replace')}")
+    m = _RES_RE.match(res)
+    if m is None or m.group(2) != b"Y" or m.group(5) != b"X":
+        raise HdriError(f"{source}: unsupported or corrupt resolution line {res!r} "
+                        "(expected e.g. '-Y 512 +X 1024')")
+    height, width = int(m.group(3)), int(m.group(6))
+    _check_size(width, height, max_texels, source)
+    if not exposure > 0.0 or not np.isfinite(exposure):
+        raise HdriError(f"{source}: EXPOSURE product {exposure} is not positive")
+    return _HdrHead(width, height, fmt, exposure, primaries, m.group(1), m.group(4), nl + 1)
+
+
 def _read_hdr(p: Path, max_texels: int) -> np.ndarray:
     source = str(p)
     with p.open("rb") as fh:
-        head = fh.read(65536)
-        end = head.find(b"\n\n")
-        if end < 0:
-            raise HdriError(f"{source}: Radiance header has no blank line before the resolution "
-                            "(truncated or not an .hdr file)")
-        nl = head.find(b"\n", end + 2)
-        if nl < 0:
-            raise HdriError(f"{source}: Radiance resolution line is missing (truncated file)")
-        lines = head[:end].split(b"\n")
-        res = head[end + 2: nl].strip()
-        fmt, exposure, primaries = b"32-bit_rle_rgbe", 1.0, None
-        for line in lines[1:]:
-            if line.startswith(b"FORMAT="):
-                fmt = line[7:].strip()
-            elif line.startswith(b"EXPOSURE="):
-                try:
-                    exposure *= float(line[9:])
-                except ValueError as exc:
-                    raise HdriError(f"{source}: bad EXPOSURE line {line!r}") from exc
-            elif line.startswith(b"PRIMARIES="):
-                try:
-                    primaries = tuple(float(v) for v in line[10:].split())
-                except ValueError as exc:
-                    raise HdriError(f"{source}: bad PRIMARIES line {line!r}") from exc
-                if len(primaries) != 8:
-                    raise HdriError(f"{source}: PRIMARIES needs 8 numbers, got {line!r}")
-        if fmt not in (b"32-bit_rle_rgbe", b"32-bit_rle_xyze"):
-            raise HdriError(f"{source}: unsupported Radiance FORMAT {fmt.decode(errors='replace')}")
-        m = _RES_RE.match(res)
-        if m is None or m.group(2) != b"Y" or m.group(5) != b"X":
-            raise HdriError(f"{source}: unsupported or corrupt resolution line {res!r} "
-                            "(expected e.g. '-Y 512 +X 1024')")
-        height, width = int(m.group(3)), int(m.group(6))
-        _check_size(width, height, max_texels, source)
-        if not exposure > 0.0 or not np.isfinite(exposure):
-            raise HdriError(f"{source}: EXPOSURE product {exposure} is not positive")
-        fh.seek(nl + 1)
+        h = _hdr_header(fh, source, max_texels)
+        height, width = h.height, h.width
+        fh.seek(h.data_at)
         # RLE can at worst double the flat size (1-byte literals); never read more than that
         data = fh.read(height * (4 + 8 * width))
     rgbe = _decode_rgbe(data, height, width, source)
-    img = _rgbe_to_float(rgbe) / np.float32(exposure)
-    if m.group(1) == b"+":  # stored bottom-up
+    img = _rgbe_to_float(rgbe) / np.float32(h.exposure)
+    if h.y_sign == b"+":  # stored bottom-up
         img = img[::-1]
-    if m.group(4) == b"-":  # stored right-to-left
+    if h.x_sign == b"-":  # stored right-to-left
         img = img[:, ::-1]
-    if fmt == b"32-bit_rle_xyze":
+    if h.fmt == b"32-bit_rle_xyze":
         to709 = np.linalg.inv(_rgb_to_xyz(_REC709_PRIMARIES, _D65))
         img = np.einsum("hwc,rc->hwr", img, to709.astype(np.float32), optimize=True)
-    elif primaries is not None:
-        img = _apply_matrix(img, _to_rec709_matrix(primaries[:6], primaries[6:]), source)
+    elif h.primaries is not None:
+        img = _apply_matrix(img, _to_rec709_matrix(h.primaries[:6], h.primaries[6:]), source)
     return np.ascontiguousarray(img, dtype=np.float32)
 
 

@@ -48,15 +48,18 @@ class LightInput:
     flip: bool = False
     timestamp: datetime | None = None
 
-    def lighting(self, hdri: Any = None) -> Lighting:
+    def lighting(self, hdri: Any = None, *, max_texels: int | None = None) -> Lighting:
         """The :class:`grassd.sim.lighting.Lighting` of this light (lux-scaled map + sun);
         ``hdri``: the panorama already loaded as an (H, W, 3) array, instead of reading
-        :attr:`hdri` again. Raises :class:`grassd.sim.errors.LightingError` for readings that
-        cannot be (see :func:`grassd.sim.lighting.build_lighting`)."""
+        :attr:`hdri` again; ``max_texels``: the largest map read from :attr:`hdri` (default
+        :data:`grassd.sim.hdri.MAX_TEXELS`; refused from its header beyond). Raises
+        :class:`grassd.sim.errors.LightingError` for readings that cannot be (see
+        :func:`grassd.sim.lighting.build_lighting`)."""
         from grassd.sim.lighting import build_lighting
 
+        cap = {} if max_texels is None else {"max_texels": max_texels}
         return build_lighting(self.hdri if hdri is None else hdri, self.ambient_lux,
                               sun_lux=self.sun_lux, sun_azimuth_deg=self.sun_azimuth_deg,
                               sun_elevation_deg=self.sun_elevation_deg,
                               sun_from_hdri=self.sun_from_hdri, rotation_deg=self.rotation_deg,
-                              flip=self.flip)
+                              flip=self.flip, **cap)

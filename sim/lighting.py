@@ -69,7 +69,7 @@ from functools import cached_property
 import numpy as np
 
 from grassd.sim.errors import LightingError
-from grassd.sim.hdri import REC709_LUMINANCE, check_env, load_hdri
+from grassd.sim.hdri import MAX_TEXELS, REC709_LUMINANCE, check_env, load_hdri
 
 __all__ = [
     "DEFAULT_SUN_COLOUR",
@@ -354,12 +354,14 @@ def build_lighting(
     *,
     flip: bool = False,
     day_of_year: int | None = None,
+    max_texels: int = MAX_TEXELS,
 ) -> Lighting:
     """Scale an HDRI to a lux reading and add a directional sun.
 
     ``hdri``: a path (.exr/.hdr, read by :func:`grassd.sim.hdri.load_hdri`) or an (H, W, 3)
     array of relative linear Rec.709 radiance; it is oriented by ``flip`` and ``rotation_deg``
-    (see :func:`orient_env`).
+    (see :func:`orient_env`). ``max_texels``: the largest map read from a path (refused from
+    its header beyond, :class:`~grassd.sim.errors.HdriTooLarge`).
 
     Without ``sun_from_hdri``: ``ambient_lux`` is the horizontal reading without the sun (meter
     shaded) and the whole map is scaled to it; ``sun_lux`` (horizontal lux of the sun: reading
@@ -386,7 +388,7 @@ def build_lighting(
         raise LightingError(f"HDRI rotation {rotation_deg} deg is not a finite number")
 
     if isinstance(hdri, str | os.PathLike):
-        raw = load_hdri(hdri)
+        raw = load_hdri(hdri, max_texels)
     else:
         raw = check_env(hdri, "HDRI array")
     env0 = orient_env(raw, rotation_deg, flip)

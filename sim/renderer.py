@@ -96,6 +96,7 @@ from grassd.sim.env_sampler import (
 )
 from grassd.sim.errors import SceneError, SimError
 from grassd.sim.geometry import SceneArrays, blade_rise, build_scene, check_lengths
+from grassd.sim.hdri import RENDERER_TEXELS
 from grassd.sim.interrupt import Interrupt
 from grassd.sim.lighting import Lighting
 from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
@@ -147,7 +148,7 @@ class Capacity:
     rects: int = 1 << 13
     cells: int = 1 << 20
     items: int = 1 << 21
-    env_texels: int = 2048 * 1024
+    env_texels: int = RENDERER_TEXELS
     env_rows: int = 1024
     paths: int = 1 << 22
 

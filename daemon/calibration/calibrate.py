@@ -113,8 +113,11 @@ class Calibrator:
         the HDRI oriented by ``[light] hdri_flip`` / ``hdri_rotation_deg``. A light whose sun is
         clipped in the HDRI (``sun_from_hdri``, flagged by a capture station) and that has no sun
         direction gets its sun restored from the map; otherwise (or when that fails) the sun
-        of a sun lux reading is placed from site and time."""
+        of a sun lux reading is placed from site and time. The map is read at most the
+        renderer's size (:data:`grassd.sim.hdri.RENDERER_TEXELS`), a bigger one refused from
+        its header."""
         from grassd.sim.errors import LightingError
+        from grassd.sim.hdri import RENDERER_TEXELS
         from grassd.sim.sun import sun_position
 
         light = replace(light, flip=self.cfg.light.hdri_flip,
@@ -122,7 +125,7 @@ class Calibrator:
         notes: list[str] = []
         if light.sun_from_hdri and light.sun_azimuth_deg is None:
             try:
-                return light.lighting()
+                return light.lighting(max_texels=RENDERER_TEXELS)
             except LightingError as exc:  # the clipped sun is not found as a compact sun
                 notes.append(f"clipped sun not restored from the HDRI ({exc}); sun from "
                              "site and time")
@@ -139,7 +142,7 @@ class Calibrator:
         if sun is not None and sun == 0:
             sun, az, el = None, None, None
         lighting = replace(light, sun_lux=sun, sun_azimuth_deg=az, sun_elevation_deg=el,
-                           sun_from_hdri=False).lighting()
+                           sun_from_hdri=False).lighting(max_texels=RENDERER_TEXELS)
         object.__setattr__(lighting, "notes", tuple(lighting.notes) + tuple(notes))
         return lighting
 

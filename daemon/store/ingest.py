@@ -133,7 +133,10 @@ def _member(base: Path, key: str, v: Any) -> Path:
 
 def check_hdri_magic(path: Path, max_bytes: int = DEFAULT_LIMITS.file_bytes) -> None:
     """Reject an HDRI whose first bytes are not OpenEXR or Radiance RGBE (cheap early check),
-    or that is not a regular file of at most ``max_bytes`` bytes."""
+    that is not a regular file of at most ``max_bytes`` bytes, or whose header the renderer
+    cannot take (:func:`grassd.sim.hdri.read_header`: more than
+    :data:`~grassd.sim.hdri.RENDERER_TEXELS` texels, several parts, other channels): refused
+    here, before the calibration decodes a pixel."""
     try:
         fd = open_regular(path, max_bytes)
         try:
@@ -146,6 +149,13 @@ def check_hdri_magic(path: Path, max_bytes: int = DEFAULT_LIMITS.file_bytes) -> 
         raise IngestError(f"HDRI {path.name} is not an OpenEXR file (bad magic number)")
     if path.suffix.lower() == ".hdr" and not head.startswith((b"#?RADIANCE", b"#?RGBE")):
         raise IngestError(f"HDRI {path.name} is not a Radiance .hdr file (no #?RADIANCE header)")
+    from grassd.sim.errors import HdriError
+    from grassd.sim.hdri import RENDERER_TEXELS, read_header
+
+    try:
+        read_header(path, RENDERER_TEXELS)
+    except HdriError as exc:
+        raise IngestError(f"HDRI {str(exc).replace(str(path), path.name)}") from None
 
 
 def bundle_hash(input_hashes: dict[str, str]) -> str:
