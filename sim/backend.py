@@ -25,9 +25,8 @@ from grassd.sim import kernel_cache
 from grassd.sim.errors import SimError, renderer_missing
 from grassd.sim.gpu_devices import (
     VulkanDevice,
-    cuda_driver_present,
+    cuda_device_count,
     vulkan_devices,
-    vulkan_loader_present,
 )
 
 try:
@@ -98,12 +97,11 @@ def init(arch: str = "cpu", cache_dir: Path | None = None, threads: int | None =
     target = ti.cpu
     if arch == "gpu":
         devices = vulkan_devices()
-        # Where the Vulkan loader lists no device and there is no CUDA driver, Taichi 1.7.4
-        # dies creating its Vulkan instance (a segmentation fault, measured) instead of
-        # falling back to the CPU as it does without a loader: the CPU is taken here. (With
-        # a CUDA driver but no usable CUDA device, Taichi goes on to Vulkan and would die the
-        # same way: not seen, as NVIDIA's driver comes with its own Vulkan device.)
-        if cuda_driver_present() or not vulkan_loader_present() or devices:
+        # Taichi 1.7.4 does not fall back to the CPU by itself: without a CUDA device it goes
+        # on to Vulkan and dies there where no Vulkan device is found (no loader, no driver,
+        # or a driver without a device). The gpu arch is asked for only where a device is
+        # (on macOS: Metal, which every Mac has).
+        if sys.platform == "darwin" or cuda_device_count() or devices:
             target = ti.gpu
     with contextlib.redirect_stdout(sys.stderr):  # Taichi prints "Starting on arch=..."
         ti.init(arch=target, **kwargs)

@@ -7,14 +7,17 @@ on the CPU, through LLVM. Taichi names neither the device nor its kind, so
 :func:`grassd.sim.backend.init` asks the loader here, to tell the user when ``--arch gpu`` runs
 on the CPU after all (measured on 2 cores: about 30x slower than Taichi's own CPU backend).
 
-Where the loader is installed but lists no device (no GPU driver, no lavapipe), Taichi 1.7.4's
-``gpu`` arch does not fall back to the CPU as it does without a loader: it fails to create its
-Vulkan instance and the process dies (a segmentation fault, measured). :func:`init
-<grassd.sim.backend.init>` therefore takes the CPU itself there.
+Taichi 1.7.4's ``gpu`` arch does not fall back to the CPU where it finds no GPU: with no CUDA
+device, it goes on to Vulkan and the process dies there (a segmentation fault), whether the
+Vulkan loader is missing, lists no driver, or has a driver without a device.
+:func:`init <grassd.sim.backend.init>` therefore hands Taichi the ``gpu`` arch only where
+:func:`cuda_device_count` or :func:`vulkan_devices` names a device, and takes the CPU itself
+elsewhere.
 
-The loader is called through :mod:`ctypes` (Vulkan 1.0's ``vkCreateInstance``,
-``vkEnumeratePhysicalDevices``, ``vkGetPhysicalDeviceProperties``, ``vkDestroyInstance``):
-no Python binding is needed for four calls.
+Both are asked through :mod:`ctypes`: the CUDA driver API's ``cuInit`` and
+``cuDeviceGetCount``; the Vulkan loader's ``vkCreateInstance``, ``vkEnumeratePhysicalDevices``,
+``vkGetPhysicalDeviceProperties`` and ``vkDestroyInstance`` (Vulkan 1.0). No Python binding is
+needed for six calls.
 """
 
 from __future__ import annotations
@@ -58,16 +61,25 @@ class _InstanceCreateInfo(ctypes.Structure):
                 ("ppEnabledExtensionNames", ctypes.c_void_p)]
 
 
-def cuda_driver_present() -> bool:
-    """Whether NVIDIA's driver library (``libcuda.so``, what Taichi's CUDA backend loads) is
-    installed."""
-    for name in ("libcuda.so", "libcuda.so.1"):
+def cuda_device_count() -> int:
+    """How many CUDA devices NVIDIA's driver (``libcuda.so.1``, what Taichi's CUDA backend
+    loads) offers here: 0 where the driver is not installed, fails to initialise (e.g. in a
+    container without the device nodes) or has no device."""
+    for name in ("libcuda.so.1", "libcuda.so"):
         try:
-            ctypes.CDLL(name)
-            return True
+            cuda = ctypes.CDLL(name)
         except OSError:
             continue
-    return False
+        count = ctypes.c_int(0)
+        try:
+            if cuda.cuInit(0) != _SUCCESS:
+                return 0
+            if cuda.cuDeviceGetCount(ctypes.byref(count)) != _SUCCESS:
+                return 0
+        except AttributeError:  # a library of that name that is no CUDA driver
+            return 0
+        return max(count.value, 0)
+    return 0
 
 
 def vulkan_loader_present() -> bool:

@@ -12,7 +12,7 @@ import sys
 
 import pytest
 
-from grassd.sim.gpu_devices import cuda_driver_present
+from grassd.sim.gpu_devices import cuda_device_count
 
 #: The Vulkan devices of this machine as (name, kind) (empty: none, or no loader). Asked in a
 #: process of its own: a Vulkan instance loads its drivers (lavapipe brings Debian's LLVM 15)
@@ -25,7 +25,7 @@ DEVICES: list[tuple[str, str]] = [tuple(d) for d in json.loads(subprocess.run(
 #: The tier's marks: the long tier (a software Vulkan compiles and traces slowly: about 1.5
 #: minutes on 2 cores), skipped with one line where there is no GPU arch.
 GPU_TIER = [pytest.mark.long, pytest.mark.skipif(
-    not DEVICES and not cuda_driver_present(),
+    not DEVICES and not cuda_device_count(),
     reason="GPU tier skipped: no Vulkan device or CUDA for Taichi's gpu arch "
            "(apt-get install mesa-vulkan-drivers: lavapipe, a Vulkan on the CPU; CI does)")]
 

@@ -1,27 +1,111 @@
-"""``grassd.sim.backend.init("gpu")`` on a machine without a GPU: it runs on the CPU and says so,
-where Taichi 1.7.4 alone dies when the Vulkan loader lists no device (a segmentation fault)."""
+"""``grassd.sim.backend.init("gpu")`` on a machine without a GPU runs on the CPU and says so, in
+each way a machine can lack one. Taichi 1.7.4 alone dies in all of them (a segmentation fault).
 
+Each condition is made for real in the child process, whatever this machine has: the Vulkan
+loader hidden by a mount namespace (or missing here), a loader shown no driver file, a driver
+file whose library is no Vulkan driver, and a CUDA driver library that has no device."""
+
+from __future__ import annotations
+
+import glob
 import os
+import shlex
+import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
-from grassd.sim.gpu_devices import cuda_driver_present
+from grassd.sim.gpu_devices import cuda_device_count, vulkan_loader_present
+
+pytestmark = pytest.mark.skipif(cuda_device_count() > 0,
+                                reason="this machine has a CUDA device: the gpu arch is CUDA here")
+
+WARNING = "--arch gpu: Taichi found no GPU here (neither CUDA nor a Vulkan device)"
+CHILD = ("import logging; logging.basicConfig()\n"
+         "from grassd.sim import backend, gpu_devices\n"
+         "print(gpu_devices.vulkan_loader_present(), gpu_devices.vulkan_devices(),"
+         " gpu_devices.cuda_device_count())\n"
+         "print(backend.init('gpu'))")
+NEEDS_LOADER = pytest.mark.skipif(
+    not vulkan_loader_present(),
+    reason="no Vulkan loader here to show no driver (apt-get install libvulkan1)")
 
 
-def test_the_gpu_arch_without_a_gpu_runs_on_the_cpu_and_says_so(tmp_path):
-    if cuda_driver_present():
-        pytest.skip("this machine has NVIDIA's driver: Taichi's gpu arch is CUDA here")
-    # A loader with no driver file lists no device (lavapipe hidden too); without a loader
-    # (a bare Debian) Taichi falls back to the CPU itself: the same outcome.
-    none = str(tmp_path / "no-driver.json")
-    env = dict(os.environ, VK_ICD_FILENAMES=none, VK_DRIVER_FILES=none,
-               GRASSD_CACHE_DIR=str(tmp_path / "cache"))
-    code = ("import logging; logging.basicConfig()\n"
-            "from grassd.sim import backend\nprint(backend.init('gpu'))")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
-                          timeout=120)
+def _init_gpu(tmp_path: Path, argv_prefix: list[str] = (), **env: str) -> list[str]:
+    """Run ``backend.init('gpu')`` in a child (``argv_prefix`` before its Python); return the
+    lines it printed: what the probes saw, then the arch taken. Asserts it ran on the CPU with
+    the one-line warning."""
+    env = dict(os.environ, GRASSD_CACHE_DIR=str(tmp_path / "cache"), **env)
+    done = subprocess.run([*argv_prefix, sys.executable, "-c", CHILD], capture_output=True,
+                          text=True, env=env, timeout=120)
     assert done.returncode == 0, done.stderr[-2000:]
-    assert done.stdout.split() == ["x64"] or done.stdout.split() == ["arm64"]
-    assert "--arch gpu: Taichi found no GPU here (neither CUDA nor a Vulkan device)" in done.stderr
+    lines = done.stdout.splitlines()
+    assert lines[-1] in ("x64", "arm64"), done.stdout
+    assert WARNING in done.stderr
+    return lines
+
+
+def _loader_files() -> list[str]:
+    """The Vulkan loader's files on this machine (what every ``libvulkan.so*`` resolves to)."""
+    listed = subprocess.run(["ldconfig", "-p"], capture_output=True, text=True).stdout
+    found = {line.split(" => ", 1)[1].strip() for line in listed.splitlines()
+             if "libvulkan.so" in line and " => " in line}
+    for root in ("/lib", "/lib64", "/usr/lib", "/usr/lib64", "/usr/local/lib"):
+        for pattern in ("libvulkan.so*", "*/libvulkan.so*"):  # and multiarch folders
+            found.update(glob.glob(f"{root}/{pattern}"))
+    return sorted({os.path.realpath(f) for f in found})
+
+
+def test_no_vulkan_loader(tmp_path):
+    """The bare machine: no ``libvulkan.so.1`` anywhere. Where this machine has one, the child
+    runs in a mount namespace of its own with every loader file covered by /dev/null."""
+    prefix: list[str] = []
+    files = _loader_files()
+    if files:
+        unshare = shutil.which("unshare")
+        if unshare is None:
+            pytest.skip("no unshare (util-linux) to hide this machine's Vulkan loader")
+        hide = " && ".join(f"mount --bind /dev/null {shlex.quote(f)}" for f in files)
+        probe = subprocess.run([unshare, "--mount", "--map-root-user", "sh", "-c", hide],
+                               capture_output=True, text=True)
+        if probe.returncode != 0:
+            pytest.skip(f"cannot hide this machine's Vulkan loader in a mount namespace "
+                        f"(user namespaces off?): {probe.stderr.strip()[:200]}")
+        prefix = [unshare, "--mount", "--map-root-user", "sh", "-c", hide + ' && exec "$@"',
+                  "hide-vulkan"]
+    seen = _init_gpu(tmp_path, prefix)
+    assert seen[0] == "False [] 0", seen
+
+
+@NEEDS_LOADER
+def test_a_loader_without_drivers(tmp_path):
+    none = str(tmp_path / "no-driver.json")
+    seen = _init_gpu(tmp_path, VK_ICD_FILENAMES=none, VK_DRIVER_FILES=none)
+    assert seen[0] == "True [] 0", seen
+
+
+@NEEDS_LOADER
+def test_a_driver_file_whose_library_is_no_driver(tmp_path):
+    """A driver file (ICD manifest) naming a library that offers no Vulkan device."""
+    icd = tmp_path / "broken_icd.json"
+    icd.write_text('{"file_format_version": "1.0.0", "ICD": {"library_path": "libm.so.6", '
+                   '"api_version": "1.3.0"}}')
+    seen = _init_gpu(tmp_path, VK_ICD_FILENAMES=str(icd), VK_DRIVER_FILES=str(icd))
+    assert seen[0] == "True [] 0", seen
+
+
+def test_a_cuda_driver_without_a_device(tmp_path):
+    """NVIDIA's driver library installed where its device is not (a container without the
+    device nodes, a GPU gone): ``cuInit`` answers CUDA_ERROR_NO_DEVICE (100)."""
+    cc = shutil.which("cc")
+    if cc is None:
+        pytest.skip("no C compiler to build a CUDA driver without a device (apt-get install gcc)")
+    source = tmp_path / "cuda.c"
+    source.write_text("int cuInit(unsigned flags) { (void)flags; return 100; }\n"
+                      "int cuDeviceGetCount(int *n) { *n = 0; return 100; }\n")
+    subprocess.run([cc, "-shared", "-fPIC", "-o", str(tmp_path / "libcuda.so.1"), str(source)],
+                   check=True)
+    seen = _init_gpu(tmp_path, LD_LIBRARY_PATH=str(tmp_path))
+    assert seen[0].endswith(" 0"), seen
