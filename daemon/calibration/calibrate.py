@@ -200,7 +200,7 @@ class Calibrator:
                                pixel_index=centre, layouts=self.cfg.simulation.layouts)
             curves.append(ViewpointCurve(vp, np.asarray(lengths_mm, float), c.ogcd,
                                          c.ogcd_stderr, time.perf_counter() - t0,
-                                         step_stderr=c.step_stderr))
+                                         step_stderr=c.step_stderr, lab=c.lab))
         return curves
 
     @staticmethod

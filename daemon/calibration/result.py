@@ -38,7 +38,8 @@ CENTRE = "centre pixel"
 class ViewpointCurve:
     """OGCD [dE00] vs length [mm] simulated from one viewpoint (a centre-pixel run's first
     simulation, before the viewpoints are weighted); ``seconds`` its wall time;
-    ``step_stderr`` the standard errors of its steps (None when unknown)."""
+    ``step_stderr`` the standard errors of its steps (None when unknown); ``lab`` (n, 3) the
+    D50 CIELAB at each length (the colours content is mapped onto; None when unknown)."""
 
     viewpoint: ViewpointConfig
     lengths_mm: NDArray[np.float64]
@@ -46,6 +47,7 @@ class ViewpointCurve:
     ogcd_stderr: NDArray[np.float64]
     seconds: float
     step_stderr: NDArray[np.float64] | None = None
+    lab: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -291,6 +293,7 @@ class CalibrationResult:
                  "theta_deg": c.viewpoint.theta_deg, "weight": c.viewpoint.weight,
                  "lengths_mm": c.lengths_mm.tolist(), "ogcd_de00": c.ogcd.tolist(),
                  "ogcd_stderr_de00": c.ogcd_stderr.tolist(), "seconds": c.seconds}
+                | ({} if c.lab is None else {"lab_d50": c.lab.tolist()})
                 for c in self.curves
             ],
             "closed_loop": [

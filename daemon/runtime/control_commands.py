@@ -25,7 +25,7 @@ from grassd.daemon.monitoring.status_types import Status
 #: Commands that only read: any client that can connect to the socket may send them. Every
 #: other command (``calibrate``, ``reload``, ``bundles_retry``, an unknown one) needs root or
 #: the daemon's own user.
-READ_ONLY_COMMANDS: frozenset[str] = frozenset({"ping", "status"})
+READ_ONLY_COMMANDS: frozenset[str] = frozenset({"ping", "status", "content_status"})
 #: The longest ``timeout_s`` a client may ask a waiting request to wait (a day).
 MAX_WAIT_S = 86400.0
 
@@ -51,8 +51,11 @@ class ControlCommands:
     def __init__(self, status: Callable[[], Status], reload_event: threading.Event,
                  stop_event: threading.Event, requests: queue.Queue[QueuedRequest],
                  retry_bundle: Callable[[str], dict[str, Any]],
-                 measure: Callable[[], dict[str, Any]] | None = None) -> None:
+                 measure: Callable[[], dict[str, Any]] | None = None,
+                 content: Callable[[], Any] | None = None) -> None:
         self.status = status
+        #: the content feature now (grassd.daemon.content.feature), None without [content]
+        self.content = content
         self.measure = measure
         self.reload_event = reload_event
         self.stop_event = stop_event
@@ -114,6 +117,9 @@ class ControlCommands:
             if not r.done.wait(timeout):
                 return {"ok": False, "error": f"run did not finish within {timeout:g} s"}
             return {"ok": True, "run": r.result}
+        feature = None if self.content is None else self.content()
+        if feature is not None and feature.handles(cmd):  # content_frame, content_show, ...
+            return feature.handle(req)
         return {"ok": False, "error": f"unknown command {cmd!r} "
                                       "(use ping, status, calibrate, measure, reload, "
                                       "bundles_retry)"}

@@ -138,7 +138,10 @@ class Service:
         #: runs cannot hold every control-socket slot (status stays answerable)
         self.requests: queue.Queue[QueuedRequest] = queue.Queue(maxsize=max_queued)
         self.commands = ControlCommands(self.status, self.reload_event, self.stop_event,
-                                        self.requests, self._retry_bundle, self.measure)
+                                        self.requests, self._retry_bundle, self.measure,
+                                        content=lambda: self.content)
+        #: what the display shows ([content], grassd.daemon.content.feature), or None
+        self.content: Any = None
         self.activity = "starting"
         self.started_at = time.time()
         self.last_progress = time.monotonic()
@@ -243,6 +246,7 @@ class Service:
         self.prune()
         self.notifier.ready(f"watching {self.cfg.light.inbox}")
         self._restart_capture()
+        self._restart_content()
         self.activity = "idle"
         log.info("grassd %s ready: inbox %s, %d controller(s), socket %s", __version__,
                  self.cfg.light.inbox, len(self.cfg.controllers), self.cfg.control_socket)
@@ -382,6 +386,8 @@ class Service:
         self.notifier.stopping("stopping")
         if self.capture_loop is not None:
             self.capture_loop.stop()
+        if self.content is not None:
+            self.content.stop()
         if self.control is not None:
             self.control.stop()
         while True:  # answer anybody still waiting for a run
@@ -478,6 +484,8 @@ class Service:
         if (new.capture, new.light.inbox, new.light.modbus) != (
                 old.capture, old.light.inbox, old.light.modbus):
             self._restart_capture()
+        if self.content is not None or new.content is not None:
+            self._restart_content()
         log.info("configuration reloaded from %s", self.config_path)
         self.notifier.ready("configuration reloaded")
         return True
@@ -494,6 +502,30 @@ class Service:
             from grassd.daemon.runtime.capture import start_capture_loop
 
             self.capture_loop = start_capture_loop(self.cfg, after=old)
+
+    def _restart_content(self) -> None:
+        """(Re)start the content feature for the current ``[content]`` (none without it, or
+        with ``enabled = false``) on the fleet's frame output; a receiver that cannot listen
+        is logged and the daemon goes on calibrating."""
+        from grassd.daemon.content.feature import start_content
+        from grassd.daemon.content.receiver import ReceiverBindError
+
+        if self.content is not None:
+            self.content.stop()
+        self.content = None
+        if self.cfg.content is None or not self.cfg.content.enabled:
+            return
+        try:
+            self.content = start_content(self.cfg, self._frame_sink(), self.history,
+                                         self.reports_dir)
+        except ReceiverBindError as exc:
+            log.error("content: %s", exc)
+
+    def _frame_sink(self) -> Any:
+        """Where content frames go: the fleet's frame output."""
+        from grassd.daemon.hardware.frames import FrameOutput
+
+        return FrameOutput(self.fleet, self.cfg.display.pixel_count)
 
     # ------------------------------------------------------------------ runs
     def _resolve_lux(self, manifest_lux: float | None) -> tuple[float, str]:

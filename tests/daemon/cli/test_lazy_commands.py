@@ -33,7 +33,7 @@ def test_the_mapping_loads_a_module_only_when_its_command_is_looked_up():
 import sys
 from grassd.daemon.cli.main import main
 names = sorted(main.commands)
-assert "status" in main.commands and "nope" not in main.commands and len(main.commands) == 17
+assert "status" in main.commands and "nope" not in main.commands and len(main.commands) == 18
 before = sorted(m for m in sys.modules if m.startswith("grassd.daemon.cli."))
 main.commands["history"]
 after = sorted(m for m in sys.modules if m.startswith("grassd.daemon.cli."))

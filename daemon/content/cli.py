@@ -1,0 +1,72 @@
+"""``grassd show FILE``: a picture or animation on the display, through the running daemon
+(control socket ``content_show``), or played here on the configured controllers when no
+daemon runs."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import click
+
+_CONFIG_HELP = ("configuration file (default: /etc/grassd/grassd.toml if it exists, else the "
+                "embedded default)")
+
+
+@click.command("show")
+@click.argument("file", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--duration", "duration_s", type=click.FloatRange(0.1, 86400.0),
+              help="seconds to show it (default: one pass of an animation, at least 10 s)")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), help=_CONFIG_HELP)
+@click.option("--state-dir", type=click.Path(file_okay=False),
+              help="override the state directory")
+def show(file: Path, duration_s: float | None, config_path: str | None,
+         state_dir: str | None) -> None:
+    """Show a picture or animation (PNG, JPEG, GIF, APNG) on the display, through the
+    running daemon or here when none runs."""
+    from grassd.daemon.config.settings import resolve_config
+    from grassd.daemon.errors import DaemonNotRunning
+    from grassd.daemon.runtime.control import request
+
+    cfg = resolve_config(config_path, state_dir)
+    req = {"cmd": "content_show", "path": str(file.resolve())}
+    if duration_s is not None:
+        req["duration_s"] = duration_s
+    try:
+        ans = request(cfg.control_socket, req)
+    except DaemonNotRunning:
+        _play_here(cfg, file, duration_s)
+        return
+    click.echo(f"grassd: the daemon shows {file.name} ({ans.get('frames')} frame(s))")
+
+
+def _play_here(cfg, file: Path, duration_s: float | None) -> None:
+    """Play ``file`` on ``cfg``'s controllers from this process, then close them."""
+    from grassd.daemon.content.config import ContentConfig
+    from grassd.daemon.content.feature import ContentFeature
+    from grassd.daemon.content.pictures import load_animation
+    from grassd.daemon.hardware.fleet import Fleet
+    from grassd.daemon.hardware.frames import FrameOutput
+    from grassd.daemon.store.history import History
+    from grassd.daemon.store.layout import StateLayout
+
+    content = cfg.content or ContentConfig()
+    cfg = cfg.replace(content=content)
+    anim = load_animation(file, cfg.display.rows, cfg.display.cols,
+                          content.max_picture_mib << 20)
+    duration = duration_s if duration_s is not None else max(anim.length_s, 10.0)
+    layout = StateLayout(cfg.state_dir)
+    history = History(layout.db)
+    fleet = Fleet(cfg.controllers)
+    sink = FrameOutput(fleet, cfg.display.pixel_count)
+    try:
+        player = ContentFeature(cfg, sink, history, layout.reports, live=False).player
+        player.show(anim, duration)
+        click.echo(f"grassd: showing {file.name} here for {duration:g} s (no daemon runs)")
+        player.start()
+        time.sleep(duration)
+        player.stop()
+    finally:
+        sink.close()
+        fleet.close()
+        history.close()

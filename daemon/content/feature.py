@@ -1,0 +1,172 @@
+"""The content feature inside the daemon: the player on the daemon's frame output, the
+calibration's colours for it, and its control-socket commands.
+
+The service joins it through :func:`start_content` (a :class:`ContentFeature`:
+``handles(cmd)``, ``handle(request)``, ``status()``, ``stop()``). Commands::
+
+    {"cmd": "content_frame", "levels": [n_pixels ints 0..255], "hold_s": 10}
+        -> {"ok": true}      one frame (row-major from the top left) above the playlist
+    {"cmd": "content_show", "path": "/abs/picture.gif", "duration_s": 30}
+        -> {"ok": true, "frames": 12}   the daemon reads the file (readable by its user)
+    {"cmd": "content_stop"}  -> {"ok": true}   ends a frame or picture asked for
+    {"cmd": "content_status"} -> {"ok": true, "content": {...}}   (read-only)
+
+All but ``content_status`` change what the display shows: the control socket serves them only
+for root and the daemon's own user, as every state-changing command.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import threading
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from grassd.daemon.config.settings import Config
+from grassd.daemon.content.colour_map import DisplayColours
+from grassd.daemon.content.pictures import load_animation
+from grassd.daemon.content.player import MAX_REQUEST_S, ContentPlayer
+from grassd.daemon.content.sink import FrameSink
+from grassd.daemon.content.status import ContentStatus
+from grassd.daemon.store.layout import report_stem
+
+log = logging.getLogger(__name__)
+
+#: the commands the feature answers; only ``content_status`` is read-only
+COMMANDS = frozenset({"content_frame", "content_show", "content_stop", "content_status"})
+READ_ONLY = frozenset({"content_status"})
+#: the reference viewpoint (h cm, d m, theta deg) whose colours content is mapped onto
+REFERENCE_VIEWPOINT = (170.0, 2.0, 0.0)
+
+
+def colours_from_report(report: dict[str, Any], table_um: Any) -> DisplayColours | None:
+    """The predicted colours of the levels of ``table_um`` (256,) [um] from a run's report:
+    the Lab per length of its viewpoint nearest the reference one (170 cm, 2 m, 0 deg);
+    None when the report holds no Lab (older runs, tables per controller or pixel)."""
+    vps = [v for v in report.get("viewpoints") or [] if v.get("lab_d50")]
+    if not vps:
+        return None
+    h, d, t = REFERENCE_VIEWPOINT
+    vp = min(vps, key=lambda v: abs(v["h_cm"] - h) / 10 + abs(v["d_m"] - d)
+             + abs(v["theta_deg"] - t) / 10)
+    table_mm = np.asarray(table_um, np.float64) / 1000.0
+    return DisplayColours.from_curve(
+        table_mm, vp["lengths_mm"], vp["lab_d50"],
+        f"run {report.get('run_id')}, viewpoint ({vp['h_cm']:g}, {vp['d_m']:g}, "
+        f"{vp['theta_deg']:g})")
+
+
+class ContentFeature:
+    """The player for ``cfg`` (with ``[content]``) on ``sink``; the colours come from the
+    active table's run (``history``, reports in ``reports_dir``), read again when it
+    changes. ``live`` False starts no receiver (a one-off show)."""
+
+    def __init__(self, cfg: Config, sink: FrameSink, history: Any, reports_dir: Path, *,
+                 live: bool = True) -> None:
+        assert cfg.content is not None
+        self.cfg = cfg
+        self.history = history
+        self.reports_dir = reports_dir
+        self._colours: tuple[int | None, DisplayColours | None] = (None, None)
+        self._lock = threading.Lock()
+        from zoneinfo import ZoneInfo
+
+        tz = ZoneInfo(cfg.site.timezone)
+        from datetime import datetime
+
+        self.player = ContentPlayer(cfg.content, cfg.display.rows, cfg.display.cols, sink,
+                                    colours=self.colours,
+                                    hour=lambda: datetime.now(tz).hour, live=live)
+
+    def colours(self) -> DisplayColours | None:
+        """The active table's predicted colours (cached per table)."""
+        cur = self.history.current_table()
+        run = None if cur is None else cur.id
+        with self._lock:
+            if run == self._colours[0]:
+                return self._colours[1]
+        colours = None
+        if cur is not None:
+            path = self.reports_dir / (report_stem(cur.id) + ".json")
+            try:
+                colours = colours_from_report(json.loads(path.read_text("utf-8")),
+                                              cur.lengths_um)
+            except (OSError, ValueError, KeyError, TypeError) as exc:
+                log.warning("content: no colours from run %d's report %s (%s): pictures map "
+                            "by luminance", cur.id, path, exc)
+        with self._lock:
+            self._colours = (run, colours)
+        return colours
+
+    def start(self) -> ContentFeature:
+        """Start receiving and playing."""
+        self.player.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop receiving and playing."""
+        self.player.stop()
+
+    def status(self) -> ContentStatus:
+        """The player's snapshot."""
+        return self.player.status()
+
+    @staticmethod
+    def handles(cmd: str) -> bool:
+        """Whether ``cmd`` is one of the feature's commands."""
+        return cmd in COMMANDS
+
+    def handle(self, req: dict[str, Any]) -> dict[str, Any]:
+        """Answer one of :data:`COMMANDS` (runs in a control-socket thread); a bad request
+        raises ValueError naming what to send."""
+        cmd = req["cmd"]
+        if cmd == "content_status":
+            return {"ok": True, "content": self.status().to_json()}
+        if cmd == "content_stop":
+            self.player.stop_request()
+            return {"ok": True}
+        if cmd == "content_frame":
+            n = self.player.n_pixels
+            levels = req.get("levels")
+            if (not isinstance(levels, list) or len(levels) != n or not all(
+                    isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 255
+                    for v in levels)):
+                raise ValueError(f'content_frame needs "levels": {n} integers 0..255 (the '
+                                 "display's pixels row by row from the top left)")
+            self.player.set_frame(np.asarray(levels, np.uint8),
+                                  _seconds(req, "hold_s", self.cfg.content.hold_s))
+            return {"ok": True}
+        if cmd == "content_show":
+            path = req.get("path")
+            if not isinstance(path, str) or not Path(path).is_absolute():
+                raise ValueError('content_show needs "path": the absolute path of a picture '
+                                 "file the daemon's user can read")
+            c = self.cfg.content
+            anim = load_animation(Path(path), self.cfg.display.rows, self.cfg.display.cols,
+                                  c.max_picture_mib << 20)
+            self.player.show(anim, _seconds(req, "duration_s", max(anim.length_s, 10.0)))
+            return {"ok": True, "frames": len(anim.frames), "length_s": anim.length_s}
+        raise ValueError(f"unknown content command {cmd!r}")
+
+
+def _seconds(req: dict[str, Any], key: str, default: float) -> float:
+    """``req[key]`` as seconds in (0, :data:`MAX_REQUEST_S`], else ``default``."""
+    v = req.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) \
+            or not 0 < v <= MAX_REQUEST_S:
+        raise ValueError(f'"{key}" must be a number of seconds in (0, {MAX_REQUEST_S:g}]')
+    return float(v)
+
+
+def start_content(cfg: Config, sink: FrameSink, history: Any,
+                  reports_dir: Path) -> ContentFeature | None:
+    """The started feature for ``cfg``, or None without ``[content]`` or with
+    ``enabled = false``. Raises :class:`~grassd.daemon.content.receiver.ReceiverBindError`
+    when a receiver cannot listen."""
+    if cfg.content is None or not cfg.content.enabled:
+        return None
+    return ContentFeature(cfg, sink, history, reports_dir).start()
