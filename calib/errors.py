@@ -52,6 +52,16 @@ class RawReadError(CalibError, OSError):
     """A RAW file is missing, truncated, corrupt or not a RAW format LibRaw can develop."""
 
 
+class RawSizeError(RawReadError):
+    """A RAW file's header declares a size its reader does not take (``width`` x ``height``
+    pixels of its ``what``, "sensor" or "image": beyond the limit, or not the sensor size the
+    caller expects); nothing was unpacked."""
+
+    def __init__(self, message: str, *, what: str, width: int, height: int) -> None:
+        super().__init__(message)
+        self.what, self.width, self.height = what, width, height
+
+
 class DngWriteError(CalibError, ValueError):
     """The arguments given to the DNG writer cannot produce a valid DNG file."""
 

@@ -26,7 +26,7 @@ import numpy as np
 import rawpy
 from numpy.typing import ArrayLike, NDArray
 
-from grassd.calib.errors import RawReadError
+from grassd.calib.errors import RawReadError, RawSizeError
 from grassd.calib.regions import extract_checker_patches, quad_mean
 
 #: Full scale of LibRaw's 16-bit output.
@@ -87,17 +87,20 @@ def _wb_params(white_balance: str | Sequence[float]) -> dict:
     return {"user_wb": wb, "use_camera_wb": False, "use_auto_wb": False}
 
 
-def open_raw(path: str | Path) -> rawpy.RawPy:
+def open_raw(path: str | Path, sensor: tuple[int, int] | None = None) -> rawpy.RawPy:
     """Open a RAW file with LibRaw once its declared size is known to be sane; the caller
     closes it (``with open_raw(p) as raw:``).
 
     Checked before LibRaw reads a byte: a regular file of at most :data:`MAX_RAW_FILE_BYTES`;
     then, from the header LibRaw parsed (no pixel is unpacked yet), at most
-    :data:`MAX_RAW_PIXELS` photosites on the sensor and pixels in the image.
+    :data:`MAX_RAW_PIXELS` photosites on the sensor and pixels in the image, and, when
+    ``sensor`` (width, height in photosites) is given, exactly that sensor size.
 
     Raises:
-        RawReadError: missing, not a regular file, too large (on disk or declared), or not a RAW
-            file LibRaw can open; the message names the size and the limit.
+        RawSizeError: the declared sensor or image is beyond the limit, or not ``sensor``; the
+            message names the size found and the limit (or the size expected).
+        RawReadError: missing, not a regular file, too large on disk, or not a RAW file LibRaw
+            can open.
     """
     p = Path(path)
     try:
@@ -123,31 +126,48 @@ def open_raw(path: str | Path) -> rawpy.RawPy:
         for what, w, h in (("sensor", sizes.raw_width, sizes.raw_height),
                            ("image", sizes.width, sizes.height)):
             if w <= 0 or h <= 0 or w * h > MAX_RAW_PIXELS:
-                raise RawReadError(
+                raise RawSizeError(
                     f"{p} declares a {what} of {w} x {h} = {w * h} pixels, outside 1 to "
                     f"{MAX_RAW_PIXELS} (the limit); nothing was decoded: the file is corrupt or "
-                    "not a camera's RAW")
+                    "not a camera's RAW", what=what, width=w, height=h)
+        if sensor is not None and (sizes.raw_width, sizes.raw_height) != tuple(sensor):
+            w, h = sizes.raw_width, sizes.raw_height
+            raise RawSizeError(
+                f"{p} declares a sensor of {w} x {h} photosites, not the {sensor[0]} x "
+                f"{sensor[1]} expected (the set-up shot's); nothing was decoded: a shot from "
+                "another camera or mode, or a corrupt file", what="sensor", width=w, height=h)
     except BaseException:
         raw.close()
         raise
     return raw
 
 
+def raw_sensor(path: str | Path) -> tuple[int, int]:
+    """(width, height) in photosites of a RAW file's sensor, from its header alone
+    (:func:`open_raw`'s checks; nothing is unpacked)."""
+    with open_raw(path) as raw:
+        return int(raw.sizes.raw_width), int(raw.sizes.raw_height)
+
+
 def develop_raw(path: str | Path, white_balance: str | Sequence[float] = "camera",
-                half_size: bool = False) -> DevelopedRaw:
+                half_size: bool = False, sensor: tuple[int, int] | None = None) -> DevelopedRaw:
     """Develop a RAW file to linear ProPhoto RGB (16-bit precision, returned as float32 0..1).
 
     Args:
         path: a RAW file LibRaw understands (DNG, CR2, NEF, ARW, ...).
         white_balance: "camera" (as shot) or channel multipliers (R, G, B[, G2]).
         half_size: one pixel per 2 x 2 Bayer block (no demosaicing; half the width and height).
+        sensor: the sensor size (width, height in photosites) the file must declare; None: any
+            within :data:`MAX_RAW_PIXELS`.
 
     Raises:
+        RawSizeError: a declared size beyond the limit or other than ``sensor`` (nothing
+            decoded).
         RawReadError: missing, unreadable, truncated, corrupt or non-RAW file.
     """
     p = Path(path)
     params = _wb_params(white_balance)
-    raw = open_raw(p)
+    raw = open_raw(p, sensor)
     try:
         with raw:
             rgb16 = raw.postprocess(

@@ -70,7 +70,8 @@ class MeasureSetup:
     ``exposure`` and ``lux``, ``ccm`` (3, 3) for the simulation (scale included), the
     ``chart`` and the ``photo`` it came from, ``made_at`` (ISO 8601 UTC), ``ccm_de00`` the
     correction's mean and largest CIEDE2000 residual on the patches (None: a set-up made
-    before it was kept)."""
+    before it was kept), ``sensor`` the set-up shot's sensor (width, height in photosites;
+    None: a set-up made before it was kept), which every measurement shot must have."""
 
     white_balance: tuple[float, float, float, float]
     scale: float
@@ -81,6 +82,7 @@ class MeasureSetup:
     photo: str
     made_at: str
     ccm_de00: tuple[float, float] | None = None
+    sensor: tuple[int, int] | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The set-up as JSON (``setup.json``)."""
@@ -94,7 +96,9 @@ class MeasureSetup:
                    ccm=tuple(tuple(r) for r in d["ccm"]), chart=str(d["chart"]),
                    photo=str(d["photo"]), made_at=str(d["made_at"]),
                    ccm_de00=None if d.get("ccm_de00") is None
-                   else (float(d["ccm_de00"][0]), float(d["ccm_de00"][1])))
+                   else (float(d["ccm_de00"][0]), float(d["ccm_de00"][1])),
+                   sensor=None if d.get("sensor") is None
+                   else (int(d["sensor"][0]), int(d["sensor"][1])))
 
     def normalise(self, prophoto: NDArray, exposure: Exposure, lux: float) -> NDArray:
         """Developed linear ProPhoto of a shot at ``exposure`` under ``lux`` -> the scale of the
@@ -115,9 +119,10 @@ def setup_from_checker(path: Path, corners: Any, chart: str, exposure: Exposure,
     from grassd.calib.checker_photo import checker_white_balance, virtual_checker
     from grassd.calib.colour_spaces import luminance
     from grassd.calib.exposure import GREY_CARD_Y
-    from grassd.calib.raw import develop_raw
+    from grassd.calib.raw import develop_raw, raw_sensor
 
     ref = get_chart(chart)
+    sensor = raw_sensor(path)
     wb = checker_white_balance(path, corners, ref)
     patches = develop_raw(path, white_balance=wb).checker_patches(corners)
     grey = float(luminance(patches[ref.grey_index()], "prophoto"))
@@ -132,7 +137,7 @@ def setup_from_checker(path: Path, corners: Any, chart: str, exposure: Exposure,
                         lux=float(lux), ccm=tuple(tuple(float(x) for x in r) for r in ccm),
                         chart=chart, photo=str(path),
                         made_at=datetime.now(UTC).isoformat(timespec="seconds"),
-                        ccm_de00=(fit.mean_de00, fit.max_de00))
+                        ccm_de00=(fit.mean_de00, fit.max_de00), sensor=sensor)
 
 
 def load_setup(path: Path) -> MeasureSetup:
@@ -148,13 +153,34 @@ def load_setup(path: Path) -> MeasureSetup:
                                 "again") from None
 
 
-def develop_shot(shot: Shot, setup: MeasureSetup, lux: float) -> NDArray[np.float64]:
-    """(H, W, 3) linear ProPhoto of a shot, developed half size with the set-up's white
-    balance and normalised (:meth:`MeasureSetup.normalise`)."""
+def setup_sensor(setup: MeasureSetup) -> tuple[int, int] | None:
+    """The sensor size (width, height in photosites) every shot must have: the set-up's, or
+    for a set-up made before it was kept, its photo's (from the header) while that file is
+    there; None when neither is known."""
+    from grassd.calib.errors import RawReadError
+    from grassd.calib.raw import raw_sensor
+
+    if setup.sensor is not None:
+        return setup.sensor
+    try:
+        return raw_sensor(Path(setup.photo))
+    except RawReadError as exc:
+        log.warning("the set-up shot's sensor size is unknown (%s): measurement shots are "
+                    "checked against the RAW size limit only; run grassd measure setup again",
+                    exc)
+        return None
+
+
+def develop_shot(shot: Shot, setup: MeasureSetup, lux: float) -> NDArray[np.float32]:
+    """(H, W, 3) float32 linear ProPhoto of a shot, developed half size with the set-up's
+    white balance and normalised (:meth:`MeasureSetup.normalise`). A shot whose header
+    declares another sensor size than the set-up shot's (:func:`setup_sensor`) is refused
+    before a pixel is unpacked (:class:`~grassd.calib.errors.RawSizeError`)."""
     from grassd.calib.raw import develop_raw
 
-    dev = develop_raw(shot.raw_path, white_balance=setup.white_balance, half_size=True)
-    return setup.normalise(dev.rgb.astype(np.float64), shot.exposure, lux)
+    dev = develop_raw(shot.raw_path, white_balance=setup.white_balance, half_size=True,
+                      sensor=setup_sensor(setup))
+    return setup.normalise(dev.rgb, shot.exposure, lux)
 
 
 class MeasuringCamera:
