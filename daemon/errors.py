@@ -84,6 +84,25 @@ class StateDirUnwritable(DaemonError):
     """The state directory's lock file cannot be created or opened (read-only, permissions)."""
 
 
+class RootRefuses(DaemonError):
+    """A command started by root would read, as root, files that another user may change (a
+    state directory, the configuration): it stops before reading them
+    (:mod:`grassd.daemon.cli.state_owner`)."""
+
+
+class OthersMayWrite(RootRefuses):
+    """Root's own state directory or configuration, but another user may change a part of it
+    (it, a file or directory in it, or a directory above it)."""
+
+
+class OwnerUnknown(RootRefuses):
+    """The state directory belongs to a uid without an account, so root cannot become it."""
+
+
+class SwitchUserFailed(RootRefuses):
+    """Root could not become the state directory's owner (no CAP_SETUID or CAP_SETGID)."""
+
+
 class TransientError(DaemonError):
     """A condition that clears by itself (a service that is down, a connection that dropped):
     the daemon keeps what it was working on and retries with backoff, never rejects it."""
