@@ -1,0 +1,32 @@
+"""A ``dask worker --preload`` that turns the worker hostile (tests only): every grassd
+calibration task answers with an object whose unpickling runs a command, which appends
+the pid of the process that unpickled it to ``$GRASSD_HOSTILE_MARK``. Its pickle is sent
+at the protocol level, as Dask sends any result: pickled by the worker, unpickled by
+whoever accepts Dask's ``pickle`` serializer.
+"""
+
+from __future__ import annotations
+
+import os
+
+import grassd.daemon.calibration.remote as remote
+
+MARK = os.environ["GRASSD_HOSTILE_MARK"]
+#: run by whoever unpickles the answer
+COMMAND = f"import os; open({MARK!r}, 'a').write(f'{{os.getpid()}}\\n')"
+
+
+class Payload:
+    """Unpickled, it runs :data:`COMMAND` (``exec``), as the review's ran ``id``."""
+
+    def __reduce__(self) -> tuple[object, tuple[str]]:
+        return exec, (COMMAND,)
+
+
+def hostile_calibrate_on_worker(payload: bytes) -> Payload:
+    """What the task runs here instead of the calibration."""
+    return Payload()
+
+
+# the daemon's task names the function by module and name: the worker finds this one
+remote.calibrate_on_worker = hostile_calibrate_on_worker
