@@ -18,6 +18,9 @@
     timeout_s = 10.0                # per HTTP read (s): connect, and each wait for data
     request_deadline_s = 30.0       # whole JSON request, start to last byte (s)
     download_deadline_s = 300.0     # whole shot download, start to last byte (s)
+    min_download_rate = 16384       # a download slower than this (bytes/s, 0..1e8; 0 = no
+    min_download_window_s = 10.0    #   limit) over this window (s, 1..300) is cut (curl's
+                                    #   --speed-limit / --speed-time)
     max_json_bytes = 1048576        # largest JSON answer accepted (bytes)
     max_download_bytes = 134217728  # largest shot file accepted (bytes)
     command_timeout_s = 120.0       # per camera command until done (s)
@@ -64,6 +67,8 @@ class CaptureConfig:
     timeout_s: float = 10.0
     request_deadline_s: float = 30.0
     download_deadline_s: float = 300.0
+    min_download_rate: int = 16384
+    min_download_window_s: float = 10.0
     max_json_bytes: int = 1 << 20
     max_download_bytes: int = 128 << 20
     command_timeout_s: float = 120.0
@@ -96,6 +101,8 @@ def parse_capture(ctx: schema.Context, raw: Any) -> CaptureConfig | None:
         timeout_s=F(float, check=schema.positive),
         request_deadline_s=F(float, check=schema.positive),
         download_deadline_s=F(float, check=schema.positive),
+        min_download_rate=F(int, check=schema.between(0, 100_000_000, " bytes/s")),
+        min_download_window_s=F(float, check=schema.between(1.0, 300.0, " s")),
         max_json_bytes=F(int, check=schema.between(4096, 1 << 30, " bytes")),
         max_download_bytes=F(int, check=schema.between(1 << 20, 1 << 34, " bytes")),
         command_timeout_s=F(float, check=schema.positive),

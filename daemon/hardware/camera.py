@@ -95,6 +95,9 @@ DEFAULT_DOWNLOAD_DEADLINE_S = CaptureConfig.download_deadline_s
 DEFAULT_MAX_JSON_BYTES = CaptureConfig.max_json_bytes
 #: Bytes a downloaded shot may hold ([capture]'s).
 DEFAULT_MAX_DOWNLOAD_BYTES = CaptureConfig.max_download_bytes
+#: Slowest download (bytes/s) over a window (s) before it is cut ([capture]'s).
+DEFAULT_MIN_DOWNLOAD_RATE = CaptureConfig.min_download_rate
+DEFAULT_MIN_DOWNLOAD_WINDOW_S = CaptureConfig.min_download_window_s
 #: Bytes read from a socket at a time.
 CHUNK_BYTES = 64 * 1024
 #: Bytes of an HTTP error's body quoted in the error message.
@@ -274,7 +277,9 @@ class OscClient:
                  request_deadline_s: float = DEFAULT_REQUEST_DEADLINE_S,
                  download_deadline_s: float = DEFAULT_DOWNLOAD_DEADLINE_S,
                  max_json_bytes: int = DEFAULT_MAX_JSON_BYTES,
-                 max_download_bytes: int = DEFAULT_MAX_DOWNLOAD_BYTES) -> None:
+                 max_download_bytes: int = DEFAULT_MAX_DOWNLOAD_BYTES,
+                 min_download_rate: int = DEFAULT_MIN_DOWNLOAD_RATE,
+                 min_download_window_s: float = DEFAULT_MIN_DOWNLOAD_WINDOW_S) -> None:
         parsed = urllib.parse.urlparse(url)
         if parsed.scheme not in ("http", "https") or not parsed.netloc:
             raise CameraUnreachable(f"camera URL {url!r} is not an http:// URL "
@@ -287,6 +292,8 @@ class OscClient:
         self.download_deadline_s = download_deadline_s
         self.max_json_bytes = max_json_bytes
         self.max_download_bytes = max_download_bytes
+        self.min_download_rate, self.min_download_window_s = (min_download_rate,
+                                                              min_download_window_s)
         self._local = threading.local()  # .deadline: the current request's, per thread
 
         def deadline_of() -> _Deadline | None:
@@ -307,7 +314,9 @@ class OscClient:
                    timeout_s=cfg.timeout_s, command_timeout_s=cfg.command_timeout_s,
                    request_deadline_s=cfg.request_deadline_s,
                    download_deadline_s=cfg.download_deadline_s,
-                   max_json_bytes=cfg.max_json_bytes, max_download_bytes=cfg.max_download_bytes)
+                   max_json_bytes=cfg.max_json_bytes, max_download_bytes=cfg.max_download_bytes,
+                   min_download_rate=cfg.min_download_rate,
+                   min_download_window_s=cfg.min_download_window_s)
 
     # ------------------------------------------------------------------ HTTP
     @contextlib.contextmanager
@@ -382,7 +391,7 @@ class OscClient:
             if deadline.expired:
                 self._late(what, deadline, error)
             try:
-                chunk = resp.read(min(CHUNK_BYTES, cap + 1 - n))
+                chunk = resp.read1(min(CHUNK_BYTES, cap + 1 - n))  # what has arrived
             except (OSError, http.client.HTTPException, ValueError) as exc:
                 if deadline.over:
                     self._late(what, deadline, error)
@@ -558,7 +567,9 @@ class OscClient:
             with (self._exchange(req, self.download_deadline_s,
                                  timeout=max(self.timeout_s, 30.0)) as (resp, deadline),
                   part.open("wb") as fh):
-                n = self._read_body(resp, deadline, self.max_download_bytes, fh.write,
+                floor = _RateFloor(self.min_download_rate, self.min_download_window_s,
+                                   f"download of {file_url}", fh.write)
+                n = self._read_body(resp, deadline, self.max_download_bytes, floor.write,
                                     f"download of {file_url}", CameraDownloadError,
                                     CameraDownloadError)
             if not n:
@@ -608,3 +619,31 @@ def _content_length(resp: Any) -> int | None:
     except ValueError:
         return None
     return n if n >= 0 else None
+
+
+class CameraDownloadTooSlow(CameraDownloadError):
+    """A download came slower than ``[capture] min_download_rate`` over its window."""
+
+
+class _RateFloor:
+    """A download's minimum rate (as curl's ``--speed-limit``): ``write(chunk)`` passes each
+    chunk to ``sink`` and raises :class:`CameraDownloadTooSlow` once a window of ``window_s``
+    seconds brought fewer than ``rate`` bytes/s (``rate`` 0: no floor)."""
+
+    def __init__(self, rate: int, window_s: float, what: str, sink: Any) -> None:
+        self.rate, self.window_s, self.what, self.sink = rate, window_s, what, sink
+        self.mark_t, self.mark_n, self.n = time.monotonic(), 0, 0
+
+    def write(self, chunk: bytes) -> None:
+        self.sink(chunk)
+        self.n += len(chunk)
+        now = time.monotonic()
+        if not self.rate or now - self.mark_t < self.window_s:
+            return
+        got = (self.n - self.mark_n) / (now - self.mark_t)
+        if got < self.rate:
+            raise CameraDownloadTooSlow(
+                f"{self.what} came at {got:.0f} bytes/s over {now - self.mark_t:.1f} s, under "
+                f"[capture] min_download_rate = {self.rate} bytes/s; stopped after {self.n} "
+                "bytes: check the camera's Wi-Fi, and restart it if it keeps happening")
+        self.mark_t, self.mark_n = now, self.n
