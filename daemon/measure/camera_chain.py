@@ -191,6 +191,7 @@ class MeasuringCamera:
     def __init__(self, client: Any, dest: Path, iso: int) -> None:
         self.client, self.dest, self.iso = client, dest, iso
         self._metered_s: float | None = None
+        self._format: dict[str, Any] | None = None
 
     def shoot(self, name: str, ev: float = 0.0) -> Shot:
         """Take one shot named ``name`` (file stem); returns its DNG and exposure. ``ev``:
@@ -205,8 +206,15 @@ class MeasuringCamera:
             want = self._metered_s * 2.0 ** ev
             options = {"exposureProgram": 1, "shutterSpeed": min(
                 SHUTTER_SPEEDS_S, key=lambda t: abs(np.log(t / want)))}
+        if self._format is None:  # as a bracket: still images, RAW+ at the camera's size
+            self.client.ensure_image_mode()
+            size = self.client.get_options("fileFormat").get("fileFormat")
+            if not isinstance(size, dict):
+                raise MeasureSetupError("the measuring camera's getOptions gave no fileFormat "
+                                        "object; it must be an OSC camera taking RAW+")
+            self._format = {**size, "type": "raw+"}
         self.client.set_options(iso=self.iso, whiteBalance="daylight",
-                                fileFormat={"type": "raw+"}, **options)
+                                fileFormat=self._format, **options)
         res = self.client.take_picture()
         if not isinstance(res.get("_dngFileUrl"), str):
             raise MeasureSetupError("the measuring camera gave no DNG (_dngFileUrl) for a RAW+ "
