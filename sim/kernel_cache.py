@@ -12,11 +12,8 @@ The default is written here only; the configuration's ``cache_dir`` falls back t
 
 from __future__ import annotations
 
-import atexit
 import logging
 import os
-import shutil
-import tempfile
 from pathlib import Path
 
 from grassd.sim.path_trust import untrusted_part
@@ -60,6 +57,10 @@ def _usable(path: Path, inner: str) -> str | None:
 
 def _private_dir() -> Path:
     """A fresh kernel directory of this process's own, removed when it exits."""
+    import atexit
+    import shutil
+    import tempfile  # here: the configuration imports this module, light commands too
+
     path = Path(tempfile.mkdtemp(prefix="grassd-kernels-"))
     atexit.register(shutil.rmtree, path, ignore_errors=True)
     return path

@@ -16,7 +16,7 @@ import stat
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["Untrusted", "untrusted_part", "owner_name"]
+__all__ = ["Untrusted", "untrusted_part", "untrusted_entry", "owner_name"]
 
 
 @dataclass(frozen=True)
@@ -48,7 +48,7 @@ def _problem(path: Path, st: os.stat_result, uid: int, leaf: bool) -> Untrusted 
         return None  # a link's own mode means nothing; its target is checked on its own
     sticky_dir = stat.S_ISDIR(st.st_mode) and st.st_mode & stat.S_ISVTX
     if st.st_mode & (stat.S_IWGRP | stat.S_IWOTH) and (leaf or not sticky_dir):
-        who = "its group" if st.st_mode & stat.S_IWGRP else "every user"
+        who = "every user" if st.st_mode & stat.S_IWOTH else "its group"
         return Untrusted(path, f"is writable by {who} (mode {stat.S_IMODE(st.st_mode):04o})")
     return None
 
@@ -72,3 +72,12 @@ def untrusted_part(path: Path | str, uid: int | None = None) -> Untrusted | None
     uid = os.geteuid() if uid is None else uid
     lexical = Path(os.path.abspath(path))
     return _walk(lexical, uid) or _walk(Path(os.path.realpath(lexical)), uid)
+
+
+def untrusted_entry(path: Path | str, uid: int) -> Untrusted | None:
+    """As :func:`untrusted_part` for ``path`` alone (``lstat``: a link is not followed), where
+    the directories above it have been checked."""
+    try:
+        return _problem(Path(path), os.lstat(path), uid, leaf=True)
+    except FileNotFoundError:
+        return None

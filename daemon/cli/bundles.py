@@ -14,7 +14,6 @@ import json
 import click
 
 from grassd.daemon.cli.run import _CONFIG_HELP, _fmt_time
-from grassd.daemon.config.settings import resolve_config
 from grassd.daemon.safe_text import one_line
 
 
@@ -30,12 +29,13 @@ def bundles() -> None:
 def list_cmd(config_path: str | None, state_dir: str | None, as_json: bool) -> None:
     """Quarantined bundles: id, upload name, attempts, since when (read from the state
     database; works with or without a running daemon)."""
+    from grassd.daemon.cli.state_owner import config_as_state_owner
     from grassd.daemon.errors import HistoryError
     from grassd.daemon.store.history import History
     from grassd.daemon.store.layout import StateLayout
     from grassd.daemon.store.quarantine import quarantined
 
-    cfg = resolve_config(config_path, state_dir)
+    cfg = config_as_state_owner(config_path, state_dir, "bundles list")
     db = StateLayout(cfg.state_dir).db
     if not db.exists():
         raise HistoryError(f"no state database at {db}")
@@ -57,6 +57,7 @@ def list_cmd(config_path: str | None, state_dir: str | None, as_json: bool) -> N
 @click.option("--state-dir", type=click.Path(file_okay=False), help="override the state directory")
 def retry_cmd(bundle: str, config_path: str | None, state_dir: str | None) -> None:
     """Put quarantined BUNDLE (its id, or its upload name) back into the inbox to run again."""
+    from grassd.daemon.cli.state_owner import config_as_state_owner
     from grassd.daemon.errors import DaemonNotRunning
     from grassd.daemon.runtime.control import request
     from grassd.daemon.runtime.statelock import StateLock
@@ -65,7 +66,7 @@ def retry_cmd(bundle: str, config_path: str | None, state_dir: str | None) -> No
     from grassd.daemon.store.layout import StateLayout
     from grassd.daemon.store.quarantine import BundleRetryError, retry_request
 
-    cfg = resolve_config(config_path, state_dir)
+    cfg = config_as_state_owner(config_path, state_dir, "bundles retry")
     try:
         out = request(cfg.control_socket, {"cmd": "bundles_retry", "bundle": bundle},
                       timeout_s=3600)["retry"]

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from grassd.daemon.cli.run import _CONFIG_HELP, resolve_config
+from grassd.daemon.cli.run import _CONFIG_HELP
 from grassd.daemon.hardware.simulated_camera import (
     CURVES,
     SIM_CURVE,
@@ -38,12 +38,13 @@ def capture_cmd(camera: str | None, inbox: str | None, lux: float | None,
     """Take one bracket with the camera, merge it and drop the bundle into the inbox."""
     import logging
 
+    from grassd.daemon.cli.state_owner import config_as_state_owner
     from grassd.daemon.config.capture import CaptureConfig
     from grassd.daemon.errors import ConfigError
     from grassd.daemon.runtime.capture import Station
 
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    cfg = resolve_config(config_path, state_dir)
+    cfg = config_as_state_owner(config_path, state_dir, "capture")
     cap = cfg.capture
     if cap is None:
         if camera is None:

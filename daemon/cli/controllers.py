@@ -87,9 +87,9 @@ def _bus_free(config_path: str | None, state_dir: str | None, command: str,
     (:meth:`StateLock.shared`, kept until the block ends so that a daemon starting meanwhile
     waits) or the daemon holding it does not own ``port``; else StateDirLocked, one line
     saying to use ``instead`` or stop the daemon."""
-    from grassd.daemon.config.settings import resolve_config
+    from grassd.daemon.cli.state_owner import config_as_state_owner
 
-    cfg = resolve_config(config_path, state_dir)
+    cfg = config_as_state_owner(config_path, state_dir, f"controllers {command}")
 
     def refuse(holder: str) -> str:
         return (f"state directory {cfg.state_dir} is in use by {holder}, which owns the "

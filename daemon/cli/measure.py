@@ -18,7 +18,7 @@ from typing import Any
 import click
 
 from grassd.daemon.cli.run import _CONFIG_HELP
-from grassd.daemon.config.settings import Config, resolve_config
+from grassd.daemon.config.settings import Config
 from grassd.rigs import FIRMWARE_BACKENDS
 
 
@@ -172,11 +172,12 @@ def measure(ctx: click.Context, now: bool, config_path: str | None, state_dir: s
         raise click.UsageError("give --now to measure now (or a sub-command: setup)")
     if variation_file and not simulate_hardware:
         raise click.UsageError("--sim-display-variation needs --simulate-hardware")
+    from grassd.daemon.cli.state_owner import config_as_state_owner
     from grassd.daemon.errors import DaemonError
     from grassd.daemon.runtime.measurement import measure_with
     from grassd.daemon.runtime.service import Service
 
-    cfg = resolve_config(config_path, state_dir)
+    cfg = config_as_state_owner(config_path, state_dir, "measure")
     if not simulate_hardware and (report := _ask_daemon(cfg)) is not None:
         _output(report, json_out)
         return
@@ -250,11 +251,12 @@ def _output(report: dict[str, Any], json_out: str | None) -> None:
 def setup_cmd(corners: str, chart: str, lux: float | None, config_path: str | None,
               state_dir: str | None) -> None:
     """Photograph the colour checker lying at the display (the camera's colour chain)."""
+    from grassd.daemon.cli.state_owner import config_as_state_owner
     from grassd.daemon.errors import DaemonError
     from grassd.daemon.measure.camera_chain import load_setup
     from grassd.daemon.runtime.measurement import measuring_camera
 
-    cfg = resolve_config(config_path, state_dir)
+    cfg = config_as_state_owner(config_path, state_dir, "measure setup")
     if cfg.measure is None:
         raise DaemonError(f"{cfg.source}: no [measure] section; name the measuring camera")
     try:

@@ -134,10 +134,11 @@ def run_cmd(config_path: str | None, state_dir: str | None, simulate_hardware: b
             sim_lux: float, sim_firmware: str, variation_file: str | None, tick_s: float,
             log_level: str) -> None:
     """Run the daemon: watch the inbox, calibrate, push tables, serve the control socket."""
+    from grassd.daemon.cli.state_owner import config_as_state_owner
     from grassd.daemon.runtime.service import Service
 
     _setup_logging(log_level)
-    cfg = resolve_config(config_path, state_dir)
+    cfg = config_as_state_owner(config_path, state_dir, "run")
     if variation_file and not simulate_hardware:
         raise click.UsageError("--sim-display-variation needs --simulate-hardware")
     hw, transform, camera = None, None, None
@@ -251,6 +252,7 @@ def status_cmd(config_path: str | None, state_dir: str | None, as_json: bool) ->
     """Last runs, each controller's active table, and health (asks the daemon if it runs)."""
     import json
 
+    from grassd.daemon.cli.state_owner import config_as_state_owner
     from grassd.daemon.errors import DaemonNotRunning, HistoryError
     from grassd.daemon.monitoring.status_types import Status
     from grassd.daemon.runtime.control import request
@@ -258,7 +260,7 @@ def status_cmd(config_path: str | None, state_dir: str | None, as_json: bool) ->
     from grassd.daemon.store.history import History
     from grassd.daemon.store.layout import StateLayout
 
-    cfg = resolve_config(config_path, state_dir)
+    cfg = config_as_state_owner(config_path, state_dir, "status")
     try:
         st = Status.from_json(request(cfg.control_socket, {"cmd": "status"},
                                       timeout_s=10)["status"])
@@ -291,11 +293,12 @@ def history_cmd(config_path: str | None, state_dir: str | None, limit: int,
     import dataclasses
     import json
 
+    from grassd.daemon.cli.state_owner import config_as_state_owner
     from grassd.daemon.errors import HistoryError
     from grassd.daemon.store.history import History
     from grassd.daemon.store.layout import StateLayout
 
-    cfg = resolve_config(config_path, state_dir)
+    cfg = config_as_state_owner(config_path, state_dir, "history")
     db = StateLayout(cfg.state_dir).db
     if not db.exists():
         raise HistoryError(f"no state database at {db}: the daemon has not run yet")
@@ -345,11 +348,12 @@ def calibrate_cmd(now: bool, wait: bool, force: bool, json_out: str | None,
     """Ask the running daemon for a calibration, or run one here when no daemon runs."""
     import json
 
+    from grassd.daemon.cli.state_owner import config_as_state_owner
     from grassd.daemon.errors import CalibrationRejected, DaemonNotRunning
     from grassd.daemon.runtime.control import request
     from grassd.daemon.store.atomic import atomic_write_json
 
-    cfg = resolve_config(config_path, state_dir)
+    cfg = config_as_state_owner(config_path, state_dir, "calibrate")
     if scheduler is not None:
         import dataclasses
 

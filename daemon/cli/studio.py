@@ -48,6 +48,7 @@ def _active_table(state_dir: Path):
 def studio(config_path, state_dir, hdri, pixel_file, port, host, arch) -> None:
     """Serve the interactive studio: move the eye, change the light, see the pixel, its
     colour characteristic, the table and a picture on the display. Prints its URL."""
+    from grassd.daemon.cli.state_owner import config_as_state_owner
     from grassd.daemon.studio.inputs import StudioInputError
     from grassd.daemon.studio.lights import Lights, LightSource, archived_sources
     from grassd.daemon.studio.process import StudioArgs
@@ -61,7 +62,10 @@ def studio(config_path, state_dir, hdri, pixel_file, port, host, arch) -> None:
             f"{state_dir}: no such directory; give the daemon's state directory (the "
             f"--state-dir of grassd run, or the config's state_dir), or leave --state-dir out",
             param_hint="'--state-dir'")
-    cfg = resolve_config(config_path, str(state_dir) if state_dir else None)
+    if state_dir is not None:  # as root: its owner, before reading it
+        cfg = config_as_state_owner(config_path, str(state_dir), "studio")
+    else:
+        cfg = resolve_config(config_path)
     sources = []
     if hdri is not None:
         file_source = LightSource(name="file", label=f"file: {hdri.name}", path=hdri)
