@@ -341,7 +341,8 @@ def history_cmd(config_path: str | None, state_dir: str | None, limit: int,
               help="seconds to wait for the daemon's run")
 @click.option("--scheduler", metavar="ADDRESS",
               help="one-shot only: simulate on the workers of this dask.distributed "
-                   "scheduler, e.g. tcp://host:8786 (overrides [compute] scheduler)")
+                   "scheduler, e.g. tls://host:8786 (overrides [compute] scheduler; TLS "
+                   "files and allow_insecure as there)")
 def calibrate_cmd(now: bool, wait: bool, force: bool, json_out: str | None,
                   config_path: str | None, state_dir: str | None, simulate_hardware: bool,
                   timeout_s: float, scheduler: str | None) -> None:
@@ -357,11 +358,13 @@ def calibrate_cmd(now: bool, wait: bool, force: bool, json_out: str | None,
     if scheduler is not None:
         import dataclasses
 
-        from grassd.daemon.config.settings import scheduler_address_problem
+        from grassd.daemon.config.compute import scheduler_address_problem, security_problem
 
         if (problem := scheduler_address_problem(scheduler)) is not None:
             raise click.BadParameter(problem, param_hint="--scheduler")
         cfg = cfg.replace(compute=dataclasses.replace(cfg.compute, scheduler=scheduler))
+        if (insecure := security_problem(cfg.compute)) is not None:
+            raise click.BadParameter(f"[compute] {insecure[1]}", param_hint="--scheduler")
     try:
         ans = request(cfg.control_socket, {"cmd": "calibrate", "force": force, "wait": wait,
                                            "timeout_s": timeout_s},

@@ -49,7 +49,7 @@ CONFIG = display_2x2(
     '[site]\nlatitude = 48.1\nlongitude = 11.6\ntimezone = "Europe/Berlin"\n',
     ports=("/dev/grassd-arm64-bus0", "/dev/grassd-arm64-bus1"), samples=64,
     replicates=2, layouts=2,
-    extra='[compute]\nscheduler = "{scheduler}"\nconnect_timeout_s = 60\n'
+    extra='[compute]\nscheduler = "{scheduler}"\nallow_insecure = true\nconnect_timeout_s = 60\n'
           "worker_wait_s = 120\n")
 
 
@@ -82,7 +82,9 @@ def test_bundle_becomes_active_on_arm64_daemon_computing_on_x86_worker(tmp_path)
     site.mkdir()
     binds = {site: SITE_DIR}
     log = site / "daemon.log"
-    with DaskCluster(tmp_path / "dask", cache_dir=CACHE) as cluster:
+    # plain tcp:// (allow_insecure): the root's paths differ from the host's, and TLS has
+    # tests of its own (tests/daemon/calibration/test_compute_trust.py)
+    with DaskCluster(tmp_path / "dask", cache_dir=CACHE, tls=False) as cluster:
         cluster.add_worker("x86")
         (site / "grassd.toml").write_text(CONFIG.format(scheduler=cluster.address))
         grassd = [PYTHON, f"{VENV}/bin/grassd"]

@@ -50,7 +50,8 @@ def test_calibrate_with_a_scheduler_needs_no_taichi(tmp_path):
     from dask_cluster import free_port
 
     config = tmp_path / "grassd.toml"
-    config.write_text(default_config_text() + "\n[compute]\nconnect_timeout_s = 1.0\n")
+    config.write_text(default_config_text()
+                      + "\n[compute]\nallow_insecure = true\nconnect_timeout_s = 1.0\n")
     address = f"tcp://127.0.0.1:{free_port()}"
     res = grassd_without_taichi(["calibrate", "--now", "--simulate-hardware", "--config",
                                  str(config), "--state-dir", "state", "--scheduler", address],
@@ -60,4 +61,10 @@ def test_calibrate_with_a_scheduler_needs_no_taichi(tmp_path):
         in res.stderr
     assert "needs Taichi" not in res.stderr and "Traceback" not in res.stderr
     bad = grassd_without_taichi(["calibrate", "--now", "--scheduler", "calib:8786"], tmp_path)
-    assert bad.returncode == 2 and "--scheduler" in bad.stderr and "tcp://host:8786" in bad.stderr
+    assert bad.returncode == 2 and "--scheduler" in bad.stderr and "tls://host:8786" in bad.stderr
+    # a scheduler without TLS needs allow_insecure in [compute], as one written there
+    (tmp_path / "strict.toml").write_text(default_config_text())
+    strict = grassd_without_taichi(["calibrate", "--now", "--config", str(tmp_path / "strict.toml"),
+                                    "--state-dir", "state", "--scheduler", address], tmp_path)
+    assert strict.returncode == 2 and "has no TLS" in strict.stderr, strict.stderr
+    assert "allow_insecure = true" in strict.stderr and "Traceback" not in strict.stderr

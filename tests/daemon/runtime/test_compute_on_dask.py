@@ -36,7 +36,7 @@ NO_TAICHI = ("import sys; sys.modules['taichi'] = None; "
 CONFIG = display_2x2(
     viewpoints=ONE_VIEW + "[[viewpoints]]\nh_cm = 160\nd_m = 2\ntheta_deg = 30\nweight = 0.5\n",
     samples=1024, seed=5, replicates=2, layouts=2, max_rounds=2,
-    extra='[compute]\nscheduler = "{address}"\nconnect_timeout_s = 5.0\nworker_wait_s = 5.0\n')
+    extra='[compute]\n{compute}connect_timeout_s = 5.0\nworker_wait_s = 5.0\n')
 
 
 def wait_for(cond, timeout_s: float, what: str, log: Path, poll: float = 0.2):
@@ -53,7 +53,7 @@ def test_worker_killed_mid_run_keeps_the_table_and_the_retry_succeeds(tmp_path):
     with DaskCluster(tmp_path / "dask", cache_dir=CACHE) as cluster:
         cluster.add_worker("w1")
         config = tmp_path / "grassd.toml"
-        config.write_text(CONFIG.format(address=cluster.address))
+        config.write_text(CONFIG.format(compute=cluster.toml()))
         sock = tmp_path / "state" / "control.sock"
         with open(log, "wb") as out:
             daemon = subprocess.Popen(
@@ -78,7 +78,8 @@ def test_worker_killed_mid_run_keeps_the_table_and_the_retry_succeeds(tmp_path):
 
             # a second bundle; its run starts on w1 (a run lasts seconds on a warm worker),
             # which dies as soon as the scheduler shows the run on it
-            with Client(cluster.address, timeout=10, set_as_default=False) as client:
+            with Client(cluster.address, timeout=10, set_as_default=False,
+                        security=cluster.security()) as client:
                 drop(inbox, "b2", lux=9000.0, timestamp="2026-06-21T11:00:00+02:00")
                 wait_for(lambda: any(k.startswith("grassd-calibrate-")
                                      for keys in client.processing().values() for k in keys),
@@ -91,7 +92,7 @@ def test_worker_killed_mid_run_keeps_the_table_and_the_retry_succeeds(tmp_path):
             # the daemon saw the run on w1 and w1 leave, or (killed before its first look)
             # the cluster without a worker for worker_wait_s
             assert w["bundle"] == "b2"
-            assert re.search(r"Dask worker tcp://127\.0\.0\.1:\d+ died or left during the run"
+            assert re.search(r"Dask worker tls://127\.0\.0\.1:\d+ died or left during the run"
                              r"|has had no worker for \d+ s", w["reason"]), w["reason"]
             assert waiting["health"].startswith("degraded: ")
             assert f"bundle b2 waits: {w['reason']}" in waiting["health"]
@@ -130,8 +131,7 @@ def test_a_run_without_a_bundle_waits_for_compute_with_health_degraded(tmp_path,
     with DaskCluster(tmp_path / "dask", cache_dir=CACHE) as cluster:
         cluster.add_worker("w1")
         path = write_config(tmp_path / "g.toml", tmp_path / "state", cfg, extra=(
-            f'[compute]\nscheduler = "{cluster.address}"\nconnect_timeout_s = 5.0\n'
-            'worker_wait_s = 2.0\n'))
+            f'[compute]\n{cluster.toml()}connect_timeout_s = 5.0\nworker_wait_s = 2.0\n'))
         svc = service(path, retry_s=1.0, retry_max_s=2.0)
         try:
             drop(svc.cfg.light.inbox, "b1", lux=1000.0)
