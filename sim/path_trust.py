@@ -43,7 +43,7 @@ def _problem(path: Path, st: os.stat_result, uid: int, leaf: bool) -> Untrusted 
     owners = (uid,) if leaf else (0, uid)
     if st.st_uid not in owners:
         return Untrusted(path, f"belongs to {owner_name(st.st_uid)}, not to "
-                               f"{owner_name(uid)}" + ("" if leaf else " or root"))
+                               f"{owner_name(uid)}" + ("" if leaf or uid == 0 else " or root"))
     if stat.S_ISLNK(st.st_mode):
         return None  # a link's own mode means nothing; its target is checked on its own
     sticky_dir = stat.S_ISDIR(st.st_mode) and st.st_mode & stat.S_ISVTX

@@ -146,7 +146,8 @@ def test_studio_started_by_root_runs_as_the_state_directorys_owner(nobody_python
                                      ("status",), ("history",)])
 def test_one_shot_commands_by_root_run_as_the_owner(nobody_python, nobody_dir, command):
     """The one-shot commands that read the state directory: each becomes its owner first,
-    and what `calibrate --now` writes there (lock, database, folders) is the owner's."""
+    and what `calibrate --now` writes there (lock, database, folders) is the owner's; its
+    kernels go to the owner's cache (here nobody's $GRASSD_CACHE_DIR), taken without a word."""
     state, cache = nobody_dir("state"), nobody_dir("cache")
     env = dict(os.environ, GRASSD_CACHE_DIR=str(cache))
     res = subprocess.run([nobody_python, "-m", "grassd.daemon.cli", *command, "--state-dir",
@@ -158,6 +159,8 @@ def test_one_shot_commands_by_root_run_as_the_owner(nobody_python, nobody_dir, c
     written = list(state.rglob("*"))
     if command[0] == "calibrate":
         assert (state / "state.db").exists() and (state / "grassd.lock").exists()
+        assert (cache / "taichi").is_dir()  # the owner's own cache ($GRASSD_CACHE_DIR), taken
+        assert (cache / "taichi").stat().st_uid == NOBODY and "ignored" not in res.stderr
     assert [p for p in written if p.lstat().st_uid != NOBODY] == []
 
 
