@@ -16,6 +16,9 @@ from typing import Any
 
 import numpy as np
 
+from grassd.daemon.content.colour_map import DisplayColours, levels_for_picture
+from grassd.daemon.studio.inputs import StudioInputError
+
 #: Just-noticeable colour difference (CIEDE2000) the contrast view counts steps against: about
 #: 1 dE00 is perceptible to a trained observer side by side (Mokrzycki & Tatol 2011, "Colour
 #: difference Delta E - a survey", Machine Graphics & Vision 20(4)).
@@ -28,6 +31,22 @@ LEVELS: int = 256
 #: Largest picture upload (bytes) and the largest side it is read at (pixels).
 MAX_IMAGE_BYTES: int = 8 * 2**20
 MAX_IMAGE_SIDE: int = 8192
+#: Most pixels a picture is decoded at (4096 x 4096): it becomes one colour per display pixel,
+#: so more adds nothing; decoded, it takes at most 64 MiB (4 bytes a pixel) and as much again
+#: converted to RGB. A JPEG is decoded at a reduced scale (1/2 to 1/8, still at least the
+#: display's size) before this is checked, so a camera's photo of any side up to
+#: :data:`MAX_IMAGE_SIDE` is taken.
+MAX_IMAGE_PIXELS: int = 4096 * 4096
+
+
+class PictureTooLarge(StudioInputError, ValueError):
+    """An uploaded picture's header declares more pixels than the studio decodes
+    (``width`` x ``height`` against ``limit``, a side or a pixel count); nothing was
+    decoded."""
+
+    def __init__(self, message: str, *, width: int, height: int, limit: int) -> None:
+        super().__init__(message)
+        self.width, self.height, self.limit = width, height, limit
 
 
 def srgb_encode(linear: np.ndarray) -> np.ndarray:
@@ -104,10 +123,17 @@ def audience_warning(ranges: np.ndarray, eye_range: float,
     return np.asarray(ranges) < (1.0 - loss) * eye_range
 
 
-def picture_levels(data: bytes, rows: int, cols: int) -> np.ndarray:
+def picture_levels(data: bytes, rows: int, cols: int, colours: DisplayColours | None = None,
+                   mode: str = "nearest_de00") -> np.ndarray:
     """An uploaded picture (PNG, JPEG, ...) as the (rows, cols) 8-bit levels a grass display
-    shows: its luminance (ITU-R BT.601 weights, as Pillow's "L") box-filtered to one value
-    per pixel. ValueError with the reason for bytes that are not a readable picture."""
+    shows: box-filtered to one colour per pixel, then mapped as the daemon's content is
+    (:func:`grassd.daemon.content.colour_map.levels_for_picture`: the level whose predicted
+    ``colours`` are nearest in CIEDE2000; without ``colours`` its luminance, ITU-R BT.601
+    weights as Pillow's "L"). The size is checked from the header, before a pixel is
+    decoded: :class:`PictureTooLarge` for a side over :data:`MAX_IMAGE_SIDE` or, at the scale
+    it would be decoded at (a JPEG's reduced by its decoder to no less than ``cols`` x
+    ``rows``), more than :data:`MAX_IMAGE_PIXELS` pixels. ValueError with the reason for bytes
+    that are not a readable picture."""
     from PIL import Image, UnidentifiedImageError
 
     if not data:
@@ -117,17 +143,31 @@ def picture_levels(data: bytes, rows: int, cols: int) -> np.ndarray:
         raise ValueError(f"the picture is {len(data) / 2**20:.1f} MiB; at most "
                          f"{MAX_IMAGE_BYTES // 2**20} MiB")
     try:
-        with Image.open(io.BytesIO(data)) as im:
-            if max(im.size) > MAX_IMAGE_SIDE:
-                raise ValueError(f"the picture is {im.size[0]} x {im.size[1]} pixels; at most "
-                                 f"{MAX_IMAGE_SIDE} on a side")
-            grey = im.convert("L").resize((cols, rows), Image.Resampling.BOX)
+        with Image.open(io.BytesIO(data)) as im:  # reads the header only
+            width, height = im.size
+            if max(width, height) > MAX_IMAGE_SIDE:
+                raise PictureTooLarge(
+                    f"the picture is {width} x {height} pixels; at most {MAX_IMAGE_SIDE} on a "
+                    "side (nothing was decoded): scale it down", width=width, height=height,
+                    limit=MAX_IMAGE_SIDE)
+            im.draft(None, (cols, rows))  # JPEG: decode at 1/2..1/8 scale; others: no-op
+            w, h = im.size
+            if w * h > MAX_IMAGE_PIXELS:
+                raise PictureTooLarge(
+                    f"the picture is {width} x {height} = {width * height} pixels; at most "
+                    f"{MAX_IMAGE_PIXELS} ({math.isqrt(MAX_IMAGE_PIXELS)} x "
+                    f"{math.isqrt(MAX_IMAGE_PIXELS)}) are decoded (nothing was): scale it down "
+                    f"(the display shows {cols} x {rows}) or send a JPEG", width=width,
+                    height=height, limit=MAX_IMAGE_PIXELS)
+            im.load()
+            rgb = (im if im.mode == "RGB" else im.convert("RGB")).resize(
+                (cols, rows), Image.Resampling.BOX)
     except UnidentifiedImageError:
         raise ValueError("not a picture Pillow can read (PNG, JPEG, ...): send the file's own "
                          "bytes as the request's body") from None
     except (OSError, Image.DecompressionBombError) as exc:  # a known format, broken or huge
         raise ValueError(f"not a picture Pillow can read: {exc}") from None
-    return np.asarray(grey, np.uint8)
+    return levels_for_picture(np.asarray(rgb, np.uint8), mode, colours)
 
 
 def display_view(levels: np.ndarray, table_mm: np.ndarray, lengths_mm: np.ndarray,
