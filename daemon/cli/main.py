@@ -47,7 +47,7 @@ COMMANDS: dict[str, LazyCommand] = {
                            "patterns and correct each pixel's tables."),
     "run": LazyCommand(_CLI + "run", "run_cmd", "Run the daemon: watch the inbox, calibrate, "
                        "push tables, serve the control socket."),
-    "show": LazyCommand("grassd.daemon.content.cli", "show", "Show a picture or animation "
+    "show": LazyCommand(_CLI + "show", "show", "Show a picture or animation "
                         "(PNG, JPEG, GIF, APNG) on the display, through the running daemon or "
                         "here when none runs."),
     "simulate": LazyCommand(_CLI + "simulate", "simulate", "Simulate the grass colour "

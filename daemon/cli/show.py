@@ -1,6 +1,6 @@
-"""``grassd show FILE``: a picture or animation on the display, through the running daemon
-(control socket ``content_show``), or played here on the configured controllers when no
-daemon runs."""
+"""``grassd show FILE`` (the content feature, :mod:`grassd.daemon.content`): a picture or
+animation on the display, through the running daemon (control socket ``content_show``), or
+played here on the configured controllers when no daemon runs."""
 
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ def show(file: Path, duration_s: float | None, config_path: str | None,
 
 def _play_here(cfg, file: Path, duration_s: float | None) -> None:
     """Play ``file`` on ``cfg``'s controllers from this process, then close them."""
-    from grassd.daemon.content.config import ContentConfig
+    from grassd.daemon.config.content import ContentConfig
     from grassd.daemon.content.feature import ContentFeature
     from grassd.daemon.content.pictures import load_animation
     from grassd.daemon.hardware.fleet import Fleet

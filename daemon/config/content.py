@@ -1,5 +1,6 @@
-"""The ``[content]`` config section, read by the content feature itself (the core's parser
-hands it the raw table): what the display shows and where it comes from.
+"""The ``[content]`` config section of the content feature (:mod:`grassd.daemon.content`):
+what the display shows and where it comes from. It lives with the other sections (the
+feature imports the configuration, never the other way round).
 
 ::
 
@@ -18,7 +19,8 @@ hands it the raw table): what the display shows and where it comes from.
     serpentine = false            #   every second row (column) backwards when true,
     first = "top-left"            #   starting at this corner (top-left, top-right,
                                   #   bottom-left, bottom-right)
-    idle = ""                     # picture shown when nothing else plays ("": all levels 0)
+    idle = "pictures/idle.png"    # picture shown when nothing else plays (left out: the
+                                  #   display keeps its last frame)
     max_picture_mib = 64          # largest picture or animation file read (MiB)
 
     [content.sacn]                # E1.31 receiver (UDP)

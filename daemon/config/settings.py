@@ -39,7 +39,7 @@ The file (default ``/etc/grassd/grassd.toml``; the embedded default is
     [compute]      scheduler = "tls://host:8786", its TLS files, allow_insecure, timeouts
                    (see grassd.daemon.config.compute): simulations on a dask.distributed cluster
     [content]      optional: what the display shows, live sACN / Art-Net, playlist, idle
-                   picture (read by the feature itself: grassd.daemon.content.config)
+                   picture (see grassd.daemon.config.content)
 
 Relative paths are resolved against the directory of the config file, except ``light.inbox``
 which, when relative, lies inside ``state_dir``.
@@ -88,8 +88,8 @@ from grassd.sim.scene import MAX_REPLICATES, PixelSpec
 
 if TYPE_CHECKING:
     from grassd.daemon.config.capture import CaptureConfig
+    from grassd.daemon.config.content import ContentConfig
     from grassd.daemon.config.measure import MeasureConfig
-    from grassd.daemon.content.config import ContentConfig
 
 #: Where the packaged daemon looks when no ``--config`` is given.
 DEFAULT_CONFIG_PATH = Path("/etc/grassd/grassd.toml")
@@ -371,7 +371,7 @@ class Config:
     capture: CaptureConfig | None = None
     #: the display's measuring camera (:mod:`grassd.daemon.config.measure`), None without
     measure: MeasureConfig | None = None
-    #: what the display shows (:mod:`grassd.daemon.content.config`), None without [content]
+    #: what the display shows (:mod:`grassd.daemon.config.content`), None without [content]
     content: ContentConfig | None = None
 
     @property
@@ -799,11 +799,11 @@ def _measure_section(ctx: _Ctx, raw: Any, has_capture: bool) -> MeasureConfig | 
 
 
 def _content_section(ctx: _Ctx, raw: Any) -> ContentConfig | None:
-    """``[content]``, validated by the content feature (:mod:`grassd.daemon.content.config`,
-    imported only when the section is there)."""
+    """``[content]``, validated by :mod:`grassd.daemon.config.content` (imported only when
+    the section is there)."""
     if raw is None:
         return None
-    from grassd.daemon.content.config import parse_content
+    from grassd.daemon.config.content import parse_content
 
     return parse_content(ctx, raw)
 

@@ -29,8 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from grassd.daemon.config.content import ContentConfig, PlaylistEntry
 from grassd.daemon.content.colour_map import DisplayColours, levels_for_picture
-from grassd.daemon.content.config import ContentConfig, PlaylistEntry
 from grassd.daemon.content.merge import LiveMerger
 from grassd.daemon.content.pictures import Animation, PictureError, load_animation
 from grassd.daemon.content.pixel_order import stream_to_display

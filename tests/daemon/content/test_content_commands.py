@@ -11,7 +11,7 @@ import threading
 
 import numpy as np
 import pytest
-from conftest import content_config
+from content_helpers import content_config
 from PIL import Image
 
 from grassd.daemon.config.settings import default_config_text, parse_config

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
+from grassd.daemon.config.content import ContentConfig, SacnConfig
 from grassd.daemon.config.settings import default_config_text, parse_config
-from grassd.daemon.content.config import ContentConfig, SacnConfig
 from grassd.daemon.errors import ConfigError
 
 

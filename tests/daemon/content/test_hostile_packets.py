@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 import psutil
-from conftest import content_config
+from content_helpers import content_config
 from sacn.messages.data_packet import DataPacket
 from stupidArtnet import StupidArtnet
 

@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import content_config
+from content_helpers import content_config
 from stupidArtnet import StupidArtnet
 
 from grassd.daemon.content.pixel_order import stream_to_display
