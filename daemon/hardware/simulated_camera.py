@@ -270,7 +270,9 @@ class SimCamera:
     ``scene_source``: called at every shot for the map to photograph (a scene that changes,
     e.g. the simulated display of :mod:`grassd.daemon.hardware.simulated_display`).
     ``capture_mode``: the ``captureMode`` it starts (and resets) in, "image" or "video" (as a
-    THETA someone filmed with; it then refuses takePicture until a client sets "image").
+    THETA someone filmed with; it then refuses takePicture until a client sets "image");
+    ``mode_switch_s``: seconds a change of ``captureMode`` takes (a THETA switches in its own
+    time), during which it still reports and behaves as the old mode.
     """
 
     def __init__(self, env: NDArray, *, scene_scale: float = SIM_SCENE_SCALE,
@@ -280,7 +282,8 @@ class SimCamera:
                  model: str = "grassd SimCam Z1", serial: str | None = None,
                  latency_s: float = 0.05,
                  scene_source: Callable[[], NDArray] | None = None,
-                 capture_mode: str | CaptureMode = CaptureMode.IMAGE) -> None:
+                 capture_mode: str | CaptureMode = CaptureMode.IMAGE,
+                 mode_switch_s: float = 0.0) -> None:
         self.curve = CURVES[curve] if isinstance(curve, str) else curve
         self.curve_name = curve if isinstance(curve, str) else "custom"
         self.env = np.ascontiguousarray(env, dtype=np.float32)
@@ -297,6 +300,8 @@ class SimCamera:
         self.scene_source = scene_source
         self.faults = Faults()
         self.start_mode = CaptureMode(capture_mode)
+        self.mode_switch_s = float(mode_switch_s)
+        self._pending: tuple[CaptureMode, float] | None = None  # (mode, monotonic s when set)
         self.options: dict[str, Any] = {}
         self._other_format: dict[str, Any] = {}
         self.reset_options()
@@ -447,6 +452,7 @@ class SimCamera:
         # the format of the other mode, restored when the mode switches back (a THETA keeps one
         # per mode)
         self._other_format = dict(self.image_formats()[0] if video else VIDEO_FORMATS[0])
+        self._pending = None
 
     def support(self, name: str) -> Any:
         """The ``NAME + "Support"`` value of option ``name`` (what it takes, in the current
@@ -478,6 +484,7 @@ class SimCamera:
             "camera.listFiles": self._list_files, "camera.delete": self._delete,
             "camera.reset": self._reset, "camera._getMetadata": self._get_metadata}
         with self._command_lock:
+            self._settle()
             try:
                 if name == "camera.takePicture":
                     return self._take_picture()
@@ -532,7 +539,7 @@ class SimCamera:
             if key not in OPTIONS:
                 raise OscRefusal(ErrorCode.INVALID_PARAMETER_NAME,
                                  f"{key} is not an option that can be set")
-        saved = dict(self.options), self._other_format
+        saved = dict(self.options), self._other_format, self._pending
         try:
             if "captureMode" in opts:
                 self._switch_mode(opts["captureMode"])
@@ -541,9 +548,9 @@ class SimCamera:
                 if problem:
                     raise OscRefusal(ErrorCode.INVALID_PARAMETER_VALUE, problem)
         except OscRefusal:
-            self.options, self._other_format = saved
+            self.options, self._other_format, self._pending = saved
             raise
-        self.options.update(opts)
+        self.options.update({k: v for k, v in opts.items() if k != "captureMode"})
         return None
 
     def _switch_mode(self, value: Any) -> None:
@@ -554,11 +561,20 @@ class SimCamera:
                              f"captureMode {value!r} is not supported (one of {modes})")
         mode = CaptureMode(value)
         if mode is self.capture_mode:
+            self._pending = None
             return
         if self.faults.mode_locked:
             self.faults.spend()
             raise OscRefusal(ErrorCode.DISABLED_COMMAND,
                              "captureMode cannot change while the camera records a video")
+        self._pending = mode, time.monotonic() + self.mode_switch_s
+        self._settle()
+
+    def _settle(self) -> None:
+        """Finish a pending change of captureMode once its time has come."""
+        if self._pending is None or time.monotonic() < self._pending[1]:
+            return
+        mode, self._pending = self._pending[0], None
         self.options["fileFormat"], self._other_format = (self._other_format,
                                                           self.options["fileFormat"])
         self.options["captureMode"] = mode.value
