@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import os
 import secrets
 import socket
 from pathlib import Path
@@ -55,6 +56,7 @@ def studio(config_path, state_dir, hdri, pixel_file, port, host, arch) -> None:
     from grassd.daemon.studio.server import LOCAL_HOST, serve
     from grassd.sim.errors import require_renderer
     from grassd.sim.hdri import default_site_hdri
+    from grassd.sim.path_trust import owner_name
 
     require_renderer()  # first: without Taichi nothing below matters (one line, exit 2)
     if state_dir is not None and not state_dir.is_dir():  # a typo would serve the default site
@@ -66,6 +68,11 @@ def studio(config_path, state_dir, hdri, pixel_file, port, host, arch) -> None:
         cfg = config_as_state_owner(config_path, str(state_dir), "studio")
     else:
         cfg = resolve_config(config_path)
+    for path, hint in ((hdri, "--hdri"), (pixel_file, "--pixel")):
+        if path is not None and not os.access(path, os.R_OK):  # e.g. root's, once switched
+            raise click.BadParameter(f"{path}: not readable by {owner_name(os.geteuid())}, "
+                                     f"the user the studio runs as; put it where that user "
+                                     f"can read it", param_hint=f"'{hint}'")
     sources = []
     if hdri is not None:
         file_source = LightSource(name="file", label=f"file: {hdri.name}", path=hdri)

@@ -82,10 +82,12 @@ def nobody_dir() -> Iterator[Callable[[str], Path]]:
 
 
 def _uid(pid: int) -> int:
-    """The real uid of process ``pid`` (the Uid line of /proc/PID/status)."""
+    """The uid of process ``pid``: its real, effective, saved and filesystem uids (the Uid
+    line of /proc/PID/status) where they agree, else -1 (a saved uid 0 could go back)."""
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("Uid:"):
-            return int(line.split()[1])
+            uids = {int(u) for u in line.split()[1:]}
+            return uids.pop() if len(uids) == 1 else -1
     raise AssertionError(f"no Uid in /proc/{pid}/status")
 
 
@@ -213,3 +215,19 @@ def test_root_refuses_a_configuration_others_may_write(tmp_path):
     res = _grassd("status", config=conf)
     assert res.returncode == 2
     assert f"reads the configuration {conf}, but {conf} belongs to uid 65534" in res.stderr
+
+
+def test_studio_as_the_owner_says_which_file_it_cannot_read(nobody_python, nobody_dir,
+                                                            tmp_path):
+    """An --hdri that only root can read (under pytest's 0700 directory): once the studio runs
+    as the state directory's owner, one error naming the file and the user, no traceback."""
+    from grassd.sim.hdri import default_site_hdri
+
+    hdri = tmp_path / "site.exr"
+    hdri.write_bytes(default_site_hdri().read_bytes())
+    res = subprocess.run([nobody_python, "-m", "grassd.daemon.cli", "studio", "--state-dir",
+                          str(nobody_dir("state")), "--hdri", str(hdri), "--port", "0"],
+                         capture_output=True, text=True, timeout=120, cwd="/")
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
+    assert f"{hdri}: not readable by uid 65534 (nobody), the user the studio runs as" \
+        in res.stderr
