@@ -43,11 +43,8 @@ def show(file: Path, duration_s: float | None, config_path: str | None,
 def _play_here(cfg, file: Path, duration_s: float | None) -> None:
     """Play ``file`` on ``cfg``'s controllers from this process, then close them."""
     from grassd.daemon.config.content import ContentConfig
-    from grassd.daemon.content.feature import ContentFeature
     from grassd.daemon.content.pictures import load_animation
-    from grassd.daemon.hardware.fleet import Fleet
-    from grassd.daemon.hardware.frames import FrameOutput
-    from grassd.daemon.store.history import History
+    from grassd.daemon.runtime.statelock import StateLock
     from grassd.daemon.store.layout import StateLayout
 
     content = cfg.content or ContentConfig()
@@ -56,13 +53,27 @@ def _play_here(cfg, file: Path, duration_s: float | None) -> None:
                           content.max_picture_mib << 20)
     duration = duration_s if duration_s is not None else max(anim.length_s, 10.0)
     layout = StateLayout(cfg.state_dir)
+    cfg.state_dir.mkdir(parents=True, exist_ok=True)
+    with StateLock(cfg.state_dir, "grassd show") as lock:  # the controllers are ours now
+        lock.note_ports(cfg.serial_ports)
+        _play_on_controllers(cfg, layout, anim, file.name, duration)
+
+
+def _play_on_controllers(cfg, layout, anim, name: str, duration: float) -> None:
+    """Play ``anim`` for ``duration`` s on ``cfg``'s controllers, holding the state lock."""
+    from grassd.daemon.content.feature import ContentFeature
+    from grassd.daemon.hardware.fleet import Fleet
+    from grassd.daemon.hardware.frames import FrameOutput
+    from grassd.daemon.store.history import History
+
     history = History(layout.db)
     fleet = Fleet(cfg.controllers)
-    sink = FrameOutput(fleet, cfg.display.pixel_count)
+    sink = FrameOutput(cfg.controllers, cfg.display.pixel_count,
+                       fps=float(cfg.content.fps), fleet=fleet)
     try:
         player = ContentFeature(cfg, sink, history, layout.reports, live=False).player
         player.show(anim, duration)
-        click.echo(f"grassd: showing {file.name} here for {duration:g} s (no daemon runs)")
+        click.echo(f"grassd: showing {name} here for {duration:g} s (no daemon runs)")
         player.start()
         time.sleep(duration)
         player.stop()

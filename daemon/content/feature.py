@@ -17,6 +17,7 @@ for root and the daemon's own user, as every state-changing command.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -30,7 +31,7 @@ from grassd.daemon.config.settings import Config
 from grassd.daemon.content.colour_map import DisplayColours
 from grassd.daemon.content.pictures import load_animation
 from grassd.daemon.content.player import MAX_REQUEST_S, ContentPlayer
-from grassd.daemon.content.sink import FrameSink
+from grassd.daemon.content.sink import ClosableSink, FrameSink, StatsSink
 from grassd.daemon.content.status import ContentStatus
 from grassd.daemon.store.layout import report_stem
 
@@ -69,6 +70,7 @@ class ContentFeature:
                  live: bool = True) -> None:
         assert cfg.content is not None
         self.cfg = cfg
+        self.sink = sink
         self.history = history
         self.reports_dir = reports_dir
         self._colours: tuple[int | None, DisplayColours | None] = (None, None)
@@ -108,12 +110,27 @@ class ContentFeature:
         return self
 
     def stop(self) -> None:
-        """Stop receiving and playing."""
+        """Stop receiving and playing, then close the sink when it can be closed."""
         self.player.stop()
+        if isinstance(self.sink, ClosableSink):
+            self.sink.close()
+
+    def hold(self) -> None:
+        """A measurement takes the display: the sink sends nothing until :meth:`release`."""
+        self.sink.hold()
+
+    def release(self) -> None:
+        """The measurement gives the display back."""
+        self.sink.release()
 
     def status(self) -> ContentStatus:
-        """The player's snapshot."""
-        return self.player.status()
+        """The player's snapshot, with the frame output's own figures when it has them."""
+        st = self.player.status()
+        if isinstance(self.sink, StatsSink):
+            out = self.sink.stats()
+            st = dataclasses.replace(st, output=dataclasses.asdict(out)
+                                     if dataclasses.is_dataclass(out) else dict(out))
+        return st
 
     @staticmethod
     def handles(cmd: str) -> bool:

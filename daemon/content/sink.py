@@ -8,12 +8,13 @@ tested against this protocol (a test captures the frames it is offered).
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
 
 
+@runtime_checkable
 class FrameSink(Protocol):
     """Takes frames of levels for the display."""
 
@@ -27,3 +28,19 @@ class FrameSink(Protocol):
 
     def release(self) -> None:
         """Send frames again after :meth:`hold`."""
+
+
+@runtime_checkable
+class StatsSink(FrameSink, Protocol):
+    """A sink that reports its own figures (frames shown, latency to the controllers' ACK)."""
+
+    def stats(self) -> Any:
+        """A dataclass of counts and rates (the frame output's ``FrameStats``)."""
+
+
+@runtime_checkable
+class ClosableSink(FrameSink, Protocol):
+    """A sink the feature closes when it stops (the frame output: its sender threads)."""
+
+    def close(self) -> None:
+        """Stop sending and end the sink's threads."""

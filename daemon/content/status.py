@@ -27,7 +27,8 @@ class ContentStatus:
     one before they were offered) since start; ``latency_ms_median``/``latency_ms_p99``: live
     packet in to frame offered [ms] (None before the first live frame); ``map``: the colour
     mapping in effect; ``receivers``: protocol -> counts
-    (:class:`~grassd.daemon.content.receiver.ReceiverStats` as JSON)."""
+    (:class:`~grassd.daemon.content.receiver.ReceiverStats` as JSON); ``output``: the frame
+    output's own figures (frames shown, latency to the last controller's ACK; None without)."""
 
     source: ContentSource
     detail: str
@@ -40,6 +41,7 @@ class ContentStatus:
     latency_ms_p99: float | None
     map: str
     receivers: dict[str, dict[str, int]] = field(default_factory=dict)
+    output: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The snapshot as a JSON object (the source by its value)."""

@@ -352,9 +352,14 @@ class Service:
 
         self._progress(f"{trigger} measurement of the display")
         self.last_measure_at = time.time()
+        content = self.content
+        if content is not None:  # the measurement takes the display, then gives it back
+            content.hold()
         try:
             return measure_with(self, trigger)
         finally:
+            if content is not None:
+                content.release()
             self.operator.after_run({})  # the status page's measurement card
 
     def _measure_due(self) -> bool:
@@ -511,7 +516,7 @@ class Service:
         from grassd.daemon.content.receiver import ReceiverBindError
 
         if self.content is not None:
-            self.content.stop()
+            self.content.stop()  # and its frame output, before a reload closes the fleet
         self.content = None
         if self.cfg.content is None or not self.cfg.content.enabled:
             return
@@ -522,10 +527,12 @@ class Service:
             log.error("content: %s", exc)
 
     def _frame_sink(self) -> Any:
-        """Where content frames go: the fleet's frame output."""
+        """Where content frames go: a frame output on the fleet's lines, at ``[content] fps``."""
         from grassd.daemon.hardware.frames import FrameOutput
 
-        return FrameOutput(self.fleet, self.cfg.display.pixel_count)
+        assert self.cfg.content is not None
+        return FrameOutput(self.cfg.controllers, self.cfg.display.pixel_count,
+                           fps=float(self.cfg.content.fps), fleet=self.fleet)
 
     # ------------------------------------------------------------------ runs
     def _resolve_lux(self, manifest_lux: float | None) -> tuple[float, str]:
