@@ -16,7 +16,7 @@ import stat
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["Untrusted", "untrusted_part", "untrusted_entry", "owner_name"]
+__all__ = ["Untrusted", "untrusted_part", "untrusted_below", "owner_name"]
 
 
 @dataclass(frozen=True)
@@ -74,10 +74,32 @@ def untrusted_part(path: Path | str, uid: int | None = None) -> Untrusted | None
     return _walk(lexical, uid) or _walk(Path(os.path.realpath(lexical)), uid)
 
 
-def untrusted_entry(path: Path | str, uid: int) -> Untrusted | None:
-    """As :func:`untrusted_part` for ``path`` alone (``lstat``: a link is not followed), where
-    the directories above it have been checked."""
-    try:
-        return _problem(Path(path), os.lstat(path), uid, leaf=True)
-    except FileNotFoundError:
-        return None
+
+def untrusted_below(root: Path | str, uid: int,
+                    skip: frozenset[Path] = frozenset()) -> Untrusted | None:
+    """The first entry below the directory ``root`` (whose own path :func:`untrusted_part`
+    checks) that is not user ``uid``'s alone: another user's, or writable by its group or
+    others. Entries in ``skip`` and what lies below them, and sockets (whose peers are checked
+    where they are served), are left out; links are not followed."""
+    skipped = {str(p) for p in skip}
+    stack = [str(root)]
+    while stack:
+        try:
+            entries = os.scandir(stack.pop())
+        except (FileNotFoundError, NotADirectoryError):  # gone meanwhile
+            continue
+        with entries:
+            for entry in entries:
+                if entry.path in skipped:
+                    continue
+                try:
+                    st = entry.stat(follow_symlinks=False)
+                except FileNotFoundError:
+                    continue
+                if stat.S_ISSOCK(st.st_mode):
+                    continue
+                if (fault := _problem(Path(entry.path), st, uid, leaf=True)) is not None:
+                    return fault
+                if stat.S_ISDIR(st.st_mode):
+                    stack.append(entry.path)
+    return None

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import os
 import pwd
-import stat
 from pathlib import Path
 
 import click
@@ -25,7 +24,7 @@ import click
 from grassd.daemon.config.settings import Config, resolve_config
 from grassd.daemon.errors import OthersMayWrite, OwnerUnknown, SwitchUserFailed
 from grassd.daemon.store.layout import StateLayout
-from grassd.sim.path_trust import Untrusted, owner_name, untrusted_entry, untrusted_part
+from grassd.sim.path_trust import Untrusted, owner_name, untrusted_below, untrusted_part
 
 __all__ = ["config_as_state_owner", "become_state_owner"]
 
@@ -47,20 +46,7 @@ def _fault_in_tree(cfg: Config) -> Untrusted | None:
     root = cfg.state_dir
     if (fault := untrusted_part(root, 0)) is not None:
         return fault
-    skip = _bundle_dirs(cfg)
-    for top, dirs, files in os.walk(root):
-        here = Path(top)
-        dirs[:] = [d for d in dirs if here / d not in skip]
-        for name in [*dirs, *files]:
-            path = here / name
-            try:
-                if path in skip or stat.S_ISSOCK(os.lstat(path).st_mode):  # peers are checked
-                    continue
-            except FileNotFoundError:  # gone meanwhile (a running daemon's)
-                continue
-            if (fault := untrusted_entry(path, 0)) is not None:
-                return fault
-    return None
+    return untrusted_below(root, 0, frozenset(_bundle_dirs(cfg)))
 
 
 def _config_file(cfg: Config) -> Path | None:
