@@ -98,7 +98,8 @@ def test_a_driver_file_whose_library_is_no_driver(tmp_path):
 
 def test_a_cuda_driver_without_a_device(tmp_path):
     """NVIDIA's driver library installed where its device is not (a container without the
-    device nodes, a GPU gone): ``cuInit`` answers CUDA_ERROR_NO_DEVICE (100)."""
+    device nodes, a GPU gone): ``cuInit`` answers CUDA_ERROR_NO_DEVICE (100). No Vulkan device
+    either."""
     cc = shutil.which("cc")
     if cc is None:
         pytest.skip("no C compiler to build a CUDA driver without a device (apt-get install gcc)")
@@ -107,5 +108,7 @@ def test_a_cuda_driver_without_a_device(tmp_path):
                       "int cuDeviceGetCount(int *n) { *n = 0; return 100; }\n")
     subprocess.run([cc, "-shared", "-fPIC", "-o", str(tmp_path / "libcuda.so.1"), str(source)],
                    check=True)
-    seen = _init_gpu(tmp_path, LD_LIBRARY_PATH=str(tmp_path))
+    none = str(tmp_path / "no-driver.json")  # and no Vulkan device (lavapipe hidden)
+    seen = _init_gpu(tmp_path, LD_LIBRARY_PATH=str(tmp_path), VK_ICD_FILENAMES=none,
+                     VK_DRIVER_FILES=none)
     assert seen[0].endswith(" 0"), seen
