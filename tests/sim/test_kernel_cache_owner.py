@@ -102,3 +102,16 @@ def test_the_default_is_the_users_own_never_the_state_directorys(tmp_path, monke
     cfg = parse_config(f'state_dir = "{tmp_path / "state"}"\n' + default_config_text())
     assert cfg.cache_dir == default_cache_dir() == tmp_path / "xdg" / "grassd"
     assert not cfg.cache_dir.is_relative_to(cfg.state_dir)
+
+
+def test_a_link_to_another_users_cache_is_followed_and_ignored(tmp_path):
+    """Root's own symbolic link to the service's (nobody's) cache: the target is checked."""
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    os.chown(theirs, NOBODY, NOBODY)
+    link = tmp_path / "link"
+    link.symlink_to(theirs)
+    used, err = _init(tmp_path, link)
+    assert f"{theirs} belongs to uid 65534 (nobody)" in err, err
+    assert not used.is_relative_to(theirs) and not used.is_relative_to(link)
+    assert list(theirs.iterdir()) == []
