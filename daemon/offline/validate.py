@@ -50,8 +50,8 @@ patch of albedo ``a`` (the chart's reference colour) reads ``a`` after the same 
 from __future__ import annotations
 
 import logging
+import os
 import time
-import tomllib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -73,7 +73,7 @@ from grassd.calib.length_table import LEVELS, build_length_table, r_squared
 from grassd.calib.ogcd import ogcd_from_lab
 from grassd.calib.raw import develop_raw, open_raw
 from grassd.daemon.config import manifest_fields, schema
-from grassd.daemon.errors import DaemonError, LocatedError
+from grassd.daemon.errors import DaemonError, LocatedError, ManifestError
 from grassd.sim.light_input import LightInput
 
 log = logging.getLogger(__name__)
@@ -272,18 +272,23 @@ def _at_least_3(v: list) -> str | None:
 
 def _read_toml(path: str | Path) -> tuple[Path, str, dict[str, Any]]:
     """(the manifest's path, its text, its data) of ``capture.toml`` at ``path`` (a file, or a
-    directory holding one); CaptureManifestError when it is missing or not TOML."""
+    directory holding one), read as a bundle's manifest is
+    (:func:`grassd.daemon.store.manifest.read_manifest_text`: a regular file within the
+    manifest byte cap, nested at most MAX_MANIFEST_DEPTH deep); CaptureManifestError when it is
+    missing, not TOML or beyond a cap."""
+    from grassd.daemon.store.manifest import read_manifest_text
+
     p = Path(path)
     if p.is_dir():
         p = p / MANIFEST_NAME
-    try:
-        text = p.read_text(encoding="utf-8")
-        return p, text, tomllib.loads(text)
-    except FileNotFoundError:
+    if not os.path.lexists(p):
         raise CaptureManifestError(f"{p} does not exist: a capture directory needs a "
-                                   f"{MANIFEST_NAME} manifest") from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise CaptureManifestError(f"{p} is not valid TOML: {exc}") from None
+                                   f"{MANIFEST_NAME} manifest")
+    try:
+        text, data = read_manifest_text(p)
+    except ManifestError as exc:
+        raise CaptureManifestError(f"{p}: {exc}") from None
+    return p, text, data
 
 
 def _light(ctx: schema.Context, top: dict[str, Any], where: Callable[[str], tuple]

@@ -98,6 +98,13 @@ def read_manifest_data(path: Path,
     device: :mod:`grassd.daemon.store.untrusted`); a parse error of any kind (bad syntax,
     encoding, nesting deeper than MAX_MANIFEST_DEPTH or than the parser's recursion limit)
     is a ManifestError naming the file."""
+    return read_manifest_text(path, max_bytes)[1]
+
+
+def read_manifest_text(path: Path, max_bytes: int = DEFAULT_LIMITS.manifest_bytes
+                       ) -> tuple[str, dict[str, Any]]:
+    """(the text, the data) of a TOML or JSON manifest file, read and checked as
+    :func:`read_manifest_data` does (the text: for locating a key's line)."""
     try:
         raw = read_regular(path, max_bytes)
     except UntrustedFileError as exc:
@@ -118,10 +125,10 @@ def read_manifest_data(path: Path,
         raise ManifestError(f"manifest {path.name} is not valid {kind}: {exc}") from None
     if data is None or _depth(data) > MAX_MANIFEST_DEPTH:
         raise ManifestError(f"manifest {path.name} nests arrays or tables more than "
-                            f"{MAX_MANIFEST_DEPTH} deep: not a bundle manifest")
+                            f"{MAX_MANIFEST_DEPTH} deep: not a manifest grassd reads")
     if not isinstance(data, dict):
         raise ManifestError(f"manifest {path.name} must hold a table/object at top level")
-    return data
+    return text, data
 
 
 def load_bundle_manifest(directory: Path, tz: tzinfo = UTC,

@@ -4,6 +4,7 @@ with exit code 2. The captures are real DNGs from the virtual camera and a real 
 from __future__ import annotations
 
 import logging
+import os
 import tomllib
 
 import numpy as np
@@ -214,3 +215,31 @@ def test_one_replicate_is_refused_before_any_work(tmp_path, args):
     assert res.exit_code == 2, res.output
     assert "--replicates" in res.output and "1" in res.output, res.output
     assert not (tmp_path / "out").exists()
+
+
+def test_hostile_manifests_are_refused_with_a_bundles_caps(tmp_path):
+    """capture.toml is read as a bundle's manifest is: nested 5000 deep (arrays, or tables
+    named by dotted keys), over the manifest byte cap, or a FIFO, it is one clear error line
+    from ``grassd validate`` (no RecursionError traceback, no hang)."""
+    from grassd.daemon.config.limits import DEFAULT_LIMITS
+    from grassd.daemon.store.manifest import MAX_MANIFEST_DEPTH
+
+    _capture(tmp_path)
+    good = (tmp_path / "capture.toml").read_text()
+    path = tmp_path / "capture.toml"
+    deep = f"more than {MAX_MANIFEST_DEPTH} deep"
+    cases = {
+        good + "x = " + "[" * 5000 + "]" * 5000 + "\n": deep,
+        good + "[" + ".".join(["t"] * 5000) + "]\nv = 1\n": deep,
+        good + "#" * DEFAULT_LIMITS.manifest_bytes + "\n": "over the cap",
+    }
+    for text, word in cases.items():
+        path.write_text(text)
+        with pytest.raises(CaptureManifestError, match=word):
+            load_manifest(tmp_path)
+        line = _cli_error(tmp_path)
+        assert word in line and "capture.toml" in line and "Traceback" not in line, line
+    path.unlink()
+    os.mkfifo(path)  # a reader that opened it blocking would wait for a writer forever
+    line = _cli_error(tmp_path)
+    assert "FIFO" in line, line
