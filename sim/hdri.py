@@ -301,7 +301,7 @@ def _exr_parts(source: str) -> list[tuple[str, int, int, dict]]:
     """(name, width, height, header) of every part of an OpenEXR file, from its headers
     alone (no pixel is read)."""
     headers = _exr_call(source, "header", lambda: [
-        part.header for part in OpenEXR.File(source, header_only=True).parts])
+        part.header for part in _exr_file(source, header_only=True).parts])
     out = []
     for i, header in enumerate(headers):
         if "dataWindow" not in header:
@@ -382,6 +382,14 @@ def _read_exr(p: Path, max_texels: int) -> np.ndarray:
         chroma = tuple(float(c) for c in chroma)
         img = _apply_matrix(img, _to_rec709_matrix(chroma[:6], chroma[6:8]), source)
     return img
+
+
+def _exr_file(source: str, **kw) -> OpenEXR.File:
+    """``OpenEXR.File`` of the file ``source`` read through a Python file object: a name
+    that is not valid UTF-8 opens too, and a header-only read takes the header's bytes alone.
+    (The pixels are read by name: the library's messages then name the file.)"""
+    with open(source, "rb") as fh:
+        return OpenEXR.File(fh, **kw)
 
 
 def _exr_call(source: str, what: str, read):
