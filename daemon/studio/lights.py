@@ -203,7 +203,8 @@ class Lights:
         self._lock = threading.Lock()
         self._limits = limits
         self._loaded: OrderedDict[str, None] = OrderedDict()  # least recently used first
-        self._upload_sizes: OrderedDict[str, int] = OrderedDict()  # uploads kept: bytes, oldest first
+        #: the uploads kept and their bytes, oldest first
+        self._upload_sizes: OrderedDict[str, int] = OrderedDict()
         self._uploads = 0
         self._upload_dir = None if upload_dir is None else Path(upload_dir)
         self._own_dir = upload_dir is None

@@ -55,7 +55,7 @@ class StudioLimits:
     kept_uploads: int = 4
     kept_upload_mib: int = 512
     kept_maps: int = 4
-    job_cost: float = 4000.0
+    job_cost: float = 2000.0
     slice_s: float = 1.0
 
     def __post_init__(self) -> None:

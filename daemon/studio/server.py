@@ -57,6 +57,7 @@ from urllib.parse import urlsplit
 from aiohttp import WSMsgType, web
 from aiohttp.web_protocol import RequestHandler
 
+from grassd.daemon.errors import DaemonError
 from grassd.daemon.studio.cost import check_cost
 from grassd.daemon.studio.inputs import Condition, StudioInputError
 from grassd.daemon.studio.lights import MAX_HDRI_BYTES, LightSource
@@ -239,8 +240,9 @@ async def _characteristic(request: web.Request) -> web.Response:
     return web.json_response(out)
 
 
-class BodyTimeout(StudioInputError):
-    """A request's body did not arrive within the studio's deadlines (a 408)."""
+class BodyTimeout(DaemonError):
+    """A request's body did not arrive within the studio's deadlines (a 408, the connection
+    closed)."""
 
 
 async def _chunks(request: web.Request, limit: int, what: str):
@@ -576,6 +578,7 @@ class StudioConnection(RequestHandler):
         self._connections = connections
         self._limits = limits
         self.busy = 0  # requests being served (the middleware counts them)
+        self._served = 0  # requests answered
         self._received = 0  # bytes received, and at the last arming of the header deadline
         self._armed_at = 0
         self._deadline: asyncio.TimerHandle | None = None
@@ -612,6 +615,7 @@ class StudioConnection(RequestHandler):
     def request_ended(self) -> None:
         """A request has been answered: the next one's headers have ``header_s``."""
         self.busy -= 1
+        self._served += 1
         if not self.busy:
             self._arm()
 
@@ -620,12 +624,17 @@ class StudioConnection(RequestHandler):
         self._lingering_time = 0.0
 
     def evict(self, why: str) -> None:
-        """Close this connection, which is not being served, to make room (a 503 where some of
-        a request came)."""
-        if self._received > self._armed_at:
+        """Close this connection, which is not being served, to make room (a 503 unless it is
+        idle after an answer)."""
+        if self._begun():
             self._answer(503, "Service Unavailable", why)
         else:
             self.force_close()
+
+    def _begun(self) -> bool:
+        """Whether a request is owed an answer: some of one came since the last answer, or the
+        connection has had none yet."""
+        return self._received > self._armed_at or not self._served
 
     def _arm(self) -> None:
         if self._deadline is not None:
@@ -637,7 +646,7 @@ class StudioConnection(RequestHandler):
         self._deadline = None
         if self.busy:
             return
-        if self._received > self._armed_at:  # a request begun, its headers unfinished
+        if self._begun():  # a request begun, its headers unfinished
             self._answer(408, "Request Timeout",
                          f"the request's headers did not come within "
                          f"{self._limits.header_s:g} s of the connection's opening (or of the "

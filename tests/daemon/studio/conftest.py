@@ -141,3 +141,20 @@ def studio_and_condition(hdri: Path, condition: dict) -> tuple[Studio, Condition
 
     st = Studio(resolve_config(None, None), Lights([LightSource("file", "f", hdri)]))
     return st, st.parse(condition)
+
+
+def vm_mib(pid: int, field: str = "VmHWM") -> float:
+    """A process's ``field`` of /proc/<pid>/status (VmHWM: its peak resident set; VmRSS: its
+    resident set now) in MiB."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1]) / 1024
+    raise AssertionError(f"no {field} for process {pid}")
+
+
+def simulator_pid(studio: StudioProcess) -> int:
+    """The pid of the studio's simulator process (as ``/api/state`` gives it)."""
+    headers = {"X-Grassd-Token": studio.token} if studio.token else None
+    status, state = studio.request("api/state", headers=headers)
+    assert status == 200, state
+    return state["simulator"]["pid"]

@@ -82,10 +82,10 @@ def test_the_websocket_says_what_to_send_and_goes_on(studio):
 
 
 def test_a_request_whose_client_goes_away_stops_its_job(studio):
-    """A request that would take many seconds (64 lengths to 0.04 dE00 of splayed blades in
+    """A request that would take many seconds (64 lengths to 0.05 dE00 of splayed blades in
     a low sun, under the studio's cost cap) is left after a second; the next request does not
     wait for it."""
-    costly = costly_condition(0.04, 45)
+    costly = costly_condition(0.05, 45)
     body = json.dumps(costly).encode()
     url = urllib.parse.urlsplit(studio.url)
     with socket.create_connection((url.hostname, url.port)) as conn:

@@ -1,0 +1,346 @@
+"""The studio as a bounded server, against a real ``grassd studio`` process: a connection
+that never finishes its headers, a page's socket that never reads, uploads kept or decoded
+beyond the caps and pages asking costly inputs are each refused with a reason, while another
+page is served; where the attack is on memory, the studio's peak resident set (VmHWM) stays
+under 300 MiB."""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import contextlib
+import json
+import os
+import socket
+import struct
+import threading
+import time
+import urllib.parse
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import (
+    GOOD,
+    costly_condition,
+    png_bytes,
+    simulator_pid,
+    start_studio,
+    stop_studio,
+    vm_mib,
+    ws_session,
+)
+
+from grassd.daemon.studio.limits import DEFAULT_LIMITS
+
+#: The peak resident set (MiB) the studio's server process stays under in every attack.
+PEAK_MIB = 300
+
+
+def _address(studio) -> tuple[str, int]:
+    u = urllib.parse.urlsplit(studio.url)
+    return u.hostname, u.port
+
+
+def _answer(conn: socket.socket, timeout_s: float) -> bytes:
+    """Everything the server sends until it closes the connection (within ``timeout_s``)."""
+    conn.settimeout(timeout_s)
+    got = b""
+    try:
+        while chunk := conn.recv(65536):
+            got += chunk
+    except (ConnectionResetError, TimeoutError):
+        pass
+    return got
+
+
+def _page_is_served(studio, within_s: float = 60) -> float:
+    """Seconds a page's input takes to its ``done`` (asserting it comes)."""
+    t0 = time.monotonic()
+    got = asyncio.run(ws_session(studio.url, [{"type": "inputs", "id": 1, "condition": GOOD}],
+                                 until_id=1, timeout_s=within_s))
+    assert got[-1]["type"] == "done", got[-1]
+    return time.monotonic() - t0
+
+
+# ---------------------------------------------------------------- unfinished headers (row 10)
+def test_unfinished_headers_are_cut_and_a_page_is_still_served(studio):
+    """1050 connections that each send half a request and wait: the oldest make room for new
+    ones (the cap), each is closed within a few seconds with a 408 or 503 saying why, and a
+    page's request meanwhile is answered at once."""
+    host, port = _address(studio)
+    opened = []
+    t0 = time.monotonic()
+    for i in range(1050):
+        c = socket.create_connection((host, port))
+        c.sendall(b"GET /api/state HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow-" + str(i).encode())
+        opened.append(c)
+    t_api = time.monotonic()
+    status, state = studio.request("api/state")
+    assert status == 200 and state["ready"]
+    assert time.monotonic() - t_api < 3
+    deadline = t0 + DEFAULT_LIMITS.header_s + 10
+    answers = [_answer(c, max(deadline - time.monotonic(), 0.1)) for c in opened]
+    for c in opened:
+        c.close()
+    assert time.monotonic() < deadline + 1, "unfinished requests were kept open"
+    timed_out = [a for a in answers if a.startswith(b"HTTP/1.1 408")]
+    evicted = [a for a in answers if a.startswith(b"HTTP/1.1 503")]
+    assert len(timed_out) + len(evicted) == 1050, {a[:12] for a in answers}
+    assert timed_out and evicted  # the last ones waited for their deadline
+    assert b"did not come within 5 s" in timed_out[0]
+    assert b"connections open and this one was not being served" in evicted[0]
+    assert studio.request("api/state")[0] == 200
+    assert vm_mib(studio.proc.pid) < PEAK_MIB
+
+
+@pytest.fixture(scope="module")
+def open_studio(tmp_path_factory, shared_hdri):
+    """A studio bound to every address (so it needs its token), reached on 127.0.0.1."""
+    s = start_studio(tmp_path_factory.mktemp("open"), "--host", "0.0.0.0",
+                     "--hdri", str(shared_hdri("courtyard")))
+    s.url = f"http://127.0.0.1:{_address(s)[1]}/"
+    yield s
+    stop_studio(s)
+
+
+def test_without_its_token_a_request_is_refused_before_its_body(open_studio):
+    """A 200 MiB upload announced without the token is answered 401 from its headers alone
+    and the connection closed (the body is never waited for); unfinished headers get their
+    408 as on 127.0.0.1; with the token the studio answers."""
+    host, port = _address(open_studio)
+    with socket.create_connection((host, port)) as c:
+        t0 = time.monotonic()
+        c.sendall(b"POST /api/hdri?name=big.exr HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                  b"Content-Length: 209715200\r\n\r\n")
+        got = _answer(c, 5)
+        assert time.monotonic() - t0 < 2
+    assert got.startswith(b"HTTP/1.1 401") and b"needs its token" in got
+    with socket.create_connection((host, port)) as c:
+        t0 = time.monotonic()
+        c.sendall(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n")
+        got = _answer(c, 15)
+        assert time.monotonic() - t0 < DEFAULT_LIMITS.header_s + 2
+    assert got.startswith(b"HTTP/1.1 408")
+    status, state = open_studio.request("api/state",
+                                        headers={"X-Grassd-Token": open_studio.token})
+    assert status == 200 and state["ready"]
+    assert vm_mib(open_studio.proc.pid) < PEAK_MIB
+
+
+def test_a_body_that_stops_coming_gets_a_408(studio):
+    """A JSON request whose body stops halfway is answered 408 after the idle deadline."""
+    host, port = _address(studio)
+    with socket.create_connection((host, port)) as c:
+        t0 = time.monotonic()
+        c.sendall(b"POST /api/characteristic HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                  b"Content-Type: application/json\r\nContent-Length: 1000\r\n\r\n{\"ambi")
+        got = _answer(c, 30)
+        took = time.monotonic() - t0
+    assert got.startswith(b"HTTP/1.1 408"), got[:200]
+    assert b"nothing came for 10 s" in got
+    assert DEFAULT_LIMITS.body_idle_s - 1 < took < DEFAULT_LIMITS.body_idle_s + 5
+
+
+# ---------------------------------------------------------------- a page that never reads (row 7)
+def _ws_frame(payload: bytes, opcode: int = 0x2) -> bytes:
+    """One masked client frame (RFC 6455) of up to 125 bytes."""
+    mask = os.urandom(4)
+    masked = bytes(b ^ mask[i % 4] for i, b in enumerate(payload))
+    return bytes([0x80 | opcode, 0x80 | len(payload)]) + mask + masked
+
+
+def _frames(data: bytes) -> list[tuple[int, bytes]]:
+    """(opcode, payload) of the server's (unmasked) frames in ``data``, the last perhaps cut."""
+    out, i = [], 0
+    while i + 2 <= len(data):
+        op, n = data[i] & 0x0F, data[i + 1] & 0x7F
+        i += 2
+        if n == 126:
+            n = struct.unpack(">H", data[i:i + 2])[0]
+            i += 2
+        elif n == 127:
+            n = struct.unpack(">Q", data[i:i + 8])[0]
+            i += 8
+        out.append((op, data[i:i + n]))
+        i += n
+    return out
+
+
+def test_a_page_that_never_reads_is_closed_and_its_memory_freed(studio):
+    """A socket that sends 200,000 small frames, each answered with an error, and reads
+    nothing: its outbox fills, it is closed 1008 saying why (what it was sent before is still
+    there to read), the server's peak stays under 300 MiB, and a page is served meanwhile."""
+    host, port = _address(studio)
+    c = socket.socket()
+    c.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    c.connect((host, port))
+    key = base64.b64encode(os.urandom(16))
+    c.sendall(b"GET /ws HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\n"
+              b"Connection: Upgrade\r\nSec-WebSocket-Key: " + key
+              + b"\r\nSec-WebSocket-Version: 13\r\n\r\n")
+    head = b""
+    while b"\r\n\r\n" not in head:
+        head += c.recv(1)
+    assert head.startswith(b"HTTP/1.1 101")
+    flood = _ws_frame(b"\x00\x01") * 200_000
+    c.settimeout(20)
+    t0 = time.monotonic()
+    with contextlib.suppress(OSError):  # the server may stop reading before the end
+        c.sendall(flood)
+    while b"a page's socket was closed" not in studio.log.read_bytes():
+        assert time.monotonic() - t0 < 20, "the page was not dropped"
+        time.sleep(0.1)
+    got = b""
+    try:
+        while chunk := c.recv(65536):
+            got += chunk
+    except (ConnectionResetError, TimeoutError):
+        pass
+    c.close()
+    frames = _frames(got)
+    closes = [p for op, p in frames if op == 0x8]
+    assert closes, f"no close frame in {len(frames)} frames"
+    assert struct.unpack(">H", closes[0][:2])[0] == 1008
+    assert b"does not read its messages" in closes[0][2:]
+    assert _page_is_served(studio) < 60
+    assert vm_mib(studio.proc.pid) < PEAK_MIB
+
+
+# ---------------------------------------------------------------- uploads (rows 8 and 9)
+def _upload_sky(path: Path, level: float, size: tuple[int, int] = (1024, 2048)) -> bytes:
+    """A uniform sky of ``level`` as a Radiance .hdr file of ``size`` (rows, cols) texels."""
+    from grassd.sim.hdri import write_hdr
+
+    write_hdr(path, np.full((*size, 3), level, np.float32))
+    return path.read_bytes()
+
+
+@pytest.fixture
+def upload_studio(tmp_path, shared_hdri):
+    """A studio of its own whose temporary folder is ``tmp_path``/tmp."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    s = start_studio(tmp_path, "--hdri", str(shared_hdri("courtyard")),
+                     env={"TMPDIR": str(tmp)})
+    s.tmp = tmp
+    yield s
+    stop_studio(s)
+
+
+@pytest.mark.long
+def test_uploads_beyond_the_caps_drop_the_oldest_and_their_maps(upload_studio, tmp_path):
+    """20 uploaded skies of 2048 x 1024 texels, each lighting one characteristic: the studio
+    keeps the newest 4 (listed, their files in its temporary folder), an older one is refused
+    as not one of the studio's, and the simulator holds no more maps at the 20th than at the
+    5th."""
+    s = upload_studio
+    sim = simulator_pid(s)
+    kept = DEFAULT_LIMITS.kept_uploads
+    rss = []
+    for i in range(20):
+        body = _upload_sky(tmp_path / f"sky{i}.hdr", 0.5 + i / 20)
+        status, reply = s.request(f"api/hdri?name=sky{i}.hdr", body)
+        assert status == 200, reply
+        name = reply["light"]["name"]
+        status, reply = s.request("api/characteristic", {**GOOD, "light": name})
+        assert status == 200, reply
+        rss.append(vm_mib(sim, "VmRSS"))
+    status, state = s.request("api/state")
+    uploads = [light["name"] for light in state["lights"] if light["name"].startswith("upload:")]
+    assert len(uploads) == kept
+    files = list(next(s.tmp.iterdir()).iterdir())
+    assert len(files) == kept
+    status, reply = s.request("api/characteristic", {**GOOD, "light": "upload:1"})
+    assert status == 400 and "is not one of the studio's" in reply["error"]
+    assert rss[-1] - rss[kept] < 60, rss  # a map is 24 MiB: 16 more would be 384 MiB
+    assert vm_mib(s.proc.pid) < PEAK_MIB
+
+
+def _post_headers(path: str, length: int, content_type: str = "application/octet-stream"):
+    return (f"POST /{path} HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: {content_type}\r\n"
+            f"Content-Length: {length}\r\n\r\n").encode()
+
+
+def test_uploads_beyond_the_slot_get_a_503_and_one_is_decoded_at_a_time(studio):
+    """Four pictures of 4096 x 4096 sent at once: the first takes the upload slot, the other
+    three are answered 503 from their headers (their bodies are not read), the first is
+    decoded; decoded one at a time, the studio's peak stays under 300 MiB."""
+    host, port = _address(studio)
+    ramp = np.add.outer(np.arange(4096), np.arange(4096)) % 256
+    picture = png_bytes(np.stack([ramp, ramp.T, 255 - ramp], axis=-1), "RGB")
+    conns = [socket.create_connection((host, port)) for _ in range(4)]
+    for c in conns:
+        c.sendall(_post_headers("api/picture", len(picture), "image/png"))
+        time.sleep(0.2)  # in this order
+    busy = [_answer(c, 10) for c in conns[1:]]
+    for a in busy:
+        assert a.startswith(b"HTTP/1.1 503"), a[:200]
+        assert b"reading another upload (at most 1 at a time)" in a
+    conns[0].sendall(picture)
+    first = _answer(conns[0], 60)
+    for c in conns:
+        c.close()
+    assert first.startswith(b"HTTP/1.1 200"), first[:300]
+    threads, replies = [], []
+    for _ in range(4):  # as fast as a client can: each is answered, none decoded beside another
+        threads.append(threading.Thread(target=lambda: replies.append(
+            studio.request("api/picture", picture, headers={"Content-Type": "image/png"}))))
+        threads[-1].start()
+    for t in threads:
+        t.join(120)
+    assert sorted(r[0] for r in replies) in ([200, 503, 503, 503], [200, 200, 503, 503],
+                                            [200, 200, 200, 503], [200] * 4)
+    assert any(r[0] == 200 for r in replies)
+    assert _page_is_served(studio) < 60
+    assert vm_mib(studio.proc.pid) < PEAK_MIB
+
+
+# ---------------------------------------------------------------- costly inputs (row 11)
+def test_an_input_beyond_the_cost_cap_is_refused_saying_how_to_lower_it(studio):
+    costly = costly_condition(0.02, 45)
+    status, body = studio.request("api/characteristic", costly)
+    assert status == 400
+    assert "the studio runs at most 2000" in body["error"]
+    assert "ask for a target_stderr of at least 0.043 dE00 or at most 13 lengths" \
+        in body["error"]
+    got = asyncio.run(ws_session(studio.url, [{"type": "inputs", "id": 3, "condition": costly}],
+                                 until_id=3, timeout_s=30))
+    assert got[-1]["type"] == "error" and "this input would cost about 9200 units" \
+        in got[-1]["message"]
+
+
+async def _first_curve_while_busy(url: str, costly: dict) -> tuple[float, list[dict]]:
+    """Two pages ask ``costly``; 3 s later a third asks GOOD: seconds to its first curve, and
+    its messages to its done."""
+    import aiohttp
+
+    async with aiohttp.ClientSession() as s:
+        busy = [await s.ws_connect(url.replace("http", "ws") + "ws") for _ in range(2)]
+        for ws in busy:
+            await ws.send_str(json.dumps({"type": "inputs", "id": 1, "condition": costly}))
+        await asyncio.sleep(3.0)
+        async with s.ws_connect(url.replace("http", "ws") + "ws") as ws:
+            t0 = time.monotonic()
+            await ws.send_str(json.dumps({"type": "inputs", "id": 7, "condition": GOOD}))
+            first, got = None, []
+            async with asyncio.timeout(120):
+                async for m in ws:
+                    msg = json.loads(m.data)
+                    got.append(msg)
+                    if msg["type"] == "curve" and first is None:
+                        first = time.monotonic() - t0
+                    if msg["type"] in ("done", "error"):
+                        break
+        for ws in busy:
+            await ws.close()
+    return first, got
+
+
+def test_pages_take_turns_a_costly_input_does_not_hold_another_page_back(studio):
+    """Two pages ask 64 splayed lengths to 0.05 dE00 in a low sun (under the cap, many
+    seconds each); a third page's input gets its first curve within a few seconds (0.3 s
+    alone) and all its views."""
+    first, got = asyncio.run(_first_curve_while_busy(studio.url, costly_condition(0.05, 45)))
+    assert got[-1]["type"] == "done", got[-1]
+    assert first is not None and first < 8, first
