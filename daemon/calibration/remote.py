@@ -43,6 +43,8 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from grassd.daemon.calibration.correction import SAVED, with_correction
 from grassd.daemon.calibration.remote_job import CalibrationJob, dumps, loads
 from grassd.daemon.calibration.result import CENTRE, CalibrationResult
@@ -125,11 +127,15 @@ def security_for(cfg: Config) -> Any:
                     tls_client_key=str(c.tls_key), require_encryption=True)
 
 
-def check_arrival(cfg: Config, result: CalibrationResult, where: str) -> None:
+def check_arrival(cfg: Config, result: CalibrationResult, where: str,
+                  previous_um: NDArray | None = None,
+                  previous_tables: Mapping[str, NDArray] | None = None,
+                  force: bool = False) -> None:
     """Checks of a result decoded from a worker's answer, before the daemon uses it: the
     granularity asked for, tables of the declared form for the configured controllers only
-    (shape, monotone, within 0..green_max_mm), a unit for every pixel. Raises
-    :class:`ComputeResultRefused` naming what is wrong."""
+    (shape, monotone, within 0..green_max_mm, and, unless ``force``, within ``[calibration]
+    max_jump_mm`` of the active tables as the run itself checks them), a unit for every
+    pixel. Raises :class:`ComputeResultRefused` naming what is wrong."""
     from grassd.daemon.calibration.checks import check_table
 
     def refuse(msg: str) -> ComputeResultRefused:
@@ -143,16 +149,22 @@ def check_arrival(cfg: Config, result: CalibrationResult, where: str) -> None:
     pixels = {c.name: sum(b - a + 1 for a, b in c.pixels) for c in cfg.controllers}
     if unknown := sorted(set(result.controller_tables) - set(pixels)):
         raise refuse(f"has tables for controllers that are not configured: {unknown!r:.200}")
-    green_max_mm = cfg.display.green_max_mm
+    green_max_mm, jump_mm = cfg.display.green_max_mm, cfg.calibration.max_jump_mm
     try:
         if result.table_um.ndim != 1:
             raise CalibrationRejected("its display table is not one (256,) table")
-        check_table(result.table_um, green_max_mm, None, 0.0, True, "its display table")
+        check_table(result.table_um, green_max_mm,
+                    None if result.controller_tables else previous_um, jump_mm, force,
+                    "its display table")
         for name, t in result.controller_tables.items():
             if t.ndim == 2 and len(t) != pixels[name]:
                 raise CalibrationRejected(f"its tables for {name} are {len(t)}, for "
                                           f"{pixels[name]} pixels")
-            check_table(t, green_max_mm, None, 0.0, True, f"its table for {name}")
+            prev = None if previous_tables is None else previous_tables.get(name)
+            if prev is not None and np.ndim(prev) != 1 and np.shape(prev) != t.shape:
+                prev = None  # as the run: its pixel count changed, the display-wide table
+            check_table(t, green_max_mm, prev if prev is not None else previous_um, jump_mm,
+                        force, f"its table for {name}")
     except CalibrationRejected as exc:
         raise refuse(str(exc)) from None
     units = len(result.units)
@@ -229,7 +241,7 @@ class RemoteCalibrator:
             client.close()
         where = f"Dask worker {watch.worker or '(unknown)'} of {self.address}"
         result = read_answer(answer, CalibrationResult, where)
-        check_arrival(self.cfg, result, where)
+        check_arrival(self.cfg, result, where, previous_um, previous_tables, force)
         return with_correction(self.cfg, result, correction)
 
 
