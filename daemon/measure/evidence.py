@@ -9,11 +9,14 @@ than "before". So:
   measurement (:mod:`secrets`), one state photographed twice (the *repeat*); a camera cannot know
   which state the display shows at its next shot, and photos kept from an earlier measurement
   come in that measurement's order.
+* **The display in its photos**: the photos of the shortest and longest grass must show the
+  display (it is located from their difference); when they do not, nothing else is judged.
 * **The measurement's own noise** (:func:`photo_noise`): the repeat's two photos differ by the
   camera's noise; the model's own spread (the tuft layouts it averages, ``layout_sd``, or
   :data:`~grassd.daemon.calibration.pixel_model.PHOTO_LAB_SD` without it) is added in
   quadrature: ``noise_lab``. Two photos of the repeat that disagree by more than
-  :data:`MAX_PHOTO_NOISE_LAB` leave nothing to judge by.
+  :data:`MAX_PHOTO_NOISE_LAB` leave nothing to judge by (and the limits take in no more than
+  that: noisy photos cannot widen them).
 * **The fit** (:func:`judge`): the median over pixels of each pixel's RMS CIELAB residual must
   stay within :data:`RESIDUAL_FACTOR` x ``noise_lab``; no more than :data:`BOUND_FRACTION` of
   the pixels may have a fitted offset or gain at its bound (a fit pushed there explains photos
@@ -39,12 +42,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from grassd.daemon.errors import DaemonError
+
 #: The fit's median per-pixel residual may be this many times the measurement's noise.
 RESIDUAL_FACTOR: float = 4.0
 #: A shot's median per-pixel residual may be this many times the measurement's noise.
 SHOT_FACTOR: float = 6.0
-#: Largest noise (rms Lab) of the repeated shot's two photos that still lets photos be judged.
-MAX_PHOTO_NOISE_LAB: float = 2.0
+#: Largest noise (rms Lab) of the repeated shot's two photos that still lets photos be judged
+#: (and the most of it the limits below take in: a camera cannot widen them by noise).
+MAX_PHOTO_NOISE_LAB: float = 0.5
 #: Largest share of pixels whose fitted offset or a gain lies at its bound.
 BOUND_FRACTION: float = 0.1
 #: How near a bound (share of the offset limit, of a gain bound) counts as at it.
@@ -54,6 +60,7 @@ BOUND_MARGIN: float = 0.02
 class Refusal(Enum):
     """Why a measurement's correction is not pushed."""
 
+    DISPLAY_NOT_FOUND = "display not found"
     PHOTO_NOISE = "photo noise"
     FIT_RESIDUAL = "fit residual"
     OFFSETS_AT_BOUND = "offsets at bound"
@@ -127,6 +134,15 @@ class Evidence:
                 "findings": [f.to_json() for f in self.findings]}
 
 
+class PhotosRefused(DaemonError):
+    """The photos cannot even be analysed as the display's (``finding`` says why); raised
+    inside a measurement, which ends with that refusal."""
+
+    def __init__(self, finding: Finding) -> None:
+        super().__init__(finding.detail)
+        self.finding = finding
+
+
 def shot_order(names: Sequence[str], repeat_of: Sequence[str] | None = None,
                rng: secrets.SystemRandom | None = None) -> tuple[list[str], str | None]:
     """``names`` in an order drawn at random (the system's CSPRNG), with one of ``repeat_of``
@@ -193,7 +209,7 @@ def judge(names: Sequence[str], measured_lab: NDArray, predicted_lab: NDArray,
     ``variation`` the fitted DisplayVariation; ``repeat`` the (N, 3) CIELAB of the repeated
     state's two photos; ``model_noise_lab`` :func:`model_noise`; ``order`` the shots as taken."""
     photo = photo_noise(*repeat)
-    noise = float(np.hypot(photo, model_noise_lab))
+    noise = float(np.hypot(min(photo, MAX_PHOTO_NOISE_LAB), model_noise_lab))
     per_shot = np.median(rms_lab(measured_lab, predicted_lab), axis=0)  # (K,)
     fit_rms = float(np.median(fit_rms_lab))
     bound = at_bound(variation)

@@ -6,8 +6,10 @@
 2. **Photos under test patterns** (:class:`~grassd.daemon.measure.patterns.PatternSession`):
    every pixel at its shortest and longest grass (the difference finds the display), at
    ``[measure] patterns`` lengths (the pixels' characteristics), and at :data:`CHECK_LEVELS`
-   through the uncorrected tables (uniformity before). The lux is read at every shot; light that
-   changes by more than ``steady_lux`` ends the measurement.
+   through the uncorrected tables (uniformity before), in an order drawn at random for this
+   measurement, one state photographed twice (:func:`~grassd.daemon.measure.evidence.shot_order`).
+   The lux is read at every shot; light that changes by more than ``steady_lux`` ends the
+   measurement.
 3. (The display shows content while the photos are analysed: steps 3 to 5 take a minute or
    two.) **Where the camera stands**: the display located in the photos and the pose solved from its
    known size (:mod:`grassd.calib.display_in_photo`); that pose is the viewpoint the photos stand
@@ -21,9 +23,15 @@
 6. **Verification**: the corrected tables' levels shown as patterns again and photographed
    (uniformity after).
 7. Patterns end: the display shows content again, whatever happened before. Only a measurement
-   that got this far, and whose correction makes the display more uniform, is kept: its
-   correction saved and its tables committed and pushed as a run (trigger "measure"). Nothing
-   from a measurement that failed or was interrupted is pushed; the last good tables stay.
+   that got this far, whose photos are evidence (fresh, each of its state, the fit and the
+   verification within the measurement's noise: :mod:`grassd.daemon.measure.evidence`) and
+   whose correction makes the display more uniform, is kept: its correction saved and its
+   tables committed and pushed as a run (trigger "measure"). Nothing from a measurement that
+   was refused, failed or was interrupted is pushed; the last good tables stay.
+
+The whole measurement has a deadline (``[measure] deadline_s``), checked at every step and while
+each shot is taken: past it, the display shows content again and :class:`MeasureDeadline` ends
+the run.
 
 **Uniformity** (the report's ``uniformity``): at each checked level, every pixel's measured
 colour with its viewing geometry divided out (measured / model pixel at its own viewpoint, times
@@ -51,7 +59,7 @@ from colour import delta_E
 from numpy.typing import NDArray
 
 from grassd.daemon.errors import DaemonError, RunInterrupted
-from grassd.daemon.measure.evidence import Finding, Refusal
+from grassd.daemon.measure.evidence import Finding, PhotosRefused, Refusal
 
 log = logging.getLogger(__name__)
 
@@ -193,8 +201,16 @@ def run_measurement(ctx: MeasureContext) -> dict[str, Any]:
             shoot(name)
         t_shoot = time.perf_counter()
         session.end()  # content while the photos are analysed (a minute or two)
-        found = _analyse(ctx, mid, shots, photos, lengths, nominal, n, states, order, repeat,
-                         progress)
+        try:
+            found = _analyse(ctx, mid, shots, photos, lengths, nominal, n, states, order,
+                             repeat, progress)
+        except PhotosRefused as exc:
+            return {"measurement": mid, "started_at": started.isoformat(timespec="seconds"),
+                    "status": "refused", "error": f"correction refused: {exc.finding.detail}",
+                    "evidence": {"accepted": False, "order": order,
+                                 "findings": [exc.finding.to_json()]},
+                    "tables": {"granularity": "pixel", "nominal_source": nominal.source},
+                    "_accepted": None}
         corrected = found["correction"].apply(cfg, nominal)
         after_names, _ = shot_order([f"after-{lv:03d}" for lv in CHECK_LEVELS])
         for lv in CHECK_LEVELS:
@@ -300,6 +316,7 @@ def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Any], photos: Photo
     taken, ``repeat`` the repeated shot's name."""
     from grassd.calib.colour_spaces import prophoto_to_lab
     from grassd.calib.display_in_photo import locate_display, pixel_means
+    from grassd.calib.errors import GeometryError
     from grassd.daemon.calibration.correction import DisplayCorrection
     from grassd.daemon.calibration.display_model import (
         capacity_for,
@@ -323,8 +340,15 @@ def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Any], photos: Photo
     short = develop_shot(shots["short"], ctx.setup, photos.lux[taken.index("short")])
     long_ = develop_shot(shots["long"], ctx.setup, photos.lux[taken.index("long")])
     display = replace(display_spec_for_config(cfg), same_layout=True)  # the model pixel
-    located = locate_display(short, long_, display.rows, display.cols, display.pitch_mm,
-                             display.pixel.top_mm)
+    try:
+        located = locate_display(short, long_, display.rows, display.cols, display.pitch_mm,
+                                 display.pixel.top_mm)
+    except GeometryError as exc:
+        raise PhotosRefused(Finding(
+            Refusal.DISPLAY_NOT_FOUND, "the photos of the shortest and longest grass do not "
+            f"show the display ({exc}): photos of other display states (old, or out of order) "
+            "from the measuring camera, or [display] rows, cols, pitch_mm wrong",
+            ("short", "long"))) from None
     pose = located.pose  # from the corners' and pixel centres' bearings
     eye = np.asarray(pose.position_m, dtype=np.float64)
     names = [f"pattern-{k:02d}" for k in range(len(lengths))]

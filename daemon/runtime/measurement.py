@@ -11,7 +11,10 @@ history, calibrator, lux sensor, stop event and progress) and:
   (``measure/correction.json``, atomically), then commits the corrected tables as a run whose
   trigger is "measure" and pushes them; every later run includes the correction;
 * whatever happened, writes the measurement's report (``measure/<id>.json`` and ``.html``) with
-  its status ("ok", "failed", "interrupted") and error.
+  its status ("ok"; "refused" when its photos are not evidence,
+  :mod:`grassd.daemon.measure.evidence`; "failed", "interrupted") and error;
+* keeps the photos of the newest ``[measure] keep_photos`` measurements
+  (:func:`grassd.daemon.runtime.retention.prune_measure_photos`).
 
 A measurement that fails leaves the correction and the active tables as they were.
 """
@@ -49,6 +52,7 @@ def measure_with(svc: Any, trigger: str = "request") -> dict[str, Any]:
     from grassd.daemon.measure.camera_chain import load_setup
     from grassd.daemon.measure.run import MeasureContext, measurement_id, run_measurement
     from grassd.daemon.monitoring.measurement_report import write_report
+    from grassd.daemon.runtime.retention import prune_measure_photos
     from grassd.daemon.runtime.scheduled import scheduled_input
     from grassd.daemon.runtime.statelock import StateLock
     from grassd.daemon.store.atomic import atomic_write_json
@@ -114,4 +118,6 @@ def measure_with(svc: Any, trigger: str = "request") -> dict[str, Any]:
             report["report"] = str(write_report(layout, report))
         except OSError as exc:
             log.error("measurement report not written: %s", exc)
+        if cfg.measure is not None:
+            prune_measure_photos(layout.measure, cfg.measure.keep_photos)
     return report

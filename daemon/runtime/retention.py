@@ -22,6 +22,10 @@ After every run (and at start) :func:`prune` deletes
 - leftovers of interrupted atomic writes and cross-device copies (hidden ``*.tmp`` /
   ``*.copy`` entries older than an hour).
 
+After every measurement :func:`prune_measure_photos` deletes the photo folders
+(``measure/<id>/``) of all but the newest ``[measure] keep_photos`` measurements; their reports
+(``measure/<id>.json``, ``.html``: the trend), the set-up and the correction stay.
+
 Nothing that the daemon needs is ever removed: the active table lives in its history row, and
 the light of the next scheduled run in the latest archived bundle.
 """
@@ -31,6 +35,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import re
 import shutil
 import time
 from collections.abc import Callable
@@ -170,3 +175,31 @@ def prune(state_dir: str | os.PathLike[str], history: History, keep: RetentionCo
                  "%d ingest journal row(s), %d temporary file(s)", len(out.bundles),
                  len(out.reports), out.runs, out.journal, len(out.temporaries))
     return out
+
+
+#: A measurement's photo folder: its id, the UTC start ``YYYYmmddTHHMMSSZ``.
+_MEASUREMENT_ID = re.compile(r"\d{8}T\d{6}Z")
+
+
+def prune_measure_photos(measure_dir: str | os.PathLike[str], keep: int) -> list[str]:
+    """Delete the photo folders in ``measure_dir`` (``<state>/measure``) of all but the newest
+    ``keep`` measurements (by id, their UTC start); returns the ids removed. Anything else
+    there (reports, set-up, correction, files not named as a measurement) is left; a folder
+    that cannot be removed is logged and skipped."""
+    root = Path(measure_dir)
+    if not root.is_dir():
+        return []
+    ids = sorted(e.name for e in root.iterdir()
+                 if _MEASUREMENT_ID.fullmatch(e.name) and e.is_dir() and not e.is_symlink())
+    removed = []
+    for mid in ids[:max(len(ids) - keep, 0)]:
+        try:
+            shutil.rmtree(root / mid)
+        except OSError as exc:
+            log.warning("retention: cannot remove the photos of measurement %s: %s", mid, exc)
+            continue
+        removed.append(mid)
+    if removed:
+        log.info("retention: removed the photos of %d measurement(s), kept the newest %d",
+                 len(removed), keep)
+    return removed

@@ -32,6 +32,8 @@ def test_a_second_camera_with_defaults(tmp_path):
     ('camera = "http://x"\ninterval_s = 60\n', "measure.interval_s", "0 (only on request)"),
     ('camera = "http://x"\npatterns = 2\n', "measure.patterns", "between"),
     ('camera = "http://x"\nwatchdog = 5\n', "measure.watchdog", "unknown key"),
+    ('camera = "http://x"\ndeadline_s = 5\n', "measure.deadline_s", "between 10.0 and"),
+    ('camera = "http://x"\nkeep_photos = 0\n', "measure.keep_photos", "between 1 and"),
 ])
 def test_bad_values_name_key_and_line(tmp_path, text, key, words):
     with pytest.raises(ConfigError) as info:

@@ -1,0 +1,205 @@
+"""A measuring camera that lies is refused: it answers with the shots out of order, with old
+photos (an honest earlier measurement's, in its order), or with a photo of another display
+state. Each measurement runs the real path (``Service.measure``: patterns on the simulated
+controllers over ptys, the simulated camera over HTTP on 127.0.0.1, the fit, the checks), is
+refused with the check that caught it, and pushes nothing: the correction, the active tables
+and the controllers' tables stay as the honest measurement left them.
+
+The site is made once for the module (the display's hidden variation, the controllers, the
+camera's set-up) with one honest measurement, which must be accepted: the checks are not
+simply refusing everything."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from daemon_harness import write_config
+
+from grassd.daemon.cli.measure import simulated_setup, start_measuring_camera
+from grassd.daemon.config.settings import load_config, load_default_config
+from grassd.daemon.hardware.simulated import SimulatedHardware
+from grassd.daemon.measure.evidence import Refusal
+from grassd.daemon.runtime.service import Service
+from grassd.daemon.store.history import History
+from grassd.daemon.store.layout import StateLayout
+from grassd.firmware_proto.client import ControllerClient
+
+pytestmark = pytest.mark.long
+
+SECRET = Path(__file__).resolve().parents[2] / "data" / "measure" / "secret_variation.toml"
+MEASURE = """[measure]
+camera = "{url}"
+pattern_timeout_s = 30
+settle_s = 10.0
+samples = 256
+layouts = 1
+patterns = 4
+keep_photos = 2
+"""
+
+
+class Site:
+    """The measured site: simulated hardware, display, camera, config, and what the honest
+    measurement left (its report, the display states it photographed, in order)."""
+
+    def __init__(self, root: Path) -> None:
+        self.sim = SimulatedHardware(load_default_config(), root / "hw", lux=2500.0)
+        cfg = self.sim.start()
+        self.display, self.camera = start_measuring_camera(self.sim, cfg, str(SECRET), 2500.0,
+                                                           samples=256)
+        self.path = write_config(root / "grassd.toml", root / "state", cfg,
+                                 extra=MEASURE.format(url=self.camera.url))
+        self.cfg = load_config(self.path)
+        self.layout = StateLayout(self.cfg.state_dir)
+        first = self._service_do(lambda svc: svc.one_shot())
+        assert first["status"] == "ok", first
+        simulated_setup(self.cfg, self.display, self.camera.url, 2500.0)
+        self.honest_states: list[np.ndarray] = []
+        self.camera.scene_source = self._recording
+        self.honest = self.measure()
+        self.camera.scene_source = self.display.scene
+
+    def _recording(self) -> np.ndarray:
+        self.honest_states.append(np.array(self.sim.positions_um(), dtype=np.float64))
+        return self.display.scene()
+
+    def _service_do(self, what: Callable[[Service], dict]) -> dict:
+        svc = Service(self.cfg)
+        try:
+            return what(svc)
+        finally:
+            svc.shutdown()
+
+    def measure(self) -> dict:
+        """One measurement through the daemon's service, as ``grassd measure --now``."""
+        return self._service_do(lambda svc: svc.measure())
+
+    def photo_of(self, positions_um: np.ndarray) -> np.ndarray:
+        """The camera's view of the display with its grass at ``positions_um`` (N,)."""
+        real = self.display.positions_um
+        self.display.positions_um = lambda: positions_um
+        try:
+            return self.display.scene()
+        finally:
+            self.display.positions_um = real
+
+    def pushed(self) -> tuple:
+        """What is active: the correction file, the history's current table, the controllers'
+        table ids, and the runs made by measurements."""
+        ids = []
+        for c in self.cfg.controllers:
+            with ControllerClient(c.port) as client:
+                ids.append(client.read_status(c.address).table_id)
+        history = History(self.layout.db)
+        return (self.layout.correction.read_bytes(), history.current_table().id, tuple(ids),
+                [r.id for r in history.runs(50) if r.trigger == "measure"])
+
+    def stop(self) -> None:
+        self.camera.stop()
+        self.sim.stop()
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory) -> Iterator[Site]:
+    s = Site(tmp_path_factory.mktemp("hostile"))
+    try:
+        yield s
+    finally:
+        s.stop()
+
+
+def test_the_honest_measurement_is_accepted_and_pushed(site):
+    report = site.honest
+    assert report["status"] == "ok", report.get("error")
+    ev = report["evidence"]
+    print("honest evidence:", json.dumps({k: ev[k] for k in ("noise_lab", "fit_rms_lab")}),
+          "shots", max(ev["shot_rms_lab"].values()))
+    assert ev["accepted"] and ev["findings"] == []
+    assert report["tables"]["status"] == "ok" and all(report["tables"]["pushed"])
+    assert len(ev["order"]) == len(site.honest_states)  # every photo taken is judged
+
+
+def _refused(site: Site, source: Callable[[], np.ndarray]) -> dict:
+    before = site.pushed()
+    site.camera.scene_source = source
+    try:
+        report = site.measure()
+    finally:
+        site.camera.scene_source = site.display.scene
+    ev = report.get("evidence", {})
+    print(report["status"], report.get("error"), {k: ev.get(k) for k in (
+        "noise_lab", "photo_noise_lab", "fit_rms_lab", "at_bound", "shot_rms_lab")})
+    assert report["status"] == "refused", report.get("error")
+    assert report["tables"]["run_id"] is None
+    assert site.pushed() == before  # nothing pushed, nothing kept
+    assert not any(c.in_pattern for bus in site.sim.buses for c in bus.controllers)
+    saved = json.loads(Path(report["report"]).read_text())
+    assert saved["status"] == "refused" and not saved["evidence"]["accepted"]
+    return report
+
+
+def _kinds(report: dict) -> set[Refusal]:
+    return {Refusal(f["kind"]) for f in report["evidence"]["findings"]}
+
+
+#: what refuses photos that are not of the state asked: the display not found in the photos
+#: of its shortest and longest grass (when those are wrong), else the shots named
+NOT_OF_THE_STATE = {Refusal.SHOT_MISMATCH, Refusal.DISPLAY_NOT_FOUND}
+
+
+def test_shots_answered_out_of_order_are_refused(site):
+    """Each shot answered with the photo of the state the display showed for the shot before
+    (the order is drawn anew in each measurement: the camera cannot answer ahead)."""
+    last: list[np.ndarray] = []
+
+    def one_behind() -> np.ndarray:
+        now = np.array(site.sim.positions_um(), dtype=np.float64)
+        shown = last[-1] if last else now
+        last.append(now)
+        return site.photo_of(shown)
+
+    report = _refused(site, one_behind)
+    assert _kinds(report) & NOT_OF_THE_STATE, report["evidence"]
+
+
+def test_old_photos_are_refused(site):
+    """The honest measurement's photos, answered again in the order they were taken."""
+    old = iter(site.honest_states)
+    report = _refused(site, lambda: site.photo_of(next(old)))
+    assert _kinds(report) & NOT_OF_THE_STATE, report["evidence"]
+
+
+def test_a_photo_of_another_display_state_is_refused(site):
+    """One photo (the fourth) shows the pixels alternately at their shortest and longest
+    grass, a state no shot asked for; the others are honest: that photo is named."""
+    calls: list[int] = []
+    d = site.cfg.display
+    checkerboard = np.indices((d.rows, d.cols)).sum(axis=0).ravel() % 2 * d.green_max_mm * 1000.0
+
+    def one_wrong() -> np.ndarray:
+        calls.append(1)
+        if len(calls) == 4:
+            return site.photo_of(checkerboard)
+        return site.display.scene()
+
+    report = _refused(site, one_wrong)
+    ev = report["evidence"]
+    wrong = ev["order"][3]
+    if wrong in ("short", "long"):  # the display is located from these two
+        assert _kinds(report) & NOT_OF_THE_STATE, ev
+        return
+    [mismatch] = [f for f in ev["findings"] if f["kind"] == Refusal.SHOT_MISMATCH.value]
+    assert mismatch["shots"] == [wrong], (mismatch, ev["order"])
+
+
+def test_only_the_newest_measurements_keep_their_photos(site):
+    """After the module's measurements (each took photos), the photos of the newest two
+    (``keep_photos``) are left, and every report."""
+    reports = [p.stem for p in site.layout.measurement_reports()]
+    folders = sorted(p.name for p in site.layout.measure.iterdir() if p.is_dir())
+    assert folders == reports[-2:], (folders, reports)
+    assert all(any(site.layout.measure.joinpath(m).glob("*.dng")) for m in folders)
