@@ -9,8 +9,9 @@ supplementary groups (``dialout`` for the serial ports), its ``$HOME``; what it 
 stays the owner's. Where root owns the state directory, the command stays root, but refuses
 (:class:`~grassd.daemon.errors.OthersMayWrite`) if another user may change the directory, a
 directory above it or anything in it but the bundles (the inbox, ``processing/``,
-``archive/``, ``rejected/``: hostile input wherever it lies, read with the inbox's checks), or
-the configuration file. The rule is :mod:`grassd.sim.path_trust`'s, as for the kernel cache.
+``archive/``, ``rejected/``: hostile input wherever it lies, read with the inbox's checks).
+Either way, root refuses a configuration file that another user may change. The rule is
+:mod:`grassd.sim.path_trust`'s, as for the kernel cache.
 """
 
 from __future__ import annotations
