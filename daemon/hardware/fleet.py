@@ -5,7 +5,10 @@ Every controller may have a table of its own (``[tables] granularity`` "controll
 
 Controllers that share a serial port (an RS-485 bus) share one
 :class:`~grassd.firmware_proto.client.ControllerClient`. Every operation takes the fleet's lock,
-so the daemon's main loop and a calibration run never talk over each other.
+so the daemon's main loop and a calibration run never talk over each other. Other users of the
+lines (content frames, :mod:`~grassd.daemon.hardware.frames`; test patterns) get the clients
+from :meth:`Fleet.client` without waiting for that lock, and take turns with the fleet request
+by request on each line (the client's bus lock, PROTOCOL.md section 5).
 
 *Reconcile* (desired vs reported state, every daemon tick): read each controller's
 TABLE_STATUS; one that does not report the desired table id and the CRC of its own table gets
@@ -116,20 +119,23 @@ class Fleet:
         self._clients: dict[str, ControllerClient] = {}
         self._backoff: dict[str, PushBackoff] = {}
         self._lock = threading.RLock()
+        self._clients_lock = threading.Lock()  # only around the clients' dict
 
     def _client(self, c: ControllerConfig) -> ControllerClient:
-        client = self._clients.get(c.port)
-        if client is None:
-            client = ControllerClient(c.port, baudrate=c.baud, policy=self.policy,
-                                      on_progress=self.on_progress, cancel=self.cancel)
-            self._clients[c.port] = client
-        return client
+        with self._clients_lock:
+            client = self._clients.get(c.port)
+            if client is None:
+                client = ControllerClient(c.port, baudrate=c.baud, policy=self.policy,
+                                          on_progress=self.on_progress, cancel=self.cancel)
+                self._clients[c.port] = client
+            return client
 
     def client(self, c: ControllerConfig) -> ControllerClient:
         """The protocol client of controller ``c``'s port (one per port, shared), for
-        requests beyond pushes: test patterns (:mod:`grassd.daemon.measure.patterns`)."""
-        with self._lock:
-            return self._client(c)
+        requests beyond pushes: test patterns (:mod:`grassd.daemon.measure.patterns`),
+        content frames (:mod:`grassd.daemon.hardware.frames`). Does not wait for a push in
+        progress: requests share the line through the client's bus lock."""
+        return self._client(c)
 
     def _probe(self, c: ControllerConfig) -> int:
         """Retries of a status read: ``probe_retries`` on a clean line, the policy's
@@ -139,7 +145,7 @@ class Fleet:
 
     def close(self) -> None:
         """Close every serial port."""
-        with self._lock:
+        with self._lock, self._clients_lock:
             for client in self._clients.values():
                 client.close()
             self._clients.clear()

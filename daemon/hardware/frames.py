@@ -13,69 +13,417 @@ Interface (what the content sources code against)::
 
 ``levels[i]`` is the level of display pixel ``i`` (row-major: row 0 at the top, column 0 at
 the left), which each controller's ``pixels`` ranges map onto its own pixels in order. A frame
-is *shown* when every controller acknowledged it; its *latency* runs from :meth:`offer` to the
-last controller's acknowledgement (milliseconds).
+is *shown* when its SHOW was written after at least one controller acknowledged its levels;
+its *latency* runs from :meth:`FrameOutput.offer` to the last controller's acknowledgement
+(milliseconds).
+
+How a frame is sent (PROTOCOL.md section 3, "The frame latch", and section 5, "Sharing a
+line"): one sender thread takes the newest frame, no sooner than ``1 / fps`` after the last;
+the serial lines are staged in parallel (a thread per line): holding the line's
+:class:`~grassd.firmware_proto.bus_lock.BusLock`, STAGE_LEVEL to every controller on it (SET_LEVEL
+to one without the latch). Then the sender takes every line's lock and writes a broadcast SHOW
+on each, so every controller applies the frame at once. A push, a status read or a test
+pattern on the same line waits for at most the one frame in flight, and a frame for at most
+one of their requests: while the output runs, the lines' table chunks are capped to
+``push_slot_s`` of wire time (:func:`stream_chunk_bytes`). A controller that does not answer
+twice in a row is left out of the next frames for a while (doubling, up to ``skip_max_s``;
+a frame's levels are not retransmitted by default: the next frame replaces them), so the others
+keep their rate; one that comes back (a reboot, a plug) gets the current frame with the next
+one sent. Without a new frame, the newest is sent again every ``refresh_s`` (a rebooted
+controller, a committed table: both show it from that SHOW on).
+
+The daemon closes its :class:`FrameOutput` before the :class:`~.fleet.Fleet` whose lines it
+shares.
 """
 
 from __future__ import annotations
 
+import logging
+import threading
+import time
+from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass
+from concurrent.futures import Future, ThreadPoolExecutor, wait
+from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from grassd.daemon.config.settings import ControllerConfig
+from grassd.daemon.errors import DaemonError
+from grassd.firmware_proto.client import ControllerClient, ControllerUnsupported, RetryPolicy
+from grassd.firmware_proto.errors import PortUnavailable, ProtocolError, TransientError
+from grassd.firmware_proto.messages import MAX_CHUNK_DATA
+
+log = logging.getLogger(__name__)
+
+#: Frames whose latency the statistics keep (the most recent ones).
+LATENCY_WINDOW = 1000
+#: Seconds over which ``fps_shown`` counts shown frames.
+FPS_WINDOW_S = 2.0
+#: Wire bytes a TABLE_CHUNK adds to its data: header, table_id, offset, CRC, COBS, delimiter.
+CHUNK_OVERHEAD_BYTES = 5 + 8 + 4 + 2 + 1
+
+
+class FrameError(DaemonError):
+    """A frame offered is not what the display takes (its shape or values); the message says
+    which shape and values it needs."""
+
+
+class FrameOutputClosed(DaemonError):
+    """A frame was offered after :meth:`FrameOutput.close`; make a new output."""
 
 
 @dataclass(frozen=True)
 class FrameStats:
     """Counts since the output started, and recent rates.
 
-    ``frames_offered``: frames given to :meth:`FrameOutput.offer`; ``frames_shown``: frames
-    every controller acknowledged; ``frames_dropped``: frames replaced by a newer one before
-    they were sent; ``fps_shown``: frames shown per second over the last few seconds;
-    ``latency_ms_median`` / ``latency_ms_p99``: offer to the last controller's
-    acknowledgement over the recent shown frames (milliseconds; None before the first).
+    ``frames_offered``: frames given to :meth:`FrameOutput.offer`; ``frames_shown``: offered
+    frames shown (their SHOW written after at least one controller acknowledged them);
+    ``frames_dropped``: frames replaced by a newer one before they were sent;
+    ``frames_resent``: the newest frame sent again (after :meth:`FrameOutput.release`, or
+    every ``refresh_s`` without a new one); ``fps_shown``: offered frames shown per second
+    over the last :data:`FPS_WINDOW_S` seconds; ``latency_ms_median`` / ``latency_ms_p99``:
+    offer to the last controller's acknowledgement over the last :data:`LATENCY_WINDOW`
+    shown frames (milliseconds; None before the first); ``misses``: controllers' levels of a
+    frame not delivered (no answer, a refusal, or left out while not answering); ``held``:
+    a measurement holds the display now.
     """
 
     frames_offered: int = 0
     frames_shown: int = 0
     frames_dropped: int = 0
+    frames_resent: int = 0
     fps_shown: float = 0.0
     latency_ms_median: float | None = None
     latency_ms_p99: float | None = None
+    misses: int = 0
+    held: bool = False
+
+
+def stream_chunk_bytes(baud: int, slot_s: float) -> int:
+    """The largest TABLE_CHUNK data (bytes, a power of two, 16..1016) whose request takes at
+    most ``slot_s`` seconds on a line of ``baud`` bit/s (8N1: 10 bit times per byte)."""
+    room = int(baud / 10 * slot_s) - CHUNK_OVERHEAD_BYTES
+    size = 16
+    while size * 2 <= min(room, MAX_CHUNK_DATA):
+        size *= 2
+    return size
+
+
+@dataclass
+class _Controller:
+    """One controller as the sender sees it: its display pixels, whether it has the latch
+    (None: not asked yet), and when it may be tried again after failing."""
+
+    config: ControllerConfig
+    pixels: np.ndarray
+    latch: bool | None = None
+    failures: int = 0
+    skip_until: float = 0.0
+
+
+@dataclass(eq=False)
+class _Line:
+    """One serial line: its client, its controllers, and its staging in flight (if any)."""
+
+    client: ControllerClient
+    controllers: list[_Controller] = field(default_factory=list)
+    staging: Future | None = None
+
+
+@dataclass
+class _Staged:
+    """What staging one line achieved for one frame: controllers reached, with or without the
+    latch, controllers missed, and the monotonic time of its last acknowledgement."""
+
+    latched: int = 0
+    direct: int = 0
+    missed: int = 0
+    last_ack: float | None = None
+
+
+def _pixel_indices(c: ControllerConfig, n_pixels: int) -> np.ndarray:
+    """Display pixel indices controller ``c`` drives, in its own pixel order."""
+    if not c.pixels:
+        return np.zeros(0, np.int64)
+    idx = np.concatenate([np.arange(a, b + 1) for a, b in c.pixels])
+    if idx.min() < 0 or idx.max() >= n_pixels:
+        raise FrameError(f"controller {c.name} drives pixels up to {int(idx.max())}, but the "
+                         f"display has {n_pixels} (0..{n_pixels - 1}); fix its pixels ranges")
+    return idx
 
 
 class FrameOutput:
     """Sends the newest offered frame to every controller in ``controllers``, at most ``fps``
-    frames per second (frames per second, > 0), for a display of ``n_pixels`` pixels.
+    frames per second (> 0), for a display of ``n_pixels`` pixels.
 
     ``fleet``: the :class:`~grassd.daemon.hardware.fleet.Fleet` whose serial lines the frames
-    share (its pushes and status reads take turns with the frames, see PROTOCOL.md section
-    5); without one the output opens the lines itself.
+    share (its pushes and status reads take turns with the frames, see the module docstring);
+    without one the output opens the lines itself with ``policy``. ``refresh_s``: the newest
+    frame is sent again after this many seconds without a new one (s, > 0).
+    ``answer_timeout_s``: turn-around margin of one controller's answer to a frame's levels
+    (s; the line's byte time is added), ``retries`` its retransmissions. ``skip_s`` /
+    ``skip_max_s``: a controller that failed twice in a row (or whose port is gone) is left
+    out of frames this long, doubling at each further failure up to ``skip_max_s`` (s).
+    ``push_slot_s``: while the output runs, table chunks on its lines take at most this long
+    on the wire (s). ``line_wait_s``: how long a frame waits for a line's staging (s; default
+    three frame periods, at least 0.1 s): a line later than that misses the frame (the others
+    show it), and every frame while it is still busy.
     """
 
     def __init__(self, controllers: Sequence[ControllerConfig], n_pixels: int, *,
-                 fps: float = 30.0, fleet: object | None = None) -> None:
-        raise NotImplementedError
+                 fps: float = 30.0, fleet: object | None = None,
+                 policy: RetryPolicy | None = None, refresh_s: float = 1.0,
+                 answer_timeout_s: float = 0.05, retries: int = 0, skip_s: float = 0.25,
+                 skip_max_s: float = 2.0, push_slot_s: float = 0.01,
+                 line_wait_s: float | None = None) -> None:
+        if not fps > 0:
+            raise FrameError(f"fps must be > 0 frames per second, got {fps!r}")
+        if n_pixels < 1:
+            raise FrameError(f"n_pixels must be >= 1, got {n_pixels!r}")
+        if not refresh_s > 0:
+            raise FrameError(f"refresh_s must be > 0 s, got {refresh_s!r}")
+        self.n_pixels = int(n_pixels)
+        self.fps = float(fps)
+        self.refresh_s = float(refresh_s)
+        self.answer_timeout_s = answer_timeout_s
+        self.retries = retries
+        self.skip_s, self.skip_max_s = skip_s, skip_max_s
+        self.line_wait_s = max(3.0 / self.fps, 0.1) if line_wait_s is None else line_wait_s
+        self._own_clients = fleet is None
+        self._lines: dict[str, _Line] = {}
+        for c in controllers:
+            line = self._lines.get(c.port)
+            if line is None:
+                client = (fleet.client(c) if fleet is not None  # type: ignore[attr-defined]
+                          else ControllerClient(c.port, baudrate=c.baud, policy=policy))
+                client.chunk_cap = stream_chunk_bytes(c.baud, push_slot_s)
+                line = self._lines[c.port] = _Line(client)
+            line.controllers.append(_Controller(c, _pixel_indices(c, self.n_pixels)))
+        self._cond = threading.Condition()
+        self._pending: tuple[np.ndarray, float] | None = None  # (levels, offer time)
+        self._newest: np.ndarray | None = None
+        self._resend = False
+        self._holds = 0
+        self._busy = False
+        self._closed = False
+        self._frame_no = 0
+        self._last_start = -np.inf
+        self._last_sent = time.monotonic()
+        self._offered = self._shown = self._dropped = self._resent = self._misses = 0
+        self._latency: deque[float] = deque(maxlen=LATENCY_WINDOW)
+        self._shown_at: deque[float] = deque()
+        self._started = time.monotonic()
+        lines = list(self._lines.values())
+        self._pool = ThreadPoolExecutor(len(lines), thread_name_prefix="frames-line")
+        self._thread = threading.Thread(target=self._run, name="frames", daemon=True)
+        self._thread.start()
 
-    def offer(self, levels: np.ndarray) -> None:
-        """Queue ``levels`` (uint8, shape (n_pixels,)) to be shown; returns at once. A frame
-        offered before the previous one was sent replaces it (counted as dropped)."""
-        raise NotImplementedError
+    # --- the interface -------------------------------------------------------------------
+    def offer(self, levels: ArrayLike) -> None:
+        """Queue ``levels`` (integers 0..255, shape (n_pixels,)) to be shown; returns at once.
+        A frame offered before the previous one was sent replaces it (counted as dropped).
+        Raises :class:`FrameError` for another shape or values, :class:`FrameOutputClosed`
+        after :meth:`close`."""
+        lv = np.asarray(levels)
+        if lv.shape != (self.n_pixels,) or not np.issubdtype(lv.dtype, np.integer):
+            raise FrameError(f"a frame is {self.n_pixels} integer levels (shape "
+                             f"({self.n_pixels},)), got {lv.dtype} of shape {lv.shape}")
+        if lv.size and (lv.min() < 0 or lv.max() > 255):
+            raise FrameError(f"levels must be 0..255, got {int(lv.min())}..{int(lv.max())}")
+        frame = lv.astype(np.uint8, copy=True)
+        now = time.monotonic()
+        with self._cond:
+            if self._closed:
+                raise FrameOutputClosed("this frame output is closed; make a new one")
+            self._offered += 1
+            if self._pending is not None:
+                self._dropped += 1
+            self._pending = (frame, now)
+            self._newest = frame
+            self._cond.notify_all()
 
     def stats(self) -> FrameStats:
         """The counts and recent rates (:class:`FrameStats`); safe from any thread."""
-        raise NotImplementedError
+        now = time.monotonic()
+        with self._cond:
+            while self._shown_at and self._shown_at[0] < now - FPS_WINDOW_S:
+                self._shown_at.popleft()
+            span = min(FPS_WINDOW_S, now - self._started)
+            fps = len(self._shown_at) / span if span > 0 else 0.0
+            lat = np.asarray(self._latency)
+            return FrameStats(
+                self._offered, self._shown, self._dropped, self._resent, fps,
+                float(np.median(lat)) * 1e3 if lat.size else None,
+                float(np.percentile(lat, 99)) * 1e3 if lat.size else None,
+                self._misses, self._holds > 0)
 
     def hold(self) -> None:
-        """Stop sending frames (a measurement takes the display) until :meth:`release`."""
-        raise NotImplementedError
+        """Stop sending frames (a measurement takes the display) until :meth:`release`;
+        returns once the frame in flight, if any, is out. Holds nest: each needs a release."""
+        with self._cond:
+            self._holds += 1
+            while self._busy:
+                self._cond.wait()
 
     def release(self) -> None:
-        """Send frames again, starting with the newest one offered."""
-        raise NotImplementedError
+        """Give the display back after :meth:`hold`: frames are sent again, starting with the
+        newest one offered (at once)."""
+        with self._cond:
+            if self._holds == 0:
+                return
+            self._holds -= 1
+            if self._holds == 0:
+                self._resend = self._pending is None and self._newest is not None
+                self._cond.notify_all()
 
     def close(self) -> None:
-        """Stop sending and end the sender threads (the serial lines stay the fleet's)."""
-        raise NotImplementedError
+        """Stop sending and end the sender threads; the chunk cap leaves the lines. Closes
+        the lines only when this output opened them (no ``fleet``)."""
+        with self._cond:
+            if self._closed:
+                return
+            self._closed = True
+            self._cond.notify_all()
+        self._thread.join(10)
+        self._pool.shutdown(wait=True)
+        for line in self._lines.values():
+            line.client.chunk_cap = None
+            if self._own_clients:
+                line.client.close()
+
+    def __enter__(self) -> FrameOutput:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # --- the sender ----------------------------------------------------------------------
+    def _next(self) -> tuple[np.ndarray, float | None] | None:
+        """Wait for the next frame to send and its slot: (levels, offer time, None for a
+        resend), or None once closed. Marks the output busy."""
+        with self._cond:
+            while True:
+                if self._closed:
+                    return None
+                now = time.monotonic()
+                if self._holds:
+                    self._cond.wait()
+                    continue
+                due = self._pending is not None or self._resend or (
+                    self._newest is not None and now >= self._last_sent + self.refresh_s)
+                slot = self._last_start + 1.0 / self.fps
+                if not due:
+                    wait = (self._last_sent + self.refresh_s - now
+                            if self._newest is not None else None)
+                    self._cond.wait(wait)
+                    continue
+                if now < slot:
+                    self._cond.wait(slot - now)
+                    continue
+                if self._pending is not None:
+                    levels, offered = self._pending
+                    self._pending = None
+                    out: tuple[np.ndarray, float | None] = (levels, offered)
+                else:
+                    assert self._newest is not None
+                    out = (self._newest, None)
+                self._resend = False
+                self._busy = True
+                self._last_start = now
+                return out
+
+    def _run(self) -> None:
+        while (item := self._next()) is not None:
+            levels, offered = item
+            try:
+                self._send(levels, offered)
+            except Exception:  # keep sending: a dead sender would freeze the display
+                log.exception("content frame %d could not be sent", self._frame_no)
+            finally:
+                with self._cond:
+                    self._busy = False
+                    self._last_sent = time.monotonic()
+                    self._cond.notify_all()
+
+    def _send(self, levels: np.ndarray, offered: float | None) -> None:
+        """Stage ``levels`` on every line, then SHOW on every line at once."""
+        self._frame_no = (self._frame_no + 1) & 0xFFFF
+        no = self._frame_no
+        late = 0
+        started: dict[_Line, Future] = {}
+        for ln in self._lines.values():
+            if ln.staging is not None and not ln.staging.done():
+                late += len(ln.controllers)  # still busy with an earlier frame: misses this
+                continue
+            ln.staging = started[ln] = self._pool.submit(self._stage, ln, no, levels)
+        wait(list(started.values()), timeout=self.line_wait_s)
+        ready = [(ln, f.result()) for ln, f in started.items() if f.done()]
+        late += sum(len(ln.controllers) for ln, f in started.items() if not f.done())
+        staged = [st for _, st in ready]
+        showing = [ln for ln, st in ready if st.latched]
+        for ln in showing:
+            ln.client.bus.acquire()
+        try:
+            for ln in showing:
+                try:
+                    ln.client.show(no)
+                except PortUnavailable:
+                    pass  # that line's controllers miss this frame; their next stage tells
+        finally:
+            for ln in reversed(showing):
+                ln.client.bus.release()
+        reached = sum(s.latched + s.direct for s in staged)
+        acks = [s.last_ack for s in staged if s.last_ack is not None]
+        with self._cond:
+            self._misses += late + sum(s.missed for s in staged)
+            if not reached:
+                return
+            if offered is None:
+                self._resent += 1
+                return
+            self._shown += 1
+            self._shown_at.append(time.monotonic())
+            self._latency.append(max(acks) - offered)
+
+    def _stage(self, line: _Line, no: int, levels: np.ndarray) -> _Staged:
+        """Holding the line: STAGE_LEVEL (or SET_LEVEL) to each of its controllers."""
+        out = _Staged()
+        client = line.client
+        kw = {"retries": self.retries, "timeout_s": self.answer_timeout_s}
+        with client.bus:
+            for ctl in line.controllers:
+                now = time.monotonic()
+                if now < ctl.skip_until or not ctl.pixels.size:
+                    out.missed += bool(ctl.pixels.size)
+                    continue
+                address = ctl.config.address
+                part = levels[ctl.pixels]
+                try:
+                    if ctl.latch is None:
+                        ctl.latch = client.hello(address, **kw).supports_latch
+                    if ctl.latch:
+                        client.stage_levels(address, no, part, **kw)
+                        out.latched += 1
+                    else:
+                        client.set_levels(address, part, **kw)
+                        out.direct += 1
+                except ControllerUnsupported:
+                    ctl.latch = False  # another board answers there now: SET_LEVEL next
+                    out.missed += 1
+                    continue
+                except (TransientError, ProtocolError) as exc:
+                    out.missed += 1
+                    ctl.failures += 1
+                    gone = isinstance(exc, PortUnavailable)
+                    if gone:
+                        ctl.latch = None  # what comes back on the port may be another board
+                    if gone or ctl.failures >= 2:  # one lost answer on a noisy line: no skip
+                        k = max(ctl.failures - 2, 0)
+                        delay = min(self.skip_s * 2 ** k, self.skip_max_s)
+                        ctl.skip_until = time.monotonic() + delay
+                    continue
+                ctl.failures = 0
+                out.last_ack = time.monotonic()
+        return out

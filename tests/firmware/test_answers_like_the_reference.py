@@ -2,7 +2,8 @@
 sequences: transfers with chunks in any order, out of range, oversized, retransmitted; commits
 with wrong or right CRCs and out-of-range values; levels and test patterns (PATTERN with good
 and bad timeouts, pixels and lengths, PATTERN_END) in any order; unknown types, other
-versions, bad payload lengths; and power cycles (the posix process restarted on its storage,
+versions, bad payload lengths; the frame latch (STAGE_LEVEL in and out of range, SHOW to
+the controller and broadcast, never answered); and power cycles (the posix process restarted on its storage,
 the QEMU instance reset with its RAM storage kept, the model power-cycled). The firmware is
 driven over its real pty (through the bus relay for QEMU); GET_POSITIONS is left out (the
 implementations simulate different motors)."""
@@ -27,6 +28,8 @@ from grassd.firmware_proto.messages import (
     Pattern,
     PatternEnd,
     SetLevel,
+    Show,
+    StageLevel,
     TableBegin,
     TableChunk,
     TableCommit,
@@ -120,6 +123,14 @@ def random_requests(rng: np.random.Generator, n: int):
             msg = PatternEnd()
         elif r < 0.9:
             msg = Hello()
+        elif r < 0.915:
+            msg = StageLevel(int(rng.integers(0, 3)), int(rng.integers(0, 4)), bytes(
+                rng.integers(0, 256, int(rng.integers(1, 5))).astype(np.uint8)))
+        elif r < 0.93:
+            address = int(rng.choice([0, 1]))  # broadcast: neither answers
+            last = encode_frame(Frame(address, seq, Show(int(rng.integers(0, 3)))))
+            yield "request", last
+            continue
         else:  # malformed: unknown type, other version, wrong payload length
             body = bytearray(encode_body_of(Frame(1, seq, GetStatus())))
             kind = rng.integers(0, 3)
