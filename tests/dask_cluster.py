@@ -53,6 +53,7 @@ class SiteCA:
         self.dir = directory
         self.dir.mkdir(parents=True, exist_ok=True)
         self.ca_file, self.ca_key = self.dir / "ca.pem", self.dir / "ca.key"
+        self._issued: set[str] = set()  # the names signed by this CA (not a former one)
         self._openssl("req", "-x509", "-newkey", "ec", "-pkeyopt",
                       "ec_paramgen_curve:prime256v1", "-nodes", "-keyout", self.ca_key,
                       "-out", self.ca_file, "-days", "1", "-subj", f"/CN={name}")
@@ -65,7 +66,7 @@ class SiteCA:
         """A certificate and key for ``name`` signed by this CA: (cert.pem, key.pem)."""
         cert, key, csr = (self.dir / f"{name}.pem", self.dir / f"{name}.key",
                           self.dir / f"{name}.csr")
-        if not cert.exists():
+        if name not in self._issued:
             ext = self.dir / "leaf.ext"
             ext.write_text(LEAF_EXT)
             self._openssl("req", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1",
@@ -73,6 +74,7 @@ class SiteCA:
             self._openssl("x509", "-req", "-in", csr, "-CA", self.ca_file, "-CAkey",
                           self.ca_key, "-CAcreateserial", "-out", cert, "-days", "1",
                           "-extfile", ext)
+            self._issued.add(name)
         return cert, key
 
     def tls_args(self, name: str) -> list[str]:
