@@ -210,6 +210,10 @@ def print_status(st: Status, echo: Callable[[str], Any] = click.echo) -> None:
         echo(f"capture: {cap['camera']} every {cap['interval_s']:g} s, {cap['captures']} "
              f"bundle(s), next in {due}"
              + (f"; last error: {cap['last_error']}" if cap["last_error"] else ""))
+    if live and live.content:
+        from grassd.daemon.content.status import content_line
+
+        echo(one_line(content_line(live.content), None))
     for p in live.inbox_problems if live else ():
         echo(one_line(f"inbox: {p}", None))
     for q in st.quarantined:

@@ -4,6 +4,7 @@ dropped frames, latency, and each receiver's counts (status, ``grassd status``, 
 from __future__ import annotations
 
 import enum
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -49,11 +50,16 @@ class ContentStatus:
         out["source"] = self.source.value
         return out
 
-    def line(self) -> str:
-        """One line for ``grassd status``."""
-        lat = ("" if self.latency_ms_p99 is None else
-               f", latency {self.latency_ms_median:.0f} ms median / {self.latency_ms_p99:.0f} "
-               "ms p99")
-        shown = self.source.value + (f" ({self.detail})" if self.detail else "")
-        return (f"content: {shown}, {self.frames_out_per_s:.1f} frames/s out, "
-                f"{self.frames_in_per_s:.1f} in, {self.dropped} dropped{lat}; map {self.map}")
+
+
+def content_line(d: Mapping[str, Any]) -> str:
+    """One line for ``grassd status`` from a :class:`ContentStatus`'s JSON form ``d``."""
+    lat = ("" if d.get("latency_ms_p99") is None else
+           f", latency {d['latency_ms_median']:.0f} ms median / {d['latency_ms_p99']:.0f} ms "
+           "p99")
+    shown = d["source"] + (f" ({d['detail']})" if d.get("detail") else "")
+    drops = sum(r.get("malformed", 0) + r.get("oversized", 0)
+                for r in (d.get("receivers") or {}).values())
+    return (f"content: {shown}, {d['frames_out_per_s']:.1f} frames/s out, "
+            f"{d['frames_in_per_s']:.1f} in, {d['dropped']} dropped{lat}; "
+            f"{drops} bad packet(s); map {d['map']}")

@@ -41,6 +41,14 @@ Metrics (units in the names: seconds, lux, dE00 = CIEDE2000 units):
 ``grassd_line_request_tries_total{port}``               request tries since its bus opened
 ``grassd_line_request_unanswered_total{port}``          of them without an answer (both
                                                         start again when a reload reopens it)
+``grassd_content_source{source}``                       1 for the source the display shows
+                                                        (only with [content]; docs/content.md)
+``grassd_content_frames_per_second{direction}``         frames out to the controllers and in
+                                                        from live senders, per second
+``grassd_content_dropped_frames_total``                 live frames replaced before they went
+                                                        out
+``grassd_content_latency_p99_seconds``                  live packet in to frame out, p99
+``grassd_content_bad_packets_total{protocol,reason}``   datagrams dropped: malformed, oversized
 ======================================================  ======================================
 
 Example alert rules: ``systemd/grassd-alerts.rules.yml``.
@@ -147,6 +155,8 @@ class _Snapshot(Collector):
         yield g
         yield from self._controllers(st.controllers)
         yield from self._lines({} if st.daemon is None else st.daemon.lines)
+        if st.daemon is not None and st.daemon.content is not None:
+            yield from self._content(st.daemon.content)
         if self.capture_at is not None:
             yield gauge("grassd_capture_last_success_timestamp_seconds",
                         "When the capture station last delivered a bundle (epoch s)",
@@ -192,6 +202,34 @@ class _Snapshot(Collector):
             if c.last_seen is not None:
                 seen.add_metric(name, c.last_seen)
         yield from (reach, sync, fails, seen)
+
+    @staticmethod
+    def _content(c: Mapping[str, Any]) -> Iterator[Metric]:
+        """What the display shows (the content feature's status, docs/content.md)."""
+        src = GaugeMetricFamily("grassd_content_source", "1 for the source the display shows",
+                                labels=["source"])
+        src.add_metric([_label(c["source"])], 1)
+        fps = GaugeMetricFamily("grassd_content_frames_per_second",
+                                "Content frames per second: out to the controllers, in from "
+                                "live senders", labels=["direction"])
+        fps.add_metric(["out"], c["frames_out_per_s"])
+        fps.add_metric(["in"], c["frames_in_per_s"])
+        dropped = CounterMetricFamily("grassd_content_dropped_frames",
+                                      "Live frames replaced by a newer one before they went out")
+        dropped.add_metric([], c["dropped"])
+        yield from (src, fps, dropped)
+        if c.get("latency_ms_p99") is not None:
+            lat = GaugeMetricFamily("grassd_content_latency_p99_seconds",
+                                    "Live packet in to its frame out, 99th percentile (s)")
+            lat.add_metric([], c["latency_ms_p99"] / 1000.0)
+            yield lat
+        bad = CounterMetricFamily("grassd_content_bad_packets",
+                                  "Datagrams the content receivers dropped, by reason",
+                                  labels=["protocol", "reason"])
+        for proto, counts in (c.get("receivers") or {}).items():
+            for reason in ("malformed", "oversized"):
+                bad.add_metric([_label(proto), reason], counts.get(reason, 0))
+        yield bad
 
     @staticmethod
     def _lines(lines: Mapping[str, Mapping[str, Any]]) -> Iterator[Metric]:

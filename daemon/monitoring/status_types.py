@@ -258,12 +258,18 @@ class DaemonState:
     lines: Mapping[str, Mapping[str, Any]]
     waiting_bundles: tuple[WaitingBundle, ...]
     compute_wait: ComputeWait | None = None
+    #: what the display shows (ContentStatus.to_json of grassd.daemon.content: source,
+    #: frames in and out per second, dropped, latency, receivers); None without [content].
+    #: Free-form: its keys are the content feature's.
+    content: Mapping[str, Any] | None = None
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> DaemonState:
         """From a status's JSON form (its live keys; the others are ignored; a daemon from
-        before ``compute_wait`` has none)."""
-        kw = {f.name: d[f.name] for f in fields(cls) if f.name != "compute_wait"}
+        before ``compute_wait`` or ``content`` has none)."""
+        kw = {f.name: d[f.name] for f in fields(cls) if f.name not in ("compute_wait",
+                                                                        "content")}
+        kw["content"] = d.get("content")
         wait = d.get("compute_wait")
         kw["compute_wait"] = None if wait is None else ComputeWait.from_json(wait)
         seen = kw["last_error_seen"]
@@ -283,6 +289,7 @@ class DaemonState:
         d["lines"] = {port: dict(q) for port, q in self.lines.items()}
         d["waiting_bundles"] = [_plain(w) for w in self.waiting_bundles]
         d["compute_wait"] = None if self.compute_wait is None else _plain(self.compute_wait)
+        d["content"] = None if self.content is None else dict(self.content)
         return d
 
 

@@ -687,7 +687,8 @@ class Service:
                 WaitingBundle(bundle=d.bundle.name, id=d.bundle.id, reason=d.reason,
                               since=d.since, retry_in_s=max(d.retry_at - now, 0.0))
                 for d in waiting),
-            compute_wait=self.compute_retry.snapshot())
+            compute_wait=self.compute_retry.snapshot(),
+            content=None if self.content is None else self.content.status().to_json())
         # its health now counts the live errors, waits and capture station too
         return collect_status(self.history, cfg, push_backoff=backoff, daemon=live)
 

@@ -31,7 +31,7 @@ DB_KEYS = ["desired_table", "controllers", "runs", "run_counts", "quarantined", 
 LIVE_KEYS = [*DB_KEYS, "pid", "version", "activity", "started_at", "uptime_s", "config",
              "reload_error", "inbox", "rss_mb", "last_error", "last_error_seen",
              "inbox_problems", "metrics_textfile", "status_page", "capture", "lines",
-             "waiting_bundles", "compute_wait"]
+             "waiting_bundles", "compute_wait", "content"]
 DESIRED_KEYS = ["table_id", "table_crc", "run_id", "per_controller"]
 CONTROLLER_KEYS = ["name", "port", "address", "reachable", "table_id", "table_crc",
                    "desired_crc", "in_sync", "last_seen", "error"]
