@@ -1,0 +1,85 @@
+"""A real sACN sender through the receiver, the player and the frame output to simulated
+controllers (the Python model on ptys): every motor's target is ``table[level]`` of the
+frame sent, on every controller of both buses."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from content_helpers import CapturingSink, content_config
+
+from grassd.daemon.calibration.display_model import controller_pixels
+from grassd.daemon.config.settings import load_default_config
+from grassd.daemon.content.player import ContentPlayer
+from grassd.daemon.hardware.fleet import Fleet
+from grassd.daemon.hardware.frames import FrameOutput
+from grassd.daemon.hardware.simulated import SimulatedHardware
+
+
+class _Tee:
+    """Offers to the frame output and keeps a copy (to know what was sent)."""
+
+    def __init__(self, out: FrameOutput) -> None:
+        self.out, self.kept = out, CapturingSink()
+
+    def offer(self, levels):
+        self.kept.offer(levels)
+        self.out.offer(levels)
+
+    def hold(self):
+        self.out.hold()
+
+    def release(self):
+        self.out.release()
+
+
+def _targets(sim: SimulatedHardware, cfg) -> np.ndarray:
+    """(n_pixels,) every display pixel's motor target [um], through the controllers' ranges."""
+    n = cfg.display.pixel_count
+    ports = list(dict.fromkeys(c.port for c in cfg.controllers))
+    out = np.full(n, -1.0)
+    for c, pix in zip(cfg.controllers, controller_pixels(cfg.controllers, n), strict=True):
+        bus = sim.buses[ports.index(c.port)]
+        ctrl = next(x for x in bus.controllers if x.config.address == c.address)
+        out[pix] = ctrl.targets_um()[:len(pix)]
+    return out
+
+
+def test_sacn_frame_reaches_every_motor_as_table_of_level(tmp_path, ports, sacn_senders):
+    base = load_default_config()
+    sim = SimulatedHardware(base, tmp_path / "hw")
+    cfg = sim.start()
+    fleet = Fleet(cfg.controllers)
+    table = np.rint(np.linspace(0, 20000, 256) ** 1.0).astype(np.uint16)
+    out = None
+    try:
+        reports = fleet.push(table, 7)
+        assert all(r.ok for r in reports), reports
+        out = FrameOutput(cfg.controllers, cfg.display.pixel_count, fps=30.0, fleet=fleet)
+        tee = _Tee(out)
+        player = ContentPlayer(content_config(ports, artnet_enabled=False, hold_s=5.0),
+                               cfg.display.rows, cfg.display.cols, tee).start()
+        try:
+            n = cfg.display.pixel_count
+            snd = sacn_senders(ports[0])
+            for step in range(3):
+                stream = ((np.arange(n) * 13 + step * 71) % 256).astype(np.uint8)
+                snd[1].dmx_data = tuple(int(v) for v in stream)
+                tee.kept.wait_for(lambda f, s=stream: np.array_equal(f, s))
+                deadline = time.monotonic() + 5
+                while time.monotonic() < deadline:
+                    got = _targets(sim, cfg)
+                    if np.array_equal(got, table[stream].astype(float)):
+                        break
+                    time.sleep(0.02)
+                np.testing.assert_array_equal(got, table[stream].astype(float))
+            st = out.stats()
+            assert st.frames_shown >= 3 and st.latency_ms_median is not None
+        finally:
+            player.stop()
+    finally:
+        if out is not None:
+            out.close()
+        fleet.close()
+        sim.stop()
