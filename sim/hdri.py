@@ -53,6 +53,7 @@ __all__ = [
     "REC709_LUMINANCE",
     "load_hdri",
     "read_header",
+    "reduction_factor",
     "check_env",
     "write_exr",
     "write_hdr",
@@ -266,7 +267,7 @@ def read_header(path: str | os.PathLike, max_texels: int = MAX_TEXELS) -> HdriHe
 
 
 def load_hdri(path: str | os.PathLike, max_texels: int = MAX_TEXELS, *,
-              warn: bool = True) -> np.ndarray:
+              warn: bool = True, max_width: int | None = None) -> np.ndarray:
     """Load an equirectangular HDRI (.exr or Radiance .hdr) as validated linear Rec.709 RGB.
 
     Returns a C-contiguous (H, W, 3) float32 array of relative radiance, row 0 = zenith, with
@@ -274,13 +275,83 @@ def load_hdri(path: str | os.PathLike, max_texels: int = MAX_TEXELS, *,
     checked against ``max_texels`` from the header before pixels are read
     (:func:`read_header`; :class:`~grassd.sim.errors.HdriTooLarge` when over). ``warn``: as
     :func:`check_env`.
+
+    ``max_width`` [texels]: a wider map is box-filtered down by the smallest whole factor
+    that divides both sides and makes it at most that wide (:func:`reduction_factor`; the
+    power-preserving filter of :func:`downsample`) band by band as it is decoded, so the
+    full-size map is never held (an 8192 x 4096 EXR read to 2048 x 1024 holds a few MiB of it
+    at a time); HdriError when no such factor exists. :func:`check_env`'s checks are then
+    made on the reduced map (its negative-noise tolerance judged there).
     """
     p = Path(path)
-    if _magic(p)[:4] == _EXR_MAGIC:
-        img = _read_exr(p, max_texels)
-    else:
-        img = _read_hdr(p, max_texels)
+    exr = _magic(p)[:4] == _EXR_MAGIC
+    if max_width is not None:
+        head = read_header(p, max_texels)
+        factor = reduction_factor(head.width, head.height, max_width, str(p))
+        if factor > 1:
+            img = _read_reduced(p, exr, factor, max_texels)
+            return check_env(img, str(p), max_texels, warn=warn)
+    img = _read_exr(p, max_texels) if exr else _read_hdr(p, max_texels)
     return check_env(img, str(p), max_texels, warn=warn)
+
+
+def reduction_factor(width: int, height: int, max_width: int, source: str = "map") -> int:
+    """The smallest whole factor that divides ``width`` and ``height`` and makes the width at
+    most ``max_width`` texels (1 when it already is). HdriError when there is none that
+    leaves :data:`MIN_HEIGHT` rows and whose band of ``factor`` rows holds at most
+    :data:`_MAX_BAND_TEXELS` texels (e.g. a prime height)."""
+    if width <= max_width:
+        return 1
+    for factor in range(-(-width // max_width), width + 1):
+        if factor * width > _MAX_BAND_TEXELS or height // factor < MIN_HEIGHT:
+            break
+        if width % factor == 0 and height % factor == 0:
+            return factor
+    raise HdriError(f"{source}: {width} x {height} cannot be reduced by a small whole factor "
+                    f"to at most {max_width} texels wide; resize it to {max_width} x "
+                    f"{max_width // 2}")
+
+
+#: Texels of the full-size map decoded at once by a reduced read (:func:`load_hdri`), and the
+#: most a band of ``factor`` rows may hold.
+_BAND_TEXELS = 1 << 19
+_MAX_BAND_TEXELS = 1 << 21
+
+
+def _read_reduced(p: Path, exr: bool, factor: int, max_texels: int) -> np.ndarray:
+    """The map at ``p`` box-filtered by ``factor`` band by band (float32 (H/f, W/f, 3))."""
+    source = str(p)
+    bands = _exr_bands if exr else _hdr_bands
+    out: np.ndarray | None = None
+    edges = None
+    for row0, band, height in bands(p, max_texels, factor):
+        if out is None:
+            out = np.empty((height // factor, band.shape[1] // factor, 3), np.float32)
+            edges = np.cos(np.pi * np.arange(height + 1) / height)
+        if not np.isfinite(band).all():
+            bad = np.argwhere(~np.isfinite(band).all(axis=2))
+            raise HdriError(f"{source}: texel(s) hold NaN or infinity (first at row "
+                            f"{row0 + bad[0][0]}, column {bad[0][1]}); re-export the panorama")
+        omega = edges[row0: row0 + band.shape[0]] - edges[row0 + 1: row0 + band.shape[0] + 1]
+        out[row0 // factor: (row0 + band.shape[0]) // factor] = _box(band, factor, omega)
+    if out is None:
+        raise HdriError(f"{source}: the file holds no pixel rows")
+    return out
+
+
+def _box(band: np.ndarray, factor: int, omega: np.ndarray) -> np.ndarray:
+    """Rows of ``band`` (r, W, C), ``r`` a multiple of ``factor``, box-filtered by ``factor``
+    with row weights ``omega`` (r,) (each row's solid angle), as float32 (r/f, W/f, C)."""
+    r, w, c = band.shape
+    om = np.asarray(omega, np.float64).reshape(r // factor, factor, 1, 1, 1)
+    blocks = np.asarray(band, np.float64).reshape(r // factor, factor, w // factor, factor, c)
+    weight = om.sum(axis=1).reshape(r // factor, 1, 1) * factor
+    return ((blocks * om).sum(axis=(1, 3)) / weight).astype(np.float32)
+
+
+def _band_rows(width: int, factor: int, height: int) -> int:
+    """Rows of a band: a multiple of ``factor`` near :data:`_BAND_TEXELS` texels."""
+    return min(height, max(factor, (_BAND_TEXELS // width) // factor * factor))
 
 
 def _header_text(v: object, max_chars: int = 64) -> str:
@@ -376,12 +447,52 @@ def _read_exr(p: Path, max_texels: int) -> np.ndarray:
                             f"dataWindow {height} x {width}")
         if not np.issubdtype(plane.dtype, np.floating):
             raise HdriError(f"{source}: channels are {plane.dtype}, not half or float radiance")
-    img = np.stack(planes, axis=-1).astype(np.float32)
+    return _exr_colour(np.stack(planes, axis=-1).astype(np.float32), header, source)
+
+
+def _exr_colour(img: np.ndarray, header: dict, source: str) -> np.ndarray:
+    """Texels of an EXR with ``header`` (RGB, float32) in linear Rec.709."""
     chroma = header.get("chromaticities")
     if chroma is not None:
         chroma = tuple(float(c) for c in chroma)
         img = _apply_matrix(img, _to_rec709_matrix(chroma[:6], chroma[6:8]), source)
     return img
+
+
+def _exr_bands(p: Path, max_texels: int, factor: int):
+    """(first row, float32 RGB rows (r, W, 3) in linear Rec.709, height) of a single-part
+    scanline or tiled EXR, band by band from the top; the header is checked first."""
+    import Imath
+
+    source = str(p)
+    width, height, header = _exr_header(source, max_texels)
+    names = [n for n in ("R", "G", "B") if n in _check_exr_channels(source, header)]
+    names = names if len(names) == 3 else ["Y"] * 3
+    as_float = Imath.PixelType(Imath.PixelType.FLOAT)
+    infile = _exr_call(source, "header", lambda: OpenEXR.InputFile(source))
+    try:
+        types = infile.header()["channels"]
+        if any(types[n].type.v == Imath.PixelType.UINT for n in set(names)):
+            raise HdriError(f"{source}: channels are unsigned integers, not half or float "
+                            "radiance")
+        y_min = int(header["dataWindow"][0][1])
+        rows = _band_rows(width, factor, height)
+        for row0 in range(0, height, rows):
+            r = min(rows, height - row0)
+            y0, y1 = y_min + row0, y_min + row0 + r - 1
+
+            def read(y0=y0, y1=y1):
+                return {n: infile.channel(n, as_float, y0, y1) for n in set(names)}
+
+            raw = _exr_call(source, "pixel data", read)
+            planes = [np.frombuffer(raw[n], np.float32) for n in names]
+            if any(pl.size != r * width for pl in planes):
+                raise HdriError(f"{source}: channel data disagrees with the header's "
+                                f"dataWindow {height} x {width}")
+            band = np.stack([pl.reshape(r, width) for pl in planes], axis=-1)
+            yield row0, _exr_colour(band, header, source), height
+    finally:
+        infile.close()
 
 
 def _exr_file(source: str, **kw) -> OpenEXR.File:
@@ -477,12 +588,22 @@ def _read_hdr(p: Path, max_texels: int) -> np.ndarray:
         fh.seek(h.data_at)
         # RLE can at worst double the flat size (1-byte literals); never read more than that
         data = fh.read(height * (4 + 8 * width))
-    rgbe = _decode_rgbe(data, height, width, source)
-    img = _rgbe_to_float(rgbe) / np.float32(h.exposure)
+    return _hdr_float(_hdr_oriented(_decode_rgbe(data, height, width, source), h), h, source)
+
+
+def _hdr_oriented(rgbe: np.ndarray, h: _HdrHead) -> np.ndarray:
+    """The RGBE texels (H, W, 4) of a Radiance file row 0 at the top, column 0 at the left
+    (a view)."""
     if h.y_sign == b"+":  # stored bottom-up
-        img = img[::-1]
+        rgbe = rgbe[::-1]
     if h.x_sign == b"-":  # stored right-to-left
-        img = img[:, ::-1]
+        rgbe = rgbe[:, ::-1]
+    return rgbe
+
+
+def _hdr_float(rgbe: np.ndarray, h: _HdrHead, source: str) -> np.ndarray:
+    """RGBE texels of a Radiance file with header ``h`` as float32 linear Rec.709."""
+    img = _rgbe_to_float(rgbe) / np.float32(h.exposure)
     if h.fmt == b"32-bit_rle_xyze":
         to709 = np.linalg.inv(_rgb_to_xyz(_REC709_PRIMARIES, _D65))
         img = np.einsum("hwc,rc->hwr", img, to709.astype(np.float32), optimize=True)
@@ -491,8 +612,32 @@ def _read_hdr(p: Path, max_texels: int) -> np.ndarray:
     return np.ascontiguousarray(img, dtype=np.float32)
 
 
+def _hdr_bands(p: Path, max_texels: int, factor: int):
+    """As :func:`_exr_bands` for a Radiance file, its bands decoded in file order (from the
+    bottom for a file stored bottom-up)."""
+    source = str(p)
+    with p.open("rb") as fh:
+        h = _hdr_header(fh, source, max_texels)
+        fh.seek(h.data_at)
+        data = fh.read(h.height * (4 + 8 * h.width))
+    rows = _band_rows(h.width, factor, h.height)
+    for y0, band in _rgbe_bands(data, h.height, h.width, source, rows):
+        row0 = y0
+        if h.y_sign == b"+":  # stored bottom-up: file rows y0.. are image rows H - y0 - r..
+            row0, band = h.height - y0 - band.shape[0], band[::-1]
+        if h.x_sign == b"-":
+            band = band[:, ::-1]
+        yield row0, _hdr_float(band, h, source), h.height
+
+
 def _decode_rgbe(data: bytes, height: int, width: int, source: str) -> np.ndarray:
     """Decode the RGBE pixel stream (flat or new-style RLE) into (H, W, 4) uint8."""
+    return next(_rgbe_bands(data, height, width, source, height))[1]
+
+
+def _rgbe_bands(data: bytes, height: int, width: int, source: str, rows: int):
+    """Decode the RGBE pixel stream (flat or new-style RLE) ``rows`` scanlines at a time, in
+    file order: (first scanline, (r, W, 4) uint8) of each band."""
     new_rle = (
         8 <= width <= 0x7FFF and len(data) >= 4 and data[0] == 2 and data[1] == 2
         and (data[2] << 8 | data[3]) == width
@@ -503,45 +648,53 @@ def _decode_rgbe(data: bytes, height: int, width: int, source: str) -> np.ndarra
             raise HdriError(f"{source}: truncated Radiance pixel data ({len(data)} of {need} "
                             "bytes)")
         px = np.frombuffer(data, np.uint8, need).reshape(height, width, 4)
-        if ((px[..., 0] == 1) & (px[..., 1] == 1) & (px[..., 2] == 1)).any():
-            raise HdriError(f"{source}: old-style Radiance run-length encoding is not supported; "
-                            "re-save the file (e.g. with oiiotool) as .exr or new-style .hdr")
-        return px
+        for y0 in range(0, height, rows):
+            band = px[y0: y0 + rows]
+            if ((band[..., 0] == 1) & (band[..., 1] == 1) & (band[..., 2] == 1)).any():
+                raise HdriError(f"{source}: old-style Radiance run-length encoding is not "
+                                "supported; re-save the file (e.g. with oiiotool) as .exr or "
+                                "new-style .hdr")
+            yield y0, band
+        return
     least = height * (4 + 4 * 2 * -(-width // 127))  # every scanline in runs of 127
     if len(data) < least:  # before allocating the image
         raise HdriError(f"{source}: truncated Radiance pixel data ({len(data)} bytes; "
                         f"{width} x {height} run-length encoded needs at least {least})")
-    out = bytearray(4 * width * height)
     pos, n_data = 0, len(data)
     marker = bytes((2, 2, width >> 8, width & 0xFF))
     runs = _RUN_BYTES
-    for y in range(height):
-        if data[pos: pos + 4] != marker:
-            what = "truncated" if pos + 4 > n_data else "corrupt"
-            raise HdriError(f"{source}: {what} Radiance pixel data at scanline {y} of {height}")
-        pos += 4
-        for c in range(4):
-            off = (y * 4 + c) * width
-            end = off + width
-            while off < end:
-                if pos >= n_data:
-                    raise HdriError(f"{source}: truncated Radiance pixel data at scanline {y} "
-                                    f"of {height}")
-                n = data[pos]
-                if n > 128:
-                    n -= 128
-                    if off + n > end or pos + 1 >= n_data:
-                        raise HdriError(f"{source}: corrupt run-length data at scanline {y}")
-                    out[off: off + n] = runs[data[pos + 1]][:n]
-                    pos += 2
-                else:
-                    if n == 0 or off + n > end or pos + 1 + n > n_data:
-                        raise HdriError(f"{source}: corrupt or truncated run-length data at "
-                                        f"scanline {y}")
-                    out[off: off + n] = data[pos + 1: pos + 1 + n]
-                    pos += 1 + n
-                off += n
-    return np.frombuffer(out, np.uint8).reshape(height, 4, width).transpose(0, 2, 1)
+    for y0 in range(0, height, rows):
+        r = min(rows, height - y0)
+        out = bytearray(4 * width * r)
+        for y in range(y0, y0 + r):
+            if data[pos: pos + 4] != marker:
+                what = "truncated" if pos + 4 > n_data else "corrupt"
+                raise HdriError(f"{source}: {what} Radiance pixel data at scanline {y} of "
+                                f"{height}")
+            pos += 4
+            for c in range(4):
+                off = ((y - y0) * 4 + c) * width
+                end = off + width
+                while off < end:
+                    if pos >= n_data:
+                        raise HdriError(f"{source}: truncated Radiance pixel data at scanline "
+                                        f"{y} of {height}")
+                    n = data[pos]
+                    if n > 128:
+                        n -= 128
+                        if off + n > end or pos + 1 >= n_data:
+                            raise HdriError(f"{source}: corrupt run-length data at scanline "
+                                            f"{y}")
+                        out[off: off + n] = runs[data[pos + 1]][:n]
+                        pos += 2
+                    else:
+                        if n == 0 or off + n > end or pos + 1 + n > n_data:
+                            raise HdriError(f"{source}: corrupt or truncated run-length data "
+                                            f"at scanline {y}")
+                        out[off: off + n] = data[pos + 1: pos + 1 + n]
+                        pos += 1 + n
+                    off += n
+        yield y0, np.frombuffer(out, np.uint8).reshape(r, 4, width).transpose(0, 2, 1)
 
 
 def _rgbe_to_float(rgbe: np.ndarray) -> np.ndarray:
