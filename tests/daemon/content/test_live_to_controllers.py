@@ -1,13 +1,16 @@
 """A real sACN sender through the receiver, the player and the frame output to simulated
-controllers (the Python model on ptys): every motor's target is ``table[level]`` of the
-frame sent, on every controller of both buses."""
+controllers (the Python model and the C posix firmware on ptys): every motor's target, as
+the controllers report it (GET_POSITIONS), is ``table[level]`` of the frame sent, on every
+controller of both buses."""
 
 from __future__ import annotations
 
 import time
 
 import numpy as np
+import pytest
 from content_helpers import CapturingSink, content_config
+from firmware_tiers import firmware_params
 
 from grassd.daemon.calibration.display_model import controller_pixels
 from grassd.daemon.config.settings import load_default_config
@@ -34,24 +37,23 @@ class _Tee:
         self.out.release()
 
 
-def _targets(sim: SimulatedHardware, cfg) -> np.ndarray:
-    """(n_pixels,) every display pixel's motor target [um], through the controllers' ranges."""
+def _targets(fleet: Fleet, cfg) -> np.ndarray:
+    """(n_pixels,) every display pixel's motor target [um] as its controller reports it."""
     n = cfg.display.pixel_count
-    ports = list(dict.fromkeys(c.port for c in cfg.controllers))
     out = np.full(n, -1.0)
     for c, pix in zip(cfg.controllers, controller_pixels(cfg.controllers, n), strict=True):
-        bus = sim.buses[ports.index(c.port)]
-        ctrl = next(x for x in bus.controllers if x.config.address == c.address)
-        out[pix] = ctrl.targets_um()[:len(pix)]
+        out[pix] = fleet.client(c).read_positions(c.address)[:len(pix), 1]
     return out
 
 
-def test_sacn_frame_reaches_every_motor_as_table_of_level(tmp_path, ports, sacn_senders):
+@pytest.mark.parametrize("firmware", firmware_params("model", "posix"))
+def test_sacn_frame_reaches_every_motor_as_table_of_level(tmp_path, ports, sacn_senders,
+                                                           firmware):
     base = load_default_config()
-    sim = SimulatedHardware(base, tmp_path / "hw")
+    sim = SimulatedHardware(base, tmp_path / "hw", firmware=firmware)
     cfg = sim.start()
     fleet = Fleet(cfg.controllers)
-    table = np.rint(np.linspace(0, 20000, 256) ** 1.0).astype(np.uint16)
+    table = np.rint(np.linspace(0, 20000, 256)).astype(np.uint16)
     out = None
     try:
         reports = fleet.push(table, 7)
@@ -69,7 +71,7 @@ def test_sacn_frame_reaches_every_motor_as_table_of_level(tmp_path, ports, sacn_
                 tee.kept.wait_for(lambda f, s=stream: np.array_equal(f, s))
                 deadline = time.monotonic() + 5
                 while time.monotonic() < deadline:
-                    got = _targets(sim, cfg)
+                    got = _targets(fleet, cfg)
                     if np.array_equal(got, table[stream].astype(float)):
                         break
                     time.sleep(0.02)
