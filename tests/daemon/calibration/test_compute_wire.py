@@ -150,3 +150,27 @@ def test_tables_the_run_would_reject_are_refused_on_arrival(cfg, run):
                         CalibrationResult, WHERE)
     with pytest.raises(ComputeResultRefused, match="has granularity 'pixel'"):
         check_arrival(cfg, other, WHERE)
+
+
+#: an audience region in front of the 2 x 2 display (m, cm)
+AUDIENCE = ('[audience]\npolygon = [[-1.0, 1.5], [1.0, 1.5], [1.0, 3.0], [-1.0, 3.0]]\n'
+            'h_cm = [150, 180]\nground_samples = 3\nheight_samples = 2\n')
+
+
+@pytest.mark.parametrize("extra", ['[tables]\ngranularity = "controller"\n',
+                                   '[tables]\ngranularity = "pixel"\neye = "pixel"\n', AUDIENCE],
+                         ids=["controller", "pixel", "audience"])
+def test_every_kind_of_run_crosses_unchanged(extra, tmp_path):
+    """Runs with tables per controller, per pixel and from a region (their grouping and region
+    summaries are plain data) cross the declared form and pass the arrival checks."""
+    c = parse_config(SMALL + extra, base_dir=tmp_path)
+    init_backend(c)
+    result = Calibrator(c).run(LIGHT, force=True)
+    wire = msgpack.unpackb(msgpack.packb(answer_of(result)), use_list=False)
+    back = read_answer(wire, CalibrationResult, WHERE)
+    check_arrival(c, back, WHERE)
+    assert back.controller_tables.keys() == result.controller_tables.keys()
+    assert all(np.array_equal(back.controller_tables[k], t)
+               for k, t in result.controller_tables.items())
+    assert (json.dumps(_without_timings(back.report()), sort_keys=True)
+            == json.dumps(_without_timings(result.report()), sort_keys=True))
