@@ -14,6 +14,10 @@
    until the typed error and this process's peak RSS growth.
 4. The fuzz of ``tests/daemon/store/test_inbox_fuzz.py``, longer (``--bundles``, default 1000)
    and on another seed: bundles per second and the outcome counts.
+5. Each decoder against a file small on disk and huge decoded (issue #50,
+   :mod:`bench.hostile_decodes`), in a fresh process: what it did and its peak RSS. Before the
+   fix: the daemon's calibration read an 8192 x 4096 EXR whole (1738 MiB), ``grassd measure``
+   a DNG declaring 16384 x 8192 photosites (3168 MiB), the studio an 8192 x 8192 PNG.
 
 Run: ``python -m bench hostile`` or ``python -m bench.bench_hostile [--bundles N] [--seed S]``.
 """
@@ -31,7 +35,8 @@ from pathlib import Path
 
 from bench.daemon_process import BenchDaemon, daemon_config
 from bench.hostile_camera import HostileServer
-from bench.inbox_fuzz import ATTACKS, drop_attack, fuzz_inbox
+from bench.hostile_decodes import dng_declaring, flat_png, run_child, small_dng
+from bench.inbox_fuzz import ATTACKS, drop_attack, fuzz_inbox, write_flat_exr
 from bench.peak_memory import peak_rss_growth, proc_mib
 from grassd.daemon.hardware.camera import OscClient
 from grassd.daemon.runtime.control import request
@@ -149,6 +154,57 @@ def fuzz(bundles: int, seed: int) -> None:
           f"({bundles / dt:.1f} per s): {counts}; no poll blocked or raised")
 
 
+def decoders() -> None:
+    """Part 5: each hostile file through the decoder that meets it, in a fresh process."""
+    import json
+
+    from grassd.daemon.measure.camera_chain import Exposure, MeasureSetup
+
+    with tempfile.TemporaryDirectory(prefix="grassd-bench-decodes-") as tmp:
+        d = Path(tmp)
+        write_flat_exr(d / "sky.exr", [("sky", 8192, 4096, ["B", "G", "R"])], 1.0)
+        photo = small_dng(d / "setup.dng")
+        dng_declaring(photo, d / "huge.dng", 16384, 8192)
+        setup = MeasureSetup((1.0, 1.0, 1.0, 1.0), 1.0, Exposure(0.01, 100, 5.6), 2500.0,
+                             ((1.0, 0, 0), (0, 1.0, 0), (0, 0, 1.0)), "spydercheckr-24",
+                             str(photo), "2026-11-27T00:00:00+00:00", sensor=(128, 64))
+        (d / "setup.json").write_text(json.dumps(setup.to_json()))
+        (d / "huge.png").write_bytes(flat_png(8192, 8192))
+        (d / "capture.toml").write_text("x = " + "[" * 5000 + "]" * 5000 + "\n")
+        cases = [
+            ("EXR 8192 x 4096, the daemon's calibration", "sky.exr", """
+                from grassd.daemon.calibration.calibrate import Calibrator
+                from grassd.daemon.config.settings import resolve_config
+                from grassd.sim.light_input import LightInput
+                Calibrator(resolve_config(None, None)).lighting(
+                    LightInput(hdri=sys.argv[1], ambient_lux=5000.0))"""),
+            ("EXR 8192 x 4096, read to the studio's 2048", "sky.exr", """
+                from grassd.sim.hdri import load_hdri
+                out["shape"] = list(load_hdri(sys.argv[1], max_width=2048).shape)"""),
+            ("DNG declaring 16384 x 8192, a measurement shot", "huge.dng", """
+                from pathlib import Path
+                from grassd.daemon.measure.camera_chain import (Exposure, MeasureSetup, Shot,
+                                                                develop_shot)
+                setup = MeasureSetup.from_json(json.loads(
+                    (Path(sys.argv[1]).parent / "setup.json").read_text()))
+                develop_shot(Shot(Path(sys.argv[1]), Exposure(0.01, 100, 5.6)), setup, 2500.0)"""),
+            ("PNG 8192 x 8192, the studio's picture", "huge.png", """
+                from pathlib import Path
+                from grassd.daemon.studio.views import picture_levels
+                picture_levels(Path(sys.argv[1]).read_bytes(), 8, 8)"""),
+            ("capture.toml nested 5000 deep, validate", "capture.toml", """
+                from grassd.daemon.offline.validate import load_manifest
+                load_manifest(sys.argv[1])"""),
+        ]
+        for what, name, body in cases:
+            t0 = time.perf_counter()
+            out = run_child(body, str(d / name))
+            seconds = time.perf_counter() - t0
+            did = out.get("error", "taken") + (f" {out['shape']}" if "shape" in out else "")
+            print(f"decode: {what:48s} {did} in {seconds:.1f} s (process), peak RSS "
+                  f"{out['peak_mib']:.0f} MiB")
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--bundles", type=int, default=1000)
@@ -157,6 +213,7 @@ def main(argv: list[str] | None = None) -> None:
     attacks()
     camera()
     fuzz(args.bundles, args.seed)
+    decoders()
 
 
 if __name__ == "__main__":

@@ -7,15 +7,11 @@ header."""
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
-import textwrap
-
 import numpy as np
 import OpenEXR
 import pytest
 
+from bench.hostile_decodes import run_child
 from bench.inbox_fuzz import write_flat_exr, write_zero_exr
 from bench.peak_memory import refusal_cost
 from grassd.sim import hdri
@@ -25,17 +21,12 @@ pytestmark = pytest.mark.timeout(120)
 
 PEAK_MIB = 300.0
 
-#: load_hdri(argv[1], max_width=2048) in a fresh process: its shape, range and peak RSS.
-CHILD = textwrap.dedent("""
-    import json, sys
-    from grassd.sim.hdri import load_hdri
-    img = load_hdri(sys.argv[1], max_width=2048)
-    out = {"shape": list(img.shape), "min": float(img.min()), "max": float(img.max())}
-    for line in open("/proc/self/status"):
-        if line.startswith("VmHWM:"):
-            out["peak_mib"] = int(line.split()[1]) / 1024
-    print(json.dumps(out))
-""")
+#: load_hdri(argv[1], max_width=2048): its shape and range.
+REDUCED = """
+from grassd.sim.hdri import load_hdri
+img = load_hdri(sys.argv[1], max_width=2048)
+out.update(shape=list(img.shape), min=float(img.min()), max=float(img.max()))
+"""
 
 
 def _map(h: int = 96, w: int = 192) -> np.ndarray:
@@ -94,10 +85,7 @@ def test_8192_x_4096_exr_and_hdr_read_to_2048_in_little_memory(tmp_path):
                                1.0)
     hdr_bytes = _rle_hdr(tmp_path / "sky.hdr", 8192, 4096)
     for name, size in (("sky.exr", exr_bytes), ("sky.hdr", hdr_bytes)):
-        done = subprocess.run([sys.executable, "-c", CHILD, str(tmp_path / name)],
-                              capture_output=True, text=True, timeout=100)
-        assert done.returncode == 0, done.stderr[-2000:]
-        out = json.loads(done.stdout.strip().splitlines()[-1])
+        out = run_child(REDUCED, str(tmp_path / name))
         print(f"\n{name} ({size / 1024:.0f} KiB) of 8192 x 4096 read to 2048: {out}")
         assert out["shape"] == [1024, 2048, 3], out
         assert abs(out["min"] - 1.0) < 1e-2 and abs(out["max"] - 1.0) < 1e-2, out  # RGBE: 1/256

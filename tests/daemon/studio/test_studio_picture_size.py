@@ -8,64 +8,32 @@ sent four times at once, with a 400 naming the limit, and its server stays under
 from __future__ import annotations
 
 import io
-import json
-import subprocess
-import sys
-import textwrap
-import zlib
 from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 from conftest import png_bytes, start_studio, stop_studio, vm_mib
 
+from bench.hostile_decodes import flat_png, run_child
 from grassd.daemon.studio.views import MAX_IMAGE_PIXELS
 
 pytestmark = pytest.mark.timeout(300)
 
 PEAK_MIB = 300.0
 
-#: picture_levels of the file argv[1] for a display of argv[2] x argv[3], in a fresh process:
-#: prints the outcome and the peak RSS (VmHWM) as JSON.
-CHILD = textwrap.dedent("""
-    import json, sys
-    from pathlib import Path
-    from grassd.daemon.studio import views
-    out = {}
-    try:
-        levels = views.picture_levels(Path(sys.argv[1]).read_bytes(), int(sys.argv[2]),
-                                      int(sys.argv[3]))
-        out["shape"] = list(levels.shape)
-    except Exception as exc:
-        out.update(error=type(exc).__name__, message=str(exc))
-    for line in open("/proc/self/status"):
-        if line.startswith("VmHWM:"):
-            out["peak_mib"] = int(line.split()[1]) / 1024
-    print(json.dumps(out))
-""")
-
-
-def flat_png(width: int, height: int) -> bytes:
-    """An 8-bit RGB PNG of ``width`` x ``height`` black pixels, compressed row by row (never
-    held whole)."""
-    def chunk(kind: bytes, body: bytes) -> bytes:
-        return (len(body).to_bytes(4, "big") + kind + body
-                + zlib.crc32(kind + body).to_bytes(4, "big"))
-
-    z = zlib.compressobj(9)
-    row = bytes(1 + 3 * width)  # filter 0, then the row
-    idat = b"".join(z.compress(row) for _ in range(height)) + z.flush()
-    ihdr = width.to_bytes(4, "big") + height.to_bytes(4, "big") + bytes([8, 2, 0, 0, 0])
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", idat) + chunk(b"IEND",
-                                                                                     b"")
+#: picture_levels of the file argv[1] for a display of argv[2] x argv[3] (the studio's decode).
+DECODE = """
+from pathlib import Path
+from grassd.daemon.studio import views
+levels = views.picture_levels(Path(sys.argv[1]).read_bytes(), int(sys.argv[2]),
+                              int(sys.argv[3]))
+out["shape"] = list(levels.shape)
+"""
 
 
 def _decode(tmp_path, data: bytes, rows: int = 8, cols: int = 8) -> dict:
     path = tmp_path / "picture"
     path.write_bytes(data)
-    done = subprocess.run([sys.executable, "-c", CHILD, str(path), str(rows), str(cols)],
-                          capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, done.stderr[-2000:]
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    return run_child(DECODE, str(path), str(rows), str(cols))
 
 
 @pytest.fixture(scope="module")
