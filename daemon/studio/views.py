@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from grassd.daemon.content.colour_map import DisplayColours, levels_for_picture
 from grassd.daemon.studio.inputs import StudioInputError
 
 #: Just-noticeable colour difference (CIEDE2000) the contrast view counts steps against: about
@@ -123,14 +124,17 @@ def audience_warning(ranges: np.ndarray, eye_range: float,
     return np.asarray(ranges) < (1.0 - loss) * eye_range
 
 
-def picture_levels(data: bytes, rows: int, cols: int) -> np.ndarray:
+def picture_levels(data: bytes, rows: int, cols: int, colours: DisplayColours | None = None,
+                   mode: str = "nearest_de00") -> np.ndarray:
     """An uploaded picture (PNG, JPEG, ...) as the (rows, cols) 8-bit levels a grass display
-    shows: its luminance (ITU-R BT.601 weights, as Pillow's "L") box-filtered to one value
-    per pixel. The size is checked from the header, before a pixel is decoded:
-    :class:`PictureTooLarge` for a side over :data:`MAX_IMAGE_SIDE` or, at the scale it would
-    be decoded at (a JPEG's reduced by its decoder to no less than ``cols`` x ``rows``), more
-    than :data:`MAX_IMAGE_PIXELS` pixels. ValueError with the reason for bytes that are not a
-    readable picture."""
+    shows: box-filtered to one colour per pixel, then mapped as the daemon's content is
+    (:func:`grassd.daemon.content.colour_map.levels_for_picture`: the level whose predicted
+    ``colours`` are nearest in CIEDE2000; without ``colours`` its luminance, ITU-R BT.601
+    weights as Pillow's "L"). The size is checked from the header, before a pixel is
+    decoded: :class:`PictureTooLarge` for a side over :data:`MAX_IMAGE_SIDE` or, at the scale
+    it would be decoded at (a JPEG's reduced by its decoder to no less than ``cols`` x
+    ``rows``), more than :data:`MAX_IMAGE_PIXELS` pixels. ValueError with the reason for bytes
+    that are not a readable picture."""
     from PIL import Image, UnidentifiedImageError
 
     if not data:
@@ -157,13 +161,14 @@ def picture_levels(data: bytes, rows: int, cols: int) -> np.ndarray:
                     f"(the display shows {cols} x {rows}) or send a JPEG", width=width,
                     height=height, limit=MAX_IMAGE_PIXELS)
             im.load()
-            grey = im.convert("L").resize((cols, rows), Image.Resampling.BOX)
+            rgb = (im if im.mode == "RGB" else im.convert("RGB")).resize(
+                (cols, rows), Image.Resampling.BOX)
     except UnidentifiedImageError:
         raise ValueError("not a picture Pillow can read (PNG, JPEG, ...): send the file's own "
                          "bytes as the request's body") from None
     except (OSError, Image.DecompressionBombError) as exc:  # a known format, broken or huge
         raise ValueError(f"not a picture Pillow can read: {exc}") from None
-    return np.asarray(grey, np.uint8)
+    return levels_for_picture(np.asarray(rgb, np.uint8), mode, colours)
 
 
 def display_view(levels: np.ndarray, table_mm: np.ndarray, lengths_mm: np.ndarray,
