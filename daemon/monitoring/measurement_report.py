@@ -534,6 +534,13 @@ def render_report(report: Mapping[str, Any], past: Sequence[Mapping[str, Any]] =
                     ("Pixels on the display", _heatmaps(report)),
                     ("Pixels", _pixel_table(report)),
                     ("Characteristic: measured vs predicted", _characteristic(report))]
+    elif report.get("status") == "refused":  # its photos were not evidence
+        findings = _get(report, "evidence", "findings") or []
+        lead = ('<p class="reason">The photos were not evidence of the display: nothing was '
+                "pushed; the last tables stay active.</p><h2>Refused</h2>"
+                + "".join(f'<p class="reason">{_esc(f.get("kind"))}: {_esc(f.get("detail"))}'
+                          "</p>" for f in findings if isinstance(f, Mapping)))
+        sections = [("Uniformity", _uniformity(report))] if "uniformity" in report else []
     else:
         lead = (f'<p class="reason">The measurement did not finish; the last tables stay '
                 f"active.</p><h2>Error</h2><p class=\"reason\">{_esc(report.get('error'))}</p>")

@@ -7,7 +7,8 @@ history, calibrator, lux sensor, stop event and progress) and:
   or a second one) and reads the camera's set-up (``measure/setup.json``);
 * takes the light a scheduled run would (the last bundle's panorama, the lux now);
 * runs :func:`grassd.daemon.measure.run.run_measurement`;
-* when the measurement is accepted (it made the display more uniform): saves the correction
+* when the measurement is accepted (its photos are evidence and it made the display more
+  uniform): saves the correction
   (``measure/correction.json``, atomically), then commits the corrected tables as a run whose
   trigger is "measure" and pushes them; every later run includes the correction;
 * whatever happened, writes the measurement's report (``measure/<id>.json`` and ``.html``) with

@@ -139,6 +139,8 @@ def _refused(site: Site, source: Callable[[], np.ndarray]) -> dict:
     assert not any(c.in_pattern for bus in site.sim.buses for c in bus.controllers)
     saved = json.loads(Path(report["report"]).read_text())
     assert saved["status"] == "refused" and not saved["evidence"]["accepted"]
+    page = Path(report["report"]).with_suffix(".html").read_text()
+    assert "Refused" in page and saved["evidence"]["findings"][0]["kind"] in page
     return report
 
 
@@ -194,6 +196,28 @@ def test_a_photo_of_another_display_state_is_refused(site):
         return
     [mismatch] = [f for f in ev["findings"] if f["kind"] == Refusal.SHOT_MISMATCH.value]
     assert mismatch["shots"] == [wrong], (mismatch, ev["order"])
+
+
+def test_verification_photos_that_disagree_with_the_correction_are_refused(site):
+    """The photos before the correction are honest; each photo after it shows the state the
+    display held for the shot before (the order of the verification shots is drawn too)."""
+    n_before = len(site.honest_states) - 5  # the five verification shots come last
+    calls: list[np.ndarray] = []
+
+    def after_one_behind() -> np.ndarray:
+        calls.append(np.array(site.sim.positions_um(), dtype=np.float64))
+        if len(calls) <= n_before:
+            return site.display.scene()
+        return site.photo_of(calls[-2])
+
+    report = _refused(site, after_one_behind)
+    ev = report["evidence"]
+    kinds = _kinds(report)  # the honest photos before pass; the uniformity may fail too
+    assert Refusal.VERIFICATION in kinds and kinds <= {Refusal.VERIFICATION,
+                                                       Refusal.NOT_MORE_UNIFORM}, ev["findings"]
+    [finding] = [f for f in ev["findings"] if f["kind"] == Refusal.VERIFICATION.value]
+    assert set(finding["shots"]) <= {x for x in ev["order"] if x.startswith("after-")}
+    assert len(finding["shots"]) >= 4, finding  # at most one neighbour could look alike
 
 
 def test_only_the_newest_measurements_keep_their_photos(site):
