@@ -294,10 +294,10 @@ class _Watch:
         on, a task that raised, an answer Dask could not read in that form."""
         from distributed import KilledWorker
 
-        if self.worker is None:  # finished before the first look: the worker holding it
-            holders = self.client.who_has([fut]).get(fut.key, ())
-            self.worker = holders[0] if holders else None
         try:
+            if self.worker is None:  # finished before the first look: the worker holding it
+                holders = self.client.who_has([fut]).get(fut.key, ())
+                self.worker = holders[0] if holders else None
             return fut.result()
         except KilledWorker as exc:
             raise ComputeUnavailable(f"the Dask workers at {self.address} died running the "

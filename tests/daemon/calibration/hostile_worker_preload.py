@@ -17,7 +17,7 @@ COMMAND = f"import os; open({MARK!r}, 'a').write(f'{{os.getpid()}}\\n')"
 
 
 class Payload:
-    """Unpickled, it runs :data:`COMMAND` (``exec``), as the review's ran ``id``."""
+    """Unpickled, it runs :data:`COMMAND` (``exec``)."""
 
     def __reduce__(self) -> tuple[object, tuple[str]]:
         return exec, (COMMAND,)
