@@ -1,8 +1,9 @@
 """Content frames on the wire (:mod:`grassd.daemon.hardware.frames`): the Python model and the
-C posix firmware on real ptys paced at 115200 baud, two lines of two controllers each (an 8 x 8
-display). Every motor's target is ``table[level]`` of the frame sent; the controllers show a
-frame together (the posix firmware's target trace, across its processes); a push, a
-controller reboot and a measurement's hold during a stream; a controller without the latch."""
+C posix firmware (for the targets also the Cortex-M7 image under QEMU) on real ptys paced at
+115200 baud, two lines of two controllers each (an 8 x 8 display). Every motor's target is
+``table[level]`` of the frame sent; the controllers show a frame together (the posix
+firmware's target trace, across its processes); a push, a controller reboot and a
+measurement's hold during a stream; a controller without the latch."""
 
 from __future__ import annotations
 
@@ -120,7 +121,7 @@ def start_lines(firmware: str, tmp: Path, stack: ExitStack, **kw) -> list:
 FIRMWARES = [pytest.param("model", id="model"), *firmware_params("posix")]
 
 
-@pytest.mark.parametrize("firmware", FIRMWARES)
+@pytest.mark.parametrize("firmware", [*FIRMWARES, *firmware_params("qemu")])
 def test_every_target_is_the_table_of_the_frame_sent(tmp_path, firmware):
     with ExitStack() as stack:
         buses = start_lines(firmware, tmp_path, stack)
