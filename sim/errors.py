@@ -42,8 +42,8 @@ def renderer_missing(why: str) -> RendererMissing:
         f"the renderer needs Taichi, which is not installed here ({sys.platform} "
         f"{platform.machine()}, Python {platform.python_version()}: {why}); Taichi has wheels "
         "for x86-64 Linux and Windows and for Apple silicon macOS: pip install 'grassd[sim]' "
-        "there, or set [compute] scheduler = \"tcp://host:8786\" (grassd calibrate "
-        "--scheduler) to simulate on a Dask cluster whose workers have it")
+        "there, or set [compute] scheduler = \"tls://host:8786\" and its TLS files (grassd "
+        "calibrate --scheduler) to simulate on a Dask cluster whose workers have it")
 
 
 def require_renderer() -> None:
