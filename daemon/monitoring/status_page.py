@@ -242,6 +242,25 @@ def _lines(lines: Mapping[str, Mapping[str, Any]]) -> str:
     return _table(["port", "line", "unanswered (%)", "chunk (bytes)", "detail"], rows)
 
 
+def _content(c: Mapping[str, Any]) -> str:
+    """What the display shows (the content feature's status, docs/content.md)."""
+    def ms(v: float | None) -> str:
+        return "-" if v is None else f"{v:.0f}"
+
+    bad = sum(r.get("malformed", 0) + r.get("oversized", 0)
+              for r in (c.get("receivers") or {}).values())
+    out = c.get("output") or {}
+    rows = [[_td(c["source"]), _td(c.get("detail") or "-"),
+             _td(f"{c['frames_out_per_s']:.1f}", "n"), _td(f"{c['frames_in_per_s']:.1f}", "n"),
+             _td(c["dropped"], "n"),
+             _td(f"{ms(c.get('latency_ms_median'))} / {ms(c.get('latency_ms_p99'))}", "n"),
+             _td(f"{ms(out.get('latency_ms_median'))} / {ms(out.get('latency_ms_p99'))}", "n"),
+             _td(bad, "n"), _td(c["map"])]]
+    return _table(["source", "detail", "frames out /s", "in /s", "dropped",
+                   "packet to frame (ms, median / p99)", "to last ACK (ms)", "bad packets",
+                   "map"], rows)
+
+
 def _runs(runs: Sequence[RunRecord], clock: _Clock) -> str:
     rows = []
     for r in runs:
@@ -350,6 +369,7 @@ def render(status: Status, history: History, *, timezone: str,
         ("Display measurement", _measurement(status.state_dir, clock)),
         ("Controllers", _controllers(status.controllers, push_failures or {}, clock)),
         ("Serial lines", _lines({} if live is None else live.lines)),
+        *([("Content", _content(live.content))] if live is not None and live.content else []),
         ("Last runs", _runs(history.runs(LAST_RUNS), clock)),
         ("Trends", _trends(history, clock)),
         ("Rejected and quarantined bundles", _refused(history, clock)),

@@ -1,5 +1,5 @@
 """What the operator sees of content: a playing player's status through the daemon's status
-JSON, ``grassd status``'s line and the Prometheus metrics."""
+JSON, ``grassd status``'s line, the Prometheus metrics and the status page."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from status_samples import daemon_state, status
 from grassd.daemon.cli.run import print_status
 from grassd.daemon.content.player import ContentPlayer
 from grassd.daemon.monitoring.metrics import registry
+from grassd.daemon.monitoring.status_page import render
 from grassd.daemon.monitoring.status_types import Status
 from grassd.daemon.store.history import History
 
@@ -47,6 +48,12 @@ def test_status_line_and_metrics_of_a_playing_source(ports, sink, sacn_senders, 
     assert 20 <= out <= 40, out
     assert 'grassd_content_bad_packets_total{protocol="sacn",reason="malformed"} 0.0' in text
     assert "grassd_content_latency_p99_seconds" in text
+    with History(tmp_path / "h.sqlite") as h:
+        page = render(back, h, timezone="UTC")
+    assert "<h2>Content</h2>" in page and '<td data-label="source">sacn</td>' in page
+    with History(tmp_path / "h.sqlite") as h:
+        assert "<h2>Content</h2>" not in render(status(daemon=daemon_state()), h,
+                                                timezone="UTC")
 
 
 def test_a_status_without_content_has_no_content_metrics(tmp_path):
