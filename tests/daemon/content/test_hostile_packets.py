@@ -1,5 +1,6 @@
-"""Malformed packets (a fuzz with a fixed seed and budget) and a flood of 10,000 packets/s:
-each is dropped and counted, never fatal, and neither the frame rate nor memory moves."""
+"""Malformed packets (a fuzz with a fixed seed and budget) and a flood of 10,000 packets/s
+(junk, other universes, well-formed packets from ever new senders): each is dropped and
+counted, never fatal, and neither the frame rate nor memory moves."""
 
 from __future__ import annotations
 
@@ -118,8 +119,16 @@ def test_fuzz_over_udp_counted_never_fatal(ports, sink, sacn_senders):
 
 
 FLOOD = r"""
-import socket, sys, time
+import os, socket, sys, time
+from sacn.messages.data_packet import DataPacket
 port, rate, seconds = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3])
+
+def sacn(universe, priority):  # a well-formed packet from a sender never seen before
+    return bytes(DataPacket(cid=tuple(os.urandom(16)), sourceName="flood", universe=universe,
+                            dmxData=(255,) * 32, priority=priority).getBytes())
+
+fresh = [sacn(1, 0) for _ in range(512)]  # our universe, lowest priority, new senders
+other = sacn(9, 100)  # a universe the display does not use
 junk = [bytes(range(256)) * 2, b"\x00\x10\x00\x00ASC-E1.17\x00\x00\x00" + bytes(600),
         b"x" * 1400]
 s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -127,7 +136,9 @@ t0 = time.monotonic(); n = 0
 while time.monotonic() - t0 < seconds:
     target = int((time.monotonic() - t0) * rate)
     while n < target:
-        s.sendto(junk[n % 3], ("127.0.0.1", port)); n += 1
+        k = n % 8
+        data = fresh[n // 8 % 512] if k == 0 else other if k == 1 else junk[k % 3]
+        s.sendto(data, ("127.0.0.1", port)); n += 1
     time.sleep(0.001)
 print(n)
 """
@@ -169,6 +180,8 @@ def test_flood_keeps_frame_rate_and_memory(ports, sink, sacn_senders):
         assert got >= 0.9 * fps
         assert rss1 - rss0 <= 16 * 2**20
         assert st.malformed + st.oversized >= 0.5 * sent  # the rest: the kernel's buffer
+        assert st.refused > 0 and st.ignored > 0  # new senders beyond the cap; universe 9
+        assert p.mergers[ContentSource.SACN].senders <= cfg.sacn.max_sources
         assert p.status().source is ContentSource.SACN
     finally:
         p.stop()
