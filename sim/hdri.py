@@ -15,7 +15,11 @@ Checks (:func:`check_env`, run by :func:`load_hdri`) raises :class:`HdriError` w
 line naming the problem for: a missing, unreadable, truncated or corrupt file; a map that is not
 2:1 or has fewer than :data:`MIN_HEIGHT` rows; more than ``max_texels`` texels (default
 :data:`MAX_TEXELS`, checked from the header before any pixel is allocated); NaN or infinite
-texels; negative texels beyond compression noise; no light above the horizon.
+texels; negative texels beyond compression noise; no light above the horizon. A size over
+``max_texels`` is :class:`~grassd.sim.errors.HdriTooLarge`; :func:`read_header` makes every
+check that needs no pixel. A reader that uses a narrower map passes ``max_width`` to
+:func:`load_hdri`: the map is then box-filtered band by band as it is decoded, never held
+whole.
 
 Negative texels: lossy EXR compression (DWAA/DWAB, used by the shared panoramas) rings around
 bright features and leaves a few values slightly below zero. The noise scale is set by the map's
