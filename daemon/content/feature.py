@@ -5,7 +5,8 @@ The service joins it through :func:`start_content` (a :class:`ContentFeature`:
 ``handles(cmd)``, ``handle(request)``, ``status()``, ``stop()``). Commands::
 
     {"cmd": "content_frame", "levels": [n_pixels ints 0..255], "hold_s": 10}
-        -> {"ok": true}      one frame (row-major from the top left) above the playlist
+        -> {"ok": true}      one frame (row-major from the top left) above the playlist;
+                             or "levels_hex": two hex digits a pixel
     {"cmd": "content_show", "path": "/abs/picture.gif", "duration_s": 30}
         -> {"ok": true, "frames": 12}   the daemon reads the file (readable by its user)
     {"cmd": "content_stop"}  -> {"ok": true}   ends a frame or picture asked for
@@ -22,6 +23,7 @@ import json
 import logging
 import math
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +42,8 @@ log = logging.getLogger(__name__)
 #: the commands the feature answers; only ``content_status`` is read-only
 COMMANDS = frozenset({"content_frame", "content_show", "content_stop", "content_status"})
 READ_ONLY = frozenset({"content_status"})
+#: seconds between looks at which table is active (a new one brings new colours)
+COLOURS_CHECK_S = 2.0
 #: the reference viewpoint (h cm, d m, theta deg) whose colours content is mapped onto
 REFERENCE_VIEWPOINT = (170.0, 2.0, 0.0)
 
@@ -74,6 +78,7 @@ class ContentFeature:
         self.history = history
         self.reports_dir = reports_dir
         self._colours: tuple[int | None, DisplayColours | None] = (None, None)
+        self._checked_at = float("-inf")
         self._lock = threading.Lock()
         from zoneinfo import ZoneInfo
 
@@ -85,10 +90,16 @@ class ContentFeature:
                                     hour=lambda: datetime.now(tz).hour, live=live)
 
     def colours(self) -> DisplayColours | None:
-        """The active table's predicted colours (cached per table)."""
+        """The active table's predicted colours (cached per table; which table is active is
+        looked up at most every :data:`COLOURS_CHECK_S`)."""
+        now = time.monotonic()
+        with self._lock:
+            if now < self._checked_at + COLOURS_CHECK_S:
+                return self._colours[1]
         cur = self.history.current_table()
         run = None if cur is None else cur.id
         with self._lock:
+            self._checked_at = now
             if run == self._colours[0]:
                 return self._colours[1]
         colours = None
@@ -147,14 +158,7 @@ class ContentFeature:
             self.player.stop_request()
             return {"ok": True}
         if cmd == "content_frame":
-            n = self.player.n_pixels
-            levels = req.get("levels")
-            if (not isinstance(levels, list) or len(levels) != n or not all(
-                    isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 255
-                    for v in levels)):
-                raise ValueError(f'content_frame needs "levels": {n} integers 0..255 (the '
-                                 "display's pixels row by row from the top left)")
-            self.player.set_frame(np.asarray(levels, np.uint8),
+            self.player.set_frame(_frame_levels(req, self.player.n_pixels),
                                   _seconds(req, "hold_s", self.cfg.content.hold_s))
             return {"ok": True}
         if cmd == "content_show":
@@ -168,6 +172,23 @@ class ContentFeature:
             self.player.show(anim, _seconds(req, "duration_s", max(anim.length_s, 10.0)))
             return {"ok": True, "frames": len(anim.frames), "length_s": anim.length_s}
         raise ValueError(f"unknown content command {cmd!r}")
+
+
+def _frame_levels(req: dict[str, Any], n: int) -> np.ndarray:
+    """The ``n`` levels of a ``content_frame`` request: ``levels`` (a list of integers
+    0..255) or ``levels_hex`` (two hex digits a pixel: a frame of 4096 pixels fits a request
+    line); raises ValueError naming the forms."""
+    levels, text = req.get("levels"), req.get("levels_hex")
+    if isinstance(text, str) and levels is None and len(text) == 2 * n:
+        try:
+            return np.frombuffer(bytes.fromhex(text), np.uint8).copy()
+        except ValueError:
+            pass
+    elif (isinstance(levels, list) and text is None and len(levels) == n and all(
+            isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 255 for v in levels)):
+        return np.asarray(levels, np.uint8)
+    raise ValueError(f'content_frame needs "levels": {n} integers 0..255, or "levels_hex": '
+                     f"{2 * n} hex digits (the display's pixels row by row from the top left)")
 
 
 def _seconds(req: dict[str, Any], key: str, default: float) -> float:

@@ -53,8 +53,13 @@ def test_script_frame_shown_then_next_source(daemon, sink):
         sink.wait_for(lambda f: f.tolist() == levels)
         st = request(sock, {"cmd": "content_status"})["content"]
         assert st["source"] == "script" and st["frames_out"] > 0
+        as_hex = bytes(range(100, 132)).hex()
+        assert request(sock, {"cmd": "content_frame", "levels_hex": as_hex})["ok"]
+        sink.wait_for(lambda f: f.tolist() == list(range(100, 132)))
         with pytest.raises(ControlError, match="32 integers 0..255"):
             request(sock, {"cmd": "content_frame", "levels": [1, 2, 300]})
+        with pytest.raises(ControlError, match="64 hex digits"):
+            request(sock, {"cmd": "content_frame", "levels_hex": "zz" * 32})
         with pytest.raises(ControlError, match="hold_s"):
             request(sock, {"cmd": "content_frame", "levels": levels, "hold_s": -1})
     finally:
