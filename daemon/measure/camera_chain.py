@@ -21,6 +21,7 @@ Units: exposure values s x ISO / f-number^2; lux; colours linear ProPhoto (grey 
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 from dataclasses import asdict, dataclass
@@ -153,10 +154,11 @@ def load_setup(path: Path) -> MeasureSetup:
                                 "again") from None
 
 
+@functools.lru_cache(maxsize=4)
 def setup_sensor(setup: MeasureSetup) -> tuple[int, int] | None:
     """The sensor size (width, height in photosites) every shot must have: the set-up's, or
     for a set-up made before it was kept, its photo's (from the header) while that file is
-    there; None when neither is known."""
+    there; None when neither is known (said once per set-up and process)."""
     from grassd.calib.errors import RawReadError
     from grassd.calib.raw import raw_sensor
 
