@@ -21,7 +21,10 @@ Server -> simulator: ``("job", owner, job, kind, payload, word)`` with kind ``"v
 condition, the picture's levels and the condition pinned as B, or None) or
 ``"characteristic"`` (a condition and keyword arguments); ``("cancel", owner, word)``;
 ``("light", LightSource)``; ``("forget", name)`` (an upload the server dropped);
-``("stop", word)`` (every job stops, and the process ends).
+``("tick", word)`` (the word moved so that the launch in flight reaches its job's check: sent
+every half slice while jobs of several owners are in flight, so a job whose turn is over gives
+way, :mod:`grassd.daemon.studio.worker`); ``("stop", word)`` (every job stops, and the process
+ends).
 Simulator -> server: ``("ready", seconds)``, ``("msg", job, dict)``, ``("result", job,
 value)``, ``("error", job, kind, message)`` with kind "input" (a StudioInputError), "superseded"
 or the exception's class name.
@@ -163,6 +166,9 @@ def simulator_main(conn: Connection, args: StudioArgs,
             studio.lights.add_source(item[1])
         elif item[0] == "forget":
             studio.lights.forget(item[1])
+        elif item[0] == "tick":
+            if superseding is not None:
+                superseding.took(item[1])
         elif item[0] == "stop":
             worker.cancel_all()
             if superseding is not None:
@@ -183,6 +189,8 @@ class SimulatorProcess:
         self._on_ready = on_ready
         self._jobs = itertools.count(1)
         self._pending: dict[int, tuple[asyncio.Future, Callable | None]] = {}
+        self._owners: dict[int, Any] = {}  # the owner of each job in flight
+        self._tick: asyncio.TimerHandle | None = None
         self._lock = threading.Lock()
         self._loop = asyncio.get_running_loop()
         self._lights: list[LightSource] = []  # uploads, given again to a restarted process
@@ -246,6 +254,7 @@ class SimulatorProcess:
                     f"the studio's simulator process ended (exit code {self.proc.exitcode}) "
                     f"during this request; it starts again with the next one"))
         self._pending.clear()
+        self._owners.clear()
 
     def _dispatch(self, item: tuple) -> None:
         if item[0] == "ready":
@@ -258,6 +267,7 @@ class SimulatorProcess:
                 entry[1](item[2])
             return
         fut, _ = self._pending.pop(job, (None, None))
+        self._owners.pop(job, None)
         if fut is None or fut.done():
             return
         if item[0] == "result":
@@ -276,8 +286,25 @@ class SimulatorProcess:
         job = next(self._jobs)
         fut = self._loop.create_future()
         self._pending[job] = (fut, on_message)
+        self._owners[job] = owner
         self._send(("job", owner, job, kind, payload), supersedes=True)
+        self._schedule_tick()
         return fut
+
+    def _schedule_tick(self) -> None:
+        """Tick every half slice while jobs of two owners or more are in flight."""
+        if self._tick is None and len(set(self._owners.values())) >= 2:
+            self._tick = self._loop.call_later(self._args.limits.slice_s / 2, self._ticked)
+
+    def _ticked(self) -> None:
+        self._tick = None
+        if self._stopped or len(set(self._owners.values())) < 2:
+            return
+        try:
+            self._send(("tick",), supersedes=True)
+        except (OSError, RuntimeError):  # ending, or ended: the next job starts it again
+            return
+        self._schedule_tick()
 
     def cancel(self, owner: int) -> None:
         """Stop the owner's jobs (its page went away)."""

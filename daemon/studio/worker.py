@@ -8,8 +8,11 @@ the views at once instead of waiting for stale work.
 The owners take turns (round robin), not one queue in order of arrival: a page whose job has
 run for its slice (:attr:`Worker.slice_s`) while another page's job waits gives way at its next
 check (:class:`Yielded`), and goes on after the others have had theirs, from what it kept (a
-characteristic's complete rounds, an image's passes); its next slice is twice as long, so that
-every job ends however many pages wait. So one page's costly input does not hold another
+characteristic's complete rounds, an image's passes); its next slice is twice as long (up to
+:data:`MOST_DOUBLINGS` times), so that a job whose steps are long ends however many pages
+wait. In the simulator process the server moves the interrupt word every half slice while
+several owners have jobs (:mod:`grassd.daemon.studio.process`), so a launch in flight reaches
+a check then and not only at its round's end. So one page's costly input does not hold another
 page's first curve back.
 
 A job submitted as ``yields`` (a script's API request) gives way to the others (a page's) at
@@ -37,6 +40,11 @@ log = logging.getLogger(__name__)
 #: Seconds a page's job runs, while another page's waits, before it gives way (the default of
 #: :attr:`~grassd.daemon.studio.limits.StudioLimits.slice_s`).
 SLICE_S: float = 1.0
+#: Most times a job's slice doubles (at each turn it gives): a job then runs at most
+#: ``2**MOST_DOUBLINGS`` slices at a turn, so another page waits at most that long for its
+#: own, and a job whose step takes longer than a slice (a round of many lengths, an
+#: audience map: lost when it gives way) still ends.
+MOST_DOUBLINGS: int = 3
 
 
 class Superseded(Exception):
@@ -176,7 +184,7 @@ class Worker:
         others = [o for o in self._owners if o != item.owner]
         if item.yields and any(self._waits(o, pages_only=True) for o in others):
             return True
-        if time.monotonic() - started < self.slice_s * 2 ** item.turns:
+        if time.monotonic() - started < self.slice_s * 2 ** min(item.turns, MOST_DOUBLINGS):
             return False
         return any(self._waits(o, pages_only=not item.yields) for o in others)
 
