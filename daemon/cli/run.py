@@ -56,6 +56,14 @@ def check_config(config_path: str | None) -> None:
                 if ms.interval_s > 0 else "on request")
         click.echo(f"  measure: camera {ms.camera} {when}, {ms.patterns} patterns, tolerance "
                    f"{ms.tolerance_de00:g} dE00, watchdog {ms.pattern_timeout_s:g} s")
+    if (ct := cfg.content) is not None:
+        live = [f"{name} {rc.bind}:{rc.port} from universe {u}" for name, rc, u in (
+            ("sACN", ct.sacn, ct.sacn.universe), ("Art-Net", ct.artnet, ct.artnet.port_address))
+            if rc.enabled]
+        click.echo(f"  content: {'on' if ct.enabled else 'off'}, {ct.fps} fps, hold "
+                   f"{ct.hold_s:g} s, map {ct.map}; {'; '.join(live) or 'no live receiver'}; "
+                   f"{len(ct.playlist)} playlist entr{'y' if len(ct.playlist) == 1 else 'ies'}"
+                   f", idle {ct.idle or 'none'}")
     click.echo(f"  state: {cfg.state_dir}; cache: {cfg.cache_dir}; socket: {cfg.control_socket}")
     from grassd.daemon.monitoring.textfile import textfile_path
     from grassd.daemon.store.layout import StateLayout

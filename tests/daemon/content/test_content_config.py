@@ -56,3 +56,18 @@ def test_bad_values_name_key_and_line(section, key):
         _with(section)
     assert err.value.key == key
     assert err.value.line is not None and err.value.line > default_config_text().count("\n")
+
+
+def test_check_config_summarises_content(tmp_path):
+    from click.testing import CliRunner
+
+    from grassd.daemon.cli.main import main
+
+    conf = tmp_path / "grassd.toml"
+    conf.write_text(default_config_text() + '\n[content]\nenabled = true\nfps = 24\n'
+                    '[content.artnet]\nenabled = false\n[[content.playlist]]\nfile = "a.png"\n')
+    out = CliRunner().invoke(main, ["check-config", "--config", str(conf)])
+    assert out.exit_code == 0, out.output
+    line = next(s for s in out.output.splitlines() if s.strip().startswith("content:"))
+    assert "on, 24 fps" in line and "sACN 127.0.0.1:5568 from universe 1" in line
+    assert "Art-Net" not in line and "1 playlist entry" in line
