@@ -4,7 +4,9 @@ with how long each is shown.
 
 A file is read whole only when it is within ``max_bytes``; each frame is box-filtered to the
 display's size (one value per grass pixel), so an animation costs rows x cols x 3 bytes per
-frame; more than :data:`MAX_FRAMES` frames, or a side over :data:`MAX_SIDE`, is refused.
+frame; more than :data:`MAX_FRAMES` frames, a side over :data:`MAX_SIDE`, or more pixels to
+decode than :data:`MAX_FRAME_PIXELS` a frame or :data:`MAX_TOTAL_PIXELS` in all is refused
+from the header, before a pixel is decoded.
 """
 
 from __future__ import annotations
@@ -22,6 +24,10 @@ from grassd.daemon.errors import DaemonError
 MAX_FRAMES = 10_000
 #: the longest side of a picture file (pixels)
 MAX_SIDE = 16_384
+#: the most pixels of one frame (a 4096 x 4096 picture), and of all frames together: what
+#: decoding one file may cost
+MAX_FRAME_PIXELS = 4096 * 4096
+MAX_TOTAL_PIXELS = 1 << 30
 #: a frame without a duration of its own (a still, or a GIF frame of 0 ms) stays this long [s]
 DEFAULT_FRAME_S = 0.1
 
@@ -65,6 +71,12 @@ def decode_animation(data: bytes, rows: int, cols: int, name: str = "picture") -
             n = getattr(im, "n_frames", 1)
             if n > MAX_FRAMES:
                 raise PictureError(f"{name}: {n} frames; at most {MAX_FRAMES}")
+            px = im.size[0] * im.size[1]
+            if px > MAX_FRAME_PIXELS or px * n > MAX_TOTAL_PIXELS:
+                raise PictureError(f"{name}: {n} frame(s) of {im.size[0]} x {im.size[1]} "
+                                   f"pixels; at most {MAX_FRAME_PIXELS} pixels a frame and "
+                                   f"{MAX_TOTAL_PIXELS} in all: scale it down")
+            im.draft("RGB", (cols, rows))  # a JPEG decodes at a reduced scale when it can
             frames, durations = [], []
             for frame in ImageSequence.Iterator(im):
                 rgb = frame.convert("RGB").resize((cols, rows), Image.Resampling.BOX)

@@ -31,8 +31,9 @@ from numpy.typing import NDArray
 
 from grassd.daemon.config.content import ContentConfig, PlaylistEntry
 from grassd.daemon.content.colour_map import DisplayColours, levels_for_picture
+from grassd.daemon.content.library import PictureLibrary
 from grassd.daemon.content.merge import LiveMerger
-from grassd.daemon.content.pictures import Animation, PictureError, load_animation
+from grassd.daemon.content.pictures import Animation
 from grassd.daemon.content.pixel_order import stream_to_display
 from grassd.daemon.content.receiver import LiveReceiver, Protocol
 from grassd.daemon.content.sink import FrameSink
@@ -93,9 +94,11 @@ class ContentPlayer:
         self._playlist: list[PlaylistEntry] = list(cfg.playlist)
         self._pl_index = -1
         self._pl_playing: _Playing | None = None
-        self._pl_failed: set[int] = set()
         self._idle: _Playing | None = None
-        self._idle_failed = False
+        #: the playlist's and the idle picture's files, read off this thread
+        self.library = PictureLibrary([e.file for e in self._playlist]
+                                      + ([cfg.idle] if cfg.idle is not None else []),
+                                      rows, cols, cfg.max_picture_mib << 20)
         self._last_out = float("-inf")
         self._seen_in: dict[ContentSource, int] = {}
         self.source = ContentSource.NONE
@@ -126,7 +129,8 @@ class ContentPlayer:
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> ContentPlayer:
-        """Start the receivers and the player's thread."""
+        """Start the receivers, reading the pictures and the player's thread."""
+        self.library.start()
         for r in self.receivers.values():
             r.start()
         self._thread = threading.Thread(target=self._run, name="content-player", daemon=True)
@@ -141,6 +145,7 @@ class ContentPlayer:
             self._thread.join(2)
         for r in self.receivers.values():
             r.stop()
+        self.library.stop()
 
     def _run(self) -> None:
         next_at = self.clock()
@@ -262,15 +267,10 @@ class ContentPlayer:
             log.exception("content: the calibration's colours cannot be read")
             return None
 
-    def _load(self, path, what: str) -> Animation | None:
-        try:
-            return load_animation(path, self.rows, self.cols, self.cfg.max_picture_mib << 20)
-        except PictureError as exc:
-            log.warning("content: %s skipped: %s", what, exc)
-            return None
-
     def _playlist_frame(self, now: float
                         ) -> tuple[NDArray[np.uint8], ContentSource, str] | None:
+        """The playlist's frame: the entry playing, or the next one allowed at this hour
+        whose file has been read (one not read yet, or unreadable, is passed over)."""
         if not self._playlist:
             return None
         p = self._pl_playing
@@ -282,23 +282,18 @@ class ContentPlayer:
             for step in range(1, len(self._playlist) + 1):
                 i = (self._pl_index + step) % len(self._playlist)
                 entry = self._playlist[i]
-                if i in self._pl_failed or not entry.plays_at(hour):
-                    continue
-                anim = self._load(entry.file, f"playlist entry {i} ({entry.file})")
-                if anim is None:
-                    self._pl_failed.add(i)
-                    continue
-                self._pl_index = i
-                p = self._pl_playing = _Playing(anim, now, now + entry.duration_s)
-                break
+                anim = self.library.get(entry.file) if entry.plays_at(hour) else None
+                if anim is not None:
+                    self._pl_index = i
+                    p = self._pl_playing = _Playing(anim, now, now + entry.duration_s)
+                    break
         if p is None:
             return None
         return self._frame_of(p, now), ContentSource.PLAYLIST, p.anim.name
 
     def _idle_picture(self, now: float) -> _Playing | None:
-        if self._idle is None and self.cfg.idle is not None and not self._idle_failed:
-            anim = self._load(self.cfg.idle, f"idle picture {self.cfg.idle}")
-            self._idle_failed = anim is None
+        if self._idle is None and self.cfg.idle is not None:
+            anim = self.library.get(self.cfg.idle)
             if anim is not None:
                 self._idle = _Playing(anim, now, float("inf"))
         return self._idle

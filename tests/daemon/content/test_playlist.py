@@ -52,6 +52,8 @@ def test_entries_in_order_loop_and_hours(tmp_path):
     broken.write_bytes(b"\x89PNG\r\n\x1a\n not really")
     hour = [12]
     p, _ = _player([a, night, PlaylistEntry(broken, 1.0), anim], hour=lambda: hour[0])
+    assert p.library.start().wait(10)  # read off the player's thread
+    assert p.library.failed(broken) and not p.library.failed(a.file)
     t0 = 1000.0
     assert _shown(p, t0) == 10 and p.source is ContentSource.PLAYLIST
     assert _shown(p, t0 + 0.9) == 10
@@ -89,3 +91,7 @@ def test_a_picture_too_large_or_missing_is_refused_with_the_reason(tmp_path):
         load_animation(big, ROWS, COLS, 10)
     with pytest.raises(PictureError, match="cannot read picture"):
         load_animation(tmp_path / "nope.png", ROWS, COLS, 1 << 20)
+    huge = tmp_path / "huge.png"
+    Image.new("L", (4097, 4096)).save(huge)  # small on disk, 16.8 M pixels to decode
+    with pytest.raises(PictureError, match="at most 16777216 pixels a frame"):
+        load_animation(huge, ROWS, COLS, 64 << 20)
