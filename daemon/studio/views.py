@@ -33,9 +33,10 @@ MAX_IMAGE_BYTES: int = 8 * 2**20
 MAX_IMAGE_SIDE: int = 8192
 #: Most pixels a picture is decoded at (4096 x 4096): it becomes one colour per display pixel,
 #: so more adds nothing; decoded, it takes at most 64 MiB (4 bytes a pixel) and as much again
-#: converted to RGB. A JPEG is decoded at a reduced scale (1/2 to 1/8, still at least the
-#: display's size) before this is checked, so a camera's photo of any side up to
-#: :data:`MAX_IMAGE_SIDE` is taken.
+#: converted to RGB. A baseline JPEG is decoded at a reduced scale (1/2 to 1/8, still at least
+#: the display's size) before this is checked, so a camera's photo of any side up to
+#: :data:`MAX_IMAGE_SIDE` is taken; a progressive one is not (its decoder holds every DCT
+#: coefficient of the full size, 2 bytes a sample, whatever the scale).
 MAX_IMAGE_PIXELS: int = 4096 * 4096
 
 
@@ -132,8 +133,8 @@ def picture_levels(data: bytes, rows: int, cols: int, colours: DisplayColours | 
     ``colours`` are nearest in CIEDE2000; without ``colours`` its luminance, ITU-R BT.601
     weights as Pillow's "L"). The size is checked from the header, before a pixel is
     decoded: :class:`PictureTooLarge` for a side over :data:`MAX_IMAGE_SIDE` or, at the scale
-    it would be decoded at (a JPEG's reduced by its decoder to no less than ``cols`` x
-    ``rows``), more than :data:`MAX_IMAGE_PIXELS` pixels. ValueError with the reason for bytes
+    it would be decoded at (a baseline JPEG's reduced by its decoder to no less than ``cols``
+    x ``rows``), more than :data:`MAX_IMAGE_PIXELS` pixels. ValueError with the reason for bytes
     that are not a readable picture."""
     from PIL import Image, UnidentifiedImageError
 
@@ -151,14 +152,15 @@ def picture_levels(data: bytes, rows: int, cols: int, colours: DisplayColours | 
                     f"the picture is {width} x {height} pixels; at most {MAX_IMAGE_SIDE} on a "
                     "side (nothing was decoded): scale it down", width=width, height=height,
                     limit=MAX_IMAGE_SIDE)
-            im.draft(None, (cols, rows))  # JPEG: decode at 1/2..1/8 scale; others: no-op
+            if not im.info.get("progressive"):  # a progressive JPEG holds every coefficient
+                im.draft(None, (cols, rows))  # JPEG: decode at 1/2..1/8 scale; others: no-op
             w, h = im.size
             if w * h > MAX_IMAGE_PIXELS:
                 raise PictureTooLarge(
                     f"the picture is {width} x {height} = {width * height} pixels; at most "
                     f"{MAX_IMAGE_PIXELS} ({math.isqrt(MAX_IMAGE_PIXELS)} x "
                     f"{math.isqrt(MAX_IMAGE_PIXELS)}) are decoded (nothing was): scale it down "
-                    f"(the display shows {cols} x {rows}) or send a JPEG", width=width,
+                    f"(the display shows {cols} x {rows}) or send a baseline JPEG", width=width,
                     height=height, limit=MAX_IMAGE_PIXELS)
             im.load()
             rgb = (im if im.mode == "RGB" else im.convert("RGB")).resize(

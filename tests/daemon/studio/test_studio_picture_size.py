@@ -1,9 +1,10 @@
 """The studio's picture decoder refuses by the header before it allocates: a 268 KiB PNG of
 8192 x 8192 (a flat image, so nothing but its size is wrong) is refused with its size and
 the limit, in a process whose peak resident memory stays under 300 MiB (four such uploads
-took the studio +1214 MiB). A JPEG of the same size is decoded at a reduced scale and taken,
-as is a PNG at the pixel limit, each in under 300 MiB. A running studio answers the PNG,
-sent four times at once, with a 400 naming the limit, and its server stays under 300 MiB."""
+took the studio +1214 MiB), and so is a progressive JPEG of that size. A baseline JPEG of the
+same size is decoded at a reduced scale and taken, as is a PNG at the pixel limit, each in
+under 300 MiB. A running studio answers the PNG, sent four times at once, with a 400 naming
+the limit, and its server stays under 300 MiB."""
 
 from __future__ import annotations
 
@@ -60,6 +61,20 @@ def test_a_jpeg_of_8192_x_8192_is_decoded_reduced(tmp_path):
     out = _decode(tmp_path, buf.getvalue(), rows=16, cols=32)
     print(f"\nJPEG ({buf.tell() / 1024:.0f} KiB) of 8192 x 8192: {out}")
     assert out.get("shape") == [16, 32], out
+    assert out["peak_mib"] < PEAK_MIB, out
+
+
+def test_a_progressive_jpeg_of_8192_x_8192_is_refused_from_its_header(tmp_path):
+    """A progressive JPEG's decoder holds every DCT coefficient of the full size whatever
+    scale it decodes at (473 MiB for this one, 4:4:4): it is judged at its full size."""
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.new("L", (8192, 8192), 140).save(buf, "JPEG", quality=50, progressive=True)
+    out = _decode(tmp_path, buf.getvalue(), rows=16, cols=32)
+    print(f"\nprogressive JPEG ({buf.tell() / 1024:.0f} KiB) of 8192 x 8192: {out}")
+    assert out.get("error") == "PictureTooLarge", out
+    assert "8192 x 8192 = 67108864 pixels" in out["message"]
     assert out["peak_mib"] < PEAK_MIB, out
 
 
