@@ -27,6 +27,9 @@ feature imports the configuration, never the other way round).
     enabled = true
     bind = "127.0.0.1"            # address to listen on ("0.0.0.0": every interface)
     port = 5568
+    multicast = false             # true: also join the universes' groups 239.255.x.y on the
+                                  #   interface of address ``bind`` (the socket then listens
+                                  #   on every address: "0.0.0.0")
     universe = 1                  # first universe (1..63999); the display continues in the
     start_channel = 1             #   next ones; the first pixel's channel in the first
                                   #   universe (1..512), later universes start at channel 1
@@ -72,12 +75,14 @@ UNIVERSE_CHANNELS = 512
 
 @dataclass(frozen=True)
 class SacnConfig:
-    """``[content.sacn]``: the E1.31 receiver (address, UDP port, first universe, its first
-    channel (1-based), source timeout [s], senders tracked at once)."""
+    """``[content.sacn]``: the E1.31 receiver (address, UDP port, whether it joins the
+    universes' multicast groups, first universe, its first channel (1-based), source timeout
+    [s], senders tracked at once)."""
 
     enabled: bool = True
     bind: str = "127.0.0.1"
     port: int = 5568
+    multicast: bool = False
     universe: int = 1
     start_channel: int = 1
     source_timeout_s: float = 2.5
@@ -185,7 +190,7 @@ def parse_content(ctx: schema.Context, raw: Any) -> ContentConfig | None:
     sacn, artnet = c["sacn"], c["artnet"]  # the dataclass defaults when left out
     if not isinstance(sacn, SacnConfig):
         sacn = SacnConfig(**schema.table(ctx, ("content", "sacn"), sacn, _receiver_fields(
-            SacnConfig, F(int, check=schema.between(1, 63999)))))
+            SacnConfig, F(int, check=schema.between(1, 63999)), multicast=F(bool))))
     if not isinstance(artnet, ArtnetConfig):
         artnet = ArtnetConfig(**schema.table(
             ctx, ("content", "artnet"), artnet, _receiver_fields(

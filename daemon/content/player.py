@@ -41,6 +41,11 @@ from grassd.daemon.content.status import ContentSource, ContentStatus
 
 log = logging.getLogger(__name__)
 
+def sacn_group(universe: int) -> str:
+    """The E1.31 multicast address of ``universe``: 239.255.(hi byte).(lo byte)."""
+    return f"239.255.{universe >> 8}.{universe & 255}"
+
+
 #: live latencies kept for the median and p99
 LATENCY_SAMPLES = 1024
 #: the longest a script's frame or an asked-for picture may stay [s] (a day)
@@ -110,17 +115,18 @@ class ContentPlayer:
 
     def _start_receivers(self) -> None:
         specs = [(ContentSource.SACN, Protocol.SACN, self.cfg.sacn,
-                  self.cfg.sacn.universe),
+                  self.cfg.sacn.universe, self.cfg.sacn.multicast),
                  (ContentSource.ARTNET, Protocol.ARTNET, self.cfg.artnet,
-                  self.cfg.artnet.port_address)]
+                  self.cfg.artnet.port_address, False)]
         try:
-            for source, proto, rc, first in specs:
+            for source, proto, rc, first, multicast in specs:
                 if not rc.enabled:
                     continue
                 merger = LiveMerger(self.n_pixels, first, rc.start_channel,
                                     rc.source_timeout_s, rc.max_sources)
+                groups = tuple(sacn_group(u) for u in merger.universes) if multicast else ()
                 self.receivers[source] = LiveReceiver(proto, rc.bind, rc.port, merger,
-                                                      self._wake.set)
+                                                      self._wake.set, groups)
                 self.mergers[source] = merger
         except BaseException:
             for r in self.receivers.values():

@@ -67,10 +67,13 @@ class ReceiverStats:
 
 class LiveReceiver:
     """Listens on UDP ``bind``:``port`` for ``protocol`` and feeds ``merger``; ``on_packet``
-    is called (in the receiver's thread) after each accepted packet."""
+    is called (in the receiver's thread) after each accepted packet. With multicast
+    ``groups`` the socket listens on every address at ``port`` and joins each group on the
+    interface whose address is ``bind`` ("0.0.0.0": the kernel's choice)."""
 
     def __init__(self, protocol: Protocol, bind: str, port: int, merger: LiveMerger,
-                 on_packet: Callable[[], None] | None = None) -> None:
+                 on_packet: Callable[[], None] | None = None,
+                 groups: tuple[str, ...] = ()) -> None:
         self.protocol = protocol
         self.merger = merger
         self.on_packet = on_packet
@@ -80,7 +83,10 @@ class LiveReceiver:
         self._stop = threading.Event()
         try:
             self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
-            self._sock.bind((bind, port))
+            self._sock.bind(("0.0.0.0" if groups else bind, port))
+            for group in groups:  # on the interface whose address is ``bind``
+                mreq = socket.inet_aton(group) + socket.inet_aton(bind)
+                self._sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, mreq)
         except OSError as exc:
             self._sock.close()
             raise ReceiverBindError(

@@ -152,3 +152,21 @@ def test_receiver_port_in_use_says_how_to_fix(ports, sink):
             ContentPlayer(cfg, ROWS, COLS, sink)
     finally:
         first.stop()
+
+
+def test_sacn_multicast_groups_joined(ports, sink, sacn_senders):
+    """With multicast = true the receiver joins the universes' groups (239.255.0.7 and
+    239.255.0.8 here) and takes the sender's multicast packets."""
+    rows, cols = 16, 40  # two universes
+    cfg = content_config(ports, artnet_enabled=False, sacn_multicast=True, sacn_universe=7)
+    p = _player(cfg, sink, rows, cols)
+    try:
+        stream = (np.arange(rows * cols) % 199).astype(np.uint8)
+        s = sacn_senders(ports[0], universes=(7, 8))
+        for u in (7, 8):
+            s[u].multicast = True
+        s[7].dmx_data = tuple(int(v) for v in stream[:512])
+        s[8].dmx_data = tuple(int(v) for v in stream[512:])
+        sink.wait_for(lambda f: np.array_equal(f, stream))
+    finally:
+        p.stop()
