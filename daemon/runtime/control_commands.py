@@ -120,6 +120,9 @@ class ControlCommands:
         feature = None if self.content is None else self.content()
         if feature is not None and feature.handles(cmd):  # content_frame, content_show, ...
             return feature.handle(req)
+        if cmd.startswith("content_"):
+            return {"ok": False, "error": "the daemon shows no content: set [content] enabled "
+                                          "= true in its configuration and reload it"}
         return {"ok": False, "error": f"unknown command {cmd!r} "
                                       "(use ping, status, calibrate, measure, reload, "
                                       "bundles_retry)"}

@@ -107,3 +107,16 @@ def test_grassd_show_asks_the_daemon(daemon, sink, tmp_path):
         assert missing.returncode == 2 and "not a picture" in missing.stderr
     finally:
         srv.stop()
+
+
+def test_without_content_the_daemon_says_how_to_enable_it(tmp_path):
+    sock = tmp_path / "c.sock"
+    commands = ControlCommands(lambda: Status.__new__(Status), threading.Event(),
+                               threading.Event(), queue.Queue(4), lambda name: {},
+                               content=lambda: None)
+    srv = ControlServer(sock, commands.handle).start()
+    try:
+        with pytest.raises(ControlError, match=r"set \[content\] enabled = true"):
+            request(sock, {"cmd": "content_frame", "levels": [0]})
+    finally:
+        srv.stop()
