@@ -33,7 +33,8 @@ one sent. Without a new frame, the newest is sent again every ``refresh_s`` (a r
 controller, a committed table: both show it from that SHOW on).
 
 The daemon closes its :class:`FrameOutput` before the :class:`~.fleet.Fleet` whose lines it
-shares.
+shares (a closed fleet's lines would be opened again by the next frame), and runs one output
+per fleet at a time.
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ from numpy.typing import ArrayLike
 
 from grassd.daemon.config.settings import ControllerConfig
 from grassd.daemon.errors import DaemonError
+from grassd.daemon.hardware.fleet import Fleet
 from grassd.firmware_proto.client import ControllerClient, ControllerUnsupported, RetryPolicy
 from grassd.firmware_proto.errors import PortUnavailable, ProtocolError, TransientError
 from grassd.firmware_proto.messages import MAX_CHUNK_DATA
@@ -173,7 +175,7 @@ class FrameOutput:
     """
 
     def __init__(self, controllers: Sequence[ControllerConfig], n_pixels: int, *,
-                 fps: float = 30.0, fleet: object | None = None,
+                 fps: float = 30.0, fleet: Fleet | None = None,
                  policy: RetryPolicy | None = None, refresh_s: float = 1.0,
                  answer_timeout_s: float = 0.05, retries: int = 0, skip_s: float = 0.25,
                  skip_max_s: float = 2.0, push_slot_s: float = 0.01,
@@ -196,7 +198,7 @@ class FrameOutput:
         for c in controllers:
             line = self._lines.get(c.port)
             if line is None:
-                client = (fleet.client(c) if fleet is not None  # type: ignore[attr-defined]
+                client = (fleet.client(c) if fleet is not None
                           else ControllerClient(c.port, baudrate=c.baud, policy=policy))
                 client.chunk_cap = stream_chunk_bytes(c.baud, push_slot_s)
                 line = self._lines[c.port] = _Line(client)
