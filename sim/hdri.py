@@ -35,6 +35,7 @@ is refused.
 from __future__ import annotations
 
 import logging
+import math
 import os
 import re
 import stat
@@ -336,8 +337,11 @@ def _read_reduced(p: Path, exr: bool, factor: int, max_texels: int) -> np.ndarra
             bad = np.argwhere(~np.isfinite(band).all(axis=2))
             raise HdriError(f"{source}: texel(s) hold NaN or infinity (first at row "
                             f"{row0 + bad[0][0]}, column {bad[0][1]}); re-export the panorama")
-        omega = edges[row0: row0 + band.shape[0]] - edges[row0 + 1: row0 + band.shape[0] + 1]
-        out[row0 // factor: (row0 + band.shape[0]) // factor] = _box(band, factor, omega)
+        step = _band_rows(band.shape[1], factor, band.shape[0]) // 4 // factor * factor
+        for a in range(0, band.shape[0], max(factor, step)):  # float64 a quarter band at a time
+            b = min(band.shape[0], a + max(factor, step))
+            omega = edges[row0 + a: row0 + b] - edges[row0 + a + 1: row0 + b + 1]
+            out[(row0 + a) // factor: (row0 + b) // factor] = _box(band[a:b], factor, omega)
     if out is None:
         raise HdriError(f"{source}: the file holds no pixel rows")
     return out
@@ -353,9 +357,39 @@ def _box(band: np.ndarray, factor: int, omega: np.ndarray) -> np.ndarray:
     return ((blocks * om).sum(axis=(1, 3)) / weight).astype(np.float32)
 
 
-def _band_rows(width: int, factor: int, height: int) -> int:
-    """Rows of a band: a multiple of ``factor`` near :data:`_BAND_TEXELS` texels."""
-    return min(height, max(factor, (_BAND_TEXELS // width) // factor * factor))
+def _band_rows(width: int, unit: int, height: int) -> int:
+    """Rows of a band: a multiple of ``unit`` rows near :data:`_BAND_TEXELS` texels."""
+    return min(height, max(unit, (_BAND_TEXELS // width) // unit * unit))
+
+
+#: Scanlines an OpenEXR chunk holds, by compression (OpenEXR's own table; another: 256): a
+#: band is read in whole chunks, so that none is decompressed twice.
+_EXR_CHUNK_LINES = {"NO_COMPRESSION": 1, "RLE_COMPRESSION": 1, "ZIPS_COMPRESSION": 1,
+                    "ZIP_COMPRESSION": 16, "PXR24_COMPRESSION": 16, "PIZ_COMPRESSION": 32,
+                    "B44_COMPRESSION": 32, "B44A_COMPRESSION": 32, "DWAA_COMPRESSION": 32,
+                    "HTJ2K32_COMPRESSION": 32, "DWAB_COMPRESSION": 256,
+                    "HTJ2K256_COMPRESSION": 256}
+
+
+def _exr_band_unit(source: str, header: dict, width: int, height: int, factor: int) -> int:
+    """Rows a band of a reduced EXR read is a multiple of: whole ``factor`` blocks, whole
+    chunks, and whole rows of tiles (the library decodes a row of tiles at once). HdriError
+    when such a band would hold more than :data:`_MAX_BAND_TEXELS` texels (tiles of
+    thousands of rows)."""
+    tiles = header.get("tiles")
+    if tiles is not None:
+        lines = int(tiles.ySize)
+    else:
+        name = getattr(header.get("compression"), "name", "")
+        lines = _EXR_CHUNK_LINES.get(name, 256)
+    unit = min(height, math.lcm(factor, max(1, lines)))
+    if unit * width > _MAX_BAND_TEXELS:
+        what = (f"tiles of {tiles.xSize} x {tiles.ySize}" if tiles is not None
+                else f"chunks of {lines} scanlines")
+        raise HdriError(f"{source}: OpenEXR {what}: a band of {unit} rows of {width} texels "
+                        f"is more than the {_MAX_BAND_TEXELS} a reduced read holds; re-export "
+                        "it as scanlines (or with tiles of at most 256 rows)")
+    return unit
 
 
 def _header_text(v: object, max_chars: int = 64) -> str:
@@ -480,7 +514,7 @@ def _exr_bands(p: Path, max_texels: int, factor: int):
             raise HdriError(f"{source}: channels are unsigned integers, not half or float "
                             "radiance")
         y_min = int(header["dataWindow"][0][1])
-        rows = _band_rows(width, factor, height)
+        rows = _band_rows(width, _exr_band_unit(source, header, width, height, factor), height)
         for row0 in range(0, height, rows):
             r = min(rows, height - row0)
             y0, y1 = y_min + row0, y_min + row0 + r - 1

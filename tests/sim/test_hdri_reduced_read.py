@@ -80,6 +80,32 @@ def test_reduced_read_is_the_whole_maps_downsampling(tmp_path, monkeypatch, band
     assert hdri.load_hdri(tmp_path / "f.exr", max_width=192).shape == (96, 192, 3)  # fits
 
 
+def _exr(path, img: np.ndarray, compression, tile: int | None = None) -> None:
+    header = {"compression": compression, "type": OpenEXR.scanlineimage}
+    if tile is not None:
+        tiles = OpenEXR.TileDescription()
+        tiles.xSize = tiles.ySize = tile
+        header.update(type=OpenEXR.tiledimage, tiles=tiles)
+    planes = {c: np.ascontiguousarray(img[..., i]) for i, c in enumerate("RGB")}
+    OpenEXR.File(header, planes).write(str(path))
+
+
+def test_tiles_and_chunks_are_read_whole_and_big_tiles_refused(tmp_path, monkeypatch):
+    monkeypatch.setattr(hdri, "_BAND_TEXELS", 192 * 3)  # bands smaller than a chunk
+    img = _map()
+    _exr(tmp_path / "dwab.exr", img, OpenEXR.DWAB_COMPRESSION)  # 256 scanlines a chunk
+    _exr(tmp_path / "tiled.exr", img, OpenEXR.ZIP_COMPRESSION, tile=32)
+    _exr(tmp_path / "one_tile.exr", img, OpenEXR.ZIP_COMPRESSION, tile=192)
+    for name in ("dwab.exr", "tiled.exr", "one_tile.exr"):
+        np.testing.assert_allclose(hdri.load_hdri(tmp_path / name, max_width=64),
+                                   hdri.downsample(hdri.load_hdri(tmp_path / name), 3),
+                                   rtol=1e-6, err_msg=name)
+    monkeypatch.setattr(hdri, "_MAX_BAND_TEXELS", 192 * 40)  # a band of 40 rows at most
+    with pytest.raises(HdriError, match="OpenEXR tiles of 192 x 192: a band of 96 rows"):
+        hdri.load_hdri(tmp_path / "one_tile.exr", max_width=96)  # the one tile: 96 rows
+    assert hdri.load_hdri(tmp_path / "tiled.exr", max_width=96).shape == (48, 96, 3)  # 32
+
+
 def test_8192_x_4096_exr_and_hdr_read_to_2048_in_little_memory(tmp_path):
     exr_bytes = write_flat_exr(tmp_path / "sky.exr", [("sky", 8192, 4096, ["B", "G", "R"])],
                                1.0)
