@@ -131,7 +131,7 @@ def _member(base: Path, key: str, v: Any) -> Path:
     return base / v
 
 
-def check_hdri_magic(path: Path, max_bytes: int = DEFAULT_LIMITS.file_bytes) -> None:
+def check_hdri_header(path: Path, max_bytes: int = DEFAULT_LIMITS.file_bytes) -> None:
     """Reject an HDRI whose first bytes are not OpenEXR or Radiance RGBE (cheap early check),
     that is not a regular file of at most ``max_bytes`` bytes, or whose header the renderer
     cannot take (:func:`grassd.sim.hdri.read_header`: more than
@@ -614,7 +614,7 @@ class Inbox:
         if missing:
             raise IngestError(f"missing file(s) {', '.join(missing)}")
         hashes = self._hash_dir(d)  # every entry a regular file within the caps
-        check_hdri_magic(manifest.light.hdri, self.limits.file_bytes)
+        check_hdri_header(manifest.light.hdri, self.limits.file_bytes)
         return Bundle(id=bid, name=name, hash=h or bundle_hash(hashes), dir=d, manifest=manifest,
                       input_hashes=hashes)
 
