@@ -5,8 +5,9 @@ configuration plus a ``[capture]`` section (two simulated controllers on pseudo-
 Modbus/TCP lux sensor and a simulated OSC camera on 127.0.0.1): the capture station
 photographs the bundled CC0 site HDRI, reads the sensor and drops the bundle into the inbox by
 itself; the demo waits until the new table is active on every controller, prints the status
-(with where the status page and the metrics file are) and where the report and plot are, and
-stops the daemon with SIGTERM.
+(with where the status page and the metrics file are) and where the report and plot are,
+plays an animation through the new table (``[content]``, as ``grassd show`` asks the daemon)
+and says what the display shows, and stops the daemon with SIGTERM.
 """
 
 from __future__ import annotations
@@ -29,6 +30,30 @@ from grassd.rigs import FIRMWARE_BACKENDS
 
 #: The demo's capture station: one capture at start (the next an hour later).
 DEMO_CAPTURE = '\n[capture]\ncamera = "http://127.0.0.1:8080"\ninterval_s = 3600.0\n'
+#: The demo's content: shown through the tables once they are active (receivers on
+#: 127.0.0.1, ports chosen by the kernel would not be known to a sender: live is off here)
+DEMO_CONTENT = ('\n[content]\nenabled = true\n[content.sacn]\nenabled = false\n'
+                '[content.artnet]\nenabled = false\n')
+#: seconds the demo's animation plays (its status is read 1 s before the end: the figures
+#: per second look back 2 s)
+DEMO_SHOW_S = 4.0
+
+
+def write_wave(path: Path, rows: int, cols: int, frames: int = 12) -> Path:
+    """An animated GIF of a green wave crossing a ``rows`` x ``cols`` display (10 px a
+    pixel, 0.1 s a frame): the demo's content."""
+    import numpy as np
+    from PIL import Image
+
+    x = np.arange(cols * 10) / (cols * 10)
+    images = []
+    for k in range(frames):
+        g = (127.5 + 127.5 * np.sin(2 * np.pi * (x - k / frames))).astype(np.uint8)
+        rgb = np.zeros((rows * 10, cols * 10, 3), np.uint8)
+        rgb[..., 0], rgb[..., 1], rgb[..., 2] = 200 - g // 3, 120 + g // 2, 40
+        images.append(Image.fromarray(rgb))
+    images[0].save(path, save_all=True, append_images=images[1:], duration=100, loop=0)
+    return path
 
 
 def _grassd() -> list[str]:
@@ -50,7 +75,7 @@ def run_demo(workdir: str | os.PathLike[str] | None = None, *, lux: float = 5000
     env = {k: v for k, v in os.environ.items()
            if k not in ("RUNTIME_DIRECTORY", "STATE_DIRECTORY", "NOTIFY_SOCKET")}
     config = work / "grassd.toml"  # the default plus a capture station (camera simulated)
-    config.write_text(default_config_text() + DEMO_CAPTURE)
+    config.write_text(default_config_text() + DEMO_CAPTURE + DEMO_CONTENT)
     cmd = [*_grassd(), "run", "--simulate-hardware", "--config", str(config), "--state-dir",
            str(state), "--sim-lux", str(lux), "--tick", "0.2", "--sim-firmware", firmware]
     echo(f"starting: {' '.join(cmd)}")
@@ -93,7 +118,8 @@ def run_demo(workdir: str | os.PathLike[str] | None = None, *, lux: float = 5000
         run = st.runs[0]
         for line in (f"report: {run.report}", f"plot:   {run.plot}", f"log:    {log}"):
             echo(line)
-        return st
+        _show_content(sock, work, echo)
+        return status()
     finally:
         if proc.poll() is None:
             proc.terminate()
@@ -104,6 +130,22 @@ def run_demo(workdir: str | os.PathLike[str] | None = None, *, lux: float = 5000
                 proc.wait()
         if proc.returncode not in (0, None, -15):
             echo(f"daemon exit status {proc.returncode}")
+
+
+def _show_content(sock: Path, work: Path, echo: Callable[[str], Any]) -> None:
+    """Play the demo's animation through the daemon (as ``grassd show`` does) and say what
+    the display shows meanwhile."""
+    from grassd.daemon.config.settings import load_default_config
+    from grassd.daemon.content.status import content_line
+
+    d = load_default_config().display
+    wave = write_wave(work / "wave.gif", d.rows, d.cols)
+    ans = request(sock, {"cmd": "content_show", "path": str(wave), "duration_s": DEMO_SHOW_S})
+    echo(f"content: the daemon plays {wave.name} ({ans['frames']} frames) for "
+         f"{DEMO_SHOW_S:g} s through the active table")
+    time.sleep(DEMO_SHOW_S - 1.0)
+    content = request(sock, {"cmd": "content_status"}, timeout_s=30)["content"]
+    echo(content_line(content))
 
 
 def main() -> None:

@@ -46,6 +46,8 @@ def sacn_group(universe: int) -> str:
     return f"239.255.{universe >> 8}.{universe & 255}"
 
 
+#: seconds the frames-per-second figures look back
+RATE_WINDOW_S = 2.0
 #: live latencies kept for the median and p99
 LATENCY_SAMPLES = 1024
 #: the longest a script's frame or an asked-for picture may stay [s] (a day)
@@ -111,7 +113,9 @@ class ContentPlayer:
         self.frames_out = 0
         self.dropped = 0
         self._latency: collections.deque[float] = collections.deque(maxlen=LATENCY_SAMPLES)
-        self._rate: collections.deque[tuple[float, int, int]] = collections.deque(maxlen=8)
+        #: (time, frames out, frames in) at every tick, for the rates over RATE_WINDOW_S
+        self._rate: collections.deque[tuple[float, int, int]] = collections.deque(
+            maxlen=int(RATE_WINDOW_S * cfg.fps) + 2)
 
     def _start_receivers(self) -> None:
         specs = [(ContentSource.SACN, Protocol.SACN, self.cfg.sacn,
@@ -306,8 +310,7 @@ class ContentPlayer:
 
     # ------------------------------------------------------------------ status
     def _sample_rate(self, now: float) -> None:
-        if not self._rate or now - self._rate[-1][0] >= 0.5:
-            self._rate.append((now, self.frames_out, self.frames_in))
+        self._rate.append((now, self.frames_out, self.frames_in))
 
     @property
     def frames_in(self) -> int:
@@ -316,7 +319,8 @@ class ContentPlayer:
 
     def status(self) -> ContentStatus:
         """A snapshot for status and metrics (see :class:`ContentStatus`)."""
-        samples = list(self._rate)
+        now = self.clock()
+        samples = [x for x in list(self._rate) if x[0] >= now - RATE_WINDOW_S]
         out_rate = in_rate = 0.0
         if len(samples) >= 2 and samples[-1][0] > samples[0][0]:
             (t0, o0, i0), (t1, o1, i1) = samples[0], samples[-1]

@@ -24,7 +24,7 @@ class ContentSource(enum.Enum):
 class ContentStatus:
     """A snapshot of the player: ``source`` showing now and ``detail`` (a file, a sender);
     ``frames_out_per_s`` offered to the controllers and ``frames_in_per_s`` received live over
-    the last seconds; ``frames_out``/``frames_in``/``dropped`` (live frames replaced by a newer
+    the last 2 s; ``frames_out``/``frames_in``/``dropped`` (live frames replaced by a newer
     one before they were offered) since start; ``latency_ms_median``/``latency_ms_p99``: live
     packet in to frame offered [ms] (None before the first live frame); ``map``: the colour
     mapping in effect; ``receivers``: protocol -> counts

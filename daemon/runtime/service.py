@@ -512,14 +512,14 @@ class Service:
         """(Re)start the content feature for the current ``[content]`` (none without it, or
         with ``enabled = false``) on the fleet's frame output; a receiver that cannot listen
         is logged and the daemon goes on calibrating."""
-        from grassd.daemon.content.feature import start_content
-        from grassd.daemon.content.receiver import ReceiverBindError
-
         if self.content is not None:
             self.content.stop()  # and its frame output, before a reload closes the fleet
         self.content = None
         if self.cfg.content is None or not self.cfg.content.enabled:
             return
+        from grassd.daemon.content.feature import start_content
+        from grassd.daemon.content.receiver import ReceiverBindError
+
         try:
             self.content = start_content(self.cfg, self._frame_sink(), self.history,
                                          self.reports_dir)

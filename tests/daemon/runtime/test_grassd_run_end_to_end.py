@@ -401,6 +401,11 @@ def test_demo_runs_the_whole_daemon(tmp_path, monkeypatch):
     assert run.lux_source == "manifest" and run.lux == pytest.approx(5000.0)
     assert Path(run.report).is_file() and Path(run.plot).is_file()
     assert any(line.startswith("report: ") for line in lines)
+    # content: the demo's animation played through the new table
+    shown = next(line for line in lines if line.startswith("content: script"))
+    assert "(wave.gif)" in shown and "map nearest_de00" in shown, shown
+    out = float(shown.split(", ")[1].split()[0])
+    assert out >= 0.9 * 30, shown  # frames/s to the controllers at [content] fps
     # the operator's view: where the status page and the metrics are, both written
     page = tmp_path / "state" / "reports" / "index.html"
     prom = tmp_path / "state" / "metrics" / "grassd.prom"  # always here with simulated hardware
