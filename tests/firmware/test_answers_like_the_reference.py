@@ -3,10 +3,10 @@ sequences: transfers with chunks in any order, out of range, oversized, retransm
 with wrong or right CRCs and out-of-range values; levels and test patterns (PATTERN with good
 and bad timeouts, pixels and lengths, PATTERN_END) in any order; unknown types, other
 versions, bad payload lengths; the frame latch (STAGE_LEVEL in and out of range, SHOW to
-the controller and broadcast, never answered); and power cycles (the posix process restarted on its storage,
-the QEMU instance reset with its RAM storage kept, the model power-cycled). The firmware is
-driven over its real pty (through the bus relay for QEMU); GET_POSITIONS is left out (the
-implementations simulate different motors)."""
+the controller and broadcast, never answered); and power cycles (the posix process restarted
+on its storage, the QEMU instance reset with its RAM storage kept, the model power-cycled).
+The firmware is driven over its real pty (through the bus relay for QEMU); GET_POSITIONS is
+left out (the implementations simulate different motors)."""
 
 from __future__ import annotations
 
