@@ -158,6 +158,8 @@ def decoders() -> None:
     """Part 5: each hostile file through the decoder that meets it, in a fresh process."""
     import json
 
+    from PIL import Image
+
     from grassd.daemon.measure.camera_chain import Exposure, MeasureSetup
 
     with tempfile.TemporaryDirectory(prefix="grassd-bench-decodes-") as tmp:
@@ -170,6 +172,8 @@ def decoders() -> None:
                              str(photo), "2026-11-27T00:00:00+00:00", sensor=(128, 64))
         (d / "setup.json").write_text(json.dumps(setup.to_json()))
         (d / "huge.png").write_bytes(flat_png(8192, 8192))
+        Image.new("L", (8192, 8192), 140).save(d / "huge.jpg", "JPEG", quality=50,
+                                               progressive=True)
         (d / "capture.toml").write_text("x = " + "[" * 5000 + "]" * 5000 + "\n")
         cases = [
             ("EXR 8192 x 4096, the daemon's calibration", "sky.exr", """
@@ -192,6 +196,10 @@ def decoders() -> None:
                 from pathlib import Path
                 from grassd.daemon.studio.views import picture_levels
                 picture_levels(Path(sys.argv[1]).read_bytes(), 8, 8)"""),
+            ("progressive JPEG 8192 x 8192, the studio's picture", "huge.jpg", """
+                from pathlib import Path
+                from grassd.daemon.studio.views import picture_levels
+                picture_levels(Path(sys.argv[1]).read_bytes(), 8, 8)"""),
             ("capture.toml nested 5000 deep, validate", "capture.toml", """
                 from grassd.daemon.offline.validate import load_manifest
                 load_manifest(sys.argv[1])"""),
@@ -201,7 +209,7 @@ def decoders() -> None:
             out = run_child(body, str(d / name))
             seconds = time.perf_counter() - t0
             did = out.get("error", "taken") + (f" {out['shape']}" if "shape" in out else "")
-            print(f"decode: {what:48s} {did} in {seconds:.1f} s (process), peak RSS "
+            print(f"decode: {what:52s} {did} in {seconds:.1f} s (process), peak RSS "
                   f"{out['peak_mib']:.0f} MiB")
 
 
