@@ -54,7 +54,7 @@ class StudioLimits:
     upload_slots: int = 1
     kept_uploads: int = 4
     kept_upload_mib: int = 512
-    kept_maps: int = 4
+    kept_maps: int = 3
     job_cost: float = 2000.0
     slice_s: float = 1.0
 

@@ -49,6 +49,7 @@ import logging
 import signal
 import time
 from collections import OrderedDict, deque
+from concurrent.futures import ThreadPoolExecutor
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -80,6 +81,9 @@ TOKEN: web.AppKey[str | None] = web.AppKey("token", str)
 SOCKETS: web.AppKey[set] = web.AppKey("sockets", set)
 LIMITS: web.AppKey[StudioLimits] = web.AppKey("limits", StudioLimits)
 UPLOADS: web.AppKey[asyncio.Semaphore] = web.AppKey("uploads", asyncio.Semaphore)
+#: The threads that decode uploads, one per upload slot: decoding in the loop's default
+#: executor spread the decoders' memory over as many malloc arenas as it has threads.
+DECODERS: web.AppKey[ThreadPoolExecutor] = web.AppKey("decoders", ThreadPoolExecutor)
 #: Seconds the studio waits at its end for requests in flight (a page's socket is closed).
 SHUTDOWN_S: float = 2.0
 
@@ -329,7 +333,8 @@ async def _hdri(request: web.Request) -> web.Response:
         return path
 
     async def add(file: Path) -> LightSource:  # both lists get it, even if the client goes
-        src, dropped = await loop.run_in_executor(None, studio.lights.add_upload, name, file)
+        src, dropped = await loop.run_in_executor(request.app[DECODERS],
+                                                  studio.lights.add_upload, name, file)
         for old in dropped:  # away; the oldest beyond the caps leave both
             simulator.forget_light(old)
         simulator.add_light(src)  # its file: only the simulator renders it
@@ -352,7 +357,8 @@ async def _picture(request: web.Request) -> web.Response:
     loop = asyncio.get_running_loop()
 
     async def decode(data: bytes) -> dict[str, Any]:  # a large picture takes a while: not on
-        return await loop.run_in_executor(None, studio.add_picture, data)  # the event loop
+        return await loop.run_in_executor(request.app[DECODERS],  # the event loop
+                                          studio.add_picture, data)
 
     try:
         return web.json_response(await _upload(
@@ -515,6 +521,10 @@ async def _close_sockets(app: web.Application) -> None:
                 await ws.close(code=1001, message=b"the studio is stopping", drain=False)
 
 
+async def _stop_decoders(app: web.Application) -> None:
+    app[DECODERS].shutdown(wait=False, cancel_futures=True)
+
+
 def make_app(studio: Studio, simulator: SimulatorProcess, token: str | None = None,
              limits: StudioLimits = DEFAULT_LIMITS) -> web.Application:
     """The studio's aiohttp application (the page, the API, the WebSocket)."""
@@ -525,7 +535,10 @@ def make_app(studio: Studio, simulator: SimulatorProcess, token: str | None = No
     app[SOCKETS] = set()
     app[LIMITS] = limits
     app[UPLOADS] = asyncio.Semaphore(limits.upload_slots)
+    app[DECODERS] = ThreadPoolExecutor(limits.upload_slots,
+                                       thread_name_prefix="grassd-studio-upload")
     app.on_shutdown.append(_close_sockets)
+    app.on_cleanup.append(_stop_decoders)
     app.router.add_get("/", _index)
     app.router.add_get("/api/state", _state)
     app.router.add_post("/api/characteristic", _characteristic)
