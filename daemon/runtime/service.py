@@ -470,6 +470,10 @@ class Service:
         if kept:
             log.warning("reload: %s change only on restart; keeping the old value(s)",
                         ", ".join(kept))
+        showing = self.content is not None
+        if showing:  # its frame output shares the fleet's lines: it goes first
+            self.content.stop()
+            self.content = None
         self.fleet.close()
         if self.sensor is not None:
             self.sensor.close()
@@ -480,6 +484,8 @@ class Service:
         except (OSError, DaemonError, SimError) as exc:  # valid, but cannot be set up (e.g.
             # the inbox, or a renderer that this computer has not)
             self._build(old)
+            if showing:
+                self._restart_content()  # on the rebuilt fleet
             self.reload_error = f"{self.config_path}: {exc}"
             log.error("reload refused, keeping the old configuration: %s", exc)
             self.notifier.ready(f"reload refused: {exc}")
@@ -489,7 +495,7 @@ class Service:
         if (new.capture, new.light.inbox, new.light.modbus) != (
                 old.capture, old.light.inbox, old.light.modbus):
             self._restart_capture()
-        if self.content is not None or new.content is not None:
+        if showing or new.content is not None:
             self._restart_content()
         log.info("configuration reloaded from %s", self.config_path)
         self.notifier.ready("configuration reloaded")

@@ -1,7 +1,8 @@
 """The content feature inside the service: started for an enabled [content] on the fleet's
 frame output, a script's frame through the service's own request handler reaching the
-simulated motors, its status in the daemon's, a measurement's hold, and a reload that turns
-it off (the receivers' ports are free again)."""
+simulated motors, its status in the daemon's, a measurement's hold, a reload (the content
+starts again on the rebuilt fleet) and one that turns it off (the receivers' ports are free
+again)."""
 
 from __future__ import annotations
 
@@ -69,6 +70,32 @@ def test_service_shows_a_script_frame_and_turns_content_off_on_reload(tmp_path, 
         svc.content.hold()  # as a measurement does: nothing goes out while held
         assert svc.content.status().output["held"] is True
         svc.content.release()
+        # a reload rebuilds the fleet: the content starts again on its new lines
+        conf.write_text(_config(tmp_path, hw_cfg, ports, True).replace("hold_s = 0.5",
+                                                                        "hold_s = 0.6"))
+        assert svc.reload() and svc.content is not None
+        assert svc.content.cfg.content.hold_s == 0.6
+        levels = [(i * 11 + 5) % 256 for i in range(n)]
+        assert svc.handle_request({"cmd": "content_frame", "levels": levels,
+                                   "hold_s": 30})["ok"]
+        deadline = time.monotonic() + 5
+        while not np.array_equal(_targets(svc), table[levels]) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        np.testing.assert_array_equal(_targets(svc), table[levels])
+        # a reload refused after the fleet was closed (an inbox that cannot be made): the
+        # content starts again on the old configuration's rebuilt fleet
+        blocker = tmp_path / "a-file"
+        blocker.write_text("")
+        conf.write_text(_config(tmp_path, hw_cfg, ports, True).replace(
+            'inbox = "inbox"', f'inbox = "{blocker / "inbox"}"'))
+        assert not svc.reload() and svc.reload_error and svc.content is not None
+        levels = [(i * 5 + 1) % 256 for i in range(n)]
+        assert svc.handle_request({"cmd": "content_frame", "levels": levels,
+                                   "hold_s": 30})["ok"]
+        deadline = time.monotonic() + 5
+        while not np.array_equal(_targets(svc), table[levels]) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        np.testing.assert_array_equal(_targets(svc), table[levels])
         conf.write_text(_config(tmp_path, hw_cfg, ports, False))
         assert svc.reload()
         assert svc.content is None and svc.status().daemon.content is None
