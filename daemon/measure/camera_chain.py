@@ -195,6 +195,18 @@ class MeasuringCamera:
         self._metered_s: float | None = None
         self._format: dict[str, Any] | None = None
 
+    def prepare(self) -> None:
+        """Put the camera in still-image capture with RAW+ at its own size (as a bracket does),
+        once; :meth:`shoot` does it when not yet done."""
+        if self._format is not None:
+            return
+        self.client.ensure_image_mode()
+        size = self.client.get_options("fileFormat").get("fileFormat")
+        if not isinstance(size, dict):
+            raise MeasureSetupError("the measuring camera's getOptions gave no fileFormat "
+                                    "object; it must be an OSC camera taking RAW+")
+        self._format = {**size, "type": "raw+"}
+
     def shoot(self, name: str, ev: float = 0.0) -> Shot:
         """Take one shot named ``name`` (file stem); returns its DNG and exposure. ``ev``:
         0 lets the camera meter (ISO priority); otherwise the shutter is set ``ev`` stops from
@@ -202,19 +214,13 @@ class MeasuringCamera:
         from grassd.daemon.hardware.bracket import SHUTTER_SPEEDS_S, BracketPlan, real_exposure
 
         self.dest.mkdir(parents=True, exist_ok=True)
+        self.prepare()
         if ev == 0.0 or self._metered_s is None:
             options: dict[str, Any] = {"exposureProgram": 9}
         else:
             want = self._metered_s * 2.0 ** ev
             options = {"exposureProgram": 1, "shutterSpeed": min(
                 SHUTTER_SPEEDS_S, key=lambda t: abs(np.log(t / want)))}
-        if self._format is None:  # as a bracket: still images, RAW+ at the camera's size
-            self.client.ensure_image_mode()
-            size = self.client.get_options("fileFormat").get("fileFormat")
-            if not isinstance(size, dict):
-                raise MeasureSetupError("the measuring camera's getOptions gave no fileFormat "
-                                        "object; it must be an OSC camera taking RAW+")
-            self._format = {**size, "type": "raw+"}
         self.client.set_options(iso=self.iso, whiteBalance="daylight",
                                 fileFormat=self._format, **options)
         res = self.client.take_picture()

@@ -71,14 +71,20 @@ class PatternSession:
 
     def show(self, lengths_mm: NDArray | float) -> None:
         """Drive every pixel to ``lengths_mm`` ((N,) or one value, mm) and wait until the
-        motors are there (:class:`PatternError` after ``settle_s``)."""
+        motors are there (:class:`PatternError` after ``settle_s``); the pattern is then sent
+        once more, so that the controllers' watchdog counts from the photo, not from the
+        start of the motors' travel."""
         um = np.rint(np.broadcast_to(np.asarray(lengths_mm, dtype=np.float64) * 1000.0,
                                      (self.n_pixels,))).astype(np.int64)
+        self._send(um)
+        self.shown = um
+        self.wait_shown()
+        self._send(um)  # the motors are there: the same targets, the watchdog re-armed
+
+    def _send(self, um: NDArray[np.int64]) -> None:
         for c, pix in zip(self.controllers, self.pixels, strict=True):
             self.fleet.client(c).show_pattern(c.address, um[pix].tolist(),
                                               timeout_s=self.timeout_s)
-        self.shown = um
-        self.wait_shown()
 
     def wait_shown(self) -> None:
         """Wait until every pixel's target is the pattern and its position within tolerance;

@@ -194,6 +194,7 @@ def run_measurement(ctx: MeasureContext) -> dict[str, Any]:
                                 f"display was photographed (over {mc.steady_lux:.0%}); "
                                 "measure at a time of steady light")
 
+    _within(deadline, ctx.stop, "setting the camera up", cam.prepare)  # before any pattern
     with PatternSession(ctx.fleet, cfg.controllers, n, timeout_s=mc.pattern_timeout_s,
                         settle_s=mc.settle_s,
                         stop=lambda: ctx.stop() or deadline.over) as session:
