@@ -14,13 +14,17 @@ _CONFIG_HELP = ("configuration file (default: /etc/grassd/grassd.toml if it exis
 
 
 @click.command("show")
-@click.argument("file", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("file", required=False,
+                type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("--duration", "duration_s", type=click.FloatRange(0.1, 86400.0),
               help="seconds to show it (default: one pass of an animation, at least 10 s)")
+@click.option("--stop", is_flag=True,
+              help="end what the daemon shows for grassd show or a script now (its next "
+                   "source takes over)")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), help=_CONFIG_HELP)
 @click.option("--state-dir", type=click.Path(file_okay=False),
               help="override the state directory")
-def show(file: Path, duration_s: float | None, config_path: str | None,
+def show(file: Path | None, duration_s: float | None, stop: bool, config_path: str | None,
          state_dir: str | None) -> None:
     """Show a picture or animation (PNG, JPEG, GIF, APNG) on the display, through the
     running daemon or here when none runs."""
@@ -28,7 +32,18 @@ def show(file: Path, duration_s: float | None, config_path: str | None,
     from grassd.daemon.errors import DaemonNotRunning
     from grassd.daemon.runtime.control import request
 
+    if stop == (file is not None):
+        raise click.UsageError("give a picture FILE to show, or --stop (not both)")
     cfg = resolve_config(config_path, state_dir)
+    if stop:
+        try:
+            request(cfg.control_socket, {"cmd": "content_stop"})
+        except DaemonNotRunning:
+            raise click.ClickException("no daemon runs, so nothing is shown for grassd show "
+                                       "(one played here ends with its command)") from None
+        click.echo("grassd: the daemon's next source shows now")
+        return
+    assert file is not None
     req = {"cmd": "content_show", "path": str(file.resolve())}
     if duration_s is not None:
         req["duration_s"] = duration_s

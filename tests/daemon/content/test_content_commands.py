@@ -8,6 +8,7 @@ import queue
 import subprocess
 import sys
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -105,6 +106,18 @@ def test_grassd_show_asks_the_daemon(daemon, sink, tmp_path):
                                   str(tmp_path / "grassd.toml"), "--config", str(cfg_file)],
                                  capture_output=True, text=True, timeout=60)
         assert missing.returncode == 2 and "not a picture" in missing.stderr
+        stop = subprocess.run([sys.executable, "-m", "grassd.daemon.cli", "show", "--stop",
+                               "--config", str(cfg_file)], capture_output=True, text=True,
+                              timeout=60)
+        assert stop.returncode == 0, stop.stderr
+        deadline = time.monotonic() + 3
+        while feature.status().source.value == "script" and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert feature.status().source.value == "none"  # nothing below it here
+        both = subprocess.run([sys.executable, "-m", "grassd.daemon.cli", "show", str(gif),
+                               "--stop", "--config", str(cfg_file)], capture_output=True,
+                              text=True, timeout=60)
+        assert both.returncode == 2 and "not both" in both.stderr
     finally:
         srv.stop()
 
