@@ -95,3 +95,19 @@ def test_a_picture_too_large_or_missing_is_refused_with_the_reason(tmp_path):
     Image.new("L", (4097, 4096)).save(huge)  # small on disk, 16.8 M pixels to decode
     with pytest.raises(PictureError, match="at most 16777216 pixels a frame"):
         load_animation(huge, ROWS, COLS, 64 << 20)
+
+
+def test_apng_and_jpeg_are_read(tmp_path):
+    frames = [Image.new("RGB", (COLS * 4, ROWS * 4), (0, g, 0)) for g in (50, 150, 250)]
+    frames[0].save(tmp_path / "a.png", save_all=True, append_images=frames[1:],
+                   duration=[100, 200, 300], loop=0)
+    anim = load_animation(tmp_path / "a.png", ROWS, COLS, 1 << 20)
+    assert anim.frames.shape == (3, ROWS, COLS, 3)
+    assert anim.frames[:, 0, 0, 1].tolist() == [50, 150, 250]
+    assert anim.durations_s.tolist() == pytest.approx([0.1, 0.2, 0.3])
+    assert [anim.index_at(t) for t in (0.05, 0.15, 0.35, 0.65)] == [0, 1, 2, 0]
+    Image.new("RGB", (COLS * 40, ROWS * 40), (10, 200, 30)).save(tmp_path / "a.jpg",
+                                                                 quality=95)
+    jpg = load_animation(tmp_path / "a.jpg", ROWS, COLS, 1 << 20)
+    assert jpg.frames.shape == (1, ROWS, COLS, 3)
+    assert abs(int(jpg.frames[0, 0, 0, 1]) - 200) <= 3
