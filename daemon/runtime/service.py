@@ -88,7 +88,7 @@ from grassd.daemon.runtime.notify import Notifier
 from grassd.daemon.runtime.pass_errors import PassErrors, describe_error, os_action
 from grassd.daemon.runtime.push_outcomes import PushOutcomes
 from grassd.daemon.runtime.reconcile import OwnTables, reconcile_controllers
-from grassd.daemon.runtime.retention import prune
+from grassd.daemon.runtime.retention import prune, prune_measure_photos
 from grassd.daemon.runtime.scheduled import scheduled_input
 from grassd.daemon.runtime.signal_relay import SignalRelay
 from grassd.daemon.runtime.statelock import StateLock
@@ -549,10 +549,14 @@ class Service:
         self._progress(activity)
 
     def prune(self) -> None:
-        """Apply ``[retention]`` (old bundles, reports, history rows); never fails a run."""
+        """Apply ``[retention]`` (old bundles, reports, history rows) and ``[measure]
+        keep_photos``; never fails a run."""
         try:
             prune(self.cfg.state_dir, self.history, self.cfg.retention,
                   reports_dir=self.reports_dir)
+            if self.cfg.measure is not None:
+                prune_measure_photos(StateLayout(self.cfg.state_dir).measure,
+                                     self.cfg.measure.keep_photos)
         except (OSError, sqlite3.Error, DaemonError) as exc:
             log.warning("retention: pruning failed: %s", exc)
 

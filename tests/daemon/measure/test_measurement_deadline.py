@@ -121,3 +121,21 @@ def test_only_the_newest_measurements_keep_their_photos(tmp_path, hw):
 
 def _shots(layout: StateLayout, mid: str) -> list[str]:
     return sorted(p.name for p in (layout.measure / mid).iterdir() if p.suffix == ".dng")
+
+
+def test_the_daemons_retention_pass_applies_keep_photos(tmp_path, hw):
+    """The daemon's pass after every run (and at start) keeps the photos of the newest
+    ``keep_photos`` measurements too: lowering it takes effect without a measurement."""
+    sim, cfg = hw
+    path = _site(tmp_path, cfg, "http://127.0.0.1:9", "keep_photos = 1\n")
+    layout = StateLayout(tmp_path / "state")
+    old = ["20260101T100000Z", "20260108T100000Z"]
+    for mid in old:
+        (layout.measure / mid).mkdir(parents=True)
+        (layout.measure / mid / "short.dng").write_bytes(b"\0" * 4096)
+    svc = Service(load_config(path))
+    try:
+        svc.prune()
+    finally:
+        svc.shutdown()
+    assert sorted(p.name for p in layout.measure.iterdir() if p.is_dir()) == old[-1:]
