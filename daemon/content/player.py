@@ -23,6 +23,7 @@ import collections
 import logging
 import threading
 import time
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -30,8 +31,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from grassd.daemon.config.content import ContentConfig, PlaylistEntry
-from grassd.daemon.content.colour_map import DisplayColours, levels_for_picture
+from grassd.daemon.content.colour_map import DisplayColours
 from grassd.daemon.content.library import PictureLibrary
+from grassd.daemon.content.mapping import MappedAnimation
 from grassd.daemon.content.merge import LiveMerger
 from grassd.daemon.content.pictures import Animation
 from grassd.daemon.content.pixel_order import stream_to_display
@@ -61,9 +63,9 @@ class _Playing:
     anim: Animation
     start: float
     until: float
-    levels: NDArray[np.uint8] | None = None  # (n, n_pixels) mapped with ``colours``
-    colours: DisplayColours | None = None
-    fixed: bool = False  # levels as given (a script's frame): never mapped
+    #: its levels, mapped off the player's thread; None: levels as given (``fixed``)
+    mapped: MappedAnimation | None = None
+    fixed: NDArray[np.uint8] | None = None  # (1, n_pixels) a script's frame, never mapped
 
 
 class ContentPlayer:
@@ -106,6 +108,9 @@ class ContentPlayer:
         self.library = PictureLibrary([e.file for e in self._playlist]
                                       + ([cfg.idle] if cfg.idle is not None else []),
                                       rows, cols, cfg.max_picture_mib << 20)
+        #: the mappings of the animations shown (dropped with them)
+        self._maps: weakref.WeakKeyDictionary[Animation, MappedAnimation] = \
+            weakref.WeakKeyDictionary()
         self._last_out = float("-inf")
         self._seen_in: dict[ContentSource, int] = {}
         self.source = ContentSource.NONE
@@ -189,8 +194,7 @@ class ContentPlayer:
                          np.array([hold or self.period_s]), "script frame")
         now = self.clock()
         with self._lock:
-            self._request = _Playing(anim, now, now + hold, levels=arr.reshape(1, -1).copy(),
-                                     fixed=True)
+            self._request = _Playing(anim, now, now + hold, fixed=arr.reshape(1, -1).copy())
             self._request_name = "script frame"
         self._wake.set()
 
@@ -262,11 +266,14 @@ class ContentPlayer:
 
     def _frame_of(self, p: _Playing, now: float) -> NDArray[np.uint8]:
         """The levels of the animation ``p`` at ``now``, mapped with the current colours."""
-        if p.levels is None or (not p.fixed and p.colours is not self._current_colours()):
-            p.colours = self._current_colours()
-            p.levels = levels_for_picture(p.anim.frames, self.cfg.map, p.colours,
-                                          self.cfg.normalise).reshape(len(p.anim.frames), -1)
-        return p.levels[p.anim.index_at(now - p.start)]
+        if p.fixed is not None:
+            return p.fixed[0]
+        if p.mapped is None:  # one mapping per animation, whichever entry plays it again
+            p.mapped = self._maps.get(p.anim)
+            if p.mapped is None:
+                p.mapped = self._maps[p.anim] = MappedAnimation(p.anim, self.cfg.map,
+                                                                self.cfg.normalise)
+        return p.mapped.levels(self._current_colours())[p.anim.index_at(now - p.start)]
 
     def _current_colours(self) -> DisplayColours | None:
         if self.cfg.map != "nearest_de00":

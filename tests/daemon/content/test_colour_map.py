@@ -97,3 +97,25 @@ def test_report_colours_from_the_reference_viewpoint():
     assert "(170, 2, 0)" in c.source
     assert colours_from_report({"viewpoints": [{"h_cm": 170.0}]}, table_um) is None
     assert colours_from_report({"table_um": table_um}, table_um) is None
+
+
+def test_mapping_never_waits_on_the_players_thread(colours):
+    """An animation of 4096 distinct colours (about 0.6 s of CIEDE2000): the first frames
+    come at once (luminance), the nearest predicted colours once mapped in the background."""
+    import time
+
+    from grassd.daemon.content.mapping import MappedAnimation
+    from grassd.daemon.content.pictures import Animation
+
+    rng = np.random.default_rng(3)
+    frames = rng.integers(0, 256, (4, 32, 32, 3), dtype=np.uint8)
+    m = MappedAnimation(Animation(frames, np.full(4, 0.1), "noise"), "nearest_de00")
+    t0 = time.perf_counter()
+    first = m.levels(colours)
+    took = time.perf_counter() - t0
+    np.testing.assert_array_equal(first, levels_for_picture(frames, "luminance").reshape(4, -1))
+    assert took < 0.1, took
+    assert m.wait(colours, 30)
+    np.testing.assert_array_equal(m.levels(colours), levels_for_picture(
+        frames, "nearest_de00", colours).reshape(4, -1))
+    assert m.levels(colours) is m.levels(colours)  # mapped once for these colours
