@@ -3,10 +3,10 @@ archived bundles (newest first) when a state directory is given, HDRIs uploaded 
 and the embedded default site when there is nothing else.
 
 A source holds its panorama as loaded (linear Rec.709, relative units), reduced to at most
-:data:`STUDIO_WIDTH` texels wide when it is wider (a map that size or smaller is simulated as
-the daemon simulates it, texel for texel), and what was measured with it (lux, sun). Building the
-:class:`~grassd.sim.lighting.Lighting` of a condition scales it (:meth:`Lights.lighting`,
-the last few kept).
+:data:`STUDIO_WIDTH` texels wide as it is decoded when it is wider (a map that size or smaller
+is simulated as the daemon simulates it, texel for texel), and what was measured with it
+(lux, sun). Building the :class:`~grassd.sim.lighting.Lighting` of a condition scales it
+(:meth:`Lights.lighting`, the last few kept).
 
 What is kept is capped (:class:`~grassd.daemon.studio.limits.StudioLimits`): the panoramas
 loaded (``kept_maps``, the least recently used unloaded and read again when chosen), and the
@@ -64,15 +64,15 @@ class LightSource:
     image: np.ndarray | None = None
 
     def check(self, shown: str | None = None) -> None:
-        """See that the panorama can light the studio: read and validated by the loader
-        (:func:`load_panorama`, without the reduction, which cannot fail), else
+        """See that the panorama can light the studio: read and validated by the loader as
+        the simulator reads it (:func:`load_panorama`: reduced as it is decoded), else
         StudioInputError with the loader's reason, naming the file ``shown`` (default: its
         path). The map is not kept: the server builds its own Lights from the same sources and
         never renders, and the simulator reads the file again on first use (the uploads do the
         same). Cost: one read of the file (a 1024 x 512 EXR: 30-70 ms, 4096 x 2048: 0.3 s on
         2 cores); nothing when the map is already loaded."""
         if self.image is None:
-            load_panorama(self.path, shown, reduce=False, warn=False)  # the simulator warns
+            load_panorama(self.path, shown, warn=False)  # the simulator warns
 
     def describe(self) -> dict[str, Any]:
         """The source as the page lists it."""
@@ -81,38 +81,23 @@ class LightSource:
                 "sun_elevation_deg": self.sun_elevation_deg, "taken": self.taken}
 
 
-def reduce_width(img: np.ndarray, width: int = STUDIO_WIDTH) -> np.ndarray:
-    """The panorama box-filtered down by the smallest integer factor that divides both sides
-    and makes it at most ``width`` texels wide (power-preserving,
-    :func:`grassd.sim.hdri.downsample`); unchanged when no such factor exists."""
-    from grassd.sim.hdri import downsample
-
-    h, w, _ = img.shape
-    factor = 1
-    while w // factor > width or (h % factor or w % factor):
-        factor += 1
-        if factor > w:
-            return img
-    return img if factor == 1 else downsample(img, factor)
-
-
-def load_panorama(path: Path, shown: str | None = None, *, reduce: bool = True,
-                  warn: bool = True) -> np.ndarray:
-    """An HDRI file as the studio simulates it (:func:`reduce_width`; as read with ``reduce``
-    False); StudioInputError with the loader's reason for a file that is not a usable panorama
-    (missing, not a regular file, neither OpenEXR nor Radiance, truncated, NaN or infinite
+def load_panorama(path: Path, shown: str | None = None, *, warn: bool = True) -> np.ndarray:
+    """An HDRI file as the studio simulates it: box-filtered to at most :data:`STUDIO_WIDTH`
+    texels wide as it is decoded (:func:`grassd.sim.hdri.load_hdri`'s ``max_width``: the
+    full-size map is never held); StudioInputError with the loader's reason for a file that
+    is not a usable panorama (missing, not a regular file, neither OpenEXR nor Radiance,
+    truncated, too large by its header, no whole factor to the studio's width, NaN or infinite
     texels, a black sky), naming it ``shown`` (default: the path). ``warn``: the loader's
     warning of clamped compression noise (:func:`grassd.sim.hdri.check_env`)."""
     from grassd.sim.errors import SimError
     from grassd.sim.hdri import load_hdri
 
     try:
-        img = load_hdri(path, warn=warn)
+        return load_hdri(path, warn=warn, max_width=STUDIO_WIDTH)
     except SimError as exc:
         name = shown or str(path)
         reason = str(exc).replace(str(path), name)
         raise StudioInputError(f"cannot use {name} as the light: {reason}") from None
-    return reduce_width(img) if reduce else img
 
 
 def archived_sources(state_dir: Path, cfg) -> list[LightSource]:

@@ -282,6 +282,8 @@ def test_uploads_beyond_the_slot_get_a_503_and_one_is_decoded_at_a_time(studio):
     for a in busy:
         assert a.startswith(b"HTTP/1.1 503"), a[:200]
         assert b"reading another upload (at most 1 at a time)" in a
+    status, reply = studio.request("api/hdri?name=sky.exr", b"\x76\x2f\x31\x01")
+    assert status == 503 and "reading another upload" in reply["error"]  # one slot for both
     conns[0].sendall(picture)
     first = _answer(conns[0], 60)
     for c in conns:
@@ -297,6 +299,43 @@ def test_uploads_beyond_the_slot_get_a_503_and_one_is_decoded_at_a_time(studio):
     assert sorted(r[0] for r in replies) in ([200, 503, 503, 503], [200, 200, 503, 503],
                                             [200, 200, 200, 503], [200] * 4)
     assert any(r[0] == 200 for r in replies)
+    assert _page_is_served(studio) < 60
+    assert vm_mib(studio.proc.pid) < PEAK_MIB
+
+
+@pytest.fixture(scope="module")
+def huge_uploads(tmp_path_factory) -> tuple[bytes, bytes]:
+    """(an 8192 x 4096 ZIP EXR, an 8192 x 8192 PNG), both flat: small files, large images."""
+    from grassd.sim.hdri import write_exr
+
+    tmp = tmp_path_factory.mktemp("huge")
+    write_exr(tmp / "huge.exr", np.full((4096, 8192, 3), 0.5, np.float32), half=True)
+    return (tmp / "huge.exr").read_bytes(), png_bytes(np.full((8192, 8192), 140))
+
+
+def test_large_images_sent_four_at_a_time_keep_the_studio_small(studio, huge_uploads):
+    """Four 8192 x 4096 EXRs, then four 8192 x 8192 PNGs, each four at once: every one is
+    answered (decoded, refused for its size, or a 503 while the slot is taken), a page is
+    served, and the studio's peak stays under 300 MiB."""
+    exr, png = huge_uploads
+    for path, body, headers in (("api/hdri?name=huge.exr", exr, None),
+                                ("api/picture", png, {"Content-Type": "image/png"})):
+        replies: list = []
+
+        def send(path=path, body=body, headers=headers, replies=replies) -> None:
+            replies.append(studio.request(path, body, headers=headers))
+
+        threads = [threading.Thread(target=send) for _ in range(4)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(120)
+        assert len(replies) == 4
+        for status, reply in replies:
+            assert status in (200, 400, 503), reply
+            if status == 503:
+                assert "reading another upload" in reply["error"]
+        assert any(status != 503 for status, _ in replies)
     assert _page_is_served(studio) < 60
     assert vm_mib(studio.proc.pid) < PEAK_MIB
 
