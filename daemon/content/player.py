@@ -244,11 +244,12 @@ class ContentPlayer:
         return None, ContentSource.NONE, ""
 
     def _live(self, now: float) -> tuple[NDArray[np.uint8], ContentSource, str] | None:
-        """The freshest live frame still within ``hold_s`` of its newest packet."""
+        """The freshest live frame still within ``hold_s`` (and the frame period: with
+        ``hold_s = 0`` a packet shows until the next tick) of its newest packet."""
         best = None
         for source, merger in self.mergers.items():
             f = merger.frame(now)
-            if f is not None and now - f.at <= self.cfg.hold_s and (
+            if f is not None and now - f.at <= self.cfg.hold_s + self.period_s and (
                     best is None or f.at > best[1].at):
                 best = (source, f)
         if best is None:

@@ -170,3 +170,20 @@ def test_sacn_multicast_groups_joined(ports, sink, sacn_senders):
         sink.wait_for(lambda f: np.array_equal(f, stream))
     finally:
         p.stop()
+
+
+def test_hold_zero_shows_packets_and_lets_go_at_once(ports, sink, sacn_senders):
+    cfg = content_config(ports, artnet_enabled=False, hold_s=0.0, fps=30)
+    p = _player(cfg, sink)
+    try:
+        p.set_frame(np.full(ROWS * COLS, 5, np.uint8), hold_s=60)
+        sink.wait_for(lambda f: np.all(f == 5))
+        s = sacn_senders(ports[0])
+        s[1].dmx_data = (44,) * (ROWS * COLS)
+        sink.wait_for(lambda f: np.all(f == 44))  # a live packet shows even without a hold
+        s.stop()
+        t0 = time.monotonic()
+        sink.wait_for(lambda f: np.all(f == 5), timeout_s=3)
+        assert time.monotonic() - t0 < 0.3
+    finally:
+        p.stop()
