@@ -64,6 +64,10 @@ def check_config(config_path: str | None) -> None:
                    f"{ct.hold_s:g} s, map {ct.map}; {'; '.join(live) or 'no live receiver'}; "
                    f"{len(ct.playlist)} playlist entr{'y' if len(ct.playlist) == 1 else 'ies'}"
                    f", idle {ct.idle or 'none'}")
+        for pic in [e.file for e in ct.playlist] + ([ct.idle] if ct.idle else []):
+            if not pic.is_file():
+                click.echo(f"  warning: content picture {pic} does not exist (the daemon "
+                           "leaves it out until it does and it is reloaded)")
     click.echo(f"  state: {cfg.state_dir}; cache: {cfg.cache_dir}; socket: {cfg.control_socket}")
     from grassd.daemon.monitoring.textfile import textfile_path
     from grassd.daemon.store.layout import StateLayout

@@ -71,3 +71,7 @@ def test_check_config_summarises_content(tmp_path):
     line = next(s for s in out.output.splitlines() if s.strip().startswith("content:"))
     assert "on, 24 fps" in line and "sACN 127.0.0.1:5568 from universe 1" in line
     assert "Art-Net" not in line and "1 playlist entry" in line
+    assert f"warning: content picture {tmp_path / 'a.png'} does not exist" in out.output
+    (tmp_path / "a.png").write_bytes(b"")
+    out = CliRunner().invoke(main, ["check-config", "--config", str(conf)])
+    assert "does not exist" not in out.output
