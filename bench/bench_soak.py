@@ -12,7 +12,10 @@ descriptors, the state directory's size, the database's size (with its WAL), the
 status query over the control socket (what `grassd status` does; median of 5) and the mean
 seconds per bundle over those K.
 At the end it fits a line to each column after warm-up (the first 20 %) and prints the slope per
-1000 bundles: flat means no leak and no growth.
+1000 bundles: flat means no leak and no growth. It prints the RSS peak of each quarter of the
+bundles and the growth from the second quarter to the last (at most 16 MiB over 1000
+bundles). With ``GRASSD_BENCH_TRACEMALLOC=DIR`` the daemon runs under tracemalloc and leaves a
+snapshot per row in DIR (``python -m bench.trace_daemon diff A B`` compares two).
 
 Run: ``python -m bench soak`` or ``python -m bench.bench_soak [--bundles N] [--every K]``.
 """
@@ -32,6 +35,7 @@ import numpy as np
 
 from bench.daemon_process import BenchDaemon, daemon_config
 from bench.peak_memory import proc_mib
+from bench.trace_daemon import request_snapshot
 from grassd.sim.hdri import write_exr
 
 SKIES = 8  #: distinct tiny HDRIs the bundles cycle through
@@ -116,6 +120,18 @@ def _slope(xs: list[float], ys: list[float]) -> float:
     return float(np.polyfit(np.asarray(xs, float), np.asarray(ys, float), 1)[0]) * 1000
 
 
+def quarter_peaks(samples: list[tuple[int, float]], n: int) -> list[float]:
+    """The largest value of each quarter of ``n`` bundles, from ``samples`` of (bundles done,
+    value): a sample after bundle i lies in quarter ceil(4 i / n). A quarter without a sample
+    takes the last value before it (NaN before any)."""
+    peaks: list[float] = []
+    for k in range(4):
+        inside = [v for i, v in samples if k * n < 4 * i <= (k + 1) * n]
+        before = [v for i, v in samples if 4 * i <= k * n]
+        peaks.append(max(inside) if inside else before[-1] if before else math.nan)
+    return peaks
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the soak and print the table and the fitted slopes (``argv``: options)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -163,6 +179,8 @@ def main(argv: list[str] | None = None) -> int:
                 row = (i + 1, proc_mib(proc.pid), _fds(proc.pid), _dir_bytes(state), db,
                        q_ms, per)
                 rows.append(row)
+                if daemon.trace_dir is not None:  # GRASSD_BENCH_TRACEMALLOC: a snapshot a row
+                    request_snapshot(daemon.trace_dir, f"b{i + 1:05d}")
                 print(f"{row[0]:>6} {row[1]:>8.1f} {row[2]:>4} {row[3] / 2**20:>9.2f} "
                       f"{row[4] / 2**20:>7.2f} {row[5]:>9.1f} {row[6]:>8.2f} "
                       f"{st['inbox']['archive']:>7} {sum(st['run_counts'].values()):>9}",
@@ -187,6 +205,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"ranges after warm-up: RSS {span(1)} MiB, fds {span(2, fmt='.0f')}, state dir "
               f"{span(3, 2**20, '.2f')} MiB, db {span(4, 2**20, '.2f')} MiB, status query "
               f"{span(5)} ms, time per bundle {span(6, fmt='.2f')} s")
+        quarters = quarter_peaks([(r[0], r[1]) for r in rows], n)
+        print("RSS peak per quarter of the bundles: "
+              + ", ".join(f"Q{k + 1} {q:.1f}" for k, q in enumerate(quarters))
+              + f" MiB; growth from the second to the last quarter {quarters[3] - quarters[1]:+.1f}"
+              " MiB")
     finally:
         daemon.stop()
     return 0

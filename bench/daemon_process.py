@@ -13,6 +13,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from bench.trace_daemon import ENV
+from bench.trace_daemon import command as trace_command
 from grassd.daemon.config.settings import load_default_config
 from grassd.daemon.errors import DaemonNotRunning
 from grassd.daemon.hardware.simulated import SimulatedHardware, hardware_toml
@@ -66,7 +68,8 @@ def wait_ready(sock: Path, proc: subprocess.Popen, log: Path, limit_s: float) ->
 class BenchDaemon:
     """``grassd run --tick TICK`` on a config ``config(state_dir, hardware_config)`` (TOML
     text) and simulated hardware (3000 lux), all under a fresh temporary directory ``tmp``;
-    its stderr goes to ``log``. :meth:`stop` ends it and removes the directory."""
+    its stderr goes to ``log``. :meth:`stop` ends it and removes the directory. With
+    ``GRASSD_BENCH_TRACEMALLOC=DIR`` it runs under tracemalloc (:mod:`bench.trace_daemon`)."""
 
     def __init__(self, prefix: str, config: Callable[[Path, object], str],
                  tick_s: float) -> None:
@@ -78,10 +81,14 @@ class BenchDaemon:
         self.log = self.tmp / "daemon.log"
         conf = self.tmp / "grassd.toml"
         conf.write_text(config(self.state, cfg))
-        grassd = str(Path(sys.executable).parent / "grassd")
+        args = ["run", "--config", str(conf), "--tick", str(tick_s)]
+        #: where the daemon serves tracemalloc snapshots (bench.trace_daemon), or None
+        self.trace_dir = Path(os.environ[ENV]) if os.environ.get(ENV) else None
+        cmd = ([str(Path(sys.executable).parent / "grassd"), *args] if self.trace_dir is None
+               else trace_command(str(self.trace_dir), args))
         with open(self.log, "w") as err:
-            self.proc = subprocess.Popen([grassd, "run", "--config", str(conf), "--tick",
-                                          str(tick_s)], stdout=subprocess.DEVNULL, stderr=err)
+            self.proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err,
+                                         cwd=ROOT if self.trace_dir else None)
 
     def status(self) -> dict:
         """The daemon's status (:func:`status`)."""
