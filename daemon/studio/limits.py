@@ -25,7 +25,9 @@ class StudioLimits:
     """The studio's caps.
 
     Connections: ``header_s`` (s) for a connection's request line and headers to arrive (from
-    the connection's opening, and from the end of its previous response); ``body_idle_s`` (s)
+    the connection's opening, and from the end of its previous response); ``header_fields``
+    header lines a request may have (each of at most 8190 bytes, aiohttp's own cap: a browser
+    sends about 20; a request with more is answered 400); ``body_idle_s`` (s)
     the longest wait for the next piece of a request's body, ``body_s`` (s) for the whole of
     it; ``connections`` open at once (at the cap, a new connection closes the oldest that is
     waiting for its headers or idle between requests; a new one is refused only when every
@@ -46,6 +48,7 @@ class StudioLimits:
     """
 
     header_s: float = 5.0
+    header_fields: int = 48
     body_idle_s: float = 10.0
     body_s: float = 120.0
     connections: int = 128
@@ -80,6 +83,7 @@ class StudioLimits:
 #: Each cap's smallest and largest value (inclusive).
 BOUNDS: dict[str, tuple[float, float]] = {
     "header_s": (0.5, 60.0),
+    "header_fields": (16, 128),
     "body_idle_s": (0.5, 120.0),
     "body_s": (1.0, 3600.0),
     "connections": (8, 1000),

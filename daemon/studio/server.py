@@ -738,7 +738,8 @@ async def serve(args: StudioArgs, host: str, port: int, token: str | None,
     try:
         await runner.setup()
         site = StudioSite(runner, host, port, limits, access_log=None,
-                          keepalive_timeout=2 * limits.header_s)
+                          keepalive_timeout=2 * limits.header_s,
+                          max_headers=limits.header_fields)
         await site.start()
         if ready is not None:
             ready.set_result(site.bound)
