@@ -9,6 +9,14 @@ from pathlib import Path
 
 import click
 
+from grassd.daemon.errors import DaemonError
+
+
+class NothingShown(DaemonError):
+    """``grassd show`` without a daemon played its picture, but no controller took a frame
+    (ports missing or silent, no table on them)."""
+
+
 _CONFIG_HELP = ("configuration file (default: /etc/grassd/grassd.toml if it exists, else the "
                 "embedded default)")
 
@@ -92,7 +100,13 @@ def _play_on_controllers(cfg, layout, anim, name: str, duration: float) -> None:
         player.start()
         time.sleep(duration)
         player.stop()
+        shown = sink.stats().frames_shown
     finally:
         sink.close()
         fleet.close()
         history.close()
+    if shown == 0:
+        raise NothingShown(f"no controller took a frame of {name} in {duration:g} s: check "
+                           "that the [[controllers]] ports exist and answer (grassd "
+                           "controllers), and that they hold a table (grassd calibrate --now)")
+    click.echo(f"grassd: {shown} frame(s) shown")

@@ -37,7 +37,7 @@ def test_show_plays_here_when_no_daemon_runs(tmp_path):
                                str(tmp_path / "ramp.png"), "--duration", "1.5", "--config",
                                str(conf)], capture_output=True, text=True, timeout=60)
         assert proc.returncode == 0, proc.stderr
-        assert "here for 1.5 s (no daemon runs)" in proc.stdout
+        assert "here for 1.5 s (no daemon runs)" in proc.stdout and "shown" in proc.stdout
         want = np.asarray(Image.fromarray(pic).resize((cols, rows), Image.Resampling.BOX))
         levels = want[..., 1].ravel()
         fleet = Fleet(cfg.controllers)
@@ -49,3 +49,18 @@ def test_show_plays_here_when_no_daemon_runs(tmp_path):
         np.testing.assert_array_equal(got, table[levels])
     finally:
         sim.stop()
+
+
+def test_show_here_says_when_no_controller_took_a_frame(tmp_path):
+    """Ports that do not exist: the picture plays to nobody, and the command says so."""
+    conf = tmp_path / "grassd.toml"
+    conf.write_text(f'state_dir = "{tmp_path / "state"}"\ncontrol_socket = '
+                    f'"{tmp_path / "nobody.sock"}"\n'
+                    + default_config_text().replace("/dev/serial/by-id/",
+                                                    str(tmp_path / "none-")))
+    Image.new("RGB", (8, 4), (0, 99, 0)).save(tmp_path / "p.png")
+    proc = subprocess.run([sys.executable, "-m", "grassd.daemon.cli", "show",
+                           str(tmp_path / "p.png"), "--duration", "0.5", "--config", str(conf)],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert "no controller took a frame of p.png" in proc.stderr
