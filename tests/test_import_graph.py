@@ -281,7 +281,8 @@ print(json.dumps({"ok": bool(ok), "modules": sorted(m for m in sys.modules
 
 
 #: the daemon's subpackages: what ``grassd run`` runs
-DAEMON_RUNS = ("runtime", "measure", "calibration", "hardware", "monitoring", "store", "config")
+DAEMON_RUNS = ("runtime", "measure", "calibration", "hardware", "monitoring", "store", "config",
+               "content")
 
 
 def test_no_module_the_daemon_runs_names_an_offline_module():
