@@ -367,13 +367,20 @@ class ControllerClient:
             self._expect(address, StageLevel(frame & 0xFFFF, first_pixel + start,
                                              part.tobytes()), Ack, **kw)
 
-    def show(self, frame: int) -> None:
+    def show(self, frame: int, *, line_held: bool = False) -> None:
         """SHOW, broadcast: every controller on this line that staged frame ``frame`` shows
         it now; none answers (a controller without the latch ignores it). Holds :attr:`bus`
-        while it writes; raises :class:`PortUnavailable` when the port is gone."""
-        seq = self._next_seq()
+        while it writes, unless ``line_held``: a thread of the caller's holds it and waits
+        idle for this write (the frame output's line threads, so that no request gets in
+        between a frame's STAGE_LEVELs and its SHOW). Raises :class:`PortUnavailable` when
+        the port is gone."""
+        if line_held:
+            self._seq = (self._seq + 1) & 0xFFFF
+            self.link.send(encode_frame(Frame(BROADCAST_ADDRESS, self._seq,
+                                              Show(frame & 0xFFFF))))
+            return
         with self.bus:
-            self.link.send(encode_frame(Frame(BROADCAST_ADDRESS, seq, Show(frame & 0xFFFF))))
+            self.show(frame, line_held=True)
 
     def supports_latch(self, address: int) -> bool:
         """Whether controller ``address`` takes STAGE_LEVEL / SHOW (its INFO, read once)."""

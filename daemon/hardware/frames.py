@@ -20,9 +20,11 @@ its *latency* runs from :meth:`FrameOutput.offer` to the last controller's ackno
 How a frame is sent (PROTOCOL.md section 3, "The frame latch", and section 5, "Sharing a
 line"): one sender thread takes the newest frame, no sooner than ``1 / fps`` after the last;
 the serial lines are staged in parallel (a thread per line): holding the line's
-:class:`~grassd.firmware_proto.bus_lock.BusLock`, STAGE_LEVEL to every controller on it (SET_LEVEL
-to one without the latch). Then the sender takes every line's lock and writes a broadcast SHOW
-on each, so every controller applies the frame at once. A push, a status read or a test
+:class:`~grassd.firmware_proto.bus_lock.BusLock`, STAGE_LEVEL to every controller on it
+(SET_LEVEL to one without the latch). Once every line is staged (or ``line_wait_s`` passed),
+the sender writes a broadcast SHOW on each staged line, one after another, while the line
+threads still hold their lines and wait, so every controller applies the frame at once and no
+request gets between a line's STAGE_LEVELs and its SHOW. A push, a status read or a test
 pattern on the same line waits for at most the one frame in flight, and a frame for at most
 one of their requests: while the output runs, the lines' table chunks are capped to
 ``push_slot_s`` of wire time (:func:`stream_chunk_bytes`). A controller that does not answer
@@ -132,6 +134,17 @@ class _Line:
     client: ControllerClient
     controllers: list[_Controller] = field(default_factory=list)
     staging: Future | None = None
+    turn: _Turn | None = None
+
+
+@dataclass
+class _Turn:
+    """One line's part in one frame: ``staged`` once its STAGE_LEVELs are answered (with
+    ``result``), ``shown`` once the sender wrote its SHOW (the line thread then lets go)."""
+
+    staged: threading.Event = field(default_factory=threading.Event)
+    shown: threading.Event = field(default_factory=threading.Event)
+    result: _Staged | None = None
 
 
 @dataclass
@@ -177,7 +190,7 @@ class FrameOutput:
     def __init__(self, controllers: Sequence[ControllerConfig], n_pixels: int, *,
                  fps: float = 30.0, fleet: Fleet | None = None,
                  policy: RetryPolicy | None = None, refresh_s: float = 1.0,
-                 answer_timeout_s: float = 0.05, retries: int = 0, skip_s: float = 0.25,
+                 answer_timeout_s: float = 0.1, retries: int = 0, skip_s: float = 0.25,
                  skip_max_s: float = 2.0, push_slot_s: float = 0.01,
                  line_wait_s: float | None = None) -> None:
         if not fps > 0:
@@ -350,32 +363,42 @@ class FrameOutput:
                     self._cond.notify_all()
 
     def _send(self, levels: np.ndarray, offered: float | None) -> None:
-        """Stage ``levels`` on every line, then SHOW on every line at once."""
+        """Stage ``levels`` on every line, then SHOW on every line at once; each line's
+        thread holds its line from its first STAGE_LEVEL until its SHOW is written."""
         self._frame_no = (self._frame_no + 1) & 0xFFFF
         no = self._frame_no
         late = 0
-        started: dict[_Line, Future] = {}
+        started: list[tuple[_Line, _Turn]] = []
         for ln in self._lines.values():
             if ln.staging is not None and not ln.staging.done():
-                late += len(ln.controllers)  # still busy with an earlier frame: misses this
-                continue
-            ln.staging = started[ln] = self._pool.submit(self._stage, ln, no, levels)
-        wait(list(started.values()), timeout=self.line_wait_s)
-        ready = [(ln, f.result()) for ln, f in started.items() if f.done()]
-        late += sum(len(ln.controllers) for ln, f in started.items() if not f.done())
-        staged = [st for _, st in ready]
-        showing = [ln for ln, st in ready if st.latched]
-        for ln in showing:
-            ln.client.bus.acquire()
+                if not ln.turn.staged.is_set():
+                    late += len(ln.controllers)  # still staging an earlier frame: misses this
+                    continue
+                # staged and let go, its thread just ending: wait for it, not a frame period
+                wait([ln.staging], timeout=self.line_wait_s)
+                if not ln.staging.done():
+                    late += len(ln.controllers)
+                    continue
+            ln.turn = turn = _Turn()
+            ln.staging = self._pool.submit(self._stage, ln, no, levels, turn)
+            started.append((ln, turn))
+        deadline = time.monotonic() + self.line_wait_s
+        ready: list[tuple[_Line, _Staged | None]] = []
         try:
-            for ln in showing:
-                try:
-                    ln.client.show(no)
-                except PortUnavailable:
-                    pass  # that line's controllers miss this frame; their next stage tells
+            for _, turn in started:
+                turn.staged.wait(max(0.0, deadline - time.monotonic()))
+            ready = [(ln, turn.result) for ln, turn in started if turn.staged.is_set()]
+            late += sum(len(ln.controllers) for ln, t in started if not t.staged.is_set())
+            for ln, st in ready:
+                if st is not None and st.latched:
+                    try:
+                        ln.client.show(no, line_held=True)  # its thread waits for this
+                    except PortUnavailable:
+                        pass  # that line's controllers miss this frame; their next stage tells
         finally:
-            for ln in reversed(showing):
-                ln.client.bus.release()
+            for _, turn in started:
+                turn.shown.set()
+        staged = [st for _, st in ready if st is not None]
         reached = sum(s.latched + s.direct for s in staged)
         acks = [s.last_ack for s in staged if s.last_ack is not None]
         with self._cond:
@@ -389,43 +412,52 @@ class FrameOutput:
             self._shown_at.append(time.monotonic())
             self._latency.append(max(acks) - offered)
 
-    def _stage(self, line: _Line, no: int, levels: np.ndarray) -> _Staged:
-        """Holding the line: STAGE_LEVEL (or SET_LEVEL) to each of its controllers."""
+    def _stage(self, line: _Line, no: int, levels: np.ndarray, turn: _Turn) -> None:
+        """Holding the line: STAGE_LEVEL (or SET_LEVEL) to each of its controllers; then,
+        still holding it, wait for the sender to write the SHOW (``turn``)."""
+        with line.client.bus:
+            try:
+                turn.result = self._stage_controllers(line, no, levels)
+            finally:
+                turn.staged.set()
+            turn.shown.wait(self.line_wait_s + 1.0)
+
+    def _stage_controllers(self, line: _Line, no: int, levels: np.ndarray) -> _Staged:
+        """STAGE_LEVEL (or SET_LEVEL) to each controller of ``line`` (whose lock is held)."""
         out = _Staged()
         client = line.client
         kw = {"retries": self.retries, "timeout_s": self.answer_timeout_s}
-        with client.bus:
-            for ctl in line.controllers:
-                now = time.monotonic()
-                if now < ctl.skip_until or not ctl.pixels.size:
-                    out.missed += bool(ctl.pixels.size)
-                    continue
-                address = ctl.config.address
-                part = levels[ctl.pixels]
-                try:
-                    if ctl.latch is None:
-                        ctl.latch = client.hello(address, **kw).supports_latch
-                    if ctl.latch:
-                        client.stage_levels(address, no, part, **kw)
-                        out.latched += 1
-                    else:
-                        client.set_levels(address, part, **kw)
-                        out.direct += 1
-                except ControllerUnsupported:
-                    ctl.latch = False  # another board answers there now: SET_LEVEL next
-                    out.missed += 1
-                    continue
-                except (TransientError, ProtocolError) as exc:
-                    out.missed += 1
-                    ctl.failures += 1
-                    gone = isinstance(exc, PortUnavailable)
-                    if gone:
-                        ctl.latch = None  # what comes back on the port may be another board
-                    if gone or ctl.failures >= 2:  # one lost answer on a noisy line: no skip
-                        k = max(ctl.failures - 2, 0)
-                        delay = min(self.skip_s * 2 ** k, self.skip_max_s)
-                        ctl.skip_until = time.monotonic() + delay
-                    continue
-                ctl.failures = 0
-                out.last_ack = time.monotonic()
+        for ctl in line.controllers:
+            now = time.monotonic()
+            if now < ctl.skip_until or not ctl.pixels.size:
+                out.missed += bool(ctl.pixels.size)
+                continue
+            address = ctl.config.address
+            part = levels[ctl.pixels]
+            try:
+                if ctl.latch is None:
+                    ctl.latch = client.hello(address, **kw).supports_latch
+                if ctl.latch:
+                    client.stage_levels(address, no, part, **kw)
+                    out.latched += 1
+                else:
+                    client.set_levels(address, part, **kw)
+                    out.direct += 1
+            except ControllerUnsupported:
+                ctl.latch = False  # another board answers there now: SET_LEVEL next
+                out.missed += 1
+                continue
+            except (TransientError, ProtocolError) as exc:
+                out.missed += 1
+                ctl.failures += 1
+                gone = isinstance(exc, PortUnavailable)
+                if gone:
+                    ctl.latch = None  # what comes back on the port may be another board
+                if gone or ctl.failures >= 2:  # one lost answer on a noisy line: no skip
+                    k = max(ctl.failures - 2, 0)
+                    delay = min(self.skip_s * 2 ** k, self.skip_max_s)
+                    ctl.skip_until = time.monotonic() + delay
+                continue
+            ctl.failures = 0
+            out.last_ack = time.monotonic()
         return out
