@@ -67,7 +67,8 @@ class ReceiverStats:
 
 class LiveReceiver:
     """Listens on UDP ``bind``:``port`` for ``protocol`` and feeds ``merger``; ``on_packet``
-    is called (in the receiver's thread) after each accepted packet. With multicast
+    is called (in the receiver's thread) after each accepted packet of the stream's last
+    universe (a whole frame) and each stream-terminated one. With multicast
     ``groups`` the socket listens on every address at ``port`` and joins each group on the
     interface whose address is ``bind`` ("0.0.0.0": the kernel's choice)."""
 
@@ -136,10 +137,13 @@ class LiveReceiver:
         except NotDmx:
             st.ignored += 1
             return
+        frames = self.merger.frames_in
         out = self.merger.offer(pkt, time.monotonic())
         if out is Outcome.ACCEPTED:
             st.accepted += 1
-            if self.on_packet is not None:
+            # the player is woken by the stream's last universe: a frame over several
+            # universes goes out whole (the next tick takes a partial one at the latest)
+            if self.on_packet is not None and self.merger.frames_in != frames:
                 self.on_packet()
         elif out is Outcome.LATE:
             st.late += 1

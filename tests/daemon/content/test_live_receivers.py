@@ -187,3 +187,4 @@ def test_hold_zero_shows_packets_and_lets_go_at_once(ports, sink, sacn_senders):
         assert time.monotonic() - t0 < 0.3
     finally:
         p.stop()
+
