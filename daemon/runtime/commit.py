@@ -16,6 +16,7 @@ from grassd.daemon.calibration.result import CalibrationResult
 from grassd.daemon.config.settings import Config
 from grassd.daemon.hardware.fleet import Fleet, table_checksum
 from grassd.daemon.runtime.push_outcomes import PushOutcomes
+from grassd.daemon.runtime.young_garbage import freed_when_done
 from grassd.daemon.store.atomic import (
     atomic_save_figure,
     atomic_write_json,
@@ -49,7 +50,8 @@ def commit_run(run_id: int, result: CalibrationResult, *,
               **result.report()}
     try:
         report_path = atomic_write_json(base.with_suffix(".json"), report)
-        plot_path = atomic_save_figure(base.with_suffix(".png"), result.figure())
+        with freed_when_done():  # the figure's cycles, not left to the next full collection
+            plot_path = atomic_save_figure(base.with_suffix(".png"), result.figure())
     except OSError as exc:  # full / read-only disk: the previous table stays active
         with contextlib.suppress(OSError):
             base.with_suffix(".json").unlink(missing_ok=True)
