@@ -276,11 +276,14 @@ class FrameOutput:
 
     def hold(self) -> None:
         """Stop sending frames (a measurement takes the display) until :meth:`release`;
-        returns once the frame in flight, if any, is out. Holds nest: each needs a release."""
+        returns once the frame in flight, if any, is out and no line's thread uses its line
+        any more (a late line's staging ended). Holds nest: each needs a release."""
         with self._cond:
             self._holds += 1
             while self._busy:
                 self._cond.wait()
+        busy = [ln.staging for ln in self._lines.values() if ln.staging is not None]
+        wait(busy, timeout=self.line_wait_s + 1.0)
 
     def release(self) -> None:
         """Give the display back after :meth:`hold`: frames are sent again, starting with the
