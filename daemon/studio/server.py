@@ -56,7 +56,7 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
-from aiohttp.web_protocol import RequestHandler
+from aiohttp.web_protocol import RequestHandler, _ErrInfo
 
 from grassd.daemon.errors import DaemonError
 from grassd.daemon.studio.cost import check_cost
@@ -614,9 +614,16 @@ class StudioConnection(RequestHandler):
         super().connection_lost(exc)
 
     def data_received(self, data: bytes) -> None:
-        """Count what came (a request begun is answered 408 at its deadline)."""
+        """Count what came (a request begun is answered 408 at its deadline). A request the
+        parser refuses (too many header lines, too long a line) is queued with its exception,
+        whose traceback holds aiohttp's frame and so the chunk read (up to 256 KiB) in a
+        reference cycle that only the cyclic collector frees: the traceback is let go here,
+        or hundreds of such requests in a row hold their chunks until it runs."""
         self._received += len(data)
         super().data_received(data)
+        for message, _payload in self._messages:
+            if isinstance(message, _ErrInfo):
+                message.exc.__traceback__ = None
 
     def request_started(self) -> None:
         """A request's headers are in: it is being served (no header deadline)."""

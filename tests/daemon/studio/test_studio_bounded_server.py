@@ -94,6 +94,30 @@ def test_unfinished_headers_are_cut_and_a_page_is_still_served(studio):
     assert vm_mib(studio.proc.pid) < PEAK_MIB
 
 
+def test_requests_of_too_many_header_lines_are_refused(studio):
+    """300 connections each sending 120 header lines of 8000 bytes: each is answered 400 (more
+    lines than the cap) or 503 (room made for a newer one), and a page is answered."""
+    host, port = _address(studio)
+    head = b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n" + b"".join(
+        b"X-%d: %s\r\n" % (i, b"a" * 8000) for i in range(120))
+    conns = []
+    for _ in range(300):
+        c = socket.create_connection((host, port))
+        c.settimeout(5)
+        with contextlib.suppress(OSError):  # closed before all of it was sent
+            c.sendall(head)
+        conns.append(c)
+    assert studio.request("api/state")[0] == 200
+    answers = [_answer(c, 10) for c in conns]
+    for c in conns:
+        c.close()
+    too_many = [a for a in answers if a.startswith(b"HTTP/1.0 400")]
+    assert too_many and b"Too many headers" in too_many[0]
+    assert all(a.startswith((b"HTTP/1.0 400", b"HTTP/1.1 503")) for a in answers), \
+        {a[:12] for a in answers}
+    assert vm_mib(studio.proc.pid) < PEAK_MIB
+
+
 @pytest.fixture(scope="module")
 def open_studio(tmp_path_factory, shared_hdri):
     """A studio bound to every address (so it needs its token), reached on 127.0.0.1."""
