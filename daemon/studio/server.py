@@ -81,8 +81,8 @@ TOKEN: web.AppKey[str | None] = web.AppKey("token", str)
 SOCKETS: web.AppKey[set] = web.AppKey("sockets", set)
 LIMITS: web.AppKey[StudioLimits] = web.AppKey("limits", StudioLimits)
 UPLOADS: web.AppKey[asyncio.Semaphore] = web.AppKey("uploads", asyncio.Semaphore)
-#: The threads that decode uploads, one per upload slot: decoding in the loop's default
-#: executor spread the decoders' memory over as many malloc arenas as it has threads.
+#: The threads that decode uploads, one per upload slot (the loop's default executor has
+#: many more, which its other work may need meanwhile).
 DECODERS: web.AppKey[ThreadPoolExecutor] = web.AppKey("decoders", ThreadPoolExecutor)
 #: Seconds the studio waits at its end for requests in flight (a page's socket is closed).
 SHUTDOWN_S: float = 2.0
@@ -294,8 +294,9 @@ def _busy(request: web.Request) -> web.Response:
 
 async def _upload(request: web.Request, read, decode) -> Any:
     """``decode(await read())`` holding one of the studio's upload slots: the body is read
-    only once a slot is free (else a 503 without reading it), and the slot is held until the
-    decoding ends, even when the client goes away meanwhile (the decoder's thread goes on)."""
+    only once a slot is free (else :class:`_UploadsBusy`, answered 503 from the headers, the
+    body then discarded as it comes, never kept), and the slot is held until the decoding
+    ends, even when the client goes away meanwhile (the decoder's thread goes on)."""
     slots = request.app[UPLOADS]
     if slots.locked():
         raise _UploadsBusy
