@@ -107,3 +107,25 @@ def test_nested_blocks_enable_the_collector_only_at_the_outermost_end(collector_
         assert not gc.isenabled()
     assert gc.isenabled()
     assert ring() is None
+
+
+def _live_figures() -> int:
+    """Matplotlib figures the collector tracks now, unreachable or not (nothing collected)."""
+    from matplotlib.figure import Figure
+
+    return sum(isinstance(o, Figure) for o in gc.get_objects())
+
+
+def test_a_committed_runs_report_figure_is_gone_when_the_tick_ends(tmp_path, hw, collector_on):
+    """Through the daemon's own commit: a run's report plot is written and, as the tick that
+    made it ends, no figure is left waiting for a full collection."""
+    from daemon_harness import after_first_bundle, drop
+
+    sim, cfg = hw
+    svc, _ = after_first_bundle(tmp_path, cfg)
+    gc.collect()
+    drop(svc.cfg.light.inbox, "b2", lux=1500.0)
+    svc.tick()
+    run = svc.history.runs(1)[0]
+    assert run.status == "ok" and run.plot_path and run.plot_path.endswith(".png")
+    assert _live_figures() == 0
