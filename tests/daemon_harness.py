@@ -25,6 +25,13 @@ from grassd.sim.hdri import default_site_hdri
 ROOT = Path(__file__).resolve().parents[1]
 CACHE = os.environ.get("GRASSD_CACHE_DIR", str(ROOT / ".venv" / "grassd-cache"))
 SITE = default_site_hdri()
+
+
+def truncated_exr() -> bytes:
+    """The default site's EXR cut two thirds in: its header is sound, so the inbox claims the
+    bundle, and its run is rejected by the renderer's reader (a run row with status rejected)."""
+    data = SITE.read_bytes()
+    return data[:len(data) * 2 // 3]
 #: top of a configuration: state directory "state" beside the file, the shared kernel cache,
 #: a site in Munich
 HEAD = f"""

@@ -14,9 +14,8 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
-from daemon_harness import CACHE, SITE
+from daemon_harness import CACHE, SITE, truncated_exr
 from daemon_harness import wait_for as harness_wait_for
 
 from grassd.daemon.config.settings import load_default_config
@@ -211,9 +210,7 @@ def test_bad_bundles_rejected_daemon_healthy_old_table_kept(daemon):
     d = daemon
     before = d.status()["desired_table"]
     crcs = d.crcs()
-    corrupt = SITE.read_bytes()[:4] + bytes(np.random.default_rng(0).integers(0, 256, 5000,
-                                                                               dtype=np.uint8))
-    d.drop("corrupt", manifest(3, 1000.0), {"sky.exr": corrupt})
+    d.drop("corrupt", manifest(3, 1000.0), {"sky.exr": truncated_exr()})
     d.drop("neglux", manifest(4, -5))
     half = d.state / "inbox" / "half"           # manifest written, HDRI never arrives
     half.mkdir()

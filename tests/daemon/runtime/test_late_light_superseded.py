@@ -13,7 +13,7 @@ import logging
 import sqlite3
 
 from click.testing import CliRunner
-from daemon_harness import drop, journal_entry, reported, service, write_config
+from daemon_harness import drop, journal_entry, reported, service, truncated_exr, write_config
 
 from grassd.daemon.cli.main import main as cli
 from grassd.daemon.runtime.service import collect_status
@@ -23,11 +23,11 @@ NOON = "2026-03-01T12:00:00+01:00"  # 11:00 UTC
 
 
 def _corrupt(inbox, name: str, timestamp: str) -> None:
-    """A bundle whose EXR has the right magic number but garbage after it: its run starts and
-    is rejected by the renderer's reader."""
+    """A bundle whose EXR is cut short after a sound header: its run starts and is rejected by
+    the renderer's reader."""
     d = inbox / f".{name}"
     d.mkdir()
-    (d / "sky.exr").write_bytes(b"\x76\x2f\x31\x01" + b"\0garbage" * 64)
+    (d / "sky.exr").write_bytes(truncated_exr())
     (d / "manifest.toml").write_text(f'timestamp = {timestamp}\nhdri = "sky.exr"\n'
                                      "ambient_lux = 900.0\n")
     d.rename(inbox / name)

@@ -8,7 +8,7 @@ import re
 import time
 
 import pytest
-from daemon_harness import drop, service, write_config
+from daemon_harness import drop, service, truncated_exr, write_config
 
 from grassd.daemon.config.settings import (
     RetentionConfig,
@@ -24,11 +24,11 @@ def reports(svc) -> list[str]:
 
 
 def corrupt_bundle(inbox, name: str) -> None:
-    """A bundle whose EXR has the right magic number but garbage after it: the run starts and
-    is rejected by the renderer's reader (a run row with status rejected)."""
+    """A bundle whose EXR is cut short after a sound header: the run starts and is rejected by
+    the renderer's reader (a run row with status rejected)."""
     d = inbox / f".{name}"
     d.mkdir()
-    (d / "sky.exr").write_bytes(b"\x76\x2f\x31\x01" + b"\0garbage" * 64)
+    (d / "sky.exr").write_bytes(truncated_exr())
     (d / "manifest.toml").write_text('timestamp = 2026-03-01T12:00:00+01:00\nhdri = "sky.exr"\n'
                                      "ambient_lux = 900.0\n")
     d.rename(inbox / name)
