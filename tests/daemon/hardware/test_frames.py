@@ -248,8 +248,9 @@ def test_a_push_during_a_stream(tmp_path, firmware):
 @pytest.mark.parametrize("firmware", FIRMWARES)
 def test_a_controller_reboots_during_a_stream(tmp_path, firmware):
     """One line's controllers power-cycle (the posix process's port unplugged for 0.5 s, the
-    model's controllers rebooted in place): frames keep 90 % of their rate, and the rebooted
-    controllers show the current frame again."""
+    model's controllers rebooted in place): frames keep 90 % of the rate they had just before
+    (on this machine, under its load now), and the rebooted controllers show the current frame
+    again."""
     with ExitStack() as stack:
         buses = start_lines(firmware, tmp_path, stack)
         ctls = line_configs([b.path for b in buses])
@@ -258,8 +259,12 @@ def test_a_controller_reboots_during_a_stream(tmp_path, firmware):
         assert all(r.ok for r in fleet.push(tables, 1))
         out = stack.enter_context(FrameOutput(ctls, N, fps=30, fleet=fleet))
         with Stream(out, 30) as stream:
-            time.sleep(1.0)
+            time.sleep(0.5)
+            start, s0 = out.stats(), time.monotonic()
+            time.sleep(1.5)
             before, t0 = out.stats(), time.monotonic()
+            # the rate this machine keeps without the reboot, under the load it has now
+            steady = (before.frames_shown - start.frames_shown) / (t0 - s0)
             if firmware == "posix":
                 buses[0].unplug(0.5)
             else:
@@ -271,8 +276,8 @@ def test_a_controller_reboots_during_a_stream(tmp_path, firmware):
             time.sleep(1.0)
             final = out.stats()
         rate = (after.frames_shown - before.frames_shown) / dt
-        print(f"reboot: {rate:.1f} frames/s shown, {after.misses} misses")
-        assert rate >= 0.9 * 30
+        print(f"reboot: {rate:.1f} frames/s shown ({steady:.1f} before), {after.misses} misses")
+        assert rate >= 0.9 * steady and steady >= 0.5 * 30
         assert final.misses == boots_misses  # the rebooted line is back in every frame
         settle(out)
         for c in ctls:
