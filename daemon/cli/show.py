@@ -36,13 +36,13 @@ def show(file: Path | None, duration_s: float | None, stop: bool, config_path: s
          state_dir: str | None) -> None:
     """Show a picture or animation (PNG, JPEG, GIF, APNG) on the display, through the
     running daemon or here when none runs."""
-    from grassd.daemon.config.settings import resolve_config
+    from grassd.daemon.cli.state_owner import config_as_state_owner
     from grassd.daemon.errors import DaemonNotRunning
     from grassd.daemon.runtime.control import request
 
     if stop == (file is not None):
         raise click.UsageError("give a picture FILE to show, or --stop (not both)")
-    cfg = resolve_config(config_path, state_dir)
+    cfg = config_as_state_owner(config_path, state_dir, "show")
     if stop:
         try:
             request(cfg.control_socket, {"cmd": "content_stop"})

@@ -145,7 +145,7 @@ def test_studio_started_by_root_runs_as_the_state_directorys_owner(nobody_python
 
 
 @pytest.mark.parametrize("command", [("calibrate", "--now"), ("measure", "--now"),
-                                     ("status",), ("history",)])
+                                     ("status",), ("history",), ("show", "--stop")])
 def test_one_shot_commands_by_root_run_as_the_owner(nobody_python, nobody_dir, command):
     """The one-shot commands that read the state directory: each becomes its owner first,
     and what `calibrate --now` writes there (lock, database, folders) is the owner's; its
