@@ -28,12 +28,14 @@ setup-test: $(VENV)/.grassd-test-installed
 demo: setup
 	$(VENV)/bin/grassd demo --firmware $(FIRMWARE)
 
-# The C controller firmware: the posix port always, the Cortex-M7 image when the ARM
-# toolchain is on PATH (firmware/README.md).
+# The C controller firmware: the posix port always, the Cortex-M7 image and the Teensy 4.1
+# sketch's compile when the ARM toolchain is on PATH (firmware/README.md).
 firmware:
 	$(MAKE) -C firmware posix
 	@if command -v arm-none-eabi-gcc >/dev/null; then $(MAKE) -C firmware arm; \
 	else echo "firmware: arm-none-eabi-gcc not found, Cortex-M7 image skipped (apt-get install gcc-arm-none-eabi libnewlib-arm-none-eabi)"; fi
+	@if [ -n "$$($(MAKE) -s --no-print-directory -C firmware have-teensy)" ]; then $(MAKE) -C firmware teensy; \
+	else echo "firmware: Teensy 4.1 sketch compile skipped: no arm-none-eabi-g++ with libstdc++ (apt-get install gcc-arm-none-eabi libnewlib-arm-none-eabi libstdc++-arm-none-eabi-newlib)"; fi
 
 # pytest workers: most tests wait on daemons, serial lines and servers, so two workers on two
 # cores cut the suite from 627 s to 437 s (whole files per worker: module fixtures stay shared).

@@ -3,25 +3,32 @@
  * pin map; this one is ours: PWM on PWM-capable pins, direction on a plain output (for an
  * H-bridge with PWM + DIR inputs such as a DRV8871 pair or a TB6612 channel), quadrature
  * encoder A/B on interrupt pins (every Teensy 4.1 digital pin is). Edit it for your board;
- * the number of rows is the pixel count the controller reports. */
+ * the number of rows is the pixel count the controller reports.
+ *
+ * The list is written once and expanded twice by the sketch: into PIXEL_PINS (PWM and DIR) and
+ * into its static array of Encoder objects (the firmware has no heap, so the encoders are not
+ * made at run time from a table). Each row is GRASS_PIXEL(pwm, dir, encoder A, encoder B). */
 #ifndef GRASS_PINS_H
 #define GRASS_PINS_H
 
+#define GRASS_PIXELS(GRASS_PIXEL) \
+    /*          pwm dir  A   B */ \
+    GRASS_PIXEL(2, 3, 30, 31)     \
+    GRASS_PIXEL(4, 5, 32, 33)     \
+    GRASS_PIXEL(6, 9, 34, 35)     \
+    GRASS_PIXEL(7, 10, 36, 37)    \
+    GRASS_PIXEL(8, 11, 38, 39)    \
+    GRASS_PIXEL(22, 12, 40, 41)   \
+    GRASS_PIXEL(23, 16, 24, 25)   \
+    GRASS_PIXEL(28, 17, 26, 27)
+
 typedef struct {
-    unsigned char pwm, dir, enc_a, enc_b;
+    unsigned char pwm, dir;
 } pixel_pins;
 
-static const pixel_pins PIXEL_PINS[] = {
-    /* pwm dir  A   B */
-    {2, 3, 30, 31},
-    {4, 5, 32, 33},
-    {6, 9, 34, 35},
-    {7, 10, 36, 37},
-    {8, 11, 38, 39},
-    {22, 12, 40, 41},
-    {23, 16, 24, 25},
-    {28, 17, 26, 27},
-};
+#define GRASS_PIN_ROW(pwm, dir, enc_a, enc_b) {pwm, dir},
+static const pixel_pins PIXEL_PINS[] = {GRASS_PIXELS(GRASS_PIN_ROW)};
+#undef GRASS_PIN_ROW
 
 /* RS-485: Serial1 (RX1 pin 0, TX1 pin 1) with the transceiver's DE/RE on this pin; set
  * GRASS_USE_RS485 to 0 for USB Serial (one controller per USB port). */

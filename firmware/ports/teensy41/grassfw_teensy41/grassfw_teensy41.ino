@@ -8,6 +8,7 @@
 //            to the file and is synced, so a power cut keeps the old bytes or the new ones
 //   motors   PWM + DIR per pixel, quadrature encoders (PJRC Encoder library), PD loop from
 //            an IntervalTimer every 1 ms, above the bus in priority
+//   memory   no heap: every object here is static, sized at compile time
 #include <Encoder.h>
 #include <IntervalTimer.h>
 #include <LittleFS.h>
@@ -25,9 +26,15 @@ static const uint16_t N_PIXELS = sizeof(PIXEL_PINS) / sizeof(PIXEL_PINS[0]);
 #define BUS Serial
 #endif
 
+// The encoders: static objects, one per row of pins.h. PJRC's Encoder is meant to be a global:
+// its constructor sets the pins' pull-ups and attaches their interrupts before setup() runs.
+#define GRASS_ENCODER(pwm, dir, enc_a, enc_b) {enc_a, enc_b},
+static Encoder encoders[] = {GRASS_PIXELS(GRASS_ENCODER)};
+#undef GRASS_ENCODER
+static_assert(sizeof encoders / sizeof encoders[0] == N_PIXELS, "one encoder per pixel");
+
 static LittleFS_Program flashfs;
 static File banks;
-static Encoder *encoders[N_PIXELS];
 static IntervalTimer motor_timer;
 static fw_controller ctl;
 static fw_hal hal;
@@ -42,7 +49,7 @@ static int nv_read(void *, uint32_t off, uint8_t *buf, uint32_t n)
 {
     if (!banks.seek(off))
         return -1;
-    return banks.read(buf, n) == (int)n ? 0 : -1;
+    return banks.read(buf, n) == n ? 0 : -1;
 }
 
 static int nv_write(void *, uint32_t off, const uint8_t *data, uint32_t n)
@@ -80,7 +87,7 @@ static uint32_t now_ms(void *) { return millis(); }
 static int32_t encoder_read(void *, uint16_t p)
 {
     fw_irqstatus flag = fw_irq_save();
-    int32_t v = encoders[p]->read();
+    int32_t v = encoders[p].read();
     fw_irq_restore(flag);
     return v;
 }
@@ -120,7 +127,6 @@ void setup()
         pinMode(PIXEL_PINS[p].dir, OUTPUT);
         analogWriteFrequency(PIXEL_PINS[p].pwm, GRASS_PWM_HZ);
         analogWrite(PIXEL_PINS[p].pwm, 0);
-        encoders[p] = new Encoder(PIXEL_PINS[p].enc_a, PIXEL_PINS[p].enc_b);
     }
 #if GRASS_USE_RS485
     Serial1.begin(GRASS_RS485_BAUD);
@@ -144,10 +150,10 @@ void setup()
 void loop()
 {
     uint8_t buf[64];
-    int n = BUS.available();
-    if (n > 0) {
-        n = BUS.readBytes((char *)buf, n < (int)sizeof buf ? n : (int)sizeof buf);
-        fw_rx_feed(&ctl, buf, (size_t)n);
+    int avail = BUS.available();
+    if (avail > 0) {
+        size_t want = (size_t)avail < sizeof buf ? (size_t)avail : sizeof buf;
+        fw_rx_feed(&ctl, buf, BUS.readBytes((char *)buf, want));
     }
     fw_poll(&ctl);   // a test pattern's watchdog (the motor tick runs all the time here)
 }
