@@ -476,6 +476,50 @@ class ControllerClient:
         status read back (the old table), or None if the controller could not be reached at
         all. The call returns within that deadline (the read-back included).
         """
+        status = self._push(address, table, table_id, commit=True)
+        assert status is not None
+        return status
+
+    def stage_table(self, address: int, table: ArrayLike,
+                    table_id: int | None = None) -> TableStatus | None:
+        """The first half of a two-phase push: HELLO, status, TABLE_BEGIN and every
+        TABLE_CHUNK of ``table`` (as :meth:`push_table`, with its restarts and deadline), but
+        no TABLE_COMMIT. Returns None once every byte is acknowledged (the transfer stays
+        open on the controller, the old table active, until :meth:`commit_table`), or the
+        active status when the controller already holds the table (nothing sent). Raises as
+        :meth:`push_table` does (:class:`PushFailed`: the old table stays active)."""
+        return self._push(address, table, table_id, commit=False)
+
+    def commit_table(self, address: int, table_id: int, table_crc: int) -> TableStatus:
+        """The second half of a two-phase push (:meth:`stage_table`): TABLE_COMMIT of table
+        ``table_id`` / ``table_crc`` (its CRC-32/ISO-HDLC), then TABLE_STATUS read back. No
+        restart: a commit the controller refuses (it rebooted since the staging, the data it
+        holds fails the CRC) or that gets no answer raises :class:`PushFailed` with the table
+        read back as ``active`` (the old one), or None if the controller does not answer the
+        read-back either; a permanent refusal (VALUE_RANGE) raises :class:`NakError`.
+        Returns the status active afterwards, which carries this table's id and CRC."""
+        tid, crc = int(table_id), int(table_crc)
+        last: TransientError | None = None
+        try:
+            self._expect(address, TableCommit(tid, crc), Ack)
+        except TransientError as exc:
+            last = exc
+        try:
+            final = self.read_status(address, retries=self.policy.readback_retries)
+        except TransientError as exc:
+            raise PushFailed(f"commit of table {tid:#010x} on controller {address} on "
+                             f"{self.port}: state unknown, cannot read it back ({exc}); "
+                             f"earlier error: {last}", active=None, cause=exc) from None
+        if _table_matches(final, tid, crc):
+            return final
+        raise PushFailed(f"commit of table {tid:#010x} on controller {address} on {self.port} "
+                         f"failed ({last or 'another table reported after the commit'}); "
+                         f"table {final.table_id:#010x} is still active", active=final,
+                         cause=last)
+
+    def _push(self, address: int, table: ArrayLike, table_id: int | None,
+              commit: bool) -> TableStatus | None:
+        """:meth:`push_table` (``commit``) or :meth:`stage_table` (not ``commit``)."""
         arr = as_table_array(table)
         kind, n_tables = table_kind(arr)
         data = table_bytes(arr)
@@ -497,7 +541,9 @@ class ControllerClient:
                     status = self.read_status(address)
                     if _table_matches(status, tid, crc):
                         return status  # already active: nothing to do
-                    self._transfer(address, info, tid, kind, n_tables, data, crc)
+                    self._transfer(address, info, tid, kind, n_tables, data, crc, commit)
+                    if not commit:
+                        return None  # staged: the caller commits (commit_table)
                     break
                 except _PushDeadline as exc:
                     late = exc
@@ -556,11 +602,12 @@ class ControllerClient:
                              f"table asks for {int(arr.max())} um")
 
     def _transfer(self, address: int, info: Info, tid: int, kind: TableKind, n_tables: int,
-                  data: bytes, crc: int) -> None:
+                  data: bytes, crc: int, commit: bool = True) -> None:
         tries0 = self.quality.tries
         self._expect(address, TableBegin(tid, kind, n_tables, len(data), crc), Ack)
         size = self._send_chunks(address, info, tid, data)
-        self._expect(address, TableCommit(tid, crc), Ack)
+        if commit:
+            self._expect(address, TableCommit(tid, crc), Ack)
         self.quality.note_transfer(size, self.quality.tries - tries0)
 
     def _send_chunks(self, address: int, info: Info, tid: int, data: bytes) -> int:

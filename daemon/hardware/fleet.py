@@ -39,6 +39,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -92,6 +93,16 @@ class PushBackoff:
     changed: bool = False
 
 
+class HeldDisplay(Protocol):
+    """What a push needs of the frames playing on the fleet's lines: :meth:`hold` returns
+    once no frame is on any line and sends none until :meth:`release`, which sends the
+    newest frame again."""
+
+    def hold(self) -> None: ...
+
+    def release(self) -> None: ...
+
+
 def table_checksum(lengths_um: ArrayLike) -> int:
     """CRC-32/ISO-HDLC of a table as the controllers compute it (uint16 little-endian bytes)."""
     return table_crc(as_table_array(lengths_um))
@@ -120,6 +131,7 @@ class Fleet:
         self._backoff: dict[str, PushBackoff] = {}
         self._lock = threading.RLock()
         self._clients_lock = threading.Lock()  # only around the clients' dict
+        self._frames: HeldDisplay | None = None
 
     def _client(self, c: ControllerConfig) -> ControllerClient:
         with self._clients_lock:
@@ -136,6 +148,19 @@ class Fleet:
         content frames (:mod:`grassd.daemon.hardware.frames`). Does not wait for a push in
         progress: requests share the line through the client's bus lock."""
         return self._client(c)
+
+    def attach_frames(self, frames: HeldDisplay) -> None:
+        """Frames play on this fleet's lines (a
+        :class:`~grassd.daemon.hardware.frames.FrameOutput` attaches itself): from now on
+        :meth:`push` and :meth:`reconcile` stage every controller first and commit them all
+        while ``frames`` is held (see :meth:`push`). Does not wait for a push in progress."""
+        self._frames = frames
+
+    def detach_frames(self, frames: HeldDisplay) -> None:
+        """``frames`` stopped playing (closed): pushes are made one controller at a time
+        again (from the next push on). Does nothing when another output was attached since."""
+        if self._frames is frames:
+            self._frames = None
 
     def _probe(self, c: ControllerConfig) -> int:
         """Retries of a status read: ``probe_retries`` on a clean line, the policy's
@@ -169,9 +194,11 @@ class Fleet:
         return out
 
     def _push_one(self, c: ControllerConfig, table: np.ndarray, table_id: int, crc: int,
-                  hold: bool) -> tuple[ControllerReport, tuple]:
+                  hold: bool, stage: bool = False) -> tuple[ControllerReport | None, tuple]:
         """Push to one controller unless it holds the table (or, with ``hold``, its backoff
-        holds the push back); returns the report and what it reported before the attempt."""
+        holds the push back); returns the report and what it reported before the attempt.
+        With ``stage`` only its first phase (:meth:`ControllerClient.stage_table`): the
+        report is None once the table is staged, for :meth:`_commit_one`."""
         client = self._client(c)
         try:
             status = client.read_status(c.address, retries=self._probe(c))
@@ -190,7 +217,12 @@ class Fleet:
         if held.retry_in_s is not None:
             return held, state
         try:
-            after = client.push_table(c.address, table, table_id)
+            if stage:
+                after = client.stage_table(c.address, table, table_id)
+                if after is None:
+                    return None, state
+            else:
+                after = client.push_table(c.address, table, table_id)
         except PushFailed as exc:
             act = exc.active
             return ControllerReport(c.name, False, act is not None, True,
@@ -205,6 +237,23 @@ class Fleet:
         return ControllerReport(c.name, ok, True, True, after.table_id, after.table_crc,
                                 None if ok else "controller reports another table after "
                                                 "commit"), state
+
+    def _commit_one(self, c: ControllerConfig, table_id: int, crc: int,
+                    state: tuple) -> ControllerReport:
+        """Commit the table :meth:`_push_one` staged on ``c`` (``state``: what it reported
+        before); its report, as :meth:`_push_one` makes them."""
+        try:
+            after = self._client(c).commit_table(c.address, table_id, crc)
+        except PushFailed as exc:
+            act = exc.active
+            return ControllerReport(c.name, False, act is not None, True,
+                                    getattr(act, "table_id", None),
+                                    getattr(act, "table_crc", None), str(exc))
+        except TransientError as exc:
+            return ControllerReport(c.name, False, False, True, None, None, str(exc))
+        except ProtocolError as exc:  # the controller refused the table: permanent
+            return ControllerReport(c.name, False, True, False, state[2], state[3], str(exc))
+        return ControllerReport(c.name, True, True, True, after.table_id, after.table_crc)
 
     def _held(self, r: ControllerReport, state: tuple, key: tuple[int, int],
               hold: bool) -> ControllerReport:
@@ -301,6 +350,9 @@ class Fleet:
         desired = self._desired(lengths_um, fallback)
         out = []
         with self._lock:
+            frames = self._frames
+            if frames is not None:
+                return self._push_in_two_phases(frames, desired, int(table_id), stop, hold)
             for c in self.controllers:
                 if stop is not None and stop.is_set():
                     break
@@ -308,6 +360,41 @@ class Fleet:
                 r, state = self._push_one(c, table, int(table_id), crc, hold)
                 self._note(r, state, (int(table_id), crc))
                 out.append(r)
+        return out
+
+    def _push_in_two_phases(self, frames: HeldDisplay,
+                            desired: dict[str, tuple[np.ndarray, int]], table_id: int,
+                            stop: threading.Event | None,
+                            hold: bool) -> list[ControllerReport]:
+        """:meth:`push` while frames play (:meth:`attach_frames`): stage the table on every
+        controller that needs it, then, with the frames held (no frame on any line), commit
+        them back to back and release the frames, so every frame is shown through the old
+        tables on all controllers or through the new ones on all. Once ``stop`` is set while
+        staging, nothing is committed (the staged controllers are absent from the result, the
+        old tables stay active)."""
+        reports: list[tuple[ControllerConfig, ControllerReport | None, tuple]] = []
+        for c in self.controllers:
+            if stop is not None and stop.is_set():
+                break
+            table, crc = desired[c.name]
+            r, state = self._push_one(c, table, table_id, crc, hold, stage=True)
+            reports.append((c, r, state))
+        staged = [i for i, (_, r, _) in enumerate(reports) if r is None]
+        if staged and (stop is None or not stop.is_set()):
+            frames.hold()
+            try:
+                for i in staged:
+                    c, _, state = reports[i]
+                    reports[i] = (c, self._commit_one(c, table_id, desired[c.name][1], state),
+                                  state)
+            finally:
+                frames.release()
+        out = []
+        for c, r, state in reports:
+            if r is None:  # staged, not committed: stopped
+                continue
+            self._note(r, state, (table_id, desired[c.name][1]))
+            out.append(r)
         return out
 
     def reconcile(self, lengths_um: ArrayLike | Mapping[str, ArrayLike], table_id: int,

@@ -234,6 +234,9 @@ class FrameOutput:
         self._pool = ThreadPoolExecutor(len(lines), thread_name_prefix="frames-line")
         self._thread = threading.Thread(target=self._run, name="frames", daemon=True)
         self._thread.start()
+        self._fleet = fleet
+        if fleet is not None:  # its pushes commit every controller between two frames
+            fleet.attach_frames(self)
 
     # --- the interface -------------------------------------------------------------------
     def offer(self, levels: ArrayLike) -> None:
@@ -304,6 +307,8 @@ class FrameOutput:
                 return
             self._closed = True
             self._cond.notify_all()
+        if self._fleet is not None:
+            self._fleet.detach_frames(self)
         self._thread.join(10)
         self._pool.shutdown(wait=True)
         for line in self._lines.values():

@@ -85,6 +85,7 @@ class Stream:
         self.out, self.period = out, 1.0 / fps
         self.rng = np.random.default_rng(seed)
         self.last: np.ndarray | None = None
+        self.offered: list[np.ndarray] = []  #: every frame offered, in order
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
 
@@ -92,6 +93,7 @@ class Stream:
         t = time.monotonic()
         while not self._stop.is_set():
             self.last = self.rng.integers(0, 256, N).astype(np.uint8)
+            self.offered.append(self.last)
             self.out.offer(self.last)
             t += self.period
             self._stop.wait(max(0.0, t - time.monotonic()))
@@ -243,6 +245,129 @@ def test_a_push_during_a_stream(tmp_path, firmware):
         last = stream.last
         for c in ctls:
             np.testing.assert_array_equal(targets(fleet, c), expected(new, c, last))
+
+
+def shown_through(tables: list[dict[str, np.ndarray]], frames: np.ndarray,
+                  c: ControllerConfig, tgt: np.ndarray) -> set[tuple[int, int]]:
+    """(frame number, table number) of every offered frame (rows of ``frames``) and table
+    through which controller ``c``'s targets ``tgt`` show that frame."""
+    idx = np.arange(c.pixels[0][0], c.pixels[0][1] + 1)
+    out = set()
+    for t, tab in enumerate(tables):
+        exp = tab[c.name][np.arange(PIX), frames[:, idx]]  # (frames, PIX)
+        out |= {(int(k), t) for k in np.flatnonzero((exp == tgt).all(axis=1))}
+    return out
+
+
+@pytest.mark.parametrize("firmware", FIRMWARES)
+def test_a_push_never_shows_a_frame_through_two_tables(tmp_path, firmware):
+    """Per-pixel tables pushed to all four controllers while frames play: snapshots of every
+    controller's targets, taken between two frames (the output held), never show one frame
+    through the old tables on some controllers and the new ones on others."""
+    with ExitStack() as stack:
+        buses = start_lines(firmware, tmp_path, stack)
+        ctls = line_configs([b.path for b in buses])
+        old, new = tables_for(ctls, 8), tables_for(ctls, 9)
+        fleet = stack.enter_context(Fleet(ctls))
+        assert all(r.ok for r in fleet.push(old, 1))
+        out = stack.enter_context(FrameOutput(ctls, N, fps=30, fleet=fleet))
+        snaps: list[list[np.ndarray]] = []
+        done = threading.Event()
+
+        def sample() -> None:
+            while not done.is_set():
+                out.hold()  # no SHOW until the release: one instant of the display
+                try:
+                    snaps.append([targets(fleet, c) for c in ctls])
+                finally:
+                    out.release()
+                time.sleep(0.03)
+
+        with Stream(out, 30) as stream:
+            time.sleep(0.5)
+            sampler = threading.Thread(target=sample, daemon=True)
+            sampler.start()
+            reports = fleet.push(new, 2)
+            time.sleep(0.3)
+            done.set()
+            sampler.join(5)
+        assert all(r.ok and r.pushed for r in reports), reports
+        frames = np.asarray(stream.offered)
+        seen: dict[int, set[int]] = {}
+        for snap in snaps:
+            for c, tgt in zip(ctls, snap, strict=True):
+                shown = shown_through([old, new], frames, c, tgt)
+                assert shown, f"{c.name}: targets of no frame offered through either table"
+                for k, t in shown:
+                    seen.setdefault(k, set()).add(t)
+        split = sorted(k for k, ts in seen.items() if len(ts) > 1)
+        both = {t for ts in seen.values() for t in ts}
+        print(f"{len(snaps)} snapshots of {len(seen)} frames; split: {len(split)}")
+        assert both == {0, 1} and len(seen) >= 20, (both, len(seen))
+        assert not split, f"frames {split} shown through the old and the new tables at once"
+
+
+class RebootsAtHold:
+    """The frame output as a push sees it (:meth:`Fleet.attach_frames`), except that its
+    first hold power-cycles one model controller: between its staging and its commit, so it
+    forgets the staged table."""
+
+    def __init__(self, out: FrameOutput, controller: Controller) -> None:
+        self.out, self.controller, self.rebooted = out, controller, False
+
+    def hold(self) -> None:
+        if not self.rebooted:
+            self.controller.power_cycle()
+            self.rebooted = True
+        self.out.hold()
+
+    def release(self) -> None:
+        self.out.release()
+
+
+def test_a_commit_that_fails_leaves_the_others_on_the_new_table(tmp_path):
+    """A controller that reboots between its staging and its commit keeps the old table
+    (its push fails, NO_TRANSFER at the commit); the others commit the new one, so the next
+    frames show through the new tables there and the old one on it, until the next reconcile
+    commits it too (between two frames, as every push while frames play)."""
+    with ExitStack() as stack:
+        buses = start_lines("model", tmp_path, stack)
+        ctls = line_configs([b.path for b in buses])
+        # one table per controller (512 bytes: a short push), as rows of its pixels' tables
+        old, new = ({n: np.tile(t[:1], (PIX, 1)) for n, t in tables_for(ctls, seed).items()}
+                    for seed in (10, 11))
+        fleet = stack.enter_context(Fleet(ctls, retry_s=0))
+        assert all(r.ok for r in fleet.push({n: t[0] for n, t in old.items()}, 1))
+        out = stack.enter_context(FrameOutput(ctls, N, fps=30, fleet=fleet))
+        victim = buses[1].controllers[0]
+        fleet.attach_frames(RebootsAtHold(out, victim))
+        with Stream(out, 30) as stream:
+            time.sleep(0.3)
+            reports = fleet.push({n: t[0] for n, t in new.items()}, 2)
+            time.sleep(0.3)
+        by_name = {r.controller: r for r in reports}
+        failed = ctls[2]  # line 1, address 1
+        assert victim.config.address == failed.address == 1
+        assert [c.name for c in ctls if not by_name[c.name].ok] == [failed.name], reports
+        r = by_name[failed.name]
+        assert (r.reachable, r.pushed, r.table_id) == (True, True, 1), r
+        assert "NO_TRANSFER" in r.error and victim.boots == 2
+        settle(out)
+        for c in ctls:
+            tab = old if c is failed else new
+            np.testing.assert_array_equal(targets(fleet, c), expected(tab, c, stream.last))
+        again = fleet.reconcile({n: t[0] for n, t in new.items()}, 2)
+        assert [(r.ok, r.pushed) for r in again] == [(True, False)] * 2 + [(True, True)] + [
+            (True, False)], again
+        resent = out.stats().frames_resent
+        out.release()  # the newest frame again, now through the new table everywhere
+        deadline = time.monotonic() + 5
+        while out.stats().frames_resent == resent:
+            assert time.monotonic() < deadline, out.stats()
+            time.sleep(0.005)
+        out.hold()
+        for c in ctls:
+            np.testing.assert_array_equal(targets(fleet, c), expected(new, c, stream.last))
 
 
 @pytest.mark.parametrize("firmware", FIRMWARES)
