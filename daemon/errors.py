@@ -115,10 +115,11 @@ class ComputeUnavailable(TransientError):
 
 
 class ComputeResultRefused(ComputeUnavailable):
-    """A Dask worker answered a calibration with something other than its declared form
-    (:mod:`grassd.daemon.calibration.wire`): the answer is dropped unread, the bundle waits
-    and is retried as when the cluster is unavailable. Check the workers' grassd versions and
-    who holds a certificate of the site's CA."""
+    """A Dask worker answered a calibration (or a sweep's condition) with something other than
+    its declared form (:mod:`grassd.daemon.calibration.wire`): the answer is dropped unread,
+    the bundle waits and is retried as when the cluster is unavailable (a sweep stops; run it
+    again to resume). Check the workers' grassd versions and who holds a certificate of the
+    site's CA."""
 
 
 class RunInterrupted(DaemonError):

@@ -46,16 +46,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from grassd.daemon.calibration.correction import SAVED, with_correction
+from grassd.daemon.calibration.dask_client import connect, fetch_answer, require_secured
 from grassd.daemon.calibration.remote_job import CalibrationJob, dumps, loads
 from grassd.daemon.calibration.result import CENTRE, CalibrationResult
 from grassd.daemon.calibration.wire import answer_of, error_answer, read_answer
-from grassd.daemon.config.compute import security_problem
 from grassd.daemon.config.settings import Config
 from grassd.daemon.errors import (
     CalibrationRejected,
     ComputeResultRefused,
     ComputeUnavailable,
-    ConfigError,
     RunInterrupted,
 )
 from grassd.sim.light_input import LightInput
@@ -71,11 +70,7 @@ log = logging.getLogger(__name__)
 POLL_S = 1.0
 #: the worker's Taichi arch: "cpu" (the default) or "gpu"
 WORKER_ARCH_ENV = "GRASSD_WORKER_ARCH"
-#: the only Dask serialization family the daemon's client sends and accepts (no pickle)
-SERIALIZERS = ("msgpack",)
-
-__all__ = ["RemoteCalibrator", "calibrate_on_worker", "calibrator_for", "check_arrival",
-           "security_for"]
+__all__ = ["RemoteCalibrator", "calibrate_on_worker", "calibrator_for", "check_arrival"]
 
 
 # --------------------------------------------------------------------------- on the worker
@@ -113,18 +108,6 @@ def calibrator_for(cfg: Config) -> Any:
     from grassd.daemon.calibration.calibrate import Calibrator
 
     return Calibrator(cfg)
-
-
-def security_for(cfg: Config) -> Any:
-    """The :class:`distributed.security.Security` of ``cfg``'s ``[compute]`` (mutual TLS with
-    the site's CA), or None for a scheduler without TLS (``allow_insecure``)."""
-    c = cfg.compute
-    if not c.uses_tls:
-        return None
-    from distributed.security import Security
-
-    return Security(tls_ca_file=str(c.tls_ca_file), tls_client_cert=str(c.tls_cert),
-                    tls_client_key=str(c.tls_key), require_encryption=True)
 
 
 def check_arrival(cfg: Config, result: CalibrationResult, where: str,
@@ -185,14 +168,9 @@ class RemoteCalibrator:
     def __init__(self, cfg: Config) -> None:
         if cfg.compute.scheduler is None:
             raise ValueError("RemoteCalibrator needs [compute] scheduler")
-        if (problem := security_problem(cfg.compute)) is not None:
-            raise ConfigError(problem[1], key=f"compute.{problem[0]}", path=cfg.source)
+        require_secured(cfg.compute, cfg.source)
         self.cfg = cfg
         self.address: str = cfg.compute.scheduler
-        if not cfg.compute.uses_tls:
-            log.warning("[compute] scheduler %s has no TLS (allow_insecure = true): anyone "
-                        "who can reach it can run code in this daemon; use tls:// with the "
-                        "site's CA (docs/operating/compute.md)", self.address)
 
     def job(self, light: LightInput, checker: CheckerPhoto | None,
             **kwargs: Any) -> bytes:
@@ -216,23 +194,9 @@ class RemoteCalibrator:
         CalibrationRejected)."""
         payload = self.job(light, checker, previous_um=previous_um, previous_ccm=previous_ccm,
                            force=force, previous_tables=previous_tables)
-        try:
-            from distributed import Client
-        except ImportError:
-            raise ComputeUnavailable(
-                "[compute] scheduler needs dask.distributed here: pip install "
-                "'dask[distributed]'") from None
         if progress:
             progress(f"connecting to the Dask scheduler at {self.address}")
-        try:
-            client = Client(self.address, timeout=self.cfg.compute.connect_timeout_s,
-                            set_as_default=False, security=security_for(self.cfg),
-                            serializers=list(SERIALIZERS), deserializers=list(SERIALIZERS))
-        except (OSError, ValueError) as exc:  # TimeoutError is an OSError
-            raise ComputeUnavailable(
-                f"cannot reach the Dask scheduler at {self.address} ({exc}); check that it "
-                "runs, that [compute] scheduler names it and that its certificate is signed "
-                "by [compute] tls_ca_file") from None
+        client = connect(self.cfg.compute)
         try:
             watch = _Watch(client, self.address, self.cfg.compute.worker_wait_s, stop,
                            progress)
@@ -290,25 +254,10 @@ class _Watch:
 
     def _outcome(self, fut: Any) -> Any:
         """The finished task's answer as Dask's ``msgpack`` serializer read it (the run's own
-        errors are part of the answer), or :class:`ComputeUnavailable`: a worker Dask gave up
-        on, a task that raised, an answer Dask could not read in that form."""
-        from distributed import KilledWorker
-
-        try:
-            if self.worker is None:  # finished before the first look: the worker holding it
-                holders = self.client.who_has([fut]).get(fut.key, ())
-                self.worker = holders[0] if holders else None
-            return fut.result()
-        except KilledWorker as exc:
-            raise ComputeUnavailable(f"the Dask workers at {self.address} died running the "
-                                     f"run ({exc})") from None
-        except (OSError, ValueError) as exc:  # the connection dropped
-            raise ComputeUnavailable(f"lost the Dask scheduler at {self.address} while "
-                                     f"fetching the result ({exc})") from None
-        except Exception as exc:  # the task raised, or its answer is not msgpack
-            raise ComputeResultRefused(
-                f"Dask worker {self.worker or '(unknown)'} of {self.address} gave no answer "
-                f"in the declared form ({type(exc).__name__}: {str(exc)[:300]})") from None
+        errors are part of the answer); see :func:`~grassd.daemon.calibration.dask_client.
+        fetch_answer` for what it raises."""
+        answer, self.worker = fetch_answer(self.client, fut, self.address, self.worker)
+        return answer
 
     def _look(self, key: str, elapsed_s: float) -> None:
         """Check the task's worker and the cluster's workers; report progress. Raises

@@ -1,14 +1,16 @@
-"""The declared form a calibration's outcome crosses the Dask wire in: arrays, numbers, text.
+"""The declared form a Dask task's outcome crosses the wire in: arrays, numbers, text.
 
 A worker answers with :func:`answer_of` (a result) or :func:`error_answer` (what the run
 raised): a value of msgpack's own types only (dicts with text keys, lists, text, numbers,
 booleans, None, bytes), which Dask sends with its ``msgpack`` serializer, the only one the
 daemon's client accepts. The daemon reads it with :func:`read_answer`, driven by the types it
-declares (:class:`~grassd.daemon.calibration.result.CalibrationResult` and its parts), never by
-anything the wire names: an array is (dtype, shape, bytes) and must have the declared dtype, a
-shape within :data:`MAX_NDIM` / :data:`MAX_ARRAY_BYTES` and only finite entries; a float is a
-number (NaN stands for "not measured"; infinities are refused); a dataclass gets exactly its
-fields and runs its own checks; an error is one of the calibration's own error types, by name.
+declares (:class:`~grassd.daemon.calibration.result.CalibrationResult` and its parts for a
+calibration, :class:`~grassd.daemon.offline.sweep.ConditionResult` for a sweep's condition),
+never by anything the wire names: an array is (dtype, shape, bytes) and must have the
+declared dtype, a shape within :data:`MAX_NDIM` / :data:`MAX_ARRAY_BYTES` and only finite
+entries; a float is a number (NaN stands for "not measured"; infinities are refused); a
+dataclass gets exactly its fields and runs its own checks; an error is one of the
+calibration's own error types, by name.
 Anything else raises :class:`~grassd.daemon.errors.ComputeResultRefused`.
 """
 
@@ -65,7 +67,8 @@ def to_wire(value: Any) -> Any:
 
 
 def answer_of(result: Any) -> dict[str, Any]:
-    """A worker's answer carrying ``result`` (a CalibrationResult)."""
+    """A worker's answer carrying ``result`` (a CalibrationResult, a sweep's
+    ConditionResult)."""
     return {"result": to_wire(result)}
 
 

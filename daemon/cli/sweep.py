@@ -1,7 +1,8 @@
 """``grassd sweep``: characteristics over HDRIs x times of day x viewpoints x pixel specs.
 
 Runs :func:`grassd.daemon.offline.sweep.run_sweep` on local worker processes (default) or on a Dask
-cluster (``--scheduler tcp://HOST:8786``); writes ``OUT/sweep.sqlite`` (tidy table ``results``),
+cluster (``--scheduler tls://HOST:8786``, secured by the ``[compute]`` TLS files of ``--config``,
+as the daemon's calibrations are); writes ``OUT/sweep.sqlite`` (tidy table ``results``),
 ``OUT/summary.json`` and ``OUT/summary.png``. Running the same command again resumes: tasks
 already in the database are skipped.
 """
@@ -10,10 +11,12 @@ from __future__ import annotations
 
 import re
 import sys
+from typing import TYPE_CHECKING
 
 import click
 
 from grassd.daemon.cli.options import REPLICATES
+from grassd.daemon.config.settings import DEFAULT_CONFIG_PATH
 from grassd.daemon.config.sweep import (
     DEFAULT_CONTRAST_THRESHOLD,
     SWEEP_RETRIES,
@@ -21,6 +24,9 @@ from grassd.daemon.config.sweep import (
     SweepSpec,
     spec_default,
 )
+
+if TYPE_CHECKING:
+    from grassd.daemon.config.compute import ComputeConfig
 
 
 def _views(_ctx, _param, values):
@@ -45,6 +51,29 @@ def _pixels(_ctx, _param, values) -> list[tuple[str, tuple]]:
         return [parse_pixel_option(v) for v in values]
     except SweepError as exc:
         raise click.BadParameter(str(exc)) from None
+
+
+def _compute(scheduler: str | None, config_path: str | None
+             ) -> tuple[ComputeConfig | None, str | None]:
+    """The ``[compute]`` of ``config_path`` (see ``resolve_config``) with ``scheduler``, and
+    the file's name; (None, None) without ``scheduler``. A bad address, or a scheduler not
+    secured as ``[compute]`` requires, is a usage error of ``--scheduler`` saying how to fix
+    it."""
+    if scheduler is None:
+        return None, None
+    import dataclasses
+
+    from grassd.daemon.config.compute import scheduler_address_problem, security_problem
+    from grassd.daemon.config.settings import resolve_config
+
+    if (problem := scheduler_address_problem(scheduler)) is not None:
+        raise click.BadParameter(problem, param_hint="--scheduler")
+    cfg = resolve_config(config_path)
+    compute = dataclasses.replace(cfg.compute, scheduler=scheduler)
+    if (insecure := security_problem(compute)) is not None:
+        raise click.BadParameter(f"[compute] {insecure[1]} (in {cfg.source}, or another "
+                                 "file given with --config)", param_hint="--scheduler")
+    return compute, cfg.source
 
 
 @click.command("sweep")
@@ -87,8 +116,15 @@ def _pixels(_ctx, _param, values) -> list[tuple[str, tuple]]:
               type=click.Path(file_okay=False), help="Output directory.")
 @click.option("--workers", type=int, default=SWEEP_WORKERS, show_default=True,
               help="Local worker processes (ignored with --scheduler).")
-@click.option("--scheduler", default=None, metavar="tcp://HOST:8786",
-              help="Run on this dask.distributed scheduler instead of local processes.")
+@click.option("--scheduler", default=None, metavar="ADDRESS",
+              help="Run on the workers of this dask.distributed scheduler instead of local "
+                   "processes, e.g. tls://host:8786, with the TLS files of --config's "
+                   "[compute] (tcp:// only with allow_insecure = true there; see "
+                   "docs/operating/compute.md).")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False),
+              help="Configuration file whose [compute] tls_ca_file, tls_cert, tls_key and "
+                   f"allow_insecure secure --scheduler (default {DEFAULT_CONFIG_PATH}; the "
+                   "embedded default when that is absent).")
 @click.option("--retries", type=int, default=SWEEP_RETRIES, show_default=True,
               help="Extra attempts of a failing task on the cluster.")
 @click.option("--restart", is_flag=True, help="Discard OUT/sweep.sqlite instead of resuming.")
@@ -97,10 +133,12 @@ def _pixels(_ctx, _param, values) -> list[tuple[str, tuple]]:
               help="OGCD range (dE00) below which a condition counts as losing contrast.")
 def sweep(hdris, times, date, latitude, longitude, timezone, lux, night_lux, views, pixels,
           display, lengths, samples, replicates, target_stderr, bounces, light_samples, seed,
-          out_dir, workers, scheduler, retries, restart, contrast_threshold):
+          out_dir, workers, scheduler, config_path, retries, restart, contrast_threshold):
     """Run characteristics over many conditions; one tidy SQLite table plus summary plots."""
     from grassd.daemon.offline.sweep import conditions, run_sweep
     from grassd.sim.scene import parse_lengths
+
+    compute, source = _compute(scheduler, config_path)
 
     spec = SweepSpec(lengths_mm=tuple(float(x) for x in parse_lengths(lengths)),
                      samples=samples, replicates=replicates, bounces=bounces,
@@ -117,8 +155,9 @@ def sweep(hdris, times, date, latitude, longitude, timezone, lux, night_lux, vie
         state["shown"] = done
 
     with bar:
-        summary = run_sweep(spec, conds, out_dir, workers=workers, scheduler=scheduler,
-                            restart=restart, retries=retries, progress=progress,
+        summary = run_sweep(spec, conds, out_dir, workers=workers, compute=compute,
+                            config_source=source, restart=restart, retries=retries,
+                            progress=progress,
                             contrast_threshold=contrast_threshold)
     click.echo(f"{summary.total} tasks: {summary.skipped} already stored, {summary.computed} "
                f"computed in {summary.seconds:.1f} s ({summary.tasks_per_s:.2f} tasks/s) on "

@@ -22,11 +22,17 @@ or when it runs, and the renderer is bit-reproducible for a seed, so a sweep on 
 equals the local sweep bit for bit (on the same CPU architecture).
 
 Executors: ``workers`` local processes (spawned; each initialises Taichi once, with
-``cpu_count // workers`` threads, and keeps its compiled kernels), or ``scheduler="tcp://HOST:
-8786"``: the same task function on a dask.distributed cluster; each Dask worker process
-initialises Taichi on its first task and keeps it (module-level renderer). A task lost with a
-killed worker is recomputed by Dask (``retries`` extra attempts for tasks that raise). HDRI paths
-travel as paths: every worker must read them at the same path (a shared filesystem).
+``cpu_count // workers`` threads, and keeps its compiled kernels), or a dask.distributed cluster
+(``compute``, a ``[compute]`` section: ``scheduler = "tls://HOST:8786"`` and the site's TLS
+files): each Dask worker process initialises Taichi on its first task and keeps it
+(module-level renderer). A task lost with a killed worker is recomputed by Dask (``retries``
+extra attempts for tasks that raise). The cluster is reached as the daemon reaches it
+(:mod:`grassd.daemon.calibration.dask_client`: mutual TLS, ``tcp://`` only with
+``allow_insecure``, Dask's msgpack serializer only). A task receives a :class:`SweepJob` (the
+shared settings and its condition; HDRI paths travel as paths: every worker must read them at
+the same path, a shared filesystem) and answers a :class:`ConditionResult` in the declared form
+of :mod:`grassd.daemon.calibration.wire`, checked on arrival (:func:`check_arrival`) before it
+is stored.
 """
 
 from __future__ import annotations
@@ -43,8 +49,10 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from grassd.daemon.config.sweep import (
     DEFAULT_CONTRAST_THRESHOLD,
@@ -52,9 +60,12 @@ from grassd.daemon.config.sweep import (
     SWEEP_WORKERS,
     SweepSpec,
 )
-from grassd.daemon.errors import DaemonError
+from grassd.daemon.errors import ComputeResultRefused, ComputeUnavailable, DaemonError
 from grassd.sim.light_input import LightInput
 from grassd.sim.scene import RenderSettings
+
+if TYPE_CHECKING:
+    from grassd.daemon.config.compute import ComputeConfig
 
 SCHEMA_VERSION = 1
 
@@ -268,9 +279,103 @@ def init_worker(threads: int | None = None) -> None:
         _renderer_for(1)
 
 
-def run_task(spec: SweepSpec, cond: Condition) -> dict:
-    """Trace one condition; returns the condition's row and its per-length columns (plain
-    Python types, picklable). Deterministic for (spec, cond)."""
+@dataclass(frozen=True)
+class ConditionResult:
+    """One traced condition: the condition (``key``, ``hdri``, ``time``, viewpoint ``h_cm`` /
+    ``d_m`` / ``theta_deg`` [cm, m, deg], ``pixel``, ``seed``), its light (sun azimuth and
+    elevation [deg], None without a time; ``ambient_lux`` and ``sun_lux`` [lx]), its figures
+    (``ogcd_range`` [dE00], ``linearity_r2`` and ``table_r2_after``, None where undefined,
+    ``max_ogcd_stderr`` [dE00]), where and how long it ran (``seconds`` [s], ``worker``), and
+    per length (float64, one entry per length of the sweep): ``length_mm`` [mm], ``ogcd`` and
+    ``ogcd_stderr`` [dE00], CIELAB ``L``, ``a``, ``b``. Its fields are the declared form a
+    Dask worker answers in (:mod:`grassd.daemon.calibration.wire`)."""
+
+    key: str
+    hdri: str
+    time: str
+    h_cm: float
+    d_m: float
+    theta_deg: float
+    pixel: str
+    seed: int
+    sun_azimuth_deg: float | None
+    sun_elevation_deg: float | None
+    ambient_lux: float
+    sun_lux: float
+    ogcd_range: float
+    linearity_r2: float | None
+    table_r2_after: float | None
+    max_ogcd_stderr: float
+    seconds: float
+    worker: str
+    length_mm: NDArray[np.float64]
+    ogcd: NDArray[np.float64]
+    ogcd_stderr: NDArray[np.float64]
+    L: NDArray[np.float64]
+    a: NDArray[np.float64]
+    b: NDArray[np.float64]
+
+    def row(self) -> dict[str, Any]:
+        """The condition's columns and its per-length columns (lists) in plain Python types,
+        as :class:`SweepStore` stores them."""
+        out: dict[str, Any] = {c: getattr(self, c) for c in CONDITION_COLUMNS}
+        out.update({c: np.asarray(getattr(self, c), np.float64).tolist()
+                    for c in LENGTH_COLUMNS})
+        return out
+
+
+@dataclass(frozen=True)
+class SweepJob:
+    """What a Dask worker receives for one condition: the sweep's shared settings and the
+    condition (its HDRI by path); nothing else."""
+
+    spec: SweepSpec
+    condition: Condition
+
+
+def sweep_on_worker(job: SweepJob) -> dict[str, Any]:
+    """The Dask task: trace ``job``'s condition (:func:`run_task`) and answer with its
+    :class:`ConditionResult`, or with the grassd error it raised, in the declared form of
+    :mod:`grassd.daemon.calibration.wire`. Other errors propagate (Dask retries them)."""
+    from grassd.daemon.calibration.wire import ERROR_BASES, answer_of, error_answer
+
+    try:
+        return answer_of(run_task(job.spec, job.condition))
+    except ERROR_BASES as exc:
+        return error_answer(exc)
+
+
+def check_arrival(spec: SweepSpec, cond: Condition, result: ConditionResult, where: str
+                  ) -> None:
+    """Checks of a result decoded from a worker's answer for ``cond``, before it is stored:
+    it names ``cond`` (key, HDRI, time, viewpoint, pixel, seed), has one finite entry per
+    length of ``spec`` in every per-length column and the sweep's lengths themselves, and
+    finite figures. Raises :class:`ComputeResultRefused` naming what is wrong."""
+    def refuse(msg: str) -> ComputeResultRefused:
+        return ComputeResultRefused(f"{where} answered a sweep result that {msg}")
+
+    want = (cond.key(spec), cond.hdri, cond.time, cond.view, cond.pixel, cond.seed(spec))
+    got = (result.key, result.hdri, result.time, (result.h_cm, result.d_m, result.theta_deg),
+           result.pixel, result.seed)
+    if got != want:
+        raise refuse(f"is for another condition ({got!r:.300}, not {want!r:.300})")
+    n = len(spec.lengths_mm)
+    for c in LENGTH_COLUMNS:
+        if getattr(result, c).shape != (n,):
+            raise refuse(f"has {c} of shape {getattr(result, c).shape}, not ({n},)")
+    if not np.array_equal(result.length_mm, np.asarray(spec.lengths_mm, np.float64)):
+        raise refuse("has other lengths than the sweep's")
+    figures = [result.ambient_lux, result.sun_lux, result.ogcd_range, result.max_ogcd_stderr,
+               result.seconds] + [x for x in (result.sun_azimuth_deg, result.sun_elevation_deg,
+                                              result.linearity_r2, result.table_r2_after)
+                                  if x is not None]
+    if not all(math.isfinite(x) for x in figures):
+        raise refuse("holds figures that are not finite")
+
+
+def run_task(spec: SweepSpec, cond: Condition) -> ConditionResult:
+    """Trace one condition (see :class:`ConditionResult` for what it holds and its units).
+    Deterministic for (spec, cond), but for ``seconds`` and ``worker``."""
     from grassd.calib.errors import CalibError
     from grassd.calib.length_table import build_length_table, r_squared
     from grassd.daemon.calibration.simulation import simulate_curve
@@ -308,19 +413,25 @@ def run_task(spec: SweepSpec, cond: Condition) -> dict:
             curve.lengths_mm, curve.ogcd, floor_stderr(curve.ogcd_stderr))).r2_after
     except CalibError:
         table_r2 = None
-    return {
-        "key": cond.key(spec), "hdri": cond.hdri, "time": cond.time,
-        "h_cm": cond.view[0], "d_m": cond.view[1], "theta_deg": cond.view[2],
-        "pixel": cond.pixel, "seed": cond.seed(spec),
-        "sun_azimuth_deg": light.sun_azimuth_deg, "sun_elevation_deg": light.sun_elevation_deg,
-        "ambient_lux": light.ambient_lux, "sun_lux": light.sun_lux or 0.0,
-        "ogcd_range": ogcd_range, "linearity_r2": linearity, "table_r2_after": table_r2,
-        "max_ogcd_stderr": float(curve.ogcd_stderr.max()),
-        "seconds": time.perf_counter() - t0, "worker": f"{socket.gethostname()}:{os.getpid()}",
-        "length_mm": curve.lengths_mm.tolist(), "ogcd": curve.ogcd.tolist(),
-        "ogcd_stderr": curve.ogcd_stderr.tolist(), "L": curve.lab[:, 0].tolist(),
-        "a": curve.lab[:, 1].tolist(), "b": curve.lab[:, 2].tolist(),
-    }
+    def f64(x: Any) -> NDArray[np.float64]:
+        return np.ascontiguousarray(x, np.float64)
+
+    def number(x: Any) -> float | None:
+        return None if x is None else float(x)
+
+    return ConditionResult(
+        key=cond.key(spec), hdri=cond.hdri, time=cond.time,
+        h_cm=cond.view[0], d_m=cond.view[1], theta_deg=cond.view[2],
+        pixel=cond.pixel, seed=cond.seed(spec),
+        sun_azimuth_deg=number(light.sun_azimuth_deg),
+        sun_elevation_deg=number(light.sun_elevation_deg),
+        ambient_lux=float(light.ambient_lux), sun_lux=float(light.sun_lux or 0.0),
+        ogcd_range=ogcd_range, linearity_r2=number(linearity), table_r2_after=number(table_r2),
+        max_ogcd_stderr=float(curve.ogcd_stderr.max()),
+        seconds=time.perf_counter() - t0, worker=f"{socket.gethostname()}:{os.getpid()}",
+        length_mm=f64(curve.lengths_mm), ogcd=f64(curve.ogcd),
+        ogcd_stderr=f64(curve.ogcd_stderr), L=f64(curve.lab[:, 0]), a=f64(curve.lab[:, 1]),
+        b=f64(curve.lab[:, 2]))
 
 
 # --------------------------------------------------------------------------- output
@@ -426,9 +537,9 @@ class SweepSummary:
 
 
 def run_sweep(spec: SweepSpec, conds: Sequence[Condition], out_dir: str | Path, *,
-              workers: int = SWEEP_WORKERS, scheduler: str | None = None, restart: bool = False,
-              threads_per_worker: int | None = None,
-              retries: int = SWEEP_RETRIES, connect_timeout_s: float = 30.0,
+              workers: int = SWEEP_WORKERS, compute: ComputeConfig | None = None,
+              restart: bool = False, threads_per_worker: int | None = None,
+              retries: int = SWEEP_RETRIES, config_source: str | None = None,
               progress: Callable[[int, int], None] | None = None,
               on_result: Callable[[dict], None] | None = None,
               plots: bool = True,
@@ -436,10 +547,20 @@ def run_sweep(spec: SweepSpec, conds: Sequence[Condition], out_dir: str | Path, 
     """Run every condition not yet in ``out_dir/sweep.sqlite``; write summary plots.
 
     ``workers`` local processes (``threads_per_worker`` Taichi CPU threads each; None: the
-    cores split between them, 0: Taichi's default of all cores), or a dask.distributed
-    ``scheduler`` address (workers keep their own settings). ``progress(done,
+    cores split between them, 0: Taichi's default of all cores), or, when ``compute`` names a
+    scheduler, its dask.distributed cluster (workers keep their own settings), secured as
+    ``[compute]`` requires (``config_source`` names its file in errors). ``progress(done,
     total)`` after each stored task; ``on_result(row)`` too (tests use it to act mid-sweep).
+    Raises :class:`SweepError` when the sweep cannot run or the cluster cannot run it,
+    :class:`~grassd.daemon.errors.ConfigError` for a scheduler not secured as ``[compute]``
+    requires, :class:`~grassd.daemon.errors.ComputeResultRefused` for a worker's answer not
+    in the declared form (the results stored until then are kept).
     """
+    scheduler = None if compute is None else compute.scheduler
+    if compute is not None and scheduler is not None:
+        from grassd.daemon.calibration.dask_client import require_secured
+
+        require_secured(compute, config_source, "this process")
     check_conditions(spec, conds)
     out = Path(out_dir)
     store = SweepStore(out / "sweep.sqlite", spec, restart=restart)
@@ -450,7 +571,8 @@ def run_sweep(spec: SweepSpec, conds: Sequence[Condition], out_dir: str | Path, 
         skipped = len(conds) - len(todo)
         count = [skipped]
 
-        def stored(row: dict) -> None:
+        def stored(result: ConditionResult) -> None:
+            row = result.row()
             store.add(row)
             count[0] += 1
             if on_result:
@@ -462,8 +584,8 @@ def run_sweep(spec: SweepSpec, conds: Sequence[Condition], out_dir: str | Path, 
             progress(skipped, len(conds))
         if not todo:
             executor = "nothing to do"
-        elif scheduler:
-            executor = _run_dask(spec, todo, scheduler, retries, connect_timeout_s, stored)
+        elif compute is not None and scheduler:
+            executor = _run_dask(spec, todo, compute, retries, stored)
         else:
             executor = _run_local(spec, todo, workers, stored, threads_per_worker)
     finally:
@@ -479,7 +601,7 @@ def run_sweep(spec: SweepSpec, conds: Sequence[Condition], out_dir: str | Path, 
 
 
 def _run_local(spec: SweepSpec, todo: Sequence[Condition], workers: int,
-               stored: Callable[[dict], None], threads: int | None = None) -> str:
+               stored: Callable[[ConditionResult], None], threads: int | None = None) -> str:
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from concurrent.futures.process import BrokenProcessPool
@@ -508,23 +630,40 @@ def _run_local(spec: SweepSpec, todo: Sequence[Condition], workers: int,
     return f"{workers} local processes x {threads or os.cpu_count()} threads"
 
 
-def _run_dask(spec: SweepSpec, todo: Sequence[Condition], scheduler: str, retries: int,
-              connect_timeout_s: float, stored: Callable[[dict], None]) -> str:
+def _run_dask(spec: SweepSpec, todo: Sequence[Condition], compute: ComputeConfig,
+              retries: int, stored: Callable[[ConditionResult], None]) -> str:
+    """Each condition of ``todo`` as one task (:func:`sweep_on_worker`) on ``compute``'s
+    cluster, reached through :func:`grassd.daemon.calibration.dask_client.connect`; each
+    answer decoded as a :class:`ConditionResult`, checked (:func:`check_arrival`) and
+    ``stored`` as it arrives."""
+    from grassd.daemon.calibration.dask_client import connect, fetch_answer
+    from grassd.daemon.calibration.wire import read_answer
+
+    scheduler = str(compute.scheduler)
     try:
-        from distributed import Client, as_completed
-    except ImportError:
-        raise SweepError("--scheduler needs dask.distributed: pip install 'dask[distributed]'") \
-            from None
+        client = connect(compute)
+    except ComputeUnavailable as exc:
+        raise SweepError(str(exc)) from None
     try:
-        client = Client(scheduler, timeout=connect_timeout_s, set_as_default=False)
-    except (OSError, TimeoutError) as exc:
-        raise SweepError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
-    try:
+        from distributed import as_completed
+
         n_workers = len(client.scheduler_info().get("workers", {}))
-        futures = [client.submit(run_task, spec, c, key=f"grassd-sweep-{c.key(spec)}",
-                                 retries=retries, pure=False) for c in todo]
+        by_key = {f"grassd-sweep-{c.key(spec)}": c for c in todo}
+        futures = [client.submit(sweep_on_worker, SweepJob(spec, c), key=k, retries=retries,
+                                 pure=False) for k, c in by_key.items()]
         for f in as_completed(futures, loop=client.loop):
-            stored(f.result())
+            try:
+                answer, worker = fetch_answer(client, f, scheduler)
+            except ComputeResultRefused:
+                raise
+            except ComputeUnavailable as exc:
+                raise SweepError(f"{exc}; the finished tasks are stored: run the same sweep "
+                                 "again to resume") from None
+            where = f"Dask worker {worker or '(unknown)'} of {scheduler}"
+            cond = by_key[f.key]
+            result = read_answer(answer, ConditionResult, where)
+            check_arrival(spec, cond, result, where)
+            stored(result)
         return f"dask {scheduler} ({n_workers} workers)"
     finally:
         client.close()
