@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from grassd.daemon.config.compute import ComputeConfig
 from grassd.daemon.offline.sweep import SweepSpec, conditions, read_results, run_sweep
 
 
@@ -81,17 +82,19 @@ def main() -> None:
         if "--no-dask" in sys.argv:
             return
         addr, procs = _dask_cluster(2)
+        # loopback only: plain tcp:// is taken with allow_insecure (and a warning)
+        compute = ComputeConfig(scheduler=addr, allow_insecure=True)
         try:
-            s = run_sweep(spec, conds, tmp / "dask_cold", scheduler=addr, plots=False)
+            s = run_sweep(spec, conds, tmp / "dask_cold", compute=compute, plots=False)
             print(f"dask, 2 workers (cold: first task per worker loads Taichi): "
                   f"{s.seconds:7.2f} s  {s.tasks_per_s:6.2f} tasks/s")
-            s = run_sweep(spec, conds, tmp / "dask_warm", scheduler=addr, plots=False)
+            s = run_sweep(spec, conds, tmp / "dask_warm", compute=compute, plots=False)
             print(f"dask, 2 workers (warm: kernels kept between sweeps):       "
                   f"{s.seconds:7.2f} s  {s.tasks_per_s:6.2f} tasks/s")
             two = s.seconds
             os.killpg(procs[-1].pid, signal.SIGTERM)  # down to one warm worker
             procs[-1].wait(30)
-            s = run_sweep(spec, conds, tmp / "dask_one", scheduler=addr, plots=False)
+            s = run_sweep(spec, conds, tmp / "dask_one", compute=compute, plots=False)
             print(f"dask, 1 worker  (warm):                                     "
                   f"{s.seconds:7.2f} s  {s.tasks_per_s:6.2f} tasks/s")
             print(f"speed-up 1 -> 2 warm Dask workers: {s.seconds / two:.2f}x")
