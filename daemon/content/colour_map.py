@@ -30,6 +30,8 @@ from grassd.calib.length_table import LEVELS
 
 #: colours compared with all 256 levels at once (bounds the (chunk, 256, 3) temporaries)
 _CHUNK = 4096
+#: the reference viewpoint (h cm, d m, theta deg) whose colours content is mapped onto
+REFERENCE_VIEWPOINT: tuple[float, float, float] = (170.0, 2.0, 0.0)
 
 
 @dataclass(frozen=True, eq=False)

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from grassd.daemon.config.settings import Config
-from grassd.daemon.content.colour_map import DisplayColours
+from grassd.daemon.content.colour_map import REFERENCE_VIEWPOINT, DisplayColours
 from grassd.daemon.content.pictures import load_animation
 from grassd.daemon.content.player import MAX_REQUEST_S, ContentPlayer
 from grassd.daemon.content.sink import ClosableSink, FrameSink, StatsSink
@@ -44,8 +44,6 @@ COMMANDS = frozenset({"content_frame", "content_show", "content_stop", "content_
 READ_ONLY = frozenset({"content_status"})
 #: seconds between looks at which table is active (a new one brings new colours)
 COLOURS_CHECK_S = 2.0
-#: the reference viewpoint (h cm, d m, theta deg) whose colours content is mapped onto
-REFERENCE_VIEWPOINT = (170.0, 2.0, 0.0)
 
 
 def colours_from_report(report: dict[str, Any], table_um: Any) -> DisplayColours | None:

@@ -18,7 +18,7 @@ input does not wait for the launch in flight, and the studio's launches can each
 round (:func:`~grassd.daemon.studio.session.Studio.characteristic`).
 
 Server -> simulator: ``("job", owner, job, kind, payload, word)`` with kind ``"views"`` (a
-condition, the picture's levels and the condition pinned as B, or None) or
+condition, the picture's colours and the condition pinned as B, or None) or
 ``"characteristic"`` (a condition and keyword arguments); ``("cancel", owner, word)``;
 ``("light", LightSource)``; ``("forget", name)`` (an upload the server dropped);
 ``("tick", word)`` (the word moved so that the launch in flight reaches its job's check: sent
@@ -123,8 +123,8 @@ def simulator_main(conn: Connection, args: StudioArgs,
         def go(check) -> None:
             try:
                 if kind == "views":
-                    cond, levels, pinned = payload
-                    studio.run(cond, lambda msg: send(("msg", job, msg)), check, levels,
+                    cond, picture, pinned = payload
+                    studio.run(cond, lambda msg: send(("msg", job, msg)), check, picture,
                                pinned)
                     send(("result", job, None))
                 else:

@@ -16,7 +16,10 @@ condition's unknown keys are refused, and a null is the key left out):
   ``target_stderr`` it is the daemon's own simulation (``[simulation] samples`` x
   ``[calibration] replicates``).
 - ``POST /api/hdri?name=FILE.exr`` (the file as the body): a new light source.
-- ``POST /api/picture`` (a PNG/JPEG as the body): a picture for the display view.
+- ``POST /api/picture`` (a PNG/JPEG as the body): a picture for the display view -> its
+  ``image`` id and ``rgb``, one sRGB colour per display pixel; the ``display`` message of a
+  condition with that ``image`` gives the ``levels`` the daemon would show for it (by
+  ``[content] map``, onto the colours named in ``colours``).
 - ``GET /ws``: send ``{"type": "inputs", "id": n, "condition": {...}}`` (and optionally
   ``"pinned": {...}``, the condition shown beside it as B, whose views follow this one's);
   receive ``light``, ``curve``, ``pixel``, ``table``, ``contrast``, ``display``, ``audience``,
@@ -484,7 +487,7 @@ async def _socket(request: web.Request) -> web.WebSocketResponse:
                     raise StudioInputError(f"{_WS_FORM}: the id is an integer")
                 cond = studio.parse(data.get("condition"))
                 _check_cost(studio, limits, cond, "this input")
-                levels = studio.picture(cond.image)
+                picture = studio.picture(cond.image)
             except _BAD_INPUT as exc:
                 simulator.cancel(owner)
                 send({"type": "error", "id": tag, "message": str(exc)})
@@ -503,7 +506,7 @@ async def _socket(request: web.Request) -> web.WebSocketResponse:
                 msg["id"] = tag
                 send(msg)
 
-            fut = simulator.submit(owner, "views", (cond, levels, pinned), emit)
+            fut = simulator.submit(owner, "views", (cond, picture, pinned), emit)
             fut.add_done_callback(lambda f, tag=tag: finished(f, tag))
     finally:
         request.app[SOCKETS].discard(ws)

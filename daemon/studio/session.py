@@ -18,7 +18,12 @@ here are :mod:`grassd.daemon.studio.pace`'s):
    replicates, whose error falls faster per path
    (:class:`~grassd.daemon.calibration.simulation.LargerReplicates`), sent once it has
    :data:`FIRST_REPLICATES`;
-4. the table, the contrast, the display showing the uploaded picture;
+4. the table, the contrast, the display showing the uploaded picture: its colours mapped to
+   levels as the daemon maps content (``[content] map`` and ``normalise``, through
+   :func:`~grassd.daemon.content.colour_map.levels_for_picture`) onto the colours of the
+   condition's characteristic at the reference viewpoint (the condition's own where its eye
+   is there, else one more characteristic run to its target there and kept), at the table's
+   lengths;
 5. the audience map: the OGCD range from each place of the audience region;
 6. the condition pinned as B, if the page sent one (``pinned`` messages): its characteristic
    (kept, else run to its target) and its image refined to :data:`PINNED_PASSES` passes; one
@@ -74,6 +79,8 @@ from grassd.daemon.studio.worker import Check
 
 if TYPE_CHECKING:
     from grassd.daemon.calibration.simulation import CurveRun, SimulatedCurve
+    from grassd.daemon.config.content import ContentConfig
+    from grassd.daemon.content.colour_map import DisplayColours
     from grassd.sim.interrupt import Interrupt
     from grassd.sim.renderer import Renderer
 
@@ -179,6 +186,7 @@ class Studio:
         self.active_um = None if active_um is None else np.asarray(active_um, np.uint16)
         self.region = np.asarray(cfg.audience.polygon if cfg.audience is not None
                                  else DEFAULT_REGION, np.float64)
+        #: uploaded pictures, (rows, cols, 3) uint8 sRGB each, by id
         self.pictures: dict[str, np.ndarray] = {}
         self._picture_ids = itertools.count(1)
         self._lock = threading.Lock()
@@ -225,31 +233,73 @@ class Studio:
         }
 
     def picture(self, key: str | None) -> np.ndarray | None:
-        """The levels of uploaded picture ``key`` (None: none chosen); StudioInputError for an
-        id this studio never gave (or has dropped: the 16 newest are kept)."""
+        """The colours (rows, cols, 3) uint8 sRGB of uploaded picture ``key`` (None: none
+        chosen); StudioInputError for an id this studio never gave (or has dropped: the 16
+        newest are kept)."""
         if key is None:
             return None
         with self._lock:
-            levels = self.pictures.get(key)
-        if levels is None:
+            rgb = self.pictures.get(key)
+        if rgb is None:
             raise StudioInputError(f"no picture {key!r}: upload it again")
-        return levels
+        return rgb
 
     def add_picture(self, data: bytes) -> dict[str, Any]:
-        """Read an uploaded picture as the display's levels; its id for the conditions.
-        StudioInputError for bytes that are not a readable picture or too large."""
+        """Read an uploaded picture as one sRGB colour per display pixel
+        (:func:`~grassd.daemon.studio.views.picture_rgb`); its id for the conditions and those
+        colours (``rgb``, rows x cols x 3). StudioInputError for bytes that are not a readable
+        picture or too large."""
         d = self.cfg.display
         try:
-            levels = views.picture_levels(data, d.rows, d.cols)
+            rgb = views.picture_rgb(data, d.rows, d.cols)
         except ValueError as exc:
             raise StudioInputError(f"cannot show that picture: {exc}") from None
         with self._lock:
             key = f"picture-{next(self._picture_ids)}"
-            self.pictures[key] = levels
+            self.pictures[key] = rgb
             while len(self.pictures) > 16:
                 self.pictures.pop(next(iter(self.pictures)))
-        return {"image": key, "rows": d.rows, "cols": d.cols,
-                "levels": levels.tolist()}
+        return {"image": key, "rows": d.rows, "cols": d.cols, "rgb": rgb.tolist()}
+
+    @property
+    def content(self) -> ContentConfig:
+        """The config's ``[content]`` (its defaults where it has none): how a picture's
+        colours become levels, as the daemon's content is mapped."""
+        from grassd.daemon.config.content import ContentConfig
+
+        return self.cfg.content or ContentConfig()
+
+    def picture_levels(self, rgb: np.ndarray, cond: Condition, curve: SimulatedCurve,
+                       table_mm: np.ndarray, check: Check
+                       ) -> tuple[np.ndarray, DisplayColours | None]:
+        """The levels (rows, cols) uint8 the daemon shows for the picture ``rgb`` (rows, cols,
+        3; sRGB) under ``cond``, and the colours they were mapped onto (None unless ``[content]
+        map`` is "nearest_de00"): :func:`~grassd.daemon.content.colour_map.levels_for_picture`
+        by ``[content] map`` and ``normalise`` onto the D50 CIELAB per length of the
+        characteristic at the reference viewpoint under ``cond``'s light and pixel (``curve``
+        where ``cond``'s eye is there, else a run of its own to ``cond``'s target, kept as the
+        others are), at the levels of ``table_mm`` (256,) [mm]."""
+        from grassd.daemon.content.colour_map import (
+            REFERENCE_VIEWPOINT,
+            DisplayColours,
+            levels_for_picture,
+        )
+
+        content = self.content
+        colours = None
+        if content.map == "nearest_de00":
+            ref = curve
+            if tuple(cond.viewpoint) != REFERENCE_VIEWPOINT:
+                at = replace(cond, viewpoint=REFERENCE_VIEWPOINT)
+                ref = self._curves.get(_curve_key(at))
+                if ref is None:
+                    ref = self._converged(at, check)
+            h, d, t = REFERENCE_VIEWPOINT
+            colours = DisplayColours.from_curve(
+                table_mm, ref.lengths_mm, ref.lab,
+                f"the studio's characteristic at ({h:g}, {d:g}, {t:g}), {ref.replicates} "
+                "replicates")
+        return levels_for_picture(rgb, content.map, colours, content.normalise), colours
 
     # ------------------------------------------------------------------ simulation (worker)
     def warm_up(self) -> float:
@@ -393,10 +443,11 @@ class Studio:
         return img
 
     def run(self, cond: Condition, emit: Emit, check: Check,
-            levels: np.ndarray | None = None, pinned: Condition | None = None) -> None:
+            picture: np.ndarray | None = None, pinned: Condition | None = None) -> None:
         """Compute every view of ``cond`` in the order of the module docstring, sending each as
         it is ready (``emit``); ``check`` raises when a newer request supersedes this one.
-        ``levels``: the (rows, cols) 8-bit picture the display view shows, if any;
+        ``picture``: the (rows, cols, 3) sRGB picture the display view shows, if any
+        (:meth:`picture_levels`);
         ``pinned``: the condition the page shows beside it as B, whose characteristic and image
         follow A's views."""
         from grassd.sim.lighting import azimuth_elevation_from_direction
@@ -451,11 +502,15 @@ class Studio:
         if table is not None:
             send({"type": "table", **table})
             send({"type": "contrast", **views.contrast_view(fit.ogcd_range)})
-            if levels is not None:
+            if picture is not None:
+                table_mm = np.asarray(table["lengths_mm"])
+                levels, colours = self.picture_levels(picture, cond, curve, table_mm, check)
+                check()
                 eye = np.asarray(cond_eye(cond), float)
                 send({"type": "display", "image": views.display_view(
-                    levels, np.asarray(table["lengths_mm"]), curve.lengths_mm, curve.lab,
-                    self.cfg.display.pitch_mm, eye)})
+                    levels, table_mm, curve.lengths_mm, curve.lab, self.cfg.display.pitch_mm,
+                    eye), "levels": levels.tolist(), "map": self.content.map,
+                    "colours": None if colours is None else colours.source})
             # the audience's places are judged as the eye is: the reference vs the longest
             key = _curve_key(cond)
             audience = self._audiences.get(key, False)
@@ -592,11 +647,13 @@ def cond_eye(cond: Condition) -> tuple[float, float, float]:
 
 def curve_message(curve, target: float | None, *, kept: bool = False) -> dict[str, Any]:
     """A characteristic as the page and the API send it: lengths (mm), OGCD and its standard
-    error (CIEDE2000), the simulated pixel's colour per length (sRGB), replicates so far;
+    error (CIEDE2000), the simulated pixel's colour per length (sRGB, and ``lab_d50``: D50
+    CIELAB unrounded, as a calibration report keeps it), replicates so far;
     ``kept``: computed for an earlier input with the same light, eye, pixel and lengths."""
     worst = float(np.max(curve.ogcd_stderr))
     return {"type": "curve", "lengths_mm": _rounded(curve.lengths_mm),
             "ogcd": _rounded(curve.ogcd), "ogcd_stderr": _rounded(curve.ogcd_stderr, 5),
-            "srgb": views.lab_to_srgb8(curve.lab).tolist(), "replicates": curve.replicates,
+            "srgb": views.lab_to_srgb8(curve.lab).tolist(),
+            "lab_d50": np.asarray(curve.lab, np.float64).tolist(), "replicates": curve.replicates,
             "max_stderr": worst, "converged": target is not None and worst <= target,
             "kept": kept}

@@ -126,16 +126,22 @@ def audience_warning(ranges: np.ndarray, eye_range: float,
 
 
 def picture_levels(data: bytes, rows: int, cols: int, colours: DisplayColours | None = None,
-                   mode: str = "nearest_de00") -> np.ndarray:
+                   mode: str = "nearest_de00", normalise: str = "none") -> np.ndarray:
     """An uploaded picture (PNG, JPEG, ...) as the (rows, cols) 8-bit levels a grass display
-    shows: box-filtered to one colour per pixel, then mapped as the daemon's content is
-    (:func:`grassd.daemon.content.colour_map.levels_for_picture`: the level whose predicted
-    ``colours`` are nearest in CIEDE2000; without ``colours`` its luminance, ITU-R BT.601
-    weights as Pillow's "L"). The size is checked from the header, before a pixel is
-    decoded: :class:`PictureTooLarge` for a side over :data:`MAX_IMAGE_SIDE` or, at the scale
-    it would be decoded at (a baseline JPEG's reduced by its decoder to no less than ``cols``
-    x ``rows``), more than :data:`MAX_IMAGE_PIXELS` pixels. ValueError with the reason for bytes
-    that are not a readable picture."""
+    shows: its colours (:func:`picture_rgb`, which checks its size) mapped as the daemon's
+    content is (:func:`grassd.daemon.content.colour_map.levels_for_picture` by ``mode`` and
+    ``normalise``: the level whose predicted ``colours`` are nearest in CIEDE2000; without
+    ``colours`` its luminance, ITU-R BT.601 weights as Pillow's "L")."""
+    return levels_for_picture(picture_rgb(data, rows, cols), mode, colours, normalise)
+
+
+def picture_rgb(data: bytes, rows: int, cols: int) -> np.ndarray:
+    """An uploaded picture (PNG, JPEG, ...) as (rows, cols, 3) uint8 sRGB, box-filtered to one
+    colour per display pixel (row 0 the picture's top). The size is checked from the header,
+    before a pixel is decoded: :class:`PictureTooLarge` for a side over
+    :data:`MAX_IMAGE_SIDE` or, at the scale it would be decoded at (a baseline JPEG's reduced
+    by its decoder to no less than ``cols`` x ``rows``), more than :data:`MAX_IMAGE_PIXELS`
+    pixels. ValueError with the reason for bytes that are not a readable picture."""
     from PIL import Image, UnidentifiedImageError
 
     if not data:
@@ -170,7 +176,7 @@ def picture_levels(data: bytes, rows: int, cols: int, colours: DisplayColours | 
                          "bytes as the request's body") from None
     except (OSError, Image.DecompressionBombError) as exc:  # a known format, broken or huge
         raise ValueError(f"not a picture Pillow can read: {exc}") from None
-    return levels_for_picture(np.asarray(rgb, np.uint8), mode, colours)
+    return np.asarray(rgb, np.uint8)
 
 
 def display_view(levels: np.ndarray, table_mm: np.ndarray, lengths_mm: np.ndarray,

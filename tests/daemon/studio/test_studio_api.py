@@ -106,7 +106,7 @@ def test_an_uploaded_hdri_becomes_a_light(studio, tmp_path, shared_hdri):
 def test_the_websocket_streams_the_views_and_newer_inputs_supersede(studio):
     status, pic = studio.request("api/picture", png_bytes(np.tile(np.linspace(0, 255, 16), (8, 1))))
     assert status == 200 and (pic["rows"], pic["cols"]) == (4, 8)
-    assert pic["levels"][0][0] < 40 and pic["levels"][0][-1] > 215  # box-filtered to 4 x 8
+    assert pic["rgb"][0][0][1] < 40 and pic["rgb"][0][-1][1] > 215  # box-filtered to 4 x 8
     old = {"type": "inputs", "id": 1, "condition": {"ambient_lux": 5000, "viewpoint": [170, 2, 0]}}
     new = {"type": "inputs", "id": 2, "condition": {
         "ambient_lux": 8000, "viewpoint": [160, 3, 25], "image": pic["image"],
