@@ -71,8 +71,9 @@ def _compute(scheduler: str | None, config_path: str | None
     cfg = resolve_config(config_path)
     compute = dataclasses.replace(cfg.compute, scheduler=scheduler)
     if (insecure := security_problem(compute)) is not None:
-        raise click.BadParameter(f"[compute] {insecure[1]} (in {cfg.source}, or another "
-                                 "file given with --config)", param_hint="--scheduler")
+        raise click.BadParameter(f"[compute] {insecure[1]} (read from {cfg.source}; pass "
+                                 "the configuration file that sets them with --config)",
+                                 param_hint="--scheduler")
     return compute, cfg.source
 
 
