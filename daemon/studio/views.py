@@ -35,8 +35,9 @@ MAX_IMAGE_SIDE: int = 8192
 #: so more adds nothing; decoded, it takes at most 64 MiB (4 bytes a pixel) and as much again
 #: converted to RGB. A baseline JPEG is decoded at a reduced scale (1/2 to 1/8, still at least
 #: the display's size) before this is checked, so a camera's photo of any side up to
-#: :data:`MAX_IMAGE_SIDE` is taken; a progressive one is not (its decoder holds every DCT
-#: coefficient of the full size, 2 bytes a sample, whatever the scale).
+#: :data:`MAX_IMAGE_SIDE` is taken; a progressive one is checked at its full size (its decoder
+#: holds every DCT coefficient of the full size, 2 bytes a sample, whatever the scale), then
+#: decoded at the reduced scale too, as the daemon's content decodes it.
 MAX_IMAGE_PIXELS: int = 4096 * 4096
 
 
@@ -158,9 +159,10 @@ def picture_rgb(data: bytes, rows: int, cols: int) -> np.ndarray:
                     f"the picture is {width} x {height} pixels; at most {MAX_IMAGE_SIDE} on a "
                     "side (nothing was decoded): scale it down", width=width, height=height,
                     limit=MAX_IMAGE_SIDE)
-            if not im.info.get("progressive"):  # a progressive JPEG holds every coefficient
-                im.draft(None, (cols, rows))  # JPEG: decode at 1/2..1/8 scale; others: no-op
-            w, h = im.size
+            w, h = im.size  # a progressive JPEG's decoder holds every coefficient of this size
+            im.draft(None, (cols, rows))  # JPEG: decode at 1/2..1/8 scale; others: no-op
+            if not im.info.get("progressive"):
+                w, h = im.size
             if w * h > MAX_IMAGE_PIXELS:
                 raise PictureTooLarge(
                     f"the picture is {width} x {height} = {width * height} pixels; at most "

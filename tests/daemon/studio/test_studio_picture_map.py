@@ -127,3 +127,32 @@ def test_the_studios_display_shows_what_grassd_show_shows(studio, tmp_path):
     assert np.array_equal(shown, expected)
     by_the_eye, _mode = _shown_by_the_daemon(tmp_path, rgb, table, elsewhere["curve"])
     assert not np.array_equal(shown, by_the_eye)  # the eye's own colours would differ
+
+
+def test_an_uploaded_picture_has_the_colours_grassd_show_reads(studio, tmp_path):
+    """PNG, baseline and progressive JPEG, GIF: the studio's colours per display pixel are those
+    the daemon's content reads from the same file."""
+    import io
+
+    from PIL import Image
+
+    from grassd.daemon.content.pictures import load_animation
+
+    status, state = studio.request("api/state")
+    rows, cols = state["display"]["rows"], state["display"]["cols"]
+    y, x = np.mgrid[0:600, 0:1200]
+    noise = np.random.default_rng(1).integers(-20, 20, (600, 1200, 3))
+    img = (np.stack([x * 255 // 1200, y * 255 // 600, (x + y) % 255], -1) + noise)
+    img = Image.fromarray(img.clip(0, 255).astype(np.uint8))
+    for kind, kw in (("png", {"format": "PNG"}), ("jpg", {"format": "JPEG", "quality": 90}),
+                     ("progressive.jpg", {"format": "JPEG", "quality": 90,
+                                          "progressive": True}),
+                     ("gif", {"format": "GIF"})):
+        buf = io.BytesIO()
+        img.save(buf, **kw)
+        path = tmp_path / f"picture.{kind}"
+        path.write_bytes(buf.getvalue())
+        status, pic = studio.request("api/picture", buf.getvalue())
+        assert status == 200, (kind, pic)
+        daemon = load_animation(path, rows, cols, 64 << 20).frames[0]
+        assert np.array_equal(np.asarray(pic["rgb"], np.uint8), daemon), kind
