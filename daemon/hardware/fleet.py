@@ -15,7 +15,8 @@ TABLE_STATUS; one that does not report the desired table id and the CRC of its o
 that table pushed. A controller that was unplugged, rebooted with an old table, or missed a push
 therefore receives its current table as soon as it answers again. Pushes are atomic on the
 controller (staging bank, CRC-checked commit), so an interrupted push leaves the old table
-active, never a mix.
+active, never a mix. While content frames play on the lines (:meth:`Fleet.attach_frames`),
+a push stages the table on every controller first and commits them all between two frames.
 
 *Backoff*: a controller whose push failed is not pushed again at every reconcile. It is held
 for ``retry_s`` (2 s), doubling at every further failure up to ``retry_max_s`` (5 min); its
@@ -346,7 +347,9 @@ class Fleet:
         table. Stops between controllers once ``stop`` is set; the controllers not reached
         are simply absent from the result (the next reconcile serves them). Every controller
         is tried at once (``hold`` True: not one whose backoff holds its push back, see the
-        module docstring); failures start or extend its backoff."""
+        module docstring); failures start or extend its backoff. While frames play
+        (:meth:`attach_frames`) the push goes in two phases (:meth:`_push_in_two_phases`):
+        no frame is shown through the old table on some controllers and the new on others."""
         desired = self._desired(lengths_um, fallback)
         out = []
         with self._lock:
@@ -369,9 +372,9 @@ class Fleet:
         """:meth:`push` while frames play (:meth:`attach_frames`): stage the table on every
         controller that needs it, then, with the frames held (no frame on any line), commit
         them back to back and release the frames, so every frame is shown through the old
-        tables on all controllers or through the new ones on all. Once ``stop`` is set while
-        staging, nothing is committed (the staged controllers are absent from the result, the
-        old tables stay active)."""
+        tables on all controllers or through the new ones on all. Once ``stop`` (or the
+        fleet's ``cancel``) is set while staging, nothing is committed (the staged controllers
+        are absent from the result, the old tables stay active)."""
         reports: list[tuple[ControllerConfig, ControllerReport | None, tuple]] = []
         for c in self.controllers:
             if stop is not None and stop.is_set():
@@ -380,7 +383,8 @@ class Fleet:
             r, state = self._push_one(c, table, table_id, crc, hold, stage=True)
             reports.append((c, r, state))
         staged = [i for i, (_, r, _) in enumerate(reports) if r is None]
-        if staged and (stop is None or not stop.is_set()):
+        stopped = any(e is not None and e.is_set() for e in (stop, self.cancel))
+        if staged and not stopped:
             frames.hold()
             try:
                 for i in staged:

@@ -32,7 +32,10 @@ twice in a row is left out of the next frames for a while (doubling, up to ``ski
 a frame's levels are not retransmitted by default: the next frame replaces them), so the others
 keep their rate; one that comes back (a reboot, a plug) gets the current frame with the next
 one sent. Without a new frame, the newest is sent again every ``refresh_s`` (a rebooted
-controller, a committed table: both show it from that SHOW on).
+controller, a committed table: both show it from that SHOW on). The output attaches itself
+to its ``fleet`` (:meth:`~.fleet.Fleet.attach_frames`): the fleet's pushes then stage every
+controller first and commit them all while the output is held, so that no frame is shown
+through the old table on some controllers and the new one on others.
 
 The daemon closes its :class:`FrameOutput` before the :class:`~.fleet.Fleet` whose lines it
 shares (a closed fleet's lines would be opened again by the next frame), and runs one output

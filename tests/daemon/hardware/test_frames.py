@@ -17,7 +17,7 @@ import pytest
 from firmware_tiers import firmware_params
 
 from grassd.daemon.config.settings import ControllerConfig
-from grassd.daemon.hardware.fleet import Fleet
+from grassd.daemon.hardware.fleet import Fleet, table_checksum
 from grassd.daemon.hardware.frames import FrameError, FrameOutput, stream_chunk_bytes
 from grassd.firmware_proto.client import ControllerClient
 from grassd.firmware_proto.codec import Frame, encode_frame
@@ -368,6 +368,28 @@ def test_a_commit_that_fails_leaves_the_others_on_the_new_table(tmp_path):
         out.hold()
         for c in ctls:
             np.testing.assert_array_equal(targets(fleet, c), expected(new, c, stream.last))
+
+
+def test_a_push_stopped_while_staging_commits_nothing(tmp_path):
+    """A stop request while frames play and the first controller stages its table: no
+    controller commits (none shows the new table while the others keep the old), none is in
+    the result, and every controller still has the old table active."""
+    stop = threading.Event()
+    with ExitStack() as stack:
+        buses = start_lines("model", tmp_path, stack)
+        ctls = line_configs([b.path for b in buses])
+        fleet = stack.enter_context(Fleet(ctls, on_progress=stop.set))  # at the first chunk
+        old, new = np.arange(256, dtype=np.uint16) * 70, np.arange(256, dtype=np.uint16) * 75
+        assert all(r.ok for r in fleet.push(old, 1))
+        stop.clear()
+        stack.enter_context(FrameOutput(ctls, N, fps=30, fleet=fleet))
+        assert fleet.push(new, 2, stop=stop) == []
+        assert stop.is_set()
+        for c in ctls:
+            st = fleet.client(c).read_status(c.address)
+            assert (st.table_id, st.table_crc) == (1, table_checksum(old)), c.name
+        assert fleet.client(ctls[0]).read_status(ctls[0].address).staging  # left open
+        assert all(r.ok for r in fleet.push(new, 2))  # a later push still succeeds
 
 
 @pytest.mark.parametrize("firmware", FIRMWARES)
