@@ -76,8 +76,9 @@ def test_sketch_links_with_the_current_core_prints_its_size_and_has_no_heap():
         names = {name for _, name in symbols}
         heap = sorted(name for name in names if HEAP.search(name))
         assert not heap, f"{elf.name} links the heap: {heap}"
-        # the protocol's entry points, the frame latch of the current core among them
-        assert {"setup", "loop", "fw_boot", "fw_rx_feed", "fw_tick", "fw_poll",
+        # setup() and loop() (C++ names), the protocol's entry points, the frame latch of the
+        # current core among them
+        assert {"_Z5setupv", "_Z4loopv", "fw_boot", "fw_rx_feed", "fw_tick", "fw_poll",
                 "fw_latch_stage", "fw_latch_take", "fw_irq_save"} <= names, elf.name
         # the encoders are one static array in zeroed RAM, not objects made at run time
         kinds = {kind for kind, name in symbols if name == "_ZL8encoders"}
