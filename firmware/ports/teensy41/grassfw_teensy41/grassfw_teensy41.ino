@@ -8,7 +8,8 @@
 //            to the file and is synced, so a power cut keeps the old bytes or the new ones
 //   motors   PWM + DIR per pixel, quadrature encoders (PJRC Encoder library), PD loop from
 //            an IntervalTimer every 1 ms, above the bus in priority
-//   memory   no heap: every object here is static, sized at compile time
+//   memory   no heap: every object here is static, sized at compile time (PJRC's LittleFS
+//            allocates its open file itself, once, in setup())
 #include <Encoder.h>
 #include <IntervalTimer.h>
 #include <LittleFS.h>
