@@ -32,6 +32,7 @@ from pathlib import Path
 
 import pytest
 from daemon_harness import display_2x2
+from PIL import Image
 
 from grassd.rigs.processes import end_process
 
@@ -54,6 +55,7 @@ COMMANDS = {
     "history": "test_daemon_on_simulated_hardware",
     "measure": "test_measure_refuses_a_camera_never_set_up",
     "run": "test_daemon_on_simulated_hardware",
+    "show": "test_daemon_on_simulated_hardware",
     "simulate": "test_simulate_and_export_scene",
     "status": "test_daemon_on_simulated_hardware",
     "studio": "test_studio",
@@ -386,8 +388,10 @@ def test_camera_sim_and_capture_raw_plus(installed):
 
 def test_daemon_on_simulated_hardware(installed):
     """``grassd run --simulate-hardware`` calibrates from the captured bundle and pushes the
-    table; ``status``, ``history``, ``bundles list`` and ``calibrate --now`` against it."""
-    cfg = _config(installed)
+    table; ``status``, ``history``, ``bundles list``, ``show`` (content on, no receivers) and
+    ``calibrate --now`` against it."""
+    cfg = _config(installed, "[content]\nenabled = true\n[content.sacn]\nenabled = false\n"
+                             "[content.artnet]\nenabled = false\n")
     state = installed.work / "state"
     if not (state / "inbox").is_dir() or not any((state / "inbox").iterdir()):
         pytest.skip("no bundle: test_camera_sim_and_capture_raw_plus did not run first")
@@ -409,6 +413,12 @@ def test_daemon_on_simulated_hardware(installed):
         assert "#1" in installed.grassd("history", "--config", cfg).stdout
         assert "no quarantined bundles" in installed.grassd("bundles", "list", "--config",
                                                              cfg).stdout
+        picture = installed.work / "green.png"
+        Image.new("RGB", (4, 4), (20, 160, 40)).save(picture)
+        shown = installed.grassd("show", str(picture), "--duration", "30", "--config", cfg)
+        assert "the daemon shows green.png" in shown.stdout, shown.stdout
+        st = json.loads(installed.grassd("status", "--config", cfg, "--json").stdout)
+        assert st["content"]["source"] == "script", st["content"]
         installed.grassd("calibrate", "--now", "--wait", "--config", cfg, "--timeout", "240",
                          timeout=300)
         st = json.loads(installed.grassd("status", "--config", cfg, "--json").stdout)
