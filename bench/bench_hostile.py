@@ -14,10 +14,9 @@
    until the typed error and this process's peak RSS growth.
 4. The fuzz of ``tests/daemon/store/test_inbox_fuzz.py``, longer (``--bundles``, default 1000)
    and on another seed: bundles per second and the outcome counts.
-5. Each decoder against a file small on disk and huge decoded (issue #50,
-   :mod:`bench.hostile_decodes`), in a fresh process: what it did and its peak RSS. Before the
-   fix: the daemon's calibration read an 8192 x 4096 EXR whole (1738 MiB), ``grassd measure``
-   a DNG declaring 16384 x 8192 photosites (3168 MiB), the studio an 8192 x 8192 PNG.
+5. Each decoder against a file small on disk and huge decoded
+   (:mod:`bench.hostile_decodes`), in a fresh process: what it did and its peak RSS
+   (docs/operating/security.md has the figures).
 
 Run: ``python -m bench hostile`` or ``python -m bench.bench_hostile [--bundles N] [--seed S]``.
 """

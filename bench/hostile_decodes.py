@@ -1,4 +1,4 @@
-"""Hostile files that are small on disk and huge decoded (issue #50), and what decoding one
+"""Hostile files that are small on disk and huge decoded, and what decoding one
 costs a fresh process: a flat PNG of any size written row by row, a DNG whose header declares
 another size than its data, and :func:`run_child`, which runs a decode in a new Python and
 returns what it did with its peak resident memory. The EXR and Radiance builders are in
