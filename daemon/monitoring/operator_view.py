@@ -10,7 +10,10 @@ state and the capture station's last success, taken at once). The service calls
 :meth:`OperatorView.after_reconcile` after each reconcile, both in its main thread. Neither
 ever raises: a file that cannot be written is logged (once per distinct error) and the daemon
 goes on. The status page is regenerated after every run, and after a reconcile only when the
-health or a controller's state changed (its trend plots cost more than the metrics).
+health or a controller's state changed (its trend plots cost more than the metrics). While
+content plays, the page is also written after a reconcile every
+:data:`~grassd.daemon.content.shown.SHOWN_EVERY_S` with a fresh picture of the display as its
+controllers report it (``shown``, a function the service gives: None when no content plays).
 
 With a capture station (``[capture]``), the metric
 ``grassd_capture_last_success_timestamp_seconds`` says when it last delivered a bundle; it is
@@ -20,12 +23,14 @@ not written before the first delivery, nor without a station.
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from grassd.daemon.config.settings import Config
+from grassd.daemon.content.shown import SHOWN_EVERY_S, ShownDisplay
 from grassd.daemon.monitoring.alerts import Alerter
 from grassd.daemon.monitoring.health import Health
 from grassd.daemon.monitoring.metrics import SensorState, registry, textfile_path, write_textfile
@@ -51,13 +56,22 @@ class OperatorSnapshot:
 class OperatorView:
     """Metrics, alerts and status page of the daemon configured by ``cfg``, keeping its
     ``history``; ``snapshot`` returns the daemon's state at the moment it is called (it may
-    raise, e.g. on an unreadable database: logged, nothing written)."""
+    raise, e.g. on an unreadable database: logged, nothing written); ``shown`` (if given)
+    reads the display's pixels from its controllers, or returns None when no content plays
+    (called at most every ``shown_every_s`` seconds, only when the page is written)."""
 
     def __init__(self, cfg: Config, history: History,
-                 snapshot: Callable[[], OperatorSnapshot]) -> None:
+                 snapshot: Callable[[], OperatorSnapshot],
+                 shown: Callable[[], ShownDisplay | None] | None = None,
+                 shown_every_s: float = SHOWN_EVERY_S) -> None:
         self.cfg = cfg
         self.history = history
         self.snapshot = snapshot
+        self.shown = shown
+        self.shown_every_s = shown_every_s
+        #: the display's last reading (the page's picture), and when it was asked (monotonic s)
+        self.last_shown: ShownDisplay | None = None
+        self._shown_at = float("-inf")
         self.alerter = Alerter(cfg.alerts, history)
         #: failed pushes per controller name since the daemon started
         self.push_failures: dict[str, int] = {}
@@ -118,9 +132,27 @@ class OperatorView:
         self._write_metrics(snap)
         key = (health, tuple((c.name, c.reachable, c.in_sync, c.table_id)
                              for c in status.controllers))
-        if page or key != self._page_key:
+        fresh = self._read_shown()
+        if page or key != self._page_key or fresh:
             self._write_page(status)
             self._page_key = key
+
+    def _read_shown(self) -> bool:
+        """Read the display for the page's picture when due; True when a new reading came
+        (the page is then written with it)."""
+        now = time.monotonic()
+        if self.shown is None or now - self._shown_at < self.shown_every_s:
+            return False
+        try:
+            shown = self.shown()
+        except Exception as exc:  # the page is written without a new picture
+            self._failed("shown", f"cannot read the display's positions: {exc}")
+            return False
+        if shown is None:  # no content plays: no reading, the last picture stays
+            return False
+        self._cleared("shown")
+        self.last_shown, self._shown_at = shown, now
+        return True
 
     def _write_metrics(self, snap: OperatorSnapshot, up: bool = True) -> None:
         path = self.textfile
@@ -137,7 +169,7 @@ class OperatorView:
     def _write_page(self, status: Status) -> None:
         try:
             text = render(status, self.history, timezone=self.cfg.site.timezone,
-                          push_failures=self.push_failures)
+                          push_failures=self.push_failures, shown=self.last_shown)
             write_page(self.page, text)
         except Exception as exc:
             self._failed("page", f"cannot write the status page {self.page}: {exc}")

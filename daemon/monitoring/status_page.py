@@ -2,8 +2,10 @@
 
 Regenerated atomically after every run (and when the health or a controller's state changes)
 by the daemon; no server: any web server, or a file browser, shows it. It holds the health
-with its reasons, the active table with its plot (the run's PNG embedded as a data URI),
-every controller's state, the display's last measurement (``grassd measure``: its verdict,
+with its reasons, the active table with its plot (the run's PNG embedded as a data URI), the
+content the display shows with a picture of it as its controllers report it (GET_POSITIONS,
+read while content plays: :mod:`~grassd.daemon.monitoring.display_picture`), every
+controller's state, the display's last measurement (``grassd measure``: its verdict,
 uniformity before and after, a link to its HTML report and the last trend points, read from
 ``<state>/measure/*.json`` as the page is written), the last runs, trends over the kept history
 (OGCD range, lux and R^2 against time, as inline SVG) and the rejected and quarantined bundles
@@ -30,6 +32,8 @@ from zoneinfo import ZoneInfo
 import numpy as np
 
 from grassd import __version__
+from grassd.daemon.content.shown import ShownDisplay
+from grassd.daemon.monitoring.display_picture import shown_figure
 from grassd.daemon.monitoring.line_report import describe_line, line_verdict
 from grassd.daemon.monitoring.metrics import run_r2
 from grassd.daemon.monitoring.status_types import ControllerStatus, Status
@@ -75,6 +79,8 @@ figcaption { font-size: 0.9em; color: #333; }
 .reason { white-space: pre-wrap; word-break: break-word; }
 header, p.meta, dd, figcaption { overflow-wrap: anywhere; }
 .plot img { min-width: 640px; }
+figure.shown { display: inline-block; margin-top: 8px; }
+figure.shown img { image-rendering: pixelated; }
 @media (max-width: 600px) {
   body { padding: 0 6px; }
   /* tables become one card per row, each cell labelled with its column */
@@ -242,8 +248,10 @@ def _lines(lines: Mapping[str, Mapping[str, Any]]) -> str:
     return _table(["port", "line", "unanswered (%)", "chunk (bytes)", "detail"], rows)
 
 
-def _content(c: Mapping[str, Any]) -> str:
-    """What the display shows (the content feature's status, docs/content.md)."""
+def _content(c: Mapping[str, Any], shown: ShownDisplay | None = None,
+             clock: _Clock | None = None) -> str:
+    """What the display shows (the content feature's status, docs/content.md), with the
+    picture of ``shown`` (the controllers' last reported positions) when there is one."""
     def ms(v: float | None) -> str:
         return "-" if v is None else f"{v:.0f}"
 
@@ -256,9 +264,10 @@ def _content(c: Mapping[str, Any]) -> str:
              _td(f"{ms(c.get('latency_ms_median'))} / {ms(c.get('latency_ms_p99'))}", "n"),
              _td(f"{ms(out.get('latency_ms_median'))} / {ms(out.get('latency_ms_p99'))}", "n"),
              _td(bad, "n"), _td(c["map"])]]
-    return _table(["source", "detail", "frames out /s", "in /s", "dropped",
-                   "packet to frame (ms, median / p99)", "to last ACK (ms)", "bad packets",
-                   "map"], rows)
+    table = _table(["source", "detail", "frames out /s", "in /s", "dropped",
+                    "packet to frame (ms, median / p99)", "to last ACK (ms)", "bad packets",
+                    "map"], rows)
+    return table + ("" if clock is None else shown_figure(shown, clock))
 
 
 def _runs(runs: Sequence[RunRecord], clock: _Clock) -> str:
@@ -353,9 +362,11 @@ def _refused(history: History, clock: _Clock) -> str:
 
 
 def render(status: Status, history: History, *, timezone: str,
-           push_failures: Mapping[str, int] | None = None, now: float | None = None) -> str:
+           push_failures: Mapping[str, int] | None = None, now: float | None = None,
+           shown: ShownDisplay | None = None) -> str:
     """The page (HTML text) for daemon ``status`` (with its health) and ``history``; times
-    shown in the site's ``timezone`` (IANA name); ``now`` epoch s (the page's time)."""
+    shown in the site's ``timezone`` (IANA name); ``now`` epoch s (the page's time);
+    ``shown``: the display as its controllers last reported it (a picture under Content)."""
     clock = _Clock(timezone)
     health = status.health
     live = status.daemon
@@ -369,7 +380,8 @@ def render(status: Status, history: History, *, timezone: str,
         ("Display measurement", _measurement(status.state_dir, clock)),
         ("Controllers", _controllers(status.controllers, push_failures or {}, clock)),
         ("Serial lines", _lines({} if live is None else live.lines)),
-        *([("Content", _content(live.content))] if live is not None and live.content else []),
+        *([("Content", _content(live.content, shown, clock))]
+          if live is not None and live.content else []),
         ("Last runs", _runs(history.runs(LAST_RUNS), clock)),
         ("Trends", _trends(history, clock)),
         ("Rejected and quarantined bundles", _refused(history, clock)),

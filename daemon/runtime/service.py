@@ -170,7 +170,8 @@ class Service:
             #: the same backoff
             self.compute_retry = ComputeRetry(retry_s, retry_max_s)
             #: metrics, alerts, status page, from snapshots of the status
-            self.operator = OperatorView(cfg, self.history, self._operator_snapshot)
+            self.operator = OperatorView(cfg, self.history, self._operator_snapshot,
+                                         shown=self._read_shown)
             self._build(cfg)
         except BaseException:
             self.lock.release()
@@ -711,6 +712,25 @@ class Service:
             sensor=None if sensor is None else SensorState(up=sensor.last_ok,
                                                            last_success_at=sensor.last_success_at),
             capture_at=None if loop is None else loop.last_success_at)
+
+    def _read_shown(self) -> Any:
+        """The display as its controllers report it now (GET_POSITIONS through the fleet,
+        :func:`~grassd.daemon.content.shown.read_shown`), for the status page's picture; None
+        when no content plays (none configured, nothing showing, or held by a measurement)."""
+        from grassd.daemon.content.shown import LengthColours, read_shown
+        from grassd.daemon.content.status import ContentSource
+
+        content = self.content
+        if content is None:
+            return None
+        st = content.status()
+        if st.source is ContentSource.NONE or (st.output or {}).get("held"):
+            return None
+        colours, cur = content.colours(), self.history.current_table()
+        palette = None if colours is None or cur is None else \
+            LengthColours.from_table(cur.lengths_um, colours.level_lab)
+        d = self.cfg.display
+        return read_shown(self.fleet, self.cfg.controllers, d.rows, d.cols, colours=palette)
 
     def handle_request(self, req: dict[str, Any]) -> dict[str, Any]:
         """Answer one control-socket request (runs in a socket thread; see
