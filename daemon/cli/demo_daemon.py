@@ -36,21 +36,28 @@ DEMO_CONTENT = ('\n[content]\nenabled = true\n[content.sacn]\nenabled = false\n'
                 '[content.artnet]\nenabled = false\n')
 #: seconds the demo's animation plays (its status is read 1 s before the end: the figures
 #: per second look back 2 s)
-DEMO_SHOW_S = 4.0
+DEMO_SHOW_S = 8.0
+#: the demo wave's ends (sRGB 8-bit): dry straw and grass green, as the demo's display shows
+WAVE_STRAW_RGB8 = (130, 112, 40)
+WAVE_GREEN_RGB8 = (40, 62, 20)
 
 
 def write_wave(path: Path, rows: int, cols: int, frames: int = 12) -> Path:
     """An animated GIF of a green wave crossing a ``rows`` x ``cols`` display (10 px a
-    pixel, 0.1 s a frame): the demo's content."""
+    pixel, 0.1 s a frame): the demo's content. Its colours run from :data:`WAVE_STRAW_RGB8`
+    to :data:`WAVE_GREEN_RGB8`, inside the range the simulated display shows, so that the
+    colour map gives the wave's pixels different levels (brighter greens than the display
+    reaches would all map to its lightest level)."""
     import numpy as np
     from PIL import Image
 
     x = np.arange(cols * 10) / (cols * 10)
+    straw, green = np.asarray(WAVE_STRAW_RGB8, float), np.asarray(WAVE_GREEN_RGB8, float)
     images = []
     for k in range(frames):
-        g = (127.5 + 127.5 * np.sin(2 * np.pi * (x - k / frames))).astype(np.uint8)
-        rgb = np.zeros((rows * 10, cols * 10, 3), np.uint8)
-        rgb[..., 0], rgb[..., 1], rgb[..., 2] = 200 - g // 3, 120 + g // 2, 40
+        g = (0.5 + 0.5 * np.sin(2 * np.pi * (x - k / frames)))[:, None]
+        row = np.rint((1.0 - g) * straw + g * green).astype(np.uint8)
+        rgb = np.ascontiguousarray(np.broadcast_to(row, (rows * 10, cols * 10, 3)))
         images.append(Image.fromarray(rgb))
     images[0].save(path, save_all=True, append_images=images[1:], duration=100, loop=0)
     return path
@@ -118,7 +125,7 @@ def run_demo(workdir: str | os.PathLike[str] | None = None, *, lux: float = 5000
         run = st.runs[0]
         for line in (f"report: {run.report}", f"plot:   {run.plot}", f"log:    {log}"):
             echo(line)
-        _show_content(sock, work, echo)
+        _show_content(sock, work, echo, st.daemon.status_page if st.daemon else None)
         return status()
     finally:
         if proc.poll() is None:
@@ -132,9 +139,10 @@ def run_demo(workdir: str | os.PathLike[str] | None = None, *, lux: float = 5000
             echo(f"daemon exit status {proc.returncode}")
 
 
-def _show_content(sock: Path, work: Path, echo: Callable[[str], Any]) -> None:
-    """Play the demo's animation through the daemon (as ``grassd show`` does) and say what
-    the display shows meanwhile."""
+def _show_content(sock: Path, work: Path, echo: Callable[[str], Any],
+                  page: str | None = None) -> None:
+    """Play the demo's animation through the daemon (as ``grassd show`` does), say what
+    the display shows meanwhile and whether the status ``page`` holds its picture."""
     from grassd.daemon.config.settings import load_default_config
     from grassd.daemon.content.status import content_line
 
@@ -146,6 +154,14 @@ def _show_content(sock: Path, work: Path, echo: Callable[[str], Any]) -> None:
     time.sleep(DEMO_SHOW_S - 1.0)
     content = request(sock, {"cmd": "content_status"}, timeout_s=30)["content"]
     echo(content_line(content))
+    if page:
+        try:
+            pictured = 'class="shown"' in Path(page).read_text("utf-8")
+        except OSError:
+            pictured = False
+        echo(f"status page: {page} (" + ("with a picture of the display as its controllers "
+                                         "reported it)" if pictured else
+                                         "no picture of the display yet)"))
 
 
 def main() -> None:

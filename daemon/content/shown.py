@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from grassd.firmware_proto.errors import ProtocolError
 
 #: seconds between two readings of the display for the status page, at least
-SHOWN_EVERY_S = 10.0
+SHOWN_EVERY_S = 5.0
 
 
 @dataclass(frozen=True)

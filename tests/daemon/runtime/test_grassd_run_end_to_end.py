@@ -4,8 +4,11 @@ systemd's $NOTIFY_SOCKET."""
 
 from __future__ import annotations
 
+import base64
+import io
 import json
 import os
+import re
 import shutil
 import signal
 import socket
@@ -14,6 +17,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from daemon_harness import CACHE, SITE, truncated_exr
 from daemon_harness import wait_for as harness_wait_for
@@ -408,6 +412,16 @@ def test_demo_runs_the_whole_daemon(tmp_path, monkeypatch):
     prom = tmp_path / "state" / "metrics" / "grassd.prom"  # always here with simulated hardware
     assert f"status page: {page}" in lines and f"metrics:     {prom}" in lines
     assert "<title>grassd: ok</title>" in page.read_text()
+    # its picture of the display as the controllers reported it, the wave across it
+    assert (f"status page: {page} (with a picture of the display as its controllers "
+            "reported it)") in lines
+    m = re.search(r'<figure class="shown"><img src="data:image/png;base64,([^"]+)".*?'
+                  r"<figcaption>(.*?)</figcaption>", page.read_text(), re.S)
+    assert m and "from 2 of 2 controller(s)" in m.group(2)
+    from PIL import Image
+
+    picture = np.asarray(Image.open(io.BytesIO(base64.b64decode(m.group(1)))).convert("RGB"))
+    assert len(np.unique(picture.reshape(-1, 3), axis=0)) > 2  # not one flat colour
     from prometheus_client.parser import text_string_to_metric_families
 
     samples = {s.name: s.value for f in text_string_to_metric_families(prom.read_text())
