@@ -62,6 +62,7 @@ from grassd.daemon.config.settings import (
     load_config,
     not_used_by_the_daemon,
 )
+from grassd.daemon.content.shown import ShownDisplay
 from grassd.daemon.errors import (
     USER_ERRORS,
     ComputeUnavailable,
@@ -713,7 +714,7 @@ class Service:
                                                            last_success_at=sensor.last_success_at),
             capture_at=None if loop is None else loop.last_success_at)
 
-    def _read_shown(self) -> Any:
+    def _read_shown(self) -> ShownDisplay | None:
         """The display as its controllers report it now (GET_POSITIONS through the fleet,
         :func:`~grassd.daemon.content.shown.read_shown`), for the status page's picture; None
         when no content plays (none configured, nothing showing, or held by a measurement)."""

@@ -99,6 +99,9 @@ def test_the_page_shows_the_frame_as_the_controllers_report_it(tmp_path, ports):
         assert "from 2 of 2 controller(s)" in m.group(2)
         page_blocks = _blocks(base64.b64decode(m.group(1)), rows, cols)
         np.testing.assert_array_equal(page_blocks, blocks)
+        first = svc.operator.last_shown
+        svc.reconcile()  # within SHOWN_EVERY_S of the last reading: the lines are not read
+        assert svc.operator.last_shown is first
 
         # one line's controller unplugged: its pixels grey, named in the caption
         gone = svc.cfg.controllers[1]
@@ -120,6 +123,12 @@ def test_the_page_shows_the_frame_as_the_controllers_report_it(tmp_path, ports):
         svc.reconcile()
         caption = _PNG.search(svc.operator.page.read_text("utf-8")).group(2)
         assert "from 1 of 2 controller(s)" in caption and gone.name in caption
+        # content stopped: nothing is read, the page keeps the last picture with its time
+        assert svc.handle_request({"cmd": "content_stop"})["ok"]
+        deadline = time.monotonic() + 5
+        while svc._read_shown() is not None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert svc._read_shown() is None
     finally:
         svc.shutdown()
         sim.stop()
