@@ -149,14 +149,15 @@ def test_every_target_is_the_table_of_the_frame_sent(tmp_path, firmware):
 
 
 def frame_spreads(buses: list[PosixBus]) -> tuple[list[float], int]:
-    """Per frame (target changes closer than 10 ms to each other), the time between the first
+    """Per frame (target changes closer than 10 ms to each other, each controller's at most
+    once: two frames a loaded machine sent close together are two), the time between the first
     and the last controller's change (s), for the frames that changed every controller once;
     and how many frames there were in all."""
     changes = sorted(((ch.t_ns, i, ch.address) for i, b in enumerate(buses)
                       for ch in b.target_changes()))
     groups, cur = [], [changes[0]]
     for ch in changes[1:]:
-        if ch[0] - cur[-1][0] > 10_000_000:
+        if ch[0] - cur[-1][0] > 10_000_000 or ch[1:] in {c[1:] for c in cur}:
             groups.append(cur)
             cur = []
         cur.append(ch)
