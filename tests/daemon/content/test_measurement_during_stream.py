@@ -30,7 +30,7 @@ FPS = 30
 WINDOW_S = 2.0
 RSS_GROWTH_MIB = 16.0
 #: measurements before the one watched (their one-off allocations are not growth)
-WARM_UP = 2
+WARM_UP = 5
 
 
 def _rss_mib() -> float:
