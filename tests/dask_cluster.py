@@ -214,3 +214,19 @@ class DaskCluster:
                 os.killpg(p.pid, signal.SIGKILL)
                 p.wait(10)
         self.workers.clear()
+
+
+def tampered(wire: dict, change) -> dict:
+    """A copy of a decoded msgpack answer ``wire`` (tuples for lists, as msgpack gives them
+    back with ``use_list=False``) in plain lists and dicts, with ``change`` applied to its
+    ``result``: what a worker that altered an honest answer sends."""
+    def thawed(v):
+        if isinstance(v, dict):
+            return {k: thawed(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [thawed(x) for x in v]
+        return v
+
+    out = thawed(wire)
+    change(out["result"])
+    return out

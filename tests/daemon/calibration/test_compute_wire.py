@@ -6,13 +6,13 @@ numbers, an error type nobody declared, tables the run would have rejected) is r
 
 from __future__ import annotations
 
-import copy
 import json
 from dataclasses import replace
 
 import msgpack
 import numpy as np
 import pytest
+from dask_cluster import tampered
 from test_remote_calibration import LIGHT, SMALL, _without_timings
 
 from grassd.daemon.calibration.calibrate import Calibrator, init_backend
@@ -41,18 +41,6 @@ def run(cfg):
     return result, wire
 
 
-def _tampered(wire, change):
-    w = copy.deepcopy(_thawed(wire))
-    change(w["result"])
-    return w
-
-
-def _thawed(v):
-    if isinstance(v, dict):
-        return {k: _thawed(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_thawed(x) for x in v]
-    return v
 
 
 def test_a_result_crosses_unchanged(cfg, run):
@@ -93,7 +81,7 @@ def _nan_in_characteristic(r):
 ])
 def test_a_tampered_result_is_refused(run, change, reason):
     with pytest.raises(ComputeResultRefused) as exc:
-        read_answer(_tampered(run[1], change), CalibrationResult, WHERE)
+        read_answer(tampered(run[1], change), CalibrationResult, WHERE)
     assert str(exc.value).startswith(f"{WHERE} answered a result whose ")
     assert reason in str(exc.value)
 
@@ -127,7 +115,7 @@ def test_tables_the_run_would_reject_are_refused_on_arrival(cfg, run):
     result = read_answer(run[1], CalibrationResult, WHERE)
 
     def with_table(t):
-        return read_answer(_tampered(run[1], lambda r: r.update(
+        return read_answer(tampered(run[1], lambda r: r.update(
             table_um=["<u2", [256], np.asarray(t, np.uint16).tobytes()])),
             CalibrationResult, WHERE)
 
@@ -142,11 +130,11 @@ def test_tables_the_run_would_reject_are_refused_on_arrival(cfg, run):
     with pytest.raises(ComputeResultRefused, match="differs from the active one by up to"):
         check_arrival(strict, far, WHERE, previous_um=np.zeros(256, np.uint16))
     check_arrival(strict, far, WHERE, previous_um=np.zeros(256, np.uint16), force=True)
-    stranger = read_answer(_tampered(run[1], lambda r: r["controller_tables"].update(
+    stranger = read_answer(tampered(run[1], lambda r: r["controller_tables"].update(
         {"/dev/ttyEVIL": ["<u2", [256], result.table_um.tobytes()]})), CalibrationResult, WHERE)
     with pytest.raises(ComputeResultRefused, match="controllers that are not configured"):
         check_arrival(cfg, stranger, WHERE)
-    other = read_answer(_tampered(run[1], lambda r: r.update(granularity="pixel")),
+    other = read_answer(tampered(run[1], lambda r: r.update(granularity="pixel")),
                         CalibrationResult, WHERE)
     with pytest.raises(ComputeResultRefused, match="has granularity 'pixel'"):
         check_arrival(cfg, other, WHERE)

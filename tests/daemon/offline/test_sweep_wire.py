@@ -7,11 +7,10 @@ back as its own type."""
 
 from __future__ import annotations
 
-import copy
-
 import msgpack
 import numpy as np
 import pytest
+from dask_cluster import tampered
 
 from grassd.daemon.calibration.wire import answer_of, error_answer, read_answer
 from grassd.daemon.errors import ComputeResultRefused
@@ -50,18 +49,6 @@ def run(conds):
     return result, wire
 
 
-def _thawed(v):
-    if isinstance(v, dict):
-        return {k: _thawed(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_thawed(x) for x in v]
-    return v
-
-
-def _tampered(wire, change):
-    w = copy.deepcopy(_thawed(wire))
-    change(w["result"])
-    return w
 
 
 def test_a_result_crosses_unchanged(conds, run):
@@ -88,7 +75,7 @@ def _array(a):
 def test_an_answer_out_of_the_declared_form_is_refused(run, change, needle):
     _, wire = run
     with pytest.raises(ComputeResultRefused, match=needle):
-        read_answer(_tampered(wire, change), ConditionResult, WHERE)
+        read_answer(tampered(wire, change), ConditionResult, WHERE)
 
 
 def test_an_answer_for_another_condition_is_refused(conds, run):
@@ -107,7 +94,7 @@ def test_an_answer_for_another_condition_is_refused(conds, run):
 ])
 def test_arrival_checks_refuse_what_the_form_lets_through(conds, run, change, needle):
     _, wire = run
-    back = read_answer(_tampered(wire, change), ConditionResult, WHERE)
+    back = read_answer(tampered(wire, change), ConditionResult, WHERE)
     with pytest.raises(ComputeResultRefused, match=needle):
         check_arrival(SPEC, conds[0], back, WHERE)
 
