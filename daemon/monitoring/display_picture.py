@@ -75,7 +75,7 @@ def shown_caption(shown: ShownDisplay, clock: Callable[[float], str]) -> str:
             f"{len(shown.answered)} of {total} controller(s); {scale}")
     if shown.missing:
         text += "; grey: no answer from " + ", ".join(
-            f"{m.name} ({m.error})" for m in shown.missing)
+            f"{one_line(m.name)} ({one_line(m.error)})" for m in shown.missing)
     return text
 
 
@@ -84,7 +84,7 @@ def shown_figure(shown: ShownDisplay | None, clock: Callable[[float], str]) -> s
     if shown is None:
         return ""
     uri = base64.b64encode(shown_png(shown)).decode("ascii")
-    caption = html.escape(one_line(shown_caption(shown, clock)))
+    caption = html.escape(one_line(shown_caption(shown, clock), max_chars=None))
     return (f'<figure class="shown"><img src="data:image/png;base64,{uri}" '
             f'alt="the display now ({shown.rows} x {shown.cols} pixels)">'
             f"<figcaption>{caption}</figcaption></figure>")
