@@ -63,15 +63,33 @@ def both(tmp_path_factory, shared_hdri) -> tuple[dict, dict]:
     return _render("gpu", hdri, tmp / "gpu.npz"), _render("cpu", hdri, tmp / "cpu.npz")
 
 
-@pytest.mark.parametrize("kernel", ["characteristic", "terms"])
-def test_the_gpu_traces_the_cpus_paths(both, kernel):
-    gpu, cpu = both[0][kernel], both[1][kernel]
+def _relative(gpu: np.ndarray, cpu: np.ndarray) -> np.ndarray:
+    """|gpu - cpu| / |cpu| where the CPU's value is not negligible."""
     assert gpu.shape == cpu.shape
-    big = np.abs(cpu) > 1e-3 * np.abs(cpu).max()  # terms: many monomials hold nothing
-    rel = np.abs(gpu - cpu)[big] / np.abs(cpu)[big]
-    # measured (lavapipe, 2026-11-29): median 3e-5 / 2e-8, largest 2.0e-3 / 2.7e-3: a sum of
-    # float32 radiances adds in another order on the GPU
+    big = np.abs(cpu) > 1e-3 * np.abs(cpu).max()
+    return np.abs(gpu - cpu)[big] / np.abs(cpu)[big]
+
+
+def test_the_gpu_traces_the_cpus_characteristic(both):
+    rel = _relative(both[0]["characteristic"], both[1]["characteristic"])
+    # a sum of float32 radiances adds in another order on the GPU
     assert np.median(rel) < 2e-4 and rel.max() < 1e-2, (np.median(rel), rel.max())
+
+
+def test_the_gpu_records_the_cpus_terms(both):
+    """The coefficients agree to rounding but for the few a grazing path turned elsewhere
+    (a small coefficient of a high monomial can move by a few percent); the radiance they give
+    for materials ``grassd fit`` would try agrees like the characteristic's."""
+    from grassd.sim.albedo_terms import monomial_values
+
+    gpu, cpu = both[0]["terms"], both[1]["terms"]
+    assert np.median(_relative(gpu, cpu)) < 2e-4
+    rng = np.random.default_rng(0)
+    for albedo in rng.uniform(0.05, 0.9, (4, 4, 3)):
+        mono = monomial_values(albedo, 0.0)
+        rel = _relative(np.einsum("rnmc,mc->rnc", gpu, mono),
+                        np.einsum("rnmc,mc->rnc", cpu, mono))
+        assert np.median(rel) < 2e-4 and rel.max() < 1e-2, (albedo, np.median(rel), rel.max())
 
 
 def test_the_gpu_draws_the_cpus_image(both):

@@ -92,8 +92,10 @@ def test_the_page_follows_the_eye_shows_a_picture_and_reports_bad_input(studio, 
                       "!document.getElementById('display-img').hidden")
         page.wait_for("document.getElementById('display-img').complete")
         left, right = _display_halves(page)
-        # level 0 is the shortest green (the yellow tufts show), 255 the longest (deep green)
-        assert left > right + 40, (left, right)
+        # each colour shows as the nearest colour the grass can make (the daemon's [content]
+        # map): the dark half as the deep green of long grass, the bright half as the lightest
+        # (the yellow tufts of the shortest)
+        assert right > left + 40, (left, right)
 
         # a bad value shows its message in the page; the next good one clears it
         page.evaluate("document.getElementById('lux').value = 5e9;"
