@@ -7,11 +7,23 @@ its reference colour (:func:`checker_white_balance`), and scaled so that grey ha
 simulation, normalised to a white card, is scaled the same way (:func:`virtual_checker`).
 :func:`checker_scene` is the radiance a virtual camera photographs of a checker lying at the
 display (``grassd experiment virtual-capture``, the simulated display of ``grassd measure``).
+
+Every path from a checker photo to a white balance or a colour correction refuses a photo whose
+patches clip (:func:`checker_clipping`, :class:`~grassd.calib.errors.ClippedCheckerError`):
+:func:`checker_white_balance` itself, and :func:`checker_photo_patches`, the developed patches
+for a colour-correction fit. A clipped light patch (the grey unclipped) bent the 3x3 correction
+of a measured set-up shot far from the truth, neutrals included; a channel clipped at black (a
+sensor modelled with negative responses cut at 0) does the same to saturated patches. Clipping
+is judged on the undeveloped sensor data, per colour filter, against the level at which the
+*development* saturates that filter: LibRaw scales filter ``c`` by ``wb_c / min(wb)`` and clips
+at full scale (its highlight mode 0), so a filter with a larger multiplier saturates in the
+developed image before its raw values reach the white level.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -19,16 +31,26 @@ from numpy.typing import NDArray
 
 from grassd.calib.charts import CHART_GRID, ReferenceChart
 from grassd.calib.colour_spaces import luminance, prophoto_to_rec709
-from grassd.calib.errors import CheckerPhotoError, CornersOutsideImageError
+from grassd.calib.errors import CheckerPhotoError, ClippedCheckerError, CornersOutsideImageError
 from grassd.calib.exposure import GREY_CARD_Y
-from grassd.calib.raw import open_raw
+from grassd.calib.raw import develop_raw, open_raw
 from grassd.calib.regions import (
     apply_homography,
     checker_patch_quads,
     homography,
     quad_mask,
-    quad_max,
+    quad_values,
 )
+
+#: A patch clips high in a colour filter when a photosite of that filter inside its sampled
+#: area reaches this fraction of the range from black to the level at which the development
+#: saturates the filter (a sensor's response already bends just below saturation).
+HIGH_CLIP_FRACTION: float = 0.98
+#: A patch clips low (reads no light) in a colour filter when at least this fraction of that
+#: filter's photosites inside its sampled area read at or below the black level: about half do
+#: for a zero signal under read noise, all of them without; 2 % do at a signal of two read-noise
+#: standard deviations, which is dim but not clipped.
+LOW_CLIP_FRACTION: float = 0.25
 
 
 def check_inside(corners: Sequence[Sequence[float]], shape: tuple[int, ...], path: Path,
@@ -71,8 +93,192 @@ def developed_to_raw(corners: Sequence[Sequence[float]], raw_shape: tuple[int, .
                             "mirror the RAW back to its sensor orientation")
 
 
+@dataclass(frozen=True, eq=False)
+class _Sensor:
+    """The undeveloped data of a RAW file LibRaw read (see :func:`_read_sensor`)."""
+
+    img: NDArray[np.float64]
+    colours: NDArray[np.integer]
+    black: NDArray[np.float64]
+    white: float
+    desc: str
+    rgb_cam: NDArray[np.float64]
+    flip: int
+    camera_wb: NDArray[np.float64]
+
+
+def _read_sensor(path: Path) -> _Sensor:
+    with open_raw(path) as raw:
+        return _Sensor(img=raw.raw_image_visible.astype(np.float64),
+                       colours=np.asarray(raw.raw_colors_visible),
+                       black=np.asarray(raw.black_level_per_channel, dtype=np.float64),
+                       white=float(raw.white_level),
+                       desc=raw.color_desc.decode(errors="replace"),
+                       rgb_cam=np.asarray(raw.color_matrix, dtype=np.float64)[:, :3],
+                       flip=int(raw.sizes.flip),
+                       camera_wb=np.asarray(raw.camera_whitebalance, dtype=np.float64))
+
+
+def _raw_quads(sensor: _Sensor, corners: Sequence[Sequence[float]], path: Path) -> NDArray:
+    """The checker's (24, 4, 2) patch sampling quads on the sensor data."""
+    developed_shape = sensor.img.shape[::-1] if sensor.flip in (5, 6) else sensor.img.shape
+    check_inside(corners, developed_shape, path, "checker")
+    return checker_patch_quads(developed_to_raw(corners, sensor.img.shape, sensor.flip))
+
+
+@dataclass(frozen=True)
+class CheckerClipping:
+    """Which of a checker photo's patches clip (0-based indices, reading order).
+
+    Attributes:
+        high: patches with a colour filter near the level where the development saturates it.
+        low: patches with a colour filter reading no light (at the black level).
+        high_filters, low_filters: for each patch of ``high`` / ``low``, the filters ("R", "G",
+            "B") that clip, e.g. "RG".
+    """
+
+    high: tuple[int, ...]
+    low: tuple[int, ...]
+    high_filters: tuple[str, ...]
+    low_filters: tuple[str, ...]
+
+    @property
+    def clipped(self) -> bool:
+        """True when any patch clips."""
+        return bool(self.high or self.low)
+
+
+def _multipliers(sensor: _Sensor, white_balance: str | Sequence[float] | None) -> NDArray:
+    n = len(sensor.desc)
+    if white_balance is None:
+        return np.ones(n)
+    if isinstance(white_balance, str):
+        if white_balance != "camera":
+            raise CheckerPhotoError(f"white_balance must be 'camera', None or channel "
+                                    f"multipliers (R, G, B[, G2]); got {white_balance!r}")
+        wb = sensor.camera_wb
+    else:
+        wb = np.asarray([float(v) for v in white_balance], dtype=np.float64)
+        if wb.size == 3:
+            wb = np.append(wb, wb[1])
+    if wb.size < n or not np.isfinite(wb[:n]).all() or (wb[:n] <= 0).any():
+        return np.ones(n)  # LibRaw develops such a file without those multipliers
+    return wb[:n]
+
+
+def _clipping(sensor: _Sensor, quads: NDArray,
+              white_balance: str | Sequence[float] | None) -> CheckerClipping:
+    n = len(sensor.desc)
+    mult = _multipliers(sensor, white_balance)
+    black = sensor.black[:n] if sensor.black.size >= n else np.full(n, sensor.black.flat[0])
+    saturates = black + (sensor.white - black) * mult.min() / mult  # per filter
+    high_at = black + HIGH_CLIP_FRACTION * (saturates - black)
+    names = [sensor.desc[c] for c in range(n)]
+    high: dict[int, str] = {}
+    low: dict[int, str] = {}
+    for i, q in enumerate(quads):
+        vals = quad_values(sensor.img, q)
+        cols = quad_values(sensor.colours, q)
+        if vals.size == 0:
+            continue
+        counts = np.bincount(cols, minlength=n)[:n]
+        over = np.bincount(cols, weights=vals >= high_at[cols], minlength=n)[:n] > 0
+        dark = np.bincount(cols, weights=vals <= black[cols], minlength=n)[:n]
+        under = (counts > 0) & (dark >= LOW_CLIP_FRACTION * np.maximum(counts, 1))
+        if over.any():
+            high[i] = "".join(dict.fromkeys(names[c] for c in np.flatnonzero(over)))
+        if under.any():
+            low[i] = "".join(dict.fromkeys(names[c] for c in np.flatnonzero(under)))
+    return CheckerClipping(tuple(high), tuple(low), tuple(high.values()), tuple(low.values()))
+
+
+def _refuse(clip: CheckerClipping, chart: ReferenceChart, path: Path,
+            sensor: _Sensor, refuse_black: bool = True) -> None:
+    if not refuse_black:
+        clip = CheckerClipping(clip.high, (), clip.high_filters, ())
+    if not clip.clipped:
+        return
+
+    def listed(idx: tuple[int, ...], filters: tuple[str, ...]) -> str:
+        return ", ".join(f"{i + 1} ({chart.patch_names[i]}) in {f}"
+                         for i, f in zip(idx, filters, strict=True))
+
+    parts = []
+    if clip.high:
+        parts.append(f"the checker's patch(es) {listed(clip.high, clip.high_filters)} are "
+                     f"clipped near the white level (raw values within "
+                     f"{100 * (1 - HIGH_CLIP_FRACTION):g} % of where the development saturates "
+                     f"the filter; white level {sensor.white:g})")
+    if clip.low:
+        parts.append(f"the checker's patch(es) {listed(clip.low, clip.low_filters)} are "
+                     f"clipped at 0 (at least {100 * LOW_CLIP_FRACTION:g} % of the filter's "
+                     f"photosites at the black level: no light read)")
+    if clip.high and clip.low:
+        fix = ("the checker's light and dark patches do not both fit the sensor's range: light "
+               "the checker evenly, lower the exposure until the light patches stay below the "
+               "white level, and use a sensor whose every filter responds to every patch")
+    elif clip.high:
+        fix = "lower the exposure (or the light) until the lightest patch stays below it"
+    else:
+        fix = ("raise the exposure as far as the light patches allow; a filter that reads "
+               "nothing of a lit patch is a sensor with negative responses cut at 0, which no "
+               "photodiode has: model the camera by non-negative spectral sensitivities")
+    raise ClippedCheckerError(f"{path.name}: " + "; ".join(parts) + f"; {fix}",
+                              high=clip.high, low=clip.low)
+
+
+def checker_clipping(path: Path, corners: Sequence[Sequence[float]],
+                     white_balance: str | Sequence[float] | None = "camera") -> CheckerClipping:
+    """Which patches of the checker photo ``path`` clip (see the module docstring).
+
+    Args:
+        path: the checker's RAW file.
+        corners: (4, 2) patch-area corners (x, y pixels of the developed image; TL, TR, BR, BL).
+        white_balance: the multipliers the photo will be developed with: "camera" (as shot),
+            (R, G, B[, G2]), or None to judge against the white level alone.
+    """
+    p = Path(path)
+    sensor = _read_sensor(p)
+    return _clipping(sensor, _raw_quads(sensor, corners, p), white_balance)
+
+
+def refuse_clipped_checker(path: Path, corners: Sequence[Sequence[float]], chart: ReferenceChart,
+                           white_balance: str | Sequence[float] | None = "camera", *,
+                           refuse_black: bool = True) -> None:
+    """Raise :class:`~grassd.calib.errors.ClippedCheckerError` (naming the patches, their
+    filters and the fix) when any patch of the checker photo clips (:func:`checker_clipping`).
+
+    ``refuse_black=False`` lets patches clipped at 0 through (only those near the white level
+    are refused): for a simulated sensor that models negative responses by cutting them at 0,
+    never for a real camera's photo."""
+    p = Path(path)
+    sensor = _read_sensor(p)
+    _refuse(_clipping(sensor, _raw_quads(sensor, corners, p), white_balance), chart, p, sensor,
+            refuse_black)
+
+
+def checker_photo_patches(path: Path, corners: Sequence[Sequence[float]], chart: ReferenceChart,
+                          white_balance: str | Sequence[float] = "camera", *,
+                          refuse_black: bool = True) -> NDArray[np.float64]:
+    """(24, 3) mean ProPhoto linear RGB of the checker's patches in a RAW photo developed with
+    ``white_balance`` ("camera" or multipliers, as :func:`grassd.calib.raw.develop_raw`), after
+    refusing a photo whose patches clip (:func:`refuse_clipped_checker`): the patches to fit a
+    colour correction to.
+
+    Raises:
+        ClippedCheckerError: a patch clips; the message names it and the fix.
+        CornersOutsideImageError: a corner lies outside the photo.
+    """
+    p = Path(path)
+    refuse_clipped_checker(p, corners, chart, white_balance, refuse_black=refuse_black)
+    dev = develop_raw(p, white_balance=white_balance)
+    check_inside(corners, dev.rgb.shape, p, "checker")
+    return dev.checker_patches(corners)
+
+
 def checker_white_balance(path: Path, corners: Sequence[Sequence[float]],
-                          chart: ReferenceChart) -> tuple[float, float, float, float]:
+                          chart: ReferenceChart, *,
+                          refuse_black: bool = True) -> tuple[float, float, float, float]:
     """LibRaw channel multipliers (R, G, B, G2) that develop the checker's grey patch to the
     chromaticity of its reference colour (a grey card is nearly, not exactly, neutral).
 
@@ -81,30 +287,25 @@ def checker_white_balance(path: Path, corners: Sequence[Sequence[float]],
     sRGB -> ProPhoto matrix), so ``wb = (rgb_cam^-1 . t) / c`` with ``t`` the reference grey in
     linear sRGB; normalised to green = 1. Where LibRaw reports no colour matrix the grey is
     made neutral (``wb = mean green / c``).
+
+    ``refuse_black``: as :func:`refuse_clipped_checker`.
+
+    Raises:
+        ClippedCheckerError: a patch clips under these multipliers (module docstring).
+        CheckerPhotoError: not an R/G/B Bayer sensor, an unsupported orientation, a grey patch
+            too small or black.
     """
-    with open_raw(path) as raw:
-        img = raw.raw_image_visible.astype(np.float64)
-        colours = np.asarray(raw.raw_colors_visible)
-        black = np.asarray(raw.black_level_per_channel, dtype=np.float64)
-        white = float(raw.white_level)
-        desc = raw.color_desc.decode(errors="replace")
-        rgb_cam = np.asarray(raw.color_matrix, dtype=np.float64)[:, :3]
-        flip = int(raw.sizes.flip)
-    developed_shape = img.shape[::-1] if flip in (5, 6) else img.shape
-    check_inside(corners, developed_shape, path, "checker")
-    corners = developed_to_raw(corners, img.shape, flip)
+    path = Path(path)
+    sensor = _read_sensor(path)
+    img, colours, black, desc = sensor.img, sensor.colours, sensor.black, sensor.desc
+    rgb_cam = sensor.rgb_cam
+    quads = _raw_quads(sensor, corners, path)
     if len(desc) not in (3, 4) or set(desc[:3]) != set("RGB") or set(desc) - set("RGB"):
         raise CheckerPhotoError(f"{path.name}: colour filters {desc!r} are not an R/G/B Bayer "
                                 "sensor; white balance from the checker needs one")
-    quads = checker_patch_quads(corners)
-    # Any clipped patch, not only the grey, would bend the colour correction fitted to the
-    # patches: a metered shot of a checker on a dark ground clips its white and light patches
-    # (the grey not), and its 3x3 correction was then 3.2 dE00 off on average, 7.2 at most.
-    clipped = [i for i, q in enumerate(quads) if quad_max(img, q) >= white]
-    if clipped:
-        names = ", ".join(f"{i + 1} ({chart.patch_names[i]})" for i in clipped)
-        raise CheckerPhotoError(f"{path.name}: the checker's patch(es) {names} are clipped (raw "
-                                f"values at the white level {white:g}); lower the exposure")
+    # Clipping at the white level alone, before the multipliers are known, then (below) at the
+    # levels where these multipliers saturate the development.
+    _refuse(_clipping(sensor, quads, None), chart, path, sensor, refuse_black)
     mask = quad_mask(img.shape, quads[chart.grey_index()])
     means = np.zeros(len(desc))
     for c in range(len(desc)):
@@ -127,6 +328,7 @@ def checker_white_balance(path: Path, corners: Sequence[Sequence[float]],
     mult = np.array([per[desc[c]] / means[c] for c in range(len(desc))])
     mult = mult / np.mean([mult[c] for c in index["G"]])
     wb = [float(v) for v in mult] + ([float(mult[index["G"][0]])] if len(desc) == 3 else [])
+    _refuse(_clipping(sensor, quads, wb), chart, path, sensor, refuse_black)
     return tuple(wb)  # type: ignore[return-value]
 
 

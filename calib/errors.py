@@ -89,3 +89,14 @@ class CornersOutsideImageError(CalibError, ValueError):
 class CheckerPhotoError(CalibError, ValueError):
     """The checker's photo cannot give a white balance: not an R/G/B Bayer sensor, an
     unsupported orientation, a clipped patch, a grey patch too small or black."""
+
+
+class ClippedCheckerError(CheckerPhotoError):
+    """A checker photo's patches clip: near the level where the development saturates a channel
+    (``high``) or at the black level (``low``, no light read); 0-based patch indices in the
+    chart's reading order. A clipped patch bends any colour correction or white balance fitted
+    to the patches."""
+
+    def __init__(self, message: str, *, high: tuple[int, ...], low: tuple[int, ...]) -> None:
+        super().__init__(message)
+        self.high, self.low = high, low

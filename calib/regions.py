@@ -89,6 +89,19 @@ def quad_max(image: ArrayLike, corners: ArrayLike) -> float:
     return float(img[y0:y1, x0:x1][mask].max())
 
 
+def quad_values(image: ArrayLike, corners: ArrayLike) -> NDArray:
+    """The values of ``image`` (H, W) or (H, W, C) at the pixels whose centres lie inside a
+    convex quadrilateral, as (n,) or (n, C) in row-major order (n = 0 where it covers none).
+
+    >>> img = np.arange(100.0).reshape(10, 10)
+    >>> quad_values(img, [(3, 2), (5, 2), (5, 3), (3, 3)]).tolist()
+    [23.0, 24.0]
+    """
+    img = np.asarray(image)
+    y0, y1, x0, x1, mask = _quad_window(img.shape[:2], corners)
+    return img[y0:y1, x0:x1][mask]
+
+
 def quad_mean(image: ArrayLike, corners: ArrayLike) -> NDArray[np.float64]:
     """Mean linear RGB (3,) of the pixels of ``image`` (H, W, 3) inside a convex quadrilateral.
 
