@@ -19,8 +19,22 @@ For Lambertian surfaces the paths do not depend on the albedos, so the polynomia
 same random numbers, exactly what tracing other albedos would. With a glossy lobe the lobe
 choice and the MIS weights follow the reference, so another albedo or ``ks`` is an unbiased
 reweighting of the reference's paths (importance sampling; the cosine lobe covers the
-hemisphere), noisier the further it is from the reference. Up to three vertices carry reflectance
-(``max_bounces <= 3``), so the monomials have degree 0..3 in 5 symbols: 56 of them.
+hemisphere), noisier the further it is from the reference. With ``max_bounces <= 3`` at most
+three vertices carry reflectance, so the monomials have degree 0..3 in 5 symbols: 56 of them
+(:data:`MAX_DEGREE`, the shallow recording).
+
+Deeper paths (``max_bounces`` above 3, Russian roulette ending them) are recorded exactly up to
+degree ``degree`` (:data:`TERM_DEGREE` by default: ``C(degree + 5, 5)`` monomials, 1287 for 8),
+and a path's vertices beyond it are a tail term: each further vertex multiplies the term by the
+reference's own reflectance of its material (``(1 - ks) albedo`` and ``ks`` of the lobes, as
+sampled), not by a symbol, so the term stays on the monomial of its first ``degree`` vertices.
+Evaluated at the reference the polynomial is exact at every depth (the same paths, the same
+weights); at other materials only the tail's vertices keep the reference's reflectance, an error
+of at most the tail's share of the radiance times the relative change of its further vertices'
+reflectances (docs/renderer/measurements.md measures both). A glossy path keeps both lobes as
+terms while it has at most :data:`TERM_SLOTS` of them; after that each term takes one lobe at
+random, with probability in proportion to the two lobes' weights and divided by it (unbiased
+for any ``ks``, as the reference's lobe choice is).
 
 Units: albedos linear Rec.709 in [0, 1]; coefficients in the radiance units of the scaled
 environment (nits) per unit monomial.
@@ -40,33 +54,59 @@ from grassd.sim.errors import SceneError
 SYMBOLS: tuple[str, ...] = ("yellow", "green", "base", "cavity", "specular")
 N_SYMBOLS: int = len(SYMBOLS)
 SPECULAR: int = 4  #: index of the glossy symbol
-MAX_DEGREE: int = 3  #: vertices that carry reflectance (max_bounces <= 3)
-CODE_BASE: int = 4  #: a monomial's code: sum of count_s * 4**s (counts 0..3)
+MAX_DEGREE: int = 3  #: vertices that carry reflectance in a shallow recording (max_bounces <= 3)
+CODE_BASE: int = 4  #: a shallow monomial's code: sum of count_s * 4**s (counts 0..3)
+TERM_DEGREE: int = 8  #: degree recorded exactly for deeper paths (their tail beyond it: above)
+DEEP_CODE_BASE: int = 16  #: a deep monomial's code: sum of count_s * 16**s (counts 0..15)
+MAX_TERM_DEGREE: int = DEEP_CODE_BASE - 1  #: the highest degree a deep code holds
+TERM_SLOTS: int = 8  #: terms a glossy path keeps per lobe split before choosing lobes at random
 
 
-def monomials() -> NDArray[np.int64]:
-    """(56, 5) exponent vectors of every monomial of degree 0..3 in the 5 symbols, ordered by
-    degree, then lexicographically; row 0 is the constant (a camera ray that meets nothing).
+def monomials(degree: int = MAX_DEGREE) -> NDArray[np.int64]:
+    """(C(degree + 5, 5), 5) exponent vectors of every monomial of degree 0..``degree`` in the
+    5 symbols, ordered by degree, then lexicographically (so the first 56 rows of any degree
+    >= 3 are those of degree 3); row 0 is the constant (a camera ray that meets nothing).
 
-    >>> monomials().shape
-    (56, 5)
+    >>> monomials().shape, monomials(8).shape
+    ((56, 5), (1287, 5))
     """
-    rows = [e for e in itertools.product(range(MAX_DEGREE + 1), repeat=N_SYMBOLS)
-            if sum(e) <= MAX_DEGREE]
+    if not 0 <= degree <= MAX_TERM_DEGREE:
+        raise SceneError(f"a polynomial's degree must be in 0..{MAX_TERM_DEGREE}, got {degree}")
+    rows = [e for e in itertools.product(range(degree + 1), repeat=N_SYMBOLS)
+            if sum(e) <= degree]
     rows.sort(key=lambda e: (sum(e), tuple(-v for v in e)))
     return np.array(rows, dtype=np.int64)
 
 
 MONOMIALS: NDArray[np.int64] = monomials()
 N_MONOMIALS: int = len(MONOMIALS)
+_MONOMIALS: dict[int, NDArray[np.int64]] = {MAX_DEGREE: MONOMIALS}
 
 
-def code_table() -> NDArray[np.int32]:
-    """(4**5,) index of each monomial by its code ``sum(count_s * 4**s)``; -1 for codes of
-    degree above 3 (a kernel adds ``4**s`` to a term's code for each factor of symbol s)."""
-    table = np.full(CODE_BASE ** N_SYMBOLS, -1, dtype=np.int32)
-    codes = MONOMIALS @ (CODE_BASE ** np.arange(N_SYMBOLS))
-    table[codes] = np.arange(N_MONOMIALS, dtype=np.int32)
+def monomials_of(degree: int) -> NDArray[np.int64]:
+    """:func:`monomials` of ``degree``, computed once (read-only)."""
+    if degree not in _MONOMIALS:
+        rows = monomials(degree)
+        rows.setflags(write=False)
+        _MONOMIALS[degree] = rows
+    return _MONOMIALS[degree]
+
+
+def n_monomials(degree: int = MAX_DEGREE) -> int:
+    """Number of monomials of degree 0..``degree`` in the 5 symbols: ``C(degree + 5, 5)``."""
+    return len(monomials_of(degree))
+
+
+def code_table(degree: int = MAX_DEGREE) -> NDArray[np.int32]:
+    """Index of each monomial by its code: for ``degree`` 3 (the shallow recording) a (4**5,)
+    table of codes ``sum(count_s * 4**s)``, else a (16**5,) table of codes
+    ``sum(count_s * 16**s)``; -1 for codes of higher degree (a kernel adds ``base**s`` to a
+    term's code for each factor of symbol s)."""
+    rows = monomials_of(degree)
+    base = CODE_BASE if degree <= MAX_DEGREE else DEEP_CODE_BASE
+    table = np.full(base ** N_SYMBOLS, -1, dtype=np.int32)
+    codes = rows @ (base ** np.arange(N_SYMBOLS))
+    table[codes] = np.arange(len(rows), dtype=np.int32)
     return table
 
 
@@ -81,24 +121,34 @@ def symbol_values(albedo_linear: NDArray[np.float64], specular: float | NDArray[
     return np.concatenate([diffuse, glossy], axis=-2)
 
 
-def monomial_values(albedo_linear: NDArray[np.float64], specular: float | NDArray[np.float64]
-                    ) -> NDArray[np.float64]:
-    """(..., 56, 3) value of each monomial per channel (see :func:`symbol_values`)."""
+def monomial_values(albedo_linear: NDArray[np.float64], specular: float | NDArray[np.float64],
+                    degree: int = MAX_DEGREE) -> NDArray[np.float64]:
+    """(..., C(degree + 5, 5), 3) value of each monomial of :func:`monomials` (``degree``) per
+    channel (see :func:`symbol_values`); 56 rows for the default degree 3."""
     v = symbol_values(albedo_linear, specular)  # (..., 5, 3)
-    powers = v[..., None, :, :] ** MONOMIALS[:, :, None]  # (..., 56, 5, 3)
-    return powers.prod(axis=-2)
+    rows = monomials_of(degree)
+    if degree <= MAX_DEGREE:
+        return (v[..., None, :, :] ** rows[:, :, None]).prod(axis=-2)
+    powers = v[..., None, :, :] ** np.arange(degree + 1)[:, None, None]  # (..., k, 5, 3)
+    out = powers[..., rows[:, 0], 0, :]
+    for s in range(1, N_SYMBOLS):
+        out = out * powers[..., rows[:, s], s, :]
+    return out
 
 
 @dataclass(frozen=True)
 class AlbedoTerms:
     """One viewpoint's radiance at several green lengths as polynomials in the materials.
 
-    ``coefficients`` (R, n, 56, 3): per replicate, length, monomial (:data:`MONOMIALS`) and
-    channel, the mean over the measurement quad of the paths' weights, in nits per unit
-    monomial; the radiance is ``sum_m coefficients[..., m, c] * monomial_m[c]``
-    (:meth:`radiance`). Replicates are independent, with the same random numbers across
-    lengths (common random numbers). ``glossy``: whether the glossy lobe was recorded (without
-    it, only ``specular = 0`` can be evaluated). ``seconds``: compile, trace, total.
+    ``coefficients`` (R, n, M, 3): per replicate, length, monomial (:func:`monomials` of
+    ``degree``: M = 56 for degree 3) and channel, the mean over the measurement quad of the
+    paths' weights, in nits per unit monomial; the radiance is
+    ``sum_m coefficients[..., m, c] * monomial_m[c]`` (:meth:`radiance`;
+    :func:`monomial_values` with the same ``degree`` gives the monomials). Replicates are
+    independent, with the same random numbers across lengths (common random numbers).
+    ``glossy``: whether the glossy lobe was recorded (without it, only ``specular = 0`` can be
+    evaluated). ``degree``: the polynomial's; ``tail``: whether vertices beyond it were
+    recorded as the tail term (module docstring). ``seconds``: compile, trace, total.
     """
 
     viewpoint: object
@@ -107,6 +157,8 @@ class AlbedoTerms:
     glossy: bool
     samples_per_length: int
     seconds: dict[str, float] = field(default_factory=dict)
+    degree: int = MAX_DEGREE
+    tail: bool = False
 
     def radiance(self, albedo_linear: NDArray[np.float64], specular: float = 0.0
                  ) -> NDArray[np.float64]:
@@ -115,5 +167,5 @@ class AlbedoTerms:
         if specular and not self.glossy:
             raise SceneError("these terms were recorded without the glossy lobe; record with "
                              "glossy=True to evaluate a specular reflectance")
-        mono = monomial_values(albedo_linear, specular)
+        mono = monomial_values(albedo_linear, specular, self.degree)
         return np.einsum("rnmc,mc->rnc", self.coefficients, mono)

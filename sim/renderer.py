@@ -79,12 +79,17 @@ from grassd.sim import geometry
 from grassd.sim import tifuncs as tf
 from grassd.sim.albedo_terms import (
     CODE_BASE,
+    DEEP_CODE_BASE,
     MAX_DEGREE,
+    MAX_TERM_DEGREE,
     N_MONOMIALS,
     N_SYMBOLS,
     SPECULAR,
+    TERM_DEGREE,
+    TERM_SLOTS,
     AlbedoTerms,
     code_table,
+    n_monomials,
 )
 from grassd.sim.backend import is_initialised, runs_on_host, ti
 from grassd.sim.camera import frame_quad, image_quad
@@ -138,6 +143,11 @@ GROWN_IN = 1e-6
 # (6 lengths x 4096 x 8 paths, 2 cores) 256 paths a block use 1.4 cores, 64 1.85, 16 1.9.
 TERM_BLOCK = 16
 TERM_THREADS = 1 << 14
+# The deep recording (albedo_terms with max_bounces above 3) sums its monomials in a field of
+# DEEP_TERM_ROWS (thread, monomial) rows per degree, at least DEEP_BLOCK paths a thread.
+DEEP_TERM_ROWS = 1 << 21
+DEEP_BLOCK = 64
+LOBE_TERM_DIM = 4096  # first random-number dimension of the deep recording's lobe choices
 
 
 @dataclass(frozen=True)
@@ -209,6 +219,27 @@ def _kept(reuse: ti.i32, ray: ti.i32, n_memo: ti.i32) -> ti.i32:
         if ray < n_memo:
             kept = 1
     return kept
+
+
+@ti.func
+def _lobe_dim(depth: ti.i32) -> ti.i32:
+    """Random-number dimension (:func:`grassd.sim.tifuncs.rand01`) of the lobe choice at the
+    vertex of ``depth``: 128 + depth below depth 16, then 256 + 2 depth (never one of
+    :func:`_roulette_dim`'s)."""
+    dim = 128 + depth
+    if depth >= 16:
+        dim = 256 + 2 * depth
+    return dim
+
+
+@ti.func
+def _roulette_dim(depth: ti.i32) -> ti.i32:
+    """Random-number dimension of Russian roulette at the surface of ``depth``: 144 + depth
+    below depth 16, then 257 + 2 depth."""
+    dim = 144 + depth
+    if depth >= 16:
+        dim = 257 + 2 * depth
+    return dim
 
 
 #: the layout arrays a scene shares with others of its display (see Renderer._upload_scene)
@@ -317,6 +348,8 @@ class Renderer:
         self.mono_index = ti.field(ti.i32, CODE_BASE ** N_SYMBOLS)  # monomial of each code
         self.term_acc = ti.Vector.field(3, ti.f64, (TERM_THREADS, N_MONOMIALS))
         self._mono_uploaded = False
+        # The deep recording's fields per degree (sums, code table, threads), made on first use.
+        self._deep: dict[int, tuple] = {}
         self.image = ti.Vector.field(3, ti.f32, (PREVIEW_MAX, PREVIEW_MAX))
         # Scalars: see _upload_* for the meaning of each slot.
         self.fpar = ti.field(ti.f32, 32)
@@ -907,7 +940,7 @@ class Renderer:
             if depth == max_bounces:
                 break
             if depth >= self.ipar[12]:  # Russian roulette (unbiased: survivors weigh 1 / p)
-                if tf.rand01(key, 144 + depth) >= RR_SURVIVAL:
+                if tf.rand01(key, _roulette_dim(depth)) >= RR_SURVIVAL:
                     break
                 beta /= RR_SURVIVAL
             nn, p, alb, wo, nbin, pair, n_nee, last = self.surface_vertex(
@@ -971,7 +1004,7 @@ class Renderer:
             else:
                 b1, b2 = tf.owen_sobol_pair(index, strata * strata, rep_key, pair + 1, 0, 1)
                 d, weight, pdf_bsdf = tf.bsdf_sample(alb, nn, wo, ks, nexp, b1, b2,
-                                                     tf.rand01(key, 128 + depth), glossy)
+                                                     tf.rand01(key, _lobe_dim(depth)), glossy)
                 if ray < rows:
                     for c in ti.static(range(3)):
                         memo[ray, 6 + c], memo[ray, 9 + c] = d[c], weight[c]
@@ -1052,7 +1085,7 @@ class Renderer:
             if depth == max_bounces:
                 break
             if depth >= self.ipar[12]:
-                if tf.rand01(key, 144 + depth) >= RR_SURVIVAL:
+                if tf.rand01(key, _roulette_dim(depth)) >= RR_SURVIVAL:
                     break
                 tgeo /= RR_SURVIVAL
             nn, p, alb, wo, nbin, pair, n_nee, last = self.surface_vertex(
@@ -1081,7 +1114,7 @@ class Renderer:
                 break
             b1, b2 = tf.owen_sobol_pair(index, strata * strata, rep_key, pair + 1, 0, 1)
             d, _weight, pdf_bsdf = tf.bsdf_sample(alb, nn, wo, ks, nexp, b1, b2,
-                                            tf.rand01(key, 128 + depth), glossy)
+                                            tf.rand01(key, _lobe_dim(depth)), glossy)
             part_d, part_s = 1.0, 0.0  # Lambertian: f cos / pdf is the albedo itself
             if ti.static(glossy):
                 part_d = 0.0
@@ -1103,6 +1136,149 @@ class Renderer:
             n_prev = n_nee
             bin_prev = nbin
             o = p
+
+    @ti.func
+    def add_deep(self, acc: ti.template(), table: ti.template(), th: ti.i32, code: ti.i32,
+                 value):
+        """``acc[th, monomial of code] += value`` (thread ``th`` owns its row: no atomics)."""
+        acc[th, table[code]] += ti.cast(value, ti.f64)
+
+    @ti.func
+    def record_path_deep(self, acc: ti.template(), table: ti.template(), th: ti.i32,
+                         scale: ti.f32, o, d, x: ti.f32, index: ti.i32, strata: ti.i32,
+                         rep_key: ti.u32, key: ti.u32, max_bounces: ti.i32, degree: ti.i32,
+                         glossy: ti.template(), splay: ti.template()):
+        """:meth:`record_path` for paths of any depth, into row ``th`` of ``acc`` (monomials
+        of degree 0..``degree`` by their codes ``sum(count_s * 16**s)``, ``table``): the first
+        ``degree`` vertices' reflectances are symbols, later vertices multiply the terms by the
+        reference's own reflectance (the tail term, :mod:`grassd.sim.albedo_terms`). A glossy
+        path doubles its terms at a vertex only while they fit in ``TERM_SLOTS``; after that
+        each term takes one lobe at random (in proportion to the lobes' weights, divided by
+        that probability). Same paths and random numbers as :meth:`radiance`."""
+        tcode = ti.Vector([0] * TERM_SLOTS, ti.i32)
+        tgeo = ti.Matrix.zero(ti.f32, TERM_SLOTS, 3)
+        for c in ti.static(range(3)):
+            tgeo[0, c] = scale
+        n_terms = 1
+        pdf_bsdf = 0.0
+        n_prev = 1
+        bin_prev = 0
+        sun_on, sun_dir, sun_e, ks, nexp = self.light_and_lobe()
+        for depth in range(max_bounces + 1):
+            t, n, mat, _grow = self.trace(o, d, x, x, tf.INF,
+                                          1 if depth == max_bounces else 0, splay, False)
+            if mat < 0:  # escaped to the environment: the terms so far times its radiance
+                le = self.env_radiance(d)
+                w = self.escape_weight(d, depth, pdf_bsdf, n_prev, bin_prev)
+                for j in range(n_terms):
+                    g = vec3(tgeo[j, 0], tgeo[j, 1], tgeo[j, 2])
+                    self.add_deep(acc, table, th, tcode[j], g * le * w)
+                break
+            if depth == max_bounces:
+                break
+            if depth >= self.ipar[12]:
+                if tf.rand01(key, _roulette_dim(depth)) >= RR_SURVIVAL:
+                    break
+                tgeo /= RR_SURVIVAL
+            nn, p, alb, wo, nbin, pair, n_nee, last = self.surface_vertex(
+                o, d, t, n, mat, depth, max_bounces)
+            symbol = depth < degree  # this vertex's reflectance is a symbol, else the tail's
+            d_ref = (1.0 - ks) * alb  # the reference's Lambertian symbol of this material
+            for j in range(n_nee + sun_on):
+                wl = sun_dir
+                light = vec3(0.0)
+                if j < n_nee:
+                    e1, e2 = tf.owen_sobol_pair(index, strata * strata, rep_key, pair, j, n_nee)
+                    wl, pdf_l, le = self.sample_env(e1, e2, nbin)
+                    if pdf_l > 0.0:
+                        _fcos, pdf_b = tf.bsdf_eval(alb, nn, wo, wl, ks, nexp, glossy)
+                        w = 1.0
+                        if not last:
+                            w = tf.balance_heuristic(n_nee * pdf_l, pdf_b)
+                        light = le * (w / (pdf_l * n_nee))
+                else:
+                    light = sun_e
+                if nn.dot(wl) > 0.0 and light.max() > 0.0:
+                    _ts, _ns, ms, _gs = self.trace(p, wl, x, x, tf.INF, 1, splay, False)
+                    if ms < 0:
+                        first, second = tf.bsdf_lobes(nn, wo, wl, nexp, glossy)
+                        for jt in range(n_terms):
+                            g = vec3(tgeo[jt, 0], tgeo[jt, 1], tgeo[jt, 2]) * light
+                            if symbol:
+                                self.add_deep(acc, table, th, tcode[jt] + (1 << (4 * mat)),
+                                              g * first)
+                                if ti.static(glossy):
+                                    self.add_deep(acc, table, th,
+                                                  tcode[jt] + (1 << (4 * SPECULAR)), g * second)
+                            else:
+                                self.add_deep(acc, table, th, tcode[jt],
+                                              g * (first * d_ref + second * ks))
+            if last:
+                break
+            b1, b2 = tf.owen_sobol_pair(index, strata * strata, rep_key, pair + 1, 0, 1)
+            d, _weight, pdf_bsdf = tf.bsdf_sample(alb, nn, wo, ks, nexp, b1, b2,
+                                                  tf.rand01(key, _lobe_dim(depth)), glossy)
+            part_d, part_s = 1.0, 0.0  # Lambertian: f cos / pdf is the albedo itself
+            if ti.static(glossy):
+                part_d = 0.0
+                if nn.dot(d) > 0.0 and pdf_bsdf > 0.0:
+                    lobe_d, lobe_s = tf.bsdf_lobes(nn, wo, d, nexp, True)
+                    part_d, part_s = lobe_d / pdf_bsdf, lobe_s / pdf_bsdf
+            if part_d + part_s <= 0.0:
+                break
+            if not symbol:
+                factor = part_d * d_ref + part_s * ks
+                for jt in range(n_terms):
+                    for c in ti.static(range(3)):
+                        tgeo[jt, c] *= factor[c]
+            elif ti.static(glossy):
+                if 2 * n_terms <= TERM_SLOTS:
+                    for jt in range(n_terms):
+                        tcode[n_terms + jt] = tcode[jt] + (1 << (4 * SPECULAR))
+                        for c in ti.static(range(3)):
+                            tgeo[n_terms + jt, c] = tgeo[jt, c] * part_s
+                        tcode[jt] += 1 << (4 * mat)
+                        for c in ti.static(range(3)):
+                            tgeo[jt, c] *= part_d
+                    n_terms *= 2
+                else:
+                    p_s = part_s / (part_d + part_s)
+                    for jt in range(n_terms):
+                        if tf.rand01(key, LOBE_TERM_DIM + depth * TERM_SLOTS + jt) < p_s:
+                            tcode[jt] += 1 << (4 * SPECULAR)
+                            for c in ti.static(range(3)):
+                                tgeo[jt, c] *= part_s / p_s
+                        else:
+                            tcode[jt] += 1 << (4 * mat)
+                            for c in ti.static(range(3)):
+                                tgeo[jt, c] *= part_d / (1.0 - p_s)
+            else:
+                for jt in range(n_terms):
+                    tcode[jt] += 1 << (4 * mat)
+            n_prev = n_nee
+            bin_prev = nbin
+            o = p
+
+    @ti.kernel
+    def _terms_deep_kernel(self, acc: ti.template(), table: ti.template(), n_len: ti.i32,
+                           rep0: ti.i32, n_rep: ti.i32, strata: ti.i32, block: ti.i32,
+                           seed: ti.u32, max_bounces: ti.i32, degree: ti.i32, eye: vec3,
+                           area: ti.f32, glossy: ti.template(), splay: ti.template()):
+        """Record replicates rep0 .. rep0 + n_rep - 1 at the first n_len entries of
+        ``self.lengths`` (m) as monomial sums of degree 0..``degree`` (:meth:`record_path_deep`):
+        thread (k, r, b) sums paths b * block .. of length k, replicate rep0 + r into row
+        (k * n_rep + r) * n_blocks + b of ``acc`` (zeroed before the launch)."""
+        n_samp = strata * strata
+        n_blocks = (n_samp + block - 1) // block
+        for b, rr, k in ti.ndrange(n_blocks, n_rep, n_len):  # lengths interleaved: balanced
+            r = rep0 + rr
+            rep_key = tf.replicate_key(seed, r)
+            th = (k * n_rep + rr) * n_blocks + b
+            for i in range(b * block, ti.min((b + 1) * block, n_samp)):
+                key = tf.sample_key(seed, r, i)
+                d, jac = self.camera_ray(i, n_samp, rep_key, eye, area)
+                self.record_path_deep(acc, table, th, jac, eye, d, self.lengths[k], i, strata,
+                                      rep_key, key, max_bounces, degree, glossy, splay)
 
     @ti.kernel
     def _terms_kernel(self, n_len: ti.i32, rep0: ti.i32, n_rep: ti.i32, strata: ti.i32,
@@ -1379,7 +1555,8 @@ class Renderer:
 
     def albedo_terms(self, display: DisplaySpec, lighting: Lighting, viewpoint: Viewpoint,
                      lengths_mm: np.ndarray, settings: RenderSettings | None = None,
-                     pixel_index: int = 0, glossy: bool = False) -> AlbedoTerms:
+                     pixel_index: int = 0, glossy: bool = False,
+                     degree: int | None = None) -> AlbedoTerms:
         """Trace the measurement quad at every green length (mm) as :meth:`characteristic`
         does, recording the radiance as a polynomial in the materials
         (:class:`~grassd.sim.albedo_terms.AlbedoTerms`): evaluated at the display's own
@@ -1391,18 +1568,25 @@ class Renderer:
         Paths are sampled with the display's materials (the reference). ``glossy`` records
         the glossy lobe even where the display's ``specular`` is 0 (its lobe is then sampled
         by the cosine lobe alone: unbiased, noisier for a sharp lobe; give the reference a
-        small ``specular`` instead). Needs ``max_bounces <= 3`` and at most
-        ``TERM_THREADS / ceil(samples / TERM_BLOCK)`` lengths. Every length is traced in full
-        (no reuse between lengths).
+        small ``specular`` instead). With ``max_bounces <= 3`` (and ``degree`` None or 3) the
+        polynomial has degree 3 (56 monomials) and holds at most
+        ``TERM_THREADS / ceil(samples / TERM_BLOCK)`` lengths. Deeper paths are recorded to
+        degree ``min(degree, max_bounces)`` (``degree`` None: :data:`TERM_DEGREE`), their
+        further vertices as the tail term (:mod:`grassd.sim.albedo_terms`), evaluated by the
+        returned terms' own ``degree``. Every length is traced in full (no reuse between
+        lengths).
         """
         settings = settings or RenderSettings()
         t_start = time.perf_counter()
-        if settings.max_bounces > MAX_DEGREE:
-            raise SceneError(f"recording the materials' terms needs max_bounces <= {MAX_DEGREE}"
-                             f", got {settings.max_bounces}")
+        if degree is not None and not 1 <= degree <= MAX_TERM_DEGREE:
+            raise SceneError(f"the polynomial's degree must be in 1..{MAX_TERM_DEGREE}, "
+                             f"got {degree}")
         lengths_mm = np.asarray(lengths_mm, dtype=np.float64)
         if lengths_mm.ndim != 1 or not 1 <= len(lengths_mm) <= 256:
             raise SceneError("give 1..256 green lengths (mm)")
+        if settings.max_bounces > MAX_DEGREE or (degree or MAX_DEGREE) != MAX_DEGREE:
+            return self._albedo_terms_deep(display, lighting, viewpoint, lengths_mm, settings,
+                                           pixel_index, glossy, degree, t_start)
         scene = self._prepare(display, lengths_mm, lighting)
         eye, area = self._upload_quad(display, scene, viewpoint, pixel_index)
         if not self._mono_uploaded:
@@ -1446,6 +1630,73 @@ class Renderer:
                            glossy=features[0], samples_per_length=settings.replicates * n_samp,
                            seconds={"compile": t_compile, "trace": t_end - t_trace0,
                                     "total": t_end - t_start})
+
+    def _deep_fields(self, degree: int) -> tuple:
+        """The deep recording's sums field (threads x monomials of ``degree``), its code table
+        (:func:`~grassd.sim.albedo_terms.code_table`) and its thread count, made once per
+        degree."""
+        if degree not in self._deep:
+            m = n_monomials(degree)
+            threads = max(1, DEEP_TERM_ROWS // m)
+            acc = ti.Vector.field(3, ti.f64, (threads, m))
+            table = ti.field(ti.i32, DEEP_CODE_BASE ** N_SYMBOLS)
+            table.from_numpy(code_table(max(degree, MAX_DEGREE + 1)))
+            self._deep[degree] = (acc, table, threads)
+        return self._deep[degree]
+
+    def _albedo_terms_deep(self, display: DisplaySpec, lighting: Lighting,
+                           viewpoint: Viewpoint, lengths_mm: np.ndarray,
+                           settings: RenderSettings, pixel_index: int, glossy: bool,
+                           degree: int | None, t_start: float) -> AlbedoTerms:
+        """:meth:`albedo_terms` of any depth (:meth:`_terms_deep_kernel`)."""
+        deg = min(degree or TERM_DEGREE, settings.max_bounces)
+        m_rows = n_monomials(max(deg, MAX_DEGREE + 1))
+        scene = self._prepare(display, lengths_mm, lighting)
+        eye, area = self._upload_quad(display, scene, viewpoint, pixel_index)
+        acc, table, threads = self._deep_fields(max(deg, MAX_DEGREE + 1))
+        m = settings.strata
+        n_samp = m * m
+        n_len = len(lengths_mm)
+        if n_len > threads:
+            raise SceneError(f"{n_len} lengths exceed the deep recording's {threads} threads; "
+                             f"record fewer lengths at a time")
+        block = max(DEEP_BLOCK, -(-n_samp // (threads // n_len)))
+        n_blocks = -(-n_samp // block)
+        rep_chunk = max(1, threads // (n_len * n_blocks))
+        features = (bool(glossy or self._features[0]), self._features[1])
+        buf = np.zeros(self.lengths.shape[0], np.float32)
+        buf[:n_len] = lengths_mm * 1e-3
+        self.lengths.from_numpy(buf)
+        self._put_path_settings(settings)
+        eye_ti = ti.Vector(eye.astype(np.float32).tolist())
+        t_compile = 0.0
+        if ("deep", deg, *features) not in self._compiled:
+            t0 = time.perf_counter()
+            self._terms_deep_kernel(acc, table, 0, 0, 1, 1, 1, 0, 1, deg, eye_ti, 1.0,
+                                    *features)
+            ti.sync()
+            self._compiled.add(("deep", deg, *features))
+            t_compile = time.perf_counter() - t0
+        t_trace0 = time.perf_counter()
+        coeffs = np.empty((settings.replicates, n_len, m_rows, 3))
+        for r0 in range(0, settings.replicates, rep_chunk):
+            reps = min(rep_chunk, settings.replicates - r0)
+            acc.fill(0.0)
+            self._terms_deep_kernel(acc, table, n_len, r0, reps, m, block, settings.seed,
+                                    settings.max_bounces, deg, eye_ti, area, *features)
+            rows = acc.to_numpy()[: n_len * reps * n_blocks]
+            rows = rows.reshape(n_len, reps, n_blocks, m_rows, 3).sum(axis=2) / n_samp
+            coeffs[r0: r0 + reps] = np.transpose(rows, (1, 0, 2, 3))
+        if deg <= MAX_DEGREE:  # the rows of higher degree hold nothing
+            coeffs = np.ascontiguousarray(coeffs[:, :, : n_monomials(deg)])
+        if not np.all(np.isfinite(coeffs)):
+            raise SimError("the renderer recorded non-finite terms; check the lighting values")
+        t_end = time.perf_counter()
+        return AlbedoTerms(viewpoint=viewpoint, lengths_mm=lengths_mm, coefficients=coeffs,
+                           glossy=features[0], samples_per_length=settings.replicates * n_samp,
+                           seconds={"compile": t_compile, "trace": t_end - t_trace0,
+                                    "total": t_end - t_start},
+                           degree=deg, tail=settings.max_bounces > deg)
 
     def preview(self, display: DisplaySpec, lighting: Lighting, viewpoint: Viewpoint,
                 length_mm: float, width: int = 256, spp: int = 16,

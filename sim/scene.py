@@ -208,6 +208,7 @@ class Viewpoint:
 
 MAX_REPLICATES = 64  #: replicates of one render (an adaptive run adds rounds of at most this)
 MAX_SAMPLES = 4_000_000  #: camera paths of one replicate (within the renderer's buffer, 2^22)
+MAX_BOUNCES = 64  #: the most surface interactions a path may have (RenderSettings.max_bounces)
 
 
 @dataclass(frozen=True)
@@ -237,8 +238,8 @@ class RenderSettings:
             raise SceneError(f"samples must be in 1..{MAX_SAMPLES}, got {self.samples}")
         if not 1 <= self.replicates <= MAX_REPLICATES:
             raise SceneError(f"replicates must be in 1..{MAX_REPLICATES}, got {self.replicates}")
-        if not 1 <= self.max_bounces <= 16:
-            raise SceneError(f"max_bounces must be in 1..16, got {self.max_bounces}")
+        if not 1 <= self.max_bounces <= MAX_BOUNCES:
+            raise SceneError(f"max_bounces must be in 1..{MAX_BOUNCES}, got {self.max_bounces}")
         if not 1 <= self.light_samples <= 16:
             raise SceneError(f"light_samples must be in 1..16, got {self.light_samples}")
         if not 1 <= self.roulette_from <= 16:
