@@ -100,3 +100,13 @@ class ClippedCheckerError(CheckerPhotoError):
     def __init__(self, message: str, *, high: tuple[int, ...], low: tuple[int, ...]) -> None:
         super().__init__(message)
         self.high, self.low = high, low
+
+
+class CameraResponseError(CalibError, ValueError):
+    """A camera's spectral sensitivities, an illuminant or a training set of spectra cannot be
+    used: wrong shape, negative, unknown name."""
+
+
+class SensitivityFileError(CameraResponseError):
+    """A CSV of spectral sensitivities is missing or malformed; the message names the line or
+    the value to fix."""
