@@ -358,8 +358,18 @@ def checker_scene(chart: ReferenceChart, white_rgb709: Sequence[float], width: i
     ``a * E / pi`` = ``a * white_rgb709`` (linear Rec.709, negative components kept for the
     patches outside its gamut, as scRGB does); patches fill 80 % of their cells.
     """
-    corners = CHART_LAYOUT * np.array([width, height])
     albedo = prophoto_to_rec709(chart.prophoto())  # scRGB: out-of-gamut patches go negative
+    img, corners = checker_image(albedo, CHART_BODY_ALBEDO, width, height)
+    return img * np.asarray(white_rgb709, dtype=np.float64), corners
+
+
+def checker_image(patches: NDArray[np.float64], body: float | Sequence[float], width: int,
+                  height: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Image (height, width, 3) of a checker's 24 ``patches`` (24, 3) (any per-patch colour:
+    albedo, radiance, a sensor's response) on a chart body of colour ``body``, laid out as
+    :data:`CHART_LAYOUT` (patches fill 80 % of their cells), and the (4, 2) corners of its
+    patch area (TL, TR, BR, BL; pixels (x, y))."""
+    corners = CHART_LAYOUT * np.array([width, height])
     hinv = homography(corners, [(0, 0), (1, 0), (1, 1), (0, 1)])
     yy, xx = np.mgrid[0:height, 0:width]
     uv = apply_homography(hinv, np.stack([xx + 0.5, yy + 0.5], axis=-1))
@@ -369,7 +379,8 @@ def checker_scene(chart: ReferenceChart, white_rgb709: Sequence[float], width: i
     row = np.floor(v * rows).astype(int)
     inside = ((u >= 0) & (u < 1) & (v >= 0) & (v < 1)
               & (np.abs(u * cols - col - 0.5) < 0.4) & (np.abs(v * rows - row - 0.5) < 0.4))
-    img = np.full((height, width, 3), CHART_BODY_ALBEDO)
+    img = np.empty((height, width, 3))
+    img[...] = np.asarray(body, dtype=np.float64)
     idx = np.clip(row, 0, rows - 1) * cols + np.clip(col, 0, cols - 1)
-    img[inside] = albedo[idx[inside]]
-    return img * np.asarray(white_rgb709, dtype=np.float64), corners
+    img[inside] = np.asarray(patches, dtype=np.float64)[idx[inside]]
+    return img, corners

@@ -142,14 +142,35 @@ class VirtualCamera:
         clipped to ``0..white_level``.
         """
         img = as_float_array(rgb709, "rgb709", last_dim=3, ndim=3)
-        h, w, _ = img.shape
-        if h < 2 or w < 2 or h % 2 or w % 2:
-            raise DngWriteError(f"a Bayer image needs an even height and width >= 2; got {h}x{w}")
+        self._check_bayer_size(img)
         if self.blur_px > 0:  # lens + optical low-pass filter: Gaussian, before the CFA
             from scipy.ndimage import gaussian_filter
 
             img = gaussian_filter(img, sigma=(self.blur_px, self.blur_px, 0), mode="nearest")
-        cam = self.camera_rgb(img)
+        return self._sample(self.camera_rgb(img), electrons_per_unit, rng)
+
+    def expose_camera_rgb(self, camera_rgb: ArrayLike, electrons_per_unit: float,
+                          rng: np.random.Generator) -> NDArray[np.uint16]:
+        """Bayer raw DN (H, W) uint16 of an image (H, W, 3) of the sensor's own response (e.g.
+        integrated from spectra), non-negative; blurred, sampled and digitised as
+        :meth:`expose` does after its colour step."""
+        img = as_float_array(camera_rgb, "camera_rgb", last_dim=3, ndim=3, non_negative=True)
+        self._check_bayer_size(img)
+        if self.blur_px > 0:
+            from scipy.ndimage import gaussian_filter
+
+            img = gaussian_filter(img, sigma=(self.blur_px, self.blur_px, 0), mode="nearest")
+        return self._sample(img, electrons_per_unit, rng)
+
+    @staticmethod
+    def _check_bayer_size(img: NDArray) -> None:
+        h, w = img.shape[:2]
+        if h < 2 or w < 2 or h % 2 or w % 2:
+            raise DngWriteError(f"a Bayer image needs an even height and width >= 2; got {h}x{w}")
+
+    def _sample(self, cam: NDArray, electrons_per_unit: float,
+                rng: np.random.Generator) -> NDArray[np.uint16]:
+        h, w, _ = cam.shape
         pattern = np.array(CFA_PATTERNS[self.cfa_pattern]).reshape(2, 2)
         channel = np.tile(pattern, (h // 2, w // 2))
         plane = np.take_along_axis(cam, channel[..., None], axis=2)[..., 0]
@@ -177,3 +198,19 @@ class VirtualCamera:
             n = self.camera_rgb(white)
             as_shot_neutral = n / n.max()
         return write_dng(path, raw, self.dng_camera(), as_shot_neutral=as_shot_neutral)
+
+    def photograph_camera_rgb(self, path: str | Path, camera_rgb: ArrayLike,
+                              white_camera: ArrayLike, *, electrons_per_unit: float | None = None,
+                              seed: int = 0, as_shot_neutral: ArrayLike | None = None) -> Path:
+        """Photograph an image (H, W, 3) of the sensor's own response into a DNG at ``path``;
+        ``white_camera`` (3,) is the response to a white card under the scene light (the
+        exposure, unless ``electrons_per_unit`` is given, and the as-shot white balance)."""
+        white = as_float_array(white_camera, "white_camera", last_dim=3, ndim=1,
+                               non_negative=True)
+        if white.max() <= 0:
+            raise DngWriteError("the white card's response is 0; the scene light must be positive")
+        k = (self.white_fraction * self.full_well_e / float(white.max())
+             if electrons_per_unit is None else float(electrons_per_unit))
+        raw = self.expose_camera_rgb(camera_rgb, k, np.random.default_rng(seed))
+        neutral = white / white.max() if as_shot_neutral is None else as_shot_neutral
+        return write_dng(path, raw, self.dng_camera(), as_shot_neutral=neutral)
