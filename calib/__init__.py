@@ -18,9 +18,22 @@ Exposure (``exposure``)
     -> linear RGB with the grey at Y = 0.18; ``exposure_matrix(grey_rgb, ...)`` -> (3, 3).
 Charts and colour correction (``charts``, ``ccm``)
     ``get_chart("colorchecker-classic" | "spydercheckr-24" | path.csv)`` -> ``ReferenceChart``
-    (``.lab`` D50, ``.prophoto()``); ``fit_ccm(virtual, real, method="3x3"|"root-polynomial")``
-    -> ``ColourCorrection`` (``.matrix``, ``.apply(rgb)``, ``.residual_de00``, ``.mean_de00``,
-    ``.max_de00``); ``compare_ccm_methods(virtual, real)``.
+    (``.lab`` D50, ``.prophoto()``); ``fit_ccm(virtual, real, method="3x3"|"root-polynomial"|
+    "auto")`` -> ``ColourCorrection`` (``.matrix``, ``.apply(rgb)``, ``.residual_de00``,
+    ``.mean_de00``, ``.max_de00``, leave-one-out ``.loo_de00``, ``.loo_mean_de00``,
+    ``.loo_max_de00``, ``.reported_de00``, ``.form``, ``.candidates``); ``select_ccm(virtual,
+    real)`` (the form of :data:`CCM_FORMS` of lowest leave-one-out mean dE00);
+    ``compare_ccm_forms``, ``compare_ccm_methods(virtual, real)``.
+Checker photos (``checker_photo``)
+    ``checker_white_balance(raw, corners, chart)``, ``checker_photo_patches(raw, corners, chart,
+    white_balance)`` -> (24, 3) ProPhoto, ``checker_clipping`` / ``refuse_clipped_checker``:
+    every path raises ``ClippedCheckerError`` for patches clipped near the white level or at 0.
+Cameras by spectral sensitivities (``camera_response``, ``spectral_virtual_camera``)
+    ``read_sensitivities(csv)`` / ``CameraSensitivities.from_colour("nikon-d5100")`` [nm] ->
+    ``.raw_rgb(reflectance, light)``, ``.rec709_map(light)`` -> ``CameraMap``;
+    ``checker_experiment``, ``ccm_forms_on_checker``, ``camera_route_de00``;
+    ``SpectralVirtualCamera(sensitivities, light)`` (non-negative response),
+    ``spectral_checker_scene(camera)`` -> camera-RGB image for ``photograph_camera_rgb``.
 Captures (``raw``, ``regions``, ``dng``)
     ``develop_raw(path, white_balance="camera"|(r, g, b[, g2]))`` -> ``DevelopedRaw`` (``.rgb``
     (H, W, 3) float32 ProPhoto linear 0..1, ``.quad_mean(corners)``,
