@@ -101,6 +101,14 @@ class ColourCorrection:
         arr = as_float_array(rgb, "rgb", last_dim=3)
         return _APPLY[self.method](arr, self.matrix, self.degree)
 
+    def scaled(self, s: float) -> ColourCorrection:
+        """The same correction applied to input scaled by ``s``: ``c.scaled(s).apply(x) ==
+        c.apply(s * x)``. Every form here is homogeneous of degree one, so this is the matrix
+        times ``s`` (the residuals are the fit's, unchanged)."""
+        return ColourCorrection(self.method, self.matrix * float(s), self.degree,
+                                self.residual_de00, self.mean_de00, self.max_de00, self.loo_de00,
+                                self.loo_mean_de00, self.loo_max_de00, self.candidates)
+
 
 def residual_de00(predicted: ArrayLike, real: ArrayLike) -> NDArray[np.float64]:
     """Per-patch CIEDE2000 between two ProPhoto linear RGB arrays (N, 3), via D50 CIELAB."""

@@ -94,3 +94,27 @@ def test_a_matrix_read_back_keeps_its_old_form():
     old = ColourCorrection("3x3", m, 1, np.zeros(0), float("nan"), float("nan"))
     assert old.loo_de00 is None and old.form == "3x3" and old.candidates == ()
     assert all(np.isnan(old.reported_de00))
+
+
+@pytest.mark.parametrize("form", list(CCM_FORMS))
+def test_a_scaled_correction_applies_to_scaled_input(form):
+    method, degree = CCM_FORMS[form]
+    real = colorchecker_classic().prophoto()
+    virtual = real**1.1 * real.sum(axis=1, keepdims=True) ** -0.1
+    fit = fit_ccm(virtual, real, method, degree=degree)
+    np.testing.assert_allclose(fit.scaled(3.5).apply(virtual[:6]), fit.apply(3.5 * virtual[:6]),
+                               rtol=1e-10)
+    assert fit.scaled(2.0).loo_mean_de00 == fit.loo_mean_de00
+
+
+def test_ogcd_takes_a_chosen_root_polynomial_correction():
+    from grassd.calib.ogcd import ogcd_from_rgb
+
+    real = colorchecker_classic().prophoto()
+    virtual = real**1.15 * real.sum(axis=1, keepdims=True) ** -0.15
+    best = select_ccm(virtual, real)
+    assert best.method == "root-polynomial"
+    sweep = virtual[[18, 19, 20, 3, 11]]  # a few patches as a curve, first one the reference
+    res = ogcd_from_rgb(sweep, space="prophoto", ccm=best.scaled(0.5))
+    plain = ogcd_from_rgb(best.apply(0.5 * sweep), space="prophoto")
+    np.testing.assert_allclose(res.ogcd, plain.ogcd, rtol=1e-9, atol=1e-9)
