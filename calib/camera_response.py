@@ -23,7 +23,11 @@ colour correction in between:
   ``rgb_cam`` from the profile as dcraw's ``cam_xyz_coeff`` makes it, sRGB -> ProPhoto), so a
   prediction and a photo are compared in the same CIELAB as :mod:`grassd.calib.ccm`;
 * :func:`checker_experiment`: the checker photographed by such a camera under a light and the
-  analytic virtual checker, the pairs a colour correction is fitted to.
+  analytic virtual checker, the pairs a colour correction is fitted to;
+* :func:`camera_correction`: the simulation's white-card-normalised ProPhoto -> the photo's
+  developed ProPhoto, *predicted* from the sensitivities, the light's spectrum and the photo's
+  own development (white balance, LibRaw's ``rgb_cam``) instead of fitted to the checker: a
+  :class:`~grassd.calib.ccm.ColourCorrection` that goes wherever a fitted one goes.
 
 CSV format of a camera's sensitivities (:func:`read_sensitivities`): UTF-8 text, one sample per
 line ``wavelength_nm,r,g,b``; lines starting with ``#`` and blank lines are ignored, and the
@@ -533,3 +537,43 @@ def ccm_forms_on_checker(camera: CameraSensitivities, light: str | ArrayLike,
     exp = checker_experiment(camera, light, dataset)
     return compare_ccm_forms(exp.virtual, np.clip(exp.real, 0.0, None),
                              tuple(forms or CCM_FORMS))
+
+
+def camera_correction(camera: CameraSensitivities, light: str | ArrayLike,
+                      multipliers: ArrayLike, rgb_cam_matrix: ArrayLike,
+                      grey_prophoto: ArrayLike, transport: str = "rgb",
+                      training: ArrayLike | None = None) -> ColourCorrection:
+    """The 3x3 from the simulation's ProPhoto (normalised by the white card channel by channel,
+    as grassd's renders are) onto a photo's developed ProPhoto, predicted from the camera's
+    sensitivities instead of fitted to the checker.
+
+    The chain, each step linear: ProPhoto -> Rec.709, times the light's Rec.709 (the radiance
+    the simulation rendered), the :meth:`CameraSensitivities.rec709_map` of ``transport`` onto
+    raw RGB, the photo's white-balance ``multipliers`` (R, G, B[, G2]), LibRaw's ``rgb_cam`` of
+    the photo (``rgb_cam_matrix``, :func:`grassd.calib.checker_photo.raw_rgb_cam`), sRGB ->
+    ProPhoto; then scaled so the chart's grey (``grey_prophoto``, its white-card-normalised
+    ProPhoto) keeps its luminance. Fold the virtual checker's scale in with
+    :meth:`~grassd.calib.ccm.ColourCorrection.scaled` as for a fitted correction.
+
+    Returns:
+        A "3x3" ColourCorrection with no residuals (NaN; nothing was fitted): evaluate it on
+        the photo's patches with :func:`grassd.calib.ccm.residual_de00`.
+    """
+    from grassd.calib.ccm import ColourCorrection
+
+    cmap = camera.rec709_map(light, training, transport)
+    w = simulation_rec709(np.ones(len(WAVELENGTHS)), light, transport)
+    wb = np.asarray(multipliers, np.float64).ravel()[:3]
+    rc = np.asarray(rgb_cam_matrix, np.float64)[:3, :3]
+    if wb.shape != (3,) or not np.isfinite(wb).all() or (wb <= 0).any():
+        raise CameraResponseError(f"white-balance multipliers must be 3 or 4 positive numbers; "
+                                  f"got {np.asarray(multipliers).tolist()}")
+    if not np.isfinite(rc).all() or abs(np.linalg.det(rc)) < 1e-12:
+        raise CameraResponseError(f"rgb_cam must be LibRaw's invertible camera -> sRGB matrix; "
+                                  f"got {rc.tolist()}")
+    m = (M_REC709_TO_PROPHOTO @ rc @ np.diag(wb) @ cmap.matrix @ np.diag(w)
+         @ np.linalg.inv(M_REC709_TO_PROPHOTO))
+    g = np.asarray(grey_prophoto, np.float64)
+    m = m * float((g @ _Y_OF_PROPHOTO) / ((m @ g) @ _Y_OF_PROPHOTO))
+    nan = float("nan")
+    return ColourCorrection("3x3", m, 1, np.zeros(0), nan, nan)

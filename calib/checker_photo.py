@@ -227,6 +227,14 @@ def _refuse(clip: CheckerClipping, chart: ReferenceChart, path: Path,
                               high=clip.high, low=clip.low)
 
 
+def raw_rgb_cam(path: Path) -> NDArray[np.float64]:
+    """(3, 3) LibRaw's camera -> linear sRGB matrix (``rgb_cam``) of a RAW file, from its
+    header's profile (e.g. a DNG's ColorMatrix1); what its development applies after the white
+    balance (for :func:`grassd.calib.camera_response.camera_correction`)."""
+    with open_raw(path) as raw:
+        return np.asarray(raw.color_matrix, dtype=np.float64)[:, :3]
+
+
 def checker_clipping(path: Path, corners: Sequence[Sequence[float]],
                      white_balance: str | Sequence[float] | None = "camera") -> CheckerClipping:
     """Which patches of the checker photo ``path`` clip (see the module docstring).

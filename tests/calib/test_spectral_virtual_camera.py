@@ -117,3 +117,48 @@ def test_spydercheckr_spectra_recovered_and_corrected(tmp_path):
         f"{s.form} fit {s.fit_mean_de00:.2f} loo {s.loo_mean_de00:.2f}/{s.loo_max_de00:.2f}"
         for s in best.candidates))
     assert best.loo_mean_de00 < 0.5
+
+
+@pytest.mark.parametrize("light", ["D65", "A"])
+def test_a_correction_predicted_from_the_sensitivities_matches_the_photo(tmp_path, light):
+    from grassd.calib.camera_response import (
+        camera_correction,
+        checker_reflectances,
+        simulation_rec709,
+    )
+    from grassd.calib.ccm import residual_de00
+    from grassd.calib.checker_photo import raw_rgb_cam
+    from grassd.calib.colour_spaces import rec709_to_prophoto
+
+    _, refl = checker_reflectances()
+    grey = 21  # neutral 5 (.70 D) of the ColorChecker
+    for name, cam in (("luther", _luther()), ("nikon", None)):
+        camera = SpectralVirtualCamera(light=light, read_noise_e=0.0, full_well_e=1e9,
+                                       **({} if cam is None else {"sensitivities": cam}))
+        img, white, corners = spectral_checker_scene(camera)
+        path = camera.photograph_camera_rgb(tmp_path / f"{name}.dng", img, white)
+        wb = checker_white_balance(path, corners, CLASSIC)
+        photo = checker_photo_patches(path, corners, CLASSIC, wb)
+        out = {}
+        for transport in ("rgb", "spectral"):
+            w = simulation_rec709(np.ones(len(WAVELENGTHS)), light, transport)
+            sim = rec709_to_prophoto(simulation_rec709(refl, light, transport) / w)
+            corr = camera_correction(camera.sensitivities, light, wb, raw_rgb_cam(path),
+                                     sim[grey], transport)
+            pred = np.clip(corr.apply(sim), 0.0, None)
+            k = luminance(pred[grey], "prophoto") / luminance(photo[grey], "prophoto")
+            out[transport] = residual_de00(pred, photo * k)
+        print(f"\n{name} {light} predicted correction: " + ", ".join(
+            f"{t} {d.mean():.2f}/{d.max():.2f}" for t, d in out.items()))
+        if name == "luther":  # a colorimetric camera is predicted exactly by spectral light
+            assert out["spectral"].mean() < 0.05 and out["spectral"].max() < 0.3  # 14-bit DNG
+        else:
+            assert out["spectral"].mean() < 1.5
+        assert out["spectral"].mean() <= out["rgb"].mean() + 0.02
+
+
+def _luther() -> CameraSensitivities:
+    from grassd.calib.camera_response import cie_observer
+
+    mix = np.array([[0.6, 0.4, 0.0], [0.1, 0.9, 0.0], [0.0, 0.1, 0.9]])
+    return CameraSensitivities("luther", cie_observer() @ mix.T, (380.0, 780.0))
