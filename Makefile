@@ -137,7 +137,7 @@ install-data:
 	if [ -e "$$conf" ]; then echo "kept the existing $(CONFDIR)/grassd.toml"; else \
 	    [ -d '$(DESTDIR)$(CONFDIR)' ] || install -d -m 0750 '$(DESTDIR)$(CONFDIR)'; \
 	    '$(DESTDIR)$(OPTDIR)/bin/python' -I -c 'import importlib.resources as r, sys; \
-	        sys.stdout.write(r.files("grassd.daemon.config").joinpath("default.toml").read_text())' \
+	        sys.stdout.write(r.files("grassd.daemon.core.config").joinpath("default.toml").read_text())' \
 	        > "$$conf.tmp"; \
 	    chmod 0640 "$$conf.tmp"; mv "$$conf.tmp" "$$conf"; new=1; \
 	    echo "installed $(CONFDIR)/grassd.toml (the default configuration: edit it)"; \

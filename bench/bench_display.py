@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from bench import COURTYARD
-from grassd.daemon.calibration.display_model import (
+from grassd.daemon.core.calibration.display_model import (
     build_display_tables,
     errors_on,
     group_pixels,
@@ -24,7 +24,7 @@ from grassd.daemon.calibration.display_model import (
     shares_layout,
     simulate_display,
 )
-from grassd.daemon.calibration.simulation import simulate_curve
+from grassd.daemon.core.calibration.simulation import simulate_curve
 
 
 def _lighting():
@@ -40,7 +40,7 @@ def _lighting():
 
 
 def _renderer_for(n_pixels: int):
-    from grassd.daemon.calibration.display_model import capacity_for
+    from grassd.daemon.core.calibration.display_model import capacity_for
     from grassd.sim.renderer import Renderer
 
     return Renderer.shared(capacity_for(n_pixels))

@@ -33,7 +33,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--arch", default="cpu", choices=["cpu", "gpu"])
     args = ap.parse_args([] if argv is None else argv)
 
-    from grassd.daemon.calibration.simulation import simulate_curve
+    from grassd.daemon.core.calibration.simulation import simulate_curve
     from grassd.daemon.offline.experiment import (
         PAPER,
         VIEWPOINTS,

@@ -1,5 +1,5 @@
 """``grassd fit`` on virtual captures of two pixels whose materials are known (pink grass
-indoors, glossy splayed olive turf outdoors; :mod:`bench.fit_worlds`), fitted from the
+indoors, glossy splayed olive turf outdoors; :mod:`grassd.rigs.fit_worlds`), fitted from the
 defaults. Two runs per pixel:
 
 * the speed case of issue #28: 3 viewpoints x 6 lengths, all fitted (the reference view, a
@@ -18,7 +18,9 @@ import tempfile
 from dataclasses import replace
 
 from bench import ARCH, HDRI_DIR
-from bench.fit_worlds import (
+from grassd.daemon.offline.fit import FitError, fit_capture
+from grassd.daemon.offline.validate import default_renderer
+from grassd.rigs.fit_worlds import (
     ALBEDOS,
     HELD_OUT,
     VIEWS,
@@ -27,8 +29,6 @@ from bench.fit_worlds import (
     capture_known_pixel,
     true_fields,
 )
-from grassd.daemon.offline.fit import FitError, fit_capture
-from grassd.daemon.offline.validate import default_renderer
 
 
 def _row(name: str, case: str, manifest, lighting, renderer, holdout: list) -> None:

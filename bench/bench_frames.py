@@ -1,4 +1,4 @@
-"""Benchmark: content frames on paced lines (:mod:`grassd.daemon.hardware.frames`).
+"""Benchmark: content frames on paced lines (:mod:`grassd.daemon.content.frames`).
 
 The C posix firmware on ptys paced at 115200 baud, the daemon's fleet on the same lines:
 reconcile every second (the daemon's tick) and a table push every 10 s (one 512-byte table per
@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from grassd.daemon.config.settings import ControllerConfig
-from grassd.daemon.hardware.fleet import Fleet
-from grassd.daemon.hardware.frames import FrameOutput
+from grassd.daemon.content.frames import FrameOutput
+from grassd.daemon.core.config.settings import ControllerConfig
+from grassd.daemon.core.hardware.fleet import Fleet
 from grassd.rigs.posix_bus import PosixBus
 
 BAUD = 115_200

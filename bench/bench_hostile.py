@@ -1,7 +1,7 @@
 """Hostile input (issue #27): what each attack costs a running daemon, and a longer fuzz.
 
 1. A `grassd run` subprocess on simulated hardware takes every attack of
-   :data:`bench.inbox_fuzz.ATTACKS`, one at a time. Before each, the daemon's peak resident
+   :data:`grassd.rigs.inbox_fuzz.ATTACKS`, one at a time. Before each, the daemon's peak resident
    memory is reset (``5`` written to ``/proc/PID/clear_refs``); the line printed for it holds
    the seconds until the bundle was in rejected/ and the peak RSS (``VmHWM``) meanwhile, beside
    the daemon's RSS when idle. Before the fix, ``dev-zero-manifest`` grew about 350 MB/s until
@@ -9,13 +9,13 @@
 2. The same daemon's control socket while 16 clients trickle a byte now and then: the latency
    of ``status`` (before the fix every slot was held and ``status`` answered busy), the answer
    to 16 kB of nested JSON (it killed the handler thread) and the daemon's peak RSS.
-3. The camera client against a hostile camera on 127.0.0.1 (:mod:`bench.hostile_camera`): a
+3. The camera client against a hostile camera on 127.0.0.1 (:mod:`grassd.rigs.hostile_camera`): a
    300 MiB JSON answer, a 300 MiB download, a download trickled one byte a second: seconds
    until the typed error and this process's peak RSS growth.
 4. The fuzz of ``tests/daemon/store/test_inbox_fuzz.py``, longer (``--bundles``, default 1000)
    and on another seed: bundles per second and the outcome counts.
 5. Each decoder against a file small on disk and huge decoded
-   (:mod:`bench.hostile_decodes`), in a fresh process: what it did and its peak RSS
+   (:mod:`grassd.rigs.hostile_decodes`), in a fresh process: what it did and its peak RSS
    (docs/operating/security.md has the figures).
 
 Run: ``python -m bench hostile`` or ``python -m bench.bench_hostile [--bundles N] [--seed S]``.
@@ -33,12 +33,12 @@ import time
 from pathlib import Path
 
 from bench.daemon_process import BenchDaemon, daemon_config
-from bench.hostile_camera import HostileServer
-from bench.hostile_decodes import dng_declaring, flat_png, run_child, small_dng
-from bench.inbox_fuzz import ATTACKS, drop_attack, fuzz_inbox, write_flat_exr
-from bench.peak_memory import peak_rss_growth, proc_mib
-from grassd.daemon.hardware.camera import OscClient
-from grassd.daemon.runtime.control import request
+from grassd.daemon.core.hardware.camera import OscClient
+from grassd.daemon.core.runtime.control import request
+from grassd.rigs.hostile_camera import HostileServer
+from grassd.rigs.hostile_decodes import dng_declaring, flat_png, run_child, small_dng
+from grassd.rigs.inbox_fuzz import ATTACKS, drop_attack, fuzz_inbox, write_flat_exr
+from grassd.rigs.peak_memory import peak_rss_growth, proc_mib
 
 
 def _config(state: Path, cfg) -> str:
@@ -176,8 +176,8 @@ def decoders() -> None:
         (d / "capture.toml").write_text("x = " + "[" * 5000 + "]" * 5000 + "\n")
         cases = [
             ("EXR 8192 x 4096, the daemon's calibration", "sky.exr", """
-                from grassd.daemon.calibration.calibrate import Calibrator
-                from grassd.daemon.config.settings import resolve_config
+                from grassd.daemon.core.calibration.calibrate import Calibrator
+                from grassd.daemon.core.config.settings import resolve_config
                 from grassd.sim.light_input import LightInput
                 Calibrator(resolve_config(None, None)).lighting(
                     LightInput(hdri=sys.argv[1], ambient_lux=5000.0))"""),

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from grassd.daemon.calibration.variation import load_variation
+from grassd.daemon.core.calibration.variation import load_variation
 
 GRASSD = str(Path(sys.executable).parent / "grassd")
 SECRET = Path(__file__).resolve().parents[1] / "tests" / "data" / "measure" / \

@@ -13,11 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
-from grassd.daemon.config.settings import load_default_config
-from grassd.daemon.monitoring.metrics import registry, write_textfile
-from grassd.daemon.monitoring.status_page import render, write_page
-from grassd.daemon.runtime.service import collect_status
-from grassd.daemon.store.history import History
+from grassd.daemon.core.config.settings import load_default_config
+from grassd.daemon.core.monitoring.metrics import registry, write_textfile
+from grassd.daemon.core.monitoring.status_page import render, write_page
+from grassd.daemon.core.runtime.service import collect_status
+from grassd.daemon.core.store.history import History
 
 RUNS = 5000
 BUNDLES = 10000

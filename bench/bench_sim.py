@@ -52,7 +52,7 @@ def first_call() -> None:
 
 
 def main() -> None:
-    from grassd.daemon.calibration.simulation import simulate_curve
+    from grassd.daemon.core.calibration.simulation import simulate_curve
     from grassd.sim import backend
     from grassd.sim.lighting import build_lighting
     from grassd.sim.renderer import Renderer

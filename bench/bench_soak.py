@@ -34,8 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from bench.daemon_process import BenchDaemon, daemon_config
-from bench.peak_memory import proc_mib
 from bench.trace_daemon import request_snapshot
+from grassd.rigs.peak_memory import proc_mib
 from grassd.sim.hdri import write_exr
 
 SKIES = 8  #: distinct tiny HDRIs the bundles cycle through

@@ -6,9 +6,9 @@ paths as the studio runs them: splay 8 deg with 16 x 256 paths (a studio round),
 pixel without splay with 4 x 1024 paths; then, under bench_studio's low sun (its slowest
 change, :data:`bench.bench_studio.LOW_SUN`, lit as the studio lights it), both with 2 x 8192
 paths, the settings of the larger replicates a run takes there
-(:class:`~grassd.daemon.calibration.simulation.LargerReplicates`) and whole replicates a launch,
-as the simulator process launches them. Prints the median of
-``GRASSD_BENCH_SPLAY_RUNS`` (default 6) runs, traces and rays per camera path. Asserts nothing.
+(:class:`~grassd.daemon.core.calibration.simulation.LargerReplicates`) and whole replicates a
+launch, as the simulator process launches them. Prints the median of ``GRASSD_BENCH_SPLAY_RUNS``
+(default 6) runs, traces and rays per camera path. Asserts nothing.
 
 Run: ``python -m bench splay``. For an A/B against an older renderer, set
 ``GRASSD_BENCH_SPLAY_OLD`` to a copy of its ``sim/renderer.py``: both run interleaved in one
@@ -32,9 +32,9 @@ RUNS = int(os.environ.get("GRASSD_BENCH_SPLAY_RUNS", "6"))
 
 
 def main() -> None:
-    from grassd.daemon.calibration.calibrate import Calibrator
-    from grassd.daemon.calibration.simulation import LargerReplicates
-    from grassd.daemon.config.settings import resolve_config
+    from grassd.daemon.core.calibration.calibrate import Calibrator
+    from grassd.daemon.core.calibration.simulation import LargerReplicates
+    from grassd.daemon.core.config.settings import resolve_config
     from grassd.daemon.studio.lights import Lights, LightSource
     from grassd.daemon.studio.pace import STUDIO_LAUNCH_PATHS
     from grassd.daemon.studio.session import Studio

@@ -36,7 +36,7 @@ import time
 from pathlib import Path
 
 from bench.daemon_process import CACHE, BenchDaemon, daemon_config, wait_ready
-from bench.peak_memory import proc_mib
+from grassd.rigs.peak_memory import proc_mib
 from grassd.rigs.processes import end_process
 
 GRASSD = str(Path(sys.executable).parent / "grassd")
@@ -65,8 +65,8 @@ def _times_s(argv: list[str], runs: int, env: dict[str, str]
 
 def _state_with_database(state: Path) -> None:
     """A state directory holding an empty history database, as after a daemon's first start."""
-    from grassd.daemon.store.history import History
-    from grassd.daemon.store.layout import StateLayout
+    from grassd.daemon.core.store.history import History
+    from grassd.daemon.core.store.layout import StateLayout
 
     db = StateLayout(state).db
     db.parent.mkdir(parents=True, exist_ok=True)
@@ -76,7 +76,7 @@ def _state_with_database(state: Path) -> None:
 
 def startup_times(runs: int) -> None:
     """Print min and median wall seconds of the three light commands."""
-    from grassd.daemon.config.settings import default_config_text
+    from grassd.daemon.core.config.settings import default_config_text
 
     tmp = Path(tempfile.mkdtemp(prefix="grassd-bench-startup-"))
     try:
@@ -123,7 +123,7 @@ REMOTE = '[compute]\nscheduler = "tcp://127.0.0.1:8786"\n'
 def _has_compute_table() -> bool:
     """Whether the ``grassd`` that the subprocesses run knows ``[compute]`` (a tree from
     before it does not)."""
-    code = ("import dataclasses; from grassd.daemon.config.settings import Config; "
+    code = ("import dataclasses; from grassd.daemon.core.config.settings import Config; "
             "print('compute' in {f.name for f in dataclasses.fields(Config)})")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=120, cwd=tempfile.gettempdir())
@@ -138,7 +138,7 @@ def _where(remote: bool) -> str:
 def rss_simulate_hardware(remote: bool) -> None:
     """RSS of an idle ``grassd run --simulate-hardware`` (embedded default site), its
     simulations here or (``remote``) on a Dask scheduler."""
-    from grassd.daemon.config.settings import default_config_text, load_config
+    from grassd.daemon.core.config.settings import default_config_text, load_config
 
     tmp = Path(tempfile.mkdtemp(prefix="grassd-bench-rss-"))
     config = tmp / "grassd.toml"

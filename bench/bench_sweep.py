@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from grassd.daemon.config.compute import ComputeConfig
+from grassd.daemon.compute.config import ComputeConfig
 from grassd.daemon.offline.sweep import SweepSpec, conditions, read_results, run_sweep
 
 

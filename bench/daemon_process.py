@@ -15,11 +15,11 @@ from pathlib import Path
 
 from bench.trace_daemon import ENV
 from bench.trace_daemon import command as trace_command
-from grassd.daemon.config.settings import load_default_config
-from grassd.daemon.errors import DaemonNotRunning
-from grassd.daemon.hardware.simulated import SimulatedHardware, hardware_toml
-from grassd.daemon.runtime.control import request
+from grassd.daemon.core.config.settings import load_default_config
+from grassd.daemon.core.errors import DaemonNotRunning
+from grassd.daemon.core.runtime.control import request
 from grassd.rigs.processes import end_process
+from grassd.rigs.simulated_site import SimulatedHardware, hardware_toml
 
 ROOT = Path(__file__).resolve().parents[1]
 #: the Taichi kernel cache the benchmarks' daemons share (as `make` sets it)

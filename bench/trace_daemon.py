@@ -4,7 +4,7 @@ With ``GRASSD_BENCH_TRACEMALLOC=DIR`` set, :class:`bench.daemon_process.BenchDae
 ``python -X tracemalloc=FRAMES -m bench.trace_daemon DIR run ...`` instead of ``grassd run
 ...``: the daemon as it is, plus a thread that, for every ``DIR/NAME.want`` file that appears,
 writes a tracemalloc snapshot to ``DIR/NAME.snap`` and removes the request (a thread, not a
-signal handler: see grassd.daemon.runtime.signal_relay). :func:`request_snapshot` asks for one
+signal handler: see grassd.daemon.core.runtime.signal_relay). :func:`request_snapshot` asks for one
 and waits for it. Every full (generation 2) garbage collection is logged to ``DIR/gc.log``:
 seconds since start, objects collected, the collection's seconds and the RSS after it (MiB).
 ``GRASSD_BENCH_TRACEMALLOC_FRAMES=0`` leaves tracemalloc off (it slows the daemon about 20x)

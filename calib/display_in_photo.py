@@ -97,7 +97,7 @@ class CameraPose:
 
     ``rotation`` (3, 3) world-to-camera: a world vector ``v`` has camera coordinates
     ``rotation @ v``; ``position_m`` (3,) the camera centre in the display frame [m] (hand it
-    to :func:`grassd.daemon.calibration.display_model.geometry_from_eye`); ``rms_deg`` the rms
+    to :func:`grassd.daemon.core.calibration.display_model.geometry_from_eye`); ``rms_deg`` the rms
     angle between the measured and the re-projected bearings [deg]; ``n_points`` how many
     points were fitted.
     """

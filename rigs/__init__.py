@@ -30,16 +30,31 @@ The rule (``tests/test_import_graph.py``): no module of ``grassd.calib``, ``gras
 ``grassd.firmware_proto`` or ``grassd.daemon`` imports a module of this package, lazily or
 not, except the entry points that serve simulated hardware:
 
-* ``grassd.daemon.hardware.simulated`` - the simulated site (controllers, lux sensor) of
-  ``grassd run --simulate-hardware`` and ``grassd demo``; the rest of the daemon imports it
-  only inside functions, on the ``--simulate-hardware`` path;
-* ``grassd.daemon.cli.controllers`` - ``grassd controllers sim``, inside that command only.
+* the command-line modules that serve simulated hardware, each inside the commands or the
+  ``--simulate-hardware`` path that use it: ``grassd.daemon.cli.run`` (the simulated site of
+  ``grassd run --simulate-hardware`` and ``grassd demo``: :mod:`.simulated_site`, whose
+  controllers, lux sensor and cameras are :mod:`.simulated_display` and
+  :mod:`.simulated_camera`), ``grassd.daemon.cli.controllers`` (``grassd controllers sim``),
+  ``grassd.daemon.capture.cli`` (``grassd camera sim``) and ``grassd.daemon.measure.cli``
+  (``grassd measure --simulate-hardware``).
 
 Tests and benchmarks import anything here. This ``__init__`` imports nothing and only names the
-firmware backends, so that the command line can offer ``--sim-firmware`` / ``--firmware``
-without loading a rig: importing ``grassd.rigs`` itself is allowed everywhere in the daemon.
+choices and defaults of those commands (firmware backends, the simulated camera's response
+curves, capture modes and defaults), so that the command line can offer them without loading a
+rig: importing ``grassd.rigs`` itself is allowed everywhere in the daemon.
 """
 
 #: Firmware backends a simulated bus can run, the first being the default
 #: (:func:`~.sim_backends.open_bus`).
 FIRMWARE_BACKENDS = ("model", "posix", "qemu")
+
+#: The simulated camera's response curves (:data:`~.simulated_camera.CURVES`) and OSC capture
+#: modes (:class:`~.simulated_camera.CaptureMode`).
+SIM_CAMERA_CURVES = ("gamma22", "filmic", "soft")
+SIM_CAMERA_CAPTURE_MODES = ("image", "video")
+#: Defaults of ``grassd camera sim`` (and of :class:`~.simulated_camera.SimCamera`): the largest
+#: panorama width served (texels; a wider map is downsampled by whole factors), the response
+#: curve (one of :data:`SIM_CAMERA_CURVES`) and the light level (cd/m^2 per map unit).
+SIM_CAMERA_WIDTH = 512
+SIM_CAMERA_CURVE = "filmic"
+SIM_CAMERA_SCENE_SCALE = 1000.0

@@ -1,7 +1,7 @@
 """What one measurement of the light at the display is, before it becomes a :class:`Lighting`.
 
 Every part that starts from a measured (or assumed) light uses this one type: a bundle manifest
-(``grassd.daemon.store.ingest``), the calibrator, the capture validation and the paper's
+(``grassd.daemon.core.store.ingest``), the calibrator, the capture validation and the paper's
 experiments (``grassd.daemon.offline``), the sweep and ``grassd simulate``. It holds readings,
 not physics: :meth:`LightInput.lighting` hands them to :func:`grassd.sim.lighting.build_lighting`,
 which checks them and builds the scaled map and the sun.

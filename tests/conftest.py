@@ -38,8 +38,8 @@ def hw(tmp_path):
     """Simulated controllers on ptys (the embedded default configuration's two buses) and a
     Modbus lux sensor on 127.0.0.1 reading 2500 lux: yields (SimulatedHardware, the Config
     pointing at them); stopped after the test."""
-    from grassd.daemon.config.settings import load_default_config
-    from grassd.daemon.hardware.simulated import SimulatedHardware
+    from grassd.daemon.core.config.settings import load_default_config
+    from grassd.rigs.simulated_site import SimulatedHardware
 
     sim = SimulatedHardware(load_default_config(), tmp_path / "hw", lux=2500.0)
     cfg = sim.start()

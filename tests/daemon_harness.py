@@ -16,10 +16,10 @@ from typing import Any
 
 import pytest
 
-from grassd.daemon.config.settings import load_config
-from grassd.daemon.hardware.simulated import hardware_toml
-from grassd.daemon.runtime.service import Service
+from grassd.daemon.core.config.settings import load_config
+from grassd.daemon.core.runtime.service import Service
 from grassd.firmware_proto.client import RetryPolicy
+from grassd.rigs.simulated_site import hardware_toml
 from grassd.sim.hdri import default_site_hdri
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -181,7 +181,7 @@ def after_first_bundle(tmp_path: Path, cfg, **kw) -> tuple[Service, Any]:
 
 def service(path: Path, **kw) -> Service:
     """An in-process daemon for config file ``path`` (Taichi initialised, short timeouts)."""
-    from grassd.daemon.calibration.calibrate import init_backend
+    from grassd.daemon.core.calibration.calibrate import init_backend
 
     kw.setdefault("policy", POLICY)
     svc = Service(load_config(path), config_path=path, **kw)

@@ -27,7 +27,7 @@ from typing import Any
 
 import pytest
 
-from grassd.daemon.config.compute import ComputeConfig
+from grassd.daemon.compute.config import ComputeConfig
 
 DASK = Path(sys.executable).parent / "dask"
 OPENSSL = shutil.which("openssl")

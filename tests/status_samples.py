@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from grassd.daemon.monitoring.status_types import (
+from grassd.daemon.core.monitoring.status_types import (
     ControllerStatus,
     DaemonState,
     DesiredTable,

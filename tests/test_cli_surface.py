@@ -275,8 +275,8 @@ def _table_differences(a: dict, b: dict, tol: dict[str, float], where: str) -> l
 def test_calibration_report_is_unchanged(tmp_path, granularity):
     """The report and metrics of one run per granularity (seed 3, 2 closed-loop rounds), within
     the tolerances above."""
-    from grassd.daemon.calibration.calibrate import Calibrator, LightInput, init_backend
-    from grassd.daemon.config.settings import parse_config
+    from grassd.daemon.core.calibration.calibrate import Calibrator, LightInput, init_backend
+    from grassd.daemon.core.config.settings import parse_config
 
     text = RUN + f'[tables]\ngranularity = "{granularity}"\ncheck_groups = 0\n'
     cfg = parse_config(text, base_dir=tmp_path)

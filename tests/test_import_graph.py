@@ -80,12 +80,13 @@ def _imports(path: Path) -> list[tuple[str, bool]]:
 
 def test_the_graph_sees_every_package():
     """Precondition of the other checks: the walk finds the modules and their imports."""
-    assert {"grassd.daemon.runtime.service", "grassd.daemon.cli.main", "grassd.sim.renderer",
+    assert {"grassd.daemon.core.runtime.service", "grassd.daemon.cli.main", "grassd.sim.renderer",
             "grassd.calib.ogcd", "grassd.firmware_proto.client"} <= set(MODULES)
-    assert ("grassd.daemon.config.settings", True) in _imports(MODULES["grassd.daemon.cli.run"])
-    assert ("grassd.daemon.runtime.service", False) in _imports(MODULES["grassd.daemon.cli.run"])
+    run = _imports(MODULES["grassd.daemon.cli.run"])
+    assert ("grassd.daemon.core.config.settings", True) in run
+    assert ("grassd.daemon.core.runtime.service", False) in run
     assert ("grassd.sim.renderer", False) in _imports(
-        MODULES["grassd.daemon.calibration.calibrate"])  # lazy: not at import time
+        MODULES["grassd.daemon.core.calibration.calibrate"])  # lazy: not at import time
 
 
 def test_every_grassd_import_names_an_existing_module():
@@ -106,14 +107,14 @@ def test_calib_sim_and_firmware_proto_never_import_the_daemon():
     assert not bad, bad
 
 
-#: The entry points that serve simulated hardware: the only modules outside grassd.rigs that
-#: import its modules, and whether they may at module level or only inside functions.
-SIMULATED_HARDWARE_ENTRY_POINTS = {
-    # the simulated site of ``grassd run --simulate-hardware`` and ``grassd demo``
-    "grassd.daemon.hardware.simulated": "module level",
-    # ``grassd controllers sim``: inside that command only (scan, status and push stay clean)
-    "grassd.daemon.cli.controllers": "inside functions",
-}
+#: The command-line modules that serve simulated hardware: the only modules outside grassd.rigs
+#: that import its modules, each only inside the functions of those commands.
+SIMULATED_HARDWARE_ENTRY_POINTS = (
+    "grassd.daemon.cli.run",  # grassd run --simulate-hardware, grassd demo
+    "grassd.daemon.cli.controllers",  # grassd controllers sim
+    "grassd.daemon.capture.cli",  # grassd camera sim
+    "grassd.daemon.measure.cli",  # grassd measure --simulate-hardware
+)
 
 
 def _is_rig(imported: str) -> bool:
@@ -122,13 +123,12 @@ def _is_rig(imported: str) -> bool:
 
 def test_no_rig_imported_by_a_runtime_path():
     """Test rigs and simulated hardware (``grassd.rigs``) are imported by no module of calib,
-    sim, firmware_proto or daemon, lazily or not, but by the simulated-hardware entry points;
-    the daemon may import the package itself (``from grassd.rigs import FIRMWARE_BACKENDS``: the
-    command line's choices), whose ``__init__`` imports nothing. The simulated site is in turn
-    imported by the rest of the daemon only inside functions (the ``--simulate-hardware``
-    path)."""
+    sim, firmware_proto or daemon, lazily or not, but inside the functions of the commands that
+    serve simulated hardware; the daemon may import the package itself (``from grassd.rigs
+    import FIRMWARE_BACKENDS``: the command line's choices), whose ``__init__`` imports
+    nothing."""
     assert {"grassd.rigs", "grassd.rigs.simulator", "grassd.rigs.golden",
-            "grassd.rigs.mitsuba_scene"} <= set(MODULES)
+            "grassd.rigs.mitsuba_scene", "grassd.rigs.simulated_site"} <= set(MODULES)
     assert set(SIMULATED_HARDWARE_ENTRY_POINTS) <= set(MODULES)
     init = ast.parse(MODULES["grassd.rigs"].read_text())
     assert not [node for node in ast.walk(init)
@@ -138,22 +138,15 @@ def test_no_rig_imported_by_a_runtime_path():
     for name, path in MODULES.items():
         if name == "grassd" or _is_rig(name):
             continue
-        allowed = SIMULATED_HARDWARE_ENTRY_POINTS.get(name)
         for imported, now in _imports(path):
             if not _is_rig(imported):
                 continue
             if imported == "grassd.rigs" and name.startswith("grassd.daemon"):
-                continue  # the backend names only
-            if allowed == "module level" or (allowed == "inside functions" and not now):
+                continue  # the command line's choices only
+            if name in SIMULATED_HARDWARE_ENTRY_POINTS and not now:
                 continue
             bad.append(f"{name} imports {imported}" + (" at module level" if now else ""))
     assert not bad, bad
-    eager = [f"{name} imports {imported} at module level"
-             for name, path in MODULES.items()
-             if name.startswith("grassd.daemon") and name not in SIMULATED_HARDWARE_ENTRY_POINTS
-             for imported, now in _imports(path)
-             if now and SIMULATED_HARDWARE_ENTRY_POINTS.get(imported) == "module level"]
-    assert not eager, eager
 
 
 def test_the_command_line_loads_no_rig():
@@ -210,35 +203,131 @@ def test_no_import_cycles_at_module_level():
     assert not _cycles(graph), _cycles(graph)
 
 
-def _subpackage(module: str) -> str | None:
-    """``grassd.daemon.<sub>`` of a module of a daemon subpackage (None for anything else,
-    e.g. ``grassd.daemon.errors``, which every subpackage may import)."""
+#: The daemon's folders by role: the core (all that ``grassd run`` needs to turn a bundle into
+#: tables on controllers), the features (each joins the service from its own folder), the
+#: tools (never imported by the service) and the command line that puts them together.
+CORE = "grassd.daemon.core"
+FEATURES = ("grassd.daemon.capture", "grassd.daemon.measure", "grassd.daemon.compute",
+            "grassd.daemon.content")
+TOOLS = ("grassd.daemon.studio", "grassd.daemon.offline")
+COMMAND_LINE = "grassd.daemon.cli"
+#: The core's imports of a feature that remain, each named (core module, feature module): the
+#: service and the configuration still know these features by name. The list may only shrink:
+#: a new edge fails, and so does one that is gone but still listed.
+CORE_IMPORTS_OF_FEATURES = {
+    ("grassd.daemon.core.config.settings", "grassd.daemon.compute.config"),
+    ("grassd.daemon.core.config.settings", "grassd.daemon.content.config"),
+    ("grassd.daemon.core.config.settings", "grassd.daemon.measure.config"),
+    ("grassd.daemon.core.monitoring.operator_view", "grassd.daemon.content.shown"),
+    ("grassd.daemon.core.monitoring.status_page", "grassd.daemon.content.display_picture"),
+    ("grassd.daemon.core.monitoring.status_page", "grassd.daemon.content.shown"),
+    ("grassd.daemon.core.monitoring.status_page", "grassd.daemon.measure.report"),
+    ("grassd.daemon.core.runtime.service", "grassd.daemon.capture.station"),
+    ("grassd.daemon.core.runtime.service", "grassd.daemon.compute.remote"),
+    ("grassd.daemon.core.runtime.service", "grassd.daemon.compute.retry"),
+    ("grassd.daemon.core.runtime.service", "grassd.daemon.content.feature"),
+    ("grassd.daemon.core.runtime.service", "grassd.daemon.content.frames"),
+    ("grassd.daemon.core.runtime.service", "grassd.daemon.content.receiver"),
+    ("grassd.daemon.core.runtime.service", "grassd.daemon.content.shown"),
+    ("grassd.daemon.core.runtime.service", "grassd.daemon.content.status"),
+    ("grassd.daemon.core.runtime.service", "grassd.daemon.measure.job"),
+    ("grassd.daemon.core.runtime.service", "grassd.daemon.measure.report"),
+}
+
+
+def _area(module: str) -> str | None:
+    """The folder of the daemon a module belongs to: ``grassd.daemon.core`` (and its own
+    subpackages, ``grassd.daemon.core.<sub>``), a feature, a tool or the command line (None
+    for anything outside the daemon)."""
     parts = module.split(".")
     if parts[:2] != ["grassd", "daemon"] or len(parts) < 3:
         return None
-    sub = ".".join(parts[:3])
-    return sub if (ROOT / "daemon" / parts[2]).is_dir() else None
+    if parts[2] == "core" and len(parts) > 3 and (ROOT / "daemon" / "core" / parts[3]).is_dir():
+        return ".".join(parts[:4])
+    return ".".join(parts[:3])
 
 
-def test_no_import_cycles_between_daemon_subpackages():
-    """The daemon's subpackages (cli, runtime, monitoring, store, config...) depend on each
+def _edges() -> list[tuple[str, str]]:
+    """(importing module, imported module) for every import of a daemon module, lazy or not."""
+    return [(name, imported) for name, path in MODULES.items() if _area(name)
+            for imported, _ in _imports(path) if _area(imported) and imported in MODULES]
+
+
+def _in(module: str, *areas: str) -> bool:
+    return any(module == a or module.startswith(a + ".") for a in areas)
+
+
+def test_the_daemon_is_a_core_with_features_and_tools_around_it():
+    """Every daemon module is in the core, a feature, a tool or the command line; features and
+    tools exist (the layout docs/architecture.md draws)."""
+    assert {_area(m) for m in MODULES if m.startswith("grassd.daemon.")} - {None} <= {
+        *(a for a in {_area(m) for m in MODULES} if a and a.startswith(CORE)), CORE,
+        *FEATURES, *TOOLS, COMMAND_LINE}
+    for area in (*FEATURES, *TOOLS):
+        assert area in MODULES, area
+
+
+def test_the_core_imports_no_feature_tool_or_command_line():
+    """The core never imports a tool or the command line, and a feature only where
+    :data:`CORE_IMPORTS_OF_FEATURES` still names the edge."""
+    edges = _edges()
+    tools = sorted(f"{a} imports {b}" for a, b in edges
+                   if _in(a, CORE) and _in(b, *TOOLS, COMMAND_LINE))
+    assert not tools, tools
+    features = {(a, b) for a, b in edges if _in(a, CORE) and _in(b, *FEATURES)}
+    assert not features - CORE_IMPORTS_OF_FEATURES, sorted(features - CORE_IMPORTS_OF_FEATURES)
+    assert not CORE_IMPORTS_OF_FEATURES - features, sorted(CORE_IMPORTS_OF_FEATURES - features)
+
+
+def test_features_import_neither_each_other_nor_tools():
+    bad = sorted(f"{a} imports {b}" for a, b in _edges()
+                 for feature in FEATURES if _in(a, feature)
+                 and (_in(b, *TOOLS, COMMAND_LINE) or (_in(b, *FEATURES) and not _in(b, feature))))
+    assert not bad, bad
+
+
+def test_tools_import_no_command_line():
+    bad = sorted(f"{a} imports {b}" for a, b in _edges()
+                 if _in(a, *TOOLS) and _in(b, COMMAND_LINE))
+    assert not bad, bad
+
+
+def test_tests_never_import_the_benchmarks():
+    """Fixtures live in tests/ (or in grassd.rigs); bench/ is for ``make bench`` only."""
+    bad = []
+    for path in sorted((ROOT / "tests").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            bad += [f"{path.relative_to(ROOT)}: {n}" for n in names
+                    if n.split(".")[0] == "bench" or (n.split(".")[0] in _BENCH_MODULES)]
+    assert not bad, bad
+
+
+#: the benchmarks' own modules (bench/*.py), which tests reach as top-level names when bench/ is
+#: on sys.path
+_BENCH_MODULES = {p.stem for p in (ROOT / "bench").glob("*.py")} - {"__init__", "__main__"}
+
+
+def test_no_import_cycles_between_daemon_areas():
+    """The core's subpackages, the features, the tools and the command line depend on each
     other one way: no two import each other, directly or round a loop. Every import statement
-    counts, lazy or under ``if TYPE_CHECKING:`` too (either way one package names the other's
-    modules, so neither can change or move alone)."""
+    counts, lazy or under ``if TYPE_CHECKING:`` too (either way one names the other's modules,
+    so neither can change or move alone), but the core's imports of features that
+    :data:`CORE_IMPORTS_OF_FEATURES` still names."""
     graph: dict[str, set[str]] = {}
     why: dict[tuple[str, str], list[str]] = {}
-    for name, path in MODULES.items():
-        a = _subpackage(name)
-        if a is None:
+    for name, imported in _edges():
+        if (name, imported) in CORE_IMPORTS_OF_FEATURES:
             continue
+        a, b = _area(name), _area(imported)
         graph.setdefault(a, set())
-        for imported, _ in _imports(path):
-            b = _subpackage(imported)
-            if b is not None and b != a:
-                graph[a].add(b)
-                graph.setdefault(b, set())
-                why.setdefault((a, b), []).append(f"{name} imports {imported}")
-    assert {"grassd.daemon.runtime", "grassd.daemon.monitoring"} <= set(graph)
+        graph.setdefault(b, set())
+        if a != b:
+            graph[a].add(b)
+            why.setdefault((a, b), []).append(f"{name} imports {imported}")
+    assert {"grassd.daemon.core.runtime", "grassd.daemon.core.monitoring",
+            "grassd.daemon.measure"} <= set(graph)
     bad = [{"cycle": cycle, "imports": sorted(i for a in cycle for b in cycle
                                               for i in why.get((a, b), []))}
            for cycle in _cycles(graph)]
@@ -250,8 +339,8 @@ def test_no_import_cycles_between_daemon_subpackages():
 _RUN = """
 import json, os, signal, sys, threading, time
 from grassd.daemon.cli.main import main
-from grassd.daemon.config.settings import load_config
-from grassd.daemon.runtime.control import request
+from grassd.daemon.core.config.settings import load_config
+from grassd.daemon.core.runtime.control import request
 
 config = sys.argv[1]
 sock = load_config(config).control_socket
@@ -280,17 +369,12 @@ print(json.dumps({"ok": bool(ok), "modules": sorted(m for m in sys.modules
 """
 
 
-#: the daemon's subpackages: what ``grassd run`` runs
-DAEMON_RUNS = ("runtime", "measure", "calibration", "hardware", "monitoring", "store", "config",
-               "content")
-
-
-def test_no_module_the_daemon_runs_names_an_offline_module():
-    """Every import statement, lazy or not, of the daemon's own subpackages."""
+def test_no_module_the_daemon_runs_names_a_tool():
+    """Every import statement, lazy or not, of the core and the features names no module of a
+    tool (the studio, the offline work)."""
     bad = [f"{name} imports {imported}" for name, path in MODULES.items()
-           if name.split(".")[2:3] and name.split(".")[2] in DAEMON_RUNS
-           and name.startswith("grassd.daemon.")
-           for imported, _ in _imports(path) if imported.startswith("grassd.daemon.offline")]
+           if _in(name, CORE, *FEATURES)
+           for imported, _ in _imports(path) if _in(imported, *TOOLS)]
     assert any(n.startswith("grassd.daemon.measure.") for n in MODULES)
     assert not bad, bad
 
@@ -298,7 +382,7 @@ def test_no_module_the_daemon_runs_names_an_offline_module():
 def test_grassd_run_never_imports_offline(tmp_path):
     """A real ``grassd run`` calibrates a bundle and pushes the table to (simulated) controllers
     without loading any module of grassd.daemon.offline."""
-    from grassd.daemon.config.settings import parse_config
+    from grassd.daemon.core.config.settings import parse_config
 
     config = tmp_path / "grassd.toml"
     config.write_text(DISPLAY_2X2)
@@ -311,8 +395,8 @@ def test_grassd_run_never_imports_offline(tmp_path):
     out = json.loads(proc.stdout.strip().splitlines()[-1])
     assert out["ok"], f"no successful run; stderr: {proc.stderr[-3000:]}"
     loaded = out["modules"]
-    assert "grassd.daemon.runtime.service" in loaded and "grassd.daemon.cli.main" in loaded
-    assert "grassd.daemon.calibration.calibrate" in loaded
+    assert "grassd.daemon.core.runtime.service" in loaded and "grassd.daemon.cli.main" in loaded
+    assert "grassd.daemon.core.calibration.calibrate" in loaded
     offline = [m for m in loaded if m.startswith("grassd.daemon.offline")]
     assert not offline, offline
 
@@ -363,7 +447,7 @@ def test_grassd_help_loads_no_heavy_library(tmp_path):
 
 def test_grassd_check_config_loads_no_heavy_library(tmp_path):
     """``grassd check-config`` on the embedded default configuration, written to a file."""
-    from grassd.daemon.config.settings import default_config_text
+    from grassd.daemon.core.config.settings import default_config_text
 
     config = tmp_path / "grassd.toml"
     config.write_text(default_config_text())
@@ -376,9 +460,9 @@ def test_grassd_status_without_a_daemon_loads_no_heavy_library(tmp_path):
     """``grassd status`` with no daemon running reads the state database: a finished run with
     its display-wide table (the default), a push. (A run with a table of its own per controller
     or pixel reads those as numpy arrays.)"""
-    from grassd.daemon.config.settings import default_config_text
-    from grassd.daemon.store.history import History
-    from grassd.daemon.store.layout import StateLayout
+    from grassd.daemon.core.config.settings import default_config_text
+    from grassd.daemon.core.store.history import History
+    from grassd.daemon.core.store.layout import StateLayout
 
     config = tmp_path / "grassd.toml"
     config.write_text(default_config_text())
@@ -405,7 +489,7 @@ def test_the_daemon_loads_no_colour_science_or_taichi_before_its_first_run():
     whose simulations run on a cluster stays small (issue #32: 150 MiB; numpy and scipy, for
     the inbox's light checks, it has). Taichi loads when the daemon initialises its renderer,
     colour-science at the first colour difference."""
-    code = ("import json, sys, grassd.daemon.runtime.service, grassd.daemon.cli.run; "
+    code = ("import json, sys, grassd.daemon.core.runtime.service, grassd.daemon.cli.run; "
             f"print(json.dumps(sorted({{m.split('.')[0] for m in sys.modules}} & {set(HEAVY)!r})))")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=120)

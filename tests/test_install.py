@@ -198,7 +198,7 @@ def test_installed_tree(installed):
     # the configuration is the package's default
     default = installed.site_packages() / "grassd" / "daemon" / "config" / "default.toml"
     assert installed.config.read_text() == default.read_text() == \
-        (ROOT / "daemon/config/default.toml").read_text()
+        (ROOT / "daemon/core/config/default.toml").read_text()
 
 
 def test_plain_install_has_no_extras_and_carries_the_license(installed):

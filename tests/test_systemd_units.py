@@ -134,7 +134,7 @@ def test_each_group_is_named_for_what_it_grants():
         text = path.read_text()
         assert re.search(rf"{UPLOADERS}.*UPLOADERS|UPLOADERS.*{UPLOADERS}", text), path
         assert re.search(rf"{READERS}.*READERS|READERS.*{READERS}", text, re.S), path
-    from grassd.daemon.runtime.control import GROUP_ENV
+    from grassd.daemon.core.runtime.control import GROUP_ENV
     assert GROUP_ENV == "GRASSD_CONTROL_GROUP"
 
 

@@ -1,7 +1,7 @@
 """``grassd bundles list`` and ``grassd bundles retry``: quarantined bundles.
 
 A bundle whose processing was interrupted ``max_attempts`` times ends in ``rejected/`` as
-"abandoned" (see :mod:`grassd.daemon.store.quarantine`). ``list`` shows them (``grassd status``
+"abandoned" (see :mod:`grassd.daemon.core.store.quarantine`). ``list`` shows them (``grassd status``
 too); ``retry NAME`` puts one back into the inbox with a fresh attempt count, through the
 running daemon's control socket (it does it between two passes of its main loop), or, when no
 daemon runs, itself while holding the state directory's lock.
@@ -13,8 +13,9 @@ import json
 
 import click
 
-from grassd.daemon.cli.run import _CONFIG_HELP, _fmt_time
-from grassd.daemon.safe_text import one_line
+from grassd.daemon.cli.run import _fmt_time
+from grassd.daemon.core.config.settings import CONFIG_OPTION_HELP
+from grassd.daemon.core.safe_text import one_line
 
 
 @click.group("bundles")
@@ -23,17 +24,18 @@ def bundles() -> None:
 
 
 @bundles.command("list")
-@click.option("--config", "config_path", type=click.Path(dir_okay=False), help=_CONFIG_HELP)
+@click.option("--config", "config_path", type=click.Path(dir_okay=False),
+              help=CONFIG_OPTION_HELP)
 @click.option("--state-dir", type=click.Path(file_okay=False), help="override the state directory")
 @click.option("--json", "as_json", is_flag=True, help="print JSON")
 def list_cmd(config_path: str | None, state_dir: str | None, as_json: bool) -> None:
     """Quarantined bundles: id, upload name, attempts, since when (read from the state
     database; works with or without a running daemon)."""
-    from grassd.daemon.cli.state_owner import config_as_state_owner
-    from grassd.daemon.errors import HistoryError
-    from grassd.daemon.store.history import History
-    from grassd.daemon.store.layout import StateLayout
-    from grassd.daemon.store.quarantine import quarantined
+    from grassd.daemon.core.errors import HistoryError
+    from grassd.daemon.core.runtime.state_owner import config_as_state_owner
+    from grassd.daemon.core.store.history import History
+    from grassd.daemon.core.store.layout import StateLayout
+    from grassd.daemon.core.store.quarantine import quarantined
 
     cfg = config_as_state_owner(config_path, state_dir, "bundles list")
     db = StateLayout(cfg.state_dir).db
@@ -53,18 +55,19 @@ def list_cmd(config_path: str | None, state_dir: str | None, as_json: bool) -> N
 
 @bundles.command("retry")
 @click.argument("bundle")
-@click.option("--config", "config_path", type=click.Path(dir_okay=False), help=_CONFIG_HELP)
+@click.option("--config", "config_path", type=click.Path(dir_okay=False),
+              help=CONFIG_OPTION_HELP)
 @click.option("--state-dir", type=click.Path(file_okay=False), help="override the state directory")
 def retry_cmd(bundle: str, config_path: str | None, state_dir: str | None) -> None:
     """Put quarantined BUNDLE (its id, or its upload name) back into the inbox to run again."""
-    from grassd.daemon.cli.state_owner import config_as_state_owner
-    from grassd.daemon.errors import DaemonNotRunning
-    from grassd.daemon.runtime.control import request
-    from grassd.daemon.runtime.statelock import StateLock
-    from grassd.daemon.store.history import History
-    from grassd.daemon.store.ingest import Inbox
-    from grassd.daemon.store.layout import StateLayout
-    from grassd.daemon.store.quarantine import BundleRetryError, retry_request
+    from grassd.daemon.core.errors import DaemonNotRunning
+    from grassd.daemon.core.runtime.control import request
+    from grassd.daemon.core.runtime.state_owner import config_as_state_owner
+    from grassd.daemon.core.runtime.statelock import StateLock
+    from grassd.daemon.core.store.history import History
+    from grassd.daemon.core.store.ingest import Inbox
+    from grassd.daemon.core.store.layout import StateLayout
+    from grassd.daemon.core.store.quarantine import BundleRetryError, retry_request
 
     cfg = config_as_state_owner(config_path, state_dir, "bundles retry")
     try:

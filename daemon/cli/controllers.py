@@ -26,7 +26,7 @@ from pathlib import Path
 
 import click
 
-from grassd.daemon.runtime.statelock import StateLock
+from grassd.daemon.core.runtime.statelock import StateLock
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.errors import ControllerTimeout, ProtocolError, PushFailed
 from grassd.firmware_proto.framing import MAX_ADDRESS, MIN_ADDRESS
@@ -87,7 +87,7 @@ def _bus_free(config_path: str | None, state_dir: str | None, command: str,
     (:meth:`StateLock.shared`, kept until the block ends so that a daemon starting meanwhile
     waits) or the daemon holding it does not own ``port``; else StateDirLocked, one line
     saying to use ``instead`` or stop the daemon."""
-    from grassd.daemon.cli.state_owner import config_as_state_owner
+    from grassd.daemon.core.runtime.state_owner import config_as_state_owner
 
     cfg = config_as_state_owner(config_path, state_dir, f"controllers {command}")
 

@@ -22,10 +22,10 @@ from pathlib import Path
 from typing import Any
 
 from grassd.daemon.cli.run import print_status
-from grassd.daemon.config.settings import default_config_text
-from grassd.daemon.errors import ControlError, DaemonError, DaemonNotRunning
-from grassd.daemon.monitoring.status_types import Status
-from grassd.daemon.runtime.control import request
+from grassd.daemon.core.config.settings import default_config_text
+from grassd.daemon.core.errors import ControlError, DaemonError, DaemonNotRunning
+from grassd.daemon.core.monitoring.status_types import Status
+from grassd.daemon.core.runtime.control import request
 from grassd.rigs import FIRMWARE_BACKENDS
 
 #: The demo's capture station: one capture at start (the next an hour later).
@@ -143,8 +143,8 @@ def _show_content(sock: Path, work: Path, echo: Callable[[str], Any],
                   page: str | None = None) -> None:
     """Play the demo's animation through the daemon (as ``grassd show`` does), say what
     the display shows meanwhile and whether the status ``page`` holds its picture."""
-    from grassd.daemon.config.settings import load_default_config
     from grassd.daemon.content.status import content_line
+    from grassd.daemon.core.config.settings import load_default_config
 
     d = load_default_config().display
     wave = write_wave(work / "wave.gif", d.rows, d.cols)

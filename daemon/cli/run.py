@@ -9,24 +9,23 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from grassd.daemon.config.settings import (
+from grassd.daemon.core.config.settings import (
+    CONFIG_OPTION_HELP,
     DEFAULT_CONFIG_PATH,
-    Config,
     not_used_by_the_daemon,
     resolve_config,
 )
-from grassd.daemon.safe_text import one_line
+from grassd.daemon.core.safe_text import one_line
 from grassd.rigs import FIRMWARE_BACKENDS
 
 if TYPE_CHECKING:
-    from grassd.daemon.monitoring.status_types import Status
+    from grassd.daemon.core.monitoring.status_types import Status
 
-_CONFIG_HELP = (f"configuration file (default {DEFAULT_CONFIG_PATH}; "
-                "the embedded default when that is absent)")
 
 
 @click.command("check-config")
-@click.option("--config", "config_path", type=click.Path(dir_okay=False), help=_CONFIG_HELP)
+@click.option("--config", "config_path", type=click.Path(dir_okay=False),
+              help=CONFIG_OPTION_HELP)
 def check_config(config_path: str | None) -> None:
     """Validate the configuration file and print a summary (exit 2 naming key and line if bad)."""
     cfg = resolve_config(config_path)
@@ -69,8 +68,8 @@ def check_config(config_path: str | None) -> None:
                 click.echo(f"  warning: content picture {pic} does not exist (the daemon "
                            "leaves it out until it does and it is reloaded)")
     click.echo(f"  state: {cfg.state_dir}; cache: {cfg.cache_dir}; socket: {cfg.control_socket}")
-    from grassd.daemon.monitoring.textfile import textfile_path
-    from grassd.daemon.store.layout import StateLayout
+    from grassd.daemon.core.monitoring.textfile import textfile_path
+    from grassd.daemon.core.store.layout import StateLayout
 
     click.echo(f"  metrics: {textfile_path(cfg.metrics.textfile, cfg.state_dir)}; status page: "
                f"{StateLayout(cfg.state_dir).status_page}; alerts: {cfg.alerts.command or 'none'}")
@@ -82,46 +81,14 @@ def check_config(config_path: str | None) -> None:
 
 
 def _setup_logging(level: str) -> None:
-    from grassd.daemon.monitoring.journal import setup_logging
+    from grassd.daemon.core.monitoring.journal import setup_logging
 
     setup_logging(level)  # journald priorities and fields under systemd
 
 
-def _simulated(cfg: Config, lux: float, firmware: str = FIRMWARE_BACKENDS[0]):
-    """Start simulated controllers running ``firmware`` (model, posix or qemu) + lux sensor;
-    returns (hardware, new cfg, transform). Metrics then always go to the state directory
-    (never to a real node_exporter's)."""
-    import dataclasses
-
-    from grassd.daemon.config.settings import MetricsConfig
-    from grassd.daemon.hardware.simulated import SimulatedHardware
-    from grassd.daemon.monitoring.textfile import state_dir_textfile
-
-    hw = SimulatedHardware(cfg, cfg.state_dir / "simhw", lux=lux, firmware=firmware)
-    new = hw.start()
-    camera = None
-    if cfg.capture is not None:  # [capture]: a simulated OSC camera photographing the site
-        from grassd.daemon.hardware.simulated_camera import start_site_camera
-
-        camera = start_site_camera(hw)
-
-    def transform(c: Config) -> Config:
-        ctrls = tuple(dataclasses.replace(x, port=hw.ports.get(x.port, x.port))
-                      for x in c.controllers)
-        light = c.light
-        if light.modbus is not None and hw.sensor is not None:
-            light = dataclasses.replace(light, modbus=hw.sensor.config)
-        cap = c.capture
-        if cap is not None and camera is not None:
-            cap = dataclasses.replace(cap, camera=camera.url, username="", password="")
-        return dataclasses.replace(c, controllers=ctrls, light=light, capture=cap,
-                                   metrics=MetricsConfig(state_dir_textfile(c.state_dir)))
-
-    return hw, transform(new), transform
-
-
 @click.command("run")
-@click.option("--config", "config_path", type=click.Path(dir_okay=False), help=_CONFIG_HELP)
+@click.option("--config", "config_path", type=click.Path(dir_okay=False),
+              help=CONFIG_OPTION_HELP)
 @click.option("--state-dir", type=click.Path(file_okay=False),
               help="override the state directory (inbox, database, reports live inside)")
 @click.option("--simulate-hardware", is_flag=True,
@@ -146,8 +113,8 @@ def run_cmd(config_path: str | None, state_dir: str | None, simulate_hardware: b
             sim_lux: float, sim_firmware: str, variation_file: str | None, tick_s: float,
             log_level: str) -> None:
     """Run the daemon: watch the inbox, calibrate, push tables, serve the control socket."""
-    from grassd.daemon.cli.state_owner import config_as_state_owner
-    from grassd.daemon.runtime.service import Service
+    from grassd.daemon.core.runtime.service import Service
+    from grassd.daemon.core.runtime.state_owner import config_as_state_owner
 
     _setup_logging(log_level)
     cfg = config_as_state_owner(config_path, state_dir, "run")
@@ -155,9 +122,11 @@ def run_cmd(config_path: str | None, state_dir: str | None, simulate_hardware: b
         raise click.UsageError("--sim-display-variation needs --simulate-hardware")
     hw, transform, camera = None, None, None
     if simulate_hardware:
-        hw, cfg, transform = _simulated(cfg, sim_lux, sim_firmware)
+        from grassd.rigs.simulated_site import start_simulated_site
+
+        hw, cfg, transform = start_simulated_site(cfg, sim_lux, sim_firmware)
         if variation_file or cfg.measure is not None:  # the display's measuring camera
-            from grassd.daemon.cli.measure import measuring_site
+            from grassd.daemon.measure.cli import measuring_site
 
             cfg, transform, camera = measuring_site(hw, cfg, transform, variation_file,
                                                     sim_lux)
@@ -192,7 +161,7 @@ def _fmt_time(t: float | None) -> str:
 
 
 def print_status(st: Status, echo: Callable[[str], Any] = click.echo) -> None:
-    """Print a status (:func:`grassd.daemon.runtime.status.collect_status`, or the control
+    """Print a status (:func:`grassd.daemon.core.runtime.status.collect_status`, or the control
     socket's answer read back by :meth:`Status.from_json`) as ``grassd status`` shows it, one
     line at a time through ``echo``."""
     live = st.daemon
@@ -242,7 +211,7 @@ def print_status(st: Status, echo: Callable[[str], Any] = click.echo) -> None:
             err += f"; {b.failures} failed push(es), next attempt in {b.retry_in_s:.0f} s"
         echo(f"  {c.name}: table {tid}, {c.state}{err}")
     if live and live.lines:
-        from grassd.daemon.monitoring.line_report import describe_line
+        from grassd.daemon.core.monitoring.line_report import describe_line
 
         echo("serial lines:")
         for port, q in live.lines.items():
@@ -261,20 +230,21 @@ def print_status(st: Status, echo: Callable[[str], Any] = click.echo) -> None:
 
 
 @click.command("status")
-@click.option("--config", "config_path", type=click.Path(dir_okay=False), help=_CONFIG_HELP)
+@click.option("--config", "config_path", type=click.Path(dir_okay=False),
+              help=CONFIG_OPTION_HELP)
 @click.option("--state-dir", type=click.Path(file_okay=False), help="override the state directory")
 @click.option("--json", "as_json", is_flag=True, help="print JSON")
 def status_cmd(config_path: str | None, state_dir: str | None, as_json: bool) -> None:
     """Last runs, each controller's active table, and health (asks the daemon if it runs)."""
     import json
 
-    from grassd.daemon.cli.state_owner import config_as_state_owner
-    from grassd.daemon.errors import DaemonNotRunning, HistoryError
-    from grassd.daemon.monitoring.status_types import Status
-    from grassd.daemon.runtime.control import request
-    from grassd.daemon.runtime.status import collect_status
-    from grassd.daemon.store.history import History
-    from grassd.daemon.store.layout import StateLayout
+    from grassd.daemon.core.errors import DaemonNotRunning, HistoryError
+    from grassd.daemon.core.monitoring.status_types import Status
+    from grassd.daemon.core.runtime.control import request
+    from grassd.daemon.core.runtime.state_owner import config_as_state_owner
+    from grassd.daemon.core.runtime.status import collect_status
+    from grassd.daemon.core.store.history import History
+    from grassd.daemon.core.store.layout import StateLayout
 
     cfg = config_as_state_owner(config_path, state_dir, "status")
     try:
@@ -299,7 +269,8 @@ def status_cmd(config_path: str | None, state_dir: str | None, as_json: bool) ->
 
 
 @click.command("history")
-@click.option("--config", "config_path", type=click.Path(dir_okay=False), help=_CONFIG_HELP)
+@click.option("--config", "config_path", type=click.Path(dir_okay=False),
+              help=CONFIG_OPTION_HELP)
 @click.option("--state-dir", type=click.Path(file_okay=False), help="override the state directory")
 @click.option("-n", "limit", type=int, default=20, show_default=True, help="runs to show")
 @click.option("--json", "as_json", is_flag=True, help="print JSON (with tables and pushes)")
@@ -309,10 +280,10 @@ def history_cmd(config_path: str | None, state_dir: str | None, limit: int,
     import dataclasses
     import json
 
-    from grassd.daemon.cli.state_owner import config_as_state_owner
-    from grassd.daemon.errors import HistoryError
-    from grassd.daemon.store.history import History
-    from grassd.daemon.store.layout import StateLayout
+    from grassd.daemon.core.errors import HistoryError
+    from grassd.daemon.core.runtime.state_owner import config_as_state_owner
+    from grassd.daemon.core.store.history import History
+    from grassd.daemon.core.store.layout import StateLayout
 
     cfg = config_as_state_owner(config_path, state_dir, "history")
     db = StateLayout(cfg.state_dir).db
@@ -349,7 +320,8 @@ def history_cmd(config_path: str | None, state_dir: str | None, limit: int,
 @click.option("--force", is_flag=True, help="accept a table that jumps far from the last one")
 @click.option("--json", "json_out", type=click.Path(dir_okay=False, allow_dash=True),
               help="write the run's result as JSON to this file ('-' = stdout)")
-@click.option("--config", "config_path", type=click.Path(dir_okay=False), help=_CONFIG_HELP)
+@click.option("--config", "config_path", type=click.Path(dir_okay=False),
+              help=CONFIG_OPTION_HELP)
 @click.option("--state-dir", type=click.Path(file_okay=False), help="override the state directory")
 @click.option("--simulate-hardware", is_flag=True,
               help="one-shot only: use simulated controllers and lux sensor")
@@ -365,16 +337,16 @@ def calibrate_cmd(now: bool, wait: bool, force: bool, json_out: str | None,
     """Ask the running daemon for a calibration, or run one here when no daemon runs."""
     import json
 
-    from grassd.daemon.cli.state_owner import config_as_state_owner
-    from grassd.daemon.errors import CalibrationRejected, DaemonNotRunning
-    from grassd.daemon.runtime.control import request
-    from grassd.daemon.store.atomic import atomic_write_json
+    from grassd.daemon.core.errors import CalibrationRejected, DaemonNotRunning
+    from grassd.daemon.core.runtime.control import request
+    from grassd.daemon.core.runtime.state_owner import config_as_state_owner
+    from grassd.daemon.core.store.atomic import atomic_write_json
 
     cfg = config_as_state_owner(config_path, state_dir, "calibrate")
     if scheduler is not None:
         import dataclasses
 
-        from grassd.daemon.config.compute import scheduler_address_problem, security_problem
+        from grassd.daemon.compute.config import scheduler_address_problem, security_problem
 
         if (problem := scheduler_address_problem(scheduler)) is not None:
             raise click.BadParameter(problem, param_hint="--scheduler")
@@ -391,12 +363,14 @@ def calibrate_cmd(now: bool, wait: bool, force: bool, json_out: str | None,
             click.echo("grassd: note: the running daemon computes with its own [compute] "
                        "scheduler; --scheduler applies to one-shot runs only", err=True)
     except DaemonNotRunning:
-        from grassd.daemon.runtime.service import Service
+        from grassd.daemon.core.runtime.service import Service
 
         _setup_logging("warning")
         hw = None
         if simulate_hardware:
-            hw, cfg, _ = _simulated(cfg, 5000.0)
+            from grassd.rigs.simulated_site import start_simulated_site
+
+            hw, cfg, _ = start_simulated_site(cfg, 5000.0)
         try:
             svc = Service(cfg)
             try:

@@ -5,8 +5,8 @@ frame), :mod:`.receiver` (the UDP receivers), :mod:`.pixel_order` (channels onto
 :mod:`.pictures` (files and animations), :mod:`.colour_map` (a picture's colours to levels
 through the calibration), :mod:`.player` (the sources' priority and the frames at ``fps``),
 :mod:`.sink` (the seam to the controllers' frame output), :mod:`.status` (what status
-shows). The feature joins the service through :mod:`.feature`. Its ``[content]`` section is
-:mod:`grassd.daemon.config.content` and ``grassd show`` is :mod:`grassd.daemon.cli.show`:
-the feature imports the configuration and is imported by the CLI, never the other way round
-(the daemon's subpackages import each other one way).
+shows), :mod:`.frames` (the newest frame staged on every controller and shown together by a
+broadcast SHOW), :mod:`.shown` and :mod:`.display_picture` (the display as its controllers
+report it, for the status page), :mod:`.config` (``[content]``) and :mod:`.cli`
+(``grassd show``). The feature joins the service through :mod:`.feature`.
 """

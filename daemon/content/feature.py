@@ -29,13 +29,13 @@ from typing import Any
 
 import numpy as np
 
-from grassd.daemon.config.settings import Config
 from grassd.daemon.content.colour_map import REFERENCE_VIEWPOINT, DisplayColours
 from grassd.daemon.content.pictures import load_animation
 from grassd.daemon.content.player import MAX_REQUEST_S, ContentPlayer
 from grassd.daemon.content.sink import ClosableSink, FrameSink, StatsSink
 from grassd.daemon.content.status import ContentStatus
-from grassd.daemon.store.layout import report_stem
+from grassd.daemon.core.config.settings import Config
+from grassd.daemon.core.store.layout import report_stem
 
 log = logging.getLogger(__name__)
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from grassd.daemon.config.content import UNIVERSE_CHANNELS
+from grassd.daemon.content.config import UNIVERSE_CHANNELS
 from grassd.daemon.content.packets import DmxPacket
 from grassd.daemon.content.pixel_order import universe_slices
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-from grassd.daemon.errors import DaemonError
+from grassd.daemon.core.errors import DaemonError
 
 #: the largest E1.31 data packet (126 header bytes + 512 slots) and ArtDmx (18 + 512)
 E131_MAX = 638

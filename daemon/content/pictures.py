@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from grassd.daemon.errors import DaemonError
+from grassd.daemon.core.errors import DaemonError
 
 #: the most frames an animation may have
 MAX_FRAMES = 10_000

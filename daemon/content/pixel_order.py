@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from grassd.daemon.config.content import UNIVERSE_CHANNELS
+from grassd.daemon.content.config import UNIVERSE_CHANNELS
 
 
 def stream_to_display(rows: int, cols: int, order: str = "rows", serpentine: bool = False,

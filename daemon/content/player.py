@@ -30,8 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from grassd.daemon.config.content import ContentConfig, PlaylistEntry
 from grassd.daemon.content.colour_map import DisplayColours
+from grassd.daemon.content.config import ContentConfig, PlaylistEntry
 from grassd.daemon.content.library import PictureLibrary
 from grassd.daemon.content.mapping import MappedAnimation
 from grassd.daemon.content.merge import LiveMerger

@@ -29,7 +29,7 @@ from grassd.daemon.content.packets import (
     decode_artdmx,
     decode_e131,
 )
-from grassd.daemon.errors import DaemonError
+from grassd.daemon.core.errors import DaemonError
 
 log = logging.getLogger(__name__)
 

@@ -97,7 +97,7 @@ def read_shown(fleet, controllers: Sequence, rows: int, cols: int, *,
     place them on the ``rows`` x ``cols`` display by each controller's ``pixels`` ranges.
     A controller whose request fails (no answer, port gone, a refusal) is listed as missing;
     ``default_max_um`` [um] is the scale when none answers."""
-    from grassd.daemon.calibration.display_model import controller_pixels
+    from grassd.daemon.core.calibration.display_model import controller_pixels
 
     n = rows * cols
     out = np.full((n, 2), np.nan)

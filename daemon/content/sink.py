@@ -1,7 +1,7 @@
 """Where the content's frames go: the seam with the wire side.
 
 The player hands every frame to a :class:`FrameSink`; in the daemon that is the fleet's frame
-output (:mod:`grassd.daemon.hardware.frames`), which sends SET_LEVEL to every controller and
+output (:mod:`grassd.daemon.content.frames`), which sends SET_LEVEL to every controller and
 latches them together. The content feature only needs these calls, so it is written and
 tested against this protocol (a test captures the frames it is offered).
 """

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from grassd.daemon.errors import DaemonError
+from grassd.daemon.core.errors import DaemonError
 
 log = logging.getLogger(__name__)
 
@@ -186,9 +186,10 @@ def develop_shot(shot: Shot, setup: MeasureSetup, lux: float) -> NDArray[np.floa
 
 
 class MeasuringCamera:
-    """Shots from an OSC camera (:class:`~grassd.daemon.hardware.camera.OscClient`) in RAW+
+    """Shots from an OSC camera (:class:`~grassd.daemon.core.hardware.camera.OscClient`) in RAW+
     at a fixed ISO into ``dest``; the exposure is metered by the camera for each shot and read
-    back as the capture station reads it (:func:`~grassd.daemon.hardware.bracket.real_exposure`)."""
+    back as the capture station reads it
+    (:func:`~grassd.daemon.core.hardware.bracket.real_exposure`)."""
 
     def __init__(self, client: Any, dest: Path, iso: int) -> None:
         self.client, self.dest, self.iso = client, dest, iso
@@ -211,7 +212,7 @@ class MeasuringCamera:
         """Take one shot named ``name`` (file stem); returns its DNG and exposure. ``ev``:
         0 lets the camera meter (ISO priority); otherwise the shutter is set ``ev`` stops from
         the last metered one (manual exposure), e.g. -2 for a scene the meter overexposes."""
-        from grassd.daemon.hardware.bracket import SHUTTER_SPEEDS_S, BracketPlan, real_exposure
+        from grassd.daemon.core.hardware.bracket import SHUTTER_SPEEDS_S, BracketPlan, real_exposure
 
         self.dest.mkdir(parents=True, exist_ok=True)
         self.prepare()

@@ -13,7 +13,7 @@ than "before". So:
   display (it is located from their difference); when they do not, nothing else is judged.
 * **The measurement's own noise** (:func:`photo_noise`): the repeat's two photos differ by the
   camera's noise; the model's own spread (the tuft layouts it averages, ``layout_sd``, or
-  :data:`~grassd.daemon.calibration.pixel_model.PHOTO_LAB_SD` without it) is added in
+  :data:`~grassd.daemon.measure.pixel_model.PHOTO_LAB_SD` without it) is added in
   quadrature: ``noise_lab``. Two photos of the repeat that disagree by more than
   :data:`MAX_PHOTO_NOISE_LAB` leave nothing to judge by (and the limits take in no more than
   that: noisy photos cannot widen them).
@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from grassd.daemon.errors import DaemonError
+from grassd.daemon.core.errors import DaemonError
 
 #: The fit's median per-pixel residual may be this many times the measurement's noise.
 RESIDUAL_FACTOR: float = 4.0
@@ -175,8 +175,8 @@ def photo_noise(first: NDArray, second: NDArray) -> float:
 def model_noise(model: Any, commanded_mm: NDArray) -> float:
     """Spread (rms Lab) of the model pixel's colour over the tuft layouts it averages, at the
     photographed ``commanded_mm`` (N, K); without layouts (one recorded) the photo floor
-    :data:`~grassd.daemon.calibration.pixel_model.PHOTO_LAB_SD`."""
-    from grassd.daemon.calibration.pixel_model import PHOTO_LAB_SD
+    :data:`~grassd.daemon.measure.pixel_model.PHOTO_LAB_SD`."""
+    from grassd.daemon.measure.pixel_model import PHOTO_LAB_SD
 
     sd = getattr(model, "layout_sd", None)
     if sd is None:
@@ -189,8 +189,8 @@ def model_noise(model: Any, commanded_mm: NDArray) -> float:
 
 def at_bound(variation: Any) -> NDArray[np.bool_]:
     """(N,) pixels whose fitted offset or a gain lies within :data:`BOUND_MARGIN` of its
-    bound (:data:`~grassd.daemon.calibration.variation.OFFSET_LIMIT_MM`, ``GAIN_RANGE``)."""
-    from grassd.daemon.calibration.variation import GAIN_RANGE, OFFSET_LIMIT_MM
+    bound (:data:`~grassd.daemon.core.calibration.variation.OFFSET_LIMIT_MM`, ``GAIN_RANGE``)."""
+    from grassd.daemon.core.calibration.variation import GAIN_RANGE, OFFSET_LIMIT_MM
 
     lo, hi = GAIN_RANGE
     off = np.abs(variation.length_offset_mm) >= OFFSET_LIMIT_MM * (1.0 - BOUND_MARGIN)

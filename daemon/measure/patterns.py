@@ -1,12 +1,12 @@
 """Test patterns on the display's controllers: every pixel at a raw length, then content again.
 
-A :class:`PatternSession` drives the controllers of a :class:`~grassd.daemon.hardware.fleet.Fleet`
-through the protocol's PATTERN / PATTERN_END messages (PROTOCOL.md): each pixel goes to the
-length asked, bypassing the active table, until the session ends. Leaving the session, however
-that happens (an error, a stop request, ^C), sends PATTERN_END to every controller; and a
-controller whose host died on the way returns to content by itself when its watchdog
-(``timeout_s``, re-armed by every pattern) runs out. A controller in pattern mode loses it on a
-power cut: it boots showing content.
+A :class:`PatternSession` drives the controllers of a
+:class:`~grassd.daemon.core.hardware.fleet.Fleet` through the protocol's PATTERN / PATTERN_END
+messages (PROTOCOL.md): each pixel goes to the length asked, bypassing the active table, until the
+session ends. Leaving the session, however that happens (an error, a stop request, ^C), sends
+PATTERN_END to every controller; and a controller whose host died on the way returns to content by
+itself when its watchdog (``timeout_s``, re-armed by every pattern) runs out. A controller in
+pattern mode loses it on a power cut: it boots showing content.
 
 A pattern is only taken as shown once every pixel's motor target equals the length asked and its
 position is within ``tolerance_um`` of it (GET_POSITIONS), before and after each photo: a
@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from grassd.daemon.errors import DaemonError
+from grassd.daemon.core.errors import DaemonError
 
 log = logging.getLogger(__name__)
 
@@ -48,7 +48,7 @@ class PatternSession:
     def __init__(self, fleet: Any, controllers: Sequence[Any], n_pixels: int, *,
                  timeout_s: float, settle_s: float, tolerance_um: int = 150,
                  stop: Callable[[], bool] | None = None) -> None:
-        from grassd.daemon.calibration.display_model import controller_pixels
+        from grassd.daemon.core.calibration.display_model import controller_pixels
 
         self.fleet, self.controllers = fleet, tuple(controllers)
         self.pixels = controller_pixels(self.controllers, n_pixels)

@@ -1,7 +1,7 @@
 """One measurement of the display, from test patterns to a verdict (``grassd measure``).
 
 1. **The tables without correction**: a calibration run for the light now, as any run, but with
-   no display correction (:meth:`Calibrator.run <grassd.daemon.calibration.calibrate.Calibrator
+   no display correction (:meth:`Calibrator.run <grassd.daemon.core.calibration.calibrate.Calibrator
    .run>`, ``correction=None``).
 2. **Photos under test patterns** (:class:`~grassd.daemon.measure.patterns.PatternSession`):
    every pixel at its shortest and longest grass (the difference finds the display), at
@@ -15,11 +15,11 @@
    known size (:mod:`grassd.calib.display_in_photo`); that pose is the viewpoint the photos stand
    for. Each pixel's mean colour through the camera's chain
    (:mod:`grassd.daemon.measure.camera_chain`) to CIELAB.
-4. **Each pixel's departure** (:func:`~grassd.daemon.calibration.pixel_model.fit_variation`):
+4. **Each pixel's departure** (:func:`~grassd.daemon.measure.pixel_model.fit_variation`):
    length offset, green and yellow gain, fitted to its colours against the model pixel recorded
    at its own viewpoint from the camera.
 5. **The correction** carried to the configured viewers
-   (:func:`~grassd.daemon.calibration.pixel_model.corrected_commands`) and the tables with it.
+   (:func:`~grassd.daemon.measure.pixel_model.corrected_commands`) and the tables with it.
 6. **Verification**: the corrected tables' levels shown as patterns again and photographed
    (uniformity after).
 7. Patterns end: the display shows content again, whatever happened before. Only a measurement
@@ -58,7 +58,7 @@ import numpy as np
 from colour import delta_E
 from numpy.typing import NDArray
 
-from grassd.daemon.errors import DaemonError, RunInterrupted
+from grassd.daemon.core.errors import DaemonError, RunInterrupted
 from grassd.daemon.measure.evidence import Finding, PhotosRefused, Refusal
 
 log = logging.getLogger(__name__)
@@ -123,7 +123,7 @@ def pattern_lengths(count: int, green_max_mm: float) -> NDArray[np.float64]:
 
 def level_lengths_mm(cfg: Any, result: Any, n_pixels: int, level: int) -> NDArray[np.float64]:
     """(N,) length (mm) every display pixel shows at ``level`` through ``result``'s tables."""
-    from grassd.daemon.calibration.display_model import controller_pixels
+    from grassd.daemon.core.calibration.display_model import controller_pixels
 
     out = np.full(n_pixels, float(result.table_um[level]) / 1000.0)
     for c, pix in zip(cfg.controllers, controller_pixels(cfg.controllers, n_pixels),
@@ -318,20 +318,20 @@ def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Any], photos: Photo
     from grassd.calib.colour_spaces import prophoto_to_lab
     from grassd.calib.display_in_photo import locate_display, pixel_means
     from grassd.calib.errors import GeometryError
-    from grassd.daemon.calibration.correction import DisplayCorrection
-    from grassd.daemon.calibration.display_model import (
+    from grassd.daemon.core.calibration.correction import DisplayCorrection
+    from grassd.daemon.core.calibration.display_model import (
         capacity_for,
         display_spec_for_config,
         geometry_from_eye,
     )
-    from grassd.daemon.calibration.pixel_model import (
+    from grassd.daemon.measure.camera_chain import develop_shot
+    from grassd.daemon.measure.evidence import judge, model_noise
+    from grassd.daemon.measure.pixel_model import (
         corrected_commands,
         fit_variation,
         lab_of,
         record_pixel_model,
     )
-    from grassd.daemon.measure.camera_chain import develop_shot
-    from grassd.daemon.measure.evidence import judge, model_noise
     from grassd.sim.renderer import Renderer
     from grassd.sim.scene import RenderSettings
 
@@ -419,8 +419,8 @@ def _verify(found: dict[str, Any], names: list[str], after: NDArray, commanded_m
     from dataclasses import replace as dc_replace
 
     from grassd.calib.colour_spaces import prophoto_to_lab
-    from grassd.daemon.calibration.pixel_model import lab_of
     from grassd.daemon.measure.evidence import verify
+    from grassd.daemon.measure.pixel_model import lab_of
 
     fit, model, ccm = found["fit"], found["camera_model"], found["ccm"]
     predicted = lab_of(model.rgb(commanded_mm, fit.variation), fit.colour @ ccm)
@@ -442,7 +442,7 @@ def normalised_lab(rgb: NDArray, model: Any, nominal_mm: NDArray, ccm: NDArray
     viewing geometry divided out: rgb / (model pixel at its own viewpoint and ``nominal_mm``
     (N,)) x the display's mean of that model colour (module docstring)."""
     from grassd.calib.colour_spaces import prophoto_to_lab, rec709_to_prophoto
-    from grassd.daemon.calibration.variation import DisplayVariation
+    from grassd.daemon.core.calibration.variation import DisplayVariation
 
     none = DisplayVariation.none(model.n_pixels)
     own = np.asarray(nominal_mm, dtype=np.float64)[:, None]  # each pixel at its own length
@@ -470,10 +470,10 @@ def _report(ctx: MeasureContext, mid: str, started: datetime, found: dict[str, A
             nominal: Any, photos: Photos, after: NDArray, lengths: NDArray, n: int
             ) -> dict[str, Any]:
     """The measurement's report (JSON-ready; written by
-    :mod:`grassd.daemon.monitoring.measurement_report`)."""
+    :mod:`grassd.daemon.measure.report`)."""
     from grassd.calib.ogcd import ogcd_from_lab
-    from grassd.daemon.calibration.pixel_model import lab_of
-    from grassd.daemon.calibration.variation import DisplayVariation
+    from grassd.daemon.core.calibration.variation import DisplayVariation
+    from grassd.daemon.measure.pixel_model import lab_of
 
     mc = ctx.cfg.measure
     fit, model, ccm = found["fit"], found["camera_model"], found["ccm"]

@@ -65,8 +65,8 @@ from numpy.typing import NDArray
 from grassd.calib.charts import get_chart
 from grassd.calib.colour_spaces import prophoto_to_lab, rec709_to_prophoto
 from grassd.calib.ogcd import ogcd_from_samples
-from grassd.daemon.calibration.simulation import layout_seed
-from grassd.daemon.config.fit import FitSettings
+from grassd.daemon.core.calibration.simulation import layout_seed
+from grassd.daemon.offline.fit_config import FitSettings
 from grassd.daemon.offline.validate import (
     CaptureManifest,
     RealCapture,
@@ -239,7 +239,7 @@ class _Model:
     def __init__(self, renderer: Any, lighting: Any, manifest: CaptureManifest,
                  ccm: NDArray[np.float64], start: Any, settings: FitSettings,
                  glossy: bool) -> None:
-        from grassd.daemon.calibration.simulation import white_radiance
+        from grassd.daemon.core.calibration.simulation import white_radiance
 
         self.renderer, self.lighting, self.manifest = renderer, lighting, manifest
         self.ccm, self.start, self.settings, self.glossy = ccm, start, settings, glossy

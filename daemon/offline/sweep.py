@@ -3,10 +3,10 @@
 A sweep crosses HDRIs x times of day x viewpoints x pixel specs (:class:`Condition`) under one set
 of shared settings (:class:`SweepSpec`). Each condition is one task: build the light, trace the
 display's centre pixel (neighbours present) from the viewpoint with
-:func:`grassd.daemon.calibration.simulation.simulate_curve`, derive the OGCD range, the linearity of
-OGCD vs length (R^2) and the R^2 after an 8-bit table. Results go to one tidy SQLite table as they
-arrive (one transaction per task), so a sweep stopped at any point resumes from its partial output:
-finished tasks are skipped (:func:`run_sweep`).
+:func:`grassd.daemon.core.calibration.simulation.simulate_curve`, derive the OGCD range, the
+linearity of OGCD vs length (R^2) and the R^2 after an 8-bit table. Results go to one tidy SQLite
+table as they arrive (one transaction per task), so a sweep stopped at any point resumes from its
+partial output: finished tasks are skipped (:func:`run_sweep`).
 
 Light for a time of day (site latitude/longitude, date, IANA time zone): the sun's position by
 NREL SPA (:func:`grassd.sim.sun.sun_position`); the clear-sky global horizontal irradiance by
@@ -27,11 +27,11 @@ Executors: ``workers`` local processes (spawned; each initialises Taichi once, w
 files): each Dask worker process initialises Taichi on its first task and keeps it
 (module-level renderer). A task lost with a killed worker is recomputed by Dask (``retries``
 extra attempts for tasks that raise). The cluster is reached as the daemon reaches it
-(:mod:`grassd.daemon.calibration.dask_client`: mutual TLS, ``tcp://`` only with
+(:mod:`grassd.daemon.compute.dask_client`: mutual TLS, ``tcp://`` only with
 ``allow_insecure``, Dask's msgpack serializer only). A task receives a :class:`SweepJob` (the
 shared settings and its condition; HDRI paths travel as paths: every worker must read them at
 the same path, a shared filesystem) and answers a :class:`ConditionResult` in the declared form
-of :mod:`grassd.daemon.calibration.wire`, checked on arrival (:func:`check_arrival`) before it
+of :mod:`grassd.daemon.compute.wire`, checked on arrival (:func:`check_arrival`) before it
 is stored.
 """
 
@@ -54,18 +54,18 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from grassd.daemon.config.sweep import (
+from grassd.daemon.core.errors import ComputeResultRefused, ComputeUnavailable, DaemonError
+from grassd.daemon.offline.sweep_config import (
     DEFAULT_CONTRAST_THRESHOLD,
     SWEEP_RETRIES,
     SWEEP_WORKERS,
     SweepSpec,
 )
-from grassd.daemon.errors import ComputeResultRefused, ComputeUnavailable, DaemonError
 from grassd.sim.light_input import LightInput
 from grassd.sim.scene import RenderSettings
 
 if TYPE_CHECKING:
-    from grassd.daemon.config.compute import ComputeConfig
+    from grassd.daemon.compute.config import ComputeConfig
 
 SCHEMA_VERSION = 1
 
@@ -264,7 +264,7 @@ def _worker_state(threads: int | None = None) -> dict:
 
 
 def _renderer_for(n_pixels: int):
-    from grassd.daemon.calibration.display_model import capacity_for
+    from grassd.daemon.core.calibration.display_model import capacity_for
     from grassd.sim.renderer import Renderer
 
     _worker_state()  # Taichi first
@@ -288,7 +288,7 @@ class ConditionResult:
     ``max_ogcd_stderr`` [dE00]), where and how long it ran (``seconds`` [s], ``worker``), and
     per length (float64, one entry per length of the sweep): ``length_mm`` [mm], ``ogcd`` and
     ``ogcd_stderr`` [dE00], CIELAB ``L``, ``a``, ``b``. Its fields are the declared form a
-    Dask worker answers in (:mod:`grassd.daemon.calibration.wire`)."""
+    Dask worker answers in (:mod:`grassd.daemon.compute.wire`)."""
 
     key: str
     hdri: str
@@ -336,8 +336,8 @@ class SweepJob:
 def sweep_on_worker(job: SweepJob) -> dict[str, Any]:
     """The Dask task: trace ``job``'s condition (:func:`run_task`) and answer with its
     :class:`ConditionResult`, or with the grassd error it raised, in the declared form of
-    :mod:`grassd.daemon.calibration.wire`. Other errors propagate (Dask retries them)."""
-    from grassd.daemon.calibration.wire import ERROR_BASES, answer_of, error_answer
+    :mod:`grassd.daemon.compute.wire`. Other errors propagate (Dask retries them)."""
+    from grassd.daemon.compute.wire import ERROR_BASES, answer_of, error_answer
 
     try:
         return answer_of(run_task(job.spec, job.condition))
@@ -378,7 +378,7 @@ def run_task(spec: SweepSpec, cond: Condition) -> ConditionResult:
     Deterministic for (spec, cond), but for ``seconds`` and ``worker``."""
     from grassd.calib.errors import CalibError
     from grassd.calib.length_table import build_length_table, r_squared
-    from grassd.daemon.calibration.simulation import simulate_curve
+    from grassd.daemon.core.calibration.simulation import simulate_curve
     from grassd.sim.scene import DisplaySpec, PixelSpec, Viewpoint
 
     t0 = time.perf_counter()
@@ -552,13 +552,13 @@ def run_sweep(spec: SweepSpec, conds: Sequence[Condition], out_dir: str | Path, 
     ``[compute]`` requires (``config_source`` names its file in errors). ``progress(done,
     total)`` after each stored task; ``on_result(row)`` too (tests use it to act mid-sweep).
     Raises :class:`SweepError` when the sweep cannot run or the cluster cannot run it,
-    :class:`~grassd.daemon.errors.ConfigError` for a scheduler not secured as ``[compute]``
-    requires, :class:`~grassd.daemon.errors.ComputeResultRefused` for a worker's answer not
+    :class:`~grassd.daemon.core.errors.ConfigError` for a scheduler not secured as ``[compute]``
+    requires, :class:`~grassd.daemon.core.errors.ComputeResultRefused` for a worker's answer not
     in the declared form (the results stored until then are kept).
     """
     scheduler = None if compute is None else compute.scheduler
     if compute is not None and scheduler is not None:
-        from grassd.daemon.calibration.dask_client import require_secured
+        from grassd.daemon.compute.dask_client import require_secured
 
         require_secured(compute, config_source, "this process")
     check_conditions(spec, conds)
@@ -633,11 +633,11 @@ def _run_local(spec: SweepSpec, todo: Sequence[Condition], workers: int,
 def _run_dask(spec: SweepSpec, todo: Sequence[Condition], compute: ComputeConfig,
               retries: int, stored: Callable[[ConditionResult], None]) -> str:
     """Each condition of ``todo`` as one task (:func:`sweep_on_worker`) on ``compute``'s
-    cluster, reached through :func:`grassd.daemon.calibration.dask_client.connect`; each
+    cluster, reached through :func:`grassd.daemon.compute.dask_client.connect`; each
     answer decoded as a :class:`ConditionResult`, checked (:func:`check_arrival`) and
     ``stored`` as it arrives."""
-    from grassd.daemon.calibration.dask_client import connect, fetch_answer
-    from grassd.daemon.calibration.wire import read_answer
+    from grassd.daemon.compute.dask_client import connect, fetch_answer
+    from grassd.daemon.compute.wire import read_answer
 
     scheduler = str(compute.scheduler)
     try:
@@ -727,7 +727,7 @@ def write_summary(out_dir: str | Path, keys: Sequence[str],
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from grassd.daemon.store.atomic import atomic_save_figure, atomic_write_json
+    from grassd.daemon.core.store.atomic import atomic_save_figure, atomic_write_json
 
     out = Path(out_dir)
     rows = _condition_rows(out / "sweep.sqlite", keys)

@@ -3,7 +3,7 @@
 A *capture directory* holds what a user photographs on site (the paper's real-environment
 process, section 3.4.1) and a manifest ``capture.toml`` describing it. Its light and checker
 keys are those of a light bundle's ``manifest.toml``, with the same checks
-(:mod:`grassd.daemon.config.manifest_fields`); file names are paths, relative to the capture
+(:mod:`grassd.daemon.core.config.manifest_fields`); file names are paths, relative to the capture
 directory or absolute::
 
     hdri = "env.exr"                      # the panorama taken with the photos (.exr or .hdr)
@@ -72,8 +72,8 @@ from grassd.calib.exposure import GREY_CARD_Y
 from grassd.calib.length_table import LEVELS, build_length_table, r_squared
 from grassd.calib.ogcd import ogcd_from_lab
 from grassd.calib.raw import develop_raw, open_raw
-from grassd.daemon.config import manifest_fields, schema
-from grassd.daemon.errors import DaemonError, LocatedError, ManifestError
+from grassd.daemon.core.config import manifest_fields, schema
+from grassd.daemon.core.errors import DaemonError, LocatedError, ManifestError
 from grassd.sim.light_input import LightInput
 
 log = logging.getLogger(__name__)
@@ -176,7 +176,7 @@ class CaptureManifest:
 
 def manifest_to_toml(m: CaptureManifest) -> str:
     """TOML text of a manifest (paths relative to ``m.root`` where they lie inside it), in the
-    bundle manifest's vocabulary (:mod:`grassd.daemon.config.manifest_fields`)."""
+    bundle manifest's vocabulary (:mod:`grassd.daemon.core.config.manifest_fields`)."""
 
     def rel(p: Path) -> str:
         try:
@@ -219,7 +219,7 @@ OLD_NAMES: dict[tuple[str, ...], dict[str, str]] = {
 
 def _light_fields() -> dict[str, schema.Field]:
     """The schema of capture.toml's light and checker keys: the bundle manifest's
-    (:func:`grassd.daemon.config.manifest_fields.light_fields`; files as paths, the ambient lux
+    (:func:`grassd.daemon.core.config.manifest_fields.light_fields`; files as paths, the ambient lux
     and the checker required) and ``sun_from_hdri``, ``rotation_deg`` (degrees; defaults:
     :class:`LightInput`'s)."""
     F = schema.Field
@@ -273,10 +273,10 @@ def _at_least_3(v: list) -> str | None:
 def _read_toml(path: str | Path) -> tuple[Path, str, dict[str, Any]]:
     """(the manifest's path, its text, its data) of ``capture.toml`` at ``path`` (a file, or a
     directory holding one), read as a bundle's manifest is
-    (:func:`grassd.daemon.store.manifest.read_manifest_text`: a regular file within the
+    (:func:`grassd.daemon.core.store.manifest.read_manifest_text`: a regular file within the
     manifest byte cap, nested at most MAX_MANIFEST_DEPTH deep); CaptureManifestError when it is
     missing, not TOML or beyond a cap."""
-    from grassd.daemon.store.manifest import read_manifest_text
+    from grassd.daemon.core.store.manifest import read_manifest_text
 
     p = Path(path)
     if p.is_dir():
@@ -354,10 +354,10 @@ def load_manifest(path: str | Path) -> CaptureManifest:
     """Parse and check ``capture.toml`` (a file, or a directory holding one).
 
     Its light and checker keys are a bundle manifest's, checked the same way
-    (:mod:`grassd.daemon.config.manifest_fields`); the old names (:data:`OLD_NAMES`) are still
+    (:mod:`grassd.daemon.core.config.manifest_fields`); the old names (:data:`OLD_NAMES`) are still
     read, with a deprecation warning. Raises :class:`CaptureManifestError` (syntax,
     missing/unknown keys, bad values; the message names the key and its line,
-    :mod:`grassd.daemon.config.schema`), :class:`MissingPhotoError` (a listed RAW or the HDRI
+    :mod:`grassd.daemon.core.config.schema`), :class:`MissingPhotoError` (a listed RAW or the HDRI
     does not exist) and :class:`LengthOrderError` (lengths of a series not strictly increasing).
     """
     from grassd.sim.scene import PixelSpec
@@ -686,7 +686,7 @@ def validate_capture(m: CaptureManifest, *, renderer: Any = None, settings: Any 
     ``settings``: :class:`grassd.sim.scene.RenderSettings`; ``lighting``: a prebuilt Lighting of
     ``m.light`` (built here if None).
     """
-    from grassd.daemon.calibration.simulation import simulate_curve
+    from grassd.daemon.core.calibration.simulation import simulate_curve
     from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint
 
     t0 = time.perf_counter()

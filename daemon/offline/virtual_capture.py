@@ -23,6 +23,7 @@ import numpy as np
 from grassd.calib.charts import get_chart
 from grassd.calib.checker_photo import checker_scene
 from grassd.calib.virtual_camera import VirtualCamera
+from grassd.daemon.core.store.atomic import atomic_write_text
 from grassd.daemon.offline.validate import (
     MANIFEST_NAME,
     CaptureManifest,
@@ -31,7 +32,6 @@ from grassd.daemon.offline.validate import (
     default_renderer,
     manifest_to_toml,
 )
-from grassd.daemon.store.atomic import atomic_write_text
 from grassd.sim.light_input import LightInput
 
 
@@ -57,7 +57,7 @@ def capture_world(out_dir: str | Path, light: LightInput,
     section 4.1.1): in trial ``t`` the blades rest differently (``layout_seed + t``) and the
     render and camera noise are new, as when a real pixel's grass is moved out and back in.
     """
-    from grassd.daemon.calibration.simulation import white_radiance
+    from grassd.daemon.core.calibration.simulation import white_radiance
     from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint
 
     out = Path(out_dir)

@@ -16,7 +16,7 @@ from itertools import pairwise
 from typing import Any
 from zoneinfo import ZoneInfo
 
-from grassd.daemon.errors import DaemonError
+from grassd.daemon.core.errors import DaemonError
 
 #: Lengths (mm) the studio's characteristic is simulated at by default: the reference (0) and
 #: every 2 mm up to the longest green length.

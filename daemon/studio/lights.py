@@ -112,8 +112,8 @@ def archived_sources(state_dir: Path, cfg) -> list[LightSource]:
     listed."""
     from zoneinfo import ZoneInfo
 
-    from grassd.daemon.errors import DaemonError
-    from grassd.daemon.store.manifest import load_bundle_manifest
+    from grassd.daemon.core.errors import DaemonError
+    from grassd.daemon.core.store.manifest import load_bundle_manifest
 
     archive = Path(state_dir) / "archive"
     if not archive.is_dir():

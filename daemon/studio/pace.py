@@ -34,7 +34,7 @@ STUDIO_LAUNCH_PATHS: int = 2048
 #: Most camera paths a launch takes in a studio without interrupts, scaled like the replicates
 #: (:func:`studio_pace`: a quarter where the blades splay, whose paths cost 2.3x): a larger
 #: replicate (a low sun's 8192 paths,
-#: :class:`~grassd.daemon.calibration.simulation.LargerReplicates`) goes in launches of a share
+#: :class:`~grassd.daemon.core.calibration.simulation.LargerReplicates`) goes in launches of a share
 #: of its paths (the numbers change by float64 rounding only), and a splayed round in launches
 #: of 4 replicates, so a new input waits for one launch (30-50 ms here), not the round.
 #: Larger launches cost less per path (the last task of a launch leaves a core idle, the

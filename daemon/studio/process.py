@@ -76,7 +76,7 @@ class StudioArgs:
     def build(self, interrupts: Callable[[Check], Interrupt] | None = None) -> Studio:
         """The Studio these arguments describe (``interrupts``: see
         :class:`~grassd.daemon.studio.session.Studio`)."""
-        from grassd.daemon.config.settings import resolve_config
+        from grassd.daemon.core.config.settings import resolve_config
         from grassd.daemon.studio.lights import Lights
         from grassd.daemon.studio.session import Studio
 
@@ -93,7 +93,7 @@ def simulator_main(conn: Connection, args: StudioArgs,
     """The simulator process: build the Studio, warm it up, then run what the server sends.
     ``word``: the ``multiprocessing`` int array (``RawArray("i", 1)``) the server moves with
     every job or cancel; None: launches are not stopped in flight."""
-    from grassd.daemon.calibration.simulation import CurveRun
+    from grassd.daemon.core.calibration.simulation import CurveRun
     from grassd.daemon.studio.superseding import Superseding
     from grassd.daemon.studio.worker import Worker
 

@@ -61,7 +61,7 @@ from urllib.parse import urlsplit
 from aiohttp import WSMsgType, web
 from aiohttp.web_protocol import RequestHandler, _ErrInfo
 
-from grassd.daemon.errors import DaemonError
+from grassd.daemon.core.errors import DaemonError
 from grassd.daemon.studio.cost import check_cost
 from grassd.daemon.studio.inputs import Condition, StudioInputError
 from grassd.daemon.studio.lights import MAX_HDRI_BYTES, LightSource

@@ -12,11 +12,11 @@ here are :mod:`grassd.daemon.studio.pace`'s):
 2. the pixel's first image, :data:`FIRST_IMAGE` (width, paths per image pixel) (about 40 ms),
    or its refined image where one is kept for the condition;
 3. further rounds until every OGCD standard error is at most the target
-   (:func:`~grassd.daemon.calibration.simulation.simulate_curve`'s adaptive rounds of at most
+   (:func:`~grassd.daemon.core.calibration.simulation.simulate_curve`'s adaptive rounds of at most
    :data:`ROUND_REPLICATES`, each sent); where, under a sun, the first paths say the target
    needs many (a low sun's light and shadow on the blades), a new series of larger
    replicates, whose error falls faster per path
-   (:class:`~grassd.daemon.calibration.simulation.LargerReplicates`), sent once it has
+   (:class:`~grassd.daemon.core.calibration.simulation.LargerReplicates`), sent once it has
    :data:`FIRST_REPLICATES`;
 4. the table, the contrast, the display showing the uploaded picture: its colours mapped to
    levels as the daemon maps content (``[content] map`` and ``normalise``, through
@@ -35,7 +35,7 @@ Converged characteristics, audience maps (:data:`KEPT_CURVES`) and images summed
 passes (:data:`KEPT_IMAGES`) are kept, so a condition seen again, B's among them, goes on from
 what it had (pinning sends A again: only its table, contrast and display view are redone). So
 are characteristics a newer input stopped before they converged
-(:class:`~grassd.daemon.calibration.simulation.CurveRun`): the condition's next job shows the
+(:class:`~grassd.daemon.core.calibration.simulation.CurveRun`): the condition's next job shows the
 curve so far at once and goes on from its last complete round.
 
 Every step checks whether a newer request superseded this one. In the simulator process a newer
@@ -78,9 +78,9 @@ from grassd.daemon.studio.pace import (
 from grassd.daemon.studio.worker import Check
 
 if TYPE_CHECKING:
-    from grassd.daemon.calibration.simulation import CurveRun, SimulatedCurve
-    from grassd.daemon.config.content import ContentConfig
     from grassd.daemon.content.colour_map import DisplayColours
+    from grassd.daemon.content.config import ContentConfig
+    from grassd.daemon.core.calibration.simulation import CurveRun, SimulatedCurve
     from grassd.sim.interrupt import Interrupt
     from grassd.sim.renderer import Renderer
 
@@ -139,7 +139,7 @@ def _fit(curve: SimulatedCurve) -> tuple[Any, str | None]:
     is none (a CalibError's message: no monotone fit)."""
     from grassd.calib.characteristic import fit_characteristic
     from grassd.calib.errors import CalibError
-    from grassd.daemon.calibration.display_model import curve_characteristic
+    from grassd.daemon.core.calibration.display_model import curve_characteristic
 
     try:
         return fit_characteristic(curve_characteristic(curve)), None
@@ -163,7 +163,7 @@ class Studio:
                  pixel_source: str = "config", active_um: np.ndarray | None = None,
                  arch: str = "cpu",
                  interrupts: Callable[[Check], Interrupt] | None = None) -> None:
-        from grassd.daemon.calibration.calibrate import Calibrator
+        from grassd.daemon.core.calibration.calibrate import Calibrator
 
         self.cfg = cfg
         self.lights = lights
@@ -265,7 +265,7 @@ class Studio:
     def content(self) -> ContentConfig:
         """The config's ``[content]`` (its defaults where it has none): how a picture's
         colours become levels, as the daemon's content is mapped."""
-        from grassd.daemon.config.content import ContentConfig
+        from grassd.daemon.content.config import ContentConfig
 
         return self.cfg.content or ContentConfig()
 
@@ -344,7 +344,7 @@ class Studio:
         """The lighting of ``cond``, its display and the radiance of a white lying flat under
         that light (linear Rec.709 nits: what the pixel's images are scaled by);
         StudioInputError where the condition's light cannot be (its sun below the horizon)."""
-        from grassd.daemon.calibration.simulation import white_radiance
+        from grassd.daemon.core.calibration.simulation import white_radiance
 
         lighting = self.lights.lighting(cond, self.site)
         return lighting, self._display(cond), white_radiance(lighting)
@@ -382,7 +382,7 @@ class Studio:
         to stop the run: a newer input came in); with :attr:`interrupts`, a newer input also
         stops the launch in flight, and a launch takes a whole round. ``resume``: the run's
         state, to go on from where a newer input stopped it (:class:`CurveRun`)."""
-        from grassd.daemon.calibration.simulation import LargerReplicates, simulate_curve
+        from grassd.daemon.core.calibration.simulation import LargerReplicates, simulate_curve
         from grassd.sim.scene import RenderSettings, Viewpoint
 
         lighting = self.lights.lighting(cond, self.site)
@@ -530,7 +530,7 @@ class Studio:
         """``cond``'s characteristic run to its target, and kept (:data:`KEPT_CURVES`). A run
         that a newer input stops is kept too, and the next job of the condition goes on from
         its last complete round (showing its curve so far at once) instead of starting over."""
-        from grassd.daemon.calibration.simulation import CurveRun
+        from grassd.daemon.core.calibration.simulation import CurveRun
 
         key = _curve_key(cond)
         run = self._runs.pop(key, None) or CurveRun()
@@ -569,7 +569,7 @@ class Studio:
         """The OGCD range from places over the audience region at the eye's height (two
         lengths each: the reference and the longest), as one map's message (None where no
         place of the region is far enough from the display)."""
-        from grassd.daemon.calibration.audience import points_in_polygon
+        from grassd.daemon.core.calibration.audience import points_in_polygon
 
         region = self.region
         lo, hi = region.min(axis=0), region.max(axis=0)

@@ -3,7 +3,7 @@ R^2, the contrast a content designer has left, the pixel's image as a PNG, and t
 showing a picture through the table, drawn from the eye.
 
 Colours shown are the simulation's, normalised as a camera with a fixed white balance sees
-them (:mod:`grassd.daemon.calibration.simulation`: a white card at the display reads 1), then
+them (:mod:`grassd.daemon.core.calibration.simulation`: a white card at the display reads 1), then
 encoded as sRGB (IEC 61966-2-1) for the screen.
 """
 

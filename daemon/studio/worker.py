@@ -18,7 +18,7 @@ page's first curve back.
 A job submitted as ``yields`` (a script's API request) gives way to the others (a page's) at
 once: its check raises :class:`Yielded` while one of them waits, and the job goes back behind
 it, to go on where it stopped (a characteristic keeps its complete rounds,
-:class:`~grassd.daemon.calibration.simulation.CurveRun`). So a script's long request does not
+:class:`~grassd.daemon.core.calibration.simulation.CurveRun`). So a script's long request does not
 hold a page's inputs back; it waits while a page keeps changing. Scripts take turns among
 themselves as pages do.
 """

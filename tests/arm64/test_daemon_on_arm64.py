@@ -31,8 +31,8 @@ from arm64_root import (
 )
 from daemon_harness import CACHE, display_2x2, drop, wait_for
 
-from grassd.daemon.errors import DaemonNotRunning
-from grassd.daemon.runtime.control import request
+from grassd.daemon.core.errors import DaemonNotRunning
+from grassd.daemon.core.runtime.control import request
 
 REASON = missing_reason()
 pytestmark = [pytest.mark.slow, pytest.mark.long, pytest.mark.timeout(3000)]

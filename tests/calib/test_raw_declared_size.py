@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 import tifffile
 
-from bench.peak_memory import refusal_cost
 from grassd.calib import raw as raw_mod
 from grassd.calib.dng import DngCamera, mosaic, write_dng
 from grassd.calib.errors import RawReadError
 from grassd.calib.raw import MAX_RAW_PIXELS, develop_raw, open_raw
 from grassd.calib.raw_bracket import develop_bracket, saturated_texels
+from grassd.rigs.peak_memory import refusal_cost
 
 pytestmark = pytest.mark.timeout(60)
 

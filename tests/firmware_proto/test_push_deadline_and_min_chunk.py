@@ -146,8 +146,8 @@ def test_a_stalling_controller_that_refuses_commits_is_given_up_on_at_the_deadli
 
 
 def test_the_daemons_fleet_reports_the_stalled_push_and_keeps_the_old_table(stalling):
-    from grassd.daemon.config.settings import ControllerConfig
-    from grassd.daemon.hardware.fleet import Fleet
+    from grassd.daemon.core.config.settings import ControllerConfig
+    from grassd.daemon.core.hardware.fleet import Fleet
 
     bus, ctl = stalling
     cfg = ControllerConfig(bus.path, address=1, pixels=((0, N_PIXELS - 1),))

@@ -12,8 +12,8 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from bench.inbox_fuzz import write_zero_exr
-from bench.peak_memory import refusal_cost
+from grassd.rigs.inbox_fuzz import write_zero_exr
+from grassd.rigs.peak_memory import refusal_cost
 from grassd.sim import hdri
 from grassd.sim.errors import HdriError
 

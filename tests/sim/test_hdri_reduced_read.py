@@ -11,9 +11,9 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from bench.hostile_decodes import run_child
-from bench.inbox_fuzz import write_flat_exr, write_zero_exr
-from bench.peak_memory import refusal_cost
+from grassd.rigs.hostile_decodes import run_child
+from grassd.rigs.inbox_fuzz import write_flat_exr, write_zero_exr
+from grassd.rigs.peak_memory import refusal_cost
 from grassd.sim import hdri
 from grassd.sim.errors import HdriError
 

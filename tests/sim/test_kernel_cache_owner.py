@@ -94,7 +94,7 @@ def test_grassd_cache_dir_keeps_working(tmp_path):
 def test_the_default_is_the_users_own_never_the_state_directorys(tmp_path, monkeypatch):
     """Without cache_dir in the file or the environment, a configuration's cache is this
     user's own ($XDG_CACHE_HOME/grassd), wherever its state directory lies."""
-    from grassd.daemon.config.settings import default_config_text, parse_config
+    from grassd.daemon.core.config.settings import default_config_text, parse_config
 
     for var in ("GRASSD_CACHE_DIR", "CACHE_DIRECTORY"):
         monkeypatch.delenv(var, raising=False)

@@ -118,7 +118,7 @@ def test_characteristic_straightens_from_theta_0_to_90_indoors(renderer, shared_
     theta = 0 becomes more linear at theta = 90. Measured as R^2 of a straight-line fit of OGCD
     vs length under the indoor panorama at 2000 lx (0.94-0.96 at 0 deg, 0.98-0.99 at 90 deg
     here; forest, city and studio maps agree; the sunny courtyard does not, 0.943 vs 0.934)."""
-    from grassd.daemon.calibration.simulation import simulate_curve
+    from grassd.daemon.core.calibration.simulation import simulate_curve
 
     lighting = build_lighting(shared_hdri("interior"), ambient_lux=2000)
     lengths = np.arange(0.0, 20.01, 2.0)
@@ -136,7 +136,7 @@ def test_adaptive_replicates_stop_at_the_first_round_meeting_the_target(renderer
     every round but the last misses the target and the last meets it; each batch follows the
     1/sqrt(R) law (at least one replicate, at most doubling the count) and traces only the
     reference and the lengths still above the target, with what the neediest one needs."""
-    from grassd.daemon.calibration.simulation import simulate_curve
+    from grassd.daemon.core.calibration.simulation import simulate_curve
 
     lighting = build_lighting(shared_hdri("courtyard"), ambient_lux=8000)
     lengths = np.arange(0.0, 20.01, 2.5)
@@ -194,7 +194,7 @@ class _NoisyRenderer:
 def test_adaptive_rounds_stay_within_the_renders_replicate_limit():
     """A target out of reach runs up to max_replicates in rounds of at most MAX_REPLICATES
     (a render holds no more); a first round of one replicate (no spread) is refused."""
-    from grassd.daemon.calibration.simulation import simulate_curve
+    from grassd.daemon.core.calibration.simulation import simulate_curve
     from grassd.sim.scene import MAX_REPLICATES
 
     light = uniform_lighting(1.0)
@@ -401,7 +401,7 @@ def test_a_run_that_needs_many_paths_goes_on_with_larger_replicates():
     least ``least`` of them, shows it from the first round's count of replicates on, and
     returns it alone; a run the first paths judge cheap, or one without a sun (where larger
     replicates gain nothing per path), keeps its replicates and its numbers."""
-    from grassd.daemon.calibration.simulation import LargerReplicates, simulate_curve
+    from grassd.daemon.core.calibration.simulation import LargerReplicates, simulate_curve
 
     light = uniform_lighting(1.0, sun_lux=1.0, sun_azimuth_deg=200.0, sun_elevation_deg=15.0)
     lengths = np.arange(0.0, 20.01, 5.0)
@@ -462,7 +462,7 @@ def test_under_a_sun_the_larger_replicates_take_one_light_sample_and_come_sooner
     """Under a sun the first round (sun_look_paths) may already start the larger series, which
     takes LargerReplicates' light samples and roulette; a first look that judges the run cheap
     is judged again at look_paths. Without a sun there is no larger series."""
-    from grassd.daemon.calibration.simulation import LargerReplicates, simulate_curve
+    from grassd.daemon.core.calibration.simulation import LargerReplicates, simulate_curve
 
     lengths = np.arange(0.0, 20.01, 5.0)
     larger = LargerReplicates()

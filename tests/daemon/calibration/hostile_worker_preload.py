@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 
-import grassd.daemon.calibration.remote as remote
+import grassd.daemon.compute.remote as remote
 import grassd.daemon.offline.sweep as sweep
 
 MARK = os.environ["GRASSD_HOSTILE_MARK"]

@@ -7,7 +7,7 @@ import pytest
 
 from grassd.calib.characteristic import fit_characteristic
 from grassd.calib.length_table import build_length_table
-from grassd.daemon.calibration.audience import (
+from grassd.daemon.core.calibration.audience import (
     AudienceError,
     AudienceRegion,
     centre_pixel,
@@ -16,7 +16,7 @@ from grassd.daemon.calibration.audience import (
     region_table,
     simulate_region,
 )
-from grassd.daemon.calibration.display_model import curve_characteristic
+from grassd.daemon.core.calibration.display_model import curve_characteristic
 
 LENGTHS = np.array([0.0, 5.0, 10.0, 15.0, 20.0])
 #: An L-shaped walkway south and east of the display (m).

@@ -14,12 +14,12 @@ from grassd.calib.colour_spaces import prophoto_to_xyz, xyz_d50_to_d65
 from grassd.calib.dng import DngCamera, write_linear_dng
 from grassd.calib.exposure import normalise_exposure
 from grassd.calib.regions import apply_homography, homography
-from grassd.daemon.calibration.calibrate import Calibrator, init_backend
-from grassd.daemon.calibration.checks import check_shape, check_table
-from grassd.daemon.config.settings import parse_config
-from grassd.daemon.errors import CalibrationRejected, ConfigError
-from grassd.daemon.store.atomic import atomic_save_figure, atomic_write_json
-from grassd.daemon.store.manifest import CheckerPhoto
+from grassd.daemon.core.calibration.calibrate import Calibrator, init_backend
+from grassd.daemon.core.calibration.checks import check_shape, check_table
+from grassd.daemon.core.config.settings import parse_config
+from grassd.daemon.core.errors import CalibrationRejected, ConfigError
+from grassd.daemon.core.store.atomic import atomic_save_figure, atomic_write_json
+from grassd.daemon.core.store.manifest import CheckerPhoto
 from grassd.sim.light_input import LightInput
 
 TINY = HEAD + """[display]

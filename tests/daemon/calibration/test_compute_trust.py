@@ -20,11 +20,11 @@ import pytest
 from daemon_harness import SITE
 from dask_cluster import DaskCluster, SiteCA
 
-from grassd.daemon.calibration.remote import RemoteCalibrator
-from grassd.daemon.calibration.remote_job import CalibrationJob
-from grassd.daemon.config.compute import ComputeConfig
-from grassd.daemon.config.settings import default_config_text, parse_config
-from grassd.daemon.errors import ComputeResultRefused, ComputeUnavailable, ConfigError
+from grassd.daemon.compute.config import ComputeConfig
+from grassd.daemon.compute.remote import RemoteCalibrator
+from grassd.daemon.compute.remote_job import CalibrationJob
+from grassd.daemon.core.config.settings import default_config_text, parse_config
+from grassd.daemon.core.errors import ComputeResultRefused, ComputeUnavailable, ConfigError
 from grassd.sim.light_input import LightInput
 
 pytest.importorskip("distributed")
@@ -133,7 +133,7 @@ def test_the_same_worker_runs_its_command_in_a_client_with_dasks_defaults(tmp_pa
     client's own process."""
     from distributed import Client
 
-    from grassd.daemon.calibration import remote
+    from grassd.daemon.compute import remote
 
     mark = tmp_path / "ran"
     with DaskCluster(tmp_path / "dask", tls=False) as cluster:
@@ -168,7 +168,7 @@ def test_tcp_without_allow_insecure_is_a_config_error(tmp_path, caplog):
     # a scheduler given another way (grassd calibrate --scheduler) meets the same rule
     with pytest.raises(ConfigError, match="has no TLS"):
         RemoteCalibrator(c.replace(compute=ComputeConfig(scheduler="tcp://calib:8786")))
-    with caplog.at_level(logging.WARNING, logger="grassd.daemon.calibration.remote"):
+    with caplog.at_level(logging.WARNING, logger="grassd.daemon.compute.remote"):
         RemoteCalibrator(c)
     assert [r.getMessage() for r in caplog.records if "has no TLS" in r.getMessage()] == [
         "[compute] scheduler tcp://calib:8786 has no TLS (allow_insecure = true): anyone who "

@@ -1,4 +1,4 @@
-"""The declared form of a worker's answer (daemon/calibration/wire.py) and the checks on its
+"""The declared form of a worker's answer (daemon/compute/wire.py) and the checks on its
 arrival (``remote.check_arrival``): a real local run's result crosses it unchanged; an answer
 tampered with on the way (dtype, size, non-finite entries, extra fields, infinities, text for
 numbers, an error type nobody declared, tables the run would have rejected) is refused as
@@ -15,12 +15,12 @@ import pytest
 from dask_cluster import tampered
 from test_remote_calibration import LIGHT, SMALL, _without_timings
 
-from grassd.daemon.calibration.calibrate import Calibrator, init_backend
-from grassd.daemon.calibration.remote import check_arrival
-from grassd.daemon.calibration.result import CalibrationResult
-from grassd.daemon.calibration.wire import answer_of, error_answer, read_answer
-from grassd.daemon.config.settings import parse_config
-from grassd.daemon.errors import ComputeResultRefused
+from grassd.daemon.compute.remote import check_arrival
+from grassd.daemon.compute.wire import answer_of, error_answer, read_answer
+from grassd.daemon.core.calibration.calibrate import Calibrator, init_backend
+from grassd.daemon.core.calibration.result import CalibrationResult
+from grassd.daemon.core.config.settings import parse_config
+from grassd.daemon.core.errors import ComputeResultRefused
 from grassd.sim.errors import LightingError, SimError
 
 WHERE = "Dask worker tls://192.0.2.7:40000"

@@ -8,16 +8,16 @@ import logging
 
 import numpy as np
 
-from grassd.daemon.calibration.correction import (
+from grassd.daemon.core.calibration.correction import (
     DisplayCorrection,
     load_correction,
     saved_correction,
 )
-from grassd.daemon.calibration.result import CENTRE, CalibrationResult
-from grassd.daemon.calibration.variation import DisplayVariation
-from grassd.daemon.config.settings import load_default_config
-from grassd.daemon.store.atomic import atomic_write_json
-from grassd.daemon.store.layout import StateLayout
+from grassd.daemon.core.calibration.result import CENTRE, CalibrationResult
+from grassd.daemon.core.calibration.variation import DisplayVariation
+from grassd.daemon.core.config.settings import load_default_config
+from grassd.daemon.core.store.atomic import atomic_write_json
+from grassd.daemon.core.store.layout import StateLayout
 
 
 def _correction(n: int = 32, shift_mm: float = 0.5) -> DisplayCorrection:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from grassd.daemon.calibration.display_model import (
+from grassd.daemon.core.calibration.display_model import (
     DisplaySimulationError,
     geometry_from_eye,
     group_pixels,
@@ -97,7 +97,7 @@ def test_bad_tolerances():
 
 @pytest.mark.parametrize("rows, cols", [(8, 8), (9, 9), (20, 24)])
 def test_capacity_holds_the_whole_display(rows, cols):
-    from grassd.daemon.calibration.display_model import capacity_for
+    from grassd.daemon.core.calibration.display_model import capacity_for
     from grassd.sim.geometry import build_scene
 
     sc = build_scene(DisplaySpec(rows=rows, cols=cols), np.array([0.0, 20.0]))

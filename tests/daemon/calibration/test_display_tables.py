@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from grassd.daemon.calibration.display_model import (
+from grassd.daemon.core.calibration.display_model import (
     DisplaySimulationError,
     DisplayTables,
     build_display_tables,
@@ -17,7 +17,7 @@ from grassd.daemon.calibration.display_model import (
     simulate_display,
     table_deviation,
 )
-from grassd.daemon.calibration.simulation import simulate_curve
+from grassd.daemon.core.calibration.simulation import simulate_curve
 
 LENGTHS = np.array([0.0, 10.0, 20.0])
 
@@ -136,7 +136,7 @@ def test_tables_per_pixel_controller_global(per_pixel):
 
 
 def test_controller_pixels_from_config_ranges():
-    from grassd.daemon.config.settings import ControllerConfig
+    from grassd.daemon.core.config.settings import ControllerConfig
 
     cs = [ControllerConfig("/dev/a", 115200, 1, pixels=((0, 3), (8, 8))),
           ControllerConfig("/dev/a", 115200, 2, pixels=((4, 7),))]

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from grassd.daemon.calibration.variation import (
+from grassd.daemon.core.calibration.variation import (
     DisplayVariation,
     VariationFileError,
     load_variation,

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from grassd.calib.ogcd import ogcd_from_samples
-from grassd.daemon.calibration.simulation import layout_seed, simulate_curve, white_radiance
-from grassd.daemon.config.settings import parse_config
-from grassd.daemon.errors import ConfigError
+from grassd.daemon.core.calibration.simulation import layout_seed, simulate_curve, white_radiance
+from grassd.daemon.core.config.settings import parse_config
+from grassd.daemon.core.errors import ConfigError
 from grassd.sim.light_input import LightInput
 from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint
 
@@ -56,7 +56,7 @@ def test_adaptive_rounds_continue_the_layout_cycle(renderer, lighting):
 def test_config_reads_layouts_with_its_default_and_bounds():
     from importlib.resources import files
 
-    default = files("grassd.daemon.config").joinpath("default.toml").read_text()
+    default = files("grassd.daemon.core.config").joinpath("default.toml").read_text()
     assert parse_config(default).simulation.layouts == 8
 
     def with_layouts(n: int):

@@ -22,11 +22,11 @@ from grassd.calib.colour_spaces import (
     xyz_to_rec709,
 )
 from grassd.calib.dng import DngCamera, write_linear_dng
-from grassd.daemon.calibration.calibrate import Calibrator, init_backend
-from grassd.daemon.calibration.remote import RemoteCalibrator, calibrator_for
-from grassd.daemon.config.settings import ComputeConfig, parse_config
-from grassd.daemon.errors import ComputeUnavailable, ConfigError
-from grassd.daemon.store.manifest import CheckerPhoto
+from grassd.daemon.compute.remote import RemoteCalibrator, calibrator_for
+from grassd.daemon.core.calibration.calibrate import Calibrator, init_backend
+from grassd.daemon.core.config.settings import ComputeConfig, parse_config
+from grassd.daemon.core.errors import ComputeUnavailable, ConfigError
+from grassd.daemon.core.store.manifest import CheckerPhoto
 from grassd.sim.light_input import LightInput
 
 pytest.importorskip("distributed")

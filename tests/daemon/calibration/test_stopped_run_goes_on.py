@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from grassd.daemon.calibration.simulation import CurveRun, simulate_curve
+from grassd.daemon.core.calibration.simulation import CurveRun, simulate_curve
 from grassd.sim.errors import SceneError
 from grassd.sim.light_input import LightInput
 from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
@@ -109,7 +109,7 @@ def test_a_run_stopped_before_it_decided_its_next_round_decides_it_on_going_on(
     """An exception between a traced round and the next round's decision (here in deciding
     it): going on, the run takes that round as traced, decides once, and ends as a run never
     stopped."""
-    from grassd.daemon.calibration import simulation
+    from grassd.daemon.core.calibration import simulation
 
     target, whole = target_and_whole
     decide = simulation._next_round

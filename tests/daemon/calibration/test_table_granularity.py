@@ -22,11 +22,11 @@ from daemon_harness import DISPLAY_2X2 as BASE
 from daemon_harness import POLICY, SITE
 from daemon_harness import drop_midsummer as drop
 
-from grassd.daemon.calibration.calibrate import Calibrator, init_backend
-from grassd.daemon.config.settings import not_used_by_the_daemon, parse_config
-from grassd.daemon.hardware.fleet import Fleet, table_checksum
-from grassd.daemon.hardware.simulated import SimulatedHardware
-from grassd.daemon.runtime.service import Service, collect_status
+from grassd.daemon.core.calibration.calibrate import Calibrator, init_backend
+from grassd.daemon.core.config.settings import not_used_by_the_daemon, parse_config
+from grassd.daemon.core.hardware.fleet import Fleet, table_checksum
+from grassd.daemon.core.runtime.service import Service, collect_status
+from grassd.rigs.simulated_site import SimulatedHardware
 from grassd.sim.light_input import LightInput
 
 AUDIENCE = """
@@ -265,7 +265,7 @@ def test_one_shot_cli_pushes_pixel_tables_and_status_shows_them(tmp_path):
 
 
 def test_history_keeps_tables_per_run_and_prunes_them_with_the_run(tmp_path):
-    from grassd.daemon.store.history import History
+    from grassd.daemon.core.store.history import History
 
     a = np.arange(256, dtype=np.uint16) * 70
     with History(tmp_path / "state.db") as h:
@@ -342,7 +342,7 @@ def test_closed_loop_measures_every_pixel_at_its_own_controller_table(tmp_path):
     controllers own rows 0-1 and 2-3). The closed loop must check each controller's table on
     its own pixels, not one member's table for the whole group: otherwise a controller's loop
     deviation, and the points that refine its table, come from the other controller's table."""
-    from grassd.daemon.calibration.display_model import (
+    from grassd.daemon.core.calibration.display_model import (
         display_spec_for_config,
         group_pixels,
         pixel_geometry,

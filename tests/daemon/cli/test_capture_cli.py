@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from grassd.daemon.config.settings import default_config_text, parse_config
-from grassd.daemon.errors import ConfigError
+from grassd.daemon.core.config.settings import default_config_text, parse_config
+from grassd.daemon.core.errors import ConfigError
 from grassd.rigs.processes import end_process
 from grassd.sim.hdri import default_site_hdri
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from grassd.daemon.config.settings import default_config_text
+from grassd.daemon.core.config.settings import default_config_text
 from grassd.sim.hdri import default_site_hdri
 
 #: `grassd` in a Python where ``import taichi`` fails, as where Taichi has no wheels

@@ -1,6 +1,6 @@
 """A command started by root never reads, as root, what another user may change in a state
-directory (:mod:`grassd.daemon.cli.state_owner`): with a state directory of another user's it
-becomes that user (checked on the processes' uids in /proc and on the owner of what it
+directory (:mod:`grassd.daemon.core.runtime.state_owner`): with a state directory of another
+user's it becomes that user (checked on the processes' uids in /proc and on the owner of what it
 writes); with root's own, it refuses where another user may change a part of it. Real
 processes, real files chowned to uid 65534 (nobody)."""
 
@@ -207,7 +207,7 @@ def test_root_refuses_a_file_of_another_user_in_its_state_directory(tmp_path):
 
 def test_root_refuses_a_configuration_others_may_write(tmp_path):
     """A configuration another user may change could make root run its alert command."""
-    from grassd.daemon.config.settings import default_config_text
+    from grassd.daemon.core.config.settings import default_config_text
 
     conf = tmp_path / "grassd.toml"
     conf.write_text(f'state_dir = "{tmp_path / "state"}"\n' + default_config_text())

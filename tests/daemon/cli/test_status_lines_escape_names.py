@@ -6,8 +6,8 @@ from __future__ import annotations
 from status_samples import daemon_state, status, waiting
 
 from grassd.daemon.cli.run import print_status
-from grassd.daemon.monitoring.status_types import RunSummary
-from grassd.daemon.store.quarantine import QuarantinedBundle
+from grassd.daemon.core.monitoring.status_types import RunSummary
+from grassd.daemon.core.store.quarantine import QuarantinedBundle
 
 EVIL = "b1\n<2>forged line\x1b[2J\r"
 

@@ -8,15 +8,15 @@ from pathlib import Path
 
 import pytest
 
-from grassd.daemon.config.schema import LineLocator
-from grassd.daemon.config.settings import (
+from grassd.daemon.core.config.schema import LineLocator
+from grassd.daemon.core.config.settings import (
     default_config_text,
     load_config,
     load_default_config,
     parse_config,
     parse_pixel_ranges,
 )
-from grassd.daemon.errors import ConfigError
+from grassd.daemon.core.errors import ConfigError
 
 GRASSD = str(Path(sys.executable).parent / "grassd")
 
@@ -252,7 +252,7 @@ def test_settings_the_daemon_does_not_act_on_are_reported(tmp_path):
     from click.testing import CliRunner
 
     from grassd.daemon.cli.main import main
-    from grassd.daemon.config.settings import default_config_text
+    from grassd.daemon.core.config.settings import default_config_text
 
     path = tmp_path / "grassd.toml"
     path.write_text(default_config_text() + '\n[tables]\ngranularity = "controller"\n')
@@ -269,8 +269,8 @@ def test_settings_the_daemon_does_not_act_on_are_reported(tmp_path):
 def test_bundle_limits_of_the_template_are_the_defaults_and_are_checked():
     """default.toml states the caps on a bundle ([light.limits]); they must be the dataclass
     defaults (written once there), and a cap out of bounds names its key and line."""
-    from grassd.daemon.config.limits import DEFAULT_LIMITS
-    from grassd.daemon.config.settings import parse_config
+    from grassd.daemon.core.config.limits import DEFAULT_LIMITS
+    from grassd.daemon.core.config.settings import parse_config
 
     text = default_config_text()
     assert "[light.limits]" in text

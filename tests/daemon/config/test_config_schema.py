@@ -1,4 +1,4 @@
-"""grassd.daemon.config.schema: one validator for config, bundle manifests and capture.toml."""
+"""grassd.daemon.core.config.schema: one validator for config, bundle manifests and capture.toml."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ from dataclasses import dataclass
 
 import pytest
 
-from grassd.daemon.config import schema
-from grassd.daemon.config.settings import CalibrationConfig, default_config_text, parse_config
-from grassd.daemon.errors import ConfigError, ManifestError
+from grassd.daemon.core.config import schema
+from grassd.daemon.core.config.settings import CalibrationConfig, default_config_text, parse_config
+from grassd.daemon.core.errors import ConfigError, ManifestError
 from grassd.sim.scene import MAX_REPLICATES
 
 

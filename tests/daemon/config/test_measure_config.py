@@ -7,11 +7,11 @@ from importlib import resources
 
 import pytest
 
-from grassd.daemon.config.measure import MeasureConfig
-from grassd.daemon.config.settings import load_config
-from grassd.daemon.errors import ConfigError
+from grassd.daemon.core.config.settings import load_config
+from grassd.daemon.core.errors import ConfigError
+from grassd.daemon.measure.config import MeasureConfig
 
-DEFAULT = resources.files("grassd.daemon.config").joinpath("default.toml").read_text()
+DEFAULT = resources.files("grassd.daemon.core.config").joinpath("default.toml").read_text()
 
 
 def _load(tmp_path, measure: str):

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import pytest
 
-from grassd.daemon.config.settings import (
+from grassd.daemon.core.config.settings import (
     AudienceConfig,
     TablesConfig,
     default_config_text,
     parse_config,
 )
-from grassd.daemon.errors import ConfigError
+from grassd.daemon.core.errors import ConfigError
 
 
 def _cfg(extra: str):
@@ -42,7 +42,7 @@ ground_samples = 24
                                                    (-2.0, -1.0)),
                                           h_cm=(150.0, 185.0), ground_samples=24,
                                           height_samples=2, objective="worst")
-    from grassd.daemon.calibration.audience import AudienceRegion
+    from grassd.daemon.core.calibration.audience import AudienceRegion
 
     region = AudienceRegion(cfg.audience.polygon, cfg.audience.h_cm)
     assert region.area_m2 == pytest.approx(8.0)
@@ -55,7 +55,7 @@ ground_samples = 24
 def test_layout_is_shared_for_pixel_tables_unless_configured(granularity, layout, shared):
     """[tables] layout: "auto" (default) traces one tuft layout for every pixel when the tables
     are per pixel (they must not be fitted to a random draw), each pixel's own otherwise."""
-    from grassd.daemon.calibration.display_model import display_spec_for_config
+    from grassd.daemon.core.calibration.display_model import display_spec_for_config
 
     extra = f'[tables]\ngranularity = "{granularity}"\n'
     if layout is not None:
@@ -94,7 +94,10 @@ def test_config_drives_whole_display_tables(renderer):
     """[display] 2x2, two weighted viewpoints, [tables] per controller -> two tables."""
     import numpy as np
 
-    from grassd.daemon.calibration.display_model import display_tables_for_config, simulate_display
+    from grassd.daemon.core.calibration.display_model import (
+        display_tables_for_config,
+        simulate_display,
+    )
     from grassd.sim.lighting import build_lighting
     from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
 
@@ -122,7 +125,7 @@ def test_config_drives_whole_display_tables(renderer):
                          check_groups=0)
     np.testing.assert_array_equal(a.pixel_ogcd(), sims[0].pixel_ogcd())
     want = (1.0 * a.pixel_ogcd() + 0.5 * b.pixel_ogcd()) / 1.5
-    from grassd.daemon.calibration.display_model import combine_viewpoints
+    from grassd.daemon.core.calibration.display_model import combine_viewpoints
 
     np.testing.assert_allclose(combine_viewpoints(sims, [1.0, 0.5]).pixel_ogcd(), want,
                                rtol=1e-12)
@@ -133,7 +136,7 @@ def test_config_drives_whole_display_tables(renderer):
 def test_global_run_patch_follows_the_layout_setting(layout, shared):
     """The one-table run (granularity "global", no [audience]) simulates a patch of up to 3 x 3
     pixels: [tables] layout applies to it as to every other run, not silently ignored."""
-    from grassd.daemon.calibration.calibrate import Calibrator
+    from grassd.daemon.core.calibration.calibrate import Calibrator
 
     extra = "[tables]\n" + (f'layout = "{layout}"\n' if layout else "")
     cfg = _cfg(extra)

@@ -13,6 +13,7 @@ import tomli_w
 from hypothesis import given
 from hypothesis import strategies as st
 
+from grassd.daemon.capture.station import manifest_toml
 from grassd.daemon.offline.validate import (
     CaptureManifest,
     Photo,
@@ -20,7 +21,6 @@ from grassd.daemon.offline.validate import (
     load_manifest,
     manifest_to_toml,
 )
-from grassd.daemon.runtime.capture import manifest_toml
 from grassd.sim.light_input import LightInput
 
 AWKWARD = ['THETA Z1 \U0001F600', 'a "quoted" \\ name', "line\nbreak\ttab\r\x07\x1f\x7f", "é"]

@@ -10,7 +10,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from grassd.daemon.config.content import ArtnetConfig, ContentConfig, SacnConfig
+from grassd.daemon.content.config import ArtnetConfig, ContentConfig, SacnConfig
 
 
 class CapturingSink:

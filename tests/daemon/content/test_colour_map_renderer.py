@@ -14,8 +14,8 @@ import pytest
 
 from grassd.calib.colour_spaces import lab_to_srgb
 from grassd.calib.ogcd import delta_E
-from grassd.daemon.calibration.simulation import simulate_curve
 from grassd.daemon.content.colour_map import DisplayColours, levels_for_picture, srgb8_to_lab
+from grassd.daemon.core.calibration.simulation import simulate_curve
 from grassd.sim.light_input import LightInput
 from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint
 

@@ -15,13 +15,13 @@ import pytest
 from content_helpers import content_config
 from PIL import Image
 
-from grassd.daemon.config.settings import default_config_text, parse_config
 from grassd.daemon.content.feature import ContentFeature
-from grassd.daemon.errors import ControlError
-from grassd.daemon.monitoring.status_types import Status
-from grassd.daemon.runtime.control import ControlServer, request
-from grassd.daemon.runtime.control_commands import ControlCommands
-from grassd.daemon.store.history import History
+from grassd.daemon.core.config.settings import default_config_text, parse_config
+from grassd.daemon.core.errors import ControlError
+from grassd.daemon.core.monitoring.status_types import Status
+from grassd.daemon.core.runtime.control import ControlServer, request
+from grassd.daemon.core.runtime.control_commands import ControlCommands
+from grassd.daemon.core.store.history import History
 
 
 @pytest.fixture

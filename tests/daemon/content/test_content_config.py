@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from grassd.daemon.config.content import ContentConfig, SacnConfig
-from grassd.daemon.config.settings import default_config_text, parse_config
-from grassd.daemon.errors import ConfigError
+from grassd.daemon.content.config import ContentConfig, SacnConfig
+from grassd.daemon.core.config.settings import default_config_text, parse_config
+from grassd.daemon.core.errors import ConfigError
 
 
 def _with(section: str):

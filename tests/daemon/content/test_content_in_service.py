@@ -12,10 +12,10 @@ import time
 import numpy as np
 from daemon_harness import POLICY
 
-from grassd.daemon.calibration.display_model import controller_pixels
-from grassd.daemon.config.settings import default_config_text, load_config, load_default_config
-from grassd.daemon.hardware.simulated import SimulatedHardware, hardware_toml
-from grassd.daemon.runtime.service import Service
+from grassd.daemon.core.calibration.display_model import controller_pixels
+from grassd.daemon.core.config.settings import default_config_text, load_config, load_default_config
+from grassd.daemon.core.runtime.service import Service
+from grassd.rigs.simulated_site import SimulatedHardware, hardware_toml
 
 
 def _config(tmp_path, hw_cfg, ports, enabled: bool) -> str:

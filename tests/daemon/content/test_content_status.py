@@ -13,10 +13,10 @@ from status_samples import daemon_state, status
 
 from grassd.daemon.cli.run import print_status
 from grassd.daemon.content.player import ContentPlayer
-from grassd.daemon.monitoring.metrics import registry
-from grassd.daemon.monitoring.status_page import render
-from grassd.daemon.monitoring.status_types import Status
-from grassd.daemon.store.history import History
+from grassd.daemon.core.monitoring.metrics import registry
+from grassd.daemon.core.monitoring.status_page import render
+from grassd.daemon.core.monitoring.status_types import Status
+from grassd.daemon.core.store.history import History
 
 
 def test_status_line_and_metrics_of_a_playing_source(ports, sink, sacn_senders, tmp_path,

@@ -12,12 +12,12 @@ import pytest
 from content_helpers import CapturingSink, content_config
 from firmware_tiers import firmware_params
 
-from grassd.daemon.calibration.display_model import controller_pixels
-from grassd.daemon.config.settings import load_default_config
+from grassd.daemon.content.frames import FrameOutput
 from grassd.daemon.content.player import ContentPlayer
-from grassd.daemon.hardware.fleet import Fleet
-from grassd.daemon.hardware.frames import FrameOutput
-from grassd.daemon.hardware.simulated import SimulatedHardware
+from grassd.daemon.core.calibration.display_model import controller_pixels
+from grassd.daemon.core.config.settings import load_default_config
+from grassd.daemon.core.hardware.fleet import Fleet
+from grassd.rigs.simulated_site import SimulatedHardware
 
 
 class _Tee:

@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 from daemon_harness import service, write_config
 
-from grassd.daemon.calibration.display_model import controller_pixels
-from grassd.daemon.hardware.simulated_camera import start_site_camera
+from grassd.daemon.core.calibration.display_model import controller_pixels
+from grassd.daemon.core.store.atomic import atomic_write_json
+from grassd.daemon.core.store.layout import StateLayout
 from grassd.daemon.measure.camera_chain import Exposure, MeasureSetup
-from grassd.daemon.store.atomic import atomic_write_json
-from grassd.daemon.store.layout import StateLayout
+from grassd.rigs.simulated_camera import start_site_camera
 
 pytestmark = pytest.mark.long
 

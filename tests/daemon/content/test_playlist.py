@@ -11,7 +11,7 @@ import pytest
 from content_helpers import CapturingSink
 from PIL import Image
 
-from grassd.daemon.config.content import ContentConfig, PlaylistEntry
+from grassd.daemon.content.config import ContentConfig, PlaylistEntry
 from grassd.daemon.content.pictures import PictureError, load_animation
 from grassd.daemon.content.player import ContentPlayer
 from grassd.daemon.content.status import ContentSource

@@ -9,10 +9,10 @@ import sys
 import numpy as np
 from PIL import Image
 
-from grassd.daemon.calibration.display_model import controller_pixels
-from grassd.daemon.config.settings import default_config_text, load_default_config
-from grassd.daemon.hardware.fleet import Fleet
-from grassd.daemon.hardware.simulated import SimulatedHardware, hardware_toml
+from grassd.daemon.core.calibration.display_model import controller_pixels
+from grassd.daemon.core.config.settings import default_config_text, load_default_config
+from grassd.daemon.core.hardware.fleet import Fleet
+from grassd.rigs.simulated_site import SimulatedHardware, hardware_toml
 
 
 def test_show_plays_here_when_no_daemon_runs(tmp_path):

@@ -18,16 +18,16 @@ from PIL import Image
 from test_content_in_service import _config
 
 from grassd.calib.colour_spaces import lab_to_srgb
-from grassd.daemon.config.settings import load_config, load_default_config
-from grassd.daemon.content.shown import LengthColours, ShownDisplay
-from grassd.daemon.hardware.simulated import SimulatedHardware
-from grassd.daemon.monitoring.display_picture import (
+from grassd.daemon.content.display_picture import (
     MISSING_RGB8,
     picture_scale,
     shown_png,
     shown_rgb8,
 )
-from grassd.daemon.runtime.service import Service
+from grassd.daemon.content.shown import LengthColours, ShownDisplay
+from grassd.daemon.core.config.settings import load_config, load_default_config
+from grassd.daemon.core.runtime.service import Service
+from grassd.rigs.simulated_site import SimulatedHardware
 
 _PNG = re.compile(r'<figure class="shown"><img src="data:image/png;base64,([A-Za-z0-9+/=]+)"'
                   r'.*?<figcaption>(.*?)</figcaption>', re.S)

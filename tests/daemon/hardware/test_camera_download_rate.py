@@ -1,7 +1,7 @@
 """A camera trickling a shot is cut by the download's minimum rate (``[capture]
 min_download_rate`` over ``min_download_window_s``, as curl's ``--speed-limit``) within about
 one window, long before the download's deadline; an honest download is untouched. A real HTTP
-server on 127.0.0.1 (bench.hostile_camera)."""
+server on 127.0.0.1 (grassd.rigs.hostile_camera)."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ import time
 
 import pytest
 
-from bench.hostile_camera import HostileServer
-from grassd.daemon.config.capture import CaptureConfig
-from grassd.daemon.errors import CameraDownloadError
-from grassd.daemon.hardware.camera import CameraDownloadTooSlow, OscClient
+from grassd.daemon.core.config.camera_section import CaptureConfig
+from grassd.daemon.core.errors import CameraDownloadError
+from grassd.daemon.core.hardware.camera import CameraDownloadTooSlow, OscClient
+from grassd.rigs.hostile_camera import HostileServer
 
 pytestmark = pytest.mark.timeout(60)
 

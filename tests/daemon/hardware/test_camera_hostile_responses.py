@@ -12,17 +12,17 @@ import tracemalloc
 
 import pytest
 
-from bench.hostile_camera import HUGE, HostileServer, MiB
-from bench.peak_memory import peak_rss_growth
-from grassd.daemon.config.capture import CaptureConfig
-from grassd.daemon.errors import (
+from grassd.daemon.core.config.camera_section import CaptureConfig
+from grassd.daemon.core.errors import (
     CameraDownloadError,
     CameraHttpError,
     CameraProtocolError,
     CameraUnreachable,
     CaptureError,
 )
-from grassd.daemon.hardware.camera import OscClient
+from grassd.daemon.core.hardware.camera import OscClient
+from grassd.rigs.hostile_camera import HUGE, HostileServer, MiB
+from grassd.rigs.peak_memory import peak_rss_growth
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -6,10 +6,10 @@ import time
 
 import numpy as np
 
-from grassd.daemon.config.settings import load_default_config
-from grassd.daemon.hardware.fleet import Fleet, table_checksum
-from grassd.daemon.hardware.simulated import SimulatedHardware
+from grassd.daemon.core.config.settings import load_default_config
+from grassd.daemon.core.hardware.fleet import Fleet, table_checksum
 from grassd.firmware_proto.client import RetryPolicy
+from grassd.rigs.simulated_site import SimulatedHardware
 
 TABLE_A = np.linspace(0, 20000, 256).astype(np.uint16)
 TABLE_B = (np.linspace(0, 1, 256) ** 0.7 * 20000).astype(np.uint16)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from grassd.daemon.hardware.fleet import Fleet
+from grassd.daemon.core.hardware.fleet import Fleet
 from grassd.firmware_proto.client import RetryPolicy
 from grassd.rigs.faults import FaultInjector, FaultPlan
 

@@ -1,4 +1,4 @@
-"""Content frames on the wire (:mod:`grassd.daemon.hardware.frames`): the Python model and the
+"""Content frames on the wire (:mod:`grassd.daemon.content.frames`): the Python model and the
 C posix firmware (for the targets also the Cortex-M7 image under QEMU) on real ptys paced at
 115200 baud, two lines of two controllers each (an 8 x 8 display). Every motor's target is
 ``table[level]`` of the frame sent; the controllers show a frame together (the posix
@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 from firmware_tiers import firmware_params
 
-from grassd.daemon.config.settings import ControllerConfig
-from grassd.daemon.hardware.fleet import Fleet, table_checksum
-from grassd.daemon.hardware.frames import FrameError, FrameOutput, stream_chunk_bytes
+from grassd.daemon.content.frames import FrameError, FrameOutput, stream_chunk_bytes
+from grassd.daemon.core.config.settings import ControllerConfig
+from grassd.daemon.core.hardware.fleet import Fleet, table_checksum
 from grassd.firmware_proto.client import ControllerClient
 from grassd.firmware_proto.codec import Frame, encode_frame
 from grassd.firmware_proto.messages import Show

@@ -10,10 +10,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from grassd.daemon.config.settings import load_default_config
-from grassd.daemon.errors import LuxSensorError, LuxSensorSilent, LuxSensorUnreachable
-from grassd.daemon.hardware.luxsensor import LuxSensor, decode_registers, encode_lux, read_lux
-from grassd.daemon.hardware.simulated import SimLuxSensor
+from grassd.daemon.core.config.settings import load_default_config
+from grassd.daemon.core.errors import LuxSensorError, LuxSensorSilent, LuxSensorUnreachable
+from grassd.daemon.core.hardware.luxsensor import LuxSensor, decode_registers, encode_lux, read_lux
+from grassd.rigs.simulated_site import SimLuxSensor
 
 BASE = load_default_config().light.modbus
 

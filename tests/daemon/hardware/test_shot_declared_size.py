@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from bench.peak_memory import refusal_cost
-from grassd.daemon.errors import CameraDownloadError
-from grassd.daemon.hardware.bracket import Shot, file_exposure, load_codes
+from grassd.daemon.core.errors import CameraDownloadError
+from grassd.daemon.core.hardware.bracket import Shot, file_exposure, load_codes
+from grassd.rigs.peak_memory import refusal_cost
 from grassd.sim.hdri import MAX_TEXELS
 
 pytestmark = pytest.mark.timeout(60)

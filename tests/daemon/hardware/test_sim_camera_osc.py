@@ -15,9 +15,9 @@ import urllib.request
 import numpy as np
 import pytest
 
-from grassd.daemon.hardware.bracket import SHUTTER_SPEEDS_S
-from grassd.daemon.hardware.camera import OscClient
-from grassd.daemon.hardware.simulated_camera import (
+from grassd.daemon.core.hardware.bracket import SHUTTER_SPEEDS_S
+from grassd.daemon.core.hardware.camera import OscClient
+from grassd.rigs.simulated_camera import (
     ISO_VALUES,
     MAX_DELETE_URLS,
     OPTIONS,

@@ -16,11 +16,11 @@ from zoneinfo import ZoneInfo
 
 from daemon_harness import service, write_config
 
-from grassd.daemon.errors import ControlError
-from grassd.daemon.monitoring.measurement_report import load_reports
-from grassd.daemon.runtime.control import ControlServer, request
-from grassd.daemon.runtime.service import Service
-from grassd.daemon.store.layout import StateLayout
+from grassd.daemon.core.errors import ControlError
+from grassd.daemon.core.runtime.control import ControlServer, request
+from grassd.daemon.core.runtime.service import Service
+from grassd.daemon.core.store.layout import StateLayout
+from grassd.daemon.measure.report import load_reports
 
 #: the daemon's site time zone (write_config's configuration has none: the default)
 TZ = "UTC"

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from grassd.daemon.calibration.variation import DisplayVariation
+from grassd.daemon.core.calibration.variation import DisplayVariation
 from grassd.daemon.measure.evidence import (
     MAX_PHOTO_NOISE_LAB,
     RESIDUAL_FACTOR,

@@ -19,14 +19,14 @@ import numpy as np
 import pytest
 from daemon_harness import write_config
 
-from grassd.daemon.cli.measure import simulated_setup, start_measuring_camera
-from grassd.daemon.config.settings import load_config, load_default_config
-from grassd.daemon.hardware.simulated import SimulatedHardware
+from grassd.daemon.core.config.settings import load_config, load_default_config
+from grassd.daemon.core.runtime.service import Service
+from grassd.daemon.core.store.history import History
+from grassd.daemon.core.store.layout import StateLayout
+from grassd.daemon.measure.cli import simulated_setup, start_measuring_camera
 from grassd.daemon.measure.evidence import Refusal
-from grassd.daemon.runtime.service import Service
-from grassd.daemon.store.history import History
-from grassd.daemon.store.layout import StateLayout
 from grassd.firmware_proto.client import ControllerClient
+from grassd.rigs.simulated_site import SimulatedHardware
 
 pytestmark = pytest.mark.long
 

@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from grassd.daemon.calibration.variation import load_variation
-from grassd.daemon.store.history import History
-from grassd.daemon.store.layout import StateLayout
+from grassd.daemon.core.calibration.variation import load_variation
+from grassd.daemon.core.store.history import History
+from grassd.daemon.core.store.layout import StateLayout
 
 pytestmark = pytest.mark.long
 

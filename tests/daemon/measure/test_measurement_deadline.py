@@ -17,12 +17,12 @@ from pathlib import Path
 
 from daemon_harness import write_config
 
-from grassd.daemon.config.settings import load_config
-from grassd.daemon.hardware.simulated_camera import start_site_camera
+from grassd.daemon.core.config.settings import load_config
+from grassd.daemon.core.runtime.service import Service
+from grassd.daemon.core.store.atomic import atomic_write_json
+from grassd.daemon.core.store.layout import StateLayout
 from grassd.daemon.measure.camera_chain import Exposure, MeasureSetup
-from grassd.daemon.runtime.service import Service
-from grassd.daemon.store.atomic import atomic_write_json
-from grassd.daemon.store.layout import StateLayout
+from grassd.rigs.simulated_camera import start_site_camera
 
 #: the controllers' watchdog here (s): far longer than the test, so only PATTERN_END ends it
 WATCHDOG_S = 600.0

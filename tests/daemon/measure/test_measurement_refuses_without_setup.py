@@ -8,9 +8,9 @@ from pathlib import Path
 
 from daemon_harness import write_config
 
-from grassd.daemon.config.settings import load_config
-from grassd.daemon.runtime.service import Service
-from grassd.daemon.store.layout import StateLayout
+from grassd.daemon.core.config.settings import load_config
+from grassd.daemon.core.runtime.service import Service
+from grassd.daemon.core.store.layout import StateLayout
 
 
 def _measure(tmp_path: Path, cfg, camera: str) -> dict:
@@ -35,8 +35,8 @@ def test_a_camera_never_set_up_is_refused_with_how_to_fix(tmp_path, hw):
 
 
 def test_an_unreachable_camera_fails_the_measurement_before_any_pattern(tmp_path, hw):
+    from grassd.daemon.core.store.atomic import atomic_write_json
     from grassd.daemon.measure.camera_chain import Exposure, MeasureSetup
-    from grassd.daemon.store.atomic import atomic_write_json
 
     sim, cfg = hw
     setup = MeasureSetup((1.0, 1.0, 1.0, 1.0), 1.0, Exposure(0.01, 100, 5.6), 2500.0,

@@ -11,9 +11,9 @@ import json
 
 import pytest
 
-from bench.hostile_decodes import dng_declaring, run_child, small_dng
 from grassd.calib.raw import MAX_RAW_PIXELS, raw_sensor
 from grassd.daemon.measure.camera_chain import Exposure, MeasureSetup
+from grassd.rigs.hostile_decodes import dng_declaring, run_child, small_dng
 
 pytestmark = pytest.mark.timeout(120)
 

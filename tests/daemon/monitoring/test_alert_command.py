@@ -11,10 +11,10 @@ from pathlib import Path
 
 from daemon_harness import drop, service, tick_until, write_config
 
-from grassd.daemon.config.settings import AlertsConfig
-from grassd.daemon.monitoring.alerts import META_KEY, Alerter
-from grassd.daemon.monitoring.health import Health
-from grassd.daemon.store.history import History
+from grassd.daemon.core.config.settings import AlertsConfig
+from grassd.daemon.core.monitoring.alerts import META_KEY, Alerter
+from grassd.daemon.core.monitoring.health import Health
+from grassd.daemon.core.store.history import History
 
 #: the alert command: appends one JSON line per alert (its stdin plus its environment) to the
 #: file named by its first argument; with a second argument it first waits until that file
@@ -160,7 +160,7 @@ def test_without_a_command_levels_are_only_followed(tmp_path):
 
 
 def test_failing_command_is_logged_not_fatal(tmp_path, caplog):
-    caplog.set_level(logging.ERROR, "grassd.daemon.monitoring.alerts")
+    caplog.set_level(logging.ERROR, "grassd.daemon.core.monitoring.alerts")
     fails = tmp_path / "fails.sh"
     fails.write_text("#!/bin/sh\necho 'no route to ops' >&2\nexit 3\n")
     fails.chmod(0o755)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from status_samples import controller, daemon_state, status
 
-from grassd.daemon.monitoring.health import assess
+from grassd.daemon.core.monitoring.health import assess
 
 
 def with_capture(capture):

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from status_samples import controller, daemon_state, status, waiting
 
-from grassd.daemon.monitoring.health import assess
-from grassd.daemon.monitoring.status_types import RunCounts, Status
+from grassd.daemon.core.monitoring.health import assess
+from grassd.daemon.core.monitoring.status_types import RunCounts, Status
 
 
 def status_of(*in_sync: bool, reachable: bool = True, table: bool = True, **live) -> Status:

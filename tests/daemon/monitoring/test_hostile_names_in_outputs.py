@@ -10,13 +10,13 @@ import sys
 from prometheus_client.parser import text_string_to_metric_families
 from status_samples import controller, daemon_state, status, waiting
 
-from grassd.daemon.config.settings import AlertsConfig
-from grassd.daemon.monitoring.alerts import Alerter
-from grassd.daemon.monitoring.health import Health
-from grassd.daemon.monitoring.metrics import registry, write_textfile
-from grassd.daemon.monitoring.status_page import render
-from grassd.daemon.safe_text import MAX_NAME_CHARS, one_line
-from grassd.daemon.store.history import History
+from grassd.daemon.core.config.settings import AlertsConfig
+from grassd.daemon.core.monitoring.alerts import Alerter
+from grassd.daemon.core.monitoring.health import Health
+from grassd.daemon.core.monitoring.metrics import registry, write_textfile
+from grassd.daemon.core.monitoring.status_page import render
+from grassd.daemon.core.safe_text import MAX_NAME_CHARS, one_line
+from grassd.daemon.core.store.history import History
 
 EVIL = "x\n<script>alert(1)</script>\x1b[2J\r\u2028\u202e\udcfe\""
 

@@ -11,7 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from grassd.daemon.monitoring.journal import OneLineFormatter, SubjectFields
+from grassd.daemon.core.monitoring.journal import OneLineFormatter, SubjectFields
 
 #: a name that, written raw, would forge a critical record, recolour a terminal and reorder text
 EVIL = "b1\n<2>grassd: forged critical\r\x1b[31m\u202egnp.exe\udcff"
@@ -19,10 +19,10 @@ EVIL = "b1\n<2>grassd: forged critical\r\x1b[31m\u202egnp.exe\udcff"
 CHILD = """
 import logging, sys
 sys.modules["systemd.journal"] = None  # stderr format even where python3-systemd exists
-from grassd.daemon.monitoring.journal import setup_logging
+from grassd.daemon.core.monitoring.journal import setup_logging
 EVIL = %r
 setup_logging("debug")
-log = logging.getLogger("grassd.daemon.store.ingest")
+log = logging.getLogger("grassd.daemon.core.store.ingest")
 log.warning("bundle %%s rejected: %%s", EVIL, "manifest.toml: bad\\nvalue")
 log.info("bundle " + EVIL + " formatted before logging")
 try:
@@ -52,30 +52,30 @@ def test_journal_stream_lines_one_record_each(tmp_path):
     assert all(re.match(r"<[0-7]>", ln) for ln in lines), lines
     assert not any("\x1b" in ln or "\r" in ln or "\u202e" in ln for ln in lines)
     name = r"b1\n<2>grassd: forged critical\r\x1b[31m\u202egnp.exe\xff"
-    assert lines[0] == (f"<4>grassd.daemon.store.ingest: bundle {name} rejected: "
+    assert lines[0] == (f"<4>grassd.daemon.core.store.ingest: bundle {name} rejected: "
                         r"manifest.toml: bad\nvalue")
-    assert lines[1] == f"<6>grassd.daemon.store.ingest: bundle {name} formatted before logging"
-    assert lines[2] == f"<3>grassd.daemon.store.ingest: bundle {name} failed"
+    assert lines[1] == f"<6>grassd.daemon.core.store.ingest: bundle {name} formatted before logging"
+    assert lines[2] == f"<3>grassd.daemon.core.store.ingest: bundle {name} failed"
     # the traceback keeps its lines, under the record's priority; the exception's text in it
     # is one line
     assert lines[3] == "<3>Traceback (most recent call last):"
     assert lines[-2] == f"<3>ValueError: cannot read {name}"
     assert all(ln.startswith("<3>") for ln in lines[3:-1])
-    assert lines[-1] == "<6>grassd.daemon.store.ingest: last"
+    assert lines[-1] == "<6>grassd.daemon.core.store.ingest: last"
     assert not any(ln.startswith("<2>") for ln in lines)
 
 
 def test_terminal_lines_one_record_each(tmp_path):
     lines = run_child(tmp_path, journal_stream=False).splitlines()
     assert "\x1b" not in "".join(lines) and "\r" not in "".join(lines)
-    assert " WARNING grassd.daemon.store.ingest: bundle b1\\n<2>grassd: forged" in lines[0]
+    assert " WARNING grassd.daemon.core.store.ingest: bundle b1\\n<2>grassd: forged" in lines[0]
     assert [ln for ln in lines if "forged critical" in ln and "Error" not in ln] == lines[:3]
-    assert lines[-1].endswith(" INFO grassd.daemon.store.ingest: last")
+    assert lines[-1].endswith(" INFO grassd.daemon.core.store.ingest: last")
 
 
 FAILING = """
 import logging, sys
-from grassd.daemon.monitoring.journal import setup_logging
+from grassd.daemon.core.monitoring.journal import setup_logging
 
 class Broken:  # a stream whose every write fails, as a gone journal stream does
     def write(self, text):

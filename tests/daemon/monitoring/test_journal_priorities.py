@@ -15,10 +15,10 @@ CHILD = """
 import json, logging, sys
 if sys.argv[1] == "no-module":
     sys.modules["systemd.journal"] = None  # as on a machine without python3-systemd
-from grassd.daemon.monitoring.journal import setup_logging
+from grassd.daemon.core.monitoring.journal import setup_logging
 native = None
 if sys.argv[1] == "native":
-    from grassd.daemon.monitoring.journal import journal_handler
+    from grassd.daemon.core.monitoring.journal import journal_handler
     out = open(sys.argv[2], "a")
     def sender(MESSAGE, **fields):  # what sd_journal_send gets, written to a file
         fields = {k.upper(): str(v) for k, v in fields.items()}
@@ -26,7 +26,7 @@ if sys.argv[1] == "native":
         out.flush()
     native = journal_handler(sender=sender)
 setup_logging("debug", native=native)
-log = logging.getLogger("grassd.daemon.runtime.service")
+log = logging.getLogger("grassd.daemon.core.runtime.service")
 log.debug("reading the lux sensor")
 log.info("run %d committed: R^2 %.5f", 12, 0.99931)
 log.warning("controller %s: not answering: %s", "/dev/ttyACM0#2", "timeout")
@@ -63,16 +63,17 @@ def test_stderr_lines_carry_syslog_priorities_under_systemd(tmp_path):
     assert lines[5].startswith('<3>  File "<string>", line ')  # the traceback's frame
     lines[5] = "<3>  File ..."
     assert lines[:12] == [
-        "<7>grassd.daemon.runtime.service: reading the lux sensor",
-        "<6>grassd.daemon.runtime.service: run 12 committed: R^2 0.99931",
-        "<4>grassd.daemon.runtime.service: controller /dev/ttyACM0#2: not answering: timeout",
-        "<3>grassd.daemon.runtime.service: run 13 failed",
+        "<7>grassd.daemon.core.runtime.service: reading the lux sensor",
+        "<6>grassd.daemon.core.runtime.service: run 12 committed: R^2 0.99931",
+        "<4>grassd.daemon.core.runtime.service: controller /dev/ttyACM0#2: not answering: timeout",
+        "<3>grassd.daemon.core.runtime.service: run 13 failed",
         "<3>Traceback (most recent call last):",
         "<3>  File ...",
         "<3>ValueError: boom",
-        "<4>grassd.daemon.runtime.service: rejected bundle 3f2a-sky: HDRI is not an OpenEXR file",
-        "<6>grassd.daemon.runtime.service: 100% of x done",
-        "<4>grassd.daemon.runtime.service: explicit",
+        "<4>grassd.daemon.core.runtime.service: rejected bundle 3f2a-sky: HDRI is not an "
+        "OpenEXR file",
+        "<6>grassd.daemon.core.runtime.service: 100% of x done",
+        "<4>grassd.daemon.core.runtime.service: explicit",
         "<2>grassd: uncaught exception, the program ends",
         "<2>Traceback (most recent call last):",
     ]
@@ -86,14 +87,15 @@ def test_stderr_lines_carry_syslog_priorities_under_systemd(tmp_path):
 def test_terminal_lines_keep_time_and_level(tmp_path):
     text, _ = run_child(tmp_path, "no-module", journal_stream=False)
     first = text.splitlines()[0]
-    assert not first.startswith("<") and " DEBUG grassd.daemon.runtime.service: reading" in first
+    assert not first.startswith("<")
+    assert " DEBUG grassd.daemon.core.runtime.service: reading" in first
 
 
 def test_journal_stream_of_another_file_is_not_ours(tmp_path):
     other = tmp_path / "other"
     other.write_text("")
     st = os.stat(other)
-    from grassd.daemon.monitoring.journal import stderr_is_journal
+    from grassd.daemon.core.monitoring.journal import stderr_is_journal
 
     with open(other) as fh:
         assert stderr_is_journal({"JOURNAL_STREAM": f"{st.st_dev}:{st.st_ino}"}, fh)

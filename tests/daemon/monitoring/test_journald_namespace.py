@@ -83,9 +83,9 @@ def text(e: dict) -> str:
 
 
 def test_journalctl_p_warning_shows_exactly_the_daemons_problems(tmp_path, journald):
-    from grassd.daemon.config.settings import load_default_config
-    from grassd.daemon.hardware.simulated import hardware_toml
-    from grassd.daemon.runtime.control import request
+    from grassd.daemon.core.config.settings import load_default_config
+    from grassd.daemon.core.runtime.control import request
+    from grassd.rigs.simulated_site import hardware_toml
 
     state = tmp_path / "state"
     conf = tmp_path / "g.toml"
@@ -173,7 +173,7 @@ def test_structured_fields_reach_journald(journald):
                         "python3-systemd (apt-get install python3-systemd) or systemd-python")
     import logging
 
-    from grassd.daemon.monitoring.journal import SubjectFields, journal_handler
+    from grassd.daemon.core.monitoring.journal import SubjectFields, journal_handler
 
     handler = journal_handler(sender=native_sender(journald))
     handler.addFilter(SubjectFields())

@@ -12,10 +12,10 @@ from urllib.parse import unquote
 from measurement_samples import failed_report, ok_report
 from status_samples import status
 
-from grassd.daemon.monitoring.measurement_report import write_report
-from grassd.daemon.monitoring.status_page import CARD_TREND, render
-from grassd.daemon.store.history import History
-from grassd.daemon.store.layout import StateLayout
+from grassd.daemon.core.monitoring.status_page import CARD_TREND, render
+from grassd.daemon.core.store.history import History
+from grassd.daemon.core.store.layout import StateLayout
+from grassd.daemon.measure.report import write_report
 
 
 def _card(page: str) -> str:

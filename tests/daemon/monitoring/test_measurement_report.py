@@ -1,4 +1,4 @@
-"""A measurement's report (grassd.daemon.monitoring.measurement_report): JSON and HTML written
+"""A measurement's report (grassd.daemon.measure.report): JSON and HTML written
 into the state directory for a successful and a failed measurement, hostile text escaped,
 reports read back past a corrupt file, and the trend that shows the display fading."""
 
@@ -13,13 +13,13 @@ import pytest
 from headless_chromium import CHROMIUM, MISSING, Browser
 from measurement_samples import failed_report, ok_report
 
-from grassd.daemon.monitoring.measurement_report import (
+from grassd.daemon.core.store.layout import StateLayout
+from grassd.daemon.measure.report import (
     grid_shape,
     load_reports,
     trend,
     write_report,
 )
-from grassd.daemon.store.layout import StateLayout
 
 EVIL = "camera <script>alert(1)</script>\n\x1b[2J"
 

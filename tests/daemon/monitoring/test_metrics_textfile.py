@@ -12,8 +12,8 @@ from pathlib import Path
 from daemon_harness import drop, service, write_config
 from prometheus_client.parser import text_string_to_metric_families
 
-from grassd.daemon.config.settings import parse_config
-from grassd.daemon.monitoring.metrics import TEXTFILE_NAME, state_dir_textfile, textfile_path
+from grassd.daemon.core.config.settings import parse_config
+from grassd.daemon.core.monitoring.metrics import TEXTFILE_NAME, state_dir_textfile, textfile_path
 
 RULES = Path(__file__).resolve().parents[3] / "systemd" / "grassd-alerts.rules.yml"
 
@@ -44,9 +44,9 @@ def test_textfile_default_and_configured_path(tmp_path):
 def test_textfile_must_end_in_prom(tmp_path):
     import pytest
 
-    from grassd.daemon.config.settings import load_default_config
-    from grassd.daemon.errors import ConfigError
-    from grassd.daemon.hardware.simulated import hardware_toml
+    from grassd.daemon.core.config.settings import load_default_config
+    from grassd.daemon.core.errors import ConfigError
+    from grassd.rigs.simulated_site import hardware_toml
 
     base = (f'state_dir = "{tmp_path}"\n[site]\nlatitude = 1\nlongitude = 1\n'
             f"{hardware_toml(load_default_config())}[[viewpoints]]\nh_cm = 170\nd_m = 2\n"
@@ -179,7 +179,7 @@ def test_unwritable_textfile_is_logged_once_never_fatal(tmp_path, hw, caplog):
     conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg,
                         extra=f'[metrics]\ntextfile = "{blocker}/grassd.prom"\n')
     svc = service(conf)
-    caplog.set_level(logging.WARNING, "grassd.daemon.monitoring.operator_view")
+    caplog.set_level(logging.WARNING, "grassd.daemon.core.monitoring.operator_view")
     drop(svc.cfg.light.inbox, "b1")
     svc.tick()
     for _ in range(3):

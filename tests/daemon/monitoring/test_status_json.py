@@ -14,15 +14,15 @@ from daemon_harness import after_first_bundle
 from status_samples import controller, daemon_state, status, waiting
 
 from grassd.daemon.cli.run import print_status
-from grassd.daemon.monitoring.status_types import (
+from grassd.daemon.core.monitoring.status_types import (
     ComputeWait,
     ErrorSeen,
     PushRetry,
     RunSummary,
     Status,
 )
-from grassd.daemon.runtime.service import collect_status
-from grassd.daemon.store.quarantine import QuarantinedBundle
+from grassd.daemon.core.runtime.service import collect_status
+from grassd.daemon.core.store.quarantine import QuarantinedBundle
 
 #: without a daemon (from the state database alone)
 DB_KEYS = ["desired_table", "controllers", "runs", "run_counts", "quarantined", "state_dir",

@@ -10,7 +10,7 @@ import numpy as np
 from daemon_harness import POLICY, after_first_bundle
 
 from grassd.daemon.cli.run import print_status
-from grassd.daemon.monitoring.line_report import describe_line, line_verdict
+from grassd.daemon.core.monitoring.line_report import describe_line, line_verdict
 from grassd.rigs.faults import FaultInjector, FaultPlan
 
 

@@ -11,7 +11,7 @@ import pytest
 from daemon_harness import drop, service, write_config
 from headless_chromium import CHROMIUM, MISSING, Browser
 
-from grassd.daemon.store.layout import PAGE_NAME
+from grassd.daemon.core.store.layout import PAGE_NAME
 
 
 @pytest.fixture

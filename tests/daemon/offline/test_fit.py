@@ -11,17 +11,6 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from bench.fit_worlds import (
-    ALBEDOS,
-    HELD_OUT,
-    LENGTHS,
-    PHOTO,
-    VIEWS,
-    WORLDS,
-    albedo_de00,
-    capture_known_pixel,
-    true_fields,
-)
 from grassd.daemon.cli.main import main
 from grassd.daemon.offline.fit import (
     ContradictoryPhotosError,
@@ -33,6 +22,17 @@ from grassd.daemon.offline.fit import (
 )
 from grassd.daemon.offline.validate import Series
 from grassd.daemon.offline.virtual_capture import capture_world
+from grassd.rigs.fit_worlds import (
+    ALBEDOS,
+    HELD_OUT,
+    LENGTHS,
+    PHOTO,
+    VIEWS,
+    WORLDS,
+    albedo_de00,
+    capture_known_pixel,
+    true_fields,
+)
 from grassd.sim.light_input import LightInput
 from grassd.sim.scene import PixelSpec
 
@@ -156,7 +156,7 @@ def test_cli_writes_reports_that_check_config_and_validate_accept(pink, tmp_path
     # pasted into the default config in place of its empty [display.pixel] table
     from importlib.resources import files
 
-    default = files("grassd.daemon.config").joinpath("default.toml").read_text()
+    default = files("grassd.daemon.core.config").joinpath("default.toml").read_text()
     head, _, tail = default.partition("[display.pixel]")
     config = tmp_path / "grassd.toml"
     config.write_text(head + table + tail.split("\n", 1)[1])

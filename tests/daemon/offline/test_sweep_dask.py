@@ -23,9 +23,9 @@ import pytest
 from click.testing import CliRunner
 from dask_cluster import DaskCluster, free_port
 
-from grassd.daemon.config.compute import ComputeConfig
-from grassd.daemon.config.settings import default_config_text
-from grassd.daemon.errors import ComputeResultRefused, ConfigError
+from grassd.daemon.compute.config import ComputeConfig
+from grassd.daemon.core.config.settings import default_config_text
+from grassd.daemon.core.errors import ComputeResultRefused, ConfigError
 from grassd.daemon.offline.sweep import SweepError, SweepSpec, conditions, read_results, run_sweep
 
 pytest.importorskip("distributed")
@@ -143,7 +143,7 @@ def test_a_hostile_worker_runs_nothing_in_the_sweep(sky, tmp_path, monkeypatch):
     runs a command: the sweep's client takes answers through msgpack only, so the sweep is
     refused (ComputeResultRefused), nothing is stored and the command never runs. The attack
     is real: the same client with Dask's default deserializers runs it in this process."""
-    from grassd.daemon.calibration import dask_client
+    from grassd.daemon.compute import dask_client
 
     mark = tmp_path / "ran"
     with DaskCluster(tmp_path / "dask") as cluster:

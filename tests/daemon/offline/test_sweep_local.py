@@ -90,7 +90,7 @@ def test_tidy_table_holds_every_condition_and_length(full, sky):
 
 def test_stored_task_equals_a_direct_render_bit_for_bit(full, sky, renderer):
     """A worker process's stored result equals this process's render with the task's seed."""
-    from grassd.daemon.calibration.simulation import simulate_curve
+    from grassd.daemon.core.calibration.simulation import simulate_curve
     from grassd.sim.lighting import build_lighting
     from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint
 

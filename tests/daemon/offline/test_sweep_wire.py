@@ -1,5 +1,5 @@
 """The declared form of a sweep worker's answer (``ConditionResult`` through
-daemon/calibration/wire.py) and the checks on its arrival (``sweep.check_arrival``): a real
+daemon/compute/wire.py) and the checks on its arrival (``sweep.check_arrival``): a real
 condition's result crosses msgpack unchanged; one tampered with on the way (another
 condition, a length missing, other lengths, a NaN or an infinity, an extra field, bytes for an
 array, a float32 array) is refused as :class:`ComputeResultRefused`; a declared error comes
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from dask_cluster import tampered
 
-from grassd.daemon.calibration.wire import answer_of, error_answer, read_answer
-from grassd.daemon.errors import ComputeResultRefused
+from grassd.daemon.compute.wire import answer_of, error_answer, read_answer
+from grassd.daemon.core.errors import ComputeResultRefused
 from grassd.daemon.offline.sweep import (
     ConditionResult,
     SweepJob,

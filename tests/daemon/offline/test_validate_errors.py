@@ -221,8 +221,8 @@ def test_hostile_manifests_are_refused_with_a_bundles_caps(tmp_path):
     """capture.toml is read as a bundle's manifest is: nested 5000 deep (arrays, or tables
     named by dotted keys), over the manifest byte cap, or a FIFO, it is one clear error line
     from ``grassd validate`` (no RecursionError traceback, no hang)."""
-    from grassd.daemon.config.limits import DEFAULT_LIMITS
-    from grassd.daemon.store.manifest import MAX_MANIFEST_DEPTH
+    from grassd.daemon.core.config.limits import DEFAULT_LIMITS
+    from grassd.daemon.core.store.manifest import MAX_MANIFEST_DEPTH
 
     _capture(tmp_path)
     good = (tmp_path / "capture.toml").read_text()

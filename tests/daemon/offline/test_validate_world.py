@@ -14,7 +14,7 @@ from grassd.calib.checker_photo import virtual_checker
 from grassd.calib.compare import frechet_characteristics, max_ogcd_error
 from grassd.calib.ogcd import ogcd_from_samples
 from grassd.calib.virtual_camera import VirtualCamera
-from grassd.daemon.calibration.simulation import white_radiance
+from grassd.daemon.core.calibration.simulation import white_radiance
 from grassd.daemon.offline.validate import (
     load_manifest,
     max_error_at,

@@ -10,9 +10,9 @@ import os
 
 import numpy as np
 
-from grassd.daemon.config.capture import CaptureConfig
-from grassd.daemon.hardware.simulated_camera import SimCamera
-from grassd.daemon.runtime.capture import Station
+from grassd.daemon.capture.station import Station
+from grassd.daemon.core.config.camera_section import CaptureConfig
+from grassd.rigs.simulated_camera import SimCamera
 
 
 def small_env() -> np.ndarray:

@@ -9,12 +9,12 @@ from datetime import UTC, datetime
 import numpy as np
 import pytest
 
-from grassd.daemon.calibration.calibrate import Calibrator
-from grassd.daemon.config.capture import CaptureConfig
-from grassd.daemon.config.settings import load_default_config
-from grassd.daemon.hardware.simulated_camera import SimCamera
-from grassd.daemon.runtime.capture import Station
-from grassd.daemon.store.manifest import parse_manifest
+from grassd.daemon.capture.station import Station
+from grassd.daemon.core.calibration.calibrate import Calibrator
+from grassd.daemon.core.config.camera_section import CaptureConfig
+from grassd.daemon.core.config.settings import load_default_config
+from grassd.daemon.core.store.manifest import parse_manifest
+from grassd.rigs.simulated_camera import SimCamera
 from grassd.sim.hdri import load_hdri
 from grassd.sim.lighting import uv_to_direction
 

@@ -16,13 +16,13 @@ from prometheus_client.parser import text_string_to_metric_families
 from test_grassd_run_end_to_end import GRASSD
 from test_grassd_run_end_to_end import config_text as e2e_config_text
 
-from grassd.daemon.config.settings import load_default_config
-from grassd.daemon.hardware.simulated import SimulatedHardware
-from grassd.daemon.hardware.simulated_camera import SimCamera
-from grassd.daemon.runtime.control import request
-from grassd.daemon.store.history import History
+from grassd.daemon.core.config.settings import load_default_config
+from grassd.daemon.core.runtime.control import request
+from grassd.daemon.core.store.history import History
 from grassd.firmware_proto.tables import table_crc
 from grassd.rigs.processes import end_process
+from grassd.rigs.simulated_camera import SimCamera
+from grassd.rigs.simulated_site import SimulatedHardware
 from grassd.sim.hdri import default_site_hdri, downsample, load_hdri
 
 

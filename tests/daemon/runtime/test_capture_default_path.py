@@ -16,11 +16,11 @@ from __future__ import annotations
 
 import doctest
 
-from bench.bench_capture import ILLUMINANCE_GOAL, LUMINANCE_GOAL, default_path_round_trip
-from grassd.daemon.config.capture import CaptureConfig
-from grassd.daemon.hardware import bracket
-from grassd.daemon.hardware.bracket import SHUTTER_SPEEDS_S, BracketPlan, plan_shutters
-from grassd.daemon.hardware.simulated_camera import SIM_WIDTH
+from grassd.daemon.core.config.camera_section import CaptureConfig
+from grassd.daemon.core.hardware import bracket
+from grassd.daemon.core.hardware.bracket import SHUTTER_SPEEDS_S, BracketPlan, plan_shutters
+from grassd.rigs.capture_round_trip import ILLUMINANCE_GOAL, LUMINANCE_GOAL, default_path_round_trip
+from grassd.rigs.simulated_camera import SIM_WIDTH
 
 
 def test_forest_round_trip_on_the_default_path_is_within_the_goals(shared_hdri, tmp_path):

@@ -14,9 +14,10 @@ import tomllib
 import numpy as np
 import pytest
 
-from grassd.daemon.config.capture import CaptureConfig
-from grassd.daemon.config.settings import load_default_config
-from grassd.daemon.errors import (
+from grassd.daemon.capture.station import Station
+from grassd.daemon.core.config.camera_section import CaptureConfig
+from grassd.daemon.core.config.settings import load_default_config
+from grassd.daemon.core.errors import (
     BracketUnusable,
     CameraBusy,
     CameraCommandTimeout,
@@ -27,10 +28,9 @@ from grassd.daemon.errors import (
     ExposureMissing,
     LuxSensorSilent,
 )
-from grassd.daemon.hardware.simulated import SimLuxSensor
-from grassd.daemon.hardware.simulated_camera import SimCamera
-from grassd.daemon.runtime.capture import Station
-from grassd.daemon.store.manifest import parse_manifest
+from grassd.daemon.core.store.manifest import parse_manifest
+from grassd.rigs.simulated_camera import SimCamera
+from grassd.rigs.simulated_site import SimLuxSensor
 
 
 def small_env() -> np.ndarray:

@@ -8,11 +8,11 @@ import time
 
 import numpy as np
 
-from grassd.daemon.config.capture import CaptureConfig
-from grassd.daemon.config.settings import load_default_config
-from grassd.daemon.hardware.simulated import SimLuxSensor
-from grassd.daemon.hardware.simulated_camera import SimCamera
-from grassd.daemon.runtime.capture import CaptureLoop, Station
+from grassd.daemon.capture.station import CaptureLoop, Station
+from grassd.daemon.core.config.camera_section import CaptureConfig
+from grassd.daemon.core.config.settings import load_default_config
+from grassd.rigs.simulated_camera import SimCamera
+from grassd.rigs.simulated_site import SimLuxSensor
 
 
 def small_env() -> np.ndarray:

@@ -19,8 +19,8 @@ from daemon_harness import CACHE, ONE_VIEW, display_2x2, drop, service, tick_unt
 from daemon_harness import wait_for as harness_wait_for
 from dask_cluster import DaskCluster
 
-from grassd.daemon.errors import ControlError
-from grassd.daemon.runtime.control import request
+from grassd.daemon.core.errors import ControlError
+from grassd.daemon.core.runtime.control import request
 
 pytest.importorskip("distributed")
 pytestmark = [pytest.mark.slow, pytest.mark.long]

@@ -12,10 +12,10 @@ import time
 import pytest
 from daemon_harness import write_config
 
-from grassd.daemon.config.settings import load_config
-from grassd.daemon.errors import DaemonBusy
-from grassd.daemon.runtime.control import MAX_CLIENTS, ControlServer, request
-from grassd.daemon.runtime.service import Service
+from grassd.daemon.core.config.settings import load_config
+from grassd.daemon.core.errors import DaemonBusy
+from grassd.daemon.core.runtime.control import MAX_CLIENTS, ControlServer, request
+from grassd.daemon.core.runtime.service import Service
 
 
 def test_excess_clients_are_told_busy_without_threads(tmp_path):

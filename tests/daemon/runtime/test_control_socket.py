@@ -9,8 +9,8 @@ import threading
 
 import pytest
 
-from grassd.daemon.errors import ControlError, DaemonNotRunning
-from grassd.daemon.runtime.control import ControlServer, request
+from grassd.daemon.core.errors import ControlError, DaemonNotRunning
+from grassd.daemon.core.runtime.control import ControlServer, request
 
 #: the "together" requests wait here until 5 of them run at once (or fail after 10 s)
 together = threading.Barrier(5, timeout=10)

@@ -26,16 +26,16 @@ from typing import Any
 import pytest
 from daemon_harness import wait_for, write_config
 
-from grassd.daemon.config.settings import load_config
-from grassd.daemon.errors import ControlError, DaemonBusy
-from grassd.daemon.runtime.control import (
+from grassd.daemon.core.config.settings import load_config
+from grassd.daemon.core.errors import ControlError, DaemonBusy
+from grassd.daemon.core.runtime.control import (
     GROUP_ENV,
     MAX_CLIENTS,
     MAX_REQUEST_BYTES,
     ControlServer,
     request,
 )
-from grassd.daemon.runtime.service import Service
+from grassd.daemon.core.runtime.service import Service
 
 NOBODY = 65534
 BOUND_S = 20.0  # the most any single wait of these tests may take

@@ -51,8 +51,8 @@ def test_daemon_refused_by_a_controllers_command_does_not_name_a_dead_daemon(tmp
 
     import pytest
 
-    from grassd.daemon.errors import StateDirLocked
-    from grassd.daemon.runtime.statelock import StateLock
+    from grassd.daemon.core.errors import StateDirLocked
+    from grassd.daemon.core.runtime.statelock import StateLock
 
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()  # a PID that no longer runs

@@ -22,13 +22,13 @@ import pytest
 from daemon_harness import CACHE, SITE, truncated_exr
 from daemon_harness import wait_for as harness_wait_for
 
-from grassd.daemon.config.settings import load_default_config
-from grassd.daemon.errors import DaemonNotRunning
-from grassd.daemon.hardware.simulated import SimulatedHardware, hardware_toml
-from grassd.daemon.runtime.control import request
-from grassd.daemon.store.history import History
+from grassd.daemon.core.config.settings import load_default_config
+from grassd.daemon.core.errors import DaemonNotRunning
+from grassd.daemon.core.runtime.control import request
+from grassd.daemon.core.store.history import History
 from grassd.firmware_proto.tables import table_crc
 from grassd.rigs.processes import end_process
+from grassd.rigs.simulated_site import SimulatedHardware, hardware_toml
 
 GRASSD = str(Path(sys.executable).parent / "grassd")
 

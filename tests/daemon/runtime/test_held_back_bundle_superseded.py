@@ -9,7 +9,7 @@ from datetime import datetime
 
 from daemon_harness import drop, journal_entry, reported, service, tick_until, write_config
 
-from grassd.daemon.hardware.simulated import SimLuxSensor
+from grassd.rigs.simulated_site import SimLuxSensor
 
 
 def test_held_back_older_bundle_is_superseded_newer_one_applies(tmp_path, hw):

@@ -1,6 +1,6 @@
 """Whatever an uploader puts in the inbox, a running `grassd run` rejects the bundle with a
 reason, goes on to process the valid bundle dropped after it, and starts again on the same state
-directory (issue #27). Each attack (bench/inbox_fuzz.py) was proven to stop, block or exhaust the
+directory (issue #27). Each attack (rigs/inbox_fuzz.py) was proven to stop, block or exhaust the
 daemon before.
 
 One real daemon process serves the module (simulated controllers on ptys, a Modbus lux sensor on
@@ -17,7 +17,7 @@ import pytest
 from daemon_harness import SITE
 from test_grassd_run_end_to_end import Daemon, manifest, wait_for
 
-from bench.inbox_fuzz import ATTACKS, drop_attack
+from grassd.rigs.inbox_fuzz import ATTACKS, drop_attack
 
 #: seconds a rejection or a valid bundle's calibration may take on a loaded 2-core CI machine
 WAIT_S = 90.0

@@ -13,7 +13,7 @@ import time
 import pytest
 from test_grassd_run_end_to_end import Daemon, config_text, manifest, wait_for
 
-from bench.hostile_camera import HostileServer
+from grassd.rigs.hostile_camera import HostileServer
 
 #: seconds for a capture attempt or a calibration on a loaded 2-core CI machine
 WAIT_S = 90.0

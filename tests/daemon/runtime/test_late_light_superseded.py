@@ -16,8 +16,8 @@ from click.testing import CliRunner
 from daemon_harness import drop, journal_entry, reported, service, truncated_exr, write_config
 
 from grassd.daemon.cli.main import main as cli
-from grassd.daemon.runtime.service import collect_status
-from grassd.daemon.store.layout import STATE_DB
+from grassd.daemon.core.runtime.service import collect_status
+from grassd.daemon.core.store.layout import STATE_DB
 
 NOON = "2026-03-01T12:00:00+01:00"  # 11:00 UTC
 
@@ -62,7 +62,7 @@ def test_late_upload_of_older_light_is_archived_as_superseded(tmp_path, hw, capl
 
     # a late upload of the 11:00 light, after the noon table went out
     caplog.clear()
-    with caplog.at_level(logging.WARNING, logger="grassd.daemon.runtime.bundle_pipeline"):
+    with caplog.at_level(logging.WARNING, logger="grassd.daemon.core.runtime.bundle_pipeline"):
         drop(inbox, "late", lux=1500.0, timestamp="2026-03-01T11:00:00+01:00")
         svc.tick()
     _assert_superseded(svc, "late", noon, "2026-03-01T10:00:00+00:00",

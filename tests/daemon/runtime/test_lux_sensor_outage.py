@@ -10,7 +10,7 @@ import time
 import pytest
 from daemon_harness import drop, service, tick_until, write_config
 
-from grassd.daemon.hardware.simulated import SimLuxSensor
+from grassd.rigs.simulated_site import SimLuxSensor
 
 
 def test_sensor_outage_defers_then_runs_when_back(tmp_path, hw):

@@ -12,8 +12,8 @@ from types import SimpleNamespace
 
 import pytest
 
-from grassd.daemon.runtime import notify
-from grassd.daemon.runtime.notify import Notifier
+from grassd.daemon.core.runtime import notify
+from grassd.daemon.core.runtime.notify import Notifier
 
 
 def _listener(path_or_abstract):
@@ -81,7 +81,7 @@ def test_child_process_notifies_parent(tmp_path):
     """A separate process (as systemd would run it) reaches our socket through the env var."""
     path = str(tmp_path / "notify")
     srv = _listener(path)
-    code = "from grassd.daemon.runtime.notify import Notifier; Notifier().ready('up')"
+    code = "from grassd.daemon.core.runtime.notify import Notifier; Notifier().ready('up')"
     subprocess.run([sys.executable, "-c", code], env={**os.environ, "NOTIFY_SOCKET": path},
                    check=True)
     assert srv.recv(4096).startswith(b"READY=1\nSTATUS=up\nMAINPID=")
@@ -128,7 +128,7 @@ def test_a_hostile_status_is_one_assignment(tmp_path, caplog):
 def test_a_failing_socket_is_logged_once_and_never_raises(tmp_path, caplog):
     """A socket name that cannot be used (NUL in it, a directory, nobody listening): every
     call returns False; the first failure is a warning, later ones are debug lines."""
-    caplog.set_level("DEBUG", logger="grassd.daemon.runtime.notify")
+    caplog.set_level("DEBUG", logger="grassd.daemon.core.runtime.notify")
     for bad in (f"{tmp_path}/a\0b", str(tmp_path), str(tmp_path / "gone"), "@\udcff"):
         caplog.clear()
         n = Notifier(env={"NOTIFY_SOCKET": bad})

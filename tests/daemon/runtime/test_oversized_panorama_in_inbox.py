@@ -10,8 +10,8 @@ from __future__ import annotations
 import pytest
 from test_grassd_run_end_to_end import Daemon, manifest, wait_for
 
-from bench.inbox_fuzz import ATTACKS, drop_attack
-from bench.peak_memory import proc_mib
+from grassd.rigs.inbox_fuzz import ATTACKS, drop_attack
+from grassd.rigs.peak_memory import proc_mib
 
 pytestmark = pytest.mark.timeout(300)
 

@@ -19,7 +19,7 @@ from grassd.rigs.faults import FaultInjector, FaultPlan
 
 def _fleet_warnings(caplog, name: str) -> list[str]:
     return [r.getMessage() for r in caplog.records
-            if r.name == "grassd.daemon.hardware.fleet" and r.levelno == logging.WARNING
+            if r.name == "grassd.daemon.core.hardware.fleet" and r.levelno == logging.WARNING
             and name in r.getMessage()]
 
 
@@ -46,7 +46,7 @@ def _until_back(svc, bus, bad: str, down_s: float):
 
 
 def test_failing_controller_backs_off_and_is_pushed_on_reset(tmp_path, hw, caplog):
-    caplog.set_level(logging.INFO, logger="grassd.daemon.hardware.fleet")
+    caplog.set_level(logging.INFO, logger="grassd.daemon.core.hardware.fleet")
     sim, cfg = hw
     svc, _ = after_first_bundle(tmp_path, cfg)
     bad = svc.fleet.controllers[0].name
@@ -104,7 +104,7 @@ def test_failing_controller_backs_off_and_is_pushed_on_reset(tmp_path, hw, caplo
     assert svc.status().to_json()["health"] == "ok"
     assert svc.fleet.backoff() == {}
     assert any("active after" in m.getMessage() for m in caplog.records
-               if m.name == "grassd.daemon.hardware.fleet" and bad in m.getMessage())
+               if m.name == "grassd.daemon.core.hardware.fleet" and bad in m.getMessage())
 
     # a new failure streak; a reload ends its backoff: pushed at the next reconcile
     injector.enabled = True
@@ -155,7 +155,7 @@ def test_backoff_grows_across_status_blips_and_ends_after_a_long_outage(tmp_path
 def test_unreachable_controller_is_logged_as_not_answering(tmp_path, hw, caplog):
     """A controller whose status read fails (unplugged: no push tried) is logged as not
     answering, not as a failed push; a push that fails is logged as one."""
-    caplog.set_level(logging.INFO, logger="grassd.daemon.hardware.fleet")
+    caplog.set_level(logging.INFO, logger="grassd.daemon.core.hardware.fleet")
     sim, cfg = hw
     svc, cur = after_first_bundle(tmp_path, cfg)
     bad = svc.fleet.controllers[0].name
@@ -182,7 +182,7 @@ def test_refusing_controller_is_logged_as_refusing(tmp_path, hw, caplog):
     answering; it is not pushed while it refuses, and is pushed when it answers again."""
     from grassd.firmware_proto.messages import MsgType, Nak, NakCode
 
-    caplog.set_level(logging.INFO, logger="grassd.daemon.hardware.fleet")
+    caplog.set_level(logging.INFO, logger="grassd.daemon.core.hardware.fleet")
     sim, cfg = hw
     svc, cur = after_first_bundle(tmp_path, cfg)
     bad = svc.fleet.controllers[0].name

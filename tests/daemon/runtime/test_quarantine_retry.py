@@ -12,8 +12,8 @@ import subprocess
 
 from test_grassd_run_end_to_end import GRASSD, Daemon, manifest, wait_for
 
-from grassd.daemon.store.history import History
-from grassd.daemon.store.ingest import Inbox
+from grassd.daemon.core.store.history import History
+from grassd.daemon.core.store.ingest import Inbox
 
 
 def _crashed_three_times(d: Daemon, name: str, i: int) -> None:

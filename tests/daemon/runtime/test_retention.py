@@ -10,12 +10,12 @@ import time
 import pytest
 from daemon_harness import drop, service, truncated_exr, write_config
 
-from grassd.daemon.config.settings import (
+from grassd.daemon.core.config.settings import (
     RetentionConfig,
     default_config_text,
     parse_config,
 )
-from grassd.daemon.errors import ConfigError
+from grassd.daemon.core.errors import ConfigError
 
 
 def reports(svc) -> list[str]:

@@ -14,9 +14,9 @@ import time
 
 from daemon_harness import drop, journal_entry, reported, service, write_config
 
-from grassd.daemon.runtime.retention import DAY_S, prune
-from grassd.daemon.store.history import History
-from grassd.daemon.store.ingest import Inbox
+from grassd.daemon.core.runtime.retention import DAY_S, prune
+from grassd.daemon.core.store.history import History
+from grassd.daemon.core.store.ingest import Inbox
 
 OLD_LIGHT = [f"2026-03-01T08:{m:02d}:00+01:00" for m in range(10)]
 

@@ -9,8 +9,8 @@ from pathlib import Path
 import daemon_harness
 from daemon_harness import TWO_VIEWS, drop, service
 
-from grassd.daemon.config.settings import load_config
-from grassd.daemon.runtime.service import Service
+from grassd.daemon.core.config.settings import load_config
+from grassd.daemon.core.runtime.service import Service
 from grassd.firmware_proto.client import RetryPolicy
 
 
@@ -78,7 +78,7 @@ def test_all_controllers_down_commits_then_reconciles(tmp_path, hw):
             break
         time.sleep(0.3)
     assert all(r.ok for r in reports) and pushed == {r.controller for r in reports}
-    from grassd.daemon.runtime.service import collect_status
+    from grassd.daemon.core.runtime.service import collect_status
 
     assert collect_status(svc.history, svc.cfg).to_json()["health"] == "ok"
     svc.shutdown()

@@ -1,6 +1,6 @@
 """SIGTERM, SIGINT and SIGHUP never hang the daemon (issue 27): the handlers only note the
 signal and write a byte to a self-pipe; a relay thread sets the stop and reload events
-(grassd.daemon.runtime.signal_relay).
+(grassd.daemon.core.runtime.signal_relay).
 
 Seen before: a daemon hung in its SIGTERM handler, which called ``stop_event.set()`` while the
 main loop waited on that event: Python runs a handler in the main thread between two bytecodes,
@@ -25,7 +25,7 @@ LOCK_HELD = """
 import signal, sys, threading
 stop, reload = threading.Event(), threading.Event()
 if sys.argv[1] == "relay":
-    from grassd.daemon.runtime.signal_relay import SignalRelay
+    from grassd.daemon.core.runtime.signal_relay import SignalRelay
     relay = SignalRelay({signal.SIGTERM: stop.set, signal.SIGINT: stop.set,
                          signal.SIGHUP: reload.set},
                         latched=(signal.SIGTERM, signal.SIGINT)).install()

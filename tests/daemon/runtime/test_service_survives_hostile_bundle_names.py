@@ -18,7 +18,7 @@ import re
 import pytest
 from test_grassd_run_end_to_end import Daemon, manifest, wait_for
 
-from grassd.daemon.store.layout import PAGE_NAME
+from grassd.daemon.core.store.layout import PAGE_NAME
 
 #: a calibration or a rejection on a loaded CI machine
 WAIT_S = 120.0
@@ -108,7 +108,7 @@ def test_journal_output_is_one_line_per_record(daemon):
     assert all(ln.startswith("[Taichi]") for ln in lines if ln not in prefixed), lines
     assert not any("\x1b" in ln for ln in lines)
     [line] = [ln for ln in lines if "archived unused" in ln]
-    assert line.startswith(f"<4>grassd.daemon.runtime.bundle_pipeline: bundle old {ESCAPED} "
+    assert line.startswith(f"<4>grassd.daemon.core.runtime.bundle_pipeline: bundle old {ESCAPED} "
                            "archived unused: superseded: its light")
     assert not any(ln.startswith(("<2>grassd: FORGED", "READY=1", "MAINPID", "<img"))
                    for ln in lines)

@@ -23,14 +23,14 @@ from daemon_harness import POLICY, full, service, tmpfs, wait_for, write_config
 from daemon_harness import drop as rdrop
 from daemon_harness import drop_midsummer as drop
 
-from grassd.daemon.calibration.calibrate import init_backend
-from grassd.daemon.config.settings import parse_config
-from grassd.daemon.errors import DaemonError, StateDirLocked
-from grassd.daemon.hardware.fleet import Fleet, table_checksum
-from grassd.daemon.hardware.simulated import SimLuxSensor, SimulatedHardware
-from grassd.daemon.runtime.bundle_pipeline import Deferred
-from grassd.daemon.runtime.service import Service, collect_status
-from grassd.daemon.runtime.statelock import StateLock
+from grassd.daemon.core.calibration.calibrate import init_backend
+from grassd.daemon.core.config.settings import parse_config
+from grassd.daemon.core.errors import DaemonError, StateDirLocked
+from grassd.daemon.core.hardware.fleet import Fleet, table_checksum
+from grassd.daemon.core.runtime.bundle_pipeline import Deferred
+from grassd.daemon.core.runtime.service import Service, collect_status
+from grassd.daemon.core.runtime.statelock import StateLock
+from grassd.rigs.simulated_site import SimLuxSensor, SimulatedHardware
 
 PIXEL = '[tables]\ngranularity = "pixel"\ncheck_groups = 0\n'
 

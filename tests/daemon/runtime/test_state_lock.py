@@ -17,11 +17,11 @@ from pathlib import Path
 import pytest
 from daemon_harness import SITE, write_config
 
-from grassd.daemon.config.settings import load_config
-from grassd.daemon.errors import ControlError, StateDirLocked
-from grassd.daemon.runtime.control import request
-from grassd.daemon.runtime.service import Service
-from grassd.daemon.runtime.statelock import StateLock
+from grassd.daemon.core.config.settings import load_config
+from grassd.daemon.core.errors import ControlError, StateDirLocked
+from grassd.daemon.core.runtime.control import request
+from grassd.daemon.core.runtime.service import Service
+from grassd.daemon.core.runtime.statelock import StateLock
 
 GRASSD = str(Path(sys.executable).parent / "grassd")
 

@@ -10,7 +10,7 @@ import weakref
 import numpy as np
 import pytest
 
-from grassd.daemon.runtime.young_garbage import freed_when_done
+from grassd.daemon.core.runtime.young_garbage import freed_when_done
 
 
 class Node:

@@ -14,9 +14,13 @@ import matplotlib
 import pytest
 from matplotlib.figure import Figure
 
-from grassd.daemon.errors import HistoryError
-from grassd.daemon.store.atomic import atomic_save_figure, atomic_write_bytes, atomic_write_json
-from grassd.daemon.store.history import History
+from grassd.daemon.core.errors import HistoryError
+from grassd.daemon.core.store.atomic import (
+    atomic_save_figure,
+    atomic_write_bytes,
+    atomic_write_json,
+)
+from grassd.daemon.core.store.history import History
 
 matplotlib.use("Agg")
 
@@ -94,7 +98,7 @@ def test_atomic_json_and_png(tmp_path):
 
 WRITER = """
 import sys, hashlib
-from grassd.daemon.store.atomic import atomic_write_bytes
+from grassd.daemon.core.store.atomic import atomic_write_bytes
 i = 0
 while True:
     i += 1
@@ -119,7 +123,7 @@ def test_atomic_write_survives_sigkill(tmp_path):
 def test_wal_survives_writer_kill(tmp_path):
     """A process killed between commits leaves every committed row readable."""
     code = f"""
-from grassd.daemon.store.history import History
+from grassd.daemon.core.store.history import History
 h = History({str(tmp_path / 's.db')!r})
 i = 0
 while True:
@@ -142,7 +146,7 @@ while True:
 def test_database_from_before_light_at_gains_the_column(tmp_path):
     """A state database whose runs table lacks light_at (as written before it existed) opens:
     the column is added, old runs read None, new runs store it."""
-    from grassd.daemon.store import history as hist
+    from grassd.daemon.core.store import history as hist
 
     path = tmp_path / "state.db"
     db = sqlite3.connect(path)
@@ -162,7 +166,7 @@ def test_database_from_before_light_at_gains_the_column(tmp_path):
 
 def _old_database(path, schema_version: str) -> None:
     """A state database written before runs.light_at, recording ``schema_version``."""
-    from grassd.daemon.store import history as hist
+    from grassd.daemon.core.store import history as hist
 
     db = sqlite3.connect(path)
     db.execute("PRAGMA journal_mode=WAL")
@@ -194,7 +198,7 @@ def test_light_at_added_by_another_process_meanwhile(tmp_path, monkeypatch):
     """Two processes open the same old database at once: the other one adds light_at between
     our look at the columns and our ALTER TABLE (done here from a second connection, run when
     SQLite starts our ALTER). Ours fails with 'duplicate column', which opening tolerates."""
-    from grassd.daemon.store import history as hist
+    from grassd.daemon.core.store import history as hist
 
     path = tmp_path / "state.db"
     _old_database(path, str(hist.SCHEMA_VERSION))

@@ -1,4 +1,4 @@
-"""Random and mutated bundles (bench/inbox_fuzz.py: file kinds, sizes, names, manifests) through
+"""Random and mutated bundles (rigs/inbox_fuzz.py: file kinds, sizes, names, manifests) through
 the inbox for a fixed budget with a fixed seed: no scan raises or blocks, every bundle ends
 claimed or rejected with a readable reason, every valid one (odd names too) claimed, and a
 restart recovers the state (issue #27).
@@ -6,7 +6,7 @@ restart recovers the state (issue #27).
 
 from __future__ import annotations
 
-from bench.inbox_fuzz import fuzz_inbox
+from grassd.rigs.inbox_fuzz import fuzz_inbox
 
 SEED = 20261127
 BUNDLES = 120

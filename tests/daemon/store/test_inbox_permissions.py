@@ -18,9 +18,9 @@ from pathlib import Path
 import pytest
 from daemon_harness import SITE, wait_for, write_config
 
-from grassd.daemon.errors import ControlError
-from grassd.daemon.runtime.control import request
-from grassd.daemon.store.history import History
+from grassd.daemon.core.errors import ControlError
+from grassd.daemon.core.runtime.control import request
+from grassd.daemon.core.store.history import History
 
 GRASSD = str(Path(sys.executable).parent / "grassd")
 OTHER_UID = 1000

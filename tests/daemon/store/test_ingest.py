@@ -13,8 +13,8 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from grassd.daemon.store.history import History
-from grassd.daemon.store.ingest import Inbox
+from grassd.daemon.core.store.history import History
+from grassd.daemon.core.store.ingest import Inbox
 
 MANIFEST = """timestamp = 2026-06-21T12:00:00+02:00
 hdri = "sky.exr"
@@ -274,8 +274,8 @@ def test_bundle_that_cannot_be_moved_stays_in_inbox(env, monkeypatch, kind):
 CRASHER = """
 import os, sys
 from pathlib import Path
-from grassd.daemon.store.history import History
-from grassd.daemon.store.ingest import Inbox
+from grassd.daemon.core.store.history import History
+from grassd.daemon.core.store.ingest import Inbox
 state = Path(sys.argv[1]); h = History(state / "state.db")
 inbox = Inbox(Path(sys.argv[2]), state, h, settle_s=0)
 for b in inbox.recover() + inbox.poll():

@@ -14,11 +14,11 @@ import pytest
 from daemon_harness import drop, journal_entry, reported, service, write_config
 from test_ingest import Clock, make_dir_bundle, settle
 
-from grassd.daemon.config.limits import FUTURE_TOLERANCE_S
-from grassd.daemon.errors import ManifestError
-from grassd.daemon.store.history import History
-from grassd.daemon.store.ingest import Inbox
-from grassd.daemon.store.manifest import check_light, parse_manifest
+from grassd.daemon.core.config.limits import FUTURE_TOLERANCE_S
+from grassd.daemon.core.errors import ManifestError
+from grassd.daemon.core.store.history import History
+from grassd.daemon.core.store.ingest import Inbox
+from grassd.daemon.core.store.manifest import check_light, parse_manifest
 
 NOW = datetime(2026, 11, 25, 9, 0, tzinfo=UTC).timestamp()
 TOKYO = (35.0, 139.0)

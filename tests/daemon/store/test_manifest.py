@@ -7,8 +7,8 @@ from zoneinfo import ZoneInfo
 
 import pytest
 
-from grassd.daemon.errors import ManifestError
-from grassd.daemon.store.manifest import parse_manifest
+from grassd.daemon.core.errors import ManifestError
+from grassd.daemon.core.store.manifest import parse_manifest
 
 
 def test_a_manifest_is_validated_and_every_bad_key_named():

@@ -7,9 +7,9 @@ from __future__ import annotations
 import pytest
 from daemon_harness import drop
 
-from grassd.daemon.store.history import History
-from grassd.daemon.store.ingest import Inbox
-from grassd.daemon.store.quarantine import (
+from grassd.daemon.core.store.history import History
+from grassd.daemon.core.store.ingest import Inbox
+from grassd.daemon.core.store.quarantine import (
     RETRY_PREFIX,
     BundleRetryError,
     quarantined,

@@ -10,8 +10,8 @@ import time
 
 from daemon_harness import drop
 
-from grassd.daemon.store.history import History
-from grassd.daemon.store.ingest import Inbox
+from grassd.daemon.core.store.history import History
+from grassd.daemon.core.store.ingest import Inbox
 
 
 def test_recovery_keeps_a_superseded_bundle_superseded(tmp_path):

@@ -10,11 +10,11 @@ import threading
 import pytest
 from test_ingest import MANIFEST, Clock, make_dir_bundle, write_exr
 
-from grassd.daemon.config.limits import BundleLimits
-from grassd.daemon.store import ingest
-from grassd.daemon.store.history import History
-from grassd.daemon.store.ingest import Inbox
-from grassd.daemon.store.untrusted import UntrustedFileError, read_regular, sha256_regular
+from grassd.daemon.core.config.limits import BundleLimits
+from grassd.daemon.core.store import ingest
+from grassd.daemon.core.store.history import History
+from grassd.daemon.core.store.ingest import Inbox
+from grassd.daemon.core.store.untrusted import UntrustedFileError, read_regular, sha256_regular
 
 
 def _in_thread(fn, timeout_s: float = 5.0):

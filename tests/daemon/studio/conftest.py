@@ -135,7 +135,7 @@ def studio(tmp_path_factory, shared_hdri) -> Iterator[StudioProcess]:
 def studio_and_condition(hdri: Path, condition: dict) -> tuple[Studio, Condition]:
     """An in-process studio of the default config lit by ``hdri`` (light "f"), and
     ``condition`` (the page's JSON) parsed for it."""
-    from grassd.daemon.config.settings import resolve_config
+    from grassd.daemon.core.config.settings import resolve_config
     from grassd.daemon.studio.lights import Lights, LightSource
     from grassd.daemon.studio.session import Studio
 

@@ -26,9 +26,9 @@ def test_characteristic_refines_to_the_target(studio):
 def test_characteristic_without_target_is_the_daemons_simulation(studio, renderer, shared_hdri):
     """Same config, light, seed and settings ([simulation] samples x [calibration]
     replicates): the same numbers as simulate_curve in this process."""
-    from grassd.daemon.calibration.calibrate import Calibrator
-    from grassd.daemon.calibration.simulation import simulate_curve
-    from grassd.daemon.config.settings import load_default_config
+    from grassd.daemon.core.calibration.calibrate import Calibrator
+    from grassd.daemon.core.calibration.simulation import simulate_curve
+    from grassd.daemon.core.config.settings import load_default_config
     from grassd.sim.light_input import LightInput
     from grassd.sim.scene import RenderSettings, Viewpoint
 

@@ -105,7 +105,7 @@ def _bundle(archive: Path, name: str, age_s: float, hdri: Path | None = None,
 
 
 def test_broken_bundles_are_left_out_and_the_newest_usable_one_is_current(tmp_path, caplog):
-    from grassd.daemon.config.settings import resolve_config
+    from grassd.daemon.core.config.settings import resolve_config
     from grassd.daemon.studio.lights import Lights, archived_sources
 
     archive = tmp_path / "archive"
@@ -141,7 +141,7 @@ def test_broken_bundles_are_left_out_and_the_newest_usable_one_is_current(tmp_pa
 
 
 def test_a_state_dir_of_broken_bundles_only_has_no_sources(tmp_path, caplog):
-    from grassd.daemon.config.settings import resolve_config
+    from grassd.daemon.core.config.settings import resolve_config
     from grassd.daemon.studio.lights import archived_sources
 
     _bundle(tmp_path / "archive", "missing", 10)

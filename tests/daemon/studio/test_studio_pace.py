@@ -27,7 +27,7 @@ def test_a_low_sun_converges_on_larger_replicates(renderer, shared_hdri):
     """Under a low sun the first 8 x 1024 paths say the target needs more than 64 x 1024, so
     the run goes on with replicates of 8192 paths: it meets 0.1 dE00 with 8-32 of them
     (with replicates of 1024 it took 106-149, 2.4 s against 1.4 s)."""
-    from grassd.daemon.calibration.simulation import LargerReplicates
+    from grassd.daemon.core.calibration.simulation import LargerReplicates
 
     st, cond = studio_and_condition(shared_hdri("courtyard"), {
         "ambient_lux": 5000, "viewpoint": [170, 2, 3],

@@ -26,11 +26,11 @@ def _shown_by_the_daemon(tmp_path, rgb: np.ndarray, table_mm: list, curve: dict
     """The levels (rows, cols) ``grassd show`` shows for the picture ``rgb`` (written to a
     PNG file and read back as the daemon reads it) when its table is ``table_mm`` and its
     characteristic ``curve`` (a curve message: lengths and D50 Lab); and the map used."""
-    from grassd.daemon.config.content import ContentConfig
-    from grassd.daemon.config.settings import resolve_config
     from grassd.daemon.content.colour_map import DisplayColours
+    from grassd.daemon.content.config import ContentConfig
     from grassd.daemon.content.mapping import MappedAnimation
     from grassd.daemon.content.pictures import load_animation
+    from grassd.daemon.core.config.settings import resolve_config
 
     content = resolve_config(None, None).content or ContentConfig()
     path = tmp_path / "picture.png"

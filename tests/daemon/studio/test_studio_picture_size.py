@@ -14,8 +14,8 @@ from concurrent.futures import ThreadPoolExecutor
 import pytest
 from conftest import png_bytes, start_studio, stop_studio, vm_mib
 
-from bench.hostile_decodes import flat_png, run_child
 from grassd.daemon.studio.views import MAX_IMAGE_PIXELS
+from grassd.rigs.hostile_decodes import flat_png, run_child
 
 pytestmark = pytest.mark.timeout(300)
 

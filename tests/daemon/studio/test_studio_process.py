@@ -27,7 +27,7 @@ async def simulator(hdri: Path) -> AsyncIterator[tuple[object, Callable[..., tup
     """A started simulator process lit by the panorama ``hdri``, the job payload of
     ``samples`` splayed camera paths a replicate at 2 lengths, and the seconds a path takes
     here, as a probe of 2 x :data:`PROBE_PATHS` paths timed it."""
-    from grassd.daemon.config.settings import resolve_config
+    from grassd.daemon.core.config.settings import resolve_config
     from grassd.daemon.studio.inputs import parse_condition
     from grassd.daemon.studio.lights import LightSource
     from grassd.daemon.studio.process import SimulatorProcess, StudioArgs

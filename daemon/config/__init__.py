@@ -1,2 +1,0 @@
-"""The daemon's configuration: the TOML file and its embedded default (``default.toml``) ->
-validated, frozen dataclasses (:mod:`grassd.daemon.config.settings`)."""

@@ -1,0 +1,258 @@
+"""Validation of TOML (and JSON) documents against a schema, with key and line in every error.
+
+One machinery for every document a user writes: the daemon's configuration
+(:mod:`grassd.daemon.core.config.settings`), a bundle manifest
+(:mod:`grassd.daemon.core.store.manifest`) and a capture directory's ``capture.toml``
+(:mod:`grassd.daemon.offline.validate`). A schema maps each key of a table to a :class:`Field`
+(type, default, extra check); :func:`table` checks a table against it (an unknown key, a missing
+required key, a wrong type -- ``true`` where a number belongs; ``1`` is accepted for a float, never
+for a bool -- or a failed check) and raises the document's error type naming the dotted key and the
+line. :func:`schema` takes the defaults of a table that fills a dataclass from the dataclass's
+fields, so every default is written once.
+
+How the line is found: :mod:`tomllib` reports positions only for syntax errors, so after parsing
+we scan the raw text line by line, tracking the current table header (``[a.b]`` and ``[[a]]``,
+counting repeated array-of-tables headers so ``controllers[2]`` means the third
+``[[controllers]]``). A key's line is the first ``key =`` line (bare or quoted key, or a dotted
+key whose first part is the key) inside its table's header block; a table's line is its header.
+Keys written inside inline tables or multi-line arrays fall back to the line of the enclosing key
+or header. The scan ignores comments and multi-line strings only approximately (a line starting
+with ``key =`` inside a multi-line string could be mistaken for the key); that only affects the
+reported line, never the validation itself. A JSON document has no such lines: pass ``""`` as its
+text and errors name the key only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from grassd.daemon.core.errors import ConfigError, LocatedError
+
+# --------------------------------------------------------------------------- line locator
+
+
+_HEADER_RE = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?\s*(#.*)?$")
+_KEY_RE = re.compile(r"""^\s*("(?:[^"\\]|\\.)*"|'[^']*'|[A-Za-z0-9_-]+)\s*[.=]""")
+
+
+def _split_dotted(name: str) -> list[str]:
+    parts = []
+    for m in re.finditer(r"""\s*("(?:[^"\\]|\\.)*"|'[^']*'|[^.\s]+)\s*(?:\.|$)""", name):
+        p = m.group(1)
+        if p[:1] in "\"'":
+            p = p[1:-1]
+        parts.append(p)
+    return parts
+
+
+class LineLocator:
+    """Maps table paths and keys of a TOML text to 1-based line numbers (see module docstring)."""
+
+    def __init__(self, text: str) -> None:
+        # table path (tuple, with array indices) -> (header line, {key: line})
+        self._tables: dict[tuple, tuple[int, dict[str, int]]] = {(): (1, {})}
+        counts: dict[tuple, int] = {}
+        current: tuple = ()
+        for lineno, raw in enumerate(text.splitlines(), start=1):
+            line = raw.strip()
+            if not line or line.startswith("#"):
+                continue
+            hm = _HEADER_RE.match(line) if line.startswith("[") else None
+            if hm:
+                parts = _split_dotted(hm.group(2))
+                # Resolve parent parts to the latest index of arrays of tables.
+                resolved: list = []
+                for part in parts[:-1]:
+                    resolved.append(part)
+                    if tuple(resolved) in counts:
+                        resolved.append(counts[tuple(resolved)] - 1)
+                resolved.append(parts[-1])
+                key = tuple(resolved)
+                if hm.group(1) == "[[":
+                    idx = counts.get(key, 0)
+                    counts[key] = idx + 1
+                    key = key + (idx,)
+                current = key
+                self._tables.setdefault(current, (lineno, {}))
+                continue
+            km = _KEY_RE.match(line)
+            if km:
+                k = km.group(1)
+                if k[:1] in "\"'":
+                    k = k[1:-1]
+                self._tables.setdefault(current, (lineno, {}))[1].setdefault(k, lineno)
+
+    def line_of(self, path: tuple) -> int | None:
+        """Line of the key or table at ``path`` (e.g. ``("controllers", 1, "baud")``)."""
+        path = tuple(path)
+        for cut in range(len(path), 0, -1):
+            table, key = path[: cut - 1], path[cut - 1]
+            if path[:cut] in self._tables:
+                return self._tables[path[:cut]][0]
+            if table in self._tables and isinstance(key, str):
+                line = self._tables[table][1].get(key)
+                if line is not None:
+                    return line
+        return None
+
+
+# --------------------------------------------------------------------------- validation
+
+
+def key_path(path: tuple) -> str:
+    """The dotted name of a key path: ``("controllers", 1, "baud")`` -> ``controllers[1].baud``."""
+    out = ""
+    for p in path:
+        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else p)
+    return out
+
+
+class Context:
+    """One document being validated: its text (for line numbers), the name it is reported under
+    (``source``), the directory relative paths resolve against, and the error type it raises
+    (constructed as ``error(message, key=dotted key, line=line, path=source)``)."""
+
+    def __init__(self, text: str, source: str | None, base_dir: Path | None = None,
+                 error: type[LocatedError] = ConfigError) -> None:
+        self.locator = LineLocator(text)
+        self.source = source
+        self.base_dir = base_dir if base_dir is not None else Path.cwd()
+        self.error_type = error
+
+    def error(self, path: tuple, message: str) -> LocatedError:
+        """The error for the key or table at ``path`` (its dotted name and line are added)."""
+        return self.error_type(
+            message, key=key_path(path) or None, line=self.locator.line_of(path), path=self.source
+        )
+
+
+#: How an error names each kind of value.
+TYPE_NAMES = {int: "an integer", float: "a finite number", str: "a string", bool: "true or false",
+               list: "an array", dict: "a table"}
+
+
+def check_type(ctx: Context, path: tuple, value: Any, kind: Any, hint: str | None = None) -> Any:
+    """``value`` of the key at ``path`` checked to be a ``kind`` (a type or a union of types; an
+    int is taken as a float, a bool never as a number; floats must be finite); raises
+    ``ctx.error`` otherwise, naming the expected value as ``hint`` or by :data:`TYPE_NAMES`."""
+    ok = isinstance(value, kind) and not (kind in (int, float) and isinstance(value, bool))
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        ok, value = True, float(value)
+    if not ok:
+        got = type(value).__name__
+        raise ctx.error(path, f"must be {hint or TYPE_NAMES[kind]}, got {got} {value!r}")
+    if kind is float and not math.isfinite(value):
+        raise ctx.error(path, f"must be a finite number, got {value!r}")
+    return value
+
+
+#: The default of a required key.
+MISSING = object()
+
+
+@dataclass
+class Field:
+    """Schema of one key: type (or union of types), default (``MISSING`` = required), extra
+    check, and how messages name the expected value (``hint``; default :data:`TYPE_NAMES`)."""
+
+    kind: Any
+    default: Any = MISSING
+    check: Callable[[Any], str | None] | None = None
+    hint: str | None = None
+
+
+def schema(model: type, **keys: Field) -> dict[str, Field]:
+    """The schema of a table that fills the dataclass ``model``: a key named like a field of
+    ``model`` that has a default takes that default, so every default is written once, on the
+    dataclass (a key that has no such field, e.g. a raw value parsed further, keeps its own)."""
+    defaults = {f.name: f.default for f in dataclasses.fields(model)
+                if f.default is not dataclasses.MISSING}
+    out = {}
+    for name, f in keys.items():
+        if name in defaults:
+            if f.default is not MISSING:
+                raise TypeError(f"the default of {model.__name__}.{name} is written twice")
+            f = dataclasses.replace(f, default=defaults[name])
+        out[name] = f
+    return out
+
+
+def table(ctx: Context, path: tuple, data: Any, fields: dict[str, Field]) -> dict[str, Any]:
+    """Validate the table ``data`` at ``path`` against ``fields`` (key -> :class:`Field`);
+    return plain values with defaults filled in."""
+    if not isinstance(data, dict):
+        raise ctx.error(path, f"must be a table, got {type(data).__name__}")
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        allowed = ", ".join(sorted(fields))
+        raise ctx.error(path + (unknown[0],), f"unknown key (allowed here: {allowed})")
+    out: dict[str, Any] = {}
+    for name, f in fields.items():
+        if name not in data:
+            if f.default is MISSING:
+                raise ctx.error(path + (name,),
+                                f"required key is missing ({f.hint or TYPE_NAMES[f.kind]})")
+            out[name] = f.default
+            continue
+        value = check_type(ctx, path + (name,), data[name], f.kind, f.hint)
+        if f.check is not None:
+            msg = f.check(value)
+            if msg:
+                raise ctx.error(path + (name,), msg)
+        out[name] = value
+    return out
+
+
+# ----------------------------------------------------------------------------- checks
+# A check takes a value of the right type and returns None, or what is wrong with it.
+
+
+def between(lo: float, hi: float, unit: str = "") -> Callable[[Any], str | None]:
+    """Check: ``lo <= v <= hi`` (``unit`` is appended to the bounds in the message)."""
+    def check(v: float) -> str | None:
+        if not lo <= v <= hi:
+            return f"must be between {lo} and {hi}{unit}, got {v}"
+        return None
+
+    return check
+
+
+def positive(v: float) -> str | None:
+    """Check: ``v > 0``."""
+    return None if v > 0 else f"must be > 0, got {v}"
+
+
+def non_negative(v: float) -> str | None:
+    """Check: ``v >= 0``."""
+    return None if v >= 0 else f"must be >= 0, got {v}"
+
+
+def one_of(*choices: Any) -> Callable[[Any], str | None]:
+    """Check: ``v`` is one of ``choices``."""
+    def check(v: Any) -> str | None:
+        if v in choices:
+            return None
+        return f"must be one of {', '.join(map(repr, choices))}; got {v!r}"
+
+    return check
+
+
+def non_empty(v: str) -> str | None:
+    """Check: a string that is not blank."""
+    return None if v.strip() else "must not be empty"
+
+
+def numbers(n: int) -> Callable[[Any], str | None]:
+    """Check: an array of ``n`` finite numbers."""
+    def check(v: list) -> str | None:
+        ok = len(v) == n and all(isinstance(x, int | float) and not isinstance(x, bool)
+                                 and math.isfinite(x) for x in v)
+        return None if ok else f"must be an array of {n} numbers, got {v!r}"
+
+    return check

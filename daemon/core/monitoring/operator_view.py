@@ -1,0 +1,199 @@
+"""What the daemon shows its operator after every run and reconcile: the metrics textfile
+(:mod:`grassd.daemon.core.monitoring.metrics`), the alert command on health changes
+(:mod:`grassd.daemon.core.monitoring.alerts`) and the status page
+(:mod:`grassd.daemon.core.monitoring.status_page`).
+
+The view never reads the live service: it is given the configuration, the history and a
+function that returns an :class:`OperatorSnapshot` (the service's status, the lux sensor's
+state and the capture station's last success, taken at once). The service calls
+:meth:`OperatorView.after_run` after each run (whatever its outcome) and
+:meth:`OperatorView.after_reconcile` after each reconcile, both in its main thread. Neither
+ever raises: a file that cannot be written is logged (once per distinct error) and the daemon
+goes on. The status page is regenerated after every run, and after a reconcile only when the
+health or a controller's state changed (its trend plots cost more than the metrics). While
+content plays, the page is also written after a reconcile every
+:data:`~grassd.daemon.content.shown.SHOWN_EVERY_S` with a fresh picture of the display as its
+controllers report it (``shown``, a function the service gives: None when no content plays).
+
+With a capture station (``[capture]``), the metric
+``grassd_capture_last_success_timestamp_seconds`` says when it last delivered a bundle; it is
+not written before the first delivery, nor without a station.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from grassd.daemon.content.shown import SHOWN_EVERY_S, ShownDisplay
+from grassd.daemon.core.config.settings import Config
+from grassd.daemon.core.monitoring.alerts import Alerter
+from grassd.daemon.core.monitoring.health import Health
+from grassd.daemon.core.monitoring.metrics import (
+    SensorState,
+    registry,
+    textfile_path,
+    write_textfile,
+)
+from grassd.daemon.core.monitoring.status_page import render, write_page
+from grassd.daemon.core.monitoring.status_types import Status
+from grassd.daemon.core.store.history import History
+from grassd.daemon.core.store.layout import StateLayout
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class OperatorSnapshot:
+    """What the operator's outputs show, taken at one moment by the service: its ``status``,
+    the Modbus lux ``sensor``'s state (None: no sensor configured) and ``capture_at``, when the
+    capture station last delivered a bundle (epoch s; None: no station, or none yet)."""
+
+    status: Status
+    sensor: SensorState | None = None
+    capture_at: float | None = None
+
+
+class OperatorView:
+    """Metrics, alerts and status page of the daemon configured by ``cfg``, keeping its
+    ``history``; ``snapshot`` returns the daemon's state at the moment it is called (it may
+    raise, e.g. on an unreadable database: logged, nothing written); ``shown`` (if given)
+    reads the display's pixels from its controllers, or returns None when no content plays
+    (called at most every ``shown_every_s`` seconds, only when the page is written)."""
+
+    def __init__(self, cfg: Config, history: History,
+                 snapshot: Callable[[], OperatorSnapshot],
+                 shown: Callable[[], ShownDisplay | None] | None = None,
+                 shown_every_s: float = SHOWN_EVERY_S) -> None:
+        self.cfg = cfg
+        self.history = history
+        self.snapshot = snapshot
+        self.shown = shown
+        self.shown_every_s = shown_every_s
+        #: the display's last reading (the page's picture), and when it was asked (monotonic s)
+        self.last_shown: ShownDisplay | None = None
+        self._shown_at = float("-inf")
+        self.alerter = Alerter(cfg.alerts, history)
+        #: failed pushes per controller name since the daemon started
+        self.push_failures: dict[str, int] = {}
+        self.health: Health | None = None
+        self._page_key: tuple | None = None
+        self._errors: dict[str, str] = {}
+
+    @property
+    def textfile(self) -> Path:
+        """Where the metrics are written (``[metrics] textfile`` or its default)."""
+        return textfile_path(self.cfg.metrics.textfile, self.cfg.state_dir)
+
+    @property
+    def page(self) -> Path:
+        """Where the status page is written: ``<state_dir>/reports/index.html``."""
+        return StateLayout(self.cfg.state_dir).status_page
+
+    def configure(self, cfg: Config) -> None:
+        """Take a reloaded configuration (``[alerts]``; ``[metrics]``, the state directory and
+        the site's time zone are read at each write)."""
+        self.cfg = cfg
+        self.alerter.configure(cfg.alerts)
+
+    def after_run(self, result: Mapping[str, Any]) -> None:
+        """After a run with ``result`` (the service's run result; its ``controllers`` are the
+        push reports): count failed pushes, write metrics and page, alert on a change."""
+        self._count(result.get("controllers") or [])
+        self._update(page=True)
+
+    def after_reconcile(self, reports: Iterable[Any]) -> None:
+        """After a reconcile with ``reports`` (:class:`~grassd.daemon.fleet.ControllerReport`):
+        count failed pushes, write metrics, alert on a change; the page when state changed."""
+        self._count(r.__dict__ for r in reports)
+        self._update(page=False)
+
+    def _count(self, reports: Iterable[Mapping[str, Any]]) -> None:
+        """A push failed: the controller did not end with its table, and the attempt was not
+        held back by its backoff (see :mod:`grassd.daemon.core.hardware.fleet`)."""
+        for r in reports:
+            if not r["ok"] and r.get("retry_in_s") is None:
+                name = r["controller"]
+                self.push_failures[name] = self.push_failures.get(name, 0) + 1
+
+    def _snapshot(self) -> OperatorSnapshot | None:
+        try:
+            return self.snapshot()
+        except Exception as exc:  # e.g. the database is unreadable: nothing to show
+            self._failed("status", f"cannot read the daemon's status: {exc}")
+            return None
+
+    def _update(self, page: bool) -> None:
+        snap = self._snapshot()
+        if snap is None:
+            return
+        status = snap.status
+        self.health = health = status.health
+        self.alerter.observe(health, status)
+        self._write_metrics(snap)
+        key = (health, tuple((c.name, c.reachable, c.in_sync, c.table_id)
+                             for c in status.controllers))
+        fresh = self._read_shown()
+        if page or key != self._page_key or fresh:
+            self._write_page(status)
+            self._page_key = key
+
+    def _read_shown(self) -> bool:
+        """Read the display for the page's picture when due; True when a new reading came
+        (the page is then written with it)."""
+        now = time.monotonic()
+        if self.shown is None or now - self._shown_at < self.shown_every_s:
+            return False
+        try:
+            shown = self.shown()
+        except Exception as exc:  # the page is written without a new picture
+            self._failed("shown", f"cannot read the display's positions: {exc}")
+            return False
+        if shown is None:  # no content plays: no reading, the last picture stays
+            return False
+        self._cleared("shown")
+        self.last_shown, self._shown_at = shown, now
+        return True
+
+    def _write_metrics(self, snap: OperatorSnapshot, up: bool = True) -> None:
+        path = self.textfile
+        try:
+            reg = registry(snap.status, self.history, push_failures=self.push_failures,
+                           sensor=snap.sensor, capture_at=snap.capture_at, up=up)
+            write_textfile(path, reg)
+        except Exception as exc:
+            self._failed("metrics", f"cannot write the metrics to {path}: {exc} (set "
+                                    "[metrics] textfile to a writable *.prom file)")
+        else:
+            self._cleared("metrics")
+
+    def _write_page(self, status: Status) -> None:
+        try:
+            text = render(status, self.history, timezone=self.cfg.site.timezone,
+                          push_failures=self.push_failures, shown=self.last_shown)
+            write_page(self.page, text)
+        except Exception as exc:
+            self._failed("page", f"cannot write the status page {self.page}: {exc}")
+        else:
+            self._cleared("page")
+
+    def _failed(self, what: str, msg: str) -> None:
+        if self._errors.get(what) != msg:
+            log.warning("%s (the daemon keeps running)", msg)
+            self._errors[what] = msg
+
+    def _cleared(self, what: str) -> None:
+        if self._errors.pop(what, None) is not None:
+            log.info("%s written again", what)
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        """At a clean stop: write the metrics once more with ``grassd_up`` 0 and wait up to
+        ``timeout_s`` for a running alert command."""
+        snap = self._snapshot()
+        if snap is not None:
+            self._write_metrics(snap, up=False)
+        self.alerter.wait(timeout_s)

@@ -1,0 +1,139 @@
+"""The commands of the control socket (see :mod:`grassd.daemon.core.runtime.control` for the
+protocol): ``ping``, ``status``, ``reload``, ``calibrate`` and ``bundles_retry``. They run in
+socket threads; a calibration, or putting a quarantined bundle back, is queued for the main
+loop (a bounded queue, so that clients waiting for runs cannot hold every control-socket slot
+and status stays answerable).
+
+Only :data:`READ_ONLY_COMMANDS` may be sent by any client that can connect (the readers'
+group); every other command changes the daemon's state and is served only for root and the
+daemon's own user: :class:`~grassd.daemon.core.runtime.control.ControlServer` checks the peer's
+credentials (``SO_PEERCRED``) before a command gets here."""
+
+from __future__ import annotations
+
+import math
+import os
+import queue
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from grassd import __version__
+from grassd.daemon.core.monitoring.status_types import Status
+
+#: Commands that only read: any client that can connect to the socket may send them. Every
+#: other command (``calibrate``, ``reload``, ``bundles_retry``, an unknown one) needs root or
+#: the daemon's own user.
+READ_ONLY_COMMANDS: frozenset[str] = frozenset({"ping", "status", "content_status"})
+#: The longest ``timeout_s`` a client may ask a waiting request to wait (a day).
+MAX_WAIT_S = 86400.0
+
+
+@dataclass
+class QueuedRequest:
+    """A request the main loop serves: a calibration run (``force``d or not), or ``task``;
+    ``done`` is set once ``result`` (the run's or the task's outcome) is there."""
+
+    force: bool
+    done: threading.Event = field(default_factory=threading.Event)
+    result: dict[str, Any] | None = None
+    #: main-loop work other than a calibration (e.g. putting a quarantined bundle back)
+    task: Callable[[], dict[str, Any]] | None = None
+
+
+class ControlCommands:
+    """Answers control-socket requests: ``status()`` gives the live status (sent in its JSON
+    form, :meth:`~grassd.daemon.core.monitoring.status_types.Status.to_json`), ``reload`` sets
+    ``reload_event``, ``calibrate`` queues a :class:`QueuedRequest` on ``requests`` (not
+    while ``stop_event`` is set), ``bundles_retry`` queues ``retry_bundle(name)``."""
+
+    def __init__(self, status: Callable[[], Status], reload_event: threading.Event,
+                 stop_event: threading.Event, requests: queue.Queue[QueuedRequest],
+                 retry_bundle: Callable[[str], dict[str, Any]],
+                 measure: Callable[[], dict[str, Any]] | None = None,
+                 content: Callable[[], Any] | None = None) -> None:
+        self.status = status
+        #: the content feature now (grassd.daemon.content.feature), None without [content]
+        self.content = content
+        self.measure = measure
+        self.reload_event = reload_event
+        self.stop_event = stop_event
+        self.requests = requests
+        self.retry_bundle = retry_bundle
+
+    def handle(self, req: dict[str, Any]) -> dict[str, Any]:
+        """Answer one control-socket request (runs in a socket thread)."""
+        cmd = req["cmd"]
+        if cmd == "ping":
+            return {"ok": True, "pid": os.getpid(), "version": __version__}
+        if cmd == "status":
+            return {"ok": True, "status": self.status().to_json()}
+        if cmd == "reload":
+            self.reload_event.set()
+            return {"ok": True}
+        if cmd == "bundles_retry":  # in the main loop, which also claims and prunes bundles
+            name = req.get("bundle", "")
+            if not isinstance(name, str) or not name:
+                raise ValueError('bundles_retry needs "bundle": the name of a quarantined bundle '
+                                 "(see `grassd status`)")
+            timeout = _timeout(req)
+            r = QueuedRequest(force=False, task=lambda: self.retry_bundle(name))
+            try:
+                self.requests.put_nowait(r)
+            except queue.Full:
+                return {"ok": False, "busy": True, "error": "busy: try again later"}
+            if not r.done.wait(timeout):
+                return {"ok": False, "error": "the daemon did not get to it in time"}
+            out = r.result or {}
+            return {"ok": out.get("status") == "ok", "retry": out, "error": out.get("error")}
+        if cmd == "measure" and self.measure is not None:  # in the main loop, like a run
+            if self.stop_event.is_set():
+                return {"ok": False, "error": "daemon is stopping"}
+            timeout = _timeout(req)
+            r = QueuedRequest(force=False, task=self.measure)
+            try:
+                self.requests.put_nowait(r)
+            except queue.Full:
+                return {"ok": False, "busy": True, "error": "busy: try again later"}
+            if not r.done.wait(timeout):
+                return {"ok": False, "error": f"measurement did not finish within {timeout:g} s"}
+            out = r.result or {}
+            return {"ok": out.get("status") == "ok", "measurement": out,
+                    "error": out.get("error")}
+        if cmd == "calibrate":
+            if self.stop_event.is_set():
+                return {"ok": False, "error": "daemon is stopping"}
+            timeout = _timeout(req)  # checked before anything is queued
+            r = QueuedRequest(force=bool(req.get("force", False)))
+            try:
+                self.requests.put_nowait(r)
+            except queue.Full:
+                return {"ok": False, "busy": True,
+                        "error": f"busy: {self.requests.maxsize} calibration requests are "
+                                 "already queued; try again after they ran"}
+            if not req.get("wait", False):
+                return {"ok": True, "queued": self.requests.qsize()}
+            if not r.done.wait(timeout):
+                return {"ok": False, "error": f"run did not finish within {timeout:g} s"}
+            return {"ok": True, "run": r.result}
+        feature = None if self.content is None else self.content()
+        if feature is not None and feature.handles(cmd):  # content_frame, content_show, ...
+            return feature.handle(req)
+        if cmd.startswith("content_"):
+            return {"ok": False, "error": "the daemon shows no content: set [content] enabled "
+                                          "= true in its configuration and reload it"}
+        return {"ok": False, "error": f"unknown command {cmd!r} "
+                                      "(use ping, status, calibrate, measure, reload, "
+                                      "bundles_retry)"}
+
+
+def _timeout(req: dict[str, Any]) -> float:
+    """The request's ``timeout_s`` (default 3600 s), a finite number of seconds in
+    (0, :data:`MAX_WAIT_S`]; raises :class:`ValueError` naming the fix otherwise."""
+    value = req.get("timeout_s", 3600)
+    if isinstance(value, bool) or not isinstance(value, int | float) \
+            or not math.isfinite(value) or not 0 < value <= MAX_WAIT_S:
+        raise ValueError(f'"timeout_s" must be a number of seconds in (0, {MAX_WAIT_S:g}], '
+                         f"not {str(value)[:40]!r}")
+    return float(value)

@@ -1,0 +1,287 @@
+"""Every pixel's colour as a function of its grass length and its departures from the model.
+
+The renderer records each pixel's radiance at its own viewpoint on a grid of green lengths as a
+polynomial in the materials (:meth:`grassd.sim.renderer.Renderer.albedo_terms`, after
+Ben-Artzi et al. 2008). A :class:`~grassd.daemon.core.calibration.variation.DisplayVariation` then
+costs one contraction: its gains scale the yellow and green albedos (linear), its offset shifts the
+length at which the grid is read (linear interpolation, clamped to the mechanism's range).
+
+Three uses, one type (:class:`PixelColourModel`):
+
+* the hidden truth of a simulated display (each pixel its own tuft layout);
+* the model ``grassd measure`` fits to the photos of the display (:func:`fit_variation`);
+* the models of the configured viewers, through which the fitted variation is carried to the
+  viewpoints the display serves (:func:`corrected_commands`).
+
+Units: lengths mm, colours white-normalised linear Rec.709 (a white card lying at the display
+reads 1), CIELAB D50 through ProPhoto (:func:`grassd.calib.colour_spaces.prophoto_to_lab`),
+colour differences CIEDE2000.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from colour import delta_E
+from numpy.typing import NDArray
+
+from grassd.calib.colour_spaces import prophoto_to_lab, rec709_to_prophoto
+from grassd.daemon.core.calibration.variation import GAIN_RANGE, OFFSET_LIMIT_MM, DisplayVariation
+
+#: Material rows of the albedo matrix (the renderer's symbol order).
+YELLOW, GREEN = 0, 1
+
+
+def model_albedos(pixel: Any) -> NDArray[np.float64]:
+    """(4, 3) linear Rec.709 albedos (yellow, green, base, cavity) of a ``PixelSpec``."""
+    from grassd.sim.scene import srgb_to_linear
+
+    return np.stack([srgb_to_linear(c) for c in (pixel.yellow_srgb, pixel.green_srgb,
+                                                  pixel.base_srgb, pixel.cavity_srgb)])
+
+
+@dataclass(frozen=True, eq=False)
+class PixelColourModel:
+    """N pixels' recorded radiance terms on one grid of green lengths.
+
+    ``grid_mm`` (G,) lengths; ``coefficients`` (N, G, 56, 3) terms (mean over replicates and
+    layouts, nits per unit monomial); ``white`` (3,) the white card's radiance (nits);
+    ``albedo`` (4, 3) the model pixel's linear albedos; ``specular`` its glossy ``ks``;
+    ``layout_sd`` (N, G, 3) the standard deviation of the model pixel's CIELAB over the tuft
+    layouts averaged (None with one layout): how much a real pixel, one layout, may differ.
+    """
+
+    grid_mm: NDArray[np.float64]
+    coefficients: NDArray[np.float64]
+    white: NDArray[np.float64]
+    albedo: NDArray[np.float64]
+    specular: float = 0.0
+    layout_sd: NDArray[np.float64] | None = None
+
+    @property
+    def n_pixels(self) -> int:
+        """Number of pixels N."""
+        return self.coefficients.shape[0]
+
+    def scaled(self, factor: float) -> PixelColourModel:
+        """The same pixels under the same light ``factor`` times as bright (the white card's
+        normalisation is unchanged; :meth:`radiance` scales)."""
+        return replace(self, coefficients=self.coefficients * factor, white=self.white * factor)
+
+    def grid_radiance(self, variation: DisplayVariation, pixels: NDArray | None = None
+                      ) -> NDArray[np.float64]:
+        """(n, G, 3) radiance (nits) of the chosen ``pixels`` (default all) on the grid."""
+        from grassd.sim.albedo_terms import monomial_values
+
+        idx = np.arange(self.n_pixels) if pixels is None else np.asarray(pixels)
+        a = np.broadcast_to(self.albedo, (len(idx), 4, 3)).copy()
+        a[:, YELLOW] = np.clip(a[:, YELLOW] * variation.yellow_gain[idx, None], 0.0, 1.0)
+        a[:, GREEN] = np.clip(a[:, GREEN] * variation.green_gain[idx, None], 0.0, 1.0)
+        mono = monomial_values(a, self.specular)  # (n, 56, 3)
+        return np.einsum("ngmc,nmc->ngc", self.coefficients[idx], mono)
+
+    def radiance(self, commanded_mm: NDArray, variation: DisplayVariation,
+                 pixels: NDArray | None = None) -> NDArray[np.float64]:
+        """(n, K, 3) radiance (nits) of the chosen ``pixels`` commanded to ``commanded_mm``
+        ((K,) for every pixel, or (n, K)): the grid read at commanded + offset, clamped to it."""
+        idx = np.arange(self.n_pixels) if pixels is None else np.asarray(pixels)
+        grid = self.grid_radiance(variation, idx)
+        cmd = np.broadcast_to(np.asarray(commanded_mm, dtype=np.float64),
+                              (len(idx), np.shape(commanded_mm)[-1]))
+        length = np.clip(cmd + variation.length_offset_mm[idx, None], self.grid_mm[0],
+                         self.grid_mm[-1])
+        j = np.clip(np.searchsorted(self.grid_mm, length) - 1, 0, len(self.grid_mm) - 2)
+        g0, g1 = self.grid_mm[j], self.grid_mm[j + 1]
+        w = ((length - g0) / (g1 - g0))[..., None]
+        rows = np.arange(len(idx))[:, None]
+        return grid[rows, j] * (1.0 - w) + grid[rows, j + 1] * w
+
+    def rgb(self, commanded_mm: NDArray, variation: DisplayVariation,
+            pixels: NDArray | None = None) -> NDArray[np.float64]:
+        """(n, K, 3) white-normalised linear Rec.709 (see :meth:`radiance`)."""
+        return self.radiance(commanded_mm, variation, pixels) / self.white
+
+
+def lab_of(rgb: NDArray, ccm: NDArray | None = None) -> NDArray[np.float64]:
+    """CIELAB of white-normalised linear Rec.709 ``rgb`` (..., 3), through a camera's colour
+    correction ``ccm`` (3 x 3 on ProPhoto, scale included) when given."""
+    pp = rec709_to_prophoto(np.clip(rgb, 0.0, None))
+    return prophoto_to_lab(pp if ccm is None else pp @ np.asarray(ccm).T)
+
+
+def record_pixel_model(renderer: Any, display: Any, lighting: Any,
+                       viewpoints: Sequence[Any], grid_mm: NDArray, settings: Any, *,
+                       layouts: int = 1, glossy: bool = False,
+                       progress: Callable[[int, int], None] | None = None) -> PixelColourModel:
+    """Record every pixel of ``display`` (a ``DisplaySpec``) at its own viewpoint
+    (``viewpoints[i]``, a ``Viewpoint``) on ``grid_mm`` under ``lighting``, averaged over
+    ``layouts`` tuft layouts (layout seeds ``pixel.layout_seed + k``). ``settings``:
+    ``RenderSettings`` (``max_bounces`` <= 3). ``progress(done, total)`` counts recordings."""
+    from grassd.daemon.core.calibration.simulation import white_radiance
+    from grassd.sim.albedo_terms import monomial_values
+    from grassd.sim.scene import DisplaySpec
+
+    grid = np.asarray(grid_mm, dtype=np.float64)
+    n = display.rows * display.cols
+    if len(viewpoints) != n:
+        raise ValueError(f"{len(viewpoints)} viewpoints for {n} pixels")
+    coeffs = np.zeros((n, len(grid), 56, 3))
+    labs = []
+    total, done = n * layouts, 0
+    albedo = model_albedos(display.pixel)
+    white = np.asarray(white_radiance(lighting), dtype=np.float64)
+    for k in range(layouts):
+        pixel = replace(display.pixel, layout_seed=display.pixel.layout_seed + k)
+        disp = DisplaySpec(pixel, display.rows, display.cols, display.pitch_mm,
+                           same_layout=display.same_layout)
+        one = np.zeros_like(coeffs)
+        for i in range(n):
+            terms = renderer.albedo_terms(disp, lighting, viewpoints[i], grid, settings,
+                                          pixel_index=i, glossy=glossy)
+            one[i] = terms.coefficients.mean(axis=0)
+            done += 1
+            if progress:
+                progress(done, total)
+        coeffs += one / layouts
+        if layouts > 1:
+            mono = monomial_values(albedo, float(display.pixel.specular))
+            labs.append(lab_of(np.einsum("ngmc,mc->ngc", one, mono) / white))
+    return PixelColourModel(grid_mm=grid, coefficients=coeffs, white=white, albedo=albedo,
+                            specular=float(display.pixel.specular),
+                            layout_sd=np.std(labs, axis=0, ddof=1) if layouts > 1 else None)
+
+
+@dataclass(frozen=True, eq=False)
+class VariationFit:
+    """What :func:`fit_variation` found: the ``variation``, per pixel the RMS CIELAB residual
+    ``rms_lab`` (N,) over the photographed lengths and the model's RMS residual with no
+    variation ``rms_lab_model`` (N,), and ``colour`` (3, 3): the display-wide colour balance
+    (diagonal, linear ProPhoto) between the model's colours and the photographed ones that the
+    pixels share (camera chain and any uniform change of the display together; identity when not
+    fitted)."""
+
+    variation: DisplayVariation
+    rms_lab: NDArray[np.float64]
+    rms_lab_model: NDArray[np.float64]
+    colour: NDArray[np.float64]
+
+
+def _fit_pixels(model: PixelColourModel, cmd: NDArray, meas: NDArray, ccm: NDArray | None
+                ) -> tuple[DisplayVariation, NDArray[np.float64], NDArray[np.float64]]:
+    """Each pixel's offset and gains by least squares on CIELAB (see :func:`fit_variation`):
+    (variation, rms residual, rms residual of the model pixel)."""
+    from scipy.optimize import least_squares
+
+    n = model.n_pixels
+    est = DisplayVariation.none(n)
+    rms, rms0 = np.zeros(n), np.zeros(n)
+    lo = [-OFFSET_LIMIT_MM, GAIN_RANGE[0], GAIN_RANGE[0]]
+    hi = [OFFSET_LIMIT_MM, GAIN_RANGE[1], GAIN_RANGE[1]]
+    weight = _weights(model, cmd)
+    for i in range(n):
+        one = np.array([i])
+
+        def residual(x: NDArray, i: int = i, one: NDArray = one) -> NDArray:
+            v = DisplayVariation(np.full(n, x[0]), np.full(n, x[1]), np.full(n, x[2]))
+            return ((lab_of(model.rgb(cmd[i], v, one), ccm)[0] - meas[i])
+                    * weight[i]).ravel()
+
+        w = weight[i].ravel()
+        rms0[i] = np.sqrt(np.mean((residual(np.array([0.0, 1.0, 1.0])) / w) ** 2))
+        best = None
+        for x0 in ([0.0, 1.0, 1.0], [0.8, 1.0, 1.0], [-0.8, 1.0, 1.0]):  # offsets are not
+            r = least_squares(residual, x0, bounds=(lo, hi), x_scale=[0.5, 0.1, 0.1])  # convex
+            if best is None or r.cost < best.cost:
+                best = r
+        est.length_offset_mm[i], est.green_gain[i], est.yellow_gain[i] = best.x
+        rms[i] = np.sqrt(np.mean((best.fun / w) ** 2))  # CIELAB, unweighted
+    return est, rms, rms0
+
+
+#: CIELAB noise floor of a photographed pixel (camera noise, sampling), for the fit's weights.
+PHOTO_LAB_SD: float = 0.3
+
+
+def _weights(model: PixelColourModel, cmd: NDArray) -> NDArray[np.float64]:
+    """(N, K, 3) residual weights: 1 / sqrt(layout sd^2 + photo sd^2) at the commanded lengths
+    ``cmd`` (N, K) (in CIELAB units of the photo floor, so 1 where the layouts agree)."""
+    n = model.n_pixels
+    if model.layout_sd is None:
+        return np.ones(cmd.shape + (3,))
+    sd = np.stack([np.stack([np.interp(cmd[i], model.grid_mm, model.layout_sd[i, :, c])
+                             for c in range(3)], axis=-1) for i in range(n)])
+    return PHOTO_LAB_SD / np.sqrt(sd ** 2 + PHOTO_LAB_SD ** 2)
+
+
+def fit_variation(model: PixelColourModel, commanded_mm: NDArray, measured_lab: NDArray,
+                  ccm: NDArray | None = None, *, rounds: int = 4) -> VariationFit:
+    """Fit each pixel's length offset and green and yellow gains to its photographed colours.
+
+    ``commanded_mm`` (K,) or (N, K): the lengths the test patterns drove the pixels to;
+    ``measured_lab`` (N, K, 3): each pixel's measured CIELAB at them (through the camera's
+    colour chain); ``ccm``: the camera's colour correction applied to the model's colours
+    (ProPhoto, scale included). Per pixel, least squares on the CIELAB residuals
+    (:func:`scipy.optimize.least_squares`, trust region reflective within
+    +-:data:`OFFSET_LIMIT_MM` and :data:`GAIN_RANGE`).
+
+    What all pixels share is fitted once for the display, not per pixel: a colour chain a few
+    dE00 off (a checker's colour correction typically is) would otherwise bend every pixel's
+    gains its own way (on a simulated 4 x 8 display with a 3 dE00 chain, the green gains'
+    correlation with the truth fell to 0.66). ``rounds`` > 1 alternates the pixels' fits with
+    a display-wide colour balance, one gain per channel of linear ProPhoto (least squares of
+    the photos on the model's colours; a full 3 x 3 is ill-determined by colours that all lie
+    between yellow and green), and holds the gains' geometric mean over the display at 1: the
+    gains are then each pixel's departure from the display's mean pixel, and a uniform change
+    (fading of the whole display, or the camera) shows in ``colour`` instead."""
+    from grassd.calib.colour_spaces import lab_to_prophoto
+
+    meas = np.asarray(measured_lab, dtype=np.float64)
+    cmd = np.broadcast_to(np.asarray(commanded_mm, dtype=np.float64), meas.shape[:2])
+    base = np.eye(3) if ccm is None else np.asarray(ccm, dtype=np.float64)
+    colour = np.eye(3)
+    rms0 = None
+    for k in range(max(1, rounds)):
+        est, rms, first = _fit_pixels(model, cmd, meas, colour @ base)
+        rms0 = first if rms0 is None else rms0
+        if rounds <= 1:
+            break
+        for g in (est.green_gain, est.yellow_gain):
+            g /= np.exp(np.mean(np.log(g)))
+        if k == rounds - 1:
+            break
+        pred = (rec709_to_prophoto(np.clip(model.rgb(cmd, est), 0.0, None))
+                @ base.T).reshape(-1, 3)
+        seen = lab_to_prophoto(meas).reshape(-1, 3)
+        colour = np.diag((pred * seen).sum(axis=0) / (pred * pred).sum(axis=0))
+    return VariationFit(est, rms, rms0, colour)
+
+
+def corrected_commands(viewers: Sequence[PixelColourModel], weights: Sequence[float],
+                       variation: DisplayVariation, nominal_mm: NDArray,
+                       step_mm: float = 0.05) -> NDArray[np.float64]:
+    """(N, L) the length to command each pixel so that it looks, to the viewers, like the model
+    pixel at each of ``nominal_mm`` (L,) lengths.
+
+    For pixel p and nominal length x: the command c minimising the viewers' weighted mean
+    CIEDE2000 between pixel p as it is (``variation``: gains and offset) commanded to c and the
+    model pixel at x, both seen from that viewer (``viewers[w]``: every pixel's model from
+    viewer w; ``weights``: the viewers' weights). Searched on a ``step_mm`` grid over the
+    mechanism's range; the result is made non-decreasing in x (a table never folds back).
+
+    What a length cannot correct: a real pixel's own tuft layout moves its colour off the
+    model's curve, not along it (on the simulated 4 x 8 display the layouts alone leave a worst
+    pixel pair of about 2.5 dE00 at mid level, with the true variation corrected exactly)."""
+    cmd = np.arange(viewers[0].grid_mm[0], viewers[0].grid_mm[-1] + step_mm / 2, step_mm)
+    nominal = np.asarray(nominal_mm, dtype=np.float64)
+    none = DisplayVariation.none(variation.n_pixels)
+    w = np.asarray(weights, dtype=np.float64) / float(np.sum(weights))
+    cost = np.zeros((variation.n_pixels, len(nominal), len(cmd)))
+    for model, wk in zip(viewers, w, strict=True):
+        target = lab_of(model.rgb(nominal, none))  # (N, L, 3)
+        actual = lab_of(model.rgb(cmd, variation))  # (N, C, 3)
+        cost += wk * delta_E(target[:, :, None, :], actual[:, None, :, :], method="CIE 2000")
+    best = cmd[np.argmin(cost, axis=2)]
+    return np.maximum.accumulate(best, axis=1)
