@@ -163,7 +163,8 @@ EXACT_REL = 1e-9
 
 
 def _kind(key: str) -> str:
-    """How values under report key ``key`` are compared: "de00", "length_mm", "length_um",
+    """How values under report key ``key`` are compared: "de00" (also the simulated CIELAB
+    colours, ``lab_d50``), "length_mm", "length_um",
     "r2", "crc" or "exact"."""
     if key in ("r2_goal", "max_dev_goal_de00"):  # configured, not computed
         return "exact"
@@ -175,7 +176,7 @@ def _kind(key: str) -> str:
         return "length_um"
     if key.startswith("r2") or key.endswith("_r2"):
         return "r2"
-    if key.endswith("_de00"):
+    if key.endswith("_de00") or key == "lab_d50":  # a CIELAB coordinate moves as dE00 does
         return "de00"
     return "exact"
 
