@@ -196,7 +196,7 @@ def test_installed_tree(installed):
         if f.is_file() and not f.is_symlink():
             assert str(d) not in f.read_text(errors="replace"), f
     # the configuration is the package's default
-    default = installed.site_packages() / "grassd" / "daemon" / "config" / "default.toml"
+    default = installed.site_packages() / "grassd" / "daemon" / "core" / "config" / "default.toml"
     assert installed.config.read_text() == default.read_text() == \
         (ROOT / "daemon/core/config/default.toml").read_text()
 
@@ -320,7 +320,7 @@ def test_measure_refuses_a_camera_never_set_up(installed):
     in tests/daemon/measure)."""
     cfg = installed.work / "measure.toml"
     state = installed.work / "measure-state"
-    default = ROOT / "daemon" / "config" / "default.toml"  # the installed copy: a test edits it
+    default = ROOT / "daemon" / "core" / "config" / "default.toml"
     cfg.write_text(f'state_dir = "{state}"\ncontrol_socket = "{state}/control.sock"\n'
                    + default.read_text() + '\n[measure]\ncamera = "http://127.0.0.1:9"\n')
     r = installed.grassd("measure", "--now", "--config", cfg, rc=2)

@@ -1,7 +1,7 @@
 """The daemon's configuration: TOML file -> validated, frozen dataclasses.
 
 The file (default ``/etc/grassd/grassd.toml``; the embedded default is
-``grassd/daemon/config/default.toml``) has these tables::
+``grassd/daemon/core/config/default.toml``) has these tables::
 
     state_dir = "/var/lib/grassd"     # optional: $STATE_DIRECTORY, then /var/lib/grassd
     cache_dir = "/var/cache/grassd"   # optional: grassd.sim.kernel_cache.default_cache_dir
