@@ -1,27 +1,13 @@
-"""The interim ``grassd demo`` command and the calib doctests."""
+"""The interim ``grassd demo`` command (the calib doctests run in ``tests/test_doctests.py``)."""
 
 from __future__ import annotations
 
-import doctest
-import importlib
 import re
 
-import pytest
 from click.testing import CliRunner
 
 from grassd.daemon.cli.demo import example_pixel_rgb, green_coverage
 from grassd.daemon.cli.main import main
-
-CALIB_MODULES = [
-    "colour_spaces", "exposure", "ccm", "regions", "ogcd", "length_table", "compare",
-]  # fmt: skip
-
-
-@pytest.mark.parametrize("name", CALIB_MODULES)
-def test_doctests(name):
-    module = importlib.import_module(f"grassd.calib.{name}")
-    result = doctest.testmod(module, optionflags=doctest.NORMALIZE_WHITESPACE)
-    assert result.failed == 0
 
 
 def test_example_model_is_an_s_curve_between_two_albedos():

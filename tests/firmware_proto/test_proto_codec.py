@@ -278,16 +278,6 @@ def test_bad_table_files_name_the_problem(tmp_path, name, text, fragment):
         load_table_file(tmp_path / "missing.json")
 
 
-@pytest.mark.parametrize("module", ["crc", "framing", "messages", "codec", "tables"])
-def test_doctests(module):
-    import doctest
-    import importlib
-
-    mod = importlib.import_module(f"grassd.firmware_proto.{module}")
-    result = doctest.testmod(mod)
-    assert result.failed == 0 and result.attempted > 0
-
-
 def test_protocol_md_worked_example_matches_the_codec():
     from pathlib import Path
 
