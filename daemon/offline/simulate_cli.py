@@ -21,6 +21,7 @@ from grassd.daemon.core.store.atomic import (
     atomic_write_text,
 )
 from grassd.daemon.offline.options import RENDER_DEFAULTS, REPLICATES
+from grassd.sim.scene import PixelSpec
 
 
 def _view(_ctx, _param, values):
@@ -62,11 +63,19 @@ def _light_options(f):
                      help="Sharpness of the glossy lobe (0..0.97, Unity-style)."),
         click.option("--bounces", type=int, default=3, show_default=True,
                      help="Surface interactions per path."),
-        click.option("--seed", type=int, default=0, show_default=True),
     ]
     for opt in reversed(opts):
         f = opt(f)
     return f
+
+
+def _deprecated_seed(_ctx, _param, value: int | None) -> None:
+    """Warn that ``export-scene --seed`` does nothing: it seeds the Monte Carlo paths of
+    ``grassd simulate``, and an exported scene holds no paths."""
+    if value is not None:
+        click.echo("warning: export-scene --seed is deprecated and does nothing: it seeds the "
+                   "camera paths of grassd simulate, and the exported scene traces none; the "
+                   "tufts' layout is --layout-seed", err=True)
 
 
 def _require(**values) -> None:
@@ -136,6 +145,7 @@ def _plot(path: Path, curves) -> None:
 
 @click.group(invoke_without_command=True)
 @_light_options
+@click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--view", "views", multiple=True, callback=_view, metavar="H,D,THETA",
               help="Viewpoint: eye height (cm), distance (m), angle (deg). Repeatable.")
 @click.option("--lengths", default="0:20:1", show_default=True,
@@ -168,7 +178,7 @@ def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, site, when, su
     t0 = time.perf_counter()
     from grassd.daemon.core.calibration.simulation import simulate_curves, white_radiance
     from grassd.sim import backend
-    from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, parse_lengths
+    from grassd.sim.scene import DisplaySpec, RenderSettings, parse_lengths
 
     length_mm = parse_lengths(lengths)
     settings = RenderSettings(samples=samples, replicates=replicates, max_bounces=bounces,
@@ -234,17 +244,23 @@ def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, site, when, su
               required=True)
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
               required=True)
+@click.option("--layout-seed", type=click.IntRange(min=0), metavar="N",
+              default=PixelSpec.layout_seed, show_default=True,
+              help="Seed of the tufts' random blade layout the scene is built with.")
+@click.option("--seed", type=int, default=None, hidden=True, expose_value=False,
+              callback=_deprecated_seed)
 def export_scene_cmd(hdri, lux, sun_lux, sun_azimuth, sun_elevation, site, when, sun_from_hdri,
-                     rotation, flip, splay, specular, smoothness, bounces, seed, length_mm,
-                     views, out_dir):
+                     rotation, flip, splay, specular, smoothness, bounces, length_mm,
+                     views, out_dir, layout_seed):
     """Write the exact traced scene (PLY meshes, env.exr, scene.json) for other renderers."""
     _require(hdri=hdri, lux=lux)
     from grassd.sim.export import export_scene
-    from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings
+    from grassd.sim.scene import DisplaySpec, RenderSettings
 
     lighting = _lighting(hdri, lux, sun_lux, sun_azimuth, sun_elevation, sun_from_hdri,
                          rotation, flip, site, when)
-    display = DisplaySpec(PixelSpec(splay_deg=splay, specular=specular, smoothness=smoothness))
+    display = DisplaySpec(PixelSpec(splay_deg=splay, specular=specular, smoothness=smoothness,
+                                    layout_seed=layout_seed))
     doc = export_scene(out_dir, display, lighting, views[0], length_mm,
-                       settings=RenderSettings(max_bounces=bounces, seed=seed))
+                       settings=RenderSettings(max_bounces=bounces))
     click.echo(f"wrote {out_dir}/scene.json with {len(doc['meshes'])} meshes and env.exr")
