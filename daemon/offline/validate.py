@@ -12,7 +12,7 @@ directory or absolute::
     # capture.toml only, sun_from_hdri (find the sun in the map), rotation_deg (of the map)
     checker_raw = "checker.dng"           # one RAW of the colour checker at the measuring point
     checker_corners = [[x, y], [x, y], [x, y], [x, y]]   # patch area: TL, TR, BR, BL (pixels)
-    checker_chart = "spydercheckr-24"     # reference chart name or CSV path (optional)
+    checker_chart = "spydercheckr-24"     # reference chart name or CSV file (optional)
 
     [pixel]                               # optional PixelSpec fields of the simulation model
     splay_deg = 0.0
@@ -63,7 +63,7 @@ from numpy.typing import NDArray
 
 from grassd.calib.ccm import ColourCorrection, fit_ccm
 from grassd.calib.characteristic import Characteristic, fit_characteristic, floor_stderr
-from grassd.calib.charts import ReferenceChart, get_chart
+from grassd.calib.charts import CHARTS, ReferenceChart, get_chart
 from grassd.calib.checker_photo import check_inside, checker_white_balance, virtual_checker
 from grassd.calib.colour_spaces import luminance, prophoto_to_lab
 from grassd.calib.compare import frechet_characteristics
@@ -194,7 +194,8 @@ def manifest_to_toml(m: CaptureManifest) -> str:
     if light.rotation_deg:
         head["rotation_deg"] = light.rotation_deg
     head.update(checker_raw=rel(m.checker_photo),
-                checker_corners=[list(c) for c in m.checker_corners], checker_chart=m.chart)
+                checker_corners=[list(c) for c in m.checker_corners],
+                checker_chart=rel(Path(m.chart)) if Path(m.chart).is_absolute() else m.chart)
     if m.pixel:
         head["pixel"] = dict(m.pixel)
     if m.series:
@@ -319,6 +320,24 @@ def _path(ctx: schema.Context, name: str) -> Path:
     return f if f.is_absolute() else ctx.base_dir / f
 
 
+def _chart(ctx: schema.Context, name: str, where: Callable[[str], tuple]) -> str:
+    """The checker's reference chart as :func:`grassd.calib.charts.get_chart` takes it: a
+    built-in chart's name as written, else the path of a chart CSV (a name ending in ``.csv``
+    or naming a file), absolute or relative to the capture directory like every other file of
+    a capture; :class:`MissingPhotoError` where that file does not exist."""
+    if name.lower().replace(" ", "-").replace("_", "-") in CHARTS:
+        return name
+    path = _path(ctx, name)
+    if Path(name).suffix.lower() != ".csv" and not path.exists():
+        return name  # neither a built-in name nor a file: get_chart names the choices
+    if not path.is_file():
+        raise MissingPhotoError(f"{ctx.source}: {schema.key_path(where('checker_chart'))} "
+                                f"{path} does not exist; copy the chart's CSV into the capture "
+                                "directory or name a built-in chart ("
+                                + ", ".join(CHARTS) + ")")
+    return str(path)
+
+
 def _series(ctx: schema.Context, i: int, raw: Any) -> Series:
     """``[[series]]`` number ``i``: its viewpoint and photos (lengths strictly increasing)."""
     F = schema.Field
@@ -384,7 +403,8 @@ def load_manifest(path: str | Path) -> CaptureManifest:
         raise ctx.error(("series",), "more than one series is marked reference = true")
     m = CaptureManifest(root=p.parent, light=light, checker_photo=_path(ctx, top["checker_raw"]),
                         checker_corners=manifest_fields.as_quad(top["checker_corners"]),
-                        series=series, chart=top["checker_chart"], pixel=pixel)
+                        series=series, chart=_chart(ctx, top["checker_chart"], where),
+                        pixel=pixel)
     for photo in m.photos():
         if not photo.is_file():
             raise MissingPhotoError(f"{p}: photo {photo} does not exist; copy it into the "
