@@ -1,5 +1,5 @@
-"""Taichi's GPU backend against the CPU backend on the same seeds (issue #17: "the GPU backend is
-the same kernels; keep it working"). Prints numbers, asserts nothing.
+"""Taichi's GPU backend against the CPU backend on the same seeds: the GPU backend runs the same
+kernels and must keep agreeing with the CPU. Prints numbers, asserts nothing.
 
 Each arch renders in its own process (Taichi takes one arch per process): courtyard and forest
 (the shared HDRIs; the bundled default site where they are missing) at 5000 lx, view

@@ -3,7 +3,7 @@ panorama with response curves the merge never sees; prints the merge's accuracy 
 
 Two tables:
 
-* **default path** (issue #28): each shared HDRI (``../shared/hdri``) as ``grassd camera sim
+* **default path**: each shared HDRI (``../shared/hdri``) as ``grassd camera sim
   --hdri FILE`` serves it with its defaults (:data:`SIM_WIDTH` texels wide, curve
   :data:`SIM_CURVE`, light level :data:`SIM_SCENE_SCALE`), captured by a station with
   ``[capture]``'s defaults and the scene's true horizontal illuminance as its lux: what a

@@ -1,6 +1,6 @@
 """Whole-display benchmark: 8 x 8 per-pixel tables at OGCD stderr <= 0.1, and scaling to 32 x 32.
 
-Target (issue 7): 8 x 8, per-pixel tables, one viewpoint, <= 30 s on 2 cores.
+Target: 8 x 8, per-pixel tables, one viewpoint, <= 30 s on 2 cores.
 
 Run: ``.venv/bin/python -m bench.bench_display`` (``--quick``: the grouped 8 x 8 run and sizes up
 to 8 x 8 only; ``--lengths 0:20:4``: other green lengths, default 0:20:2). Prints numbers,

@@ -1,4 +1,4 @@
-"""Display-in-photo benchmark (issue #31): render a 4 x 8 display into a 4096 x 2048 equirect
+"""Display-in-photo benchmark: render a 4 x 8 display into a 4096 x 2048 equirect
 photo pair (sim.display_photo), then locate it and solve the camera pose
 (calib.display_in_photo). Prints times and pose errors per camera pose; asserts nothing.
 

@@ -1,4 +1,4 @@
-"""Benchmark: the C controller firmware (``firmware/``), every figure issue #15 asks for.
+"""Benchmark: the C controller firmware (``firmware/``): motor loop, parser, power cuts, image size.
 
 Prints: the motor step response (PD loop on the DC-motor model: settling time into +-0.1 mm
 and overshoot), the fuzz run's count of frames and the time one received byte costs (worst

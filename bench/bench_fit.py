@@ -2,7 +2,7 @@
 indoors, glossy splayed olive turf outdoors; :mod:`grassd.rigs.fit_worlds`), fitted from the
 defaults. Two runs per pixel:
 
-* the speed case of issue #28: 3 viewpoints x 6 lengths, all fitted (the reference view, a
+* the speed case: 3 viewpoints x 6 lengths, all fitted (the reference view, a
   steep one across the slits, which sees the base, and one along them, which sees the splay);
 * the accuracy case of the tests: 4 viewpoints fitted, 1 held out. (With 2 viewpoints fitted
   the fit refuses: the yellow albedo's standard error exceeds its limit.)

@@ -1,4 +1,4 @@
-"""Hostile input (issue #27): what each attack costs a running daemon, and a longer fuzz.
+"""Hostile input: what each attack costs a running daemon, and a longer fuzz.
 
 1. A `grassd run` subprocess on simulated hardware takes every attack of
    :data:`grassd.rigs.inbox_fuzz.ATTACKS`, one at a time. Before each, the daemon's peak resident

@@ -1,4 +1,4 @@
-"""``grassd measure`` end to end (issue #31): the embedded default config's 4 x 8 display on
+"""``grassd measure`` end to end: the embedded default config's 4 x 8 display on
 simulated hardware, its pixels varied as tests/data/measure/secret_variation.toml says, measured
 from test patterns to pushed per-pixel tables, as ``grassd measure --now --simulate-hardware
 --sim-display-variation FILE`` runs it (one process, cold: renderer start, the simulated site,

@@ -1,17 +1,17 @@
 """grassd against Mitsuba 3 (``llvm_ad_rgb``) on the exported scene: efficiency and agreement.
 
-Issue #17. The scene is what ``grassd simulate export-scene`` writes for courtyard and forest at
+The scene is what ``grassd simulate export-scene`` writes for courtyard and forest at
 5000 lx, view (170, 2, 0), green length 10 mm; Mitsuba renders it with its ``path`` integrator
 (``max_depth`` 4 = 3 bounces, no Russian roulette), the ``independent`` sampler at 4 spp, the
 film cropped to the quad's bounding box and each pixel weighted by its exact coverage of the
 quad (:mod:`grassd.rigs.mitsuba_scene`). grassd traces the same quad at the one length and as
 the 21-length characteristic 0..20 mm, twice: with its default settings (4096 paths x 8
-replicates), and at Mitsuba's noise, the issue's terms (as many replicates of 4096 paths as make
+replicates), and at Mitsuba's noise (as many replicates of 4096 paths as make
 grassd's G at one length about as noisy as one Mitsuba render, chosen by untimed pilots of both
 sides, the grassd pilot's variance good to about +-15 %). The second setting traces more
 replicates of the same estimator, so the two differ only in grassd's seconds per replicate
 (larger launches); it checks that the default's noise level does not flatter or wrong grassd.
-Mitsuba stays at the issue's 4 spp: it pays a fixed cost per render (forest: 1 spp took
+Mitsuba stays at 4 spp: it pays a fixed cost per render (forest: 1 spp took
 0.148 s, 4 spp 0.439 s), so at grassd's default noise (1-2 spp) it would be less efficient.
 
 Efficiency = 1 / (seconds x relative variance of the quad's G), both sides measured in the same

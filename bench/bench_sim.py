@@ -1,4 +1,4 @@
-"""Renderer benchmarks (issue #3 targets); prints numbers, asserts nothing.
+"""Renderer benchmarks against the renderer's speed targets; prints numbers, asserts nothing.
 
 1. First call in a fresh process (``grassd simulate``, JIT or offline-cache load included), with a
    cold and with a warm kernel cache. Target: <= 10 s warm.

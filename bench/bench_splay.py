@@ -1,4 +1,4 @@
-"""The studio's splayed characteristic (issue #29): traces, rays and wall time per launch set.
+"""The studio's splayed characteristic: traces, rays and wall time per launch set.
 
 The studio's pixel (``resolve_config(None, None)``, the centre of its 3x3 patch), courtyard
 5000 lx, viewpoint (170, 2, 5), 11 lengths 0..20 mm, warm kernels, launches of at least 2048

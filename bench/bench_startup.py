@@ -1,4 +1,4 @@
-"""Start-up and idle memory (issue #32): how long the light commands take, and what an idle
+"""Start-up and idle memory: how long the light commands take, and what an idle
 daemon holds.
 
 1. ``grassd --help``, ``grassd status`` (a state directory with a database and no daemon: the

@@ -1,4 +1,4 @@
-"""``grassd studio`` latency, warm, as a page sees it (issue #29; Nielsen's limits: 0.1 s feels
+"""``grassd studio`` latency, warm, as a page sees it (Nielsen's limits: 0.1 s feels
 instantaneous, 1 s keeps the flow).
 
 A real ``grassd studio --port 0 --hdri courtyard.exr`` process; a WebSocket client (aiohttp)

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# The GPU checks, as one script for a session lent a device machine (issue #29: "the studio runs
-# the same with --arch gpu"; #17: the GPU backend against the CPU on the same seeds). Pack first
+# The GPU checks, as one script for a session lent a device machine (the studio runs the
+# same with --arch gpu; the GPU backend agrees with the CPU on the same seeds). Pack first
 # (here): bench/device_pack.sh. Then, through the device tool:
 #   run(command="bash bench/device_check.sh", carry=[".device"], timeout_s=480)
 # Checks (arguments; these three by default, in this order): backend (bench_backend: both

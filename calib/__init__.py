@@ -12,7 +12,7 @@ Colour spaces (``colour_spaces``)
     ``luminance(rgb, space)``; constants ``WHITE_D50_XYZ``, ``M_REC709_TO_PROPHOTO`` ...
 Colour difference
     colour-science's ``colour.delta_E(lab1, lab2, method="CIE 2000")`` (CIEDE2000, Sharma,
-    Wu & Dalal 2005); no copy of our own (#30: see :mod:`grassd.calib.ogcd`).
+    Wu & Dalal 2005); no copy of our own (:mod:`grassd.calib.ogcd` says why).
 Exposure (``exposure``)
     ``normalise_exposure(rgb, grey_rgb, space="prophoto"|"rec709", white_balance=False)``
     -> linear RGB with the grey at Y = 0.18; ``exposure_matrix(grey_rgb, ...)`` -> (3, 3).

@@ -19,7 +19,7 @@ The matrices are colour-science's (its colourspace definitions and Bradford tran
 out here to the last bit and exposed read-only; tests/calib/test_colour_space_constants.py checks
 them against colour-science. ``import colour`` loads its plotting too (matplotlib, pandas: about
 100 MiB and seconds), so it happens only in the functions that call colour-science (CIELAB
-conversions): the daemon idles and the light commands start without it (issue #32).
+conversions): the daemon idles and the light commands start without it.
 References: ITU-R BT.709-6; ANSI/I3A IT10.7666 (ROMM RGB); CIE 15:2018 (CIELAB).
 """
 

@@ -22,9 +22,8 @@ error is unreliable; at i = 0 the OGCD is exactly 0 and its standard error is re
 
 Colour differences are colour-science's :func:`colour.delta_E` (``method`` "CIE 2000", the
 CIEDE2000 of Sharma, Wu & Dalal 2005, Color Res. Appl. 30(1):21-30; checked against their
-Table 1 in ``tests/calib/test_calib_delta_e.py``). Our own copy was 2-3x faster per call on
-these small arrays (16-200 pairs: 0.13 vs 0.3-0.4 ms) but a studio job spends well under 1 %
-of its time here, so it was removed (#30).
+Table 1 in ``tests/calib/test_calib_delta_e.py``), not a copy of our own: a studio job spends
+too little of its time here for a faster copy to pay for itself (docs/calib/colour_chain.md).
 """
 
 from __future__ import annotations
@@ -48,7 +47,7 @@ def delta_E(lab1: ArrayLike, lab2: ArrayLike, method: str = "CIE 2000"
             ) -> NDArray[np.float64]:
     """colour-science's :func:`colour.delta_E` (dE units of ``method``), imported on the
     first call: ``import colour`` loads its plotting too (matplotlib, pandas: about 100 MiB and
-    seconds), which the daemon's idle process and the light commands go without (issue #32)."""
+    seconds), which the daemon's idle process and the light commands go without."""
     from colour import delta_E as colour_delta_e
 
     return colour_delta_e(lab1, lab2, method=method)

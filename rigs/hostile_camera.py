@@ -1,4 +1,4 @@
-"""A hostile OSC camera (or anyone on its Wi-Fi) for the tests and benchmarks of issue #27: a
+"""A hostile OSC camera (or anyone on its Wi-Fi) for the hostile-input tests and benchmarks: a
 real HTTP server on 127.0.0.1 that, by the first component of the path, redirects elsewhere,
 sends a 300 MiB body (with or without Content-Length, or as an error), trickles one byte a
 second (in the body or in the headers), sends nested JSON, garbage instead of HTTP, or a

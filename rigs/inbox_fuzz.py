@@ -1,4 +1,4 @@
-"""Hostile light bundles, made as an attacker with write access to the inbox would (issue #27).
+"""Hostile light bundles, made as an attacker with write access to the inbox would.
 
 Two sources, shared by the tests (``tests/daemon/runtime/test_hostile_bundles.py``,
 ``tests/daemon/store/test_inbox_fuzz.py``) and the benchmark (``bench_hostile``):

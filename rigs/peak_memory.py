@@ -1,5 +1,5 @@
-"""What a call costs in time and resident memory: the tests and benchmarks of issue #27 check
-that a hostile input is refused quickly and before it is decoded or read whole."""
+"""What a call costs in time and resident memory: the hostile-input tests and benchmarks
+check that a hostile input is refused quickly and before it is decoded or read whole."""
 
 from __future__ import annotations
 

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 from grassd.sim.errors import SceneError
 
 if TYPE_CHECKING:  # numpy inside the functions: parsing a configuration (its PixelSpec)
-    # needs none, and ``grassd status`` starts without it (issue #32)
+    # needs none, and ``grassd status`` starts without it
     import numpy as np
 
 

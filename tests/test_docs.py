@@ -23,7 +23,7 @@ from click.testing import CliRunner
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 MKDOCS_YML = ROOT / "mkdocs.yml"
-#: the README's size limit (issue #30): a newcomer reads it in five minutes
+#: the README's size limit: a newcomer reads it in five minutes
 README_MAX_BYTES = 12 * 1024
 
 #: ``grassd WORD [WORD]`` where a shell line runs it: at its start or after sudo, &&, ; or |

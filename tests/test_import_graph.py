@@ -1,4 +1,4 @@
-"""The package layout holds on the real import graph (issue #14):
+"""The package layout holds on the real import graph:
 
 * ``grassd run`` never imports ``grassd.daemon.offline`` (validation, experiments, sweeps,
   reports): a real ``grassd run --simulate-hardware`` in a subprocess calibrates one bundle and
@@ -8,13 +8,13 @@
   lazy or not, so a scheduled measurement or a path the first test does not take cannot either;
 * ``grassd.calib``, ``grassd.sim`` and ``grassd.firmware_proto`` never import ``grassd.daemon``
   (no import statement anywhere in them names it, lazy or not);
-* no runtime path imports a rig (issue #30): no module of ``grassd.calib``, ``grassd.sim``,
+* no runtime path imports a rig: no module of ``grassd.calib``, ``grassd.sim``,
   ``grassd.firmware_proto`` or ``grassd.daemon`` imports a module of ``grassd.rigs`` (test rigs
   and simulated hardware), lazy or not, but the entry points that serve simulated hardware
   (``grassd/rigs/__init__.py`` states the rule); importing the command line loads none;
 * no import cycles between modules at module level (imports inside functions and under
   ``if TYPE_CHECKING:`` do not run at import time and are left out);
-* no import cycles between the daemon's subpackages (issue #30), counting every import,
+* no import cycles between the daemon's subpackages, counting every import,
   lazy or not;
 * every import of a grassd module, lazy or not, in the packages, tests and benchmarks names a
   module that exists.
@@ -402,8 +402,8 @@ def test_grassd_run_never_imports_offline(tmp_path):
 
 
 #: Libraries that take seconds or tens of MiB to import: the light commands load none
-#: (issue #32: ``grassd --help`` and ``grassd status`` in 0.3 s, ``grassd check-config`` in
-#: 0.5 s). numpy too: none of the three needs it.
+#: (``grassd --help`` and ``grassd status`` in 0.3 s, ``grassd check-config`` in 0.5 s).
+#: numpy too: none of the three needs it.
 HEAVY = ("taichi", "colour", "colour_hdri", "matplotlib", "pandas", "scipy", "numpy", "dask",
          "distributed", "aiohttp", "prometheus_client", "PIL", "OpenEXR", "rawpy", "pvlib")
 #: Modules that `grassd status` does without, each tens of ms of its 0.3 s: the protocol's
@@ -439,7 +439,7 @@ def _heavy_loaded(tmp_path: Path, *args: str, also: tuple[str, ...] = ()
 
 
 def test_grassd_help_loads_no_heavy_library(tmp_path):
-    """``grassd --help`` lists every command without importing one (issue #32)."""
+    """``grassd --help`` lists every command without importing one."""
     loaded, out = _heavy_loaded(tmp_path, "--help")
     assert "check-config" in out and "Commands:" in out
     assert not loaded, loaded
@@ -486,7 +486,7 @@ def test_grassd_status_without_a_daemon_loads_no_heavy_library(tmp_path):
 def test_the_daemon_loads_no_colour_science_or_taichi_before_its_first_run():
     """What ``grassd run`` imports before it calibrates (the service and the command) holds no
     colour-science (with its plotting: matplotlib, pandas), Taichi or Dask: an idle daemon
-    whose simulations run on a cluster stays small (issue #32: 150 MiB; numpy and scipy, for
+    whose simulations run on a cluster stays small (150 MiB; numpy and scipy, for
     the inbox's light checks, it has). Taichi loads when the daemon initialises its renderer,
     colour-science at the first colour difference."""
     code = ("import json, sys, grassd.daemon.core.runtime.service, grassd.daemon.cli.run; "

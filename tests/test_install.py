@@ -1,4 +1,4 @@
-"""A real install (issue #32, items 3 and 4): ``make install DESTDIR=...`` and every ``grassd``
+"""A real install: ``make install DESTDIR=...`` and every ``grassd``
 command from that plain install.
 
 One module fixture runs ``make install DESTDIR=<tmp>/root``: it builds the wheel once from a

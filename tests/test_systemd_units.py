@@ -101,7 +101,7 @@ def test_unit_has_required_settings():
 
 
 def test_unit_bounds_memory_network_and_config_access():
-    """Issue 27: memory bounded (sized from the soak's RSS, the comment says so), no network
+    """Hostile input: memory bounded (sized from the soak's RSS, the comment says so), no network
     but the camera's and the sensor's private ranges, no listening INET socket, the config
     (camera password) unreadable to anyone but root and the daemon."""
     settings = _settings()

@@ -1,4 +1,4 @@
-"""A click group whose sub-commands are imported only when one is used (issue #32: start-up).
+"""A click group whose sub-commands are imported only when one is used (fast start-up).
 
 Each sub-command module imports what its commands need (the renderer, colour-science, numpy
 ...), which takes seconds. :class:`LazyGroup` names its sub-commands with :class:`LazyCommand`

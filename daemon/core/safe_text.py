@@ -1,4 +1,4 @@
-"""Text from outside made safe for one line of output (issue 27).
+"""Text from outside made safe for one line of output.
 
 A bundle's name is chosen by whoever writes the inbox: it may hold a newline, a carriage
 return, ANSI escapes, bidi overrides, bytes that are not UTF-8 (a file name decodes them to

@@ -26,7 +26,7 @@ MAX_LENGTHS: int = 64
 #: Smallest and largest OGCD standard error (CIEDE2000) a request may ask to refine to.
 STDERR_BOUNDS: tuple[float, float] = (0.02, 2.0)
 #: The studio refines the characteristic until every OGCD standard error is at most this
-#: (CIEDE2000): the issue's "converged".
+#: (CIEDE2000): what the studio calls "converged".
 TARGET_STDERR: float = 0.1
 #: Largest splay (deg) the slider offers, as the pixel spec allows.
 MAX_SPLAY_DEG: float = 45.0

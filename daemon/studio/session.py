@@ -2,7 +2,7 @@
 and the job that turns a :class:`~grassd.daemon.studio.inputs.Condition` into the views,
 streamed as they refine.
 
-The order of a job is set by the latency goals (issue #29: first characteristic within 150 ms,
+The order of a job is set by the latency goals (first characteristic within 150 ms,
 first image of the pixel within 300 ms, converged within 1 s, warm, 2 cores; the sizes named
 here are :mod:`grassd.daemon.studio.pace`'s):
 

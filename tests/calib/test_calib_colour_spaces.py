@@ -49,7 +49,7 @@ def test_adaptation_is_bradford_and_differs_from_cat02():
     # ProPhoto white XYZ (0.9642, 1, 0.8249) exactly, which is what LibRaw does: <= 3e-4 apart.
     np.testing.assert_allclose(cs.M_REC709_TO_PROPHOTO, bradford, atol=3e-4)
     assert np.abs(cs.M_REC709_TO_PROPHOTO - cat02).max() > 3e-3
-    # On a ColorChecker, the two adaptations differ by a visible amount (the 0.6 dE00).
+    # On a ColorChecker, the two adaptations differ by a visible amount (about 0.6 dE00).
     rec = cs.prophoto_to_rec709(colorchecker_classic().prophoto())
     de = colour.delta_E(
         cs.prophoto_to_lab(rec @ cs.M_REC709_TO_PROPHOTO.T), cs.prophoto_to_lab(rec @ cat02.T)

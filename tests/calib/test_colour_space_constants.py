@@ -1,5 +1,5 @@
 """The matrices that grassd.calib.colour_spaces writes out (so that importing it needs no
-colour-science, issue #32) are colour-science's, to the last bit, and it imports colour only
+colour-science) are colour-science's, to the last bit, and it imports colour only
 when a CIELAB conversion or a colour difference is asked for."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Test patterns (PROTOCOL.md §3, issue #31): PATTERN drives pixels to raw lengths bypassing
+"""Test patterns (PROTOCOL.md §3): PATTERN drives pixels to raw lengths bypassing
 the table, PATTERN_END and the watchdog return them to normal display, a power cycle forgets
 the pattern; INFO's features bit, old 16-byte INFO; the client's show_pattern / end_pattern.
 

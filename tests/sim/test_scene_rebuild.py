@@ -1,6 +1,6 @@
 """A scene rebuilt for another splay (the studio's slider) keeps its display's layout and the
 renderer's blade fields, uploads only the grid's used part, and traces the same numbers bit for
-bit as a scene built and uploaded from nothing (issue #29)."""
+bit as a scene built and uploaded from nothing."""
 
 from __future__ import annotations
 

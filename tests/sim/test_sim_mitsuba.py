@@ -1,8 +1,8 @@
 """Cross-check against an independent renderer: Mitsuba 3 renders the exported scene.
 
 3 lengths x 2 viewpoints under a real HDRI from ../shared/hdri: mean colours agree within
-CIEDE2000 1.0 and OGCD within 0.5 (issue #3); under a uniform sky the quad's mean radiance agrees
-to 0.2 % (issue #17; needs Dr.Jit's llvm variant). Mitsuba reads only the exported files.
+CIEDE2000 1.0 and OGCD within 0.5; under a uniform sky the quad's mean radiance agrees to
+0.2 % (needs Dr.Jit's llvm variant). Mitsuba reads only the exported files.
 """
 
 from __future__ import annotations

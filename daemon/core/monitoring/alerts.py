@@ -31,7 +31,7 @@ alerted.
 
 What the description says may quote a bundle's name (a waiting bundle's reason) chosen by
 whoever writes the inbox: every reason, the health line and a controller's name and error
-are made one line (:func:`~grassd.daemon.core.safe_text.one_line`; issue 27), so a consumer that
+are made one line (:func:`~grassd.daemon.core.safe_text.one_line`), so a consumer that
 puts them in a subject line or a chat message gets no forged line and no terminal escape.
 """
 

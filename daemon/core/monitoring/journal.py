@@ -22,7 +22,7 @@ they are read from the message by the project's convention of naming the subject
 its argument: ``"run %d ..."`` -> RUN_ID, ``"bundle %s ..."`` -> BUNDLE, ``"controller %s ..."``
 -> CONTROLLER (:class:`SubjectFields`).
 
-One record is one line (issue 27): a message may carry a name chosen by whoever writes the
+One record is one line: a message may carry a name chosen by whoever writes the
 inbox, and a newline in it would print a forged second line (under systemd one with a
 priority prefix of its choosing). Every formatter here writes the message through
 :func:`~grassd.daemon.core.safe_text.one_line` (``\\n``, ``\\x1b`` ... instead of the raw

@@ -54,7 +54,7 @@ Metrics (units in the names: seconds, lux, dE00 = CIEDE2000 units):
 Example alert rules: ``systemd/grassd-alerts.rules.yml``.
 
 A label value (a controller's name, a port) is made one line first by
-:func:`~grassd.daemon.core.safe_text.one_line` (issue 27: a newline or other control character
+:func:`~grassd.daemon.core.safe_text.one_line` (a newline or other control character
 becomes a visible escape such as ``\\n``, an undecodable byte ``\\xNN``); then
 ``prometheus_client`` escapes its backslashes and double quotes (``\\\\``, ``\\"``) as the
 text format requires, so no value can end its line or its quotes.

@@ -13,7 +13,7 @@ with their reasons. No script, no external resource; the layout adapts to a phon
 meta, tables scroll sideways, plots scale).
 
 Every text on the page is HTML-escaped, and no line of it carries a control character
-(:func:`~grassd.daemon.core.safe_text.one_line`, issue 27): a bundle's name, chosen by whoever
+(:func:`~grassd.daemon.core.safe_text.one_line`): a bundle's name, chosen by whoever
 writes the inbox, shows as one line with its newline as ``\\n``; a multi-line reason keeps its
 lines.
 """

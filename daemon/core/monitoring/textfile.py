@@ -1,7 +1,7 @@
 """Where the daemon's metrics file goes (:mod:`grassd.daemon.core.monitoring.metrics` writes it).
 
 Its own module, without ``prometheus_client``: ``grassd check-config`` prints the path and
-starts without the exposition code (issue #32: start-up).
+starts without the exposition code.
 """
 
 from __future__ import annotations

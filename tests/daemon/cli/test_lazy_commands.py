@@ -1,4 +1,4 @@
-"""``grassd``'s sub-commands load on first use (issue #32: start-up), and what the group's help
+"""``grassd``'s sub-commands load on first use (fast start-up), and what the group's help
 says of each without loading it is what the command itself says."""
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Names chosen by whoever writes the inbox (or the configuration's controller names) reach the
 status page, the metrics textfile and an alert escaped, never as markup, a second line or a
-terminal escape (issue 27); and the one helper that makes them one line."""
+terminal escape; and the one helper that makes them one line."""
 
 from __future__ import annotations
 

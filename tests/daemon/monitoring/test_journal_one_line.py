@@ -1,5 +1,5 @@
 """One log record is one line, whatever a name in it holds, and logging never stops the
-program (issue 27): real child processes whose standard error is the journal stream
+program: real child processes whose standard error is the journal stream
 ($JOURNAL_STREAM) or a terminal, logging names chosen by whoever writes the inbox."""
 
 from __future__ import annotations

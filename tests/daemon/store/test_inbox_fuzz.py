@@ -1,7 +1,7 @@
 """Random and mutated bundles (rigs/inbox_fuzz.py: file kinds, sizes, names, manifests) through
 the inbox for a fixed budget with a fixed seed: no scan raises or blocks, every bundle ends
 claimed or rejected with a readable reason, every valid one (odd names too) claimed, and a
-restart recovers the state (issue #27).
+restart recovers the state.
 ``python -m bench hostile`` runs the same fuzzing longer."""
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Reading what an uploader wrote: only regular files with one name, within the caps, never a
-blocking open; a manifest is parsed once while it does not change (issue #27)."""
+blocking open; a manifest is parsed once while it does not change."""
 
 from __future__ import annotations
 

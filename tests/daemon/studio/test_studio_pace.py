@@ -1,4 +1,4 @@
-"""The studio's pace (issue #29): a splayed characteristic takes replicates of fewer paths (its
+"""The studio's pace: a splayed characteristic takes replicates of fewer paths (its
 every length is traced), one under a low sun goes on with larger replicates, and a run stops
 between the renderer's launches when a newer input comes in, not only between rounds."""
 
