@@ -27,7 +27,9 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -183,9 +185,30 @@ def schema(model: type, **keys: Field) -> dict[str, Field]:
     return out
 
 
+#: The schemas :func:`table` has checked tables against, while :func:`recording` runs.
+_RECORDING: ContextVar[dict[tuple[str, ...], dict[str, Field]] | None] = ContextVar(
+    "_RECORDING", default=None)
+
+
+@contextmanager
+def recording() -> Iterator[dict[tuple[str, ...], dict[str, Field]]]:
+    """While the block runs, every schema :func:`table` checks a table against, by the table's
+    path without array indices (``("controllers",)`` for each ``[[controllers]]``): the keys a
+    document may hold, read from the parsers themselves (the first schema of a path is kept)."""
+    seen: dict[tuple[str, ...], dict[str, Field]] = {}
+    token = _RECORDING.set(seen)
+    try:
+        yield seen
+    finally:
+        _RECORDING.reset(token)
+
+
 def table(ctx: Context, path: tuple, data: Any, fields: dict[str, Field]) -> dict[str, Any]:
     """Validate the table ``data`` at ``path`` against ``fields`` (key -> :class:`Field`);
     return plain values with defaults filled in."""
+    seen = _RECORDING.get()
+    if seen is not None:
+        seen.setdefault(tuple(p for p in path if isinstance(p, str)), fields)
     if not isinstance(data, dict):
         raise ctx.error(path, f"must be a table, got {type(data).__name__}")
     unknown = sorted(set(data) - set(fields))
@@ -213,14 +236,24 @@ def table(ctx: Context, path: tuple, data: Any, fields: dict[str, Field]) -> dic
 # A check takes a value of the right type and returns None, or what is wrong with it.
 
 
-def between(lo: float, hi: float, unit: str = "") -> Callable[[Any], str | None]:
-    """Check: ``lo <= v <= hi`` (``unit`` is appended to the bounds in the message)."""
-    def check(v: float) -> str | None:
-        if not lo <= v <= hi:
-            return f"must be between {lo} and {hi}{unit}, got {v}"
+@dataclass(frozen=True)
+class Between:
+    """Check: ``lo <= v <= hi`` (``unit`` is appended to the bounds in the message); its bounds
+    stay readable, for the documentation of the key."""
+
+    lo: float
+    hi: float
+    unit: str = ""
+
+    def __call__(self, v: float) -> str | None:
+        if not self.lo <= v <= self.hi:
+            return f"must be between {self.lo} and {self.hi}{self.unit}, got {v}"
         return None
 
-    return check
+
+def between(lo: float, hi: float, unit: str = "") -> Between:
+    """Check: ``lo <= v <= hi`` (``unit`` is appended to the bounds in the message)."""
+    return Between(lo, hi, unit)
 
 
 def positive(v: float) -> str | None:
@@ -233,14 +266,21 @@ def non_negative(v: float) -> str | None:
     return None if v >= 0 else f"must be >= 0, got {v}"
 
 
-def one_of(*choices: Any) -> Callable[[Any], str | None]:
-    """Check: ``v`` is one of ``choices``."""
-    def check(v: Any) -> str | None:
-        if v in choices:
-            return None
-        return f"must be one of {', '.join(map(repr, choices))}; got {v!r}"
+@dataclass(frozen=True)
+class OneOf:
+    """Check: ``v`` is one of ``choices`` (readable, for the documentation of the key)."""
 
-    return check
+    choices: tuple[Any, ...]
+
+    def __call__(self, v: Any) -> str | None:
+        if v in self.choices:
+            return None
+        return f"must be one of {', '.join(map(repr, self.choices))}; got {v!r}"
+
+
+def one_of(*choices: Any) -> OneOf:
+    """Check: ``v`` is one of ``choices``."""
+    return OneOf(tuple(choices))
 
 
 def non_empty(v: str) -> str | None:

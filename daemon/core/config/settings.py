@@ -737,18 +737,15 @@ def _parse_schedule(ctx: _Ctx, raw: Any) -> ScheduleConfig:
 def _parse_simulation(ctx: _Ctx, raw: Any, pixel: Mapping[str, Any]) -> SimulationConfig:
     """``[simulation]``; its ``lengths`` (a count, or mm) lie within the ``pixel``'s green
     range."""
-    lengths_raw = raw.get("lengths", 11) if isinstance(raw, dict) else 11
-    sim_check = dict(raw) if isinstance(raw, dict) else raw
-    if isinstance(sim_check, dict):
-        sim_check.pop("lengths", None)
-    si = _table(ctx, ("simulation",), sim_check, _schema(
+    si = _table(ctx, ("simulation",), raw, _schema(
         SimulationConfig, samples=_F(int, check=_between(1, 1 << 20)),
         seed=_F(int, check=_non_negative), layouts=_F(int, check=_between(1, 64)),
+        lengths=_F(int | list, 11, hint="an integer count or an array of mm"),  # parsed below
     ))
     lo = float(pixel.get("green_min_mm", 0.0))
     hi = float(pixel["green_max_mm"])  # every PixelSpec field is filled in by _parse_pixel
     return SimulationConfig(samples=si["samples"], seed=si["seed"], layouts=si["layouts"],
-                            lengths_mm=_simulation_lengths(ctx, lengths_raw, lo, hi))
+                            lengths_mm=_simulation_lengths(ctx, si["lengths"], lo, hi))
 
 
 def _simulation_lengths(ctx: _Ctx, raw: Any, lo: float, hi: float) -> tuple[float, ...]:

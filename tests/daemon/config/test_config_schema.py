@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import pytest
@@ -51,7 +52,8 @@ def test_errors_name_file_line_and_key_in_the_documents_error_type():
 def test_the_replicate_limit_is_the_renderers():
     text = default_config_text()
     assert parse_config(text).calibration.replicates == CalibrationConfig.replicates
-    top = text + f"\n[calibration]\nreplicates = {MAX_REPLICATES}\n"
+    top = re.sub(r"(?m)^replicates = \d+", f"replicates = {MAX_REPLICATES}", text)
+    assert top != text
     assert parse_config(top).calibration.replicates == MAX_REPLICATES
     with pytest.raises(ConfigError, match=f"between 2 and {MAX_REPLICATES}, got "
                                           f"{MAX_REPLICATES + 1}"):

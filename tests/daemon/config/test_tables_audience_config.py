@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from grassd.daemon.core.config.settings import (
@@ -101,7 +103,8 @@ def test_config_drives_whole_display_tables(renderer):
     from grassd.sim.lighting import build_lighting
     from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
 
-    text = default_config_text().replace("rows = 4\ncols = 8", "rows = 2\ncols = 2")
+    text = re.sub(r"(?m)^rows = 4\b", "rows = 2",
+                  re.sub(r"(?m)^cols = 8\b", "cols = 2", default_config_text()))
     text = text.replace('pixels = "0-15"', 'pixels = "0-1"').replace(
         'pixels = "16-31"', 'pixels = "2-3"')
     cfg = parse_config(text + '\n[tables]\ngranularity = "controller"\ncheck_groups = 0\n')
