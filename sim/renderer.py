@@ -6,19 +6,15 @@ under an importance-sampled equirectangular environment plus an optional directi
 * Transport: Lambertian surfaces (optionally plus a normalised modified-Phong glossy lobe,
   off by default), next-event estimation of the environment (sampled per normal bin in
   proportion to luminance x solid angle x a cosine bound, :mod:`grassd.sim.env_sampler`) and
-  of the sun (ray-traced shadow), cosine-weighted
-  BSDF sampling, the two environment strategies combined by Veach's balance heuristic
-  (measured against the power heuristic, courtyard / forest 5000 lx, city 20000 lx, 40 seeds
-  x 8 replicates: variance of the 21-length OGCD -6 / -6 / -4 %, of G at 10 mm +3 / -5 / -5 %;
-  a power of 1.5 gained half as much). The last
-  surface of a path of several takes light samples alone: its BSDF sample would only ask
-  whether the environment is visible (one more upward ray for a share of that surface's
-  direct light, itself about 2 % of the quad's radiance; measured, courtyard / forest
-  5000 lx: -3 to -6 % time per path, variance unchanged). Up to
-  ``max_bounces`` surface interactions, Russian roulette from surface ``roulette_from`` on
-  (0 = the first a path meets; by default 2, the third; survivors
-  weighted by the inverse survival probability, so the estimate stays unbiased for that depth;
-  the decision is a random number of the path, the same at every length).
+  of the sun (ray-traced shadow), cosine-weighted BSDF sampling, the two environment
+  strategies combined by Veach's balance heuristic (it leaves the OGCD less variance than the
+  power heuristic). The last surface of a path of several takes light samples alone: its BSDF
+  sample would only ask whether the environment is visible, one more upward ray for a small
+  share of that surface's direct light. Up to ``max_bounces`` surface interactions, Russian
+  roulette from surface ``roulette_from`` on (0 = the first a path meets; by default 2, the
+  third; survivors weighted by the inverse survival probability, so the estimate stays
+  unbiased for that depth; the decision is a random number of the path, the same at every
+  length).
 * Measurement: the mean linear RGB radiance over the image-plane quad that joins the projections
   of the pixel's four top corners (the paper's measurement area), estimated by stratified
   sampling of the bilinear parametrisation of that quad, weighted by its Jacobian so the
@@ -36,20 +32,15 @@ under an importance-sampled equirectangular environment plus an optional directi
   its hit (or block its shadow ray). Lengths below the least such length over the path give
   the same surfaces, points and random numbers, hence the same radiance bit for bit, and take
   it without tracing; the path is traced again at the first length past it. A green blade's
-  outline grows with its length (longer blades hold shorter ones). On the paper's pixel a
-  path is traced about 4 times for 21 lengths, within 3 % of the number of lengths at which
-  its radiance actually changes. A trace at a longer length keeps the answers of the path's
-  rays up to the first one that may change there (each ray has its own growth length), so
-  only the rest of the path is traced again. Splay turns a green blade's plane with its
-  length: a ray that comes near a green blade it may meet at some length of the launch (one
-  the culling does not skip), or is blocked by one, takes the current length as its growth
-  length, and rays that stay clear of every green blade keep theirs; so a path is traced at
-  nearly every length (11.0 of 11 on the studio's splayed characteristic), but keeps its
-  rays, light samples and bounces up to the first vertex that moves: 65.8 rays a path
-  instead of 81.8, 302 -> 214 ms (median of 6, courtyard 5000 lx, (170, 2, 5), splay 8 deg,
-  16 x 256 paths, 2 cores). A conservative bound of the length from which a turning blade
-  may meet a ray (the ray's least height in a wedge that holds the blade over the launch's
-  lengths) skipped a sixth of the traces but cost more than it saved: 252 ms.
+  outline grows with its length (longer blades hold shorter ones), so a path is traced again
+  only at about the lengths where its radiance actually changes. A trace at a longer length
+  keeps the answers of the path's rays up to the first one that may change there (each ray
+  has its own growth length), so only the rest of the path is traced again. Splay turns a
+  green blade's plane with its length: a ray that comes near a green blade it may meet at
+  some length of the launch (one the culling does not skip), or is blocked by one, takes the
+  current length as its growth length, and rays that stay clear of every green blade keep
+  theirs; so a path is traced at nearly every length, but keeps its rays, light samples and
+  bounces up to the first vertex that moves.
 * Sampling: randomised quasi-Monte Carlo. Every pair of dimensions (quad position, light
   samples, bounce directions) takes the 2D Sobol' points, Owen-scrambled and index-shuffled per
   (replicate, pair) (:func:`grassd.sim.tifuncs.owen_sobol_pair`): the strata**2 paths of a
@@ -57,14 +48,13 @@ under an importance-sampled equirectangular environment plus an optional directi
   so their spread stays an honest standard error. The first surface a path meets takes
   ``light_samples`` environment samples, consecutive points of the light pair's net, so that
   they are stratified over the hemisphere at that surface as well as across paths; later
-  surfaces take one. Measured against the padded jittered sampling this replaced (independent
-  light samples; courtyard, 10 mm, 4096 paths): relative variance of the quad's G -19 % from the
-  Sobol' nets, -21 % more from the stratified light samples (0.90 -> 0.57 per path), +2-7 % CPU
-  per path.
+  surfaces take one.
 
 Numpy in, numpy out: :meth:`Renderer.characteristic` takes a :class:`~grassd.sim.scene.DisplaySpec`,
 a ``Lighting`` (from :mod:`grassd.sim.lighting`), a viewpoint and lengths (mm), and returns a
 :class:`Measurement`. Call :func:`grassd.sim.backend.init` before constructing a Renderer.
+
+What each choice here measured, and what was tried and dropped: docs/renderer/measurements.md.
 """
 
 
@@ -110,26 +100,20 @@ vec3 = tf.vec3
 vec4 = ti.types.vector(4, ti.f32)
 EPS = 2e-6  # m: offset of secondary ray origins along the facing normal
 ZCULL = 1e-5  # m: margin of the per-cell height culling of primitives
-# paths: the fewest a launch takes by default. Under Taichi's own CPU loop scheme smaller launches
-# ran up to 7 % slower per path; in tasks of 32 (grassd.sim.backend.COMPILE_OPTIONS) 4096 x 32
-# paths x 21 lengths took the same in launches of 4096, 8192 or 131072 paths (1.17-1.20 s).
+# paths: the fewest a launch takes by default: small launches ran slower per path under
+# Taichi's own CPU loop scheme (in tasks of 32, grassd.sim.backend.COMPILE_OPTIONS, they do not).
 MIN_LAUNCH_PATHS = 1 << 17
 PREVIEW_MAX = 1024  # largest preview image side (pixels)
 # Russian roulette (RenderSettings.roulette_from, the surface index from which it plays, is 2 by
-# default: the third surface): its light and everything after it
-# are about 2 % of the quad's radiance but 2 of a path's 9 rays. Measured against none
-# (courtyard/forest 5000 lx, 10 mm, CPU seconds, same seeds): relative variance of G x time
-# -10 to -15 %, OGCD variance x time (courtyard 8000 lx, city 20000 lx, 21 lengths) -3 to -4 %.
-# From the second surface (survival 0.5 or 0.7) G gained 12-37 % but OGCD lost up to 21 %
-# (under a low sun it gains: daemon.calibration.simulation.LargerReplicates).
+# default: the third surface): its light and everything after it are a small share of the
+# quad's radiance but a large share of a path's rays (docs/renderer/measurements.md).
 RR_SURVIVAL = 0.5
 # Rays of a path whose answers are kept for its next length (trace_memo): enough for the
 # default path (4 + 1 light samples, sun, 3 bounces: 12 rays); later rays are traced again.
 # A row: t, normal (3), material, growth length; a light sample's row also its direction (3)
 # and contribution (3, linear RGB), so that a vertex that stays does not sample the environment
-# again (measured, 21 lengths, courtyard / forest 5000 lx: -7.5 / -8.1 % time per path); a
-# bounce ray's row the direction (3), throughput weight (3) and pdf its BSDF sample gave
-# (-2.5 to -2.8 % more).
+# again; a bounce ray's row the direction (3), throughput weight (3) and pdf its BSDF sample
+# gave, so that it does not sample its bounce again either.
 MEMO_RAYS = 16
 MEMO_COLS = 13
 # m: a shadow ray that got through at a shorter length is blocked at any length this far past
@@ -139,8 +123,7 @@ MEMO_COLS = 13
 GROWN_IN = 1e-6
 # The recording mode (albedo_terms): each thread sums TERM_BLOCK camera paths of one (length,
 # replicate) serially into its own row of term_acc, so the sums do not depend on scheduling.
-# Small blocks give Taichi's adaptive CPU scheduling enough iterations to balance: measured
-# (6 lengths x 4096 x 8 paths, 2 cores) 256 paths a block use 1.4 cores, 64 1.85, 16 1.9.
+# Small blocks give Taichi's adaptive CPU scheduling enough iterations to balance the cores.
 TERM_BLOCK = 16
 TERM_THREADS = 1 << 14
 # The deep recording (albedo_terms with max_bounces above 3) sums its monomials in a field of
@@ -339,8 +322,8 @@ class Renderer:
         self._launches = 0
         # The word a launch reads when it has no :attr:`interrupt`: it never changes, so the
         # launch runs to its end. Of the kind an interrupt's word is (a NumPy array) where
-        # interrupts work: Taichi compiles a kernel anew for each kind of array argument
-        # (measured: the first launch with the other kind took 0.85 s more). On a GPU, device
+        # interrupts work: Taichi compiles a kernel anew for each kind of array argument, so
+        # the other kind would cost its first launch a compile. On a GPU, device
         # memory: there a NumPy array is copied to the device and back at every launch.
         self._no_word = (np.zeros(1, np.int32) if self.interruptible
                          else ti.ndarray(ti.i32, 1))
@@ -356,9 +339,7 @@ class Renderer:
         self.ipar = ti.field(ti.i32, 16)
         # Compile-time features of the uploaded scene (glossy lobe, splay): each combination
         # compiles its own kernels, so a Lambertian scene without splay (the default) runs
-        # without their code (measured, courtyard / forest 5000 lx: -2 to -3 % time per path).
-        # Likewise a launch of one length runs without growth lengths and the memo (-3.5 to
-        # -4.4 % time per path).
+        # without their code, and a launch of one length without growth lengths and the memo.
         self._features = (False, False)
         self._compiled: set[tuple] = set()  # kernel variants compiled (features, launch kind)
         self._scene_key: tuple | None = None
@@ -416,7 +397,7 @@ class Renderer:
             previous, self._lighting = self._lighting, None
             # Another light with the same map (the sun moved: a time-of-day slider; another
             # lux: the map is uploaded unscaled and scaled in the kernel) keeps the uploaded
-            # map and its sampler (57 ms for 1024 x 512 on 2 cores); equal texels give the same
+            # map and its sampler (tens of ms to rebuild); equal texels give the same
             # fields, so the images are the same bit for bit whatever ran before.
             self._upload_light(lighting, env_kept=previous is not None
                                and _same_map(previous, lighting))
@@ -600,15 +581,10 @@ class Renderer:
         Rise axes and normals are precomputed per blade; only green blades with splay (their
         lean grows with the length x) are recomputed here, turned from the splay-free axis by
         the angle whose (sin, cos) is ``turn`` (the same for every blade at length x: the
-        caller computes it once per ray). Evaluated per blade test, that sin and cos took a
-        quarter of a splayed path's time (courtyard 5000 lx, (170, 2, 3), splay 8 deg, 11
-        lengths, 32 x 256 paths, 2 cores: 280-365 ms before, 195-250 ms after; results equal
-        to float rounding). Its normal ``a x u`` is not unit (``a`` and ``u`` need not be
-        orthogonal), and the plane test does not need it to be: :meth:`trace` normalises only
-        the hit's, once per ray, where this normalised it per test (interleaved A/B, same
-        conditions: 32 x 256 paths about 9 % less CPU time; the studio's splayed run to 0.1
-        dE00, ten runs each, median 1017 ms before, 854 ms after; results equal to float
-        rounding). ``zlo``..``zhi`` bounds the heights
+        caller computes it once per ray: per blade test, that sin and cos would cost a large
+        share of a splayed path's time). Its normal ``a x u`` is not unit (``a`` and ``u`` need
+        not be orthogonal), and the plane test does not need it to be: :meth:`trace`
+        normalises only the hit's, once per ray. ``zlo``..``zhi`` bounds the heights
         of the ray inside the current grid cell: a part lying wholly above or below it is not
         tested (a blade rises at most its length above its root, a green blade's cavity part
         spans the cavity depth below it). Green blades are culled as if ``x_cull`` (>= x)
@@ -700,8 +676,8 @@ class Renderer:
         surface at the same point (the outline of a longer blade holds that of a shorter
         one), so a path whose rays all keep their answers has the same radiance. Cells and
         blades are culled for lengths up to ``x_cull`` (>= x), or up to the ray's least growth
-        length so far once that is lower (measured, 21 lengths, courtyard / forest 5000 lx:
-        -6.6 / -4.4 % time per path, the same images and ray counts bit for bit on 3 HDRIs).
+        length so far once that is lower (less work, the same images and ray counts bit for
+        bit).
         With splay a ray that comes near a green blade (which may turn into it) or is blocked
         by one (which may turn away) gets ``x``. ``splay``, ``several``
         (compile time): the scene's green blades splay; the launch traces several lengths
@@ -948,14 +924,9 @@ class Renderer:
             # Next-event estimation: environment, MIS against the BSDF strategy. The first vertex
             # takes ``n_nee`` light samples, later ones one. Its shadow rays decide the
             # variance: half of them are blocked by blades, in no pattern of height or
-            # elevation a sampler could learn (measured: guiding by 8-32 height x elevation
-            # bins would cut the second moment by 5 % on courtyard and not at all on forest).
-            # Measured against two samples at each of the first two vertices (courtyard, forest
-            # 5000 lx, city 20000 lx; 16 seeds x 8 replicates): 4 + 1 raises the efficiency of
-            # G at 10 mm by +50 / +16 / +62 % and leaves that of the 21-length OGCD as it was
-            # (+1 / 0 / +15 %). 4 + 2 gains less for G on forest and city and loses OGCD (-3 to
-            # -16 % against 4 + 1); 8 + 1 gains more for G on forest only and loses OGCD (-22
-            # to -38 %); 2 + 1 gains less for G. The sun is one more shadow query (a delta
+            # elevation a sampler could learn, so more samples at the first vertex pay and
+            # guiding them does not; 4 + 1 was the most efficient split measured
+            # (docs/renderer/measurements.md). The sun is one more shadow query (a delta
             # light: no MIS). All shadow rays share one trace call, so the kernel inlines the
             # traversal twice, not four times. Light sample j is point j of the path's n_nee in
             # the light pair's net (pair 0 is the quad position); the lobe choice is rand01.

@@ -1,8 +1,9 @@
-"""The studio's pace: how much work each step of a job takes (issue #29's latency goals: first
+"""The studio's pace: how much work each step of a job takes, set by the latency goals (first
 characteristic within 150 ms, first image of the pixel within 300 ms, converged within 1 s,
 warm, 2 cores). Camera paths a replicate and replicates a round, the renderer's launch sizes
-where no interrupt stops a launch, and the pixel image's sizes and passes; each with the
-measurements that chose it. :mod:`grassd.daemon.studio.session` runs a job's steps with them.
+where no interrupt stops a launch, and the pixel image's sizes and passes, each with the reason
+for it; the measurements that chose them are in docs/studio.md ("The pace's numbers").
+:mod:`grassd.daemon.studio.session` runs a job's steps with them.
 """
 
 from __future__ import annotations
@@ -13,15 +14,9 @@ from __future__ import annotations
 STUDIO_SAMPLES: int = 1024
 #: Camera paths per replicate when the green blades splay. The renderer then traces a path
 #: at nearly every length (the blades' planes turn with the length; it keeps only the rays
-#: clear of every green blade) instead of about 5 of the 11, so a replicate costs about 2.3x
-#: as much (16 x 256 paths 116 ms against 4 x 1024 without splay 50 ms, 2 cores, median of 12;
-#: 2.5x before the renderer normalised a turned blade's normal only at the hit, 3x before it
-#: turned the blades once per ray, 4x before it kept rays with splay), and the
-#: first round took 0.3 s of a splay change's 0.43 s.
-#: A quarter of the paths a replicate and 4x the replicates a round (:func:`studio_pace`) keep
-#: the first round's time and each round's paths. Measured in process, 3 splay changes, load
-#: 2-3 on 2 cores: first curve 124-176 ms, converged 4.2-4.7 s; a first look of 4 x 256
-#: paths sent before rounds of 1024-path replicates instead: 142-162 ms, 4.9-6.0 s.
+#: clear of every green blade) instead of about 5 of the 11, so a replicate costs a few times
+#: as much. A quarter of the paths a replicate and 4x the replicates a round
+#: (:func:`studio_pace`) keep the first round's time and each round's paths.
 SPLAY_SAMPLES: int = 256
 #: Fewest camera paths a renderer launch takes in a studio without interrupts (in the server's
 #: process, in tests; the simulator process launches whole rounds,
@@ -32,32 +27,28 @@ SPLAY_SAMPLES: int = 256
 #: launches.
 STUDIO_LAUNCH_PATHS: int = 2048
 #: Most camera paths a launch takes in a studio without interrupts, scaled like the replicates
-#: (:func:`studio_pace`: a quarter where the blades splay, whose paths cost 2.3x): a larger
-#: replicate (a low sun's 8192 paths,
-#: :class:`~grassd.daemon.core.calibration.simulation.LargerReplicates`) goes in launches of a share
-#: of its paths (the numbers change by float64 rounding only), and a splayed round in launches
-#: of 4 replicates, so a new input waits for one launch (30-50 ms here), not the round.
-#: Larger launches cost less per path (the last task of a launch leaves a core idle, the
-#: threads' start and stop take CPU time, and on this 2-core VM a core that idled between
-#: launches joined late: 1.0-1.5 cores busy in a tenth to a half of the launches): the
-#: studio's splayed run in a low sun, in process, four eyes, took 2005-2330 ms with 4096
-#: (1024 splayed paths a launch), 1634-1953 with 8192 and 1395-1756 with 16384. That is why
-#: the simulator process, where a newer input stops the launch in flight, launches whole
-#: rounds. (A round without splay goes in launches of 2 replicates, a quarter of its 8,
-#: whatever this cap.)
+#: (:func:`studio_pace`: a quarter where the blades splay): a larger replicate (a low sun's 8192
+#: paths, :class:`~grassd.daemon.core.calibration.simulation.LargerReplicates`) goes in
+#: launches of a share of its paths (the numbers change by float64 rounding only), and a
+#: splayed round in launches of 4 replicates, so a new input waits for one launch, not the
+#: round. Larger launches cost less per path (the last task of a launch leaves a core idle,
+#: the threads' start and stop take CPU time, and a core that idled between launches may join
+#: late); that is why the simulator process, where a newer input stops the launch in flight,
+#: launches whole rounds. (A round without splay goes in launches of 2 replicates, a quarter
+#: of its 8, whatever this cap.)
 STUDIO_MAX_LAUNCH_PATHS: int = 4096
 #: Replicates of the first round (their spread is the first error band).
 FIRST_REPLICATES: int = 4
 #: Most replicates a characteristic takes before it is sent as it is.
 MAX_REPLICATES: int = 256
-#: Most replicates a later round adds: a round then takes at most about 0.1 s (11 lengths), so
-#: a new input waits at most that long for the round in flight.
+#: Most replicates a later round adds: a round then stays short (about 0.1 s for 11 lengths),
+#: so a new input waits little for the round in flight.
 ROUND_REPLICATES: int = 8
 #: (width px, paths per image pixel) of the pixel's first image, and of each refining pass
 #: (the preview kernel rounds the paths up to a square: 2 or 4 cost the same). The first image
 #: is drawn between the characteristic's first and second rounds, so its time adds to every
-#: converged time: one path per pixel takes 36-43 ms on 2 cores where 4 took 114-132 ms (its
-#: noise is gone with the refining passes, 0.11-0.13 s each, after everything else).
+#: converged time: one path per pixel, a third of the time of four (its noise is gone with the
+#: refining passes after everything else).
 FIRST_IMAGE: tuple[int, int] = (96, 1)
 REFINE_IMAGE: tuple[int, int] = (192, 1)
 #: Refining passes of the pixel's image after everything else (24 paths per image pixel).

@@ -91,46 +91,27 @@ class LargerReplicates:
     camera paths (per length: ``sun_look_paths``, judged again at ``look_paths``, see below)
     that the target needs more than ``after_paths``, the run starts a new series of replicates of
     ``samples`` paths each (at least ``least`` of them before it stops at the target: their
-    spread is the error), and the paths so far were only the first look. (The first round
-    alone, 4 replicates, misjudged it by 2x either way.)
+    spread is the error), and the paths so far were only the first look.
 
     Why: a replicate's paths are a scrambled Sobol' net over the measurement quad, and where
     the quad's radiance has sharp edges (a low sun's light and shadow on the blades) a larger
-    net's error falls faster than 1/sqrt(paths). Measured (courtyard, 40000 lx sun at 15:00,
-    (170, 2, 3), 11 lengths, 65536 paths): the OGCD's largest standard error 0.157 dE00 from
-    64 replicates of 1024 paths, 0.123 from 16 of 4096, 0.102 from 8 of 8192 (a replicate's
-    variance ~ paths^-1.4), all from the light at the first surface (one bounce: 0.149;
-    1 or 8 light samples: 0.156, 0.157). Under diffuse light (no sun) the error goes as
+    net's error falls faster than 1/sqrt(paths). Under diffuse light (no sun) the error goes as
     1/sqrt(paths) whatever the replicates' size, so a run without a sun keeps its small
-    replicates: there a larger series gains nothing per path and costs at least ``least`` x
-    ``samples`` paths, and its first 8 replicates overstate the paths needed often enough
-    (the largest of 11 noisy errors) to switch where it should not. Measured (courtyard 5000
-    lx, no sun, eye (120, 3, -14.6 .. -13.1), six runs each, 2 cores, in process): judged to
-    need more than 65536 paths, 8-9 replicates of 8281 paths, 876-998 ms; kept small,
-    34-50 replicates of 1024 paths, 405-598 ms. Nine other eyes without a sun never switched.
-
-    Measured, the studio's runs to 0.1 dE00 (first round 4 x 1024 paths; 11 lengths; four
-    viewpoints each; 2 cores, median s): that sun 2.40 s with replicates of 1024 paths, 1.88 s
-    with 4096 (at least 8), 1.41 s with 8192 (at least 8; 1.27 s with at least 6); no sun
-    0.76 s with 1024, 0.92 s with 4096, 1.31 s with 8192; a weaker sun (8000 lx, noon)
-    0.62 s with 1024, 1.27 s with 8192. (The renderer rounds 8192 up to 91 x 91 = 8281.)
+    replicates: there a larger series gains nothing per path, costs at least ``least`` x
+    ``samples`` paths, and a first look overstates the paths needed often enough to switch
+    where it should not.
 
     Under a sun the larger series also takes ``light_samples`` environment samples at the first
     surface and Russian roulette from surface ``roulette_from`` on (:class:`RenderSettings`):
     its noise is the first surface's light and shadow, which neither the environment's light
-    samples nor the later bounces reduce, so they only cost time. Measured (as above, 8 x 8192
-    paths, 2 cores): 4 light samples 1.07-1.15 s, largest OGCD stderr 0.102; 1 light sample
-    0.83-0.89 s, 0.102 (20.1 rays a path instead of 28.1); roulette from the second surface
-    as well 0.64-0.74 s, 0.107. The studio's runs to 0.1 dE00 (six viewpoints, median): 1.90 s,
-    1.38 s with 1 light sample, 1.29 s with the roulette too.
+    samples nor the later bounces reduce, so they only cost time.
 
     Under a sun the run judges its paths from ``sun_look_paths`` on (the first round), and
     judges again at ``look_paths`` if that first look said the target was near: a first look
-    that switches saves the second round of small replicates (0.1 s), and one that misjudged
-    the paths needed (1 of 6 viewpoints) is caught at the second. The studio's runs to 0.1 dE00
-    under that sun (six viewpoints, median, with the light samples and roulette above): 1.33 s
-    judging at 8192 paths, 1.22 s judging once at 4096 (one viewpoint kept its small
-    replicates: 2.68 s), 1.20 s judging at 4096 and again at 8192."""
+    that switches saves the second round of small replicates, and one that misjudged the paths
+    needed is caught at the second.
+
+    The measurements that chose each default: docs/renderer/measurements.md."""
 
     samples: int = 8192
     after_paths: int = 65536
