@@ -1,10 +1,9 @@
-"""The status's JSON form is what `grassd status --json` printed before the status had a type
-(operators' scripts read it): the same keys in the same order, at every level, from the state
-database alone and from a running daemon; and it reads back into the same status.
+"""`grassd status --json` keeps its keys (operators' scripts read them): the same keys in the
+same order, at every level, from the state database alone and from a running daemon; and the
+JSON reads back into the same status.
 
-The key lists below were captured from the untyped status (collect_status and
-Service.status at 1bc3196) before the type replaced it. Add a key here only when one is added
-on purpose; never rename one."""
+The key lists below are the wire format. Add a key here only when one is added on purpose;
+never rename one."""
 
 from __future__ import annotations
 
