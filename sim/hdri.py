@@ -42,6 +42,7 @@ import stat
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 import OpenEXR
@@ -58,6 +59,7 @@ __all__ = [
     "REC709_LUMINANCE",
     "load_hdri",
     "read_header",
+    "read_open_header",
     "reduction_factor",
     "check_env",
     "write_exr",
@@ -242,6 +244,11 @@ def _magic(p: Path) -> bytes:
             magic = fh.read(16)
     except OSError as exc:
         raise HdriError(f"cannot read HDRI file {source}: {exc.strerror or exc}") from exc
+    return _checked_magic(magic, source)
+
+
+def _checked_magic(magic: bytes, source: str) -> bytes:
+    """``magic`` (a file's first 16 bytes) when it opens an OpenEXR or Radiance file."""
     if not magic:
         raise HdriError(f"{source}: the file is empty")
     if magic[:4] != _EXR_MAGIC and not magic.startswith(b"#?"):
@@ -268,6 +275,21 @@ def read_header(path: str | os.PathLike, max_texels: int = MAX_TEXELS) -> HdriHe
         return HdriHeader(width, height, "OpenEXR")
     with p.open("rb") as fh:
         head = _hdr_header(fh, str(p), max_texels)
+    return HdriHeader(head.width, head.height, "Radiance")
+
+
+def read_open_header(fh: BinaryIO, source: str, max_texels: int = MAX_TEXELS) -> HdriHeader:
+    """:func:`read_header` of a panorama already open as ``fh`` (binary, seekable; read from
+    its start, left at no particular position), so that a caller holding the file's
+    descriptor checks the header it hashed without opening the file again. ``source`` names
+    the file in errors. Raises as :func:`read_header`."""
+    fh.seek(0)
+    magic = _checked_magic(fh.read(16), source)
+    fh.seek(0)
+    if magic[:4] == _EXR_MAGIC:
+        width, height, _ = _exr_header(source, max_texels, fh)
+        return HdriHeader(width, height, "OpenEXR")
+    head = _hdr_header(fh, source, max_texels)
     return HdriHeader(head.width, head.height, "Radiance")
 
 
@@ -406,11 +428,12 @@ def _part_summary(parts: list) -> str:
     return ", ".join(shown) + more
 
 
-def _exr_parts(source: str) -> list[tuple[str, int, int, dict]]:
-    """(name, width, height, header) of every part of an OpenEXR file, from its headers
-    alone (no pixel is read)."""
+def _exr_parts(source: str, fh: BinaryIO | None = None) -> list[tuple[str, int, int, dict]]:
+    """(name, width, height, header) of every part of an OpenEXR file (``fh``: already open
+    at its start, else opened by name), from its headers alone (no pixel is read)."""
     headers = _exr_call(source, "header", lambda: [
-        part.header for part in _exr_file(source, header_only=True).parts])
+        part.header for part in (_exr_file(source, header_only=True) if fh is None
+                                 else OpenEXR.File(fh, header_only=True)).parts])
     out = []
     for i, header in enumerate(headers):
         if "dataWindow" not in header:
@@ -445,10 +468,12 @@ def _check_exr_channels(source: str, header: dict) -> list[str]:
     return names
 
 
-def _exr_header(source: str, max_texels: int) -> tuple[int, int, dict]:
-    """(width, height, header) of a single-part OpenEXR panorama, checked from its headers
-    (parts, size, kind, channels); no pixel is read."""
-    parts = _exr_parts(source)
+def _exr_header(source: str, max_texels: int, fh: BinaryIO | None = None
+                ) -> tuple[int, int, dict]:
+    """(width, height, header) of a single-part OpenEXR panorama (``fh``: as
+    :func:`_exr_parts`), checked from its headers (parts, size, kind, channels); no pixel is
+    read."""
+    parts = _exr_parts(source, fh)
     if len(parts) != 1:  # refused from the headers: every part's size is named, none decoded
         over = [f"part {i} ({name}) alone declares {w} x {h} = {w * h} texels, over the "
                 f"limit of {max_texels}" for i, (name, w, h, _) in enumerate(parts)

@@ -56,7 +56,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from datetime import UTC, tzinfo
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 from zoneinfo import ZoneInfo
 
 from grassd.daemon.core.config.limits import DEFAULT_LIMITS, FUTURE_TOLERANCE_S, BundleLimits
@@ -72,15 +72,18 @@ from grassd.daemon.core.store.manifest import (
     check_light,
     load_bundle_manifest,
     parse_manifest,
-    read_manifest_data,
+    read_manifest_text,
 )
 from grassd.daemon.core.store.outcomes import QUARANTINED_PREFIX
 from grassd.daemon.core.store.untrusted import (
+    FileIdentity,
+    HashedFile,
     UntrustedFileError,
     check_entries,
     check_regular,
+    file_identity,
+    hash_regular,
     open_regular,
-    sha256_regular,
     walk_entries,
 )
 
@@ -132,30 +135,42 @@ def _member(base: Path, key: str, v: Any) -> Path:
 
 
 def check_hdri_header(path: Path, max_bytes: int = DEFAULT_LIMITS.file_bytes) -> None:
-    """Reject an HDRI whose first bytes are not OpenEXR or Radiance RGBE (cheap early check),
-    that is not a regular file of at most ``max_bytes`` bytes, or whose header the renderer
-    cannot take (:func:`grassd.sim.hdri.read_header`: more than
-    :data:`~grassd.sim.hdri.RENDERER_TEXELS` texels, several parts, other channels): refused
-    here, before the calibration decodes a pixel."""
+    """Reject an HDRI that is not a regular file of at most ``max_bytes`` bytes, or whose
+    header fails :func:`check_open_hdri_header`: refused here, before the calibration decodes
+    a pixel."""
     try:
         fd = open_regular(path, max_bytes)
-        try:
-            head = os.read(fd, 16)
-        finally:
-            os.close(fd)
     except OSError as exc:
         raise IngestError(f"cannot read HDRI {path.name}: {exc.strerror}") from None
-    if path.suffix.lower() == ".exr" and head[:4] != _EXR_MAGIC:
-        raise IngestError(f"HDRI {path.name} is not an OpenEXR file (bad magic number)")
-    if path.suffix.lower() == ".hdr" and not head.startswith((b"#?RADIANCE", b"#?RGBE")):
-        raise IngestError(f"HDRI {path.name} is not a Radiance .hdr file (no #?RADIANCE header)")
+    try:
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            check_open_hdri_header(fh, path.name)
+    finally:
+        os.close(fd)
+
+
+def check_open_hdri_header(fh: BinaryIO, name: str) -> None:
+    """Reject the HDRI open as ``fh`` (file name ``name``) whose first bytes are not OpenEXR or
+    Radiance RGBE as its suffix says, or whose header the renderer cannot take
+    (:func:`grassd.sim.hdri.read_open_header`: more than
+    :data:`~grassd.sim.hdri.RENDERER_TEXELS` texels, several parts, other channels)."""
     from grassd.sim.errors import HdriError
-    from grassd.sim.hdri import RENDERER_TEXELS, read_header
+    from grassd.sim.hdri import RENDERER_TEXELS, read_open_header
 
     try:
-        read_header(path, RENDERER_TEXELS)
+        fh.seek(0)
+        head = fh.read(16)
+    except OSError as exc:
+        raise IngestError(f"cannot read HDRI {name}: {exc.strerror}") from None
+    suffix = Path(name).suffix.lower()
+    if suffix == ".exr" and head[:4] != _EXR_MAGIC:
+        raise IngestError(f"HDRI {name} is not an OpenEXR file (bad magic number)")
+    if suffix == ".hdr" and not head.startswith((b"#?RADIANCE", b"#?RGBE")):
+        raise IngestError(f"HDRI {name} is not a Radiance .hdr file (no #?RADIANCE header)")
+    try:
+        read_open_header(fh, name, RENDERER_TEXELS)
     except HdriError as exc:
-        raise IngestError(f"HDRI {str(exc).replace(str(path), path.name)}") from None
+        raise IngestError(f"HDRI {exc}") from None
 
 
 def bundle_hash(input_hashes: dict[str, str]) -> str:
@@ -164,6 +179,38 @@ def bundle_hash(input_hashes: dict[str, str]) -> str:
 
 
 # --------------------------------------------------------------------------- the inbox
+
+
+@dataclass(frozen=True)
+class _ScannedManifest:
+    """A manifest as a scan read it: the stat ``key`` it was read under (device, inode,
+    modification and change times, size, mode), the data, the parsed manifest or the error,
+    and the SHA-256 of the bytes read (the bundle's hash of it while ``key`` holds)."""
+
+    key: tuple
+    data: dict[str, Any] | None
+    parsed: Manifest | None
+    error: str | None
+    sha256: str | None
+
+
+@dataclass
+class _Claimed:
+    """What a claim read of a bundle's files, each opened once: ``hashes`` (``{name in the
+    bundle: SHA-256}``), the files' identities when hashed, the manifest's data when its hash
+    is of those bytes, and the HDRI's header check (None: passed; else why it failed; not
+    checked when ``hdri_checked`` is False)."""
+
+    hashes: dict[str, str] = dataclasses.field(default_factory=dict)
+    identities: dict[str, FileIdentity] = dataclasses.field(default_factory=dict)
+    manifest_data: dict[str, Any] | None = None
+    hdri_checked: bool = False
+    hdri_error: str | None = None
+
+
+def _stat_key(st: os.stat_result) -> tuple:
+    """The key a scanned manifest is kept under (:class:`_ScannedManifest`)."""
+    return (st.st_dev, st.st_ino, st.st_mtime_ns, st.st_ctime_ns, st.st_size, st.st_mode)
 
 
 @dataclass
@@ -191,6 +238,8 @@ class _Candidate:
     #: the name as the file system has it (``name`` escapes bytes that are not UTF-8): the
     #: key of the inbox's watch and backoff, and what files are matched and moved back by
     raw: str = ""
+    #: the manifest as the scan read it (None: none read)
+    scanned: _ScannedManifest | None = None
 
     @property
     def key(self) -> str:
@@ -240,9 +289,8 @@ class Inbox:
         self.wall_clock = wall_clock
         self._watch: dict[str, tuple[tuple, float, float]] = {}  # name -> (sig, since, first)
         self._stuck: dict[str, _Stuck] = {}  # bundles whose move out of the inbox failed
-        #: manifest path -> ((dev, inode, mtime, size), data or None, Manifest or None, error)
-        self._parsed: dict[Path, tuple[tuple, dict[str, Any] | None, Manifest | None,
-                                       str | None]] = {}
+        #: manifest path -> the manifest as last read there
+        self._parsed: dict[Path, _ScannedManifest] = {}
 
     # ------------------------------------------------------------------ scanning
     def _candidates(self) -> list[_Candidate]:
@@ -284,28 +332,28 @@ class Inbox:
             del self._parsed[gone]
         return out
 
-    def _read_manifest(self, manifest: Path, base: Path
-                       ) -> tuple[dict[str, Any] | None, Manifest | None, str | None]:
-        """(data, parsed manifest, error) of ``manifest``: parsed once per (device, inode,
-        mtime, size), so a large manifest waiting for its files costs one parse, not one per
-        scan."""
+    def _read_manifest(self, manifest: Path, base: Path) -> _ScannedManifest:
+        """``manifest`` read and parsed once per stat key (:class:`_ScannedManifest`), so a
+        large manifest waiting for its files costs one parse, not one per scan, and the claim
+        hashes the bytes read here."""
         try:
-            st = manifest.lstat()
-            key: tuple = (st.st_dev, st.st_ino, st.st_mtime_ns, st.st_size, st.st_mode)
+            key = _stat_key(manifest.lstat())
         except OSError:
             key = ()
         cached = self._parsed.get(manifest)
-        if cached is not None and key and cached[0] == key:
-            return cached[1:]
+        if cached is not None and key and cached.key == key:
+            return cached
         data: dict[str, Any] | None = None
-        parsed, err = None, None
+        parsed, err, digest = None, None, None
         try:
-            data = read_manifest_data(manifest, self.limits.manifest_bytes)
+            text, data = read_manifest_text(manifest, self.limits.manifest_bytes)
+            digest = hashlib.sha256(text.encode("utf-8")).hexdigest()
             parsed = parse_manifest(data, base, self.tz)
         except ManifestError as exc:
             err = str(exc)
-        self._parsed[manifest] = (key, data, parsed, err)
-        return data, parsed, err
+        scanned = _ScannedManifest(key, data, parsed, err, digest)
+        self._parsed[manifest] = scanned
+        return scanned
 
     def _examine(self, raw: str, manifest: Path | None, base: Path,
                  members: list[Path] | None, flat: list[str] = ()) -> _Candidate:
@@ -318,7 +366,8 @@ class Inbox:
             c.entries = walk_entries(c.members, self.limits.entries)
             return c
         missing = []
-        data, parsed, err = self._read_manifest(manifest, base)
+        scanned = self._read_manifest(manifest, base)
+        data, parsed, err = scanned.data, scanned.parsed, scanned.error
         if parsed is not None:
             try:
                 check_light(parsed, now=self.wall_clock(),
@@ -351,7 +400,7 @@ class Inbox:
                 check_regular(st, p.name, self.limits.file_bytes)
             except UntrustedFileError as exc:
                 err = err or str(exc)
-        c = _Candidate(name, manifest, members, parsed, err, missing, raw=raw)
+        c = _Candidate(name, manifest, members, parsed, err, missing, raw=raw, scanned=scanned)
         c.entries = walk_entries(members, self.limits.entries)
         if c.parse_error is None:
             try:
@@ -539,7 +588,7 @@ class Inbox:
         """:meth:`recover` step 3 for one directory the journal does not know."""
         name = d.name.split("-", 1)[-1]
         try:
-            hashes = self._hash_dir(d)
+            hashes = self._hash_dir(d).hashes
         except (OSError, IngestError) as exc:
             self._finish_dir(d, d.name, None, f"unreadable after a crash: {exc}")
             return
@@ -606,51 +655,114 @@ class Inbox:
             self._finish_dir(d, bid, h, str(exc))
             return None
 
-    def _load_claimed(self, d: Path, bid: str, name: str, h: str | None) -> Bundle:
-        manifest = load_bundle_manifest(d, self.tz, self.limits.manifest_bytes)
+    def _load_claimed(self, d: Path, bid: str, name: str, h: str | None,
+                      claimed: _Claimed | None = None) -> Bundle:
+        """The claimed bundle in ``d``. ``claimed``: what the claim read before the move; its
+        manifest data and hashes are used where every file is still the one hashed (else,
+        and without it, each file is read again here)."""
+        if claimed is not None and claimed.manifest_data is not None:
+            manifest: Manifest | None = parse_manifest(claimed.manifest_data, d, self.tz)
+        else:
+            claimed = None
+            manifest = load_bundle_manifest(d, self.tz, self.limits.manifest_bytes)
         if manifest is None:
             raise IngestError("bundle has no manifest.toml or manifest.json")
         missing = [p.name for p in manifest.files() if not os.path.lexists(p)]
         if missing:
             raise IngestError(f"missing file(s) {', '.join(missing)}")
-        hashes = self._hash_dir(d)  # every entry a regular file within the caps
-        check_hdri_header(manifest.light.hdri, self.limits.file_bytes)
-        return Bundle(id=bid, name=name, hash=h or bundle_hash(hashes), dir=d, manifest=manifest,
-                      input_hashes=hashes)
+        entries = self._checked_entries(d)  # every entry a regular file within the caps
+        if claimed is None or not self._unchanged(d, entries, claimed):
+            claimed = self._hash_dir(d, entries, manifest.light.hdri)
+        if claimed.hdri_error is not None:
+            raise IngestError(claimed.hdri_error)
+        return Bundle(id=bid, name=name, hash=h or bundle_hash(claimed.hashes), dir=d,
+                      manifest=manifest, input_hashes=claimed.hashes)
 
-    def _hash_dir(self, d: Path) -> dict[str, str]:
-        """``{path relative to d: SHA-256}`` of every file below ``d`` but the daemon's
-        reason.txt; UntrustedFileError when an entry is not a regular file or a cap is
-        broken (:func:`check_entries`)."""
+    def _checked_entries(self, d: Path) -> list[tuple[Path, os.stat_result]]:
+        """(path, lstat) of every regular file below ``d`` but the daemon's reason.txt, after
+        :func:`check_entries` (UntrustedFileError: an entry not a regular file, a cap broken)."""
         entries = walk_entries([d], self.limits.entries)
         check_entries([(p, st) for p, st in entries if p != d / REASON_FILE], d, self.limits)
-        return {str(p.relative_to(d)): sha256_regular(p, self.limits.file_bytes)
-                for p, st in sorted(entries, key=lambda e: e[0])
-                if stat.S_ISREG(st.st_mode) and p != d / REASON_FILE}
+        return sorted(((p, st) for p, st in entries
+                       if stat.S_ISREG(st.st_mode) and p != d / REASON_FILE),
+                      key=lambda e: e[0])
 
-    def _hash_members(self, c: _Candidate) -> dict[str, str]:
-        hashes: dict[str, str] = {}
+    @staticmethod
+    def _unchanged(d: Path, entries: list[tuple[Path, os.stat_result]],
+                   claimed: _Claimed) -> bool:
+        """Whether the files below ``d`` are exactly those ``claimed`` hashed, unchanged."""
+        now = {str(p.relative_to(d)): file_identity(st) for p, st in entries}
+        return now == claimed.identities and claimed.hdri_checked
+
+    def _hash_file(self, p: Path, key: str, out: _Claimed, hdri: Path | None,
+                   known: dict[Path, HashedFile]) -> None:
+        """Hash ``p`` into ``out`` under ``key`` (``known``: files hashed already); the HDRI's
+        header is checked from the same open file (its failure kept in ``out``, raised once
+        the bundle is claimed)."""
+        def header(fh: BinaryIO) -> None:
+            try:
+                check_open_hdri_header(fh, p.name)
+            except IngestError as exc:
+                out.hdri_error = str(exc)
+            out.hdri_checked = True
+
+        f = known.get(p) or hash_regular(p, self.limits.file_bytes,
+                                         header if p == hdri else None)
+        out.hashes[key], out.identities[key] = f.sha256, f.identity
+
+    def _hash_dir(self, d: Path, entries: list[tuple[Path, os.stat_result]] | None = None,
+                  hdri: Path | None = None, out: _Claimed | None = None,
+                  known: dict[Path, HashedFile] | None = None) -> _Claimed:
+        """Every file below ``d`` but the daemon's reason.txt hashed into ``out`` (keys
+        relative to ``d``; ``entries``: :meth:`_checked_entries` of ``d``, made here when
+        None), the header of ``hdri`` checked from its open file."""
+        out = _Claimed() if out is None else out
+        for p, _ in self._checked_entries(d) if entries is None else entries:
+            self._hash_file(p, str(p.relative_to(d)), out, hdri, known or {})
+        return out
+
+    def _hash_members(self, c: _Candidate) -> _Claimed:
+        """The candidate's files, each opened and hashed once: the manifest's hash is the
+        scan's while its stat key holds (its data, then, is what the claim keeps)."""
+        out = _Claimed()
+        hdri = None if c.parsed is None else c.parsed.light.hdri
+        known: dict[Path, HashedFile] = {}
+        if c.manifest is not None and c.scanned is not None and self._scan_holds(c):
+            known[c.manifest] = HashedFile(c.scanned.sha256 or "",
+                                           file_identity(c.manifest.lstat()))
+            out.manifest_data = c.scanned.data
         for m in c.members:
             if m.is_dir() and not m.is_symlink():
-                hashes.update(self._hash_dir(m))
+                self._hash_dir(m, None, hdri, out, known)
             else:
                 key = ("manifest" + m.name[m.name.rfind(".") :]) if m == c.manifest else m.name
-                hashes[key] = sha256_regular(m, self.limits.file_bytes)
-        return hashes
+                self._hash_file(m, key, out, hdri, known)
+        return out
+
+    @staticmethod
+    def _scan_holds(c: _Candidate) -> bool:
+        """Whether the candidate's manifest is still the file its scan read and parsed."""
+        s = c.scanned
+        if c.manifest is None or s is None or s.sha256 is None or s.parsed is None:
+            return False
+        try:
+            return _stat_key(c.manifest.lstat()) == s.key
+        except OSError:
+            return False
 
     def _bundle_id(self, h: str, name: str) -> str:
         return f"{h[:12]}-{_SAFE_RE.sub('_', name)[:80]}"
 
     def _claim(self, c: _Candidate) -> Bundle | None:
         try:
-            hashes = self._hash_members(c)
+            claimed = self._hash_members(c)
         except UntrustedFileError as exc:  # changed into something the daemon will not read
             self._claim_and_reject(c, str(exc))
             return None
         except OSError as exc:  # a file vanished between scan and claim: look again next time
             log.warning("bundle %s changed while being claimed: %s", c.name, exc)
             return None
-        h = bundle_hash(hashes)
+        h = bundle_hash(claimed.hashes)
         bid = self._bundle_id(h, c.name)
         existing = self.history.journal_get(h)
         if existing is not None:
@@ -667,14 +779,14 @@ class Inbox:
         if d is None:
             return None
         try:
-            return self._load_claimed(d, bid, c.name, h)
+            return self._load_claimed(d, bid, c.name, h, claimed)
         except (IngestError, OSError) as exc:
             self._finish_dir(d, bid, h, str(exc))
             return None
 
     def _claim_and_reject(self, c: _Candidate, reason: str) -> None:
         try:
-            hashes = self._hash_members(c)
+            hashes = self._hash_members(c).hashes
         except (OSError, IngestError):  # e.g. a FIFO: the entries' kinds and sizes then
             hashes = {"name": hashlib.sha256(c.name.encode()).hexdigest(),
                       "entries": hashlib.sha256(repr(self._signature(c)).encode()).hexdigest()}

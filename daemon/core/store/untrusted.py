@@ -16,7 +16,10 @@ import errno
 import hashlib
 import os
 import stat
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 from grassd.daemon.core.config.limits import BundleLimits
 from grassd.daemon.core.errors import IngestError
@@ -91,21 +94,51 @@ def read_regular(path: Path, max_bytes: int) -> bytes:
     return bytes(data)
 
 
-def sha256_regular(path: Path, max_bytes: int) -> str:
-    """Hex SHA-256 of regular file ``path``, read up to ``max_bytes`` (:func:`open_regular`)."""
+#: A file as it was opened: (st_dev, st_ino, st_size, st_mtime_ns) of its descriptor
+FileIdentity = tuple[int, int, int, int]
+
+
+def file_identity(st: os.stat_result) -> FileIdentity:
+    """The :data:`FileIdentity` of ``st``: the same file, not rewritten, while it holds (a
+    rename keeps it; writing changes the size or the modification time)."""
+    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+
+
+@dataclass(frozen=True)
+class HashedFile:
+    """A regular file read once: its hex SHA-256 and its identity when it was opened."""
+
+    sha256: str
+    identity: FileIdentity
+
+
+def hash_regular(path: Path, max_bytes: int,
+                 inspect: Callable[[BinaryIO], None] | None = None) -> HashedFile:
+    """Hash regular file ``path``, read up to ``max_bytes`` (:func:`open_regular`), and then
+    hand the same open file to ``inspect`` (binary, seekable), so a check of its content (a
+    header) reads what was hashed without opening the file again."""
     fd = open_regular(path, max_bytes)
     h = hashlib.sha256()
     n = 0
     try:
+        identity = file_identity(os.fstat(fd))
         while n <= max_bytes and (block := os.read(fd, _CHUNK)):
             h.update(block)
             n += len(block)
+        if n <= max_bytes and inspect is not None:
+            with os.fdopen(fd, "rb", closefd=False) as fh:
+                inspect(fh)
     finally:
         os.close(fd)
     if n > max_bytes:
         raise UntrustedFileError(f"{path.name} grew past the cap of {max_bytes} bytes while "
                                  "it was read ([light.limits] in the configuration)")
-    return h.hexdigest()
+    return HashedFile(h.hexdigest(), identity)
+
+
+def sha256_regular(path: Path, max_bytes: int) -> str:
+    """Hex SHA-256 of regular file ``path``, read up to ``max_bytes`` (:func:`open_regular`)."""
+    return hash_regular(path, max_bytes).sha256
 
 
 def walk_entries(members: list[Path], cap: int) -> list[tuple[Path, os.stat_result]]:

@@ -72,8 +72,8 @@ def env(tmp_path):
 def test_manifest_waiting_for_its_files_is_parsed_once(env, monkeypatch):
     inbox, _, clock = env
     calls = []
-    real = ingest.read_manifest_data
-    monkeypatch.setattr(ingest, "read_manifest_data",
+    real = ingest.read_manifest_text
+    monkeypatch.setattr(ingest, "read_manifest_text",
                         lambda *a, **kw: calls.append(a) or real(*a, **kw))
     d = inbox.inbox / "waiting"
     d.mkdir(parents=True)
