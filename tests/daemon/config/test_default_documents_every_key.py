@@ -44,15 +44,16 @@ port = 6455
 file = "pictures/wave.gif"
 '''
 
-Path_ = tuple[str, ...]
+#: A key's dotted path without array indices: ("light", "modbus", "port").
+KeyPath = tuple[str, ...]
 
 
-def accepted_keys(text: str) -> dict[Path_, schema.Field]:
+def accepted_keys(text: str) -> dict[KeyPath, schema.Field]:
     """Every key (dotted path, array indices left out) the parsers accept, with its field; the
     tables themselves are not keys. Fails when a table the schemas accept was never walked."""
     with schema.recording() as seen:
         parse_config(text + EVERY_SECTION, source="<default.toml + every section>")
-    keys: dict[Path_, schema.Field] = {}
+    keys: dict[KeyPath, schema.Field] = {}
     for table, fields in seen.items():
         for name, field in fields.items():
             path = table + (name,)
@@ -68,7 +69,7 @@ def accepted_keys(text: str) -> dict[Path_, schema.Field]:
 class Written:
     """One ``key = value`` line of default.toml, set or commented out."""
 
-    path: Path_
+    path: KeyPath
     value: Any
     set: bool
     doc: str  # the comment after the value, with its continuation lines
@@ -83,7 +84,7 @@ def written_keys(text: str) -> list[Written]:
     in the table of the last header above them, set or commented (``# [tables]``)."""
     lines = text.splitlines()
     out: list[Written] = []
-    table: Path_ = ()
+    table: KeyPath = ()
     for i, raw in enumerate(lines):
         commented = raw.lstrip().startswith("#")
         body = (raw.lstrip()[1:] if commented else raw).strip()
@@ -107,7 +108,7 @@ def written_keys(text: str) -> list[Written]:
     return out
 
 
-def _header_path(parsed: Any) -> Path_:
+def _header_path(parsed: Any) -> KeyPath:
     path: list[str] = []
     while parsed:
         if isinstance(parsed, list):
@@ -125,9 +126,9 @@ def _parses_to(text: str, want: dict[str, Any]) -> bool:
         return False
 
 
-def set_keys(data: dict[str, Any], tables: set[Path_], at: Path_ = ()) -> set[Path_]:
+def set_keys(data: dict[str, Any], tables: set[KeyPath], at: KeyPath = ()) -> set[KeyPath]:
     """The keys the parsed TOML ``data`` sets (array indices left out)."""
-    out: set[Path_] = set()
+    out: set[KeyPath] = set()
     for name, value in data.items():
         path = at + (name,)
         if path in tables and isinstance(value, dict):
@@ -170,7 +171,11 @@ def bounds_texts(check: Any) -> list[tuple[str, ...]]:
 
 
 def _same(a: Any, b: Any) -> bool:
-    norm = (lambda v: list(v) if isinstance(v, tuple) else v)  # noqa: E731
+    """Whether a written value is a default (TOML arrays are read as lists, defaults may be
+    tuples)."""
+    def norm(v: Any) -> Any:
+        return list(v) if isinstance(v, tuple) else v
+
     return norm(a) == norm(b)
 
 
