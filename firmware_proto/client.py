@@ -164,6 +164,11 @@ class _PushDeadline(TransientError):
     turns it into :class:`PushFailed`)."""
 
 
+class _PushStopped(_PushDeadline):
+    """The push was stopped by the client's ``cancel`` event before its deadline (internal,
+    turned into :class:`PushFailed` as :class:`_PushDeadline` is)."""
+
+
 def _table_matches(status: TableStatus, table_id: int, crc: int) -> bool:
     return status.has_table and (status.table_id, status.table_crc) == (table_id, crc)
 
@@ -248,7 +253,7 @@ class ControllerClient:
         if time.monotonic() >= self._deadline:
             raise _PushDeadline("the push deadline passed")
         if self.cancel is not None and self.cancel.is_set() and not self._reading_back:
-            raise _PushDeadline("the push was stopped (the daemon is stopping)")
+            raise _PushStopped("the push was stopped (the daemon is stopping)")
 
     def request(self, address: int, message: Message, *, retries: int | None = None,
                 timeout_s: float | None = None) -> Message:
@@ -464,7 +469,8 @@ class ControllerClient:
 
     # --- table push -----------------------------------------------------------------------
     def push_table(self, address: int, table: ArrayLike,
-                   table_id: int | None = None) -> TableStatus:
+                   table_id: int | None = None, *,
+                   status: TableStatus | None = None) -> TableStatus:
         """Make ``table`` (uint16 micrometres, (256,) global or (n_pixels, 256)) active.
 
         Stages it chunk by chunk, commits, and reads TABLE_STATUS back. ``table_id`` defaults
@@ -474,21 +480,25 @@ class ControllerClient:
         changed), and :class:`PushFailed` when transient failures outlasted every retry or the
         push ran past its wall-clock deadline (``policy.push_deadline_s``); its ``active`` is the
         status read back (the old table), or None if the controller could not be reached at
-        all. The call returns within that deadline (the read-back included).
+        all. The call returns within that deadline (the read-back included). ``status``: the
+        controller's TABLE_STATUS the caller has just read, which the first attempt takes
+        instead of reading it again (a restart reads it afresh).
         """
-        status = self._push(address, table, table_id, commit=True)
-        assert status is not None
-        return status
+        final = self._push(address, table, table_id, commit=True, status=status)
+        assert final is not None
+        return final
 
     def stage_table(self, address: int, table: ArrayLike,
-                    table_id: int | None = None) -> TableStatus | None:
+                    table_id: int | None = None, *,
+                    status: TableStatus | None = None) -> TableStatus | None:
         """The first half of a two-phase push: HELLO, status, TABLE_BEGIN and every
         TABLE_CHUNK of ``table`` (as :meth:`push_table`, with its restarts and deadline), but
         no TABLE_COMMIT. Returns None once every byte is acknowledged (the transfer stays
         open on the controller, the old table active, until :meth:`commit_table`), or the
         active status when the controller already holds the table (nothing sent). Raises as
-        :meth:`push_table` does (:class:`PushFailed`: the old table stays active)."""
-        return self._push(address, table, table_id, commit=False)
+        :meth:`push_table` does (:class:`PushFailed`: the old table stays active); ``status``
+        as for :meth:`push_table`."""
+        return self._push(address, table, table_id, commit=False, status=status)
 
     def commit_table(self, address: int, table_id: int, table_crc: int) -> TableStatus:
         """The second half of a two-phase push (:meth:`stage_table`): TABLE_COMMIT of table
@@ -518,8 +528,9 @@ class ControllerClient:
                          cause=last)
 
     def _push(self, address: int, table: ArrayLike, table_id: int | None,
-              commit: bool) -> TableStatus | None:
-        """:meth:`push_table` (``commit``) or :meth:`stage_table` (not ``commit``)."""
+              commit: bool, status: TableStatus | None = None) -> TableStatus | None:
+        """:meth:`push_table` (``commit``) or :meth:`stage_table` (not ``commit``); ``status``:
+        the status just read, used by the first attempt."""
         arr = as_table_array(table)
         kind, n_tables = table_kind(arr)
         data = table_bytes(arr)
@@ -538,7 +549,8 @@ class ControllerClient:
                 try:
                     info = self._info.get(address) or self.hello(address)
                     self._check_fits(address, info, arr, kind, n_tables)
-                    status = self.read_status(address)
+                    if status is None:
+                        status = self.read_status(address)
                     if _table_matches(status, tid, crc):
                         return status  # already active: nothing to do
                     self._transfer(address, info, tid, kind, n_tables, data, crc, commit)
@@ -550,6 +562,7 @@ class ControllerClient:
                     break
                 except TransientError as exc:
                     last = exc
+                status = None  # a restart reads it afresh
             self._deadline = end
             self._reading_back = True
             try:
@@ -564,7 +577,7 @@ class ControllerClient:
         if _table_matches(final, tid, crc):
             return final
         why = last
-        if late is not None and "stopped" in str(late):
+        if isinstance(late, _PushStopped):
             why = f"{late}; last error: {last}"
         elif late is not None:
             why = (f"not done within the push deadline of {budget:.1f} s: the controller "

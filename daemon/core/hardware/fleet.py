@@ -40,12 +40,13 @@ import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
+from enum import Enum
 from typing import Protocol
 
-import numpy as np
 from numpy.typing import ArrayLike
 
 from grassd.daemon.core.config.settings import ControllerConfig
+from grassd.daemon.core.hardware.desired_tables import CheckedTable, DesiredTables
 from grassd.daemon.core.timestamps import utc_iso
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.errors import ProtocolError, PushFailed, TransientError
@@ -74,6 +75,40 @@ class ControllerReport:
     retry_in_s: float | None = None
 
 
+class StatusRead(Enum):
+    """How a controller answered the status read before a push attempt."""
+
+    #: it did not answer at all
+    UNREACHABLE = "unreachable"
+    #: it answered with a NAK (e.g. firmware of another protocol version)
+    REFUSED = "refused"
+    #: it reported its table
+    REPORTED = "reported"
+
+
+@dataclass(frozen=True)
+class ReportedState:
+    """What a controller reported before a push attempt: how its status read went and, when
+    it answered, whether it holds a table and that table's id and CRC. Two states compare
+    equal when the controller said the same."""
+
+    read: StatusRead
+    has_table: bool = False
+    table_id: int | None = None
+    table_crc: int | None = None
+
+    @property
+    def answered(self) -> bool:
+        """It reported its table (its status read did not fail)."""
+        return self.read is StatusRead.REPORTED
+
+
+#: the state of a controller whose status read got no answer
+UNREACHABLE = ReportedState(StatusRead.UNREACHABLE)
+#: the state of a controller that answered the status read with a NAK
+REFUSED = ReportedState(StatusRead.REFUSED)
+
+
 @dataclass
 class PushBackoff:
     """A controller's failed pushes of one desired table: ``key`` (table id, CRC) it should
@@ -84,7 +119,7 @@ class PushBackoff:
     next failure starts a new backoff."""
 
     key: tuple[int, int]
-    state: tuple
+    state: ReportedState
     delay_s: float
     retry_at: float
     failures: int
@@ -194,36 +229,42 @@ class Fleet:
                     out.append((c, None, str(exc)))
         return out
 
-    def _push_one(self, c: ControllerConfig, table: np.ndarray, table_id: int, crc: int,
-                  hold: bool, stage: bool = False) -> tuple[ControllerReport | None, tuple]:
-        """Push to one controller unless it holds the table (or, with ``hold``, its backoff
+    def _push_one(self, c: ControllerConfig, table: CheckedTable, table_id: int,
+                  hold: bool, stage: bool = False
+                  ) -> tuple[ControllerReport | None, ReportedState]:
+        """Push ``table`` to one controller unless it holds it (or, with ``hold``, its backoff
         holds the push back); returns the report and what it reported before the attempt.
-        With ``stage`` only its first phase (:meth:`ControllerClient.stage_table`): the
-        report is None once the table is staged, for :meth:`_commit_one`."""
+        The status read here is the push's only one before its transfer (the client is
+        given it). With ``stage`` only its first phase (:meth:`ControllerClient.stage_table`):
+        the report is None once the table is staged, for :meth:`_commit_one`."""
         client = self._client(c)
+        key = (table_id, table.crc)
         try:
             status = client.read_status(c.address, retries=self._probe(c))
         except TransientError as exc:
             r = ControllerReport(c.name, False, False, False, None, None, str(exc))
-            return self._held(r, ("unreachable",), (table_id, crc), hold), ("unreachable",)
+            return self._held(r, UNREACHABLE, key, hold), UNREACHABLE
         except ProtocolError as exc:
             r = ControllerReport(c.name, False, True, False, None, None, str(exc))
-            return self._held(r, ("refused",), (table_id, crc), hold), ("refused",)
-        state = ("reports", status.has_table, status.table_id, status.table_crc)
-        if status.has_table and (status.table_id, status.table_crc) == (table_id, crc):
+            return self._held(r, REFUSED, key, hold), REFUSED
+        state = ReportedState(StatusRead.REPORTED, status.has_table, status.table_id,
+                              status.table_crc)
+        if status.has_table and (status.table_id, status.table_crc) == key:
             return ControllerReport(c.name, True, True, False, status.table_id,
                                     status.table_crc), state
         held = self._held(ControllerReport(c.name, False, True, False, status.table_id,
-                                           status.table_crc), state, (table_id, crc), hold)
+                                           status.table_crc), state, key, hold)
         if held.retry_in_s is not None:
             return held, state
         try:
             if stage:
-                after = client.stage_table(c.address, table, table_id)
+                after = client.stage_table(c.address, table.lengths_um, table_id,
+                                           status=status)
                 if after is None:
                     return None, state
             else:
-                after = client.push_table(c.address, table, table_id)
+                after = client.push_table(c.address, table.lengths_um, table_id,
+                                          status=status)
         except PushFailed as exc:
             act = exc.active
             return ControllerReport(c.name, False, act is not None, True,
@@ -234,13 +275,13 @@ class Fleet:
         except ProtocolError as exc:  # the controller refused the table: permanent
             return ControllerReport(c.name, False, True, False, status.table_id,
                                     status.table_crc, str(exc)), state
-        ok = (after.table_id, after.table_crc) == (table_id, crc)
+        ok = (after.table_id, after.table_crc) == key
         return ControllerReport(c.name, ok, True, True, after.table_id, after.table_crc,
                                 None if ok else "controller reports another table after "
                                                 "commit"), state
 
     def _commit_one(self, c: ControllerConfig, table_id: int, crc: int,
-                    state: tuple) -> ControllerReport:
+                    state: ReportedState) -> ControllerReport:
         """Commit the table :meth:`_push_one` staged on ``c`` (``state``: what it reported
         before); its report, as :meth:`_push_one` makes them."""
         try:
@@ -253,10 +294,11 @@ class Fleet:
         except TransientError as exc:
             return ControllerReport(c.name, False, False, True, None, None, str(exc))
         except ProtocolError as exc:  # the controller refused the table: permanent
-            return ControllerReport(c.name, False, True, False, state[2], state[3], str(exc))
+            return ControllerReport(c.name, False, True, False, state.table_id,
+                                    state.table_crc, str(exc))
         return ControllerReport(c.name, True, True, True, after.table_id, after.table_crc)
 
-    def _held(self, r: ControllerReport, state: tuple, key: tuple[int, int],
+    def _held(self, r: ControllerReport, state: ReportedState, key: tuple[int, int],
               hold: bool) -> ControllerReport:
         """``r`` marked as held back (``retry_in_s``) when ``hold`` and the controller's
         backoff for the same desired table has not run out and the controller did not show
@@ -267,7 +309,7 @@ class Fleet:
         now = time.monotonic()
         if b is None or b.key != key:
             return r
-        if state[0] != "reports":  # its status read failed: it says nothing about its table
+        if not state.answered:  # its status read failed: it says nothing about its table
             if b.down_since is None:
                 b.down_since = now
         else:
@@ -279,7 +321,7 @@ class Fleet:
             return r
         return replace(r, error=r.error or b.error, retry_in_s=b.retry_at - now)
 
-    def _note(self, r: ControllerReport, state: tuple, key: tuple[int, int]) -> None:
+    def _note(self, r: ControllerReport, state: ReportedState, key: tuple[int, int]) -> None:
         """Update the backoff of ``r``'s controller and log: success ends it (logged when it
         had failed before); a failure starts it (the same desired table and reported state)
         or doubles it, one warning each; a held push is not logged. A controller whose status
@@ -299,17 +341,18 @@ class Fleet:
         now = time.monotonic()
         if b is None or b.key != key or b.changed:
             b = PushBackoff(key, state, self.retry_s, now + self.retry_s, 1, time.time(),
-                            r.error, now if state[0] != "reports" else None)
+                            r.error, None if state.answered else now)
             self._backoff[name] = b
-            if state[0] == "reports":
+            if state.answered:
                 log.warning("controller %s: push failed: %s; next attempt in %g s", name,
                             r.error, b.delay_s)
-            elif state[0] == "refused":  # it answers, with a NAK: another cause, another fix
+            elif state.read is StatusRead.REFUSED:  # it answers, with a NAK: another cause,
+                # another fix
                 log.warning("controller %s: refuses the status request: %s", name, r.error)
             else:
                 log.warning("controller %s: not answering: %s", name, r.error)
             return
-        if state[0] != "reports":  # not answering within a backoff: no push was tried
+        if not state.answered:  # not answering within a backoff: no push was tried
             return
         b.failures += 1
         b.delay_s = min(b.delay_s * 2, self.retry_max_s)
@@ -337,50 +380,61 @@ class Fleet:
              stop: threading.Event | None = None,
              fallback: ArrayLike | None = None, hold: bool = False) -> list[ControllerReport]:
         """Make the desired table with id ``table_id`` active on every controller (those that
-        already hold it are left alone).
+        already hold it are left alone): :meth:`apply` of those tables.
 
         ``lengths_um``: one table for every controller (uint16 micrometres, (256,), or
         (n_pixels, 256) per-pixel tables), or a mapping controller name (``port#address``) ->
         that controller's own table ((256,) or (n_pixels, 256) for the pixels it drives);
         controllers missing from the mapping get ``fallback`` (a ValueError names them when
-        there is none). Each controller's reported id and CRC are checked against its own
-        table. Stops between controllers once ``stop`` is set; the controllers not reached
-        are simply absent from the result (the next reconcile serves them). Every controller
-        is tried at once (``hold`` True: not one whose backoff holds its push back, see the
-        module docstring); failures start or extend its backoff. While frames play
-        (:meth:`attach_frames`) the push goes in two phases (:meth:`_push_in_two_phases`):
-        no frame is shown through the old table on some controllers and the new on others."""
-        desired = self._desired(lengths_um, fallback)
+        there is none)."""
+        if isinstance(lengths_um, Mapping):
+            desired = DesiredTables.of(table_id, fallback, lengths_um,
+                                       controllers=[c.name for c in self.controllers])
+        else:
+            desired = DesiredTables.of(table_id, lengths_um)
+        return self.apply(desired, stop=stop, hold=hold)
+
+    def apply(self, desired: DesiredTables, *, stop: threading.Event | None = None,
+              hold: bool = False) -> list[ControllerReport]:
+        """Make ``desired`` active on every controller: each one's reported id and CRC are
+        checked against its own entry (:meth:`DesiredTables.for_controller`), and those that
+        already hold it are left alone (one status read each). Stops between controllers
+        once ``stop`` is set; the controllers not reached are simply absent from the result
+        (the next reconcile serves them). Every controller is tried at once (``hold`` True:
+        not one whose backoff holds its push back, see the module docstring); failures start
+        or extend its backoff. While frames play (:meth:`attach_frames`) the push goes in two
+        phases (:meth:`_push_in_two_phases`): no frame is shown through the old table on some
+        controllers and the new on others."""
+        tables = {c.name: desired.for_controller(c.name) for c in self.controllers}
+        table_id = int(desired.table_id)
         out = []
         with self._lock:
             frames = self._frames
             if frames is not None:
-                return self._push_in_two_phases(frames, desired, int(table_id), stop, hold)
+                return self._push_in_two_phases(frames, tables, table_id, stop, hold)
             for c in self.controllers:
                 if stop is not None and stop.is_set():
                     break
-                table, crc = desired[c.name]
-                r, state = self._push_one(c, table, int(table_id), crc, hold)
-                self._note(r, state, (int(table_id), crc))
+                table = tables[c.name]
+                r, state = self._push_one(c, table, table_id, hold)
+                self._note(r, state, (table_id, table.crc))
                 out.append(r)
         return out
 
-    def _push_in_two_phases(self, frames: HeldDisplay,
-                            desired: dict[str, tuple[np.ndarray, int]], table_id: int,
-                            stop: threading.Event | None,
+    def _push_in_two_phases(self, frames: HeldDisplay, tables: dict[str, CheckedTable],
+                            table_id: int, stop: threading.Event | None,
                             hold: bool) -> list[ControllerReport]:
-        """:meth:`push` while frames play (:meth:`attach_frames`): stage the table on every
+        """:meth:`apply` while frames play (:meth:`attach_frames`): stage the table on every
         controller that needs it, then, with the frames held (no frame on any line), commit
         them back to back and release the frames, so every frame is shown through the old
         tables on all controllers or through the new ones on all. Once ``stop`` (or the
         fleet's ``cancel``) is set while staging, nothing is committed (the staged controllers
         are absent from the result, the old tables stay active)."""
-        reports: list[tuple[ControllerConfig, ControllerReport | None, tuple]] = []
+        reports: list[tuple[ControllerConfig, ControllerReport | None, ReportedState]] = []
         for c in self.controllers:
             if stop is not None and stop.is_set():
                 break
-            table, crc = desired[c.name]
-            r, state = self._push_one(c, table, table_id, crc, hold, stage=True)
+            r, state = self._push_one(c, tables[c.name], table_id, hold, stage=True)
             reports.append((c, r, state))
         staged = [i for i, (_, r, _) in enumerate(reports) if r is None]
         stopped = any(e is not None and e.is_set() for e in (stop, self.cancel))
@@ -389,7 +443,7 @@ class Fleet:
             try:
                 for i in staged:
                     c, _, state = reports[i]
-                    reports[i] = (c, self._commit_one(c, table_id, desired[c.name][1], state),
+                    reports[i] = (c, self._commit_one(c, table_id, tables[c.name].crc, state),
                                   state)
             finally:
                 frames.release()
@@ -397,7 +451,7 @@ class Fleet:
         for c, r, state in reports:
             if r is None:  # staged, not committed: stopped
                 continue
-            self._note(r, state, (table_id, desired[c.name][1]))
+            self._note(r, state, (table_id, tables[c.name].crc))
             out.append(r)
         return out
 
@@ -409,19 +463,3 @@ class Fleet:
         table; one whose pushes keep failing is tried again only when its backoff runs out
         or what it reports changes (its report then has ``retry_in_s``)."""
         return self.push(lengths_um, table_id, stop, fallback, hold=True)
-
-    def _desired(self, lengths_um: ArrayLike | Mapping[str, ArrayLike],
-                 fallback: ArrayLike | None) -> dict[str, tuple[np.ndarray, int]]:
-        """(validated table, CRC) for every controller's name."""
-        if not isinstance(lengths_um, Mapping):
-            table = as_table_array(lengths_um)
-            crc = table_crc(table)
-            return {c.name: (table, crc) for c in self.controllers}
-        missing = [c.name for c in self.controllers if c.name not in lengths_um]
-        if missing and fallback is None:
-            raise ValueError(f"no table for controller(s) {', '.join(missing)} and no fallback")
-        out = {}
-        for c in self.controllers:
-            table = as_table_array(lengths_um[c.name] if c.name in lengths_um else fallback)
-            out[c.name] = (table, table_crc(table))
-        return out

@@ -1,63 +1,91 @@
-"""Reconcile: every controller that does not report the current table gets it (its own table
-when the run made one per controller, the run's display-wide table otherwise), and the own
-tables of the current run, cached between reconciles."""
+"""Reconcile, the one code path that pushes tables: every controller that does not report its
+desired table gets it (its own table when the run made one per controller, the run's
+display-wide table otherwise). The desired tables are one
+:class:`~grassd.daemon.core.hardware.desired_tables.DesiredTables` value: the one the commit
+wrote, or, at start and after the current run or the controllers changed, the one made from
+the history."""
 
 from __future__ import annotations
 
 import logging
 import threading
 from collections.abc import Sequence
-
-import numpy as np
+from enum import Enum
 
 from grassd.daemon.core.config.settings import ControllerConfig
+from grassd.daemon.core.hardware.desired_tables import DesiredTables
 from grassd.daemon.core.hardware.fleet import ControllerReport, Fleet
 from grassd.daemon.core.runtime.push_outcomes import PushOutcomes
-from grassd.daemon.core.runtime.status import usable_run_tables
+from grassd.daemon.core.runtime.status import desired_from_history
 from grassd.daemon.core.store.history import History
 
 log = logging.getLogger(__name__)
 
 
-class OwnTables:
-    """Controller name -> its own table (uint16 micrometres) of a run, from ``history``."""
+class PushKind(Enum):
+    """Why reconcile runs: right after a commit (the run's own push: every controller is
+    tried at once, whatever its backoff, and every outcome is recorded) or as the main loop's
+    periodic reconcile (with the backoff; a streak of failures recorded sparsely)."""
+
+    #: a run's own push, right after its commit (history rows of kind "push")
+    PUSH = "push"
+    #: the main loop's reconcile (history rows of kind "reconcile")
+    RECONCILE = "reconcile"
+
+
+class CurrentDesired:
+    """The :class:`DesiredTables` of the current table in ``history`` for the configured
+    controllers: the value the commit wrote (:meth:`wrote`), or one made from the history
+    when the current run or the controllers differ from those it was made for. Safe to read
+    from another thread (the value and its key are replaced together)."""
 
     def __init__(self, history: History) -> None:
         self.history = history
-        self._cache: tuple[tuple | None, dict[str, np.ndarray]] = (None, {})
+        self._value: tuple[tuple[int, tuple[ControllerConfig, ...]] | None,
+                           DesiredTables | None] = (None, None)
 
-    def of_run(self, run_id: int, controllers: Sequence[ControllerConfig]
-               ) -> dict[str, np.ndarray]:
-        """Controller name -> its own table of run ``run_id`` (empty when the run has one table
-        for all; see :func:`~grassd.daemon.core.runtime.status.usable_run_tables`); cached for the
-        latest run and controller configuration asked, as reconcile asks every few
-        seconds."""
-        key = (run_id, tuple(controllers))
-        if self._cache[0] != key:
-            self._cache = (key, {k: t.lengths_um for k, t in usable_run_tables(
-                self.history, run_id, controllers).items()})
-        return self._cache[1]
+    def wrote(self, desired: DesiredTables, controllers: Sequence[ControllerConfig]) -> None:
+        """The commit made ``desired`` the current table for ``controllers``."""
+        assert desired.run_id is not None
+        self._value = ((desired.run_id, tuple(controllers)), desired)
+
+    def current(self, controllers: Sequence[ControllerConfig]) -> DesiredTables | None:
+        """The desired tables now (None: no run made a table yet); one query of the history
+        to check that its current run is still the one the value was made for."""
+        cur = self.history.current_table()
+        if cur is None:
+            return None
+        key = (cur.id, tuple(controllers))
+        value = self._value
+        if value[0] != key:
+            value = (key, desired_from_history(self.history, cur, controllers))
+            self._value = value
+        return value[1]
 
 
-def reconcile_controllers(history: History, fleet: Fleet, own_tables: OwnTables,
-              controllers: Sequence[ControllerConfig], outcomes: PushOutcomes,
-              stop: threading.Event) -> list[ControllerReport]:
-    """Push the current table of ``history`` to every controller of ``fleet`` that does not
-    report it (its own table when the run has one per controller; the run's table to any it
-    has none for) and record the outcomes. Stops between controllers once ``stop`` is set."""
-    cur = history.current_table()
-    if cur is None:
+def reconcile_controllers(desired: DesiredTables | None, fleet: Fleet, outcomes: PushOutcomes,
+                          stop: threading.Event, kind: PushKind = PushKind.RECONCILE
+                          ) -> list[ControllerReport]:
+    """Push ``desired`` to every controller of ``fleet`` that does not report it and record
+    the outcomes. ``kind`` PUSH (right after the commit): every controller is tried at once
+    and every outcome recorded; RECONCILE: with the backoff, and a streak of failures
+    recorded sparsely (:class:`PushOutcomes`). Stops between controllers once ``stop`` is
+    set. Nothing is desired yet (None): nothing to do."""
+    if desired is None:
         return []
-    own = own_tables.of_run(cur.id, controllers)
-    reports = fleet.reconcile(own or cur.lengths_um, cur.table_id, stop=stop,
-                              fallback=cur.lengths_um)
+    after_commit = kind is PushKind.PUSH
+    reports = fleet.apply(desired, stop=stop, hold=not after_commit)
     for r in reports:
+        if after_commit:
+            outcomes.record(r, desired.run_id, kind.value)
+            continue
         if r.ok and not r.pushed:  # holds its table (again): any failure streak is over
             outcomes.holds_its_table(r.controller)
         if r.pushed:
-            outcomes.record(r, cur.id, "reconcile")
+            outcomes.record(r, desired.run_id, kind.value)
             if r.ok:
-                log.info("controller %s reconciled to table %d", r.controller, cur.table_id)
+                log.info("controller %s reconciled to table %d", r.controller,
+                         desired.table_id)
         else:
             outcomes.note(r)
     return reports

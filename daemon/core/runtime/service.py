@@ -3,7 +3,8 @@ the order of the work below. The parts it wires live beside it in ``grassd.daemo
 ``pass_errors`` (the errors a pass survives, for status), ``bundle_pipeline`` (one attempt at
 a bundle, superseded light, bundles waiting in processing/), ``ambient_lux`` (manifest or lux
 sensor), ``scheduled`` (the input of a run without a new bundle), ``commit`` (report, history
-row, push), ``push_outcomes`` (what the history keeps of pushes), ``reconcile``, ``status``
+row, the desired tables), ``push_outcomes`` (what the history keeps of pushes), ``reconcile``
+(the one code path that pushes tables), ``status``
 (what status shows) and ``control_commands`` (the control socket's commands; ``control``
 serves them).
 
@@ -71,7 +72,8 @@ from grassd.daemon.core.errors import (
     DaemonError,
     RunInterrupted,
 )
-from grassd.daemon.core.hardware.fleet import Fleet
+from grassd.daemon.core.hardware.desired_tables import DesiredTables
+from grassd.daemon.core.hardware.fleet import ControllerReport, Fleet
 from grassd.daemon.core.hardware.luxsensor import LuxSensor
 from grassd.daemon.core.monitoring.metrics import SensorState
 from grassd.daemon.core.monitoring.operator_view import OperatorSnapshot, OperatorView
@@ -88,7 +90,11 @@ from grassd.daemon.core.runtime.control_commands import ControlCommands, QueuedR
 from grassd.daemon.core.runtime.notify import Notifier
 from grassd.daemon.core.runtime.pass_errors import PassErrors, describe_error, os_action
 from grassd.daemon.core.runtime.push_outcomes import PushOutcomes
-from grassd.daemon.core.runtime.reconcile import OwnTables, reconcile_controllers
+from grassd.daemon.core.runtime.reconcile import (
+    CurrentDesired,
+    PushKind,
+    reconcile_controllers,
+)
 from grassd.daemon.core.runtime.retention import prune, prune_measure_photos
 from grassd.daemon.core.runtime.scheduled import scheduled_input
 from grassd.daemon.core.runtime.signal_relay import SignalRelay
@@ -163,7 +169,9 @@ class Service:
             #: a controller whose pushes keep failing gets one history row per
             #: ``failure_row_s`` (its first failure, then a summary), not one per reconcile
             self.push_outcomes = PushOutcomes(self.history, failure_row_s)
-            self.own_tables = OwnTables(self.history)
+            #: the tables the controllers should hold: written by the commit, read by
+            #: reconcile (the one code path that pushes them) and status
+            self.desired = CurrentDesired(self.history)
             #: bundles waiting for a transient failure (full disk, lux sensor down) to clear;
             #: the first retry after ``retry_s``, then doubling up to ``retry_max_s``
             self.waiting = WaitingBundles(self.history, retry_s, retry_max_s)
@@ -622,8 +630,8 @@ class Service:
                               checker: CheckerPhoto | None = None) -> dict[str, Any]:
         cur = self.history.current_table()  # the active table, the run's starting point
         prev_table = None if cur is None else list(cur.lengths_um)
-        prev_own = None if cur is None else self.own_tables.of_run(cur.id,
-                                                                   self.cfg.controllers)
+        desired = None if cur is None else self.desired.current(self.cfg.controllers)
+        prev_own = None if cur is None else ({} if desired is None else desired.own_lengths())
         try:
             result = self.calibrator.run(light, checker=checker, previous_um=prev_table,
                                          previous_ccm=self.history.get_meta("ccm"),
@@ -650,28 +658,51 @@ class Service:
 
     def _commit(self, run_id: int, result: CalibrationResult
                 ) -> dict[str, Any]:
-        out = commit_run(run_id, result, cfg=self.cfg, history=self.history, fleet=self.fleet,
-                         reports_dir=self.reports_dir, outcomes=self.push_outcomes,
-                         stop=self.stop_event, progress=self._progress,
-                         committed=self._committed)
-        if out["status"] == "ok":
-            self._last_reconcile = time.monotonic()  # it just pushed: no reconcile yet
+        """Commit run ``run_id`` (:func:`commit_run`), then push its tables to every
+        controller right away: reconcile (the one code path that pushes) with the run's
+        own push's rules (every controller tried at once, every outcome recorded)."""
+        out, desired = commit_run(run_id, result, cfg=self.cfg, history=self.history,
+                                  reports_dir=self.reports_dir)
+        if desired is None:
+            return out
+        self.desired.wrote(desired, self.cfg.controllers)
+        self._committed(run_id)
+        self._progress(f"pushing table {run_id} to {len(self.cfg.controllers)} controller(s)")
+        reports = self._reconcile(PushKind.PUSH, desired)
+        metrics = out["metrics"]
+        log.info("run %d committed: R^2 %.5f, max deviation %.3f dE00, %d/%d controllers",
+                 run_id, metrics["r2_closed_loop"] or metrics["r2_after_fit"] or 0,
+                 metrics["max_dev_de00"] or 0,
+                 sum(r.ok for r in reports), len(self.cfg.controllers))
+        out["controllers"] = [r.__dict__ for r in reports]
         return out
 
     def _committed(self, run_id: int) -> None:
         self.runs_done += 1
         self.rss_log.append((run_id, rss_mb()))
 
-    def reconcile(self) -> list:
+    def reconcile(self) -> list[ControllerReport]:
         """Push the current table to every controller that does not report it (its own table
         when the run has one per controller; the run's table to any it has none for); then
         update the operator's metrics and alerts."""
-        self._last_reconcile = time.monotonic()
-        reports = reconcile_controllers(self.history, self.fleet, self.own_tables,
-                                        self.cfg.controllers, self.push_outcomes,
-                                        self.stop_event)
+        reports = self._reconcile(PushKind.RECONCILE)
         self.operator.after_reconcile(reports)
         return reports
+
+    def _reconcile(self, kind: PushKind, desired: DesiredTables | None = None
+                   ) -> list[ControllerReport]:
+        """:func:`reconcile_controllers` to ``desired`` (None: the current desired tables);
+        the next reconcile of the main loop is due ``reconcile_s`` after this one ended."""
+        self._last_reconcile = time.monotonic()
+        if desired is None:
+            desired = self.desired.current(self.cfg.controllers)
+        try:
+            return reconcile_controllers(desired, self.fleet, self.push_outcomes,
+                                         self.stop_event, kind)
+        finally:
+            if kind is PushKind.PUSH:  # a run's push may take long: the controllers were
+                # reconciled up to its end
+                self._last_reconcile = time.monotonic()
 
     # ------------------------------------------------------------------ control socket
     def status(self) -> Status:
@@ -703,7 +734,8 @@ class Service:
             compute_wait=self.compute_retry.snapshot(),
             content=None if self.content is None else self.content.status().to_json())
         # its health now counts the live errors, waits and capture station too
-        return collect_status(self.history, cfg, push_backoff=backoff, daemon=live)
+        return collect_status(self.history, cfg, push_backoff=backoff, daemon=live,
+                              desired=self.desired.current(cfg.controllers))
 
     def _operator_snapshot(self) -> OperatorSnapshot:
         """The status, the lux sensor's state and the capture station's last success, for

@@ -9,7 +9,7 @@ from __future__ import annotations
 import os
 import resource
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from grassd.daemon.core.config.settings import Config, ControllerConfig
 from grassd.daemon.core.monitoring.status_types import (
@@ -24,6 +24,10 @@ from grassd.daemon.core.monitoring.status_types import (
 )
 from grassd.daemon.core.store.history import ControllerTable, History, RunRecord
 from grassd.daemon.core.store.quarantine import quarantined
+
+if TYPE_CHECKING:  # the tables (numpy) only where a daemon reconciles: ``grassd status``
+    # without one reads the CRCs from the database
+    from grassd.daemon.core.hardware.desired_tables import DesiredTables
 
 
 def rss_mb() -> float:
@@ -48,19 +52,44 @@ def usable_run_tables(history: History, run_id: int,
             == t.lengths_um.shape[0]}
 
 
+def desired_from_history(history: History, cur: RunRecord,
+                         controllers: Sequence[ControllerConfig]) -> DesiredTables:
+    """The desired tables of run ``cur`` (the current table, :meth:`History.current_table`)
+    for ``controllers``: its display-wide table and the own tables they can take
+    (:func:`usable_run_tables`), with the CRCs their commit computed and stored (computed
+    here only for a row stored without one)."""
+    from grassd.daemon.core.hardware.desired_tables import CheckedTable, DesiredTables
+
+    lengths = cur.lengths_um or ()
+    display = (CheckedTable.of(lengths) if cur.table_crc is None
+               else CheckedTable.stored(lengths, cur.table_crc))
+    own = {k: CheckedTable.stored(t.lengths_um, t.table_crc)
+           for k, t in usable_run_tables(history, cur.id, controllers).items()}
+    table_id = cur.id if cur.table_id is None else cur.table_id
+    return DesiredTables.stored(table_id, display, own, run_id=cur.id)
+
+
 def collect_status(history: History, cfg: Config, runs: int = 5, *,
                    push_backoff: Mapping[str, Mapping[str, Any]] | None = None,
-                   daemon: DaemonState | None = None) -> Status:
+                   daemon: DaemonState | None = None,
+                   desired: DesiredTables | None = None) -> Status:
     """The status from the state database (what `grassd status` shows without a daemon), its
-    ``runs`` newest runs listed; a running daemon adds its live state (``daemon``) and its
+    ``runs`` newest runs listed; a running daemon adds its live state (``daemon``), the
+    tables it reconciles to (``desired``; without it they are made from the history) and its
     controllers' push backoff (``push_backoff``: name -> :meth:`Fleet.backoff`'s entry), shown
     as a controller's ``push_retry`` while it is not in sync."""
-    cur = history.current_table()
-    own = {} if cur is None else {k: t.table_crc for k, t in
-                                  usable_run_tables(history, cur.id, cfg.controllers).items()}
-    desired = None if cur is None else DesiredTable(
-        table_id=cur.table_id, table_crc=cur.table_crc, run_id=cur.id,
-        per_controller=own or None)
+    if desired is not None:
+        own = desired.own_crcs()
+        shown = None if desired.display is None or desired.run_id is None else DesiredTable(
+            table_id=desired.table_id, table_crc=desired.display.crc, run_id=desired.run_id,
+            per_controller=own or None)
+    else:  # from the database: the CRCs stored at the commit
+        cur = history.current_table()
+        own = {} if cur is None else {k: t.table_crc for k, t in usable_run_tables(
+            history, cur.id, cfg.controllers).items()}
+        shown = None if cur is None else DesiredTable(
+            table_id=cur.table_id, table_crc=cur.table_crc, run_id=cur.id,
+            per_controller=own or None)
     ctrls = {c.name: c for c in history.controllers()}
     wanted = [(c.name, c.port, c.address) for c in cfg.controllers]
     if ctrls and not any(name in ctrls for name, _, _ in wanted):
@@ -70,8 +99,9 @@ def collect_status(history: History, cfg: Config, runs: int = 5, *,
     controllers = []
     for name, port, address in wanted:
         s = ctrls.get(name)
-        want_crc = None if cur is None else own.get(name, cur.table_crc)  # its own table's
-        in_sync = bool(s and cur and s.reachable and s.reported_id == cur.table_id
+        want_crc = None if shown is None else own.get(name, shown.table_crc)  # its own
+        # table's
+        in_sync = bool(s and shown and s.reachable and s.reported_id == shown.table_id
                        and s.reported_crc == want_crc)
         b = backoff.get(name)  # when a controller whose pushes fail is tried again
         controllers.append(ControllerStatus(
@@ -81,7 +111,7 @@ def collect_status(history: History, cfg: Config, runs: int = 5, *,
             error=s.last_error if s else None,
             push_retry=None if b is None or in_sync else PushRetry.from_json(b)))
     return Status(
-        state_dir=str(cfg.state_dir), desired_table=desired, controllers=tuple(controllers),
+        state_dir=str(cfg.state_dir), desired_table=shown, controllers=tuple(controllers),
         runs=tuple(_run_summary(r) for r in history.runs(runs)),
         run_counts=RunCounts(**{s: history.run_count(s) for s in
                                 ("ok", "rejected", "failed", "superseded")}),
