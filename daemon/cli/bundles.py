@@ -77,11 +77,12 @@ def retry_cmd(bundle: str, config_path: str | None, state_dir: str | None) -> No
     except DaemonNotRunning:
         with StateLock(cfg.state_dir, "grassd bundles retry"), \
                 History(StateLayout(cfg.state_dir).db) as h:
-            out = retry_request(Inbox(cfg.light.inbox, cfg.state_dir, h,
-                                      tz=cfg.site.timezone, limits=cfg.light.limits),
-                                bundle)
-        if out["status"] != "ok":
-            raise BundleRetryError(out["error"]) from None
+            done = retry_request(Inbox(cfg.light.inbox, cfg.state_dir, h,
+                                       tz=cfg.site.timezone, limits=cfg.light.limits),
+                                 bundle)
+        if done.done is None:
+            raise BundleRetryError(done.error or "") from None
+        out = done.done
         how = "put"
     click.echo(f"{how} {out['bundle']} back into the inbox as {out['inbox_path']} (it had "
                f"{out['attempts']} interrupted attempts); it runs as a new upload")

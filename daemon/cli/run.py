@@ -374,7 +374,7 @@ def calibrate_cmd(now: bool, wait: bool, force: bool, json_out: str | None,
         try:
             svc = Service(cfg)
             try:
-                result = svc.one_shot(force=force)
+                result = svc.one_shot(force=force).to_json()
             finally:
                 svc.shutdown()
         finally:

@@ -74,6 +74,12 @@ class ControllerReport:
     error: str | None = None
     retry_in_s: float | None = None
 
+    def to_json(self) -> dict[str, str | bool | int | float | None]:
+        """Its fields by name, in declaration order (the form runs and status carry)."""
+        return {"controller": self.controller, "ok": self.ok, "reachable": self.reachable,
+                "pushed": self.pushed, "table_id": self.table_id, "table_crc": self.table_crc,
+                "error": self.error, "retry_in_s": self.retry_in_s}
+
 
 class StatusRead(Enum):
     """How a controller answered the status read before a push attempt."""

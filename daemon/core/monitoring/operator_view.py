@@ -24,10 +24,10 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from grassd.daemon.content.shown import SHOWN_EVERY_S, ShownDisplay
 from grassd.daemon.core.config.settings import Config
@@ -43,6 +43,9 @@ from grassd.daemon.core.monitoring.status_page import render, write_page
 from grassd.daemon.core.monitoring.status_types import Status
 from grassd.daemon.core.store.history import History
 from grassd.daemon.core.store.layout import StateLayout
+
+if TYPE_CHECKING:
+    from grassd.daemon.core.hardware.fleet import ControllerReport
 
 log = logging.getLogger(__name__)
 
@@ -100,25 +103,25 @@ class OperatorView:
         self.cfg = cfg
         self.alerter.configure(cfg.alerts)
 
-    def after_run(self, result: Mapping[str, Any]) -> None:
-        """After a run with ``result`` (the service's run result; its ``controllers`` are the
-        push reports): count failed pushes, write metrics and page, alert on a change."""
-        self._count(result.get("controllers") or [])
+    def after_run(self, reports: Iterable[ControllerReport] = ()) -> None:
+        """After a run whose push made ``reports`` (none: it pushed nothing, or a
+        measurement, whose run pushes on its own): count failed pushes, write metrics and
+        page, alert on a change."""
+        self._count(reports)
         self._update(page=True)
 
-    def after_reconcile(self, reports: Iterable[Any]) -> None:
-        """After a reconcile with ``reports`` (:class:`~grassd.daemon.fleet.ControllerReport`):
-        count failed pushes, write metrics, alert on a change; the page when state changed."""
-        self._count(r.__dict__ for r in reports)
+    def after_reconcile(self, reports: Iterable[ControllerReport]) -> None:
+        """After a reconcile with ``reports``: count failed pushes, write metrics, alert on a
+        change; the page when state changed."""
+        self._count(reports)
         self._update(page=False)
 
-    def _count(self, reports: Iterable[Mapping[str, Any]]) -> None:
+    def _count(self, reports: Iterable[ControllerReport]) -> None:
         """A push failed: the controller did not end with its table, and the attempt was not
         held back by its backoff (see :mod:`grassd.daemon.core.hardware.fleet`)."""
         for r in reports:
-            if not r["ok"] and r.get("retry_in_s") is None:
-                name = r["controller"]
-                self.push_failures[name] = self.push_failures.get(name, 0) + 1
+            if not r.ok and r.retry_in_s is None:
+                self.push_failures[r.controller] = self.push_failures.get(r.controller, 0) + 1
 
     def _snapshot(self) -> OperatorSnapshot | None:
         try:

@@ -16,10 +16,10 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from datetime import datetime
-from typing import Any
 
 from grassd.daemon.core.config.settings import LightConfig
 from grassd.daemon.core.errors import DaemonError, LuxSensorSilent, LuxSensorUnreachable
+from grassd.daemon.core.runtime.outcome import CommittedTable, RunOutcome, RunStatus
 from grassd.daemon.core.safe_text import one_line
 from grassd.daemon.core.store.atomic import describe_write_error
 from grassd.daemon.core.store.history import History, RunRecord
@@ -66,11 +66,11 @@ class WaitingBundles:
         self.bundles: dict[str, Deferred] = {}
 
     def defer(self, b: Bundle, reason: str, limit_s: float | None = None,
-              error: bool = False) -> dict[str, Any]:
+              error: bool = False, outcome: RunOutcome | None = None) -> RunOutcome:
         """Leave ``b`` in processing/ (attempt not counted) and retry it with backoff
         (``limit_s``: give up waiting after that many seconds; ``error``: after an error the
-        pass survived, see ``last_error``). Returns the attempt's outcome, ``{"status":
-        "deferred", ...}``."""
+        pass survived, see ``last_error``). Returns the attempt's outcome: ``outcome`` (what
+        the attempt got so far; None: nothing) made DEFERRED for ``reason``."""
         now = time.monotonic()
         d = self.bundles.get(b.hash)
         if d is None:
@@ -93,7 +93,7 @@ class WaitingBundles:
             log.warning("bundle %s: cannot release its attempt: %s", b.name, exc)
         log.warning("bundle %s waits in processing/: %s; retried in %g s", b.name, reason,
                     d.delay_s)
-        return {"status": "deferred", "error": reason, "retry_in_s": d.delay_s}
+        return (outcome or RunOutcome(RunStatus.DEFERRED)).defer(reason, d.delay_s)
 
 
 def superseded(b: Bundle, history: History, inbox: Inbox, future_tolerance_s: float
@@ -162,15 +162,15 @@ def archived_light_at(run: RunRecord, history: History, inbox: Inbox) -> float |
 
 
 #: (run id, light with the ambient lux, checker photo) -> the run's outcome
-RunBundle = Callable[[int, LightInput, CheckerPhoto | None], dict[str, Any]]
+RunBundle = Callable[[int, LightInput, CheckerPhoto | None], RunOutcome]
 
 
 def attempt_bundle(b: Bundle, *, history: History, inbox: Inbox, light: LightConfig,
                    waiting: WaitingBundles,
                    lux: Callable[[float | None], tuple[float, str]],
-                   begin: Callable[[str], None], run: RunBundle) -> dict[str, Any]:
+                   begin: Callable[[str], None], run: RunBundle) -> RunOutcome:
     """One attempt at claimed bundle ``b`` (see the module docstring); returns its outcome
-    (``status`` "ok", "superseded", "rejected", "interrupted", "failed" or "deferred").
+    (OK, SUPERSEDED, REJECTED, INTERRUPTED, FAILED or DEFERRED).
 
     ``lux(manifest_lux)`` gives (lux, source) as
     :func:`~grassd.daemon.core.runtime.ambient_lux.resolve_lux`; ``begin(activity)`` is called
@@ -180,9 +180,8 @@ def attempt_bundle(b: Bundle, *, history: History, inbox: Inbox, light: LightCon
     if done is not None:  # committed, but the archive move failed last time (a run of
         # an earlier upload whose journal row retention pruned does not count)
         inbox.archive_bundle(b, done.id)
-        return {"status": "ok", "run_id": done.id, "table_id": done.table_id,
-                "table_crc": done.table_crc, "metrics": done.metrics,
-                "report": done.report_path, "plot": done.plot_path, "controllers": []}
+        return RunOutcome(RunStatus.OK, done.id, committed=CommittedTable(
+            done.table_id, done.table_crc, done.metrics, done.report_path, done.plot_path))
     why = superseded(b, history, inbox, light.future_tolerance_s)
     if why is not None:  # newer light made the active table: do not apply older light
         run_id = history.start_run("bundle", bundle_hash=b.hash,
@@ -191,7 +190,7 @@ def attempt_bundle(b: Bundle, *, history: History, inbox: Inbox, light: LightCon
         history.finish_run(run_id, "superseded", error=why)
         inbox.archive_bundle(b, run_id, reason=why)
         log.warning("bundle %s archived unused: %s", b.name, why)
-        return {"status": "superseded", "run_id": run_id, "error": why}
+        return RunOutcome(RunStatus.SUPERSEDED, run_id, error=why)
     inbox.begin(b)
     begin(f"processing bundle {one_line(b.name)}")  # status and sd_notify: the uploader
     # chose the name (a newline, escapes, any length)
@@ -208,24 +207,24 @@ def attempt_bundle(b: Bundle, *, history: History, inbox: Inbox, light: LightCon
         why = (f"no ambient lux: the lux sensor stayed unavailable for {waited:.0f} s "
                f"(light.lux_wait_s = {wait_s:g}): {exc}")
         inbox.reject_bundle(b, why)
-        return {"status": "rejected", "error": why}
+        return RunOutcome(RunStatus.REJECTED, error=why)
     except DaemonError as exc:  # a bad reading or no lux source at all: permanent
         inbox.reject_bundle(b, f"no ambient lux: {exc}")
-        return {"status": "rejected", "error": str(exc)}
+        return RunOutcome(RunStatus.REJECTED, error=str(exc))
     run_id = history.start_run("bundle", bundle_hash=b.hash,
                                input_hashes=b.input_hashes, lux=ambient, lux_source=source,
                                light_at=m.timestamp.timestamp())
     out = run(run_id, replace(m.light, ambient_lux=ambient), m.checker)
     try:
-        if out["status"] == "ok":
+        if out.status is RunStatus.OK:
             inbox.archive_bundle(b, run_id)
-        elif out["status"] == "interrupted":
+        elif out.status is RunStatus.INTERRUPTED:
             history.journal_release(b.hash)  # retried at the next start
-        elif out.get("transient"):  # could not write: the bundle is fine, try again later
-            return {**out, **waiting.defer(b, out["error"])}
+        elif out.transient:  # could not write: the bundle is fine, try again later
+            return waiting.defer(b, out.error or "", outcome=out)
         else:
-            inbox.reject_bundle(b, out["error"], run_id)
+            inbox.reject_bundle(b, out.error or "", run_id)
     except OSError as exc:  # e.g. no space for reason.txt: keep the bundle, try again
-        return {**out, **waiting.defer(b, describe_write_error(exc, exc.filename or
-                                                               inbox.state_dir))}
+        return waiting.defer(b, describe_write_error(exc, exc.filename or inbox.state_dir),
+                             outcome=out)
     return out

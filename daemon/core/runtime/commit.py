@@ -11,11 +11,11 @@ from __future__ import annotations
 import contextlib
 import logging
 from pathlib import Path
-from typing import Any
 
 from grassd.daemon.core.calibration.result import CalibrationResult
 from grassd.daemon.core.config.settings import Config
 from grassd.daemon.core.hardware.desired_tables import DesiredTables
+from grassd.daemon.core.runtime.outcome import CommittedTable, RunOutcome, RunStatus
 from grassd.daemon.core.runtime.young_garbage import freed_when_done
 from grassd.daemon.core.store.atomic import (
     atomic_save_figure,
@@ -29,13 +29,11 @@ log = logging.getLogger(__name__)
 
 
 def commit_run(run_id: int, result: CalibrationResult, *, cfg: Config, history: History,
-               reports_dir: Path) -> tuple[dict[str, Any], DesiredTables | None]:
+               reports_dir: Path) -> tuple[RunOutcome, DesiredTables | None]:
     """Commit run ``run_id`` with ``result``: returns the run's outcome and, once its history
     row is ``ok``, the tables every controller should now hold (table id ``run_id``). The
-    outcome: ``{"status": "ok", ...}`` with table id and CRC (of the uint16 micrometre
-    table), the controllers' own CRCs, metrics, report and plot paths (the push reports are
-    added by the push); or ``{"status": "failed", "transient": True, ...}`` (and no tables)
-    when the report could not be written."""
+    outcome: OK with the :class:`CommittedTable` (the push reports are added by the push);
+    or FAILED and ``transient`` (and no tables) when the report could not be written."""
     cal = cfg.calibration
     metrics = result.metrics(cal.r2_goal, cal.target_de00)
     # a table per controller ([tables] granularity "controller"/"pixel"), else one for all
@@ -58,7 +56,7 @@ def commit_run(run_id: int, result: CalibrationResult, *, cfg: Config, history: 
                + "; the previous table stays active")
         log.error("run %d not committed: %s", run_id, msg)
         history.finish_run(run_id, "failed", error=msg)
-        return {"status": "failed", "run_id": run_id, "error": msg, "transient": True}, None
+        return RunOutcome(RunStatus.FAILED, run_id, error=msg, transient=True), None
     if result.ccm is not None and result.ccm_source == "bundle":
         history.set_meta("ccm", result.ccm.matrix.tolist())
     if desired.own:  # before the run becomes the current table
@@ -66,7 +64,6 @@ def commit_run(run_id: int, result: CalibrationResult, *, cfg: Config, history: 
     history.finish_run(run_id, "ok", metrics=metrics, lengths_um=result.lengths_um,
                        table_id=run_id, table_crc=crc, report_path=report_path,
                        plot_path=plot_path)
-    return {"status": "ok", "run_id": run_id, "table_id": run_id, "table_crc": crc,
-            "controller_crcs": own_crcs,
-            "metrics": metrics, "report": str(report_path), "plot": str(plot_path),
-            "controllers": []}, desired
+    made = CommittedTable(run_id, crc, metrics, str(report_path), str(plot_path),
+                          controller_crcs=own_crcs)
+    return RunOutcome(RunStatus.OK, run_id, committed=made), desired

@@ -17,10 +17,19 @@ import queue
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from grassd import __version__
 from grassd.daemon.core.monitoring.status_types import Status
+
+if TYPE_CHECKING:  # the outcomes (and the fleet, numpy) only where the daemon runs: clients
+    # import this module for READ_ONLY_COMMANDS
+    from grassd.daemon.core.runtime.outcome import RunOutcome
+    from grassd.daemon.core.store.quarantine import RetryOutcome
+
+    #: what a queued request ends with: a run's outcome, a bundle put back, or a
+    #: measurement's report (its JSON form)
+    QueuedResult = RunOutcome | RetryOutcome | dict[str, Any]
 
 #: Commands that only read: any client that can connect to the socket may send them. Every
 #: other command (``calibrate``, ``reload``, ``bundles_retry``, an unknown one) needs root or
@@ -37,9 +46,9 @@ class QueuedRequest:
 
     force: bool
     done: threading.Event = field(default_factory=threading.Event)
-    result: dict[str, Any] | None = None
+    result: QueuedResult | None = None
     #: main-loop work other than a calibration (e.g. putting a quarantined bundle back)
-    task: Callable[[], dict[str, Any]] | None = None
+    task: Callable[[], QueuedResult] | None = None
 
 
 class ControlCommands:
@@ -50,7 +59,7 @@ class ControlCommands:
 
     def __init__(self, status: Callable[[], Status], reload_event: threading.Event,
                  stop_event: threading.Event, requests: queue.Queue[QueuedRequest],
-                 retry_bundle: Callable[[str], dict[str, Any]],
+                 retry_bundle: Callable[[str], RetryOutcome],
                  measure: Callable[[], dict[str, Any]] | None = None,
                  content: Callable[[], Any] | None = None) -> None:
         self.status = status
@@ -85,7 +94,7 @@ class ControlCommands:
                 return {"ok": False, "busy": True, "error": "busy: try again later"}
             if not r.done.wait(timeout):
                 return {"ok": False, "error": "the daemon did not get to it in time"}
-            out = r.result or {}
+            out = _json(r.result)
             return {"ok": out.get("status") == "ok", "retry": out, "error": out.get("error")}
         if cmd == "measure" and self.measure is not None:  # in the main loop, like a run
             if self.stop_event.is_set():
@@ -98,7 +107,7 @@ class ControlCommands:
                 return {"ok": False, "busy": True, "error": "busy: try again later"}
             if not r.done.wait(timeout):
                 return {"ok": False, "error": f"measurement did not finish within {timeout:g} s"}
-            out = r.result or {}
+            out = _json(r.result)
             return {"ok": out.get("status") == "ok", "measurement": out,
                     "error": out.get("error")}
         if cmd == "calibrate":
@@ -116,7 +125,7 @@ class ControlCommands:
                 return {"ok": True, "queued": self.requests.qsize()}
             if not r.done.wait(timeout):
                 return {"ok": False, "error": f"run did not finish within {timeout:g} s"}
-            return {"ok": True, "run": r.result}
+            return {"ok": True, "run": None if r.result is None else _json(r.result)}
         feature = None if self.content is None else self.content()
         if feature is not None and feature.handles(cmd):  # content_frame, content_show, ...
             return feature.handle(req)
@@ -126,6 +135,13 @@ class ControlCommands:
         return {"ok": False, "error": f"unknown command {cmd!r} "
                                       "(use ping, status, calibrate, measure, reload, "
                                       "bundles_retry)"}
+
+
+def _json(result: QueuedResult | None) -> dict[str, Any]:
+    """The wire form of a queued request's result (empty: none)."""
+    if result is None:
+        return {}
+    return result if isinstance(result, dict) else result.to_json()
 
 
 def _timeout(req: dict[str, Any]) -> float:

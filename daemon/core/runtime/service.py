@@ -50,6 +50,7 @@ import signal
 import sqlite3
 import threading
 import time
+from dataclasses import replace
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -88,6 +89,7 @@ from grassd.daemon.core.runtime.commit import commit_run
 from grassd.daemon.core.runtime.control import ControlServer
 from grassd.daemon.core.runtime.control_commands import ControlCommands, QueuedRequest
 from grassd.daemon.core.runtime.notify import Notifier
+from grassd.daemon.core.runtime.outcome import RunOutcome, RunStatus
 from grassd.daemon.core.runtime.pass_errors import PassErrors, describe_error, os_action
 from grassd.daemon.core.runtime.push_outcomes import PushOutcomes
 from grassd.daemon.core.runtime.reconcile import (
@@ -104,7 +106,7 @@ from grassd.daemon.core.store.history import History
 from grassd.daemon.core.store.ingest import Bundle, Inbox
 from grassd.daemon.core.store.layout import StateLayout
 from grassd.daemon.core.store.manifest import CheckerPhoto
-from grassd.daemon.core.store.quarantine import retry_request
+from grassd.daemon.core.store.quarantine import RetryOutcome, retry_request
 from grassd.firmware_proto.client import RetryPolicy
 from grassd.sim.errors import SimError
 from grassd.sim.light_input import LightInput
@@ -340,7 +342,7 @@ class Service:
                 req.result = req.task() if req.task else self.scheduled_run("request",
                                                                             force=req.force)
             except BaseException as exc:  # the waiting client learns it now, not at its timeout
-                req.result = {"status": "failed", "error": self._describe(exc)}
+                req.result = RunOutcome(RunStatus.FAILED, error=self._describe(exc))
                 raise
             finally:
                 req.done.set()
@@ -371,7 +373,7 @@ class Service:
         finally:
             if content is not None:
                 content.release()
-            self.operator.after_run({})  # the status page's measurement card
+            self.operator.after_run()  # the status page's measurement card
 
     def _measure_due(self) -> bool:
         """A scheduled measurement is due: ``[measure] interval_s`` since the last one (or the
@@ -411,7 +413,7 @@ class Service:
                 req = self.requests.get_nowait()
             except queue.Empty:
                 break
-            req.result = {"status": "failed", "error": "daemon stopped before the run"}
+            req.result = RunOutcome(RunStatus.FAILED, error="daemon stopped before the run")
             req.done.set()
         self.fleet.close()
         if self.sensor is not None:
@@ -422,7 +424,7 @@ class Service:
         self.lock.release()
         log.info("grassd stopped")
 
-    def one_shot(self, force: bool = False) -> dict[str, Any]:
+    def one_shot(self, force: bool = False) -> RunOutcome:
         """`grassd calibrate --now` without a daemon: process complete bundles waiting in the
         inbox (no settle time) or, when there are none, run on the last bundle's light.
 
@@ -431,7 +433,7 @@ class Service:
         than the active table's is archived as superseded, not applied (the command has no
         way to name its input, so an inbox bundle is indistinguishable from a late upload,
         and "now" asks for the current light, not a return to stale light); when that is
-        the newest, the result is ``{"status": "superseded", ...}`` and the CLI exits 2 with
+        the newest, the result is SUPERSEDED and the CLI exits 2 with
         the reason. Without a bundle the run uses the latest applied bundle's light, which
         is never older."""
         self._init_renderer()
@@ -571,7 +573,7 @@ class Service:
         except (OSError, sqlite3.Error, DaemonError) as exc:
             log.warning("retention: pruning failed: %s", exc)
 
-    def process_bundle(self, b: Bundle) -> dict[str, Any]:
+    def process_bundle(self, b: Bundle) -> RunOutcome:
         """Calibrate from bundle ``b``, commit, push, archive; or reject it with the reason.
         Then prune per ``[retention]``."""
         try:
@@ -581,38 +583,38 @@ class Service:
             out = self._defer(b, self._survived(exc, f"bundle {b.name}", os_action(exc)),
                               error=True)
         self.prune()
-        self.operator.after_run(out)
+        self.operator.after_run(out.controllers)
         return out
 
     def _defer(self, b: Bundle, reason: str, limit_s: float | None = None,
-               error: bool = False) -> dict[str, Any]:
+               error: bool = False) -> RunOutcome:
         """Leave ``b`` in processing/ and retry it with backoff (see
         :meth:`WaitingBundles.defer`)."""
         return self.waiting.defer(b, reason, limit_s=limit_s, error=error)
 
-    def _process_bundle(self, b: Bundle) -> dict[str, Any]:
+    def _process_bundle(self, b: Bundle) -> RunOutcome:
         out = attempt_bundle(b, history=self.history, inbox=self.inbox, light=self.cfg.light,
                              waiting=self.waiting, lux=self._resolve_lux,
                              begin=self._run_started,
                              run=lambda run_id, light, checker: self._calibrate_and_commit(
                                  run_id, light, force=False, checker=checker))
-        if out["status"] != "deferred":
+        if out.status is not RunStatus.DEFERRED:
             self.deferred.pop(b.hash, None)
         return out
 
-    def scheduled_run(self, trigger: str, force: bool = False) -> dict[str, Any]:
+    def scheduled_run(self, trigger: str, force: bool = False) -> RunOutcome:
         """A run without a new bundle: light of the last archived bundle (or the embedded
         default site), lux from the sensor when configured, else from that bundle. Then prune
         per ``[retention]``."""
         out = self._scheduled_run(trigger, force)
-        if out.get("transient") and out.get("compute"):  # no bundle to wait: the run waits
-            out["retry_in_s"] = self.compute_retry.failed(trigger, out["error"])
-        if out["status"] != "skipped":
+        if out.transient and out.compute:  # no bundle to wait: the run waits
+            out = replace(out, retry_in_s=self.compute_retry.failed(trigger, out.error or ""))
+        if out.status is not RunStatus.SKIPPED:
             self.prune()
-            self.operator.after_run(out)
+            self.operator.after_run(out.controllers)
         return out
 
-    def _scheduled_run(self, trigger: str, force: bool) -> dict[str, Any]:
+    def _scheduled_run(self, trigger: str, force: bool) -> RunOutcome:
         self._progress(f"{trigger} calibration")
         self.last_run_at = time.time()
         try:
@@ -621,13 +623,13 @@ class Service:
                                   self._resolve_lux)
         except DaemonError as exc:
             log.warning("%s run skipped: %s", trigger, exc)
-            return {"status": "skipped", "error": str(exc)}
+            return RunOutcome(RunStatus.SKIPPED, error=str(exc))
         run_id = self.history.start_run(trigger, input_hashes=inp.input_hashes, lux=inp.lux,
                                         lux_source=inp.lux_source, light_at=inp.light_at)
         return self._calibrate_and_commit(run_id, inp.light, force=force)
 
     def _calibrate_and_commit(self, run_id: int, light: LightInput, force: bool,
-                              checker: CheckerPhoto | None = None) -> dict[str, Any]:
+                              checker: CheckerPhoto | None = None) -> RunOutcome:
         cur = self.history.current_table()  # the active table, the run's starting point
         prev_table = None if cur is None else list(cur.lengths_um)
         desired = None if cur is None else self.desired.current(self.cfg.controllers)
@@ -639,43 +641,41 @@ class Service:
                                          progress=self._progress, previous_tables=prev_own)
         except RunInterrupted as exc:
             self.history.finish_run(run_id, "failed", error=str(exc))
-            return {"status": "interrupted", "run_id": run_id, "error": str(exc)}
+            return RunOutcome(RunStatus.INTERRUPTED, run_id, error=str(exc))
         except ComputeUnavailable as exc:  # the cluster, not the input: a bundle waits
             self.history.finish_run(run_id, "failed", error=str(exc))
             log.warning("run %d could not be computed: %s", run_id, exc)
-            return {"status": "failed", "run_id": run_id, "error": str(exc), "transient": True,
-                    "compute": True}
+            return RunOutcome(RunStatus.FAILED, run_id, error=str(exc), transient=True,
+                              compute=True)
         except USER_ERRORS as exc:
             self.history.finish_run(run_id, "rejected", error=str(exc))
             log.warning("run %d rejected: %s", run_id, exc)
-            return {"status": "rejected", "run_id": run_id, "error": str(exc)}
+            return RunOutcome(RunStatus.REJECTED, run_id, error=str(exc))
         except Exception as exc:  # a bug must not kill the service
             log.exception("run %d failed", run_id)  # one record, its traceback below
             self.history.finish_run(run_id, "failed", error=f"internal error: {exc!r}")
-            return {"status": "failed", "run_id": run_id, "error": f"internal error: {exc!r}"}
+            return RunOutcome(RunStatus.FAILED, run_id, error=f"internal error: {exc!r}")
         self.compute_retry.computed()
         return self._commit(run_id, result)
 
-    def _commit(self, run_id: int, result: CalibrationResult
-                ) -> dict[str, Any]:
+    def _commit(self, run_id: int, result: CalibrationResult) -> RunOutcome:
         """Commit run ``run_id`` (:func:`commit_run`), then push its tables to every
         controller right away: reconcile (the one code path that pushes) with the run's
         own push's rules (every controller tried at once, every outcome recorded)."""
         out, desired = commit_run(run_id, result, cfg=self.cfg, history=self.history,
                                   reports_dir=self.reports_dir)
-        if desired is None:
+        if desired is None or out.committed is None:
             return out
         self.desired.wrote(desired, self.cfg.controllers)
         self._committed(run_id)
         self._progress(f"pushing table {run_id} to {len(self.cfg.controllers)} controller(s)")
         reports = self._reconcile(PushKind.PUSH, desired)
-        metrics = out["metrics"]
+        metrics = out.committed.metrics or {}
         log.info("run %d committed: R^2 %.5f, max deviation %.3f dE00, %d/%d controllers",
                  run_id, metrics["r2_closed_loop"] or metrics["r2_after_fit"] or 0,
                  metrics["max_dev_de00"] or 0,
                  sum(r.ok for r in reports), len(self.cfg.controllers))
-        out["controllers"] = [r.__dict__ for r in reports]
-        return out
+        return out.with_pushes(reports)
 
     def _committed(self, run_id: int) -> None:
         self.runs_done += 1
@@ -771,6 +771,6 @@ class Service:
         :class:`~grassd.daemon.core.runtime.control_commands.ControlCommands`)."""
         return self.commands.handle(req)
 
-    def _retry_bundle(self, name: str) -> dict[str, Any]:
+    def _retry_bundle(self, name: str) -> RetryOutcome:
         """Put quarantined bundle ``name`` back into the inbox (in the main loop)."""
         return retry_request(self.inbox, name)

@@ -136,11 +136,32 @@ def retry_bundle(inbox: Inbox, bundle: str) -> dict[str, object]:
             "attempts": q.attempts}
 
 
-def retry_request(inbox: Inbox, bundle: str) -> dict[str, object]:
-    """:func:`retry_bundle` as a daemon request's result: ``{"status": "ok", ...}``, or
-    ``{"status": "failed", "error": ...}`` (the main loop must not die of a bad name)."""
+@dataclass(frozen=True)
+class RetryOutcome:
+    """The outcome of putting a quarantined bundle back: ``done``, what
+    :func:`retry_bundle` did (None: it failed, ``error`` says why)."""
+
+    done: dict[str, object] | None
+    error: str | None = None
+
+    @property
+    def ok(self) -> bool:
+        """The bundle is back in the inbox."""
+        return self.done is not None
+
+    def to_json(self) -> dict[str, object]:
+        """The wire form: ``{"status": "ok", ...}`` with what was done, or ``{"status":
+        "failed", "error": ...}``."""
+        if self.done is not None:
+            return {"status": "ok", **self.done}
+        return {"status": "failed", "error": self.error}
+
+
+def retry_request(inbox: Inbox, bundle: str) -> RetryOutcome:
+    """:func:`retry_bundle` as a daemon request's result (the main loop must not die of a
+    bad name)."""
     try:
-        return {"status": "ok", **retry_bundle(inbox, bundle)}
+        return RetryOutcome(retry_bundle(inbox, bundle))
     except (BundleRetryError, OSError) as exc:
         what = exc if isinstance(exc, BundleRetryError) else f"cannot move it: {exc}"
-        return {"status": "failed", "error": str(what)}
+        return RetryOutcome(None, str(what))
