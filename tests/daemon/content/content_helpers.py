@@ -1,5 +1,5 @@
 """What the content tests share: a frame sink that keeps what it is offered, free UDP
-ports, and a [content] on 127.0.0.1."""
+ports, a [content] on 127.0.0.1, and the bound every fault test keeps to."""
 
 from __future__ import annotations
 
@@ -11,6 +11,11 @@ from collections.abc import Callable
 import numpy as np
 
 from grassd.daemon.content.config import ArtnetConfig, ContentConfig, SacnConfig
+
+#: the most a fault may grow the test process's peak resident memory [MiB]
+RSS_GROWTH_MIB = 16
+#: the share of their rate frames must keep through a fault
+RATE_KEPT = 0.9
 
 
 class CapturingSink:
@@ -51,6 +56,12 @@ class CapturingSink:
     def times(self, since: float) -> np.ndarray:
         with self.lock:
             return np.array([t for t, _ in self.frames if t >= since])
+
+    def rate(self, t0: float, t1: float) -> float:
+        """Frames offered per second between monotonic ``t0`` and ``t1`` [s]: the count in
+        the window over the window's length (0 with none)."""
+        times = self.times(t0)
+        return float(np.count_nonzero(times <= t1)) / (t1 - t0)
 
 
 def free_udp_port() -> int:

@@ -1,6 +1,8 @@
 """Real senders on 127.0.0.1 through the receivers and the player to a frame sink: the sACN
 library's sender and stupidArtnet; pixel orders, several universes, priorities, HTP, a
-terminated stream, silence and hold."""
+terminated stream, silence and hold. The frames go to a capturing sink (the player's output,
+no controllers); through a source's silence they keep at least 90 % of ``fps`` and the peak
+RSS grows at most 16 MiB."""
 
 from __future__ import annotations
 
@@ -8,18 +10,45 @@ import time
 
 import numpy as np
 import pytest
-from content_helpers import content_config
+from content_helpers import RATE_KEPT, RSS_GROWTH_MIB, CapturingSink, content_config
 from stupidArtnet import StupidArtnet
 
 from grassd.daemon.content.pixel_order import stream_to_display
 from grassd.daemon.content.player import ContentPlayer
 from grassd.daemon.content.status import ContentSource
+from grassd.rigs.peak_memory import peak_rss_growth
 
 ROWS, COLS = 4, 8
 
 
+FPS = 30  # [content] fps's default
+#: how long the next source's frames are counted after it took over [s]
+AFTER_S = 0.5
+
+
 def _player(cfg, sink, rows=ROWS, cols=COLS):
     return ContentPlayer(cfg, rows, cols, sink).start()
+
+
+def _through_silence(sink: CapturingSink, t_silent: float, taken_over
+                     ) -> tuple[float, float, int]:
+    """From a live source's silence at monotonic ``t_silent`` until ``AFTER_S`` after the
+    first frame for which ``taken_over`` holds: (seconds until that frame, frames per second
+    the sink was offered over the whole time, peak RSS growth [bytes])."""
+    took = []
+
+    def silence() -> None:
+        sink.wait_for(taken_over, timeout_s=3.0)
+        took.append(time.monotonic() - t_silent)
+        time.sleep(AFTER_S)
+
+    raised, _, growth = peak_rss_growth(silence, every_s=0.01)
+    if raised is not None:
+        raise raised
+    rate = sink.rate(t_silent, time.monotonic())
+    print(f"silence: next source after {took[0]:.2f} s; frames {rate:.1f}/s through it; "
+          f"peak RSS +{growth / 2**20:.1f} MiB")
+    return took[0], rate, growth
 
 
 @pytest.mark.parametrize("order,serpentine,first", [
@@ -110,12 +139,13 @@ def test_artnet_frame_and_silence_hold(ports, sink):
             art.show()
             time.sleep(0.03)
         assert sink.last().tobytes() == bytes(levels)
-        # ... and takes over hold_s after the sender went silent
+        # ... and takes over hold_s after the sender went silent; frames keep their rate
+        # through the hold and the takeover, and memory stays
         t_silent = time.monotonic()
-        sink.wait_for(lambda f: np.all(f == 77), timeout_s=3.0)
-        took = time.monotonic() - t_silent
+        took, rate, growth = _through_silence(sink, t_silent, lambda f: np.all(f == 77))
         assert hold - 0.05 <= took <= hold + 0.25, took
         assert p.status().source is ContentSource.SCRIPT
+        assert rate >= RATE_KEPT * FPS and growth <= RSS_GROWTH_MIB * 2**20, (rate, growth)
     finally:
         art.close()
         p.stop()
@@ -134,10 +164,10 @@ def test_sacn_silence_falls_back_to_idle_picture(ports, sink, sacn_senders, tmp_
         s[1].dmx_data = (33,) * (ROWS * COLS)
         sink.wait_for(lambda f: np.all(f == 33))
         s.stop()  # silent, not terminated
-        t0 = time.monotonic()
-        sink.wait_for(lambda f: np.all(f == 90), timeout_s=3.0)
-        assert 0.3 <= time.monotonic() - t0 <= 0.8
+        took, rate, growth = _through_silence(sink, time.monotonic(), lambda f: np.all(f == 90))
+        assert 0.3 <= took <= 0.8, took
         assert p.status().source is ContentSource.IDLE
+        assert rate >= RATE_KEPT * FPS and growth <= RSS_GROWTH_MIB * 2**20, (rate, growth)
     finally:
         p.stop()
 

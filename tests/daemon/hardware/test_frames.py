@@ -23,6 +23,7 @@ from grassd.firmware_proto.client import ControllerClient
 from grassd.firmware_proto.codec import Frame, encode_frame
 from grassd.firmware_proto.messages import Show
 from grassd.rigs.firmware import Controller, simulated_config
+from grassd.rigs.peak_memory import peak_rss_growth
 from grassd.rigs.posix_bus import PosixBus
 from grassd.rigs.sim_backends import open_bus
 from grassd.rigs.simulator import SimulatedBus
@@ -32,6 +33,9 @@ PIX = 16  # pixels per controller: 2 lines x 2 controllers = an 8 x 8 display
 N = 4 * PIX
 #: One motor period of the firmware (s).
 MOTOR_PERIOD_S = 1e-3
+#: the share of their rate frames keep through a fault, and the most a fault may grow this
+#: process's peak resident memory [MiB]
+RATE_KEPT, RSS_GROWTH_MIB = 0.9, 16
 SHOW_BYTES = len(encode_frame(Frame(0, 1, Show(1))))
 
 
@@ -224,8 +228,10 @@ def _plain_spreads(buses: list[PosixBus]) -> list[float]:
 @pytest.mark.parametrize("firmware", FIRMWARES)
 def test_a_push_during_a_stream(tmp_path, firmware):
     """Per-pixel tables pushed to all four controllers while 30 frames a second play: frames
-    keep at least 90 % of their rate and the push's chunks keep to the cap; afterwards every
-    target is the new table's."""
+    keep at least 90 % of their rate, the peak RSS of this process (the fleet, the frame
+    output, the model's controllers; not the posix firmware's processes) grows at most
+    16 MiB during the push, and the push's chunks keep to the cap; afterwards every target is
+    the new table's."""
     with ExitStack() as stack:
         buses = start_lines(firmware, tmp_path, stack)
         ctls = line_configs([b.path for b in buses])
@@ -237,16 +243,20 @@ def test_a_push_during_a_stream(tmp_path, firmware):
         with Stream(out, 30) as stream:
             time.sleep(1.0)
             before = out.stats()
-            t0 = time.monotonic()
-            reports = fleet.push(new, 2)
-            dt = time.monotonic() - t0
+            got: list = []
+            raised, dt, growth = peak_rss_growth(lambda: got.append(fleet.push(new, 2)),
+                                                 every_s=0.01)
+            assert raised is None, raised
+            reports = got[0]
             during = out.stats()
             time.sleep(1.2)  # at least one more frame through the new tables
         assert all(r.ok and r.pushed for r in reports), reports
         rate = (during.frames_shown - before.frames_shown) / dt
         print(f"push of 4 x 8 KiB in {dt:.2f} s; frames during it {rate:.1f}/s, latency "
-              f"median {during.latency_ms_median:.1f} ms p99 {during.latency_ms_p99:.1f} ms")
-        assert dt > 1.0 and rate >= 0.9 * 30
+              f"median {during.latency_ms_median:.1f} ms p99 {during.latency_ms_p99:.1f} ms; "
+              f"peak RSS +{growth / 2**20:.1f} MiB")
+        assert dt > 1.0 and rate >= RATE_KEPT * 30
+        assert growth <= RSS_GROWTH_MIB * 2**20
         # a controller's answer later than the frame's timeout (a loaded machine) misses it
         assert during.misses <= 0.02 * 4 * during.frames_offered
         settle(out)
@@ -404,8 +414,8 @@ def test_a_push_stopped_while_staging_commits_nothing(tmp_path):
 def test_a_controller_reboots_during_a_stream(tmp_path, firmware):
     """One line's controllers power-cycle (the posix process's port unplugged for 0.5 s, the
     model's controllers rebooted in place): frames keep 90 % of the rate they had just before
-    (on this machine, under its load now), and the rebooted controllers show the current frame
-    again."""
+    (on this machine, under its load now), the peak RSS of this process grows at most 16 MiB
+    through the reboot, and the rebooted controllers show the current frame again."""
     with ExitStack() as stack:
         buses = start_lines(firmware, tmp_path, stack)
         ctls = line_configs([b.path for b in buses])
@@ -420,19 +430,26 @@ def test_a_controller_reboots_during_a_stream(tmp_path, firmware):
             before, t0 = out.stats(), time.monotonic()
             # the rate this machine keeps without the reboot, under the load it has now
             steady = (before.frames_shown - start.frames_shown) / (t0 - s0)
-            if firmware == "posix":
-                buses[0].unplug(0.5)
-            else:
-                for c in buses[0].controllers:
-                    c.power_cycle()
-            time.sleep(2.0)
+
+            def reboot() -> None:
+                if firmware == "posix":
+                    buses[0].unplug(0.5)
+                else:
+                    for c in buses[0].controllers:
+                        c.power_cycle()
+                time.sleep(2.0)
+
+            raised, _, growth = peak_rss_growth(reboot, every_s=0.01)
+            assert raised is None, raised
             after, dt = out.stats(), time.monotonic() - t0
             boots_misses = after.misses
             time.sleep(1.0)
             final = out.stats()
         rate = (after.frames_shown - before.frames_shown) / dt
-        print(f"reboot: {rate:.1f} frames/s shown ({steady:.1f} before), {after.misses} misses")
-        assert rate >= 0.9 * steady and steady >= 0.5 * 30
+        print(f"reboot: {rate:.1f} frames/s shown ({steady:.1f} before), {after.misses} misses; "
+              f"peak RSS +{growth / 2**20:.1f} MiB")
+        assert rate >= RATE_KEPT * steady and steady >= 0.5 * 30
+        assert growth <= RSS_GROWTH_MIB * 2**20
         assert final.misses == boots_misses  # the rebooted line is back in every frame
         settle(out)
         for c in ctls:
