@@ -2,20 +2,20 @@
 each way a machine can lack one. Taichi 1.7.4 alone dies in all of them (a segmentation fault).
 
 Each condition is made for real in the child process, whatever this machine has: the Vulkan
-loader hidden by a mount namespace (or missing here), a loader shown no driver file, a driver
-file whose library is no Vulkan driver, and a CUDA driver library that has no device."""
+loader and the CUDA driver hidden by a mount namespace (or missing here), a loader shown no
+driver file, a driver file whose library is no Vulkan driver, and a CUDA driver library that has
+no device."""
 
 from __future__ import annotations
 
-import glob
 import os
-import shlex
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from no_gpu import hiding_prefix
 
 from grassd.sim.gpu_devices import cuda_device_count, vulkan_loader_present
 
@@ -47,35 +47,11 @@ def _init_gpu(tmp_path: Path, argv_prefix: list[str] = (), **env: str) -> list[s
     return lines
 
 
-def _loader_files() -> list[str]:
-    """The Vulkan loader's files on this machine (what every ``libvulkan.so*`` resolves to)."""
-    listed = subprocess.run(["ldconfig", "-p"], capture_output=True, text=True).stdout
-    found = {line.split(" => ", 1)[1].strip() for line in listed.splitlines()
-             if "libvulkan.so" in line and " => " in line}
-    for root in ("/lib", "/lib64", "/usr/lib", "/usr/lib64", "/usr/local/lib"):
-        for pattern in ("libvulkan.so*", "*/libvulkan.so*"):  # and multiarch folders
-            found.update(glob.glob(f"{root}/{pattern}"))
-    return sorted({os.path.realpath(f) for f in found})
-
-
 def test_no_vulkan_loader(tmp_path):
-    """The bare machine: no ``libvulkan.so.1`` anywhere. Where this machine has one, the child
-    runs in a mount namespace of its own with every loader file covered by /dev/null."""
-    prefix: list[str] = []
-    files = _loader_files()
-    if files:
-        unshare = shutil.which("unshare")
-        if unshare is None:
-            pytest.skip("no unshare (util-linux) to hide this machine's Vulkan loader")
-        hide = " && ".join(f"mount --bind /dev/null {shlex.quote(f)}" for f in files)
-        probe = subprocess.run([unshare, "--mount", "--map-root-user", "sh", "-c", hide],
-                               capture_output=True, text=True)
-        if probe.returncode != 0:
-            pytest.skip(f"cannot hide this machine's Vulkan loader in a mount namespace "
-                        f"(user namespaces off?): {probe.stderr.strip()[:200]}")
-        prefix = [unshare, "--mount", "--map-root-user", "sh", "-c", hide + ' && exec "$@"',
-                  "hide-vulkan"]
-    seen = _init_gpu(tmp_path, prefix)
+    """The bare machine: no ``libvulkan.so.1`` anywhere, nor ``libcuda.so.1``. Where this
+    machine has either, the child runs in a mount namespace of its own with every file of them
+    covered by /dev/null."""
+    seen = _init_gpu(tmp_path, hiding_prefix())
     assert seen[0] == "False [] 0", seen
 
 

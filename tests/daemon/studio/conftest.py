@@ -12,7 +12,7 @@ import sys
 import time
 import urllib.error
 import urllib.request
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -64,14 +64,16 @@ class StudioProcess:
             return exc.code, json.loads(exc.read())
 
 
-def start_studio(tmp: Path, *args: str, env: dict[str, str] | None = None) -> StudioProcess:
-    """Start ``grassd studio --port 0 ARGS`` (``env`` added to the environment) and wait until
-    it serves and has warmed up."""
+def start_studio(tmp: Path, *args: str, env: dict[str, str] | None = None,
+                 argv_prefix: Sequence[str] = ()) -> StudioProcess:
+    """Start ``grassd studio --port 0 ARGS`` (``env`` added to the environment; ``argv_prefix``
+    before its Python, e.g. :func:`no_gpu.hiding_prefix`, which ends in an ``exec``) and wait
+    until it serves and has warmed up."""
     log = tmp / "studio.log"
     env = dict(os.environ, PYTHONUNBUFFERED="1", **(env or {}))
-    proc = subprocess.Popen([sys.executable, "-m", "grassd.daemon.cli", "studio", "--port", "0",
-                             *args], stdout=subprocess.PIPE, stderr=log.open("wb"), text=True,
-                            env=env)
+    proc = subprocess.Popen([*argv_prefix, sys.executable, "-m", "grassd.daemon.cli", "studio",
+                             "--port", "0", *args], stdout=subprocess.PIPE,
+                            stderr=log.open("wb"), text=True, env=env)
     line = proc.stdout.readline()
     if not line.startswith("grassd studio: http"):
         proc.kill()
