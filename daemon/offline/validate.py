@@ -34,7 +34,8 @@ sets the exposure of every photo.
 Steps (:func:`validate_capture`): every RAW is developed linearly to 16-bit ProPhoto RGB with one
 fixed white balance, measured from the checker's grey patch on the undeveloped Bayer data; the
 checker's grey sets the exposure (Y = 0.18) for all photos; the mean colour inside each photo's
-quad gives the real characteristic (CIELAB, OGCD). The same scene is simulated, the 3x3 matrix M
+quad gives the real characteristic (CIELAB, OGCD). The same scene is simulated (averaged over
+``layouts`` random tuft layouts, as ``grassd fit`` averages them), the 3x3 matrix M
 is fitted from the virtual to the real checker patches (one M for every viewpoint, as in the
 paper), and per viewpoint we report the discrete Frechet distance, the maximum OGCD error and
 where it occurs, both OGCD ranges, and the paper's Figure 11 experiment: the R^2 of OGCD vs
@@ -697,22 +698,36 @@ def measure_and_correct(m: CaptureManifest, chart: ReferenceChart,
 
 def validate_capture(m: CaptureManifest, *, renderer: Any = None, settings: Any = None,
                      target_stderr: float | None = None, lighting: Any = None,
-                     arch: str = "cpu",
+                     arch: str = "cpu", layouts: int = 1,
                      progress: Callable[[str], None] | None = None) -> ValidationResult:
     """Measure the real characteristic of a capture, simulate the same scene, compare.
 
     ``renderer``: a :class:`grassd.sim.renderer.Renderer` (if None, one is created on backend
     ``arch`` after the photos were measured, so bad captures fail fast);
-    ``settings``: :class:`grassd.sim.scene.RenderSettings`; ``lighting``: a prebuilt Lighting of
-    ``m.light`` (built here if None).
+    ``settings``: :class:`grassd.sim.scene.RenderSettings`, its ``replicates`` per layout;
+    ``layouts``: random tuft layouts the simulation averages, the pixel's ``layout_seed`` and
+    the next ones, each with its own paths, as ``grassd fit`` averages and judges them
+    (:func:`grassd.daemon.core.calibration.simulation.simulate_curve`; 1: the pixel's layout
+    alone); ``lighting``: a prebuilt Lighting of ``m.light`` (built here if None). Raises
+    :class:`ValidateError` where ``replicates x layouts`` exceeds what one render traces.
     """
     from grassd.daemon.core.calibration.simulation import simulate_curve
-    from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint
+    from grassd.sim.scene import (
+        MAX_REPLICATES,
+        DisplaySpec,
+        PixelSpec,
+        RenderSettings,
+        Viewpoint,
+    )
 
+    settings = settings or RenderSettings(samples=4096, replicates=8)
+    if layouts < 1 or settings.replicates * layouts > MAX_REPLICATES:
+        raise ValidateError(f"{settings.replicates} replicates x {layouts} layouts: give at "
+                            f"least 1 layout and at most {MAX_REPLICATES} replicates in all")
     t0 = time.perf_counter()
     real, ccm, s = measure_and_correct(m, get_chart(m.chart), progress)
     t1 = time.perf_counter()
-    settings = settings or RenderSettings(samples=4096, replicates=8)
+    traced = replace(settings, replicates=settings.replicates * layouts)
     if progress:
         progress("building the lighting")
     lighting = lighting if lighting is not None else m.light.lighting()
@@ -730,8 +745,8 @@ def validate_capture(m: CaptureManifest, *, renderer: Any = None, settings: Any 
                 progress(f"simulating viewpoint {series.label}")
             curves[key] = simulate_curve(renderer, display, lighting,
                                          Viewpoint(*series.viewpoint), series.lengths_mm,
-                                         settings, ccm=ccm.matrix * s,
-                                         target_stderr=target_stderr)
+                                         traced, ccm=ccm.matrix * s,
+                                         target_stderr=target_stderr, layouts=layouts)
         curve = curves[key]
         out.append(compare_viewpoint(series.viewpoint, series.lengths_mm, real.ogcd[i],
                                      curve.ogcd, sim_stderr=curve.ogcd_stderr,
@@ -744,6 +759,7 @@ def validate_capture(m: CaptureManifest, *, renderer: Any = None, settings: Any 
         manifest=m, ccm=ccm, real=real, viewpoints=tuple(out),
         repeatability=repeatability(m, real),
         settings={"samples": settings.samples, "replicates": settings.replicates,
+                  "layouts": layouts,
                   "max_bounces": settings.max_bounces, "seed": settings.seed,
                   "light_samples": settings.light_samples, "target_stderr": target_stderr},
         seconds={"measure": t1 - t0, "simulate": t2 - t1, "total": t2 - t0})

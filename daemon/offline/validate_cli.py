@@ -10,6 +10,7 @@ from pathlib import Path
 import click
 
 from grassd.daemon.core.store.atomic import atomic_write_text
+from grassd.daemon.offline.fit_config import FitSettings
 from grassd.daemon.offline.options import REPLICATES
 
 
@@ -21,8 +22,13 @@ def _progress(msg: str) -> None:
 @click.argument("capture", type=click.Path(path_type=Path))
 @click.option("--samples", type=int, default=4096, show_default=True,
               help="Camera paths per length per replicate of the simulation.")
-@click.option("--replicates", type=REPLICATES, default=8, show_default=True,
-              help="Independent replicates (their spread gives the standard error).")
+@click.option("--replicates", type=REPLICATES, default=2, show_default=True,
+              help="Independent replicates per layout (their spread gives the standard "
+                   "error).")
+@click.option("--layouts", type=click.IntRange(1, 32), default=FitSettings.layouts,
+              show_default=True,
+              help="Random tuft layouts the simulation is averaged over, as grassd fit "
+                   "averages them (1: the pixel's layout_seed alone).")
 @click.option("--target-stderr", type=float, default=None,
               help="Add replicates until every simulated OGCD standard error is at most this.")
 @click.option("--seed", type=int, default=0, show_default=True)
@@ -35,8 +41,8 @@ def _progress(msg: str) -> None:
               help="Simulate this pixel: a grassd fit JSON report, or a TOML file with a "
                    "[display.pixel] table (its fields over the capture's [pixel]).")
 @click.option("-q", "--quiet", is_flag=True, help="No progress messages.")
-def validate(capture, samples, replicates, target_stderr, seed, arch, json_out, html_out,
-             pixel_file, quiet):
+def validate(capture, samples, replicates, layouts, target_stderr, seed, arch, json_out,
+             html_out, pixel_file, quiet):
     """Compare real captures (RAW photos + capture.toml in CAPTURE) with the simulation.
 
     Prints, per viewpoint, the discrete Frechet distance, the maximum OGCD error and where it
@@ -44,8 +50,12 @@ def validate(capture, samples, replicates, target_stderr, seed, arch, json_out, 
     the real and with the simulated characteristic (paper Figure 11).
     """
     from grassd.daemon.offline.validate import load_manifest, validate_capture
-    from grassd.sim.scene import RenderSettings
+    from grassd.sim.scene import MAX_REPLICATES, RenderSettings
 
+    if replicates * layouts > MAX_REPLICATES:
+        raise click.BadParameter(f"{replicates} per layout x {layouts} layouts is more than the "
+                                 f"{MAX_REPLICATES} replicates one render traces",
+                                 param_hint="--replicates")
     manifest = load_manifest(capture)
     if pixel_file is not None:
         from dataclasses import replace
@@ -54,7 +64,7 @@ def validate(capture, samples, replicates, target_stderr, seed, arch, json_out, 
 
         manifest = replace(manifest, pixel={**manifest.pixel, **load_pixel_fields(pixel_file)})
     settings = RenderSettings(samples=samples, replicates=replicates, seed=seed)
-    result = validate_capture(manifest, settings=settings, arch=arch,
+    result = validate_capture(manifest, settings=settings, arch=arch, layouts=layouts,
                               target_stderr=target_stderr,
                               progress=None if quiet else _progress)
     from grassd.daemon.offline.experiment import format_table
