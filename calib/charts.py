@@ -144,9 +144,19 @@ CHARTS = {
 }
 
 
+def chart_key(name: str | Path) -> str:
+    """``name`` as :data:`CHARTS` keys it (lower case, ``-`` for spaces and underscores).
+
+    >>> chart_key("SpyderCheckr 24")
+    'spydercheckr-24'
+    """
+    return str(name).lower().replace(" ", "-").replace("_", "-")
+
+
 def get_chart(name_or_path: str | Path) -> ReferenceChart:
-    """A built-in chart by name (see :data:`CHARTS`) or a chart CSV file by path."""
-    key = str(name_or_path).lower().replace(" ", "-").replace("_", "-")
+    """A built-in chart by name (see :data:`CHARTS`, :func:`chart_key`) or a chart CSV file by
+    path."""
+    key = chart_key(name_or_path)
     if key in CHARTS:
         return CHARTS[key]()
     p = Path(name_or_path)

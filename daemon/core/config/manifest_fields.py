@@ -66,6 +66,21 @@ def file_name(plain_names: bool) -> Callable[[str], str | None]:
     return check
 
 
+def chart_name(plain_names: bool) -> Callable[[str], str | None]:
+    """Check: the reference chart; a bundle's (``plain_names``) one of the built-in charts
+    (:data:`grassd.calib.charts.CHARTS`: a bundle never makes the daemon read a file it does
+    not hold), else a built-in name or a CSV file's path (resolved by the reader)."""
+    def check(v: str) -> str | None:
+        from grassd.calib.charts import CHARTS, chart_key
+
+        if plain_names and chart_key(v) not in CHARTS:
+            return (f"must be a built-in chart ({', '.join(CHARTS)}), got {v!r}; a chart "
+                    "CSV is for a capture directory (grassd validate)")
+        return schema.non_empty(v)
+
+    return check
+
+
 def hdri_name(plain_names: bool) -> Callable[[str], str | None]:
     """Check: the panorama's name (see :func:`file_name`), ending in .exr or .hdr."""
     name_check = file_name(plain_names)
@@ -108,7 +123,7 @@ def light_fields(*, plain_names: bool, ambient_required: bool) -> dict[str, sche
         "sun_elevation_deg": F(float, None, schema.between(-90.0, 90.0, " degrees")),
         "checker_raw": F(str, None, file_name(plain_names)),
         "checker_corners": F(list, None, quad),
-        "checker_chart": F(str, DEFAULT_CHART, schema.non_empty),
+        "checker_chart": F(str, DEFAULT_CHART, chart_name(plain_names)),
     }
 
 

@@ -31,3 +31,15 @@ def test_a_manifest_is_validated_and_every_bad_key_named():
     for data, words in bad:
         with pytest.raises(ManifestError, match=words.replace(".", r"\.")):
             parse_manifest(data, base)
+
+
+@pytest.mark.parametrize("chart", ["/etc/passwd", "chart.csv", "../charts/mine.csv", "macbeth"])
+def test_a_bundle_names_only_a_built_in_chart(chart):
+    """A bundle's ``checker_chart`` never makes the daemon read a file: a path or an unknown
+    name is refused by the parser, naming the built-in charts."""
+    raw = {"timestamp": "2026-01-01T00:00:00Z", "hdri": "a.exr", "checker_raw": "c.dng",
+           "checker_corners": [[0, 0], [10, 0], [10, 10], [0, 10]]}
+    with pytest.raises(ManifestError, match="must be a built-in chart.*spydercheckr-24"):
+        parse_manifest({**raw, "checker_chart": chart}, Path("/b"))
+    m = parse_manifest({**raw, "checker_chart": "SpyderCheckr 24"}, Path("/b"))
+    assert m.checker is not None and m.checker.chart == "SpyderCheckr 24"
