@@ -12,14 +12,28 @@ $(PY):
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 
+# Taichi's wheel links libX11 for its window, which grassd never opens: where the system has
+# no libX11.so.6, sim/no_display.c (a libX11 that answers "no display") goes into venv $(1)
+# and grassd.sim.backend loads it before Taichi (docs/operating/bare-machine.md).
+define no_display_lib
+	@if ! ldconfig -p 2>/dev/null | grep -q 'libX11\.so\.6 '; then \
+	    if command -v $(CC) >/dev/null; then install -d '$(1)/lib/grassd' && \
+	        $(CC) -std=c11 -shared -fPIC -O2 -Wall -Wextra -Werror -Wl,-soname,libX11.so.6 \
+	            -o '$(1)/lib/grassd/libX11.so.6' sim/no_display.c && \
+	        echo "no libX11.so.6 on this machine: Taichi gets $(1)/lib/grassd/libX11.so.6 (no display)"; \
+	    else echo "no libX11.so.6 and no C compiler: the renderer cannot load (apt-get install libx11-6)"; fi; fi
+endef
+
 # The project and its run-time dependencies.
-$(VENV)/.grassd-installed: pyproject.toml | $(PY)
+$(VENV)/.grassd-installed: pyproject.toml sim/no_display.c | $(PY)
 	$(PY) -m pip install --quiet -e .
+	$(call no_display_lib,$(VENV))
 	touch $@
 
 # ... plus the test extra (pytest, hypothesis, mitsuba as the reference renderer, ...).
-$(VENV)/.grassd-test-installed: pyproject.toml | $(PY)
+$(VENV)/.grassd-test-installed: pyproject.toml sim/no_display.c | $(PY)
 	$(PY) -m pip install --quiet -e '.[test]'
+	$(call no_display_lib,$(VENV))
 	touch $(VENV)/.grassd-installed $@
 
 setup: $(VENV)/.grassd-installed
@@ -115,6 +129,7 @@ install-venv:
 	fi; \
 	echo "pip install $$wheel$(if $(EXTRAS),[$(EXTRAS)]) into $(OPTDIR)"; \
 	'$(STAGE)/bin/pip' install --quiet --no-compile "$$wheel$(if $(EXTRAS),[$(EXTRAS)])"
+	$(call no_display_lib,$(STAGE))
 	@# the scripts and pyvenv.cfg name the venv's final path; the .pyc files too (tracebacks)
 	grep -lI -F -- '$(STAGE)' '$(STAGE)'/bin/* '$(STAGE)/pyvenv.cfg' \
 	    | xargs -r sed -i 's|$(STAGE)|$(OPTDIR)|g'

@@ -29,10 +29,31 @@ from grassd.sim.gpu_devices import (
     vulkan_devices,
 )
 
-try:
-    import taichi as ti
-except ImportError as _exc:  # e.g. Linux aarch64: Taichi publishes no wheels for it
-    raise renderer_missing(str(_exc)) from None
+#: Where the Makefile puts the library that answers Taichi's window calls on a machine
+#: without libX11 (``sim/no_display.c``): in the venv, beside the interpreter's own lib/.
+NO_DISPLAY_LIB = Path(sys.prefix) / "lib" / "grassd" / "libX11.so.6"
+
+
+def _import_taichi():
+    """Taichi, imported. The wheel links libX11.so.6 for a window grassd never opens: where
+    the venv holds :data:`NO_DISPLAY_LIB` (the Makefile builds it on a machine without
+    libX11) and the system's libX11 cannot be loaded, that library is loaded first, so the
+    loader finds a libX11 already there. RendererMissing when Taichi cannot be imported."""
+    if NO_DISPLAY_LIB.is_file():
+        import ctypes
+
+        try:
+            ctypes.CDLL("libX11.so.6")
+        except OSError:
+            ctypes.CDLL(str(NO_DISPLAY_LIB), mode=os.RTLD_NOW | os.RTLD_GLOBAL)
+    try:
+        import taichi
+    except ImportError as exc:  # e.g. Linux aarch64: Taichi publishes no wheels for it
+        raise renderer_missing(str(exc)) from None
+    return taichi
+
+
+ti = _import_taichi()
 
 __all__ = ["ti", "init", "is_initialised", "default_cache_dir"]
 

@@ -38,6 +38,11 @@ def renderer_missing(why: str) -> RendererMissing:
     import platform
     import sys
 
+    if "libX11" in why:  # the wheel links it; the Makefile's venv has a stand-in for it
+        return RendererMissing(
+            f"the renderer needs Taichi, whose module needs libX11 ({why}): apt-get install "
+            "libx11-6, or set the venv up with the Makefile (make setup), which gives it a "
+            "stand-in where the system has none")
     return RendererMissing(
         f"the renderer needs Taichi, which is not installed here ({sys.platform} "
         f"{platform.machine()}, Python {platform.python_version()}: {why}); Taichi has wheels "

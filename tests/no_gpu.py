@@ -16,7 +16,8 @@ from collections.abc import Sequence
 import pytest
 
 #: What each library is to a reader of a skip line, by its file name's stem.
-LIBRARIES: dict[str, str] = {"libvulkan.so": "Vulkan loader", "libcuda.so": "CUDA driver"}
+LIBRARIES: dict[str, str] = {"libvulkan.so": "Vulkan loader", "libcuda.so": "CUDA driver",
+                             "libX11.so": "X11 client library"}
 _LIBRARY_DIRS = ("/lib", "/lib64", "/usr/lib", "/usr/lib64", "/usr/local/lib")
 
 
@@ -34,7 +35,11 @@ def library_files(stem: str) -> list[str]:
     return sorted({os.path.realpath(f) for f in found if os.path.exists(f)})
 
 
-def hiding_prefix(stems: Sequence[str] = tuple(LIBRARIES)) -> list[str]:
+#: The GPU stack: what a machine without a GPU lacks.
+GPU_LIBRARIES = ("libvulkan.so", "libcuda.so")
+
+
+def hiding_prefix(stems: Sequence[str] = GPU_LIBRARIES) -> list[str]:
     """The argv to put before a command so that it runs with the libraries ``stems`` (keys of
     :data:`LIBRARIES`) hidden: ``[]`` where this machine has none of them. Skips the test with
     one line where they cannot be hidden (no ``unshare``, or user namespaces turned off)."""
