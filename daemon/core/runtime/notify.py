@@ -8,7 +8,7 @@ after start-up, ``STATUS=...`` free text for ``systemctl status``, ``WATCHDOG=1`
 stands for a leading NUL byte). Without ``$NOTIFY_SOCKET`` (not run by systemd) every call is a
 silent no-op that returns False.
 
-Notifying is never fatal (issue 27): a value is made one line by
+Notifying is never fatal: a value is made one line by
 :func:`~grassd.daemon.core.safe_text.one_line` (a newline in ``STATUS=`` would end the assignment
 and start another: a bundle's name could forge ``READY=1`` or ``MAINPID=``) and cut to
 :data:`MAX_VALUE_CHARS` (systemd ignores a datagram over 4096 bytes); a send that fails for any

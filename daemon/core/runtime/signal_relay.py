@@ -1,4 +1,4 @@
-"""Signals turned into actions outside the signal handler (issue 27).
+"""Signals turned into actions outside the signal handler.
 
 Python runs a signal handler in the main thread between two bytecodes, wherever that thread
 is: also inside :meth:`threading.Event.wait`, holding the lock of the event's condition. A

@@ -33,7 +33,7 @@ from grassd.daemon.core.store.layout import StateLayout
 from grassd.daemon.core.store.outcomes import outcome
 
 if TYPE_CHECKING:  # the inbox (and the light it parses) only where a bundle is put back:
-    # ``grassd status`` reads the quarantine without it (issue #32: start-up)
+    # ``grassd status`` reads the quarantine without it (its start-up stays light)
     from grassd.daemon.core.store.history import History
     from grassd.daemon.core.store.ingest import Inbox
 

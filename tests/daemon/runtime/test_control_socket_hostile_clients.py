@@ -1,4 +1,4 @@
-"""Hostile clients on the control socket (issue 27), each against a real running
+"""Hostile clients on the control socket, each against a real running
 :class:`ControlServer` on a real UNIX socket: slow-loris clients that trickle a byte now and
 then, nested or oversized JSON, handlers that raise anything, clients that never read their
 answer, and peers that may not change the daemon's state (checked with ``SO_PEERCRED``).

@@ -1,6 +1,6 @@
 """Whatever an uploader puts in the inbox, a running `grassd run` rejects the bundle with a
 reason, goes on to process the valid bundle dropped after it, and starts again on the same state
-directory (issue #27). Each attack (rigs/inbox_fuzz.py) was proven to stop, block or exhaust the
+directory. Each attack (rigs/inbox_fuzz.py) was proven to stop, block or exhaust the
 daemon before.
 
 One real daemon process serves the module (simulated controllers on ptys, a Modbus lux sensor on

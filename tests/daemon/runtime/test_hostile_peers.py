@@ -1,4 +1,4 @@
-"""A running `grassd run` whose camera and control-socket clients are hostile (issue #27): the
+"""A running `grassd run` whose camera and control-socket clients are hostile: the
 capture station's camera answers every request with a 300 MiB body, 16 clients hold the control
 socket open with a byte now and then, and one sends JSON nested past the parser's recursion
 limit. The daemon stays up: the capture fails with a typed error that status shows, `status`

@@ -1,4 +1,4 @@
-"""SIGTERM, SIGINT and SIGHUP never hang the daemon (issue 27): the handlers only note the
+"""SIGTERM, SIGINT and SIGHUP never hang the daemon: the handlers only note the
 signal and write a byte to a self-pipe; a relay thread sets the stop and reload events
 (grassd.daemon.core.runtime.signal_relay).
 
@@ -55,7 +55,7 @@ def test_a_signal_while_the_event_lock_is_held_does_not_deadlock():
         "handlers returned while the locks were held", "ok"], r.stderr
 
 
-def test_the_old_handler_deadlocks_there():
+def test_a_handler_that_sets_the_event_itself_deadlocks_under_the_lock():
     """The hazard the relay removes is real: a handler that sets the event itself never
     returns (killed after 5 s)."""
     with pytest.raises(subprocess.TimeoutExpired):

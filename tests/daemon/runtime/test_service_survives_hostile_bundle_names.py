@@ -1,4 +1,4 @@
-"""A bundle's name is chosen by whoever writes the inbox (issue 27): a real `grassd run`
+"""A bundle's name is chosen by whoever writes the inbox: a real `grassd run`
 under a stand-in for systemd ($NOTIFY_SOCKET a datagram socket this test reads, standard error
 the journal stream named by $JOURNAL_STREAM) gets a valid bundle whose name holds a newline,
 a forged priority prefix, sd_notify assignments, an ANSI escape and markup. It keeps running and
