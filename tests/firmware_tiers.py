@@ -4,10 +4,12 @@ and the C firmware (posix process, QEMU image), skipping a tier whose tools are 
 from __future__ import annotations
 
 import shutil
+import subprocess
 
 import pytest
 
 from grassd.firmware_proto.client import RetryPolicy
+from grassd.rigs.native_build import FIRMWARE_DIR
 
 #: Why each firmware tier cannot run here, or None when it can.
 _TOOLS = {
@@ -27,6 +29,22 @@ def missing_reason(firmware: str) -> str | None:
     if all(shutil.which(t) for t in _TOOLS[firmware]):
         return None
     return _HOW[firmware]
+
+
+#: What ``make -C firmware teensy41`` needs beyond make: the sketch is C++
+TEENSY_PACKAGES = "gcc-arm-none-eabi libnewlib-arm-none-eabi libstdc++-arm-none-eabi-newlib"
+
+
+def teensy_missing() -> str | None:
+    """One line saying how to enable these tests, or None when `make teensy` can run here."""
+    if shutil.which("make") is None:
+        return f"Teensy 4.1 compile skipped: no make (apt-get install make {TEENSY_PACKAGES})"
+    found = subprocess.run(["make", "-s", "--no-print-directory", "-C", str(FIRMWARE_DIR),
+                            "have-teensy"], capture_output=True, text=True).stdout.strip()
+    if not found:
+        return ("Teensy 4.1 compile skipped: no arm-none-eabi-g++ with libstdc++ for the "
+                f"Cortex-M7 (apt-get install {TEENSY_PACKAGES})")
+    return None
 
 
 def firmware_params(*names: str) -> list:

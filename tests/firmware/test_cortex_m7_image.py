@@ -10,7 +10,7 @@ import sys
 
 import numpy as np
 import pytest
-from firmware_tiers import missing_reason
+from firmware_tiers import missing_reason, teensy_missing
 
 from grassd.firmware_proto.client import ControllerClient, RetryPolicy
 from grassd.firmware_proto.tables import table_crc
@@ -59,6 +59,7 @@ def test_cortex_m7_core_fits_its_flash_and_ram_budget():
     assert flash <= 32 * 1024 and static + ctl <= 24 * 1024, text
 
 
+@pytest.mark.skipif(teensy_missing() is not None, reason=str(teensy_missing()))
 def test_teensy_sketch_carries_the_tested_core(tmp_path):
     """`make -C firmware teensy41` assembles a sketch whose core is byte for byte firmware/core
     and compiles for the Teensy 4.1's Cortex-M7 with the sketch's own settings (8 pixels)."""

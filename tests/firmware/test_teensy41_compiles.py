@@ -7,34 +7,21 @@ from __future__ import annotations
 
 import fcntl
 import re
-import shutil
 import subprocess
 from pathlib import Path
 
 import pytest
+from firmware_tiers import teensy_missing
 
 from grassd.rigs.native_build import BUILD_DIR, FIRMWARE_DIR
 
-PACKAGES = "gcc-arm-none-eabi libnewlib-arm-none-eabi libstdc++-arm-none-eabi-newlib"
 #: what would link a heap: newlib's allocator and sbrk, operator new and delete (mangled)
 HEAP = re.compile(r"^_?_?(malloc|calloc|realloc|free|sbrk)(_r)?$|^_Zn[wa]j|^_Zd[la]Pv")
 #: a line of arm-none-eabi-size: text data bss dec hex filename
 SIZE_LINE = r"^\s*(\d+)\s+(\d+)\s+(\d+)\s+\d+\s+[0-9a-f]+\s+\S*{name}$"
 
 
-def _missing() -> str | None:
-    """One line saying how to enable these tests, or None when `make teensy` can run here."""
-    if shutil.which("make") is None:
-        return f"Teensy 4.1 compile skipped: no make (apt-get install make {PACKAGES})"
-    found = subprocess.run(["make", "-s", "--no-print-directory", "-C", str(FIRMWARE_DIR),
-                            "have-teensy"], capture_output=True, text=True).stdout.strip()
-    if not found:
-        return ("Teensy 4.1 compile skipped: no arm-none-eabi-g++ with libstdc++ for the "
-                f"Cortex-M7 (apt-get install {PACKAGES})")
-    return None
-
-
-pytestmark = pytest.mark.skipif(_missing() is not None, reason=str(_missing()))
+pytestmark = pytest.mark.skipif(teensy_missing() is not None, reason=str(teensy_missing()))
 
 
 def _make_teensy(*args: str) -> subprocess.CompletedProcess:
