@@ -414,7 +414,9 @@ class FrameOutput:
         acks = [s.last_ack for s in staged if s.last_ack is not None]
         with self._cond:
             self._misses += late + sum(s.missed for s in staged)
-            if not reached:
+            if not reached:  # no controller took it: tried again at the next slot, unless a
+                if offered is not None and self._pending is None:  # newer frame replaced it
+                    self._pending = (levels, offered)
                 return
             if offered is None:
                 self._resent += 1

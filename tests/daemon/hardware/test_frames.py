@@ -410,6 +410,30 @@ def test_a_push_stopped_while_staging_commits_nothing(tmp_path):
         assert all(r.ok for r in fleet.push(new, 2))  # a later push still succeeds
 
 
+@pytest.mark.parametrize("firmware", firmware_params("posix"))
+def test_a_frame_no_controller_took_is_sent_again(tmp_path, firmware):
+    """A frame offered while every line is unplugged reaches no controller: it is tried again
+    at the following slots until it is shown (not left uncounted, shown only by the refresh),
+    and every target is then the table of that frame."""
+    with ExitStack() as stack:
+        buses = start_lines(firmware, tmp_path, stack)
+        ctls = line_configs([b.path for b in buses])
+        tables = tables_for(ctls, 3)
+        fleet = stack.enter_context(Fleet(ctls))
+        assert all(r.ok for r in fleet.push(tables, 1))
+        out = stack.enter_context(FrameOutput(ctls, N, fps=30, fleet=fleet))
+        for bus in buses:
+            bus.unplug(1.0)
+        levels = np.random.default_rng(7).integers(0, 256, N).astype(np.uint8)
+        out.offer(levels)
+        wait_shown(out, 1, timeout_s=15.0)
+        settle(out)
+        s = out.stats()
+        assert (s.frames_offered, s.frames_shown, s.frames_dropped) == (1, 1, 0), s
+        for c in ctls:
+            np.testing.assert_array_equal(targets(fleet, c), expected(tables, c, levels))
+
+
 @pytest.mark.parametrize("firmware", FIRMWARES)
 def test_a_controller_reboots_during_a_stream(tmp_path, firmware):
     """One line's controllers power-cycle (the posix process's port unplugged for 0.5 s, the
