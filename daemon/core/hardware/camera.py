@@ -343,8 +343,9 @@ class OscClient:
             return self._opener.open(req, timeout=deadline.clamp(timeout or self.timeout_s))
         except urllib.error.HTTPError as exc:
             body = b""
-            try:
-                body = exc.read(_OSC_ERROR_BYTES)
+            try:  # bytes; Debian 12's Python 3.11.2 gives str for its own "digest auth failed"
+                raw = exc.read(_OSC_ERROR_BYTES)
+                body = raw if isinstance(raw, bytes) else str(raw).encode("utf-8", "replace")
             except (OSError, http.client.HTTPException, ValueError):
                 pass
             finally:
