@@ -270,12 +270,9 @@ def read_header(path: str | os.PathLike, max_texels: int = MAX_TEXELS) -> HdriHe
         HdriError: any other problem, named.
     """
     p = Path(path)
-    if _magic(p)[:4] == _EXR_MAGIC:
-        width, height, _ = _exr_header(str(p), max_texels)
-        return HdriHeader(width, height, "OpenEXR")
+    _magic(p)  # a regular file, readable, of a known kind: named errors before it is opened
     with p.open("rb") as fh:
-        head = _hdr_header(fh, str(p), max_texels)
-    return HdriHeader(head.width, head.height, "Radiance")
+        return read_open_header(fh, str(p), max_texels)
 
 
 def read_open_header(fh: BinaryIO, source: str, max_texels: int = MAX_TEXELS) -> HdriHeader:

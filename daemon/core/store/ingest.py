@@ -134,21 +134,6 @@ def _member(base: Path, key: str, v: Any) -> Path:
     return base / v
 
 
-def check_hdri_header(path: Path, max_bytes: int = DEFAULT_LIMITS.file_bytes) -> None:
-    """Reject an HDRI that is not a regular file of at most ``max_bytes`` bytes, or whose
-    header fails :func:`check_open_hdri_header`: refused here, before the calibration decodes
-    a pixel."""
-    try:
-        fd = open_regular(path, max_bytes)
-    except OSError as exc:
-        raise IngestError(f"cannot read HDRI {path.name}: {exc.strerror}") from None
-    try:
-        with os.fdopen(fd, "rb", closefd=False) as fh:
-            check_open_hdri_header(fh, path.name)
-    finally:
-        os.close(fd)
-
-
 def check_open_hdri_header(fh: BinaryIO, name: str) -> None:
     """Reject the HDRI open as ``fh`` (file name ``name``) whose first bytes are not OpenEXR or
     Radiance RGBE as its suffix says, or whose header the renderer cannot take
@@ -727,9 +712,10 @@ class Inbox:
         out = _Claimed()
         hdri = None if c.parsed is None else c.parsed.light.hdri
         known: dict[Path, HashedFile] = {}
-        if c.manifest is not None and c.scanned is not None and self._scan_holds(c):
-            known[c.manifest] = HashedFile(c.scanned.sha256 or "",
-                                           file_identity(c.manifest.lstat()))
+        if self._scan_holds(c):
+            assert c.manifest is not None and c.scanned is not None
+            assert c.scanned.sha256 is not None
+            known[c.manifest] = HashedFile(c.scanned.sha256, file_identity(c.manifest.lstat()))
             out.manifest_data = c.scanned.data
         for m in c.members:
             if m.is_dir() and not m.is_symlink():
