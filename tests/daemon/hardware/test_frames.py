@@ -124,17 +124,25 @@ def start_lines(firmware: str, tmp: Path, stack: ExitStack, **kw) -> list:
     return buses
 
 
+def pushed_lines(firmware: str, tmp: Path, stack: ExitStack, seed: int, table_id: int
+                 ) -> tuple[list, list, dict, Fleet]:
+    """:func:`start_lines` with a fleet on them that pushed :func:`tables_for` ``seed`` as
+    ``table_id`` to every controller: (buses, controllers, tables, fleet)."""
+    buses = start_lines(firmware, tmp, stack)
+    ctls = line_configs([b.path for b in buses])
+    tables = tables_for(ctls, seed)
+    fleet = stack.enter_context(Fleet(ctls))
+    assert all(r.ok for r in fleet.push(tables, table_id))
+    return buses, ctls, tables, fleet
+
+
 FIRMWARES = [pytest.param("model", id="model"), *firmware_params("posix")]
 
 
 @pytest.mark.parametrize("firmware", [*FIRMWARES, *firmware_params("qemu")])
 def test_every_target_is_the_table_of_the_frame_sent(tmp_path, firmware):
     with ExitStack() as stack:
-        buses = start_lines(firmware, tmp_path, stack)
-        ctls = line_configs([b.path for b in buses])
-        tables = tables_for(ctls, 1)
-        fleet = stack.enter_context(Fleet(ctls))
-        assert all(r.ok for r in fleet.push(tables, 5))
+        buses, ctls, tables, fleet = pushed_lines(firmware, tmp_path, stack, 1, 5)
         out = stack.enter_context(FrameOutput(ctls, N, fps=30, fleet=fleet))
         rng = np.random.default_rng(2)
         for k in range(1, 4):
@@ -416,11 +424,7 @@ def test_a_frame_no_controller_took_is_sent_again(tmp_path, firmware):
     at the following slots until it is shown (not left uncounted, shown only by the refresh),
     and every target is then the table of that frame."""
     with ExitStack() as stack:
-        buses = start_lines(firmware, tmp_path, stack)
-        ctls = line_configs([b.path for b in buses])
-        tables = tables_for(ctls, 3)
-        fleet = stack.enter_context(Fleet(ctls))
-        assert all(r.ok for r in fleet.push(tables, 1))
+        buses, ctls, tables, fleet = pushed_lines(firmware, tmp_path, stack, 3, 1)
         out = stack.enter_context(FrameOutput(ctls, N, fps=30, fleet=fleet))
         for bus in buses:
             bus.unplug(1.0)
@@ -441,11 +445,7 @@ def test_a_controller_reboots_during_a_stream(tmp_path, firmware):
     (on this machine, under its load now), the peak RSS of this process grows at most 16 MiB
     through the reboot, and the rebooted controllers show the current frame again."""
     with ExitStack() as stack:
-        buses = start_lines(firmware, tmp_path, stack)
-        ctls = line_configs([b.path for b in buses])
-        tables = tables_for(ctls, 5)
-        fleet = stack.enter_context(Fleet(ctls))
-        assert all(r.ok for r in fleet.push(tables, 1))
+        buses, ctls, tables, fleet = pushed_lines(firmware, tmp_path, stack, 5, 1)
         out = stack.enter_context(FrameOutput(ctls, N, fps=30, fleet=fleet))
         with Stream(out, 30) as stream:
             time.sleep(0.5)
