@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 import numpy as np
@@ -71,51 +71,72 @@ class PatternSession:
 
     def show(self, lengths_mm: NDArray | float) -> None:
         """Drive every pixel to ``lengths_mm`` ((N,) or one value, mm) and wait until the
-        motors are there (:class:`PatternError` after ``settle_s``); the pattern is then sent
-        once more, so that the controllers' watchdog counts from the photo, not from the
-        start of the motors' travel."""
+        motors are there (:class:`PatternError` after ``settle_s``); a controller that
+        rebooted on the way is sent the pattern again. The pattern is then sent once more, so
+        that the controllers' watchdog counts from the photo, not from the start of the
+        motors' travel."""
         um = np.rint(np.broadcast_to(np.asarray(lengths_mm, dtype=np.float64) * 1000.0,
                                      (self.n_pixels,))).astype(np.int64)
-        self._send(um)
         self.shown = um
-        self.wait_shown()
-        self._send(um)  # the motors are there: the same targets, the watchdog re-armed
-
-    def _send(self, um: NDArray[np.int64]) -> None:
-        for c, pix in zip(self.controllers, self.pixels, strict=True):
-            self.fleet.client(c).show_pattern(c.address, um[pix].tolist(),
-                                              timeout_s=self.timeout_s)
+        self._send(um, range(len(self.controllers)))
+        self._settle(before_photo=True)
+        self._send(um, range(len(self.controllers)))  # the same targets, the watchdog re-armed
 
     def wait_shown(self) -> None:
-        """Wait until every pixel's target is the pattern and its position within tolerance;
-        raises :class:`PatternError` when a controller shows something else (it rebooted) or
-        the motors are not there after ``settle_s``."""
+        """After a photo: check that every pixel is still within tolerance of the pattern.
+        A controller that rebooted while its motors held the pattern's lengths still shows
+        them: the photo stands and it is sent the pattern again. Raises
+        :class:`PatternError` when a controller's pixels moved away (it rebooted and was sent
+        content, or its watchdog ran out): the photo does not show the pattern."""
+        self._settle(before_photo=False)
+
+    def _send(self, um: NDArray[np.int64], which: Iterable[int]) -> None:
+        for k in which:
+            c = self.controllers[k]
+            self.fleet.client(c).show_pattern(c.address, um[self.pixels[k]].tolist(),
+                                              timeout_s=self.timeout_s)
+
+    def _settle(self, *, before_photo: bool) -> None:
+        """Wait until every pixel's target is the pattern and its position within tolerance
+        (module docstring); ``before_photo``: a controller whose pixels left the pattern is
+        sent it again and waited for, rather than refused."""
         if self.shown is None:
             raise PatternError("no pattern was shown")
         deadline = time.monotonic() + self.settle_s
         while True:
-            off, far = self._state()
-            if off:
-                raise PatternError(f"controller(s) {', '.join(off)} left the test pattern "
-                                   "(rebooted or timed out); the pattern is shown again")
-            if not far:
+            held, moved, far = self._state()
+            if held or (moved and before_photo):
+                names = ", ".join(self.controllers[k].name for k in (*held, *moved))
+                log.warning("controller(s) %s left the test pattern (rebooted or timed out); "
+                            "the pattern is shown again", names)
+                self._send(self.shown, (*held, *moved))
+            elif moved:
+                raise PatternError(
+                    f"controller(s) {', '.join(self.controllers[k].name for k in moved)} "
+                    "left the test pattern during the photo (rebooted or timed out) and their "
+                    "pixels moved; the photo is refused")
+            elif not far:
                 return
             if time.monotonic() > deadline or self.stop():
-                raise PatternError(f"pixels of {', '.join(far)} did not reach the pattern in "
+                stuck = ", ".join(self.controllers[k].name for k in (*far, *moved, *held))
+                raise PatternError(f"pixels of {stuck} did not reach the pattern in "
                                    f"{self.settle_s:g} s; check the motors")
             time.sleep(0.05)
 
-    def _state(self) -> tuple[list[str], list[str]]:
-        """(controllers whose targets are not the pattern, controllers not there yet)."""
-        off, far = [], []
-        for c, pix in zip(self.controllers, self.pixels, strict=True):
+    def _state(self) -> tuple[list[int], list[int], list[int]]:
+        """Indices of the controllers whose targets are no longer the pattern while their
+        pixels are within tolerance of it (held), of those whose targets are not the pattern
+        and some pixels are not (moved), and of those on the pattern not there yet (far)."""
+        held, moved, far = [], [], []
+        for k, (c, pix) in enumerate(zip(self.controllers, self.pixels, strict=True)):
             pos = self.fleet.client(c).read_positions(c.address, 0, len(pix))
             want = self.shown[pix]
+            near = bool(np.all(np.abs(pos[:, 0].astype(np.int64) - want) <= self.tolerance_um))
             if np.any(pos[:, 1] != want):
-                off.append(c.name)
-            elif np.any(np.abs(pos[:, 0].astype(np.int64) - want) > self.tolerance_um):
-                far.append(c.name)
-        return off, far
+                (held if near else moved).append(k)
+            elif not near:
+                far.append(k)
+        return held, moved, far
 
     def end(self) -> list[str]:
         """PATTERN_END to every controller (each tried, failures logged): the display shows
