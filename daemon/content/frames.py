@@ -87,7 +87,9 @@ class FrameStats:
 
     ``frames_offered``: frames given to :meth:`FrameOutput.offer`; ``frames_shown``: offered
     frames shown (their SHOW written after at least one controller acknowledged them);
-    ``frames_dropped``: frames replaced by a newer one before they were sent;
+    ``frames_dropped``: frames replaced by a newer one before they were shown (while
+    waiting, or while one that reached no controller waited to be tried again); every
+    offered frame ends shown or dropped, but the newest, which may still wait;
     ``frames_resent``: the newest frame sent again (after :meth:`FrameOutput.release`, or
     every ``refresh_s`` without a new one); ``fps_shown``: offered frames shown per second
     over the last :data:`FPS_WINDOW_S` seconds; ``latency_ms_median`` / ``latency_ms_p99``:
@@ -227,6 +229,7 @@ class FrameOutput:
         self._busy = False
         self._closed = False
         self._frame_no = 0
+        self._failing = False  # the last frame's send raised
         self._last_start = -np.inf
         self._last_sent = time.monotonic()
         self._offered = self._shown = self._dropped = self._resent = self._misses = 0
@@ -365,8 +368,13 @@ class FrameOutput:
             levels, offered = item
             try:
                 self._send(levels, offered)
+                self._failing = False
             except Exception:  # keep sending: a dead sender would freeze the display
-                log.exception("content frame %d could not be sent", self._frame_no)
+                if not self._failing:  # once per run of failures, not at every slot
+                    log.exception("content frame %d could not be sent", self._frame_no)
+                self._failing = True
+                with self._cond:
+                    self._not_shown(levels, offered)
             finally:
                 with self._cond:
                     self._busy = False
@@ -414,9 +422,8 @@ class FrameOutput:
         acks = [s.last_ack for s in staged if s.last_ack is not None]
         with self._cond:
             self._misses += late + sum(s.missed for s in staged)
-            if not reached:  # no controller took it: tried again at the next slot, unless a
-                if offered is not None and self._pending is None:  # newer frame replaced it
-                    self._pending = (levels, offered)
+            if not reached:
+                self._not_shown(levels, offered)
                 return
             if offered is None:
                 self._resent += 1
@@ -424,6 +431,17 @@ class FrameOutput:
             self._shown += 1
             self._shown_at.append(time.monotonic())
             self._latency.append(max(acks) - offered)
+
+    def _not_shown(self, levels: np.ndarray, offered: float | None) -> None:
+        """A frame that reached no controller (``self._cond`` held): it is tried again at the
+        next slot, unless a newer frame was offered meanwhile (then it counts as dropped); a
+        resend (``offered`` None) is left to the next refresh."""
+        if offered is None:
+            return
+        if self._pending is None:
+            self._pending = (levels, offered)
+        else:
+            self._dropped += 1
 
     def _stage(self, line: _Line, no: int, levels: np.ndarray, turn: _Turn) -> None:
         """Holding the line: STAGE_LEVEL (or SET_LEVEL) to each of its controllers; then,

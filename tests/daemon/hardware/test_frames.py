@@ -7,6 +7,7 @@ measurement's hold during a stream; a controller without the latch."""
 
 from __future__ import annotations
 
+import signal
 import threading
 import time
 from contextlib import ExitStack
@@ -436,6 +437,31 @@ def test_a_frame_no_controller_took_is_sent_again(tmp_path, firmware):
         assert (s.frames_offered, s.frames_shown, s.frames_dropped) == (1, 1, 0), s
         for c in ctls:
             np.testing.assert_array_equal(targets(fleet, c), expected(tables, c, levels))
+
+
+@pytest.mark.parametrize("firmware", firmware_params("posix"))
+def test_frames_offered_while_no_controller_answers_end_shown_or_dropped(tmp_path, firmware):
+    """A stream at 100 fps while every controller stops answering for 1 s (the firmware
+    processes stopped): the frames in flight reach no controller while newer ones arrive.
+    Each one offered is counted shown or dropped, none left uncounted, and the newest is
+    shown once the controllers answer again."""
+    with ExitStack() as stack:
+        buses, ctls, tables, fleet = pushed_lines(firmware, tmp_path, stack, 4, 1)
+        out = stack.enter_context(FrameOutput(ctls, N, fps=30, fleet=fleet))
+        with Stream(out, fps=100, seed=4) as stream:
+            time.sleep(0.2)
+            for bus in buses:
+                bus.proc.send_signal(signal.SIGSTOP)
+            time.sleep(1.0)
+            for bus in buses:
+                bus.proc.send_signal(signal.SIGCONT)
+            time.sleep(0.5)
+        settle(out, timeout_s=15.0)
+        s = out.stats()
+        assert s.frames_offered == len(stream.offered) > 100, s
+        assert s.frames_shown + s.frames_dropped == s.frames_offered, s
+        for c in ctls:
+            np.testing.assert_array_equal(targets(fleet, c), expected(tables, c, stream.last))
 
 
 @pytest.mark.parametrize("firmware", FIRMWARES)
