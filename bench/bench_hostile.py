@@ -17,8 +17,14 @@
 5. Each decoder against a file small on disk and huge decoded
    (:mod:`grassd.rigs.hostile_decodes`), in a fresh process: what it did and its peak RSS
    (docs/operating/security.md has the figures).
+6. A running ``grassd studio`` under each attack of :mod:`grassd.rigs.hostile_studio`
+   (unfinished headers, header floods, a page that never reads, uploads and pictures sent
+   four at a time, costly inputs from two pages): what it answered, the seconds a page's
+   characteristic then took, and the peak RSS of its server and simulator processes during
+   the attack (``VmHWM`` after ``clear_refs``).
 
-Run: ``python -m bench hostile`` or ``python -m bench.bench_hostile [--bundles N] [--seed S]``.
+Run: ``python -m bench hostile`` or ``python -m bench.bench_hostile [--bundles N] [--seed S]
+[--only PART ...]``.
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ import statistics
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from bench.daemon_process import BenchDaemon, daemon_config
@@ -212,15 +219,129 @@ def decoders() -> None:
                   f"{out['peak_mib']:.0f} MiB")
 
 
+def _studio_condition(**extra: object) -> dict:
+    return {"ambient_lux": 5000.0, "viewpoint": [170, 2, 0],
+            "lengths_mm": [0, 5, 10, 15, 20], **extra}
+
+
+def studio() -> None:
+    """Part 6: each studio attack against one ``grassd studio``; the peak RSS of its two
+    processes during it and how long a page's characteristic then takes."""
+    import numpy as np
+    from PIL import Image
+
+    from bench import COURTYARD
+    from grassd.daemon.studio.limits import DEFAULT_LIMITS
+    from grassd.rigs.hostile_studio import (
+        answers,
+        at_once,
+        close_of,
+        header_flood,
+        never_reading_page,
+        unfinished_headers,
+    )
+    from grassd.rigs.studio_process import start_studio, stop_studio
+    from grassd.sim.hdri import write_exr, write_hdr
+
+    costly = _studio_condition(
+        lengths_mm=[round(20 * i / 63, 3) for i in range(64)], target_stderr=0.02,
+        splay_deg=45, sun_lux=30000, sun_azimuth_deg=180, sun_elevation_deg=15)
+    with tempfile.TemporaryDirectory(prefix="grassd-bench-studio-") as tmp:
+        d = Path(tmp)
+        write_exr(d / "huge.exr", np.full((4096, 8192, 3), 0.5, np.float32), half=True)
+        exr = (d / "huge.exr").read_bytes()
+        buf = d / "huge.png"
+        Image.new("L", (8192, 8192), 140).save(buf, "PNG")
+        png = buf.read_bytes()
+        skies = []
+        for i in range(20):
+            write_hdr(d / f"sky{i}.hdr", np.full((1024, 2048, 3), 0.5 + i / 20, np.float32))
+            skies.append((d / f"sky{i}.hdr").read_bytes())
+        st = start_studio(d, "--hdri", str(COURTYARD))
+        try:
+            pids = {"server": st.proc.pid, "simulator": st.simulator_pid()}
+
+            def statuses(replies: list[tuple[int, dict]]) -> str:
+                return " ".join(str(code) for code, _ in sorted(replies, key=lambda r: r[0]))
+
+            def unfinished() -> str:
+                conns = unfinished_headers(st.url, 1050)
+                got = answers(conns, time.monotonic() + DEFAULT_LIMITS.header_s + 10)
+                codes = statistics.multimode([a[9:12].decode() or "none" for a in got])
+                return f"1050 answered, mostly {'/'.join(codes)}"
+
+            def flood() -> str:
+                got = answers(header_flood(st.url, 300), time.monotonic() + 10)
+                return f"{sum(a.startswith(b'HTTP/1.0 400') for a in got)} of 300 answered 400"
+
+            def never_reads() -> str:
+                frames = never_reading_page(
+                    st.url, lambda: b"a page's socket was closed" in st.log.read_bytes())
+                close = close_of(frames)
+                return f"closed {close[0]}" if close else "not closed"
+
+            def uploads() -> str:
+                codes = []
+                for i, body in enumerate(skies):
+                    code, reply = st.request(f"api/hdri?name=sky{i}.hdr", body)
+                    if code == 200:
+                        code = st.request("api/characteristic", _studio_condition(
+                            light=reply["light"]["name"]))[0]
+                    codes.append(code)
+                return f"20 lit a characteristic each: {codes.count(200)} answered 200"
+
+            def four(path: str, body: bytes, headers: dict | None = None) -> Callable[[], str]:
+                return lambda: "4 at once: " + statuses(at_once(
+                    lambda: st.request(path, body, headers=headers), 4))
+
+            def two_costly_pages() -> str:
+                replies = at_once(lambda: st.request("api/characteristic", costly), 2)
+                return "2 costly inputs: " + statuses(replies)
+
+            cases = [
+                ("1050 unfinished headers (row 10)", unfinished),
+                ("300 requests of 120 x 8000-byte headers", flood),
+                ("a page that never reads (row 7)", never_reads),
+                ("20 uploaded skies, each used (row 8)", uploads),
+                ("8192 x 4096 EXR upload (row 9)", four("api/hdri?name=huge.exr", exr)),
+                ("8192 x 8192 PNG picture (row 9)",
+                 four("api/picture", png, {"Content-Type": "image/png"})),
+                ("64 splayed lengths to 0.02 dE00 (row 11)", two_costly_pages),
+            ]
+            print(f"studio idle: server RSS {proc_mib(pids['server']):.0f} MiB, simulator "
+                  f"{proc_mib(pids['simulator']):.0f} MiB")
+            for what, attack in cases:
+                for pid in pids.values():
+                    Path(f"/proc/{pid}/clear_refs").write_text("5")
+                t0 = time.perf_counter()
+                did = attack()
+                took = time.perf_counter() - t0
+                t1 = time.perf_counter()
+                code = st.request("api/characteristic", _studio_condition())[0]
+                page = time.perf_counter() - t1
+                print(f"studio: {what:42s} {did} ({took:.1f} s); a page then {code} in "
+                      f"{page:.2f} s; peak RSS server {proc_mib(pids['server'], 'VmHWM'):.0f} "
+                      f"MiB, simulator {proc_mib(pids['simulator'], 'VmHWM'):.0f} MiB")
+        finally:
+            stop_studio(st)
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--bundles", type=int, default=1000)
     ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--only", nargs="+", choices=PARTS, default=PARTS,
+                    help="run only these parts (default: all)")
     args = ap.parse_args(argv if argv is not None else [])
-    attacks()
-    camera()
-    fuzz(args.bundles, args.seed)
-    decoders()
+    run: dict[str, Callable[[], None]] = {
+        "attacks": attacks, "camera": camera, "fuzz": lambda: fuzz(args.bundles, args.seed),
+        "decoders": decoders, "studio": studio}
+    for part in args.only:
+        run[part]()
+
+
+#: The parts, in the order they run (the module docstring numbers them).
+PARTS = ["attacks", "camera", "fuzz", "decoders", "studio"]
 
 
 if __name__ == "__main__":

@@ -7,51 +7,31 @@ under 300 MiB."""
 from __future__ import annotations
 
 import asyncio
-import base64
-import contextlib
 import json
-import os
 import socket
-import struct
-import threading
 import time
-import urllib.parse
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import (
-    GOOD,
-    costly_condition,
-    png_bytes,
-    simulator_pid,
-    start_studio,
-    stop_studio,
-    vm_mib,
-    ws_session,
-)
+from conftest import GOOD, costly_condition, png_bytes, start_studio, stop_studio, ws_session
 
 from grassd.daemon.studio.limits import DEFAULT_LIMITS
+from grassd.rigs.hostile_studio import (
+    address,
+    answers,
+    at_once,
+    close_of,
+    header_flood,
+    never_reading_page,
+    post_headers,
+    read_until_closed,
+    unfinished_headers,
+)
+from grassd.rigs.peak_memory import proc_mib
 
 #: The peak resident set (MiB) the studio's server process stays under in every attack.
 PEAK_MIB = 300
-
-
-def _address(studio) -> tuple[str, int]:
-    u = urllib.parse.urlsplit(studio.url)
-    return u.hostname, u.port
-
-
-def _answer(conn: socket.socket, timeout_s: float) -> bytes:
-    """Everything the server sends until it closes the connection (within ``timeout_s``)."""
-    conn.settimeout(timeout_s)
-    got = b""
-    try:
-        while chunk := conn.recv(65536):
-            got += chunk
-    except (ConnectionResetError, TimeoutError):
-        pass
-    return got
 
 
 def _page_is_served(studio, within_s: float = 60) -> float:
@@ -68,54 +48,36 @@ def test_unfinished_headers_are_cut_and_a_page_is_still_served(studio):
     """1050 connections that each send half a request and wait: the oldest make room for new
     ones (the cap), each is closed within a few seconds with a 408 or 503 saying why, and a
     page's request meanwhile is answered at once."""
-    host, port = _address(studio)
-    opened = []
     t0 = time.monotonic()
-    for i in range(1050):
-        c = socket.create_connection((host, port))
-        c.sendall(b"GET /api/state HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow-" + str(i).encode())
-        opened.append(c)
+    opened = unfinished_headers(studio.url, 1050)
     t_api = time.monotonic()
     status, state = studio.request("api/state")
     assert status == 200 and state["ready"]
     assert time.monotonic() - t_api < 3
     deadline = t0 + DEFAULT_LIMITS.header_s + 10
-    answers = [_answer(c, max(deadline - time.monotonic(), 0.1)) for c in opened]
-    for c in opened:
-        c.close()
+    got = answers(opened, deadline)
     assert time.monotonic() < deadline + 1, "unfinished requests were kept open"
-    timed_out = [a for a in answers if a.startswith(b"HTTP/1.1 408")]
-    evicted = [a for a in answers if a.startswith(b"HTTP/1.1 503")]
-    assert len(timed_out) + len(evicted) == 1050, {a[:12] for a in answers}
+    timed_out = [a for a in got if a.startswith(b"HTTP/1.1 408")]
+    evicted = [a for a in got if a.startswith(b"HTTP/1.1 503")]
+    assert len(timed_out) + len(evicted) == 1050, {a[:12] for a in got}
     assert timed_out and evicted  # the last ones waited for their deadline
     assert b"did not come within 5 s" in timed_out[0]
     assert b"connections open and this one was not being served" in evicted[0]
     assert studio.request("api/state")[0] == 200
-    assert vm_mib(studio.proc.pid) < PEAK_MIB
+    assert proc_mib(studio.proc.pid, "VmHWM") < PEAK_MIB
 
 
 def test_requests_of_too_many_header_lines_are_refused(studio):
     """300 connections each sending 120 header lines of 8000 bytes: each is answered 400 (more
     lines than the cap) or 503 (room made for a newer one), and a page is answered."""
-    host, port = _address(studio)
-    head = b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n" + b"".join(
-        b"X-%d: %s\r\n" % (i, b"a" * 8000) for i in range(120))
-    conns = []
-    for _ in range(300):
-        c = socket.create_connection((host, port))
-        c.settimeout(5)
-        with contextlib.suppress(OSError):  # closed before all of it was sent
-            c.sendall(head)
-        conns.append(c)
+    conns = header_flood(studio.url, 300)
     assert studio.request("api/state")[0] == 200
-    answers = [_answer(c, 10) for c in conns]
-    for c in conns:
-        c.close()
-    too_many = [a for a in answers if a.startswith(b"HTTP/1.0 400")]
+    got = answers(conns, time.monotonic() + 10)
+    too_many = [a for a in got if a.startswith(b"HTTP/1.0 400")]
     assert too_many and b"Too many headers" in too_many[0]
-    assert all(a.startswith((b"HTTP/1.0 400", b"HTTP/1.1 503")) for a in answers), \
-        {a[:12] for a in answers}
-    assert vm_mib(studio.proc.pid) < PEAK_MIB
+    assert all(a.startswith((b"HTTP/1.0 400", b"HTTP/1.1 503")) for a in got), \
+        {a[:12] for a in got}
+    assert proc_mib(studio.proc.pid, "VmHWM") < PEAK_MIB
 
 
 @pytest.fixture(scope="module")
@@ -123,7 +85,7 @@ def open_studio(tmp_path_factory, shared_hdri):
     """A studio bound to every address (so it needs its token), reached on 127.0.0.1."""
     s = start_studio(tmp_path_factory.mktemp("open"), "--host", "0.0.0.0",
                      "--hdri", str(shared_hdri("courtyard")))
-    s.url = f"http://127.0.0.1:{_address(s)[1]}/"
+    s.url = f"http://127.0.0.1:{address(s.url)[1]}/"
     yield s
     stop_studio(s)
 
@@ -132,34 +94,34 @@ def test_without_its_token_a_request_is_refused_before_its_body(open_studio):
     """A 200 MiB upload announced without the token is answered 401 from its headers alone
     and the connection closed (the body is never waited for); unfinished headers get their
     408 as on 127.0.0.1; with the token the studio answers."""
-    host, port = _address(open_studio)
+    host, port = address(open_studio.url)
     with socket.create_connection((host, port)) as c:
         t0 = time.monotonic()
         c.sendall(b"POST /api/hdri?name=big.exr HTTP/1.1\r\nHost: 127.0.0.1\r\n"
                   b"Content-Length: 209715200\r\n\r\n")
-        got = _answer(c, 5)
+        got = read_until_closed(c, 5)
         assert time.monotonic() - t0 < 2
     assert got.startswith(b"HTTP/1.1 401") and b"needs its token" in got
     with socket.create_connection((host, port)) as c:
         t0 = time.monotonic()
         c.sendall(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n")
-        got = _answer(c, 15)
+        got = read_until_closed(c, 15)
         assert time.monotonic() - t0 < DEFAULT_LIMITS.header_s + 2
     assert got.startswith(b"HTTP/1.1 408")
     status, state = open_studio.request("api/state",
                                         headers={"X-Grassd-Token": open_studio.token})
     assert status == 200 and state["ready"]
-    assert vm_mib(open_studio.proc.pid) < PEAK_MIB
+    assert proc_mib(open_studio.proc.pid, "VmHWM") < PEAK_MIB
 
 
 def test_a_body_that_stops_coming_gets_a_408(studio):
     """A JSON request whose body stops halfway is answered 408 after the idle deadline."""
-    host, port = _address(studio)
+    host, port = address(studio.url)
     with socket.create_connection((host, port)) as c:
         t0 = time.monotonic()
         c.sendall(b"POST /api/characteristic HTTP/1.1\r\nHost: 127.0.0.1\r\n"
                   b"Content-Type: application/json\r\nContent-Length: 1000\r\n\r\n{\"ambi")
-        got = _answer(c, 30)
+        got = read_until_closed(c, 30)
         took = time.monotonic() - t0
     assert got.startswith(b"HTTP/1.1 408"), got[:200]
     assert b"nothing came for 10 s" in got
@@ -167,72 +129,17 @@ def test_a_body_that_stops_coming_gets_a_408(studio):
 
 
 # ---------------------------------------------------------------- a page that never reads (row 7)
-def _ws_frame(payload: bytes, opcode: int = 0x2) -> bytes:
-    """One masked client frame (RFC 6455) of up to 125 bytes."""
-    mask = os.urandom(4)
-    masked = bytes(b ^ mask[i % 4] for i, b in enumerate(payload))
-    return bytes([0x80 | opcode, 0x80 | len(payload)]) + mask + masked
-
-
-def _frames(data: bytes, start: int = 0) -> tuple[list[tuple[int, bytes]], int]:
-    """(opcode, payload) of the server's (unmasked) whole frames in ``data`` from offset
-    ``start``, and the offset after the last whole one."""
-    out, i = [], start
-    while i + 2 <= len(data):
-        op, n, at = data[i] & 0x0F, data[i + 1] & 0x7F, i + 2
-        if n == 126:
-            n, at = struct.unpack(">H", data[at:at + 2])[0], at + 2
-        elif n == 127:
-            n, at = struct.unpack(">Q", data[at:at + 8])[0], at + 8
-        if at + n > len(data):
-            break
-        out.append((op, data[at:at + n]))
-        i = at + n
-    return out, i
-
-
 def test_a_page_that_never_reads_is_closed_and_its_memory_freed(studio):
     """A socket that sends up to 200,000 small frames, each answered with an error, and reads
     nothing: its outbox fills, it is closed 1008 saying why (what it was sent before is still
     there to read), the server's peak stays under 300 MiB, and a page is served meanwhile."""
-    host, port = _address(studio)
-    c = socket.socket()
-    c.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-    c.connect((host, port))
-    key = base64.b64encode(os.urandom(16))
-    c.sendall(b"GET /ws HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\n"
-              b"Connection: Upgrade\r\nSec-WebSocket-Key: " + key
-              + b"\r\nSec-WebSocket-Version: 13\r\n\r\n")
-    head = b""
-    while b"\r\n\r\n" not in head:
-        head += c.recv(1)
-    assert head.startswith(b"HTTP/1.1 101")
-    flood = memoryview(_ws_frame(b"\x00\x01") * 200_000)
-    c.settimeout(0.2)
-    t0 = time.monotonic()
-    while b"a page's socket was closed" not in studio.log.read_bytes():
-        assert time.monotonic() - t0 < 20, "the page was not dropped"
-        if not flood:
-            time.sleep(0.1)
-            continue
-        with contextlib.suppress(TimeoutError):  # the server stops reading once it drops it
-            flood = flood[c.send(flood[:65536]):]
-    c.settimeout(20)
-    got, at, frames = b"", 0, []
-    try:  # what it was sent, then the close frame
-        while not any(op == 0x8 for op, _ in frames[-1:]) and (chunk := c.recv(65536)):
-            got += chunk
-            more, at = _frames(got, at)
-            frames += more
-    except (ConnectionResetError, TimeoutError):
-        pass
-    c.close()
-    closes = [p for op, p in frames if op == 0x8]
-    assert closes, f"no close frame in {len(frames)} frames"
-    assert struct.unpack(">H", closes[0][:2])[0] == 1008
-    assert b"does not read its messages" in closes[0][2:]
+    frames = never_reading_page(
+        studio.url, lambda: b"a page's socket was closed" in studio.log.read_bytes())
+    close = close_of(frames)
+    assert close is not None, f"no close frame in {len(frames)} frames"
+    assert close[0] == 1008 and "does not read its messages" in close[1]
     assert _page_is_served(studio) < 60
-    assert vm_mib(studio.proc.pid) < PEAK_MIB
+    assert proc_mib(studio.proc.pid, "VmHWM") < PEAK_MIB
 
 
 # ---------------------------------------------------------------- uploads (rows 8 and 9)
@@ -263,7 +170,7 @@ def test_uploads_beyond_the_caps_drop_the_oldest_and_their_maps(upload_studio, t
     as not one of the studio's, and the simulator holds no more maps at the 20th than once
     it holds as many as it keeps."""
     s = upload_studio
-    sim = simulator_pid(s)
+    sim = s.simulator_pid()
     kept = DEFAULT_LIMITS.kept_uploads
     rss = []
     for i in range(20):
@@ -273,7 +180,7 @@ def test_uploads_beyond_the_caps_drop_the_oldest_and_their_maps(upload_studio, t
         name = reply["light"]["name"]
         status, reply = s.request("api/characteristic", {**GOOD, "light": name})
         assert status == 200, reply
-        rss.append(vm_mib(sim, "VmRSS"))
+        rss.append(proc_mib(sim))
     status, state = s.request("api/state")
     uploads = [light["name"] for light in state["lights"] if light["name"].startswith("upload:")]
     assert len(uploads) == kept
@@ -283,48 +190,38 @@ def test_uploads_beyond_the_caps_drop_the_oldest_and_their_maps(upload_studio, t
     assert status == 400 and "is not one of the studio's" in reply["error"]
     maps = DEFAULT_LIMITS.kept_maps
     assert rss[-1] - rss[maps + 1] < 60, rss  # less than one more map (docs/studio.md)
-    assert vm_mib(s.proc.pid) < PEAK_MIB
-
-
-def _post_headers(path: str, length: int, content_type: str = "application/octet-stream"):
-    return (f"POST /{path} HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: {content_type}\r\n"
-            f"Content-Length: {length}\r\n\r\n").encode()
+    assert proc_mib(s.proc.pid, "VmHWM") < PEAK_MIB
 
 
 def test_uploads_beyond_the_slot_get_a_503_and_one_is_decoded_at_a_time(studio):
     """Four pictures of 4096 x 4096 sent at once: the first takes the upload slot, the other
     three are answered 503 from their headers (their bodies are not read), the first is
     decoded; decoded one at a time, the studio's peak stays under 300 MiB."""
-    host, port = _address(studio)
+    host, port = address(studio.url)
     ramp = np.add.outer(np.arange(4096), np.arange(4096)) % 256
     picture = png_bytes(np.stack([ramp, ramp.T, 255 - ramp], axis=-1), "RGB")
     conns = [socket.create_connection((host, port)) for _ in range(4)]
     for c in conns:
-        c.sendall(_post_headers("api/picture", len(picture), "image/png"))
+        c.sendall(post_headers("api/picture", len(picture), "image/png"))
         time.sleep(0.2)  # in this order
-    busy = [_answer(c, 10) for c in conns[1:]]
+    busy = [read_until_closed(c, 10) for c in conns[1:]]
     for a in busy:
         assert a.startswith(b"HTTP/1.1 503"), a[:200]
         assert b"reading another upload (at most 1 at a time)" in a
     status, reply = studio.request("api/hdri?name=sky.exr", b"\x76\x2f\x31\x01")
     assert status == 503 and "reading another upload" in reply["error"]  # one slot for both
     conns[0].sendall(picture)
-    first = _answer(conns[0], 60)
+    first = read_until_closed(conns[0], 60)
     for c in conns:
         c.close()
     assert first.startswith(b"HTTP/1.1 200"), first[:300]
-    threads, replies = [], []
-    for _ in range(4):  # as fast as a client can: each is answered, none decoded beside another
-        threads.append(threading.Thread(target=lambda: replies.append(
-            studio.request("api/picture", picture, headers={"Content-Type": "image/png"}))))
-        threads[-1].start()
-    for t in threads:
-        t.join(120)
+    replies = at_once(lambda: studio.request(  # each answered, none decoded beside another
+        "api/picture", picture, headers={"Content-Type": "image/png"}), 4)
     assert sorted(r[0] for r in replies) in ([200, 503, 503, 503], [200, 200, 503, 503],
                                             [200, 200, 200, 503], [200] * 4)
     assert any(r[0] == 200 for r in replies)
     assert _page_is_served(studio) < 60
-    assert vm_mib(studio.proc.pid) < PEAK_MIB
+    assert proc_mib(studio.proc.pid, "VmHWM") < PEAK_MIB
 
 
 @pytest.fixture(scope="module")
@@ -344,16 +241,8 @@ def test_large_images_sent_four_at_a_time_keep_the_studio_small(studio, huge_upl
     exr, png = huge_uploads
     for path, body, headers in (("api/hdri?name=huge.exr", exr, None),
                                 ("api/picture", png, {"Content-Type": "image/png"})):
-        replies: list = []
-
-        def send(path=path, body=body, headers=headers, replies=replies) -> None:
-            replies.append(studio.request(path, body, headers=headers))
-
-        threads = [threading.Thread(target=send) for _ in range(4)]
-        for t in threads:
-            t.start()
-        for t in threads:
-            t.join(120)
+        replies = at_once(lambda path=path, body=body, headers=headers:
+                          studio.request(path, body, headers=headers), 4)
         assert len(replies) == 4
         for status, reply in replies:
             assert status in (200, 400, 503), reply
@@ -361,7 +250,7 @@ def test_large_images_sent_four_at_a_time_keep_the_studio_small(studio, huge_upl
                 assert "reading another upload" in reply["error"]
         assert any(status != 503 for status, _ in replies)
     assert _page_is_served(studio) < 60
-    assert vm_mib(studio.proc.pid) < PEAK_MIB
+    assert proc_mib(studio.proc.pid, "VmHWM") < PEAK_MIB
 
 
 # ---------------------------------------------------------------- costly inputs (row 11)

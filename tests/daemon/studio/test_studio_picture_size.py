@@ -12,10 +12,11 @@ import io
 from concurrent.futures import ThreadPoolExecutor
 
 import pytest
-from conftest import png_bytes, start_studio, stop_studio, vm_mib
+from conftest import png_bytes, start_studio, stop_studio
 
 from grassd.daemon.studio.views import MAX_IMAGE_PIXELS
 from grassd.rigs.hostile_decodes import flat_png, run_child
+from grassd.rigs.peak_memory import proc_mib
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -96,7 +97,7 @@ def test_a_running_studio_refuses_four_at_once_in_little_memory(tmp_path, huge_p
             fh.write("5")
         with ThreadPoolExecutor(4) as pool:
             answers = list(pool.map(lambda _: studio.request("api/picture", huge_png), range(4)))
-        peak = vm_mib(pid)
+        peak = proc_mib(pid, "VmHWM")
         print(f"\n4 x 8192 x 8192 PNG: {[s for s, _ in answers]}, server peak {peak:.0f} MiB")
         for status, body in answers:
             assert status in (400, 503), (status, body)  # 503: the studio's upload cap
