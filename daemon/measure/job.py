@@ -97,8 +97,8 @@ def measure_with(svc: Any, trigger: str = "request") -> dict[str, Any]:
                                            lux=inp.lux, lux_source=inp.lux_source,
                                            light_at=inp.light_at)
             out = svc._commit(run_id, corrected)
-            report["tables"].update({"run_id": run_id, "status": out["status"],
-                                     "pushed": [c.get("ok") for c in out.get("controllers", [])]})
+            report["tables"].update({"run_id": run_id, "status": out.status.value,
+                                     "pushed": [c.ok for c in out.controllers]})
         else:
             report["tables"].update({"run_id": None, "status": "kept the last tables: "
                                      + report.get("error", "the correction was refused")})

@@ -118,11 +118,3 @@ class RunOutcome:
         if self.retry_in_s is not None:
             out["retry_in_s"] = self.retry_in_s
         return out
-
-    def __getitem__(self, key: str) -> Any:
-        """The value of ``key`` in :meth:`to_json` (for callers that read the wire form)."""
-        return self.to_json()[key]
-
-    def get(self, key: str, default: Any = None) -> Any:
-        """The value of ``key`` in :meth:`to_json`, else ``default``."""
-        return self.to_json().get(key, default)

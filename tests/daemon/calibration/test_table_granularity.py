@@ -73,7 +73,7 @@ def run_bundle(svc: Service, name: str = "b1") -> dict:
     drop(svc.cfg.light.inbox, name)
     [b] = svc.inbox.poll()
     out = svc.process_bundle(b)
-    assert out["status"] == "ok", out
+    assert out.status == "ok", out
     return out
 
 
@@ -83,27 +83,27 @@ def test_controller_tables_pushed_and_reconciled_after_unplug(rig):
     t0 = time.monotonic()
     out = run_bundle(svc)
     first_run_s = time.monotonic() - t0
-    crcs = out["controller_crcs"]
+    crcs = out.committed.controller_crcs
     assert sorted(crcs) == sorted(names)
     assert crcs[names[0]] != crcs[names[1]]  # two controllers, two tables
-    assert out["table_crc"] not in crcs.values()  # the display-wide table is a third one
-    for r in out["controllers"]:
-        assert r["ok"] and r["pushed"] and r["table_crc"] == crcs[r["controller"]]
-    stored = svc.history.run_tables(out["run_id"])
+    assert out.committed.table_crc not in crcs.values()  # the display-wide table is a third one
+    for r in out.controllers:
+        assert r.ok and r.pushed and r.table_crc == crcs[r.controller]
+    stored = svc.history.run_tables(out.run_id)
     for name, dev in devices(sim, svc.cfg).items():
         assert stored[name].lengths_um.shape == (256,)
         assert stored[name].table_crc == crcs[name] == table_checksum(stored[name].lengths_um)
         np.testing.assert_array_equal(dev.active_table().ravel(), stored[name].lengths_um)
     reported = {c.name: (st.table_id, st.table_crc) for c, st, _ in svc.fleet.read_all()}
-    assert reported == {n: (out["run_id"], crc) for n, crc in crcs.items()}  # over the wire
+    assert reported == {n: (out.run_id, crc) for n, crc in crcs.items()}  # over the wire
     st = collect_status(svc.history, svc.cfg).to_json()
     assert st["health"] == "ok" and st["desired_table"]["per_controller"] == crcs
     assert {c["name"]: (c["desired_crc"], c["table_crc"], c["in_sync"])
             for c in st["controllers"]} == {n: (crcs[n], crcs[n], True) for n in names}
-    report = json.loads(Path(out["report"]).read_text())
+    report = json.loads(Path(out.committed.report).read_text())
     assert report["granularity"] == "controller" and report["table_source"] == "viewpoints"
     assert {k: v["table_crc"] for k, v in report["controller_tables"].items()} == crcs
-    m = out["metrics"]
+    m = out.committed.metrics
     assert (m["tables"], m["check"], m["rounds"]) == (2, "closed loop", 1)
     # closed loop: the 4 pixels (4 geometry groups) re-simulated at 5 check levels each
     assert np.shape(report["closed_loop"]["ogcd_de00"]) == (4, 5)
@@ -117,9 +117,9 @@ def test_controller_tables_pushed_and_reconciled_after_unplug(rig):
     down_s = max(1.0, 3 * first_run_s)
     sim.buses[1].unplug(down_s=down_s)
     out2 = svc.scheduled_run("request")
-    assert out2["status"] == "ok"
-    crcs2 = out2["controller_crcs"]
-    assert [r["ok"] for r in out2["controllers"]] == [True, False]
+    assert out2.status == "ok"
+    crcs2 = out2.committed.controller_crcs
+    assert [r.ok for r in out2.controllers] == [True, False]
     st = collect_status(svc.history, svc.cfg).to_json()
     bad = st["controllers"][1]["name"]
     assert st["health"].startswith(f"degraded: controller {bad} ")  # one of two is off
@@ -131,12 +131,12 @@ def test_controller_tables_pushed_and_reconciled_after_unplug(rig):
         time.sleep(0.2)
     back = {r.controller: r for r in reports}
     assert back[names[1]].ok and back[names[1]].pushed
-    assert back[names[1]].table_id == out2["run_id"]
+    assert back[names[1]].table_id == out2.run_id
     assert back[names[1]].table_crc == crcs2[names[1]] != crcs2[names[0]]
     assert not back[names[0]].pushed  # it already held its own table: one status read
-    own = svc.history.run_tables(out2["run_id"])[names[1]].lengths_um
+    own = svc.history.run_tables(out2.run_id)[names[1]].lengths_um
     np.testing.assert_array_equal(devices(sim, svc.cfg)[names[1]].active_table().ravel(), own)
-    [rec] = [p for p in svc.history.pushes(out2["run_id"]) if p.kind == "reconcile"]
+    [rec] = [p for p in svc.history.pushes(out2.run_id) if p.kind == "reconcile"]
     assert (rec.controller, rec.ok, rec.table_crc) == (names[1], True, crcs2[names[1]])
     assert collect_status(svc.history, svc.cfg).to_json()["health"] == "ok"
 
@@ -144,8 +144,8 @@ def test_controller_tables_pushed_and_reconciled_after_unplug(rig):
 def test_pixel_tables_one_row_per_pixel_on_each_controller(rig):
     svc, sim = rig('[tables]\ngranularity = "pixel"\ncheck_groups = 0\n')
     out = run_bundle(svc)
-    crcs = out["controller_crcs"]
-    stored = svc.history.run_tables(out["run_id"])
+    crcs = out.committed.controller_crcs
+    stored = svc.history.run_tables(out.run_id)
     assert len(set(crcs.values())) == 2
     for name, dev in devices(sim, svc.cfg).items():
         t = stored[name].lengths_um
@@ -154,10 +154,10 @@ def test_pixel_tables_one_row_per_pixel_on_each_controller(rig):
         assert table_checksum(t) == crcs[name]
         np.testing.assert_array_equal(dev.active_table(), t)
     reported = {c.name: (st.table_id, st.table_crc) for c, st, _ in svc.fleet.read_all()}
-    assert reported == {n: (out["run_id"], crc) for n, crc in crcs.items()}  # over the wire
-    assert [r["ok"] for r in out["controllers"]] == [True, True]
+    assert reported == {n: (out.run_id, crc) for n, crc in crcs.items()}  # over the wire
+    assert [r.ok for r in out.controllers] == [True, True]
     assert collect_status(svc.history, svc.cfg).to_json()["health"] == "ok"
-    assert out["metrics"]["granularity"] == "pixel" and out["metrics"]["tables"] == 4
+    assert out.committed.metrics["granularity"] == "pixel" and out.committed.metrics["tables"] == 4
 
 
 def light() -> LightInput:

@@ -56,7 +56,7 @@ class Site:
         self.cfg = load_config(self.path)
         self.layout = StateLayout(self.cfg.state_dir)
         first = self._service_do(lambda svc: svc.one_shot())
-        assert first["status"] == "ok", first
+        assert first.status == "ok", first
         simulated_setup(self.cfg, self.display, self.camera.url, 2500.0)
         self.honest_states: list[np.ndarray] = []
         self.camera.scene_source = self._recording

@@ -57,7 +57,7 @@ def site(tmp_path, hw):
         first = svc.one_shot()
     finally:
         svc.shutdown()
-    assert first["status"] == "ok", first
+    assert first.status == "ok", first
     for c in loaded.controllers:  # content: every pixel at level 128
         with ControllerClient(c.port) as client:
             client.set_levels(c.address, np.full(16, LEVEL))
@@ -65,7 +65,7 @@ def site(tmp_path, hw):
     expected = np.full(32, float(table[LEVEL]))
     wait_for(lambda: np.abs(sim.positions_um() - expected).max() <= 10, 10, "level 128 shown")
     simulated_setup(loaded, display, camera.url, 2500.0)
-    yield sim, path, display, camera, first["table_id"], expected
+    yield sim, path, display, camera, first.committed.table_id, expected
     camera.stop()
 
 

@@ -86,7 +86,7 @@ def test_every_metric_after_simulated_hardware_runs(tmp_path, hw):
     assert svc.inbox.recover() == []
     # a scheduled run: lux from the Modbus sensor (2500 lux)
     out = svc.scheduled_run("interval")
-    assert out["status"] == "ok"
+    assert out.status == "ok"
     # one bundle waiting in the inbox (not polled)
     drop(svc.cfg.light.inbox, "waiting", lux=700.0)
     svc.reconcile()
@@ -94,7 +94,7 @@ def test_every_metric_after_simulated_hardware_runs(tmp_path, hw):
     m = scrape(prom)
     cur = svc.history.current_table()
     report = json.loads(Path(cur.report_path).read_text())["metrics"]
-    assert cur.id == out["run_id"]
+    assert cur.id == out.run_id
     assert one(m, "grassd_up") == 1
     assert one(m, "grassd_health") == 0
     assert one(m, "grassd_last_success_timestamp_seconds") == cur.finished_at
@@ -131,7 +131,7 @@ def test_every_metric_after_simulated_hardware_runs(tmp_path, hw):
 
     # the lux sensor goes silent: a scheduled run is skipped, the metric says so
     sim.sensor.silent = True
-    assert svc.scheduled_run("interval")["status"] == "skipped"
+    assert svc.scheduled_run("interval").status == "skipped"
     sim.sensor.silent = False
     svc.reconcile()
     m = scrape(prom)

@@ -141,7 +141,7 @@ def test_a_run_without_a_bundle_waits_for_compute_with_health_degraded(tmp_path,
 
             cluster.kill_worker("w1")
             out = svc.scheduled_run("interval")
-            assert out["status"] == "failed" and out["retry_in_s"] == 1.0, out
+            assert out.status == "failed" and out.retry_in_s == 1.0, out
             st = svc.status()
             assert st.daemon.compute_wait.attempts == 1
             assert st.health.level == "degraded"

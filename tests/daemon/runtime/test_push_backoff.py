@@ -53,8 +53,8 @@ def test_failing_controller_backs_off_and_is_pushed_on_reset(tmp_path, hw, caplo
     injector = _torn_bus0(sim)
 
     out = svc.scheduled_run("request")  # the run's own push is tried, and fails
-    assert out["status"] == "ok"
-    assert [c["ok"] for c in out["controllers"] if c["controller"] == bad] == [False]
+    assert out.status == "ok"
+    assert [c.ok for c in out.controllers if c.controller == bad] == [False]
     t0 = time.monotonic()
     torn0 = injector.counts.torn_writes
     assert torn0 > 0 and len(_fleet_warnings(caplog, bad)) == 1
@@ -114,7 +114,7 @@ def test_failing_controller_backs_off_and_is_pushed_on_reset(tmp_path, hw, caplo
     injector.enabled = False
     assert svc.reload()
     r = {x.controller: x for x in svc.reconcile()}[bad]
-    assert r.ok and r.pushed and r.table_id == out["table_id"]
+    assert r.ok and r.pushed and r.table_id == out.committed.table_id
     svc.shutdown()
 
 

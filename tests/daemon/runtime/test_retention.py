@@ -60,9 +60,9 @@ def test_counts_are_bounded_and_the_active_table_survives(tmp_path, hw):
     assert reports(svc) == [f"run-{r2:06d}.json", f"run-{r2:06d}.png"]
 
     out = svc.scheduled_run("interval")  # the latest archived bundle's light is still there
-    assert out["status"] == "ok", out
-    assert [r.id for r in svc.history.runs(10)] == [out["run_id"]]
-    assert reports(svc) == [f"run-{out['run_id']:06d}.json", f"run-{out['run_id']:06d}.png"]
+    assert out.status == "ok", out
+    assert [r.id for r in svc.history.runs(10)] == [out.run_id]
+    assert reports(svc) == [f"run-{out.run_id:06d}.json", f"run-{out.run_id:06d}.png"]
     assert (svc.reports_dir / "index.html").is_file()  # retention leaves the status page
     svc.shutdown()
 
@@ -92,9 +92,9 @@ def test_old_bundles_and_reports_expire_but_the_latest_bundle_stays(tmp_path, hw
     assert not any(p.name.startswith(f"run-{first.id:06d}") for p in svc.reports_dir.iterdir())
     time.sleep(2.3)
     out = svc.scheduled_run("interval")  # the latest archived bundle never expires
-    assert out["status"] == "ok", out
+    assert out.status == "ok", out
     assert [p.name.split("-", 1)[1] for p in svc.inbox.archive.iterdir()] == ["new"]
-    assert svc.history.run(out["run_id"]).input_hashes["bundle"] == \
+    assert svc.history.run(out.run_id).input_hashes["bundle"] == \
         svc.history.latest_archived().bundle_hash
     svc.shutdown()
 

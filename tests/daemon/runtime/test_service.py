@@ -34,8 +34,8 @@ def test_interrupted_run_is_retried_after_restart(tmp_path, hw):
     orig = svc._progress
     svc._progress = lambda text: (orig(text), stop_on_second_viewpoint(text))
     out = svc.process_bundle(b)
-    assert out["status"] == "interrupted"
-    assert svc.history.run(out["run_id"]).status == "failed"
+    assert out.status == "interrupted"
+    assert svc.history.run(out.run_id).status == "failed"
     assert svc.history.journal_get(b.hash).attempts == 0  # a clean stop does not count
     assert (svc.inbox.processing / b.id).is_dir()
     svc.shutdown()
@@ -43,7 +43,7 @@ def test_interrupted_run_is_retried_after_restart(tmp_path, hw):
     [again] = svc2.inbox.recover()
     assert again.hash == b.hash
     out2 = svc2.process_bundle(again)
-    assert out2["status"] == "ok" and [c["ok"] for c in out2["controllers"]] == [True, True]
+    assert out2.status == "ok" and [c.ok for c in out2.controllers] == [True, True]
     assert svc2.history.journal_get(b.hash).state == "archived"
     assert svc2.history.run_count("ok") == 1
     svc2.shutdown()
@@ -65,8 +65,8 @@ def test_all_controllers_down_commits_then_reconciles(tmp_path, hw):
     drop(svc.cfg.light.inbox, "b")
     [b] = svc.inbox.poll()
     out = svc.process_bundle(b)
-    assert out["status"] == "ok" and not any(c["ok"] for c in out["controllers"])
-    assert svc.history.current_table().id == out["run_id"]  # desired even though not pushed
+    assert out.status == "ok" and not any(c.ok for c in out.controllers)
+    assert svc.history.current_table().id == out.run_id  # desired even though not pushed
     import time
 
     deadline = time.monotonic() + 120  # a hang guard: the buses are back after 3 s
@@ -89,8 +89,8 @@ def test_scheduled_run_uses_last_bundle_and_sensor(tmp_path, hw):
     conf = write_config(tmp_path / "g.toml", tmp_path / "state", cfg, interval=0.5)
     svc = service(conf)
     out = svc.scheduled_run("interval")  # no bundle yet: embedded default site + sensor lux
-    assert out["status"] == "ok"
-    r = svc.history.run(out["run_id"])
+    assert out.status == "ok"
+    r = svc.history.run(out.run_id)
     assert (r.lux, r.lux_source, r.input_hashes) == (2500.0, "modbus",
                                                      {"hdri": "embedded default_site.exr"})
     drop(svc.cfg.light.inbox, "b", lux=700.0)

@@ -70,7 +70,7 @@ def resized(tmp_path):
     try:
         init_backend(svc.cfg)
         first = _run_bundle(svc, "b1")
-        assert first["status"] == "ok", first
+        assert first.status == "ok", first
     finally:
         svc.shutdown()
         sim.stop()
@@ -88,15 +88,15 @@ def test_pixel_tables_after_a_controllers_pixel_count_changed(resized):
     table with its old (2, 256) one, and gets its new table."""
     first, svc, sim = resized
     n0, n1 = (c.name for c in svc.cfg.controllers)
-    assert set(svc.history.run_tables(first["run_id"])) == {n0, n1}  # same names
+    assert set(svc.history.run_tables(first.run_id)) == {n0, n1}  # same names
     out = _run_bundle(svc, "b2", 8100.0)
-    assert out["status"] == "ok", out
-    own = svc.history.run_tables(out["run_id"])
+    assert out.status == "ok", out
+    own = svc.history.run_tables(out.run_id)
     assert own[n0].lengths_um.shape == (1, 256) and own[n1].lengths_um.shape == (3, 256)
     for c, bus in zip(svc.cfg.controllers, sim.buses, strict=True):
         active = bus.controllers[0].active_table()
         np.testing.assert_array_equal(active, own[c.name].lengths_um)
-        assert table_checksum(active) == out["controller_crcs"][c.name]
+        assert table_checksum(active) == out.committed.controller_crcs[c.name]
 
 
 def test_reconcile_after_a_pixel_count_change_pushes_the_display_wide_table(resized):
@@ -105,8 +105,8 @@ def test_reconcile_after_a_pixel_count_change_pushes_the_display_wide_table(resi
     run's display-wide table, as one added to the config afterwards does, and status agrees."""
     first, svc, _ = resized
     reports = svc.reconcile()
-    assert [(r.ok, r.table_id) for r in reports] == [(True, first["run_id"])] * 2, reports
-    assert {r.table_crc for r in reports} == {first["table_crc"]}  # display-wide table
+    assert [(r.ok, r.table_id) for r in reports] == [(True, first.run_id)] * 2, reports
+    assert {r.table_crc for r in reports} == {first.committed.table_crc}  # display-wide table
     st = collect_status(svc.history, svc.cfg).to_json()
     assert st["health"] == "ok", st["controllers"]
 
