@@ -101,6 +101,36 @@ class ColourCorrection:
         arr = as_float_array(rgb, "rgb", last_dim=3)
         return _APPLY[self.method](arr, self.matrix, self.degree)
 
+    def to_json(self) -> dict[str, object]:
+        """What a later run needs to apply it again: ``method``, ``degree`` and ``matrix``
+        (nested lists); :meth:`from_json` reads it back."""
+        return {"method": self.method, "degree": self.degree, "matrix": self.matrix.tolist()}
+
+    @classmethod
+    def from_json(cls, d: object) -> ColourCorrection:
+        """The correction :meth:`to_json` wrote, or a bare (3, 3) matrix (nested lists: the
+        form earlier versions kept), with no residuals (NaN: not known).
+
+        >>> ColourCorrection.from_json([[1, 0, 0], [0, 1, 0], [0, 0, 1]]).form
+        '3x3'
+
+        Raises:
+            UnknownMethodError: an unknown ``method``.
+            ShapeError: a matrix of the wrong shape for its form.
+        """
+        method, degree, matrix = ("3x3", 1, d) if not isinstance(d, dict) else (
+            d.get("method"), d.get("degree", 1), d.get("matrix"))
+        if method not in _APPLY:
+            raise UnknownMethodError(f"unknown colour-correction method {method!r}; "
+                                     f"use one of {', '.join(_APPLY)}")
+        m = as_float_array(matrix, "matrix")
+        terms = 3 if method == "3x3" else _TERMS.get(int(degree), -1)
+        if m.shape != (3, terms):
+            raise ShapeError(f"a {method} correction of degree {degree} needs a (3, {terms}) "
+                             f"matrix; got {m.shape}")
+        nan = float("nan")
+        return cls(str(method), m, int(degree), np.zeros(0), nan, nan)
+
     def scaled(self, s: float) -> ColourCorrection:
         """The same correction applied to input scaled by ``s``: ``c.scaled(s).apply(x) ==
         c.apply(s * x)``. Every form here is homogeneous of degree one, so this is the matrix

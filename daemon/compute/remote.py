@@ -62,6 +62,7 @@ from grassd.sim.light_input import LightInput
 if TYPE_CHECKING:
     from numpy.typing import NDArray
 
+    from grassd.calib.ccm import ColourCorrection
     from grassd.daemon.core.store.manifest import CheckerPhoto
 
 log = logging.getLogger(__name__)
@@ -180,7 +181,7 @@ class RemoteCalibrator:
         return dumps(CalibrationJob.of(self.cfg, light, checker, **kwargs))
 
     def run(self, light: LightInput, *, checker: CheckerPhoto | None = None,
-            previous_um: NDArray | None = None, previous_ccm: NDArray | None = None,
+            previous_um: NDArray | None = None, previous_ccm: ColourCorrection | None = None,
             force: bool = False, stop: threading.Event | None = None,
             progress: Callable[[str], None] | None = None,
             previous_tables: Mapping[str, NDArray] | None = None,

@@ -39,6 +39,7 @@ from grassd.sim.light_input import LightInput
 if TYPE_CHECKING:
     from numpy.typing import NDArray
 
+    from grassd.calib.ccm import ColourCorrection
     from grassd.daemon.core.calibration.result import CalibrationResult
     from grassd.daemon.core.store.manifest import CheckerPhoto
 
@@ -97,13 +98,13 @@ class CalibrationJob:
     checker: CheckerPhoto | None = None
     checker_raw: bytes | None = None
     previous_um: NDArray | None = None
-    previous_ccm: NDArray | None = None
+    previous_ccm: ColourCorrection | None = None
     force: bool = False
     previous_tables: Mapping[str, NDArray] | None = None
 
     @classmethod
     def of(cls, cfg: Config, light: LightInput, checker: CheckerPhoto | None = None, *,
-           previous_um: NDArray | None = None, previous_ccm: NDArray | None = None,
+           previous_um: NDArray | None = None, previous_ccm: ColourCorrection | None = None,
            force: bool = False, previous_tables: Mapping[str, NDArray] | None = None
            ) -> CalibrationJob:
         """The job of one run of ``cfg`` for ``light``; reads the HDRI and the checker RAW.

@@ -10,8 +10,10 @@ granularity`` and ``[audience]`` ask, goes through :meth:`Calibrator.run`:
 2. **Colour correction** (paper, section 5.2): with a colour-checker RAW in the bundle, the
    virtual patches are the chart's reference reflectances lit by the same horizontal
    irradiance (a flat chart at the display), the real ones the developed RAW's patches; both are
-   exposure-normalised on the grey patch and a 3x3 matrix is fitted (real ~= M . virtual).
-   Without a RAW the last matrix is reused (``previous_ccm``), else none is applied.
+   exposure-normalised on the grey patch and a correction is fitted (real ~= M . virtual):
+   the paper's 3x3, or Finlayson's root-polynomial, chosen by the leave-one-out error the
+   report prints (``[calibration] ccm``). A photo whose patches clip is refused. Without a
+   RAW the last correction is reused (``previous_ccm``), else none is applied.
 3. **Units** from the run's source (:mod:`grassd.daemon.core.calibration.units`): the centre pixel
 of
    a patch from every viewpoint (one table), the whole display from every viewpoint, or an
@@ -40,18 +42,19 @@ import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from grassd.calib.ccm import ColourCorrection, fit_ccm
+from grassd.calib.ccm import ColourCorrection, select_ccm
 from grassd.calib.characteristic import Characteristic, fit_characteristic
 from grassd.calib.charts import get_chart
+from grassd.calib.checker_photo import checker_photo_patches
 from grassd.calib.colour_spaces import luminance
 from grassd.calib.exposure import normalise_exposure
 from grassd.calib.length_table import LEVELS, build_length_table, r_squared
-from grassd.calib.raw import develop_raw
 from grassd.daemon.core.calibration.checks import (
     check_levels,
     check_shape,
@@ -165,18 +168,25 @@ class Calibrator:
         return white_radiance(lighting)
 
     def fit_checker_ccm(self, checker: CheckerPhoto) -> ColourCorrection:
-        """3x3 CCM from the bundle's checker RAW (see module docstring, step 4)."""
+        """The colour correction from the bundle's checker RAW (see module docstring, step 4):
+        the ``[calibration] ccm`` form, or with "auto" the form of lowest leave-one-out mean
+        CIEDE2000 (:func:`grassd.calib.ccm.select_ccm`).
+
+        Raises:
+            ClippedCheckerError: a patch of the photo clips (the message names it and the fix).
+        """
         chart = get_chart(checker.chart)
-        real = develop_raw(checker.raw).checker_patches(checker.corners)
+        real = checker_photo_patches(Path(checker.raw), checker.corners, chart)
         # The analytic virtual checker in the renders' normalisation (radiance divided by the
         # white card's, channel by channel): each patch reads its albedo, in ProPhoto linear.
         virtual = chart.prophoto()
         grey = chart.grey_index()
-        # The photo is scaled so its grey patch reads that patch's reference luminance, so M
-        # maps white-card-normalised renders straight onto the photo's scale.
+        # The photo is scaled so its grey patch reads that patch's reference luminance, so the
+        # correction maps white-card-normalised renders straight onto the photo's scale.
         r = normalise_exposure(real, real[grey], space="prophoto",
                                target_y=float(luminance(virtual[grey], "prophoto")))
-        return fit_ccm(virtual, r, "3x3")
+        form = self.cfg.calibration.ccm
+        return select_ccm(virtual, r) if form == "auto" else select_ccm(virtual, r, [form])
 
     def simulate(self, lighting: Any, lengths_mm: NDArray, seed: int,
                  ccm: ColourCorrection | None, stop: threading.Event | None,
@@ -235,7 +245,7 @@ class Calibrator:
         return w @ y, np.sqrt((w**2) @ (se**2)), steps
 
     def light_and_ccm(self, light: LightInput, checker: CheckerPhoto | None,
-                      previous_ccm: NDArray | None,
+                      previous_ccm: ColourCorrection | None,
                       progress: Progress | None) -> tuple[Any, ColourCorrection | None, str]:
         """(Lighting, colour correction or None, its source "bundle" (fitted to ``checker``) /
         "previous" / "none")."""
@@ -250,14 +260,13 @@ class Calibrator:
             ccm = self.fit_checker_ccm(checker)
             ccm_source = "bundle"
         elif previous_ccm is not None:
-            m = np.asarray(previous_ccm, float)
-            ccm = ColourCorrection("3x3", m, 1, np.zeros(0), float("nan"), float("nan"))
+            ccm = previous_ccm
             ccm_source = "previous"
         return lighting, ccm, ccm_source
 
     def run(self, light: LightInput, *, checker: CheckerPhoto | None = None,
             previous_um: NDArray | None = None,
-            previous_ccm: NDArray | None = None, force: bool = False,
+            previous_ccm: ColourCorrection | None = None, force: bool = False,
             stop: threading.Event | None = None,
             progress: Progress | None = None,
             previous_tables: Mapping[str, NDArray] | None = None,

@@ -188,9 +188,7 @@ class CalibrationResult:
             "refined_tables": sum(u.refined_rounds > 0 for u in self.units),
             "ogcd_range_de00": min(u.ogcd_range for u in self.units),
             "mean_ogcd_stderr_de00": float(np.mean(se)) if se else None,
-            "ccm_source": self.ccm_source,
-            "ccm_mean_de00": finite_or_none(self.ccm.mean_de00) if self.ccm else None,
-            "ccm_max_de00": finite_or_none(self.ccm.max_de00) if self.ccm else None,
+            **self._ccm_metrics(),
             "max_step_from_last_um": self.max_step_um,
             "grouping": self.grouping, "region": self.region,
             "seconds": dict(self.seconds),
@@ -228,9 +226,7 @@ class CalibrationResult:
                 {"round": lp.round, "max_dev_de00": float(lp.max_dev.max()),
                  "r2_min": float(lp.r2.min())} for lp in self.loop_rounds],
             "grouping": self.grouping, "region": self.region,
-            "ccm": None if self.ccm is None else {
-                "source": self.ccm_source, "method": self.ccm.method,
-                "matrix": self.ccm.matrix.tolist()},
+            "ccm": self._ccm_report(),
             "lighting_notes": list(self.lighting_notes),
         } | self._corrected({})
 
@@ -264,12 +260,37 @@ class CalibrationResult:
             "rounds": len(self.loop_rounds),
             "ogcd_range_de00": u.ogcd_range,
             "mean_ogcd_stderr_de00": float(np.mean(se)) if se is not None else None,
-            "ccm_source": self.ccm_source,
-            "ccm_mean_de00": finite_or_none(self.ccm.mean_de00) if self.ccm else None,
-            "ccm_max_de00": finite_or_none(self.ccm.max_de00) if self.ccm else None,
+            **self._ccm_metrics(),
             "max_step_from_last_um": self.max_step_um,
             "seconds": dict(self.seconds),
         }
+
+    def _ccm_metrics(self) -> dict[str, Any]:
+        """The colour correction in the metrics: its source, form and the error a report
+        prints (dE00 mean / max; leave-one-out where known,
+        :attr:`~grassd.calib.ccm.ColourCorrection.reported_de00`)."""
+        c = self.ccm
+        mean, worst = (None, None) if c is None else c.reported_de00
+        return {"ccm_source": self.ccm_source, "ccm_form": None if c is None else c.form,
+                "ccm_mean_de00": finite_or_none(mean), "ccm_max_de00": finite_or_none(worst)}
+
+    def _ccm_report(self) -> dict[str, Any] | None:
+        """The colour correction in the report: how to apply it again, its leave-one-out and
+        fitting errors (dE00) and, when the form was chosen, every candidate's."""
+        c = self.ccm
+        if c is None:
+            return None
+        return {"source": self.ccm_source, "form": c.form, **c.to_json(),
+                "mean_de00": finite_or_none(c.reported_de00[0]),
+                "max_de00": finite_or_none(c.reported_de00[1]),
+                "loo_mean_de00": finite_or_none(c.loo_mean_de00),
+                "loo_max_de00": finite_or_none(c.loo_max_de00),
+                "fit_mean_de00": finite_or_none(c.mean_de00),
+                "fit_max_de00": finite_or_none(c.max_de00),
+                "candidates": [{"form": k.form, "loo_mean_de00": k.loo_mean_de00,
+                                "loo_max_de00": k.loo_max_de00,
+                                "fit_mean_de00": k.fit_mean_de00,
+                                "fit_max_de00": k.fit_max_de00} for k in c.candidates]}
 
     def _corrected(self, out: dict[str, Any]) -> dict[str, Any]:
         """``out`` with ``display_correction`` (the measurement whose per-pixel correction the
@@ -303,12 +324,7 @@ class CalibrationResult:
                  "r2": float(r.r2[0])}
                 for r in self.loop_rounds
             ],
-            "ccm": None if self.ccm is None else {
-                "source": self.ccm_source, "method": self.ccm.method,
-                "matrix": self.ccm.matrix.tolist(),
-                "mean_de00": finite_or_none(self.ccm.mean_de00),
-                "max_de00": finite_or_none(self.ccm.max_de00),
-            },
+            "ccm": self._ccm_report(),
             "lighting_notes": list(self.lighting_notes),
         }
 

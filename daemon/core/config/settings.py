@@ -274,7 +274,10 @@ class CalibrationConfig:
     when the largest |OGCD - target| over ``check_levels`` levels is <= ``target_de00`` or after
     ``max_rounds`` rounds; ``r2_goal``: reported goal for R^2 of OGCD vs level;
     ``max_flat_fraction``: refuse a characteristic whose share of flat steps exceeds this;
-    ``replicates``: independent Monte Carlo replicates per render (their spread = error).
+    ``replicates``: independent Monte Carlo replicates per render (their spread = error);
+    ``ccm``: the colour correction fitted to a bundle's checker RAW, "auto" (the form of
+    lowest leave-one-out CIEDE2000, :func:`grassd.calib.ccm.select_ccm`) or one form of
+    :data:`CCM_CHOICES`.
     """
 
     max_jump_mm: float = 3.0
@@ -284,6 +287,12 @@ class CalibrationConfig:
     r2_goal: float = 0.999
     max_flat_fraction: float = 0.6
     replicates: int = 8
+    ccm: str = "auto"
+
+
+#: ``[calibration] ccm``: "auto" and the forms of :data:`grassd.calib.ccm.CCM_FORMS` (named
+#: here, since the configuration loads without numpy; a test keeps the two equal).
+CCM_CHOICES: tuple[str, ...] = ("auto", "3x3", "root-polynomial-2", "root-polynomial-3")
 
 
 @dataclass(frozen=True)
@@ -525,6 +534,7 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         r2_goal=_F(float, check=_between(0.0, 1.0)),
         max_flat_fraction=_F(float, check=_between(0.0, 1.0)),
         replicates=_F(int, check=_between(2, MAX_REPLICATES)),
+        ccm=_F(str, check=_one_of(*CCM_CHOICES)),
     )))
     tables, audience = _parse_tables_audience(ctx, top["tables"], top["audience"])
     metrics, alerts = _parse_operator(ctx, top["metrics"], top["alerts"])

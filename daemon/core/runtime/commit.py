@@ -12,6 +12,8 @@ import contextlib
 import logging
 from pathlib import Path
 
+from grassd.calib.ccm import ColourCorrection
+from grassd.calib.errors import CalibError
 from grassd.daemon.core.calibration.result import CalibrationResult
 from grassd.daemon.core.config.settings import Config
 from grassd.daemon.core.hardware.desired_tables import DesiredTables
@@ -26,6 +28,24 @@ from grassd.daemon.core.store.history import History
 from grassd.daemon.core.store.layout import report_stem
 
 log = logging.getLogger(__name__)
+
+#: The history's meta key of the colour correction a run with a checker RAW fitted.
+CCM_META = "ccm"
+
+
+def last_ccm(history: History) -> ColourCorrection | None:
+    """The colour correction the last committed run with a checker RAW fitted, for runs
+    without one; None when there is none, or when what is stored cannot be read (logged:
+    the run then applies no correction)."""
+    stored = history.get_meta(CCM_META)
+    if stored is None:
+        return None
+    try:
+        return ColourCorrection.from_json(stored)
+    except (CalibError, TypeError, ValueError) as exc:
+        log.warning("the stored colour correction cannot be read (%s): this run applies none; "
+                    "a bundle with a checker RAW fits a new one", exc)
+        return None
 
 
 def commit_run(run_id: int, result: CalibrationResult, *, cfg: Config, history: History,
@@ -58,7 +78,7 @@ def commit_run(run_id: int, result: CalibrationResult, *, cfg: Config, history: 
         history.finish_run(run_id, "failed", error=msg)
         return RunOutcome(RunStatus.FAILED, run_id, error=msg, transient=True), None
     if result.ccm is not None and result.ccm_source == "bundle":
-        history.set_meta("ccm", result.ccm.matrix.tolist())
+        history.set_meta(CCM_META, result.ccm.to_json())
     if desired.own:  # before the run becomes the current table
         history.record_run_tables(run_id, desired.own_lengths(), own_crcs)
     history.finish_run(run_id, "ok", metrics=metrics, lengths_um=result.lengths_um,

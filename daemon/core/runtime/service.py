@@ -85,7 +85,7 @@ from grassd.daemon.core.runtime.bundle_pipeline import (
     attempt_bundle,
     light_time,
 )
-from grassd.daemon.core.runtime.commit import commit_run
+from grassd.daemon.core.runtime.commit import commit_run, last_ccm
 from grassd.daemon.core.runtime.control import ControlServer
 from grassd.daemon.core.runtime.control_commands import ControlCommands, QueuedRequest
 from grassd.daemon.core.runtime.notify import Notifier
@@ -636,7 +636,7 @@ class Service:
         prev_own = None if cur is None else ({} if desired is None else desired.own_lengths())
         try:
             result = self.calibrator.run(light, checker=checker, previous_um=prev_table,
-                                         previous_ccm=self.history.get_meta("ccm"),
+                                         previous_ccm=last_ccm(self.history),
                                          force=force, stop=self.stop_event,
                                          progress=self._progress, previous_tables=prev_own)
         except RunInterrupted as exc:

@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from datetime import UTC, datetime
 
 import numpy as np
 import pytest
 from daemon_harness import HEAD, SITE
 
+from grassd.calib.ccm import ColourCorrection
 from grassd.calib.charts import get_chart
 from grassd.calib.colour_spaces import prophoto_to_xyz, xyz_d50_to_d65
 from grassd.calib.dng import DngCamera, write_linear_dng
+from grassd.calib.errors import ClippedCheckerError
 from grassd.calib.exposure import normalise_exposure
 from grassd.calib.regions import apply_homography, homography
 from grassd.daemon.core.calibration.calibrate import Calibrator, init_backend
@@ -181,9 +184,9 @@ def _chart_image(prophoto, corners, h=200, w=300):
     return img
 
 
-def test_checker_raw_gives_ccm(cfg, tmp_path):
-    """A real DNG of a chart whose colours went through a known 3x3 cross-talk is fitted back."""
-    cal = Calibrator(cfg)
+def _checker_dng(cal: Calibrator, path, exposure: float = 0.8):
+    """A real DNG of a chart whose colours went through a known 3x3 cross-talk; (path,
+    corners, the cross-talk)."""
     lt = cal.lighting(light())
     chart = get_chart("spydercheckr-24")
     grey = chart.grey_index()
@@ -196,20 +199,66 @@ def test_checker_raw_gives_ccm(cfg, tmp_path):
     real = virtual @ m_true.T * 0.5
     corners = np.array([(40.0, 30.0), (260.0, 45.0), (250.0, 175.0), (30.0, 165.0)])
     xyz = xyz_d50_to_d65(prophoto_to_xyz(_chart_image(real, corners)))
-    dng = write_linear_dng(tmp_path / "chart.dng", xyz, DngCamera(), exposure=0.8)
-    ccm = cal.fit_checker_ccm(CheckerPhoto(dng, tuple(map(tuple, corners))))
-    print(f"\nCCM from DNG: mean {ccm.mean_de00:.3f}, max {ccm.max_de00:.3f} dE00")
-    assert ccm.mean_de00 < 1.0
+    dng = write_linear_dng(path, xyz, DngCamera(), exposure=exposure)
+    return dng, tuple(map(tuple, corners)), m_true
+
+
+def test_checker_raw_gives_ccm(cfg, tmp_path):
+    """The paper's 3x3 fitted to a real DNG of a chart with known cross-talk gives it back;
+    its report prints the leave-one-out error, not the fitting residual."""
+    cal = Calibrator(replace(cfg, calibration=replace(cfg.calibration, ccm="3x3")))
+    dng, corners, m_true = _checker_dng(cal, tmp_path / "chart.dng")
+    ccm = cal.fit_checker_ccm(CheckerPhoto(dng, corners))
+    print(f"\nCCM from DNG: fit mean {ccm.mean_de00:.3f}, max {ccm.max_de00:.3f} dE00; "
+          f"leave-one-out {ccm.loo_mean_de00:.3f} / {ccm.loo_max_de00:.3f}")
+    assert ccm.form == "3x3" and ccm.mean_de00 < 1.0
+    assert ccm.reported_de00 == (ccm.loo_mean_de00, ccm.loo_max_de00)
+    assert ccm.loo_mean_de00 >= ccm.mean_de00  # a patch left out is predicted less well
     got = ccm.matrix / ccm.matrix.sum(axis=1, keepdims=True)
     want = m_true / m_true.sum(axis=1, keepdims=True)
     assert np.abs(got - want).max() < 0.05
     assert np.abs(got - np.eye(3)).max() > 0.03  # it is not the identity
 
 
+def test_checker_raw_ccm_form_chosen_by_leave_one_out(cfg, tmp_path):
+    """With ``ccm = "auto"`` (the default) every form is fitted and the one of lowest
+    leave-one-out mean is kept; the metrics and report print its leave-one-out figures and
+    the report lists every candidate."""
+    assert cfg.calibration.ccm == "auto"
+    cal = Calibrator(cfg)
+    dng, corners, _ = _checker_dng(cal, tmp_path / "chart.dng")
+    ccm = cal.fit_checker_ccm(CheckerPhoto(dng, corners))
+    forms = [c.form for c in ccm.candidates]
+    assert sorted(forms) == ["3x3", "root-polynomial-2", "root-polynomial-3"]
+    assert ccm.form == forms[0]
+    assert ccm.loo_mean_de00 == min(c.loo_mean_de00 for c in ccm.candidates)
+    res = cal.run(light(), checker=CheckerPhoto(dng, corners))
+    m, rep = res.metrics(), res.report()
+    assert (m["ccm_source"], m["ccm_form"]) == ("bundle", res.ccm.form)
+    assert (m["ccm_mean_de00"], m["ccm_max_de00"]) == pytest.approx(
+        (res.ccm.loo_mean_de00, res.ccm.loo_max_de00))
+    assert rep["ccm"]["fit_mean_de00"] == pytest.approx(res.ccm.mean_de00)
+    assert [c["form"] for c in rep["ccm"]["candidates"]] == forms
+    again = ColourCorrection.from_json(json.loads(json.dumps(res.ccm.to_json())))
+    rgb = np.random.default_rng(1).uniform(0.05, 0.9, (16, 3))
+    np.testing.assert_allclose(again.apply(rgb), res.ccm.apply(rgb), rtol=1e-12)
+
+
+def test_clipped_checker_raw_refused_naming_the_patches(cfg, tmp_path):
+    """A checker RAW exposed so that its light patches clip is refused (a clipped patch bends
+    the correction), before any correction is fitted to it."""
+    cal = Calibrator(cfg)
+    dng, corners, _ = _checker_dng(cal, tmp_path / "bright.dng", exposure=4.0)
+    with pytest.raises(ClippedCheckerError, match="A1"):
+        cal.fit_checker_ccm(CheckerPhoto(dng, corners))
+
+
 def test_run_with_previous_ccm_gives_json_metrics_and_report(cfg, tmp_path):
-    """A run without a checker RAW reuses the last matrix, which has no residuals: its metrics
-    and report must still be valid JSON (the service writes both with allow_nan=False)."""
-    res = Calibrator(cfg).run(light(), previous_ccm=np.eye(3).tolist())
+    """A run without a checker RAW reuses the last correction, which has no residuals: its
+    metrics and report must still be valid JSON (the service writes both with
+    allow_nan=False)."""
+    res = Calibrator(cfg).run(light(), previous_ccm=ColourCorrection.from_json(
+        np.eye(3).tolist()))
     assert res.ccm_source == "previous"
     m = res.metrics()
     assert m["ccm_mean_de00"] is None and m["ccm_max_de00"] is None
