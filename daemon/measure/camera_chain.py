@@ -70,9 +70,11 @@ class MeasureSetup:
     (R, G, B, G2), ``scale`` k (grey at Y = 0.18 in the set-up shot), the set-up shot's
     ``exposure`` and ``lux``, ``ccm`` (3, 3) for the simulation (scale included), the
     ``chart`` and the ``photo`` it came from, ``made_at`` (ISO 8601 UTC), ``ccm_de00`` the
-    correction's mean and largest CIEDE2000 residual on the patches (None: a set-up made
-    before it was kept), ``sensor`` the set-up shot's sensor (width, height in photosites;
-    None: a set-up made before it was kept), which every measurement shot must have."""
+    correction's mean and largest leave-one-out CIEDE2000 on the patches (each patch predicted
+    by the 3x3 fitted to the others; the fitting residual in a set-up made before; None: a
+    set-up made before either was kept), ``sensor`` the set-up shot's sensor (width, height
+    in photosites; None: a set-up made before it was kept), which every measurement shot must
+    have."""
 
     white_balance: tuple[float, float, float, float]
     scale: float
@@ -140,7 +142,7 @@ def setup_from_checker(path: Path, corners: Any, chart: str, exposure: Exposure,
                         lux=float(lux), ccm=tuple(tuple(float(x) for x in r) for r in ccm),
                         chart=chart, photo=str(path),
                         made_at=datetime.now(UTC).isoformat(timespec="seconds"),
-                        ccm_de00=(fit.mean_de00, fit.max_de00), sensor=sensor)
+                        ccm_de00=fit.reported_de00, sensor=sensor)
 
 
 def load_setup(path: Path) -> MeasureSetup:

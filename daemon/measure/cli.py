@@ -279,4 +279,5 @@ def setup_cmd(corners: str, chart: str, lux: float | None, config_path: str | No
     setup = load_setup(path)
     if setup.ccm_de00 is not None:
         click.echo(f"checker colour correction: mean {setup.ccm_de00[0]:.2f}, max "
-                   f"{setup.ccm_de00[1]:.2f} dE00 on the patches")
+                   f"{setup.ccm_de00[1]:.2f} dE00 on the patches, each left out of the "
+                   "fit in turn")
