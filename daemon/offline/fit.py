@@ -40,6 +40,12 @@ How (fast by construction, every sample kept):
   ``g`` the albedos' slope along its profile (the fits at the candidates tried nearest on
   either side) and ``se`` its standard error (the olive test pixel's base blue: about 3
   levels per 0.01 of smoothness).
+* **Priors.** A fitted parameter the photos do not determine (its standard error past
+  :data:`MAX_STDERR`) is held at its prior: the ``[pixel]`` value with the error of
+  :data:`PRIOR_STDERR`, a pseudo-residual ``(value - start) / error`` beside the photos' (for
+  the splay and smoothness, its square added to the misfit of each candidate); the fit runs
+  again with the rest still fitted and a note names it. Only a fit that determines nothing is
+  refused.
 * **Judging.** Every viewpoint's real OGCD is compared with the starting model's and the
   fitted one's (discrete Frechet distance and largest OGCD error, as ``validate``); held-out
   viewpoints (``holdout``) take no part in the fit and show how well it predicts a view it
@@ -103,6 +109,11 @@ MIN_VISIBLE_SPECULAR: float = 0.01
 #: A parameter whose standard error exceeds this is not determined by the photos.
 MAX_STDERR: dict[str, float] = {"yellow_srgb": 25.0, "green_srgb": 25.0, "base_srgb": 25.0,
                                 "specular": 0.2, "smoothness": 0.3, "splay_deg": 6.0}
+#: What a ``[pixel]`` value is taken to be known to (its standard error, in the parameter's
+#: units) where the photos do not determine it: the fit then holds it at that prior, a
+#: pseudo-observation of the value with this error beside the photos, and fits the rest. A
+#: prior as wide as :data:`MAX_STDERR`: a parameter known that well counts as determined.
+PRIOR_STDERR: dict[str, float] = dict(MAX_STDERR)
 #: Photos whose median CIEDE2000 from the fitted model exceeds this contradict each other (or
 #: the model): no materials make them agree.
 CONTRADICTION_DE00: float = 4.0
@@ -113,7 +124,12 @@ class FitError(ValidateError):
 
 
 class NotIdentifiableError(FitError):
-    """The photos do not determine a parameter (too few lengths or viewpoints)."""
+    """The photos do not determine a parameter (too few lengths or viewpoints): ``parameter``
+    (a :data:`FIT_PARAMS` name; None where no single one is to blame)."""
+
+    def __init__(self, message: str, parameter: str | None = None) -> None:
+        super().__init__(message)
+        self.parameter = parameter
 
 
 class ContradictoryPhotosError(FitError):
@@ -345,6 +361,25 @@ class _Problem:
         self.upper = np.array([255.0] * (3 * len(self.albedo_params))
                               + ([0.9] if self.fit_ks else []))
         self.sigma: dict[int, NDArray[np.float64]] = {}
+        #: parameters held at their prior (:data:`PRIOR_STDERR`) beside the photos
+        self.priors: set[str] = set()
+        self.start_shape = (float(start.smoothness), float(start.splay_deg))
+
+    def prior_rows(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The priors' pseudo-residuals at ``x``: (value - start) / prior standard error per
+        component of every albedo (and ``ks``) held at its prior."""
+        rows = [(x[3 * i: 3 * i + 3] - self.x0[3 * i: 3 * i + 3]) / PRIOR_STDERR[p]
+                for i, p in enumerate(self.albedo_params) if p in self.priors]
+        if self.fit_ks and "specular" in self.priors:
+            rows.append((x[-1:] - self.x0[-1:]) / PRIOR_STDERR["specular"])
+        return np.concatenate(rows) if rows else np.zeros(0)
+
+    def shape_prior(self, shape: tuple[float, float]) -> float:
+        """The priors' chi-square at ``shape``: ((value - start) / prior standard error)^2 for
+        smoothness and splay where held at their prior."""
+        return float(sum(((shape[i] - self.start_shape[i]) / PRIOR_STDERR[name]) ** 2
+                         for i, name in enumerate(("smoothness", "splay_deg"))
+                         if name in self.priors))
 
     def fix_specular(self, x: NDArray[np.float64], ks: float) -> NDArray[np.float64]:
         """Stop fitting ``ks``: hold it at ``ks`` from now on; returns ``x`` without it."""
@@ -386,7 +421,7 @@ class _Problem:
         for s in self.fit_series:
             mean = self.model.mean(shape, s, albedo, ks)
             out.append(((self.real.lab[s] - self.model.lab(mean)) / self.sigma[s]).ravel())
-        return np.concatenate(out)
+        return np.concatenate([*out, self.prior_rows(x)])
 
     def solve(self, shape: tuple[float, float], x0: NDArray[np.float64] | None = None) -> _Inner:
         """Least squares of the albedos / ``ks`` at one shape (Gauss-Newton, trust region)."""
@@ -395,9 +430,10 @@ class _Problem:
         if not self.sigma:
             self.weights(shape)
         start = np.clip(self.x0 if x0 is None else x0, self.lower, self.upper)
+        prior = self.shape_prior(shape)
         if not len(start):
             r = self.residuals(shape, start)
-            return _Inner(start, r, np.zeros((len(r), 0)), float(r @ r),
+            return _Inner(start, r, np.zeros((len(r), 0)), float(r @ r) + prior,
                           self.noise(shape, start))
         res = least_squares(lambda x: self.residuals(shape, x), start,
                             bounds=(self.lower, self.upper), x_scale="jac", max_nfev=200)
@@ -405,7 +441,7 @@ class _Problem:
             raise FitNotConvergedError(
                 f"the albedo fit did not converge in {res.nfev} evaluations ({res.message}); "
                 "check that the photos show the pixel named in the manifest")
-        return _Inner(res.x, res.fun, res.jac, float(res.fun @ res.fun),
+        return _Inner(res.x, res.fun, res.jac, float(res.fun @ res.fun) + prior,
                       self.noise(shape, res.x))
 
     def noise(self, shape: tuple[float, float], x: NDArray[np.float64]) -> float:
@@ -445,7 +481,7 @@ class _Problem:
                 for s in self.fit_series:
                     sim = self.model.mean(shape, s, a, k_s, others)
                     out.append(((target[s] - self.model.lab(sim)) / self.sigma[s]).ravel())
-                return np.concatenate(out)
+                return np.concatenate([*out, self.prior_rows(y)])
 
             fits.append(least_squares(resid, x, bounds=(self.lower, self.upper),
                                       x_scale="jac", max_nfev=100).x)
@@ -617,8 +653,8 @@ class _ShapeSearch:
         except np.linalg.LinAlgError:
             raise NotIdentifiableError(
                 "the photos do not determine specular together with the albedos (singular "
-                "fit); add viewpoints or leave specular and smoothness out of --params"
-            ) from None
+                "fit); add viewpoints or leave specular and smoothness out of --params",
+                "specular") from None
         return self.problem.unpack(best.x)[1], float(np.sqrt(cov[-1, -1]))
 
 
@@ -655,7 +691,42 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
     glossy = "specular" in params or start.specular > 0
     model = _Model(renderer, lighting, manifest, ccm, start, settings, glossy)
     model.fit_series = fit_series
+    priors: dict[str, str] = {}  # parameter -> why the photos do not determine it
+    while True:
+        try:
+            fitted = _fit(model, real, manifest, fit_series, held, params, priors, say)
+            break
+        except NotIdentifiableError as exc:
+            p = exc.parameter
+            if p is None or p in priors:
+                raise
+            if not [q for q in params if q != p and q not in priors]:
+                raise NotIdentifiableError(
+                    f"the photos determine none of {', '.join(params)}: {exc}", p) from None
+            priors[p] = str(exc)
+            say(f"{p} is not determined by the photos: held at its prior, fitting the rest")
+    held_notes = tuple(
+        f"{p} held at its prior, the [pixel] value {_prior_text(start, p)} +- "
+        f"{PRIOR_STDERR[p]:g}, while the rest was fitted: {why}"
+        for p, why in priors.items())
+    return replace(fitted, notes=held_notes + fitted.notes, seconds=time.perf_counter() - t0)
+
+
+def _prior_text(start: Any, p: str) -> str:
+    """A ``[pixel]`` field's value as the notes print it."""
+    v = getattr(start, p)
+    return f"({', '.join(f'{c:g}' for c in v)})" if isinstance(v, tuple) else f"{v:g}"
+
+
+def _fit(model: _Model, real: RealCapture, manifest: CaptureManifest, fit_series: list[int],
+         held: set[int], params: tuple[str, ...], priors: dict[str, str],
+         say: Callable[[str], None]) -> FitResult:
+    """One fit of ``params`` with those named in ``priors`` held at their prior
+    (:data:`PRIOR_STDERR`); :func:`fit_capture` without its checks and set-up."""
+    t0 = time.perf_counter()
+    start, settings = model.start, model.settings
     problem = _Problem(model, real, fit_series, params)
+    problem.priors = set(priors)
     notes: list[str] = []
     shape = (start.smoothness, start.splay_deg)
     say(f"fitting albedos at smoothness {shape[0]:g}, splay {shape[1]:g} deg")
@@ -721,7 +792,10 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
         stderr = {k: stderr[k] for k in FIT_PARAMS if k in stderr}
     # What the photos do not determine even at the fitted shape is refused; what is uncertain
     # through the shape's uncertainty is reported, with a note.
-    _check_determined({**stderr, **given_shape}, params, kept, profile)
+    for p in priors:  # at least as well known as its prior says, whatever the profile showed
+        if stderr.get(p) is None:
+            stderr[p] = [PRIOR_STDERR[p]] * 3 if p in ALBEDO_ROWS else PRIOR_STDERR[p]
+    _check_determined({**stderr, **given_shape}, params, kept | set(priors), profile)
     for p, v in given_shape.items():
         worst = max(stderr[p]) if isinstance(stderr[p], list) else stderr[p]
         if worst > MAX_STDERR[p]:
@@ -851,7 +925,7 @@ def _check_determined(stderr: dict[str, Any], params: Sequence[str], kept: set[s
             raise NotIdentifiableError(
                 f"the photos do not determine {p} (standard error "
                 f"{'unbounded' if worst is None else f'{worst:.3g}'}, limit {limit:g}{tried}); "
-                "photograph more lengths or viewpoints, or leave it out of --params")
+                "photograph more lengths or viewpoints, or leave it out of --params", p)
 
 
 def _judge(model: _Model, real: RealCapture, series: int, shape: tuple[float, float],

@@ -13,6 +13,8 @@ from click.testing import CliRunner
 
 from grassd.daemon.cli.main import main
 from grassd.daemon.offline.fit import (
+    FIT_PARAMS,
+    PRIOR_STDERR,
     ContradictoryPhotosError,
     FitError,
     NotIdentifiableError,
@@ -132,6 +134,34 @@ def test_standard_errors_cover_the_truth(world):
     if truth.specular:  # the lobe's shape, refined: the hidden base's colour follows it
         assert abs(res.pixel["smoothness"] - truth.smoothness) <= 3 * res.stderr["smoothness"]
     assert res.dof > 0 and np.isfinite(res.chi2)
+
+
+@pytest.mark.long
+@pytest.mark.parametrize("name", list(WORLDS))
+def test_two_fitted_views_give_what_they_determine_and_hold_the_rest(captures, renderer, name):
+    """Two fitted views (a site with two benches) do not determine the hidden base or the
+    splay: those are held at their prior (the [pixel] value, PRIOR_STDERR) and named in a
+    note, while the rest is fitted and its standard errors still cover the truth (the fit
+    refused the whole pixel before, naming the one parameter it could not see)."""
+    manifest, lighting = captures(name)
+    two = (VIEWS[0], VIEWS[2])
+    res = fit_capture(manifest, holdout=[HELD_OUT, *(v for v in VIEWS if v not in two)],
+                      renderer=renderer, lighting=lighting)
+    truth = WORLDS[name][0]
+    assert set(res.pixel) == set(FIT_PARAMS)
+    held = [p for p in FIT_PARAMS if any(n.startswith(f"{p} held at its prior") for n in res.notes)]
+    assert held, res.notes  # these views leave something to the prior
+    for p in held:
+        se = np.atleast_1d(res.stderr[p])
+        # the prior's error, with what the splay's and the lobe's uncertainty add to it
+        assert (se > 0).all() and np.isfinite(se).all(), (p, se)
+        assert f"+- {PRIOR_STDERR[p]:g}" in next(n for n in res.notes if n.startswith(p))
+    for p in ("yellow_srgb", "green_srgb"):  # the blades' colours, which both views see
+        if p in held:
+            continue
+        err = np.abs(np.subtract(res.pixel[p], getattr(truth, p)))
+        assert (err <= 3 * np.array(res.stderr[p])).all(), (p, err, res.stderr[p])
+        print(f"{name} {p}: {albedo_de00(res.pixel[p], getattr(truth, p)):.2f} dE00 from the truth")
 
 
 @pytest.mark.long
