@@ -552,26 +552,32 @@ def _covariance(inner: _Inner, dof: int) -> NDArray[np.float64]:
     return np.linalg.inv(jtj) * max(1.0, inner.cost / max(dof, 1))
 
 
-def _check_identifiable(manifest: CaptureManifest, fit_series: Sequence[int],
-                        params: Sequence[str], start: Any) -> None:
-    """Refuse, naming the parameter, what the fitted photos cannot determine."""
+def unseen_parameters(manifest: CaptureManifest, fit_series: Sequence[int],
+                      params: Sequence[str], start: Any) -> dict[str, str]:
+    """The fitted parameters these photos cannot show at all, each with why and what to
+    photograph: the splay without long green blades, the glossy lobe (``specular``,
+    ``smoothness``) from one viewpoint. The fit holds them at their prior from the start.
+
+    Raises:
+        NotIdentifiableError: no viewpoint is left to fit (every one held out).
+    """
     if not fit_series:
         raise NotIdentifiableError("every viewpoint is held out: keep at least one for fitting "
                                    "(--holdout names the ones to judge with only)")
+    unseen: dict[str, str] = {}
     longest = max(float(manifest.series[s].lengths_mm.max()) for s in fit_series)
     need = SPLAY_MIN_LENGTH_FRACTION * start.green_max_mm
     if "splay_deg" in params and longest < need:
-        raise NotIdentifiableError(
-            f"splay_deg cannot be identified: the longest green length photographed is "
-            f"{longest:g} mm; splay shows on long blades, photograph lengths up to at least "
-            f"{need:g} mm or leave splay_deg out of --params")
+        unseen["splay_deg"] = (
+            f"splay shows on long blades and the longest green length photographed is "
+            f"{longest:g} mm; photograph lengths up to at least {need:g} mm to fit it")
     views = {manifest.series[s].viewpoint for s in fit_series}
     for p in ("specular", "smoothness"):
         if p in params and len(views) < 2:
-            raise NotIdentifiableError(
-                f"{p} cannot be identified from one viewpoint: a glossy lobe is told from the "
-                f"albedos only by how the colour changes with the view; photograph at least 2 "
-                f"viewpoints (not held out) or leave {p} out of --params")
+            unseen[p] = (f"{p} cannot be seen from one viewpoint: a glossy lobe is told from the "
+                         f"albedos only by how the colour changes with the view; photograph at "
+                         f"least 2 viewpoints (not held out) to fit it")
+    return unseen
 
 
 def _match_holdout(manifest: CaptureManifest, holdout: Sequence[tuple[float, float, float]]
@@ -682,7 +688,11 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
     start = PixelSpec(**manifest.pixel)
     held = _match_holdout(manifest, holdout)
     fit_series = [i for i in range(len(manifest.series)) if i not in held]
-    _check_identifiable(manifest, fit_series, params, start)
+    priors = unseen_parameters(manifest, fit_series, params, start)  # parameter -> why
+    if params and all(p in priors for p in params):
+        raise NotIdentifiableError(
+            "these photos determine none of " + ", ".join(params) + ": "
+            + "; ".join(priors.values()), next(iter(priors), None))
     real, correction, scale = measure_and_correct(manifest, get_chart(manifest.chart), progress)
     ccm = correction.matrix * scale
     say("building the lighting")
@@ -691,7 +701,6 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
     glossy = "specular" in params or start.specular > 0
     model = _Model(renderer, lighting, manifest, ccm, start, settings, glossy)
     model.fit_series = fit_series
-    priors: dict[str, str] = {}  # parameter -> why the photos do not determine it
     while True:
         try:
             fitted = _fit(model, real, manifest, fit_series, held, params, priors, say)

@@ -21,6 +21,7 @@ from grassd.daemon.offline.fit import (
     fit_capture,
     load_pixel_fields,
     parse_params,
+    unseen_parameters,
 )
 from grassd.daemon.offline.validate import Series
 from grassd.daemon.offline.virtual_capture import capture_world
@@ -222,17 +223,40 @@ def _series(viewpoint, lengths):
     return Series(viewpoint, tuple(Photo(f"{x}.dng", x, quad) for x in lengths))
 
 
-def test_too_few_viewpoints_or_lengths_are_named(tmp_path):
+def test_what_the_views_or_lengths_cannot_show_is_named_and_held(tmp_path):
+    """One viewpoint cannot show gloss, short grass cannot show splay: those are held at their
+    prior (with what to photograph to fit them); a fit left with nothing to determine, or
+    with no viewpoint to fit, is refused."""
+    start = PixelSpec()
     one_view = _manifest_of([_series(VIEWS[0], list(LENGTHS))], tmp_path)
-    with pytest.raises(NotIdentifiableError, match="specular cannot be identified from one"):
-        fit_capture(one_view)
+    unseen = unseen_parameters(one_view, [0], FIT_PARAMS, start)
+    assert sorted(unseen) == ["smoothness", "specular"]
+    assert "photograph at least 2 viewpoints" in unseen["specular"]
     short = _manifest_of([_series(v, [0.0, 2.0, 4.0]) for v in VIEWS[:2]], tmp_path)
-    with pytest.raises(NotIdentifiableError, match="splay_deg cannot be identified.*4 mm"):
-        fit_capture(short)
+    unseen = unseen_parameters(short, [0, 1], FIT_PARAMS, start)
+    assert list(unseen) == ["splay_deg"] and "4 mm" in unseen["splay_deg"]
+    with pytest.raises(NotIdentifiableError, match="determine none of specular, smoothness"):
+        fit_capture(one_view, params=["specular", "smoothness"])
     with pytest.raises(NotIdentifiableError, match="every viewpoint is held out"):
         fit_capture(one_view, holdout=[VIEWS[0]])
     with pytest.raises(FitError, match="not a viewpoint of the capture"):
         fit_capture(one_view, holdout=[(1.0, 1.0, 1.0)])
+
+
+@pytest.mark.long
+def test_one_view_fits_the_albedos_and_holds_the_gloss(captures, renderer):
+    """From one viewpoint the albedos are fitted and the glossy lobe held at its prior, with a
+    note saying what to photograph (it was refused before)."""
+    manifest, lighting = captures("pink")
+    res = fit_capture(manifest, holdout=[HELD_OUT, *VIEWS[1:]], renderer=renderer,
+                      lighting=lighting)
+    assert set(res.pixel) == set(FIT_PARAMS)
+    assert any(n.startswith("specular held at its prior") and "2 viewpoints" in n
+               for n in res.notes), res.notes
+    truth = WORLDS["pink"][0]
+    print(f"pink from one view: green {albedo_de00(res.pixel['green_srgb'], truth.green_srgb):.2f}"
+          f" dE00 from the truth")
+    assert albedo_de00(res.pixel["green_srgb"], truth.green_srgb) < 5.0
 
 
 @pytest.mark.long
