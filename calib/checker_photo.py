@@ -192,10 +192,7 @@ def _clipping(sensor: _Sensor, quads: NDArray,
     return CheckerClipping(tuple(high), tuple(low), tuple(high.values()), tuple(low.values()))
 
 
-def _refuse(clip: CheckerClipping, chart: ReferenceChart, path: Path,
-            sensor: _Sensor, refuse_black: bool = True) -> None:
-    if not refuse_black:
-        clip = CheckerClipping(clip.high, (), clip.high_filters, ())
+def _refuse(clip: CheckerClipping, chart: ReferenceChart, path: Path, sensor: _Sensor) -> None:
     if not clip.clipped:
         return
 
@@ -251,23 +248,19 @@ def checker_clipping(path: Path, corners: Sequence[Sequence[float]],
 
 
 def refuse_clipped_checker(path: Path, corners: Sequence[Sequence[float]], chart: ReferenceChart,
-                           white_balance: str | Sequence[float] | None = "camera", *,
-                           refuse_black: bool = True) -> None:
+                           white_balance: str | Sequence[float] | None = "camera") -> None:
     """Raise :class:`~grassd.calib.errors.ClippedCheckerError` (naming the patches, their
-    filters and the fix) when any patch of the checker photo clips (:func:`checker_clipping`).
-
-    ``refuse_black=False`` lets patches clipped at 0 through (only those near the white level
-    are refused): for a simulated sensor that models negative responses by cutting them at 0,
-    never for a real camera's photo."""
+    filters and the fix) when any patch of the checker photo clips (:func:`checker_clipping`):
+    near the white level, or at 0 (a real sensor's response is never negative, so a patch
+    that reads nothing had too little light)."""
     p = Path(path)
     sensor = _read_sensor(p)
-    _refuse(_clipping(sensor, _raw_quads(sensor, corners, p), white_balance), chart, p, sensor,
-            refuse_black)
+    _refuse(_clipping(sensor, _raw_quads(sensor, corners, p), white_balance), chart, p, sensor)
 
 
 def checker_photo_patches(path: Path, corners: Sequence[Sequence[float]], chart: ReferenceChart,
-                          white_balance: str | Sequence[float] = "camera", *,
-                          refuse_black: bool = True) -> NDArray[np.float64]:
+                          white_balance: str | Sequence[float] = "camera"
+                          ) -> NDArray[np.float64]:
     """(24, 3) mean ProPhoto linear RGB of the checker's patches in a RAW photo developed with
     ``white_balance`` ("camera" or multipliers, as :func:`grassd.calib.raw.develop_raw`), after
     refusing a photo whose patches clip (:func:`refuse_clipped_checker`): the patches to fit a
@@ -278,15 +271,14 @@ def checker_photo_patches(path: Path, corners: Sequence[Sequence[float]], chart:
         CornersOutsideImageError: a corner lies outside the photo.
     """
     p = Path(path)
-    refuse_clipped_checker(p, corners, chart, white_balance, refuse_black=refuse_black)
+    refuse_clipped_checker(p, corners, chart, white_balance)
     dev = develop_raw(p, white_balance=white_balance)
     check_inside(corners, dev.rgb.shape, p, "checker")
     return dev.checker_patches(corners)
 
 
 def checker_white_balance(path: Path, corners: Sequence[Sequence[float]],
-                          chart: ReferenceChart, *,
-                          refuse_black: bool = True) -> tuple[float, float, float, float]:
+                          chart: ReferenceChart) -> tuple[float, float, float, float]:
     """LibRaw channel multipliers (R, G, B, G2) that develop the checker's grey patch to the
     chromaticity of its reference colour (a grey card is nearly, not exactly, neutral).
 
@@ -296,7 +288,6 @@ def checker_white_balance(path: Path, corners: Sequence[Sequence[float]],
     linear sRGB; normalised to green = 1. Where LibRaw reports no colour matrix the grey is
     made neutral (``wb = mean green / c``).
 
-    ``refuse_black``: as :func:`refuse_clipped_checker`.
 
     Raises:
         ClippedCheckerError: a patch clips under these multipliers (module docstring).
@@ -313,7 +304,7 @@ def checker_white_balance(path: Path, corners: Sequence[Sequence[float]],
                                 "sensor; white balance from the checker needs one")
     # Clipping at the white level alone, before the multipliers are known, then (below) at the
     # levels where these multipliers saturate the development.
-    _refuse(_clipping(sensor, quads, None), chart, path, sensor, refuse_black)
+    _refuse(_clipping(sensor, quads, None), chart, path, sensor)
     mask = quad_mask(img.shape, quads[chart.grey_index()])
     means = np.zeros(len(desc))
     for c in range(len(desc)):
@@ -336,7 +327,7 @@ def checker_white_balance(path: Path, corners: Sequence[Sequence[float]],
     mult = np.array([per[desc[c]] / means[c] for c in range(len(desc))])
     mult = mult / np.mean([mult[c] for c in index["G"]])
     wb = [float(v) for v in mult] + ([float(mult[index["G"][0]])] if len(desc) == 3 else [])
-    _refuse(_clipping(sensor, quads, wb), chart, path, sensor, refuse_black)
+    _refuse(_clipping(sensor, quads, wb), chart, path, sensor)
     return tuple(wb)  # type: ignore[return-value]
 
 

@@ -28,7 +28,8 @@ metered exposure puts a mid-grey at 0.18 of full scale. Photon and read noise ar
 (``full_well`` electrons at x = 1), then the camera's response curve (:class:`ResponseCurve`,
 its own and never told to the merge), 8-bit quantisation and clipping, and the shot is served
 as a JPEG (quality 95) whose EXIF holds the real exposure (with ``fileFormat`` type "raw+",
-as a THETA Z1, also as a DNG of the same linear signal, ``_dngFileUrl``). Shutter values are
+as a THETA Z1, also as a DNG of the same linear signal as a sensor with non-negative
+spectral sensitivities responds to it, :func:`raw_sensor`, ``_dngFileUrl``). Shutter values are
 those of the THETA Z1's list (:data:`SHUTTER_SPEEDS_S`), as a real camera's; an unsupported
 value is refused with ``invalidParameterValue``.
 
@@ -58,6 +59,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import datetime
 from enum import StrEnum
+from functools import lru_cache
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
@@ -247,17 +249,30 @@ def _thumbnail(jpeg: bytes, size: int) -> bytes:
     return buf.getvalue()
 
 
+@lru_cache(maxsize=1)
+def raw_sensor() -> Any:
+    """The simulated camera's RAW sensor: colour-science's Nikon D5100 sensitivities under
+    D65 (:class:`grassd.calib.spectral_virtual_camera.SpectralVirtualCamera`), whose response
+    to linear Rec.709 radiance has no negative entry, as a real sensor's has none; its DNG
+    profile is the camera's maker-style matrix, which the checker's correction refines."""
+    from grassd.calib.spectral_virtual_camera import SpectralVirtualCamera
+
+    return SpectralVirtualCamera()
+
+
 def dng_bytes(signal: NDArray) -> bytes:
-    """A DNG (the project's writer, :mod:`grassd.calib.dng`) of linear sensor ``signal``
-    (H, W, 3, Rec.709 camera RGB, 1 = full scale) on a sensor of twice the resolution (a whole
-    2 x 2 Bayer block per texel, as a real sensor resolves a sun of many photosites):
-    mosaiced, clipped at the white level."""
+    """A DNG (the project's writer, :mod:`grassd.calib.dng`) of linear ``signal`` (H, W, 3,
+    Rec.709 radiance, 1 = full scale) as :func:`raw_sensor` responds to it, on a sensor of
+    twice the resolution (a whole 2 x 2 Bayer block per texel, as a real sensor resolves a sun
+    of many photosites): mosaiced, clipped at the white level."""
     import tempfile
 
     from grassd.calib.dng import DngCamera, mosaic, write_dng
 
-    cam = DngCamera(model="SimCam Z1 RAW")
-    fine = np.repeat(np.repeat(np.clip(signal, 0.0, None), 2, axis=0), 2, axis=1)
+    sensor = raw_sensor()
+    cam = DngCamera(color_matrix=np.asarray(sensor.profile), model="SimCam Z1 RAW")
+    response = sensor.camera_rgb(np.asarray(signal, dtype=np.float64))
+    fine = np.repeat(np.repeat(response, 2, axis=0), 2, axis=1)
     raw = mosaic(fine, cam)
     with tempfile.TemporaryDirectory() as d:
         path = write_dng(Path(d) / "shot.dng", raw, cam)

@@ -126,9 +126,7 @@ def setup_from_checker(path: Path, corners: Any, chart: str, exposure: Exposure,
 
     ref = get_chart(chart)
     sensor = raw_sensor(path)
-    # a patch clipped high is refused; one at the black level is not yet: the simulated
-    # measuring camera (grassd.rigs.simulated_camera) still cuts negative responses at 0
-    wb = checker_white_balance(path, corners, ref, refuse_black=False)
+    wb = checker_white_balance(path, corners, ref)  # a patch clipped high or at black: refused
     patches = develop_raw(path, white_balance=wb).checker_patches(corners)
     grey = float(luminance(patches[ref.grey_index()], "prophoto"))
     if not grey > 0:

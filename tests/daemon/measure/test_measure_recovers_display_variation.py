@@ -43,11 +43,12 @@ def test_measure_recovers_the_hidden_variation_and_makes_the_display_uniform(tmp
     assert u["after"] * 3.0 <= u["before"], u
     # the correction is kept, and its tables were pushed as a run of their own
     layout = StateLayout(tmp_path / "state")
-    # the set-up's checker photo had no clipped patch: its 3x3 correction predicts each patch
-    # left out of the fit (the leave-one-out figures the set-up keeps)
+    # the set-up's checker photo had no clipped patch (the simulated sensor's response is
+    # never negative): its 3x3 correction predicts each patch left out of the fit (the
+    # leave-one-out figures the set-up keeps; 0.58 / 5.22 with a sensor cutting at 0)
     mean_de, max_de = json.loads(layout.measure_setup.read_text())["ccm_de00"]
     print(f"checker colour correction: mean {mean_de:.2f}, max {max_de:.2f} dE00")
-    assert mean_de < 1.0 and max_de < 6.0
+    assert mean_de < 0.3 and max_de < 1.0
     assert json.loads(layout.correction.read_text())["measurement"] == report["measurement"]
     run_id = report["tables"]["run_id"]
     assert report["tables"]["status"] == "ok" and all(report["tables"]["pushed"])
