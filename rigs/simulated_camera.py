@@ -198,6 +198,7 @@ class Faults:
     missing_exposure: bool = False      # no ExposureTime in EXIF, options or metadata
     file_url_base: str | None = None    # fileUrl's scheme://host instead of the camera's own
     mode_locked: bool = False           # captureMode cannot change (disabledCommand)
+    raw_file: bytes | None = None       # served as every RAW+ shot's DNG (a hostile file)
     times: int | None = None
 
     def spend(self) -> None:
@@ -211,7 +212,7 @@ class Faults:
         """Behave again."""
         self.http_status, self.malformed_json, self.never_finish = None, False, False
         self.truncated_download, self.missing_exposure, self.times = False, False, None
-        self.file_url_base, self.mode_locked = None, False
+        self.file_url_base, self.mode_locked, self.raw_file = None, False, None
 
 
 def jpeg_bytes(codes: NDArray[np.uint8], exif: dict[str, Any] | None) -> bytes:
@@ -436,7 +437,8 @@ class SimCamera:
         raw_name = None
         if o["fileFormat"].get("type") == "raw+":  # RAW+: a DNG of the same exposure too
             raw_name = name[:-4] + ".DNG"
-            self.files[raw_name] = dng_bytes(x)
+            self.files[raw_name] = (dng_bytes(x) if self.faults.raw_file is None
+                                    else self.faults.raw_file)
             out["_dngFileUrl"] = f"{base}/files/{raw_name}"
         self.shots.append(ShotFile(name, datetime.now().astimezone(), codes.shape[1],
                                    codes.shape[0], raw_name))
