@@ -266,12 +266,15 @@ class CalibrationResult:
         }
 
     def _ccm_metrics(self) -> dict[str, Any]:
-        """The colour correction in the metrics: its source, form and the error a report
-        prints (dE00 mean / max; leave-one-out where known,
-        :attr:`~grassd.calib.ccm.ColourCorrection.reported_de00`)."""
+        """The colour correction in the metrics: its source, the error a report prints (dE00
+        mean / max; leave-one-out where known,
+        :attr:`~grassd.calib.ccm.ColourCorrection.reported_de00`) and, with a correction, its
+        form (a run without keeps its historic keys)."""
         c = self.ccm
-        mean, worst = (None, None) if c is None else c.reported_de00
-        return {"ccm_source": self.ccm_source, "ccm_form": None if c is None else c.form,
+        if c is None:
+            return {"ccm_source": self.ccm_source, "ccm_mean_de00": None, "ccm_max_de00": None}
+        mean, worst = c.reported_de00
+        return {"ccm_source": self.ccm_source, "ccm_form": c.form,
                 "ccm_mean_de00": finite_or_none(mean), "ccm_max_de00": finite_or_none(worst)}
 
     def _ccm_report(self) -> dict[str, Any] | None:
