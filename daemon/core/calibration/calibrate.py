@@ -48,7 +48,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from grassd.calib.ccm import ColourCorrection, select_ccm
+from grassd.calib.ccm import CCM_FORMS, ColourCorrection, select_ccm
 from grassd.calib.characteristic import Characteristic, fit_characteristic
 from grassd.calib.charts import get_chart
 from grassd.calib.checker_photo import checker_photo_patches
@@ -186,7 +186,7 @@ class Calibrator:
         r = normalise_exposure(real, real[grey], space="prophoto",
                                target_y=float(luminance(virtual[grey], "prophoto")))
         form = self.cfg.calibration.ccm
-        return select_ccm(virtual, r) if form == "auto" else select_ccm(virtual, r, [form])
+        return select_ccm(virtual, r, tuple(CCM_FORMS) if form == "auto" else (form,))
 
     def simulate(self, lighting: Any, lengths_mm: NDArray, seed: int,
                  ccm: ColourCorrection | None, stop: threading.Event | None,

@@ -17,7 +17,7 @@ Units: lengths in mm (tables in uint16 um), OGCD in dE00 (CIEDE2000 units).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -271,10 +271,8 @@ class CalibrationResult:
         :attr:`~grassd.calib.ccm.ColourCorrection.reported_de00`) and, with a correction, its
         form (a run without keeps its historic keys)."""
         c = self.ccm
-        if c is None:
-            return {"ccm_source": self.ccm_source, "ccm_mean_de00": None, "ccm_max_de00": None}
-        mean, worst = c.reported_de00
-        return {"ccm_source": self.ccm_source, "ccm_form": c.form,
+        mean, worst = (None, None) if c is None else c.reported_de00
+        return {"ccm_source": self.ccm_source, **({} if c is None else {"ccm_form": c.form}),
                 "ccm_mean_de00": finite_or_none(mean), "ccm_max_de00": finite_or_none(worst)}
 
     def _ccm_report(self) -> dict[str, Any] | None:
@@ -290,10 +288,7 @@ class CalibrationResult:
                 "loo_max_de00": finite_or_none(c.loo_max_de00),
                 "fit_mean_de00": finite_or_none(c.mean_de00),
                 "fit_max_de00": finite_or_none(c.max_de00),
-                "candidates": [{"form": k.form, "loo_mean_de00": k.loo_mean_de00,
-                                "loo_max_de00": k.loo_max_de00,
-                                "fit_mean_de00": k.fit_mean_de00,
-                                "fit_max_de00": k.fit_max_de00} for k in c.candidates]}
+                "candidates": [asdict(k) for k in c.candidates]}
 
     def _corrected(self, out: dict[str, Any]) -> dict[str, Any]:
         """``out`` with ``display_correction`` (the measurement whose per-pixel correction the
