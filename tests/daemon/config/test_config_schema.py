@@ -7,8 +7,14 @@ from dataclasses import dataclass
 
 import pytest
 
+from grassd.calib.ccm import CCM_FORMS
 from grassd.daemon.core.config import schema
-from grassd.daemon.core.config.settings import CalibrationConfig, default_config_text, parse_config
+from grassd.daemon.core.config.settings import (
+    CCM_CHOICES,
+    CalibrationConfig,
+    default_config_text,
+    parse_config,
+)
 from grassd.daemon.core.errors import ConfigError, ManifestError
 from grassd.sim.scene import MAX_REPLICATES
 
@@ -59,3 +65,9 @@ def test_the_replicate_limit_is_the_renderers():
                                           f"{MAX_REPLICATES + 1}"):
         parse_config(top.replace(f"replicates = {MAX_REPLICATES}",
                                  f"replicates = {MAX_REPLICATES + 1}", 1))
+
+
+def test_calibration_ccm_offers_auto_and_every_form_calib_fits():
+    """``[calibration] ccm`` names its choices without importing numpy; they stay the forms
+    :mod:`grassd.calib.ccm` fits."""
+    assert CCM_CHOICES == ("auto", *CCM_FORMS)

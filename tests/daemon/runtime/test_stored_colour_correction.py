@@ -9,13 +9,8 @@ import numpy as np
 import pytest
 
 from grassd.calib.ccm import CCM_FORMS, select_ccm
-from grassd.daemon.core.config.settings import CCM_CHOICES
 from grassd.daemon.core.runtime.commit import CCM_META, last_ccm
 from grassd.daemon.core.store.history import History
-
-
-def test_the_config_names_every_form():
-    assert CCM_CHOICES == ("auto", *CCM_FORMS)
 
 
 @pytest.mark.parametrize("form", list(CCM_FORMS))
