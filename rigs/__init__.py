@@ -24,7 +24,8 @@ Test and benchmark rigs:
   EEPROM; :mod:`.power_cut` - a power cut at every storage write of an update;
   :mod:`.mitsuba_scene` - Mitsuba 3 as an independent reference renderer; :mod:`.processes` -
   child processes (a firmware port, QEMU, a daemon, a studio) ended as a service manager ends
-  them.
+  them; :mod:`.dask_cluster` - a Dask scheduler and workers on 127.0.0.1 with a site CA of
+  their own, and the preload that turns a worker hostile.
 
 The rule (``tests/test_import_graph.py``): no module of ``grassd.calib``, ``grassd.sim``,
 ``grassd.firmware_proto`` or ``grassd.daemon`` imports a module of this package, lazily or

@@ -1,7 +1,7 @@
 """Who may compute for the daemon: a real dask scheduler speaking mutual TLS with a site CA
 made here (tests/dask_cluster.py), workers as processes on 127.0.0.1. A worker without a
 certificate of that CA cannot join; a hostile worker (a real ``dask worker`` with a preload,
-tests/daemon/calibration/hostile_worker_preload.py) whose answer is a pickle that runs a
+grassd.rigs.dask_cluster.HOSTILE_PRELOAD) whose answer is a pickle that runs a
 command when unpickled runs nothing in the daemon: it cannot join without a certificate, and
 one with a certificate has its answer refused (Dask's msgpack serializer only). The same
 worker on a plain tcp:// cluster, read by a Dask client with Dask's defaults, runs the command
@@ -29,9 +29,6 @@ from grassd.sim.light_input import LightInput
 
 pytest.importorskip("distributed")
 
-#: the hostile preload's text; each test writes it where the daemon (this process) cannot
-#: import it, as the daemon cannot import an attacker's module
-PRELOAD_TEXT = Path(__file__).with_name("hostile_worker_preload.py").read_text()
 LIGHT = LightInput(hdri=SITE, ambient_lux=6000.0, sun_lux=20000.0,
                    timestamp=datetime(2026, 6, 21, 10, tzinfo=UTC))
 
@@ -52,15 +49,6 @@ def _wait_for_log(path: Path, needles: tuple[str, ...], timeout_s: float = 30.0)
         time.sleep(0.2)
 
 
-def _hostile(cluster: DaskCluster, mark: Path) -> str:
-    """The preload that makes a worker of ``cluster`` hostile, appending to ``mark``."""
-    cluster.env["GRASSD_HOSTILE_MARK"] = str(mark)
-    path = cluster.logs / "attacker" / "hostile_preload.py"
-    path.parent.mkdir(exist_ok=True)
-    path.write_text(PRELOAD_TEXT)
-    return str(path)
-
-
 def _refused(cluster: DaskCluster, needle: str) -> None:
     """Wait until the scheduler's log shows a refused TLS handshake naming ``needle``."""
     _wait_for_log(cluster.logs / "scheduler.log", (needle,))
@@ -72,7 +60,7 @@ def test_a_worker_with_another_cas_certificate_cannot_join(cfg, tmp_path):
     joins, its pickle never reaches the daemon, whose run finds no worker."""
     mark = tmp_path / "ran"
     with DaskCluster(tmp_path / "dask") as cluster:
-        preload = _hostile(cluster, mark)
+        preload = cluster.hostile_preload(mark)
         cert, key = SiteCA(tmp_path / "stranger", "stranger-ca").issue("stranger")
         cluster.start_worker("stranger", tls_args=[
             "--tls-ca-file", str(cluster.ca.ca_file), "--tls-cert", str(cert),
@@ -119,7 +107,7 @@ def test_a_hostile_worker_runs_nothing_in_the_daemon(cfg, tmp_path):
     as ComputeResultRefused and the command never runs (in the daemon or anywhere)."""
     mark = tmp_path / "ran"
     with DaskCluster(tmp_path / "dask") as cluster:
-        preload = _hostile(cluster, mark)
+        preload = cluster.hostile_preload(mark)
         cluster.add_worker("hostile", extra=("--preload", preload))
         remote = RemoteCalibrator(cfg.replace(compute=cluster.compute(worker_wait_s=5.0)))
         with pytest.raises(ComputeResultRefused, match="Dask worker tls://127.0.0.1:"):
@@ -137,7 +125,7 @@ def test_the_same_worker_runs_its_command_in_a_client_with_dasks_defaults(tmp_pa
 
     mark = tmp_path / "ran"
     with DaskCluster(tmp_path / "dask", tls=False) as cluster:
-        preload = _hostile(cluster, mark)
+        preload = cluster.hostile_preload(mark)
         cluster.add_worker("hostile", extra=("--preload", preload))
         with Client(cluster.address, timeout=30, set_as_default=False) as client:
             client.submit(remote.calibrate_on_worker, b"", pure=False).result(timeout=60)

@@ -5,7 +5,7 @@ Checks that a sweep over TLS (through the command line, its [compute] from --con
 local sweep bit for bit, that a worker killed in the middle of a sweep loses no task, that a
 sweep resumes from partial output on the cluster, that a tcp:// scheduler is refused without
 ``allow_insecure``, and that a hostile worker holding a valid certificate, whose answer is a
-pickle that runs a command (tests/daemon/calibration/hostile_worker_preload.py), runs nothing in
+pickle that runs a command (grassd.rigs.dask_cluster.HOSTILE_PRELOAD), runs nothing in
 the sweeping process and stores nothing. Every process started here is killed in teardown (its
 own process group, by id).
 """
@@ -32,8 +32,6 @@ pytest.importorskip("distributed")
 
 SPEC = SweepSpec(lengths_mm=(0.0, 10.0, 20.0), samples=256, replicates=4, latitude=48.1,
                  longitude=11.6, date="2026-03-20", timezone="Europe/Berlin")
-#: the hostile preload's text, written where this process cannot import it
-PRELOAD_TEXT = (Path(__file__).parents[1] / "calibration" / "hostile_worker_preload.py").read_text()
 
 
 @pytest.fixture(scope="module")
@@ -147,11 +145,7 @@ def test_a_hostile_worker_runs_nothing_in_the_sweep(sky, tmp_path, monkeypatch):
 
     mark = tmp_path / "ran"
     with DaskCluster(tmp_path / "dask") as cluster:
-        cluster.env["GRASSD_HOSTILE_MARK"] = str(mark)
-        preload = cluster.logs / "attacker" / "hostile_preload.py"
-        preload.parent.mkdir()
-        preload.write_text(PRELOAD_TEXT)
-        cluster.add_worker("hostile", extra=("--preload", str(preload)))
+        cluster.add_worker("hostile", extra=("--preload", cluster.hostile_preload(mark)))
         with pytest.raises(ComputeResultRefused, match="Dask worker tls://127.0.0.1:"):
             run_sweep(SPEC, _conds(sky)[:2], tmp_path / "out", compute=cluster.compute(),
                       plots=False)
