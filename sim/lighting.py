@@ -210,7 +210,9 @@ def rotate_env(img: np.ndarray, rotation_deg: float) -> np.ndarray:
 
     Content at column u moves to ``u + rotation_deg / 360``. Whole-column shifts are exact
     rolls; fractional shifts interpolate linearly between the two neighbouring rolls (row sums
-    and hence the horizontal illuminance are kept exactly). Returns float32 (H, W, 3).
+    and hence the horizontal illuminance are kept exactly). Returns float32 (H, W, 3): no
+    turn (a shift under a millionth of a texel) gives a view of ``img`` itself when it is
+    float32 and contiguous (a kept map and its light then share one copy).
     """
     if not np.isfinite(rotation_deg):
         raise LightingError(f"HDRI rotation {rotation_deg} deg is not a finite number")
@@ -220,7 +222,10 @@ def rotate_env(img: np.ndarray, rotation_deg: float) -> np.ndarray:
     whole = int(np.floor(shift))
     frac = shift - whole
     if frac < 1e-6 or frac > 1.0 - 1e-6:
-        return np.ascontiguousarray(np.roll(arr, int(round(shift)) % width, axis=1))
+        whole = int(round(shift)) % width
+        if whole == 0:
+            return np.ascontiguousarray(arr).view()
+        return np.ascontiguousarray(np.roll(arr, whole, axis=1))
     a = np.roll(arr, whole, axis=1)
     b = np.roll(arr, whole + 1, axis=1)
     return np.ascontiguousarray((1.0 - frac) * a + frac * b, dtype=np.float32)
