@@ -94,6 +94,7 @@ def simulator_main(conn: Connection, args: StudioArgs,
     ``word``: the ``multiprocessing`` int array (``RawArray("i", 1)``) the server moves with
     every job or cancel; None: launches are not stopped in flight."""
     from grassd.daemon.core.calibration.simulation import CurveRun
+    from grassd.daemon.core.runtime.freed_memory import release_freed_memory
     from grassd.daemon.studio.superseding import Superseding
     from grassd.daemon.studio.worker import Worker
 
@@ -140,6 +141,8 @@ def simulator_main(conn: Connection, args: StudioArgs,
             except Exception as exc:  # a renderer or colour error: reported, the studio goes on
                 log.exception("studio job failed")
                 send(("error", job, type(exc).__name__, f"{type(exc).__name__}: {exc}"))
+            finally:  # what the job built (a light's maps, its rounds) is resident no more
+                release_freed_memory()
         return go
 
     while True:

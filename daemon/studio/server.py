@@ -62,6 +62,7 @@ from aiohttp import WSMsgType, web
 from aiohttp.web_protocol import RequestHandler, _ErrInfo
 
 from grassd.daemon.core.errors import DaemonError
+from grassd.daemon.core.runtime.freed_memory import release_freed_memory
 from grassd.daemon.studio.cost import check_cost
 from grassd.daemon.studio.inputs import Condition, StudioInputError
 from grassd.daemon.studio.lights import MAX_HDRI_BYTES, LightSource
@@ -89,6 +90,10 @@ UPLOADS: web.AppKey[asyncio.Semaphore] = web.AppKey("uploads", asyncio.Semaphore
 DECODERS: web.AppKey[ThreadPoolExecutor] = web.AppKey("decoders", ThreadPoolExecutor)
 #: Seconds the studio waits at its end for requests in flight (a page's socket is closed).
 SHUTDOWN_S: float = 2.0
+#: Seconds between two returns of the server's freed heap to the system
+#: (:func:`~grassd.daemon.core.runtime.freed_memory.release_freed_memory`): what a burst of
+#: requests or a decoded upload left resident is given back within this time.
+RELEASE_EVERY_S: float = 2.0
 
 
 def static_dir() -> Path:
@@ -725,6 +730,13 @@ class StudioSite(web.BaseSite):
         return self._server.sockets[0].getsockname()[:2]
 
 
+async def _release_freed_memory() -> None:
+    """Every :data:`RELEASE_EVERY_S`, give the server's freed heap back to the system."""
+    while True:
+        await asyncio.sleep(RELEASE_EVERY_S)
+        release_freed_memory()
+
+
 async def serve(args: StudioArgs, host: str, port: int, token: str | None,
                 ready: asyncio.Future | None = None) -> None:
     """Serve the studio ``args`` describe until cancelled or sent SIGTERM (uploads removed,
@@ -754,7 +766,9 @@ async def serve(args: StudioArgs, host: str, port: int, token: str | None,
         await site.start()
         if ready is not None:
             ready.set_result(site.bound)
+        releasing = asyncio.create_task(_release_freed_memory())
         await stop.wait()
+        releasing.cancel()
     finally:
         with contextlib.suppress(NotImplementedError, RuntimeError):
             loop.remove_signal_handler(signal.SIGTERM)
