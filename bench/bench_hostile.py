@@ -22,6 +22,13 @@
    four at a time, costly inputs from two pages): what it answered, the seconds a page's
    characteristic then took, and the peak RSS of its server and simulator processes during
    the attack (``VmHWM`` after ``clear_refs``).
+7. The compute offload's attacks (:mod:`grassd.rigs.dask_cluster`, a TLS cluster with a site
+   CA of its own): a worker of another CA, a worker with a certificate whose answer is a
+   pickle that runs a command, and an honest worker, each met by the daemon's Dask client
+   (:class:`~grassd.daemon.compute.remote.RemoteCalibrator`, in this process, as
+   ``grassd run`` holds it); then the same hostile worker on plain tcp:// read by a client
+   with Dask's defaults (the attack is real). What each run did, its seconds, this process's
+   peak RSS growth and whether the command ran.
 
 Run: ``python -m bench hostile`` or ``python -m bench.bench_hostile [--bundles N] [--seed S]
 [--only PART ...]``.
@@ -326,6 +333,92 @@ def studio() -> None:
             stop_studio(st)
 
 
+#: [compute]'s run in part 7: a 2 x 2 display, few samples (seconds a run)
+COMPUTE_CONFIG = """state_dir = "state"
+[site]
+latitude = 48.1
+longitude = 11.6
+timezone = "Europe/Berlin"
+[display]
+rows = 2
+cols = 2
+[[controllers]]
+port = "/dev/null"
+[[viewpoints]]
+h_cm = 170
+d_m = 2
+[light]
+inbox = "inbox"
+[simulation]
+samples = 64
+lengths = 5
+[calibration]
+check_levels = 5
+max_rounds = 1
+replicates = 2
+"""
+
+
+def compute() -> None:
+    """Part 7: the compute offload's attacks against the daemon's Dask client; each row: what
+    the run did, its seconds, this process's peak RSS growth, and whether the hostile
+    command ran (its mark file)."""
+    from datetime import UTC, datetime
+
+    from grassd.daemon.compute.remote import RemoteCalibrator, calibrate_on_worker
+    from grassd.daemon.core.config.settings import parse_config
+    from grassd.rigs.dask_cluster import ClusterUnavailable, DaskCluster, SiteCA
+    from grassd.sim.hdri import default_site_hdri
+    from grassd.sim.light_input import LightInput
+
+    light = LightInput(hdri=default_site_hdri(), ambient_lux=6000.0, sun_lux=20000.0,
+                       timestamp=datetime(2026, 6, 21, 10, tzinfo=UTC))
+    with tempfile.TemporaryDirectory(prefix="grassd-bench-compute-") as tmp:
+        d = Path(tmp)
+        cfg = parse_config(COMPUTE_CONFIG, base_dir=d)
+
+        def row(what: str, mark: Path, fn: Callable[[], object]) -> None:
+            raised, seconds, growth = peak_rss_growth(fn)
+            did = ("ran" if raised is None
+                   else f"{type(raised).__name__}: {str(raised).splitlines()[0][:110]}")
+            ran = mark.read_text().split() if mark.exists() else []
+            print(f"compute: {what:44s} {did} ({seconds:.1f} s); peak RSS +{growth / 2**20:.0f}"
+                  f" MiB; hostile command ran in {len(ran)} process(es)", flush=True)
+
+        def daemon_run(cluster: DaskCluster) -> Callable[[], object]:
+            remote = RemoteCalibrator(cfg.replace(compute=cluster.compute(worker_wait_s=10.0)))
+            return lambda: remote.run(light)
+
+        try:
+            import distributed  # configures its loggers: quieted after
+            logging.getLogger(distributed.__name__).setLevel(logging.CRITICAL + 1)  # its traces
+            with DaskCluster(d / "stranger") as cluster:
+                mark = d / "stranger.ran"
+                cert, key = SiteCA(d / "stranger-ca", "stranger-ca").issue("stranger")
+                cluster.start_worker("stranger", tls_args=[
+                    "--tls-ca-file", str(cluster.ca.ca_file), "--tls-cert", str(cert),
+                    "--tls-key", str(key)], extra=("--preload", cluster.hostile_preload(mark)))
+                row("a worker of another CA", mark, daemon_run(cluster))
+            with DaskCluster(d / "hostile") as cluster:
+                mark = d / "hostile.ran"
+                cluster.add_worker("hostile", extra=("--preload", cluster.hostile_preload(mark)))
+                row("a worker with a certificate, pickle answer", mark, daemon_run(cluster))
+            with DaskCluster(d / "honest", cache_dir=str(d / "cache")) as cluster:
+                cluster.add_worker("honest")
+                row("an honest worker", d / "honest.ran", daemon_run(cluster))
+            with DaskCluster(d / "plain", tls=False) as cluster:
+                mark = d / "plain.ran"
+                cluster.add_worker("hostile", extra=("--preload", cluster.hostile_preload(mark)))
+
+                def defaults() -> object:
+                    with distributed.Client(cluster.address, timeout=30,
+                                            set_as_default=False) as client:
+                        return client.submit(calibrate_on_worker, b"", pure=False).result(60)
+                row("the same on tcp://, Dask's default client", mark, defaults)
+        except ClusterUnavailable as exc:
+            print(f"compute: skipped ({exc})")
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--bundles", type=int, default=1000)
@@ -335,13 +428,13 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv if argv is not None else [])
     run: dict[str, Callable[[], None]] = {
         "attacks": attacks, "camera": camera, "fuzz": lambda: fuzz(args.bundles, args.seed),
-        "decoders": decoders, "studio": studio}
+        "decoders": decoders, "studio": studio, "compute": compute}
     for part in args.only:
         run[part]()
 
 
 #: The parts, in the order they run (the module docstring numbers them).
-PARTS = ["attacks", "camera", "fuzz", "decoders", "studio"]
+PARTS = ["attacks", "camera", "fuzz", "decoders", "studio", "compute"]
 
 
 if __name__ == "__main__":
