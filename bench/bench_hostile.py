@@ -54,19 +54,22 @@ from grassd.rigs.hostile_decodes import dng_declaring, flat_png, run_child, smal
 from grassd.rigs.inbox_fuzz import ATTACKS, drop_attack, fuzz_inbox, write_flat_exr
 from grassd.rigs.peak_memory import peak_rss_growth, proc_mib
 
-
-def _config(state: Path, cfg) -> str:
-    return daemon_config(state, cfg, light="""lux = "manifest"
-settle_s = 0.2
-incomplete_timeout_s = 2.0
-""", tail="""[simulation]
+#: The runs of this benchmark: few samples and lengths, one round (seconds a run)
+SMALL_RUN = """[simulation]
 samples = 64
 lengths = 5
 [calibration]
 check_levels = 5
 max_rounds = 1
 replicates = 2
-""")
+"""
+
+
+def _config(state: Path, cfg) -> str:
+    return daemon_config(state, cfg, light="""lux = "manifest"
+settle_s = 0.2
+incomplete_timeout_s = 2.0
+""", tail=SMALL_RUN)
 
 
 def attacks(limit_s: float = 120.0) -> None:
@@ -333,7 +336,7 @@ def studio() -> None:
             stop_studio(st)
 
 
-#: [compute]'s run in part 7: a 2 x 2 display, few samples (seconds a run)
+#: [compute]'s run in part 7: a 2 x 2 display on one controller
 COMPUTE_CONFIG = """state_dir = "state"
 [site]
 latitude = 48.1
@@ -349,14 +352,7 @@ h_cm = 170
 d_m = 2
 [light]
 inbox = "inbox"
-[simulation]
-samples = 64
-lengths = 5
-[calibration]
-check_levels = 5
-max_rounds = 1
-replicates = 2
-"""
+""" + SMALL_RUN
 
 
 def compute() -> None:

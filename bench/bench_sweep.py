@@ -21,6 +21,7 @@ import numpy as np
 
 from grassd.daemon.compute.config import ComputeConfig
 from grassd.daemon.offline.sweep import SweepSpec, conditions, read_results, run_sweep
+from grassd.rigs.processes import end_process
 
 
 def _sky(folder: Path) -> str:
@@ -103,14 +104,7 @@ def main() -> None:
             print(f"dask results bit-identical to local: {same}")
         finally:
             for p in reversed(procs):
-                if p.poll() is not None:
-                    continue
-                os.killpg(p.pid, signal.SIGTERM)
-                try:
-                    p.wait(10)
-                except subprocess.TimeoutExpired:
-                    os.killpg(p.pid, signal.SIGKILL)
-                    p.wait()
+                end_process(p, 10.0, group=True)
 
 
 if __name__ == "__main__":

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from grassd.daemon.compute.config import ComputeConfig
+from grassd.rigs.processes import end_process
 
 DASK = Path(sys.executable).parent / "dask"
 OPENSSL = shutil.which("openssl")
@@ -261,13 +262,7 @@ class DaskCluster:
 
     def __exit__(self, *exc: object) -> None:
         for p in [*self.workers.values(), self.scheduler]:
-            if p is None or p.poll() is not None:
-                continue
-            os.killpg(p.pid, signal.SIGTERM)
-            try:
-                p.wait(10)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
-                p.wait(10)
+            if p is not None:
+                end_process(p, 10.0, group=True)
         self.workers.clear()
 
