@@ -68,9 +68,9 @@ class LightSource:
         the simulator reads it (:func:`load_panorama`: reduced as it is decoded), else
         StudioInputError with the loader's reason, naming the file ``shown`` (default: its
         path). The map is not kept: the server builds its own Lights from the same sources and
-        never renders, and the simulator reads the file again on first use (the uploads do the
-        same). Cost: one read of the file (a 1024 x 512 EXR: 30-70 ms, 4096 x 2048: 0.3 s on
-        2 cores); nothing when the map is already loaded."""
+        never renders, and the simulator reads the file again on first use (an upload is
+        checked by the simulator alone, which keeps what it read). Costs one read of the file;
+        nothing when the map is already loaded."""
         if self.image is None:
             load_panorama(self.path, shown, warn=False)  # the simulator warns
 
@@ -205,9 +205,10 @@ class Lights:
         with self._lock:
             return [s.describe() for s in self._sources.values()]
 
-    def source(self, name: str) -> LightSource:
-        """The source ``name``, its panorama loaded (StudioInputError when it is broken); the
-        least recently used beyond ``kept_maps`` are unloaded."""
+    def source(self, name: str, shown: str | None = None) -> LightSource:
+        """The source ``name``, its panorama loaded (StudioInputError when it is broken, naming
+        the file ``shown``, default its path); the least recently used beyond ``kept_maps``
+        are unloaded."""
         with self._lock:
             src = self._sources.get(name)
         if src is None:
@@ -215,7 +216,7 @@ class Lights:
                                    + (": it was dropped for newer uploads; upload it again"
                                       if name.startswith("upload:") else ""))
         if src.image is None:
-            src.image = load_panorama(src.path)
+            src.image = load_panorama(src.path, shown)
         with self._lock:
             self._loaded[name] = None
             self._loaded.move_to_end(name)
@@ -251,24 +252,44 @@ class Lights:
             return self._upload_dir / f"upload-{n}{suffix}"
 
     def add_upload(self, filename: str, path: Path) -> tuple[LightSource, list[str]]:
-        """Check the uploaded HDRI written to ``path`` (:meth:`upload_path`) and add it as a
-        source; (the source, the names of the older uploads dropped to keep within the caps,
-        their files removed). StudioInputError, the file removed and nothing added, for a file
-        that is not a usable panorama. Checked, not kept (:meth:`LightSource.check`): the
-        simulator reads the file when it renders it."""
+        """Check the uploaded HDRI written to ``path`` (:meth:`upload_path`) here
+        (:meth:`LightSource.check`, not kept) and add it as a source: :meth:`new_upload`,
+        the check, then :meth:`keep_upload`'s (the source, the names of the older uploads
+        dropped). StudioInputError, the file removed and nothing added, for a file that is not
+        a usable panorama. The server does not decode it: its simulator checks it instead."""
+        src = self.new_upload(filename, path)
+        try:
+            src.check(Path(filename).name)
+        except BaseException:
+            src.path.unlink(missing_ok=True)
+            raise
+        return src, self.keep_upload(src)
+
+    def new_upload(self, filename: str, path: Path) -> LightSource:
+        """The source of the uploaded HDRI written to ``path`` (:meth:`upload_path`), named for
+        its number, not yet checked nor added; StudioInputError, the file removed, when it is
+        larger than :data:`MAX_HDRI_BYTES`."""
         path = Path(path)
-        n = path.stem.rpartition("-")[2]
         try:
             size = path.stat().st_size
             if size > MAX_HDRI_BYTES:
                 raise StudioInputError(f"the HDRI is {size / 2**20:.0f} MiB; at most "
                                        f"{MAX_HDRI_BYTES // 2**20} MiB")
-            src = LightSource(name=f"upload:{n}", label=f"uploaded: {Path(filename).name}",
-                              path=path)
-            src.check(Path(filename).name)
         except BaseException:
             path.unlink(missing_ok=True)
             raise
+        return LightSource(name=f"upload:{path.stem.rpartition('-')[2]}",
+                           label=f"uploaded: {Path(filename).name}", path=path)
+
+    def keep_upload(self, src: LightSource) -> list[str]:
+        """Add the checked upload ``src`` (:meth:`new_upload`); the names of the older uploads
+        dropped to keep within the caps (count, bytes of files together), oldest first, their
+        files removed. StudioInputError when its file has gone meanwhile."""
+        try:
+            size = src.path.stat().st_size
+        except OSError:
+            raise StudioInputError(f"the upload {src.label} was removed before it was "
+                                   f"added; upload it again") from None
         dropped = []
         with self._lock:
             self._sources[src.name] = src
@@ -279,7 +300,7 @@ class Lights:
                 old = next(iter(self._upload_sizes))
                 dropped.append(old)
                 self._forget(old)
-        return src, dropped
+        return dropped
 
     def holds(self, path: Path) -> bool:
         """Whether a source's panorama is the file ``path``."""

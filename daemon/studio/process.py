@@ -20,7 +20,10 @@ round (:func:`~grassd.daemon.studio.session.Studio.characteristic`).
 Server -> simulator: ``("job", owner, job, kind, payload, word)`` with kind ``"views"`` (a
 condition, the picture's colours and the condition pinned as B, or None) or
 ``"characteristic"`` (a condition and keyword arguments); ``("cancel", owner, word)``;
-``("light", LightSource)``; ``("forget", name)`` (an upload the server dropped);
+``("light", LightSource)`` (an upload already checked, given to a restarted process);
+``("check", job, LightSource, shown)`` (an upload to decode and check, its errors naming the
+file ``shown``; answered as a job is);
+``("forget", name)`` (an upload the server dropped);
 ``("tick", word)`` (the word moved so that the launch in flight reaches its job's check: sent
 every half slice while jobs of several owners are in flight, so a job whose turn is over gives
 way, :mod:`grassd.daemon.studio.worker`); ``("stop", word)`` (every job stops, and the process
@@ -145,6 +148,23 @@ def simulator_main(conn: Connection, args: StudioArgs,
                 release_freed_memory()
         return go
 
+    def check_light(job: int, src: LightSource, shown: str) -> None:
+        # decoded here once, and kept loaded for its first use; off the reader, which a
+        # decode of seconds would keep from the next job or cancel
+        try:
+            studio.lights.add_source(src)
+            studio.lights.source(src.name, shown)
+            send(("result", job, None))
+        except StudioInputError as exc:
+            studio.lights.forget(src.name)
+            send(("error", job, "input", str(exc)))
+        except Exception as exc:
+            studio.lights.forget(src.name)
+            log.exception("checking an uploaded light failed")
+            send(("error", job, type(exc).__name__, f"{type(exc).__name__}: {exc}"))
+        finally:
+            release_freed_memory()
+
     while True:
         try:
             item = conn.recv()
@@ -167,6 +187,9 @@ def simulator_main(conn: Connection, args: StudioArgs,
                 superseding.took(item[2])
         elif item[0] == "light":
             studio.lights.add_source(item[1])
+        elif item[0] == "check":
+            threading.Thread(target=check_light, args=item[1:], daemon=True,
+                             name="grassd-studio-check").start()
         elif item[0] == "forget":
             studio.lights.forget(item[1])
         elif item[0] == "tick":
@@ -313,10 +336,23 @@ class SimulatorProcess:
         """Stop the owner's jobs (its page went away)."""
         self._send(("cancel", owner), supersedes=True)
 
-    def add_light(self, source: LightSource) -> None:
-        """Make an uploaded light known to the simulator (its file, not its pixels)."""
-        self._lights.append(source)
-        self._send(("light", source))
+    def check_light(self, source: LightSource, shown: str) -> asyncio.Future:
+        """Make an uploaded light known to the simulator, which decodes and checks it (the
+        server never holds its pixels) and keeps it loaded for its first use. The future gets
+        None, or StudioInputError naming the file ``shown`` (the simulator has dropped it) for
+        a file that is not a usable panorama; a light that passed is given again to a
+        restarted process."""
+        job = next(self._jobs)
+        fut = self._loop.create_future()
+        self._pending[job] = (fut, None)
+
+        def passed(f: asyncio.Future) -> None:
+            if not f.cancelled() and f.exception() is None:
+                self._lights.append(source)
+
+        fut.add_done_callback(passed)
+        self._send(("check", job, source, shown))
+        return fut
 
     def forget_light(self, name: str) -> None:
         """Make the simulator drop an upload (the server has dropped it and its file)."""

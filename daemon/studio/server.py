@@ -37,8 +37,9 @@ A bounded server (:class:`~grassd.daemon.studio.limits.StudioLimits`): a connect
 seconds for its headers (a 408 and closed after them), its body comes within its own deadlines
 (408), the open connections are capped (the oldest waiting for its headers or idle makes room),
 a page's outbox is capped (a page that does not read is closed, 1008), uploads are read and
-decoded one at a time (503 beyond), and a characteristic costing more than the cap is refused
-before it runs (:mod:`grassd.daemon.studio.cost`).
+decoded a few at a time (503 beyond; a picture here, an HDRI only in the simulator), and a
+characteristic costing more than the cap is refused before it runs
+(:mod:`grassd.daemon.studio.cost`).
 """
 
 from __future__ import annotations
@@ -85,7 +86,7 @@ TOKEN: web.AppKey[str | None] = web.AppKey("token", str)
 SOCKETS: web.AppKey[set] = web.AppKey("sockets", set)
 LIMITS: web.AppKey[StudioLimits] = web.AppKey("limits", StudioLimits)
 UPLOADS: web.AppKey[asyncio.Semaphore] = web.AppKey("uploads", asyncio.Semaphore)
-#: The threads that decode uploads, one per upload slot (the loop's default executor has
+#: The threads that decode uploaded pictures, one per upload slot (the loop's default executor has
 #: many more, which its other work may need meanwhile).
 DECODERS: web.AppKey[ThreadPoolExecutor] = web.AppKey("decoders", ThreadPoolExecutor)
 #: Seconds the studio waits at its end for requests in flight (a page's socket is closed).
@@ -328,7 +329,6 @@ class _UploadsBusy(Exception):  # noqa: N818 (the condition, answered as a 503)
 async def _hdri(request: web.Request) -> web.Response:
     studio, simulator = request.app[STUDIO], request.app[SIMULATOR]
     name = request.query.get("name", "")
-    loop = asyncio.get_running_loop()
 
     async def read() -> Path:  # to its file as it comes: never the whole body in memory
         path = studio.lights.upload_path(name)
@@ -342,11 +342,14 @@ async def _hdri(request: web.Request) -> web.Response:
         return path
 
     async def add(file: Path) -> LightSource:  # both lists get it, even if the client goes
-        src, dropped = await loop.run_in_executor(request.app[DECODERS],
-                                                  studio.lights.add_upload, name, file)
-        for old in dropped:  # away; the oldest beyond the caps leave both
+        src = studio.lights.new_upload(name, file)  # away; only the simulator decodes it
+        try:
+            await simulator.check_light(src, Path(name).name)
+        except BaseException:
+            file.unlink(missing_ok=True)
+            raise
+        for old in studio.lights.keep_upload(src):  # the oldest beyond the caps leave both
             simulator.forget_light(old)
-        simulator.add_light(src)  # its file: only the simulator renders it
         return src
 
     try:
@@ -355,6 +358,8 @@ async def _hdri(request: web.Request) -> web.Response:
         return _busy(request)
     except StudioInputError as exc:
         return _error(400, str(exc))
+    except RuntimeError as exc:  # the simulator ended while it checked: said, it restarts
+        return _error(500, str(exc))
     return web.json_response({"light": src.describe(), "lights": studio.lights.describe()})
 
 
