@@ -23,7 +23,10 @@ than "before". So:
   that the display did not make).
 * **Every photo of its state**: each shot's median RMS residual against the fitted model at the
   lengths that shot commanded, within :data:`SHOT_FACTOR` x ``noise_lab``: a photo out of order,
-  old, or of another state is named.
+  old, or of another state is named. Every photo pulls the fit, so one wrong photo can take
+  honest ones past the limit with it: the worst shot is left out and the model fitted again
+  without it (:func:`name_mismatches`), until the shots left agree with their fit, so that only
+  the culprits are named.
 * **Verification**: each photo after the correction against what the fitted model predicts for
   the corrected commands, within the same bound; and only then the uniformity: after below
   before.
@@ -34,7 +37,7 @@ Units: CIELAB (D50) residuals as RMS over the three channels ("rms Lab"), length
 from __future__ import annotations
 
 import secrets
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any
@@ -55,6 +58,13 @@ MAX_PHOTO_NOISE_LAB: float = 0.5
 BOUND_FRACTION: float = 0.1
 #: How near a bound (share of the offset limit, of a gain bound) counts as at it.
 BOUND_MARGIN: float = 0.02
+#: Most shots left out, one fit each, to tell wrong photos from the honest ones their fit
+#: pulled (:func:`name_mismatches`); beyond them every shot still over the limit is named.
+MOST_REFITS: int = 3
+
+#: A fit of the shots kept, ``refit(kept)`` with ``kept`` (K,) bool over the shots judged:
+#: the (N, K, 3) CIELAB it predicts for every one of them.
+Refit = Callable[[NDArray[np.bool_]], NDArray[np.float64]]
 
 
 class Refusal(Enum):
@@ -200,17 +210,44 @@ def at_bound(variation: Any) -> NDArray[np.bool_]:
     return off | gain
 
 
+def name_mismatches(measured_lab: NDArray, predicted_lab: NDArray, limit_lab: float,
+                    refit: Refit | None = None) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """The shots whose photos do not show their state: (each shot's median per-pixel RMS
+    residual (K,), the shots named (K,) bool), ``measured_lab`` and ``predicted_lab`` (N, K, 3)
+    CIELAB, ``limit_lab`` the most a shot's residual may be (rms Lab).
+
+    With ``refit`` (a fit of the shots kept), while a kept shot is over the limit the worst is
+    left out and the model fitted again without it, at most :data:`MOST_REFITS` times; the
+    residuals are then against the last fit (a shot left out is judged by a fit it did not
+    pull), and the shots named are those left out and any still over the limit. Without it,
+    those over the limit against ``predicted_lab``."""
+    measured = np.asarray(measured_lab, dtype=np.float64)
+    per_shot = np.median(rms_lab(measured, predicted_lab), axis=0)
+    kept = np.ones(per_shot.shape, dtype=bool)
+    if refit is None:
+        return per_shot, per_shot > limit_lab
+    for _ in range(MOST_REFITS):
+        over = kept & (per_shot > limit_lab)
+        if not over.any() or kept.sum() <= 1:
+            break
+        kept[np.argmax(np.where(kept, per_shot, -np.inf))] = False
+        per_shot = np.median(rms_lab(measured, refit(kept)), axis=0)
+    return per_shot, ~kept | (per_shot > limit_lab)
+
+
 def judge(names: Sequence[str], measured_lab: NDArray, predicted_lab: NDArray,
           fit_rms_lab: NDArray, variation: Any, repeat: tuple[NDArray, NDArray],
-          model_noise_lab: float, order: Sequence[str]) -> Evidence:
+          model_noise_lab: float, order: Sequence[str], refit: Refit | None = None) -> Evidence:
     """Judge the photos before the correction (module docstring). ``names`` (K,) the shots
     whose ``measured_lab`` (N, K, 3) and ``predicted_lab`` (N, K, 3; the fitted model at the
     lengths each commanded) are compared; ``fit_rms_lab`` (N,) the fit's per-pixel residuals;
     ``variation`` the fitted DisplayVariation; ``repeat`` the (N, 3) CIELAB of the repeated
-    state's two photos; ``model_noise_lab`` :func:`model_noise`; ``order`` the shots as taken."""
+    state's two photos; ``model_noise_lab`` :func:`model_noise`; ``order`` the shots as taken;
+    ``refit`` the fit of a subset of the shots (:func:`name_mismatches`; None: the shots are
+    judged by the one fit)."""
     photo = photo_noise(*repeat)
     noise = float(np.hypot(min(photo, MAX_PHOTO_NOISE_LAB), model_noise_lab))
-    per_shot = np.median(rms_lab(measured_lab, predicted_lab), axis=0)  # (K,)
+    per_shot, named = name_mismatches(measured_lab, predicted_lab, SHOT_FACTOR * noise, refit)
     fit_rms = float(np.median(fit_rms_lab))
     bound = at_bound(variation)
     ev = Evidence(noise_lab=noise, photo_noise_lab=photo, model_noise_lab=model_noise_lab,
@@ -232,7 +269,7 @@ def judge(names: Sequence[str], measured_lab: NDArray, predicted_lab: NDArray,
             Refusal.OFFSETS_AT_BOUND, f"{int(bound.sum())} of {len(bound)} pixels' fitted "
             f"offset or gain lies at its bound (over {BOUND_FRACTION:.0%}): implausible for a "
             "display; check the camera and the display's motors"))
-    bad = [n for n, v in zip(names, per_shot, strict=True) if v > SHOT_FACTOR * noise]
+    bad = [n for n, b in zip(names, named, strict=True) if b]
     if bad:
         ev = ev.with_finding(Finding(
             Refusal.SHOT_MISMATCH, f"photo(s) {', '.join(bad)} do not show the display state "

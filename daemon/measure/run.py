@@ -394,10 +394,16 @@ def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Any], photos: Photo
             np.asarray(states[repeat], dtype=np.float64), (n,))[:, None]], axis=1)
     pairs = (check_lab[:, fit_names.index(repeat.removeprefix("repeat-"))], check_lab[:, -1]
              ) if repeat is not None else (check_lab[:, 0], check_lab[:, 0])
+    def refit(kept: NDArray[np.bool_]) -> NDArray[np.float64]:  # the shots kept, fitted again
+        progress("measure: fitting every pixel without the shots that disagree")
+        used = kept[:len(fit_names)]  # the repeat is judged, not fitted
+        again = fit_variation(camera_model, fit_cmd[:, used], fit_lab[:, used], ccm)
+        return lab_of(camera_model.rgb(check_cmd, again.variation), again.colour @ ccm)
+
     evidence = judge(check_names, check_lab,
                      lab_of(camera_model.rgb(check_cmd, fit.variation), fit.colour @ ccm),
                      fit.rms_lab, fit.variation, pairs, model_noise(camera_model, fit_cmd),
-                     order)
+                     order, refit)
     # the viewers' models only carry the fitted variation to them: the tuft layout's accident
     # is the same with and without it, so one layout does
     viewers = [model_from(_eye_of(vp), f"viewer {i + 1}", 1)

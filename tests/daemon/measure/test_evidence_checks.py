@@ -13,6 +13,7 @@ from grassd.daemon.measure.evidence import (
     RESIDUAL_FACTOR,
     Refusal,
     judge,
+    name_mismatches,
     shot_order,
     verify,
 )
@@ -96,3 +97,27 @@ def test_the_shot_order_is_drawn_afresh_with_one_repeat_never_right_after_its_fi
         orders.add(tuple(order))
     assert len(orders) == 200  # no two measurements alike
     assert shot_order(names)[1] is None
+
+
+def test_a_wrong_photo_that_pulls_the_fit_is_named_alone():
+    """A "model" that is one colour per pixel, fitted as the mean of the shots kept: one photo
+    30 rms Lab off pulls every shot's residual by 30/K past a limit of 1.0, so the one fit names
+    them all; left out and fitted again without it, only that photo is."""
+    truth = _photos(noise=0.1)[0][:, :1].repeat(K, axis=1)  # one colour per pixel
+    measured = truth + np.random.default_rng(3).normal(0, 0.1, truth.shape)
+    measured[:, 4] += 30.0  # 30 rms Lab off
+
+    def fit_of(photos: np.ndarray):
+        return lambda kept: photos[:, kept].mean(axis=1, keepdims=True).repeat(K, axis=1)
+
+    everything = np.ones(K, dtype=bool)
+    rms, named = name_mismatches(measured, fit_of(measured)(everything), 1.0)
+    assert named.sum() == K and rms[4] > 25  # every shot over the limit by the pulled fit
+    rms, named = name_mismatches(measured, fit_of(measured)(everything), 1.0, fit_of(measured))
+    assert list(np.flatnonzero(named)) == [4] and rms[4] > 29 and np.delete(rms, 4).max() < 0.5
+    honest = measured.copy()
+    honest[:, 4] = truth[:, 4]
+    calls = []
+    rms, named = name_mismatches(honest, fit_of(honest)(everything), 1.0,
+                                 lambda kept: calls.append(kept) or fit_of(honest)(kept))
+    assert not named.any() and calls == []  # nothing over the limit: no fit again
