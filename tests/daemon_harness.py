@@ -180,10 +180,13 @@ def after_first_bundle(tmp_path: Path, cfg, **kw) -> tuple[Service, Any]:
 
 
 def service(path: Path, **kw) -> Service:
-    """An in-process daemon for config file ``path`` (Taichi initialised, short timeouts)."""
+    """An in-process daemon for config file ``path`` with the daemon's features (Taichi
+    initialised, short timeouts)."""
+    from grassd.daemon.cli.features import daemon_features
     from grassd.daemon.core.calibration.calibrate import init_backend
 
     kw.setdefault("policy", POLICY)
+    kw.setdefault("features", daemon_features())
     svc = Service(load_config(path), config_path=path, **kw)
     init_backend(svc.cfg)
     return svc

@@ -222,16 +222,8 @@ CORE_IMPORTS_OF_FEATURES = {
     ("grassd.daemon.core.monitoring.status_page", "grassd.daemon.content.display_picture"),
     ("grassd.daemon.core.monitoring.status_page", "grassd.daemon.content.shown"),
     ("grassd.daemon.core.monitoring.status_page", "grassd.daemon.measure.report"),
-    ("grassd.daemon.core.runtime.service", "grassd.daemon.capture.station"),
     ("grassd.daemon.core.runtime.service", "grassd.daemon.compute.remote"),
     ("grassd.daemon.core.runtime.service", "grassd.daemon.compute.retry"),
-    ("grassd.daemon.core.runtime.service", "grassd.daemon.content.feature"),
-    ("grassd.daemon.core.runtime.service", "grassd.daemon.content.frames"),
-    ("grassd.daemon.core.runtime.service", "grassd.daemon.content.receiver"),
-    ("grassd.daemon.core.runtime.service", "grassd.daemon.content.shown"),
-    ("grassd.daemon.core.runtime.service", "grassd.daemon.content.status"),
-    ("grassd.daemon.core.runtime.service", "grassd.daemon.measure.job"),
-    ("grassd.daemon.core.runtime.service", "grassd.daemon.measure.report"),
 }
 
 

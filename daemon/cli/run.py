@@ -113,6 +113,7 @@ def run_cmd(config_path: str | None, state_dir: str | None, simulate_hardware: b
             sim_lux: float, sim_firmware: str, variation_file: str | None, tick_s: float,
             log_level: str) -> None:
     """Run the daemon: watch the inbox, calibrate, push tables, serve the control socket."""
+    from grassd.daemon.cli.features import daemon_features
     from grassd.daemon.core.runtime.service import Service
     from grassd.daemon.core.runtime.state_owner import config_as_state_owner
 
@@ -139,7 +140,8 @@ def run_cmd(config_path: str | None, state_dir: str | None, simulate_hardware: b
             click.echo(f"simulated OSC camera on {cfg.capture.camera}", err=True)
     src = config_path or (str(DEFAULT_CONFIG_PATH) if DEFAULT_CONFIG_PATH.exists() else None)
     try:
-        svc = Service(cfg, config_path=src, tick_s=tick_s, transform=transform)
+        svc = Service(cfg, features=daemon_features(), config_path=src, tick_s=tick_s,
+                      transform=transform)
         code = svc.run()
     finally:
         if camera is not None:

@@ -84,7 +84,7 @@ def _play_here(cfg, file: Path, duration_s: float | None) -> None:
 
 def _play_on_controllers(cfg, layout, anim, name: str, duration: float) -> None:
     """Play ``anim`` for ``duration`` s on ``cfg``'s controllers, holding the state lock."""
-    from grassd.daemon.content.feature import ContentFeature
+    from grassd.daemon.content.feature import ContentPlayback
     from grassd.daemon.content.frames import FrameOutput
     from grassd.daemon.core.hardware.fleet import Fleet
     from grassd.daemon.core.store.history import History
@@ -94,7 +94,7 @@ def _play_on_controllers(cfg, layout, anim, name: str, duration: float) -> None:
     sink = FrameOutput(cfg.controllers, cfg.display.pixel_count,
                        fps=float(cfg.content.fps), fleet=fleet)
     try:
-        player = ContentFeature(cfg, sink, history, layout.reports, live=False).player
+        player = ContentPlayback(cfg, sink, history, layout.reports, live=False).player
         player.show(anim, duration)
         click.echo(f"grassd: showing {name} here for {duration:g} s (no daemon runs)")
         player.start()

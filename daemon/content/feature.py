@@ -1,8 +1,11 @@
 """The content feature inside the daemon: the player on the daemon's frame output, the
 calibration's colours for it, and its control-socket commands.
 
-The service joins it through :func:`start_content` (a :class:`ContentFeature`:
-``handles(cmd)``, ``handle(request)``, ``status()``, ``stop()``). Commands::
+:class:`ContentFeature` joins it to the service (a
+:class:`~grassd.daemon.core.runtime.features.Feature`): for every config with ``[content]``
+enabled, a :class:`ContentPlayback` on a frame output over the fleet's lines
+(:func:`start_content`), stopped before a reload closes the fleet and started again after it,
+held while a measurement takes the display, and its status under ``content``. Commands::
 
     {"cmd": "content_frame", "levels": [n_pixels ints 0..255], "hold_s": 10}
         -> {"ok": true}      one frame (row-major from the top left) above the playlist;
@@ -24,8 +27,9 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -35,7 +39,12 @@ from grassd.daemon.content.player import MAX_REQUEST_S, ContentPlayer
 from grassd.daemon.content.sink import ClosableSink, FrameSink, StatsSink
 from grassd.daemon.content.status import ContentStatus
 from grassd.daemon.core.config.settings import Config
+from grassd.daemon.core.runtime.features import Feature
 from grassd.daemon.core.store.layout import report_stem
+
+if TYPE_CHECKING:
+    from grassd.daemon.content.shown import ShownDisplay
+    from grassd.daemon.core.runtime.service import Service
 
 log = logging.getLogger(__name__)
 
@@ -63,7 +72,7 @@ def colours_from_report(report: dict[str, Any], table_um: Any) -> DisplayColours
         f"{vp['theta_deg']:g})")
 
 
-class ContentFeature:
+class ContentPlayback:
     """The player for ``cfg`` (with ``[content]``) on ``sink``; the colours come from the
     active table's run (``history``, reports in ``reports_dir``), read again when it
     changes. ``live`` False starts no receiver (a one-off show)."""
@@ -113,7 +122,7 @@ class ContentFeature:
             self._colours = (run, colours)
         return colours
 
-    def start(self) -> ContentFeature:
+    def start(self) -> ContentPlayback:
         """Start receiving and playing."""
         self.player.start()
         return self
@@ -199,10 +208,97 @@ def _seconds(req: dict[str, Any], key: str, default: float) -> float:
 
 
 def start_content(cfg: Config, sink: FrameSink, history: Any,
-                  reports_dir: Path) -> ContentFeature | None:
-    """The started feature for ``cfg``, or None without ``[content]`` or with
+                  reports_dir: Path) -> ContentPlayback | None:
+    """The started playback for ``cfg``, or None without ``[content]`` or with
     ``enabled = false``. Raises :class:`~grassd.daemon.content.receiver.ReceiverBindError`
     when a receiver cannot listen."""
     if cfg.content is None or not cfg.content.enabled:
         return None
-    return ContentFeature(cfg, sink, history, reports_dir).start()
+    return ContentPlayback(cfg, sink, history, reports_dir).start()
+
+
+class ContentFeature(Feature):
+    """Content in the daemon (module docstring); ``playback`` the player now, None without
+    ``[content]`` enabled or while a receiver could not listen."""
+
+    name = "content"
+
+    def __init__(self) -> None:
+        self.playback: ContentPlayback | None = None
+
+    def pause(self, svc: Service) -> None:
+        """Stop the playback and its frame output, which shares the fleet's lines."""
+        self._end()
+
+    def restart(self, svc: Service, old: Config | None) -> None:
+        """Start the playback for ``svc.cfg`` on a frame output over the fleet's lines at
+        ``[content] fps`` (none without ``[content]`` enabled); a receiver that cannot listen
+        is logged and the daemon goes on calibrating. The status page's picture of the
+        display is read through it (:meth:`shown`)."""
+        from grassd.daemon.content.frames import FrameOutput
+        from grassd.daemon.content.receiver import ReceiverBindError
+
+        self._end()
+        cfg = svc.cfg
+        svc.operator.shown = lambda: self.shown(svc)
+        if cfg.content is None or not cfg.content.enabled:
+            return
+        sink = FrameOutput(cfg.controllers, cfg.display.pixel_count, fps=float(cfg.content.fps),
+                           fleet=svc.fleet)
+        try:
+            self.playback = start_content(cfg, sink, svc.history, svc.reports_dir)
+        except ReceiverBindError as exc:
+            log.error("content: %s", exc)
+
+    def _end(self) -> None:
+        if self.playback is not None:
+            self.playback.stop()  # and its frame output
+        self.playback = None
+
+    def stop(self) -> None:
+        """Stop the playback."""
+        self._end()
+
+    def status(self) -> Mapping[str, Any] | None:
+        """The playback's status (:class:`~grassd.daemon.content.status.ContentStatus`)."""
+        return None if self.playback is None else self.playback.status().to_json()
+
+    def handles(self, cmd: str) -> bool:
+        """One of :data:`COMMANDS` while content plays."""
+        return self.playback is not None and self.playback.handles(cmd)
+
+    def handle(self, svc: Service, req: dict[str, Any]) -> dict[str, Any]:
+        """:meth:`ContentPlayback.handle`."""
+        playback = self.playback
+        if playback is None:  # stopped meanwhile by a reload
+            return {"ok": False, "error": "the daemon shows no content now; try again"}
+        return playback.handle(req)
+
+    def hold(self) -> None:
+        """A measurement takes the display: nothing goes out until :meth:`release`."""
+        if self.playback is not None:
+            self.playback.hold()
+
+    def release(self) -> None:
+        """The measurement gives the display back."""
+        if self.playback is not None:
+            self.playback.release()
+
+    def shown(self, svc: Service) -> ShownDisplay | None:
+        """The display as its controllers report it now (GET_POSITIONS through the fleet,
+        :func:`~grassd.daemon.content.shown.read_shown`), for the status page's picture; None
+        when no content plays (none configured, nothing showing, or held by a measurement)."""
+        from grassd.daemon.content.shown import LengthColours, read_shown
+        from grassd.daemon.content.status import ContentSource
+
+        playback = self.playback
+        if playback is None:
+            return None
+        st = playback.status()
+        if st.source is ContentSource.NONE or (st.output or {}).get("held"):
+            return None
+        colours, cur = playback.colours(), svc.history.current_table()
+        palette = None if colours is None or cur is None else \
+            LengthColours.from_table(cur.lengths_um, colours.level_lab)
+        d = svc.cfg.display
+        return read_shown(svc.fleet, svc.cfg.controllers, d.rows, d.cols, colours=palette)

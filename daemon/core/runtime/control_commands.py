@@ -51,28 +51,62 @@ class QueuedRequest:
     task: Callable[[], QueuedResult] | None = None
 
 
+class Unanswered(Exception):  # noqa: N818 (what happened to the request)
+    """A request queued for the main loop was not served: ``answer`` is the reply saying why
+    (the daemon stopping, the queue full, or no result within the request's timeout)."""
+
+    def __init__(self, answer: dict[str, Any]) -> None:
+        super().__init__(answer["error"])
+        self.answer = answer
+
+
 class ControlCommands:
     """Answers control-socket requests: ``status()`` gives the live status (sent in its JSON
     form, :meth:`~grassd.daemon.core.monitoring.status_types.Status.to_json`), ``reload`` sets
     ``reload_event``, ``calibrate`` queues a :class:`QueuedRequest` on ``requests`` (not
-    while ``stop_event`` is set), ``bundles_retry`` queues ``retry_bundle(name)``."""
+    while ``stop_event`` is set), ``bundles_retry`` queues ``retry_bundle(name)``; any other
+    command goes to the feature ``feature_for(cmd)`` names (None: unknown), which may queue
+    its own work with :meth:`in_main_loop`."""
 
     def __init__(self, status: Callable[[], Status], reload_event: threading.Event,
                  stop_event: threading.Event, requests: queue.Queue[QueuedRequest],
                  retry_bundle: Callable[[str], RetryOutcome],
-                 measure: Callable[[], dict[str, Any]] | None = None,
-                 content: Callable[[], Any] | None = None) -> None:
+                 feature_for: Callable[[str], Callable[[dict[str, Any]], dict[str, Any]] | None]
+                 = lambda _cmd: None) -> None:
         self.status = status
-        #: the content feature now (grassd.daemon.content.feature), None without [content]
-        self.content = content
-        self.measure = measure
+        self.feature_for = feature_for
         self.reload_event = reload_event
         self.stop_event = stop_event
         self.requests = requests
         self.retry_bundle = retry_bundle
 
+    def in_main_loop(self, req: dict[str, Any], task: Callable[[], QueuedResult],
+                     what: str) -> QueuedResult | None:
+        """Queue ``task`` for the main loop and wait for its result, at most the request's
+        ``timeout_s``; :class:`Unanswered` (its reply naming ``what``) when the daemon is
+        stopping, the queue is full or the time is out."""
+        if self.stop_event.is_set():
+            raise Unanswered({"ok": False, "error": "daemon is stopping"})
+        timeout = _timeout(req)
+        r = QueuedRequest(force=False, task=task)
+        try:
+            self.requests.put_nowait(r)
+        except queue.Full:
+            raise Unanswered({"ok": False, "busy": True,
+                              "error": "busy: try again later"}) from None
+        if not r.done.wait(timeout):
+            raise Unanswered({"ok": False, "error": f"{what} did not finish within "
+                                                    f"{timeout:g} s"})
+        return r.result
+
     def handle(self, req: dict[str, Any]) -> dict[str, Any]:
         """Answer one control-socket request (runs in a socket thread)."""
+        try:
+            return self._handle(req)
+        except Unanswered as exc:
+            return exc.answer
+
+    def _handle(self, req: dict[str, Any]) -> dict[str, Any]:
         cmd = req["cmd"]
         if cmd == "ping":
             return {"ok": True, "pid": os.getpid(), "version": __version__}
@@ -86,30 +120,9 @@ class ControlCommands:
             if not isinstance(name, str) or not name:
                 raise ValueError('bundles_retry needs "bundle": the name of a quarantined bundle '
                                  "(see `grassd status`)")
-            timeout = _timeout(req)
-            r = QueuedRequest(force=False, task=lambda: self.retry_bundle(name))
-            try:
-                self.requests.put_nowait(r)
-            except queue.Full:
-                return {"ok": False, "busy": True, "error": "busy: try again later"}
-            if not r.done.wait(timeout):
-                return {"ok": False, "error": "the daemon did not get to it in time"}
-            out = _json(r.result)
+            out = _json(self.in_main_loop(req, lambda: self.retry_bundle(name),
+                                          "putting the bundle back"))
             return {"ok": out.get("status") == "ok", "retry": out, "error": out.get("error")}
-        if cmd == "measure" and self.measure is not None:  # in the main loop, like a run
-            if self.stop_event.is_set():
-                return {"ok": False, "error": "daemon is stopping"}
-            timeout = _timeout(req)
-            r = QueuedRequest(force=False, task=self.measure)
-            try:
-                self.requests.put_nowait(r)
-            except queue.Full:
-                return {"ok": False, "busy": True, "error": "busy: try again later"}
-            if not r.done.wait(timeout):
-                return {"ok": False, "error": f"measurement did not finish within {timeout:g} s"}
-            out = _json(r.result)
-            return {"ok": out.get("status") == "ok", "measurement": out,
-                    "error": out.get("error")}
         if cmd == "calibrate":
             if self.stop_event.is_set():
                 return {"ok": False, "error": "daemon is stopping"}
@@ -126,9 +139,9 @@ class ControlCommands:
             if not r.done.wait(timeout):
                 return {"ok": False, "error": f"run did not finish within {timeout:g} s"}
             return {"ok": True, "run": None if r.result is None else _json(r.result)}
-        feature = None if self.content is None else self.content()
-        if feature is not None and feature.handles(cmd):  # content_frame, content_show, ...
-            return feature.handle(req)
+        answer = self.feature_for(cmd)
+        if answer is not None:  # measure, content_frame, content_show, ...
+            return answer(req)
         if cmd.startswith("content_"):
             return {"ok": False, "error": "the daemon shows no content: set [content] enabled "
                                           "= true in its configuration and reload it"}

@@ -20,7 +20,9 @@ each *tick* (``tick_s``) it
 3. serves queued ``calibrate`` requests from the control socket;
 4. starts a scheduled run when ``schedule.interval_s`` has passed since the last run (light of
    the last archived bundle, lux from the sensor when configured);
-5. reconciles the controllers: each one that does not report the current table gets it.
+5. gives each feature its turn (:mod:`grassd.daemon.core.runtime.features`: a measurement when
+   one is due);
+6. reconciles the controllers: each one that does not report the current table gets it.
 
 Side threads only answer the control socket (status is read from SQLite) and send the systemd
 watchdog ping while the main thread shows progress (at least every ``stall_s`` seconds; a
@@ -50,16 +52,14 @@ import signal
 import sqlite3
 import threading
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import replace
-from datetime import datetime
 from pathlib import Path
 from typing import Any
-from zoneinfo import ZoneInfo
 
 from grassd import __version__
 from grassd.daemon.compute.remote import calibrator_for
 from grassd.daemon.compute.retry import ComputeRetry
-from grassd.daemon.content.shown import ShownDisplay
 from grassd.daemon.core.calibration.calibrate import CalibrationResult, init_backend
 from grassd.daemon.core.config.settings import (
     Config,
@@ -88,6 +88,7 @@ from grassd.daemon.core.runtime.bundle_pipeline import (
 from grassd.daemon.core.runtime.commit import commit_run, last_ccm
 from grassd.daemon.core.runtime.control import ControlServer
 from grassd.daemon.core.runtime.control_commands import ControlCommands, QueuedRequest
+from grassd.daemon.core.runtime.features import Feature, Features
 from grassd.daemon.core.runtime.notify import Notifier
 from grassd.daemon.core.runtime.outcome import RunOutcome, RunStatus
 from grassd.daemon.core.runtime.pass_errors import PassErrors, describe_error, os_action
@@ -118,9 +119,12 @@ __all__ = ["Service", "collect_status", "os_action", "rss_mb", "usable_run_table
 
 
 class Service:
-    """The grassd daemon for ``cfg`` (``config_path`` is re-read on reload)."""
+    """The grassd daemon for ``cfg`` (``config_path`` is re-read on reload), with
+    ``features`` (:mod:`grassd.daemon.core.runtime.features`; the command line gives the
+    daemon's, ``grassd.daemon.cli.features``)."""
 
-    def __init__(self, cfg: Config, *, config_path: str | os.PathLike[str] | None = None,
+    def __init__(self, cfg: Config, *, features: Sequence[Feature] = (),
+                 config_path: str | os.PathLike[str] | None = None,
                  notifier: Notifier | None = None, tick_s: float = 1.0,
                  reconcile_s: float = 2.0, stall_s: float = 300.0,
                  failure_row_s: float = 600.0, max_queued: int = 4,
@@ -147,16 +151,14 @@ class Service:
         #: calibration requests from the control socket; bounded, so that clients waiting for
         #: runs cannot hold every control-socket slot (status stays answerable)
         self.requests: queue.Queue[QueuedRequest] = queue.Queue(maxsize=max_queued)
+        self.features = Features(features)
         self.commands = ControlCommands(self.status, self.reload_event, self.stop_event,
-                                        self.requests, self._retry_bundle, self.measure,
-                                        content=lambda: self.content)
-        #: what the display shows ([content], grassd.daemon.content.feature), or None
-        self.content: Any = None
+                                        self.requests, self._retry_bundle,
+                                        feature_for=self._feature_command)
         self.activity = "starting"
         self.started_at = time.time()
         self.last_progress = time.monotonic()
         self.last_run_at: float | None = None
-        self.last_measure_at: float | None = None
         self._last_reconcile = 0.0
         self.reload_error: str | None = None
         #: the errors main-loop passes survived (OSError / SQLite), for status
@@ -182,8 +184,7 @@ class Service:
             #: the same backoff
             self.compute_retry = ComputeRetry(retry_s, retry_max_s)
             #: metrics, alerts, status page, from snapshots of the status
-            self.operator = OperatorView(cfg, self.history, self._operator_snapshot,
-                                         shown=self._read_shown)
+            self.operator = OperatorView(cfg, self.history, self._operator_snapshot)
             self._build(cfg)
         except BaseException:
             self.lock.release()
@@ -191,8 +192,6 @@ class Service:
         self.control: ControlServer | None = None
         self._watchdog_thread: threading.Thread | None = None
         self._signals: SignalRelay | None = None
-        #: the capture station's thread ([capture]), grassd.daemon.capture.station
-        self.capture_loop: Any = None
 
     # ------------------------------------------------------------------ setup
     def _build(self, cfg: Config) -> None:
@@ -258,8 +257,7 @@ class Service:
         pending = self.inbox.recover()
         self.prune()
         self.notifier.ready(f"watching {self.cfg.light.inbox}")
-        self._restart_capture()
-        self._restart_content()
+        self.features.restart(self, None)
         self.activity = "idle"
         log.info("grassd %s ready: inbox %s, %d controller(s), socket %s", __version__,
                  self.cfg.light.inbox, len(self.cfg.controllers), self.cfg.control_socket)
@@ -351,45 +349,11 @@ class Service:
             self.scheduled_run("interval")
         elif retry and not bundles and not self.stop_event.is_set():
             self.scheduled_run(retry)
-        if self._measure_due() and not self.stop_event.is_set():
-            self.measure("interval")
+        self.features.tick(self)
         if time.monotonic() - self._last_reconcile >= self.reconcile_s:
             self.reconcile()
         if self.activity != "idle":
             self._progress("idle")
-
-    def measure(self, trigger: str = "request") -> dict[str, Any]:
-        """Measure the display now (:func:`grassd.daemon.measure.job.measure_with`);
-        returns the measurement's report."""
-        from grassd.daemon.measure.job import measure_with
-
-        self._progress(f"{trigger} measurement of the display")
-        self.last_measure_at = time.time()
-        content = self.content
-        if content is not None:  # the measurement takes the display, then gives it back
-            content.hold()
-        try:
-            return measure_with(self, trigger)
-        finally:
-            if content is not None:
-                content.release()
-            self.operator.after_run()  # the status page's measurement card
-
-    def _measure_due(self) -> bool:
-        """A scheduled measurement is due: ``[measure] interval_s`` since the last one (or the
-        daemon's start), within the local hours ``start_hour`` .. ``end_hour``."""
-        mc = self.cfg.measure
-        if mc is None or mc.interval_s <= 0:
-            return False
-        if self.last_measure_at is None:
-            from grassd.daemon.measure.report import epoch_of, load_reports
-
-            last = load_reports(StateLayout(self.cfg.state_dir), limit=1)
-            self.last_measure_at = (epoch_of(last[-1].get("started_at")) if last else None
-                                    ) or self.started_at
-        now = time.time()
-        hour = datetime.fromtimestamp(now, ZoneInfo(self.cfg.site.timezone)).hour
-        return now - self.last_measure_at >= mc.interval_s and mc.in_window(hour)
 
     def _describe(self, exc: BaseException, action: str = "access") -> str:
         """One line for an error a main-loop pass survives (see :func:`describe_error`)."""
@@ -402,10 +366,7 @@ class Service:
     def shutdown(self) -> None:
         """Stop serving, close ports and the database (called once at exit)."""
         self.notifier.stopping("stopping")
-        if self.capture_loop is not None:
-            self.capture_loop.stop()
-        if self.content is not None:
-            self.content.stop()
+        self.features.stop()
         if self.control is not None:
             self.control.stop()
         while True:  # answer anybody still waiting for a run
@@ -483,10 +444,7 @@ class Service:
         if kept:
             log.warning("reload: %s change only on restart; keeping the old value(s)",
                         ", ".join(kept))
-        showing = self.content is not None
-        if showing:  # its frame output shares the fleet's lines: it goes first
-            self.content.stop()
-            self.content = None
+        self.features.pause(self)  # what shares the fleet's lines lets go first
         self.fleet.close()
         if self.sensor is not None:
             self.sensor.close()
@@ -497,61 +455,17 @@ class Service:
         except (OSError, DaemonError, SimError) as exc:  # valid, but cannot be set up (e.g.
             # the inbox, or a renderer that this computer has not)
             self._build(old)
-            if showing:
-                self._restart_content()  # on the rebuilt fleet
+            self.features.restart(self, old)  # on the rebuilt fleet
             self.reload_error = f"{self.config_path}: {exc}"
             log.error("reload refused, keeping the old configuration: %s", exc)
             self.notifier.ready(f"reload refused: {exc}")
             return False
         self.reload_error = None
         self._last_reconcile = 0.0
-        if (new.capture, new.light.inbox, new.light.modbus) != (
-                old.capture, old.light.inbox, old.light.modbus):
-            self._restart_capture()
-        if showing or new.content is not None:
-            self._restart_content()
+        self.features.restart(self, old)
         log.info("configuration reloaded from %s", self.config_path)
         self.notifier.ready("configuration reloaded")
         return True
-
-    def _restart_capture(self) -> None:
-        """(Re)start the capture station's thread for the current ``[capture]`` (none without
-        it). Its own thread: a capture never blocks or delays a calibration, and a replaced
-        loop finishes its capture in the background before the new one starts."""
-        old = self.capture_loop
-        if old is not None:
-            old.stop(timeout_s=None)
-        self.capture_loop = None
-        if self.cfg.capture is not None:
-            from grassd.daemon.capture.station import start_capture_loop
-
-            self.capture_loop = start_capture_loop(self.cfg, after=old)
-
-    def _restart_content(self) -> None:
-        """(Re)start the content feature for the current ``[content]`` (none without it, or
-        with ``enabled = false``) on the fleet's frame output; a receiver that cannot listen
-        is logged and the daemon goes on calibrating."""
-        if self.content is not None:
-            self.content.stop()  # and its frame output, before a reload closes the fleet
-        self.content = None
-        if self.cfg.content is None or not self.cfg.content.enabled:
-            return
-        from grassd.daemon.content.feature import start_content
-        from grassd.daemon.content.receiver import ReceiverBindError
-
-        try:
-            self.content = start_content(self.cfg, self._frame_sink(), self.history,
-                                         self.reports_dir)
-        except ReceiverBindError as exc:
-            log.error("content: %s", exc)
-
-    def _frame_sink(self) -> Any:
-        """Where content frames go: a frame output on the fleet's lines, at ``[content] fps``."""
-        from grassd.daemon.content.frames import FrameOutput
-
-        assert self.cfg.content is not None
-        return FrameOutput(self.cfg.controllers, self.cfg.display.pixel_count,
-                           fps=float(self.cfg.content.fps), fleet=self.fleet)
 
     # ------------------------------------------------------------------ runs
     def _resolve_lux(self, manifest_lux: float | None) -> tuple[float, str]:
@@ -714,6 +628,7 @@ class Service:
         atomic under the GIL); the history database has its own lock.
         """
         cfg, inbox, seen = self.cfg, self.inbox, self.errors.seen
+        features = self.features.status()
         waiting = list(self.deferred.values())
         backoff = self.fleet.backoff()
         now = time.monotonic()
@@ -725,14 +640,14 @@ class Service:
             last_error_seen=None if seen is None else ErrorSeen.from_json(seen),
             inbox_problems=tuple(inbox.problems()),
             metrics_textfile=str(self.operator.textfile), status_page=str(self.operator.page),
-            capture=None if self.capture_loop is None else self.capture_loop.summary(),
+            capture=features.get("capture"),
             lines=self.fleet.line_quality(),
             waiting_bundles=tuple(
                 WaitingBundle(bundle=d.bundle.name, id=d.bundle.id, reason=d.reason,
                               since=d.since, retry_in_s=max(d.retry_at - now, 0.0))
                 for d in waiting),
             compute_wait=self.compute_retry.snapshot(),
-            content=None if self.content is None else self.content.status().to_json())
+            content=features.get("content"))
         # its health now counts the live errors, waits and capture station too
         return collect_status(self.history, cfg, push_backoff=backoff, daemon=live,
                               desired=self.desired.current(cfg.controllers))
@@ -740,31 +655,17 @@ class Service:
     def _operator_snapshot(self) -> OperatorSnapshot:
         """The status, the lux sensor's state and the capture station's last success, for
         the operator's metrics, alerts and status page."""
-        sensor, loop = self.sensor, self.capture_loop
+        sensor, capture = self.sensor, self.features.get("capture")
         return OperatorSnapshot(
             status=self.status(),
             sensor=None if sensor is None else SensorState(up=sensor.last_ok,
                                                            last_success_at=sensor.last_success_at),
-            capture_at=None if loop is None else loop.last_success_at)
+            capture_at=None if capture is None else capture.last_success_at())
 
-    def _read_shown(self) -> ShownDisplay | None:
-        """The display as its controllers report it now (GET_POSITIONS through the fleet,
-        :func:`~grassd.daemon.content.shown.read_shown`), for the status page's picture; None
-        when no content plays (none configured, nothing showing, or held by a measurement)."""
-        from grassd.daemon.content.shown import LengthColours, read_shown
-        from grassd.daemon.content.status import ContentSource
-
-        content = self.content
-        if content is None:
-            return None
-        st = content.status()
-        if st.source is ContentSource.NONE or (st.output or {}).get("held"):
-            return None
-        colours, cur = content.colours(), self.history.current_table()
-        palette = None if colours is None or cur is None else \
-            LengthColours.from_table(cur.lengths_um, colours.level_lab)
-        d = self.cfg.display
-        return read_shown(self.fleet, self.cfg.controllers, d.rows, d.cols, colours=palette)
+    def _feature_command(self, cmd: str) -> Callable[[dict[str, Any]], dict[str, Any]] | None:
+        """What answers the control-socket command ``cmd`` when a feature has it, else None."""
+        feature = self.features.for_command(cmd)
+        return None if feature is None else lambda req: feature.handle(self, req)
 
     def handle_request(self, req: dict[str, Any]) -> dict[str, Any]:
         """Answer one control-socket request (runs in a socket thread; see

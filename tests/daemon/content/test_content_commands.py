@@ -15,7 +15,7 @@ import pytest
 from content_helpers import content_config
 from PIL import Image
 
-from grassd.daemon.content.feature import ContentFeature
+from grassd.daemon.content.feature import ContentPlayback
 from grassd.daemon.core.config.settings import default_config_text, parse_config
 from grassd.daemon.core.errors import ControlError
 from grassd.daemon.core.monitoring.status_types import Status
@@ -26,7 +26,7 @@ from grassd.daemon.core.store.history import History
 
 @pytest.fixture
 def daemon(tmp_path, ports, sink):
-    """A control socket serving the daemon's commands with a content feature on ``sink``
+    """A control socket serving the daemon's commands with a content playback on ``sink``
     (the default site: 4 x 8 pixels); yields (config file, feature, socket path)."""
     sock = tmp_path / "control.sock"
     text = (f'state_dir = "{tmp_path / "state"}"\ncontrol_socket = "{sock}"\n'
@@ -35,11 +35,12 @@ def daemon(tmp_path, ports, sink):
     cfg_file.write_text(text)
     cfg = parse_config(text).replace(content=content_config(ports, hold_s=0.3))
     history = History(tmp_path / "state" / "history.sqlite")
-    feature = ContentFeature(cfg, sink, history, tmp_path / "state" / "reports",
-                             live=False).start()
+    feature = ContentPlayback(cfg, sink, history, tmp_path / "state" / "reports",
+                              live=False).start()
     commands = ControlCommands(lambda: Status.__new__(Status), threading.Event(),
                                threading.Event(), queue.Queue(4), lambda name: {},
-                               content=lambda: feature)
+                               feature_for=lambda cmd: feature.handle
+                               if feature.handles(cmd) else None)
     yield cfg_file, feature, sock, commands
     feature.stop()
     history.close()
@@ -125,8 +126,7 @@ def test_grassd_show_asks_the_daemon(daemon, sink, tmp_path):
 def test_without_content_the_daemon_says_how_to_enable_it(tmp_path):
     sock = tmp_path / "c.sock"
     commands = ControlCommands(lambda: Status.__new__(Status), threading.Event(),
-                               threading.Event(), queue.Queue(4), lambda name: {},
-                               content=lambda: None)
+                               threading.Event(), queue.Queue(4), lambda name: {})
     srv = ControlServer(sock, commands.handle).start()
     try:
         with pytest.raises(ControlError, match=r"set \[content\] enabled = true"):

@@ -12,10 +12,16 @@ import time
 import numpy as np
 from daemon_harness import POLICY
 
+from grassd.daemon.cli.features import daemon_features
 from grassd.daemon.core.calibration.display_model import controller_pixels
 from grassd.daemon.core.config.settings import default_config_text, load_config, load_default_config
 from grassd.daemon.core.runtime.service import Service
 from grassd.rigs.simulated_site import SimulatedHardware, hardware_toml
+
+
+def _playback(svc):
+    """The service's content playback now (None: none)."""
+    return svc.features.get("content").playback
 
 
 def _config(tmp_path, hw_cfg, ports, enabled: bool) -> str:
@@ -51,12 +57,13 @@ def test_service_shows_a_script_frame_and_turns_content_off_on_reload(tmp_path, 
     hw_cfg = sim.start()
     conf = tmp_path / "grassd.toml"
     conf.write_text(_config(tmp_path, hw_cfg, ports, True))
-    svc = Service(load_config(conf), config_path=conf, policy=POLICY)
+    svc = Service(load_config(conf), features=daemon_features(), config_path=conf,
+                  policy=POLICY)
     try:
         table = np.rint(np.linspace(0, 20000, 256)).astype(np.uint16)
         assert all(r.ok for r in svc.fleet.push(table, 1))
-        svc._restart_content()  # what run() does once the control socket serves
-        assert svc.content is not None and not _port_free(ports[0])
+        svc.features.restart(svc, None)  # what run() does once the control socket serves
+        assert _playback(svc) is not None and not _port_free(ports[0])
         n = svc.cfg.display.pixel_count
         levels = [(i * 37) % 256 for i in range(n)]
         assert svc.handle_request({"cmd": "content_frame", "levels": levels,
@@ -67,14 +74,14 @@ def test_service_shows_a_script_frame_and_turns_content_off_on_reload(tmp_path, 
         np.testing.assert_array_equal(_targets(svc), table[levels])
         live = svc.status().daemon.content
         assert live["source"] == "script" and live["output"]["frames_shown"] >= 1
-        svc.content.hold()  # as a measurement does: nothing goes out while held
-        assert svc.content.status().output["held"] is True
-        svc.content.release()
+        _playback(svc).hold()  # as a measurement does: nothing goes out while held
+        assert _playback(svc).status().output["held"] is True
+        _playback(svc).release()
         # a reload rebuilds the fleet: the content starts again on its new lines
         conf.write_text(_config(tmp_path, hw_cfg, ports, True).replace("hold_s = 0.5",
                                                                         "hold_s = 0.6"))
-        assert svc.reload() and svc.content is not None
-        assert svc.content.cfg.content.hold_s == 0.6
+        assert svc.reload() and _playback(svc) is not None
+        assert _playback(svc).cfg.content.hold_s == 0.6
         levels = [(i * 11 + 5) % 256 for i in range(n)]
         assert svc.handle_request({"cmd": "content_frame", "levels": levels,
                                    "hold_s": 30})["ok"]
@@ -88,7 +95,7 @@ def test_service_shows_a_script_frame_and_turns_content_off_on_reload(tmp_path, 
         blocker.write_text("")
         conf.write_text(_config(tmp_path, hw_cfg, ports, True).replace(
             'inbox = "inbox"', f'inbox = "{blocker / "inbox"}"'))
-        assert not svc.reload() and svc.reload_error and svc.content is not None
+        assert not svc.reload() and svc.reload_error and _playback(svc) is not None
         levels = [(i * 5 + 1) % 256 for i in range(n)]
         assert svc.handle_request({"cmd": "content_frame", "levels": levels,
                                    "hold_s": 30})["ok"]
@@ -98,7 +105,7 @@ def test_service_shows_a_script_frame_and_turns_content_off_on_reload(tmp_path, 
         np.testing.assert_array_equal(_targets(svc), table[levels])
         conf.write_text(_config(tmp_path, hw_cfg, ports, False))
         assert svc.reload()
-        assert svc.content is None and svc.status().daemon.content is None
+        assert _playback(svc) is None and svc.status().daemon.content is None
         assert _port_free(ports[0]) and _port_free(ports[1])
     finally:
         svc.shutdown()

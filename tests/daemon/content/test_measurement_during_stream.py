@@ -33,6 +33,11 @@ RSS_GROWTH_MIB = 16.0
 WARM_UP = 5
 
 
+def _playback(svc):
+    """The service's content playback now (None: none)."""
+    return svc.features.get("content").playback
+
+
 def _rss_mib() -> float:
     """This process's resident set (MiB): the in-process daemon's."""
     for line in open("/proc/self/status"):
@@ -106,7 +111,7 @@ class _Watch:
         return pattern, out
 
     def output(self) -> tuple[bool, int]:
-        out = self.svc.content.status().output
+        out = _playback(self.svc).status().output
         return out["held"], out["frames_shown"]
 
     def run(self) -> None:
@@ -119,7 +124,7 @@ class _Watch:
 
 
 def _shown(svc) -> int:
-    return svc.content.status().output["frames_shown"]
+    return _playback(svc).status().output["frames_shown"]
 
 
 def _rate(svc, seconds: float) -> float:
@@ -147,7 +152,7 @@ def test_a_measurement_during_a_live_stream_holds_it_and_gives_it_back(
         table = np.rint(np.linspace(0, 20000, 256)).astype(np.uint16)
         assert all(r.ok for r in svc.fleet.push(table, 1))
         svc._init_renderer()  # what run() does before serving: not counted as growth
-        svc._restart_content()  # ... once its control socket serves
+        svc.features.restart(svc, None)  # ... once its control socket serves
         n = svc.cfg.display.pixel_count
         with _Stream(sacn_senders(ports[0], fps=FPS), n) as stream:
             time.sleep(1.0)
@@ -157,7 +162,7 @@ def test_a_measurement_during_a_live_stream_holds_it_and_gives_it_back(
             # buffers (and the allocator's per-thread arenas) once; the growth counted is
             # that over the one after them
             for _ in range(WARM_UP):
-                warm = svc.measure()
+                warm = svc.features.get("measure").now(svc)
                 camera.files.clear()  # the simulated camera's card, not the daemon's memory
                 print(f"warm-up measurement: {warm['status']}, RSS {_rss_mib():.1f} MiB")
             rss0 = _rss_mib()
@@ -166,7 +171,7 @@ def test_a_measurement_during_a_live_stream_holds_it_and_gives_it_back(
             print(f"before: {steady:.1f} then {before:.1f} frames/s shown")
             watch.recording.set()
             started = time.monotonic()
-            report = svc.measure()
+            report = svc.features.get("measure").now(svc)
             ended = time.monotonic()
             watch.recording.clear()
             print(f"measurement: {report['status']} in {ended - started:.1f} s: "

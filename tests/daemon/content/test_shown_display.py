@@ -18,6 +18,7 @@ from PIL import Image
 from test_content_in_service import _config
 
 from grassd.calib.colour_spaces import lab_to_srgb
+from grassd.daemon.cli.features import daemon_features
 from grassd.daemon.content.display_picture import (
     MISSING_RGB8,
     picture_scale,
@@ -37,12 +38,17 @@ _PNG = re.compile(r'<figure class="shown"><img src="data:image/png;base64,([A-Za
 ENCODER_UM = 12.5
 
 
+def _shown(svc):
+    """The display as the content feature reads it for the status page (None: nothing)."""
+    return svc.features.get("content").shown(svc)
+
+
 def _arrived(svc: Service, want: np.ndarray, timeout_s: float = 10.0) -> ShownDisplay:
     """Read the display until every pixel's target is ``want`` (rows, cols) [um] and its
     length within an encoder count of it."""
     deadline = time.monotonic() + timeout_s
     while True:
-        shown = svc._read_shown()  # None until the player shows the frame
+        shown = _shown(svc)  # None until the player shows the frame
         there = shown is not None and np.array_equal(shown.targets_um, want) and bool(
             (np.abs(shown.lengths_um - want) <= ENCODER_UM).all())
         if there or time.monotonic() > deadline:
@@ -66,13 +72,14 @@ def test_the_page_shows_the_frame_as_the_controllers_report_it(tmp_path, ports):
     hw_cfg = sim.start()
     conf = tmp_path / "grassd.toml"
     conf.write_text(_config(tmp_path, hw_cfg, ports, True))
-    svc = Service(load_config(conf), config_path=conf, policy=POLICY)
+    svc = Service(load_config(conf), features=daemon_features(), config_path=conf,
+                  policy=POLICY)
     try:
         rows, cols = svc.cfg.display.rows, svc.cfg.display.cols
-        assert svc._read_shown() is None  # no content configured to play yet: nothing read
+        assert _shown(svc) is None  # no content configured to play yet: nothing read
         table = np.rint(np.linspace(0, 20000, 256)).astype(np.uint16)
         assert all(r.ok for r in svc.fleet.push(table, 1))
-        svc._restart_content()
+        svc.features.restart(svc, None)
         levels = np.array([(i * 7) % 100 for i in range(rows * cols)])
         levels[cols - 1] = 255  # row 0, last column: the top right corner, the longest grass
         assert svc.handle_request({"cmd": "content_frame", "levels": levels.tolist(),
@@ -106,7 +113,7 @@ def test_the_page_shows_the_frame_as_the_controllers_report_it(tmp_path, ports):
         # one line's controller unplugged: its pixels grey, named in the caption
         gone = svc.cfg.controllers[1]
         sim.buses.pop(1).stop()  # its pty gone, as a cable pulled
-        shown = svc._read_shown()
+        shown = _shown(svc)
         assert shown is not None
         assert [m.name for m in shown.missing] == [gone.name]
         assert shown.answered == (svc.cfg.controllers[0].name,)
@@ -126,9 +133,9 @@ def test_the_page_shows_the_frame_as_the_controllers_report_it(tmp_path, ports):
         # content stopped: nothing is read, the page keeps the last picture with its time
         assert svc.handle_request({"cmd": "content_stop"})["ok"]
         deadline = time.monotonic() + 5
-        while svc._read_shown() is not None and time.monotonic() < deadline:
+        while _shown(svc) is not None and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert svc._read_shown() is None
+        assert _shown(svc) is None
     finally:
         svc.shutdown()
         sim.stop()

@@ -51,7 +51,7 @@ def test_a_measurement_runs_once_its_interval_has_passed_within_its_hours(tmp_pa
     with _daemon(tmp_path, cfg, 0) as svc:
         svc.tick()
         assert _reports(tmp_path) == []  # the interval counts from the daemon's start
-        svc.last_measure_at = time.time() - 3601  # as if the last one was an hour ago
+        svc.features.get("measure").last_at = time.time() - 3601  # the last an hour ago
         svc.tick()
         [report] = _reports(tmp_path)
         assert report["trigger"] == "interval" and report["status"] == "failed"
@@ -63,7 +63,7 @@ def test_a_measurement_runs_once_its_interval_has_passed_within_its_hours(tmp_pa
 def test_no_measurement_outside_its_hours(tmp_path, hw):
     sim, cfg = hw
     with _daemon(tmp_path, cfg, 3) as svc:  # opens in 3 hours, at the earliest 2 from now
-        svc.last_measure_at = time.time() - 10 * 3600
+        svc.features.get("measure").last_at = time.time() - 10 * 3600
         svc.tick()
         assert _reports(tmp_path) == []
 

@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 from daemon_harness import write_config
 
+from grassd.daemon.cli.features import daemon_features
 from grassd.daemon.core.config.settings import load_config, load_default_config
 from grassd.daemon.core.runtime.service import Service
 from grassd.daemon.core.store.history import History
@@ -69,7 +70,7 @@ class Site:
         return self.display.scene()
 
     def _service_do(self, what: Callable[[Service], dict]) -> dict:
-        svc = Service(self.cfg)
+        svc = Service(self.cfg, features=daemon_features())
         try:
             return what(svc)
         finally:
@@ -77,7 +78,7 @@ class Site:
 
     def measure(self) -> dict:
         """One measurement through the daemon's service, as ``grassd measure --now``."""
-        return self._service_do(lambda svc: svc.measure())
+        return self._service_do(lambda svc: svc.features.get("measure").now(svc))
 
     def photo_of(self, positions_um: np.ndarray) -> np.ndarray:
         """The camera's view of the display with its grass at ``positions_um`` (N,)."""

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from daemon_harness import write_config
 
+from grassd.daemon.cli.features import daemon_features
 from grassd.daemon.core.config.settings import load_config
 from grassd.daemon.core.runtime.service import Service
 from grassd.daemon.core.store.atomic import atomic_write_json
@@ -41,9 +42,9 @@ def _site(tmp_path: Path, cfg, camera_url: str, extra: str = "") -> Path:
 
 
 def _measure(path: Path) -> dict:
-    svc = Service(load_config(path))
+    svc = Service(load_config(path), features=daemon_features())
     try:
-        return svc.measure()
+        return svc.features.get("measure").now(svc)
     finally:
         svc.shutdown()
 
@@ -133,7 +134,7 @@ def test_the_daemons_retention_pass_applies_keep_photos(tmp_path, hw):
     for mid in old:
         (layout.measure / mid).mkdir(parents=True)
         (layout.measure / mid / "short.dng").write_bytes(b"\0" * 4096)
-    svc = Service(load_config(path))
+    svc = Service(load_config(path), features=daemon_features())
     try:
         svc.prune()
     finally:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from daemon_harness import write_config
 
+from grassd.daemon.cli.features import daemon_features
 from grassd.daemon.core.config.settings import load_config
 from grassd.daemon.core.runtime.service import Service
 from grassd.daemon.core.store.layout import StateLayout
@@ -16,9 +17,9 @@ from grassd.daemon.core.store.layout import StateLayout
 def _measure(tmp_path: Path, cfg, camera: str) -> dict:
     path = write_config(tmp_path / "grassd.toml", tmp_path / "state", cfg,
                         extra=f'[measure]\ncamera = "{camera}"\n')
-    svc = Service(load_config(path))
+    svc = Service(load_config(path), features=daemon_features())
     try:
-        return svc.measure()
+        return svc.features.get("measure").now(svc)
     finally:
         svc.shutdown()
 

@@ -26,6 +26,11 @@ from grassd.rigs.simulated_site import SimulatedHardware
 from grassd.sim.hdri import default_site_hdri, downsample, load_hdri
 
 
+def _loop(svc):
+    """The service's capture loop now (None: none)."""
+    return svc.features.get("capture").loop
+
+
 def config_text(state: Path, cfg, camera_url: str) -> str:
     """The end-to-end tests' configuration plus a capture station photographing ``camera_url``
     every 10 s."""
@@ -127,18 +132,18 @@ def test_reload_starts_and_stops_the_capture_station(tmp_path, hw):
     path = daemon_harness.write_config(tmp_path / "g.toml", tmp_path / "state", cfg)
     svc = daemon_harness.service(path)
     try:
-        assert svc.capture_loop is None
+        assert _loop(svc) is None
         with SimCamera(env, scene_scale=1000.0, latency_s=0.01) as cam:
             daemon_harness.write_config(path, tmp_path / "state", cfg, extra=(
                 f'[capture]\ncamera = "{cam.url}"\ninterval_s = 3600\nshots = 5\n'))
-            assert svc.reload() is True and svc.capture_loop is not None
-            wait_for(lambda: svc.capture_loop.last_bundle is not None
-                     or svc.capture_loop.last_error, 60, "a capture", _Alive(), path)
-            assert svc.capture_loop.last_error is None
+            assert svc.reload() is True and _loop(svc) is not None
+            wait_for(lambda: _loop(svc).last_bundle is not None
+                     or _loop(svc).last_error, 60, "a capture", _Alive(), path)
+            assert _loop(svc).last_error is None
             assert svc.status().to_json()["capture"]["captures"] == 1
-            loop = svc.capture_loop
+            loop = _loop(svc)
             daemon_harness.write_config(path, tmp_path / "state", cfg)
-            assert svc.reload() is True and svc.capture_loop is None
+            assert svc.reload() is True and _loop(svc) is None
             loop._thread.join(10)
             assert not loop._thread.is_alive()
         daemon_harness.tick_until(svc, lambda: svc.history.current_table() is not None, 60)

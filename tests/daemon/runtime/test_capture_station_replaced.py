@@ -36,7 +36,7 @@ def test_replacing_the_station_mid_capture_keeps_that_capture(tmp_path):
         while not (work.is_dir() and any(work.rglob("shot*.jpg"))):  # mid-bracket
             assert time.monotonic() - t0 < 30, "the capture never started"
             time.sleep(0.01)
-        old.stop(timeout_s=None)  # as Service._restart_capture on a reload
+        old.stop(timeout_s=None)  # as CaptureFeature.restart on a reload
         new = CaptureLoop(Station(cfg, inbox, state, sensor.config))
         new.stop(timeout_s=None)  # only the replacement's construction matters here
         new.start(after=old)
