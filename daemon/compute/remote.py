@@ -63,6 +63,7 @@ if TYPE_CHECKING:
     from numpy.typing import NDArray
 
     from grassd.calib.ccm import ColourCorrection
+    from grassd.daemon.core.calibration.calibrate import Calibrates
     from grassd.daemon.core.store.manifest import CheckerPhoto
 
 log = logging.getLogger(__name__)
@@ -100,7 +101,7 @@ def calibrate_on_worker(payload: bytes) -> dict[str, Any]:
 # --------------------------------------------------------------------------- in the daemon
 
 
-def calibrator_for(cfg: Config) -> Any:
+def calibrator_for(cfg: Config) -> Calibrates:
     """What runs ``cfg``'s calibrations: a :class:`RemoteCalibrator` with ``[compute]
     scheduler``, else a local :class:`~grassd.daemon.core.calibration.calibrate.Calibrator`
     (Taichi here). Both have the same ``run``."""

@@ -25,14 +25,19 @@ from __future__ import annotations
 import logging
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from grassd.daemon.core.errors import USER_ERRORS, DaemonError, RunInterrupted
+
+if TYPE_CHECKING:
+    from grassd.daemon.core.config.settings import Config
+    from grassd.daemon.core.hardware.camera import OscClient
+    from grassd.daemon.core.runtime.service import Service
 
 log = logging.getLogger(__name__)
 
 
-def measuring_camera(cfg: Any) -> tuple[Any, Path | None]:
+def measuring_camera(cfg: Config) -> tuple[OscClient, Path | None]:
     """(OSC client of ``[measure] camera``, the camera lock's directory when it is the capture
     station's camera, else None)."""
     from dataclasses import replace
@@ -48,7 +53,7 @@ def measuring_camera(cfg: Any) -> tuple[Any, Path | None]:
                                          password=mc.password)), None
 
 
-def measure_with(svc: Any, trigger: str = "request") -> dict[str, Any]:
+def measure_with(svc: Service, trigger: str = "request") -> dict[str, Any]:
     """One measurement by the service ``svc`` (module docstring); returns its report."""
     from grassd.daemon.core.runtime.retention import prune_measure_photos
     from grassd.daemon.core.runtime.scheduled import scheduled_input
@@ -87,10 +92,10 @@ def measure_with(svc: Any, trigger: str = "request") -> dict[str, Any]:
                              light=inp.light, lux=lux_now, camera=camera, setup=setup,
                              dest=layout.measure, stop=svc.stop_event.is_set,
                              progress=svc._progress)
-        report = {**report, **run_measurement(ctx), "trigger": trigger}
-        accepted = report.pop("_accepted")
-        if accepted is not None:
-            correction, corrected = accepted
+        outcome = run_measurement(ctx)
+        report = {**report, **outcome.report, "trigger": trigger}
+        if outcome.accepted is not None:
+            correction, corrected = outcome.accepted
             atomic_write_json(layout.correction, correction.to_json())
             run_id = svc.history.start_run("measure", input_hashes={"measurement":
                                                                     report["measurement"]},
@@ -114,7 +119,6 @@ def measure_with(svc: Any, trigger: str = "request") -> dict[str, Any]:
         if lock is not None:
             lock.release()
         report["finished_at"] = datetime.now(UTC).isoformat(timespec="seconds")
-        report.pop("_accepted", None)
         try:
             report["report"] = str(write_report(layout, report))
         except OSError as exc:

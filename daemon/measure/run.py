@@ -52,14 +52,28 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypedDict, TypeVar
 
 import numpy as np
 from colour import delta_E
 from numpy.typing import NDArray
 
 from grassd.daemon.core.errors import DaemonError, RunInterrupted
-from grassd.daemon.measure.evidence import Finding, PhotosRefused, Refusal
+from grassd.daemon.measure.evidence import Evidence, Finding, PhotosRefused, Refusal
+
+if TYPE_CHECKING:
+    from grassd.calib.display_in_photo import DisplayInPhoto
+    from grassd.daemon.core.calibration.calibrate import Calibrates
+    from grassd.daemon.core.calibration.correction import DisplayCorrection
+    from grassd.daemon.core.calibration.result import CalibrationResult
+    from grassd.daemon.core.config.settings import Config, ViewpointConfig
+    from grassd.daemon.core.hardware.camera import OscClient
+    from grassd.daemon.core.hardware.fleet import Fleet
+    from grassd.daemon.measure.camera_chain import MeasureSetup, Shot
+    from grassd.daemon.measure.pixel_model import PixelColourModel, VariationFit
+    from grassd.sim.light_input import LightInput
+
+T = TypeVar("T")
 
 log = logging.getLogger(__name__)
 
@@ -94,16 +108,57 @@ class MeasureContext:
     measuring camera's client and set-up, where its files go (``dest``), ``stop()`` and
     ``progress(text)``."""
 
-    cfg: Any
-    fleet: Any
-    calibrator: Any
-    light: Any
+    cfg: Config
+    fleet: Fleet
+    calibrator: Calibrates
+    light: LightInput
     lux: Callable[[], float]
-    camera: Any
-    setup: Any
+    camera: OscClient
+    setup: MeasureSetup
     dest: Path
     stop: Callable[[], bool]
     progress: Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class Analysis:
+    """What the photos before the correction gave (steps 3 to 5 of the module docstring): the
+    display ``located`` in them (its camera pose too), every pixel's CIELAB at the patterns
+    (``measured_lab``, (N, K, 3)) and its normalised ProPhoto at :data:`CHECK_LEVELS` before
+    the correction (``before``, (N, L, 3)), the pixel model recorded from the camera and its
+    ``fit``, the ``correction``, the camera's ``ccm`` (3 x 3), each checked level's nominal
+    lengths (mm, (N,) by level) and the photos' ``evidence``."""
+
+    located: DisplayInPhoto
+    measured_lab: NDArray[np.float64]
+    before: NDArray[np.float64]
+    camera_model: PixelColourModel
+    fit: VariationFit
+    correction: DisplayCorrection
+    ccm: NDArray[np.float64]
+    nominal_lengths: dict[int, NDArray[np.float64]]
+    evidence: Evidence
+
+
+@dataclass(frozen=True)
+class MeasurementOutcome:
+    """How a measurement ended: its ``report`` (JSON-ready, written by
+    :mod:`grassd.daemon.measure.report`) and, when it was accepted, the correction and the
+    corrected tables to keep (None: refused, the report's ``evidence`` and ``status`` say
+    why)."""
+
+    report: dict[str, Any]
+    accepted: tuple[DisplayCorrection, CalibrationResult] | None
+
+
+class Uniformity(TypedDict):
+    """Uniformity of the display at :data:`CHECK_LEVELS` (the report's ``before_detail`` and
+    ``after_detail``; module docstring)."""
+
+    worst_pair_de00: float
+    worst_pair: list[int]
+    ogcd_spread_de00: list[float]
+    mean_ogcd_de00: list[float]
 
 
 def measurement_id(at: datetime | None = None) -> str:
@@ -121,7 +176,8 @@ def pattern_lengths(count: int, green_max_mm: float) -> NDArray[np.float64]:
     return np.linspace(1.0, green_max_mm - 1.0, count)
 
 
-def level_lengths_mm(cfg: Any, result: Any, n_pixels: int, level: int) -> NDArray[np.float64]:
+def level_lengths_mm(cfg: Config, result: CalibrationResult, n_pixels: int, level: int
+                     ) -> NDArray[np.float64]:
     """(N,) length (mm) every display pixel shows at ``level`` through ``result``'s tables."""
     from grassd.daemon.core.calibration.display_model import controller_pixels
 
@@ -134,11 +190,10 @@ def level_lengths_mm(cfg: Any, result: Any, n_pixels: int, level: int) -> NDArra
     return out
 
 
-def run_measurement(ctx: MeasureContext) -> dict[str, Any]:
-    """One measurement (module docstring). Returns its report (JSON-ready) with, under the key
-    ``"_accepted"``, the correction and the corrected CalibrationResult to keep, or None (the
-    report's ``evidence`` and ``status`` "refused" say why). Raises :class:`MeasureDeadline`
-    once ``[measure] deadline_s`` has passed (the display shows content again)."""
+def run_measurement(ctx: MeasureContext) -> MeasurementOutcome:
+    """One measurement (module docstring): its report, and what to keep when it was accepted.
+    Raises :class:`MeasureDeadline` once ``[measure] deadline_s`` has passed (the display
+    shows content again)."""
     from grassd.daemon.measure.evidence import shot_order
     from grassd.daemon.measure.patterns import PatternError, PatternSession
 
@@ -164,7 +219,7 @@ def run_measurement(ctx: MeasureContext) -> dict[str, Any]:
     from grassd.daemon.measure.camera_chain import MeasuringCamera
 
     cam = MeasuringCamera(ctx.camera, ctx.dest / mid, mc.iso)
-    shots: dict[str, Any] = {}
+    shots: dict[str, Shot] = {}
     # the states the display shows, by shot name; taken in an order drawn for this measurement
     uniform: dict[str, NDArray | float] = {"short": 0.0, "long": green_max}
     uniform.update({f"pattern-{k:02d}": float(x) for k, x in enumerate(lengths)})
@@ -206,13 +261,13 @@ def run_measurement(ctx: MeasureContext) -> dict[str, Any]:
             found = _analyse(ctx, mid, shots, photos, lengths, nominal, n, states, order,
                              repeat, progress)
         except PhotosRefused as exc:
-            return {"measurement": mid, "started_at": started.isoformat(timespec="seconds"),
-                    "status": "refused", "error": f"correction refused: {exc.finding.detail}",
-                    "evidence": {"accepted": False, "order": order,
-                                 "findings": [exc.finding.to_json()]},
-                    "tables": {"granularity": "pixel", "nominal_source": nominal.source},
-                    "_accepted": None}
-        corrected = found["correction"].apply(cfg, nominal)
+            return MeasurementOutcome({
+                "measurement": mid, "started_at": started.isoformat(timespec="seconds"),
+                "status": "refused", "error": f"correction refused: {exc.finding.detail}",
+                "evidence": {"accepted": False, "order": order,
+                             "findings": [exc.finding.to_json()]},
+                "tables": {"granularity": "pixel", "nominal_source": nominal.source}}, None)
+        corrected = found.correction.apply(cfg, nominal)
         after_names, _ = shot_order([f"after-{lv:03d}" for lv in CHECK_LEVELS])
         for lv in CHECK_LEVELS:
             states[f"after-{lv:03d}"] = level_lengths_mm(cfg, corrected, n, lv)
@@ -221,7 +276,7 @@ def run_measurement(ctx: MeasureContext) -> dict[str, Any]:
     t_end = time.perf_counter()
     ctx.progress("measure: patterns ended, display shows content")
     names = [f"after-{lv:03d}" for lv in CHECK_LEVELS]
-    after = _pixel_colours(ctx, shots, photos, names, found["locate"])
+    after = _pixel_colours(ctx, shots, photos, names, found.located)
     evidence = _verify(found, names, after, np.stack([states[x] for x in names], axis=1),
                        (*order, *after_names))
     report = _report(ctx, mid, started, found, nominal, photos, after, lengths, n)
@@ -234,8 +289,8 @@ def run_measurement(ctx: MeasureContext) -> dict[str, Any]:
     report["evidence"] = evidence.to_json()
     if not evidence.accepted:
         report.update(status="refused", error=f"correction refused: {evidence.reason()}")
-    report["_accepted"] = (found["correction"], corrected) if evidence.accepted else None
-    return report
+    return MeasurementOutcome(report, (found.correction, corrected) if evidence.accepted
+                              else None)
 
 
 class MeasureDeadline(MeasureError):
@@ -269,11 +324,11 @@ class _Deadline:
 
 
 def _within(deadline: _Deadline, stop: Callable[[], bool], doing: str,
-            work: Callable[[], Any]) -> Any:
+            work: Callable[[], T]) -> T:
     """``work()`` in a thread of its own, waited for until ``deadline`` (then
     :class:`MeasureDeadline`) or ``stop()`` (then RunInterrupted); a camera exchange left
     behind ends at its own timeouts."""
-    out: list[Any] = []
+    out: list[T] = []
     err: list[BaseException] = []
 
     def run() -> None:
@@ -295,8 +350,8 @@ def _within(deadline: _Deadline, stop: Callable[[], bool], doing: str,
     return out[0]
 
 
-def _pixel_colours(ctx: MeasureContext, shots: dict[str, Any], photos: Photos,
-                   names: list[str], located: Any) -> NDArray[np.float64]:
+def _pixel_colours(ctx: MeasureContext, shots: dict[str, Shot], photos: Photos,
+                   names: list[str], located: DisplayInPhoto) -> NDArray[np.float64]:
     """(N, len(names), 3) every pixel's mean normalised ProPhoto in the named shots."""
     from grassd.calib.display_in_photo import pixel_means
     from grassd.daemon.measure.camera_chain import develop_shot
@@ -309,15 +364,17 @@ def _pixel_colours(ctx: MeasureContext, shots: dict[str, Any], photos: Photos,
     return np.stack(out, axis=1)
 
 
-def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Any], photos: Photos, lengths: NDArray,
-             nominal: Any, n: int, states: dict[str, Any], order: list[str],
-             repeat: str | None, progress: Callable[[str], None]) -> dict[str, Any]:
+def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Shot], photos: Photos,
+             lengths: NDArray, nominal: CalibrationResult, n: int,
+             states: dict[str, NDArray | float], order: list[str], repeat: str | None,
+             progress: Callable[[str], None]) -> Analysis:
     """Locate, pose, colours, fit, the photos judged, correction (steps 3 to 5 of the module
     docstring); ``states``: every shot's commanded lengths (mm), ``order`` the shots as
     taken, ``repeat`` the repeated shot's name."""
     from grassd.calib.colour_spaces import prophoto_to_lab
     from grassd.calib.display_in_photo import locate_display, pixel_means
     from grassd.calib.errors import GeometryError
+    from grassd.daemon.core.calibration.calibrate import Calibrator
     from grassd.daemon.core.calibration.correction import DisplayCorrection
     from grassd.daemon.core.calibration.display_model import (
         capacity_for,
@@ -366,12 +423,14 @@ def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Any], photos: Photo
                               np.stack([nominal_lengths[lv] for lv in CHECK_LEVELS], axis=1)],
                              axis=1)
     renderer = Renderer.shared(capacity_for(n))
-    lighting = ctx.calibrator.lighting(ctx.light)
+    # the pixel models are recorded here, whichever calibrator ran the tables (a Dask
+    # cluster's runs only those), so their light is built here too
+    lighting = Calibrator(cfg).lighting(ctx.light)
     grid = np.arange(0.0, display.pixel.green_max_mm + GRID_STEP_MM / 2, GRID_STEP_MM)
     settings = RenderSettings(samples=mc.samples, replicates=4, max_bounces=3,
                               seed=cfg.simulation.seed)
 
-    def model_from(eye_m: NDArray, what: str, layouts: int) -> Any:
+    def model_from(eye_m: NDArray, what: str, layouts: int) -> PixelColourModel:
         geo = geometry_from_eye(display, eye_m)
         return record_pixel_model(
             renderer, display, lighting, [geo.viewpoint(i) for i in range(n)], grid, settings,
@@ -412,13 +471,12 @@ def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Any], photos: Photo
                                   fit.variation, grid)
     correction = DisplayCorrection(fit.variation, grid, commands, (display.rows, display.cols),
                                    mid)
-    return {"locate": located, "pose": pose, "measured_lab": measured, "before": before,
-            "camera_model": camera_model, "fit": fit, "correction": correction, "ccm": ccm,
-            "nominal_lengths": nominal_lengths, "evidence": evidence}
+    return Analysis(located, measured, before, camera_model, fit, correction, ccm,
+                    nominal_lengths, evidence)
 
 
-def _verify(found: dict[str, Any], names: list[str], after: NDArray, commanded_mm: NDArray,
-            order: tuple[str, ...]) -> Any:
+def _verify(found: Analysis, names: list[str], after: NDArray, commanded_mm: NDArray,
+            order: tuple[str, ...]) -> Evidence:
     """The evidence of ``found`` with the verification photos judged: ``after`` (N, L, 3)
     their normalised ProPhoto, ``commanded_mm`` (N, L) the corrected lengths they showed,
     ``order`` every shot as taken."""
@@ -428,13 +486,13 @@ def _verify(found: dict[str, Any], names: list[str], after: NDArray, commanded_m
     from grassd.daemon.measure.evidence import verify
     from grassd.daemon.measure.pixel_model import lab_of
 
-    fit, model, ccm = found["fit"], found["camera_model"], found["ccm"]
+    fit, model, ccm = found.fit, found.camera_model, found.ccm
     predicted = lab_of(model.rgb(commanded_mm, fit.variation), fit.colour @ ccm)
-    ev = dc_replace(found["evidence"], order=order)
+    ev = dc_replace(found.evidence, order=order)
     return verify(ev, names, prophoto_to_lab(after), predicted)
 
 
-def _eye_of(vp: Any) -> NDArray[np.float64]:
+def _eye_of(vp: ViewpointConfig) -> NDArray[np.float64]:
     """World eye position (m) of a [[viewpoints]] entry standing relative to the display's
     centre (``grassd.sim.scene.Viewpoint.eye_m``)."""
     from grassd.sim.scene import Viewpoint
@@ -442,7 +500,7 @@ def _eye_of(vp: Any) -> NDArray[np.float64]:
     return np.asarray(Viewpoint(vp.h_cm, vp.d_m, vp.theta_deg).eye_m((0.0, 0.0)))
 
 
-def normalised_lab(rgb: NDArray, model: Any, nominal_mm: NDArray, ccm: NDArray
+def normalised_lab(rgb: NDArray, model: PixelColourModel, nominal_mm: NDArray, ccm: NDArray
                    ) -> NDArray[np.float64]:
     """(N, 3) CIELAB of every pixel's measured ``rgb`` (N, 3, normalised ProPhoto) with its
     viewing geometry divided out: rgb / (model pixel at its own viewpoint and ``nominal_mm``
@@ -456,8 +514,8 @@ def normalised_lab(rgb: NDArray, model: Any, nominal_mm: NDArray, ccm: NDArray
     return prophoto_to_lab(rgb / np.clip(m, 1e-6, None) * m.mean(axis=0))
 
 
-def uniformity(colours: NDArray, model: Any, nominal: dict[int, NDArray], ccm: NDArray
-               ) -> dict[str, Any]:
+def uniformity(colours: NDArray, model: PixelColourModel, nominal: dict[int, NDArray],
+               ccm: NDArray) -> Uniformity:
     """Uniformity of (N, levels, 3) measured colours at :data:`CHECK_LEVELS` (module
     docstring): worst pair at the mid level (dE00 and the two pixels), OGCD spread per
     level."""
@@ -472,9 +530,9 @@ def uniformity(colours: NDArray, model: Any, nominal: dict[int, NDArray], ccm: N
             "mean_ogcd_de00": ogcd.mean(axis=0).round(4).tolist()}
 
 
-def _report(ctx: MeasureContext, mid: str, started: datetime, found: dict[str, Any],
-            nominal: Any, photos: Photos, after: NDArray, lengths: NDArray, n: int
-            ) -> dict[str, Any]:
+def _report(ctx: MeasureContext, mid: str, started: datetime, found: Analysis,
+            nominal: CalibrationResult, photos: Photos, after: NDArray, lengths: NDArray,
+            n: int) -> dict[str, Any]:
     """The measurement's report (JSON-ready; written by
     :mod:`grassd.daemon.measure.report`)."""
     from grassd.calib.ogcd import ogcd_from_lab
@@ -482,16 +540,16 @@ def _report(ctx: MeasureContext, mid: str, started: datetime, found: dict[str, A
     from grassd.daemon.measure.pixel_model import lab_of
 
     mc = ctx.cfg.measure
-    fit, model, ccm = found["fit"], found["camera_model"], found["ccm"]
-    before_u = uniformity(found["before"], model, found["nominal_lengths"], ccm)
-    after_u = uniformity(after, model, found["nominal_lengths"], ccm)
-    measured = found["measured_lab"]
+    fit, model, ccm = found.fit, found.camera_model, found.ccm
+    before_u = uniformity(found.before, model, found.nominal_lengths, ccm)
+    after_u = uniformity(after, model, found.nominal_lengths, ccm)
+    measured = found.measured_lab
     predicted = lab_of(model.rgb(lengths, DisplayVariation.none(n)), ccm)
     fitted = lab_of(model.rgb(lengths, fit.variation), fit.colour @ ccm)
     real_ogcd = np.stack([ogcd_from_lab(m) for m in measured])
     pred_ogcd = np.stack([ogcd_from_lab(m) for m in predicted])
     fit_ogcd = np.stack([ogcd_from_lab(m) for m in fitted])
-    pose = found["pose"]
+    pose = found.located.pose
     eye = np.asarray(pose.position_m, dtype=float)
     b, a = before_u["worst_pair_de00"], after_u["worst_pair_de00"]
     within = a <= mc.tolerance_de00

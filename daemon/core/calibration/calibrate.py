@@ -43,7 +43,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -103,6 +103,21 @@ def init_backend(cfg: Config) -> str:
     from grassd.sim import backend
 
     return backend.init("cpu", cache_dir=cfg.cache_dir / "taichi")
+
+
+class Calibrates(Protocol):
+    """What runs a configuration's calibrations: a :class:`Calibrator` here, or the compute
+    feature's ``RemoteCalibrator`` on a Dask cluster; both run as :meth:`Calibrator.run`."""
+
+    def run(self, light: LightInput, *, checker: CheckerPhoto | None = None,
+            previous_um: NDArray | None = None,
+            previous_ccm: ColourCorrection | None = None, force: bool = False,
+            stop: threading.Event | None = None,
+            progress: Progress | None = None,
+            previous_tables: Mapping[str, NDArray] | None = None,
+            correction: Any = SAVED) -> CalibrationResult:
+        """Calibrate for ``light`` (:meth:`Calibrator.run`)."""
+        ...
 
 
 class Calibrator:
