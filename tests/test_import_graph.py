@@ -218,10 +218,6 @@ CORE_IMPORTS_OF_FEATURES = {
     ("grassd.daemon.core.config.settings", "grassd.daemon.compute.config"),
     ("grassd.daemon.core.config.settings", "grassd.daemon.content.config"),
     ("grassd.daemon.core.config.settings", "grassd.daemon.measure.config"),
-    ("grassd.daemon.core.monitoring.operator_view", "grassd.daemon.content.shown"),
-    ("grassd.daemon.core.monitoring.status_page", "grassd.daemon.content.display_picture"),
-    ("grassd.daemon.core.monitoring.status_page", "grassd.daemon.content.shown"),
-    ("grassd.daemon.core.monitoring.status_page", "grassd.daemon.measure.report"),
     ("grassd.daemon.core.runtime.service", "grassd.daemon.compute.remote"),
     ("grassd.daemon.core.runtime.service", "grassd.daemon.compute.retry"),
 }

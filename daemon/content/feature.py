@@ -36,6 +36,7 @@ import numpy as np
 from grassd.daemon.content.colour_map import REFERENCE_VIEWPOINT, DisplayColours
 from grassd.daemon.content.pictures import load_animation
 from grassd.daemon.content.player import MAX_REQUEST_S, ContentPlayer
+from grassd.daemon.content.shown import SHOWN_EVERY_S, ShownDisplay
 from grassd.daemon.content.sink import ClosableSink, FrameSink, StatsSink
 from grassd.daemon.content.status import ContentStatus
 from grassd.daemon.core.config.settings import Config
@@ -43,7 +44,7 @@ from grassd.daemon.core.runtime.features import Feature
 from grassd.daemon.core.store.layout import report_stem
 
 if TYPE_CHECKING:
-    from grassd.daemon.content.shown import ShownDisplay
+    from grassd.daemon.core.monitoring.page_parts import Card, Clock
     from grassd.daemon.core.runtime.service import Service
 
 log = logging.getLogger(__name__)
@@ -223,8 +224,13 @@ class ContentFeature(Feature):
 
     name = "content"
 
-    def __init__(self) -> None:
+    def __init__(self, shown_every_s: float = SHOWN_EVERY_S) -> None:
         self.playback: ContentPlayback | None = None
+        self.shown_every_s = shown_every_s
+        #: the display as last read for the card's picture, and when (monotonic s)
+        self.last_shown: ShownDisplay | None = None
+        self._shown_at = float("-inf")
+        self._shown_error: str | None = None
 
     def pause(self, svc: Service) -> None:
         """Stop the playback and its frame output, which shares the fleet's lines."""
@@ -234,13 +240,12 @@ class ContentFeature(Feature):
         """Start the playback for ``svc.cfg`` on a frame output over the fleet's lines at
         ``[content] fps`` (none without ``[content]`` enabled); a receiver that cannot listen
         is logged and the daemon goes on calibrating. The status page's picture of the
-        display is read through it (:meth:`shown`)."""
+        display is read through it (:meth:`card_news`)."""
         from grassd.daemon.content.frames import FrameOutput
         from grassd.daemon.content.receiver import ReceiverBindError
 
         self._end()
         cfg = svc.cfg
-        svc.operator.shown = lambda: self.shown(svc)
         if cfg.content is None or not cfg.content.enabled:
             return
         sink = FrameOutput(cfg.controllers, cfg.display.pixel_count, fps=float(cfg.content.fps),
@@ -283,6 +288,35 @@ class ContentFeature(Feature):
         """The measurement gives the display back."""
         if self.playback is not None:
             self.playback.release()
+
+    def card(self, svc: Service, clock: Clock) -> Card | None:
+        """What the display shows and its last picture
+        (:func:`~grassd.daemon.content.card.content_card`); None while no content plays."""
+        from grassd.daemon.content.card import content_card
+
+        st = self.status()
+        return None if st is None else content_card(st, self.last_shown, clock)
+
+    def card_news(self, svc: Service) -> bool:
+        """Read the display for the card's picture when ``shown_every_s`` has passed since
+        the last reading; True when a new reading came (a reading that fails is logged once
+        and the card keeps its last picture; none is taken while no content plays)."""
+        now = time.monotonic()
+        if self.playback is None or now - self._shown_at < self.shown_every_s:
+            return False
+        try:
+            shown = self.shown(svc)
+        except Exception as exc:  # the page is written without a new picture
+            msg = f"cannot read the display's positions: {exc}"
+            if msg != self._shown_error:
+                log.warning("content: %s (the daemon keeps running)", msg)
+                self._shown_error = msg
+            return False
+        self._shown_error = None
+        if shown is None:  # nothing plays now: the last picture stays
+            return False
+        self.last_shown, self._shown_at = shown, now
+        return True
 
     def shown(self, svc: Service) -> ShownDisplay | None:
         """The display as its controllers report it now (GET_POSITIONS through the fleet,

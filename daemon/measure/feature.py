@@ -1,7 +1,8 @@
 """Measurements as they join the daemon (:class:`~grassd.daemon.core.runtime.features
 .Feature`): one every ``[measure] interval_s`` within its hours, and one on the control
 socket's ``measure`` command, each in the main loop with the display held from the other
-features (:func:`~grassd.daemon.measure.job.measure_with`)."""
+features (:func:`~grassd.daemon.measure.job.measure_with`); the last one's card on the status
+page (:mod:`~grassd.daemon.measure.card`)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from zoneinfo import ZoneInfo
 from grassd.daemon.core.runtime.features import Feature
 
 if TYPE_CHECKING:
+    from grassd.daemon.core.monitoring.page_parts import Card, Clock
     from grassd.daemon.core.runtime.service import Service
 
 
@@ -59,6 +61,13 @@ class MeasureFeature(Feature):
                 return measure_with(svc, trigger)
         finally:
             svc.operator.after_run()
+
+    def card(self, svc: Service, clock: Clock) -> Card:
+        """The last measurement's card (:func:`~grassd.daemon.measure.card.measurement_card`),
+        "never measured" before the first."""
+        from grassd.daemon.measure.card import measurement_card
+
+        return measurement_card(svc.cfg.state_dir, clock)
 
     def handles(self, cmd: str) -> bool:
         """``measure``."""

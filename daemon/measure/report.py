@@ -32,7 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from grassd.daemon.core.monitoring.status_page import _CSS, _Clock, _esc, _table, _td, svg_trend
+from grassd.daemon.core.monitoring.page_parts import CSS, Clock, esc, html_table, td
+from grassd.daemon.core.monitoring.status_page import svg_trend
 from grassd.daemon.core.store.atomic import atomic_write_json, atomic_write_text
 from grassd.daemon.core.store.layout import StateLayout
 
@@ -105,8 +106,8 @@ def write_report(layout: StateLayout, report: Mapping[str, Any]) -> Path:
     except Exception as exc:  # a report of unexpected shape: still a page, saying so
         log.exception("measurement %s: HTML report not rendered", mid)
         text = _page(f"grassd measurement {mid}", "failed", f"measurement {mid}",
-                     f"<p>The report could not be rendered: {_esc(exc)}. Its JSON is "
-                     f"{_esc(path.name)}.</p>")
+                     f"<p>The report could not be rendered: {esc(exc)}. Its JSON is "
+                     f"{esc(path.name)}.</p>")
     atomic_write_text(path.with_suffix(".html"), text)
     return path
 
@@ -227,15 +228,15 @@ def _f(v: Any, fmt: str, unit: str = "") -> str:
 
 
 def _dl(items: Sequence[tuple[str, Any]]) -> str:
-    return "<dl>" + "".join(f"<dt>{html.escape(k)}</dt><dd>{_esc(v)}</dd>"
+    return "<dl>" + "".join(f"<dt>{html.escape(k)}</dt><dd>{esc(v)}</dd>"
                             for k, v in items) + "</dl>"
 
 
 def _page(title: str, cls: str, head: str, body: str) -> str:
     return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
             "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
-            f"<title>{_esc(title)}</title><style>{_CSS}{_EXTRA_CSS}</style></head><body>"
-            f'<header class="health {cls}"><h1>{_esc(head)}</h1></header>{body}</body></html>\n')
+            f"<title>{esc(title)}</title><style>{CSS}{_EXTRA_CSS}</style></head><body>"
+            f'<header class="health {cls}"><h1>{esc(head)}</h1></header>{body}</body></html>\n')
 
 
 def grid_shape(n: int, shape: Any = None) -> tuple[int, int]:
@@ -388,11 +389,11 @@ def _uniformity(r: Mapping[str, Any]) -> str:
         s = d.get(key)
         return s[k] if isinstance(s, list) and k < len(s) else None
 
-    rows = [[_td(lv, "n"), _td(_f(at(bd, "ogcd_spread_de00", k), ".3f"), "n"),
-             _td(_f(at(ad, "ogcd_spread_de00", k), ".3f"), "n"),
-             _td(_f(at(bd, "mean_ogcd_de00", k), ".3f"), "n"),
-             _td(_f(at(ad, "mean_ogcd_de00", k), ".3f"), "n")] for k, lv in enumerate(levels)]
-    table = _table(["level", "OGCD spread before (dE00)", "OGCD spread after (dE00)",
+    rows = [[td(lv, "n"), td(_f(at(bd, "ogcd_spread_de00", k), ".3f"), "n"),
+             td(_f(at(ad, "ogcd_spread_de00", k), ".3f"), "n"),
+             td(_f(at(bd, "mean_ogcd_de00", k), ".3f"), "n"),
+             td(_f(at(ad, "mean_ogcd_de00", k), ".3f"), "n")] for k, lv in enumerate(levels)]
+    table = html_table(["level", "OGCD spread before (dE00)", "OGCD spread after (dE00)",
                     "mean OGCD before (dE00)", "mean OGCD after (dE00)"], rows) if rows else ""
     return _dl(items) + table
 
@@ -447,13 +448,13 @@ def _heatmaps(r: Mapping[str, Any]) -> str:
 
 
 def _pixel_table(r: Mapping[str, Any]) -> str:
-    rows = [[_td(p.get("index"), "n"), _td(_f(p.get("length_offset_mm"), "+.3f"), "n"),
-             _td(_f(p.get("green_gain"), ".4f"), "n"), _td(_f(p.get("yellow_gain"), ".4f"), "n"),
-             _td(_f(p.get("rms_lab"), ".3f"), "n"), _td(_f(p.get("rms_lab_model"), ".3f"), "n")]
+    rows = [[td(p.get("index"), "n"), td(_f(p.get("length_offset_mm"), "+.3f"), "n"),
+             td(_f(p.get("green_gain"), ".4f"), "n"), td(_f(p.get("yellow_gain"), ".4f"), "n"),
+             td(_f(p.get("rms_lab"), ".3f"), "n"), td(_f(p.get("rms_lab_model"), ".3f"), "n")]
             for p in _pixels(r)]
     if not rows:
         return "<p>No pixels measured.</p>"
-    return _table(["pixel", "length offset (mm)", "green gain", "yellow gain",
+    return html_table(["pixel", "length offset (mm)", "green gain", "yellow gain",
                    "rms fitted (CIELAB)", "rms model (CIELAB)"], rows)
 
 
@@ -488,7 +489,7 @@ def _characteristic(r: Mapping[str, Any]) -> str:
 def _trend_html(points: Sequence[Mapping[str, Any]], current: Any) -> str:
     if not points:
         return "<p>No successful measurement yet.</p>"
-    clock = _Clock("UTC")
+    clock = Clock("UTC")
     t = np.array([np.nan if (e := epoch_of(p.get("started_at"))) is None else e
                   for p in points], float)
 
@@ -506,13 +507,13 @@ def _trend_html(points: Sequence[Mapping[str, Any]], current: Any) -> str:
         f"<figure>{svg_trend(t[ok], series(key)[ok], label, clock, colour)}"
         f"<figcaption>{html.escape(label)} (UTC)</figcaption></figure>"
         for label, key, colour in figs) + "</div>"
-    rows = [[_td(("\u25b6 " if p.get("measurement") == current else "")
-                 + str(p.get("measurement"))), _td(p.get("started_at"), "t"),
-             _td(p.get("verdict"), "ok" if p.get("verdict") == "within tolerance" else "bad"),
-             _td(_f(p.get("before_de00"), ".2f"), "n"), _td(_f(p.get("after_de00"), ".2f"), "n"),
-             _td(_f(p.get("green_gain"), ".4f"), "n"), _td(_f(p.get("yellow_gain"), ".4f"), "n"),
-             _td(_f(p.get("abs_offset_mm"), ".3f"), "n")] for p in reversed(points)]
-    return plots + _table(["measurement", "started", "verdict", "before (dE00)",
+    rows = [[td(("\u25b6 " if p.get("measurement") == current else "")
+                 + str(p.get("measurement"))), td(p.get("started_at"), "t"),
+             td(p.get("verdict"), "ok" if p.get("verdict") == "within tolerance" else "bad"),
+             td(_f(p.get("before_de00"), ".2f"), "n"), td(_f(p.get("after_de00"), ".2f"), "n"),
+             td(_f(p.get("green_gain"), ".4f"), "n"), td(_f(p.get("yellow_gain"), ".4f"), "n"),
+             td(_f(p.get("abs_offset_mm"), ".3f"), "n")] for p in reversed(points)]
+    return plots + html_table(["measurement", "started", "verdict", "before (dE00)",
                            "after (dE00)", "green gain", "yellow gain", "|offset| (mm)"], rows)
 
 
@@ -522,13 +523,13 @@ def render_report(report: Mapping[str, Any], past: Sequence[Mapping[str, Any]] =
     mid = report.get("measurement")
     word = headline(report)
     cls = verdict_class(report)
-    meta = (f'<p class="meta">trigger {_esc(report.get("trigger"))} &middot; started '
-            f'{_esc(report.get("started_at"))} &middot; finished '
-            f'{_esc(report.get("finished_at"))} &middot; status {_esc(report.get("status"))}'
+    meta = (f'<p class="meta">trigger {esc(report.get("trigger"))} &middot; started '
+            f'{esc(report.get("started_at"))} &middot; finished '
+            f'{esc(report.get("finished_at"))} &middot; status {esc(report.get("status"))}'
             "</p>")
     if report.get("status") == "ok":
         reason = _get(report, "verdict", "reason")
-        lead = f'<p class="reason">{_esc(reason)}</p>' if reason else ""
+        lead = f'<p class="reason">{esc(reason)}</p>' if reason else ""
         sections = [("Uniformity", _uniformity(report)),
                     ("Camera, light and tables", _camera(report)),
                     ("Pixels on the display", _heatmaps(report)),
@@ -538,12 +539,12 @@ def render_report(report: Mapping[str, Any], past: Sequence[Mapping[str, Any]] =
         findings = _get(report, "evidence", "findings") or []
         lead = ('<p class="reason">The photos were not evidence of the display: nothing was '
                 "pushed; the last tables stay active.</p><h2>Refused</h2>"
-                + "".join(f'<p class="reason">{_esc(f.get("kind"))}: {_esc(f.get("detail"))}'
+                + "".join(f'<p class="reason">{esc(f.get("kind"))}: {esc(f.get("detail"))}'
                           "</p>" for f in findings if isinstance(f, Mapping)))
         sections = [("Uniformity", _uniformity(report))] if "uniformity" in report else []
     else:
         lead = (f'<p class="reason">The measurement did not finish; the last tables stay '
-                f"active.</p><h2>Error</h2><p class=\"reason\">{_esc(report.get('error'))}</p>")
+                f"active.</p><h2>Error</h2><p class=\"reason\">{esc(report.get('error'))}</p>")
         sections = []
     sections.append(("Trend over the measurements", _trend_html(trend(past), mid)))
     body = meta + lead + "".join(f"<section><h2>{html.escape(t)}</h2>{s}</section>"

@@ -10,10 +10,9 @@ state and the capture station's last success, taken at once). The service calls
 :meth:`OperatorView.after_reconcile` after each reconcile, both in its main thread. Neither
 ever raises: a file that cannot be written is logged (once per distinct error) and the daemon
 goes on. The status page is regenerated after every run, and after a reconcile only when the
-health or a controller's state changed (its trend plots cost more than the metrics). While
-content plays, the page is also written after a reconcile every
-:data:`~grassd.daemon.content.shown.SHOWN_EVERY_S` with a fresh picture of the display as its
-controllers report it (``shown``, a function the service gives: None when no content plays).
+health or a controller's state changed (its trend plots cost more than the metrics), or when
+a feature's card has news (``cards``, which the service gives: the content's fresh picture of
+the display, read every few seconds while content plays).
 
 With a capture station (``[capture]``), the metric
 ``grassd_capture_last_success_timestamp_seconds`` says when it last delivered a bundle; it is
@@ -23,13 +22,11 @@ not written before the first delivery, nor without a station.
 from __future__ import annotations
 
 import logging
-import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
-from grassd.daemon.content.shown import SHOWN_EVERY_S, ShownDisplay
 from grassd.daemon.core.config.settings import Config
 from grassd.daemon.core.monitoring.alerts import Alerter
 from grassd.daemon.core.monitoring.health import Health
@@ -39,6 +36,7 @@ from grassd.daemon.core.monitoring.metrics import (
     textfile_path,
     write_textfile,
 )
+from grassd.daemon.core.monitoring.page_parts import Card, Clock
 from grassd.daemon.core.monitoring.status_page import render, write_page
 from grassd.daemon.core.monitoring.status_types import Status
 from grassd.daemon.core.store.history import History
@@ -61,25 +59,32 @@ class OperatorSnapshot:
     capture_at: float | None = None
 
 
+class PageCards(Protocol):
+    """The features' sections of the status page, as the service gives them."""
+
+    def news(self) -> bool:
+        """Whether a card has news since the page was last written (the page is then
+        written again)."""
+        ...
+
+    def cards(self, clock: Clock) -> Sequence[Card]:
+        """Every feature's card now, its times in ``clock``."""
+        ...
+
+
 class OperatorView:
     """Metrics, alerts and status page of the daemon configured by ``cfg``, keeping its
     ``history``; ``snapshot`` returns the daemon's state at the moment it is called (it may
-    raise, e.g. on an unreadable database: logged, nothing written); ``shown`` (if given)
-    reads the display's pixels from its controllers, or returns None when no content plays
-    (called at most every ``shown_every_s`` seconds, only when the page is written)."""
+    raise, e.g. on an unreadable database: logged, nothing written); ``cards`` the features'
+    sections of the page (None: none)."""
 
     def __init__(self, cfg: Config, history: History,
                  snapshot: Callable[[], OperatorSnapshot],
-                 shown: Callable[[], ShownDisplay | None] | None = None,
-                 shown_every_s: float = SHOWN_EVERY_S) -> None:
+                 cards: PageCards | None = None) -> None:
         self.cfg = cfg
         self.history = history
         self.snapshot = snapshot
-        self.shown = shown
-        self.shown_every_s = shown_every_s
-        #: the display's last reading (the page's picture), and when it was asked (monotonic s)
-        self.last_shown: ShownDisplay | None = None
-        self._shown_at = float("-inf")
+        self.cards = cards
         self.alerter = Alerter(cfg.alerts, history)
         #: failed pushes per controller name since the daemon started
         self.push_failures: dict[str, int] = {}
@@ -140,27 +145,22 @@ class OperatorView:
         self._write_metrics(snap)
         key = (health, tuple((c.name, c.reachable, c.in_sync, c.table_id)
                              for c in status.controllers))
-        fresh = self._read_shown()
-        if page or key != self._page_key or fresh:
+        news = self._news()  # asked every time: a card's reading is taken when it is due
+        if page or key != self._page_key or news:
             self._write_page(status)
             self._page_key = key
 
-    def _read_shown(self) -> bool:
-        """Read the display for the page's picture when due; True when a new reading came
-        (the page is then written with it)."""
-        now = time.monotonic()
-        if self.shown is None or now - self._shown_at < self.shown_every_s:
+    def _news(self) -> bool:
+        """A feature's card has news (never raises: a failure is logged once)."""
+        if self.cards is None:
             return False
         try:
-            shown = self.shown()
-        except Exception as exc:  # the page is written without a new picture
-            self._failed("shown", f"cannot read the display's positions: {exc}")
+            news = self.cards.news()
+        except Exception as exc:  # the page is written without the news
+            self._failed("cards", f"cannot update a card of the status page: {exc}")
             return False
-        if shown is None:  # no content plays: no reading, the last picture stays
-            return False
-        self._cleared("shown")
-        self.last_shown, self._shown_at = shown, now
-        return True
+        self._cleared("cards")
+        return news
 
     def _write_metrics(self, snap: OperatorSnapshot, up: bool = True) -> None:
         path = self.textfile
@@ -176,8 +176,10 @@ class OperatorView:
 
     def _write_page(self, status: Status) -> None:
         try:
-            text = render(status, self.history, timezone=self.cfg.site.timezone,
-                          push_failures=self.push_failures, shown=self.last_shown)
+            tz = self.cfg.site.timezone
+            cards = () if self.cards is None else self.cards.cards(Clock(tz))
+            text = render(status, self.history, timezone=tz,
+                          push_failures=self.push_failures, cards=cards)
             write_page(self.page, text)
         except Exception as exc:
             self._failed("page", f"cannot write the status page {self.page}: {exc}")

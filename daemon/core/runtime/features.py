@@ -20,6 +20,8 @@ import logging
 from collections.abc import Iterator, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
+from grassd.daemon.core.monitoring.page_parts import Card, Clock
+
 if TYPE_CHECKING:
     from grassd.daemon.core.config.settings import Config
     from grassd.daemon.core.runtime.service import Service
@@ -72,6 +74,15 @@ class Feature:
     def release(self) -> None:
         """The display is given back."""
 
+    def card(self, svc: Service, clock: Clock) -> Card | None:
+        """The feature's section of the status page (its times in ``clock``), or None."""
+        return None
+
+    def card_news(self, svc: Service) -> bool:
+        """Whether the feature's card has news since the page was last written (called
+        after every reconcile; the page is then written again)."""
+        return False
+
 
 
 class Features:
@@ -116,6 +127,10 @@ class Features:
         """Each feature's status by name."""
         return {f.name: f.status() for f in self._all}
 
+    def page_cards(self, svc: Service) -> FeatureCards:
+        """The features' sections of ``svc``'s status page."""
+        return FeatureCards(self, svc)
+
     def for_command(self, cmd: str) -> Feature | None:
         """The feature whose command ``cmd`` is, or None."""
         return next((f for f in self._all if f.handles(cmd)), None)
@@ -131,3 +146,19 @@ class Features:
         finally:
             for f in reversed(held):
                 f.release()
+
+
+class FeatureCards:
+    """The status page's cards of ``features`` in ``svc`` (the operator view's
+    :class:`~grassd.daemon.core.monitoring.operator_view.PageCards`)."""
+
+    def __init__(self, features: Features, svc: Service) -> None:
+        self.features, self.svc = features, svc
+
+    def news(self) -> bool:
+        """Whether any feature's card has news (each is asked)."""
+        return any([f.card_news(self.svc) for f in self.features])
+
+    def cards(self, clock: Clock) -> list[Card]:
+        """Every feature's card, in the features' order."""
+        return [c for f in self.features if (c := f.card(self.svc, clock)) is not None]

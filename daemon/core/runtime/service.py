@@ -184,7 +184,8 @@ class Service:
             #: the same backoff
             self.compute_retry = ComputeRetry(retry_s, retry_max_s)
             #: metrics, alerts, status page, from snapshots of the status
-            self.operator = OperatorView(cfg, self.history, self._operator_snapshot)
+            self.operator = OperatorView(cfg, self.history, self._operator_snapshot,
+                                         self.features.page_cards(self))
             self._build(cfg)
         except BaseException:
             self.lock.release()

@@ -12,8 +12,11 @@ from prometheus_client import generate_latest
 from status_samples import daemon_state, status
 
 from grassd.daemon.cli.run import print_status
+from grassd.daemon.content.card import content_card
+from grassd.daemon.content.feature import ContentFeature
 from grassd.daemon.content.player import ContentPlayer
 from grassd.daemon.core.monitoring.metrics import registry
+from grassd.daemon.core.monitoring.page_parts import Clock
 from grassd.daemon.core.monitoring.status_page import render
 from grassd.daemon.core.monitoring.status_types import Status
 from grassd.daemon.core.store.history import History
@@ -49,11 +52,12 @@ def test_status_line_and_metrics_of_a_playing_source(ports, sink, sacn_senders, 
     assert 'grassd_content_bad_packets_total{protocol="sacn",reason="malformed"} 0.0' in text
     assert "grassd_content_latency_p99_seconds" in text
     with History(tmp_path / "h.sqlite") as h:
-        page = render(back, h, timezone="UTC")
+        page = render(back, h, timezone="UTC",
+                      cards=[content_card(back.daemon.content, None, Clock("UTC"))])
     assert "<h2>Content</h2>" in page and '<td data-label="source">sacn</td>' in page
-    with History(tmp_path / "h.sqlite") as h:
-        assert "<h2>Content</h2>" not in render(status(daemon=daemon_state()), h,
-                                                timezone="UTC")
+    assert page.index("<h2>Serial lines</h2>") < page.index("<h2>Content</h2>") \
+        < page.index("<h2>Last runs</h2>")
+    assert ContentFeature().card(None, Clock("UTC")) is None  # no content plays: no card
 
 
 def test_a_status_without_content_has_no_content_metrics(tmp_path):

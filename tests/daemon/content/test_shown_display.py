@@ -98,7 +98,7 @@ def test_the_page_shows_the_frame_as_the_controllers_report_it(tmp_path, ports):
         order = np.argsort(shown.lengths_um.ravel(), kind="stable")
         assert (np.diff(green.ravel()[order]) >= 0).all()
 
-        svc.operator._shown_at = float("-inf")  # due now, as after SHOWN_EVERY_S
+        svc.features.get("content")._shown_at = float("-inf")  # due now, as after SHOWN_EVERY_S
         svc.reconcile()  # the service writes its page while content plays
         page = svc.operator.page.read_text("utf-8")
         m = _PNG.search(page)
@@ -106,9 +106,9 @@ def test_the_page_shows_the_frame_as_the_controllers_report_it(tmp_path, ports):
         assert "from 2 of 2 controller(s)" in m.group(2)
         page_blocks = _blocks(base64.b64decode(m.group(1)), rows, cols)
         np.testing.assert_array_equal(page_blocks, blocks)
-        first = svc.operator.last_shown
+        first = svc.features.get("content").last_shown
         svc.reconcile()  # within SHOWN_EVERY_S of the last reading: the lines are not read
-        assert svc.operator.last_shown is first
+        assert svc.features.get("content").last_shown is first
 
         # one line's controller unplugged: its pixels grey, named in the caption
         gone = svc.cfg.controllers[1]
@@ -126,7 +126,7 @@ def test_the_page_shows_the_frame_as_the_controllers_report_it(tmp_path, ports):
         np.testing.assert_array_equal(shown.targets_um[~lost], want[~lost])
         rgb = _blocks(shown_png(shown), rows, cols)
         assert (rgb[lost] == MISSING_RGB8).all() and not (rgb[~lost] == MISSING_RGB8).all(-1).any()
-        svc.operator._shown_at = float("-inf")
+        svc.features.get("content")._shown_at = float("-inf")
         svc.reconcile()
         caption = _PNG.search(svc.operator.page.read_text("utf-8")).group(2)
         assert "from 1 of 2 controller(s)" in caption and gone.name in caption

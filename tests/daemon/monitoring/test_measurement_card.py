@@ -12,9 +12,11 @@ from urllib.parse import unquote
 from measurement_samples import failed_report, ok_report
 from status_samples import status
 
-from grassd.daemon.core.monitoring.status_page import CARD_TREND, render
+from grassd.daemon.core.monitoring.page_parts import Clock
+from grassd.daemon.core.monitoring.status_page import render
 from grassd.daemon.core.store.history import History
 from grassd.daemon.core.store.layout import StateLayout
+from grassd.daemon.measure.card import CARD_TREND, measurement_card
 from grassd.daemon.measure.report import write_report
 
 
@@ -27,7 +29,8 @@ def _card(page: str) -> str:
 def _page(state: Path) -> str:
     h = History(state / "state.db")
     try:
-        return render(dataclasses.replace(status(), state_dir=str(state)), h, timezone="UTC")
+        return render(dataclasses.replace(status(), state_dir=str(state)), h, timezone="UTC",
+                      cards=[measurement_card(state, Clock("UTC"))])
     finally:
         h.close()
 

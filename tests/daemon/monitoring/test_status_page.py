@@ -46,9 +46,10 @@ def test_page_holds_every_section(page_after_runs):
     page, svc = page_after_runs
     text = page.read_text()
     assert '<meta name="viewport" content="width=device-width, initial-scale=1">' in text
-    for heading in ("Active table", "Controllers", "Serial lines", "Last runs", "Trends",
-                    "Rejected and quarantined bundles"):
-        assert f"<h2>{heading}</h2>" in text
+    headings = ("Active table", "Display measurement", "Controllers", "Serial lines",
+                "Last runs", "Trends", "Rejected and quarantined bundles")
+    at = [text.index(f"<h2>{heading}</h2>") for heading in headings]
+    assert at == sorted(at), at  # the measure feature's card after the active table
     for port in svc.status().daemon.lines:  # each bus the daemon used, with its verdict
         assert re.search(rf'<td data-label="port">{re.escape(port)}</td>'
                          r'<td data-label="line"[^>]*>(good|noisy|failing)</td>', text), port
