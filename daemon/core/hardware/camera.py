@@ -62,9 +62,10 @@ import time
 import urllib.error
 import urllib.parse
 import urllib.request
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import IO, Any, NoReturn
 
 from grassd.daemon.core.config.camera_section import CaptureConfig
 from grassd.daemon.core.errors import (
@@ -206,7 +207,8 @@ class _DeadlineConnection:
     current request's deadline (TLS's handshake, too, is bounded by it as a whole), and the
     connected socket is registered with that deadline."""
 
-    def __init__(self, *args: Any, deadline_of: Any, **kw: Any) -> None:
+    def __init__(self, *args: Any, deadline_of: Callable[[], _Deadline | None],
+                 **kw: Any) -> None:
         self._deadline_of = deadline_of
         super().__init__(*args, **kw)  # type: ignore[call-arg]
 
@@ -230,15 +232,15 @@ class _HttpsConnection(_DeadlineConnection, http.client.HTTPSConnection):
 class _DeadlineHandler(urllib.request.HTTPHandler, urllib.request.HTTPSHandler):
     """urllib's http and https handlers, opening :class:`_DeadlineConnection` connections."""
 
-    def __init__(self, deadline_of: Any) -> None:
+    def __init__(self, deadline_of: Callable[[], _Deadline | None]) -> None:
         urllib.request.HTTPSHandler.__init__(self)
         self._deadline_of = deadline_of
 
-    def http_open(self, req: urllib.request.Request) -> Any:
+    def http_open(self, req: urllib.request.Request) -> http.client.HTTPResponse:
         return self.do_open(functools.partial(_HttpConnection, deadline_of=self._deadline_of),
                             req)
 
-    def https_open(self, req: urllib.request.Request) -> Any:
+    def https_open(self, req: urllib.request.Request) -> http.client.HTTPResponse:
         return self.do_open(functools.partial(_HttpsConnection, deadline_of=self._deadline_of),
                             req, context=self._context)
 
@@ -247,8 +249,9 @@ class _NoRedirects(urllib.request.HTTPRedirectHandler):
     """Refuses every redirect with a CameraHttpError saying where it pointed (before reading its
     body), instead of urllib's following it to any host."""
 
-    def redirect_request(self, req: urllib.request.Request, fp: Any, code: int, msg: str,
-                         headers: Any, newurl: str) -> NoReturn:
+    def redirect_request(self, req: urllib.request.Request, fp: IO[bytes], code: int,
+                         msg: str, headers: http.client.HTTPMessage,
+                         newurl: str) -> NoReturn:
         fp.close()
         elsewhere = _origin(newurl) != _origin(req.full_url)
         where = ("another host" if _origin(newurl)[1] != _origin(req.full_url)[1]
@@ -321,7 +324,8 @@ class OscClient:
     # ------------------------------------------------------------------ HTTP
     @contextlib.contextmanager
     def _exchange(self, req: urllib.request.Request, deadline_s: float,
-                  timeout: float | None = None) -> Any:
+                  timeout: float | None = None
+                  ) -> Iterator[tuple[http.client.HTTPResponse, _Deadline]]:
         """Open ``req`` under a deadline of ``deadline_s``; yields (response, deadline). The
         deadline holds until the block ends (reading the body included)."""
         with _Deadline(deadline_s) as deadline:
@@ -337,7 +341,7 @@ class OscClient:
                 self._local.deadline = None
 
     def _open(self, req: urllib.request.Request, deadline: _Deadline,
-              timeout: float | None = None) -> Any:
+              timeout: float | None = None) -> http.client.HTTPResponse:
         where = req.full_url
         try:
             return self._opener.open(req, timeout=deadline.clamp(timeout or self.timeout_s))
@@ -377,8 +381,9 @@ class OscClient:
                     " (an answer trickling in, or a weak link): check the camera's "
                     "Wi-Fi, and restart it if it keeps happening") from None
 
-    def _read_body(self, resp: Any, deadline: _Deadline, cap: int, sink: Any, what: str,
-                   error: type[CameraError], too_big: type[CameraError]) -> int:
+    def _read_body(self, resp: http.client.HTTPResponse, deadline: _Deadline, cap: int,
+                   sink: Callable[[bytes], object], what: str, error: type[CameraError],
+                   too_big: type[CameraError]) -> int:
         """Copy ``resp``'s body into ``sink`` (called with each chunk) in chunks of
         :data:`CHUNK_BYTES`, at most ``cap`` bytes; returns the byte count. One byte beyond
         ``cap`` or a Content-Length beyond it is ``too_big``; a broken or short body or the
@@ -609,7 +614,7 @@ def _refusal(where: str, status: int, cmd: dict[str, Any]) -> CameraCommandRefus
         "camera's mode", status, command=name, code=code, detail=detail)
 
 
-def _content_length(resp: Any) -> int | None:
+def _content_length(resp: http.client.HTTPResponse) -> int | None:
     """The Content-Length of ``resp`` as a number of bytes, or None when absent; a malformed
     one counts as absent (the cap still holds while reading)."""
     value = resp.headers.get("Content-Length")
@@ -631,7 +636,8 @@ class _RateFloor:
     chunk to ``sink`` and raises :class:`CameraDownloadTooSlow` once a window of ``window_s``
     seconds brought fewer than ``rate`` bytes/s (``rate`` 0: no floor)."""
 
-    def __init__(self, rate: int, window_s: float, what: str, sink: Any) -> None:
+    def __init__(self, rate: int, window_s: float, what: str,
+                 sink: Callable[[bytes], object]) -> None:
         self.rate, self.window_s, self.what, self.sink = rate, window_s, what, sink
         self.mark_t, self.mark_n, self.n = time.monotonic(), 0, 0
 
