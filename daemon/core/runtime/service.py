@@ -59,7 +59,6 @@ from typing import Any
 
 from grassd import __version__
 from grassd.daemon.compute.remote import calibrator_for
-from grassd.daemon.compute.retry import ComputeRetry
 from grassd.daemon.core.calibration.calibrate import CalibrationResult, init_backend
 from grassd.daemon.core.config.settings import (
     Config,
@@ -86,6 +85,7 @@ from grassd.daemon.core.runtime.bundle_pipeline import (
     light_time,
 )
 from grassd.daemon.core.runtime.commit import commit_run, last_ccm
+from grassd.daemon.core.runtime.compute_retry import ComputeRetry
 from grassd.daemon.core.runtime.control import ControlServer
 from grassd.daemon.core.runtime.control_commands import ControlCommands, QueuedRequest
 from grassd.daemon.core.runtime.features import Feature, Features
