@@ -55,6 +55,7 @@ def measuring_camera(cfg: Config) -> tuple[OscClient, Path | None]:
 
 def measure_with(svc: Service, trigger: str = "request") -> dict[str, Any]:
     """One measurement by the service ``svc`` (module docstring); returns its report."""
+    from grassd.daemon.core.calibration.calibrate import init_backend
     from grassd.daemon.core.runtime.retention import prune_measure_photos
     from grassd.daemon.core.runtime.scheduled import scheduled_input
     from grassd.daemon.core.runtime.statelock import StateLock
@@ -73,7 +74,9 @@ def measure_with(svc: Service, trigger: str = "request") -> dict[str, Any]:
     try:
         if cfg.measure is None:
             raise DaemonError("no [measure] section: configure the measuring camera first")
-        svc._init_renderer()
+        # the pixel models are recorded here, even when [compute] sends the runs to a Dask
+        # cluster: this computer needs Taichi to measure (RendererMissing says so)
+        init_backend(cfg)
         setup = load_setup(layout.measure_setup)
         camera, lock_dir = measuring_camera(cfg)
         camera.info()  # reachable before the display is taken over
