@@ -218,7 +218,6 @@ CORE_IMPORTS_OF_FEATURES = {
     ("grassd.daemon.core.config.settings", "grassd.daemon.compute.config"),
     ("grassd.daemon.core.config.settings", "grassd.daemon.content.config"),
     ("grassd.daemon.core.config.settings", "grassd.daemon.measure.config"),
-    ("grassd.daemon.core.runtime.service", "grassd.daemon.compute.remote"),
 }
 
 

@@ -365,6 +365,7 @@ def calibrate_cmd(now: bool, wait: bool, force: bool, json_out: str | None,
             click.echo("grassd: note: the running daemon computes with its own [compute] "
                        "scheduler; --scheduler applies to one-shot runs only", err=True)
     except DaemonNotRunning:
+        from grassd.daemon.cli.features import daemon_features
         from grassd.daemon.core.runtime.service import Service
 
         _setup_logging("warning")
@@ -374,7 +375,7 @@ def calibrate_cmd(now: bool, wait: bool, force: bool, json_out: str | None,
 
             hw, cfg, _ = start_simulated_site(cfg, 5000.0)
         try:
-            svc = Service(cfg)
+            svc = Service(cfg, features=daemon_features())  # the calibrator: compute's, or here
             try:
                 result = svc.one_shot(force=force).to_json()
             finally:

@@ -63,7 +63,6 @@ if TYPE_CHECKING:
     from numpy.typing import NDArray
 
     from grassd.calib.ccm import ColourCorrection
-    from grassd.daemon.core.calibration.calibrate import Calibrates
     from grassd.daemon.core.store.manifest import CheckerPhoto
 
 log = logging.getLogger(__name__)
@@ -72,7 +71,7 @@ log = logging.getLogger(__name__)
 POLL_S = 1.0
 #: the worker's Taichi arch: "cpu" (the default) or "gpu"
 WORKER_ARCH_ENV = "GRASSD_WORKER_ARCH"
-__all__ = ["RemoteCalibrator", "calibrate_on_worker", "calibrator_for", "check_arrival"]
+__all__ = ["RemoteCalibrator", "calibrate_on_worker", "check_arrival"]
 
 
 # --------------------------------------------------------------------------- on the worker
@@ -99,17 +98,6 @@ def calibrate_on_worker(payload: bytes) -> dict[str, Any]:
 
 
 # --------------------------------------------------------------------------- in the daemon
-
-
-def calibrator_for(cfg: Config) -> Calibrates:
-    """What runs ``cfg``'s calibrations: a :class:`RemoteCalibrator` with ``[compute]
-    scheduler``, else a local :class:`~grassd.daemon.core.calibration.calibrate.Calibrator`
-    (Taichi here). Both have the same ``run``."""
-    if cfg.compute.scheduler is not None:
-        return RemoteCalibrator(cfg)
-    from grassd.daemon.core.calibration.calibrate import Calibrator
-
-    return Calibrator(cfg)
 
 
 def check_arrival(cfg: Config, result: CalibrationResult, where: str,

@@ -5,7 +5,8 @@ A :class:`Feature` reads its own config section (:attr:`Feature.name`), starts a
 the service, is restarted after a reload (it decides from the configs before and after whether
 that changes anything for it), gets a turn in every pass of the main loop for what is due, may
 answer control-socket commands of its own, may take the display from the others (a
-measurement holds the content), and gives its status under its name in ``status --json``.
+measurement holds the content), may offer the calibrator the service runs with (a Dask
+cluster's), and gives its status under its name in ``status --json``.
 A feature may reach into the service it is given (its config, fleet, history, operator view,
 progress) but never into another feature.
 
@@ -23,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 from grassd.daemon.core.monitoring.page_parts import Card, Clock
 
 if TYPE_CHECKING:
+    from grassd.daemon.core.calibration.calibrate import Calibrates
     from grassd.daemon.core.config.settings import Config
     from grassd.daemon.core.runtime.service import Service
 
@@ -46,6 +48,11 @@ class Feature:
 
     def tick(self, svc: Service) -> None:
         """Run what is due now (in the main loop, after the runs and before reconcile)."""
+
+    def calibrator(self, cfg: Config) -> Calibrates | None:
+        """What runs ``cfg``'s calibrations instead of the service's own (a Dask cluster's),
+        or None; asked whenever the service is built for a config."""
+        return None
 
     def stop(self) -> None:
         """The daemon stops: end every thread of the feature."""
@@ -130,6 +137,10 @@ class Features:
     def page_cards(self, svc: Service) -> FeatureCards:
         """The features' sections of ``svc``'s status page."""
         return FeatureCards(self, svc)
+
+    def calibrator(self, cfg: Config) -> Calibrates | None:
+        """The first calibrator a feature offers for ``cfg``, or None."""
+        return next((c for f in self._all if (c := f.calibrator(cfg)) is not None), None)
 
     def for_command(self, cmd: str) -> Feature | None:
         """The feature whose command ``cmd`` is, or None."""

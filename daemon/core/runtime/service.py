@@ -58,8 +58,11 @@ from pathlib import Path
 from typing import Any
 
 from grassd import __version__
-from grassd.daemon.compute.remote import calibrator_for
-from grassd.daemon.core.calibration.calibrate import CalibrationResult, init_backend
+from grassd.daemon.core.calibration.calibrate import (
+    CalibrationResult,
+    Calibrator,
+    init_backend,
+)
 from grassd.daemon.core.config.settings import (
     Config,
     load_config,
@@ -210,8 +213,9 @@ class Service:
         # `grassd controllers` may talk on other ports while we run (see statelock)
         self.lock.note_ports(cfg.serial_ports)
         self.sensor = LuxSensor(cfg.light.modbus) if cfg.light.modbus is not None else None
-        #: runs the calibrations: here (Taichi), or on the Dask cluster of [compute] scheduler
-        self.calibrator = calibrator_for(cfg)
+        #: runs the calibrations: here (Taichi), or what a feature offers (the compute
+        #: feature: the Dask cluster of [compute] scheduler)
+        self.calibrator = self.features.calibrator(cfg) or Calibrator(cfg)
         self.reports_dir = StateLayout(cfg.state_dir).reports
         self.reports_dir.mkdir(parents=True, exist_ok=True)
         self.operator.configure(cfg)
@@ -409,9 +413,10 @@ class Service:
         return out
 
     def _init_renderer(self) -> None:
-        """Initialise Taichi here unless ``[compute] scheduler`` sends the simulations to a
-        Dask cluster (then this computer needs no Taichi). Idempotent."""
-        if self.cfg.compute.scheduler is None:
+        """Initialise Taichi here when the calibrations run here (not when a feature's
+        calibrator sends them to a Dask cluster: this computer then needs no Taichi).
+        Idempotent."""
+        if isinstance(self.calibrator, Calibrator):
             from grassd.sim import backend  # RendererMissing where Taichi is not installed
 
             if not backend.is_initialised():
@@ -452,7 +457,7 @@ class Service:
         old = self.cfg
         try:
             self._build(new)
-            self._init_renderer()  # without [compute] scheduler now: Taichi here, if it can
+            self._init_renderer()  # calibrating here now: Taichi here, if it can
         except (OSError, DaemonError, SimError) as exc:  # valid, but cannot be set up (e.g.
             # the inbox, or a renderer that this computer has not)
             self._build(old)

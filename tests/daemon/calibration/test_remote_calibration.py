@@ -22,7 +22,8 @@ from grassd.calib.colour_spaces import (
     xyz_to_rec709,
 )
 from grassd.calib.dng import DngCamera, write_linear_dng
-from grassd.daemon.compute.remote import RemoteCalibrator, calibrator_for
+from grassd.daemon.compute.feature import ComputeFeature
+from grassd.daemon.compute.remote import RemoteCalibrator
 from grassd.daemon.core.calibration.calibrate import Calibrator, init_backend
 from grassd.daemon.core.config.settings import ComputeConfig, parse_config
 from grassd.daemon.core.errors import ComputeUnavailable, ConfigError
@@ -106,7 +107,7 @@ def test_cluster_run_equals_local_run_bit_for_bit(cfg, tmp_path):
     with DaskCluster(tmp_path / "dask", cache_dir=CACHE) as cluster:
         cluster.add_worker("w1")
         remote_cfg = cfg.replace(compute=cluster.compute())
-        calibrator = calibrator_for(remote_cfg)
+        calibrator = ComputeFeature().calibrator(remote_cfg)
         assert isinstance(calibrator, RemoteCalibrator)
         seen: list[str] = []
         remote = calibrator.run(LIGHT, checker=checker, previous_um=previous,
