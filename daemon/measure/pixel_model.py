@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from colour import delta_E
@@ -30,6 +30,11 @@ from numpy.typing import NDArray
 
 from grassd.calib.colour_spaces import prophoto_to_lab, rec709_to_prophoto
 from grassd.daemon.core.calibration.variation import GAIN_RANGE, OFFSET_LIMIT_MM, DisplayVariation
+
+if TYPE_CHECKING:
+    from grassd.sim.lighting import Lighting
+    from grassd.sim.renderer import Renderer
+    from grassd.sim.scene import DisplaySpec
 
 #: Material rows of the albedo matrix (the renderer's symbol order).
 YELLOW, GREEN = 0, 1
@@ -112,7 +117,7 @@ def lab_of(rgb: NDArray, ccm: NDArray | None = None) -> NDArray[np.float64]:
     return prophoto_to_lab(pp if ccm is None else pp @ np.asarray(ccm).T)
 
 
-def record_pixel_model(renderer: Any, display: Any, lighting: Any,
+def record_pixel_model(renderer: Renderer, display: DisplaySpec, lighting: Lighting,
                        viewpoints: Sequence[Any], grid_mm: NDArray, settings: Any, *,
                        layouts: int = 1, glossy: bool = False,
                        progress: Callable[[int, int], None] | None = None) -> PixelColourModel:

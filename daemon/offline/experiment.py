@@ -26,7 +26,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -39,6 +39,9 @@ from grassd.daemon.offline.validate import (
     validate_capture,
 )
 from grassd.sim.light_input import LightInput
+
+if TYPE_CHECKING:
+    from grassd.sim.renderer import Renderer
 
 #: Blade splay of the stand-in real pixel at full length (deg): the paper's stated cause of its
 #: theta = 90 deg error (real green blades spread out as they grow).
@@ -162,7 +165,7 @@ class ExperimentResult:
 
 
 def run_paper(out_dir: str | Path, *, settings: ExperimentSettings | None = None,
-              hdri_dir: str | Path, renderer: Any = None,
+              hdri_dir: str | Path, renderer: Renderer | None = None,
               progress: Callable[[str], None] | None = None) -> ExperimentResult:
     """Run the paper's experiments; capture directories go under ``out_dir``.
 

@@ -61,7 +61,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import tomli_w
@@ -84,6 +84,10 @@ from grassd.daemon.offline.validate import (
 )
 from grassd.sim.albedo_terms import monomial_values
 from grassd.sim.scene import srgb_to_linear
+
+if TYPE_CHECKING:
+    from grassd.sim.lighting import Lighting
+    from grassd.sim.renderer import Renderer
 
 #: The fitted PixelSpec fields, by their config names, in the order they are reported.
 FIT_PARAMS: tuple[str, ...] = ("yellow_srgb", "green_srgb", "base_srgb", "specular",
@@ -252,7 +256,7 @@ class _Model:
     """The simulated photos of a capture as a function of the pixel's materials: recorded
     terms per (shape, series), cached, and their CIELAB for any albedos and ``ks``."""
 
-    def __init__(self, renderer: Any, lighting: Any, manifest: CaptureManifest,
+    def __init__(self, renderer: Renderer, lighting: Lighting, manifest: CaptureManifest,
                  ccm: NDArray[np.float64], start: Any, settings: FitSettings,
                  glossy: bool) -> None:
         from grassd.daemon.core.calibration.simulation import white_radiance
@@ -666,8 +670,8 @@ class _ShapeSearch:
 
 def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, float, float]] = (),
                 params: Sequence[str] = FIT_PARAMS, settings: FitSettings | None = None,
-                renderer: Any = None, lighting: Any = None, arch: str = "cpu",
-                progress: Callable[[str], None] | None = None) -> FitResult:
+                renderer: Renderer | None = None, lighting: Lighting | None = None,
+                arch: str = "cpu", progress: Callable[[str], None] | None = None) -> FitResult:
     """Fit the pixel's materials to a capture (see the module docstring).
 
     ``holdout``: viewpoints (h cm, d m, theta deg) judged but not fitted; ``params``: the

@@ -56,7 +56,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import tomli_w
@@ -76,6 +76,10 @@ from grassd.calib.raw import develop_raw, open_raw
 from grassd.daemon.core.config import manifest_fields, schema
 from grassd.daemon.core.errors import DaemonError, LocatedError, ManifestError
 from grassd.sim.light_input import LightInput
+
+if TYPE_CHECKING:
+    from grassd.sim.lighting import Lighting
+    from grassd.sim.renderer import Renderer
 
 log = logging.getLogger(__name__)
 
@@ -105,7 +109,7 @@ class MixedCamerasError(ValidateError):
     """The photos were not all taken with the same camera (make, model, sensor layout)."""
 
 
-def default_renderer(arch: str = "cpu") -> Any:
+def default_renderer(arch: str = "cpu") -> Renderer:
     """The process's shared :class:`grassd.sim.renderer.Renderer` (Taichi initialised on
     ``arch`` first if needed): every further instance would compile its kernels again."""
     from grassd.sim import backend
@@ -696,8 +700,8 @@ def measure_and_correct(m: CaptureManifest, chart: ReferenceChart,
     return real, fit_ccm(virtual, real.checker_rgb, "3x3"), s
 
 
-def validate_capture(m: CaptureManifest, *, renderer: Any = None, settings: Any = None,
-                     target_stderr: float | None = None, lighting: Any = None,
+def validate_capture(m: CaptureManifest, *, renderer: Renderer | None = None, settings: Any = None,
+                     target_stderr: float | None = None, lighting: Lighting | None = None,
                      arch: str = "cpu", layouts: int = 1,
                      progress: Callable[[str], None] | None = None) -> ValidationResult:
     """Measure the real characteristic of a capture, simulate the same scene, compare.

@@ -16,7 +16,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -34,13 +34,17 @@ from grassd.daemon.offline.validate import (
 )
 from grassd.sim.light_input import LightInput
 
+if TYPE_CHECKING:
+    from grassd.sim.lighting import Lighting
+    from grassd.sim.renderer import Renderer
+
 
 def capture_world(out_dir: str | Path, light: LightInput,
                   viewpoints: Sequence[tuple[float, float, float]], lengths_mm: Sequence[float],
                   *, real_pixel: Any = None, model_pixel: dict[str, Any] | None = None,
-                  camera: VirtualCamera | None = None, renderer: Any = None,
-                  lighting: Any = None, width: int = 160, spp: int = 32, max_bounces: int = 3,
-                  seed: int = 0, chart: str = "spydercheckr-24",
+                  camera: VirtualCamera | None = None, renderer: Renderer | None = None,
+                  lighting: Lighting | None = None, width: int = 160, spp: int = 32,
+                  max_bounces: int = 3, seed: int = 0, chart: str = "spydercheckr-24",
                   progress: Callable[[str], None] | None = None,
                   cache: dict | None = None, extra_trials: int = 0) -> CaptureManifest:
     """Photograph ``real_pixel`` (a :class:`grassd.sim.scene.PixelSpec`; default the model's)

@@ -89,6 +89,9 @@ from grassd.sim.light_input import LightInput
 
 if TYPE_CHECKING:
     from grassd.daemon.core.store.manifest import CheckerPhoto
+    from grassd.sim.lighting import Lighting
+    from grassd.sim.renderer import Renderer
+    from grassd.sim.scene import DisplaySpec
 
 log = logging.getLogger(__name__)
 
@@ -127,7 +130,7 @@ class Calibrator:
         self.cfg = cfg
 
     # ------------------------------------------------------------------ pieces
-    def lighting(self, light: LightInput) -> Any:
+    def lighting(self, light: LightInput) -> Lighting:
         """Build the :class:`grassd.sim.lighting.Lighting` of ``light`` (lux-scaled HDRI + sun),
         the HDRI oriented by ``[light] hdri_flip`` / ``hdri_rotation_deg``. A light whose sun is
         clipped in the HDRI (``sun_from_hdri``, flagged by a capture station) and that has no sun
@@ -176,7 +179,7 @@ class Calibrator:
         spec = replace(display_spec_for_config(self.cfg), rows=rows, cols=cols)
         return spec, (rows // 2) * cols + cols // 2
 
-    def white_radiance(self, lighting: Any) -> NDArray[np.float64]:
+    def white_radiance(self, lighting: Lighting) -> NDArray[np.float64]:
         """Rec.709 radiance (nits) of a perfect diffuse white lying flat at the display (the
         white reference shared with ``grassd simulate``,
         :mod:`grassd.daemon.core.calibration.simulation`)."""
@@ -203,7 +206,7 @@ class Calibrator:
         form = self.cfg.calibration.ccm
         return select_ccm(virtual, r, tuple(CCM_FORMS) if form == "auto" else (form,))
 
-    def simulate(self, lighting: Any, lengths_mm: NDArray, seed: int,
+    def simulate(self, lighting: Lighting, lengths_mm: NDArray, seed: int,
                  ccm: ColourCorrection | None, stop: threading.Event | None,
                  progress: Progress | None) -> list[ViewpointCurve]:
         """OGCD vs ``lengths_mm`` (first entry = reference) from every viewpoint."""
@@ -399,7 +402,7 @@ class _TableChecks:
         return tables, max(known) if known else None
 
 
-def closed_loop(renderer: Any, display: Any, lighting: Any, viewers: Viewers,
+def closed_loop(renderer: Renderer, display: DisplaySpec, lighting: Lighting, viewers: Viewers,
                 units: list[UnitTable], unit_of_pixel: NDArray, settings: Any, ccm: Any,
                 cc: Any, checked: Callable[[list[UnitTable]], Any],
                 stepper: Callable[[str], Callable[[int, int], None]]
@@ -435,9 +438,10 @@ def closed_loop(renderer: Any, display: Any, lighting: Any, viewers: Viewers,
     return units, rounds
 
 
-def closed_loop_check(renderer: Any, display: Any, lighting: Any, viewers: Viewers,
-                      pixel_tables_um: NDArray, levels: NDArray, settings: Any, ccm: Any,
-                      step: Callable[[int, int], None], round_no: int = 1) -> LoopCheck:
+def closed_loop_check(renderer: Renderer, display: DisplaySpec, lighting: Lighting,
+                      viewers: Viewers, pixel_tables_um: NDArray, levels: NDArray,
+                      settings: Any, ccm: Any, step: Callable[[int, int], None],
+                      round_no: int = 1) -> LoopCheck:
     """Re-simulate every group's representative pixel from every viewer at the lengths its
     table gives ``levels`` (``pixel_tables_um`` (N, 256) [um], first level 0 = the reference
     length), average the viewers' OGCD with their weights and compare it with the linear

@@ -71,6 +71,9 @@ from grassd.daemon.core.calibration.result import UnitTable, ViewpointCurve
 
 if TYPE_CHECKING:
     from grassd.daemon.core.calibration.calibrate import Calibrator
+    from grassd.sim.lighting import Lighting
+    from grassd.sim.renderer import Renderer
+    from grassd.sim.scene import DisplaySpec
 
 
 class Units(NamedTuple):
@@ -194,7 +197,7 @@ class Viewers:
                        group_characteristics=chars)
 
 
-def viewpoint_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
+def viewpoint_units(cal: Calibrator, renderer: Renderer, display: DisplaySpec, lighting: Lighting,
                      lengths: NDArray, settings: Any, ccm: Any, step: Callable[[int, int], None]
                     ) -> Units:
     """Units from [[viewpoints]], the whole display traced from each (see the module
@@ -224,7 +227,7 @@ def viewpoint_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
     return Units(units, tables.unit_of_pixel.copy(), whole, grouping, None, viewers, [])
 
 
-def audience_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
+def audience_units(cal: Calibrator, renderer: Renderer, display: DisplaySpec, lighting: Lighting,
                     lengths: NDArray, settings: Any, ccm: Any, step: Callable[[int, int], None]
                    ) -> Units:
     """Units from [audience] (see the module docstring)."""
@@ -284,8 +287,8 @@ def audience_units(cal: Calibrator, renderer: Any, display: Any, lighting: Any,
     return Units(units, unit, whole, grouping, info, viewers, [])
 
 
-def centre_units(cal: Calibrator, display: Any, centre: int, lighting: Any, lengths: NDArray,
-                 seed: int, ccm: Any, stop: Any, progress: Any) -> Units:
+def centre_units(cal: Calibrator, display: DisplaySpec, centre: int, lighting: Lighting,
+                 lengths: NDArray, seed: int, ccm: Any, stop: Any, progress: Any) -> Units:
     """The one unit of a centre-pixel run: pixel ``centre`` of the patch ``display`` from every
     [[viewpoints]] entry (:meth:`Calibrator.simulate`), weighted
     (:meth:`Calibrator.weighted`), shape-checked before its table is built, so that a flat
