@@ -17,11 +17,12 @@ Anything else raises :class:`~grassd.daemon.core.errors.ComputeResultRefused`.
 from __future__ import annotations
 
 import dataclasses
+import enum
 import math
 import types
 import typing
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, TypeAlias, TypedDict, TypeVar
 
 import numpy as np
 
@@ -42,13 +43,43 @@ ERROR_BASES: tuple[type[Exception], ...] = (CalibError, SimError, CalibrationRej
 
 __all__ = ["answer_of", "error_answer", "read_answer", "to_wire", "from_wire"]
 
+WireValue: TypeAlias = (None | bool | int | float | str | bytes | list["WireValue"]
+                        | dict[str, "WireValue"])
+"""A value of msgpack's own types, as an answer holds them."""
+
+T = TypeVar("T")
+
+
+class WireError(TypedDict):
+    """What a run raised, as it crosses the wire: the names of its classes within
+    :data:`ERROR_BASES` (most specific first), its type's name and its message."""
+
+    kinds: list[str]
+    type: str
+    message: str
+
+
+class ResultAnswer(TypedDict):
+    """A worker's answer carrying a result, in its wire form."""
+
+    result: WireValue
+
+
+class ErrorAnswer(TypedDict):
+    """A worker's answer carrying what the run raised."""
+
+    error: WireError
+
 
 # --------------------------------------------------------------------------- encoding
 
 
-def to_wire(value: Any) -> Any:
-    """``value`` (dataclasses, arrays, numbers, text, containers of them) as msgpack's own
-    types: a dataclass as a dict of its fields, an array as [dtype, shape, bytes]."""
+def to_wire(value: object) -> WireValue:
+    """``value`` (dataclasses, arrays, numbers, text, enums, containers of them) as msgpack's
+    own types: a dataclass as a dict of its fields, an array as [dtype, shape, bytes], an enum
+    member as its value. Anything else raises TypeError."""
+    if isinstance(value, enum.Enum):
+        return to_wire(value.value)
     if value is None or isinstance(value, (bool, int, float, str, bytes)):
         return value
     if isinstance(value, np.ndarray):
@@ -66,13 +97,13 @@ def to_wire(value: Any) -> Any:
     raise TypeError(f"{type(value).__name__} has no declared wire form")
 
 
-def answer_of(result: Any) -> dict[str, Any]:
+def answer_of(result: object) -> ResultAnswer:
     """A worker's answer carrying ``result`` (a CalibrationResult, a sweep's
     ConditionResult)."""
     return {"result": to_wire(result)}
 
 
-def error_answer(exc: BaseException) -> dict[str, Any]:
+def error_answer(exc: BaseException) -> ErrorAnswer:
     """A worker's answer carrying what the run raised: the names of its classes within
     :data:`ERROR_BASES` (most specific first; none for any other error), its type's name and
     its message."""
@@ -89,20 +120,21 @@ def _name(cls: type) -> str:
 # --------------------------------------------------------------------------- decoding
 
 
-def read_answer(answer: Any, result_type: type, where: str) -> Any:
+def read_answer(answer: object, result_type: type[T], where: str) -> T:
     """The result a worker's ``answer`` carries, decoded as ``result_type``; an error it
     carries is raised as its own type (the first of its kinds known here). ``where`` names the
     worker in messages. Raises :class:`ComputeResultRefused` for anything else."""
     if not isinstance(answer, Mapping) or len(answer) != 1:
         raise ComputeResultRefused(f"{where} answered {_what(answer)}, not a grassd answer")
     if "result" in answer:
-        return from_wire(result_type, answer["result"], "result", where)
+        result: T = from_wire(result_type, answer["result"], "result", where)
+        return result
     if "error" in answer:
         raise _error_of(answer["error"], where)
     raise ComputeResultRefused(f"{where} answered a dict with {sorted(map(str, answer))!r}")
 
 
-def _error_of(err: Any, where: str) -> Exception:
+def _error_of(err: object, where: str) -> Exception:
     known = _error_types()
     if not (isinstance(err, Mapping) and set(err) == {"kinds", "type", "message"}
             and isinstance(err["message"], str) and isinstance(err["type"], str)
@@ -131,7 +163,7 @@ def _error_types() -> dict[str, type[Exception]]:
     return out
 
 
-def _what(v: Any) -> str:
+def _what(v: object) -> str:
     return f"a {type(v).__name__}"
 
 
@@ -177,6 +209,17 @@ def from_wire(tp: Any, v: Any, path: str, where: str) -> Any:
         return _array(args, v, refuse)
     if dataclasses.is_dataclass(tp):
         return _dataclass(tp, v, path, where, refuse)
+    if typing.is_typeddict(tp):
+        return _typed_dict(tp, v, path, where, refuse)
+    if origin is typing.Literal:
+        if not any(v == a and type(v) is type(a) for a in args):
+            raise refuse(f"is {_what(v)}, not one of {list(args)!r:.200}")
+        return v
+    if isinstance(tp, type) and issubclass(tp, enum.Enum):
+        try:
+            return tp(v)
+        except ValueError:
+            raise refuse(f"is {_what(v)}, not a {tp.__name__}") from None
     if origin in (tuple, list):
         if not isinstance(v, (list, tuple)):
             raise refuse(f"is {_what(v)}, not a list")
@@ -228,6 +271,32 @@ def _dataclass(tp: type, v: Any, path: str, where: str, refuse: Any) -> Any:
         return tp(**fields)
     except (ValueError, TypeError, ArithmeticError, CalibError, SimError) as exc:
         raise refuse(f"is not a valid {tp.__name__}: {exc}") from None
+
+
+def _typed_dict(tp: type, v: object, path: str, where: str, refuse: Any) -> dict[str, Any]:
+    """A TypedDict's value: its required keys, any of its optional ones, nothing else, each
+    decoded as declared."""
+    hints = typing.get_type_hints(tp)
+    required = _required_keys(tp)
+    if (not isinstance(v, Mapping) or not all(isinstance(k, str) for k in v)
+            or not required <= set(v) or not set(v) <= set(hints)):
+        got = sorted(map(str, v)) if isinstance(v, Mapping) else _what(v)
+        raise refuse(f"is not a {tp.__name__} (keys {sorted(hints)}, of which "
+                     f"{sorted(required)} required; got {got!r:.200})")
+    return {k: from_wire(hints[k], x, f"{path}[{k!r}]", where) for k, x in v.items()}
+
+
+def _required_keys(tp: type) -> set[str]:
+    """A TypedDict's required keys, read from its annotations and its own totality (keys
+    inherited from a base of the other totality need ``Required``/``NotRequired``):
+    ``__required_keys__`` counts a ``NotRequired`` in a string annotation as required."""
+    total = getattr(tp, "__total__", True)
+    out: set[str] = set()
+    for k, hint in typing.get_type_hints(tp, include_extras=True).items():
+        marked = typing.get_origin(hint)
+        if marked is typing.Required or (total and marked is not typing.NotRequired):
+            out.add(k)
+    return out
 
 
 def _plain(v: Any, path: str, where: str, depth: int) -> Any:

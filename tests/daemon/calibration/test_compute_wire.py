@@ -6,8 +6,10 @@ numbers, an error type nobody declared, tables the run would have rejected) is r
 
 from __future__ import annotations
 
+import enum
 import json
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from typing import Literal, NotRequired, Required, TypedDict
 
 import msgpack
 import numpy as np
@@ -162,3 +164,57 @@ def test_every_kind_of_run_crosses_unchanged(extra, tmp_path):
                for k, t in result.controller_tables.items())
     assert (json.dumps(_without_timings(back.report()), sort_keys=True)
             == json.dumps(_without_timings(result.report()), sort_keys=True))
+
+
+class _Verdict(enum.Enum):
+    KEPT = "kept"
+    REFUSED = "refused"
+
+
+class _Summary(TypedDict):
+    mean_de00: float
+    worst: NotRequired[int]
+
+
+@dataclass(frozen=True)
+class _Typed:
+    summary: _Summary
+    verdict: _Verdict
+    side: Literal["left", "right"]
+
+
+def _crossed(value):
+    return msgpack.unpackb(msgpack.packb(answer_of(value)), use_list=False)
+
+
+def test_typed_dicts_enums_and_literals_cross_as_declared():
+    value = _Typed({"mean_de00": 0.4}, _Verdict.REFUSED, "left")
+    assert read_answer(_crossed(value), _Typed, WHERE) == value
+    full = _Typed({"mean_de00": 0.4, "worst": 3}, _Verdict.KEPT, "right")
+    assert read_answer(_crossed(full), _Typed, WHERE) == full
+
+
+@pytest.mark.parametrize("field, bad, reason", [
+    ("summary", {"mean_de00": 0.4, "extra": 1}, "keys"),
+    ("summary", {"worst": 3}, "required"),
+    ("summary", {"mean_de00": "0.4"}, "not a number"),
+    ("verdict", "lost", "not a _Verdict"),
+    ("side", "up", "not one of"),
+    ("side", 1, "not one of"),
+])
+def test_a_tampered_typed_field_is_refused(field, bad, reason):
+    wire = {"result": {**_crossed(_Typed({"mean_de00": 0.4}, _Verdict.KEPT, "left"))["result"],
+                       field: bad}}
+    with pytest.raises(ComputeResultRefused, match=reason):
+        read_answer(wire, _Typed, WHERE)
+
+
+class _Partial(TypedDict, total=False):
+    note: str
+    count: Required[int]
+
+
+def test_a_partial_typed_dict_needs_only_its_required_keys():
+    assert read_answer(_crossed({"count": 2}), _Partial, WHERE) == {"count": 2}
+    with pytest.raises(ComputeResultRefused, match="required"):
+        read_answer(_crossed({"note": "x"}), _Partial, WHERE)
