@@ -25,7 +25,6 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from grassd.daemon.core.config import schema
 
@@ -101,12 +100,13 @@ def security_problem(c: ComputeConfig) -> tuple[str, str] | None:
     return None
 
 
-def parse_compute(ctx: schema.Context, raw: Any, resolve: Callable[[schema.Context, str], Path]
+def parse_compute(top: schema.Section, resolve: Callable[[schema.Context, str], Path]
                   ) -> ComputeConfig:
-    """``[compute]``: the scheduler address (absent: simulate here), its TLS files (resolved
-    with ``resolve``, relative to the config file; each must be a file), ``allow_insecure``
-    and the timeouts [s]. Raises ``ctx.error`` naming the key and how to fix it."""
-    d = schema.table(ctx, ("compute",), raw, schema.schema(
+    """``[compute]`` of the configuration ``top``: the scheduler address (absent: simulate
+    here), its TLS files (resolved with ``resolve``, relative to the config file; each must be
+    a file), ``allow_insecure`` and the timeouts [s]. Raises the configuration's error naming
+    the key and how to fix it."""
+    d = top.section("compute", schema.schema(
         ComputeConfig, scheduler=schema.Field(str, check=scheduler_address_problem),
         tls_ca_file=schema.Field(str, check=schema.non_empty),
         tls_cert=schema.Field(str, check=schema.non_empty),
@@ -115,13 +115,18 @@ def parse_compute(ctx: schema.Context, raw: Any, resolve: Callable[[schema.Conte
         connect_timeout_s=schema.Field(float, check=schema.between(0.1, 3600.0, " s")),
         worker_wait_s=schema.Field(float, check=schema.between(0.0, 86400.0, " s")),
     ))
+    files: dict[str, Path | None] = {}
     for key in TLS_KEYS:
-        if d[key] is not None:
-            d[key] = resolve(ctx, d[key])
-            if not d[key].is_file():
-                raise ctx.error(("compute", key), f"{d[key]} is not a file (PEM): make the "
-                                "certificates with the site's CA (docs/operating/compute.md)")
-    c = ComputeConfig(**d)
+        written = d.get_opt_str(key)
+        files[key] = file = None if written is None else resolve(d.ctx, written)
+        if file is not None and not file.is_file():
+            raise d.error(key, f"{file} is not a file (PEM): make the "
+                          "certificates with the site's CA (docs/operating/compute.md)")
+    c = ComputeConfig(scheduler=d.get_opt_str("scheduler"), tls_ca_file=files["tls_ca_file"],
+                      tls_cert=files["tls_cert"], tls_key=files["tls_key"],
+                      allow_insecure=d.get_bool("allow_insecure"),
+                      connect_timeout_s=d.get_float("connect_timeout_s"),
+                      worker_wait_s=d.get_float("worker_wait_s"))
     if (problem := security_problem(c)) is not None:
-        raise ctx.error(("compute", problem[0]), problem[1])
+        raise d.error(problem[0], problem[1])
     return c

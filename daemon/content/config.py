@@ -61,7 +61,6 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from grassd.daemon.core.config import schema
 
@@ -146,7 +145,7 @@ class ContentConfig:
     playlist: tuple[PlaylistEntry, ...] = field(default_factory=tuple)
 
 
-def _hours(v: list) -> str | None:
+def _hours(v: list[schema.TomlValue]) -> str | None:
     ok = (len(v) == 2 and all(isinstance(h, int) and not isinstance(h, bool) for h in v)
           and 0 <= v[0] <= 23 and 0 <= v[1] <= 24 and v[0] != v[1])
     return None if ok else ("must be [start, end] local hours, 0 <= start <= 23, "
@@ -169,13 +168,12 @@ def _receiver_fields(model: type, universe: schema.Field, **extra: schema.Field
         max_sources=F(int, check=schema.between(1, 256)), **extra)
 
 
-def parse_content(ctx: schema.Context, raw: Any) -> ContentConfig | None:
-    """Validate the ``[content]`` table ``raw`` (None when absent); paths resolve against
-    the config file's directory. Raises ``ctx``'s error naming the key and line."""
-    if raw is None:
-        return None
+def parse_content(top: schema.Section) -> ContentConfig | None:
+    """Validate the ``[content]`` table of the configuration ``top`` (None when absent); paths
+    resolve against the config file's directory. Raises the configuration's error naming the
+    key and line."""
     F = schema.Field
-    c = schema.table(ctx, ("content",), raw, schema.schema(
+    c = top.opt_section("content", schema.schema(
         ContentConfig,
         enabled=F(bool), fps=F(int, check=schema.between(1, 60, " frames/s")),
         hold_s=F(float, check=schema.between(0.0, 600.0, " s")),
@@ -187,31 +185,34 @@ def parse_content(ctx: schema.Context, raw: Any) -> ContentConfig | None:
         max_picture_mib=F(int, check=schema.between(1, 1024, " MiB")),
         sacn=F(dict), artnet=F(dict), playlist=F(list, []),
     ))
-    sacn, artnet = c["sacn"], c["artnet"]  # the dataclass defaults when left out
-    if not isinstance(sacn, SacnConfig):
-        sacn = SacnConfig(**schema.table(ctx, ("content", "sacn"), sacn, _receiver_fields(
-            SacnConfig, F(int, check=schema.between(1, 63999)), multicast=F(bool))))
-    if not isinstance(artnet, ArtnetConfig):
-        artnet = ArtnetConfig(**schema.table(
-            ctx, ("content", "artnet"), artnet, _receiver_fields(
-                ArtnetConfig, F(int, check=schema.between(0, 15)),
-                net=F(int, check=schema.between(0, 127)),
-                subnet=F(int, check=schema.between(0, 15)))))
+    if c is None:
+        return None
+    # a receiver's table left out: the dataclass's default
+    sacn = c.get_as("sacn", SacnConfig) if not c.given("sacn") else c.section(
+        "sacn", _receiver_fields(SacnConfig, F(int, check=schema.between(1, 63999)),
+                                 multicast=F(bool))).fill(SacnConfig)
+    artnet = c.get_as("artnet", ArtnetConfig) if not c.given("artnet") else c.section(
+        "artnet", _receiver_fields(
+            ArtnetConfig, F(int, check=schema.between(0, 15)),
+            net=F(int, check=schema.between(0, 127)),
+            subnet=F(int, check=schema.between(0, 15)))).fill(ArtnetConfig)
     if sacn.enabled and artnet.enabled and (sacn.bind, sacn.port) == (artnet.bind, artnet.port):
-        raise ctx.error(("content", "artnet", "port"), f"sACN listens on {sacn.bind}:"
-                        f"{sacn.port} too; give each receiver its own port")
+        raise c.error(("artnet", "port"), f"sACN listens on {sacn.bind}:"
+                      f"{sacn.port} too; give each receiver its own port")
     playlist = []
-    for i, item in enumerate(c["playlist"]):
-        p = schema.table(ctx, ("content", "playlist", i), item, schema.schema(
+    for p in c.sections("playlist", schema.schema(
             PlaylistEntry, file=F(str, check=schema.non_empty),
             duration_s=F(float, check=schema.between(0.1, 86400.0, " s")),
-            hours=F(list, [0, 24], check=_hours)))
-        playlist.append(PlaylistEntry(file=_resolve(ctx, p["file"]),
-                                      duration_s=p["duration_s"],
-                                      start_hour=p["hours"][0], end_hour=p["hours"][1]))
+            hours=F(list, [0, 24], check=_hours))):
+        start_hour, end_hour = p.get_ints("hours")
+        playlist.append(PlaylistEntry(file=_resolve(p.ctx, p.get_str("file")),
+                                      duration_s=p.get_float("duration_s"),
+                                      start_hour=start_hour, end_hour=end_hour))
+    idle = c.get_opt_str("idle")
     return ContentConfig(
-        enabled=c["enabled"], fps=c["fps"], hold_s=c["hold_s"], map=c["map"],
-        normalise=c["normalise"], order=c["order"], serpentine=c["serpentine"],
-        first=c["first"], idle=None if c["idle"] is None else _resolve(ctx, c["idle"]),
-        max_picture_mib=c["max_picture_mib"], sacn=sacn, artnet=artnet,
+        enabled=c.get_bool("enabled"), fps=c.get_int("fps"), hold_s=c.get_float("hold_s"),
+        map=c.get_str("map"), normalise=c.get_str("normalise"), order=c.get_str("order"),
+        serpentine=c.get_bool("serpentine"), first=c.get_str("first"),
+        idle=None if idle is None else _resolve(c.ctx, idle),
+        max_picture_mib=c.get_int("max_picture_mib"), sacn=sacn, artnet=artnet,
         playlist=tuple(playlist))

@@ -33,7 +33,6 @@ gives the camera's white balance, colour correction and exposure scale
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 from grassd.daemon.core.config import schema
 
@@ -66,13 +65,12 @@ class MeasureConfig:
         return hour >= self.start_hour or hour < self.end_hour  # a window over midnight
 
 
-def parse_measure(ctx: schema.Context, raw: Any, has_capture: bool) -> MeasureConfig | None:
-    """Validate the ``[measure]`` table ``raw`` (None when absent); ``has_capture``: the
-    configuration has a ``[capture]`` camera to borrow. Defaults are :class:`MeasureConfig`'s."""
-    if raw is None:
-        return None
+def parse_measure(top: schema.Section, has_capture: bool) -> MeasureConfig | None:
+    """Validate the ``[measure]`` table of the configuration ``top`` (None when absent);
+    ``has_capture``: the configuration has a ``[capture]`` camera to borrow. Defaults are
+    :class:`MeasureConfig`'s."""
     F = schema.Field
-    m = schema.table(ctx, ("measure",), raw, schema.schema(
+    m = top.opt_section("measure", schema.schema(
         MeasureConfig,
         camera=F(str, check=schema.non_empty), username=F(str), password=F(str),
         interval_s=F(float, check=lambda v: None if v == 0 or 3600 <= v <= 366 * 86400 else
@@ -90,12 +88,15 @@ def parse_measure(ctx: schema.Context, raw: Any, has_capture: bool) -> MeasureCo
         deadline_s=F(float, check=schema.between(10.0, 86400.0, " s")),
         keep_photos=F(int, check=schema.between(1, 1000)),
     ))
-    if m["camera"] == "capture":
+    if m is None:
+        return None
+    camera = m.get_str("camera")
+    if camera == "capture":
         if not has_capture:
-            raise ctx.error(("measure", "camera"), '"capture" borrows the [capture] camera, '
-                            "but there is no [capture] section; give the measuring camera's "
-                            "http:// URL instead")
-    elif not m["camera"].startswith(("http://", "https://")):
-        raise ctx.error(("measure", "camera"), 'must be "capture" or an http:// URL of an OSC '
-                        "camera")
-    return MeasureConfig(**m)
+            raise m.error("camera", '"capture" borrows the [capture] camera, '
+                          "but there is no [capture] section; give the measuring camera's "
+                          "http:// URL instead")
+    elif not camera.startswith(("http://", "https://")):
+        raise m.error("camera", 'must be "capture" or an http:// URL of an OSC '
+                      "camera")
+    return m.fill(MeasureConfig)

@@ -43,7 +43,6 @@ weak 2 Mbit/s link brings in about 200 s.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 from grassd.daemon.core.config import schema
 
@@ -79,13 +78,11 @@ class CaptureConfig:
     shaded_port: int = 0
 
 
-def parse_capture(ctx: schema.Context, raw: Any) -> CaptureConfig | None:
-    """Validate the ``[capture]`` table ``raw`` (None when absent) in the configuration being
-    read (``ctx``: errors name the key and line); defaults are :class:`CaptureConfig`'s."""
-    if raw is None:
-        return None
+def parse_capture(top: schema.Section) -> CaptureConfig | None:
+    """Validate the ``[capture]`` table (None when absent) of the configuration ``top`` being
+    read (errors name the key and line); defaults are :class:`CaptureConfig`'s."""
     F = schema.Field
-    c = schema.table(ctx, ("capture",), raw, schema.schema(
+    c = top.opt_section("capture", schema.schema(
         CaptureConfig,
         camera=F(str, check=schema.non_empty), username=F(str), password=F(str),
         interval_s=F(float, check=schema.between(10.0, 7 * 86400.0, " s")),
@@ -112,7 +109,9 @@ def parse_capture(ctx: schema.Context, raw: Any) -> CaptureConfig | None:
         shaded_unit=F(int, check=schema.between(0, 247)),
         shaded_port=F(int, check=schema.between(0, 65535)),
     ))
-    if not c["camera"].startswith(("http://", "https://")):
-        raise ctx.error(("capture", "camera"), "must be an http:// URL of the OSC camera "
-                        "(e.g. http://192.168.1.1)")
-    return CaptureConfig(**c)
+    if c is None:
+        return None
+    if not c.get_str("camera").startswith(("http://", "https://")):
+        raise c.error("camera", "must be an http:// URL of the OSC camera "
+                      "(e.g. http://192.168.1.1)")
+    return c.fill(CaptureConfig)

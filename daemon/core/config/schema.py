@@ -25,16 +25,27 @@ text and errors name the key only.
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import math
 import re
+import types
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeAlias, TypeVar, overload
 
 from grassd.daemon.core.errors import ConfigError, LocatedError
+
+#: A value of a parsed document: what :mod:`tomllib` gives (a JSON document's values are the
+#: same kinds, with null as None).
+TomlValue: TypeAlias = (str | int | float | bool | None | datetime.datetime | datetime.date
+                        | datetime.time | list["TomlValue"] | dict[str, "TomlValue"])
+#: A table of a parsed document.
+TomlTable: TypeAlias = dict[str, TomlValue]
+
+_T = TypeVar("_T")
 
 # --------------------------------------------------------------------------- line locator
 
@@ -135,11 +146,23 @@ class Context:
 
 
 #: How an error names each kind of value.
-TYPE_NAMES = {int: "an integer", float: "a finite number", str: "a string", bool: "true or false",
-               list: "an array", dict: "a table"}
+TYPE_NAMES: dict[type | types.UnionType, str] = {
+    int: "an integer", float: "a finite number", str: "a string", bool: "true or false",
+    list: "an array", dict: "a table"}
 
 
-def check_type(ctx: Context, path: tuple, value: Any, kind: Any, hint: str | None = None) -> Any:
+@overload
+def check_type(ctx: Context, path: tuple, value: TomlValue, kind: type[_T],
+               hint: str | None = None) -> _T: ...
+
+
+@overload
+def check_type(ctx: Context, path: tuple, value: TomlValue, kind: types.UnionType,
+               hint: str | None = None) -> TomlValue: ...
+
+
+def check_type(ctx: Context, path: tuple, value: TomlValue, kind: type[_T] | types.UnionType,
+               hint: str | None = None) -> _T | TomlValue:
     """``value`` of the key at ``path`` checked to be a ``kind`` (a type or a union of types; an
     int is taken as a float, a bool never as a number; floats must be finite); raises
     ``ctx.error`` otherwise, naming the expected value as ``hint`` or by :data:`TYPE_NAMES`."""
@@ -149,7 +172,7 @@ def check_type(ctx: Context, path: tuple, value: Any, kind: Any, hint: str | Non
     if not ok:
         got = type(value).__name__
         raise ctx.error(path, f"must be {hint or TYPE_NAMES[kind]}, got {got} {value!r}")
-    if kind is float and not math.isfinite(value):
+    if kind is float and isinstance(value, float) and not math.isfinite(value):
         raise ctx.error(path, f"must be a finite number, got {value!r}")
     return value
 
@@ -163,7 +186,7 @@ class Field:
     """Schema of one key: type (or union of types), default (``MISSING`` = required), extra
     check, and how messages name the expected value (``hint``; default :data:`TYPE_NAMES`)."""
 
-    kind: Any
+    kind: type | types.UnionType
     default: Any = MISSING
     check: Callable[[Any], str | None] | None = None
     hint: str | None = None
@@ -203,7 +226,8 @@ def recording() -> Iterator[dict[tuple[str, ...], dict[str, Field]]]:
         _RECORDING.reset(token)
 
 
-def table(ctx: Context, path: tuple, data: Any, fields: dict[str, Field]) -> dict[str, Any]:
+def table(ctx: Context, path: tuple, data: TomlValue, fields: dict[str, Field]
+          ) -> dict[str, Any]:
     """Validate the table ``data`` at ``path`` against ``fields`` (key -> :class:`Field`);
     return plain values with defaults filled in."""
     seen = _RECORDING.get()
@@ -230,6 +254,107 @@ def table(ctx: Context, path: tuple, data: Any, fields: dict[str, Field]) -> dic
                 raise ctx.error(path + (name,), msg)
         out[name] = value
     return out
+
+
+class Section:
+    """One table of a document, checked against its schema when it is read (:meth:`read`);
+    it hands out its values with the types the schema named (as each of Klipper's config
+    sections hands out ``getfloat``, ``getint``), its tables as sections of their own, and
+    errors that name its keys and lines."""
+
+    def __init__(self, ctx: Context, path: tuple, values: dict[str, Any],
+                 given: frozenset[str] = frozenset()) -> None:
+        self.ctx, self.path = ctx, path
+        self._values = values
+        self._given = given
+
+    @classmethod
+    def read(cls, ctx: Context, path: tuple, data: TomlValue, fields: dict[str, Field]
+             ) -> Section:
+        """The table ``data`` at ``path`` checked against ``fields`` (:func:`table`)."""
+        values = table(ctx, path, data, fields)
+        return cls(ctx, path, values, frozenset(data) if isinstance(data, dict) else frozenset())
+
+    def error(self, key: str | int | tuple, message: str) -> LocatedError:
+        """The error for ``key`` (a key path below this table, or one key) of this table."""
+        return self.ctx.error(self.path + (key if isinstance(key, tuple) else (key,)), message)
+
+    def given(self, key: str) -> bool:
+        """Whether the document wrote ``key`` (else its value is the schema's default)."""
+        return key in self._given
+
+    def section(self, key: str, fields: dict[str, Field]) -> Section:
+        """The table at ``key`` checked against ``fields``."""
+        return Section.read(self.ctx, self.path + (key,), self._values[key], fields)
+
+    def opt_section(self, key: str, fields: dict[str, Field]) -> Section | None:
+        """The table at ``key`` checked against ``fields``, or None where its value is None
+        (the key was left out)."""
+        return None if self._values[key] is None else self.section(key, fields)
+
+    def sections(self, key: str, fields: dict[str, Field]) -> Iterator[Section]:
+        """Each table of the array at ``key``, checked against ``fields`` as it is reached."""
+        for i, item in enumerate(self.get_list(key)):
+            yield Section.read(self.ctx, self.path + (key, i), item, fields)
+
+    def _get(self, key: str, kind: type[_T]) -> _T:
+        v = self._values[key]
+        if not isinstance(v, kind):
+            raise TypeError(f"{key_path(self.path + (key,))} is {type(v).__name__}, not "
+                            f"{kind.__name__}: its schema names another kind")
+        return v
+
+    def get_str(self, key: str) -> str:
+        """The string at ``key``."""
+        return self._get(key, str)
+
+    def get_opt_str(self, key: str) -> str | None:
+        """The string at ``key``, or None (its default when left out)."""
+        return None if self._values[key] is None else self.get_str(key)
+
+    def get_int(self, key: str) -> int:
+        """The integer at ``key``."""
+        return self._get(key, int)
+
+    def get_float(self, key: str) -> float:
+        """The number at ``key`` (a default may be an int)."""
+        v = self._values[key]
+        return v if isinstance(v, int) and not isinstance(v, bool) else self._get(key, float)
+
+    def get_bool(self, key: str) -> bool:
+        """The boolean at ``key``."""
+        return self._get(key, bool)
+
+    def get_list(self, key: str) -> list[TomlValue]:
+        """The array at ``key``."""
+        return self._get(key, list)
+
+    def get_floats(self, key: str) -> tuple[float, ...]:
+        """The array of numbers at ``key`` (its check was :func:`numbers`) as floats."""
+        return tuple(float(x) for x in self._values[key])
+
+    def get_ints(self, key: str) -> tuple[int, ...]:
+        """The array of integers at ``key`` (its check saw to that)."""
+        return tuple(int(x) for x in self._values[key])
+
+    def get_float_rows(self, key: str) -> tuple[tuple[float, ...], ...]:
+        """The array of arrays of numbers at ``key`` (its check saw to that) as floats."""
+        return tuple(tuple(float(x) for x in row) for row in self._values[key])
+
+    def get_as(self, key: str, kind: type[_T]) -> _T:
+        """The value at ``key``, a ``kind`` (a default of another type than the document's,
+        such as a dataclass)."""
+        return self._get(key, kind)
+
+    def get_value(self, key: str) -> TomlValue:
+        """The value at ``key`` whose schema allows several kinds (a union)."""
+        v: TomlValue = self._values[key]
+        return v
+
+    def fill(self, model: type[_T]) -> _T:
+        """``model`` built from every value (its schema is ``schema(model, ...)`` with no
+        other keys)."""
+        return model(**self._values)
 
 
 # ----------------------------------------------------------------------------- checks
@@ -270,15 +395,15 @@ def non_negative(v: float) -> str | None:
 class OneOf:
     """Check: ``v`` is one of ``choices`` (readable, for the documentation of the key)."""
 
-    choices: tuple[Any, ...]
+    choices: tuple[str | int, ...]
 
-    def __call__(self, v: Any) -> str | None:
+    def __call__(self, v: str | int) -> str | None:
         if v in self.choices:
             return None
         return f"must be one of {', '.join(map(repr, self.choices))}; got {v!r}"
 
 
-def one_of(*choices: Any) -> OneOf:
+def one_of(*choices: str | int) -> OneOf:
     """Check: ``v`` is one of ``choices``."""
     return OneOf(tuple(choices))
 
@@ -288,9 +413,9 @@ def non_empty(v: str) -> str | None:
     return None if v.strip() else "must not be empty"
 
 
-def numbers(n: int) -> Callable[[Any], str | None]:
+def numbers(n: int) -> Callable[[list[TomlValue]], str | None]:
     """Check: an array of ``n`` finite numbers."""
-    def check(v: list) -> str | None:
+    def check(v: list[TomlValue]) -> str | None:
         ok = len(v) == n and all(isinstance(x, int | float) and not isinstance(x, bool)
                                  and math.isfinite(x) for x in v)
         return None if ok else f"must be an array of {n} numbers, got {v!r}"

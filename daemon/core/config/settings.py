@@ -62,7 +62,7 @@ import types
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 from grassd.daemon.compute.config import (  # noqa: F401 (scheduler_address_problem)
     ComputeConfig,
@@ -72,6 +72,8 @@ from grassd.daemon.compute.config import (  # noqa: F401 (scheduler_address_prob
 from grassd.daemon.core.config.limits import DEFAULT_LIMITS, FUTURE_TOLERANCE_S, BundleLimits
 from grassd.daemon.core.config.schema import Context as _Ctx
 from grassd.daemon.core.config.schema import Field as _F
+from grassd.daemon.core.config.schema import Section as _Section
+from grassd.daemon.core.config.schema import TomlTable, TomlValue
 from grassd.daemon.core.config.schema import between as _between
 from grassd.daemon.core.config.schema import check_type as _check_type
 from grassd.daemon.core.config.schema import non_empty as _non_empty
@@ -80,7 +82,6 @@ from grassd.daemon.core.config.schema import numbers as _numbers
 from grassd.daemon.core.config.schema import one_of as _one_of
 from grassd.daemon.core.config.schema import positive as _positive
 from grassd.daemon.core.config.schema import schema as _schema
-from grassd.daemon.core.config.schema import table as _table
 from grassd.daemon.core.errors import ConfigError
 from grassd.firmware_proto.framing import MAX_ADDRESS, MIN_ADDRESS
 from grassd.sim.errors import SimError
@@ -99,6 +100,9 @@ CONFIG_OPTION_HELP = (f"configuration file (default {DEFAULT_CONFIG_PATH}; "
                       "the embedded default when that is absent)")
 #: The service's RuntimeDirectory (exists while it runs); holds the control socket.
 SYSTEM_RUNTIME_DIR = Path("/run/grassd")
+
+#: A ``[display.pixel]`` value: a number (mm, a count) or an sRGB triple.
+PixelValue: TypeAlias = float | tuple[float, ...]
 
 MODBUS_MODES = ("rtu", "tcp")
 WORD_ORDERS = ("big", "little")
@@ -128,7 +132,7 @@ class DisplayConfig:
     rows: int
     cols: int
     pitch_mm: float = 33.5
-    pixel: Mapping[str, Any] = field(kw_only=True)
+    pixel: Mapping[str, PixelValue] = field(kw_only=True)
 
     @property
     def pixel_count(self) -> int:
@@ -139,7 +143,8 @@ class DisplayConfig:
     def green_max_mm(self) -> float:
         """The longest green length a pixel shows [mm]: ``pixel["green_max_mm"]``, else
         PixelSpec's default; no table entry may exceed it."""
-        return float(self.pixel.get("green_max_mm", PixelSpec.green_max_mm))
+        v = self.pixel.get("green_max_mm", PixelSpec.green_max_mm)
+        return float(v) if isinstance(v, int | float) else PixelSpec.green_max_mm
 
 
 @dataclass(frozen=True)
@@ -434,28 +439,28 @@ def _timezone(v: str) -> str | None:
 # --------------------------------------------------------------------------- sections
 
 
-def _pixel_fields() -> dict[str, Any]:
+def _pixel_fields() -> dict[str, PixelValue]:
     """Pixel-spec field defaults: those of :class:`grassd.sim.scene.PixelSpec`."""
     spec = PixelSpec()
-    out = {}
+    out: dict[str, PixelValue] = {}
     for f in dataclasses.fields(spec):
         v = getattr(spec, f.name)
-        if isinstance(v, int | float | str | bool) or (
+        if isinstance(v, int | float) and not isinstance(v, bool) or (
                 isinstance(v, tuple) and all(isinstance(x, int | float) for x in v)):
             out[f.name] = v
     return out
 
 
-def _check_pixel_spec(ctx: _Ctx, pixel: dict[str, Any]) -> None:
+def _check_pixel_spec(sec: _Section, pixel: dict[str, PixelValue]) -> None:
     """Let grassd.sim.scene.PixelSpec validate the fields together."""
     try:
         PixelSpec(**pixel)
     except SimError as exc:
         m = re.search(r"PixelSpec\.(\w+)", str(exc))
         key = m.group(1) if m and m.group(1) in pixel else None
-        raise ctx.error(("display", "pixel") + ((key,) if key else ()), str(exc)) from None
+        raise sec.error((key,) if key else (), str(exc)) from None
     except TypeError as exc:
-        raise ctx.error(("display", "pixel"), str(exc)) from None
+        raise sec.error((), str(exc)) from None
 
 
 _RANGE_RE = re.compile(r"^\s*(\d+)\s*(?:-\s*(\d+)\s*)?$")
@@ -500,10 +505,10 @@ def _resolve(ctx: _Ctx, value: str) -> Path:
     return p if p.is_absolute() else (ctx.base_dir / p)
 
 
-def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
+def _parse(data: TomlTable, ctx: _Ctx) -> Config:
     """The whole configuration from the TOML ``data``: the top-level keys, then each section
     (one function each, in the order the errors of a file with several mistakes are reported)."""
-    top = _table(ctx, (), data, {
+    top = _Section.read(ctx, (), data, {
         "state_dir": _F(str, None), "cache_dir": _F(str, None), "control_socket": _F(str, None),
         "site": _F(dict), "display": _F(dict), "controllers": _F(list),
         "viewpoints": _F(list), "light": _F(dict), "schedule": _F(dict, {}),
@@ -513,21 +518,21 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         "capture": _F(dict, None), "compute": _F(dict, {}), "measure": _F(dict, None),
         "content": _F(dict, None),
     })
-    site = _parse_site(ctx, top["site"])
-    display = _parse_display(ctx, top["display"])
-    controllers = _parse_controllers(ctx, top["controllers"], display.pixel_count)
-    viewpoints = _parse_viewpoints(ctx, top["viewpoints"])
-    state_dir, cache_dir, sock = _parse_paths(ctx, top)  # raises nothing
-    light = _parse_light(ctx, top["light"], state_dir)
-    schedule = _parse_schedule(ctx, top["schedule"])
-    retention = RetentionConfig(**_table(ctx, ("retention",), top["retention"], _schema(
+    site = _parse_site(top)
+    display = _parse_display(top)
+    controllers = _parse_controllers(top, display.pixel_count)
+    viewpoints = _parse_viewpoints(top)
+    state_dir, cache_dir, sock = _parse_paths(top)  # raises nothing
+    light = _parse_light(top, state_dir)
+    schedule = _parse_schedule(top)
+    retention = top.section("retention", _schema(
         RetentionConfig,
         keep_days=_F(float, check=_positive),
         keep_reports=_F(int, check=_between(1, 10**7)),
         keep_runs=_F(int, check=_between(1, 10**9)),
-    )))
-    simulation = _parse_simulation(ctx, top["simulation"], display.pixel)
-    calibration = CalibrationConfig(**_table(ctx, ("calibration",), top["calibration"], _schema(
+    )).fill(RetentionConfig)
+    simulation = _parse_simulation(top, display)
+    calibration = top.section("calibration", _schema(
         CalibrationConfig,
         max_jump_mm=_F(float, check=_positive), target_de00=_F(float, check=_positive),
         max_rounds=_F(int, check=_between(1, 10)), check_levels=_F(int, check=_between(3, 256)),
@@ -535,43 +540,43 @@ def _parse(data: dict[str, Any], ctx: _Ctx) -> Config:
         max_flat_fraction=_F(float, check=_between(0.0, 1.0)),
         replicates=_F(int, check=_between(2, MAX_REPLICATES)),
         ccm=_F(str, check=_one_of(*CCM_CHOICES)),
-    )))
-    tables, audience = _parse_tables_audience(ctx, top["tables"], top["audience"])
-    metrics, alerts = _parse_operator(ctx, top["metrics"], top["alerts"])
+    )).fill(CalibrationConfig)
+    tables, audience = _parse_tables_audience(top)
+    metrics, alerts = _parse_operator(top)
     return Config(site=site, display=display, controllers=controllers,
                   viewpoints=viewpoints, light=light, schedule=schedule,
                   simulation=simulation, calibration=calibration, state_dir=state_dir,
                   cache_dir=cache_dir,
                   control_socket=sock, source=ctx.source, tables=tables, audience=audience,
                   retention=retention, metrics=metrics, alerts=alerts,
-                  capture=_capture_section(ctx, top["capture"]),
-                  compute=parse_compute(ctx, top["compute"], _resolve),
-                  measure=_measure_section(ctx, top["measure"], top["capture"] is not None),
-                  content=_content_section(ctx, top["content"]))
+                  capture=_capture_section(top),
+                  compute=parse_compute(top, _resolve),
+                  measure=_measure_section(top, top.get_value("capture") is not None),
+                  content=_content_section(top))
 
 
-def _parse_site(ctx: _Ctx, raw: Any) -> SiteConfig:
+def _parse_site(top: _Section) -> SiteConfig:
     """``[site]``: latitude, longitude (degrees) and an IANA time zone."""
-    return SiteConfig(**_table(ctx, ("site",), raw, _schema(
+    return top.section("site", _schema(
         SiteConfig,
         latitude=_F(float, check=_between(-90, 90, " degrees")),
         longitude=_F(float, check=_between(-180, 180, " degrees")),
         timezone=_F(str, check=_timezone),
-    )))
+    )).fill(SiteConfig)
 
 
-def _parse_display(ctx: _Ctx, raw: Any) -> DisplayConfig:
+def _parse_display(top: _Section) -> DisplayConfig:
     """``[display]`` and its ``[display.pixel]`` table (PixelSpec fields, mm and counts)."""
-    pixel_raw = raw.get("pixel", {}) if isinstance(raw, dict) else {}
-    d = _table(ctx, ("display",), raw, _schema(
+    d = top.section("display", _schema(
         DisplayConfig, rows=_F(int, check=_positive), cols=_F(int, check=_positive),
         pitch_mm=_F(float, check=_positive), pixel=_F(dict, {}),
     ))
-    return DisplayConfig(rows=d["rows"], cols=d["cols"], pitch_mm=d["pitch_mm"],
-                         pixel=types.MappingProxyType(_parse_pixel(ctx, pixel_raw)))
+    return DisplayConfig(rows=d.get_int("rows"), cols=d.get_int("cols"),
+                         pitch_mm=d.get_float("pitch_mm"),
+                         pixel=types.MappingProxyType(_parse_pixel(d)))
 
 
-def _parse_pixel(ctx: _Ctx, raw: Any) -> dict[str, Any]:
+def _parse_pixel(display: _Section) -> dict[str, PixelValue]:
     """``[display.pixel]``: every PixelSpec field, the table's value else PixelSpec's default
     (arrays as tuples), checked together by PixelSpec itself."""
     pschema = {}
@@ -579,99 +584,99 @@ def _parse_pixel(ctx: _Ctx, raw: Any) -> dict[str, Any]:
         if isinstance(default, tuple):
             pschema[name] = _F(list, default, _numbers(len(default)))
             continue
-        kind = bool if isinstance(default, bool) else type(default)
-        pschema[name] = _F(kind, default, _non_negative if kind in (int, float) else None)
-    pixel = _table(ctx, ("display", "pixel"), raw, pschema)
-    pixel = {k: tuple(float(x) for x in v) if isinstance(v, list) else v
-             for k, v in pixel.items()}
-    _check_pixel_spec(ctx, pixel)
+        kind = type(default)
+        pschema[name] = _F(kind, default, _non_negative)
+    sec = display.section("pixel", pschema)
+    pixel: dict[str, PixelValue] = {
+        name: sec.get_floats(name) if isinstance(default, tuple) else sec.get_float(name)
+        for name, default in _pixel_fields().items()}
+    _check_pixel_spec(sec, pixel)
     return pixel
 
 
-def _parse_controllers(ctx: _Ctx, raw: list[Any], pixel_count: int
-                       ) -> tuple[ControllerConfig, ...]:
+def _parse_controllers(top: _Section, pixel_count: int) -> tuple[ControllerConfig, ...]:
     """``[[controllers]]``: at least one; no port and address twice, one baud per port, and no
     pixel driven by two controllers (of the display's ``pixel_count``)."""
     controllers: list[ControllerConfig] = []
-    if not raw:
-        raise ctx.error(("controllers",), "at least one [[controllers]] entry is required")
+    if not top.get_list("controllers"):
+        raise top.error("controllers", "at least one [[controllers]] entry is required")
     seen_addr: dict[tuple[str, int], int] = {}
     taken: list[tuple[int, int, int]] = []  # (first, last, controller index)
-    for i, c_raw in enumerate(raw):
-        c = _table(ctx, ("controllers", i), c_raw, _schema(
+    for i, c in enumerate(top.sections("controllers", _schema(
             ControllerConfig, port=_F(str, check=_non_empty), baud=_F(int, check=_positive),
             address=_F(int, check=_between(MIN_ADDRESS, MAX_ADDRESS)),
             pixels=_F(str, "all"),  # the raw ranges, parsed below
-        ))
+    ))):
+        port, baud, address = c.get_str("port"), c.get_int("baud"), c.get_int("address")
         try:
-            ranges = parse_pixel_ranges(c["pixels"], pixel_count)
+            ranges = parse_pixel_ranges(c.get_str("pixels"), pixel_count)
         except ValueError as exc:
-            raise ctx.error(("controllers", i, "pixels"), str(exc)) from None
-        key = (c["port"], c["address"])
+            raise c.error("pixels", str(exc)) from None
+        key = (port, address)
         if key in seen_addr:
-            raise ctx.error(("controllers", i, "address"),
-                            f"port {c['port']} address {c['address']} is already used by "
-                            f"controllers[{seen_addr[key]}]")
+            raise c.error("address", f"port {port} address {address} is already used by "
+                          f"controllers[{seen_addr[key]}]")
         seen_addr[key] = i
-        same_bus = next((j for j, o in enumerate(controllers) if o.port == c["port"]), None)
-        if same_bus is not None and controllers[same_bus].baud != c["baud"]:
-            raise ctx.error(("controllers", i, "baud"),
-                            f"{c['baud']} differs from the {controllers[same_bus].baud} of "
-                            f"controllers[{same_bus}] on the same bus {c['port']} (one port is "
-                            "opened once, at one baud)")
+        same_bus = next((j for j, o in enumerate(controllers) if o.port == port), None)
+        if same_bus is not None and controllers[same_bus].baud != baud:
+            raise c.error("baud", f"{baud} differs from the {controllers[same_bus].baud} of "
+                          f"controllers[{same_bus}] on the same bus {port} (one port is "
+                          "opened once, at one baud)")
         for a, b in ranges:
             for a2, b2, j in taken:
                 if a <= b2 and a2 <= b:
-                    raise ctx.error(("controllers", i, "pixels"),
-                                    f"pixels {a}-{b} overlap pixels {a2}-{b2} of controllers[{j}]")
+                    raise c.error("pixels",
+                                  f"pixels {a}-{b} overlap pixels {a2}-{b2} of controllers[{j}]")
         taken.extend((a, b, i) for a, b in ranges)
-        controllers.append(ControllerConfig(port=c["port"], baud=c["baud"],
-                                            address=c["address"], pixels=ranges))
+        controllers.append(ControllerConfig(port=port, baud=baud, address=address,
+                                            pixels=ranges))
     return tuple(controllers)
 
 
-def _parse_viewpoints(ctx: _Ctx, raw: list[Any]) -> tuple[ViewpointConfig, ...]:
+def _parse_viewpoints(top: _Section) -> tuple[ViewpointConfig, ...]:
     """``[[viewpoints]]``: at least one (cm, m, degrees, relative weight)."""
-    if not raw:
-        raise ctx.error(("viewpoints",), "at least one [[viewpoints]] entry is required")
-    return tuple(ViewpointConfig(**_table(ctx, ("viewpoints", i), v_raw, _schema(
+    if not top.get_list("viewpoints"):
+        raise top.error("viewpoints", "at least one [[viewpoints]] entry is required")
+    return tuple(v.fill(ViewpointConfig) for v in top.sections("viewpoints", _schema(
         ViewpointConfig,
         h_cm=_F(float, check=_between(10, 1000, " cm")),
         d_m=_F(float, check=_between(0.1, 100, " m")),
         theta_deg=_F(float, check=_between(-90, 90, " degrees")),
         weight=_F(float, check=_positive),
-    ))) for i, v_raw in enumerate(raw))
+    )))
 
 
-def _parse_paths(ctx: _Ctx, top: dict[str, Any]) -> tuple[Path, Path, Path]:
+def _parse_paths(top: _Section) -> tuple[Path, Path, Path]:
     """(state directory, cache directory, control socket): the file's keys, else the service's
     environment ($STATE_DIRECTORY, $RUNTIME_DIRECTORY; the cache's:
     :func:`~grassd.sim.kernel_cache.default_cache_dir`), else the defaults the module
     docstring lists."""
     env = os.environ
-    if top["state_dir"] is not None:
-        state_dir = _resolve(ctx, top["state_dir"])
+    state_given, cache_given = top.get_opt_str("state_dir"), top.get_opt_str("cache_dir")
+    sock_given = top.get_opt_str("control_socket")
+    if state_given is not None:
+        state_dir = _resolve(top.ctx, state_given)
     else:
         state_dir = Path(env.get("STATE_DIRECTORY", "/var/lib/grassd").split(":")[0])
-    if top["cache_dir"] is not None:
-        cache_dir = _resolve(ctx, top["cache_dir"])
+    if cache_given is not None:
+        cache_dir = _resolve(top.ctx, cache_given)
     else:
         cache_dir = default_cache_dir()  # this user's: never the state directory's
-    if top["control_socket"] is not None:
-        sock = _resolve(ctx, top["control_socket"])
+    if sock_given is not None:
+        sock = _resolve(top.ctx, sock_given)
     elif env.get("RUNTIME_DIRECTORY"):
         sock = Path(env["RUNTIME_DIRECTORY"].split(":")[0]) / "control.sock"
-    elif top["state_dir"] is None and SYSTEM_RUNTIME_DIR.is_dir():
+    elif state_given is None and SYSTEM_RUNTIME_DIR.is_dir():
         sock = SYSTEM_RUNTIME_DIR / "control.sock"  # the service's socket, seen from a shell
     else:
         sock = state_dir / "control.sock"
     return state_dir, cache_dir, sock
 
 
-def _parse_light(ctx: _Ctx, raw: Any, state_dir: Path) -> LightConfig:
+def _parse_light(top: _Section, state_dir: Path) -> LightConfig:
     """``[light]`` with its ``[light.limits]`` and ``[light.modbus]`` tables; a relative
     ``inbox`` lies inside ``state_dir``."""
-    lt = _table(ctx, ("light",), raw, _schema(
+    lt = top.section("light", _schema(
         LightConfig,
         inbox=_F(str, check=_non_empty),
         lux=_F(str, check=_one_of("manifest", "modbus")),
@@ -683,35 +688,35 @@ def _parse_light(ctx: _Ctx, raw: Any, state_dir: Path) -> LightConfig:
         hdri_rotation_deg=_F(float, check=_between(-360, 360, " degrees")),
         limits=_F(dict),
     ))
-    limits = lt["limits"]
-    if not isinstance(limits, BundleLimits):  # else the table was left out: the defaults
-        limits = _parse_light_limits(ctx, limits)
-    modbus = None if lt["modbus"] is None else _parse_modbus(ctx, lt["modbus"])
-    if lt["lux"] == "modbus" and modbus is None:
-        raise ctx.error(("light", "lux"), "lux = \"modbus\" needs a [light.modbus] table")
-    inbox = Path(os.path.expandvars(os.path.expanduser(lt["inbox"])))
+    # left out, [light.limits] is the dataclass's default
+    limits = _parse_light_limits(lt) if lt.given("limits") else lt.get_as("limits", BundleLimits)
+    modbus = _parse_modbus(lt)
+    if lt.get_str("lux") == "modbus" and modbus is None:
+        raise lt.error("lux", "lux = \"modbus\" needs a [light.modbus] table")
+    inbox = Path(os.path.expandvars(os.path.expanduser(lt.get_str("inbox"))))
     return LightConfig(inbox=inbox if inbox.is_absolute() else state_dir / inbox,
-                       lux=lt["lux"], modbus=modbus, settle_s=lt["settle_s"],
-                       incomplete_timeout_s=lt["incomplete_timeout_s"],
-                       lux_wait_s=lt["lux_wait_s"],
-                       future_tolerance_s=lt["future_tolerance_s"], hdri_flip=lt["hdri_flip"],
-                       hdri_rotation_deg=lt["hdri_rotation_deg"], limits=limits)
+                       lux=lt.get_str("lux"), modbus=modbus, settle_s=lt.get_float("settle_s"),
+                       incomplete_timeout_s=lt.get_float("incomplete_timeout_s"),
+                       lux_wait_s=lt.get_float("lux_wait_s"),
+                       future_tolerance_s=lt.get_float("future_tolerance_s"),
+                       hdri_flip=lt.get_bool("hdri_flip"),
+                       hdri_rotation_deg=lt.get_float("hdri_rotation_deg"), limits=limits)
 
 
-def _parse_light_limits(ctx: _Ctx, raw: Any) -> BundleLimits:
+def _parse_light_limits(light: _Section) -> BundleLimits:
     """``[light.limits]``: caps on a bundle (KiB, MiB, entries)."""
-    return BundleLimits(**_table(ctx, ("light", "limits"), raw, _schema(
+    return light.section("limits", _schema(
         BundleLimits,
         manifest_kib=_F(int, check=_between(1, 16 * 1024, " KiB")),
         file_mib=_F(int, check=_between(1, 64 * 1024, " MiB")),
         bundle_mib=_F(int, check=_between(1, 256 * 1024, " MiB")),
         entries=_F(int, check=_between(2, 100_000)),
-    )))
+    )).fill(BundleLimits)
 
 
-def _parse_modbus(ctx: _Ctx, raw: Any) -> ModbusConfig:
-    """``[light.modbus]``: the lux sensor's link and register map."""
-    m = _table(ctx, ("light", "modbus"), raw, _schema(
+def _parse_modbus(light: _Section) -> ModbusConfig | None:
+    """``[light.modbus]``: the lux sensor's link and register map (None without the table)."""
+    m = light.opt_section("modbus", _schema(
         ModbusConfig,
         mode=_F(str, check=_one_of(*MODBUS_MODES)), host=_F(str),
         port=_F(int, check=_between(1, 65535)), serial_port=_F(str),
@@ -724,74 +729,75 @@ def _parse_modbus(ctx: _Ctx, raw: Any) -> ModbusConfig:
         offset=_F(float), timeout_s=_F(float, check=_positive),
         retries=_F(int, check=_between(0, 20)),
     ))
-    if m["mode"] == "rtu" and not m["serial_port"]:
-        raise ctx.error(("light", "modbus", "serial_port"),
-                        "required when mode = \"rtu\" (e.g. /dev/serial/by-id/usb-...)")
-    if m["value_type"] == "float" and m["words"] != 2:
-        raise ctx.error(("light", "modbus", "words"), "value_type = \"float\" needs words = 2")
-    return ModbusConfig(**m)
+    if m is None:
+        return None
+    if m.get_str("mode") == "rtu" and not m.get_str("serial_port"):
+        raise m.error("serial_port",
+                      "required when mode = \"rtu\" (e.g. /dev/serial/by-id/usb-...)")
+    if m.get_str("value_type") == "float" and m.get_int("words") != 2:
+        raise m.error("words", "value_type = \"float\" needs words = 2")
+    return m.fill(ModbusConfig)
 
 
-def _parse_schedule(ctx: _Ctx, raw: Any) -> ScheduleConfig:
+def _parse_schedule(top: _Section) -> ScheduleConfig:
     """``[schedule]``: a run at least every ``interval_s`` seconds and/or on each new bundle."""
-    sc = _table(ctx, ("schedule",), raw, _schema(
+    sc = top.section("schedule", _schema(
         ScheduleConfig, interval_s=_F(float, check=_non_negative), on_new_bundle=_F(bool),
     ))
-    if sc["interval_s"] == 0 and not sc["on_new_bundle"]:
-        raise ctx.error(("schedule", "on_new_bundle"),
-                        "with interval_s = 0 too, bundles in the inbox would never be picked up: "
-                        "set on_new_bundle = true or interval_s > 0")
-    return ScheduleConfig(**sc)
+    if sc.get_float("interval_s") == 0 and not sc.get_bool("on_new_bundle"):
+        raise sc.error("on_new_bundle",
+                       "with interval_s = 0 too, bundles in the inbox would never be picked up: "
+                       "set on_new_bundle = true or interval_s > 0")
+    return sc.fill(ScheduleConfig)
 
 
-def _parse_simulation(ctx: _Ctx, raw: Any, pixel: Mapping[str, Any]) -> SimulationConfig:
-    """``[simulation]``; its ``lengths`` (a count, or mm) lie within the ``pixel``'s green
-    range."""
-    si = _table(ctx, ("simulation",), raw, _schema(
+def _parse_simulation(top: _Section, display: DisplayConfig) -> SimulationConfig:
+    """``[simulation]``; its ``lengths`` (a count, or mm) lie within the green range of the
+    ``display``'s pixel (0 mm to its ``green_max_mm``)."""
+    si = top.section("simulation", _schema(
         SimulationConfig, samples=_F(int, check=_between(1, 1 << 20)),
         seed=_F(int, check=_non_negative), layouts=_F(int, check=_between(1, 64)),
         lengths=_F(int | list, 11, hint="an integer count or an array of mm"),  # parsed below
     ))
-    lo = float(pixel.get("green_min_mm", 0.0))
-    hi = float(pixel["green_max_mm"])  # every PixelSpec field is filled in by _parse_pixel
-    return SimulationConfig(samples=si["samples"], seed=si["seed"], layouts=si["layouts"],
-                            lengths_mm=_simulation_lengths(ctx, si["lengths"], lo, hi))
+    return SimulationConfig(samples=si.get_int("samples"), seed=si.get_int("seed"),
+                            layouts=si.get_int("layouts"),
+                            lengths_mm=_simulation_lengths(si, 0.0, display.green_max_mm))
 
 
-def _simulation_lengths(ctx: _Ctx, raw: Any, lo: float, hi: float) -> tuple[float, ...]:
+def _simulation_lengths(si: _Section, lo: float, hi: float) -> tuple[float, ...]:
     """``[simulation] lengths``: a count of evenly spaced lengths from ``lo`` to ``hi`` mm, or
     a strictly increasing array of mm within them."""
-    lpath = ("simulation", "lengths")
+    raw = si.get_value("lengths")
     if isinstance(raw, int) and not isinstance(raw, bool):
         if not 3 <= raw <= 1000:
-            raise ctx.error(lpath, f"count must be between 3 and 1000, got {raw}")
+            raise si.error("lengths", f"count must be between 3 and 1000, got {raw}")
         return tuple(lo + (hi - lo) * k / (raw - 1) for k in range(raw))
     if isinstance(raw, list):
-        vals = [_check_type(ctx, lpath, x, float) for x in raw]
+        lpath = si.path + ("lengths",)
+        vals = [_check_type(si.ctx, lpath, x, float) for x in raw]
         if len(vals) < 3:
-            raise ctx.error(lpath, f"needs at least 3 lengths, got {len(vals)}")
+            raise si.error("lengths", f"needs at least 3 lengths, got {len(vals)}")
         if any(b <= a for a, b in zip(vals, vals[1:], strict=False)):
-            raise ctx.error(lpath, "lengths must be strictly increasing (mm)")
+            raise si.error("lengths", "lengths must be strictly increasing (mm)")
         if vals[0] < lo or vals[-1] > hi:
-            raise ctx.error(lpath, f"lengths must lie within {lo}-{hi} mm")
+            raise si.error("lengths", f"lengths must lie within {lo}-{hi} mm")
         return tuple(vals)
-    raise ctx.error(lpath, f"must be an integer count or an array of mm, got {raw!r}")
+    raise si.error("lengths", f"must be an integer count or an array of mm, got {raw!r}")
 
 
-def _parse_operator(ctx: _Ctx, metrics_raw: Any, alerts_raw: Any
-                    ) -> tuple[MetricsConfig, AlertsConfig]:
+def _parse_operator(top: _Section) -> tuple[MetricsConfig, AlertsConfig]:
     """``[metrics]`` and ``[alerts]`` (see their dataclasses)."""
-    m = _table(ctx, ("metrics",), metrics_raw,
-               _schema(MetricsConfig, textfile=_F(str, check=_non_empty)))
-    textfile = None if m["textfile"] is None else _resolve(ctx, m["textfile"])
+    m = top.section("metrics", _schema(MetricsConfig, textfile=_F(str, check=_non_empty)))
+    written = m.get_opt_str("textfile")
+    textfile = None if written is None else _resolve(top.ctx, written)
     if textfile is not None and textfile.suffix != ".prom":
-        raise ctx.error(("metrics", "textfile"), "must end in .prom (node_exporter's textfile "
-                        f"collector reads only *.prom files), got {textfile.name!r}")
-    a = _table(ctx, ("alerts",), alerts_raw, _schema(
+        raise m.error("textfile", "must end in .prom (node_exporter's textfile "
+                      f"collector reads only *.prom files), got {textfile.name!r}")
+    a = top.section("alerts", _schema(
         AlertsConfig, command=_F(str, check=_shell_words),
         min_interval_s=_F(float, check=_non_negative), timeout_s=_F(float, check=_positive),
     ))
-    return MetricsConfig(textfile=textfile), AlertsConfig(**a)
+    return MetricsConfig(textfile=textfile), a.fill(AlertsConfig)
 
 
 def _shell_words(v: str) -> str | None:
@@ -802,35 +808,34 @@ def _shell_words(v: str) -> str | None:
     return None if words else "must name a program"
 
 
-def _measure_section(ctx: _Ctx, raw: Any, has_capture: bool) -> MeasureConfig | None:
+def _measure_section(top: _Section, has_capture: bool) -> MeasureConfig | None:
     """``[measure]``, validated by :mod:`grassd.daemon.measure.config` (imported lazily)."""
     from grassd.daemon.measure.config import parse_measure
 
-    return parse_measure(ctx, raw, has_capture)
+    return parse_measure(top, has_capture)
 
 
-def _content_section(ctx: _Ctx, raw: Any) -> ContentConfig | None:
+def _content_section(top: _Section) -> ContentConfig | None:
     """``[content]``, validated by :mod:`grassd.daemon.content.config` (imported only when
     the section is there)."""
-    if raw is None:
+    if top.get_value("content") is None:
         return None
     from grassd.daemon.content.config import parse_content
 
-    return parse_content(ctx, raw)
+    return parse_content(top)
 
 
-def _capture_section(ctx: _Ctx, raw: Any) -> CaptureConfig | None:
+def _capture_section(top: _Section) -> CaptureConfig | None:
     """``[capture]``, validated by :mod:`grassd.daemon.core.config.camera_section` (imported lazily:
     only a configuration with a capture station needs it)."""
     from grassd.daemon.core.config.camera_section import parse_capture
 
-    return parse_capture(ctx, raw)
+    return parse_capture(top)
 
 
-def _parse_tables_audience(ctx: _Ctx, tables_raw: Any, audience_raw: Any
-                           ) -> tuple[TablesConfig, AudienceConfig | None]:
+def _parse_tables_audience(top: _Section) -> tuple[TablesConfig, AudienceConfig | None]:
     """``[tables]`` and the optional ``[audience]`` region (see their dataclasses)."""
-    t = _table(ctx, ("tables",), tables_raw, _schema(
+    tables = top.section("tables", _schema(
         TablesConfig,
         granularity=_F(str, check=_one_of("global", "controller", "pixel")),
         eye=_F(str, check=_one_of("world", "pixel")),
@@ -838,34 +843,34 @@ def _parse_tables_audience(ctx: _Ctx, tables_raw: Any, audience_raw: Any
         distance_tolerance=_F(float, check=_between(1e-3, 10.0)),
         check_groups=_F(int, check=_between(-1, 4096)),
         layout=_F(str, check=_one_of("auto", "shared", "per_pixel")),
-    ))
-    if audience_raw is None:
-        return TablesConfig(**t), None
+    )).fill(TablesConfig)
 
-    def polygon_check(v: list) -> str | None:
+    def polygon_check(v: list[TomlValue]) -> str | None:
         ok = len(v) >= 3 and all(isinstance(p, list) and _numbers(2)(p) is None for p in v)
         return None if ok else "must be an array of at least 3 [x, y] points in metres"
 
-    a = _table(ctx, ("audience",), audience_raw, _schema(
+    a = top.opt_section("audience", _schema(
         AudienceConfig,
         polygon=_F(list, check=polygon_check), h_cm=_F(list, check=_numbers(2)),
         ground_samples=_F(int, check=_between(1, 10000)),
         height_samples=_F(int, check=_between(1, 100)),
         objective=_F(str, check=_one_of("mean", "worst")),
     ))
-    lo, hi = (float(x) for x in a["h_cm"])
+    if a is None:
+        return tables, None
+    lo, hi = a.get_floats("h_cm")
     if not 10 <= lo <= hi <= 1000:
-        raise ctx.error(("audience", "h_cm"), f"must be [low, high] with 10 <= low <= high <= "
-                        f"1000 cm, got {a['h_cm']}")
-    poly = tuple((float(x), float(y)) for x, y in a["polygon"])
+        raise a.error("h_cm", f"must be [low, high] with 10 <= low <= high <= "
+                      f"1000 cm, got {a.get_list('h_cm')}")
+    poly = tuple((x, y) for x, y in a.get_float_rows("polygon"))
     xs, ys = [p[0] for p in poly], [p[1] for p in poly]
     area = 0.5 * abs(sum(xs[i] * ys[i - 1] - xs[i - 1] * ys[i] for i in range(len(poly))))
     if area <= 1e-6:
-        raise ctx.error(("audience", "polygon"), "has no area; list its corners in order")
-    return TablesConfig(**t), AudienceConfig(polygon=poly, h_cm=(lo, hi),
-                                             ground_samples=a["ground_samples"],
-                                             height_samples=a["height_samples"],
-                                             objective=a["objective"])
+        raise a.error("polygon", "has no area; list its corners in order")
+    return tables, AudienceConfig(polygon=poly, h_cm=(lo, hi),
+                                  ground_samples=a.get_int("ground_samples"),
+                                  height_samples=a.get_int("height_samples"),
+                                  objective=a.get_str("objective"))
 
 
 # --------------------------------------------------------------------------- public API
