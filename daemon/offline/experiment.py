@@ -26,12 +26,13 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
 from grassd.daemon.offline.validate import (
     MissingPhotoError,
+    Repeatability,
     ValidateError,
     ViewpointComparison,
     default_renderer,
@@ -84,8 +85,35 @@ ENVIRONMENTS: tuple[Environment, ...] = (
 #: The environment of the multi-viewpoint experiment (the paper used a classroom).
 MULTIVIEW_ENV: str = "Env 2"
 
+class PaperComparison(TypedDict):
+    """A comparison the paper states: Frechet distance and maximum OGCD error (dE00), and the
+    length (mm) of that error where the paper gives it."""
+
+    frechet: float
+    max_error: float
+    at_mm: float | None
+
+
+class PaperNumbers(TypedDict):
+    """The numbers the paper states (:data:`PAPER`): comparisons per viewpoint (h cm, d m,
+    theta deg) and per environment, seconds, hours, the real pixel's OGCD spread (dE00) and
+    the 8-bit calibration's R^2."""
+
+    viewpoints: dict[tuple[float, float, float], PaperComparison]
+    environments: dict[str, PaperComparison]
+    seconds_per_viewpoint: float
+    seconds_16_viewpoints: float
+    manual_seconds_per_viewpoint: float
+    offline_method_frechet: float
+    offline_method_hours: float
+    real_repeatability_ogcd_std: float
+    r2_before: float
+    r2_after_real: float
+    r2_after_sim: float
+
+
 #: Numbers the paper states (section 4 and 6.2). Frechet / max OGCD error / at length (mm).
-PAPER: dict[str, Any] = {
+PAPER: PaperNumbers = {
     "viewpoints": {
         (170.0, 2.0, 0.0): {"frechet": 1.16, "max_error": 1.51, "at_mm": 6.69},
         (150.0, 2.0, 0.0): {"frechet": 2.42, "max_error": 2.42, "at_mm": None},
@@ -137,7 +165,7 @@ class ExperimentResult:
     environments: dict[str, ViewpointComparison] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
-    repeatability: dict[str, Any] = field(default_factory=dict)
+    repeatability: Repeatability | None = None
 
     @property
     def reference(self) -> ViewpointComparison:
@@ -158,7 +186,7 @@ class ExperimentResult:
                          "trials": s.trials, "seed": s.seed},
             "viewpoints": [v.to_json() for v in self.viewpoints],
             "environments": {k: v.to_json() for k, v in self.environments.items()},
-            "seconds": self.seconds, "notes": self.notes, "repeatability": self.repeatability,
+            "seconds": self.seconds, "notes": self.notes, "repeatability": self.repeatability or {},
             "paper": {**{k: v for k, v in PAPER.items() if k != "viewpoints"},
                       "viewpoints": {str(list(k)): v for k, v in PAPER["viewpoints"].items()}},
         }
@@ -222,7 +250,7 @@ def run_paper(out_dir: str | Path, *, settings: ExperimentSettings | None = None
             for v in res.viewpoints:  # repeated trials: the first one enters the tables
                 first.setdefault(tuple(v.viewpoint), v)
             result.viewpoints = list(first.values())
-            result.repeatability = res.repeatability.get(res.reference.label, {})
+            result.repeatability = res.repeatability.get(res.reference.label)
         result.environments[key] = res.reference
     result.seconds = {"capture_stand_in_real": capture_s, "validate": validate_s}
     if result.viewpoints:

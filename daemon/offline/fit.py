@@ -61,7 +61,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, TypedDict
 
 import numpy as np
 import tomli_w
@@ -86,8 +86,10 @@ from grassd.sim.albedo_terms import monomial_values
 from grassd.sim.scene import srgb_to_linear
 
 if TYPE_CHECKING:
+    from grassd.sim.albedo_terms import AlbedoTerms
     from grassd.sim.lighting import Lighting
     from grassd.sim.renderer import Renderer
+    from grassd.sim.scene import PixelSpec
 
 #: The fitted PixelSpec fields, by their config names, in the order they are reported.
 FIT_PARAMS: tuple[str, ...] = ("yellow_srgb", "green_srgb", "base_srgb", "specular",
@@ -144,6 +146,42 @@ class FitNotConvergedError(FitError):
     """The least-squares fit stopped before it converged."""
 
 
+class StartAndFitted(TypedDict):
+    """A measure of the starting and of the fitted model."""
+
+    start: float
+    fitted: float
+
+
+class ViewpointFitReport(TypedDict):
+    """The JSON of a :class:`ViewpointFit` (lengths mm, OGCD per length)."""
+
+    series: int
+    viewpoint: list[float]
+    held_out: bool
+    frechet: StartAndFitted
+    max_error: StartAndFitted
+    lengths_mm: list[float]
+    real_ogcd: list[float]
+    start_ogcd: list[float]
+    fitted_ogcd: list[float]
+
+
+class FitReport(TypedDict):
+    """The JSON report of ``grassd fit`` (:meth:`FitResult.to_json`)."""
+
+    pixel: dict[str, float | list[float]]
+    stderr: dict[str, float | list[float] | None]
+    start: dict[str, float | list[float]]
+    viewpoints: list[ViewpointFitReport]
+    chi2: float
+    dof: int
+    notes: list[str]
+    profile: dict[str, list[list[float]]]
+    settings: dict[str, float]
+    seconds: float
+
+
 @dataclass(frozen=True)
 class ViewpointFit:
     """One viewpoint judged: the real OGCD against the starting and the fitted model."""
@@ -154,7 +192,7 @@ class ViewpointFit:
     start: ViewpointComparison
     fitted: ViewpointComparison
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> ViewpointFitReport:
         """``series``, ``viewpoint``, ``held_out``, ``frechet`` and ``max_error`` (start,
         fitted), and the curves."""
         return {
@@ -176,9 +214,9 @@ class FitResult:
     ``notes``: what the fit could not determine and kept; ``profile``: per re-rendered
     parameter the (value, misfit) pairs tried."""
 
-    pixel: dict[str, Any]
-    stderr: dict[str, Any]
-    start: dict[str, Any]
+    pixel: dict[str, float | list[float]]
+    stderr: dict[str, float | list[float] | None]
+    start: dict[str, float | list[float]]
     viewpoints: tuple[ViewpointFit, ...]
     chi2: float
     dof: int
@@ -187,7 +225,7 @@ class FitResult:
     notes: tuple[str, ...] = ()
     profile: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> FitReport:
         """The JSON report."""
         return {
             "pixel": self.pixel, "stderr": self.stderr, "start": self.start,
@@ -202,7 +240,7 @@ class FitResult:
         """Per fitted field: its name, start, fitted value and standard error as text (albedo
         channels to 0.1 level, "-" for no standard error), for the CLI and HTML tables."""
 
-        def text(v: Any) -> str:
+        def text(v: float | list[float] | None) -> str:
             if v is None:
                 return "-"
             return ", ".join(f"{c:.1f}" for c in v) if isinstance(v, list) else f"{v:.4g}"
@@ -210,7 +248,7 @@ class FitResult:
         return [[k, text(self.start[k]), text(v), text(self.stderr.get(k))]
                 for k, v in self.pixel.items()]
 
-    def pixel_spec_fields(self) -> dict[str, Any]:
+    def pixel_spec_fields(self) -> dict[str, float | tuple[float, ...]]:
         """The start's fields with the fitted ones over them (PixelSpec keyword arguments)."""
         out = {**self.start, **self.pixel}
         return {k: tuple(v) if isinstance(v, list) else v for k, v in out.items()}
@@ -257,7 +295,7 @@ class _Model:
     terms per (shape, series), cached, and their CIELAB for any albedos and ``ks``."""
 
     def __init__(self, renderer: Renderer, lighting: Lighting, manifest: CaptureManifest,
-                 ccm: NDArray[np.float64], start: Any, settings: FitSettings,
+                 ccm: NDArray[np.float64], start: PixelSpec, settings: FitSettings,
                  glossy: bool) -> None:
         from grassd.daemon.core.calibration.simulation import white_radiance
 
@@ -265,7 +303,7 @@ class _Model:
         self.ccm, self.start, self.settings, self.glossy = ccm, start, settings, glossy
         self.white = white_radiance(lighting)
         self.fit_series: list[int] = []  # recorded together whenever a shape is recorded
-        self._cache: dict[tuple, list[Any]] = {}
+        self._cache: dict[tuple, list[AlbedoTerms]] = {}
         self._means: dict[tuple, NDArray[np.float64]] = {}  # mean coefficients (n, 56, 3)
 
     def _key(self, shape: tuple[float, float], series: int) -> tuple:
@@ -274,7 +312,7 @@ class _Model:
         sr = self.manifest.series[series]
         return (shape, sr.viewpoint, tuple(sr.lengths_mm))
 
-    def terms(self, shape: tuple[float, float], series: int) -> list[Any]:
+    def terms(self, shape: tuple[float, float], series: int) -> list[AlbedoTerms]:
         """The recorded terms of ``series`` at (smoothness, splay_deg), one per layout. A shape
         not yet recorded is recorded for every fitted series at once, layout by layout (the
         renderer then builds each layout's scene once)."""
@@ -557,7 +595,7 @@ def _covariance(inner: _Inner, dof: int) -> NDArray[np.float64]:
 
 
 def unseen_parameters(manifest: CaptureManifest, fit_series: Sequence[int],
-                      params: Sequence[str], start: Any) -> dict[str, str]:
+                      params: Sequence[str], start: PixelSpec) -> dict[str, str]:
     """The fitted parameters these photos cannot show at all, each with why and what to
     photograph: the splay without long green blades, the glossy lobe (``specular``,
     ``smoothness``) from one viewpoint. The fit holds them at their prior from the start.
@@ -725,7 +763,7 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
     return replace(fitted, notes=held_notes + fitted.notes, seconds=time.perf_counter() - t0)
 
 
-def _prior_text(start: Any, p: str) -> str:
+def _prior_text(start: PixelSpec, p: str) -> str:
     """A ``[pixel]`` field's value as the notes print it."""
     v = getattr(start, p)
     return f"({', '.join(f'{c:g}' for c in v)})" if isinstance(v, tuple) else f"{v:g}"
@@ -810,8 +848,9 @@ def _fit(model: _Model, real: RealCapture, manifest: CaptureManifest, fit_series
             stderr[p] = [PRIOR_STDERR[p]] * 3 if p in ALBEDO_ROWS else PRIOR_STDERR[p]
     _check_determined({**stderr, **given_shape}, params, kept | set(priors), profile)
     for p, v in given_shape.items():
-        worst = max(stderr[p]) if isinstance(stderr[p], list) else stderr[p]
-        if worst > MAX_STDERR[p]:
+        se = stderr[p]
+        worst = max(se) if isinstance(se, list) else se
+        if worst is not None and worst > MAX_STDERR[p]:
             notes.append(f"{p}'s standard error is up to {worst:.3g} ("
                          f"{max(v) if isinstance(v, list) else v:.3g} if the splay and "
                          "smoothness were exact): it follows the lobe's shape or the splay, "
@@ -836,15 +875,17 @@ def _fitted_fields(problem: _Problem, best: _Inner, shape: tuple[float, float],
                    params: Sequence[str], dof: int,
                    profile: dict[str, list[tuple[float, float]]],
                    kept: set[str], along: dict[str, dict[float, NDArray[np.float64]]]
-                   ) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
+                   ) -> tuple[dict[str, float | list[float]],
+                              dict[str, float | list[float] | None],
+                              dict[str, float | list[float]]]:
     """The fitted fields by their config names, their standard errors (module docstring;
     None where a parameter was kept at its start or its profile never rises enough), and the
     albedos' and specular's standard errors at the fitted splay and smoothness (without their
     uncertainty). ``along``: per re-rendered parameter, the fitted parameter vector at each
     value tried, whose slope carries that parameter's uncertainty into the albedos' and
     specular's."""
-    pixel: dict[str, Any] = {}
-    stderr: dict[str, Any] = {}
+    pixel: dict[str, float | list[float]] = {}
+    stderr: dict[str, float | list[float] | None] = {}
     cov = np.zeros((0, 0))
     design = 1.0  # how much the shared layout accident inflates a variance
     if len(best.x):
@@ -862,8 +903,8 @@ def _fitted_fields(problem: _Problem, best: _Inner, shape: tuple[float, float],
     # share, but whose jackknife would need every layout recorded at every candidate).
     rise = max(1.0, best.cost / dof) * design
     given = np.sqrt(np.diag(cov))
-    shape_fields: dict[str, Any] = {}
-    shape_se: dict[str, Any] = {}
+    shape_fields: dict[str, float | list[float]] = {}
+    shape_se: dict[str, float | list[float] | None] = {}
     for name, index in (("smoothness", 0), ("splay_deg", 1)):
         if name in params:
             shape_fields[name] = round(float(shape[index]), 3)
@@ -875,7 +916,7 @@ def _fitted_fields(problem: _Problem, best: _Inner, shape: tuple[float, float],
             if slope is not None:  # the albedos move with it
                 cov = cov + np.outer(slope, slope) * width ** 2
     se = np.sqrt(np.diag(cov))
-    given_shape: dict[str, Any] = {}
+    given_shape: dict[str, float | list[float]] = {}
     for i, p in enumerate(problem.albedo_params):
         pixel[p] = [round(float(v), 2) for v in best.x[3 * i: 3 * i + 3]]
         stderr[p] = [round(float(v), 2) for v in se[3 * i: 3 * i + 3]]
@@ -926,8 +967,8 @@ def _check_agreement(model: _Model, real: RealCapture, fit_series: Sequence[int]
             "checker taken at the same time")
 
 
-def _check_determined(stderr: dict[str, Any], params: Sequence[str], kept: set[str],
-                      profile: dict[str, list[tuple[float, float]]]) -> None:
+def _check_determined(stderr: dict[str, float | list[float] | None], params: Sequence[str],
+                      kept: set[str], profile: dict[str, list[tuple[float, float]]]) -> None:
     """Refuse, naming it, a fitted parameter whose standard error exceeds its limit."""
     for p, limit in MAX_STDERR.items():
         v = stderr.get(p)
@@ -953,11 +994,12 @@ def _judge(model: _Model, real: RealCapture, series: int, shape: tuple[float, fl
                              sim_lab=res.lab)
 
 
-def load_pixel_fields(path: str | Path) -> dict[str, Any]:
+def load_pixel_fields(path: str | Path) -> dict[str, float | tuple[float, ...]]:
     """PixelSpec fields from a ``grassd fit`` result: its JSON report (the start with the
     fitted fields over it) or a TOML file holding a ``[display.pixel]`` table (what
     ``--toml`` writes, or a whole grassd.toml) or a ``[pixel]`` table. Raises
-    :class:`FitError` for another file or an unknown field."""
+    :class:`FitError` for another file, an unknown field or one that is neither a number nor
+    a list of numbers."""
     import json
     import tomllib
 
@@ -983,4 +1025,12 @@ def load_pixel_fields(path: str | Path) -> dict[str, Any]:
     unknown = sorted(set(fields) - set(PixelSpec.__dataclass_fields__))
     if unknown:
         raise FitError(f"{p}: unknown pixel field(s) {', '.join(unknown)}")
-    return {k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()}
+    out: dict[str, float | tuple[float, ...]] = {}
+    for k, v in fields.items():
+        value = tuple(v) if isinstance(v, list) else v
+        numbers = value if isinstance(value, tuple) else (value,)
+        if not all(isinstance(x, int | float) and not isinstance(x, bool) for x in numbers):
+            raise FitError(f"{p}: pixel field {k} must be a number or a list of numbers, "
+                           f"got {v!r}")
+        out[k] = value
+    return out

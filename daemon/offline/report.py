@@ -13,11 +13,22 @@ import base64
 import html
 import io
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from grassd.calib.colour_spaces import lab_to_srgb
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+    from grassd.daemon.offline.fit import FitResult, ViewpointFit
+    from grassd.daemon.offline.validate import (
+        CalibrationCheck,
+        ValidationResult,
+        ViewpointComparison,
+    )
 
 REAL_COLOUR = "#2e8b3a"
 SIM_COLOUR = "#f08c1e"
@@ -41,7 +52,7 @@ def _plt():
     return plt
 
 
-def figure_png(fig: Any, dpi: int = 100) -> bytes:
+def figure_png(fig: Figure, dpi: int = 100) -> bytes:
     """PNG bytes of a matplotlib figure (then closed)."""
     plt = _plt()
     buf = io.BytesIO()
@@ -65,9 +76,9 @@ def img_tag(png: bytes, alt: str) -> str:
             f'alt="{html.escape(alt)}">')
 
 
-def table(headers: Sequence[str], rows: Sequence[Sequence[Any]], left: int = 1) -> str:
+def table(headers: Sequence[str], rows: Sequence[Sequence[str | float]], left: int = 1) -> str:
     """An HTML table; the first ``left`` columns are left-aligned; floats shown as given."""
-    def cell(tag: str, i: int, v: Any) -> str:
+    def cell(tag: str, i: int, v: str | float) -> str:
         cls = ' class="l"' if i < left else ""
         return f"<{tag}{cls}>{html.escape(str(v))}</{tag}>"
 
@@ -98,7 +109,7 @@ def f2(v: float | None, digits: int = 2) -> str:
 
 
 # ----------------------------------------------------------------------------- plots
-def _curve_axes(ax: Any, vc: Any, title: str, small: bool = False) -> None:
+def _curve_axes(ax: Axes, vc: ViewpointComparison, title: str, small: bool = False) -> None:
     x = vc.real.lengths_mm
     ax.plot(x, vc.real.ogcd, "o-", color=REAL_COLOUR, ms=2.5 if small else 4, label="real")
     se = vc.sim.ogcd_stderr
@@ -111,7 +122,7 @@ def _curve_axes(ax: Any, vc: Any, title: str, small: bool = False) -> None:
     ax.grid(alpha=0.3)
 
 
-def _panels(n: int, max_cols: int, size: tuple[float, float]) -> tuple[Any, list[Any]]:
+def _panels(n: int, max_cols: int, size: tuple[float, float]) -> tuple[Figure, list[Axes]]:
     """A figure of ``n`` panels sharing their y axis, ``max_cols`` a row at most, each
     ``size`` inches; the first panel is labelled OGCD and the unused ones are hidden."""
     plt = _plt()
@@ -126,7 +137,8 @@ def _panels(n: int, max_cols: int, size: tuple[float, float]) -> tuple[Any, list
     return fig, flat[:n]
 
 
-def curves_figure(viewpoints: Sequence[Any], titles: Sequence[str] | None = None) -> Any:
+def curves_figure(viewpoints: Sequence[ViewpointComparison],
+                  titles: Sequence[str] | None = None) -> Figure:
     """Real vs simulated OGCD vs length, one panel per comparison (up to 5 columns)."""
     fig, axes = _panels(len(viewpoints), 5, (3.2, 2.8))
     for k, (ax, vc) in enumerate(zip(axes, viewpoints, strict=True)):
@@ -137,7 +149,7 @@ def curves_figure(viewpoints: Sequence[Any], titles: Sequence[str] | None = None
     return fig
 
 
-def grid_figure(viewpoints: Sequence[Any]) -> Any:
+def grid_figure(viewpoints: Sequence[ViewpointComparison]) -> Figure:
     """The paper's Figure 8: a grid of real vs simulated curves, rows = eye height h
     (highest first), columns = angle theta."""
     plt = _plt()
@@ -162,7 +174,7 @@ def grid_figure(viewpoints: Sequence[Any]) -> Any:
     return fig
 
 
-def calibration_figure(cal: Any) -> Any:
+def calibration_figure(cal: CalibrationCheck) -> Figure:
     """The paper's Figure 11: real OGCD vs 8-bit level before calibration, with the table from
     the real characteristic, and with the table from the simulated one; red dotted lines are
     least-squares fits with their R^2."""
@@ -185,7 +197,7 @@ def calibration_figure(cal: Any) -> Any:
     return fig
 
 
-def appearance_figure(vc: Any) -> Any:
+def appearance_figure(vc: ViewpointComparison) -> Figure:
     """The paper's Figure 9 as colour swatches: the measured (top) and simulated (bottom) grass
     colour at each length, shown in sRGB."""
     plt = _plt()
@@ -203,7 +215,8 @@ def appearance_figure(vc: Any) -> Any:
 
 
 # ----------------------------------------------------------------------------- validate
-def validation_sections(viewpoints: Sequence[Any], *, grid: bool = True) -> list[tuple[str, str]]:
+def validation_sections(viewpoints: Sequence[ViewpointComparison], *, grid: bool = True
+                        ) -> list[tuple[str, str]]:
     """Table, curves, grid (if the viewpoints span h x theta) and the reference calibration."""
     rows = [[v.label + (" (reference)" if v.reference else ""), f2(v.frechet), f2(v.max_error),
              f2(v.max_error_length_mm), f2(v.real_range), f2(v.sim_range),
@@ -234,7 +247,7 @@ def validation_sections(viewpoints: Sequence[Any], *, grid: bool = True) -> list
     return out
 
 
-def validation_html(result: Any) -> str:
+def validation_html(result: ValidationResult) -> str:
     """The ``grassd validate`` HTML report of a
     :class:`grassd.daemon.offline.validate.ValidationResult`."""
     r = result
@@ -267,7 +280,7 @@ def validation_html(result: Any) -> str:
 START_COLOUR = "#888888"
 
 
-def fit_figure(viewpoints: Sequence[Any]) -> Any:
+def fit_figure(viewpoints: Sequence[ViewpointFit]) -> Figure:
     """Real, starting and fitted OGCD vs length per viewpoint of a ``grassd fit`` result
     (held-out viewpoints marked in the title)."""
     fig, axes = _panels(len(viewpoints), 4, (3.3, 2.9))
@@ -287,7 +300,7 @@ def fit_figure(viewpoints: Sequence[Any]) -> Any:
     return fig
 
 
-def fit_html(result: Any) -> str:
+def fit_html(result: FitResult) -> str:
     """The ``grassd fit`` HTML report of a :class:`grassd.daemon.offline.fit.FitResult`."""
     params = table(["field", "start", "fitted", "standard error"], result.rows())
     views = table(["viewpoint (h, d, theta)", "held out", "Frechet start", "Frechet fitted",

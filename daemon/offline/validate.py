@@ -56,7 +56,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NotRequired, TypedDict
 
 import numpy as np
 import tomli_w
@@ -78,8 +78,10 @@ from grassd.daemon.core.errors import DaemonError, LocatedError, ManifestError
 from grassd.sim.light_input import LightInput
 
 if TYPE_CHECKING:
+    from grassd.daemon.core.calibration.simulation import SimulatedCurve
     from grassd.sim.lighting import Lighting
     from grassd.sim.renderer import Renderer
+    from grassd.sim.scene import RenderSettings
 
 log = logging.getLogger(__name__)
 
@@ -161,7 +163,7 @@ class CaptureManifest:
     checker_corners: tuple[tuple[float, float], ...]
     series: tuple[Series, ...]
     chart: str = manifest_fields.DEFAULT_CHART
-    pixel: dict[str, Any] = field(default_factory=dict)
+    pixel: dict[str, float | tuple[float, ...]] = field(default_factory=dict)
 
     @property
     def reference(self) -> Series:
@@ -179,6 +181,39 @@ class CaptureManifest:
         return [self.checker_photo] + [p.path for s in self.series for p in s.photos]
 
 
+class _PhotoToml(TypedDict):
+    """A photo of a ``[[series]]`` as :func:`manifest_to_toml` writes it."""
+
+    file: str
+    length_mm: float
+    corners: list[list[float]]
+
+
+class _SeriesToml(TypedDict):
+    """A ``[[series]]`` as :func:`manifest_to_toml` writes it."""
+
+    viewpoint: list[float]
+    reference: NotRequired[bool]
+    photos: list[_PhotoToml]
+
+
+class _CaptureToml(TypedDict, total=False):
+    """``capture.toml`` as :func:`manifest_to_toml` writes it (the sun's keys where given)."""
+
+    hdri: str
+    ambient_lux: float
+    sun_lux: float
+    sun_azimuth_deg: float
+    sun_elevation_deg: float
+    sun_from_hdri: bool
+    rotation_deg: float
+    checker_raw: str
+    checker_corners: list[list[float]]
+    checker_chart: str
+    pixel: dict[str, float | tuple[float, ...]]
+    series: list[_SeriesToml]
+
+
 def manifest_to_toml(m: CaptureManifest) -> str:
     """TOML text of a manifest (paths relative to ``m.root`` where they lie inside it), in the
     bundle manifest's vocabulary (:mod:`grassd.daemon.core.config.manifest_fields`)."""
@@ -189,26 +224,32 @@ def manifest_to_toml(m: CaptureManifest) -> str:
         except ValueError:
             return str(Path(p).resolve())
 
+    def series(s: Series) -> _SeriesToml:
+        photos = [_PhotoToml(file=rel(p.path), length_mm=p.length_mm,
+                             corners=[list(c) for c in p.corners]) for p in s.photos]
+        if s.reference:
+            return {"viewpoint": list(s.viewpoint), "reference": True, "photos": photos}
+        return {"viewpoint": list(s.viewpoint), "photos": photos}
+
     light = m.light
-    head: dict[str, Any] = {"hdri": rel(light.hdri), "ambient_lux": light.ambient_lux}
-    for k in ("sun_lux", "sun_azimuth_deg", "sun_elevation_deg"):
-        if getattr(light, k) is not None:
-            head[k] = getattr(light, k)
+    head = _CaptureToml(hdri=rel(light.hdri), ambient_lux=light.ambient_lux)
+    if light.sun_lux is not None:
+        head["sun_lux"] = light.sun_lux
+    if light.sun_azimuth_deg is not None:
+        head["sun_azimuth_deg"] = light.sun_azimuth_deg
+    if light.sun_elevation_deg is not None:
+        head["sun_elevation_deg"] = light.sun_elevation_deg
     if light.sun_from_hdri:
         head["sun_from_hdri"] = True
     if light.rotation_deg:
         head["rotation_deg"] = light.rotation_deg
-    head.update(checker_raw=rel(m.checker_photo),
-                checker_corners=[list(c) for c in m.checker_corners],
-                checker_chart=rel(Path(m.chart)) if Path(m.chart).is_absolute() else m.chart)
+    head["checker_raw"] = rel(m.checker_photo)
+    head["checker_corners"] = [list(c) for c in m.checker_corners]
+    head["checker_chart"] = rel(Path(m.chart)) if Path(m.chart).is_absolute() else m.chart
     if m.pixel:
         head["pixel"] = dict(m.pixel)
     if m.series:
-        head["series"] = [
-            {"viewpoint": list(s.viewpoint), **({"reference": True} if s.reference else {}),
-             "photos": [{"file": rel(p.path), "length_mm": p.length_mm,
-                         "corners": [list(c) for c in p.corners]} for p in s.photos]}
-            for s in m.series]
+        head["series"] = [series(s) for s in m.series]
     return tomli_w.dumps(head)
 
 
@@ -399,7 +440,8 @@ def load_manifest(path: str | Path) -> CaptureManifest:
     manifest_fields.check_together(ctx, top, where)
     light = _light(ctx, top, where)
     schema.table(ctx, ("pixel",), top["pixel"],  # PixelSpec checks the values when it is built
-                 {k: F(object, None) for k in PixelSpec.__dataclass_fields__})
+                 {k: F(int | float | list, None, hint="a number or a list of numbers")
+                  for k in PixelSpec.__dataclass_fields__})
     pixel = {k: tuple(v) if isinstance(v, list) else v for k, v in top["pixel"].items()}
     if not top["series"]:
         raise ctx.error(("series",), "give at least one [[series]] of photos")
@@ -418,44 +460,56 @@ def load_manifest(path: str | Path) -> CaptureManifest:
 
 
 # ----------------------------------------------------------------------------- real side
-def camera_signature(path: Path) -> dict[str, Any]:
-    """What identifies the camera of a RAW: make/model (TIFF-based RAWs), colour filter layout,
-    white level and LibRaw's colour matrix."""
-    sig: dict[str, Any] = {"make": "", "model": ""}
+class CameraSignature(TypedDict):
+    """What identifies the camera of a RAW: ``make``/``model`` (TIFF-based RAWs; empty in
+    others), the colour filter layout ``cfa``, the ``white_level`` and LibRaw's colour
+    ``matrix`` (to 3 decimals)."""
+
+    make: str
+    model: str
+    cfa: str
+    white_level: int
+    matrix: tuple[float, ...]
+
+
+def camera_signature(path: Path) -> CameraSignature:
+    """What identifies the camera of a RAW (:class:`CameraSignature`)."""
+    tagged = {271: "", 272: ""}  # make, model
     try:
         import tifffile
 
         with tifffile.TiffFile(path) as tf:
             tags = tf.pages[0].tags
-            for code, key in ((271, "make"), (272, "model")):
+            for code in tagged:
                 if code in tags:
-                    sig[key] = str(tags[code].value).strip()
+                    tagged[code] = str(tags[code].value).strip()
     except Exception:  # non-TIFF RAW formats (CR3, RAF...) carry no such tags
         pass
     try:
         with open_raw(path) as raw:
-            sig["cfa"] = raw.color_desc.decode(errors="replace") + ":" + "".join(
-                map(str, np.asarray(raw.raw_pattern).ravel()))
-            sig["white_level"] = int(raw.white_level)
-            sig["matrix"] = tuple(np.round(np.asarray(raw.color_matrix, float), 3).ravel())
+            return CameraSignature(
+                make=tagged[271], model=tagged[272],
+                cfa=raw.color_desc.decode(errors="replace") + ":" + "".join(
+                    map(str, np.asarray(raw.raw_pattern).ravel())),
+                white_level=int(raw.white_level),
+                matrix=tuple(np.round(np.asarray(raw.color_matrix, float), 3).ravel()))
     except Exception as exc:  # rawpy raises several unrelated types
         raise ValidateError(f"{path} is not a RAW file LibRaw can open ({exc}); give the camera's "
                             "unmodified RAW or DNG") from None
-    return sig
 
 
-def _describe(sig: dict[str, Any]) -> str:
+def _describe(sig: CameraSignature) -> str:
     name = f"{sig['make']} {sig['model']}".strip() or "an unnamed camera"
     return f"{name} (CFA {sig['cfa']}, white level {sig['white_level']})"
 
 
-def check_same_camera(paths: Sequence[Path]) -> dict[str, Any]:
+def check_same_camera(paths: Sequence[Path]) -> CameraSignature:
     """The common camera signature of ``paths``; :class:`MixedCamerasError` if they differ."""
     first = camera_signature(paths[0])
     for p in paths[1:]:
         sig = camera_signature(p)
         if sig != first:
-            what = [k for k in first if first[k] != sig.get(k)]
+            what = [k for k, v in first.items() if v != sig.get(k)]
             raise MixedCamerasError(
                 f"{Path(p).name} was taken with {_describe(sig)} but {Path(paths[0]).name} with "
                 f"{_describe(first)} (differs in {', '.join(what)}); take every photo of a "
@@ -478,7 +532,7 @@ class RealCapture:
     rgb: tuple[NDArray[np.float64], ...]
     lab: tuple[NDArray[np.float64], ...]
     ogcd: tuple[NDArray[np.float64], ...]
-    camera: dict[str, Any]
+    camera: CameraSignature
     seconds: float
 
 
@@ -529,6 +583,34 @@ def max_error_at(real: Characteristic, sim: Characteristic) -> tuple[float, floa
     return float(diff[i]), float(grid[i])
 
 
+class CalibrationReport(TypedDict):
+    """The JSON of a :class:`CalibrationCheck`: its R^2 values."""
+
+    r2_before: float
+    r2_after_real: float
+    r2_after_sim: float
+
+
+class ViewpointReport(TypedDict):
+    """The JSON of a :class:`ViewpointComparison` (lengths mm, OGCD and CIELAB per length)."""
+
+    viewpoint: list[float]
+    reference: bool
+    lengths_mm: list[float]
+    real_ogcd: list[float]
+    sim_ogcd: list[float]
+    sim_ogcd_stderr: list[float] | None
+    real_lab: list[list[float]]
+    sim_lab: list[list[float]]
+    frechet: float
+    max_ogcd_error: float
+    max_ogcd_error_length_mm: float
+    real_ogcd_range: float
+    sim_ogcd_range: float
+    calibration: CalibrationReport | None
+    sim_seconds: float
+
+
 @dataclass(frozen=True)
 class CalibrationCheck:
     """The paper's Figure 11 for one viewpoint: OGCD of the REAL pixel vs 8-bit level.
@@ -545,7 +627,7 @@ class CalibrationCheck:
     r2_after_real: float
     r2_after_sim: float
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> CalibrationReport:
         """R^2 values only (the arrays are plotted)."""
         return {"r2_before": self.r2_before, "r2_after_real": self.r2_after_real,
                 "r2_after_sim": self.r2_after_sim}
@@ -599,7 +681,7 @@ class ViewpointComparison:
         """OGCD range of the simulated characteristic (dE00)."""
         return float(self.sim.ogcd.max() - self.sim.ogcd.min())
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> ViewpointReport:
         """JSON object of this viewpoint."""
         return {
             "viewpoint": list(self.viewpoint), "reference": self.reference,
@@ -638,6 +720,60 @@ def compare_viewpoint(viewpoint: tuple[float, float, float], lengths_mm: NDArray
         calibration=cal, sim_seconds=sim_seconds)
 
 
+class Repeatability(TypedDict):
+    """The repeatability test at one viewpoint (:func:`repeatability`)."""
+
+    trials: int
+    mean_std_ogcd: float
+    std_ogcd: list[float]
+
+
+class SimulationSettings(TypedDict):
+    """How ``grassd validate`` simulated (the render settings, layouts, target error)."""
+
+    samples: int
+    replicates: int
+    layouts: int
+    max_bounces: int
+    seed: int
+    light_samples: int
+    target_stderr: float | None
+
+
+class CameraReport(TypedDict):
+    """A :class:`CameraSignature` in JSON."""
+
+    make: str
+    model: str
+    cfa: str
+    white_level: int
+    matrix: list[float]
+
+
+class CorrectionReport(TypedDict):
+    """The colour correction M in JSON: its 3x3 matrix and the checker's residual (dE00)."""
+
+    matrix: list[list[float]]
+    mean_de00: float
+    max_de00: float
+
+
+class ValidationReport(TypedDict):
+    """The JSON report of ``grassd validate`` (:meth:`ValidationResult.to_json`)."""
+
+    capture: str
+    chart: str
+    camera: CameraReport
+    white_balance: list[float]
+    exposure: float
+    ccm: CorrectionReport
+    reference_viewpoint: list[float]
+    viewpoints: list[ViewpointReport]
+    repeatability: dict[str, Repeatability]
+    settings: SimulationSettings
+    seconds: dict[str, float]
+
+
 @dataclass(frozen=True)
 class ValidationResult:
     """Everything ``grassd validate`` reports."""
@@ -646,21 +782,22 @@ class ValidationResult:
     ccm: ColourCorrection
     real: RealCapture
     viewpoints: tuple[ViewpointComparison, ...]
-    settings: dict[str, Any]
+    settings: SimulationSettings
     seconds: dict[str, float]
-    repeatability: dict[str, dict[str, Any]] = field(default_factory=dict)
+    repeatability: dict[str, Repeatability] = field(default_factory=dict)
 
     @property
     def reference(self) -> ViewpointComparison:
         """The reference viewpoint's comparison."""
         return next(v for v in self.viewpoints if v.reference)
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> ValidationReport:
         """The JSON report."""
+        cam = self.real.camera
         return {
             "capture": str(self.manifest.root), "chart": self.manifest.chart,
-            "camera": {k: (list(v) if isinstance(v, tuple) else v)
-                       for k, v in self.real.camera.items()},
+            "camera": {"make": cam["make"], "model": cam["model"], "cfa": cam["cfa"],
+                       "white_level": cam["white_level"], "matrix": list(cam["matrix"])},
             "white_balance": list(self.real.white_balance), "exposure": self.real.exposure,
             "ccm": {"matrix": self.ccm.matrix.tolist(), "mean_de00": self.ccm.mean_de00,
                     "max_de00": self.ccm.max_de00},
@@ -671,7 +808,7 @@ class ValidationResult:
         }
 
 
-def repeatability(m: CaptureManifest, real: RealCapture) -> dict[str, dict[str, Any]]:
+def repeatability(m: CaptureManifest, real: RealCapture) -> dict[str, Repeatability]:
     """The paper's repeatability test (section 4.1.1) wherever a viewpoint was measured in
     several trials at the same lengths: ``{label: {"trials": n, "mean_std_ogcd": x,
     "std_ogcd": [...]}}`` with x the mean over lengths of the sample standard deviation
@@ -679,13 +816,13 @@ def repeatability(m: CaptureManifest, real: RealCapture) -> dict[str, dict[str, 
     groups: dict[tuple, list[int]] = {}
     for i, sr in enumerate(m.series):
         groups.setdefault((sr.viewpoint, tuple(sr.lengths_mm)), []).append(i)
-    out = {}
+    out: dict[str, Repeatability] = {}
     for idx in groups.values():
         if len(idx) < 2:
             continue
         std = np.stack([real.ogcd[i] for i in idx]).std(axis=0, ddof=1)
-        out[m.series[idx[0]].label] = {"trials": len(idx), "mean_std_ogcd": float(std.mean()),
-                                       "std_ogcd": std.tolist()}
+        out[m.series[idx[0]].label] = Repeatability(
+            trials=len(idx), mean_std_ogcd=float(std.mean()), std_ogcd=std.tolist())
     return out
 
 
@@ -700,7 +837,8 @@ def measure_and_correct(m: CaptureManifest, chart: ReferenceChart,
     return real, fit_ccm(virtual, real.checker_rgb, "3x3"), s
 
 
-def validate_capture(m: CaptureManifest, *, renderer: Renderer | None = None, settings: Any = None,
+def validate_capture(m: CaptureManifest, *, renderer: Renderer | None = None,
+                     settings: RenderSettings | None = None,
                      target_stderr: float | None = None, lighting: Lighting | None = None,
                      arch: str = "cpu", layouts: int = 1,
                      progress: Callable[[str], None] | None = None) -> ValidationResult:
@@ -740,7 +878,7 @@ def validate_capture(m: CaptureManifest, *, renderer: Renderer | None = None, se
     display = DisplaySpec(PixelSpec(**m.pixel))
     ref = m.reference
     out = []
-    curves: dict[tuple, Any] = {}  # repeated trials of a viewpoint share one simulation
+    curves: dict[tuple, SimulatedCurve] = {}  # repeated trials of a viewpoint share one simulation
     for i, series in enumerate(m.series):
         ts = time.perf_counter()
         key = (series.viewpoint, tuple(series.lengths_mm))
