@@ -4,13 +4,12 @@ inbox or the lux sensor, and its summary under ``capture`` in the status."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from grassd.daemon.core.runtime.features import Feature
 
 if TYPE_CHECKING:
-    from grassd.daemon.capture.station import CaptureLoop
+    from grassd.daemon.capture.station import CaptureLoop, CaptureSummary
     from grassd.daemon.core.config.settings import Config
     from grassd.daemon.core.runtime.service import Service
 
@@ -48,7 +47,7 @@ class CaptureFeature(Feature):
         if self.loop is not None:
             self.loop.stop()
 
-    def status(self) -> Mapping[str, Any] | None:
+    def status(self) -> CaptureSummary | None:
         """The loop's summary (:meth:`~grassd.daemon.capture.station.CaptureLoop.summary`)."""
         return None if self.loop is None else self.loop.summary()
 

@@ -46,7 +46,7 @@ import time
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, NotRequired, TypedDict
 
 import numpy as np
 import tomli_w
@@ -60,7 +60,7 @@ from grassd.calib.errors import (
 from grassd.daemon.core.config.camera_section import CaptureConfig
 from grassd.daemon.core.config.settings import Config, ModbusConfig
 from grassd.daemon.core.errors import BracketUnusable, CameraBusy, CaptureError, LuxSensorError
-from grassd.daemon.core.hardware.bracket import BracketPlan, capture_bracket, load_codes
+from grassd.daemon.core.hardware.bracket import BracketPlan, Shot, capture_bracket, load_codes
 from grassd.daemon.core.hardware.camera import CameraInfo, OscClient
 from grassd.daemon.core.runtime.statelock import StateLock
 from grassd.daemon.core.store.atomic import (
@@ -72,6 +72,9 @@ from grassd.daemon.core.store.atomic import (
 from grassd.daemon.core.store.layout import CAMERA_LOCK
 from grassd.daemon.core.timestamps import utc_iso
 
+if TYPE_CHECKING:
+    from grassd.calib.hdr_merge import MergeResult
+
 log = logging.getLogger(__name__)
 
 #: Name of the merged panorama inside a capture bundle.
@@ -79,15 +82,67 @@ HDRI_NAME = "sky.exr"
 #: Lock file under ``state_dir/capture`` held while a station captures.
 
 
+class CaptureTable(TypedDict):
+    """The ``[capture]`` table of a bundle's manifest: the camera, the bracket (exposures in s,
+    as requested and as taken), how it was merged, its clipped and black fractions (0-1), and
+    whether the sun clipped even in the shortest shot."""
+
+    camera_url: str
+    camera_model: str
+    camera_manufacturer: str
+    camera_serial: str
+    camera_firmware: str
+    exposures_s: list[float]
+    requested_s: list[float]
+    exposure_source: list[str]
+    iso: int
+    white_balance: str
+    file_format: str
+    f_number: float
+    merge_method: str
+    response: str
+    shots_used: int
+    clipped_fraction: float
+    black_fraction: float
+    sun_clipped: bool
+    lux_source: str
+
+
+class BundleManifest(TypedDict):
+    """A captured bundle's manifest as written: the light's time (ISO 8601), the panorama's
+    file name, ambient and sun lux [lx], and the ``[capture]`` table."""
+
+    timestamp: str
+    hdri: str
+    ambient_lux: float
+    sun_lux: NotRequired[float]
+    capture: CaptureTable
+
+
+class CaptureSummary(TypedDict):
+    """The capture loop under ``capture`` in ``grassd status``: its camera and interval (s),
+    the captures made, the last attempt's and success's times (epoch s), the last bundle's
+    name and error, and the time to the next capture (s)."""
+
+    camera: str
+    interval_s: float
+    captures: int
+    last_at: float | None
+    last_success_at: float | None
+    last_bundle: str | None
+    last_error: str | None
+    next_in_s: float | None
+
+
 @dataclass(frozen=True)
 class CaptureResult:
     """A written bundle: its directory in the inbox and its manifest (as written)."""
 
     bundle: Path
-    manifest: dict[str, Any]
+    manifest: BundleManifest
 
 
-def manifest_toml(manifest: dict[str, Any]) -> str:
+def manifest_toml(manifest: BundleManifest) -> str:
     """TOML text of a bundle manifest: top-level keys, then the ``[capture]`` table."""
     return tomli_w.dumps(manifest)
 
@@ -184,7 +239,8 @@ class Station:
                                  "response": resp.tolist()})
         return resp, "recovered from this bracket"
 
-    def merge(self, info: CameraInfo, shots: list, exposures: list[float]) -> tuple[Any, str]:
+    def merge(self, info: CameraInfo, shots: list[Shot], exposures: list[float]
+              ) -> tuple[MergeResult, str]:
         """The merged bracket and how its linearisation was obtained (step 3): RAW+ shots
         linearly through rawpy, JPEG shots with the camera response."""
         from grassd.calib.hdr_merge import merge_ldr, merge_linear
@@ -258,12 +314,7 @@ class Station:
                 raise BracketUnusable(f"bracket from {self.cfg.camera} cannot be merged: "
                                       f"{exc}") from None
             sun_clipped = clipped_sun(merged.clipped)
-            manifest: dict[str, Any] = {
-                "timestamp": started.isoformat(timespec="seconds"), "hdri": HDRI_NAME,
-                "ambient_lux": round(ambient, 3)}
-            if sun_lux is not None:
-                manifest["sun_lux"] = round(sun_lux, 3)
-            manifest["capture"] = {
+            capture: CaptureTable = {
                 "camera_url": self.cfg.camera, "camera_model": info.model,
                 "camera_manufacturer": info.manufacturer, "camera_serial": info.serial,
                 "camera_firmware": info.firmware,
@@ -279,6 +330,11 @@ class Station:
                 "black_fraction": round(merged.black_fraction, 6),
                 "sun_clipped": sun_clipped, "lux_source": lux_source,
             }
+            manifest = BundleManifest(timestamp=started.isoformat(timespec="seconds"),
+                                      hdri=HDRI_NAME, ambient_lux=round(ambient, 3),
+                                      capture=capture)
+            if sun_lux is not None:
+                manifest["sun_lux"] = round(sun_lux, 3)
             partial.mkdir(parents=True)
             write_exr(partial / HDRI_NAME, merged.radiance)
             fsync_file(partial / HDRI_NAME)  # write_exr renames but does not fsync
@@ -394,7 +450,7 @@ class CaptureLoop:
             with contextlib.suppress(RuntimeError):
                 self._thread.join(timeout_s)
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> CaptureSummary:
         """For ``grassd status``: camera, interval, captures made, last bundle and error, and
         when the next capture is due (s)."""
         return {"camera": self.station.cfg.camera, "interval_s": self.station.cfg.interval_s,

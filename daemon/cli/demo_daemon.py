@@ -19,7 +19,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TypeVar
 
 from grassd.daemon.cli.run import print_status
 from grassd.daemon.core.config.settings import default_config_text
@@ -40,6 +40,8 @@ DEMO_SHOW_S = 8.0
 #: the demo wave's ends (sRGB 8-bit): dry straw and grass green, as the demo's display shows
 WAVE_STRAW_RGB8 = (130, 112, 40)
 WAVE_GREEN_RGB8 = (40, 62, 20)
+
+T = TypeVar("T")
 
 
 def write_wave(path: Path, rows: int, cols: int, frames: int = 12) -> Path:
@@ -69,7 +71,7 @@ def _grassd() -> list[str]:
 
 
 def run_demo(workdir: str | os.PathLike[str] | None = None, *, lux: float = 5000.0,
-             timeout_s: float = 600.0, echo: Callable[[str], Any] = print,
+             timeout_s: float = 600.0, echo: Callable[[str], object] = print,
              firmware: str = FIRMWARE_BACKENDS[0]) -> Status:
     """Run the demo in ``workdir`` (default: a new temporary directory, kept) with the simulated
     controllers running ``firmware`` (model, posix or qemu); returns the daemon's final status.
@@ -93,7 +95,7 @@ def run_demo(workdir: str | os.PathLike[str] | None = None, *, lux: float = 5000
     def status() -> Status:
         return Status.from_json(request(sock, {"cmd": "status"}, timeout_s=30)["status"])
 
-    def wait(cond: Callable[[], Any], what: str) -> Any:
+    def wait(cond: Callable[[], T | None], what: str) -> T:
         while time.monotonic() - t0 < timeout_s:
             if proc.poll() is not None:
                 raise DaemonError(f"the daemon exited ({proc.returncode}) while {what}; "
@@ -139,7 +141,7 @@ def run_demo(workdir: str | os.PathLike[str] | None = None, *, lux: float = 5000
             echo(f"daemon exit status {proc.returncode}")
 
 
-def _show_content(sock: Path, work: Path, echo: Callable[[str], Any],
+def _show_content(sock: Path, work: Path, echo: Callable[[str], object],
                   page: str | None = None) -> None:
     """Play the demo's animation through the daemon (as ``grassd show`` does), say what
     the display shows meanwhile and whether the status ``page`` holds its picture."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import click
 
@@ -162,7 +162,7 @@ def _fmt_time(t: float | None) -> str:
     return _dt.datetime.fromtimestamp(t).strftime("%Y-%m-%d %H:%M:%S")
 
 
-def print_status(st: Status, echo: Callable[[str], Any] = click.echo) -> None:
+def print_status(st: Status, echo: Callable[[str], object] = click.echo) -> None:
     """Print a status (:func:`grassd.daemon.core.runtime.status.collect_status`, or the control
     socket's answer read back by :meth:`Status.from_json`) as ``grassd status`` shows it, one
     line at a time through ``echo``."""

@@ -22,10 +22,14 @@ What Dask's protocol still unpickles is listed in docs/operating/compute.md.
 from __future__ import annotations
 
 import logging
-from typing import Any
+from typing import TYPE_CHECKING
 
 from grassd.daemon.compute.config import ComputeConfig, security_problem
 from grassd.daemon.core.errors import ComputeResultRefused, ComputeUnavailable, ConfigError
+
+if TYPE_CHECKING:
+    from distributed import Client, Future
+    from distributed.security import Security
 
 log = logging.getLogger(__name__)
 
@@ -35,7 +39,7 @@ SERIALIZERS = ("msgpack",)
 __all__ = ["SERIALIZERS", "connect", "fetch_answer", "require_secured", "security_of"]
 
 
-def security_of(compute: ComputeConfig) -> Any:
+def security_of(compute: ComputeConfig) -> Security | None:
     """The :class:`distributed.security.Security` of ``compute`` (mutual TLS with the site's
     CA: ``tls_ca_file``, ``tls_cert``, ``tls_key``), or None for a scheduler without TLS
     (``allow_insecure``)."""
@@ -63,7 +67,7 @@ def require_secured(compute: ComputeConfig, source: str | None, who: str = "this
                     "site's CA (docs/operating/compute.md)", compute.scheduler, who)
 
 
-def connect(compute: ComputeConfig) -> Any:
+def connect(compute: ComputeConfig) -> Client:
     """A :class:`distributed.Client` of ``compute.scheduler`` (checked with
     :func:`require_secured` first), with the site's TLS and the msgpack serializer only;
     ``connect_timeout_s`` [s] bounds the connection. The caller closes it. Raises
@@ -88,9 +92,10 @@ def connect(compute: ComputeConfig) -> Any:
             "by [compute] tls_ca_file") from None
 
 
-def fetch_answer(client: Any, fut: Any, address: str, worker: str | None = None
-                 ) -> tuple[Any, str | None]:
-    """The finished task ``fut``'s answer as Dask's ``msgpack`` serializer read it, and the
+def fetch_answer(client: Client, fut: Future, address: str, worker: str | None = None
+                 ) -> tuple[object, str | None]:
+    """The finished task ``fut``'s answer as Dask's ``msgpack`` serializer read it (not yet
+    checked: :func:`grassd.daemon.compute.wire.read_answer` reads it), and the
     worker that held it (``worker`` when already known, else the scheduler's ``who_has``).
     Raises :class:`ComputeUnavailable` for a worker Dask gave up on or a dropped connection,
     :class:`ComputeResultRefused` for a task that raised or an answer Dask could not read in

@@ -47,7 +47,13 @@ import numpy as np
 
 from grassd.daemon.compute.dask_client import connect, fetch_answer, require_secured
 from grassd.daemon.compute.remote_job import CalibrationJob, dumps, loads
-from grassd.daemon.compute.wire import answer_of, error_answer, read_answer
+from grassd.daemon.compute.wire import (
+    ErrorAnswer,
+    ResultAnswer,
+    answer_of,
+    error_answer,
+    read_answer,
+)
 from grassd.daemon.core.calibration.correction import SAVED, with_correction
 from grassd.daemon.core.calibration.result import CENTRE, CalibrationResult
 from grassd.daemon.core.config.settings import Config
@@ -60,6 +66,7 @@ from grassd.daemon.core.errors import (
 from grassd.sim.light_input import LightInput
 
 if TYPE_CHECKING:
+    from distributed import Client, Future
     from numpy.typing import NDArray
 
     from grassd.calib.ccm import ColourCorrection
@@ -80,7 +87,7 @@ __all__ = ["RemoteCalibrator", "calibrate_on_worker", "check_arrival"]
 _worker_lock = threading.Lock()
 
 
-def calibrate_on_worker(payload: bytes) -> dict[str, Any]:
+def calibrate_on_worker(payload: bytes) -> ResultAnswer | ErrorAnswer:
     """The Dask task: unpickle a :class:`CalibrationJob` (from the daemon), initialise Taichi
     once per process and run it in a temporary directory; answers with the result, or with
     what the run raised (a rejected table, bad input), in the declared form of
@@ -162,12 +169,15 @@ class RemoteCalibrator:
         self.cfg = cfg
         self.address: str = cfg.compute.scheduler
 
-    def job(self, light: LightInput, checker: CheckerPhoto | None,
-            **kwargs: Any) -> bytes:
+    def job(self, light: LightInput, checker: CheckerPhoto | None, *,
+            previous_um: NDArray | None = None, previous_ccm: ColourCorrection | None = None,
+            force: bool = False, previous_tables: Mapping[str, NDArray] | None = None
+            ) -> bytes:
         """The pickled :class:`CalibrationJob` of one run (the keyword arguments of
-        ``Calibrator.run`` that travel: ``previous_um``, ``previous_ccm``, ``force``,
-        ``previous_tables``). Raises OSError when a file cannot be read."""
-        return dumps(CalibrationJob.of(self.cfg, light, checker, **kwargs))
+        ``Calibrator.run`` that travel). Raises OSError when a file cannot be read."""
+        return dumps(CalibrationJob.of(self.cfg, light, checker, previous_um=previous_um,
+                                       previous_ccm=previous_ccm, force=force,
+                                       previous_tables=previous_tables))
 
     def run(self, light: LightInput, *, checker: CheckerPhoto | None = None,
             previous_um: NDArray | None = None, previous_ccm: ColourCorrection | None = None,
@@ -203,7 +213,7 @@ class _Watch:
     """One task on ``client``'s cluster, watched until it has a result (see
     :meth:`RemoteCalibrator.run`)."""
 
-    def __init__(self, client: Any, address: str, worker_wait_s: float,
+    def __init__(self, client: Client, address: str, worker_wait_s: float,
                  stop: threading.Event | None, progress: Callable[[str], None] | None) -> None:
         self.client, self.address, self.worker_wait_s = client, address, worker_wait_s
         self.stop, self.progress = stop, progress
@@ -212,8 +222,8 @@ class _Watch:
         #: what the watch sleeps on between looks (``stop`` when given: it wakes at once)
         self._sleep = stop if stop is not None else threading.Event()
 
-    def result(self, payload: bytes) -> Any:
-        """The task's answer (see :mod:`grassd.daemon.compute.wire`); see
+    def result(self, payload: bytes) -> object:
+        """The task's answer, unchecked (see :mod:`grassd.daemon.compute.wire`); see
         :meth:`RemoteCalibrator.run` for what it raises."""
         key = f"grassd-calibrate-{uuid.uuid4().hex}"
         fut = None
@@ -242,7 +252,7 @@ class _Watch:
                 except (OSError, ValueError, RuntimeError) as exc:
                     log.debug("cannot cancel the Dask task %s: %s", key, exc)
 
-    def _outcome(self, fut: Any) -> Any:
+    def _outcome(self, fut: Future) -> object:
         """The finished task's answer as Dask's ``msgpack`` serializer read it (the run's own
         errors are part of the answer); see :func:`~grassd.daemon.compute.dask_client.
         fetch_answer` for what it raises."""

@@ -26,7 +26,7 @@ import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -37,6 +37,10 @@ from grassd.daemon.core.errors import (
     ExposureMissing,
 )
 from grassd.daemon.core.hardware.camera import OscClient
+from grassd.daemon.core.hardware.osc_messages import ExifValue, OscResults
+
+if TYPE_CHECKING:
+    from PIL import Image
 
 log = logging.getLogger(__name__)
 
@@ -133,7 +137,7 @@ def plan_shutters(plan: BracketPlan, centre_s: float) -> list[float]:
     return out
 
 
-def _ratio(v: Any) -> float | None:
+def _ratio(v: ExifValue) -> float | None:
     """An EXIF number (float, int, IFDRational, "1/1000" or [num, den]) as float, or None."""
     try:
         if isinstance(v, str) and "/" in v:
@@ -148,7 +152,7 @@ def _ratio(v: Any) -> float | None:
 
 
 @contextlib.contextmanager
-def open_shot(path: Path) -> Iterator[Any]:
+def open_shot(path: Path) -> Iterator[Image.Image]:
     """A shot opened with Pillow, its declared size checked before any pixel is decoded
     (Pillow's open reads the header only): at most :data:`grassd.sim.hdri.MAX_TEXELS` pixels,
     the largest panorama a bundle may hold (the merge keeps the shots' size). Raises
@@ -194,7 +198,7 @@ def file_exposure(path: Path) -> dict[str, float]:
     return out
 
 
-def real_exposure(client: OscClient, result: dict[str, Any], path: Path,
+def real_exposure(client: OscClient, result: OscResults, path: Path,
                   plan: BracketPlan) -> tuple[float, float, float, str]:
     """(shutter s, ISO, f-number, source) of a taken shot (module docstring)."""
     ex = file_exposure(path)

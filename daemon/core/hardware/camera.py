@@ -65,7 +65,7 @@ import urllib.request
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any, NoReturn
+from typing import IO, Any, NoReturn, Unpack, cast
 
 from grassd.daemon.core.config.camera_section import CaptureConfig
 from grassd.daemon.core.errors import (
@@ -77,6 +77,16 @@ from grassd.daemon.core.errors import (
     CameraProtocolError,
     CameraUnreachable,
     CaptureModeRefused,
+)
+from grassd.daemon.core.hardware.osc_messages import (
+    ExifValue,
+    OscCommand,
+    OscErrorBody,
+    OscOptions,
+    OscParameters,
+    OscRequest,
+    OscResults,
+    OscState,
 )
 
 log = logging.getLogger(__name__)
@@ -420,7 +430,7 @@ class OscClient:
             self._late(what, deadline, error)  # the end of stream may be the watchdog's
         return n
 
-    def _json(self, method: str, path: str, body: dict[str, Any] | None = None) -> dict:
+    def _json(self, method: str, path: str, body: OscRequest | None = None) -> dict[str, Any]:
         data = None if body is None else json.dumps(body).encode("utf-8")
         req = urllib.request.Request(self.url + path, data=data, method=method, headers={
             "Content-Type": "application/json;charset=utf-8", "Accept": "application/json",
@@ -455,20 +465,20 @@ class OscClient:
                                       "(manufacturer, model, serialNumber, firmwareVersion)"
                                       ) from None
 
-    def state(self) -> dict[str, Any]:
+    def state(self) -> OscState:
         """``POST /osc/state``: ``{"fingerprint": ..., "state": {...}}``."""
         d = self._json("POST", "/osc/state", {})
         if not isinstance(d.get("state"), dict):
             raise CameraProtocolError(f"camera {self.url}/osc/state has no state object")
-        return d
+        return cast(OscState, d)
 
-    def execute(self, name: str, parameters: dict[str, Any] | None = None) -> dict[str, Any]:
+    def execute(self, name: str, parameters: OscParameters | None = None) -> OscResults:
         """Run command ``name`` and wait (polling ``/osc/commands/status``) until it is done;
         returns its ``results`` ({} when it has none)."""
-        body: dict[str, Any] = {"name": name}
+        body = OscRequest(name=name)
         if parameters is not None:
             body["parameters"] = parameters
-        cmd = self._json("POST", "/osc/commands/execute", body)
+        cmd = cast(OscCommand, self._json("POST", "/osc/commands/execute", body))
         deadline = time.monotonic() + self.command_timeout_s
         while True:
             state = cmd.get("state")
@@ -487,13 +497,14 @@ class OscClient:
                     f"{name} was still in progress after {self.command_timeout_s:g} s: the "
                     "camera may hang (restart it) or need a longer command timeout")
             time.sleep(self.poll_s)
-            cmd = self._json("POST", "/osc/commands/status", {"id": cmd["id"]})
+            cmd = cast(OscCommand, self._json("POST", "/osc/commands/status",
+                                              OscRequest(id=cmd["id"])))
 
-    def set_options(self, **options: Any) -> None:
+    def set_options(self, **options: Unpack[OscOptions]) -> None:
         """``camera.setOptions`` with the given option values."""
         self.execute("camera.setOptions", {"options": options})
 
-    def get_options(self, *names: str) -> dict[str, Any]:
+    def get_options(self, *names: str) -> OscOptions:
         """``camera.getOptions``: the current values of the named options."""
         res = self.execute("camera.getOptions", {"optionNames": list(names)})
         opts = res.get("options")
@@ -532,14 +543,14 @@ class OscClient:
                 exc.status, command=exc.command, code=exc.code, detail=exc.detail) from None
         log.info("camera %s switched from captureMode %r to %r", self.url, mode, IMAGE_MODE)
 
-    def take_picture(self) -> dict[str, Any]:
+    def take_picture(self) -> OscResults:
         """``camera.takePicture``: its results, with an absolute ``fileUrl``."""
         res = self.execute("camera.takePicture")
         if not isinstance(res.get("fileUrl"), str) or not res["fileUrl"]:
             raise CameraProtocolError("camera.takePicture finished without a fileUrl")
         return res
 
-    def metadata(self, file_url: str) -> dict[str, Any] | None:
+    def metadata(self, file_url: str) -> dict[str, ExifValue] | None:
         """THETA's ``camera._getMetadata``: the shot's EXIF as JSON, or None when the camera
         does not know the command (it is a RICOH extension)."""
         try:
@@ -587,7 +598,7 @@ class OscClient:
         return dest
 
 
-def _osc_error(body: bytes) -> dict[str, Any] | None:
+def _osc_error(body: bytes) -> OscCommand | None:
     """The OSC command object in an HTTP error's ``body`` when it is one in state "error"
     (``{"name": ..., "state": "error", "error": {"code": ..., "message": ...}}``), else None."""
     try:
@@ -596,14 +607,16 @@ def _osc_error(body: bytes) -> dict[str, Any] | None:
         return None
     if isinstance(out, dict) and out.get("state") == "error" and isinstance(out.get("error"),
                                                                           dict):
-        return out
+        return cast(OscCommand, out)
     return None
 
 
-def _refusal(where: str, status: int, cmd: dict[str, Any]) -> CameraCommandRefused:
+def _refusal(where: str, status: int, cmd: OscCommand) -> CameraCommandRefused:
     """The typed error of OSC command object ``cmd`` in state "error", answered by the camera
     at ``where`` with HTTP ``status``: its command, error code and message quoted."""
-    err = cmd.get("error") if isinstance(cmd.get("error"), dict) else {}
+    err = cmd.get("error")
+    if not isinstance(err, dict):
+        err = OscErrorBody()
     name = str(cmd.get("name") or "a command")[:80]
     code = str(err.get("code") or "?")[:80]
     detail = str(err.get("message") or "")[:300]

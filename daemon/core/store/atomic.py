@@ -11,7 +11,10 @@ import os
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 
 def fsync_dir(path: str | os.PathLike[str]) -> None:
@@ -74,10 +77,10 @@ def atomic_write_json(path: str | os.PathLike[str], obj: Any, mode: int = 0o644)
     return atomic_write_text(path, text + "\n", mode)
 
 
-def atomic_save_figure(path: str | os.PathLike[str], figure: Any, **savefig_kw: Any) -> Path:
+def atomic_save_figure(path: str | os.PathLike[str], figure: Figure) -> Path:
     """Atomically save a matplotlib ``figure`` as PNG to ``path``."""
     with atomic_open(path) as fh:
-        figure.savefig(fh, format="png", **savefig_kw)
+        figure.savefig(fh, format="png")
     return Path(path)
 
 

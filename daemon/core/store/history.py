@@ -27,6 +27,7 @@ One :class:`History` may be shared by threads (a lock serialises use of its conn
 from __future__ import annotations
 
 import json
+import os
 import sqlite3
 import threading
 import time
@@ -34,7 +35,7 @@ from collections.abc import Collection, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeAlias, TypedDict, Unpack
 
 from grassd.daemon.core.errors import HistoryError
 
@@ -42,6 +43,25 @@ if TYPE_CHECKING:
     import numpy as np
 
 SCHEMA_VERSION = 1
+
+SqlValue: TypeAlias = str | int | float | bytes | None
+"""A value SQLite binds to a ``?`` parameter."""
+
+
+class RunColumns(TypedDict, total=False):
+    """The columns of a run that :meth:`History.update_run` may set: lux in lux, lengths in
+    um; ``metrics`` is the calibration's metrics object (stored as JSON)."""
+
+    lux: float | None
+    lux_source: str | None
+    input_hashes: Mapping[str, str]
+    metrics: Mapping[str, Any]
+    report_path: str | os.PathLike[str] | None
+    plot_path: str | os.PathLike[str] | None
+    table_id: int | None
+    table_crc: int | None
+    lengths_um: Sequence[int] | None
+    error: str | None
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS runs (
@@ -265,7 +285,7 @@ class History:
                 raise
             self._db.execute("COMMIT")
 
-    def _query(self, sql: str, args: Sequence[Any] = ()) -> list[tuple]:
+    def _query(self, sql: str, args: Sequence[SqlValue] = ()) -> list[tuple]:
         with self._lock:
             return self._db.execute(sql, args).fetchall()
 
@@ -287,14 +307,15 @@ class History:
                  lux, lux_source, light_at))
             return int(cur.lastrowid)
 
-    def update_run(self, run_id: int, **fields: Any) -> None:
+    def update_run(self, run_id: int, **fields: Unpack[RunColumns]) -> None:
         """Set some columns of run ``run_id`` (lux, lux_source, input_hashes, metrics, ...)."""
         allowed = {"lux", "lux_source", "input_hashes", "metrics", "report_path", "plot_path",
                    "table_id", "table_crc", "lengths_um", "error"}
         bad = set(fields) - allowed
         if bad:
             raise ValueError(f"cannot update run columns {sorted(bad)}")
-        cols, vals = [], []
+        cols: list[str] = []
+        vals: list[SqlValue] = []
         for k, v in fields.items():
             if k in ("input_hashes", "metrics"):
                 v = json.dumps(v, sort_keys=True, default=_plain)
@@ -309,14 +330,14 @@ class History:
         with self._tx() as db:
             db.execute(f"UPDATE runs SET {', '.join(cols)} WHERE id = ?", (*vals, run_id))
 
-    def finish_run(self, run_id: int, status: str, *, error: str | None = None,
-                   **fields: Any) -> None:
+    def finish_run(self, run_id: int, status: str, **fields: Unpack[RunColumns]) -> None:
         """Close run ``run_id`` with ``status`` (ok, failed, rejected, superseded: a bundle
         whose light is older than the active table's, archived unused) and optional columns."""
         if status not in ("ok", "failed", "rejected", "superseded"):
             raise ValueError(f"bad run status {status!r}")
-        if fields or error is not None:
-            self.update_run(run_id, error=error, **fields)
+        if fields:
+            fields.setdefault("error", None)
+            self.update_run(run_id, **fields)
         with self._tx() as db:
             db.execute("UPDATE runs SET status = ?, finished_at = ? WHERE id = ?",
                        (status, time.time(), run_id))
@@ -398,7 +419,7 @@ class History:
             return len(ids)
 
     # ------------------------------------------------------------------ per-controller tables
-    def record_run_tables(self, run_id: int, tables: Mapping[str, Any],
+    def record_run_tables(self, run_id: int, tables: Mapping[str, np.ndarray],
                           crcs: Mapping[str, int]) -> None:
         """Store every controller's own table of run ``run_id`` (name -> (256,) or
         (n_pixels, 256) integer micrometres) with its CRC, in one transaction. Call it before
@@ -563,7 +584,7 @@ class History:
     def journal_tally(self, prefixes: Sequence[str]) -> dict[tuple[str, str | None], int]:
         """Journal rows counted by state and by which of ``prefixes`` their reason starts with
         (the first that matches; None: none does, or no reason), in one query."""
-        args: list[Any] = []
+        args: list[SqlValue] = []
         for prefix in prefixes:
             args += [len(prefix), prefix, prefix]
         case = ("CASE " + " ".join("WHEN substr(reason, 1, ?) = ? THEN ?" for _ in prefixes)

@@ -33,11 +33,9 @@ from __future__ import annotations
 import json
 import os
 import tomllib
-from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime, tzinfo
 from pathlib import Path
-from types import MappingProxyType
 from typing import Any
 
 from grassd.daemon.core.config import manifest_fields, schema
@@ -70,15 +68,13 @@ class Manifest:
     """A validated bundle manifest; paths are absolute (inside the bundle's directory).
 
     ``light``: the measured light (``ambient_lux`` None when the manifest leaves it to the lux
-    sensor; ``timestamp`` always set, timezone-aware); ``checker``: the colour-checker photo, if
-    the bundle has one.
+    sensor; ``timestamp`` always set, timezone-aware; ``sun_from_hdri`` set by the ``[capture]``
+    table's ``sun_clipped = true``, written by ``grassd capture``, the rest of which is
+    metadata); ``checker``: the colour-checker photo, if the bundle has one.
     """
 
     light: LightInput
     checker: CheckerPhoto | None = None
-    #: the ``[capture]`` table of a bundle made by ``grassd capture`` (metadata), or None; its
-    #: ``sun_clipped = true`` sets ``light.sun_from_hdri`` (restore the sun from lux)
-    capture: Mapping[str, Any] | None = None
 
     @property
     def timestamp(self) -> datetime:
@@ -193,7 +189,7 @@ def parse_manifest(data: dict[str, Any], base: Path, tz: tzinfo = UTC) -> Manife
                        timestamp=ts)
     checker = None if raw is None else CheckerPhoto(
         base / raw, manifest_fields.as_quad(corners), m["checker_chart"])
-    return Manifest(light, checker, None if capture is None else MappingProxyType(dict(capture)))
+    return Manifest(light, checker)
 
 
 def check_light(m: Manifest, *, now: float, future_tolerance_s: float = FUTURE_TOLERANCE_S,
