@@ -19,26 +19,14 @@ are ISO 8601 text), durations ``*_s`` seconds, ``rss_mb`` MiB, CRCs unsigned 32-
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, NotRequired, TypedDict, TypeGuard
 
 from grassd.daemon.core.monitoring.health import Health, assess
 from grassd.daemon.core.store.quarantine import QuarantinedBundle
 
 __all__ = ["ControllerStatus", "DaemonState", "DesiredTable", "ErrorSeen", "PushRetry",
-           "RunCounts", "RunSummary", "Status", "WaitingBundle", "run_r2"]
-
-
-def _known(cls: type, d: Mapping[str, Any]) -> dict[str, Any]:
-    """The items of ``d`` that are fields of dataclass ``cls``: a key a newer daemon added is
-    left out (one it lacks is a TypeError, naming it)."""
-    names = {f.name for f in fields(cls)}
-    return {k: v for k, v in d.items() if k in names}
-
-
-def _plain(obj: Any) -> dict[str, Any]:
-    """The fields of a flat dataclass as a dict, in declaration order."""
-    return {f.name: getattr(obj, f.name) for f in fields(obj)}
+           "RunCounts", "RunSummary", "Status", "StatusJson", "WaitingBundle", "run_r2"]
 
 
 def run_r2(metrics: Mapping[str, Any]) -> float | None:
@@ -47,6 +35,158 @@ def run_r2(metrics: Mapping[str, Any]) -> float | None:
     prometheus_client)."""
     r2 = metrics.get("r2_closed_loop")
     return metrics.get("r2_after_fit") if r2 is None else r2
+
+
+# --------------------------------------------------------------------------- the JSON form
+# Each part's JSON object, keys in the order they are written; a reader takes the keys it
+# knows (a key a newer daemon added is left out).
+
+
+class DesiredTableJson(TypedDict):
+    """:class:`DesiredTable` as JSON."""
+
+    table_id: int
+    table_crc: int
+    run_id: int
+    per_controller: dict[str, int] | None
+
+
+class PushRetryJson(TypedDict):
+    """:class:`PushRetry` as JSON."""
+
+    failures: int
+    since: float
+    delay_s: float
+    retry_in_s: float
+    error: str | None
+
+
+class ControllerJson(TypedDict):
+    """:class:`ControllerStatus` as JSON (``push_retry`` only from a running daemon)."""
+
+    name: str
+    port: str
+    address: int
+    reachable: bool
+    table_id: int | None
+    table_crc: int | None
+    desired_crc: int | None
+    in_sync: bool
+    last_seen: float | None
+    error: str | None
+    push_retry: NotRequired[PushRetryJson | None]
+
+
+class RunSummaryJson(TypedDict):
+    """:class:`RunSummary` as JSON."""
+
+    id: int
+    trigger: str
+    status: str
+    started_at: float
+    finished_at: float | None
+    lux: float | None
+    lux_source: str | None
+    error: str | None
+    r2: float | None
+    max_dev_de00: float | None
+    report: str | None
+    plot: str | None
+
+
+class RunCountsJson(TypedDict):
+    """:class:`RunCounts` as JSON."""
+
+    ok: int
+    rejected: int
+    failed: int
+    superseded: int
+
+
+class QuarantinedJson(TypedDict):
+    """A :class:`~grassd.daemon.core.store.quarantine.QuarantinedBundle` as JSON."""
+
+    bundle: str
+    name: str
+    attempts: int
+    since: float
+    reason: str
+
+
+class WaitingBundleJson(TypedDict):
+    """:class:`WaitingBundle` as JSON."""
+
+    bundle: str
+    id: str
+    reason: str
+    since: float
+    retry_in_s: float
+
+
+class ComputeWaitJson(TypedDict):
+    """:class:`ComputeWait` as JSON."""
+
+    trigger: str
+    reason: str
+    since: float
+    attempts: int
+    retry_in_s: float
+
+
+class ErrorSeenJson(TypedDict):
+    """:class:`ErrorSeen` as JSON."""
+
+    at: str
+    error: str
+    cleared_at: str | None
+
+
+class DaemonJson(TypedDict):
+    """:class:`DaemonState` as JSON: the live keys of a status (a daemon from before
+    ``compute_wait`` or ``content`` wrote none)."""
+
+    pid: int
+    version: str
+    activity: str
+    started_at: float
+    uptime_s: float
+    config: str | None
+    reload_error: str | None
+    inbox: dict[str, int]
+    rss_mb: float
+    last_error: str | None
+    last_error_seen: ErrorSeenJson | None
+    inbox_problems: list[str]
+    metrics_textfile: str
+    status_page: str
+    capture: dict[str, Any] | None
+    lines: dict[str, dict[str, Any]]
+    waiting_bundles: list[WaitingBundleJson]
+    compute_wait: NotRequired[ComputeWaitJson | None]
+    content: NotRequired[dict[str, Any] | None]
+
+
+class StatusJson(TypedDict):
+    """:class:`Status` as JSON, from the state database alone (``running`` false)."""
+
+    desired_table: DesiredTableJson | None
+    controllers: list[ControllerJson]
+    runs: list[RunSummaryJson]
+    run_counts: RunCountsJson
+    quarantined: list[QuarantinedJson]
+    state_dir: str
+    running: bool
+    health: str
+
+
+class LiveStatusJson(StatusJson, DaemonJson):
+    """:class:`Status` as JSON from a running daemon (``running`` true): its live keys
+    follow."""
+
+
+def _is_live(d: StatusJson) -> TypeGuard[LiveStatusJson]:
+    """Whether a running daemon wrote ``d`` (its live keys are there)."""
+    return bool(d.get("running"))
 
 
 @dataclass(frozen=True)
@@ -61,15 +201,16 @@ class DesiredTable:
     per_controller: Mapping[str, int] | None = None
 
     @classmethod
-    def from_json(cls, d: Mapping[str, Any]) -> DesiredTable:
+    def from_json(cls, d: DesiredTableJson) -> DesiredTable:
         """From its JSON form (:meth:`to_json`)."""
-        return cls(**_known(cls, d))
+        return cls(table_id=d["table_id"], table_crc=d["table_crc"], run_id=d["run_id"],
+                   per_controller=d["per_controller"])
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> DesiredTableJson:
         """Its JSON form (keys ``table_id``, ``table_crc``, ``run_id``, ``per_controller``)."""
-        d = _plain(self)
-        d["per_controller"] = None if self.per_controller is None else dict(self.per_controller)
-        return d
+        return {"table_id": self.table_id, "table_crc": self.table_crc, "run_id": self.run_id,
+                "per_controller": None if self.per_controller is None
+                else dict(self.per_controller)}
 
 
 @dataclass(frozen=True)
@@ -85,9 +226,15 @@ class PushRetry:
     error: str | None
 
     @classmethod
-    def from_json(cls, d: Mapping[str, Any]) -> PushRetry:
+    def from_json(cls, d: PushRetryJson) -> PushRetry:
         """From its JSON form (the keys of the fields)."""
-        return cls(**_known(cls, d))
+        return cls(failures=d["failures"], since=d["since"], delay_s=d["delay_s"],
+                   retry_in_s=d["retry_in_s"], error=d["error"])
+
+    def to_json(self) -> PushRetryJson:
+        """Its JSON form (the keys of the fields)."""
+        return {"failures": self.failures, "since": self.since, "delay_s": self.delay_s,
+                "retry_in_s": self.retry_in_s, "error": self.error}
 
 
 @dataclass(frozen=True)
@@ -117,18 +264,24 @@ class ControllerStatus:
         return "unreachable" if not self.reachable else "out of sync"
 
     @classmethod
-    def from_json(cls, d: Mapping[str, Any]) -> ControllerStatus:
+    def from_json(cls, d: ControllerJson) -> ControllerStatus:
         """From its JSON form (``push_retry`` may be absent)."""
         retry = d.get("push_retry")
-        return cls(**{**_known(cls, d),
-                      "push_retry": None if retry is None else PushRetry.from_json(retry)})
+        return cls(name=d["name"], port=d["port"], address=d["address"],
+                   reachable=d["reachable"], table_id=d["table_id"], table_crc=d["table_crc"],
+                   desired_crc=d["desired_crc"], in_sync=d["in_sync"],
+                   last_seen=d["last_seen"], error=d["error"],
+                   push_retry=None if retry is None else PushRetry.from_json(retry))
 
-    def to_json(self, live: bool) -> dict[str, Any]:
+    def to_json(self, live: bool) -> ControllerJson:
         """Its JSON form; ``push_retry`` only when ``live`` (a running daemon's status)."""
-        d = _plain(self)
-        retry = d.pop("push_retry")
+        d: ControllerJson = {
+            "name": self.name, "port": self.port, "address": self.address,
+            "reachable": self.reachable, "table_id": self.table_id, "table_crc": self.table_crc,
+            "desired_crc": self.desired_crc, "in_sync": self.in_sync,
+            "last_seen": self.last_seen, "error": self.error}
         if live:
-            d["push_retry"] = None if retry is None else _plain(retry)
+            d["push_retry"] = None if self.push_retry is None else self.push_retry.to_json()
         return d
 
 
@@ -153,9 +306,20 @@ class RunSummary:
     plot: str | None
 
     @classmethod
-    def from_json(cls, d: Mapping[str, Any]) -> RunSummary:
+    def from_json(cls, d: RunSummaryJson) -> RunSummary:
         """From its JSON form (the keys of the fields)."""
-        return cls(**_known(cls, d))
+        return cls(id=d["id"], trigger=d["trigger"], status=d["status"],
+                   started_at=d["started_at"], finished_at=d["finished_at"], lux=d["lux"],
+                   lux_source=d["lux_source"], error=d["error"], r2=d["r2"],
+                   max_dev_de00=d["max_dev_de00"], report=d["report"], plot=d["plot"])
+
+    def to_json(self) -> RunSummaryJson:
+        """Its JSON form (the keys of the fields)."""
+        return {"id": self.id, "trigger": self.trigger, "status": self.status,
+                "started_at": self.started_at, "finished_at": self.finished_at,
+                "lux": self.lux, "lux_source": self.lux_source, "error": self.error,
+                "r2": self.r2, "max_dev_de00": self.max_dev_de00, "report": self.report,
+                "plot": self.plot}
 
 
 @dataclass(frozen=True)
@@ -168,9 +332,15 @@ class RunCounts:
     superseded: int = 0
 
     @classmethod
-    def from_json(cls, d: Mapping[str, Any]) -> RunCounts:
+    def from_json(cls, d: RunCountsJson) -> RunCounts:
         """From its JSON form (the keys of the fields)."""
-        return cls(**_known(cls, d))
+        return cls(ok=d["ok"], rejected=d["rejected"], failed=d["failed"],
+                   superseded=d["superseded"])
+
+    def to_json(self) -> RunCountsJson:
+        """Its JSON form (the keys of the fields)."""
+        return {"ok": self.ok, "rejected": self.rejected, "failed": self.failed,
+                "superseded": self.superseded}
 
 
 @dataclass(frozen=True)
@@ -185,9 +355,15 @@ class WaitingBundle:
     retry_in_s: float
 
     @classmethod
-    def from_json(cls, d: Mapping[str, Any]) -> WaitingBundle:
+    def from_json(cls, d: WaitingBundleJson) -> WaitingBundle:
         """From its JSON form (the keys of the fields)."""
-        return cls(**_known(cls, d))
+        return cls(bundle=d["bundle"], id=d["id"], reason=d["reason"], since=d["since"],
+                   retry_in_s=d["retry_in_s"])
+
+    def to_json(self) -> WaitingBundleJson:
+        """Its JSON form (the keys of the fields)."""
+        return {"bundle": self.bundle, "id": self.id, "reason": self.reason,
+                "since": self.since, "retry_in_s": self.retry_in_s}
 
 
 @dataclass(frozen=True)
@@ -204,9 +380,15 @@ class ComputeWait:
     retry_in_s: float
 
     @classmethod
-    def from_json(cls, d: Mapping[str, Any]) -> ComputeWait:
+    def from_json(cls, d: ComputeWaitJson) -> ComputeWait:
         """From its JSON form (the keys of the fields)."""
-        return cls(**_known(cls, d))
+        return cls(trigger=d["trigger"], reason=d["reason"], since=d["since"],
+                   attempts=d["attempts"], retry_in_s=d["retry_in_s"])
+
+    def to_json(self) -> ComputeWaitJson:
+        """Its JSON form (the keys of the fields)."""
+        return {"trigger": self.trigger, "reason": self.reason, "since": self.since,
+                "attempts": self.attempts, "retry_in_s": self.retry_in_s}
 
 
 @dataclass(frozen=True)
@@ -219,9 +401,13 @@ class ErrorSeen:
     cleared_at: str | None
 
     @classmethod
-    def from_json(cls, d: Mapping[str, Any]) -> ErrorSeen:
+    def from_json(cls, d: ErrorSeenJson) -> ErrorSeen:
         """From its JSON form (the keys of the fields)."""
-        return cls(**_known(cls, d))
+        return cls(at=d["at"], error=d["error"], cleared_at=d["cleared_at"])
+
+    def to_json(self) -> ErrorSeenJson:
+        """Its JSON form (the keys of the fields)."""
+        return {"at": self.at, "error": self.error, "cleared_at": self.cleared_at}
 
 
 @dataclass(frozen=True)
@@ -264,33 +450,39 @@ class DaemonState:
     content: Mapping[str, Any] | None = None
 
     @classmethod
-    def from_json(cls, d: Mapping[str, Any]) -> DaemonState:
+    def from_json(cls, d: DaemonJson) -> DaemonState:
         """From a status's JSON form (its live keys; the others are ignored; a daemon from
         before ``compute_wait`` or ``content`` has none)."""
-        kw = {f.name: d[f.name] for f in fields(cls) if f.name not in ("compute_wait",
-                                                                        "content")}
-        kw["content"] = d.get("content")
-        wait = d.get("compute_wait")
-        kw["compute_wait"] = None if wait is None else ComputeWait.from_json(wait)
-        seen = kw["last_error_seen"]
-        kw["last_error_seen"] = None if seen is None else ErrorSeen.from_json(seen)
-        kw["inbox_problems"] = tuple(kw["inbox_problems"])
-        kw["waiting_bundles"] = tuple(WaitingBundle.from_json(w) for w in kw["waiting_bundles"])
-        return cls(**kw)
+        wait, seen = d.get("compute_wait"), d["last_error_seen"]
+        return cls(pid=d["pid"], version=d["version"], activity=d["activity"],
+                   started_at=d["started_at"], uptime_s=d["uptime_s"], config=d["config"],
+                   reload_error=d["reload_error"], inbox=d["inbox"], rss_mb=d["rss_mb"],
+                   last_error=d["last_error"],
+                   last_error_seen=None if seen is None else ErrorSeen.from_json(seen),
+                   inbox_problems=tuple(d["inbox_problems"]),
+                   metrics_textfile=d["metrics_textfile"], status_page=d["status_page"],
+                   capture=d["capture"], lines=d["lines"],
+                   waiting_bundles=tuple(WaitingBundle.from_json(w)
+                                         for w in d["waiting_bundles"]),
+                   compute_wait=None if wait is None else ComputeWait.from_json(wait),
+                   content=d.get("content"))
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> DaemonJson:
         """Its JSON form: the live keys of a status, in this order."""
-        d = _plain(self)
-        d["inbox"] = dict(self.inbox)
-        d["last_error_seen"] = None if self.last_error_seen is None else _plain(
-            self.last_error_seen)
-        d["inbox_problems"] = list(self.inbox_problems)
-        d["capture"] = None if self.capture is None else dict(self.capture)
-        d["lines"] = {port: dict(q) for port, q in self.lines.items()}
-        d["waiting_bundles"] = [_plain(w) for w in self.waiting_bundles]
-        d["compute_wait"] = None if self.compute_wait is None else _plain(self.compute_wait)
-        d["content"] = None if self.content is None else dict(self.content)
-        return d
+        return {
+            "pid": self.pid, "version": self.version, "activity": self.activity,
+            "started_at": self.started_at, "uptime_s": self.uptime_s, "config": self.config,
+            "reload_error": self.reload_error, "inbox": dict(self.inbox),
+            "rss_mb": self.rss_mb, "last_error": self.last_error,
+            "last_error_seen": None if self.last_error_seen is None
+            else self.last_error_seen.to_json(),
+            "inbox_problems": list(self.inbox_problems),
+            "metrics_textfile": self.metrics_textfile, "status_page": self.status_page,
+            "capture": None if self.capture is None else dict(self.capture),
+            "lines": {port: dict(q) for port, q in self.lines.items()},
+            "waiting_bundles": [w.to_json() for w in self.waiting_bundles],
+            "compute_wait": None if self.compute_wait is None else self.compute_wait.to_json(),
+            "content": None if self.content is None else dict(self.content)}
 
 
 @dataclass(frozen=True)
@@ -318,28 +510,30 @@ class Status:
         """True when a running daemon gave this status."""
         return self.daemon is not None
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> StatusJson | LiveStatusJson:
         """The JSON form (``grassd status --json``, the control socket's ``status``): keys
         ``desired_table``, ``controllers``, ``runs``, ``run_counts``, ``quarantined``,
         ``state_dir``, ``running``, ``health``, then, while running, the live keys of
         :class:`DaemonState`."""
         live = self.running
-        out: dict[str, Any] = {
+        out: StatusJson = {
             "desired_table": None if self.desired_table is None else self.desired_table.to_json(),
             "controllers": [c.to_json(live) for c in self.controllers],
-            "runs": [_plain(r) for r in self.runs],
-            "run_counts": _plain(self.run_counts),
-            "quarantined": [q.as_dict() for q in self.quarantined],
+            "runs": [r.to_json() for r in self.runs],
+            "run_counts": self.run_counts.to_json(),
+            "quarantined": [{"bundle": q.bundle, "name": q.name, "attempts": q.attempts,
+                             "since": q.since, "reason": q.reason} for q in self.quarantined],
             "state_dir": self.state_dir,
             "running": live,
             "health": self.health.summary(),
         }
-        if self.daemon is not None:
-            out.update(self.daemon.to_json())
-        return out
+        if self.daemon is None:
+            return out
+        both: LiveStatusJson = {**out, **self.daemon.to_json()}
+        return both
 
     @classmethod
-    def from_json(cls, d: Mapping[str, Any]) -> Status:
+    def from_json(cls, d: StatusJson | LiveStatusJson) -> Status:
         """A status from its JSON form (:meth:`to_json`, e.g. the control socket's answer);
         ``health`` is computed again from the fields, by the same function."""
         desired = d["desired_table"]
@@ -349,6 +543,7 @@ class Status:
             controllers=tuple(ControllerStatus.from_json(c) for c in d["controllers"]),
             runs=tuple(RunSummary.from_json(r) for r in d["runs"]),
             run_counts=RunCounts.from_json(d["run_counts"]),
-            quarantined=tuple(QuarantinedBundle(**_known(QuarantinedBundle, q))
-                              for q in d["quarantined"]),
-            daemon=DaemonState.from_json(d) if d.get("running") else None)
+            quarantined=tuple(QuarantinedBundle(bundle=q["bundle"], name=q["name"],
+                                                attempts=q["attempts"], since=q["since"],
+                                                reason=q["reason"]) for q in d["quarantined"]),
+            daemon=DaemonState.from_json(d) if _is_live(d) else None)
