@@ -24,15 +24,19 @@ from __future__ import annotations
 import functools
 import json
 import logging
-from dataclasses import asdict, dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, NotRequired, TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
 
 from grassd.daemon.core.errors import DaemonError
+
+if TYPE_CHECKING:
+    from grassd.daemon.core.hardware.camera import OscClient
 
 log = logging.getLogger(__name__)
 
@@ -54,6 +58,30 @@ class Exposure:
     def value(self) -> float:
         """Relative exposure, shutter x ISO / f-number^2 (signal per unit radiance)."""
         return self.shutter_s * self.iso / self.f_number ** 2
+
+
+class ExposureJson(TypedDict):
+    """An :class:`Exposure` as ``setup.json`` holds it."""
+
+    shutter_s: float
+    iso: float
+    f_number: float
+
+
+class MeasureSetupJson(TypedDict):
+    """A :class:`MeasureSetup` as ``setup.json`` holds it (lists read back where it wrote
+    tuples; ``ccm_de00`` and ``sensor`` absent from a set-up made before they were kept)."""
+
+    white_balance: Sequence[float]
+    scale: float
+    exposure: ExposureJson
+    lux: float
+    ccm: Sequence[Sequence[float]]
+    chart: str
+    photo: str
+    made_at: str
+    ccm_de00: NotRequired[Sequence[float] | None]
+    sensor: NotRequired[Sequence[int] | None]
 
 
 @dataclass(frozen=True)
@@ -87,21 +115,24 @@ class MeasureSetup:
     ccm_de00: tuple[float, float] | None = None
     sensor: tuple[int, int] | None = None
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> MeasureSetupJson:
         """The set-up as JSON (``setup.json``)."""
-        return asdict(self)
+        e = self.exposure
+        return {"white_balance": self.white_balance, "scale": self.scale,
+                "exposure": {"shutter_s": e.shutter_s, "iso": e.iso, "f_number": e.f_number},
+                "lux": self.lux, "ccm": self.ccm, "chart": self.chart, "photo": self.photo,
+                "made_at": self.made_at, "ccm_de00": self.ccm_de00, "sensor": self.sensor}
 
     @classmethod
-    def from_json(cls, d: dict[str, Any]) -> MeasureSetup:
+    def from_json(cls, d: MeasureSetupJson) -> MeasureSetup:
         """Read :meth:`to_json`'s form back."""
         return cls(white_balance=tuple(d["white_balance"]), scale=float(d["scale"]),
                    exposure=Exposure(**d["exposure"]), lux=float(d["lux"]),
                    ccm=tuple(tuple(r) for r in d["ccm"]), chart=str(d["chart"]),
                    photo=str(d["photo"]), made_at=str(d["made_at"]),
-                   ccm_de00=None if d.get("ccm_de00") is None
-                   else (float(d["ccm_de00"][0]), float(d["ccm_de00"][1])),
-                   sensor=None if d.get("sensor") is None
-                   else (int(d["sensor"][0]), int(d["sensor"][1])))
+                   ccm_de00=None if (de := d.get("ccm_de00")) is None
+                   else (float(de[0]), float(de[1])),
+                   sensor=None if (s := d.get("sensor")) is None else (int(s[0]), int(s[1])))
 
     def normalise(self, prophoto: NDArray, exposure: Exposure, lux: float) -> NDArray:
         """Developed linear ProPhoto of a shot at ``exposure`` under ``lux`` -> the scale of the
@@ -112,8 +143,8 @@ class MeasureSetup:
                                        * self.lux / lux)
 
 
-def setup_from_checker(path: Path, corners: Any, chart: str, exposure: Exposure,
-                       lux: float) -> MeasureSetup:
+def setup_from_checker(path: Path, corners: Sequence[Sequence[float]], chart: str,
+                       exposure: Exposure, lux: float) -> MeasureSetup:
     """The set-up from a RAW ``path`` of the checker (``chart``, patch-area ``corners`` TL, TR,
     BR, BL in pixels of the full-size developed image) photographed at ``exposure`` under
     ``lux`` at the display (module docstring)."""
@@ -193,10 +224,10 @@ class MeasuringCamera:
     back as the capture station reads it
     (:func:`~grassd.daemon.core.hardware.bracket.real_exposure`)."""
 
-    def __init__(self, client: Any, dest: Path, iso: int) -> None:
+    def __init__(self, client: OscClient, dest: Path, iso: int) -> None:
         self.client, self.dest, self.iso = client, dest, iso
         self._metered_s: float | None = None
-        self._format: dict[str, Any] | None = None
+        self._format: dict[str, str | int] | None = None
 
     def prepare(self) -> None:
         """Put the camera in still-image capture with RAW+ at its own size (as a bracket does),
@@ -219,7 +250,7 @@ class MeasuringCamera:
         self.dest.mkdir(parents=True, exist_ok=True)
         self.prepare()
         if ev == 0.0 or self._metered_s is None:
-            options: dict[str, Any] = {"exposureProgram": 9}
+            options: dict[str, float] = {"exposureProgram": 9}
         else:
             want = self._metered_s * 2.0 ** ev
             options = {"exposureProgram": 1, "shutterSpeed": min(

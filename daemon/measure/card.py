@@ -8,7 +8,6 @@ import html
 import urllib.parse
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 from grassd.daemon.core.monitoring.page_parts import (
     Card,
@@ -48,16 +47,16 @@ def _body(state_dir: str | Path, clock: Clock) -> str:
     last = reports[-1]
     word = headline(last)
     cls = {"within tolerance": "ok"}.get(word, "bad")
-    u = last.get("uniformity") if isinstance(last.get("uniformity"), Mapping) else {}
+    u = u if isinstance(u := last.get("uniformity", {}), Mapping) else {}
 
-    def de(v: Any) -> str:
+    def de(v: float | None) -> str:
         return f"{v:.2f} dE00" if isinstance(v, int | float) and not isinstance(v, bool) \
             else "-"
 
     imp = u.get("improvement")
     uni = f"{de(u.get('before'))} \u2192 {de(u.get('after'))}" + (
         f" ({imp:.1f}\u00d7 better)" if isinstance(imp, int | float) and imp > 0 else "")
-    verdict = last.get("verdict") if isinstance(last.get("verdict"), Mapping) else {}
+    verdict = v if isinstance(v := last.get("verdict", {}), Mapping) else {}
     detail = verdict.get("reason") if last.get("status") == "ok" else last.get("error")
     page = Path(str(last.get("report", ""))).with_suffix(".html")
     link = (f'<a href="../measure/{html.escape(urllib.parse.quote(page.name))}">'

@@ -12,13 +12,21 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import click
 
 from grassd.daemon.core.config.settings import CONFIG_OPTION_HELP, Config
 from grassd.rigs import FIRMWARE_BACKENDS
+
+if TYPE_CHECKING:
+    from grassd.daemon.core.hardware.camera import OscClient
+    from grassd.daemon.measure.report import MeasurementReport
+    from grassd.rigs.simulated_camera import SimCamera
+    from grassd.rigs.simulated_display import SimulatedDisplay
+    from grassd.rigs.simulated_site import SimulatedHardware
 
 
 def _measure_config(cfg: Config, camera_url: str | None = None) -> Config:
@@ -32,8 +40,9 @@ def _measure_config(cfg: Config, camera_url: str | None = None) -> Config:
     return cfg.replace(measure=mc)
 
 
-def measuring_site(hw: Any, cfg: Config, transform: Any, variation_file: str | None,
-                   lux: float) -> tuple[Config, Any, Any]:
+def measuring_site(hw: SimulatedHardware, cfg: Config, transform: Callable[[Config], Config],
+                   variation_file: str | None, lux: float
+                   ) -> tuple[Config, Callable[[Config], Config], SimCamera]:
     """Add the simulated display's measuring camera to ``hw``'s simulated site: (config whose
     ``[measure] camera`` is it, the config transform that keeps it so on reload, the camera).
     Makes the camera's set-up (the simulated operator's checker shot) when the state
@@ -77,8 +86,9 @@ class SimulatedSite:
         self.hw.stop()
 
 
-def start_measuring_camera(hw: Any, cfg: Config, variation_file: str | None,
-                           lux: float, samples: int = 1024) -> tuple[Any, Any]:
+def start_measuring_camera(hw: SimulatedHardware, cfg: Config, variation_file: str | None,
+                           lux: float, samples: int = 1024
+                           ) -> tuple[SimulatedDisplay, SimCamera]:
     """The simulated display of ``hw``'s controllers (pixels varied as ``variation_file``
     says, or not at all; ``samples`` per length for its pixels' radiance) and a started
     simulated OSC camera photographing it: (display, camera). Initialises the renderer."""
@@ -107,7 +117,8 @@ def start_measuring_camera(hw: Any, cfg: Config, variation_file: str | None,
     return display, camera
 
 
-def simulated_setup(cfg: Config, display: Any, camera_url: str, lux: float) -> Path:
+def simulated_setup(cfg: Config, display: SimulatedDisplay, camera_url: str, lux: float
+                    ) -> Path:
     """The simulated operator's set-up: the checker laid at the display, photographed with the
     measuring camera and turned into ``measure/setup.json`` (as ``grassd measure setup``)."""
     from grassd.daemon.measure.job import measuring_camera
@@ -120,7 +131,7 @@ def simulated_setup(cfg: Config, display: Any, camera_url: str, lux: float) -> P
         display.checker = False
 
 
-def make_setup(cfg: Config, client: Any, corners: Any, lux: float,
+def make_setup(cfg: Config, client: OscClient, corners: Sequence[Sequence[float]], lux: float,
                chart: str = "spydercheckr-24") -> Path:
     """Photograph the checker with ``client`` and save the measuring camera's set-up."""
     from grassd.calib.errors import CheckerPhotoError
@@ -200,7 +211,7 @@ def measure(ctx: click.Context, now: bool, config_path: str | None, state_dir: s
     _output(report, json_out)
 
 
-def _ask_daemon(cfg: Config) -> dict[str, Any] | None:
+def _ask_daemon(cfg: Config) -> MeasurementReport | None:
     """The running daemon's measurement (it owns the controllers), or None when none runs."""
     from grassd.daemon.core.errors import DaemonNotRunning
     from grassd.daemon.core.runtime.control import request
@@ -221,7 +232,7 @@ def _ask_daemon(cfg: Config) -> dict[str, Any] | None:
 MEASURE_WAIT_S: float = 3600.0
 
 
-def _output(report: dict[str, Any], json_out: str | None) -> None:
+def _output(report: MeasurementReport, json_out: str | None) -> None:
     from grassd.daemon.core.store.atomic import atomic_write_json
 
     if json_out == "-":

@@ -40,12 +40,16 @@ import secrets
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import Any
+from typing import TYPE_CHECKING, TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
 
 from grassd.daemon.core.errors import DaemonError
+
+if TYPE_CHECKING:
+    from grassd.daemon.core.calibration.variation import DisplayVariation
+    from grassd.daemon.measure.pixel_model import PixelColourModel
 
 #: The fit's median per-pixel residual may be this many times the measurement's noise.
 RESIDUAL_FACTOR: float = 4.0
@@ -79,6 +83,44 @@ class Refusal(Enum):
     NOT_MORE_UNIFORM = "not more uniform"
 
 
+class FindingJson(TypedDict):
+    """A :class:`Finding` as the measurement's report holds it (``kind`` a :class:`Refusal`
+    value)."""
+
+    kind: str
+    detail: str
+    shots: list[str]
+
+
+class LimitsJson(TypedDict):
+    """The limits the evidence was judged by (rms Lab; ``at_bound`` a share of the pixels)."""
+
+    fit_rms_lab: float
+    shot_rms_lab: float
+    at_bound: float
+
+
+class EvidenceSummaryJson(TypedDict):
+    """Whether the photos were evidence, the shots as taken and the failed checks: all a
+    measurement's report holds of photos refused before they could be judged."""
+
+    accepted: bool
+    order: list[str]
+    findings: list[FindingJson]
+
+
+class EvidenceJson(EvidenceSummaryJson):
+    """An :class:`Evidence` as the measurement's report holds it (``evidence``)."""
+
+    noise_lab: float
+    photo_noise_lab: float
+    model_noise_lab: float
+    fit_rms_lab: float
+    limits: LimitsJson
+    shot_rms_lab: dict[str, float]
+    at_bound: int
+
+
 @dataclass(frozen=True)
 class Finding:
     """One failed check: its ``kind``, what was seen (``detail``, for the user) and the
@@ -88,7 +130,7 @@ class Finding:
     detail: str
     shots: tuple[str, ...] = ()
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> FindingJson:
         """The finding as the report holds it."""
         return {"kind": self.kind.value, "detail": self.detail, "shots": list(self.shots)}
 
@@ -130,7 +172,7 @@ class Evidence:
 
         return replace(self, findings=(*self.findings, finding))
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> EvidenceJson:
         """The evidence as the measurement's report holds it (``evidence``)."""
         return {"accepted": self.accepted, "noise_lab": round(self.noise_lab, 4),
                 "photo_noise_lab": round(self.photo_noise_lab, 4),
@@ -182,7 +224,7 @@ def photo_noise(first: NDArray, second: NDArray) -> float:
     return float(np.median(rms_lab(first, second)) / np.sqrt(2.0))
 
 
-def model_noise(model: Any, commanded_mm: NDArray) -> float:
+def model_noise(model: PixelColourModel, commanded_mm: NDArray) -> float:
     """Spread (rms Lab) of the model pixel's colour over the tuft layouts it averages, at the
     photographed ``commanded_mm`` (N, K); without layouts (one recorded) the photo floor
     :data:`~grassd.daemon.measure.pixel_model.PHOTO_LAB_SD`."""
@@ -197,7 +239,7 @@ def model_noise(model: Any, commanded_mm: NDArray) -> float:
     return float(max(np.median(np.sqrt(np.mean(per * per, axis=-1))), PHOTO_LAB_SD))
 
 
-def at_bound(variation: Any) -> NDArray[np.bool_]:
+def at_bound(variation: DisplayVariation) -> NDArray[np.bool_]:
     """(N,) pixels whose fitted offset or a gain lies within :data:`BOUND_MARGIN` of its
     bound (:data:`~grassd.daemon.core.calibration.variation.OFFSET_LIMIT_MM`, ``GAIN_RANGE``)."""
     from grassd.daemon.core.calibration.variation import GAIN_RANGE, OFFSET_LIMIT_MM
@@ -236,7 +278,7 @@ def name_mismatches(measured_lab: NDArray, predicted_lab: NDArray, limit_lab: fl
 
 
 def judge(names: Sequence[str], measured_lab: NDArray, predicted_lab: NDArray,
-          fit_rms_lab: NDArray, variation: Any, repeat: tuple[NDArray, NDArray],
+          fit_rms_lab: NDArray, variation: DisplayVariation, repeat: tuple[NDArray, NDArray],
           model_noise_lab: float, order: Sequence[str], refit: Refit | None = None) -> Evidence:
     """Judge the photos before the correction (module docstring). ``names`` (K,) the shots
     whose ``measured_lab`` (N, K, 3) and ``predicted_lab`` (N, K, 3; the fitted model at the

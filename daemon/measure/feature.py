@@ -16,6 +16,7 @@ from grassd.daemon.core.runtime.features import Feature
 if TYPE_CHECKING:
     from grassd.daemon.core.monitoring.page_parts import Card, Clock
     from grassd.daemon.core.runtime.service import Service
+    from grassd.daemon.measure.report import MeasurementReport
 
 
 class MeasureFeature(Feature):
@@ -49,7 +50,7 @@ class MeasureFeature(Feature):
         hour = datetime.fromtimestamp(now, ZoneInfo(svc.cfg.site.timezone)).hour
         return now - self.last_at >= mc.interval_s and mc.in_window(hour)
 
-    def now(self, svc: Service, trigger: str = "request") -> dict[str, Any]:
+    def now(self, svc: Service, trigger: str = "request") -> MeasurementReport:
         """Measure the display now, the other features holding off it; the measurement's
         report (JSON-ready). Then the status page's measurement card is written again."""
         from grassd.daemon.measure.job import measure_with

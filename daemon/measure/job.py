@@ -25,7 +25,7 @@ from __future__ import annotations
 import logging
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from grassd.daemon.core.errors import USER_ERRORS, DaemonError, RunInterrupted
 
@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     from grassd.daemon.core.config.settings import Config
     from grassd.daemon.core.hardware.camera import OscClient
     from grassd.daemon.core.runtime.service import Service
+    from grassd.daemon.measure.report import MeasurementReport
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +54,7 @@ def measuring_camera(cfg: Config) -> tuple[OscClient, Path | None]:
                                          password=mc.password)), None
 
 
-def measure_with(svc: Service, trigger: str = "request") -> dict[str, Any]:
+def measure_with(svc: Service, trigger: str = "request") -> MeasurementReport:
     """One measurement by the service ``svc`` (module docstring); returns its report."""
     from grassd.daemon.core.calibration.calibrate import init_backend
     from grassd.daemon.core.runtime.retention import prune_measure_photos
@@ -68,8 +69,8 @@ def measure_with(svc: Service, trigger: str = "request") -> dict[str, Any]:
     cfg = svc.cfg
     layout = StateLayout(cfg.state_dir)
     started = datetime.now(UTC)
-    report: dict[str, Any] = {"measurement": measurement_id(started), "trigger": trigger,
-                              "started_at": started.isoformat(timespec="seconds")}
+    report: MeasurementReport = {"measurement": measurement_id(started), "trigger": trigger,
+                                 "started_at": started.isoformat(timespec="seconds")}
     lock = None
     try:
         if cfg.measure is None:

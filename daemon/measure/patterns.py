@@ -22,12 +22,16 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Iterable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from grassd.daemon.core.errors import DaemonError
+
+if TYPE_CHECKING:
+    from grassd.daemon.core.config.settings import ControllerConfig
+    from grassd.daemon.core.hardware.fleet import Fleet
 
 log = logging.getLogger(__name__)
 
@@ -45,7 +49,7 @@ class PatternSession:
     """Test patterns on ``controllers`` (their ``pixels`` ranges map display pixels, row-major,
     to each controller's pixels) through ``fleet``. Use as a context manager."""
 
-    def __init__(self, fleet: Any, controllers: Sequence[Any], n_pixels: int, *,
+    def __init__(self, fleet: Fleet, controllers: Sequence[ControllerConfig], n_pixels: int, *,
                  timeout_s: float, settle_s: float, tolerance_um: int = 150,
                  stop: Callable[[], bool] | None = None) -> None:
         from grassd.daemon.core.calibration.display_model import controller_pixels
@@ -127,7 +131,9 @@ class PatternSession:
         """Indices of the controllers whose targets are no longer the pattern while their
         pixels are within tolerance of it (held), of those whose targets are not the pattern
         and some pixels are not (moved), and of those on the pattern not there yet (far)."""
-        held, moved, far = [], [], []
+        held: list[int] = []
+        moved: list[int] = []
+        far: list[int] = []
         for k, (c, pix) in enumerate(zip(self.controllers, self.pixels, strict=True)):
             pos = self.fleet.client(c).read_positions(c.address, 0, len(pix))
             want = self.shown[pix]

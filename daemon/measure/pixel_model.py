@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from colour import delta_E
@@ -34,13 +34,13 @@ from grassd.daemon.core.calibration.variation import GAIN_RANGE, OFFSET_LIMIT_MM
 if TYPE_CHECKING:
     from grassd.sim.lighting import Lighting
     from grassd.sim.renderer import Renderer
-    from grassd.sim.scene import DisplaySpec
+    from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint
 
 #: Material rows of the albedo matrix (the renderer's symbol order).
 YELLOW, GREEN = 0, 1
 
 
-def model_albedos(pixel: Any) -> NDArray[np.float64]:
+def model_albedos(pixel: PixelSpec) -> NDArray[np.float64]:
     """(4, 3) linear Rec.709 albedos (yellow, green, base, cavity) of a ``PixelSpec``."""
     from grassd.sim.scene import srgb_to_linear
 
@@ -118,8 +118,8 @@ def lab_of(rgb: NDArray, ccm: NDArray | None = None) -> NDArray[np.float64]:
 
 
 def record_pixel_model(renderer: Renderer, display: DisplaySpec, lighting: Lighting,
-                       viewpoints: Sequence[Any], grid_mm: NDArray, settings: Any, *,
-                       layouts: int = 1, glossy: bool = False,
+                       viewpoints: Sequence[Viewpoint], grid_mm: NDArray,
+                       settings: RenderSettings, *, layouts: int = 1, glossy: bool = False,
                        progress: Callable[[int, int], None] | None = None) -> PixelColourModel:
     """Record every pixel of ``display`` (a ``DisplaySpec``) at its own viewpoint
     (``viewpoints[i]``, a ``Viewpoint``) on ``grid_mm`` under ``lighting``, averaged over

@@ -28,14 +28,16 @@ import re
 from collections.abc import Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, NotRequired, Required, TypedDict, cast
 
 import numpy as np
 
+from grassd.daemon.core.calibration.variation import PixelVariation
 from grassd.daemon.core.monitoring.page_parts import CSS, Clock, esc, html_table, td
 from grassd.daemon.core.monitoring.status_page import svg_trend
 from grassd.daemon.core.store.atomic import atomic_write_json, atomic_write_text
 from grassd.daemon.core.store.layout import StateLayout
+from grassd.daemon.measure.evidence import EvidenceSummaryJson
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +61,146 @@ svg.heat text { font-family: system-ui, sans-serif; }
 """
 
 
+# -- the report's JSON ------------------------------------------------------------------------
+
+
+class Uniformity(TypedDict):
+    """Uniformity of the display at the checked levels
+    (:data:`~grassd.daemon.measure.run.CHECK_LEVELS`; the report's ``before_detail`` and
+    ``after_detail``, :mod:`grassd.daemon.measure.run`): the worst pixel pair at the mid level
+    (dE00 and the two pixels), the OGCD spread and mean per level (dE00)."""
+
+    worst_pair_de00: float
+    worst_pair: list[int]
+    ogcd_spread_de00: list[float]
+    mean_ogcd_de00: list[float]
+
+
+class UniformityReport(TypedDict):
+    """The report's ``uniformity``: the worst pixel pair at ``level`` before and after the
+    correction (dE00), their ratio (None when after is 0) and the detail at ``levels``."""
+
+    level: int
+    levels: list[int]
+    before: float
+    after: float
+    improvement: float | None
+    before_detail: Uniformity
+    after_detail: Uniformity
+
+
+class CameraViewpoint(TypedDict):
+    """The camera's position as a viewpoint of the display (cm, m, degrees)."""
+
+    h_cm: float
+    d_m: float
+    theta_deg: float
+
+
+class CameraReport(TypedDict):
+    """The report's ``camera``: its URL, solved position (m, world), pose residual (rms
+    degrees) and that position as a viewpoint."""
+
+    url: str | None
+    position_m: list[float]
+    rms_deg: float
+    viewpoint: CameraViewpoint
+
+
+class LightReport(TypedDict):
+    """The report's ``light``: the panorama and the lux read at every shot."""
+
+    hdri: str
+    lux: list[float]
+
+
+class PixelReport(PixelVariation):
+    """One pixel of the report's ``pixels``: its fitted departure and the fit's rms CIELAB
+    residual with it (``rms_lab``) and with the model pixel (``rms_lab_model``)."""
+
+    rms_lab: float
+    rms_lab_model: float
+
+
+class CharacteristicReport(TypedDict):
+    """The report's ``characteristic``: every pixel's OGCD (dE00) at the patterns' lengths
+    (mm) as measured, as the model predicts and as fitted, and the largest differences."""
+
+    lengths_mm: list[float]
+    measured_ogcd: list[list[float]]
+    predicted_ogcd: list[list[float]]
+    fitted_ogcd: list[list[float]]
+    max_error_predicted_de00: float
+    max_error_fitted_de00: float
+
+
+class VerdictReport(TypedDict):
+    """The report's ``verdict``: "within tolerance" or "recalibrate", the tolerance (dE00)
+    and the reason in words."""
+
+    state: Literal["within tolerance", "recalibrate"]
+    tolerance_de00: float
+    reason: str
+
+
+class TablesReport(TypedDict):
+    """The report's ``tables``: their granularity and source; once kept or refused, the run
+    they were committed as (None: refused), its status, and which controllers took them."""
+
+    granularity: str
+    nominal_source: str
+    run_id: NotRequired[int | None]
+    status: NotRequired[str]
+    pushed: NotRequired[list[bool]]
+
+
+#: How a measurement ended (the report's ``status``).
+MeasurementStatus = Literal["ok", "refused", "failed", "interrupted"]
+
+
+class MeasurementReport(TypedDict, total=False):
+    """A measurement's report (``measure/<id>.json``, ``grassd measure --json``, the control
+    socket's ``measure``): every key of a successful one; a failed or interrupted one holds
+    ``measurement``, ``trigger``, ``started_at``, ``finished_at``, ``status`` and ``error``, a
+    refused one also ``evidence`` and ``tables`` (and all the rest when its photos were
+    judged). ``report``: its JSON file's path; ``seconds``: the wall time of each part of the
+    measurement (``calibrate``, ``photos_before``, ``analyse_and_after``, ``total``). Read
+    back, a non-finite number is None."""
+
+    measurement: Required[str]
+    trigger: str
+    started_at: str
+    finished_at: str
+    status: MeasurementStatus
+    error: str
+    report: str
+    camera: CameraReport
+    light: LightReport
+    patterns_mm: list[float]
+    shape: list[int]
+    display_colour_balance: list[float]
+    pixels: list[PixelReport]
+    characteristic: CharacteristicReport
+    uniformity: UniformityReport
+    verdict: VerdictReport
+    tables: TablesReport
+    seconds: dict[str, float]
+    evidence: EvidenceSummaryJson
+
+
+class TrendPoint(TypedDict):
+    """One successful measurement in the trend (:func:`trend`)."""
+
+    measurement: str | None
+    started_at: str | None
+    before_de00: float | None
+    after_de00: float | None
+    verdict: str | None
+    green_gain: float | None
+    yellow_gain: float | None
+    abs_offset_mm: float | None
+
+
 # -- reading and writing ----------------------------------------------------------------------
 
 
@@ -80,7 +222,7 @@ def _finite(obj: Any, replaced: list[int]) -> Any:
     return obj
 
 
-def write_report(layout: StateLayout, report: Mapping[str, Any]) -> Path:
+def write_report(layout: StateLayout, report: MeasurementReport) -> Path:
     """Write the measurement ``report`` (a successful one, or a failed or interrupted one that
     holds only ``measurement``, ``trigger``, ``started_at``, ``finished_at``, ``status`` and
     ``error``) as ``layout.measure/<measurement>.json`` and its HTML page ``<measurement>.html``
@@ -112,58 +254,57 @@ def write_report(layout: StateLayout, report: Mapping[str, Any]) -> Path:
     return path
 
 
-def load_reports(layout: StateLayout, limit: int | None = None) -> list[dict[str, Any]]:
+def load_reports(layout: StateLayout, limit: int | None = None) -> list[MeasurementReport]:
     """The measurements' JSON reports in ``layout.measure``, oldest first: the newest ``limit``
     of them (None: all). Each gets the key ``"report"``, its JSON file's path, where it has
     none. A file that cannot be read or is not a JSON object is skipped with a warning."""
     paths = layout.measurement_reports()
     if limit is not None:
         paths = paths[-limit:] if limit > 0 else []
-    out = []
+    out: list[MeasurementReport] = []
     for p in paths:
         try:
-            rep = json.loads(p.read_text(encoding="utf-8"))
+            doc = json.loads(p.read_text(encoding="utf-8"))
         except (OSError, ValueError) as exc:
             log.warning("measurement report %s skipped: %s", p, exc)
             continue
-        if not isinstance(rep, dict):
+        if not isinstance(doc, dict):
             log.warning("measurement report %s skipped: not a JSON object", p)
             continue
+        rep = cast(MeasurementReport, doc)  # its readers take every part as they find it
         rep.setdefault("report", str(p))
         out.append(rep)
     return out
 
 
-def _num(v: Any) -> float | None:
-    """``v`` as a finite float, None for anything else (missing, null, text, bool)."""
+def _num(v: float | None) -> float | None:
+    """``v`` as a finite float, None for anything else (missing, null, NaN; text or a bool in
+    a report of another shape)."""
     if isinstance(v, bool) or not isinstance(v, int | float):
         return None
     f = float(v)
     return f if math.isfinite(f) else None
 
 
-def _mean(values: Sequence[Any], absolute: bool = False) -> float | None:
+def _mean(values: Sequence[float | None], absolute: bool = False) -> float | None:
     nums = [x for x in (_num(v) for v in values) if x is not None]
     if not nums:
         return None
     return float(np.mean(np.abs(nums) if absolute else nums))
 
 
-def _pixels(report: Mapping[str, Any]) -> list[Mapping[str, Any]]:
+def _pixels(report: MeasurementReport) -> list[PixelReport]:
     px = report.get("pixels")
     return [p for p in px if isinstance(p, Mapping)] if isinstance(px, list) else []
 
 
-def _get(d: Any, *keys: str) -> Any:
-    """``d[k0][k1]...`` where each level is a mapping, else None."""
-    for k in keys:
-        if not isinstance(d, Mapping):
-            return None
-        d = d.get(k)
-    return d
+def _state(report: MeasurementReport) -> str | None:
+    """The report's verdict (``verdict.state``), None without one."""
+    v = v if isinstance(v := report.get("verdict", {}), Mapping) else {}
+    return v.get("state")
 
 
-def trend(reports: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+def trend(reports: Sequence[MeasurementReport]) -> list[TrendPoint]:
     """One point per successful measurement (``status`` "ok") of ``reports``, in their order:
     ``measurement`` (id), ``started_at`` (ISO text), ``before_de00`` and ``after_de00`` (the
     uniformity: worst pixel pair at the mid level, dE00, before and after the correction),
@@ -171,16 +312,16 @@ def trend(reports: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     pixels' mean gains, factors) and ``abs_offset_mm`` (the pixels' mean |length offset|, mm).
     A value the report lacks is None. Gains drifting from 1 and offsets growing over months
     show the display fading."""
-    out = []
+    out: list[TrendPoint] = []
     for r in reports:
         if r.get("status") != "ok":
             continue
         px = _pixels(r)
+        u = u if isinstance(u := r.get("uniformity", {}), Mapping) else {}
         out.append({
             "measurement": r.get("measurement"), "started_at": r.get("started_at"),
-            "before_de00": _num(_get(r, "uniformity", "before")),
-            "after_de00": _num(_get(r, "uniformity", "after")),
-            "verdict": _get(r, "verdict", "state"),
+            "before_de00": _num(u.get("before")), "after_de00": _num(u.get("after")),
+            "verdict": _state(r),
             "green_gain": _mean([p.get("green_gain") for p in px]),
             "yellow_gain": _mean([p.get("yellow_gain") for p in px]),
             "abs_offset_mm": _mean([p.get("length_offset_mm") for p in px], absolute=True),
@@ -188,7 +329,7 @@ def trend(reports: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
-def epoch_of(iso: Any) -> float | None:
+def epoch_of(iso: str | None) -> float | None:
     """Epoch seconds of an ISO 8601 time (a report's ``started_at``), None when it is not one
     (a time without zone is taken as UTC)."""
     if not isinstance(iso, str):
@@ -202,32 +343,33 @@ def epoch_of(iso: Any) -> float | None:
     return t.timestamp()
 
 
-def verdict_class(report: Mapping[str, Any]) -> str:
+def verdict_class(report: MeasurementReport) -> str:
     """The report's headline as a CSS class: "within" (within tolerance), "recalibrate", or
     "failed" (failed, interrupted, or no verdict)."""
     if report.get("status") != "ok":
         return "failed"
-    state = _get(report, "verdict", "state")
-    return {"within tolerance": "within", "recalibrate": "recalibrate"}.get(state, "failed")
+    state = _state(report)
+    return {"within tolerance": "within", "recalibrate": "recalibrate"}.get(state or "",
+                                                                            "failed")
 
 
-def headline(report: Mapping[str, Any]) -> str:
+def headline(report: MeasurementReport) -> str:
     """The report's verdict in words: "within tolerance", "recalibrate", or the status of a
     measurement that did not finish ("failed", "interrupted")."""
     if report.get("status") != "ok":
         return str(report.get("status") or "unknown")
-    return str(_get(report, "verdict", "state") or "no verdict")
+    return str(_state(report) or "no verdict")
 
 
 # -- HTML -------------------------------------------------------------------------------------
 
 
-def _f(v: Any, fmt: str, unit: str = "") -> str:
+def _f(v: float | None, fmt: str, unit: str = "") -> str:
     x = _num(v)
     return "-" if x is None else f"{format(x, fmt)}{unit}"
 
 
-def _dl(items: Sequence[tuple[str, Any]]) -> str:
+def _dl(items: Sequence[tuple[str, str | int | None]]) -> str:
     return "<dl>" + "".join(f"<dt>{html.escape(k)}</dt><dd>{esc(v)}</dd>"
                             for k, v in items) + "</dl>"
 
@@ -239,7 +381,7 @@ def _page(title: str, cls: str, head: str, body: str) -> str:
             f'<header class="health {cls}"><h1>{esc(head)}</h1></header>{body}</body></html>\n')
 
 
-def grid_shape(n: int, shape: Any = None) -> tuple[int, int]:
+def grid_shape(n: int, shape: Sequence[int] | None = None) -> tuple[int, int]:
     """(rows, cols) of ``n`` pixels: ``shape`` when it is two positive integers whose product
     is ``n``, else one row.
 
@@ -264,7 +406,7 @@ def _colour(v: float | None, centre: float, half: float) -> str:
     return "#{:02x}{:02x}{:02x}".format(*rgb)
 
 
-def svg_heatmap(values: Sequence[Any], rows: int, cols: int, label: str, centre: float,
+def svg_heatmap(values: Sequence[float | None], rows: int, cols: int, label: str, centre: float,
                 fmt: str) -> str:
     """An inline SVG grid of ``values`` (pixel ``i`` at row ``i // cols``, column
     ``i % cols``, row 0 on top), coloured blue below ``centre``, red above, white at it, the
@@ -299,9 +441,10 @@ def svg_heatmap(values: Sequence[Any], rows: int, cols: int, label: str, centre:
     return "".join(parts)
 
 
-def svg_characteristic(lengths: Sequence[Any], curves: Sequence[tuple[int, Sequence[Any],
-                       Sequence[Any], Sequence[Any]]], width: int = 520,
-                       height: int = 300) -> str:
+def svg_characteristic(lengths: Sequence[float | None],
+                       curves: Sequence[tuple[int, Sequence[float | None], Sequence[float | None],
+                                              Sequence[float | None]]],
+                       width: int = 520, height: int = 300) -> str:
     """An inline SVG plot of OGCD (dE00) against length (mm) for a few pixels: for each
     ``(index, measured, predicted, fitted)`` the measured points, the model's prediction
     (dashed) and the fitted pixel (solid), one colour per pixel."""
@@ -365,28 +508,29 @@ def svg_characteristic(lengths: Sequence[Any], curves: Sequence[tuple[int, Seque
     return "".join(parts)
 
 
-def _uniformity(r: Mapping[str, Any]) -> str:
+def _uniformity(r: MeasurementReport) -> str:
     u = r.get("uniformity")
     if not isinstance(u, Mapping):
         return "<p>No uniformity measured.</p>"
-    bd, ad = u.get("before_detail"), u.get("after_detail")
-    bd = bd if isinstance(bd, Mapping) else {}
-    ad = ad if isinstance(ad, Mapping) else {}
+    bd = b if isinstance(b := u.get("before_detail"), Mapping) else None
+    ad = a if isinstance(a := u.get("after_detail"), Mapping) else None
+    verdict = v if isinstance(v := r.get("verdict", {}), Mapping) else {}
 
-    def pair(d: Mapping[str, Any]) -> str:
-        p = d.get("worst_pair")
+    def pair(d: Uniformity | None) -> str:
+        p = None if d is None else d.get("worst_pair")
         return f" (pixels {p[0]} and {p[1]})" if isinstance(p, list) and len(p) == 2 else ""
 
     imp = _num(u.get("improvement"))
-    items = [("level", u.get("level")),
+    items: list[tuple[str, str | int | None]] = [("level", u.get("level")),
              ("worst pixel pair before", f"{_f(u.get('before'), '.2f', ' dE00')}{pair(bd)}"),
              ("worst pixel pair after", f"{_f(u.get('after'), '.2f', ' dE00')}{pair(ad)}"),
              ("improvement", "-" if imp is None else f"{imp:.2f}\u00d7"),
-             ("tolerance", _f(_get(r, "verdict", "tolerance_de00"), "g", " dE00"))]
-    levels = u.get("levels") if isinstance(u.get("levels"), list) else []
+             ("tolerance", _f(verdict.get("tolerance_de00"), "g", " dE00"))]
+    levels = lv if isinstance(lv := u.get("levels"), list) else []
 
-    def at(d: Mapping[str, Any], key: str, k: int) -> Any:
-        s = d.get(key)
+    def at(d: Uniformity | None, key: Literal["ogcd_spread_de00", "mean_ogcd_de00"], k: int
+           ) -> float | None:
+        s = None if d is None else d.get(key)
         return s[k] if isinstance(s, list) and k < len(s) else None
 
     rows = [[td(lv, "n"), td(_f(at(bd, "ogcd_spread_de00", k), ".3f"), "n"),
@@ -398,22 +542,23 @@ def _uniformity(r: Mapping[str, Any]) -> str:
     return _dl(items) + table
 
 
-def _camera(r: Mapping[str, Any]) -> str:
-    cam = r.get("camera") if isinstance(r.get("camera"), Mapping) else {}
+def _camera(r: MeasurementReport) -> str:
+    cam = c if isinstance(c := r.get("camera", {}), Mapping) else {}
     pos = cam.get("position_m")
     pos_s = ("(" + ", ".join(_f(v, ".3f") for v in pos) + ") m") if isinstance(pos, list) \
         else "-"
-    vp = cam.get("viewpoint") if isinstance(cam.get("viewpoint"), Mapping) else {}
-    lux = [x for x in (_num(v) for v in (_get(r, "light", "lux") or [])) if x is not None] \
-        if isinstance(_get(r, "light", "lux"), list) else []
-    tables = r.get("tables") if isinstance(r.get("tables"), Mapping) else {}
+    vp = v if isinstance(v := cam.get("viewpoint", {}), Mapping) else {}
+    light = lt if isinstance(lt := r.get("light", {}), Mapping) else {}
+    lux = [x for x in (_num(v) for v in lx) if x is not None] \
+        if isinstance(lx := light.get("lux"), list) else []
+    tables = tb if isinstance(tb := r.get("tables", {}), Mapping) else {}
     pushed = tables.get("pushed")
-    items = [("camera", cam.get("url")), ("position", pos_s),
+    items: list[tuple[str, str | int | None]] = [("camera", cam.get("url")), ("position", pos_s),
              ("pose residual (rms)", _f(cam.get("rms_deg"), ".3f", _DEG)),
              ("as a viewpoint", f"h {_f(vp.get('h_cm'), '.1f', ' cm')}, d "
                                 f"{_f(vp.get('d_m'), '.2f', ' m')}, \u03b8 "
                                 f"{_f(vp.get('theta_deg'), '.1f', _DEG)}"),
-             ("panorama", _get(r, "light", "hdri")),
+             ("panorama", light.get("hdri")),
              ("lux while photographed", f"{min(lux):.0f} \u2026 {max(lux):.0f} "
                                         f"({len(lux)} shots)" if lux else "-"),
              ("patterns", ", ".join(_f(v, ".2f") for v in r.get("patterns_mm") or [])
@@ -429,25 +574,25 @@ def _camera(r: Mapping[str, Any]) -> str:
     return _dl(items)
 
 
-def _heatmaps(r: Mapping[str, Any]) -> str:
+def _heatmaps(r: MeasurementReport) -> str:
     px = _pixels(r)
     if not px:
         return "<p>No pixels measured.</p>"
     rows, cols = grid_shape(len(px), r.get("shape"))
     by_index = sorted(px, key=lambda p: p.get("index") if isinstance(p.get("index"), int)
                       else 0)
-    maps = [("length offset (mm)", "length_offset_mm", 0.0, ".2f"),
-            ("green gain", "green_gain", 1.0, ".3f"),
-            ("yellow gain", "yellow_gain", 1.0, ".3f")]
+    maps = [("length offset (mm)", [p.get("length_offset_mm") for p in by_index], 0.0, ".2f"),
+            ("green gain", [p.get("green_gain") for p in by_index], 1.0, ".3f"),
+            ("yellow gain", [p.get("yellow_gain") for p in by_index], 1.0, ".3f")]
     figs = "".join(
         f'<figure><div class="scroll">'
-        f"{svg_heatmap([p.get(key) for p in by_index], rows, cols, label, centre, fmt)}"
+        f"{svg_heatmap(values, rows, cols, label, centre, fmt)}"
         f"</div><figcaption>{html.escape(label)}, {rows} \u00d7 {cols}</figcaption></figure>"
-        for label, key, centre, fmt in maps)
+        for label, values, centre, fmt in maps)
     return f'<div class="heats">{figs}</div>'
 
 
-def _pixel_table(r: Mapping[str, Any]) -> str:
+def _pixel_table(r: MeasurementReport) -> str:
     rows = [[td(p.get("index"), "n"), td(_f(p.get("length_offset_mm"), "+.3f"), "n"),
              td(_f(p.get("green_gain"), ".4f"), "n"), td(_f(p.get("yellow_gain"), ".4f"), "n"),
              td(_f(p.get("rms_lab"), ".3f"), "n"), td(_f(p.get("rms_lab_model"), ".3f"), "n")]
@@ -458,15 +603,16 @@ def _pixel_table(r: Mapping[str, Any]) -> str:
                    "rms fitted (CIELAB)", "rms model (CIELAB)"], rows)
 
 
-def _characteristic(r: Mapping[str, Any]) -> str:
+def _characteristic(r: MeasurementReport) -> str:
     ch = r.get("characteristic")
     if not isinstance(ch, Mapping):
         return "<p>No characteristic measured.</p>"
     items = [("max error, model predicted", _f(ch.get("max_error_predicted_de00"), ".3f",
                                                 " dE00")),
              ("max error, fitted pixel", _f(ch.get("max_error_fitted_de00"), ".3f", " dE00"))]
-    meas, pred, fit = (ch.get(k) if isinstance(ch.get(k), list) else []
-                       for k in ("measured_ogcd", "predicted_ogcd", "fitted_ogcd"))
+    meas, pred, fit = (s if isinstance(s, list) else []
+                       for s in (ch.get("measured_ogcd"), ch.get("predicted_ogcd"),
+                                 ch.get("fitted_ogcd")))
     n = min(len(meas), len(pred), len(fit))
 
     def err(i: int) -> float:
@@ -479,34 +625,35 @@ def _characteristic(r: Mapping[str, Any]) -> str:
     curves = [(i, meas[i], pred[i], fit[i]) for i in sorted(chosen)
               if all(isinstance(s[i], list) for s in (meas, pred, fit))]
     plot = ""
-    if curves and isinstance(ch.get("lengths_mm"), list):
-        plot = (f'<figure><div class="scroll">{svg_characteristic(ch["lengths_mm"], curves)}'
+    if curves and isinstance(lengths := ch.get("lengths_mm"), list):
+        plot = (f'<figure><div class="scroll">{svg_characteristic(lengths, curves)}'
                 "</div><figcaption>OGCD (dE00) against length: the pixels farthest from the "
                 "model</figcaption></figure>")
     return _dl(items) + plot
 
 
-def _trend_html(points: Sequence[Mapping[str, Any]], current: Any) -> str:
+def _trend_html(points: Sequence[TrendPoint], current: str | None) -> str:
     if not points:
         return "<p>No successful measurement yet.</p>"
     clock = Clock("UTC")
     t = np.array([np.nan if (e := epoch_of(p.get("started_at"))) is None else e
                   for p in points], float)
 
-    def series(key: str) -> np.ndarray:
-        return np.array([np.nan if (v := _num(p.get(key))) is None else v for p in points],
-                        float)
+    def series(values: Sequence[float | None]) -> np.ndarray:
+        return np.array([np.nan if (x := _num(v)) is None else x for v in values], float)
 
     ok = np.isfinite(t)
-    figs = [("worst pixel pair after correction (dE00)", "after_de00", "#1b7f3b"),
-            ("worst pixel pair before correction (dE00)", "before_de00", "#b3261e"),
-            ("mean green gain", "green_gain", "#1b6fb3"),
-            ("mean yellow gain", "yellow_gain", "#b36b00"),
-            ("mean |length offset| (mm)", "abs_offset_mm", "#8a4fb3")]
+    figs = [("worst pixel pair after correction (dE00)", [p.get("after_de00") for p in points],
+             "#1b7f3b"),
+            ("worst pixel pair before correction (dE00)",
+             [p.get("before_de00") for p in points], "#b3261e"),
+            ("mean green gain", [p.get("green_gain") for p in points], "#1b6fb3"),
+            ("mean yellow gain", [p.get("yellow_gain") for p in points], "#b36b00"),
+            ("mean |length offset| (mm)", [p.get("abs_offset_mm") for p in points], "#8a4fb3")]
     plots = '<div class="trends">' + "".join(
-        f"<figure>{svg_trend(t[ok], series(key)[ok], label, clock, colour)}"
+        f"<figure>{svg_trend(t[ok], series(values)[ok], label, clock, colour)}"
         f"<figcaption>{html.escape(label)} (UTC)</figcaption></figure>"
-        for label, key, colour in figs) + "</div>"
+        for label, values, colour in figs) + "</div>"
     rows = [[td(("\u25b6 " if p.get("measurement") == current else "")
                  + str(p.get("measurement"))), td(p.get("started_at"), "t"),
              td(p.get("verdict"), "ok" if p.get("verdict") == "within tolerance" else "bad"),
@@ -517,7 +664,7 @@ def _trend_html(points: Sequence[Mapping[str, Any]], current: Any) -> str:
                            "after (dE00)", "green gain", "yellow gain", "|offset| (mm)"], rows)
 
 
-def render_report(report: Mapping[str, Any], past: Sequence[Mapping[str, Any]] = ()) -> str:
+def render_report(report: MeasurementReport, past: Sequence[MeasurementReport] = ()) -> str:
     """The measurement ``report``'s HTML page (module docstring); ``past``: the reports whose
     trend it shows (oldest first; those of :func:`load_reports`)."""
     mid = report.get("measurement")
@@ -528,7 +675,8 @@ def render_report(report: Mapping[str, Any], past: Sequence[Mapping[str, Any]] =
             f'{esc(report.get("finished_at"))} &middot; status {esc(report.get("status"))}'
             "</p>")
     if report.get("status") == "ok":
-        reason = _get(report, "verdict", "reason")
+        verdict = v if isinstance(v := report.get("verdict", {}), Mapping) else {}
+        reason = verdict.get("reason")
         lead = f'<p class="reason">{esc(reason)}</p>' if reason else ""
         sections = [("Uniformity", _uniformity(report)),
                     ("Camera, light and tables", _camera(report)),
@@ -536,7 +684,8 @@ def render_report(report: Mapping[str, Any], past: Sequence[Mapping[str, Any]] =
                     ("Pixels", _pixel_table(report)),
                     ("Characteristic: measured vs predicted", _characteristic(report))]
     elif report.get("status") == "refused":  # its photos were not evidence
-        findings = _get(report, "evidence", "findings") or []
+        evidence = report.get("evidence")
+        findings = (evidence.get("findings") if isinstance(evidence, Mapping) else None) or []
         lead = ('<p class="reason">The photos were not evidence of the display: nothing was '
                 "pushed; the last tables stay active.</p><h2>Refused</h2>"
                 + "".join(f'<p class="reason">{esc(f.get("kind"))}: {esc(f.get("detail"))}'

@@ -52,7 +52,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypedDict, TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 from colour import delta_E
@@ -60,6 +60,7 @@ from numpy.typing import NDArray
 
 from grassd.daemon.core.errors import DaemonError, RunInterrupted
 from grassd.daemon.measure.evidence import Evidence, Finding, PhotosRefused, Refusal
+from grassd.daemon.measure.report import MeasurementReport, Uniformity
 
 if TYPE_CHECKING:
     from grassd.calib.display_in_photo import DisplayInPhoto
@@ -72,6 +73,9 @@ if TYPE_CHECKING:
     from grassd.daemon.measure.camera_chain import MeasureSetup, Shot
     from grassd.daemon.measure.pixel_model import PixelColourModel, VariationFit
     from grassd.sim.light_input import LightInput
+    from grassd.sim.lighting import Lighting
+    from grassd.sim.renderer import Renderer
+    from grassd.sim.scene import DisplaySpec, RenderSettings
 
 T = TypeVar("T")
 
@@ -147,18 +151,8 @@ class MeasurementOutcome:
     corrected tables to keep (None: refused, the report's ``evidence`` and ``status`` say
     why)."""
 
-    report: dict[str, Any]
+    report: MeasurementReport
     accepted: tuple[DisplayCorrection, CalibrationResult] | None
-
-
-class Uniformity(TypedDict):
-    """Uniformity of the display at :data:`CHECK_LEVELS` (the report's ``before_detail`` and
-    ``after_detail``; module docstring)."""
-
-    worst_pair_de00: float
-    worst_pair: list[int]
-    ogcd_spread_de00: list[float]
-    mean_ogcd_de00: list[float]
 
 
 def measurement_id(at: datetime | None = None) -> str:
@@ -194,6 +188,7 @@ def run_measurement(ctx: MeasureContext) -> MeasurementOutcome:
     """One measurement (module docstring): its report, and what to keep when it was accepted.
     Raises :class:`MeasureDeadline` once ``[measure] deadline_s`` has passed (the display
     shows content again)."""
+    from grassd.daemon.measure.camera_chain import MeasuringCamera
     from grassd.daemon.measure.evidence import shot_order
     from grassd.daemon.measure.patterns import PatternError, PatternSession
 
@@ -203,9 +198,7 @@ def run_measurement(ctx: MeasureContext) -> MeasurementOutcome:
     deadline = _Deadline(mc.deadline_s)
     started = datetime.now(UTC)
     mid = measurement_id(started)
-    d = cfg.display
-    n = d.rows * d.cols
-    green_max = float(d.green_max_mm)
+    n = cfg.display.rows * cfg.display.cols
 
     def progress(text: str) -> None:
         deadline.check(text)
@@ -215,20 +208,10 @@ def run_measurement(ctx: MeasureContext) -> MeasurementOutcome:
     nominal = ctx.calibrator.run(ctx.light, correction=None, progress=progress)
     t_cal = time.perf_counter()
     photos = Photos()
-    lengths = pattern_lengths(mc.patterns, green_max)
-    from grassd.daemon.measure.camera_chain import MeasuringCamera
-
+    lengths = pattern_lengths(mc.patterns, float(cfg.display.green_max_mm))
     cam = MeasuringCamera(ctx.camera, ctx.dest / mid, mc.iso)
     shots: dict[str, Shot] = {}
-    # the states the display shows, by shot name; taken in an order drawn for this measurement
-    uniform: dict[str, NDArray | float] = {"short": 0.0, "long": green_max}
-    uniform.update({f"pattern-{k:02d}": float(x) for k, x in enumerate(lengths)})
-    states: dict[str, NDArray | float] = {
-        **uniform, **{f"before-{lv:03d}": level_lengths_mm(cfg, nominal, n, lv)
-                      for lv in CHECK_LEVELS}}
-    order, repeat = shot_order(list(states), repeat_of=list(uniform))
-    if repeat is not None:
-        states[repeat] = states[repeat.removeprefix("repeat-")]
+    states, order, repeat = _states_before(cfg, nominal, lengths, n)
 
     def shoot(name: str) -> None:
         if ctx.stop():
@@ -243,11 +226,7 @@ def run_measurement(ctx: MeasureContext) -> MeasurementOutcome:
                               lambda: cam.shoot(name))
         session.wait_shown()  # pixels that moved during the shot are caught here
         photos.lux.append(float(ctx.lux()))
-        lo, hi = min(photos.lux), max(photos.lux)
-        if hi > lo * (1.0 + mc.steady_lux):
-            raise UnsteadyLight(f"the light changed from {lo:.0f} to {hi:.0f} lux while the "
-                                f"display was photographed (over {mc.steady_lux:.0%}); "
-                                "measure at a time of steady light")
+        _check_steady(photos.lux, mc.steady_lux)
 
     _within(deadline, ctx.stop, "setting the camera up", cam.prepare)  # before any pattern
     with PatternSession(ctx.fleet, cfg.controllers, n, timeout_s=mc.pattern_timeout_s,
@@ -261,12 +240,8 @@ def run_measurement(ctx: MeasureContext) -> MeasurementOutcome:
             found = _analyse(ctx, mid, shots, photos, lengths, nominal, n, states, order,
                              repeat, progress)
         except PhotosRefused as exc:
-            return MeasurementOutcome({
-                "measurement": mid, "started_at": started.isoformat(timespec="seconds"),
-                "status": "refused", "error": f"correction refused: {exc.finding.detail}",
-                "evidence": {"accepted": False, "order": order,
-                             "findings": [exc.finding.to_json()]},
-                "tables": {"granularity": "pixel", "nominal_source": nominal.source}}, None)
+            return MeasurementOutcome(_refused_report(mid, started, order, nominal,
+                                                      exc.finding), None)
         corrected = found.correction.apply(cfg, nominal)
         after_names, _ = shot_order([f"after-{lv:03d}" for lv in CHECK_LEVELS])
         for lv in CHECK_LEVELS:
@@ -283,14 +258,62 @@ def run_measurement(ctx: MeasureContext) -> MeasurementOutcome:
     report["seconds"] = {"calibrate": t_cal - t0, "photos_before": t_shoot - t_cal,
                          "analyse_and_after": t_end - t_shoot,
                          "total": time.perf_counter() - t0}
+    evidence = _judged(report, evidence)
+    return MeasurementOutcome(report, (found.correction, corrected) if evidence.accepted
+                              else None)
+
+
+def _check_steady(lux: list[float], steady: float) -> None:
+    """Raise :class:`UnsteadyLight` when the ``lux`` read at the shots so far spread by more
+    than the share ``steady`` (``[measure] steady_lux``)."""
+    lo, hi = min(lux), max(lux)
+    if hi > lo * (1.0 + steady):
+        raise UnsteadyLight(f"the light changed from {lo:.0f} to {hi:.0f} lux while the "
+                            f"display was photographed (over {steady:.0%}); measure at a "
+                            "time of steady light")
+
+
+def _states_before(cfg: Config, nominal: CalibrationResult, lengths: NDArray, n: int
+                   ) -> tuple[dict[str, NDArray | float], list[str], str | None]:
+    """The display states photographed before the correction, by shot name (every pixel's
+    commanded length, mm: one for all, or (N,)): the shortest and longest grass, the patterns
+    at ``lengths``, :data:`CHECK_LEVELS` through the ``nominal`` tables and the repeat; the
+    order they are taken in, drawn for this measurement; the repeat's name (step 2 of the
+    module docstring)."""
+    from grassd.daemon.measure.evidence import shot_order
+
+    uniform: dict[str, NDArray | float] = {"short": 0.0, "long": float(cfg.display.green_max_mm)}
+    uniform.update({f"pattern-{k:02d}": float(x) for k, x in enumerate(lengths)})
+    states: dict[str, NDArray | float] = {
+        **uniform, **{f"before-{lv:03d}": level_lengths_mm(cfg, nominal, n, lv)
+                      for lv in CHECK_LEVELS}}
+    order, repeat = shot_order(list(states), repeat_of=list(uniform))
+    if repeat is not None:
+        states[repeat] = states[repeat.removeprefix("repeat-")]
+    return states, order, repeat
+
+
+def _refused_report(mid: str, started: datetime, order: list[str],
+                    nominal: CalibrationResult, finding: Finding) -> MeasurementReport:
+    """The report of a measurement whose photos could not even be analysed as the
+    display's (``finding`` says why)."""
+    return {"measurement": mid, "started_at": started.isoformat(timespec="seconds"),
+            "status": "refused", "error": f"correction refused: {finding.detail}",
+            "evidence": {"accepted": False, "order": order, "findings": [finding.to_json()]},
+            "tables": {"granularity": "pixel", "nominal_source": nominal.source}}
+
+
+def _judged(report: MeasurementReport, evidence: Evidence) -> Evidence:
+    """``evidence`` with the last check, the display more uniform after the correction than
+    before; written into ``report`` (its ``evidence``, and its ``status`` and ``error`` when
+    refused)."""
     if not report["uniformity"]["after"] < report["uniformity"]["before"]:
         evidence = evidence.with_finding(Finding(
             Refusal.NOT_MORE_UNIFORM, "the correction did not make the display more uniform"))
     report["evidence"] = evidence.to_json()
     if not evidence.accepted:
         report.update(status="refused", error=f"correction refused: {evidence.reason()}")
-    return MeasurementOutcome(report, (found.correction, corrected) if evidence.accepted
-                              else None)
+    return evidence
 
 
 class MeasureDeadline(MeasureError):
@@ -372,41 +395,15 @@ def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Shot], photos: Phot
     docstring); ``states``: every shot's commanded lengths (mm), ``order`` the shots as
     taken, ``repeat`` the repeated shot's name."""
     from grassd.calib.colour_spaces import prophoto_to_lab
-    from grassd.calib.display_in_photo import locate_display, pixel_means
-    from grassd.calib.errors import GeometryError
-    from grassd.daemon.core.calibration.calibrate import Calibrator
-    from grassd.daemon.core.calibration.correction import DisplayCorrection
-    from grassd.daemon.core.calibration.display_model import (
-        capacity_for,
-        display_spec_for_config,
-        geometry_from_eye,
-    )
-    from grassd.daemon.measure.camera_chain import develop_shot
+    from grassd.calib.display_in_photo import pixel_means
+    from grassd.daemon.core.calibration.display_model import display_spec_for_config
     from grassd.daemon.measure.evidence import judge, model_noise
-    from grassd.daemon.measure.pixel_model import (
-        corrected_commands,
-        fit_variation,
-        lab_of,
-        record_pixel_model,
-    )
-    from grassd.sim.renderer import Renderer
-    from grassd.sim.scene import RenderSettings
+    from grassd.daemon.measure.pixel_model import fit_variation, lab_of
 
     cfg, mc = ctx.cfg, ctx.cfg.measure
     progress("measure: finding the display in the photos")
-    taken = list(shots)
-    short = develop_shot(shots["short"], ctx.setup, photos.lux[taken.index("short")])
-    long_ = develop_shot(shots["long"], ctx.setup, photos.lux[taken.index("long")])
     display = replace(display_spec_for_config(cfg), same_layout=True)  # the model pixel
-    try:
-        located = locate_display(short, long_, display.rows, display.cols, display.pitch_mm,
-                                 display.pixel.top_mm)
-    except GeometryError as exc:
-        raise PhotosRefused(Finding(
-            Refusal.DISPLAY_NOT_FOUND, "the photos of the shortest and longest grass do not "
-            f"show the display ({exc}): photos of other display states (old, or out of order) "
-            "from the measuring camera, or [display] rows, cols, pitch_mm wrong",
-            ("short", "long"))) from None
+    short, long_, located = _locate(ctx, shots, photos, display)
     pose = located.pose  # from the corners' and pixel centres' bearings
     eye = np.asarray(pose.position_m, dtype=np.float64)
     names = [f"pattern-{k:02d}" for k in range(len(lengths))]
@@ -422,22 +419,8 @@ def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Shot], photos: Phot
                               np.tile(lengths, (n, 1)),
                               np.stack([nominal_lengths[lv] for lv in CHECK_LEVELS], axis=1)],
                              axis=1)
-    renderer = Renderer.shared(capacity_for(n))
-    # the pixel models are recorded here, whichever calibrator ran the tables (a Dask
-    # cluster's runs only those), so their light is built here too
-    lighting = Calibrator(cfg).lighting(ctx.light)
-    grid = np.arange(0.0, display.pixel.green_max_mm + GRID_STEP_MM / 2, GRID_STEP_MM)
-    settings = RenderSettings(samples=mc.samples, replicates=4, max_bounces=3,
-                              seed=cfg.simulation.seed)
-
-    def model_from(eye_m: NDArray, what: str, layouts: int) -> PixelColourModel:
-        geo = geometry_from_eye(display, eye_m)
-        return record_pixel_model(
-            renderer, display, lighting, [geo.viewpoint(i) for i in range(n)], grid, settings,
-            layouts=layouts,
-            progress=lambda done, total: progress(f"measure: {what} {done}/{total}"))
-
-    camera_model = model_from(eye, "pixel models from the camera", mc.layouts)
+    models = _PixelModels.for_measurement(ctx, display, progress)
+    camera_model = models.from_eye(eye, "pixel models from the camera", mc.layouts)
     ccm = np.asarray(ctx.setup.ccm)
     progress("measure: fitting every pixel")
     fit = fit_variation(camera_model, fit_cmd, fit_lab, ccm)
@@ -463,16 +446,94 @@ def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Shot], photos: Phot
                      lab_of(camera_model.rgb(check_cmd, fit.variation), fit.colour @ ccm),
                      fit.rms_lab, fit.variation, pairs, model_noise(camera_model, fit_cmd),
                      order, refit)
+    return Analysis(located, measured, before, camera_model, fit,
+                    _correction(cfg, models, fit, mid), ccm, nominal_lengths, evidence)
+
+
+def _locate(ctx: MeasureContext, shots: dict[str, Shot], photos: Photos, display: DisplaySpec
+            ) -> tuple[NDArray[np.float64], NDArray[np.float64], DisplayInPhoto]:
+    """The photos of the shortest and longest grass developed, and the display located from
+    their difference (its camera pose too); :class:`PhotosRefused` when they do not show it."""
+    from grassd.calib.display_in_photo import locate_display
+    from grassd.calib.errors import GeometryError
+    from grassd.daemon.measure.camera_chain import develop_shot
+
+    taken = list(shots)
+    short = develop_shot(shots["short"], ctx.setup, photos.lux[taken.index("short")])
+    long_ = develop_shot(shots["long"], ctx.setup, photos.lux[taken.index("long")])
+    try:
+        located = locate_display(short, long_, display.rows, display.cols, display.pitch_mm,
+                                 display.pixel.top_mm)
+    except GeometryError as exc:
+        raise PhotosRefused(Finding(
+            Refusal.DISPLAY_NOT_FOUND, "the photos of the shortest and longest grass do not "
+            f"show the display ({exc}): photos of other display states (old, or out of order) "
+            "from the measuring camera, or [display] rows, cols, pitch_mm wrong",
+            ("short", "long"))) from None
+    return short, long_, located
+
+
+@dataclass(frozen=True)
+class _PixelModels:
+    """Records the model pixel at every pixel of ``display`` as an eye sees it
+    (:func:`~grassd.daemon.measure.pixel_model.record_pixel_model`) under the measurement's
+    light, on ``grid`` (mm, every :data:`GRID_STEP_MM`)."""
+
+    renderer: Renderer
+    display: DisplaySpec
+    lighting: Lighting
+    grid: NDArray[np.float64]
+    settings: RenderSettings
+    progress: Callable[[str], None]
+
+    @classmethod
+    def for_measurement(cls, ctx: MeasureContext, display: DisplaySpec,
+                        progress: Callable[[str], None]) -> _PixelModels:
+        """The recorder of ``ctx``'s measurement: its light, ``[measure] samples``."""
+        from grassd.daemon.core.calibration.calibrate import Calibrator
+        from grassd.daemon.core.calibration.display_model import capacity_for
+        from grassd.sim.renderer import Renderer
+        from grassd.sim.scene import RenderSettings
+
+        cfg = ctx.cfg
+        # the pixel models are recorded here, whichever calibrator ran the tables (a Dask
+        # cluster's runs only those), so their light is built here too
+        return cls(Renderer.shared(capacity_for(display.rows * display.cols)), display,
+                   Calibrator(cfg).lighting(ctx.light),
+                   np.arange(0.0, display.pixel.green_max_mm + GRID_STEP_MM / 2, GRID_STEP_MM),
+                   RenderSettings(samples=cfg.measure.samples, replicates=4, max_bounces=3,
+                                  seed=cfg.simulation.seed), progress)
+
+    def from_eye(self, eye_m: NDArray, what: str, layouts: int) -> PixelColourModel:
+        """Every pixel's model seen from the world point ``eye_m`` (m), averaged over
+        ``layouts`` tuft layouts; progress told as ``what``."""
+        from grassd.daemon.core.calibration.display_model import geometry_from_eye
+        from grassd.daemon.measure.pixel_model import record_pixel_model
+
+        geo = geometry_from_eye(self.display, eye_m)
+        n = self.display.rows * self.display.cols
+        return record_pixel_model(
+            self.renderer, self.display, self.lighting, [geo.viewpoint(i) for i in range(n)],
+            self.grid, self.settings, layouts=layouts,
+            progress=lambda done, total: self.progress(f"measure: {what} {done}/{total}"))
+
+
+def _correction(cfg: Config, models: _PixelModels, fit: VariationFit, mid: str
+                ) -> DisplayCorrection:
+    """The correction of measurement ``mid``: the ``fit``'s variation carried to the
+    configured viewers (step 5 of the module docstring)."""
+    from grassd.daemon.core.calibration.correction import DisplayCorrection
+    from grassd.daemon.measure.pixel_model import corrected_commands
+
     # the viewers' models only carry the fitted variation to them: the tuft layout's accident
     # is the same with and without it, so one layout does
-    viewers = [model_from(_eye_of(vp), f"viewer {i + 1}", 1)
+    viewers = [models.from_eye(_eye_of(vp), f"viewer {i + 1}", 1)
                for i, vp in enumerate(cfg.viewpoints)]
     commands = corrected_commands(viewers, [vp.weight for vp in cfg.viewpoints],
-                                  fit.variation, grid)
-    correction = DisplayCorrection(fit.variation, grid, commands, (display.rows, display.cols),
-                                   mid)
-    return Analysis(located, measured, before, camera_model, fit, correction, ccm,
-                    nominal_lengths, evidence)
+                                  fit.variation, models.grid)
+    display = models.display
+    return DisplayCorrection(fit.variation, models.grid, commands,
+                             (display.rows, display.cols), mid)
 
 
 def _verify(found: Analysis, names: list[str], after: NDArray, commanded_mm: NDArray,
@@ -532,7 +593,7 @@ def uniformity(colours: NDArray, model: PixelColourModel, nominal: dict[int, NDA
 
 def _report(ctx: MeasureContext, mid: str, started: datetime, found: Analysis,
             nominal: CalibrationResult, photos: Photos, after: NDArray, lengths: NDArray,
-            n: int) -> dict[str, Any]:
+            n: int) -> MeasurementReport:
     """The measurement's report (JSON-ready; written by
     :mod:`grassd.daemon.measure.report`)."""
     from grassd.calib.ogcd import ogcd_from_lab

@@ -21,10 +21,10 @@ model pixel)::
 from __future__ import annotations
 
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 import tomli_w
@@ -37,6 +37,16 @@ from grassd.daemon.core.errors import ConfigError
 #: variation; an offset beyond a few mm is a motor out of its range).
 OFFSET_LIMIT_MM: float = 5.0
 GAIN_RANGE: tuple[float, float] = (0.25, 4.0)
+
+
+class PixelVariation(TypedDict):
+    """One pixel's departure as a variation file's ``[[pixel]]`` table, the display
+    correction's file and a measurement's report hold it (module docstring)."""
+
+    index: int
+    length_offset_mm: float
+    green_gain: float
+    yellow_gain: float
 
 
 class VariationFileError(ConfigError):
@@ -68,7 +78,7 @@ class DisplayVariation:
         y = np.clip(self.yellow_gain[:, None] * np.asarray(yellow_linear)[None, :], 0.0, 1.0)
         return g, y
 
-    def pixels(self) -> list[dict[str, float | int]]:
+    def pixels(self) -> list[PixelVariation]:
         """One dict per pixel (``index``, ``length_offset_mm``, ``green_gain``,
         ``yellow_gain``), as the file and ``grassd measure --json`` write them."""
         return [{"index": i, "length_offset_mm": float(self.length_offset_mm[i]),
@@ -80,7 +90,7 @@ class DisplayVariation:
         return "\n".join("[[pixel]]\n" + tomli_w.dumps(p) for p in self.pixels())
 
     @classmethod
-    def from_pixels(cls, rows: list[Mapping[str, Any]], n_pixels: int) -> DisplayVariation:
+    def from_pixels(cls, rows: Sequence[PixelVariation], n_pixels: int) -> DisplayVariation:
         """From dicts as :meth:`pixels` writes them (values already checked)."""
         v = cls.none(n_pixels)
         for r in rows:
@@ -115,11 +125,13 @@ def load_variation(path: str | Path, n_pixels: int) -> DisplayVariation:
                                                                OFFSET_LIMIT_MM, " mm")),
               "green_gain": F(float, 1.0, schema.between(lo, hi)),
               "yellow_gain": F(float, 1.0, schema.between(lo, hi))}
-    rows, seen = [], set()
+    rows: list[PixelVariation] = []
+    seen = set()
     for k, raw in enumerate(top["pixel"]):
         row = schema.table(ctx, ("pixel", k), raw, fields)
         if row["index"] in seen:
             raise ctx.error(("pixel", k, "index"), f"pixel {row['index']} is listed twice")
         seen.add(row["index"])
-        rows.append(row)
+        rows.append(PixelVariation(index=row["index"], length_offset_mm=row["length_offset_mm"],
+                                   green_gain=row["green_gain"], yellow_gain=row["yellow_gain"]))
     return DisplayVariation.from_pixels(rows, n_pixels)
