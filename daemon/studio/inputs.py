@@ -13,7 +13,7 @@ import math
 import reprlib
 from dataclasses import dataclass
 from itertools import pairwise
-from typing import Any
+from typing import TypeAlias, TypeGuard
 from zoneinfo import ZoneInfo
 
 from grassd.daemon.core.errors import DaemonError
@@ -30,6 +30,10 @@ STDERR_BOUNDS: tuple[float, float] = (0.02, 2.0)
 TARGET_STDERR: float = 0.1
 #: Largest splay (deg) the slider offers, as the pixel spec allows.
 MAX_SPLAY_DEG: float = 45.0
+
+
+#: A value as :func:`json.loads` gives it, before it is checked.
+JsonValue: TypeAlias = None | bool | int | float | str | list["JsonValue"] | dict[str, "JsonValue"]
 
 
 class StudioInputError(DaemonError):
@@ -95,7 +99,7 @@ _SHOWN.maxstring = _SHOWN.maxlong = _SHOWN.maxother = MAX_SHOWN_CHARS
 _SHOWN.maxlist = _SHOWN.maxtuple = _SHOWN.maxdict = 6
 
 
-def _shown(v: Any) -> str:
+def _shown(v: JsonValue) -> str:
     """``repr(v)`` cut to about :data:`MAX_SHOWN_CHARS` characters, for a message that echoes
     a person's value (a 300-digit number or a long string does not fill the page; JSON gives
     no integer longer than Python writes out: the server refuses those as not JSON)."""
@@ -103,12 +107,12 @@ def _shown(v: Any) -> str:
     return text if len(text) <= MAX_SHOWN_CHARS else text[:MAX_SHOWN_CHARS - 3] + "..."
 
 
-def _is_number(x: Any) -> bool:
+def _is_number(x: JsonValue) -> TypeGuard[int | float]:
     """A JSON number (a bool is not one)."""
     return isinstance(x, int | float) and not isinstance(x, bool)
 
 
-def _real(x: Any) -> float | None:
+def _real(x: JsonValue) -> float | None:
     """A JSON number as a float: an integer too large for one is +-inf (out of every range);
     None for anything else (a string, a bool, NaN)."""
     if not _is_number(x):
@@ -120,23 +124,24 @@ def _real(x: Any) -> float | None:
     return None if math.isnan(f) else f
 
 
-def _finite(x: Any) -> bool:
+def _finite(x: JsonValue) -> bool:
     """A JSON number that is a finite float (a huge integer is not)."""
     f = _real(x)
     return f is not None and math.isfinite(f)
 
 
-def _as_number(v: Any) -> str:
+def _as_number(v: JsonValue) -> str:
     """A number for a message: ``:g`` where it is a finite float, else cut (:func:`_shown`)."""
-    return f"{float(v):g}" if _finite(v) else _shown(v)
+    f = _real(v)
+    return f"{f:g}" if f is not None and math.isfinite(f) else _shown(v)
 
 
-def _given(data: dict[str, Any]) -> dict[str, Any]:
+def _given(data: dict[str, JsonValue]) -> dict[str, JsonValue]:
     """``data`` without its nulls: a JSON null means the same as the key left out."""
     return {k: v for k, v in data.items() if v is not None}
 
 
-def _number(data: dict[str, Any], key: str, default: float | None = None, *,
+def _number(data: dict[str, JsonValue], key: str, default: float | None = None, *,
             lo: float, hi: float, unit: str = "", above: bool = False) -> float:
     """``data[key]`` (null or missing: ``default``, required where that is None) as a finite
     float within [lo, hi], or (lo, hi] where ``above`` (StudioInputError otherwise)."""
@@ -156,7 +161,7 @@ def _number(data: dict[str, Any], key: str, default: float | None = None, *,
     return f
 
 
-def parse_viewpoint(v: Any) -> tuple[float, float, float]:
+def parse_viewpoint(v: JsonValue) -> tuple[float, float, float]:
     """[h_cm, d_m, theta_deg] checked as :class:`grassd.sim.scene.Viewpoint` does, with the
     studio's words: an eye at or below the display plane is behind the display."""
     from grassd.sim.scene import Viewpoint
@@ -167,11 +172,14 @@ def parse_viewpoint(v: Any) -> tuple[float, float, float]:
     if not isinstance(v, list | tuple) or len(v) != 3 or not all(_is_number(x) for x in v):
         raise StudioInputError(f"viewpoint must be [h_cm, d_m, theta_deg] (cm, m, deg), e.g. "
                                f"[170, 2, 0]; got {_shown(v)}")
+    hdt: list[float] = []
     for name, x, unit in zip(("h_cm", "d_m", "theta_deg"), v, ("cm", "m", "deg"), strict=True):
-        if not _finite(x):
+        f = _real(x)
+        if f is None or not math.isfinite(f):
             raise StudioInputError(f"viewpoint {name} = {_as_number(x)} must be a finite "
                                    f"number ({unit})")
-    h, d, theta = (float(x) for x in v)
+        hdt.append(f)
+    h, d, theta = hdt
     if h <= 0:
         raise StudioInputError(f"viewpoint ({h:g}, {d:g}, {theta:g}) is behind the display: "
                                f"the eye must be above its plane (h_cm > 0)")
@@ -182,7 +190,7 @@ def parse_viewpoint(v: Any) -> tuple[float, float, float]:
     return h, d, theta
 
 
-def parse_lengths(v: Any, green_max_mm: float) -> tuple[float, ...]:
+def parse_lengths(v: JsonValue, green_max_mm: float) -> tuple[float, ...]:
     """Green lengths (mm): 2..MAX_LENGTHS values within 0..green_max_mm, strictly increasing
     (the first is the reference, the shortest grass)."""
     if not isinstance(v, list | tuple) or not 2 <= len(v) <= MAX_LENGTHS:
@@ -221,7 +229,7 @@ def _needs(given: list[str], missing: list[str]) -> StudioInputError:
         f"sun_lux 0 alone for no sun")
 
 
-def _direction(data: dict[str, Any], azimuth: str, elevation: str,
+def _direction(data: dict[str, JsonValue], azimuth: str, elevation: str,
                lux: float) -> tuple[float, float]:
     """The sun's compass azimuth and elevation (deg) under the keys ``azimuth`` and
     ``elevation`` of ``data``. A sun that gives light (``lux`` > 0) is above the horizon:
@@ -233,7 +241,7 @@ def _direction(data: dict[str, Any], azimuth: str, elevation: str,
     return az, _number(data, elevation, lo=-90.0, hi=90.0, unit="deg")
 
 
-def parse_sun(data: dict[str, Any], timezone: str) -> Sun:
+def parse_sun(data: dict[str, JsonValue], timezone: str) -> Sun:
     """The sun of a request: ``{"mode": ..., ...}`` under ``data["sun"]`` with the keys of
     :data:`SUN_MODE_KEYS` (``lux`` [lx]; ``when`` ISO 8601, naive = the site's ``timezone``;
     ``azimuth_deg``, ``elevation_deg``), or the bundle manifest's names at top level
@@ -261,7 +269,7 @@ def parse_sun(data: dict[str, Any], timezone: str) -> Sun:
     return Sun("direction", lux, az, el) if lux > 0 else Sun()
 
 
-def _sun_object(sun: Any, timezone: str) -> Sun:
+def _sun_object(sun: JsonValue, timezone: str) -> Sun:
     """The sun given as an object (see :func:`parse_sun`)."""
     from grassd.sim.lighting import MAX_LUX
 
@@ -306,7 +314,7 @@ def _sun_object(sun: Any, timezone: str) -> Sun:
     return Sun("direction", lux, az, el) if lux > 0 else Sun()
 
 
-def parse_condition(data: Any, *, green_max_mm: float, timezone: str, lights: set[str],
+def parse_condition(data: JsonValue, *, green_max_mm: float, timezone: str, lights: set[str],
                     default_light: str) -> Condition:
     """A :class:`Condition` from a request's JSON object (StudioInputError naming the first
     bad value). ``lights``: the names of the light sources the studio has. Only the keys of
@@ -326,19 +334,18 @@ def parse_condition(data: Any, *, green_max_mm: float, timezone: str, lights: se
         raise StudioInputError(f"light {_shown(light)} is not one of the studio's: "
                                + ", ".join(sorted(lights)))
     lux = _number(data, "ambient_lux", lo=1e-3, hi=MAX_LUX, unit="lx")
-    splay = data.get("splay_deg")
-    if splay is not None:
-        splay = _number(data, "splay_deg", lo=0.0, hi=MAX_SPLAY_DEG, unit="deg")
+    splay = (None if data.get("splay_deg") is None
+             else _number(data, "splay_deg", lo=0.0, hi=MAX_SPLAY_DEG, unit="deg"))
     lengths = (parse_lengths(data["lengths_mm"], green_max_mm) if "lengths_mm" in data
                else default_lengths(green_max_mm))
     tables = data.get("tables", "live")
-    if tables not in ("live", "active"):
+    if not isinstance(tables, str) or tables not in ("live", "active"):
         raise StudioInputError(f"tables must be \"live\" or \"active\", got {_shown(tables)}")
     image = data.get("image")
     if image is not None and not isinstance(image, str):
         raise StudioInputError(f"image must be the id an upload returned, got {_shown(image)}")
     pixel = data.get("pixel")
-    if pixel is not None and pixel not in ("config", "fit"):
+    if pixel is not None and (not isinstance(pixel, str) or pixel not in ("config", "fit")):
         raise StudioInputError(f"pixel must be \"config\" or \"fit\", got {_shown(pixel)}")
     target = _number(data, "target_stderr", TARGET_STDERR, lo=STDERR_BOUNDS[0],
                      hi=STDERR_BOUNDS[1], unit="dE00")

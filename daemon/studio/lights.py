@@ -26,12 +26,16 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from grassd.daemon.studio.inputs import Condition, StudioInputError
 from grassd.daemon.studio.limits import DEFAULT_LIMITS, StudioLimits
+from grassd.daemon.studio.messages import LightDescription
+
+if TYPE_CHECKING:
+    from grassd.sim.lighting import Lighting
 
 log = logging.getLogger(__name__)
 
@@ -74,7 +78,7 @@ class LightSource:
         if self.image is None:
             load_panorama(self.path, shown, warn=False)  # the simulator warns
 
-    def describe(self) -> dict[str, Any]:
+    def describe(self) -> LightDescription:
         """The source as the page lists it."""
         return {"name": self.name, "label": self.label, "ambient_lux": self.ambient_lux,
                 "sun_lux": self.sun_lux, "sun_azimuth_deg": self.sun_azimuth_deg,
@@ -184,7 +188,7 @@ class Lights:
             raise StudioInputError("the studio needs at least one light")
         self._sources: dict[str, LightSource] = {s.name: s for s in sources}
         self.default = sources[0].name
-        self._built: OrderedDict[tuple, Any] = OrderedDict()
+        self._built: OrderedDict[tuple, Lighting] = OrderedDict()
         self._lock = threading.Lock()
         self._limits = limits
         self._loaded: OrderedDict[str, None] = OrderedDict()  # least recently used first
@@ -200,7 +204,7 @@ class Lights:
         with self._lock:
             return set(self._sources)
 
-    def describe(self) -> list[dict[str, Any]]:
+    def describe(self) -> list[LightDescription]:
         """Every source as the page lists it (in the order they came)."""
         with self._lock:
             return [s.describe() for s in self._sources.values()]
@@ -333,7 +337,7 @@ class Lights:
         with self._lock:
             self._sources[src.name] = src
 
-    def lighting(self, cond: Condition, site: tuple[float, float]) -> Any:
+    def lighting(self, cond: Condition, site: tuple[float, float]) -> Lighting:
         """The :class:`~grassd.sim.lighting.Lighting` of ``cond`` (its source scaled to its
         lux, with its sun); ``site`` = (latitude, longitude) deg for a sun placed by time.
         StudioInputError for readings that cannot be (lux out of range, sun below the
@@ -371,7 +375,7 @@ class Lights:
         return self._kept((src.name, cond.ambient_lux, lux, az, el),
                           lambda: add_sun(base, lux, az, el))
 
-    def _kept(self, key: tuple, build: Callable[[], Any]) -> Any:
+    def _kept(self, key: tuple, build: Callable[[], Lighting]) -> Lighting:
         """The light built for ``key`` (kept: the :data:`KEPT_LIGHTINGS` last used), or
         ``build()``'s; StudioInputError for readings that cannot be."""
         from grassd.sim.errors import LightingError

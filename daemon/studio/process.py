@@ -17,20 +17,16 @@ skipped paths) or stop the job; on the CPU only (``Renderer.interruptible``). So
 input does not wait for the launch in flight, and the studio's launches can each take a whole
 round (:func:`~grassd.daemon.studio.session.Studio.characteristic`).
 
-Server -> simulator: ``("job", owner, job, kind, payload, word)`` with kind ``"views"`` (a
-condition, the picture's colours and the condition pinned as B, or None) or
-``"characteristic"`` (a condition and keyword arguments); ``("cancel", owner, word)``;
-``("light", LightSource)`` (an upload already checked, given to a restarted process);
-``("check", job, LightSource, shown)`` (an upload to decode and check, its errors naming the
-file ``shown``; answered as a job is);
-``("forget", name)`` (an upload the server dropped);
-``("tick", word)`` (the word moved so that the launch in flight reaches its job's check: sent
-every half slice while jobs of several owners are in flight, so a job whose turn is over gives
-way, :mod:`grassd.daemon.studio.worker`); ``("stop", word)`` (every job stops, and the process
-ends).
-Simulator -> server: ``("ready", seconds)``, ``("msg", job, dict)``, ``("result", job,
-value)``, ``("error", job, kind, message)`` with kind "input" (a StudioInputError), "superseded"
-or the exception's class name.
+Server -> simulator (:data:`ToSimulator`): :class:`RunJob` (a :class:`ViewsJob`, a page's
+input, or a :class:`CurveJob`, a characteristic), :class:`Cancel`, :class:`AddLight` (an upload
+already checked, given to a restarted process), :class:`CheckLight` (an upload to decode and
+check, answered as a job is), :class:`ForgetLight` (an upload the server dropped),
+:class:`Tick` (the word moved so that the launch in flight reaches its job's check: sent every
+half slice while jobs of several owners are in flight, so a job whose turn is over gives way,
+:mod:`grassd.daemon.studio.worker`) and :class:`Stop` (every job stops, and the process ends);
+those that supersede carry the word's new value.
+Simulator -> server (:data:`FromSimulator`): :class:`Ready`, :class:`JobMessage` (a view
+streamed), :class:`JobResult`, :class:`JobError`.
 """
 
 from __future__ import annotations
@@ -42,20 +38,26 @@ import logging
 import multiprocessing
 import threading
 from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from grassd.daemon.studio.inputs import StudioInputError
 from grassd.daemon.studio.lights import LightSource
 from grassd.daemon.studio.limits import DEFAULT_LIMITS, StudioLimits
-from grassd.daemon.studio.worker import Check, Superseded, Yielded
+from grassd.daemon.studio.messages import PageMessage
+from grassd.daemon.studio.worker import Check, Superseded, Worker, Yielded
 from grassd.sim.interrupt import Interrupt
 
 if TYPE_CHECKING:
-    from grassd.daemon.studio.session import Studio
+    from grassd.daemon.core.calibration.simulation import SimulatedCurve
+    from grassd.daemon.core.config.settings import PixelValue
+    from grassd.daemon.studio.inputs import Condition
+    from grassd.daemon.studio.session import CharacteristicArgs, Studio
+    from grassd.daemon.studio.superseding import Superseding
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +72,7 @@ class StudioArgs:
     config_path: str | None
     state_dir: str | None
     sources: tuple[LightSource, ...]
-    pixel_fields: dict[str, Any] | None = None
+    pixel_fields: dict[str, PixelValue] | None = None
     pixel_source: str = "config"
     active_um: tuple[int, ...] | None = None
     arch: str = "cpu"
@@ -91,116 +93,259 @@ class StudioArgs:
                       arch=self.arch, interrupts=interrupts)
 
 
+@dataclass(frozen=True)
+class ViewsJob:
+    """A page's input: every view of ``cond``, the display showing ``picture`` (its colours,
+    rows x cols x 3 sRGB; None: no picture), with the condition ``pinned`` beside it as B."""
+
+    cond: Condition
+    picture: np.ndarray | None = None
+    pinned: Condition | None = None
+
+
+@dataclass(frozen=True)
+class CurveJob:
+    """A characteristic of ``cond`` run with ``args`` (an API request's, a script's: it gives
+    way to a page's job)."""
+
+    cond: Condition
+    args: CharacteristicArgs
+
+
+@dataclass(frozen=True)
+class RunJob:
+    """Run ``work`` as job ``job`` of ``owner``, superseding the owner's earlier ones."""
+
+    owner: int
+    job: int
+    work: ViewsJob | CurveJob
+    word: int
+
+
+@dataclass(frozen=True)
+class Cancel:
+    """Stop the owner's jobs (its page went away)."""
+
+    owner: int
+    word: int
+
+
+@dataclass(frozen=True)
+class AddLight:
+    """An upload the server checked before (given to a restarted process)."""
+
+    source: LightSource
+
+
+@dataclass(frozen=True)
+class CheckLight:
+    """An upload to decode and check, its errors naming the file ``shown``; answered as job
+    ``job`` is."""
+
+    job: int
+    source: LightSource
+    shown: str
+
+
+@dataclass(frozen=True)
+class ForgetLight:
+    """An upload the server dropped."""
+
+    name: str
+
+
+@dataclass(frozen=True)
+class Tick:
+    """The word moved, so that the launch in flight reaches its job's check."""
+
+    word: int
+
+
+@dataclass(frozen=True)
+class Stop:
+    """Every job stops, and the process ends."""
+
+    word: int
+
+
+#: What the server sends the simulator.
+ToSimulator = RunJob | Cancel | AddLight | CheckLight | ForgetLight | Tick | Stop
+
+
+@dataclass(frozen=True)
+class Ready:
+    """The studio is warm, after ``seconds`` (0: its warm-up failed)."""
+
+    seconds: float
+
+
+@dataclass(frozen=True)
+class JobMessage:
+    """A view of job ``job``, streamed to its page."""
+
+    job: int
+    msg: PageMessage
+
+
+@dataclass(frozen=True)
+class JobResult:
+    """Job ``job`` ended: its characteristic (None for the views, which were streamed, and a
+    light checked)."""
+
+    job: int
+    value: SimulatedCurve | None
+
+
+@dataclass(frozen=True)
+class JobError:
+    """Job ``job`` failed: ``kind`` "input" (a StudioInputError), "superseded" or the
+    exception's class name, and its ``message``."""
+
+    job: int
+    kind: str
+    message: str
+
+
+#: What the simulator sends the server.
+FromSimulator = Ready | JobMessage | JobResult | JobError
+
+
+class _Simulator:
+    """The simulator process's side: the Studio, the worker its jobs run on, and the pipe back
+    to the server."""
+
+    def __init__(self, conn: Connection, args: StudioArgs, superseding: Superseding | None
+                 ) -> None:
+        self.conn = conn
+        self.superseding = superseding
+        self.studio = args.build(None if superseding is None else superseding.interrupt)
+        self.worker = Worker(slice_s=args.limits.slice_s)
+        self._send_lock = threading.Lock()
+
+    def send(self, item: FromSimulator) -> None:
+        """Send ``item`` to the server (from any of the process's threads)."""
+        with self._send_lock:
+            self.conn.send(item)
+
+    def warm_up(self) -> None:
+        """Warm the studio up on the worker, then say :class:`Ready`."""
+        def ready(fut: Future[float]) -> None:
+            exc = fut.exception()
+            if exc is not None:
+                log.error("the studio's warm-up failed: %s: %s", type(exc).__name__, exc)
+            self.send(Ready(0.0 if exc else fut.result()))
+
+        self.worker.submit("warm-up", lambda check: self.studio.warm_up()).add_done_callback(
+            ready)
+
+    def _failed(self, job: int, exc: Exception, what: str) -> None:
+        """Say how job ``job`` failed: a StudioInputError as the input's fault, another
+        exception (a renderer or colour error, logged as ``what`` failing) by its class."""
+        if isinstance(exc, StudioInputError):
+            self.send(JobError(job, "input", str(exc)))
+        else:
+            log.exception("%s failed", what)
+            self.send(JobError(job, type(exc).__name__, f"{type(exc).__name__}: {exc}"))
+
+    def job(self, item: RunJob) -> Callable[[Check], None]:
+        """What the worker runs for ``item``: its views streamed, or its characteristic
+        answered; each error said as :class:`JobError`, the studio going on."""
+        from grassd.daemon.core.calibration.simulation import CurveRun
+        from grassd.daemon.core.runtime.freed_memory import release_freed_memory
+
+        work, job = item.work, item.job
+        # a characteristic's rounds, kept when it yields to a page's job
+        kept = CurveRun() if isinstance(work, CurveJob) else None
+
+        def go(check: Check) -> None:
+            try:
+                if isinstance(work, ViewsJob):
+                    self.studio.run(work.cond, lambda msg: self.send(JobMessage(job, msg)),
+                                    check, work.picture, work.pinned)
+                    self.send(JobResult(job, None))
+                else:
+                    curve = self.studio.characteristic(work.cond, check=check, resume=kept,
+                                                       **work.args)
+                    self.send(JobResult(job, curve))
+            except Yielded:  # the worker queues it again, behind the page's job
+                raise
+            except Superseded:
+                self.send(JobError(job, "superseded", "a newer request replaced this one"))
+            except Exception as exc:  # said; the studio goes on
+                self._failed(job, exc, "studio job")
+            finally:  # what the job built (a light's maps, its rounds) is resident no more
+                release_freed_memory()
+        return go
+
+    def check_light(self, item: CheckLight) -> None:
+        """Decode and check an upload, kept loaded for its first use (on a thread of its own,
+        off the reader, which a decode of seconds would keep from the next job or cancel)."""
+        from grassd.daemon.core.runtime.freed_memory import release_freed_memory
+
+        lights = self.studio.lights
+        try:
+            lights.add_source(item.source)
+            lights.source(item.source.name, item.shown)
+            self.send(JobResult(item.job, None))
+        except Exception as exc:
+            lights.forget(item.source.name)
+            self._failed(item.job, exc, "checking an uploaded light")
+        finally:
+            release_freed_memory()
+
+    def took(self, word: int) -> None:
+        """The message that moved the word to ``word`` is taken in."""
+        if self.superseding is not None:
+            self.superseding.took(word)
+
+    def take(self, item: ToSimulator) -> bool:
+        """Act on one message of the server; False once it says :class:`Stop`."""
+        if isinstance(item, RunJob):
+            def skipped(fut: Future[None], job: int = item.job) -> None:
+                # superseded while queued: go() never ran
+                if not fut.cancelled() and isinstance(fut.exception(), Superseded):
+                    self.send(JobError(job, "superseded", "a newer request replaced this one"))
+
+            self.worker.submit(item.owner, self.job(item),  # a script's gives way to a page's
+                               yields=isinstance(item.work, CurveJob)).add_done_callback(skipped)
+            self.took(item.word)
+        elif isinstance(item, Cancel):
+            self.worker.cancel(item.owner)
+            self.took(item.word)
+        elif isinstance(item, AddLight):
+            self.studio.lights.add_source(item.source)
+        elif isinstance(item, CheckLight):
+            threading.Thread(target=self.check_light, args=(item,), daemon=True,
+                             name="grassd-studio-check").start()
+        elif isinstance(item, ForgetLight):
+            self.studio.lights.forget(item.name)
+        elif isinstance(item, Tick):
+            self.took(item.word)
+        elif isinstance(item, Stop):
+            self.worker.cancel_all()
+            self.took(item.word)
+            return False
+        return True
+
+
 def simulator_main(conn: Connection, args: StudioArgs,
                    word: ctypes.Array[ctypes.c_int] | None = None) -> None:
     """The simulator process: build the Studio, warm it up, then run what the server sends.
     ``word``: the ``multiprocessing`` int array (``RawArray("i", 1)``) the server moves with
     every job or cancel; None: launches are not stopped in flight."""
-    from grassd.daemon.core.calibration.simulation import CurveRun
-    from grassd.daemon.core.runtime.freed_memory import release_freed_memory
     from grassd.daemon.studio.superseding import Superseding
-    from grassd.daemon.studio.worker import Worker
 
-    superseding = None if word is None else Superseding(np.frombuffer(word, np.int32))
-    studio = args.build(None if superseding is None else superseding.interrupt)
-    send_lock = threading.Lock()
-
-    def send(item: tuple) -> None:
-        with send_lock:
-            conn.send(item)
-
-    worker = Worker(slice_s=args.limits.slice_s)
-    warm = worker.submit("warm-up", lambda check: studio.warm_up())
-
-    def ready(fut) -> None:
-        exc = fut.exception()
-        if exc is not None:
-            log.error("the studio's warm-up failed: %s: %s", type(exc).__name__, exc)
-        send(("ready", 0.0 if exc else fut.result()))
-
-    warm.add_done_callback(ready)
-
-    def run(job: int, kind: str, payload: tuple) -> Callable:
-        # a characteristic's rounds, kept when it yields to a page's job
-        kept = CurveRun() if kind == "characteristic" else None
-
-        def go(check) -> None:
-            try:
-                if kind == "views":
-                    cond, picture, pinned = payload
-                    studio.run(cond, lambda msg: send(("msg", job, msg)), check, picture,
-                               pinned)
-                    send(("result", job, None))
-                else:
-                    cond, kw = payload
-                    curve = studio.characteristic(cond, check=check, resume=kept, **kw)
-                    send(("result", job, curve))
-            except Yielded:  # the worker queues it again, behind the page's job
-                raise
-            except Superseded:
-                send(("error", job, "superseded", "a newer request replaced this one"))
-            except StudioInputError as exc:
-                send(("error", job, "input", str(exc)))
-            except Exception as exc:  # a renderer or colour error: reported, the studio goes on
-                log.exception("studio job failed")
-                send(("error", job, type(exc).__name__, f"{type(exc).__name__}: {exc}"))
-            finally:  # what the job built (a light's maps, its rounds) is resident no more
-                release_freed_memory()
-        return go
-
-    def check_light(job: int, src: LightSource, shown: str) -> None:
-        # decoded here once, and kept loaded for its first use; off the reader, which a
-        # decode of seconds would keep from the next job or cancel
-        try:
-            studio.lights.add_source(src)
-            studio.lights.source(src.name, shown)
-            send(("result", job, None))
-        except StudioInputError as exc:
-            studio.lights.forget(src.name)
-            send(("error", job, "input", str(exc)))
-        except Exception as exc:
-            studio.lights.forget(src.name)
-            log.exception("checking an uploaded light failed")
-            send(("error", job, type(exc).__name__, f"{type(exc).__name__}: {exc}"))
-        finally:
-            release_freed_memory()
-
+    sim = _Simulator(conn, args,
+                     None if word is None else Superseding(np.frombuffer(word, np.int32)))
+    sim.warm_up()
     while True:
         try:
             item = conn.recv()
         except EOFError:  # the server went away
             break
-        if item[0] == "job":
-            _, owner, job, kind, payload, moved = item
-
-            def skipped(fut, job=job) -> None:  # superseded while queued: go() never ran
-                if not fut.cancelled() and isinstance(fut.exception(), Superseded):
-                    send(("error", job, "superseded", "a newer request replaced this one"))
-
-            worker.submit(owner, run(job, kind, payload),  # a script's gives way to a page's
-                          yields=kind == "characteristic").add_done_callback(skipped)
-            if superseding is not None:
-                superseding.took(moved)
-        elif item[0] == "cancel":
-            worker.cancel(item[1])
-            if superseding is not None:
-                superseding.took(item[2])
-        elif item[0] == "light":
-            studio.lights.add_source(item[1])
-        elif item[0] == "check":
-            threading.Thread(target=check_light, args=item[1:], daemon=True,
-                             name="grassd-studio-check").start()
-        elif item[0] == "forget":
-            studio.lights.forget(item[1])
-        elif item[0] == "tick":
-            if superseding is not None:
-                superseding.took(item[1])
-        elif item[0] == "stop":
-            worker.cancel_all()
-            if superseding is not None:
-                superseding.took(item[1])
+        if not sim.take(item):
             break
-    worker.stop()
+    sim.worker.stop()
 
 
 class SimulatorProcess:
@@ -214,8 +359,9 @@ class SimulatorProcess:
         self._args = args
         self._on_ready = on_ready
         self._jobs = itertools.count(1)
-        self._pending: dict[int, tuple[asyncio.Future, Callable | None]] = {}
-        self._owners: dict[int, Any] = {}  # the owner of each job in flight
+        self._pending: dict[int, tuple[asyncio.Future[SimulatedCurve | None],
+                                       Callable[[PageMessage], None] | None]] = {}
+        self._owners: dict[int, int] = {}  # the owner of each job in flight
         self._tick: asyncio.TimerHandle | None = None
         self._lock = threading.Lock()
         self._loop = asyncio.get_running_loop()
@@ -234,13 +380,14 @@ class SimulatorProcess:
         child.close()
         self.alive = True
         for src in self._lights:
-            self._conn.send(("light", src))
+            self._conn.send(AddLight(src))
         threading.Thread(target=self._read, args=(self._conn,), name="grassd-studio-reader",
                          daemon=True).start()
 
-    def _send(self, item: tuple, supersedes: bool = False) -> None:
-        """Send ``item``; one that ``supersedes`` (a job, a cancel) first moves the shared word,
-        which stops the launch in flight, and carries the word's new value."""
+    def _send(self, item: ToSimulator | Callable[[int], RunJob | Cancel | Tick]) -> None:
+        """Send ``item``; one that supersedes (a job, a cancel, a tick) is built from the
+        shared word, which it first moves (that stops the launch in flight), and carries the
+        word's new value."""
         with self._lock:
             if self._stopped:
                 raise RuntimeError("the studio is stopping: its simulator process has ended")
@@ -251,9 +398,11 @@ class SimulatorProcess:
                                 "starting it again", self.proc.exitcode)
                     self._start()
                 try:
-                    if supersedes:
+                    if callable(item):
                         self._word[0] += 1
-                    self._conn.send(item + (self._word[0],) if supersedes else item)
+                        self._conn.send(item(self._word[0]))
+                    else:
+                        self._conn.send(item)
                     return
                 except OSError:  # died before the reader saw it
                     self.alive = False
@@ -282,38 +431,39 @@ class SimulatorProcess:
         self._pending.clear()
         self._owners.clear()
 
-    def _dispatch(self, item: tuple) -> None:
-        if item[0] == "ready":
-            self._on_ready(item[1])
+    def _dispatch(self, item: FromSimulator) -> None:
+        if isinstance(item, Ready):
+            self._on_ready(item.seconds)
             return
-        job = item[1]
-        if item[0] == "msg":
-            entry = self._pending.get(job)
+        if isinstance(item, JobMessage):
+            entry = self._pending.get(item.job)
             if entry is not None and entry[1] is not None:
-                entry[1](item[2])
+                entry[1](item.msg)
             return
-        fut, _ = self._pending.pop(job, (None, None))
-        self._owners.pop(job, None)
+        fut, _ = self._pending.pop(item.job, (None, None))
+        self._owners.pop(item.job, None)
         if fut is None or fut.done():
             return
-        if item[0] == "result":
-            fut.set_result(item[2])
-        elif item[2] == "superseded":
-            fut.set_exception(Superseded(item[3]))
-        elif item[2] == "input":
-            fut.set_exception(StudioInputError(item[3]))
+        if isinstance(item, JobResult):
+            fut.set_result(item.value)
+        elif item.kind == "superseded":
+            fut.set_exception(Superseded(item.message))
+        elif item.kind == "input":
+            fut.set_exception(StudioInputError(item.message))
         else:
-            fut.set_exception(RuntimeError(item[3]))
+            fut.set_exception(RuntimeError(item.message))
 
-    def submit(self, owner: int, kind: str, payload: tuple,
-               on_message: Callable[[dict], None] | None = None) -> asyncio.Future:
-        """Run a job of ``owner`` (superseding its earlier ones); its future gets the result,
-        ``on_message`` each streamed message (on the event loop)."""
+    def submit(self, owner: int, work: ViewsJob | CurveJob,
+               on_message: Callable[[PageMessage], None] | None = None
+               ) -> asyncio.Future[SimulatedCurve | None]:
+        """Run ``work`` as a job of ``owner`` (superseding its earlier ones); its future gets
+        the result (a :class:`CurveJob`'s characteristic; None for a :class:`ViewsJob`, whose
+        views are streamed), ``on_message`` each streamed message (on the event loop)."""
         job = next(self._jobs)
-        fut = self._loop.create_future()
+        fut: asyncio.Future[SimulatedCurve | None] = self._loop.create_future()
         self._pending[job] = (fut, on_message)
         self._owners[job] = owner
-        self._send(("job", owner, job, kind, payload), supersedes=True)
+        self._send(lambda word: RunJob(owner, job, work, word))
         self._schedule_tick()
         return fut
 
@@ -327,37 +477,38 @@ class SimulatorProcess:
         if self._stopped or len(set(self._owners.values())) < 2:
             return
         try:
-            self._send(("tick",), supersedes=True)
+            self._send(Tick)
         except (OSError, RuntimeError):  # ending, or ended: the next job starts it again
             return
         self._schedule_tick()
 
     def cancel(self, owner: int) -> None:
         """Stop the owner's jobs (its page went away)."""
-        self._send(("cancel", owner), supersedes=True)
+        self._send(lambda word: Cancel(owner, word))
 
-    def check_light(self, source: LightSource, shown: str) -> asyncio.Future:
+    def check_light(self, source: LightSource, shown: str
+                    ) -> asyncio.Future[SimulatedCurve | None]:
         """Make an uploaded light known to the simulator, which decodes and checks it (the
         server never holds its pixels) and keeps it loaded for its first use. The future gets
         None, or StudioInputError naming the file ``shown`` (the simulator has dropped it) for
         a file that is not a usable panorama; a light that passed is given again to a
         restarted process."""
         job = next(self._jobs)
-        fut = self._loop.create_future()
+        fut: asyncio.Future[SimulatedCurve | None] = self._loop.create_future()
         self._pending[job] = (fut, None)
 
-        def passed(f: asyncio.Future) -> None:
+        def passed(f: asyncio.Future[SimulatedCurve | None]) -> None:
             if not f.cancelled() and f.exception() is None:
                 self._lights.append(source)
 
         fut.add_done_callback(passed)
-        self._send(("check", job, source, shown))
+        self._send(CheckLight(job, source, shown))
         return fut
 
     def forget_light(self, name: str) -> None:
         """Make the simulator drop an upload (the server has dropped it and its file)."""
         self._lights = [s for s in self._lights if s.name != name]
-        self._send(("forget", name))
+        self._send(ForgetLight(name))
 
     def stop(self) -> None:
         """End the simulator process (nothing is sent after): its jobs stop, the launch in
@@ -369,7 +520,7 @@ class SimulatorProcess:
             if self.alive:
                 try:
                     self._word[0] += 1
-                    self._conn.send(("stop", self._word[0]))
+                    self._conn.send(Stop(self._word[0]))
                 except OSError:
                     pass
                 self.alive = False

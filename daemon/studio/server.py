@@ -53,10 +53,11 @@ import logging
 import signal
 import time
 from collections import OrderedDict, deque
+from collections.abc import Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TypedDict, TypeVar, Unpack
 from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
@@ -65,11 +66,12 @@ from aiohttp.web_protocol import RequestHandler, _ErrInfo
 from grassd.daemon.core.errors import DaemonError
 from grassd.daemon.core.runtime.freed_memory import release_freed_memory
 from grassd.daemon.studio.cost import check_cost
-from grassd.daemon.studio.inputs import Condition, StudioInputError
+from grassd.daemon.studio.inputs import Condition, JsonValue, StudioInputError
 from grassd.daemon.studio.lights import MAX_HDRI_BYTES, LightSource
 from grassd.daemon.studio.limits import DEFAULT_LIMITS, StudioLimits
-from grassd.daemon.studio.process import SimulatorProcess, StudioArgs
-from grassd.daemon.studio.session import Studio, curve_message
+from grassd.daemon.studio.messages import CharacteristicAnswer, PageMessage, PictureUpload
+from grassd.daemon.studio.process import CurveJob, SimulatorProcess, StudioArgs, ViewsJob
+from grassd.daemon.studio.session import CharacteristicArgs, Studio, curve_message
 from grassd.daemon.studio.views import MAX_IMAGE_BYTES
 from grassd.daemon.studio.worker import Superseded
 
@@ -77,6 +79,8 @@ log = logging.getLogger(__name__)
 
 #: Owners of simulator jobs: one per page and per API request.
 _OWNERS = itertools.count(1)
+_Body = TypeVar("_Body")
+_Decoded = TypeVar("_Decoded")
 #: The address the studio binds unless told otherwise: this computer only, no token.
 LOCAL_HOST: str = "127.0.0.1"
 COOKIE = "grassd_studio_token"
@@ -200,7 +204,7 @@ MAX_JSON_BYTES: int = 1 << 20
 LOCAL_NAMES: frozenset[str] = frozenset({"127.0.0.1", "localhost", "::1"})
 
 
-def parse_json(text: str | bytes, what: str = "the body") -> Any:
+def parse_json(text: str | bytes, what: str = "the body") -> JsonValue:
     """``text`` decoded as JSON; StudioInputError saying why where it is not (too deeply
     nested, or an integer of more digits than Python converts, included)."""
     try:
@@ -211,7 +215,7 @@ def parse_json(text: str | bytes, what: str = "the body") -> Any:
         raise StudioInputError(f"{what} must be JSON ({exc})") from None
 
 
-async def _json_body(request: web.Request) -> Any:
+async def _json_body(request: web.Request) -> JsonValue:
     return parse_json(await _read_capped(request, MAX_JSON_BYTES, "a JSON request"))
 
 
@@ -227,19 +231,20 @@ async def _characteristic(request: web.Request) -> web.Response:
     try:
         data = await _json_body(request)
         cond = studio.parse(data)
-        target = data.get("target_stderr")
+        target = data.get("target_stderr") if isinstance(data, dict) else None
+        kw: CharacteristicArgs
         if target is None:
-            kw = dict(target_stderr=None, samples=studio.cfg.simulation.samples,
-                      replicates=studio.cfg.calibration.replicates)
+            kw = {"target_stderr": None, "samples": studio.cfg.simulation.samples,
+                  "replicates": studio.cfg.calibration.replicates}
         else:
             _check_cost(studio, request.app[LIMITS], cond)
-            kw = dict(target_stderr=cond.target_stderr)
+            kw = {"target_stderr": cond.target_stderr}
     except StudioInputError as exc:
         return _error(400, str(exc))
     t0 = time.perf_counter()
     simulator, owner = request.app[SIMULATOR], next(_OWNERS)
     try:
-        curve = await simulator.submit(owner, "characteristic", (cond, kw))
+        curve = await simulator.submit(owner, CurveJob(cond, kw))
     except asyncio.CancelledError:  # the client went away: its job stops too
         simulator.cancel(owner)
         raise
@@ -247,9 +252,11 @@ async def _characteristic(request: web.Request) -> web.Response:
         return _error(400, str(exc))
     except RuntimeError as exc:  # the renderer failed: said, the studio goes on
         return _error(500, str(exc))
+    assert curve is not None  # a characteristic's job answers its curve
     msg = curve_message(curve, kw["target_stderr"])
-    out = {k: msg[k] for k in ("lengths_mm", "ogcd", "ogcd_stderr", "replicates")}
-    out["seconds"] = round(time.perf_counter() - t0, 4)
+    out: CharacteristicAnswer = {
+        "lengths_mm": msg["lengths_mm"], "ogcd": msg["ogcd"], "ogcd_stderr": msg["ogcd_stderr"],
+        "replicates": msg["replicates"], "seconds": round(time.perf_counter() - t0, 4)}
     return web.json_response(out)
 
 
@@ -301,7 +308,8 @@ def _busy(request: web.Request) -> web.Response:
                    headers={"Retry-After": "2"}, linger=True)
 
 
-async def _upload(request: web.Request, read, decode) -> Any:
+async def _upload(request: web.Request, read: Callable[[], Awaitable[_Body]],
+                  decode: Callable[[_Body], Awaitable[_Decoded]]) -> _Decoded:
     """``decode(await read())`` holding one of the studio's upload slots: the body is read
     only once a slot is free (else :class:`_UploadsBusy`, answered 503 from the headers, the
     body then discarded as it comes, never kept), and the slot is held until the decoding
@@ -370,7 +378,7 @@ async def _picture(request: web.Request) -> web.Response:
                                      "a form (curl --data-binary @picture.png)", linger=True)
     loop = asyncio.get_running_loop()
 
-    async def decode(data: bytes) -> dict[str, Any]:  # a large picture takes a while: not on
+    async def decode(data: bytes) -> PictureUpload:  # a large picture takes a while: not on
         return await loop.run_in_executor(request.app[DECODERS],  # the event loop
                                           studio.add_picture, data)
 
@@ -404,7 +412,7 @@ class Outbox:
     def __len__(self) -> int:
         return len(self._items)
 
-    def put(self, msg: dict[str, Any]) -> bool:
+    def put(self, msg: PageMessage) -> bool:
         """Queue ``msg``; False when the outbox is (or now becomes) full."""
         if self.full:
             return False
@@ -458,7 +466,7 @@ async def _socket(request: web.Request) -> web.WebSocketResponse:
     why = (f"this page does not read its messages ({limits.outbox_messages} or "
            f"{limits.outbox_mib} MiB waiting): reload it")
 
-    def send(msg: dict[str, Any]) -> None:
+    def send(msg: PageMessage) -> None:
         if not outbox.put(msg) and not dropping:
             simulator.cancel(owner)
             dropping.append(asyncio.ensure_future(_drop(ws, request, why)))
@@ -502,21 +510,22 @@ async def _socket(request: web.Request) -> web.WebSocketResponse:
                 simulator.cancel(owner)
                 send({"type": "error", "id": tag, "message": str(exc)})
                 continue
-            pinned = data.get("pinned")  # the condition shown beside it as B
-            if pinned is not None:
+            given = data.get("pinned")  # the condition shown beside it as B
+            pinned: Condition | None = None
+            if given is not None:
                 try:
-                    pinned = studio.parse(pinned)
+                    pinned = studio.parse(given)
                     _check_cost(studio, limits, pinned, "the condition pinned as B")
                 except _BAD_INPUT as exc:
                     send({"type": "pinned", "id": tag, "error": str(exc),
                           "final": True})  # said as B's; A goes on
                     pinned = None
 
-            def emit(msg: dict[str, Any], tag: int = tag) -> None:
+            def emit(msg: PageMessage, tag: int = tag) -> None:
                 msg["id"] = tag
                 send(msg)
 
-            fut = simulator.submit(owner, "views", (cond, picture, pinned), emit)
+            fut = simulator.submit(owner, ViewsJob(cond, picture, pinned), emit)
             fut.add_done_callback(lambda f, tag=tag: finished(f, tag))
     finally:
         request.app[SOCKETS].discard(ws)
@@ -592,6 +601,15 @@ class Connections:
         self._open.pop(conn, None)
 
 
+class HandlerOptions(TypedDict, total=False):
+    """What a :class:`StudioConnection` hands on to aiohttp's ``RequestHandler`` (an
+    ``access_log`` of None: none)."""
+
+    access_log: logging.Logger | None
+    keepalive_timeout: float
+    max_headers: int
+
+
 class StudioConnection(RequestHandler):
     """aiohttp's handler of one connection, kept within the studio's limits: its request line
     and headers within ``header_s`` of its opening or of its previous request's end (else a
@@ -600,8 +618,8 @@ class StudioConnection(RequestHandler):
     (:meth:`refuse_body`)."""
 
     def __init__(self, manager: web.Server, connections: Connections, limits: StudioLimits,
-                 **kwargs: Any) -> None:
-        super().__init__(manager, **kwargs)
+                 *, loop: asyncio.AbstractEventLoop, **kwargs: Unpack[HandlerOptions]) -> None:
+        super().__init__(manager, loop=loop, **kwargs)  # type: ignore[arg-type]  # takes a None log
         self._connections = connections
         self._limits = limits
         self.busy = 0  # requests being served (the middleware counts them)
@@ -702,7 +720,7 @@ class StudioSite(web.BaseSite):
     ``TCPSite`` makes plain handlers, which have no header deadline or cap)."""
 
     def __init__(self, runner: web.AppRunner, host: str, port: int,
-                 limits: StudioLimits, **handler_kwargs: Any) -> None:
+                 limits: StudioLimits, **handler_kwargs: Unpack[HandlerOptions]) -> None:
         super().__init__(runner)
         self._host, self._port = host, port
         self._limits = limits

@@ -55,13 +55,25 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import replace
 from datetime import UTC, datetime
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Literal, Required, TypedDict, TypeVar
 
 import numpy as np
 
 from grassd.daemon.studio import views
-from grassd.daemon.studio.inputs import Condition, StudioInputError, parse_condition
+from grassd.daemon.studio.inputs import Condition, JsonValue, StudioInputError, parse_condition
 from grassd.daemon.studio.lights import Lights
+from grassd.daemon.studio.messages import (
+    AudienceMessage,
+    CurveMessage,
+    ImageMessage,
+    LightMessage,
+    Materials,
+    PageMessage,
+    PictureUpload,
+    PinnedMessage,
+    StudioState,
+    SunPosition,
+)
 from grassd.daemon.studio.pace import (
     FIRST_IMAGE,
     FIRST_REPLICATES,
@@ -78,11 +90,15 @@ from grassd.daemon.studio.pace import (
 from grassd.daemon.studio.worker import Check
 
 if TYPE_CHECKING:
+    from grassd.calib.characteristic import FittedCharacteristic
     from grassd.daemon.content.colour_map import DisplayColours
     from grassd.daemon.content.config import ContentConfig
     from grassd.daemon.core.calibration.simulation import CurveRun, SimulatedCurve
+    from grassd.daemon.core.config.settings import PixelValue
     from grassd.sim.interrupt import Interrupt
+    from grassd.sim.lighting import Lighting
     from grassd.sim.renderer import Renderer
+    from grassd.sim.scene import DisplaySpec, PixelSpec
 
 log = logging.getLogger(__name__)
 
@@ -98,14 +114,27 @@ AUDIENCE_POINTS: int = 36
 DEFAULT_REGION: tuple[tuple[float, float], ...] = ((-3.0, -5.0), (3.0, -5.0), (3.0, -0.5),
                                                    (-3.0, -0.5))
 
-Emit = Callable[[dict[str, Any]], None]
+class CharacteristicArgs(TypedDict, total=False):
+    """The settings of a characteristic's run (:meth:`Studio.characteristic`'s keywords) that
+    a request gives: the OGCD standard error to refine to (dE00; None: one round), paths a
+    replicate and replicates a round, the lengths (mm)."""
+
+    target_stderr: Required[float | None]
+    samples: int | None
+    replicates: int
+    lengths_mm: Sequence[float]
+
+
+#: Where a job's messages go, as they are ready.
+Emit = Callable[[PageMessage], None]
+_Kept = TypeVar("_Kept")
 
 
 def _rounded(a: np.ndarray, digits: int = 4) -> list[float]:
     return np.round(np.asarray(a, np.float64), digits).tolist()
 
 
-def _keep(kept: dict, key: tuple, value: Any, most: int) -> Any:
+def _keep(kept: dict[tuple, _Kept], key: tuple, value: _Kept, most: int) -> _Kept:
     """Keep ``value`` under ``key`` in ``kept`` as its newest entry, dropping the oldest beyond
     ``most``; returns ``value``."""
     kept.pop(key, None)
@@ -133,7 +162,7 @@ def _image_key(cond: Condition) -> tuple:
     return (*_scene_key(cond), cond.length_mm)
 
 
-def _fit(curve: SimulatedCurve) -> tuple[Any, str | None]:
+def _fit(curve: SimulatedCurve) -> tuple[FittedCharacteristic | None, str | None]:
     """The fitted characteristic of a simulated curve
     (:func:`grassd.calib.characteristic.fit_characteristic`) and None, or None and why there
     is none (a CalibError's message: no monotone fit)."""
@@ -147,8 +176,21 @@ def _fit(curve: SimulatedCurve) -> tuple[Any, str | None]:
         return None, str(exc)
 
 
-def _image_message(kind: str, total: np.ndarray, done: int, passes: int,
-                   white: np.ndarray) -> dict[str, Any]:
+def _light_message(lighting: Lighting, white: np.ndarray) -> LightMessage:
+    """The light of a condition as the page is told it: the lighting's notes, where it put
+    the sun (compass degrees; None: no sun), the radiance of a white under it."""
+    from grassd.sim.lighting import azimuth_elevation_from_direction
+
+    sun: SunPosition | None = None
+    if lighting.sun_direction is not None:
+        az, el = azimuth_elevation_from_direction(lighting.sun_direction)
+        sun = {"azimuth_deg": float(az), "elevation_deg": float(el)}
+    return {"type": "light", "notes": list(getattr(lighting, "notes", ())), "sun": sun,
+            "white_nits": _rounded(white)}
+
+
+def _image_message(kind: Literal["pixel", "pinned"], total: np.ndarray, done: int, passes: int,
+                   white: np.ndarray) -> ImageMessage:
     """A refined image of ``done`` passes summed in ``total`` (linear Rec.709 nits, scaled by
     ``white`` for the page) as a ``kind`` message; ``final`` once it has ``passes``."""
     return {"type": kind, "image": views.pixel_png(total / done, white),
@@ -159,7 +201,8 @@ class Studio:
     """The studio's model of one site. Its simulation methods run on the worker thread only
     (the renderer is one per process); the rest may be called from the server's thread."""
 
-    def __init__(self, cfg, lights: Lights, *, pixel_fields: dict[str, Any] | None = None,
+    def __init__(self, cfg, lights: Lights, *,
+                 pixel_fields: dict[str, PixelValue] | None = None,
                  pixel_source: str = "config", active_um: np.ndarray | None = None,
                  arch: str = "cpu",
                  interrupts: Callable[[Check], Interrupt] | None = None) -> None:
@@ -191,13 +234,14 @@ class Studio:
         self._picture_ids = itertools.count(1)
         self._lock = threading.Lock()
         self.ready = False
-        self._curves: dict[tuple, Any] = {}  # converged characteristics of recent conditions
+        #: converged characteristics of recent conditions
+        self._curves: dict[tuple, SimulatedCurve] = {}
         #: characteristics a newer input stopped before they converged, to go on from
         self._runs: dict[tuple, CurveRun] = {}
         #: refined images of recent conditions: (sum of the passes, passes)
         self._images: dict[tuple, tuple[np.ndarray, int]] = {}
         #: audience maps of recent conditions (their messages; None: no place to map)
-        self._audiences: dict[tuple, dict[str, Any] | None] = {}
+        self._audiences: dict[tuple, AudienceMessage | None] = {}
 
     # ------------------------------------------------------------------ what the page needs
     @property
@@ -205,7 +249,7 @@ class Studio:
         """(latitude, longitude) deg of the display."""
         return self.cfg.site.latitude, self.cfg.site.longitude
 
-    def state(self) -> dict[str, Any]:
+    def state(self) -> StudioState:
         """What the page draws its inputs from (``GET /api/state``)."""
         from grassd.daemon.studio.inputs import TARGET_STDERR, default_lengths
 
@@ -244,7 +288,7 @@ class Studio:
             raise StudioInputError(f"no picture {key!r}: upload it again")
         return rgb
 
-    def add_picture(self, data: bytes) -> dict[str, Any]:
+    def add_picture(self, data: bytes) -> PictureUpload:
         """Read an uploaded picture as one sRGB colour per display pixel
         (:func:`~grassd.daemon.studio.views.picture_rgb`); its id for the conditions and those
         colours (``rgb``, rows x cols x 3). StudioInputError for bytes that are not a readable
@@ -328,7 +372,7 @@ class Studio:
         self.ready = True
         return time.perf_counter() - t0
 
-    def parse(self, data: Any) -> Condition:
+    def parse(self, data: JsonValue) -> Condition:
         """The page's or a script's condition (JSON) checked against this studio's pixel, site
         and lights (StudioInputError naming what is wrong)."""
         cond = parse_condition(data, green_max_mm=self.display.pixel.green_max_mm,
@@ -340,7 +384,7 @@ class Studio:
                                    "one")
         return cond
 
-    def _scene(self, cond: Condition) -> tuple[Any, Any, np.ndarray]:
+    def _scene(self, cond: Condition) -> tuple[Lighting, DisplaySpec, np.ndarray]:
         """The lighting of ``cond``, its display and the radiance of a white lying flat under
         that light (linear Rec.709 nits: what the pixel's images are scaled by);
         StudioInputError where the condition's light cannot be (its sun below the horizon)."""
@@ -357,7 +401,7 @@ class Studio:
         base = self.displays.get(cond.pixel or self.default_pixel)
         return 0.0 if base is None else base.pixel.splay_deg
 
-    def _display(self, cond: Condition):
+    def _display(self, cond: Condition) -> DisplaySpec:
         """The display patch of ``cond``: its pixel choice, with its splay."""
         base = self.displays.get(cond.pixel or self.default_pixel)
         if base is None:
@@ -450,21 +494,27 @@ class Studio:
         (:meth:`picture_levels`);
         ``pinned``: the condition the page shows beside it as B, whose characteristic and image
         follow A's views."""
-        from grassd.sim.lighting import azimuth_elevation_from_direction
-
         t0 = time.perf_counter()
 
-        def send(msg: dict[str, Any]) -> None:
+        def send(msg: PageMessage) -> None:
             msg["ms"] = round((time.perf_counter() - t0) * 1000.0, 1)
             emit(msg)
 
         lighting, display, white = self._scene(cond)
-        sun = None
-        if lighting.sun_direction is not None:  # where the lighting put it (compass degrees)
-            az, el = azimuth_elevation_from_direction(lighting.sun_direction)
-            sun = {"azimuth_deg": float(az), "elevation_deg": float(el)}
-        send({"type": "light", "notes": list(getattr(lighting, "notes", ())), "sun": sun,
-              "white_nits": _rounded(white)})
+        send(_light_message(lighting, white))
+        curve, kept_shown = self._curve_and_first_image(cond, display, white, send, check)
+        check()
+        self._fitted_views(cond, curve, picture, send, check)
+        if pinned is not None:
+            self._pinned(pinned, send, check)
+        self._refine_image(cond, display, white, send, check, show_kept=not kept_shown)
+        send({"type": "done"})
+
+    def _curve_and_first_image(self, cond: Condition, display: DisplaySpec, white: np.ndarray,
+                               send: Emit, check: Check) -> tuple[SimulatedCurve, bool]:
+        """``cond``'s characteristic, kept or run to its target with each round sent, and the
+        pixel's first image sent after its first round (a kept curve's at once); with whether
+        that image was the refined one kept for the condition."""
         first = [True]
         kept_shown = [False]
 
@@ -479,7 +529,7 @@ class Studio:
                   "width": FIRST_IMAGE[0], "spp": FIRST_IMAGE[1]})
             check()
 
-        def on_round(curve) -> None:
+        def on_round(curve: SimulatedCurve) -> None:
             check()
             send(curve_message(curve, cond.target_stderr))
             if first[0]:
@@ -492,38 +542,39 @@ class Studio:
             first_image()
         else:
             curve = self._converged(cond, check, on_round)
-        check()
+        return curve, kept_shown[0]
+
+    def _fitted_views(self, cond: Condition, curve: SimulatedCurve, picture: np.ndarray | None,
+                      send: Emit, check: Check) -> None:
+        """What the fitted characteristic of ``cond``'s ``curve`` shows: the table (or why there
+        is none), the contrast, the display showing ``picture`` (if any) and the audience
+        map (kept: :data:`KEPT_CURVES`)."""
         fit, why = _fit(curve)
-        table = None
         if fit is None:
             send({"type": "table", "error": why})
+            return
+        table = views.table_view(fit, self.active_um if cond.tables == "active" else None)
+        send({"type": "table", **table})
+        send({"type": "contrast", **views.contrast_view(fit.ogcd_range)})
+        if picture is not None:
+            table_mm = np.asarray(table["lengths_mm"])
+            levels, colours = self.picture_levels(picture, cond, curve, table_mm, check)
+            check()
+            eye = np.asarray(cond_eye(cond), float)
+            send({"type": "display", "image": views.display_view(
+                levels, table_mm, curve.lengths_mm, curve.lab, self.cfg.display.pitch_mm,
+                eye), "levels": levels.tolist(), "map": self.content.map,
+                "colours": None if colours is None else colours.source})
+        # the audience's places are judged as the eye is: the reference vs the longest
+        key = _curve_key(cond)
+        if key in self._audiences:
+            audience = self._audiences[key]
         else:
-            table = views.table_view(fit, self.active_um if cond.tables == "active" else None)
-        if table is not None:
-            send({"type": "table", **table})
-            send({"type": "contrast", **views.contrast_view(fit.ogcd_range)})
-            if picture is not None:
-                table_mm = np.asarray(table["lengths_mm"])
-                levels, colours = self.picture_levels(picture, cond, curve, table_mm, check)
-                check()
-                eye = np.asarray(cond_eye(cond), float)
-                send({"type": "display", "image": views.display_view(
-                    levels, table_mm, curve.lengths_mm, curve.lab, self.cfg.display.pitch_mm,
-                    eye), "levels": levels.tolist(), "map": self.content.map,
-                    "colours": None if colours is None else colours.source})
-            # the audience's places are judged as the eye is: the reference vs the longest
-            key = _curve_key(cond)
-            audience = self._audiences.get(key, False)
-            if audience is False:
-                ends = curve.ogcd[int(np.argmax(curve.lengths_mm))] - curve.ogcd[0]
-                audience = _keep(self._audiences, key, self._audience(cond, float(ends), check),
-                                 KEPT_CURVES)
-            if audience is not None:
-                send(dict(audience))
-        if pinned is not None:
-            self._pinned(pinned, send, check)
-        self._refine_image(cond, display, white, send, check, show_kept=not kept_shown[0])
-        send({"type": "done"})
+            ends = curve.ogcd[int(np.argmax(curve.lengths_mm))] - curve.ogcd[0]
+            audience = _keep(self._audiences, key, self._audience(cond, float(ends), check),
+                             KEPT_CURVES)
+        if audience is not None:
+            send(audience.copy())
 
     def _converged(self, cond: Condition, check: Check,
                    on_round: Callable | None = None) -> SimulatedCurve:
@@ -557,7 +608,8 @@ class Studio:
         except StudioInputError as exc:
             send({"type": "pinned", "error": str(exc), "final": True})
             return
-        msg = {"type": "pinned", "curve": curve_message(curve, cond.target_stderr, kept=kept)}
+        msg: PinnedMessage = {"type": "pinned",
+                              "curve": curve_message(curve, cond.target_stderr, kept=kept)}
         fit, _why = _fit(curve)
         if fit is not None:  # else no monotone fit: the curve alone
             msg["ogcd_range"] = fit.ogcd_range
@@ -565,7 +617,7 @@ class Studio:
         self._refine_image(cond, display, white, send, check, PINNED_PASSES, "pinned")
 
     def _audience(self, cond: Condition, eye_range: float,
-                  check: Check) -> dict[str, Any] | None:
+                  check: Check) -> AudienceMessage | None:
         """The OGCD range from places over the audience region at the eye's height (two
         lengths each: the reference and the longest), as one map's message (None where no
         place of the region is far enough from the display)."""
@@ -603,7 +655,8 @@ class Studio:
                 "warned": int(warn.sum()), "loss": views.CONTRAST_LOSS}
 
     def _refine_image(self, cond: Condition, display, white: np.ndarray, send: Emit,
-                      check: Check, passes: int = REFINE_PASSES, kind: str = "pixel",
+                      check: Check, passes: int = REFINE_PASSES,
+                      kind: Literal["pixel", "pinned"] = "pixel",
                       show_kept: bool = True) -> None:
         """Refine the pixel's image of ``cond`` to ``passes`` passes of :data:`REFINE_IMAGE`,
         going on from the passes kept for it, and send it (a ``kind`` message, ``final`` once
@@ -614,24 +667,24 @@ class Studio:
         key = _image_key(cond)
         total, done = self._images.pop(key, (None, 0))
 
-        def show() -> None:
+        def show(total: np.ndarray) -> None:
             send(_image_message(kind, total, done, passes, white))
 
         try:
-            if done and show_kept:
-                show()
+            if done and show_kept and total is not None:
+                show(total)
             for k in range(done, passes):
                 img = self._image(cond, display, REFINE_IMAGE, 1 + k, check)
                 total = img if total is None else total + img
                 done = k + 1
                 check()
-                show()
+                show(total)
         finally:
             if total is not None:
                 _keep(self._images, key, (total, done), KEPT_IMAGES)
 
 
-def _materials(p, source: str) -> dict[str, Any]:
+def _materials(p: PixelSpec, source: str) -> Materials:
     """A pixel's materials as the page shows them (8-bit sRGB albedos, gloss, splay)."""
     return {"source": source, "splay_deg": p.splay_deg, "specular": p.specular,
             "smoothness": p.smoothness, "green_srgb": list(p.green_srgb),
@@ -645,7 +698,8 @@ def cond_eye(cond: Condition) -> tuple[float, float, float]:
     return tuple(Viewpoint(*cond.viewpoint).eye_m())
 
 
-def curve_message(curve, target: float | None, *, kept: bool = False) -> dict[str, Any]:
+def curve_message(curve: SimulatedCurve, target: float | None, *, kept: bool = False
+                  ) -> CurveMessage:
     """A characteristic as the page and the API send it: lengths (mm), OGCD and its standard
     error (CIEDE2000), the simulated pixel's colour per length (sRGB, and ``lab_d50``: D50
     CIELAB unrounded, as a calibration report keeps it), replicates so far;

@@ -12,12 +12,16 @@ from __future__ import annotations
 import base64
 import io
 import math
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from grassd.daemon.content.colour_map import DisplayColours, levels_for_picture
 from grassd.daemon.studio.inputs import StudioInputError
+from grassd.daemon.studio.messages import ContrastView, TableView
+
+if TYPE_CHECKING:
+    from grassd.calib.characteristic import FittedCharacteristic
 
 #: Just-noticeable colour difference (CIEDE2000) the contrast view counts steps against: about
 #: 1 dE00 is perceptible to a trained observer side by side (Mokrzycki & Tatol 2011, "Colour
@@ -82,7 +86,7 @@ def lab_to_srgb8(lab: np.ndarray) -> np.ndarray:
     return np.rint(lab_to_srgb(lab) * 255.0).astype(np.uint8)
 
 
-def table_view(fit, active_um: np.ndarray | None) -> dict[str, Any]:
+def table_view(fit: FittedCharacteristic, active_um: np.ndarray | None) -> TableView:
     """The 8-bit table of a fitted characteristic and its R^2 (OGCD vs level) before (length
     linear in level) and after: the live table built from ``fit``
     (:func:`grassd.calib.length_table.build_length_table`), or ``active_um`` (256,) [um], the
@@ -108,7 +112,7 @@ def table_view(fit, active_um: np.ndarray | None) -> dict[str, Any]:
             "max_level_error": float(np.abs(achieved - target).max())}
 
 
-def contrast_view(ogcd_range: float, jnd: float = JND_DE00) -> dict[str, Any]:
+def contrast_view(ogcd_range: float, jnd: float = JND_DE00) -> ContrastView:
     """What a content designer has to work with from one eye: the OGCD range (CIEDE2000), the
     colour step between adjacent levels of a linear table (range / 255), the smallest step in
     levels a viewer notices (``jnd`` dE00) and how many levels stay mutually distinguishable

@@ -30,10 +30,10 @@ import logging
 import threading
 import time
 from collections import OrderedDict, deque
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 from concurrent.futures import Future
 from dataclasses import dataclass
-from typing import Any
+from typing import Generic, TypeVar
 
 log = logging.getLogger(__name__)
 
@@ -56,17 +56,18 @@ class Yielded(Exception):  # noqa: N818 (what happened to the job, as Superseded
 
 
 Check = Callable[[], None]
+_Result = TypeVar("_Result")
 
 
 @dataclass
-class _Job:
+class _Job(Generic[_Result]):
     """A submitted job: its owner, its id, the function, its future, whether it yields to
     pages (a script's), and how many turns it has given (its slice doubles with each)."""
 
-    owner: Any
+    owner: Hashable
     job: int
-    fn: Callable[[Check], Any]
-    fut: Future
+    fn: Callable[[Check], _Result]
+    fut: Future[_Result]
     yields: bool
     turns: int = 0
 
@@ -80,21 +81,22 @@ class Worker:
     def __init__(self, name: str = "grassd-studio-worker", slice_s: float = SLICE_S) -> None:
         self.slice_s = slice_s
         #: owners with jobs waiting, in the order of their turns
-        self._owners: OrderedDict[Any, deque[_Job]] = OrderedDict()
-        self._latest: dict[Any, int] = {}
-        self._queued: dict[Any, int] = {}  # jobs of each owner not yet finished
+        self._owners: OrderedDict[Hashable, deque[_Job]] = OrderedDict()
+        self._latest: dict[Hashable, int] = {}
+        self._queued: dict[Hashable, int] = {}  # jobs of each owner not yet finished
         self._ids = itertools.count(1)
         self._lock = threading.Condition()
         self._stopping = False
         self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
         self._thread.start()
 
-    def submit(self, owner: Any, fn: Callable[[Check], Any], *, yields: bool = False) -> Future:
+    def submit(self, owner: Hashable, fn: Callable[[Check], _Result], *, yields: bool = False
+               ) -> Future[_Result]:
         """Queue ``fn`` for ``owner``, superseding the owner's earlier jobs; returns its
         future (its exception is :class:`Superseded` when a newer job replaced it). ``yields``:
         the job gives way to those that do not (see the module docstring). A job that gives
         way is called again at its next turn, and must go on from what it kept."""
-        fut: Future = Future()
+        fut: Future[_Result] = Future()
         with self._lock:
             item = _Job(owner, next(self._ids), fn, fut, yields)
             self._latest[owner] = item.job
@@ -103,7 +105,7 @@ class Worker:
             self._lock.notify()
         return fut
 
-    def cancel(self, owner: Any) -> None:
+    def cancel(self, owner: Hashable) -> None:
         """Stop the owner's queued and running jobs (its page went away)."""
         with self._lock:
             if self._queued.get(owner):
@@ -130,7 +132,7 @@ class Worker:
         self._thread.join(timeout=30)
 
     # ------------------------------------------------------------------ the thread's side
-    def _waits(self, owner: Any, *, pages_only: bool) -> bool:
+    def _waits(self, owner: Hashable, *, pages_only: bool) -> bool:
         """Whether ``owner`` has a current job waiting (a page's, with ``pages_only``); under
         the lock."""
         jobs = self._owners.get(owner)
@@ -139,7 +141,7 @@ class Worker:
         latest = self._latest.get(owner)
         return any(j.job == latest and not (pages_only and j.yields) for j in jobs)
 
-    def _finished(self, owner: Any) -> None:
+    def _finished(self, owner: Hashable) -> None:
         """One job of ``owner`` is done: forget the owner when it has no other. Under the
         lock."""
         left = self._queued.get(owner, 1) - 1

@@ -23,14 +23,14 @@ LONG_LAUNCH_S = 20.0
 
 
 @asynccontextmanager
-async def simulator(hdri: Path) -> AsyncIterator[tuple[object, Callable[..., tuple], float]]:
+async def simulator(hdri: Path) -> AsyncIterator[tuple[object, Callable[..., object], float]]:
     """A started simulator process lit by the panorama ``hdri``, the job payload of
     ``samples`` splayed camera paths a replicate at 2 lengths, and the seconds a path takes
     here, as a probe of 2 x :data:`PROBE_PATHS` paths timed it."""
     from grassd.daemon.core.config.settings import resolve_config
     from grassd.daemon.studio.inputs import parse_condition
     from grassd.daemon.studio.lights import LightSource
-    from grassd.daemon.studio.process import SimulatorProcess, StudioArgs
+    from grassd.daemon.studio.process import CurveJob, SimulatorProcess, StudioArgs
 
     cfg = resolve_config(None, None)
     cond = parse_condition({"ambient_lux": 5000, "viewpoint": [170, 2, 0], "splay_deg": 8.0,
@@ -38,16 +38,16 @@ async def simulator(hdri: Path) -> AsyncIterator[tuple[object, Callable[..., tup
                            green_max_mm=20.0, timezone=cfg.site.timezone, lights=["file"],
                            default_light="file")
 
-    def job(samples: int, replicates: int = 2) -> tuple:
-        return cond, {"target_stderr": None, "samples": samples, "replicates": replicates,
-                      "lengths_mm": [0.0, 20.0]}
+    def job(samples: int, replicates: int = 2) -> CurveJob:
+        return CurveJob(cond, {"target_stderr": None, "samples": samples,
+                               "replicates": replicates, "lengths_mm": [0.0, 20.0]})
 
     ready = asyncio.Event()
     sim = SimulatorProcess(StudioArgs(None, None, (LightSource("file", "courtyard", hdri),)),
                            lambda _s: ready.set())
     try:
         await asyncio.wait_for(ready.wait(), 300)  # the first start compiles the kernels
-        probe = await asyncio.wait_for(sim.submit(1, "characteristic", job(PROBE_PATHS)), 120)
+        probe = await asyncio.wait_for(sim.submit(1, job(PROBE_PATHS)), 120)
         per_path = probe.seconds["trace"] / (2 * PROBE_PATHS)
         yield sim, job, per_path
     finally:
@@ -74,10 +74,10 @@ def test_a_newer_job_stops_the_launch_in_flight(shared_hdri):
     async def scenario() -> tuple[float, object, BaseException | None, float]:
         async with simulator(shared_hdri("courtyard")) as (sim, job, per_path):
             paths = long_paths(per_path)
-            slow = sim.submit(1, "characteristic", job(paths, 4))
+            slow = sim.submit(1, job(paths, 4))
             await asyncio.sleep(1.0)  # A is running: the worker was idle
             t0 = time.monotonic()
-            curve = await asyncio.wait_for(sim.submit(1, "characteristic", job(256)), 120)
+            curve = await asyncio.wait_for(sim.submit(1, job(256)), 120)
             answered = time.monotonic() - t0
             try:
                 await asyncio.wait_for(slow, 5)
@@ -103,7 +103,7 @@ def test_the_studio_ends_within_a_camera_path_of_a_long_launch(shared_hdri):
     async def scenario() -> tuple[float, float, object, BaseException | None]:
         async with simulator(shared_hdri("courtyard")) as (sim, job, per_path):
             paths = long_paths(per_path)
-            slow = sim.submit(1, "characteristic", job(paths, 4))
+            slow = sim.submit(1, job(paths, 4))
             await asyncio.sleep(1.0)
             t0 = time.monotonic()
             sim.stop()
