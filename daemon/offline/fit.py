@@ -86,6 +86,7 @@ from grassd.sim.albedo_terms import monomial_values
 from grassd.sim.scene import srgb_to_linear
 
 if TYPE_CHECKING:
+    from grassd.daemon.core.config.settings import PixelValue
     from grassd.sim.albedo_terms import AlbedoTerms
     from grassd.sim.lighting import Lighting
     from grassd.sim.renderer import Renderer
@@ -248,7 +249,7 @@ class FitResult:
         return [[k, text(self.start[k]), text(v), text(self.stderr.get(k))]
                 for k, v in self.pixel.items()]
 
-    def pixel_spec_fields(self) -> dict[str, float | tuple[float, ...]]:
+    def pixel_spec_fields(self) -> dict[str, PixelValue]:
         """The start's fields with the fitted ones over them (PixelSpec keyword arguments)."""
         out = {**self.start, **self.pixel}
         return {k: tuple(v) if isinstance(v, list) else v for k, v in out.items()}
@@ -994,7 +995,7 @@ def _judge(model: _Model, real: RealCapture, series: int, shape: tuple[float, fl
                              sim_lab=res.lab)
 
 
-def load_pixel_fields(path: str | Path) -> dict[str, float | tuple[float, ...]]:
+def load_pixel_fields(path: str | Path) -> dict[str, PixelValue]:
     """PixelSpec fields from a ``grassd fit`` result: its JSON report (the start with the
     fitted fields over it) or a TOML file holding a ``[display.pixel]`` table (what
     ``--toml`` writes, or a whole grassd.toml) or a ``[pixel]`` table. Raises
@@ -1025,7 +1026,7 @@ def load_pixel_fields(path: str | Path) -> dict[str, float | tuple[float, ...]]:
     unknown = sorted(set(fields) - set(PixelSpec.__dataclass_fields__))
     if unknown:
         raise FitError(f"{p}: unknown pixel field(s) {', '.join(unknown)}")
-    out: dict[str, float | tuple[float, ...]] = {}
+    out: dict[str, PixelValue] = {}
     for k, v in fields.items():
         value = tuple(v) if isinstance(v, list) else v
         numbers = value if isinstance(value, tuple) else (value,)

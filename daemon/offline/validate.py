@@ -79,6 +79,7 @@ from grassd.sim.light_input import LightInput
 
 if TYPE_CHECKING:
     from grassd.daemon.core.calibration.simulation import SimulatedCurve
+    from grassd.daemon.core.config.settings import PixelValue
     from grassd.sim.lighting import Lighting
     from grassd.sim.renderer import Renderer
     from grassd.sim.scene import RenderSettings
@@ -163,7 +164,7 @@ class CaptureManifest:
     checker_corners: tuple[tuple[float, float], ...]
     series: tuple[Series, ...]
     chart: str = manifest_fields.DEFAULT_CHART
-    pixel: dict[str, float | tuple[float, ...]] = field(default_factory=dict)
+    pixel: dict[str, PixelValue] = field(default_factory=dict)
 
     @property
     def reference(self) -> Series:
@@ -210,7 +211,7 @@ class _CaptureToml(TypedDict, total=False):
     checker_raw: str
     checker_corners: list[list[float]]
     checker_chart: str
-    pixel: dict[str, float | tuple[float, ...]]
+    pixel: dict[str, PixelValue]
     series: list[_SeriesToml]
 
 

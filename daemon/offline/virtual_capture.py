@@ -13,10 +13,10 @@ white balance, noise and quantisation; validation must see exactly those differe
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, fields, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -37,11 +37,13 @@ from grassd.sim.light_input import LightInput
 if TYPE_CHECKING:
     from grassd.sim.lighting import Lighting
     from grassd.sim.renderer import Renderer
+    from grassd.sim.scene import PixelSpec
 
 
 def capture_world(out_dir: str | Path, light: LightInput,
                   viewpoints: Sequence[tuple[float, float, float]], lengths_mm: Sequence[float],
-                  *, real_pixel: Any = None, model_pixel: dict[str, Any] | None = None,
+                  *, real_pixel: PixelSpec | None = None,
+                  model_pixel: Mapping[str, float | Sequence[float]] | None = None,
                   camera: VirtualCamera | None = None, renderer: Renderer | None = None,
                   lighting: Lighting | None = None, width: int = 160, spp: int = 32,
                   max_bounces: int = 3, seed: int = 0, chart: str = "spydercheckr-24",
@@ -68,9 +70,9 @@ def capture_world(out_dir: str | Path, light: LightInput,
     out.mkdir(parents=True, exist_ok=True)
     camera = camera or VirtualCamera()
     lighting = lighting if lighting is not None else light.lighting()
-    model_pixel = {k: tuple(v) if isinstance(v, list) else v
-                   for k, v in (model_pixel or {}).items()}
-    real_pixel = real_pixel if real_pixel is not None else PixelSpec(**model_pixel)
+    given = {k: tuple(v) if isinstance(v, Sequence) else v
+             for k, v in (model_pixel or {}).items()}
+    real_pixel = real_pixel if real_pixel is not None else PixelSpec(**given)
     if renderer is None:
         renderer = default_renderer()
     white = white_radiance(lighting)
@@ -109,12 +111,12 @@ def capture_world(out_dir: str | Path, light: LightInput,
         series.append(Series(tuple(float(v) for v in vp), tuple(photos), reference=i == 0))
     manifest = CaptureManifest(root=out, light=light, checker_photo=checker,
                                checker_corners=tuple(map(tuple, chart_corners.tolist())),
-                               series=tuple(series), chart=chart, pixel=model_pixel)
+                               series=tuple(series), chart=chart, pixel=given)
     atomic_write_text(out / MANIFEST_NAME, manifest_to_toml(manifest))
     return manifest
 
 
-def pixel_fields(pixel: Any) -> dict[str, Any]:
+def pixel_fields(pixel: PixelSpec) -> dict[str, float | list[float]]:
     """PixelSpec fields that differ from the defaults (for a manifest's ``[pixel]`` table)."""
     from grassd.sim.scene import PixelSpec
 
