@@ -43,7 +43,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -61,7 +61,12 @@ from grassd.daemon.core.calibration.checks import (
     check_table,
     pooled_characteristic,
 )
-from grassd.daemon.core.calibration.correction import SAVED, with_correction
+from grassd.daemon.core.calibration.correction import (
+    SAVED,
+    DisplayCorrection,
+    Saved,
+    with_correction,
+)
 from grassd.daemon.core.calibration.display_model import (
     capacity_for,
     display_spec_for_config,
@@ -83,7 +88,7 @@ from grassd.daemon.core.calibration.units import (
     r2_pair,
     viewpoint_units,
 )
-from grassd.daemon.core.config.settings import Config, ViewpointConfig
+from grassd.daemon.core.config.settings import CalibrationConfig, Config, ViewpointConfig
 from grassd.daemon.core.errors import CalibrationRejected, RunInterrupted
 from grassd.sim.light_input import LightInput
 
@@ -91,7 +96,7 @@ if TYPE_CHECKING:
     from grassd.daemon.core.store.manifest import CheckerPhoto
     from grassd.sim.lighting import Lighting
     from grassd.sim.renderer import Renderer
-    from grassd.sim.scene import DisplaySpec
+    from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
 
 log = logging.getLogger(__name__)
 
@@ -118,7 +123,7 @@ class Calibrates(Protocol):
             stop: threading.Event | None = None,
             progress: Progress | None = None,
             previous_tables: Mapping[str, NDArray] | None = None,
-            correction: Any = SAVED) -> CalibrationResult:
+            correction: DisplayCorrection | Saved | None = SAVED) -> CalibrationResult:
         """Calibrate for ``light`` (:meth:`Calibrator.run`)."""
         ...
 
@@ -168,7 +173,7 @@ class Calibrator:
         object.__setattr__(lighting, "notes", tuple(lighting.notes) + tuple(notes))
         return lighting
 
-    def display(self) -> tuple[Any, int]:
+    def display(self) -> tuple[DisplaySpec, int]:
         """(DisplaySpec of an up-to-3x3 patch of the display, with the ``[tables] layout`` of
         :func:`grassd.daemon.core.calibration.display_model.display_spec_for_config`; index of its
         centre pixel)."""
@@ -233,7 +238,7 @@ class Calibrator:
         return curves
 
     @staticmethod
-    def viewpoint(vp: ViewpointConfig) -> Any:
+    def viewpoint(vp: ViewpointConfig) -> Viewpoint:
         """The :class:`grassd.sim.scene.Viewpoint` of a [[viewpoints]] entry (cm, m, deg)."""
         from grassd.sim.scene import Viewpoint
 
@@ -264,7 +269,8 @@ class Calibrator:
 
     def light_and_ccm(self, light: LightInput, checker: CheckerPhoto | None,
                       previous_ccm: ColourCorrection | None,
-                      progress: Progress | None) -> tuple[Any, ColourCorrection | None, str]:
+                      progress: Progress | None
+                      ) -> tuple[Lighting, ColourCorrection | None, str]:
         """(Lighting, colour correction or None, its source "bundle" (fitted to ``checker``) /
         "previous" / "none")."""
         if progress:
@@ -288,7 +294,7 @@ class Calibrator:
             stop: threading.Event | None = None,
             progress: Progress | None = None,
             previous_tables: Mapping[str, NDArray] | None = None,
-            correction: Any = SAVED) -> CalibrationResult:
+            correction: DisplayCorrection | Saved | None = SAVED) -> CalibrationResult:
         """Calibrate for ``light`` (colour-corrected with the bundle's ``checker`` photo if
         given; see the module docstring). ``previous_um`` is the active display-wide table and
         ``previous_tables`` the last run's tables by controller name, for the jump check.
@@ -403,8 +409,8 @@ class _TableChecks:
 
 
 def closed_loop(renderer: Renderer, display: DisplaySpec, lighting: Lighting, viewers: Viewers,
-                units: list[UnitTable], unit_of_pixel: NDArray, settings: Any, ccm: Any,
-                cc: Any, checked: Callable[[list[UnitTable]], Any],
+                units: list[UnitTable], unit_of_pixel: NDArray, settings: RenderSettings,
+                ccm: ColourCorrection | None, cc: CalibrationConfig, checked: _TableChecks,
                 stepper: Callable[[str], Callable[[int, int], None]]
                 ) -> tuple[list[UnitTable], list[LoopCheck]]:
     """Up to ``cc.max_rounds`` rounds of :func:`closed_loop_check` (round k with seed
@@ -440,7 +446,8 @@ def closed_loop(renderer: Renderer, display: DisplaySpec, lighting: Lighting, vi
 
 def closed_loop_check(renderer: Renderer, display: DisplaySpec, lighting: Lighting,
                       viewers: Viewers, pixel_tables_um: NDArray, levels: NDArray,
-                      settings: Any, ccm: Any, step: Callable[[int, int], None],
+                      settings: RenderSettings, ccm: ColourCorrection | None,
+                      step: Callable[[int, int], None],
                       round_no: int = 1) -> LoopCheck:
     """Re-simulate every group's representative pixel from every viewer at the lengths its
     table gives ``levels`` (``pixel_tables_um`` (N, 256) [um], first level 0 = the reference

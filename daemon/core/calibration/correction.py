@@ -20,18 +20,39 @@ from __future__ import annotations
 import json
 import logging
 from dataclasses import dataclass, replace
+from enum import Enum
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Final, TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
 
-from grassd.daemon.core.calibration.variation import DisplayVariation
+from grassd.daemon.core.calibration.variation import DisplayVariation, PixelVariation
+
+if TYPE_CHECKING:
+    from grassd.daemon.core.calibration.result import CalibrationResult
+    from grassd.daemon.core.config.settings import Config
 
 log = logging.getLogger(__name__)
 
+class Saved(Enum):
+    """The type of :data:`SAVED`."""
+
+    SAVED = "the correction the state directory holds"
+
+
 #: ``Calibrator.run(correction=SAVED)``: the correction the state directory holds.
-SAVED: Any = object()
+SAVED: Final = Saved.SAVED
+
+
+class CorrectionJson(TypedDict):
+    """A :class:`DisplayCorrection` as ``correction.json`` holds it (lengths mm)."""
+
+    measurement: str
+    shape: list[int]
+    pixels: list[PixelVariation]
+    nominal_mm: list[float]
+    commands_mm: list[list[float]]
 
 
 @dataclass(frozen=True, eq=False)
@@ -55,8 +76,8 @@ class DisplayCorrection:
                         for k, p in enumerate(np.asarray(pixels))])
         return np.rint(out * 1000.0).astype(np.uint16)
 
-    def apply(self, cfg: Any, result: Any) -> Any:
-        """``result`` (a CalibrationResult) with every controller's table per pixel and
+    def apply(self, cfg: Config, result: CalibrationResult) -> CalibrationResult:
+        """``result`` with every controller's table per pixel and
         corrected: each pixel's row (its controller's own table, or the display-wide one) read
         through that pixel's mapping."""
         from grassd.daemon.core.calibration.display_model import controller_pixels
@@ -68,14 +89,14 @@ class DisplayCorrection:
             tables[c.name] = self.command_um(pix, own if own is not None else result.table_um)
         return replace(result, controller_tables=tables, correction=self.measurement)
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> CorrectionJson:
         """The correction as ``correction.json`` holds it."""
         return {"measurement": self.measurement, "shape": list(self.shape),
                 "pixels": self.variation.pixels(), "nominal_mm": self.nominal_mm.tolist(),
                 "commands_mm": np.round(self.commands_mm, 4).tolist()}
 
     @classmethod
-    def from_json(cls, d: dict[str, Any]) -> DisplayCorrection:
+    def from_json(cls, d: CorrectionJson) -> DisplayCorrection:
         """Read :meth:`to_json`'s form back."""
         shape = (int(d["shape"][0]), int(d["shape"][1]))
         n = shape[0] * shape[1]
@@ -106,7 +127,7 @@ def load_correction(path: Path, shape: tuple[int, int]) -> DisplayCorrection | N
     return corr
 
 
-def saved_correction(cfg: Any) -> DisplayCorrection | None:
+def saved_correction(cfg: Config) -> DisplayCorrection | None:
     """The correction in ``cfg``'s state directory for its display, or None."""
     from grassd.daemon.core.store.layout import StateLayout
 
@@ -114,8 +135,9 @@ def saved_correction(cfg: Any) -> DisplayCorrection | None:
     return load_correction(StateLayout(cfg.state_dir).correction, (d.rows, d.cols))
 
 
-def with_correction(cfg: Any, result: Any, correction: Any) -> Any:
-    """``result`` (a CalibrationResult) with the display's per-pixel ``correction`` applied
+def with_correction(cfg: Config, result: CalibrationResult,
+                    correction: DisplayCorrection | Saved | None) -> CalibrationResult:
+    """``result`` with the display's per-pixel ``correction`` applied
     (:data:`SAVED`: the one in ``cfg``'s state directory, if any; None: none)."""
     if correction is SAVED:
         correction = saved_correction(cfg)

@@ -53,6 +53,7 @@ from grassd.calib.characteristic import (
     floor_stderr,
 )
 from grassd.calib.length_table import LEVELS, LengthTable, build_length_table
+from grassd.daemon.core.calibration.run_report import GroupingSummary
 from grassd.daemon.core.calibration.simulation import SimulatedCurve, simulate_curve
 from grassd.daemon.core.errors import DaemonError
 
@@ -340,18 +341,19 @@ class GroupingError:
     geometry_diff: np.ndarray
     pixel_diff: np.ndarray
 
-    def summary(self) -> dict[str, float | int]:
+    def summary(self) -> GroupingSummary:
         """Worst and mean values (dE00, deg) for reports (JSON-safe: the geometry and pixel
         parts only when decomposed)."""
         if len(self.groups) == 0:
             return {"groups_checked": 0}
-        out = {"groups_checked": int(len(self.groups)),
-               "max_angle_deg": float(self.angle_deg.max()),
-               "max_ogcd_diff": float(self.max_ogcd_diff.max()),
-               "mean_ogcd_diff": float(self.max_ogcd_diff.mean()),
-               "max_table_error": float(self.table_error.max()),
-               "max_own_table_error": float(self.own_table_error.max()),
-               "max_added_table_error": float((self.table_error - self.own_table_error).max())}
+        out: GroupingSummary = {
+            "groups_checked": int(len(self.groups)),
+            "max_angle_deg": float(self.angle_deg.max()),
+            "max_ogcd_diff": float(self.max_ogcd_diff.max()),
+            "mean_ogcd_diff": float(self.max_ogcd_diff.mean()),
+            "max_table_error": float(self.table_error.max()),
+            "max_own_table_error": float(self.own_table_error.max()),
+            "max_added_table_error": float((self.table_error - self.own_table_error).max())}
         if np.all(np.isfinite(self.geometry_diff)):
             out["max_geometry_diff"] = float(np.max(self.geometry_diff))
             out["max_pixel_diff"] = float(np.max(self.pixel_diff))

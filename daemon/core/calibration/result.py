@@ -18,7 +18,7 @@ Units: lengths in mm (tables in uint16 um), OGCD in dE00 (CIEDE2000 units).
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,11 +27,29 @@ from grassd.calib.ccm import ColourCorrection
 from grassd.calib.characteristic import Characteristic
 from grassd.calib.length_table import LEVELS
 from grassd.daemon.core.calibration.checks import finite_or_none, pooled_characteristic
+from grassd.daemon.core.calibration.run_report import (
+    CcmMetrics,
+    CcmReport,
+    CentreReport,
+    DisplayMetrics,
+    DisplayReport,
+    GroupingSummary,
+    LoopReport,
+    RegionSummary,
+    RunMetrics,
+    ViewpointCurveReport,
+)
 from grassd.daemon.core.config.settings import ViewpointConfig
 from grassd.firmware_proto.tables import as_table_array, table_crc
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 #: the run's source when one table comes from the centre pixel seen from [[viewpoints]]
 CENTRE = "centre pixel"
+
+#: a report or metrics, which name the display correction the tables include
+_Named = TypeVar("_Named", RunMetrics, DisplayMetrics, CentreReport, DisplayReport)
 
 
 @dataclass(frozen=True)
@@ -108,7 +126,7 @@ class LoopCheck:
         """(N,) every pixel's closed-loop deviation (its group's) [dE00]."""
         return self.max_dev[self.labels]
 
-    def report(self) -> dict[str, Any]:
+    def report(self) -> LoopReport:
         """JSON-ready arrays."""
         return {"round": self.round, "levels": self.levels.tolist(),
                 "pixels": self.representatives.tolist(),
@@ -136,8 +154,8 @@ class CalibrationResult:
     ccm: ColourCorrection | None
     ccm_source: str
     lighting_notes: tuple[str, ...]
-    grouping: dict[str, Any] | None = None
-    region: dict[str, Any] | None = None
+    grouping: GroupingSummary | None = None
+    region: RegionSummary | None = None
     loop_rounds: list[LoopCheck] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
     max_step_um: int | None = None
@@ -159,7 +177,8 @@ class CalibrationResult:
         """CRC-32/ISO-HDLC of every controller's table, as the controller reports it."""
         return {k: table_crc(as_table_array(v)) for k, v in self.controller_tables.items()}
 
-    def metrics(self, r2_goal: float = 0.999, target_de00: float = 0.5) -> dict[str, Any]:
+    def metrics(self, r2_goal: float = 0.999, target_de00: float = 0.5
+                ) -> RunMetrics | DisplayMetrics:
         """Summary numbers (dE00): R^2 and deviation of the worst pixel group in the closed
         loop, and of the worst unit in the fits (``*_fit*``). A centre-pixel run gives the
         keys it always gave (:meth:`_centre_metrics`)."""
@@ -172,7 +191,7 @@ class CalibrationResult:
         worst = float(loop.max_dev.max()) if loop is not None else fit_worst
         se = [float(np.mean(u.characteristic.ogcd_stderr)) for u in self.units
               if u.characteristic.ogcd_stderr is not None]
-        return {
+        out: DisplayMetrics = {
             "granularity": self.granularity, "table_source": self.source,
             "check": "closed loop" if loop is not None else "fit",
             "tables": len(self.units), "controllers": len(self.controller_tables),
@@ -192,15 +211,16 @@ class CalibrationResult:
             "max_step_from_last_um": self.max_step_um,
             "grouping": self.grouping, "region": self.region,
             "seconds": dict(self.seconds),
-        } | self._corrected({})
+        }
+        return self._corrected(out)
 
-    def report(self) -> dict[str, Any]:
+    def report(self) -> CentreReport | DisplayReport:
         """A JSON-serialisable report (arrays as lists), with every controller's table CRC; a
         centre-pixel run's in its own form (:meth:`_centre_report`)."""
         if self.source == CENTRE:
             return self._corrected(self._centre_report())
         crcs = self.controller_crcs()
-        return {
+        out: DisplayReport = {
             "granularity": self.granularity, "table_source": self.source,
             "display_shape": list(self.shape),
             "table_um": self.lengths_um.tolist(),
@@ -228,7 +248,8 @@ class CalibrationResult:
             "grouping": self.grouping, "region": self.region,
             "ccm": self._ccm_report(),
             "lighting_notes": list(self.lighting_notes),
-        } | self._corrected({})
+        }
+        return self._corrected(out)
 
     # ------------------------------------------------------------------ one table
     def pooled(self) -> Characteristic:
@@ -245,7 +266,7 @@ class CalibrationResult:
             ses.append(lp.ogcd_stderr[0])
         return pooled_characteristic(xs, ys, ses)
 
-    def _centre_metrics(self, r2_goal: float, target_de00: float) -> dict[str, Any]:
+    def _centre_metrics(self, r2_goal: float, target_de00: float) -> RunMetrics:
         """Metrics of a centre-pixel run (its one table's closed loop, dE00)."""
         u, last, se = self.units[0], self.loop, self.pooled().ogcd_stderr
         return {
@@ -265,23 +286,26 @@ class CalibrationResult:
             "seconds": dict(self.seconds),
         }
 
-    def _ccm_metrics(self) -> dict[str, Any]:
+    def _ccm_metrics(self) -> CcmMetrics:
         """The colour correction in the metrics: its source, the error a report prints (dE00
         mean / max; leave-one-out where known,
         :attr:`~grassd.calib.ccm.ColourCorrection.reported_de00`) and, with a correction, its
         form (a run without keeps its historic keys)."""
         c = self.ccm
-        mean, worst = (None, None) if c is None else c.reported_de00
-        return {"ccm_source": self.ccm_source, **({} if c is None else {"ccm_form": c.form}),
+        if c is None:
+            return {"ccm_source": self.ccm_source, "ccm_mean_de00": None, "ccm_max_de00": None}
+        mean, worst = c.reported_de00
+        return {"ccm_source": self.ccm_source, "ccm_form": c.form,
                 "ccm_mean_de00": finite_or_none(mean), "ccm_max_de00": finite_or_none(worst)}
 
-    def _ccm_report(self) -> dict[str, Any] | None:
+    def _ccm_report(self) -> CcmReport | None:
         """The colour correction in the report: how to apply it again, its leave-one-out and
         fitting errors (dE00) and, when the form was chosen, every candidate's."""
         c = self.ccm
         if c is None:
             return None
-        return {"source": self.ccm_source, "form": c.form, **c.to_json(),
+        return {"source": self.ccm_source, "form": c.form, "method": c.method,
+                "degree": c.degree, "matrix": c.matrix.tolist(),
                 "mean_de00": finite_or_none(c.reported_de00[0]),
                 "max_de00": finite_or_none(c.reported_de00[1]),
                 "loo_mean_de00": finite_or_none(c.loo_mean_de00),
@@ -290,12 +314,14 @@ class CalibrationResult:
                 "fit_max_de00": finite_or_none(c.max_de00),
                 "candidates": [asdict(k) for k in c.candidates]}
 
-    def _corrected(self, out: dict[str, Any]) -> dict[str, Any]:
+    def _corrected(self, out: _Named) -> _Named:
         """``out`` with ``display_correction`` (the measurement whose per-pixel correction the
         tables include) when there is one; a run without keeps its historic keys."""
-        return out if self.correction is None else {**out, "display_correction": self.correction}
+        if self.correction is not None:
+            out["display_correction"] = self.correction
+        return out
 
-    def _centre_report(self) -> dict[str, Any]:
+    def _centre_report(self) -> CentreReport:
         """Report of a centre-pixel run: its table, pooled characteristic, per-viewpoint
         curves and closed-loop rounds (arrays as lists)."""
         w = self.pooled()
@@ -307,14 +333,7 @@ class CalibrationResult:
                 "ogcd_stderr_de00": None if w.ogcd_stderr is None
                 else w.ogcd_stderr.tolist(),
             },
-            "viewpoints": [
-                {"h_cm": c.viewpoint.h_cm, "d_m": c.viewpoint.d_m,
-                 "theta_deg": c.viewpoint.theta_deg, "weight": c.viewpoint.weight,
-                 "lengths_mm": c.lengths_mm.tolist(), "ogcd_de00": c.ogcd.tolist(),
-                 "ogcd_stderr_de00": c.ogcd_stderr.tolist(), "seconds": c.seconds}
-                | ({} if c.lab is None else {"lab_d50": c.lab.tolist()})
-                for c in self.curves
-            ],
+            "viewpoints": [_curve_report(c) for c in self.curves],
             "closed_loop": [
                 {"round": r.round, "levels": r.levels.tolist(),
                  "lengths_mm": r.lengths_mm[0].tolist(), "ogcd_de00": r.ogcd[0].tolist(),
@@ -326,7 +345,7 @@ class CalibrationResult:
             "lighting_notes": list(self.lighting_notes),
         }
 
-    def figure(self) -> Any:
+    def figure(self) -> Figure:
         """A matplotlib Figure: unit characteristics, unit tables, and the worst error per
         pixel (one unit: OGCD vs level in the last closed-loop round against its target)."""
         from matplotlib.figure import Figure  # only when plotting
@@ -366,3 +385,15 @@ class CalibrationResult:
         ax3.set(xlabel="column", ylabel="row", title=f"max |OGCD - linear| (dE00, {how})")
         fig.tight_layout()
         return fig
+
+
+def _curve_report(c: ViewpointCurve) -> ViewpointCurveReport:
+    """A centre-pixel run's curve from one viewpoint in its report (arrays as lists)."""
+    out: ViewpointCurveReport = {
+        "h_cm": c.viewpoint.h_cm, "d_m": c.viewpoint.d_m, "theta_deg": c.viewpoint.theta_deg,
+        "weight": c.viewpoint.weight, "lengths_mm": c.lengths_mm.tolist(),
+        "ogcd_de00": c.ogcd.tolist(), "ogcd_stderr_de00": c.ogcd_stderr.tolist(),
+        "seconds": c.seconds}
+    if c.lab is not None:
+        out["lab_d50"] = c.lab.tolist()
+    return out

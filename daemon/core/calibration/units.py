@@ -37,7 +37,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -58,6 +58,8 @@ from grassd.daemon.core.calibration.audience import (
 )
 from grassd.daemon.core.calibration.checks import check_shape, pooled_characteristic
 from grassd.daemon.core.calibration.display_model import (
+    DisplaySimulation,
+    PixelGeometry,
     combine_viewpoints,
     controller_pixels,
     curve_characteristic,
@@ -68,12 +70,21 @@ from grassd.daemon.core.calibration.display_model import (
     table_deviation,
 )
 from grassd.daemon.core.calibration.result import UnitTable, ViewpointCurve
+from grassd.daemon.core.calibration.run_report import (
+    GROUPING_MAXIMA,
+    GroupingSummary,
+    RegionSummary,
+)
 
 if TYPE_CHECKING:
-    from grassd.daemon.core.calibration.calibrate import Calibrator
+    import threading
+
+    from grassd.calib.ccm import ColourCorrection
+    from grassd.daemon.core.calibration.calibrate import Calibrator, Progress
+    from grassd.daemon.core.config.settings import Config
     from grassd.sim.lighting import Lighting
     from grassd.sim.renderer import Renderer
-    from grassd.sim.scene import DisplaySpec
+    from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
 
 
 class Units(NamedTuple):
@@ -85,8 +96,8 @@ class Units(NamedTuple):
     units: list[UnitTable]
     unit_of_pixel: NDArray[np.int64]
     whole: UnitTable | None
-    grouping: dict | None
-    region: dict | None
+    grouping: GroupingSummary | None
+    region: RegionSummary | None
     viewers: Viewers
     curves: list[ViewpointCurve]
 
@@ -124,7 +135,8 @@ def _region_unit(name: str, pixels: NDArray, chars: Sequence[Characteristic],
                  float(t.mean_error.mean()))
 
 
-def _pixel_errors(u: UnitTable, sims: Sequence[Any], pixels: NDArray) -> UnitTable:
+def _pixel_errors(u: UnitTable, sims: Sequence[DisplaySimulation], pixels: NDArray
+                  ) -> UnitTable:
     """``u`` with its errors measured on its pixels, not on their mean: every (eye, geometry
     group) pair among ``pixels`` driven by ``u``'s table; worst, and mean weighted by pixels."""
     fits, weights = [], []
@@ -138,16 +150,16 @@ def _pixel_errors(u: UnitTable, sims: Sequence[Any], pixels: NDArray) -> UnitTab
                    mean_error=float(w @ ev.mean_error / w.sum()))
 
 
-def _merge_grouping(sims: Sequence[Any]) -> dict | None:
+def _merge_grouping(sims: Sequence[DisplaySimulation]) -> GroupingSummary | None:
     """Worst of the grouping-error summaries of several display simulations (one per viewer;
     None when none checked a group)."""
     summaries = [s.grouping_error.summary() for s in sims if s.grouping_error is not None]
     done = [s for s in summaries if s.get("groups_checked")]
     if not done:
         return None
-    out: dict[str, Any] = {"groups_checked": int(sum(s["groups_checked"] for s in done))}
-    for k in done[0]:
-        if k.startswith("max_"):
+    out: GroupingSummary = {"groups_checked": int(sum(s["groups_checked"] for s in done))}
+    for k in GROUPING_MAXIMA:
+        if k in done[0]:
             out[k] = float(max(s[k] for s in done))
     return out
 
@@ -164,15 +176,15 @@ class Viewers:
     its ``fixed`` viewpoints of the patch's centre pixel, traced with ``layouts`` tuft
     layouts."""
 
-    geometries: list[Any]
+    geometries: list[PixelGeometry]
     weights: NDArray[np.float64]
     labels: NDArray[np.int64]
     representatives: NDArray[np.int64]
     group_characteristics: list[Characteristic] | None = None
-    fixed: list[Any] | None = None
+    fixed: list[Viewpoint] | None = None
     layouts: int = 1
 
-    def viewpoints_of(self, pixel: int) -> list[Any]:
+    def viewpoints_of(self, pixel: int) -> list[Viewpoint]:
         """Every viewer's :class:`grassd.sim.scene.Viewpoint` of ``pixel`` (a centre-pixel
         run's ``fixed`` viewpoints stand for every pixel)."""
         if self.fixed is not None:
@@ -198,8 +210,8 @@ class Viewers:
 
 
 def viewpoint_units(cal: Calibrator, renderer: Renderer, display: DisplaySpec, lighting: Lighting,
-                     lengths: NDArray, settings: Any, ccm: Any, step: Callable[[int, int], None]
-                    ) -> Units:
+                     lengths: NDArray, settings: RenderSettings, ccm: ColourCorrection | None,
+                     step: Callable[[int, int], None]) -> Units:
     """Units from [[viewpoints]], the whole display traced from each (see the module
     docstring)."""
     cfg = cal.cfg
@@ -228,16 +240,16 @@ def viewpoint_units(cal: Calibrator, renderer: Renderer, display: DisplaySpec, l
 
 
 def audience_units(cal: Calibrator, renderer: Renderer, display: DisplaySpec, lighting: Lighting,
-                    lengths: NDArray, settings: Any, ccm: Any, step: Callable[[int, int], None]
-                   ) -> Units:
+                    lengths: NDArray, settings: RenderSettings, ccm: ColourCorrection | None,
+                    step: Callable[[int, int], None]) -> Units:
     """Units from [audience] (see the module docstring)."""
     cfg = cal.cfg
     aud, t = cfg.audience, cfg.tables
     region, samples = region_from_config(aud)
     n = display.rows * display.cols
     everyone = np.arange(n)
-    info = {"eyes": int(samples.n), "area_m2": region.area_m2, "h_cm": list(region.h_cm),
-            "objective": aud.objective}
+    info: RegionSummary = {"eyes": int(samples.n), "area_m2": region.area_m2,
+                           "h_cm": list(region.h_cm), "objective": aud.objective}
     if cfg.tables.granularity == "global":
         curves = simulate_region(renderer, display, lighting, samples, lengths, settings,
                                  ccm=ccm, progress=step)
@@ -249,7 +261,7 @@ def audience_units(cal: Calibrator, renderer: Renderer, display: DisplaySpec, li
                           np.array([centre_pixel(display)], np.int64))
         return Units([whole], np.zeros(n, np.int64), None, None, info, viewers, [])
     m = samples.n
-    sims: list[Any] = []
+    sims: list[DisplaySimulation] = []
     for k, eye in enumerate(samples.eyes_m):
         def eye_step(done: int, total: int, k: int = k) -> None:
             step(k * total + done, m * total)
@@ -288,7 +300,8 @@ def audience_units(cal: Calibrator, renderer: Renderer, display: DisplaySpec, li
 
 
 def centre_units(cal: Calibrator, display: DisplaySpec, centre: int, lighting: Lighting,
-                 lengths: NDArray, seed: int, ccm: Any, stop: Any, progress: Any) -> Units:
+                 lengths: NDArray, seed: int, ccm: ColourCorrection | None,
+                 stop: threading.Event | None, progress: Progress | None) -> Units:
     """The one unit of a centre-pixel run: pixel ``centre`` of the patch ``display`` from every
     [[viewpoints]] entry (:meth:`Calibrator.simulate`), weighted
     (:meth:`Calibrator.weighted`), shape-checked before its table is built, so that a flat
@@ -313,7 +326,7 @@ def centre_units(cal: Calibrator, display: DisplaySpec, centre: int, lighting: L
     return Units([unit], np.zeros(n, np.int64), None, None, None, viewers, curves)
 
 
-def controller_tables_of(cfg: Any, units: Sequence[UnitTable], unit_of_pixel: NDArray
+def controller_tables_of(cfg: Config, units: Sequence[UnitTable], unit_of_pixel: NDArray
                          ) -> dict[str, NDArray[np.uint16]]:
     """Every configured controller's table: (256,) for granularity "controller" or "global",
     (n_pixels, 256) for "pixel" (rows in the order of the controller's pixel ranges)."""

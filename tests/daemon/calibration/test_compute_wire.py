@@ -78,7 +78,10 @@ def _nan_in_characteristic(r):
     (lambda r: r.update(table_um=[b"\x80\x04K\x01."]), "table_um is list, not an array"),
     (lambda r: r["units"][0].update(max_error=float("inf")), "units[0].max_error is infinite"),
     (lambda r: r["units"][0].update(r2_after="0.99"), "units[0].r2_after is a str, not a num"),
-    (lambda r: r.update(grouping={"x": b"\x80\x04"}), "grouping['x'] is a bytes, not plain data"),
+    (lambda r: r.update(grouping={"groups_checked": b"\x80\x04"}),
+     "grouping['groups_checked'] is a bytes, not an integer"),
+    (lambda r: r.update(grouping={"groups_checked": 1, "x": 1.0}),
+     "grouping is not a GroupingSummary"),
     (lambda r: r.update(shape=[2]), "shape has 1 entries, not 2"),
 ])
 def test_a_tampered_result_is_refused(run, change, reason):
