@@ -26,7 +26,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypedDict
+from typing import TYPE_CHECKING, TypedDict
 
 import numpy as np
 
@@ -35,6 +35,7 @@ from grassd.daemon.offline.validate import (
     Repeatability,
     ValidateError,
     ViewpointComparison,
+    ViewpointReport,
     default_renderer,
     load_manifest,
     validate_capture,
@@ -94,12 +95,10 @@ class PaperComparison(TypedDict):
     at_mm: float | None
 
 
-class PaperNumbers(TypedDict):
-    """The numbers the paper states (:data:`PAPER`): comparisons per viewpoint (h cm, d m,
-    theta deg) and per environment, seconds, hours, the real pixel's OGCD spread (dE00) and
-    the 8-bit calibration's R^2."""
+class _PaperFigures(TypedDict):
+    """The numbers the paper states but its comparisons per viewpoint: per environment,
+    seconds, hours, the real pixel's OGCD spread (dE00) and the 8-bit calibration's R^2."""
 
-    viewpoints: dict[tuple[float, float, float], PaperComparison]
     environments: dict[str, PaperComparison]
     seconds_per_viewpoint: float
     seconds_16_viewpoints: float
@@ -110,6 +109,19 @@ class PaperNumbers(TypedDict):
     r2_before: float
     r2_after_real: float
     r2_after_sim: float
+
+
+class PaperNumbers(_PaperFigures):
+    """The numbers the paper states (:data:`PAPER`), its comparisons per viewpoint (h cm, d m,
+    theta deg) among them."""
+
+    viewpoints: dict[tuple[float, float, float], PaperComparison]
+
+
+class PaperReport(_PaperFigures):
+    """:data:`PAPER` in JSON: the viewpoints' keys written as ``[h, d, theta]`` lists."""
+
+    viewpoints: dict[str, PaperComparison]
 
 
 #: Numbers the paper states (section 4 and 6.2). Frechet / max OGCD error / at length (mm).
@@ -132,6 +144,35 @@ PAPER: PaperNumbers = {
     "offline_method_hours": 40.0, "real_repeatability_ogcd_std": 0.42,
     "r2_before": 0.956, "r2_after_real": 0.999, "r2_after_sim": 0.965,
 }
+
+
+class RunReport(TypedDict):
+    """The sizes of an experiment's run in JSON (:class:`ExperimentSettings`)."""
+
+    lengths_mm: list[float]
+    samples: int
+    replicates: int
+    photo_width: int
+    photo_spp: int
+    real_splay_deg: float
+    trials: int
+    seed: int
+
+
+class NotMeasured(TypedDict):
+    """An empty object: what was not measured (the repeatability of one trial)."""
+
+
+class ExperimentReport(TypedDict):
+    """The JSON report of ``grassd experiment paper`` (:meth:`ExperimentResult.to_json`)."""
+
+    settings: RunReport
+    viewpoints: list[ViewpointReport]
+    environments: dict[str, ViewpointReport]
+    seconds: dict[str, float]
+    notes: list[str]
+    repeatability: Repeatability | NotMeasured
+    paper: PaperReport
 
 
 @dataclass(frozen=True)
@@ -176,9 +217,10 @@ class ExperimentResult:
         """Mean simulation seconds of one viewpoint (all lengths)."""
         return float(np.mean([v.sim_seconds for v in self.viewpoints]))
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> ExperimentReport:
         """JSON report."""
         s = self.settings
+        p = PAPER
         return {
             "settings": {"lengths_mm": list(s.lengths_mm), "samples": s.samples,
                          "replicates": s.replicates, "photo_width": s.photo_width,
@@ -186,9 +228,20 @@ class ExperimentResult:
                          "trials": s.trials, "seed": s.seed},
             "viewpoints": [v.to_json() for v in self.viewpoints],
             "environments": {k: v.to_json() for k, v in self.environments.items()},
-            "seconds": self.seconds, "notes": self.notes, "repeatability": self.repeatability or {},
-            "paper": {**{k: v for k, v in PAPER.items() if k != "viewpoints"},
-                      "viewpoints": {str(list(k)): v for k, v in PAPER["viewpoints"].items()}},
+            "seconds": self.seconds, "notes": self.notes,
+            "repeatability": (NotMeasured() if self.repeatability is None
+                              else self.repeatability),
+            "paper": {
+                "environments": p["environments"],
+                "seconds_per_viewpoint": p["seconds_per_viewpoint"],
+                "seconds_16_viewpoints": p["seconds_16_viewpoints"],
+                "manual_seconds_per_viewpoint": p["manual_seconds_per_viewpoint"],
+                "offline_method_frechet": p["offline_method_frechet"],
+                "offline_method_hours": p["offline_method_hours"],
+                "real_repeatability_ogcd_std": p["real_repeatability_ogcd_std"],
+                "r2_before": p["r2_before"], "r2_after_real": p["r2_after_real"],
+                "r2_after_sim": p["r2_after_sim"],
+                "viewpoints": {str(list(k)): v for k, v in p["viewpoints"].items()}},
         }
 
 
@@ -269,11 +322,12 @@ def viewpoint_rows(result: ExperimentResult) -> list[list[str]]:
     """Rows of the multi-viewpoint table (ours beside the paper's)."""
     rows = []
     for v in sorted(result.viewpoints, key=lambda c: (c.viewpoint[2], c.viewpoint[0])):
-        p = PAPER["viewpoints"].get(tuple(v.viewpoint), {})
+        p = PAPER["viewpoints"].get(v.viewpoint)
+        paper = (None, None, None) if p is None else (p["frechet"], p["max_error"], p["at_mm"])
         rows.append([f"{v.viewpoint[0]:g}", f"{v.viewpoint[2]:g}", f"{v.frechet:.2f}",
-                     _paper(p.get("frechet")), f"{v.max_error:.2f}",
-                     _paper(p.get("max_error")), f"{v.max_error_length_mm:.1f}",
-                     _paper(p.get("at_mm")), f"{v.real_range:.2f}", f"{v.sim_range:.2f}",
+                     _paper(paper[0]), f"{v.max_error:.2f}",
+                     _paper(paper[1]), f"{v.max_error_length_mm:.1f}",
+                     _paper(paper[2]), f"{v.real_range:.2f}", f"{v.sim_range:.2f}",
                      f"{v.sim_seconds:.2f}"])
     return rows
 

@@ -49,7 +49,7 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Final, TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
@@ -66,6 +66,7 @@ from grassd.sim.scene import RenderSettings
 
 if TYPE_CHECKING:
     from grassd.daemon.compute.config import ComputeConfig
+    from grassd.daemon.compute.wire import ErrorAnswer, ResultAnswer
 
 SCHEMA_VERSION = 1
 
@@ -279,6 +280,37 @@ def init_worker(threads: int | None = None) -> None:
         _renderer_for(1)
 
 
+class SweepRow(TypedDict):
+    """A :class:`ConditionResult` as :class:`SweepStore` stores it: its condition's columns
+    (:data:`CONDITION_COLUMNS`) and its per-length columns as lists
+    (:data:`LENGTH_COLUMNS`)."""
+
+    key: str
+    hdri: str
+    time: str
+    h_cm: float
+    d_m: float
+    theta_deg: float
+    pixel: str
+    seed: int
+    sun_azimuth_deg: float | None
+    sun_elevation_deg: float | None
+    ambient_lux: float
+    sun_lux: float
+    ogcd_range: float
+    linearity_r2: float | None
+    table_r2_after: float | None
+    max_ogcd_stderr: float
+    seconds: float
+    worker: str
+    length_mm: list[float]
+    ogcd: list[float]
+    ogcd_stderr: list[float]
+    L: list[float]
+    a: list[float]
+    b: list[float]
+
+
 @dataclass(frozen=True)
 class ConditionResult:
     """One traced condition: the condition (``key``, ``hdri``, ``time``, viewpoint ``h_cm`` /
@@ -315,13 +347,22 @@ class ConditionResult:
     a: NDArray[np.float64]
     b: NDArray[np.float64]
 
-    def row(self) -> dict[str, Any]:
+    def row(self) -> SweepRow:
         """The condition's columns and its per-length columns (lists) in plain Python types,
         as :class:`SweepStore` stores them."""
-        out: dict[str, Any] = {c: getattr(self, c) for c in CONDITION_COLUMNS}
-        out.update({c: np.asarray(getattr(self, c), np.float64).tolist()
-                    for c in LENGTH_COLUMNS})
-        return out
+        def column(x: NDArray[np.float64]) -> list[float]:
+            return np.asarray(x, np.float64).tolist()
+
+        return SweepRow(
+            key=self.key, hdri=self.hdri, time=self.time, h_cm=self.h_cm, d_m=self.d_m,
+            theta_deg=self.theta_deg, pixel=self.pixel, seed=self.seed,
+            sun_azimuth_deg=self.sun_azimuth_deg, sun_elevation_deg=self.sun_elevation_deg,
+            ambient_lux=self.ambient_lux, sun_lux=self.sun_lux, ogcd_range=self.ogcd_range,
+            linearity_r2=self.linearity_r2, table_r2_after=self.table_r2_after,
+            max_ogcd_stderr=self.max_ogcd_stderr, seconds=self.seconds, worker=self.worker,
+            length_mm=column(self.length_mm), ogcd=column(self.ogcd),
+            ogcd_stderr=column(self.ogcd_stderr), L=column(self.L), a=column(self.a),
+            b=column(self.b))
 
 
 @dataclass(frozen=True)
@@ -333,7 +374,7 @@ class SweepJob:
     condition: Condition
 
 
-def sweep_on_worker(job: SweepJob) -> dict[str, Any]:
+def sweep_on_worker(job: SweepJob) -> ResultAnswer | ErrorAnswer:
     """The Dask task: trace ``job``'s condition (:func:`run_task`) and answer with its
     :class:`ConditionResult`, or with the grassd error it raised, in the declared form of
     :mod:`grassd.daemon.compute.wire`. Other errors propagate (Dask retries them)."""
@@ -413,10 +454,10 @@ def run_task(spec: SweepSpec, cond: Condition) -> ConditionResult:
             curve.lengths_mm, curve.ogcd, floor_stderr(curve.ogcd_stderr))).r2_after
     except CalibError:
         table_r2 = None
-    def f64(x: Any) -> NDArray[np.float64]:
+    def f64(x: NDArray[np.floating]) -> NDArray[np.float64]:
         return np.ascontiguousarray(x, np.float64)
 
-    def number(x: Any) -> float | None:
+    def number(x: float | None) -> float | None:
         return None if x is None else float(x)
 
     return ConditionResult(
@@ -437,11 +478,11 @@ def run_task(spec: SweepSpec, cond: Condition) -> ConditionResult:
 # --------------------------------------------------------------------------- output
 
 #: Per-condition columns, repeated on every length row of the tidy table.
-CONDITION_COLUMNS = ("key", "hdri", "time", "h_cm", "d_m", "theta_deg", "pixel", "seed",
+CONDITION_COLUMNS: Final = ("key", "hdri", "time", "h_cm", "d_m", "theta_deg", "pixel", "seed",
                      "sun_azimuth_deg", "sun_elevation_deg", "ambient_lux", "sun_lux",
                      "ogcd_range", "linearity_r2", "table_r2_after", "max_ogcd_stderr",
                      "seconds", "worker")
-LENGTH_COLUMNS = ("length_mm", "ogcd", "ogcd_stderr", "L", "a", "b")
+LENGTH_COLUMNS: Final = ("length_mm", "ogcd", "ogcd_stderr", "L", "a", "b")
 #: Columns that depend on where/when a task ran (excluded when comparing runs).
 RUN_COLUMNS = ("seconds", "worker")
 
@@ -483,7 +524,7 @@ class SweepStore:
         """Keys of the conditions already stored."""
         return {k for (k,) in self.db.execute("SELECT DISTINCT key FROM results")}
 
-    def add(self, row: dict) -> None:
+    def add(self, row: SweepRow) -> None:
         """Store one finished task atomically (all its length rows or none)."""
         n = len(row["length_mm"])
         cond = [row[c] for c in CONDITION_COLUMNS]
@@ -541,7 +582,7 @@ def run_sweep(spec: SweepSpec, conds: Sequence[Condition], out_dir: str | Path, 
               restart: bool = False, threads_per_worker: int | None = None,
               retries: int = SWEEP_RETRIES, config_source: str | None = None,
               progress: Callable[[int, int], None] | None = None,
-              on_result: Callable[[dict], None] | None = None,
+              on_result: Callable[[SweepRow], None] | None = None,
               plots: bool = True,
               contrast_threshold: float = DEFAULT_CONTRAST_THRESHOLD) -> SweepSummary:
     """Run every condition not yet in ``out_dir/sweep.sqlite``; write summary plots.

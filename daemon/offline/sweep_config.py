@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict, dataclass, fields
-from typing import Any
 
 from grassd.sim.scene import RenderSettings
 
@@ -54,10 +53,12 @@ class SweepSpec:
         return json.dumps(asdict(self), sort_keys=True)
 
 
-def spec_default(name: str) -> Any:
-    """The default of :class:`SweepSpec` field ``name`` (``KeyError`` for a field without one).
+def spec_default(name: str) -> float | str | None:
+    """The default of :class:`SweepSpec` field ``name`` (a number, a name or None;
+    ``KeyError`` for a field without one).
 
     >>> spec_default("lux")
     20000.0
     """
-    return {f.name: f.default for f in fields(SweepSpec) if f.name != "lengths_mm"}[name]
+    return {f.name: f.default for f in fields(SweepSpec)
+            if f.default is None or isinstance(f.default, int | float | str)}[name]

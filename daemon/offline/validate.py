@@ -281,8 +281,8 @@ def _light_fields() -> dict[str, schema.Field]:
         rotation_deg=F(float, check=schema.between(-360.0, 360.0, " degrees")))}
 
 
-def _rename_old(ctx: schema.Context, data: dict[str, Any], source: Path
-                ) -> tuple[dict[str, Any], dict[str, tuple]]:
+def _rename_old(ctx: schema.Context, data: schema.TomlTable, source: Path
+                ) -> tuple[schema.TomlTable, dict[str, tuple]]:
     """``data`` with the old names (:data:`OLD_NAMES`) checked where they are written and moved
     to the new ones, and where each moved key was written (for later errors); logs one
     deprecation warning naming the renames."""
@@ -318,7 +318,7 @@ def _at_least_3(v: list) -> str | None:
     return None if len(v) >= 3 else "must list at least 3 photos ({ file = ..., length_mm = ... })"
 
 
-def _read_toml(path: str | Path) -> tuple[Path, str, dict[str, Any]]:
+def _read_toml(path: str | Path) -> tuple[Path, str, schema.TomlTable]:
     """(the manifest's path, its text, its data) of ``capture.toml`` at ``path`` (a file, or a
     directory holding one), read as a bundle's manifest is
     (:func:`grassd.daemon.core.store.manifest.read_manifest_text`: a regular file within the
@@ -385,7 +385,7 @@ def _chart(ctx: schema.Context, name: str, where: Callable[[str], tuple]) -> str
     return str(path)
 
 
-def _series(ctx: schema.Context, i: int, raw: Any) -> Series:
+def _series(ctx: schema.Context, i: int, raw: schema.TomlValue) -> Series:
     """``[[series]]`` number ``i``: its viewpoint and photos (lengths strictly increasing)."""
     F = schema.Field
     where = f"series[{i}]"
