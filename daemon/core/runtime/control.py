@@ -60,10 +60,15 @@ import time
 from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeAlias
 
 from grassd.daemon.core.errors import ControlError, DaemonBusy, DaemonNotRunning
-from grassd.daemon.core.runtime.control_commands import READ_ONLY_COMMANDS
+from grassd.daemon.core.runtime.control_commands import (
+    READ_ONLY_COMMANDS,
+    Answer,
+    Request,
+    command,
+)
 
 log = logging.getLogger(__name__)
 
@@ -85,7 +90,7 @@ REQUEST_DEADLINE_S = 5.0
 ANSWER_DEADLINE_S = 5.0
 #: Environment variable naming the group the socket is handed to (the readers' group).
 GROUP_ENV = "GRASSD_CONTROL_GROUP"
-Handler = Callable[[dict[str, Any]], dict[str, Any]]
+Handler: TypeAlias = Callable[[Request], Answer]
 _PEERCRED = struct.Struct("3i")  # struct ucred: pid, uid, gid
 
 
@@ -340,7 +345,7 @@ class ControlServer:
             self._reply_now(p.conn, {"ok": False, "error": f"bad request: {_describe(exc)}"})
             p.conn.close()
             return
-        cmd = req["cmd"]
+        cmd = command(req)
         if cmd not in self.read_only and p.peer.uid not in self.privileged_uids:
             self.denied += 1
             now = time.monotonic()
@@ -385,7 +390,7 @@ class ControlServer:
         else:
             self._per_uid.pop(p.peer.uid, None)
 
-    def _drop(self, p: _Pending, answer: dict[str, Any] | None = None) -> None:
+    def _drop(self, p: _Pending, answer: Answer | None = None) -> None:
         """Stop reading ``p``: answer (if given, without blocking) and close."""
         self._unregister(p)
         if answer is not None:
@@ -399,7 +404,7 @@ class ControlServer:
         conn.close()
 
     @staticmethod
-    def _reply_now(conn: socket.socket, obj: dict[str, Any]) -> None:
+    def _reply_now(conn: socket.socket, obj: Answer) -> None:
         """Send a short answer without blocking (it fits the empty socket buffer; a client
         whose buffer is full just misses it), then drop what the client sent that was not
         read, so that it reads the answer instead of ECONNRESET."""
@@ -413,7 +418,7 @@ class ControlServer:
                     break
 
     # ------------------------------------------------------------------ handling requests
-    def _handle(self, conn: socket.socket, req: dict[str, Any]) -> None:
+    def _handle(self, conn: socket.socket, req: Request) -> None:
         """Run the handler (every exception becomes an error answer) and send its answer
         within :attr:`answer_deadline_s` all told; always give the slot back."""
         try:
@@ -423,7 +428,7 @@ class ControlServer:
                     if not isinstance(answer, dict):
                         raise TypeError(f"handler answered {type(answer).__name__}, not a dict")
                 except Exception as exc:  # reported to the client, daemon lives on
-                    log.warning("control request %r failed: %s", req["cmd"][:40],
+                    log.warning("control request %r failed: %s", command(req)[:40],
                                 _describe(exc))
                     answer = {"ok": False, "error": _describe(exc)}
                 try:
@@ -475,7 +480,7 @@ def peer_credentials(conn: socket.socket) -> Peer:
     return Peer(pid, uid, gid)
 
 
-def parse_request(line: bytes) -> dict[str, Any]:
+def parse_request(line: bytes) -> Request:
     """Decode one request line: a JSON object with a ``"cmd"`` string. Raises
     :class:`ValueError` (or whatever the decoder raises on hostile input, e.g.
     ``RecursionError``) naming what a request must look like."""
@@ -484,7 +489,8 @@ def parse_request(line: bytes) -> dict[str, Any]:
     req = json.loads(line)
     if not isinstance(req, dict) or not isinstance(req.get("cmd"), str):
         raise ValueError('request must be a JSON object with a "cmd" string')
-    return req
+    parsed: Request = req
+    return parsed
 
 
 def _describe(exc: BaseException) -> str:
@@ -498,7 +504,7 @@ def _describe(exc: BaseException) -> str:
     return text or type(exc).__name__
 
 
-def _encode(obj: dict[str, Any]) -> bytes:
+def _encode(obj: Answer) -> bytes:
     return json.dumps(obj, default=str).encode() + b"\n"
 
 
@@ -525,9 +531,10 @@ def _no_access_hint(path: Path) -> str:
             "again); to change anything, run as root or as the daemon's user")
 
 
-def request(path: str | os.PathLike[str], req: dict[str, Any],
+def request(path: str | os.PathLike[str], req: Request,
             timeout_s: float | None = 30.0) -> dict[str, Any]:
-    """Send one request to the daemon at ``path`` and return its answer.
+    """Send one request to the daemon at ``path`` and return its answer (the JSON object as
+    it came; the caller reads the keys of the command's answer).
 
     ``timeout_s`` bounds the whole exchange (connect, send, and the answer however slowly it
     arrives; ``None``: no bound). Raises :class:`DaemonNotRunning` when nothing listens there,

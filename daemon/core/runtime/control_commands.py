@@ -7,7 +7,11 @@ and status stays answerable).
 Only :data:`READ_ONLY_COMMANDS` may be sent by any client that can connect (the readers'
 group); every other command changes the daemon's state and is served only for root and the
 daemon's own user: :class:`~grassd.daemon.core.runtime.control.ControlServer` checks the peer's
-credentials (``SO_PEERCRED``) before a command gets here."""
+credentials (``SO_PEERCRED``) before a command gets here.
+
+The wire format's types are here too, where the commands read them (:data:`Request`,
+:class:`Answer` and the answers of the commands here, :class:`CommandAnswer`); a feature's
+commands answer with a type of its own that adds its keys to :class:`Answer`."""
 
 from __future__ import annotations
 
@@ -15,21 +19,46 @@ import math
 import os
 import queue
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Required, TypeAlias, TypedDict
 
 from grassd import __version__
-from grassd.daemon.core.monitoring.status_types import Status
+from grassd.daemon.core.monitoring.status_types import Status, StatusJson
 
 if TYPE_CHECKING:  # the outcomes (and the fleet, numpy) only where the daemon runs: clients
     # import this module for READ_ONLY_COMMANDS
-    from grassd.daemon.core.runtime.outcome import RunOutcome
+    from grassd.daemon.core.runtime.outcome import RunOutcome, RunOutcomeJson
     from grassd.daemon.core.store.quarantine import RetryOutcome
 
-    #: what a queued request ends with: a run's outcome, a bundle put back, or a
-    #: measurement's report (its JSON form)
-    QueuedResult = RunOutcome | RetryOutcome | dict[str, Any]
+    #: what a queued request ends with: a run's outcome, a bundle put back, or what a
+    #: feature's task gives (a measurement's report, its JSON form: the feature's type)
+    QueuedResult: TypeAlias = RunOutcome | RetryOutcome | dict[str, Any]
+
+#: A value of a JSON document (what :func:`json.loads` gives).
+JsonValue: TypeAlias = (str | int | float | bool | None | list["JsonValue"]
+                        | dict[str, "JsonValue"])
+#: A request as the daemon reads it: a JSON object whose ``"cmd"`` is a string
+#: (:func:`~grassd.daemon.core.runtime.control.parse_request` checks that); each command
+#: checks the values it reads.
+Request: TypeAlias = Mapping[str, JsonValue]
+
+
+class Answer(TypedDict, total=False):
+    """An answer: ``ok``; on failure ``error``, with ``busy`` (try again later) or ``denied``
+    (the peer may not send the command). Each command's answer type adds its own keys."""
+
+    ok: Required[bool]
+    error: str | None
+    busy: bool
+    denied: bool
+
+
+def command(req: Request) -> str:
+    """The request's command (its ``"cmd"``, a string once
+    :func:`~grassd.daemon.core.runtime.control.parse_request` took it)."""
+    return str(req["cmd"])
+
 
 #: Commands that only read: any client that can connect to the socket may send them. Every
 #: other command (``calibrate``, ``reload``, ``bundles_retry``, an unknown one) needs root or
@@ -51,11 +80,24 @@ class QueuedRequest:
     task: Callable[[], QueuedResult] | None = None
 
 
+class CommandAnswer(Answer, total=False):
+    """The answers of the commands here: ``ping``'s ``pid`` and ``version``, ``status``'s
+    ``status``, ``calibrate``'s ``run`` (when it waited) or ``queued`` (requests in the queue),
+    ``bundles_retry``'s ``retry``."""
+
+    pid: int
+    version: str
+    status: StatusJson
+    run: RunOutcomeJson | None
+    queued: int
+    retry: dict[str, object]
+
+
 class Unanswered(Exception):  # noqa: N818 (what happened to the request)
     """A request queued for the main loop was not served: ``answer`` is the reply saying why
     (the daemon stopping, the queue full, or no result within the request's timeout)."""
 
-    def __init__(self, answer: dict[str, Any]) -> None:
+    def __init__(self, answer: Answer) -> None:
         super().__init__(answer["error"])
         self.answer = answer
 
@@ -71,7 +113,7 @@ class ControlCommands:
     def __init__(self, status: Callable[[], Status], reload_event: threading.Event,
                  stop_event: threading.Event, requests: queue.Queue[QueuedRequest],
                  retry_bundle: Callable[[str], RetryOutcome],
-                 feature_for: Callable[[str], Callable[[dict[str, Any]], dict[str, Any]] | None]
+                 feature_for: Callable[[str], Callable[[Request], Answer] | None]
                  = lambda _cmd: None) -> None:
         self.status = status
         self.feature_for = feature_for
@@ -80,7 +122,7 @@ class ControlCommands:
         self.requests = requests
         self.retry_bundle = retry_bundle
 
-    def in_main_loop(self, req: dict[str, Any], task: Callable[[], QueuedResult],
+    def in_main_loop(self, req: Request, task: Callable[[], QueuedResult],
                      what: str) -> QueuedResult | None:
         """Queue ``task`` for the main loop and wait for its result, at most the request's
         ``timeout_s``; :class:`Unanswered` (its reply naming ``what``) when the daemon is
@@ -99,19 +141,22 @@ class ControlCommands:
                                                     f"{timeout:g} s"})
         return r.result
 
-    def handle(self, req: dict[str, Any]) -> dict[str, Any]:
+    def handle(self, req: Request) -> Answer:
         """Answer one control-socket request (runs in a socket thread)."""
         try:
             return self._handle(req)
         except Unanswered as exc:
             return exc.answer
 
-    def _handle(self, req: dict[str, Any]) -> dict[str, Any]:
-        cmd = req["cmd"]
+    def _handle(self, req: Request) -> Answer:
+        cmd = command(req)
+        answer: CommandAnswer
         if cmd == "ping":
-            return {"ok": True, "pid": os.getpid(), "version": __version__}
+            answer = {"ok": True, "pid": os.getpid(), "version": __version__}
+            return answer
         if cmd == "status":
-            return {"ok": True, "status": self.status().to_json()}
+            answer = {"ok": True, "status": self.status().to_json()}
+            return answer
         if cmd == "reload":
             self.reload_event.set()
             return {"ok": True}
@@ -120,9 +165,12 @@ class ControlCommands:
             if not isinstance(name, str) or not name:
                 raise ValueError('bundles_retry needs "bundle": the name of a quarantined bundle '
                                  "(see `grassd status`)")
-            out = _json(self.in_main_loop(req, lambda: self.retry_bundle(name),
-                                          "putting the bundle back"))
-            return {"ok": out.get("status") == "ok", "retry": out, "error": out.get("error")}
+            out = _retry_json(self.in_main_loop(req, lambda: self.retry_bundle(name),
+                                                "putting the bundle back"))
+            error = out.get("error")
+            answer = {"ok": out.get("status") == "ok", "retry": out,
+                      "error": None if error is None else str(error)}
+            return answer
         if cmd == "calibrate":
             if self.stop_event.is_set():
                 return {"ok": False, "error": "daemon is stopping"}
@@ -135,13 +183,15 @@ class ControlCommands:
                         "error": f"busy: {self.requests.maxsize} calibration requests are "
                                  "already queued; try again after they ran"}
             if not req.get("wait", False):
-                return {"ok": True, "queued": self.requests.qsize()}
+                answer = {"ok": True, "queued": self.requests.qsize()}
+                return answer
             if not r.done.wait(timeout):
                 return {"ok": False, "error": f"run did not finish within {timeout:g} s"}
-            return {"ok": True, "run": None if r.result is None else _json(r.result)}
-        answer = self.feature_for(cmd)
-        if answer is not None:  # measure, content_frame, content_show, ...
-            return answer(req)
+            answer = {"ok": True, "run": _run_json(r.result)}
+            return answer
+        feature = self.feature_for(cmd)
+        if feature is not None:  # measure, content_frame, content_show, ...
+            return feature(req)
         if cmd.startswith("content_"):
             return {"ok": False, "error": "the daemon shows no content: set [content] enabled "
                                           "= true in its configuration and reload it"}
@@ -150,14 +200,29 @@ class ControlCommands:
                                       "bundles_retry)"}
 
 
-def _json(result: QueuedResult | None) -> dict[str, Any]:
-    """The wire form of a queued request's result (empty: none)."""
+def _run_json(result: QueuedResult | None) -> RunOutcomeJson | None:
+    """The wire form of a calibration request's result (None: none)."""
+    from grassd.daemon.core.runtime.outcome import RunOutcome  # where the daemon runs
+
+    if result is None:
+        return None
+    if not isinstance(result, RunOutcome):
+        raise TypeError(f"a calibration ended with {type(result).__name__}, not its outcome")
+    return result.to_json()
+
+
+def _retry_json(result: QueuedResult | None) -> dict[str, object]:
+    """The wire form of a bundle put back (empty: none)."""
+    from grassd.daemon.core.store.quarantine import RetryOutcome  # where the daemon runs
+
     if result is None:
         return {}
-    return result if isinstance(result, dict) else result.to_json()
+    if not isinstance(result, RetryOutcome):
+        raise TypeError(f"putting a bundle back ended with {type(result).__name__}")
+    return result.to_json()
 
 
-def _timeout(req: dict[str, Any]) -> float:
+def _timeout(req: Request) -> float:
     """The request's ``timeout_s`` (default 3600 s), a finite number of seconds in
     (0, :data:`MAX_WAIT_S`]; raises :class:`ValueError` naming the fix otherwise."""
     value = req.get("timeout_s", 3600)

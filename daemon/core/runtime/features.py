@@ -26,6 +26,7 @@ from grassd.daemon.core.monitoring.page_parts import Card, Clock
 if TYPE_CHECKING:
     from grassd.daemon.core.calibration.calibrate import Calibrates
     from grassd.daemon.core.config.settings import Config
+    from grassd.daemon.core.runtime.control_commands import Answer, Request
     from grassd.daemon.core.runtime.service import Service
 
 log = logging.getLogger(__name__)
@@ -70,8 +71,9 @@ class Feature:
         """Whether the control-socket command ``cmd`` is this feature's."""
         return False
 
-    def handle(self, svc: Service, req: dict[str, Any]) -> dict[str, Any]:
-        """Answer one of the feature's commands (in a control-socket thread)."""
+    def handle(self, svc: Service, req: Request) -> Answer:
+        """Answer one of the feature's commands (in a control-socket thread; its answer type
+        adds the command's keys to :class:`~grassd.daemon.core.runtime.control_commands.Answer`)."""
         raise NotImplementedError(req.get("cmd"))
 
     def hold(self) -> None:

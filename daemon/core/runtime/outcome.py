@@ -14,7 +14,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from enum import StrEnum
-from typing import Any
+from typing import Any, Required, TypedDict
 
 from grassd.daemon.core.hardware.fleet import ControllerReport
 
@@ -38,6 +38,26 @@ class RunStatus(StrEnum):
     INTERRUPTED = "interrupted"
 
 
+class RunOutcomeJson(TypedDict, total=False):
+    """:meth:`RunOutcome.to_json`: ``status`` and the keys that apply, in this order (the
+    committed table's from ``table_id`` to ``controllers``; ``controller_crcs`` only where
+    known)."""
+
+    status: Required[str]
+    run_id: int
+    table_id: int | None
+    table_crc: int | None
+    controller_crcs: dict[str, int]
+    metrics: dict[str, Any] | None
+    report: str | None
+    plot: str | None
+    controllers: list[dict[str, str | bool | int | float | None]]
+    error: str
+    transient: bool
+    compute: bool
+    retry_in_s: float
+
+
 @dataclass(frozen=True)
 class CommittedTable:
     """What a committed run made: table ``table_id`` with CRC ``table_crc`` (of its uint16
@@ -53,15 +73,14 @@ class CommittedTable:
     controller_crcs: Mapping[str, int] | None = None
     controllers: tuple[ControllerReport, ...] = ()
 
-    def to_json(self) -> dict[str, Any]:
-        """The keys this part adds to :meth:`RunOutcome.to_json`."""
-        out: dict[str, Any] = {"table_id": self.table_id, "table_crc": self.table_crc}
+    def add_json(self, out: RunOutcomeJson) -> None:
+        """Add the keys this part gives :meth:`RunOutcome.to_json` to ``out``."""
+        out["table_id"], out["table_crc"] = self.table_id, self.table_crc
         if self.controller_crcs is not None:
             out["controller_crcs"] = dict(self.controller_crcs)
-        out.update(metrics=None if self.metrics is None else dict(self.metrics),
-                   report=self.report, plot=self.plot,
-                   controllers=[r.to_json() for r in self.controllers])
-        return out
+        out["metrics"] = None if self.metrics is None else dict(self.metrics)
+        out["report"], out["plot"] = self.report, self.plot
+        out["controllers"] = [r.to_json() for r in self.controllers]
 
 
 @dataclass(frozen=True)
@@ -100,15 +119,15 @@ class RunOutcome:
         assert self.committed is not None
         return replace(self, committed=replace(self.committed, controllers=tuple(reports)))
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> RunOutcomeJson:
         """The wire form: ``status`` and, when they apply, ``run_id``, the committed table's
-        keys (:meth:`CommittedTable.to_json`), ``error``, ``transient``, ``compute`` and
+        keys (:meth:`CommittedTable.add_json`), ``error``, ``transient``, ``compute`` and
         ``retry_in_s``."""
-        out: dict[str, Any] = {"status": self.status.value}
+        out: RunOutcomeJson = {"status": self.status.value}
         if self.run_id is not None:
             out["run_id"] = self.run_id
         if self.committed is not None:
-            out.update(self.committed.to_json())
+            self.committed.add_json(out)
         if self.error is not None:
             out["error"] = self.error
         if self.transient:

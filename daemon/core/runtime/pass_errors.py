@@ -10,9 +10,10 @@ import os
 import sqlite3
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
+from grassd.daemon.core.monitoring.status_types import ErrorSeen
 from grassd.daemon.core.store.atomic import describe_os_error
 from grassd.daemon.core.timestamps import utc_iso
 
@@ -51,12 +52,12 @@ def describe_error(exc: BaseException, state_dir: Path, db_path: Path,
 
 class PassErrors:
     """The errors main-loop passes survived, for status: ``last`` ("<UTC time> <line>") until
-    a pass completes without one, ``seen`` (``{"at", "error", "cleared_at"}``) after that.
+    a pass completes without one, ``seen`` (when and what, and when it cleared) after that.
     Status reads both from another thread: ``seen`` is replaced, never changed."""
 
     def __init__(self) -> None:
         self.last: str | None = None
-        self.seen: dict[str, Any] | None = None
+        self.seen: ErrorSeen | None = None
         #: errors survived in the current pass
         self.in_pass = 0
         #: the last error ended a pass (raised out of the tick)
@@ -67,7 +68,7 @@ class PassErrors:
         at = utc_iso(time.time())
         self.in_pass += 1
         self.escaped = False
-        self.seen = {"at": at, "error": msg, "cleared_at": None}
+        self.seen = ErrorSeen(at=at, error=msg, cleared_at=None)
         self.last = f"{at} {msg}"
         log.error("%s: %s (the daemon keeps running)", where, msg)
         return msg
@@ -78,5 +79,5 @@ class PassErrors:
         self.last = None
         self.escaped = False
         if self.seen is not None:  # replaced, not changed: status reads it
-            self.seen = {**self.seen, "cleared_at": utc_iso(time.time())}
+            self.seen = replace(self.seen, cleared_at=utc_iso(time.time()))
         log.info("the error of an earlier pass has cleared")

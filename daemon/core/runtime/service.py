@@ -55,7 +55,6 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
 from grassd import __version__
 from grassd.daemon.core.calibration.calibrate import (
@@ -80,7 +79,7 @@ from grassd.daemon.core.hardware.fleet import ControllerReport, Fleet
 from grassd.daemon.core.hardware.luxsensor import LuxSensor
 from grassd.daemon.core.monitoring.metrics import SensorState
 from grassd.daemon.core.monitoring.operator_view import OperatorSnapshot, OperatorView
-from grassd.daemon.core.monitoring.status_types import DaemonState, ErrorSeen, Status, WaitingBundle
+from grassd.daemon.core.monitoring.status_types import DaemonState, Status, WaitingBundle
 from grassd.daemon.core.runtime.ambient_lux import resolve_lux
 from grassd.daemon.core.runtime.bundle_pipeline import (
     WaitingBundles,
@@ -90,7 +89,12 @@ from grassd.daemon.core.runtime.bundle_pipeline import (
 from grassd.daemon.core.runtime.commit import commit_run, last_ccm
 from grassd.daemon.core.runtime.compute_retry import ComputeRetry
 from grassd.daemon.core.runtime.control import ControlServer
-from grassd.daemon.core.runtime.control_commands import ControlCommands, QueuedRequest
+from grassd.daemon.core.runtime.control_commands import (
+    Answer,
+    ControlCommands,
+    QueuedRequest,
+    Request,
+)
 from grassd.daemon.core.runtime.features import Feature, Features
 from grassd.daemon.core.runtime.notify import Notifier
 from grassd.daemon.core.runtime.outcome import RunOutcome, RunStatus
@@ -643,7 +647,7 @@ class Service:
             started_at=self.started_at, uptime_s=time.time() - self.started_at,
             config=cfg.source, reload_error=self.reload_error, inbox=inbox.counts(),
             rss_mb=rss_mb(), last_error=self.errors.last,
-            last_error_seen=None if seen is None else ErrorSeen.from_json(seen),
+            last_error_seen=seen,
             inbox_problems=tuple(inbox.problems()),
             metrics_textfile=str(self.operator.textfile), status_page=str(self.operator.page),
             capture=features.get("capture"),
@@ -668,12 +672,12 @@ class Service:
                                                            last_success_at=sensor.last_success_at),
             capture_at=None if capture is None else capture.last_success_at())
 
-    def _feature_command(self, cmd: str) -> Callable[[dict[str, Any]], dict[str, Any]] | None:
+    def _feature_command(self, cmd: str) -> Callable[[Request], Answer] | None:
         """What answers the control-socket command ``cmd`` when a feature has it, else None."""
         feature = self.features.for_command(cmd)
         return None if feature is None else lambda req: feature.handle(self, req)
 
-    def handle_request(self, req: dict[str, Any]) -> dict[str, Any]:
+    def handle_request(self, req: Request) -> Answer:
         """Answer one control-socket request (runs in a socket thread; see
         :class:`~grassd.daemon.core.runtime.control_commands.ControlCommands`)."""
         return self.commands.handle(req)

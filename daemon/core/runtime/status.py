@@ -9,7 +9,7 @@ from __future__ import annotations
 import os
 import resource
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from grassd.daemon.core.config.settings import Config, ControllerConfig
 from grassd.daemon.core.monitoring.status_types import (
@@ -17,6 +17,7 @@ from grassd.daemon.core.monitoring.status_types import (
     DaemonState,
     DesiredTable,
     PushRetry,
+    PushRetryJson,
     RunCounts,
     RunSummary,
     Status,
@@ -70,7 +71,7 @@ def desired_from_history(history: History, cur: RunRecord,
 
 
 def collect_status(history: History, cfg: Config, runs: int = 5, *,
-                   push_backoff: Mapping[str, Mapping[str, Any]] | None = None,
+                   push_backoff: Mapping[str, PushRetryJson] | None = None,
                    daemon: DaemonState | None = None,
                    desired: DesiredTables | None = None) -> Status:
     """The status from the state database (what `grassd status` shows without a daemon), its
