@@ -146,8 +146,9 @@ class ContentConfig:
 
 
 def _hours(v: list[schema.TomlValue]) -> str | None:
-    ok = (len(v) == 2 and all(isinstance(h, int) and not isinstance(h, bool) for h in v)
-          and 0 <= v[0] <= 23 and 0 <= v[1] <= 24 and v[0] != v[1])
+    hours = [h for h in v if isinstance(h, int) and not isinstance(h, bool)]
+    ok = (len(v) == len(hours) == 2 and 0 <= hours[0] <= 23 and 0 <= hours[1] <= 24
+          and hours[0] != hours[1])
     return None if ok else ("must be [start, end] local hours, 0 <= start <= 23, "
                             f"0 <= end <= 24, start != end; got {v!r}")
 

@@ -27,25 +27,27 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from grassd.daemon.content.colour_map import REFERENCE_VIEWPOINT, DisplayColours
 from grassd.daemon.content.pictures import load_animation
 from grassd.daemon.content.player import MAX_REQUEST_S, ContentPlayer
 from grassd.daemon.content.shown import SHOWN_EVERY_S, ShownDisplay
 from grassd.daemon.content.sink import ClosableSink, FrameSink, StatsSink
-from grassd.daemon.content.status import ContentStatus
+from grassd.daemon.content.status import ContentStatus, ContentStatusJson
 from grassd.daemon.core.config.settings import Config
+from grassd.daemon.core.runtime.control_commands import Answer, Request
 from grassd.daemon.core.runtime.features import Feature
 from grassd.daemon.core.store.layout import report_stem
 
 if TYPE_CHECKING:
     from grassd.daemon.core.monitoring.page_parts import Card, Clock
     from grassd.daemon.core.runtime.service import Service
+    from grassd.daemon.core.store.history import History
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +58,16 @@ READ_ONLY = frozenset({"content_status"})
 COLOURS_CHECK_S = 2.0
 
 
-def colours_from_report(report: dict[str, Any], table_um: Any) -> DisplayColours | None:
+class ContentAnswer(Answer, total=False):
+    """The answers of the content commands: ``content_status``'s ``content``,
+    ``content_show``'s ``frames`` and ``length_s`` (the picture's, s)."""
+
+    content: ContentStatusJson
+    frames: int
+    length_s: float
+
+
+def colours_from_report(report: dict[str, Any], table_um: ArrayLike) -> DisplayColours | None:
     """The predicted colours of the levels of ``table_um`` (256,) [um] from a run's report:
     the Lab per length of its viewpoint nearest the reference one (170 cm, 2 m, 0 deg);
     None when the report holds no Lab (older runs, tables per controller or pixel)."""
@@ -78,7 +89,7 @@ class ContentPlayback:
     active table's run (``history``, reports in ``reports_dir``), read again when it
     changes. ``live`` False starts no receiver (a one-off show)."""
 
-    def __init__(self, cfg: Config, sink: FrameSink, history: Any, reports_dir: Path, *,
+    def __init__(self, cfg: Config, sink: FrameSink, history: History, reports_dir: Path, *,
                  live: bool = True) -> None:
         assert cfg.content is not None
         self.cfg = cfg
@@ -146,9 +157,7 @@ class ContentPlayback:
         """The player's snapshot, with the frame output's own figures when it has them."""
         st = self.player.status()
         if isinstance(self.sink, StatsSink):
-            out = self.sink.stats()
-            st = dataclasses.replace(st, output=dataclasses.asdict(out)
-                                     if dataclasses.is_dataclass(out) else dict(out))
+            st = dataclasses.replace(st, output=self.sink.stats().to_json())
         return st
 
     @staticmethod
@@ -156,12 +165,13 @@ class ContentPlayback:
         """Whether ``cmd`` is one of the feature's commands."""
         return cmd in COMMANDS
 
-    def handle(self, req: dict[str, Any]) -> dict[str, Any]:
+    def handle(self, req: Request) -> ContentAnswer:
         """Answer one of :data:`COMMANDS` (runs in a control-socket thread); a bad request
         raises ValueError naming what to send."""
         cmd = req["cmd"]
         if cmd == "content_status":
-            return {"ok": True, "content": self.status().to_json()}
+            answer: ContentAnswer = {"ok": True, "content": self.status().to_json()}
+            return answer
         if cmd == "content_stop":
             self.player.stop_request()
             return {"ok": True}
@@ -178,11 +188,12 @@ class ContentPlayback:
             anim = load_animation(Path(path), self.cfg.display.rows, self.cfg.display.cols,
                                   c.max_picture_mib << 20)
             self.player.show(anim, _seconds(req, "duration_s", max(anim.length_s, 10.0)))
-            return {"ok": True, "frames": len(anim.frames), "length_s": anim.length_s}
+            answer = {"ok": True, "frames": len(anim.frames), "length_s": anim.length_s}
+            return answer
         raise ValueError(f"unknown content command {cmd!r}")
 
 
-def _frame_levels(req: dict[str, Any], n: int) -> np.ndarray:
+def _frame_levels(req: Request, n: int) -> np.ndarray:
     """The ``n`` levels of a ``content_frame`` request: ``levels`` (a list of integers
     0..255) or ``levels_hex`` (two hex digits a pixel: a frame of 4096 pixels fits a request
     line); raises ValueError naming the forms."""
@@ -199,7 +210,7 @@ def _frame_levels(req: dict[str, Any], n: int) -> np.ndarray:
                      f"{2 * n} hex digits (the display's pixels row by row from the top left)")
 
 
-def _seconds(req: dict[str, Any], key: str, default: float) -> float:
+def _seconds(req: Request, key: str, default: float) -> float:
     """``req[key]`` as seconds in (0, :data:`MAX_REQUEST_S`], else ``default``."""
     v = req.get(key, default)
     if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) \
@@ -208,7 +219,7 @@ def _seconds(req: dict[str, Any], key: str, default: float) -> float:
     return float(v)
 
 
-def start_content(cfg: Config, sink: FrameSink, history: Any,
+def start_content(cfg: Config, sink: FrameSink, history: History,
                   reports_dir: Path) -> ContentPlayback | None:
     """The started playback for ``cfg``, or None without ``[content]`` or with
     ``enabled = false``. Raises :class:`~grassd.daemon.content.receiver.ReceiverBindError`
@@ -264,7 +275,7 @@ class ContentFeature(Feature):
         """Stop the playback."""
         self._end()
 
-    def status(self) -> Mapping[str, Any] | None:
+    def status(self) -> ContentStatusJson | None:
         """The playback's status (:class:`~grassd.daemon.content.status.ContentStatus`)."""
         return None if self.playback is None else self.playback.status().to_json()
 
@@ -272,7 +283,7 @@ class ContentFeature(Feature):
         """One of :data:`COMMANDS` while content plays."""
         return self.playback is not None and self.playback.handles(cmd)
 
-    def handle(self, svc: Service, req: dict[str, Any]) -> dict[str, Any]:
+    def handle(self, svc: Service, req: Request) -> ContentAnswer:
         """:meth:`ContentPlayback.handle`."""
         playback = self.playback
         if playback is None:  # stopped meanwhile by a reload
@@ -329,7 +340,7 @@ class ContentFeature(Feature):
         if playback is None:
             return None
         st = playback.status()
-        if st.source is ContentSource.NONE or (st.output or {}).get("held"):
+        if st.source is ContentSource.NONE or (st.output is not None and st.output["held"]):
             return None
         colours, cur = playback.colours(), svc.history.current_table()
         palette = None if colours is None or cur is None else \

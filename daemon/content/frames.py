@@ -55,6 +55,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike
 
+from grassd.daemon.content.status import FrameStatsJson
 from grassd.daemon.core.config.settings import ControllerConfig
 from grassd.daemon.core.errors import DaemonError
 from grassd.daemon.core.hardware.fleet import Fleet
@@ -108,6 +109,14 @@ class FrameStats:
     latency_ms_p99: float | None = None
     misses: int = 0
     held: bool = False
+
+    def to_json(self) -> FrameStatsJson:
+        """The figures as JSON (the fields by name, in this order)."""
+        return {"frames_offered": self.frames_offered, "frames_shown": self.frames_shown,
+                "frames_dropped": self.frames_dropped, "frames_resent": self.frames_resent,
+                "fps_shown": self.fps_shown, "latency_ms_median": self.latency_ms_median,
+                "latency_ms_p99": self.latency_ms_p99, "misses": self.misses,
+                "held": self.held}
 
 
 def stream_chunk_bytes(baud: int, slot_s: float) -> int:

@@ -8,10 +8,13 @@ tested against this protocol (a test captures the frames it is offered).
 
 from __future__ import annotations
 
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from grassd.daemon.content.frames import FrameStats
 
 
 @runtime_checkable
@@ -34,8 +37,8 @@ class FrameSink(Protocol):
 class StatsSink(FrameSink, Protocol):
     """A sink that reports its own figures (frames shown, latency to the controllers' ACK)."""
 
-    def stats(self) -> Any:
-        """A dataclass of counts and rates (the frame output's ``FrameStats``)."""
+    def stats(self) -> FrameStats:
+        """The counts and rates (the frame output's)."""
 
 
 @runtime_checkable

@@ -4,9 +4,8 @@ dropped frames, latency, and each receiver's counts (status, ``grassd status``, 
 from __future__ import annotations
 
 import enum
-from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TypedDict
 
 
 class ContentSource(enum.Enum):
@@ -18,6 +17,39 @@ class ContentSource(enum.Enum):
     PLAYLIST = "playlist"
     IDLE = "idle"
     NONE = "none"
+
+
+class FrameStatsJson(TypedDict):
+    """The frame output's own figures as JSON
+    (:meth:`grassd.daemon.content.frames.FrameStats.to_json`)."""
+
+    frames_offered: int
+    frames_shown: int
+    frames_dropped: int
+    frames_resent: int
+    fps_shown: float
+    latency_ms_median: float | None
+    latency_ms_p99: float | None
+    misses: int
+    held: bool
+
+
+class ContentStatusJson(TypedDict):
+    """A :class:`ContentStatus` as JSON: the content feature's status (``content`` of
+    ``grassd status --json``, the answer to ``content_status``)."""
+
+    source: str
+    detail: str
+    frames_out_per_s: float
+    frames_in_per_s: float
+    frames_out: int
+    frames_in: int
+    dropped: int
+    latency_ms_median: float | None
+    latency_ms_p99: float | None
+    map: str
+    receivers: dict[str, dict[str, int]]
+    output: FrameStatsJson | None
 
 
 @dataclass(frozen=True)
@@ -42,17 +74,21 @@ class ContentStatus:
     latency_ms_p99: float | None
     map: str
     receivers: dict[str, dict[str, int]] = field(default_factory=dict)
-    output: dict[str, Any] | None = None
+    output: FrameStatsJson | None = None
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> ContentStatusJson:
         """The snapshot as a JSON object (the source by its value)."""
-        out = dict(self.__dict__)
-        out["source"] = self.source.value
-        return out
+        return {"source": self.source.value, "detail": self.detail,
+                "frames_out_per_s": self.frames_out_per_s,
+                "frames_in_per_s": self.frames_in_per_s, "frames_out": self.frames_out,
+                "frames_in": self.frames_in, "dropped": self.dropped,
+                "latency_ms_median": self.latency_ms_median,
+                "latency_ms_p99": self.latency_ms_p99, "map": self.map,
+                "receivers": self.receivers, "output": self.output}
 
 
 
-def content_line(d: Mapping[str, Any]) -> str:
+def content_line(d: ContentStatusJson) -> str:
     """One line for ``grassd status`` from a :class:`ContentStatus`'s JSON form ``d``."""
     lat = ("" if d.get("latency_ms_p99") is None else
            f", latency {d['latency_ms_median']:.0f} ms median / {d['latency_ms_p99']:.0f} ms "
