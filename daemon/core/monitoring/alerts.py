@@ -46,7 +46,8 @@ import subprocess
 import threading
 import time
 from collections import deque
-from typing import Any
+from collections.abc import Iterable
+from typing import TypedDict
 
 from grassd.daemon.core.config.settings import AlertsConfig
 from grassd.daemon.core.monitoring.health import Health
@@ -63,12 +64,43 @@ META_KEY = "alerts.level"
 MAX_CHANGES = 50
 
 
-def _text(v: Any) -> str | None:
+#: one change of health between two alerts: ``at`` (ISO 8601), ``from`` and ``to`` levels and
+#: the ``reasons`` of the new one (a TypedDict by its call: "from" is a Python keyword)
+HealthChange = TypedDict("HealthChange", {"at": str, "from": str | None, "to": str,
+                                          "reasons": list[str]})
+
+
+class AlertController(TypedDict):
+    """A controller as the alert describes it."""
+
+    name: str | None
+    reachable: bool
+    in_sync: bool
+    table_id: int | None
+    error: str | None
+
+
+class AlertEvent(TypedDict):
+    """The JSON description of a health change on the alert command's standard input."""
+
+    service: str
+    host: str
+    at: str
+    previous: str
+    level: str
+    reasons: list[str]
+    changes: list[HealthChange]
+    health: str | None
+    controllers: list[AlertController]
+    state_dir: str | None
+
+
+def _text(v: str | None) -> str | None:
     """A text of the description made one line (None stays None)."""
     return None if v is None else one_line(v, None)
 
 
-def _lines(texts: Any) -> list[str]:
+def _lines(texts: Iterable[str]) -> list[str]:
     """Reasons, each made one line."""
     return [one_line(t, None) for t in texts]
 
@@ -82,7 +114,7 @@ class Alerter:
         self.history = history
         self._alerted: str | None = history.get_meta(META_KEY)
         self._current: str | None = None
-        self._changes: deque[dict[str, Any]] = deque(maxlen=MAX_CHANGES)
+        self._changes: deque[HealthChange] = deque(maxlen=MAX_CHANGES)
         self._last_run = -float("inf")  # monotonic s
         self._worker: threading.Thread | None = None
         #: the latest finished runs: (argv, exit status or None when it could not run, stderr)
@@ -119,7 +151,7 @@ class Alerter:
         if (now - self._last_run < self.cfg.min_interval_s
                 or (self._worker is not None and self._worker.is_alive())):
             return False
-        event = {
+        event: AlertEvent = {
             "service": "grassd", "host": socket.gethostname(), "at": utc_iso(time.time()),
             "previous": self._alerted, "level": level, "reasons": _lines(health.reasons),
             "changes": list(self._changes),
@@ -148,7 +180,7 @@ class Alerter:
         except Exception as exc:  # e.g. a full disk: alerting goes on
             log.warning("alerts: cannot store the level alerted (%s): %s", level, exc)
 
-    def _run(self, argv: list[str], event: dict[str, Any]) -> None:
+    def _run(self, argv: list[str], event: AlertEvent) -> None:
         env = {**os.environ, "GRASSD_HEALTH": event["level"],
                "GRASSD_PREVIOUS_HEALTH": event["previous"]}
         data = json.dumps(event, indent=2).encode()

@@ -39,7 +39,8 @@ import re
 import sys
 import traceback
 from pathlib import Path
-from typing import IO, Any
+from types import TracebackType
+from typing import Protocol, TextIO, TypeAlias
 
 from grassd.daemon.core.safe_text import one_line
 
@@ -50,6 +51,18 @@ _ARG = re.compile(r"%(?:\([^)]*\))?[-#0 +]*(?:\d+|\*)?(?:\.(?:\d+|\*))?[diouxXeE
 #: journald's socket for its native protocol (where systemd.journal.send writes)
 NATIVE_SOCKET = Path("/run/systemd/journal/socket")
 TERMINAL_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+#: what ``sys.exc_info()`` gives (and :meth:`logging.Formatter.formatException` takes)
+ExcInfo: TypeAlias = (tuple[type[BaseException], BaseException, TracebackType | None]
+                      | tuple[None, None, None])
+
+
+class JournalSender(Protocol):
+    """What sends a record to the journal for :class:`systemd.journal.JournalHandler`
+    (``sender_function``; :func:`systemd.journal.send`): the message and its fields, each
+    written as text."""
+
+    def __call__(self, MESSAGE: str, **fields: object) -> object:  # noqa: N803 (the field)
+        ...
 JOURNAL_FORMAT = "%(name)s: %(message)s"
 
 
@@ -87,7 +100,7 @@ class SubjectFields(logging.Filter):
     def _fields(record: logging.LogRecord) -> None:
         args = record.args if isinstance(record.args, tuple) else ()
         msg = record.msg if isinstance(record.msg, str) else ""
-        found: dict[str, Any] = {}
+        found: dict[str, object] = {}  # a logging call's arguments may be anything
         if args and "%" in msg:
             # argument index of each placeholder by its position ("%%" takes none)
             starts = [m.start() for m in _ARG.finditer(msg) if m.group() != "%%"]
@@ -133,7 +146,7 @@ class OneLineFormatter(logging.Formatter):
         finally:
             record.message = message
 
-    def formatException(self, ei: Any) -> str:  # noqa: N802 (logging's name)
+    def formatException(self, ei: ExcInfo) -> str:  # noqa: N802 (logging's name)
         """The traceback of ``ei`` (``sys.exc_info()``): one text line per line of the
         traceback."""
         if ei[1] is None:  # logged with exc_info outside an exception handler
@@ -208,7 +221,7 @@ def _never_raise(handler: logging.Handler) -> logging.Handler:
     return handler
 
 
-def stderr_is_journal(env: dict[str, str] | None = None, stream: IO[Any] | None = None) -> bool:
+def stderr_is_journal(env: dict[str, str] | None = None, stream: TextIO | None = None) -> bool:
     """True when ``stream`` (standard error) is the journal stream systemd connected
     (``$JOURNAL_STREAM`` = "device:inode" of it)."""
     env = os.environ if env is None else env
@@ -222,7 +235,7 @@ def stderr_is_journal(env: dict[str, str] | None = None, stream: IO[Any] | None 
     return (st.st_dev, st.st_ino) == (dev, ino)
 
 
-def journal_handler(identifier: str = "grassd", sender: Any = None,
+def journal_handler(identifier: str = "grassd", sender: JournalSender | None = None,
                     socket_path: Path = NATIVE_SOCKET) -> logging.Handler | None:
     """A :class:`systemd.journal.JournalHandler` (native protocol, structured fields; the
     logger's name goes in field LOGGER, so MESSAGE is the message alone), or None when the
@@ -242,7 +255,7 @@ def journal_handler(identifier: str = "grassd", sender: Any = None,
 
 
 def setup_logging(level: str = "info", *, env: dict[str, str] | None = None,
-                  stream: IO[Any] | None = None,
+                  stream: TextIO | None = None,
                   native: logging.Handler | None = None) -> logging.Handler | None:
     """Send the root logger's records at ``level`` and above to the journal or standard error
     (module docstring) and return the handler installed. Like :func:`logging.basicConfig`
@@ -273,7 +286,8 @@ def setup_logging(level: str = "info", *, env: dict[str, str] | None = None,
     return handler
 
 
-def _log_uncaught(kind: type[BaseException], exc: BaseException, tb: Any) -> None:
+def _log_uncaught(kind: type[BaseException], exc: BaseException, tb: TracebackType | None
+                  ) -> None:
     """An exception that ends the program is logged as CRITICAL (priority 2, with its
     traceback), not written to stderr without a priority."""
     if issubclass(kind, KeyboardInterrupt):

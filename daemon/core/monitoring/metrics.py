@@ -97,7 +97,7 @@ class SensorState:
     last_success_at: float | None
 
 
-def _label(value: Any) -> str:
+def _label(value: str) -> str:
     """A label value made one line (module docstring); prometheus_client escapes the rest."""
     return one_line(value, None)
 

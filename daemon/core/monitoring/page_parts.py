@@ -9,7 +9,6 @@ import html
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
-from typing import Any
 from zoneinfo import ZoneInfo
 
 from grassd.daemon.core.safe_text import one_line
@@ -67,13 +66,14 @@ class Card:
     after: str
 
 
-def esc(v: Any) -> str:
-    """``v`` as HTML text: escaped, every line without control characters ("-" for None)."""
+def esc(v: object) -> str:
+    """``v`` (its ``str``: a text, a number, an error) as HTML text: escaped, every line
+    without control characters ("-" for None)."""
     text = "-" if v is None else str(v)
     return html.escape("\n".join(one_line(line, None) for line in text.split("\n")))
 
 
-def name_text(v: Any) -> str:
+def name_text(v: str | None) -> str:
     """A name (a bundle's, its id) as HTML text: one line, escaped, cut when very long."""
     return html.escape("-" if v is None else one_line(v))
 
@@ -107,6 +107,6 @@ def html_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
            f"</table></div>"
 
 
-def td(v: Any, cls: str = "") -> str:
+def td(v: object, cls: str = "") -> str:
     """One table cell of ``v`` as text (:func:`esc`), of CSS class ``cls``."""
     return f'<td class="{cls}">{esc(v)}</td>' if cls else f"<td>{esc(v)}</td>"

@@ -55,7 +55,7 @@ MIN_SPAN = 0.02
 
 
 
-def _name_td(v: Any) -> str:
+def _name_td(v: str | None) -> str:
     return f"<td>{name_text(v)}</td>"
 
 
