@@ -24,7 +24,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
 
 from grassd.daemon.core.config import schema
 from grassd.sim.lighting import MAX_LUX
@@ -38,13 +37,13 @@ LIGHT_KEYS = ("hdri", "ambient_lux", "sun_lux", "sun_azimuth_deg", "sun_elevatio
 CHECKER_KEYS = ("checker_raw", "checker_corners", "checker_chart")
 
 
-def plain_name(v: Any) -> bool:
+def plain_name(v: schema.TomlValue) -> bool:
     """True when ``v`` is a plain file name (no directory part, not ``.`` or ``..``)."""
     return isinstance(v, str) and bool(v) and "/" not in v and "\\" not in v \
         and v not in (".", "..")
 
 
-def lux(lo_exclusive: bool) -> Callable[[Any], str | None]:
+def lux(lo_exclusive: bool) -> Callable[[float], str | None]:
     """Check: a lux reading [lx] > 0 (``lo_exclusive``) or >= 0, and <= MAX_LUX."""
     def check(v: float) -> str | None:
         if (v <= 0 if lo_exclusive else v < 0) or v > MAX_LUX:
@@ -96,7 +95,7 @@ def hdri_name(plain_names: bool) -> Callable[[str], str | None]:
     return check
 
 
-def quad(v: list) -> str | None:
+def quad(v: list[schema.TomlValue]) -> str | None:
     """Check: four [x, y] image positions (pixels, finite), in order around the area."""
     ok = len(v) == 4 and all(isinstance(c, list) and schema.numbers(2)(c) is None for c in v)
     return None if ok else ("must be four [x, y] image positions (pixels), in order around the "
@@ -127,7 +126,7 @@ def light_fields(*, plain_names: bool, ambient_required: bool) -> dict[str, sche
     }
 
 
-def check_together(ctx: schema.Context, values: Mapping[str, Any],
+def check_together(ctx: schema.Context, values: Mapping[str, schema.TomlValue],
                    path: Callable[[str], tuple] = lambda key: (key,)) -> None:
     """The rules between the shared keys of a validated table ``values``: the sun's azimuth and
     elevation both or neither; ``checker_raw`` and ``checker_corners`` both or neither.

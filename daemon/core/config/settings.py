@@ -454,7 +454,7 @@ def _pixel_fields() -> dict[str, PixelValue]:
 def _check_pixel_spec(sec: _Section, pixel: dict[str, PixelValue]) -> None:
     """Let grassd.sim.scene.PixelSpec validate the fields together."""
     try:
-        PixelSpec(**pixel)
+        PixelSpec(**pixel)  # type: ignore[arg-type]  # each value has its default's kind
     except SimError as exc:
         m = re.search(r"PixelSpec\.(\w+)", str(exc))
         key = m.group(1) if m and m.group(1) in pixel else None
@@ -579,8 +579,9 @@ def _parse_display(top: _Section) -> DisplayConfig:
 def _parse_pixel(display: _Section) -> dict[str, PixelValue]:
     """``[display.pixel]``: every PixelSpec field, the table's value else PixelSpec's default
     (arrays as tuples), checked together by PixelSpec itself."""
+    defaults = _pixel_fields()
     pschema = {}
-    for name, default in _pixel_fields().items():
+    for name, default in defaults.items():
         if isinstance(default, tuple):
             pschema[name] = _F(list, default, _numbers(len(default)))
             continue
@@ -589,7 +590,7 @@ def _parse_pixel(display: _Section) -> dict[str, PixelValue]:
     sec = display.section("pixel", pschema)
     pixel: dict[str, PixelValue] = {
         name: sec.get_floats(name) if isinstance(default, tuple) else sec.get_float(name)
-        for name, default in _pixel_fields().items()}
+        for name, default in defaults.items()}
     _check_pixel_spec(sec, pixel)
     return pixel
 
