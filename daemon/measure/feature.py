@@ -8,15 +8,22 @@ from __future__ import annotations
 
 import time
 from datetime import datetime
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, cast
 from zoneinfo import ZoneInfo
 
+from grassd.daemon.core.runtime.control_commands import Answer, Request
 from grassd.daemon.core.runtime.features import Feature
 
 if TYPE_CHECKING:
     from grassd.daemon.core.monitoring.page_parts import Card, Clock
     from grassd.daemon.core.runtime.service import Service
     from grassd.daemon.measure.report import MeasurementReport
+
+
+class MeasureAnswer(Answer, total=False):
+    """The ``measure`` command's answer: the measurement's report."""
+
+    measurement: MeasurementReport
 
 
 class MeasureFeature(Feature):
@@ -74,10 +81,11 @@ class MeasureFeature(Feature):
         """``measure``."""
         return cmd == "measure"
 
-    def handle(self, svc: Service, req: dict[str, Any]) -> dict[str, Any]:
+    def handle(self, svc: Service, req: Request) -> MeasureAnswer:
         """``{"cmd": "measure", "timeout_s": s}``: a measurement in the main loop, like a
         run; its report under ``measurement``."""
-        report = svc.commands.in_main_loop(req, lambda: self.now(svc), "measurement")
-        assert isinstance(report, dict)
+        done = svc.commands.in_main_loop(req, lambda: self.now(svc), "measurement")
+        assert isinstance(done, dict)
+        report = cast("MeasurementReport", done)  # what self.now returned
         return {"ok": report.get("status") == "ok", "measurement": report,
                 "error": report.get("error")}
