@@ -41,7 +41,7 @@ import time
 import uuid
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -54,7 +54,12 @@ from grassd.daemon.compute.wire import (
     error_answer,
     read_answer,
 )
-from grassd.daemon.core.calibration.correction import SAVED, with_correction
+from grassd.daemon.core.calibration.correction import (
+    SAVED,
+    DisplayCorrection,
+    Saved,
+    with_correction,
+)
 from grassd.daemon.core.calibration.result import CENTRE, CalibrationResult
 from grassd.daemon.core.config.settings import Config
 from grassd.daemon.core.errors import (
@@ -184,7 +189,7 @@ class RemoteCalibrator:
             force: bool = False, stop: threading.Event | None = None,
             progress: Callable[[str], None] | None = None,
             previous_tables: Mapping[str, NDArray] | None = None,
-            correction: Any = SAVED) -> CalibrationResult:
+            correction: DisplayCorrection | Saved | None = SAVED) -> CalibrationResult:
         """Calibrate for ``light`` on the cluster (arguments as ``Calibrator.run``; ``stop``
         and ``progress`` act here: ``progress`` is called every :data:`POLL_S` seconds while
         the task runs, ``stop`` cancels it; the display's ``correction``, which this state

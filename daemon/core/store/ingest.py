@@ -64,7 +64,7 @@ from grassd.daemon.core.config.manifest_fields import plain_name as _plain_name
 from grassd.daemon.core.errors import IngestError, ManifestError
 from grassd.daemon.core.safe_text import storable
 from grassd.daemon.core.store.atomic import atomic_write_text, fsync_dir
-from grassd.daemon.core.store.history import History
+from grassd.daemon.core.store.history import History, JournalEntry
 from grassd.daemon.core.store.layout import StateLayout
 from grassd.daemon.core.store.manifest import (
     MANIFEST_NAMES,
@@ -525,7 +525,7 @@ class Inbox:
         return retry
 
     @contextlib.contextmanager
-    def _recovering(self, d: Path, row: Any) -> Iterator[None]:
+    def _recovering(self, d: Path, row: JournalEntry | None) -> Iterator[None]:
         """Recover bundle directory ``d`` (journal ``row`` or None) on its own (:meth:`recover`)."""
         try:
             yield
@@ -545,7 +545,7 @@ class Inbox:
                 log.exception("bundle %s could not be quarantined either; it stays in %s",
                               d.name, d.parent)
 
-    def _recover_row(self, bid: str, row: Any, retry: list[Bundle]) -> None:
+    def _recover_row(self, bid: str, row: JournalEntry, retry: list[Bundle]) -> None:
         """:meth:`recover` step 2 for one journal row still ``processing``."""
         here = self.processing / bid
         if here.is_dir():
