@@ -3,7 +3,8 @@
 A status is built by :mod:`grassd.daemon.core.runtime.status` (from the state database alone, what
 `grassd status` shows without a daemon) and by the running service (with what only the live
 process knows, :class:`DaemonState`). It is the control socket's wire format:
-:meth:`Status.to_json` on the daemon's side, :meth:`Status.from_json` on the client's.
+:meth:`Status.to_json` on the daemon's side, :meth:`Status.from_json` on the client's
+(each JSON object's keys: :mod:`~grassd.daemon.core.monitoring.status_json`).
 The metrics, the alerts, the status page and `grassd status` read its attributes.
 
 The JSON keys and their meanings are what ``grassd status --json`` has always printed
@@ -20,13 +21,26 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, NotRequired, TypedDict, TypeGuard
+from typing import Any, TypeGuard
 
 from grassd.daemon.core.monitoring.health import Health, assess
+from grassd.daemon.core.monitoring.status_json import (
+    ComputeWaitJson,
+    ControllerJson,
+    DaemonJson,
+    DesiredTableJson,
+    ErrorSeenJson,
+    LiveStatusJson,
+    PushRetryJson,
+    RunCountsJson,
+    RunSummaryJson,
+    StatusJson,
+    WaitingBundleJson,
+)
 from grassd.daemon.core.store.quarantine import QuarantinedBundle
 
 __all__ = ["ControllerStatus", "DaemonState", "DesiredTable", "ErrorSeen", "PushRetry",
-           "RunCounts", "RunSummary", "Status", "StatusJson", "WaitingBundle", "run_r2"]
+           "RunCounts", "RunSummary", "Status", "WaitingBundle", "run_r2"]
 
 
 def run_r2(metrics: Mapping[str, Any]) -> float | None:
@@ -35,153 +49,6 @@ def run_r2(metrics: Mapping[str, Any]) -> float | None:
     prometheus_client)."""
     r2 = metrics.get("r2_closed_loop")
     return metrics.get("r2_after_fit") if r2 is None else r2
-
-
-# --------------------------------------------------------------------------- the JSON form
-# Each part's JSON object, keys in the order they are written; a reader takes the keys it
-# knows (a key a newer daemon added is left out).
-
-
-class DesiredTableJson(TypedDict):
-    """:class:`DesiredTable` as JSON."""
-
-    table_id: int
-    table_crc: int
-    run_id: int
-    per_controller: dict[str, int] | None
-
-
-class PushRetryJson(TypedDict):
-    """:class:`PushRetry` as JSON."""
-
-    failures: int
-    since: float
-    delay_s: float
-    retry_in_s: float
-    error: str | None
-
-
-class ControllerJson(TypedDict):
-    """:class:`ControllerStatus` as JSON (``push_retry`` only from a running daemon)."""
-
-    name: str
-    port: str
-    address: int
-    reachable: bool
-    table_id: int | None
-    table_crc: int | None
-    desired_crc: int | None
-    in_sync: bool
-    last_seen: float | None
-    error: str | None
-    push_retry: NotRequired[PushRetryJson | None]
-
-
-class RunSummaryJson(TypedDict):
-    """:class:`RunSummary` as JSON."""
-
-    id: int
-    trigger: str
-    status: str
-    started_at: float
-    finished_at: float | None
-    lux: float | None
-    lux_source: str | None
-    error: str | None
-    r2: float | None
-    max_dev_de00: float | None
-    report: str | None
-    plot: str | None
-
-
-class RunCountsJson(TypedDict):
-    """:class:`RunCounts` as JSON."""
-
-    ok: int
-    rejected: int
-    failed: int
-    superseded: int
-
-
-class QuarantinedJson(TypedDict):
-    """A :class:`~grassd.daemon.core.store.quarantine.QuarantinedBundle` as JSON."""
-
-    bundle: str
-    name: str
-    attempts: int
-    since: float
-    reason: str
-
-
-class WaitingBundleJson(TypedDict):
-    """:class:`WaitingBundle` as JSON."""
-
-    bundle: str
-    id: str
-    reason: str
-    since: float
-    retry_in_s: float
-
-
-class ComputeWaitJson(TypedDict):
-    """:class:`ComputeWait` as JSON."""
-
-    trigger: str
-    reason: str
-    since: float
-    attempts: int
-    retry_in_s: float
-
-
-class ErrorSeenJson(TypedDict):
-    """:class:`ErrorSeen` as JSON."""
-
-    at: str
-    error: str
-    cleared_at: str | None
-
-
-class DaemonJson(TypedDict):
-    """:class:`DaemonState` as JSON: the live keys of a status (a daemon from before
-    ``compute_wait`` or ``content`` wrote none)."""
-
-    pid: int
-    version: str
-    activity: str
-    started_at: float
-    uptime_s: float
-    config: str | None
-    reload_error: str | None
-    inbox: dict[str, int]
-    rss_mb: float
-    last_error: str | None
-    last_error_seen: ErrorSeenJson | None
-    inbox_problems: list[str]
-    metrics_textfile: str
-    status_page: str
-    capture: dict[str, Any] | None
-    lines: dict[str, dict[str, Any]]
-    waiting_bundles: list[WaitingBundleJson]
-    compute_wait: NotRequired[ComputeWaitJson | None]
-    content: NotRequired[dict[str, Any] | None]
-
-
-class StatusJson(TypedDict):
-    """:class:`Status` as JSON, from the state database alone (``running`` false)."""
-
-    desired_table: DesiredTableJson | None
-    controllers: list[ControllerJson]
-    runs: list[RunSummaryJson]
-    run_counts: RunCountsJson
-    quarantined: list[QuarantinedJson]
-    state_dir: str
-    running: bool
-    health: str
-
-
-class LiveStatusJson(StatusJson, DaemonJson):
-    """:class:`Status` as JSON from a running daemon (``running`` true): its live keys
-    follow."""
 
 
 def _is_live(d: StatusJson) -> TypeGuard[LiveStatusJson]:

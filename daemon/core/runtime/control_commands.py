@@ -24,7 +24,8 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Required, TypeAlias, TypedDict
 
 from grassd import __version__
-from grassd.daemon.core.monitoring.status_types import Status, StatusJson
+from grassd.daemon.core.monitoring.status_json import StatusJson
+from grassd.daemon.core.monitoring.status_types import Status
 
 if TYPE_CHECKING:  # the outcomes (and the fleet, numpy) only where the daemon runs: clients
     # import this module for READ_ONLY_COMMANDS

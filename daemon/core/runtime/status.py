@@ -12,12 +12,12 @@ from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING
 
 from grassd.daemon.core.config.settings import Config, ControllerConfig
+from grassd.daemon.core.monitoring.status_json import PushRetryJson
 from grassd.daemon.core.monitoring.status_types import (
     ControllerStatus,
     DaemonState,
     DesiredTable,
     PushRetry,
-    PushRetryJson,
     RunCounts,
     RunSummary,
     Status,
