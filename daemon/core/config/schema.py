@@ -260,7 +260,17 @@ class Section:
     """One table of a document, checked against its schema when it is read (:meth:`read`);
     it hands out its values with the types the schema named (as each of Klipper's config
     sections hands out ``getfloat``, ``getint``), its tables as sections of their own, and
-    errors that name its keys and lines."""
+    errors that name its keys and lines.
+
+    >>> pump = Section.read(Context("rate_l_min = 2", "pump.toml"), (), {"rate_l_min": 2},
+    ...                     {"rate_l_min": Field(float, check=positive), "note": Field(str, None)})
+    >>> pump.get_float("rate_l_min"), pump.get_opt_str("note"), pump.given("note")
+    (2.0, None, False)
+    >>> raise pump.error("rate_l_min", "too slow")
+    Traceback (most recent call last):
+    ...
+    grassd.daemon.core.errors.ConfigError: pump.toml:1: rate_l_min: too slow
+    """
 
     def __init__(self, ctx: Context, path: tuple, values: dict[str, Any],
                  given: frozenset[str] = frozenset()) -> None:
