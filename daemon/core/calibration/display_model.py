@@ -24,10 +24,7 @@ group is traced and its characteristic stands for every member. :class:`Grouping
 what that costs by also tracing the member farthest from its representative, and
 :func:`errors_on` over every pixel against a per-pixel run. Grouping is only sound when pixels
 differ by geometry alone, so per-pixel tables trace one tuft layout shared by every pixel
-(:func:`shares_layout`). Measured (8 x 8 at 2 m, courtyard + 40 klx sun, 11 lengths, stderr
-0.1): 2 deg gives 23 groups (64 pixels, 9 neighbour classes), members up to 0.9 deg from their
-representative, and adds at most 0.3 dE00 to a pixel's table error, half of it Monte Carlo
-noise; 4 deg gives 19 groups and adds up to 0.4 dE00. 2 deg is the default.
+(:func:`shares_layout`). What a tolerance costs is measured in docs/calibration.md.
 
 Tables (:func:`build_display_tables`): one per pixel (per group, shared by its members), one per
 controller (its pixels' mean characteristic) or one global table (all pixels' mean). Every
@@ -415,8 +412,8 @@ def simulate_display(renderer, display, lighting, viewer, lengths_mm: np.ndarray
     ``check_groups``: also trace the farthest member of this many multi-pixel groups (widest
     first; -1 = all) to measure the grouping error, and with ``decompose`` once more from the
     representative's direction (see :class:`GroupingError`); None (default): only when every
-    pixel has its own tuft layout (with a shared one the pixel part is measured at 0.03 dE00,
-    not worth a trace per check). ``progress(done, total)`` counts traces.
+    pixel has its own tuft layout (with a shared one the pixel part is too small to be worth a
+    trace per check: docs/calibration.md). ``progress(done, total)`` counts traces.
     """
     t0 = time.perf_counter()
     if decompose is None:
