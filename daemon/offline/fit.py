@@ -787,50 +787,8 @@ def _fit(model: _Model, real: RealCapture, manifest: CaptureManifest, fit_series
         problem.weights(shape, best.x)
         best = problem.solve(shape, best.x)
     look = _ShapeSearch(problem, shape, best, say)
-
-    # The lobe's shape first, coarsely (a sharp lobe fitted with a broad one's shape looks like
-    # no gloss at all), then the splay at that shape, then the shape again, finely, at that
-    # splay: the hidden base's colour follows the lobe's shape closely (the olive pixel's blue
-    # moves about 3 levels per 0.01 of smoothness), so the shape's minimum is refined to
-    # REFINE_TOLERANCE rather than read off a coarse grid.
-    glossy_fit = "smoothness" in params and (problem.fit_ks or start.specular > 0)
-    kept: set[str] = set()  # fitted parameters the photos could not show: kept at the start
-    specular_se = 0.0  # of a fitted specular set to 0
-    if "smoothness" in params and not glossy_fit:
-        kept.add("smoothness")
-        notes.append(f"smoothness kept at {start.smoothness:g}: without a glossy lobe (specular 0, "
-                     "not fitted) its shape does not show")
-    splay_fit = "splay_deg" in params
-    if glossy_fit:
-        # Coarse only where the splay follows: the fine pass then starts at its best.
-        look.search("smoothness", SMOOTHNESS_GRID, 0, 0.0, 0.97, 0 if splay_fit else MAX_REFINE)
-    if splay_fit:
-        look.search("splay_deg", SPLAY_GRID, 1, 0.0, 30.0, MAX_REFINE)
-        if glossy_fit and not (problem.fit_ks and _lobe_hidden(*look.specular_error())):
-            s0 = look.shape[0]
-            local = sorted({float(np.clip(s0 + d, 0.0, 0.97))
-                            for d in (-SMOOTHNESS_STEP, 0.0, SMOOTHNESS_STEP)})
-            look.search("smoothness", local, 0, 0.0, 0.97, MAX_REFINE)
-    shape, best, profile = look.shape, look.best, look.profile
-    if glossy_fit and problem.fit_ks:
-        ks, ks_se = look.specular_error()
-        if _lobe_hidden(ks, ks_se):
-            # No lobe to speak of: its shape is noise. Keep the start's, refitted there.
-            notes.append(f"smoothness kept at {start.smoothness:g}: the fitted specular "
-                         f"({ks:.3f} +- {ks_se:.3f}) shows no glossy lobe whose shape the "
-                         "photos could tell")
-            shape = (start.smoothness, shape[1])
-            kept.add("smoothness")
-            if ks < max(MIN_VISIBLE_SPECULAR, 2.0 * ks_se):
-                # Within 2 standard errors of none: the simpler pixel, without a lobe.
-                notes.append(f"specular set to 0: the fitted {ks:.3f} +- {ks_se:.3f} is within "
-                             "2 standard errors of no gloss")
-                kept.add("specular")
-                specular_se = ks_se
-                best = problem.solve(shape, problem.fix_specular(best.x, 0.0))
-            else:
-                best = problem.solve(shape, best.x)
-
+    shape, best, kept, specular_se = _fit_shape(problem, look, start, params, notes)
+    profile = look.profile
     n_par = len(best.x) + sum(1 for p in ("splay_deg", "smoothness")
                               if p in profile and p not in kept)
     dof = max(len(best.residuals) - n_par, 1)
@@ -870,6 +828,58 @@ def _fit(model: _Model, real: RealCapture, manifest: CaptureManifest, fit_series
     return FitResult(pixel=pixel, stderr=stderr, start=start_fields, viewpoints=judged,
                      chi2=best.cost, dof=dof, seconds=time.perf_counter() - t0,
                      settings=settings, notes=tuple(notes), profile=profile)
+
+
+def _fit_shape(problem: _Problem, look: _ShapeSearch, start: PixelSpec,
+               params: tuple[str, ...], notes: list[str]
+               ) -> tuple[tuple[float, float], _Inner, set[str], float]:
+    """The lobe's shape and the splay searched (``look``, from the fit at the start's shape)
+    where ``params`` fit them: the shape (smoothness, splay_deg), the fit there, the fitted
+    parameters the photos could not show (kept at the start, each said in ``notes``), and the
+    standard error of a fitted specular set to 0 (0 otherwise)."""
+    # The lobe's shape first, coarsely (a sharp lobe fitted with a broad one's shape looks like
+    # no gloss at all), then the splay at that shape, then the shape again, finely, at that
+    # splay: the hidden base's colour follows the lobe's shape closely (the olive pixel's blue
+    # moves about 3 levels per 0.01 of smoothness), so the shape's minimum is refined to
+    # REFINE_TOLERANCE rather than read off a coarse grid.
+    glossy_fit = "smoothness" in params and (problem.fit_ks or start.specular > 0)
+    kept: set[str] = set()  # fitted parameters the photos could not show: kept at the start
+    specular_se = 0.0  # of a fitted specular set to 0
+    if "smoothness" in params and not glossy_fit:
+        kept.add("smoothness")
+        notes.append(f"smoothness kept at {start.smoothness:g}: without a glossy lobe (specular 0, "
+                     "not fitted) its shape does not show")
+    splay_fit = "splay_deg" in params
+    if glossy_fit:
+        # Coarse only where the splay follows: the fine pass then starts at its best.
+        look.search("smoothness", SMOOTHNESS_GRID, 0, 0.0, 0.97, 0 if splay_fit else MAX_REFINE)
+    if splay_fit:
+        look.search("splay_deg", SPLAY_GRID, 1, 0.0, 30.0, MAX_REFINE)
+        if glossy_fit and not (problem.fit_ks and _lobe_hidden(*look.specular_error())):
+            s0 = look.shape[0]
+            local = sorted({float(np.clip(s0 + d, 0.0, 0.97))
+                            for d in (-SMOOTHNESS_STEP, 0.0, SMOOTHNESS_STEP)})
+            look.search("smoothness", local, 0, 0.0, 0.97, MAX_REFINE)
+    shape, best = look.shape, look.best
+    if glossy_fit and problem.fit_ks:
+        ks, ks_se = look.specular_error()
+        if _lobe_hidden(ks, ks_se):
+            # No lobe to speak of: its shape is noise. Keep the start's, refitted there.
+            notes.append(f"smoothness kept at {start.smoothness:g}: the fitted specular "
+                         f"({ks:.3f} +- {ks_se:.3f}) shows no glossy lobe whose shape the "
+                         "photos could tell")
+            shape = (start.smoothness, shape[1])
+            kept.add("smoothness")
+            if ks < max(MIN_VISIBLE_SPECULAR, 2.0 * ks_se):
+                # Within 2 standard errors of none: the simpler pixel, without a lobe.
+                notes.append(f"specular set to 0: the fitted {ks:.3f} +- {ks_se:.3f} is within "
+                             "2 standard errors of no gloss")
+                kept.add("specular")
+                specular_se = ks_se
+                best = problem.solve(shape, problem.fix_specular(best.x, 0.0))
+            else:
+                best = problem.solve(shape, best.x)
+    return shape, best, kept, specular_se
 
 
 def _fitted_fields(problem: _Problem, best: _Inner, shape: tuple[float, float],

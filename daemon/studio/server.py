@@ -453,6 +453,21 @@ async def _drop(ws: web.WebSocketResponse, request: web.Request, why: str) -> No
             await ws.close(code=DROPPED_CODE, message=why.encode()[:120], drain=False)
 
 
+def _pinned(studio: Studio, limits: StudioLimits, given: JsonValue, tag: int,
+            send: Callable[[PageMessage], None]) -> Condition | None:
+    """The condition ``given`` to show as B beside the page's input ``tag``: None where there
+    is none, or where it cannot be used (said as B's; A goes on)."""
+    if given is None:
+        return None
+    try:
+        pinned = studio.parse(given)
+        _check_cost(studio, limits, pinned, "the condition pinned as B")
+    except _BAD_INPUT as exc:
+        send({"type": "pinned", "id": tag, "error": str(exc), "final": True})
+        return None
+    return pinned
+
+
 async def _socket(request: web.Request) -> web.WebSocketResponse:
     """One page: its latest inputs run on the simulator, the views stream back."""
     studio, simulator = request.app[STUDIO], request.app[SIMULATOR]
@@ -510,16 +525,7 @@ async def _socket(request: web.Request) -> web.WebSocketResponse:
                 simulator.cancel(owner)
                 send({"type": "error", "id": tag, "message": str(exc)})
                 continue
-            given = data.get("pinned")  # the condition shown beside it as B
-            pinned: Condition | None = None
-            if given is not None:
-                try:
-                    pinned = studio.parse(given)
-                    _check_cost(studio, limits, pinned, "the condition pinned as B")
-                except _BAD_INPUT as exc:
-                    send({"type": "pinned", "id": tag, "error": str(exc),
-                          "final": True})  # said as B's; A goes on
-                    pinned = None
+            pinned = _pinned(studio, limits, data.get("pinned"), tag, send)
 
             def emit(msg: PageMessage, tag: int = tag) -> None:
                 msg["id"] = tag
