@@ -7,7 +7,8 @@ round, the pixel's image, the table, the display showing a picture, the contrast
 condition pinned beside it), ``pace`` (how much work each step takes, for the latency goals),
 ``worker`` (the thread that runs the renderer's jobs in order, a page's newer request
 superseding its older one), ``superseding`` (how a newer request stops the launch in flight),
-``process`` (the simulator process that thread lives in) and
-``server`` (the aiohttp app: the page, its JSON API and the WebSocket that streams the views as
-they refine).
+``process`` (the simulator process that thread lives in, and the messages it exchanges with
+the server), ``server`` (the aiohttp app: the page, its JSON API and the WebSocket that streams
+the views as they refine) and ``messages`` (what the page is sent: its state, the uploads'
+answers, the streamed views).
 """
