@@ -314,6 +314,17 @@ def _rename_old(ctx: schema.Context, data: schema.TomlTable, source: Path
     return out, where
 
 
+#: What a ``[pixel]`` value must be.
+_NUMBERS = "a number or a list of numbers"
+
+
+def _numbers_only(v: schema.TomlValue) -> str | None:
+    """Check: a list given for a ``[pixel]`` value holds numbers only."""
+    ok = not isinstance(v, list) or all(
+        isinstance(x, int | float) and not isinstance(x, bool) for x in v)
+    return None if ok else f"must be {_NUMBERS}"
+
+
 def _at_least_3(v: list) -> str | None:
     return None if len(v) >= 3 else "must list at least 3 photos ({ file = ..., length_mm = ... })"
 
@@ -441,7 +452,7 @@ def load_manifest(path: str | Path) -> CaptureManifest:
     manifest_fields.check_together(ctx, top, where)
     light = _light(ctx, top, where)
     schema.table(ctx, ("pixel",), top["pixel"],  # PixelSpec checks the values when it is built
-                 {k: F(int | float | list, None, hint="a number or a list of numbers")
+                 {k: F(int | float | list, None, _numbers_only, hint=_NUMBERS)
                   for k in PixelSpec.__dataclass_fields__})
     pixel = {k: tuple(v) if isinstance(v, list) else v for k, v in top["pixel"].items()}
     if not top["series"]:
