@@ -28,8 +28,8 @@ import numpy as np
 
 from bench import HDRI_DIR
 from grassd.calib.hdr_merge import merge_ldr, recover_response, relative_exposure
-from grassd.daemon.core.hardware.bracket import BracketPlan, capture_bracket, load_codes
-from grassd.daemon.core.hardware.camera import OscClient
+from grassd.daemon.camera.bracket import BracketPlan, capture_bracket, load_codes
+from grassd.daemon.camera.client import OscClient
 from grassd.rigs.capture_round_trip import (
     ILLUMINANCE_GOAL,
     LUMINANCE_GOAL,

@@ -47,7 +47,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from bench.daemon_process import BenchDaemon, daemon_config
-from grassd.daemon.core.hardware.camera import OscClient
+from grassd.daemon.camera.client import OscClient
 from grassd.daemon.core.runtime.control import request
 from grassd.rigs.hostile_camera import HostileServer
 from grassd.rigs.hostile_decodes import dng_declaring, flat_png, run_child, small_dng

@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from grassd.daemon.camera.config import CaptureConfig
 from grassd.daemon.capture.station import HDRI_NAME, Station
-from grassd.daemon.core.config.camera_section import CaptureConfig
 from grassd.rigs.simulated_camera import SIM_WIDTH, sim_camera_from_file
 from grassd.sim.hdri import REC709_LUMINANCE, load_hdri
 from grassd.sim.lighting import horizontal_illuminance

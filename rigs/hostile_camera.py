@@ -4,7 +4,7 @@ sends a 300 MiB body (with or without Content-Length, or as an error), trickles 
 second (in the body or in the headers), sends nested JSON, garbage instead of HTTP, or a
 malformed Content-Length; any other path is an honest camera's small file.
 
-Used by ``tests/daemon/hardware/test_camera_hostile_responses.py`` and ``bench_hostile``.
+Used by ``tests/daemon/camera/test_camera_hostile_responses.py`` and ``bench_hostile``.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 ``grassd camera sim --hdri FILE`` runs one; tests and ``--simulate-hardware`` start one in a
 thread. It answers as an OSC API level 2 camera (a RICOH THETA Z1, Web API v2.1) does, with
-the same JSON shapes, so the capture station (:mod:`grassd.daemon.core.hardware.camera`) and other
+the same JSON shapes, so the capture station (:mod:`grassd.daemon.camera.client`) and other
 OSC clients drive it as they drive a THETA; only the URL differs:
 
 * ``/osc/info``, ``/osc/state``, ``/osc/commands/execute``, ``/osc/commands/status`` and the
@@ -67,7 +67,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from grassd.daemon.core.hardware.bracket import SHUTTER_SPEEDS_S
+from grassd.daemon.camera.bracket import SHUTTER_SPEEDS_S
 from grassd.rigs import (
     SIM_CAMERA_CAPTURE_MODES,
     SIM_CAMERA_CURVE,

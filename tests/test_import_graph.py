@@ -210,14 +210,18 @@ CORE = "grassd.daemon.core"
 FEATURES = ("grassd.daemon.capture", "grassd.daemon.measure", "grassd.daemon.compute",
             "grassd.daemon.content")
 TOOLS = ("grassd.daemon.studio", "grassd.daemon.offline")
+#: What features share: the OSC camera (capture and measure photograph with it). It imports
+#: the core only; features and tools may import it.
+SHARED = ("grassd.daemon.camera",)
 COMMAND_LINE = "grassd.daemon.cli"
-#: The core's imports of a feature that remain, each named (core module, feature module): the
-#: service and the configuration still know these features by name. The list may only shrink:
-#: a new edge fails, and so does one that is gone but still listed.
+#: The core's imports of a feature (or of what features share) that remain, each named (core
+#: module, feature module): the configuration still reads these sections by name. The list
+#: may only shrink: a new edge fails, and so does one that is gone but still listed.
 CORE_IMPORTS_OF_FEATURES = {
     ("grassd.daemon.core.config.settings", "grassd.daemon.compute.config"),
     ("grassd.daemon.core.config.settings", "grassd.daemon.content.config"),
     ("grassd.daemon.core.config.settings", "grassd.daemon.measure.config"),
+    ("grassd.daemon.core.config.settings", "grassd.daemon.camera.config"),
 }
 
 
@@ -248,8 +252,8 @@ def test_the_daemon_is_a_core_with_features_and_tools_around_it():
     tools exist (the layout docs/architecture.md draws)."""
     assert {_area(m) for m in MODULES if m.startswith("grassd.daemon.")} - {None} <= {
         *(a for a in {_area(m) for m in MODULES} if a and a.startswith(CORE)), CORE,
-        *FEATURES, *TOOLS, COMMAND_LINE}
-    for area in (*FEATURES, *TOOLS):
+        *FEATURES, *TOOLS, *SHARED, COMMAND_LINE}
+    for area in (*FEATURES, *TOOLS, *SHARED):
         assert area in MODULES, area
 
 
@@ -260,7 +264,7 @@ def test_the_core_imports_no_feature_tool_or_command_line():
     tools = sorted(f"{a} imports {b}" for a, b in edges
                    if _in(a, CORE) and _in(b, *TOOLS, COMMAND_LINE))
     assert not tools, tools
-    features = {(a, b) for a, b in edges if _in(a, CORE) and _in(b, *FEATURES)}
+    features = {(a, b) for a, b in edges if _in(a, CORE) and _in(b, *FEATURES, *SHARED)}
     assert not features - CORE_IMPORTS_OF_FEATURES, sorted(features - CORE_IMPORTS_OF_FEATURES)
     assert not CORE_IMPORTS_OF_FEATURES - features, sorted(CORE_IMPORTS_OF_FEATURES - features)
 
@@ -270,6 +274,14 @@ def test_features_import_neither_each_other_nor_tools():
                  for feature in FEATURES if _in(a, feature)
                  and (_in(b, *TOOLS, COMMAND_LINE) or (_in(b, *FEATURES) and not _in(b, feature))))
     assert not bad, bad
+
+
+def test_what_features_share_imports_only_the_core():
+    bad = sorted(f"{a} imports {b}" for a, b in _edges()
+                 if _in(a, *SHARED) and _in(b, *FEATURES, *TOOLS, COMMAND_LINE))
+    assert not bad, bad
+    users = {_area(a) for a, b in _edges() if _in(b, *SHARED) and not _in(a, *SHARED)}
+    assert {"grassd.daemon.capture", "grassd.daemon.measure"} <= users, users
 
 
 def test_tools_import_no_command_line():

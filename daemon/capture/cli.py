@@ -39,8 +39,8 @@ def capture_cmd(camera: str | None, inbox: str | None, lux: float | None,
     """Take one bracket with the camera, merge it and drop the bundle into the inbox."""
     import logging
 
+    from grassd.daemon.camera.config import CaptureConfig
     from grassd.daemon.capture.station import Station
-    from grassd.daemon.core.config.camera_section import CaptureConfig
     from grassd.daemon.core.errors import ConfigError
     from grassd.daemon.core.runtime.state_owner import config_as_state_owner
 

@@ -1,13 +1,13 @@
 """The capture station: bracket -> merged EXR + lux -> a bundle in the inbox, once or on a
 schedule (``grassd capture``, the ``[capture]`` section
-:mod:`grassd.daemon.core.config.camera_section`, the simulated camera
+:mod:`grassd.daemon.camera.config`, the simulated camera
 :mod:`grassd.rigs.simulated_camera`).
 
 One capture (:meth:`Station.capture_once`):
 
 1. ``/osc/info`` (model, serial, firmware), then the bracket
-   (:mod:`grassd.daemon.core.hardware.bracket`; the camera:
-   :mod:`grassd.daemon.core.hardware.camera`) into a private work directory under
+   (:mod:`grassd.daemon.camera.bracket`; the camera:
+   :mod:`grassd.daemon.camera.client`) into a private work directory under
    ``state_dir/capture/work``;
 2. the camera response: the cached one of this camera (``state_dir/capture/response/<camera
    key>-iso<ISO>-<white balance>.json``) while younger than ``response_max_age_days``, else
@@ -57,11 +57,11 @@ from grassd.calib.errors import (
     HdrMergeError,
     RawReadError,
 )
-from grassd.daemon.core.config.camera_section import CaptureConfig
+from grassd.daemon.camera.bracket import BracketPlan, Shot, capture_bracket, load_codes
+from grassd.daemon.camera.client import CameraInfo, OscClient
+from grassd.daemon.camera.config import CaptureConfig
 from grassd.daemon.core.config.settings import Config, ModbusConfig
 from grassd.daemon.core.errors import BracketUnusable, CameraBusy, CaptureError, LuxSensorError
-from grassd.daemon.core.hardware.bracket import BracketPlan, Shot, capture_bracket, load_codes
-from grassd.daemon.core.hardware.camera import CameraInfo, OscClient
 from grassd.daemon.core.runtime.statelock import StateLock
 from grassd.daemon.core.store.atomic import (
     atomic_write_json,

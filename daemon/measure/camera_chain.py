@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 from grassd.daemon.core.errors import DaemonError
 
 if TYPE_CHECKING:
-    from grassd.daemon.core.hardware.camera import OscClient
+    from grassd.daemon.camera.client import OscClient
 
 log = logging.getLogger(__name__)
 
@@ -219,10 +219,10 @@ def develop_shot(shot: Shot, setup: MeasureSetup, lux: float) -> NDArray[np.floa
 
 
 class MeasuringCamera:
-    """Shots from an OSC camera (:class:`~grassd.daemon.core.hardware.camera.OscClient`) in RAW+
+    """Shots from an OSC camera (:class:`~grassd.daemon.camera.client.OscClient`) in RAW+
     at a fixed ISO into ``dest``; the exposure is metered by the camera for each shot and read
     back as the capture station reads it
-    (:func:`~grassd.daemon.core.hardware.bracket.real_exposure`)."""
+    (:func:`~grassd.daemon.camera.bracket.real_exposure`)."""
 
     def __init__(self, client: OscClient, dest: Path, iso: int) -> None:
         self.client, self.dest, self.iso = client, dest, iso
@@ -245,7 +245,7 @@ class MeasuringCamera:
         """Take one shot named ``name`` (file stem); returns its DNG and exposure. ``ev``:
         0 lets the camera meter (ISO priority); otherwise the shutter is set ``ev`` stops from
         the last metered one (manual exposure), e.g. -2 for a scene the meter overexposes."""
-        from grassd.daemon.core.hardware.bracket import SHUTTER_SPEEDS_S, BracketPlan, real_exposure
+        from grassd.daemon.camera.bracket import SHUTTER_SPEEDS_S, BracketPlan, real_exposure
 
         self.dest.mkdir(parents=True, exist_ok=True)
         self.prepare()

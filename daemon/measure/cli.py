@@ -22,7 +22,7 @@ from grassd.daemon.core.config.settings import CONFIG_OPTION_HELP, Config
 from grassd.rigs import FIRMWARE_BACKENDS
 
 if TYPE_CHECKING:
-    from grassd.daemon.core.hardware.camera import OscClient
+    from grassd.daemon.camera.client import OscClient
     from grassd.daemon.measure.report import MeasurementReport
     from grassd.rigs.simulated_camera import SimCamera
     from grassd.rigs.simulated_display import SimulatedDisplay

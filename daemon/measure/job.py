@@ -30,8 +30,8 @@ from typing import TYPE_CHECKING
 from grassd.daemon.core.errors import USER_ERRORS, DaemonError, RunInterrupted
 
 if TYPE_CHECKING:
+    from grassd.daemon.camera.client import OscClient
     from grassd.daemon.core.config.settings import Config
-    from grassd.daemon.core.hardware.camera import OscClient
     from grassd.daemon.core.runtime.service import Service
     from grassd.daemon.measure.report import MeasurementReport
 
@@ -43,8 +43,8 @@ def measuring_camera(cfg: Config) -> tuple[OscClient, Path | None]:
     station's camera, else None)."""
     from dataclasses import replace
 
-    from grassd.daemon.core.config.camera_section import CaptureConfig
-    from grassd.daemon.core.hardware.camera import OscClient
+    from grassd.daemon.camera.client import OscClient
+    from grassd.daemon.camera.config import CaptureConfig
 
     mc = cfg.measure
     if mc.camera == "capture":

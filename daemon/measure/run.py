@@ -64,11 +64,11 @@ from grassd.daemon.measure.report import MeasurementReport, Uniformity
 
 if TYPE_CHECKING:
     from grassd.calib.display_in_photo import DisplayInPhoto
+    from grassd.daemon.camera.client import OscClient
     from grassd.daemon.core.calibration.calibrate import Calibrates
     from grassd.daemon.core.calibration.correction import DisplayCorrection
     from grassd.daemon.core.calibration.result import CalibrationResult
     from grassd.daemon.core.config.settings import Config, ViewpointConfig
-    from grassd.daemon.core.hardware.camera import OscClient
     from grassd.daemon.core.hardware.fleet import Fleet
     from grassd.daemon.measure.camera_chain import MeasureSetup, Shot
     from grassd.daemon.measure.pixel_model import PixelColourModel, VariationFit

@@ -28,7 +28,7 @@ The file (default ``/etc/grassd/grassd.toml``; the embedded default is
                    group_tolerance_deg, distance_tolerance, check_groups (see TablesConfig):
                    the table(s) the daemon pushes, one per controller / per pixel or global
     [capture]      optional capture station: camera URL, bracket, interval
-                   (see grassd.daemon.core.config.camera_section)
+                   (see grassd.daemon.camera.config)
     [measure]      optional: the camera that photographs the display, interval, tolerance
                    (see grassd.daemon.measure.config)
     [audience]     optional region: polygon = [[x, y], ...] (m), h_cm = [low, high],
@@ -89,8 +89,8 @@ from grassd.sim.kernel_cache import default_cache_dir
 from grassd.sim.scene import MAX_REPLICATES, PixelSpec
 
 if TYPE_CHECKING:
+    from grassd.daemon.camera.config import CaptureConfig
     from grassd.daemon.content.config import ContentConfig
-    from grassd.daemon.core.config.camera_section import CaptureConfig
     from grassd.daemon.measure.config import MeasureConfig
 
 #: Where the packaged daemon looks when no ``--config`` is given.
@@ -385,7 +385,7 @@ class Config:
     metrics: MetricsConfig = MetricsConfig()
     alerts: AlertsConfig = AlertsConfig()
     compute: ComputeConfig = ComputeConfig()
-    #: the capture station (:mod:`grassd.daemon.core.config.camera_section`), None without [capture]
+    #: the capture station (:mod:`grassd.daemon.camera.config`), None without [capture]
     capture: CaptureConfig | None = None
     #: the display's measuring camera (:mod:`grassd.daemon.measure.config`), None without
     measure: MeasureConfig | None = None
@@ -827,9 +827,9 @@ def _content_section(top: _Section) -> ContentConfig | None:
 
 
 def _capture_section(top: _Section) -> CaptureConfig | None:
-    """``[capture]``, validated by :mod:`grassd.daemon.core.config.camera_section` (imported lazily:
+    """``[capture]``, validated by :mod:`grassd.daemon.camera.config` (imported lazily:
     only a configuration with a capture station needs it)."""
-    from grassd.daemon.core.config.camera_section import parse_capture
+    from grassd.daemon.camera.config import parse_capture
 
     return parse_capture(top)
 

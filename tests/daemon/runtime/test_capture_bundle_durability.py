@@ -10,8 +10,8 @@ import os
 
 import numpy as np
 
+from grassd.daemon.camera.config import CaptureConfig
 from grassd.daemon.capture.station import Station
-from grassd.daemon.core.config.camera_section import CaptureConfig
 from grassd.rigs.simulated_camera import SimCamera
 
 

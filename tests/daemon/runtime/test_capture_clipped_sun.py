@@ -9,9 +9,9 @@ from datetime import UTC, datetime
 import numpy as np
 import pytest
 
+from grassd.daemon.camera.config import CaptureConfig
 from grassd.daemon.capture.station import Station
 from grassd.daemon.core.calibration.calibrate import Calibrator
-from grassd.daemon.core.config.camera_section import CaptureConfig
 from grassd.daemon.core.config.settings import load_default_config
 from grassd.daemon.core.store.manifest import parse_manifest
 from grassd.rigs.simulated_camera import SimCamera

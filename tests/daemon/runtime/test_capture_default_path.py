@@ -14,8 +14,8 @@ the forest's brightest texels clip: 3.37 % and 2.77 %; reaching
 
 from __future__ import annotations
 
-from grassd.daemon.core.config.camera_section import CaptureConfig
-from grassd.daemon.core.hardware.bracket import SHUTTER_SPEEDS_S, BracketPlan, plan_shutters
+from grassd.daemon.camera.bracket import SHUTTER_SPEEDS_S, BracketPlan, plan_shutters
+from grassd.daemon.camera.config import CaptureConfig
 from grassd.rigs.capture_round_trip import ILLUMINANCE_GOAL, LUMINANCE_GOAL, default_path_round_trip
 from grassd.rigs.simulated_camera import SIM_WIDTH
 

@@ -14,8 +14,8 @@ import tomllib
 import numpy as np
 import pytest
 
+from grassd.daemon.camera.config import CaptureConfig
 from grassd.daemon.capture.station import Station
-from grassd.daemon.core.config.camera_section import CaptureConfig
 from grassd.daemon.core.config.settings import load_default_config
 from grassd.daemon.core.errors import (
     BracketUnusable,

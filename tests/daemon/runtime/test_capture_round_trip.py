@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from grassd.calib.hdr_merge import merge_ldr, recover_response, relative_exposure
-from grassd.daemon.core.hardware.bracket import BracketPlan, capture_bracket, load_codes
-from grassd.daemon.core.hardware.camera import OscClient
+from grassd.daemon.camera.bracket import BracketPlan, capture_bracket, load_codes
+from grassd.daemon.camera.client import OscClient
 from grassd.rigs.simulated_camera import SimCamera
 from grassd.sim.hdri import REC709_LUMINANCE, default_site_hdri, downsample, load_hdri
 from grassd.sim.lighting import horizontal_illuminance

@@ -8,8 +8,8 @@ import time
 
 import numpy as np
 
+from grassd.daemon.camera.config import CaptureConfig
 from grassd.daemon.capture.station import CaptureLoop, Station
-from grassd.daemon.core.config.camera_section import CaptureConfig
 from grassd.daemon.core.config.settings import load_default_config
 from grassd.rigs.simulated_camera import SimCamera
 from grassd.rigs.simulated_site import SimLuxSensor

@@ -1,7 +1,7 @@
 """An exposure bracket from an OSC camera, with each shot's real exposure.
 
 The camera is first put in still-image capture (``captureMode`` "image",
-:meth:`~grassd.daemon.core.hardware.camera.OscClient.ensure_image_mode`). The plan
+:meth:`~grassd.daemon.camera.client.OscClient.ensure_image_mode`). The plan
 (:class:`BracketPlan`): ``shots`` exposures ``ev_step`` EV apart around a centre
 shutter, at a fixed ISO and white balance (manual program, ``exposureProgram = 1``), so that
 only the shutter changes. The centre is either given or metered: one shot in ISO-priority
@@ -30,14 +30,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from grassd.daemon.core.config.camera_section import CaptureConfig
+from grassd.daemon.camera.client import OscClient
+from grassd.daemon.camera.config import CaptureConfig
+from grassd.daemon.camera.messages import ExifValue, OscResults
 from grassd.daemon.core.errors import (
     CameraDownloadError,
     CameraProtocolError,
     ExposureMissing,
 )
-from grassd.daemon.core.hardware.camera import OscClient
-from grassd.daemon.core.hardware.osc_messages import ExifValue, OscResults
 
 if TYPE_CHECKING:
     from PIL import Image
@@ -64,7 +64,7 @@ class BracketPlan:
     shutter ``centre_shutter_s`` (s; None = meter first), shutter limits (s), ``file_format``
     "jpeg" or "raw+" (JPEG and DNG per shot, THETA Z1).
     Defaults: those of ``[capture]``
-    (:class:`~grassd.daemon.core.config.camera_section.CaptureConfig`)."""
+    (:class:`~grassd.daemon.camera.config.CaptureConfig`)."""
 
     shots: int = CaptureConfig.shots
     ev_step: float = CaptureConfig.ev_step

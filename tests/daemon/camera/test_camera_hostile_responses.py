@@ -12,7 +12,8 @@ import tracemalloc
 
 import pytest
 
-from grassd.daemon.core.config.camera_section import CaptureConfig
+from grassd.daemon.camera.client import OscClient
+from grassd.daemon.camera.config import CaptureConfig
 from grassd.daemon.core.errors import (
     CameraDownloadError,
     CameraHttpError,
@@ -20,7 +21,6 @@ from grassd.daemon.core.errors import (
     CameraUnreachable,
     CaptureError,
 )
-from grassd.daemon.core.hardware.camera import OscClient
 from grassd.rigs.hostile_camera import HUGE, HostileServer, MiB
 from grassd.rigs.peak_memory import peak_rss_growth
 

@@ -9,9 +9,9 @@ import time
 
 import pytest
 
-from grassd.daemon.core.config.camera_section import CaptureConfig
+from grassd.daemon.camera.client import CameraDownloadTooSlow, OscClient
+from grassd.daemon.camera.config import CaptureConfig
 from grassd.daemon.core.errors import CameraDownloadError
-from grassd.daemon.core.hardware.camera import CameraDownloadTooSlow, OscClient
 from grassd.rigs.hostile_camera import HostileServer
 
 pytestmark = pytest.mark.timeout(60)

@@ -10,9 +10,9 @@ import time
 import numpy as np
 import pytest
 
+from grassd.daemon.camera.bracket import BracketPlan, capture_bracket
+from grassd.daemon.camera.client import OscClient
 from grassd.daemon.core.errors import CameraCommandRefused, CameraHttpError, CaptureModeRefused
-from grassd.daemon.core.hardware.bracket import BracketPlan, capture_bracket
-from grassd.daemon.core.hardware.camera import OscClient
 from grassd.rigs.simulated_camera import SimCamera
 
 pytestmark = pytest.mark.timeout(60)

@@ -15,8 +15,8 @@ import urllib.request
 import numpy as np
 import pytest
 
-from grassd.daemon.core.hardware.bracket import SHUTTER_SPEEDS_S
-from grassd.daemon.core.hardware.camera import OscClient
+from grassd.daemon.camera.bracket import SHUTTER_SPEEDS_S
+from grassd.daemon.camera.client import OscClient
 from grassd.rigs.simulated_camera import (
     ISO_VALUES,
     MAX_DELETE_URLS,

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from grassd.daemon.camera.bracket import Shot, file_exposure, load_codes
 from grassd.daemon.core.errors import CameraDownloadError
-from grassd.daemon.core.hardware.bracket import Shot, file_exposure, load_codes
 from grassd.rigs.peak_memory import refusal_cost
 from grassd.sim.hdri import MAX_TEXELS
 

@@ -1,5 +1,5 @@
 """The messages of the Open Spherical Camera API that grassd sends and reads, as the JSON
-objects they are (:mod:`grassd.daemon.core.hardware.camera` speaks them). A camera's answer is
+objects they are (:mod:`grassd.daemon.camera.client` speaks them). A camera's answer is
 not trusted: the client checks the keys it reads before it reads them."""
 
 from __future__ import annotations

@@ -35,7 +35,7 @@ reading of that shaded sensor is the ambient lux and the difference is the sun's
 
 The camera and anyone on its network are not trusted: the client follows no redirect, reads no
 answer past its byte cap, and ends every request at its deadline however slowly the bytes come
-(:mod:`grassd.daemon.core.hardware.camera`). OSC answers are a few kB (a THETA's ``_getMetadata``
+(:mod:`grassd.daemon.camera.client`). OSC answers are a few kB (a THETA's ``_getMetadata``
 EXIF, the largest, about 5 kB); a THETA Z1 DNG is about 50 MB and its JPEG about 10 MB, which a
 weak 2 Mbit/s link brings in about 200 s.
 """

@@ -67,7 +67,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, NoReturn, Unpack, cast
 
-from grassd.daemon.core.config.camera_section import CaptureConfig
+from grassd.daemon.camera.config import CaptureConfig
+from grassd.daemon.camera.messages import (
+    ExifValue,
+    OscCommand,
+    OscErrorBody,
+    OscOptions,
+    OscParameters,
+    OscRequest,
+    OscResults,
+    OscState,
+)
 from grassd.daemon.core.errors import (
     CameraCommandRefused,
     CameraCommandTimeout,
@@ -77,16 +87,6 @@ from grassd.daemon.core.errors import (
     CameraProtocolError,
     CameraUnreachable,
     CaptureModeRefused,
-)
-from grassd.daemon.core.hardware.osc_messages import (
-    ExifValue,
-    OscCommand,
-    OscErrorBody,
-    OscOptions,
-    OscParameters,
-    OscRequest,
-    OscResults,
-    OscState,
 )
 
 log = logging.getLogger(__name__)
