@@ -146,18 +146,13 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     often lands just above the target; at most ``MAX_REPLICATES`` a round). The first round
     needs at least 2 replicates (their spread is the error). A length's OGCD and its error
     come from the replicates that traced it (the reference's from the same ones, so the
-    common random numbers keep cancelling); a length at or below the target keeps them. A
-    replicate of 4096 paths x 21 lengths costs about 0.03 s on 2 cores.
+    common random numbers keep cancelling); a length at or below the target keeps them.
 
     ``layouts``: replicate j traces the display with ``layout_seed + (j mod layouts)`` and its
     own paths (:func:`layout_seed`), so the curve is the mean over that many random tuft
     layouts (as many as the first round's replicates at most; equal weights when they divide
     the replicates) and its standard error holds their spread. The installed pixels' tufts
-    are none of them, so the mean of several is the truer target: measured against the mean
-    of 32 layouts (courtyard 5000 lx, forest 8000 lx, interior 500 lx; (170, 2, 0), 21
-    lengths, 4096 x 8 paths, 6 draws each), the OGCD's RMS error is 0.27-0.35 dE00 from one
-    layout, 0.16-0.18 from 4 and 0.12-0.13 from 8 (largest error 0.41-0.60, 0.26-0.28,
-    0.20-0.24), for the same paths.
+    are none of them, so the mean of several is the truer target (docs/calibration.md).
 
     ``on_round`` is called with the curve so far after every round (an interactive view
     refines as they arrive); an exception it raises ends the run. ``round_replicates`` caps
@@ -222,33 +217,41 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
         shown = on_round is not None and n >= run.show_from
         curve = None
         if shown or done:
-            mean = np.nanmean(x, axis=0)  # NaN: replicates that did not trace the length
-            rgb_se = np.nanstd(x, axis=0, ddof=1) / np.sqrt(counts)[:, None]
             curve = SimulatedCurve(
                 h_cm=viewpoint.h_cm, d_m=viewpoint.d_m, theta_deg=viewpoint.theta_deg,
-                lengths_mm=lengths_mm, rgb_linear=mean, rgb_stderr=rgb_se, lab=lab, ogcd=ogcd,
-                ogcd_stderr=se, replicates=n, seconds=dict(run.seconds),
+                lengths_mm=lengths_mm, rgb_linear=np.nanmean(x, axis=0),  # NaN: not traced
+                rgb_stderr=np.nanstd(x, axis=0, ddof=1) / np.sqrt(counts)[:, None], lab=lab,
+                ogcd=ogcd, ogcd_stderr=se, replicates=n, seconds=dict(run.seconds),
                 rounds=tuple(rounds), length_replicates=counts.copy(),
                 paths_traced=run.traced_paths, step_stderr=step_se,
             )
         if not run.decided:  # the next round, decided before the curve is shown (which may
             # stop the run); what may raise comes first, the run's state changes last
-            if not done:
-                nxt = (None if _larger_series(run, larger, n, worst, target_stderr,
-                                              first_round)
-                       else _next_round(se, counts, target_stderr, run.least,
-                                        min(run.max_replicates - n, run.round_replicates,
-                                            MAX_REPLICATES)))
-                if nxt is not None:
-                    run.b, run.cols = nxt
-                run.k += 1
-            run.rounds.append((n, worst))
-            run.decided = True
+            _decide_next(run, larger, se, counts, target_stderr, first_round, done)
         if shown:
             run.shown = curve
             on_round(curve)
         if done:
             return curve
+
+
+def _decide_next(run: CurveRun, larger: LargerReplicates | None, se: np.ndarray,
+                 counts: np.ndarray, target_stderr: float | None, first_round: int,
+                 done: bool) -> None:
+    """Decide ``run``'s next round from this one's OGCD standard errors ``se`` [dE00] and
+    replicate ``counts`` per length: a new series of larger replicates, or the lengths and
+    replicates the target still needs (none when ``done``); the round is then recorded."""
+    n, worst = int(counts[0]), float(np.max(se))
+    if not done:
+        nxt = (None if _larger_series(run, larger, n, worst, target_stderr, first_round)
+               else _next_round(se, counts, target_stderr, run.least,
+                                min(run.max_replicates - n, run.round_replicates,
+                                    MAX_REPLICATES)))
+        if nxt is not None:
+            run.b, run.cols = nxt
+        run.k += 1
+    run.rounds.append((n, worst))
+    run.decided = True
 
 
 @dataclass
