@@ -14,12 +14,8 @@ from headless_chromium import CHROMIUM, MISSING, Browser
 from measurement_samples import failed_report, ok_report
 
 from grassd.daemon.core.store.layout import StateLayout
-from grassd.daemon.measure.report import (
-    grid_shape,
-    load_reports,
-    trend,
-    write_report,
-)
+from grassd.daemon.measure.report import load_reports, trend, write_report
+from grassd.daemon.measure.report_page import grid_shape
 
 EVIL = "camera <script>alert(1)</script>\n\x1b[2J"
 
