@@ -128,6 +128,21 @@ def test_grid_shape_and_a_report_missing_most_keys(tmp_path):
     assert "measurement 20260101T000000Z: no verdict" in page
 
 
+def test_a_report_the_page_cannot_render_still_gets_a_page_saying_so(tmp_path, monkeypatch,
+                                                                     caplog):
+    from grassd.daemon.measure import report_page
+
+    def broken(report, past):
+        raise KeyError("camera")
+
+    monkeypatch.setattr(report_page, "render_report", broken)
+    path = write_report(StateLayout(tmp_path / "state"), ok_report("20260101T000000Z"))
+    page = path.with_suffix(".html").read_text()
+    assert "could not be rendered: &#x27;camera&#x27;" in page and path.name in page
+    assert json.loads(path.read_text())["measurement"] == "20260101T000000Z"
+    assert "HTML report not rendered" in caplog.text
+
+
 @pytest.mark.skipif(CHROMIUM is None, reason=MISSING)
 def test_report_renders_in_headless_chromium(tmp_path):
     layout = StateLayout(tmp_path / "state")
