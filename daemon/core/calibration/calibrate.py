@@ -14,10 +14,9 @@ granularity`` and ``[audience]`` ask, goes through :meth:`Calibrator.run`:
    the paper's 3x3, or Finlayson's root-polynomial, chosen by the leave-one-out error the
    report prints (``[calibration] ccm``). A photo whose patches clip is refused. Without a
    RAW the last correction is reused (``previous_ccm``), else none is applied.
-3. **Units** from the run's source (:mod:`grassd.daemon.core.calibration.units`): the centre pixel
-of
-   a patch from every viewpoint (one table), the whole display from every viewpoint, or an
-   audience region; renders in nits are divided by the radiance of a perfect diffuse white
+3. **Units** from the run's source (:mod:`grassd.daemon.core.calibration.units`): the centre
+   pixel of a patch from every viewpoint (one table), the whole display from every viewpoint,
+   or an audience region; renders in nits are divided by the radiance of a perfect diffuse white
    lying flat at the display (:func:`grassd.daemon.core.calibration.simulation.simulate_curve`),
    OGCD per viewer with correlation-aware errors from ``replicates``, averaged with the weights.
 4. **Shape check** of every unit's characteristic and **table checks** of every table
