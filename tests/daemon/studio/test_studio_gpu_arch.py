@@ -29,7 +29,11 @@ def gpu_studio(tmp_path_factory, shared_hdri):
 
 def test_the_same_request_gives_the_cpus_numbers(gpu_studio, studio):
     """Without a target both trace the same replicates with the same seeds: the OGCD agrees to
-    float rounding (a ray grazing a blade's edge may take the other branch on one of them)."""
+    float rounding (a ray grazing a blade's edge may take the other branch on one of them).
+
+    A replicate moved by d moves the mean of n by d/n and the standard error (ddof 1) by at most
+    d/n too, so the standard errors may differ by the means' difference beyond rounding; a
+    standard error computed another way (n for n - 1: 7 % at 8 replicates) exceeds that."""
     ask = {**GOOD, "sun_lux": 30000, "sun_azimuth_deg": 200, "sun_elevation_deg": 20,
            "splay_deg": 8}
     status, gpu = gpu_studio.request("api/characteristic", ask)
@@ -40,7 +44,8 @@ def test_the_same_request_gives_the_cpus_numbers(gpu_studio, studio):
     se = np.hypot(gpu["ogcd_stderr"], cpu["ogcd_stderr"])
     diff = np.abs(np.subtract(gpu["ogcd"], cpu["ogcd"]))
     assert cpu["ogcd"][-1] > 10 and np.all(diff <= 0.2 * se + 1e-3), (gpu, cpu)
-    np.testing.assert_allclose(gpu["ogcd_stderr"], cpu["ogcd_stderr"], rtol=0.02, atol=1e-4)
+    moved = np.abs(np.subtract(gpu["ogcd_stderr"], cpu["ogcd_stderr"]))
+    assert np.all(moved <= diff + 0.02 * np.asarray(cpu["ogcd_stderr"]) + 1e-4), (gpu, cpu)
 
 
 def test_a_pages_inputs_get_every_view_and_the_newer_supersedes(gpu_studio):
