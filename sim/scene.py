@@ -219,7 +219,10 @@ class RenderSettings:
     stratification), ``replicates`` independent randomisations whose spread gives the standard
     error (one alone gives none: a top-up batch of an adaptive run), ``max_bounces`` surface
     interactions per path (1 = direct light only; Mitsuba's ``max_depth`` is
-    ``max_bounces + 1``), ``seed`` makes results bit-reproducible,
+    ``max_bounces + 1``; by default :data:`MAX_BOUNCES`, so Russian roulette alone ends a path
+    and the estimate is unbiased: a path survives to the 64th surface with probability
+    ``0.5**62``, while any cut at a few bounces darkens a pale pixel's colour),
+    ``seed`` makes results bit-reproducible,
     ``light_samples`` environment samples (shadow rays) at the first surface a path meets (one
     at later ones), ``roulette_from`` the surface (0 = the first a path meets) from which on
     Russian roulette may end a path (:mod:`grassd.sim.renderer` gives the measurements behind
@@ -228,7 +231,7 @@ class RenderSettings:
 
     samples: int = 4096
     replicates: int = 8
-    max_bounces: int = 3
+    max_bounces: int = MAX_BOUNCES
     seed: int = 0
     light_samples: int = 4
     roulette_from: int = 2

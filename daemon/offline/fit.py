@@ -359,7 +359,7 @@ class _Model:
         if key not in self._means:
             self._means[key] = np.mean([terms[k].coefficients.mean(axis=0) for k in chosen],
                                        axis=0)
-        mono = monomial_values(albedo, ks)
+        mono = monomial_values(albedo, ks, terms[0].degree)
         return np.einsum("nmc,mc->nc", self._means[key], mono) / self.white
 
     def lab(self, rgb: NDArray[np.float64]) -> NDArray[np.float64]:

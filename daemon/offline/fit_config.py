@@ -9,20 +9,24 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from grassd.sim.scene import RenderSettings
+
 
 @dataclass(frozen=True)
 class FitSettings:
     """Monte Carlo settings of the fit: ``samples`` camera paths per length per replicate,
     ``replicates`` per layout, ``layouts`` random tuft layouts averaged (seeds from the start
-    pixel's ``layout_seed`` on), ``seed`` of the paths, ``max_bounces`` (at most 3: the
-    recorded polynomial's degree), ``lab_floor``: the photos' own noise per CIELAB component,
-    added to the layout spread and the Monte Carlo error in the residuals' weights."""
+    pixel's ``layout_seed`` on), ``seed`` of the paths, ``max_bounces`` (the renderer's
+    default: Russian roulette alone; up to 3 the recorded polynomial is exact at any albedo,
+    deeper paths are recorded to :data:`grassd.sim.albedo_terms.TERM_DEGREE` with a tail term),
+    ``lab_floor``: the photos' own noise per CIELAB component, added to the layout spread and
+    the Monte Carlo error in the residuals' weights."""
 
     samples: int = 1024
     replicates: int = 4
     layouts: int = 6
     seed: int = 0
-    max_bounces: int = 3
+    max_bounces: int = RenderSettings.max_bounces
     lab_floor: float = 0.25
 
     def __post_init__(self) -> None:

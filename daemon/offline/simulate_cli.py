@@ -61,8 +61,10 @@ def _light_options(f):
                      help="Glossy reflectance added to every surface (0 = diffuse only)."),
         click.option("--smoothness", type=float, default=0.5, show_default=True,
                      help="Sharpness of the glossy lobe (0..0.97, Unity-style)."),
-        click.option("--bounces", type=int, default=3, show_default=True,
-                     help="Surface interactions per path."),
+        click.option("--bounces", type=int, default=RENDER_DEFAULTS.max_bounces,
+                     show_default=True,
+                     help="Most surface interactions per path (the default lets Russian "
+                     "roulette alone end a path: unbiased)."),
     ]
     for opt in reversed(opts):
         f = opt(f)

@@ -46,7 +46,7 @@ def capture_world(out_dir: str | Path, light: LightInput,
                   model_pixel: Mapping[str, float | Sequence[float]] | None = None,
                   camera: VirtualCamera | None = None, renderer: Renderer | None = None,
                   lighting: Lighting | None = None, width: int = 160, spp: int = 32,
-                  max_bounces: int = 3, seed: int = 0, chart: str = "spydercheckr-24",
+                  max_bounces: int | None = None, seed: int = 0, chart: str = "spydercheckr-24",
                   progress: Callable[[str], None] | None = None,
                   cache: dict | None = None, extra_trials: int = 0) -> CaptureManifest:
     """Photograph ``real_pixel`` (a :class:`grassd.sim.scene.PixelSpec`; default the model's)
@@ -54,7 +54,8 @@ def capture_world(out_dir: str | Path, light: LightInput,
     in ``out_dir`` and write ``capture.toml``; returns the manifest.
 
     ``model_pixel``: the PixelSpec fields the manifest gives the simulation (default: none,
-    i.e. the default PixelSpec). ``width``/``spp``: preview resolution and samples per pixel.
+    i.e. the default PixelSpec). ``width``/``spp``: preview resolution and samples per pixel;
+    ``max_bounces``: None for the renderer's default (Russian roulette alone, unbiased).
     The first viewpoint is marked the reference. Exposure is fixed for the session from the
     white-card radiance, as a photographer would set it. ``cache``: a dict that keeps the
     rendered views (keyed by everything they depend on but the lighting, so use one cache per
@@ -68,6 +69,7 @@ def capture_world(out_dir: str | Path, light: LightInput,
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    max_bounces = RenderSettings.max_bounces if max_bounces is None else max_bounces
     camera = camera or VirtualCamera()
     lighting = lighting if lighting is not None else light.lighting()
     given = {k: tuple(v) if isinstance(v, Sequence) else v

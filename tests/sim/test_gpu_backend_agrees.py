@@ -23,7 +23,7 @@ RENDERS = {
                       "LENGTHS, RenderSettings(samples=1024, replicates=4, seed=3))"
                       ".rgb_replicates",
     "terms": "R.albedo_terms(DisplaySpec(PixelSpec()), L, VIEW, LENGTHS, "
-             "RenderSettings(samples=1024, replicates=2, seed=4)).coefficients",
+             "RenderSettings(samples=1024, replicates=2, seed=4, max_bounces=3)).coefficients",
     "image": "R.preview(DisplaySpec(PixelSpec()), L, VIEW, 12.0, width=48, spp=4, "
              "settings=RenderSettings(seed=5))[0]",
 }

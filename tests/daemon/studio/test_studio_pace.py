@@ -24,9 +24,11 @@ def test_a_splayed_characteristic_takes_smaller_replicates_and_as_many_paths():
 
 
 def test_a_low_sun_converges_on_larger_replicates(renderer, shared_hdri):
-    """Under a low sun the first 8 x 1024 paths say the target needs more than 64 x 1024, so
-    the run goes on with replicates of 8192 paths: it meets 0.1 dE00 with 8-32 of them
-    (with replicates of 1024 it took 106-149, 2.4 s against 1.4 s)."""
+    """Under a low sun the first look (4 x 1024 paths) or the second (8 x 1024) says the target
+    needs more than 64 x 1024, so the run goes on with replicates of 8192 paths: it meets
+    0.1 dE00 with 8-32 of them (with replicates of 1024 it took 106-149, 2.4 s against 1.4 s).
+    A round adds replicates to its series, so a round with no more than the last starts the new
+    series."""
     from grassd.daemon.core.calibration.simulation import LargerReplicates
 
     st, cond = studio_and_condition(shared_hdri("courtyard"), {
@@ -34,7 +36,9 @@ def test_a_low_sun_converges_on_larger_replicates(renderer, shared_hdri):
         "sun": LOW_SUN})
     seen = []
     curve = st.characteristic(cond, target_stderr=0.1, on_round=seen.append)
-    assert [c.replicates for c in seen[:2]] == [pace.FIRST_REPLICATES, 8]
+    counts = [c.replicates for c in seen]
+    assert counts[0] == pace.FIRST_REPLICATES
+    assert next(i for i in range(1, len(counts)) if counts[i] <= counts[i - 1]) <= 2, counts
     assert LargerReplicates().least <= curve.replicates <= 32
     assert float(curve.ogcd_stderr.max()) <= 0.1 and seen[-1] is curve
     assert curve.paths_traced > 0 and curve.ogcd[-1] > 20  # the sunlit blades' contrast
