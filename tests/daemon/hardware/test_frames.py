@@ -237,10 +237,10 @@ def _plain_spreads(buses: list[PosixBus]) -> list[float]:
 @pytest.mark.parametrize("firmware", FIRMWARES)
 def test_a_push_during_a_stream(tmp_path, firmware):
     """Per-pixel tables pushed to all four controllers while 30 frames a second play: frames
-    keep at least 90 % of their rate, the peak RSS of this process (the fleet, the frame
-    output, the model's controllers; not the posix firmware's processes) grows at most
-    16 MiB during the push, and the push's chunks keep to the cap; afterwards every target is
-    the new table's."""
+    keep at least 90 % of the rate this machine kept just before the push (under its load
+    now), the peak RSS of this process (the fleet, the frame output, the model's controllers;
+    not the posix firmware's processes) grows at most 16 MiB during the push, and the push's
+    chunks keep to the cap; afterwards every target is the new table's."""
     with ExitStack() as stack:
         buses = start_lines(firmware, tmp_path, stack)
         ctls = line_configs([b.path for b in buses])
@@ -250,8 +250,12 @@ def test_a_push_during_a_stream(tmp_path, firmware):
         out = stack.enter_context(FrameOutput(ctls, N, fps=30, fleet=fleet))
         assert fleet.client(ctls[0]).chunk_cap == stream_chunk_bytes(BAUD, 0.01) == 64
         with Stream(out, 30) as stream:
+            time.sleep(0.5)
+            start, s0 = out.stats(), time.monotonic()
             time.sleep(1.0)
             before = out.stats()
+            # the rate this machine keeps without the push, under the load it has now
+            steady = (before.frames_shown - start.frames_shown) / (time.monotonic() - s0)
             got: list = []
             raised, dt, growth = peak_rss_growth(lambda: got.append(fleet.push(new, 2)),
                                                  every_s=0.01)
@@ -261,10 +265,11 @@ def test_a_push_during_a_stream(tmp_path, firmware):
             time.sleep(1.2)  # at least one more frame through the new tables
         assert all(r.ok and r.pushed for r in reports), reports
         rate = (during.frames_shown - before.frames_shown) / dt
-        print(f"push of 4 x 8 KiB in {dt:.2f} s; frames during it {rate:.1f}/s, latency "
+        print(f"push of 4 x 8 KiB in {dt:.2f} s; frames during it {rate:.1f}/s "
+              f"({steady:.1f} before), latency "
               f"median {during.latency_ms_median:.1f} ms p99 {during.latency_ms_p99:.1f} ms; "
               f"peak RSS +{growth / 2**20:.1f} MiB")
-        assert dt > 1.0 and rate >= RATE_KEPT * 30
+        assert dt > 1.0 and rate >= RATE_KEPT * steady and steady >= 0.5 * 30
         assert growth <= RSS_GROWTH_MIB * 2**20
         # a controller's answer later than the frame's timeout (a loaded machine) misses it
         assert during.misses <= 0.02 * 4 * during.frames_offered
