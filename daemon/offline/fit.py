@@ -86,6 +86,7 @@ from grassd.sim.albedo_terms import monomial_values
 from grassd.sim.scene import srgb_to_linear
 
 if TYPE_CHECKING:
+    from grassd.calib.ccm import ColourCorrection
     from grassd.daemon.core.config.settings import PixelValue
     from grassd.sim.albedo_terms import AlbedoTerms
     from grassd.sim.lighting import Lighting
@@ -296,7 +297,7 @@ class _Model:
     terms per (shape, series), cached, and their CIELAB for any albedos and ``ks``."""
 
     def __init__(self, renderer: Renderer, lighting: Lighting, manifest: CaptureManifest,
-                 ccm: NDArray[np.float64], start: PixelSpec, settings: FitSettings,
+                 ccm: ColourCorrection, start: PixelSpec, settings: FitSettings,
                  glossy: bool) -> None:
         from grassd.daemon.core.calibration.simulation import white_radiance
 
@@ -364,7 +365,7 @@ class _Model:
 
     def lab(self, rgb: NDArray[np.float64]) -> NDArray[np.float64]:
         """CIELAB of normalised linear Rec.709 through the capture's colour correction."""
-        return prophoto_to_lab(rec709_to_prophoto(np.clip(rgb, 0.0, None)) @ self.ccm.T)
+        return prophoto_to_lab(self.ccm.apply(rec709_to_prophoto(np.clip(rgb, 0.0, None))))
 
 
 @dataclass
@@ -737,7 +738,7 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
             "these photos determine none of " + ", ".join(params) + ": "
             + "; ".join(priors.values()), next(iter(priors), None))
     real, correction, scale = measure_and_correct(manifest, get_chart(manifest.chart), progress)
-    ccm = correction.matrix * scale
+    ccm = correction.scaled(scale)
     say("building the lighting")
     lighting = lighting if lighting is not None else manifest.light.lighting()
     renderer = renderer if renderer is not None else default_renderer(arch)

@@ -62,7 +62,7 @@ import numpy as np
 import tomli_w
 from numpy.typing import NDArray
 
-from grassd.calib.ccm import ColourCorrection, fit_ccm
+from grassd.calib.ccm import ColourCorrection, select_ccm
 from grassd.calib.characteristic import Characteristic, fit_characteristic, floor_stderr
 from grassd.calib.charts import CHARTS, ReferenceChart, get_chart
 from grassd.calib.checker_photo import check_inside, checker_white_balance, virtual_checker
@@ -763,11 +763,16 @@ class CameraReport(TypedDict):
 
 
 class CorrectionReport(TypedDict):
-    """The colour correction M in JSON: its 3x3 matrix and the checker's residual (dE00)."""
+    """The colour correction M in JSON: its matrix (3 x 3, or 3 x terms of a root-polynomial),
+    its form, the checker's error with each patch predicted from the others (``mean_de00``,
+    ``max_de00``) and the fitting residual (``fit_*``), dE00."""
 
     matrix: list[list[float]]
+    form: str
     mean_de00: float
     max_de00: float
+    fit_mean_de00: float
+    fit_max_de00: float
 
 
 class ValidationReport(TypedDict):
@@ -811,8 +816,10 @@ class ValidationResult:
             "camera": {"make": cam["make"], "model": cam["model"], "cfa": cam["cfa"],
                        "white_level": cam["white_level"], "matrix": list(cam["matrix"])},
             "white_balance": list(self.real.white_balance), "exposure": self.real.exposure,
-            "ccm": {"matrix": self.ccm.matrix.tolist(), "mean_de00": self.ccm.mean_de00,
-                    "max_de00": self.ccm.max_de00},
+            "ccm": {"matrix": self.ccm.matrix.tolist(), "form": self.ccm.form,
+                    "mean_de00": self.ccm.reported_de00[0],
+                    "max_de00": self.ccm.reported_de00[1],
+                    "fit_mean_de00": self.ccm.mean_de00, "fit_max_de00": self.ccm.max_de00},
             "reference_viewpoint": list(self.reference.viewpoint),
             "viewpoints": [v.to_json() for v in self.viewpoints],
             "repeatability": self.repeatability,
@@ -841,12 +848,13 @@ def repeatability(m: CaptureManifest, real: RealCapture) -> dict[str, Repeatabil
 def measure_and_correct(m: CaptureManifest, chart: ReferenceChart,
                         progress: Callable[[str], None] | None = None
                         ) -> tuple[RealCapture, ColourCorrection, float]:
-    """The real side of a capture (:func:`measure_real`), the 3x3 colour correction M from the
-    virtual to the real checker, and the factor ``s`` that scales the white-card-normalised
-    simulation before M (:func:`virtual_checker`)."""
+    """The real side of a capture (:func:`measure_real`), the colour correction M from the
+    virtual to the real checker (the form of :data:`grassd.calib.ccm.CCM_FORMS` of least
+    leave-one-out error, :func:`grassd.calib.ccm.select_ccm`), and the factor ``s`` that scales
+    the white-card-normalised simulation before M (:func:`virtual_checker`)."""
     real = measure_real(m, chart, progress)
     virtual, s = virtual_checker(chart)
-    return real, fit_ccm(virtual, real.checker_rgb, "3x3"), s
+    return real, select_ccm(virtual, real.checker_rgb), s
 
 
 def validate_capture(m: CaptureManifest, *, renderer: Renderer | None = None,
@@ -899,7 +907,7 @@ def validate_capture(m: CaptureManifest, *, renderer: Renderer | None = None,
                 progress(f"simulating viewpoint {series.label}")
             curves[key] = simulate_curve(renderer, display, lighting,
                                          Viewpoint(*series.viewpoint), series.lengths_mm,
-                                         traced, ccm=ccm.matrix * s,
+                                         traced, ccm=ccm.scaled(s),
                                          target_stderr=target_stderr, layouts=layouts)
         curve = curves[key]
         out.append(compare_viewpoint(series.viewpoint, series.lengths_mm, real.ogcd[i],

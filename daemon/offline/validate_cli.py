@@ -82,8 +82,9 @@ def validate(capture, samples, replicates, layouts, target_stderr, seed, arch, j
     for label, rep in result.repeatability.items():
         click.echo(f"repeatability at {label}: mean std of OGCD {rep['mean_std_ogcd']:.3f} over "
                    f"{rep['trials']} trials (paper's real pixel: 0.42)")
-    click.echo(f"checker colour correction: mean {result.ccm.mean_de00:.2f}, max "
-               f"{result.ccm.max_de00:.2f} dE00; seconds: "
+    loo_mean, loo_max = result.ccm.reported_de00
+    click.echo(f"checker colour correction ({result.ccm.form}, each patch left out): mean "
+               f"{loo_mean:.2f}, max {loo_max:.2f} dE00; seconds: "
                + ", ".join(f"{k} {v:.1f}" for k, v in result.seconds.items()))
     if json_out:
         atomic_write_text(json_out, json.dumps(result.to_json(), indent=1))

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from colour import delta_E
 
+from grassd.calib.ccm import CCM_FORMS
 from grassd.calib.characteristic import Characteristic
 from grassd.calib.checker_photo import virtual_checker
 from grassd.calib.compare import frechet_characteristics, max_ogcd_error
@@ -55,7 +56,7 @@ def _truth(renderer, world, result, pixel, viewpoint):
     m = renderer.characteristic(DisplaySpec(pixel), world["lighting"], Viewpoint(*viewpoint),
                                 LENGTHS, RenderSettings(samples=16384, replicates=4, seed=7))
     reps = m.rgb_replicates / white_radiance(world["lighting"]) * s
-    res = ogcd_from_samples(reps, space="rec709", ccm=result.ccm.matrix)
+    res = ogcd_from_samples(reps, space="rec709", ccm=result.ccm)
     return Characteristic(LENGTHS, res.ogcd)
 
 
@@ -63,6 +64,13 @@ def test_zero_difference_world_agrees(tmp_path, renderer, world):
     res = _validate(tmp_path, renderer, world, [(170.0, 2.0, 0.0), (160.0, 2.0, 60.0)])
     assert [v.reference for v in res.viewpoints] == [True, False]
     assert res.ccm.mean_de00 < 0.5  # camera noise only: the 3x3 is exact for a linear camera
+    # the form of least leave-one-out error, and the report prints that error, not the fit's
+    report = res.to_json()["ccm"]
+    assert report["form"] == res.ccm.candidates[0].form == res.ccm.form
+    assert len(res.ccm.candidates) == len(CCM_FORMS)
+    assert (report["mean_de00"], report["max_de00"]) == (res.ccm.loo_mean_de00,
+                                                         res.ccm.loo_max_de00)
+    assert report["fit_mean_de00"] == res.ccm.mean_de00 < res.ccm.loo_mean_de00
     for v in res.viewpoints:
         print(f"zero-difference {v.label}: Frechet {v.frechet:.3f}, max error "
               f"{v.max_error:.3f}, Lab dE00 max {delta_E(v.real_lab, v.sim_lab).max():.2f}")
