@@ -7,7 +7,7 @@ renderer drew through grassd's own 3x3 camera, so an error the two share cannot 
   layout is the photographed pixel's ``layout_seed``, not the model's);
 * Mitsuba 3 renders it in a *spectral* variant (``llvm_ad_spectral`` where Dr.Jit finds a
   libLLVM >= 16, else ``scalar_spectral``): its own path tracer with Russian roulette from
-  depth :data:`RR_DEPTH` and at most :data:`MAX_DEPTH` - 1 bounces, the sRGB albedos and the
+  depth :data:`RR_DEPTH` and no depth cut (:data:`MAX_DEPTH`), the sRGB albedos and the
   HDRI upsampled to smooth spectra by Mitsuba (Jakob and Hanika 2019; the map's texels times
   CIE D65), the scene dict otherwise exactly :func:`grassd.rigs.mitsuba_scene.scene_dict`'s
   (map resampling, millimetres);
@@ -63,7 +63,7 @@ from grassd.sim.hdri import downsample, load_hdri, write_exr
 from grassd.sim.light_input import LightInput
 from grassd.sim.scene import DisplaySpec, PixelSpec, Viewpoint
 
-MAX_DEPTH = 9  #: Mitsuba ``max_depth``: camera ray plus at most 8 bounces
+MAX_DEPTH = -1  #: Mitsuba ``max_depth``: -1, no cut (Russian roulette alone, as grassd's)
 RR_DEPTH = 5  #: Mitsuba's default depth at which Russian roulette starts
 CHART_CELL_MM = 40.0  #: chart cell pitch
 CHART_FILL = 0.8  #: patch side / cell side (as grassd's analytic checker photo)
