@@ -21,13 +21,13 @@ from __future__ import annotations
 import os
 import tempfile
 import time
-from dataclasses import asdict, replace
+from dataclasses import replace
 from pathlib import Path
 
 from bench import HDRI_DIR
 from grassd.daemon.offline.fit import FitError, fit_capture
 from grassd.daemon.offline.validate import default_renderer, load_manifest, validate_capture
-from grassd.rigs.fit_worlds import ALBEDOS, albedo_de00
+from grassd.rigs.fit_worlds import ALBEDOS, albedo_de00, model_fields
 from grassd.rigs.spectral_camera import SpectralCamera
 from grassd.rigs.spectral_world import SpectralWorld, photograph_world
 from grassd.sim.scene import PixelSpec, RenderSettings
@@ -46,10 +46,6 @@ WORLDS: dict[str, tuple[PixelSpec, str, float]] = {
     "moss": (PixelSpec(yellow_srgb=(150.0, 150.0, 70.0), green_srgb=(70.0, 100.0, 45.0),
                        base_srgb=(120.0, 110.0, 70.0), layout_seed=307), "forest", 6000.0),
 }
-
-
-def _true_fields(pixel: PixelSpec) -> dict:
-    return {k: v for k, v in asdict(pixel).items() if k != "layout_seed"}
 
 
 def main() -> None:
@@ -72,7 +68,7 @@ def main() -> None:
             for cam, d in dirs.items():
                 manifest = load_manifest(d / "capture.toml")
                 lighting = manifest.light.lighting()
-                true = replace(manifest, pixel=_true_fields(pixel))
+                true = replace(manifest, pixel=model_fields(pixel))
                 v = validate_capture(true, renderer=renderer, settings=settings,
                                      lighting=lighting, layouts=4)
                 frechet = ", ".join(f"{c.label} {c.frechet:.2f}" for c in v.viewpoints)

@@ -55,8 +55,14 @@ def capture_known_pixel(root: str | Path, name: str, hdri_dir: Path, renderer: A
     return load_manifest(root), lighting
 
 
-def true_fields(name: str) -> dict[str, Any]:
-    """The world's materials as a capture's ``[pixel]`` (its layout left to the model)."""
+def model_fields(pixel: PixelSpec) -> dict[str, Any]:
+    """A photographed pixel's materials as a capture's ``[pixel]`` (its tuft layout left to
+    the model)."""
     from dataclasses import asdict
 
-    return {k: v for k, v in asdict(WORLDS[name][0]).items() if k != "layout_seed"}
+    return {k: v for k, v in asdict(pixel).items() if k != "layout_seed"}
+
+
+def true_fields(name: str) -> dict[str, Any]:
+    """World ``name``'s materials as a capture's ``[pixel]`` (:func:`model_fields`)."""
+    return model_fields(WORLDS[name][0])

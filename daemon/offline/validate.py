@@ -811,14 +811,14 @@ class ValidationResult:
     def to_json(self) -> ValidationReport:
         """The JSON report."""
         cam = self.real.camera
+        loo_mean, loo_max = self.ccm.reported_de00
         return {
             "capture": str(self.manifest.root), "chart": self.manifest.chart,
             "camera": {"make": cam["make"], "model": cam["model"], "cfa": cam["cfa"],
                        "white_level": cam["white_level"], "matrix": list(cam["matrix"])},
             "white_balance": list(self.real.white_balance), "exposure": self.real.exposure,
             "ccm": {"matrix": self.ccm.matrix.tolist(), "form": self.ccm.form,
-                    "mean_de00": self.ccm.reported_de00[0],
-                    "max_de00": self.ccm.reported_de00[1],
+                    "mean_de00": loo_mean, "max_de00": loo_max,
                     "fit_mean_de00": self.ccm.mean_de00, "fit_max_de00": self.ccm.max_de00},
             "reference_viewpoint": list(self.reference.viewpoint),
             "viewpoints": [v.to_json() for v in self.viewpoints],

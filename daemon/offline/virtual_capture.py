@@ -33,11 +33,11 @@ from grassd.daemon.offline.validate import (
     manifest_to_toml,
 )
 from grassd.sim.light_input import LightInput
+from grassd.sim.scene import PixelSpec, RenderSettings
 
 if TYPE_CHECKING:
     from grassd.sim.lighting import Lighting
     from grassd.sim.renderer import Renderer
-    from grassd.sim.scene import PixelSpec
 
 
 def capture_world(out_dir: str | Path, light: LightInput,
@@ -46,7 +46,8 @@ def capture_world(out_dir: str | Path, light: LightInput,
                   model_pixel: Mapping[str, float | Sequence[float]] | None = None,
                   camera: VirtualCamera | None = None, renderer: Renderer | None = None,
                   lighting: Lighting | None = None, width: int = 160, spp: int = 32,
-                  max_bounces: int | None = None, seed: int = 0, chart: str = "spydercheckr-24",
+                  max_bounces: int = RenderSettings.max_bounces, seed: int = 0,
+                  chart: str = "spydercheckr-24",
                   progress: Callable[[str], None] | None = None,
                   cache: dict | None = None, extra_trials: int = 0) -> CaptureManifest:
     """Photograph ``real_pixel`` (a :class:`grassd.sim.scene.PixelSpec`; default the model's)
@@ -55,7 +56,7 @@ def capture_world(out_dir: str | Path, light: LightInput,
 
     ``model_pixel``: the PixelSpec fields the manifest gives the simulation (default: none,
     i.e. the default PixelSpec). ``width``/``spp``: preview resolution and samples per pixel;
-    ``max_bounces``: None for the renderer's default (Russian roulette alone, unbiased).
+    ``max_bounces``: the renderer's default lets Russian roulette alone end a path (unbiased).
     The first viewpoint is marked the reference. Exposure is fixed for the session from the
     white-card radiance, as a photographer would set it. ``cache``: a dict that keeps the
     rendered views (keyed by everything they depend on but the lighting, so use one cache per
@@ -65,11 +66,10 @@ def capture_world(out_dir: str | Path, light: LightInput,
     render and camera noise are new, as when a real pixel's grass is moved out and back in.
     """
     from grassd.daemon.core.calibration.simulation import white_radiance
-    from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint
+    from grassd.sim.scene import DisplaySpec, Viewpoint
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    max_bounces = RenderSettings.max_bounces if max_bounces is None else max_bounces
     camera = camera or VirtualCamera()
     lighting = lighting if lighting is not None else light.lighting()
     given = {k: tuple(v) if isinstance(v, Sequence) else v
@@ -120,8 +120,6 @@ def capture_world(out_dir: str | Path, light: LightInput,
 
 def pixel_fields(pixel: PixelSpec) -> dict[str, float | list[float]]:
     """PixelSpec fields that differ from the defaults (for a manifest's ``[pixel]`` table)."""
-    from grassd.sim.scene import PixelSpec
-
     default = PixelSpec()
     d = asdict(pixel)
     return {f.name: (list(d[f.name]) if isinstance(d[f.name], tuple) else d[f.name])
