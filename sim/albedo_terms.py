@@ -112,24 +112,25 @@ def code_table(degree: int = MAX_DEGREE) -> NDArray[np.int32]:
 
 def symbol_values(albedo_linear: NDArray[np.float64], specular: float | NDArray[np.float64]
                   ) -> NDArray[np.float64]:
-    """(..., 5, 3) values of the symbols per channel for albedos ``(..., 4, 3)`` (linear, rows
-    in material order) and glossy reflectance ``specular`` (scalar or ``(...)``)."""
+    """(..., 5, C) values of the symbols per channel for albedos ``(..., 4, C)`` (linear, rows
+    in material order; C = 3 Rec.709 channels, or a reflectance spectrum's C wavelengths) and
+    glossy reflectance ``specular`` (scalar or ``(...)``)."""
     a = np.asarray(albedo_linear, dtype=np.float64)
     ks = np.asarray(specular, dtype=np.float64)[..., None, None]
     diffuse = (1.0 - ks) * a
-    glossy = np.broadcast_to(ks, a.shape[:-2] + (1, 3))
+    glossy = np.broadcast_to(ks, a.shape[:-2] + (1, a.shape[-1]))
     return np.concatenate([diffuse, glossy], axis=-2)
 
 
 def monomial_values(albedo_linear: NDArray[np.float64], specular: float | NDArray[np.float64],
                     degree: int = MAX_DEGREE) -> NDArray[np.float64]:
-    """(..., C(degree + 5, 5), 3) value of each monomial of :func:`monomials` (``degree``) per
+    """(..., C(degree + 5, 5), C) value of each monomial of :func:`monomials` (``degree``) per
     channel (see :func:`symbol_values`); 56 rows for the default degree 3."""
-    v = symbol_values(albedo_linear, specular)  # (..., 5, 3)
+    v = symbol_values(albedo_linear, specular)  # (..., 5, C)
     rows = monomials_of(degree)
     if degree <= MAX_DEGREE:
         return (v[..., None, :, :] ** rows[:, :, None]).prod(axis=-2)
-    powers = v[..., None, :, :] ** np.arange(degree + 1)[:, None, None]  # (..., k, 5, 3)
+    powers = v[..., None, :, :] ** np.arange(degree + 1)[:, None, None]  # (..., k, 5, C)
     out = powers[..., rows[:, 0], 0, :]
     for s in range(1, N_SYMBOLS):
         out = out * powers[..., rows[:, s], s, :]
