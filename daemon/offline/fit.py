@@ -69,9 +69,8 @@ from colour import delta_E
 from numpy.typing import NDArray
 
 from grassd.calib.charts import get_chart
-from grassd.calib.colour_spaces import prophoto_to_lab, rec709_to_prophoto
-from grassd.calib.ogcd import ogcd_from_samples
 from grassd.daemon.core.calibration.simulation import layout_seed
+from grassd.daemon.offline.colour_chain import ColourChain, simulation_chain
 from grassd.daemon.offline.fit_config import FitSettings
 from grassd.daemon.offline.validate import (
     CaptureManifest,
@@ -82,11 +81,10 @@ from grassd.daemon.offline.validate import (
     default_renderer,
     measure_and_correct,
 )
-from grassd.sim.albedo_terms import monomial_values
+from grassd.sim.errors import SceneError
 from grassd.sim.scene import srgb_to_linear
 
 if TYPE_CHECKING:
-    from grassd.calib.ccm import ColourCorrection
     from grassd.daemon.core.config.settings import PixelValue
     from grassd.sim.albedo_terms import AlbedoTerms
     from grassd.sim.lighting import Lighting
@@ -181,6 +179,7 @@ class FitReport(TypedDict):
     notes: list[str]
     profile: dict[str, list[list[float]]]
     settings: dict[str, float]
+    colour_chain: str
     seconds: float
 
 
@@ -224,6 +223,9 @@ class FitResult:
     dof: int
     seconds: float
     settings: FitSettings
+    #: how the simulation was read (:mod:`grassd.daemon.offline.colour_chain`): the checker
+    #: correction's form, or "camera" (the camera's sensitivities, no correction)
+    chain: str
     notes: tuple[str, ...] = ()
     profile: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
 
@@ -235,7 +237,7 @@ class FitResult:
             "chi2": self.chi2, "dof": self.dof, "notes": list(self.notes),
             "profile": {k: [list(p) for p in v] for k, v in self.profile.items()},
             "settings": {k: getattr(self.settings, k) for k in FitSettings.__dataclass_fields__},
-            "seconds": self.seconds,
+            "colour_chain": self.chain, "seconds": self.seconds,
         }
 
     def rows(self) -> list[list[str]]:
@@ -297,13 +299,10 @@ class _Model:
     terms per (shape, series), cached, and their CIELAB for any albedos and ``ks``."""
 
     def __init__(self, renderer: Renderer, lighting: Lighting, manifest: CaptureManifest,
-                 ccm: ColourCorrection, start: PixelSpec, settings: FitSettings,
+                 chain: ColourChain, start: PixelSpec, settings: FitSettings,
                  glossy: bool) -> None:
-        from grassd.daemon.core.calibration.simulation import white_radiance
-
         self.renderer, self.lighting, self.manifest = renderer, lighting, manifest
-        self.ccm, self.start, self.settings, self.glossy = ccm, start, settings, glossy
-        self.white = white_radiance(lighting)
+        self.chain, self.start, self.settings, self.glossy = chain, start, settings, glossy
         self.fit_series: list[int] = []  # recorded together whenever a shape is recorded
         self._cache: dict[tuple, list[AlbedoTerms]] = {}
         self._means: dict[tuple, NDArray[np.float64]] = {}  # mean coefficients (n, 56, 3)
@@ -345,27 +344,32 @@ class _Model:
 
     def replicates(self, shape: tuple[float, float], series: int, albedo: NDArray[np.float64],
                    ks: float) -> NDArray[np.float64]:
-        """(layouts, replicates, n, 3) normalised linear Rec.709 (the white card reads 1)."""
-        return np.stack([t.radiance(albedo, ks) for t in self.terms(shape, series)]) / self.white
+        """(layouts, replicates, n, 3) signals of the chain (:mod:`.colour_chain`)."""
+        if ks and not self.glossy:
+            raise SceneError("these terms were recorded without the glossy lobe; record with "
+                             "glossy=True to evaluate a specular reflectance")
+        terms = self.terms(shape, series)
+        return self.chain.signal(np.stack([t.coefficients for t in terms]), albedo, ks,
+                                 terms[0].degree)
 
     def mean(self, shape: tuple[float, float], series: int, albedo: NDArray[np.float64],
              ks: float, layouts: Sequence[int] | None = None) -> NDArray[np.float64]:
-        """(n, 3) normalised linear Rec.709 of the mean over ``layouts`` (default all) and
-        their replicates, the same as ``replicates(...)[layouts].mean(axis=(0, 1))``: the
-        polynomial is linear in its coefficients, so their mean is kept per (shape, series,
-        layouts) and a candidate costs one contraction (the fit's inner loop)."""
+        """(n, 3) signal of the chain (:mod:`.colour_chain`) of the mean over ``layouts``
+        (default all) and their replicates, the same as the chain's signal of
+        ``replicates(...)[layouts].mean(axis=(0, 1))``: every chain's signal is linear in the
+        coefficients, so their mean is kept per (shape, series, layouts) and a candidate costs
+        one contraction (the fit's inner loop)."""
         terms = self.terms(shape, series)
         chosen = tuple(range(len(terms)) if layouts is None else layouts)
         key = (self._key(shape, series), chosen)
         if key not in self._means:
             self._means[key] = np.mean([terms[k].coefficients.mean(axis=0) for k in chosen],
                                        axis=0)
-        mono = monomial_values(albedo, ks, terms[0].degree)
-        return np.einsum("nmc,mc->nc", self._means[key], mono) / self.white
+        return self.chain.signal(self._means[key], albedo, ks, terms[0].degree)
 
-    def lab(self, rgb: NDArray[np.float64]) -> NDArray[np.float64]:
-        """CIELAB of normalised linear Rec.709 through the capture's colour correction."""
-        return prophoto_to_lab(self.ccm.apply(rec709_to_prophoto(np.clip(rgb, 0.0, None))))
+    def lab(self, signal: NDArray[np.float64]) -> NDArray[np.float64]:
+        """CIELAB of the chain's signals, as the photos are read."""
+        return self.chain.lab(signal)
 
 
 @dataclass
@@ -737,13 +741,16 @@ def fit_capture(manifest: CaptureManifest, *, holdout: Sequence[tuple[float, flo
         raise NotIdentifiableError(
             "these photos determine none of " + ", ".join(params) + ": "
             + "; ".join(priors.values()), next(iter(priors), None))
-    real, correction, scale = measure_and_correct(manifest, get_chart(manifest.chart), progress)
-    ccm = correction.scaled(scale)
+    chart = get_chart(manifest.chart)
+    real, correction, scale = measure_and_correct(manifest, chart, progress)
     say("building the lighting")
     lighting = lighting if lighting is not None else manifest.light.lighting()
+    chain = simulation_chain(manifest.sensitivities, correction, scale,
+                             lighting, real.white_balance,
+                             manifest.checker_photo, chart)
     renderer = renderer if renderer is not None else default_renderer(arch)
     glossy = "specular" in params or start.specular > 0
-    model = _Model(renderer, lighting, manifest, ccm, start, settings, glossy)
+    model = _Model(renderer, lighting, manifest, chain, start, settings, glossy)
     model.fit_series = fit_series
     while True:
         try:
@@ -828,7 +835,8 @@ def _fit(model: _Model, real: RealCapture, manifest: CaptureManifest, fit_series
                     for k, v in asdict(start).items()}
     return FitResult(pixel=pixel, stderr=stderr, start=start_fields, viewpoints=judged,
                      chi2=best.cost, dof=dof, seconds=time.perf_counter() - t0,
-                     settings=settings, notes=tuple(notes), profile=profile)
+                     settings=settings, notes=tuple(notes), profile=profile,
+                     chain=model.chain.form)
 
 
 def _fit_shape(problem: _Problem, look: _ShapeSearch, start: PixelSpec,
@@ -1000,7 +1008,7 @@ def _judge(model: _Model, real: RealCapture, series: int, shape: tuple[float, fl
     sr = model.manifest.series[series]
     reps = model.replicates(shape, series, albedo, ks)
     x = reps.reshape(-1, *reps.shape[2:])
-    res = ogcd_from_samples(np.clip(x, 0.0, None), space="rec709", ccm=model.ccm)
+    res = model.chain.ogcd(x)
     return compare_viewpoint(sr.viewpoint, sr.lengths_mm, real.ogcd[series], res.ogcd,
                              sim_stderr=res.ogcd_stderr, real_lab=real.lab[series],
                              sim_lab=res.lab)

@@ -75,7 +75,9 @@ def fit(capture, holdout, params, json_out, toml_out, html_out, samples, layouts
     for note in result.notes:
         click.echo(f"note: {note}")
     click.echo(f"chi2 {result.chi2:.1f} on {result.dof} degrees of freedom; "
-               f"{result.seconds:.1f} s")
+               f"{result.seconds:.1f} s; simulation read through "
+               + ("the camera's spectral sensitivities" if result.chain == "camera"
+                  else f"the checker's correction ({result.chain})"))
     atomic_write_text(json_out, json.dumps(result.to_json(), indent=1))
     click.echo(f"wrote {json_out}")
     if toml_out:

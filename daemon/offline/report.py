@@ -261,6 +261,9 @@ def validation_html(result: ValidationResult) -> str:
          "; ".join(" ".join(f"{v:.3f}" for v in row) for row in r.ccm.matrix)],
         ["checker error after M, each patch left out (mean / max dE00)",
          "{:.2f} / {:.2f}".format(*r.ccm.reported_de00)],
+        ["simulation read through", "the camera's spectral sensitivities "
+         f"({r.manifest.sensitivities}), no correction" if r.chain == "camera"
+         else f"the correction M ({r.chain})"],
         ["light", f"{r.manifest.light.hdri.name}, {r.manifest.light.ambient_lux:g} lx"],
         ["render settings", ", ".join(f"{k} {v}" for k, v in r.settings.items())],
         ["seconds", ", ".join(f"{k} {v:.1f}" for k, v in r.seconds.items())],

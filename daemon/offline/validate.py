@@ -13,6 +13,7 @@ directory or absolute::
     checker_raw = "checker.dng"           # one RAW of the colour checker at the measuring point
     checker_corners = [[x, y], [x, y], [x, y], [x, y]]   # patch area: TL, TR, BR, BL (pixels)
     checker_chart = "spydercheckr-24"     # reference chart name or CSV file (optional)
+    camera_sensitivities = "camera.csv"   # the camera's spectral sensitivities (optional)
 
     [pixel]                               # optional PixelSpec fields of the simulation model
     splay_deg = 0.0
@@ -46,6 +47,9 @@ Colour chain of the simulation, kept identical to the real one: radiance / white
 (von Kries in linear Rec.709, the white card reads 1) -> ProPhoto -> scaled so the virtual
 checker's grey reads Y = 0.18 -> M -> CIELAB. The virtual checker is analytic: a flat Lambertian
 patch of albedo ``a`` (the chart's reference colour) reads ``a`` after the same normalisation.
+Where ``camera_sensitivities`` names the camera's spectral sensitivities, the simulation is read
+through the camera itself instead (spectral transport into its raw RGB, developed as the photos
+are; :mod:`grassd.daemon.offline.colour_chain`), and M is only reported.
 """
 
 from __future__ import annotations
@@ -75,14 +79,17 @@ from grassd.calib.ogcd import ogcd_from_lab
 from grassd.calib.raw import develop_raw, open_raw
 from grassd.daemon.core.config import manifest_fields, schema
 from grassd.daemon.core.errors import DaemonError, LocatedError, ManifestError
+from grassd.daemon.offline.colour_chain import CorrectedChain, simulation_chain
 from grassd.sim.light_input import LightInput
+from grassd.sim.scene import srgb_to_linear
 
 if TYPE_CHECKING:
-    from grassd.daemon.core.calibration.simulation import SimulatedCurve
+    from grassd.calib.ogcd import OGCDResult
     from grassd.daemon.core.config.settings import PixelValue
+    from grassd.daemon.offline.colour_chain import ColourChain
     from grassd.sim.lighting import Lighting
     from grassd.sim.renderer import Renderer
-    from grassd.sim.scene import RenderSettings
+    from grassd.sim.scene import PixelSpec, RenderSettings, Viewpoint
 
 log = logging.getLogger(__name__)
 
@@ -165,6 +172,10 @@ class CaptureManifest:
     series: tuple[Series, ...]
     chart: str = manifest_fields.DEFAULT_CHART
     pixel: dict[str, PixelValue] = field(default_factory=dict)
+    #: the camera's spectral sensitivities: a CSV's path or a name of
+    #: :data:`grassd.calib.camera_response.COLOUR_CAMERAS`; None: read through the checker's
+    #: correction (:mod:`grassd.daemon.offline.colour_chain`)
+    sensitivities: str | None = None
 
     @property
     def reference(self) -> Series:
@@ -211,6 +222,7 @@ class _CaptureToml(TypedDict, total=False):
     checker_raw: str
     checker_corners: list[list[float]]
     checker_chart: str
+    camera_sensitivities: str
     pixel: dict[str, PixelValue]
     series: list[_SeriesToml]
 
@@ -247,6 +259,10 @@ def manifest_to_toml(m: CaptureManifest) -> str:
     head["checker_raw"] = rel(m.checker_photo)
     head["checker_corners"] = [list(c) for c in m.checker_corners]
     head["checker_chart"] = rel(Path(m.chart)) if Path(m.chart).is_absolute() else m.chart
+    if m.sensitivities is not None:
+        head["camera_sensitivities"] = (rel(Path(m.sensitivities))
+                                        if Path(m.sensitivities).is_absolute()
+                                        else m.sensitivities)
     if m.pixel:
         head["pixel"] = dict(m.pixel)
     if m.series:
@@ -396,6 +412,22 @@ def _chart(ctx: schema.Context, name: str, where: Callable[[str], tuple]) -> str
     return str(path)
 
 
+def _sensitivities(ctx: schema.Context, name: str | None) -> str | None:
+    """``camera_sensitivities`` as :func:`grassd.daemon.offline.colour_chain.load_sensitivities`
+    takes it: a name of colour-science's cameras as written, else the path of a CSV, absolute
+    or relative to the capture directory; :class:`MissingPhotoError` where it does not exist."""
+    from grassd.calib.camera_response import COLOUR_CAMERAS
+
+    if name is None or name in COLOUR_CAMERAS:
+        return name
+    path = _path(ctx, name)
+    if not path.is_file():
+        raise MissingPhotoError(f"{ctx.source}: camera_sensitivities {path} does not exist; "
+                                "copy the camera's CSV of spectral sensitivities into the "
+                                "capture directory or name one of " + ", ".join(COLOUR_CAMERAS))
+    return str(path)
+
+
 def _series(ctx: schema.Context, i: int, raw: schema.TomlValue) -> Series:
     """``[[series]]`` number ``i``: its viewpoint and photos (lengths strictly increasing)."""
     F = schema.Field
@@ -447,8 +479,10 @@ def load_manifest(path: str | Path) -> CaptureManifest:
     def where(key: str) -> tuple:
         return moved.get(key, (key,))
 
-    top = schema.table(ctx, (), data, {**_light_fields(), "pixel": F(dict, {}),
-                                       "series": F(list)})
+    top = schema.table(ctx, (), data, {
+        **_light_fields(), "pixel": F(dict, {}), "series": F(list),
+        "camera_sensitivities": F(str, None, schema.non_empty,
+                                  hint="a CSV of the camera's spectral sensitivities")})
     manifest_fields.check_together(ctx, top, where)
     light = _light(ctx, top, where)
     schema.table(ctx, ("pixel",), top["pixel"],  # PixelSpec checks the values when it is built
@@ -463,7 +497,8 @@ def load_manifest(path: str | Path) -> CaptureManifest:
     m = CaptureManifest(root=p.parent, light=light, checker_photo=_path(ctx, top["checker_raw"]),
                         checker_corners=manifest_fields.as_quad(top["checker_corners"]),
                         series=series, chart=_chart(ctx, top["checker_chart"], where),
-                        pixel=pixel)
+                        pixel=pixel,
+                        sensitivities=_sensitivities(ctx, top["camera_sensitivities"]))
     for photo in m.photos():
         if not photo.is_file():
             raise MissingPhotoError(f"{p}: photo {photo} does not exist; copy it into the "
@@ -784,6 +819,7 @@ class ValidationReport(TypedDict):
     white_balance: list[float]
     exposure: float
     ccm: CorrectionReport
+    colour_chain: str
     reference_viewpoint: list[float]
     viewpoints: list[ViewpointReport]
     repeatability: dict[str, Repeatability]
@@ -797,6 +833,9 @@ class ValidationResult:
 
     manifest: CaptureManifest
     ccm: ColourCorrection
+    #: how the simulation was read (:mod:`grassd.daemon.offline.colour_chain`): the
+    #: correction's form, or "camera" (the camera's sensitivities, no correction)
+    chain: str
     real: RealCapture
     viewpoints: tuple[ViewpointComparison, ...]
     settings: SimulationSettings
@@ -820,6 +859,7 @@ class ValidationResult:
             "ccm": {"matrix": self.ccm.matrix.tolist(), "form": self.ccm.form,
                     "mean_de00": loo_mean, "max_de00": loo_max,
                     "fit_mean_de00": self.ccm.mean_de00, "fit_max_de00": self.ccm.max_de00},
+            "colour_chain": self.chain,
             "reference_viewpoint": list(self.reference.viewpoint),
             "viewpoints": [v.to_json() for v in self.viewpoints],
             "repeatability": self.repeatability,
@@ -886,42 +926,74 @@ def validate_capture(m: CaptureManifest, *, renderer: Renderer | None = None,
     if layouts < 1 or settings.replicates * layouts > MAX_REPLICATES:
         raise ValidateError(f"{settings.replicates} replicates x {layouts} layouts: give at "
                             f"least 1 layout and at most {MAX_REPLICATES} replicates in all")
+    if m.sensitivities is not None and target_stderr is not None:
+        raise ValidateError("a capture read through the camera's sensitivities is simulated "
+                            "with fixed replicates: leave out the target standard error")
     t0 = time.perf_counter()
-    real, ccm, s = measure_and_correct(m, get_chart(m.chart), progress)
+    chart = get_chart(m.chart)
+    real, ccm, s = measure_and_correct(m, chart, progress)
     t1 = time.perf_counter()
     traced = replace(settings, replicates=settings.replicates * layouts)
     if progress:
         progress("building the lighting")
     lighting = lighting if lighting is not None else m.light.lighting()
+    chain = simulation_chain(m.sensitivities, ccm, s, lighting, real.white_balance,
+                             m.checker_photo, chart)
     if renderer is None:
         renderer = default_renderer(arch)
-    display = DisplaySpec(PixelSpec(**m.pixel))
+    pixel = PixelSpec(**m.pixel)
     ref = m.reference
     out = []
-    curves: dict[tuple, SimulatedCurve] = {}  # repeated trials of a viewpoint share one simulation
+    curves: dict[tuple, tuple[NDArray, NDArray, NDArray, float]] = {}  # trials share one
     for i, series in enumerate(m.series):
         ts = time.perf_counter()
         key = (series.viewpoint, tuple(series.lengths_mm))
         if key not in curves:
             if progress:
                 progress(f"simulating viewpoint {series.label}")
-            curves[key] = simulate_curve(renderer, display, lighting,
-                                         Viewpoint(*series.viewpoint), series.lengths_mm,
-                                         traced, ccm=ccm.scaled(s),
-                                         target_stderr=target_stderr, layouts=layouts)
-        curve = curves[key]
+            vp = Viewpoint(*series.viewpoint)
+            if isinstance(chain, CorrectedChain):
+                c = simulate_curve(renderer, DisplaySpec(pixel), lighting, vp,
+                                   series.lengths_mm, traced, ccm=chain.ccm,
+                                   target_stderr=target_stderr, layouts=layouts)
+                curves[key] = (c.ogcd, c.ogcd_stderr, c.lab, c.seconds.get("compile", 0.0))
+            else:
+                r = _chain_curve(renderer, pixel, lighting, vp, series.lengths_mm, settings,
+                                 layouts, chain)
+                curves[key] = (r.ogcd, r.ogcd_stderr, r.lab, 0.0)
+        ogcd, stderr, lab, compile_s = curves[key]
         out.append(compare_viewpoint(series.viewpoint, series.lengths_mm, real.ogcd[i],
-                                     curve.ogcd, sim_stderr=curve.ogcd_stderr,
-                                     real_lab=real.lab[i], sim_lab=curve.lab,
-                                     reference=series is ref,
-                                     sim_seconds=time.perf_counter() - ts
-                                     - curve.seconds.get("compile", 0.0)))
+                                     ogcd, sim_stderr=stderr, real_lab=real.lab[i],
+                                     sim_lab=lab, reference=series is ref,
+                                     sim_seconds=time.perf_counter() - ts - compile_s))
     t2 = time.perf_counter()
     return ValidationResult(
-        manifest=m, ccm=ccm, real=real, viewpoints=tuple(out),
+        manifest=m, ccm=ccm, chain=chain.form, real=real, viewpoints=tuple(out),
         repeatability=repeatability(m, real),
         settings={"samples": settings.samples, "replicates": settings.replicates,
                   "layouts": layouts,
                   "max_bounces": settings.max_bounces, "seed": settings.seed,
                   "light_samples": settings.light_samples, "target_stderr": target_stderr},
         seconds={"measure": t1 - t0, "simulate": t2 - t1, "total": t2 - t0})
+
+
+def _chain_curve(renderer: Renderer, pixel: PixelSpec, lighting: Lighting, viewpoint: Viewpoint,
+                 lengths_mm: NDArray[np.float64], settings: RenderSettings, layouts: int,
+                 chain: ColourChain) -> OGCDResult:
+    """One viewpoint's simulated characteristic read through ``chain``: the albedo polynomial
+    recorded for each of ``layouts`` tuft layouts (the pixel's ``layout_seed`` and the next
+    ones, each with its own paths, as ``grassd fit`` records them), evaluated at the pixel's
+    own materials; every layout's replicates are independent samples of the mean."""
+    from grassd.daemon.core.calibration.simulation import layout_seed
+    from grassd.sim.scene import DisplaySpec
+
+    albedo = srgb_to_linear(np.array([pixel.yellow_srgb, pixel.green_srgb, pixel.base_srgb,
+                                      pixel.cavity_srgb]))
+    samples = []
+    for k in range(layouts):
+        terms = renderer.albedo_terms(
+            DisplaySpec(replace(pixel, layout_seed=pixel.layout_seed + k)), lighting,
+            viewpoint, lengths_mm, replace(settings, seed=layout_seed(settings.seed, k)),
+            glossy=pixel.specular > 0)
+        samples.append(chain.signal(terms.coefficients, albedo, pixel.specular, terms.degree))
+    return chain.ogcd(np.concatenate(samples))

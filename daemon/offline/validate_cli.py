@@ -86,6 +86,9 @@ def validate(capture, samples, replicates, layouts, target_stderr, seed, arch, j
     click.echo(f"checker colour correction ({result.ccm.form}, each patch left out): mean "
                f"{loo_mean:.2f}, max {loo_max:.2f} dE00; seconds: "
                + ", ".join(f"{k} {v:.1f}" for k, v in result.seconds.items()))
+    if result.chain == "camera":
+        click.echo("the simulation was read through the camera's spectral sensitivities "
+                   f"({result.manifest.sensitivities}), not the correction")
     if json_out:
         atomic_write_text(json_out, json.dumps(result.to_json(), indent=1))
         click.echo(f"wrote {json_out}")
