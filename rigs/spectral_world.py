@@ -23,9 +23,13 @@ renderer drew through grassd's own 3x3 camera, so an error the two share cannot 
 
 :func:`photograph_world` writes one capture directory per camera (``capture.toml``,
 ``checker.dng``, one DNG per viewpoint and length, ``env.exr``, ``chart.csv``,
-``true_pixel.toml`` with the photographed materials as a ``[display.pixel]`` table for
-``grassd validate --pixel``, and ``truth.json`` with the CIE XYZ of every quad) that
-``grassd validate`` and ``grassd fit`` read as they read a site's photos.
+``camera.csv`` with the camera's spectral sensitivities, which ``capture.toml`` names as
+``camera_sensitivities`` (so validate and fit read the photos through the camera's own
+response; give the manifest ``sensitivities=None`` to read them through the checker's
+correction instead), ``true_pixel.toml`` with the photographed materials as a
+``[display.pixel]`` table for ``grassd validate --pixel``, and ``truth.json`` with the CIE
+XYZ of every quad) that ``grassd validate`` and ``grassd fit`` read as they read a site's
+photos.
 
 Glossy lobes (``specular`` > 0) have no Mitsuba counterpart of grassd's normalised modified
 Phong lobe, so the rig refuses them; its materials are Lambertian.
@@ -42,6 +46,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from grassd.calib.camera_response import CameraSensitivities, write_sensitivities
 from grassd.calib.colour_spaces import WHITE_D50_XY
 from grassd.rigs.mitsuba_scene import (
     configure_llvm,
@@ -64,12 +69,18 @@ from grassd.sim.light_input import LightInput
 from grassd.sim.scene import DisplaySpec, PixelSpec, Viewpoint
 
 MAX_DEPTH = -1  #: Mitsuba ``max_depth``: -1, no cut (Russian roulette alone, as grassd's)
+#: Mitsuba map rows/columns per texel of the capture's map (:func:`grassd.rigs.mitsuba_scene.
+#: mitsuba_env`). Mitsuba's spectral envmap interpolates its texels' upsampling coefficients,
+#: not their spectra, between the refined map's rows; the finer map keeps that blend to a
+#: sixteenth of each texel, so each texel of the capture's map has its own smooth spectrum.
+ENV_REFINE = 16
 RR_DEPTH = 5  #: Mitsuba's default depth at which Russian roulette starts
 CHART_CELL_MM = 40.0  #: chart cell pitch
 CHART_FILL = 0.8  #: patch side / cell side (as grassd's analytic checker photo)
 CHART_BODY = 0.03  #: reflectance of the chart body between the patches
 CHECKER_WIDTH = 256  #: checker photo width = height (pixels)
 XYZ = "xyz_"  #: film channel prefix of the CIE observer
+SENSITIVITIES_CSV = "camera.csv"  #: the camera's sensitivities, as capture.toml names them
 
 
 class SpectralWorldError(RuntimeError):
@@ -120,7 +131,7 @@ def pixel_scene_dict(scene_dir: str | Path, cameras: Sequence[SpectralCamera], s
     if glossy:
         raise SpectralWorldError(f"materials {', '.join(glossy)} have a glossy lobe; the "
                                  "spectral world renders Lambertian pixels only (specular = 0)")
-    d = scene_dict(scene_dir, spp, width)
+    d = scene_dict(scene_dir, spp, width, env_refine=ENV_REFINE)
     d["sensor"]["film"] = _specfilm(width, cameras)
     d["integrator"] = _integrator(max_depth, rr_depth)
     return d
@@ -158,7 +169,7 @@ def render_pixel(scene_dir: str | Path, cameras: Sequence[SpectralCamera], spp: 
 
 def _light_only(scene_dir: str | Path, spp: int) -> dict:
     """scene_dict's light (map, sun) without the pixel's meshes."""
-    d = scene_dict(scene_dir, spp, 2)
+    d = scene_dict(scene_dir, spp, 2, env_refine=ENV_REFINE)
     for k in [k for k in d if k.startswith("mesh")]:
         del d[k]
     return d
@@ -359,6 +370,7 @@ def photograph_world(root: str | Path, world: SpectralWorld,
         shutil.copyfile(env_path, d / "env.exr")
         write_chart_csv(d / "chart.csv")
         (d / "true_pixel.toml").write_text(pixel_toml(world.pixel))
+        write_sensitivities(d / SENSITIVITIES_CSV, CameraSensitivities.from_colour(d.name))
     scenes = root / "scenes"
     renders: dict[tuple[int, float], tuple[list, NDArray, NDArray, dict]] = {}
     for i, vp in enumerate(world.viewpoints):
@@ -391,7 +403,8 @@ def photograph_world(root: str | Path, world: SpectralWorld,
         text = (f"checker_chart = {_toml_value(str((d / 'chart.csv').resolve()))}\n"
                 f'hdri = "env.exr"\nambient_lux = {float(world.lux)!r}\n'
                 f'checker_raw = "checker.dng"\nchecker_corners = '
-                f"{_toml_value(np.round(chart_corners, 4).tolist())}\n")
+                f"{_toml_value(np.round(chart_corners, 4).tolist())}\n"
+                f'camera_sensitivities = "{SENSITIVITIES_CSV}"\n')
         shot = 1
         for i, vp in enumerate(world.viewpoints):
             names = []

@@ -181,6 +181,9 @@ def test_a_tiny_world_is_a_capture_grassd_validate_reads(tmp_path):
     assert report["viewpoints"][0]["lengths_mm"] == [0.0, 10.0, 20.0]
     assert report["ccm"]["mean_de00"] < 3.0, report["ccm"]
     assert report["camera"]["model"] == "Nikon 5100 (NPL)", report["camera"]
+    # the capture names the camera's sensitivities: the photos are read through them
+    assert report["colour_chain"] == "camera"
+    assert "camera's spectral sensitivities" in r.stdout
 
 
 def test_refuses_what_it_cannot_render(tmp_path):
