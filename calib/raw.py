@@ -4,6 +4,12 @@ Development follows the paper's real-environment process: linear ProPhoto output
 ProPhoto matrix uses Bradford adaptation, matching :mod:`grassd.calib.colour_spaces`), gamma
 (1, 1), no auto-brightening, and ``adjust_maximum_thr=0`` (LibRaw's default 0.75 would rescale
 the data by a per-image maximum), with the camera's white balance or given multipliers.
+LibRaw demosaics and white-balances in the camera's space (16 bits, clipped at full scale as
+it always is); the matrix to ProPhoto (``sRGB -> ProPhoto @ rgb_cam``, what LibRaw's ProPhoto
+output applies) is applied here in floating point, so a pixel keeps a negative component
+instead of having it cut at 0: LibRaw's 16-bit ProPhoto output cuts each pixel's negatives,
+which biases the mean of a noisy, saturated region (docs/calib/colour_chain.md), and is the same
+wherever nothing is cut.
 Both ``rawpy.imread`` and ``postprocess`` are guarded: a truncated file usually opens fine and
 fails only when its pixels are decoded.
 
@@ -26,6 +32,7 @@ import numpy as np
 import rawpy
 from numpy.typing import ArrayLike, NDArray
 
+from grassd.calib.colour_spaces import M_REC709_TO_PROPHOTO
 from grassd.calib.errors import RawReadError, RawSizeError
 from grassd.calib.regions import extract_checker_patches, quad_mean
 
@@ -46,7 +53,9 @@ class DevelopedRaw:
     """A developed capture.
 
     Attributes:
-        rgb: (H, W, 3) float32 ProPhoto linear RGB, 0..1 (1 = 16-bit full scale).
+        rgb: (H, W, 3) float32 ProPhoto linear RGB (1 = 16-bit full scale), components
+            below 0 kept (a pixel's noise in a saturated colour) and above 1 where the matrix
+            takes them there.
         white_balance: the 4 channel multipliers (R, G, B, G2) LibRaw applied.
         path: the RAW file.
     """
@@ -60,8 +69,11 @@ class DevelopedRaw:
         return quad_mean(self.rgb, corners)
 
     def checker_patches(self, chart_corners: ArrayLike, fraction: float = 0.5) -> NDArray:
-        """(24, 3) mean ProPhoto linear RGB of the checker patches, in reading order."""
-        return extract_checker_patches(self.rgb, chart_corners, fraction=fraction)
+        """(24, 3) mean ProPhoto linear RGB of the checker patches, in reading order; a mean
+        below 0 (a saturated patch's component, noise about 0) reads 0, as the colour
+        corrections' forms take non-negative patches."""
+        return np.clip(extract_checker_patches(self.rgb, chart_corners, fraction=fraction),
+                       0.0, None)
 
 
 def _why(exc: BaseException) -> str:
@@ -170,8 +182,8 @@ def develop_raw(path: str | Path, white_balance: str | Sequence[float] = "camera
     raw = open_raw(p, sensor)
     try:
         with raw:
-            rgb16 = raw.postprocess(
-                output_color=rawpy.ColorSpace.ProPhoto,
+            cam16 = raw.postprocess(
+                output_color=rawpy.ColorSpace.raw,
                 gamma=(1, 1),
                 no_auto_bright=True,
                 output_bps=16,
@@ -180,13 +192,15 @@ def develop_raw(path: str | Path, white_balance: str | Sequence[float] = "camera
                 **params,
             )
             used = params.get("user_wb") or list(raw.camera_whitebalance)
+            to_prophoto = (M_REC709_TO_PROPHOTO @ np.asarray(raw.color_matrix, np.float64)[:, :3]
+                           ).astype(np.float32)
     except (rawpy.LibRawError, OSError, ValueError, MemoryError) as exc:
         raise RawReadError(
             f"{p} opened but its image data cannot be decoded ({_why(exc)}); "
             "the file is probably truncated or corrupt: copy it again from the camera"
         ) from exc
-    if rgb16.ndim != 3 or rgb16.shape[2] != 3:
-        raise RawReadError(f"{p} developed to shape {rgb16.shape}, not an RGB image")
-    rgb = rgb16.astype(np.float32) / np.float32(FULL_SCALE)
+    if cam16.ndim != 3 or cam16.shape[2] != 3:
+        raise RawReadError(f"{p} developed to shape {cam16.shape}, not an RGB image")
+    rgb = (cam16.astype(np.float32) / np.float32(FULL_SCALE)) @ to_prophoto.T
     wb = tuple(float(v) for v in (list(used) + [0.0] * 4)[:4])
     return DevelopedRaw(rgb=rgb, white_balance=wb, path=p)  # type: ignore[arg-type]
