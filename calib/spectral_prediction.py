@@ -204,6 +204,10 @@ def fitted_light_basis(rgb: ArrayLike, weights: ArrayLike) -> NDArray[np.float64
     c, w = c[keep], w[keep]
     if len(c) < 3:
         return light_basis()
+    # The basis is the same for the light at any scale: solve at unit mean radiance and unit
+    # total weight, where the KKT system below is well conditioned.
+    w = w / w.sum()
+    c = c / float(w @ c.mean(axis=1))
     spectra = emitter_spectra(c)  # (t, n)
     n = len(WAVELENGTHS)
     gram = (c * w[:, None]).T @ c  # (3, 3): the Hessian of every wavelength's row

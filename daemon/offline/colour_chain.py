@@ -54,6 +54,13 @@ TRANSFER_CACHE: int = 16
 BASIS_ROWS: int = 128
 
 
+def chain_text(form: str) -> str:
+    """How a report says which chain read the simulation (a chain's :attr:`~ColourChain.form`)."""
+    if form == CameraChain.form:
+        return "the camera's spectral sensitivities, no correction"
+    return f"the checker's correction ({form})"
+
+
 class ColourChain(Protocol):
     """What the fit and validate need of a chain (module docstring)."""
 

@@ -56,6 +56,7 @@ def fit(capture, holdout, params, json_out, toml_out, html_out, samples, layouts
     """Fit the pixel's materials to the photos in CAPTURE (the capture directory that
     ``grassd validate`` reads): albedos, glossy lobe and splay, with standard errors, judged
     per viewpoint against the starting model."""
+    from grassd.daemon.offline.colour_chain import chain_text
     from grassd.daemon.offline.experiment import format_table
     from grassd.daemon.offline.fit import fit_capture, parse_params
     from grassd.daemon.offline.validate import load_manifest
@@ -75,9 +76,7 @@ def fit(capture, holdout, params, json_out, toml_out, html_out, samples, layouts
     for note in result.notes:
         click.echo(f"note: {note}")
     click.echo(f"chi2 {result.chi2:.1f} on {result.dof} degrees of freedom; "
-               f"{result.seconds:.1f} s; simulation read through "
-               + ("the camera's spectral sensitivities" if result.chain == "camera"
-                  else f"the checker's correction ({result.chain})"))
+               f"{result.seconds:.1f} s; simulation read through {chain_text(result.chain)}")
     atomic_write_text(json_out, json.dumps(result.to_json(), indent=1))
     click.echo(f"wrote {json_out}")
     if toml_out:

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from grassd.calib.colour_spaces import lab_to_srgb
+from grassd.daemon.offline.colour_chain import chain_text
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -261,9 +262,7 @@ def validation_html(result: ValidationResult) -> str:
          "; ".join(" ".join(f"{v:.3f}" for v in row) for row in r.ccm.matrix)],
         ["checker error after M, each patch left out (mean / max dE00)",
          "{:.2f} / {:.2f}".format(*r.ccm.reported_de00)],
-        ["simulation read through", "the camera's spectral sensitivities "
-         f"({r.manifest.sensitivities}), no correction" if r.chain == "camera"
-         else f"the correction M ({r.chain})"],
+        ["simulation read through", chain_text(r.chain)],
         ["light", f"{r.manifest.light.hdri.name}, {r.manifest.light.ambient_lux:g} lx"],
         ["render settings", ", ".join(f"{k} {v}" for k, v in r.settings.items())],
         ["seconds", ", ".join(f"{k} {v:.1f}" for k, v in r.seconds.items())],
@@ -322,5 +321,6 @@ def fit_html(result: FitResult) -> str:
     return page("grassd fit: the pixel's materials from photos", sections,
                 intro=f"Fitted to {sum(not v.held_out for v in result.viewpoints)} viewpoint(s), "
                       f"chi2 {result.chi2:.1f} on {result.dof} degrees of freedom, "
-                      f"{result.seconds:.1f} s. Simulated curves average "
+                      f"{result.seconds:.1f} s, read through {chain_text(result.chain)}. "
+                      "Simulated curves average "
                       f"{result.settings.layouts} random tuft layouts.")

@@ -49,6 +49,7 @@ def validate(capture, samples, replicates, layouts, target_stderr, seed, arch, j
     occurs, both OGCD ranges, and the 8-bit calibration R^2 before and after calibrating with
     the real and with the simulated characteristic (paper Figure 11).
     """
+    from grassd.daemon.offline.colour_chain import chain_text
     from grassd.daemon.offline.validate import load_manifest, validate_capture
     from grassd.sim.scene import MAX_REPLICATES, RenderSettings
 
@@ -86,9 +87,7 @@ def validate(capture, samples, replicates, layouts, target_stderr, seed, arch, j
     click.echo(f"checker colour correction ({result.ccm.form}, each patch left out): mean "
                f"{loo_mean:.2f}, max {loo_max:.2f} dE00; seconds: "
                + ", ".join(f"{k} {v:.1f}" for k, v in result.seconds.items()))
-    if result.chain == "camera":
-        click.echo("the simulation was read through the camera's spectral sensitivities "
-                   f"({result.manifest.sensitivities}), not the correction")
+    click.echo(f"simulation read through {chain_text(result.chain)}")
     if json_out:
         atomic_write_text(json_out, json.dumps(result.to_json(), indent=1))
         click.echo(f"wrote {json_out}")
