@@ -34,9 +34,14 @@ Cameras by spectral sensitivities (``camera_response``, ``spectral_virtual_camer
     ``checker_experiment``, ``ccm_forms_on_checker``, ``camera_route_de00``;
     ``SpectralVirtualCamera(sensitivities, light)`` (non-negative response),
     ``spectral_checker_scene(camera)`` -> camera-RGB image for ``photograph_camera_rgb``.
+A simulated pixel's camera RGB through spectra (``spectral_prediction``)
+    ``sigmoid_spectra(albedo_linear)`` [0..1] -> (..., n) Jakob-Hanika reflectances;
+    ``emitter_spectra(rgb)``, ``fitted_light_basis(texels, weights)`` -> (n, 3) light basis;
+    ``transfer(monomial_spectra, sensitivities, basis)`` -> (M, 3, C);
+    ``Development(sensitivities, multipliers, rgb_cam, grey_y).develop(raw)`` -> ProPhoto.
 Captures (``raw``, ``regions``, ``dng``)
     ``develop_raw(path, white_balance="camera"|(r, g, b[, g2]))`` -> ``DevelopedRaw`` (``.rgb``
-    (H, W, 3) float32 ProPhoto linear 0..1, ``.quad_mean(corners)``,
+    (H, W, 3) float32 ProPhoto linear, negative components kept, ``.quad_mean(corners)``,
     ``.checker_patches(chart_corners)``); ``quad_mean(image, corners)`` [pixels (x, y)];
     ``extract_checker_patches(image, chart_corners)`` -> (24, 3);
     ``write_linear_dng(path, xyz, DngCamera(...), exposure=)`` / ``write_dng(path, raw, camera)``.
