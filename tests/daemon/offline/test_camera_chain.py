@@ -23,6 +23,7 @@ from grassd.daemon.offline.validate import (
     MANIFEST_NAME,
     CaptureManifestError,
     MissingPhotoError,
+    ValidateError,
     load_manifest,
     manifest_to_toml,
     validate_capture,
@@ -72,6 +73,8 @@ def test_the_key_names_a_camera_or_a_csv_beside_the_photos(grey_capture):
     with pytest.raises(CaptureManifestError, match="camera_sensitivities"):
         load_manifest(m.root)
     (m.root / MANIFEST_NAME).write_text(manifest_to_toml(m))
+    with pytest.raises(ValidateError, match="leave out the target standard error"):
+        validate_capture(replace(m, sensitivities="nikon-d5100"), target_stderr=0.1)
 
 
 def test_a_grey_pixel_is_predicted_without_a_correction(grey_capture, renderer):
