@@ -74,24 +74,42 @@ class SpectralPredictionError(CalibError):
     message says which and how to fix it."""
 
 
-def _rec709_weights() -> NDArray[np.float64]:
-    """(3, n) weights on :data:`WAVELENGTHS` whose product with a reflectance is its linear
-    Rec.709 under white light (:func:`light_basis`'s, D65 to 1e-4), as the CIE observer reads
-    it: the perfect white reads (1, 1, 1) exactly (trapezoids included)."""
-    white = light_basis() @ np.ones(3)
-    return M_XYZ_TO_REC709 @ integrate(np.diag(white), cie_observer()).T
+#: The wavelength's powers (t^2, t, 1) of the sigmoid's polynomial, t = 0..1 over WAVELENGTHS.
+_T = (WAVELENGTHS - WAVELENGTHS[0]) / (WAVELENGTHS[-1] - WAVELENGTHS[0])
+_POWERS: NDArray[np.float64] = np.stack([_T * _T, _T, np.ones_like(_T)], axis=1)
+_CACHE: dict[str, NDArray[np.float64]] = {}
 
 
-_WEIGHTS: dict[str, NDArray[np.float64]] = {}
+def _once(name: str, make) -> NDArray[np.float64]:
+    """``make()``, computed once per process (read-only)."""
+    if name not in _CACHE:
+        value = make()
+        value.setflags(write=False)
+        _CACHE[name] = value
+    return _CACHE[name]
+
+
+def _light_basis() -> NDArray[np.float64]:
+    from grassd.calib.spectral_virtual_camera import mallett_basis
+
+    b = illuminant("D65")[:, None] * mallett_basis()
+    rgb = M_XYZ_TO_REC709 @ integrate(b.T, cie_observer()).T  # (3, 3): column k of b_k
+    return b @ np.linalg.inv(rgb)
+
+
+def light_basis() -> NDArray[np.float64]:
+    """(n, 3) spectra of unit Rec.709 light per channel on :data:`WAVELENGTHS`: CIE D65 times
+    Mallett and Yuksel's basis (white light is D65), mapped so that the CIE observer reads each
+    as its unit primary (white light of luminance 1). Read-only, computed once."""
+    return _once("light", _light_basis)
 
 
 def rec709_weights() -> NDArray[np.float64]:
-    """:func:`_rec709_weights`, computed once (read-only)."""
-    if "rec709" not in _WEIGHTS:
-        w = _rec709_weights()
-        w.setflags(write=False)
-        _WEIGHTS["rec709"] = w
-    return _WEIGHTS["rec709"]
+    """(3, n) weights on :data:`WAVELENGTHS` whose product with a reflectance is its linear
+    Rec.709 under white light (:func:`light_basis`'s, D65 to 1e-4), as the CIE observer reads
+    it: the perfect white reads (1, 1, 1) exactly (trapezoids included). Read-only."""
+    return _once("rec709", lambda: M_XYZ_TO_REC709 @ integrate(
+        np.diag(light_basis() @ np.ones(3)), cie_observer()).T)
 
 
 def _sigmoid(x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -114,10 +132,9 @@ def sigmoid_coefficients(albedo_linear: ArrayLike) -> NDArray[np.float64]:
     target = np.clip(np.asarray(albedo_linear, np.float64), EDGE, 1.0 - EDGE)
     shape = target.shape
     target = target.reshape(-1, 3)
-    t = (WAVELENGTHS - WAVELENGTHS[0]) / (WAVELENGTHS[-1] - WAVELENGTHS[0])
-    powers = np.stack([t * t, t, np.ones_like(t)], axis=1)  # (n, 3)
+    powers = _POWERS  # (n, 3)
     w = rec709_weights()
-    y = np.clip(target @ np.array([0.2126, 0.7152, 0.0722]), EDGE, 1.0 - EDGE)
+    y = np.clip(luminance(target, "rec709"), EDGE, 1.0 - EDGE)
     s = 2.0 * y - 1.0
     c = np.zeros_like(target)
     c[:, 2] = s / np.sqrt(1.0 - s * s)
@@ -160,20 +177,7 @@ def sigmoid_coefficients(albedo_linear: ArrayLike) -> NDArray[np.float64]:
 def sigmoid_spectra(albedo_linear: ArrayLike) -> NDArray[np.float64]:
     """(..., n) smooth reflectance spectra on :data:`WAVELENGTHS` of albedos (..., 3) linear
     Rec.709 (:func:`sigmoid_coefficients`; D65, the white (1, 1, 1))."""
-    c = sigmoid_coefficients(albedo_linear)
-    t = (WAVELENGTHS - WAVELENGTHS[0]) / (WAVELENGTHS[-1] - WAVELENGTHS[0])
-    return _sigmoid(c[..., :1] * t * t + c[..., 1:2] * t + c[..., 2:])[0]
-
-
-def light_basis() -> NDArray[np.float64]:
-    """(n, 3) spectra of unit Rec.709 light per channel on :data:`WAVELENGTHS`: CIE D65 times
-    Mallett and Yuksel's basis (white light is D65), mapped so that the CIE observer reads each
-    as its unit primary (white light of luminance 1)."""
-    from grassd.calib.spectral_virtual_camera import mallett_basis
-
-    b = illuminant("D65")[:, None] * mallett_basis()
-    rgb = M_XYZ_TO_REC709 @ integrate(b.T, cie_observer()).T  # (3, 3): column k of b_k
-    return b @ np.linalg.inv(rgb)
+    return _sigmoid(sigmoid_coefficients(albedo_linear) @ _POWERS.T)[0]
 
 
 def emitter_spectra(rgb: ArrayLike) -> NDArray[np.float64]:

@@ -137,6 +137,14 @@ def monomial_values(albedo_linear: NDArray[np.float64], specular: float | NDArra
     return out
 
 
+def check_lobe(glossy: bool, specular: float) -> None:
+    """Refuse to evaluate a glossy reflectance ``specular`` on terms recorded without the
+    glossy lobe (``glossy`` False): they hold no monomial of ``S``."""
+    if specular and not glossy:
+        raise SceneError("these terms were recorded without the glossy lobe; record with "
+                         "glossy=True to evaluate a specular reflectance")
+
+
 @dataclass(frozen=True)
 class AlbedoTerms:
     """One viewpoint's radiance at several green lengths as polynomials in the materials.
@@ -165,8 +173,6 @@ class AlbedoTerms:
                  ) -> NDArray[np.float64]:
         """(R, n, 3) replicate radiance (linear Rec.709, nits) for albedos (4, 3) linear in
         material order (yellow, green, base, cavity) and glossy reflectance ``specular``."""
-        if specular and not self.glossy:
-            raise SceneError("these terms were recorded without the glossy lobe; record with "
-                             "glossy=True to evaluate a specular reflectance")
+        check_lobe(self.glossy, specular)
         mono = monomial_values(albedo_linear, specular, self.degree)
         return np.einsum("rnmc,mc->rnc", self.coefficients, mono)

@@ -29,7 +29,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from grassd.sim.errors import SceneError
-from grassd.sim.scene import DisplaySpec, PixelSpec, srgb_to_linear
+from grassd.sim.scene import DisplaySpec, PixelSpec
 
 #: Material ids (row index into :attr:`SceneArrays.albedo`).
 MAT_YELLOW, MAT_GREEN, MAT_BASE, MAT_CAVITY = 0, 1, 2, 3
@@ -324,8 +324,7 @@ def _draw_layout(display: DisplaySpec) -> _Layout:
                      (2, (1, 3, 2, 4))):   # z = coord, x in lo0..hi0, y in lo1..hi1
         sel = rect_axis == ax
         rect_boxes[sel] = b[sel][:, list(cols)]
-    albedo = np.stack([srgb_to_linear(spec.yellow_srgb), srgb_to_linear(spec.green_srgb),
-                       srgb_to_linear(spec.base_srgb), srgb_to_linear(spec.cavity_srgb)])
+    albedo = spec.albedo_linear
     return _Layout(cat=cat, blade_p0=_readonly(blade_p0),
                    blade_axis=_readonly(cat["axis"].astype(np.float32)),
                    blade_lean=_readonly(cat["lean"].astype(np.float32)),

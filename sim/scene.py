@@ -116,6 +116,13 @@ class PixelSpec:
                 raise SceneError(f"PixelSpec.{name} must be three 8-bit sRGB values in 0..255")
 
     @property
+    def albedo_linear(self) -> np.ndarray:
+        """(4, 3) linear Rec.709 albedos of the materials in the renderer's order: yellow,
+        green, base, cavity."""
+        return srgb_to_linear((self.yellow_srgb, self.green_srgb, self.base_srgb,
+                               self.cavity_srgb))
+
+    @property
     def phong_exponent(self) -> float:
         """Exponent of the glossy lobe: ``2 / a^2 - 2`` with roughness ``a = (1 - smoothness)^2``
         (the usual Phong-Beckmann correspondence; smoothness 0.5 gives 30)."""

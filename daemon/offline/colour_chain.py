@@ -44,6 +44,7 @@ from grassd.calib.spectral_prediction import (
     sigmoid_spectra,
     transfer,
 )
+from grassd.daemon.core.calibration.simulation import white_radiance
 from grassd.sim.albedo_terms import monomial_values
 from grassd.sim.lighting import Lighting, horizontal_cosine_weights
 
@@ -199,7 +200,7 @@ def simulation_chain(sensitivities: str | None, correction: ColourCorrection, sc
     ``sensitivities`` (:func:`load_sensitivities`), developed as its ``checker_photo`` is (its
     profile, the capture's ``white_balance``, the ``chart``'s grey) under ``lighting``'s
     spectra, else the checker's ``correction`` scaled by ``scale`` (:class:`CorrectedChain`)."""
-    white = np.asarray(lighting.horizontal_irradiance_rgb, np.float64) / np.pi
+    white = white_radiance(lighting)
     if sensitivities is None:
         return CorrectedChain(correction.scaled(scale), white)
     camera = load_sensitivities(sensitivities)

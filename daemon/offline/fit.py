@@ -69,7 +69,7 @@ from colour import delta_E
 from numpy.typing import NDArray
 
 from grassd.calib.charts import get_chart
-from grassd.daemon.core.calibration.simulation import layout_seed
+from grassd.daemon.core.calibration.simulation import layout_display, layout_seed
 from grassd.daemon.offline.colour_chain import ColourChain, simulation_chain
 from grassd.daemon.offline.fit_config import FitSettings
 from grassd.daemon.offline.validate import (
@@ -81,7 +81,7 @@ from grassd.daemon.offline.validate import (
     default_renderer,
     measure_and_correct,
 )
-from grassd.sim.errors import SceneError
+from grassd.sim.albedo_terms import check_lobe
 from grassd.sim.scene import srgb_to_linear
 
 if TYPE_CHECKING:
@@ -333,7 +333,7 @@ class _Model:
         for key in todo:
             self._cache[key] = []
         for k in range(s.layouts):
-            display = DisplaySpec(replace(ref, layout_seed=ref.layout_seed + k))
+            display = layout_display(DisplaySpec(ref), k)
             rs = RenderSettings(samples=s.samples, replicates=s.replicates,
                                 max_bounces=s.max_bounces, seed=layout_seed(s.seed, k))
             for key, i in todo.items():
@@ -345,9 +345,7 @@ class _Model:
     def replicates(self, shape: tuple[float, float], series: int, albedo: NDArray[np.float64],
                    ks: float) -> NDArray[np.float64]:
         """(layouts, replicates, n, 3) signals of the chain (:mod:`.colour_chain`)."""
-        if ks and not self.glossy:
-            raise SceneError("these terms were recorded without the glossy lobe; record with "
-                             "glossy=True to evaluate a specular reflectance")
+        check_lobe(self.glossy, ks)
         terms = self.terms(shape, series)
         return self.chain.signal(np.stack([t.coefficients for t in terms]), albedo, ks,
                                  terms[0].degree)
@@ -400,8 +398,7 @@ class _Problem:
         self.fit_ks = "specular" in params
         self.fixed_ks = float(model.start.specular)  # ks where it is not fitted
         start = model.start
-        self.base_albedo = srgb_to_linear(np.array([start.yellow_srgb, start.green_srgb,
-                                                     start.base_srgb, start.cavity_srgb]))
+        self.base_albedo = start.albedo_linear
         self.x0 = np.array([c for p in self.albedo_params for c in getattr(start, p)]
                            + ([start.specular] if self.fit_ks else []), dtype=np.float64)
         self.lower = np.array([0.0] * (3 * len(self.albedo_params))

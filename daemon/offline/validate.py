@@ -81,7 +81,6 @@ from grassd.daemon.core.config import manifest_fields, schema
 from grassd.daemon.core.errors import DaemonError, LocatedError, ManifestError
 from grassd.daemon.offline.colour_chain import CorrectedChain, simulation_chain
 from grassd.sim.light_input import LightInput
-from grassd.sim.scene import srgb_to_linear
 
 if TYPE_CHECKING:
     from grassd.calib.ogcd import OGCDResult
@@ -984,16 +983,14 @@ def _chain_curve(renderer: Renderer, pixel: PixelSpec, lighting: Lighting, viewp
     recorded for each of ``layouts`` tuft layouts (the pixel's ``layout_seed`` and the next
     ones, each with its own paths, as ``grassd fit`` records them), evaluated at the pixel's
     own materials; every layout's replicates are independent samples of the mean."""
-    from grassd.daemon.core.calibration.simulation import layout_seed
+    from grassd.daemon.core.calibration.simulation import layout_display, layout_seed
     from grassd.sim.scene import DisplaySpec
 
-    albedo = srgb_to_linear(np.array([pixel.yellow_srgb, pixel.green_srgb, pixel.base_srgb,
-                                      pixel.cavity_srgb]))
     samples = []
     for k in range(layouts):
         terms = renderer.albedo_terms(
-            DisplaySpec(replace(pixel, layout_seed=pixel.layout_seed + k)), lighting,
-            viewpoint, lengths_mm, replace(settings, seed=layout_seed(settings.seed, k)),
-            glossy=pixel.specular > 0)
-        samples.append(chain.signal(terms.coefficients, albedo, pixel.specular, terms.degree))
+            layout_display(DisplaySpec(pixel), k), lighting, viewpoint, lengths_mm,
+            replace(settings, seed=layout_seed(settings.seed, k)), glossy=pixel.specular > 0)
+        samples.append(chain.signal(terms.coefficients, pixel.albedo_linear, pixel.specular,
+                                    terms.degree))
     return chain.ogcd(np.concatenate(samples))

@@ -27,7 +27,7 @@ import numpy as np
 
 from grassd.calib.ogcd import ogcd_from_samples
 from grassd.sim.errors import SceneError
-from grassd.sim.scene import MAX_REPLICATES
+from grassd.sim.scene import MAX_REPLICATES, DisplaySpec
 
 
 @dataclass(frozen=True)
@@ -83,6 +83,16 @@ def layout_seed(seed: int, layout: int) -> int:
     """The path seed of tuft layout ``layout`` (0, 1, ...) of a simulation seeded ``seed``:
     layout 0 keeps the seed, the others draw their own paths."""
     return (seed + LAYOUT_SEED_STEP * layout) % 2**31
+
+
+def layout_display(display: DisplaySpec, layout: int) -> DisplaySpec:
+    """The display of tuft layout ``layout`` (0, 1, ...) of a simulation: its pixel's
+    ``layout_seed`` moved by ``layout`` (layout 0 is the display itself), traced with the
+    paths of :func:`layout_seed`."""
+    if layout == 0:
+        return display
+    return replace(display, pixel=replace(display.pixel,
+                                          layout_seed=display.pixel.layout_seed + layout))
 
 
 @dataclass(frozen=True)
@@ -350,10 +360,9 @@ class _RoundTracer:
         traced_paths = 0
         for layout in sorted({(first + i) % self.layouts for i in range(b)}):
             rows = [i for i in range(b) if (first + i) % self.layouts == layout]
-            shown = self.display if layout == 0 else replace(self.display, pixel=replace(
-                self.display.pixel, layout_seed=self.display.pixel.layout_seed + layout))
             m = self.renderer.characteristic(
-                shown, self.lighting, self.viewpoint, self.lengths_mm[cols],
+                layout_display(self.display, layout), self.lighting, self.viewpoint,
+                self.lengths_mm[cols],
                 replace(settings, replicates=len(rows), seed=layout_seed(settings.seed, layout)),
                 pixel_index=self.pixel_index, progress=self.progress)
             self.seconds["compile"] += m.seconds.get("compile", 0.0)
