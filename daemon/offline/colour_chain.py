@@ -40,19 +40,16 @@ from grassd.calib.colour_spaces import luminance, prophoto_to_lab, rec709_to_pro
 from grassd.calib.ogcd import OGCDResult, ogcd_from_samples
 from grassd.calib.spectral_prediction import (
     Development,
-    fitted_light_basis,
     sigmoid_spectra,
     transfer,
 )
 from grassd.daemon.core.calibration.simulation import white_radiance
+from grassd.daemon.core.calibration.transport import light_spectra_basis
 from grassd.sim.albedo_terms import monomial_values
-from grassd.sim.lighting import Lighting, horizontal_cosine_weights
+from grassd.sim.lighting import Lighting
 
 #: Transfer matrices a camera chain keeps (the fit evaluates a few materials at a time).
 TRANSFER_CACHE: int = 16
-#: The light's map is block-averaged to at most this many rows (and twice as many columns)
-#: before its texels are upsampled to spectra (:func:`light_spectra_basis`).
-BASIS_ROWS: int = 128
 
 
 def chain_text(form: str) -> str:
@@ -115,25 +112,6 @@ class CorrectedChain:
         return ogcd_from_samples(np.clip(samples, 0.0, None), space="rec709", ccm=self.ccm)
 
 
-def light_spectra_basis(lighting: Lighting) -> NDArray[np.float64]:
-    """(n, 3) basis of ``lighting``'s spectra (:func:`grassd.calib.spectral_prediction.
-    fitted_light_basis`): the map's texels above the horizon, block-averaged to at most
-    :data:`BASIS_ROWS` rows, and the sun, each weighted by what it gives a flat white card
-    (radiance times cosine times solid angle)."""
-    env = np.asarray(lighting.env, np.float64)
-    k = max(1, int(np.ceil(env.shape[0] / BASIS_ROWS)))
-    h, w = env.shape[0] // k * k, env.shape[1] // k * k
-    env = env[:h, :w].reshape(h // k, k, w // k, k, 3).mean(axis=(1, 3))
-    weights = horizontal_cosine_weights(*env.shape[:2])  # (rows,)
-    rgb = env.reshape(-1, 3)
-    share = (env.mean(axis=2) * weights[:, None]).reshape(-1)
-    if lighting.sun_direction is not None and lighting.sun_direction[2] > 0:
-        sun = np.asarray(lighting.sun_irradiance_rgb, np.float64)
-        rgb = np.vstack([rgb, sun])
-        share = np.append(share, sun.mean() * float(lighting.sun_direction[2]))
-    return fitted_light_basis(rgb, share)
-
-
 @dataclass
 class CameraChain:
     """Spectral transport read by the camera's own sensitivities (module docstring).
@@ -141,7 +119,7 @@ class CameraChain:
     ``development``: the photos' (their white balance, profile and the camera's
     sensitivities); ``white`` (3,): the white card's Rec.709 radiance (nits), which sets the
     exposure as the checker's grey sets the photos'; ``basis`` (n, 3): the light's spectra per
-    Rec.709 channel (:func:`light_spectra_basis`).
+    Rec.709 channel (:func:`~grassd.daemon.core.calibration.transport.light_spectra_basis`).
     """
 
     development: Development

@@ -15,6 +15,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from grassd.daemon.core.config.settings import TRANSPORTS, SimulationConfig
 from grassd.daemon.core.store.atomic import (
     atomic_save_figure,
     atomic_write_bytes,
@@ -162,6 +163,10 @@ def _plot(path: Path, curves) -> None:
 @click.option("--light-samples", type=int, default=RENDER_DEFAULTS.light_samples,
               show_default=True,
               help="Environment shadow rays at the first surface of a path (one at later ones).")
+@click.option("--transport", type=click.Choice(TRANSPORTS), default=SimulationConfig.transport,
+              show_default=True,
+              help="How light is carried: Rec.709 plus the difference spectra make, or "
+                   "Rec.709 alone (as [simulation] transport).")
 @click.option("--arch", type=click.Choice(["cpu", "gpu"]), default="cpu", show_default=True)
 @click.option("--json", "json_out", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--plot", "plot_out", type=click.Path(dir_okay=False, path_type=Path),
@@ -172,7 +177,7 @@ def _plot(path: Path, curves) -> None:
 def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, site, when, sun_from_hdri,
              rotation, flip, splay, specular, smoothness, bounces, seed, views, lengths,
              samples, replicates,
-             target_stderr, light_samples, arch, json_out, plot_out, preview_out):
+             target_stderr, light_samples, transport, arch, json_out, plot_out, preview_out):
     """Simulate the grass colour characteristic (OGCD vs green length) per viewpoint."""
     if ctx.invoked_subcommand is not None:
         return
@@ -194,11 +199,16 @@ def simulate(ctx, hdri, lux, sun_lux, sun_azimuth, sun_elevation, site, when, su
     from grassd.sim.renderer import Renderer
 
     renderer = Renderer.shared()
+    spectral = None
+    if transport == "spectral":
+        from grassd.daemon.core.calibration.transport import SpectralTransport
+
+        spectral = SpectralTransport.of(display, lighting, SimulationConfig.spectral_share)
     total = len(views) * len(length_mm)
     with click.progressbar(length=total, label="tracing", file=sys.stderr) as bar:
         curves, seconds = simulate_curves(renderer, display, lighting, views, length_mm,
                                           settings, target_stderr=target_stderr,
-                                          progress=bar.update)
+                                          spectral=spectral, progress=bar.update)
     seconds["total"] = time.perf_counter() - t0
     for c in curves:
         click.echo(f"\nviewpoint (h, d, theta) = ({c.h_cm:g} cm, {c.d_m:g} m, "

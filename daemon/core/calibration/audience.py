@@ -147,18 +147,20 @@ def centre_pixel(display) -> int:
 
 def simulate_region(renderer, display, lighting, samples: AudienceSamples,
                     lengths_mm: np.ndarray, settings, *, pixel_index: int | None = None,
-                    target_stderr: float | None = None, ccm=None,
+                    target_stderr: float | None = None, ccm=None, spectral=None,
                     progress: Callable[[int, int], None] | None = None
                     ) -> list[SimulatedCurve]:
     """One :class:`SimulatedCurve` per sampled eye for pixel ``pixel_index`` (default the
     centre pixel) of ``display``, each seen from its own direction. Same seed for every eye
-    (common random numbers across viewpoints). ``progress(done, total)`` per eye."""
+    (common random numbers across viewpoints). ``progress(done, total)`` per eye; ``spectral``:
+    :func:`~grassd.daemon.core.calibration.simulation.simulate_curve`'s."""
     p = centre_pixel(display) if pixel_index is None else int(pixel_index)
     curves = []
     for k, eye in enumerate(samples.eyes_m):
         vp = geometry_from_eye(display, eye).viewpoint(p)
         curves.append(simulate_curve(renderer, display, lighting, vp, lengths_mm, settings,
-                                     ccm=ccm, pixel_index=p, target_stderr=target_stderr))
+                                     ccm=ccm, pixel_index=p, target_stderr=target_stderr,
+                                     spectral=spectral))
         if progress:
             progress(k + 1, samples.n)
     return curves

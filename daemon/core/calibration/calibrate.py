@@ -79,6 +79,7 @@ from grassd.daemon.core.calibration.result import (
     ViewpointCurve,
 )
 from grassd.daemon.core.calibration.simulation import simulate_curve, white_radiance
+from grassd.daemon.core.calibration.transport import SpectralTransport
 from grassd.daemon.core.calibration.units import (
     Viewers,
     audience_units,
@@ -183,6 +184,14 @@ class Calibrator:
         spec = replace(display_spec_for_config(self.cfg), rows=rows, cols=cols)
         return spec, (rows // 2) * cols + cols // 2
 
+    def transport(self, display: DisplaySpec, lighting: Lighting) -> SpectralTransport | None:
+        """The spectral transport of ``display``'s pixel under ``lighting`` with ``[simulation]
+        transport = "spectral"``, else None (Rec.709 transport)."""
+        sim = self.cfg.simulation
+        if sim.transport != "spectral":
+            return None
+        return SpectralTransport.of(display, lighting, sim.spectral_share)
+
     def white_radiance(self, lighting: Lighting) -> NDArray[np.float64]:
         """Rec.709 radiance (nits) of a perfect diffuse white lying flat at the display (the
         white reference shared with ``grassd simulate``,
@@ -211,9 +220,11 @@ class Calibrator:
         return select_ccm(virtual, r, tuple(CCM_FORMS) if form == "auto" else (form,))
 
     def simulate(self, lighting: Lighting, lengths_mm: NDArray, seed: int,
-                 ccm: ColourCorrection | None, stop: threading.Event | None,
-                 progress: Progress | None) -> list[ViewpointCurve]:
-        """OGCD vs ``lengths_mm`` (first entry = reference) from every viewpoint."""
+                 ccm: ColourCorrection | None, spectral: SpectralTransport | None,
+                 stop: threading.Event | None, progress: Progress | None
+                 ) -> list[ViewpointCurve]:
+        """OGCD vs ``lengths_mm`` (first entry = reference) from every viewpoint, with
+        ``spectral`` transport where given (:meth:`transport`)."""
         from grassd.sim.renderer import Renderer  # imports Taichi
         from grassd.sim.scene import RenderSettings
 
@@ -230,7 +241,8 @@ class Calibrator:
             t0 = time.perf_counter()
             c = simulate_curve(Renderer.shared(), display, lighting, self.viewpoint(vp),
                                np.asarray(lengths_mm, float), settings, ccm=ccm,
-                               pixel_index=centre, layouts=self.cfg.simulation.layouts)
+                               pixel_index=centre, layouts=self.cfg.simulation.layouts,
+                               spectral=spectral)
             curves.append(ViewpointCurve(vp, np.asarray(lengths_mm, float), c.ogcd,
                                          c.ogcd_stderr, time.perf_counter() - t0,
                                          step_stderr=c.step_stderr, lab=c.lab))
@@ -325,15 +337,18 @@ class Calibrator:
         if source == CENTRE:
             display, centre = self.display()
             renderer = Renderer.shared()
+            spectral = self.transport(display, lighting)
             found = centre_units(self, display, centre, lighting, lengths, settings.seed, ccm,
-                                 stop, progress)
+                                 spectral, stop, progress)
         else:
             display = display_spec_for_config(cfg)
             renderer = Renderer.shared(capacity_for(display.rows * display.cols))
             step = stepper("simulating the display")
             step(0, 1)
+            spectral = self.transport(display, lighting)
             units_of = viewpoint_units if source == "viewpoints" else audience_units
-            found = units_of(self, renderer, display, lighting, lengths, settings, ccm, step)
+            found = units_of(self, renderer, display, lighting, lengths, settings, ccm,
+                             spectral, step)
         t_sim = time.perf_counter() - t_start
         units, unit_of_pixel = list(found.units), found.unit_of_pixel
         viewers = found.viewers.split_by_table(unit_of_pixel)  # each table on its own pixels
@@ -349,7 +364,7 @@ class Calibrator:
         checked(units)  # the first tables, before the closed loop spends time on them
         t_loop = time.perf_counter()
         units, rounds = closed_loop(renderer, display, lighting, viewers, units, unit_of_pixel,
-                                    settings, ccm, cc, checked, stepper)
+                                    settings, ccm, spectral, cc, checked, stepper)
         controller_tables, max_step = checked(units)
         whole = found.whole if found.whole is not None else units[0]
         total = time.perf_counter() - t_start
@@ -362,7 +377,7 @@ class Calibrator:
             region=found.region, loop_rounds=rounds,
             seconds={"simulate": t_sim, "closed_loop": total - (t_loop - t_start),
                      "total": total},
-            max_step_um=max_step, curves=found.curves)
+            max_step_um=max_step, curves=found.curves, transport=cfg.simulation.transport)
         return with_correction(cfg, result, correction)
 
 
@@ -409,7 +424,8 @@ class _TableChecks:
 
 def closed_loop(renderer: Renderer, display: DisplaySpec, lighting: Lighting, viewers: Viewers,
                 units: list[UnitTable], unit_of_pixel: NDArray, settings: RenderSettings,
-                ccm: ColourCorrection | None, cc: CalibrationConfig, checked: _TableChecks,
+                ccm: ColourCorrection | None, spectral: SpectralTransport | None,
+                cc: CalibrationConfig, checked: _TableChecks,
                 stepper: Callable[[str], Callable[[int, int], None]]
                 ) -> tuple[list[UnitTable], list[LoopCheck]]:
     """Up to ``cc.max_rounds`` rounds of :func:`closed_loop_check` (round k with seed
@@ -423,7 +439,8 @@ def closed_loop(renderer: Renderer, display: DisplaySpec, lighting: Lighting, vi
         pixel_tables = np.stack([u.lengths_um for u in units])[unit_of_pixel]
         loop = closed_loop_check(renderer, display, lighting, viewers, pixel_tables, levels,
                                  replace(settings, seed=settings.seed + 1000 * k), ccm,
-                                 stepper(f"closed loop round {k}"), round_no=k)
+                                 stepper(f"closed loop round {k}"), round_no=k,
+                                 spectral=spectral)
         rounds.append(loop)
         pixel_dev = loop.pixel_dev()
         off = [i for i, u in enumerate(units)
@@ -447,12 +464,14 @@ def closed_loop_check(renderer: Renderer, display: DisplaySpec, lighting: Lighti
                       viewers: Viewers, pixel_tables_um: NDArray, levels: NDArray,
                       settings: RenderSettings, ccm: ColourCorrection | None,
                       step: Callable[[int, int], None],
-                      round_no: int = 1) -> LoopCheck:
+                      round_no: int = 1, spectral: SpectralTransport | None = None
+                      ) -> LoopCheck:
     """Re-simulate every group's representative pixel from every viewer at the lengths its
     table gives ``levels`` (``pixel_tables_um`` (N, 256) [um], first level 0 = the reference
     length), average the viewers' OGCD with their weights and compare it with the linear
     target ``level / 255 x OGCD(255)`` (the check of the global run's closed loop).
-    ``settings`` carries the round's own seed. One trace per (group, viewer)."""
+    ``settings`` carries the round's own seed; ``spectral``: the run's transport. One trace
+    per (group, viewer)."""
     w = viewers.weights / viewers.weights.sum()
     reps = viewers.representatives
     lx = pixel_tables_um[reps][:, levels].astype(np.float64) / 1000.0  # (G, L) mm
@@ -464,7 +483,8 @@ def closed_loop_check(renderer: Renderer, display: DisplaySpec, lighting: Lighti
         ys, es = [], []
         for vp in viewers.viewpoints_of(int(p)):
             c = simulate_curve(renderer, display, lighting, vp, lx[g], settings, ccm=ccm,
-                               pixel_index=int(p), layouts=viewers.layouts)
+                               pixel_index=int(p), layouts=viewers.layouts,
+                               spectral=spectral)
             ys.append(c.ogcd)
             es.append(c.ogcd_stderr)
             done += 1

@@ -400,7 +400,8 @@ def simulate_display(renderer, display, lighting, viewer, lengths_mm: np.ndarray
                      eye: str = "world", tolerance_deg: float = 2.0,
                      distance_tolerance: float = 0.1, by_neighbours: bool = True,
                      target_stderr: float | None = None, check_groups: int = 4, ccm=None,
-                     decompose: bool | None = None, geometry: PixelGeometry | None = None,
+                     spectral=None, decompose: bool | None = None,
+                     geometry: PixelGeometry | None = None,
                      progress: Callable[[int, int], None] | None = None) -> DisplaySimulation:
     """Trace one representative pixel per viewing-geometry group of ``display``.
 
@@ -414,6 +415,7 @@ def simulate_display(renderer, display, lighting, viewer, lengths_mm: np.ndarray
     representative's direction (see :class:`GroupingError`); None (default): only when every
     pixel has its own tuft layout (with a shared one the pixel part is too small to be worth a
     trace per check: docs/calibration.md). ``progress(done, total)`` counts traces.
+    ``spectral``: :func:`~grassd.daemon.core.calibration.simulation.simulate_curve`'s.
     """
     t0 = time.perf_counter()
     if decompose is None:
@@ -432,7 +434,7 @@ def simulate_display(renderer, display, lighting, viewer, lengths_mm: np.ndarray
         vp = geo.viewpoint(int(i if view_of is None else view_of))
         curve = simulate_curve(renderer, display, lighting, vp, lengths_mm,
                                settings, ccm=ccm, pixel_index=int(i),
-                               target_stderr=target_stderr)
+                               target_stderr=target_stderr, spectral=spectral)
         done += 1
         if progress:
             progress(done, total)
@@ -654,7 +656,7 @@ def combine_viewpoints(sims: Sequence[DisplaySimulation], weights: Sequence[floa
 
 
 def display_tables_for_config(renderer, cfg, lighting, lengths_mm: np.ndarray, settings, *,
-                              target_stderr: float | None = None, ccm=None,
+                              target_stderr: float | None = None, ccm=None, spectral=None,
                               progress: Callable[[int, int], None] | None = None
                               ) -> tuple[DisplayTables, list[DisplaySimulation]]:
     """Tables for a daemon ``Config``: its display (``[display]``), every ``[[viewpoints]]``
@@ -675,7 +677,7 @@ def display_tables_for_config(renderer, cfg, lighting, lengths_mm: np.ndarray, s
             renderer, display, lighting, Viewpoint(v.h_cm, v.d_m, v.theta_deg), lengths_mm,
             settings, eye=t.eye, tolerance_deg=t.group_tolerance_deg,
             distance_tolerance=t.distance_tolerance, target_stderr=target_stderr,
-            check_groups=t.check_groups, ccm=ccm, progress=step))
+            check_groups=t.check_groups, ccm=ccm, spectral=spectral, progress=step))
     combined = combine_viewpoints(sims, [v.weight for v in cfg.viewpoints])
     controllers = controller_pixels(cfg.controllers, display.rows * display.cols)
     tables = build_display_tables(combined, t.granularity, controllers=controllers,

@@ -162,6 +162,8 @@ class CalibrationResult:
     curves: list[ViewpointCurve] = field(default_factory=list)
     #: the display measurement whose per-pixel correction the tables include, or None
     correction: str | None = None
+    #: how the simulation carried light (``[simulation] transport``)
+    transport: str = field(kw_only=True)
 
     @property
     def loop(self) -> LoopCheck | None:
@@ -247,6 +249,7 @@ class CalibrationResult:
                  "r2_min": float(lp.r2.min())} for lp in self.loop_rounds],
             "grouping": self.grouping, "region": self.region,
             "ccm": self._ccm_report(),
+            "transport": self.transport,
             "lighting_notes": list(self.lighting_notes),
         }
         return self._corrected(out)
@@ -342,6 +345,7 @@ class CalibrationResult:
                 for r in self.loop_rounds
             ],
             "ccm": self._ccm_report(),
+            "transport": self.transport,
             "lighting_notes": list(self.lighting_notes),
         }
 

@@ -175,7 +175,8 @@ class UnitReport(TypedDict):
 class DisplayReport(TypedDict):
     """A display run's report: the display-wide table, every controller's, the units behind
     them, the last closed-loop round and every round in brief, grouping and region
-    summaries, the colour correction and the lighting's notes."""
+    summaries, the colour correction, the light's transport (``[simulation] transport``) and
+    the lighting's notes."""
 
     granularity: str
     table_source: str
@@ -189,6 +190,7 @@ class DisplayReport(TypedDict):
     grouping: GroupingSummary | None
     region: RegionSummary | None
     ccm: CcmReport | None
+    transport: str
     lighting_notes: list[str]
     display_correction: NotRequired[str]
 
@@ -231,12 +233,14 @@ class CentreLoopRound(TypedDict):
 
 class CentreReport(TypedDict):
     """A centre-pixel run's report: its table, pooled characteristic, per-viewpoint curves,
-    closed-loop rounds, the colour correction and the lighting's notes."""
+    closed-loop rounds, the colour correction, the light's transport and the lighting's
+    notes."""
 
     table_um: list[int]
     characteristic: CharacteristicReport
     viewpoints: list[ViewpointCurveReport]
     closed_loop: list[CentreLoopRound]
     ccm: CcmReport | None
+    transport: str
     lighting_notes: list[str]
     display_correction: NotRequired[str]

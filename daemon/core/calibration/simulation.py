@@ -1,7 +1,9 @@
 """Simulated grass colour characteristics: the renderer (``sim``) composed with ``calib``.
 
 ``sim`` returns linear Rec.709 radiance (nits) with its Monte Carlo replicates; this module turns
-it into CIELAB and OGCD the way a camera developed with a fixed white balance would see it:
+it into CIELAB and OGCD the way a camera developed with a fixed white balance would see it
+(with spectral transport's difference added to every replicate where asked:
+:mod:`grassd.daemon.core.calibration.transport`):
 
 1. White reference: the radiance of a perfect diffuse white lying flat at the display,
    ``W = E_h / pi`` per channel, where ``E_h`` is the horizontal irradiance of the lighting
@@ -22,12 +24,16 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from grassd.calib.ogcd import ogcd_from_samples
 from grassd.sim.errors import SceneError
 from grassd.sim.scene import MAX_REPLICATES, DisplaySpec
+
+if TYPE_CHECKING:
+    from grassd.daemon.core.calibration.transport import SpectralTransport
 
 
 @dataclass(frozen=True)
@@ -144,7 +150,8 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
                    on_round: Callable[[SimulatedCurve], None] | None = None,
                    round_replicates: int = MAX_REPLICATES,
                    larger: LargerReplicates | None = None,
-                   resume: CurveRun | None = None) -> SimulatedCurve:
+                   resume: CurveRun | None = None,
+                   spectral: SpectralTransport | None = None) -> SimulatedCurve:
     """Render one viewpoint at ``lengths_mm`` (mm, first = reference) and derive its OGCD.
 
     With ``target_stderr`` (CIEDE2000), further batches of independent replicates (new seeds,
@@ -181,6 +188,10 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     showing ``on_round`` that round's curve (or the last one shown, where a new series of
     larger replicates has too few yet); the rounds and seeds are those of a run never
     stopped, so the curve is the same.
+
+    ``spectral``: each replicate adds the difference spectral transport makes to its paths
+    (:class:`grassd.daemon.core.calibration.transport.SpectralTransport`, for this display and
+    light); None: Rec.709 transport alone.
     """
     if settings.replicates < 2:
         raise SceneError(f"simulate_curve needs at least 2 replicates (their spread is the "
@@ -195,14 +206,14 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     run = CurveRun() if resume is None else resume
     fresh = run.settings is None
     asked = (tuple(lengths_mm.tolist()), settings, target_stderr, max_replicates,
-             round_replicates, layouts, pixel_index, larger)
+             round_replicates, layouts, pixel_index, larger, spectral is None)
     if fresh:
         run.begin(settings, n_len, max_replicates, round_replicates, asked)
     elif run.asked != asked:
         raise SceneError("a stopped run goes on only with the lengths, settings, target and "
                          "limits it began with")
     tracer = _RoundTracer(renderer, display, lighting, viewpoint, lengths_mm, layouts,
-                          pixel_index, progress, run.seconds)
+                          pixel_index, progress, run.seconds, spectral)
     first_round = settings.replicates
     if (not fresh and on_round is not None and run.shown is not None
             and (not run.blocks or int(run.counts[0]) < run.show_from)):
@@ -289,7 +300,7 @@ class CurveRun:
     max_replicates: int = 0
     round_replicates: int = 0
     seconds: dict[str, float] = field(
-        default_factory=lambda: {"compile": 0.0, "trace": 0.0, "colour": 0.0})
+        default_factory=lambda: {"compile": 0.0, "trace": 0.0, "spectral": 0.0, "colour": 0.0})
 
     def begin(self, settings, n_len: int, max_replicates: int, round_replicates: int,
               asked: tuple) -> None:
@@ -338,8 +349,9 @@ def _larger_series(run: CurveRun, larger: LargerReplicates | None, n: int, worst
 @dataclass(frozen=True)
 class _RoundTracer:
     """What every round of one :func:`simulate_curve` run traces: the display seen from
-    ``viewpoint`` under ``lighting`` at ``lengths_mm`` (mm), with ``layouts`` tuft layouts;
-    the renderer's compile and trace seconds are added to ``seconds``."""
+    ``viewpoint`` under ``lighting`` at ``lengths_mm`` (mm), with ``layouts`` tuft layouts,
+    with ``spectral`` transport's difference where given; the renderer's compile and trace
+    seconds (and the recording's, as ``spectral``) are added to ``seconds``."""
 
     renderer: object
     display: object
@@ -350,6 +362,7 @@ class _RoundTracer:
     pixel_index: int
     progress: Callable[[int, int], None] | None
     seconds: dict[str, float]
+    spectral: SpectralTransport | None = None
 
     def round(self, cols: np.ndarray, settings, b: int, first: int) -> tuple[np.ndarray, int]:
         """Trace a round of ``b`` replicates (the run's ``first`` to ``first + b - 1``, seeded
@@ -360,15 +373,23 @@ class _RoundTracer:
         traced_paths = 0
         for layout in sorted({(first + i) % self.layouts for i in range(b)}):
             rows = [i for i in range(b) if (first + i) % self.layouts == layout]
+            display = layout_display(self.display, layout)
+            layout_settings = replace(settings, replicates=len(rows),
+                                      seed=layout_seed(settings.seed, layout))
             m = self.renderer.characteristic(
-                layout_display(self.display, layout), self.lighting, self.viewpoint,
-                self.lengths_mm[cols],
-                replace(settings, replicates=len(rows), seed=layout_seed(settings.seed, layout)),
+                display, self.lighting, self.viewpoint, self.lengths_mm[cols], layout_settings,
                 pixel_index=self.pixel_index, progress=self.progress)
             self.seconds["compile"] += m.seconds.get("compile", 0.0)
             self.seconds["trace"] += m.seconds.get("trace", 0.0)
             traced_paths += m.paths_traced
-            block[np.ix_(rows, cols)] = m.rgb_replicates
+            rgb = m.rgb_replicates
+            if self.spectral is not None:
+                difference, seconds = self.spectral.difference(
+                    self.renderer, display, self.lighting, self.viewpoint,
+                    self.lengths_mm[cols], layout_settings, self.pixel_index)
+                rgb = rgb + difference
+                self.seconds["spectral"] += seconds
+            block[np.ix_(rows, cols)] = rgb
         return block, traced_paths
 
 
@@ -420,10 +441,12 @@ def _ogcd_by_replicates(x: np.ndarray, counts: np.ndarray, white: np.ndarray, cc
 def simulate_curves(renderer, display, lighting, viewpoints: Sequence, lengths_mm: np.ndarray,
                     settings, *, ccm=None, pixel_index: int = 0,
                     target_stderr: float | None = None,
+                    spectral: SpectralTransport | None = None,
                     progress: Callable[[int], None] | None = None
                     ) -> tuple[list[SimulatedCurve], dict[str, float]]:
-    """:func:`simulate_curve` for every viewpoint; returns the curves and summed seconds
-    (``compile``, ``trace``, ``colour``, ``total``). ``progress(k)`` is called with the number of
+    """:func:`simulate_curve` for every viewpoint (with ``spectral`` transport where given);
+    returns the curves and summed seconds (``compile``, ``trace``, ``spectral``, ``colour``,
+    ``total``). ``progress(k)`` is called with the number of
     lengths finished since the last call."""
     t0 = time.perf_counter()
     curves = []
@@ -437,8 +460,9 @@ def simulate_curves(renderer, display, lighting, viewpoints: Sequence, lengths_m
 
         curves.append(simulate_curve(renderer, display, lighting, vp, lengths_mm, settings,
                                      ccm=ccm, pixel_index=pixel_index,
-                                     target_stderr=target_stderr, progress=step))
+                                     target_stderr=target_stderr, progress=step,
+                                     spectral=spectral))
     seconds = {k: float(sum(c.seconds.get(k, 0.0) for c in curves))
-               for k in ("compile", "trace", "colour")}
+               for k in ("compile", "trace", "spectral", "colour")}
     seconds["total"] = time.perf_counter() - t0
     return curves, seconds

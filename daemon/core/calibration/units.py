@@ -81,6 +81,7 @@ if TYPE_CHECKING:
 
     from grassd.calib.ccm import ColourCorrection
     from grassd.daemon.core.calibration.calibrate import Calibrator, Progress
+    from grassd.daemon.core.calibration.transport import SpectralTransport
     from grassd.daemon.core.config.settings import Config
     from grassd.sim.lighting import Lighting
     from grassd.sim.renderer import Renderer
@@ -211,12 +212,13 @@ class Viewers:
 
 def viewpoint_units(cal: Calibrator, renderer: Renderer, display: DisplaySpec, lighting: Lighting,
                      lengths: NDArray, settings: RenderSettings, ccm: ColourCorrection | None,
-                     step: Callable[[int, int], None]) -> Units:
+                     spectral: SpectralTransport | None, step: Callable[[int, int], None]
+                     ) -> Units:
     """Units from [[viewpoints]], the whole display traced from each (see the module
     docstring)."""
     cfg = cal.cfg
     tables, sims = display_tables_for_config(renderer, cfg, lighting, lengths, settings,
-                                             ccm=ccm, progress=step)
+                                             ccm=ccm, spectral=spectral, progress=step)
     combined = combine_viewpoints(sims, [v.weight for v in cfg.viewpoints])
     n = display.rows * display.cols
     err = tables.pixel_error
@@ -241,7 +243,8 @@ def viewpoint_units(cal: Calibrator, renderer: Renderer, display: DisplaySpec, l
 
 def audience_units(cal: Calibrator, renderer: Renderer, display: DisplaySpec, lighting: Lighting,
                     lengths: NDArray, settings: RenderSettings, ccm: ColourCorrection | None,
-                    step: Callable[[int, int], None]) -> Units:
+                    spectral: SpectralTransport | None, step: Callable[[int, int], None]
+                    ) -> Units:
     """Units from [audience] (see the module docstring)."""
     cfg = cal.cfg
     aud, t = cfg.audience, cfg.tables
@@ -252,7 +255,7 @@ def audience_units(cal: Calibrator, renderer: Renderer, display: DisplaySpec, li
                            "h_cm": list(region.h_cm), "objective": aud.objective}
     if cfg.tables.granularity == "global":
         curves = simulate_region(renderer, display, lighting, samples, lengths, settings,
-                                 ccm=ccm, progress=step)
+                                 ccm=ccm, spectral=spectral, progress=step)
         chars = [curve_characteristic(c) for c in curves]
         whole = _region_unit("display", everyone, chars, aud.objective)
         # the centre pixel stands for every pixel, as in the table's own simulation
@@ -271,7 +274,7 @@ def audience_units(cal: Calibrator, renderer: Renderer, display: DisplaySpec, li
             geometry=geometry_from_eye(display, eye), tolerance_deg=t.group_tolerance_deg,
             distance_tolerance=t.distance_tolerance,
             check_groups=t.check_groups if k == 0 else 0,  # grouping error: first eye only
-            ccm=ccm, progress=eye_step))
+            ccm=ccm, spectral=spectral, progress=eye_step))
     whole = _region_unit("display", everyone,
                          [mean_characteristic(s, everyone) for s in sims], aud.objective)
     combined = combine_viewpoints(sims, np.ones(m))
@@ -301,12 +304,13 @@ def audience_units(cal: Calibrator, renderer: Renderer, display: DisplaySpec, li
 
 def centre_units(cal: Calibrator, display: DisplaySpec, centre: int, lighting: Lighting,
                  lengths: NDArray, seed: int, ccm: ColourCorrection | None,
+                 spectral: SpectralTransport | None,
                  stop: threading.Event | None, progress: Progress | None) -> Units:
     """The one unit of a centre-pixel run: pixel ``centre`` of the patch ``display`` from every
     [[viewpoints]] entry (:meth:`Calibrator.simulate`), weighted
     (:meth:`Calibrator.weighted`), shape-checked before its table is built, so that a flat
     light is named as such."""
-    curves = cal.simulate(lighting, lengths, seed, ccm, stop, progress)
+    curves = cal.simulate(lighting, lengths, seed, ccm, spectral, stop, progress)
     y, se, step_se = cal.weighted(curves)
     if not np.all(np.diff(lengths) > 0):
         step_se = None  # the steps' errors are those of neighbours in increasing length

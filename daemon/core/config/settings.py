@@ -107,6 +107,8 @@ PixelValue: TypeAlias = float | tuple[float, ...]
 MODBUS_MODES = ("rtu", "tcp")
 WORD_ORDERS = ("big", "little")
 VALUE_TYPES = ("uint", "int", "float")
+#: ``[simulation] transport``: spectral (the Rec.709 trace plus spectra's difference) or rgb
+TRANSPORTS: tuple[str, ...] = ("spectral", "rgb")
 
 
 # --------------------------------------------------------------------------- dataclasses
@@ -262,11 +264,18 @@ class SimulationConfig:
     mean of 8 is 2-3x closer to the mean of all layouts than one: docs/calibration.md). The
     layouts' spread enters each length's OGCD error but hardly its steps (a layout moves the
     whole curve), so the shape check reads the steps' own errors
-    (:attr:`grassd.daemon.core.calibration.simulation.SimulatedCurve.step_stderr`)."""
+    (:attr:`grassd.daemon.core.calibration.simulation.SimulatedCurve.step_stderr`).
+
+    ``transport``: how the characteristic carries light (:data:`TRANSPORTS`): "spectral" adds
+    to every replicate the difference spectral transport makes, recorded on 1 in
+    ``spectral_share`` of its paths (:mod:`grassd.daemon.core.calibration.transport`); "rgb"
+    is the renderer's Rec.709 channels alone."""
 
     samples: int = 4096
     seed: int = 0
     layouts: int = 8
+    transport: str = "spectral"
+    spectral_share: int = 16
     lengths_mm: tuple[float, ...] = field(kw_only=True)
 
 
@@ -758,10 +767,13 @@ def _parse_simulation(top: _Section, display: DisplayConfig) -> SimulationConfig
     si = top.section("simulation", _schema(
         SimulationConfig, samples=_F(int, check=_between(1, 1 << 20)),
         seed=_F(int, check=_non_negative), layouts=_F(int, check=_between(1, 64)),
+        transport=_F(str, check=_one_of(*TRANSPORTS)),
+        spectral_share=_F(int, check=_between(1, 1024)),
         lengths=_F(int | list, 11, hint="an integer count or an array of mm"),  # parsed below
     ))
     return SimulationConfig(samples=si.get_int("samples"), seed=si.get_int("seed"),
-                            layouts=si.get_int("layouts"),
+                            layouts=si.get_int("layouts"), transport=si.get_str("transport"),
+                            spectral_share=si.get_int("spectral_share"),
                             lengths_mm=_simulation_lengths(si, 0.0, display.green_max_mm))
 
 

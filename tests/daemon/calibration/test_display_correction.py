@@ -32,7 +32,8 @@ def _centre_result() -> CalibrationResult:
     table = np.linspace(0, 20000, 256).astype(np.uint16)
     return CalibrationResult(granularity="global", source=CENTRE, shape=(3, 3), table_um=table,
                              controller_tables={}, units=[], unit_of_pixel=np.zeros(9, int),
-                             ccm=None, ccm_source="default", lighting_notes=())
+                             ccm=None, ccm_source="default", lighting_notes=(),
+                             transport="spectral")
 
 
 def test_a_global_run_becomes_per_pixel_tables_through_each_pixels_mapping():

@@ -18,7 +18,7 @@ from colour import delta_E
 
 from grassd.calib.camera_response import CameraSensitivities, write_sensitivities
 from grassd.calib.spectral_virtual_camera import SpectralVirtualCamera
-from grassd.daemon.offline.colour_chain import light_spectra_basis
+from grassd.daemon.core.calibration.transport import light_spectra_basis
 from grassd.daemon.offline.validate import (
     MANIFEST_NAME,
     CaptureManifestError,
