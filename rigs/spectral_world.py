@@ -167,6 +167,27 @@ def render_pixel(scene_dir: str | Path, cameras: Sequence[SpectralCamera], spp: 
     return _split(_channels(scene, img), len(cameras))
 
 
+def observed_quads(work_dir: str | Path, display: DisplaySpec, lighting,
+                   viewpoint: Viewpoint, lengths_mm: Sequence[float], spp: int = 256,
+                   width: int = 64) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """What the CIE observer sees of ``display``'s measurement quad from ``viewpoint`` at each
+    green length (mm), rendered spectrally (:func:`render_pixel`; each scene exported under
+    ``work_dir``), and of a perfect white card lying flat under the same light: the quads'
+    CIE XYZ (n, 3) and the card's (3,), in Mitsuba's units (their ratio is what a white
+    balance reads)."""
+    quads = []
+    for k, x in enumerate(lengths_mm):
+        sd = Path(work_dir) / (f"{viewpoint.h_cm:g}_{viewpoint.d_m:g}_{viewpoint.theta_deg:g}_"
+                               f"{float(x):05.2f}mm")
+        doc = export_scene(sd, display, lighting, viewpoint, float(x))
+        _, xyz = render_pixel(sd, [], spp, width, seed=k)
+        (x0, y0), w = quad_coverage(doc, width)
+        quads.append(np.einsum("hwc,hw->c", xyz[y0:y0 + w.shape[0], x0:x0 + w.shape[1]], w)
+                     / w.sum())
+    _, white = render_white_card(sd, [], spp=4 * spp)
+    return np.stack(quads), white
+
+
 def _light_only(scene_dir: str | Path, spp: int) -> dict:
     """scene_dict's light (map, sun) without the pixel's meshes."""
     d = scene_dict(scene_dir, spp, 2, env_refine=ENV_REFINE)
