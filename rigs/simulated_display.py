@@ -77,7 +77,7 @@ class SimulatedDisplay:
         grid = np.linspace(0.0, pixel.green_max_mm, int(round(pixel.green_max_mm * 2)) + 1)
         self.model = record_pixel_model(
             renderer, self.display, lighting, [geo.viewpoint(i) for i in range(geo.n_pixels)],
-            grid, RenderSettings(samples=samples, replicates=4, max_bounces=3, seed=90_001),
+            grid, RenderSettings(samples=samples, replicates=4, seed=90_001),
             progress=progress)
         self.checker = False
         self.shots = 0

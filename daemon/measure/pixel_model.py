@@ -124,9 +124,12 @@ def record_pixel_model(renderer: Renderer, display: DisplaySpec, lighting: Light
     """Record every pixel of ``display`` (a ``DisplaySpec``) at its own viewpoint
     (``viewpoints[i]``, a ``Viewpoint``) on ``grid_mm`` under ``lighting``, averaged over
     ``layouts`` tuft layouts (layout seeds ``pixel.layout_seed + k``). ``settings``:
-    ``RenderSettings`` (``max_bounces`` <= 3). ``progress(done, total)`` counts recordings."""
+    ``RenderSettings``; the polynomial has degree 3 (56 monomials), and a path's vertices
+    beyond it (``max_bounces`` above 3, Russian roulette ending the paths) are its tail term
+    (:mod:`grassd.sim.albedo_terms`): exact at the model's own albedos, the tail's vertices
+    keeping them as the gains move the others. ``progress(done, total)`` counts recordings."""
     from grassd.daemon.core.calibration.simulation import white_radiance
-    from grassd.sim.albedo_terms import monomial_values
+    from grassd.sim.albedo_terms import MAX_DEGREE, monomial_values
     from grassd.sim.scene import DisplaySpec
 
     grid = np.asarray(grid_mm, dtype=np.float64)
@@ -145,7 +148,7 @@ def record_pixel_model(renderer: Renderer, display: DisplaySpec, lighting: Light
         one = np.zeros_like(coeffs)
         for i in range(n):
             terms = renderer.albedo_terms(disp, lighting, viewpoints[i], grid, settings,
-                                          pixel_index=i, glossy=glossy)
+                                          pixel_index=i, glossy=glossy, degree=MAX_DEGREE)
             one[i] = terms.coefficients.mean(axis=0)
             done += 1
             if progress:

@@ -501,7 +501,7 @@ class _PixelModels:
         return cls(Renderer.shared(capacity_for(display.rows * display.cols)), display,
                    Calibrator(cfg).lighting(ctx.light),
                    np.arange(0.0, display.pixel.green_max_mm + GRID_STEP_MM / 2, GRID_STEP_MM),
-                   RenderSettings(samples=cfg.measure.samples, replicates=4, max_bounces=3,
+                   RenderSettings(samples=cfg.measure.samples, replicates=4,
                                   seed=cfg.simulation.seed), progress)
 
     def from_eye(self, eye_m: NDArray, what: str, layouts: int) -> PixelColourModel:
