@@ -46,6 +46,22 @@ def test_simulate_json_has_the_documented_shape(sim_run):
     assert img.shape[0] > 200 and img.shape[1] > 300
 
 
+def test_the_transport_is_spectral_unless_asked_for_rgb(sim_run, tmp_path, shared_hdri):
+    """The default run carries spectral transport (its recording took time); ``--transport
+    rgb`` records nothing and, on the same paths, gives another colour."""
+    _, doc, _ = sim_run
+    assert doc["seconds"]["spectral"] > 0
+    cmd = [GRASSD, "simulate", "--hdri", str(shared_hdri("courtyard")), "--lux", "8000",
+           "--view", "170,2,0", "--view", "170,2,90", "--lengths", "0:20:2", "--samples",
+           "1024", "--transport", "rgb", "--json", str(tmp_path / "rgb.json")]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    rgb = json.loads((tmp_path / "rgb.json").read_text())
+    assert rgb["seconds"]["spectral"] == 0
+    a, b = (np.asarray(d["viewpoints"][0]["rgb_linear"]) for d in (doc, rgb))
+    assert np.max(np.abs(a / b - 1)) > 0.01
+
+
 def test_s_shape_at_theta_0_and_smaller_range_at_90(sim_run):
     """The paper's qualitative findings: at theta = 0 the characteristic is S-shaped (slow start,
     steep middle, saturating end); at theta = 90 the OGCD range is smaller (the paper's virtual
