@@ -34,18 +34,10 @@ from grassd.daemon.core.calibration.variation import GAIN_RANGE, OFFSET_LIMIT_MM
 if TYPE_CHECKING:
     from grassd.sim.lighting import Lighting
     from grassd.sim.renderer import Renderer
-    from grassd.sim.scene import DisplaySpec, PixelSpec, RenderSettings, Viewpoint
+    from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
 
 #: Material rows of the albedo matrix (the renderer's symbol order).
 YELLOW, GREEN = 0, 1
-
-
-def model_albedos(pixel: PixelSpec) -> NDArray[np.float64]:
-    """(4, 3) linear Rec.709 albedos (yellow, green, base, cavity) of a ``PixelSpec``."""
-    from grassd.sim.scene import srgb_to_linear
-
-    return np.stack([srgb_to_linear(c) for c in (pixel.yellow_srgb, pixel.green_srgb,
-                                                  pixel.base_srgb, pixel.cavity_srgb)])
 
 
 @dataclass(frozen=True, eq=False)
@@ -128,23 +120,20 @@ def record_pixel_model(renderer: Renderer, display: DisplaySpec, lighting: Light
     beyond it (``max_bounces`` above 3, Russian roulette ending the paths) are its tail term
     (:mod:`grassd.sim.albedo_terms`): exact at the model's own albedos, the tail's vertices
     keeping them as the gains move the others. ``progress(done, total)`` counts recordings."""
-    from grassd.daemon.core.calibration.simulation import white_radiance
-    from grassd.sim.albedo_terms import MAX_DEGREE, monomial_values
-    from grassd.sim.scene import DisplaySpec
+    from grassd.daemon.core.calibration.simulation import layout_display, white_radiance
+    from grassd.sim.albedo_terms import MAX_DEGREE, monomial_values, n_monomials
 
     grid = np.asarray(grid_mm, dtype=np.float64)
     n = display.rows * display.cols
     if len(viewpoints) != n:
         raise ValueError(f"{len(viewpoints)} viewpoints for {n} pixels")
-    coeffs = np.zeros((n, len(grid), 56, 3))
+    coeffs = np.zeros((n, len(grid), n_monomials(MAX_DEGREE), 3))
     labs = []
     total, done = n * layouts, 0
-    albedo = model_albedos(display.pixel)
+    albedo = display.pixel.albedo_linear
     white = np.asarray(white_radiance(lighting), dtype=np.float64)
     for k in range(layouts):
-        pixel = replace(display.pixel, layout_seed=display.pixel.layout_seed + k)
-        disp = DisplaySpec(pixel, display.rows, display.cols, display.pitch_mm,
-                           same_layout=display.same_layout)
+        disp = layout_display(display, k)
         one = np.zeros_like(coeffs)
         for i in range(n):
             terms = renderer.albedo_terms(disp, lighting, viewpoints[i], grid, settings,

@@ -44,8 +44,6 @@ from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
 #: The light's map is block-averaged to at most this many rows (and twice as many columns)
 #: before its texels are upsampled to spectra (:func:`light_spectra_basis`).
 BASIS_ROWS: int = 128
-#: Lengths one recording holds at most (:meth:`grassd.sim.renderer.Renderer.albedo_terms`).
-RECORDED_LENGTHS: int = 256
 
 
 def light_spectra_basis(lighting: Lighting) -> NDArray[np.float64]:
@@ -114,15 +112,10 @@ class SpectralTransport:
         replicates at ``lengths_mm`` (mm), recorded on ``settings.samples / share`` paths
         each with the replicates' seed, and the recording's seconds."""
         recording = replace(settings, samples=max(1, settings.samples // self.share))
-        out, seconds = [], 0.0
-        for i in range(0, len(lengths_mm), RECORDED_LENGTHS):
-            terms = renderer.albedo_terms(display, lighting, viewpoint,
-                                          lengths_mm[i:i + RECORDED_LENGTHS], recording,
-                                          pixel_index=pixel_index,
-                                          glossy=self.specular > 0, degree=TERM_DEGREE)
-            rgb, spectral = self.matrices(terms.degree)
-            c = terms.coefficients  # (R, n, M, 3)
-            out.append(np.einsum("rnmk,mkc->rnc", c, spectral)
-                       - np.einsum("rnmc,mc->rnc", c, rgb))
-            seconds += terms.seconds.get("trace", 0.0)
-        return np.concatenate(out, axis=1), seconds
+        terms = renderer.albedo_terms(display, lighting, viewpoint, lengths_mm, recording,
+                                      pixel_index=pixel_index, glossy=self.specular > 0,
+                                      degree=TERM_DEGREE)
+        rgb, spectral = self.matrices(terms.degree)
+        c = terms.coefficients  # (R, n, M, 3)
+        return (np.einsum("rnmk,mkc->rnc", c, spectral) - np.einsum("rnmc,mc->rnc", c, rgb),
+                terms.seconds.get("trace", 0.0))

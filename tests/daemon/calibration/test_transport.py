@@ -96,46 +96,29 @@ def test_the_basis_gives_the_white_card_what_rec709_gives_it():
     np.testing.assert_allclose(readout, np.eye(3), atol=1e-6)
 
 
-CONFIG = """\
-state_dir = "state"
-[site]
-latitude = 52.5
-longitude = 13.4
-timezone = "Europe/Berlin"
-[display]
-rows = 1
-cols = 1
-[[controllers]]
-port = "/dev/ttyUSB0"
-pixels = "0"
-[[viewpoints]]
-h_cm = 170
-d_m = 2
-[light]
-inbox = "in"
-[simulation]
-lengths = [0.0, 10.0, 20.0]
-"""
+def _config(simulation: str = ""):
+    """The embedded default configuration with ``simulation`` added to its [simulation]."""
+    from grassd.daemon.core.config.settings import default_config_text, parse_config
+
+    text = default_config_text().replace("[simulation]\n", f"[simulation]\n{simulation}", 1)
+    return parse_config(text, source="t.toml")
 
 
 @pytest.mark.parametrize("value", ["spectral", "rgb"])
-def test_the_configuration_chooses_the_transport(tmp_path, value):
+def test_the_configuration_chooses_the_transport(value):
     from grassd.daemon.core.calibration.calibrate import Calibrator
-    from grassd.daemon.core.config.settings import parse_config
 
-    default = parse_config(CONFIG, base_dir=tmp_path).simulation
+    default = _config().simulation
     assert (default.transport, default.spectral_share) == ("spectral", 16)
-    cfg = parse_config(CONFIG + f'transport = "{value}"\nspectral_share = 8\n',
-                       base_dir=tmp_path)
+    cfg = _config(f'transport = "{value}"\nspectral_share = 8\n')
     t = Calibrator(cfg).transport(DisplaySpec(CYAN), WHITE_SKY)
     assert (t is None) == (value == "rgb")
     assert t is None or t.share == 8
 
 
-def test_an_unknown_transport_is_refused_naming_the_choices(tmp_path):
-    from grassd.daemon.core.config.settings import parse_config
+def test_an_unknown_transport_is_refused_naming_the_choices():
     from grassd.daemon.core.errors import ConfigError
 
     with pytest.raises(ConfigError, match="spectral") as err:
-        parse_config(CONFIG + 'transport = "hero"\n', base_dir=tmp_path)
+        _config('transport = "hero"\n')
     assert "transport" in str(err.value)
