@@ -26,6 +26,10 @@ Test and benchmark rigs:
   child processes (a firmware port, QEMU, a daemon, a studio) ended as a service manager ends
   them; :mod:`.dask_cluster` - a Dask scheduler and workers on 127.0.0.1 with a site CA of
   their own, and the preload that turns a worker hostile.
+* A world grassd did not render: :mod:`.spectral_camera` - a camera defined by its spectral
+  sensitivities; :mod:`.spectral_world` - an exported pixel in Mitsuba's spectral light,
+  photographed for ``grassd validate`` and ``grassd fit``; :mod:`.spectral_display` - the
+  whole display so, as ``grassd measure``'s camera photographs it.
 
 The rule (``tests/test_import_graph.py``): no module of ``grassd.calib``, ``grassd.sim``,
 ``grassd.firmware_proto`` or ``grassd.daemon`` imports a module of this package, lazily or

@@ -261,23 +261,40 @@ def raw_sensor() -> Any:
     return SpectralVirtualCamera()
 
 
-def dng_bytes(signal: NDArray) -> bytes:
+def dng_bytes(signal: NDArray, view: SensorView | None = None) -> bytes:
     """A DNG (the project's writer, :mod:`grassd.calib.dng`) of linear ``signal`` (H, W, 3,
     Rec.709 radiance, 1 = full scale) as :func:`raw_sensor` responds to it, on a sensor of
     twice the resolution (a whole 2 x 2 Bayer block per texel, as a real sensor resolves a sun
-    of many photosites): mosaiced, clipped at the white level."""
+    of many photosites): mosaiced, clipped at the white level. With a :class:`SensorView`,
+    ``signal`` is already the sensor's response and the DNG carries ``view.profile``."""
     import tempfile
 
     from grassd.calib.dng import DngCamera, mosaic, write_dng
 
-    sensor = raw_sensor()
-    cam = DngCamera(color_matrix=np.asarray(sensor.profile), model="SimCam Z1 RAW")
-    response = sensor.camera_rgb(np.asarray(signal, dtype=np.float64))
+    if view is None:
+        sensor = raw_sensor()
+        profile = np.asarray(sensor.profile)
+        response = sensor.camera_rgb(np.asarray(signal, dtype=np.float64))
+    else:
+        profile, response = np.asarray(view.profile), np.asarray(signal, dtype=np.float64)
+    cam = DngCamera(color_matrix=profile, model="SimCam Z1 RAW")
     fine = np.repeat(np.repeat(response, 2, axis=0), 2, axis=1)
     raw = mosaic(fine, cam)
     with tempfile.TemporaryDirectory() as d:
         path = write_dng(Path(d) / "shot.dng", raw, cam)
         return path.read_bytes()
+
+
+@dataclass(frozen=True)
+class SensorView:
+    """What a ``scene_source`` may return instead of a map: the view's linear Rec.709
+    ``radiance`` (H, W, 3; the JPEG and the meter read it) and the sensor's own ``raw``
+    response to it (H, W, 3, the same units; computed elsewhere, e.g. spectrally), which the
+    DNG holds with ``profile`` (3, 3, XYZ -> camera, the DNG's ColorMatrix1)."""
+
+    radiance: NDArray
+    raw: NDArray
+    profile: NDArray
 
 
 class SimCamera:
@@ -289,7 +306,9 @@ class SimCamera:
     :class:`ResponseCurve`); ``full_well``: electrons at full scale (photon noise);
     ``username``/``password``: require HTTP digest auth as a THETA in client mode does.
     ``scene_source``: called at every shot for the map to photograph (a scene that changes,
-    e.g. the simulated display of :mod:`grassd.rigs.simulated_display`).
+    e.g. the simulated display of :mod:`grassd.rigs.simulated_display`), or for a
+    :class:`SensorView` (the map and the sensor's own response to it, e.g.
+    :mod:`grassd.rigs.spectral_display`'s).
     ``capture_mode``: the ``captureMode`` it starts (and resets) in, "image" or "video" (as a
     THETA someone filmed with; it then refuses takePicture until a client sets "image");
     ``mode_switch_s``: seconds a change of ``captureMode`` takes (a THETA switches in its own
@@ -390,10 +409,13 @@ class SimCamera:
         """The lens' current f-number (option ``aperture``)."""
         return float(self.options["aperture"])
 
+    def gain(self, shutter_s: float, iso: float) -> float:
+        """Linear sensor signal (full scale 1) per unit of the map (module docstring)."""
+        return self.scene_scale * 0.18 * shutter_s * iso / (METER_K * self.f_number ** 2)
+
     def signal(self, shutter_s: float, iso: float) -> NDArray[np.float64]:
         """Noise-free linear sensor signal (full scale 1) of a shot (module docstring)."""
-        k = 0.18 * shutter_s * iso / (METER_K * self.f_number ** 2)
-        return self.env.astype(np.float64) * (self.scene_scale * k)
+        return self.env.astype(np.float64) * self.gain(shutter_s, iso)
 
     def metered_shutter(self, iso: float, ev: float = 0.0) -> float:
         """The shutter (s, from the list) a meter chooses: median luminance at 0.18, times
@@ -405,7 +427,10 @@ class SimCamera:
 
     def exposed(self, shutter_s: float, iso: float) -> NDArray[np.float64]:
         """The linear sensor signal of one shot with photon and read noise (not clipped)."""
-        x = self.signal(shutter_s, iso)
+        return self.noisy(self.signal(shutter_s, iso))
+
+    def noisy(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Signal ``x`` (full scale 1) with photon and read noise added (not clipped)."""
         sigma = np.sqrt(np.clip(x, 0.0, 1.0) / self.full_well + self.read_noise ** 2)
         return x + self.rng.standard_normal(x.shape) * sigma
 
@@ -418,8 +443,11 @@ class SimCamera:
         return np.clip(np.rint(self.curve.encode(x) * 255.0), 0, 255).astype(np.uint8)
 
     def _take(self) -> dict[str, Any]:
+        view = None
         if self.scene_source is not None:
-            self.set_scene(env=self.scene_source())
+            seen = self.scene_source()
+            view = seen if isinstance(seen, SensorView) else None
+            self.set_scene(env=seen.radiance if view is not None else seen)
         o = self.options
         iso = o["iso"] if o["iso"] else 100
         if o["exposureProgram"] in (2, 9) or not o["shutterSpeed"]:
@@ -429,6 +457,7 @@ class SimCamera:
             shutter = float(o["shutterSpeed"])
         with self._lock:
             x = self.exposed(shutter, iso)
+            raw = None if view is None else self.noisy(view.raw * self.gain(shutter, iso))
             self.shots_taken += 1
         codes = self.encode(x)
         name = f"R{self.shots_taken:07d}.JPG"
@@ -437,8 +466,12 @@ class SimCamera:
         raw_name = None
         if o["fileFormat"].get("type") == "raw+":  # RAW+: a DNG of the same exposure too
             raw_name = name[:-4] + ".DNG"
-            self.files[raw_name] = (dng_bytes(x) if self.faults.raw_file is None
-                                    else self.faults.raw_file)
+            if self.faults.raw_file is not None:
+                self.files[raw_name] = self.faults.raw_file
+            elif view is None:
+                self.files[raw_name] = dng_bytes(x)
+            else:
+                self.files[raw_name] = dng_bytes(raw, view)
             out["_dngFileUrl"] = f"{base}/files/{raw_name}"
         self.shots.append(ShotFile(name, datetime.now().astimezone(), codes.shape[1],
                                    codes.shape[0], raw_name))

@@ -80,6 +80,7 @@ class SimulatedDisplay:
             grid, RenderSettings(samples=samples, replicates=4, seed=90_001),
             progress=progress)
         self.checker = False
+        self.chart = CHECKER_CHART  # what the set-up shot's checker is (a chart name or CSV)
         self.shots = 0
         self._lock = threading.Lock()
 
@@ -112,11 +113,17 @@ class SimulatedDisplay:
         return img
 
     def checker_corners(self) -> list[list[float]]:
-        """The checker's patch-area corners (TL, TR, BR, BL) in the full-size developed set-up
-        shot (x, y pixels: twice the texels of the camera's view, its DNG's resolution)."""
-        from grassd.calib.checker_photo import CHART_LAYOUT
+        """The checker's patch-area corners in the set-up shot (:func:`checker_corners`)."""
+        return checker_corners(self.width)
 
-        return (CHART_LAYOUT * np.array([self.width, self.width // 2]) * 2).tolist()
+
+def checker_corners(width: int) -> list[list[float]]:
+    """The patch-area corners (TL, TR, BR, BL) of the checker a ``width``-texel measuring camera
+    photographs, in the full-size developed set-up shot (x, y pixels: twice the texels of the
+    camera's view, its DNG's resolution)."""
+    from grassd.calib.checker_photo import CHART_LAYOUT
+
+    return (CHART_LAYOUT * np.array([width, width // 2]) * 2).tolist()
 
 
 #: The chart the simulated operator lays at the display for the set-up shot.

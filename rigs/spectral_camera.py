@@ -47,7 +47,11 @@ WAVELENGTHS: NDArray[np.float64] = np.arange(380.0, 781.0, 5.0)
 CAMERAS: dict[str, str] = {
     "nikon-d5100": "Nikon 5100 (NPL)",
     "sigma-sdmerrill": "Sigma SDMerill (NPL)",
+    "cie-1931": "CIE 1931 2 Degree Standard Observer",
 }
+#: The camera whose sensitivities are the CIE observer's (each channel peaking at 1): a
+#: colorimetric sensor, for telling a real sensor's error from the rest of a chain's.
+COLORIMETRIC = "cie-1931"
 #: colour-science's 24 reflectance spectra of the chart (reading order) used for the profile.
 CHECKER_SPECTRA = "ColorChecker N Ohta"
 
@@ -141,6 +145,9 @@ class SpectralCamera:
         """(n, 3) relative spectral sensitivities of R, G, B on :data:`WAVELENGTHS`."""
         import colour
 
+        if self.name == COLORIMETRIC:
+            cmf = cie_observer()
+            return cmf / cmf.max(axis=0)
         msds = colour.characterisation.MSDS_CAMERA_SENSITIVITIES[CAMERAS[self.name]]
         return resample(msds.wavelengths, msds.values)
 

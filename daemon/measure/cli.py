@@ -27,6 +27,8 @@ if TYPE_CHECKING:
     from grassd.rigs.simulated_camera import SimCamera
     from grassd.rigs.simulated_display import SimulatedDisplay
     from grassd.rigs.simulated_site import SimulatedHardware
+    from grassd.rigs.spectral_display import SpectralDisplay
+    from grassd.sim.lighting import Lighting
 
 
 def _measure_config(cfg: Config, camera_url: str | None = None) -> Config:
@@ -41,15 +43,15 @@ def _measure_config(cfg: Config, camera_url: str | None = None) -> Config:
 
 
 def measuring_site(hw: SimulatedHardware, cfg: Config, transform: Callable[[Config], Config],
-                   variation_file: str | None, lux: float
+                   display: SimulatedDisplay | SpectralDisplay, lux: float
                    ) -> tuple[Config, Callable[[Config], Config], SimCamera]:
-    """Add the simulated display's measuring camera to ``hw``'s simulated site: (config whose
-    ``[measure] camera`` is it, the config transform that keeps it so on reload, the camera).
-    Makes the camera's set-up (the simulated operator's checker shot) when the state
+    """Add a measuring camera photographing ``display`` to ``hw``'s simulated site: (config
+    whose ``[measure] camera`` is it, the config transform that keeps it so on reload, the
+    camera). Makes the camera's set-up (the simulated operator's checker shot) when the state
     directory has none."""
     from grassd.daemon.core.store.layout import StateLayout
 
-    display, camera = start_measuring_camera(hw, cfg, variation_file, lux)
+    camera = camera_photographing(display)
     try:
         cfg = _measure_config(cfg, camera.url)
         if not StateLayout(cfg.state_dir).measure_setup.exists():
@@ -74,8 +76,9 @@ class SimulatedSite:
 
         self.hw, cfg, transform = start_simulated_site(cfg, lux, firmware)
         try:
-            self.cfg, _, self.camera = measuring_site(self.hw, cfg, transform,
-                                                      variation_file, lux)
+            self.cfg, _, self.camera = measuring_site(
+                self.hw, cfg, transform, simulated_display(self.hw, cfg, variation_file, lux),
+                lux)
         except BaseException:
             self.hw.stop()
             raise
@@ -86,39 +89,55 @@ class SimulatedSite:
         self.hw.stop()
 
 
-def start_measuring_camera(hw: SimulatedHardware, cfg: Config, variation_file: str | None,
-                           lux: float, samples: int = 1024
-                           ) -> tuple[SimulatedDisplay, SimCamera]:
-    """The simulated display of ``hw``'s controllers (pixels varied as ``variation_file``
-    says, or not at all; ``samples`` per length for its pixels' radiance) and a started
-    simulated OSC camera photographing it: (display, camera). Initialises the renderer."""
-    from grassd.daemon.core.calibration.calibrate import Calibrator, init_backend
-    from grassd.daemon.core.calibration.display_model import capacity_for
-    from grassd.daemon.core.calibration.variation import DisplayVariation, load_variation
-    from grassd.rigs.simulated_camera import SimCamera
-    from grassd.rigs.simulated_display import SimulatedDisplay
+def site_lighting(cfg: Config, lux: float) -> Lighting:
+    """The simulated site's light: the embedded default HDRI at ``lux``."""
+    from grassd.daemon.core.calibration.calibrate import Calibrator
     from grassd.sim.hdri import default_site_hdri
     from grassd.sim.light_input import LightInput
+
+    return Calibrator(cfg).lighting(LightInput(hdri=default_site_hdri(), ambient_lux=lux))
+
+
+def simulated_display(hw: SimulatedHardware, cfg: Config, variation_file: str | None,
+                      lux: float, samples: int = 1024) -> SimulatedDisplay:
+    """The simulated display of ``hw``'s controllers, pixels varied as ``variation_file``
+    says (or not at all; ``samples`` per length for its pixels' radiance). Initialises the
+    renderer."""
+    from grassd.daemon.core.calibration.calibrate import init_backend
+    from grassd.daemon.core.calibration.display_model import capacity_for
+    from grassd.daemon.core.calibration.variation import DisplayVariation, load_variation
+    from grassd.rigs.simulated_display import SimulatedDisplay
     from grassd.sim.renderer import Renderer
 
     n = cfg.display.rows * cfg.display.cols
     variation = (load_variation(variation_file, n) if variation_file
                  else DisplayVariation.none(n))
     init_backend(cfg)
-    lighting = Calibrator(cfg).lighting(LightInput(hdri=default_site_hdri(), ambient_lux=lux))
-    display = SimulatedDisplay(cfg, lighting, variation, hw.positions_um,
-                               Renderer.shared(capacity_for(n)), samples=samples)
-    h = display.width // 2
+    return SimulatedDisplay(cfg, site_lighting(cfg, lux), variation, hw.positions_um,
+                            Renderer.shared(capacity_for(n)), samples=samples)
+
+
+def start_measuring_camera(hw: SimulatedHardware, cfg: Config, variation_file: str | None,
+                           lux: float, samples: int = 1024
+                           ) -> tuple[SimulatedDisplay, SimCamera]:
+    """:func:`simulated_display` and a started simulated OSC camera photographing it."""
+    display = simulated_display(hw, cfg, variation_file, lux, samples)
+    return display, camera_photographing(display)
+
+
+def camera_photographing(display: SimulatedDisplay | SpectralDisplay) -> SimCamera:
+    """A started simulated OSC camera whose every shot is ``display``'s view now."""
     import numpy as np
 
-    camera = SimCamera(np.zeros((h, display.width, 3), np.float32), scene_scale=1.0,
-                       scene_source=display.scene, model="grassd SimCam measuring",
-                       seed=12345).start()
-    return display, camera
+    from grassd.rigs.simulated_camera import SimCamera
+
+    return SimCamera(np.zeros((display.width // 2, display.width, 3), np.float32),
+                     scene_scale=1.0, scene_source=display.scene,
+                     model="grassd SimCam measuring", seed=12345).start()
 
 
-def simulated_setup(cfg: Config, display: SimulatedDisplay, camera_url: str, lux: float
-                    ) -> Path:
+def simulated_setup(cfg: Config, display: SimulatedDisplay | SpectralDisplay, camera_url: str,
+                    lux: float) -> Path:
     """The simulated operator's set-up: the checker laid at the display, photographed with the
     measuring camera and turned into ``measure/setup.json`` (as ``grassd measure setup``)."""
     from grassd.daemon.measure.job import measuring_camera
@@ -126,7 +145,7 @@ def simulated_setup(cfg: Config, display: SimulatedDisplay, camera_url: str, lux
     client, _ = measuring_camera(_measure_config(cfg, camera_url))
     display.checker = True
     try:
-        return make_setup(cfg, client, display.checker_corners(), lux)
+        return make_setup(cfg, client, display.checker_corners(), lux, display.chart)
     finally:
         display.checker = False
 

@@ -68,6 +68,7 @@ if TYPE_CHECKING:
     from grassd.daemon.core.calibration.calibrate import Calibrates
     from grassd.daemon.core.calibration.correction import DisplayCorrection
     from grassd.daemon.core.calibration.result import CalibrationResult
+    from grassd.daemon.core.calibration.variation import DisplayVariation
     from grassd.daemon.core.config.settings import Config, ViewpointConfig
     from grassd.daemon.core.hardware.fleet import Fleet
     from grassd.daemon.measure.camera_chain import MeasureSetup, Shot
@@ -419,7 +420,7 @@ def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Shot], photos: Phot
                               np.tile(lengths, (n, 1)),
                               np.stack([nominal_lengths[lv] for lv in CHECK_LEVELS], axis=1)],
                              axis=1)
-    models = _PixelModels.for_measurement(ctx, display, progress)
+    models = PixelModels.for_measurement(cfg, ctx.light, display, progress)
     camera_model = models.from_eye(eye, "pixel models from the camera", mc.layouts)
     ccm = np.asarray(ctx.setup.ccm)
     progress("measure: fitting every pixel")
@@ -447,7 +448,7 @@ def _analyse(ctx: MeasureContext, mid: str, shots: dict[str, Shot], photos: Phot
                      fit.rms_lab, fit.variation, pairs, model_noise(camera_model, fit_cmd),
                      order, refit)
     return Analysis(located, measured, before, camera_model, fit,
-                    _correction(cfg, models, fit, mid), ccm, nominal_lengths, evidence)
+                    correction_for(cfg, models, fit.variation, mid), ccm, nominal_lengths, evidence)
 
 
 def _locate(ctx: MeasureContext, shots: dict[str, Shot], photos: Photos, display: DisplaySpec
@@ -474,7 +475,7 @@ def _locate(ctx: MeasureContext, shots: dict[str, Shot], photos: Photos, display
 
 
 @dataclass(frozen=True)
-class _PixelModels:
+class PixelModels:
     """Records the model pixel at every pixel of ``display`` as an eye sees it
     (:func:`~grassd.daemon.measure.pixel_model.record_pixel_model`) under the measurement's
     light, on ``grid`` (mm, every :data:`GRID_STEP_MM`)."""
@@ -487,19 +488,19 @@ class _PixelModels:
     progress: Callable[[str], None]
 
     @classmethod
-    def for_measurement(cls, ctx: MeasureContext, display: DisplaySpec,
-                        progress: Callable[[str], None]) -> _PixelModels:
-        """The recorder of ``ctx``'s measurement: its light, ``[measure] samples``."""
+    def for_measurement(cls, cfg: Config, light: LightInput, display: DisplaySpec,
+                        progress: Callable[[str], None]) -> PixelModels:
+        """The recorder of a measurement of ``cfg``'s display in ``light``: ``[measure]
+        samples``."""
         from grassd.daemon.core.calibration.calibrate import Calibrator
         from grassd.daemon.core.calibration.display_model import capacity_for
         from grassd.sim.renderer import Renderer
         from grassd.sim.scene import RenderSettings
 
-        cfg = ctx.cfg
         # the pixel models are recorded here, whichever calibrator ran the tables (a Dask
         # cluster's runs only those), so their light is built here too
         return cls(Renderer.shared(capacity_for(display.rows * display.cols)), display,
-                   Calibrator(cfg).lighting(ctx.light),
+                   Calibrator(cfg).lighting(light),
                    np.arange(0.0, display.pixel.green_max_mm + GRID_STEP_MM / 2, GRID_STEP_MM),
                    RenderSettings(samples=cfg.measure.samples, replicates=4,
                                   seed=cfg.simulation.seed), progress)
@@ -518,10 +519,10 @@ class _PixelModels:
             progress=lambda done, total: self.progress(f"measure: {what} {done}/{total}"))
 
 
-def _correction(cfg: Config, models: _PixelModels, fit: VariationFit, mid: str
-                ) -> DisplayCorrection:
-    """The correction of measurement ``mid``: the ``fit``'s variation carried to the
-    configured viewers (step 5 of the module docstring)."""
+def correction_for(cfg: Config, models: PixelModels, variation: DisplayVariation, mid: str
+                   ) -> DisplayCorrection:
+    """The correction of measurement ``mid``: the display's ``variation`` (the fitted one)
+    carried to the configured viewers (step 5 of the module docstring)."""
     from grassd.daemon.core.calibration.correction import DisplayCorrection
     from grassd.daemon.measure.pixel_model import corrected_commands
 
@@ -530,9 +531,9 @@ def _correction(cfg: Config, models: _PixelModels, fit: VariationFit, mid: str
     viewers = [models.from_eye(_eye_of(vp), f"viewer {i + 1}", 1)
                for i, vp in enumerate(cfg.viewpoints)]
     commands = corrected_commands(viewers, [vp.weight for vp in cfg.viewpoints],
-                                  fit.variation, models.grid)
+                                  variation, models.grid)
     display = models.display
-    return DisplayCorrection(fit.variation, models.grid, commands,
+    return DisplayCorrection(variation, models.grid, commands,
                              (display.rows, display.cols), mid)
 
 

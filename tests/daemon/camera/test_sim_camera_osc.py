@@ -235,3 +235,35 @@ def test_delete_removes_the_named_files_or_none(cam):
 def test_a_command_it_does_not_have_is_unknown_command(cam):
     for name in ("camera.startSession", "camera.startCapture", "camera.nothing"):
         assert name in refused(execute(cam, name, {}), "unknownCommand", 400)
+
+
+def test_a_sensor_view_reaches_the_dng_as_its_raw_and_profile(tmp_path):
+    """A scene source that returns a SensorView: the JPEG and the meter read its radiance, the
+    DNG holds its raw response (every channel in its own proportion) and its profile."""
+    rawpy = pytest.importorskip("rawpy")
+    from grassd.calib.colour_spaces import M_REC709_TO_XYZ
+    from grassd.rigs.simulated_camera import SensorView
+
+    radiance = np.full((16, 32, 3), 0.5, np.float32)
+    raw = np.broadcast_to(np.array([0.2, 0.4, 0.1], np.float32), radiance.shape)
+    profile = np.array([[0.9, 0.1, 0.0], [0.2, 1.0, -0.1], [0.0, 0.1, 0.8]])
+    with SimCamera(radiance, latency_s=0.01, read_noise=0.0, full_well=1e12,
+                   scene_source=lambda: SensorView(radiance, raw, profile)) as cam:
+        assert execute(cam, "camera.setOptions", {"options": {"fileFormat": {
+            "type": "raw+", "width": 32, "height": 16}}})[0] == 200
+        status, out = execute(cam, "camera.takePicture")
+        while out["state"] == "inProgress":
+            status, out = post(cam, "/osc/commands/status", {"id": out["id"]})
+        assert out["state"] == "done", out
+        with urllib.request.urlopen(out["results"]["_dngFileUrl"], timeout=10) as r:
+            (tmp_path / "shot.dng").write_bytes(r.read())
+    with rawpy.imread(str(tmp_path / "shot.dng")) as dng:
+        img = dng.raw_image_visible.astype(float) - np.array(dng.black_level_per_channel)[
+            dng.raw_colors_visible]
+        means = [img[dng.raw_colors_visible == c].mean() for c in range(4)]
+        rgb_cam = np.array(dng.color_matrix)[:, :3]  # LibRaw's, from the DNG's ColorMatrix1
+    rgb = np.array([means[0], (means[1] + means[3]) / 2, means[2]])
+    np.testing.assert_allclose(rgb / rgb[1], raw[0, 0] / raw[0, 0, 1], rtol=0.01)
+    cam_rgb = profile @ M_REC709_TO_XYZ
+    np.testing.assert_allclose(rgb_cam, np.linalg.inv(cam_rgb / cam_rgb.sum(1, keepdims=True)),
+                               atol=2e-3)
