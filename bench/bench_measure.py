@@ -88,4 +88,7 @@ def spectral() -> None:
 
 
 if __name__ == "__main__":
-    spectral() if os.environ.get("MEASURE_SPECTRAL") else main()
+    if os.environ.get("MEASURE_SPECTRAL"):
+        spectral()
+    else:
+        main()

@@ -111,21 +111,11 @@ class SpectralDisplay:
     def _render(self, spp: int, progress: Callable[[int, int], None] | None) -> tuple:
         """Every pixel's quad mean (raw and XYZ, (K, N, 3)) at each grid length, the white
         card's (3,) and the checker's patches (24, 3), in Mitsuba's units."""
-        import mitsuba as mi
-
         from grassd.calib.regions import extract_checker_patches
         from grassd.rigs.mitsuba_scene import quad_coverage
-        from grassd.rigs.spectral_world import (
-            _channels,
-            _split,
-            pixel_scene_dict,
-            render_checker,
-            render_white_card,
-            set_spectral_variant,
-        )
+        from grassd.rigs.spectral_world import render_checker, render_pixel, render_white_card
         from grassd.sim.export import export_display
 
-        set_spectral_variant()
         v = self.variation
         n = v.n_pixels
         base = self.display.pixel.albedo_linear
@@ -140,8 +130,7 @@ class SpectralDisplay:
             shutil.rmtree(scene_dir, ignore_errors=True)
             doc = export_display(scene_dir, self.display, self.lighting, self.camera_m,
                                  lengths, albedo, image_size=IMAGE_SIZE)
-            scene = mi.load_dict(pixel_scene_dict(scene_dir, [self.camera], spp, IMAGE_SIZE))
-            cams, img_xyz = _split(_channels(scene, mi.render(scene, seed=k)), 1)
+            cams, img_xyz = render_pixel(scene_dir, [self.camera], spp, IMAGE_SIZE, seed=k)
             means = []
             for quad in doc["quads"]:
                 (x0, y0), w = quad_coverage({"camera": doc["camera"], "quad": quad}, IMAGE_SIZE)

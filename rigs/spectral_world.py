@@ -156,7 +156,8 @@ def render_pixel(scene_dir: str | Path, cameras: Sequence[SpectralCamera], spp: 
                  width: int, seed: int = 0, max_depth: int = MAX_DEPTH,
                  rr_depth: int = RR_DEPTH) -> tuple[list[NDArray[np.float64]],
                                                     NDArray[np.float64]]:
-    """Render an exported directory spectrally on a ``width``-pixel square film of its camera:
+    """Render an exported directory (a pixel's or a whole display's) spectrally on a
+    ``width``-pixel square film of its camera:
     each camera's raw RGB image (H, W, 3) and the CIE XYZ image (H, W, 3), in Mitsuba's
     radiance units times nm (a map texel of RGB (1, 1, 1) emits CIE D65 / 100)."""
     import mitsuba as mi

@@ -19,7 +19,7 @@ import pytest
 from grassd.daemon.core.calibration.variation import load_variation
 
 pytest.importorskip("mitsuba")
-pytestmark = [pytest.mark.long, pytest.mark.slow]
+pytestmark = [pytest.mark.long, pytest.mark.slow, pytest.mark.timeout(1800)]
 
 SECRET = Path(__file__).resolve().parents[2] / "data" / "measure" / "secret_variation.toml"
 
