@@ -185,7 +185,7 @@ class SpectralDisplay:
         Rec.709 view and the camera's raw response, (H, W, 3) each), a ``SimCamera``'s
         ``scene_source``."""
         from grassd.calib.checker_photo import CHART_BODY_ALBEDO, checker_image
-        from grassd.calib.colour_spaces import M_XYZ_TO_REC709
+        from grassd.calib.colour_spaces import M_REC709_TO_XYZ, M_XYZ_TO_REC709
         from grassd.rigs.simulated_camera import SensorView
         from grassd.sim.display_photo import display_photo
 
@@ -200,7 +200,7 @@ class SpectralDisplay:
                 return SensorView(views[0] @ M_XYZ_TO_REC709.T, views[1], profile)
             lengths = self._commanded()
             env = np.asarray(self.lighting.env, dtype=np.float64)
-            env_xyz = env @ np.linalg.inv(M_XYZ_TO_REC709).T
+            env_xyz = env @ M_REC709_TO_XYZ.T
             views = [display_photo(e, self.camera_m, self.yaw_deg, self.display, px,
                                    frame_radiance=FRAME_ALBEDO * w, width=self.width, height=h)
                      for e, px, w in ((env_xyz, self._xyz(lengths), self.white_xyz),
