@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from grassd.sim.camera import frame_quad
-from grassd.sim.geometry import MATERIAL_NAMES, build_scene, triangle_mesh
+from grassd.sim.geometry import MATERIAL_NAMES, build_scene, primitive_pixels, triangle_mesh
 from grassd.sim.hdri import write_exr
 from grassd.sim.lighting import Lighting
 from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
@@ -115,12 +115,6 @@ def export_scene(out_dir: str | os.PathLike, display: DisplaySpec, lighting: Lig
     })
 
 
-def _pixel_of(display: DisplaySpec, xy_m: np.ndarray) -> np.ndarray:
-    """(n,) row-major index of the pixel whose cell holds each point ``xy_m`` (n, 2) [m]."""
-    centres = display.pixel_centres_m()
-    return np.argmin(((xy_m[:, None, :] - centres[None, :, :]) ** 2).sum(-1), axis=1)
-
-
 def export_display(out_dir: str | os.PathLike, display: DisplaySpec, lighting: Lighting,
                    eye_m: np.ndarray, lengths_mm: np.ndarray,
                    albedo_linear: np.ndarray | None = None,
@@ -143,16 +137,7 @@ def export_display(out_dir: str | os.PathLike, display: DisplaySpec, lighting: L
     scene = build_scene(display, lengths)
     albedo = (np.broadcast_to(scene.albedo, (n, *scene.albedo.shape)) if albedo_linear is None
               else np.asarray(albedo_linear, dtype=np.float64).reshape(n, *scene.albedo.shape))
-    blade_pixel = _pixel_of(display, scene.blade_p0[:, :2].astype(np.float64))
-    b = scene.rect_bounds.astype(np.float64)
-    centre = np.empty((scene.n_rects, 3))
-    for axis, (i0, i1) in {0: (1, 2), 1: (0, 2), 2: (0, 1)}.items():
-        sel = scene.rect_axis == axis
-        centre[sel, axis] = b[sel, 0]
-        centre[sel, i0] = (b[sel, 1] + b[sel, 2]) / 2
-        centre[sel, i1] = (b[sel, 3] + b[sel, 4]) / 2
-    rect_xy = centre[:, :2]
-    rect_pixel = _pixel_of(display, rect_xy)
+    blade_pixel, rect_pixel = primitive_pixels(display)
     meshes, materials, quads = [], {}, []
     centres = display.pixel_centres_m()
     for i in range(n):

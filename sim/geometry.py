@@ -228,11 +228,14 @@ def check_lengths(spec: PixelSpec, lengths_mm) -> np.ndarray:
 class _Layout(Primitives):
     """What a scene keeps whatever its splay and lengths: the blades as laid out (``cat``, the
     per-blade arrays of :func:`_pixel_blades` over every pixel, mm), their float32 rows, the
-    rectangles and their xy boxes [m]. Every array is read-only (layouts are shared)."""
+    rectangles and their xy boxes [m], and the row-major pixel each blade and rectangle belongs
+    to. Every array is read-only (layouts are shared)."""
 
     cat: dict[str, np.ndarray]
     rect_boxes: np.ndarray
     albedo: np.ndarray
+    blade_pixel: np.ndarray
+    rect_pixel: np.ndarray
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -331,7 +334,23 @@ def _draw_layout(display: DisplaySpec) -> _Layout:
                    blade_params=_readonly(blade_params), rect_axis=_readonly(rect_axis),
                    rect_bounds=_readonly(rect_bounds), rect_material=_readonly(rect_material),
                    rect_boxes=_readonly(rect_boxes),
-                   albedo=_readonly(albedo.astype(np.float32)))
+                   albedo=_readonly(albedo.astype(np.float32)),
+                   blade_pixel=_readonly(np.repeat(np.arange(n_pix), [len(p["xy"])
+                                                                      for p in pixels])),
+                   rect_pixel=_readonly(np.repeat(np.arange(n_pix), len(one_rects))))
+
+
+def _unsplayed(display: DisplaySpec) -> DisplaySpec:
+    """The display a layout is kept for: its pixel's splay plays no part (:func:`_layout`)."""
+    spec = display.pixel
+    return replace(display, pixel=replace(spec, splay_deg=0.0)) if spec.splay_deg else display
+
+
+def primitive_pixels(display: DisplaySpec) -> tuple[np.ndarray, np.ndarray]:
+    """The row-major pixel index of every blade (nb,) and every rectangle (nr,) of
+    ``display``'s scenes, in the order of :func:`build_scene`'s arrays."""
+    lay = _layout(_unsplayed(display))
+    return lay.blade_pixel, lay.rect_pixel
 
 
 def build_scene(display: DisplaySpec, lengths_mm: np.ndarray) -> SceneArrays:
@@ -345,8 +364,7 @@ def build_scene(display: DisplaySpec, lengths_mm: np.ndarray) -> SceneArrays:
     """
     spec = display.pixel
     lengths_mm = check_lengths(spec, lengths_mm)
-    lay = _layout(replace(display, pixel=replace(spec, splay_deg=0.0))
-                  if spec.splay_deg else display)
+    lay = _layout(_unsplayed(display))
     cat = lay.cat
 
     # Footprints (xy boxes, m) of blades at their widest lean over all lengths.

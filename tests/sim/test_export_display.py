@@ -62,3 +62,15 @@ def test_each_pixel_keeps_its_own_length_and_materials(tmp_path):
                                DISPLAY.pixel.albedo_linear[1] * 0.5)
     np.testing.assert_allclose(doc["materials"]["p002_green_grass"]["albedo_linear"],
                                DISPLAY.pixel.albedo_linear[1])
+
+
+def test_every_primitive_belongs_to_the_pixel_whose_cell_holds_it():
+    from grassd.sim.geometry import build_scene, primitive_pixels
+
+    scene = build_scene(DISPLAY, np.full(6, 10.0))
+    blade_pixel, rect_pixel = primitive_pixels(DISPLAY)
+    assert len(blade_pixel) == scene.n_blades and len(rect_pixel) == scene.n_rects
+    centres = DISPLAY.pixel_centres_m()
+    off = np.abs(scene.blade_p0[:, :2] - centres[blade_pixel])
+    assert off.max() < DISPLAY.pitch_mm / 2 * 1e-3
+    assert np.bincount(rect_pixel).tolist() == [scene.n_rects // 6] * 6
