@@ -232,14 +232,14 @@ def fitted_light_basis(rgb: ArrayLike, weights: ArrayLike) -> NDArray[np.float64
 
 def transfer(monomial_spectra: ArrayLike, response: ArrayLike,
              basis: ArrayLike | None = None) -> NDArray[np.float64]:
-    """(M, 3, C) ``T_mkc = integral monomial_m(lambda) basis_k(lambda) response_c(lambda)``:
+    """(..., M, 3, C) ``T_mkc = integral monomial_m(lambda) basis_k(lambda) response_c(lambda)``:
     what a unit coefficient of monomial ``m`` in light channel ``k`` gives channel ``c`` of a
     sensor of ``response`` (n, C) (a camera's sensitivities or the CIE observer), from the
-    monomials' spectra (M, n) on :data:`WAVELENGTHS` (:func:`grassd.sim.albedo_terms.
+    monomials' spectra (..., M, n) on :data:`WAVELENGTHS` (:func:`grassd.sim.albedo_terms.
     monomial_values` of the materials' :func:`sigmoid_spectra`) and the light's ``basis``
     (n, 3) (default :func:`light_basis` of D65)."""
     b = light_basis() if basis is None else np.asarray(basis, np.float64)
-    spectra = np.asarray(monomial_spectra, np.float64)[:, None, :] * b.T
+    spectra = np.asarray(monomial_spectra, np.float64)[..., None, :] * b.T
     return integrate(spectra, response)
 
 

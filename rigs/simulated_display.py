@@ -48,8 +48,9 @@ class SimulatedDisplay:
     ``cfg``: the daemon's Config (display size, pixel); ``lighting``: the site's light;
     ``variation``: the pixels' hidden departures; ``positions_um``: the motors' positions (N,)
     in micrometres, row-major display pixels; ``renderer``: a Renderer with room for the
-    display. ``checker``: while True, the camera sees the colour checker lying at the display
-    instead (the set-up shot).
+    display. The pixels' light transport is the daemon's (``[simulation] transport``).
+    ``checker``: while True, the camera sees the colour checker lying at the display instead
+    (the set-up shot).
     """
 
     def __init__(self, cfg: Any, lighting: Any, variation: DisplayVariation,
@@ -58,6 +59,7 @@ class SimulatedDisplay:
                  yaw_deg: float = SIM_CAMERA_YAW_DEG, width: int = SIM_CAMERA_WIDTH,
                  samples: int = 1024,
                  progress: Callable[[int, int], None] | None = None) -> None:
+        from grassd.daemon.core.calibration.calibrate import Calibrator
         from grassd.daemon.core.calibration.display_model import geometry_from_eye
         from grassd.daemon.core.calibration.simulation import white_radiance
         from grassd.daemon.measure.pixel_model import record_pixel_model
@@ -78,7 +80,7 @@ class SimulatedDisplay:
         self.model = record_pixel_model(
             renderer, self.display, lighting, [geo.viewpoint(i) for i in range(geo.n_pixels)],
             grid, RenderSettings(samples=samples, replicates=4, seed=90_001),
-            progress=progress)
+            transport=Calibrator(cfg).transport(self.display, lighting), progress=progress)
         self.checker = False
         self.chart = CHECKER_CHART  # what the set-up shot's checker is (a chart name or CSV)
         self.shots = 0

@@ -32,6 +32,7 @@ from grassd.calib.colour_spaces import prophoto_to_lab, rec709_to_prophoto
 from grassd.daemon.core.calibration.variation import GAIN_RANGE, OFFSET_LIMIT_MM, DisplayVariation
 
 if TYPE_CHECKING:
+    from grassd.daemon.core.calibration.transport import SpectralTransport
     from grassd.sim.lighting import Lighting
     from grassd.sim.renderer import Renderer
     from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
@@ -49,6 +50,9 @@ class PixelColourModel:
     ``albedo`` (4, 3) the model pixel's linear albedos; ``specular`` its glossy ``ks``;
     ``layout_sd`` (N, G, 3) the standard deviation of the model pixel's CIELAB over the tuft
     layouts averaged (None with one layout): how much a real pixel, one layout, may differ.
+    ``transport``: the light's and the materials' spectra with spectral transport (the terms
+    are read per wavelength and by the CIE observer, the gains scaling the materials'
+    reflectance spectra), None with Rec.709 transport (the terms read on the Rec.709 albedos).
     """
 
     grid_mm: NDArray[np.float64]
@@ -57,6 +61,7 @@ class PixelColourModel:
     albedo: NDArray[np.float64]
     specular: float = 0.0
     layout_sd: NDArray[np.float64] | None = None
+    transport: SpectralTransport | None = None
 
     @property
     def n_pixels(self) -> int:
@@ -71,14 +76,16 @@ class PixelColourModel:
     def grid_radiance(self, variation: DisplayVariation, pixels: NDArray | None = None
                       ) -> NDArray[np.float64]:
         """(n, G, 3) radiance (nits) of the chosen ``pixels`` (default all) on the grid."""
-        from grassd.sim.albedo_terms import monomial_values
+        from grassd.sim.albedo_terms import MAX_DEGREE, monomial_values
 
         idx = np.arange(self.n_pixels) if pixels is None else np.asarray(pixels)
-        a = np.broadcast_to(self.albedo, (len(idx), 4, 3)).copy()
-        a[:, YELLOW] = np.clip(a[:, YELLOW] * variation.yellow_gain[idx, None], 0.0, 1.0)
-        a[:, GREEN] = np.clip(a[:, GREEN] * variation.green_gain[idx, None], 0.0, 1.0)
-        mono = monomial_values(a, self.specular)  # (n, 56, 3)
-        return np.einsum("ngmc,nmc->ngc", self.coefficients[idx], mono)
+        coefficients = self.coefficients[idx]
+        if self.transport is None:
+            mono = monomial_values(_varied(self.albedo, variation, idx), self.specular)
+            return np.einsum("ngmc,nmc->ngc", coefficients, mono)
+        observed = self.transport.observed(_varied(self.transport.spectra, variation, idx),
+                                           MAX_DEGREE)  # (n, 56, 3, 3)
+        return np.einsum("ngmk,nmkc->ngc", coefficients, observed)
 
     def radiance(self, commanded_mm: NDArray, variation: DisplayVariation,
                  pixels: NDArray | None = None) -> NDArray[np.float64]:
@@ -102,6 +109,16 @@ class PixelColourModel:
         return self.radiance(commanded_mm, variation, pixels) / self.white
 
 
+def _varied(reflectance: NDArray, variation: DisplayVariation, idx: NDArray
+            ) -> NDArray[np.float64]:
+    """(n, 4, C) the materials' reflectance (4, C) (Rec.709 albedos or spectra) of pixels
+    ``idx``, the yellow and green scaled by ``variation``'s gains within 0..1."""
+    r = np.broadcast_to(reflectance, (len(idx),) + np.shape(reflectance)).copy()
+    r[:, YELLOW] = np.clip(r[:, YELLOW] * variation.yellow_gain[idx, None], 0.0, 1.0)
+    r[:, GREEN] = np.clip(r[:, GREEN] * variation.green_gain[idx, None], 0.0, 1.0)
+    return r
+
+
 def lab_of(rgb: NDArray, ccm: NDArray | None = None) -> NDArray[np.float64]:
     """CIELAB of white-normalised linear Rec.709 ``rgb`` (..., 3), through a camera's colour
     correction ``ccm`` (3 x 3 on ProPhoto, scale included) when given."""
@@ -112,6 +129,7 @@ def lab_of(rgb: NDArray, ccm: NDArray | None = None) -> NDArray[np.float64]:
 def record_pixel_model(renderer: Renderer, display: DisplaySpec, lighting: Lighting,
                        viewpoints: Sequence[Viewpoint], grid_mm: NDArray,
                        settings: RenderSettings, *, layouts: int = 1, glossy: bool = False,
+                       transport: SpectralTransport | None = None,
                        progress: Callable[[int, int], None] | None = None) -> PixelColourModel:
     """Record every pixel of ``display`` (a ``DisplaySpec``) at its own viewpoint
     (``viewpoints[i]``, a ``Viewpoint``) on ``grid_mm`` under ``lighting``, averaged over
@@ -119,9 +137,10 @@ def record_pixel_model(renderer: Renderer, display: DisplaySpec, lighting: Light
     ``RenderSettings``; the polynomial has degree 3 (56 monomials), and a path's vertices
     beyond it (``max_bounces`` above 3, Russian roulette ending the paths) are its tail term
     (:mod:`grassd.sim.albedo_terms`): exact at the model's own albedos, the tail's vertices
-    keeping them as the gains move the others. ``progress(done, total)`` counts recordings."""
+    keeping them as the gains move the others. ``transport``: the model's
+    (:attr:`PixelColourModel.transport`). ``progress(done, total)`` counts recordings."""
     from grassd.daemon.core.calibration.simulation import layout_display, white_radiance
-    from grassd.sim.albedo_terms import MAX_DEGREE, monomial_values, n_monomials
+    from grassd.sim.albedo_terms import MAX_DEGREE, n_monomials
 
     grid = np.asarray(grid_mm, dtype=np.float64)
     n = display.rows * display.cols
@@ -130,8 +149,10 @@ def record_pixel_model(renderer: Renderer, display: DisplaySpec, lighting: Light
     coeffs = np.zeros((n, len(grid), n_monomials(MAX_DEGREE), 3))
     labs = []
     total, done = n * layouts, 0
-    albedo = display.pixel.albedo_linear
     white = np.asarray(white_radiance(lighting), dtype=np.float64)
+    model = PixelColourModel(grid_mm=grid, coefficients=coeffs, white=white,
+                             albedo=display.pixel.albedo_linear,
+                             specular=float(display.pixel.specular), transport=transport)
     for k in range(layouts):
         disp = layout_display(display, k)
         one = np.zeros_like(coeffs)
@@ -144,11 +165,9 @@ def record_pixel_model(renderer: Renderer, display: DisplaySpec, lighting: Light
                 progress(done, total)
         coeffs += one / layouts
         if layouts > 1:
-            mono = monomial_values(albedo, float(display.pixel.specular))
-            labs.append(lab_of(np.einsum("ngmc,mc->ngc", one, mono) / white))
-    return PixelColourModel(grid_mm=grid, coefficients=coeffs, white=white, albedo=albedo,
-                            specular=float(display.pixel.specular),
-                            layout_sd=np.std(labs, axis=0, ddof=1) if layouts > 1 else None)
+            layout = replace(model, coefficients=one)
+            labs.append(lab_of(layout.grid_radiance(DisplayVariation.none(n)) / white))
+    return replace(model, layout_sd=np.std(labs, axis=0, ddof=1) if layouts > 1 else None)
 
 
 @dataclass(frozen=True, eq=False)

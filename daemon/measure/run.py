@@ -68,6 +68,7 @@ if TYPE_CHECKING:
     from grassd.daemon.core.calibration.calibrate import Calibrates
     from grassd.daemon.core.calibration.correction import DisplayCorrection
     from grassd.daemon.core.calibration.result import CalibrationResult
+    from grassd.daemon.core.calibration.transport import SpectralTransport
     from grassd.daemon.core.calibration.variation import DisplayVariation
     from grassd.daemon.core.config.settings import Config, ViewpointConfig
     from grassd.daemon.core.hardware.fleet import Fleet
@@ -478,7 +479,8 @@ def _locate(ctx: MeasureContext, shots: dict[str, Shot], photos: Photos, display
 class PixelModels:
     """Records the model pixel at every pixel of ``display`` as an eye sees it
     (:func:`~grassd.daemon.measure.pixel_model.record_pixel_model`) under the measurement's
-    light, on ``grid`` (mm, every :data:`GRID_STEP_MM`)."""
+    light, on ``grid`` (mm, every :data:`GRID_STEP_MM`), read with the characteristic's
+    ``transport`` (``[simulation] transport``; None: Rec.709)."""
 
     renderer: Renderer
     display: DisplaySpec
@@ -486,6 +488,7 @@ class PixelModels:
     grid: NDArray[np.float64]
     settings: RenderSettings
     progress: Callable[[str], None]
+    transport: SpectralTransport | None = None
 
     @classmethod
     def for_measurement(cls, cfg: Config, light: LightInput, display: DisplaySpec,
@@ -499,11 +502,14 @@ class PixelModels:
 
         # the pixel models are recorded here, whichever calibrator ran the tables (a Dask
         # cluster's runs only those), so their light is built here too
+        calibrator = Calibrator(cfg)
+        lighting = calibrator.lighting(light)
         return cls(Renderer.shared(capacity_for(display.rows * display.cols)), display,
-                   Calibrator(cfg).lighting(light),
+                   lighting,
                    np.arange(0.0, display.pixel.green_max_mm + GRID_STEP_MM / 2, GRID_STEP_MM),
                    RenderSettings(samples=cfg.measure.samples, replicates=4,
-                                  seed=cfg.simulation.seed), progress)
+                                  seed=cfg.simulation.seed), progress,
+                   calibrator.transport(display, lighting))
 
     def from_eye(self, eye_m: NDArray, what: str, layouts: int) -> PixelColourModel:
         """Every pixel's model seen from the world point ``eye_m`` (m), averaged over
@@ -515,7 +521,7 @@ class PixelModels:
         n = self.display.rows * self.display.cols
         return record_pixel_model(
             self.renderer, self.display, self.lighting, [geo.viewpoint(i) for i in range(n)],
-            self.grid, self.settings, layouts=layouts,
+            self.grid, self.settings, layouts=layouts, transport=self.transport,
             progress=lambda done, total: self.progress(f"measure: {what} {done}/{total}"))
 
 

@@ -29,6 +29,7 @@ Units: radiance in the scaled light's units (nits), linear Rec.709.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -65,6 +66,12 @@ def light_spectra_basis(lighting: Lighting) -> NDArray[np.float64]:
     return fitted_light_basis(rgb, share)
 
 
+@functools.cache
+def _observer_rec709() -> NDArray[np.float64]:
+    """(n, 3) the CIE observer read as linear Rec.709."""
+    return cie_observer() @ M_XYZ_TO_REC709.T
+
+
 @dataclass(frozen=True)
 class SpectralTransport:
     """The difference spectral transport makes to a display's trace under one light.
@@ -97,12 +104,18 @@ class SpectralTransport:
         Rec.709 on the materials' spectra in the light's
         (:func:`grassd.calib.spectral_prediction.transfer`)."""
         if degree not in self._matrices:
-            observer = cie_observer() @ M_XYZ_TO_REC709.T  # (n, 3)
-            spectral = transfer(monomial_values(self.spectra, self.specular, degree),
-                                observer, self.basis)
             self._matrices[degree] = (monomial_values(self.albedo, self.specular, degree),
-                                      spectral)
+                                      self.observed(self.spectra, degree))
         return self._matrices[degree]
+
+    def observed(self, spectra: NDArray[np.float64], degree: int) -> NDArray[np.float64]:
+        """(..., M, 3, 3) what a unit coefficient of each monomial of ``degree`` in each light
+        channel gives the observer's linear Rec.709 on reflectance ``spectra`` (..., 4, n)
+        (material order, :data:`~grassd.calib.spectral_prediction.WAVELENGTHS`) in this
+        light (:func:`grassd.calib.spectral_prediction.transfer`): the pixel's materials, or
+        the same materials faded or enriched."""
+        return transfer(monomial_values(spectra, self.specular, degree), _observer_rec709(),
+                        self.basis)
 
     def difference(self, renderer, display: DisplaySpec, lighting: Lighting,
                    viewpoint: Viewpoint, lengths_mm: NDArray[np.float64],
