@@ -156,14 +156,9 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
 
     With ``target_stderr`` (CIEDE2000), further batches of independent replicates (new seeds,
     same random numbers across lengths within a replicate) are traced until every OGCD
-    standard error is at most the target or ``max_replicates`` is reached. A round traces
-    only the reference and the lengths still above the target, in one launch (the renderer
-    traces a path once for all its lengths), with the most replicates the 1/sqrt(R) law says
-    one of them needs (at least one, at most doubling its count: the first round's estimate
-    often lands just above the target; at most ``MAX_REPLICATES`` a round). The first round
-    needs at least 2 replicates (their spread is the error). A length's OGCD and its error
-    come from the replicates that traced it (the reference's from the same ones, so the
-    common random numbers keep cancelling); a length at or below the target keeps them.
+    standard error is at most the target or ``max_replicates`` is reached; a round traces
+    the reference and the lengths still above the target in one launch (:func:`_next_round`).
+    The first round needs at least 2 replicates (their spread is the error).
 
     ``layouts``: replicate j traces the display with ``layout_seed + (j mod layouts)`` and its
     own paths (:func:`layout_seed`), so the curve is the mean over that many random tuft
@@ -177,41 +172,24 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
     new input waits little for the round in flight).
 
     ``larger``: with a target and a sun, replicates of more paths where the first paths say
-    the target needs many (:class:`LargerReplicates`); ``max_replicates`` and
-    ``round_replicates`` then count paths as the first series' replicates do (scaled by their
-    sizes), and ``on_round`` sees the new series once it has as many replicates as the first
-    round had.
-
-    ``resume``: the run's state, kept by the caller (:class:`CurveRun`): a run that an
-    exception stopped (a newer input, raised by ``on_round`` or ``progress``) goes on from its
-    last complete round when it is called again with the same state and arguments, first
-    showing ``on_round`` that round's curve (or the last one shown, where a new series of
-    larger replicates has too few yet); the rounds and seeds are those of a run never
-    stopped, so the curve is the same.
-
+    the target needs many (:class:`LargerReplicates`). ``resume``: the run's state, kept by
+    the caller so that a stopped run goes on where it stopped (:class:`CurveRun`).
     ``spectral``: each replicate adds the difference spectral transport makes to its paths
     (:class:`grassd.daemon.core.calibration.transport.SpectralTransport`, for this display and
-    light); None: Rec.709 transport alone.
-    """
+    light); None: Rec.709 transport alone."""
     if settings.replicates < 2:
         raise SceneError(f"simulate_curve needs at least 2 replicates (their spread is the "
                          f"error); got {settings.replicates}")
     if layouts < 1:
         raise SceneError(f"layouts must be at least 1, got {layouts}")
     lengths_mm = np.asarray(lengths_mm, float)
-    n_len = len(lengths_mm)
     white = white_radiance(lighting)
     if lighting.sun_direction is None:  # under diffuse light larger replicates gain nothing
         larger = None
     run = CurveRun() if resume is None else resume
-    fresh = run.settings is None
-    asked = (tuple(lengths_mm.tolist()), settings, target_stderr, max_replicates,
-             round_replicates, layouts, pixel_index, larger, spectral is None)
-    if fresh:
-        run.begin(settings, n_len, max_replicates, round_replicates, asked)
-    elif run.asked != asked:
-        raise SceneError("a stopped run goes on only with the lengths, settings, target and "
-                         "limits it began with")
+    fresh = run.start(settings, len(lengths_mm), max_replicates, round_replicates, (
+        tuple(lengths_mm.tolist()), settings, target_stderr, max_replicates, round_replicates,
+        layouts, pixel_index, larger, spectral is None))
     tracer = _RoundTracer(renderer, display, lighting, viewpoint, lengths_mm, layouts,
                           pixel_index, progress, run.seconds, spectral)
     first_round = settings.replicates
@@ -225,11 +203,8 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
                                         int(run.counts[0]))
             run.add_round(block, paths)
         fresh = True
-        t0 = time.perf_counter()
-        x = np.concatenate(run.blocks)
+        x, lab, ogcd, se, step_se = run.colours(white, ccm)
         counts = run.counts
-        lab, ogcd, se, step_se = _ogcd_by_replicates(x, counts, white, ccm, run.cache)
-        run.seconds["colour"] += time.perf_counter() - t0
         n = int(counts[0])
         worst = float(np.max(se))
         rounds = run.rounds if run.decided else [*run.rounds, (n, worst)]
@@ -238,14 +213,7 @@ def simulate_curve(renderer, display, lighting, viewpoint, lengths_mm: np.ndarra
         shown = on_round is not None and n >= run.show_from
         curve = None
         if shown or done:
-            curve = SimulatedCurve(
-                h_cm=viewpoint.h_cm, d_m=viewpoint.d_m, theta_deg=viewpoint.theta_deg,
-                lengths_mm=lengths_mm, rgb_linear=np.nanmean(x, axis=0),  # NaN: not traced
-                rgb_stderr=np.nanstd(x, axis=0, ddof=1) / np.sqrt(counts)[:, None], lab=lab,
-                ogcd=ogcd, ogcd_stderr=se, replicates=n, seconds=dict(run.seconds),
-                rounds=tuple(rounds), length_replicates=counts.copy(),
-                paths_traced=run.traced_paths, step_stderr=step_se,
-            )
+            curve = run.curve(viewpoint, lengths_mm, x, lab, ogcd, se, step_se, rounds)
         if not run.decided:  # the next round, decided before the curve is shown (which may
             # stop the run); what may raise comes first, the run's state changes last
             _decide_next(run, larger, se, counts, target_stderr, first_round, done)
@@ -279,7 +247,16 @@ def _decide_next(run: CurveRun, larger: LargerReplicates | None, se: np.ndarray,
 class CurveRun:
     """Where an adaptive :func:`simulate_curve` run stands after its last complete round, the
     next round decided: what the run needs to go on where it stopped (a newer input stops the
-    studio's runs; it keeps them per condition). Empty until the run begins."""
+    studio's runs; it keeps them per condition). Empty until the run begins.
+
+    A run that an exception stopped (a newer input, raised by ``on_round`` or ``progress``)
+    goes on from its last complete round when :func:`simulate_curve` is called again with
+    the same state and arguments, first showing ``on_round`` that round's curve (or the last
+    one shown, where a new series of larger replicates has too few yet); the rounds and seeds
+    are those of a run never stopped, so the curve is the same. With larger replicates,
+    ``max_replicates`` and ``round_replicates`` count paths as the first series' replicates
+    do (scaled by their sizes), and ``on_round`` sees the new series once it has as many
+    replicates as the first round had."""
 
     settings: object = None  #: RenderSettings of the current series (None: not begun)
     k: int = 0  #: rounds traced: the next round's seed is ``seed + 7919 k``
@@ -289,7 +266,7 @@ class CurveRun:
     #: traced (linear RGB, nits) since the current series began
     counts: np.ndarray | None = None  #: replicates of each length: always the first ones
     rounds: list[tuple[int, float]] = field(default_factory=list)
-    cache: dict = field(default_factory=dict)  #: :func:`_ogcd_by_replicates`' of the series
+    cache: dict = field(default_factory=dict)  #: :meth:`colours`' of the series
     show_from: int = 0  #: replicates before a round is shown
     least: int = 0  #: replicates before the run may stop
     looked: bool = False  #: whether ``larger`` has judged the first paths
@@ -302,13 +279,20 @@ class CurveRun:
     seconds: dict[str, float] = field(
         default_factory=lambda: {"compile": 0.0, "trace": 0.0, "spectral": 0.0, "colour": 0.0})
 
-    def begin(self, settings, n_len: int, max_replicates: int, round_replicates: int,
-              asked: tuple) -> None:
-        """Start the run: its first round traces every length with ``settings``; ``asked``:
-        what a resumed call must ask again."""
+    def start(self, settings, n_len: int, max_replicates: int, round_replicates: int,
+              asked: tuple) -> bool:
+        """Begin the run (True; its first round traces every length with ``settings``), or
+        go on with a stopped one (False) that was asked the same (``asked``: lengths,
+        settings, target, limits)."""
+        if self.settings is not None:
+            if self.asked != asked:
+                raise SceneError("a stopped run goes on only with the lengths, settings, "
+                                 "target and limits it began with")
+            return False
         self.settings, self.b, self.asked = settings, settings.replicates, asked
         self.cols, self.counts = np.arange(n_len), np.zeros(n_len, np.int64)
         self.max_replicates, self.round_replicates = max_replicates, round_replicates
+        return True
 
     def add_round(self, block: np.ndarray, paths: int) -> None:
         """Take a traced round: ``block`` (b, n, 3) of ``paths`` camera paths."""
@@ -316,6 +300,49 @@ class CurveRun:
         self.blocks.append(block)
         self.counts[self.cols] += self.b
         self.decided = False
+
+    def colours(self, white: np.ndarray, ccm
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """The series' replicates ``x`` (R, n, 3) linear RGB [nits], and their Lab (n, 3),
+        OGCD and its standard error (n,) after normalising by ``white``, length i traced in
+        the first ``counts[i]`` replicates (a round traces the reference, column 0, and the
+        lengths still above the target, so a length's replicates are those of the rounds
+        before it met it): the lengths with the same count are taken together with the
+        reference over those replicates, each group once while its replicates do not change
+        (``cache``). Last: the steps' standard errors (n - 1,) when every length has the
+        same replicates, else None. Timed as the run's ``colour`` seconds."""
+        t0 = time.perf_counter()
+        x, counts, cache = np.concatenate(self.blocks), self.counts, self.cache
+        n = x.shape[1]
+        lab = np.empty((n, 3))
+        ogcd = np.zeros(n)
+        se = np.zeros(n)
+        for c in np.unique(counts):  # ascending: the reference's (the most) last
+            cols = np.flatnonzero(counts == c)
+            cols = np.concatenate([[0], cols[cols != 0]])
+            key = (int(c), cols.tobytes())
+            if key not in cache:  # a finished length's numbers do not change
+                res = ogcd_from_samples(np.clip(x[:c][:, cols] / white, 0.0, None),
+                                        space="rec709", ccm=ccm)
+                cache[key] = (res.lab, res.ogcd, res.ogcd_stderr, res.step_stderr)
+            lab[cols], ogcd[cols], se[cols], step_se = cache[key]
+        self.seconds["colour"] += time.perf_counter() - t0
+        return x, lab, ogcd, se, step_se if len(np.unique(counts)) == 1 else None
+
+    def curve(self, viewpoint, lengths_mm: np.ndarray, x: np.ndarray, lab: np.ndarray,
+              ogcd: np.ndarray, ogcd_se: np.ndarray, step_se: np.ndarray | None,
+              rounds: list[tuple[int, float]]) -> SimulatedCurve:
+        """The curve of the series so far: ``x`` (R, n, 3) its replicates' radiance (nits,
+        NaN where a replicate did not trace a length), their CIELAB, OGCD and its standard
+        errors (dE00), ``rounds`` as :attr:`SimulatedCurve.rounds`."""
+        counts = self.counts
+        return SimulatedCurve(
+            h_cm=viewpoint.h_cm, d_m=viewpoint.d_m, theta_deg=viewpoint.theta_deg,
+            lengths_mm=lengths_mm, rgb_linear=np.nanmean(x, axis=0),
+            rgb_stderr=np.nanstd(x, axis=0, ddof=1) / np.sqrt(counts)[:, None], lab=lab,
+            ogcd=ogcd, ogcd_stderr=ogcd_se, replicates=int(counts[0]),
+            seconds=dict(self.seconds), rounds=tuple(rounds), length_replicates=counts.copy(),
+            paths_traced=self.traced_paths, step_stderr=step_se)
 
 
 def _larger_series(run: CurveRun, larger: LargerReplicates | None, n: int, worst: float,
@@ -396,11 +423,15 @@ class _RoundTracer:
 def _next_round(se: np.ndarray, counts: np.ndarray, target_stderr: float, least: int,
                 most: int) -> tuple[int, np.ndarray]:
     """The next round of an adaptive run: how many replicates (at most ``most``), and the
-    lengths (indices, the reference 0 always) that trace them. Until the series has ``least``
-    replicates every length takes them; then the lengths whose OGCD standard error ``se``
-    (dE00) is above the target take what the 1/sqrt(R) law says the neediest of them needs,
-    at least one replicate and (as the worst of n noisy estimates overstates the error) at
-    most doubling its count."""
+    lengths (indices, the reference 0 always) that trace them, in one launch (the renderer
+    traces a path once for all its lengths). Until the series has ``least`` replicates every
+    length takes them; then the lengths whose OGCD standard error ``se`` (dE00) is above the
+    target take what the 1/sqrt(R) law says the neediest of them needs, at least one
+    replicate and (as the worst of n noisy estimates overstates the error: the first round's
+    estimate often lands just above the target) at most doubling its count. A length's OGCD
+    and its error come from the replicates that traced it (the reference's from the same
+    ones, so the common random numbers keep cancelling); a length at or below the target
+    keeps them."""
     above = se > target_stderr
     n = int(counts[0])
     if n < least:
@@ -410,32 +441,6 @@ def _next_round(se: np.ndarray, counts: np.ndarray, target_stderr: float, least:
         ratio = np.minimum((se[above] / target_stderr) ** 2, 2.0)
         b = int(np.max(np.maximum(np.ceil(counts[above] * ratio) - counts[above], 1)))
     return min(b, most), np.union1d([0], np.flatnonzero(above))
-
-
-def _ogcd_by_replicates(x: np.ndarray, counts: np.ndarray, white: np.ndarray, ccm,
-                        cache: dict
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-    """Lab (n, 3), OGCD and its standard error (n,) of replicates ``x`` (R, n, 3) linear RGB
-    [nits], length i traced in the first ``counts[i]`` replicates (a round traces the
-    reference, column 0, and the lengths still above the target, so a length's replicates
-    are those of the rounds before it met it): the lengths with the same count are taken
-    together with the reference over those replicates. ``cache`` (kept across the rounds of
-    one run) skips groups whose replicates and lengths did not change. Last: the steps'
-    standard errors (n - 1,) when every length has the same replicates, else None."""
-    n = x.shape[1]
-    lab = np.empty((n, 3))
-    ogcd = np.zeros(n)
-    se = np.zeros(n)
-    for c in np.unique(counts):  # ascending: the reference's (the most) last
-        cols = np.flatnonzero(counts == c)
-        cols = np.concatenate([[0], cols[cols != 0]])
-        key = (int(c), cols.tobytes())
-        if key not in cache:  # a finished length's numbers do not change
-            res = ogcd_from_samples(np.clip(x[:c][:, cols] / white, 0.0, None),
-                                    space="rec709", ccm=ccm)
-            cache[key] = (res.lab, res.ogcd, res.ogcd_stderr, res.step_stderr)
-        lab[cols], ogcd[cols], se[cols], step_se = cache[key]
-    return lab, ogcd, se, step_se if len(np.unique(counts)) == 1 else None
 
 
 def simulate_curves(renderer, display, lighting, viewpoints: Sequence, lengths_mm: np.ndarray,
