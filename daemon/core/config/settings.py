@@ -1,45 +1,12 @@
 """The daemon's configuration: TOML file -> validated, frozen dataclasses.
 
-The file (default ``/etc/grassd/grassd.toml``; the embedded default is
-``grassd/daemon/core/config/default.toml``) has these tables::
-
-    state_dir = "/var/lib/grassd"     # optional: $STATE_DIRECTORY, then /var/lib/grassd
-    cache_dir = "/var/cache/grassd"   # optional: grassd.sim.kernel_cache.default_cache_dir
-                                      # ($GRASSD_CACHE_DIR, $CACHE_DIRECTORY, else the
-                                      # user's own: $XDG_CACHE_HOME/grassd, ~/.cache/grassd)
-    control_socket = "/run/grassd/control.sock"  # optional: $RUNTIME_DIRECTORY/control.sock,
-                                      # else /run/grassd/control.sock if that directory exists
-                                      # and state_dir is not set, else state_dir/control.sock
-    [site]         latitude, longitude (degrees), timezone (IANA name)
-    [display]      rows, cols, pitch_mm; [display.pixel] pixel-spec fields (mm, counts)
-    [[controllers]] port, baud, address, pixels ("0-63,70" inclusive ranges of pixel indices)
-    [[viewpoints]] h_cm, d_m, theta_deg, weight
-    [light]        inbox, lux = "manifest" | "modbus", settle_s, incomplete_timeout_s,
-                   lux_wait_s;
-                   [light.modbus] sensor register map;
-                   [light.limits] manifest_kib, file_mib, bundle_mib, entries (caps on a bundle)
-    [schedule]     interval_s, on_new_bundle
-    [retention]    keep_days, keep_reports, keep_runs (see RetentionConfig)
-    [simulation]   samples, seed, lengths (count of evenly spaced lengths, or a list in mm),
-                   layouts (random tuft layouts a global table averages)
-    [calibration]  max_jump_mm, target_de00, max_rounds, check_levels, r2_goal,
-                   max_flat_fraction, replicates (see CalibrationConfig)
-    [tables]       granularity = "global" | "controller" | "pixel", eye = "world" | "pixel",
-                   group_tolerance_deg, distance_tolerance, check_groups (see TablesConfig):
-                   the table(s) the daemon pushes, one per controller / per pixel or global
-    [capture]      optional capture station: camera URL, bracket, interval
-                   (see grassd.daemon.camera.config)
-    [measure]      optional: the camera that photographs the display, interval, tolerance
-                   (see grassd.daemon.measure.config)
-    [audience]     optional region: polygon = [[x, y], ...] (m), h_cm = [low, high],
-                   ground_samples, height_samples, objective = "mean" | "worst"; when set,
-                   the daemon's table(s) come from the region instead of [[viewpoints]]
-    [metrics]      textfile (see MetricsConfig): node_exporter textfile of Prometheus metrics
-    [alerts]       command, min_interval_s, timeout_s (see AlertsConfig): run on health changes
-    [compute]      scheduler = "tls://host:8786", its TLS files, allow_insecure, timeouts
-                   (see grassd.daemon.compute.config): simulations on a dask.distributed cluster
-    [content]      optional: what the display shows, live sACN / Art-Net, playlist, idle
-                   picture (see grassd.daemon.content.config)
+The file is ``/etc/grassd/grassd.toml`` by default (:data:`DEFAULT_CONFIG_PATH`). The embedded
+default, ``grassd/daemon/core/config/default.toml``, documents every key the schema accepts,
+with its default and bounds (``tests/daemon/config/test_default_documents_every_key.py`` holds
+it to that), so the tables are not listed again here: the core's sections are the dataclasses
+below; the features' are parsed by their own modules (``[capture]``:
+:mod:`grassd.daemon.camera.config`; ``[measure]``, ``[compute]``, ``[content]``: the
+``config`` module of ``grassd.daemon.measure``, ``.compute``, ``.content``).
 
 Relative paths are resolved against the directory of the config file, except ``light.inbox``
 which, when relative, lies inside ``state_dir``.
