@@ -67,9 +67,9 @@ def long_paths(per_path: float) -> int:
 def test_a_newer_job_stops_the_launch_in_flight(shared_hdri):
     """Job A's replicates of splayed camera paths are sized to long launches by a probe's rate
     (at most a replicate's 4 million paths); job B, sent 1 s after A started, supersedes A and
-    is answered within a third of A's launch and 5 s (measured on 2 cores: 0.02-0.08 s alone,
-    2.8 s beside another pytest worker): A's launch stopped within the camera path in flight.
-    Without the shared word B waited for A's launch to end (8.0 s after it was sent)."""
+    is answered within a third of A's launch: A's launch stopped within the camera path in
+    flight. Without the shared word B waits for A's launch to end, two thirds of it later
+    (docs/studio.md has the times measured)."""
 
     async def scenario() -> tuple[float, object, BaseException | None, float]:
         async with simulator(shared_hdri("courtyard")) as (sim, job, per_path):
@@ -89,7 +89,7 @@ def test_a_newer_job_stops_the_launch_in_flight(shared_hdri):
     answered, curve, error, launch_s = asyncio.run(scenario())
     assert isinstance(error, Superseded), error
     assert curve.ogcd.shape == (2,)
-    assert answered < min(5.0, launch_s / 3), (
+    assert answered < launch_s / 3, (
         f"B answered {answered:.1f} s after it was sent; A's launch takes about "
         f"{launch_s:.1f} s")
 
