@@ -146,16 +146,11 @@ def record_pixel_model(renderer: Renderer, display: DisplaySpec, lighting: Light
     n = display.rows * display.cols
     if len(viewpoints) != n:
         raise ValueError(f"{len(viewpoints)} viewpoints for {n} pixels")
-    coeffs = np.zeros((n, len(grid), n_monomials(MAX_DEGREE), 3))
-    labs = []
     total, done = n * layouts, 0
-    white = np.asarray(white_radiance(lighting), dtype=np.float64)
-    model = PixelColourModel(grid_mm=grid, coefficients=coeffs, white=white,
-                             albedo=display.pixel.albedo_linear,
-                             specular=float(display.pixel.specular), transport=transport)
+    recorded = []  # per layout (N, G, 56, 3)
     for k in range(layouts):
         disp = layout_display(display, k)
-        one = np.zeros_like(coeffs)
+        one = np.zeros((n, len(grid), n_monomials(MAX_DEGREE), 3))
         for i in range(n):
             terms = renderer.albedo_terms(disp, lighting, viewpoints[i], grid, settings,
                                           pixel_index=i, glossy=glossy, degree=MAX_DEGREE)
@@ -163,11 +158,17 @@ def record_pixel_model(renderer: Renderer, display: DisplaySpec, lighting: Light
             done += 1
             if progress:
                 progress(done, total)
-        coeffs += one / layouts
-        if layouts > 1:
-            layout = replace(model, coefficients=one)
-            labs.append(lab_of(layout.grid_radiance(DisplayVariation.none(n)) / white))
-    return replace(model, layout_sd=np.std(labs, axis=0, ddof=1) if layouts > 1 else None)
+        recorded.append(one)
+    white = np.asarray(white_radiance(lighting), dtype=np.float64)
+    model = PixelColourModel(grid_mm=grid, coefficients=np.mean(recorded, axis=0), white=white,
+                             albedo=display.pixel.albedo_linear,
+                             specular=float(display.pixel.specular), transport=transport)
+    if layouts == 1:
+        return model
+    none = DisplayVariation.none(n)
+    labs = [lab_of(replace(model, coefficients=one).grid_radiance(none) / white)
+            for one in recorded]
+    return replace(model, layout_sd=np.std(labs, axis=0, ddof=1))
 
 
 @dataclass(frozen=True, eq=False)
