@@ -171,6 +171,24 @@ class Measurement:
     rays_traced: int = 0
 
 
+@dataclass(frozen=True)
+class QuadHits:
+    """What the camera's rays through a pixel's measurement quad meet first, at each length.
+
+    ``lengths_mm`` (L,) green lengths (mm); ``xy_m`` (L, S, 2) each ray's first hit in the
+    display's plane (m, the coordinates of :meth:`~grassd.sim.scene.DisplaySpec.pixel_centres_m`;
+    NaN where it escaped); ``material`` (L, S) the material it met (the renderer's order: 0
+    yellow, 1 green, 2 base, 3 cavity; -1 none); ``weight`` (S,) each ray's weight in the
+    quad's area mean (the bilinear parametrisation's Jacobian, mean about 1). The rays are a
+    replicate's stratified samples (:meth:`Renderer.camera_ray`), the same at every length.
+    """
+
+    lengths_mm: np.ndarray
+    xy_m: np.ndarray
+    material: np.ndarray
+    weight: np.ndarray
+
+
 _SHARED: dict[Capacity, "Renderer"] = {}
 
 #: fpar slot of the scale the kernel applies to the uploaded (unscaled) environment map
@@ -1330,6 +1348,23 @@ class Renderer:
             self.sums[g] = acc
 
     @ti.kernel
+    def _hits_kernel(self, n_len: ti.i32, strata: ti.i32, seed: ti.u32, eye: vec3,
+                     area: ti.f32, splay: ti.template()):
+        """The first hit of every camera ray of one replicate at the first n_len lengths:
+        out[k * n + i] = (x, y, material) of ray i at length k, out[n_len * n + i] = (its
+        Jacobian, 0, 0), n = strata**2."""
+        n_samp = strata * strata
+        rep_key = tf.replicate_key(seed, 0)
+        for k, i in ti.ndrange(n_len, n_samp):
+            d, jac = self.camera_ray(i, n_samp, rep_key, eye, area)
+            x = self.lengths[k]
+            t, _, m, _ = self.trace(eye, d, x, x, tf.INF, 0, splay, False)
+            p = eye + t * d
+            self.out[k * n_samp + i] = vec3(p.x, p.y, ti.cast(m, ti.f32))
+            if k == 0:
+                self.out[n_len * n_samp + i] = vec3(jac, 0.0, 0.0)
+
+    @ti.kernel
     def _preview_kernel(self, width: ti.i32, spp: ti.i32, seed: ti.u32, max_bounces: ti.i32,
                         eye: vec3, forward: vec3, right: vec3, up: vec3, half: ti.f32,
                         x: ti.f32, word: ti.types.ndarray(dtype=ti.i32, ndim=1), base: ti.i32,
@@ -1668,6 +1703,35 @@ class Renderer:
                            seconds={"compile": t_compile, "trace": t_end - t_trace0,
                                     "total": t_end - t_start},
                            degree=deg, tail=settings.max_bounces > deg)
+
+    def first_hits(self, display: DisplaySpec, lighting: Lighting, viewpoint: Viewpoint,
+                   lengths_mm: np.ndarray, pixel_index: int = 0, strata: int = 64,
+                   seed: int = 0) -> QuadHits:
+        """The first surface each of ``strata**2`` camera rays through the measurement quad of
+        pixel ``pixel_index`` (seen from ``viewpoint``) meets at each green length (mm): where
+        the quad's light comes from, pixel by pixel of the display (its own grass, or a
+        neighbour's standing between it and the eye). ``lighting`` only completes the scene's
+        upload (no light is traced)."""
+        lengths_mm = np.asarray(lengths_mm, dtype=np.float64)
+        if lengths_mm.ndim != 1 or not 1 <= len(lengths_mm) <= 256:
+            raise SceneError("give 1..256 green lengths (mm)")
+        n_samp = strata * strata
+        if strata < 1 or (len(lengths_mm) + 1) * n_samp > self.cap.paths:
+            raise SceneError(f"{len(lengths_mm)} lengths x {n_samp} rays exceed the renderer's "
+                             f"{self.cap.paths} path slots; lower strata or lengths")
+        scene = self._prepare(display, lengths_mm, lighting)
+        eye, area = self._upload_quad(display, scene, viewpoint, pixel_index)
+        buf = np.zeros(self.lengths.shape[0], np.float32)
+        buf[:len(lengths_mm)] = lengths_mm * 1e-3
+        self.lengths.from_numpy(buf)
+        self._hits_kernel(len(lengths_mm), strata, seed,
+                          ti.Vector(eye.astype(np.float32).tolist()), area, self._features[1])
+        out = self.out.to_numpy()[: (len(lengths_mm) + 1) * n_samp].astype(np.float64)
+        hits = out[: len(lengths_mm) * n_samp].reshape(len(lengths_mm), n_samp, 3)
+        material = hits[..., 2].round().astype(np.int32)
+        xy = np.where((material >= 0)[..., None], hits[..., :2], np.nan)
+        return QuadHits(lengths_mm=lengths_mm, xy_m=xy, material=material,
+                        weight=out[len(lengths_mm) * n_samp:, 0])
 
     def preview(self, display: DisplaySpec, lighting: Lighting, viewpoint: Viewpoint,
                 length_mm: float, width: int = 256, spp: int = 16,
