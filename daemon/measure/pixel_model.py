@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -33,6 +34,7 @@ from grassd.daemon.core.calibration.variation import GAIN_RANGE, OFFSET_LIMIT_MM
 
 if TYPE_CHECKING:
     from grassd.daemon.core.calibration.transport import SpectralTransport
+    from grassd.daemon.measure.neighbours import NeighbourShares
     from grassd.sim.lighting import Lighting
     from grassd.sim.renderer import Renderer
     from grassd.sim.scene import DisplaySpec, RenderSettings, Viewpoint
@@ -53,6 +55,9 @@ class PixelColourModel:
     ``transport``: the light's and the materials' spectra with spectral transport (the terms
     are read per wavelength and by the CIE observer, the gains scaling the materials'
     reflectance spectra), None with Rec.709 transport (the terms read on the Rec.709 albedos).
+    ``neighbours``: which pixels' grass the eye sees through each pixel's quad
+    (:class:`~grassd.daemon.measure.neighbours.NeighbourShares`): a pixel's gains are then
+    seen mixed with its neighbours', as the variation gives them; None: each pixel alone.
     """
 
     grid_mm: NDArray[np.float64]
@@ -62,6 +67,7 @@ class PixelColourModel:
     specular: float = 0.0
     layout_sd: NDArray[np.float64] | None = None
     transport: SpectralTransport | None = None
+    neighbours: NeighbourShares | None = None
 
     @property
     def n_pixels(self) -> int:
@@ -79,13 +85,49 @@ class PixelColourModel:
         from grassd.sim.albedo_terms import MAX_DEGREE, monomial_values
 
         idx = np.arange(self.n_pixels) if pixels is None else np.asarray(pixels)
+        gains = self._seen_gains(variation, idx)
+        reflectance = self.albedo if self.transport is None else self.transport.spectra
+        if all(g.min() >= 0.0 and g.max() * reflectance[m].max() <= 1.0
+               for m, g in zip((YELLOW, GREEN), gains, strict=True)):  # nothing clips
+            y, g = (gain[..., None] ** _GAIN_POWERS[:, m] for m, gain in enumerate(gains))
+            return np.einsum("ngpc,ngp->ngc", self._by_gain_power[idx], np.broadcast_to(
+                y * g, (len(idx), len(self.grid_mm), len(_GAIN_POWERS))))
         coefficients = self.coefficients[idx]
         if self.transport is None:
-            mono = monomial_values(_varied(self.albedo, variation, idx), self.specular)
-            return np.einsum("ngmc,nmc->ngc", coefficients, mono)
-        observed = self.transport.observed(_varied(self.transport.spectra, variation, idx),
-                                           MAX_DEGREE)  # (n, 56, 3, 3)
-        return np.einsum("ngmk,nmkc->ngc", coefficients, observed)
+            mono = monomial_values(_varied(self.albedo, *gains), self.specular)
+            return np.einsum("ngmc,ngmc->ngc", coefficients,
+                             np.broadcast_to(mono, coefficients.shape))
+        observed = self.transport.observed(_varied(self.transport.spectra, *gains),
+                                           MAX_DEGREE)  # (n, G or 1, 56, 3, 3)
+        return np.einsum("ngmk,ngmkc->ngc", coefficients,
+                         np.broadcast_to(observed, coefficients.shape[:3] + (3, 3)))
+
+    @cached_property
+    def _by_gain_power(self) -> NDArray[np.float64]:
+        """(N, G, P, 3) the radiance's terms gathered by their powers of the yellow and the
+        green gain (:data:`_GAIN_POWERS`): each monomial's value at the model's materials,
+        read with the model's transport. Scaling a material by a gain scales a monomial by
+        the gain to its power, so a variation costs P terms (until a reflectance clips at
+        1)."""
+        from grassd.sim.albedo_terms import MAX_DEGREE, monomial_values, monomials_of
+
+        rows = monomials_of(MAX_DEGREE)
+        group = (rows[:, None, YELLOW] == _GAIN_POWERS[None, :, 0]) & (
+            rows[:, None, GREEN] == _GAIN_POWERS[None, :, 1])  # (56, P)
+        if self.transport is None:
+            unit = monomial_values(self.albedo, self.specular)  # (56, 3)
+            return np.einsum("ngmc,mc,mp->ngpc", self.coefficients, unit, group)
+        observed = self.transport.observed(self.transport.spectra, MAX_DEGREE)  # (56, 3, 3)
+        return np.einsum("ngmk,mkc,mp->ngpc", self.coefficients, observed, group)
+
+    def _seen_gains(self, variation: DisplayVariation, idx: NDArray
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The yellow and green gains of pixels ``idx`` as the eye sees them: (n, G) mixed
+        with the neighbours' (:attr:`neighbours`), or (n, 1) each pixel's own."""
+        if self.neighbours is None:
+            return variation.yellow_gain[idx, None], variation.green_gain[idx, None]
+        return (self.neighbours.seen(variation.yellow_gain, YELLOW, idx),
+                self.neighbours.seen(variation.green_gain, GREEN, idx))
 
     def radiance(self, commanded_mm: NDArray, variation: DisplayVariation,
                  pixels: NDArray | None = None) -> NDArray[np.float64]:
@@ -109,13 +151,17 @@ class PixelColourModel:
         return self.radiance(commanded_mm, variation, pixels) / self.white
 
 
-def _varied(reflectance: NDArray, variation: DisplayVariation, idx: NDArray
+#: (P, 2) the powers of the yellow and the green gain a degree-3 monomial may hold.
+_GAIN_POWERS: NDArray[np.int64] = np.array([(a, b) for a in range(4) for b in range(4 - a)])
+
+
+def _varied(reflectance: NDArray, yellow_gain: NDArray, green_gain: NDArray
             ) -> NDArray[np.float64]:
-    """(n, 4, C) the materials' reflectance (4, C) (Rec.709 albedos or spectra) of pixels
-    ``idx``, the yellow and green scaled by ``variation``'s gains within 0..1."""
-    r = np.broadcast_to(reflectance, (len(idx),) + np.shape(reflectance)).copy()
-    r[:, YELLOW] = np.clip(r[:, YELLOW] * variation.yellow_gain[idx, None], 0.0, 1.0)
-    r[:, GREEN] = np.clip(r[:, GREEN] * variation.green_gain[idx, None], 0.0, 1.0)
+    """(n, g, 4, C) the materials' reflectance (4, C) (Rec.709 albedos or spectra), the
+    yellow and green scaled by the gains (n, g) within 0..1."""
+    r = np.broadcast_to(reflectance, np.shape(green_gain) + np.shape(reflectance)).copy()
+    r[..., YELLOW, :] = np.clip(r[..., YELLOW, :] * yellow_gain[..., None], 0.0, 1.0)
+    r[..., GREEN, :] = np.clip(r[..., GREEN, :] * green_gain[..., None], 0.0, 1.0)
     return r
 
 
@@ -129,7 +175,7 @@ def lab_of(rgb: NDArray, ccm: NDArray | None = None) -> NDArray[np.float64]:
 def record_pixel_model(renderer: Renderer, display: DisplaySpec, lighting: Lighting,
                        viewpoints: Sequence[Viewpoint], grid_mm: NDArray,
                        settings: RenderSettings, *, layouts: int = 1, glossy: bool = False,
-                       transport: SpectralTransport | None = None,
+                       transport: SpectralTransport | None = None, neighbours: bool = True,
                        progress: Callable[[int, int], None] | None = None) -> PixelColourModel:
     """Record every pixel of ``display`` (a ``DisplaySpec``) at its own viewpoint
     (``viewpoints[i]``, a ``Viewpoint``) on ``grid_mm`` under ``lighting``, averaged over
@@ -138,8 +184,11 @@ def record_pixel_model(renderer: Renderer, display: DisplaySpec, lighting: Light
     beyond it (``max_bounces`` above 3, Russian roulette ending the paths) are its tail term
     (:mod:`grassd.sim.albedo_terms`): exact at the model's own albedos, the tail's vertices
     keeping them as the gains move the others. ``transport``: the model's
-    (:attr:`PixelColourModel.transport`). ``progress(done, total)`` counts recordings."""
+    (:attr:`PixelColourModel.transport`). ``neighbours``: record which pixels' grass each
+    quad shows (:attr:`PixelColourModel.neighbours`, the layouts' mean). ``progress(done,
+    total)`` counts recordings."""
     from grassd.daemon.core.calibration.simulation import layout_display, white_radiance
+    from grassd.daemon.measure.neighbours import NeighbourShares, record_neighbour_shares
     from grassd.sim.albedo_terms import MAX_DEGREE, n_monomials
 
     grid = np.asarray(grid_mm, dtype=np.float64)
@@ -148,8 +197,11 @@ def record_pixel_model(renderer: Renderer, display: DisplaySpec, lighting: Light
         raise ValueError(f"{len(viewpoints)} viewpoints for {n} pixels")
     total, done = n * layouts, 0
     recorded = []  # per layout (N, G, 56, 3)
+    shares = []
     for k in range(layouts):
         disp = layout_display(display, k)
+        if neighbours:
+            shares.append(record_neighbour_shares(renderer, disp, lighting, viewpoints, grid))
         one = np.zeros((n, len(grid), n_monomials(MAX_DEGREE), 3))
         for i in range(n):
             terms = renderer.albedo_terms(disp, lighting, viewpoints[i], grid, settings,
@@ -162,7 +214,8 @@ def record_pixel_model(renderer: Renderer, display: DisplaySpec, lighting: Light
     white = np.asarray(white_radiance(lighting), dtype=np.float64)
     model = PixelColourModel(grid_mm=grid, coefficients=np.mean(recorded, axis=0), white=white,
                              albedo=display.pixel.albedo_linear,
-                             specular=float(display.pixel.specular), transport=transport)
+                             specular=float(display.pixel.specular), transport=transport,
+                             neighbours=NeighbourShares.mean(shares) if shares else None)
     if layouts == 1:
         return model
     none = DisplayVariation.none(n)
@@ -186,10 +239,12 @@ class VariationFit:
     colour: NDArray[np.float64]
 
 
-def _fit_pixels(model: PixelColourModel, cmd: NDArray, meas: NDArray, ccm: NDArray | None
+def _fit_pixels(model: PixelColourModel, cmd: NDArray, meas: NDArray, ccm: NDArray | None,
+                around: DisplayVariation
                 ) -> tuple[DisplayVariation, NDArray[np.float64], NDArray[np.float64]]:
-    """Each pixel's offset and gains by least squares on CIELAB (see :func:`fit_variation`):
-    (variation, rms residual, rms residual of the model pixel)."""
+    """Each pixel's offset and gains by least squares on CIELAB (see :func:`fit_variation`),
+    its neighbours held at ``around``: (variation, rms residual, rms residual of the model
+    pixel)."""
     from scipy.optimize import least_squares
 
     n = model.n_pixels
@@ -202,7 +257,9 @@ def _fit_pixels(model: PixelColourModel, cmd: NDArray, meas: NDArray, ccm: NDArr
         one = np.array([i])
 
         def residual(x: NDArray, i: int = i, one: NDArray = one) -> NDArray:
-            v = DisplayVariation(np.full(n, x[0]), np.full(n, x[1]), np.full(n, x[2]))
+            v = DisplayVariation(around.length_offset_mm.copy(), around.green_gain.copy(),
+                                 around.yellow_gain.copy())
+            v.length_offset_mm[i], v.green_gain[i], v.yellow_gain[i] = x
             return ((lab_of(model.rgb(cmd[i], v, one), ccm)[0] - meas[i])
                     * weight[i]).ravel()
 
@@ -215,7 +272,43 @@ def _fit_pixels(model: PixelColourModel, cmd: NDArray, meas: NDArray, ccm: NDArr
                 best = r
         est.length_offset_mm[i], est.green_gain[i], est.yellow_gain[i] = best.x
         rms[i] = np.sqrt(np.mean((best.fun / w) ** 2))  # CIELAB, unweighted
+    if model.neighbours is not None:
+        est, rms = _fit_jointly(model, cmd, meas, ccm, est, weight)
     return est, rms, rms0
+
+
+def _fit_jointly(model: PixelColourModel, cmd: NDArray, meas: NDArray, ccm: NDArray | None,
+                 start: DisplayVariation, weight: NDArray
+                 ) -> tuple[DisplayVariation, NDArray[np.float64]]:
+    """Every pixel's offset and gains at once from ``start``, by least squares on all pixels'
+    weighted CIELAB residuals: where a quad shows its neighbours' grass
+    (:attr:`PixelColourModel.neighbours`), a pixel's gains show in its neighbours' colours
+    too, and the fit uses both (the Jacobian's sparsity: a pixel's colours depend on its own
+    offset and its neighbourhood's gains). Returns the variation and each pixel's RMS CIELAB
+    residual."""
+    from scipy.optimize import least_squares
+    from scipy.sparse import lil_matrix
+
+    n, k = cmd.shape
+    sparsity = lil_matrix((n * k * 3, 3 * n), dtype=np.int8)
+    for i, around in enumerate(model.neighbours.index):
+        rows = slice(i * k * 3, (i + 1) * k * 3)
+        sparsity[rows, i] = 1
+        for j in around[around >= 0]:
+            sparsity[rows, n + j] = sparsity[rows, 2 * n + j] = 1
+
+    def residual(x: NDArray) -> NDArray:
+        v = DisplayVariation(x[:n], x[n:2 * n], x[2 * n:])
+        return ((lab_of(model.rgb(cmd, v), ccm) - meas) * weight).ravel()
+
+    lo = np.repeat([-OFFSET_LIMIT_MM, GAIN_RANGE[0], GAIN_RANGE[0]], n)
+    hi = np.repeat([OFFSET_LIMIT_MM, GAIN_RANGE[1], GAIN_RANGE[1]], n)
+    x0 = np.concatenate([start.length_offset_mm, start.green_gain, start.yellow_gain])
+    fit = least_squares(residual, np.clip(x0, lo, hi), bounds=(lo, hi), jac_sparsity=sparsity,
+                        x_scale=np.repeat([0.5, 0.1, 0.1], n))
+    lab = (fit.fun / weight.ravel()).reshape(n, k * 3)  # CIELAB, unweighted
+    return (DisplayVariation(fit.x[:n], fit.x[n:2 * n], fit.x[2 * n:]),
+            np.sqrt(np.mean(lab ** 2, axis=1)))
 
 
 #: CIELAB noise floor of a photographed pixel (camera noise, sampling), for the fit's weights.
@@ -252,7 +345,10 @@ def fit_variation(model: PixelColourModel, commanded_mm: NDArray, measured_lab: 
     the photos on the model's colours; a full 3 x 3 is ill-determined by colours that all lie
     between yellow and green), and holds the gains' geometric mean over the display at 1: the
     gains are then each pixel's departure from the display's mean pixel, and a uniform change
-    (fading of the whole display, or the camera) shows in ``colour`` instead."""
+    (fading of the whole display, or the camera) shows in ``colour`` instead. Where the
+    model sees neighbours' grass in a quad (:attr:`PixelColourModel.neighbours`), each
+    round holds a pixel's neighbours at the gains of the round before (the first at the
+    model pixel's): a Jacobi iteration of the display's coupled fit."""
     from grassd.calib.colour_spaces import lab_to_prophoto
 
     meas = np.asarray(measured_lab, dtype=np.float64)
@@ -260,8 +356,9 @@ def fit_variation(model: PixelColourModel, commanded_mm: NDArray, measured_lab: 
     base = np.eye(3) if ccm is None else np.asarray(ccm, dtype=np.float64)
     colour = np.eye(3)
     rms0 = None
+    est = DisplayVariation.none(model.n_pixels)
     for k in range(max(1, rounds)):
-        est, rms, first = _fit_pixels(model, cmd, meas, colour @ base)
+        est, rms, first = _fit_pixels(model, cmd, meas, colour @ base, est)
         rms0 = first if rms0 is None else rms0
         if rounds <= 1:
             break

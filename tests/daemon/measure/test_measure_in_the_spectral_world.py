@@ -7,8 +7,9 @@ ColorChecker's measured spectra under the same light.
 The measurement recovers the hidden offsets and gains from the photos, and its correction
 leaves the display, as the CIE observer sees it from the camera, within 0.5 dE00 (worst pixel
 pair at mid level) of what the true variation, corrected the same way, would give.
-docs/measure.md ("In a world grassd did not render") has the figures; the green gains'
-correlation (about 0.81) is short of the 0.9 the fit reaches on grassd's own renders."""
+docs/measure.md ("In a world grassd did not render") has the figures: the green gains'
+correlation is about 0.93 since the fit knows how much of each quad is its neighbours' grass
+(0.81 without)."""
 
 from __future__ import annotations
 
@@ -33,7 +34,7 @@ def test_measure_corrects_a_display_it_did_not_render_as_well_as_the_truth_would
           f"{m.report['uniformity']['before']:.2f} -> {m.report['uniformity']['after']:.2f}; "
           f"checker leave-one-out {m.checker_de00}")  # -s shows the figures
     assert r["length_offset_mm"] >= 0.9 and r["yellow_gain"] >= 0.8, r
-    assert r["green_gain"] >= 0.75, r
+    assert r["green_gain"] >= 0.88, r
     assert seen["measured"] <= seen["truth"] + 0.5, seen
     assert seen["measured"] * 3.0 <= seen["before"], seen
     assert m.report["tables"]["status"] == "ok" and all(m.report["tables"]["pushed"])
