@@ -26,6 +26,9 @@ FIT = FitSettings(samples=256, replicates=2, layouts=3)
 #: how far the fit's judged curve and validate's may differ with the same layouts and paths
 #: (dE00)
 SAME_DE00 = 0.05
+#: the same for the absolute colour, where the rare paths that turn otherwise in the other
+#: kernel are not cancelled by the reference length as in the OGCD (dE00)
+SAME_LAB_DE00 = 0.1
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +63,7 @@ def test_validate_scores_a_pixel_as_the_fit_reports_it(capture, renderer):
         # otherwise in the other kernel): the same curve and score
         assert same_ogcd < SAME_DE00, (v.sim.ogcd, f.fitted.sim.ogcd)
         assert abs(v.frechet - f.fitted.frechet) < SAME_DE00
-        assert np.abs(v.sim_lab - f.fitted.sim_lab).max() < SAME_DE00
+        assert np.abs(v.sim_lab - f.fitted.sim_lab).max() < SAME_LAB_DE00
         # the pixel's one layout is another simulation, further off than that
         assert one_ogcd > 3 * SAME_DE00
 
