@@ -248,6 +248,14 @@ _LAYOUT_ARRAYS = tuple(f.name for f in fields(geometry.Primitives))
 _NP_DTYPE = {ti.f32: np.float32, ti.i32: np.int32}
 
 
+def _lengths_arg(lengths_mm) -> np.ndarray:
+    """Green lengths (mm) as a float64 vector of 1..256 entries (what one launch holds)."""
+    lengths_mm = np.asarray(lengths_mm, dtype=np.float64)
+    if lengths_mm.ndim != 1 or not 1 <= len(lengths_mm) <= 256:
+        raise SceneError("give 1..256 green lengths (mm)")
+    return lengths_mm
+
+
 def _fill(fld, arr: np.ndarray) -> None:
     """Copy ``arr`` (n, ...) into the first n entries of a field allocated at capacity, zeros
     after it."""
@@ -527,6 +535,12 @@ class Renderer:
             self.ipar[k] = v
         for k, v in enumerate((cr, cc, bh, bw), start=8):
             self.ipar[k] = v
+
+    def _put_lengths(self, lengths_mm: np.ndarray) -> None:
+        """Upload green lengths (mm) to the first entries of ``self.lengths`` (m)."""
+        buf = np.zeros(self.lengths.shape[0], np.float32)
+        buf[: len(lengths_mm)] = np.asarray(lengths_mm) * 1e-3
+        self.lengths.from_numpy(buf)
 
     def _put_path_settings(self, settings: RenderSettings) -> None:
         """The path's runtime settings: light samples at the first surface (``ipar[7]``) and
@@ -1482,9 +1496,7 @@ class Renderer:
         """
         settings = settings or RenderSettings()
         t_start = time.perf_counter()
-        lengths_mm = np.asarray(lengths_mm, dtype=np.float64)
-        if lengths_mm.ndim != 1 or not 1 <= len(lengths_mm) <= 256:
-            raise SceneError("give 1..256 green lengths (mm)")
+        lengths_mm = _lengths_arg(lengths_mm)
         scene = self._prepare(display, lengths_mm, lighting)
         eye, area = self._upload_quad(display, scene, viewpoint, pixel_index)
 
@@ -1528,9 +1540,7 @@ class Renderer:
             rows = order[s: s + len_chunk]
             reps = min(rep_chunk, n_rep - r0)
             n_part = min(part, n_samp - i0)
-            buf = np.zeros(self.lengths.shape[0], np.float32)
-            buf[: len(rows)] = lengths_mm[rows] * 1e-3
-            self.lengths.from_numpy(buf)
+            self._put_lengths(lengths_mm[rows])
             self._launch(self._trace_kernel,
                          (len(rows), r0, reps, m, i0, n_part, settings.seed,
                           settings.max_bounces, eye_ti, float(area)),
@@ -1587,9 +1597,7 @@ class Renderer:
         if degree is not None and not 1 <= degree <= MAX_TERM_DEGREE:
             raise SceneError(f"the polynomial's degree must be in 1..{MAX_TERM_DEGREE}, "
                              f"got {degree}")
-        lengths_mm = np.asarray(lengths_mm, dtype=np.float64)
-        if lengths_mm.ndim != 1 or not 1 <= len(lengths_mm) <= 256:
-            raise SceneError("give 1..256 green lengths (mm)")
+        lengths_mm = _lengths_arg(lengths_mm)
         if settings.max_bounces > MAX_DEGREE or (degree or MAX_DEGREE) != MAX_DEGREE:
             return self._albedo_terms_deep(display, lighting, viewpoint, lengths_mm, settings,
                                            pixel_index, glossy, degree, t_start)
@@ -1608,9 +1616,7 @@ class Renderer:
                              f"or lengths")
         rep_chunk = max(1, TERM_THREADS // (n_len * n_blocks))
         features = (bool(glossy or self._features[0]), self._features[1])
-        buf = np.zeros(self.lengths.shape[0], np.float32)
-        buf[:n_len] = lengths_mm * 1e-3
-        self.lengths.from_numpy(buf)
+        self._put_lengths(lengths_mm)
         self._put_path_settings(settings)
         eye_ti = ti.Vector(eye.astype(np.float32).tolist())
         t_compile = 0.0
@@ -1670,9 +1676,7 @@ class Renderer:
         n_blocks = -(-n_samp // block)
         rep_chunk = max(1, threads // (n_len * n_blocks))
         features = (bool(glossy or self._features[0]), self._features[1])
-        buf = np.zeros(self.lengths.shape[0], np.float32)
-        buf[:n_len] = lengths_mm * 1e-3
-        self.lengths.from_numpy(buf)
+        self._put_lengths(lengths_mm)
         self._put_path_settings(settings)
         eye_ti = ti.Vector(eye.astype(np.float32).tolist())
         t_compile = 0.0
@@ -1712,18 +1716,14 @@ class Renderer:
         the quad's light comes from, pixel by pixel of the display (its own grass, or a
         neighbour's standing between it and the eye). ``lighting`` only completes the scene's
         upload (no light is traced)."""
-        lengths_mm = np.asarray(lengths_mm, dtype=np.float64)
-        if lengths_mm.ndim != 1 or not 1 <= len(lengths_mm) <= 256:
-            raise SceneError("give 1..256 green lengths (mm)")
+        lengths_mm = _lengths_arg(lengths_mm)
         n_samp = strata * strata
         if strata < 1 or (len(lengths_mm) + 1) * n_samp > self.cap.paths:
             raise SceneError(f"{len(lengths_mm)} lengths x {n_samp} rays exceed the renderer's "
                              f"{self.cap.paths} path slots; lower strata or lengths")
         scene = self._prepare(display, lengths_mm, lighting)
         eye, area = self._upload_quad(display, scene, viewpoint, pixel_index)
-        buf = np.zeros(self.lengths.shape[0], np.float32)
-        buf[:len(lengths_mm)] = lengths_mm * 1e-3
-        self.lengths.from_numpy(buf)
+        self._put_lengths(lengths_mm)
         self._hits_kernel(len(lengths_mm), strata, seed,
                           ti.Vector(eye.astype(np.float32).tolist()), area, self._features[1])
         out = self.out.to_numpy()[: (len(lengths_mm) + 1) * n_samp].astype(np.float64)

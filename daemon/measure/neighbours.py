@@ -107,10 +107,12 @@ def record_neighbour_shares(renderer: Renderer, display: DisplaySpec, lighting: 
         dc, dr = np.round(rel[..., 0]).astype(int), np.round(rel[..., 1]).astype(int)
         near = (np.abs(dr) <= 1) & (np.abs(dc) <= 1)
         slot = np.where(near, (dr + 1) * 3 + (dc + 1), 0)
+        cell = slot + len(OFFSETS) * np.arange(len(grid))[:, None]  # (G, S): length, offset
         for m, material in enumerate(SCALED_MATERIALS):
             w = np.where(near & (hits.material == material), hits.weight, 0.0)
-            for g in range(len(grid)):
-                shares[m, i, g] = np.bincount(slot[g], weights=w[g], minlength=len(OFFSETS))
+            shares[m, i] = np.bincount(cell.ravel(), weights=w.ravel(),
+                                       minlength=len(grid) * len(OFFSETS)
+                                       ).reshape(len(grid), len(OFFSETS))
     shares *= (index >= 0)[None, :, None, :]  # over no pixel (the frame has no blades)
     total = shares.sum(axis=-1, keepdims=True)
     empty = total[..., 0] <= 0.0
