@@ -37,10 +37,7 @@ def test_measure_recovers_the_hidden_variation_and_makes_the_display_uniform(tmp
            for f in FIELDS}
     r = {f: float(np.corrcoef(got[f], getattr(truth, f))[0, 1]) for f in FIELDS}
     print(f"correlation with the truth: {r}")  # -s shows the figures
-    # the green is the least determined: about a third of a pixel's quad is the grass of the
-    # pixel in front at mid length, and unmixing it carries the tufts' layouts along
-    assert r["length_offset_mm"] >= 0.9 and r["yellow_gain"] >= 0.9, r
-    assert r["green_gain"] >= 0.85, r
+    assert all(v >= 0.9 for v in r.values()), r
     u = report["uniformity"]
     print(f"worst pixel pair at level {u['level']}: {u['before']:.2f} -> {u['after']:.2f} dE00")
     assert u["after"] * 3.0 <= u["before"], u
